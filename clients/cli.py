@@ -1,5 +1,127 @@
-"""The ``hydrolink`` command (placeholder until the CLI lands)."""
+"""The ``hydrolink`` command: build and inspect HDBs, serve forces, run scenes."""
+
+from __future__ import annotations
+
+import logging
+import sys
+from pathlib import Path
+
+import click
+
+
+class _UserError(click.ClickException):
+    """An error in the user's input, shown as one clear line (no traceback)."""
+
+
+def _user_errors():
+    """Exception types that are the user's input at fault and deserve a one-line message."""
+    from hydrolink.protocol.scene import SceneError
+    from hydrolink.server.hdb.schema import HDBError
+    errors: list[type[BaseException]] = [SceneError, HDBError, FileNotFoundError]
+    try:
+        from hydrolink.clients.connection import RemoteError
+        errors.append(RemoteError)
+    except ImportError:  # pragma: no cover
+        pass
+    try:
+        from hydrolink.server.model import ModelError
+        errors.append(ModelError)
+    except ImportError:  # pragma: no cover
+        pass
+    return tuple(errors)
+
+
+def _guard(func, *args, **kwargs):
+    try:
+        return func(*args, **kwargs)
+    except _user_errors() as exc:
+        raise _UserError(str(exc)) from None
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(package_name="hydrolink")
+@click.option("-v", "--verbose", count=True, help="More log output (-v info, -vv debug).")
+def cli(verbose: int) -> None:
+    """hydrolink: a hydrodynamic force server for wave energy converters, co-simulated with a
+    multibody client (Exudyn) over ZeroMQ."""
+    level = logging.WARNING - 10 * min(verbose, 2)
+    logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+
+
+@cli.group()
+def hdb() -> None:
+    """Hydrodynamic databases: build with Capytaine, inspect any supported format."""
+
+
+@hdb.command("build")
+@click.argument("spec", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
+              help="NetCDF file to write (hydrolink's HDB layout).")
+@click.option("--no-progress", is_flag=True, help="Hide the progress bar.")
+def hdb_build(spec: Path, output: Path, no_progress: bool) -> None:
+    """Compute an HDB with Capytaine from a build SPEC (TOML); cached by its inputs."""
+    from hydrolink.server.hdb.build import build_hdb
+    from hydrolink.server.hdb.schema import to_netcdf
+
+    ds = _guard(build_hdb, spec, progress=not no_progress)
+    output.parent.mkdir(parents=True, exist_ok=True)
+    to_netcdf(ds, output)
+    click.echo(f"wrote {output} ({ds.sizes['omega']} frequencies, bodies {list(map(str, ds['body'].values))})")
+
+
+@hdb.command("info")
+@click.argument("file", type=click.Path(path_type=Path))
+@click.option("--plot", type=click.Path(dir_okay=False, path_type=Path), help="Write a PNG of A, B, |F_ex|, K(t).")
+@click.option("--dofs", help="Comma-separated DOFs to plot (default: all with data).")
+def hdb_info(file: Path, plot: Path | None, dofs: str | None) -> None:
+    """Summarise an HDB (Capytaine .nc, BEMIO .h5, WAMIT .1/.3/.hst, hydrolink .nc)."""
+    from hydrolink.server.hdb.info import hdb_summary, plot_hdb
+    from hydrolink.server.hdb.io import load_hdb
+
+    ds = _guard(load_hdb, file)
+    click.echo(hdb_summary(ds))
+    if plot:
+        _guard(plot_hdb, ds, plot, dofs=dofs.split(",") if dofs else None)
+        click.echo(f"plot written to {plot}")
+
+
+@cli.command()
+@click.option("--bind", default="tcp://127.0.0.1:5555", show_default=True,
+              help="ZeroMQ endpoint to bind (tcp://HOST:PORT or ipc://PATH).")
+@click.option("--session-timeout", default=300.0, show_default=True, help="Seconds before an idle session is dropped.")
+def serve(bind: str, session_timeout: float) -> None:
+    """Run the force server until interrupted."""
+    from hydrolink.server.service import ForceServer
+
+    server = ForceServer(bind, session_timeout=session_timeout)
+    click.echo(f"hydrolink force server listening on {server.address}", err=True)
+    try:
+        server.serve_forever()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.close()
+
+
+@cli.command()
+@click.argument("scene", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path),
+              help="Results NetCDF (default: SCENE with .out.nc).")
+@click.option("--server", help="Address of a running force server; default: start an embedded one.")
+@click.option("--no-progress", is_flag=True, help="Hide the progress bar.")
+def run(scene: Path, output: Path | None, server: str | None, no_progress: bool) -> None:
+    """Co-simulate a SCENE (TOML) in lockstep with the force server."""
+    from hydrolink.clients.run import run_scene_file
+
+    summary = _guard(run_scene_file, scene, output, server=server, progress=not no_progress)
+    click.echo(f"wrote {summary['output']}: {summary.get('steps', '?')} steps in "
+               f"{summary.get('wall_time', float('nan')):.2f} s")
 
 
 def main() -> None:
-    raise SystemExit("hydrolink: CLI not assembled yet")
+    """Console entry point."""
+    cli(prog_name="hydrolink")
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

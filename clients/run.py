@@ -1,0 +1,75 @@
+"""`hydrolink run`: a scene file in, a results file out.
+
+Loads the scene and its HDBs (building those given as build specs), connects to a force server —
+or starts an embedded one on loopback when none is given — and drives the Exudyn client.
+"""
+
+from __future__ import annotations
+
+import logging
+from contextlib import ExitStack
+from pathlib import Path
+
+import xarray as xr
+
+from hydrolink.protocol.scene import Scene, SceneError, load_scene, resolve_path
+
+log = logging.getLogger(__name__)
+
+
+def load_scene_hdbs(scene: Scene, scene_path: str | Path, *, progress: bool = True) -> dict[str, xr.Dataset]:
+    """HDBs of a scene keyed by each body's ``hdb`` string (one load per distinct file).
+
+    A ``.toml`` HDB is a build spec: it is built with Capytaine (or taken from the cache)."""
+    from hydrolink.server.hdb.io import load_hdb
+    from hydrolink.server.hdb.schema import HDBError
+
+    hdbs: dict[str, xr.Dataset] = {}
+    for i, body in enumerate(scene.bodies):
+        if body.hdb in hdbs:
+            continue
+        path = resolve_path(scene_path, body.hdb)
+        if not path.exists() and not path.with_suffix(".1").exists():
+            raise SceneError(scene_path, f"bodies[{i}].hdb", f"file not found: {path}")
+        if path.suffix == ".toml":
+            from hydrolink.server.hdb.build import build_hdb
+            hdbs[body.hdb] = build_hdb(path, progress=progress)
+        else:
+            hdbs[body.hdb] = load_hdb(path)
+    for i, body in enumerate(scene.bodies):
+        names = [str(b) for b in hdbs[body.hdb]["body"].values]
+        if body.hdb_body_name not in names:
+            key = "hdb_body" if body.hdb_body else "name"
+            raise SceneError(scene_path, f"bodies[{i}].{key}",
+                             f"the HDB {body.hdb} holds no body {body.hdb_body_name!r} (it holds {names}); "
+                             "set hdb_body to one of those")
+    _ = HDBError  # the loaders raise it with file and field named
+    return hdbs
+
+
+def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
+                   server: str | None = None, progress: bool = True, timeout: float = 60.0) -> dict:
+    """Run a scene end to end; returns the run summary (steps, wall time, output path)."""
+    from hydrolink.clients.connection import ServerConnection
+    from hydrolink.clients.exudyn_client import run
+    from hydrolink.clients.results import ResultWriter
+
+    scene_path = Path(scene_path)
+    scene, text = load_scene(scene_path)
+    hdbs = load_scene_hdbs(scene, scene_path, progress=progress)
+    output = Path(output) if output else scene_path.with_suffix(".out.nc")
+    with ExitStack() as stack:
+        if server is None:
+            from hydrolink.server.service import serve_in_thread
+            srv, thread = serve_in_thread("tcp://127.0.0.1:*")
+            stack.callback(thread.join, 5.0)
+            stack.callback(srv.stop)
+            server = srv.address
+            log.info("embedded force server on %s", server)
+        conn = stack.enter_context(ServerConnection(server, timeout=timeout))
+        setup = conn.hello(text, hdbs)
+        writer = stack.enter_context(ResultWriter(output, scene=scene, scene_text=text, setup=setup))
+        summary = run(scene, text, conn, setup, writer, progress=progress)
+        conn.bye()
+    summary["output"] = str(output)
+    return summary
