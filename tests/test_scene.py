@@ -1,0 +1,86 @@
+"""Scene files: valid ones parse with their defaults; every error names the file, the key and why."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from hydrolink.protocol.scene import SceneError, load_scene, parse_scene, resolve_path
+
+BASE = """
+[simulation]
+dt = 0.01
+duration = 10.0
+
+[waves]
+type = "regular"
+height = 0.2
+period = 4.0
+
+[[bodies]]
+name = "float"
+hdb = "float.nc"
+mass = 1000.0
+center_of_mass = [0, 0, -1]
+inertia = [1, 1, 1]
+dofs = ["heave"]
+"""
+
+
+def test_valid_scene_and_defaults():
+    s = parse_scene(BASE)
+    assert s.simulation.n_steps == 1000
+    assert s.water.density == 1025.0 and math.isinf(s.water.depth_m)
+    assert s.hydro.irf_duration == 40.0
+    b = s.bodies[0]
+    assert b.active_mask == [False, False, True, False, False, False]
+    assert b.hdb_body_name == "float"
+    assert b.initial_displacement == [0.0] * 6
+
+
+def test_full_inertia_matrix_accepted():
+    s = parse_scene(BASE.replace("inertia = [1, 1, 1]", "inertia = [[2, 0.1, 0], [0.1, 2, 0], [0, 0, 3]]"))
+    assert s.bodies[0].inertia_matrix[0, 1] == 0.1
+
+
+@pytest.mark.parametrize("old,new,key,why", [
+    ("dt = 0.01", "dt = -1.0", "simulation.dt", "greater than 0"),
+    ("duration = 10.0", "duration = nan", "simulation.duration", "finite"),
+    ("period = 4.0", "period = 4.0\ncolour = 1", "waves.colour", "unknown key"),
+    ('type = "regular"', 'type = "tsunami"', "waves.type", "one of"),
+    ("mass = 1000.0\n", "", "bodies[0].mass", "required key is missing"),
+    ('dofs = ["heave"]', 'dofs = ["heav"]', "bodies[0].dofs[0]", "heave"),
+    ('dofs = ["heave"]', 'dofs = ["heave", "heave"]', "bodies[0].dofs", "repeated"),
+    ("inertia = [1, 1, 1]", "inertia = [[1, 2, 0], [0, 1, 0], [0, 0, 1]]", "bodies[0].inertia", "symmetric"),
+    ("inertia = [1, 1, 1]", "inertia = [1, -1, 1]", "bodies[0].inertia", "positive definite"),
+    ("center_of_mass = [0, 0, -1]", "center_of_mass = [0, 0]", "bodies[0].center_of_mass", "at least 3"),
+    ('name = "float"', 'name = "my float"', "bodies[0].name", "pattern"),
+])
+def test_errors_name_key(old, new, key, why):
+    text = BASE.replace(old, new)
+    assert text != BASE
+    with pytest.raises(SceneError) as info:
+        parse_scene(text, "s.toml")
+    msg = str(info.value)
+    assert msg.startswith(f"s.toml: {key}:"), msg
+    assert why in msg, msg
+
+
+def test_duplicate_body_names():
+    extra = BASE + '\n[[bodies]]\nname = "float"\nhdb = "x.nc"\nmass = 1.0\ncenter_of_mass = [0, 0, 0]\ninertia = [1, 1, 1]\n'
+    with pytest.raises(SceneError, match=r"s.toml: bodies\[1\]\.name: duplicate body name 'float'"):
+        parse_scene(extra, "s.toml")
+
+
+def test_bad_toml_and_missing_file(tmp_path):
+    with pytest.raises(SceneError, match="s.toml: not valid TOML"):
+        parse_scene("dt = ", "s.toml")
+    with pytest.raises(SceneError, match="cannot read the scene file"):
+        load_scene(tmp_path / "nope.toml")
+
+
+def test_relative_paths_resolve_against_scene(tmp_path):
+    scene = tmp_path / "sub" / "scene.toml"
+    assert resolve_path(scene, "float.nc") == (tmp_path / "sub" / "float.nc").resolve()
+    assert resolve_path(scene, "/abs/x.nc").as_posix() == "/abs/x.nc"
