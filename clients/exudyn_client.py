@@ -1,0 +1,298 @@
+"""Exudyn multibody client: owns the mechanism, exchanges state and forces with the force server.
+
+Model (see shared/notes/exudyn-coupling.md for the measured facts behind it):
+
+- one ``NodeRigidBodyRxyz`` per body at its reference point (the point the HDB's rotational modes
+  refer to); its coordinates are displacements from equilibrium (xyz + Tait-Bryan angles, angle
+  rates ≈ angular velocity for small angles) and ``ObjectRigidBody`` with the body's mass, its
+  centre of mass relative to the reference point and the inertia moved there (parallel axes);
+- no gravity: weight and buoyancy balance at equilibrium, the restoring stiffness (with its gravity
+  terms) comes from the server;
+- inactive DOFs locked to ground at equilibrium with coordinate constraints;
+- ONE ``ObjectGenericODE2`` over all body nodes: ``massMatrix`` = A∞ (added mass in the system mass
+  matrix, never a lagged force), ``stiffnessMatrix`` = hydrostatic stiffness (implicit) and
+  ``forceVector`` = excitation + radiation memory from the server, written once per step.
+
+Timing: implicit integrators apply loads at the end of the step, so for t_k → t_{k+1} the server is
+asked for F(t_{k+1}) with the predicted state (x + h v + h²/2 a, v + h a).
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time as _time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+import exudyn as exu
+from exudyn.itemInterface import (CoordinateConstraint, MarkerNodeCoordinate, NodePointGround,
+                                  NodeRigidBodyRxyz, ObjectGenericODE2, ObjectRigidBody,
+                                  VObjectGenericODE2, VObjectRigidBody)
+from exudyn.rigidBodyUtilities import RigidBodyInertia
+
+from hydrolink.protocol.scene import DOF_NAMES, Scene
+
+#: default bound on |displacement| (m, rad) and |velocity| (m/s, rad/s) before a run is called diverged
+BLOW_UP_LIMIT = 1.0e4
+
+
+class RunInterrupted(RuntimeError):
+    """A run stopped before its end; every row computed before ``step`` is in the results file."""
+
+    def __init__(self, message: str, *, step: int, time: float, rows: int):
+        super().__init__(message)
+        self.step, self.time, self.rows = step, time, rows
+
+
+class SimulationDiverged(RunInterrupted):
+    """The state went non-finite or absurdly large."""
+
+
+@dataclass
+class ExudynModel:
+    """An assembled Exudyn system driven one macro step at a time."""
+
+    system_container: exu.SystemContainer
+    mbs: exu.MainSystem
+    solver: exu.MainSolverImplicitSecondOrder
+    settings: exu.SimulationSettings
+    hydro_object: int
+    equilibrium: np.ndarray          # (N, 6): reference point xyz + zero angles
+    active: np.ndarray               # (N, 6) bool
+    stiffness: np.ndarray            # (6N, 6N)
+    dt: float
+    initialized: bool = field(default=False)
+
+    @property
+    def n_bodies(self) -> int:
+        return self.equilibrium.shape[0]
+
+    def set_force(self, force: np.ndarray) -> None:
+        """Write all bodies' hydrodynamic forces (6N) into the GenericODE2 in one call."""
+        self.mbs.SetObjectParameter(self.hydro_object, "forceVector", force)
+
+    def initialize(self) -> None:
+        """Initialise the solver (initial accelerations use the force vector set now)."""
+        self.solver.InitializeSolver(self.mbs, self.settings)
+        self.initialized = True
+
+    def state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Displacements, velocities and accelerations of all node coordinates (6N each)."""
+        sd = self.mbs.systemData
+        return (np.asarray(sd.GetODE2Coordinates()), np.asarray(sd.GetODE2Coordinates_t()),
+                np.asarray(sd.GetODE2Coordinates_tt()))
+
+    def advance(self, t0: float, t1: float) -> None:
+        """Integrate one step t0 → t1 with the force vector currently set."""
+        it = self.solver.it
+        it.startTime, it.endTime = t0, t1
+        if not self.solver.SolveSteps(self.mbs, self.settings):
+            raise RuntimeError(f"Exudyn solver failed on the step {t0:g} s -> {t1:g} s: "
+                               f"{self.solver.GetErrorString()}")
+
+    def mass_matrix(self) -> np.ndarray:
+        """The system mass matrix over the body coordinates (6N × 6N), as the solver sees it."""
+        if not self.initialized:
+            self.initialize()
+        self.solver.ComputeMassMatrix(self.mbs)
+        n = 6 * self.n_bodies
+        return np.asarray(self.solver.GetSystemMassMatrix())[:n, :n]
+
+    def finalize(self) -> None:
+        if self.initialized:
+            self.solver.FinalizeSolver(self.mbs, self.settings)
+            self.initialized = False
+
+
+def _scene_bodies(scene: Scene, names: list[str]):
+    by_name = {b.name: b for b in scene.bodies}
+    missing = [n for n in names if n not in by_name]
+    if missing:
+        raise ValueError(f"server setup names bodies {missing} that are not in the scene "
+                         f"({list(by_name)})")
+    return [by_name[n] for n in names]
+
+
+def _initial(body, active: np.ndarray, what: str) -> np.ndarray:
+    value = np.asarray(getattr(body, what), float)
+    locked = ~active & (value != 0)
+    if locked.any():
+        dofs = [DOF_NAMES[j] for j in np.flatnonzero(locked)]
+        raise ValueError(f"body {body.name!r}: {what} is nonzero in inactive DOF(s) {dofs}; "
+                         f"inactive DOFs are held at equilibrium (add them to dofs or set 0)")
+    return value
+
+
+def build_model(scene: Scene, setup: dict, *, spectral_radius: float = 1.0) -> ExudynModel:
+    """Build the Exudyn system from the scene (masses, inertias, initial state) and the server's
+    setup (bodies, active DOFs, A∞, hydrostatic stiffness, equilibrium, dt).
+
+    ``spectral_radius`` of the generalized-alpha integrator: 1 (default) is the energy-conserving
+    trapezoidal rule — no numerical damping of the lightly damped wave-body modes."""
+    names = [str(b) for b in setup["bodies"]]
+    n = len(names)
+    bodies = _scene_bodies(scene, names)
+    equilibrium = np.asarray(setup["equilibrium_position"], float).reshape(n, 6)
+    active = np.asarray(setup["active"], bool).reshape(n, 6)
+    a_inf = np.asarray(setup["added_mass_inf"], float).reshape(6 * n, 6 * n)
+    stiffness = np.asarray(setup["hydrostatic_stiffness"], float).reshape(6 * n, 6 * n)
+    dt = float(setup.get("dt", scene.simulation.dt))
+
+    sc = exu.SystemContainer()
+    mbs = sc.AddSystem()
+    ground = mbs.AddNode(NodePointGround(referenceCoordinates=[0.0, 0.0, 0.0]))
+    ground_marker = mbs.AddMarker(MarkerNodeCoordinate(nodeNumber=ground, coordinate=0))
+    nodes = []
+    for i, body in enumerate(bodies):
+        ref = equilibrium[i, :3]
+        com = np.asarray(body.center_of_mass, float) - ref  # body frame = global at equilibrium
+        inertia = RigidBodyInertia(body.mass, body.inertia_matrix, com, inertiaTensorAtCOM=True)
+        node = mbs.AddNode(NodeRigidBodyRxyz(
+            name=f"{body.name}_node",
+            referenceCoordinates=[*ref, 0.0, 0.0, 0.0],
+            initialCoordinates=_initial(body, active[i], "initial_displacement"),
+            initialVelocities=_initial(body, active[i], "initial_velocity")))
+        mbs.AddObject(ObjectRigidBody(
+            name=body.name, nodeNumber=node, mass=body.mass,
+            inertia=inertia.GetInertia6D(), centerOfMass=com,
+            visualization=VObjectRigidBody(show=False)))
+        for j in np.flatnonzero(~active[i]):
+            marker = mbs.AddMarker(MarkerNodeCoordinate(nodeNumber=node, coordinate=int(j)))
+            mbs.AddObject(CoordinateConstraint(markerNumbers=[ground_marker, marker]))
+        nodes.append(node)
+    hydro = mbs.AddObject(ObjectGenericODE2(
+        name="hydrodynamics", nodeNumbers=nodes, massMatrix=a_inf, stiffnessMatrix=stiffness,
+        forceVector=np.zeros(6 * n), visualization=VObjectGenericODE2(show=False)))
+    mbs.Assemble()
+
+    ss = exu.SimulationSettings()
+    ss.solution.file.write = False
+    ss.solution.sensors.active = False
+    ss.timeIntegration.verboseMode = 0
+    ss.timeIntegration.adaptiveStep = False
+    ss.timeIntegration.numberOfSteps = 1
+    ss.timeIntegration.endTime = dt
+    ss.timeIntegration.generalizedAlpha.spectralRadius = float(spectral_radius)
+    ss.displayStatistics = False
+    ss.displayComputationTime = False
+    return ExudynModel(sc, mbs, exu.MainSolverImplicitSecondOrder(), ss, hydro, equilibrium,
+                       active, stiffness, dt)
+
+
+def _check_state(q: np.ndarray, v: np.ndarray, step: int, t: float, limit: float, rows: int,
+                 where: str) -> None:
+    """Raise SimulationDiverged if the state is non-finite or beyond ``limit`` (NaN fails ``<``)."""
+    big = max(float(np.abs(q).max(initial=0.0)), float(np.abs(v).max(initial=0.0)))
+    if big < limit:
+        return
+    bad = "absurdly large" if np.isfinite(big) else "non-finite"
+    raise SimulationDiverged(
+        f"simulation diverged at step {step} (t = {t:.6g} s): {where} is {bad} "
+        f"(max |x| = {np.nanmax(np.abs(q)):.3g}, max |v| = {np.nanmax(np.abs(v)):.3g}, limit {limit:g}); "
+        f"the {rows} rows before it are saved. Try a smaller dt or check the scene's "
+        f"masses, stiffness and DOFs", step=step, time=t, rows=rows)
+
+
+def _forces(reply: dict, n: int, step: int, t: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """Excitation and radiation (N, 6) and the wave elevation from a step reply, checked finite.
+
+    The reply's hydrostatic force is not used: the stiffness is applied implicitly by Exudyn."""
+    exc = np.asarray(reply["excitation"], float).reshape(n, 6)
+    rad = np.asarray(reply["radiation"], float).reshape(n, 6)
+    eta = float(np.asarray(reply["wave_elevation"], float).reshape(-1)[0])
+    if not math.isfinite(float(exc.sum() + rad.sum()) + eta):
+        raise SimulationDiverged(
+            f"the force server returned non-finite forces at step {step} (t = {t:.6g} s); "
+            f"the {step} rows before it are saved", step=step, time=t, rows=step)
+    return exc, rad, eta
+
+
+def _progress_bar(total: int, enabled: bool):
+    from tqdm import tqdm
+    return tqdm(total=total, unit="step", desc="hydrolink run", mininterval=0.5,
+                disable=not (enabled and sys.stderr.isatty()))
+
+
+def run(scene: Scene, scene_text: str, connection, setup: dict, writer, *, progress: bool = True,
+        spectral_radius: float = 1.0, blow_up_limit: float = BLOW_UP_LIMIT) -> dict:
+    """Run the lockstep co-simulation to ``scene.simulation.duration``.
+
+    ``connection`` has already said hello (``setup`` is its reply); it is not closed here.
+    Every step is written to ``writer`` (a :class:`~hydrolink.clients.results.ResultWriter`),
+    which gets its final status ("complete" / "interrupted: ...") before this returns or raises.
+    On Ctrl-C or a server error the rows computed so far are flushed and the error re-raised with
+    the step and time named (KeyboardInterrupt stays a KeyboardInterrupt, server errors become
+    :class:`RunInterrupted`, a blow-up :class:`SimulationDiverged`).
+
+    Returns a summary: steps, time, wall_time, rows, status and per-step costs in µs
+    (``client_us_per_step`` excludes the server round trip, ``round_trip_us_per_step`` is it)."""
+    model = build_model(scene, setup, spectral_radius=spectral_radius)
+    n, h = model.n_bodies, model.dt
+    n_steps = int(round(scene.simulation.duration / h))
+    eq = model.equilibrium.reshape(-1)
+    stiffness = model.stiffness
+    wall0 = _time.perf_counter()
+    t_server = 0.0
+    step, t = 0, 0.0
+    bar = _progress_bar(n_steps, progress and scene.simulation.progress)
+
+    def request(k: int, tk: float, q: np.ndarray, v: np.ndarray) -> tuple:
+        nonlocal t_server
+        t0 = _time.perf_counter()
+        try:
+            reply = connection.step(k, tk, (eq + q).reshape(n, 6), v.reshape(n, 6))
+        except (KeyboardInterrupt, SimulationDiverged):
+            raise
+        except Exception as exc:
+            raise RunInterrupted(
+                f"force server error at step {k} (t = {tk:.6g} s): {exc}; the {k} rows before "
+                f"it are saved in {getattr(writer, 'path', 'the results file')}",
+                step=k, time=tk, rows=k) from exc
+        t_server += _time.perf_counter() - t0
+        return _forces(reply, n, k, tk)
+
+    try:
+        q, v, _ = model.state()
+        _check_state(q, v, 0, 0.0, blow_up_limit, 0, "the initial state")
+        exc_f, rad_f, eta = request(0, 0.0, q, v)
+        model.set_force((exc_f + rad_f).reshape(-1))
+        model.initialize()
+        writer.append(0.0, (eq + q).reshape(n, 6), v.reshape(n, 6), exc_f, rad_f,
+                      -(stiffness @ q).reshape(n, 6), eta)
+        for step in range(1, n_steps + 1):
+            t_prev, t = (step - 1) * h, step * h
+            q, v, a = model.state()
+            exc_f, rad_f, eta = request(step, t, q + h * v + 0.5 * h * h * a, v + h * a)
+            model.set_force((exc_f + rad_f).reshape(-1))
+            model.advance(t_prev, t)
+            q, v, _ = model.state()
+            _check_state(q, v, step, t, blow_up_limit, step, "the body state")
+            writer.append(t, (eq + q).reshape(n, 6), v.reshape(n, 6), exc_f, rad_f,
+                          -(stiffness @ q).reshape(n, 6), eta)
+            bar.update(1)
+    except KeyboardInterrupt:
+        bar.close()
+        writer.finish(f"interrupted: KeyboardInterrupt at step {step} (t = {t:.6g} s)")
+        raise KeyboardInterrupt(
+            f"run interrupted at step {step} (t = {t:.6g} s); {writer.rows_written} rows saved "
+            f"in {getattr(writer, 'path', 'the results file')}") from None
+    except RunInterrupted as exc:
+        bar.close()
+        writer.finish(f"interrupted: {exc}")
+        raise
+    except BaseException as exc:
+        bar.close()
+        writer.finish(f"interrupted: {type(exc).__name__} at step {step} (t = {t:.6g} s): {exc}")
+        raise
+    finally:
+        model.finalize()
+    bar.close()
+    writer.finish("complete")
+    wall = _time.perf_counter() - wall0
+    steps = max(n_steps, 1)
+    return {"steps": n_steps, "time": n_steps * h, "wall_time": wall, "rows": writer.rows_written,
+            "status": "complete",
+            "client_us_per_step": (wall - t_server) / steps * 1e6,
+            "round_trip_us_per_step": t_server / steps * 1e6}

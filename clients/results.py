@@ -1,0 +1,178 @@
+"""Progressive NetCDF results file of a run (NETCDF4, unlimited ``time``).
+
+Rows are buffered in memory and written + synced together every ``flush_seconds`` of wall time or
+``flush_rows`` rows, so the file is only touched during a flush: a run killed part way (even with
+SIGKILL) leaves a readable file holding every row up to the last flush. The global ``status``
+attribute says "running", then "complete" or "interrupted: <why>".
+
+Layout (readable with ``xarray.open_dataset``)::
+
+    dims   time (unlimited), body, dof (surge, sway, heave, roll, pitch, yaw)
+    vars   position, velocity, excitation_force, radiation_force, hydrostatic_force  (time, body, dof)
+           wave_elevation (time), equilibrium_position (body, dof)
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import time as _time
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import netCDF4
+
+DOF_NAMES: tuple[str, ...] = ("surge", "sway", "heave", "roll", "pitch", "yaw")
+
+_TRANSLATION_ROTATION = "(surge, sway, heave); {rot} (roll, pitch, yaw)"
+ROW_VARIABLES: dict[str, tuple[str, str]] = {
+    "position": ("m " + _TRANSLATION_ROTATION.format(rot="rad"),
+                 "absolute position of the body reference point and small rotation angles"),
+    "velocity": ("m/s " + _TRANSLATION_ROTATION.format(rot="rad/s"),
+                 "velocity of the body reference point and angular velocity (angle rates)"),
+    "excitation_force": ("N " + _TRANSLATION_ROTATION.format(rot="N m"),
+                         "wave excitation force and moment about the reference point"),
+    "radiation_force": ("N " + _TRANSLATION_ROTATION.format(rot="N m"),
+                        "radiation memory force -int K(tau) v(t - tau) dtau (the infinite-frequency "
+                        "added mass is in the mass matrix, not here)"),
+    "hydrostatic_force": ("N " + _TRANSLATION_ROTATION.format(rot="N m"),
+                          "linear restoring force -C (x - x_eq), gravity terms included"),
+}
+_VERSIONED = ("hydrolink", "exudyn", "numpy", "capytaine", "xarray")
+
+
+def package_versions() -> dict[str, str]:
+    """Installed versions of the packages a result depends on ("not installed" if absent)."""
+    out = {}
+    for name in _VERSIONED:
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = "not installed"
+    return out
+
+
+class ResultWriter:
+    """Append-only results file; use as a context manager (an exception marks it interrupted)."""
+
+    def __init__(self, path: str | Path, *, scene: Any = None, scene_text: str = "",
+                 setup: dict | None = None, bodies: list[str] | None = None,
+                 equilibrium_position: np.ndarray | None = None,
+                 flush_seconds: float = 1.0, flush_rows: int = 2000):
+        setup = setup or {}
+        bodies = list(bodies if bodies is not None else
+                      setup.get("bodies") or [b.name for b in scene.bodies])
+        eq = np.asarray(equilibrium_position if equilibrium_position is not None
+                        else setup.get("equilibrium_position", np.zeros((len(bodies), 6))), float)
+        if eq.shape != (len(bodies), 6):
+            raise ValueError(f"equilibrium_position must have shape ({len(bodies)}, 6), got {eq.shape}")
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.n_bodies = len(bodies)
+        self.flush_seconds, self.flush_rows = float(flush_seconds), int(flush_rows)
+        self.rows_written = 0
+        self.status = "running"
+        self._buffer: list[tuple] = []
+        self._last_flush = _time.monotonic()
+        self._ds = netCDF4.Dataset(self.path, "w", format="NETCDF4")
+        try:
+            self._create(bodies, eq, scene_text, setup)
+        except BaseException:
+            self._ds.close()
+            raise
+
+    # -- layout ------------------------------------------------------------------------------
+    def _create(self, bodies: list[str], eq: np.ndarray, scene_text: str, setup: dict) -> None:
+        ds, n = self._ds, len(bodies)
+        ds.createDimension("time", None)
+        ds.createDimension("body", n)
+        ds.createDimension("dof", 6)
+        chunk = 512
+        t = ds.createVariable("time", "f8", ("time",), chunksizes=(chunk,))
+        t.units, t.long_name, t.standard_name = "s", "simulation time", "time"
+        b = ds.createVariable("body", str, ("body",))
+        b.long_name = "body name"
+        for i, name in enumerate(bodies):
+            b[i] = name
+        d = ds.createVariable("dof", str, ("dof",))
+        d.long_name = "degree of freedom (rotations about the body reference point)"
+        for i, name in enumerate(DOF_NAMES):
+            d[i] = name
+        for name, (units, long_name) in ROW_VARIABLES.items():
+            v = ds.createVariable(name, "f8", ("time", "body", "dof"), chunksizes=(chunk, n, 6))
+            v.units, v.long_name = units, long_name
+        w = ds.createVariable("wave_elevation", "f8", ("time",), chunksizes=(chunk,))
+        w.units, w.long_name = "m", "undisturbed incident wave elevation at the origin"
+        e = ds.createVariable("equilibrium_position", "f8", ("body", "dof"))
+        e.units = ROW_VARIABLES["position"][0]
+        e.long_name = "body reference point at equilibrium (where the HDB's rotational modes refer), zero angles"
+        e[:] = eq
+        attrs = {
+            "title": "hydrolink co-simulation results",
+            "scene": scene_text,
+            "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+            "status": self.status,
+            "dof_convention": "positions absolute (reference point xyz + small rotation angles); "
+                              "forces act at the reference point",
+        }
+        if "dt" in setup:
+            attrs["dt"] = float(setup["dt"])
+        attrs.update({f"{k}_version": v for k, v in package_versions().items()})
+        ds.setncatts(attrs)
+        ds.sync()
+
+    # -- rows --------------------------------------------------------------------------------
+    def append(self, time: float, position, velocity, excitation, radiation, hydrostatic,
+               wave_elevation) -> None:
+        """Buffer one row; flushes when the wall-time or row budget is used up."""
+        row = (float(time), *(np.array(a, float) for a in (position, velocity, excitation,
+                                                          radiation, hydrostatic)),
+               float(np.asarray(wave_elevation, float).reshape(-1)[0]))
+        self._buffer.append(row)
+        if (len(self._buffer) >= self.flush_rows
+                or _time.monotonic() - self._last_flush >= self.flush_seconds):
+            self.flush()
+
+    def flush(self) -> None:
+        """Write the buffered rows and sync the file to disk."""
+        if self._buffer and self._ds.isopen():
+            rows, i0 = self._buffer, self.rows_written
+            i1 = i0 + len(rows)
+            ds = self._ds
+            for k, name in enumerate(ROW_VARIABLES, start=1):
+                ds[name][i0:i1] = np.stack([r[k] for r in rows]).reshape(i1 - i0, self.n_bodies, 6)
+            ds["wave_elevation"][i0:i1] = np.array([r[6] for r in rows])
+            ds["time"][i0:i1] = np.array([r[0] for r in rows])  # last: marks the rows as present
+            self.rows_written = i1
+            self._buffer = []
+        if self._ds.isopen():
+            self._ds.sync()
+        self._last_flush = _time.monotonic()
+
+    # -- end ---------------------------------------------------------------------------------
+    def finish(self, status: str) -> None:
+        """Flush everything and record the final status ("complete" or "interrupted: ...")."""
+        self.status = status
+        if self._ds.isopen():
+            self.flush()
+            self._ds.setncattr("status", status)
+            self._ds.setncattr("rows", self.rows_written)
+            self._ds.sync()
+
+    def close(self) -> None:
+        """Flush and close; a file still "running" is marked as not finished."""
+        if not self._ds.isopen():
+            return
+        if self.status == "running":
+            self.finish("interrupted: closed before the run finished")
+        self._ds.close()
+
+    def __enter__(self) -> "ResultWriter":
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is not None and self.status == "running":
+            why = f"{exc_type.__name__}: {exc}" if str(exc) else exc_type.__name__
+            self.finish(f"interrupted: {why}")
+        self.close()
