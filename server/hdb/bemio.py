@@ -1,0 +1,159 @@
+"""Reader for WEC-Sim BEMIO HDF5 files (``writeBEMIOH5`` layout).
+
+BEMIO stores coefficients normalised like WAMIT (A/rho, B/(rho w), X/(rho g), K_hs/(rho g)) in the
+exp(+i w t) convention; this reader multiplies back with the file's own rho and g and conjugates
+the excitation into the internal exp(-i w t). Only the ``all``/``re``/``im`` datasets are read.
+
+Reference point: ``bodyN/properties/cg``. WEC-Sim applies every hydrodynamic force of a body at its
+centre of gravity and expects the BEM run to be set up about it (BEMIO's readWAMIT takes ``cg`` from
+the WAMIT run's body origin); the Task-10 sphere confirms it: its surge-pitch coupling A15 = 2 A11
+and A55 = 4 A11 are exactly those of a sphere (no rotational added mass about its centre at z = 0)
+referred to cg z = -2 m.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import h5py
+import numpy as np
+import xarray as xr
+
+from .schema import HDBError, make_hdb
+
+
+class _H5:
+    """Dataset access that names the file and the HDF5 path on every error."""
+
+    def __init__(self, fh: h5py.File, source: Path):
+        self.fh, self.source = fh, source
+
+    def has(self, name: str) -> bool:
+        return name in self.fh and isinstance(self.fh[name], h5py.Dataset)
+
+    def get(self, name: str, shape: tuple[int, ...] | None = None) -> np.ndarray:
+        if not self.has(name):
+            raise HDBError(self.source, name, "missing dataset")
+        value = self.fh[name][()]
+        if shape is not None and np.shape(value) != shape:
+            raise HDBError(self.source, name, f"shape must be {shape}, got {np.shape(value)}")
+        return value
+
+    def vector3(self, name: str) -> np.ndarray:
+        """A point stored as (3, 1), (1, 3) or (3,)."""
+        value = np.asarray(self.get(name), float)
+        if value.size != 3:
+            raise HDBError(self.source, name, f"must hold 3 coordinates, got shape {value.shape}")
+        return value.ravel()
+
+    def number(self, name: str) -> float:
+        value = np.asarray(self.get(name))
+        if value.size != 1:
+            raise HDBError(self.source, name, f"must be a single number, got shape {value.shape}")
+        try:
+            return float(value.ravel()[0])
+        except (TypeError, ValueError):
+            raise HDBError(self.source, name, f"must be a number, got {value.ravel()[0]!r}") from None
+
+    def text(self, name: str) -> str:
+        value = np.asarray(self.get(name)).ravel()[0]
+        return value.decode(errors="replace") if isinstance(value, bytes) else str(value)
+
+
+def _water_depth(h5: _H5) -> float:
+    """Water depth; BEMIO writes 'infinite' (or a non-positive number) for deep water."""
+    name = "simulation_parameters/water_depth"
+    raw = np.asarray(h5.get(name)).ravel()[0]
+    if isinstance(raw, (bytes, str)):
+        word = raw.decode() if isinstance(raw, bytes) else raw
+        if word.strip().lower().startswith("inf"):
+            return math.inf
+        try:
+            raw = float(word)
+        except ValueError:
+            raise HDBError(h5.source, name, f"must be a number or 'infinite', got {word!r}") from None
+    depth = float(raw)
+    return math.inf if not depth > 0 else depth
+
+
+def _body_groups(h5: _H5) -> list[str]:
+    """``body1``, ``body2``... in numeric order."""
+    groups = [k for k in h5.fh.keys() if k.startswith("body") and k[4:].isdigit()]
+    if not groups:
+        raise HDBError(h5.source, "body1", "no bodyN groups in the file")
+    return sorted(groups, key=lambda k: int(k[4:]))
+
+
+def read_bemio(path: str | Path) -> xr.Dataset:
+    """Read a BEMIO .h5 file into the internal HDB layout."""
+    path = Path(path)
+    if not path.is_file():
+        raise HDBError(path, "file", "not found")
+    try:
+        fh = h5py.File(path, "r")
+    except OSError as exc:
+        raise HDBError(path, "file", f"not a readable HDF5 file ({exc})") from None
+    with fh:
+        return _read(_H5(fh, path))
+
+
+def _read(h5: _H5) -> xr.Dataset:
+    rho = h5.number("simulation_parameters/rho")
+    g = h5.number("simulation_parameters/g")
+    omega = np.asarray(h5.get("simulation_parameters/w"), float).ravel()
+    betas = np.deg2rad(np.asarray(h5.get("simulation_parameters/wave_dir"), float).ravel())
+    depth = _water_depth(h5)
+    groups = _body_groups(h5)
+    n_b, n_w, n_beta = len(groups), omega.size, betas.size
+    n_dof = 6 * n_b
+    order = np.argsort(omega, kind="stable")
+
+    added_mass = np.zeros((n_w, n_dof, n_dof))
+    damping = np.zeros_like(added_mass)
+    excitation = np.zeros((n_w, n_beta, n_dof), complex)
+    stiffness = np.zeros((n_dof, n_dof))
+    a_inf = np.zeros((n_dof, n_dof))
+    reference, cb = np.zeros((n_b, 3)), np.zeros((n_b, 3))
+    volume = np.zeros(n_b)
+    have_inf = have_cb = have_vol = True
+    names = []
+    for n, grp in enumerate(groups):
+        props, coeffs = f"{grp}/properties", f"{grp}/hydro_coeffs"
+        if h5.has(f"{props}/dof") and h5.number(f"{props}/dof") != 6:
+            raise HDBError(h5.source, f"{props}/dof",
+                           f"only 6 rigid-body DOFs per body are supported, got {h5.number(f'{props}/dof'):g}")
+        names.append(h5.text(f"{props}/name").replace(".", "_") if h5.has(f"{props}/name") else grp)
+        rows = slice(6 * n, 6 * n + 6)
+        a = h5.get(f"{coeffs}/added_mass/all", (6, n_dof, n_w))
+        b = h5.get(f"{coeffs}/radiation_damping/all", (6, n_dof, n_w))
+        added_mass[:, rows, :] = rho * np.moveaxis(a, 2, 0)
+        damping[:, rows, :] = rho * omega[:, None, None] * np.moveaxis(b, 2, 0)
+        re = h5.get(f"{coeffs}/excitation/re", (6, n_beta, n_w))
+        im = h5.get(f"{coeffs}/excitation/im", (6, n_beta, n_w))
+        excitation[:, :, rows] = rho * g * np.transpose(re - 1j * im, (2, 1, 0))
+        stiffness[rows, rows] = rho * g * h5.get(f"{coeffs}/linear_restoring_stiffness", (6, 6))
+        if h5.has(f"{coeffs}/added_mass/inf_freq"):
+            a_inf[rows, :] = rho * h5.get(f"{coeffs}/added_mass/inf_freq", (6, n_dof))
+        else:
+            have_inf = False
+        reference[n] = h5.vector3(f"{props}/cg")
+        if h5.has(f"{props}/cb"):
+            cb[n] = h5.vector3(f"{props}/cb")
+        else:
+            have_cb = False
+        if h5.has(f"{props}/disp_vol"):
+            volume[n] = h5.number(f"{props}/disp_vol")
+        else:
+            have_vol = False
+    if len(set(names)) != len(names):
+        names = [f"{name}{n + 1}" for n, name in enumerate(names)]
+    return make_hdb(
+        bodies=names, omega=omega[order], wave_direction=betas,
+        added_mass=added_mass[order], radiation_damping=damping[order],
+        excitation_force=excitation[order], hydrostatic_stiffness=stiffness,
+        reference_point=reference, rho=rho, g=g, water_depth=depth, source=str(h5.source),
+        added_mass_inf=a_inf if have_inf else None,
+        displaced_volume=volume if have_vol else None,
+        center_of_buoyancy=cb if have_cb else None,
+    )

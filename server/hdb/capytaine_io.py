@@ -1,0 +1,264 @@
+"""Capytaine datasets (in memory, or saved by ``capytaine.export_dataset(..., format="netcdf")``).
+
+Capytaine already uses exp(-i w t) and SI units: nothing is conjugated or rescaled. Conversions:
+
+* Frequencies: the ``omega`` coordinate (made the dimension if Capytaine used period/freq/...);
+  omega = inf rows become ``added_mass_inf``, omega = 0 rows are dropped.
+* DOFs: labels ``<body>__<Dof>`` (multibody) or ``<Dof>`` (single body, named by ``body_name``);
+  rigid-body DOF names only (Surge..Yaw, any case). DOFs that were not solved are zero.
+* Body names (one rule): the prefix shared by all bodies' names up to and including its last
+  ``_`` is removed when there are several bodies and the rest stays unique and non-empty:
+  ``rm3_float``, ``rm3_spar`` -> ``float``, ``spar``. Dots become ``_`` (labels are body.dof).
+  The names as in the file are kept in the attribute ``body_names_in_file``.
+* Reference point of each body's rotations, first found of: the caller's ``reference_points``,
+  Capytaine's ``rotation_center`` coordinate, the ``center_of_mass`` coordinate (Capytaine puts
+  rotation DOFs there when no centre is given), else the origin with a warning (Capytaine's
+  ``rigid_body_dofs()`` default). The attribute ``reference_point_from`` says which.
+* Hydrostatics: Capytaine's ``hydrostatic_stiffness`` includes the gravity terms -m g (z_G - z_c)
+  (roll/pitch) and m g (x_G - x_c), m g (y_G - y_c) (roll-yaw/pitch-yaw); they are removed here
+  (schema: buoyancy and waterplane only) when ``center_of_mass`` is recorded. Without it the
+  centre of mass is taken to be the rotation centre, where those terms vanish.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import warnings
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+import xarray as xr
+
+from .schema import DOF_NAMES, HDBError, make_hdb
+
+_FREQ_DIMS = ("omega", "period", "freq", "wavenumber", "wavelength")
+
+
+def merge_complex(ds: xr.Dataset) -> xr.Dataset:
+    """Undo Capytaine's NetCDF split of complex variables along a ``complex`` = [re, im] dim."""
+    if "complex" not in ds.dims:
+        return ds
+    merged = {name: ds[name].sel(complex="re", drop=True) + 1j * ds[name].sel(complex="im", drop=True)
+              for name in ds.data_vars if "complex" in ds[name].dims}
+    return ds.drop_vars([*merged, "complex"]).assign(merged)
+
+
+def read_capytaine(path: str | Path, *,
+                   reference_points: Mapping[str, Sequence[float]] | None = None) -> xr.Dataset:
+    """Read a Capytaine NetCDF export into the internal HDB layout."""
+    path = Path(path)
+    if not path.is_file():
+        raise HDBError(path, "file", "not found")
+    try:
+        with xr.open_dataset(path) as raw:
+            ds = raw.load()
+    except (OSError, ValueError) as exc:
+        raise HDBError(path, "file", f"not a readable NetCDF file ({exc})") from None
+    return from_capytaine_dataset(ds, path, reference_points=reference_points)
+
+
+def _scalar(ds: xr.Dataset, name: str, source: str, default: float | None = None) -> float:
+    """A parameter Capytaine stores as a scalar coordinate (or a length-1 dimension)."""
+    if name not in ds.variables:
+        if default is None:
+            raise HDBError(source, name, "missing (expected a scalar coordinate)")
+        return default
+    values = np.asarray(ds[name].values, float).ravel()
+    if values.size != 1:
+        raise HDBError(source, name, f"the dataset holds {values.size} values; select one before converting")
+    return float(values[0])
+
+
+def _frequency_axis(ds: xr.Dataset, source: str) -> xr.Dataset:
+    """Make ``omega`` the frequency dimension."""
+    if "omega" in ds.dims:
+        return ds
+    dim = next((d for d in _FREQ_DIMS if d in ds.dims), None)
+    if dim is None or "omega" not in ds.coords:
+        raise HDBError(source, "omega", "no frequency dimension with an 'omega' coordinate")
+    return ds.swap_dims({dim: "omega"})
+
+
+def _parse_dofs(labels: Sequence[str], single_body: str, source: str, field: str) -> list[tuple[str, int]]:
+    """(body name as in file, dof index) per label."""
+    out = []
+    for label in map(str, labels):
+        body, _, dof = label.rpartition("__")
+        body = body or single_body
+        name = dof.lower()
+        if name not in DOF_NAMES:
+            raise HDBError(source, field, f"DOF {label!r} is not a rigid-body DOF ({', '.join(DOF_NAMES)})")
+        out.append((body, DOF_NAMES.index(name)))
+    return out
+
+
+def short_body_names(names: Sequence[str]) -> list[str]:
+    """The body naming rule (see the module docstring)."""
+    names = [n.replace(".", "_") for n in names]
+    if len(names) < 2:
+        return names
+    prefix = os.path.commonprefix(names)
+    cut = prefix.rfind("_") + 1
+    short = [n[cut:] for n in names]
+    if cut and all(short) and len(set(short)) == len(short):
+        return short
+    return names
+
+
+def _per_body(ds: xr.Dataset, name: str, file_bodies: list[str], source: str) -> np.ndarray | None:
+    """A (body, space_coordinate) or single-body (space_coordinate) variable as (N, 3)."""
+    if name not in ds.variables:
+        return None
+    da = ds[name]
+    if "body" not in da.dims:
+        if len(file_bodies) != 1:
+            return np.tile(np.asarray(da.values, float).ravel()[:3], (len(file_bodies), 1))
+        return np.asarray(da.values, float).reshape(1, 3)
+    labels = [str(b) for b in da["body"].values] if "body" in da.coords else file_bodies
+    missing = [b for b in file_bodies if b not in labels]
+    if missing:
+        raise HDBError(source, name, f"no entry for bodies {missing}")
+    da = da.assign_coords(body=labels).sel(body=file_bodies)
+    other = [d for d in da.dims if d != "body"]
+    return np.asarray(da.transpose("body", *other).values, float).reshape(len(file_bodies), 3)
+
+
+def _reference_points(ds, file_bodies, names, given, source) -> tuple[np.ndarray, str]:
+    if given is not None:
+        missing = [n for n in names if n not in given]
+        if missing:
+            raise HDBError(source, "reference_points", f"no point given for bodies {missing}")
+        return np.asarray([given[n] for n in names], float).reshape(len(names), 3), "caller"
+    for coord in ("rotation_center", "center_of_mass"):
+        points = _per_body(ds, coord, file_bodies, source)
+        if points is not None and np.all(np.isfinite(points)):
+            return points, coord
+    warnings.warn(f"{source}: no rotation_center or center_of_mass recorded; rotational modes are taken "
+                  "about the origin (pass reference_points if the run used another centre)", stacklevel=3)
+    return np.zeros((len(names), 3)), "origin (assumed, not recorded)"
+
+
+def _remove_gravity(k: np.ndarray, ds: xr.Dataset, file_bodies, ref: np.ndarray, g: float, source) -> np.ndarray:
+    """Subtract Capytaine's gravity terms from its hydrostatic stiffness (see module docstring)."""
+    cog = _per_body(ds, "center_of_mass", file_bodies, source)
+    if cog is None or "inertia_matrix" not in ds:
+        return k
+    k = k.copy()
+    mass = _mass_per_body(ds, file_bodies, source)
+    for n, (m, c, r) in enumerate(zip(mass, cog, ref)):
+        o = 6 * n
+        k[o + 3, o + 3] += m * g * (c[2] - r[2])
+        k[o + 4, o + 4] += m * g * (c[2] - r[2])
+        k[o + 3, o + 5] -= m * g * (c[0] - r[0])
+        k[o + 4, o + 5] -= m * g * (c[1] - r[1])
+    return k
+
+
+def _mass_per_body(ds: xr.Dataset, file_bodies: list[str], source: str) -> np.ndarray:
+    inertia = ds["inertia_matrix"]
+    labels = [str(v) for v in inertia["influenced_dof"].values]
+    dofs = _parse_dofs(labels, file_bodies[0], source, "inertia_matrix")
+    diag = np.diag(np.asarray(inertia.transpose("influenced_dof", "radiating_dof").values, float))
+    mass = np.zeros(len(file_bodies))
+    for (body, dof), value in zip(dofs, diag):
+        if dof < 3:
+            mass[file_bodies.index(body)] = value
+    return mass
+
+
+def _scatter(target: np.ndarray, values: np.ndarray, rows: np.ndarray | None, cols: np.ndarray | None) -> None:
+    """target[..., rows, cols] = values on the trailing axes (None = axis not indexed)."""
+    index = [slice(None)] * (target.ndim - (rows is not None) - (cols is not None))
+    if rows is not None and cols is not None:
+        target[(*index, rows[:, None], cols[None, :])] = values
+    else:
+        target[(*index, rows if rows is not None else cols)] = values
+
+
+def from_capytaine_dataset(ds: xr.Dataset, source: str | Path, *,
+                           reference_points: Mapping[str, Sequence[float]] | None = None) -> xr.Dataset:
+    """Convert a Capytaine result dataset (in memory or re-opened NetCDF) to the internal HDB."""
+    source = str(source)
+    ds = _frequency_axis(merge_complex(ds), source)
+    for name in ("added_mass", "radiation_damping", "excitation_force", "hydrostatic_stiffness"):
+        if name not in ds:
+            hint = " (solve the diffraction problems too)" if name == "excitation_force" else (
+                " (assemble with hydrostatics=True and a center_of_mass)" if name == "hydrostatic_stiffness" else "")
+            raise HDBError(source, name, f"missing variable{hint}")
+    if not math.isclose(_scalar(ds, "forward_speed", source, 0.0), 0.0):
+        raise HDBError(source, "forward_speed", "only zero forward speed is supported")
+    rho, g = _scalar(ds, "rho", source), _scalar(ds, "g", source)
+    depth = _scalar(ds, "water_depth", source, math.inf)
+
+    single = next((str(ds[n].values) for n in ("body_name", "body") if n in ds.variables and ds[n].ndim == 0),
+                  "body1")
+    inf_labels = [str(v) for v in ds["influenced_dof"].values]
+    rad_labels = [str(v) for v in ds["radiating_dof"].values]
+    inf_dofs = _parse_dofs(inf_labels, single, source, "influenced_dof")
+    rad_dofs = _parse_dofs(rad_labels, single, source, "radiating_dof")
+    file_bodies = list(dict.fromkeys(b for b, _ in inf_dofs + rad_dofs))
+    names = short_body_names(file_bodies)
+    n_dof = 6 * len(names)
+    inf_idx = np.array([6 * file_bodies.index(b) + d for b, d in inf_dofs])
+    rad_idx = np.array([6 * file_bodies.index(b) + d for b, d in rad_dofs])
+
+    omega_all = np.asarray(ds["omega"].values, float)
+    regular = np.isfinite(omega_all) & (omega_all > 0)
+    at_inf = np.isinf(omega_all)
+    order = np.argsort(omega_all[regular], kind="stable")
+    omega = omega_all[regular][order]
+
+    def matrix(name: str) -> np.ndarray:
+        da = ds[name]
+        if "wave_direction" in da.dims:  # Capytaine may repeat radiation data per heading
+            da = da.isel(wave_direction=0, drop=True)
+        return np.asarray(da.transpose("omega", "influenced_dof", "radiating_dof").values)
+
+    a_raw, b_raw = matrix("added_mass").real, matrix("radiation_damping").real
+    added_mass = np.zeros((omega.size, n_dof, n_dof))
+    damping = np.zeros_like(added_mass)
+    _scatter(added_mass, a_raw[regular][order], inf_idx, rad_idx)
+    _scatter(damping, b_raw[regular][order], inf_idx, rad_idx)
+    a_inf = None
+    if np.any(at_inf):
+        a_inf = np.zeros((n_dof, n_dof))
+        _scatter(a_inf, a_raw[np.argmax(at_inf)], inf_idx, rad_idx)
+
+    exc = ds["excitation_force"]
+    if "wave_direction" not in exc.dims:
+        exc = exc.expand_dims(wave_direction=np.atleast_1d(ds["wave_direction"].values)
+                              if "wave_direction" in ds.variables else [0.0])
+    exc = exc.sortby("wave_direction")
+    excitation = np.zeros((omega.size, exc.sizes["wave_direction"], n_dof), complex)
+    exc_values = np.asarray(exc.transpose("omega", "wave_direction", "influenced_dof").values)
+    _scatter(excitation, exc_values[regular][order], None, inf_idx)
+
+    ref, ref_from = _reference_points(ds, file_bodies, names, reference_points, source)
+    k_raw = np.asarray(ds["hydrostatic_stiffness"].transpose("influenced_dof", "radiating_dof").values, float)
+    k_inf = _parse_dofs([str(v) for v in ds["hydrostatic_stiffness"]["influenced_dof"].values], single, source,
+                        "hydrostatic_stiffness")
+    k_rad = _parse_dofs([str(v) for v in ds["hydrostatic_stiffness"]["radiating_dof"].values], single, source,
+                        "hydrostatic_stiffness")
+    stiffness = np.zeros((n_dof, n_dof))
+    _scatter(stiffness, k_raw, np.array([6 * file_bodies.index(b) + d for b, d in k_inf]),
+             np.array([6 * file_bodies.index(b) + d for b, d in k_rad]))
+    stiffness = _remove_gravity(stiffness, ds, file_bodies, ref, g, source)
+
+    cb = _per_body(ds, "center_of_buoyancy", file_bodies, source)
+    volume = None
+    if "disp_mass" in ds.variables:
+        volume = np.asarray(ds["disp_mass"].values, float).ravel() / rho
+        if volume.size != len(names):
+            volume = None
+
+    out = make_hdb(
+        bodies=names, omega=omega, wave_direction=np.asarray(exc["wave_direction"].values, float),
+        added_mass=added_mass, radiation_damping=damping, excitation_force=excitation,
+        hydrostatic_stiffness=stiffness, reference_point=ref, rho=rho, g=g, water_depth=depth,
+        source=source, added_mass_inf=a_inf, displaced_volume=volume, center_of_buoyancy=cb,
+    )
+    out.attrs["body_names_in_file"] = ",".join(file_bodies)
+    out.attrs["reference_point_from"] = ref_from
+    return out

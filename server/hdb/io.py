@@ -1,0 +1,69 @@
+"""``load_hdb``: one entry point that recognises the HDB file format and returns the internal HDB.
+
+* WAMIT: ``.1``/``.2``/``.3``/``.hst``/``.out``/... or the common stem (``rm3`` -> ``rm3.1`` ...);
+  nondimensional, so ``rho`` applies (default 1000).
+* BEMIO (WEC-Sim): ``.h5``/``.hdf5``.
+* NetCDF ``.nc``: hydrolink's own (attribute ``hydrolink_hdb``) or a Capytaine export.
+
+Dimensional formats carry their own rho; a ``rho`` that disagrees with it is an error (the
+coefficients cannot be rescaled to another density without knowing which terms scale).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import xarray as xr
+
+from .bemio import read_bemio
+from .capytaine_io import from_capytaine_dataset
+from .schema import HDBError, from_netcdf_dataset
+from .wamit import WAMIT_SUFFIXES, read_wamit, wamit_stem
+
+DEFAULT_RHO = 1000.0
+
+
+def _check_rho(ds: xr.Dataset, rho: float | None, path: Path) -> xr.Dataset:
+    if rho is not None and not math.isclose(float(ds.attrs["rho"]), rho, rel_tol=1e-9):
+        raise HDBError(path, "rho", f"the file was computed with rho={ds.attrs['rho']:g}; "
+                                    f"rho={rho:g} can only be chosen for nondimensional (WAMIT) files")
+    return ds
+
+
+def _load_netcdf(path: Path) -> xr.Dataset:
+    try:
+        with xr.open_dataset(path) as raw:
+            ds = raw.load()
+    except (OSError, ValueError) as exc:
+        raise HDBError(path, "file", f"not a readable NetCDF file ({exc})") from None
+    if "hydrolink_hdb" in ds.attrs:
+        return from_netcdf_dataset(ds, path)
+    if "radiating_dof" in ds.variables and "influenced_dof" in ds.variables and "added_mass" in ds:
+        return from_capytaine_dataset(ds, path)
+    raise HDBError(path, "format", "NetCDF file is neither a hydrolink HDB (attribute 'hydrolink_hdb') "
+                                   "nor a Capytaine dataset (added_mass over radiating_dof/influenced_dof)")
+
+
+def _is_wamit(path: Path) -> bool:
+    """A WAMIT file name (``rm3.1``, ``rm3.hst``...) or a stem with a ``.1`` beside it."""
+    stem = wamit_stem(path)
+    return stem != path or (not path.is_file() and stem.with_name(stem.name + ".1").is_file())
+
+
+def load_hdb(path: str | Path, *, rho: float | None = None) -> xr.Dataset:
+    """Read an HDB file of any supported format into the internal layout (validated)."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix in (".h5", ".hdf5"):
+        return _check_rho(read_bemio(path), rho, path)
+    if suffix == ".nc":
+        if not path.is_file():
+            raise HDBError(path, "file", "not found")
+        return _check_rho(_load_netcdf(path), rho, path)
+    if _is_wamit(path):
+        return read_wamit(path, rho=DEFAULT_RHO if rho is None else rho)
+    if not path.exists():
+        raise HDBError(path, "file", "not found")
+    raise HDBError(path, "format", "unknown HDB format (expected WAMIT .1/.3/.hst or stem, BEMIO .h5, "
+                                   f"hydrolink or Capytaine .nc; WAMIT suffixes: {' '.join(WAMIT_SUFFIXES)})")

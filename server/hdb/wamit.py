@@ -1,0 +1,280 @@
+"""Reader for WAMIT numeric output (``.1``, ``.3``/``.2``, ``.hst``, optional ``.out``/``.cfg``).
+
+WAMIT files are nondimensional and use exp(+i w t). This module dimensionalises with the ULEN
+and g of the run and the caller's rho (A = rho L^k Abar, B = rho w L^k Bbar, X = rho g L^m Xbar,
+C = rho g L^k Cbar) and conjugates the excitation once, here, into the internal exp(-i w t).
+
+Optional ``.out`` facts: g, ULEN, water depth, body names (from the ``.gdf`` file names), XBODY
+(the point the rotational modes refer to, used as ``reference_point``), displaced volume (VOLX)
+and centre of buoyancy (reported in body axes, shifted here by XBODY into the global frame).
+Without an ``.out``: bodies ``body1``, ``body2``..., reference points at the origin, g from the
+``.cfg`` (GRAV) or 9.80665 (WAMIT's default), infinite depth.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+import xarray as xr
+
+from .schema import HDBError, make_hdb
+
+WAMIT_SUFFIXES = (".1", ".2", ".3", ".3fk", ".3sc", ".hst", ".out", ".cfg", ".pot", ".frc", ".4")
+DEFAULT_G = 9.80665
+_FLOAT = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eEdD][-+]?\d+)?"
+
+
+def wamit_stem(path: str | Path) -> Path:
+    """The common stem of a WAMIT run (``rm3`` for ``rm3.1``, ``rm3.hst``, or ``rm3`` itself)."""
+    path = Path(path)
+    for suffix in sorted(WAMIT_SUFFIXES, key=len, reverse=True):
+        if path.name.lower().endswith(suffix) and len(path.name) > len(suffix):
+            return path.with_name(path.name[: -len(suffix)])
+    return path
+
+
+def _is_number(token: str) -> bool:
+    try:
+        float(token)
+    except ValueError:
+        return False
+    return True
+
+
+def _read_table(path: Path, ncols: tuple[int, ...], expected: str) -> tuple[np.ndarray, np.ndarray]:
+    """Rows of a free-format numeric file, padded with NaN to ``max(ncols)`` columns.
+
+    Leading header lines (first token not a number) are skipped; afterwards every non-blank line
+    must hold one of ``ncols`` numbers. Returns (rows, 1-based line numbers)."""
+    try:
+        text = path.read_text(errors="replace")
+    except OSError as exc:
+        raise HDBError(path, "file", f"cannot read: {exc.strerror or exc}") from None
+    width = max(ncols)
+    rows: list[list[float]] = []
+    lines: list[int] = []
+    for number, line in enumerate(text.splitlines(), start=1):
+        tokens = line.replace("D", "E").replace("d", "e").split()
+        if not tokens or (not rows and not _is_number(tokens[0])):
+            continue
+        try:
+            values = [float(t) for t in tokens]
+        except ValueError:
+            values = []
+        if len(values) not in ncols:
+            raise HDBError(path.name, f"line {number}", f"expected '{expected}', got {line.strip()!r}")
+        if not all(math.isfinite(v) for v in values):
+            raise HDBError(path.name, f"line {number}", f"not a finite number in {line.strip()!r}")
+        rows.append(values + [math.nan] * (width - len(values)))
+        lines.append(number)
+    if not rows:
+        raise HDBError(path.name, "file", f"no data lines (expected '{expected}')")
+    return np.asarray(rows, float), np.asarray(lines)
+
+
+def _mode_indices(path: Path, table: np.ndarray, lines: np.ndarray, cols: list[int]) -> np.ndarray:
+    """Integer mode indices (1-based) from ``cols`` of ``table``; HDBError on non-integers."""
+    idx = table[:, cols]
+    bad = (idx != np.round(idx)) | (idx < 1)
+    if np.any(bad):
+        row = int(np.argwhere(bad)[0, 0])
+        raise HDBError(path.name, f"line {lines[row]}", f"mode index must be an integer >= 1, got {idx[row]}")
+    return idx.astype(int)
+
+
+def _scale_exponent(i: np.ndarray, j: np.ndarray | None, base: int) -> np.ndarray:
+    """WAMIT length-scale exponent: ``base`` plus one per rotational mode index."""
+    k = base + ((i - 1) % 6 >= 3)
+    if j is not None:
+        k = k + ((j - 1) % 6 >= 3)
+    return k
+
+
+def _read_cfg(stem: Path) -> dict[str, str]:
+    """KEY=value settings of the ``.cfg`` (upper-case keys), empty if there is none."""
+    cfg = stem.with_name(stem.name + ".cfg")
+    if not cfg.is_file():
+        return {}
+    out = {}
+    for match in re.finditer(r"^\s*([A-Za-z_]\w*)\s*=\s*(\S+)", cfg.read_text(errors="replace"), re.M):
+        out[match.group(1).upper()] = match.group(2)
+    return out
+
+
+def _read_out(stem: Path) -> dict:
+    """Run facts from the ``.out`` report (only the part before the first frequency's results)."""
+    out_path = stem.with_name(stem.name + ".out")
+    if not out_path.is_file():
+        return {}
+    facts: dict = {"gdf": [], "xbody": [], "volume": [], "cb": []}
+    with out_path.open(errors="replace") as fh:
+        for number, line in enumerate(fh, start=1):
+            if "Wave period" in line or "Output from  WAMIT" in line:
+                break
+            try:
+                if m := re.search(r"N=\s*\d+\s+(\S+\.gdf)", line, re.I):
+                    facts["gdf"].append(Path(m.group(1)).stem)
+                elif m := re.search(rf"Gravity:\s*({_FLOAT})", line):
+                    facts["g"] = float(m.group(1))
+                    if m2 := re.search(rf"Length scale:\s*({_FLOAT})", line):
+                        facts["ulen"] = float(m2.group(1))
+                elif m := re.search(r"Water depth:\s*(\S+)", line):
+                    word = m.group(1)
+                    facts["depth"] = math.inf if word.lower().startswith("inf") else float(word)
+                elif "XBODY" in line and "=" in line:
+                    vals = [float(v) for v in re.findall(rf"=\s*({_FLOAT})", line)]
+                    facts["xbody"].append(vals[:4])
+                elif line.strip().startswith("Volumes"):
+                    facts["volume"].append(float(re.findall(_FLOAT, line.split(":", 1)[1])[0]))
+                elif line.strip().startswith("Center of Buoyancy"):
+                    facts["cb"].append([float(v) for v in re.findall(_FLOAT, line.split(":", 1)[1])[:3]])
+            except (ValueError, IndexError):
+                raise HDBError(out_path.name, f"line {number}", f"cannot parse {line.strip()!r}") from None
+    return facts
+
+
+def _body_names(gdf: list[str], n_bodies: int) -> list[str]:
+    """Body names from the ``.gdf`` stems (dots replaced, made unique) or body1, body2..."""
+    if len(gdf) != n_bodies:
+        return [f"body{n + 1}" for n in range(n_bodies)]
+    names = [g.replace(".", "_") or f"body{n + 1}" for n, g in enumerate(gdf)]
+    if len(set(names)) != len(names):
+        names = [f"{name}{n + 1}" for n, name in enumerate(names)]
+    return names
+
+
+def _frequencies(values: np.ndarray, iperout: int, g: float, source: str) -> np.ndarray:
+    """Angular frequency of each positive first-column value."""
+    if iperout == 1:
+        return 2.0 * np.pi / values
+    if iperout == 2:
+        return values
+    if iperout == 3:
+        return np.sqrt(g * values)
+    raise HDBError(source, "IPEROUT", f"output frequency type {iperout} is not supported (use 1, 2 or 3)")
+
+
+def _special_rows(first: np.ndarray, iperout: int) -> tuple[np.ndarray, np.ndarray]:
+    """Masks of (infinite-frequency, ignored) rows: with periods PER=0 is w=inf and PER<0 is w=0;
+    other output types have no infinite-frequency marker and non-positive rows are ignored."""
+    if iperout == 1:
+        return first == 0.0, first < 0.0
+    return np.zeros(first.shape, bool), first <= 0.0
+
+
+def read_wamit(path: str | Path, rho: float = 1000.0, g: float | None = None) -> xr.Dataset:
+    """Read a WAMIT run (``.1`` file or common stem) into the internal HDB layout."""
+    stem = wamit_stem(path)
+    file1 = stem.with_name(stem.name + ".1")
+    if not file1.is_file():
+        raise HDBError(path, "file", f"WAMIT radiation file {file1.name} not found")
+    excitation_file = next((stem.with_name(stem.name + s) for s in (".3", ".2")
+                            if stem.with_name(stem.name + s).is_file()), None)
+    if excitation_file is None:
+        raise HDBError(file1, "excitation_force", f"no {stem.name}.3 (or .2) excitation file beside it")
+    hst_file = stem.with_name(stem.name + ".hst")
+    if not hst_file.is_file():
+        raise HDBError(file1, "hydrostatic_stiffness", f"no {hst_file.name} beside it")
+    if not (np.isfinite(rho) and rho > 0):
+        raise HDBError(file1, "rho", f"must be finite and > 0, got {rho}")
+
+    cfg, facts = _read_cfg(stem), _read_out(stem)
+    try:
+        g = float(g if g is not None else facts.get("g", cfg.get("GRAV", DEFAULT_G)))
+        ulen = float(facts.get("ulen", cfg.get("ULEN", 1.0)))
+        iperout = int(cfg.get("IPEROUT", 1))
+    except ValueError as exc:
+        raise HDBError(stem.with_name(stem.name + ".cfg"), "GRAV/ULEN/IPEROUT", str(exc)) from None
+
+    # --- .1: added mass and damping
+    t1, l1 = _read_table(file1, (4, 5), "PER I J Abar [Bbar]")
+    ij = _mode_indices(file1, t1, l1, [1, 2])
+    inf_rows, skip_rows = _special_rows(t1[:, 0], iperout)
+    freq_rows = ~inf_rows & ~skip_rows
+    missing_b = freq_rows & np.isnan(t1[:, 4])
+    if np.any(missing_b):
+        raise HDBError(file1.name, f"line {l1[np.argmax(missing_b)]}", "expected 'PER I J Abar Bbar' (no Bbar)")
+    n_modes = int(ij.max())
+    n_bodies = max(-(-n_modes // 6), len(facts.get("xbody", [])))
+    n_dof = 6 * n_bodies
+    periods = np.unique(t1[freq_rows, 0])
+    if periods.size < 2:
+        raise HDBError(file1.name, "omega", f"needs at least 2 frequencies, got {periods.size}")
+    omega_unsorted = _frequencies(periods, iperout, g, str(file1))
+    order = np.argsort(omega_unsorted)
+    omega = omega_unsorted[order]
+    rank = np.empty_like(order)
+    rank[order] = np.arange(order.size)
+
+    i, j = ij[freq_rows, 0] - 1, ij[freq_rows, 1] - 1
+    w_idx = rank[np.searchsorted(periods, t1[freq_rows, 0])]
+    k = _scale_exponent(i + 1, j + 1, 3)
+    added_mass = np.zeros((omega.size, n_dof, n_dof))
+    damping = np.zeros_like(added_mass)
+    added_mass[w_idx, i, j] = rho * ulen ** k * t1[freq_rows, 3]
+    damping[w_idx, i, j] = rho * omega[w_idx] * ulen ** k * t1[freq_rows, 4]
+    added_mass_inf = None
+    if np.any(inf_rows):
+        ii, jj = ij[inf_rows, 0] - 1, ij[inf_rows, 1] - 1
+        added_mass_inf = np.zeros((n_dof, n_dof))
+        added_mass_inf[ii, jj] = rho * ulen ** _scale_exponent(ii + 1, jj + 1, 3) * t1[inf_rows, 3]
+
+    # --- .3 / .2: excitation per unit wave amplitude, conjugated to exp(-iwt)
+    t3, l3 = _read_table(excitation_file, (7,), "PER BETA I Mod Pha Re Im")
+    modes3 = _mode_indices(excitation_file, t3, l3, [2])[:, 0] - 1
+    inf3, skip3 = _special_rows(t3[:, 0], iperout)
+    keep = ~inf3 & ~skip3
+    t3, l3, modes3 = t3[keep], l3[keep], modes3[keep]
+    unknown = ~np.isin(t3[:, 0], periods)
+    if np.any(unknown):
+        raise HDBError(excitation_file.name, f"line {l3[np.argmax(unknown)]}",
+                       f"frequency column {t3[np.argmax(unknown), 0]} is not among the {file1.name} frequencies")
+    missing = np.setdiff1d(periods, t3[:, 0])
+    if missing.size:
+        raise HDBError(excitation_file.name, "excitation_force",
+                       f"no rows for frequency column {missing[0]} (present in {file1.name})")
+    if np.any(modes3 >= n_dof):
+        raise HDBError(excitation_file.name, f"line {l3[np.argmax(modes3 >= n_dof)]}",
+                       f"mode {modes3.max() + 1} exceeds the {n_dof} modes of {file1.name}")
+    betas = np.unique(t3[:, 1])
+    beta_idx = np.searchsorted(betas, t3[:, 1])
+    m = _scale_exponent(modes3 + 1, None, 2)
+    excitation = np.zeros((omega.size, betas.size, n_dof), complex)
+    excitation[rank[np.searchsorted(periods, t3[:, 0])], beta_idx, modes3] = (
+        rho * g * ulen ** m * (t3[:, 5] - 1j * t3[:, 6]))
+
+    # --- .hst: hydrostatics
+    th, lh = _read_table(hst_file, (3,), "I J Cbar")
+    ijh = _mode_indices(hst_file, th, lh, [0, 1]) - 1
+    if np.any(ijh >= n_dof):
+        raise HDBError(hst_file.name, f"line {lh[np.argmax((ijh >= n_dof).any(axis=1))]}",
+                       f"mode index exceeds the {n_dof} modes of {file1.name}")
+    stiffness = np.zeros((n_dof, n_dof))
+    stiffness[ijh[:, 0], ijh[:, 1]] = rho * g * ulen ** _scale_exponent(ijh[:, 0] + 1, ijh[:, 1] + 1, 2) * th[:, 2]
+
+    # --- bodies, reference points, volumes from the .out
+    bodies = _body_names(facts.get("gdf", []), n_bodies)
+    reference_point = np.zeros((n_bodies, 3))
+    volume = cb = None
+    xbody = facts.get("xbody", [])
+    if len(xbody) == n_bodies:
+        xb = np.asarray(xbody, float)
+        if xb.shape[1] >= 4 and np.any(xb[:, 3] != 0.0):
+            raise HDBError(stem.with_name(stem.name + ".out"), "PHIBODY",
+                           "bodies rotated about z (PHIBODY != 0) are not supported: their coefficients are in body axes")
+        reference_point = xb[:, :3]
+        if len(facts["volume"]) == n_bodies:
+            volume = np.asarray(facts["volume"], float)
+        if len(facts["cb"]) == n_bodies:
+            cb = reference_point + np.asarray(facts["cb"], float)
+
+    return make_hdb(
+        bodies=bodies, omega=omega, wave_direction=np.deg2rad(betas),
+        added_mass=added_mass, radiation_damping=damping, excitation_force=excitation,
+        hydrostatic_stiffness=stiffness, reference_point=reference_point,
+        rho=rho, g=g, water_depth=facts.get("depth", math.inf), source=str(file1),
+        added_mass_inf=added_mass_inf, displaced_volume=volume, center_of_buoyancy=cb,
+    )
