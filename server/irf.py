@@ -65,22 +65,28 @@ def ogilvie_estimates(omega: np.ndarray, added_mass: np.ndarray, t: np.ndarray,
 
 
 def ogilvie_added_mass_inf(omega: np.ndarray, added_mass: np.ndarray, t: np.ndarray,
-                           k: np.ndarray, band: tuple[float, float] = (0.4, 0.8)) -> np.ndarray:
+                           k: np.ndarray, window: float = 0.2) -> np.ndarray:
     """Ogilvie's A_inf (n, n) from A(w) (n_w, n, n) and the IRF K sampled at t.
 
-    The per-frequency estimates are wrong at both ends of the grid: at low w the IRF's truncation
-    at T (error ~ K(T)/w^2), near w_max the missing damping tail above the grid (a logarithmic
-    singularity at w_max). They are combined by the median over the frequencies whose position in
-    the grid's range, (w - w_min)/(w_max - w_min), lies in ``band`` (default 40-80 %); the median
-    ignores the odd irregular frequency. With fewer than 3 frequencies in the band, all are used.
+    The per-frequency estimates are wrong at both ends of the grid: at low w by the IRF's
+    truncation at T (error ~ K(T)/w^2, oscillating), near w_max by the damping tail missing above
+    the grid (growing towards w_max). They are combined by the median over the flattest contiguous
+    run of ``window`` (20 %) of the grid's frequencies: flatness is the largest relative range
+    (max - min)/|median| of the diagonal estimates in the run. The median ignores an odd irregular
+    frequency. (Fed with the same truncated K as the simulation, this also makes the effective
+    A_inf - (1/w) int K sin match the HDB's A(w) best over that run.)
     """
     omega = np.asarray(omega, float)
     est = ogilvie_estimates(omega, added_mass, t, k)
-    pos = (omega - omega[0]) / (omega[-1] - omega[0])
-    sel = (pos >= band[0]) & (pos <= band[1])
-    if sel.sum() < 3:
-        sel = np.ones_like(sel)
-    return np.median(est[sel], axis=0)
+    nw = omega.size
+    m = min(nw, max(3, int(round(window * nw))))
+    diag = np.diagonal(est, axis1=1, axis2=2)  # (n_w, n)
+    runs = np.lib.stride_tricks.sliding_window_view(diag, m, axis=0)  # (n_runs, n, m)
+    med = np.abs(np.median(runs, axis=-1))
+    scale = np.maximum(med, 1e-12 * max(float(np.abs(diag).max(initial=0.0)), 1e-300))
+    score = np.max((runs.max(axis=-1) - runs.min(axis=-1)) / scale, axis=1)  # (n_runs,)
+    s = int(np.argmin(score))
+    return np.median(est[s:s + m], axis=0)
 
 
 def irf_report(omega: np.ndarray, damping: np.ndarray, t: np.ndarray, k: np.ndarray) -> dict:
