@@ -66,6 +66,7 @@ class ProtocolError(Exception):
         self.name = name or code_name(code)
         self.field = field
         self.message = message
+        self.parent: Any = None  # msg_id of the offending request, when known only here
         where = f" [{field}]" if field else ""
         super().__init__(f"error {self.code} {self.name}{where}: {message}")
 
@@ -117,6 +118,8 @@ def decode_array(value: Any, field: str, kind: str = "f") -> np.ndarray:
                                 f"array data has {len(data)} bytes, shape {shape} of {value['dtype']} needs "
                                 f"{math.prod(shape) * dtype.itemsize}")
         arr = np.frombuffer(data, dtype).reshape(shape)
+    elif isinstance(value, np.ndarray):  # in-process callers
+        arr = value
     elif isinstance(value, list) or (isinstance(value, (int, float)) and not isinstance(value, bool)):
         target = {"f": np.float64, "i": np.int64, "b": np.bool_, "c": None, "": None}[kind]
         try:
@@ -181,15 +184,20 @@ def verify(frame: bytes, key: bytes) -> None:
 
 
 def unpack(frame: bytes, key: bytes | None = None) -> dict:
-    """Frame -> message map (``sig`` removed). ProtocolError 1 if not a msgpack map, 11 if badly signed."""
-    if key is not None:
-        verify(frame, key)
+    """Frame -> message map (``sig`` removed). ProtocolError 1 if not a msgpack map, then 11 if
+    badly signed (the error carries the unverified ``msg_id`` as ``exc.parent``)."""
     try:
         msg = msgpack.unpackb(frame, raw=False, strict_map_key=True)
     except Exception as exc:  # msgpack raises several unrelated types for garbage
         raise ProtocolError(Code.MALFORMED, None, f"frame is not a msgpack object ({type(exc).__name__}: {exc})") from None
     if not isinstance(msg, dict):
         raise ProtocolError(Code.MALFORMED, None, f"message must be a msgpack map, got {type(msg).__name__}")
+    if key is not None:
+        try:
+            verify(frame, key)
+        except ProtocolError as exc:
+            exc.parent = readable_id(msg)
+            raise
     msg.pop("sig", None)
     return msg
 

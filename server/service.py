@@ -1,0 +1,204 @@
+"""The force server: one ZeroMQ ROUTER socket, a poll loop, many sessions (protocol: SPEC.md).
+
+Every request gets exactly one reply; any exception while handling a message becomes an ``error``
+reply to that message and the loop carries on.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+import time
+from importlib import metadata
+from typing import Any, Callable
+
+import zmq
+
+from hydrolink.protocol import codec
+from hydrolink.protocol.codec import Code, ProtocolError
+from hydrolink.server.session import Session, build_model
+
+log = logging.getLogger("hydrolink.server")
+
+POLL_MS = 50
+TOMBSTONES = 1000  # remembered closed sessions, for a helpful error 7
+
+
+def server_version() -> str:
+    try:
+        return metadata.version("hydrolink")
+    except metadata.PackageNotFoundError:  # pragma: no cover
+        return "unknown"
+
+
+class ForceServer:
+    """Serve hydrodynamic forces on ``bind`` (e.g. ``tcp://127.0.0.1:*``) until :meth:`stop`."""
+
+    def __init__(self, bind: str, *, context: zmq.Context | None = None, session_timeout: float = 300.0,
+                 key: bytes | None = None):
+        self._own_context = context is None
+        self._ctx = context or zmq.Context()
+        self._sock = self._ctx.socket(zmq.ROUTER)
+        self._sock.setsockopt(zmq.LINGER, 0)
+        self._sock.setsockopt(zmq.MAXMSGSIZE, codec.MAX_MESSAGE_BYTES)
+        self._sock.setsockopt(zmq.ROUTER_MANDATORY, 0)
+        self._sock.bind(bind)
+        self._address = self._sock.getsockopt_string(zmq.LAST_ENDPOINT)
+        self.session_timeout = float(session_timeout)
+        self.key = key
+        self.sessions: dict[str, Session] = {}
+        self._closed: dict[str, str] = {}
+        self._stop = threading.Event()
+        self._ids = codec.id_source("s")
+        self._version = server_version()
+        self._handlers: dict[str, Callable[[dict, Any, str | None], tuple[str, dict, str | None]]] = {
+            "hello": self._hello, "step": self._step, "ping": self._ping, "bye": self._bye}
+
+    @property
+    def address(self) -> str:
+        """The bound endpoint, with the actual port (e.g. ``tcp://127.0.0.1:41235``)."""
+        return self._address
+
+    def stop(self) -> None:
+        """Ask :meth:`serve_forever` to return (within one poll interval); thread-safe."""
+        self._stop.set()
+
+    def serve_forever(self) -> None:
+        """Poll loop: handle requests, expire idle sessions; returns after :meth:`stop`."""
+        log.info("hydrolink server %s listening on %s (protocol %d, session timeout %g s%s)",
+                 self._version, self._address, codec.PROTOCOL_VERSION, self.session_timeout,
+                 ", signed" if self.key else "")
+        poller = zmq.Poller()
+        poller.register(self._sock, zmq.POLLIN)
+        next_sweep = time.monotonic()
+        try:
+            while not self._stop.is_set():
+                if poller.poll(POLL_MS):
+                    for _ in range(1000):  # drain what is queued, then sweep/check stop
+                        try:
+                            frames = self._sock.recv_multipart(zmq.NOBLOCK, copy=True)
+                        except zmq.Again:
+                            break
+                        self._serve_one(frames)
+                now = time.monotonic()
+                if now >= next_sweep:
+                    self._expire(now)
+                    next_sweep = now + min(1.0, self.session_timeout / 4)
+        finally:
+            self._shutdown()
+
+    # ------------------------------------------------------------ dispatch
+
+    def _serve_one(self, frames: list[bytes]) -> None:
+        if len(frames) < 2:
+            return  # no routing identity: nothing to answer to
+        routing, frame = frames[:-1], frames[-1]
+        reply = self.handle(frame)
+        try:
+            self._sock.send_multipart([*routing, codec.pack(reply, self.key)], zmq.NOBLOCK)
+        except zmq.ZMQError as exc:  # peer gone or its queue full: drop the reply
+            log.warning("reply to a %s dropped: %s", reply.get("type"), exc)
+
+    def handle(self, frame: bytes) -> dict:
+        """One request frame -> its reply message (never raises)."""
+        msg: Any = None
+        session: str | None = None
+        try:
+            msg = codec.unpack(frame, self.key)
+            session = msg.get("session") if isinstance(msg.get("session"), str) else None
+            mtype, msg_id, session = codec.check_envelope(msg)
+            rtype, fields, session = self._handlers[mtype](msg, msg_id, session)
+            return codec.message(rtype, next(self._ids), session, msg_id, **fields)
+        except ProtocolError as exc:
+            if exc.code not in (Code.OUT_OF_ORDER,):
+                log.info("error %d %s [%s] session %s: %s", exc.code, exc.name, exc.field, session, exc.message)
+            parent = codec.readable_id(msg) if msg is not None else exc.parent
+            return codec.error_from(exc, next(self._ids), parent, session)
+        except Exception as exc:  # noqa: BLE001 - the loop must never die
+            log.exception("internal error handling a %s (session %s)",
+                          msg.get("type") if isinstance(msg, dict) else "message", session)
+            return codec.error_reply(next(self._ids), codec.readable_id(msg), session, Code.INTERNAL, None,
+                                     f"internal server error: {type(exc).__name__}: {exc}")
+
+    def _session(self, session: str | None) -> Session:
+        if session is None:
+            raise ProtocolError(Code.MISSING_FIELD, "session", "this message needs the session id from welcome")
+        try:
+            s = self.sessions[session]
+        except KeyError:
+            why = self._closed.get(session, "no such session on this server")
+            raise ProtocolError(Code.UNKNOWN_SESSION, "session", f"session {session!r}: {why}") from None
+        s.touch()
+        return s
+
+    # ------------------------------------------------------------ handlers
+
+    def _hello(self, msg: dict, msg_id: Any, session: str | None) -> tuple[str, dict, str | None]:
+        role = codec.require_str(msg, "role")
+        if role not in codec.ROLES:
+            raise ProtocolError(Code.BAD_VALUE, "role", f"must be one of {list(codec.ROLES)}, got {role!r}")
+        if role not in codec.IMPLEMENTED_ROLES:
+            raise ProtocolError(Code.NOT_IMPLEMENTED, "role", f"role {role!r} is reserved; protocol 1 "
+                                f"servers implement only {list(codec.IMPLEMENTED_ROLES)}")
+        if session is not None:
+            if session in self.sessions:
+                raise ProtocolError(Code.WRONG_STATE, "session", f"session {session!r} is already set up "
+                                    f"({self.sessions[session].state}); a multibody hello creates a new session")
+            raise ProtocolError(Code.BAD_VALUE, "session", "a multibody hello must not carry a session id")
+        client = codec.require_map(msg, "client", default={})
+        t0 = time.perf_counter()
+        model = build_model(msg)
+        sid = os.urandom(16).hex()
+        self.sessions[sid] = Session(sid, model, client)
+        log.info("session %s opened by %s %s: %d bodies, dt %g, setup %.3f s", sid, client.get("name", "?"),
+                 client.get("version", "?"), len(model.bodies), model.dt, time.perf_counter() - t0)
+        return "welcome", {
+            "protocol": codec.PROTOCOL_VERSION,
+            "server": {"name": "hydrolink", "version": self._version},
+            "session_timeout": self.session_timeout,
+            "setup": model.setup_info(),
+        }, sid
+
+    def _step(self, msg: dict, msg_id: Any, session: str | None) -> tuple[str, dict, str | None]:
+        return "forces", self._session(session).step(msg), session
+
+    def _ping(self, msg: dict, msg_id: Any, session: str | None) -> tuple[str, dict, str | None]:
+        if session is not None:
+            self._session(session)
+        return "pong", {"time": time.time(), "sessions": len(self.sessions)}, session
+
+    def _bye(self, msg: dict, msg_id: Any, session: str | None) -> tuple[str, dict, str | None]:
+        s = self._session(session)
+        self._close(s, "closed by bye")
+        return "goodbye", {"steps": s.steps, "compute_s": s.compute_s}, session
+
+    # ------------------------------------------------------------ lifecycle
+
+    def _close(self, s: Session, why: str) -> None:
+        self.sessions.pop(s.id, None)
+        self._closed[s.id] = f"{why} at {time.strftime('%H:%M:%S')}"
+        while len(self._closed) > TOMBSTONES:
+            self._closed.pop(next(iter(self._closed)))
+        log.info("session %s %s after %d steps (%.3f s model time)", s.id, why, s.steps, s.compute_s)
+
+    def _expire(self, now: float) -> None:
+        for s in [s for s in self.sessions.values() if now - s.last_seen > self.session_timeout]:
+            self._close(s, f"expired after {self.session_timeout:g} s idle")
+
+    def _shutdown(self) -> None:
+        for s in list(self.sessions.values()):
+            self._close(s, "closed by server shutdown")
+        self._sock.close(0)
+        if self._own_context:
+            self._ctx.term()
+        log.info("hydrolink server on %s stopped", self._address)
+
+
+def serve_in_thread(bind: str = "tcp://127.0.0.1:*", **kw: Any) -> tuple[ForceServer, threading.Thread]:
+    """Start a :class:`ForceServer` in a daemon thread; stop it with ``server.stop(); thread.join()``."""
+    server = ForceServer(bind, **kw)
+    thread = threading.Thread(target=server.serve_forever, name=f"hydrolink-server {server.address}",
+                              daemon=True)
+    thread.start()
+    return server, thread

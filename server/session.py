@@ -1,0 +1,124 @@
+"""One co-simulation session: hello → model, the step sequencing rules, the cached last reply.
+
+State machine and rules: SPEC.md §4.2 and §5.3. A rejected request leaves the session unchanged.
+"""
+
+from __future__ import annotations
+
+import time as _time
+from typing import Any
+
+import numpy as np
+import xarray as xr
+
+from hydrolink.protocol import codec
+from hydrolink.protocol.codec import Code, ProtocolError
+from hydrolink.protocol.scene import Scene, SceneError, parse_scene
+from hydrolink.server.hdb.schema import HDBError, from_wire
+from hydrolink.server.model import HydroModel, ModelError
+
+
+def _scene_field(key: str) -> str:
+    return f"scene.{key}" if key else "scene"
+
+
+def build_model(msg: dict) -> HydroModel:
+    """Validate a ``hello``'s scene and HDBs and build the model; ProtocolError 8/9 naming the field."""
+    text = codec.require_str(msg, "scene")
+    hdb_maps = codec.require_map(msg, "hdbs")
+    try:
+        scene: Scene = parse_scene(text, "scene")
+    except SceneError as exc:
+        raise ProtocolError(Code.BAD_SCENE, _scene_field(exc.key), str(exc)) from None
+    datasets: dict[str, xr.Dataset] = {}
+    for i, body in enumerate(scene.bodies):
+        key = body.hdb
+        if key in datasets:
+            continue
+        if key not in hdb_maps:
+            raise ProtocolError(Code.BAD_HDB, f"hdbs.{key}",
+                                f"scene body {body.name!r} (bodies[{i}].hdb) uses HDB {key!r} but hello.hdbs "
+                                f"holds {sorted(hdb_maps)}")
+        try:
+            data = codec.decode_tree(hdb_maps[key])
+        except ProtocolError as exc:
+            raise ProtocolError(Code.BAD_HDB, f"hdbs.{key}", exc.message) from None
+        try:
+            datasets[key] = from_wire(data, key)
+        except HDBError as exc:
+            raise ProtocolError(Code.BAD_HDB, f"hdbs.{key}.{exc.field}" if exc.field else f"hdbs.{key}",
+                                str(exc)) from None
+    try:
+        return HydroModel(scene, {b.name: datasets[b.hdb] for b in scene.bodies})
+    except ModelError as exc:
+        raise ProtocolError(Code.BAD_SCENE, _scene_field(exc.key), str(exc)) from None
+    except HDBError as exc:
+        raise ProtocolError(Code.BAD_HDB, f"hdbs.{exc.source}.{exc.field}", str(exc)) from None
+
+
+class Session:
+    """A multibody session: the model plus the sequencing state of SPEC §5.3."""
+
+    def __init__(self, session_id: str, model: HydroModel, client: dict | None = None):
+        self.id = session_id
+        self.model = model
+        self.client = client or {}
+        self.n_bodies = len(model.bodies)
+        self.dt = model.dt
+        self.opened = self.last_seen = _time.monotonic()
+        self.last_seq = -1
+        self.last_iteration = -1
+        self._last_state: tuple[np.ndarray, np.ndarray] | None = None
+        self._cached: dict[str, Any] | None = None
+        self.steps = 0
+        self.compute_s = 0.0
+
+    @property
+    def state(self) -> str:
+        return "ready" if self.last_seq < 0 else "running"
+
+    def touch(self) -> None:
+        self.last_seen = _time.monotonic()
+
+    def step(self, msg: dict) -> dict:
+        """Reply fields for a ``step`` request (SPEC §5.2–5.3); ProtocolError leaves state unchanged."""
+        seq = codec.require_int(msg, "seq", minimum=0)
+        iteration = codec.require_int(msg, "iteration", default=0, minimum=0)
+        t_req = codec.require_float(msg, "time")
+        t = seq * self.dt
+        if abs(t_req - t) > 1e-9 * max(1.0, abs(t)):
+            raise ProtocolError(Code.BAD_VALUE, "time",
+                                f"time {t_req!r} does not match seq {seq} * dt {self.dt!r} = {t!r}")
+        shape = (self.n_bodies, 6)
+        pos = codec.require_array(msg, "position", shape)
+        vel = codec.require_array(msg, "velocity", shape)
+        if seq == self.last_seq + 1:
+            replace = False
+        elif seq == self.last_seq and iteration > self.last_iteration:
+            replace = True
+        elif seq == self.last_seq and iteration == self.last_iteration:
+            old_pos, old_vel = self._last_state
+            if not (np.array_equal(old_pos, pos) and np.array_equal(old_vel, vel)):
+                raise ProtocolError(Code.OUT_OF_ORDER, "iteration",
+                                    f"seq {seq} iteration {iteration} was already computed with another state; "
+                                    f"send iteration {iteration + 1} to replace it")
+            return dict(self._cached, compute_us=0.0)
+        else:
+            expect = f"expected seq {self.last_seq + 1} (new step)"
+            if self.last_seq >= 0:
+                expect += (f", or seq {self.last_seq} with iteration > {self.last_iteration} (replace) "
+                           f"or = {self.last_iteration} (retry)")
+            field = "seq" if seq != self.last_seq else "iteration"
+            raise ProtocolError(Code.OUT_OF_ORDER, field, f"{expect}; got seq {seq} iteration {iteration}")
+        t0 = _time.perf_counter()
+        try:
+            out = self.model.step(t, pos, vel, replace_last=replace)
+        except ModelError as exc:
+            raise ProtocolError(Code.BAD_VALUE, exc.key, str(exc)) from None
+        elapsed = _time.perf_counter() - t0
+        self.steps += 1
+        self.compute_s += elapsed
+        self.last_seq, self.last_iteration = seq, iteration
+        self._last_state = (pos.copy(), vel.copy())
+        self._cached = {"seq": seq, "iteration": iteration, "time": t, **out}
+        return dict(self._cached, compute_us=elapsed * 1e6)

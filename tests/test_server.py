@@ -1,0 +1,291 @@
+"""A real ForceServer on a free loopback port with a real HydroModel and an analytic HDB."""
+
+from __future__ import annotations
+
+import time
+
+import msgpack
+import numpy as np
+import pytest
+import zmq
+from analytic_hdb import make_body_hdb
+
+from hydrolink.clients.connection import RemoteError, ServerConnection
+from hydrolink.protocol import codec
+from hydrolink.server.hdb.schema import to_wire
+from hydrolink.server.service import serve_in_thread
+
+DT = 0.05
+SCENE = f"""
+[simulation]
+dt = {DT}
+duration = 10.0
+
+[waves]
+type = "regular"
+height = 1.0
+period = 6.0
+
+[hydro]
+irf_duration = 4.0
+
+[[bodies]]
+name = "float"
+hdb = "float.nc"
+mass = 3.0e5
+center_of_mass = [0.0, 0.0, -1.0]
+inertia = [1.0e7, 1.0e7, 2.0e7]
+"""
+RECV_MS = 5000
+
+
+@pytest.fixture(scope="module")
+def hdb():
+    return make_body_hdb()
+
+
+@pytest.fixture(scope="module")
+def server():
+    srv, thread = serve_in_thread(session_timeout=60.0)
+    yield srv
+    srv.stop()
+    thread.join(timeout=5)
+    assert not thread.is_alive()
+
+
+@pytest.fixture
+def conn(server, hdb):
+    with ServerConnection(server.address, timeout=10.0) as c:
+        c.hello(SCENE, {"float.nc": hdb})
+        yield c
+
+
+def states(n: int, seed: int = 0) -> list[tuple[np.ndarray, np.ndarray]]:
+    rng = np.random.default_rng(seed)
+    return [(0.1 * rng.standard_normal((1, 6)), 0.5 * rng.standard_normal((1, 6))) for _ in range(n)]
+
+
+def raw(address: str, frame: bytes, socket_type: int = zmq.DEALER) -> dict:
+    """Send one raw frame and return the decoded reply (bounded wait)."""
+    ctx = zmq.Context.instance()
+    sock = ctx.socket(socket_type)
+    sock.setsockopt(zmq.LINGER, 0)
+    sock.setsockopt(zmq.RCVTIMEO, RECV_MS)
+    try:
+        sock.connect(address)
+        sock.send(frame)
+        return codec.unpack(sock.recv())
+    finally:
+        sock.close(0)
+
+
+def request(address: str, **fields) -> dict:
+    return raw(address, codec.pack({"v": 1, "msg_id": "t-1", **fields}))
+
+
+def expect_error(call, code: int, field: str | None = None) -> RemoteError:
+    with pytest.raises(RemoteError) as err:
+        call()
+    assert err.value.code == code, err.value
+    if field is not None:
+        assert err.value.field == field, err.value
+    return err.value
+
+
+# ------------------------------------------------------------------ envelope-level errors
+
+def test_malformed_bytes_and_not_a_map(server):
+    for frame in (b"\x00\xc1 not msgpack", msgpack.packb([1, 2])):
+        reply = raw(server.address, frame)
+        assert (reply["type"], reply["code"], reply["name"], reply["parent"]) == ("error", 1, "malformed", None)
+
+
+@pytest.mark.parametrize("fields, code, field", [
+    ({"type": "ping", "v": 7}, 2, "v"),
+    ({"type": "fly"}, 3, "type"),
+    ({"type": "step", "session": None}, 4, "session"),
+    ({"type": "hello", "role": "multibody", "hdbs": {}}, 4, "scene"),
+    ({"type": "hello", "role": "controller", "scene": "", "hdbs": {}}, 12, "role"),
+    ({"type": "step", "session": "0" * 32}, 7, "session"),
+])
+def test_envelope_errors_name_the_field(server, fields, code, field):
+    reply = request(server.address, **fields)
+    assert (reply["type"], reply["code"], reply["field"], reply["parent"]) == ("error", code, field, "t-1")
+    assert reply["name"] == codec.code_name(code) and reply["message"]
+
+
+def test_ping_and_req_socket(server):
+    reply = raw(server.address, codec.pack(codec.message("ping", 5, None)), zmq.REQ)
+    assert reply["type"] == "pong" and reply["parent"] == 5 and reply["sessions"] >= 0
+
+
+# ------------------------------------------------------------------ hello errors
+
+def test_bad_scene_names_the_key(server, hdb):
+    with ServerConnection(server.address, timeout=10.0) as c:
+        err = expect_error(lambda: c.hello(SCENE.replace("mass = 3.0e5", "mass = -1.0"), {"float.nc": hdb}),
+                           8, "scene.bodies[0].mass")
+        assert err.name == "bad_scene"
+        expect_error(lambda: c.hello("[simulation\n", {"float.nc": hdb}), 8, "scene")
+        expect_error(lambda: c.hello(SCENE.replace('name = "float"', 'name = "float"\nhdb_body = "buoy"'),
+                                     {"float.nc": hdb}), 8, "scene.bodies[0].hdb_body")
+        assert c.session is None
+
+
+def test_bad_hdb_names_the_field(server, hdb):
+    with ServerConnection(server.address, timeout=10.0) as c:
+        wire = to_wire(hdb)
+        wire["omega"] = wire["omega"].copy()
+        wire["omega"][3] = np.nan
+        err = expect_error(lambda: c.request("hello", role="multibody", scene=SCENE, hdbs={"float.nc": wire}),
+                           9, "hdbs.float.nc.omega")
+        assert err.name == "bad_hdb" and "float.nc" in err.message
+        del wire["added_mass"]
+        expect_error(lambda: c.request("hello", role="multibody", scene=SCENE, hdbs={"float.nc": wire}),
+                     9, "hdbs.float.nc.added_mass")
+        expect_error(lambda: c.hello(SCENE, {"other.nc": hdb}), 9, "hdbs.float.nc")
+
+
+# ------------------------------------------------------------------ steps
+
+def test_welcome_carries_setup(server, hdb):
+    with ServerConnection(server.address, timeout=10.0) as c:
+        setup = c.hello(SCENE, {"float.nc": hdb})
+        assert setup["protocol"] == 1 and len(setup["session"]) == 32 and setup["bodies"] == ["float"]
+        assert setup["active"].shape == (1, 6) and setup["active"].dtype == bool
+        assert setup["added_mass_inf"].shape == (6, 6) and setup["dt"] == DT
+        assert setup["equilibrium_position"].shape == (1, 6)
+        f = c.step(0, 0.0, *states(1)[0])
+        assert {"excitation", "radiation", "hydrostatic"} <= set(f) and f["excitation"].shape == (1, 6)
+        assert f["compute_us"] > 0 and np.isfinite(f["wave_elevation"])
+        bye = c.bye()
+        assert bye["steps"] == 1 and bye["compute_s"] > 0 and c.session is None
+        reply = request(server.address, type="bye", session=setup["session"])
+        assert reply["code"] == 7 and "closed by bye" in reply["message"]
+
+
+def test_bad_steps_leave_the_session_usable(conn):
+    (p0, v0), (p1, v1) = states(2)
+    conn.step(0, 0.0, p0, v0)
+    bad = p1.copy()
+    bad[0, 2] = np.nan
+    expect_error(lambda: conn.step(1, DT, bad, v1), 5, "position")
+    expect_error(lambda: conn.step(1, DT, p1, np.zeros((2, 6))), 5, "velocity")
+    expect_error(lambda: conn.step(1, DT, p1, v1.tolist()[0]), 5, "velocity")
+    expect_error(lambda: conn.request("step", seq=1, time=DT, velocity=v1), 4, "position")
+    expect_error(lambda: conn.step(1, DT * 1.001, p1, v1), 5, "time")
+    expect_error(lambda: conn.step(3, 3 * DT, p1, v1), 6, "seq")
+    expect_error(lambda: conn.step(-1, -DT, p1, v1), 5, "seq")
+    f = conn.step(1, DT, p1, v1.tolist())  # nested lists are fine too
+    assert f["seq"] == 1 and np.all(np.isfinite(f["radiation"]))
+
+
+def test_duplicate_seq_resends_the_cached_reply(conn):
+    (p0, v0), (p1, v1) = states(2)
+    conn.step(0, 0.0, p0, v0)
+    first = conn.step(1, DT, p1, v1)
+    again = conn.step(1, DT, p1, v1)
+    assert again["compute_us"] == 0.0
+    for k in ("excitation", "radiation", "hydrostatic"):
+        np.testing.assert_array_equal(first[k], again[k])
+    assert (again["seq"], again["iteration"], again["time"], again["wave_elevation"]) == \
+        (first["seq"], first["iteration"], first["time"], first["wave_elevation"])
+    expect_error(lambda: conn.step(1, DT, p1 + 0.01, v1), 6, "iteration")
+    expect_error(lambda: conn.step(0, 0.0, p0, v0), 6, "seq")
+
+
+def run(conn: ServerConnection, seq_states, replace_at: int | None = None, replacement=None) -> list[dict]:
+    out = []
+    for k, (p, v) in enumerate(seq_states):
+        out.append(conn.step(k, k * DT, p, v))
+        if k == replace_at:
+            out[-1] = conn.step(k, k * DT, *replacement, iteration=1)
+    return out
+
+
+def test_iteration_replaces_the_newest_sample(server, hdb, conn):
+    seq_states = states(8, seed=1)
+    new_state = (seq_states[5][0] + 0.2, seq_states[5][1] - 0.3)
+    replaced = run(conn, seq_states, replace_at=5, replacement=new_state)
+    with ServerConnection(server.address, timeout=10.0) as ref_conn:
+        ref_conn.hello(SCENE, {"float.nc": hdb})
+        reference = run(ref_conn, seq_states[:5] + [new_state] + seq_states[6:])
+    assert replaced[5]["iteration"] == 1
+    for a, b in zip(replaced, reference):
+        for k in ("excitation", "radiation", "hydrostatic"):
+            np.testing.assert_allclose(a[k], b[k], rtol=1e-12, atol=1e-9)
+    assert np.any(reference[7]["radiation"] != 0)
+    expect_error(lambda: conn.step(5, 5 * DT, *new_state, iteration=2), 6, "seq")  # only the newest
+    conn.step(7, 7 * DT, *new_state, iteration=3)
+    expect_error(lambda: conn.step(7, 7 * DT, *seq_states[7], iteration=2), 6, "iteration")
+
+
+def test_concurrent_sessions_do_not_interfere(server, hdb):
+    a_states, b_states = states(30, seed=2), states(30, seed=3)
+    with ServerConnection(server.address, timeout=10.0) as a, ServerConnection(server.address, timeout=10.0) as b:
+        a.hello(SCENE, {"float.nc": hdb})
+        b.hello(SCENE, {"float.nc": hdb})
+        interleaved_a, interleaved_b = [], []
+        for k in range(30):
+            interleaved_a.append(a.step(k, k * DT, *a_states[k]))
+            interleaved_b.append(b.step(k, k * DT, *b_states[k]))
+    for seq_states, interleaved in ((a_states, interleaved_a), (b_states, interleaved_b)):
+        with ServerConnection(server.address, timeout=10.0) as alone:
+            alone.hello(SCENE, {"float.nc": hdb})
+            separate = run(alone, seq_states)
+        for x, y in zip(interleaved, separate):
+            for k in ("excitation", "radiation", "hydrostatic"):
+                np.testing.assert_array_equal(x[k], y[k])
+
+
+def test_vanished_client_expires_while_others_keep_running(hdb):
+    srv, thread = serve_in_thread(session_timeout=0.4)
+    try:
+        ghost = ServerConnection(srv.address, timeout=10.0)
+        ghost.hello(SCENE, {"float.nc": hdb})
+        ghost.step(0, 0.0, *states(1)[0])
+        ghost_id = ghost.session
+        ghost.close()  # vanishes without bye
+        with ServerConnection(srv.address, timeout=10.0) as live:
+            live.hello(SCENE, {"float.nc": hdb})
+            t0, k = time.monotonic(), 0
+            while time.monotonic() - t0 < 1.2:  # keeps stepping while the ghost expires
+                live.step(k, k * DT, *states(1, seed=k)[0])
+                k += 1
+                time.sleep(0.01)
+            assert ghost_id not in srv.sessions and live.session in srv.sessions
+            reply = request(srv.address, type="step", session=ghost_id, seq=1, time=DT)
+            assert reply["code"] == 7 and "expired" in reply["message"]
+    finally:
+        srv.stop()
+        thread.join(timeout=5)
+
+
+def test_signed_server_rejects_unsigned_and_wrong_key(hdb):
+    key = b"0123456789abcdef0123456789abcdef"
+    srv, thread = serve_in_thread(key=key)
+    try:
+        with ServerConnection(srv.address, timeout=5.0) as plain:
+            expect_error(plain.ping, 11, "sig")  # the error reply is signed; a keyless client still reads it
+        with ServerConnection(srv.address, timeout=5.0, key=b"wrong") as wrong:
+            with pytest.raises(ConnectionError, match="signature"):
+                wrong.ping()  # the server's reply fails *our* check too
+        with ServerConnection(srv.address, timeout=10.0, key=key) as good:
+            good.hello(SCENE, {"float.nc": hdb})
+            assert good.step(0, 0.0, *states(1)[0])["seq"] == 0
+    finally:
+        srv.stop()
+        thread.join(timeout=5)
+
+
+def test_receive_times_out_naming_the_address():
+    ctx = zmq.Context.instance()
+    with ctx.socket(zmq.ROUTER) as silent:  # accepts connections, never answers
+        silent.setsockopt(zmq.LINGER, 0)
+        port = silent.bind_to_random_port("tcp://127.0.0.1")
+        address = f"tcp://127.0.0.1:{port}"
+        with ServerConnection(address, timeout=0.2) as c:
+            t0 = time.monotonic()
+            with pytest.raises(TimeoutError, match=address):
+                c.ping()
+            assert time.monotonic() - t0 < 2.0
