@@ -175,8 +175,6 @@ def build_model(scene: Scene, setup: dict, *, spectral_radius: float = 1.0) -> E
     ss.timeIntegration.numberOfSteps = 1
     ss.timeIntegration.endTime = dt
     ss.timeIntegration.generalizedAlpha.spectralRadius = float(spectral_radius)
-    ss.displayStatistics = False
-    ss.displayComputationTime = False
     return ExudynModel(sc, mbs, exu.MainSolverImplicitSecondOrder(), ss, hydro, equilibrium,
                        active, stiffness, dt)
 
