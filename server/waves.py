@@ -61,15 +61,24 @@ def _jonswap_shape(omega, tp: float, gamma: float):
     return pm * peak
 
 
-def jonswap(omega, hs: float, tp: float, gamma: float = 3.3):
-    """JONSWAP S(w) [m^2 s/rad], normalised numerically so that int_0^inf S dw = hs^2/16.
-
-    Shape: w^-5 exp(-5/4 (wp/w)^4) gamma^exp(-(w-wp)^2/(2 sigma^2 wp^2)), sigma 0.07 / 0.09."""
+def _m0_of_shape(tp: float, gamma: float) -> float:
     wp = 2 * np.pi / tp
     f = lambda w: float(_jonswap_shape(w, tp, gamma))  # noqa: E731
-    m0 = sum(quad(f, a, b, limit=200)[0] for a, b in ((0, 0.8 * wp), (0.8 * wp, 1.5 * wp),
-                                                       (1.5 * wp, 10 * wp), (10 * wp, np.inf)))
-    return _jonswap_shape(omega, tp, gamma) * (hs ** 2 / 16.0) / m0
+    return sum(quad(f, a, b, limit=200)[0] for a, b in ((0, 0.8 * wp), (0.8 * wp, 1.5 * wp),
+                                                        (1.5 * wp, 10 * wp), (10 * wp, np.inf)))
+
+
+def jonswap_spectrum(hs: float, tp: float, gamma: float = 3.3):
+    """S(w) [m^2 s/rad] as a function, normalised once so that int_0^inf S dw = hs^2/16.
+
+    Shape: w^-5 exp(-5/4 (wp/w)^4) gamma^exp(-(w-wp)^2/(2 sigma^2 wp^2)), sigma 0.07 / 0.09."""
+    scale = (hs ** 2 / 16.0) / _m0_of_shape(tp, gamma)
+    return lambda w: _jonswap_shape(w, tp, gamma) * scale
+
+
+def jonswap(omega, hs: float, tp: float, gamma: float = 3.3):
+    """JONSWAP S(w) at omega (see :func:`jonswap_spectrum`)."""
+    return jonswap_spectrum(hs, tp, gamma)(omega)
 
 
 def pierson_moskowitz(omega, hs: float, tp: float):
@@ -103,7 +112,7 @@ def wave_components(waves, omega_min: float, omega_max: float) -> WaveComponents
                               np.array([np.deg2rad(waves.phase)]), direction, waves.ramp, 0.0, "regular")
     if isinstance(waves, IrregularWave):
         if waves.spectrum == "jonswap":
-            spec = lambda w: jonswap(w, waves.hs, waves.tp, waves.gamma)  # noqa: E731
+            spec = jonswap_spectrum(waves.hs, waves.tp, waves.gamma)
         else:
             spec = lambda w: pierson_moskowitz(w, waves.hs, waves.tp)  # noqa: E731
         edges = np.linspace(omega_min, omega_max, waves.components + 1)
