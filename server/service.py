@@ -50,6 +50,7 @@ class ForceServer:
         self.sessions: dict[str, Session] = {}
         self._closed: dict[str, str] = {}
         self._stop = threading.Event()
+        self._running = False
         self._ids = codec.id_source("s")
         self._version = server_version()
         self._handlers: dict[str, Callable[[dict, Any, str | None], tuple[str, dict, str | None]]] = {
@@ -59,6 +60,12 @@ class ForceServer:
     def address(self) -> str:
         """The bound endpoint, with the actual port (e.g. ``tcp://127.0.0.1:41235``)."""
         return self._address
+
+    def close(self) -> None:
+        """Stop and release the socket now (idempotent; for a server whose loop is not running)."""
+        self._stop.set()
+        if not self._running:
+            self._shutdown()
 
     def stop(self) -> None:
         """Ask :meth:`serve_forever` to return (within one poll interval); thread-safe."""
@@ -72,6 +79,7 @@ class ForceServer:
         poller = zmq.Poller()
         poller.register(self._sock, zmq.POLLIN)
         next_sweep = time.monotonic()
+        self._running = True
         try:
             while not self._stop.is_set():
                 if poller.poll(POLL_MS):
@@ -86,6 +94,7 @@ class ForceServer:
                     self._expire(now)
                     next_sweep = now + min(1.0, self.session_timeout / 4)
         finally:
+            self._running = False
             self._shutdown()
 
     # ------------------------------------------------------------ dispatch
@@ -187,6 +196,8 @@ class ForceServer:
             self._close(s, f"expired after {self.session_timeout:g} s idle")
 
     def _shutdown(self) -> None:
+        if self._sock.closed:
+            return
         for s in list(self.sessions.values()):
             self._close(s, "closed by server shutdown")
         self._sock.close(0)

@@ -289,3 +289,11 @@ def test_receive_times_out_naming_the_address():
             with pytest.raises(TimeoutError, match=address):
                 c.ping()
             assert time.monotonic() - t0 < 2.0
+
+
+def test_close_without_serving_is_idempotent():
+    from hydrolink.server.service import ForceServer
+    srv = ForceServer("tcp://127.0.0.1:*")
+    assert srv.address.startswith("tcp://127.0.0.1:") and not srv.address.endswith("*")
+    srv.close()
+    srv.close()
