@@ -37,15 +37,16 @@ DOF_PARAMS = {
 
 
 def make_body_hdb(omega=None, directions=(0.0,), rho=1000.0, g=9.81, depth=np.inf,
-                  name="float", with_inf=True, ref=(0.0, 0.0, 0.0), exc=None, hydrostatics=None):
+                  name="float", with_inf=True, ref=(0.0, 0.0, 0.0), exc=None, hydrostatics=None, params=None):
     """One body, diagonal A and B per DOF from the analytic pair above; excitation ``exc(w, beta)``
-    -> (n_w, 6) complex (default: a smooth made-up transfer function)."""
+    -> (n_w, 6) complex (default: a smooth made-up transfer function); ``params`` overrides
+    DOF_PARAMS."""
     omega = np.linspace(0.02, 8.0, 400) if omega is None else np.asarray(omega, float)
     nw = omega.size
     a = np.zeros((nw, 6, 6))
     b = np.zeros((nw, 6, 6))
     ainf = np.zeros((6, 6))
-    for d, (ai, b0, w0) in DOF_PARAMS.items():
+    for d, (ai, b0, w0) in (params or DOF_PARAMS).items():
         a[:, d, d] = added_mass(omega, ai, b0, w0)
         b[:, d, d] = damping(omega, b0, w0)
         ainf[d, d] = ai

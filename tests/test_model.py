@@ -1,0 +1,230 @@
+"""HydroModel: interface, scaling, hydrostatics, excitation, coupling blocks and a monolithic
+Cummins-equation run against the frequency-domain RAO."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import analytic_hdb as an
+from hydrolink.protocol.scene import parse_scene
+from hydrolink.server.hdb.schema import make_hdb
+from hydrolink.server.model import HydroModel, ModelError
+
+RHO, G = 1025.0, 9.81  # scene water; the analytic HDBs are written for rho = 1000, g = 9.81
+
+
+def scene(waves: str = "", dofs: str = '["surge","sway","heave","roll","pitch","yaw"]', *, dt=0.01,
+          irf=40.0, extra: str = "", cog="[0, 0, -1]", mass=3e5, depth='"inf"', bodies=None) -> object:
+    body = bodies or f'''[[bodies]]
+name = "float"
+hdb = "x.nc"
+mass = {mass}
+center_of_mass = {cog}
+inertia = [1e6, 1e6, 1e6]
+dofs = {dofs}
+{extra}'''
+    return parse_scene(f'''[simulation]
+dt = {dt}
+duration = 10
+[water]
+depth = {depth}
+[hydro]
+irf_duration = {irf}
+{waves}
+{body}''')
+
+
+def test_setup_info_and_inactive_dofs():
+    ds = an.make_body_hdb(ref=(0.5, 0.0, -0.2))
+    m = HydroModel(scene(dofs='["heave", "pitch"]'), {"float": ds})
+    info = m.setup_info()
+    assert info["bodies"] == ["float"] and info["dofs"][2] == "heave"
+    assert info["active"].tolist() == [[False, False, True, False, True, False]]
+    assert info["irf_samples"] == 4000 and info["dt"] == 0.01 and info["wave_components"] == 0
+    np.testing.assert_allclose(info["equilibrium_position"], [[0.5, 0.0, -0.2, 0, 0, 0]])
+    a, c = info["added_mass_inf"], info["hydrostatic_stiffness"]
+    assert a.shape == c.shape == (6, 6)
+    keep = np.zeros((6, 6), bool)
+    keep[np.ix_([2, 4], [2, 4])] = True
+    assert np.all(a[~keep] == 0) and np.all(c[~keep] == 0)
+    assert a[2, 2] == pytest.approx(3.0e5 * RHO / 1000)  # A_inf scaled by rho
+    out = m.step(0.0, np.array([[0.5, 0, -0.2 + 0.1, 0, 0.01, 0.3]]), np.ones((1, 6)))
+    for key in ("excitation", "radiation", "hydrostatic"):
+        assert out[key].shape == (1, 6) and np.all(out[key][0, [0, 1, 3, 5]] == 0)
+    assert out["hydrostatic"][0, 2] == pytest.approx(-7.7e5 * RHO / 1000 * 0.1)
+    assert out["wave_elevation"] == 0.0
+
+
+def test_gravity_terms_for_offset_cog_by_finite_rotation():
+    ref, cog, mass = np.array([0.3, -0.2, -1.0]), np.array([1.1, 0.6, -2.5]), 2.0e5
+    c_hydro = np.diag([0.0, 0.0, 7.7e5, 4e6, 4e6, 0.0])
+    c_hydro[2, 4] = c_hydro[4, 2] = 1.5e5
+    ds = an.make_body_hdb(ref=tuple(ref), hydrostatics=c_hydro)
+    m = HydroModel(scene(cog=str(cog.tolist()), mass=mass), {"float": ds})
+    c = m.setup_info()["hydrostatic_stiffness"]
+    # independent: moment of the weight about the (moving) reference point after an exact rotation
+    d = cog - ref
+
+    def moment(theta):
+        th = np.linalg.norm(theta)
+        kx = np.array([[0, -theta[2], theta[1]], [theta[2], 0, -theta[0]], [-theta[1], theta[0], 0]])
+        r = np.eye(3) + (np.sin(th) / th) * kx + ((1 - np.cos(th)) / th ** 2) * kx @ kx if th else np.eye(3)
+        return np.cross(r @ d, [0.0, 0.0, -mass * G])
+
+    h = 1e-6
+    c_grav = np.zeros((3, 3))
+    for j in range(3):
+        e = np.zeros(3)
+        e[j] = h
+        c_grav[:, j] = -(moment(e) - moment(-e)) / (2 * h)
+    expected = c_hydro * RHO * G / (1000 * 9.81)
+    expected[3:, 3:] += c_grav
+    np.testing.assert_allclose(c, expected, rtol=1e-6, atol=1e-3)
+    assert c[3, 3] == pytest.approx(4e6 * 1.025 - mass * G * (d[2]))  # C44 -= m g (z_G - z_ref)
+
+
+def test_regular_wave_excitation_scaled_and_ramped():
+    ds = an.make_body_hdb(directions=np.deg2rad([0.0, 90.0]))
+    waves = '[waves]\ntype = "regular"\nheight = 1.6\nperiod = 6.0\ndirection = 30.0\nphase = 45.0\nramp = 12.0'
+    m = HydroModel(scene(waves), {"float": ds})
+    w, beta = 2 * np.pi / 6.0, np.deg2rad(30.0)
+    x0 = ds["excitation_force"].values
+    om = ds["omega"].values
+    xi = np.array([np.interp(w, om, x0[:, 0, k].real) + 1j * np.interp(w, om, x0[:, 0, k].imag) for k in range(6)])
+    x9 = np.array([np.interp(w, om, x0[:, 1, k].real) + 1j * np.interp(w, om, x0[:, 1, k].imag) for k in range(6)])
+    x_ref = (xi * (2 / 3) + x9 / 3) * RHO / 1000  # 30 deg is one third of the way to 90 deg
+    zero = np.zeros((1, 6))
+    for k in range(0, 2000):
+        t = k * 0.01
+        out = m.step(t, zero, zero)
+        r = 0.5 * (1 - np.cos(np.pi * t / 12)) if t < 12 else 1.0
+        if k % 97 == 0:
+            np.testing.assert_allclose(out["excitation"][0], r * np.real(0.8 * x_ref * np.exp(1j * np.pi / 4 - 1j * w * t)),
+                                       rtol=1e-9, atol=1e-6)
+            assert out["wave_elevation"] == pytest.approx(r * 0.8 * np.cos(w * t - np.pi / 4), abs=1e-12)
+
+
+def test_errors_name_scene_keys():
+    ds = an.make_body_hdb()
+    with pytest.raises(ModelError, match="water.depth"):
+        HydroModel(scene(depth="50.0"), {"float": ds})
+    with pytest.raises(ModelError, match="waves.period"):
+        HydroModel(scene('[waves]\ntype = "regular"\nheight = 1\nperiod = 1000.0'), {"float": ds})
+    with pytest.raises(ModelError, match="waves.direction"):
+        HydroModel(scene('[waves]\ntype = "regular"\nheight = 1\nperiod = 6.0\ndirection = 90'), {"float": ds})
+    with pytest.raises(ModelError, match=r"bodies\[0\].hdb_body"):
+        HydroModel(scene(extra='hdb_body = "nope"'), {"float": ds})
+    m = HydroModel(scene(), {"float": ds})
+    z = np.zeros((1, 6))
+    m.step(0.0, z, z)
+    with pytest.raises(ModelError, match="time"):
+        m.step(0.05, z, z)
+    m.step(0.01, z, z)
+    m.step(0.01, z, z, replace_last=True)
+
+
+def test_ogilvie_used_without_hdb_a_inf():
+    m = HydroModel(scene(), {"float": an.make_body_hdb(with_inf=False)})
+    info = m.setup_info()
+    assert info["added_mass_inf_source"] == {"float": "ogilvie"}
+    ref = np.array([p[0] for p in an.DOF_PARAMS.values()]) * RHO / 1000
+    np.testing.assert_allclose(np.diag(info["added_mass_inf"]), ref, rtol=1e-5)
+    assert info["irf_fit_error"]["analytic"] < 1e-4
+
+
+def _two_body_hdb():
+    """Two bodies, heave-heave coupling through an analytic B (closed-form K)."""
+    omega = np.linspace(0.02, 8.0, 400)
+    a = np.zeros((omega.size, 12, 12))
+    b = np.zeros((omega.size, 12, 12))
+    for i in range(12):
+        a[:, i, i] = an.added_mass(omega, 1e5, 5e4, 1.0)
+        b[:, i, i] = an.damping(omega, 5e4, 1.0)
+    a[:, 2, 8] = a[:, 8, 2] = an.added_mass(omega, 2e4, 1e4, 1.3)
+    b[:, 2, 8] = b[:, 8, 2] = an.damping(omega, 1e4, 1.3)
+    return make_hdb(bodies=["a", "b"], omega=omega, wave_direction=np.array([0.0]), added_mass=a,
+                    radiation_damping=b, excitation_force=np.zeros((omega.size, 1, 12), complex),
+                    hydrostatic_stiffness=np.eye(12) * 1e5, reference_point=np.array([[0, 0, 0], [10, 0, 0.0]]),
+                    rho=1000.0, g=9.81, water_depth=np.inf, source="two")
+
+
+def _bodies(names_hdb: list[tuple[str, str]]) -> str:
+    return "\n".join(f'''[[bodies]]
+name = "{n}"
+hdb = "x.nc"
+hdb_body = "{h}"
+mass = 1e5
+center_of_mass = [{10 if h == "b" else 0}, 0, 0]
+inertia = [1e5, 1e5, 1e5]
+dofs = ["heave"]''' for n, h in names_hdb)
+
+
+def test_body_to_body_radiation_uses_shared_dataset():
+    ds = _two_body_hdb()
+    dt = 0.01
+    m = HydroModel(scene(bodies=_bodies([("A", "a"), ("B", "b")]), dt=dt, irf=10.0), {"A": ds, "B": ds})
+    assert m.setup_info()["added_mass_inf"][2, 8] == pytest.approx(2e4 * RHO / 1000, rel=1e-5)  # Ogilvie
+    pos = np.zeros((2, 6))
+    pos[1, 0] = 10.0
+    v = np.zeros((2, 6))
+    v[0, 2] = 1.0  # unit heave velocity of A at t = 0 only
+    f = [m.step(0.0, pos, v)["radiation"]]
+    for k in range(1, 300):
+        f.append(m.step(k * dt, pos, np.zeros((2, 6)))["radiation"])
+    f = np.array(f)
+    t = np.arange(300) * dt
+    w = np.where(np.arange(300) == 0, 0.5, 1.0)
+    np.testing.assert_allclose(f[:, 1, 2], -dt * w * an.irf(t, 1e4, 1.3) * RHO / 1000, rtol=1e-4, atol=1e-6)
+    np.testing.assert_allclose(f[:, 0, 2], -dt * w * an.irf(t, 5e4, 1.0) * RHO / 1000, rtol=1e-4, atol=1e-6)
+    # separate datasets (copies): no hydrodynamic interaction
+    m2 = HydroModel(scene(bodies=_bodies([("A", "a"), ("B", "b")]), dt=dt, irf=10.0), {"A": ds, "B": ds.copy()})
+    assert m2.setup_info()["added_mass_inf"][2, 8] == 0.0
+    assert m2.step(0.0, pos, v)["radiation"][1, 2] == 0.0
+
+
+@pytest.mark.parametrize("period", [5.0, 8.0])
+def test_cummins_heave_matches_frequency_domain_rao(period):
+    """Lockstep trapezoidal integration of (m + A_inf) x'' = F_ex + F_rad + F_hs fed by the model,
+    iterating each step with replace_last; steady amplitude vs |F/(-w^2(m+A) - i w B + C)|."""
+    a_inf, b0, w0, c33, mass = 3.0e5, 3.0e5, 1.0, 7.7e5, 3.0e5
+    params = {d: (1e5, 1e4, 1.0) for d in range(6)}
+    params[2] = (a_inf, b0, w0)
+    ds = an.make_body_hdb(params=params, hydrostatics=np.diag([0, 0, c33, 1e6, 1e6, 0]))
+    dt, n_steps, h = 0.01, 12000, 1.0
+    m = HydroModel(scene(f'[waves]\ntype = "regular"\nheight = {2 * h}\nperiod = {period}\nramp = 10.0',
+                         dofs='["heave"]', dt=dt), {"float": ds})
+    mt = mass + m.setup_info()["added_mass_inf"][2, 2]
+    pos, vel = np.zeros((1, 6)), np.zeros((1, 6))
+    x, v = 0.0, 0.0
+
+    def force(t, x, v, replace):
+        pos[0, 2], vel[0, 2] = x, v
+        out = m.step(t, pos, vel, replace_last=replace)
+        return out["excitation"][0, 2] + out["radiation"][0, 2] + out["hydrostatic"][0, 2]
+
+    acc = force(0.0, x, v, False) / mt
+    xs = np.empty(n_steps + 1)
+    xs[0] = 0.0
+    for k in range(1, n_steps + 1):
+        x1, v1, a1 = x + dt * v + 0.5 * dt * dt * acc, v + dt * acc, acc
+        for it in range(4):
+            a1 = force(k * dt, x1, v1, it > 0) / mt
+            v1 = v + 0.5 * dt * (acc + a1)
+            x1 = x + 0.5 * dt * (v + v1)
+        x, v, acc = x1, v1, a1
+        xs[k] = x
+    t = np.arange(n_steps + 1) * dt
+    w = 2 * np.pi / period
+    sel = t >= t[-1] - 5 * period
+    fit = np.linalg.lstsq(np.c_[np.cos(w * t[sel]), np.sin(w * t[sel])], xs[sel], rcond=None)[0]
+    amp = np.hypot(*fit)
+    s = RHO / 1000
+    x_ex = ds["excitation_force"].values[:, 0, 2]
+    om = ds["omega"].values
+    f_ex = (np.interp(w, om, x_ex.real) + 1j * np.interp(w, om, x_ex.imag)) * s * h
+    a_w, b_w = an.added_mass(w, a_inf, b0, w0) * s, an.damping(w, b0, w0) * s
+    rao = abs(f_ex / (-w ** 2 * (mass + a_w) - 1j * w * b_w + c33 * RHO * G / (1000 * 9.81)))
+    print(f"T={period}: amplitude {amp:.6f}, RAO {rao:.6f}, rel {amp / rao - 1:.2e}")
+    assert amp == pytest.approx(rao, rel=1e-2)
+    assert amp == pytest.approx(rao, rel=2e-3)  # actually much closer: the 1 % bound is the brief's
