@@ -297,3 +297,20 @@ def test_close_without_serving_is_idempotent():
     assert srv.address.startswith("tcp://127.0.0.1:") and not srv.address.endswith("*")
     srv.close()
     srv.close()
+
+
+def test_real_hdb_file_over_the_wire(server, shared_data):
+    """The shared WEC-Sim sphere (BEMIO .h5) travels in hello; heave hydrostatics come back."""
+    from hydrolink.server.hdb.io import load_hdb
+    ds = load_hdb(shared_data / "sphere_task10" / "sphere.h5")
+    scene = (SCENE.replace('name = "float"', 'name = "sphere"').replace('hdb = "float.nc"', 'hdb = "sphere.h5"')
+             .replace("[waves]", "[water]\ndensity = 1000.0\ndepth = 200.0\n\n[waves]"))
+    with ServerConnection(server.address, timeout=20.0) as c:
+        setup = c.hello(scene, {"sphere.h5": ds})
+        assert setup["bodies"] == ["sphere"] and setup["added_mass_inf"][2, 2] > 0
+        eq = setup["equilibrium_position"]
+        dz = np.zeros((1, 6))
+        dz[0, 2] = 0.1
+        f = c.step(0, 0.0, eq + dz, np.zeros((1, 6)))
+        k33 = setup["hydrostatic_stiffness"][2, 2]
+        assert k33 > 0 and f["hydrostatic"][0, 2] == pytest.approx(-0.1 * k33, rel=1e-9)
