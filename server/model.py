@@ -150,6 +150,8 @@ class HydroModel:
         self._memory = RadiationMemory(kernel[:self.irf_samples + 1], self.dt)
         self._forcing = WaveForcing(self.waves, x_comp[:, self._idx])
         self._step = -1           # index of the newest step pushed
+        self._sel = slice(None) if na == self.n else self._idx  # a view when every DOF is active
+        self._red = np.zeros((3, na))  # scratch: excitation, radiation, hydrostatic (active DOFs)
         self._net_buoyancy = self._buoyancy(hdbs, groups, rho, g, masses)
 
     def _buoyancy(self, hdbs, groups, rho, g, masses) -> list[float | None]:
@@ -198,15 +200,12 @@ class HydroModel:
         if x.size != self.n or v.size != self.n:
             raise ModelError("state", f"position and velocity must be ({len(self.bodies)}, 6), "
                                       f"got {np.shape(position)} and {np.shape(velocity)}")
-        idx = self._idx
-        f_rad = self._memory.push(v[idx], replace_last)
-        f_exc, eta = self._forcing(time)
-        f_hs = self._k_hs @ (self._x_eq - x[idx])
+        sel = self._sel
+        red = self._red
+        red[1] = self._memory.push(v[sel], replace_last)
+        red[0], eta = self._forcing(time)
+        np.dot(self._k_hs, self._x_eq - x[sel], out=red[2])
         self._step = k
-        out = np.zeros((3, self.n))
-        out[0, idx] = f_exc
-        out[1, idx] = f_rad
-        out[2, idx] = f_hs
-        shape = (len(self.bodies), 6)
-        return {"excitation": out[0].reshape(shape), "radiation": out[1].reshape(shape),
-                "hydrostatic": out[2].reshape(shape), "wave_elevation": eta}
+        out = np.zeros((3, len(self.bodies), 6))
+        out.reshape(3, self.n)[:, sel] = red
+        return {"excitation": out[0], "radiation": out[1], "hydrostatic": out[2], "wave_elevation": eta}

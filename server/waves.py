@@ -187,16 +187,21 @@ class WaveForcing:
         self._trig = np.empty(2 * comps.size)
         self._n = n
         self._still = comps.size == 0
+        self._w0 = float(comps.omega[0]) if comps.size else 0.0
 
     def __call__(self, t: float) -> tuple[np.ndarray, float]:
         """(F_ex (n,), eta) at time t."""
         if self._still:
             return np.zeros(self._n), 0.0
         nc = self.comps.size
-        wt = self.comps.omega * t
-        np.cos(wt, out=self._trig[:nc])
-        np.sin(wt, out=self._trig[nc:])
-        out = self._m @ self._trig
+        if nc == 1:  # regular wave: scalar trig is cheaper than array calls
+            wt = self._w0 * t
+            out = self._m[:, 0] * math.cos(wt) + self._m[:, 1] * math.sin(wt)
+        else:
+            wt = self.comps.omega * t
+            np.cos(wt, out=self._trig[:nc])
+            np.sin(wt, out=self._trig[nc:])
+            out = self._m @ self._trig
         r = self.comps.ramp
         if r > 0 and t < r:
             out *= 0.5 * (1.0 - math.cos(math.pi * max(t, 0.0) / r))
