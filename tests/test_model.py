@@ -183,23 +183,17 @@ def test_body_to_body_radiation_uses_shared_dataset():
     assert m2.step(0.0, pos, v)["radiation"][1, 2] == 0.0
 
 
-@pytest.mark.parametrize("period", [5.0, 8.0])
-def test_cummins_heave_matches_frequency_domain_rao(period):
-    """Lockstep trapezoidal integration of (m + A_inf) x'' = F_ex + F_rad + F_hs fed by the model,
-    iterating each step with replace_last; steady amplitude vs |F/(-w^2(m+A) - i w B + C)|."""
-    a_inf, b0, w0, c33, mass = 3.0e5, 3.0e5, 1.0, 7.7e5, 3.0e5
-    params = {d: (1e5, 1e4, 1.0) for d in range(6)}
-    params[2] = (a_inf, b0, w0)
-    ds = an.make_body_hdb(params=params, hydrostatics=np.diag([0, 0, c33, 1e6, 1e6, 0]))
-    dt, n_steps, h = 0.01, 12000, 1.0
-    m = HydroModel(scene(f'[waves]\ntype = "regular"\nheight = {2 * h}\nperiod = {period}\nramp = 10.0',
-                         dofs='["heave"]', dt=dt), {"float": ds})
+def _heave_amplitude(m: HydroModel, mass: float, dt: float, n_steps: int, period: float) -> float:
+    """Lockstep trapezoidal integration of (m + A_inf) x'' = F_ex + F_rad + F_hs (heave about
+    equilibrium) with the model's forces, each step iterated 4 times with replace_last; returns the
+    steady amplitude fitted over the last 5 periods."""
     mt = mass + m.setup_info()["added_mass_inf"][2, 2]
-    pos, vel = np.zeros((1, 6)), np.zeros((1, 6))
+    z0 = m.setup_info()["equilibrium_position"][0, 2]
+    pos, vel = m.setup_info()["equilibrium_position"].copy(), np.zeros((1, 6))
     x, v = 0.0, 0.0
 
     def force(t, x, v, replace):
-        pos[0, 2], vel[0, 2] = x, v
+        pos[0, 2], vel[0, 2] = z0 + x, v
         out = m.step(t, pos, vel, replace_last=replace)
         return out["excitation"][0, 2] + out["radiation"][0, 2] + out["hydrostatic"][0, 2]
 
@@ -218,7 +212,22 @@ def test_cummins_heave_matches_frequency_domain_rao(period):
     w = 2 * np.pi / period
     sel = t >= t[-1] - 5 * period
     fit = np.linalg.lstsq(np.c_[np.cos(w * t[sel]), np.sin(w * t[sel])], xs[sel], rcond=None)[0]
-    amp = np.hypot(*fit)
+    return float(np.hypot(*fit))
+
+
+@pytest.mark.parametrize("period", [5.0, 8.0])
+def test_cummins_heave_matches_frequency_domain_rao(period):
+    """Lockstep trapezoidal integration of (m + A_inf) x'' = F_ex + F_rad + F_hs fed by the model,
+    iterating each step with replace_last; steady amplitude vs |F/(-w^2(m+A) - i w B + C)|."""
+    a_inf, b0, w0, c33, mass = 3.0e5, 3.0e5, 1.0, 7.7e5, 3.0e5
+    params = {d: (1e5, 1e4, 1.0) for d in range(6)}
+    params[2] = (a_inf, b0, w0)
+    ds = an.make_body_hdb(params=params, hydrostatics=np.diag([0, 0, c33, 1e6, 1e6, 0]))
+    dt, n_steps, h = 0.01, 12000, 1.0
+    m = HydroModel(scene(f'[waves]\ntype = "regular"\nheight = {2 * h}\nperiod = {period}\nramp = 10.0',
+                         dofs='["heave"]', dt=dt), {"float": ds})
+    amp = _heave_amplitude(m, mass, dt, n_steps, period)
+    w = 2 * np.pi / period
     s = RHO / 1000
     x_ex = ds["excitation_force"].values[:, 0, 2]
     om = ds["omega"].values
@@ -228,3 +237,48 @@ def test_cummins_heave_matches_frequency_domain_rao(period):
     print(f"T={period}: amplitude {amp:.6f}, RAO {rao:.6f}, rel {amp / rao - 1:.2e}")
     assert amp == pytest.approx(rao, rel=1e-2)
     assert amp == pytest.approx(rao, rel=2e-3)  # actually much closer: the 1 % bound is the brief's
+
+
+def test_sphere_hydrostatics_and_heave_rao(shared_data):
+    """Task-10 hemisphere (r = 5 m): C33 = rho g pi r^2, and a lockstep heave run vs the RAO from the
+    HDB's own A(w), B(w), X(w)."""
+    io = pytest.importorskip("hydrolink.server.hdb.io")
+    ds = io.load_hdb(shared_data / "sphere_task10" / "sphere.h5")
+    r = 5.0
+    mass = RHO * 2 / 3 * np.pi * r ** 3
+    period, dt = 4.0, 0.01
+    sc = parse_scene(f'''[simulation]
+dt = {dt}
+duration = 10
+[water]
+depth = 200.0
+[waves]
+type = "regular"
+height = 0.5
+period = {period}
+ramp = 8.0
+[[bodies]]
+name = "sphere"
+hdb = "sphere.h5"
+hdb_body = "{str(ds["body"].values[0])}"
+mass = {mass}
+center_of_mass = [0, 0, 0]
+inertia = [1e6, 1e6, 1e6]
+dofs = ["heave"]
+''')
+    m = HydroModel(sc, {"sphere": ds})
+    info = m.setup_info()
+    assert info["hydrostatic_stiffness"][2, 2] == pytest.approx(RHO * 9.81 * np.pi * r ** 2, rel=2e-3)
+    assert abs(info["net_buoyancy"][0]) < 2e-3 * mass * 9.81
+    amp = _heave_amplitude(m, mass, dt, 8000, period)
+    s = RHO / float(ds.attrs["rho"])
+    w = 2 * np.pi / period
+    om = ds["omega"].values
+    interp = lambda y: np.interp(w, om, y.real) + 1j * np.interp(w, om, y.imag)  # noqa: E731
+    f_ex = interp(ds["excitation_force"].values[:, 0, 2]) * s * 0.25
+    a_w = interp(ds["added_mass"].values[:, 2, 2]).real * s
+    b_w = interp(ds["radiation_damping"].values[:, 2, 2]).real * s
+    c33 = ds["hydrostatic_stiffness"].values[2, 2] * RHO * G / (float(ds.attrs["rho"]) * float(ds.attrs["g"]))
+    rao = abs(f_ex / (-w ** 2 * (mass + a_w) - 1j * w * b_w + c33))
+    print(f"sphere T={period}: amplitude {amp:.6f}, RAO {rao:.6f}, rel {amp / rao - 1:.2e}")
+    assert amp == pytest.approx(rao, rel=1e-2)
