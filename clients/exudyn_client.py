@@ -257,15 +257,15 @@ def run(scene: Scene, scene_text: str, connection, setup: dict, writer, *, progr
         exc_f, rad_f, eta = request(0, 0.0, q, v)
         model.set_force((exc_f + rad_f).reshape(-1))
         model.initialize()
+        q, v, a = model.state()  # initial accelerations from F(0)
         writer.append(0.0, (eq + q).reshape(n, 6), v.reshape(n, 6), exc_f, rad_f,
                       -(stiffness @ q).reshape(n, 6), eta)
         for step in range(1, n_steps + 1):
             t_prev, t = (step - 1) * h, step * h
-            q, v, a = model.state()
             exc_f, rad_f, eta = request(step, t, q + h * v + 0.5 * h * h * a, v + h * a)
             model.set_force((exc_f + rad_f).reshape(-1))
             model.advance(t_prev, t)
-            q, v, _ = model.state()
+            q, v, a = model.state()
             _check_state(q, v, step, t, blow_up_limit, step, "the body state")
             writer.append(t, (eq + q).reshape(n, 6), v.reshape(n, 6), exc_f, rad_f,
                           -(stiffness @ q).reshape(n, 6), eta)
