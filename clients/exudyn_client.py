@@ -32,7 +32,7 @@ from exudyn.itemInterface import (CoordinateConstraint, MarkerNodeCoordinate, No
                                   VObjectGenericODE2, VObjectRigidBody)
 from exudyn.rigidBodyUtilities import RigidBodyInertia
 
-from hydrolink.protocol.scene import DOF_NAMES, Scene
+from hydrolink.protocol.scene import DOF_NAMES, Scene, SceneError
 
 #: default bound on |displacement| (m, rad) and |velocity| (m/s, rad/s) before a run is called diverged
 BLOW_UP_LIMIT = 1.0e4
@@ -115,13 +115,16 @@ def _scene_bodies(scene: Scene, names: list[str]):
     return [by_name[n] for n in names]
 
 
-def _initial(body, active: np.ndarray, what: str) -> np.ndarray:
+def _initial(scene: Scene, body, active: np.ndarray, what: str) -> np.ndarray:
+    """A body's initial displacement/velocity; nonzero values in inactive DOFs are a scene error."""
     value = np.asarray(getattr(body, what), float)
     locked = ~active & (value != 0)
     if locked.any():
+        i = scene.bodies.index(body)
         dofs = [DOF_NAMES[j] for j in np.flatnonzero(locked)]
-        raise ValueError(f"body {body.name!r}: {what} is nonzero in inactive DOF(s) {dofs}; "
-                         f"inactive DOFs are held at equilibrium (add them to dofs or set 0)")
+        raise SceneError("scene", f"bodies[{i}].{what}",
+                         f"nonzero in inactive DOF(s) {dofs}; inactive DOFs are held at equilibrium "
+                         f"(add them to bodies[{i}].dofs or set them to 0)")
     return value
 
 
@@ -152,8 +155,8 @@ def build_model(scene: Scene, setup: dict, *, spectral_radius: float = 1.0) -> E
         node = mbs.AddNode(NodeRigidBodyRxyz(
             name=f"{body.name}_node",
             referenceCoordinates=[*ref, 0.0, 0.0, 0.0],
-            initialCoordinates=_initial(body, active[i], "initial_displacement"),
-            initialVelocities=_initial(body, active[i], "initial_velocity")))
+            initialCoordinates=_initial(scene, body, active[i], "initial_displacement"),
+            initialVelocities=_initial(scene, body, active[i], "initial_velocity")))
         mbs.AddObject(ObjectRigidBody(
             name=body.name, nodeNumber=node, mass=body.mass,
             inertia=inertia.GetInertia6D(), centerOfMass=com,

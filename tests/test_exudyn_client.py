@@ -23,7 +23,7 @@ import xarray as xr
 from hydrolink.clients.connection import ServerConnection
 from hydrolink.clients.exudyn_client import RunInterrupted, SimulationDiverged, build_model, run
 from hydrolink.clients.results import ResultWriter
-from hydrolink.protocol.scene import parse_scene
+from hydrolink.protocol.scene import SceneError, parse_scene
 from hydrolink.server.hdb.io import load_hdb
 from hydrolink.server.service import serve_in_thread
 
@@ -275,7 +275,7 @@ import sys, time
 from hydrolink.clients.connection import ServerConnection
 from hydrolink.clients.exudyn_client import run
 from hydrolink.clients.results import ResultWriter
-from hydrolink.protocol.scene import parse_scene
+from hydrolink.protocol.scene import SceneError, parse_scene
 from hydrolink.server.hdb.io import load_hdb
 from hydrolink.server.service import serve_in_thread
 text, out = open(sys.argv[1]).read(), sys.argv[2]
@@ -366,3 +366,12 @@ def test_unstable_body_stops_with_a_clear_message(server, sphere, sphere_path, t
         pitch = ds["position"].values[:, 0, 4]
         assert np.all(np.isfinite(pitch)) and np.all(np.abs(pitch) < 1.0)
         assert np.all(np.diff(np.abs(pitch[ds.sizes["time"] // 2:])) > 0)   # growing, not oscillating
+
+
+def test_initial_displacement_in_a_locked_dof_is_a_scene_error(server, sphere, sphere_path):
+    text = sphere_scene(sphere_path, dt=0.05, duration=1.0, displacement=(0.5, 0, 0.1, 0, 0, 0))
+    scene = parse_scene(text)
+    with ServerConnection(server, timeout=30) as conn:
+        setup = conn.hello(text, {scene.bodies[0].hdb: sphere})
+    with pytest.raises(SceneError, match=r"bodies\[0\]\.initial_displacement: .*\['surge'\]"):
+        build_model(scene, setup)
