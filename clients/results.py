@@ -3,7 +3,9 @@
 Rows are buffered in memory and written + synced together every ``flush_seconds`` of wall time or
 ``flush_rows`` rows, so the file is only touched during a flush: a run killed part way (even with
 SIGKILL) leaves a readable file holding every row up to the last flush. The global ``status``
-attribute says "running", then "complete" or "interrupted: <why>".
+attribute says "running", then "complete" or "interrupted: <why>". To look at a file while its
+run is still going, read it with ``HDF5_USE_FILE_LOCKING=FALSE`` set (HDF5 locks files open for
+writing); a killed run's file opens normally.
 
 Layout (readable with ``xarray.open_dataset``)::
 
