@@ -17,17 +17,11 @@ def _user_errors():
     """Exception types that are the user's input at fault and deserve a one-line message."""
     from hydrolink.protocol.scene import SceneError
     from hydrolink.server.hdb.schema import HDBError
-    errors: list[type[BaseException]] = [SceneError, HDBError, FileNotFoundError]
-    try:
-        from hydrolink.clients.connection import RemoteError
-        errors.append(RemoteError)
-    except ImportError:  # pragma: no cover
-        pass
-    try:
-        from hydrolink.server.model import ModelError
-        errors.append(ModelError)
-    except ImportError:  # pragma: no cover
-        pass
+    from hydrolink.clients.connection import RemoteError
+    errors: list[type[BaseException]] = [SceneError, HDBError, FileNotFoundError, RemoteError]
+    from hydrolink.clients.exudyn_client import RunInterrupted
+    from hydrolink.server.model import ModelError
+    errors += [ModelError, RunInterrupted]
     return tuple(errors)
 
 

@@ -1,0 +1,131 @@
+"""The `hydrolink` command end to end: run embedded vs against a separately started `hydrolink serve`,
+`hdb info`, and one-line errors for bad input."""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import xarray as xr
+
+from hydrolink.clients.run import run_scene_file
+
+HYDROLINK = [sys.executable, "-m", "hydrolink.clients.cli"]
+SCENE = """\
+[simulation]
+dt = 0.05
+duration = 12.0
+progress = false
+[water]
+density = 1000.0
+depth = 200.0
+[waves]
+type = "irregular"
+spectrum = "jonswap"
+hs = 1.0
+tp = 5.0
+seed = 7
+components = 80
+ramp = 3.0
+[hydro]
+irf_duration = 10.0
+[[bodies]]
+name = "sphere"
+hdb = "sphere.h5"
+mass = 261800.0
+center_of_mass = [0, 0, -2]
+inertia = [2.6e6, 2.6e6, 2.6e6]
+dofs = ["surge", "heave", "pitch"]
+initial_displacement = [0, 0, 0.3, 0, 0, 0]
+"""
+
+
+@pytest.fixture()
+def scene_dir(tmp_path: Path, shared_data: Path) -> Path:
+    shutil.copy(shared_data / "sphere_task10" / "sphere.h5", tmp_path / "sphere.h5")
+    (tmp_path / "scene.toml").write_text(SCENE)
+    return tmp_path
+
+
+def _cli(*args: str, cwd: Path, timeout: float = 120) -> subprocess.CompletedProcess:
+    env = dict(os.environ, MPLBACKEND="Agg")
+    return subprocess.run([*HYDROLINK, *args], cwd=cwd, capture_output=True, text=True, timeout=timeout, env=env)
+
+
+def test_remote_server_run_equals_embedded_run(scene_dir: Path):
+    """Deterministic lockstep: the same scene against `hydrolink serve` over TCP equals the embedded run."""
+    embedded = run_scene_file(scene_dir / "scene.toml", scene_dir / "embedded.nc", progress=False)
+    assert embedded["status"] == "complete"
+
+    server = subprocess.Popen([*HYDROLINK, "serve", "--bind", "tcp://127.0.0.1:*"], cwd=scene_dir,
+                              stderr=subprocess.PIPE, text=True)
+    try:
+        line = server.stderr.readline()
+        match = re.search(r"listening on (tcp://\S+)", line)
+        assert match, f"serve printed {line!r}"
+        result = _cli("run", "scene.toml", "-o", "remote.nc", "--server", match.group(1), "--no-progress",
+                      cwd=scene_dir)
+        assert result.returncode == 0, result.stderr
+    finally:
+        server.terminate()
+        server.wait(10)
+    a, b = xr.load_dataset(scene_dir / "embedded.nc"), xr.load_dataset(scene_dir / "remote.nc")
+    assert a.sizes["time"] == b.sizes["time"] == 241
+    for name in ("position", "velocity", "excitation_force", "radiation_force", "hydrostatic_force",
+                 "wave_elevation"):
+        scale = max(float(np.abs(a[name]).max()), 1e-30)
+        diff = float(np.abs(a[name] - b[name]).max())
+        assert diff <= 1e-9 * scale, f"{name}: max difference {diff:g} (scale {scale:g})"
+    assert float(np.abs(a["position"].sel(dof="surge") - a["equilibrium_position"].sel(dof="surge")).max()) > 1e-4
+
+
+def test_bad_scene_is_one_clear_line(scene_dir: Path):
+    (scene_dir / "bad.toml").write_text(SCENE.replace("mass = 261800.0", "mass = -1.0"))
+    result = _cli("run", "bad.toml", cwd=scene_dir)
+    assert result.returncode != 0
+    assert "bad.toml: bodies[0].mass: Input should be greater than 0" in result.stderr
+    assert "Traceback" not in result.stderr
+    assert not (scene_dir / "bad.out.nc").exists()
+
+
+def test_missing_hdb_names_the_key(scene_dir: Path):
+    (scene_dir / "nohdb.toml").write_text(SCENE.replace('hdb = "sphere.h5"', 'hdb = "missing.h5"'))
+    result = _cli("run", "nohdb.toml", cwd=scene_dir)
+    assert result.returncode != 0
+    assert "nohdb.toml: bodies[0].hdb: file not found" in result.stderr
+    assert "Traceback" not in result.stderr
+
+
+def test_wrong_hdb_body_names_the_key(scene_dir: Path):
+    text = SCENE.replace('hdb = "sphere.h5"', 'hdb = "sphere.h5"\nhdb_body = "float"')
+    (scene_dir / "wrong.toml").write_text(text)
+    result = _cli("run", "wrong.toml", cwd=scene_dir)
+    assert result.returncode != 0
+    assert "wrong.toml: bodies[0].hdb_body: the HDB sphere.h5 holds no body 'float'" in result.stderr
+
+
+def test_hdb_info_on_wamit_files_with_plot(tmp_path: Path, shared_data: Path):
+    for f in (shared_data / "rm3_wamit").iterdir():
+        shutil.copy(f, tmp_path / f.name)
+    result = _cli("hdb", "info", "rm3.1", "--plot", "rm3.png", "--dofs", "heave", cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    out = result.stdout
+    assert "float" in out and "spar" in out
+    # the float's heave A_inf from the WAMIT PER = 0 rows (rho = 1000): 1.2328e6 kg
+    assert re.search(r"heave 1\.233e\+06", out), out
+    assert (tmp_path / "rm3.png").stat().st_size > 10_000
+
+
+def test_hdb_info_bad_file_is_one_clear_line(tmp_path: Path):
+    (tmp_path / "junk.nc").write_text("not a netcdf file")
+    result = _cli("hdb", "info", "junk.nc", cwd=tmp_path)
+    assert result.returncode != 0
+    assert "junk.nc" in result.stderr and "Traceback" not in result.stderr
