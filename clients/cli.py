@@ -107,9 +107,20 @@ def run(scene: Path, output: Path | None, server: str | None, no_progress: bool)
     """Co-simulate a SCENE (TOML) in lockstep with the force server."""
     from hydrolink.clients.run import run_scene_file
 
-    summary = _guard(run_scene_file, scene, output, server=server, progress=not no_progress)
-    click.echo(f"wrote {summary['output']}: {summary.get('steps', '?')} steps in "
-               f"{summary.get('wall_time', float('nan')):.2f} s")
+    import signal
+
+    def _terminate(signum, frame):  # docker stop / kill: stop like Ctrl-C so the file is finalised
+        raise KeyboardInterrupt(f"terminated by signal {signum}")
+
+    signal.signal(signal.SIGTERM, _terminate)
+    try:
+        summary = _guard(run_scene_file, scene, output, server=server, progress=not no_progress)
+    except KeyboardInterrupt as exc:
+        click.echo(f"hydrolink run: {exc or 'interrupted'}", err=True)
+        raise SystemExit(130) from None
+    steps, wall = summary["steps"], summary["wall_time"]
+    click.echo(f"wrote {summary['output']}: {steps} steps in {wall:.2f} s ({steps / max(wall, 1e-9):.0f} steps/s; "
+               f"server compute {summary.get('server_compute_us_per_step', float('nan')):.1f} us/step)")
 
 
 def main() -> None:

@@ -70,6 +70,9 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
         setup = conn.hello(text, hdbs)
         writer = stack.enter_context(ResultWriter(output, scene=scene, scene_text=text, setup=setup))
         summary = run(scene, text, conn, setup, writer, progress=progress)
-        conn.bye()
+        goodbye = conn.bye()
     summary["output"] = str(output)
+    summary["server"] = server
+    if goodbye.get("steps"):
+        summary["server_compute_us_per_step"] = 1e6 * goodbye["compute_s"] / goodbye["steps"]
     return summary
