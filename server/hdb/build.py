@@ -26,7 +26,7 @@ import xarray as xr
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from hydrolink.server.hdb.capytaine_io import from_capytaine_dataset
-from hydrolink.server.hdb.schema import SCHEMA_VERSION, from_netcdf_dataset, to_netcdf
+from hydrolink.server.hdb.schema import SCHEMA_VERSION, HDBError, from_netcdf_dataset, to_netcdf
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -39,12 +39,13 @@ BUILD_RECIPE_VERSION = 1  # bump when meshing/solving changes: invalidates cache
 CPT_DOFS = ("Surge", "Sway", "Heave", "Roll", "Pitch", "Yaw")
 
 
-class SpecError(ValueError):
-    """A build spec that cannot be built; the message names the spec file, the key and why."""
+class SpecError(HDBError):
+    """A build spec that cannot be built; the message names the spec file, the key and why.
+    (An HDBError, so callers reporting bad HDB inputs in one line report these too.)"""
 
     def __init__(self, source: str | Path, key: str, why: str):
-        self.source, self.key, self.why = str(source), key, why
-        super().__init__(f"{source}: {key}: {why}" if key else f"{source}: {why}")
+        ValueError.__init__(self, f"{source}: {key}: {why}" if key else f"{source}: {why}")
+        self.source, self.key, self.field, self.why = str(source), key, key, why
 
 
 # ----------------------------------------------------------------------------------------------
