@@ -129,3 +129,39 @@ def test_hdb_info_bad_file_is_one_clear_line(tmp_path: Path):
     result = _cli("hdb", "info", "junk.nc", cwd=tmp_path)
     assert result.returncode != 0
     assert "junk.nc" in result.stderr and "Traceback" not in result.stderr
+
+
+def test_hdb_build_writes_a_loadable_hdb_and_caches(tmp_path: Path):
+    (tmp_path / "sphere.toml").write_text(textwrap.dedent("""\
+        [body]
+        name = "ball"
+        shape = "sphere"
+        radius = 1.0
+        panel_size = 0.35
+        [frequencies]
+        values = [0.5, 1.5, 3.0]
+        [water]
+        density = 1000.0
+        """))
+    env_cache = dict(HYDROLINK_CACHE=str(tmp_path / "cache"))
+    first = subprocess.run([*HYDROLINK, "hdb", "build", "sphere.toml", "-o", "ball.nc", "--no-progress"],
+                           cwd=tmp_path, capture_output=True, text=True, timeout=300,
+                           env={**os.environ, **env_cache})
+    assert first.returncode == 0, first.stderr
+    assert list((tmp_path / "cache").glob("*.nc")), "the build was not cached"
+    info = _cli("hdb", "info", "ball.nc", cwd=tmp_path)
+    assert info.returncode == 0, info.stderr
+    assert "ball" in info.stdout and "3 frequencies" in info.stdout
+    from hydrolink.server.hdb.io import load_hdb
+    ds = load_hdb(tmp_path / "ball.nc")
+    # a floating hemisphere: C33 = rho g pi R^2 (the builder's polyhedron keeps the exact volume/area
+    # only approximately for the waterplane; 2 % covers the coarse mesh)
+    assert float(ds["hydrostatic_stiffness"].sel(influenced_dof="ball.heave", radiating_dof="ball.heave")) == \
+        pytest.approx(1000 * 9.81 * np.pi, rel=0.02)
+
+
+def test_hdb_build_bad_spec_names_the_key(tmp_path: Path):
+    (tmp_path / "bad.toml").write_text('[body]\nname = "b"\nshape = "sphere"\n[frequencies]\nvalues = [1.0, 2.0]\n')
+    result = _cli("hdb", "build", "bad.toml", "-o", "b.nc", cwd=tmp_path)
+    assert result.returncode != 0
+    assert "bad.toml: body.radius" in result.stderr and "Traceback" not in result.stderr
