@@ -26,7 +26,7 @@ def load_scene_hdbs(scene: Scene, scene_path: str | Path, *, progress: bool = Tr
 
     hdbs: dict[str, xr.Dataset] = {}
     for i, body in enumerate(scene.bodies):
-        if body.hdb in hdbs:
+        if body.hdb is None or body.hdb in hdbs:
             continue
         path = resolve_path(scene_path, body.hdb)
         if not path.exists() and not path.with_suffix(".1").exists():
@@ -37,6 +37,8 @@ def load_scene_hdbs(scene: Scene, scene_path: str | Path, *, progress: bool = Tr
         else:
             hdbs[body.hdb] = load_hdb(path)
     for i, body in enumerate(scene.bodies):
+        if body.hdb is None:
+            continue
         names = [str(b) for b in hdbs[body.hdb]["body"].values]
         if body.hdb_body_name not in names:
             key = "hdb_body" if body.hdb_body else "name"

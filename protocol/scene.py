@@ -7,6 +7,7 @@ the client read. Every error names the file, the key (``bodies[0].mass``) and wh
 from __future__ import annotations
 
 import math
+import re
 import sys
 from pathlib import Path
 from typing import Annotated, Literal, Union
@@ -88,6 +89,7 @@ Waves = Annotated[Union[StillWater, RegularWave, IrregularWave], Field(discrimin
 
 class Hydro(_Section):
     irf_duration: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 40.0
+    interaction: Literal["full", "none"] = "full"   # body-to-body radiation blocks: all, or none
 
 
 Vector3 = Annotated[list[FiniteFloat], Field(min_length=3, max_length=3)]
@@ -96,7 +98,7 @@ Vector6 = Annotated[list[FiniteFloat], Field(min_length=6, max_length=6)]
 
 class Body(_Section):
     name: Annotated[str, Field(min_length=1, pattern=r"^[A-Za-z0-9_\-]+$")]
-    hdb: Annotated[str, Field(min_length=1)]
+    hdb: Annotated[str, Field(min_length=1)] | None = None   # None: a dry body (no hydrodynamics)
     hdb_body: str | None = None
     mass: PositiveFloat
     center_of_mass: Vector3
@@ -104,6 +106,29 @@ class Body(_Section):
     dofs: list[Literal["surge", "sway", "heave", "roll", "pitch", "yaw"]] = list(DOF_NAMES)
     initial_displacement: Vector6 = [0.0] * 6
     initial_velocity: Vector6 = [0.0] * 6
+    # dry bodies only: the node's position (default: the centre of mass) and a constant buoyancy
+    reference_point: Vector3 | None = None
+    buoyancy_volume: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 0.0
+    center_of_buoyancy: Vector3 | None = None
+
+    @model_validator(mode="after")
+    def _dry_only_keys(self) -> "Body":
+        if self.hdb is not None:
+            for key in ("reference_point", "center_of_buoyancy"):
+                if getattr(self, key) is not None:
+                    raise ValueError(f"{key}: only for a dry body (without hdb): a wet body's reference "
+                                     "point and buoyancy come from its HDB")
+            if self.buoyancy_volume:
+                raise ValueError("buoyancy_volume: only for a dry body (without hdb)")
+            if self.hdb_body is not None and not self.hdb_body:
+                raise ValueError("hdb_body: must not be empty")
+        elif self.hdb_body is not None:
+            raise ValueError("hdb_body: needs hdb")
+        return self
+
+    @property
+    def wet(self) -> bool:
+        return self.hdb is not None
 
     @field_validator("dofs")
     @classmethod
@@ -140,12 +165,174 @@ class Body(_Section):
         return self.hdb_body or self.name
 
 
+Name = Annotated[str, Field(min_length=1, pattern=r"^[A-Za-z0-9_\-]+$")]
+UnitVector = Annotated[list[FiniteFloat], Field(min_length=3, max_length=3)]
+NonNegative = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+JOINT_TYPES = ("fixed", "spherical", "revolute", "prismatic", "universal", "cylindrical", "planar")
+
+
+def _unit(v: list[float], key: str) -> list[float]:
+    n = math.sqrt(sum(x * x for x in v))
+    if n < 1e-12:
+        raise ValueError(f"{key}: must be a non-zero vector")
+    return [x / n for x in v]
+
+
+class PointMass(_Section):
+    """A 3-DOF point mass (e.g. a rope connection point); dry, with optional constant buoyancy."""
+    name: Name
+    mass: PositiveFloat
+    position: Vector3
+    initial_velocity: Vector3 = [0.0, 0.0, 0.0]
+    buoyancy_volume: NonNegative = 0.0
+
+
+class Friction(_Section):
+    """Regularised Coulomb friction on a joint's free relative motion (force or torque)."""
+    force: PositiveFloat                 # Coulomb level, N (prismatic) or N m (revolute)
+    velocity: PositiveFloat = 1e-3       # regularisation velocity: friction = force * tanh(v / velocity)
+
+
+class Joint(_Section):
+    """A kinematic joint between two bodies (or a body and "ground") at a point, global frame at t=0.
+
+    axis: revolute/prismatic/cylindrical - the free axis; planar - the plane normal; universal - the
+    first free axis (fixed in body1); axis2: universal - the second free axis (fixed in body2,
+    perpendicular to axis)."""
+    name: Name | None = None
+    type: Literal["fixed", "spherical", "revolute", "prismatic", "universal", "cylindrical", "planar"]
+    body1: Name
+    body2: Name
+    point: Vector3
+    axis: UnitVector | None = None
+    axis2: UnitVector | None = None
+    friction: Friction | None = None
+
+    @model_validator(mode="after")
+    def _axes(self) -> "Joint":
+        needs_axis = self.type in ("revolute", "prismatic", "universal", "cylindrical", "planar")
+        if needs_axis and self.axis is None:
+            raise ValueError(f"axis: required for a {self.type} joint")
+        if not needs_axis and self.axis is not None:
+            raise ValueError(f"axis: not used by a {self.type} joint")
+        if self.type == "universal":
+            if self.axis2 is None:
+                raise ValueError("axis2: required for a universal joint")
+            a, b = _unit(self.axis, "axis"), _unit(self.axis2, "axis2")
+            if abs(sum(x * y for x, y in zip(a, b))) > 1e-6:
+                raise ValueError("axis2: must be perpendicular to axis")
+        elif self.axis2 is not None:
+            raise ValueError(f"axis2: only for a universal joint, not {self.type}")
+        if self.axis is not None:
+            _unit(self.axis, "axis")
+        if self.friction is not None and self.type not in ("revolute", "prismatic"):
+            raise ValueError(f"friction: offered for revolute and prismatic joints, not {self.type}")
+        if self.body1 == self.body2:
+            raise ValueError(f"body2: a joint needs two different bodies (both are {self.body1!r})")
+        return self
+
+
+class Constraint(_Section):
+    """Fix one DOF of a body (to ground): its position (displacement from equilibrium) or velocity."""
+    body: Name
+    dof: Literal["surge", "sway", "heave", "roll", "pitch", "yaw"]
+    type: Literal["position", "velocity"] = "position"
+    value: FiniteFloat = 0.0
+
+
+class LinearPTO(_Section):
+    """A spring-damper along the line between point1 (on body1) and point2 (on body2 or ground)."""
+    name: Name
+    type: Literal["linear"]
+    body1: Name
+    point1: Vector3
+    body2: Name
+    point2: Vector3
+    stiffness: NonNegative = 0.0
+    damping: NonNegative = 0.0
+    rest_length: NonNegative | None = None      # default: the initial distance (no preload)
+    force_limit: PositiveFloat | None = None
+
+
+RotaryAxis = Literal["roll", "pitch", "yaw"]
+
+
+class RotaryPTO(_Section):
+    """Spring-damper on relative rotations of body2 w.r.t. body1 about chosen axes of a frame at point
+    (default: the global axes at t=0). Often on top of a spherical joint (penalty form)."""
+    name: Name
+    type: Literal["rotary"]
+    body1: Name
+    body2: Name
+    point: Vector3
+    axes: Annotated[list[RotaryAxis], Field(min_length=1, max_length=3)]
+    frame: Annotated[list[UnitVector], Field(min_length=3, max_length=3)] | None = None
+    stiffness: Union[NonNegative, Annotated[list[NonNegative], Field(min_length=1, max_length=3)]] = 0.0
+    damping: Union[NonNegative, Annotated[list[NonNegative], Field(min_length=1, max_length=3)]] = 0.0
+    torque_limit: PositiveFloat | None = None
+
+    @model_validator(mode="after")
+    def _per_axis(self) -> "RotaryPTO":
+        if len(set(self.axes)) != len(self.axes):
+            raise ValueError(f"axes: repeated axis in {self.axes}")
+        for key in ("stiffness", "damping"):
+            v = getattr(self, key)
+            if isinstance(v, list) and len(v) != len(self.axes):
+                raise ValueError(f"{key}: one value per axis ({len(self.axes)}), got {len(v)}")
+        return self
+
+
+PTO = Annotated[Union[LinearPTO, RotaryPTO], Field(discriminator="type")]
+
+Matrix6 = Annotated[list[Annotated[list[FiniteFloat], Field(min_length=6, max_length=6)]],
+                    Field(min_length=6, max_length=6)]
+
+
+class LinearMooring(_Section):
+    """6x6 linear stiffness/damping of a body about a point (global, at t=0), plus a constant
+    pretension (force and moment about the point, in the global frame)."""
+    name: Name | None = None
+    type: Literal["linear"]
+    body: Name
+    point: Vector3
+    stiffness: Union[Vector6, Matrix6] = [0.0] * 6    # diagonal, or a 6x6 table
+    damping: Union[Vector6, Matrix6] = [0.0] * 6
+    pretension: Vector6 = [0.0] * 6
+
+
+class RopeMooring(_Section):
+    """A 3D rope (Exudyn cable elements) from an anchor to an attachment on a body or point mass.
+
+    anchor: a fixed point (ground; on the seabed when its z equals minus the water depth); attach_to a
+    body (at point, global at t=0) or a point mass (point optional)."""
+    name: Name | None = None
+    type: Literal["rope"]
+    anchor: Vector3
+    attach_to: Name
+    point: Vector3 | None = None
+    length: PositiveFloat                # unstretched
+    axial_stiffness: PositiveFloat       # EA, N
+    mass_per_length: PositiveFloat       # kg/m (in water: submerged weight is computed with the
+    diameter: NonNegative = 0.0          #  displaced volume pi d^2/4 per metre)
+    elements: Annotated[int, Field(ge=1, le=500)] = 10
+    bending_stiffness: NonNegative = 0.0  # EI, N m^2 (0: a small value for numerical robustness)
+    seabed: bool = True                   # contact with a flat seabed at z = -depth (finite depth)
+
+
+Mooring = Annotated[Union[LinearMooring, RopeMooring], Field(discriminator="type")]
+
+
 class Scene(_Section):
     simulation: Simulation
     water: Water = Water()
     waves: Waves = StillWater(type="still")
     hydro: Hydro = Hydro()
     bodies: Annotated[list[Body], Field(min_length=1)]
+    point_masses: list[PointMass] = []
+    joints: list[Joint] = []
+    constraints: list[Constraint] = []
+    ptos: list[PTO] = []
+    moorings: list[Mooring] = []
 
     @model_validator(mode="after")
     def _cross_checks(self) -> "Scene":
@@ -153,7 +340,50 @@ class Scene(_Section):
         for i, n in enumerate(names):
             if n in names[:i]:
                 raise ValueError(f"bodies[{i}].name: duplicate body name {n!r}")
+        points = [p.name for p in self.point_masses]
+        for i, n in enumerate(points):
+            if n in names or n in points[:i] or n == "ground":
+                raise ValueError(f"point_masses[{i}].name: name {n!r} is already used")
+        if "ground" in names:
+            raise ValueError(f"bodies[{names.index('ground')}].name: 'ground' is reserved")
+        rigid = set(names) | {"ground"}
+        anything = rigid | set(points)
+
+        def known(key: str, name: str, allowed: set[str], what: str) -> None:
+            if name not in allowed:
+                raise ValueError(f"{key}: no {what} named {name!r} (known: {sorted(allowed)})")
+
+        for i, j in enumerate(self.joints):
+            known(f"joints[{i}].body1", j.body1, rigid, "body")
+            known(f"joints[{i}].body2", j.body2, rigid, "body")
+        for i, c in enumerate(self.constraints):
+            known(f"constraints[{i}].body", c.body, set(names), "body")
+        for i, p in enumerate(self.ptos):
+            known(f"ptos[{i}].body1", p.body1, rigid, "body")
+            known(f"ptos[{i}].body2", p.body2, rigid, "body")
+            if p.body1 == p.body2:
+                raise ValueError(f"ptos[{i}].body2: a PTO needs two different bodies")
+        pto_names = [p.name for p in self.ptos]
+        for i, n in enumerate(pto_names):
+            if n in pto_names[:i]:
+                raise ValueError(f"ptos[{i}].name: duplicate PTO name {n!r}")
+        for i, m in enumerate(self.moorings):
+            if isinstance(m, LinearMooring):
+                known(f"moorings[{i}].body", m.body, set(names), "body")
+            else:
+                known(f"moorings[{i}].attach_to", m.attach_to, set(names) | set(points), "body or point mass")
+                if m.attach_to in names and m.point is None:
+                    raise ValueError(f"moorings[{i}].point: required when a rope is attached to a body")
         return self
+
+    @property
+    def wet_bodies(self) -> list[Body]:
+        return [b for b in self.bodies if b.wet]
+
+
+_UNION_TAGS = ("regular", "irregular", "still", "linear", "rotary", "rope")
+_TOP_KEYS = ("simulation", "water", "waves", "hydro", "bodies", "point_masses", "joints", "constraints",
+             "ptos", "moorings")
 
 
 def _loc(loc: tuple) -> str:
@@ -161,7 +391,7 @@ def _loc(loc: tuple) -> str:
     for part in loc:
         if isinstance(part, int):
             out += f"[{part}]"
-        elif part in ("regular", "irregular", "still") or str(part).startswith(("function-", "list[", "literal[")):
+        elif part in _UNION_TAGS or str(part).startswith(("function-", "list[", "literal[")):
             continue  # discriminated-union / union branch tags, not keys
         else:
             out += ("." if out else "") + str(part)
@@ -190,8 +420,10 @@ def parse_scene(text: str, source: str | Path = "<scene>") -> Scene:
             msg = f"{msg} (got {err['input']!r})"
         if msg.startswith("Value error, "):
             msg = msg[len("Value error, "):]
-            if ": " in msg and msg.split(": ", 1)[0].startswith("bodies["):
-                key, msg = msg.split(": ", 1)
+            head, _, rest = msg.partition(": ")
+            if rest and re.fullmatch(r"[A-Za-z_][\w\[\]\.]*", head):
+                key, msg = (head if head.split("[")[0].split(".")[0] in _TOP_KEYS
+                            else f"{key}.{head}".lstrip(".")), rest
         more = f" (and {len(exc.errors()) - 1} more problem(s))" if len(exc.errors()) > 1 else ""
         raise SceneError(source, key, msg + more) from None
 
