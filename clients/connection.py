@@ -35,41 +35,75 @@ class RemoteError(RuntimeError):
 
 
 class ServerConnection:
-    """A connection to a hydrolink server; every receive times out after ``timeout`` seconds."""
+    """A connection to a hydrolink server; every receive times out after ``timeout`` seconds.
 
-    def __init__(self, address: str, *, timeout: float = 30.0, context: zmq.Context | None = None,
+    ``address`` is a ZeroMQ endpoint, or an in-process server (an object with ``respond(frame) ->
+    frame``, e.g. ``ForceServer(None)``): then each request frame is handed to it directly, with
+    the same bytes and the same replies as over a socket but without the transport's wake-ups."""
+
+    def __init__(self, address: Any, *, timeout: float = 30.0, context: zmq.Context | None = None,
                  key: bytes | None = None, client_name: str = "hydrolink-python"):
-        self.address = address
         self.timeout = float(timeout)
         self.key = key
         self.client_name = client_name
         self.session: str | None = None
         self.setup: dict | None = None
+        self._ids = codec.id_source("c")
+        self._local = None if isinstance(address, str) else address
+        self._sock: zmq.Socket | None = None
+        self._pending: bytes | None = None  # the in-process server's reply, until received
+        self._own_context = False
+        if self._local is not None:
+            self.address = getattr(address, "address", "in-process")
+            return
+        self.address = address
         self._own_context = context is None
         self._ctx = context or zmq.Context()
         self._sock = self._ctx.socket(zmq.DEALER)
         self._sock.setsockopt(zmq.LINGER, 0)
         self._sock.connect(address)
-        self._ids = codec.id_source("c")
-        self._poller = zmq.Poller()
-        self._poller.register(self._sock, zmq.POLLIN)
+        self._recv_timeout_ms = -1
 
     # ------------------------------------------------------------ requests
 
+    def _send(self, frame: bytes) -> None:
+        if self._local is not None:
+            self._pending = self._local.respond(frame)
+        else:
+            self._sock.send(frame)
+
+    def _recv(self, deadline: float, mtype: str, limit: float) -> bytes:
+        """The next reply frame; TimeoutError once ``deadline`` (time.monotonic) has passed."""
+        if self._local is not None:
+            frame, self._pending = self._pending, None
+            if frame is not None:
+                return frame
+        else:
+            left = deadline - time.monotonic()
+            if left > 0:
+                # a receive timeout on the socket (cheaper than a poller), reset only when it
+                # changes by more than 1 ms: once per run in lockstep
+                ms = max(1, int(left * 1000))
+                if abs(ms - self._recv_timeout_ms) > 1:
+                    self._sock.setsockopt(zmq.RCVTIMEO, ms)
+                    self._recv_timeout_ms = ms
+                try:
+                    return self._sock.recv()
+                except zmq.Again:
+                    pass
+        raise TimeoutError(f"no reply to {mtype!r} from the hydrolink server at {self.address} "
+                           f"within {limit:g} s (is it running and reachable?)")
+
     def request(self, mtype: str, timeout: float | None = None, **fields: Any) -> dict:
         """Send one request, wait for its reply (matched by ``parent``); RemoteError on ``error``."""
-        if self._sock is None:
+        if self._sock is None and self._local is None:
             raise ConnectionError(f"connection to {self.address} is closed")
         msg_id = next(self._ids)
-        self._sock.send(codec.pack(codec.message(mtype, msg_id, self.session, **fields), self.key))
+        self._send(codec.pack(codec.message(mtype, msg_id, self.session, **fields), self.key))
         limit = self.timeout if timeout is None else timeout
         deadline = time.monotonic() + limit
         while True:
-            left = deadline - time.monotonic()
-            if left <= 0 or not self._poller.poll(left * 1000):
-                raise TimeoutError(f"no reply to {mtype!r} from the hydrolink server at {self.address} "
-                                   f"within {limit:g} s (is it running and reachable?)")
-            frame = self._sock.recv()
+            frame = self._recv(deadline, mtype, limit)
             try:
                 reply = codec.unpack(frame, self.key)
             except ProtocolError as exc:
@@ -126,6 +160,7 @@ class ServerConnection:
 
     def close(self) -> None:
         """Close the socket (linger 0); does not send ``bye``."""
+        self._local = None
         if self._sock is not None:
             self._sock.close(0)
             self._sock = None
@@ -136,7 +171,7 @@ class ServerConnection:
         return self
 
     def __exit__(self, *exc: Any) -> None:
-        if self.session is not None and self._sock is not None:
+        if self.session is not None and (self._sock is not None or self._local is not None):
             try:
                 self.request("bye", timeout=min(self.timeout, 2.0))
             except (TimeoutError, RemoteError, ConnectionError):

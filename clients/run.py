@@ -1,7 +1,7 @@
 """`hydrolink run`: a scene file in, a results file out.
 
 Loads the scene and its HDBs (building those given as build specs), connects to a force server —
-or starts an embedded one on loopback when none is given — and drives the Exudyn client.
+or, when none is given, embeds one in this process — and drives the Exudyn client.
 """
 
 from __future__ import annotations
@@ -62,13 +62,17 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
     output = Path(output) if output else scene_path.with_suffix(".out.nc")
     with ExitStack() as stack:
         if server is None:
-            from hydrolink.server.service import serve_in_thread
-            srv, thread = serve_in_thread("tcp://127.0.0.1:*")
-            stack.callback(thread.join, 5.0)
-            stack.callback(srv.stop)
-            server = srv.address
-            log.info("embedded force server on %s", server)
-        conn = stack.enter_context(ServerConnection(server, timeout=timeout))
+            # embedded: the force server's request handler in this process, fed the same wire
+            # frames as over a socket (same codec, same results) but with no thread or transport
+            # to wake up each step
+            from hydrolink.server.service import ForceServer
+            embedded = ForceServer(None)
+            stack.callback(embedded.close)
+            conn = stack.enter_context(ServerConnection(embedded, timeout=timeout))
+            server = embedded.address
+            log.info("embedded force server (in-process)")
+        else:
+            conn = stack.enter_context(ServerConnection(server, timeout=timeout))
         setup = conn.hello(text, hdbs)
         writer = stack.enter_context(ResultWriter(output, scene=scene, scene_text=text, setup=setup))
         summary = run(scene, text, conn, setup, writer, progress=progress)

@@ -22,6 +22,7 @@ from hydrolink.server.session import Session, build_model
 log = logging.getLogger("hydrolink.server")
 
 POLL_MS = 50
+IN_PROCESS = "in-process"  # the address of a server without a socket (bind=None)
 TOMBSTONES = 1000  # remembered closed sessions, for a helpful error 7
 
 
@@ -35,16 +36,23 @@ def server_version() -> str:
 class ForceServer:
     """Serve hydrodynamic forces on ``bind`` (e.g. ``tcp://127.0.0.1:*``) until :meth:`stop`."""
 
-    def __init__(self, bind: str, *, context: zmq.Context | None = None, session_timeout: float = 300.0,
+    def __init__(self, bind: str | None, *, context: zmq.Context | None = None, session_timeout: float = 300.0,
                  key: bytes | None = None):
-        self._own_context = context is None
-        self._ctx = context or zmq.Context()
-        self._sock = self._ctx.socket(zmq.ROUTER)
-        self._sock.setsockopt(zmq.LINGER, 0)
-        self._sock.setsockopt(zmq.MAXMSGSIZE, codec.MAX_MESSAGE_BYTES)
-        self._sock.setsockopt(zmq.ROUTER_MANDATORY, 0)
-        self._sock.bind(bind)
-        self._address = self._sock.getsockopt_string(zmq.LAST_ENDPOINT)
+        """``bind=None`` makes an in-process server without a socket: clients in the same process
+        call :meth:`respond` with the same frames a socket would carry (see ServerConnection)."""
+        self._own_context = context is None and bind is not None
+        self._ctx = context
+        self._sock: zmq.Socket | None = None
+        self._address = IN_PROCESS
+        if bind is not None:
+            self._ctx = context or zmq.Context()
+            self._sock = self._ctx.socket(zmq.ROUTER)
+            self._sock.setsockopt(zmq.LINGER, 0)
+            self._sock.setsockopt(zmq.MAXMSGSIZE, codec.MAX_MESSAGE_BYTES)
+            self._sock.setsockopt(zmq.ROUTER_MANDATORY, 0)
+            self._sock.setsockopt(zmq.RCVTIMEO, POLL_MS)
+            self._sock.bind(bind)
+            self._address = self._sock.getsockopt_string(zmq.LAST_ENDPOINT)
         self.session_timeout = float(session_timeout)
         self.key = key
         self.sessions: dict[str, Session] = {}
@@ -76,19 +84,20 @@ class ForceServer:
         log.info("hydrolink server %s listening on %s (protocol %d, session timeout %g s%s)",
                  self._version, self._address, codec.PROTOCOL_VERSION, self.session_timeout,
                  ", signed" if self.key else "")
-        poller = zmq.Poller()
-        poller.register(self._sock, zmq.POLLIN)
+        if self._sock is None:
+            raise RuntimeError("an in-process server (bind=None) has no socket to serve; call respond()")
         next_sweep = time.monotonic()
         self._running = True
         try:
             while not self._stop.is_set():
-                if poller.poll(POLL_MS):
-                    for _ in range(1000):  # drain what is queued, then sweep/check stop
-                        try:
-                            frames = self._sock.recv_multipart(zmq.NOBLOCK, copy=True)
-                        except zmq.Again:
-                            break
-                        self._serve_one(frames)
+                # a blocking receive with a POLL_MS timeout (RCVTIMEO): no poller and no exception
+                # per message on the hot path, only when the socket was idle for POLL_MS
+                try:
+                    frames = self._sock.recv_multipart()
+                except zmq.Again:
+                    frames = None
+                if frames:
+                    self._serve_one(frames)
                 now = time.monotonic()
                 if now >= next_sweep:
                     self._expire(now)
@@ -102,12 +111,15 @@ class ForceServer:
     def _serve_one(self, frames: list[bytes]) -> None:
         if len(frames) < 2:
             return  # no routing identity: nothing to answer to
-        routing, frame = frames[:-1], frames[-1]
-        reply = self.handle(frame)
+        frames[-1] = self.respond(frames[-1])  # routing frames stay in front, verbatim
         try:
-            self._sock.send_multipart([*routing, codec.pack(reply, self.key)], zmq.NOBLOCK)
+            self._sock.send_multipart(frames, zmq.NOBLOCK)
         except zmq.ZMQError as exc:  # peer gone or its queue full: drop the reply
-            log.warning("reply to a %s dropped: %s", reply.get("type"), exc)
+            log.warning("reply dropped: %s", exc)
+
+    def respond(self, frame: bytes) -> bytes:
+        """One request frame -> its reply frame (never raises): what the socket loop sends back."""
+        return codec.pack(self.handle(frame), self.key)
 
     def handle(self, frame: bytes) -> dict:
         """One request frame -> its reply message (never raises)."""
@@ -196,10 +208,10 @@ class ForceServer:
             self._close(s, f"expired after {self.session_timeout:g} s idle")
 
     def _shutdown(self) -> None:
-        if self._sock.closed:
-            return
         for s in list(self.sessions.values()):
             self._close(s, "closed by server shutdown")
+        if self._sock is None or self._sock.closed:
+            return
         self._sock.close(0)
         if self._own_context:
             self._ctx.term()
