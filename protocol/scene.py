@@ -322,6 +322,86 @@ class RopeMooring(_Section):
 Mooring = Annotated[Union[LinearMooring, RopeMooring], Field(discriminator="type")]
 
 
+DofName = Literal["surge", "sway", "heave", "roll", "pitch", "yaw"]
+FMUVariable = Annotated[str, Field(min_length=1)]
+
+
+class FMUBodyMap(_Section):
+    """FMU variables of one body, keyed by DOF: outputs position/velocity (per active DOF), inputs
+    force (the sum) or excitation/radiation/hydrostatic (components); parameters that receive A∞ and
+    the hydrostatic stiffness, keyed "heave" (diagonal) or "surge,pitch" (an off-diagonal entry)."""
+    position: dict[DofName, FMUVariable] = {}
+    velocity: dict[DofName, FMUVariable] = {}
+    force: dict[DofName, FMUVariable] = {}
+    excitation: dict[DofName, FMUVariable] = {}
+    radiation: dict[DofName, FMUVariable] = {}
+    hydrostatic: dict[DofName, FMUVariable] = {}
+    added_mass: dict[str, FMUVariable] = {}
+    hydrostatic_stiffness: dict[str, FMUVariable] = {}
+
+    @field_validator("added_mass", "hydrostatic_stiffness")
+    @classmethod
+    def _dof_pairs(cls, v: dict[str, str]) -> dict[str, str]:
+        for key in v:
+            if not all(d in DOF_NAMES for d in key.split(",")) or key.count(",") > 1:
+                raise ValueError(f"key {key!r}: a DOF (\"heave\") or two DOFs (\"surge,pitch\")")
+        return v
+
+
+class FMUCoupling(_Section):
+    """How A∞ is handled: "auto" picks parameters, else iterative (rollback), else explicit if stable."""
+    mode: Literal["auto", "parameters", "iterative", "explicit"] = "auto"
+    tolerance: PositiveFloat = 1e-6                      # relative interface-force residual
+    max_iterations: Annotated[int, Field(ge=1, le=1000)] = 50
+    explicit_limit: Annotated[float, Field(gt=0, le=0.9)] = 0.5   # max spectral radius of M⁻¹A∞
+
+
+class ExudynClient(_Section):
+    type: Literal["exudyn"]
+
+
+class FMUClient(_Section):
+    """A co-simulation FMU (FMI 2.0 or 3.0) as the multibody client; it owns the whole mechanism."""
+    type: Literal["fmu"]
+    fmu: Annotated[str, Field(min_length=1)]                 # relative to the scene file
+    communication_step: PositiveFloat | None = None          # default simulation.dt; must divide it
+    positions: Literal["displacement", "absolute"] = "displacement"   # FMU position outputs
+    parameters: dict[str, Union[bool, int, float, str]] = {}
+    coupling: FMUCoupling = FMUCoupling()
+    bodies: dict[str, FMUBodyMap]
+
+    def check(self, scene: "Scene") -> None:
+        """Cross-checks against the scene's bodies (the first problem as 'key: why')."""
+        for key in ("point_masses", "joints", "constraints", "ptos", "moorings"):
+            if getattr(scene, key):
+                raise ValueError(f"{key}: the FMU client owns the mechanism (model it inside the FMU), "
+                                 f"so [client] type = \"fmu\" takes no {key}")
+        wet = {b.name: b for b in scene.bodies if b.wet}
+        for i, b in enumerate(scene.bodies):
+            if not b.wet:
+                raise ValueError(f"bodies[{i}].hdb: the FMU client couples wet bodies only")
+            if b.name not in self.bodies:
+                raise ValueError(f"client.bodies: no mapping for body {b.name!r}")
+        for name, m in self.bodies.items():
+            if name not in wet:
+                raise ValueError(f"client.bodies.{name}: no body named {name!r} (known: {sorted(wet)})")
+            for d in wet[name].dofs:
+                for key in ("position", "velocity"):
+                    if d not in getattr(m, key):
+                        raise ValueError(f"client.bodies.{name}.{key}: no FMU variable for active DOF {d!r}")
+                if d not in m.force and d not in m.excitation and d not in m.radiation:
+                    raise ValueError(f"client.bodies.{name}.force: no FMU input for active DOF {d!r}")
+            for key in ("position", "velocity", "force", "excitation", "radiation", "hydrostatic"):
+                for d in getattr(m, key):
+                    if d not in wet[name].dofs:
+                        raise ValueError(f"client.bodies.{name}.{key}.{d}: not an active DOF of {name!r}")
+                    if key in ("excitation", "radiation", "hydrostatic") and d in m.force:
+                        raise ValueError(f"client.bodies.{name}.{key}.{d}: {d} already has a force input")
+
+
+Client = Annotated[Union[ExudynClient, FMUClient], Field(discriminator="type")]
+
+
 class Scene(_Section):
     simulation: Simulation
     water: Water = Water()
@@ -333,6 +413,7 @@ class Scene(_Section):
     constraints: list[Constraint] = []
     ptos: list[PTO] = []
     moorings: list[Mooring] = []
+    client: Client = ExudynClient(type="exudyn")
 
     @model_validator(mode="after")
     def _cross_checks(self) -> "Scene":
@@ -374,6 +455,8 @@ class Scene(_Section):
                 known(f"moorings[{i}].attach_to", m.attach_to, set(names) | set(points), "body or point mass")
                 if m.attach_to in names and m.point is None:
                     raise ValueError(f"moorings[{i}].point: required when a rope is attached to a body")
+        if isinstance(self.client, FMUClient):
+            self.client.check(self)
         return self
 
     @property
@@ -381,9 +464,9 @@ class Scene(_Section):
         return [b for b in self.bodies if b.wet]
 
 
-_UNION_TAGS = ("regular", "irregular", "still", "linear", "rotary", "rope")
+_UNION_TAGS = ("regular", "irregular", "still", "linear", "rotary", "rope", "exudyn", "fmu")
 _TOP_KEYS = ("simulation", "water", "waves", "hydro", "bodies", "point_masses", "joints", "constraints",
-             "ptos", "moorings")
+             "ptos", "moorings", "client")
 
 
 def _loc(loc: tuple) -> str:
