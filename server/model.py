@@ -1,8 +1,16 @@
 """The per-session force model: excitation, radiation memory and hydrostatics for a scene.
 
-Bodies that share one HDB dataset (the same object in ``hdbs``) keep their body-to-body blocks;
-bodies from different datasets do not interact hydrodynamically. Every matrix is reduced to the
-active DOFs once at setup, so a step is three small matvecs and no Python loop over DOFs/bodies.
+Only the scene's wet bodies (those with an ``hdb``) take part, in scene order: every (N, 6) array
+and every 6N matrix here is over the wet bodies; dry bodies belong to the client alone. A scene
+without any wet body is a ModelError (nothing to compute: SPEC §5.1).
+
+Hydrodynamic interaction (``[hydro] interaction``): with "full" (default), bodies that share one
+HDB dataset (the same object in ``hdbs``) keep all their body-to-body blocks of A∞, A(w), B(w),
+K(t) and of the hydrostatic stiffness; bodies from different datasets never interact. With "none"
+every body uses only its own 6x6 blocks, even when several bodies share one multi-body HDB.
+Bodies that interact form a group; each group has its own radiation memory over its active DOFs
+only, so no work is spent on blocks that are zero by construction. Every matrix is reduced to the
+active DOFs once at setup, so a step is a few small matvecs and no Python loop over DOFs.
 """
 
 from __future__ import annotations
@@ -30,10 +38,14 @@ class ModelError(ValueError):
         super().__init__(f"{key}: {why}")
 
 
-def _groups(scene: Scene, hdbs: dict[str, xr.Dataset]) -> list[tuple[xr.Dataset, list[int]]]:
-    """Scene bodies grouped by shared dataset (a repeated HDB body starts a new group)."""
+def _groups(scene: Scene, wet: list[int], hdbs: dict[str, xr.Dataset]) -> list[tuple[xr.Dataset, list[int]]]:
+    """Wet bodies (positions in ``wet``, a list of scene indices) grouped by interaction.
+
+    "full": bodies sharing a dataset form one group (a repeated HDB body starts a new group);
+    "none": one group per body."""
     groups: list[tuple[xr.Dataset, list[int]]] = []
-    for i, body in enumerate(scene.bodies):
+    for k, i in enumerate(wet):
+        body = scene.bodies[i]
         if body.name not in hdbs:
             raise ModelError(f"bodies[{i}].hdb", f"no HDB loaded for body {body.name!r}")
         ds = hdbs[body.name]
@@ -42,12 +54,12 @@ def _groups(scene: Scene, hdbs: dict[str, xr.Dataset]) -> list[tuple[xr.Dataset,
             key = f"bodies[{i}].hdb_body" if body.hdb_body else f"bodies[{i}].name"
             raise ModelError(key, f"the HDB {ds.attrs.get('source', '?')!r} has no body "
                                   f"{body.hdb_body_name!r} (it holds {names})")
-        for gds, members in groups:
-            if gds is ds and body.hdb_body_name not in [scene.bodies[k].hdb_body_name for k in members]:
-                members.append(i)
+        for gds, members in groups if scene.hydro.interaction == "full" else ():
+            if gds is ds and body.hdb_body_name not in [scene.bodies[wet[m]].hdb_body_name for m in members]:
+                members.append(k)
                 break
         else:
-            groups.append((ds, [i]))
+            groups.append((ds, [k]))
     return groups
 
 
@@ -55,12 +67,21 @@ class HydroModel:
     """Linear potential-flow forces for one session (see module docstring)."""
 
     def __init__(self, scene: Scene, hdbs: dict[str, xr.Dataset]):
+        """``hdbs`` maps each wet body's name to its HDB dataset (bodies sharing a file share the
+        same object)."""
         self.scene = scene
-        self.bodies = [b.name for b in scene.bodies]
+        wet = [i for i, b in enumerate(scene.bodies) if b.wet]
+        if not wet:
+            raise ModelError("bodies", "no wet body (no bodies[i].hdb): a force server has nothing to "
+                                       "compute for this scene; simulate it without a server")
+        self._scene_index = wet
+        self.bodies = [scene.bodies[i].name for i in wet]
+        wet_bodies = [scene.bodies[i] for i in wet]
         n_b = len(self.bodies)
         self.n = 6 * n_b
         self.dt = float(scene.simulation.dt)
-        self.active = np.array([b.active_mask for b in scene.bodies], bool)  # (N, 6)
+        self.interaction = scene.hydro.interaction
+        self.active = np.array([b.active_mask for b in wet_bodies], bool)  # (N, 6)
         self._idx = np.flatnonzero(self.active.reshape(-1))
         na = self._idx.size
         water = scene.water
@@ -73,11 +94,12 @@ class HydroModel:
 
         a_inf = np.zeros((self.n, self.n))
         c_hs = np.zeros((self.n, self.n))
-        kernel = np.zeros((m_og + 1, na, na))
         refs = np.zeros((n_b, 3))
         self._a_inf_source: dict[str, str] = {}
         self._irf_fit: dict[str, float] = {}
-        groups = _groups(scene, hdbs)
+        memories: list[tuple[np.ndarray, RadiationMemory]] = []
+        groups = _groups(scene, wet, hdbs)
+        self.groups = [[self.bodies[k] for k in members] for _, members in groups]
         lo = max(float(ds["omega"].values[0]) for ds, _ in groups)
         hi = min(float(ds["omega"].values[-1]) for ds, _ in groups)
         if lo >= hi:
@@ -90,15 +112,16 @@ class HydroModel:
 
         for ds, members in groups:
             src = ds.attrs.get("source", "?")
+            first = self._scene_index[members[0]]
             depth = float(ds.attrs["water_depth"])
             if not (depth == water.depth_m or (math.isfinite(depth) and math.isfinite(water.depth_m)
                                                and math.isclose(depth, water.depth_m, rel_tol=1e-4))):
                 raise ModelError("water.depth", f"{water.depth!r} but the HDB {src!r} (bodies "
                                  f"{[self.bodies[k] for k in members]}) was computed for depth {depth}")
             try:
-                sub = select_bodies(ds, [scene.bodies[k].hdb_body_name for k in members])
+                sub = select_bodies(ds, [wet_bodies[k].hdb_body_name for k in members])
             except HDBError as exc:
-                raise ModelError(f"bodies[{members[0]}].hdb_body", str(exc)) from None
+                raise ModelError(f"bodies[{first}].hdb_body", str(exc)) from None
             s_rho = rho / float(ds.attrs["rho"])
             s_rg = rho * g / (float(ds.attrs["rho"]) * float(ds.attrs["g"]))
             gidx = (6 * np.asarray(members)[:, None] + np.arange(6)).reshape(-1)  # global rows
@@ -112,7 +135,7 @@ class HydroModel:
             bd = s_rho * sub["radiation_damping"].values[:, loc][:, :, loc]
             k = radiation_irf(omega, bd, t_irf)
             if self.irf_samples > 0:
-                kernel[np.ix_(np.arange(m_og + 1), pos, pos)] = k
+                memories.append((pos, RadiationMemory(k[:self.irf_samples + 1], self.dt)))
             if "added_mass_inf" in sub:
                 a_inf[np.ix_(act, act)] = s_rho * sub["added_mass_inf"].values[np.ix_(loc, loc)]
                 how = "hdb"
@@ -123,10 +146,12 @@ class HydroModel:
                 self._a_inf_source[self.bodies[k_]] = how
             if self.irf_samples > 0 and loc.size:
                 rep = irf_report(omega, bd, t_irf, k)
-                self._irf_fit[src] = rep["worst"]
+                self._irf_fit[src] = max(rep["worst"], self._irf_fit.get(src, 0.0))
                 if irf_T > aliasing_time(omega):
-                    self.warnings.append(f"hydro.irf_duration: {irf_T} s exceeds pi/d_omega = "
-                                         f"{aliasing_time(omega):.3g} s of {src!r}: the IRF tail is aliased")
+                    warning = (f"hydro.irf_duration: {irf_T} s exceeds pi/d_omega = "
+                               f"{aliasing_time(omega):.3g} s of {src!r}: the IRF tail is aliased")
+                    if warning not in self.warnings:
+                        self.warnings.append(warning)
             if self.waves.size:
                 try:
                     x_comp[:, gidx] = s_rg * interpolate_excitation(
@@ -138,8 +163,8 @@ class HydroModel:
             self.warnings.append(f"waves: {100 * self.waves.energy_outside:.2g} % of the spectrum's energy lies "
                                  f"outside the HDB range {lo:.3g}-{hi:.3g} rad/s and is left out")
 
-        masses = np.array([b.mass for b in scene.bodies])
-        cogs = np.array([b.center_of_mass for b in scene.bodies], float)
+        masses = np.array([b.mass for b in wet_bodies])
+        cogs = np.array([b.center_of_mass for b in wet_bodies], float)
         mask = self.active.reshape(-1)
         keep = np.outer(mask, mask)
         self.added_mass_inf = np.where(keep, a_inf, 0.0)
@@ -147,27 +172,43 @@ class HydroModel:
         self.equilibrium_position = np.hstack([refs, np.zeros((n_b, 3))])
         self._k_hs = np.ascontiguousarray(self.hydrostatic_stiffness[np.ix_(self._idx, self._idx)])
         self._x_eq = self.equilibrium_position.reshape(-1)[self._idx].copy()
-        self._memory = RadiationMemory(kernel[:self.irf_samples + 1], self.dt)
+        if len(memories) == 1 and memories[0][0].size == na:
+            memories = [(slice(None), memories[0][1])]  # one group over every active DOF: no gather
+        self._memories = memories
+        self.coupled_blocks = sum(len(m) * (len(m) - 1) for _, m in groups)
+        self._kernel_entries = sum(np.size(p) ** 2 if not isinstance(p, slice) else na ** 2
+                                   for p, _ in memories)
         self._forcing = WaveForcing(self.waves, x_comp[:, self._idx])
         self._step = -1           # index of the newest step pushed
         self._sel = slice(None) if na == self.n else self._idx  # a view when every DOF is active
         self._red = np.zeros((3, na))  # scratch: excitation, radiation, hydrostatic (active DOFs)
-        self._net_buoyancy = self._buoyancy(hdbs, groups, rho, g, masses)
+        self._net_buoyancy = self._buoyancy(groups, rho, g, masses)
 
-    def _buoyancy(self, hdbs, groups, rho, g, masses) -> list[float | None]:
-        """rho g V - m g per body (None when the HDB has no displaced volume)."""
+    def _buoyancy(self, groups, rho, g, masses) -> list[float | None]:
+        """rho g V - m g per wet body (None when the HDB has no displaced volume)."""
         out: list[float | None] = [None] * len(self.bodies)
         for ds, members in groups:
             if "displaced_volume" in ds:
-                vol = ds["displaced_volume"].sel(body=[self.scene.bodies[k].hdb_body_name for k in members]).values
+                names = [self.scene.bodies[self._scene_index[k]].hdb_body_name for k in members]
+                vol = ds["displaced_volume"].sel(body=names).values
                 for k, v in zip(members, vol):
                     out[k] = float(rho * g * v - masses[k] * g)
         return out
 
     def setup_info(self) -> dict:
-        """What the client needs to build its side (matrices in the 6N body-major DOF order)."""
+        """What the client needs to build its side (matrices in the 6N body-major DOF order, over the
+        wet bodies only).
+
+        ``interaction``: the scene's "full" | "none"; ``hydro_groups``: lists of bodies that interact
+        hydrodynamically; ``coupled_blocks``: number of off-diagonal body-pair blocks (i, j), i != j,
+        in use (ordered pairs: 2 for two interacting bodies); ``radiation_kernel_entries``: DOF
+        pairs in the radiation convolution (sum over groups of active DOFs squared)."""
         return {
             "bodies": list(self.bodies),
+            "interaction": self.interaction,
+            "hydro_groups": [list(g) for g in self.groups],
+            "coupled_blocks": self.coupled_blocks,
+            "radiation_kernel_entries": self._kernel_entries,
             "dofs": list(DOF_NAMES),
             "active": self.active.copy(),
             "added_mass_inf": self.added_mass_inf.copy(),
@@ -202,7 +243,9 @@ class HydroModel:
                                       f"got {np.shape(position)} and {np.shape(velocity)}")
         sel = self._sel
         red = self._red
-        red[1] = self._memory.push(v[sel], replace_last)
+        vs = v[sel]
+        for pos, memory in self._memories:
+            red[1, pos] = memory.push(vs[pos], replace_last)
         red[0], eta = self._forcing(time)
         np.dot(self._k_hs, self._x_eq - x[sel], out=red[2])
         self._step = k

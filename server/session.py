@@ -23,7 +23,8 @@ def _scene_field(key: str) -> str:
 
 
 def build_model(msg: dict) -> HydroModel:
-    """Validate a ``hello``'s scene and HDBs and build the model; ProtocolError 8/9 naming the field."""
+    """Validate a ``hello``'s scene and HDBs and build the model over the scene's wet bodies (dry
+    bodies need no HDB); ProtocolError 8/9 naming the field."""
     text = codec.require_str(msg, "scene")
     hdb_maps = codec.require_map(msg, "hdbs")
     try:
@@ -33,7 +34,7 @@ def build_model(msg: dict) -> HydroModel:
     datasets: dict[str, xr.Dataset] = {}
     for i, body in enumerate(scene.bodies):
         key = body.hdb
-        if key in datasets:
+        if key is None or key in datasets:
             continue
         if key not in hdb_maps:
             raise ProtocolError(Code.BAD_HDB, f"hdbs.{key}",
@@ -49,7 +50,7 @@ def build_model(msg: dict) -> HydroModel:
             raise ProtocolError(Code.BAD_HDB, f"hdbs.{key}.{exc.field}" if exc.field else f"hdbs.{key}",
                                 str(exc)) from None
     try:
-        return HydroModel(scene, {b.name: datasets[b.hdb] for b in scene.bodies})
+        return HydroModel(scene, {b.name: datasets[b.hdb] for b in scene.wet_bodies})
     except ModelError as exc:
         raise ProtocolError(Code.BAD_SCENE, _scene_field(exc.key), str(exc)) from None
     except HDBError as exc:
