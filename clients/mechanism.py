@@ -409,64 +409,90 @@ def _planar_normal(joints: list[Joint]) -> np.ndarray | None:
     return normal
 
 
-def resolve_redundancy(mbs, scene: Scene, mech: Mechanism, tol: float = 1e-9) -> None:
-    """Find redundant constraints at t = 0; reduce planar loops, refuse anything else (SceneError).
-
-    Order: coordinate constraints first (locked DOFs, ``[[constraints]]``), then joints in scene
-    order; a constrained joint axis whose Jacobian column lies in the span of those before it is
-    redundant."""
+def _first_redundancy(mbs, mech: Mechanism, tol: float) -> tuple[int, list[str], int] | None:
+    """The first joint (scene order, after the coordinate constraints) with constraint-Jacobian
+    columns dependent on those before it: (joint index, keys of the items involved, how many)."""
     cq, _ = _constraint_jacobian(mbs)
     ltg = mbs.systemData.GetObjectLTGAE
     columns: list[np.ndarray] = []
-    owners: list[str] = []          # key of the item owning each accepted column
+    owners: list[str] = []
     for key, obj in mech.coordinate_constraints:
         col = cq[:, ltg(obj)[0]]
         if _dependent(columns, col, tol) is None:
             columns.append(col)
             owners.append(key)
-    reduced = False
     for k, info in enumerate(mech.joints):
         idx = ltg(info.object)
-        dependent: dict[int, set[str]] = {}
-        new_cols = []
+        involved: set[str] = set()
+        n_dep = 0
         for axis in range(6):
             if not info.constrained[axis]:
                 continue
             col = cq[:, idx[axis]]
-            coef = _dependent(columns + new_cols, col, tol)
+            coef = _dependent(columns, col, tol)
             if coef is None:
-                new_cols.append(col)
+                columns.append(col)
+                owners.append(info.key)
             else:
-                involved = {owners[c] for c in np.flatnonzero(np.abs(coef[:len(owners)]) > 1e-6 * np.abs(coef).max())}
-                dependent[axis] = involved
-        if not dependent:
-            columns.extend(new_cols)
-            owners.extend([info.key] * len(new_cols))
+                n_dep += 1
+                big = np.abs(coef) > 1e-6 * max(float(np.abs(coef).max()), 1e-300)
+                involved |= {owners[c] for c in np.flatnonzero(big)}
+        if n_dep:
+            return k, sorted(involved - {info.key}, key=_key_order), n_dep
+    return None
+
+
+def _key_order(key: str) -> tuple:
+    head, _, rest = key.partition("[")
+    return (head != "bodies" and head != "constraints", head, int(rest.split("]")[0]) if rest else 0)
+
+
+def _planar_free_axes(info: JointInfo, normal: np.ndarray) -> tuple[int, ...]:
+    """The joint's constrained axes that are out-of-plane motions for a plane with ``normal``: a
+    translation along the normal, rotations about in-plane directions."""
+    out = []
+    for a in range(6):
+        if not info.constrained[a]:
             continue
-        involved = set().union(*dependent.values())
-        joints_involved = sorted({o for o in involved if o.startswith("joints[")} | {info.key},
-                                 key=lambda s: int(s[7:-1]))
-        scene_joints = [scene.joints[int(s[7:-1])] for s in joints_involved]
-        words = ", ".join(_AXIS_WORDS[a] for a in dependent)
-        if len(joints_involved) > 1 and _planar_normal(scene_joints) is not None:
-            axes = tuple(0 if a in dependent else c for a, c in enumerate(info.constrained))
+        c = float(info.frame[:, a % 3] @ normal)
+        if (a < 3 and abs(abs(c) - 1.0) < 1e-9) or (a >= 3 and abs(c) < 1e-9):
+            out.append(a)
+    return tuple(out)
+
+
+def resolve_redundancy(mbs, scene: Scene, mech: Mechanism, tol: float = 1e-9) -> None:
+    """Find redundant constraints at t = 0; reduce planar loops, refuse anything else (SceneError).
+
+    Coordinate constraints (locked DOFs, ``[[constraints]]``) come first, then the joints in scene
+    order; a joint whose constraint-Jacobian columns depend on those before it is redundant. If all
+    joints involved are revolute with parallel axes (or prismatic in that plane), the redundant
+    joint's out-of-plane axes are freed and the check repeats; otherwise a SceneError names them."""
+    reduced: set[int] = set()
+    for _ in range(len(mech.joints) + 1):
+        found = _first_redundancy(mbs, mech, tol)
+        if found is None:
+            return
+        k, involved, n_dep = found
+        info = mech.joints[k]
+        joint_keys = [o for o in involved if o.startswith("joints[")]
+        normal = _planar_normal([scene.joints[int(o[7:-1])] for o in [*joint_keys, info.key]])
+        free = _planar_free_axes(info, normal) if normal is not None and joint_keys and k not in reduced else ()
+        if len(free) >= n_dep:
+            axes = tuple(0 if a in free else c for a, c in enumerate(info.constrained))
             mbs.SetObjectParameter(info.object, "constrainedAxes", list(axes))
             mech.joints[k] = JointInfo(info.label, info.key, info.type, info.object, info.markers, axes,
                                        info.frame, info.friction_object)
-            mech.reductions.append(f"{info.key}: planar loop with {', '.join(j for j in joints_involved if j != info.key)}; "
-                                   f"freed the redundant {words} (joint frame)")
-            columns.extend(new_cols)
-            owners.extend([info.key] * len(new_cols))
-            reduced = True
+            mech.reductions.append(f"{info.key}: closes a planar loop with {', '.join(joint_keys)}; freed its "
+                                   f"{', '.join(_AXIS_WORDS[a] for a in free)} (joint frame, out of plane)")
+            reduced.add(k)
+            mbs.Assemble()
             continue
-        others = [o for o in sorted(involved) if o != info.key]
-        names = " and ".join([*others, info.key]) if others else info.key
+        names = " and ".join([*involved, info.key])
         raise SceneError("scene", info.key,
-                         f"singular mechanism: {names} constrain the same motion (the {words} in "
-                         f"{info.key}'s joint frame is already fixed); remove a joint, use one that "
-                         "constrains less (e.g. spherical instead of revolute) or free a DOF")
-    if reduced:
-        mbs.Assemble()
+                         f"singular mechanism: {names} constrain the same motion ({n_dep} of {info.key}'s "
+                         "constraints are already imposed by the others at t = 0); remove a joint, use one "
+                         "that constrains less (e.g. spherical instead of revolute) or free a DOF")
+    raise SceneError("scene", "joints", "singular mechanism: redundant constraints could not be reduced")
 
 
 def _dependent(columns: list[np.ndarray], col: np.ndarray, tol: float) -> np.ndarray | None:
