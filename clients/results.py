@@ -75,7 +75,13 @@ class ResultWriter:
         self.flush_seconds, self.flush_rows = float(flush_seconds), int(flush_rows)
         self.rows_written = 0
         self.status = "running"
-        self._buffer: list[tuple] = []
+        # rows are buffered in preallocated blocks (no per-row allocation): row i of the block
+        # holds time, the (N, 6) row variables in ROW_VARIABLES order, and the wave elevation
+        rows = max(self.flush_rows, 1)
+        self._time = np.empty(rows)
+        self._rows = np.empty((len(ROW_VARIABLES), rows, self.n_bodies, 6))
+        self._eta = np.empty(rows)
+        self._buffered = 0
         self._last_flush = _time.monotonic()
         self._ds = netCDF4.Dataset(self.path, "w", format="NETCDF4")
         try:
@@ -127,27 +133,34 @@ class ResultWriter:
     # -- rows --------------------------------------------------------------------------------
     def append(self, time: float, position, velocity, excitation, radiation, hydrostatic,
                wave_elevation) -> None:
-        """Buffer one row; flushes when the wall-time or row budget is used up."""
-        row = (float(time), *(np.array(a, float) for a in (position, velocity, excitation,
-                                                          radiation, hydrostatic)),
-               float(np.asarray(wave_elevation, float).reshape(-1)[0]))
-        self._buffer.append(row)
-        if (len(self._buffer) >= self.flush_rows
+        """Buffer one row: (N, 6) arrays and a number for the elevation (copied into the block);
+        flushes when the wall-time or row budget is used up."""
+        i = self._buffered
+        self._time[i] = time
+        block = self._rows[:, i]
+        block[0] = position
+        block[1] = velocity
+        block[2] = excitation
+        block[3] = radiation
+        block[4] = hydrostatic
+        self._eta[i] = wave_elevation
+        self._buffered = i + 1
+        if (self._buffered >= self._time.size
                 or _time.monotonic() - self._last_flush >= self.flush_seconds):
             self.flush()
 
     def flush(self) -> None:
         """Write the buffered rows and sync the file to disk."""
-        if self._buffer and self._ds.isopen():
-            rows, i0 = self._buffer, self.rows_written
-            i1 = i0 + len(rows)
+        if self._buffered and self._ds.isopen():
+            m, i0 = self._buffered, self.rows_written
+            i1 = i0 + m
             ds = self._ds
-            for k, name in enumerate(ROW_VARIABLES, start=1):
-                ds[name][i0:i1] = np.stack([r[k] for r in rows]).reshape(i1 - i0, self.n_bodies, 6)
-            ds["wave_elevation"][i0:i1] = np.array([r[6] for r in rows])
-            ds["time"][i0:i1] = np.array([r[0] for r in rows])  # last: marks the rows as present
+            for k, name in enumerate(ROW_VARIABLES):
+                ds[name][i0:i1] = self._rows[k, :m]
+            ds["wave_elevation"][i0:i1] = self._eta[:m]
+            ds["time"][i0:i1] = self._time[:m]  # last: marks the rows as present
             self.rows_written = i1
-            self._buffer = []
+            self._buffered = 0
         if self._ds.isopen():
             self._ds.sync()
         self._last_flush = _time.monotonic()
