@@ -136,12 +136,13 @@ class ServerConnection:
              iteration: int = 0) -> dict:
         """Forces for the state at step ``seq``: excitation/radiation/hydrostatic (N, 6) arrays,
         wave_elevation, seq, iteration, time, compute_us."""
+        position = np.ascontiguousarray(position, dtype=np.float64)
         reply = self.request("step", seq=int(seq), time=float(time), iteration=int(iteration),
-                             position=np.ascontiguousarray(position, dtype=np.float64),
+                             position=position,
                              velocity=np.ascontiguousarray(velocity, dtype=np.float64))
         out = {k: reply[k] for k in ("seq", "iteration", "time", "compute_us") if k in reply}
-        for k in FORCE_FIELDS:
-            out[k] = codec.decode_array(reply[k], k)
+        for k in FORCE_FIELDS:  # (N, 6) like the state sent; the caller checks the values
+            out[k] = codec.require_array(reply, k, position.shape, finite=False)
         eta = reply.get("wave_elevation")
         out["wave_elevation"] = codec.decode_array(eta, "wave_elevation") if isinstance(eta, dict) else eta
         return out
