@@ -2,19 +2,22 @@
 
 Model (see shared/notes/exudyn-coupling.md for the measured facts behind it):
 
-- one ``NodeRigidBodyRxyz`` per body at its reference point (the point the HDB's rotational modes
-  refer to); its coordinates are displacements from equilibrium (xyz + Tait-Bryan angles, angle
+- the mechanism (bodies wet and dry, point masses, gravity/buoyancy, joints, constraints) is built by
+  :mod:`hydrolink.clients.mechanism`: one ``NodeRigidBodyRxyz`` per body at its reference point (for
+  a wet body the point the HDB's rotational modes refer to); its coordinates are displacements from equilibrium (xyz + Tait-Bryan angles, angle
   rates ≈ angular velocity for small angles) and ``ObjectRigidBody`` with the body's mass, its
   centre of mass relative to the reference point and the inertia moved there (parallel axes);
 - no gravity: weight and buoyancy balance at equilibrium, the restoring stiffness (with its gravity
   terms) comes from the server;
 - inactive DOFs locked to ground at equilibrium with coordinate constraints;
-- ONE ``ObjectGenericODE2`` over all body nodes: ``massMatrix`` = A∞ (added mass in the system mass
+- ONE ``ObjectGenericODE2`` over the WET bodies' nodes (mapped by name to the server's setup): ``massMatrix`` = A∞ (added mass in the system mass
   matrix, never a lagged force), ``stiffnessMatrix`` = hydrostatic stiffness (implicit) and
   ``forceVector`` = excitation + radiation memory from the server, written once per step.
 
 Timing: implicit integrators apply loads at the end of the step, so for t_k → t_{k+1} the server is
 asked for F(t_{k+1}) with the predicted state (x + h v + h²/2 a, v + h a).
+
+A scene without wet bodies runs without a force server (``connection`` and ``setup`` None).
 """
 
 from __future__ import annotations
@@ -27,12 +30,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 import exudyn as exu
-from exudyn.itemInterface import (CoordinateConstraint, MarkerNodeCoordinate, NodePointGround,
-                                  NodeRigidBodyRxyz, ObjectGenericODE2, ObjectRigidBody,
-                                  VObjectGenericODE2, VObjectRigidBody)
-from exudyn.rigidBodyUtilities import RigidBodyInertia
+from exudyn.itemInterface import ObjectGenericODE2, VObjectGenericODE2
 
-from hydrolink.protocol.scene import DOF_NAMES, Scene, SceneError
+from hydrolink.clients.mechanism import Mechanism, body_reference, build_mechanism
+from hydrolink.protocol.scene import Scene
 
 #: default bound on |displacement| (m, rad) and |velocity| (m/s, rad/s) before a run is called diverged
 BLOW_UP_LIMIT = 1.0e4
@@ -58,20 +59,28 @@ class ExudynModel:
     mbs: exu.MainSystem
     solver: exu.MainSolverImplicitSecondOrder
     settings: exu.SimulationSettings
-    hydro_object: int
-    equilibrium: np.ndarray          # (N, 6): reference point xyz + zero angles
-    active: np.ndarray               # (N, 6) bool
+    hydro_object: int                # -1 when no body is wet
+    equilibrium: np.ndarray          # (N, 6): wet bodies' reference point xyz + zero angles
+    active: np.ndarray               # (N, 6) bool, wet bodies
     stiffness: np.ndarray            # (6N, 6N)
     dt: float
+    mechanism: Mechanism | None = None
+    wet_index: np.ndarray = field(default_factory=lambda: np.zeros(0, int))   # (6N,) ODE2 indices
+    body_names: list[str] = field(default_factory=list)    # every scene body (results order)
+    body_reference: np.ndarray = field(default_factory=lambda: np.zeros((0, 6)))  # (B, 6)
+    body_index: np.ndarray = field(default_factory=lambda: np.zeros(0, int))  # (6B,) ODE2 indices
+    wet_rows: np.ndarray = field(default_factory=lambda: np.zeros(0, int))    # wet bodies' rows in B
     initialized: bool = field(default=False)
 
     @property
     def n_bodies(self) -> int:
+        """Number of wet bodies (the server's bodies)."""
         return self.equilibrium.shape[0]
 
     def set_force(self, force: np.ndarray) -> None:
-        """Write all bodies' hydrodynamic forces (6N) into the GenericODE2 in one call."""
-        self.mbs.SetObjectParameter(self.hydro_object, "forceVector", force)
+        """Write all wet bodies' hydrodynamic forces (6N) into the GenericODE2 in one call."""
+        if int(self.hydro_object) >= 0:
+            self.mbs.SetObjectParameter(self.hydro_object, "forceVector", force)
 
     def initialize(self) -> None:
         """Initialise the solver (initial accelerations use the force vector set now)."""
@@ -79,7 +88,8 @@ class ExudynModel:
         self.initialized = True
 
     def state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Displacements, velocities and accelerations of all node coordinates (6N each)."""
+        """Displacements, velocities and accelerations of all system ODE2 coordinates (wet bodies'
+        6N: ``wet_index``; every scene body: ``body_index``)."""
         sd = self.mbs.systemData
         return (np.asarray(sd.GetODE2Coordinates()), np.asarray(sd.GetODE2Coordinates_t()),
                 np.asarray(sd.GetODE2Coordinates_tt()))
@@ -97,8 +107,8 @@ class ExudynModel:
         if not self.initialized:
             self.initialize()
         self.solver.ComputeMassMatrix(self.mbs)
-        n = 6 * self.n_bodies
-        return np.asarray(self.solver.GetSystemMassMatrix())[:n, :n]
+        i = self.wet_index
+        return np.asarray(self.solver.GetSystemMassMatrix())[np.ix_(i, i)]
 
     def finalize(self) -> None:
         if self.initialized:
@@ -115,60 +125,53 @@ def _scene_bodies(scene: Scene, names: list[str]):
     return [by_name[n] for n in names]
 
 
-def _initial(scene: Scene, body, active: np.ndarray, what: str) -> np.ndarray:
-    """A body's initial displacement/velocity; nonzero values in inactive DOFs are a scene error."""
-    value = np.asarray(getattr(body, what), float)
-    locked = ~active & (value != 0)
-    if locked.any():
-        i = scene.bodies.index(body)
-        dofs = [DOF_NAMES[j] for j in np.flatnonzero(locked)]
-        raise SceneError("scene", f"bodies[{i}].{what}",
-                         f"nonzero in inactive DOF(s) {dofs}; inactive DOFs are held at equilibrium "
-                         f"(add them to bodies[{i}].dofs or set them to 0)")
-    return value
+def result_bodies(scene: Scene, setup: dict | None) -> tuple[list[str], np.ndarray]:
+    """Every scene body's name and reference position (N, 6): wet bodies' from the server's setup
+    (by name), dry bodies' from the scene (``reference_point``, default the centre of mass)."""
+    wet = {}
+    if setup:
+        eq = np.asarray(setup["equilibrium_position"], float).reshape(-1, 6)
+        wet = {str(n): eq[i] for i, n in enumerate(setup["bodies"])}
+    ref = [wet[b.name] if b.name in wet else np.r_[body_reference(b), 0.0, 0.0, 0.0] for b in scene.bodies]
+    return [b.name for b in scene.bodies], np.asarray(ref, float).reshape(len(ref), 6)
 
 
-def build_model(scene: Scene, setup: dict, *, spectral_radius: float = 1.0) -> ExudynModel:
-    """Build the Exudyn system from the scene (masses, inertias, initial state) and the server's
-    setup (bodies, active DOFs, A∞, hydrostatic stiffness, equilibrium, dt).
+def build_model(scene: Scene, setup: dict | None, *, spectral_radius: float = 1.0) -> ExudynModel:
+    """Build the Exudyn system from the scene (bodies, point masses, joints, constraints, initial
+    state) and the server's setup (wet bodies by name, active DOFs, A∞, hydrostatic stiffness,
+    equilibrium, net buoyancy, dt); ``setup`` None when no body is wet.
 
     ``spectral_radius`` of the generalized-alpha integrator: 1 (default) is the energy-conserving
     trapezoidal rule — no numerical damping of the lightly damped wave-body modes."""
-    names = [str(b) for b in setup["bodies"]]
+    setup = setup or {}
+    names = [str(b) for b in setup.get("bodies", [])]
     n = len(names)
-    bodies = _scene_bodies(scene, names)
-    equilibrium = np.asarray(setup["equilibrium_position"], float).reshape(n, 6)
-    active = np.asarray(setup["active"], bool).reshape(n, 6)
-    a_inf = np.asarray(setup["added_mass_inf"], float).reshape(6 * n, 6 * n)
-    stiffness = np.asarray(setup["hydrostatic_stiffness"], float).reshape(6 * n, 6 * n)
+    wet_scene = [b.name for b in scene.bodies if b.wet]
+    if sorted(names) != sorted(wet_scene):
+        raise ValueError(f"server setup names bodies {names}, the scene's wet bodies are {wet_scene}")
+    _scene_bodies(scene, names)
+    equilibrium = np.asarray(setup.get("equilibrium_position", np.zeros((0, 6))), float).reshape(n, 6)
+    active = np.asarray(setup.get("active", np.zeros((0, 6))), bool).reshape(n, 6)
+    a_inf = np.asarray(setup.get("added_mass_inf", np.zeros((0, 0))), float).reshape(6 * n, 6 * n)
+    stiffness = np.asarray(setup.get("hydrostatic_stiffness", np.zeros((0, 0))), float).reshape(6 * n, 6 * n)
     dt = float(setup.get("dt", scene.simulation.dt))
+    net = {nm: float(v) for nm, v in zip(names, setup.get("net_buoyancy") or [None] * n) if v}
 
     sc = exu.SystemContainer()
     mbs = sc.AddSystem()
-    ground = mbs.AddNode(NodePointGround(referenceCoordinates=[0.0, 0.0, 0.0]))
-    ground_marker = mbs.AddMarker(MarkerNodeCoordinate(nodeNumber=ground, coordinate=0))
-    nodes = []
-    for i, body in enumerate(bodies):
-        ref = equilibrium[i, :3]
-        com = np.asarray(body.center_of_mass, float) - ref  # body frame = global at equilibrium
-        inertia = RigidBodyInertia(body.mass, body.inertia_matrix, com, inertiaTensorAtCOM=True)
-        node = mbs.AddNode(NodeRigidBodyRxyz(
-            name=f"{body.name}_node",
-            referenceCoordinates=[*ref, 0.0, 0.0, 0.0],
-            initialCoordinates=_initial(scene, body, active[i], "initial_displacement"),
-            initialVelocities=_initial(scene, body, active[i], "initial_velocity")))
-        mbs.AddObject(ObjectRigidBody(
-            name=body.name, nodeNumber=node, mass=body.mass,
-            inertia=inertia.GetInertia6D(), centerOfMass=com,
-            visualization=VObjectRigidBody(show=False)))
-        for j in np.flatnonzero(~active[i]):
-            marker = mbs.AddMarker(MarkerNodeCoordinate(nodeNumber=node, coordinate=int(j)))
-            mbs.AddObject(CoordinateConstraint(markerNumbers=[ground_marker, marker]))
-        nodes.append(node)
-    hydro = mbs.AddObject(ObjectGenericODE2(
-        name="hydrodynamics", nodeNumbers=nodes, massMatrix=a_inf, stiffnessMatrix=stiffness,
-        forceVector=np.zeros(6 * n), visualization=VObjectGenericODE2(show=False)))
+    mech = build_mechanism(mbs, scene, {nm: equilibrium[i, :3] for i, nm in enumerate(names)}, net)
+    hydro = -1
+    if n:
+        hydro = mbs.AddObject(ObjectGenericODE2(
+            name="hydrodynamics", nodeNumbers=mech.rigid_nodes(names), massMatrix=a_inf,
+            stiffnessMatrix=stiffness, forceVector=np.zeros(6 * n),
+            visualization=VObjectGenericODE2(show=False)))
     mbs.Assemble()
+    ltg = mbs.systemData.GetNodeLTGODE2
+    all_names, reference = result_bodies(scene, setup)
+    body_index = np.concatenate([np.asarray(ltg(mech.handles[nm].node), int) for nm in all_names])
+    wet_index = (np.concatenate([np.asarray(ltg(mech.handles[nm].node), int) for nm in names])
+                 if n else np.zeros(0, int))
 
     ss = exu.SimulationSettings()
     ss.solution.file.write = False
@@ -179,7 +182,8 @@ def build_model(scene: Scene, setup: dict, *, spectral_radius: float = 1.0) -> E
     ss.timeIntegration.endTime = dt
     ss.timeIntegration.generalizedAlpha.spectralRadius = float(spectral_radius)
     return ExudynModel(sc, mbs, exu.MainSolverImplicitSecondOrder(), ss, hydro, equilibrium,
-                       active, stiffness, dt)
+                       active, stiffness, dt, mech, wet_index, all_names, reference, body_index,
+                       np.array([all_names.index(nm) for nm in names], int))
 
 
 def _check_state(q: np.ndarray, v: np.ndarray, step: int, t: float, limit: float, rows: int,
@@ -210,17 +214,33 @@ def _forces(reply: dict, n: int, step: int, t: float) -> tuple[np.ndarray, np.nd
     return exc, rad, eta
 
 
+JOINT_COMPONENTS = ("fx", "fy", "fz", "mx", "my", "mz")
+
+
+def _add_joint_variables(writer, labels: list[str]) -> None:
+    """Declare the joint outputs in the results file (dims ``joint``, ``joint_component``)."""
+    coords = {"joint": labels, "joint_component": list(JOINT_COMPONENTS)}
+    writer.add_variable("joint_force", ("joint", "joint_component"), coords, "N (fx, fy, fz); N m (mx, my, mz)",
+                        "joint reaction force and moment on body2 from body1 at the joint point, global frame")
+    writer.add_variable("joint_violation", ("joint",), coords, "m",
+                        "position-level joint violation: norm of the constrained relative translation")
+    writer.add_variable("joint_rotation_violation", ("joint",), coords, "rad",
+                        "norm of the constrained relative rotation angles")
+
+
 def _progress_bar(total: int, enabled: bool):
     from tqdm import tqdm
     return tqdm(total=total, unit="step", desc="hydrolink run", mininterval=0.5,
                 disable=not (enabled and sys.stderr.isatty()))
 
 
-def run(scene: Scene, scene_text: str, connection, setup: dict, writer, *, progress: bool = True,
+def run(scene: Scene, scene_text: str, connection, setup: dict | None, writer, *, progress: bool = True,
         spectral_radius: float = 1.0, blow_up_limit: float = BLOW_UP_LIMIT) -> dict:
     """Run the lockstep co-simulation to ``scene.simulation.duration``.
 
-    ``connection`` has already said hello (``setup`` is its reply); it is not closed here.
+    ``connection`` has already said hello (``setup`` is its reply); it is not closed here. With no
+    wet body both are None and no server is asked. Rows hold every scene body (hydrodynamic forces
+    zero for dry bodies) and, with joints, the joint outputs (see :mod:`hydrolink.clients.results`).
     Every step is written to ``writer`` (a :class:`~hydrolink.clients.results.ResultWriter`),
     which gets its final status ("complete" / "interrupted: ...") before this returns or raises.
     On Ctrl-C or a server error the rows computed so far are flushed and the error re-raised with
@@ -234,6 +254,13 @@ def run(scene: Scene, scene_text: str, connection, setup: dict, writer, *, progr
     n_steps = int(round(scene.simulation.duration / h))
     eq = model.equilibrium.reshape(-1)
     stiffness = model.stiffness
+    wet, bodies, ref = model.wet_index, model.body_index, model.body_reference
+    nb, rows = len(model.body_names), model.wet_rows
+    mech = model.mechanism
+    joints = bool(mech and mech.joints)
+    if joints:
+        _add_joint_variables(writer, mech.joint_labels)
+    zeros = np.zeros((0, 6))
     wall0 = _time.perf_counter()
     t_server = 0.0
     step, t = 0, 0.0
@@ -241,6 +268,8 @@ def run(scene: Scene, scene_text: str, connection, setup: dict, writer, *, progr
 
     def request(k: int, tk: float, q: np.ndarray, v: np.ndarray) -> tuple:
         nonlocal t_server
+        if n == 0:
+            return zeros, zeros, 0.0
         t0 = _time.perf_counter()
         try:
             reply = connection.step(k, tk, (eq + q).reshape(n, 6), v.reshape(n, 6))
@@ -254,24 +283,35 @@ def run(scene: Scene, scene_text: str, connection, setup: dict, writer, *, progr
         t_server += _time.perf_counter() - t0
         return _forces(reply, n, k, tk)
 
+    force_rows = np.zeros((3, nb, 6))
+
+    def write(tk: float, q: np.ndarray, v: np.ndarray, exc_f, rad_f, eta) -> None:
+        force_rows[0, rows], force_rows[1, rows] = exc_f, rad_f
+        force_rows[2, rows] = -(stiffness @ q[wet]).reshape(n, 6)
+        if joints:
+            f, m, gap, rot = mech.joint_outputs(model.mbs)
+            writer.stage_extra({"joint_force": np.hstack([f, m]), "joint_violation": gap,
+                                "joint_rotation_violation": rot})
+        writer.append(tk, ref + q[bodies].reshape(nb, 6), v[bodies].reshape(nb, 6),
+                      force_rows[0], force_rows[1], force_rows[2], eta)
+
     try:
         q, v, _ = model.state()
         _check_state(q, v, 0, 0.0, blow_up_limit, 0, "the initial state")
-        exc_f, rad_f, eta = request(0, 0.0, q, v)
+        exc_f, rad_f, eta = request(0, 0.0, q[wet], v[wet])
         model.set_force((exc_f + rad_f).reshape(-1))
         model.initialize()
         q, v, a = model.state()  # initial accelerations from F(0)
-        writer.append(0.0, (eq + q).reshape(n, 6), v.reshape(n, 6), exc_f, rad_f,
-                      -(stiffness @ q).reshape(n, 6), eta)
+        write(0.0, q, v, exc_f, rad_f, eta)
         for step in range(1, n_steps + 1):
             t_prev, t = (step - 1) * h, step * h
-            exc_f, rad_f, eta = request(step, t, q + h * v + 0.5 * h * h * a, v + h * a)
+            qw, vw, aw = q[wet], v[wet], a[wet]
+            exc_f, rad_f, eta = request(step, t, qw + h * vw + 0.5 * h * h * aw, vw + h * aw)
             model.set_force((exc_f + rad_f).reshape(-1))
             model.advance(t_prev, t)
             q, v, a = model.state()
             _check_state(q, v, step, t, blow_up_limit, step, "the body state")
-            writer.append(t, (eq + q).reshape(n, 6), v.reshape(n, 6), exc_f, rad_f,
-                          -(stiffness @ q).reshape(n, 6), eta)
+            write(t, q, v, exc_f, rad_f, eta)
             bar.update(1)
     except KeyboardInterrupt:
         bar.close()

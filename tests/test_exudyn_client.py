@@ -27,7 +27,7 @@ from hydrolink.protocol.scene import SceneError, parse_scene
 from hydrolink.server.hdb.io import load_hdb
 from hydrolink.server.service import serve_in_thread
 
-MASS = 261.8e3           # kg (Task 10 sphere)
+MASS = 261.724e3         # kg: rho V of the Task 10 sphere HDB (floats at equilibrium: no net buoyancy)
 HEAVE = 2
 REPORT: dict[str, str] = {}
 
