@@ -1,0 +1,475 @@
+"""FMU master: a co-simulation FMU (FMI 2.0 or 3.0) as the multibody client of the force server.
+
+The FMU owns the mechanism (bodies, PTO, ...); the master exchanges, once per time step ``dt``,
+the bodies' state (FMU outputs) for the hydrodynamic forces (FMU inputs). Over a step t_k → t_k+1
+the FMU input is held constant at the step average ½(F(t_k) + F(t_k+1)) — the trapezoidal rule —
+with F(t_k+1) evaluated at the state the step ends in.
+
+A∞ (see :mod:`hydrolink.clients.coupling`), per the scene's ``[client.coupling] mode``:
+
+- ``parameters``: every A∞ entry of the active DOFs goes into FMU parameters (``added_mass``
+  mapping); F(t_k+1) is taken at a predicted state, one FMU step per time step (like the Exudyn
+  client);
+- ``iterative``: the A∞ not passed as parameters comes back as −A∞·ā (ā the step's mean
+  acceleration); each step is iterated to a fixed point with rollback (get/set FMU state) and
+  Aitken relaxation, the server's sample replaced at each iteration (SPEC §5.3 rule 2);
+- ``explicit``: −A∞·ā of the previous step fed back, one pass — only when the spectral radius of
+  M⁻¹A∞ is at most ``explicit_limit`` (≤ 0.9); otherwise refused;
+- ``auto``: parameters if they cover A∞, else iterative if the FMU can roll back, else explicit if
+  stable, else a refusal naming the reason.
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+import sys
+import tempfile
+import time as _time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from hydrolink.clients.coupling import Aitken, added_mass_ratio, rigid_body_mass_matrix
+from hydrolink.clients.exudyn_client import BLOW_UP_LIMIT, RunInterrupted, SimulationDiverged
+from hydrolink.protocol.scene import DOF_NAMES, FMUClient, Scene, SceneError, resolve_path
+
+COMPONENTS = ("excitation", "radiation", "hydrostatic")
+PORT_KINDS = ("force",) + COMPONENTS
+ZERO = 1e-9          # relative size below which a matrix entry counts as zero
+
+
+class CouplingError(RunInterrupted):
+    """The iterative coupling did not converge within the allowed iterations."""
+
+
+# ------------------------------------------------------------------------------------ the FMU
+
+class FMUInstance:
+    """An extracted and instantiated co-simulation FMU; ``slave`` is its version's adapter."""
+
+    def __init__(self, path: str | Path, instance_name: str = "hydrolink"):
+        from fmpy import extract, read_model_description
+
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise FileNotFoundError(f"FMU not found: {self.path}")
+        self.md = read_model_description(str(self.path))
+        if self.md.coSimulation is None:
+            raise ValueError(f"{self.path.name} is not a co-simulation FMU (model exchange only)")
+        self.variables = {v.name: v for v in self.md.modelVariables}
+        self._dir = tempfile.mkdtemp(prefix="hydrolink-fmu-")
+        try:
+            extract(str(self.path), unzipdir=self._dir)
+            if self.md.fmiVersion.startswith("3"):
+                from hydrolink.clients.fmi3 import FMI3Slave as Slave
+            elif self.md.fmiVersion.startswith("2"):
+                from hydrolink.clients.fmi2 import FMI2Slave as Slave
+            else:
+                raise ValueError(f"{self.path.name}: FMI {self.md.fmiVersion} is not supported (2.0, 3.0)")
+            self.slave = Slave(self.md, self._dir, instance_name)
+        except BaseException:
+            shutil.rmtree(self._dir, ignore_errors=True)
+            raise
+
+    @property
+    def fmi_version(self) -> str:
+        return self.md.fmiVersion
+
+    def variable(self, name: str, key: str, causalities: Sequence[str], real: bool = True) -> Any:
+        """The model variable ``name`` (SceneError naming ``key`` if absent or of the wrong kind)."""
+        v = self.variables.get(name)
+        if v is None:
+            raise SceneError("scene", key, f"the FMU {self.path.name} has no variable {name!r}")
+        if v.causality not in causalities:
+            raise SceneError("scene", key, f"FMU variable {name!r} has causality {v.causality!r}, "
+                                           f"expected {' or '.join(causalities)}")
+        if real and v.type not in ("Real", "Float64"):
+            raise SceneError("scene", key, f"FMU variable {name!r} is {v.type}, expected a real")
+        return v
+
+    def close(self) -> None:
+        try:
+            self.slave.close()
+        finally:
+            shutil.rmtree(self._dir, ignore_errors=True)
+
+    def __enter__(self) -> "FMUInstance":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+
+# ------------------------------------------------------------------------------------ the plan
+
+@dataclass
+class Wiring:
+    """FMU variables and matrices over the active DOFs (in setup order, body-major)."""
+
+    active: np.ndarray              # flat indices into 6N of the active DOFs
+    labels: list[str]               # "body.dof" per active DOF
+    position_vrs: list[int]
+    velocity_vrs: list[int]
+    port_vrs: list[int]             # FMU inputs
+    port_dof: np.ndarray            # active-DOF index of each input
+    port_kind: list[str]            # "force" | "excitation" | "radiation" | "hydrostatic"
+    parameters: list[tuple[Any, Any, str]]   # (variable, value, scene key)
+    a_rest: np.ndarray              # A∞ not passed to the FMU (n_a × n_a): fed back as −A·ā
+    c_passed: np.ndarray            # hydrostatic stiffness the FMU applies itself
+    mass: np.ndarray                # rigid-body + passed added mass (n_a × n_a), from the scene
+
+
+@dataclass
+class Plan:
+    mode: str                       # "parameters" | "iterative" | "explicit"
+    reason: str
+    ratio: float                    # spectral radius of M⁻¹ A_rest
+
+
+def _pairs(mapping: dict[str, str], body: int, key: str) -> list[tuple[int, int, str, str]]:
+    """(row, col, variable, scene key) in 6N indices for "dof" / "dof,dof" keys."""
+    out = []
+    for dofs, name in mapping.items():
+        a, _, b = dofs.partition(",")
+        i, j = 6 * body + DOF_NAMES.index(a), 6 * body + DOF_NAMES.index(b or a)
+        out.append((i, j, name, f"{key}.{dofs}"))
+    return out
+
+
+def wire(fmu: FMUInstance, scene: Scene, setup: dict) -> Wiring:
+    """Resolve the scene's variable mapping against the FMU and the server's setup."""
+    client: FMUClient = scene.client
+    names = [str(b) for b in setup["bodies"]]
+    n = len(names)
+    act_mask = np.asarray(setup["active"], bool).reshape(6 * n)
+    active = np.flatnonzero(act_mask)
+    where = {int(k): i for i, k in enumerate(active)}
+    a_inf = np.asarray(setup["added_mass_inf"], float).reshape(6 * n, 6 * n)
+    c_full = np.asarray(setup["hydrostatic_stiffness"], float).reshape(6 * n, 6 * n)
+    eq = np.asarray(setup["equilibrium_position"], float).reshape(n, 6)
+    by_name = {b.name: b for b in scene.bodies}
+    labels = [f"{names[k // 6]}.{DOF_NAMES[k % 6]}" for k in active]
+
+    pos, vel, ports, kinds, params = [], [], [], [], []
+    a_pass, c_pass = np.zeros((6 * n, 6 * n)), np.zeros((6 * n, 6 * n))
+    mass = np.zeros((6 * n, 6 * n))
+    for b, name in enumerate(names):
+        m, body, base = client.bodies[name], by_name[name], f"client.bodies.{name}"
+        mass[6 * b:6 * b + 6, 6 * b:6 * b + 6] = rigid_body_mass_matrix(
+            body.mass, body.inertia_matrix, np.asarray(body.center_of_mass) - eq[b, :3])
+        for k in active[active // 6 == b]:
+            d = DOF_NAMES[k % 6]
+            pos.append(fmu.variable(m.position[d], f"{base}.position.{d}", ("output",)).valueReference)
+            vel.append(fmu.variable(m.velocity[d], f"{base}.velocity.{d}", ("output",)).valueReference)
+            for kind in PORT_KINDS:
+                var = getattr(m, kind).get(d)
+                if var is not None:
+                    ports.append((fmu.variable(var, f"{base}.{kind}.{d}", ("input",)).valueReference,
+                                  where[int(k)]))
+                    kinds.append(kind)
+        for target, mapping, key in ((a_pass, m.added_mass, "added_mass"),
+                                     (c_pass, m.hydrostatic_stiffness, "hydrostatic_stiffness")):
+            full = a_inf if target is a_pass else c_full
+            for i, j, var, skey in _pairs(mapping, b, f"{base}.{key}"):
+                if i not in where or j not in where:
+                    raise SceneError("scene", skey, "names an inactive DOF")
+                if abs(full[i, j] - full[j, i]) > ZERO * max(np.abs(full).max(), 1.0):
+                    raise SceneError("scene", skey, f"the matrix is not symmetric here ({full[i, j]:.6g} vs "
+                                                    f"{full[j, i]:.6g}): one parameter cannot hold both")
+                target[i, j] = target[j, i] = full[i, j]
+                params.append((fmu.variable(var, skey, ("parameter",)), float(full[i, j]), skey))
+    sub = np.ix_(active, active)
+    a_rest = (a_inf - a_pass)[sub]
+    a_rest[np.abs(a_rest) <= ZERO * max(np.abs(a_inf[sub]).max(initial=0.0), 1e-300)] = 0.0
+    c_rest = (c_full - c_pass)[sub]
+    port_dof = np.array([p[1] for p in ports], int)
+    for i, label in enumerate(labels):
+        own = {kinds[j] for j in np.flatnonzero(port_dof == i)}
+        needed = {"excitation", "radiation"} | ({"hydrostatic"} if np.any(c_rest[i]) else set())
+        if "force" not in own and not needed <= own:
+            body, d = label.split(".")
+            missing = sorted(needed - own)
+            raise SceneError("scene", f"client.bodies.{body}.{missing[0]}.{d}",
+                             f"no FMU input for the {missing[0]} force of {label} (map force, or every component)")
+    return Wiring(active, labels, pos, vel, [p[0] for p in ports], port_dof, kinds, params, a_rest,
+                  c_pass[sub], (mass + a_pass)[sub])
+
+
+def plan(wiring: Wiring, client: FMUClient, can_roll_back: bool, *, allow_unstable: bool = False) -> Plan:
+    """Choose the coupling mode, or refuse (SceneError naming client.coupling.mode and why)."""
+    mode, limit = client.coupling.mode, client.coupling.explicit_limit
+    ratio = added_mass_ratio(wiring.mass, wiring.a_rest)
+    covered = not np.any(wiring.a_rest)
+    uncovered = [f"{wiring.labels[i]}/{wiring.labels[j]}" for i, j in zip(*np.nonzero(wiring.a_rest))]
+    no_rollback = "the FMU cannot roll back (canGetAndSetFMUstate is false)"
+    unstable = (f"explicit coupling with −A∞·a fed back is unstable or not provably stable here: the "
+                f"added-mass ratio (spectral radius of M⁻¹A∞) is {ratio:.3g} > explicit_limit {limit:g}")
+    key = "client.coupling.mode"
+    if mode == "parameters" and not covered:
+        raise SceneError("scene", key, f"A∞ entries {uncovered} are not mapped to FMU parameters "
+                                       "(client.bodies.<body>.added_mass)")
+    if mode == "iterative" and not can_roll_back:
+        raise SceneError("scene", key, f"iterative coupling needs rollback, but {no_rollback}")
+    if mode == "explicit" and ratio > limit and not allow_unstable:
+        raise SceneError("scene", key, f"refused: {unstable}")
+    if mode == "auto":
+        if covered:
+            mode = "parameters"
+        elif can_roll_back:
+            mode = "iterative"
+        elif ratio <= limit:
+            mode = "explicit"
+        else:
+            raise SceneError("scene", key, f"refused to run: A∞ is not passed to the FMU (no added_mass "
+                                           f"parameters for {uncovered}), {no_rollback}, and {unstable}")
+    reason = {"parameters": "A∞ passed to FMU parameters",
+              "iterative": f"A∞ fed back and iterated with rollback (ratio {ratio:.3g})",
+              "explicit": f"A∞ fed back explicitly (ratio {ratio:.3g} ≤ {limit:g})"}[mode]
+    return Plan(mode, reason, ratio)
+
+
+# ------------------------------------------------------------------------------------ the run
+
+def _progress_bar(total: int, enabled: bool):
+    from tqdm import tqdm
+    return tqdm(total=total, unit="step", desc="hydrolink run (fmu)", mininterval=0.5,
+                disable=not (enabled and sys.stderr.isatty()))
+
+
+def run(scene: Scene, scene_text: str, connection, setup: dict, writer, *,
+        scene_path: str | Path = "scene.toml", progress: bool = True,
+        blow_up_limit: float = BLOW_UP_LIMIT, record: Sequence[str] = (),
+        allow_unstable: bool = False) -> dict:
+    """Run the scene's FMU in lockstep with the server to ``scene.simulation.duration``.
+
+    Like :func:`hydrolink.clients.exudyn_client.run` (same results rows, same errors); ``record``
+    names further FMU real outputs whose values at every step are returned in
+    ``summary["recorded"]``; ``allow_unstable`` lets the explicit mode run beyond its limit (only
+    to demonstrate the instability). The summary adds mode, iterations per step (mean, max) and
+    per-step costs in µs (FMU calls, server round trips, the rest)."""
+    client: FMUClient = scene.client
+    if not isinstance(client, FMUClient):
+        raise SceneError("scene", "client.type", "the FMU master needs [client] type = \"fmu\"")
+    h = float(setup.get("dt", scene.simulation.dt))
+    hc = client.communication_step or h
+    n_sub = int(round(h / hc))
+    if n_sub < 1 or abs(n_sub * hc - h) > 1e-9 * h:
+        raise SceneError("scene", "client.communication_step",
+                         f"must divide simulation.dt = {h:g} s into whole steps (got {hc:g} s)")
+    hc = h / n_sub
+    with FMUInstance(resolve_path(scene_path, client.fmu)) as fmu:
+        return _Master(scene, client, fmu, connection, setup, writer, h, n_sub, progress,
+                       blow_up_limit, record, allow_unstable).run()
+
+
+class _Master:
+    """One run's state; ``run`` is the loop (kept apart from the setup for readability)."""
+
+    def __init__(self, scene, client, fmu, connection, setup, writer, h, n_sub, progress,
+                 blow_up_limit, record, allow_unstable):
+        self.scene, self.client, self.fmu, self.conn, self.writer = scene, client, fmu, connection, writer
+        self.h, self.n_sub, self.progress, self.limit = h, n_sub, progress, blow_up_limit
+        n = len(setup["bodies"])
+        self.n = n
+        self.eq = np.asarray(setup["equilibrium_position"], float).reshape(6 * n)
+        self.w = wire(fmu, scene, setup)
+        self.plan = plan(self.w, client, fmu.slave.can_rollback, allow_unstable=allow_unstable)
+        self.record_vrs = [fmu.variable(r, f"record[{r}]", ("output", "local")).valueReference for r in record]
+        self.record = list(record)
+        self.absolute = client.positions == "absolute"
+        self.out_vrs = self.w.position_vrs + self.w.velocity_vrs + self.record_vrs
+        self.t_server = self.t_fmu = 0.0
+        self.iterations: list[int] = []
+
+    # -- FMU and server calls ---------------------------------------------------------------
+    def _read(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        t0 = _time.perf_counter()
+        out = np.asarray(self.fmu.slave.get_real(self.out_vrs), float)
+        self.t_fmu += _time.perf_counter() - t0
+        na = len(self.w.active)
+        x, v = out[:na], out[na:2 * na]
+        if self.absolute:
+            x = x - self.eq[self.w.active]
+        return x, v, out[2 * na:]
+
+    def _advance(self, t: float, u: np.ndarray) -> None:
+        t0 = _time.perf_counter()
+        slave, hc = self.fmu.slave, self.h / self.n_sub
+        slave.set_real(self.w.port_vrs, u.tolist())
+        for s in range(self.n_sub):
+            slave.do_step(t + s * hc, hc, may_roll_back=self.plan.mode == "iterative")
+        self.t_fmu += _time.perf_counter() - t0
+
+    def _server(self, k: int, x: np.ndarray, v: np.ndarray, iteration: int = 0) -> dict[str, np.ndarray]:
+        pos, vel = self.eq.copy(), np.zeros(6 * self.n)
+        pos[self.w.active] += x
+        vel[self.w.active] = v
+        t0 = _time.perf_counter()
+        try:
+            reply = self.conn.step(k, k * self.h, pos.reshape(self.n, 6), vel.reshape(self.n, 6),
+                                   iteration=iteration)
+        except (KeyboardInterrupt, SimulationDiverged):
+            raise
+        except Exception as exc:
+            raise RunInterrupted(f"force server error at step {k} (t = {k * self.h:.6g} s): {exc}; the "
+                                 f"{k} rows before it are saved in {getattr(self.writer, 'path', 'the results file')}",
+                                 step=k, time=k * self.h, rows=k) from exc
+        self.t_server += _time.perf_counter() - t0
+        f = {c: np.asarray(reply[c], float).reshape(-1) for c in COMPONENTS}
+        f["eta"] = float(np.asarray(reply["wave_elevation"], float).reshape(-1)[0])
+        if not all(np.isfinite(f[c]).all() for c in COMPONENTS):
+            raise SimulationDiverged(f"the force server returned non-finite forces at step {k}",
+                                     step=k, time=k * self.h, rows=k)
+        return f
+
+    # -- interface forces -------------------------------------------------------------------
+    def _inputs(self, f0: dict, f1: dict, x0: np.ndarray, x1: np.ndarray, abar: np.ndarray) -> np.ndarray:
+        """FMU inputs over the step: component averages, A_rest·ā and the passed stiffness removed."""
+        a = self.w.active
+        exc = 0.5 * (f0["excitation"][a] + f1["excitation"][a])
+        rad = 0.5 * (f0["radiation"][a] + f1["radiation"][a]) - self.w.a_rest @ abar
+        hs = 0.5 * (f0["hydrostatic"][a] + f1["hydrostatic"][a]) + self.w.c_passed @ (0.5 * (x0 + x1))
+        parts = {"excitation": exc, "radiation": rad, "hydrostatic": hs, "force": exc + rad + hs}
+        return np.array([parts[kind][i] for kind, i in zip(self.w.port_kind, self.w.port_dof)])
+
+    def _check(self, x: np.ndarray, v: np.ndarray, k: int) -> None:
+        big = max(float(np.abs(x).max(initial=0.0)), float(np.abs(v).max(initial=0.0)))
+        if not big < self.limit:
+            raise SimulationDiverged(
+                f"simulation diverged at step {k} (t = {k * self.h:.6g} s): the FMU state is "
+                f"{'absurdly large' if math.isfinite(big) else 'non-finite'} (max |x|, |v| = {big:.3g}); "
+                f"the {k} rows before it are saved (coupling mode {self.plan.mode})",
+                step=k, time=k * self.h, rows=k)
+
+    def _write(self, k: int, x: np.ndarray, v: np.ndarray, f: dict) -> None:
+        pos, vel = self.eq.copy(), np.zeros(6 * self.n)
+        pos[self.w.active] += x
+        vel[self.w.active] = v
+        shape = (self.n, 6)
+        self.writer.append(k * self.h, pos.reshape(shape), vel.reshape(shape),
+                           f["excitation"].reshape(shape), f["radiation"].reshape(shape),
+                           f["hydrostatic"].reshape(shape), f["eta"])
+
+    # -- one step ---------------------------------------------------------------------------
+    def _predicted_step(self, k, x0, v0, f0, abar_prev):
+        """Parameters / explicit: F(t_k+1) at the predicted state, one FMU pass."""
+        h = self.h
+        xp = x0 + h * v0 + 0.5 * h * h * abar_prev
+        f1 = self._server(k + 1, xp, v0 + h * abar_prev)
+        u = self._inputs(f0, f1, x0, xp, abar_prev)
+        self._advance(k * h, u)
+        x1, v1, rec = self._read()
+        return x1, v1, rec, f1, u, 1
+
+    def _iterated_step(self, k, x0, v0, f0, u0, aitken, scale):
+        """Iterative: fixed point on the FMU inputs, rolled back and relaxed (Aitken) each pass."""
+        slave, h, tol = self.fmu.slave, self.h, self.client.coupling.tolerance
+        self._saved = slave.save_state(getattr(self, "_saved", None))
+        aitken.restart()
+        u = u0
+        for it in range(self.client.coupling.max_iterations):
+            if it:
+                slave.restore_state(self._saved)
+            self._advance(k * h, u)
+            x1, v1, rec = self._read()
+            f1 = self._server(k + 1, x1, v1, iteration=it)
+            g = self._inputs(f0, f1, x0, x1, (v1 - v0) / h)
+            res = float(np.abs(g - u).max(initial=0.0))
+            scale = max(scale, float(np.abs(g).max(initial=0.0)))
+            if res <= tol * scale:
+                return x1, v1, rec, f1, u, it + 1, scale
+            u = aitken.update(u, g)
+        raise CouplingError(
+            f"the iterative coupling did not converge at step {k + 1} (t = {(k + 1) * h:.6g} s) within "
+            f"{it + 1} iterations (residual {res:.3g} N, tolerance {tol:g} × {scale:.3g} N); raise "
+            f"client.coupling.max_iterations or tolerance, or reduce dt", step=k + 1, time=(k + 1) * h, rows=k + 1)
+
+    # -- the loop ---------------------------------------------------------------------------
+    def run(self) -> dict:
+        slave, h = self.fmu.slave, self.h
+        for var, value, key in self.w.parameters:
+            slave.set_value(var, value)
+        for name, value in self.client.parameters.items():
+            var = self.fmu.variables.get(name)
+            if var is None or var.causality not in ("parameter", "input"):
+                raise SceneError("scene", f"client.parameters.{name}",
+                                 f"the FMU {self.fmu.path.name} has no parameter {name!r}")
+            slave.set_value(var, value)
+        slave.initialize()
+        n_steps = int(round(self.scene.simulation.duration / h))
+        bar = _progress_bar(n_steps, self.progress and self.scene.simulation.progress)
+        wall0 = _time.perf_counter()
+        k = 0
+        recorded = []
+        try:
+            x, v, rec = self._read()
+            self._check_initial(x, v)
+            f = self._server(0, x, v)
+            self._write(0, x, v, f)
+            recorded.append(rec)
+            abar = np.zeros_like(v)
+            u_hist: list[np.ndarray] = []
+            aitken = Aitken(1.0 / (1.0 + self.plan.ratio))
+            scale = 1e-300
+            for k in range(n_steps):
+                if self.plan.mode == "iterative":
+                    u0 = (2 * u_hist[-1] - u_hist[-2]) if len(u_hist) >= 2 else (
+                        u_hist[-1] if u_hist else self._inputs(f, f, x, x, abar))
+                    x1, v1, rec, f1, u, its, scale = self._iterated_step(k, x, v, f, u0, aitken, scale)
+                    u_hist = [*u_hist[-1:], u]
+                else:
+                    x1, v1, rec, f1, u, its = self._predicted_step(k, x, v, f, abar)
+                self.iterations.append(its)
+                self._check(x1, v1, k + 1)
+                abar = (v1 - v) / h
+                x, v, f = x1, v1, f1
+                self._write(k + 1, x, v, f)
+                recorded.append(rec)
+                bar.update(1)
+        except KeyboardInterrupt:
+            bar.close()
+            self.writer.finish(f"interrupted: KeyboardInterrupt at step {k} (t = {k * h:.6g} s)")
+            raise KeyboardInterrupt(f"run interrupted at step {k} (t = {k * h:.6g} s); "
+                                    f"{self.writer.rows_written} rows saved") from None
+        except RunInterrupted as exc:
+            bar.close()
+            self.writer.finish(f"interrupted: {exc}")
+            raise
+        except BaseException as exc:
+            bar.close()
+            self.writer.finish(f"interrupted: {type(exc).__name__} at step {k} (t = {k * h:.6g} s): {exc}")
+            raise
+        finally:
+            if getattr(self, "_saved", None) is not None:
+                slave.free_state(self._saved)
+                self._saved = None
+        bar.close()
+        self.writer.finish("complete")
+        wall = _time.perf_counter() - wall0
+        steps = max(n_steps, 1)
+        its = np.asarray(self.iterations or [0])
+        return {"steps": n_steps, "time": n_steps * h, "wall_time": wall, "rows": self.writer.rows_written,
+                "status": "complete", "client": "fmu", "fmi_version": self.fmu.fmi_version,
+                "mode": self.plan.mode, "mode_reason": self.plan.reason, "added_mass_ratio": self.plan.ratio,
+                "iterations_mean": float(its.mean()), "iterations_max": int(its.max()),
+                "iterations": its,
+                "client_us_per_step": (wall - self.t_server) / steps * 1e6,
+                "fmu_us_per_step": self.t_fmu / steps * 1e6,
+                "round_trip_us_per_step": self.t_server / steps * 1e6,
+                "recorded": {name: np.array([r[i] for r in recorded]) for i, name in enumerate(self.record)}}
+
+    def _check_initial(self, x: np.ndarray, v: np.ndarray) -> None:
+        """The FMU's initial state must be the scene's (the scene cannot set FMU states)."""
+        by_name = {b.name: (i, b) for i, b in enumerate(self.scene.bodies)}
+        for got, what in ((x, "initial_displacement"), (v, "initial_velocity")):
+            for j, label in enumerate(self.w.labels):
+                body, d = label.split(".")
+                i, b = by_name[body]
+                want = getattr(b, what)[DOF_NAMES.index(d)]
+                if abs(got[j] - want) > 1e-9 * max(1.0, abs(want)):
+                    raise SceneError("scene", f"bodies[{i}].{what}",
+                                     f"the FMU starts at {d} = {got[j]:.6g} but the scene says {want:.6g}; "
+                                     f"set the FMU's initial state with [client.parameters]")
