@@ -12,6 +12,13 @@ Layout (readable with ``xarray.open_dataset``)::
     dims   time (unlimited), body, dof (surge, sway, heave, roll, pitch, yaw)
     vars   position, velocity, excitation_force, radiation_force, hydrostatic_force  (time, body, dof)
            wave_elevation (time), equilibrium_position (body, dof)
+    extra  variables declared by the client with :meth:`ResultWriter.add_variable` (e.g. joint
+           outputs over ``joint``; PTO outputs), dims (time, *their dims)
+
+Extra variables: ``add_variable(name, dims, coords, units, long_name)`` before the first row
+(``coords`` gives the labels of any dimension not yet in the file), then per row
+``stage_extra({name: value, ...})`` BEFORE ``append(...)``: the staged values belong to the row
+that ``append`` adds (a variable not staged for a row keeps its previous value, NaN at first).
 """
 
 from __future__ import annotations
@@ -82,6 +89,7 @@ class ResultWriter:
         self._rows = np.empty((len(ROW_VARIABLES), rows, self.n_bodies, 6))
         self._eta = np.empty(rows)
         self._buffered = 0
+        self._extra: dict[str, np.ndarray] = {}      # name -> (rows, *shape) block
         self._last_flush = _time.monotonic()
         self._ds = netCDF4.Dataset(self.path, "w", format="NETCDF4")
         try:
@@ -130,6 +138,37 @@ class ResultWriter:
         ds.setncatts(attrs)
         ds.sync()
 
+    def add_variable(self, name: str, dims: tuple[str, ...], coords: dict[str, list[str]] | None = None,
+                     units: str = "", long_name: str = "") -> None:
+        """Declare an extra per-row variable with dims (time, *dims); see the module docstring."""
+        if self.rows_written or self._buffered:
+            raise RuntimeError(f"add_variable({name!r}) after rows were written")
+        if name in self._ds.variables:
+            raise ValueError(f"results variable {name!r} already exists")
+        coords = coords or {}
+        shape = []
+        for dim in dims:
+            if dim not in self._ds.dimensions:
+                if dim not in coords:
+                    raise ValueError(f"add_variable({name!r}): labels for the new dimension {dim!r} are needed")
+                labels = list(coords[dim])
+                self._ds.createDimension(dim, len(labels))
+                c = self._ds.createVariable(dim, str, (dim,))
+                for i, label in enumerate(labels):
+                    c[i] = str(label)
+            shape.append(len(self._ds.dimensions[dim]))
+        v = self._ds.createVariable(name, "f8", ("time", *dims), chunksizes=(512, *shape))
+        v.units, v.long_name = units, long_name
+        block = np.empty((self._time.size, *shape))
+        block[0] = np.nan
+        self._extra[name] = block
+
+    def stage_extra(self, values: dict[str, Any]) -> None:
+        """Values of extra variables for the row the next :meth:`append` adds."""
+        i = self._buffered
+        for name, value in values.items():
+            self._extra[name][i] = value
+
     # -- rows --------------------------------------------------------------------------------
     def append(self, time: float, position, velocity, excitation, radiation, hydrostatic,
                wave_elevation) -> None:
@@ -145,6 +184,9 @@ class ResultWriter:
         block[4] = hydrostatic
         self._eta[i] = wave_elevation
         self._buffered = i + 1
+        if self._extra and self._buffered < self._time.size:
+            for block in self._extra.values():   # unstaged values repeat the previous row
+                block[self._buffered] = block[i]
         if (self._buffered >= self._time.size
                 or _time.monotonic() - self._last_flush >= self.flush_seconds):
             self.flush()
@@ -158,6 +200,9 @@ class ResultWriter:
             for k, name in enumerate(ROW_VARIABLES):
                 ds[name][i0:i1] = self._rows[k, :m]
             ds["wave_elevation"][i0:i1] = self._eta[:m]
+            for name, block in self._extra.items():
+                ds[name][i0:i1] = block[:m]
+                block[0] = block[m - 1]
             ds["time"][i0:i1] = self._time[:m]  # last: marks the rows as present
             self.rows_written = i1
             self._buffered = 0

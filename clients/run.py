@@ -53,13 +53,22 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
                    server: str | None = None, progress: bool = True, timeout: float = 60.0) -> dict:
     """Run a scene end to end; returns the run summary (steps, wall time, output path)."""
     from hydrolink.clients.connection import ServerConnection
-    from hydrolink.clients.exudyn_client import run
+    from hydrolink.clients.exudyn_client import result_bodies, run
     from hydrolink.clients.results import ResultWriter
 
     scene_path = Path(scene_path)
     scene, text = load_scene(scene_path)
     hdbs = load_scene_hdbs(scene, scene_path, progress=progress)
     output = Path(output) if output else scene_path.with_suffix(".out.nc")
+    if not scene.wet_bodies:
+        # no hydrodynamics: the mechanism runs alone, without a force server
+        setup = None
+        names, reference = result_bodies(scene, None)
+        with ResultWriter(output, scene=scene, scene_text=text, setup={"dt": scene.simulation.dt},
+                          bodies=names, equilibrium_position=reference) as writer:
+            summary = run(scene, text, None, None, writer, progress=progress)
+        summary["output"], summary["server"] = str(output), None
+        return summary
     with ExitStack() as stack:
         if server is None:
             # embedded: the force server's request handler in this process, fed the same wire
@@ -74,7 +83,9 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
         else:
             conn = stack.enter_context(ServerConnection(server, timeout=timeout))
         setup = conn.hello(text, hdbs)
-        writer = stack.enter_context(ResultWriter(output, scene=scene, scene_text=text, setup=setup))
+        names, reference = result_bodies(scene, setup)
+        writer = stack.enter_context(ResultWriter(output, scene=scene, scene_text=text, setup=setup,
+                                                  bodies=names, equilibrium_position=reference))
         summary = run(scene, text, conn, setup, writer, progress=progress)
         goodbye = conn.bye()
     summary["output"] = str(output)
