@@ -120,6 +120,7 @@ class Wiring:
     a_rest: np.ndarray              # A∞ not passed to the FMU (n_a × n_a): fed back as −A·ā
     c_passed: np.ndarray            # hydrostatic stiffness the FMU applies itself
     mass: np.ndarray                # rigid-body + passed added mass (n_a × n_a), from the scene
+    net_buoyancy: np.ndarray        # constant rho g V - m g on active heave DOFs (as the Exudyn client)
 
 
 @dataclass
@@ -186,16 +187,18 @@ def wire(fmu: FMUInstance, scene: Scene, setup: dict) -> Wiring:
     a_rest[np.abs(a_rest) <= ZERO * max(np.abs(a_inf[sub]).max(initial=0.0), 1e-300)] = 0.0
     c_rest = (c_full - c_pass)[sub]
     port_dof = np.array([p[1] for p in ports], int)
+    net = np.zeros(6 * n)
+    net[2::6] = [float(f or 0.0) for f in (setup.get("net_buoyancy") or [0.0] * n)]
     for i, label in enumerate(labels):
         own = {kinds[j] for j in np.flatnonzero(port_dof == i)}
-        needed = {"excitation", "radiation"} | ({"hydrostatic"} if np.any(c_rest[i]) else set())
+        needed = {"excitation", "radiation"} | ({"hydrostatic"} if np.any(c_rest[i]) or net[active[i]] else set())
         if "force" not in own and not needed <= own:
             body, d = label.split(".")
             missing = sorted(needed - own)
             raise SceneError("scene", f"client.bodies.{body}.{missing[0]}.{d}",
                              f"no FMU input for the {missing[0]} force of {label} (map force, or every component)")
     return Wiring(active, labels, pos, vel, [p[0] for p in ports], port_dof, kinds, params, a_rest,
-                  c_pass[sub], (mass + a_pass)[sub])
+                  c_pass[sub], (mass + a_pass)[sub], net[active])
 
 
 def plan(wiring: Wiring, client: FMUClient, can_roll_back: bool, *, allow_unstable: bool = False) -> Plan:
@@ -331,7 +334,8 @@ class _Master:
         a = self.w.active
         exc = 0.5 * (f0["excitation"][a] + f1["excitation"][a])
         rad = 0.5 * (f0["radiation"][a] + f1["radiation"][a]) - self.w.a_rest @ abar
-        hs = 0.5 * (f0["hydrostatic"][a] + f1["hydrostatic"][a]) + self.w.c_passed @ (0.5 * (x0 + x1))
+        hs = (0.5 * (f0["hydrostatic"][a] + f1["hydrostatic"][a]) + self.w.c_passed @ (0.5 * (x0 + x1))
+              + self.w.net_buoyancy)
         parts = {"excitation": exc, "radiation": rad, "hydrostatic": hs, "force": exc + rad + hs}
         return np.array([parts[kind][i] for kind, i in zip(self.w.port_kind, self.w.port_dof)])
 

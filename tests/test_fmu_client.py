@@ -1,0 +1,264 @@
+"""FMU master against the real force server on the Task-10 sphere in heave, with test FMUs built
+here from tests/fmu_src: a C FMI 2.0 FMU (A∞ and hydrostatic stiffness as parameters) and a
+pythonfmu FMU (no A∞ parameter: iterative coupling with rollback).
+
+References: the frequency-domain heave RAO with the PTO damping, computed here from the HDB, and
+the Exudyn client on the same scene with a linear PTO to ground.
+"""
+
+from __future__ import annotations
+
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+import xarray as xr
+from fmpy.validation import validate_fmu
+
+from fmu_build import build_c_fmu, build_python_fmu
+from hydrolink.clients import fmu_client
+from hydrolink.clients.connection import ServerConnection
+from hydrolink.clients.exudyn_client import SimulationDiverged
+from hydrolink.clients.results import ResultWriter
+from hydrolink.protocol.scene import SceneError, parse_scene
+from hydrolink.server.hdb.io import load_hdb
+from hydrolink.server.service import serve_in_thread
+
+HEAVE = 2
+C_PTO = 2.0e5            # N s/m
+REPORT: dict[str, str] = {}
+
+
+@pytest.fixture(scope="module")
+def sphere_path(shared_data: Path) -> Path:
+    return shared_data / "sphere_task10" / "sphere.h5"
+
+
+@pytest.fixture(scope="module")
+def sphere(sphere_path: Path):
+    return load_hdb(sphere_path)
+
+
+@pytest.fixture(scope="module")
+def rho_v(sphere) -> float:
+    """The sphere's displaced mass: floating at equilibrium with no net buoyancy."""
+    return float(1000.0 * sphere["displaced_volume"].values[0])
+
+
+@pytest.fixture(scope="module")
+def server():
+    srv, thread = serve_in_thread("tcp://127.0.0.1:*")
+    yield srv.address
+    srv.stop()
+    thread.join(5.0)
+
+
+@pytest.fixture(scope="module")
+def fmus(tmp_path_factory) -> dict[str, Path]:
+    root = tmp_path_factory.mktemp("fmus")
+    return {"c": build_c_fmu(root), "py": build_python_fmu(root),
+            "py-nostate": build_python_fmu(root, handle_state=False)}
+
+
+def base_scene(hdb: Path, mass: float, period: float, *, dt_per_period: int = 100, periods: int = 20,
+               height: float = 1.0, still: bool = False) -> str:
+    waves = (f'type = "regular"\nheight = {height!r}\nperiod = {period!r}\nramp = {2 * period!r}'
+             if not still else 'type = "still"')
+    return textwrap.dedent(f"""\
+        [simulation]
+        dt = {period / dt_per_period!r}
+        duration = {periods * period!r}
+        [water]
+        density = 1000.0
+        depth = 200.0
+        [waves]
+        {{waves}}
+        [[bodies]]
+        name = "sphere"
+        hdb = "{hdb}"
+        mass = {mass!r}
+        center_of_mass = [0.0, 0.0, -2.0]
+        inertia = [2.6e6, 2.6e6, 2.6e6]
+        dofs = ["heave"]
+        """).replace("{waves}", waves)
+
+
+def fmu_section(fmu: Path, mass: float, *, a_inf: bool, mode: str = "auto", c_pto: float = C_PTO) -> str:
+    params = 'added_mass = { heave = "a_inf" }\nhydrostatic_stiffness = { heave = "k_hs" }\n' if a_inf else ""
+    return textwrap.dedent(f"""\
+        [client]
+        type = "fmu"
+        fmu = "{fmu}"
+        parameters = {{ m = {mass!r}, c_pto = {c_pto!r} }}
+        coupling = {{ mode = "{mode}" }}
+        [client.bodies.sphere]
+        position = {{ heave = "z" }}
+        velocity = {{ heave = "v" }}
+        force = {{ heave = "F" }}
+        """) + params
+
+
+def run_fmu(address: str, text: str, hdb, out: Path, **kw) -> tuple[dict, xr.Dataset]:
+    scene = parse_scene(text)
+    with ServerConnection(address, timeout=30.0) as conn:
+        setup = conn.hello(text, {scene.bodies[0].hdb: hdb})
+        with ResultWriter(out, scene=scene, scene_text=text, setup=setup) as writer:
+            summary = fmu_client.run(scene, text, conn, setup, writer, progress=False, **kw)
+        conn.bye()
+    return summary, xr.load_dataset(out)
+
+
+def steady_heave(ds: xr.Dataset, omega: float, periods: int = 4) -> complex:
+    """Complex heave amplitude per unit wave amplitude over the last ``periods`` periods."""
+    t = ds["time"].values
+    z = ds["position"].values[:, 0, HEAVE] - ds["equilibrium_position"].values[0, HEAVE]
+    fit = t >= t[-1] - periods * 2 * np.pi / omega - 1e-9
+    basis = np.c_[np.cos(omega * t[fit]), np.sin(omega * t[fit]), np.ones(fit.sum())]
+    cz = np.linalg.lstsq(basis, z[fit], rcond=None)[0]
+    ce = np.linalg.lstsq(basis, ds["wave_elevation"].values[fit], rcond=None)[0]
+    return complex(cz[0], cz[1]) / complex(ce[0], ce[1])
+
+
+def mean_power(t: np.ndarray, energy: np.ndarray, omega: float, periods: int = 4) -> float:
+    """Mean PTO power over whole periods at the end, from the FMU's absorbed-energy output."""
+    i0 = int(np.argmax(t >= t[-1] - periods * 2 * np.pi / omega - 1e-9))
+    return float((energy[-1] - energy[i0]) / (t[-1] - t[i0]))
+
+
+def reference(sphere, mass: float, omega_target: float, c_pto: float = C_PTO, height: float = 1.0):
+    """(omega, heave RAO, mean PTO power) in the frequency domain, at an HDB frequency."""
+    i = int(np.argmin(np.abs(sphere["omega"].values - omega_target)))
+    w = float(sphere["omega"].values[i])
+    a = sphere["added_mass"].values[i, HEAVE, HEAVE]
+    b = sphere["radiation_damping"].values[i, HEAVE, HEAVE]
+    x = sphere["excitation_force"].values[i, 0, HEAVE]
+    c = sphere["hydrostatic_stiffness"].values[HEAVE, HEAVE]
+    rao = x / (-w ** 2 * (mass + a) - 1j * w * (b + c_pto) + c)
+    return w, rao, 0.5 * c_pto * (w * abs(rao) * height / 2) ** 2
+
+
+# ------------------------------------------------------------------------------------ the FMUs
+
+def test_test_fmus_pass_fmpy_validation(fmus):
+    from fmpy import read_model_description
+    for name, path in fmus.items():
+        assert validate_fmu(str(path)) == [], name
+    caps = {k: read_model_description(str(p)).coSimulation.canGetAndSetFMUstate for k, p in fmus.items()}
+    assert caps == {"c": True, "py": True, "py-nostate": False}
+
+
+# ------------------------------------------------------------------------------------ physics
+
+@pytest.mark.parametrize("which", ["c", "py"])
+def test_fmu_heave_and_pto_power_match_frequency_domain(server, sphere, sphere_path, rho_v, fmus, tmp_path,
+                                                        which):
+    w, rao, power = reference(sphere, rho_v, 1.45)
+    period = 2 * np.pi / w
+    text = base_scene(sphere_path, rho_v, period) + fmu_section(fmus[which], rho_v, a_inf=which == "c")
+    summary, ds = run_fmu(server, text, sphere, tmp_path / "run.nc", record=["E_pto"])
+    got = steady_heave(ds, w)
+    p = mean_power(ds["time"].values, summary["recorded"]["E_pto"], w)
+    amp_err, p_err = abs(got) / abs(rao) - 1, p / power - 1
+    REPORT[f"fd {which}"] = (f"{which}: mode {summary['mode']}, |RAO| {abs(rao):.4f}, amplitude error "
+                             f"{amp_err:+.2e}, power {p:.0f} W vs {power:.0f} W ({p_err:+.2e}), "
+                             f"iterations/step {summary['iterations_mean']:.2f} (max {summary['iterations_max']}), "
+                             f"client {summary['client_us_per_step']:.0f} us/step (FMU {summary['fmu_us_per_step']:.0f}), "
+                             f"round trip {summary['round_trip_us_per_step']:.0f} us/step")
+    print(REPORT[f"fd {which}"])
+    assert summary["mode"] == ("parameters" if which == "c" else "iterative")
+    assert abs(amp_err) < 0.01 and abs(p_err) < 0.01
+    assert abs(np.degrees(np.angle(got / rao))) < 1.0
+
+
+# ------------------------------------------------------------------------------------ light body
+
+LIGHT = 0.2      # mass / (rho V): A∞/m = 2.5
+
+
+def test_light_body_explicit_is_refused_and_would_blow_up(server, sphere, sphere_path, rho_v, fmus, tmp_path):
+    mass = LIGHT * rho_v
+    period = 2 * np.pi / 1.45
+    text = base_scene(sphere_path, mass, period, periods=4) + fmu_section(fmus["py"], mass, a_inf=False,
+                                                                          mode="explicit")
+    with pytest.raises(SceneError, match=r"client.coupling.mode: refused: explicit .* ratio .* is 2.5\d* > "):
+        run_fmu(server, text, sphere, tmp_path / "refused.nc")
+    # forced past the refusal, the lagged -A∞·a feedback grows by ~A∞/m per step and blows up
+    with pytest.raises(SimulationDiverged, match="coupling mode explicit") as err:
+        run_fmu(server, text, sphere, tmp_path / "blown.nc", allow_unstable=True)
+    REPORT["explicit blow-up"] = f"explicit at A∞/m = 2.5 diverged at step {err.value.step}"
+    print(REPORT["explicit blow-up"])
+    assert err.value.step < 100
+
+
+def test_no_rollback_and_no_added_mass_parameter_is_refused(server, sphere, sphere_path, rho_v, fmus, tmp_path):
+    mass = LIGHT * rho_v
+    text = base_scene(sphere_path, mass, 4.0, periods=1) + fmu_section(fmus["py-nostate"], mass, a_inf=False)
+    with pytest.raises(SceneError, match=r"refused to run: A∞ is not passed .* cannot roll back "
+                                         r"\(canGetAndSetFMUstate is false\), and explicit"):
+        run_fmu(server, text, sphere, tmp_path / "refused.nc")
+    text = base_scene(sphere_path, mass, 4.0, periods=1) + fmu_section(fmus["py-nostate"], mass, a_inf=False,
+                                                                       mode="iterative")
+    with pytest.raises(SceneError, match="iterative coupling needs rollback"):
+        run_fmu(server, text, sphere, tmp_path / "refused.nc")
+
+
+def test_light_body_iterative_is_stable_and_accurate(server, sphere, sphere_path, rho_v, fmus, tmp_path):
+    mass = LIGHT * rho_v
+    a_inf = float(sphere["added_mass_inf"].values[HEAVE, HEAVE])
+    assert a_inf / mass >= 2
+    w, rao, power = reference(sphere, mass, 1.45)
+    period = 2 * np.pi / w
+    text = base_scene(sphere_path, mass, period) + fmu_section(fmus["py"], mass, a_inf=False)
+    summary, ds = run_fmu(server, text, sphere, tmp_path / "light.nc", record=["E_pto"])
+    got = steady_heave(ds, w)
+    p = mean_power(ds["time"].values, summary["recorded"]["E_pto"], w)
+    its = summary["iterations"]
+    REPORT["light iterative"] = (f"A∞/m = {a_inf / mass:.2f}: mode {summary['mode']}, iterations/step mean "
+                                 f"{its.mean():.2f}, median {np.median(its):.0f}, max {its.max()}; amplitude error "
+                                 f"{abs(got) / abs(rao) - 1:+.2e}, power error {p / power - 1:+.2e}")
+    print(REPORT["light iterative"])
+    assert summary["mode"] == "iterative"
+    assert abs(abs(got) / abs(rao) - 1) < 0.01 and abs(p / power - 1) < 0.01
+    assert its.mean() <= 3.5 and its.max() <= 10
+
+
+# ------------------------------------------------------------------------------------ errors
+
+def test_mapping_errors_name_the_key(server, sphere, sphere_path, rho_v, fmus, tmp_path):
+    base = base_scene(sphere_path, rho_v, 4.0, periods=1)
+    bad = fmu_section(fmus["c"], rho_v, a_inf=True).replace('velocity = { heave = "v" }', 'velocity = { heave = "w" }')
+    with pytest.raises(SceneError, match=r"client.bodies.sphere.velocity.heave: the FMU heave_body.fmu has no "
+                                         r"variable 'w'"):
+        run_fmu(server, base + bad, sphere, tmp_path / "e.nc")
+    bad = fmu_section(fmus["c"], rho_v, a_inf=True).replace('force = { heave = "F" }', 'force = { heave = "z" }')
+    with pytest.raises(SceneError, match=r"force.heave: FMU variable 'z' has causality 'output', expected input"):
+        run_fmu(server, base + bad, sphere, tmp_path / "e.nc")
+    moved = base.replace('dofs = ["heave"]', 'dofs = ["heave"]\ninitial_displacement = [0, 0, 0.5, 0, 0, 0]')
+    with pytest.raises(SceneError, match=r"bodies\[0\].initial_displacement: the FMU starts at heave = 0 but "
+                                         r"the scene says 0.5"):
+        run_fmu(server, moved + fmu_section(fmus["c"], rho_v, a_inf=True), sphere, tmp_path / "e.nc")
+    step = fmu_section(fmus["c"], rho_v, a_inf=True).replace('type = "fmu"', 'type = "fmu"\ncommunication_step = 0.015')
+    with pytest.raises(SceneError, match="client.communication_step: must divide simulation.dt"):
+        run_fmu(server, base + step, sphere, tmp_path / "e.nc")
+
+
+def test_initial_displacement_via_parameters_and_substeps(server, sphere, sphere_path, rho_v, fmus, tmp_path):
+    """A decay from z0 = 0.5 m with the C FMU (z0 set as a parameter), communication step dt/4: the
+    period of the free decay is 2π√((m + A∞)/C) within the memory effect (≈ 1 %)."""
+    period = 4.0
+    text = base_scene(sphere_path, rho_v, period, periods=3, still=True).replace(
+        'dofs = ["heave"]', 'dofs = ["heave"]\ninitial_displacement = [0, 0, 0.5, 0, 0, 0]')
+    client = fmu_section(fmus["c"], rho_v, a_inf=True, c_pto=0.0).replace(
+        'type = "fmu"', f'type = "fmu"\ncommunication_step = {period / 400!r}').replace(
+        "c_pto = 0.0 }", "c_pto = 0.0, z0 = 0.5 }")
+    summary, ds = run_fmu(server, text + client, sphere, tmp_path / "decay.nc")
+    t = ds["time"].values
+    z = ds["position"].values[:, 0, HEAVE] - ds["equilibrium_position"].values[0, HEAVE]
+    assert z[0] == pytest.approx(0.5)
+    crossings = t[1:][(z[:-1] > 0) & (z[1:] <= 0)]
+    a_inf = float(sphere["added_mass_inf"].values[HEAVE, HEAVE])
+    c = float(sphere["hydrostatic_stiffness"].values[HEAVE, HEAVE])
+    t_n = 2 * np.pi * np.sqrt((rho_v + a_inf) / c)
+    assert (crossings[1] - crossings[0]) == pytest.approx(t_n, rel=0.05)
+    assert summary["mode"] == "parameters"
