@@ -541,9 +541,19 @@ def build_mechanism(mbs, scene: Scene, wet_references: dict[str, np.ndarray],
     if joints:
         resolve_redundancy(mbs, scene, mech)
         _, _, gap, rot = mech.joint_outputs(mbs)
+        ovt = exu.OutputVariableType
         for k, info in enumerate(mech.joints):
             if gap[k] > 1e-6 or rot[k] > 1e-6:
                 raise SceneError("scene", info.key,
                                  f"the bodies' initial displacements violate this joint by {gap[k]:.3g} m / "
                                  f"{rot[k]:.3g} rad at t = 0; start the joined bodies consistently")
+            c = np.asarray(info.constrained, bool)
+            dv = np.asarray(mbs.GetObjectOutput(info.object, ovt.VelocityLocal))[c[:3]]
+            dw = np.asarray(mbs.GetObjectOutput(info.object, ovt.AngularVelocityLocal))[c[3:]]
+            bad = max(float(np.linalg.norm(dv)), float(np.linalg.norm(dw)))
+            if bad > 1e-6:
+                raise SceneError("scene", info.key,
+                                 f"the bodies' initial velocities violate this joint (relative velocity {bad:.3g} "
+                                 "m/s or rad/s along its locked axes at t = 0); give the joined bodies "
+                                 "consistent initial velocities (an impulse would ring undamped)")
     return mech
