@@ -32,6 +32,19 @@ def _guard(func, *args, **kwargs):
         raise _UserError(str(exc)) from None
 
 
+def _pin_to_cpu(cpu: int | None) -> None:
+    """Run this process (and the threads it starts later) on one CPU, e.g. the same CPU for
+    ``serve`` and ``run``: lockstep has nothing to run in parallel, and waking another CPU for
+    each message costs more than the message."""
+    if cpu is None:
+        return
+    import os
+    try:
+        os.sched_setaffinity(0, {cpu})
+    except (AttributeError, OSError, ValueError) as exc:
+        raise _UserError(f"--cpu {cpu}: cannot pin to that CPU ({exc})") from None
+
+
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="hydrolink")
 @click.option("-v", "--verbose", count=True, help="More log output (-v info, -vv debug).")
@@ -83,10 +96,12 @@ def hdb_info(file: Path, plot: Path | None, dofs: str | None) -> None:
 @click.option("--bind", default="tcp://127.0.0.1:5555", show_default=True,
               help="ZeroMQ endpoint to bind (tcp://HOST:PORT or ipc://PATH).")
 @click.option("--session-timeout", default=300.0, show_default=True, help="Seconds before an idle session is dropped.")
-def serve(bind: str, session_timeout: float) -> None:
+@click.option("--cpu", type=int, help="Pin the process to this CPU (Linux); see README 'Performance'.")
+def serve(bind: str, session_timeout: float, cpu: int | None) -> None:
     """Run the force server until interrupted."""
     from hydrolink.server.service import ForceServer
 
+    _pin_to_cpu(cpu)
     server = ForceServer(bind, session_timeout=session_timeout)
     click.echo(f"hydrolink force server listening on {server.address}", err=True)
     try:
@@ -103,9 +118,12 @@ def serve(bind: str, session_timeout: float) -> None:
               help="Results NetCDF (default: SCENE with .out.nc).")
 @click.option("--server", help="Address of a running force server; default: start an embedded one.")
 @click.option("--no-progress", is_flag=True, help="Hide the progress bar.")
-def run(scene: Path, output: Path | None, server: str | None, no_progress: bool) -> None:
+@click.option("--cpu", type=int, help="Pin the process to this CPU (Linux); see README 'Performance'.")
+def run(scene: Path, output: Path | None, server: str | None, no_progress: bool, cpu: int | None) -> None:
     """Co-simulate a SCENE (TOML) in lockstep with the force server."""
     from hydrolink.clients.run import run_scene_file
+
+    _pin_to_cpu(cpu)
 
     import signal
 
