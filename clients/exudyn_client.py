@@ -22,6 +22,7 @@ A scene without wet bodies runs without a force server (``connection`` and ``set
 
 from __future__ import annotations
 
+import logging
 import math
 import sys
 import time as _time
@@ -34,6 +35,8 @@ from exudyn.itemInterface import ObjectGenericODE2, VObjectGenericODE2
 
 from hydrolink.clients.mechanism import Mechanism, body_reference, build_mechanism
 from hydrolink.protocol.scene import Scene
+
+log = logging.getLogger(__name__)
 
 #: default bound on |displacement| (m, rad) and |velocity| (m/s, rad/s) before a run is called diverged
 BLOW_UP_LIMIT = 1.0e4
@@ -260,6 +263,8 @@ def run(scene: Scene, scene_text: str, connection, setup: dict | None, writer, *
     wet, bodies, ref = model.wet_index, model.body_index, model.body_reference
     nb, rows = len(model.body_names), model.wet_rows
     mech = model.mechanism
+    for note in (mech.warnings + mech.reductions) if mech else []:
+        log.warning("%s", note)
     joints = bool(mech and mech.joints)
     if joints:
         _add_joint_variables(writer, mech.joint_labels)
@@ -337,6 +342,6 @@ def run(scene: Scene, scene_text: str, connection, setup: dict | None, writer, *
     wall = _time.perf_counter() - wall0
     steps = max(n_steps, 1)
     return {"steps": n_steps, "time": n_steps * h, "wall_time": wall, "rows": writer.rows_written,
-            "status": "complete",
+            "status": "complete", "mechanism_notes": (mech.warnings + mech.reductions) if mech else [],
             "client_us_per_step": (wall - t_server) / steps * 1e6,
             "round_trip_us_per_step": t_server / steps * 1e6}
