@@ -141,6 +141,25 @@ def run(scene: Path, output: Path | None, server: str | None, no_progress: bool,
                f"server compute {summary.get('server_compute_us_per_step', float('nan')):.1f} us/step)")
 
 
+@cli.group()
+def fmu() -> None:
+    """FMI co-simulation: export hydrolink's forces as an FMU (import: [client] type = "fmu" in a scene)."""
+
+
+@fmu.command("export")
+@click.argument("scene", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
+              help="FMU file to write (FMI 2.0 co-simulation).")
+def fmu_export(scene: Path, output: Path) -> None:
+    """Export the SCENE's hydrodynamic forces as an FMU (inputs: body states; outputs: forces)."""
+    from hydrolink.clients.fmu_export import export_fmu
+
+    path, notes = _guard(export_fmu, scene, output)
+    for note in notes:
+        click.echo(f"note: {note}", err=True)
+    click.echo(f"wrote {path}")
+
+
 def main() -> None:
     """Console entry point."""
     cli(prog_name="hydrolink")

@@ -86,7 +86,11 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
         names, reference = result_bodies(scene, setup)
         writer = stack.enter_context(ResultWriter(output, scene=scene, scene_text=text, setup=setup,
                                                   bodies=names, equilibrium_position=reference))
-        summary = run(scene, text, conn, setup, writer, progress=progress)
+        if scene.client.type == "fmu":
+            from hydrolink.clients.fmu_client import run as run_fmu
+            summary = run_fmu(scene, text, conn, setup, writer, scene_path=scene_path, progress=progress)
+        else:
+            summary = run(scene, text, conn, setup, writer, progress=progress)
         goodbye = conn.bye()
     summary["output"] = str(output)
     summary["server"] = server

@@ -1,0 +1,73 @@
+"""``hydrolink fmu export``: hydrolink's forces as an FMI 2.0 co-simulation FMU (built with pythonfmu).
+
+The FMU carries the scene text and its HDBs (as hydrolink NetCDF) in ``resources/``; its model
+class is :mod:`hydrolink.clients.fmu_slave`. At run time it needs a Python with hydrolink installed
+(pythonfmu FMUs run their Python code in the importing process or in the Python that pythonfmu's
+binary finds) and connects to the server named by its ``server_address`` parameter — or starts an
+embedded one when that is empty.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from hydrolink.protocol.scene import load_scene
+
+MECHANISM_KEYS = ("point_masses", "joints", "constraints", "ptos", "moorings")
+
+
+def export_fmu(scene_path: str | Path, output: str | Path, *, progress: bool = True) -> tuple[Path, list[str]]:
+    """Write the FMU; returns its path and notes (e.g. scene parts the FMU does not contain)."""
+    try:
+        from pythonfmu import FmuBuilder
+    except ImportError:  # pragma: no cover - an install without the extra
+        raise RuntimeError("hydrolink fmu export needs pythonfmu: pip install 'hydrolink[fmu]'") from None
+    from hydrolink.clients.connection import ServerConnection
+    from hydrolink.clients.run import load_scene_hdbs
+    from hydrolink.server.hdb.schema import to_netcdf
+    from hydrolink.server.service import serve_in_thread
+
+    scene_path, output = Path(scene_path), Path(output)
+    scene, text = load_scene(scene_path)
+    hdbs = load_scene_hdbs(scene, scene_path, progress=progress)
+    srv, thread = serve_in_thread("tcp://127.0.0.1:*")
+    try:
+        with ServerConnection(srv.address) as conn:    # validates scene + HDBs, gives the setup
+            setup = conn.hello(text, hdbs)
+            conn.bye()
+    finally:
+        srv.stop()
+        thread.join(5.0)
+    names = [str(b) for b in setup["bodies"]]
+    n = len(names)
+    active = np.flatnonzero(np.asarray(setup["active"], bool).reshape(6 * n))
+    dofs = [str(d) for d in setup["dofs"]]
+    a_inf = np.asarray(setup["added_mass_inf"], float).reshape(6 * n, 6 * n)[np.ix_(active, active)]
+    notes = [f"[{k}] is not in the FMU: the importer models the mechanism" for k in MECHANISM_KEYS
+             if getattr(scene, k)]
+    with tempfile.TemporaryDirectory(prefix="hydrolink-export-") as tmp:
+        work = Path(tmp)
+        files = {}
+        for i, (key, ds) in enumerate(hdbs.items()):
+            files[key] = f"hdb_{i}.nc"
+            to_netcdf(ds, work / files[key])
+        config = {
+            "model_name": "hydrolink_forces", "scene": text, "hdbs": files, "dt": float(setup["dt"]),
+            "n_bodies": n, "labels": [f"{names[k // 6]}.{dofs[k % 6]}" for k in active],
+            "flat": active.tolist(), "equilibrium": np.asarray(setup["equilibrium_position"], float).tolist(),
+            "added_mass_inf": a_inf.tolist(),
+            "net_buoyancy": [float((setup.get("net_buoyancy") or [0.0] * n)[k // 6] or 0.0) if k % 6 == 2 else 0.0
+                             for k in active],
+        }
+        (work / "hydrolink_fmu.json").write_text(json.dumps(config))
+        script = work / "hydrolink_forces.py"
+        shutil.copy2(Path(__file__).with_name("fmu_slave.py"), script)
+        output.parent.mkdir(parents=True, exist_ok=True)
+        built = FmuBuilder.build_FMU(script, dest=output, project_files=[work / "hydrolink_fmu.json",
+                                                                          *(work / f for f in files.values())])
+    return Path(built), notes
