@@ -262,3 +262,25 @@ def test_initial_displacement_via_parameters_and_substeps(server, sphere, sphere
     t_n = 2 * np.pi * np.sqrt((rho_v + a_inf) / c)
     assert (crossings[1] - crossings[0]) == pytest.approx(t_n, rel=0.05)
     assert summary["mode"] == "parameters"
+
+
+def test_hydrolink_run_dispatches_to_the_fmu_client(sphere, sphere_path, rho_v, fmus, tmp_path):
+    """`hydrolink run` on a scene file with [client] type = "fmu" and an FMU path relative to it."""
+    from click.testing import CliRunner
+    from hydrolink.clients.cli import cli
+
+    import shutil
+    shutil.copy2(fmus["c"], tmp_path / "body.fmu")
+    period = 2 * np.pi / 1.45
+    scene = tmp_path / "scene.toml"
+    scene.write_text(base_scene(sphere_path, rho_v, period, periods=2)
+                     + fmu_section(Path("body.fmu"), rho_v, a_inf=True))
+    result = CliRunner().invoke(cli, ["run", str(scene), "-o", str(tmp_path / "out.nc"), "--no-progress"])
+    assert result.exit_code == 0, result.output
+    ds = xr.load_dataset(tmp_path / "out.nc")
+    assert ds.attrs["status"] == "complete" and ds.sizes["time"] == 201
+    assert np.abs(ds["position"].values[:, 0, HEAVE] - ds["equilibrium_position"].values[0, HEAVE]).max() > 0.05
+    bad = scene.read_text().replace('mode = "auto"', 'mode = "iterative"').replace("body.fmu", "missing.fmu")
+    scene.write_text(bad)
+    result = CliRunner().invoke(cli, ["run", str(scene), "-o", str(tmp_path / "out2.nc"), "--no-progress"])
+    assert result.exit_code == 1 and "FMU not found" in result.output and "missing.fmu" in result.output
