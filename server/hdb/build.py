@@ -1,10 +1,12 @@
 """``hdb build``: a hydrodynamic database computed with Capytaine from a small TOML build spec.
 
-The spec format is documented in ``docs/hdb-spec.md``. :func:`build_hdb` meshes the body (immersed
-part only, with a lid against irregular frequencies), solves radiation and diffraction over the
-frequency grid plus radiation at infinite frequency (A∞), computes the buoyancy/waterplane
-hydrostatics and returns the HDB in the schema's layout (:mod:`hydrolink.server.hdb.schema`).
-Results are cached on disk, keyed by everything that determines them.
+The spec format is documented in ``docs/hdb-spec.md`` (model: :mod:`.build_spec`, meshes:
+:mod:`.build_mesh`). :func:`build_hdb` meshes the bodies (immersed part only, with lids against
+irregular frequencies), solves radiation for all 6N rigid-body DOFs of the bodies together (so the
+body-to-body blocks are in the HDB) and diffraction over the frequency grid, plus radiation at
+infinite frequency (A∞), computes each body's buoyancy/waterplane hydrostatics and returns the HDB
+in the schema's layout (:mod:`hydrolink.server.hdb.schema`). Results are cached on disk, keyed by
+everything that determines them.
 """
 
 from __future__ import annotations
@@ -14,402 +16,23 @@ import json
 import logging
 import math
 import os
-import sys
 import tempfile
 import time
 import warnings
 from pathlib import Path
-from typing import Annotated, Literal, Optional, Union
 
 import numpy as np
 import xarray as xr
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from hydrolink.server.hdb.capytaine_io import from_capytaine_dataset
-from hydrolink.server.hdb.schema import SCHEMA_VERSION, HDBError, from_netcdf_dataset, to_netcdf
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
+from hydrolink.server.hdb.build_mesh import body_meshes, check_apart, default_panel_size, xoz_symmetric
+from hydrolink.server.hdb.build_spec import BuildSpec, SpecError, load_spec, mesh_path, parse_spec
+from hydrolink.server.hdb.capytaine_io import from_capytaine_dataset, short_body_names
+from hydrolink.server.hdb.schema import SCHEMA_VERSION, dof_labels, from_netcdf_dataset, to_netcdf
 
 LOG = logging.getLogger(__name__)
 
-BUILD_RECIPE_VERSION = 1  # bump when meshing/solving changes: invalidates cached HDBs
+BUILD_RECIPE_VERSION = 2  # bump when meshing/solving changes: invalidates cached HDBs
 CPT_DOFS = ("Surge", "Sway", "Heave", "Roll", "Pitch", "Yaw")
-
-
-class SpecError(HDBError):
-    """A build spec that cannot be built; the message names the spec file, the key and why.
-    (An HDBError, so callers reporting bad HDB inputs in one line report these too.)"""
-
-    def __init__(self, source: str | Path, key: str, why: str):
-        ValueError.__init__(self, f"{source}: {key}: {why}" if key else f"{source}: {why}")
-        self.source, self.key, self.field, self.why = str(source), key, key, why
-
-
-# ----------------------------------------------------------------------------------------------
-# Spec model
-# ----------------------------------------------------------------------------------------------
-
-class _Section(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
-FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
-Vector3 = Annotated[list[FiniteFloat], Field(min_length=3, max_length=3)]
-
-# Keys each shape needs / accepts (beyond name, shape, center, reference_point, lid).
-_SHAPE_KEYS: dict[str, tuple[set[str], set[str]]] = {
-    "sphere": ({"radius"}, {"panel_size"}),
-    "vertical_cylinder": ({"radius", "draft"}, {"freeboard", "height", "panel_size"}),
-    "box": ({"length", "width", "draft"}, {"freeboard", "height", "panel_size"}),
-    "mesh": ({"mesh"}, {"mesh_format"}),
-}
-
-
-class BodySpec(_Section):
-    name: Annotated[str, Field(min_length=1, pattern=r"^[A-Za-z0-9_\-]+$")]
-    shape: Literal["sphere", "vertical_cylinder", "box", "mesh"]
-    radius: Optional[PositiveFloat] = None
-    length: Optional[PositiveFloat] = None
-    width: Optional[PositiveFloat] = None
-    draft: Optional[PositiveFloat] = None
-    freeboard: Optional[FiniteFloat] = None
-    height: Optional[PositiveFloat] = None
-    center: Vector3 = [0.0, 0.0, 0.0]
-    reference_point: Optional[Vector3] = None
-    mesh: Optional[Annotated[str, Field(min_length=1)]] = None
-    mesh_format: Optional[str] = None
-    panel_size: Optional[PositiveFloat] = None
-    lid: bool = True
-
-    @model_validator(mode="after")
-    def _shape_keys(self) -> "BodySpec":
-        required, optional = _SHAPE_KEYS[self.shape]
-        for key in sorted(required):
-            if getattr(self, key) is None:
-                raise ValueError(f"body.{key}: required for shape = {self.shape!r}")
-        allowed = required | optional
-        for key in ("radius", "length", "width", "draft", "freeboard", "height", "mesh",
-                    "mesh_format", "panel_size"):
-            if key not in allowed and getattr(self, key) is not None:
-                raise ValueError(f"body.{key}: not used for shape = {self.shape!r} "
-                                 f"(it takes {', '.join(sorted(allowed))})")
-        if self.freeboard is not None and self.height is not None:
-            if not math.isclose(self.draft + self.freeboard, self.height, rel_tol=1e-9, abs_tol=1e-12):
-                raise ValueError(f"body.height: {self.height} contradicts draft + freeboard = "
-                                 f"{self.draft + self.freeboard} (give one of freeboard/height)")
-        if self.shape in ("vertical_cylinder", "box"):
-            if self.center[2] != 0.0:
-                raise ValueError("body.center: z must be 0 for this shape (center is the waterline "
-                                 "centre; the vertical placement is set by draft/freeboard)")
-            if self.top <= -self.draft:
-                raise ValueError(f"body.freeboard: the top ({self.top} m) must be above the bottom "
-                                 f"(-draft = {-self.draft} m)")
-        if self.shape == "sphere" and self.center[2] - self.radius >= 0:
-            raise ValueError("body.center: the sphere is entirely above the water (z - radius >= 0)")
-        return self
-
-    @property
-    def top(self) -> float:
-        """z of the top of a cylinder/box (negative: fully submerged)."""
-        if self.height is not None:
-            return self.height - self.draft
-        return self.freeboard if self.freeboard is not None else self.draft
-
-    @property
-    def ref_point(self) -> list[float]:
-        return list(self.reference_point if self.reference_point is not None else self.center)
-
-
-class Frequencies(_Section):
-    omega_min: Optional[PositiveFloat] = None
-    omega_max: Optional[PositiveFloat] = None
-    n: Optional[Annotated[int, Field(ge=2, le=2000)]] = None
-    values: Optional[Annotated[list[PositiveFloat], Field(min_length=2)]] = None
-    infinite: bool = True
-
-    @model_validator(mode="after")
-    def _grid(self) -> "Frequencies":
-        linear = (self.omega_min, self.omega_max, self.n)
-        if self.values is not None:
-            if any(v is not None for v in linear):
-                raise ValueError("frequencies.values: give either values or omega_min/omega_max/n, not both")
-            if any(b <= a for a, b in zip(self.values, self.values[1:])):
-                raise ValueError("frequencies.values: must be strictly increasing")
-        else:
-            for key, v in zip(("omega_min", "omega_max", "n"), linear):
-                if v is None:
-                    raise ValueError(f"frequencies.{key}: required key is missing (or give values = [...])")
-            if self.omega_max <= self.omega_min:
-                raise ValueError(f"frequencies.omega_max: must be > omega_min = {self.omega_min}")
-        return self
-
-    @property
-    def omega(self) -> np.ndarray:
-        if self.values is not None:
-            return np.asarray(self.values, float)
-        return np.linspace(self.omega_min, self.omega_max, self.n)
-
-
-class Water(_Section):
-    density: PositiveFloat = 1025.0
-    gravity: PositiveFloat = 9.81
-    depth: Union[Literal["inf"], PositiveFloat] = "inf"
-
-    @property
-    def depth_m(self) -> float:
-        return math.inf if self.depth == "inf" else float(self.depth)
-
-
-class Waves(_Section):
-    directions: Annotated[list[FiniteFloat], Field(min_length=1)] = [0.0]
-
-    @model_validator(mode="after")
-    def _unique(self) -> "Waves":
-        if len(set(self.directions)) != len(self.directions):
-            raise ValueError(f"waves.directions: repeated direction in {self.directions}")
-        return self
-
-
-class BuildSpec(_Section):
-    body: BodySpec
-    frequencies: Frequencies
-    water: Water = Water()
-    waves: Waves = Waves()
-
-    @model_validator(mode="after")
-    def _depth(self) -> "BuildSpec":
-        depth = self.water.depth_m
-        if math.isfinite(depth):
-            b = self.body
-            bottom = (b.center[2] - b.radius) if b.shape == "sphere" else (-b.draft if b.draft else None)
-            if bottom is not None and bottom <= -depth:
-                raise ValueError(f"water.depth: the body reaches z = {bottom} m, below the sea bed "
-                                 f"(depth {depth} m)")
-        return self
-
-
-def _loc(loc: tuple) -> str:
-    out = ""
-    for part in loc:
-        if isinstance(part, int):
-            out += f"[{part}]"
-        elif str(part).startswith(("function-", "list[", "literal[", "union[")) or part in ("float", "str"):
-            continue
-        else:
-            out += ("." if out else "") + str(part)
-    return out
-
-
-def parse_spec(text: str, source: str | Path = "<spec>") -> BuildSpec:
-    """Parse and validate build-spec TOML text; raise SpecError naming the key."""
-    try:
-        raw = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise SpecError(source, "", f"not valid TOML: {exc}") from None
-    try:
-        return BuildSpec.model_validate(raw)
-    except ValidationError as exc:
-        err = exc.errors()[0]
-        key, msg = _loc(err["loc"]), err["msg"]
-        if err["type"] == "extra_forbidden":
-            msg = "unknown key"
-        elif err["type"] == "missing":
-            msg = "required key is missing"
-        elif "input" in err and not isinstance(err["input"], dict) and err["type"] != "value_error":
-            msg = f"{msg} (got {err['input']!r})"
-        if msg.startswith("Value error, "):
-            msg = msg[len("Value error, "):]
-            head = msg.split(": ", 1)[0]
-            if ": " in msg and head.split(".")[0] in ("body", "frequencies", "water", "waves"):
-                key, msg = msg.split(": ", 1)
-        more = f" (and {len(exc.errors()) - 1} more problem(s))" if len(exc.errors()) > 1 else ""
-        raise SpecError(source, key, msg + more) from None
-
-
-def load_spec(path: str | Path) -> BuildSpec:
-    """Read and validate a build spec file."""
-    path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise SpecError(path, "", f"cannot read the build spec: {exc.strerror}") from None
-    return parse_spec(text, path)
-
-
-def mesh_path(spec: BuildSpec, spec_path: str | Path) -> Path | None:
-    """The mesh file of a ``shape = "mesh"`` body, resolved against the spec's folder."""
-    if spec.body.mesh is None:
-        return None
-    p = Path(spec.body.mesh).expanduser()
-    return p if p.is_absolute() else (Path(spec_path).resolve().parent / p)
-
-
-# ----------------------------------------------------------------------------------------------
-# Mesh
-# ----------------------------------------------------------------------------------------------
-
-def default_panel_size(spec: BuildSpec) -> float:
-    """A modest default: a sixth of the body's smallest dimension (radius, half length/width,
-    draft), and at most lambda_min / 8 for the shortest wave (Capytaine warns when a panel's
-    radius, about 0.7 x its edge, exceeds lambda / 8)."""
-    b = spec.body
-    dims = [d for d in (b.radius, b.length and b.length / 2, b.width and b.width / 2, b.draft) if d]
-    w_max = float(spec.frequencies.omega.max())
-    k_max = w_max ** 2 / spec.water.gravity  # deep-water wavenumber: shortest wave (conservative)
-    return min([d / 6 for d in dims] + [(2 * np.pi / k_max) / 8])
-
-
-def _lid_depth(hull) -> float:
-    """Lid just below the free surface (1 % of the immersed depth). A lid at depth d moves the
-    first irregular frequency up to roughly sqrt(g k coth(k d)), i.e. far above any grid here;
-    deeper lids (e.g. Capytaine's ``lowest_lid_position``) gave visibly noisier damping and
-    excitation on coarse meshes of the example cylinder, a lid at 1 % converged smoothly."""
-    return -0.01 * max(1e-3, -float(hull.z_span[0]))
-
-
-def _axisymmetric_lid(hull, z: float, n_theta: int, h: float, axis_xy: tuple[float, float]):
-    """A disk lid at depth z inside an axisymmetric hull of n_theta sectors: its radius is the
-    hull's radius at z (from the panel edges crossing z) times cos(pi/n), so it stays inside."""
-    import capytaine as cpt
-
-    merged = hull.merged() if hasattr(hull, "merged") else hull
-    v = merged.vertices
-    radii = []
-    for face in merged.faces:
-        pts = v[face]
-        for a, b in zip(pts, np.roll(pts, -1, axis=0)):
-            if (a[2] - z) * (b[2] - z) <= 0 and a[2] != b[2]:
-                p = a + (z - a[2]) / (b[2] - a[2]) * (b - a)
-                radii.append(math.hypot(p[0] - axis_xy[0], p[1] - axis_xy[1]))
-    if not radii:
-        return None
-    r = min(radii) * math.cos(np.pi / n_theta)
-    if r <= 0:
-        return None
-    return _downward(cpt.mesh_disk(radius=r, center=(axis_xy[0], axis_xy[1], z), normal=(0, 0, 1),
-                                   resolution=(max(1, int(math.ceil(r / h))), n_theta),
-                                   axial_symmetry=True, name="lid"))
-
-
-def _rectangle(x0: float, x1: float, y0: float, y1: float, z: float, nx: int, ny: int):
-    """Horizontal rectangle of nx x ny quads at height z, normals pointing down (as a lid's)."""
-    import capytaine as cpt
-
-    xs, ys = np.linspace(x0, x1, nx + 1), np.linspace(y0, y1, ny + 1)
-    vertices = np.array([(x, y, z) for x in xs for y in ys])
-    at = lambda i, j: i * (ny + 1) + j  # noqa: E731
-    # (i,j) -> (i,j+1) -> (i+1,j+1) -> (i+1,j) turns clockwise seen from above: normal down
-    faces = np.array([(at(i, j), at(i, j + 1), at(i + 1, j + 1), at(i + 1, j))
-                      for i in range(nx) for j in range(ny)])
-    return cpt.Mesh(vertices=vertices, faces=faces, name="lid")
-
-
-def _box_lid(b: BodySpec, z: float, res: tuple[int, int], symmetric: bool):
-    """Lid covering the box's interior waterplane; mirrors the hull's nested symmetry if any."""
-    import capytaine as cpt
-
-    nx, ny = res
-    if symmetric:  # mesh_parallelepiped(reflection_symmetry=True): xOz of (yOz of the x<0, y<0 quarter)
-        quarter = _rectangle(-b.length / 2, 0, -b.width / 2, 0, z, nx // 2, ny // 2)
-        return cpt.ReflectionSymmetricMesh(cpt.ReflectionSymmetricMesh(quarter, plane="yOz"), plane="xOz",
-                                           name="lid")
-    cx, cy = b.center[:2]
-    return _rectangle(cx - b.length / 2, cx + b.length / 2, cy - b.width / 2, cy + b.width / 2, z, nx, ny)
-
-
-def _downward(mesh):
-    """The same mesh with normals pointing down, keeping its rotation symmetry (Capytaine would
-    otherwise flip it itself, with a warning)."""
-    import capytaine as cpt
-
-    if isinstance(mesh, cpt.RotationSymmetricMesh):
-        return cpt.RotationSymmetricMesh(_downward(mesh.wedge), mesh.n, axis=mesh.axis, name=mesh.name)
-    if np.all(mesh.faces_normals[:, 2] > 0):
-        return cpt.Mesh(vertices=mesh.vertices, faces=mesh.faces[:, ::-1], name=mesh.name)
-    return mesh
-
-
-def make_meshes(spec: BuildSpec, spec_path: str | Path):
-    """Hull mesh (immersed part only) and lid mesh (or None) for the body, in the global frame.
-
-    Primitives use Capytaine's symmetric meshes (axisymmetric cylinder/sphere, mirror-symmetric
-    box) and a lid built to match; a file mesh gets Capytaine's generic ``generate_lid``."""
-    import capytaine as cpt
-
-    b = spec.body
-    depth = spec.water.depth_m
-    h = b.panel_size or default_panel_size(spec)
-    cx, cy, cz = b.center
-    n_theta, res_xy = 0, (0, 0)
-    if b.shape == "vertical_cylinder":
-        n_theta = max(12, int(math.ceil(2 * np.pi * b.radius / h)))
-        # equal-area polygon: the waterplane area and displaced volume are exact
-        r_mesh = b.radius * math.sqrt(2 * np.pi / (n_theta * math.sin(2 * np.pi / n_theta)))
-        n_r = max(2, int(math.ceil(b.radius / h)))
-        # top at +draft when it pierces the surface, so z = 0 falls on a panel edge before clipping
-        top = b.draft if b.top >= 0 else b.top
-        n_z = max(2, int(math.ceil((top + b.draft) / h)))
-        if b.top >= 0:
-            n_z += n_z % 2
-        full = cpt.mesh_vertical_cylinder(length=top + b.draft, radius=r_mesh,
-                                          center=(0, 0, (top - b.draft) / 2),
-                                          resolution=(n_r, n_theta, n_z), axial_symmetry=True,
-                                          name=b.name)
-        full = full.translated((cx, cy, 0.0), name=b.name) if (cx or cy) else full
-    elif b.shape == "sphere":
-        n_z = max(8, int(math.ceil(np.pi * b.radius / h)))
-        n_z += n_z % 2
-        n_theta = max(12, int(math.ceil(2 * np.pi * b.radius / h)))
-        unit = cpt.mesh_sphere(radius=b.radius, center=(0, 0, 0), resolution=(n_z, n_theta),
-                               axial_symmetry=True, name=b.name)
-        # volume-preserving polyhedron: scale so the closed mesh holds (4/3) pi R^3
-        scale = ((4 / 3) * np.pi * b.radius ** 3 / unit.volume) ** (1 / 3)
-        full = cpt.mesh_sphere(radius=b.radius * scale, center=(cx, cy, cz),
-                               resolution=(n_z, n_theta), axial_symmetry=True, name=b.name)
-    elif b.shape == "box":
-        top = b.draft if b.top >= 0 else b.top
-        n_z = max(2, int(math.ceil((top + b.draft) / h)))
-        if b.top >= 0:
-            n_z += n_z % 2
-        res_xy = tuple(max(2, 2 * int(math.ceil(L / (2 * h)))) for L in (b.length, b.width))
-        full = cpt.mesh_parallelepiped(size=(b.length, b.width, top + b.draft),
-                                       center=(cx, cy, (top - b.draft) / 2), resolution=res_xy + (n_z,),
-                                       reflection_symmetry=(cx == 0 and cy == 0), name=b.name)
-    else:
-        path = mesh_path(spec, spec_path)
-        if not path.is_file():
-            raise SpecError(spec_path, "body.mesh", f"mesh file not found: {path}")
-        try:
-            full = cpt.load_mesh(str(path), b.mesh_format) if b.mesh_format else cpt.load_mesh(str(path))
-        except Exception as exc:  # noqa: BLE001 - any reader failure is a bad spec input
-            raise SpecError(spec_path, "body.mesh", f"cannot read mesh {path}: {exc}") from None
-        if any(b.center):
-            full = full.translated(tuple(b.center), name=b.name)
-    hull = full.immersed_part(water_depth=depth)
-    if hull.nb_faces == 0:
-        raise SpecError(spec_path, "body.mesh" if b.shape == "mesh" else "body.center",
-                        "no part of the body is below the free surface z = 0")
-    pierces = hull.z_span[1] > -1e-9 and (b.shape != "vertical_cylinder" and b.shape != "box" or b.top >= 0)
-    if not (b.lid and pierces):
-        return hull, None
-    z_lid = _lid_depth(hull)
-    if b.shape in ("vertical_cylinder", "sphere"):
-        lid = _axisymmetric_lid(hull, z_lid, n_theta, h, (cx, cy))
-    elif b.shape == "box":
-        lid = _box_lid(b, z_lid, res_xy, symmetric=isinstance(hull, cpt.ReflectionSymmetricMesh))
-    else:
-        lid = hull.generate_lid(z=z_lid)
-        if lid.nb_faces == 0 and hasattr(hull, "merged"):
-            lid = hull.merged().generate_lid(z=z_lid)
-    if lid is None or lid.nb_faces == 0:
-        warnings.warn(f"{spec_path}: body.lid: Capytaine could not generate a lid for this mesh; "
-                      f"solving without one (irregular frequencies may show up)", stacklevel=3)
-        return hull, None
-    return hull, lid
 
 
 # ----------------------------------------------------------------------------------------------
@@ -425,20 +48,24 @@ def default_cache_dir() -> Path:
 
 
 def cache_key(spec: BuildSpec, spec_path: str | Path) -> str:
-    """sha256 of the normalised spec, the mesh file's bytes, Capytaine's version, the schema
+    """sha256 of the normalised spec, the mesh files' bytes, Capytaine's version, the schema
     version and this module's recipe version (the spec's own location does not matter)."""
     import capytaine as cpt
 
     normalised = spec.model_dump(mode="json")
-    normalised["body"].pop("mesh", None)
-    path = mesh_path(spec, spec_path)
-    mesh_digest = None
-    if path is not None:
-        try:
-            mesh_digest = hashlib.sha256(path.read_bytes()).hexdigest()
-        except OSError as exc:
-            raise SpecError(spec_path, "body.mesh", f"cannot read mesh file {path}: {exc.strerror}") from None
-    blob = json.dumps({"spec": normalised, "mesh_sha256": mesh_digest,
+    digests = []
+    for body, key, table in zip(spec.all_bodies, spec.body_keys,
+                                [normalised["body"]] if spec.body is not None else normalised["bodies"]):
+        table.pop("mesh", None)
+        path = mesh_path(body, spec_path)
+        digest = None
+        if path is not None:
+            try:
+                digest = hashlib.sha256(path.read_bytes()).hexdigest()
+            except OSError as exc:
+                raise SpecError(spec_path, f"{key}.mesh", f"cannot read mesh file {path}: {exc.strerror}") from None
+        digests.append(digest)
+    blob = json.dumps({"spec": normalised, "mesh_sha256": digests,
                        "capytaine": cpt.__version__, "hdb_schema_version": SCHEMA_VERSION,
                        "recipe": BUILD_RECIPE_VERSION}, sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()
@@ -470,8 +97,8 @@ def _write_atomic(ds: xr.Dataset, path: Path) -> None:
 # ----------------------------------------------------------------------------------------------
 
 def _solve(body, spec: BuildSpec, progress: bool, desc: str) -> xr.Dataset:
-    """Radiation (6 DOFs) and diffraction over the grid, radiation at omega = inf; Capytaine's
-    own dataset (exp(-iwt))."""
+    """Radiation (every DOF of ``body``, a FloatingBody or Multibody) and diffraction over the
+    grid, radiation at omega = inf; Capytaine's own dataset (exp(-iwt))."""
     import capytaine as cpt
     from tqdm import tqdm
 
@@ -480,13 +107,14 @@ def _solve(body, spec: BuildSpec, progress: bool, desc: str) -> xr.Dataset:
     if spec.frequencies.infinite:
         omegas = [math.inf] + omegas
     headings = np.radians(spec.waves.directions)
+    dofs = list(body.dofs)
     common = dict(body=body, rho=w.density, g=w.gravity, water_depth=w.depth_m)
     solver = cpt.BEMSolver()
-    n_total = sum(len(CPT_DOFS) + (len(headings) if math.isfinite(om) else 0) for om in omegas)
+    n_total = sum(len(dofs) + (len(headings) if math.isfinite(om) else 0) for om in omegas)
     results = []
     with tqdm(total=n_total, desc=desc, unit="pb", disable=not progress, leave=False) as bar:
         for om in omegas:  # one omega at a time: Capytaine reuses the influence matrices
-            problems = [cpt.RadiationProblem(radiating_dof=d, omega=om, **common) for d in CPT_DOFS]
+            problems = [cpt.RadiationProblem(radiating_dof=d, omega=om, **common) for d in dofs]
             if math.isfinite(om):
                 problems += [cpt.DiffractionProblem(wave_direction=float(b), omega=om, **common)
                              for b in headings]
@@ -514,17 +142,42 @@ def _hydrostatics(hull, ref: np.ndarray, rho: float, g: float) -> tuple[np.ndarr
     return np.asarray(K.values, float), float(body.disp_volume), np.asarray(body.center_of_buoyancy, float)
 
 
-def _with_hydrostatics(cds: xr.Dataset, stiffness: np.ndarray, volume: float, cob: np.ndarray,
-                       rho: float) -> xr.Dataset:
-    """Attach our hydrostatics to Capytaine's dataset, in Capytaine's own names and layout (no
-    ``center_of_mass``/``inertia_matrix``: there are no gravity terms to remove)."""
+def _with_hydrostatics(cds: xr.Dataset, labels: list[str], names: list[str], stiffness: np.ndarray,
+                       volumes: list[float], cobs: list[np.ndarray], rho: float, multibody: bool) -> xr.Dataset:
+    """Attach our hydrostatics (block diagonal over the bodies) to Capytaine's dataset, in its
+    own names and layout (no ``center_of_mass``/``inertia_matrix``: no gravity terms to remove)."""
+    k = xr.DataArray(stiffness, dims=("influenced_dof", "radiating_dof"),
+                     coords={"influenced_dof": labels, "radiating_dof": labels})
+    if not multibody:
+        return cds.assign(hydrostatic_stiffness=k, disp_mass=rho * volumes[0],
+                          center_of_buoyancy=xr.DataArray(cobs[0], dims=("space_coordinate",)))
     return cds.assign(
-        hydrostatic_stiffness=xr.DataArray(stiffness, dims=("influenced_dof", "radiating_dof"),
-                                           coords={"influenced_dof": list(CPT_DOFS),
-                                                   "radiating_dof": list(CPT_DOFS)}),
-        disp_mass=rho * volume,
-        center_of_buoyancy=xr.DataArray(cob, dims=("space_coordinate",)),
+        hydrostatic_stiffness=k,
+        disp_mass=xr.DataArray(rho * np.asarray(volumes), dims=("body",), coords={"body": names}),
+        center_of_buoyancy=xr.DataArray(np.asarray(cobs), dims=("body", "space_coordinate"),
+                                        coords={"body": names}),
     )
+
+
+def _floating_bodies(spec: BuildSpec, spec_path: str | Path):
+    """Capytaine bodies (hull + lid, six rigid DOFs about each reference point), hulls, lids;
+    one xOz mirror-symmetric problem when every mesh allows it (multi-body/compound only)."""
+    import capytaine as cpt
+
+    n = len(spec.all_bodies)
+    lone = n == 1 and spec.all_bodies[0].shape != "compound"
+    meshes = [body_meshes(spec, i, spec_path, lone=lone) for i in range(n)]
+    check_apart([h for h, _ in meshes], spec, spec_path)
+    if not lone:
+        sym = [(xoz_symmetric(h), xoz_symmetric(ld) if ld is not None else None) for h, ld in meshes]
+        refs_on_plane = all(abs(b.ref_point[1]) < 1e-12 for b in spec.all_bodies)
+        if refs_on_plane and all(h is not None and (ld is not None or m[1] is None)
+                                 for (h, ld), m in zip(sym, meshes)):
+            meshes = sym
+    bodies = [cpt.FloatingBody(mesh=hull, lid_mesh=lid, name=b.name, center_of_mass=b.ref_point,
+                               dofs=cpt.rigid_body_dofs(rotation_center=np.asarray(b.ref_point, float)))
+              for b, (hull, lid) in zip(spec.all_bodies, meshes)]
+    return bodies, [h for h, _ in meshes], [ld for _, ld in meshes]
 
 
 def build_hdb_uncached(spec: BuildSpec, spec_path: str | Path, *, progress: bool = True) -> xr.Dataset:
@@ -532,31 +185,55 @@ def build_hdb_uncached(spec: BuildSpec, spec_path: str | Path, *, progress: bool
     import capytaine as cpt
 
     t0 = time.perf_counter()
-    hull, lid = make_meshes(spec, spec_path)
-    ref = np.asarray(spec.body.ref_point, float)
-    body = cpt.FloatingBody(mesh=hull, lid_mesh=lid, dofs=cpt.rigid_body_dofs(rotation_center=ref),
-                            center_of_mass=ref, name=spec.body.name)
+    bodies, hulls, lids = _floating_bodies(spec, spec_path)
+    names = [b.name for b in spec.all_bodies]
+    body = bodies[0] if not spec.multibody else cpt.Multibody(bodies, name="+".join(names))
     lam_min = 2 * np.pi * spec.water.gravity / float(spec.frequencies.omega.max()) ** 2
-    r_max = float(body.mesh_including_lid.faces_radiuses.max())
+    mesh = body.mesh_including_lid
+    shallow = mesh.faces_centers[:, 2] > -lam_min / 2  # deeper, the shortest wave is < 4 % (e^-pi)
+    r_max = float(mesh.faces_radiuses[shallow].max()) if np.any(shallow) else 0.0
     if r_max > lam_min / 8:
-        warnings.warn(f"{spec_path}: body.panel_size: largest panel radius {r_max:.3g} m exceeds "
+        key = spec.body_keys[0] if len(bodies) == 1 else "bodies"
+        warnings.warn(f"{spec_path}: {key}.panel_size: largest panel radius {r_max:.3g} m exceeds "
                       f"wavelength/8 = {lam_min / 8:.3g} m at omega_max; results near omega_max may "
                       f"be inaccurate", stacklevel=3)
+    symmetric = isinstance(body.mesh_including_lid, cpt.ReflectionSymmetricMesh)
     t_mesh = time.perf_counter()
-    cds = _solve(body, spec, progress, desc=f"hdb build {spec.body.name}")
+    cds = _solve(body, spec, progress, desc=f"hdb build {'+'.join(names)}")
     t_solve = time.perf_counter()
     w = spec.water
-    K, vol, cob = _hydrostatics(hull, ref, w.density, w.gravity)
-    cds = _with_hydrostatics(cds, K, vol, cob, w.density).assign_coords(body=spec.body.name)
+    hydro = [_hydrostatics(h, np.asarray(b.ref_point, float), w.density, w.gravity)
+             for h, b in zip(hulls, spec.all_bodies)]
+    stiffness = np.zeros((6 * len(names), 6 * len(names)))
+    for i, (k, _, _) in enumerate(hydro):
+        stiffness[6 * i:6 * i + 6, 6 * i:6 * i + 6] = k
+    cpt_labels = list(CPT_DOFS) if not spec.multibody else [f"{n}__{d}" for n in names for d in CPT_DOFS]
+    cds = _with_hydrostatics(cds, cpt_labels, names, stiffness, [v for _, v, _ in hydro],
+                             [c for _, _, c in hydro], w.density, spec.multibody)
+    if not spec.multibody:
+        cds = cds.assign_coords(body=names[0])
+    short = short_body_names(names)
     ds = from_capytaine_dataset(cds, f"capytaine {cpt.__version__} build of {Path(spec_path).name}",
-                                reference_points={spec.body.name: ref})
+                                reference_points={s: b.ref_point for s, b in zip(short, spec.all_bodies)})
+    if short != names:  # keep the spec's names (the reader shortens shared prefixes)
+        ds = ds.assign_coords(body=names, influenced_dof=dof_labels(names), radiating_dof=dof_labels(names))
+    n_panels = [int(h.nb_faces) for h in hulls]
+    n_lid = [int(ld.nb_faces) if ld is not None else 0 for ld in lids]
     ds.attrs.update({
         "builder": "hydrolink hdb build", "capytaine_version": cpt.__version__,
-        "n_panels": int(hull.nb_faces), "n_lid_panels": int(lid.nb_faces if lid is not None else 0),
+        "n_panels": sum(n_panels), "n_lid_panels": sum(n_lid),
+        "panels_per_body": json.dumps({n: {"hull": p, "lid": q} for n, p, q in zip(names, n_panels, n_lid)}),
+        "xoz_symmetry": int(symmetric),
         "build_seconds": round(time.perf_counter() - t0, 3),
         "mesh_seconds": round(t_mesh - t0, 3), "solve_seconds": round(t_solve - t_mesh, 3),
     })
     return ds
+
+
+def cache_file_name(spec: BuildSpec, key: str) -> str:
+    """``<body names>-<key prefix>.nc`` (names joined by ``+``, cut to 60 characters)."""
+    stem = "+".join(b.name for b in spec.all_bodies)
+    return f"{stem[:60]}-{key[:24]}.nc"
 
 
 def build_hdb(spec_path: str | Path, *, cache_dir: str | Path | None = None, progress: bool = True,
@@ -569,7 +246,7 @@ def build_hdb(spec_path: str | Path, *, cache_dir: str | Path | None = None, pro
     spec = load_spec(spec_path)
     key = cache_key(spec, spec_path)
     folder = Path(cache_dir).expanduser() if cache_dir is not None else default_cache_dir()
-    path = folder / f"{spec.body.name}-{key[:24]}.nc"
+    path = folder / cache_file_name(spec, key)
     if path.is_file() and not force:
         ds = _read_cached(path)
         if ds is not None:
@@ -587,5 +264,23 @@ def build_hdb(spec_path: str | Path, *, cache_dir: str | Path | None = None, pro
     return ds
 
 
-__all__ = ["BuildSpec", "SpecError", "build_hdb", "build_hdb_uncached", "cache_key",
-           "default_cache_dir", "load_spec", "make_meshes", "parse_spec"]
+def body_hydrostatics(spec: BuildSpec, spec_path: str | Path) -> dict[str, dict]:
+    """Per body, without solving any BEM problem: displaced ``volume`` (m^3), ``mass`` = rho V,
+    ``center_of_buoyancy`` and the buoyancy/waterplane ``stiffness`` (6x6 about the reference
+    point), from the meshes the build would solve."""
+    _, hulls, _ = _floating_bodies(spec, spec_path)
+    w, out = spec.water, {}
+    for hull, b in zip(hulls, spec.all_bodies):
+        k, vol, cob = _hydrostatics(hull, np.asarray(b.ref_point, float), w.density, w.gravity)
+        out[b.name] = {"volume": vol, "mass": w.density * vol, "center_of_buoyancy": cob, "stiffness": k}
+    return out
+
+
+def make_meshes(spec: BuildSpec, spec_path: str | Path):
+    """Hull and lid meshes of a one-body spec (as solved; see :mod:`.build_mesh`)."""
+    _, hulls, lids = _floating_bodies(spec, spec_path)
+    return (hulls[0], lids[0]) if len(hulls) == 1 else (hulls, lids)
+
+
+__all__ = ["BuildSpec", "SpecError", "body_hydrostatics", "build_hdb", "build_hdb_uncached", "cache_key", "default_cache_dir",
+           "default_panel_size", "load_spec", "make_meshes", "parse_spec"]
