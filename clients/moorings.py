@@ -20,7 +20,11 @@
     Seabed (finite depth, ``seabed = true``): one ``ObjectContactCoordinate`` per free node on its z
     coordinate — a frictionless penalty spring-damper, active only below z = -depth, stiffness
     such that a node's own submerged weight sinks it ``SEABED_PENETRATION`` m, 10 % critical damping
-    (Exudyn's native discontinuous-iteration contact; no Python user function).
+    (Exudyn's native discontinuous-iteration contact; no Python user function). Slack ropes on the
+    seabed need numerical damping in the dynamic run (generalized-alpha spectral radius < 1, e.g.
+    0.8) and moderate motions; with the trapezoidal rule (spectral radius 1) Newton fails after a
+    few steps of a moving touchdown. A rope longer than (horizontal span + height) cannot be laid
+    out without slack piling on the bed and is not supported.
     Initial shape: a catenary through anchor and attachment with the unstretched length (clipped at
     the seabed), or the straight stretched line when the rope is taut; then Exudyn's static solver
     finds the rope's equilibrium with both ends held (in a separate small system) and the main
@@ -257,6 +261,7 @@ def rope_equilibrium(rope: RopeMooring, water: Water, attach) -> np.ndarray:
         ss.staticSolver.verboseMode = 0
         ss.staticSolver.numberOfLoadSteps = steps
         ss.staticSolver.newton.relativeTolerance = tol
+        ss.staticSolver.newton.absoluteTolerance = 1e-12 * rope.axial_stiffness   # round-off floor
         ss.staticSolver.stabilizerODE2term = stabilizer
         mbs.systemData.SetODE2Coordinates(start, configuration=exu.ConfigurationType.Initial)
         try:
@@ -298,7 +303,7 @@ class MooringSet:
                 out[i, 3:] = -np.asarray(get(obj, _OV.TorqueLocal))
                 out[i] += self.pretension[i]
             else:
-                out[i, :3] = np.asarray(get(obj, _OV.Force))
+                out[i, :3] = -np.asarray(get(obj, _OV.Force))   # the joint reports the force on the rope end
         return out
 
 

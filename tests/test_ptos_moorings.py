@@ -1,0 +1,293 @@
+"""PTOs and moorings in Exudyn against closed-form references (real Exudyn, dry mechanisms)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import exudyn as exu
+from scipy.optimize import brentq
+
+from hydrolink.clients.mechanism import build_mechanism
+from hydrolink.clients.moorings import SEABED_PENETRATION, build_moorings, rope_properties
+from hydrolink.clients.ptos import build_ptos
+from hydrolink.protocol.scene import parse_scene
+
+RHO, G = 1025.0, 9.81
+
+
+def _system(text: str):
+    """Mechanism + PTOs + moorings of a dry scene (weights cancelled by buoyancy in the scenes)."""
+    scene = parse_scene("[simulation]\ndt = 0.01\nduration = 1.0\nprogress = false\n" + text)
+    sc = exu.SystemContainer()
+    mbs = sc.AddSystem()
+    mech = build_mechanism(mbs, scene, {})
+    ptos = build_ptos(mbs, scene.ptos, mech.handles)
+    moorings = build_moorings(mbs, scene.moorings, mech.handles, scene.water)
+    mbs.Assemble()
+    return sc, mbs, mech, ptos, moorings
+
+
+def _settings(dt: float = 0.01) -> exu.SimulationSettings:
+    ss = exu.SimulationSettings()
+    ss.solution.file.write = False
+    ss.solution.sensors.active = False
+    ss.timeIntegration.verboseMode = 0
+    ss.staticSolver.verboseMode = 0
+    ss.staticSolver.newton.relativeTolerance = 1e-7
+    ss.staticSolver.newton.absoluteTolerance = 1e-4     # round-off floor of EA ~ 1e9 N
+    ss.timeIntegration.adaptiveStep = False
+    ss.timeIntegration.numberOfSteps = 1
+    ss.timeIntegration.endTime = dt
+    ss.timeIntegration.generalizedAlpha.spectralRadius = 1.0
+    return ss
+
+
+def _run(mbs, n_steps: int, dt: float, sample, spectral_radius: float = 1.0):
+    """Step the system by hand (as the client does) and call ``sample(t)`` after every step."""
+    ss = _settings(dt)
+    ss.timeIntegration.generalizedAlpha.spectralRadius = spectral_radius
+    solver = exu.MainSolverImplicitSecondOrder()
+    solver.InitializeSolver(mbs, ss)
+    rows = [sample(0.0)]
+    for k in range(1, n_steps + 1):
+        solver.it.startTime, solver.it.endTime = (k - 1) * dt, k * dt
+        assert solver.SolveSteps(mbs, ss)
+        rows.append(sample(k * dt))
+    solver.FinalizeSolver(mbs, ss)
+    return rows
+
+
+def _dry_body(name="b", mass=100.0, com=(0.0, 0.0, 0.0), inertia=(10.0, 20.0, 30.0), dofs=None,
+              x0=None, v0=None) -> str:
+    out = (f'[[bodies]]\nname = "{name}"\nmass = {mass}\ncenter_of_mass = {list(com)}\n'
+           f"inertia = {list(inertia)}\nbuoyancy_volume = {mass / RHO!r}\n")
+    if dofs is not None:
+        out += f"dofs = {dofs!r}\n".replace("'", '"')
+    if x0 is not None:
+        out += f"initial_displacement = {list(x0)}\n"
+    if v0 is not None:
+        out += f"initial_velocity = {list(v0)}\n"
+    return out
+
+
+def _node_state(mbs, mech, name="b"):
+    node = mech.handles[name].node
+    return (np.asarray(mbs.GetNodeOutput(node, exu.OutputVariableType.Coordinates)),
+            np.asarray(mbs.GetNodeOutput(node, exu.OutputVariableType.Coordinates_t)))
+
+
+# -- linear PTO ------------------------------------------------------------------------------------
+M, K, C = 100.0, 400.0, 40.0          # ω0 = 2 rad/s, ζ = 0.1
+LINEAR = (_dry_body(mass=M, dofs=["surge"], x0=[0.1, 0, 0, 0, 0, 0])
+          + f'[[moorings]]\ntype = "linear"\nname = "spring"\nbody = "b"\npoint = [0, 0, 0]\n'
+            f"stiffness = [{K}, 0, 0, 0, 0, 0]\n"
+          + '[[ptos]]\nname = "damper"\ntype = "linear"\nbody1 = "b"\npoint1 = [0, 0, 0]\n'
+            f'body2 = "ground"\npoint2 = [-5, 0, 0]\ndamping = {C}\n')
+
+
+def test_linear_pto_damped_oscillator_and_power():
+    sc, mbs, mech, ptos, moorings = _system(LINEAR)
+    dt, n = 0.005, 1200
+    rows = _run(mbs, n, dt, lambda t: (t, *_node_state(mbs, mech), ptos.sample(mbs), moorings.sample(mbs)))
+    t = np.array([r[0] for r in rows])
+    x = np.array([r[1][0] for r in rows])
+    v = np.array([r[2][0] for r in rows])
+    w0, zeta = math.sqrt(K / M), C / (2 * math.sqrt(K * M))
+    wd = w0 * math.sqrt(1 - zeta ** 2)
+    exact = 0.1 * np.exp(-zeta * w0 * t) * (np.cos(wd * t) + zeta / math.sqrt(1 - zeta ** 2) * np.sin(wd * t))
+    assert np.abs(x - exact).max() < 2e-6 / 0.1 * 0.1 * 100     # trapezoidal rule at ω dt = 0.01
+    # decay per period and period from the zero crossings
+    up = np.flatnonzero((x[:-1] < 0) & (x[1:] >= 0))
+    tz = t[up] - x[up] * dt / (x[up + 1] - x[up])
+    assert np.diff(tz).mean() == pytest.approx(2 * math.pi / wd, rel=1e-4)
+    # PTO outputs: the line runs from point1 (body) to point2 (ground, at -x): e = -ex, so the
+    # extension rate is (0 - v)·e = v; the force on body1 along e is c v; absorbed power c v²
+    force = np.array([r[3].force[0] for r in rows])
+    vel = np.array([r[3].velocity[0] for r in rows])
+    power = np.array([r[3].power[0] for r in rows])
+    assert ptos.names == ["damper"]
+    np.testing.assert_allclose(vel, v, atol=1e-12)
+    np.testing.assert_allclose(force, C * vel, atol=1e-9)
+    np.testing.assert_allclose(power, C * v ** 2, atol=1e-9)
+    assert (power >= 0).all()
+    # energy: absorbed work = initial spring energy - remaining energy
+    work = np.sum(0.5 * (power[1:] + power[:-1])) * dt
+    remaining = 0.5 * K * x[-1] ** 2 + 0.5 * M * v[-1] ** 2
+    assert work == pytest.approx(0.5 * K * 0.1 ** 2 - remaining, rel=2e-3)
+    # mooring force on the body: -K x (surge), nothing else
+    mf = np.array([r[4][0] for r in rows])
+    np.testing.assert_allclose(mf[:, 0], -K * x, atol=1e-9)
+    assert np.abs(mf[:, 1:]).max() < 1e-9
+
+
+def test_linear_pto_force_limit_saturates():
+    limit = 1.0
+    text = LINEAR.replace(f"damping = {C}\n", f"damping = {C}\nforce_limit = {limit}\n")
+    sc, mbs, mech, ptos, moorings = _system(text)
+    obj = ptos.objects[0]
+    rows = _run(mbs, 400, 0.005, lambda t: (ptos.sample(mbs), np.asarray(
+        mbs.GetObjectOutput(obj, exu.OutputVariableType.Force)), _node_state(mbs, mech)[1][0]))
+    force = np.array([r[0].force[0] for r in rows])
+    v = np.array([r[2] for r in rows])
+    exudyn_force = np.array([r[1][0] for r in rows])   # connector force vector (x component)
+    assert np.abs(force).max() == pytest.approx(limit, rel=1e-12)
+    assert (np.abs(force) >= limit * (1 - 1e-12)).sum() > 50          # saturated for a while
+    assert np.abs(C * v).max() > 4 * limit                               # would be 4× more unlimited
+    # the sampler agrees with the force Exudyn applies (the line points along -x)
+    np.testing.assert_allclose(-exudyn_force, force, atol=1e-9)
+    # slower decay than the unlimited damper: the energy is removed at most at limit·|v|
+    assert np.all(np.array([r[0].power[0] for r in rows]) <= limit * np.abs(v) + 1e-12)
+
+
+# -- rotary PTO on a spherical joint ---------------------------------------------------------------
+def test_rotary_pto_torsional_period_and_free_axes():
+    iyy, k, theta0, roll_rate = 20.0, 80.0, 0.05, 0.02
+    text = (_dry_body(inertia=(10.0, iyy, 30.0), x0=[0, 0, 0, 0, theta0, 0], v0=[0, 0, 0, roll_rate, 0, 0])
+            + '[[joints]]\ntype = "spherical"\nbody1 = "ground"\nbody2 = "b"\npoint = [0, 0, 0]\n'
+            + f'[[ptos]]\nname = "hinge"\ntype = "rotary"\nbody1 = "ground"\nbody2 = "b"\npoint = [0, 0, 0]\n'
+              f'axes = ["pitch"]\nstiffness = {k}\n')
+    sc, mbs, mech, ptos, _ = _system(text)
+    dt = 0.002
+    rows = _run(mbs, 2000, dt, lambda t: (t, *_node_state(mbs, mech), ptos.sample(mbs)))
+    t = np.array([r[0] for r in rows])
+    q = np.array([r[1] for r in rows])
+    s = [r[3] for r in rows]
+    pitch = q[:, 4]
+    cross = np.flatnonzero(np.sign(pitch[:-1]) != np.sign(pitch[1:]))
+    tz = t[cross] - pitch[cross] * dt / (pitch[cross + 1] - pitch[cross])
+    assert len(tz) >= 3
+    assert 2 * np.diff(tz).mean() == pytest.approx(2 * math.pi * math.sqrt(iyy / k), rel=1e-3)
+    # roll and yaw feel no stiffness: the roll rate stays (coupling is second order in the angles)
+    assert q[-1, 3] == pytest.approx(roll_rate * t[-1], rel=2e-2)
+    assert ptos.names == ["hinge.pitch"]
+    # torque on body1 (ground) about +y is k θ (θ of body2 relative to body1), power = k θ ω
+    f = np.array([x.force[0] for x in s])
+    assert np.abs(f - k * pitch).max() < 2e-3 * k * theta0
+    assert np.abs(np.array([x.power[0] for x in s])
+                  - f * np.array([x.velocity[0] for x in s])).max() < 1e-12
+
+
+def test_rotary_pto_frame_and_several_axes_match_exudyn_outputs():
+    text = (_dry_body(x0=[0, 0, 0, 0.03, -0.02, 0.04], v0=[0, 0, 0, 0.1, 0.2, -0.1])
+            + '[[joints]]\ntype = "spherical"\nbody1 = "ground"\nbody2 = "b"\npoint = [0, 0, 0]\n'
+            + '[[ptos]]\nname = "r"\ntype = "rotary"\nbody1 = "ground"\nbody2 = "b"\npoint = [0, 0, 0]\n'
+              'axes = ["yaw", "roll"]\nstiffness = [5.0, 7.0]\ndamping = [1.0, 2.0]\n'
+              'frame = [[0, 1, 0], [-1, 0, 0], [0, 0, 1]]\ntorque_limit = 0.25\n')
+    sc, mbs, mech, ptos, _ = _system(text)
+    rows = _run(mbs, 50, 0.01, lambda t: (ptos.sample(mbs), np.asarray(
+        mbs.GetObjectOutput(ptos.objects[0], exu.OutputVariableType.Rotation)), np.asarray(
+        mbs.GetObjectOutput(ptos.objects[0], exu.OutputVariableType.AngularVelocityLocal))))
+    assert ptos.names == ["r.yaw", "r.roll"]
+    for s, rot, omega in rows:
+        expect = np.clip([5.0 * rot[2] + 1.0 * omega[2], 7.0 * rot[0] + 2.0 * omega[0]], -0.25, 0.25)
+        np.testing.assert_allclose(s.force, expect, atol=1e-12)
+        np.testing.assert_allclose(s.velocity, [omega[2], omega[0]], atol=1e-12)
+    assert max(abs(r[0].force).max() for r in rows) == pytest.approx(0.25)
+
+
+# -- linear mooring with pretension ----------------------------------------------------------------
+def test_linear_mooring_pretension_static_offset():
+    k = [1000.0, 2000.0, 3000.0, 400.0, 500.0, 600.0]
+    pre = [50.0, -80.0, 30.0, 4.0, -5.0, 6.0]
+    text = (_dry_body(com=(1.0, 2.0, -3.0))
+            + f'[[moorings]]\ntype = "linear"\nbody = "b"\npoint = [1.0, 2.0, -3.0]\n'
+              f"stiffness = {k}\ndamping = [10, 10, 10, 1, 1, 1]\npretension = {pre}\n")
+    sc, mbs, mech, _, moorings = _system(text)
+    ss = _settings()
+    mbs.SolveStatic(ss)
+    q, _ = _node_state(mbs, mech)
+    expected = np.array(pre) / np.array(k)
+    np.testing.assert_allclose(q[:3], expected[:3], rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(q[3:], expected[3:], rtol=2e-3)    # Tait-Bryan vs small angles
+    assert np.abs(moorings.sample(mbs)[0]).max() < 1e-6 * max(pre)   # in balance: K x = pretension
+    # at zero displacement the mooring exerts exactly the pretension
+    sc2, mbs2, _, _, moorings2 = _system(text)
+    ss2 = _settings()
+    solver = exu.MainSolverImplicitSecondOrder()
+    solver.InitializeSolver(mbs2, ss2)
+    np.testing.assert_allclose(moorings2.sample(mbs2)[0], pre, atol=1e-12)
+    solver.FinalizeSolver(mbs2, ss2)
+
+
+# -- ropes -----------------------------------------------------------------------------------------
+def test_rope_catenary_shape_and_tension():
+    mu, span, length, n = 10.0, 80.0, 100.0, 20
+    w = mu * G
+    text = (_dry_body(com=(span, 0.0, -10.0), dofs=["surge"])
+            + f'[[moorings]]\ntype = "linear"\nbody = "b"\npoint = [{span}, 0, -10]\nstiffness = [1e8, 0, 0, 0, 0, 0]\n'
+            + f'[[moorings]]\ntype = "rope"\nname = "line"\nanchor = [0, 0, -10]\nattach_to = "b"\n'
+              f"point = [{span}, 0, -10]\nlength = {length}\naxial_stiffness = 1e10\n"
+              f"mass_per_length = {mu}\nelements = {n}\n")
+    sc, mbs, mech, _, moorings = _system(text)
+    mbs.SolveStatic(_settings())
+    c = brentq(lambda c: 2 * c * math.sinh(span / (2 * c)) - length, 1.0, 1e4)
+    rope = moorings.ropes[1]
+    pos = np.array([mbs.GetNodeOutput(nd, exu.OutputVariableType.Position) for nd in rope.nodes])
+    z_exact = -10 + c * (np.cosh((pos[:, 0] - span / 2) / c) - math.cosh(span / (2 * c)))
+    assert np.abs(pos[:, 2] - z_exact).max() < 2e-3
+    f = moorings.sample(mbs)[1]
+    assert moorings.names == ["moorings[0]", "line"]
+    np.testing.assert_allclose(f[:3], [-w * c, 0.0, -w * length / 2], rtol=2e-4, atol=1e-6)
+    np.testing.assert_allclose(f[3:], 0.0)
+
+
+def test_rope_hanging_vertical_top_tension_and_taut_axial_stiffness():
+    # weightless taut rope (buoyancy cancels its weight): small pull F gives F L / EA
+    mu, ea, length = 5.0, 2.0e7, 50.0
+    d = math.sqrt(4 * mu / (math.pi * RHO))
+    pull = 4.0e4
+    text = (_dry_body(com=(length, 0.0, -10.0), dofs=["surge"])
+            + f'[[moorings]]\ntype = "linear"\nbody = "b"\npoint = [{length}, 0, -10]\npretension = [{pull}, 0, 0, 0, 0, 0]\n'
+            + f'[[moorings]]\ntype = "rope"\nanchor = [0, 0, -10]\nattach_to = "b"\npoint = [{length}, 0, -10]\n'
+              f"length = {length}\naxial_stiffness = {ea}\nmass_per_length = {mu}\ndiameter = {d!r}\nelements = 8\n")
+    sc, mbs, mech, _, moorings = _system(text)
+    mbs.SolveStatic(_settings())
+    q, _ = _node_state(mbs, mech)
+    assert q[0] == pytest.approx(pull * length / ea, rel=1e-6)
+    np.testing.assert_allclose(moorings.sample(mbs)[1][:3], [-pull, 0, 0], rtol=1e-6, atol=1e-3)
+    # a vertical rope hanging from a fixed top anchor, a weight (heave-only body) at its lower end: the top
+    # tension is w' L + m g (submerged weight of the rope + the weight it carries)
+    mu2, m_pm, length2 = 20.0, 100.0, 30.0
+    w_sub = (mu2 - RHO * math.pi * 0.05 ** 2 / 4) * G
+    text2 = (_dry_body(mass=m_pm, com=(0.0, 0.0, -5.0 - length2), dofs=["heave"])   # weight → pretension
+             + f'[[moorings]]\ntype = "linear"\nbody = "b"\npoint = [0, 0, {-5 - length2}]\n'
+               f"pretension = [0, 0, {-m_pm * G!r}, 0, 0, 0]\n"
+             + f'[[moorings]]\ntype = "rope"\nanchor = [0, 0, -5]\nattach_to = "b"\npoint = [0, 0, {-5 - length2}]\n'
+               f"length = {length2}\naxial_stiffness = 1e9\nmass_per_length = {mu2}\ndiameter = 0.05\nelements = 10\n")
+    sc2, mbs2, mech2, _, moorings2 = _system(text2)
+    mbs2.SolveStatic(_settings())
+    top = np.asarray(mbs2.GetObjectOutput(moorings2.ropes[1].anchor_joint, exu.OutputVariableType.Force))
+    assert abs(top[2]) == pytest.approx(w_sub * length2 + m_pm * G, rel=1e-6)
+    np.testing.assert_allclose(moorings2.sample(mbs2)[1][:3], [0, 0, m_pm * G], rtol=1e-6, atol=1e-6)
+    stretch = (w_sub * length2 / 2 + m_pm * G) * length2 / 1e9      # mean tension · L / EA
+    z_pm = mbs2.GetNodeOutput(mech2.handles["b"].node, exu.OutputVariableType.Position)[2]
+    assert z_pm == pytest.approx(-5 - length2 - stretch, abs=1e-3 * stretch)
+
+
+def test_rope_on_seabed_does_not_penetrate():
+    depth = 20.0
+    text = ("[water]\ndepth = 20.0\n"
+            + _dry_body(mass=2e4, com=(60.0, 0.0, -5.0), dofs=["surge", "heave"], v0=[0.05, 0, 0.1, 0, 0, 0])
+            + '[[moorings]]\ntype = "linear"\nbody = "b"\npoint = [60, 0, -5]\nstiffness = [2e5, 0, 2e5, 0, 0, 0]\n'
+            + '[[moorings]]\ntype = "rope"\nanchor = [0, 0, -20]\nattach_to = "b"\npoint = [60, 0, -5]\n'
+              "length = 70\naxial_stiffness = 1e8\nmass_per_length = 50\ndiameter = 0.05\nelements = 40\n")
+    scene = parse_scene("[simulation]\ndt = 0.01\nduration = 1.0\n" + text)
+    props = rope_properties(scene.moorings[1], scene.water)
+    sc, mbs, mech, _, moorings = _system(text)
+    rope = moorings.ropes[1]
+    z = lambda: np.array([mbs.GetNodeOutput(nd, exu.OutputVariableType.Position)[2] for nd in rope.nodes])  # noqa: E731
+    z0 = z()
+    on_bed = z0 < -depth + 0.01
+    assert on_bed.sum() >= 20                       # about 49 m of the 70 m lie on the bed
+    assert z0.min() > -depth - 1.5 * SEABED_PENETRATION
+    # dynamic: the body starts moving up and away, then springs back (ropes need some numerical
+    # damping of their element-level modes: spectral radius 0.8)
+    zmin = []
+    rows = _run(mbs, 300, 0.01, lambda t: zmin.append(z().min()), spectral_radius=0.8)
+    assert min(zmin) > -depth - 3 * SEABED_PENETRATION
+    assert props["seabed_stiffness"] * SEABED_PENETRATION == pytest.approx(
+        (50 - RHO * math.pi * 0.05 ** 2 / 4) * G * 70 / 40)
+    assert len(rows) == 301
