@@ -1,5 +1,6 @@
 """Build the test FMUs from the sources in tests/fmu_src (never downloaded): the FMI 2.0 C FMU with
-the machine's C compiler (FMI headers from the installed fmpy), the Python FMU with pythonfmu."""
+the machine's C compiler (FMI headers from the installed fmpy), the Python FMUs with pythonfmu
+(FMI 2.0) and pythonfmu3 (FMI 3.0)."""
 
 from __future__ import annotations
 
@@ -42,3 +43,14 @@ def build_python_fmu(dest: Path, *, handle_state: bool = True) -> Path:
     script = work / "pyheave.py"
     shutil.copy2(FMU_SRC / "pyheave.py", script)
     return Path(FmuBuilder.build_FMU(script, dest=work / "PyHeave.fmu", canGetAndSetFMUstate=handle_state))
+
+
+def build_python3_fmu(dest: Path) -> Path:
+    """pythonfmu3 build of pyheave3.py (FMI 3.0, canGetAndSetFMUState)."""
+    from pythonfmu3 import FmuBuilder
+
+    work = dest / "py3_state"
+    work.mkdir(parents=True, exist_ok=True)
+    script = work / "pyheave3.py"
+    shutil.copy2(FMU_SRC / "pyheave3.py", script)
+    return Path(FmuBuilder.build_FMU(script, dest=work, canGetAndSetFMUState=True))

@@ -1,6 +1,7 @@
 """FMU master against the real force server on the Task-10 sphere in heave, with test FMUs built
-here from tests/fmu_src: a C FMI 2.0 FMU (A∞ and hydrostatic stiffness as parameters) and a
-pythonfmu FMU (no A∞ parameter: iterative coupling with rollback).
+here from tests/fmu_src: a C FMI 2.0 FMU (A∞ and hydrostatic stiffness as parameters), a
+pythonfmu FMI 2.0 FMU and its pythonfmu3 FMI 3.0 twin (no A∞ parameter: iterative coupling with
+rollback).
 
 References: the frequency-domain heave RAO with the PTO damping, computed here from the HDB, and
 the Exudyn client on the same scene with a linear PTO to ground.
@@ -16,7 +17,7 @@ import pytest
 import xarray as xr
 from fmpy.validation import validate_fmu
 
-from fmu_build import build_c_fmu, build_python_fmu
+from fmu_build import build_c_fmu, build_python3_fmu, build_python_fmu
 from hydrolink.clients import fmu_client
 from hydrolink.clients.connection import ServerConnection
 from hydrolink.clients.exudyn_client import SimulationDiverged
@@ -57,7 +58,7 @@ def server():
 @pytest.fixture(scope="module")
 def fmus(tmp_path_factory) -> dict[str, Path]:
     root = tmp_path_factory.mktemp("fmus")
-    return {"c": build_c_fmu(root), "py": build_python_fmu(root),
+    return {"c": build_c_fmu(root), "py": build_python_fmu(root), "py3": build_python3_fmu(root),
             "py-nostate": build_python_fmu(root, handle_state=False)}
 
 
@@ -144,13 +145,15 @@ def test_test_fmus_pass_fmpy_validation(fmus):
     from fmpy import read_model_description
     for name, path in fmus.items():
         assert validate_fmu(str(path)) == [], name
-    caps = {k: read_model_description(str(p)).coSimulation.canGetAndSetFMUstate for k, p in fmus.items()}
-    assert caps == {"c": True, "py": True, "py-nostate": False}
+    mds = {k: read_model_description(str(p)) for k, p in fmus.items()}
+    assert {k: md.coSimulation.canGetAndSetFMUstate for k, md in mds.items()} == {
+        "c": True, "py": True, "py3": True, "py-nostate": False}
+    assert {k: md.fmiVersion for k, md in mds.items()} == {"c": "2.0", "py": "2.0", "py3": "3.0", "py-nostate": "2.0"}
 
 
 # ------------------------------------------------------------------------------------ physics
 
-@pytest.mark.parametrize("which", ["c", "py"])
+@pytest.mark.parametrize("which", ["c", "py", "py3"])
 def test_fmu_heave_and_pto_power_match_frequency_domain(server, sphere, sphere_path, rho_v, fmus, tmp_path,
                                                         which):
     w, rao, power = reference(sphere, rho_v, 1.45)
@@ -167,6 +170,7 @@ def test_fmu_heave_and_pto_power_match_frequency_domain(server, sphere, sphere_p
                              f"round trip {summary['round_trip_us_per_step']:.0f} us/step")
     print(REPORT[f"fd {which}"])
     assert summary["mode"] == ("parameters" if which == "c" else "iterative")
+    assert summary["fmi_version"] == ("3.0" if which == "py3" else "2.0")
     assert abs(amp_err) < 0.01 and abs(p_err) < 0.01
     assert abs(np.degrees(np.angle(got / rao))) < 1.0
 
