@@ -34,6 +34,8 @@ import exudyn as exu
 from exudyn.itemInterface import ObjectGenericODE2, VObjectGenericODE2
 
 from hydrolink.clients.mechanism import Mechanism, body_reference, build_mechanism
+from hydrolink.clients.moorings import MooringSet, build_moorings
+from hydrolink.clients.ptos import PTOSet, build_ptos
 from hydrolink.protocol.scene import Scene
 
 log = logging.getLogger(__name__)
@@ -73,6 +75,8 @@ class ExudynModel:
     body_reference: np.ndarray = field(default_factory=lambda: np.zeros((0, 6)))  # (B, 6)
     body_index: np.ndarray = field(default_factory=lambda: np.zeros(0, int))  # (6B,) ODE2 indices
     wet_rows: np.ndarray = field(default_factory=lambda: np.zeros(0, int))    # wet bodies' rows in B
+    ptos: PTOSet | None = None
+    moorings: MooringSet | None = None
     initialized: bool = field(default=False)
 
     @property
@@ -163,6 +167,8 @@ def build_model(scene: Scene, setup: dict | None, *, spectral_radius: float = 1.
     sc = exu.SystemContainer()
     mbs = sc.AddSystem()
     mech = build_mechanism(mbs, scene, {nm: equilibrium[i, :3] for i, nm in enumerate(names)}, net)
+    ptos = build_ptos(mbs, scene.ptos, mech.handles) if scene.ptos else None
+    moorings = build_moorings(mbs, scene.moorings, mech.handles, scene.water) if scene.moorings else None
     hydro = -1
     if n:
         hydro = mbs.AddObject(ObjectGenericODE2(
@@ -186,7 +192,7 @@ def build_model(scene: Scene, setup: dict | None, *, spectral_radius: float = 1.
     ss.timeIntegration.generalizedAlpha.spectralRadius = float(spectral_radius)
     return ExudynModel(sc, mbs, exu.MainSolverImplicitSecondOrder(), ss, hydro, equilibrium,
                        active, stiffness, dt, mech, wet_index, all_names, reference, body_index,
-                       np.array([all_names.index(nm) for nm in names], int))
+                       np.array([all_names.index(nm) for nm in names], int), ptos, moorings)
 
 
 def _check_state(q: np.ndarray, v: np.ndarray, step: int, t: float, limit: float, rows: int,
@@ -234,6 +240,26 @@ def _add_joint_variables(writer, labels: list[str]) -> None:
                         "norm of the constrained relative rotation angles")
 
 
+def _add_pto_mooring_variables(writer, ptos: PTOSet | None, moorings: MooringSet | None) -> None:
+    """Declare the PTO outputs (dim ``pto``) and mooring forces (dims ``mooring``, ``mooring_component``)."""
+    if ptos is not None:
+        coords = {"pto": list(ptos.names)}
+        writer.add_variable("pto_force", ("pto",), coords, "N (linear); N m (rotary axis)",
+                            "force on body1 along the line point1 -> point2 (tension > 0) / torque on "
+                            "body1 about the PTO axis")
+        writer.add_variable("pto_velocity", ("pto",), coords, "m/s (linear); rad/s (rotary axis)",
+                            "extension rate of the line / angular velocity of body2 relative to body1")
+        writer.add_variable("pto_power", ("pto",), coords, "W",
+                            "absorbed power pto_force * pto_velocity (> 0: into the PTO)")
+        writer.add_variable("total_pto_power", (), None, "W", "sum of pto_power over all PTOs")
+    if moorings is not None:
+        writer.add_variable("mooring_force", ("mooring", "mooring_component"),
+                            {"mooring": list(moorings.names), "mooring_component": list(JOINT_COMPONENTS)},
+                            "N (fx, fy, fz); N m (mx, my, mz)",
+                            "force and moment the mooring exerts on its body, global frame, about the "
+                            "mooring point (linear) / the attachment point (rope)")
+
+
 def _progress_bar(total: int, enabled: bool):
     from tqdm import tqdm
     return tqdm(total=total, unit="step", desc="hydrolink run", mininterval=0.5,
@@ -268,6 +294,8 @@ def run(scene: Scene, scene_text: str, connection, setup: dict | None, writer, *
     joints = bool(mech and mech.joints)
     if joints:
         _add_joint_variables(writer, mech.joint_labels)
+    ptos, moorings = model.ptos, model.moorings
+    _add_pto_mooring_variables(writer, ptos, moorings)
     zeros = np.zeros((0, 6))
     wall0 = _time.perf_counter()
     t_server = 0.0
@@ -300,6 +328,12 @@ def run(scene: Scene, scene_text: str, connection, setup: dict | None, writer, *
             f, m, gap, rot = mech.joint_outputs(model.mbs)
             writer.stage_extra({"joint_force": np.hstack([f, m]), "joint_violation": gap,
                                 "joint_rotation_violation": rot})
+        if ptos is not None:
+            s = ptos.sample(model.mbs)
+            writer.stage_extra({"pto_force": s.force, "pto_velocity": s.velocity, "pto_power": s.power,
+                                "total_pto_power": s.total_power})
+        if moorings is not None:
+            writer.stage_extra({"mooring_force": moorings.sample(model.mbs)})
         writer.append(tk, ref + q[bodies].reshape(nb, 6), v[bodies].reshape(nb, 6),
                       force_rows[0], force_rows[1], force_rows[2], eta)
 

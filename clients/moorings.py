@@ -52,7 +52,7 @@ from exudyn.itemInterface import (LoadForceVector, LoadMassProportional, LoadTor
                                   VObjectJointSpherical)
 
 from hydrolink.clients.mechanism import BodyHandle, marker_at
-from hydrolink.protocol.scene import LinearMooring, RopeMooring, Water
+from hydrolink.protocol.scene import LinearMooring, RopeMooring, SceneError, Water
 
 _OV = exu.OutputVariableType
 #: static seabed penetration of a rope node under its own submerged weight (m)
@@ -334,7 +334,7 @@ def build_moorings(mbs, moorings: list, handles: dict[str, BodyHandle], water: W
             try:
                 initial = rope_equilibrium(m, water, attach)
             except (RuntimeError, ValueError) as exc:
-                raise ValueError(f"moorings[{i}]: {exc}") from None
+                raise SceneError("scene", f"moorings[{i}]", str(exc)) from None
             items = add_rope(mbs, m, water, ground.object, initial=initial, attach=attach)
             mb = marker_at(mbs, h, attach)
             joint = mbs.AddObject(ObjectJointSpherical(markerNumbers=[mb, items.end_marker],

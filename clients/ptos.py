@@ -41,7 +41,7 @@ from exudyn.itemInterface import (ObjectConnectorRigidBodySpringDamper, ObjectCo
                                   VObjectConnectorRigidBodySpringDamper, VObjectConnectorSpringDamper)
 
 from hydrolink.clients.mechanism import BodyHandle, marker_at
-from hydrolink.protocol.scene import LinearPTO, RotaryPTO
+from hydrolink.protocol.scene import LinearPTO, RotaryPTO, SceneError
 
 AXES = ("roll", "pitch", "yaw")
 _esym = exu.symbolic
@@ -170,7 +170,7 @@ def build_ptos(mbs, ptos: list, handles: dict[str, BodyHandle]) -> PTOSet:
             try:
                 frame = frame_matrix(pto.frame)
             except ValueError as exc:
-                raise ValueError(f"ptos[{i}].{exc}") from None
+                raise SceneError("scene", f"ptos[{i}].frame", str(exc).split(": ", 1)[-1]) from None
             axes = [AXES.index(a) for a in pto.axes]
             k6, c6 = np.zeros(6), np.zeros(6)
             k6[[3 + a for a in axes]] = _per_axis(pto.stiffness, len(axes))

@@ -291,3 +291,49 @@ def test_rope_on_seabed_does_not_penetrate():
     assert props["seabed_stiffness"] * SEABED_PENETRATION == pytest.approx(
         (50 - RHO * math.pi * 0.05 ** 2 / 4) * G * 70 / 40)
     assert len(rows) == 301
+
+
+# -- wave-driven: heaving sphere with a PTO damper to ground ---------------------------------------
+def test_sphere_pto_damper_mean_power_in_regular_waves(shared_data, tmp_path):
+    """Mean absorbed power vs the frequency-domain ½ c ω² |X|², X = F_ex a / (−ω²(m+A) − iω(B+c) + C)."""
+    import xarray as xr
+
+    from hydrolink.clients.run import run_scene_file
+    from hydrolink.server.hdb.io import load_hdb
+
+    path = shared_data / "sphere_task10" / "sphere.h5"
+    hdb = load_hdb(path)
+    mass, heave, c_pto, height = 261.724e3, 2, 2.0e5, 1.0
+    i = int(np.argmin(np.abs(hdb["omega"].values - 1.15)))
+    w = float(hdb["omega"].values[i])
+    a = hdb["added_mass"].values[i, heave, heave]
+    b = hdb["radiation_damping"].values[i, heave, heave]
+    f = hdb["excitation_force"].values[i, 0, heave]
+    c = hdb["hydrostatic_stiffness"].values[heave, heave]
+    x = f * height / 2 / (-w ** 2 * (mass + a) - 1j * w * (b + c_pto) + c)
+    expected = 0.5 * c_pto * w ** 2 * abs(x) ** 2
+    period = 2 * math.pi / w
+    scene = tmp_path / "sphere.toml"
+    scene.write_text(
+        f"[simulation]\ndt = {period / 100!r}\nduration = {20 * period!r}\nprogress = false\n"
+        "[water]\ndensity = 1000.0\ngravity = 9.81\ndepth = 200.0\n"
+        f'[waves]\ntype = "regular"\nheight = {height}\nperiod = {period!r}\nramp = {2 * period!r}\n'
+        f'[[bodies]]\nname = "sphere"\nhdb = "{path}"\nmass = {mass}\ncenter_of_mass = [0, 0, -2.0]\n'
+        'inertia = [2.6e6, 2.6e6, 2.6e6]\ndofs = ["heave"]\n'
+        '[[ptos]]\nname = "damper"\ntype = "linear"\nbody1 = "sphere"\npoint1 = [0, 0, 0]\n'
+        f'body2 = "ground"\npoint2 = [0, 0, -50]\ndamping = {c_pto}\n')
+    run_scene_file(scene, tmp_path / "sphere.nc", progress=False)
+    ds = xr.load_dataset(tmp_path / "sphere.nc")
+    assert ds.attrs["status"] == "complete"
+    assert list(ds["pto"].values) == ["damper"]
+    t = ds["time"].values
+    sel = t > t[-1] - 4 * period + 1e-9                      # last 4 periods (steady state)
+    power = ds["pto_power"].values[sel, 0]
+    print(f"sphere PTO mean power {power.mean():.2f} W vs frequency domain {expected:.2f} W "
+          f"({power.mean() / expected - 1:+.2e})")
+    assert power.mean() == pytest.approx(expected, rel=0.02)
+    v = ds["velocity"].sel(body="sphere", dof="heave").values
+    np.testing.assert_allclose(ds["pto_power"].values[:, 0], c_pto * v ** 2, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(ds["total_pto_power"].values, ds["pto_power"].values.sum(axis=1))
+    # the damper acts on the body: with c = 0 the amplitude would be larger
+    assert abs(x) < abs(f * height / 2 / (-w ** 2 * (mass + a) - 1j * w * b + c))
