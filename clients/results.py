@@ -12,8 +12,10 @@ Layout (readable with ``xarray.open_dataset``)::
     dims   time (unlimited), body, dof (surge, sway, heave, roll, pitch, yaw)
     vars   position, velocity, excitation_force, radiation_force, hydrostatic_force  (time, body, dof)
            wave_elevation (time), equilibrium_position (body, dof)
-    extra  variables declared by the client with :meth:`ResultWriter.add_variable` (e.g. joint
-           outputs over ``joint``; PTO outputs), dims (time, *their dims)
+    extra  variables declared by the client with :meth:`ResultWriter.add_variable`, dims
+           (time, *their dims): joint outputs over ``joint``; ``pto_force``, ``pto_velocity``,
+           ``pto_power`` over ``pto`` and ``total_pto_power``; ``mooring_force`` over
+           (``mooring``, ``mooring_component``)
 
 Extra variables: ``add_variable(name, dims, coords, units, long_name)`` before the first row
 (``coords`` gives the labels of any dimension not yet in the file), then per row
