@@ -180,3 +180,31 @@ def test_interaction_matters_for_rm3(rm3):
     x_full, p_full = frequency_domain(rm3, a, b, "full")
     x_none, p_none = frequency_domain(rm3, a, b, "none")
     assert abs(x_full[1]) / abs(x_none[1]) > 1.2 and p_full > p_none
+
+
+@pytest.mark.parametrize("interaction", ["full", "none"])
+def test_hydrolink_run_matches_frequency_domain(rm3, shared_data, tmp_path, interaction):
+    """The example scenes through ``hydrolink run`` (Exudyn client, its linear PTO, embedded server)."""
+    import xarray as xr
+
+    from hydrolink.clients.run import run_scene_file
+
+    scene = tmp_path / "rm3.toml"
+    scene.write_text(scene_text(interaction, shared_data / "rm3_wamit" / "rm3.1"))
+    run_scene_file(scene, tmp_path / "rm3.nc", progress=False)
+    ds = xr.load_dataset(tmp_path / "rm3.nc")
+    assert ds.attrs["status"] == "complete"
+    t = ds["time"].values
+    heave = (ds["position"] - ds["equilibrium_position"]).sel(body=["float", "spar"], dof="heave").values
+    vel = ds["velocity"].sel(body=["float", "spar"], dof="heave").values
+    amps, power = steady_state(t, heave, vel)
+    sel = t > t[-1] - 5 * PERIOD + 1e-9  # the client's own PTO output: the damper's c v_rel^2
+    assert float(ds["pto_power"].sel(pto="pto").values[sel].mean()) == pytest.approx(power, rel=1e-3)
+    err = compare("run", amps, power, rm3, interaction, load_scene(scene)[0].hydro.irf_duration)["effective"]
+    assert np.all(np.abs(err[:2]) < 0.01) and abs(err[2]) < 0.02
+    if interaction == "full":  # the example's plot script on a real results file
+        import subprocess
+        import sys
+        subprocess.run([sys.executable, str(EXAMPLE / "plot.py"), str(tmp_path / "rm3.nc"), "-o",
+                        str(tmp_path / "rm3.png")], check=True, capture_output=True, timeout=120)
+        assert (tmp_path / "rm3.png").stat().st_size > 10_000
