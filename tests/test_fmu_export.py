@@ -4,6 +4,7 @@ point), against the native run of the same scene (Exudyn client) and the frequen
 
 from __future__ import annotations
 
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -121,8 +122,9 @@ def test_exported_fmu_with_mass_matches_native_run(setting, tmp_path):
     assert abs(np.degrees(np.angle(imported / native))) < 0.5
 
 
-def test_exported_fmu_with_spring_matches_frequency_domain(setting, sphere):
-    """A mooring-like spring in the master (remote server via server_address)."""
+def test_exported_fmu_with_spring_matches_frequency_domain(setting, sphere, tmp_path):
+    """A mooring-like spring in the master (remote server via server_address), against the frequency
+    domain and against the native run of the same scene with the spring as a linear mooring."""
     srv, thread = serve_in_thread("tcp://127.0.0.1:*")
     try:
         k = 3.0e5
@@ -141,3 +143,21 @@ def test_exported_fmu_with_spring_matches_frequency_domain(setting, sphere):
     err = abs(got) / abs(rao) - 1
     print(f"export + spring vs frequency domain: |RAO| {abs(got):.5f} vs {abs(rao):.5f} ({err:+.2e})")
     assert abs(err) < 0.01
+
+    native_scene = tmp_path / "native_spring.toml"
+    native_scene.write_text(setting["scene"].read_text() + textwrap.dedent(f"""\
+        [[moorings]]
+        type = "linear"
+        body = "sphere"
+        point = [0.0, 0.0, -2.0]
+        stiffness = [0.0, 0.0, {k!r}, 0.0, 0.0, 0.0]
+        """))
+    run_scene_file(native_scene, tmp_path / "native_spring.nc", progress=False)
+    ds = xr.load_dataset(tmp_path / "native_spring.nc")
+    zn = ds["position"].values[:, 0, HEAVE] - ds["equilibrium_position"].values[0, HEAVE]
+    native = heave_amplitude(ds["time"].values, zn, w) / 0.5
+    err_native = abs(got) / abs(native) - 1
+    print(f"export + spring vs native run with a linear mooring: {abs(got):.5f} vs {abs(native):.5f} "
+          f"({err_native:+.2e}), phase {np.degrees(np.angle(got / native)):+.3f} deg")
+    assert abs(err_native) < 0.005
+    assert abs(np.degrees(np.angle(got / native))) < 0.5
