@@ -90,6 +90,25 @@ Waves = Annotated[Union[StillWater, RegularWave, IrregularWave], Field(discrimin
 class Hydro(_Section):
     irf_duration: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 40.0
     interaction: Literal["full", "none"] = "full"   # body-to-body radiation blocks: all, or none
+    # radiation memory (server/model.py, server/state_space.py, docs/radiation.md)
+    radiation: Literal["convolution", "state-space", "constant", "off"] = "convolution"
+    irf_taper: Annotated[float, Field(ge=0, lt=1, allow_inf_nan=False)] = 0.0  # cosine taper, fraction of irf_duration
+    irf_domega: Annotated[float, Field(gt=0, allow_inf_nan=False)] | None = None  # resample B(w) (cubic)
+    irf_tail: Literal["none", "asymptotic"] = "none"            # B(w) ~ c/w^n beyond the HDB grid
+    irf_tail_cutoff: Annotated[float, Field(gt=0, allow_inf_nan=False)] | None = None  # rad/s (default 3 w_max)
+    ss_tolerance: Annotated[float, Field(gt=0, lt=1, allow_inf_nan=False)] = 0.01
+    ss_order: Annotated[int, Field(ge=2, le=60)] | None = None  # fixed order per DOF pair (even)
+    ss_max_order: Annotated[int, Field(ge=2, le=60)] = 24
+    ss_enforce_stability: bool = True
+    coupling_tolerance: Annotated[float, Field(ge=0, lt=1, allow_inf_nan=False)] = 0.0
+
+    @model_validator(mode="after")
+    def _orders(self) -> "Hydro":
+        for key in ("ss_order", "ss_max_order"):
+            v = getattr(self, key)
+            if v is not None and v % 2:
+                raise ValueError(f"{key}: must be even (poles come in complex-conjugate pairs), got {v}")
+        return self
 
 
 Vector3 = Annotated[list[FiniteFloat], Field(min_length=3, max_length=3)]
