@@ -7,18 +7,12 @@ the client read. Every error names the file, the key (``bodies[0].mass``) and wh
 from __future__ import annotations
 
 import math
-import re
-import sys
 from pathlib import Path
 from typing import Annotated, Literal, Union
 
-from pydantic import (BaseModel, ConfigDict, Field, ValidationError, field_validator,
-                      model_validator)
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
+from hydrolink.protocol.toml_model import validate_toml
 
 DOF_NAMES: tuple[str, ...] = ("surge", "sway", "heave", "roll", "pitch", "yaw")
 
@@ -453,9 +447,10 @@ class Scene(_Section):
             if name not in allowed:
                 raise ValueError(f"{key}: no {what} named {name!r} (known: {sorted(allowed)})")
 
-        for i, j in enumerate(self.joints):
-            known(f"joints[{i}].body1", j.body1, rigid, "body")
-            known(f"joints[{i}].body2", j.body2, rigid, "body")
+        for i, j in enumerate(self.joints):   # point masses: spherical joints only (rope connection points)
+            allowed, what = (anything, "body or point mass") if j.type == "spherical" else (rigid, "body")
+            known(f"joints[{i}].body1", j.body1, allowed, what)
+            known(f"joints[{i}].body2", j.body2, allowed, what)
         for i, c in enumerate(self.constraints):
             known(f"constraints[{i}].body", c.body, set(names), "body")
         for i, p in enumerate(self.ptos):
@@ -483,51 +478,12 @@ class Scene(_Section):
         return [b for b in self.bodies if b.wet]
 
 
-_UNION_TAGS = ("regular", "irregular", "still", "linear", "rotary", "rope", "exudyn", "fmu")
-_TOP_KEYS = ("simulation", "water", "waves", "hydro", "bodies", "point_masses", "joints", "constraints",
-             "ptos", "moorings", "client")
-
-
-def _loc(loc: tuple) -> str:
-    out = ""
-    for part in loc:
-        if isinstance(part, int):
-            out += f"[{part}]"
-        elif part in _UNION_TAGS or str(part).startswith(("function-", "list[", "literal[")):
-            continue  # discriminated-union / union branch tags, not keys
-        else:
-            out += ("." if out else "") + str(part)
-    return out
+_UNION_TAGS = ("regular", "irregular", "still", "linear", "rotary", "rope")
 
 
 def parse_scene(text: str, source: str | Path = "<scene>") -> Scene:
     """Parse and validate scene TOML text; raise SceneError naming the key."""
-    try:
-        raw = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise SceneError(source, "", f"not valid TOML: {exc}") from None
-    try:
-        return Scene.model_validate(raw)
-    except ValidationError as exc:
-        err = exc.errors()[0]
-        key = _loc(err["loc"])
-        msg = err["msg"]
-        if err["type"] == "extra_forbidden":
-            msg = "unknown key"
-        elif err["type"] == "missing":
-            msg = "required key is missing"
-        elif err["type"] == "union_tag_invalid":
-            key, msg = (key + ".type").lstrip("."), f"must be one of {err['ctx']['expected_tags']} (got {err['ctx']['tag']!r})"
-        elif "input" in err and not isinstance(err["input"], dict) and err["type"] != "value_error":
-            msg = f"{msg} (got {err['input']!r})"
-        if msg.startswith("Value error, "):
-            msg = msg[len("Value error, "):]
-            head, _, rest = msg.partition(": ")
-            if rest and re.fullmatch(r"[A-Za-z_][\w\[\]\.]*", head):
-                key, msg = (head if head.split("[")[0].split(".")[0] in _TOP_KEYS
-                            else f"{key}.{head}".lstrip(".")), rest
-        more = f" (and {len(exc.errors()) - 1} more problem(s))" if len(exc.errors()) > 1 else ""
-        raise SceneError(source, key, msg + more) from None
+    return validate_toml(text, source, Scene, SceneError, _UNION_TAGS)
 
 
 def load_scene(path: str | Path) -> tuple[Scene, str]:

@@ -9,19 +9,15 @@ damping plate) or a mesh file. Errors name the spec file and the key
 from __future__ import annotations
 
 import math
-import sys
 from pathlib import Path
 from typing import Annotated, Literal, Optional, Union
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from hydrolink.protocol.toml_model import validate_toml
 
 from hydrolink.server.hdb.schema import HDBError
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
 
 
 class SpecError(HDBError):
@@ -283,46 +279,9 @@ class BuildSpec(_Section):
         return self.bodies is not None
 
 
-def _loc(loc: tuple) -> str:
-    out = ""
-    for part in loc:
-        if isinstance(part, int):
-            out += f"[{part}]"
-        elif str(part).startswith(("function-", "list[", "literal[", "union[")) or part in ("float", "str"):
-            continue
-        else:
-            out += ("." if out else "") + str(part)
-    return out
-
-
 def parse_spec(text: str, source: str | Path = "<spec>") -> BuildSpec:
     """Parse and validate build-spec TOML text; raise SpecError naming the key."""
-    try:
-        raw = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise SpecError(source, "", f"not valid TOML: {exc}") from None
-    try:
-        return BuildSpec.model_validate(raw)
-    except ValidationError as exc:
-        err = exc.errors()[0]
-        key, msg = _loc(err["loc"]), err["msg"]
-        if err["type"] == "extra_forbidden":
-            msg = "unknown key"
-        elif err["type"] == "missing":
-            msg = "required key is missing"
-        elif "input" in err and not isinstance(err["input"], dict) and err["type"] != "value_error":
-            msg = f"{msg} (got {err['input']!r})"
-        if msg.startswith("Value error, "):
-            msg = msg[len("Value error, "):]
-            head = msg.split(": ", 1)[0]
-            if msg.startswith(".") and ": " in msg:  # relative to the table at `key`
-                rel, msg = msg[1:].split(": ", 1)
-                key = f"{key}.{rel}" if key else rel
-            elif ": " in msg and head.split(".")[0].split("[")[0] in ("body", "bodies", "frequencies",
-                                                                      "water", "waves"):
-                key, msg = msg.split(": ", 1)
-        more = f" (and {len(exc.errors()) - 1} more problem(s))" if len(exc.errors()) > 1 else ""
-        raise SpecError(source, key, msg + more) from None
+    return validate_toml(text, source, BuildSpec, SpecError)
 
 
 def load_spec(path: str | Path) -> BuildSpec:
