@@ -46,8 +46,8 @@ import exudyn as exu
 from exudyn.itemInterface import (CoordinateConstraint, LoadForceVector, MarkerBodyPosition,
                                   MarkerBodyRigid, MarkerNodeCoordinate, NodePoint, NodePointGround,
                                   NodeRigidBodyRxyz, ObjectConnectorRigidBodySpringDamper, ObjectGround,
-                                  ObjectJointGeneric, ObjectMassPoint, ObjectRigidBody,
-                                  VObjectRigidBody)
+                                  ObjectJointGeneric, ObjectJointSpherical, ObjectMassPoint, ObjectRigidBody,
+                                  VObjectJointSpherical, VObjectRigidBody)
 from exudyn.rigidBodyUtilities import RigidBodyInertia
 
 from hydrolink.protocol.scene import DOF_NAMES, Body, Joint, PointMass, Scene, SceneError
@@ -106,6 +106,7 @@ class JointInfo:
     constrained: tuple[int, ...]
     frame: np.ndarray         # 3x3, columns = joint axes (global, reference configuration)
     friction_object: int = -1
+    point_mass: bool = False  # a spherical joint with a point mass: ObjectJointSpherical, global outputs
 
 
 @dataclass
@@ -135,6 +136,10 @@ class Mechanism:
         gap, rot_gap = np.zeros(n), np.zeros(n)
         ovt = exu.OutputVariableType
         for k, j in enumerate(self.joints):
+            if j.point_mass:      # ObjectJointSpherical: -Force is the force on body2 (dynamic solver), global
+                force[k] = -np.asarray(mbs.GetObjectOutput(j.object, ovt.Force))
+                gap[k] = float(np.linalg.norm(mbs.GetObjectOutput(j.object, ovt.Displacement)))
+                continue
             a0 = np.asarray(mbs.GetMarkerOutput(j.markers[0], ovt.RotationMatrix)).reshape(3, 3)
             force[k] = -(a0 @ np.asarray(mbs.GetObjectOutput(j.object, ovt.ForceLocal)))
             moment[k] = -(a0 @ np.asarray(mbs.GetObjectOutput(j.object, ovt.TorqueLocal)))
@@ -284,14 +289,21 @@ def _friction_function(free_axis: int, level: float, v_reg: float):
 
 
 def add_joint(mbs, scene: Scene, i: int, handles: dict[str, BodyHandle]) -> JointInfo:
-    """One scene joint as an ``ObjectJointGeneric`` (+ friction connector)."""
+    """One scene joint as an ``ObjectJointGeneric`` (+ friction connector); a spherical joint with a
+    point mass (a rope connection point on a body) as an ``ObjectJointSpherical``."""
     joint = scene.joints[i]
     frame = joint_frame(joint)
     h1, h2 = handles[joint.body1], handles[joint.body2]
+    label = joint_label(scene, i)
+    if "point" in (h1.kind, h2.kind):   # the scene admits only spherical joints with point masses
+        m0, m1 = marker_at(mbs, h1, joint.point), marker_at(mbs, h2, joint.point)
+        obj = mbs.AddObject(ObjectJointSpherical(name=label if joint.name else f"joint{i}", markerNumbers=[m0, m1],
+                                                 visualization=VObjectJointSpherical(show=False)))
+        return JointInfo(label, f"joints[{i}]", joint.type, obj, (m0, m1), JOINT_AXES["spherical"], frame,
+                         point_mass=True)
     m0 = marker_at(mbs, h1, joint.point, frame)
     m1 = marker_at(mbs, h2, joint.point, frame)
     axes = JOINT_AXES[joint.type]
-    label = joint_label(scene, i)
     obj = mbs.AddObject(ObjectJointGeneric(name=label if joint.name else f"joint{i}", markerNumbers=[m0, m1],
                                            constrainedAxes=list(axes)))
     fobj = -1
@@ -311,6 +323,8 @@ def _check_joint_distance(scene: Scene, i: int, handles: dict[str, BodyHandle]) 
     for name in (joint.body1, joint.body2):
         if name == GROUND:
             continue
+        if name not in by_name:   # a point mass: the joint point is the point mass (gap checked at t = 0)
+            return None
         b = by_name[name]
         r_gyr = math.sqrt(float(np.trace(b.inertia_matrix)) / (2.0 * b.mass))
         d = float(np.linalg.norm(np.asarray(joint.point) - np.asarray(b.center_of_mass)))
@@ -549,8 +563,11 @@ def build_mechanism(mbs, scene: Scene, wet_references: dict[str, np.ndarray],
                                  f"the bodies' initial displacements violate this joint by {gap[k]:.3g} m / "
                                  f"{rot[k]:.3g} rad at t = 0; start the joined bodies consistently")
             c = np.asarray(info.constrained, bool)
-            dv = np.asarray(mbs.GetObjectOutput(info.object, ovt.VelocityLocal))[c[:3]]
-            dw = np.asarray(mbs.GetObjectOutput(info.object, ovt.AngularVelocityLocal))[c[3:]]
+            if info.point_mass:
+                dv, dw = np.asarray(mbs.GetObjectOutput(info.object, ovt.Velocity)), np.zeros(0)
+            else:
+                dv = np.asarray(mbs.GetObjectOutput(info.object, ovt.VelocityLocal))[c[:3]]
+                dw = np.asarray(mbs.GetObjectOutput(info.object, ovt.AngularVelocityLocal))[c[3:]]
             bad = max(float(np.linalg.norm(dv)), float(np.linalg.norm(dw)))
             if bad > 1e-6:
                 raise SceneError("scene", info.key,
