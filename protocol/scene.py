@@ -448,9 +448,9 @@ class Scene(_Section):
                 raise ValueError(f"{key}: no {what} named {name!r} (known: {sorted(allowed)})")
 
         for i, j in enumerate(self.joints):   # point masses: spherical joints only (rope connection points)
-            allowed, what = (anything, "body or point mass") if j.type == "spherical" else (rigid, "body")
-            known(f"joints[{i}].body1", j.body1, allowed, what)
-            known(f"joints[{i}].body2", j.body2, allowed, what)
+            allowed = anything if j.type == "spherical" else rigid
+            known(f"joints[{i}].body1", j.body1, allowed, "body")
+            known(f"joints[{i}].body2", j.body2, allowed, "body")
         for i, c in enumerate(self.constraints):
             known(f"constraints[{i}].body", c.body, set(names), "body")
         for i, p in enumerate(self.ptos):
