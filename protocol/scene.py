@@ -478,7 +478,7 @@ class Scene(_Section):
         return [b for b in self.bodies if b.wet]
 
 
-_UNION_TAGS = ("regular", "irregular", "still", "linear", "rotary", "rope")
+_UNION_TAGS = ("regular", "irregular", "still", "linear", "rotary", "rope", "exudyn", "fmu")
 
 
 def parse_scene(text: str, source: str | Path = "<scene>") -> Scene:
