@@ -415,6 +415,58 @@ class FMUClient(_Section):
 Client = Annotated[Union[ExudynClient, FMUClient], Field(discriminator="type")]
 
 
+MEASUREMENTS = ("body_position", "body_velocity", "pto_displacement", "pto_velocity", "pto_force",
+                "wave_elevation")
+
+
+class Controller(_Section):
+    """An external controller (its own process, over the server; SPEC §5.7) driving linear PTOs.
+
+    Every ``period`` (a multiple of dt) it receives the measurements of the state at t_k and returns
+    commands — added PTO forces (``command = "force"``) or damping/stiffness setpoints
+    (``"impedance"``) — which act from step k + ``latency`` (1: over t_k -> t_k+1) until the next
+    command. A command missing ``timeout`` seconds after its measurements were relayed, or
+    malformed, is replaced by the ``fallback``: "hold" (keep what is in force) or "passive" (added
+    force 0, damping ``fallback_damping`` — default the PTO's scene damping — and the scene stiffness)."""
+    name: Name
+    ptos: Annotated[list[Name], Field(min_length=1)]
+    period: PositiveFloat | None = None                  # s; default simulation.dt
+    command: Literal["force", "impedance"] = "force"
+    measurements: list[Literal["body_position", "body_velocity", "pto_displacement", "pto_velocity",
+                               "pto_force", "wave_elevation"]] = ["pto_displacement", "pto_velocity", "pto_force"]
+    bodies: list[Name] | None = None                     # for body_*; default every scene body
+    wave_points: Annotated[list[Annotated[list[FiniteFloat], Field(min_length=2, max_length=2)]],
+                           Field(min_length=1)] = [[0.0, 0.0]]   # x, y (m) of the elevation probes
+    preview: NonNegative = 0.0                           # s of future wave elevation at the probes
+    preview_step: PositiveFloat | None = None            # s between preview samples; default period
+    latency: Annotated[int, Field(ge=1, le=1000)] = 1    # steps from measurement to command
+    timeout: PositiveFloat = 1.0                         # s per command, wall clock
+    join_timeout: PositiveFloat = 30.0                   # s the run waits at t = 0 for the controller
+    fallback: Literal["hold", "passive"] = "hold"
+    fallback_damping: NonNegative | None = None
+    max_force: PositiveFloat | None = None               # |force command| <= max_force
+    damping_range: Annotated[list[FiniteFloat], Field(min_length=2, max_length=2)] = [0.0, 1.0e12]
+    stiffness_range: Annotated[list[FiniteFloat], Field(min_length=2, max_length=2)] = [-1.0e12, 1.0e12]
+    parameters: dict[str, Union[bool, int, float, str, list[float], list[str]]] = {}   # for on_start
+
+    @model_validator(mode="after")
+    def _ranges(self) -> "Controller":
+        for key in ("damping_range", "stiffness_range"):
+            lo, hi = getattr(self, key)
+            if lo > hi:
+                raise ValueError(f"{key}: [min, max] with min <= max, got {[lo, hi]}")
+        if self.damping_range[0] < 0:
+            raise ValueError("damping_range: damping must be >= 0")
+        if len(set(self.ptos)) != len(self.ptos):
+            raise ValueError(f"ptos: repeated PTO in {self.ptos}")
+        if self.fallback_damping is not None and self.fallback != "passive":
+            raise ValueError('fallback_damping: only with fallback = "passive"')
+        return self
+
+    def steps_per_period(self, dt: float) -> int:
+        return max(1, int(round((self.period or dt) / dt)))
+
+
 class Scene(_Section):
     simulation: Simulation
     water: Water = Water()
@@ -427,6 +479,7 @@ class Scene(_Section):
     ptos: list[PTO] = []
     moorings: list[Mooring] = []
     client: Client = ExudynClient(type="exudyn")
+    controllers: list[Controller] = []
 
     @model_validator(mode="after")
     def _cross_checks(self) -> "Scene":
@@ -471,7 +524,33 @@ class Scene(_Section):
                     raise ValueError(f"moorings[{i}].point: required when a rope is attached to a body")
         if isinstance(self.client, FMUClient):
             self.client.check(self)
+        self._check_controllers(names)
         return self
+
+    def _check_controllers(self, names: list[str]) -> None:
+        linear = {p.name for p in self.ptos if isinstance(p, LinearPTO)}
+        driven: dict[str, str] = {}
+        dt = self.simulation.dt
+        for i, c in enumerate(self.controllers):
+            if c.name in [d.name for d in self.controllers[:i]]:
+                raise ValueError(f"controllers[{i}].name: duplicate controller name {c.name!r}")
+            for p in c.ptos:
+                if p in {q.name for q in self.ptos} and p not in linear:
+                    raise ValueError(f"controllers[{i}].ptos: {p!r} is not a linear PTO (controllers drive "
+                                     "linear PTOs only)")
+                if p not in linear:
+                    raise ValueError(f"controllers[{i}].ptos: no PTO named {p!r} (known: {sorted(linear)})")
+                if p in driven:
+                    raise ValueError(f"controllers[{i}].ptos: PTO {p!r} is already driven by controller {driven[p]!r}")
+                driven[p] = c.name
+            for b in c.bodies or []:
+                if b not in names:
+                    raise ValueError(f"controllers[{i}].bodies: no body named {b!r} (known: {sorted(names)})")
+            for key in ("period", "preview_step"):
+                v = getattr(c, key)
+                if v is not None and abs(v / dt - round(v / dt)) > 1e-6 * max(1.0, v / dt):
+                    raise ValueError(f"controllers[{i}].{key}: {v} s must be a multiple of simulation.dt = {dt} s")
+
 
     @property
     def wet_bodies(self) -> list[Body]:
