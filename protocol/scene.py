@@ -105,6 +105,16 @@ class Hydro(_Section):
         return self
 
 
+
+class Steady(_Section):
+    """``hydrolink steady``: periodic steady state in regular waves by pseudo-spectral collocation
+    (Fourier series of ``order`` harmonics, collocated at 2 order + 1 points over one period, Newton
+    on the nonlinear terms; clients/steady.py, docs/steady.md)."""
+    order: Annotated[int, Field(ge=1, le=200)] = 10
+    formulation: Literal["dae", "ode"] = "dae"     # body coordinates + multipliers | null space of G
+    tolerance: Annotated[float, Field(gt=0, lt=1, allow_inf_nan=False)] = 1e-10  # Newton, relative residual
+    max_iterations: Annotated[int, Field(ge=1, le=1000)] = 50
+
 Vector3 = Annotated[list[FiniteFloat], Field(min_length=3, max_length=3)]
 Vector6 = Annotated[list[FiniteFloat], Field(min_length=6, max_length=6)]
 
@@ -472,6 +482,7 @@ class Scene(_Section):
     water: Water = Water()
     waves: Waves = StillWater(type="still")
     hydro: Hydro = Hydro()
+    steady: Steady = Steady()
     bodies: Annotated[list[Body], Field(min_length=1)]
     point_masses: list[PointMass] = []
     joints: list[Joint] = []
