@@ -98,6 +98,7 @@ class HydroModel:
         self._a_inf_source: dict[str, str] = {}
         self._irf_fit: dict[str, float] = {}
         memories: list[tuple[np.ndarray, RadiationMemory]] = []
+        self._coefficients: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []  # act, w, A, B
         groups = _groups(scene, wet, hdbs)
         self.groups = [[self.bodies[k] for k in members] for _, members in groups]
         lo = max(float(ds["omega"].values[0]) for ds, _ in groups)
@@ -133,6 +134,7 @@ class HydroModel:
             c_hs[np.ix_(gidx, gidx)] = s_rg * sub["hydrostatic_stiffness"].values
             am = s_rho * sub["added_mass"].values[:, loc][:, :, loc]
             bd = s_rho * sub["radiation_damping"].values[:, loc][:, :, loc]
+            self._coefficients.append((act, omega, am, bd))
             k = radiation_irf(omega, bd, t_irf)
             if self.irf_samples > 0:
                 memories.append((pos, RadiationMemory(k[:self.irf_samples + 1], self.dt)))
@@ -179,6 +181,7 @@ class HydroModel:
         self._kernel_entries = sum(np.size(p) ** 2 if not isinstance(p, slice) else na ** 2
                                    for p, _ in memories)
         self._forcing = WaveForcing(self.waves, x_comp[:, self._idx])
+        self._x_comp = x_comp
         self._step = -1           # index of the newest step pushed
         self._sel = slice(None) if na == self.n else self._idx  # a view when every DOF is active
         self._red = np.zeros((3, na))  # scratch: excitation, radiation, hydrostatic (active DOFs)
@@ -225,6 +228,30 @@ class HydroModel:
             "net_buoyancy": list(self._net_buoyancy),
             "warnings": list(self.warnings),
         }
+
+    def radiation_coefficients(self, omega: float) -> tuple[np.ndarray, np.ndarray]:
+        """A(omega), B(omega) (6N x 6N over the wet bodies, zero outside the active DOFs and the
+        interaction groups, rescaled to the scene's density): linear interpolation in the HDB's
+        frequency grid; beyond its last frequency A = A_inf and B = 0 (what a convolution built from
+        that grid realises there). For frequency-domain and steady-state solvers."""
+        a, b = self.added_mass_inf.copy(), np.zeros((self.n, self.n))
+        for act, om, am, bd in self._coefficients:
+            if omega > om[-1] or not act.size:
+                continue
+            ix = np.ix_(act, act)
+            w = min(max(float(omega), float(om[0])), float(om[-1]))
+            j = int(np.clip(np.searchsorted(om, w) - 1, 0, om.size - 2))
+            s = (w - om[j]) / (om[j + 1] - om[j])
+            a[ix] = (1 - s) * am[j] + s * am[j + 1]
+            b[ix] = (1 - s) * bd[j] + s * bd[j + 1]
+        return a, b
+
+    def excitation_phasors(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Wave components: omega (n_c,), complex force phasors (n_c, 6N) and elevation phasors
+        (n_c,) such that, after the ramp, F_ex(t) = Re(sum_c F_c e^{-i omega_c t}) and likewise the
+        elevation at the origin (server/waves.py convention)."""
+        c = self.waves.amplitude * np.exp(1j * self.waves.phase)
+        return self.waves.omega.copy(), self._x_comp * c[:, None], c
 
     def step(self, time: float, position: np.ndarray, velocity: np.ndarray, *,
              replace_last: bool = False) -> dict:
