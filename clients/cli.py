@@ -141,6 +141,53 @@ def run(scene: Path, output: Path | None, server: str | None, no_progress: bool,
                f"server compute {summary.get('server_compute_us_per_step', float('nan')):.1f} us/step)")
 
 
+@cli.command()
+@click.argument("file", type=click.Path(dir_okay=False, exists=True, path_type=Path))
+@click.option("--server", required=True, help="Force server hosting the session, e.g. tcp://HOST:PORT.")
+@click.option("--session", help="Session id (default: the one open session declaring this controller).")
+@click.option("--name", help="The scene's controllers[i].name (default: the class's name attribute).")
+@click.option("--class", "class_name", help="Controller class in FILE, when it defines several.")
+@click.option("--join-wait", default=30.0, show_default=True, help="Seconds to keep trying to join.")
+def control(file: Path, server: str, session: str | None, name: str | None, class_name: str | None,
+            join_wait: float) -> None:
+    """Run the Python controller in FILE (a hydrolink.clients.control.Controller subclass)."""
+    from hydrolink.clients.control import ControllerError, load_controller, run_controller
+
+    try:
+        stats = run_controller(load_controller(file, class_name), server, session=session, name=name,
+                               join_wait=join_wait)
+    except ControllerError as exc:
+        raise _UserError(str(exc)) from None
+    except KeyboardInterrupt:
+        raise SystemExit(130) from None
+    click.echo(f"controller done: {stats['steps']} steps, {stats['errors']} errors", err=True)
+
+
+@cli.command()
+@click.argument("scene", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path),
+              help="Results NetCDF, one period (default: SCENE with .steady.nc).")
+@click.option("--order", type=click.IntRange(1, 200), help="Harmonics N (2N+1 collocation points); default [steady] order.")
+@click.option("--formulation", type=click.Choice(["dae", "ode"]), help="Default [steady] formulation.")
+@click.option("--dt", type=click.FloatRange(min=0, min_open=True), help="Output sampling (default simulation.dt).")
+@click.option("--no-progress", is_flag=True, help="Hide the HDB build progress bar.")
+def steady(scene: Path, output: Path | None, order: int | None, formulation: str | None, dt: float | None,
+           no_progress: bool) -> None:
+    """Periodic steady state of a SCENE in regular waves by pseudo-spectral collocation (docs/steady.md)."""
+    from hydrolink.clients.steady import SteadyError, steady_scene_file
+
+    try:
+        s = _guard(steady_scene_file, scene, output, order=order, formulation=formulation, dt=dt,
+                   progress=not no_progress)
+    except SteadyError as exc:
+        raise _UserError(f"{scene}: {exc}") from None
+    for note in s["warnings"]:
+        click.echo(f"note: {note}", err=True)
+    click.echo(f"wrote {s['output']}: one period, {s['rows']} rows; order {s['order']} ({s['formulation']}, "
+               f"{s['unknowns']} unknowns), {s['iterations']} Newton iteration(s), residual {s['residual']:.1e}, "
+               f"solve {1e3 * s['solve_seconds']:.1f} ms")
+
+
 @cli.group()
 def fmu() -> None:
     """FMI co-simulation: export hydrolink's forces as an FMU (import: [client] type = "fmu" in a scene)."""
