@@ -114,6 +114,9 @@ class Steady(_Section):
     formulation: Literal["dae", "ode"] = "dae"     # body coordinates + multipliers | null space of G
     tolerance: Annotated[float, Field(gt=0, lt=1, allow_inf_nan=False)] = 1e-10  # Newton, relative residual
     max_iterations: Annotated[int, Field(ge=1, le=1000)] = 50
+    # radiation at harmonic k: "hdb": A(kw), B(kw) of the HDB; "convolution": the A, B that the time
+    # domain's truncated, sampled convolution realises (K(t) at dt over irf_duration)
+    radiation: Literal["hdb", "convolution"] = "hdb"
 
 Vector3 = Annotated[list[FiniteFloat], Field(min_length=3, max_length=3)]
 Vector6 = Annotated[list[FiniteFloat], Field(min_length=6, max_length=6)]
