@@ -119,7 +119,10 @@ def serve(bind: str, session_timeout: float, cpu: int | None) -> None:
 @click.option("--server", help="Address of a running force server; default: start an embedded one.")
 @click.option("--no-progress", is_flag=True, help="Hide the progress bar.")
 @click.option("--cpu", type=int, help="Pin the process to this CPU (Linux); see README 'Performance'.")
-def run(scene: Path, output: Path | None, server: str | None, no_progress: bool, cpu: int | None) -> None:
+@click.option("--listen", default="tcp://127.0.0.1:*", show_default=True,
+              help="With [[controllers]] and no --server: where the run's own force server listens.")
+def run(scene: Path, output: Path | None, server: str | None, no_progress: bool, cpu: int | None,
+        listen: str) -> None:
     """Co-simulate a SCENE (TOML) in lockstep with the force server."""
     from hydrolink.clients.run import run_scene_file
 
@@ -132,7 +135,7 @@ def run(scene: Path, output: Path | None, server: str | None, no_progress: bool,
 
     signal.signal(signal.SIGTERM, _terminate)
     try:
-        summary = _guard(run_scene_file, scene, output, server=server, progress=not no_progress)
+        summary = _guard(run_scene_file, scene, output, server=server, progress=not no_progress, listen=listen)
     except KeyboardInterrupt as exc:
         click.echo(f"hydrolink run: {exc or 'interrupted'}", err=True)
         raise SystemExit(130) from None

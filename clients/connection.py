@@ -133,14 +133,16 @@ class ServerConnection:
                 "protocol": reply.get("protocol"), "session_timeout": reply.get("session_timeout")}
 
     def step(self, seq: int, time: float, position: np.ndarray, velocity: np.ndarray,
-             iteration: int = 0) -> dict:
+             iteration: int = 0, *, measurements: dict | None = None, timeout: float | None = None) -> dict:
         """Forces for the state at step ``seq``: excitation/radiation/hydrostatic (N, 6) arrays,
-        wave_elevation, seq, iteration, time, compute_us."""
+        wave_elevation, seq, iteration, time, compute_us; with controllers (SPEC §5.7) the
+        ``measurements`` of step seq - 1 go along and the reply's ``control`` decisions come back."""
         position = np.ascontiguousarray(position, dtype=np.float64)
-        reply = self.request("step", seq=int(seq), time=float(time), iteration=int(iteration),
+        extra = {} if measurements is None else {"measurements": measurements}
+        reply = self.request("step", timeout, seq=int(seq), time=float(time), iteration=int(iteration),
                              position=position,
-                             velocity=np.ascontiguousarray(velocity, dtype=np.float64))
-        out = {k: reply[k] for k in ("seq", "iteration", "time", "compute_us") if k in reply}
+                             velocity=np.ascontiguousarray(velocity, dtype=np.float64), **extra)
+        out = {k: reply[k] for k in ("seq", "iteration", "time", "compute_us", "control") if k in reply}
         for k in FORCE_FIELDS:  # (N, 6) like the state sent; the caller checks the values
             out[k] = codec.require_array(reply, k, position.shape, finite=False)
         eta = reply.get("wave_elevation")

@@ -296,19 +296,31 @@ def run(scene: Scene, scene_text: str, connection, setup: dict | None, writer, *
         _add_joint_variables(writer, mech.joint_labels)
     ptos, moorings = model.ptos, model.moorings
     _add_pto_mooring_variables(writer, ptos, moorings)
+    control = None
+    if scene.controllers:
+        if n == 0:
+            raise ValueError("controllers: a scene with controllers needs a wet body (the controllers "
+                             "talk to the multibody client through the force server's session)")
+        from hydrolink.clients.pto_control import PTOControl
+        control = PTOControl(scene, ptos, model.mbs, writer)
+    last = {"sample": None, "decisions": None}
     zeros = np.zeros((0, 6))
     wall0 = _time.perf_counter()
     t_server = 0.0
     step, t = 0, 0.0
     bar = _progress_bar(n_steps, progress and scene.simulation.progress)
 
-    def request(k: int, tk: float, q: np.ndarray, v: np.ndarray) -> tuple:
+    def request(k: int, tk: float, q: np.ndarray, v: np.ndarray, measurements: dict | None = None,
+                timeout: float | None = None) -> tuple:
         nonlocal t_server
         if n == 0:
             return zeros, zeros, 0.0
         t0 = _time.perf_counter()
         try:
-            reply = connection.step(k, tk, (eq + q).reshape(n, 6), v.reshape(n, 6))
+            reply = connection.step(k, tk, (eq + q).reshape(n, 6), v.reshape(n, 6),
+                                    measurements=measurements, timeout=timeout) if control else \
+                connection.step(k, tk, (eq + q).reshape(n, 6), v.reshape(n, 6))
+            last["decisions"] = reply.get("control")
         except (KeyboardInterrupt, SimulationDiverged):
             raise
         except Exception as exc:
@@ -328,8 +340,10 @@ def run(scene: Scene, scene_text: str, connection, setup: dict | None, writer, *
             f, m, gap, rot = mech.joint_outputs(model.mbs)
             writer.stage_extra({"joint_force": np.hstack([f, m]), "joint_violation": gap,
                                 "joint_rotation_violation": rot})
+        if control is not None:
+            control.stage()
         if ptos is not None:
-            s = ptos.sample(model.mbs)
+            s = last["sample"] = ptos.sample(model.mbs)
             writer.stage_extra({"pto_force": s.force, "pto_velocity": s.velocity, "pto_power": s.power,
                                 "total_pto_power": s.total_power})
         if moorings is not None:
@@ -340,7 +354,8 @@ def run(scene: Scene, scene_text: str, connection, setup: dict | None, writer, *
     try:
         q, v, _ = model.state()
         _check_state(q, v, 0, 0.0, blow_up_limit, 0, "the initial state")
-        exc_f, rad_f, eta = request(0, 0.0, q[wet], v[wet])
+        exc_f, rad_f, eta = request(0, 0.0, q[wet], v[wet], timeout=(
+            control.join_timeout + getattr(connection, "timeout", 30.0)) if control else None)
         model.set_force((exc_f + rad_f).reshape(-1))
         model.initialize()
         q, v, a = model.state()  # initial accelerations from F(0)
@@ -348,7 +363,13 @@ def run(scene: Scene, scene_text: str, connection, setup: dict | None, writer, *
         for step in range(1, n_steps + 1):
             t_prev, t = (step - 1) * h, step * h
             qw, vw, aw = q[wet], v[wet], a[wet]
-            exc_f, rad_f, eta = request(step, t, qw + h * vw + 0.5 * h * h * aw, vw + h * aw)
+            meas = None
+            if control is not None and control.is_sample(step - 1):
+                meas = control.measurements(step - 1, q[bodies].reshape(nb, 6), v[bodies].reshape(nb, 6),
+                                            last["sample"])
+            exc_f, rad_f, eta = request(step, t, qw + h * vw + 0.5 * h * h * aw, vw + h * aw, meas)
+            if control is not None:
+                control.apply(last["decisions"])
             model.set_force((exc_f + rad_f).reshape(-1))
             model.advance(t_prev, t)
             q, v, a = model.state()
@@ -372,10 +393,11 @@ def run(scene: Scene, scene_text: str, connection, setup: dict | None, writer, *
     finally:
         model.finalize()
     bar.close()
+    controllers = control.finish() if control is not None else None
     writer.finish("complete")
     wall = _time.perf_counter() - wall0
     steps = max(n_steps, 1)
-    return {"steps": n_steps, "time": n_steps * h, "wall_time": wall, "rows": writer.rows_written,
+    return {"controllers": controllers, "steps": n_steps, "time": n_steps * h, "wall_time": wall, "rows": writer.rows_written,
             "status": "complete", "mechanism_notes": (mech.warnings + mech.reductions) if mech else [],
             "client_us_per_step": (wall - t_server) / steps * 1e6,
             "round_trip_us_per_step": t_server / steps * 1e6}

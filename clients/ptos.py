@@ -69,6 +69,7 @@ class PTOSample:
     force: np.ndarray       # (n_entries,) N or N m, on body1
     velocity: np.ndarray    # (n_entries,) m/s or rad/s, body2 relative to body1
     power: np.ndarray       # (n_entries,) W absorbed
+    extension: np.ndarray | None = None   # (n_linear,) L - L0 of the linear PTOs (scene order)
 
     @property
     def total_power(self) -> float:
@@ -101,29 +102,44 @@ class PTOSet:
     linear: list[_Linear] = field(default_factory=list)
     rotary: list[_Rotary] = field(default_factory=list)
     keep_alive: list = field(default_factory=list)    # symbolic user functions must outlive the run
+    # current stiffness, damping and added force of each linear PTO (controllers change them)
+    current: dict[int, list[float]] = field(default_factory=dict)
 
     def __len__(self) -> int:
         return len(self.names)
 
+    def set_linear(self, mbs, index: int, *, stiffness: float | None = None, damping: float | None = None,
+                   force: float | None = None) -> None:
+        """Change linear PTO ``index`` (among the linear PTOs) between steps: stiffness, damping,
+        added tension (the connector's ``force``); None keeps the value in force."""
+        p = self.linear[index]
+        cur = self.current.setdefault(p.object, [p.stiffness, p.damping, 0.0])
+        for i, (key, value) in enumerate((("stiffness", stiffness), ("damping", damping), ("force", force))):
+            if value is not None and value != cur[i]:
+                mbs.SetObjectParameter(p.object, key, float(value))
+                cur[i] = float(value)
+
     def sample(self, mbs) -> PTOSample:
         """Forces, velocities and absorbed powers of all entries in the current state."""
         n = len(self.names)
-        force, vel = np.zeros(n), np.zeros(n)
+        force, vel, ext = np.zeros(n), np.zeros(n), np.zeros(len(self.linear))
         out = mbs.GetObjectOutput
-        for p in self.linear:
+        for i, p in enumerate(self.linear):
             d = out(p.object, _OV.Displacement)        # point2 - point1
             v = out(p.object, _OV.Velocity)
             dx, dy, dz = float(d[0]), float(d[1]), float(d[2])
             length = math.sqrt(dx * dx + dy * dy + dz * dz)
             rate = (float(v[0]) * dx + float(v[1]) * dy + float(v[2]) * dz) / length if length > 0 else 0.0
-            f = p.stiffness * (length - p.rest_length) + p.damping * rate
+            k, c, f0 = self.current.get(p.object) or (p.stiffness, p.damping, 0.0)
+            f = k * (length - p.rest_length) + c * rate + f0
             force[p.entry], vel[p.entry] = min(max(f, -p.limit), p.limit), rate
+            ext[i] = length - p.rest_length
         for p in self.rotary:
             torque = out(p.object, _OV.TorqueLocal)    # on body1, PTO frame
             omega = out(p.object, _OV.AngularVelocityLocal)
             for entry, axis in zip(p.entries, p.axes):
                 force[entry], vel[entry] = torque[axis], omega[axis]
-        return PTOSample(force, vel, force * vel)
+        return PTOSample(force, vel, force * vel, ext)
 
 
 def _limited_spring(limit: float):

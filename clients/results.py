@@ -212,6 +212,11 @@ class ResultWriter:
             self._ds.sync()
         self._last_flush = _time.monotonic()
 
+    def set_attribute(self, name: str, value: Any) -> None:
+        """Set a global attribute of the file (e.g. a run summary)."""
+        if self._ds.isopen():
+            self._ds.setncattr(name, value)
+
     # -- end ---------------------------------------------------------------------------------
     def finish(self, status: str) -> None:
         """Flush everything and record the final status ("complete" or "interrupted: ...")."""

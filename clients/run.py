@@ -50,8 +50,13 @@ def load_scene_hdbs(scene: Scene, scene_path: str | Path, *, progress: bool = Tr
 
 
 def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
-                   server: str | None = None, progress: bool = True, timeout: float = 60.0) -> dict:
-    """Run a scene end to end; returns the run summary (steps, wall time, output path)."""
+                   server: str | None = None, progress: bool = True, timeout: float = 60.0,
+                   listen: str = "tcp://127.0.0.1:*") -> dict:
+    """Run a scene end to end; returns the run summary (steps, wall time, output path).
+
+    A scene with ``[[controllers]]`` and no ``server`` starts a force server with a socket on
+    ``listen`` in a thread of this process (controllers connect to it; SPEC §5.7) instead of the
+    in-process one, and says on stderr where the controllers should connect."""
     from hydrolink.clients.connection import ServerConnection
     from hydrolink.clients.exudyn_client import result_bodies, run
     from hydrolink.clients.results import ResultWriter
@@ -70,7 +75,17 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
         summary["output"], summary["server"] = str(output), None
         return summary
     with ExitStack() as stack:
-        if server is None:
+        if server is None and scene.controllers:
+            from hydrolink.server.service import serve_in_thread
+            srv, thread = serve_in_thread(listen)
+
+            def _stop_server() -> None:
+                srv.stop()
+                thread.join(5.0)
+            stack.callback(_stop_server)
+            server = srv.address
+            conn = stack.enter_context(ServerConnection(server, timeout=timeout))
+        elif server is None:
             # embedded: the force server's request handler in this process, fed the same wire
             # frames as over a socket (same codec, same results) but with no thread or transport
             # to wake up each step
@@ -83,6 +98,11 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
         else:
             conn = stack.enter_context(ServerConnection(server, timeout=timeout))
         setup = conn.hello(text, hdbs)
+        if scene.controllers:
+            import sys
+            print(f"hydrolink run: session {conn.session} on {server} waits for controllers "
+                  f"{[c.name for c in scene.controllers]}: hydrolink control FILE.py --server {server} "
+                  f"--session {conn.session}", file=sys.stderr, flush=True)
         names, reference = result_bodies(scene, setup)
         writer = stack.enter_context(ResultWriter(output, scene=scene, scene_text=text, setup=setup,
                                                   bodies=names, equilibrium_position=reference))

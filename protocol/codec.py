@@ -24,9 +24,9 @@ MAX_MESSAGE_BYTES = 256 * 2**20
 SIG_TRAILER = b"\xa3sig\xc4\x20"  # fixstr "sig" + bin8 header of length 32
 SIG_LEN = 32
 ROLES = ("multibody", "controller", "monitor")
-IMPLEMENTED_ROLES = ("multibody",)
-REQUEST_TYPES = ("hello", "step", "ping", "bye")
-REPLY_TYPES = ("welcome", "forces", "pong", "goodbye", "error")
+IMPLEMENTED_ROLES = ("multibody", "controller")
+REQUEST_TYPES = ("hello", "step", "ping", "bye", "measure", "command")
+REPLY_TYPES = ("welcome", "forces", "pong", "goodbye", "error", "measurements", "idle", "stop")
 
 # dtypes a decoder takes; senders use "<f8", "<c16", "<i8", "|b1"
 ACCEPTED_DTYPES = {s: np.dtype(s) for s in ("<f8", "<f4", "<c16", "<i8", "<i4", "|b1")}

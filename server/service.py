@@ -17,6 +17,7 @@ import zmq
 
 from hydrolink.protocol import codec
 from hydrolink.protocol.codec import Code, ProtocolError
+from hydrolink.server.control import ControlHub
 from hydrolink.server.session import Session, build_model
 
 log = logging.getLogger("hydrolink.server")
@@ -61,8 +62,12 @@ class ForceServer:
         self._running = False
         self._ids = codec.id_source("s")
         self._version = server_version()
-        self._handlers: dict[str, Callable[[dict, Any, str | None], tuple[str, dict, str | None]]] = {
-            "hello": self._hello, "step": self._step, "ping": self._ping, "bye": self._bye}
+        self._handlers: dict[str, Callable[[dict, Any, str | None], tuple[str, dict, str | None] | None]] = {
+            "hello": self._hello, "step": self._step, "ping": self._ping, "bye": self._bye,
+            "measure": self._measure, "command": self._command}
+        self._route: list[bytes] | None = None   # routing frames of the request being handled
+        self._hubs: dict[str, ControlHub] = {}   # sessions with controllers (SPEC §5.7)
+        self._rcv_ms = POLL_MS
 
     @property
     def address(self) -> str:
@@ -91,7 +96,10 @@ class ForceServer:
         try:
             while not self._stop.is_set():
                 # a blocking receive with a POLL_MS timeout (RCVTIMEO): no poller and no exception
-                # per message on the hot path, only when the socket was idle for POLL_MS
+                # per message on the hot path, only when the socket was idle for POLL_MS; shorter
+                # when a controller deadline (SPEC §5.7) comes sooner
+                if self._hubs:
+                    self._set_rcv_timeout()
                 try:
                     frames = self._sock.recv_multipart()
                 except zmq.Again:
@@ -99,6 +107,10 @@ class ForceServer:
                 if frames:
                     self._serve_one(frames)
                 now = time.monotonic()
+                if self._hubs:
+                    for hub in list(self._hubs.values()):
+                        if hub.next_deadline() <= now:
+                            hub.poll(now)
                 if now >= next_sweep:
                     self._expire(now)
                     next_sweep = now + min(1.0, self.session_timeout / 4)
@@ -108,28 +120,51 @@ class ForceServer:
 
     # ------------------------------------------------------------ dispatch
 
+    def _set_rcv_timeout(self) -> None:
+        left = min(hub.next_deadline() for hub in self._hubs.values()) - time.monotonic()
+        ms = POLL_MS if left >= POLL_MS / 1000 else max(1, int(left * 1000) + 1)
+        if ms != self._rcv_ms:
+            self._sock.setsockopt(zmq.RCVTIMEO, ms)
+            self._rcv_ms = ms
+
     def _serve_one(self, frames: list[bytes]) -> None:
         if len(frames) < 2:
             return  # no routing identity: nothing to answer to
-        frames[-1] = self.respond(frames[-1])  # routing frames stay in front, verbatim
+        reply = self.handle(frames[-1], frames[:-1])
+        if reply is None:
+            return  # deferred (SPEC §5.7): sent later by the session's ControlHub
+        frames[-1] = codec.pack(reply, self.key)  # routing frames stay in front, verbatim
         try:
             self._sock.send_multipart(frames, zmq.NOBLOCK)
         except zmq.ZMQError as exc:  # peer gone or its queue full: drop the reply
             log.warning("reply dropped: %s", exc)
 
+    def _send_later(self, session: str, route: list[bytes], mtype: str, parent: Any, fields: dict) -> None:
+        """Send a deferred reply (a ControlHub's callback)."""
+        frame = codec.pack(codec.message(mtype, next(self._ids), session, parent, **fields), self.key)
+        try:
+            self._sock.send_multipart([*route, frame], zmq.NOBLOCK)
+        except zmq.ZMQError as exc:
+            log.warning("deferred reply dropped: %s", exc)
+
     def respond(self, frame: bytes) -> bytes:
         """One request frame -> its reply frame (never raises): what the socket loop sends back."""
         return codec.pack(self.handle(frame), self.key)
 
-    def handle(self, frame: bytes) -> dict:
-        """One request frame -> its reply message (never raises)."""
+    def handle(self, frame: bytes, route: list[bytes] | None = None) -> dict | None:
+        """One request frame -> its reply message (never raises); None when the reply is deferred
+        (only with ``route``, the routing frames, from the socket loop)."""
         msg: Any = None
         session: str | None = None
         try:
             msg = codec.unpack(frame, self.key)
             session = msg.get("session") if isinstance(msg.get("session"), str) else None
             mtype, msg_id, session = codec.check_envelope(msg)
-            rtype, fields, session = self._handlers[mtype](msg, msg_id, session)
+            self._route = route
+            out = self._handlers[mtype](msg, msg_id, session)
+            if out is None:
+                return None
+            rtype, fields, session = out
             return codec.message(rtype, next(self._ids), session, msg_id, **fields)
         except ProtocolError as exc:
             if exc.code not in (Code.OUT_OF_ORDER,):
@@ -162,6 +197,8 @@ class ForceServer:
         if role not in codec.IMPLEMENTED_ROLES:
             raise ProtocolError(Code.NOT_IMPLEMENTED, "role", f"role {role!r} is reserved; protocol 1 "
                                 f"servers implement only {list(codec.IMPLEMENTED_ROLES)}")
+        if role == "controller":
+            return self._controller_hello(msg, session)
         if session is not None:
             if session in self.sessions:
                 raise ProtocolError(Code.WRONG_STATE, "session", f"session {session!r} is already set up "
@@ -171,6 +208,14 @@ class ForceServer:
         t0 = time.perf_counter()
         model = build_model(msg)
         sid = os.urandom(16).hex()
+        if model.scene.controllers:
+            if self._sock is None:
+                raise ProtocolError(Code.BAD_SCENE, "scene.controllers", "controllers connect over the network: "
+                                    "this in-process server has no socket (run the session on a server with one, "
+                                    "e.g. hydrolink serve, or hydrolink run without an embedded server)")
+            self._hubs[sid] = ControlHub(model.scene, msg["scene"], model, sid,
+                                         lambda route, mtype, parent, fields, _sid=sid:
+                                         self._send_later(_sid, route, mtype, parent, fields))
         self.sessions[sid] = Session(sid, model, client)
         log.info("session %s opened by %s %s: %d bodies, dt %g, setup %.3f s", sid, client.get("name", "?"),
                  client.get("version", "?"), len(model.bodies), model.dt, time.perf_counter() - t0)
@@ -181,8 +226,69 @@ class ForceServer:
             "setup": model.setup_info(),
         }, sid
 
-    def _step(self, msg: dict, msg_id: Any, session: str | None) -> tuple[str, dict, str | None]:
-        return "forces", self._session(session).step(msg), session
+    def _step(self, msg: dict, msg_id: Any, session: str | None) -> tuple[str, dict, str | None] | None:
+        s = self._session(session)
+        hub = self._hubs.get(s.id)
+        if hub is None:
+            return "forces", s.step(msg), session
+        seq, iteration = msg.get("seq"), msg.get("iteration") or 0
+        new = type(seq) is int and seq == s.last_seq + 1
+        meas = hub.step_request(msg, seq, iteration, new) if new else None
+        fields = s.step(msg)
+        fields = hub.after_step(seq, iteration, new, meas, fields, self._route, msg_id)
+        return None if fields is None else ("forces", fields, session)
+
+    # ------------------------------------------------------------ controllers (SPEC §5.7)
+
+    def _controller_hello(self, msg: dict, session: str | None) -> tuple[str, dict, str | None]:
+        name = msg.get("controller")
+        if name is not None and not isinstance(name, str):
+            raise ProtocolError(Code.BAD_VALUE, "controller", f"must be a str or nil, got {type(name).__name__}")
+        codec.require_map(msg, "client", default={})
+        if session is None:
+            fits = [sid for sid, hub in self._hubs.items()
+                    if ((name in hub.slots) if name is not None else len(hub.slots) == 1)]
+            if not fits:
+                raise ProtocolError(Code.UNKNOWN_SESSION, "session", "no open session declares "
+                                    + (f"a controller {name!r}" if name else "exactly one controller")
+                                    + " (is the multibody run started? give the session id)")
+            if len(fits) > 1:
+                raise ProtocolError(Code.BAD_VALUE, "session", f"{len(fits)} open sessions declare "
+                                    f"controller {name!r}: give the session id")
+            session = fits[0]
+        s = self._session(session)
+        hub = self._hubs.get(s.id)
+        if hub is None:
+            raise ProtocolError(Code.BAD_VALUE, "controller", f"session {session!r} declares no controllers")
+        slot, rejoined = hub.join(name)
+        return "welcome", {
+            "protocol": codec.PROTOCOL_VERSION,
+            "server": {"name": "hydrolink", "version": self._version},
+            "session_timeout": self.session_timeout,
+            "epoch": slot.epoch, "rejoined": rejoined, "control": hub.info(slot),
+        }, session
+
+    def _controller_request(self, kind: str, msg: dict, msg_id: Any,
+                            session: str | None) -> tuple[str, dict, str | None] | None:
+        if session is not None and session not in self.sessions and session in self._closed:
+            return "stop", {"reason": f"session {self._closed[session]}"}, session
+        s = self._session(session)
+        hub = self._hubs.get(s.id)
+        if hub is None:
+            raise ProtocolError(Code.UNKNOWN_TYPE, "type", f"{kind!r} is a controller request; session "
+                                f"{session!r} declares no controllers")
+        out = (hub.measure if kind == "measure" else hub.command)(msg, self._route, msg_id)
+        if out is None:
+            if self._route is None:
+                raise ProtocolError(Code.WRONG_STATE, "type", "an in-process server cannot defer a reply")
+            return None
+        return out[0], out[1], session
+
+    def _measure(self, msg: dict, msg_id: Any, session: str | None):
+        return self._controller_request("measure", msg, msg_id, session)
+
+    def _command(self, msg: dict, msg_id: Any, session: str | None):
+        return self._controller_request("command", msg, msg_id, session)
 
     def _ping(self, msg: dict, msg_id: Any, session: str | None) -> tuple[str, dict, str | None]:
         if session is not None:
@@ -198,6 +304,10 @@ class ForceServer:
 
     def _close(self, s: Session, why: str) -> None:
         self.sessions.pop(s.id, None)
+        hub = self._hubs.pop(s.id, None)
+        if hub is not None:
+            hub.end(why)
+            log.info("session %s controllers: %s", s.id, hub.summary())
         self._closed[s.id] = f"{why} at {time.strftime('%H:%M:%S')}"
         while len(self._closed) > TOMBSTONES:
             self._closed.pop(next(iter(self._closed)))

@@ -105,7 +105,7 @@ def test_malformed_bytes_and_not_a_map(server):
     ({"type": "fly"}, 3, "type"),
     ({"type": "step", "session": None}, 4, "session"),
     ({"type": "hello", "role": "multibody", "hdbs": {}}, 4, "scene"),
-    ({"type": "hello", "role": "controller", "scene": "", "hdbs": {}}, 12, "role"),
+    ({"type": "hello", "role": "monitor", "scene": "", "hdbs": {}}, 12, "role"),
     ({"type": "step", "session": "0" * 32}, 7, "session"),
 ])
 def test_envelope_errors_name_the_field(server, fields, code, field):

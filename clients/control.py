@@ -1,0 +1,215 @@
+"""Python controllers (SPEC §5.7): subclass :class:`Controller`, run it with ``hydrolink control``.
+
+::
+
+    from hydrolink.clients.control import Controller
+
+    class Damper(Controller):
+        def on_start(self, info):                 # info: the welcome's "control" map
+            self.c = info["parameters"].get("damping", 1e6)
+        def on_step(self, t, m):                  # m: the measurements of the state at t
+            return {p: self.c * v for p, v in zip(self.ptos, m["pto_velocity"])}
+
+    $ hydrolink control damper.py --server tcp://HOST:PORT [--session ID] [--name NAME]
+
+``on_step`` returns ``{pto: value}``: a number is a force command; a map gives the setpoints
+(``{"force": F}``, or ``{"damping": c, "stiffness": k}`` for ``command = "impedance"``).
+Measurements: ``step``, ``seq``, ``time`` and numpy arrays per name of ``info["measurements"]``
+(``pto_*`` in ``info["ptos"]`` order, ``body_*`` (n, 6) in ``info["bodies"]`` order,
+``wave_elevation`` per probe, ``wave_preview`` (probe, time) at t + ``info["preview_times"]``).
+
+This module imports only numpy, pyzmq and the codec, so a controller process starts fast.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import inspect
+import logging
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import zmq
+
+from hydrolink.protocol import codec
+
+log = logging.getLogger("hydrolink.control")
+
+
+class Controller:
+    """Base class of a Python controller; override :meth:`on_step` (and optionally the others)."""
+
+    #: the scene's ``controllers[i].name`` this class serves (``--name`` overrides; None: the
+    #: session's only controller)
+    name: str | None = None
+
+    def on_start(self, info: dict) -> None:
+        """Called once with the welcome's ``control`` map (ptos, bodies, dt, period, parameters...)."""
+
+    def on_step(self, t: float, measurements: dict) -> dict:
+        """Commands from the measurements of the state at ``t``."""
+        raise NotImplementedError
+
+    def on_stop(self) -> None:
+        """Called when the run ends (or the session closes)."""
+
+
+class ControllerError(RuntimeError):
+    """The server refused the controller (wrong session, version, name), or went silent."""
+
+    def __init__(self, message: str, code: int | None = None, field: str | None = None):
+        super().__init__(message)
+        self.code, self.field = code, field
+
+
+def _command_map(commands: Any) -> Any:
+    """Plain numbers become ``{"force": F}``; values are sent as Python floats (NaN stays NaN:
+    the server rejects it, SPEC §5.7.4)."""
+    if not isinstance(commands, dict):
+        return commands
+    out = {}
+    for pto, value in commands.items():
+        if isinstance(value, dict):
+            out[str(pto)] = {str(k): float(v) if isinstance(v, (int, float, np.number)) else v
+                             for k, v in value.items()}
+        elif isinstance(value, (int, float, np.number)) and not isinstance(value, bool):
+            out[str(pto)] = {"force": float(value)}
+        else:
+            out[str(pto)] = value
+    return out
+
+
+def decode_measurements(reply: dict) -> dict:
+    out = {k: reply[k] for k in ("step", "seq", "time") if k in reply}
+    for k, v in reply.items():
+        if isinstance(v, dict) and "dtype" in v:
+            out[k] = codec.decode_array(v, k, "f")
+    return out
+
+
+class _Link:
+    """One DEALER socket to the server; requests matched by ``parent``; every receive times out."""
+
+    def __init__(self, address: str, key: bytes | None, timeout: float):
+        self.address, self.key, self.timeout = address, key, timeout
+        self.ctx = zmq.Context()
+        self.sock = self.ctx.socket(zmq.DEALER)
+        self.sock.setsockopt(zmq.LINGER, 0)
+        self.sock.connect(address)
+        self.ids = codec.id_source("k")
+        self.session: str | None = None
+
+    def request(self, mtype: str, hold: float = 0.0, **fields: Any) -> dict:
+        """``hold``: how long the server may hold the request (SPEC §5.7.4 ``wait``)."""
+        msg_id = next(self.ids)
+        self.sock.send(codec.pack(codec.message(mtype, msg_id, self.session, **fields), self.key))
+        deadline = time.monotonic() + hold + self.timeout
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0 or not self.sock.poll(int(left * 1000) + 1):
+                raise ControllerError(f"no reply to {mtype!r} from the hydrolink server at {self.address} within "
+                                      f"{hold + self.timeout:g} s")
+            reply = codec.unpack(self.sock.recv(), self.key)
+            if reply.get("parent") == msg_id:
+                return reply
+
+    def close(self) -> None:
+        self.sock.close(0)
+        self.ctx.term()
+
+
+def run_controller(controller: Controller, server: str, *, session: str | None = None, name: str | None = None,
+                   key: bytes | None = None, join_wait: float = 30.0, wait: float = 1.0,
+                   timeout: float = 30.0) -> dict:
+    """Join a session and serve it until the run ends; returns counts (steps, errors, idles).
+
+    Retries ``hello`` for ``join_wait`` s while no session declares the controller (the multibody
+    run may start later). ``wait``: how long the server holds a ``measure`` before ``idle``;
+    ``timeout``: extra time for any reply before the server is declared gone."""
+    name = name if name is not None else getattr(controller, "name", None)
+    link = _Link(server, key, timeout)
+    link.session = session
+    stats = {"steps": 0, "errors": 0, "idle": 0, "late": 0, "invalid": 0}
+    try:
+        t_end = time.monotonic() + join_wait
+        while True:
+            reply = link.request("hello", role="controller", controller=name,
+                                 client={"name": f"hydrolink-python-controller {type(controller).__name__}",
+                                         "version": _version()})
+            if reply["type"] == "welcome":
+                break
+            if reply.get("code") == codec.Code.UNKNOWN_SESSION and session is None and time.monotonic() < t_end:
+                time.sleep(0.1)
+                continue
+            raise ControllerError(f"server refused the controller: error {reply.get('code')} {reply.get('name')} "
+                                  f"[{reply.get('field')}]: {reply.get('message')}", reply.get("code"), reply.get("field"))
+        link.session = reply["session"]
+        epoch = reply["epoch"]
+        info = codec.decode_tree(reply["control"])
+        name = info["name"]
+        controller.ptos = list(info["ptos"])
+        log.info("controller %r joined session %s (epoch %d)", name, link.session, epoch)
+        controller.on_start(info)
+        ident = {"controller": name, "epoch": epoch, "wait": wait}
+        reply = link.request("measure", wait, **ident)
+        while True:
+            kind = reply["type"]
+            if kind == "measurements":
+                m = decode_measurements(reply)
+                commands = controller.on_step(float(reply["time"]), m)
+                stats["steps"] += 1
+                reply = link.request("command", wait, step=reply["step"], commands=_command_map(commands), **ident)
+            elif kind == "idle":
+                stats["idle"] += 1
+                reply = link.request("measure", wait, **ident)
+            elif kind == "stop":
+                log.info("controller %r: stop (%s)", name, reply.get("reason"))
+                break
+            elif kind == "error":
+                code = reply.get("code")
+                stats["errors"] += 1
+                stats["late" if code == codec.Code.OUT_OF_ORDER else "invalid"] += 1
+                log.warning("controller %r: server error %s %s [%s]: %s", name, code, reply.get("name"),
+                            reply.get("field"), reply.get("message"))
+                if code in (codec.Code.UNKNOWN_SESSION, codec.Code.WRONG_STATE, codec.Code.VERSION_MISMATCH):
+                    raise ControllerError(f"error {code} {reply.get('name')}: {reply.get('message')}", code,
+                                          reply.get("field"))
+                reply = link.request("measure", wait, **ident)
+            else:
+                raise ControllerError(f"unexpected reply type {kind!r}")
+    finally:
+        link.close()
+    controller.on_stop()
+    return stats
+
+
+def _version() -> str:
+    from importlib import metadata
+    try:
+        return metadata.version("hydrolink")
+    except metadata.PackageNotFoundError:  # pragma: no cover
+        return "unknown"
+
+
+def load_controller(path: str | Path, class_name: str | None = None) -> Controller:
+    """Instantiate the Controller subclass defined in the Python file ``path`` (the only one, or
+    ``class_name``)."""
+    path = Path(path)
+    spec = importlib.util.spec_from_file_location(f"hydrolink_controller_{path.stem}", path)
+    if spec is None or spec.loader is None:
+        raise ControllerError(f"{path}: not a Python file")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    found = [obj for _, obj in inspect.getmembers(module, inspect.isclass)
+             if issubclass(obj, Controller) and obj is not Controller and obj.__module__ == module.__name__]
+    if class_name is not None:
+        found = [c for c in found if c.__name__ == class_name]
+    if len(found) != 1:
+        names = [c.__name__ for c in found]
+        raise ControllerError(f"{path}: expected one Controller subclass{' named ' + class_name if class_name else ''}, "
+                              f"found {names or 'none'} (use --class)")
+    return found[0]()
