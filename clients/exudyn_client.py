@@ -159,7 +159,8 @@ def build_model(scene: Scene, setup: dict | None, *, spectral_radius: float = 1.
     _scene_bodies(scene, names)
     equilibrium = np.asarray(setup.get("equilibrium_position", np.zeros((0, 6))), float).reshape(n, 6)
     active = np.asarray(setup.get("active", np.zeros((0, 6))), bool).reshape(n, 6)
-    a_inf = np.asarray(setup.get("added_mass_inf", np.zeros((0, 0))), float).reshape(6 * n, 6 * n)
+    # "added_mass": what goes into the mass matrix (A_inf, or A(w0) with hydro.radiation = "constant")
+    a_inf = np.asarray(setup.get("added_mass", setup.get("added_mass_inf", np.zeros((0, 0)))), float).reshape(6 * n, 6 * n)
     stiffness = np.asarray(setup.get("hydrostatic_stiffness", np.zeros((0, 0))), float).reshape(6 * n, 6 * n)
     dt = float(setup.get("dt", scene.simulation.dt))
     net = {nm: float(v) for nm, v in zip(names, setup.get("net_buoyancy") or [None] * n) if v}

@@ -150,7 +150,7 @@ def wire(fmu: FMUInstance, scene: Scene, setup: dict) -> Wiring:
     act_mask = np.asarray(setup["active"], bool).reshape(6 * n)
     active = np.flatnonzero(act_mask)
     where = {int(k): i for i, k in enumerate(active)}
-    a_inf = np.asarray(setup["added_mass_inf"], float).reshape(6 * n, 6 * n)
+    a_inf = np.asarray(setup.get("added_mass", setup["added_mass_inf"]), float).reshape(6 * n, 6 * n)  # A(w0) if "constant"
     c_full = np.asarray(setup["hydrostatic_stiffness"], float).reshape(6 * n, 6 * n)
     eq = np.asarray(setup["equilibrium_position"], float).reshape(n, 6)
     by_name = {b.name: b for b in scene.bodies}

@@ -116,4 +116,8 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
     summary["server"] = server
     if goodbye.get("steps"):
         summary["server_compute_us_per_step"] = 1e6 * goodbye["compute_s"] / goodbye["steps"]
+    if setup:  # radiation option and coupling pruning ([hydro] radiation, coupling_tolerance)
+        for key in ("radiation", "radiation_pairs", "dropped_pair_fraction", "dropped_block_fraction"):
+            if key in setup:
+                summary[key] = setup[key]
     return summary

@@ -104,3 +104,123 @@ def irf_report(omega: np.ndarray, damping: np.ndarray, t: np.ndarray, k: np.ndar
     finite = rel[np.isfinite(rel)]
     return {"damping_retransformed": b2, "rel_error": rel,
             "worst": float(finite.max()) if finite.size else 0.0}
+
+
+# ---------------------------------------------------------------------------------------------
+# Pre-processing of B(w) before the transform (scene [hydro] irf_domega, irf_tail, irf_taper) and
+# the Ogilvie consistency report. See docs/radiation.md.
+
+
+def resample_damping(omega: np.ndarray, damping: np.ndarray, domega: float) -> tuple[np.ndarray, np.ndarray]:
+    """B(w) (n_w, ...) resampled by a cubic spline onto the uniform grid w_min + k dw (k = 0, 1, ...)
+    that ends at or just below w_max (w_max itself is appended when the last step would be short
+    by more than 1 %). Returns (omega_new, damping_new)."""
+    from scipy.interpolate import CubicSpline
+
+    omega = np.asarray(omega, float)
+    damping = np.asarray(damping, float)
+    n = int(np.floor((omega[-1] - omega[0]) / domega + 1e-9))
+    new = omega[0] + domega * np.arange(n + 1)
+    if omega[-1] - new[-1] > 0.01 * domega:
+        new = np.append(new, omega[-1])
+    return new, CubicSpline(omega, damping, axis=0)(new)
+
+
+def asymptotic_tail(omega: np.ndarray, damping: np.ndarray, cutoff: float, fraction: float = 0.25,
+                    n_limits: tuple[float, float] = (1.0, 8.0)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Extend B(w) beyond the grid with B(w) = B(w_max) (w_max / w)^n up to ``cutoff`` rad/s.
+
+    The exponent n is fitted per DOF pair by least squares on log|B| over the last ``fraction`` of
+    the grid (at least 4 points) when B keeps one sign there; it is clipped to ``n_limits``. Pairs
+    whose B changes sign there take the median exponent of the fitted pairs (2 if none). The tail
+    starts at B(w_max) itself (no jump: a jump in B would put a log singularity into A(w)). The
+    tail points continue the grid's last spacing. Returns (omega_ext, damping_ext, n (n_pairs...))."""
+    omega = np.asarray(omega, float)
+    damping = np.asarray(damping, float)
+    shape = damping.shape[1:]
+    b = damping.reshape(omega.size, -1)
+    m = max(4, int(round(fraction * omega.size)))
+    w, tail = omega[-m:], b[-m:]
+    one_sign = np.all(tail > 0, axis=0) | np.all(tail < 0, axis=0)
+    x = np.log(w) - np.log(w).mean()
+    n = np.full(b.shape[1], np.nan)
+    if one_sign.any():
+        y = np.log(np.abs(tail[:, one_sign]))
+        slope = (x @ (y - y.mean(axis=0))) / (x @ x)
+        n[one_sign] = np.clip(-slope, *n_limits)
+    fill = float(np.median(n[one_sign])) if one_sign.any() else 2.0
+    n = np.where(np.isnan(n), fill, n)
+    step = omega[-1] - omega[-2]
+    k = int(np.floor((cutoff - omega[-1]) / step + 1e-9))
+    if k < 1:
+        return omega, damping, n.reshape(shape)
+    w_ext = omega[-1] + step * np.arange(1, k + 1)
+    b_ext = b[-1] * (omega[-1] / w_ext[:, None]) ** n
+    return (np.concatenate([omega, w_ext]), np.concatenate([b, b_ext]).reshape((-1, *shape)),
+            n.reshape(shape))
+
+
+def taper_window(t: np.ndarray, duration: float, fraction: float) -> np.ndarray:
+    """1 up to T1 = (1 - fraction) T, then a cosine taper 1/2 (1 + cos(pi (t - T1) / (T - T1))) to 0 at T."""
+    t = np.asarray(t, float)
+    if fraction <= 0:
+        return np.ones_like(t)
+    t1 = (1.0 - fraction) * duration
+    u = np.clip((t - t1) / (duration - t1), 0.0, 1.0)
+    return 0.5 * (1.0 + np.cos(np.pi * u))
+
+
+def _interval_exp(alpha: np.ndarray, a: float, b: float) -> np.ndarray:
+    """int_a^b exp(i alpha t) dt, stable at alpha -> 0."""
+    h = b - a
+    return np.exp(0.5j * alpha * (a + b)) * h * np.sinc(alpha * h / (2 * np.pi))
+
+
+def irf_transfer(omega: np.ndarray, damping: np.ndarray, duration: float, taper: float,
+                 omega_eval: np.ndarray) -> np.ndarray:
+    """The transfer function of the (truncated, tapered) IRF the simulation uses, in closed form:
+
+        H(w) = int_0^T tau(t) K(t) exp(-i w t) dt = B_K(w) + i w (A_K(w) - A_inf)
+
+    with K(t) = (2/pi) sum_n q_n B(w_n) cos(w_n t) exactly as :func:`radiation_irf` builds it
+    (trapezoid weights q_n over the grid with (0, 0) prepended) and tau the taper window. No
+    sampling in time: the integrals of cos * exp (* the cosine taper) are evaluated exactly.
+    damping (n_w, ...) -> (n_eval, ...) complex."""
+    omega = np.asarray(omega, float)
+    damping = np.asarray(damping, float)
+    we = np.asarray(omega_eval, float)
+    q = (2.0 / np.pi) * trapezoid_weights(np.concatenate(([0.0], omega)))[1:]
+    T = float(duration)
+    t1 = (1.0 - taper) * T if taper > 0 else T
+    g = np.zeros((we.size, omega.size), complex)
+    for sign in (1.0, -1.0):
+        alpha = sign * omega[None, :] - we[:, None]
+        g += 0.5 * _interval_exp(alpha, 0.0, t1)
+        if t1 < T:
+            k = np.pi / (T - t1)
+            g += 0.5 * (0.5 * _interval_exp(alpha, t1, T)
+                        + 0.25 * np.exp(-1j * k * t1) * _interval_exp(alpha + k, t1, T)
+                        + 0.25 * np.exp(1j * k * t1) * _interval_exp(alpha - k, t1, T))
+    out = (g * q[None, :]) @ damping.reshape(omega.size, -1)
+    return out.reshape((we.size, *damping.shape[1:]))
+
+
+def ogilvie_report(omega: np.ndarray, added_mass: np.ndarray, a_inf: np.ndarray, t: np.ndarray,
+                   k: np.ndarray) -> dict:
+    """How well the (truncated, sampled) IRF reproduces A(w) (Ogilvie / Kramers-Kronig):
+    A_K(w) = A_inf - (1/w) int_0^T K(t) sin(w t) dt against the HDB's A(w).
+
+    ``rel_error`` (n, n): max_w |A_K - A| over max_w |A - A_inf| (diagonal scale; off-diagonal pairs
+    use sqrt of the two diagonal scales; NaN where a scale is zero), ``worst`` the largest finite one."""
+    omega = np.asarray(omega, float)
+    added_mass = np.asarray(added_mass, float)
+    s = _sine_transform(omega, np.asarray(t, float), np.asarray(k, float))
+    a_k = np.asarray(a_inf, float)[None] - s / omega[:, None, None]
+    var = np.max(np.abs(added_mass - np.asarray(a_inf, float)[None]), axis=0)
+    d = np.diagonal(var).copy()
+    scale = np.sqrt(np.outer(d, d))
+    tiny = scale <= 1e-9 * max(float(scale.max(initial=0.0)), 1e-300)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rel = np.where(tiny, np.nan, np.max(np.abs(a_k - added_mass), axis=0) / scale)
+    finite = rel[np.isfinite(rel)]
+    return {"added_mass_irf": a_k, "rel_error": rel, "worst": float(finite.max()) if finite.size else 0.0}

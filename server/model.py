@@ -23,11 +23,63 @@ import xarray as xr
 from hydrolink.protocol.scene import Scene
 from hydrolink.server.hdb.schema import DOF_NAMES, HDBError, select_bodies
 from hydrolink.server.hydrostatics import total_stiffness
-from hydrolink.server.irf import aliasing_time, irf_report, ogilvie_added_mass_inf, radiation_irf
+from hydrolink.server.irf import (aliasing_time, asymptotic_tail, irf_report, irf_transfer, ogilvie_added_mass_inf,
+                                  ogilvie_report, radiation_irf, resample_damping, taper_window)
 from hydrolink.server.radiation import RadiationMemory
+from hydrolink.server.state_space import StateSpaceError, StateSpaceRadiation, fit_pairs
 from hydrolink.server.waves import WaveError, WaveForcing, interpolate_excitation, wave_components
 
 OGILVIE_DEFAULT_DURATION = 40.0  # s of IRF used for Ogilvie's A_inf when hydro.irf_duration = 0
+SS_FIT_POINTS = 120              # frequencies on [0, w_max] the state-space fit is made (and checked) on
+TAIL_CUTOFF_FACTOR = 10.0        # default hydro.irf_tail_cutoff: 10 w_max
+
+
+class ConstantDamping:
+    """radiation = "constant": F = -B(w0) v (the push() interface of RadiationMemory)."""
+
+    def __init__(self, damping: np.ndarray):
+        self.b = np.ascontiguousarray(damping, float)
+        self.n = self.b.shape[0]
+
+    def push(self, v: np.ndarray, replace_last: bool = False) -> np.ndarray:
+        return -(self.b @ v)
+
+
+def _interp_matrix(omega: np.ndarray, values: np.ndarray, w: float) -> np.ndarray:
+    """Linear interpolation of (n_w, n, n) in omega at w."""
+    i = int(np.clip(np.searchsorted(omega, w) - 1, 0, omega.size - 2))
+    f = (w - omega[i]) / (omega[i + 1] - omega[i])
+    return (1 - f) * values[i] + f * values[i + 1]
+
+
+def prune_pairs(norms: np.ndarray, body_of: np.ndarray, tolerance: float) -> tuple[np.ndarray, np.ndarray]:
+    """Which DOF pairs of one group's radiation memory to keep (hydro.coupling_tolerance).
+
+    ``norms`` (n, n): N_ij = int_0^T |K_ij(t)| dt, the largest force per unit velocity amplitude
+    the pair can give; ``body_of`` (n,) the (group) body of each DOF. A body-to-body block (a, b),
+    a != b, is dropped when max_{i in a, j in b} N_ij < tol sqrt(d_a d_b), d_a = max_{i in a} N_ii;
+    inside kept blocks a pair i != j is dropped when N_ij < tol sqrt(N_ii N_jj). Diagonal pairs
+    are always kept. Returns (keep (n, n) bool, dropped_blocks (n_b, n_b) bool over the group's
+    bodies present)."""
+    n = norms.shape[0]
+    bodies = np.unique(body_of)
+    d = np.diag(norms)
+    dmax = np.array([d[body_of == b].max() for b in bodies])
+    keep = np.ones((n, n), bool)
+    dropped = np.zeros((bodies.size, bodies.size), bool)
+    if tolerance <= 0:
+        return keep, dropped
+    for ia, a in enumerate(bodies):
+        for ib, b in enumerate(bodies):
+            if a == b:
+                continue
+            ra, rb = body_of == a, body_of == b
+            if norms[np.ix_(ra, rb)].max() < tolerance * np.sqrt(dmax[ia] * dmax[ib]):
+                dropped[ia, ib] = True
+                keep[np.ix_(ra, rb)] = False
+    keep &= ~(norms < tolerance * np.sqrt(np.outer(d, d)))
+    np.fill_diagonal(keep, True)
+    return keep, dropped
 
 
 class ModelError(ValueError):
@@ -86,8 +138,14 @@ class HydroModel:
         na = self._idx.size
         water = scene.water
         rho, g = water.density, water.gravity
-        irf_T = float(scene.hydro.irf_duration)
+        hyd = scene.hydro
+        self.radiation = hyd.radiation
+        irf_T = float(hyd.irf_duration)
         self.irf_samples = int(round(irf_T / self.dt))
+        if self.radiation == "state-space" and self.irf_samples < 2:
+            raise ModelError("hydro.irf_duration", f"{irf_T} s: the state-space fit reproduces the IRF over "
+                                                   "irf_duration, which must span at least two time steps")
+        memory_on = self.radiation in ("convolution", "state-space") and self.irf_samples > 0
         m_og = self.irf_samples if self.irf_samples > 0 else int(round(OGILVIE_DEFAULT_DURATION / self.dt))
         t_irf = np.arange(m_og + 1) * self.dt
         self.warnings: list[str] = []
@@ -97,7 +155,21 @@ class HydroModel:
         refs = np.zeros((n_b, 3))
         self._a_inf_source: dict[str, str] = {}
         self._irf_fit: dict[str, float] = {}
-        memories: list[tuple[np.ndarray, RadiationMemory]] = []
+        self._irf_a_fit: dict[str, float] = {}
+        self._tail_exponent: dict[str, float] = {}
+        memories: list[tuple[np.ndarray, object]] = []
+        a_client = np.zeros((self.n, self.n))   # the added mass the client puts in its mass matrix
+        self.radiation_frequency = None
+        if self.radiation == "constant":
+            if getattr(scene.waves, "type", "still") != "regular":
+                raise ModelError("hydro.radiation", "\"constant\" takes A(w0) and B(w0) at the regular-wave "
+                                 f"frequency: it needs [waves] type = \"regular\" (got {scene.waves.type!r}); use "
+                                 "\"convolution\" or \"state-space\"")
+            self.radiation_frequency = 2 * np.pi / float(scene.waves.period)
+        taper = float(hyd.irf_taper) if self.irf_samples > 0 else 0.0
+        window = taper_window(t_irf, irf_T, taper)[:, None, None] if taper > 0 else None
+        self._pairs = {"kept": 0, "total": 0, "blocks_total": 0, "blocks_dropped": 0}
+        self._ss = {"states": 0, "pairs": 0, "max_order": 0, "max_fit_error": 0.0, "unmet": 0}
         self._coefficients: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []  # act, w, A, B
         groups = _groups(scene, wet, hdbs)
         self.groups = [[self.bodies[k] for k in members] for _, members in groups]
@@ -135,20 +207,56 @@ class HydroModel:
             am = s_rho * sub["added_mass"].values[:, loc][:, :, loc]
             bd = s_rho * sub["radiation_damping"].values[:, loc][:, :, loc]
             self._coefficients.append((act, omega, am, bd))
-            k = radiation_irf(omega, bd, t_irf)
-            if self.irf_samples > 0:
-                memories.append((pos, RadiationMemory(k[:self.irf_samples + 1], self.dt)))
+            om_k, bd_k = omega, bd          # the grid K(t) is integrated over (resampled, tail)
+            if hyd.irf_domega is not None and loc.size:
+                om_k, bd_k = resample_damping(omega, bd, float(hyd.irf_domega))
+            if hyd.irf_tail == "asymptotic" and loc.size:
+                cutoff = hyd.irf_tail_cutoff or TAIL_CUTOFF_FACTOR * om_k[-1]
+                om_k, bd_k, n_tail = asymptotic_tail(om_k, bd_k, float(cutoff))
+                self._tail_exponent[src] = float(np.median(np.diagonal(n_tail)))
+            k = radiation_irf(om_k, bd_k, t_irf)
+            if window is not None:
+                k = k * window
             if "added_mass_inf" in sub:
-                a_inf[np.ix_(act, act)] = s_rho * sub["added_mass_inf"].values[np.ix_(loc, loc)]
+                a_loc = s_rho * sub["added_mass_inf"].values[np.ix_(loc, loc)]
                 how = "hdb"
             else:
-                a_inf[np.ix_(act, act)] = ogilvie_added_mass_inf(omega, am, t_irf, k)
+                a_loc = ogilvie_added_mass_inf(omega, am, t_irf, k)
                 how = "ogilvie"
+            a_inf[np.ix_(act, act)] = a_loc
+            a_client[np.ix_(act, act)] = a_loc
             for k_ in members:
                 self._a_inf_source[self.bodies[k_]] = how
+            if memory_on and loc.size:
+                labels = [f"{self.bodies[int(g) // 6]}.{DOF_NAMES[int(g) % 6]}" for g in act]
+                body_of = act // 6
+                kk = k[:self.irf_samples + 1]
+                wt = np.full(kk.shape[0], self.dt)
+                wt[[0, -1]] *= 0.5
+                norms = np.tensordot(wt, np.abs(kk), axes=(0, 0))
+                keep, dropped = prune_pairs(norms, body_of, float(hyd.coupling_tolerance))
+                nb_g = np.unique(body_of).size
+                self._pairs["kept"] += int(keep.sum())
+                self._pairs["total"] += keep.size
+                self._pairs["blocks_total"] += nb_g * (nb_g - 1)
+                self._pairs["blocks_dropped"] += int(dropped.sum())
+                if self.radiation == "convolution":
+                    memories.append((pos, RadiationMemory(kk, self.dt, None if keep.all() else keep)))
+                else:
+                    memories.append((pos, self._state_space(om_k, bd_k, float(omega[-1]), irf_T, taper, keep,
+                                                            labels, hyd)))
+            elif self.radiation == "constant" and loc.size:
+                w0 = self.radiation_frequency
+                if not omega[0] <= w0 <= omega[-1]:
+                    raise ModelError("waves.period", f"w0 = {w0:.4g} rad/s lies outside the HDB's range "
+                                                     f"{omega[0]:.4g}..{omega[-1]:.4g} rad/s")
+                memories.append((pos, ConstantDamping(_interp_matrix(omega, bd, w0))))
+                a_client[np.ix_(act, act)] = _interp_matrix(omega, am, w0)
             if self.irf_samples > 0 and loc.size:
                 rep = irf_report(omega, bd, t_irf, k)
                 self._irf_fit[src] = max(rep["worst"], self._irf_fit.get(src, 0.0))
+                rep_a = ogilvie_report(omega, am, a_loc, t_irf, k)
+                self._irf_a_fit[src] = max(rep_a["worst"], self._irf_a_fit.get(src, 0.0))
                 if irf_T > aliasing_time(omega):
                     warning = (f"hydro.irf_duration: {irf_T} s exceeds pi/d_omega = "
                                f"{aliasing_time(omega):.3g} s of {src!r}: the IRF tail is aliased")
@@ -170,6 +278,7 @@ class HydroModel:
         mask = self.active.reshape(-1)
         keep = np.outer(mask, mask)
         self.added_mass_inf = np.where(keep, a_inf, 0.0)
+        self.added_mass_client = np.where(keep, a_client, 0.0)
         self.hydrostatic_stiffness = np.where(keep, total_stiffness(c_hs, masses, cogs, refs, g), 0.0)
         self.equilibrium_position = np.hstack([refs, np.zeros((n_b, 3))])
         self._k_hs = np.ascontiguousarray(self.hydrostatic_stiffness[np.ix_(self._idx, self._idx)])
@@ -178,14 +287,49 @@ class HydroModel:
             memories = [(slice(None), memories[0][1])]  # one group over every active DOF: no gather
         self._memories = memories
         self.coupled_blocks = sum(len(m) * (len(m) - 1) for _, m in groups)
-        self._kernel_entries = sum(np.size(p) ** 2 if not isinstance(p, slice) else na ** 2
-                                   for p, _ in memories)
+        self._kernel_entries = self._pairs["kept"]
         self._forcing = WaveForcing(self.waves, x_comp[:, self._idx])
         self._x_comp = x_comp
         self._step = -1           # index of the newest step pushed
         self._sel = slice(None) if na == self.n else self._idx  # a view when every DOF is active
         self._red = np.zeros((3, na))  # scratch: excitation, radiation, hydrostatic (active DOFs)
         self._net_buoyancy = self._buoyancy(groups, rho, g, masses)
+
+    def _state_space(self, omega_k, damping_k, w_max, duration, taper, keep, labels, hyd) -> StateSpaceRadiation:
+        """Fit every kept, non-zero DOF pair of one group (server/state_space.py) to the transfer
+        function of the same IRF the convolution would use, over [0, w_max] of the HDB."""
+        n = keep.shape[0]
+        wf = np.linspace(0.0, w_max, SS_FIT_POINTS)
+        h = irf_transfer(omega_k, damping_k, duration, taper, wf).reshape(wf.size, n * n).T  # (pairs, K)
+        peak = np.abs(h).max(axis=1)
+        d = peak.reshape(n, n).diagonal()
+        scale = np.sqrt(np.outer(d, d)).reshape(-1)
+        rows, cols = np.divmod(np.arange(n * n), n)
+        use = keep.reshape(-1) & (peak > 1e-12 * max(float(d.max(initial=0.0)), 1e-300))
+        fits = fit_pairs(wf, h[use], rows[use], cols[use], np.maximum(scale[use], 1e-300),
+                         tolerance=float(hyd.ss_tolerance), order=hyd.ss_order, max_order=int(hyd.ss_max_order),
+                         enforce_stability=bool(hyd.ss_enforce_stability))
+        try:
+            ss = StateSpaceRadiation(n, fits, self.dt, labels)
+        except StateSpaceError as exc:
+            raise ModelError("hydro.radiation", str(exc)) from None
+        st = self._ss
+        st["states"] += ss.states
+        st["pairs"] += int(use.sum())
+        if use.any():
+            st["max_order"] = max(st["max_order"], int(fits.orders.max()))
+            worst = int(np.argmax(fits.error))
+            if fits.error[worst] > st["max_fit_error"]:
+                st["max_fit_error"] = float(fits.error[worst])
+                st["worst_pair"] = f"({labels[fits.rows[worst]]}, {labels[fits.cols[worst]]})"
+            unmet = int(np.sum(fits.error > hyd.ss_tolerance))
+            st["unmet"] += unmet
+            if unmet and hyd.ss_order is None:
+                self.warnings.append(
+                    f"hydro.ss_tolerance: {unmet} of {int(use.sum())} DOF pairs stay above {hyd.ss_tolerance:g} at "
+                    f"ss_max_order = {hyd.ss_max_order} (worst {fits.error[worst]:.3g} for "
+                    f"{st.get('worst_pair')}); raise ss_max_order, add irf_taper or irf_tail, or use \"convolution\"")
+        return ss
 
     def _buoyancy(self, groups, rho, g, masses) -> list[float | None]:
         """rho g V - m g per wet body (None when the HDB has no displaced volume)."""
@@ -227,6 +371,20 @@ class HydroModel:
             "ramp": float(self.waves.ramp),
             "net_buoyancy": list(self._net_buoyancy),
             "warnings": list(self.warnings),
+            # radiation options (scene [hydro]; docs/radiation.md)
+            "radiation": self.radiation,
+            "added_mass": self.added_mass_client.copy(),
+            "radiation_frequency": self.radiation_frequency,
+            "irf_added_mass_error": dict(self._irf_a_fit),
+            "irf_processing": {"domega": self.scene.hydro.irf_domega, "taper": self.scene.hydro.irf_taper,
+                               "tail": self.scene.hydro.irf_tail, "tail_exponent": dict(self._tail_exponent)},
+            "coupling_tolerance": float(self.scene.hydro.coupling_tolerance),
+            "radiation_pairs": self._pairs["kept"],
+            "dropped_pair_fraction": (1.0 - self._pairs["kept"] / self._pairs["total"]) if self._pairs["total"] else 0.0,
+            "dropped_blocks": self._pairs["blocks_dropped"],
+            "dropped_block_fraction": (self._pairs["blocks_dropped"] / self._pairs["blocks_total"]
+                                       if self._pairs["blocks_total"] else 0.0),
+            "state_space": dict(self._ss) if self.radiation == "state-space" else None,
         }
 
     def radiation_coefficients(self, omega: float) -> tuple[np.ndarray, np.ndarray]:

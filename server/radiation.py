@@ -20,16 +20,24 @@ import numpy as np
 class RadiationMemory:
     """Convolution state for n coupled DOFs."""
 
-    def __init__(self, kernel: np.ndarray, dt: float):
-        """kernel: K(j dt) for j = 0..M, shape (M+1, n, n)."""
+    def __init__(self, kernel: np.ndarray, dt: float, keep: np.ndarray | None = None):
+        """kernel: K(j dt) for j = 0..M, shape (M+1, n, n). ``keep`` (n, n) bool: the DOF pairs in
+        use (pruned pairs are zero); when at most half are kept the kernel is stored sparse (CSR),
+        so a step costs O(kept pairs x M) instead of O(n^2 M)."""
         kernel = np.asarray(kernel, float)
         L, n, _ = kernel.shape
         self.n, self.samples, self.dt = n, L, float(dt)
         self.enabled = L > 1 and n > 0
         w = np.ones(L)
         w[0] = w[-1] = 0.5
+        if keep is not None:
+            kernel = kernel * np.asarray(keep, bool)[None]
         # kflat[i, j*n + k] = -dt w_j K_ik(j dt): contracts with the (L, n) window raveled row-major
         self._k = np.ascontiguousarray((-self.dt * w[:, None, None] * kernel).transpose(1, 0, 2).reshape(n, L * n))
+        self.sparse = keep is not None and n > 0 and np.count_nonzero(keep) <= 0.5 * n * n
+        if self.sparse:
+            from scipy.sparse import csr_matrix
+            self._k = csr_matrix(self._k)
         self._buf = np.zeros((2 * L, n))
         self._p = 0
         self._count = 0
