@@ -37,8 +37,9 @@ integration) and not the BEM grid. The HDB's own A(w), B(w) are a second referen
 damping is still ~18 % of its peak at the grid's 10.8 rad/s, and every radiation coefficient has a
 narrow resonance at 9.0 rad/s (three grid points, e.g. barge 1 surge B = 1072 against ~300 around
 it) that makes the trapezoid-rule K(t) ring beyond the 10 s memory. Body-2 heave is small there
-(RAO 0.01-0.03: a near-cancellation), so HDB and effective references differ by +17 % at 7.85
-rad/s and 0.3-1.3 % below 6.8 rad/s; the time domain follows the effective one to < 0.3 %.
+(RAO 0.01-0.03: a near-cancellation), so the effective reference is 17 % above the HDB one at
+7.85 rad/s and 0.2-1.3 % off it at 2.6-6.8 rad/s; the time domain follows the effective one to
+< 0.3 % (examples/hinged_barges/README.md decomposes the difference).
 
 Time domain: the example scene with its HDB replaced by the session's built file, dt = T/100,
 a 30 s cosine ramp (barge 1 heaves on a damping plate: its heave-pitch modes near 1.4 and 2.1 rad/s
