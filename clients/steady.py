@@ -182,8 +182,9 @@ def linearize(scene: Scene, model, setup: dict) -> LinearizedSystem:
     ss = exu.SimulationSettings()
     ss.solution.file.write = False
     ss.staticSolver.verboseMode = 0
-    M, K, D, C = mbs.ComputeLinearizedSystem(ss, returnConstraintJacobian=True)[:4]
-    M, K, D = (np.asarray(x, float) for x in (M, K, D))
+    out = mbs.ComputeLinearizedSystem(ss, returnConstraintJacobian=True)   # no C without constraints
+    M, K, D = (np.asarray(x, float) for x in out[:3])
+    C = out[3] if len(out) > 3 else []
     n = M.shape[0]
     G = np.asarray(C, float).T if np.size(C) else np.zeros((0, n))
     G = G[np.linalg.norm(G, axis=1) > 1e-12 * max(1.0, float(np.abs(G).max(initial=0.0)))]
@@ -265,10 +266,39 @@ def linearize(scene: Scene, model, setup: dict) -> LinearizedSystem:
         excitation=exc, elevation=complex(e_c[0]),
         added_mass_inf=np.asarray(info["added_mass_inf"], float),
         hydrostatic=np.asarray(info["hydrostatic_stiffness"], float),
-        radiation=model.radiation_coefficients, ptos=ptos, moorings=moorings,
+        radiation=(convolution_radiation(model, scene) if scene.steady.radiation == "convolution"
+                   else model.radiation_coefficients), ptos=ptos, moorings=moorings,
         body_names=list(ex.body_names), reference=ex.body_reference,
         setup_seconds=_time.perf_counter() - t0, memory=scene.hydro.radiation != "off",
         wet_names=[str(b) for b in setup["bodies"]])
+
+
+def convolution_radiation(model, scene: Scene):
+    """omega -> (A, B) that the time-domain run's radiation memory realises (``[steady] radiation =
+    "convolution"``): K(t) from B(w) as the server builds it (server/irf.py ``radiation_irf``, the
+    default pipeline: no resampling, tail or taper), sampled at dt over irf_duration, applied with the
+    trapezoid weights of server/radiation.py: for v = Re(V e^{-i w t}) the discrete sum gives
+    B_eff(w) = dt sum_j w_j K(j dt) cos(w j dt), A_eff(w) = A_inf - dt sum_j w_j K(j dt) sin(w j dt) / w."""
+    from hydrolink.server.irf import radiation_irf
+
+    dt = float(scene.simulation.dt)
+    m = int(round(scene.hydro.irf_duration / dt))
+    t = np.arange(m + 1) * dt
+    wts = np.full(m + 1, dt)
+    wts[[0, -1]] *= 0.5
+    kernels = [(act, radiation_irf(om, bd, t)) for act, om, _, bd in model._coefficients if act.size]
+    a_inf, n = model.added_mass_inf, model.n
+
+    def coefficients(omega: float) -> tuple[np.ndarray, np.ndarray]:
+        a, b = a_inf.copy(), np.zeros((n, n))
+        if m < 1:
+            return a, b
+        for act, k in kernels:
+            ix = np.ix_(act, act)
+            a[ix] -= np.tensordot(wts * np.sin(omega * t), k, axes=(0, 0)) / omega
+            b[ix] = np.tensordot(wts * np.cos(omega * t), k, axes=(0, 0))
+        return a, b
+    return coefficients
 
 
 # -- collocation -----------------------------------------------------------------------------

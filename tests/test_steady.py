@@ -1,0 +1,205 @@
+"""``hydrolink steady`` (clients/steady.py): pseudo-spectral periodic steady state on RM3.
+
+References, all independent of the collocation code:
+- the two-body frequency-domain solution written in tests/test_rm3.py (HDB A(w), B(w), excitation,
+  hand-built mass and PTO matrices): a linear scene at order 1 must reproduce it to solver precision;
+- ``hydrolink run`` (Exudyn client + force server, time stepping) fitted over its last periods: the
+  linear scene and a force-limited PTO (Newton on the clipped force);
+- the system matrices against an assembly by hand from the scene (rigid-body mass about the
+  reference point, A_inf, hydrostatics) and the PTO lines against Exudyn's own linearisation of
+  its connectors.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hydrolink.protocol.scene import parse_scene
+from test_rm3 import (C_PTO, H, HEAVE, MASS, PERIOD, W, frequency_domain, hdb_radiation,
+                      scene_text, steady_state)
+
+LIMIT = 2.0e5   # N: the linear PTO's peak force is ~3.3e5 N
+
+
+@pytest.fixture(scope="module")
+def rm3(shared_data):
+    from hydrolink.server.hdb.io import load_hdb
+    return load_hdb(shared_data / "rm3_wamit" / "rm3.1")
+
+
+def _system(text: str, rm3):
+    from hydrolink.clients.steady import hydro_model, linearize
+    scene = parse_scene(text)
+    model = hydro_model(scene, {b.hdb: rm3 for b in scene.bodies})
+    return scene, linearize(scene, model, model.setup_info())
+
+
+def _heave(sol, k: int = 1) -> np.ndarray:
+    """Complex heave amplitudes (float, spar) of harmonic k, exp(-i k w t)."""
+    s = sol.system
+    return sol.harmonic(sol.q[s.body_index])[[2, 8]] if k == 1 else sol.harmonic(sol.q[s.body_index], k)[[2, 8]]
+
+
+def _limited(text: str) -> str:
+    return text.replace("damping = 1.2e6", f"damping = 1.2e6\nforce_limit = {LIMIT}")
+
+
+@pytest.mark.parametrize("interaction", ["full", "none"])
+def test_order_one_reproduces_frequency_domain(rm3, interaction):
+    from hydrolink.clients.steady import solve
+    _, lin = _system(scene_text(interaction, __import__("pathlib").Path("rm3.1")), rm3)
+    x_fd, p_fd = frequency_domain(rm3, *hdb_radiation(rm3), interaction)
+    for form in ("dae", "ode"):
+        sol = solve(lin, 1, form)
+        assert sol.iterations == 1 and sol.residual < 1e-12
+        x = _heave(sol)
+        print(f"{interaction} {form}: {np.abs(x)} vs FD {np.abs(x_fd)}, rel {np.abs(x / x_fd - 1).max():.1e}")
+        np.testing.assert_allclose(x, x_fd, rtol=1e-9)          # amplitude and phase
+        # higher orders: the linear response has no other harmonic and the first one is unchanged
+        sol5 = solve(lin, 5, form)
+        np.testing.assert_allclose(_heave(sol5), x_fd, rtol=1e-9)
+        assert np.abs(sol5.harmonic(sol5.q, 3)).max() < 1e-9 * np.abs(x_fd).max()
+    # the PTO's mean absorbed power from the sampled results
+    from hydrolink.clients.steady import sample
+    t = np.linspace(0, PERIOD, 400, endpoint=False)
+    assert sample(sol5, t)["pto_power"].mean() == pytest.approx(p_fd, rel=1e-9)
+
+
+def test_matrices_against_scene_assembly_and_exudyn_ptos(rm3):
+    """M = rigid-body mass about the reference point + A_inf, K = hydrostatics (setup), G locks all
+    but heave; the PTO lines g (k g g^T, c g g^T) equal Exudyn's linearisation of its connectors."""
+    import exudyn as exu
+
+    from hydrolink.clients.exudyn_client import build_model
+    from hydrolink.clients.steady import hydro_model, linearize
+
+    text = scene_text("full", __import__("pathlib").Path("rm3.1"))
+    text = text.replace('dofs = ["heave"]         # the other five DOFs are locked to ground', "")
+    text = text.replace('dofs = ["heave"]         # heave-only constraint to ground: the other five DOFs are locked', "")
+    text = text.replace("point1 = [0.0, 0.0, -0.72]", "point1 = [1.0, 0.5, -0.3]")
+    text = text.replace("point2 = [0.0, 0.0, -21.29]", "point2 = [2.0, -1.0, -21.0]\nstiffness = 3.0e5")
+    text += """
+[[ptos]]
+name = "knee"
+type = "rotary"
+body1 = "float"
+body2 = "spar"
+point = [0.0, 0.0, -5.0]
+axes = ["roll", "pitch"]
+frame = [[0.8, 0.6, 0.0], [-0.6, 0.8, 0.0], [0.0, 0.0, 1.0]]
+stiffness = [1.0e6, 2.0e6]
+damping = [3.0e5, 4.0e5]
+"""
+    scene, lin = _system(text, rm3)
+    info = hydro_model(scene, {b.hdb: rm3 for b in scene.bodies}).setup_info()
+    m_hand = np.zeros((12, 12))
+    for i, b in enumerate(scene.bodies):
+        c = np.asarray(b.center_of_mass) - info["equilibrium_position"][i, :3]
+        cx = np.array([[0, -c[2], c[1]], [c[2], 0, -c[0]], [-c[1], c[0], 0]])
+        blk = np.zeros((6, 6))
+        blk[:3, :3] = b.mass * np.eye(3)
+        blk[:3, 3:], blk[3:, :3] = -b.mass * cx, b.mass * cx
+        blk[3:, 3:] = b.inertia_matrix + b.mass * (c @ c * np.eye(3) - np.outer(c, c))
+        m_hand[6 * i:6 * i + 6, 6 * i:6 * i + 6] = blk
+    w = lin.wet_index
+    np.testing.assert_allclose(lin.M[np.ix_(w, w)], m_hand + info["added_mass_inf"], rtol=1e-12, atol=1e-6)
+    np.testing.assert_allclose(lin.K[np.ix_(w, w)], info["hydrostatic_stiffness"], rtol=1e-12, atol=1e-6)
+    assert not lin.D.any() and lin.G.shape[0] == 0      # all six DOFs free, no joint
+    # PTO lines against Exudyn's linearisation with the PTOs built in
+    ex = build_model(scene, info)
+    ss = exu.SimulationSettings()
+    ss.solution.file.write = False
+    m2, k2, d2 = (np.asarray(a) for a in ex.mbs.ComputeLinearizedSystem(ss)[:3])
+    ex.finalize()
+    k_pto = sum(p.stiffness * np.outer(p.g, p.g) for p in lin.ptos)
+    d_pto = sum(p.damping * np.outer(p.g, p.g) for p in lin.ptos)
+    assert [p.name for p in lin.ptos] == ["pto", "knee.roll", "knee.pitch"]
+    np.testing.assert_allclose(m2, lin.M, rtol=1e-12)
+    np.testing.assert_allclose(k2 - lin.K, k_pto, atol=1e-6 * np.abs(k_pto).max())
+    np.testing.assert_allclose(d2 - lin.D, d_pto, atol=1e-6 * np.abs(d_pto).max())
+
+
+@pytest.fixture(scope="module")
+def time_domain(rm3, shared_data, tmp_path_factory):
+    """``hydrolink run`` of the linear and the force-limited RM3 (240 s, dt = T/100)."""
+    import xarray as xr
+
+    from hydrolink.clients.run import run_scene_file
+    out = {}
+    tmp = tmp_path_factory.mktemp("steady_td")
+    for kind in ("linear", "limited"):
+        text = scene_text("full", shared_data / "rm3_wamit" / "rm3.1", duration=240.0)
+        (tmp / f"{kind}.toml").write_text(_limited(text) if kind == "limited" else text)
+        run_scene_file(tmp / f"{kind}.toml", tmp / f"{kind}.nc", progress=False)
+        ds = xr.load_dataset(tmp / f"{kind}.nc")
+        t = ds["time"].values
+        z = (ds["position"] - ds["equilibrium_position"]).sel(dof="heave").values
+        sel = t > t[-1] - 5 * PERIOD + 1e-9
+        basis = np.c_[np.ones(sel.sum()), np.cos(W * t[sel]), np.sin(W * t[sel])]
+        fit = np.linalg.lstsq(basis, z[sel], rcond=None)[0]
+        out[kind] = (fit[1] + 1j * fit[2], float(ds["pto_power"].values[sel].mean()))
+    return out
+
+
+@pytest.mark.parametrize("kind", ["linear", "limited"])
+def test_against_time_domain(rm3, time_domain, kind):
+    """Heave amplitude (both bodies) and mean PTO power within 0.5 % of the time-domain steady state;
+    the force-limited PTO needs Newton (several iterations) and higher harmonics."""
+    from hydrolink.clients.steady import sample, solve
+    text = scene_text("full", __import__("pathlib").Path("rm3.1"))
+    _, lin = _system(_limited(text) if kind == "limited" else text, rm3)
+    x_td, p_td = time_domain[kind]
+    t = np.linspace(0, PERIOD, 1000, endpoint=False)
+    sols = [solve(lin, 10, form) for form in ("dae", "ode")]
+    for sol in sols:
+        x = _heave(sol)
+        p = sample(sol, t)["pto_power"].mean()
+        err = np.r_[np.abs(x_td) / np.abs(x) - 1, p_td / p - 1]
+        print(f"{kind} {sol.formulation}: |x| {np.abs(x)} TD {np.abs(x_td)}, P {p:.1f} TD {p_td:.1f} W, "
+              f"errors {err}, {sol.iterations} Newton")
+        assert np.all(np.abs(err) < 5e-3)
+        assert abs(np.angle(x_td[0] / x[0])) < np.radians(0.5)
+    np.testing.assert_allclose(sols[0].q, sols[1].q, atol=1e-9 * np.abs(sols[0].q).max())
+    if kind == "limited":
+        f = sample(sols[0], t)["pto_force"]
+        assert np.abs(f).max() == pytest.approx(LIMIT) and sols[0].iterations > 1
+        assert np.abs(_heave(sols[0], 3)).max() > 1e-4      # the clipped force excites odd harmonics
+
+
+def test_cli_one_period_in_the_run_layout(rm3, shared_data, tmp_path):
+    import xarray as xr
+    from click.testing import CliRunner
+
+    from hydrolink.clients.cli import cli
+    scene = tmp_path / "rm3.toml"
+    scene.write_text(scene_text("full", shared_data / "rm3_wamit" / "rm3.1") + "\n[steady]\norder = 3\n")
+    res = CliRunner().invoke(cli, ["steady", str(scene), "-o", str(tmp_path / "s.nc"), "--formulation", "ode",
+                                   "--no-progress"])
+    assert res.exit_code == 0, res.output
+    ds = xr.load_dataset(tmp_path / "s.nc")
+    assert ds.attrs["status"] == "complete" and ds.attrs["steady_order"] == 3
+    assert ds.attrs["steady_formulation"] == "ode" and "[[ptos]]" in ds.attrs["scene"]
+    assert ds.sizes["time"] == 100 and np.allclose(np.diff(ds["time"].values), PERIOD / 100)
+    for name in ("position", "velocity", "excitation_force", "radiation_force", "hydrostatic_force",
+                 "wave_elevation", "pto_force", "pto_velocity", "pto_power", "total_pto_power"):
+        assert np.isfinite(ds[name].values).all(), name
+    z = (ds["position"] - ds["equilibrium_position"]).sel(body="float", dof="heave").values
+    assert z.max() == pytest.approx(1.019, abs=1e-3)
+    assert ds["pto_power"].values.mean() == pytest.approx(286e3, rel=2e-3)
+    # hydrostatic force = -C z in heave (the HDB's 2x2 heave block; rho = 1000 as the WAMIT run)
+    zz = (ds["position"] - ds["equilibrium_position"]).sel(dof="heave").values
+    c_hs = rm3["hydrostatic_stiffness"].values[np.ix_(HEAVE, HEAVE)]
+    np.testing.assert_allclose(ds["hydrostatic_force"].sel(dof="heave").values, -zz @ c_hs.T,
+                               rtol=1e-9, atol=1e-6 * np.abs(zz @ c_hs.T).max())
+
+
+def test_refuses_irregular_waves(shared_data, tmp_path):
+    from hydrolink.clients.steady import SteadyError, steady_scene_file
+    scene = tmp_path / "rm3.toml"
+    text = scene_text("full", shared_data / "rm3_wamit" / "rm3.1")
+    text = text.replace('type = "regular"', 'type = "irregular"\nspectrum = "jonswap"\nhs = 2.0\ntp = 8.0')
+    text = text.replace("height = 2.5             # m", "").replace("period = 8.0             # s", "")
+    scene.write_text(text)
+    with pytest.raises(SteadyError, match="waves.type: hydrolink steady needs regular waves"):
+        steady_scene_file(scene, tmp_path / "x.nc", progress=False)
