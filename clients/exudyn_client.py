@@ -40,6 +40,9 @@ from hydrolink.protocol.scene import Scene
 
 log = logging.getLogger(__name__)
 
+#: systems with more ODE2 coordinates than this use Exudyn's sparse linear solver (EigenSparse)
+SPARSE_ABOVE = 60
+
 #: default bound on |displacement| (m, rad) and |velocity| (m/s, rad/s) before a run is called diverged
 BLOW_UP_LIMIT = 1.0e4
 
@@ -191,6 +194,10 @@ def build_model(scene: Scene, setup: dict | None, *, spectral_radius: float = 1.
     ss.timeIntegration.numberOfSteps = 1
     ss.timeIntegration.endTime = dt
     ss.timeIntegration.generalizedAlpha.spectralRadius = float(spectral_radius)
+    if len(mbs.systemData.GetODE2Coordinates()) > SPARSE_ABOVE:
+        # large mechanisms (arrays of bodies + arms): Exudyn's default dense LU dominates the step;
+        # measured on 9N9LA (108 body coordinates + 54 constraints): 9.8 -> 2.3 ms per step
+        ss.linearSolverType = exu.LinearSolverType.EigenSparse
     return ExudynModel(sc, mbs, exu.MainSolverImplicitSecondOrder(), ss, hydro, equilibrium,
                        active, stiffness, dt, mech, wet_index, all_names, reference, body_index,
                        np.array([all_names.index(nm) for nm in names], int), ptos, moorings)
