@@ -56,6 +56,10 @@ class Controller:
     def on_stop(self) -> None:
         """Called when the run ends (or the session closes)."""
 
+    def on_error(self, error: dict) -> None:
+        """A command was refused (``code``, ``name``, ``field``, ``message``; SPEC §5.7.4): that step
+        ran on the fallback. Default: nothing (the runner logs it)."""
+
 
 class ControllerError(RuntimeError):
     """The server refused the controller (wrong session, version, name), or went silent."""
@@ -174,6 +178,7 @@ def run_controller(controller: Controller, server: str, *, session: str | None =
                 stats["late" if code == codec.Code.OUT_OF_ORDER else "invalid"] += 1
                 log.warning("controller %r: server error %s %s [%s]: %s", name, code, reply.get("name"),
                             reply.get("field"), reply.get("message"))
+                controller.on_error({k: reply.get(k) for k in ("code", "name", "field", "message")})
                 if code in (codec.Code.UNKNOWN_SESSION, codec.Code.WRONG_STATE, codec.Code.VERSION_MISMATCH):
                     raise ControllerError(f"error {code} {reply.get('name')}: {reply.get('message')}", code,
                                           reply.get("field"))
