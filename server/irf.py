@@ -112,15 +112,19 @@ def irf_report(omega: np.ndarray, damping: np.ndarray, t: np.ndarray, k: np.ndar
 
 
 def resample_damping(omega: np.ndarray, damping: np.ndarray, domega: float) -> tuple[np.ndarray, np.ndarray]:
-    """B(w) (n_w, ...) resampled by a cubic spline onto the uniform grid w_min + k dw (k = 0, 1, ...)
-    that ends at or just below w_max (w_max itself is appended when the last step would be short
-    by more than 1 %). Returns (omega_new, damping_new)."""
+    """B(w) (n_w, ...) resampled by a cubic spline through (0, 0) and the data onto the uniform grid
+    k dw (k = 1, 2, ...) up to w_max (w_max itself is appended when the last step would be short
+    by more than 1 %): the whole grid from 0 has spacing dw, so K(t) is alias-free up to pi/dw.
+    Returns (omega_new, damping_new)."""
     from scipy.interpolate import CubicSpline
 
     omega = np.asarray(omega, float)
     damping = np.asarray(damping, float)
-    n = int(np.floor((omega[-1] - omega[0]) / domega + 1e-9))
-    new = omega[0] + domega * np.arange(n + 1)
+    if omega[0] > 0:
+        omega = np.concatenate(([0.0], omega))
+        damping = np.concatenate((np.zeros((1, *damping.shape[1:])), damping))
+    n = int(np.floor(omega[-1] / domega + 1e-9))
+    new = domega * np.arange(1, n + 1)
     if omega[-1] - new[-1] > 0.01 * domega:
         new = np.append(new, omega[-1])
     return new, CubicSpline(omega, damping, axis=0)(new)
