@@ -48,25 +48,9 @@ HEAVE = [2, 8]
 @pytest.fixture(scope="module")
 def thevenin(shared_data):
     from hydrolink.server.hdb.io import load_hdb
-    rm3 = load_hdb(shared_data / "rm3_wamit" / "rm3.1")
-    om = rm3["omega"].values
-
-    def at(values):
-        flat = values.reshape(om.size, -1)
-        return np.array([np.interp(W, om, f.real) + 1j * np.interp(W, om, f.imag) for f in flat.T]).reshape(values.shape[1:])
-
-    hv = np.ix_(range(om.size), HEAVE, HEAVE)
-    a, b = at(rm3["added_mass"].values[hv]).real, at(rm3["radiation_damping"].values[hv]).real
-    c = rm3["hydrostatic_stiffness"].values[np.ix_(HEAVE, HEAVE)]
-    f_ex = at(rm3["excitation_force"].values[:, 0, HEAVE]) * H / 2
-    z = b - 1j * W * (MASS + a) + 1j * c / W
-    e = np.array([1.0, -1.0])
-    zi = np.linalg.inv(z)
-    y = e @ zi @ e
-    z_th, f_th = 1 / y, (e @ zi @ f_ex) / y
-    r = z_th.real
-    return {"R": r, "X": z_th.imag, "absZ": abs(z_th), "optimum": abs(f_th) ** 2 / (8 * r),
-            "passive": abs(f_th) ** 2 / (4 * (abs(z_th) + r))}
+    th = _thevenin_port(load_hdb(shared_data / "rm3_wamit" / "rm3.1"))
+    f2 = abs(th["G"] * H / 2) ** 2
+    return {**th, "absZ": abs(th["R"] + 1j * th["X"]), "passive": f2 / (4 * (abs(th["R"] + 1j * th["X"]) + th["R"]))}
 
 
 # ---------------------------------------------------------------- helpers
@@ -429,3 +413,60 @@ def test_wave_probes_match_the_model_and_travel(shared_data):
         assert eta[0, 1] == pytest.approx(probes(t + lag)[0, 0], abs=1e-12)  # the preview column
         if t - lag > 20.0:   # after the ramp (a function of time only)
             assert eta[1, 0] == pytest.approx(probes(t - lag)[0, 0], abs=1e-9)   # downstream = earlier at 0
+
+
+def test_pseudospectral_preview_controller_reaches_the_optimum(shared_data, thevenin, server, tmp_path):
+    """examples/controllers/pseudospectral.py: feedforward from the server's perfect wave preview
+    (one Fourier component, 2 s of preview) plus velocity tracking; mean power near |F|^2/(8R)."""
+    th = thevenin
+    params = {"omega": W, "excitation_re": th["G"].real, "excitation_im": th["G"].imag,
+              "impedance_re": th["R"], "impedance_im": th["X"], "feedback": th["R"]}
+    block = controller_block("force", 0.0, 0.0, measurements=["pto_velocity", "wave_elevation"], preview=2.0)
+    block = block.replace("parameters = { damping = 0.0, stiffness = 0.0 }",
+                          "parameters = { " + ", ".join(f"{k} = {float(v)!r}" for k, v in params.items()) + " }")
+    ds, _, (rc, err) = run_with(tmp_path, "ps", scene_text(shared_data, 80.0, block), server.address,
+                                python_ctl(EXAMPLES / "pseudospectral.py", server.address))
+    assert rc == 0, err
+    p = mean_power(ds)
+    print(f"pseudo-spectral P = {p / 1e3:.2f} kW (FD optimum {th['optimum'] / 1e3:.2f} kW)")
+    assert p == pytest.approx(th["optimum"], rel=0.01) and p < th["optimum"]
+
+
+@pytest.mark.parametrize("example", ["passive", "latching"])
+def test_examples_run(shared_data, server, tmp_path, example):
+    """The other examples drive the device: passive damping (force) and latching (impedance)."""
+    if example == "passive":
+        block = controller_block("force", 9.5e5, 0.0)
+    else:
+        block = controller_block("impedance", 0.0, 0.0).replace(
+            "parameters = { damping = 0.0, stiffness = 0.0 }",
+            "parameters = { damping = 9.5e5, latch_damping = 1.0e9, latch_time = 0.4 }")
+    ds, _, (rc, err) = run_with(tmp_path, example, scene_text(shared_data, 40.0, block), server.address,
+                                python_ctl(EXAMPLES / f"{example}.py", server.address))
+    assert rc == 0, err
+    assert json.loads(ds.attrs["controller_events"])["ctl"]["ok"] == 1000
+    p = mean_power(ds)
+    print(f"{example}: P = {p / 1e3:.2f} kW")
+    assert p > 5e3   # latching pays off only in waves longer than the natural period (not at 4 s)
+    if example == "latching":
+        d = ds["pto_damping"].sel(pto="pto").values[1:]
+        assert set(np.unique(d)) == {9.5e5, 1.0e9}
+
+
+def _thevenin_port(rm3) -> dict:
+    om = rm3["omega"].values
+
+    def at(values):
+        flat = values.reshape(om.size, -1)
+        return np.array([np.interp(W, om, f.real) + 1j * np.interp(W, om, f.imag) for f in flat.T]).reshape(values.shape[1:])
+
+    hv = np.ix_(range(om.size), HEAVE, HEAVE)
+    a, b = at(rm3["added_mass"].values[hv]).real, at(rm3["radiation_damping"].values[hv]).real
+    c = rm3["hydrostatic_stiffness"].values[np.ix_(HEAVE, HEAVE)]
+    z = b - 1j * W * (MASS + a) + 1j * c / W
+    e = np.array([1.0, -1.0])
+    zi = np.linalg.inv(z)
+    z_th = 1 / (e @ zi @ e)
+    g = (e @ zi @ at(rm3["excitation_force"].values[:, 0, HEAVE])) * z_th   # per metre of amplitude
+    r = z_th.real
+    return {"R": r, "X": z_th.imag, "G": g, "optimum": abs(g * H / 2) ** 2 / (8 * r)}
