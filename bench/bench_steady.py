@@ -10,6 +10,11 @@ active DOF's first harmonic compared. Prints a Markdown table; ``--plot`` writes
 
 from __future__ import annotations
 
+import os
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")        # small dense solves: threads only add noise
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
 import argparse
 import re
 import tempfile
@@ -96,69 +101,85 @@ def active_mask(scene) -> np.ndarray:
     return np.array([b.active_mask for b in scene.bodies], bool)
 
 
+CONVOLUTION = '\n[steady]\nradiation = "convolution"\n'
+
+
+def amplitude_error(a: np.ndarray, ref: np.ndarray, keep: np.ndarray) -> float:
+    return float(np.abs(np.abs(a[keep]) / np.abs(ref[keep]) - 1).max())
+
+
+def bench_scene(path: Path, orders: list[int], spp: list[int], periods: list[int], repeat: int) -> dict:
+    scene, _ = load_scene(path)
+    T = scene.waves.period
+    names = np.array([f"{b.name}.{d}" for b in scene.bodies for d in ("surge", "sway", "heave", "roll", "pitch", "yaw")])
+    ref = spectral(path, max(orders), "dae", repeat=1)["amplitude"]
+    keep = active_mask(scene) & (np.abs(ref) > 1e-3 * np.abs(ref).max())
+    print(f"\n### {path} (T = {T} s; DOFs compared: {', '.join(names[keep.reshape(-1)])})\n")
+    print("| method | setting | wall (s) | Newton | amplitude error vs TD (dt = T/%d, %d periods) |" % (spp[-1], periods[-1]))
+    print("|---|---|---|---|---|")
+    res = {"spectral": [], "dt": [], "duration": []}
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        td_best = time_domain(path, T / spp[-1], periods[-1] * T, tmp)
+        conv_best = scene_variant(path, tmp, dt=T / spp[-1], duration=periods[-1] * T, extra=CONVOLUTION)
+        for radiation in ("hdb", "convolution"):
+            for form in ("dae", "ode"):
+                for n in orders:
+                    sp = path if radiation == "hdb" else conv_best
+                    s = spectral(sp, n, form, repeat)
+                    err = amplitude_error(s["amplitude"], td_best["amplitude"], keep)
+                    res["spectral"].append((radiation, form, n, s["wall"], s["solve"], err))
+                    print(f"| spectral {form.upper()}, A/B {radiation} | N = {n} ({s['unknowns']} unknowns) | "
+                          f"{s['wall']:.3f} (solve {s['solve'] * 1e3:.1f} ms) | {s['iterations']} | {err:.2e} |")
+        print()
+        print("| time domain | steps | wall (s) | amplitude error vs spectral A/B hdb (N = %d) | vs spectral A/B convolution at this dt |" % max(orders))
+        print("|---|---|---|---|---|")
+        for k in spp:
+            for npd in (periods if k == 100 else periods[-1:]):
+                td = td_best if (k == spp[-1] and npd == periods[-1]) else time_domain(path, T / k, npd * T, tmp)
+                conv = spectral(scene_variant(path, tmp, dt=T / k, duration=npd * T, extra=CONVOLUTION),
+                                max(orders), "ode", 1)["amplitude"]
+                e1, e2 = amplitude_error(td["amplitude"], ref, keep), amplitude_error(td["amplitude"], conv, keep)
+                if npd == periods[-1]:
+                    res["dt"].append((k, td["wall"], e1, e2))
+                if k == 100:
+                    res["duration"].append((npd, td["wall"], e1, e2))
+                print(f"| dt = T/{k}, {npd} periods | {td['steps']} | {td['wall']:.2f} | {e1:.2e} | {e2:.2e} |")
+    return res
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("scenes", nargs="+", type=Path)
     ap.add_argument("--orders", default="1,3,5,10,20")
     ap.add_argument("--steps-per-period", default="25,50,100,200")
     ap.add_argument("--periods", default="25,50,100", help="durations in wave periods (TD)")
+    ap.add_argument("--repeat", type=int, default=3, help="spectral: best of")
     ap.add_argument("--plot", type=Path)
     args = ap.parse_args()
     orders = [int(x) for x in args.orders.split(",")]
     spp = [int(x) for x in args.steps_per_period.split(",")]
     periods = [int(x) for x in args.periods.split(",")]
-    curves = {}
-    for path in args.scenes:
-        scene, _ = load_scene(path)
-        T = scene.waves.period
-        mask = active_mask(scene)
-        names = [f"{b.name}.{d}" for b in scene.bodies for d in ("surge", "sway", "heave", "roll", "pitch", "yaw")]
-        ref = spectral(path, max(orders), "dae", repeat=1)["amplitude"]
-        big = np.abs(ref) > 1e-3 * np.abs(ref).max()
-        keep = mask & big
-        print(f"\n## {path}  (T = {T} s; DOFs compared: {', '.join(np.array(names)[keep.reshape(-1)])})\n")
-        print("| method | setting | wall (s) | max amplitude error vs spectral N=" f"{max(orders)} DAE |")
-        print("|---|---|---|---|")
-        rows_s, rows_dt, rows_dur = [], [], []
-        for form in ("dae", "ode"):
-            for n in orders:
-                s = spectral(path, n, form)
-                err = np.abs(np.abs(s["amplitude"][keep]) / np.abs(ref[keep]) - 1).max()
-                rows_s.append((form, n, s["wall"], s["solve"], err))
-                print(f"| spectral {form.upper()} | N = {n} ({s['unknowns']} unknowns, {s['iterations']} Newton) | "
-                      f"{s['wall']:.4f} (solve {s['solve'] * 1e3:.1f} ms) | {err:.2e} |")
-        with tempfile.TemporaryDirectory() as tmp:
-            for k in spp:
-                dur = periods[-1] * T
-                td = time_domain(path, T / k, dur, Path(tmp))
-                err = np.abs(np.abs(td["amplitude"][keep]) / np.abs(ref[keep]) - 1).max()
-                rows_dt.append((k, td["wall"], err))
-                print(f"| time domain | dt = T/{k}, {periods[-1]} periods ({td['steps']} steps) | {td['wall']:.2f} | {err:.2e} |")
-            for npd in periods[:-1]:
-                td = time_domain(path, T / 100, npd * T, Path(tmp))
-                err = np.abs(np.abs(td["amplitude"][keep]) / np.abs(ref[keep]) - 1).max()
-                rows_dur.append((npd, td["wall"], err))
-                print(f"| time domain | dt = T/100, {npd} periods ({td['steps']} steps) | {td['wall']:.2f} | {err:.2e} |")
-        curves[path.stem] = (rows_s, rows_dt, rows_dur)
+    curves = {(path.parent.name if path.stem == "scene" else path.stem): bench_scene(path, orders, spp, periods, args.repeat) for path in args.scenes}
     if args.plot:
         import matplotlib
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
         fig, ax = plt.subplots(1, 2, figsize=(10, 4))
-        for name, (rows_s, rows_dt, _) in curves.items():
-            l, = ax[0].loglog([k for k, _, _ in rows_dt], [w for _, w, _ in rows_dt], "o-", label=f"{name}: time stepping")
-            for form, style in (("dae", "s--"), ("ode", "^:")):
-                best = min(r[2] for r in rows_s if r[0] == form and r[1] == max(r_[1] for r_ in rows_s))
-                ax[0].axhline(best, ls=style[1:], color=l.get_color(), lw=1)
-            ax[1].loglog([n for f, n, *_ in rows_s if f == "dae"], [w for f, n, w, *_ in rows_s if f == "dae"], "s-",
-                         color=l.get_color(), label=f"{name}: DAE")
-            ax[1].loglog([n for f, n, *_ in rows_s if f == "ode"], [w for f, n, w, *_ in rows_s if f == "ode"], "^:",
-                         color=l.get_color(), label=f"{name}: ODE")
-        ax[0].set(xlabel="time steps per wave period (T/dt)", ylabel="wall time (s)",
-                  title="time stepping (lines: spectral, highest order)")
-        ax[1].set(xlabel="harmonics N", ylabel="wall time (s)", title="spectral: setup + solve")
+        for name, res in curves.items():
+            l, = ax[0].loglog([k for k, *_ in res["dt"]], [w for _, w, *_ in res["dt"]], "o-",
+                              label=f"{name}: time stepping, {periods[-1]} periods")
+            ax[1].loglog([p for p, *_ in res["duration"]], [w for _, w, *_ in res["duration"]], "o-",
+                         color=l.get_color(), label=f"{name}: time stepping, dt = T/100")
+            for form, ls in (("dae", "--"), ("ode", ":")):
+                w = [r[3] for r in res["spectral"] if r[0] == "hdb" and r[1] == form and r[2] == max(orders)][0]
+                for a in ax:
+                    a.axhline(w, ls=ls, color=l.get_color(), lw=1.2,
+                              label=f"{name}: spectral {form.upper()}, N = {max(orders)}")
+        ax[0].set(xlabel="time steps per wave period (T/dt)", ylabel="wall time (s)", title="cost against dt")
+        ax[1].set(xlabel="simulated duration (wave periods)", ylabel="wall time (s)", title="cost against duration")
         for a in ax:
-            a.legend(fontsize=7)
+            a.legend(fontsize=6)
             a.grid(True, which="both", alpha=0.3)
         fig.tight_layout()
         fig.savefig(args.plot, dpi=110)
