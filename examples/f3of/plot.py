@@ -1,6 +1,6 @@
 """F3OF plots: the base pitch RAO sweep (time domain vs frequency domain) and the flap decay test.
 
-    python examples/f3of/plot.py rao -o examples/f3of/f3of_rao.png      # runs the 11 periods (~2 min)
+    python examples/f3of/plot.py rao -o examples/f3of/f3of_rao.png      # runs the 11 periods (~5 min)
     python examples/f3of/plot.py decay f3of_decay.nc [f3of_decay_none.nc] -o f3of_decay.png
 
 ``rao`` runs ``f3of.toml`` (regular waves, amplitude 0.01 m) at T = 5, 6, ..., 15 s with dt = T/100,
