@@ -470,3 +470,22 @@ def _thevenin_port(rm3) -> dict:
     g = (e @ zi @ at(rm3["excitation_force"].values[:, 0, HEAVE])) * z_th   # per metre of amplitude
     r = z_th.real
     return {"R": r, "X": z_th.imag, "G": g, "optimum": abs(g * H / 2) ** 2 / (8 * r)}
+
+
+def test_period_and_latency(shared_data, server, tmp_path):
+    """period = 2 dt, latency = 2: the command from the measurements of step k (k even) is in force
+    from step k + 2 until the next one, and equals c v_k + k x_k of the state at t_k."""
+    c, k = 3.9e5, 1.36e6
+    block = controller_block("force", c, k, period=2 * DT, latency=2)
+    ds, _, (rc, err) = run_with(tmp_path, "lat", scene_text(shared_data, 4.0, block), server.address,
+                                python_ctl(EXAMPLES / "reactive.py", server.address))
+    assert rc == 0, err
+    status = ds["controller_status"].sel(controller="ctl").values
+    assert np.all(status[2::2] == 0) and np.all(np.isnan(status[1::2])) and np.isnan(status[0])
+    f = ds["pto_command_force"].sel(pto="pto").values
+    v = ds["pto_velocity"].sel(pto="pto").values
+    x = ((ds["position"] - ds["equilibrium_position"]).sel(dof="heave").values @ np.array([1.0, -1.0]))
+    for s in range(2, f.size):
+        j = s - 2 - (s % 2)        # the newest measurement step whose command is due by step s
+        assert f[s] == pytest.approx(c * v[j] + k * x[j], rel=1e-9, abs=1e-6)
+    assert np.all(f[:2] == 0.0)
