@@ -275,7 +275,7 @@ def _progress_bar(total: int, enabled: bool):
 
 
 def run(scene: Scene, scene_text: str, connection, setup: dict | None, writer, *, progress: bool = True,
-        spectral_radius: float = 1.0, blow_up_limit: float = BLOW_UP_LIMIT) -> dict:
+        spectral_radius: float | None = None, blow_up_limit: float = BLOW_UP_LIMIT) -> dict:
     """Run the lockstep co-simulation to ``scene.simulation.duration``.
 
     ``connection`` has already said hello (``setup`` is its reply); it is not closed here. With no
@@ -289,6 +289,8 @@ def run(scene: Scene, scene_text: str, connection, setup: dict | None, writer, *
 
     Returns a summary: steps, time, wall_time, rows, status and per-step costs in µs
     (``client_us_per_step`` excludes the server round trip, ``round_trip_us_per_step`` is it)."""
+    if spectral_radius is None:
+        spectral_radius = scene.simulation.spectral_radius
     model = build_model(scene, setup, spectral_radius=spectral_radius)
     n, h = model.n_bodies, model.dt
     n_steps = int(round(scene.simulation.duration / h))

@@ -37,6 +37,9 @@ class Simulation(_Section):
     dt: PositiveFloat
     duration: PositiveFloat
     progress: bool = True
+    # Exudyn client: generalized-alpha spectral radius (1 = trapezoidal rule, no numerical damping;
+    # < 1 damps the constraint forces of long runs with joint loops and slack ropes)
+    spectral_radius: Annotated[float, Field(ge=0.0, le=1.0)] = 1.0
 
     @property
     def n_steps(self) -> int:
