@@ -150,7 +150,7 @@ def cost(args) -> None:
             for tol in (0.0, args.prune):
                 hydro = f'radiation = "{method}"\ncoupling_tolerance = {tol}'
                 if method == "state-space":
-                    hydro += f"\nirf_taper = 0.5\nss_tolerance = {args.ss_tolerance}"
+                    hydro += f"\nirf_taper = 0.2\nss_tolerance = {args.ss_tolerance}\nss_max_order = 30"
                 us, m, setup = time_model(ds, hydro, args.steps, args.repeat)
                 info = m.setup_info()
                 ss = info["state_space"]
@@ -209,7 +209,7 @@ def main(argv=None) -> None:
     p.add_argument("--repeat", type=int, default=3)
     p.add_argument("--bodies", type=int, nargs="+", default=[1, 3, 9, 27])
     p.add_argument("--prune", type=float, default=0.05)
-    p.add_argument("--ss-tolerance", type=float, default=0.01)
+    p.add_argument("--ss-tolerance", type=float, default=0.003)
     p.add_argument("--duration", type=float, default=30.0)
     p.add_argument("--only", nargs="*", help="accuracy: these settings (labels) besides the reference")
     args = p.parse_args(argv)
