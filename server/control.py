@@ -172,6 +172,8 @@ class ControlHub:
             slot.parked = None
             self.send(route, "idle", msg_id, {})
         self._activate(slot)
+        if slot.newest >= 0 and slot.newest not in slot.decided:
+            slot.delivered = min(slot.delivered, slot.newest - 1)   # the newest goes to the new connection
         log.info("session %s: controller %r %s (epoch %d)", self.session_id, name,
                  "rejoined" if rejoined else "joined", slot.epoch)
         self._maybe_finish_pending()
@@ -411,7 +413,8 @@ class ControlHub:
                 self._decide(s, k, "absent")
             elif now >= s.relay_time.get(k, now) + s.cfg.timeout:
                 self._decide(s, k, "timeout")
-                s.state = "absent"
+                if s.parked is None:   # a controller waiting for measurements is alive: not absent
+                    s.state = "absent"
             else:
                 waiting = True
         if waiting:
