@@ -109,6 +109,30 @@ class Hydro(_Section):
 
 
 
+class Coupling(_Section):
+    """How the Exudyn client and the force server exchange (README "Coupling schemes",
+    docs/stability.md).
+
+    scheme: "mass-matrix" (default) - A_inf in the client's mass matrix, forces at t_k+1 from the
+    predicted state; "explicit" - staggered: forces from the previous state held over the step and
+    A_inf fed back as the lagged force -A_inf a_k (the classic added-mass instability: refused when
+    the added-mass ratio exceeds ``explicit_limit``); "explicit-predictor" - the same lagged
+    -A_inf a_k, forces at t_k+1 from the velocity-predicted state; "implicit" - -A_inf a_k+1 and the
+    forces at the state the step ends in, iterated to ``tolerance`` with rollback (Exudyn state and
+    the server's ``iteration``) and Aitken relaxation.
+
+    exchange_every: the client takes this many steps of simulation.dt per exchange with the server
+    (the server's step, setup.dt, is exchange_every * simulation.dt); between exchanges the forces
+    are held (``between_exchanges = "hold"``) or varied linearly through the last two exchanged
+    samples ("extrapolate")."""
+    scheme: Literal["mass-matrix", "explicit", "explicit-predictor", "implicit"] = "mass-matrix"
+    exchange_every: Annotated[int, Field(ge=1, le=100_000)] = 1
+    between_exchanges: Literal["hold", "extrapolate"] = "hold"
+    tolerance: Annotated[float, Field(gt=0, lt=1, allow_inf_nan=False)] = 1e-8   # implicit: relative
+    max_iterations: Annotated[int, Field(ge=1, le=1000)] = 50                    # implicit, per step
+    explicit_limit: Annotated[float, Field(gt=0, le=1.0, allow_inf_nan=False)] = 0.9  # max A_inf/m
+
+
 class Steady(_Section):
     """``hydrolink steady``: periodic steady state in regular waves by pseudo-spectral collocation
     (Fourier series of ``order`` harmonics, collocated at 2 order + 1 points over one period, Newton
@@ -489,6 +513,7 @@ class Scene(_Section):
     waves: Waves = StillWater(type="still")
     hydro: Hydro = Hydro()
     steady: Steady = Steady()
+    coupling: Coupling = Coupling()
     bodies: Annotated[list[Body], Field(min_length=1)]
     point_masses: list[PointMass] = []
     joints: list[Joint] = []
@@ -542,7 +567,24 @@ class Scene(_Section):
         if isinstance(self.client, FMUClient):
             self.client.check(self)
         self._check_controllers(names)
+        self._check_coupling()
         return self
+
+    def _check_coupling(self) -> None:
+        c = self.coupling
+        if c == Coupling():
+            return
+        if isinstance(self.client, FMUClient):
+            raise ValueError("coupling: [coupling] drives the Exudyn client; an FMU client's coupling is "
+                             "[client.coupling] (and client.communication_step)")
+        if c.exchange_every > 1:
+            h = c.exchange_every * self.simulation.dt
+            n = self.simulation.duration / h
+            if abs(n - round(n)) > 1e-6 * max(1.0, n):
+                raise ValueError(f"coupling.exchange_every: the exchange interval exchange_every * dt = {h:g} s "
+                                 f"must divide simulation.duration = {self.simulation.duration:g} s")
+            if self.controllers:
+                raise ValueError("coupling.exchange_every: controllers need an exchange every step (1)")
 
     def _check_controllers(self, names: list[str]) -> None:
         linear = {p.name for p in self.ptos if isinstance(p, LinearPTO)}

@@ -131,7 +131,8 @@ class HydroModel:
         wet_bodies = [scene.bodies[i] for i in wet]
         n_b = len(self.bodies)
         self.n = 6 * n_b
-        self.dt = float(scene.simulation.dt)
+        # one server step per exchange: [coupling] exchange_every client steps of simulation.dt
+        self.dt = float(scene.simulation.dt) * int(scene.coupling.exchange_every)
         self.interaction = scene.hydro.interaction
         self.active = np.array([b.active_mask for b in wet_bodies], bool)  # (N, 6)
         self._idx = np.flatnonzero(self.active.reshape(-1))
