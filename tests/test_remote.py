@@ -1,0 +1,122 @@
+"""Remote lockstep: force server, multibody client and controller each in its own network namespace
+(clients/netlab.py), frames delayed on the way; the results equal the local run bit for bit.
+
+Skipped, with the reason, where this machine cannot create namespaces (not root, no ``ip``, no
+netns support). The delay is netem where the kernel has it, else the lab's user-space delay switch.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import subprocess
+import xarray as xr
+
+from hydrolink.clients import netlab
+
+REPO = Path(__file__).resolve().parents[1]
+REACTIVE = REPO / "examples" / "controllers" / "reactive.py"
+HYDROLINK = [sys.executable, "-m", "hydrolink.clients.cli"]
+COMPARED = ("position", "velocity", "excitation_force", "radiation_force", "hydrostatic_force", "pto_force",
+            "pto_power", "pto_command_force", "controller_status", "controller_fallbacks")
+
+_reason = netlab.unsupported_reason()
+needs_netns = pytest.mark.skipif(_reason is not None, reason=f"netns lab unavailable: {_reason}")
+
+
+def rm3_scene(shared_data: Path, duration: float) -> str:
+    """RM3 (two bodies, one PTO) at T = 4 s, dt = 0.04 s, a reactive force controller over the server."""
+    text = (REPO / "examples" / "rm3" / "rm3.toml").read_text()
+    hdb = (shared_data / "rm3_wamit" / "rm3.1").as_posix()
+    for a, b in (('"../../../shared/data/rm3_wamit/rm3.1"', f'"{hdb}"'), ("duration = 400.0", f"duration = {duration}"),
+                 ("period = 8.0", "period = 4.0"), ("dt = 0.08", "dt = 0.04"), ("ramp = 40.0", "ramp = 1.0"),
+                 ("damping = 1.2e6          # N s/m", "damping = 0.0")):
+        assert a in text
+        text = text.replace(a, b)
+    return text + ('\n[[controllers]]\nname = "ctl"\nptos = ["pto"]\ncommand = "force"\ntimeout = 20.0\n'
+                   'measurements = ["pto_displacement", "pto_velocity"]\n'
+                   "parameters = { damping = 3.9e5, stiffness = 1.36e6 }\n")
+
+
+def serve_address(proc: subprocess.Popen) -> str:
+    line = proc.stderr.readline()
+    address = line.strip().rsplit(" ", 1)[-1]
+    assert address.startswith("tcp://"), line
+    return address
+
+
+def three_processes(popen, scene: Path, out: Path, bind: str, connect: str | None = None) -> float:
+    """Server, controller and multibody client via ``popen(who, argv)``; returns the run's wall time."""
+    server = popen("server", [*HYDROLINK, "serve", "--bind", bind])
+    address = connect or serve_address(server)
+    ctl = popen("ctl", [*HYDROLINK, "control", str(REACTIVE), "--server", address, "--join-wait", "30"])
+    t0 = time.perf_counter()
+    client = popen("client", [*HYDROLINK, "run", str(scene), "-o", str(out), "--server", address, "--no-progress"])
+    try:
+        _, err = client.communicate(timeout=120)
+        assert client.returncode == 0, err
+        wall = time.perf_counter() - t0
+        _, err = ctl.communicate(timeout=30)
+        assert ctl.returncode == 0, err
+    finally:
+        for p in (client, ctl, server):
+            if p.poll() is None:
+                p.terminate()
+                p.wait(10)
+            for s in (p.stdout, p.stderr):
+                if s is not None:
+                    s.close()
+    return wall
+
+
+def local_popen(who: str, argv: list[str]) -> subprocess.Popen:
+    return subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+@pytest.fixture(scope="module")
+def local_run(shared_data, tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("remote")
+    scene = tmp / "rm3.toml"
+    scene.write_text(rm3_scene(shared_data, 2.0))
+    three_processes(local_popen, scene, tmp / "local.nc", "tcp://127.0.0.1:*")
+    return scene, xr.load_dataset(tmp / "local.nc")
+
+
+@needs_netns
+@pytest.mark.parametrize("delay,mode", [(0.005, "auto"), (0.0, "netem")])
+def test_netns_run_equals_local_bit_for_bit(local_run, tmp_path, delay, mode):
+    """Three namespaces, 5 ms one-way (10 ms per round trip; auto: netem or the delay switch) and,
+    with ``netem`` mode at 0 ms, a plain kernel bridge: the results equal the loopback run's."""
+    scene, ref = local_run
+    with netlab.Lab(["server", "client", "ctl"], delay=delay, mode=mode) as lab:
+        addr = f"tcp://{lab.address('server')}:5555"
+        wall = three_processes(lambda who, argv: lab.popen(who, argv), scene, tmp_path / "remote.nc", addr, addr)
+    ds = xr.load_dataset(tmp_path / "remote.nc")
+    assert ds.sizes["time"] == ref.sizes["time"] == 51
+    assert json.loads(ds.attrs["controller_events"])["ctl"]["ok"] == 50   # every command on time
+    for v in COMPARED:
+        assert np.array_equal(ds[v].values, ref[v].values, equal_nan=True), v
+    assert np.abs(ds["pto_command_force"].values).max() > 1e3
+    if delay:
+        # two round trips per step (multibody <-> server <-> controller), each >= 2 x delay
+        assert wall > 50 * 4 * delay
+
+
+@needs_netns
+def test_lab_delay_and_cleanup():
+    """The delay is what was asked (round trip >= 2 x one-way) and the namespaces are gone after."""
+    probe = ("import socket,sys,time\nt=time.perf_counter();s=socket.socket();s.settimeout(2)\n"
+             "try:\n s.connect((sys.argv[1],9))\nexcept ConnectionRefusedError:\n pass\n"
+             "print(time.perf_counter()-t)\n")
+    with netlab.Lab(["a", "b"], delay=0.02) as lab:
+        out = lab.run("a", [sys.executable, "-c", probe, lab.address("b")], timeout=20)
+        rtt = float(out.stdout)
+        names = lab._namespaces[:]
+    assert 0.04 <= rtt < 0.5, rtt
+    listed = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True).stdout
+    assert not any(n in listed for n in names)
