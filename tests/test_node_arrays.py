@@ -7,9 +7,10 @@
 - 4N3LA: neutrally buoyant arms stay level in still water (and sink without their buoyancy); the
   rope moorings start from their catenary (horizontal tension w·c, vertical w·s at the point mass);
 - a sweep point against an independent reference: two nodes (C1, S2 of the 4N3LA HDB) and one arm
-  with spherical joints and rotary PTOs, relative pitch RAO and mean PTO power in a regular wave vs
-  a frequency-domain solution of the linearised constrained system written here (null-space
-  reduction of the joint constraints; A(ω), B(ω), F_ex(ω), hydrostatics from the same HDB).
+  with spherical joints and rotary PTOs, relative pitch RAO, heave and mean PTO power in a regular
+  wave vs a frequency-domain solution of the linearised constrained system written here (null-space
+  reduction of the joint constraints; F_ex(ω), hydrostatics from the same HDB; A and B those the
+  sampled, truncated convolution realises — as tests/test_rm3.py — the HDB's own printed beside).
 """
 
 from __future__ import annotations
@@ -139,8 +140,24 @@ def test_9n9la_hexagonal_loop_runs(tmp_path):
 OMEGA, H_WAVE = 4.0, 0.02       # rad/s (on the HDB grid), m
 
 
-def _frequency_domain(hdb: xr.Dataset, scene) -> dict:
-    """Linearised C1 + S2 + arm: complex amplitudes per unit wave amplitude (exp(-iωt))."""
+def _effective_ab(hdb: xr.Dataset, idx: list[int], dt: float, duration: float) -> tuple[np.ndarray, np.ndarray]:
+    """A(ω), B(ω) that the sampled, truncated convolution realises: K(t) = (2/π) ∫ B cos ωt dω from the
+    HDB's B (B(0) = 0, trapezoid), A_eff = A∞ - (1/ω) Σ w_j K(t_j) sin(ω t_j) dt, B_eff = Σ w_j K(t_j) cos(ω t_j) dt."""
+    w = np.r_[0.0, hdb.omega.values]
+    B = np.concatenate([np.zeros((1, len(idx), len(idx))), hdb.radiation_damping.values[:, idx][:, :, idx]])
+    t = np.arange(int(round(duration / dt)) + 1) * dt
+    K = 2 / np.pi * np.trapezoid(B[None] * np.cos(np.outer(t, w))[:, :, None, None], w, axis=1)
+    wt = np.ones(t.size)
+    wt[0] = wt[-1] = 0.5
+    a_inf = hdb.added_mass_inf.values[np.ix_(idx, idx)]
+    a_eff = a_inf - (1 / OMEGA) * np.einsum("j,jab->ab", wt * np.sin(OMEGA * t) * dt, K)
+    b_eff = np.einsum("j,jab->ab", wt * np.cos(OMEGA * t) * dt, K)
+    return a_eff, b_eff
+
+
+def _frequency_domain(hdb: xr.Dataset, scene, effective: tuple[float, float] | None = None) -> dict:
+    """Linearised C1 + S2 + arm: complex amplitudes per unit wave amplitude (exp(-iωt)); with
+    ``effective`` = (dt, irf_duration) A and B are those the time-domain convolution realises."""
     names = ["C1", "S2"]
     idx = [list(hdb.influenced_dof.values).index(f"{b}.{d}") for b in names
            for d in ("surge", "sway", "heave", "roll", "pitch", "yaw")]
@@ -148,6 +165,8 @@ def _frequency_domain(hdb: xr.Dataset, scene) -> dict:
     assert abs(hdb.omega.values[io] - OMEGA) < 1e-9
     A = hdb.added_mass.values[io][np.ix_(idx, idx)]
     B = hdb.radiation_damping.values[io][np.ix_(idx, idx)]
+    if effective is not None:
+        A, B = _effective_ab(hdb, idx, *effective)
     Chs = hdb.hydrostatic_stiffness.values[np.ix_(idx, idx)]
     F = hdb.excitation_force.values[io, 0][idx]
     bodies = {b.name: b for b in scene.bodies}
@@ -215,7 +234,7 @@ def test_two_nodes_one_arm_relative_pitch_rao_vs_frequency_domain(tmp_path):
     text = (EX4 / "node_4n3la.toml").read_text()
     head = text.split("\n[[")[0]
     head = _replace_waves(head, f'type = "regular"\nheight = {H_WAVE}\nperiod = {2 * math.pi / OMEGA!r}\nramp = 5.0')
-    head = re.sub(r"(?m)^duration = .*$", "duration = 40.0", head)
+    head = re.sub(r"(?m)^duration = .*$", "duration = 80.0", head)
     head = re.sub(r"(?m)^dt = .*$", "dt = 0.01", head)
     head = re.sub(r"(?m)^irf_duration = .*$", "irf_duration = 10.0", head)
     keep = [p for p in text.split("\n[[")[1:]
@@ -226,7 +245,8 @@ def test_two_nodes_one_arm_relative_pitch_rao_vs_frequency_domain(tmp_path):
     scene, _ = load_scene(path)
     assert [b.name for b in scene.bodies] == ["C1", "S2", "A2"] and len(scene.joints) == 2 and len(scene.ptos) == 2
     hdb = build_hdb(EX4 / "node_4n3la_hdb.toml", progress=False)
-    fd = _frequency_domain(hdb, scene)
+    fd_hdb = _frequency_domain(hdb, scene)
+    fd = _frequency_domain(hdb, scene, effective=(scene.simulation.dt, scene.hydro.irf_duration))
     summary, ds = _run(path)
     t = ds.time.values
     t0 = t[-1] - 8 * 2 * math.pi / OMEGA
@@ -236,8 +256,12 @@ def test_two_nodes_one_arm_relative_pitch_rao_vs_frequency_domain(tmp_path):
     m = t >= t0
     p_td = float(ds.total_pto_power.values[m].mean()) / (H_WAVE / 2) ** 2
     heave_td = _amplitude(t, ds.position.sel(body="S2", dof="heave").values, t0) / (H_WAVE / 2)
-    print(f"relative pitch RAO {rao_td:.4f} (time domain) vs {rao_fd:.4f} rad/m (frequency domain); "
-          f"PTO power {p_td:.3f} vs {fd['power']:.3f} W/m^2; S2 heave {heave_td:.4f} vs {abs(fd['heave_S2']):.4f}")
-    assert rao_td == pytest.approx(rao_fd, rel=0.02)
-    assert heave_td == pytest.approx(abs(fd["heave_S2"]), rel=0.02)
-    assert p_td == pytest.approx(fd["power"], rel=0.03)
+    print(f"relative pitch RAO {rao_td:.4f} (time domain) vs {rao_fd:.4f} rad/m (frequency domain, effective A, B; "
+          f"{abs(fd_hdb['rel_pitch']):.4f} with the HDB's A, B); PTO power {p_td:.3f} vs {fd['power']:.3f} "
+          f"({fd_hdb['power']:.3f}) W/m^2; S2 heave {heave_td:.4f} vs {abs(fd['heave_S2']):.4f} ({abs(fd_hdb['heave_S2']):.4f}) m/m")
+    # measured: 0.01 % (relative pitch), 0.03 % (heave), 0.1 % (power); with the HDB's A(ω), B(ω)
+    # instead of the effective ones the reference moves by 0.9 % / 1.2 % / 2.6 % (K(t) from B(ω) on
+    # 0.2..10 rad/s: the BEM grid, not the co-simulation); 80 s: the lightly damped heave has settled
+    assert rao_td == pytest.approx(rao_fd, rel=5e-3)
+    assert heave_td == pytest.approx(abs(fd["heave_S2"]), rel=5e-3)
+    assert p_td == pytest.approx(fd["power"], rel=5e-3)
