@@ -585,6 +585,9 @@ class Scene(_Section):
                                  f"must divide simulation.duration = {self.simulation.duration:g} s")
             if self.controllers:
                 raise ValueError("coupling.exchange_every: controllers need an exchange every step (1)")
+        if self.controllers and c.scheme != "mass-matrix":
+            raise ValueError(f"coupling.scheme: controllers run with the \"mass-matrix\" scheme only "
+                             f"(got \"{c.scheme}\")")
 
     def _check_controllers(self, names: list[str]) -> None:
         linear = {p.name for p in self.ptos if isinstance(p, LinearPTO)}
