@@ -40,6 +40,7 @@ HINGE_X = (-12.5, 12.5)
 K_MOORING = 1.0e5
 AMPLITUDE = 0.01
 IRF = 40.0
+DECAY_IRF, DECAY_TAPER = 30.0, 0.3          # the decay scenes' [hydro] memory
 
 
 @pytest.fixture(scope="module")
@@ -149,8 +150,11 @@ def decay_reference(hdb, theta0: float, dt: float, n: int) -> np.ndarray:
     tf = hinge_map()[:, 3:]
     m = tf.T @ (MASS + a_inf) @ tf
     kq = tf.T @ c @ tf
-    steps = int(round(IRF / dt))
-    kt = np.einsum("ia,tij,jb->tab", tf, irf(b, hdb["omega"].values, np.arange(steps + 1) * dt), tf)
+    steps = int(round(DECAY_IRF / dt))
+    ti = np.arange(steps + 1) * dt
+    t1 = (1 - DECAY_TAPER) * DECAY_IRF                       # cosine taper over the last fraction
+    window = np.where(ti <= t1, 1.0, 0.5 * (1 + np.cos(np.pi * (ti - t1) / (DECAY_IRF - t1))))
+    kt = np.einsum("ia,tij,jb->tab", tf, irf(b, hdb["omega"].values, ti) * window[:, None, None], tf)
     wk = dt * kt
     wk[0] *= 0.5
     wk[-1] *= 0.5
@@ -202,9 +206,9 @@ def test_decay_flap2_moves_only_through_hydrodynamic_interaction(hdb, tmp_path, 
           f"reference {np.degrees(ref2):.4f} deg; max deviation flap 1 {err1:.2e} of th0, flap 2 {err2:.2e} of its peak; "
           f"flap 1 without interaction deviates {np.abs(none[:, 3] - full[:, 3]).max() / th:.2e} of th0")
     # flap 1's 46 s swing hands its motion over to flap 2 through the flap-flap coupling (the two
-    # flap modes, in phase and in opposition, split by it: a beat); in 100 s the linear model moves
-    # flap 2 by a third of flap 1's release angle
-    assert peak2 > 0.5 * ref2 and ref2 > 0.2 * th
+    # flap modes, in phase and in opposition, split by it: a beat); in 100 s the linear model (30 s
+    # tapered memory, as the scenes) moves flap 2 by about a tenth of flap 1's release angle
+    assert peak2 > 0.5 * ref2 and ref2 > 0.05 * th
     if degrees <= 1.0:  # linear regime: hydrolink run reproduces the independent model to 1 %
         assert err1 < 0.01 and err2 < 0.01
     # (at 10 deg the run departs from the linear model by a geometric nonlinearity: the flap's CoG
