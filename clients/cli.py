@@ -93,23 +93,76 @@ def hdb_info(file: Path, plot: Path | None, dofs: str | None) -> None:
 
 
 @cli.command()
-@click.option("--bind", default="tcp://127.0.0.1:5555", show_default=True,
-              help="ZeroMQ endpoint to bind (tcp://HOST:PORT or ipc://PATH).")
+@click.option("--bind", default="tcp://127.0.0.1:5555", show_default=True, envvar="HYDROLINK_BIND",
+              help="ZeroMQ endpoint to bind (tcp://HOST:PORT or ipc://PATH); env HYDROLINK_BIND.")
 @click.option("--session-timeout", default=300.0, show_default=True, help="Seconds before an idle session is dropped.")
 @click.option("--cpu", type=int, help="Pin the process to this CPU (Linux); see README 'Performance'.")
-def serve(bind: str, session_timeout: float, cpu: int | None) -> None:
-    """Run the force server until interrupted."""
+@click.option("--curve-secret", type=click.Path(dir_okay=False, path_type=Path), envvar="HYDROLINK_CURVE_SECRET",
+              help="Require CURVE (authentication + encryption) with this server .key_secret file; "
+                   "env HYDROLINK_CURVE_SECRET.")
+@click.option("--curve-clients", type=click.Path(file_okay=False, path_type=Path), envvar="HYDROLINK_CURVE_CLIENTS",
+              help="Directory of the allowed clients' public .key files (with --curve-secret); "
+                   "env HYDROLINK_CURVE_CLIENTS.")
+def serve(bind: str, session_timeout: float, cpu: int | None, curve_secret: Path | None,
+          curve_clients: Path | None) -> None:
+    """Run the force server until interrupted (SIGINT or SIGTERM)."""
+    import signal
+
+    from hydrolink.protocol.security import CurveKeyError
     from hydrolink.server.service import ForceServer
 
     _pin_to_cpu(cpu)
-    server = ForceServer(bind, session_timeout=session_timeout)
-    click.echo(f"hydrolink force server listening on {server.address}", err=True)
+    try:
+        server = ForceServer(bind, session_timeout=session_timeout,
+                             curve_secret=str(curve_secret) if curve_secret else None,
+                             curve_clients=str(curve_clients) if curve_clients else None)
+    except CurveKeyError as exc:
+        raise _UserError(str(exc)) from None
+    signal.signal(signal.SIGTERM, lambda signum, frame: server.stop())  # docker stop
+    secure = " (CURVE: authenticated and encrypted)" if curve_secret else ""
+    click.echo(f"hydrolink force server listening on {server.address}{secure}", err=True)
     try:
         server.serve_forever()
     except KeyboardInterrupt:
         pass
     finally:
         server.close()
+
+
+def _curve_options(func):
+    """--curve-server-key / --curve-secret for a client of a CURVE server."""
+    func = click.option("--curve-secret", type=click.Path(dir_okay=False, path_type=Path),
+                        envvar="HYDROLINK_CURVE_SECRET",
+                        help="This client's .key_secret file (CURVE); env HYDROLINK_CURVE_SECRET.")(func)
+    return click.option("--curve-server-key", type=click.Path(dir_okay=False, path_type=Path),
+                        envvar="HYDROLINK_CURVE_SERVER_KEY",
+                        help="The server's public .key file (CURVE); env HYDROLINK_CURVE_SERVER_KEY.")(func)
+
+
+def _client_keys(server_key: Path | None, secret: Path | None):
+    from hydrolink.protocol.security import CurveKeyError, client_keys
+    try:
+        return client_keys(server_key, secret)
+    except CurveKeyError as exc:
+        raise _UserError(str(exc)) from None
+
+
+@cli.group()
+def keys() -> None:
+    """CURVE key pairs for `hydrolink serve --curve-secret` and its clients."""
+
+
+@keys.command("new")
+@click.argument("directory", type=click.Path(file_okay=False, path_type=Path))
+@click.option("--name", default="hydrolink", show_default=True, help="Base name of the two files.")
+def keys_new(directory: Path, name: str) -> None:
+    """Write NAME.key (public: give it to the other side) and NAME.key_secret (keep it) in DIRECTORY."""
+    from hydrolink.protocol.security import new_key_pair
+
+    if (directory / f"{name}.key_secret").exists():
+        raise _UserError(f"{directory / (name + '.key_secret')} exists: choose another --name or directory")
+    public, secret = new_key_pair(directory, name)
+    click.echo(f"wrote {public} (public) and {secret} (secret)")
 
 
 @cli.command()
@@ -121,12 +174,16 @@ def serve(bind: str, session_timeout: float, cpu: int | None) -> None:
 @click.option("--cpu", type=int, help="Pin the process to this CPU (Linux); see README 'Performance'.")
 @click.option("--listen", default="tcp://127.0.0.1:*", show_default=True,
               help="With [[controllers]] and no --server: where the run's own force server listens.")
+@_curve_options
 def run(scene: Path, output: Path | None, server: str | None, no_progress: bool, cpu: int | None,
-        listen: str) -> None:
+        listen: str, curve_server_key: Path | None, curve_secret: Path | None) -> None:
     """Co-simulate a SCENE (TOML) in lockstep with the force server."""
     from hydrolink.clients.run import run_scene_file
 
     _pin_to_cpu(cpu)
+    curve = _client_keys(curve_server_key, curve_secret)
+    if curve is not None and server is None:
+        raise _UserError("--curve-server-key/--curve-secret are for a remote server: give --server")
 
     import signal
 
@@ -135,7 +192,8 @@ def run(scene: Path, output: Path | None, server: str | None, no_progress: bool,
 
     signal.signal(signal.SIGTERM, _terminate)
     try:
-        summary = _guard(run_scene_file, scene, output, server=server, progress=not no_progress, listen=listen)
+        summary = _guard(run_scene_file, scene, output, server=server, progress=not no_progress, listen=listen,
+                         **({"curve": curve} if curve is not None else {}))
     except KeyboardInterrupt as exc:
         click.echo(f"hydrolink run: {exc or 'interrupted'}", err=True)
         raise SystemExit(130) from None
@@ -151,14 +209,16 @@ def run(scene: Path, output: Path | None, server: str | None, no_progress: bool,
 @click.option("--name", help="The scene's controllers[i].name (default: the class's name attribute).")
 @click.option("--class", "class_name", help="Controller class in FILE, when it defines several.")
 @click.option("--join-wait", default=30.0, show_default=True, help="Seconds to keep trying to join.")
+@_curve_options
 def control(file: Path, server: str, session: str | None, name: str | None, class_name: str | None,
-            join_wait: float) -> None:
+            join_wait: float, curve_server_key: Path | None, curve_secret: Path | None) -> None:
     """Run the Python controller in FILE (a hydrolink.clients.control.Controller subclass)."""
     from hydrolink.clients.control import ControllerError, load_controller, run_controller
 
+    curve = _client_keys(curve_server_key, curve_secret)
     try:
         stats = run_controller(load_controller(file, class_name), server, session=session, name=name,
-                               join_wait=join_wait)
+                               join_wait=join_wait, curve=curve)
     except ControllerError as exc:
         raise _UserError(str(exc)) from None
     except KeyboardInterrupt:

@@ -39,10 +39,12 @@ class ServerConnection:
 
     ``address`` is a ZeroMQ endpoint, or an in-process server (an object with ``respond(frame) ->
     frame``, e.g. ``ForceServer(None)``): then each request frame is handed to it directly, with
-    the same bytes and the same replies as over a socket but without the transport's wake-ups."""
+    the same bytes and the same replies as over a socket but without the transport's wake-ups.
+
+    ``curve``: a :class:`hydrolink.protocol.security.ClientKeys` for a server that requires CURVE."""
 
     def __init__(self, address: Any, *, timeout: float = 30.0, context: zmq.Context | None = None,
-                 key: bytes | None = None, client_name: str = "hydrolink-python"):
+                 key: bytes | None = None, client_name: str = "hydrolink-python", curve=None):
         self.timeout = float(timeout)
         self.key = key
         self.client_name = client_name
@@ -61,6 +63,9 @@ class ServerConnection:
         self._ctx = context or zmq.Context()
         self._sock = self._ctx.socket(zmq.DEALER)
         self._sock.setsockopt(zmq.LINGER, 0)
+        self.curve = curve
+        if curve is not None:
+            curve.apply(self._sock)
         self._sock.connect(address)
         self._recv_timeout_ms = -1
 
@@ -91,8 +96,11 @@ class ServerConnection:
                     return self._sock.recv()
                 except zmq.Again:
                     pass
+        hint = ("; with CURVE: is this client's public key in the server's --curve-clients directory, and "
+                "--curve-server-key the server's key?" if getattr(self, "curve", None) is not None else
+                "; a server started with --curve-secret refuses plaintext clients")
         raise TimeoutError(f"no reply to {mtype!r} from the hydrolink server at {self.address} "
-                           f"within {limit:g} s (is it running and reachable?)")
+                           f"within {limit:g} s (is it running and reachable?{hint})")
 
     def request(self, mtype: str, timeout: float | None = None, **fields: Any) -> dict:
         """Send one request, wait for its reply (matched by ``parent``); RemoteError on ``error``."""

@@ -97,11 +97,13 @@ def decode_measurements(reply: dict) -> dict:
 class _Link:
     """One DEALER socket to the server; requests matched by ``parent``; every receive times out."""
 
-    def __init__(self, address: str, key: bytes | None, timeout: float):
+    def __init__(self, address: str, key: bytes | None, timeout: float, curve=None):
         self.address, self.key, self.timeout = address, key, timeout
         self.ctx = zmq.Context()
         self.sock = self.ctx.socket(zmq.DEALER)
         self.sock.setsockopt(zmq.LINGER, 0)
+        if curve is not None:  # hydrolink.protocol.security.ClientKeys
+            curve.apply(self.sock)
         self.sock.connect(address)
         self.ids = codec.id_source("k")
         self.session: str | None = None
@@ -127,14 +129,15 @@ class _Link:
 
 def run_controller(controller: Controller, server: str, *, session: str | None = None, name: str | None = None,
                    key: bytes | None = None, join_wait: float = 30.0, wait: float = 1.0,
-                   timeout: float = 30.0) -> dict:
+                   timeout: float = 30.0, curve=None) -> dict:
     """Join a session and serve it until the run ends; returns counts (steps, errors, idles).
 
     Retries ``hello`` for ``join_wait`` s while no session declares the controller (the multibody
     run may start later). ``wait``: how long the server holds a ``measure`` before ``idle``;
-    ``timeout``: extra time for any reply before the server is declared gone."""
+    ``timeout``: extra time for any reply before the server is declared gone; ``curve``: a
+    :class:`hydrolink.protocol.security.ClientKeys` for a server that requires CURVE."""
     name = name if name is not None else getattr(controller, "name", None)
-    link = _Link(server, key, timeout)
+    link = _Link(server, key, timeout, curve)
     link.session = session
     stats = {"steps": 0, "errors": 0, "idle": 0, "late": 0, "invalid": 0}
     try:

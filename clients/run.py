@@ -51,12 +51,13 @@ def load_scene_hdbs(scene: Scene, scene_path: str | Path, *, progress: bool = Tr
 
 def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
                    server: str | None = None, progress: bool = True, timeout: float = 60.0,
-                   listen: str = "tcp://127.0.0.1:*") -> dict:
+                   listen: str = "tcp://127.0.0.1:*", curve=None) -> dict:
     """Run a scene end to end; returns the run summary (steps, wall time, output path).
 
     A scene with ``[[controllers]]`` and no ``server`` starts a force server with a socket on
     ``listen`` in a thread of this process (controllers connect to it; SPEC §5.7) instead of the
-    in-process one, and says on stderr where the controllers should connect."""
+    in-process one, and says on stderr where the controllers should connect. ``curve``: a
+    :class:`hydrolink.protocol.security.ClientKeys` for a ``server`` that requires CURVE."""
     from hydrolink.clients.connection import ServerConnection
     from hydrolink.clients.exudyn_client import result_bodies, run
     from hydrolink.clients.results import ResultWriter
@@ -96,7 +97,7 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
             server = embedded.address
             log.info("embedded force server (in-process)")
         else:
-            conn = stack.enter_context(ServerConnection(server, timeout=timeout))
+            conn = stack.enter_context(ServerConnection(server, timeout=timeout, curve=curve))
         setup = conn.hello(text, hdbs)
         if scene.controllers:
             import sys

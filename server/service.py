@@ -38,10 +38,14 @@ class ForceServer:
     """Serve hydrodynamic forces on ``bind`` (e.g. ``tcp://127.0.0.1:*``) until :meth:`stop`."""
 
     def __init__(self, bind: str | None, *, context: zmq.Context | None = None, session_timeout: float = 300.0,
-                 key: bytes | None = None):
+                 key: bytes | None = None, curve_secret: str | None = None, curve_clients: str | None = None):
         """``bind=None`` makes an in-process server without a socket: clients in the same process
-        call :meth:`respond` with the same frames a socket would carry (see ServerConnection)."""
+        call :meth:`respond` with the same frames a socket would carry (see ServerConnection).
+
+        ``curve_secret`` (the server's ``.key_secret`` file) and ``curve_clients`` (a directory of
+        allowed client ``.key`` files) require CURVE authentication and encryption (SPEC §1.1)."""
         self._own_context = context is None and bind is not None
+        self._security = None  # CURVE (protocol/security.py)
         self._ctx = context
         self._sock: zmq.Socket | None = None
         self._address = IN_PROCESS
@@ -52,6 +56,17 @@ class ForceServer:
             self._sock.setsockopt(zmq.MAXMSGSIZE, codec.MAX_MESSAGE_BYTES)
             self._sock.setsockopt(zmq.ROUTER_MANDATORY, 0)
             self._sock.setsockopt(zmq.RCVTIMEO, POLL_MS)
+            if curve_secret is not None or curve_clients is not None:
+                from hydrolink.protocol.security import CurveKeyError, ServerSecurity
+                if curve_secret is None or curve_clients is None:
+                    self._sock.close(0)
+                    raise CurveKeyError("CURVE needs both the server's secret key file and the directory of "
+                                        "allowed client keys")
+                try:
+                    self._security = ServerSecurity(self._ctx, self._sock, curve_secret, curve_clients)
+                except Exception:
+                    self._sock.close(0)
+                    raise
             self._sock.bind(bind)
             self._address = self._sock.getsockopt_string(zmq.LAST_ENDPOINT)
         self.session_timeout = float(session_timeout)
@@ -86,9 +101,9 @@ class ForceServer:
 
     def serve_forever(self) -> None:
         """Poll loop: handle requests, expire idle sessions; returns after :meth:`stop`."""
-        log.info("hydrolink server %s listening on %s (protocol %d, session timeout %g s%s)",
+        log.info("hydrolink server %s listening on %s (protocol %d, session timeout %g s%s%s)",
                  self._version, self._address, codec.PROTOCOL_VERSION, self.session_timeout,
-                 ", signed" if self.key else "")
+                 ", signed" if self.key else "", ", CURVE" if self._security else "")
         if self._sock is None:
             raise RuntimeError("an in-process server (bind=None) has no socket to serve; call respond()")
         next_sweep = time.monotonic()
@@ -322,6 +337,8 @@ class ForceServer:
             self._close(s, "closed by server shutdown")
         if self._sock is None or self._sock.closed:
             return
+        if self._security is not None:
+            self._security.close()
         self._sock.close(0)
         if self._own_context:
             self._ctx.term()

@@ -1,0 +1,156 @@
+"""CURVE transport security (SPEC §1.1): `hydrolink keys new`, `hydrolink serve --curve-secret
+--curve-clients`, clients with `--curve-server-key --curve-secret`. A separate server process on
+loopback; an allowed client runs, an unknown key and a plaintext client are refused and logged."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import xarray as xr
+import zmq
+
+from hydrolink.clients.connection import ServerConnection
+from hydrolink.clients.run import run_scene_file
+from hydrolink.protocol.security import ClientKeys
+
+REPO = Path(__file__).resolve().parents[1]
+HYDROLINK = [sys.executable, "-m", "hydrolink.clients.cli"]
+
+
+def keys_new(directory: Path, name: str) -> None:
+    out = subprocess.run([*HYDROLINK, "keys", "new", str(directory), "--name", name], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert (directory / f"{name}.key").is_file() and (directory / f"{name}.key_secret").is_file()
+
+
+@pytest.fixture(scope="module")
+def curve_server(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("curve")
+    keys_new(tmp / "server", "server")
+    keys_new(tmp / "client", "alice")
+    keys_new(tmp / "stranger", "mallory")
+    allowed = tmp / "allowed"
+    allowed.mkdir()
+    (allowed / "alice.key").write_bytes((tmp / "client" / "alice.key").read_bytes())
+    log = tmp / "server.log"
+    with open(log, "w") as err:
+        proc = subprocess.Popen([*HYDROLINK, "serve", "--bind", "tcp://127.0.0.1:*", "--curve-secret",
+                                 str(tmp / "server" / "server.key_secret"), "--curve-clients", str(allowed)],
+                                stdout=subprocess.DEVNULL, stderr=err)
+    try:
+        address = None
+        for _ in range(200):
+            text = log.read_text()
+            if "listening on" in text:
+                address = text.split("listening on ", 1)[1].split()[0]
+                break
+            time.sleep(0.05)
+        assert address and "(CURVE" in log.read_text(), log.read_text()
+        yield {"address": address, "log": log, "dir": tmp}
+    finally:
+        proc.terminate()
+        proc.wait(10)
+
+
+def wait_for_log(log: Path, text: str, timeout: float = 5.0) -> str:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        content = log.read_text()
+        if text in content:
+            return content
+        time.sleep(0.05)
+    return log.read_text()
+
+
+def test_keys_new_refuses_to_overwrite(tmp_path):
+    keys_new(tmp_path, "a")
+    out = subprocess.run([*HYDROLINK, "keys", "new", str(tmp_path), "--name", "a"], capture_output=True, text=True)
+    assert out.returncode != 0 and "exists" in out.stderr
+    assert oct((tmp_path / "a.key_secret").stat().st_mode & 0o777) == "0o600"
+
+
+def test_authenticated_run(curve_server, shared_data, tmp_path):
+    """An allowed key runs an RM3 scene end to end over the encrypted connection (CLI `hydrolink run`)."""
+    text = (REPO / "examples" / "rm3" / "rm3.toml").read_text()
+    text = text.replace('"../../../shared/data/rm3_wamit/rm3.1"', f'"{(shared_data / "rm3_wamit" / "rm3.1").as_posix()}"')
+    text = text.replace("duration = 400.0", "duration = 0.8")
+    scene = tmp_path / "rm3.toml"
+    scene.write_text(text)
+    d = curve_server["dir"]
+    out = subprocess.run([*HYDROLINK, "run", str(scene), "-o", str(tmp_path / "out.nc"), "--server", curve_server["address"],
+                          "--no-progress", "--curve-server-key", str(d / "server" / "server.key"),
+                          "--curve-secret", str(d / "client" / "alice.key_secret")],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert xr.load_dataset(tmp_path / "out.nc").sizes["time"] == 11
+    # the same in-process, with the library API
+    keys = ClientKeys.from_files(d / "server" / "server.key", d / "client" / "alice.key_secret")
+    summary = run_scene_file(scene, tmp_path / "out2.nc", server=curve_server["address"], progress=False, curve=keys)
+    assert summary["steps"] == 10
+
+
+def test_unknown_key_refused_and_logged(curve_server):
+    d = curve_server["dir"]
+    keys = ClientKeys.from_files(d / "server" / "server.key", d / "stranger" / "mallory.key_secret")
+    with ServerConnection(curve_server["address"], timeout=1.5, curve=keys) as conn:
+        with pytest.raises(TimeoutError, match="curve-clients"):
+            conn.ping()
+    public = (d / "stranger" / "mallory.key").read_text().split('public-key = "')[1].split('"')[0]
+    log = wait_for_log(curve_server["log"], public)
+    assert f"refused CURVE client key {public} from 127.0.0.1" in log, log
+
+
+REFUSED = "refused a connection on tcp://127.0.0.1:"
+
+
+def test_plaintext_client_refused_and_logged(curve_server):
+    before = curve_server["log"].read_text().count(REFUSED)
+    with ServerConnection(curve_server["address"], timeout=1.5) as conn:
+        with pytest.raises(TimeoutError, match="refuses plaintext"):
+            conn.ping()
+    end = time.monotonic() + 5
+    while curve_server["log"].read_text().count(REFUSED) == before and time.monotonic() < end:
+        time.sleep(0.05)
+    log = curve_server["log"].read_text()
+    assert log.count(REFUSED) > before, log
+    assert "not a CURVE client of this server (a plaintext client" in log
+
+
+def test_wrong_server_key_gets_no_answer(curve_server):
+    """A client that trusts another server key cannot talk to this server (nor it to the client)."""
+    d = curve_server["dir"]
+    keys = ClientKeys.from_files(d / "stranger" / "mallory.key", d / "client" / "alice.key_secret")
+    with ServerConnection(curve_server["address"], timeout=1.5, curve=keys) as conn:
+        with pytest.raises(TimeoutError):
+            conn.ping()
+
+
+def test_allowed_client_ping_and_plaintext_server_refused_by_curve_client(curve_server, tmp_path):
+    d = curve_server["dir"]
+    keys = ClientKeys.from_files(d / "server" / "server.key", d / "client" / "alice.key_secret")
+    with ServerConnection(curve_server["address"], timeout=10, curve=keys) as conn:
+        assert conn.ping()["type"] == "pong"
+    # a CURVE client does not talk to a plaintext server either
+    ctx = zmq.Context.instance()
+    rep = ctx.socket(zmq.ROUTER)
+    port = rep.bind_to_random_port("tcp://127.0.0.1")
+    try:
+        with ServerConnection(f"tcp://127.0.0.1:{port}", timeout=0.5, curve=keys) as conn:
+            with pytest.raises(TimeoutError):
+                conn.ping()
+        assert rep.poll(100) == 0
+    finally:
+        rep.close(0)
+
+
+def test_serve_needs_both_curve_options(tmp_path):
+    out = subprocess.run([*HYDROLINK, "serve", "--bind", "tcp://127.0.0.1:*", "--curve-secret", str(tmp_path / "x")],
+                         capture_output=True, text=True, timeout=30)
+    assert out.returncode != 0 and "CURVE needs both" in out.stderr, out.stderr
+    out = subprocess.run([*HYDROLINK, "serve", "--bind", "tcp://127.0.0.1:*", "--curve-secret", str(tmp_path / "x"),
+                          "--curve-clients", str(tmp_path)], capture_output=True, text=True, timeout=30)
+    assert out.returncode != 0 and "no such key file" in out.stderr, out.stderr
