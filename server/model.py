@@ -32,6 +32,8 @@ from hydrolink.server.waves import WaveError, WaveForcing, interpolate_excitatio
 OGILVIE_DEFAULT_DURATION = 40.0  # s of IRF used for Ogilvie's A_inf when hydro.irf_duration = 0
 SS_FIT_POINTS = 120              # frequencies on [0, w_max] the state-space fit is made (and checked) on
 TAIL_CUTOFF_FACTOR = 10.0        # default hydro.irf_tail_cutoff: 10 w_max
+BREAKING_STEEPNESS = 1.0 / 7.0   # H/lambda above which waves are refused (docs/stability.md)
+ALIAS_REFUSE = 0.05              # refuse an IRF whose part past pi/d_omega exceeds this share of max |K|
 
 
 class ConstantDamping:
@@ -174,6 +176,7 @@ class HydroModel:
         self._coefficients: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []  # act, w, A, B
         groups = _groups(scene, wet, hdbs)
         self.groups = [[self.bodies[k] for k in members] for _, members in groups]
+        self._check_waves()
         lo = max(float(ds["omega"].values[0]) for ds, _ in groups)
         hi = min(float(ds["omega"].values[-1]) for ds, _ in groups)
         if lo >= hi:
@@ -258,11 +261,7 @@ class HydroModel:
                 self._irf_fit[src] = max(rep["worst"], self._irf_fit.get(src, 0.0))
                 rep_a = ogilvie_report(omega, am, a_loc, t_irf, k)
                 self._irf_a_fit[src] = max(rep_a["worst"], self._irf_a_fit.get(src, 0.0))
-                if irf_T > aliasing_time(omega):
-                    warning = (f"hydro.irf_duration: {irf_T} s exceeds pi/d_omega = "
-                               f"{aliasing_time(omega):.3g} s of {src!r}: the IRF tail is aliased")
-                    if warning not in self.warnings:
-                        self.warnings.append(warning)
+                self._check_aliasing(om_k, k, t_irf, irf_T, src, hyd.irf_domega is not None)
             if self.waves.size:
                 try:
                     x_comp[:, gidx] = s_rg * interpolate_excitation(
@@ -295,6 +294,48 @@ class HydroModel:
         self._sel = slice(None) if na == self.n else self._idx  # a view when every DOF is active
         self._red = np.zeros((3, na))  # scratch: excitation, radiation, hydrostatic (active DOFs)
         self._net_buoyancy = self._buoyancy(groups, rho, g, masses)
+
+    def _check_aliasing(self, omega_k: np.ndarray, k: np.ndarray, t_irf: np.ndarray, irf_T: float, src: str,
+                        resampled: bool) -> None:
+        """A badly sampled HDB: the transform of B on a grid of spacing dw repeats with period
+        2 pi/dw, so K(t) beyond pi/dw mirrors its start. Warn when irf_duration reaches past pi/dw;
+        refuse when the mirrored part is large (ALIAS_REFUSE of max |K|) — docs/stability.md."""
+        t_alias = aliasing_time(omega_k)
+        if irf_T <= t_alias or not k.size:
+            return
+        past = t_irf > t_alias
+        share = float(np.abs(k[past]).max(initial=0.0)) / max(float(np.abs(k).max()), 1e-300)
+        grid = f"the {'resampled grid (hydro.irf_domega)' if resampled else 'HDB grid'} of {src!r}"
+        why = (f"{irf_T:g} s reaches past the aliasing time pi/d_omega = {t_alias:.3g} s of {grid}: K(t) "
+               f"beyond it is a mirror image of its start (there {100 * share:.2g} % of max |K|); set "
+               f"hydro.irf_duration <= {t_alias:.3g} s, or resample with hydro.irf_domega <= "
+               f"{np.pi / irf_T:.3g} rad/s, or compute the HDB on a finer frequency grid")
+        if share > ALIAS_REFUSE:
+            raise ModelError("hydro.irf_duration", why)
+        warning = f"hydro.irf_duration: {why}"
+        if warning not in self.warnings:
+            self.warnings.append(warning)
+
+    def _check_waves(self) -> None:
+        """Regular and irregular waves no steeper than the breaking limit H/lambda = 1/7 (lambda of
+        the period / peak period by linear dispersion at the scene's depth); a warning above half
+        of it, where linear theory loses accuracy."""
+        w = self.scene.waves
+        kind = getattr(w, "type", "still")
+        if kind not in ("regular", "irregular"):
+            return
+        from hydrolink.server.control import wave_number
+        period, height, key = (w.period, w.height, "waves.height") if kind == "regular" else (w.tp, w.hs, "waves.hs")
+        water = self.scene.water
+        lam = 2 * np.pi / float(wave_number(np.array([2 * np.pi / period]), water.gravity, water.depth_m)[0])
+        steep = height / lam
+        if steep > BREAKING_STEEPNESS:
+            raise ModelError(key, f"{height:g} m at {period:g} s is steeper than the breaking limit: H/lambda = "
+                                  f"{steep:.3g} > 1/7 (lambda = {lam:.4g} m): no such wave exists; use "
+                                  f"{key} <= {BREAKING_STEEPNESS * lam:.4g} m (or a longer period)")
+        if steep > 0.5 * BREAKING_STEEPNESS:
+            self.warnings.append(f"{key}: H/lambda = {steep:.3g} is over half the breaking limit 1/7: linear "
+                                 "wave theory and linear forces lose accuracy (steep-wave effects are not modelled)")
 
     def _state_space(self, omega_k, damping_k, w_max, duration, taper, keep, labels, hyd) -> StateSpaceRadiation:
         """Fit every kept, non-zero DOF pair of one group (server/state_space.py) to the transfer
