@@ -33,7 +33,7 @@ def main() -> None:
     ax[1].plot(t, p_bend, lw=0.5, alpha=0.7, label=f"pitch + yaw axes (mean {p_bend[steady].mean():.3f} W)")
     ax[1].set(xlabel="time (s)", ylabel="PTO power (W)")
     ax[1].legend(fontsize=8)
-    fig.suptitle("4N3LA: total absorbed PTO power (12 rotary PTO axes x 3 + arm spin restraints)")
+    fig.suptitle("4N3LA: absorbed PTO power, 6 rotary PTOs (pitch + yaw axes; roll = arm spin restraint)")
     fig.tight_layout()
     fig.savefig(args.output, dpi=90)
     print(f"mean total PTO power {total[steady].mean():.4f} W (t >= {t[steady][0]:g} s); max {np.max(total):.3f} W")
