@@ -124,17 +124,21 @@ class ServerConnection:
             return reply
 
     def hello(self, scene_text: str, hdbs: dict[str, xr.Dataset], role: str = "multibody",
-              client: dict | None = None) -> dict:
+              client: dict | None = None, wave_elevation: tuple | None = None) -> dict:
         """Open a session: returns the model's setup (arrays as numpy) plus ``session``, ``server``,
-        ``protocol`` and ``session_timeout``."""
+        ``protocol`` and ``session_timeout``. ``wave_elevation``: the (time, eta) series of a scene
+        with ``[waves] type = "elevation"`` (clients/run.py load_wave_elevation)."""
         from importlib import metadata
         try:
             version = metadata.version("hydrolink")
         except metadata.PackageNotFoundError:  # pragma: no cover
             version = "unknown"
+        extra = {} if wave_elevation is None else {"wave_elevation": {
+            "time": np.ascontiguousarray(wave_elevation[0], np.float64),
+            "eta": np.ascontiguousarray(wave_elevation[1], np.float64)}}
         reply = self.request("hello", role=role, scene=scene_text,
                              hdbs={k: to_wire(ds) for k, ds in hdbs.items()},
-                             client=client or {"name": self.client_name, "version": version})
+                             client=client or {"name": self.client_name, "version": version}, **extra)
         self.session = reply["session"]
         self.setup = codec.decode_tree(reply.get("setup", {}))
         return {**self.setup, "session": self.session, "server": reply.get("server"),

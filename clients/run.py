@@ -49,9 +49,22 @@ def load_scene_hdbs(scene: Scene, scene_path: str | Path, *, progress: bool = Tr
     return hdbs
 
 
+def load_wave_elevation(scene: Scene, scene_path: str | Path):
+    """The (time, eta) series of ``[waves] type = "elevation"`` read from its file (relative to the
+    scene), or None for other waves; SceneError naming waves.file when missing or malformed."""
+    if getattr(scene.waves, "type", None) != "elevation":
+        return None
+    from hydrolink.server.waves import WaveError, read_elevation
+    try:
+        return read_elevation(resolve_path(scene_path, scene.waves.file))
+    except WaveError as exc:
+        raise SceneError(scene_path, exc.key, exc.why) from None
+
+
 def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
                    server: str | None = None, progress: bool = True, timeout: float = 60.0,
-                   listen: str = "tcp://127.0.0.1:*", curve=None) -> dict:
+                   listen: str = "tcp://127.0.0.1:*", hdbs: dict[str, xr.Dataset] | None = None,
+                   curve=None) -> dict:
     """Run a scene end to end; returns the run summary (steps, wall time, output path).
 
     A scene with ``[[controllers]]`` and no ``server`` starts a force server with a socket on
@@ -64,7 +77,9 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
 
     scene_path = Path(scene_path)
     scene, text = load_scene(scene_path)
-    hdbs = load_scene_hdbs(scene, scene_path, progress=progress)
+    if hdbs is None:  # (a caller running one scene many times may pass them, e.g. hydrolink bench)
+        hdbs = load_scene_hdbs(scene, scene_path, progress=progress)
+    series = load_wave_elevation(scene, scene_path)
     output = Path(output) if output else scene_path.with_suffix(".out.nc")
     if not scene.wet_bodies:
         # no hydrodynamics: the mechanism runs alone, without a force server
@@ -98,7 +113,7 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
             log.info("embedded force server (in-process)")
         else:
             conn = stack.enter_context(ServerConnection(server, timeout=timeout, curve=curve))
-        setup = conn.hello(text, hdbs)
+        setup = conn.hello(text, hdbs, wave_elevation=series)
         if scene.controllers:
             import sys
             print(f"hydrolink run: session {conn.session} on {server} waits for controllers "

@@ -60,6 +60,13 @@ class StillWater(_Section):
     type: Literal["still"]
 
 
+# excitation (server/waves.py): "superposition" sums Re{a X(w) e^{i(phi - w t)}} over the components;
+# "convolution" convolves the non-causal excitation IRF K_ex over [-T_c, T_c] (T_c =
+# excitation_irf_duration) with the elevation at the origin (synthesized from the same components)
+Excitation = Literal["superposition", "convolution"]
+ExcitationIRFDuration = Annotated[float, Field(gt=0, le=3600, allow_inf_nan=False)]
+
+
 class RegularWave(_Section):
     type: Literal["regular"]
     height: Annotated[float, Field(ge=0, allow_inf_nan=False)]
@@ -67,6 +74,8 @@ class RegularWave(_Section):
     direction: FiniteFloat = 0.0
     phase: FiniteFloat = 0.0
     ramp: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 0.0
+    excitation: Excitation = "superposition"
+    excitation_irf_duration: ExcitationIRFDuration = 20.0
 
 
 class IrregularWave(_Section):
@@ -79,9 +88,46 @@ class IrregularWave(_Section):
     direction: FiniteFloat = 0.0
     components: Annotated[int, Field(ge=1, le=100_000)] = 300
     ramp: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 0.0
+    excitation: Excitation = "superposition"
+    excitation_irf_duration: ExcitationIRFDuration = 20.0
+    # directional spreading: D(theta) = C(s) cos^2s((theta - direction)/2), discretised into
+    # ``directions`` equal-energy sectors (one heading each, at the sector's centroid)
+    spreading: Literal["none", "cos2s"] = "none"
+    s: Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)] | None = None     # default 10
+    directions: Annotated[int, Field(ge=1, le=360)] | None = None                      # default 9
+
+    @model_validator(mode="after")
+    def _spreading_keys(self) -> "IrregularWave":
+        if self.spreading == "none":
+            for key in ("s", "directions"):
+                if getattr(self, key) is not None:
+                    raise ValueError(f'{key}: only with spreading = "cos2s"')
+        return self
+
+    @property
+    def spreading_s(self) -> float:
+        return 10.0 if self.s is None else float(self.s)
+
+    @property
+    def spreading_directions(self) -> int:
+        return 1 if self.spreading == "none" else (9 if self.directions is None else int(self.directions))
 
 
-Waves = Annotated[Union[StillWater, RegularWave, IrregularWave], Field(discriminator="type")]
+class ElevationWave(_Section):
+    """A measured or prescribed elevation eta(t) at the origin (CSV: time, eta; NetCDF: variable
+    ``eta`` over ``time``), unidirectional along ``direction``; excitation by convolution with the
+    non-causal excitation IRF (server/waves.py). ``start``: the file time at simulation t = 0
+    (default: the file's first time + excitation_irf_duration, so the IRF's past is covered)."""
+    type: Literal["elevation"]
+    file: Annotated[str, Field(min_length=1)]       # relative to the scene file
+    direction: FiniteFloat = 0.0
+    start: FiniteFloat | None = None
+    ramp: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 0.0
+    excitation: Literal["convolution"] = "convolution"
+    excitation_irf_duration: ExcitationIRFDuration = 20.0
+
+
+Waves = Annotated[Union[StillWater, RegularWave, IrregularWave, ElevationWave], Field(discriminator="type")]
 
 
 class Hydro(_Section):
@@ -619,7 +665,7 @@ class Scene(_Section):
         return [b for b in self.bodies if b.wet]
 
 
-_UNION_TAGS = ("regular", "irregular", "still", "linear", "rotary", "rope", "exudyn", "fmu")
+_UNION_TAGS = ("regular", "irregular", "still", "elevation", "linear", "rotary", "rope", "exudyn", "fmu")
 
 
 def parse_scene(text: str, source: str | Path = "<scene>") -> Scene:

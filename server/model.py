@@ -27,7 +27,8 @@ from hydrolink.server.irf import (aliasing_time, asymptotic_tail, irf_report, ir
                                   ogilvie_report, radiation_irf, resample_damping, taper_window)
 from hydrolink.server.radiation import RadiationMemory
 from hydrolink.server.state_space import StateSpaceError, StateSpaceRadiation, fit_pairs
-from hydrolink.server.waves import WaveError, WaveForcing, interpolate_excitation, wave_components
+from hydrolink.server.waves import (ConvolutionForcing, WaveError, WaveForcing, convolution_kernel, elevation_on_grid,
+                                    interpolate_excitation, kernel_transfer, wave_components)
 
 OGILVIE_DEFAULT_DURATION = 40.0  # s of IRF used for Ogilvie's A_inf when hydro.irf_duration = 0
 SS_FIT_POINTS = 120              # frequencies on [0, w_max] the state-space fit is made (and checked) on
@@ -120,9 +121,11 @@ def _groups(scene: Scene, wet: list[int], hdbs: dict[str, xr.Dataset]) -> list[t
 class HydroModel:
     """Linear potential-flow forces for one session (see module docstring)."""
 
-    def __init__(self, scene: Scene, hdbs: dict[str, xr.Dataset]):
+    def __init__(self, scene: Scene, hdbs: dict[str, xr.Dataset],
+                 wave_elevation: tuple[np.ndarray, np.ndarray] | None = None):
         """``hdbs`` maps each wet body's name to its HDB dataset (bodies sharing a file share the
-        same object)."""
+        same object); ``wave_elevation`` the (time, eta) series of ``[waves] type = "elevation"``
+        (read from the scene's file by the client; hello.wave_elevation)."""
         self.scene = scene
         wet = [i for i, b in enumerate(scene.bodies) if b.wet]
         if not wet:
@@ -186,6 +189,14 @@ class HydroModel:
         except WaveError as exc:
             raise ModelError(exc.key, exc.why) from None
         x_comp = np.zeros((self.waves.size, self.n), complex)
+        self.excitation = getattr(scene.waves, "excitation", "superposition") if self.waves.kind != "still" \
+            else "superposition"
+        heads = self.waves.heading_of()
+        self._headings = np.unique(heads) if self.waves.kind != "elevation" else np.array([self.waves.direction])
+        exc_T = float(getattr(scene.waves, "excitation_irf_duration", 0.0))
+        kernels = np.zeros((self._headings.size, 2 * max(1, int(round(exc_T / self.dt))) + 1, self.n)) \
+            if self.excitation == "convolution" else None
+        self._exc_fit = 0.0
 
         for ds, members in groups:
             src = ds.attrs.get("source", "?")
@@ -262,13 +273,34 @@ class HydroModel:
                 rep_a = ogilvie_report(omega, am, a_loc, t_irf, k)
                 self._irf_a_fit[src] = max(rep_a["worst"], self._irf_a_fit.get(src, 0.0))
                 self._check_aliasing(om_k, k, t_irf, irf_T, src, hyd.irf_domega is not None)
-            if self.waves.size:
+            for ih, head in enumerate(self._headings if (self.waves.size or kernels is not None) else ()):
+                on = heads == head
                 try:
-                    x_comp[:, gidx] = s_rg * interpolate_excitation(
-                        omega, sub["wave_direction"].values, sub["excitation_force"].values,
-                        self.waves.omega, self.waves.direction)
+                    if on.any():
+                        x_comp[np.ix_(on, gidx)] = s_rg * interpolate_excitation(
+                            omega, sub["wave_direction"].values, sub["excitation_force"].values,
+                            self.waves.omega[on], float(head))
+                    if kernels is not None:
+                        x_h = s_rg * interpolate_excitation(omega, sub["wave_direction"].values,
+                                                            sub["excitation_force"].values, omega, float(head))
+                        kernels[ih][:, gidx] = convolution_kernel(omega, x_h, self.dt, exc_T)
+                        band = (omega >= lo) & (omega <= hi)
+                        if band.any():
+                            err = np.abs(kernel_transfer(kernels[ih][:, gidx], self.dt, omega[band]) - x_h[band])
+                            peak = np.abs(x_h[band]).max(axis=0)
+                            live = peak > 1e-3 * max(float(peak.max()), 1e-300)  # not the ~0 channels
+                            if live.any():
+                                self._exc_fit = max(self._exc_fit, float((err.max(axis=0)[live] / peak[live]).max()))
                 except WaveError as exc:
-                    raise ModelError(exc.key, f"{exc.why} (HDB {src!r})") from None
+                    key = "waves.spreading" if self.waves.headings is not None and exc.key == "waves.direction" \
+                        else exc.key
+                    why = exc.why
+                    if key == "waves.spreading":
+                        why += (f" (cos-2s spreading, s = {scene.waves.spreading_s:g}, "
+                                f"{scene.waves.spreading_directions} directions: headings "
+                                f"{np.round(np.rad2deg(self._headings), 2).tolist()} deg; reduce the spreading or "
+                                "give an HDB with headings covering them)")
+                    raise ModelError(key, f"{why} (HDB {src!r})") from None
         if self.waves.energy_outside > 0.01:
             self.warnings.append(f"waves: {100 * self.waves.energy_outside:.2g} % of the spectrum's energy lies "
                                  f"outside the HDB range {lo:.3g}-{hi:.3g} rad/s and is left out")
@@ -288,12 +320,44 @@ class HydroModel:
         self._memories = memories
         self.coupled_blocks = sum(len(m) * (len(m) - 1) for _, m in groups)
         self._kernel_entries = self._pairs["kept"]
-        self._forcing = WaveForcing(self.waves, x_comp[:, self._idx])
+        self.elevation_series = None
+        if kernels is not None:
+            self._forcing = ConvolutionForcing(kernels[:, :, self._idx], self._eta_source(scene, wave_elevation, hi),
+                                               self.dt, float(self.waves.ramp))
+        else:
+            self._forcing = WaveForcing(self.waves, x_comp[:, self._idx])
         self._x_comp = x_comp
         self._step = -1           # index of the newest step pushed
         self._sel = slice(None) if na == self.n else self._idx  # a view when every DOF is active
         self._red = np.zeros((3, na))  # scratch: excitation, radiation, hydrostatic (active DOFs)
         self._net_buoyancy = self._buoyancy(groups, rho, g, masses)
+
+    def _eta_source(self, scene: Scene, wave_elevation, omega_max: float):
+        """eta(k0, k1) -> (S, k1 - k0) at t = k dt, one row per heading, for ConvolutionForcing:
+        synthesized from the components (regular/irregular: no ramp; the forcing applies it) or the
+        elevation file put on the grid (type = "elevation")."""
+        if self.waves.kind == "elevation":
+            if wave_elevation is None:
+                raise ModelError("waves.file", "the elevation series did not reach the force server (the client "
+                                               "sends it in hello.wave_elevation: SPEC §5.1)")
+            time, eta = wave_elevation
+            try:
+                ser = elevation_on_grid(time, eta, self.dt, int(round(scene.simulation.duration / self.dt)),
+                                        float(scene.waves.excitation_irf_duration), scene.waves.start, omega_max)
+            except WaveError as exc:
+                raise ModelError(exc.key, f"{scene.waves.file}: {exc.why}") from None
+            self.elevation_series = ser
+            return ser
+        comps, dt = self.waves, self.dt
+        c = comps.amplitude * np.exp(1j * comps.phase)
+        which = np.searchsorted(self._headings, comps.heading_of())
+        onehot = np.zeros((comps.size, self._headings.size))
+        onehot[np.arange(comps.size), which] = 1.0
+
+        def eta(k0: int, k1: int) -> np.ndarray:
+            t = np.arange(k0, k1) * dt
+            return (np.real(np.exp(-1j * np.outer(t, comps.omega)) * c[None, :]) @ onehot).T
+        return eta
 
     def _check_aliasing(self, omega_k: np.ndarray, k: np.ndarray, t_irf: np.ndarray, irf_T: float, src: str,
                         resampled: bool) -> None:
@@ -427,6 +491,14 @@ class HydroModel:
             "dropped_block_fraction": (self._pairs["blocks_dropped"] / self._pairs["blocks_total"]
                                        if self._pairs["blocks_total"] else 0.0),
             "state_space": dict(self._ss) if self.radiation == "state-space" else None,
+            # excitation options ([waves] excitation / type = "elevation", spreading; server/waves.py)
+            "excitation": self.excitation,
+            "excitation_irf_duration": (float(self.scene.waves.excitation_irf_duration)
+                                        if self.excitation == "convolution" else 0.0),
+            "excitation_irf_error": self._exc_fit,
+            "wave_headings": np.rad2deg(self._headings).tolist() if self.waves.kind != "still" else [],
+            "elevation_resampled": bool(self.elevation_series.resampled) if self.elevation_series else False,
+            "elevation_start": float(self.elevation_series.start) if self.elevation_series else 0.0,
         }
 
     def radiation_coefficients(self, omega: float) -> tuple[np.ndarray, np.ndarray]:

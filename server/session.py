@@ -49,8 +49,13 @@ def build_model(msg: dict) -> HydroModel:
         except HDBError as exc:
             raise ProtocolError(Code.BAD_HDB, f"hdbs.{key}.{exc.field}" if exc.field else f"hdbs.{key}",
                                 str(exc)) from None
+    series = None
+    if msg.get("wave_elevation") is not None:  # [waves] type = "elevation": the client read the file
+        we = codec.require_map(msg, "wave_elevation")
+        series = (codec.require_array(we, "time", (None,), finite=False, path="wave_elevation.time"),
+                  codec.require_array(we, "eta", (None,), finite=False, path="wave_elevation.eta"))
     try:
-        return HydroModel(scene, {b.name: datasets[b.hdb] for b in scene.wet_bodies})
+        return HydroModel(scene, {b.name: datasets[b.hdb] for b in scene.wet_bodies}, series)
     except ModelError as exc:
         raise ProtocolError(Code.BAD_SCENE, _scene_field(exc.key), str(exc)) from None
     except HDBError as exc:

@@ -6,6 +6,23 @@ Internal convention exp(-i w t): a component of amplitude a, phase phi gives at 
 with the ramp r(t) = (1 - cos(pi t / T_ramp))/2 for t < T_ramp, else 1 (T_ramp = 0: no ramp).
 The ramp multiplies the elevation too, so eta is the wave the body actually feels.
 Scene ``direction`` and ``phase`` are in degrees; the HDB's ``wave_direction`` is in radians.
+
+Excitation by convolution (``[waves] excitation = "convolution"``, and ``type = "elevation"``).
+With the transform pair of the exp(-i w t) convention,
+    eta(t) = (1/2 pi) int_-inf^inf eta^(w) e^{-i w t} dw,   eta^(w) = int eta(t) e^{i w t} dt,
+a linear force with transfer function X (F^ = X eta^, X(-w) = conj X(w) for a real force) is
+    F_ex(t) = int_-inf^inf K_ex(tau) eta(t - tau) dtau,
+    K_ex(t) = (1/2 pi) int_-inf^inf X(w) e^{-i w t} dw = (1/pi) Re int_0^inf X(w) e^{-i w t} dw
+            = (1/pi) int_0^inf [Re X(w) cos(w t) + Im X(w) sin(w t)] dw.
+Check on one component eta = Re{c e^{-i w t}}: int K(tau) c e^{-i w (t - tau)} dtau =
+c e^{-i w t} int K(tau) e^{i w tau} dtau = c X(w) e^{-i w t}: the superposition formula above.
+K_ex is non-causal (a body downstream of the origin feels the wave later: X ~ e^{i k x} puts
+K_ex's peak at t = x / c_g > 0; upstream, at t < 0, i.e. the force needs the *future* eta).
+X is known on the HDB grid [w_1, w_n] only. It is continued linearly to Re X(w_1) at w = 0 and
+to 0 at 1.1 w_n (cut at pi/dt against aliasing), a continuous piecewise-linear X, whose
+transform is evaluated in closed form (:func:`excitation_irf`) and decays like 1/t^2. The
+convolution is the trapezoidal sum over tau_j = j dt, |j| <= M = round(T_c/dt); the ramp
+multiplies the convolved force (as it multiplies the superposed one).
 """
 
 from __future__ import annotations
@@ -16,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.integrate import quad
 
-from hydrolink.protocol.scene import IrregularWave, RegularWave, StillWater
+from hydrolink.protocol.scene import ElevationWave, IrregularWave, RegularWave, StillWater
 
 
 class WaveError(ValueError):
@@ -35,7 +52,12 @@ class WaveComponents:
     direction: float        # rad
     ramp: float             # s
     energy_outside: float   # fraction of the spectrum's m0 outside the HDB's omega range
-    kind: str               # "still" | "regular" | "irregular"
+    kind: str               # "still" | "regular" | "irregular" | "elevation"
+    headings: np.ndarray | None = None  # rad (n_c,): each component's heading (directional spreading)
+
+    def heading_of(self) -> np.ndarray:
+        """Each component's heading (rad)."""
+        return np.full(self.size, self.direction) if self.headings is None else self.headings
 
     @property
     def size(self) -> int:
@@ -97,11 +119,17 @@ def wave_components(waves, omega_min: float, omega_max: float) -> WaveComponents
     """Components of the scene's waves over the HDB frequency range [omega_min, omega_max].
 
     Irregular: ``components`` bins of equal width over the range, one component at each bin
-    centre with a = sqrt(2 S(w) dw), phases uniform in [0, 2 pi) from default_rng(seed)."""
+    centre with a = sqrt(2 S(w) dw), phases uniform in [0, 2 pi) from default_rng(seed). With
+    cos-2s spreading over n directions (equal-energy sectors, :func:`cos2s_directions`) each bin
+    holds n components a / sqrt(n), direction j at the centre of the bin's j-th sub-bin of width
+    dw / n (direction-major order; variance per bin exactly that of the unidirectional sea)."""
     if isinstance(waves, StillWater):
         e = np.zeros(0)
         return WaveComponents(e, e, e, 0.0, 0.0, 0.0, "still")
     direction = float(np.deg2rad(waves.direction))
+    if isinstance(waves, ElevationWave):  # no components: the series comes from a file
+        e = np.zeros(0)
+        return WaveComponents(e, e, e, direction, waves.ramp, 0.0, "elevation")
     if isinstance(waves, RegularWave):
         w = 2 * np.pi / waves.period
         if not (omega_min * (1 - 1e-9) <= w <= omega_max * (1 + 1e-9)):
@@ -119,10 +147,55 @@ def wave_components(waves, omega_min: float, omega_max: float) -> WaveComponents
         dw = edges[1] - edges[0]
         w = 0.5 * (edges[:-1] + edges[1:])
         amp = np.sqrt(2 * spec(w) * dw)
-        phase = np.random.default_rng(waves.seed).uniform(0.0, 2 * np.pi, w.size)
         outside = spectrum_fraction(spec, omega_min, omega_max, waves.hs ** 2 / 16)
-        return WaveComponents(w, amp, phase, direction, waves.ramp, outside, "irregular")
+        n_dir = waves.spreading_directions
+        # phases: one draw of n_dir x n_c (direction-major); with no spreading the same draw as ever
+        phase = np.random.default_rng(waves.seed).uniform(0.0, 2 * np.pi, n_dir * w.size)
+        if waves.spreading == "none":
+            return WaveComponents(w, amp, phase, direction, waves.ramp, outside, "irregular")
+        # each frequency bin is split into n_dir sub-bins, one per direction (sub-bin centres): every
+        # component has its own frequency, so the elevation at a point is ergodic (its time variance
+        # tends to m0; equal frequencies in several directions would beat into a random variance)
+        heads, weights = cos2s_directions(waves.spreading_s, n_dir, direction)
+        shift = ((np.arange(n_dir) + 0.5) / n_dir - 0.5) * dw
+        return WaveComponents((w[None, :] + shift[:, None]).reshape(-1),
+                              (np.sqrt(weights)[:, None] * amp[None, :]).reshape(-1), phase,
+                              direction, waves.ramp, outside, "irregular", np.repeat(heads, w.size))
     raise WaveError("waves.type", f"unsupported wave type {type(waves).__name__}")
+
+
+# ------------------------------------------------------------------ directional spreading
+
+def cos2s_normalisation(s: float) -> float:
+    """C(s) = Gamma(s + 1) / (2 sqrt(pi) Gamma(s + 1/2)), so that int_-pi^pi C cos^2s(theta/2) = 1."""
+    from scipy.special import gammaln
+    return float(np.exp(gammaln(s + 1.0) - gammaln(s + 0.5)) / (2.0 * np.sqrt(np.pi)))
+
+
+def cos2s(theta, s: float):
+    """Spreading function D(theta) = C(s) cos^2s(theta/2) on (-pi, pi] (theta from the mean direction)."""
+    th = np.angle(np.exp(1j * np.asarray(theta, float)))
+    return cos2s_normalisation(s) * np.abs(np.cos(th / 2.0)) ** (2.0 * s)
+
+
+def cos2s_directions(s: float, n: int, mean: float = 0.0, fine: int = 40001) -> tuple[np.ndarray, np.ndarray]:
+    """``n`` equal-energy sectors of the cos-2s spreading: headings (rad, each sector's centroid
+    int theta D / int D, plus ``mean``) and weights (1/n each, summing to 1 exactly).
+
+    The sectors' edges are the quantiles k/n of D's cumulative integral on a fine grid over
+    (-pi, pi]; by symmetry the weighted mean of the headings is ``mean``."""
+    th = np.linspace(-np.pi, np.pi, fine)
+    d = cos2s(th, s)
+    cdf = np.concatenate([[0.0], np.cumsum(0.5 * (d[1:] + d[:-1]) * np.diff(th))])
+    first = np.concatenate([[0.0], np.cumsum(0.5 * (th[1:] * d[1:] + th[:-1] * d[:-1]) * np.diff(th))])
+    cdf_n = cdf / cdf[-1]
+    q = np.linspace(0.0, 1.0, n + 1)
+    edges = np.interp(q, cdf_n, th)
+    mass = np.diff(np.interp(edges, th, cdf))
+    moment = np.diff(np.interp(edges, th, first))
+    heads = moment / mass
+    heads = 0.5 * (heads - heads[::-1])  # exact symmetry about the mean
+    return heads + mean, np.full(n, 1.0 / n)
 
 
 def elevation(comps: WaveComponents, t) -> np.ndarray:
@@ -206,3 +279,225 @@ class WaveForcing:
         if r > 0 and t < r:
             out *= 0.5 * (1.0 - math.cos(math.pi * max(t, 0.0) / r))
         return out[:-1], float(out[-1])
+
+
+# ------------------------------------------------------------------ excitation by convolution
+
+EXCITATION_TAPER = 0.1  # X is continued linearly from X(w_n) to 0 at (1 + EXCITATION_TAPER) w_n
+
+
+def excitation_nodes(omega: np.ndarray, x: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """The continuous piecewise-linear X(w) on [0, W] whose transform is K_ex (module docstring).
+
+    ``omega`` (n_w,) increasing, ``x`` (n_w, n) complex. Nodes: 0 (value Re X(w_1)), the HDB
+    frequencies up to w_hi = min(w_n, W / (1 + taper)), w_hi (interpolated), W = min((1 + taper)
+    w_n, pi/dt) with value 0. Returns (nodes (L,), values (L, n))."""
+    omega = np.asarray(omega, float)
+    x = np.asarray(x, complex).reshape(omega.size, -1)
+    top = min((1.0 + EXCITATION_TAPER) * omega[-1], np.pi / dt)
+    hi = min(omega[-1], top / (1.0 + EXCITATION_TAPER))
+    keep = omega < hi * (1 - 1e-12)
+    x_hi = np.array([np.interp(hi, omega, x[:, m].real) + 1j * np.interp(hi, omega, x[:, m].imag)
+                     for m in range(x.shape[1])])
+    nodes = [omega[keep], [hi, top]]
+    values = [x[keep], x_hi[None, :], np.zeros((1, x.shape[1]), complex)]
+    if omega[0] > 0 and keep.any():
+        nodes.insert(0, [0.0])
+        values.insert(0, x[:1].real.astype(complex))
+    return np.concatenate(nodes), np.concatenate(values, axis=0)
+
+
+def excitation_irf(nodes: np.ndarray, values: np.ndarray, t) -> np.ndarray:
+    """K_ex(t) = (1/pi) Re int_0^W f(w) e^{-i w t} dw for the continuous piecewise-linear f given
+    at ``nodes`` (L,) with ``values`` (L, n) complex and f(W) = values[-1]; exact (two
+    integrations by parts: (i/t)[f e^{-iwt}]_0^W + (1/t^2) sum_s m_s [e^{-iwt}]_{w_s}^{w_s+1},
+    m_s the segment slopes). Returns (n_t, n)."""
+    t = np.atleast_1d(np.asarray(t, float))
+    w = np.asarray(nodes, float)
+    f = np.asarray(values, complex).reshape(w.size, -1)
+    dw = np.diff(w)
+    slope = np.diff(f, axis=0) / dw[:, None]
+    out = np.empty((t.size, f.shape[1]))
+    zero = t == 0.0
+    if zero.any():
+        out[zero] = (0.5 * (f[1:] + f[:-1]) * dw[:, None]).sum(axis=0).real / np.pi
+    tz = t[~zero]
+    rows = np.flatnonzero(~zero)
+    chunk = max(1, int(4e6 // max(w.size, 1)))
+    for a in range(0, tz.size, chunk):
+        tt = tz[a:a + chunk]
+        e = np.exp(-1j * np.outer(tt, w))                    # (n_t, L)
+        i = (1j / tt)[:, None] * (e[:, -1:] * f[-1][None, :] - f[0][None, :]) \
+            + (1.0 / tt ** 2)[:, None] * (np.diff(e, axis=1) @ slope)
+        out[rows[a:a + chunk]] = i.real / np.pi
+    return out
+
+
+def convolution_kernel(omega: np.ndarray, x: np.ndarray, dt: float, duration: float) -> np.ndarray:
+    """Trapezoid-weighted samples dt w_j K_ex(j dt), j = -M..M, M = round(duration/dt): (2M+1, n)."""
+    m = max(1, int(round(duration / dt)))
+    nodes, values = excitation_nodes(omega, x, dt)
+    k = excitation_irf(nodes, values, np.arange(-m, m + 1) * dt) * dt
+    k[[0, -1]] *= 0.5
+    return k
+
+
+def kernel_transfer(kernel: np.ndarray, dt: float, omega) -> np.ndarray:
+    """What the discrete convolution realises: sum_j kernel_j e^{i w j dt} (n_w, n) (equals X(w) up
+    to the truncation at +-T_c and the sampling)."""
+    m = (kernel.shape[0] - 1) // 2
+    tau = np.arange(-m, m + 1) * dt
+    return np.exp(1j * np.outer(np.asarray(omega, float), tau)) @ kernel
+
+
+class ConvolutionForcing:
+    """Per-step excitation by convolution (same interface as :class:`WaveForcing`).
+
+    ``kernels`` (S, 2M+1, n): one trapezoid-weighted excitation IRF per elevation series (one
+    series per heading); ``eta(k0, k1)`` -> (S, k1 - k0) the series at t = k dt, k0 <= k < k1
+    (raises ModelError-like errors itself when out of range). The forces are computed a block of
+    steps at a time by FFT convolution, so a step is a lookup."""
+
+    def __init__(self, kernels: np.ndarray, eta, dt: float, ramp: float, block: int = 4096):
+        self.kernels = np.asarray(kernels, float)
+        self._eta = eta
+        self.dt = float(dt)
+        self.ramp = float(ramp)
+        self.m = (self.kernels.shape[1] - 1) // 2
+        self.block = max(int(block), 4 * self.m, 256)
+        self._k0, self._f, self._e = 0, None, None
+
+    def _compute(self, k0: int) -> None:
+        from scipy.signal import fftconvolve
+        m, b = self.m, self.block
+        seg = np.atleast_2d(self._eta(k0 - m, k0 + b + m))      # (S, b + 2m)
+        f = np.zeros((b, self.kernels.shape[2]))
+        for s in range(seg.shape[0]):
+            f += fftconvolve(seg[s][:, None], self.kernels[s], mode="valid", axes=0)
+        self._k0, self._f, self._e = k0, f, seg[:, m:m + b].sum(axis=0)
+
+    def __call__(self, t: float) -> tuple[np.ndarray, float]:
+        k = int(round(t / self.dt))
+        if self._f is None or not (self._k0 <= k < self._k0 + self.block):
+            self._compute(k)
+        i = k - self._k0
+        r = self.ramp
+        fac = 0.5 * (1.0 - math.cos(math.pi * max(t, 0.0) / r)) if (r > 0 and t < r) else 1.0
+        return self._f[i] * fac, float(self._e[i] * fac)
+
+
+# ------------------------------------------------------------------ elevation time series (files)
+
+def read_elevation(path, key: str = "waves.file") -> tuple[np.ndarray, np.ndarray]:
+    """(time, eta) from a CSV (two columns time, eta; one header line allowed; comma, semicolon or
+    whitespace separated) or a NetCDF file (variable ``eta`` over ``time``). WaveError(key)
+    naming the file when it is missing or malformed."""
+    from pathlib import Path
+    path = Path(path)
+    if not path.is_file():
+        raise WaveError(key, f"elevation file not found: {path}")
+    if path.suffix.lower() in (".nc", ".nc4", ".netcdf", ".cdf", ".h5"):
+        import xarray as xr
+        try:
+            with xr.open_dataset(path) as ds:
+                if "eta" not in ds:
+                    raise WaveError(key, f"{path}: no variable 'eta' (it holds {sorted(map(str, ds.data_vars))})")
+                da = ds["eta"]
+                if da.dims != ("time",) or "time" not in da.coords:
+                    raise WaveError(key, f"{path}: 'eta' must be 1-D over a 'time' coordinate (dims {da.dims})")
+                t = np.asarray(da["time"].values)
+                if np.issubdtype(t.dtype, np.timedelta64):
+                    t = t / np.timedelta64(1, "s")
+                return np.asarray(t, float), np.asarray(da.values, float)
+        except WaveError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - any reader failure is a malformed file
+            raise WaveError(key, f"{path}: not a readable NetCDF file ({exc})") from None
+    rows: list[tuple[float, float]] = []
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise WaveError(key, f"{path}: cannot read ({exc})") from None
+    for n, line in enumerate(text.splitlines(), 1):
+        line = line.split("#", 1)[0].strip()
+        if not line:
+            continue
+        parts = [p for p in line.replace(",", " ").replace(";", " ").split() if p]
+        try:
+            vals = [float(p) for p in parts]
+        except ValueError:
+            if not rows:
+                continue  # header line(s) before the first data row
+            raise WaveError(key, f"{path}: line {n}: not two numbers (time, eta): {line!r}") from None
+        if len(vals) != 2:
+            raise WaveError(key, f"{path}: line {n}: expected two columns (time, eta), got {len(vals)}")
+        rows.append((vals[0], vals[1]))
+    if not rows:
+        raise WaveError(key, f"{path}: no data rows (two columns time, eta)")
+    a = np.asarray(rows, float)
+    return a[:, 0], a[:, 1]
+
+
+@dataclass(frozen=True)
+class ElevationSeries:
+    """An elevation file put on the simulation grid: eta_k = eta(start + k dt), k >= k_first."""
+    eta: np.ndarray
+    k_first: int
+    start: float
+    resampled: bool
+    key: str = "waves.file"
+
+    def __call__(self, k0: int, k1: int) -> np.ndarray:
+        i0, i1 = k0 - self.k_first, k1 - self.k_first
+        out = np.zeros(k1 - k0)
+        a, b = max(i0, 0), min(i1, self.eta.size)
+        if b > a:
+            out[a - i0:b - i0] = self.eta[a:b]
+        return out[None, :]
+
+
+def elevation_on_grid(time: np.ndarray, eta: np.ndarray, dt: float, n_steps: int, irf_duration: float,
+                      start: float | None, omega_max: float, key: str = "waves.file") -> ElevationSeries:
+    """Check an elevation series and sample it at start + k dt for k = -M .. n_steps + M + 1
+    (M = round(irf_duration/dt): the convolution's past and future).
+
+    Taken as it is when sampled uniformly at dt with start on a sample; otherwise resampled by a
+    cubic spline, which is refused (WaveError) when a gap exceeds pi/omega_max (the file cannot
+    carry the HDB's highest frequency). Also refused: fewer than 4 rows, non-finite values, times
+    not strictly increasing, and a file that does not cover [start - T_c, start + duration + T_c]."""
+    t = np.asarray(time, float).reshape(-1)
+    e = np.asarray(eta, float).reshape(-1)
+    if t.size != e.size or t.size < 4:
+        raise WaveError(key, f"needs at least 4 samples of (time, eta), got {t.size}")
+    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(e))):
+        bad = int(np.flatnonzero(~(np.isfinite(t) & np.isfinite(e)))[0])
+        raise WaveError(key, f"non-finite value at sample {bad} (t = {t[bad]!r})")
+    h = np.diff(t)
+    if np.any(h <= 0):
+        bad = int(np.flatnonzero(h <= 0)[0])
+        raise WaveError(key, f"time must increase strictly: sample {bad + 1} (t = {t[bad + 1]:.9g} s) follows "
+                             f"t = {t[bad]:.9g} s")
+    m = max(1, int(round(irf_duration / dt)))
+    if start is None:
+        start = float(t[0] + m * dt)
+    need0, need1 = start - m * dt, start + (n_steps + m + 1) * dt
+    slack = 1e-6 * dt
+    if t[0] > need0 + slack or t[-1] < need1 - slack:
+        raise WaveError(key, f"too short: the run needs eta over [{need0:.6g}, {need1:.6g}] s of the file "
+                             f"(start {start:.6g} s - excitation_irf_duration .. start + duration + "
+                             f"excitation_irf_duration), the file covers [{t[0]:.6g}, {t[-1]:.6g}] s")
+    k_first = -m
+    n = n_steps + 2 * m + 2
+    h_mean = (t[-1] - t[0]) / (t.size - 1)
+    uniform = np.max(np.abs(h - h_mean)) <= 1e-6 * h_mean
+    offset = (need0 - t[0]) / dt
+    if uniform and abs(h_mean - dt) <= 1e-9 * dt and abs(offset - round(offset)) < 1e-6:
+        i0 = int(round(offset))
+        return ElevationSeries(e[i0:i0 + n].copy(), k_first, float(start), False, key)
+    if h.max() > np.pi / omega_max:
+        raise WaveError(key, f"sampled every {h.max():.4g} s (largest gap), coarser than pi/w_max = "
+                             f"{np.pi / omega_max:.4g} s for the HDB's highest frequency {omega_max:.4g} rad/s: "
+                             "it cannot be resampled to dt without losing waves the HDB covers; give it at dt")
+    from scipy.interpolate import CubicSpline
+    grid = need0 + np.arange(n) * dt
+    return ElevationSeries(CubicSpline(t, e)(np.clip(grid, t[0], t[-1])), k_first, float(start), True, key)
