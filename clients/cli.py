@@ -252,6 +252,47 @@ def steady(scene: Path, output: Path | None, order: int | None, formulation: str
 
 
 @cli.group()
+def bench() -> None:
+    """Measure a scene's options: hydrolink bench accuracy SCENE.toml (docs/accuracy.md)."""
+
+
+@bench.command("accuracy")
+@click.argument("scene", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--grid", "grid_file", type=click.Path(dir_okay=False, exists=True, path_type=Path),
+              help="TOML grid of options (clients/accuracy.py); combined with the flags below.")
+@click.option("--dt", help="Comma-separated simulation.dt values.")
+@click.option("--irf-duration", help="Comma-separated hydro.irf_duration values (s).")
+@click.option("--radiation", help="Comma-separated hydro.radiation methods.")
+@click.option("--excitation", help="Comma-separated waves.excitation methods.")
+@click.option("--coupling", help="Comma-separated coupling.scheme values.")
+@click.option("--ref", "refs", multiple=True, help="Reference setting KEY=VALUE (repeatable), e.g. dt=0.005.")
+@click.option("--mode", type=click.Choice(["axes", "product"]), help="One key at a time (default) or all combinations.")
+@click.option("--duration", type=float, help="Simulated seconds of every run (default: the scene's).")
+@click.option("--window", nargs=2, type=float, help="Comparison window START END (s).")
+@click.option("-o", "--output", type=click.Path(file_okay=False, path_type=Path), default=Path("accuracy"),
+              show_default=True, help="Folder for accuracy.md, accuracy.png, accuracy.csv.")
+@click.option("--title", help="Title of the table and plot (default: the scene's name).")
+@click.option("--keep-runs", is_flag=True, help="Keep every run's scene and results in OUTPUT/runs.")
+def bench_accuracy_cmd(scene: Path, grid_file: Path | None, dt, irf_duration, radiation, excitation, coupling,
+                       refs, mode, duration, window, output: Path, title, keep_runs: bool) -> None:
+    """Run SCENE under a grid of options against a reference run; table + plots of error vs cost."""
+    from hydrolink.clients.accuracy import BenchError, Grid, bench_accuracy, grid_from_flags
+
+    try:
+        base = Grid.from_toml(grid_file) if grid_file else None
+        grid = grid_from_flags(base, {"dt": dt, "irf_duration": irf_duration, "radiation": radiation,
+                                      "excitation": excitation, "coupling": coupling}, refs, mode, duration,
+                               tuple(window) if window else None)
+    except BenchError as exc:
+        raise _UserError(str(exc)) from None
+    rows = _guard(bench_accuracy, scene, grid, output, title=title, keep_runs=keep_runs,
+                  log=lambda m: click.echo(m, err=True))
+    front = [r["label"] for r in rows if r["front_rms_error_us_per_step"]]
+    click.echo(f"wrote {output / 'accuracy.md'}, {output / 'accuracy.png'}: {len(rows) - 1} options; "
+               f"Pareto front (RMS error vs us/step): {front}")
+
+
+@cli.group()
 def fmu() -> None:
     """FMI co-simulation: export hydrolink's forces as an FMU (import: [client] type = "fmu" in a scene)."""
 

@@ -366,15 +366,16 @@ class ConvolutionForcing:
         self.m = (self.kernels.shape[1] - 1) // 2
         self.block = max(int(block), 4 * self.m, 256)
         self._k0, self._f, self._e = 0, None, None
+        n = self.block + 4 * self.m                               # >= len(segment) + len(kernel) - 1
+        self._nfft = 1 << int(math.ceil(math.log2(n)))
+        self._kf = np.fft.rfft(self.kernels, self._nfft, axis=1)  # (S, nfft/2 + 1, n)
 
     def _compute(self, k0: int) -> None:
-        from scipy.signal import fftconvolve
         m, b = self.m, self.block
         seg = np.atleast_2d(self._eta(k0 - m, k0 + b + m))      # (S, b + 2m)
-        f = np.zeros((b, self.kernels.shape[2]))
-        for s in range(seg.shape[0]):
-            f += fftconvolve(seg[s][:, None], self.kernels[s], mode="valid", axes=0)
-        self._k0, self._f, self._e = k0, f, seg[:, m:m + b].sum(axis=0)
+        spec = np.einsum("sf,sfn->fn", np.fft.rfft(seg, self._nfft, axis=1), self._kf)
+        full = np.fft.irfft(spec, self._nfft, axis=0)             # full linear convolution
+        self._k0, self._f, self._e = k0, full[2 * m:2 * m + b], seg[:, m:m + b].sum(axis=0)
 
     def __call__(self, t: float) -> tuple[np.ndarray, float]:
         k = int(round(t / self.dt))

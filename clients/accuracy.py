@@ -1,0 +1,536 @@
+"""``hydrolink bench accuracy SCENE.toml``: the speed/accuracy trade of a scene's options, measured.
+
+A scene runs (``hydrolink run``: Exudyn client, embedded server) under a grid of options and once
+under reference settings; every option's response is compared with the reference run's:
+
+- ``max error``: worst response channel of max_t |x - x_ref| / max_t |x_ref - mean x_ref|;
+- ``RMS error``: worst channel of rms(x - x_ref) / rms(x_ref - mean x_ref);
+- ``power error``: |mean P - mean P_ref| / |mean P_ref| of total_pto_power (scenes with PTOs);
+
+over the comparison window (default: from the end of the wave ramp to the end), the option's
+samples against the reference interpolated to its times (cubic). Response channels: ``position``
+(every body, every DOF) whose reference standard deviation is at least 1e-3 of the largest one of
+its kind (translations, rotations). Cost: wall time per step and per simulated second of the
+whole run (client, server, results file), and the server's compute per step.
+
+The **Pareto front** (per error measure and cost measure): the options no other option beats in
+both cost and error (ties in both do not dominate). Outputs in the output folder:
+``accuracy.md`` (table), ``accuracy.png`` (error against cost, front joined), ``accuracy.csv``.
+
+The grid (a TOML file, or CLI flags) names scene keys by their dotted path or a short alias::
+
+    duration = 60.0              # s, overrides simulation.duration of every run (optional)
+    window = [20.0, 60.0]        # s, comparison window (optional)
+    mode = "axes"                # "axes": one key varied at a time, the others at the reference;
+                                 # "product": every combination
+    [reference]                  # the reference run (default: the scene's own values, with the
+    dt = 0.005                   #  smallest dt and the longest irf_duration of the grid)
+    [grid]
+    dt = [0.01, 0.02, 0.04]
+    irf_duration = [5.0, 10.0, 20.0]
+    radiation = ["convolution", "state-space", "constant"]
+    excitation = ["superposition", "convolution"]
+    coupling = ["mass-matrix", "implicit"]
+    [[cases]]                    # extra options, each a set of keys (optional label)
+    label = "state-space + taper"
+    radiation = "state-space"
+    "hydro.irf_taper" = 0.2
+"""
+
+from __future__ import annotations
+
+import csv
+import itertools
+import json
+import math
+import shutil
+import sys
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+ALIASES = {
+    "dt": "simulation.dt",
+    "duration": "simulation.duration",
+    "irf_duration": "hydro.irf_duration",
+    "irf_taper": "hydro.irf_taper",
+    "radiation": "hydro.radiation",
+    "ss_tolerance": "hydro.ss_tolerance",
+    "excitation": "waves.excitation",
+    "excitation_irf_duration": "waves.excitation_irf_duration",
+    "coupling": "coupling.scheme",
+    "exchange_every": "coupling.exchange_every",
+    "between_exchanges": "coupling.between_exchanges",
+}
+SHORT = {v: k for k, v in ALIASES.items()}
+
+
+class BenchError(ValueError):
+    """A grid the bench cannot run; the message names the key."""
+
+
+def full_key(key: str) -> str:
+    return ALIASES.get(key, key)
+
+
+def short_key(key: str) -> str:
+    return SHORT.get(key, key)
+
+
+@dataclass
+class Grid:
+    grid: dict[str, list] = field(default_factory=dict)
+    reference: dict[str, Any] = field(default_factory=dict)
+    cases: list[dict[str, Any]] = field(default_factory=list)
+    mode: str = "axes"
+    duration: float | None = None
+    window: tuple[float, float] | None = None
+
+    @classmethod
+    def from_toml(cls, path: str | Path) -> "Grid":
+        path = Path(path)
+        try:
+            raw = tomllib.loads(path.read_text())
+        except (OSError, tomllib.TOMLDecodeError) as exc:
+            raise BenchError(f"{path}: {exc}") from None
+        known = {"grid", "reference", "cases", "mode", "duration", "window"}
+        for k in raw:
+            if k not in known:
+                raise BenchError(f"{path}: {k}: unknown key (known: {sorted(known)})")
+        g = cls(mode=raw.get("mode", "axes"), duration=raw.get("duration"),
+                window=tuple(raw["window"]) if "window" in raw else None)
+        for k, v in raw.get("grid", {}).items():
+            if not isinstance(v, list) or not v:
+                raise BenchError(f"{path}: grid.{k}: a non-empty list of values")
+            g.grid[full_key(k)] = v
+        g.reference = {full_key(k): v for k, v in raw.get("reference", {}).items()}
+        for i, c in enumerate(raw.get("cases", [])):
+            g.cases.append({(k if k == "label" else full_key(k)): v for k, v in c.items()})
+        g.check(str(path))
+        return g
+
+    def check(self, source: str = "grid") -> None:
+        if self.mode not in ("axes", "product"):
+            raise BenchError(f"{source}: mode: \"axes\" or \"product\" (got {self.mode!r})")
+        if self.window is not None and (len(self.window) != 2 or not self.window[0] < self.window[1]):
+            raise BenchError(f"{source}: window: [start, end] with start < end (got {list(self.window)})")
+        if not self.grid and not self.cases:
+            raise BenchError(f"{source}: no options: give [grid] keys, [[cases]] or CLI flags")
+
+
+# ------------------------------------------------------------------ scene documents
+
+def get_key(doc: dict, dotted: str, default=None):
+    cur = doc
+    for part in dotted.split("."):
+        if not isinstance(cur, dict) or part not in cur:
+            return default
+        cur = cur[part]
+    return cur
+
+
+def set_key(doc: dict, dotted: str, value) -> None:
+    parts = dotted.split(".")
+    cur = doc
+    for part in parts[:-1]:
+        cur = cur.setdefault(part, {})
+        if not isinstance(cur, dict):
+            raise BenchError(f"{dotted}: {part} is not a table in the scene")
+    cur[parts[-1]] = value
+
+
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        if math.isnan(v):
+            return "nan"
+        if math.isinf(v):
+            return "inf" if v > 0 else "-inf"
+        return repr(v)
+    if isinstance(v, str):
+        return json.dumps(v)
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{json.dumps(k)} = {_toml_value(x)}" for k, x in v.items()) + "}"
+    raise BenchError(f"cannot write {v!r} to TOML")
+
+
+def dump_toml(doc: dict) -> str:
+    """TOML text of a scene document: top-level tables as [sections], lists of tables as [[...]],
+    deeper tables inline."""
+    out: list[str] = []
+    for k, v in doc.items():  # plain top-level keys first
+        if not isinstance(v, dict) and not (isinstance(v, list) and v and all(isinstance(x, dict) for x in v)):
+            out.append(f"{json.dumps(k)} = {_toml_value(v)}")
+    for k, v in doc.items():
+        if isinstance(v, dict):
+            out.append(f"\n[{k}]")
+            out += [f"{json.dumps(kk)} = {_toml_value(vv)}" for kk, vv in v.items()]
+        elif isinstance(v, list) and v and all(isinstance(x, dict) for x in v):
+            for item in v:
+                out.append(f"\n[[{k}]]")
+                out += [f"{json.dumps(kk)} = {_toml_value(vv)}" for kk, vv in item.items()]
+    return "\n".join(out) + "\n"
+
+
+def absolute_paths(doc: dict, scene_path: Path) -> dict:
+    """The scene document with its relative file paths (bodies[i].hdb, waves.file, client.fmu)
+    made absolute, so that it runs from any folder."""
+    base = scene_path.resolve().parent
+
+    def fix(p: str) -> str:
+        q = Path(p).expanduser()
+        return str(q if q.is_absolute() else (base / q).resolve())
+    for b in doc.get("bodies", []):
+        if "hdb" in b:
+            b["hdb"] = fix(b["hdb"])
+    if isinstance(doc.get("waves"), dict) and "file" in doc["waves"]:
+        doc["waves"]["file"] = fix(doc["waves"]["file"])
+    if isinstance(doc.get("client"), dict) and "fmu" in doc["client"]:
+        doc["client"]["fmu"] = fix(doc["client"]["fmu"])
+    return doc
+
+
+# ------------------------------------------------------------------ cases
+
+def _fmt(v) -> str:
+    return f"{v:g}" if isinstance(v, float) else str(v)
+
+
+def reference_settings(grid: Grid, doc: dict) -> dict[str, Any]:
+    """The reference run's keys: grid.reference, else per grid key the scene's value — except the
+    smallest dt (simulation.dt) and longest IRFs (hydro.irf_duration, waves.excitation_irf_duration),
+    which take the finest of the grid and the scene."""
+    ref: dict[str, Any] = {}
+    keys = list(grid.grid) + [k for c in grid.cases for k in c if k != "label"]
+    for key in dict.fromkeys(keys):
+        if key in grid.reference:
+            continue
+        values = list(grid.grid.get(key, []))
+        scene_v = get_key(doc, key)
+        if key == "simulation.dt":
+            ref[key] = min(values + ([scene_v] if scene_v is not None else []))
+        elif key in ("hydro.irf_duration", "waves.excitation_irf_duration"):
+            ref[key] = max(values + ([scene_v] if scene_v is not None else []))
+        elif scene_v is not None:
+            ref[key] = scene_v
+        elif values:
+            ref[key] = values[0]
+    ref.update(grid.reference)
+    return ref
+
+
+def make_cases(grid: Grid, reference: dict[str, Any]) -> list[tuple[str, dict[str, Any]]]:
+    """(label, overrides) of every option, the reference excluded and duplicates dropped."""
+    out: list[tuple[str, dict[str, Any]]] = []
+
+    def signature(d: dict[str, Any]) -> str:
+        return json.dumps({k: float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else v
+                           for k, v in d.items()}, sort_keys=True, default=str)
+    seen = {signature(reference)}
+
+    def add(label: str, over: dict[str, Any]) -> None:
+        full = {**reference, **over}
+        sig = signature(full)
+        if sig not in seen:
+            seen.add(sig)
+            out.append((label, full))
+    if grid.mode == "product" and grid.grid:
+        keys = list(grid.grid)
+        for combo in itertools.product(*(grid.grid[k] for k in keys)):
+            over = dict(zip(keys, combo))
+            changed = [f"{short_key(k)}={_fmt(v)}" for k, v in over.items() if reference.get(k) != v]
+            add(", ".join(changed) or "reference", over)
+    else:
+        for k, values in grid.grid.items():
+            for v in values:
+                add(f"{short_key(k)}={_fmt(v)}", {k: v})
+    for c in grid.cases:
+        over = {k: v for k, v in c.items() if k != "label"}
+        add(c.get("label") or ", ".join(f"{short_key(k)}={_fmt(v)}" for k, v in over.items()), over)
+    return out
+
+
+# ------------------------------------------------------------------ comparison
+
+def _channels(x_ref: np.ndarray) -> np.ndarray:
+    """Mask (body, dof) of the response channels that move (see module docstring)."""
+    std = x_ref.std(axis=0)
+    keep = np.zeros(std.shape, bool)
+    for sl in (slice(0, 3), slice(3, 6)):
+        top = std[:, sl].max() if std[:, sl].size else 0.0
+        if top > 0:
+            keep[:, sl] = std[:, sl] >= 1e-3 * top
+    return keep
+
+
+def compare(ref: dict, run: dict, window: tuple[float, float]) -> dict[str, float]:
+    """Errors of ``run`` against ``ref`` (dicts of time, position (t, body, dof), power (t,) or None)."""
+    from scipy.interpolate import CubicSpline
+    t = run["time"]
+    sel = (t >= window[0] - 1e-9) & (t <= window[1] + 1e-9)
+    tr = ref["time"]
+    sr = (tr >= window[0] - 1e-9) & (tr <= window[1] + 1e-9)
+    if sel.sum() < 2 or sr.sum() < 2:
+        raise BenchError(f"window [{window[0]:g}, {window[1]:g}] s holds too few samples")
+    x_ref_w = ref["position"][sr]
+    keep = _channels(x_ref_w)
+    if not keep.any():
+        raise BenchError("the reference run does not move (no response channel to compare)")
+    xr_at = CubicSpline(tr, ref["position"].reshape(tr.size, -1), axis=0)(t[sel]).reshape((-1,) + keep.shape)
+    x = run["position"][sel]
+    if not np.all(np.isfinite(x)):
+        return {"max_error": math.inf, "rms_error": math.inf, "power_error": math.inf}
+    dev = x_ref_w - x_ref_w.mean(axis=0)
+    amp = np.abs(dev).max(axis=0)
+    rms_ref = np.sqrt((dev ** 2).mean(axis=0))
+    d = x - xr_at
+    max_err = float((np.abs(d).max(axis=0)[keep] / amp[keep]).max())
+    rms_err = float((np.sqrt((d ** 2).mean(axis=0))[keep] / rms_ref[keep]).max())
+    p_err = math.nan
+    if ref.get("power") is not None and run.get("power") is not None:
+        p0 = float(np.mean(ref["power"][sr]))
+        p1 = float(np.mean(run["power"][sel]))
+        p_err = abs(p1 - p0) / abs(p0) if p0 != 0 else math.nan
+    return {"max_error": max_err, "rms_error": rms_err, "power_error": p_err}
+
+
+def pareto_front(cost, error) -> np.ndarray:
+    """True for the points no other point dominates (cost <= and error <=, one of them <)."""
+    c = np.asarray(cost, float)
+    e = np.asarray(error, float)
+    ok = np.isfinite(c) & np.isfinite(e)
+    front = np.zeros(c.size, bool)
+    for i in np.flatnonzero(ok):
+        dominated = ok & (c <= c[i]) & (e <= e[i]) & ((c < c[i]) | (e < e[i]))
+        front[i] = not dominated.any()
+    return front
+
+
+# ------------------------------------------------------------------ running
+
+def _read(path: Path) -> dict:
+    import xarray as xr
+    with xr.open_dataset(path) as ds:
+        pos = ds["position"].values - ds["equilibrium_position"].values[None]
+        out = {"time": ds["time"].values.astype(float), "position": pos,
+               "power": ds["total_pto_power"].values.astype(float) if "total_pto_power" in ds else None}
+    return out
+
+
+def run_option(doc: dict, settings: dict[str, Any], duration: float | None, workdir: Path, name: str,
+               hdbs: dict | None, progress: bool = False) -> tuple[dict, dict]:
+    """Run the scene with ``settings`` applied; returns (results arrays, cost summary)."""
+    from hydrolink.clients.run import load_scene_hdbs, run_scene_file
+    from hydrolink.protocol.scene import load_scene
+    case = json.loads(json.dumps(doc))
+    for k, v in settings.items():
+        set_key(case, k, v)
+    if duration is not None:
+        set_key(case, "simulation.duration", float(duration))
+    set_key(case, "simulation.progress", False)
+    path = workdir / f"{name}.toml"
+    path.write_text(dump_toml(case))
+    if hdbs is not None and not hdbs:
+        scene, _ = load_scene(path)
+        hdbs.update(load_scene_hdbs(scene, path, progress=progress))
+    s = run_scene_file(path, workdir / f"{name}.nc", progress=False, hdbs=hdbs or None)
+    steps = max(int(s["steps"]), 1)
+    sim_time = float(s.get("time") or steps * float(get_key(case, "simulation.dt")))
+    cost = {"us_per_step": 1e6 * s["wall_time"] / steps, "wall_per_sim_s": s["wall_time"] / sim_time,
+            "server_us_per_step": float(s.get("server_compute_us_per_step", math.nan)), "steps": steps,
+            "wall_time": float(s["wall_time"])}
+    return _read(workdir / f"{name}.nc"), cost
+
+
+def bench_accuracy(scene_path: str | Path, grid: Grid, outdir: str | Path, *, title: str | None = None,
+                   keep_runs: bool = False, progress: bool = True, log=print) -> list[dict]:
+    """Run the grid and the reference, write accuracy.md / .png / .csv to ``outdir``; returns the rows
+    (the reference first)."""
+    from hydrolink.protocol.scene import load_scene
+    scene_path = Path(scene_path)
+    scene, text = load_scene(scene_path)     # validates the scene as it is
+    doc = absolute_paths(tomllib.loads(text), scene_path)
+    outdir = Path(outdir)
+    outdir.mkdir(parents=True, exist_ok=True)
+    reference = reference_settings(grid, doc)
+    cases = make_cases(grid, reference)
+    duration = grid.duration or float(scene.simulation.duration)
+    ramp = float(getattr(scene.waves, "ramp", 0.0) or 0.0)
+    window = grid.window or (min(ramp, 0.5 * duration), duration)
+    work = Path(tempfile.mkdtemp(prefix="hydrolink-accuracy-"))
+    hdbs: dict = {}
+    rows: list[dict] = []
+    try:
+        log(f"reference: {', '.join(f'{short_key(k)}={_fmt(v)}' for k, v in reference.items())}")
+        ref, cost = run_option(doc, reference, duration, work, "reference", hdbs, progress)
+        rows.append({"label": "reference", "settings": dict(reference), **cost,
+                     **{"max_error": 0.0, "rms_error": 0.0,
+                        "power_error": 0.0 if ref["power"] is not None else math.nan}})
+        log(f"  {cost['us_per_step']:.0f} us/step")
+        for i, (label, settings) in enumerate(cases):
+            log(f"[{i + 1}/{len(cases)}] {label}")
+            try:
+                res, cost = run_option(doc, settings, duration, work, f"case{i}", hdbs)
+                err = compare(ref, res, window)
+                note = ""
+            except Exception as exc:  # noqa: BLE001 - a failing option is a result (unstable, refused)
+                cost = {"us_per_step": math.nan, "wall_per_sim_s": math.nan, "server_us_per_step": math.nan,
+                        "steps": 0, "wall_time": math.nan}
+                err = {"max_error": math.nan, "rms_error": math.nan, "power_error": math.nan}
+                note = f"{type(exc).__name__}: {str(exc).splitlines()[0][:160]}"
+            rows.append({"label": label, "settings": dict(settings), **cost, **err, "note": note})
+            log(f"  {cost['us_per_step']:.0f} us/step, RMS error {100 * err['rms_error']:.3g} % {note}")
+    finally:
+        if keep_runs:
+            shutil.copytree(work, outdir / "runs", dirs_exist_ok=True)
+        shutil.rmtree(work, ignore_errors=True)
+    mark_fronts(rows)
+    meta = {"scene": str(scene_path), "duration": duration, "window": list(window), "mode": grid.mode,
+            "title": title or scene_path.stem}
+    write_report(rows, outdir, meta)
+    return rows
+
+
+def mark_fronts(rows: list[dict]) -> None:
+    """Pareto flags per (error, cost) pair: front_<error>_<cost> on every row."""
+    for e in ("max_error", "rms_error", "power_error"):
+        for c in ("us_per_step", "wall_per_sim_s"):
+            f = pareto_front([r[c] for r in rows], [r[e] for r in rows])
+            for r, v in zip(rows, f):
+                r[f"front_{e}_{c}"] = bool(v)
+
+
+# ------------------------------------------------------------------ report
+
+def _pct(v: float) -> str:
+    if v is None or (isinstance(v, float) and math.isnan(v)):
+        return "–"
+    if math.isinf(v):
+        return "diverged"
+    return "0" if v == 0 else f"{100 * v:.3g}"
+
+
+def write_report(rows: list[dict], outdir: Path, meta: dict) -> None:
+    has_power = any(not math.isnan(r["power_error"]) for r in rows)
+    lines = [f"# Accuracy bench: {meta['title']}", "",
+             f"Scene `{Path(meta['scene']).name}`, {meta['duration']:g} s simulated, errors over "
+             f"[{meta['window'][0]:g}, {meta['window'][1]:g}] s against the reference (first row); mode "
+             f"`{meta['mode']}`. Errors in % (worst response channel); cost = wall time of the whole run "
+             "(client + server + results). ★ = on the Pareto front of RMS error vs µs/step, "
+             "☆ = of RMS error vs wall time per simulated second.", ""]
+    head = "| option | µs/step | wall s / sim s | server µs/step | max err % | RMS err % |"
+    sep = "|---|---|---|---|---|---|"
+    if has_power:
+        head += " PTO power err % |"
+        sep += "---|"
+    head += " front |"
+    sep += "---|"
+    lines += [head, sep]
+    for r in rows:
+        front = ("★" if r["front_rms_error_us_per_step"] else "") + ("☆" if r["front_rms_error_wall_per_sim_s"] else "")
+        cells = [r["label"] if r["label"] != "reference" else "**reference**",
+                 f"{r['us_per_step']:.0f}" if not math.isnan(r["us_per_step"]) else "–",
+                 f"{r['wall_per_sim_s']:.3g}" if not math.isnan(r["wall_per_sim_s"]) else "–",
+                 f"{r['server_us_per_step']:.0f}" if not math.isnan(r["server_us_per_step"]) else "–",
+                 _pct(r["max_error"]), _pct(r["rms_error"])]
+        if has_power:
+            cells.append(_pct(r["power_error"]))
+        cells.append(front)
+        lines.append("| " + " | ".join(cells) + " |")
+    notes = [r for r in rows if r.get("note")]
+    if notes:
+        lines += ["", "Failed options:", ""] + [f"- {r['label']}: {r['note']}" for r in notes]
+    ref = rows[0]["settings"]
+    lines += ["", "Reference settings: " + ", ".join(f"`{k} = {_fmt(v)}`" for k, v in ref.items()), ""]
+    (outdir / "accuracy.md").write_text("\n".join(lines))
+    with open(outdir / "accuracy.csv", "w", newline="") as fh:
+        cols = ["label", "us_per_step", "wall_per_sim_s", "server_us_per_step", "max_error", "rms_error",
+                "power_error", "front_rms_error_us_per_step", "front_rms_error_wall_per_sim_s", "note"]
+        w = csv.writer(fh)
+        w.writerow(cols)
+        for r in rows:
+            w.writerow([r.get(c, "") for c in cols])
+    plot_report(rows, outdir / "accuracy.png", meta, has_power)
+
+
+def plot_report(rows: list[dict], path: Path, meta: dict, has_power: bool) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    errs = [("max_error", "max error"), ("rms_error", "RMS error")] + ([("power_error", "PTO power error")]
+                                                                      if has_power else [])
+    costs = [("us_per_step", "wall time per step (µs)"), ("wall_per_sim_s", "wall time per simulated s (s)")]
+    fig, axes = plt.subplots(len(costs), len(errs), figsize=(4.2 * len(errs), 3.6 * len(costs)), squeeze=False)
+    finite = [r[e] for r in rows for e, _ in errs if np.isfinite(r[e]) and r[e] > 0]
+    floor = 0.3 * min(finite) if finite else 1e-6
+    for i, (c, clabel) in enumerate(costs):
+        for j, (e, elabel) in enumerate(errs):
+            ax = axes[i][j]
+            x = np.array([r[c] for r in rows], float)
+            y = np.array([max(r[e], floor) if np.isfinite(r[e]) else np.nan for r in rows], float)
+            front = np.array([r[f"front_{e}_{c}"] for r in rows])
+            ax.scatter(x[1:], 100 * y[1:], s=18, color="tab:blue", label="options")
+            ax.scatter(x[:1], 100 * y[:1], s=60, marker="*", color="k", label="reference (0, at the floor)")
+            o = np.argsort(x[front])
+            ax.plot(x[front][o], 100 * y[front][o], "-o", color="tab:red", mfc="none", ms=9, label="Pareto front")
+            for k, r in enumerate(rows):
+                if front[k] and k and np.isfinite(y[k]):
+                    ax.annotate(r["label"], (x[k], 100 * y[k]), fontsize=6, xytext=(3, 3), textcoords="offset points")
+            ax.set_xscale("log")
+            ax.set_yscale("log")
+            ax.set_xlabel(clabel)
+            ax.set_ylabel(f"{elabel} (%)")
+            ax.grid(True, which="both", alpha=0.3)
+            if i == 0 and j == 0:
+                ax.legend(fontsize=6)
+    fig.suptitle(f"{meta['title']}: error against cost", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+
+
+def grid_from_flags(base: Grid | None, flags: dict[str, str | None], refs: tuple[str, ...], mode: str | None,
+                    duration: float | None, window: tuple[float, float] | None) -> Grid:
+    """A Grid from a TOML grid (optional) plus CLI flags (comma-separated values) and --ref KEY=VALUE."""
+    g = base or Grid()
+    for key, text in flags.items():
+        if text:
+            g.grid[full_key(key)] = [_parse_value(v) for v in text.split(",") if v.strip()]
+    for item in refs:
+        k, sep, v = item.partition("=")
+        if not sep:
+            raise BenchError(f"--ref {item!r}: KEY=VALUE")
+        g.reference[full_key(k.strip())] = _parse_value(v)
+    if mode:
+        g.mode = mode
+    if duration:
+        g.duration = duration
+    if window:
+        g.window = window
+    g.check("command line")
+    return g
+
+
+def _parse_value(v: str):
+    v = v.strip()
+    for conv in (int, float):
+        try:
+            return conv(v)
+        except ValueError:
+            pass
+    if v in ("true", "false"):
+        return v == "true"
+    return v
