@@ -209,17 +209,35 @@ def _fmt(v) -> str:
     return f"{v:g}" if isinstance(v, float) else str(v)
 
 
+def scene_value(doc: dict, key: str):
+    """A scene key's value: written in the document, else the scene format's default (None if the
+    key does not apply, e.g. waves.excitation in still water)."""
+    v = get_key(doc, key)
+    if v is not None:
+        return v
+    from hydrolink.protocol.scene import Scene
+    try:
+        obj: Any = Scene.model_validate(doc)
+    except Exception:  # noqa: BLE001 - an invalid document has no defaults to offer
+        return None
+    for part in key.split("."):
+        obj = getattr(obj, part, None)
+        if obj is None:
+            return None
+    return obj if isinstance(obj, (int, float, str, bool)) else None
+
+
 def reference_settings(grid: Grid, doc: dict) -> dict[str, Any]:
-    """The reference run's keys: grid.reference, else per grid key the scene's value — except the
-    smallest dt (simulation.dt) and longest IRFs (hydro.irf_duration, waves.excitation_irf_duration),
-    which take the finest of the grid and the scene."""
+    """The reference run's keys: grid.reference, else per grid key the scene's value (written or
+    default) — except the smallest dt (simulation.dt) and longest IRFs (hydro.irf_duration,
+    waves.excitation_irf_duration), which take the finest of the grid and the scene."""
     ref: dict[str, Any] = {}
     keys = list(grid.grid) + [k for c in grid.cases for k in c if k != "label"]
     for key in dict.fromkeys(keys):
         if key in grid.reference:
             continue
         values = list(grid.grid.get(key, []))
-        scene_v = get_key(doc, key)
+        scene_v = scene_value(doc, key)
         if key == "simulation.dt":
             ref[key] = min(values + ([scene_v] if scene_v is not None else []))
         elif key in ("hydro.irf_duration", "waves.excitation_irf_duration"):
