@@ -34,7 +34,7 @@ OGILVIE_DEFAULT_DURATION = 40.0  # s of IRF used for Ogilvie's A_inf when hydro.
 SS_FIT_POINTS = 120              # frequencies on [0, w_max] the state-space fit is made (and checked) on
 TAIL_CUTOFF_FACTOR = 10.0        # default hydro.irf_tail_cutoff: 10 w_max
 BREAKING_STEEPNESS = 1.0 / 7.0   # H/lambda above which waves are refused (docs/stability.md)
-ALIAS_REFUSE = 0.05              # refuse an IRF whose part past pi/d_omega exceeds this share of max |K|
+ALIAS_REFUSE = 0.25              # refuse an IRF whose part past pi/d_omega exceeds this share of max |K|
 
 
 class ConstantDamping:
