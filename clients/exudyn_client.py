@@ -104,6 +104,7 @@ class ExudynModel:
     initialized: bool = field(default=False)
     added_mass: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))  # (6N, 6N) A∞ (setup)
     added_mass_in_matrix: bool = True
+    failure_hint: str = ""          # appended to a solver failure's message (what to change)
 
     @property
     def n_bodies(self) -> int:
@@ -133,7 +134,7 @@ class ExudynModel:
         it.startTime, it.endTime = t0, t1
         if not self.solver.SolveSteps(self.mbs, self.settings):
             raise RuntimeError(f"Exudyn solver failed on the step {t0:g} s -> {t1:g} s: "
-                               f"{self.solver.GetErrorString()}")
+                               f"{self.solver.GetErrorString()}{self.failure_hint}")
 
     def save(self) -> tuple:
         """The whole solver state at the current time (for a rollback with :meth:`restore`)."""
@@ -351,6 +352,50 @@ def coupling_ratio(scene: Scene, setup: dict | None) -> float:
     return added_mass_ratio(wet_rigid_mass(scene, setup)[np.ix_(act, act)], a[np.ix_(act, act)])
 
 
+#: period stretch of the trapezoidal rule (of the wave period at the exchange step) above which a run
+#: is refused / warned: 10 % is dt > T/5.6 (T/5 is refused), 1 % is dt > T/18
+DT_REFUSE, DT_WARN = 0.10, 0.01
+
+
+def wave_resolution(scene: Scene, step: float) -> tuple[str, str] | None:
+    """("refuse" | "warn", why) when ``step`` (the exchange step, exchange_every × dt) resolves the
+    wave period (regular) or peak period (irregular) too coarsely: the trapezoidal rule stretches
+    a period T by ωh / (2 atan(ωh/2)) − 1 (12 % at T/5, 3.2 % at T/10, 0.8 % at T/20)."""
+    w = scene.waves
+    kind = getattr(w, "type", "still")
+    if kind not in ("regular", "irregular"):
+        return None
+    period, what = (w.period, "waves.period") if kind == "regular" else (w.tp, "waves.tp")
+    wh = 2 * math.pi * step / period
+    stretch = wh / (2 * math.atan(wh / 2)) - 1
+    if stretch <= DT_WARN:
+        return None
+    kx = scene.coupling.exchange_every
+    what_step = f"{step:g} s" + (f" (coupling.exchange_every = {kx} × dt)" if kx > 1 else "")
+    why = (f"a step of {what_step} resolves {what} = {period:g} s with {period / step:.3g} steps: the "
+           f"trapezoidal rule stretches that period by {100 * stretch:.2g} %; use simulation.dt <= "
+           f"{period / 20 / kx:.3g} s (T/20: < 1 %)")
+    if stretch > DT_REFUSE:
+        return "refuse", f"{why} — refused above {100 * DT_REFUSE:g} %"
+    return "warn", why
+
+
+#: PTO/mooring stiffness (N/m) above which a solver failure names the stiffness (docs/stability.md)
+STIFF_NOTE = 1e7
+
+
+def _stiffest(scene: Scene) -> tuple[float, str] | None:
+    """The largest PTO or linear-mooring stiffness entry and its scene key."""
+    found = []
+    for i, p in enumerate(scene.ptos):
+        found.append((float(np.max(p.stiffness)), f"ptos[{i}].stiffness"))
+    for i, m in enumerate(scene.moorings):
+        k = getattr(m, "stiffness", None)
+        if k is not None and getattr(m, "type", "") == "linear":
+            found.append((float(np.abs(np.asarray(k, float)).max()), f"moorings[{i}].stiffness"))
+    return max(found) if found else None
+
+
 def explicit_refusal(scheme: str, ratio: float, limit: float) -> str:
     return (f"coupling.scheme = \"{scheme}\" feeds A∞ back as the lagged force −A∞·a: explicit added-mass "
             f"coupling is unstable for A∞/m > 1, and this scene's added-mass ratio (spectral radius of "
@@ -402,6 +447,12 @@ def run(scene: Scene, scene_text: str, connection, setup: dict | None, writer, *
                         "\"implicit\" (Newmark's trapezoidal rule: bit-exact rollback)")
     model = build_model(scene, setup, spectral_radius=spectral_radius, added_mass_in_matrix=not feedback,
                         newmark=scheme == "implicit")
+    stiff = _stiffest(scene)
+    if stiff and stiff[0] > STIFF_NOTE:
+        model.failure_hint = (f"; the stiffest spring is {stiff[1]} = {stiff[0]:.3g} N/m (N m/rad): above "
+                              f"~{STIFF_NOTE:.0e} Exudyn's Newton iteration can stall (measured: 1e9 N/m on "
+                              f"a 2.6e5 kg body at dt = 0.01 s); lower it (a joint or constraint models a "
+                              f"rigid link) or simulation.dt")
     n, h = model.n_bodies, model.dt
     big_h = kx * h                                    # the server's step
     if setup and abs(float(setup.get("dt", big_h)) - big_h) > 1e-9 * big_h:
@@ -409,6 +460,13 @@ def run(scene: Scene, scene_text: str, connection, setup: dict | None, writer, *
                          f"= {big_h} s")
     n_steps = int(round(scene.simulation.duration / h))
     n_ex = n_steps // kx
+    note = wave_resolution(scene, big_h)
+    if note and note[0] == "refuse":
+        writer.finish(f"refused: {note[1]}")
+        raise SceneError("scene", "simulation.dt", note[1])
+    if note:
+        warnings.append(f"simulation.dt: {note[1]}")
+        log.warning("simulation.dt: %s", note[1])
     eq = model.equilibrium.reshape(-1)
     stiffness = model.stiffness
     a_fb = model.added_mass
