@@ -273,8 +273,10 @@ def bench() -> None:
               show_default=True, help="Folder for accuracy.md, accuracy.png, accuracy.csv.")
 @click.option("--title", help="Title of the table and plot (default: the scene's name).")
 @click.option("--keep-runs", is_flag=True, help="Keep every run's scene and results in OUTPUT/runs.")
+@click.option("--repeat", type=click.IntRange(1, 20), default=1, show_default=True,
+              help="Runs per option; the cheapest wall time counts (a busy machine only adds time).")
 def bench_accuracy_cmd(scene: Path, grid_file: Path | None, dt, irf_duration, radiation, excitation, coupling,
-                       refs, mode, duration, window, output: Path, title, keep_runs: bool) -> None:
+                       refs, mode, duration, window, output: Path, title, keep_runs: bool, repeat: int) -> None:
     """Run SCENE under a grid of options against a reference run; table + plots of error vs cost."""
     from hydrolink.clients.accuracy import BenchError, Grid, bench_accuracy, grid_from_flags
 
@@ -285,7 +287,7 @@ def bench_accuracy_cmd(scene: Path, grid_file: Path | None, dt, irf_duration, ra
                                tuple(window) if window else None)
     except BenchError as exc:
         raise _UserError(str(exc)) from None
-    rows = _guard(bench_accuracy, scene, grid, output, title=title, keep_runs=keep_runs,
+    rows = _guard(bench_accuracy, scene, grid, output, title=title, keep_runs=keep_runs, repeat=repeat,
                   log=lambda m: click.echo(m, err=True))
     front = [r["label"] for r in rows if r["front_rms_error_us_per_step"]]
     click.echo(f"wrote {output / 'accuracy.md'}, {output / 'accuracy.png'}: {len(rows) - 1} options; "
