@@ -51,7 +51,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("-o", "--output", default="sweep.csv")
     ap.add_argument("--plot", default=None)
-    ap.add_argument("--duration", type=float, default=20.0)
+    ap.add_argument("--duration", type=float, default=60.0)
     args = ap.parse_args()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
