@@ -55,6 +55,8 @@ def main() -> None:
           f"us/step (server compute {s.get('server_compute_us_per_step', float('nan')):.0f})")
     print(f"  joint violation at the end: max {viol[-1].max():.3e} m (whole run max {viol.max():.3e} m); "
           f"rotation violation {rot[-1].max():.3e} rad")
+    jf = np.abs(ds.joint_force.values)
+    print(f"  max |joint force|: first 100 s {jf[t <= 100].max():.1f} N, last 100 s {jf[t >= t[-1] - 100].max():.1f} N")
     print(f"  no NaN: {finite}; mean total PTO power over the second half {ds.total_pto_power.values[half].mean():.4f} W")
     print(f"  max |surge|, |sway| drift of R0: {np.abs(ds.position.sel(body='R0').values[:, :2] - ds.position.sel(body='R0').values[0, :2]).max():.4f} m")
 
