@@ -314,7 +314,14 @@ def fmu_export(scene: Path, output: Path) -> None:
 
 
 def main() -> None:
-    """Console entry point."""
+    """Console entry point.
+
+    BLAS/OpenMP pools default to one thread (before numpy loads): the lockstep hot paths are small
+    matrix-vector products, and a second BLAS thread competing with the other participant for a
+    core made the server's convolution 20x slower on a 2-core machine. Set the variables to override."""
+    import os
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")
     cli(prog_name="hydrolink")
 
 
