@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import math
+import textwrap
 
 import numpy as np
 import pytest
+import xarray as xr
 
 import exudyn as exu
 from scipy.optimize import brentq
@@ -228,7 +230,7 @@ def test_rope_catenary_shape_and_tension():
     pos = np.array([mbs.GetNodeOutput(nd, exu.OutputVariableType.Position) for nd in rope.nodes])
     z_exact = -10 + c * (np.cosh((pos[:, 0] - span / 2) / c) - math.cosh(span / (2 * c)))
     assert np.abs(pos[:, 2] - z_exact).max() < 2e-3
-    f = moorings.sample(mbs)[1]
+    f = -moorings.sample(mbs)[1]     # sampled after a static solve: Exudyn's static sign (see sample)
     assert moorings.names == ["moorings[0]", "line"]
     np.testing.assert_allclose(f[:3], [-w * c, 0.0, -w * length / 2], rtol=2e-4, atol=1e-6)
     np.testing.assert_allclose(f[3:], 0.0)
@@ -247,7 +249,8 @@ def test_rope_hanging_vertical_top_tension_and_taut_axial_stiffness():
     mbs.SolveStatic(_settings())
     q, _ = _node_state(mbs, mech)
     assert q[0] == pytest.approx(pull * length / ea, rel=1e-6)
-    np.testing.assert_allclose(moorings.sample(mbs)[1][:3], [-pull, 0, 0], rtol=1e-6, atol=1e-3)
+    # sampled after a static solve: Exudyn's static sign (see MooringSet.sample)
+    np.testing.assert_allclose(-moorings.sample(mbs)[1][:3], [-pull, 0, 0], rtol=1e-6, atol=1e-3)
     # a vertical rope hanging from a fixed top anchor, a weight (heave-only body) at its lower end: the top
     # tension is w' L + m g (submerged weight of the rope + the weight it carries)
     mu2, m_pm, length2 = 20.0, 100.0, 30.0
@@ -261,7 +264,7 @@ def test_rope_hanging_vertical_top_tension_and_taut_axial_stiffness():
     mbs2.SolveStatic(_settings())
     top = np.asarray(mbs2.GetObjectOutput(moorings2.ropes[1].anchor_joint, exu.OutputVariableType.Force))
     assert abs(top[2]) == pytest.approx(w_sub * length2 + m_pm * G, rel=1e-6)
-    np.testing.assert_allclose(moorings2.sample(mbs2)[1][:3], [0, 0, m_pm * G], rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(-moorings2.sample(mbs2)[1][:3], [0, 0, m_pm * G], rtol=1e-6, atol=1e-6)
     stretch = (w_sub * length2 / 2 + m_pm * G) * length2 / 1e9      # mean tension · L / EA
     z_pm = mbs2.GetNodeOutput(mech2.handles["b"].node, exu.OutputVariableType.Position)[2]
     assert z_pm == pytest.approx(-5 - length2 - stretch, abs=1e-3 * stretch)
@@ -337,3 +340,41 @@ def test_sphere_pto_damper_mean_power_in_regular_waves(shared_data, tmp_path):
     np.testing.assert_allclose(ds["total_pto_power"].values, ds["pto_power"].values.sum(axis=1))
     # the damper acts on the body: with c = 0 the amplitude would be larger
     assert abs(x) < abs(f * height / 2 / (-w ** 2 * (mass + a) - 1j * w * b + c))
+
+
+def test_rope_force_on_a_hanging_body_in_a_run_equals_its_weight(tmp_path):
+    """mooring_force as `hydrolink run` records it (dynamic solver): a 100 kg body hanging from a
+    5 m rope settles with the rope pulling it up by m g (rope weight carried by the anchor)."""
+    from hydrolink.clients.run import run_scene_file
+    scene = tmp_path / "hang.toml"
+    scene.write_text(textwrap.dedent("""\
+        [simulation]
+        dt = 0.01
+        duration = 6.0
+        progress = false
+        spectral_radius = 0.8
+        [water]
+        density = 1000.0
+        depth = 50.0
+        [[bodies]]
+        name = "b"
+        mass = 100.0
+        center_of_mass = [0, 0, -10]
+        inertia = [1, 1, 1]
+        dofs = ["heave"]
+        [[moorings]]
+        type = "rope"
+        anchor = [0, 0, -5]
+        attach_to = "b"
+        point = [0, 0, -10]
+        length = 5.0
+        axial_stiffness = 1e6
+        mass_per_length = 1.0
+        seabed = false
+        """))
+    run_scene_file(scene, tmp_path / "hang.nc", progress=False)
+    ds = xr.load_dataset(tmp_path / "hang.nc")
+    fz = ds["mooring_force"].sel(mooring_component=ds["mooring_force"]["mooring_component"][2]).values[:, 0]
+    settled = fz[ds["time"].values > 3.0]
+    assert settled.min() > 0                                  # the rope pulls the body up
+    assert settled.mean() == pytest.approx(100.0 * 9.81, rel=0.02)
