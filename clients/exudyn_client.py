@@ -244,7 +244,7 @@ def build_model(scene: Scene, setup: dict | None, *, spectral_radius: float = 1.
     if len(mbs.systemData.GetODE2Coordinates()) > SPARSE_ABOVE:
         # large mechanisms (arrays of bodies + arms): Exudyn's default dense LU dominates the step;
         # measured on 9N9LA (108 body coordinates + 54 constraints): 9.8 -> 2.3 ms per step
-        ss.linearSolverType = exu.LinearSolverType.EigenSparse
+        ss.linearSolver.solverType = exu.LinearSolverType.EigenSparse
     return ExudynModel(sc, mbs, exu.MainSolverImplicitSecondOrder(), ss, hydro, equilibrium,
                        active, stiffness, dt, mech, wet_index, all_names, reference, body_index,
                        np.array([all_names.index(nm) for nm in names], int), ptos, moorings,

@@ -7,7 +7,7 @@ measured +0.5 µs per step against +1.4 µs for the same limit as a Python user 
   ``point2`` on ``body2`` or ground (marker 1). Tension ``T = k (L - L0) + c dL/dt``, clipped to
   ±``force_limit`` when set.
 - ``RotaryPTO``: ``ObjectConnectorRigidBodySpringDamper`` between body1 (marker 0) and body2
-  (marker 1) at ``point``, both with ``rotationMarker`` = the PTO frame (columns = ``frame`` axes,
+  (marker 1) at ``point``, both markers' frames = the PTO frame (columns = ``frame`` axes,
   global at t = 0; default the global axes). Its 6×6 stiffness/damping are zero except on the chosen
   rotational axes, so it only acts on those relative rotations (Tait-Bryan xyz angles of body2
   relative to body1 in the PTO frame; the translations are left to a joint, e.g. a spherical one).
@@ -191,7 +191,7 @@ def build_ptos(mbs, ptos: list, handles: dict[str, BodyHandle]) -> PTOSet:
             k6, c6 = np.zeros(6), np.zeros(6)
             k6[[3 + a for a in axes]] = _per_axis(pto.stiffness, len(axes))
             c6[[3 + a for a in axes]] = _per_axis(pto.damping, len(axes))
-            m1, m2 = marker_at(mbs, h1, pto.point), marker_at(mbs, h2, pto.point)
+            m1, m2 = marker_at(mbs, h1, pto.point, frame), marker_at(mbs, h2, pto.point, frame)
             kw = {}
             if pto.torque_limit is not None:
                 uf = CreateSymbolicUserFunction(mbs, _limited_rotary(k6, c6, float(pto.torque_limit)),
@@ -201,7 +201,7 @@ def build_ptos(mbs, ptos: list, handles: dict[str, BodyHandle]) -> PTOSet:
                 kw["springForceTorqueUserFunction"] = uf
             obj = mbs.AddObject(ObjectConnectorRigidBodySpringDamper(
                 name=f"pto_{pto.name}", markerNumbers=[m1, m2], stiffness=np.diag(k6),
-                damping=np.diag(c6), rotationMarker0=frame, rotationMarker1=frame,
+                damping=np.diag(c6),
                 visualization=VObjectConnectorRigidBodySpringDamper(show=False), **kw))
             entries = tuple(range(len(out.names), len(out.names) + len(axes)))
             out.rotary.append(_Rotary(entries, obj, tuple(axes)))
