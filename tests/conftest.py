@@ -18,3 +18,16 @@ def shared_data() -> Path:
     if not data.is_dir():
         raise RuntimeError(f"reference data not found at {data}: set HYDROLINK_SHARED to the shared/ folder")
     return data
+
+
+@pytest.fixture(scope="session")
+def sphere_path(shared_data: Path) -> Path:
+    """The IEA Task-10 floating sphere (BEMIO .h5; depth 200 m, rho 1000)."""
+    return shared_data / "sphere_task10" / "sphere.h5"
+
+
+@pytest.fixture(scope="session")
+def sphere(sphere_path: Path):
+    """The sphere's HDB, loaded once."""
+    from hydrolink.server.hdb.io import load_hdb
+    return load_hdb(sphere_path)

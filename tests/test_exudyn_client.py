@@ -35,16 +35,6 @@ REPORT: dict[str, str] = {}
 # ------------------------------------------------------------------------------------ fixtures
 
 @pytest.fixture(scope="module")
-def sphere_path(shared_data: Path) -> Path:
-    return shared_data / "sphere_task10" / "sphere.h5"
-
-
-@pytest.fixture(scope="module")
-def sphere(sphere_path: Path):
-    return load_hdb(sphere_path)
-
-
-@pytest.fixture(scope="module")
 def server():
     srv, thread = serve_in_thread("tcp://127.0.0.1:*")
     yield srv.address

@@ -32,16 +32,6 @@ REPORT: dict[str, str] = {}
 
 
 @pytest.fixture(scope="module")
-def sphere_path(shared_data: Path) -> Path:
-    return shared_data / "sphere_task10" / "sphere.h5"
-
-
-@pytest.fixture(scope="module")
-def sphere(sphere_path: Path):
-    return load_hdb(sphere_path)
-
-
-@pytest.fixture(scope="module")
 def rho_v(sphere) -> float:
     """The sphere's displaced mass: floating at equilibrium with no net buoyancy."""
     return float(1000.0 * sphere["displaced_volume"].values[0])

@@ -25,16 +25,6 @@ HEAVE = 2
 
 
 @pytest.fixture(scope="module")
-def sphere_path(shared_data: Path) -> Path:
-    return shared_data / "sphere_task10" / "sphere.h5"
-
-
-@pytest.fixture(scope="module")
-def sphere(sphere_path: Path):
-    return load_hdb(sphere_path)
-
-
-@pytest.fixture(scope="module")
 def setting(sphere, sphere_path, tmp_path_factory):
     """A regular-wave sphere scene (rho V, heave) and its FMU exported through the CLI."""
     rho_v = float(1000.0 * sphere["displaced_volume"].values[0])

@@ -15,6 +15,7 @@ from typing import Annotated, Literal, Optional, Union
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from hydrolink.protocol.scene import Water  # the same [water] table as a scene's
 from hydrolink.protocol.toml_model import validate_toml
 
 from hydrolink.server.hdb.schema import HDBError
@@ -211,16 +212,6 @@ class Frequencies(_Section):
         if self.values is not None:
             return np.asarray(self.values, float)
         return np.linspace(self.omega_min, self.omega_max, self.n)
-
-
-class Water(_Section):
-    density: PositiveFloat = 1025.0
-    gravity: PositiveFloat = 9.81
-    depth: Union[Literal["inf"], PositiveFloat] = "inf"
-
-    @property
-    def depth_m(self) -> float:
-        return math.inf if self.depth == "inf" else float(self.depth)
 
 
 class Waves(_Section):
