@@ -23,7 +23,6 @@ from hydrolink.clients.connection import ServerConnection
 from hydrolink.clients.exudyn_client import SimulationDiverged
 from hydrolink.clients.results import ResultWriter
 from hydrolink.protocol.scene import SceneError, parse_scene
-from hydrolink.server.hdb.io import load_hdb
 from hydrolink.server.service import serve_in_thread
 
 HEAVE = 2

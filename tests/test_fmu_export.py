@@ -17,7 +17,6 @@ from fmpy.validation import validate_fmu
 
 from hydrolink.clients.cli import cli
 from hydrolink.clients.run import run_scene_file
-from hydrolink.server.hdb.io import load_hdb
 from hydrolink.server.service import serve_in_thread
 from test_fmu_client import base_scene, reference
 
