@@ -121,6 +121,9 @@ def test_hdb_info_on_wamit_files_with_plot(tmp_path: Path, shared_data: Path):
     assert "float" in out and "spar" in out
     # the float's heave A_inf from the WAMIT PER = 0 rows (rho = 1000): 1.2328e6 kg
     assert re.search(r"heave 1\.233e\+06", out), out
+    # the IRF consistency report: the float's heave damping is reproduced by its 40 s IRF
+    line = next(l for l in out.splitlines() if l.strip().startswith("float.heave: B(w) re-transformed"))
+    assert float(re.search(r"re-transformed ([\d.e+-]+) %", line).group(1)) < 1.0, line
     assert (tmp_path / "rm3.png").stat().st_size > 10_000
 
 

@@ -10,7 +10,7 @@ import xarray as xr
 from scipy.optimize import brentq
 
 from hydrolink.server.hdb.schema import DOF_NAMES
-from hydrolink.server.irf import aliasing_time, radiation_irf
+from hydrolink.server.irf import aliasing_time, irf_report, ogilvie_added_mass_inf, ogilvie_report, radiation_irf
 
 _TRANSLATIONS = DOF_NAMES[:3]
 
@@ -139,6 +139,7 @@ def hdb_summary(ds: xr.Dataset) -> str:
                      else f"  heave natural period: n/a ({note})")
         lines.append("  roll/pitch natural periods: need the body's inertia and centre of gravity "
                      "(not in an HDB; they come from the scene)")
+    lines += ["", *irf_consistency(ds)]
     return "\n".join(lines)
 
 
@@ -219,3 +220,36 @@ def plot_hdb(ds: xr.Dataset, path: str | Path, dofs: list[str] | None = None) ->
     path = Path(path)
     fig.savefig(path, dpi=90)
     return path
+
+
+def irf_consistency(ds: xr.Dataset, duration: float | None = None) -> list[str]:
+    """How well the radiation IRF of this grid reproduces B(w) (re-transform) and A(w) (Ogilvie),
+    per active diagonal DOF, for an IRF of ``duration`` (default min(40 s, pi/dw_max))."""
+    omega = ds["omega"].values
+    labels = [lab for lab in active_dofs(ds)]
+    if not labels:
+        return ["radiation IRF: no DOF with damping"]
+    duration = duration or min(40.0, aliasing_time(omega))
+    t = np.arange(0.0, duration + 1e-12, min(0.05, math.pi / (4 * float(omega[-1]))))
+    b = ds["radiation_damping"].sel(influenced_dof=labels, radiating_dof=labels).values
+    a = ds["added_mass"].sel(influenced_dof=labels, radiating_dof=labels).values
+    k = radiation_irf(omega, b, t)
+    a_inf = (ds["added_mass_inf"].sel(influenced_dof=labels, radiating_dof=labels).values
+             if "added_mass_inf" in ds else ogilvie_added_mass_inf(omega, a, t, k))
+    # periods the IRF spans at least once, away from the grid's top edge (where truncating B(w)
+    # always spoils the Ogilvie transform)
+    band = (omega >= 2 * math.pi / duration) & (omega <= 0.8 * omega[-1])
+    if band.sum() < 2:
+        return [f"radiation IRF over {duration:.3g} s: shorter than every period of the grid"]
+    om, a, b = omega[band], a[band], b[band]
+    rb, ra = irf_report(om, b, t, k)["rel_error"], ogilvie_report(om, a, a_inf, t, k)["rel_error"]
+    out = [f"radiation IRF over {duration:.3g} s (scene [hydro] irf_duration; a run reports the same for its "
+           f"settings): max error for {om[0]:.3g} <= w <= {om[-1]:.3g} rad/s (2 pi / T .. 0.8 w_max), relative to each "
+           "DOF's range"]
+    for n, lab in enumerate(labels):
+        out.append(f"  {lab}: B(w) re-transformed {_pct(rb[n, n])}, A(w) by Ogilvie {_pct(ra[n, n])}")
+    return out
+
+
+def _pct(x: float) -> str:
+    return "n/a" if not np.isfinite(x) else f"{100 * x:.2g} %"
