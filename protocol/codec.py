@@ -237,26 +237,24 @@ def require_float(msg: dict, field: str, path: str | None = None) -> float:
     return float(value)
 
 
-def require_str(msg: dict, field: str, *, default: str | None = None, path: str | None = None) -> str:
-    """A required (or defaulted) str field."""
+def _require_typed(msg: dict, field: str, kind: type, kind_name: str, default, path: str | None):
     value = msg.get(field)
     if value is None and default is not None:
         return default
     value = require(msg, field, path)
-    if not isinstance(value, str):
-        raise ProtocolError(Code.BAD_VALUE, path or field, f"must be a str, got {type(value).__name__}")
+    if not isinstance(value, kind):
+        raise ProtocolError(Code.BAD_VALUE, path or field, f"must be a {kind_name}, got {type(value).__name__}")
     return value
+
+
+def require_str(msg: dict, field: str, *, default: str | None = None, path: str | None = None) -> str:
+    """A required (or defaulted) str field."""
+    return _require_typed(msg, field, str, "str", default, path)
 
 
 def require_map(msg: dict, field: str, *, default: dict | None = None, path: str | None = None) -> dict:
     """A required (or defaulted) map field."""
-    value = msg.get(field)
-    if value is None and default is not None:
-        return default
-    value = require(msg, field, path)
-    if not isinstance(value, dict):
-        raise ProtocolError(Code.BAD_VALUE, path or field, f"must be a map, got {type(value).__name__}")
-    return value
+    return _require_typed(msg, field, dict, "map", default, path)
 
 
 def require_array(msg: dict, field: str, shape: tuple[int | None, ...], *, finite: bool = True,
