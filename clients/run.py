@@ -21,8 +21,7 @@ def load_scene_hdbs(scene: Scene, scene_path: str | Path, *, progress: bool = Tr
     """HDBs of a scene keyed by each body's ``hdb`` string (one load per distinct file).
 
     A ``.toml`` HDB is a build spec: it is built with Capytaine (or taken from the cache)."""
-    from hydrolink.server.hdb.io import load_hdb
-    from hydrolink.server.hdb.schema import HDBError
+    from hydrolink.server.hdb.io import load_hdb   # raises HDBError naming the file and field
 
     hdbs: dict[str, xr.Dataset] = {}
     for i, body in enumerate(scene.bodies):
@@ -45,7 +44,6 @@ def load_scene_hdbs(scene: Scene, scene_path: str | Path, *, progress: bool = Tr
             raise SceneError(scene_path, f"bodies[{i}].{key}",
                              f"the HDB {body.hdb} holds no body {body.hdb_body_name!r} (it holds {names}); "
                              "set hdb_body to one of those")
-    _ = HDBError  # the loaders raise it with file and field named
     return hdbs
 
 
