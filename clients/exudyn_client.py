@@ -53,6 +53,7 @@ from hydrolink.clients.mechanism import Mechanism, body_reference, build_mechani
 from hydrolink.clients.moorings import MooringSet, build_moorings
 from hydrolink.clients.ptos import PTOSet, build_ptos
 from hydrolink.protocol.scene import Scene
+from hydrolink.protocol.setup import Setup
 
 log = logging.getLogger(__name__)
 
@@ -174,18 +175,15 @@ def _scene_bodies(scene: Scene, names: list[str]):
     return [by_name[n] for n in names]
 
 
-def result_bodies(scene: Scene, setup: dict | None) -> tuple[list[str], np.ndarray]:
+def result_bodies(scene: Scene, setup: Setup | None) -> tuple[list[str], np.ndarray]:
     """Every scene body's name and reference position (N, 6): wet bodies' from the server's setup
     (by name), dry bodies' from the scene (``reference_point``, default the centre of mass)."""
-    wet = {}
-    if setup:
-        eq = np.asarray(setup["equilibrium_position"], float).reshape(-1, 6)
-        wet = {str(n): eq[i] for i, n in enumerate(setup["bodies"])}
+    wet = {n: setup.equilibrium_position[i] for i, n in enumerate(setup.bodies)} if setup else {}
     ref = [wet[b.name] if b.name in wet else np.r_[body_reference(b), 0.0, 0.0, 0.0] for b in scene.bodies]
     return [b.name for b in scene.bodies], np.asarray(ref, float).reshape(len(ref), 6)
 
 
-def build_model(scene: Scene, setup: dict | None, *, spectral_radius: float = 1.0,
+def build_model(scene: Scene, setup: Setup | None, *, spectral_radius: float = 1.0,
                 added_mass_in_matrix: bool = True, newmark: bool = False) -> ExudynModel:
     """Build the Exudyn system from the scene (bodies, point masses, joints, constraints, initial
     state) and the server's setup (wet bodies by name, active DOFs, A∞, hydrostatic stiffness,
@@ -196,20 +194,19 @@ def build_model(scene: Scene, setup: dict | None, *, spectral_radius: float = 1.
     ``added_mass_in_matrix`` False leaves A∞ out of the mass matrix (the explicit and implicit
     coupling schemes feed it back as a force); ``newmark`` uses Newmark's trapezoidal rule
     (bit-exact rollback, for the implicit scheme) instead of generalized-alpha."""
-    setup = setup or {}
-    names = [str(b) for b in setup.get("bodies", [])]
+    names = list(setup.bodies) if setup else []
     n = len(names)
     wet_scene = [b.name for b in scene.bodies if b.wet]
     if sorted(names) != sorted(wet_scene):
         raise ValueError(f"server setup names bodies {names}, the scene's wet bodies are {wet_scene}")
     _scene_bodies(scene, names)
-    equilibrium = np.asarray(setup.get("equilibrium_position", np.zeros((0, 6))), float).reshape(n, 6)
-    active = np.asarray(setup.get("active", np.zeros((0, 6))), bool).reshape(n, 6)
-    # "added_mass": what goes into the mass matrix (A_inf, or A(w0) with hydro.radiation = "constant")
-    a_inf = np.asarray(setup.get("added_mass", setup.get("added_mass_inf", np.zeros((0, 0)))), float).reshape(6 * n, 6 * n)
-    stiffness = np.asarray(setup.get("hydrostatic_stiffness", np.zeros((0, 0))), float).reshape(6 * n, 6 * n)
+    equilibrium = setup.equilibrium_position if setup else np.zeros((0, 6))
+    active = setup.active if setup else np.zeros((0, 6), bool)
+    # what goes into the mass matrix (A_inf, or A(w0) with hydro.radiation = "constant")
+    a_inf = setup.added_mass if setup else np.zeros((0, 0))
+    stiffness = setup.hydrostatic_stiffness if setup else np.zeros((0, 0))
     dt = float(scene.simulation.dt)   # the client's step (the server's is [coupling] exchange_every times it)
-    net = {nm: float(v) for nm, v in zip(names, setup.get("net_buoyancy") or [None] * n) if v}
+    net = {nm: float(v) for nm, v in zip(names, setup.net_buoyancy) if v} if setup else {}
 
     sc = exu.SystemContainer()
     mbs = sc.AddSystem()
@@ -326,12 +323,11 @@ class CouplingError(RunInterrupted):
     """The implicit coupling did not converge within ``coupling.max_iterations``."""
 
 
-def wet_rigid_mass(scene: Scene, setup: dict) -> np.ndarray:
+def wet_rigid_mass(scene: Scene, setup: Setup) -> np.ndarray:
     """Rigid-body mass matrix (6N × 6N) of the wet bodies about their reference points (dry bodies
     attached by joints are left out, which can only overstate the added-mass ratio)."""
     from hydrolink.clients.coupling import rigid_body_mass_matrix
-    names = [str(b) for b in setup["bodies"]]
-    eq = np.asarray(setup["equilibrium_position"], float).reshape(len(names), 6)
+    names, eq = list(setup.bodies), setup.equilibrium_position
     m = np.zeros((6 * len(names), 6 * len(names)))
     for i, b in enumerate(_scene_bodies(scene, names)):
         m[6 * i:6 * i + 6, 6 * i:6 * i + 6] = rigid_body_mass_matrix(
@@ -339,16 +335,15 @@ def wet_rigid_mass(scene: Scene, setup: dict) -> np.ndarray:
     return m
 
 
-def coupling_ratio(scene: Scene, setup: dict | None) -> float:
+def coupling_ratio(scene: Scene, setup: Setup | None) -> float:
     """The added-mass ratio of the explicit schemes: spectral radius of M⁻¹A∞ over the wet bodies'
     active DOFs (M the rigid-body mass matrix). An explicitly fed-back −A∞·a multiplies an
     acceleration error by −M⁻¹A∞ every step: unstable above 1."""
     from hydrolink.clients.coupling import added_mass_ratio
-    if not setup or not setup.get("bodies"):
+    if not setup or not setup.bodies:
         return 0.0
-    n = len(setup["bodies"])
-    act = np.flatnonzero(np.asarray(setup["active"], bool).reshape(6 * n))
-    a = np.asarray(setup.get("added_mass", setup["added_mass_inf"]), float).reshape(6 * n, 6 * n)
+    act = np.flatnonzero(setup.active.reshape(-1))
+    a = setup.added_mass
     return added_mass_ratio(wet_rigid_mass(scene, setup)[np.ix_(act, act)], a[np.ix_(act, act)])
 
 
@@ -403,7 +398,7 @@ def explicit_refusal(scheme: str, ratio: float, limit: float) -> str:
             f"\"mass-matrix\" (A∞ in the mass matrix, the default) or \"implicit\"")
 
 
-def run(scene: Scene, scene_text: str, connection, setup: dict | None, writer, *, progress: bool = True,
+def run(scene: Scene, scene_text: str, connection, setup: Setup | None, writer, *, progress: bool = True,
         spectral_radius: float | None = None, blow_up_limit: float = BLOW_UP_LIMIT,
         allow_unstable: bool = False) -> dict:
     """Run the lockstep co-simulation to ``scene.simulation.duration``.
@@ -434,7 +429,7 @@ def run(scene: Scene, scene_text: str, connection, setup: dict | None, writer, *
     feedback = scheme != "mass-matrix"
     if spectral_radius is None:
         spectral_radius = scene.simulation.spectral_radius
-    warnings = [str(w) for w in (setup or {}).get("warnings", [])]
+    warnings = list(setup.warnings) if setup else []
     for note in warnings:
         log.warning("%s", note)
     ratio = coupling_ratio(scene, setup) if feedback else 0.0
@@ -455,8 +450,8 @@ def run(scene: Scene, scene_text: str, connection, setup: dict | None, writer, *
                               f"rigid link) or simulation.dt")
     n, h = model.n_bodies, model.dt
     big_h = kx * h                                    # the server's step
-    if setup and abs(float(setup.get("dt", big_h)) - big_h) > 1e-9 * big_h:
-        raise ValueError(f"the server's step {setup['dt']} s is not coupling.exchange_every × simulation.dt "
+    if setup and abs(setup.dt - big_h) > 1e-9 * big_h:
+        raise ValueError(f"the server's step {setup.dt} s is not coupling.exchange_every × simulation.dt "
                          f"= {big_h} s")
     n_steps = int(round(scene.simulation.duration / h))
     n_ex = n_steps // kx

@@ -37,6 +37,7 @@ import numpy as np
 from hydrolink.clients.coupling import Aitken, added_mass_ratio, rigid_body_mass_matrix
 from hydrolink.clients.exudyn_client import BLOW_UP_LIMIT, RunInterrupted, SimulationDiverged
 from hydrolink.protocol.scene import DOF_NAMES, FMUClient, Scene, SceneError, resolve_path
+from hydrolink.protocol.setup import Setup
 
 COMPONENTS = ("excitation", "radiation", "hydrostatic")
 PORT_KINDS = ("force",) + COMPONENTS
@@ -142,17 +143,16 @@ def _pairs(mapping: dict[str, str], body: int, key: str) -> list[tuple[int, int,
     return out
 
 
-def wire(fmu: FMUInstance, scene: Scene, setup: dict) -> Wiring:
+def wire(fmu: FMUInstance, scene: Scene, setup: Setup) -> Wiring:
     """Resolve the scene's variable mapping against the FMU and the server's setup."""
     client: FMUClient = scene.client
-    names = [str(b) for b in setup["bodies"]]
+    names = list(setup.bodies)
     n = len(names)
-    act_mask = np.asarray(setup["active"], bool).reshape(6 * n)
-    active = np.flatnonzero(act_mask)
+    active = np.flatnonzero(setup.active.reshape(6 * n))
     where = {int(k): i for i, k in enumerate(active)}
-    a_inf = np.asarray(setup.get("added_mass", setup["added_mass_inf"]), float).reshape(6 * n, 6 * n)  # A(w0) if "constant"
-    c_full = np.asarray(setup["hydrostatic_stiffness"], float).reshape(6 * n, 6 * n)
-    eq = np.asarray(setup["equilibrium_position"], float).reshape(n, 6)
+    a_inf = setup.added_mass        # A(w0) with radiation "constant"
+    c_full = setup.hydrostatic_stiffness
+    eq = setup.equilibrium_position
     by_name = {b.name: b for b in scene.bodies}
     labels = [f"{names[k // 6]}.{DOF_NAMES[k % 6]}" for k in active]
 
@@ -190,7 +190,7 @@ def wire(fmu: FMUInstance, scene: Scene, setup: dict) -> Wiring:
     c_rest = (c_full - c_pass)[sub]
     port_dof = np.array([p[1] for p in ports], int)
     net = np.zeros(6 * n)
-    net[2::6] = [float(f or 0.0) for f in (setup.get("net_buoyancy") or [0.0] * n)]
+    net[2::6] = setup.net_buoyancy
     for i, label in enumerate(labels):
         own = {kinds[j] for j in np.flatnonzero(port_dof == i)}
         needed = {"excitation", "radiation"} | ({"hydrostatic"} if np.any(c_rest[i]) or net[active[i]] else set())
@@ -245,7 +245,7 @@ def _progress_bar(total: int, enabled: bool):
                 disable=not (enabled and sys.stderr.isatty()))
 
 
-def run(scene: Scene, scene_text: str, connection, setup: dict, writer, *,
+def run(scene: Scene, scene_text: str, connection, setup: Setup, writer, *,
         scene_path: str | Path = "scene.toml", progress: bool = True,
         blow_up_limit: float = BLOW_UP_LIMIT, record: Sequence[str] = (),
         allow_unstable: bool = False) -> dict:
@@ -259,7 +259,7 @@ def run(scene: Scene, scene_text: str, connection, setup: dict, writer, *,
     client: FMUClient = scene.client
     if not isinstance(client, FMUClient):
         raise SceneError("scene", "client.type", "the FMU master needs [client] type = \"fmu\"")
-    h = float(setup.get("dt", scene.simulation.dt))
+    h = setup.dt
     hc = client.communication_step or h
     n_sub = int(round(h / hc))
     if n_sub < 1 or abs(n_sub * hc - h) > 1e-9 * h:
@@ -277,9 +277,8 @@ class _Master:
                  blow_up_limit, record, allow_unstable):
         self.scene, self.client, self.fmu, self.conn, self.writer = scene, client, fmu, connection, writer
         self.h, self.n_sub, self.progress, self.limit = h, n_sub, progress, blow_up_limit
-        n = len(setup["bodies"])
-        self.n = n
-        self.eq = np.asarray(setup["equilibrium_position"], float).reshape(6 * n)
+        n = self.n = setup.n
+        self.eq = setup.equilibrium_position.reshape(6 * n)
         self.w = wire(fmu, scene, setup)
         self.plan = plan(self.w, client, fmu.slave.can_rollback, allow_unstable=allow_unstable)
         self.record_vrs = [fmu.variable(r, f"record[{r}]", ("output", "local")).valueReference for r in record]
