@@ -224,6 +224,11 @@ class ResultWriter:
             self._ds.setncattr(name, value)
 
     # -- end ---------------------------------------------------------------------------------
+    @property
+    def rows(self) -> int:
+        """Rows appended so far (written or still buffered; all are saved by :meth:`finish`)."""
+        return self.rows_written + self._buffered
+
     def finish(self, status: str) -> None:
         """Flush everything and record the final status ("complete" or "interrupted: ...")."""
         self.status = status
