@@ -139,6 +139,24 @@ def sphere_body(hdb: str, *, mass: float, **keys: Any) -> dict[str, Any]:
     return body("sphere", hdb=hdb, mass=mass, **{"center_of_mass": [0.0, 0.0, -2.0], "inertia": [2.6e6] * 3, **keys})
 
 
+def rm3_float(hdb: str, **keys: Any) -> dict[str, Any]:
+    """RM3's float (rho V at rho = 1000; WEC-Sim's mass properties) as body "float"."""
+    return body("float", hdb=hdb, mass=725833.0, center_of_mass=[0, 0, -0.72],
+                inertia=[20907301, 21306090.66, 37085481.11], **keys)
+
+
+def rm3_spar(hdb: str, **keys: Any) -> dict[str, Any]:
+    """RM3's spar/plate (rho V at rho = 1000; WEC-Sim's mass properties) as body "spar"."""
+    return body("spar", hdb=hdb, mass=886687.0, center_of_mass=[0, 0, -21.29],
+                inertia=[94419614.57, 94407091.24, 28542224.82], **keys)
+
+
+def rm3_pto(damping: float = 1.2e6) -> dict[str, Any]:
+    """RM3's linear damper "pto" between the float's and the spar's centres of mass."""
+    return {"name": "pto", "type": "linear", "body1": "float", "point1": [0.0, 0.0, -0.72], "body2": "spar",
+            "point2": [0.0, 0.0, -21.29], "damping": damping}
+
+
 def write_scene(folder: Path, text: str, name: str = "scene.toml") -> Path:
     """Write scene text into ``folder`` (beside its HDBs, so relative paths resolve) and return the path."""
     path = folder / name
