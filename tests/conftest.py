@@ -120,6 +120,11 @@ def body(name: str, *, mass: float, center_of_mass: Sequence[float], inertia: Se
             **keys}
 
 
+def joint(kind: str, body1: str, body2: str, point: Sequence[float], **keys: Any) -> dict[str, Any]:
+    """One ``[[joints]]`` entry of type ``kind`` at ``point`` (name, axis, axis2, friction as keys)."""
+    return {"type": kind, "body1": body1, "body2": body2, "point": list(point), **keys}
+
+
 def regular_waves(height: float, period: float, **keys: Any) -> dict[str, Any]:
     """A ``[waves]`` section of regular waves (ramp, phase, excitation, ... as keys)."""
     return {"type": "regular", "height": height, "period": period, **keys}
