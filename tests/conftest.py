@@ -125,6 +125,14 @@ def joint(kind: str, body1: str, body2: str, point: Sequence[float], **keys: Any
     return {"type": kind, "body1": body1, "body2": body2, "point": list(point), **keys}
 
 
+def linear_pto(name: str, body1: str, point1: Sequence[float], body2: str, point2: Sequence[float],
+               **keys: Any) -> dict[str, Any]:
+    """One ``[[ptos]]`` entry of type "linear" from point1 on body1 to point2 on body2 (damping,
+    stiffness, force_limit, ... as keys)."""
+    return {"name": name, "type": "linear", "body1": body1, "point1": list(point1), "body2": body2,
+            "point2": list(point2), **keys}
+
+
 def regular_waves(height: float, period: float, **keys: Any) -> dict[str, Any]:
     """A ``[waves]`` section of regular waves (ramp, phase, excitation, ... as keys)."""
     return {"type": "regular", "height": height, "period": period, **keys}
@@ -158,8 +166,7 @@ def rm3_spar(hdb: str, **keys: Any) -> dict[str, Any]:
 
 def rm3_pto(damping: float = 1.2e6) -> dict[str, Any]:
     """RM3's linear damper "pto" between the float's and the spar's centres of mass."""
-    return {"name": "pto", "type": "linear", "body1": "float", "point1": [0.0, 0.0, -0.72], "body2": "spar",
-            "point2": [0.0, 0.0, -21.29], "damping": damping}
+    return linear_pto("pto", "float", [0.0, 0.0, -0.72], "spar", [0.0, 0.0, -21.29], damping=damping)
 
 
 def write_scene(folder: Path, text: str, name: str = "scene.toml") -> Path:

@@ -16,7 +16,7 @@ import pytest
 import xarray as xr
 from fmpy.validation import validate_fmu
 
-from conftest import SPHERE_WATER, regular_waves, scene_toml, sphere_body, write_scene
+from conftest import SPHERE_WATER, linear_pto, regular_waves, scene_toml, sphere_body, write_scene
 from fmu_build import build_c_fmu, build_python3_fmu, build_python_fmu
 from hydrolink.clients import fmu_client
 from hydrolink.clients.connection import ServerConnection
@@ -282,8 +282,7 @@ def test_hydrolink_run_dispatches_to_the_fmu_client(sphere, sphere_path, rho_v, 
     assert result.exit_code == 1 and "FMU not found" in result.output and "missing.fmu" in result.output
 
 
-PTO_TO_GROUND = {"name": "pto", "type": "linear", "body1": "sphere", "point1": [0.0, 0.0, -2.0], "body2": "ground",
-                 "point2": [0.0, 0.0, -50.0], "damping": C_PTO}
+PTO_TO_GROUND = linear_pto("pto", "sphere", [0.0, 0.0, -2.0], "ground", [0.0, 0.0, -50.0], damping=C_PTO)
 
 
 @pytest.mark.parametrize("which", ["c", "py", "py3"])
