@@ -6,26 +6,13 @@ import math
 
 import pytest
 
+from conftest import body, regular_waves, scene_toml
+
 from hydrolink.protocol.scene import SceneError, load_scene, parse_scene, resolve_path
 
-BASE = """
-[simulation]
-dt = 0.01
-duration = 10.0
-
-[waves]
-type = "regular"
-height = 0.2
-period = 4.0
-
-[[bodies]]
-name = "float"
-hdb = "float.nc"
-mass = 1000.0
-center_of_mass = [0, 0, -1]
-inertia = [1, 1, 1]
-dofs = ["heave"]
-"""
+FLOAT = body("float", hdb="float.nc", mass=1000.0, center_of_mass=[0, 0, -1], inertia=[1, 1, 1], dofs=["heave"])
+# the error cases below edit this text: each edit must hit (they assert the text changed)
+BASE = scene_toml(dt=0.01, duration=10.0, waves=regular_waves(0.2, 4.0), bodies=[FLOAT])
 
 
 def test_valid_scene_and_defaults():
@@ -68,7 +55,8 @@ def test_errors_name_key(old, new, key, why):
 
 
 def test_duplicate_body_names():
-    extra = BASE + '\n[[bodies]]\nname = "float"\nhdb = "x.nc"\nmass = 1.0\ncenter_of_mass = [0, 0, 0]\ninertia = [1, 1, 1]\n'
+    extra = scene_toml(dt=0.01, duration=10.0, waves=regular_waves(0.2, 4.0),
+                       bodies=[FLOAT, body("float", hdb="x.nc", mass=1.0, center_of_mass=[0, 0, 0], inertia=[1, 1, 1])])
     with pytest.raises(SceneError, match=r"s.toml: bodies\[1\]\.name: duplicate body name 'float'"):
         parse_scene(extra, "s.toml")
 
