@@ -293,7 +293,7 @@ def test_asymptotic_tail_improves_ogilvie_consistency():
     tail = HydroModel(_scene(None, irf=30.0, hydro={"irf_tail": "asymptotic"}), {"float": ds})
     e_none = none.setup_info().irf_added_mass_error["rational"]
     e_tail = tail.setup_info().irf_added_mass_error["rational"]
-    n_fit = tail.setup_info().irf_processing["tail_exponent"]["rational"]
+    n_fit = tail.setup_info().irf_processing.tail_exponent["rational"]
     print(f"Ogilvie A(w) error: none {e_none:.3g}, asymptotic {e_tail:.3g} (n = {n_fit:.3g})")
     assert e_tail < 0.3 * e_none
     assert 1.3 < n_fit < 2.0  # local slope of the truncated data (-> 2 far out)
