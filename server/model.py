@@ -11,6 +11,9 @@ every body uses only its own 6x6 blocks, even when several bodies share one mult
 Bodies that interact form a group; each group has its own radiation memory over its active DOFs
 only, so no work is spent on blocks that are zero by construction. Every matrix is reduced to the
 active DOFs once at setup, so a step is a few small matvecs and no Python loop over DOFs.
+
+The radiation part ([hydro] radiation and the IRF options) is built by the option's builder in
+server/radiation_options.py, which also reports its setup fields.
 """
 
 from __future__ import annotations
