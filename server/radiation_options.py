@@ -290,14 +290,14 @@ class OffOption(RadiationOption):
     """radiation = "off": no radiation force; the client still uses A_inf."""
     name = "off"
 
-    def _force(self, g, irf, log):
+    def _force(self, g: RadiationGroup, irf: GroupIrf, log: _Log) -> tuple[RadiationForce | None, np.ndarray | None]:
         return None, None
 
 
 class _MemoryOption(RadiationOption):
     """Radiation memory over irf_duration (none when it is 0) on the DOF pairs kept by pruning."""
 
-    def _force(self, g, irf, log):
+    def _force(self, g: RadiationGroup, irf: GroupIrf, log: _Log) -> tuple[RadiationForce | None, np.ndarray | None]:
         if self.samples == 0:
             return None, None
         return self._memory(g, irf, self._keep(g, irf.kernel, log.pairs), log), None
@@ -324,7 +324,7 @@ class ConvolutionOption(_MemoryOption):
     """radiation = "convolution": direct convolution of K(t) with the velocity history."""
     name = "convolution"
 
-    def _memory(self, g, irf, keep, log):
+    def _memory(self, g: RadiationGroup, irf: GroupIrf, keep: np.ndarray, log: _Log) -> RadiationForce:
         return RadiationMemory(irf.kernel, self.dt, None if keep.all() else keep)
 
 
@@ -338,10 +338,10 @@ class StateSpaceOption(_MemoryOption):
             raise ModelError("hydro.irf_duration", f"{self.duration} s: the state-space fit reproduces the IRF "
                                                    "over irf_duration, which must span at least two time steps")
 
-    def _fit_report(self, fits):
+    def _fit_report(self, fits: StateSpaceStats) -> dict | None:
         return fits.as_dict()
 
-    def _memory(self, g, irf, keep, log):
+    def _memory(self, g: RadiationGroup, irf: GroupIrf, keep: np.ndarray, log: _Log) -> RadiationForce:
         """Fit every kept, non-zero DOF pair of one group (server/state_space.py) to the transfer
         function of the same IRF the convolution would use, over [0, w_max] of the HDB."""
         hyd, labels = self.hydro, g.labels
@@ -391,7 +391,7 @@ class ConstantOption(RadiationOption):
                              "\"convolution\" or \"state-space\"")
         self.radiation_frequency = 2 * np.pi / float(waves.period)
 
-    def _force(self, g, irf, log):
+    def _force(self, g: RadiationGroup, irf: GroupIrf, log: _Log) -> tuple[RadiationForce | None, np.ndarray | None]:
         w0, omega = self.radiation_frequency, g.omega
         if not omega[0] <= w0 <= omega[-1]:
             raise ModelError("waves.period", f"w0 = {w0:.4g} rad/s lies outside the HDB's range "
