@@ -137,7 +137,7 @@ Waves = Annotated[Union[StillWater, RegularWave, IrregularWave, ElevationWave], 
 class Hydro(_Section):
     irf_duration: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 40.0
     interaction: Literal["full", "none"] = "full"   # body-to-body radiation blocks: all, or none
-    # radiation memory (server/model.py, server/state_space.py, docs/radiation.md)
+    # radiation memory (server/radiation_options.py, server/state_space.py, docs/radiation.md)
     radiation: Literal["convolution", "state-space", "constant", "off"] = "convolution"
     irf_taper: Annotated[float, Field(ge=0, lt=1, allow_inf_nan=False)] = 0.0  # cosine taper, fraction of irf_duration
     irf_domega: Annotated[float, Field(gt=0, allow_inf_nan=False)] | None = None  # resample B(w) (cubic)
