@@ -29,7 +29,7 @@ def simulate(tmp_path: Path, *, dt: float = 0.001, duration: float = 1.0, **sect
     scene = parse_scene(text)
     names, ref = result_bodies(scene, None)
     out = tmp_path / "run.nc"
-    with ResultWriter(out, scene=scene, scene_text=text, setup={"dt": dt}, bodies=names,
+    with ResultWriter(out, scene=scene, scene_text=text, dt=dt, bodies=names,
                       equilibrium_position=ref) as writer:
         run(scene, text, None, None, writer, progress=False)
     return xr.load_dataset(out)
