@@ -255,7 +255,8 @@ def test_rope_hanging_vertical_top_tension_and_taut_axial_stiffness():
     w_sub = (mu2 - RHO * math.pi * 0.05 ** 2 / 4) * G
     sc2, mbs2, mech2, _, moorings2 = _system(
         bodies=[_dry_body(mass=m_pm, com=(0.0, 0.0, -5.0 - length2), dofs=["heave"])],   # weight → pretension
-        moorings=[{"type": "linear", "body": "b", "point": [0, 0, -5 - length2], "pretension": [0, 0, -m_pm * G, 0, 0, 0]},
+        moorings=[{"type": "linear", "body": "b", "point": [0, 0, -5 - length2],
+                   "pretension": [0, 0, -m_pm * G, 0, 0, 0]},
                   {"type": "rope", "anchor": [0, 0, -5], "attach_to": "b", "point": [0, 0, -5 - length2],
                    "length": length2, "axial_stiffness": 1e9, "mass_per_length": mu2, "diameter": 0.05,
                    "elements": 10}])
@@ -317,7 +318,8 @@ def test_sphere_pto_damper_mean_power_in_regular_waves(shared_data, tmp_path):
     period = 2 * math.pi / w
     scene = write_scene(tmp_path, scene_toml(
         dt=period / 100, duration=20 * period, progress=False, water={**SPHERE_WATER, "gravity": 9.81},
-        waves=regular_waves(height, period, ramp=2 * period), bodies=[sphere_body(str(path), mass=mass, dofs=["heave"])],
+        waves=regular_waves(height, period, ramp=2 * period),
+        bodies=[sphere_body(str(path), mass=mass, dofs=["heave"])],
         ptos=[linear_pto("damper", "sphere", [0, 0, 0], "ground", [0, 0, -50], damping=c_pto)]), "sphere.toml")
     run_scene_file(scene, tmp_path / "sphere.nc", progress=False)
     ds = xr.load_dataset(tmp_path / "sphere.nc")

@@ -70,8 +70,8 @@ def test_first_order_hold_step_is_exact_for_piecewise_linear_velocity():
 def _fit_model(ds, bodies: list[dict], T: float, tol: float, dt: float = 0.05) -> Scene:
     """A state-space scene of ``bodies`` in the HDB's water (so nothing is rescaled)."""
     depth = float(ds.attrs["water_depth"])
-    return parse_scene(scene_toml(dt=dt, duration=10,
-                                  water={"density": float(ds.attrs["rho"]), "depth": depth if np.isfinite(depth) else "inf"},
+    water = {"density": float(ds.attrs["rho"]), "depth": depth if np.isfinite(depth) else "inf"}
+    return parse_scene(scene_toml(dt=dt, duration=10, water=water,
                                   hydro={"irf_duration": T, "radiation": "state-space", "ss_tolerance": tol},
                                   bodies=bodies))
 

@@ -9,31 +9,16 @@ from importlib import resources
 import numpy as np
 import pytest
 
+from conftest import SPHERE_WATER, regular_waves, scene_toml, sphere_body
+
 from hydrolink.protocol import codec
 from hydrolink.protocol.codec import ProtocolError
 from hydrolink.protocol.scene import parse_scene
 from hydrolink.protocol.setup import Setup, StateSpaceReport
 from hydrolink.server.model import HydroModel
 
-SCENE = """\
-[simulation]
-dt = 0.05
-duration = 1.0
-[water]
-density = 1000.0
-depth = 200.0
-[waves]
-type = "regular"
-height = 1.0
-period = 5.0
-[[bodies]]
-name = "sphere"
-hdb = "sphere.h5"
-mass = 261800.0
-center_of_mass = [0.0, 0.0, -2.0]
-inertia = [2.6e6, 2.6e6, 2.6e6]
-dofs = ["heave", "pitch"]
-"""
+SCENE = scene_toml(dt=0.05, duration=1.0, water=SPHERE_WATER, waves=regular_waves(1.0, 5.0),
+                   bodies=[sphere_body("sphere.h5", mass=261800.0, dofs=["heave", "pitch"])])
 
 
 @pytest.fixture(scope="module")

@@ -10,17 +10,18 @@ dropped from the HDB so that no net buoyancy acts on the lighter or heavier body
 
 from __future__ import annotations
 
-import textwrap
 from pathlib import Path
 
 import numpy as np
 import pytest
 import xarray as xr
 
+from conftest import SPHERE_WATER, body, linear_pto, regular_waves, scene_toml, sphere_body
+
 from hydrolink.clients.connection import ServerConnection
 from hydrolink.clients.exudyn_client import SimulationDiverged, build_model, run
 from hydrolink.clients.results import ResultWriter
-from hydrolink.protocol.scene import SceneError, parse_scene
+from hydrolink.protocol.scene import Scene, SceneError, parse_scene
 from hydrolink.server.hdb.io import load_hdb
 from hydrolink.server.model import HydroModel, ModelError
 from hydrolink.server.service import ForceServer
@@ -45,36 +46,14 @@ def c33(sphere) -> float:
 
 
 def scene_text(mass: float, *, dt: float = 0.01, duration: float = 8.0, scheme: str = "mass-matrix",
-               coupling: str = "", hydro: str = "", irf: float = 20.0, x0: float = 0.5, waves: str = "",
-               extra: str = "") -> str:
-    return textwrap.dedent(f"""\
-        [simulation]
-        dt = {float(dt)!r}
-        duration = {float(duration)!r}
-        progress = false
-        [water]
-        density = 1000.0
-        depth = 200.0
-        """) + waves + textwrap.dedent(f"""
-        [hydro]
-        irf_duration = {float(irf)!r}
-        {hydro}
-        [coupling]
-        scheme = "{scheme}"
-        {coupling}
-        [[bodies]]
-        name = "sphere"
-        hdb = "sphere.h5"
-        mass = {float(mass)!r}
-        center_of_mass = [0.0, 0.0, -2.0]
-        inertia = [1e5, 1e5, 1e5]
-        dofs = ["heave"]
-        initial_displacement = [0, 0, {float(x0)!r}, 0, 0, 0]
-        """) + extra
-
-
-def regular(height: float, period: float, ramp: float = 0.0) -> str:
-    return f'[waves]\ntype = "regular"\nheight = {float(height)!r}\nperiod = {float(period)!r}\nramp = {float(ramp)!r}\n'
+               coupling: dict | None = None, hydro: dict | None = None, irf: float = 20.0, x0: float = 0.5,
+               waves: dict | None = None, **sections) -> str:
+    """The sphere in heave, of ``mass``, started at heave ``x0``; ``coupling`` and ``hydro`` keys
+    besides the scheme and irf_duration; further ``sections`` (ptos, moorings) as scene_toml takes them."""
+    return scene_toml(dt=dt, duration=duration, progress=False, water=SPHERE_WATER, waves=waves,
+                      hydro={"irf_duration": irf, **(hydro or {})}, coupling={"scheme": scheme, **(coupling or {})},
+                      bodies=[sphere_body("sphere.h5", mass=mass, inertia=[1e5, 1e5, 1e5], dofs=["heave"],
+                                          initial_displacement=[0, 0, x0, 0, 0, 0])], **sections)
 
 
 def simulate(text: str, hdb, out: Path, **kw):
@@ -199,11 +178,11 @@ def test_exchange_every_hold_and_extrapolate(sphere, tmp_path):
     """k = 5 client steps per exchange: stable; forces varied linearly between exchanges are closer
     to the every-step run than held ones; the server steps at k dt."""
     mass = 261.724e3
-    w = regular(1.0, 5.0, ramp=5.0)
+    w = regular_waves(1.0, 5.0, ramp=5.0)
     _, base, _ = simulate(scene_text(mass, duration=20.0, x0=0.0, waves=w), sphere, tmp_path / "b.nc")
     err = {}
     for between in ("hold", "extrapolate"):
-        cpl = f'exchange_every = 5\nbetween_exchanges = "{between}"'
+        cpl = {"exchange_every": 5, "between_exchanges": between}
         summary, ds, setup = simulate(scene_text(mass, duration=20.0, x0=0.0, waves=w, coupling=cpl), sphere,
                                       tmp_path / f"{between}.nc")
         assert setup.dt == pytest.approx(0.05) and ds.sizes["time"] == 2001
@@ -226,8 +205,8 @@ def test_coarse_dt_refused_or_warned(sphere, tmp_path):
     """dt = T/5 of the wave period is refused naming simulation.dt; T/10 runs with a warning."""
     mass = 261.724e3
     with pytest.raises(SceneError, match=r"simulation\.dt.*waves\.period = 5 s with 5 steps.*12 %.*T/20"):
-        simulate(scene_text(mass, dt=1.0, duration=20.0, waves=regular(1.0, 5.0)), sphere, tmp_path / "c.nc")
-    summary, ds, _ = simulate(scene_text(mass, dt=0.5, duration=20.0, waves=regular(1.0, 5.0)), sphere,
+        simulate(scene_text(mass, dt=1.0, duration=20.0, waves=regular_waves(1.0, 5.0)), sphere, tmp_path / "c.nc")
+    summary, ds, _ = simulate(scene_text(mass, dt=0.5, duration=20.0, waves=regular_waves(1.0, 5.0)), sphere,
                               tmp_path / "w.nc")
     assert any("simulation.dt" in w and "3.2 %" in w for w in summary["warnings"])
     assert np.isfinite(heave(ds)).all()
@@ -242,22 +221,11 @@ def test_stiff_pto_and_mooring(sphere, tmp_path, stiffness):
     iteration stalls: the run stops early, the message names the stiffness and the settings."""
     mass, period = 261.724e3, 5.0
     w0 = 2 * np.pi / period
-    extra = textwrap.dedent(f"""\
-        [[ptos]]
-        name = "pto"
-        type = "linear"
-        body1 = "sphere"
-        point1 = [0.0, 0.0, -2.0]
-        body2 = "ground"
-        point2 = [0.0, 0.0, -32.0]
-        stiffness = {stiffness!r}
-        [[moorings]]
-        type = "linear"
-        body = "sphere"
-        point = [0.0, 0.0, -2.0]
-        stiffness = [0.0, 0.0, {stiffness!r}, 0.0, 0.0, 0.0]
-        """)
-    text = scene_text(mass, dt=0.01, duration=40.0, x0=0.0, waves=regular(1.0, period, 5.0), extra=extra)
+    text = scene_text(mass, dt=0.01, duration=40.0, x0=0.0, waves=regular_waves(1.0, period, ramp=5.0),
+                      ptos=[linear_pto("pto", "sphere", [0.0, 0.0, -2.0], "ground", [0.0, 0.0, -32.0],
+                                       stiffness=stiffness)],
+                      moorings=[{"type": "linear", "body": "sphere", "point": [0.0, 0.0, -2.0],
+                                 "stiffness": [0.0, 0.0, stiffness, 0.0, 0.0, 0.0]}])
     if stiffness > 1e7:
         with pytest.raises(RuntimeError, match=r"(ptos|moorings)\[0\]\.stiffness = 1e\+09.*Newton iteration can "
                                                r"stall.*simulation\.dt"):
@@ -292,7 +260,7 @@ def test_irf_from_zero_to_200_s(sphere, a33, c33, tmp_path):
     assert np.abs(heave(ds) - ref).max() < 1e-6
     with pytest.raises(RuntimeError, match=r"hydro\.irf_duration.*pi/d_omega = 62\.8 s.*irf_domega <= 0\.0157"):
         simulate(scene_text(mass, irf=200.0, duration=2.0), sphere, tmp_path / "long.nc")
-    _, ds, _ = simulate(scene_text(mass, irf=200.0, duration=10.0, hydro="irf_domega = 0.01"), sphere,
+    _, ds, _ = simulate(scene_text(mass, irf=200.0, duration=10.0, hydro={"irf_domega": 0.01}), sphere,
                         tmp_path / "long.nc")
     ref = decay_reference(sphere, mass, a33, c33, 0.01, 10.0, 20.0)
     assert np.abs(heave(ds) - ref).max() < 0.01 * 0.5
@@ -318,11 +286,11 @@ def test_waves_up_to_the_breaking_limit(sphere, tmp_path):
     mass, period = 261.724e3, 4.0
     lam = 9.81 * period ** 2 / (2 * np.pi)   # depth 200 m is deep at 4 s
     with pytest.raises(RuntimeError, match=r"waves\.height.*breaking limit.*> 1/7.*waves\.height <= 3\.569"):
-        simulate(scene_text(mass, x0=0.0, waves=regular(lam / 6, period)), sphere, tmp_path / "b.nc")
-    summary, ds, _ = simulate(scene_text(mass, x0=0.0, duration=20.0, waves=regular(lam / 8, period, 4.0)),
+        simulate(scene_text(mass, x0=0.0, waves=regular_waves(lam / 6, period)), sphere, tmp_path / "b.nc")
+    summary, ds, _ = simulate(scene_text(mass, x0=0.0, duration=20.0, waves=regular_waves(lam / 8, period, ramp=4.0)),
                               sphere, tmp_path / "s.nc")
     assert any("breaking limit" in w for w in summary["warnings"])
-    _, small, _ = simulate(scene_text(mass, x0=0.0, duration=20.0, waves=regular(0.1, period, 4.0)),
+    _, small, _ = simulate(scene_text(mass, x0=0.0, duration=20.0, waves=regular_waves(0.1, period, ramp=4.0)),
                            sphere, tmp_path / "l.nc")
     assert np.allclose(heave(ds), heave(small) * (lam / 8) / 0.1, atol=1e-9 * lam)
 
@@ -337,10 +305,12 @@ def test_forced_unstable_state_space_fit_is_refused():
     s, p, c = 1j * w, 0.05 + 2.0j, 1.0 - 0.5j
     hd = an.make_body_hdb(omega=w)
     hd["radiation_damping"].values[:, HEAVE, HEAVE] = 1e5 * (c / (s - p) + np.conj(c) / (s - np.conj(p))).real
-    body = ('[[bodies]]\nname = "float"\nhdb = "x.nc"\nmass = 3e5\ncenter_of_mass = [0, 0, 0]\n'
-            'inertia = [1e6, 1e6, 1e6]\ndofs = ["heave"]\n')
-    text = ('[simulation]\ndt = 0.05\nduration = 10\n[hydro]\nirf_duration = 40.0\nradiation = "state-space"\n'
-            'ss_order = 4\n{}\n' + body)
+    def scene(**hydro) -> Scene:
+        return parse_scene(scene_toml(
+            dt=0.05, duration=10, hydro={"irf_duration": 40.0, "radiation": "state-space", "ss_order": 4, **hydro},
+            bodies=[body("float", hdb="x.nc", mass=3e5, center_of_mass=[0, 0, 0], inertia=[1e6, 1e6, 1e6],
+                         dofs=["heave"])]))
+
     with pytest.raises(ModelError, match=r"hydro\.radiation.*unstable pole.*ss_enforce_stability = true"):
-        HydroModel(parse_scene(text.format("ss_enforce_stability = false")), {"float": hd})
-    HydroModel(parse_scene(text.format("")), {"float": hd})
+        HydroModel(scene(ss_enforce_stability=False), {"float": hd})
+    HydroModel(scene(), {"float": hd})

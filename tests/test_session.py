@@ -1,0 +1,136 @@
+"""server/session.py: a hello's scene and HDBs become the model (errors naming the field), and the
+step sequencing rules of SPEC §5.3 — new step, replace (higher iteration, the radiation memory
+rolled back), retry (the cached reply) and the refusals that leave the session as it was. Messages
+go through the real codec (pack/unpack), as over the wire."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from analytic_hdb import DOF_PARAMS, irf, make_body_hdb
+from conftest import body, scene_toml
+from hydrolink.protocol import codec
+from hydrolink.protocol.codec import Code, ProtocolError
+from hydrolink.server.hdb.schema import to_wire
+from hydrolink.server.session import Session, build_model
+
+DT, RHO = 0.05, 1025.0
+HEAVE = 2
+
+
+@pytest.fixture(scope="module")
+def hdb():
+    return make_body_hdb()
+
+
+def wire(**fields) -> dict:
+    """A message map as the server receives it (msgpack round trip)."""
+    return codec.unpack(codec.pack(fields))
+
+
+def hello(hdb, *, hdbs: dict | None = None, **body_keys) -> dict:
+    """A hello for the analytic float (HDB float.nc) in still water, plus a dry body "frame"."""
+    text = scene_toml(dt=DT, duration=10.0, hydro={"irf_duration": 4.0},
+                      bodies=[body("float", **{"hdb": "float.nc", "mass": 3.0e5, "center_of_mass": [0, 0, -1],
+                                               "inertia": [1e7, 1e7, 2e7], **body_keys}),
+                              body("frame", mass=10.0, center_of_mass=[0, 0, 5], inertia=[1, 1, 1])])
+    return wire(scene=text, hdbs={"float.nc": to_wire(hdb)} if hdbs is None else hdbs)
+
+
+def step(seq: int, position: np.ndarray, velocity: np.ndarray, iteration: int = 0, time: float | None = None) -> dict:
+    return wire(seq=seq, iteration=iteration, time=seq * DT if time is None else time,
+                position=np.ascontiguousarray(position), velocity=np.ascontiguousarray(velocity))
+
+
+def refused(fn, code: int, field: str) -> ProtocolError:
+    with pytest.raises(ProtocolError) as info:
+        fn()
+    assert (info.value.code, info.value.field) == (code, field), info.value
+    return info.value
+
+
+@pytest.fixture()
+def session(hdb) -> Session:
+    return Session("s" * 32, build_model(hello(hdb)))
+
+
+def test_hello_builds_the_model_of_the_wet_bodies_in_the_scene_water(session):
+    """The dry body needs no HDB; the heave stiffness is the analytic C33 rescaled to rho = 1025 and
+    the hydrostatic force of a 0.1 m heave offset is -C33 * 0.1."""
+    setup = session.model.setup_info()
+    assert setup.bodies == ("float",) and session.n_bodies == 1 and session.dt == DT
+    c33 = 7.7e5 * RHO / 1000
+    assert setup.hydrostatic_stiffness[HEAVE, HEAVE] == pytest.approx(c33, rel=1e-12)
+    pos = setup.equilibrium_position.copy()
+    pos[0, HEAVE] += 0.1
+    out = session.step(step(0, pos, np.zeros((1, 6))))
+    assert out["hydrostatic"][0, HEAVE] == pytest.approx(-0.1 * c33, rel=1e-12)
+    assert (out["seq"], out["iteration"], out["time"]) == (0, 0, 0.0) and out["compute_us"] > 0
+
+
+def test_hello_errors_name_the_field(hdb):
+    refused(lambda: build_model(hello(hdb, mass=-1.0)), Code.BAD_SCENE, "scene.bodies[0].mass")
+    refused(lambda: build_model(hello(hdb, hdb_body="buoy")), Code.BAD_SCENE, "scene.bodies[0].hdb_body")
+    refused(lambda: build_model(hello(hdb, hdbs={})), Code.BAD_HDB, "hdbs.float.nc")
+    bad = to_wire(hdb)
+    bad["omega"] = bad["omega"].copy()
+    bad["omega"][2] = np.nan
+    refused(lambda: build_model(hello(hdb, hdbs={"float.nc": bad})), Code.BAD_HDB, "hdbs.float.nc.omega")
+    refused(lambda: build_model(wire(scene="[simulation\n", hdbs={})), Code.BAD_SCENE, "scene")
+
+
+def test_replace_rolls_the_radiation_memory_back(hdb):
+    """Step 1 sent with one velocity and replaced (iteration 1) with another gives exactly the
+    forces of a session that only ever saw the second; step 2 then convolves the second. With a
+    unit heave velocity at t = 0 only, the memory at t_n (inside the IRF window, weight 1 of the
+    fixed-window trapezoid) is -dt K(t_n), K in closed form."""
+    a, b = (Session(n * 32, build_model(hello(hdb))) for n in "ab")
+    eq = a.model.setup_info().equilibrium_position
+    v0, v1, v1_final = np.zeros((1, 6)), np.zeros((1, 6)), np.zeros((1, 6))
+    v0[0, HEAVE], v1[0, HEAVE], v1_final[0, HEAVE] = 1.0, 0.7, -0.3
+    for s in (a, b):
+        s.step(step(0, eq, v0))
+    a.step(step(1, eq, v1))
+    replaced = a.step(step(1, eq, v1_final, iteration=1))
+    direct = b.step(step(1, eq, v1_final))
+    for key in ("excitation", "radiation", "hydrostatic"):
+        np.testing.assert_array_equal(replaced[key], direct[key])
+    zero = np.zeros((1, 6))
+    np.testing.assert_array_equal(a.step(step(2, eq, zero))["radiation"], b.step(step(2, eq, zero))["radiation"])
+    # the memory itself: a fresh session, an impulse of heave velocity at t = 0
+    c = Session("c" * 32, build_model(hello(hdb)))
+    f = [c.step(step(k, eq, v0 if k == 0 else zero))["radiation"][0, HEAVE] for k in range(40)]
+    _, b0, w0 = DOF_PARAMS[HEAVE]
+    t = np.arange(1, 40) * DT
+    expected = -DT * irf(t, b0 * RHO / 1000, w0)
+    assert np.abs(np.array(f[1:]) - expected).max() < 1e-3 * np.abs(expected).max()
+
+
+def test_retry_returns_the_cached_reply_and_changes_nothing(session):
+    eq = session.model.setup_info().equilibrium_position
+    v = np.zeros((1, 6))
+    v[0, HEAVE] = 0.5
+    first = session.step(step(0, eq, v))
+    again = session.step(step(0, eq, v))
+    assert again["compute_us"] == 0.0 and session.steps == 1
+    for key in ("excitation", "radiation", "hydrostatic"):
+        np.testing.assert_array_equal(again[key], first[key])
+    refused(lambda: session.step(step(0, eq, 2 * v)), Code.OUT_OF_ORDER, "iteration")
+
+
+def test_refused_steps_leave_the_session_as_it_was(session):
+    eq = session.model.setup_info().equilibrium_position
+    zero = np.zeros((1, 6))
+    assert session.state == "ready"
+    refused(lambda: session.step(step(1, eq, zero)), Code.OUT_OF_ORDER, "seq")             # must start at 0
+    refused(lambda: session.step(step(0, eq, zero, time=0.01)), Code.BAD_VALUE, "time")    # time = seq dt
+    refused(lambda: session.step(step(0, np.zeros((2, 6)), np.zeros((2, 6)))), Code.BAD_VALUE, "position")
+    assert session.state == "ready" and session.steps == 0
+    session.step(step(0, eq, zero))
+    session.step(step(1, eq, zero, iteration=2))
+    refused(lambda: session.step(step(1, eq, zero, iteration=1)), Code.OUT_OF_ORDER, "iteration")  # older
+    refused(lambda: session.step(step(3, eq, zero)), Code.OUT_OF_ORDER, "seq")                      # a gap
+    refused(lambda: session.step(step(0, eq, zero)), Code.OUT_OF_ORDER, "seq")                      # the past
+    assert (session.state, session.last_seq, session.last_iteration, session.steps) == ("running", 1, 2, 2)
+    assert session.step(step(2, eq, zero))["seq"] == 2
