@@ -318,3 +318,25 @@ def test_rm3_examples_reduced_match_full_form(server, shared_data, tmp_path, exa
     assert any("'float' (heave), 'spar' (heave): 2 coordinates instead of 12 and 10 constraints" in n
                for n in s_red["mechanism_notes"])
     assert_agree(red, full)
+
+
+def test_bench_accuracy_measures_reduced_against_full(tmp_path, shared_data):
+    """``hydrolink bench accuracy --reduce true,false``: the full form is an option against the
+    (reduced) reference — no error beyond round-off, its own per-step cost."""
+    import csv
+
+    from click.testing import CliRunner
+
+    from hydrolink.clients.cli import cli
+    text = (REPO / "examples" / "rm3" / "rm3.toml").read_text()
+    text = text.replace("../../../shared/data/rm3_wamit/rm3.1", str(shared_data / "rm3_wamit" / "rm3.1"))
+    scene = tmp_path / "rm3.toml"
+    scene.write_text(text.replace("ramp = 40.0", "ramp = 5.0"))
+    out = tmp_path / "acc"
+    r = CliRunner().invoke(cli, ["bench", "accuracy", str(scene), "--reduce", "true,false", "--duration", "16",
+                                 "-o", str(out)], catch_exceptions=False)
+    assert r.exit_code == 0, r.output
+    rows = {row["label"]: row for row in csv.DictReader(open(out / "accuracy.csv"))}
+    assert list(rows) == ["reference", "reduce=False"]
+    assert float(rows["reduce=False"]["rms_error"]) < AGREE and float(rows["reduce=False"]["max_error"]) < AGREE
+    assert all(float(row["us_per_step"]) > 0 for row in rows.values())
