@@ -64,7 +64,7 @@ def model_step_us(scene_path: Path, n: int = 5000) -> float:
     scene, _ = load_scene(scene_path)
     hdbs = load_scene_hdbs(scene, scene_path, progress=False)
     model = HydroModel(scene, {b.name: hdbs[b.hdb] for b in scene.bodies})
-    eq = model.setup_info()["equilibrium_position"]
+    eq = model.setup_info().equilibrium_position
     v = np.zeros_like(eq)
     times = np.empty(n)
     for k in range(n):
@@ -82,7 +82,7 @@ def round_trips_us(address, scene_path: Path, n: int = 3000) -> dict[str, np.nda
     hdbs = load_scene_hdbs(scene, scene_path, progress=False)
     out = {"step": np.empty(n), "ping": np.empty(n)}
     with ServerConnection(address) as conn:
-        eq = conn.hello(text, hdbs)["equilibrium_position"]
+        eq = conn.hello(text, hdbs).equilibrium_position
         v = np.zeros_like(eq)
         for k in range(n):
             t0 = time.perf_counter()

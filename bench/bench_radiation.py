@@ -123,7 +123,7 @@ def time_model(ds: xr.Dataset, hydro: str, steps: int, repeat: int) -> tuple[flo
     m = HydroModel(parse_scene(scene_text(names, refs, hydro)), {nm: ds for nm in names})
     setup = time.perf_counter() - t0
     rng = np.random.default_rng(0)
-    pos = m.setup_info()["equilibrium_position"]
+    pos = m.setup_info().equilibrium_position
     vel = 0.01 * rng.standard_normal((steps * (repeat + 1), len(names), 6))
     per = []
     k = 0
@@ -153,7 +153,7 @@ def cost(args) -> None:
                     hydro += f"\nirf_taper = 0.2\nss_tolerance = {args.ss_tolerance}\nss_max_order = 30"
                 us, m, setup = time_model(ds, hydro, args.steps, args.repeat)
                 info = m.setup_info()
-                ss = info["state_space"]
+                ss = info.state_space
                 print(f"| {nb} | {6 * nb} | {method} | {'dense' if tol == 0 else f'pruned {tol:g}'} | "
                       f"{info['radiation_pairs']} ({100 * (1 - info['dropped_pair_fraction']):.0f} %) | "
                       f"{info['dropped_blocks']} of {nb * (nb - 1)} | {ss['states'] if ss else '-'} | "

@@ -19,6 +19,7 @@ import zmq
 
 from hydrolink.protocol import codec
 from hydrolink.protocol.codec import ProtocolError
+from hydrolink.protocol.setup import Setup
 from hydrolink.server.hdb.schema import to_wire
 
 FORCE_FIELDS = ("excitation", "radiation", "hydrostatic")
@@ -49,7 +50,10 @@ class ServerConnection:
         self.key = key
         self.client_name = client_name
         self.session: str | None = None
-        self.setup: dict | None = None
+        self.setup: Setup | None = None
+        self.server_info: dict | None = None
+        self.protocol: int | None = None
+        self.session_timeout: float | None = None
         self._ids = codec.id_source("c")
         self._local = None if isinstance(address, str) else address
         self._sock: zmq.Socket | None = None
@@ -124,10 +128,11 @@ class ServerConnection:
             return reply
 
     def hello(self, scene_text: str, hdbs: dict[str, xr.Dataset], role: str = "multibody",
-              client: dict | None = None, wave_elevation: tuple | None = None) -> dict:
-        """Open a session: returns the model's setup (arrays as numpy) plus ``session``, ``server``,
-        ``protocol`` and ``session_timeout``. ``wave_elevation``: the (time, eta) series of a scene
-        with ``[waves] type = "elevation"`` (clients/run.py load_wave_elevation)."""
+              client: dict | None = None, wave_elevation: tuple | None = None) -> Setup:
+        """Open a session and return its :class:`Setup`; the session id, the server's name/version,
+        the protocol version and the session timeout stay on the connection (``session``,
+        ``server_info``, ``protocol``, ``session_timeout``). ``wave_elevation``: the (time, eta)
+        series of a scene with ``[waves] type = "elevation"`` (clients/run.py load_wave_elevation)."""
         from importlib import metadata
         try:
             version = metadata.version("hydrolink")
@@ -140,9 +145,14 @@ class ServerConnection:
                              hdbs={k: to_wire(ds) for k, ds in hdbs.items()},
                              client=client or {"name": self.client_name, "version": version}, **extra)
         self.session = reply["session"]
-        self.setup = codec.decode_tree(reply.get("setup", {}))
-        return {**self.setup, "session": self.session, "server": reply.get("server"),
-                "protocol": reply.get("protocol"), "session_timeout": reply.get("session_timeout")}
+        self.server_info, self.protocol = reply.get("server"), reply.get("protocol")
+        self.session_timeout = reply.get("session_timeout")
+        try:
+            self.setup = Setup.from_wire(reply.get("setup"))
+        except ProtocolError as exc:
+            raise ConnectionError(f"the server at {self.address} sent an unusable setup: "
+                                  f"[{exc.field}] {exc.message}") from None
+        return self.setup
 
     def step(self, seq: int, time: float, position: np.ndarray, velocity: np.ndarray,
              iteration: int = 0, *, measurements: dict | None = None, timeout: float | None = None) -> dict:

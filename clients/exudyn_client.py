@@ -53,36 +53,20 @@ import numpy as np
 import exudyn as exu
 from exudyn.itemInterface import ObjectGenericODE2, VObjectGenericODE2
 
+from hydrolink.clients import lockstep
+from hydrolink.clients.coupling_schemes import make_scheme
+from hydrolink.clients.lockstep import (BLOW_UP_LIMIT, CouplingError, DivergenceWatch, ForceLink, Lockstep,  # noqa: F401
+                                        RunInterrupted, SimulationDiverged, progress_bar)
 from hydrolink.clients.mechanism import Mechanism, body_reference, build_mechanism
 from hydrolink.clients.moorings import MooringSet, build_moorings
 from hydrolink.clients.ptos import PTOSet, build_ptos
-from hydrolink.protocol.scene import Scene
+from hydrolink.protocol.scene import Coupling, Scene
+from hydrolink.protocol.setup import Setup
 
 log = logging.getLogger(__name__)
 
 #: systems with more ODE2 coordinates than this use Exudyn's sparse linear solver (EigenSparse)
 SPARSE_ABOVE = 60
-
-#: explicit schemes: the added-mass instability is called after this many consecutive steps whose
-#: second difference of the accelerations alternates in sign and grows by more than WATCH_GROWTH,
-#: once it exceeds WATCH_FLOOR times the largest acceleration seen (clear of round-off)
-WATCH_STEPS, WATCH_GROWTH, WATCH_FLOOR = 6, 1.001, 1e-6
-
-#: default bound on |displacement| (m, rad) and |velocity| (m/s, rad/s) before a run is called diverged
-BLOW_UP_LIMIT = 1.0e4
-
-
-class RunInterrupted(RuntimeError):
-    """A run stopped before its end; every row computed before ``step`` is in the results file."""
-
-    def __init__(self, message: str, *, step: int, time: float, rows: int):
-        super().__init__(message)
-        self.step, self.time, self.rows = step, time, rows
-
-
-class SimulationDiverged(RunInterrupted):
-    """The state went non-finite or absurdly large."""
-
 
 @dataclass
 class ExudynModel:
@@ -186,13 +170,10 @@ def _scene_bodies(scene: Scene, names: list[str]):
     return [by_name[n] for n in names]
 
 
-def result_bodies(scene: Scene, setup: dict | None) -> tuple[list[str], np.ndarray]:
+def result_bodies(scene: Scene, setup: Setup | None) -> tuple[list[str], np.ndarray]:
     """Every scene body's name and reference position (N, 6): wet bodies' from the server's setup
     (by name), dry bodies' from the scene (``reference_point``, default the centre of mass)."""
-    wet = {}
-    if setup:
-        eq = np.asarray(setup["equilibrium_position"], float).reshape(-1, 6)
-        wet = {str(n): eq[i] for i, n in enumerate(setup["bodies"])}
+    wet = {n: setup.equilibrium_position[i] for i, n in enumerate(setup.bodies)} if setup else {}
     ref = [wet[b.name] if b.name in wet else np.r_[body_reference(b), 0.0, 0.0, 0.0] for b in scene.bodies]
     return [b.name for b in scene.bodies], np.asarray(ref, float).reshape(len(ref), 6)
 
@@ -207,7 +188,7 @@ def _body_indices(mech: Mechanism, names: list[str], ltg, pad: int) -> np.ndarra
     return out
 
 
-def build_model(scene: Scene, setup: dict | None, *, spectral_radius: float = 1.0,
+def build_model(scene: Scene, setup: Setup | None, *, spectral_radius: float = 1.0,
                 added_mass_in_matrix: bool = True, newmark: bool = False,
                 reduce: bool | None = None) -> ExudynModel:
     """Build the Exudyn system from the scene (bodies, point masses, joints, constraints, initial
@@ -221,20 +202,19 @@ def build_model(scene: Scene, setup: dict | None, *, spectral_radius: float = 1.
     (bit-exact rollback, for the implicit scheme) instead of generalized-alpha. ``reduce`` (default:
     the scene's ``[client] reduce``) builds the bodies that qualify with their active coordinates
     only (clients/mechanism.py, "Reduced bodies"); False is the full form."""
-    setup = setup or {}
-    names = [str(b) for b in setup.get("bodies", [])]
+    names = list(setup.bodies) if setup else []
     n = len(names)
     wet_scene = [b.name for b in scene.bodies if b.wet]
     if sorted(names) != sorted(wet_scene):
         raise ValueError(f"server setup names bodies {names}, the scene's wet bodies are {wet_scene}")
     _scene_bodies(scene, names)
-    equilibrium = np.asarray(setup.get("equilibrium_position", np.zeros((0, 6))), float).reshape(n, 6)
-    active = np.asarray(setup.get("active", np.zeros((0, 6))), bool).reshape(n, 6)
-    # "added_mass": what goes into the mass matrix (A_inf, or A(w0) with hydro.radiation = "constant")
-    a_inf = np.asarray(setup.get("added_mass", setup.get("added_mass_inf", np.zeros((0, 0)))), float).reshape(6 * n, 6 * n)
-    stiffness = np.asarray(setup.get("hydrostatic_stiffness", np.zeros((0, 0))), float).reshape(6 * n, 6 * n)
+    equilibrium = setup.equilibrium_position if setup else np.zeros((0, 6))
+    active = setup.active if setup else np.zeros((0, 6), bool)
+    # what goes into the mass matrix (A_inf, or A(w0) with hydro.radiation = "constant")
+    a_inf = setup.added_mass if setup else np.zeros((0, 0))
+    stiffness = setup.hydrostatic_stiffness if setup else np.zeros((0, 0))
     dt = float(scene.simulation.dt)   # the client's step (the server's is [coupling] exchange_every times it)
-    net = {nm: float(v) for nm, v in zip(names, setup.get("net_buoyancy") or [None] * n) if v}
+    net = {nm: float(v) for nm, v in zip(names, setup.net_buoyancy) if v} if setup else {}
 
     sc = exu.SystemContainer()
     mbs = sc.AddSystem()
@@ -285,37 +265,6 @@ def build_model(scene: Scene, setup: dict | None, *, spectral_radius: float = 1.
                        force_index=sel if sel.size < 6 * n else None, padded=padded)
 
 
-def _check_state(q: np.ndarray, v: np.ndarray, step: int, t: float, limit: float, rows: int,
-                 where: str) -> None:
-    """Raise SimulationDiverged if the state is non-finite or beyond ``limit`` (NaN fails ``<``)."""
-    if float(q @ q) + float(v @ v) < limit * limit:
-        return  # cheap sufficient test (each |x| <= the 2-norm); the exact max-norm test follows
-    big = max(float(np.abs(q).max(initial=0.0)), float(np.abs(v).max(initial=0.0)))
-    if big < limit:
-        return
-    bad = "absurdly large" if np.isfinite(big) else "non-finite"
-    raise SimulationDiverged(
-        f"simulation diverged at step {step} (t = {t:.6g} s): {where} is {bad} "
-        f"(max |x| = {np.nanmax(np.abs(q)):.3g}, max |v| = {np.nanmax(np.abs(v)):.3g}, limit {limit:g}); "
-        f"the {rows} rows before it are saved. Try a smaller dt or check the scene's "
-        f"masses, stiffness and DOFs", step=step, time=t, rows=rows)
-
-
-def _forces(reply: dict, n: int, step: int, t: float) -> tuple[np.ndarray, np.ndarray, float]:
-    """Excitation and radiation (N, 6) and the wave elevation from a step reply, checked finite.
-
-    The reply's hydrostatic force is not used: the stiffness is applied implicitly by Exudyn."""
-    exc = np.asarray(reply["excitation"], float).reshape(n, 6)
-    rad = np.asarray(reply["radiation"], float).reshape(n, 6)
-    eta = reply["wave_elevation"]
-    eta = eta if type(eta) is float else float(np.asarray(eta, float).reshape(-1)[0])
-    if not math.isfinite(float(exc.sum() + rad.sum()) + eta):
-        raise SimulationDiverged(
-            f"the force server returned non-finite forces at step {step} (t = {t:.6g} s); "
-            f"the {step} rows before it are saved", step=step, time=t, rows=step)
-    return exc, rad, eta
-
-
 JOINT_COMPONENTS = ("fx", "fy", "fz", "mx", "my", "mz")
 
 
@@ -350,22 +299,11 @@ def _add_pto_mooring_variables(writer, ptos: PTOSet | None, moorings: MooringSet
                             "mooring point (linear) / the attachment point (rope)")
 
 
-def _progress_bar(total: int, enabled: bool):
-    from tqdm import tqdm
-    return tqdm(total=total, unit="step", desc="hydrolink run", mininterval=0.5,
-                disable=not (enabled and sys.stderr.isatty()))
-
-
-class CouplingError(RunInterrupted):
-    """The implicit coupling did not converge within ``coupling.max_iterations``."""
-
-
-def wet_rigid_mass(scene: Scene, setup: dict) -> np.ndarray:
+def wet_rigid_mass(scene: Scene, setup: Setup) -> np.ndarray:
     """Rigid-body mass matrix (6N × 6N) of the wet bodies about their reference points (dry bodies
     attached by joints are left out, which can only overstate the added-mass ratio)."""
     from hydrolink.clients.coupling import rigid_body_mass_matrix
-    names = [str(b) for b in setup["bodies"]]
-    eq = np.asarray(setup["equilibrium_position"], float).reshape(len(names), 6)
+    names, eq = list(setup.bodies), setup.equilibrium_position
     m = np.zeros((6 * len(names), 6 * len(names)))
     for i, b in enumerate(_scene_bodies(scene, names)):
         m[6 * i:6 * i + 6, 6 * i:6 * i + 6] = rigid_body_mass_matrix(
@@ -373,16 +311,15 @@ def wet_rigid_mass(scene: Scene, setup: dict) -> np.ndarray:
     return m
 
 
-def coupling_ratio(scene: Scene, setup: dict | None) -> float:
+def coupling_ratio(scene: Scene, setup: Setup | None) -> float:
     """The added-mass ratio of the explicit schemes: spectral radius of M⁻¹A∞ over the wet bodies'
     active DOFs (M the rigid-body mass matrix). An explicitly fed-back −A∞·a multiplies an
     acceleration error by −M⁻¹A∞ every step: unstable above 1."""
     from hydrolink.clients.coupling import added_mass_ratio
-    if not setup or not setup.get("bodies"):
+    if not setup or not setup.bodies:
         return 0.0
-    n = len(setup["bodies"])
-    act = np.flatnonzero(np.asarray(setup["active"], bool).reshape(6 * n))
-    a = np.asarray(setup.get("added_mass", setup["added_mass_inf"]), float).reshape(6 * n, 6 * n)
+    act = np.flatnonzero(setup.active.reshape(-1))
+    a = setup.added_mass
     return added_mass_ratio(wet_rigid_mass(scene, setup)[np.ix_(act, act)], a[np.ix_(act, act)])
 
 
@@ -437,10 +374,137 @@ def explicit_refusal(scheme: str, ratio: float, limit: float) -> str:
             f"\"mass-matrix\" (A∞ in the mass matrix, the default) or \"implicit\"")
 
 
-def run(scene: Scene, scene_text: str, connection, setup: dict | None, writer, *, progress: bool = True,
+class ExudynMultibody:
+    """The Exudyn model as the lockstep driver's multibody code (:class:`~hydrolink.clients.lockstep.Multibody`).
+
+    Its input is the wet bodies' force vector (6N): excitation + radiation at the step's end (the
+    implicit integrator applies loads at the end of the step), minus A∞·a when A∞ is fed back.
+    Rows hold every scene body; the hydrostatic force written is −C·q (C is in the stiffness matrix)."""
+
+    label = "the body state"
+
+    def __init__(self, model: ExudynModel, writer, substeps: int, coupling: Coupling, ratio: float,
+                 control=None):
+        feedback = coupling.scheme != "mass-matrix"
+        self.model, self.writer, self.control = model, writer, control
+        self.coupling, self.ratio = coupling, ratio
+        self.h, self.substeps = model.dt, substeps
+        self.a_fb = model.added_mass if feedback else None
+        self.n, self.nb = model.n_bodies, len(model.body_names)
+        mech = model.mechanism
+        self.joints = mech if mech and mech.joints else None
+        self._forces = np.zeros((3, self.nb, 6))
+        self._pto_sample = None
+        self._refresh()
+
+    def _refresh(self) -> None:
+        self._q, self._v, self._a = self.model.state()
+        wet = self.model.wet_index
+        self._wet = (self._q[wet], self._v[wet], self._a[wet])
+
+    # -- the driver's interface -------------------------------------------------------------
+    def begin(self, s0, feedback: bool) -> int:
+        """Initial accelerations from F(0); with A∞ fed back, consistent with −A∞·a0 (a fixed point)."""
+        m, its = self.model, 0
+        if feedback and self.n:
+            its = self._consistent_start(s0.load)
+        else:
+            m.set_force(s0.load)
+            m.initialize()
+        self._refresh()
+        return its
+
+    def _consistent_start(self, f0: np.ndarray) -> int:
+        from hydrolink.clients.coupling import Aitken
+        m, cpl = self.model, self.coupling
+        aitken = Aitken(1.0 / (1.0 + self.ratio))
+        u = f0.copy()
+        for it in range(cpl.max_iterations):
+            m.set_force(u)
+            m.initialize()
+            g = f0 - self.a_fb @ m.state()[2][m.wet_index]
+            scale = max(float(np.abs(g).max(initial=0.0)), float(np.abs(f0).max(initial=0.0)), 1e-300)
+            if not np.isfinite(g).all() or float(np.abs(g - u).max(initial=0.0)) <= cpl.tolerance * scale:
+                return it + 1
+            m.finalize()
+            u = aitken.update(u, g)
+        m.set_force(u)
+        m.initialize()
+        return cpl.max_iterations
+
+    def state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return self._wet
+
+    def extent(self, limit: float) -> float:
+        q, v = self._q, self._v
+        ss = float(q @ q) + float(v @ v)
+        if ss < limit * limit:   # cheap bound (each |x| <= the 2-norm); NaN fails `<`
+            return math.sqrt(ss)
+        return max(float(np.abs(q).max(initial=0.0)), float(np.abs(v).max(initial=0.0)))
+
+    def inputs(self, s0, s1, acc, x0, x1) -> np.ndarray:
+        return s1.load if acc is None else s1.load - self.a_fb @ acc
+
+    def advance(self, t0: float, t1: float, u: np.ndarray) -> None:
+        self.model.set_force(u)
+        self.model.advance(t0, t1)
+        self._refresh()
+
+    def save(self):
+        return self.model.save()
+
+    def restore(self, saved) -> None:
+        self.model.restore(saved)
+        self._refresh()
+
+    def snapshot(self):
+        return self._q, self._v, self.outputs()
+
+    def write(self, t: float, s, snap) -> None:
+        q, v, out = snap
+        m, f = self.model, self._forces
+        if self.n:
+            rows, shape = m.wet_rows, (self.n, 6)
+            f[0, rows], f[1, rows] = s.excitation.reshape(shape), s.radiation.reshape(shape)
+            f[2, rows] = -(m.stiffness @ q[m.wet_index]).reshape(shape)
+        if self.control is not None:
+            self.control.stage()
+        if out:
+            self.writer.stage_extra(out)
+        self.writer.append(t, m.body_reference + q[m.body_index].reshape(self.nb, 6),
+                           v[m.body_index].reshape(self.nb, 6), f[0], f[1], f[2], s.eta)
+
+    def measurements(self, step: int) -> dict | None:
+        c = self.control
+        if c is None or not c.is_sample(step):
+            return None
+        idx, shape = self.model.body_index, (self.nb, 6)
+        return c.measurements(step, self._q[idx].reshape(shape), self._v[idx].reshape(shape), self._pto_sample)
+
+    def apply_control(self, decisions: dict | None) -> None:
+        if self.control is not None:
+            self.control.apply(decisions)
+
+    # -- results ----------------------------------------------------------------------------
+    def outputs(self) -> dict:
+        """The mechanism's outputs at the current state (joints, PTOs, moorings)."""
+        m, out = self.model, {}
+        if self.joints is not None:
+            f, mom, gap, rot = self.joints.joint_outputs(m.mbs)
+            out.update({"joint_force": np.hstack([f, mom]), "joint_violation": gap, "joint_rotation_violation": rot})
+        if m.ptos is not None:
+            s = self._pto_sample = m.ptos.sample(m.mbs)
+            out.update({"pto_force": s.force, "pto_velocity": s.velocity, "pto_power": s.power,
+                        "total_pto_power": s.total_power})
+        if m.moorings is not None:
+            out["mooring_force"] = m.moorings.sample(m.mbs)
+        return out
+
+
+def run(scene: Scene, scene_text: str, connection, setup: Setup | None, writer, *, progress: bool = True,
         spectral_radius: float | None = None, blow_up_limit: float = BLOW_UP_LIMIT,
         allow_unstable: bool = False) -> dict:
-    """Run the lockstep co-simulation to ``scene.simulation.duration``.
+    """Run the lockstep co-simulation to ``scene.simulation.duration`` (:mod:`hydrolink.clients.lockstep`).
 
     ``connection`` has already said hello (``setup`` is its reply); it is not closed here. With no
     wet body both are None and no server is asked. Rows hold every scene body (hydrodynamic forces
@@ -460,7 +524,6 @@ def run(scene: Scene, scene_text: str, connection, setup: dict | None, writer, *
     added-mass ratio, iterations per exchange: mean/max, and the list for "implicit"),
     ``warnings`` (the server's setup warnings) and per-step costs in µs (``client_us_per_step``
     excludes the server round trips, ``round_trip_us_per_step`` is them)."""
-    from hydrolink.clients.coupling import Aitken
     from hydrolink.protocol.scene import SceneError
 
     cpl = scene.coupling
@@ -468,7 +531,7 @@ def run(scene: Scene, scene_text: str, connection, setup: dict | None, writer, *
     feedback = scheme != "mass-matrix"
     if spectral_radius is None:
         spectral_radius = scene.simulation.spectral_radius
-    warnings = [str(w) for w in (setup or {}).get("warnings", [])]
+    warnings = list(setup.warnings) if setup else []
     for note in warnings:
         log.warning("%s", note)
     ratio = coupling_ratio(scene, setup) if feedback else 0.0
@@ -489,8 +552,8 @@ def run(scene: Scene, scene_text: str, connection, setup: dict | None, writer, *
                               f"rigid link) or simulation.dt")
     n, h = model.n_bodies, model.dt
     big_h = kx * h                                    # the server's step
-    if setup and abs(float(setup.get("dt", big_h)) - big_h) > 1e-9 * big_h:
-        raise ValueError(f"the server's step {setup['dt']} s is not coupling.exchange_every × simulation.dt "
+    if setup and abs(setup.dt - big_h) > 1e-9 * big_h:
+        raise ValueError(f"the server's step {setup.dt} s is not coupling.exchange_every × simulation.dt "
                          f"= {big_h} s")
     n_steps = int(round(scene.simulation.duration / h))
     n_ex = n_steps // kx
@@ -501,276 +564,39 @@ def run(scene: Scene, scene_text: str, connection, setup: dict | None, writer, *
     if note:
         warnings.append(f"simulation.dt: {note[1]}")
         log.warning("simulation.dt: %s", note[1])
-    eq = model.equilibrium.reshape(-1)
-    stiffness = model.stiffness
-    a_fb = model.added_mass
-    wet, bodies, ref = model.wet_index, model.body_index, model.body_reference
-    nb, rows = len(model.body_names), model.wet_rows
     mech = model.mechanism
     for note in (mech.warnings + mech.reductions) if mech else []:
         log.warning("%s", note)
-    joints = bool(mech and mech.joints)
-    if joints:
+    if mech and mech.joints:
         _add_joint_variables(writer, mech.joint_labels)
-    ptos, moorings = model.ptos, model.moorings
-    _add_pto_mooring_variables(writer, ptos, moorings)
+    _add_pto_mooring_variables(writer, model.ptos, model.moorings)
     control = None
     if scene.controllers:
         if n == 0:
             raise ValueError("controllers: a scene with controllers needs a wet body (the controllers "
                              "talk to the multibody client through the force server's session)")
         from hydrolink.clients.pto_control import PTOControl
-        control = PTOControl(scene, ptos, model.mbs, writer)
-    last = {"sample": None, "decisions": None}
-    zeros = np.zeros((0, 6))
-    wall0 = _time.perf_counter()
-    t_server = 0.0
-    step, t = 0, 0.0
-    iterations: list[int] = []
-    init_iterations = 0
-    bar = _progress_bar(n_steps, progress and scene.simulation.progress)
-
-    def request(k: int, tk: float, q: np.ndarray, v: np.ndarray, measurements: dict | None = None,
-                timeout: float | None = None, iteration: int = 0) -> tuple:
-        nonlocal t_server
-        if n == 0:
-            return zeros, zeros, 0.0
-        t0 = _time.perf_counter()
-        try:
-            reply = connection.step(k, tk, (eq + q).reshape(n, 6), v.reshape(n, 6),
-                                    measurements=measurements, timeout=timeout) if control else \
-                connection.step(k, tk, (eq + q).reshape(n, 6), v.reshape(n, 6), iteration)
-            last["decisions"] = reply.get("control")
-        except (KeyboardInterrupt, SimulationDiverged):
-            raise
-        except Exception as exc:
-            raise RunInterrupted(
-                f"force server error at step {k} (t = {tk:.6g} s): {exc}; the {done[0]} rows before "
-                f"it are saved in {getattr(writer, 'path', 'the results file')}",
-                step=k * kx, time=tk, rows=done[0]) from exc
-        t_server += _time.perf_counter() - t0
-        return _forces(reply, n, k, tk)
-
-    force_rows = np.zeros((3, nb, 6))
-    done = [0]    # rows written
-
-    def outputs() -> dict:
-        """The mechanism's outputs at the current Exudyn state (joints, PTOs, moorings)."""
-        out = {}
-        if joints:
-            f, m, gap, rot = mech.joint_outputs(model.mbs)
-            out.update({"joint_force": np.hstack([f, m]), "joint_violation": gap,
-                        "joint_rotation_violation": rot})
-        if ptos is not None:
-            s = last["sample"] = ptos.sample(model.mbs)
-            out.update({"pto_force": s.force, "pto_velocity": s.velocity, "pto_power": s.power,
-                        "total_pto_power": s.total_power})
-        if moorings is not None:
-            out["mooring_force"] = moorings.sample(model.mbs)
-        return out
-
-    def write(tk: float, q: np.ndarray, v: np.ndarray, exc_f, rad_f, eta, extra: dict | None = None) -> None:
-        force_rows[0, rows], force_rows[1, rows] = exc_f, rad_f
-        force_rows[2, rows] = -(stiffness @ q[wet]).reshape(n, 6)
-        if control is not None:
-            control.stage()
-        extra = outputs() if extra is None else extra
-        if extra:
-            writer.stage_extra(extra)
-        writer.append(tk, ref + q[bodies].reshape(nb, 6), v[bodies].reshape(nb, 6),
-                      force_rows[0], force_rows[1], force_rows[2], eta)
-        done[0] += 1
-
-    def between_samples(s0: tuple, s1: tuple, j: int, extrapolate: bool) -> tuple:
-        """The forces at client step j (1..kx) of an exchange interval: s1 held, or linear from s0 to
-        s1 (s0 at the interval's start and s1 at its end), or on past it (``extrapolate``: s0 and s1
-        one exchange apart, both in the past)."""
-        if between == "hold" or kx == 1:
-            return s1
-        w = 1.0 + j / kx if extrapolate else j / kx
-        return tuple(a + w * (b - a) for a, b in zip(s0, s1))
-
-    watch = {"a": [], "run": 0, "top": 0.0}
-
-    def added_mass_watch(aw: np.ndarray, k: int, tk: float) -> None:
-        """Explicit schemes: stop at the signature of the added-mass instability — the second
-        difference of the fed-back accelerations alternates in sign and grows every step (a lag
-        error multiplied by −M⁻¹A∞ each step; physical motion cannot alternate step by step)."""
-        hist = watch["a"]
-        hist.append(aw.copy())
-        watch["top"] = max(watch["top"], float(np.abs(aw).max(initial=0.0)))
-        if len(hist) < 4:
-            return
-        d1, d2 = hist[2] - 2 * hist[1] + hist[0], hist[3] - 2 * hist[2] + hist[1]
-        del hist[0]
-        n1, n2 = float(np.abs(d1).max(initial=0.0)), float(np.abs(d2).max(initial=0.0))
-        if float(d1 @ d2) < 0 and n2 > WATCH_GROWTH * n1 and n2 > WATCH_FLOOR * watch["top"]:
-            watch["run"] += 1
-        else:
-            watch["run"] = 0
-        if watch["run"] >= WATCH_STEPS:
-            raise SimulationDiverged(
-                f"stopped at step {k} (t = {tk:.6g} s): the accelerations fed back as −A∞·a alternate in "
-                f"sign and grow every step ({WATCH_STEPS} steps in a row, x{n2 / n1:.3g} in the last): the "
-                f"added-mass instability; the {k} rows before it are saved", step=k, time=tk, rows=k)
-
-    def total(sample: tuple) -> np.ndarray:
-        return (sample[0] + sample[1]).reshape(-1)
-
-    def check(q, v, k, tk, where="the body state"):
-        _check_state(q, v, k, tk, blow_up_limit, k, where)
-
-    def consistent_start(f0: np.ndarray) -> int:
-        """A∞ fed back: initial accelerations with −A∞·a0 consistent (Aitken-relaxed fixed point)."""
-        aitken = Aitken(1.0 / (1.0 + ratio))
-        u = f0.copy()
-        for it in range(cpl.max_iterations):
-            model.set_force(u)
-            model.initialize()
-            g = f0 - a_fb @ model.state()[2][wet]
-            scale = max(float(np.abs(g).max(initial=0.0)), float(np.abs(f0).max(initial=0.0)), 1e-300)
-            if not np.isfinite(g).all() or float(np.abs(g - u).max(initial=0.0)) <= cpl.tolerance * scale:
-                return it + 1
-            model.finalize()
-            u = aitken.update(u, g)
-        model.set_force(u)
-        model.initialize()
-        return cpl.max_iterations
-
+        control = PTOControl(scene, model.ptos, model.mbs, writer)
+    mb = ExudynMultibody(model, writer, kx, cpl, ratio, control)
+    loop = Lockstep(mb, ForceLink(connection, setup if n else None, writer), writer, DivergenceWatch(blow_up_limit),
+                    between,
+                    bar=progress_bar(n_steps, progress and scene.simulation.progress))
+    first_timeout = control.join_timeout + getattr(connection, "timeout", 30.0) if control else None
     try:
-        q, v, _ = model.state()
-        _check_state(q, v, 0, 0.0, blow_up_limit, 0, "the initial state")
-        s_prev = request(0, 0.0, q[wet], v[wet], timeout=(
-            control.join_timeout + getattr(connection, "timeout", 30.0)) if control else None)
-        if feedback and n:
-            init_iterations = consistent_start(total(s_prev))
-        else:
-            model.set_force(total(s_prev))
-            model.initialize()
-        q, v, a = model.state()  # initial accelerations from F(0)
-        write(0.0, q, v, *s_prev)
-        s_old = s_prev                       # the sample one exchange before s_prev (explicit)
-        u_hist: list[np.ndarray] = []        # implicit: converged interface loads (kx, 6N)
-        aitken = Aitken(1.0 / (1.0 + ratio))
-        scale = 1e-300
-        for e in range(n_ex):
-            t_e = e * big_h
-            if scheme in ("mass-matrix", "explicit-predictor"):
-                qw, vw, aw = q[wet], v[wet], a[wet]
-                meas = None
-                if control is not None and control.is_sample(step):
-                    meas = control.measurements(step, q[bodies].reshape(nb, 6), v[bodies].reshape(nb, 6),
-                                                last["sample"])
-                s_new = request(e + 1, (e + 1) * big_h, qw + big_h * vw + 0.5 * big_h * big_h * aw,
-                                vw + big_h * aw, meas)
-                if control is not None:
-                    control.apply(last["decisions"])
-                for j in range(1, kx + 1):
-                    step, t_prev, t = e * kx + j, t_e + (j - 1) * h, t_e + j * h
-                    s_j = between_samples(s_prev, s_new, j, False)
-                    model.set_force(total(s_j) - a_fb @ a[wet] if feedback else total(s_j))
-                    model.advance(t_prev, t)
-                    q, v, a = model.state()
-                    check(q, v, step, t)
-                    if feedback:
-                        added_mass_watch(a[wet], step, t)
-                    write(t, q, v, *s_j)
-                    bar.update(1)
-                s_prev = s_new
-            elif scheme == "explicit":
-                for j in range(1, kx + 1):
-                    step, t_prev, t = e * kx + j, t_e + (j - 1) * h, t_e + j * h
-                    s_j = between_samples(s_old, s_prev, j, True)
-                    model.set_force(total(s_j) - a_fb @ a[wet])
-                    model.advance(t_prev, t)
-                    q, v, a = model.state()
-                    check(q, v, step, t)
-                    added_mass_watch(a[wet], step, t)
-                    write(t, q, v, *s_j)
-                    bar.update(1)
-                if e + 1 < n_ex:
-                    s_old, s_prev = s_prev, request(e + 1, (e + 1) * big_h, q[wet], v[wet])
-            else:   # implicit
-                saved = model.save()
-                if len(u_hist) >= 2:
-                    u = 2 * u_hist[-1] - u_hist[-2]
-                elif u_hist:
-                    u = u_hist[-1].copy()
-                else:
-                    u = np.tile(total(s_prev) - a_fb @ a[wet], (kx, 1))
-                aitken.restart()
-                for it in range(cpl.max_iterations):
-                    if it:
-                        model.restore(saved)
-                    acc, snaps = np.zeros_like(u), []
-                    for j in range(1, kx + 1):
-                        step, t_prev, t = e * kx + j, t_e + (j - 1) * h, t_e + j * h
-                        model.set_force(u[j - 1])
-                        model.advance(t_prev, t)
-                        q, v, a = model.state()
-                        check(q, v, step, t, f"the body state (implicit iteration {it})")
-                        acc[j - 1] = a[wet]
-                        snaps.append((t, q, v, outputs()))
-                    s_new = request(e + 1, (e + 1) * big_h, q[wet], v[wet], iteration=it)
-                    s_sub = [between_samples(s_prev, s_new, j, False) for j in range(1, kx + 1)]
-                    g = np.array([total(s) for s in s_sub]) - acc @ a_fb.T
-                    res = float(np.abs(g - u).max(initial=0.0))
-                    scale = max(scale, float(np.abs(g).max(initial=0.0)))
-                    if res <= cpl.tolerance * scale:
-                        break
-                    u = aitken.update(u.reshape(-1), g.reshape(-1)).reshape(u.shape)
-                else:
-                    raise CouplingError(
-                        f"the implicit coupling did not converge at step {step} (t = {t:.6g} s) within "
-                        f"{cpl.max_iterations} iterations (residual {res:.3g} N, tolerance "
-                        f"{cpl.tolerance:g} × {scale:.3g} N); raise coupling.max_iterations or "
-                        f"coupling.tolerance, or reduce simulation.dt; the {e * kx} rows before it are saved",
-                        step=step, time=t, rows=e * kx)
-                iterations.append(it + 1)
-                u_hist = [*u_hist[-1:], u]
-                for (tj, qj, vj, ex), s_j in zip(snaps, s_sub):
-                    write(tj, qj, vj, *s_j, extra=ex)
-                    bar.update(1)
-                s_prev = s_new
-    except KeyboardInterrupt:
-        bar.close()
-        writer.finish(f"interrupted: KeyboardInterrupt at step {step} (t = {t:.6g} s)")
-        raise KeyboardInterrupt(
-            f"run interrupted at step {step} (t = {t:.6g} s); {writer.rows_written} rows saved "
-            f"in {getattr(writer, 'path', 'the results file')}") from None
-    except SimulationDiverged as exc:
-        bar.close()
-        hint = _divergence_hint(scheme, ratio, kx, big_h)
-        if hint:
-            exc = SimulationDiverged(f"{exc}. {hint}", step=exc.step, time=exc.time, rows=exc.rows)
-        writer.finish(f"interrupted: {exc}")
-        raise exc from None
-    except RunInterrupted as exc:
-        bar.close()
-        writer.finish(f"interrupted: {exc}")
-        raise
-    except BaseException as exc:
-        bar.close()
-        writer.finish(f"interrupted: {type(exc).__name__} at step {step} (t = {t:.6g} s): {exc}")
-        raise
+        out = lockstep.run(loop, make_scheme(scheme, tolerance=cpl.tolerance, max_iterations=cpl.max_iterations,
+                                             ratio=ratio, n_exchanges=n_ex),
+                           n_ex, first_timeout=first_timeout,
+                           hint=lambda exc: _divergence_hint(scheme, ratio, kx, big_h))
     finally:
         model.finalize()
-    bar.close()
     controllers = control.finish() if control is not None else None
-    writer.finish("complete")
-    wall = _time.perf_counter() - wall0
-    steps = max(n_steps, 1)
-    its = np.asarray(iterations or [1])
     coupling = {"scheme": scheme, "exchange_every": kx, "between_exchanges": between,
                 "added_mass_ratio": coupling_ratio(scene, setup) if n else 0.0,
-                "iterations_mean": float(its.mean()), "iterations_max": int(its.max()),
-                "initial_iterations": init_iterations,
-                "iterations": np.asarray(iterations, int) if scheme == "implicit" else None}
-    return {"controllers": controllers, "steps": n_steps, "time": n_steps * h, "wall_time": wall, "rows": writer.rows_written,
-            "status": "complete", "mechanism_notes": (mech.warnings + mech.reductions) if mech else [],
-            "coupling": coupling, "warnings": warnings,
-            "client_us_per_step": (wall - t_server) / steps * 1e6,
-            "round_trip_us_per_step": t_server / steps * 1e6}
+                "iterations_mean": out.pop("iterations_mean"), "iterations_max": out.pop("iterations_max"),
+                "initial_iterations": out.pop("initial_iterations"),
+                "iterations": np.asarray(loop.iterations, int) if scheme == "implicit" else None}
+    return {**out, "controllers": controllers, "mechanism_notes": (mech.warnings + mech.reductions) if mech else [],
+            "coupling": coupling, "warnings": warnings}
 
 
 def _divergence_hint(scheme: str, ratio: float, kx: int, big_h: float) -> str:

@@ -34,17 +34,16 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from hydrolink.clients.coupling import Aitken, added_mass_ratio, rigid_body_mass_matrix
-from hydrolink.clients.exudyn_client import BLOW_UP_LIMIT, RunInterrupted, SimulationDiverged
+from hydrolink.clients import lockstep
+from hydrolink.clients.coupling import added_mass_ratio, rigid_body_mass_matrix
+from hydrolink.clients.coupling_schemes import Iterated, Predictor
+from hydrolink.clients.lockstep import BLOW_UP_LIMIT, DivergenceWatch, ForceLink, Lockstep, progress_bar
 from hydrolink.protocol.scene import DOF_NAMES, FMUClient, Scene, SceneError, resolve_path
+from hydrolink.protocol.setup import Setup
 
 COMPONENTS = ("excitation", "radiation", "hydrostatic")
 PORT_KINDS = ("force",) + COMPONENTS
 ZERO = 1e-9          # relative size below which a matrix entry counts as zero
-
-
-class CouplingError(RunInterrupted):
-    """The iterative coupling did not converge within the allowed iterations."""
 
 
 # ------------------------------------------------------------------------------------ the FMU
@@ -142,17 +141,16 @@ def _pairs(mapping: dict[str, str], body: int, key: str) -> list[tuple[int, int,
     return out
 
 
-def wire(fmu: FMUInstance, scene: Scene, setup: dict) -> Wiring:
+def wire(fmu: FMUInstance, scene: Scene, setup: Setup) -> Wiring:
     """Resolve the scene's variable mapping against the FMU and the server's setup."""
     client: FMUClient = scene.client
-    names = [str(b) for b in setup["bodies"]]
+    names = list(setup.bodies)
     n = len(names)
-    act_mask = np.asarray(setup["active"], bool).reshape(6 * n)
-    active = np.flatnonzero(act_mask)
+    active = np.flatnonzero(setup.active.reshape(6 * n))
     where = {int(k): i for i, k in enumerate(active)}
-    a_inf = np.asarray(setup.get("added_mass", setup["added_mass_inf"]), float).reshape(6 * n, 6 * n)  # A(w0) if "constant"
-    c_full = np.asarray(setup["hydrostatic_stiffness"], float).reshape(6 * n, 6 * n)
-    eq = np.asarray(setup["equilibrium_position"], float).reshape(n, 6)
+    a_inf = setup.added_mass        # A(w0) with radiation "constant"
+    c_full = setup.hydrostatic_stiffness
+    eq = setup.equilibrium_position
     by_name = {b.name: b for b in scene.bodies}
     labels = [f"{names[k // 6]}.{DOF_NAMES[k % 6]}" for k in active]
 
@@ -190,7 +188,7 @@ def wire(fmu: FMUInstance, scene: Scene, setup: dict) -> Wiring:
     c_rest = (c_full - c_pass)[sub]
     port_dof = np.array([p[1] for p in ports], int)
     net = np.zeros(6 * n)
-    net[2::6] = [float(f or 0.0) for f in (setup.get("net_buoyancy") or [0.0] * n)]
+    net[2::6] = setup.net_buoyancy
     for i, label in enumerate(labels):
         own = {kinds[j] for j in np.flatnonzero(port_dof == i)}
         needed = {"excitation", "radiation"} | ({"hydrostatic"} if np.any(c_rest[i]) or net[active[i]] else set())
@@ -239,163 +237,79 @@ def plan(wiring: Wiring, client: FMUClient, can_roll_back: bool, *, allow_unstab
 
 # ------------------------------------------------------------------------------------ the run
 
-def _progress_bar(total: int, enabled: bool):
-    from tqdm import tqdm
-    return tqdm(total=total, unit="step", desc="hydrolink run (fmu)", mininterval=0.5,
-                disable=not (enabled and sys.stderr.isatty()))
-
-
-def run(scene: Scene, scene_text: str, connection, setup: dict, writer, *,
+def run(scene: Scene, scene_text: str, connection, setup: Setup, writer, *,
         scene_path: str | Path = "scene.toml", progress: bool = True,
         blow_up_limit: float = BLOW_UP_LIMIT, record: Sequence[str] = (),
         allow_unstable: bool = False) -> dict:
     """Run the scene's FMU in lockstep with the server to ``scene.simulation.duration``.
 
-    Like :func:`hydrolink.clients.exudyn_client.run` (same results rows, same errors); ``record``
-    names further FMU real outputs whose values at every step are returned in
-    ``summary["recorded"]``; ``allow_unstable`` lets the explicit mode run beyond its limit (only
-    to demonstrate the instability). The summary adds mode, iterations per step (mean, max) and
-    per-step costs in µs (FMU calls, server round trips, the rest)."""
+    Like :func:`hydrolink.clients.exudyn_client.run` (same results rows, same errors, the same
+    driver: :mod:`hydrolink.clients.lockstep`); ``record`` names further FMU real outputs whose values
+    at every step are returned in ``summary["recorded"]``; ``allow_unstable`` lets the explicit mode
+    run beyond its limit (only to demonstrate the instability). The summary adds mode, iterations per
+    step (mean, max) and per-step costs in µs (FMU calls, server round trips, the rest)."""
     client: FMUClient = scene.client
     if not isinstance(client, FMUClient):
         raise SceneError("scene", "client.type", "the FMU master needs [client] type = \"fmu\"")
-    h = float(setup.get("dt", scene.simulation.dt))
+    h = setup.dt
     hc = client.communication_step or h
     n_sub = int(round(h / hc))
     if n_sub < 1 or abs(n_sub * hc - h) > 1e-9 * h:
         raise SceneError("scene", "client.communication_step",
                          f"must divide simulation.dt = {h:g} s into whole steps (got {hc:g} s)")
     with FMUInstance(resolve_path(scene_path, client.fmu)) as fmu:
-        return _Master(scene, client, fmu, connection, setup, writer, h, n_sub, progress,
-                       blow_up_limit, record, allow_unstable).run()
+        mb = FMUMultibody(scene, client, fmu, setup, writer, h, n_sub, record, allow_unstable)
+        try:
+            mb.initialize()
+            n_steps = int(round(scene.simulation.duration / h))
+            loop = Lockstep(mb, ForceLink(connection, setup, writer), writer, DivergenceWatch(blow_up_limit),
+                            bar=progress_bar(n_steps, progress and scene.simulation.progress, "hydrolink run (fmu)"))
+            cpl = client.coupling
+            scheme = {"parameters": Predictor(feedback=False), "explicit": Predictor(feedback=True),
+                      "iterative": Iterated(cpl.tolerance, cpl.max_iterations, 1.0 / (1.0 + mb.plan.ratio))
+                      }[mb.plan.mode]
+            out = lockstep.run(loop, scheme, n_steps, hint=lambda exc: f"(coupling mode {mb.plan.mode})")
+        finally:
+            mb.close()
+    steps = max(out["steps"], 1)
+    its = np.asarray(loop.iterations or [1] * out["steps"] or [0])
+    return {**out, "client": "fmu", "fmi_version": fmu.fmi_version,
+            "mode": mb.plan.mode, "mode_reason": mb.plan.reason, "added_mass_ratio": mb.plan.ratio,
+            "iterations_mean": float(its.mean()), "iterations_max": int(its.max()), "iterations": its,
+            "fmu_us_per_step": mb.t_fmu / steps * 1e6,
+            "recorded": {name: np.array([r[i] for r in mb.recorded]) for i, name in enumerate(mb.record)}}
 
 
-class _Master:
-    """One run's state; ``run`` is the loop (kept apart from the setup for readability)."""
+class FMUMultibody:
+    """The FMU as the lockstep driver's multibody code (:class:`~hydrolink.clients.lockstep.Multibody`).
 
-    def __init__(self, scene, client, fmu, connection, setup, writer, h, n_sub, progress,
-                 blow_up_limit, record, allow_unstable):
-        self.scene, self.client, self.fmu, self.conn, self.writer = scene, client, fmu, connection, writer
-        self.h, self.n_sub, self.progress, self.limit = h, n_sub, progress, blow_up_limit
-        n = len(setup["bodies"])
-        self.n = n
-        self.eq = np.asarray(setup["equilibrium_position"], float).reshape(6 * n)
+    Its inputs are the FMU's force ports, held over the step at the step average ½(F(t_k) + F(t_k+1))
+    (the trapezoidal rule), component by component, with the A∞ it does not take as parameters fed
+    back as −A·ā (ā the step's mean acceleration) and the stiffness it applies itself removed."""
+
+    label = "the FMU state"
+    substeps = 1
+
+    def __init__(self, scene, client, fmu, setup, writer, h, n_sub, record, allow_unstable):
+        self.scene, self.client, self.fmu, self.writer = scene, client, fmu, writer
+        self.h, self.n_sub = h, n_sub
+        n = self.n = setup.n
+        self.eq = setup.equilibrium_position.reshape(6 * n)
         self.w = wire(fmu, scene, setup)
         self.plan = plan(self.w, client, fmu.slave.can_rollback, allow_unstable=allow_unstable)
         self.record_vrs = [fmu.variable(r, f"record[{r}]", ("output", "local")).valueReference for r in record]
         self.record = list(record)
         self.absolute = client.positions == "absolute"
         self.out_vrs = self.w.position_vrs + self.w.velocity_vrs + self.record_vrs
-        self.t_server = self.t_fmu = 0.0
-        self.iterations: list[int] = []
+        self.t_fmu = 0.0
+        self.recorded: list[np.ndarray] = []
+        self._saved = None
+        self._pos, self._vel = self.eq.copy(), np.zeros(6 * n)      # scratch: active DOFs scattered to 6N
+        self._x = self._v = self._rec = self._abar = None
 
-    # -- FMU and server calls ---------------------------------------------------------------
-    def _read(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        t0 = _time.perf_counter()
-        out = np.asarray(self.fmu.slave.get_real(self.out_vrs), float)
-        self.t_fmu += _time.perf_counter() - t0
-        na = len(self.w.active)
-        x, v = out[:na], out[na:2 * na]
-        if self.absolute:
-            x = x - self.eq[self.w.active]
-        return x, v, out[2 * na:]
-
-    def _advance(self, t: float, u: np.ndarray) -> None:
-        t0 = _time.perf_counter()
-        slave, hc = self.fmu.slave, self.h / self.n_sub
-        slave.set_real(self.w.port_vrs, u.tolist())
-        for s in range(self.n_sub):
-            slave.do_step(t + s * hc, hc, may_roll_back=self.plan.mode == "iterative")
-        self.t_fmu += _time.perf_counter() - t0
-
-    def _server(self, k: int, x: np.ndarray, v: np.ndarray, iteration: int = 0) -> dict[str, np.ndarray]:
-        pos, vel = self.eq.copy(), np.zeros(6 * self.n)
-        pos[self.w.active] += x
-        vel[self.w.active] = v
-        t0 = _time.perf_counter()
-        try:
-            reply = self.conn.step(k, k * self.h, pos.reshape(self.n, 6), vel.reshape(self.n, 6),
-                                   iteration=iteration)
-        except (KeyboardInterrupt, SimulationDiverged):
-            raise
-        except Exception as exc:
-            raise RunInterrupted(f"force server error at step {k} (t = {k * self.h:.6g} s): {exc}; the "
-                                 f"{k} rows before it are saved in {getattr(self.writer, 'path', 'the results file')}",
-                                 step=k, time=k * self.h, rows=k) from exc
-        self.t_server += _time.perf_counter() - t0
-        f = {c: np.asarray(reply[c], float).reshape(-1) for c in COMPONENTS}
-        f["eta"] = float(np.asarray(reply["wave_elevation"], float).reshape(-1)[0])
-        if not all(np.isfinite(f[c]).all() for c in COMPONENTS):
-            raise SimulationDiverged(f"the force server returned non-finite forces at step {k}",
-                                     step=k, time=k * self.h, rows=k)
-        return f
-
-    # -- interface forces -------------------------------------------------------------------
-    def _inputs(self, f0: dict, f1: dict, x0: np.ndarray, x1: np.ndarray, abar: np.ndarray) -> np.ndarray:
-        """FMU inputs over the step: component averages, A_rest·ā and the passed stiffness removed."""
-        a = self.w.active
-        exc = 0.5 * (f0["excitation"][a] + f1["excitation"][a])
-        rad = 0.5 * (f0["radiation"][a] + f1["radiation"][a]) - self.w.a_rest @ abar
-        hs = (0.5 * (f0["hydrostatic"][a] + f1["hydrostatic"][a]) + self.w.c_passed @ (0.5 * (x0 + x1))
-              + self.w.net_buoyancy)
-        parts = {"excitation": exc, "radiation": rad, "hydrostatic": hs, "force": exc + rad + hs}
-        return np.array([parts[kind][i] for kind, i in zip(self.w.port_kind, self.w.port_dof)])
-
-    def _check(self, x: np.ndarray, v: np.ndarray, k: int) -> None:
-        big = max(float(np.abs(x).max(initial=0.0)), float(np.abs(v).max(initial=0.0)))
-        if not big < self.limit:
-            raise SimulationDiverged(
-                f"simulation diverged at step {k} (t = {k * self.h:.6g} s): the FMU state is "
-                f"{'absurdly large' if math.isfinite(big) else 'non-finite'} (max |x|, |v| = {big:.3g}); "
-                f"the {k} rows before it are saved (coupling mode {self.plan.mode})",
-                step=k, time=k * self.h, rows=k)
-
-    def _write(self, k: int, x: np.ndarray, v: np.ndarray, f: dict) -> None:
-        pos, vel = self.eq.copy(), np.zeros(6 * self.n)
-        pos[self.w.active] += x
-        vel[self.w.active] = v
-        shape = (self.n, 6)
-        self.writer.append(k * self.h, pos.reshape(shape), vel.reshape(shape),
-                           f["excitation"].reshape(shape), f["radiation"].reshape(shape),
-                           f["hydrostatic"].reshape(shape), f["eta"])
-
-    # -- one step ---------------------------------------------------------------------------
-    def _predicted_step(self, k, x0, v0, f0, abar_prev):
-        """Parameters / explicit: F(t_k+1) at the predicted state, one FMU pass."""
-        h = self.h
-        xp = x0 + h * v0 + 0.5 * h * h * abar_prev
-        f1 = self._server(k + 1, xp, v0 + h * abar_prev)
-        u = self._inputs(f0, f1, x0, xp, abar_prev)
-        self._advance(k * h, u)
-        x1, v1, rec = self._read()
-        return x1, v1, rec, f1, u, 1
-
-    def _iterated_step(self, k, x0, v0, f0, u0, aitken, scale):
-        """Iterative: fixed point on the FMU inputs, rolled back and relaxed (Aitken) each pass."""
-        slave, h, tol = self.fmu.slave, self.h, self.client.coupling.tolerance
-        self._saved = slave.save_state(getattr(self, "_saved", None))
-        aitken.restart()
-        u = u0
-        for it in range(self.client.coupling.max_iterations):
-            if it:
-                slave.restore_state(self._saved)
-            self._advance(k * h, u)
-            x1, v1, rec = self._read()
-            f1 = self._server(k + 1, x1, v1, iteration=it)
-            g = self._inputs(f0, f1, x0, x1, (v1 - v0) / h)
-            res = float(np.abs(g - u).max(initial=0.0))
-            scale = max(scale, float(np.abs(g).max(initial=0.0)))
-            if res <= tol * scale:
-                return x1, v1, rec, f1, u, it + 1, scale
-            u = aitken.update(u, g)
-        raise CouplingError(
-            f"the iterative coupling did not converge at step {k + 1} (t = {(k + 1) * h:.6g} s) within "
-            f"{it + 1} iterations (residual {res:.3g} N, tolerance {tol:g} × {scale:.3g} N); raise "
-            f"client.coupling.max_iterations or tolerance, or reduce dt", step=k + 1, time=(k + 1) * h, rows=k + 1)
-
-    # -- the loop ---------------------------------------------------------------------------
-    def run(self) -> dict:
-        slave, h = self.fmu.slave, self.h
+    def initialize(self) -> None:
+        """Parameters (A∞/stiffness mappings and [client.parameters]) in, initialisation, first read."""
+        slave = self.fmu.slave
         for var, value, key in self.w.parameters:
             slave.set_value(var, value)
         for name, value in self.client.parameters.items():
@@ -405,67 +319,91 @@ class _Master:
                                  f"the FMU {self.fmu.path.name} has no parameter {name!r}")
             slave.set_value(var, value)
         slave.initialize()
-        n_steps = int(round(self.scene.simulation.duration / h))
-        bar = _progress_bar(n_steps, self.progress and self.scene.simulation.progress)
-        wall0 = _time.perf_counter()
-        k = 0
-        recorded = []
-        try:
-            x, v, rec = self._read()
-            self._check_initial(x, v)
-            f = self._server(0, x, v)
-            self._write(0, x, v, f)
-            recorded.append(rec)
-            abar = np.zeros_like(v)
-            u_hist: list[np.ndarray] = []
-            aitken = Aitken(1.0 / (1.0 + self.plan.ratio))
-            scale = 1e-300
-            for k in range(n_steps):
-                if self.plan.mode == "iterative":
-                    u0 = (2 * u_hist[-1] - u_hist[-2]) if len(u_hist) >= 2 else (
-                        u_hist[-1] if u_hist else self._inputs(f, f, x, x, abar))
-                    x1, v1, rec, f1, u, its, scale = self._iterated_step(k, x, v, f, u0, aitken, scale)
-                    u_hist = [*u_hist[-1:], u]
-                else:
-                    x1, v1, rec, f1, u, its = self._predicted_step(k, x, v, f, abar)
-                self.iterations.append(its)
-                self._check(x1, v1, k + 1)
-                abar = (v1 - v) / h
-                x, v, f = x1, v1, f1
-                self._write(k + 1, x, v, f)
-                recorded.append(rec)
-                bar.update(1)
-        except KeyboardInterrupt:
-            bar.close()
-            self.writer.finish(f"interrupted: KeyboardInterrupt at step {k} (t = {k * h:.6g} s)")
-            raise KeyboardInterrupt(f"run interrupted at step {k} (t = {k * h:.6g} s); "
-                                    f"{self.writer.rows_written} rows saved") from None
-        except RunInterrupted as exc:
-            bar.close()
-            self.writer.finish(f"interrupted: {exc}")
-            raise
-        except BaseException as exc:
-            bar.close()
-            self.writer.finish(f"interrupted: {type(exc).__name__} at step {k} (t = {k * h:.6g} s): {exc}")
-            raise
-        finally:
-            if getattr(self, "_saved", None) is not None:
-                slave.free_state(self._saved)
-                self._saved = None
-        bar.close()
-        self.writer.finish("complete")
-        wall = _time.perf_counter() - wall0
-        steps = max(n_steps, 1)
-        its = np.asarray(self.iterations or [0])
-        return {"steps": n_steps, "time": n_steps * h, "wall_time": wall, "rows": self.writer.rows_written,
-                "status": "complete", "client": "fmu", "fmi_version": self.fmu.fmi_version,
-                "mode": self.plan.mode, "mode_reason": self.plan.reason, "added_mass_ratio": self.plan.ratio,
-                "iterations_mean": float(its.mean()), "iterations_max": int(its.max()),
-                "iterations": its,
-                "client_us_per_step": (wall - self.t_server) / steps * 1e6,
-                "fmu_us_per_step": self.t_fmu / steps * 1e6,
-                "round_trip_us_per_step": self.t_server / steps * 1e6,
-                "recorded": {name: np.array([r[i] for r in recorded]) for i, name in enumerate(self.record)}}
+        self._read()
+        self._abar = np.zeros_like(self._v)
+        self._check_initial(self._x, self._v)
+
+    def close(self) -> None:
+        if self._saved is not None:
+            self.fmu.slave.free_state(self._saved)
+            self._saved = None
+
+    def _read(self) -> None:
+        t0 = _time.perf_counter()
+        out = np.asarray(self.fmu.slave.get_real(self.out_vrs), float)
+        self.t_fmu += _time.perf_counter() - t0
+        na = len(self.w.active)
+        x, v = out[:na], out[na:2 * na]
+        self._x = x - self.eq[self.w.active] if self.absolute else x
+        self._v, self._rec = v, out[2 * na:]
+
+    def _scatter(self, x: np.ndarray, out: np.ndarray) -> np.ndarray:
+        out[:] = 0.0
+        out[self.w.active] = x
+        return out
+
+    # -- the driver's interface -------------------------------------------------------------
+    def begin(self, s0, feedback: bool) -> int:
+        return 0
+
+    def state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """6N displacement and velocity, and the mean acceleration of the last step (active DOFs
+        scattered; the acceleration stays over the active DOFs, as the feedback matrix)."""
+        return self._scatter(self._x, np.zeros(6 * self.n)), self._scatter(self._v, np.zeros(6 * self.n)), \
+            self._scatter(self._abar, np.zeros(6 * self.n))
+
+    def extent(self, limit: float) -> float:
+        return max(float(np.abs(self._x).max(initial=0.0)), float(np.abs(self._v).max(initial=0.0)))
+
+    def inputs(self, s0, s1, acc, x0, x1) -> np.ndarray:
+        """FMU inputs over the step: component averages, A_rest·ā and the passed stiffness removed."""
+        a = self.w.active
+        exc = 0.5 * (s0.excitation[a] + s1.excitation[a])
+        rad = 0.5 * (s0.radiation[a] + s1.radiation[a])
+        if acc is not None:
+            rad = rad - self.w.a_rest @ acc[a]
+        hs = (0.5 * (s0.hydrostatic[a] + s1.hydrostatic[a]) + self.w.c_passed @ (0.5 * (x0[a] + x1[a]))
+              + self.w.net_buoyancy)
+        parts = {"excitation": exc, "radiation": rad, "hydrostatic": hs, "force": exc + rad + hs}
+        return np.array([parts[kind][i] for kind, i in zip(self.w.port_kind, self.w.port_dof)])
+
+    def advance(self, t0: float, t1: float, u: np.ndarray) -> None:
+        t_start = _time.perf_counter()
+        slave, hc = self.fmu.slave, self.h / self.n_sub
+        slave.set_real(self.w.port_vrs, u.tolist())
+        for s in range(self.n_sub):
+            slave.do_step(t0 + s * hc, hc, may_roll_back=self.plan.mode == "iterative")
+        self.t_fmu += _time.perf_counter() - t_start
+        v0 = self._v
+        self._read()
+        self._abar = (self._v - v0) / self.h
+
+    def save(self):
+        self._saved = self.fmu.slave.save_state(self._saved)
+        return self._x, self._v, self._rec, self._abar
+
+    def restore(self, saved) -> None:
+        self.fmu.slave.restore_state(self._saved)
+        self._x, self._v, self._rec, self._abar = saved
+
+    def snapshot(self):
+        return self._x, self._v, self._rec
+
+    def write(self, t: float, s, snap) -> None:
+        x, v, rec = snap
+        shape = (self.n, 6)
+        pos = self.eq.copy()
+        pos[self.w.active] += x
+        self.writer.append(t, pos.reshape(shape), self._scatter(v, np.zeros(6 * self.n)).reshape(shape),
+                           s.excitation.reshape(shape), s.radiation.reshape(shape), s.hydrostatic.reshape(shape),
+                           s.eta)
+        self.recorded.append(rec)
+
+    def measurements(self, step: int) -> None:
+        return None
+
+    def apply_control(self, decisions) -> None:
+        pass
 
     def _check_initial(self, x: np.ndarray, v: np.ndarray) -> None:
         """The FMU's initial state must be the scene's (the scene cannot set FMU states)."""

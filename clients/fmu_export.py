@@ -43,11 +43,10 @@ def export_fmu(scene_path: str | Path, output: str | Path, *, progress: bool = T
     finally:
         srv.stop()
         thread.join(5.0)
-    names = [str(b) for b in setup["bodies"]]
-    n = len(names)
-    active = np.flatnonzero(np.asarray(setup["active"], bool).reshape(6 * n))
-    dofs = [str(d) for d in setup["dofs"]]
-    a_inf = np.asarray(setup["added_mass_inf"], float).reshape(6 * n, 6 * n)[np.ix_(active, active)]
+    names, dofs, n = setup.bodies, setup.dofs, setup.n
+    active = np.flatnonzero(setup.active.reshape(6 * n))
+    # what the importer puts in its mass matrix: A∞, or A(ω0) with [hydro] radiation = "constant"
+    added_mass = setup.added_mass[np.ix_(active, active)]
     notes = [f"[{k}] is not in the FMU: the importer models the mechanism" for k in MECHANISM_KEYS
              if getattr(scene, k)]
     with tempfile.TemporaryDirectory(prefix="hydrolink-export-") as tmp:
@@ -57,12 +56,11 @@ def export_fmu(scene_path: str | Path, output: str | Path, *, progress: bool = T
             files[key] = f"hdb_{i}.nc"
             to_netcdf(ds, work / files[key])
         config = {
-            "model_name": "hydrolink_forces", "scene": text, "hdbs": files, "dt": float(setup["dt"]),
+            "model_name": "hydrolink_forces", "scene": text, "hdbs": files, "dt": setup.dt,
             "n_bodies": n, "labels": [f"{names[k // 6]}.{dofs[k % 6]}" for k in active],
-            "flat": active.tolist(), "equilibrium": np.asarray(setup["equilibrium_position"], float).tolist(),
-            "added_mass_inf": a_inf.tolist(),
-            "net_buoyancy": [float((setup.get("net_buoyancy") or [0.0] * n)[k // 6] or 0.0) if k % 6 == 2 else 0.0
-                             for k in active],
+            "flat": active.tolist(), "equilibrium": setup.equilibrium_position.tolist(),
+            "added_mass": added_mass.tolist(),
+            "net_buoyancy": [float(setup.net_buoyancy[k // 6]) if k % 6 == 2 else 0.0 for k in active],
         }
         (work / "hydrolink_fmu.json").write_text(json.dumps(config))
         script = work / "hydrolink_forces.py"

@@ -52,7 +52,7 @@ class HydrolinkForces(Fmi2Slave):
                                       variability=Fmi2Variability.fixed))
         self.register_variable(Real("timeout", causality=Fmi2Causality.parameter,
                                     variability=Fmi2Variability.fixed))
-        a_inf = np.asarray(cfg["added_mass_inf"], float)
+        a_inf = np.asarray(cfg["added_mass"], float)      # for the importer's mass matrix (SPEC §5.1)
         for i, a in enumerate(self._labels):
             for j, b in enumerate(self._labels):
                 self.register_variable(Real(f"A_inf.{a}.{b}", causality=Fmi2Causality.output,
@@ -82,8 +82,8 @@ class HydrolinkForces(Fmi2Slave):
         self._conn = ServerConnection(address, timeout=float(self.timeout), client_name="hydrolink-fmu")
         hdbs = {key: load_hdb(self._res / name) for key, name in self._cfg["hdbs"].items()}
         setup = self._conn.hello(self._cfg["scene"], hdbs)
-        if abs(float(setup["dt"]) - self._dt) > 1e-12 * self._dt:
-            raise RuntimeError(f"the server's dt {setup['dt']} differs from the exported {self._dt}")
+        if abs(setup.dt - self._dt) > 1e-12 * self._dt:
+            raise RuntimeError(f"the server's dt {setup.dt} differs from the exported {self._dt}")
 
     def _evaluate(self) -> None:
         """Make sure the server has this step's sample for the current inputs."""

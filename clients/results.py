@@ -34,6 +34,8 @@ from typing import Any
 import numpy as np
 import netCDF4
 
+from hydrolink.protocol.setup import Setup
+
 DOF_NAMES: tuple[str, ...] = ("surge", "sway", "heave", "roll", "pitch", "yaw")
 
 _TRANSLATION_ROTATION = "(surge, sway, heave); {rot} (roll, pitch, yaw)"
@@ -68,14 +70,18 @@ class ResultWriter:
     """Append-only results file; use as a context manager (an exception marks it interrupted)."""
 
     def __init__(self, path: str | Path, *, scene: Any = None, scene_text: str = "",
-                 setup: dict | None = None, bodies: list[str] | None = None,
-                 equilibrium_position: np.ndarray | None = None,
+                 setup: Setup | None = None, bodies: list[str] | None = None,
+                 equilibrium_position: np.ndarray | None = None, dt: float | None = None,
                  flush_seconds: float = 1.0, flush_rows: int = 2000):
-        setup = setup or {}
-        bodies = list(bodies if bodies is not None else
-                      setup.get("bodies") or [b.name for b in scene.bodies])
-        eq = np.asarray(equilibrium_position if equilibrium_position is not None
-                        else setup.get("equilibrium_position", np.zeros((len(bodies), 6))), float)
+        """``bodies``/``equilibrium_position`` default to the setup's wet bodies (else the scene's
+        bodies at the origin); ``dt`` (the row spacing, an attribute) to the setup's."""
+        if bodies is None:
+            bodies = list(setup.bodies) if setup else [b.name for b in scene.bodies]
+        if equilibrium_position is None:
+            equilibrium_position = setup.equilibrium_position if setup else np.zeros((len(bodies), 6))
+        if dt is None and setup:
+            dt = setup.dt
+        eq = np.asarray(equilibrium_position, float)
         if eq.shape != (len(bodies), 6):
             raise ValueError(f"equilibrium_position must have shape ({len(bodies)}, 6), got {eq.shape}")
         self.path = Path(path)
@@ -95,13 +101,13 @@ class ResultWriter:
         self._last_flush = _time.monotonic()
         self._ds = netCDF4.Dataset(self.path, "w", format="NETCDF4")
         try:
-            self._create(bodies, eq, scene_text, setup)
+            self._create(bodies, eq, scene_text, dt)
         except BaseException:
             self._ds.close()
             raise
 
     # -- layout ------------------------------------------------------------------------------
-    def _create(self, bodies: list[str], eq: np.ndarray, scene_text: str, setup: dict) -> None:
+    def _create(self, bodies: list[str], eq: np.ndarray, scene_text: str, dt: float | None) -> None:
         ds, n = self._ds, len(bodies)
         ds.createDimension("time", None)
         ds.createDimension("body", n)
@@ -134,8 +140,8 @@ class ResultWriter:
             "dof_convention": "positions absolute (reference point xyz + small rotation angles); "
                               "forces act at the reference point",
         }
-        if "dt" in setup:
-            attrs["dt"] = float(setup["dt"])
+        if dt is not None:
+            attrs["dt"] = float(dt)
         attrs.update({f"{k}_version": v for k, v in package_versions().items()})
         ds.setncatts(attrs)
         ds.sync()
@@ -218,6 +224,11 @@ class ResultWriter:
             self._ds.setncattr(name, value)
 
     # -- end ---------------------------------------------------------------------------------
+    @property
+    def rows(self) -> int:
+        """Rows appended so far (written or still buffered; all are saved by :meth:`finish`)."""
+        return self.rows_written + self._buffered
+
     def finish(self, status: str) -> None:
         """Flush everything and record the final status ("complete" or "interrupted: ...")."""
         self.status = status

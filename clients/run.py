@@ -83,7 +83,7 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
         # no hydrodynamics: the mechanism runs alone, without a force server
         setup = None
         names, reference = result_bodies(scene, None)
-        with ResultWriter(output, scene=scene, scene_text=text, setup={"dt": scene.simulation.dt},
+        with ResultWriter(output, scene=scene, scene_text=text, dt=scene.simulation.dt,
                           bodies=names, equilibrium_position=reference) as writer:
             summary = run(scene, text, None, None, writer, progress=progress)
         summary["output"], summary["server"] = str(output), None
@@ -132,6 +132,5 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
         summary["server_compute_us_per_step"] = 1e6 * goodbye["compute_s"] / goodbye["steps"]
     if setup:  # radiation option and coupling pruning ([hydro] radiation, coupling_tolerance)
         for key in ("radiation", "radiation_pairs", "dropped_pair_fraction", "dropped_block_fraction"):
-            if key in setup:
-                summary[key] = setup[key]
+            summary[key] = getattr(setup, key)
     return summary

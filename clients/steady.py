@@ -63,6 +63,7 @@ from pathlib import Path
 import numpy as np
 
 from hydrolink.protocol.scene import DOF_NAMES, LinearMooring, LinearPTO, RegularWave, RopeMooring, Scene
+from hydrolink.protocol.setup import Setup
 
 TIME_DOMAIN_NOTE = "steady state by pseudo-spectral collocation (hydrolink steady)"
 
@@ -165,7 +166,7 @@ def _load_stiffness(r: np.ndarray, f: np.ndarray) -> np.ndarray:
     return -(np.outer(r, f) - float(f @ r) * np.eye(3))
 
 
-def linearize(scene: Scene, model, setup: dict) -> LinearizedSystem:
+def linearize(scene: Scene, model, setup: Setup) -> LinearizedSystem:
     """Assemble the linearised system of ``scene`` (see the module docstring) from the Exudyn client's
     model (built as for ``hydrolink run``, PTOs left out) and the server model ``model``."""
     import exudyn as exu
@@ -260,17 +261,15 @@ def linearize(scene: Scene, model, setup: dict) -> LinearizedSystem:
     omega = float(w[0])
     exc = np.zeros(n, complex)
     exc[ex.wet_index] = x_c[0]
-    info = setup
     return LinearizedSystem(
         omega=omega, M=M, K=K, D=D, G=G, f0=f0, wet_index=ex.wet_index, body_index=ex.body_index,
         excitation=exc, elevation=complex(e_c[0]),
-        added_mass_inf=np.asarray(info["added_mass_inf"], float),
-        hydrostatic=np.asarray(info["hydrostatic_stiffness"], float),
+        added_mass_inf=setup.added_mass_inf, hydrostatic=setup.hydrostatic_stiffness,
         radiation=(convolution_radiation(model, scene) if scene.steady.radiation == "convolution"
                    else model.radiation_coefficients), ptos=ptos, moorings=moorings,
         body_names=list(ex.body_names), reference=ex.body_reference,
         setup_seconds=_time.perf_counter() - t0, memory=scene.hydro.radiation != "off",
-        wet_names=[str(b) for b in setup["bodies"]])
+        wet_names=list(setup.bodies))
 
 
 def convolution_radiation(model, scene: Scene):
@@ -515,7 +514,7 @@ def sample(sol: SteadySolution, times: np.ndarray) -> dict[str, np.ndarray]:
     return out
 
 
-def write_results(path: str | Path, sol: SteadySolution, scene: Scene, scene_text: str, setup: dict,
+def write_results(path: str | Path, sol: SteadySolution, scene: Scene, scene_text: str, setup: Setup,
                   dt: float) -> int:
     """One period [0, T) sampled every ``dt`` into ``path`` (clients/results.py's layout); returns
     the number of rows. Extra attributes: steady_order, steady_formulation, steady_iterations,
@@ -529,7 +528,7 @@ def write_results(path: str | Path, sol: SteadySolution, scene: Scene, scene_tex
     period = 2 * np.pi / s.omega
     times = np.arange(int(math.ceil(period / dt - 1e-9))) * dt
     data = sample(sol, times)
-    with ResultWriter(path, scene=scene, scene_text=scene_text, setup={**setup, "dt": dt},
+    with ResultWriter(path, scene=scene, scene_text=scene_text, setup=setup, dt=dt,
                       bodies=s.body_names, equilibrium_position=s.reference) as writer:
         _add_pto_mooring_variables(writer, _Names(s.pto_names) if s.ptos else None,
                                    _Names(s.mooring_names) if s.moorings else None)

@@ -21,6 +21,7 @@ import numpy as np
 import xarray as xr
 
 from hydrolink.protocol.scene import Scene
+from hydrolink.protocol.setup import IRFProcessing, Setup, StateSpaceReport
 from hydrolink.server.hdb.schema import DOF_NAMES, HDBError, select_bodies
 from hydrolink.server.hydrostatics import total_stiffness
 from hydrolink.server.irf import (aliasing_time, asymptotic_tail, irf_report, irf_transfer, ogilvie_added_mass_inf,
@@ -448,58 +449,43 @@ class HydroModel:
                     out[k] = float(rho * g * v - masses[k] * g)
         return out
 
-    def setup_info(self) -> dict:
-        """What the client needs to build its side (matrices in the 6N body-major DOF order, over the
-        wet bodies only).
-
-        ``interaction``: the scene's "full" | "none"; ``hydro_groups``: lists of bodies that interact
-        hydrodynamically; ``coupled_blocks``: number of off-diagonal body-pair blocks (i, j), i != j,
-        in use (ordered pairs: 2 for two interacting bodies); ``radiation_kernel_entries``: DOF
-        pairs in the radiation convolution (sum over groups of active DOFs squared)."""
-        return {
-            "bodies": list(self.bodies),
-            "interaction": self.interaction,
-            "hydro_groups": [list(g) for g in self.groups],
-            "coupled_blocks": self.coupled_blocks,
-            "radiation_kernel_entries": self._kernel_entries,
-            "dofs": list(DOF_NAMES),
-            "active": self.active.copy(),
-            "added_mass_inf": self.added_mass_inf.copy(),
-            "added_mass_inf_source": dict(self._a_inf_source),
-            "hydrostatic_stiffness": self.hydrostatic_stiffness.copy(),
-            "equilibrium_position": self.equilibrium_position.copy(),
-            "dt": self.dt,
-            "irf_samples": self.irf_samples,
-            "irf_duration": self.irf_samples * self.dt,
-            "irf_fit_error": dict(self._irf_fit),
-            "wave_components": self.waves.size,
-            "wave_energy_outside_hdb": self.waves.energy_outside,
-            "ramp": float(self.waves.ramp),
-            "net_buoyancy": list(self._net_buoyancy),
-            "warnings": list(self.warnings),
-            # radiation options (scene [hydro]; docs/radiation.md)
-            "radiation": self.radiation,
-            "added_mass": self.added_mass_client.copy(),
-            "radiation_frequency": self.radiation_frequency,
-            "irf_added_mass_error": dict(self._irf_a_fit),
-            "irf_processing": {"domega": self.scene.hydro.irf_domega, "taper": self.scene.hydro.irf_taper,
-                               "tail": self.scene.hydro.irf_tail, "tail_exponent": dict(self._tail_exponent)},
-            "coupling_tolerance": float(self.scene.hydro.coupling_tolerance),
-            "radiation_pairs": self._pairs["kept"],
-            "dropped_pair_fraction": (1.0 - self._pairs["kept"] / self._pairs["total"]) if self._pairs["total"] else 0.0,
-            "dropped_blocks": self._pairs["blocks_dropped"],
-            "dropped_block_fraction": (self._pairs["blocks_dropped"] / self._pairs["blocks_total"]
-                                       if self._pairs["blocks_total"] else 0.0),
-            "state_space": dict(self._ss) if self.radiation == "state-space" else None,
-            # excitation options ([waves] excitation / type = "elevation", spreading; server/waves.py)
-            "excitation": self.excitation,
-            "excitation_irf_duration": (float(self.scene.waves.excitation_irf_duration)
-                                        if self.excitation == "convolution" else 0.0),
-            "excitation_irf_error": self._exc_fit,
-            "wave_headings": np.rad2deg(self._headings).tolist() if self.waves.kind != "still" else [],
-            "elevation_resampled": bool(self.elevation_series.resampled) if self.elevation_series else False,
-            "elevation_start": float(self.elevation_series.start) if self.elevation_series else 0.0,
-        }
+    def setup_info(self) -> Setup:
+        """What the client needs to build its side (SPEC §5.1, :class:`~hydrolink.protocol.setup.Setup`):
+        matrices in the 6N body-major DOF order over the wet bodies only."""
+        hyd = self.scene.hydro
+        pairs = self._pairs
+        return Setup(
+            bodies=tuple(self.bodies), dofs=tuple(DOF_NAMES), active=self.active.copy(),
+            added_mass=self.added_mass_client.copy(), added_mass_inf=self.added_mass_inf.copy(),
+            added_mass_inf_source=dict(self._a_inf_source),
+            hydrostatic_stiffness=self.hydrostatic_stiffness.copy(),
+            equilibrium_position=self.equilibrium_position.copy(),
+            net_buoyancy=np.array([0.0 if f is None else f for f in self._net_buoyancy], float),
+            dt=float(self.dt),
+            interaction=self.interaction, hydro_groups=tuple(tuple(g) for g in self.groups),
+            coupled_blocks=int(self.coupled_blocks), radiation_kernel_entries=int(self._kernel_entries),
+            radiation=self.radiation, radiation_frequency=self.radiation_frequency,
+            irf_samples=int(self.irf_samples), irf_duration=float(self.irf_samples * self.dt),
+            irf_fit_error=dict(self._irf_fit), irf_added_mass_error=dict(self._irf_a_fit),
+            irf_processing=IRFProcessing(domega=hyd.irf_domega, taper=float(hyd.irf_taper), tail=str(hyd.irf_tail),
+                                         tail_exponent=dict(self._tail_exponent)),
+            coupling_tolerance=float(hyd.coupling_tolerance),
+            radiation_pairs=int(pairs["kept"]),
+            dropped_pair_fraction=(1.0 - pairs["kept"] / pairs["total"]) if pairs["total"] else 0.0,
+            dropped_blocks=int(pairs["blocks_dropped"]),
+            dropped_block_fraction=(pairs["blocks_dropped"] / pairs["blocks_total"]
+                                    if pairs["blocks_total"] else 0.0),
+            state_space=StateSpaceReport(**self._ss) if self.radiation == "state-space" else None,
+            wave_components=int(self.waves.size), wave_energy_outside_hdb=float(self.waves.energy_outside),
+            ramp=float(self.waves.ramp),
+            excitation=self.excitation,
+            excitation_irf_duration=(float(self.scene.waves.excitation_irf_duration)
+                                     if self.excitation == "convolution" else 0.0),
+            excitation_irf_error=float(self._exc_fit),
+            wave_headings=tuple(np.rad2deg(self._headings).tolist()) if self.waves.kind != "still" else (),
+            elevation_resampled=bool(self.elevation_series.resampled) if self.elevation_series else False,
+            elevation_start=float(self.elevation_series.start) if self.elevation_series else 0.0,
+            warnings=tuple(self.warnings))
 
     def radiation_coefficients(self, omega: float) -> tuple[np.ndarray, np.ndarray]:
         """A(omega), B(omega) (6N x 6N over the wet bodies, zero outside the active DOFs and the

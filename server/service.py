@@ -238,7 +238,7 @@ class ForceServer:
             "protocol": codec.PROTOCOL_VERSION,
             "server": {"name": "hydrolink", "version": self._version},
             "session_timeout": self.session_timeout,
-            "setup": model.setup_info(),
+            "setup": model.setup_info().to_wire(),
         }, sid
 
     def _step(self, msg: dict, msg_id: Any, session: str | None) -> tuple[str, dict, str | None] | None:

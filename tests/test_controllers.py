@@ -73,7 +73,10 @@ def controller_process(file: Path, server: str, *extra: str) -> subprocess.Popen
 
 def c_controller(tmp_path_factory) -> Path:
     if shutil.which("gcc") is None:
-        pytest.skip("no gcc")
+        pytest.skip("needs gcc (Debian package gcc)")
+    missing = [h for h in ("zmq.h", "msgpack.h") if not Path("/usr/include", h).is_file()]
+    if missing:
+        pytest.skip(f"needs {', '.join(missing)} (Debian packages libzmq3-dev libmsgpack-dev; .ci/run installs them)")
     exe = tmp_path_factory.mktemp("cctl") / "reactive"
     out = subprocess.run(["gcc", "-O2", "-Wall", "-Werror", "-ffp-contract=off", "-o", str(exe),
                           str(EXAMPLES / "c" / "reactive.c"), "-lzmq", "-lmsgpackc"], capture_output=True, text=True)
@@ -368,10 +371,10 @@ def test_wrong_session_version_and_name(shared_data, server, tmp_path):
             r = ask(type="command", session=conn.session, controller="ctl", epoch=2, step=0, commands={})
             assert (r["code"], r["field"]) == (6, "step")
             # the multibody's step 1 must carry the measurements of step 0
-            f0 = conn.step(0, 0.0, np.array(conn.setup["equilibrium_position"]), np.zeros((2, 6)))
+            f0 = conn.step(0, 0.0, np.array(conn.setup.equilibrium_position), np.zeros((2, 6)))
             assert "control" not in f0
             with pytest.raises(Exception, match="measurements"):
-                conn.step(1, DT, np.array(conn.setup["equilibrium_position"]), np.zeros((2, 6)))
+                conn.step(1, DT, np.array(conn.setup.equilibrium_position), np.zeros((2, 6)))
     finally:
         sock.close(0)
         ctx.term()
@@ -404,7 +407,7 @@ def test_wave_probes_match_the_model_and_travel(shared_data):
     k = W * W / 9.81
     lag = 10.0 / (W / k)
     probes = WaveProbes(model.waves, np.array([[0.0, 0.0], [10.0, 0.0]]), np.array([lag]), 9.81, np.inf)
-    eq = model.setup_info()["equilibrium_position"]
+    eq = model.setup_info().equilibrium_position
     for step in range(720):
         t = step * DT
         eta = probes(t)

@@ -87,7 +87,7 @@ def rm3(shared_data):
 
 
 def _forces(model: HydroModel, n: int) -> tuple[np.ndarray, np.ndarray]:
-    pos = model.setup_info()["equilibrium_position"]
+    pos = model.setup_info().equilibrium_position
     vel = np.zeros_like(pos)
     out = [model.step(k * model.dt, pos, vel) for k in range(n)]
     return np.array([o["excitation"].reshape(-1) for o in out]), np.array([o["wave_elevation"] for o in out])
@@ -143,7 +143,7 @@ def test_convolution_matches_superposition_irregular(rm3):
     for tc in (5.0, 10.0, 20.0, 40.0):
         conv = HydroModel(parse_scene(_rm3_scene(IRREGULAR.format(tp=8.0, exc="convolution", tc=tc), dofs_all=True)),
                           {"float": rm3, "spar": rm3})
-        assert conv.setup_info()["excitation"] == "convolution"
+        assert conv.setup_info().excitation == "convolution"
         f, eta = _forces(conv, n)
         np.testing.assert_allclose(eta, eta_ref, atol=1e-12)   # the same elevation, the same ramp
         d = np.abs(f - f_ref)[:, live].max(axis=0) / np.abs(f_ref)[:, live].max(axis=0)
@@ -211,7 +211,7 @@ def test_elevation_file_matches_superposition(rm3, tmp_path, fmt, spacing):
     n = 2000
     waves = f'type = "elevation"\nfile = "{path}"\nstart = {start}\nramp = 10.0\nexcitation_irf_duration = 25.0'
     model = HydroModel(parse_scene(_rm3_scene(waves)), {"float": rm3, "spar": rm3}, (tt, ee))
-    assert model.setup_info()["elevation_resampled"] == (spacing != 0.05)
+    assert model.setup_info().elevation_resampled == (spacing != 0.05)
     f, e = _forces(model, n)
     sup = HydroModel(parse_scene(_rm3_scene(IRREGULAR.format(tp=8.0, exc="superposition", tc=20))),
                      {"float": rm3, "spar": rm3})

@@ -27,7 +27,7 @@ def simulate(body_text: str, tmp_path: Path, *, dt: float = 0.001, duration: flo
     scene = parse_scene(text)
     names, ref = result_bodies(scene, None)
     out = tmp_path / "run.nc"
-    with ResultWriter(out, scene=scene, scene_text=text, setup={"dt": dt}, bodies=names,
+    with ResultWriter(out, scene=scene, scene_text=text, dt=dt, bodies=names,
                       equilibrium_position=ref) as writer:
         run(scene, text, None, None, writer, progress=False)
     return xr.load_dataset(out)

@@ -39,11 +39,11 @@ def test_setup_info_and_inactive_dofs():
     ds = an.make_body_hdb(ref=(0.5, 0.0, -0.2))
     m = HydroModel(scene(dofs='["heave", "pitch"]'), {"float": ds})
     info = m.setup_info()
-    assert info["bodies"] == ["float"] and info["dofs"][2] == "heave"
-    assert info["active"].tolist() == [[False, False, True, False, True, False]]
-    assert info["irf_samples"] == 4000 and info["dt"] == 0.01 and info["wave_components"] == 0
-    np.testing.assert_allclose(info["equilibrium_position"], [[0.5, 0.0, -0.2, 0, 0, 0]])
-    a, c = info["added_mass_inf"], info["hydrostatic_stiffness"]
+    assert info.bodies == ("float",) and info.dofs[2] == "heave"
+    assert info.active.tolist() == [[False, False, True, False, True, False]]
+    assert info.irf_samples == 4000 and info.dt == 0.01 and info.wave_components == 0
+    np.testing.assert_allclose(info.equilibrium_position, [[0.5, 0.0, -0.2, 0, 0, 0]])
+    a, c = info.added_mass_inf, info.hydrostatic_stiffness
     assert a.shape == c.shape == (6, 6)
     keep = np.zeros((6, 6), bool)
     keep[np.ix_([2, 4], [2, 4])] = True
@@ -62,7 +62,7 @@ def test_gravity_terms_for_offset_cog_by_finite_rotation():
     c_hydro[2, 4] = c_hydro[4, 2] = 1.5e5
     ds = an.make_body_hdb(ref=tuple(ref), hydrostatics=c_hydro)
     m = HydroModel(scene(cog=str(cog.tolist()), mass=mass), {"float": ds})
-    c = m.setup_info()["hydrostatic_stiffness"]
+    c = m.setup_info().hydrostatic_stiffness
     # independent: moment of the weight about the (moving) reference point after an exact rotation
     d = cog - ref
 
@@ -127,10 +127,10 @@ def test_errors_name_scene_keys():
 def test_ogilvie_used_without_hdb_a_inf():
     m = HydroModel(scene(), {"float": an.make_body_hdb(with_inf=False)})
     info = m.setup_info()
-    assert info["added_mass_inf_source"] == {"float": "ogilvie"}
+    assert info.added_mass_inf_source == {"float": "ogilvie"}
     ref = np.array([p[0] for p in an.DOF_PARAMS.values()]) * RHO / 1000
-    np.testing.assert_allclose(np.diag(info["added_mass_inf"]), ref, rtol=1e-5)
-    assert info["irf_fit_error"]["analytic"] < 1e-4
+    np.testing.assert_allclose(np.diag(info.added_mass_inf), ref, rtol=1e-5)
+    assert info.irf_fit_error["analytic"] < 1e-4
 
 
 def _two_body_hdb():
@@ -164,7 +164,7 @@ def test_body_to_body_radiation_uses_shared_dataset():
     ds = _two_body_hdb()
     dt = 0.01
     m = HydroModel(scene(bodies=_bodies([("A", "a"), ("B", "b")]), dt=dt, irf=10.0), {"A": ds, "B": ds})
-    assert m.setup_info()["added_mass_inf"][2, 8] == pytest.approx(2e4 * RHO / 1000, rel=1e-5)  # Ogilvie
+    assert m.setup_info().added_mass_inf[2, 8] == pytest.approx(2e4 * RHO / 1000, rel=1e-5)  # Ogilvie
     pos = np.zeros((2, 6))
     pos[1, 0] = 10.0
     v = np.zeros((2, 6))
@@ -179,7 +179,7 @@ def test_body_to_body_radiation_uses_shared_dataset():
     np.testing.assert_allclose(f[:, 0, 2], -dt * w * an.irf(t, 5e4, 1.0) * RHO / 1000, rtol=1e-4, atol=1e-6)
     # separate datasets (copies): no hydrodynamic interaction
     m2 = HydroModel(scene(bodies=_bodies([("A", "a"), ("B", "b")]), dt=dt, irf=10.0), {"A": ds, "B": ds.copy()})
-    assert m2.setup_info()["added_mass_inf"][2, 8] == 0.0
+    assert m2.setup_info().added_mass_inf[2, 8] == 0.0
     assert m2.step(0.0, pos, v)["radiation"][1, 2] == 0.0
 
 
@@ -187,9 +187,9 @@ def _heave_amplitude(m: HydroModel, mass: float, dt: float, n_steps: int, period
     """Lockstep trapezoidal integration of (m + A_inf) x'' = F_ex + F_rad + F_hs (heave about
     equilibrium) with the model's forces, each step iterated 4 times with replace_last; returns the
     steady amplitude fitted over the last 5 periods."""
-    mt = mass + m.setup_info()["added_mass_inf"][2, 2]
-    z0 = m.setup_info()["equilibrium_position"][0, 2]
-    pos, vel = m.setup_info()["equilibrium_position"].copy(), np.zeros((1, 6))
+    mt = mass + m.setup_info().added_mass_inf[2, 2]
+    z0 = m.setup_info().equilibrium_position[0, 2]
+    pos, vel = m.setup_info().equilibrium_position.copy(), np.zeros((1, 6))
     x, v = 0.0, 0.0
 
     def force(t, x, v, replace):
@@ -268,8 +268,8 @@ dofs = ["heave"]
 ''')
     m = HydroModel(sc, {"sphere": ds})
     info = m.setup_info()
-    assert info["hydrostatic_stiffness"][2, 2] == pytest.approx(RHO * 9.81 * np.pi * r ** 2, rel=2e-3)
-    assert abs(info["net_buoyancy"][0]) < 2e-3 * mass * 9.81
+    assert info.hydrostatic_stiffness[2, 2] == pytest.approx(RHO * 9.81 * np.pi * r ** 2, rel=2e-3)
+    assert abs(info.net_buoyancy[0]) < 2e-3 * mass * 9.81
     amp = _heave_amplitude(m, mass, dt, 8000, period)
     s = RHO / float(ds.attrs["rho"])
     w = 2 * np.pi / period

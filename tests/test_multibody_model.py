@@ -71,17 +71,17 @@ def block(m: np.ndarray, i: int, j: int) -> np.ndarray:
 def test_full_keeps_and_none_drops_the_body_to_body_blocks(rm3):
     full, none = model(rm3, "full").setup_info(), model(rm3, "none").setup_info()
     a_hdb = rm3["added_mass_inf"].values  # rho = 1000 in both
-    assert full["interaction"] == "full" and none["interaction"] == "none"
-    assert full["coupled_blocks"] == 2 and none["coupled_blocks"] == 0
-    assert full["hydro_groups"] == [["float", "spar"]] and none["hydro_groups"] == [["float"], ["spar"]]
-    assert full["radiation_kernel_entries"] == 144 and none["radiation_kernel_entries"] == 72
-    np.testing.assert_allclose(full["added_mass_inf"], a_hdb, rtol=1e-12)
+    assert full.interaction == "full" and none.interaction == "none"
+    assert full.coupled_blocks == 2 and none.coupled_blocks == 0
+    assert full.hydro_groups == (("float", "spar"),) and none.hydro_groups == (("float",), ("spar",))
+    assert full.radiation_kernel_entries == 144 and none.radiation_kernel_entries == 72
+    np.testing.assert_allclose(full.added_mass_inf, a_hdb, rtol=1e-12)
     assert abs(block(a_hdb, 0, 1)[2, 2]) > 1e5  # float-spar heave coupling is real in this HDB
     for key in ("added_mass_inf", "hydrostatic_stiffness"):
         for i, j in ((0, 1), (1, 0)):
-            assert np.all(block(none[key], i, j) == 0.0), key
+            assert np.all(block(getattr(none, key), i, j) == 0.0), key
         for i in (0, 1):
-            np.testing.assert_array_equal(block(none[key], i, i), block(full[key], i, i))
+            np.testing.assert_array_equal(block(getattr(none, key), i, i), block(getattr(full, key), i, i))
 
 
 def independent_irf(rm3, rows: slice, cols: slice, t: np.ndarray) -> np.ndarray:
@@ -103,7 +103,7 @@ def test_float_motion_radiates_on_the_spar_only_with_full_interaction(rm3):
     runs = {}
     for interaction in ("full", "none"):
         m = model(rm3, interaction)
-        pos = m.setup_info()["equilibrium_position"]
+        pos = m.setup_info().equilibrium_position
         runs[interaction] = np.array([m.step(k * DT, pos, np.vstack([v_float[k], np.zeros(6)]))["radiation"]
                                       for k in range(n)])
     m_irf = int(round(IRF / DT))
@@ -131,10 +131,10 @@ def test_one_file_per_body_equals_none_on_the_shared_file(rm3):
     split = HydroModel(parse_scene(scene_text("full", float_hdb="f.nc", spar_hdb="s.nc", waves=waves)),
                        {"float": select_bodies(rm3, ["float"]), "spar": select_bodies(rm3, ["spar"])})
     none = model(rm3, "none", waves=waves)
-    assert split.setup_info()["coupled_blocks"] == 0
-    np.testing.assert_array_equal(split.setup_info()["added_mass_inf"], none.setup_info()["added_mass_inf"])
+    assert split.setup_info().coupled_blocks == 0
+    np.testing.assert_array_equal(split.setup_info().added_mass_inf, none.setup_info().added_mass_inf)
     rng = np.random.default_rng(1)
-    pos = none.setup_info()["equilibrium_position"]
+    pos = none.setup_info().equilibrium_position
     for k in range(40):
         x, v = pos + 0.1 * rng.standard_normal((2, 6)), rng.standard_normal((2, 6))
         a, b = split.step(k * DT, x, v), none.step(k * DT, x, v)
@@ -148,12 +148,12 @@ def test_dry_bodies_are_absent_from_the_arrays(rm3):
     with_dry = HydroModel(parse_scene(scene_text("full", dry_between=True, dry_first=True)),
                           {"float": rm3, "spar": rm3})
     info = with_dry.setup_info()
-    assert info["bodies"] == ["float", "spar"]
-    assert info["active"].shape == (2, 6) and info["added_mass_inf"].shape == (12, 12)
-    np.testing.assert_array_equal(info["added_mass_inf"], ref.setup_info()["added_mass_inf"])
-    np.testing.assert_array_equal(info["hydrostatic_stiffness"], ref.setup_info()["hydrostatic_stiffness"])
-    assert info["net_buoyancy"] == pytest.approx([0.0, 0.0], abs=1e-6 * 9.81 * 886687)  # m = rho V
-    pos, v = info["equilibrium_position"] + 0.05, np.ones((2, 6))
+    assert info.bodies == ("float", "spar")
+    assert info.active.shape == (2, 6) and info.added_mass_inf.shape == (12, 12)
+    np.testing.assert_array_equal(info.added_mass_inf, ref.setup_info().added_mass_inf)
+    np.testing.assert_array_equal(info.hydrostatic_stiffness, ref.setup_info().hydrostatic_stiffness)
+    assert info.net_buoyancy == pytest.approx([0.0, 0.0], abs=1e-6 * 9.81 * 886687)  # m = rho V
+    pos, v = info.equilibrium_position + 0.05, np.ones((2, 6))
     out, out_ref = with_dry.step(0.0, pos, v), ref.step(0.0, pos, v)
     for key in ("excitation", "radiation", "hydrostatic"):
         assert out[key].shape == (2, 6)
@@ -190,10 +190,10 @@ def test_rm3_over_the_wire_with_a_dry_body(server, rm3):
     local = model(rm3, "full")
     with ServerConnection(server, timeout=30) as conn:
         setup = conn.hello(text, {"rm3.1": rm3})
-        assert setup["bodies"] == ["float", "spar"] and setup["coupled_blocks"] == 2
-        np.testing.assert_array_equal(setup["added_mass_inf"], local.setup_info()["added_mass_inf"])
+        assert setup.bodies == ("float", "spar") and setup.coupled_blocks == 2
+        np.testing.assert_array_equal(setup.added_mass_inf, local.setup_info().added_mass_inf)
         rng = np.random.default_rng(3)
-        pos = local.setup_info()["equilibrium_position"]
+        pos = local.setup_info().equilibrium_position
         for k in range(5):
             x, v = pos + 0.1 * rng.standard_normal((2, 6)), rng.standard_normal((2, 6))
             reply = conn.step(k, k * DT, x, v)

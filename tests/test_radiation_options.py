@@ -100,11 +100,11 @@ dofs = ["surge", "heave", "pitch"]
 '''
     tol, T = 0.01, 30.0
     m = HydroModel(_fit_model(ds, [0, 2, 4], body, T, tol), {"s": ds})
-    info = m.setup_info()["state_space"]
-    assert info["unmet"] == 0 and info["max_fit_error"] <= tol
+    info = m.setup_info().state_space
+    assert info.unmet == 0 and info.max_fit_error <= tol
     ss = m._memories[0][1]
     assert isinstance(ss, StateSpaceRadiation) and np.all(ss.poles.real < 0)
-    assert info["pairs"] == 5  # surge, heave, pitch, surge-pitch, pitch-surge (heave decoupled: zero)
+    assert info.pairs == 5  # surge, heave, pitch, surge-pitch, pitch-surge (heave decoupled: zero)
     dofs = [0, 2, 4]
     om = ds["omega"].values
     b = ds["radiation_damping"].values[:, dofs][:, :, dofs]
@@ -164,10 +164,10 @@ inertia = [94419614.57, 94407091.24, 28542224.82]
                                      '[[bodies]]\nname="a"\nmass=1\ncenter_of_mass=[0,0,0]\ninertia=[1,1,1]').hydro}),
         {"float": ds, "spar": ds})
     info = ss_model.setup_info()
-    assert info["radiation"] == "state-space" and conv.setup_info()["radiation"] == "convolution"
-    st = info["state_space"]
+    assert info.radiation == "state-space" and conv.setup_info().radiation == "convolution"
+    st = info.state_space
     print(st)
-    assert st["unmet"] == 0 and st["max_fit_error"] <= 0.01
+    assert st.unmet == 0 and st.max_fit_error <= 0.01
     ss = ss_model._memories[0][1]
     assert np.all(ss.poles.real < 0)
     coupled = (ss._rows // 6 != ss._cols // 6)
@@ -179,7 +179,7 @@ inertia = [94419614.57, 94407091.24, 28542224.82]
     v[:, 1, 2] = 0.2 * np.sin(0.9 * tt + 1.0) * (1 - np.exp(-tt / 3))
     v[:, 0, 0] = 0.3 * np.sin(0.6 * tt + 0.2) * (1 - np.exp(-tt / 3))
     v[:, 0, 4] = 0.02 * np.sin(0.7 * tt) * (1 - np.exp(-tt / 3))
-    pos = info["equilibrium_position"]
+    pos = info.equilibrium_position
     f_ss = np.array([ss_model.step(k * dt, pos, v[k])["radiation"] for k in range(n)])
     f_cv = np.array([conv.step(k * dt, pos, v[k])["radiation"] for k in range(n)])
     for body, dof in ((0, 2), (1, 2), (0, 0), (0, 4), (1, 0)):
@@ -251,11 +251,11 @@ def test_constant_equals_frequency_domain_rao(period):
     s = RHO / 1000
     a_w = np.interp(w, om, ds["added_mass"].values[:, 2, 2]) * s
     b_w = np.interp(w, om, ds["radiation_damping"].values[:, 2, 2]) * s
-    assert info["radiation"] == "constant" and info["radiation_frequency"] == pytest.approx(w)
-    assert info["added_mass"][2, 2] == pytest.approx(a_w, rel=1e-12)
-    assert info["added_mass_inf"][2, 2] == pytest.approx(3e5 * s)  # A_inf still reported as such
-    mt = mass + info["added_mass"][2, 2]
-    pos, vel = info["equilibrium_position"].copy(), np.zeros((1, 6))
+    assert info.radiation == "constant" and info.radiation_frequency == pytest.approx(w)
+    assert info.added_mass[2, 2] == pytest.approx(a_w, rel=1e-12)
+    assert info.added_mass_inf[2, 2] == pytest.approx(3e5 * s)  # A_inf still reported as such
+    mt = mass + info.added_mass[2, 2]
+    pos, vel = info.equilibrium_position.copy(), np.zeros((1, 6))
     z0 = pos[0, 2]
 
     def force(t, x, v, replace):
@@ -280,7 +280,7 @@ def test_constant_equals_frequency_domain_rao(period):
     amp = float(np.hypot(*fit))
     x_ex = ds["excitation_force"].values[:, 0, 2]
     f_ex = (np.interp(w, om, x_ex.real) + 1j * np.interp(w, om, x_ex.imag)) * s * 1.0
-    c33 = info["hydrostatic_stiffness"][2, 2]
+    c33 = info.hydrostatic_stiffness[2, 2]
     rao = abs(f_ex / (-w ** 2 * (mass + a_w) - 1j * w * b_w + c33))
     print(f"T={period}: amplitude {amp:.7f}, RAO {rao:.7f}, rel {amp / rao - 1:.2e}")
     assert amp == pytest.approx(rao, rel=2e-4)  # trapezoid period error (w dt)^2/12 ~ 1e-5
@@ -296,8 +296,8 @@ def test_constant_needs_regular_waves():
 def test_off_gives_no_radiation_but_keeps_a_inf():
     m = HydroModel(_scene(hydro='radiation = "off"'), {"float": an.make_body_hdb()})
     info = m.setup_info()
-    assert info["radiation_pairs"] == 0 and info["added_mass"][2, 2] == info["added_mass_inf"][2, 2] > 0
-    out = m.step(0.0, info["equilibrium_position"], np.ones((1, 6)))
+    assert info.radiation_pairs == 0 and info.added_mass[2, 2] == info.added_mass_inf[2, 2] > 0
+    out = m.step(0.0, info.equilibrium_position, np.ones((1, 6)))
     assert np.all(out["radiation"] == 0)
 
 
@@ -324,9 +324,9 @@ def test_asymptotic_tail_improves_ogilvie_consistency():
     ds, (c, a) = _rational_hdb(3 * 0.8)
     none = HydroModel(_scene("", irf=30.0), {"float": ds})
     tail = HydroModel(_scene("", irf=30.0, hydro='irf_tail = "asymptotic"'), {"float": ds})
-    e_none = none.setup_info()["irf_added_mass_error"]["rational"]
-    e_tail = tail.setup_info()["irf_added_mass_error"]["rational"]
-    n_fit = tail.setup_info()["irf_processing"]["tail_exponent"]["rational"]
+    e_none = none.setup_info().irf_added_mass_error["rational"]
+    e_tail = tail.setup_info().irf_added_mass_error["rational"]
+    n_fit = tail.setup_info().irf_processing.tail_exponent["rational"]
     print(f"Ogilvie A(w) error: none {e_none:.3g}, asymptotic {e_tail:.3g} (n = {n_fit:.3g})")
     assert e_tail < 0.3 * e_none
     assert 1.3 < n_fit < 2.0  # local slope of the truncated data (-> 2 far out)
@@ -345,7 +345,7 @@ def _impulse(m: HydroModel, n: int) -> list[float]:
     """K(k dt) read back from the convolution: unit velocity at step 0 only gives -dt w_0 K(0), then
     -dt K(k dt)."""
     info = m.setup_info()
-    pos = info["equilibrium_position"]
+    pos = info.equilibrium_position
     v = np.zeros((1, 6))
     v[0, 2] = 1.0
     out = [m.step(0.0, pos, v)["radiation"][0, 2] / (0.5 * m.dt)]
@@ -413,14 +413,14 @@ def test_pruning_drops_exactly_the_blocks_below_tolerance_and_bounds_the_force_c
     expect_drop = {pq for pq, lev in levels.items() if l1(lev * 8e4, 1.1) < tol * d}
     assert expect_drop == {(1, 2)}   # 0.003 is below 1 %, 0.02 is not (the IRF shape differs: the norm decides)
     di, pi = dense.setup_info(), pruned.setup_info()
-    assert di["dropped_blocks"] == 0 and di["radiation_pairs"] == 9
-    assert pi["dropped_blocks"] == 2 and pi["dropped_block_fraction"] == pytest.approx(2 / 6)
-    assert pi["radiation_pairs"] == 7 and pi["dropped_pair_fraction"] == pytest.approx(2 / 9)
+    assert di.dropped_blocks == 0 and di.radiation_pairs == 9
+    assert pi.dropped_blocks == 2 and pi.dropped_block_fraction == pytest.approx(2 / 6)
+    assert pi.radiation_pairs == 7 and pi.dropped_pair_fraction == pytest.approx(2 / 9)
     rng = np.random.default_rng(5)
     n = 400
     v = np.zeros((n, 3, 6))
     v[:, :, 2] = np.cumsum(rng.standard_normal((n, 3)), axis=0) * 0.05
-    pos = di["equilibrium_position"]
+    pos = di.equilibrium_position
     f_d = np.array([dense.step(k * dt, pos, v[k])["radiation"][:, 2] for k in range(n)])
     f_p = np.array([pruned.step(k * dt, pos, v[k])["radiation"][:, 2] for k in range(n)])
     diff = np.abs(f_d - f_p)

@@ -42,7 +42,7 @@ def run_scene(text: str, out: Path, address: str | None = None, hdbs: dict | Non
     scene = parse_scene(text)
     if address is None:
         names, ref = result_bodies(scene, None)
-        with ResultWriter(out, scene=scene, scene_text=text, setup={"dt": scene.simulation.dt}, bodies=names,
+        with ResultWriter(out, scene=scene, scene_text=text, dt=scene.simulation.dt, bodies=names,
                           equilibrium_position=ref) as writer:
             summary = run(scene, text, None, None, writer, progress=False)
         return summary, xr.load_dataset(out)
@@ -292,11 +292,11 @@ def test_build_model_maps_the_hydrodynamics_onto_active_coordinates(server, sphe
     model = build_model(scene, setup)
     try:
         got = model.mass_matrix()
-        a = np.asarray(setup.get("added_mass", setup.get("added_mass_inf")), float).reshape(6, 6)
+        a = setup.added_mass
         act = [0, 2]
         np.testing.assert_allclose(got[np.ix_(act, act)], 250000.0 * np.eye(2) + a[np.ix_(act, act)], rtol=1e-14)
         assert not np.delete(np.delete(got, act, 0), act, 1).any() and not got[np.ix_(act, [1, 3, 4, 5])].any()
-        k = np.asarray(setup["hydrostatic_stiffness"], float).reshape(6, 6)
+        k = setup.hydrostatic_stiffness
         hydro_k = model.mbs.GetObjectParameter(model.hydro_object, "stiffnessMatrix").GetPythonObject()
         np.testing.assert_array_equal(np.asarray(hydro_k, float), k[np.ix_(act, act)])
         q, v, acc = model.state()

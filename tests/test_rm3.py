@@ -137,9 +137,9 @@ def lockstep(model: HydroModel, n_steps: int) -> tuple[np.ndarray, np.ndarray, n
     """Trapezoidal rule on (M + A_inf) z'' = F_ex + F_rad + F_hs - B_pto z' in the two heave DOFs,
     each step iterated three times with replace_last. Returns t, heave displacements, velocities."""
     info = model.setup_info()
-    m_inv = np.linalg.inv(np.diag(MASS) + info["added_mass_inf"][np.ix_(HEAVE, HEAVE)])
+    m_inv = np.linalg.inv(np.diag(MASS) + info.added_mass_inf[np.ix_(HEAVE, HEAVE)])
     b_pto = C_PTO * np.array([[1.0, -1.0], [-1.0, 1.0]])
-    pos, vel = info["equilibrium_position"].copy(), np.zeros((2, 6))
+    pos, vel = info.equilibrium_position.copy(), np.zeros((2, 6))
     z_eq = pos[:, 2].copy()
 
     def acceleration(k: int, z: np.ndarray, v: np.ndarray, replace: bool) -> np.ndarray:
@@ -166,7 +166,7 @@ def test_force_model_lockstep_matches_frequency_domain(rm3, interaction):
     """The server's model alone (no Exudyn): isolates the multi-body hydrodynamics."""
     scene = parse_scene(scene_text(interaction, Path("rm3.1")))
     model = HydroModel(scene, {"float": rm3, "spar": rm3})
-    assert model.setup_info()["coupled_blocks"] == (2 if interaction == "full" else 0)
+    assert model.setup_info().coupled_blocks == (2 if interaction == "full" else 0)
     t, z, v = lockstep(model, scene.simulation.n_steps)
     amps, power = steady_state(t, z, v)
     err = compare("model", amps, power, rm3, interaction, scene.hydro.irf_duration)["effective"]

@@ -151,16 +151,17 @@ def test_bad_hdb_names_the_field(server, hdb):
 def test_welcome_carries_setup(server, hdb):
     with ServerConnection(server.address, timeout=10.0) as c:
         setup = c.hello(SCENE, {"float.nc": hdb})
-        assert setup["protocol"] == 1 and len(setup["session"]) == 32 and setup["bodies"] == ["float"]
-        assert setup["active"].shape == (1, 6) and setup["active"].dtype == bool
-        assert setup["added_mass_inf"].shape == (6, 6) and setup["dt"] == DT
-        assert setup["equilibrium_position"].shape == (1, 6)
+        session = c.session
+        assert c.protocol == 1 and len(session) == 32 and setup.bodies == ("float",)
+        assert setup.active.shape == (1, 6) and setup.active.dtype == bool
+        assert setup.added_mass_inf.shape == (6, 6) and setup.dt == DT
+        assert setup.equilibrium_position.shape == (1, 6)
         f = c.step(0, 0.0, *states(1)[0])
         assert {"excitation", "radiation", "hydrostatic"} <= set(f) and f["excitation"].shape == (1, 6)
         assert f["compute_us"] > 0 and np.isfinite(f["wave_elevation"])
         bye = c.bye()
         assert bye["steps"] == 1 and bye["compute_s"] > 0 and c.session is None
-        reply = request(server.address, type="bye", session=setup["session"])
+        reply = request(server.address, type="bye", session=session)
         assert reply["code"] == 7 and "closed by bye" in reply["message"]
 
 
@@ -307,10 +308,10 @@ def test_real_hdb_file_over_the_wire(server, shared_data):
              .replace("[waves]", "[water]\ndensity = 1000.0\ndepth = 200.0\n\n[waves]"))
     with ServerConnection(server.address, timeout=20.0) as c:
         setup = c.hello(scene, {"sphere.h5": ds})
-        assert setup["bodies"] == ["sphere"] and setup["added_mass_inf"][2, 2] > 0
-        eq = setup["equilibrium_position"]
+        assert setup.bodies == ("sphere",) and setup.added_mass_inf[2, 2] > 0
+        eq = setup.equilibrium_position
         dz = np.zeros((1, 6))
         dz[0, 2] = 0.1
         f = c.step(0, 0.0, eq + dz, np.zeros((1, 6)))
-        k33 = setup["hydrostatic_stiffness"][2, 2]
+        k33 = setup.hydrostatic_stiffness[2, 2]
         assert k33 > 0 and f["hydrostatic"][0, 2] == pytest.approx(-0.1 * k33, rel=1e-9)

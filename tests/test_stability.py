@@ -206,7 +206,7 @@ def test_exchange_every_hold_and_extrapolate(sphere, tmp_path):
         cpl = f'exchange_every = 5\nbetween_exchanges = "{between}"'
         summary, ds, setup = simulate(scene_text(mass, duration=20.0, x0=0.0, waves=w, coupling=cpl), sphere,
                                       tmp_path / f"{between}.nc")
-        assert setup["dt"] == pytest.approx(0.05) and ds.sizes["time"] == 2001
+        assert setup.dt == pytest.approx(0.05) and ds.sizes["time"] == 2001
         err[between] = np.abs(heave(ds) - heave(base)).max() / np.abs(heave(base)).max()
     print("exchange_every = 5: relative max difference to every step", err)
     assert err["extrapolate"] < 0.02 and err["extrapolate"] < err["hold"] < 0.2

@@ -95,7 +95,7 @@ damping = [3.0e5, 4.0e5]
     info = hydro_model(scene, {b.hdb: rm3 for b in scene.bodies}).setup_info()
     m_hand = np.zeros((12, 12))
     for i, b in enumerate(scene.bodies):
-        c = np.asarray(b.center_of_mass) - info["equilibrium_position"][i, :3]
+        c = np.asarray(b.center_of_mass) - info.equilibrium_position[i, :3]
         cx = np.array([[0, -c[2], c[1]], [c[2], 0, -c[0]], [-c[1], c[0], 0]])
         blk = np.zeros((6, 6))
         blk[:3, :3] = b.mass * np.eye(3)
@@ -103,8 +103,8 @@ damping = [3.0e5, 4.0e5]
         blk[3:, 3:] = b.inertia_matrix + b.mass * (c @ c * np.eye(3) - np.outer(c, c))
         m_hand[6 * i:6 * i + 6, 6 * i:6 * i + 6] = blk
     w = lin.wet_index
-    np.testing.assert_allclose(lin.M[np.ix_(w, w)], m_hand + info["added_mass_inf"], rtol=1e-12, atol=1e-6)
-    np.testing.assert_allclose(lin.K[np.ix_(w, w)], info["hydrostatic_stiffness"], rtol=1e-12, atol=1e-6)
+    np.testing.assert_allclose(lin.M[np.ix_(w, w)], m_hand + info.added_mass_inf, rtol=1e-12, atol=1e-6)
+    np.testing.assert_allclose(lin.K[np.ix_(w, w)], info.hydrostatic_stiffness, rtol=1e-12, atol=1e-6)
     assert not lin.D.any() and lin.G.shape[0] == 0      # all six DOFs free, no joint
     # PTO lines against Exudyn's linearisation with the PTOs built in
     ex = build_model(scene, info)

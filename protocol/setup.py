@@ -1,0 +1,239 @@
+"""The session contract: ``welcome.setup`` (SPEC §5.1) as one typed object.
+
+The force server's model builds a :class:`Setup`; the wire carries :meth:`Setup.to_wire`; every
+client reads it back with :meth:`Setup.from_wire`, which checks each field's presence, type and
+shape and names the field (``setup.<name>``) when one is wrong. Fields a newer server adds are
+ignored (SPEC §3.1: additions within protocol version 1 are optional fields). Matrices are
+(6N, 6N) body-major over the wet bodies, per-body arrays (N, 6) in ``bodies`` order.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields
+from typing import Any
+
+import numpy as np
+
+from hydrolink.protocol import codec
+from hydrolink.protocol.codec import Code, ProtocolError
+
+
+@dataclass(frozen=True)
+class IRFProcessing:
+    """How the radiation IRF was processed (scene ``[hydro]``)."""
+
+    domega: float | None            # irf_domega resampling step [rad/s], or None
+    taper: float                    # irf_taper fraction
+    tail: str                       # irf_tail option
+    tail_exponent: dict[str, float]  # per HDB: fitted high-frequency decay exponent of B(ω)
+
+
+@dataclass(frozen=True)
+class StateSpaceReport:
+    """The state-space radiation fit (``radiation = "state-space"``)."""
+
+    states: int
+    pairs: int
+    max_order: int
+    max_fit_error: float
+    unmet: int                      # DOF pairs whose fit misses the tolerance
+    worst_pair: str | None = None   # "(body.dof, body.dof)" of max_fit_error
+
+
+@dataclass(frozen=True)
+class Setup:
+    """What a multibody client needs to build its side of a session (SPEC §5.1 lists each field)."""
+
+    # -- the bodies and what the client puts in its matrices
+    bodies: tuple[str, ...]             # wet bodies, scene order = row order of every (N, 6) array
+    dofs: tuple[str, ...]               # surge, sway, heave, roll, pitch, yaw
+    active: np.ndarray                  # (N, 6) bool: DOFs the server applies forces in
+    added_mass: np.ndarray              # (6N, 6N): goes in the client's mass matrix
+    added_mass_inf: np.ndarray          # (6N, 6N): A∞ (equals added_mass unless radiation "constant")
+    added_mass_inf_source: dict[str, str]   # per body: where A∞ came from
+    hydrostatic_stiffness: np.ndarray   # (6N, 6N): goes in the client's stiffness matrix
+    equilibrium_position: np.ndarray    # (N, 6): reference points at rest, zero angles
+    net_buoyancy: np.ndarray            # (N,): ρgV − mg [N] on heave, a constant force (0: unknown V)
+    dt: float                           # the server's step (= exchange_every × simulation.dt)
+    # -- hydrodynamic interaction
+    interaction: str                    # "full" | "none"
+    hydro_groups: tuple[tuple[str, ...], ...]
+    coupled_blocks: int
+    radiation_kernel_entries: int
+    # -- radiation
+    radiation: str                      # "convolution" | "state-space" | "constant" | "off"
+    radiation_frequency: float | None   # ω0 with "constant"
+    irf_samples: int
+    irf_duration: float
+    irf_fit_error: dict[str, float]
+    irf_added_mass_error: dict[str, float]
+    irf_processing: IRFProcessing
+    coupling_tolerance: float
+    radiation_pairs: int
+    dropped_pair_fraction: float
+    dropped_blocks: int
+    dropped_block_fraction: float
+    state_space: StateSpaceReport | None
+    # -- waves and excitation
+    wave_components: int
+    wave_energy_outside_hdb: float
+    ramp: float
+    excitation: str                     # "superposition" | "convolution"
+    excitation_irf_duration: float
+    excitation_irf_error: float
+    wave_headings: tuple[float, ...]    # degrees
+    elevation_resampled: bool
+    elevation_start: float
+    warnings: tuple[str, ...]
+
+    @property
+    def n(self) -> int:
+        """Number of wet bodies."""
+        return len(self.bodies)
+
+    def to_wire(self) -> dict[str, Any]:
+        """The ``welcome.setup`` map (arrays as numpy; the codec packs them)."""
+        out = asdict(self)
+        for name in ("bodies", "dofs", "warnings", "wave_headings"):
+            out[name] = list(out[name])
+        out["hydro_groups"] = [list(g) for g in self.hydro_groups]
+        return out
+
+    @classmethod
+    def from_wire(cls, data: Any) -> "Setup":
+        """Read and check a ``welcome.setup`` map; ProtocolError naming ``setup.<field>`` if wrong."""
+        if not isinstance(data, dict):
+            raise ProtocolError(Code.BAD_VALUE, "setup", "must be a map")
+        r = _Reader(codec.decode_tree(data))
+        bodies = r.strs("bodies")
+        n = len(bodies)
+        ss = r.get("state_space", optional=True)
+        proc = r.map("irf_processing")
+        sub = _Reader(proc, "setup.irf_processing.")
+        return cls(
+            bodies=bodies, dofs=r.strs("dofs"),
+            active=r.array("active", (n, 6), "b"),
+            added_mass=r.array("added_mass", (6 * n, 6 * n)),
+            added_mass_inf=r.array("added_mass_inf", (6 * n, 6 * n)),
+            added_mass_inf_source={str(k): str(v) for k, v in r.map("added_mass_inf_source").items()},
+            hydrostatic_stiffness=r.array("hydrostatic_stiffness", (6 * n, 6 * n)),
+            equilibrium_position=r.array("equilibrium_position", (n, 6)),
+            net_buoyancy=r.array("net_buoyancy", (n,)),
+            dt=r.number("dt"),
+            interaction=r.str("interaction"),
+            hydro_groups=tuple(tuple(str(b) for b in g) for g in r.list("hydro_groups")),
+            coupled_blocks=r.int("coupled_blocks"),
+            radiation_kernel_entries=r.int("radiation_kernel_entries"),
+            radiation=r.str("radiation"),
+            radiation_frequency=r.number("radiation_frequency", optional=True),
+            irf_samples=r.int("irf_samples"), irf_duration=r.number("irf_duration"),
+            irf_fit_error=r.numbers("irf_fit_error"),
+            irf_added_mass_error=r.numbers("irf_added_mass_error"),
+            irf_processing=IRFProcessing(
+                domega=sub.number("domega", optional=True), taper=sub.number("taper"),
+                tail=sub.str("tail"), tail_exponent=sub.numbers("tail_exponent")),
+            coupling_tolerance=r.number("coupling_tolerance"),
+            radiation_pairs=r.int("radiation_pairs"),
+            dropped_pair_fraction=r.number("dropped_pair_fraction"),
+            dropped_blocks=r.int("dropped_blocks"),
+            dropped_block_fraction=r.number("dropped_block_fraction"),
+            state_space=None if ss is None else _state_space(ss),
+            wave_components=r.int("wave_components"),
+            wave_energy_outside_hdb=r.number("wave_energy_outside_hdb"),
+            ramp=r.number("ramp"),
+            excitation=r.str("excitation"),
+            excitation_irf_duration=r.number("excitation_irf_duration"),
+            excitation_irf_error=r.number("excitation_irf_error"),
+            wave_headings=tuple(float(x) for x in r.array("wave_headings", (None,))),
+            elevation_resampled=r.bool("elevation_resampled"),
+            elevation_start=r.number("elevation_start"),
+            warnings=r.strs("warnings"))
+
+
+def _state_space(data: Any) -> StateSpaceReport:
+    if not isinstance(data, dict):
+        raise ProtocolError(Code.BAD_VALUE, "setup.state_space", "must be a map or nil")
+    s = _Reader(data, "setup.state_space.")
+    return StateSpaceReport(states=s.int("states"), pairs=s.int("pairs"), max_order=s.int("max_order"),
+                            max_fit_error=s.number("max_fit_error"), unmet=s.int("unmet"),
+                            worst_pair=data.get("worst_pair"))
+
+
+SETUP_FIELDS = tuple(f.name for f in fields(Setup))
+
+
+class _Reader:
+    """Typed field access on one decoded map; errors name ``<prefix><field>``."""
+
+    def __init__(self, data: dict, prefix: str = "setup."):
+        self.data, self.prefix = data, prefix
+
+    def _bad(self, name: str, why: str) -> ProtocolError:
+        return ProtocolError(Code.BAD_VALUE, self.prefix + name, why)
+
+    def get(self, name: str, optional: bool = False) -> Any:
+        if name not in self.data or (self.data[name] is None and not optional):
+            raise ProtocolError(Code.MISSING_FIELD, self.prefix + name, f"required field {name!r} is missing")
+        return self.data[name]
+
+    def number(self, name: str, optional: bool = False) -> float | None:
+        v = self.get(name, optional)
+        if v is None:
+            return None
+        if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)):
+            raise self._bad(name, f"must be a number, got {type(v).__name__}")
+        return float(v)
+
+    def int(self, name: str) -> int:
+        v = self.get(name)
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
+            raise self._bad(name, f"must be an int, got {type(v).__name__}")
+        return int(v)
+
+    def bool(self, name: str) -> bool:
+        v = self.get(name)
+        if not isinstance(v, (bool, np.bool_)):
+            raise self._bad(name, f"must be a bool, got {type(v).__name__}")
+        return bool(v)
+
+    def str(self, name: str) -> str:
+        v = self.get(name)
+        if not isinstance(v, str):
+            raise self._bad(name, f"must be a str, got {type(v).__name__}")
+        return v
+
+    def list(self, name: str) -> list:
+        v = self.get(name)
+        if not isinstance(v, (list, tuple)):
+            raise self._bad(name, f"must be a list, got {type(v).__name__}")
+        return list(v)
+
+    def strs(self, name: str) -> tuple[str, ...]:
+        v = self.list(name)
+        if not all(isinstance(s, str) for s in v):
+            raise self._bad(name, "must be a list of str")
+        return tuple(v)
+
+    def map(self, name: str) -> dict:
+        v = self.get(name)
+        if not isinstance(v, dict):
+            raise self._bad(name, f"must be a map, got {type(v).__name__}")
+        return v
+
+    def numbers(self, name: str) -> dict[str, float]:
+        """A map of names to finite numbers."""
+        out = {}
+        for k, v in self.map(name).items():
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise self._bad(f"{name}.{k}", f"must be a finite number, got {v!r}")
+            out[str(k)] = float(v)
+        return out
+
+    def array(self, name: str, shape: tuple[int | None, ...], kind: str = "f") -> np.ndarray:
+        arr = codec.decode_array(self.get(name), self.prefix + name, kind)
+        if arr.ndim != len(shape) or any(w is not None and w != s for w, s in zip(shape, arr.shape)):
+            raise self._bad(name, f"shape must be {shape}, got {tuple(arr.shape)}")
+        if kind == "f" and not np.isfinite(arr).all():
+            raise self._bad(name, "contains NaN or inf")
+        return np.array(arr, dtype=bool if kind == "b" else float)
