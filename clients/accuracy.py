@@ -31,6 +31,8 @@ The grid (a TOML file, or CLI flags) names scene keys by their dotted path or a 
     radiation = ["convolution", "state-space", "constant"]
     excitation = ["superposition", "convolution"]
     coupling = ["mass-matrix", "implicit"]
+    reduce = [true, false]       # reduced bodies vs the full form ([client] reduce): same results to
+                                 # round-off, the per-step cost of the DAE vs the ODE-like model
     [[cases]]                    # extra options, each a set of keys (optional label)
     label = "state-space + taper"
     radiation = "state-space"
@@ -69,6 +71,7 @@ ALIASES = {
     "coupling": "coupling.scheme",
     "exchange_every": "coupling.exchange_every",
     "between_exchanges": "coupling.between_exchanges",
+    "reduce": "client.reduce",
 }
 SHORT = {v: k for k, v in ALIASES.items()}
 
@@ -356,6 +359,8 @@ def run_option(doc: dict, settings: dict[str, Any], duration: float | None, work
     case = json.loads(json.dumps(doc))
     for k, v in settings.items():
         set_key(case, k, v)
+    if isinstance(case.get("client"), dict):
+        case["client"].setdefault("type", "exudyn")   # client.reduce alone: the default client
     if duration is not None:
         set_key(case, "simulation.duration", float(duration))
     set_key(case, "simulation.progress", False)

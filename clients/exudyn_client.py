@@ -9,7 +9,11 @@ Model (see shared/notes/exudyn-coupling.md for the measured facts behind it):
   centre of mass relative to the reference point and the inertia moved there (parallel axes);
 - no gravity: weight and buoyancy balance at equilibrium, the restoring stiffness (with its gravity
   terms) comes from the server;
-- inactive DOFs locked to ground at equilibrium with coordinate constraints;
+- inactive DOFs locked to ground at equilibrium with coordinate constraints — or, for a body whose
+  locked DOFs need no rigid-body node (``[client] reduce``, default true), no node for them at all:
+  the body is built with its active coordinates only (mechanism.py, "Reduced bodies"); the state
+  vectors :meth:`ExudynModel.state` returns then end in one constant zero slot, which the locked
+  DOFs' entries of ``wet_index``/``body_index`` point at;
 - ONE ``ObjectGenericODE2`` over the WET bodies' nodes (mapped by name to the server's setup): ``massMatrix`` = A∞ (added mass in the system mass
   matrix, never a lagged force), ``stiffnessMatrix`` = hydrostatic stiffness (implicit) and
   ``forceVector`` = excitation + radiation memory from the server, written once per step.
@@ -89,6 +93,8 @@ class ExudynModel:
     added_mass: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))  # (6N, 6N) A∞ (setup)
     added_mass_in_matrix: bool = True
     failure_hint: str = ""          # appended to a solver failure's message (what to change)
+    force_index: np.ndarray | None = None   # reduced bodies: the 6N entries the hydro object takes
+    padded: bool = False            # reduced bodies: state vectors end in a zero slot (locked DOFs)
 
     @property
     def n_bodies(self) -> int:
@@ -98,7 +104,8 @@ class ExudynModel:
     def set_force(self, force: np.ndarray) -> None:
         """Write all wet bodies' hydrodynamic forces (6N) into the GenericODE2 in one call."""
         if int(self.hydro_object) >= 0:
-            self.mbs.SetObjectParameter(self.hydro_object, "forceVector", force)
+            self.mbs.SetObjectParameter(self.hydro_object, "forceVector",
+                                        force if self.force_index is None else force[self.force_index])
 
     def initialize(self) -> None:
         """Initialise the solver (initial accelerations use the force vector set now)."""
@@ -107,10 +114,13 @@ class ExudynModel:
 
     def state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Displacements, velocities and accelerations of all system ODE2 coordinates (wet bodies'
-        6N: ``wet_index``; every scene body: ``body_index``)."""
+        6N: ``wet_index``; every scene body: ``body_index``), with reduced bodies followed by one
+        zero slot (their locked DOFs)."""
         sd = self.mbs.systemData
-        return (np.asarray(sd.GetODE2Coordinates()), np.asarray(sd.GetODE2Coordinates_t()),
-                np.asarray(sd.GetODE2Coordinates_tt()))
+        q, v, a = sd.GetODE2Coordinates(), sd.GetODE2Coordinates_t(), sd.GetODE2Coordinates_tt()
+        if self.padded:
+            return np.append(q, 0.0), np.append(v, 0.0), np.append(a, 0.0)
+        return np.asarray(q), np.asarray(v), np.asarray(a)
 
     def advance(self, t0: float, t1: float) -> None:
         """Integrate one step t0 → t1 with the force vector currently set."""
@@ -136,12 +146,14 @@ class ExudynModel:
         self.solver.it.currentTime = t
 
     def mass_matrix(self) -> np.ndarray:
-        """The system mass matrix over the body coordinates (6N × 6N), as the solver sees it."""
+        """The system mass matrix over the body coordinates (6N × 6N), as the solver sees it (a
+        reduced body's locked DOFs: zero rows and columns)."""
         if not self.initialized:
             self.initialize()
         self.solver.ComputeMassMatrix(self.mbs)
         i = self.wet_index
-        return np.asarray(self.solver.GetSystemMassMatrix())[np.ix_(i, i)]
+        m = np.asarray(self.solver.GetSystemMassMatrix())
+        return (np.pad(m, (0, 1)) if self.padded else m)[np.ix_(i, i)]
 
     def finalize(self) -> None:
         if self.initialized:
@@ -166,8 +178,19 @@ def result_bodies(scene: Scene, setup: Setup | None) -> tuple[list[str], np.ndar
     return [b.name for b in scene.bodies], np.asarray(ref, float).reshape(len(ref), 6)
 
 
+def _body_indices(mech: Mechanism, names: list[str], ltg, pad: int) -> np.ndarray:
+    """(6 len(names),) ODE2 indices of the named bodies' six DOFs; a reduced body's locked DOFs
+    point at ``pad`` (the zero slot after the ODE2 coordinates)."""
+    out = np.full(6 * len(names), pad, int)
+    for i, nm in enumerate(names):
+        h = mech.handles[nm]
+        out[6 * i + np.asarray(h.dofs if h.dofs is not None else range(6), int)] = ltg(h.node)
+    return out
+
+
 def build_model(scene: Scene, setup: Setup | None, *, spectral_radius: float = 1.0,
-                added_mass_in_matrix: bool = True, newmark: bool = False) -> ExudynModel:
+                added_mass_in_matrix: bool = True, newmark: bool = False,
+                reduce: bool | None = None) -> ExudynModel:
     """Build the Exudyn system from the scene (bodies, point masses, joints, constraints, initial
     state) and the server's setup (wet bodies by name, active DOFs, A∞, hydrostatic stiffness,
     equilibrium, net buoyancy, dt); ``setup`` None when no body is wet.
@@ -176,7 +199,9 @@ def build_model(scene: Scene, setup: Setup | None, *, spectral_radius: float = 1
     trapezoidal rule — no numerical damping of the lightly damped wave-body modes.
     ``added_mass_in_matrix`` False leaves A∞ out of the mass matrix (the explicit and implicit
     coupling schemes feed it back as a force); ``newmark`` uses Newmark's trapezoidal rule
-    (bit-exact rollback, for the implicit scheme) instead of generalized-alpha."""
+    (bit-exact rollback, for the implicit scheme) instead of generalized-alpha. ``reduce`` (default:
+    the scene's ``[client] reduce``) builds the bodies that qualify with their active coordinates
+    only (clients/mechanism.py, "Reduced bodies"); False is the full form."""
     names = list(setup.bodies) if setup else []
     n = len(names)
     wet_scene = [b.name for b in scene.bodies if b.wet]
@@ -193,22 +218,30 @@ def build_model(scene: Scene, setup: Setup | None, *, spectral_radius: float = 1
 
     sc = exu.SystemContainer()
     mbs = sc.AddSystem()
-    mech = build_mechanism(mbs, scene, {nm: equilibrium[i, :3] for i, nm in enumerate(names)}, net)
+    if reduce is None:
+        reduce = bool(getattr(scene.client, "reduce", True))
+    mech = build_mechanism(mbs, scene, {nm: equilibrium[i, :3] for i, nm in enumerate(names)}, net,
+                           reduce=reduce)
     ptos = build_ptos(mbs, scene.ptos, mech.handles) if scene.ptos else None
     moorings = build_moorings(mbs, scene.moorings, mech.handles, scene.water) if scene.moorings else None
+    padded = any(h.dofs is not None for h in mech.handles.values())
+    # the hydro object's coordinates: each wet body's node coordinates (a reduced body's active DOFs)
+    sel = np.concatenate([6 * i + np.asarray(mech.handles[nm].dofs or range(6), int) for i, nm in enumerate(names)]
+                         ) if n else np.zeros(0, int)
     hydro = -1
     if n:
+        ix = np.ix_(sel, sel)
         hydro = mbs.AddObject(ObjectGenericODE2(
             name="hydrodynamics", nodeNumbers=mech.rigid_nodes(names),
-            massMatrix=a_inf if added_mass_in_matrix else np.zeros_like(a_inf),
-            stiffnessMatrix=stiffness, forceVector=np.zeros(6 * n),
+            massMatrix=a_inf[ix] if added_mass_in_matrix else np.zeros((sel.size, sel.size)),
+            stiffnessMatrix=stiffness[ix], forceVector=np.zeros(sel.size),
             visualization=VObjectGenericODE2(show=False)))
     mbs.Assemble()
     ltg = mbs.systemData.GetNodeLTGODE2
+    pad = len(mbs.systemData.GetODE2Coordinates())
     all_names, reference = result_bodies(scene, setup)
-    body_index = np.concatenate([np.asarray(ltg(mech.handles[nm].node), int) for nm in all_names])
-    wet_index = (np.concatenate([np.asarray(ltg(mech.handles[nm].node), int) for nm in names])
-                 if n else np.zeros(0, int))
+    body_index = _body_indices(mech, all_names, ltg, pad)
+    wet_index = _body_indices(mech, names, ltg, pad)
 
     ss = exu.SimulationSettings()
     ss.solution.file.write = False
@@ -228,7 +261,8 @@ def build_model(scene: Scene, setup: Setup | None, *, spectral_radius: float = 1
     return ExudynModel(sc, mbs, exu.MainSolverImplicitSecondOrder(), ss, hydro, equilibrium,
                        active, stiffness, dt, mech, wet_index, all_names, reference, body_index,
                        np.array([all_names.index(nm) for nm in names], int), ptos, moorings,
-                       added_mass=a_inf, added_mass_in_matrix=added_mass_in_matrix)
+                       added_mass=a_inf, added_mass_in_matrix=added_mass_in_matrix,
+                       force_index=sel if sel.size < 6 * n else None, padded=padded)
 
 
 JOINT_COMPONENTS = ("fx", "fy", "fz", "mx", "my", "mz")

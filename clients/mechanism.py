@@ -2,20 +2,23 @@
 
 Interface for other client modules (PTOs, moorings) — kept small and stable:
 
-``BodyHandle(name, kind, node, object, reference)``
+``BodyHandle(name, kind, node, object, reference, dofs)``
     ``kind`` is ``"rigid"`` (a scene body, wet or dry: ``NodeRigidBodyRxyz`` + ``ObjectRigidBody``),
-    ``"point"`` (a point mass: ``NodePoint`` + ``ObjectMassPoint``) or ``"ground"`` (an
-    ``ObjectGround`` at the origin; ``node`` is -1). ``reference`` is the node's global position at
-    t = 0 (for ground: the origin). Bodies start unrotated: their body frame is the global frame in
-    the reference configuration, so a body-fixed point is ``point_global - reference`` in local
-    coordinates.
+    ``"slider"`` or ``"reduced"`` (a scene body built with its active coordinates only, see
+    "Reduced bodies" below), ``"point"`` (a point mass: ``NodePoint`` + ``ObjectMassPoint``) or
+    ``"ground"`` (an ``ObjectGround`` at the origin; ``node`` is -1). ``reference`` is the body's
+    global reference position at t = 0 (for ground: the origin). Bodies start unrotated: their body
+    frame is the global frame in the reference configuration, so a body-fixed point is
+    ``point_global - reference`` in local coordinates. ``dofs``: for a slider/reduced body the DOFs
+    (0..5, surge..yaw) its node's coordinates are, in order; None for the others.
 
 ``marker_at(mbs, handle, point_global, rotation=None) -> int``
     A marker at a point given in the global frame of the reference configuration:
     ``MarkerBodyRigid`` (position and orientation; ``rotation`` — a 3x3 matrix whose columns are the
     marker frame's axes in the global frame — gives the marker frame, default the global axes) on
     rigid bodies and on ground, ``MarkerBodyPosition`` (position only) on point masses — a point
-    mass has no extent, so ``point_global`` and ``rotation`` are ignored there.
+    mass has no extent, so ``point_global`` and ``rotation`` are ignored there — and on sliders (no
+    ``rotation``: a slider has no orientation); a ``"reduced"`` body takes no marker.
 
 ``Mechanism.handles`` maps every name (bodies, point masses, ``"ground"``) to its handle.
 
@@ -24,6 +27,27 @@ exact for large rotations) and, when ``buoyancy_volume`` > 0, a constant rho g V
 buoyancy (default: the centre of mass). Wet bodies get no Exudyn gravity — their restoring
 stiffness (hydrostatics + gravity) comes from the force server — only the constant net vertical force
 rho g V - m g the server reports, at the reference point.
+
+Reduced bodies (``build_mechanism(..., reduce=True)``): a body whose locked DOFs need no rigid-body
+node is built with its active coordinates only — no ``NodeRigidBodyRxyz``, no coordinate
+constraints, no Newton iterations on a DAE. It qualifies when (:func:`reduction_blocker`) no joint,
+mooring or rotary PTO attaches to it (they need its pose), and its full-form equations of motion
+restricted to the active DOFs are exactly linear, so that both forms agree to round-off: at most
+one active rotation, and with a rotation plus translations (or a dry body's weight/buoyancy) the
+centre of mass (and of buoyancy) on that rotation's axis through the reference point (else the
+inertia coupling / gravity moment depends on the angle). Built as
+
+- ``"slider"``: one active translation (heave-only, ...): ``Node1D`` + ``ObjectMass1D`` along the
+  DOF's global axis. Its points translate with it, so it takes position markers: linear PTOs attach
+  to it unchanged (a PTO line between two heave-only bodies acts on their relative heave);
+- ``"reduced"``: otherwise: ``NodeGenericODE2`` over the active DOFs + ``ObjectGenericODE2`` with
+  the 6×6 rigid-body mass matrix about the reference point (centre-of-mass offset included)
+  restricted to them; nothing attaches to it.
+
+Constant loads (weight, buoyancy, net buoyancy) act on a reduced body's coordinates as
+``LoadCoordinate`` (the force and its moment about the reference point, active components); a
+locked DOF's share is what the full form's coordinate constraint would carry. The node's
+coordinates are displacements from the reference, like a rigid body node's.
 
 Joints are ``ObjectJointGeneric`` with the constrained axes of the joint frame (see
 :data:`JOINT_AXES`). Redundant constraints are found from the constraint Jacobian at t = 0: a planar
@@ -43,14 +67,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 import exudyn as exu
-from exudyn.itemInterface import (CoordinateConstraint, LoadForceVector, MarkerBodyPosition,
-                                  MarkerBodyRigid, MarkerNodeCoordinate, NodePoint, NodePointGround,
-                                  NodeRigidBodyRxyz, ObjectConnectorRigidBodySpringDamper, ObjectGround,
-                                  ObjectJointGeneric, ObjectJointSpherical, ObjectMassPoint, ObjectRigidBody,
-                                  VObjectJointSpherical, VObjectRigidBody)
+from exudyn.itemInterface import (CoordinateConstraint, LoadCoordinate, LoadForceVector, MarkerBodyPosition,
+                                  MarkerBodyRigid, MarkerNodeCoordinate, Node1D, NodeGenericODE2, NodePoint,
+                                  NodePointGround, NodeRigidBodyRxyz, ObjectConnectorRigidBodySpringDamper,
+                                  ObjectGenericODE2, ObjectGround, ObjectJointGeneric, ObjectJointSpherical,
+                                  ObjectMass1D, ObjectMassPoint, ObjectRigidBody, VObjectGenericODE2,
+                                  VObjectJointSpherical, VObjectMass1D, VObjectRigidBody)
 from exudyn.rigidBodyUtilities import RigidBodyInertia
 
-from hydrolink.protocol.scene import DOF_NAMES, Body, Joint, PointMass, Scene, SceneError
+from hydrolink.clients.coupling import rigid_body_mass_matrix
+from hydrolink.protocol.scene import DOF_NAMES, Body, Joint, LinearPTO, PointMass, Scene, SceneError
 
 GROUND = "ground"
 
@@ -75,19 +101,27 @@ class BodyHandle:
     """An Exudyn body of the scene: see the module docstring."""
 
     name: str
-    kind: str                 # "rigid" | "point" | "ground"
+    kind: str                 # "rigid" | "slider" | "reduced" | "point" | "ground"
     node: int                 # Exudyn node index (-1 for ground)
-    object: int               # Exudyn object index (ObjectRigidBody / ObjectMassPoint / ObjectGround)
-    reference: tuple[float, float, float]   # global node position at t = 0
+    object: int               # Exudyn object index (ObjectRigidBody / ObjectMass1D / ObjectGenericODE2 /
+    #                           ObjectMassPoint / ObjectGround)
+    reference: tuple[float, float, float]   # global reference position at t = 0
+    dofs: tuple[int, ...] | None = None      # slider/reduced: the body DOF of each node coordinate
 
 
 def marker_at(mbs, handle: BodyHandle, point_global, rotation=None) -> int:
     """A marker on ``handle`` at ``point_global`` (global frame at t = 0); see the module docstring."""
     if handle.kind == "point":
         return mbs.AddMarker(MarkerBodyPosition(bodyNumber=handle.object, localPosition=[0.0, 0.0, 0.0]))
+    local = (np.asarray(point_global, float).reshape(3) - np.asarray(handle.reference, float)).tolist()
+    if handle.kind == "slider" and rotation is None:
+        local = (slider_rotation(handle.dofs[0]).T @ np.asarray(local)).tolist()
+        return mbs.AddMarker(MarkerBodyPosition(bodyNumber=handle.object, localPosition=local))
+    if handle.kind in ("slider", "reduced"):
+        raise ValueError(f"body {handle.name!r} is built with its active coordinates only ({handle.kind}): "
+                         "it takes no marker frame" + ("" if handle.kind == "slider" else " or point"))
     if handle.kind not in ("rigid", "ground"):
         raise ValueError(f"unknown body kind {handle.kind!r}")
-    local = (np.asarray(point_global, float).reshape(3) - np.asarray(handle.reference, float)).tolist()
     if rotation is None:
         return mbs.AddMarker(MarkerBodyRigid(bodyNumber=handle.object, localPosition=local))
     ht = exu.HT(rotation=np.asarray(rotation, float).reshape(3, 3), translation=local)
@@ -117,7 +151,8 @@ class Mechanism:
     joints: list[JointInfo]
     ground_coordinate_marker: int
     warnings: list[str] = field(default_factory=list)
-    reductions: list[str] = field(default_factory=list)   # planar-loop joints whose axes were freed
+    reductions: list[str] = field(default_factory=list)   # reduced bodies; planar-loop joints whose axes were freed
+    full_bodies: dict[str, str] = field(default_factory=dict)   # bodies with locked DOFs kept rigid: why
     coordinate_constraints: list[tuple[str, int]] = field(default_factory=list)  # (key, object)
 
     @property
@@ -184,21 +219,25 @@ def add_ground(mbs) -> tuple[BodyHandle, int]:
     return BodyHandle(GROUND, "ground", -1, obj, (0.0, 0.0, 0.0)), marker
 
 
-def add_rigid_body(mbs, scene: Scene, body: Body, reference, initial_displacement=None,
-                   initial_velocity=None) -> BodyHandle:
-    """``NodeRigidBodyRxyz`` at ``reference`` + ``ObjectRigidBody`` (inertia moved to the node)."""
-    i = scene.bodies.index(body)
-    ref = np.asarray(reference, float).reshape(3)
-    com = np.asarray(body.center_of_mass, float) - ref
-    inertia = RigidBodyInertia(body.mass, body.inertia_matrix, com, inertiaTensorAtCOM=True)
+def _check_inertia(scene: Scene, body: Body) -> None:
+    """SceneError naming ``bodies[i].inertia`` when the body's mass matrix is numerically singular."""
     m6 = np.zeros((6, 6))
     m6[:3, :3] = body.mass * np.eye(3)
     m6[3:, 3:] = body.inertia_matrix
     ev = np.linalg.eigvalsh(m6)
     if ev[0] <= 1e-12 * ev[-1]:
-        raise SceneError("scene", f"bodies[{i}].inertia",
+        raise SceneError("scene", f"bodies[{scene.bodies.index(body)}].inertia",
                          f"the body's mass matrix is numerically singular (eigenvalues {ev[0]:.3g} .. {ev[-1]:.3g}); "
                          "give every principal moment of inertia a physical value")
+
+
+def add_rigid_body(mbs, scene: Scene, body: Body, reference, initial_displacement=None,
+                   initial_velocity=None) -> BodyHandle:
+    """``NodeRigidBodyRxyz`` at ``reference`` + ``ObjectRigidBody`` (inertia moved to the node)."""
+    ref = np.asarray(reference, float).reshape(3)
+    com = np.asarray(body.center_of_mass, float) - ref
+    _check_inertia(scene, body)
+    inertia = RigidBodyInertia(body.mass, body.inertia_matrix, com, inertiaTensorAtCOM=True)
     q0 = initial_displacement if initial_displacement is not None else _initial(scene, body, "initial_displacement")
     v0 = initial_velocity if initial_velocity is not None else _initial(scene, body, "initial_velocity")
     node = mbs.AddNode(NodeRigidBodyRxyz(name=f"{body.name}_node", referenceCoordinates=[*ref, 0.0, 0.0, 0.0],
@@ -207,6 +246,93 @@ def add_rigid_body(mbs, scene: Scene, body: Body, reference, initial_displacemen
                                         inertia=inertia.GetInertia6D(), centerOfMass=com.tolist(),
                                         visualization=VObjectRigidBody(show=False)))
     return BodyHandle(body.name, "rigid", node, obj, tuple(float(x) for x in ref))
+
+
+def active_dofs(body: Body) -> tuple[int, ...]:
+    """The body's active DOFs (0..5: surge, sway, heave, roll, pitch, yaw), in that order."""
+    return tuple(j for j, on in enumerate(body.active_mask) if on)
+
+
+def reduction_blocker(scene: Scene, body: Body, reference) -> str | None:
+    """Why ``body`` (reference point ``reference``) needs a full rigid-body node; None when it can be
+    built with its active coordinates only (module docstring, "Reduced bodies")."""
+    dofs = active_dofs(body)
+    if len(dofs) in (0, 6):
+        return "no DOF is locked" if dofs else "no active DOF"
+    for i, j in enumerate(scene.joints):
+        if body.name in (j.body1, j.body2):
+            return f"joints[{i}] needs its pose"
+    for i, m in enumerate(scene.moorings):
+        if body.name in (getattr(m, "body", None), getattr(m, "attach_to", None)):
+            return f"moorings[{i}] needs its pose"
+    slider = len(dofs) == 1 and dofs[0] < 3
+    for i, p in enumerate(scene.ptos):
+        if body.name in (p.body1, p.body2) and not (slider and isinstance(p, LinearPTO)):
+            return (f"ptos[{i}] needs its pose (a linear PTO attaches to a body with one active translation "
+                    "only)")
+    rot = [j for j in dofs if j >= 3]
+    if len(rot) > 1:
+        return f"{' and '.join(DOF_NAMES[j] for j in rot)} are active: the rotation kinematics are nonlinear"
+    if not rot:
+        return None
+    axis = np.eye(3)[rot[0] - 3]
+    ref = np.asarray(reference, float).reshape(3)
+    points = []
+    if len(dofs) > 1 or not body.wet:
+        points.append(("centre of mass", body.center_of_mass))
+    if not body.wet and body.buoyancy_volume > 0 and body.center_of_buoyancy is not None:
+        points.append(("centre of buoyancy", body.center_of_buoyancy))
+    for what, point in points:
+        r = np.asarray(point, float) - ref
+        off = float(np.linalg.norm(r - axis * float(r @ axis)))
+        if off > 1e-12 * max(1.0, float(np.abs(ref).max())):
+            return (f"its {what} is {off:.3g} m off the {DOF_NAMES[rot[0]]} axis through its reference point: "
+                    f"the {'gravity moment' if len(dofs) == 1 else 'inertia coupling'} depends on the angle")
+    return None
+
+
+def slider_rotation(dof: int) -> np.ndarray:
+    """Rotation whose first column is the global axis of translation DOF ``dof`` (right-handed)."""
+    return np.roll(np.eye(3), -dof, axis=1)
+
+
+def add_reduced_body(mbs, scene: Scene, body: Body, reference, initial_displacement: np.ndarray,
+                     initial_velocity: np.ndarray) -> BodyHandle:
+    """A body with its active coordinates only (module docstring, "Reduced bodies"): a slider
+    (``Node1D`` + ``ObjectMass1D``) for one active translation, else ``NodeGenericODE2`` +
+    ``ObjectGenericODE2`` with the rigid-body mass matrix restricted to the active DOFs."""
+    dofs = active_dofs(body)
+    ref = np.asarray(reference, float).reshape(3)
+    _check_inertia(scene, body)
+    q0, v0 = np.asarray(initial_displacement, float)[list(dofs)], np.asarray(initial_velocity, float)[list(dofs)]
+    if len(dofs) == 1 and dofs[0] < 3:
+        node = mbs.AddNode(Node1D(name=f"{body.name}_node", referenceCoordinates=[0.0],
+                                  initialCoordinates=q0.tolist(), initialVelocities=v0.tolist()))
+        obj = mbs.AddObject(ObjectMass1D(name=body.name, nodeNumber=node, mass=body.mass,
+                                         referencePosition=ref.tolist(), referenceRotation=slider_rotation(dofs[0]),
+                                         visualization=VObjectMass1D(show=False)))
+        return BodyHandle(body.name, "slider", node, obj, tuple(float(x) for x in ref), dofs)
+    m6 = rigid_body_mass_matrix(body.mass, body.inertia_matrix, np.asarray(body.center_of_mass, float) - ref)
+    node = mbs.AddNode(NodeGenericODE2(name=f"{body.name}_node", numberOfODE2Coordinates=len(dofs),
+                                       referenceCoordinates=np.r_[ref, 0.0, 0.0, 0.0][list(dofs)].tolist(),
+                                       initialCoordinates=q0.tolist(), initialCoordinates_t=v0.tolist()))
+    obj = mbs.AddObject(ObjectGenericODE2(name=body.name, nodeNumbers=[node], massMatrix=m6[np.ix_(dofs, dofs)],
+                                          visualization=VObjectGenericODE2(show=False)))
+    return BodyHandle(body.name, "reduced", node, obj, tuple(float(x) for x in ref), dofs)
+
+
+def add_coordinate_loads(mbs, handle: BodyHandle, point, force) -> list[int]:
+    """A constant global ``force`` at ``point`` on a slider/reduced body: its generalised force
+    (force; moment about the reference point) on the node's coordinates, as ``LoadCoordinate``."""
+    f = np.asarray(force, float).reshape(3)
+    r = np.asarray(point, float).reshape(3) - np.asarray(handle.reference, float)
+    f6 = np.r_[f, np.cross(r, f)]
+    loads = []
+    for c, dof in enumerate(handle.dofs):
+        if f6[dof] != 0.0:
+            m = mbs.AddMarker(MarkerNodeCoordinate(nodeNumber=handle.node, coordinate=c))
+            loads.append(mbs.AddLoad(LoadCoordinate(markerNumber=m, load=float(f6[dof]))))
+    return loads
 
 
 def add_point_mass(mbs, pm: PointMass) -> BodyHandle:
@@ -221,6 +347,9 @@ def add_vertical_force(mbs, handle: BodyHandle, point, fz: float) -> int | None:
     """A constant global vertical force ``fz`` at ``point`` (global, reference configuration)."""
     if fz == 0.0:
         return None
+    if handle.dofs is not None:
+        loads = add_coordinate_loads(mbs, handle, point, [0.0, 0.0, fz])
+        return loads[0] if loads else None
     if handle.kind == "point":
         m = marker_at(mbs, handle, point)
     else:
@@ -346,7 +475,7 @@ def add_coordinate_constraints(mbs, scene: Scene, handles: dict[str, BodyHandle]
     for i, body in enumerate(scene.bodies):
         node = handles[body.name].node
         for j, on in enumerate(body.active_mask):
-            if not on:
+            if not on and handles[body.name].dofs is None:
                 m = mbs.AddMarker(MarkerNodeCoordinate(nodeNumber=node, coordinate=j))
                 out.append((f"bodies[{i}].dofs", mbs.AddObject(CoordinateConstraint(
                     markerNumbers=[ground_marker, m]))))
@@ -356,7 +485,8 @@ def add_coordinate_constraints(mbs, scene: Scene, handles: dict[str, BodyHandle]
         if not scene.bodies[bi].active_mask[j]:
             raise SceneError("scene", f"constraints[{i}].dof",
                              f"{c.dof} of {c.body!r} is already locked (not in bodies[{bi}].dofs)")
-        m = mbs.AddMarker(MarkerNodeCoordinate(nodeNumber=handles[c.body].node, coordinate=j))
+        h = handles[c.body]
+        m = mbs.AddMarker(MarkerNodeCoordinate(nodeNumber=h.node, coordinate=j if h.dofs is None else h.dofs.index(j)))
         obj = mbs.AddObject(CoordinateConstraint(markerNumbers=[ground_marker, m], offset=float(c.value),
                                                  velocityLevel=c.type == "velocity"))
         out.append((f"constraints[{i}]", obj))
@@ -527,12 +657,14 @@ def _dependent(columns: list[np.ndarray], col: np.ndarray, tol: float) -> np.nda
 # -- assembly ------------------------------------------------------------------------------------
 
 def build_mechanism(mbs, scene: Scene, wet_references: dict[str, np.ndarray],
-                    net_buoyancy: dict[str, float] | None = None) -> Mechanism:
+                    net_buoyancy: dict[str, float] | None = None, *, reduce: bool = False) -> Mechanism:
     """Add ground, bodies (wet at ``wet_references``, dry at their reference point), point masses,
     gravity/buoyancy, coordinate constraints and joints to ``mbs``; assemble; check redundancy and
-    the initial joint gaps. PTOs/moorings may be added afterwards (then call ``mbs.Assemble()``)."""
+    the initial joint gaps. PTOs/moorings may be added afterwards (then call ``mbs.Assemble()``).
+    ``reduce``: build qualifying bodies with their active coordinates only (module docstring)."""
     ground, ground_marker = add_ground(mbs)
     handles: dict[str, BodyHandle] = {GROUND: ground}
+    full: dict[str, str] = {}
     for i, body in enumerate(scene.bodies):
         if body.wet:
             if body.name not in wet_references:
@@ -541,7 +673,13 @@ def build_mechanism(mbs, scene: Scene, wet_references: dict[str, np.ndarray],
         else:
             ref = body_reference(body)
         q0, v0 = constrained_initial_state(scene, body)
-        handles[body.name] = add_rigid_body(mbs, scene, body, ref, q0, v0)
+        why = reduction_blocker(scene, body, ref) if reduce else "reduction off"
+        if why is None:
+            handles[body.name] = add_reduced_body(mbs, scene, body, ref, q0, v0)
+        else:
+            handles[body.name] = add_rigid_body(mbs, scene, body, ref, q0, v0)
+            if 0 < len(active_dofs(body)) < 6:
+                full[body.name] = why
     for pm in scene.point_masses:
         handles[pm.name] = add_point_mass(mbs, pm)
     add_dry_loads(mbs, scene, handles)
@@ -550,7 +688,14 @@ def build_mechanism(mbs, scene: Scene, wet_references: dict[str, np.ndarray],
             add_vertical_force(mbs, handles[name], handles[name].reference, float(fz))
     coords = add_coordinate_constraints(mbs, scene, handles, ground_marker, {})
     joints = [add_joint(mbs, scene, i, handles) for i in range(len(scene.joints))]
-    mech = Mechanism(handles, joints, ground_marker, coordinate_constraints=coords)
+    mech = Mechanism(handles, joints, ground_marker, coordinate_constraints=coords, full_bodies=full)
+    reduced = [h for h in handles.values() if h.dofs is not None]
+    if reduced:
+        n_act = sum(len(h.dofs) for h in reduced)
+        mech.reductions.append(
+            "reduced bodies (active coordinates only, no rigid-body node or coordinate constraints): "
+            + ", ".join(f"{h.name!r} ({'+'.join(DOF_NAMES[j] for j in h.dofs)})" for h in reduced)
+            + f": {n_act} coordinates instead of {6 * len(reduced)} and {6 * len(reduced) - n_act} constraints")
     mech.warnings.extend(w for i in range(len(scene.joints)) if (w := _check_joint_distance(scene, i, handles)))
     mbs.Assemble()
     if joints:

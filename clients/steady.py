@@ -178,7 +178,7 @@ def linearize(scene: Scene, model, setup: Setup) -> LinearizedSystem:
     bodies = [b.model_copy(update={"initial_displacement": [0.0] * 6, "initial_velocity": [0.0] * 6})
               for b in scene.bodies]
     bare = scene.model_copy(update={"bodies": bodies, "ptos": []})
-    ex = build_model(bare, setup)
+    ex = build_model(bare, setup, reduce=False)   # node-based indices below: the full form
     mbs = ex.mbs
     ss = exu.SimulationSettings()
     ss.solution.file.write = False

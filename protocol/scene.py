@@ -466,7 +466,11 @@ class FMUCoupling(_Section):
 
 
 class ExudynClient(_Section):
+    """The Exudyn multibody client. ``reduce``: bodies whose locked DOFs need no rigid-body node are
+    built with their active coordinates only (clients/mechanism.py, "Reduced bodies"); false keeps
+    every body a 6-DOF rigid body with its locked DOFs as coordinate constraints."""
     type: Literal["exudyn"]
+    reduce: bool = True
 
 
 class FMUClient(_Section):
