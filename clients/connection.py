@@ -20,7 +20,7 @@ import zmq
 from hydrolink.protocol import codec
 from hydrolink.protocol.codec import ProtocolError
 from hydrolink.protocol.setup import Setup
-from hydrolink.server.hdb.schema import to_wire
+from hydrolink.protocol.hdb_wire import to_wire
 
 FORCE_FIELDS = ("excitation", "radiation", "hydrostatic")
 

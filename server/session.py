@@ -14,7 +14,8 @@ import xarray as xr
 from hydrolink.protocol import codec
 from hydrolink.protocol.codec import Code, ProtocolError
 from hydrolink.protocol.scene import Scene, SceneError, parse_scene
-from hydrolink.server.hdb.schema import HDBError, from_wire
+from hydrolink.protocol.hdb_wire import from_wire
+from hydrolink.server.hdb.schema import HDBError
 from hydrolink.server.model import HydroModel, ModelError
 
 

@@ -14,7 +14,7 @@ from conftest import SPHERE_WATER, body, regular_waves, scene_toml
 
 from hydrolink.clients.connection import RemoteError, ServerConnection
 from hydrolink.protocol import codec
-from hydrolink.server.hdb.schema import to_wire
+from hydrolink.protocol.hdb_wire import to_wire
 from hydrolink.server.service import serve_in_thread
 
 DT = 0.05

@@ -12,7 +12,7 @@ from analytic_hdb import DOF_PARAMS, irf, make_body_hdb
 from conftest import body, scene_toml
 from hydrolink.protocol import codec
 from hydrolink.protocol.codec import Code, ProtocolError
-from hydrolink.server.hdb.schema import to_wire
+from hydrolink.protocol.hdb_wire import to_wire
 from hydrolink.server.session import Session, build_model
 
 DT, RHO = 0.05, 1025.0
