@@ -1,10 +1,17 @@
-"""Shared test fixtures: the leads' reference data lives in ../shared beside the repository."""
+"""Shared test fixtures (the leads' reference data lives in ../shared beside the repository) and the
+scene builder every test uses to write scene TOML."""
 
 from __future__ import annotations
 
+import json
+import numbers
 import os
+import re
+from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
+import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
@@ -31,3 +38,139 @@ def sphere(sphere_path: Path):
     """The sphere's HDB, loaded once."""
     from hydrolink.server.hdb.io import load_hdb
     return load_hdb(sphere_path)
+
+
+# ------------------------------------------------------------------------------ scene builder
+#
+# Tests describe scenes as keyword arguments and get TOML text back, so the real parser
+# (protocol/scene.py) validates exactly what a user's file would hold:
+#
+#     text = scene_toml(dt=0.05, duration=10.0, waves=regular_waves(1.0, 6.0),
+#                       bodies=[body("float", hdb="float.nc", mass=3e5, center_of_mass=[0, 0, -1],
+#                                    inertia=[1e7, 1e7, 2e7])])
+#     path = write_scene(tmp_path, text)
+#
+# A section is a dict (``[water]``), or a list of dicts for the arrays of tables (``[[bodies]]``);
+# dicts inside a section become inline tables (``friction = { force = 4.0 }``).
+
+Section = Mapping[str, Any]
+SCENE_SECTIONS: tuple[str, ...] = ("simulation", "water", "waves", "hydro", "steady", "coupling", "bodies",
+                                   "point_masses", "joints", "constraints", "ptos", "moorings", "client",
+                                   "controllers")
+_BARE_KEY = re.compile(r"^[A-Za-z0-9_-]+$")
+
+
+def toml_key(key: str) -> str:
+    """A TOML key: bare when it can be, else a quoted string ("surge,pitch")."""
+    return key if _BARE_KEY.match(key) else json.dumps(key)
+
+
+def toml_value(value: Any) -> str:
+    """One TOML value: bool, int, float (repr, so it round-trips exactly; inf and nan as TOML
+    spells them), str, list (an array) or mapping (an inline table)."""
+    if isinstance(value, (bool, np.bool_)):
+        return "true" if value else "false"
+    if isinstance(value, numbers.Integral):
+        return str(int(value))
+    if isinstance(value, numbers.Real):
+        return repr(float(value))
+    if isinstance(value, str):
+        return json.dumps(value)
+    if isinstance(value, Mapping):
+        return "{ " + ", ".join(f"{toml_key(k)} = {toml_value(v)}" for k, v in value.items()) + " }"
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return "[" + ", ".join(toml_value(v) for v in value) + "]"
+    raise TypeError(f"no TOML value for {value!r}")
+
+
+def toml_document(sections: Mapping[str, Section | Sequence[Section]]) -> str:
+    """TOML text of named sections: a mapping becomes ``[name]``, a list of mappings ``[[name]]``."""
+    lines: list[str] = []
+    for name, section in sections.items():
+        tables = [(f"[{name}]", section)] if isinstance(section, Mapping) else [(f"[[{name}]]", s) for s in section]
+        for header, table in tables:
+            lines.append(header)
+            lines.extend(f"{toml_key(k)} = {toml_value(v)}" for k, v in table.items())
+    return "\n".join(lines) + "\n"
+
+
+def scene_toml(*, dt: float, duration: float, bodies: Sequence[Section], progress: bool | None = None,
+               simulation: Section | None = None, **sections: Section | Sequence[Section] | None) -> str:
+    """Scene TOML text: [simulation] from dt, duration, progress (written only when given) and any
+    further ``simulation`` keys; then the other sections by their scene names (water, waves, hydro,
+    steady, coupling, bodies, point_masses, joints, constraints, ptos, moorings, client,
+    controllers). A section given as None or empty is left out (the scene's default)."""
+    unknown = set(sections) - set(SCENE_SECTIONS)
+    if unknown:
+        raise TypeError(f"scene_toml: unknown section(s) {sorted(unknown)}")
+    sim: dict[str, Any] = {"dt": dt, "duration": duration}
+    if progress is not None:
+        sim["progress"] = progress
+    sim.update(simulation or {})
+    given = {**sections, "simulation": sim, "bodies": bodies}
+    return toml_document({k: given[k] for k in SCENE_SECTIONS if given.get(k)})
+
+
+def body(name: str, *, mass: float, center_of_mass: Sequence[float], inertia: Sequence[Any],
+         hdb: str | None = None, **keys: Any) -> dict[str, Any]:
+    """One ``[[bodies]]`` entry: wet with ``hdb``, dry without; further keys as the scene names them
+    (dofs, initial_displacement, hdb_body, ...)."""
+    wet = {"hdb": hdb} if hdb is not None else {}
+    return {"name": name, **wet, "mass": mass, "center_of_mass": list(center_of_mass), "inertia": list(inertia),
+            **keys}
+
+
+def joint(kind: str, body1: str, body2: str, point: Sequence[float], **keys: Any) -> dict[str, Any]:
+    """One ``[[joints]]`` entry of type ``kind`` at ``point`` (name, axis, axis2, friction as keys)."""
+    return {"type": kind, "body1": body1, "body2": body2, "point": list(point), **keys}
+
+
+def linear_pto(name: str, body1: str, point1: Sequence[float], body2: str, point2: Sequence[float],
+               **keys: Any) -> dict[str, Any]:
+    """One ``[[ptos]]`` entry of type "linear" from point1 on body1 to point2 on body2 (damping,
+    stiffness, force_limit, ... as keys)."""
+    return {"name": name, "type": "linear", "body1": body1, "point1": list(point1), "body2": body2,
+            "point2": list(point2), **keys}
+
+
+def regular_waves(height: float, period: float, **keys: Any) -> dict[str, Any]:
+    """A ``[waves]`` section of regular waves (ramp, phase, excitation, ... as keys)."""
+    return {"type": "regular", "height": height, "period": period, **keys}
+
+
+def irregular_waves(hs: float, tp: float, spectrum: str = "jonswap", **keys: Any) -> dict[str, Any]:
+    """A ``[waves]`` section of irregular waves (seed, components, ramp, spreading, ... as keys)."""
+    return {"type": "irregular", "spectrum": spectrum, "hs": hs, "tp": tp, **keys}
+
+
+SPHERE_WATER: dict[str, Any] = {"density": 1000.0, "depth": 200.0}   # as in the Task-10 sphere HDB
+
+
+def sphere_body(hdb: str, *, mass: float, **keys: Any) -> dict[str, Any]:
+    """The IEA Task-10 sphere as body "sphere": centre of mass 2 m below its reference point and
+    inertia 2.6e6 kg m^2 about each axis unless ``keys`` say otherwise."""
+    return body("sphere", hdb=hdb, mass=mass, **{"center_of_mass": [0.0, 0.0, -2.0], "inertia": [2.6e6] * 3, **keys})
+
+
+def rm3_float(hdb: str, **keys: Any) -> dict[str, Any]:
+    """RM3's float (rho V at rho = 1000; WEC-Sim's mass properties) as body "float"."""
+    return body("float", hdb=hdb, mass=725833.0, center_of_mass=[0, 0, -0.72],
+                inertia=[20907301, 21306090.66, 37085481.11], **keys)
+
+
+def rm3_spar(hdb: str, **keys: Any) -> dict[str, Any]:
+    """RM3's spar/plate (rho V at rho = 1000; WEC-Sim's mass properties) as body "spar"."""
+    return body("spar", hdb=hdb, mass=886687.0, center_of_mass=[0, 0, -21.29],
+                inertia=[94419614.57, 94407091.24, 28542224.82], **keys)
+
+
+def rm3_pto(damping: float = 1.2e6) -> dict[str, Any]:
+    """RM3's linear damper "pto" between the float's and the spar's centres of mass."""
+    return linear_pto("pto", "float", [0.0, 0.0, -0.72], "spar", [0.0, 0.0, -21.29], damping=damping)
+
+
+def write_scene(folder: Path, text: str, name: str = "scene.toml") -> Path:
+    """Write scene text into ``folder`` (beside its HDBs, so relative paths resolve) and return the path."""
+    path = folder / name
+    path.write_text(text)
+    return path

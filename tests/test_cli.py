@@ -16,42 +16,25 @@ import numpy as np
 import pytest
 import xarray as xr
 
+from conftest import SPHERE_WATER, irregular_waves, scene_toml, sphere_body, write_scene
+
 from hydrolink.clients.run import run_scene_file
 
 HYDROLINK = [sys.executable, "-m", "hydrolink.clients.cli"]
-SCENE = """\
-[simulation]
-dt = 0.05
-duration = 12.0
-progress = false
-[water]
-density = 1000.0
-depth = 200.0
-[waves]
-type = "irregular"
-spectrum = "jonswap"
-hs = 1.0
-tp = 5.0
-seed = 7
-components = 80
-ramp = 3.0
-[hydro]
-irf_duration = 10.0
-[[bodies]]
-name = "sphere"
-hdb = "sphere.h5"
-mass = 261800.0
-center_of_mass = [0, 0, -2]
-inertia = [2.6e6, 2.6e6, 2.6e6]
-dofs = ["surge", "heave", "pitch"]
-initial_displacement = [0, 0, 0.3, 0, 0, 0]
-"""
+
+def sphere_scene(*, hdb: str = "sphere.h5", mass: float = 261800.0, **body_keys) -> str:
+    """The CLI's scene: the Task-10 sphere in irregular waves; ``body_keys`` add to the body's keys."""
+    return scene_toml(dt=0.05, duration=12.0, progress=False, water=SPHERE_WATER,
+                      waves=irregular_waves(1.0, 5.0, seed=7, components=80, ramp=3.0), hydro={"irf_duration": 10.0},
+                      bodies=[sphere_body(hdb, mass=mass, center_of_mass=[0, 0, -2],
+                                          dofs=["surge", "heave", "pitch"],
+                                          initial_displacement=[0, 0, 0.3, 0, 0, 0], **body_keys)])
 
 
 @pytest.fixture()
 def scene_dir(tmp_path: Path, shared_data: Path) -> Path:
     shutil.copy(shared_data / "sphere_task10" / "sphere.h5", tmp_path / "sphere.h5")
-    (tmp_path / "scene.toml").write_text(SCENE)
+    write_scene(tmp_path, sphere_scene())
     return tmp_path
 
 
@@ -88,7 +71,7 @@ def test_remote_server_run_equals_embedded_run(scene_dir: Path):
 
 
 def test_bad_scene_is_one_clear_line(scene_dir: Path):
-    (scene_dir / "bad.toml").write_text(SCENE.replace("mass = 261800.0", "mass = -1.0"))
+    write_scene(scene_dir, sphere_scene(mass=-1.0), "bad.toml")
     result = _cli("run", "bad.toml", cwd=scene_dir)
     assert result.returncode != 0
     assert "bad.toml: bodies[0].mass: Input should be greater than 0" in result.stderr
@@ -97,7 +80,7 @@ def test_bad_scene_is_one_clear_line(scene_dir: Path):
 
 
 def test_missing_hdb_names_the_key(scene_dir: Path):
-    (scene_dir / "nohdb.toml").write_text(SCENE.replace('hdb = "sphere.h5"', 'hdb = "missing.h5"'))
+    write_scene(scene_dir, sphere_scene(hdb="missing.h5"), "nohdb.toml")
     result = _cli("run", "nohdb.toml", cwd=scene_dir)
     assert result.returncode != 0
     assert "nohdb.toml: bodies[0].hdb: file not found" in result.stderr
@@ -105,8 +88,7 @@ def test_missing_hdb_names_the_key(scene_dir: Path):
 
 
 def test_wrong_hdb_body_names_the_key(scene_dir: Path):
-    text = SCENE.replace('hdb = "sphere.h5"', 'hdb = "sphere.h5"\nhdb_body = "float"')
-    (scene_dir / "wrong.toml").write_text(text)
+    write_scene(scene_dir, sphere_scene(hdb_body="float"), "wrong.toml")
     result = _cli("run", "wrong.toml", cwd=scene_dir)
     assert result.returncode != 0
     assert "wrong.toml: bodies[0].hdb_body: the HDB sphere.h5 holds no body 'float'" in result.stderr

@@ -16,6 +16,8 @@ import numpy as np
 import pytest
 import xarray as xr
 
+from conftest import body, regular_waves, scene_toml, write_scene
+
 from hydrolink.clients.run import run_scene_file
 from hydrolink.server.hdb.build import build_hdb
 
@@ -48,27 +50,11 @@ def effective_radiation(hdb, w: float, irf: float, dt: float) -> tuple[np.ndarra
 def test_surge_heave_pitch_with_offset_cog(cylinder, tmp_path):
     period, height, dt, irf = 5.0, 0.02, 0.05, 20.0
     w = 2 * np.pi / period
-    scene = tmp_path / "scene.toml"
-    scene.write_text(f"""\
-[simulation]
-dt = {dt}
-duration = 400.0
-progress = false
-[waves]
-type = "regular"
-height = {height}
-period = {period}
-ramp = 60.0
-[hydro]
-irf_duration = {irf}
-[[bodies]]
-name = "cylinder"
-hdb = "hdb.nc"
-mass = {MASS}
-center_of_mass = [0.0, 0.0, {ZG}]
-inertia = [{IYY_G}, {IYY_G}, 1609.6]
-dofs = ["surge", "heave", "pitch"]
-""")
+    scene = write_scene(tmp_path, scene_toml(
+        dt=dt, duration=400.0, progress=False, waves=regular_waves(height, period, ramp=60.0),
+        hydro={"irf_duration": irf},
+        bodies=[body("cylinder", hdb="hdb.nc", mass=MASS, center_of_mass=[0.0, 0.0, ZG], inertia=[IYY_G, IYY_G, 1609.6],
+                     dofs=["surge", "heave", "pitch"])]))
     from hydrolink.server.hdb.schema import to_netcdf
     to_netcdf(cylinder, tmp_path / "hdb.nc")
     run_scene_file(scene, tmp_path / "out.nc", progress=False)

@@ -23,61 +23,26 @@ from hydrolink.server.waves import (WaveError, convolution_kernel, cos2s, cos2s_
                                     elevation, elevation_on_grid, excitation_irf, excitation_nodes,
                                     kernel_transfer, read_elevation, wave_components)
 from analytic_hdb import make_body_hdb
-
-RM3_BODIES = """
-[[bodies]]
-name = "float"
-hdb = "{hdb}"
-mass = 725833.0
-center_of_mass = [0.0, 0.0, -0.72]
-inertia = [20907301.0, 21306090.66, 37085481.11]
-dofs = ["heave"]
-
-[[bodies]]
-name = "spar"
-hdb = "{hdb}"
-mass = 886687.0
-center_of_mass = [0.0, 0.0, -21.29]
-inertia = [94419614.57, 94407091.24, 28542224.82]
-dofs = ["heave"]
-
-[[ptos]]
-name = "pto"
-type = "linear"
-body1 = "float"
-point1 = [0.0, 0.0, -0.72]
-body2 = "spar"
-point2 = [0.0, 0.0, -21.29]
-damping = 1.2e6
-"""
+from conftest import body, irregular_waves, regular_waves, rm3_float, rm3_pto, rm3_spar, scene_toml, write_scene
 
 
-def _rm3_scene(waves: str, hdb: str = "h", dt: float = 0.05, duration: float = 200.0, dofs_all: bool = False) -> str:
-    bodies = RM3_BODIES.format(hdb=hdb)
-    if dofs_all:
-        bodies = bodies.replace('dofs = ["heave"]\n', "")
-    return f"""[simulation]
-dt = {dt}
-duration = {duration}
-progress = false
-[water]
-density = 1000.0
-[waves]
-{waves}
-[hydro]
-irf_duration = 30.0
-{bodies}"""
+def _rm3_scene(waves: dict, hdb: str = "h", dt: float = 0.05, duration: float = 200.0, dofs_all: bool = False) -> str:
+    """RM3 (float, spar, damper) in ``waves``: heave only, or every DOF with ``dofs_all``."""
+    dofs = {} if dofs_all else {"dofs": ["heave"]}
+    return scene_toml(dt=dt, duration=duration, progress=False, water={"density": 1000.0}, waves=waves,
+                      hydro={"irf_duration": 30.0}, bodies=[rm3_float(hdb, **dofs), rm3_spar(hdb, **dofs)],
+                      ptos=[rm3_pto()])
 
 
-IRREGULAR = """type = "irregular"
-spectrum = "jonswap"
-hs = 2.5
-tp = {tp}
-components = 400
-seed = 3
-ramp = 10.0
-excitation = "{exc}"
-excitation_irf_duration = {tc}"""
+def _irregular(exc: str, tc: float, **keys) -> dict:
+    """The JONSWAP sea of these tests (Hs 2.5 m, Tp 8 s) with its excitation method and T_c."""
+    return irregular_waves(2.5, 8.0, components=400, seed=3, ramp=10.0, excitation=exc, excitation_irf_duration=tc,
+                           **keys)
+
+
+def _elevation(file: str, **keys) -> dict:
+    """A [waves] section of type "elevation"."""
+    return {"type": "elevation", "file": file, **keys}
 
 
 @pytest.fixture(scope="module")
@@ -135,13 +100,13 @@ def test_convolution_matches_superposition_irregular(rm3):
     """Irregular sea (JONSWAP Hs 2.5 m, Tp 8 s), every DOF of both bodies: the force by convolution
     with the synthesized elevation vs the frequency superposition, as a function of T_c."""
     n = 3000
-    sup = HydroModel(parse_scene(_rm3_scene(IRREGULAR.format(tp=8.0, exc="superposition", tc=20), dofs_all=True)),
+    sup = HydroModel(parse_scene(_rm3_scene(_irregular("superposition", 20), dofs_all=True)),
                      {"float": rm3, "spar": rm3})
     f_ref, eta_ref = _forces(sup, n)
     live = np.abs(f_ref).max(axis=0) > 1e-3 * np.abs(f_ref).max()
     err = {}
     for tc in (5.0, 10.0, 20.0, 40.0):
-        conv = HydroModel(parse_scene(_rm3_scene(IRREGULAR.format(tp=8.0, exc="convolution", tc=tc), dofs_all=True)),
+        conv = HydroModel(parse_scene(_rm3_scene(_irregular("convolution", tc), dofs_all=True)),
                           {"float": rm3, "spar": rm3})
         assert conv.setup_info().excitation == "convolution"
         f, eta = _forces(conv, n)
@@ -157,7 +122,7 @@ def test_convolution_with_a_cut_hdb_range(rm3):
     convolution still agrees with the superposition (the taper beyond w_max keeps K_ex short)."""
     cut = rm3.isel(omega=rm3["omega"].values <= 1.6)
     n = 2000
-    models = [HydroModel(parse_scene(_rm3_scene(IRREGULAR.format(tp=8.0, exc=e, tc=30))), {"float": cut, "spar": cut})
+    models = [HydroModel(parse_scene(_rm3_scene(_irregular(e, 30))), {"float": cut, "spar": cut})
               for e in ("superposition", "convolution")]
     (f0, _), (f1, _) = (_forces(m, n) for m in models)
     assert np.abs(f1 - f0).max(axis=0).max() / np.abs(f0).max() < 3e-3
@@ -172,10 +137,8 @@ def test_regular_wave_convolution_run_matches_superposition(rm3, tmp_path, share
     hdb = shared_data / "rm3_wamit" / "rm3.1"
     res = {}
     for exc in ("superposition", "convolution"):
-        waves = (f'type = "regular"\nheight = 2.5\nperiod = 8.0\nramp = 20.0\nexcitation = "{exc}"\n'
-                 'excitation_irf_duration = 30.0')
-        p = tmp_path / f"{exc}.toml"
-        p.write_text(_rm3_scene(waves, hdb=str(hdb), dt=0.08, duration=120.0))
+        waves = regular_waves(2.5, 8.0, ramp=20.0, excitation=exc, excitation_irf_duration=30.0)
+        p = write_scene(tmp_path, _rm3_scene(waves, hdb=str(hdb), dt=0.08, duration=120.0), f"{exc}.toml")
         run_scene_file(p, tmp_path / f"{exc}.nc", progress=False, hdbs={str(hdb): rm3})
         with xr.open_dataset(tmp_path / f"{exc}.nc") as ds:
             res[exc] = (ds["position"].values[:, :, 2], ds["total_pto_power"].values)
@@ -188,7 +151,7 @@ def test_regular_wave_convolution_run_matches_superposition(rm3, tmp_path, share
 
 def _components(rm3):
     om = rm3["omega"].values
-    w = parse_scene(_rm3_scene(IRREGULAR.format(tp=8.0, exc="superposition", tc=20))).waves
+    w = parse_scene(_rm3_scene(_irregular("superposition", 20))).waves
     return wave_components(w, float(om[0]), float(om[-1]))
 
 
@@ -209,11 +172,11 @@ def test_elevation_file_matches_superposition(rm3, tmp_path, fmt, spacing):
     tt, ee = read_elevation(path)
     np.testing.assert_allclose(ee, eta, rtol=1e-10, atol=1e-12)
     n = 2000
-    waves = f'type = "elevation"\nfile = "{path}"\nstart = {start}\nramp = 10.0\nexcitation_irf_duration = 25.0'
+    waves = _elevation(str(path), start=start, ramp=10.0, excitation_irf_duration=25.0)
     model = HydroModel(parse_scene(_rm3_scene(waves)), {"float": rm3, "spar": rm3}, (tt, ee))
     assert model.setup_info().elevation_resampled == (spacing != 0.05)
     f, e = _forces(model, n)
-    sup = HydroModel(parse_scene(_rm3_scene(IRREGULAR.format(tp=8.0, exc="superposition", tc=20))),
+    sup = HydroModel(parse_scene(_rm3_scene(_irregular("superposition", 20))),
                      {"float": rm3, "spar": rm3})
     f0, e0 = _forces(sup, n)
     np.testing.assert_allclose(e, e0, atol=2e-5 * np.abs(e0).max())
@@ -229,9 +192,8 @@ def test_elevation_run_end_to_end(rm3, tmp_path, shared_data):
     eta = 0.8 * np.cos(2 * np.pi / 8.0 * t) + 0.3 * np.sin(2 * np.pi / 5.5 * t + 1.0)
     (tmp_path / "eta.csv").write_text("\n".join(f"{a:.4f} {b:.10f}" for a, b in zip(t, eta)))
     hdb = shared_data / "rm3_wamit" / "rm3.1"
-    p = tmp_path / "scene.toml"
-    p.write_text(_rm3_scene('type = "elevation"\nfile = "eta.csv"\nexcitation_irf_duration = 20.0',
-                            hdb=str(hdb), dt=0.08, duration=40.0))
+    p = write_scene(tmp_path, _rm3_scene(_elevation("eta.csv", excitation_irf_duration=20.0), hdb=str(hdb), dt=0.08,
+                                         duration=40.0))
     s = run_scene_file(p, tmp_path / "out.nc", progress=False, hdbs={str(hdb): rm3})
     assert s["status"] == "complete"
     with xr.open_dataset(tmp_path / "out.nc") as ds:
@@ -264,11 +226,10 @@ def test_elevation_errors_name_the_key(rm3, tmp_path):
         elevation_on_grid(t, np.where(t > 3, np.nan, e), 0.05, 10, 1.0, None, 5.2)
     # through the model and the run: the key is named
     with pytest.raises(ModelError, match="waves.file"):
-        HydroModel(parse_scene(_rm3_scene('type = "elevation"\nfile = "x.csv"')), {"float": rm3, "spar": rm3})
+        HydroModel(parse_scene(_rm3_scene(_elevation("x.csv"))), {"float": rm3, "spar": rm3})
     with pytest.raises(ModelError, match=r"waves.file: x.csv: too short"):
-        HydroModel(parse_scene(_rm3_scene('type = "elevation"\nfile = "x.csv"')), {"float": rm3, "spar": rm3}, (t, e))
-    p = tmp_path / "scene.toml"
-    p.write_text(_rm3_scene('type = "elevation"\nfile = "missing.csv"', hdb="h.nc"))
+        HydroModel(parse_scene(_rm3_scene(_elevation("x.csv"))), {"float": rm3, "spar": rm3}, (t, e))
+    p = write_scene(tmp_path, _rm3_scene(_elevation("missing.csv"), hdb="h.nc"))
     with pytest.raises(SceneError, match="waves.file: elevation file not found"):
         run_scene_file(p, tmp_path / "o.nc", progress=False, hdbs={"h.nc": rm3})
 
@@ -334,31 +295,12 @@ def _heading_hdb():
                          exc=exc), exc
 
 
-SPREAD_SCENE = """[simulation]
-dt = 0.05
-duration = 100.0
-[water]
-density = 1000.0
-[waves]
-type = "irregular"
-spectrum = "jonswap"
-hs = 2.0
-tp = 7.0
-components = 120
-seed = 5
-direction = 10.0
-spreading = "cos2s"
-s = {s}
-directions = {n}
-excitation = "{exc}"
-excitation_irf_duration = 60.0
-[[bodies]]
-name = "float"
-hdb = "h"
-mass = 3.0e5
-center_of_mass = [0, 0, 0]
-inertia = [1e6, 1e6, 1e6]
-"""
+def _spread_scene(exc: str) -> str:
+    """One float in a cos-2s spread sea (s = 4, 9 directions around 10 deg)."""
+    return scene_toml(dt=0.05, duration=100.0, water={"density": 1000.0},
+                      waves=irregular_waves(2.0, 7.0, components=120, seed=5, direction=10.0, spreading="cos2s", s=4.0,
+                                            directions=9, excitation=exc, excitation_irf_duration=60.0),
+                      bodies=[body("float", hdb="h", mass=3.0e5, center_of_mass=[0, 0, 0], inertia=[1e6, 1e6, 1e6])])
 
 
 def test_spread_excitation_against_hand_sum_and_convolution():
@@ -368,7 +310,7 @@ def test_spread_excitation_against_hand_sum_and_convolution():
     made-up X keeps a phase of 0.4 rad at w -> 0, unlike a physical X(0), which is real, so its K_ex
     has a slow tail from the low-frequency end; 30 s gives 1 %.)"""
     ds, exc = _heading_hdb()
-    m = HydroModel(parse_scene(SPREAD_SCENE.format(s=4.0, n=9, exc="superposition")), {"float": ds})
+    m = HydroModel(parse_scene(_spread_scene("superposition")), {"float": ds})
     c = m.waves
     assert np.unique(c.headings).size == 9
     f, eta = _forces(m, 600)
@@ -381,7 +323,7 @@ def test_spread_excitation_against_hand_sum_and_convolution():
     scale = np.abs(ref).max(axis=0)
     assert (np.abs(f - ref).max(axis=0) / scale).max() < 1e-3   # heading + frequency interpolation only
     assert np.abs(f[:, 1]).max() > 0.05 * np.abs(f[:, 0]).max()   # spreading excites sway
-    mc = HydroModel(parse_scene(SPREAD_SCENE.format(s=4.0, n=9, exc="convolution")), {"float": ds})
+    mc = HydroModel(parse_scene(_spread_scene("convolution")), {"float": ds})
     fc, etac = _forces(mc, 600)
     np.testing.assert_allclose(etac, eta, atol=1e-12)
     assert (np.abs(fc - f).max(axis=0) / scale).max() < 2e-3
@@ -389,12 +331,12 @@ def test_spread_excitation_against_hand_sum_and_convolution():
 
 def test_spreading_beyond_the_hdb_headings_names_the_key(rm3):
     with pytest.raises(ModelError, match="waves.spreading"):
-        HydroModel(parse_scene(_rm3_scene(IRREGULAR.format(tp=8.0, exc="superposition", tc=20)
-                                          + '\nspreading = "cos2s"\ns = 10.0\ndirections = 5')),
+        HydroModel(parse_scene(_rm3_scene(_irregular("superposition", 20, spreading="cos2s", s=10.0,
+                                                     directions=5))),
                    {"float": rm3, "spar": rm3})
     # one direction = the unidirectional sea (the centroid of the whole circle is the mean)
-    m = HydroModel(parse_scene(_rm3_scene(IRREGULAR.format(tp=8.0, exc="superposition", tc=20)
-                                          + '\nspreading = "cos2s"\ndirections = 1')), {"float": rm3, "spar": rm3})
-    m0 = HydroModel(parse_scene(_rm3_scene(IRREGULAR.format(tp=8.0, exc="superposition", tc=20))),
+    m = HydroModel(parse_scene(_rm3_scene(_irregular("superposition", 20, spreading="cos2s",
+                                                     directions=1))), {"float": rm3, "spar": rm3})
+    m0 = HydroModel(parse_scene(_rm3_scene(_irregular("superposition", 20))),
                     {"float": rm3, "spar": rm3})
     np.testing.assert_allclose(_forces(m, 50)[0], _forces(m0, 50)[0], rtol=1e-12, atol=1e-6)

@@ -11,7 +11,6 @@ import os
 import signal
 import subprocess
 import sys
-import textwrap
 import threading
 import time
 from pathlib import Path
@@ -19,6 +18,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import xarray as xr
+
+from conftest import SPHERE_WATER, regular_waves, scene_toml, sphere_body, write_scene
 
 from hydrolink.clients.connection import ServerConnection
 from hydrolink.clients.exudyn_client import RunInterrupted, SimulationDiverged, build_model, run
@@ -42,38 +43,14 @@ def server():
     thread.join(5.0)
 
 
-def sphere_scene(hdb_path: Path, *, dt: float, duration: float, waves: str = "", dofs=("heave",),
+def sphere_scene(hdb_path: Path, *, dt: float, duration: float, waves: dict | None = None, dofs=("heave",),
                  displacement=(0.0,) * 6, irf: float = 40.0, cog=(0.0, 0.0, -2.0),
                  inertia=(2.6e6, 2.6e6, 2.6e6)) -> str:
     """Scene TOML for the sphere (rho and depth as in its HDB so nothing is rescaled)."""
-    floats = lambda v: np.asarray(v, float).tolist()  # noqa: E731 (plain floats, valid TOML)
-    dt, duration, irf, cog, inertia, displacement = (floats(v) for v in (dt, duration, irf, cog, inertia,
-                                                                         displacement))
-    return textwrap.dedent(f"""\
-        [simulation]
-        dt = {dt!r}
-        duration = {duration!r}
-        [water]
-        density = 1000.0
-        gravity = 9.81
-        depth = 200.0
-        {waves}
-        [hydro]
-        irf_duration = {irf!r}
-        [[bodies]]
-        name = "sphere"
-        hdb = "{hdb_path}"
-        mass = {MASS!r}
-        center_of_mass = {list(cog)}
-        inertia = {list(inertia)}
-        dofs = {list(dofs)}
-        initial_displacement = {list(displacement)}
-        """)
-
-
-def regular_waves(period: float, ramp: float, height: float = 1.0) -> str:
-    period, ramp, height = float(period), float(ramp), float(height)
-    return f'[waves]\ntype = "regular"\nheight = {height!r}\nperiod = {period!r}\nramp = {ramp!r}\n'
+    return scene_toml(dt=dt, duration=duration, water={**SPHERE_WATER, "gravity": 9.81}, waves=waves,
+                      hydro={"irf_duration": irf},
+                      bodies=[sphere_body(str(hdb_path), mass=MASS, center_of_mass=list(cog), inertia=list(inertia),
+                                          dofs=list(dofs), initial_displacement=list(displacement))])
 
 
 def simulate(address: str, text: str, hdb, out: Path, timeout: float = 30.0, **kw):
@@ -149,7 +126,7 @@ def test_heave_rao_matches_frequency_domain(server, sphere, sphere_path, tmp_pat
 
     period, n_periods = 2 * np.pi / w, 20
     text = sphere_scene(sphere_path, dt=period / 100, duration=n_periods * period,
-                        waves=regular_waves(period, ramp=2 * period))
+                        waves=regular_waves(1.0, period, ramp=2 * period))
     summary, ds = simulate(server, text, sphere, tmp_path / "rao.nc")
     t, z = heave(ds)
     eta = ds["wave_elevation"].values
@@ -232,7 +209,7 @@ def test_undamped_heave_period_uses_added_mass_inf(server, sphere, sphere_path, 
 
 def test_results_file_layout(server, sphere, sphere_path, tmp_path):
     dt = 0.05
-    text = sphere_scene(sphere_path, dt=dt, duration=2.0, waves=regular_waves(5.0, ramp=1.0))
+    text = sphere_scene(sphere_path, dt=dt, duration=2.0, waves=regular_waves(1.0, 5.0, ramp=1.0))
     summary, ds = simulate(server, text, sphere, tmp_path / "layout.nc")
     assert summary["steps"] == 40 and summary["rows"] == 41
     assert dict(ds.sizes) == {"time": 41, "body": 1, "dof": 6}
@@ -281,9 +258,9 @@ with ServerConnection(srv.address, timeout=30) as conn:
 
 def test_killed_run_keeps_what_was_computed(server, sphere, sphere_path, tmp_path):
     dt = 0.04
-    text = sphere_scene(sphere_path, dt=dt, duration=4000.0, waves=regular_waves(4.3, ramp=4.0),
+    text = sphere_scene(sphere_path, dt=dt, duration=4000.0, waves=regular_waves(1.0, 4.3, ramp=4.0),
                         displacement=(0, 0, 0.2, 0, 0, 0))
-    (tmp_path / "scene.toml").write_text(text)
+    write_scene(tmp_path, text)
     out = tmp_path / "killed.nc"
     proc = subprocess.Popen([sys.executable, "-c", KILLED_RUN, str(tmp_path / "scene.toml"), str(out)],
                             stdout=subprocess.PIPE, text=True)
@@ -310,7 +287,7 @@ def test_killed_run_keeps_what_was_computed(server, sphere, sphere_path, tmp_pat
 
 def test_ctrl_c_flushes_and_reraises(server, sphere, sphere_path, tmp_path):
     dt = 0.04
-    text = sphere_scene(sphere_path, dt=dt, duration=4000.0, waves=regular_waves(4.3, ramp=4.0))
+    text = sphere_scene(sphere_path, dt=dt, duration=4000.0, waves=regular_waves(1.0, 4.3, ramp=4.0))
     timer = threading.Timer(0.7, os.kill, (os.getpid(), signal.SIGINT))
     timer.start()
     try:
@@ -328,7 +305,7 @@ def test_ctrl_c_flushes_and_reraises(server, sphere, sphere_path, tmp_path):
 def test_server_gone_mid_run_keeps_rows_and_names_the_step(sphere, sphere_path, tmp_path):
     srv, thread = serve_in_thread("tcp://127.0.0.1:*")
     dt = 0.04
-    text = sphere_scene(sphere_path, dt=dt, duration=4000.0, waves=regular_waves(4.3, ramp=4.0))
+    text = sphere_scene(sphere_path, dt=dt, duration=4000.0, waves=regular_waves(1.0, 4.3, ramp=4.0))
     timer = threading.Timer(0.7, srv.stop)
     timer.start()
     try:

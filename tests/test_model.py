@@ -7,37 +7,26 @@ import numpy as np
 import pytest
 
 import analytic_hdb as an
-from hydrolink.protocol.scene import parse_scene
+from conftest import body, regular_waves, scene_toml
+from hydrolink.protocol.scene import DOF_NAMES, Scene, parse_scene
 from hydrolink.server.hdb.schema import make_hdb
 from hydrolink.server.model import HydroModel, ModelError
 
 RHO, G = 1025.0, 9.81  # scene water; the analytic HDBs are written for rho = 1000, g = 9.81
 
 
-def scene(waves: str = "", dofs: str = '["surge","sway","heave","roll","pitch","yaw"]', *, dt=0.01,
-          irf=40.0, extra: str = "", cog="[0, 0, -1]", mass=3e5, depth='"inf"', bodies=None) -> object:
-    body = bodies or f'''[[bodies]]
-name = "float"
-hdb = "x.nc"
-mass = {mass}
-center_of_mass = {cog}
-inertia = [1e6, 1e6, 1e6]
-dofs = {dofs}
-{extra}'''
-    return parse_scene(f'''[simulation]
-dt = {dt}
-duration = 10
-[water]
-depth = {depth}
-[hydro]
-irf_duration = {irf}
-{waves}
-{body}''')
+def scene(waves: dict | None = None, dofs: list[str] = list(DOF_NAMES), *, dt=0.01, irf=40.0, cog=(0, 0, -1),
+          mass=3e5, depth="inf", bodies: list[dict] | None = None, **body_keys) -> Scene:
+    """A parsed scene of body "float" (HDB x.nc; ``body_keys`` add to its keys) or of ``bodies``."""
+    bodies = bodies or [body("float", hdb="x.nc", mass=mass, center_of_mass=cog, inertia=[1e6, 1e6, 1e6],
+                             dofs=list(dofs), **body_keys)]
+    return parse_scene(scene_toml(dt=dt, duration=10, water={"depth": depth}, hydro={"irf_duration": irf},
+                                  waves=waves, bodies=bodies))
 
 
 def test_setup_info_and_inactive_dofs():
     ds = an.make_body_hdb(ref=(0.5, 0.0, -0.2))
-    m = HydroModel(scene(dofs='["heave", "pitch"]'), {"float": ds})
+    m = HydroModel(scene(dofs=["heave", "pitch"]), {"float": ds})
     info = m.setup_info()
     assert info.bodies == ("float",) and info.dofs[2] == "heave"
     assert info.active.tolist() == [[False, False, True, False, True, False]]
@@ -61,7 +50,7 @@ def test_gravity_terms_for_offset_cog_by_finite_rotation():
     c_hydro = np.diag([0.0, 0.0, 7.7e5, 4e6, 4e6, 0.0])
     c_hydro[2, 4] = c_hydro[4, 2] = 1.5e5
     ds = an.make_body_hdb(ref=tuple(ref), hydrostatics=c_hydro)
-    m = HydroModel(scene(cog=str(cog.tolist()), mass=mass), {"float": ds})
+    m = HydroModel(scene(cog=cog.tolist(), mass=mass), {"float": ds})
     c = m.setup_info().hydrostatic_stiffness
     # independent: moment of the weight about the (moving) reference point after an exact rotation
     d = cog - ref
@@ -86,7 +75,7 @@ def test_gravity_terms_for_offset_cog_by_finite_rotation():
 
 def test_regular_wave_excitation_scaled_and_ramped():
     ds = an.make_body_hdb(directions=np.deg2rad([0.0, 90.0]))
-    waves = '[waves]\ntype = "regular"\nheight = 1.6\nperiod = 6.0\ndirection = 30.0\nphase = 45.0\nramp = 12.0'
+    waves = regular_waves(1.6, 6.0, direction=30.0, phase=45.0, ramp=12.0)
     m = HydroModel(scene(waves), {"float": ds})
     w, beta = 2 * np.pi / 6.0, np.deg2rad(30.0)
     x0 = ds["excitation_force"].values
@@ -108,13 +97,13 @@ def test_regular_wave_excitation_scaled_and_ramped():
 def test_errors_name_scene_keys():
     ds = an.make_body_hdb()
     with pytest.raises(ModelError, match="water.depth"):
-        HydroModel(scene(depth="50.0"), {"float": ds})
+        HydroModel(scene(depth=50.0), {"float": ds})
     with pytest.raises(ModelError, match="waves.period"):
-        HydroModel(scene('[waves]\ntype = "regular"\nheight = 1\nperiod = 1000.0'), {"float": ds})
+        HydroModel(scene(regular_waves(1, 1000.0)), {"float": ds})
     with pytest.raises(ModelError, match="waves.direction"):
-        HydroModel(scene('[waves]\ntype = "regular"\nheight = 1\nperiod = 6.0\ndirection = 90'), {"float": ds})
+        HydroModel(scene(regular_waves(1, 6.0, direction=90)), {"float": ds})
     with pytest.raises(ModelError, match=r"bodies\[0\].hdb_body"):
-        HydroModel(scene(extra='hdb_body = "nope"'), {"float": ds})
+        HydroModel(scene(hdb_body="nope"), {"float": ds})
     m = HydroModel(scene(), {"float": ds})
     z = np.zeros((1, 6))
     m.step(0.0, z, z)
@@ -149,15 +138,10 @@ def _two_body_hdb():
                     rho=1000.0, g=9.81, water_depth=np.inf, source="two")
 
 
-def _bodies(names_hdb: list[tuple[str, str]]) -> str:
-    return "\n".join(f'''[[bodies]]
-name = "{n}"
-hdb = "x.nc"
-hdb_body = "{h}"
-mass = 1e5
-center_of_mass = [{10 if h == "b" else 0}, 0, 0]
-inertia = [1e5, 1e5, 1e5]
-dofs = ["heave"]''' for n, h in names_hdb)
+def _bodies(names_hdb: list[tuple[str, str]]) -> list[dict]:
+    """Heave bodies named n on HDB body h of x.nc (body "b" 10 m along x)."""
+    return [body(n, hdb="x.nc", hdb_body=h, mass=1e5, center_of_mass=[10 if h == "b" else 0, 0, 0],
+                 inertia=[1e5, 1e5, 1e5], dofs=["heave"]) for n, h in names_hdb]
 
 
 def test_body_to_body_radiation_uses_shared_dataset():
@@ -224,8 +208,7 @@ def test_cummins_heave_matches_frequency_domain_rao(period):
     params[2] = (a_inf, b0, w0)
     ds = an.make_body_hdb(params=params, hydrostatics=np.diag([0, 0, c33, 1e6, 1e6, 0]))
     dt, n_steps, h = 0.01, 12000, 1.0
-    m = HydroModel(scene(f'[waves]\ntype = "regular"\nheight = {2 * h}\nperiod = {period}\nramp = 10.0',
-                         dofs='["heave"]', dt=dt), {"float": ds})
+    m = HydroModel(scene(regular_waves(2 * h, period, ramp=10.0), dofs=["heave"], dt=dt), {"float": ds})
     amp = _heave_amplitude(m, mass, dt, n_steps, period)
     w = 2 * np.pi / period
     s = RHO / 1000
@@ -247,25 +230,9 @@ def test_sphere_hydrostatics_and_heave_rao(shared_data):
     r = 5.0
     mass = RHO * 2 / 3 * np.pi * r ** 3
     period, dt = 4.0, 0.01
-    sc = parse_scene(f'''[simulation]
-dt = {dt}
-duration = 10
-[water]
-depth = 200.0
-[waves]
-type = "regular"
-height = 0.5
-period = {period}
-ramp = 8.0
-[[bodies]]
-name = "sphere"
-hdb = "sphere.h5"
-hdb_body = "{str(ds["body"].values[0])}"
-mass = {mass}
-center_of_mass = [0, 0, 0]
-inertia = [1e6, 1e6, 1e6]
-dofs = ["heave"]
-''')
+    sc = parse_scene(scene_toml(dt=dt, duration=10, water={"depth": 200.0}, waves=regular_waves(0.5, period, ramp=8.0),
+                                bodies=[body("sphere", hdb="sphere.h5", hdb_body=str(ds["body"].values[0]), mass=mass,
+                                             center_of_mass=[0, 0, 0], inertia=[1e6, 1e6, 1e6], dofs=["heave"])]))
     m = HydroModel(sc, {"sphere": ds})
     info = m.setup_info()
     assert info.hydrostatic_stiffness[2, 2] == pytest.approx(RHO * 9.81 * np.pi * r ** 2, rel=2e-3)

@@ -6,6 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from conftest import body, regular_waves, rm3_float, rm3_spar, scene_toml
+
 from hydrolink.clients.connection import RemoteError, ServerConnection
 from hydrolink.protocol.scene import parse_scene
 from hydrolink.server.hdb.schema import select_bodies
@@ -13,45 +15,26 @@ from hydrolink.server.model import HydroModel, ModelError
 from hydrolink.server.service import serve_in_thread
 
 DT, IRF = 0.1, 20.0
-FLOAT = '''[[bodies]]
-name = "float"
-hdb = "{hdb}"
-mass = 725833.0
-center_of_mass = [0, 0, -0.72]
-inertia = [20907301, 21306090.66, 37085481.11]
-{extra}'''
-SPAR = '''[[bodies]]
-name = "spar"
-hdb = "{hdb}"
-mass = 886687.0
-center_of_mass = [0, 0, -21.29]
-inertia = [94419614.57, 94407091.24, 28542224.82]
-{extra}'''
-DRY = '''[[bodies]]
-name = "{name}"
-mass = 1000.0
-center_of_mass = [0, 0, 5.0]
-inertia = [10, 10, 10]
-'''
+
+
+def dry(name: str) -> dict:
+    """A dry 1 t body 5 m above the origin."""
+    return body(name, mass=1000.0, center_of_mass=[0, 0, 5.0], inertia=[10, 10, 10])
 
 
 def scene_text(interaction: str = "full", *, float_hdb="rm3.1", spar_hdb="rm3.1", dry_between=False,
-               dry_first=False, extra_float="", waves="") -> str:
-    bodies = [FLOAT.format(hdb=float_hdb, extra=extra_float), SPAR.format(hdb=spar_hdb, extra="")]
-    if dry_between:
-        bodies.insert(1, DRY.format(name="frame"))
-    if dry_first:
-        bodies.insert(0, DRY.format(name="crane"))
-    return f'''[simulation]
-dt = {DT}
-duration = 10
-[water]
-density = 1000.0
-[hydro]
-irf_duration = {IRF}
-interaction = "{interaction}"
-{waves}
-''' + "\n".join(bodies)
+               dry_first=False, waves: dict | None = None, spar_keys: dict | None = None,
+               bodies: list[dict] | None = None) -> str:
+    """RM3's float and spar (``spar_keys`` add to the spar's keys), with dry bodies between or first;
+    or ``bodies`` instead."""
+    if bodies is None:
+        bodies = [rm3_float(float_hdb), rm3_spar(spar_hdb, **(spar_keys or {}))]
+        if dry_between:
+            bodies.insert(1, dry("frame"))
+        if dry_first:
+            bodies.insert(0, dry("crane"))
+    return scene_toml(dt=DT, duration=10, water={"density": 1000.0},
+                      hydro={"irf_duration": IRF, "interaction": interaction}, waves=waves, bodies=bodies)
 
 
 @pytest.fixture(scope="module")
@@ -127,7 +110,7 @@ def test_float_motion_radiates_on_the_spar_only_with_full_interaction(rm3):
 
 def test_one_file_per_body_equals_none_on_the_shared_file(rm3):
     """Separate single-body datasets never interact: "full" on them equals "none" on the RM3 file."""
-    waves = '[waves]\ntype = "regular"\nheight = 2.5\nperiod = 8.0\nramp = 4.0'
+    waves = regular_waves(2.5, 8.0, ramp=4.0)
     split = HydroModel(parse_scene(scene_text("full", float_hdb="f.nc", spar_hdb="s.nc", waves=waves)),
                        {"float": select_bodies(rm3, ["float"]), "spar": select_bodies(rm3, ["spar"])})
     none = model(rm3, "none", waves=waves)
@@ -163,14 +146,14 @@ def test_dry_bodies_are_absent_from_the_arrays(rm3):
 
 
 def test_error_keys_use_scene_indices_with_dry_bodies(rm3):
-    text = scene_text(dry_first=True).replace('name = "spar"', 'name = "spar"\nhdb_body = "plate"')
+    text = scene_text(dry_first=True, spar_keys={"hdb_body": "plate"})
     with pytest.raises(ModelError) as err:
         HydroModel(parse_scene(text), {"float": rm3, "spar": rm3})
     assert err.value.key == "bodies[2].hdb_body"
 
 
 def test_scene_without_wet_bodies_is_refused(rm3):
-    text = scene_text().split("[[bodies]]")[0] + DRY.format(name="a") + DRY.format(name="b")
+    text = scene_text(bodies=[dry("a"), dry("b")])
     with pytest.raises(ModelError) as err:
         HydroModel(parse_scene(text), {})
     assert err.value.key == "bodies" and "without a server" in str(err.value)
@@ -204,7 +187,7 @@ def test_rm3_over_the_wire_with_a_dry_body(server, rm3):
             conn.step(5, 5 * DT, np.zeros((3, 6)), np.zeros((3, 6)))
         assert err.value.code == 5 and err.value.field == "position"
         conn.bye()
-    dry_only = scene_text().split("[[bodies]]")[0] + DRY.format(name="a")
+    dry_only = scene_text(bodies=[dry("a")])
     with ServerConnection(server, timeout=30) as conn:
         with pytest.raises(RemoteError) as err:
             conn.hello(dry_only, {})

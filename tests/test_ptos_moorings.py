@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-import textwrap
 
 import numpy as np
 import pytest
@@ -11,6 +10,9 @@ import xarray as xr
 
 import exudyn as exu
 from scipy.optimize import brentq
+
+from conftest import (SPHERE_WATER, body, joint, linear_pto, regular_waves, scene_toml, sphere_body,
+                      write_scene)
 
 from hydrolink.clients.mechanism import build_mechanism
 from hydrolink.clients.moorings import SEABED_PENETRATION, build_moorings, rope_properties
@@ -20,9 +22,10 @@ from hydrolink.protocol.scene import parse_scene
 RHO, G = 1025.0, 9.81
 
 
-def _system(text: str):
-    """Mechanism + PTOs + moorings of a dry scene (weights cancelled by buoyancy in the scenes)."""
-    scene = parse_scene("[simulation]\ndt = 0.01\nduration = 1.0\nprogress = false\n" + text)
+def _system(**sections):
+    """Mechanism + PTOs + moorings of a dry scene (``sections`` as scene_toml takes them; weights
+    cancelled by buoyancy in the scenes)."""
+    scene = parse_scene(scene_toml(dt=0.01, duration=1.0, progress=False, **sections))
     sc = exu.SystemContainer()
     mbs = sc.AddSystem()
     mech = build_mechanism(mbs, scene, {})
@@ -63,16 +66,10 @@ def _run(mbs, n_steps: int, dt: float, sample, spectral_radius: float = 1.0):
 
 
 def _dry_body(name="b", mass=100.0, com=(0.0, 0.0, 0.0), inertia=(10.0, 20.0, 30.0), dofs=None,
-              x0=None, v0=None) -> str:
-    out = (f'[[bodies]]\nname = "{name}"\nmass = {mass}\ncenter_of_mass = {list(com)}\n'
-           f"inertia = {list(inertia)}\nbuoyancy_volume = {mass / RHO!r}\n")
-    if dofs is not None:
-        out += f"dofs = {dofs!r}\n".replace("'", '"')
-    if x0 is not None:
-        out += f"initial_displacement = {list(x0)}\n"
-    if v0 is not None:
-        out += f"initial_velocity = {list(v0)}\n"
-    return out
+              x0=None, v0=None) -> dict:
+    """A dry body whose buoyancy cancels its weight."""
+    keys = {k: v for k, v in (("dofs", dofs), ("initial_displacement", x0), ("initial_velocity", v0)) if v is not None}
+    return body(name, mass=mass, center_of_mass=com, inertia=inertia, buoyancy_volume=mass / RHO, **keys)
 
 
 def _node_state(mbs, mech, name="b"):
@@ -83,15 +80,18 @@ def _node_state(mbs, mech, name="b"):
 
 # -- linear PTO ------------------------------------------------------------------------------------
 M, K, C = 100.0, 400.0, 40.0          # ω0 = 2 rad/s, ζ = 0.1
-LINEAR = (_dry_body(mass=M, dofs=["surge"], x0=[0.1, 0, 0, 0, 0, 0])
-          + f'[[moorings]]\ntype = "linear"\nname = "spring"\nbody = "b"\npoint = [0, 0, 0]\n'
-            f"stiffness = [{K}, 0, 0, 0, 0, 0]\n"
-          + '[[ptos]]\nname = "damper"\ntype = "linear"\nbody1 = "b"\npoint1 = [0, 0, 0]\n'
-            f'body2 = "ground"\npoint2 = [-5, 0, 0]\ndamping = {C}\n')
+
+
+def linear_oscillator(**pto_keys) -> dict:
+    """Sections of a surge oscillator: spring K (a linear mooring) and damper C (a PTO to ground)."""
+    return dict(bodies=[_dry_body(mass=M, dofs=["surge"], x0=[0.1, 0, 0, 0, 0, 0])],
+                moorings=[{"type": "linear", "name": "spring", "body": "b", "point": [0, 0, 0],
+                           "stiffness": [K, 0, 0, 0, 0, 0]}],
+                ptos=[linear_pto("damper", "b", [0, 0, 0], "ground", [-5, 0, 0], damping=C, **pto_keys)])
 
 
 def test_linear_pto_damped_oscillator_and_power():
-    sc, mbs, mech, ptos, moorings = _system(LINEAR)
+    sc, mbs, mech, ptos, moorings = _system(**linear_oscillator())
     dt, n = 0.005, 1200
     rows = _run(mbs, n, dt, lambda t: (t, *_node_state(mbs, mech), ptos.sample(mbs), moorings.sample(mbs)))
     t = np.array([r[0] for r in rows])
@@ -127,8 +127,7 @@ def test_linear_pto_damped_oscillator_and_power():
 
 def test_linear_pto_force_limit_saturates():
     limit = 1.0
-    text = LINEAR.replace(f"damping = {C}\n", f"damping = {C}\nforce_limit = {limit}\n")
-    sc, mbs, mech, ptos, moorings = _system(text)
+    sc, mbs, mech, ptos, moorings = _system(**linear_oscillator(force_limit=limit))
     obj = ptos.objects[0]
     rows = _run(mbs, 400, 0.005, lambda t: (ptos.sample(mbs), np.asarray(
         mbs.GetObjectOutput(obj, exu.OutputVariableType.Force)), _node_state(mbs, mech)[1][0]))
@@ -147,11 +146,11 @@ def test_linear_pto_force_limit_saturates():
 # -- rotary PTO on a spherical joint ---------------------------------------------------------------
 def test_rotary_pto_torsional_period_and_free_axes():
     iyy, k, theta0, roll_rate = 20.0, 80.0, 0.05, 0.02
-    text = (_dry_body(inertia=(10.0, iyy, 30.0), x0=[0, 0, 0, 0, theta0, 0], v0=[0, 0, 0, roll_rate, 0, 0])
-            + '[[joints]]\ntype = "spherical"\nbody1 = "ground"\nbody2 = "b"\npoint = [0, 0, 0]\n'
-            + f'[[ptos]]\nname = "hinge"\ntype = "rotary"\nbody1 = "ground"\nbody2 = "b"\npoint = [0, 0, 0]\n'
-              f'axes = ["pitch"]\nstiffness = {k}\n')
-    sc, mbs, mech, ptos, _ = _system(text)
+    sc, mbs, mech, ptos, _ = _system(
+        bodies=[_dry_body(inertia=(10.0, iyy, 30.0), x0=[0, 0, 0, 0, theta0, 0], v0=[0, 0, 0, roll_rate, 0, 0])],
+        joints=[joint("spherical", "ground", "b", [0, 0, 0])],
+        ptos=[{"name": "hinge", "type": "rotary", "body1": "ground", "body2": "b", "point": [0, 0, 0],
+               "axes": ["pitch"], "stiffness": k}])
     dt = 0.002
     rows = _run(mbs, 2000, dt, lambda t: (t, *_node_state(mbs, mech), ptos.sample(mbs)))
     t = np.array([r[0] for r in rows])
@@ -173,12 +172,12 @@ def test_rotary_pto_torsional_period_and_free_axes():
 
 
 def test_rotary_pto_frame_and_several_axes_match_exudyn_outputs():
-    text = (_dry_body(x0=[0, 0, 0, 0.03, -0.02, 0.04], v0=[0, 0, 0, 0.1, 0.2, -0.1])
-            + '[[joints]]\ntype = "spherical"\nbody1 = "ground"\nbody2 = "b"\npoint = [0, 0, 0]\n'
-            + '[[ptos]]\nname = "r"\ntype = "rotary"\nbody1 = "ground"\nbody2 = "b"\npoint = [0, 0, 0]\n'
-              'axes = ["yaw", "roll"]\nstiffness = [5.0, 7.0]\ndamping = [1.0, 2.0]\n'
-              'frame = [[0, 1, 0], [-1, 0, 0], [0, 0, 1]]\ntorque_limit = 0.25\n')
-    sc, mbs, mech, ptos, _ = _system(text)
+    sc, mbs, mech, ptos, _ = _system(
+        bodies=[_dry_body(x0=[0, 0, 0, 0.03, -0.02, 0.04], v0=[0, 0, 0, 0.1, 0.2, -0.1])],
+        joints=[joint("spherical", "ground", "b", [0, 0, 0])],
+        ptos=[{"name": "r", "type": "rotary", "body1": "ground", "body2": "b", "point": [0, 0, 0],
+               "axes": ["yaw", "roll"], "stiffness": [5.0, 7.0], "damping": [1.0, 2.0],
+               "frame": [[0, 1, 0], [-1, 0, 0], [0, 0, 1]], "torque_limit": 0.25}])
     rows = _run(mbs, 50, 0.01, lambda t: (ptos.sample(mbs), np.asarray(
         mbs.GetObjectOutput(ptos.objects[0], exu.OutputVariableType.Rotation)), np.asarray(
         mbs.GetObjectOutput(ptos.objects[0], exu.OutputVariableType.AngularVelocityLocal))))
@@ -194,10 +193,10 @@ def test_rotary_pto_frame_and_several_axes_match_exudyn_outputs():
 def test_linear_mooring_pretension_static_offset():
     k = [1000.0, 2000.0, 3000.0, 400.0, 500.0, 600.0]
     pre = [50.0, -80.0, 30.0, 4.0, -5.0, 6.0]
-    text = (_dry_body(com=(1.0, 2.0, -3.0))
-            + f'[[moorings]]\ntype = "linear"\nbody = "b"\npoint = [1.0, 2.0, -3.0]\n'
-              f"stiffness = {k}\ndamping = [10, 10, 10, 1, 1, 1]\npretension = {pre}\n")
-    sc, mbs, mech, _, moorings = _system(text)
+    sections = dict(bodies=[_dry_body(com=(1.0, 2.0, -3.0))],
+                    moorings=[{"type": "linear", "body": "b", "point": [1.0, 2.0, -3.0], "stiffness": k,
+                               "damping": [10, 10, 10, 1, 1, 1], "pretension": pre}])
+    sc, mbs, mech, _, moorings = _system(**sections)
     ss = _settings()
     mbs.SolveStatic(ss)
     q, _ = _node_state(mbs, mech)
@@ -206,7 +205,7 @@ def test_linear_mooring_pretension_static_offset():
     np.testing.assert_allclose(q[3:], expected[3:], rtol=2e-3)    # Tait-Bryan vs small angles
     assert np.abs(moorings.sample(mbs)[0]).max() < 1e-6 * max(pre)   # in balance: K x = pretension
     # at zero displacement the mooring exerts exactly the pretension
-    sc2, mbs2, _, _, moorings2 = _system(text)
+    sc2, mbs2, _, _, moorings2 = _system(**sections)
     ss2 = _settings()
     solver = exu.MainSolverImplicitSecondOrder()
     solver.InitializeSolver(mbs2, ss2)
@@ -218,12 +217,11 @@ def test_linear_mooring_pretension_static_offset():
 def test_rope_catenary_shape_and_tension():
     mu, span, length, n = 10.0, 80.0, 100.0, 20
     w = mu * G
-    text = (_dry_body(com=(span, 0.0, -10.0), dofs=["surge"])
-            + f'[[moorings]]\ntype = "linear"\nbody = "b"\npoint = [{span}, 0, -10]\nstiffness = [1e8, 0, 0, 0, 0, 0]\n'
-            + f'[[moorings]]\ntype = "rope"\nname = "line"\nanchor = [0, 0, -10]\nattach_to = "b"\n'
-              f"point = [{span}, 0, -10]\nlength = {length}\naxial_stiffness = 1e10\n"
-              f"mass_per_length = {mu}\nelements = {n}\n")
-    sc, mbs, mech, _, moorings = _system(text)
+    sc, mbs, mech, _, moorings = _system(
+        bodies=[_dry_body(com=(span, 0.0, -10.0), dofs=["surge"])],
+        moorings=[{"type": "linear", "body": "b", "point": [span, 0, -10], "stiffness": [1e8, 0, 0, 0, 0, 0]},
+                  {"type": "rope", "name": "line", "anchor": [0, 0, -10], "attach_to": "b", "point": [span, 0, -10],
+                   "length": length, "axial_stiffness": 1e10, "mass_per_length": mu, "elements": n}])
     mbs.SolveStatic(_settings())
     c = brentq(lambda c: 2 * c * math.sinh(span / (2 * c)) - length, 1.0, 1e4)
     rope = moorings.ropes[1]
@@ -241,11 +239,11 @@ def test_rope_hanging_vertical_top_tension_and_taut_axial_stiffness():
     mu, ea, length = 5.0, 2.0e7, 50.0
     d = math.sqrt(4 * mu / (math.pi * RHO))
     pull = 4.0e4
-    text = (_dry_body(com=(length, 0.0, -10.0), dofs=["surge"])
-            + f'[[moorings]]\ntype = "linear"\nbody = "b"\npoint = [{length}, 0, -10]\npretension = [{pull}, 0, 0, 0, 0, 0]\n'
-            + f'[[moorings]]\ntype = "rope"\nanchor = [0, 0, -10]\nattach_to = "b"\npoint = [{length}, 0, -10]\n'
-              f"length = {length}\naxial_stiffness = {ea}\nmass_per_length = {mu}\ndiameter = {d!r}\nelements = 8\n")
-    sc, mbs, mech, _, moorings = _system(text)
+    sc, mbs, mech, _, moorings = _system(
+        bodies=[_dry_body(com=(length, 0.0, -10.0), dofs=["surge"])],
+        moorings=[{"type": "linear", "body": "b", "point": [length, 0, -10], "pretension": [pull, 0, 0, 0, 0, 0]},
+                  {"type": "rope", "anchor": [0, 0, -10], "attach_to": "b", "point": [length, 0, -10], "length": length,
+                   "axial_stiffness": ea, "mass_per_length": mu, "diameter": d, "elements": 8}])
     mbs.SolveStatic(_settings())
     q, _ = _node_state(mbs, mech)
     assert q[0] == pytest.approx(pull * length / ea, rel=1e-6)
@@ -255,12 +253,12 @@ def test_rope_hanging_vertical_top_tension_and_taut_axial_stiffness():
     # tension is w' L + m g (submerged weight of the rope + the weight it carries)
     mu2, m_pm, length2 = 20.0, 100.0, 30.0
     w_sub = (mu2 - RHO * math.pi * 0.05 ** 2 / 4) * G
-    text2 = (_dry_body(mass=m_pm, com=(0.0, 0.0, -5.0 - length2), dofs=["heave"])   # weight → pretension
-             + f'[[moorings]]\ntype = "linear"\nbody = "b"\npoint = [0, 0, {-5 - length2}]\n'
-               f"pretension = [0, 0, {-m_pm * G!r}, 0, 0, 0]\n"
-             + f'[[moorings]]\ntype = "rope"\nanchor = [0, 0, -5]\nattach_to = "b"\npoint = [0, 0, {-5 - length2}]\n'
-               f"length = {length2}\naxial_stiffness = 1e9\nmass_per_length = {mu2}\ndiameter = 0.05\nelements = 10\n")
-    sc2, mbs2, mech2, _, moorings2 = _system(text2)
+    sc2, mbs2, mech2, _, moorings2 = _system(
+        bodies=[_dry_body(mass=m_pm, com=(0.0, 0.0, -5.0 - length2), dofs=["heave"])],   # weight → pretension
+        moorings=[{"type": "linear", "body": "b", "point": [0, 0, -5 - length2], "pretension": [0, 0, -m_pm * G, 0, 0, 0]},
+                  {"type": "rope", "anchor": [0, 0, -5], "attach_to": "b", "point": [0, 0, -5 - length2],
+                   "length": length2, "axial_stiffness": 1e9, "mass_per_length": mu2, "diameter": 0.05,
+                   "elements": 10}])
     mbs2.SolveStatic(_settings())
     top = np.asarray(mbs2.GetObjectOutput(moorings2.ropes[1].anchor_joint, exu.OutputVariableType.Force))
     assert abs(top[2]) == pytest.approx(w_sub * length2 + m_pm * G, rel=1e-6)
@@ -272,14 +270,15 @@ def test_rope_hanging_vertical_top_tension_and_taut_axial_stiffness():
 
 def test_rope_on_seabed_does_not_penetrate():
     depth = 20.0
-    text = ("[water]\ndepth = 20.0\n"
-            + _dry_body(mass=2e4, com=(60.0, 0.0, -5.0), dofs=["surge", "heave"], v0=[0.05, 0, 0.1, 0, 0, 0])
-            + '[[moorings]]\ntype = "linear"\nbody = "b"\npoint = [60, 0, -5]\nstiffness = [2e5, 0, 2e5, 0, 0, 0]\n'
-            + '[[moorings]]\ntype = "rope"\nanchor = [0, 0, -20]\nattach_to = "b"\npoint = [60, 0, -5]\n'
-              "length = 70\naxial_stiffness = 1e8\nmass_per_length = 50\ndiameter = 0.05\nelements = 40\n")
-    scene = parse_scene("[simulation]\ndt = 0.01\nduration = 1.0\n" + text)
+    sections = dict(
+        water={"depth": 20.0},
+        bodies=[_dry_body(mass=2e4, com=(60.0, 0.0, -5.0), dofs=["surge", "heave"], v0=[0.05, 0, 0.1, 0, 0, 0])],
+        moorings=[{"type": "linear", "body": "b", "point": [60, 0, -5], "stiffness": [2e5, 0, 2e5, 0, 0, 0]},
+                  {"type": "rope", "anchor": [0, 0, -20], "attach_to": "b", "point": [60, 0, -5], "length": 70,
+                   "axial_stiffness": 1e8, "mass_per_length": 50, "diameter": 0.05, "elements": 40}])
+    scene = parse_scene(scene_toml(dt=0.01, duration=1.0, **sections))
     props = rope_properties(scene.moorings[1], scene.water)
-    sc, mbs, mech, _, moorings = _system(text)
+    sc, mbs, mech, _, moorings = _system(**sections)
     rope = moorings.ropes[1]
     z = lambda: np.array([mbs.GetNodeOutput(nd, exu.OutputVariableType.Position)[2] for nd in rope.nodes])  # noqa: E731
     z0 = z()
@@ -316,15 +315,10 @@ def test_sphere_pto_damper_mean_power_in_regular_waves(shared_data, tmp_path):
     x = f * height / 2 / (-w ** 2 * (mass + a) - 1j * w * (b + c_pto) + c)
     expected = 0.5 * c_pto * w ** 2 * abs(x) ** 2
     period = 2 * math.pi / w
-    scene = tmp_path / "sphere.toml"
-    scene.write_text(
-        f"[simulation]\ndt = {period / 100!r}\nduration = {20 * period!r}\nprogress = false\n"
-        "[water]\ndensity = 1000.0\ngravity = 9.81\ndepth = 200.0\n"
-        f'[waves]\ntype = "regular"\nheight = {height}\nperiod = {period!r}\nramp = {2 * period!r}\n'
-        f'[[bodies]]\nname = "sphere"\nhdb = "{path}"\nmass = {mass}\ncenter_of_mass = [0, 0, -2.0]\n'
-        'inertia = [2.6e6, 2.6e6, 2.6e6]\ndofs = ["heave"]\n'
-        '[[ptos]]\nname = "damper"\ntype = "linear"\nbody1 = "sphere"\npoint1 = [0, 0, 0]\n'
-        f'body2 = "ground"\npoint2 = [0, 0, -50]\ndamping = {c_pto}\n')
+    scene = write_scene(tmp_path, scene_toml(
+        dt=period / 100, duration=20 * period, progress=False, water={**SPHERE_WATER, "gravity": 9.81},
+        waves=regular_waves(height, period, ramp=2 * period), bodies=[sphere_body(str(path), mass=mass, dofs=["heave"])],
+        ptos=[linear_pto("damper", "sphere", [0, 0, 0], "ground", [0, 0, -50], damping=c_pto)]), "sphere.toml")
     run_scene_file(scene, tmp_path / "sphere.nc", progress=False)
     ds = xr.load_dataset(tmp_path / "sphere.nc")
     assert ds.attrs["status"] == "complete"
@@ -346,32 +340,12 @@ def test_rope_force_on_a_hanging_body_in_a_run_equals_its_weight(tmp_path):
     """mooring_force as `hydrolink run` records it (dynamic solver): a 100 kg body hanging from a
     5 m rope settles with the rope pulling it up by m g (rope weight carried by the anchor)."""
     from hydrolink.clients.run import run_scene_file
-    scene = tmp_path / "hang.toml"
-    scene.write_text(textwrap.dedent("""\
-        [simulation]
-        dt = 0.01
-        duration = 6.0
-        progress = false
-        spectral_radius = 0.8
-        [water]
-        density = 1000.0
-        depth = 50.0
-        [[bodies]]
-        name = "b"
-        mass = 100.0
-        center_of_mass = [0, 0, -10]
-        inertia = [1, 1, 1]
-        dofs = ["heave"]
-        [[moorings]]
-        type = "rope"
-        anchor = [0, 0, -5]
-        attach_to = "b"
-        point = [0, 0, -10]
-        length = 5.0
-        axial_stiffness = 1e6
-        mass_per_length = 1.0
-        seabed = false
-        """))
+    scene = write_scene(tmp_path, scene_toml(
+        dt=0.01, duration=6.0, progress=False, simulation={"spectral_radius": 0.8},
+        water={"density": 1000.0, "depth": 50.0},
+        bodies=[body("b", mass=100.0, center_of_mass=[0, 0, -10], inertia=[1, 1, 1], dofs=["heave"])],
+        moorings=[{"type": "rope", "anchor": [0, 0, -5], "attach_to": "b", "point": [0, 0, -10], "length": 5.0,
+                   "axial_stiffness": 1e6, "mass_per_length": 1.0, "seabed": False}]), "hang.toml")
     run_scene_file(scene, tmp_path / "hang.nc", progress=False)
     ds = xr.load_dataset(tmp_path / "hang.nc")
     fz = ds["mooring_force"].sel(mooring_component=ds["mooring_force"]["mooring_component"][2]).values[:, 0]

@@ -9,7 +9,8 @@ import pytest
 from scipy.integrate import quad
 
 import analytic_hdb as an
-from hydrolink.protocol.scene import parse_scene
+from conftest import body, irregular_waves, regular_waves, rm3_float, rm3_spar, scene_toml
+from hydrolink.protocol.scene import Hydro, Scene, parse_scene
 from hydrolink.server.hdb.schema import make_hdb
 from hydrolink.server.irf import irf_transfer
 from hydrolink.server.model import HydroModel, ModelError
@@ -66,20 +67,19 @@ def test_first_order_hold_step_is_exact_for_piecewise_linear_velocity():
 
 # ------------------------------------------------------------------------- fits on real HDBs
 
-def _fit_model(ds, dofs, body, T, tol, dt=0.05, extra=""):
-    sc = parse_scene(f'''[simulation]
-dt = {dt}
-duration = 10
-[water]
-density = {float(ds.attrs["rho"])}
-depth = {'"inf"' if not np.isfinite(float(ds.attrs["water_depth"])) else float(ds.attrs["water_depth"])}
-[hydro]
-irf_duration = {T}
-radiation = "state-space"
-ss_tolerance = {tol}
-{extra}
-''' + body)
-    return sc
+def _fit_model(ds, bodies: list[dict], T: float, tol: float, dt: float = 0.05) -> Scene:
+    """A state-space scene of ``bodies`` in the HDB's water (so nothing is rescaled)."""
+    depth = float(ds.attrs["water_depth"])
+    return parse_scene(scene_toml(dt=dt, duration=10,
+                                  water={"density": float(ds.attrs["rho"]), "depth": depth if np.isfinite(depth) else "inf"},
+                                  hydro={"irf_duration": T, "radiation": "state-space", "ss_tolerance": tol},
+                                  bodies=bodies))
+
+
+def _convolution_hydro(irf: float) -> Hydro:
+    """[hydro] with irf_duration and every other key at its default (radiation by convolution)."""
+    return parse_scene(scene_toml(dt=0.1, duration=1, hydro={"irf_duration": irf},
+                                  bodies=[body("a", mass=1, center_of_mass=[0, 0, 0], inertia=[1, 1, 1])])).hydro
 
 
 def test_state_space_reproduces_sphere_irf_and_frequency_response(shared_data):
@@ -89,17 +89,10 @@ def test_state_space_reproduces_sphere_irf_and_frequency_response(shared_data):
     from hydrolink.server.hdb.io import load_hdb
     ds = load_hdb(shared_data / "sphere_task10" / "sphere.h5")
     name = str(ds["body"].values[0])
-    body = f'''[[bodies]]
-name = "s"
-hdb = "x"
-hdb_body = "{name}"
-mass = {1000 * 2 / 3 * np.pi * 125}
-center_of_mass = [0, 0, -2]
-inertia = [1e6, 1e6, 1e6]
-dofs = ["surge", "heave", "pitch"]
-'''
+    sphere = body("s", hdb="x", hdb_body=name, mass=1000 * 2 / 3 * np.pi * 125, center_of_mass=[0, 0, -2],
+                  inertia=[1e6, 1e6, 1e6], dofs=["surge", "heave", "pitch"])
     tol, T = 0.01, 30.0
-    m = HydroModel(_fit_model(ds, [0, 2, 4], body, T, tol), {"s": ds})
+    m = HydroModel(_fit_model(ds, [sphere], T, tol), {"s": ds})
     info = m.setup_info().state_space
     assert info.unmet == 0 and info.max_fit_error <= tol
     ss = m._memories[0][1]
@@ -144,25 +137,11 @@ def test_state_space_rm3_coupled_blocks_and_forces(shared_data):
     fraction of a percent of its peak."""
     from hydrolink.server.hdb.io import load_hdb
     ds = load_hdb(shared_data / "rm3_wamit" / "rm3.1")
-    bodies = '''[[bodies]]
-name = "float"
-hdb = "rm3.1"
-mass = 725833.0
-center_of_mass = [0, 0, -0.72]
-inertia = [20907301, 21306090.66, 37085481.11]
-[[bodies]]
-name = "spar"
-hdb = "rm3.1"
-mass = 886687.0
-center_of_mass = [0, 0, -21.29]
-inertia = [94419614.57, 94407091.24, 28542224.82]
-'''
+    bodies = [rm3_float("rm3.1"), rm3_spar("rm3.1")]
     dt, T = 0.1, 20.0
-    ss_model = HydroModel(_fit_model(ds, None, bodies, T, 0.01, dt=dt), {"float": ds, "spar": ds})
-    conv = HydroModel(_fit_model(ds, None, bodies, T, 0.01, dt=dt).model_copy(
-        update={"hydro": parse_scene('[simulation]\ndt=0.1\nduration=1\n[hydro]\nirf_duration=20\n'
-                                     '[[bodies]]\nname="a"\nmass=1\ncenter_of_mass=[0,0,0]\ninertia=[1,1,1]').hydro}),
-        {"float": ds, "spar": ds})
+    ss_model = HydroModel(_fit_model(ds, bodies, T, 0.01, dt=dt), {"float": ds, "spar": ds})
+    conv = HydroModel(_fit_model(ds, bodies, T, 0.01, dt=dt).model_copy(update={"hydro": _convolution_hydro(20)}),
+                      {"float": ds, "spar": ds})
     info = ss_model.setup_info()
     assert info.radiation == "state-space" and conv.setup_info().radiation == "convolution"
     st = info.state_space
@@ -211,29 +190,18 @@ def test_forced_unstable_fit_is_refused():
 
 def test_irf_duration_zero_refused_for_state_space():
     with pytest.raises(ModelError, match="hydro.irf_duration"):
-        HydroModel(_scene(irf=0.0, hydro='radiation = "state-space"'), {"float": an.make_body_hdb()})
+        HydroModel(_scene(irf=0.0, hydro={"radiation": "state-space"}), {"float": an.make_body_hdb()})
 
 
 # --------------------------------------------------------------------------------- constant
 
-def _scene(waves='[waves]\ntype = "regular"\nheight = 2.0\nperiod = 6.0\nramp = 10.0', *, irf=40.0, hydro="",
-           dt=0.01, dofs='["heave"]', bodies=None):
-    body = bodies or f'''[[bodies]]
-name = "float"
-hdb = "x.nc"
-mass = 3e5
-center_of_mass = [0, 0, 0]
-inertia = [1e6, 1e6, 1e6]
-dofs = {dofs}
-'''
-    return parse_scene(f'''[simulation]
-dt = {dt}
-duration = 10
-[hydro]
-irf_duration = {irf}
-{hydro}
-{waves}
-{body}''')
+def _scene(waves: dict | None = regular_waves(2.0, 6.0, ramp=10.0), *, irf=40.0, hydro: dict | None = None,
+           dt=0.01, dofs=("heave",), bodies: list[dict] | None = None) -> Scene:
+    """A parsed scene of body "float" (HDB x.nc; or ``bodies``) with ``hydro`` keys besides irf_duration."""
+    bodies = bodies or [body("float", hdb="x.nc", mass=3e5, center_of_mass=[0, 0, 0], inertia=[1e6, 1e6, 1e6],
+                             dofs=list(dofs))]
+    return parse_scene(scene_toml(dt=dt, duration=10, hydro={"irf_duration": irf, **(hydro or {})}, waves=waves,
+                                  bodies=bodies))
 
 
 @pytest.mark.parametrize("period", [5.0, 8.0])
@@ -243,8 +211,7 @@ def test_constant_equals_frequency_domain_rao(period):
     amplitude equals |F / (-w^2 (m + A) - i w B + C)| with A, B interpolated here."""
     ds = an.make_body_hdb(params={d: (3e5, 3e5, 1.0) if d == 2 else (1e5, 1e4, 1.0) for d in range(6)})
     mass, dt, n_steps = 3e5, 0.01, 12000
-    m = HydroModel(_scene(f'[waves]\ntype = "regular"\nheight = 2.0\nperiod = {period}\nramp = 10.0',
-                          hydro='radiation = "constant"'), {"float": ds})
+    m = HydroModel(_scene(regular_waves(2.0, period, ramp=10.0), hydro={"radiation": "constant"}), {"float": ds})
     info = m.setup_info()
     w = 2 * np.pi / period
     om = ds["omega"].values
@@ -288,13 +255,13 @@ def test_constant_equals_frequency_domain_rao(period):
 
 def test_constant_needs_regular_waves():
     ds = an.make_body_hdb()
-    for waves in ("", '[waves]\ntype = "irregular"\nspectrum = "jonswap"\nhs = 1.0\ntp = 6.0'):
+    for waves in (None, irregular_waves(1.0, 6.0)):
         with pytest.raises(ModelError, match=r'hydro.radiation.*needs \[waves\] type = "regular"'):
-            HydroModel(_scene(waves, hydro='radiation = "constant"'), {"float": ds})
+            HydroModel(_scene(waves, hydro={"radiation": "constant"}), {"float": ds})
 
 
 def test_off_gives_no_radiation_but_keeps_a_inf():
-    m = HydroModel(_scene(hydro='radiation = "off"'), {"float": an.make_body_hdb()})
+    m = HydroModel(_scene(hydro={"radiation": "off"}), {"float": an.make_body_hdb()})
     info = m.setup_info()
     assert info.radiation_pairs == 0 and info.added_mass[2, 2] == info.added_mass_inf[2, 2] > 0
     out = m.step(0.0, info.equilibrium_position, np.ones((1, 6)))
@@ -322,8 +289,8 @@ def _rational_hdb(w_max: float, dw: float = 0.01):
 
 def test_asymptotic_tail_improves_ogilvie_consistency():
     ds, (c, a) = _rational_hdb(3 * 0.8)
-    none = HydroModel(_scene("", irf=30.0), {"float": ds})
-    tail = HydroModel(_scene("", irf=30.0, hydro='irf_tail = "asymptotic"'), {"float": ds})
+    none = HydroModel(_scene(None, irf=30.0), {"float": ds})
+    tail = HydroModel(_scene(None, irf=30.0, hydro={"irf_tail": "asymptotic"}), {"float": ds})
     e_none = none.setup_info().irf_added_mass_error["rational"]
     e_tail = tail.setup_info().irf_added_mass_error["rational"]
     n_fit = tail.setup_info().irf_processing.tail_exponent["rational"]
@@ -359,8 +326,8 @@ def test_resampling_extends_the_alias_free_time():
     ds, (c, a) = _rational_hdb(12.0, dw=0.25)
     t = np.arange(0, 16.0, 0.01)
     exact = c * (1 - a * t) * np.exp(-a * t) * RHO / 1000
-    coarse = -np.array(_impulse(HydroModel(_scene("", irf=16.0), {"float": ds}), t.size))
-    fine = -np.array(_impulse(HydroModel(_scene("", irf=16.0, hydro="irf_domega = 0.02"), {"float": ds}), t.size))
+    coarse = -np.array(_impulse(HydroModel(_scene(None, irf=16.0), {"float": ds}), t.size))
+    fine = -np.array(_impulse(HydroModel(_scene(None, irf=16.0, hydro={"irf_domega": 0.02}), {"float": ds}), t.size))
     late = t > 12.0
     print(f"late K error: coarse {np.abs(coarse - exact)[late].max():.3g}, resampled {np.abs(fine - exact)[late].max():.3g}")
     assert np.abs(fine - exact)[late].max() < 0.3 * np.abs(coarse - exact)[late].max()  # what remains: B cut at w_max
@@ -388,15 +355,10 @@ def _three_body_hdb(levels: dict[tuple[int, int], float]):
     return ds
 
 
-def _three_bodies():
-    return "".join(f'''[[bodies]]
-name = "{n}"
-hdb = "x.nc"
-mass = 1e5
-center_of_mass = [{10 * i}, 0, 0]
-inertia = [1e5, 1e5, 1e5]
-dofs = ["heave"]
-''' for i, n in enumerate("abc"))
+def _three_bodies() -> list[dict]:
+    """Heave bodies a, b, c 10 m apart along x."""
+    return [body(n, hdb="x.nc", mass=1e5, center_of_mass=[10 * i, 0, 0], inertia=[1e5, 1e5, 1e5], dofs=["heave"])
+            for i, n in enumerate("abc")]
 
 
 def test_pruning_drops_exactly_the_blocks_below_tolerance_and_bounds_the_force_change():
@@ -404,8 +366,8 @@ def test_pruning_drops_exactly_the_blocks_below_tolerance_and_bounds_the_force_c
     ds = _three_body_hdb(levels)
     dt, T, tol = 0.05, 20.0, 0.01
     hdbs = {n: ds for n in "abc"}
-    dense = HydroModel(_scene("", irf=T, dt=dt, bodies=_three_bodies()), hdbs)
-    pruned = HydroModel(_scene("", irf=T, dt=dt, bodies=_three_bodies(), hydro=f"coupling_tolerance = {tol}"), hdbs)
+    dense = HydroModel(_scene(None, irf=T, dt=dt, bodies=_three_bodies()), hdbs)
+    pruned = HydroModel(_scene(None, irf=T, dt=dt, bodies=_three_bodies(), hydro={"coupling_tolerance": tol}), hdbs)
     # independent: L1 norms of the closed-form IRFs (trapezoid at dt, the sampled kernel's)
     t = np.arange(0, T + 1e-9, dt)
     l1 = lambda b0, w0: np.trapezoid(np.abs(an.irf(t, b0, w0)), t)  # noqa: E731

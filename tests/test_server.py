@@ -10,32 +10,25 @@ import pytest
 import zmq
 from analytic_hdb import make_body_hdb
 
+from conftest import SPHERE_WATER, body, regular_waves, scene_toml
+
 from hydrolink.clients.connection import RemoteError, ServerConnection
 from hydrolink.protocol import codec
 from hydrolink.server.hdb.schema import to_wire
 from hydrolink.server.service import serve_in_thread
 
 DT = 0.05
-SCENE = f"""
-[simulation]
-dt = {DT}
-duration = 10.0
 
-[waves]
-type = "regular"
-height = 1.0
-period = 6.0
 
-[hydro]
-irf_duration = 4.0
+def float_scene(*, name: str = "float", hdb: str = "float.nc", mass: float = 3.0e5, water: dict | None = None,
+                **body_keys) -> str:
+    """The analytic float in regular waves; ``body_keys`` add to the body's keys."""
+    return scene_toml(dt=DT, duration=10.0, water=water, waves=regular_waves(1.0, 6.0), hydro={"irf_duration": 4.0},
+                      bodies=[body(name, hdb=hdb, mass=mass, center_of_mass=[0.0, 0.0, -1.0],
+                                   inertia=[1.0e7, 1.0e7, 2.0e7], **body_keys)])
 
-[[bodies]]
-name = "float"
-hdb = "float.nc"
-mass = 3.0e5
-center_of_mass = [0.0, 0.0, -1.0]
-inertia = [1.0e7, 1.0e7, 2.0e7]
-"""
+
+SCENE = float_scene()
 RECV_MS = 5000
 
 
@@ -123,11 +116,11 @@ def test_ping_and_req_socket(server):
 
 def test_bad_scene_names_the_key(server, hdb):
     with ServerConnection(server.address, timeout=10.0) as c:
-        err = expect_error(lambda: c.hello(SCENE.replace("mass = 3.0e5", "mass = -1.0"), {"float.nc": hdb}),
+        err = expect_error(lambda: c.hello(float_scene(mass=-1.0), {"float.nc": hdb}),
                            8, "scene.bodies[0].mass")
         assert err.name == "bad_scene"
         expect_error(lambda: c.hello("[simulation\n", {"float.nc": hdb}), 8, "scene")
-        expect_error(lambda: c.hello(SCENE.replace('name = "float"', 'name = "float"\nhdb_body = "buoy"'),
+        expect_error(lambda: c.hello(float_scene(hdb_body="buoy"),
                                      {"float.nc": hdb}), 8, "scene.bodies[0].hdb_body")
         assert c.session is None
 
@@ -304,8 +297,7 @@ def test_real_hdb_file_over_the_wire(server, shared_data):
     """The shared WEC-Sim sphere (BEMIO .h5) travels in hello; heave hydrostatics come back."""
     from hydrolink.server.hdb.io import load_hdb
     ds = load_hdb(shared_data / "sphere_task10" / "sphere.h5")
-    scene = (SCENE.replace('name = "float"', 'name = "sphere"').replace('hdb = "float.nc"', 'hdb = "sphere.h5"')
-             .replace("[waves]", "[water]\ndensity = 1000.0\ndepth = 200.0\n\n[waves]"))
+    scene = float_scene(name="sphere", hdb="sphere.h5", water=SPHERE_WATER)
     with ServerConnection(server.address, timeout=20.0) as c:
         setup = c.hello(scene, {"sphere.h5": ds})
         assert setup.bodies == ("sphere",) and setup.added_mass_inf[2, 2] > 0
