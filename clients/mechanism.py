@@ -160,7 +160,7 @@ class Mechanism:
         return self.handles[GROUND]
 
     def rigid_nodes(self, names: list[str]) -> list[int]:
-        """Node indices of the named rigid bodies, in that order."""
+        """Node indices of the named scene bodies (rigid, slider or reduced), in that order."""
         return [self.handles[n].node for n in names]
 
     def joint_outputs(self, mbs) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

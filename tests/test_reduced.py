@@ -12,7 +12,6 @@ tests/test_rm3.py (float + spar heave with the PTO: frequency-domain solution).
 from __future__ import annotations
 
 import math
-import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +19,9 @@ import pytest
 import xarray as xr
 
 import exudyn as exu
+
+from conftest import (SPHERE_WATER, body, joint, linear_pto, regular_waves, scene_toml, sphere_body,
+                      toml_document)
 
 from hydrolink.clients.connection import ServerConnection
 from hydrolink.clients.exudyn_client import build_model, result_bodies, run
@@ -31,10 +33,6 @@ from hydrolink.server.service import serve_in_thread
 REPO = Path(__file__).resolve().parents[1]
 G, RHO = 9.81, 1000.0
 AGREE = 1e-10        # reduced vs full: relative to each variable's largest magnitude
-
-
-def client_section(reduce: bool) -> str:
-    return f'\n[client]\ntype = "exudyn"\nreduce = {"true" if reduce else "false"}\n'
 
 
 def run_scene(text: str, out: Path, address: str | None = None, hdbs: dict | None = None) -> tuple[dict, xr.Dataset]:
@@ -54,11 +52,16 @@ def run_scene(text: str, out: Path, address: str | None = None, hdbs: dict | Non
     return summary, xr.load_dataset(out)
 
 
-def both_forms(text: str, tmp_path: Path, **kw) -> tuple[dict, xr.Dataset, dict, xr.Dataset]:
-    """The scene run reduced and full: (summary, results) of each."""
-    s_red, red = run_scene(text + client_section(True), tmp_path / "reduced.nc", **kw)
-    s_full, full = run_scene(text + client_section(False), tmp_path / "full.nc", **kw)
-    return s_red, red, s_full, full
+def both_forms(scene: dict | str, tmp_path: Path, **kw) -> tuple[dict, xr.Dataset, dict, xr.Dataset]:
+    """The scene (``scene_toml`` sections, or scene text without [client]) run reduced and full:
+    (summary, results) of each."""
+    runs = []
+    for reduce in (True, False):
+        client = {"type": "exudyn", "reduce": reduce}
+        text = (scene + toml_document({"client": client}) if isinstance(scene, str)
+                else scene_toml(**scene, client=client))
+        runs += run_scene(text, tmp_path / f"reduce_{reduce}.nc", **kw)
+    return tuple(runs)
 
 
 def disagreement(a: xr.Dataset, b: xr.Dataset) -> dict[str, float]:
@@ -94,38 +97,20 @@ def server():
 
 # ------------------------------------------------------------------ dry scenes: analytic motions
 
-def dry_scene(body: str, extra: str = "", *, dt: float, duration: float) -> str:
-    return (f"[simulation]\ndt = {dt!r}\nduration = {duration!r}\nprogress = false\n"
-            f"[water]\ndensity = {RHO}\ngravity = {G}\n" + textwrap.dedent(body) + textwrap.dedent(extra))
+def dry_scene(bodies: list[dict], *, dt: float = 0.01, duration: float = 0.1, **sections) -> dict:
+    return dict(dt=dt, duration=duration, progress=False, water={"density": RHO, "gravity": G}, bodies=bodies,
+                **sections)
 
 
 def test_heave_slider_on_a_pto_spring_oscillates_about_its_buoyant_equilibrium(tmp_path):
     """A dry heave-only body (centre of mass off its reference point) hangs on a vertical linear PTO
     spring to ground, with buoyancy: z(t) about z_eq = (rho g V - m g)/k at omega = sqrt(k/m)."""
     m, k, vol, z0, v0 = 50.0, 8.0e3, 0.02, 0.01, -0.05
-    text = dry_scene(f"""
-        [[bodies]]
-        name = "buoy"
-        mass = {m}
-        center_of_mass = [0.4, -0.3, -0.5]
-        reference_point = [0.0, 0.0, 0.0]
-        inertia = [2.0, 3.0, 4.0]
-        dofs = ["heave"]
-        buoyancy_volume = {vol}
-        center_of_buoyancy = [0.1, 0.2, -0.2]
-        initial_displacement = [0, 0, {z0}, 0, 0, 0]
-        initial_velocity = [0, 0, {v0}, 0, 0, 0]
-        [[ptos]]
-        name = "spring"
-        type = "linear"
-        body1 = "buoy"
-        point1 = [0.3, 0.1, -0.4]
-        body2 = "ground"
-        point2 = [0.3, 0.1, -2.4]
-        stiffness = {k}
-        damping = 0.0
-        """, dt=1e-3, duration=2.0)
-    s_red, red, s_full, full = both_forms(text, tmp_path)
+    buoy = body("buoy", mass=m, center_of_mass=[0.4, -0.3, -0.5], reference_point=[0.0, 0.0, 0.0],
+                inertia=[2.0, 3.0, 4.0], dofs=["heave"], buoyancy_volume=vol, center_of_buoyancy=[0.1, 0.2, -0.2],
+                initial_displacement=[0, 0, z0, 0, 0, 0], initial_velocity=[0, 0, v0, 0, 0, 0])
+    spring = linear_pto("spring", "buoy", [0.3, 0.1, -0.4], "ground", [0.3, 0.1, -2.4], stiffness=k, damping=0.0)
+    s_red, red, s_full, full = both_forms(dry_scene([buoy], dt=1e-3, duration=2.0, ptos=[spring]), tmp_path)
     assert_agree(red, full)
     assert any("'buoy' (heave)" in n for n in s_red["mechanism_notes"])
     assert not any("reduced bodies" in n for n in s_full["mechanism_notes"])
@@ -148,23 +133,11 @@ def test_reduced_translations_rotation_and_velocity_constraint_move_as_free_body
     reference point: the reduced form is exact) and a velocity constraint on surge: surge at the
     constraint's rate, heave falling at g - rho g V / m, pitch at its initial rate (no moment)."""
     m, vol, w0 = 20.0, 0.005, 0.7
-    text = dry_scene(f"""
-        [[bodies]]
-        name = "b"
-        mass = {m}
-        center_of_mass = [1.0, 0.6, 2.0]
-        reference_point = [1.0, 0.0, 2.0]
-        inertia = [[2.0, 0.1, 0.2], [0.1, 3.0, 0.3], [0.2, 0.3, 4.0]]
-        dofs = ["surge", "heave", "pitch"]
-        buoyancy_volume = {vol}
-        initial_velocity = [0, 0, 0.2, 0, {w0}, 0]
-        [[constraints]]
-        body = "b"
-        dof = "surge"
-        type = "velocity"
-        value = 0.3
-        """, dt=0.01, duration=1.0)
-    s_red, red, _, full = both_forms(text, tmp_path)
+    b = body("b", mass=m, center_of_mass=[1.0, 0.6, 2.0], reference_point=[1.0, 0.0, 2.0],
+             inertia=[[2.0, 0.1, 0.2], [0.1, 3.0, 0.3], [0.2, 0.3, 4.0]], dofs=["surge", "heave", "pitch"],
+             buoyancy_volume=vol, initial_velocity=[0, 0, 0.2, 0, w0, 0])
+    surge_rate = {"body": "b", "dof": "surge", "type": "velocity", "value": 0.3}
+    s_red, red, _, full = both_forms(dry_scene([b], duration=1.0, constraints=[surge_rate]), tmp_path)
     assert_agree(red, full)
     assert any("'b' (surge+heave+pitch)" in n for n in s_red["mechanism_notes"])
     t = red["time"].values
@@ -176,32 +149,25 @@ def test_reduced_translations_rotation_and_velocity_constraint_move_as_free_body
     assert not pos[:, [1, 3, 5]].any()
 
 
-def dry_body(name: str = "b", dofs=("heave",), com=(0.0, 0.0, 0.0), extra: str = "") -> str:
-    return textwrap.dedent(f"""
-        [[bodies]]
-        name = "{name}"
-        mass = 10.0
-        center_of_mass = {list(com)}
-        reference_point = [0.0, 0.0, 0.0]
-        inertia = [1.0, 1.0, 1.0]
-        dofs = {list(dofs)}
-        """) + textwrap.dedent(extra)
+def dry_body(name: str = "b", dofs=("heave",), com=(0.0, 0.0, 0.0)) -> dict:
+    return body(name, mass=10.0, center_of_mass=list(com), reference_point=[0.0, 0.0, 0.0], inertia=[1.0, 1.0, 1.0],
+                dofs=list(dofs))
 
 
-@pytest.mark.parametrize("body, why", [
-    (dry_body() + dry_body("c", dofs=DOF_NAMES, extra='[[joints]]\ntype = "spherical"\nbody1 = "b"\n'
-                                                          'body2 = "c"\npoint = [0, 0, 0]\n'), "joints[0] needs its pose"),
-    (dry_body(extra='[[moorings]]\ntype = "linear"\nbody = "b"\npoint = [0, 0, 0]\n'
-                    'stiffness = [0, 0, 100, 0, 0, 0]\n'), "moorings[0] needs its pose"),
-    (dry_body(dofs=("heave", "pitch"), extra='[[ptos]]\nname = "p"\ntype = "linear"\nbody1 = "b"\n'
-              'point1 = [0, 0, 0]\nbody2 = "ground"\npoint2 = [0, 0, -1]\nstiffness = 10.0\n'), "ptos[0] needs its pose"),
-    (dry_body(dofs=("roll", "pitch")), "roll and pitch are active"),
-    (dry_body(dofs=("surge", "pitch"), com=(0.0, 0.0, -0.5)), "centre of mass is 0.5 m off the pitch axis"),
-    (dry_body(dofs=("pitch",), com=(0.2, 0.0, 0.0)), "the gravity moment depends on the angle"),
-    (dry_body(dofs=("surge", "sway", "heave", "roll", "pitch", "yaw")), None),
+@pytest.mark.parametrize("sections, why", [
+    (dry_scene([dry_body(), dry_body("c", dofs=DOF_NAMES)], joints=[joint("spherical", "b", "c", [0, 0, 0])]),
+     "joints[0] needs its pose"),
+    (dry_scene([dry_body()], moorings=[{"type": "linear", "body": "b", "point": [0, 0, 0],
+                                        "stiffness": [0, 0, 100, 0, 0, 0]}]), "moorings[0] needs its pose"),
+    (dry_scene([dry_body(dofs=("heave", "pitch"))], ptos=[linear_pto("p", "b", [0, 0, 0], "ground", [0, 0, -1],
+                                                                     stiffness=10.0)]), "ptos[0] needs its pose"),
+    (dry_scene([dry_body(dofs=("roll", "pitch"))]), "roll and pitch are active"),
+    (dry_scene([dry_body(dofs=("surge", "pitch"), com=(0.0, 0.0, -0.5))]), "centre of mass is 0.5 m off the pitch axis"),
+    (dry_scene([dry_body(dofs=("pitch",), com=(0.2, 0.0, 0.0))]), "the gravity moment depends on the angle"),
+    (dry_scene([dry_body(dofs=DOF_NAMES)]), None),
 ])
-def test_what_needs_a_full_rigid_body(body, why):
-    scene = parse_scene(dry_scene(body, dt=0.01, duration=0.1))
+def test_what_needs_a_full_rigid_body(sections, why):
+    scene = parse_scene(scene_toml(**sections))
     mbs = exu.SystemContainer().AddSystem()
     mech = build_mechanism(mbs, scene, {}, reduce=True)
     assert mech.handles["b"].kind == "rigid" and mech.handles["b"].dofs is None
@@ -213,7 +179,7 @@ def test_what_needs_a_full_rigid_body(body, why):
 
 
 def test_reduced_bodies_take_no_marker_frame():
-    text = dry_scene(dry_body("s") + dry_body("r", dofs=("surge", "heave")), dt=0.01, duration=0.1)
+    text = scene_toml(**dry_scene([dry_body("s"), dry_body("r", dofs=("surge", "heave"))]))
     mbs = exu.SystemContainer().AddSystem()
     mech = build_mechanism(mbs, parse_scene(text), {}, reduce=True)
     assert (mech.handles["s"].kind, mech.handles["s"].dofs) == ("slider", (2,))
@@ -227,40 +193,19 @@ def test_reduced_bodies_take_no_marker_frame():
 
 def test_reduce_must_be_a_boolean():
     with pytest.raises(SceneError, match="client.reduce"):
-        parse_scene(dry_scene(dry_body(), '[client]\ntype = "exudyn"\nreduce = "sometimes"\n', dt=0.01,
-                              duration=0.1))
+        parse_scene(scene_toml(**dry_scene([dry_body()], client={"type": "exudyn", "reduce": "sometimes"})))
 
 
 # ------------------------------------------------------------------ wet scenes: reduced vs full
 
-def sphere_text(path: Path, dofs, cog, coupling: str = "mass-matrix") -> str:
-    return textwrap.dedent(f"""\
-        [simulation]
-        dt = 0.05
-        duration = 8.0
-        [water]
-        density = 1000.0
-        gravity = 9.81
-        depth = 200.0
-        [waves]
-        type = "regular"
-        height = 1.0
-        period = 6.0
-        ramp = 2.0
-        [hydro]
-        irf_duration = 10.0
-        [coupling]
-        scheme = "{coupling}"
-        [[bodies]]
-        name = "sphere"
-        hdb = "{path}"
-        mass = 250000.0            # not rho V: a net buoyancy force on the body
-        center_of_mass = {list(cog)}
-        inertia = [[2.6e6, 0.1e6, 0.0], [0.1e6, 2.9e6, 0.05e6], [0.0, 0.05e6, 2.7e6]]
-        dofs = {list(dofs)}
-        initial_displacement = {[0.1 if d in dofs else 0.0 for d in ("surge", "sway", "heave")] + [0.0] * 3}
-        initial_velocity = {[0.0] * 4 + [0.02 if "pitch" in dofs else 0.0, 0.0]}
-        """)
+def sphere_scene(path: Path, dofs, cog, coupling: str = "mass-matrix") -> dict:
+    sphere = sphere_body(str(path), mass=250000.0,            # not rho V: a net buoyancy force on the body
+                         center_of_mass=list(cog), inertia=[[2.6e6, 0.1e6, 0.0], [0.1e6, 2.9e6, 0.05e6],
+                                                            [0.0, 0.05e6, 2.7e6]], dofs=list(dofs),
+                         initial_displacement=[0.1 if d in dofs else 0.0 for d in DOF_NAMES[:3]] + [0.0] * 3,
+                         initial_velocity=[0.0] * 4 + [0.02 if "pitch" in dofs else 0.0, 0.0])
+    return dict(dt=0.05, duration=8.0, water={**SPHERE_WATER, "gravity": 9.81}, waves=regular_waves(1.0, 6.0, ramp=2.0),
+                hydro={"irf_duration": 10.0}, coupling={"scheme": coupling}, bodies=[sphere])
 
 
 @pytest.mark.parametrize("dofs, cog, coupling", [
@@ -271,8 +216,8 @@ def sphere_text(path: Path, dofs, cog, coupling: str = "mass-matrix") -> str:
     (("surge", "heave", "pitch"), (0.0, 0.4, -2.0), "mass-matrix"),   # centre of mass on the pitch axis
 ])
 def test_wet_sphere_reduced_matches_full_form(server, sphere, sphere_path, tmp_path, dofs, cog, coupling):
-    text = sphere_text(sphere_path, dofs, cog, coupling)
-    s_red, red, s_full, full = both_forms(text, tmp_path, address=server, hdbs={str(sphere_path): sphere})
+    s_red, red, s_full, full = both_forms(sphere_scene(sphere_path, dofs, cog, coupling), tmp_path, address=server,
+                                          hdbs={str(sphere_path): sphere})
     assert any("reduced bodies" in n for n in s_red["mechanism_notes"])
     assert_agree(red, full)
     locked = [j for j, d in enumerate(DOF_NAMES) if d not in dofs]
@@ -284,7 +229,7 @@ def test_wet_sphere_reduced_matches_full_form(server, sphere, sphere_path, tmp_p
 def test_build_model_maps_the_hydrodynamics_onto_active_coordinates(server, sphere, sphere_path):
     """The hydro object of a reduced surge+heave sphere holds the active rows/columns of A∞ and the
     hydrostatic stiffness; the mass matrix rows of locked DOFs read zero, the active block m I + A∞."""
-    text = sphere_text(sphere_path, ("surge", "heave"), (0.3, -0.2, -2.5))
+    text = scene_toml(**sphere_scene(sphere_path, ("surge", "heave"), (0.3, -0.2, -2.5)))
     scene = parse_scene(text)
     with ServerConnection(server, timeout=30) as conn:
         setup = conn.hello(text, {str(sphere_path): sphere})
