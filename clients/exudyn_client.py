@@ -565,8 +565,10 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup | None, writer, 
         warnings.append(f"simulation.dt: {note[1]}")
         log.warning("simulation.dt: %s", note[1])
     mech = model.mechanism
-    for note in (mech.warnings + mech.reductions) if mech else []:
+    for note in mech.warnings if mech else []:
         log.warning("%s", note)
+    for note in mech.reductions if mech else []:   # what the model did for the scene: no action needed
+        log.info("%s", note)
     if mech and mech.joints:
         _add_joint_variables(writer, mech.joint_labels)
     _add_pto_mooring_variables(writer, model.ptos, model.moorings)
