@@ -349,9 +349,8 @@ class ExudynMultibody:
 
     label = "the body state"
 
-    def __init__(self, model: ExudynModel, writer, substeps: int, coupling: Coupling, ratio: float,
-                 control=None):
-        feedback = coupling.scheme != "mass-matrix"
+    def __init__(self, model: ExudynModel, writer, substeps: int, feedback: bool, coupling: Coupling,
+                 ratio: float, control=None):
         self.model, self.writer, self.control = model, writer, control
         self.coupling, self.ratio = coupling, ratio
         self.h, self.substeps = model.dt, substeps
@@ -493,7 +492,8 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup | None, writer, 
     from hydrolink.protocol.scene import SceneError
 
     cpl = scene.coupling
-    scheme, kx, between = cpl.scheme, int(cpl.exchange_every), cpl.between_exchanges
+    scheme = "mass-matrix" if cpl.scheme == "auto" else cpl.scheme   # Exudyn always takes A∞ in its matrix
+    kx, between = int(cpl.exchange_every), cpl.between_exchanges
     feedback = scheme != "mass-matrix"
     if spectral_radius is None:
         spectral_radius = scene.simulation.spectral_radius
@@ -543,7 +543,7 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup | None, writer, 
                              "talk to the multibody client through the force server's session)")
         from hydrolink.clients.pto_control import PTOControl
         control = PTOControl(scene, model.ptos, model.mbs, writer)
-    mb = ExudynMultibody(model, writer, kx, cpl, ratio, control)
+    mb = ExudynMultibody(model, writer, kx, feedback, cpl, ratio, control)
     loop = Lockstep(mb, ForceLink(connection, setup if n else None, writer), writer, DivergenceWatch(blow_up_limit),
                     between,
                     bar=progress_bar(n_steps, progress and scene.simulation.progress))

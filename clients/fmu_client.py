@@ -5,20 +5,22 @@ the bodies' state (FMU outputs) for the hydrodynamic forces (FMU inputs). Over a
 the FMU input is held constant at the step average ½(F(t_k) + F(t_k+1)) — the trapezoidal rule —
 with F(t_k+1) evaluated at the state the step ends in.
 
-A∞ (see :mod:`hydrolink.clients.coupling`), per the scene's ``[client.coupling] mode``:
+A∞ (see :mod:`hydrolink.clients.coupling`), per the scene's ``[coupling] scheme`` (the one
+vocabulary of every client; the deprecated ``[client.coupling] mode`` is read as it, see
+``protocol/scene.py`` MODE_SCHEME):
 
-- ``parameters``: every A∞ entry of the active DOFs goes into FMU parameters (``added_mass``
+- ``mass-matrix``: every A∞ entry of the active DOFs goes into FMU parameters (``added_mass``
   mapping); F(t_k+1) is taken at a predicted state, one FMU step per time step (like the Exudyn
   client);
-- ``iterative``: the A∞ not passed as parameters comes back as −A∞·ā (ā the step's mean
+- ``implicit``: the A∞ not passed as parameters comes back as −A∞·ā (ā the step's mean
   acceleration); each step is iterated to a fixed point with rollback (get/set FMU state) and
   Aitken relaxation, the server's sample replaced at each iteration (SPEC §5.3 rule 2);
-- ``explicit``: −A∞·ā of the previous step fed back, one pass — only on request and only when the
-  spectral radius of M⁻¹A∞ is at most ``explicit_limit`` (≤ 0.9); otherwise refused. Even then the
-  one-step lag adds a spurious damping ≈ A∞·dt·ω² (measured: −4 % heave amplitude on the sphere at
-  ratio 0.5, 100 steps per period);
-- ``auto``: parameters if they cover A∞, else iterative if the FMU can roll back, else a refusal
-  naming the reasons (never explicit).
+- ``explicit-predictor`` / ``explicit``: −A∞·ā of the previous step fed back, one pass — only on
+  request and only when the spectral radius of M⁻¹A∞ is at most ``explicit_limit``; otherwise
+  refused. Even then the one-step lag adds a spurious damping ≈ A∞·dt·ω² (measured: −4 % heave
+  amplitude on the sphere at ratio 0.5, 100 steps per period);
+- ``auto``: mass-matrix if the parameters cover A∞, else implicit if the FMU can roll back, else a
+  refusal naming the reasons (never explicit).
 """
 
 from __future__ import annotations
@@ -36,9 +38,9 @@ import numpy as np
 
 from hydrolink.clients import lockstep
 from hydrolink.clients.coupling import added_mass_ratio, rigid_body_mass_matrix
-from hydrolink.clients.coupling_schemes import Iterated, Predictor
+from hydrolink.clients.coupling_schemes import make_scheme
 from hydrolink.clients.lockstep import BLOW_UP_LIMIT, DivergenceWatch, ForceLink, Lockstep, progress_bar
-from hydrolink.protocol.scene import DOF_NAMES, FMUClient, Scene, SceneError, resolve_path
+from hydrolink.protocol.scene import DOF_NAMES, Coupling, FMUClient, Scene, SceneError, resolve_path
 from hydrolink.protocol.setup import Setup
 
 COMPONENTS = ("excitation", "radiation", "hydrostatic")
@@ -126,7 +128,7 @@ class Wiring:
 
 @dataclass
 class Plan:
-    mode: str                       # "parameters" | "iterative" | "explicit"
+    scheme: str                     # resolved [coupling] scheme: "mass-matrix" | "implicit" | "explicit*"
     reason: str
     ratio: float                    # spectral radius of M⁻¹ A_rest
 
@@ -201,38 +203,40 @@ def wire(fmu: FMUInstance, scene: Scene, setup: Setup) -> Wiring:
                   c_pass[sub], (mass + a_pass)[sub], net[active])
 
 
-def plan(wiring: Wiring, client: FMUClient, can_roll_back: bool, *, allow_unstable: bool = False) -> Plan:
-    """Choose the coupling mode, or refuse (SceneError naming client.coupling.mode and why)."""
-    mode, limit = client.coupling.mode, client.coupling.explicit_limit
+def plan(wiring: Wiring, coupling: Coupling, can_roll_back: bool, *, allow_unstable: bool = False) -> Plan:
+    """Resolve ``[coupling] scheme`` for this FMU, or refuse (SceneError naming coupling.scheme and why)."""
+    scheme, limit = coupling.scheme, coupling.explicit_limit
     ratio = added_mass_ratio(wiring.mass, wiring.a_rest)
     covered = not np.any(wiring.a_rest)
     uncovered = [f"{wiring.labels[i]}/{wiring.labels[j]}" for i, j in zip(*np.nonzero(wiring.a_rest))]
     no_rollback = "the FMU cannot roll back (canGetAndSetFMUstate is false)"
     unstable = (f"explicit coupling with −A∞·a fed back is unstable or not provably stable here: the "
                 f"added-mass ratio (spectral radius of M⁻¹A∞) is {ratio:.3g} > explicit_limit {limit:g}")
-    key = "client.coupling.mode"
-    if mode == "parameters" and not covered:
+    key = "coupling.scheme"
+    if scheme == "mass-matrix" and not covered:
         raise SceneError("scene", key, f"A∞ entries {uncovered} are not mapped to FMU parameters "
                                        "(client.bodies.<body>.added_mass)")
-    if mode == "iterative" and not can_roll_back:
-        raise SceneError("scene", key, f"iterative coupling needs rollback, but {no_rollback}")
-    if mode == "explicit" and ratio > limit and not allow_unstable:
+    if scheme == "implicit" and not can_roll_back:
+        raise SceneError("scene", key, f"implicit coupling needs rollback, but {no_rollback}")
+    if scheme in ("explicit", "explicit-predictor") and ratio > limit and not allow_unstable:
         raise SceneError("scene", key, f"refused: {unstable}")
-    if mode == "auto":
+    if scheme == "auto":
         if covered:
-            mode = "parameters"
+            scheme = "mass-matrix"
         elif can_roll_back:
-            mode = "iterative"
+            scheme = "implicit"
         else:   # never explicit by default: stable at best, and first order in the added-mass force
             why = unstable if ratio > limit else (
-                f"mode = \"explicit\" would be stable here (ratio {ratio:.3g} ≤ {limit:g}) but lags the "
-                "added-mass force by one step (spurious damping ≈ A∞·dt·ω²): set it to accept that")
+                f"scheme = \"explicit-predictor\" would be stable here (ratio {ratio:.3g} ≤ {limit:g}) but lags "
+                "the added-mass force by one step (spurious damping ≈ A∞·dt·ω²): set it to accept that")
             raise SceneError("scene", key, f"refused to run: A∞ is not passed to the FMU (no added_mass "
                                            f"parameters for {uncovered}), {no_rollback}, and {why}")
-    reason = {"parameters": "A∞ passed to FMU parameters",
-              "iterative": f"A∞ fed back and iterated with rollback (ratio {ratio:.3g})",
-              "explicit": f"A∞ fed back explicitly (ratio {ratio:.3g} ≤ {limit:g})"}[mode]
-    return Plan(mode, reason, ratio)
+    reason = {"mass-matrix": "A∞ passed to FMU parameters",
+              "implicit": f"A∞ fed back and iterated with rollback (ratio {ratio:.3g})",
+              "explicit-predictor": f"A∞ fed back explicitly, forces at the predicted state (ratio {ratio:.3g} ≤ {limit:g})",
+              "explicit": f"A∞ fed back explicitly, forces of the step's start held (ratio {ratio:.3g} ≤ {limit:g})"
+              }[scheme]
+    return Plan(scheme, reason, ratio)
 
 
 # ------------------------------------------------------------------------------------ the run
@@ -264,18 +268,18 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup, writer, *,
             n_steps = int(round(scene.simulation.duration / h))
             loop = Lockstep(mb, ForceLink(connection, setup, writer), writer, DivergenceWatch(blow_up_limit),
                             bar=progress_bar(n_steps, progress and scene.simulation.progress, "hydrolink run (fmu)"))
-            cpl = client.coupling
-            scheme = {"parameters": Predictor(feedback=False), "explicit": Predictor(feedback=True),
-                      "iterative": Iterated(cpl.tolerance, cpl.max_iterations, 1.0 / (1.0 + mb.plan.ratio))
-                      }[mb.plan.mode]
-            out = lockstep.run(loop, scheme, n_steps, hint=lambda exc: f"(coupling mode {mb.plan.mode})")
+            cpl = scene.coupling
+            scheme = make_scheme(mb.plan.scheme, tolerance=cpl.tolerance, max_iterations=cpl.max_iterations,
+                                 ratio=mb.plan.ratio, n_exchanges=n_steps)
+            out = lockstep.run(loop, scheme, n_steps, hint=lambda exc: f"coupling.scheme = \"{mb.plan.scheme}\"")
         finally:
             mb.close()
     steps = max(out["steps"], 1)
-    its = np.asarray(loop.iterations or [1] * out["steps"] or [0])
-    return {**out, "client": "fmu", "fmi_version": fmu.fmi_version,
-            "mode": mb.plan.mode, "mode_reason": mb.plan.reason, "added_mass_ratio": mb.plan.ratio,
-            "iterations_mean": float(its.mean()), "iterations_max": int(its.max()), "iterations": its,
+    coupling = {"scheme": mb.plan.scheme, "reason": mb.plan.reason, "added_mass_ratio": mb.plan.ratio,
+                "exchange_every": 1, "iterations_mean": out.pop("iterations_mean"),
+                "iterations_max": out.pop("iterations_max"), "initial_iterations": out.pop("initial_iterations"),
+                "iterations": np.asarray(loop.iterations, int) if mb.plan.scheme == "implicit" else None}
+    return {**out, "client": "fmu", "fmi_version": fmu.fmi_version, "coupling": coupling,
             "fmu_us_per_step": mb.t_fmu / steps * 1e6,
             "recorded": {name: np.array([r[i] for r in mb.recorded]) for i, name in enumerate(mb.record)}}
 
@@ -296,7 +300,7 @@ class FMUMultibody:
         n = self.n = setup.n
         self.eq = setup.equilibrium_position.reshape(6 * n)
         self.w = wire(fmu, scene, setup)
-        self.plan = plan(self.w, client, fmu.slave.can_rollback, allow_unstable=allow_unstable)
+        self.plan = plan(self.w, scene.coupling, fmu.slave.can_rollback, allow_unstable=allow_unstable)
         self.record_vrs = [fmu.variable(r, f"record[{r}]", ("output", "local")).valueReference for r in record]
         self.record = list(record)
         self.absolute = client.positions == "absolute"
@@ -372,7 +376,7 @@ class FMUMultibody:
         slave, hc = self.fmu.slave, self.h / self.n_sub
         slave.set_real(self.w.port_vrs, u.tolist())
         for s in range(self.n_sub):
-            slave.do_step(t0 + s * hc, hc, may_roll_back=self.plan.mode == "iterative")
+            slave.do_step(t0 + s * hc, hc, may_roll_back=self.plan.scheme == "implicit")
         self.t_fmu += _time.perf_counter() - t_start
         v0 = self._v
         self._read()

@@ -6,15 +6,19 @@ the client read. Every error names the file, the key (``bodies[0].mass``) and wh
 
 from __future__ import annotations
 
+import logging
 import math
 from pathlib import Path
 from typing import Annotated, Literal, Union
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, field_validator, model_validator
 
 from hydrolink.protocol.toml_model import validate_toml
 
 DOF_NAMES: tuple[str, ...] = ("surge", "sway", "heave", "roll", "pitch", "yaw")
+
+
+log = logging.getLogger(__name__)
 
 
 class SceneError(ValueError):
@@ -133,7 +137,7 @@ Waves = Annotated[Union[StillWater, RegularWave, IrregularWave, ElevationWave], 
 class Hydro(_Section):
     irf_duration: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 40.0
     interaction: Literal["full", "none"] = "full"   # body-to-body radiation blocks: all, or none
-    # radiation memory (server/model.py, server/state_space.py, docs/radiation.md)
+    # radiation memory (server/radiation_options.py, server/state_space.py, docs/radiation.md)
     radiation: Literal["convolution", "state-space", "constant", "off"] = "convolution"
     irf_taper: Annotated[float, Field(ge=0, lt=1, allow_inf_nan=False)] = 0.0  # cosine taper, fraction of irf_duration
     irf_domega: Annotated[float, Field(gt=0, allow_inf_nan=False)] | None = None  # resample B(w) (cubic)
@@ -156,11 +160,13 @@ class Hydro(_Section):
 
 
 class Coupling(_Section):
-    """How the Exudyn client and the force server exchange (README "Coupling schemes",
-    docs/stability.md).
+    """How the multibody client (Exudyn or an FMU) and the force server exchange (README "Coupling
+    schemes", docs/stability.md; clients/coupling_schemes.py).
 
-    scheme: "mass-matrix" (default) - A_inf in the client's mass matrix, forces at t_k+1 from the
-    predicted state; "explicit" - staggered: forces from the previous state held over the step and
+    scheme: "auto" (default) - "mass-matrix" when the client can take A_inf in its mass matrix (the
+    Exudyn client always; an FMU when its added_mass parameters cover A_inf), else "implicit" when it
+    can roll back, else the run is refused; "mass-matrix" - A_inf in the client's mass matrix (an
+    FMU: as parameters), forces at t_k+1 from the predicted state; "explicit" - staggered: forces from the previous state held over the step and
     A_inf fed back as the lagged force -A_inf a_k (the classic added-mass instability: refused when
     the added-mass ratio exceeds ``explicit_limit``); "explicit-predictor" - the same lagged
     -A_inf a_k, forces at t_k+1 from the velocity-predicted state; "implicit" - -A_inf a_k+1 and the
@@ -171,7 +177,7 @@ class Coupling(_Section):
     (the server's step, setup.dt, is exchange_every * simulation.dt); between exchanges the forces
     are held (``between_exchanges = "hold"``) or varied linearly through the last two exchanged
     samples ("extrapolate")."""
-    scheme: Literal["mass-matrix", "explicit", "explicit-predictor", "implicit"] = "mass-matrix"
+    scheme: Literal["auto", "mass-matrix", "explicit", "explicit-predictor", "implicit"] = "auto"
     exchange_every: Annotated[int, Field(ge=1, le=100_000)] = 1
     between_exchanges: Literal["hold", "extrapolate"] = "hold"
     tolerance: Annotated[float, Field(gt=0, lt=1, allow_inf_nan=False)] = 1e-8   # implicit: relative
@@ -447,8 +453,12 @@ class FMUBodyMap(_Section):
         return v
 
 
+#: the deprecated [client.coupling] mode of an FMU client -> [coupling] scheme
+MODE_SCHEME = {"auto": "auto", "parameters": "mass-matrix", "iterative": "implicit", "explicit": "explicit-predictor"}
+
+
 class FMUCoupling(_Section):
-    """How A∞ is handled: "auto" picks parameters, else iterative (rollback), else explicit if stable."""
+    """Deprecated: ``[client.coupling]`` of an FMU client, read as ``[coupling]`` (MODE_SCHEME)."""
     mode: Literal["auto", "parameters", "iterative", "explicit"] = "auto"
     tolerance: PositiveFloat = 1e-6                      # relative interface-force residual
     max_iterations: Annotated[int, Field(ge=1, le=1000)] = 50
@@ -466,7 +476,7 @@ class FMUClient(_Section):
     communication_step: PositiveFloat | None = None          # default simulation.dt; must divide it
     positions: Literal["displacement", "absolute"] = "displacement"   # FMU position outputs
     parameters: dict[str, Union[bool, int, float, str]] = {}
-    coupling: FMUCoupling = FMUCoupling()
+    coupling: FMUCoupling | None = None                      # deprecated: [coupling]
     bodies: dict[str, FMUBodyMap]
 
     def check(self, scene: "Scene") -> None:
@@ -554,6 +564,7 @@ class Controller(_Section):
 
 
 class Scene(_Section):
+    _notes: list[str] = PrivateAttr(default_factory=list)
     simulation: Simulation
     water: Water = Water()
     waves: Waves = StillWater(type="still")
@@ -617,12 +628,15 @@ class Scene(_Section):
         return self
 
     def _check_coupling(self) -> None:
+        fmu = isinstance(self.client, FMUClient)
+        if fmu and self.client.coupling is not None:
+            self._adopt_fmu_coupling(self.client.coupling)
         c = self.coupling
         if c == Coupling():
             return
-        if isinstance(self.client, FMUClient):
-            raise ValueError("coupling: [coupling] drives the Exudyn client; an FMU client's coupling is "
-                             "[client.coupling] (and client.communication_step)")
+        if fmu and c.exchange_every > 1:
+            raise ValueError("coupling.exchange_every: an FMU client exchanges every simulation.dt (its own "
+                             "steps within are client.communication_step)")
         if c.exchange_every > 1:
             h = c.exchange_every * self.simulation.dt
             n = self.simulation.duration / h
@@ -631,9 +645,26 @@ class Scene(_Section):
                                  f"must divide simulation.duration = {self.simulation.duration:g} s")
             if self.controllers:
                 raise ValueError("coupling.exchange_every: controllers need an exchange every step (1)")
-        if self.controllers and c.scheme != "mass-matrix":
+        if self.controllers and c.scheme not in ("auto", "mass-matrix"):
             raise ValueError(f"coupling.scheme: controllers run with the \"mass-matrix\" scheme only "
                              f"(got \"{c.scheme}\")")
+
+    def _adopt_fmu_coupling(self, old: "FMUCoupling") -> None:
+        """The deprecated ``[client.coupling]`` read as ``[coupling]`` (which must then be absent)."""
+        if self.coupling.model_fields_set:
+            raise ValueError("client.coupling: deprecated, and [coupling] is given too: keep only [coupling]")
+        scheme = MODE_SCHEME[old.mode]
+        self.__dict__["coupling"] = Coupling(scheme=scheme, tolerance=old.tolerance,
+                                             max_iterations=old.max_iterations, explicit_limit=old.explicit_limit)
+        self._notes.append(
+            f"client.coupling is deprecated: write [coupling] scheme = \"{scheme}\", tolerance = {old.tolerance:g}, "
+            f"max_iterations = {old.max_iterations}, explicit_limit = {old.explicit_limit:g} (mode \"{old.mode}\" "
+            f"is scheme \"{scheme}\")")
+
+    @property
+    def notes(self) -> list[str]:
+        """What the scene says that works but should be written otherwise (deprecated keys)."""
+        return list(self._notes)
 
     def _check_controllers(self, names: list[str]) -> None:
         linear = {p.name for p in self.ptos if isinstance(p, LinearPTO)}
@@ -680,7 +711,10 @@ def load_scene(path: str | Path) -> tuple[Scene, str]:
         text = path.read_text()
     except OSError as exc:
         raise SceneError(path, "", f"cannot read the scene file: {exc.strerror}") from None
-    return parse_scene(text, path), text
+    scene = parse_scene(text, path)
+    for note in scene.notes:
+        log.warning("%s: %s", path, note)
+    return scene, text
 
 
 def resolve_path(scene_path: str | Path, relative: str) -> Path:

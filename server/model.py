@@ -11,87 +11,43 @@ every body uses only its own 6x6 blocks, even when several bodies share one mult
 Bodies that interact form a group; each group has its own radiation memory over its active DOFs
 only, so no work is spent on blocks that are zero by construction. Every matrix is reduced to the
 active DOFs once at setup, so a step is a few small matvecs and no Python loop over DOFs.
+
+The radiation part ([hydro] radiation and the IRF options) is built by the option's builder in
+server/radiation_options.py, which also reports its setup fields.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import xarray as xr
 
 from hydrolink.protocol.scene import Scene
 from hydrolink.protocol.setup import IRFProcessing, Setup, StateSpaceReport
+from hydrolink.server.errors import ModelError
 from hydrolink.server.hdb.schema import DOF_NAMES, HDBError, select_bodies
 from hydrolink.server.hydrostatics import total_stiffness
-from hydrolink.server.irf import (aliasing_time, asymptotic_tail, irf_report, irf_transfer, ogilvie_added_mass_inf,
-                                  ogilvie_report, radiation_irf, resample_damping, taper_window)
-from hydrolink.server.radiation import RadiationMemory
-from hydrolink.server.state_space import StateSpaceError, StateSpaceRadiation, fit_pairs
+from hydrolink.server.radiation_options import RadiationGroup, radiation_option
 from hydrolink.server.waves import (ConvolutionForcing, WaveError, WaveForcing, convolution_kernel, elevation_on_grid,
                                     interpolate_excitation, kernel_transfer, wave_components)
 
-OGILVIE_DEFAULT_DURATION = 40.0  # s of IRF used for Ogilvie's A_inf when hydro.irf_duration = 0
-SS_FIT_POINTS = 120              # frequencies on [0, w_max] the state-space fit is made (and checked) on
-TAIL_CUTOFF_FACTOR = 10.0        # default hydro.irf_tail_cutoff: 10 w_max
+__all__ = ["HydroModel", "ModelError"]
+
 BREAKING_STEEPNESS = 1.0 / 7.0   # H/lambda above which waves are refused (docs/stability.md)
-ALIAS_REFUSE = 0.25              # refuse an IRF whose part past pi/d_omega exceeds this share of max |K|
 
 
-class ConstantDamping:
-    """radiation = "constant": F = -B(w0) v (the push() interface of RadiationMemory)."""
-
-    def __init__(self, damping: np.ndarray):
-        self.b = np.ascontiguousarray(damping, float)
-        self.n = self.b.shape[0]
-
-    def push(self, v: np.ndarray, replace_last: bool = False) -> np.ndarray:
-        return -(self.b @ v)
-
-
-def _interp_matrix(omega: np.ndarray, values: np.ndarray, w: float) -> np.ndarray:
-    """Linear interpolation of (n_w, n, n) in omega at w."""
-    i = int(np.clip(np.searchsorted(omega, w) - 1, 0, omega.size - 2))
-    f = (w - omega[i]) / (omega[i + 1] - omega[i])
-    return (1 - f) * values[i] + f * values[i + 1]
-
-
-def prune_pairs(norms: np.ndarray, body_of: np.ndarray, tolerance: float) -> tuple[np.ndarray, np.ndarray]:
-    """Which DOF pairs of one group's radiation memory to keep (hydro.coupling_tolerance).
-
-    ``norms`` (n, n): N_ij = int_0^T |K_ij(t)| dt, the largest force per unit velocity amplitude
-    the pair can give; ``body_of`` (n,) the (group) body of each DOF. A body-to-body block (a, b),
-    a != b, is dropped when max_{i in a, j in b} N_ij < tol sqrt(d_a d_b), d_a = max_{i in a} N_ii;
-    inside kept blocks a pair i != j is dropped when N_ij < tol sqrt(N_ii N_jj). Diagonal pairs
-    are always kept. Returns (keep (n, n) bool, dropped_blocks (n_b, n_b) bool over the group's
-    bodies present)."""
-    n = norms.shape[0]
-    bodies = np.unique(body_of)
-    d = np.diag(norms)
-    dmax = np.array([d[body_of == b].max() for b in bodies])
-    keep = np.ones((n, n), bool)
-    dropped = np.zeros((bodies.size, bodies.size), bool)
-    if tolerance <= 0:
-        return keep, dropped
-    for ia, a in enumerate(bodies):
-        for ib, b in enumerate(bodies):
-            if a == b:
-                continue
-            ra, rb = body_of == a, body_of == b
-            if norms[np.ix_(ra, rb)].max() < tolerance * np.sqrt(dmax[ia] * dmax[ib]):
-                dropped[ia, ib] = True
-                keep[np.ix_(ra, rb)] = False
-    keep &= ~(norms < tolerance * np.sqrt(np.outer(d, d)))
-    np.fill_diagonal(keep, True)
-    return keep, dropped
-
-
-class ModelError(ValueError):
-    """A scene/HDB combination the model cannot run; the message names the scene key and why."""
-
-    def __init__(self, key: str, why: str):
-        self.key, self.why = key, why
-        super().__init__(f"{key}: {why}")
+@dataclass(frozen=True)
+class _GroupData:
+    """One interaction group's HDB data: its bodies' sub-dataset in scene units and its DOF rows."""
+    members: list[int]      # positions of its bodies among the wet bodies
+    source: str             # the HDB's source
+    data: xr.Dataset        # the HDB restricted to the group's bodies
+    omega: np.ndarray       # (n_w,)
+    rho_scale: float        # scene rho / HDB rho (added mass, damping)
+    rg_scale: float         # scene rho g / HDB rho g (hydrostatics, excitation)
+    rows: np.ndarray        # (6 n_members,) rows in the 6N vectors
 
 
 def _groups(scene: Scene, wet: list[int], hdbs: dict[str, xr.Dataset]) -> list[tuple[xr.Dataset, list[int]]]:
@@ -134,52 +90,19 @@ class HydroModel:
                                        "compute for this scene; simulate it without a server")
         self._scene_index = wet
         self.bodies = [scene.bodies[i].name for i in wet]
-        wet_bodies = [scene.bodies[i] for i in wet]
-        n_b = len(self.bodies)
-        self.n = 6 * n_b
+        self.n = 6 * len(self.bodies)
         # one server step per exchange: [coupling] exchange_every client steps of simulation.dt
         self.dt = float(scene.simulation.dt) * int(scene.coupling.exchange_every)
         self.interaction = scene.hydro.interaction
-        self.active = np.array([b.active_mask for b in wet_bodies], bool)  # (N, 6)
+        self.active = np.array([scene.bodies[i].active_mask for i in wet], bool)  # (N, 6)
         self._idx = np.flatnonzero(self.active.reshape(-1))
-        na = self._idx.size
-        water = scene.water
-        rho, g = water.density, water.gravity
-        hyd = scene.hydro
-        self.radiation = hyd.radiation
-        irf_T = float(hyd.irf_duration)
-        self.irf_samples = int(round(irf_T / self.dt))
-        if self.radiation == "state-space" and self.irf_samples < 2:
-            raise ModelError("hydro.irf_duration", f"{irf_T} s: the state-space fit reproduces the IRF over "
-                                                   "irf_duration, which must span at least two time steps")
-        memory_on = self.radiation in ("convolution", "state-space") and self.irf_samples > 0
-        m_og = self.irf_samples if self.irf_samples > 0 else int(round(OGILVIE_DEFAULT_DURATION / self.dt))
-        t_irf = np.arange(m_og + 1) * self.dt
+        option = radiation_option(scene.hydro, scene.waves, self.dt)  # refuses what it cannot run
+        self.radiation, self.irf_samples = option.name, option.samples
+        self.radiation_frequency = option.radiation_frequency
         self.warnings: list[str] = []
-
-        a_inf = np.zeros((self.n, self.n))
-        c_hs = np.zeros((self.n, self.n))
-        refs = np.zeros((n_b, 3))
-        self._a_inf_source: dict[str, str] = {}
-        self._irf_fit: dict[str, float] = {}
-        self._irf_a_fit: dict[str, float] = {}
-        self._tail_exponent: dict[str, float] = {}
-        memories: list[tuple[np.ndarray, object]] = []
-        a_client = np.zeros((self.n, self.n))   # the added mass the client puts in its mass matrix
-        self.radiation_frequency = None
-        if self.radiation == "constant":
-            if getattr(scene.waves, "type", "still") != "regular":
-                raise ModelError("hydro.radiation", "\"constant\" takes A(w0) and B(w0) at the regular-wave "
-                                 f"frequency: it needs [waves] type = \"regular\" (got {scene.waves.type!r}); use "
-                                 "\"convolution\" or \"state-space\"")
-            self.radiation_frequency = 2 * np.pi / float(scene.waves.period)
-        taper = float(hyd.irf_taper) if self.irf_samples > 0 else 0.0
-        window = taper_window(t_irf, irf_T, taper)[:, None, None] if taper > 0 else None
-        self._pairs = {"kept": 0, "total": 0, "blocks_total": 0, "blocks_dropped": 0}
-        self._ss = {"states": 0, "pairs": 0, "max_order": 0, "max_fit_error": 0.0, "unmet": 0}
-        self._coefficients: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []  # act, w, A, B
         groups = _groups(scene, wet, hdbs)
         self.groups = [[self.bodies[k] for k in members] for _, members in groups]
+        self.coupled_blocks = sum(len(m) * (len(m) - 1) for _, m in groups)
         self._check_waves()
         lo = max(float(ds["omega"].values[0]) for ds, _ in groups)
         hi = min(float(ds["omega"].values[-1]) for ds, _ in groups)
@@ -189,6 +112,80 @@ class HydroModel:
             self.waves = wave_components(scene.waves, lo, hi)
         except WaveError as exc:
             raise ModelError(exc.key, exc.why) from None
+        data = [self._group_data(ds, members) for ds, members in groups]
+        self._hydrostatics(data)
+        rad_groups = [self._radiation_group(d) for d in data]
+        self._coefficients = [(g.act, g.omega, g.added_mass, g.damping) for g in rad_groups]  # act, w, A, B
+        radiation = option.build(rad_groups, self.n)
+        self.added_mass_inf, self.added_mass_client = radiation.added_mass_inf, radiation.added_mass
+        self._radiation = radiation.report
+        self.warnings += radiation.warnings
+        memories = radiation.forces
+        if len(memories) == 1 and memories[0][0].size == self._idx.size:
+            memories = [(slice(None), memories[0][1])]  # one group over every active DOF: no gather
+        self._memories = memories
+        self._excitation(data, lo, hi, wave_elevation)
+        self._step = -1           # index of the newest step pushed
+        na = self._idx.size
+        self._sel = slice(None) if na == self.n else self._idx  # a view when every DOF is active
+        self._red = np.zeros((3, na))  # scratch: excitation, radiation, hydrostatic (active DOFs)
+
+    def _group_data(self, ds: xr.Dataset, members: list[int]) -> _GroupData:
+        """The group's bodies from its HDB, checked against the scene's depth."""
+        water = self.scene.water
+        src = ds.attrs.get("source", "?")
+        depth = float(ds.attrs["water_depth"])
+        if not (depth == water.depth_m or (math.isfinite(depth) and math.isfinite(water.depth_m)
+                                           and math.isclose(depth, water.depth_m, rel_tol=1e-4))):
+            raise ModelError("water.depth", f"{water.depth!r} but the HDB {src!r} (bodies "
+                             f"{[self.bodies[k] for k in members]}) was computed for depth {depth}")
+        bodies = [self.scene.bodies[self._scene_index[k]] for k in members]
+        try:
+            sub = select_bodies(ds, [b.hdb_body_name for b in bodies])
+        except HDBError as exc:
+            raise ModelError(f"bodies[{self._scene_index[members[0]]}].hdb_body", str(exc)) from None
+        s_rho = water.density / float(ds.attrs["rho"])
+        s_rg = water.density * water.gravity / (float(ds.attrs["rho"]) * float(ds.attrs["g"]))
+        rows = (6 * np.asarray(members)[:, None] + np.arange(6)).reshape(-1)
+        return _GroupData(members, src, sub, sub["omega"].values.astype(float), s_rho, s_rg, rows)
+
+    def _radiation_group(self, d: _GroupData) -> RadiationGroup:
+        """The group's radiation coefficients over its active DOFs, in the scene's density."""
+        loc = np.flatnonzero(self.active.reshape(-1)[d.rows])  # active, local to this group
+        act = d.rows[loc]
+        sub = d.data
+        return RadiationGroup(
+            source=d.source, bodies=tuple(self.bodies[k] for k in d.members), act=act,
+            pos=np.searchsorted(self._idx, act),
+            labels=tuple(f"{self.bodies[int(g) // 6]}.{DOF_NAMES[int(g) % 6]}" for g in act),
+            omega=d.omega, added_mass=d.rho_scale * sub["added_mass"].values[:, loc][:, :, loc],
+            damping=d.rho_scale * sub["radiation_damping"].values[:, loc][:, :, loc],
+            added_mass_inf=(d.rho_scale * sub["added_mass_inf"].values[np.ix_(loc, loc)]
+                            if "added_mass_inf" in sub else None))
+
+    def _hydrostatics(self, data: list[_GroupData]) -> None:
+        """Hydrostatic plus gravity stiffness over the active DOFs, equilibrium and net buoyancy."""
+        n_b = len(self.bodies)
+        c_hs, refs = np.zeros((self.n, self.n)), np.zeros((n_b, 3))
+        for d in data:
+            refs[d.members] = d.data["reference_point"].values
+            c_hs[np.ix_(d.rows, d.rows)] = d.rg_scale * d.data["hydrostatic_stiffness"].values
+        wet_bodies = [self.scene.bodies[i] for i in self._scene_index]
+        masses = np.array([b.mass for b in wet_bodies])
+        cogs = np.array([b.center_of_mass for b in wet_bodies], float)
+        mask = self.active.reshape(-1)
+        g = self.scene.water.gravity
+        self.hydrostatic_stiffness = np.where(np.outer(mask, mask), total_stiffness(c_hs, masses, cogs, refs, g), 0.0)
+        self.equilibrium_position = np.hstack([refs, np.zeros((n_b, 3))])
+        self._k_hs = np.ascontiguousarray(self.hydrostatic_stiffness[np.ix_(self._idx, self._idx)])
+        self._x_eq = self.equilibrium_position.reshape(-1)[self._idx].copy()
+        self._net_buoyancy = self._buoyancy(data, self.scene.water.density, g, masses)
+
+    def _excitation(self, data: list[_GroupData], lo: float, hi: float,
+                    wave_elevation: tuple[np.ndarray, np.ndarray] | None) -> None:
+        """Excitation phasors of the wave components, or the excitation IRF kernels per heading
+        (``excitation = "convolution"``), and the forcing that sums them each step."""
+        scene = self.scene
         x_comp = np.zeros((self.waves.size, self.n), complex)
         self.excitation = getattr(scene.waves, "excitation", "superposition") if self.waves.kind != "still" \
             else "superposition"
@@ -198,82 +195,8 @@ class HydroModel:
         kernels = np.zeros((self._headings.size, 2 * max(1, int(round(exc_T / self.dt))) + 1, self.n)) \
             if self.excitation == "convolution" else None
         self._exc_fit = 0.0
-
-        for ds, members in groups:
-            src = ds.attrs.get("source", "?")
-            first = self._scene_index[members[0]]
-            depth = float(ds.attrs["water_depth"])
-            if not (depth == water.depth_m or (math.isfinite(depth) and math.isfinite(water.depth_m)
-                                               and math.isclose(depth, water.depth_m, rel_tol=1e-4))):
-                raise ModelError("water.depth", f"{water.depth!r} but the HDB {src!r} (bodies "
-                                 f"{[self.bodies[k] for k in members]}) was computed for depth {depth}")
-            try:
-                sub = select_bodies(ds, [wet_bodies[k].hdb_body_name for k in members])
-            except HDBError as exc:
-                raise ModelError(f"bodies[{first}].hdb_body", str(exc)) from None
-            s_rho = rho / float(ds.attrs["rho"])
-            s_rg = rho * g / (float(ds.attrs["rho"]) * float(ds.attrs["g"]))
-            gidx = (6 * np.asarray(members)[:, None] + np.arange(6)).reshape(-1)  # global rows
-            loc = np.flatnonzero(self.active.reshape(-1)[gidx])  # active, local to this group
-            act = gidx[loc]
-            pos = np.searchsorted(self._idx, act)  # position in the reduced (active) vectors
-            omega = sub["omega"].values.astype(float)
-            refs[members] = sub["reference_point"].values
-            c_hs[np.ix_(gidx, gidx)] = s_rg * sub["hydrostatic_stiffness"].values
-            am = s_rho * sub["added_mass"].values[:, loc][:, :, loc]
-            bd = s_rho * sub["radiation_damping"].values[:, loc][:, :, loc]
-            self._coefficients.append((act, omega, am, bd))
-            om_k, bd_k = omega, bd          # the grid K(t) is integrated over (resampled, tail)
-            if hyd.irf_domega is not None and loc.size:
-                om_k, bd_k = resample_damping(omega, bd, float(hyd.irf_domega))
-            if hyd.irf_tail == "asymptotic" and loc.size:
-                cutoff = hyd.irf_tail_cutoff or TAIL_CUTOFF_FACTOR * om_k[-1]
-                om_k, bd_k, n_tail = asymptotic_tail(om_k, bd_k, float(cutoff))
-                self._tail_exponent[src] = float(np.median(np.diagonal(n_tail)))
-            k = radiation_irf(om_k, bd_k, t_irf)
-            if window is not None:
-                k = k * window
-            if "added_mass_inf" in sub:
-                a_loc = s_rho * sub["added_mass_inf"].values[np.ix_(loc, loc)]
-                how = "hdb"
-            else:
-                a_loc = ogilvie_added_mass_inf(omega, am, t_irf, k)
-                how = "ogilvie"
-            a_inf[np.ix_(act, act)] = a_loc
-            a_client[np.ix_(act, act)] = a_loc
-            for k_ in members:
-                self._a_inf_source[self.bodies[k_]] = how
-            if memory_on and loc.size:
-                labels = [f"{self.bodies[int(g) // 6]}.{DOF_NAMES[int(g) % 6]}" for g in act]
-                body_of = act // 6
-                kk = k[:self.irf_samples + 1]
-                wt = np.full(kk.shape[0], self.dt)
-                wt[[0, -1]] *= 0.5
-                norms = np.tensordot(wt, np.abs(kk), axes=(0, 0))
-                keep, dropped = prune_pairs(norms, body_of, float(hyd.coupling_tolerance))
-                nb_g = np.unique(body_of).size
-                self._pairs["kept"] += int(keep.sum())
-                self._pairs["total"] += keep.size
-                self._pairs["blocks_total"] += nb_g * (nb_g - 1)
-                self._pairs["blocks_dropped"] += int(dropped.sum())
-                if self.radiation == "convolution":
-                    memories.append((pos, RadiationMemory(kk, self.dt, None if keep.all() else keep)))
-                else:
-                    memories.append((pos, self._state_space(om_k, bd_k, float(omega[-1]), irf_T, taper, keep,
-                                                            labels, hyd)))
-            elif self.radiation == "constant" and loc.size:
-                w0 = self.radiation_frequency
-                if not omega[0] <= w0 <= omega[-1]:
-                    raise ModelError("waves.period", f"w0 = {w0:.4g} rad/s lies outside the HDB's range "
-                                                     f"{omega[0]:.4g}..{omega[-1]:.4g} rad/s")
-                memories.append((pos, ConstantDamping(_interp_matrix(omega, bd, w0))))
-                a_client[np.ix_(act, act)] = _interp_matrix(omega, am, w0)
-            if self.irf_samples > 0 and loc.size:
-                rep = irf_report(omega, bd, t_irf, k)
-                self._irf_fit[src] = max(rep["worst"], self._irf_fit.get(src, 0.0))
-                rep_a = ogilvie_report(omega, am, a_loc, t_irf, k)
-                self._irf_a_fit[src] = max(rep_a["worst"], self._irf_a_fit.get(src, 0.0))
-                self._check_aliasing(om_k, k, t_irf, irf_T, src, hyd.irf_domega is not None)
+        for d in data:
+            omega, sub, s_rg, gidx, src = d.omega, d.data, d.rg_scale, d.rows, d.source
             for ih, head in enumerate(self._headings if (self.waves.size or kernels is not None) else ()):
                 on = heads == head
                 try:
@@ -306,21 +229,6 @@ class HydroModel:
             self.warnings.append(f"waves: {100 * self.waves.energy_outside:.2g} % of the spectrum's energy lies "
                                  f"outside the HDB range {lo:.3g}-{hi:.3g} rad/s and is left out")
 
-        masses = np.array([b.mass for b in wet_bodies])
-        cogs = np.array([b.center_of_mass for b in wet_bodies], float)
-        mask = self.active.reshape(-1)
-        keep = np.outer(mask, mask)
-        self.added_mass_inf = np.where(keep, a_inf, 0.0)
-        self.added_mass_client = np.where(keep, a_client, 0.0)
-        self.hydrostatic_stiffness = np.where(keep, total_stiffness(c_hs, masses, cogs, refs, g), 0.0)
-        self.equilibrium_position = np.hstack([refs, np.zeros((n_b, 3))])
-        self._k_hs = np.ascontiguousarray(self.hydrostatic_stiffness[np.ix_(self._idx, self._idx)])
-        self._x_eq = self.equilibrium_position.reshape(-1)[self._idx].copy()
-        if len(memories) == 1 and memories[0][0].size == na:
-            memories = [(slice(None), memories[0][1])]  # one group over every active DOF: no gather
-        self._memories = memories
-        self.coupled_blocks = sum(len(m) * (len(m) - 1) for _, m in groups)
-        self._kernel_entries = self._pairs["kept"]
         self.elevation_series = None
         if kernels is not None:
             self._forcing = ConvolutionForcing(kernels[:, :, self._idx], self._eta_source(scene, wave_elevation, hi),
@@ -328,10 +236,6 @@ class HydroModel:
         else:
             self._forcing = WaveForcing(self.waves, x_comp[:, self._idx])
         self._x_comp = x_comp
-        self._step = -1           # index of the newest step pushed
-        self._sel = slice(None) if na == self.n else self._idx  # a view when every DOF is active
-        self._red = np.zeros((3, na))  # scratch: excitation, radiation, hydrostatic (active DOFs)
-        self._net_buoyancy = self._buoyancy(groups, rho, g, masses)
 
     def _eta_source(self, scene: Scene, wave_elevation, omega_max: float):
         """eta(k0, k1) -> (S, k1 - k0) at t = k dt, one row per heading, for ConvolutionForcing:
@@ -360,27 +264,6 @@ class HydroModel:
             return (np.real(np.exp(-1j * np.outer(t, comps.omega)) * c[None, :]) @ onehot).T
         return eta
 
-    def _check_aliasing(self, omega_k: np.ndarray, k: np.ndarray, t_irf: np.ndarray, irf_T: float, src: str,
-                        resampled: bool) -> None:
-        """A badly sampled HDB: the transform of B on a grid of spacing dw repeats with period
-        2 pi/dw, so K(t) beyond pi/dw mirrors its start. Warn when irf_duration reaches past pi/dw;
-        refuse when the mirrored part is large (ALIAS_REFUSE of max |K|) — docs/stability.md."""
-        t_alias = aliasing_time(omega_k)
-        if irf_T <= t_alias or not k.size:
-            return
-        past = t_irf > t_alias
-        share = float(np.abs(k[past]).max(initial=0.0)) / max(float(np.abs(k).max()), 1e-300)
-        grid = f"the {'resampled grid (hydro.irf_domega)' if resampled else 'HDB grid'} of {src!r}"
-        why = (f"{irf_T:g} s reaches past the aliasing time pi/d_omega = {t_alias:.3g} s of {grid}: K(t) "
-               f"beyond it is a mirror image of its start (there {100 * share:.2g} % of max |K|); set "
-               f"hydro.irf_duration <= {t_alias:.3g} s, or resample with hydro.irf_domega <= "
-               f"{np.pi / irf_T:.3g} rad/s, or compute the HDB on a finer frequency grid")
-        if share > ALIAS_REFUSE:
-            raise ModelError("hydro.irf_duration", why)
-        warning = f"hydro.irf_duration: {why}"
-        if warning not in self.warnings:
-            self.warnings.append(warning)
-
     def _check_waves(self) -> None:
         """Regular and irregular waves no steeper than the breaking limit H/lambda = 1/7 (lambda of
         the period / peak period by linear dispersion at the scene's depth); a warning above half
@@ -402,80 +285,40 @@ class HydroModel:
             self.warnings.append(f"{key}: H/lambda = {steep:.3g} is over half the breaking limit 1/7: linear "
                                  "wave theory and linear forces lose accuracy (steep-wave effects are not modelled)")
 
-    def _state_space(self, omega_k, damping_k, w_max, duration, taper, keep, labels, hyd) -> StateSpaceRadiation:
-        """Fit every kept, non-zero DOF pair of one group (server/state_space.py) to the transfer
-        function of the same IRF the convolution would use, over [0, w_max] of the HDB."""
-        n = keep.shape[0]
-        wf = np.linspace(0.0, w_max, SS_FIT_POINTS)
-        h = irf_transfer(omega_k, damping_k, duration, taper, wf).reshape(wf.size, n * n).T  # (pairs, K)
-        peak = np.abs(h).max(axis=1)
-        d = peak.reshape(n, n).diagonal()
-        scale = np.sqrt(np.outer(d, d)).reshape(-1)
-        rows, cols = np.divmod(np.arange(n * n), n)
-        use = keep.reshape(-1) & (peak > 1e-12 * max(float(d.max(initial=0.0)), 1e-300))
-        fits = fit_pairs(wf, h[use], rows[use], cols[use], np.maximum(scale[use], 1e-300),
-                         tolerance=float(hyd.ss_tolerance), order=hyd.ss_order, max_order=int(hyd.ss_max_order),
-                         enforce_stability=bool(hyd.ss_enforce_stability))
-        try:
-            ss = StateSpaceRadiation(n, fits, self.dt, labels)
-        except StateSpaceError as exc:
-            raise ModelError("hydro.radiation", str(exc)) from None
-        st = self._ss
-        st["states"] += ss.states
-        st["pairs"] += int(use.sum())
-        if use.any():
-            st["max_order"] = max(st["max_order"], int(fits.orders.max()))
-            worst = int(np.argmax(fits.error))
-            if fits.error[worst] > st["max_fit_error"]:
-                st["max_fit_error"] = float(fits.error[worst])
-                st["worst_pair"] = f"({labels[fits.rows[worst]]}, {labels[fits.cols[worst]]})"
-            unmet = int(np.sum(fits.error > hyd.ss_tolerance))
-            st["unmet"] += unmet
-            if unmet and hyd.ss_order is None:
-                self.warnings.append(
-                    f"hydro.ss_tolerance: {unmet} of {int(use.sum())} DOF pairs stay above {hyd.ss_tolerance:g} at "
-                    f"ss_max_order = {hyd.ss_max_order} (worst {fits.error[worst]:.3g} for "
-                    f"{st.get('worst_pair')}); raise ss_max_order, add irf_taper or irf_tail, or use \"convolution\"")
-        return ss
-
-    def _buoyancy(self, groups, rho, g, masses) -> list[float | None]:
+    def _buoyancy(self, data: list[_GroupData], rho: float, g: float, masses: np.ndarray) -> list[float | None]:
         """rho g V - m g per wet body (None when the HDB has no displaced volume)."""
         out: list[float | None] = [None] * len(self.bodies)
-        for ds, members in groups:
-            if "displaced_volume" in ds:
-                names = [self.scene.bodies[self._scene_index[k]].hdb_body_name for k in members]
-                vol = ds["displaced_volume"].sel(body=names).values
-                for k, v in zip(members, vol):
+        for d in data:
+            if "displaced_volume" in d.data:
+                for k, v in zip(d.members, d.data["displaced_volume"].values):
                     out[k] = float(rho * g * v - masses[k] * g)
         return out
 
     def setup_info(self) -> Setup:
         """What the client needs to build its side (SPEC §5.1, :class:`~hydrolink.protocol.setup.Setup`):
         matrices in the 6N body-major DOF order over the wet bodies only."""
-        hyd = self.scene.hydro
-        pairs = self._pairs
+        rad = self._radiation
         return Setup(
             bodies=tuple(self.bodies), dofs=tuple(DOF_NAMES), active=self.active.copy(),
             added_mass=self.added_mass_client.copy(), added_mass_inf=self.added_mass_inf.copy(),
-            added_mass_inf_source=dict(self._a_inf_source),
+            added_mass_inf_source=dict(rad.added_mass_inf_source),
             hydrostatic_stiffness=self.hydrostatic_stiffness.copy(),
             equilibrium_position=self.equilibrium_position.copy(),
             net_buoyancy=np.array([0.0 if f is None else f for f in self._net_buoyancy], float),
             dt=float(self.dt),
             interaction=self.interaction, hydro_groups=tuple(tuple(g) for g in self.groups),
-            coupled_blocks=int(self.coupled_blocks), radiation_kernel_entries=int(self._kernel_entries),
-            radiation=self.radiation, radiation_frequency=self.radiation_frequency,
-            irf_samples=int(self.irf_samples), irf_duration=float(self.irf_samples * self.dt),
-            irf_fit_error=dict(self._irf_fit), irf_added_mass_error=dict(self._irf_a_fit),
-            irf_processing=IRFProcessing(domega=hyd.irf_domega, taper=float(hyd.irf_taper), tail=str(hyd.irf_tail),
-                                         tail_exponent=dict(self._tail_exponent)),
-            coupling_tolerance=float(hyd.coupling_tolerance),
-            radiation_pairs=int(pairs["kept"]),
-            dropped_pair_fraction=(1.0 - pairs["kept"] / pairs["total"]) if pairs["total"] else 0.0,
-            dropped_blocks=int(pairs["blocks_dropped"]),
-            dropped_block_fraction=(pairs["blocks_dropped"] / pairs["blocks_total"]
-                                    if pairs["blocks_total"] else 0.0),
-            state_space=StateSpaceReport(**self._ss) if self.radiation == "state-space" else None,
+            coupled_blocks=int(self.coupled_blocks), radiation_kernel_entries=int(rad.pairs.kept),
+            radiation=rad.radiation, radiation_frequency=rad.radiation_frequency,
+            irf_samples=int(rad.irf_samples), irf_duration=float(rad.irf_duration),
+            irf_fit_error=dict(rad.irf_fit_error), irf_added_mass_error=dict(rad.irf_added_mass_error),
+            irf_processing=IRFProcessing(domega=rad.irf_domega, taper=float(rad.irf_taper), tail=str(rad.irf_tail),
+                                         tail_exponent=dict(rad.tail_exponent)),
+            coupling_tolerance=float(rad.coupling_tolerance),
+            radiation_pairs=int(rad.pairs.kept),
+            dropped_pair_fraction=float(rad.pairs.dropped_pair_fraction),
+            dropped_blocks=int(rad.pairs.blocks_dropped),
+            dropped_block_fraction=float(rad.pairs.dropped_block_fraction),
+            state_space=None if rad.state_space is None else StateSpaceReport(**rad.state_space),
             wave_components=int(self.waves.size), wave_energy_outside_hdb=float(self.waves.energy_outside),
             ramp=float(self.waves.ramp),
             excitation=self.excitation,

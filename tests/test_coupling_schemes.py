@@ -12,7 +12,6 @@ from hydrolink.clients.connection import ServerConnection
 from hydrolink.clients.coupling_schemes import Iterated, Predictor, Staggered, make_scheme
 from hydrolink.clients.lockstep import DivergenceWatch, ForceLink, Lockstep, SimulationDiverged, run
 from hydrolink.clients.results import ResultWriter
-from hydrolink.protocol.scene import parse_scene
 from hydrolink.server.service import ForceServer
 from test_stability import HEAVE, a33, c33, decay_reference, scene_text, sphere  # noqa: F401 (fixtures)
 
@@ -167,6 +166,3 @@ def test_unknown_scheme_is_refused():
     with pytest.raises(ValueError, match="unknown coupling scheme 'leapfrog'"):
         make_scheme("leapfrog", tolerance=1e-8, max_iterations=50, ratio=0.0, n_exchanges=1)
 
-
-def test_scene_default_scheme_is_the_mass_matrix():
-    assert parse_scene(scene_text(1e5)).coupling.scheme == "mass-matrix"

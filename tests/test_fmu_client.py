@@ -53,16 +53,17 @@ def fmus(tmp_path_factory) -> dict[str, Path]:
 
 def base_scene(hdb: Path, mass: float, period: float, *, dt_per_period: int = 100, periods: int = 20,
                height: float = 1.0, still: bool = False, client: dict | None = None, ptos: list[dict] | None = None,
-               **body_keys) -> str:
-    """The sphere in heave in regular waves of ``period`` (or still water), run by ``client``."""
+               coupling: dict | None = None, **body_keys) -> str:
+    """The sphere in heave in regular waves of ``period`` (or still water), run by ``client`` with
+    ``coupling`` as the scene's [coupling]."""
     waves = regular_waves(height, period, ramp=2 * period) if not still else {"type": "still"}
     return scene_toml(dt=period / dt_per_period, duration=periods * period, water=SPHERE_WATER, waves=waves,
-                      bodies=[sphere_body(str(hdb), mass=mass, dofs=["heave"], **body_keys)], client=client, ptos=ptos)
+                      bodies=[sphere_body(str(hdb), mass=mass, dofs=["heave"], **body_keys)], client=client, ptos=ptos,
+                      coupling=coupling)
 
 
-def fmu_section(fmu: Path, mass: float, *, a_inf: bool, mode: str = "auto", c_pto: float = C_PTO,
-                parameters: dict | None = None, coupling: dict | None = None, variables: dict | None = None,
-                **keys) -> dict:
+def fmu_section(fmu: Path, mass: float, *, a_inf: bool, c_pto: float = C_PTO,
+                parameters: dict | None = None, variables: dict | None = None, **keys) -> dict:
     """[client] for a test FMU of tests/fmu_src: m and c_pto as parameters, heave z, v in and F out;
     with ``a_inf`` A∞ and the hydrostatic stiffness go to its parameters too. ``variables``
     replaces entries of the sphere's variable map."""
@@ -70,7 +71,7 @@ def fmu_section(fmu: Path, mass: float, *, a_inf: bool, mode: str = "auto", c_pt
     if a_inf:
         sphere.update(added_mass={"heave": "a_inf"}, hydrostatic_stiffness={"heave": "k_hs"})
     return {"type": "fmu", "fmu": str(fmu), **keys, "parameters": {"m": mass, "c_pto": c_pto, **(parameters or {})},
-            "coupling": {"mode": mode, **(coupling or {})}, "bodies": {"sphere": {**sphere, **(variables or {})}}}
+            "bodies": {"sphere": {**sphere, **(variables or {})}}}
 
 
 def run_fmu(address: str, text: str, hdb, out: Path, **kw) -> tuple[dict, xr.Dataset]:
@@ -136,13 +137,13 @@ def test_fmu_heave_and_pto_power_match_frequency_domain(server, sphere, sphere_p
     got = steady_heave(ds, w)
     p = mean_power(ds["time"].values, summary["recorded"]["E_pto"], w)
     amp_err, p_err = abs(got) / abs(rao) - 1, p / power - 1
-    REPORT[f"fd {which}"] = (f"{which}: mode {summary['mode']}, |RAO| {abs(rao):.4f}, amplitude error "
+    REPORT[f"fd {which}"] = (f"{which}: mode {summary['coupling']['scheme']}, |RAO| {abs(rao):.4f}, amplitude error "
                              f"{amp_err:+.2e}, power {p:.0f} W vs {power:.0f} W ({p_err:+.2e}), "
-                             f"iterations/step {summary['iterations_mean']:.2f} (max {summary['iterations_max']}), "
+                             f"iterations/step {summary['coupling']['iterations_mean']:.2f} (max {summary['coupling']['iterations_max']}), "
                              f"client {summary['client_us_per_step']:.0f} us/step (FMU {summary['fmu_us_per_step']:.0f}), "
                              f"round trip {summary['round_trip_us_per_step']:.0f} us/step")
     print(REPORT[f"fd {which}"])
-    assert summary["mode"] == ("parameters" if which == "c" else "iterative")
+    assert summary["coupling"]["scheme"] == ("mass-matrix" if which == "c" else "implicit")
     assert summary["fmi_version"] == ("3.0" if which == "py3" else "2.0")
     assert abs(amp_err) < 0.01 and abs(p_err) < 0.01
     assert abs(np.degrees(np.angle(got / rao))) < 1.0
@@ -157,11 +158,11 @@ def test_light_body_explicit_is_refused_and_would_blow_up(server, sphere, sphere
     mass = LIGHT * rho_v
     period = 2 * np.pi / 1.45
     text = base_scene(sphere_path, mass, period, periods=4,
-                      client=fmu_section(fmus["py"], mass, a_inf=False, mode="explicit"))
-    with pytest.raises(SceneError, match=r"client.coupling.mode: refused: explicit .* ratio .* is 2.5\d* > "):
+                      client=fmu_section(fmus["py"], mass, a_inf=False), coupling={"scheme": "explicit-predictor"})
+    with pytest.raises(SceneError, match=r"coupling.scheme: refused: explicit .* ratio .* is 2.5\d* > "):
         run_fmu(server, text, sphere, tmp_path / "refused.nc")
     # forced past the refusal, the lagged -A∞·a feedback grows by ~A∞/m per step and blows up
-    with pytest.raises(SimulationDiverged, match="coupling mode explicit") as err:
+    with pytest.raises(SimulationDiverged, match='coupling.scheme = "explicit-predictor"') as err:
         run_fmu(server, text, sphere, tmp_path / "blown.nc", allow_unstable=True)
     REPORT["explicit blow-up"] = f"explicit at A∞/m = 2.5 diverged at step {err.value.step}"
     print(REPORT["explicit blow-up"])
@@ -175,8 +176,8 @@ def test_no_rollback_and_no_added_mass_parameter_is_refused(server, sphere, sphe
                                          r"\(canGetAndSetFMUstate is false\), and explicit"):
         run_fmu(server, text, sphere, tmp_path / "refused.nc")
     text = base_scene(sphere_path, mass, 4.0, periods=1,
-                      client=fmu_section(fmus["py-nostate"], mass, a_inf=False, mode="iterative"))
-    with pytest.raises(SceneError, match="iterative coupling needs rollback"):
+                      client=fmu_section(fmus["py-nostate"], mass, a_inf=False), coupling={"scheme": "implicit"})
+    with pytest.raises(SceneError, match="implicit coupling needs rollback"):
         run_fmu(server, text, sphere, tmp_path / "refused.nc")
 
 
@@ -184,17 +185,19 @@ def test_explicit_at_a_small_ratio_is_stable_but_lagged(server, sphere, sphere_p
     """Ratio A∞/m = 0.5 (≤ explicit_limit 0.6): explicit runs and stays bounded, but the lagged −A∞·a
     damps the response by ≈ A∞·dt·ω² — which is why `auto` never picks it."""
     w, rao, _ = reference(sphere, rho_v, 1.45)
-    client = fmu_section(fmus["c"], rho_v, a_inf=False, mode="explicit", coupling={"explicit_limit": 0.6})
-    summary, ds = run_fmu(server, base_scene(sphere_path, rho_v, 2 * np.pi / w, client=client), sphere,
+    client = fmu_section(fmus["c"], rho_v, a_inf=False)
+    summary, ds = run_fmu(server, base_scene(sphere_path, rho_v, 2 * np.pi / w, client=client, coupling={
+                              "scheme": "explicit-predictor", "explicit_limit": 0.6}), sphere,
                           tmp_path / "explicit.nc")
     err = abs(steady_heave(ds, w)) / abs(rao) - 1
-    REPORT["explicit 0.5"] = f"explicit at A∞/m = {summary['added_mass_ratio']:.2f}: amplitude error {err:+.2e}"
+    REPORT["explicit 0.5"] = f"explicit at A∞/m = {summary['coupling']['added_mass_ratio']:.2f}: amplitude error {err:+.2e}"
     print(REPORT["explicit 0.5"])
-    assert summary["mode"] == "explicit"
+    assert summary["coupling"]["scheme"] == "explicit-predictor"
     assert -0.08 < err < -0.01
     heavier = 1.001 * rho_v     # ratio just under 0.5: `auto` still refuses, naming the explicit option
-    with pytest.raises(SceneError, match=r'mode = "explicit" would be stable here \(ratio 0.5\d* ≤ 0.5\) but lags'):
-        run_fmu(server, base_scene(sphere_path, heavier, 4.0, periods=1,
+    with pytest.raises(SceneError, match=r'scheme = "explicit-predictor" would be stable here \(ratio 0.5\d* ≤ 0.5\) '
+                                         r'but lags'):
+        run_fmu(server, base_scene(sphere_path, heavier, 4.0, periods=1, coupling={"explicit_limit": 0.5},
                                    client=fmu_section(fmus["py-nostate"], heavier, a_inf=False)),
                 sphere, tmp_path / "refused.nc")
 
@@ -209,12 +212,12 @@ def test_light_body_iterative_is_stable_and_accurate(server, sphere, sphere_path
     summary, ds = run_fmu(server, text, sphere, tmp_path / "light.nc", record=["E_pto"])
     got = steady_heave(ds, w)
     p = mean_power(ds["time"].values, summary["recorded"]["E_pto"], w)
-    its = summary["iterations"]
-    REPORT["light iterative"] = (f"A∞/m = {a_inf / mass:.2f}: mode {summary['mode']}, iterations/step mean "
+    its = summary["coupling"]["iterations"]
+    REPORT["light iterative"] = (f"A∞/m = {a_inf / mass:.2f}: mode {summary['coupling']['scheme']}, iterations/step mean "
                                  f"{its.mean():.2f}, median {np.median(its):.0f}, max {its.max()}; amplitude error "
                                  f"{abs(got) / abs(rao) - 1:+.2e}, power error {p / power - 1:+.2e}")
     print(REPORT["light iterative"])
-    assert summary["mode"] == "iterative"
+    assert summary["coupling"]["scheme"] == "implicit"
     assert abs(abs(got) / abs(rao) - 1) < 0.01 and abs(p / power - 1) < 0.01
     assert its.mean() <= 3.5 and its.max() <= 10
 
@@ -258,7 +261,7 @@ def test_initial_displacement_via_parameters_and_substeps(server, sphere, sphere
     c = float(sphere["hydrostatic_stiffness"].values[HEAVE, HEAVE])
     t_n = 2 * np.pi * np.sqrt((rho_v + a_inf) / c)
     assert (crossings[1] - crossings[0]) == pytest.approx(t_n, rel=0.05)
-    assert summary["mode"] == "parameters"
+    assert summary["coupling"]["scheme"] == "mass-matrix"
 
 
 def test_hydrolink_run_dispatches_to_the_fmu_client(sphere, sphere_path, rho_v, fmus, tmp_path):
@@ -277,7 +280,8 @@ def test_hydrolink_run_dispatches_to_the_fmu_client(sphere, sphere_path, rho_v, 
     assert ds.attrs["status"] == "complete" and ds.sizes["time"] == 201
     assert np.abs(ds["position"].values[:, 0, HEAVE] - ds["equilibrium_position"].values[0, HEAVE]).max() > 0.05
     write_scene(tmp_path, base_scene(sphere_path, rho_v, period, periods=2,
-                                     client=fmu_section(Path("missing.fmu"), rho_v, a_inf=True, mode="iterative")))
+                                     client=fmu_section(Path("missing.fmu"), rho_v, a_inf=True),
+                                     coupling={"scheme": "implicit"}))
     result = CliRunner().invoke(cli, ["run", str(scene), "-o", str(tmp_path / "out2.nc"), "--no-progress"])
     assert result.exit_code == 1 and "FMU not found" in result.output and "missing.fmu" in result.output
 
@@ -307,7 +311,7 @@ def test_fmu_matches_exudyn_client_on_the_same_scene(server, sphere, sphere_path
     p_fmu = mean_power(dsf["time"].values, summary["recorded"]["E_pto"], w)
     z_fmu = steady_heave(dsf, w)
     amp_err, p_err = abs(z_fmu) / abs(z_native) - 1, p_fmu / p_native - 1
-    REPORT[f"exudyn {which}"] = (f"{which} ({summary['mode']}) vs Exudyn: |RAO| {abs(z_fmu):.5f} vs "
+    REPORT[f"exudyn {which}"] = (f"{which} ({summary['coupling']['scheme']}) vs Exudyn: |RAO| {abs(z_fmu):.5f} vs "
                                  f"{abs(z_native):.5f} ({amp_err:+.2e}), PTO power {p_fmu:.0f} vs {p_native:.0f} W "
                                  f"({p_err:+.2e}); wall {summary['wall_time'] / summary['steps'] * 1e6:.0f} vs "
                                  f"{native['wall_time'] / native['steps'] * 1e6:.0f} us/step")

@@ -72,3 +72,39 @@ def test_relative_paths_resolve_against_scene(tmp_path):
     scene = tmp_path / "sub" / "scene.toml"
     assert resolve_path(scene, "float.nc") == (tmp_path / "sub" / "float.nc").resolve()
     assert resolve_path(scene, "/abs/x.nc").as_posix() == "/abs/x.nc"
+
+
+FMU_CLIENT = {"type": "fmu", "fmu": "wec.fmu",
+              "bodies": {"float": {"position": {"heave": "z"}, "velocity": {"heave": "v"}, "force": {"heave": "F"}}}}
+
+
+def fmu_scene(client: dict, **sections) -> str:
+    return scene_toml(dt=0.1, duration=1.0, client=client, **sections,
+                      bodies=[body("float", hdb="f.nc", mass=1.0, center_of_mass=[0, 0, 0], inertia=[1, 1, 1],
+                                   dofs=["heave"])])
+
+
+@pytest.mark.parametrize("mode, scheme", [("auto", "auto"), ("parameters", "mass-matrix"),
+                                          ("iterative", "implicit"), ("explicit", "explicit-predictor")])
+def test_deprecated_fmu_coupling_is_read_as_the_one_vocabulary(mode, scheme, tmp_path, caplog):
+    """[client.coupling] mode (FMU only, deprecated) becomes [coupling] scheme with its own values
+    (its defaults too: tolerance 1e-6, explicit_limit 0.5), and loading the file says so."""
+    client = {**FMU_CLIENT, "coupling": {"mode": mode, "max_iterations": 7}}
+    path = tmp_path / "fmu.toml"
+    path.write_text(fmu_scene(client))
+    scene, _ = load_scene(path)
+    c = scene.coupling
+    assert (c.scheme, c.tolerance, c.max_iterations, c.explicit_limit) == (scheme, 1e-6, 7, 0.5)
+    assert f'client.coupling is deprecated: write [coupling] scheme = "{scheme}"' in caplog.text
+    assert str(path) in caplog.text
+
+
+def test_one_coupling_table_for_every_client():
+    both = fmu_scene({**FMU_CLIENT, "coupling": {"mode": "iterative"}}, coupling={"scheme": "implicit"})
+    with pytest.raises(SceneError, match=r"client.coupling: deprecated, and \[coupling\] is given too"):
+        parse_scene(both)
+    scene = parse_scene(fmu_scene(FMU_CLIENT, coupling={"scheme": "implicit", "tolerance": 1e-7}))
+    assert scene.coupling.scheme == "implicit" and scene.coupling.tolerance == 1e-7 and not scene.notes
+    with pytest.raises(SceneError, match="coupling.exchange_every: an FMU client exchanges every simulation.dt"):
+        parse_scene(fmu_scene(FMU_CLIENT, coupling={"exchange_every": 2}))
+    assert parse_scene(fmu_scene(FMU_CLIENT)).coupling.scheme == "auto"

@@ -1,0 +1,11 @@
+"""The force model's error: a scene/HDB combination it cannot run, named by its scene key."""
+
+from __future__ import annotations
+
+
+class ModelError(ValueError):
+    """A scene/HDB combination the model cannot run; the message names the scene key and why."""
+
+    def __init__(self, key: str, why: str):
+        self.key, self.why = key, why
+        super().__init__(f"{key}: {why}")
