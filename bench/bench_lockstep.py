@@ -1,19 +1,33 @@
-"""Lockstep throughput: the cylinder example run embedded and against `hydrolink serve` over loopback TCP.
+"""Lockstep cost per step beside its floors, all measured in the same run.
 
-    python bench/bench_lockstep.py [--duration 100] [--repeat 3] [--pin]
+    python bench/bench_lockstep.py [--rm3-duration 400] [--cyl-duration 100] [--repeat 3] [--pin] [--no-tcp]
 
-Reports steps/s of the whole co-simulation (Exudyn client + round trip + server), the client's own
-cost, the round trip, and the server's model compute time per step (measured inside the server and,
-separately, by calling the model directly); then the per-request round trip of ``step`` and ``ping``
-alone (no Exudyn) as percentiles. The embedded run has the server in-process (no transport).
-``--pin`` puts client and server on CPU 0 (``hydrolink serve --cpu 0``): in lockstep nothing runs in
-parallel, and waking the other vCPU costs 40-90 µs a hop on this VM.
-Numbers are medians over ``--repeat`` runs [min-max]; this machine is noisy, so compare medians.
+Cases (dt = 0.01 s):
+
+- RM3 (examples/rm3/rm3.toml: float + spar, heave each, linear PTO, 40 s of radiation memory);
+- the cylinder (examples/cylinder, 1 body, surge/heave/pitch, 20 s of radiation memory);
+
+each run embedded (``hydrolink run`` with the in-process server) and against ``hydrolink serve``
+over loopback TCP. Floors:
+
+- bare Exudyn: the same linear system as RM3 (two heave masses m + A∞ with their coupling block,
+  the hydrostatic springs, the PTO damper between them) as one ``ObjectGenericODE2`` on one
+  2-coordinate node, stepped one ``SolveSteps`` at a time, with a Python PreStep doing the
+  radiation convolution over the same (2, 2·4001) kernel (one np.dot over a ring buffer) plus a
+  regular-wave force and setting the force vector: what a step costs with nothing but Exudyn and
+  the physics;
+- raw ZeroMQ: a DEALER/ROUTER round trip on loopback TCP to an echo process, msgpack frames the
+  size of a step request and reply.
+
+An embedded figure is compared with bare Exudyn (goal: RM3 ≤ 3×); a TCP figure with the embedded
+figure + the raw round trip (goal ≤ 1.5×). Figures are medians over ``--repeat`` runs [min-max];
+this 2-core machine is shared and noisy, so only ratios taken in the same run mean much.
 """
 
 from __future__ import annotations
 
 import argparse
+import logging
 import os
 import re
 import statistics
@@ -23,19 +37,22 @@ import tempfile
 import time
 from pathlib import Path
 
+import msgpack
 import numpy as np
 
 from hydrolink.clients.run import load_scene_hdbs, run_scene_file
 from hydrolink.protocol.scene import load_scene
 
 REPO = Path(__file__).resolve().parents[1]
-SPEC = REPO / "examples" / "cylinder" / "cylinder_hdb.toml"
+CYLINDER_SPEC = REPO / "examples" / "cylinder" / "cylinder_hdb.toml"
+RM3_SCENE = REPO / "examples" / "rm3" / "rm3.toml"
+DT = 0.01
 
 
-def scene_text(duration: float, dofs: str) -> str:
+def cylinder_scene(duration: float, dofs: str = '["surge", "heave", "pitch"]') -> str:
     return f"""\
 [simulation]
-dt = 0.01
+dt = {DT}
 duration = {duration}
 progress = false
 [water]
@@ -49,7 +66,7 @@ ramp = 10.0
 irf_duration = 20.0
 [[bodies]]
 name = "cylinder"
-hdb = "{SPEC}"
+hdb = "{CYLINDER_SPEC}"
 mass = 3220.1
 center_of_mass = [0.0, 0.0, -0.5]
 inertia = [1408.4, 1408.4, 1609.6]
@@ -57,41 +74,130 @@ dofs = {dofs}
 """
 
 
-def model_step_us(scene_path: Path, n: int = 5000) -> float:
-    """Median per-step time of HydroModel.step called directly (no protocol, no client)."""
+def rm3_scene(duration: float) -> str:
+    """examples/rm3/rm3.toml at dt 0.01 s for ``duration`` s, its HDB path made absolute."""
+    text = RM3_SCENE.read_text()
+    hdb = re.search(r'hdb = "([^"]+)"', text).group(1)
+    text = text.replace(hdb, str((RM3_SCENE.parent / hdb).resolve()))
+    text = re.sub(r"(?m)^dt = .*$", f"dt = {DT}\nprogress = false", text)
+    return re.sub(r"(?m)^duration = .*$", f"duration = {duration}", text)
+
+
+# ------------------------------------------------------------------------------ floors
+
+def bare_exudyn_us(scene_path: Path, n_steps: int) -> float:
+    """µs per step of the RM3 linear system in bare Exudyn (module docstring), the force in a PreStep."""
+    import exudyn as exu
+    from exudyn.itemInterface import NodeGenericODE2, ObjectGenericODE2
+
     from hydrolink.server.model import HydroModel
 
     scene, _ = load_scene(scene_path)
     hdbs = load_scene_hdbs(scene, scene_path, progress=False)
     model = HydroModel(scene, {b.name: hdbs[b.hdb] for b in scene.bodies})
-    eq = model.setup_info().equilibrium_position
-    v = np.zeros_like(eq)
-    times = np.empty(n)
-    for k in range(n):
-        t0 = time.perf_counter()
-        model.step(k * scene.simulation.dt, eq, v)
-        times[k] = time.perf_counter() - t0
-    return float(np.median(times) * 1e6)
+    setup = model.setup_info()
+    idx = np.flatnonzero(setup.active.reshape(-1))                  # float heave, spar heave
+    mass = np.diag([b.mass for b in scene.bodies]) + setup.added_mass[np.ix_(idx, idx)]
+    stiff = setup.hydrostatic_stiffness[np.ix_(idx, idx)]
+    c = scene.ptos[0].damping
+    damp = c * np.array([[1.0, -1.0], [-1.0, 1.0]])
+    n, L = idx.size, model.irf_samples + 1
+    kernel = np.random.default_rng(0).standard_normal((n, L * n)) * 1e3   # the size is what costs
+    amp, w = np.array([1e5, 2e4]), 2 * np.pi / 8.0
+    buf, ring = np.zeros((2 * L, n)), [0]
+
+    sc = exu.SystemContainer()
+    mbs = sc.AddSystem()
+    node = mbs.AddNode(NodeGenericODE2(referenceCoordinates=[0.0] * n, initialCoordinates=[0.0] * n,
+                                       initialCoordinates_t=[0.0] * n, numberOfODE2Coordinates=n))
+    obj = mbs.AddObject(ObjectGenericODE2(nodeNumbers=[node], massMatrix=mass, stiffnessMatrix=stiff,
+                                          dampingMatrix=damp, forceVector=[0.0] * n))
+    sd = mbs.systemData
+
+    def pre_step(mbs, t):
+        p = ring[0] = (ring[0] - 1) % L
+        v = sd.GetODE2Coordinates_t()
+        buf[p] = v
+        buf[p + L] = v
+        f = kernel @ buf[p:p + L].reshape(-1) + amp * np.cos(w * t)
+        mbs.SetObjectParameter(obj, "forceVector", f.tolist())
+        return True
+
+    mbs.SetPreStepUserFunction(pre_step)
+    mbs.Assemble()
+    ss = exu.SimulationSettings()
+    ss.solution.file.write = False
+    ss.solution.sensors.active = False
+    ti = ss.timeIntegration
+    ti.verboseMode, ti.adaptiveStep, ti.numberOfSteps, ti.endTime = 0, False, 1, DT
+    ti.generalizedAlpha.spectralRadius = 1.0
+    solver = exu.MainSolverImplicitSecondOrder()
+    solver.InitializeSolver(mbs, ss)
+    it = solver.it
+    t0 = time.perf_counter()
+    for k in range(n_steps):
+        it.startTime, it.endTime = k * DT, (k + 1) * DT
+        solver.SolveSteps(mbs, ss)
+    wall = time.perf_counter() - t0
+    solver.FinalizeSolver(mbs, ss)
+    return wall / n_steps * 1e6
 
 
-def round_trips_us(address, scene_path: Path, n: int = 3000) -> dict[str, np.ndarray]:
-    """Per-request wall time (µs) of ``step`` (one body at equilibrium) and ``ping``, no Exudyn."""
-    from hydrolink.clients.connection import ServerConnection
+ECHO = """\
+import sys, msgpack, zmq
+ctx = zmq.Context(); sock = ctx.socket(zmq.ROUTER); sock.setsockopt(zmq.LINGER, 0)
+sock.bind("tcp://127.0.0.1:*"); print(sock.getsockopt_string(zmq.LAST_ENDPOINT), flush=True)
+reply = sys.stdin.buffer.read()
+while True:
+    frames = sock.recv_multipart()
+    if msgpack.unpackb(frames[-1]).get("type") == "bye":
+        sock.send_multipart([*frames[:-1], b""]); break
+    frames[-1] = reply
+    sock.send_multipart(frames)
+"""
 
-    scene, text = load_scene(scene_path)
-    hdbs = load_scene_hdbs(scene, scene_path, progress=False)
-    out = {"step": np.empty(n), "ping": np.empty(n)}
-    with ServerConnection(address) as conn:
-        eq = conn.hello(text, hdbs).equilibrium_position
-        v = np.zeros_like(eq)
-        for k in range(n):
+
+def raw_zmq_us(n: int, n_bodies: int, pin: bool) -> np.ndarray:
+    """Round trips (µs) of a step-sized msgpack request to an echo ROUTER process answering a
+    forces-sized reply (unpacked on both sides: the transport plus the framing, nothing else)."""
+    import zmq
+
+    def arr(seed: int) -> dict:
+        a = np.random.default_rng(seed).standard_normal((n_bodies, 6))
+        return {"dtype": "<f8", "shape": [n_bodies, 6], "data": a.tobytes()}
+
+    env = {"v": 1, "msg_id": "c-0123abcd-1", "session": "s" * 32}
+    request = dict(env, type="step", seq=1, time=0.01, iteration=0, position=arr(0), velocity=arr(1))
+    reply = dict(env, type="forces", parent="c-0123abcd-1", seq=1, iteration=0, time=0.01,
+                 excitation=arr(2), radiation=arr(3), hydrostatic=arr(4), wave_elevation=0.1, compute_us=5.0)
+    cmd = [sys.executable, "-c", ECHO]
+    proc = subprocess.Popen(["taskset", "-c", "0", *cmd] if pin else cmd, stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE)
+    proc.stdin.write(msgpack.packb(reply))
+    proc.stdin.close()
+    address = proc.stdout.readline().decode().strip()
+    ctx = zmq.Context()
+    sock = ctx.socket(zmq.DEALER)
+    sock.setsockopt(zmq.LINGER, 0)
+    sock.connect(address)
+    out = np.empty(n)
+    try:
+        for k in range(n + 200):
             t0 = time.perf_counter()
-            conn.step(k, k * scene.simulation.dt, eq, v)
-            t1 = time.perf_counter()
-            conn.ping()
-            out["step"][k], out["ping"][k] = (t1 - t0) * 1e6, (time.perf_counter() - t1) * 1e6
+            sock.send(msgpack.packb(request))
+            msgpack.unpackb(sock.recv())
+            if k >= 200:   # warm-up
+                out[k - 200] = (time.perf_counter() - t0) * 1e6
+        sock.send(msgpack.packb({"type": "bye"}))
+        sock.recv()
+    finally:
+        sock.close(0)
+        ctx.term()
+        proc.wait(10)
     return out
 
+
+# ------------------------------------------------------------------------------ runs
 
 def start_server(pin: bool) -> tuple[subprocess.Popen, str]:
     cmd = [sys.executable, "-m", "hydrolink.clients.cli", "serve", "--bind", "tcp://127.0.0.1:*"]
@@ -106,55 +212,75 @@ def start_server(pin: bool) -> tuple[subprocess.Popen, str]:
     return proc, match.group(1)
 
 
+def run_us(scene_path: Path, out: Path, hdbs: dict, server: str | None = None) -> float:
+    """µs per step of one whole run (client + server + transport + results file)."""
+    summary = run_scene_file(scene_path, out, server=server, progress=False, hdbs=hdbs)
+    assert summary["status"] == "complete", summary["status"]
+    return summary["wall_time"] / summary["steps"] * 1e6
+
+
+def med(xs: list[float]) -> str:
+    return f"{statistics.median(xs):.0f} [{min(xs):.0f}-{max(xs):.0f}]"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--duration", type=float, default=100.0, help="simulated seconds per run (dt = 0.01)")
+    parser.add_argument("--rm3-duration", type=float, default=400.0, help="simulated seconds of RM3 per run")
+    parser.add_argument("--cyl-duration", type=float, default=100.0, help="simulated seconds of the cylinder")
     parser.add_argument("--repeat", type=int, default=3)
-    parser.add_argument("--pin", action="store_true", help="pin client and server to CPU 0")
-    parser.add_argument("--dofs", default='["heave"]', help='active DOFs, e.g. \'["surge","heave","pitch"]\'')
+    parser.add_argument("--pin", action="store_true", help="pin client, server and echo process to CPU 0")
+    parser.add_argument("--no-tcp", action="store_true", help="embedded runs only")
     args = parser.parse_args()
+    logging.disable(logging.WARNING)   # the scenes' setup warnings are not what is measured
     if args.pin:
         os.sched_setaffinity(0, {0})
 
+    cases = {"RM3 (2 bodies, heave, PTO)": (rm3_scene(args.rm3_duration), args.rm3_duration),
+             "cylinder (surge, heave, pitch)": (cylinder_scene(args.cyl_duration), args.cyl_duration)}
     with tempfile.TemporaryDirectory() as tmp:
-        scene_path = Path(tmp) / "scene.toml"
-        scene_path.write_text(scene_text(args.duration, args.dofs))
-        load_scene_hdbs(load_scene(scene_path)[0], scene_path)  # build / warm the HDB cache first
-        rows: dict[str, list[dict]] = {"embedded (in-process server)": [], "loopback TCP (hydrolink serve)": []}
-        trips: dict[str, list[dict]] = {name: [] for name in rows}
-        for _ in range(args.repeat):
-            rows["embedded (in-process server)"].append(
-                run_scene_file(scene_path, Path(tmp) / "embedded.nc", progress=False))
-            from hydrolink.server.service import ForceServer
-            trips["embedded (in-process server)"].append(round_trips_us(ForceServer(None), scene_path))
-            proc, address = start_server(args.pin)
-            try:
-                rows["loopback TCP (hydrolink serve)"].append(
-                    run_scene_file(scene_path, Path(tmp) / "tcp.nc", server=address, progress=False))
-                trips["loopback TCP (hydrolink serve)"].append(round_trips_us(address, scene_path))
-            finally:
-                proc.terminate()
-                proc.wait(10)
-        direct = model_step_us(scene_path)
+        paths, hdbs = {}, {}
+        for i, (name, (text, _)) in enumerate(cases.items()):
+            paths[name] = Path(tmp) / f"case{i}.toml"
+            paths[name].write_text(text)
+            hdbs[name] = load_scene_hdbs(load_scene(paths[name])[0], paths[name])  # build / warm the cache
+        rm3 = next(iter(cases))
+        emb: dict[str, list[float]] = {name: [] for name in cases}
+        tcp: dict[str, list[float]] = {name: [] for name in cases}
+        bare: list[float] = []
+        trips: list[np.ndarray] = []
+        for _ in range(args.repeat):   # interleaved: each repeat sees the same machine load
+            bare.append(bare_exudyn_us(paths[rm3], int(round(args.rm3_duration / DT))))
+            trips.append(raw_zmq_us(5000, 2, args.pin))
+            for name in cases:
+                emb[name].append(run_us(paths[name], Path(tmp) / "embedded.nc", hdbs[name]))
+                if args.no_tcp:
+                    continue
+                proc, address = start_server(args.pin)
+                try:
+                    tcp[name].append(run_us(paths[name], Path(tmp) / "tcp.nc", hdbs[name], address))
+                finally:
+                    proc.terminate()
+                    proc.wait(10)
 
-    steps = int(round(args.duration / 0.01))
-    print(f"cylinder, dofs {args.dofs}, dt 0.01 s, irf 20 s, {steps} steps per run, "
-          f"median of {args.repeat}{', pinned to CPU 0' if args.pin else ''}\n")
-    print("| path | steps/s [min-max] | client µs/step | round trip µs/step | server compute µs/step |")
-    print("|---|---|---|---|---|")
-    for name, runs in rows.items():
-        med = lambda key: statistics.median(r[key] for r in runs)  # noqa: E731
-        rate = [r["steps"] / r["wall_time"] for r in runs]
-        print(f"| {name} | {statistics.median(rate):.0f} [{min(rate):.0f}-{max(rate):.0f}] | "
-              f"{med('client_us_per_step'):.0f} | {med('round_trip_us_per_step'):.0f} | "
-              f"{med('server_compute_us_per_step'):.1f} |")
-    print(f"\nHydroModel.step called directly: {direct:.1f} µs/step (median)\n")
-    print("| path | request | p10 µs | p50 µs | p90 µs | p99 µs |")
+    floor, rt = statistics.median(bare), float(np.median(np.concatenate(trips)))
+    p = np.percentile(np.concatenate(trips), [10, 90])
+    print(f"dt {DT} s; RM3 {args.rm3_duration:g} s ({int(round(args.rm3_duration / DT))} steps), cylinder "
+          f"{args.cyl_duration:g} s; medians of {args.repeat} [min-max]"
+          f"{', pinned to CPU 0' if args.pin else ''}; load average {os.getloadavg()[0]:.1f} on "
+          f"{os.cpu_count()} CPUs\n")
+    print(f"floor: bare Exudyn (RM3 system, PreStep convolution) {med(bare)} µs/step")
+    print(f"floor: raw ZeroMQ DEALER/ROUTER round trip (msgpack, loopback TCP) {rt:.0f} µs "
+          f"[p10 {p[0]:.0f}, p90 {p[1]:.0f}]\n")
+    print("| case | path | µs/step | steps/s | floor µs/step | ratio |")
     print("|---|---|---|---|---|---|")
-    for name, runs in trips.items():
-        for req in ("step", "ping"):
-            p = np.percentile(np.concatenate([r[req] for r in runs]), [10, 50, 90, 99])
-            print(f"| {name} | {req} | " + " | ".join(f"{x:.0f}" for x in p) + " |")
+    for name in cases:
+        e = statistics.median(emb[name])
+        print(f"| {name} | embedded | {med(emb[name])} | {1e6 / e:.0f} | {floor:.0f} (bare Exudyn) | "
+              f"{e / floor:.2f} |")
+        if tcp[name]:
+            t = statistics.median(tcp[name])
+            print(f"| {name} | loopback TCP | {med(tcp[name])} | {1e6 / t:.0f} | {e + rt:.0f} (embedded + "
+                  f"raw ZeroMQ {rt:.0f}) | {t / (e + rt):.2f} |")
 
 
 if __name__ == "__main__":

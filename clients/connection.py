@@ -38,9 +38,11 @@ class RemoteError(RuntimeError):
 class ServerConnection:
     """A connection to a hydrolink server; every receive times out after ``timeout`` seconds.
 
-    ``address`` is a ZeroMQ endpoint, or an in-process server (an object with ``respond(frame) ->
-    frame``, e.g. ``ForceServer(None)``): then each request frame is handed to it directly, with
-    the same bytes and the same replies as over a socket but without the transport's wake-ups.
+    ``address`` is a ZeroMQ endpoint, or an in-process server (``ForceServer(None)``: an object
+    with ``respond_map(map) -> map``, or ``respond(frame) -> frame``): then each request is handed
+    to it directly, without the transport's wake-ups and — as a map, when there is no signing
+    ``key`` — without msgpack. The server checks a map as it checks a frame's content and the
+    reply carries the same values (float64 arrays, bit for bit; tests/test_server.py).
 
     ``curve``: a :class:`hydrolink.protocol.security.ClientKeys` for a server that requires CURVE."""
 
@@ -56,6 +58,7 @@ class ServerConnection:
         self.session_timeout: float | None = None
         self._ids = codec.id_source("c")
         self._local = None if isinstance(address, str) else address
+        self._maps = self._local is not None and key is None and hasattr(address, "respond_map")
         self._sock: zmq.Socket | None = None
         self._pending: bytes | None = None  # the in-process server's reply, until received
         self._own_context = False
@@ -108,10 +111,17 @@ class ServerConnection:
 
     def request(self, mtype: str, timeout: float | None = None, **fields: Any) -> dict:
         """Send one request, wait for its reply (matched by ``parent``); RemoteError on ``error``."""
+        return self._request(mtype, timeout, fields, False)
+
+    def _request(self, mtype: str, timeout: float | None, fields: dict, as_map: bool) -> dict:
+        """:meth:`request`; ``as_map``: hand an in-process server the map (no msgpack)."""
         if self._sock is None and self._local is None:
             raise ConnectionError(f"connection to {self.address} is closed")
         msg_id = next(self._ids)
-        self._send(codec.pack(codec.message(mtype, msg_id, self.session, **fields), self.key))
+        msg = codec.message(mtype, msg_id, self.session, **fields)
+        if as_map:
+            return self._checked(self._local.respond_map(msg), msg_id)
+        self._send(codec.pack(msg, self.key))
         limit = self.timeout if timeout is None else timeout
         deadline = time.monotonic() + limit
         while True:
@@ -120,12 +130,17 @@ class ServerConnection:
                 reply = codec.unpack(frame, self.key)
             except ProtocolError as exc:
                 raise ConnectionError(f"unreadable reply from {self.address}: {exc}") from None
-            if reply.get("parent") != msg_id:
-                continue  # a late reply to an earlier, timed-out request
-            if reply.get("type") == "error":
-                raise RemoteError(reply.get("code", 99), reply.get("name", "internal"), reply.get("field"),
-                                  reply.get("message", ""), self.address)
-            return reply
+            if reply.get("parent") == msg_id:
+                return self._checked(reply, msg_id)
+
+    def _checked(self, reply: dict, msg_id: str) -> dict:
+        """The reply to ``msg_id``; RemoteError on ``error``."""
+        if reply.get("parent") != msg_id:
+            raise ConnectionError(f"the in-process server answered {reply.get('parent')!r}, not {msg_id!r}")
+        if reply.get("type") == "error":
+            raise RemoteError(reply.get("code", 99), reply.get("name", "internal"), reply.get("field"),
+                              reply.get("message", ""), self.address)
+        return reply
 
     def hello(self, scene_text: str, hdbs: dict[str, xr.Dataset], role: str = "multibody",
               client: dict | None = None, wave_elevation: tuple | None = None) -> Setup:
@@ -156,20 +171,22 @@ class ServerConnection:
 
     def step(self, seq: int, time: float, position: np.ndarray, velocity: np.ndarray,
              iteration: int = 0, *, measurements: dict | None = None, timeout: float | None = None) -> dict:
-        """Forces for the state at step ``seq``: excitation/radiation/hydrostatic (N, 6) arrays,
-        wave_elevation, seq, iteration, time, compute_us; with controllers (SPEC §5.7) the
+        """The ``forces`` reply for the state at step ``seq``: excitation/radiation/hydrostatic (N, 6)
+        arrays (read-only), wave_elevation, seq, iteration, time, compute_us (and the envelope); with controllers (SPEC §5.7) the
         ``measurements`` of step seq - 1 go along and the reply's ``control`` decisions come back."""
         position = np.ascontiguousarray(position, dtype=np.float64)
-        extra = {} if measurements is None else {"measurements": measurements}
-        reply = self.request("step", timeout, seq=int(seq), time=float(time), iteration=int(iteration),
-                             position=position,
-                             velocity=np.ascontiguousarray(velocity, dtype=np.float64), **extra)
-        out = {k: reply[k] for k in ("seq", "iteration", "time", "compute_us", "control") if k in reply}
+        fields = {"seq": int(seq), "time": float(time), "iteration": int(iteration), "position": position,
+                  "velocity": np.ascontiguousarray(velocity, dtype=np.float64)}
+        if measurements is not None:
+            fields["measurements"] = measurements
+        # the map path only for what this method builds itself (ints, floats, float64 arrays)
+        reply = self._request("step", timeout, fields, self._maps and measurements is None)
         for k in FORCE_FIELDS:  # (N, 6) like the state sent; the caller checks the values
-            out[k] = codec.require_array(reply, k, position.shape, finite=False)
+            reply[k] = codec.require_array(reply, k, position.shape, finite=False)
         eta = reply.get("wave_elevation")
-        out["wave_elevation"] = codec.decode_array(eta, "wave_elevation") if isinstance(eta, dict) else eta
-        return out
+        if isinstance(eta, dict):
+            reply["wave_elevation"] = codec.decode_array(eta, "wave_elevation")
+        return reply
 
     def ping(self) -> dict:
         """Heartbeat: refreshes the session's idle timer."""

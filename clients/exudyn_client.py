@@ -393,6 +393,9 @@ class ExudynMultibody:
         mech = model.mechanism
         self.joints = mech if mech and mech.joints else None
         self._forces = np.zeros((3, self.nb, 6))
+        # every scene body wet, in setup order: the forces go straight into the results row
+        self._all_wet = self.n == self.nb and np.array_equal(model.wet_rows, np.arange(self.nb))
+        self._hs = np.zeros(6 * self.n)   # scratch: C q
         self._pto_sample = None
         self._refresh()
 
@@ -461,17 +464,28 @@ class ExudynMultibody:
 
     def write(self, t: float, s, snap) -> None:
         q, v, out = snap
-        m, f = self.model, self._forces
-        if self.n:
-            rows, shape = m.wet_rows, (self.n, 6)
-            f[0, rows], f[1, rows] = s.excitation.reshape(shape), s.radiation.reshape(shape)
-            f[2, rows] = -(m.stiffness @ q[m.wet_index]).reshape(shape)
+        m, nb = self.model, self.nb
         if self.control is not None:
             self.control.stage()
         if out:
             self.writer.stage_extra(out)
-        self.writer.append(t, m.body_reference + q[m.body_index].reshape(self.nb, 6),
-                           v[m.body_index].reshape(self.nb, 6), f[0], f[1], f[2], s.eta)
+        row = self.writer.row()    # filled in place: position, velocity, excitation, radiation, hydrostatic
+        idx = m.body_index
+        np.add(m.body_reference, q[idx].reshape(nb, 6), out=row[0])
+        row[1] = v[idx].reshape(nb, 6)
+        if self._all_wet:
+            row[2] = s.excitation.reshape(nb, 6)
+            row[3] = s.radiation.reshape(nb, 6)
+            np.dot(m.stiffness, q[m.wet_index], out=self._hs)
+            np.negative(self._hs, out=row[4].reshape(-1))
+        else:
+            f = self._forces   # dry bodies' rows stay zero
+            if self.n:
+                rows, shape = m.wet_rows, (self.n, 6)
+                f[0, rows], f[1, rows] = s.excitation.reshape(shape), s.radiation.reshape(shape)
+                f[2, rows] = -(m.stiffness @ q[m.wet_index]).reshape(shape)
+            row[2:] = f
+        self.writer.commit(t, s.eta)
 
     def measurements(self, step: int) -> dict | None:
         c = self.control
@@ -493,8 +507,8 @@ class ExudynMultibody:
             out.update({"joint_force": np.hstack([f, mom]), "joint_violation": gap, "joint_rotation_violation": rot})
         if m.ptos is not None:
             s = self._pto_sample = m.ptos.sample(m.mbs)
-            out.update({"pto_force": s.force, "pto_velocity": s.velocity, "pto_power": s.power,
-                        "total_pto_power": s.total_power})
+            out["pto_force"], out["pto_velocity"], out["pto_power"] = s.force, s.velocity, s.power
+            out["total_pto_power"] = s.total_power
         if m.moorings is not None:
             out["mooring_force"] = m.moorings.sample(m.mbs)
         return out

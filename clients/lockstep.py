@@ -17,9 +17,11 @@ import math
 import sys
 import time as _time
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
+
+_sum = np.add.reduce   # ndarray.sum without its Python wrapper
 
 #: default bound on |displacement| (m, rad) and |velocity| (m/s, rad/s) before a run is called diverged
 BLOW_UP_LIMIT = 1.0e4
@@ -48,26 +50,27 @@ class CouplingError(RunInterrupted):
 
 # ------------------------------------------------------------------------------ the server side
 
-@dataclass(frozen=True)
-class Sample:
-    """One server reply over the wet bodies' 6N DOFs (body-major)."""
+class Sample(NamedTuple):
+    """One server reply over the wet bodies' 6N DOFs (body-major); immutable (a tuple: cheap to
+    make once a step). ``load`` = excitation + radiation: what the client applies as a force
+    (hydrostatics are in its matrix); :meth:`of` computes it."""
 
     excitation: np.ndarray
     radiation: np.ndarray
     hydrostatic: np.ndarray
     eta: float
+    load: np.ndarray
 
-    @property
-    def load(self) -> np.ndarray:
-        """Excitation + radiation: what the client applies as a force (hydrostatics are in its matrix)."""
-        return self.excitation + self.radiation
+    @classmethod
+    def of(cls, excitation: np.ndarray, radiation: np.ndarray, hydrostatic: np.ndarray, eta: float) -> "Sample":
+        return cls(excitation, radiation, hydrostatic, eta, excitation + radiation)
 
     def toward(self, other: "Sample", w: float) -> "Sample":
         """self + w (other − self): linear in time between (w in [0, 1]) or past (w > 1) two samples."""
-        return Sample(self.excitation + w * (other.excitation - self.excitation),
-                      self.radiation + w * (other.radiation - self.radiation),
-                      self.hydrostatic + w * (other.hydrostatic - self.hydrostatic),
-                      self.eta + w * (other.eta - self.eta))
+        return Sample.of(self.excitation + w * (other.excitation - self.excitation),
+                         self.radiation + w * (other.radiation - self.radiation),
+                         self.hydrostatic + w * (other.hydrostatic - self.hydrostatic),
+                         self.eta + w * (other.eta - self.eta))
 
 
 class ForceLink:
@@ -84,7 +87,9 @@ class ForceLink:
         self.dt = setup.dt if self.n else 0.0
         self.seconds = 0.0
         self.decisions: dict | None = None
-        self._zero = Sample(np.zeros(0), np.zeros(0), np.zeros(0), 0.0)
+        self._zero = Sample.of(np.zeros(0), np.zeros(0), np.zeros(0), 0.0)
+        self._shape = (self.n, 6)
+        self._pos = np.zeros(self._shape)   # the absolute position sent (reused: the server copies it)
 
     def sample(self, seq: int, x: np.ndarray, v: np.ndarray, *, iteration: int = 0,
                measurements: dict | None = None, timeout: float | None = None) -> Sample:
@@ -93,13 +98,14 @@ class ForceLink:
             return self._zero
         t = seq * self.dt
         t0 = _time.perf_counter()
-        shape = (self.n, 6)
+        shape, pos = self._shape, self._pos
+        np.add(self.eq, x, out=pos.reshape(-1))
         try:
             if measurements is not None or timeout is not None:
-                reply = self.conn.step(seq, t, (self.eq + x).reshape(shape), v.reshape(shape),
-                                       iteration, measurements=measurements, timeout=timeout)
+                reply = self.conn.step(seq, t, pos, v.reshape(shape), iteration, measurements=measurements,
+                                       timeout=timeout)
             else:
-                reply = self.conn.step(seq, t, (self.eq + x).reshape(shape), v.reshape(shape), iteration)
+                reply = self.conn.step(seq, t, pos, v.reshape(shape), iteration)
         except (KeyboardInterrupt, RunInterrupted):
             raise
         except Exception as exc:
@@ -110,9 +116,10 @@ class ForceLink:
         self.decisions = reply.get("control")
         eta = reply["wave_elevation"]
         eta = eta if type(eta) is float else float(np.asarray(eta, float).reshape(-1)[0])
-        s = Sample(reply["excitation"].reshape(-1), reply["radiation"].reshape(-1),
-                   reply["hydrostatic"].reshape(-1), eta)
-        if not math.isfinite(float(s.excitation.sum() + s.radiation.sum() + s.hydrostatic.sum()) + eta):
+        s = Sample.of(reply["excitation"].reshape(-1), reply["radiation"].reshape(-1),
+                      reply["hydrostatic"].reshape(-1), eta)
+        # NaN or inf anywhere makes a sum non-finite (excitation and radiation through their sum)
+        if not math.isfinite(float(_sum(s.load)) + float(_sum(s.hydrostatic)) + eta):
             rows = self.writer.rows
             raise SimulationDiverged(f"the force server returned non-finite forces at step {seq} (t = {t:.6g} s); "
                                      f"the {rows} rows before it are saved", step=seq, time=t, rows=rows)

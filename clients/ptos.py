@@ -73,7 +73,7 @@ class PTOSample:
 
     @property
     def total_power(self) -> float:
-        return float(self.power.sum())
+        return float(np.add.reduce(self.power))   # = power.sum(), without its Python wrapper
 
 
 @dataclass(frozen=True)
@@ -127,9 +127,9 @@ class PTOSet:
         for i, p in enumerate(self.linear):
             d = out(p.object, _OV.Displacement)        # point2 - point1
             v = out(p.object, _OV.Velocity)
-            dx, dy, dz = float(d[0]), float(d[1]), float(d[2])
+            (dx, dy, dz), (vx, vy, vz) = d.tolist(), v.tolist()
             length = math.sqrt(dx * dx + dy * dy + dz * dz)
-            rate = (float(v[0]) * dx + float(v[1]) * dy + float(v[2]) * dz) / length if length > 0 else 0.0
+            rate = (vx * dx + vy * dy + vz * dz) / length if length > 0 else 0.0
             k, c, f0 = self.current.get(p.object) or (p.stiffness, p.damping, 0.0)
             f = k * (length - p.rest_length) + c * rate + f0
             force[p.entry], vel[p.entry] = min(max(f, -p.limit), p.limit), rate

@@ -98,6 +98,8 @@ class ResultWriter:
         self._eta = np.empty(rows)
         self._buffered = 0
         self._extra: dict[str, np.ndarray] = {}      # name -> (rows, *shape) block
+        self._staged: set[str] = set()               # extras staged for the next row
+        self._prev_row = 0                           # where row 0's unstaged extras come from
         self._last_flush = _time.monotonic()
         self._ds = netCDF4.Dataset(self.path, "w", format="NETCDF4")
         try:
@@ -176,25 +178,41 @@ class ResultWriter:
         i = self._buffered
         for name, value in values.items():
             self._extra[name][i] = value
+        self._staged.update(values)
 
     # -- rows --------------------------------------------------------------------------------
     def append(self, time: float, position, velocity, excitation, radiation, hydrostatic,
                wave_elevation) -> None:
         """Buffer one row: (N, 6) arrays and a number for the elevation (copied into the block);
         flushes when the wall-time or row budget is used up."""
-        i = self._buffered
-        self._time[i] = time
-        block = self._rows[:, i]
+        block = self.row()
         block[0] = position
         block[1] = velocity
         block[2] = excitation
         block[3] = radiation
         block[4] = hydrostatic
+        self.commit(time, wave_elevation)
+
+    def row(self) -> np.ndarray:
+        """The next row's slot in the block, (5, N, 6) in ROW_VARIABLES order, to be filled in
+        place (e.g. with ``out=``) and then added by :meth:`commit` — :meth:`append` without copies."""
+        return self._rows[:, self._buffered]
+
+    def commit(self, time: float, wave_elevation: float) -> None:
+        """Add the row filled in :meth:`row` (and the extras staged); flushes when the wall-time
+        or row budget is used up."""
+        i = self._buffered
+        self._time[i] = time
         self._eta[i] = wave_elevation
+        if self._extra:
+            staged = self._staged
+            if len(staged) < len(self._extra):   # unstaged values repeat the previous row
+                prev = i - 1 if i else self._prev_row
+                for name, block in self._extra.items():
+                    if name not in staged:
+                        block[i] = block[prev]
+            staged.clear()
         self._buffered = i + 1
-        if self._extra and self._buffered < self._time.size:
-            for block in self._extra.values():   # unstaged values repeat the previous row
-                block[self._buffered] = block[i]
         if (self._buffered >= self._time.size
                 or _time.monotonic() - self._last_flush >= self.flush_seconds):
             self.flush()
@@ -210,7 +228,7 @@ class ResultWriter:
             ds["wave_elevation"][i0:i1] = self._eta[:m]
             for name, block in self._extra.items():
                 ds[name][i0:i1] = block[:m]
-                block[0] = block[m - 1]
+            self._prev_row = m - 1   # the next block's row 0 repeats the last row written
             ds["time"][i0:i1] = self._time[:m]  # last: marks the rows as present
             self.rows_written = i1
             self._buffered = 0

@@ -30,6 +30,7 @@ REPLY_TYPES = ("welcome", "forces", "pong", "goodbye", "error", "measurements", 
 
 # dtypes a decoder takes; senders use "<f8", "<c16", "<i8", "|b1"
 ACCEPTED_DTYPES = {s: np.dtype(s) for s in ("<f8", "<f4", "<c16", "<i8", "<i4", "|b1")}
+_F8 = np.dtype(np.float64)
 
 
 class Code(IntEnum):
@@ -262,7 +263,9 @@ def require_array(msg: dict, field: str, shape: tuple[int | None, ...], *, finit
     """A required float64 array of ``shape`` (None = any length), all finite by default."""
     name = path or field
     value = msg.get(field)
-    if type(value) is dict and value.get("dtype") == "<f8" and value.get("shape") == list(shape) \
+    if type(value) is np.ndarray and value.dtype is _F8 and value.shape == shape:
+        arr = value  # hot path in-process (a map handed over without msgpack): float64 of the shape
+    elif type(value) is dict and value.get("dtype") == "<f8" and value.get("shape") == list(shape) \
             and type(value.get("data")) is bytes and len(value["data"]) == 8 * math.prod(shape):
         arr = np.frombuffer(value["data"], np.float64).reshape(shape)  # hot path: well-formed binary
     else:

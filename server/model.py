@@ -127,7 +127,8 @@ class HydroModel:
         self._excitation(data, lo, hi, wave_elevation)
         self._step = -1           # index of the newest step pushed
         na = self._idx.size
-        self._sel = slice(None) if na == self.n else self._idx  # a view when every DOF is active
+        self._all_active = na == self.n
+        self._sel = slice(None) if self._all_active else self._idx  # a view when every DOF is active
         self._red = np.zeros((3, na))  # scratch: excitation, radiation, hydrostatic (active DOFs)
 
     def _group_data(self, ds: xr.Dataset, members: list[int]) -> _GroupData:
@@ -370,13 +371,17 @@ class HydroModel:
             raise ModelError("state", f"position and velocity must be ({len(self.bodies)}, 6), "
                                       f"got {np.shape(position)} and {np.shape(velocity)}")
         sel = self._sel
-        red = self._red
         vs = v[sel]
+        # the reply's arrays: fresh each step (a reply may be kept, e.g. cached for a retry, and
+        # goes out in-process as is), written in place, then made read-only like a frame's arrays
+        out = np.zeros((3, len(self.bodies), 6))
+        red = out.reshape(3, self.n) if self._all_active else self._red
         for pos, memory in self._memories:
             red[1, pos] = memory.push(vs[pos], replace_last)
         red[0], eta = self._forcing(time)
         np.dot(self._k_hs, self._x_eq - x[sel], out=red[2])
         self._step = k
-        out = np.zeros((3, len(self.bodies), 6))
-        out.reshape(3, self.n)[:, sel] = red
+        if not self._all_active:
+            out.reshape(3, self.n)[:, sel] = red
+        out.flags.writeable = False
         return {"excitation": out[0], "radiation": out[1], "hydrostatic": out[2], "wave_elevation": eta}

@@ -166,13 +166,24 @@ class ForceServer:
         """One request frame -> its reply frame (never raises): what the socket loop sends back."""
         return codec.pack(self.handle(frame), self.key)
 
-    def handle(self, frame: bytes, route: list[bytes] | None = None) -> dict | None:
-        """One request frame -> its reply message (never raises); None when the reply is deferred
-        (only with ``route``, the routing frames, from the socket loop)."""
+    def respond_map(self, msg: dict) -> dict:
+        """One request map -> its reply map (never raises), for a client in this process: the
+        frame path without msgpack. The map gets every check a frame's content gets (envelope,
+        fields, arrays: :mod:`hydrolink.protocol.codec`) and the reply carries the same values a
+        frame would (arrays as read-only ndarrays). A signing server takes frames only."""
+        if self.key is not None:
+            return codec.error_reply(next(self._ids), codec.readable_id(msg), None, Code.BAD_SIGNATURE, "sig",
+                                     "a signing server takes frames only (respond), not maps")
+        return self.handle(msg)
+
+    def handle(self, frame: bytes | dict, route: list[bytes] | None = None) -> dict | None:
+        """One request frame (or, in-process, its unpacked map) -> its reply message (never
+        raises); None when the reply is deferred (only with ``route``, the routing frames, from
+        the socket loop)."""
         msg: Any = None
         session: str | None = None
         try:
-            msg = codec.unpack(frame, self.key)
+            msg = frame if type(frame) is dict else codec.unpack(frame, self.key)
             session = msg.get("session") if isinstance(msg.get("session"), str) else None
             mtype, msg_id, session = codec.check_envelope(msg)
             self._route = route

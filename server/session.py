@@ -109,7 +109,7 @@ class Session:
                 raise ProtocolError(Code.OUT_OF_ORDER, "iteration",
                                     f"seq {seq} iteration {iteration} was already computed with another state; "
                                     f"send iteration {iteration + 1} to replace it")
-            return dict(self._cached, compute_us=0.0)
+            return dict(self._cached, compute_us=0.0)  # the retry: the cached reply, no compute
         else:
             expect = f"expected seq {self.last_seq + 1} (new step)"
             if self.last_seq >= 0:
@@ -127,5 +127,6 @@ class Session:
         self.compute_s += elapsed
         self.last_seq, self.last_iteration = seq, iteration
         self._last_state = (pos.copy(), vel.copy())
-        self._cached = {"seq": seq, "iteration": iteration, "time": t, **out}
-        return dict(self._cached, compute_us=elapsed * 1e6)
+        # one map: the reply now and, cached (its arrays are read-only), the reply to a retry
+        self._cached = reply = {"seq": seq, "iteration": iteration, "time": t, **out, "compute_us": elapsed * 1e6}
+        return reply

@@ -257,6 +257,8 @@ class WaveForcing:
         c = comps.amplitude * np.exp(1j * comps.phase)  # (n_c,)
         coef = np.vstack([x_components.T * c[None, :], c[None, :]])  # (n+1, n_c)
         self._m = np.ascontiguousarray(np.hstack([coef.real, coef.imag]))  # (n+1, 2 n_c)
+        if comps.size == 1:   # regular wave: the two columns contiguous
+            self._m0, self._m1 = self._m[:, 0].copy(), self._m[:, 1].copy()
         self._trig = np.empty(2 * comps.size)
         self._n = n
         self._still = comps.size == 0
@@ -269,7 +271,7 @@ class WaveForcing:
         nc = self.comps.size
         if nc == 1:  # regular wave: scalar trig is cheaper than array calls
             wt = self._w0 * t
-            out = self._m[:, 0] * math.cos(wt) + self._m[:, 1] * math.sin(wt)
+            out = self._m0 * math.cos(wt) + self._m1 * math.sin(wt)
         else:
             wt = self.comps.omega * t
             np.cos(wt, out=self._trig[:nc])

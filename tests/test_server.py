@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
 import msgpack
 import numpy as np
@@ -17,6 +18,7 @@ from hydrolink.protocol import codec
 from hydrolink.protocol.hdb_wire import to_wire
 from hydrolink.server.service import serve_in_thread
 
+REPO = Path(__file__).resolve().parents[1]
 DT = 0.05
 
 
@@ -307,3 +309,77 @@ def test_real_hdb_file_over_the_wire(server, shared_data):
         f = c.step(0, 0.0, eq + dz, np.zeros((1, 6)))
         k33 = setup.hydrostatic_stiffness[2, 2]
         assert k33 > 0 and f["hydrostatic"][0, 2] == pytest.approx(-0.1 * k33, rel=1e-9)
+
+
+# ------------------------------------------------------------------ in-process maps = frames
+
+RM3_COMPARED = ("time", "position", "velocity", "excitation_force", "radiation_force", "hydrostatic_force",
+                "wave_elevation", "pto_force", "pto_velocity", "pto_power", "total_pto_power")
+
+
+@pytest.mark.parametrize("scheme", ["mass-matrix", "implicit"])
+def test_embedded_run_equals_socket_run_bit_for_bit(shared_data, tmp_path, scheme):
+    """RM3 (two bodies, PTO) run embedded — step requests handed to the in-process server as maps,
+    no msgpack — and over loopback TCP (frames): every results value is the same bit for bit
+    (the implicit scheme also exercises the iteration/replace requests)."""
+    import netCDF4
+
+    from hydrolink.clients.run import run_scene_file
+
+    text = (REPO / "examples" / "rm3" / "rm3.toml").read_text()
+    for a, b in (('"../../../shared/data/rm3_wamit/rm3.1"', f'"{(shared_data / "rm3_wamit" / "rm3.1").as_posix()}"'),
+                 ("duration = 400.0", "duration = 16.0"), ("ramp = 40.0", "ramp = 4.0")):
+        assert a in text
+        text = text.replace(a, b)
+    scene = tmp_path / "rm3.toml"
+    scene.write_text(text + f'\n[coupling]\nscheme = "{scheme}"\n')
+    embedded = run_scene_file(scene, tmp_path / "embedded.nc", progress=False)
+    srv, thread = serve_in_thread()
+    try:
+        remote = run_scene_file(scene, tmp_path / "socket.nc", server=srv.address, progress=False)
+    finally:
+        srv.stop()
+        thread.join(5)
+    assert embedded["status"] == remote["status"] == "complete"
+    assert embedded["server"] == "in-process" and remote["server"].startswith("tcp://")
+    with netCDF4.Dataset(tmp_path / "embedded.nc") as a, netCDF4.Dataset(tmp_path / "socket.nc") as b:
+        assert a.dimensions["time"].size == b.dimensions["time"].size == 201
+        for name in RM3_COMPARED:
+            x, y = a[name][:].filled(np.nan), b[name][:].filled(np.nan)
+            assert x.shape == y.shape and x.tobytes() == y.tobytes(), name
+        assert float(np.abs(a["pto_power"][:]).max()) > 1e3   # the device moved
+
+
+def _step_map(sid: str, **fields) -> dict:
+    base = {"seq": 0, "time": 0.0, "iteration": 0, "position": np.zeros((1, 6)), "velocity": np.zeros((1, 6))}
+    msg = codec.message("step", "t-1", sid, **base)
+    msg.update(fields)   # envelope fields too
+    return msg
+
+
+@pytest.mark.parametrize("fields", [
+    {"position": np.full((1, 6), np.nan)}, {"velocity": np.zeros((2, 6))},
+    {"position": [["a"] * 6]}, {"position": None}, {"seq": 1.0}, {"seq": -1}, {"time": 0.5}, {"time": "0"},
+    {"iteration": True}, {"v": 2}, {"type": "stepp"}, {"msg_id": 1.5}, {"session": 7}])
+def test_in_process_map_gets_the_checks_a_frame_gets(hdb, fields):
+    """A bad step handed over as a map is refused exactly as the same message as a frame: same
+    error code, name, field and message; the session stays usable. A good one gets the same
+    values, its arrays read-only (as a frame's)."""
+    from hydrolink.server.service import ForceServer
+
+    srv = ForceServer(None)
+    with ServerConnection(srv) as c:
+        c.hello(SCENE, {"float.nc": hdb})
+        msg = _step_map(c.session, **fields)
+        by_map, by_frame = srv.respond_map(msg), codec.unpack(srv.respond(codec.pack(msg)))
+        assert by_map["type"] == by_frame["type"] == "error"
+        keys = ("code", "name", "field", "message", "parent", "session")
+        assert {k: by_map[k] for k in keys} == {k: by_frame[k] for k in keys}
+        p, v = states(1)[0]
+        good = _step_map(c.session, position=p, velocity=v)
+        f_map = srv.respond_map(good)
+        f_frame = codec.unpack(srv.respond(codec.pack(dict(good, seq=0, iteration=0))))  # the retry: cached
+        for k in ("excitation", "radiation", "hydrostatic"):
+            assert not f_map[k].flags.writeable
+            assert f_map[k].tobytes() == codec.require_array(f_frame, k, (1, 6)).tobytes()
+        assert f_map["wave_elevation"] == f_frame["wave_elevation"]
