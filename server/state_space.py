@@ -43,6 +43,7 @@ import numpy as np
 
 
 ITER = 6  # pole relocation iterations
+CHUNK = 64  # DOF pairs fitted together (each pair's fit is independent of the others)
 
 
 class StateSpaceError(ValueError):
@@ -176,9 +177,12 @@ def vector_fit(omega: np.ndarray, h: np.ndarray, order: int, *, iterations: int 
     top = omega.max()
     beta = top * (np.arange(m) + 0.5) / m
     poles = np.tile(-beta / 100.0 + 1j * beta, (P, 1))
-    for _ in range(iterations or ITER):
-        poles = _relocate(s, h, poles, w, enforce_stability)
-    res, d = _residues(s, h, poles, w)
+    res, d = np.empty((P, m), complex), np.empty(P)
+    for lo in range(0, P, CHUNK):  # pairs are independent: blocks small enough to stay in cache
+        part = slice(lo, lo + CHUNK)
+        for _ in range(iterations or ITER):
+            poles[part] = _relocate(s, h[part], poles[part], w, enforce_stability)
+        res[part], d[part] = _residues(s, h[part], poles[part], w)
     return poles, res, d
 
 
