@@ -76,42 +76,44 @@ def _lstsq(a: np.ndarray, rhs: np.ndarray) -> np.ndarray:
     return np.linalg.solve(r, y[..., None])[..., 0] / norm
 
 
-def _lstsq_normal(a: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-    """Batched least squares by column-scaled normal equations (fast; for the pole relocation,
-    which only needs an approximate answer; a tiny ridge keeps rank-deficient systems solvable)."""
-    norm = np.linalg.norm(a, axis=1)
-    norm[norm == 0] = 1.0
-    a = a / norm[:, None, :]
-    g = np.matmul(a.transpose(0, 2, 1), a)
-    g += 1e-12 * np.eye(g.shape[1])[None]
-    y = np.einsum("prn,pr->pn", a, rhs)
-    return np.linalg.solve(g, y[..., None])[..., 0] / norm
-
-
 def _stack(x: np.ndarray) -> np.ndarray:
     """Complex (P, K, n) -> real rows (P, 2K, n)."""
     return np.concatenate([x.real, x.imag], axis=1)
 
 
 def _relocate(s, h, poles, w, enforce):
-    """One pole relocation: zeros of the weighting function sigma(s) become the new poles."""
+    """One pole relocation: zeros of the weighting function sigma(s) become the new poles.
+
+    Least squares for [c, d, ct] in  (phi c + d - h phi ct) w = h w  (real and imaginary rows) by
+    column-scaled normal equations (the relocation only needs an approximate answer; a tiny ridge
+    keeps rank-deficient systems solvable). One product X^T X of the rows with the right-hand side
+    appended gives the Gram matrix, the column norms (its diagonal) and X^T rhs at once."""
     P, m = poles.shape
-    phi = _basis(s, poles)                                   # (P, K, 2m)
-    ones = np.broadcast_to(np.ones_like(s)[None, :, None], (P, s.size, 1))
-    a = np.concatenate([phi, ones, -h[:, :, None] * phi], axis=2) * w[None, :, None]
-    x = _lstsq_normal(_stack(a), _stack((h * w[None, :])[..., None])[..., 0])
-    ct = x[:, 2 * m + 1:]                                    # sigma's residues (P, 2m)
-    # real realisation of sigma: blocks [[sr, si], [-si, sr]], b = [2, 0]
-    A = np.zeros((P, 2 * m, 2 * m))
-    for r in range(m):
-        pr, pi = poles[:, r].real, poles[:, r].imag
-        A[:, 2 * r, 2 * r] = A[:, 2 * r + 1, 2 * r + 1] = pr
-        A[:, 2 * r, 2 * r + 1] = pi
-        A[:, 2 * r + 1, 2 * r] = -pi
-    b = np.zeros(2 * m)
-    b[0::2] = 2.0
-    z = np.linalg.eigvals(A - b[None, :, None] * ct[:, None, :])
-    return _pair_up(z, enforce)
+    K, n = s.size, 4 * m + 1
+    phi = _basis(s, poles) * w[None, :, None]                # (P, K, 2m)
+    hphi = -h[:, :, None] * phi
+    hw = h * w[None, :]
+    x = np.empty((P, 2 * K, n + 1))
+    for part, rows in ((np.real, slice(0, K)), (np.imag, slice(K, 2 * K))):
+        x[:, rows, :2 * m] = part(phi)
+        x[:, rows, 2 * m + 1:n] = part(hphi)
+        x[:, rows, n] = part(hw)
+    x[:, :K, 2 * m] = w
+    x[:, K:, 2 * m] = 0.0
+    g = np.matmul(x.transpose(0, 2, 1), x)                  # (P, n + 1, n + 1)
+    norm = np.sqrt(np.diagonal(g, axis1=1, axis2=2)[:, :n])
+    norm = np.where(norm == 0, 1.0, norm)
+    gs = g[:, :n, :n] / (norm[:, :, None] * norm[:, None, :])
+    gs += 1e-12 * np.eye(n)[None]
+    ct = (np.linalg.solve(gs, (g[:, :n, n] / norm)[..., None])[..., 0] / norm)[:, 2 * m + 1:]  # sigma's residues
+    # real realisation of sigma: blocks [[sr, si], [-si, sr]] minus b ct^T with b = [2, 0, 2, 0, ...]
+    e = 2 * np.arange(m)
+    a = np.zeros((P, 2 * m, 2 * m))
+    a[:, e, e] = a[:, e + 1, e + 1] = poles.real
+    a[:, e, e + 1] = poles.imag
+    a[:, e + 1, e] = -poles.imag
+    a[:, e, :] -= 2.0 * ct[:, None, :]
+    return _pair_up(np.linalg.eigvals(a), enforce)
 
 
 def _pair_up(z: np.ndarray, enforce: bool) -> np.ndarray:
