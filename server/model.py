@@ -26,7 +26,9 @@ from hydrolink.server.hydrostatics import total_stiffness
 from hydrolink.server.irf import (aliasing_time, asymptotic_tail, irf_report, irf_transfer, ogilvie_added_mass_inf,
                                   ogilvie_report, radiation_irf, resample_damping, taper_window)
 from hydrolink.server.radiation import RadiationMemory
-from hydrolink.server.state_space import StateSpaceError, StateSpaceRadiation, fit_pairs
+from hydrolink.server.state_space import StateSpaceError, StateSpaceRadiation
+from hydrolink.server.state_space_cache import FitCache, FitSettings
+from hydrolink.server.state_space_cache import default_cache_dir as default_fit_cache_dir
 from hydrolink.server.waves import (ConvolutionForcing, WaveError, WaveForcing, convolution_kernel, elevation_on_grid,
                                     interpolate_excitation, kernel_transfer, wave_components)
 
@@ -412,9 +414,10 @@ class HydroModel:
         scale = np.sqrt(np.outer(d, d)).reshape(-1)
         rows, cols = np.divmod(np.arange(n * n), n)
         use = keep.reshape(-1) & (peak > 1e-12 * max(float(d.max(initial=0.0)), 1e-300))
-        fits = fit_pairs(wf, h[use], rows[use], cols[use], np.maximum(scale[use], 1e-300),
-                         tolerance=float(hyd.ss_tolerance), order=hyd.ss_order, max_order=int(hyd.ss_max_order),
-                         enforce_stability=bool(hyd.ss_enforce_stability))
+        cache = self.__dict__.setdefault("_fit_cache", FitCache(default_fit_cache_dir()))  # one per setup
+        fits = cache.fit_pairs(wf, h[use], rows[use], cols[use], np.maximum(scale[use], 1e-300),
+                               FitSettings(float(hyd.ss_tolerance), hyd.ss_order, int(hyd.ss_max_order),
+                                           bool(hyd.ss_enforce_stability)))
         try:
             ss = StateSpaceRadiation(n, fits, self.dt, labels)
         except StateSpaceError as exc:
@@ -422,6 +425,7 @@ class HydroModel:
         st = self._ss
         st["states"] += ss.states
         st["pairs"] += int(use.sum())
+        st["fitted_pairs"] = st.get("fitted_pairs", 0) + fits.fitted  # 0: every fit from the cache
         if use.any():
             st["max_order"] = max(st["max_order"], int(fits.orders.max()))
             worst = int(np.argmax(fits.error))

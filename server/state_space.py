@@ -43,6 +43,7 @@ import numpy as np
 
 
 ITER = 6  # pole relocation iterations
+FIT_RECIPE_VERSION = 1  # bump when fit_pairs' results change: invalidates cached fits (state_space_cache)
 CHUNK = 64  # DOF pairs fitted together (each pair's fit is independent of the others)
 
 
@@ -198,20 +199,35 @@ class PairFits:
     d: np.ndarray | None = None
     error: np.ndarray | None = None
     repaired: int = 0
+    fitted: int = 0  # distinct pair fits computed to get these (0: taken from a cache)
 
     @property
     def orders(self) -> np.ndarray:
         return np.array([2 * p.size for p in self.poles], int)
 
 
+def distinct_rows(h: np.ndarray, scale: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Exact duplicates among the pairs: (first, inverse) with h[first] the distinct rows (same
+    samples and scale, byte for byte) and h[first][inverse] == h. Identical kernels (an array of
+    identical bodies, the far-apart blocks of one HDB) are thus fitted once."""
+    seen: dict[bytes, int] = {}
+    inverse = np.array([seen.setdefault(h[p].tobytes() + scale[p].tobytes(), len(seen)) for p in range(h.shape[0])],
+                       int)
+    return np.unique(inverse, return_index=True)[1], inverse
+
+
 def fit_pairs(omega: np.ndarray, h: np.ndarray, rows: np.ndarray, cols: np.ndarray, scale: np.ndarray, *,
               tolerance: float = 0.01, order: int | None = None, max_order: int = 24,
               enforce_stability: bool = True) -> PairFits:
     """Fit h (P, K) of pairs (rows, cols) with per-pair error scale (P,): fixed ``order``, or the
-    smallest even order meeting ``tolerance`` (see module docstring)."""
+    smallest even order meeting ``tolerance`` (see module docstring). Identical pairs are fitted
+    once (:func:`distinct_rows`); every pair's fit is independent of the others."""
+    h = np.asarray(h, complex)
+    scale = np.asarray(scale, float)
+    first, inverse = distinct_rows(h, scale)
+    h, scale = h[first], scale[first]
     P = h.shape[0]
-    fits = PairFits(np.asarray(rows, int), np.asarray(cols, int), [None] * P, [None] * P,
-                    np.zeros(P), np.full(P, np.inf))
+    poles_, res_, d_, err_ = [None] * P, [None] * P, np.zeros(P), np.full(P, np.inf)
     s = 1j * np.asarray(omega, float)
     todo = np.arange(P)
     orders = [order] if order else list(range(2, max_order + 1, 2))
@@ -220,12 +236,13 @@ def fit_pairs(omega: np.ndarray, h: np.ndarray, rows: np.ndarray, cols: np.ndarr
             break
         poles, res, d = vector_fit(omega, h[todo], n, enforce_stability=enforce_stability)
         err = np.max(np.abs(evaluate(s, poles, res, d) - h[todo]), axis=1) / scale[todo]
-        better = err < fits.error[todo]
+        better = err < err_[todo]
         for k in np.flatnonzero(better):
             p = todo[k]
-            fits.poles[p], fits.residues[p], fits.d[p], fits.error[p] = poles[k], res[k], d[k], err[k]
-        todo = todo[fits.error[todo] > tolerance]
-    return fits
+            poles_[p], res_[p], d_[p], err_[p] = poles[k], res[k], d[k], err[k]
+        todo = todo[err_[todo] > tolerance]
+    return PairFits(np.asarray(rows, int), np.asarray(cols, int), [poles_[i] for i in inverse],
+                    [res_[i] for i in inverse], d_[inverse], err_[inverse], fitted=P)
 
 
 # ----------------------------------------------------------------------------------- realisation

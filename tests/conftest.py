@@ -31,3 +31,12 @@ def sphere(sphere_path: Path):
     """The sphere's HDB, loaded once."""
     from hydrolink.server.hdb.io import load_hdb
     return load_hdb(sphere_path)
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _state_space_fit_cache(tmp_path_factory):
+    """State-space fits are cached in a temporary folder for the session, never in the user's cache
+    (tests that look at the cache point $HYDROLINK_STATE_SPACE_CACHE at their own folder)."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("HYDROLINK_STATE_SPACE_CACHE", str(tmp_path_factory.mktemp("state_space_cache")))
+        yield
