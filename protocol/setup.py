@@ -39,6 +39,7 @@ class StateSpaceReport:
     max_fit_error: float
     unmet: int                      # DOF pairs whose fit misses the tolerance
     worst_pair: str | None = None   # "(body.dof, body.dof)" of max_fit_error
+    fitted_pairs: int | None = None  # pairs fitted in this setup, the rest from the fit cache (None: not told)
 
 
 @dataclass(frozen=True)
@@ -157,7 +158,8 @@ def _state_space(data: Any) -> StateSpaceReport:
     s = _Reader(data, "setup.state_space.")
     return StateSpaceReport(states=s.int("states"), pairs=s.int("pairs"), max_order=s.int("max_order"),
                             max_fit_error=s.number("max_fit_error"), unmet=s.int("unmet"),
-                            worst_pair=data.get("worst_pair"))
+                            worst_pair=data.get("worst_pair"),
+                            fitted_pairs=s.int("fitted_pairs") if "fitted_pairs" in data else None)
 
 
 SETUP_FIELDS = tuple(f.name for f in fields(Setup))

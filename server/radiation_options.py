@@ -26,7 +26,8 @@ from hydrolink.server.errors import ModelError
 from hydrolink.server.irf import (aliasing_time, asymptotic_tail, irf_report, irf_transfer, ogilvie_added_mass_inf,
                                   ogilvie_report, radiation_irf, resample_damping, taper_window)
 from hydrolink.server.radiation import RadiationMemory
-from hydrolink.server.state_space import StateSpaceError, StateSpaceRadiation, fit_pairs
+from hydrolink.server.state_space import StateSpaceError, StateSpaceRadiation
+from hydrolink.server.state_space_cache import FitCache, FitSettings, default_cache_dir
 
 OGILVIE_DEFAULT_DURATION = 40.0  # s of IRF used for Ogilvie's A_inf when hydro.irf_duration = 0
 SS_FIT_POINTS = 120              # frequencies on [0, w_max] the state-space fit is made (and checked) on
@@ -97,13 +98,15 @@ class StateSpaceStats:
     """Totals of the state-space fits over the groups (setup ``state_space``)."""
     states: int = 0
     pairs: int = 0
+    fitted_pairs: int = 0           # distinct pair fits computed (0: all from the fit cache)
     max_order: int = 0
     max_fit_error: float = 0.0
     unmet: int = 0
     worst_pair: str | None = None   # "(row, col)" labels of the worst fit; None until a fit errs
 
     def as_dict(self) -> dict:
-        out = {"states": self.states, "pairs": self.pairs, "max_order": self.max_order,
+        out = {"states": self.states, "pairs": self.pairs, "fitted_pairs": self.fitted_pairs,
+               "max_order": self.max_order,
                "max_fit_error": self.max_fit_error, "unmet": self.unmet}
         if self.worst_pair is not None:
             out["worst_pair"] = self.worst_pair
@@ -337,6 +340,9 @@ class StateSpaceOption(_MemoryOption):
         if self.samples < 2:
             raise ModelError("hydro.irf_duration", f"{self.duration} s: the state-space fit reproduces the IRF "
                                                    "over irf_duration, which must span at least two time steps")
+        self.cache = FitCache(default_cache_dir())  # one per setup: identical groups are fitted once
+        self.settings = FitSettings(float(hydro.ss_tolerance), hydro.ss_order, int(hydro.ss_max_order),
+                                    bool(hydro.ss_enforce_stability))
 
     def _fit_report(self, fits: StateSpaceStats) -> dict | None:
         return fits.as_dict()
@@ -353,9 +359,8 @@ class StateSpaceOption(_MemoryOption):
         scale = np.sqrt(np.outer(d, d)).reshape(-1)
         rows, cols = np.divmod(np.arange(n * n), n)
         use = keep.reshape(-1) & (peak > 1e-12 * max(float(d.max(initial=0.0)), 1e-300))
-        fits = fit_pairs(wf, h[use], rows[use], cols[use], np.maximum(scale[use], 1e-300),
-                         tolerance=float(hyd.ss_tolerance), order=hyd.ss_order, max_order=int(hyd.ss_max_order),
-                         enforce_stability=bool(hyd.ss_enforce_stability))
+        fits = self.cache.fit_pairs(wf, h[use], rows[use], cols[use], np.maximum(scale[use], 1e-300), self.settings)
+        log.warnings.extend(self.cache.take_warnings())
         try:
             ss = StateSpaceRadiation(n, fits, self.dt, list(labels))
         except StateSpaceError as exc:
@@ -363,6 +368,7 @@ class StateSpaceOption(_MemoryOption):
         st = log.fits
         st.states += ss.states
         st.pairs += int(use.sum())
+        st.fitted_pairs += fits.fitted
         if use.any():
             st.max_order = max(st.max_order, int(fits.orders.max()))
             worst = int(np.argmax(fits.error))

@@ -43,6 +43,8 @@ import numpy as np
 
 
 ITER = 6  # pole relocation iterations
+FIT_RECIPE_VERSION = 1  # bump when fit_pairs' results change: invalidates cached fits (state_space_cache)
+CHUNK = 64  # DOF pairs fitted together (each pair's fit is independent of the others)
 
 
 class StateSpaceError(ValueError):
@@ -75,42 +77,44 @@ def _lstsq(a: np.ndarray, rhs: np.ndarray) -> np.ndarray:
     return np.linalg.solve(r, y[..., None])[..., 0] / norm
 
 
-def _lstsq_normal(a: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-    """Batched least squares by column-scaled normal equations (fast; for the pole relocation,
-    which only needs an approximate answer; a tiny ridge keeps rank-deficient systems solvable)."""
-    norm = np.linalg.norm(a, axis=1)
-    norm[norm == 0] = 1.0
-    a = a / norm[:, None, :]
-    g = np.matmul(a.transpose(0, 2, 1), a)
-    g += 1e-12 * np.eye(g.shape[1])[None]
-    y = np.einsum("prn,pr->pn", a, rhs)
-    return np.linalg.solve(g, y[..., None])[..., 0] / norm
-
-
 def _stack(x: np.ndarray) -> np.ndarray:
     """Complex (P, K, n) -> real rows (P, 2K, n)."""
     return np.concatenate([x.real, x.imag], axis=1)
 
 
 def _relocate(s, h, poles, w, enforce):
-    """One pole relocation: zeros of the weighting function sigma(s) become the new poles."""
+    """One pole relocation: zeros of the weighting function sigma(s) become the new poles.
+
+    Least squares for [c, d, ct] in  (phi c + d - h phi ct) w = h w  (real and imaginary rows) by
+    column-scaled normal equations (the relocation only needs an approximate answer; a tiny ridge
+    keeps rank-deficient systems solvable). One product X^T X of the rows with the right-hand side
+    appended gives the Gram matrix, the column norms (its diagonal) and X^T rhs at once."""
     P, m = poles.shape
-    phi = _basis(s, poles)                                   # (P, K, 2m)
-    ones = np.broadcast_to(np.ones_like(s)[None, :, None], (P, s.size, 1))
-    a = np.concatenate([phi, ones, -h[:, :, None] * phi], axis=2) * w[None, :, None]
-    x = _lstsq_normal(_stack(a), _stack((h * w[None, :])[..., None])[..., 0])
-    ct = x[:, 2 * m + 1:]                                    # sigma's residues (P, 2m)
-    # real realisation of sigma: blocks [[sr, si], [-si, sr]], b = [2, 0]
-    A = np.zeros((P, 2 * m, 2 * m))
-    for r in range(m):
-        pr, pi = poles[:, r].real, poles[:, r].imag
-        A[:, 2 * r, 2 * r] = A[:, 2 * r + 1, 2 * r + 1] = pr
-        A[:, 2 * r, 2 * r + 1] = pi
-        A[:, 2 * r + 1, 2 * r] = -pi
-    b = np.zeros(2 * m)
-    b[0::2] = 2.0
-    z = np.linalg.eigvals(A - b[None, :, None] * ct[:, None, :])
-    return _pair_up(z, enforce)
+    K, n = s.size, 4 * m + 1
+    phi = _basis(s, poles) * w[None, :, None]                # (P, K, 2m)
+    hphi = -h[:, :, None] * phi
+    hw = h * w[None, :]
+    x = np.empty((P, 2 * K, n + 1))
+    for part, rows in ((np.real, slice(0, K)), (np.imag, slice(K, 2 * K))):
+        x[:, rows, :2 * m] = part(phi)
+        x[:, rows, 2 * m + 1:n] = part(hphi)
+        x[:, rows, n] = part(hw)
+    x[:, :K, 2 * m] = w
+    x[:, K:, 2 * m] = 0.0
+    g = np.matmul(x.transpose(0, 2, 1), x)                  # (P, n + 1, n + 1)
+    norm = np.sqrt(np.diagonal(g, axis1=1, axis2=2)[:, :n])
+    norm = np.where(norm == 0, 1.0, norm)
+    gs = g[:, :n, :n] / (norm[:, :, None] * norm[:, None, :])
+    gs += 1e-12 * np.eye(n)[None]
+    ct = (np.linalg.solve(gs, (g[:, :n, n] / norm)[..., None])[..., 0] / norm)[:, 2 * m + 1:]  # sigma's residues
+    # real realisation of sigma: blocks [[sr, si], [-si, sr]] minus b ct^T with b = [2, 0, 2, 0, ...]
+    e = 2 * np.arange(m)
+    a = np.zeros((P, 2 * m, 2 * m))
+    a[:, e, e] = a[:, e + 1, e + 1] = poles.real
+    a[:, e, e + 1] = poles.imag
+    a[:, e + 1, e] = -poles.imag
+    a[:, e, :] -= 2.0 * ct[:, None, :]
+    return _pair_up(np.linalg.eigvals(a), enforce)
 
 
 def _pair_up(z: np.ndarray, enforce: bool) -> np.ndarray:
@@ -176,9 +180,12 @@ def vector_fit(omega: np.ndarray, h: np.ndarray, order: int, *, iterations: int 
     top = omega.max()
     beta = top * (np.arange(m) + 0.5) / m
     poles = np.tile(-beta / 100.0 + 1j * beta, (P, 1))
-    for _ in range(iterations or ITER):
-        poles = _relocate(s, h, poles, w, enforce_stability)
-    res, d = _residues(s, h, poles, w)
+    res, d = np.empty((P, m), complex), np.empty(P)
+    for lo in range(0, P, CHUNK):  # pairs are independent: blocks small enough to stay in cache
+        part = slice(lo, lo + CHUNK)
+        for _ in range(iterations or ITER):
+            poles[part] = _relocate(s, h[part], poles[part], w, enforce_stability)
+        res[part], d[part] = _residues(s, h[part], poles[part], w)
     return poles, res, d
 
 
@@ -192,20 +199,35 @@ class PairFits:
     d: np.ndarray | None = None
     error: np.ndarray | None = None
     repaired: int = 0
+    fitted: int = 0  # distinct pair fits computed to get these (0: taken from a cache)
 
     @property
     def orders(self) -> np.ndarray:
         return np.array([2 * p.size for p in self.poles], int)
 
 
+def distinct_rows(h: np.ndarray, scale: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Exact duplicates among the pairs: (first, inverse) with h[first] the distinct rows (same
+    samples and scale, byte for byte) and h[first][inverse] == h. Identical kernels (an array of
+    identical bodies, the far-apart blocks of one HDB) are thus fitted once."""
+    seen: dict[bytes, int] = {}
+    inverse = np.array([seen.setdefault(h[p].tobytes() + scale[p].tobytes(), len(seen)) for p in range(h.shape[0])],
+                       int)
+    return np.unique(inverse, return_index=True)[1], inverse
+
+
 def fit_pairs(omega: np.ndarray, h: np.ndarray, rows: np.ndarray, cols: np.ndarray, scale: np.ndarray, *,
               tolerance: float = 0.01, order: int | None = None, max_order: int = 24,
               enforce_stability: bool = True) -> PairFits:
     """Fit h (P, K) of pairs (rows, cols) with per-pair error scale (P,): fixed ``order``, or the
-    smallest even order meeting ``tolerance`` (see module docstring)."""
+    smallest even order meeting ``tolerance`` (see module docstring). Identical pairs are fitted
+    once (:func:`distinct_rows`); every pair's fit is independent of the others."""
+    h = np.asarray(h, complex)
+    scale = np.asarray(scale, float)
+    first, inverse = distinct_rows(h, scale)
+    h, scale = h[first], scale[first]
     P = h.shape[0]
-    fits = PairFits(np.asarray(rows, int), np.asarray(cols, int), [None] * P, [None] * P,
-                    np.zeros(P), np.full(P, np.inf))
+    poles_, res_, d_, err_ = [None] * P, [None] * P, np.zeros(P), np.full(P, np.inf)
     s = 1j * np.asarray(omega, float)
     todo = np.arange(P)
     orders = [order] if order else list(range(2, max_order + 1, 2))
@@ -214,12 +236,13 @@ def fit_pairs(omega: np.ndarray, h: np.ndarray, rows: np.ndarray, cols: np.ndarr
             break
         poles, res, d = vector_fit(omega, h[todo], n, enforce_stability=enforce_stability)
         err = np.max(np.abs(evaluate(s, poles, res, d) - h[todo]), axis=1) / scale[todo]
-        better = err < fits.error[todo]
+        better = err < err_[todo]
         for k in np.flatnonzero(better):
             p = todo[k]
-            fits.poles[p], fits.residues[p], fits.d[p], fits.error[p] = poles[k], res[k], d[k], err[k]
-        todo = todo[fits.error[todo] > tolerance]
-    return fits
+            poles_[p], res_[p], d_[p], err_[p] = poles[k], res[k], d[k], err[k]
+        todo = todo[err_[todo] > tolerance]
+    return PairFits(np.asarray(rows, int), np.asarray(cols, int), [poles_[i] for i in inverse],
+                    [res_[i] for i in inverse], d_[inverse], err_[inverse], fitted=P)
 
 
 # ----------------------------------------------------------------------------------- realisation

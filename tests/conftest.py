@@ -40,6 +40,15 @@ def sphere(sphere_path: Path):
     return load_hdb(sphere_path)
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _state_space_fit_cache(tmp_path_factory):
+    """State-space fits are cached in a temporary folder for the session, never in the user's cache
+    (tests that look at the cache point $HYDROLINK_STATE_SPACE_CACHE at their own folder)."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("HYDROLINK_STATE_SPACE_CACHE", str(tmp_path_factory.mktemp("state_space_cache")))
+        yield
+
+
 # ------------------------------------------------------------------------------ scene builder
 #
 # Tests describe scenes as keyword arguments and get TOML text back, so the real parser

@@ -89,7 +89,8 @@ def test_state_space_report_is_typed():
     data = {"states": 12, "pairs": 3, "max_order": 6, "max_fit_error": 0.004, "unmet": 0,
             "worst_pair": "(sphere.heave, sphere.heave)"}
     from hydrolink.protocol.setup import _state_space
-    assert _state_space(data) == StateSpaceReport(12, 3, 6, 0.004, 0, "(sphere.heave, sphere.heave)")
+    assert _state_space(data) == StateSpaceReport(12, 3, 6, 0.004, 0, "(sphere.heave, sphere.heave)")  # older server
+    assert _state_space({**data, "fitted_pairs": 0}).fitted_pairs == 0
     with pytest.raises(ProtocolError) as err:
         _state_space({**data, "states": 1.5})
     assert err.value.field == "setup.state_space.states"

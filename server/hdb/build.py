@@ -15,8 +15,6 @@ import hashlib
 import json
 import logging
 import math
-import os
-import tempfile
 import time
 import warnings
 from pathlib import Path
@@ -24,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
+from hydrolink.server.disk_cache import env_dir, user_cache_dir, write_atomic
 from hydrolink.server.hdb.build_mesh import body_meshes, check_apart, default_panel_size, xoz_symmetric
 from hydrolink.server.hdb.build_spec import BuildSpec, SpecError, load_spec, mesh_path, parse_spec
 from hydrolink.server.hdb.capytaine_io import from_capytaine_dataset, short_body_names
@@ -41,10 +40,7 @@ CPT_DOFS = ("Surge", "Sway", "Heave", "Roll", "Pitch", "Yaw")
 
 def default_cache_dir() -> Path:
     """``$HYDROLINK_CACHE``, else ``$XDG_CACHE_HOME/hydrolink/hdb``, else ``~/.cache/hydrolink/hdb``."""
-    if os.environ.get("HYDROLINK_CACHE"):
-        return Path(os.environ["HYDROLINK_CACHE"]).expanduser()
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base).expanduser() / "hydrolink" / "hdb"
+    return env_dir("HYDROLINK_CACHE") or user_cache_dir("hdb")
 
 
 def cache_key(spec: BuildSpec, spec_path: str | Path) -> str:
@@ -78,18 +74,6 @@ def _read_cached(path: Path) -> xr.Dataset | None:
     except Exception as exc:  # noqa: BLE001 - a damaged cache entry is rebuilt, not fatal
         warnings.warn(f"ignoring unreadable cached HDB {path}: {exc}", stacklevel=3)
         return None
-
-
-def _write_atomic(ds: xr.Dataset, path: Path) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".nc.tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        to_netcdf(ds, tmp)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -256,7 +240,7 @@ def build_hdb(spec_path: str | Path, *, cache_dir: str | Path | None = None, pro
     ds = build_hdb_uncached(spec, spec_path, progress=progress)
     ds.attrs["build_spec_sha256"] = key
     try:
-        _write_atomic(ds, path)
+        write_atomic(path, lambda tmp: to_netcdf(ds, tmp))
         ds.attrs["cache_file"] = str(path)
     except OSError as exc:
         warnings.warn(f"could not write the HDB cache {path}: {exc}", stacklevel=2)
