@@ -106,7 +106,7 @@ def open_cluster(stack: ExitStack, workers: int | None, scheduler: str | None):
                           "distributed.nanny.pre-spawn-environ": {**dask.config.get(
                               "distributed.nanny.pre-spawn-environ", {}), **env}}):
         cluster = stack.enter_context(LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                                                   dashboard_address=None, silence_logs=logging.ERROR, env=env))
+                                                   dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR, env=env))
     return stack.enter_context(Client(cluster))
 
 
@@ -165,7 +165,10 @@ def run_cases(client, tasks: list[CaseTask], hdbs: dict, digests: dict[str, str]
     workers = len(client.scheduler_info().get("workers", {}))
     try:
         while pending:
-            done, _ = wait(list(pending), timeout=1.0, return_when="FIRST_COMPLETED")
+            try:
+                done, _ = wait(list(pending), timeout=1.0, return_when="FIRST_COMPLETED")
+            except TimeoutError:   # nothing finished this second: refresh the running count
+                done = ()
             n_done = n_failed = 0
             for fut in done:
                 task = pending.pop(fut)
@@ -208,9 +211,10 @@ def _hdb_keys(task: CaseTask) -> list[str]:
 
 
 def run_sweep(sweep_path: str | Path, outdir: str | Path, *, workers: int | None = None, scheduler: str | None = None,
-              retry_failed: bool = False, progress: bool = True, log_line=print) -> SweepReport:
+              client=None, retry_failed: bool = False, progress: bool = True, log_line=print) -> SweepReport:
     """Run a sweep file into ``outdir`` (module docstring); SweepError before anything runs when
-    the file or a case is invalid."""
+    the file or a case is invalid. ``client``: a Dask client of the caller's to run on (instead of
+    ``workers`` / ``scheduler``)."""
     t0 = time.perf_counter()
     sweep = load_sweep(sweep_path)
     outdir = Path(outdir).resolve()
@@ -241,8 +245,9 @@ def run_sweep(sweep_path: str | Path, outdir: str | Path, *, workers: int | None
             for kind, folder in outcome.caches.items():
                 folders.setdefault(kind, set()).add(folder)
         with ExitStack() as stack:
-            client = open_cluster(stack, workers, scheduler)
-            report.retried, report.workers = run_cases(client, tasks, hdbs, digests, groups, progress, on_outcome)
+            dask_client = client or open_cluster(stack, workers, scheduler)
+            report.retried, report.workers = run_cases(dask_client, tasks, hdbs, digests, groups, progress,
+                                                       on_outcome)
         report.cache_folders = {k: sorted(v) for k, v in folders.items()}
         for kind, fs in report.cache_folders.items():
             if len(fs) > 1:

@@ -117,8 +117,15 @@ def run_case(task: CaseTask, hdbs: dict, *after) -> CaseOutcome:
     status, error, fitted = "complete", "", None
     try:
         if task.solver == "steady":
+            import math
+
             from hydrolink.clients.steady import steady_scene_file
-            steady_scene_file(scene_path, results, progress=False, hdbs=hdbs)
+            from hydrolink.protocol.scene import parse_scene
+            scene = parse_scene(task.scene_text, "scene")
+            period, dt = scene.waves.period, scene.simulation.dt
+            # a whole number of samples per period: the period means (power) are then exact
+            steady_scene_file(scene_path, results, progress=False, hdbs=hdbs,
+                              dt=period / math.ceil(period / dt - 1e-9))
         else:
             from hydrolink.clients.run import run_scene_file
             summary = run_scene_file(scene_path, results, progress=False, hdbs=hdbs)
