@@ -80,7 +80,7 @@ def plot_capture_width(ds: xr.Dataset, sweep_keys: list[str], period_key: str | 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     others = [k for k in sweep_keys if k != period_key and ds.sizes[k] > 1]
-    fig, ax = plt.subplots(figsize=(7.0, 4.5))
+    fig, ax = plt.subplots(figsize=(7.0 + 1.5 * max(0, math.ceil(len(_combos(ds, others)) / 12) - 1), 4.5))
     combos = _combos(ds, others)
     colors = plt.cm.viridis(np.linspace(0, 0.9, max(len(combos), 1)))
     for sel, color in zip(combos, colors):
@@ -104,8 +104,8 @@ def plot_capture_width(ds: xr.Dataset, sweep_keys: list[str], period_key: str | 
                                                      lambda r: r * ds.attrs["characteristic_width"]))
         sec.set_ylabel(f"capture width ratio (B = {ds.attrs['characteristic_width']:g} m)")
     ax.grid(True, alpha=0.3)
-    if len(combos) <= 16:
-        ax.legend(fontsize=6, loc="best")
+    if len(combos) <= 48:
+        ax.legend(fontsize=6 if len(combos) <= 12 else 5, loc="best", ncol=math.ceil(len(combos) / 12))
     ax.set_title(title, fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=90)
