@@ -327,6 +327,8 @@ def sweep_cmd(sweep_file: Path, output: Path | None, workers: int | None, schedu
         raise SystemExit(130) from None
     for note in report.notes:
         click.echo(f"note: {note}", err=True)
+    for line in report.annual_energy:
+        click.echo(line)
     failed = f", {len(report.failed)} failed: {report.failed[:5]}{' ...' if len(report.failed) > 5 else ''}" \
         if report.failed else ""
     retried = f", {report.retried} re-run after a worker died" if report.retried else ""

@@ -25,8 +25,10 @@ import os
 import secrets
 import time
 from contextlib import ExitStack
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
+
+import numpy as np
 
 from hydrolink.clients.sweep_file import Sweep, SweepError, case_identity, dataset_digest, full_key, load_sweep
 from hydrolink.clients.sweep_worker import (TOKEN_FILE, CaseOutcome, CaseTask, case_paths, run_case, store_outcome,
@@ -50,6 +52,7 @@ class SweepReport:
     cache_folders: dict[str, list[str]] = field(default_factory=dict)
     outputs: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    annual_energy: list[str] = field(default_factory=list)   # "key = value ...: AEP" lines (with a site)
 
 
 def load_hdbs(sweep: Sweep, progress: bool) -> tuple[dict, dict[str, str]]:
@@ -92,7 +95,7 @@ def open_cluster(stack: ExitStack, workers: int | None, scheduler: str | None):
     from distributed import Client, LocalCluster
     if scheduler:
         return stack.enter_context(Client(scheduler, timeout="30s"))
-    n = workers or len(os.sched_getaffinity(0))
+    n = workers or (len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1)
     env = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
     for var in ("HYDROLINK_CACHE", "HYDROLINK_STATE_SPACE_CACHE", "XDG_CACHE_HOME"):
         if os.environ.get(var):
@@ -144,20 +147,20 @@ def run_cases(client, tasks: list[CaseTask], hdbs: dict, digests: dict[str, str]
     """Submit the tasks (warm-ups first) and collect their outcomes; a task whose worker died is
     submitted once more. Returns (cases retried, workers seen)."""
     from distributed import KilledWorker, wait
-    needed = sorted({k for t in tasks for k in _hdb_keys(t)})
+    needed = sorted({k for t in tasks for k in t.hdbs})
     # one copy of each HDB per worker, keyed by its content
     futures = client.scatter({f"hydrolink-hdb-{digests[k]}": hdbs[k] for k in needed}, broadcast=True)
     scattered = {k: futures[f"hydrolink-hdb-{digests[k]}"] for k in needed}
     warm: dict[str, object] = {}
     for group, members in groups.items():
         first = members[0]
-        warm[group] = client.submit(warm_setup, first.scene_text, {k: scattered[k] for k in _hdb_keys(first)},
+        warm[group] = client.submit(warm_setup, first.scene_text, {k: scattered[k] for k in first.hdbs},
                                     key=f"hydrolink-warm-{first.case_id}", pure=False)
     group_of = {t.case_id: g for g, members in groups.items() for t in members}
 
     def submit(task: CaseTask):
         after = [warm[group_of[task.case_id]]] if task.case_id in group_of else []
-        return client.submit(run_case, task, {k: scattered[k] for k in _hdb_keys(task)}, *after,
+        return client.submit(run_case, task, {k: scattered[k] for k in task.hdbs}, *after,
                              key=f"hydrolink-case-{task.case_id}-{task.attempt}", pure=False)
     pending = {submit(t): t for t in tasks}
     bar = _Progress(len(tasks), progress)
@@ -181,7 +184,7 @@ def run_cases(client, tasks: list[CaseTask], hdbs: dict, digests: dict[str, str]
                         exc = err
                     died = isinstance(exc, KilledWorker) or fut.status == "cancelled"
                     if died and task.attempt == 1:
-                        again = CaseTask(**{**task.__dict__, "attempt": 2})
+                        again = replace(task, attempt=2)
                         pending[submit(again)] = again
                         retried += 1
                         log.warning("case %s: its worker died; running it once more", task.label)
@@ -199,15 +202,6 @@ def run_cases(client, tasks: list[CaseTask], hdbs: dict, digests: dict[str, str]
         for fut in pending:
             fut.cancel()
     return retried, workers
-
-
-def _hdb_keys(task: CaseTask) -> list[str]:
-    import sys
-    if sys.version_info >= (3, 11):
-        import tomllib
-    else:  # pragma: no cover
-        import tomli as tomllib
-    return sorted({b["hdb"] for b in tomllib.loads(task.scene_text).get("bodies", []) if "hdb" in b})
 
 
 def run_sweep(sweep_path: str | Path, outdir: str | Path, *, workers: int | None = None, scheduler: str | None = None,
@@ -230,7 +224,8 @@ def run_sweep(sweep_path: str | Path, outdir: str | Path, *, workers: int | None
     if todo:
         token = secrets.token_hex(16)
         (outdir / TOKEN_FILE).write_text(token)
-        tasks = [CaseTask(c.case_id, c.label, c.text, c.solver, str(outdir), token) for c in todo]
+        tasks = [CaseTask(c.case_id, c.label, c.text, c.solver, tuple(sorted({b.hdb for b in c.scene.bodies if b.wet})),
+                          str(outdir), token) for c in todo]
         groups: dict[str, list[CaseTask]] = {}
         for c, t in zip(todo, tasks):
             g = _setup_group(c, digests)
@@ -254,13 +249,14 @@ def run_sweep(sweep_path: str | Path, outdir: str | Path, *, workers: int | None
                 report.notes.append(f"the workers used {len(fs)} different {kind} cache folders ({fs}): set "
                                     "HYDROLINK_CACHE to one folder they all see to share it")
     report.failed = [c.label for c in sweep.cases if (records.get(c.case_id) or {}).get("status") == "failed"]
-    report.outputs = write_outputs(sweep, outdir, records)
+    report.outputs, report.annual_energy = write_outputs(sweep, outdir, records)
     report.wall_time = time.perf_counter() - t0
     return report
 
 
-def write_outputs(sweep: Sweep, outdir: Path, records: dict[str, dict | None]) -> list[str]:
-    """sweep.nc, cases.csv and the plots from every finished case."""
+def write_outputs(sweep: Sweep, outdir: Path, records: dict[str, dict | None]) -> tuple[list[str], list[str]]:
+    """sweep.nc, cases.csv and the plots from every finished case; returns the files written and,
+    with a site, one AEP line per combination of the other sweep keys."""
     from hydrolink.clients.sweep_plots import plot_capture_width, plot_power_matrix
     from hydrolink.clients.sweep_results import (averaging_window, build_dataset, case_sea_states, summarise,
                                                  write_cases_csv)
@@ -287,7 +283,16 @@ def write_outputs(sweep: Sweep, outdir: Path, records: dict[str, dict | None]) -
     period_key = next((k for k in sweep.keys if full_key(k) in PERIOD_KEYS), None)
     if plot_capture_width(ds, sweep.keys, period_key, outdir / "capture_width.png", title):
         paths.append(outdir / "capture_width.png")
-    return [str(p) for p in paths]
+    aep = []
+    if "annual_energy" in ds:
+        others = list(ds["annual_energy"].dims)
+        for idx in np.ndindex(*ds["annual_energy"].shape):
+            sel = dict(zip(others, idx))
+            where = ", ".join(f"{k} = {ds[k].values[i]:g}" if isinstance(ds[k].values[i], float)
+                              else f"{k} = {ds[k].values[i]}" for k, i in sel.items())
+            aep.append(f"{where + ': ' if where else ''}AEP {float(ds['annual_energy'][idx]) / 1e6:.4g} MWh "
+                       f"({100 * float(ds['uncovered_occurrence'][idx]):.1f} % of the site's occurrence without a case)")
+    return [str(p) for p in paths], aep
 
 
 __all__ = ["SweepError", "SweepReport", "run_sweep", "write_outputs"]

@@ -32,6 +32,7 @@ class CaseTask:
     label: str
     scene_text: str
     solver: str                  # "run" | "steady"
+    hdbs: tuple[str, ...]        # the HDB keys (bodies' hdb strings) of its scene
     outdir: str
     token: str
     attempt: int = 1
