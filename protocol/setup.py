@@ -87,6 +87,9 @@ class Setup:
     elevation_resampled: bool
     elevation_start: float
     warnings: tuple[str, ...]
+    # -- the run's extent and the force's direct dependence on the state (None from older servers)
+    last_seq: int | None = None                  # the last step index accepted (seq * dt reaches the duration)
+    radiation_feedthrough: np.ndarray | None = None  # (6N, 6N): dF_radiation/dv of the velocity sent
 
     @property
     def n(self) -> int:
@@ -149,7 +152,10 @@ class Setup:
             wave_headings=tuple(float(x) for x in r.array("wave_headings", (None,))),
             elevation_resampled=r.bool("elevation_resampled"),
             elevation_start=r.number("elevation_start"),
-            warnings=r.strs("warnings"))
+            warnings=r.strs("warnings"),
+            last_seq=r.int("last_seq") if r.data.get("last_seq") is not None else None,
+            radiation_feedthrough=(r.array("radiation_feedthrough", (6 * n, 6 * n))
+                                   if r.data.get("radiation_feedthrough") is not None else None))
 
 
 def _state_space(data: Any) -> StateSpaceReport:
