@@ -199,35 +199,29 @@ class _Reader:
             raise self._bad(name, f"must be an int, got {type(v).__name__}")
         return int(v)
 
-    def bool(self, name: str) -> bool:
+    def _typed(self, name: str, kinds: type | tuple[type, ...], label: str) -> Any:
         v = self.get(name)
-        if not isinstance(v, (bool, np.bool_)):
-            raise self._bad(name, f"must be a bool, got {type(v).__name__}")
-        return bool(v)
-
-    def str(self, name: str) -> str:
-        v = self.get(name)
-        if not isinstance(v, str):
-            raise self._bad(name, f"must be a str, got {type(v).__name__}")
+        if not isinstance(v, kinds):
+            raise self._bad(name, f"must be {label}, got {type(v).__name__}")
         return v
 
+    def bool(self, name: str) -> bool:
+        return bool(self._typed(name, (bool, np.bool_), "a bool"))
+
+    def str(self, name: str) -> str:
+        return self._typed(name, str, "a str")
+
     def list(self, name: str) -> list:
-        v = self.get(name)
-        if not isinstance(v, (list, tuple)):
-            raise self._bad(name, f"must be a list, got {type(v).__name__}")
-        return list(v)
+        return list(self._typed(name, (list, tuple), "a list"))
+
+    def map(self, name: str) -> dict:
+        return self._typed(name, dict, "a map")
 
     def strs(self, name: str) -> tuple[str, ...]:
         v = self.list(name)
         if not all(isinstance(s, str) for s in v):
             raise self._bad(name, "must be a list of str")
         return tuple(v)
-
-    def map(self, name: str) -> dict:
-        v = self.get(name)
-        if not isinstance(v, dict):
-            raise self._bad(name, f"must be a map, got {type(v).__name__}")
-        return v
 
     def numbers(self, name: str) -> dict[str, float]:
         """A map of names to finite numbers."""
