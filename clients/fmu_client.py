@@ -261,6 +261,8 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup, writer, *,
     if n_sub < 1 or abs(n_sub * hc - h) > 1e-9 * h:
         raise SceneError("scene", "client.communication_step",
                          f"must divide simulation.dt = {h:g} s into whole steps (got {hc:g} s)")
+    for note in setup.warnings:
+        log.warning("%s", note)
     with FMUInstance(resolve_path(scene_path, client.fmu)) as fmu:
         mb = FMUMultibody(scene, client, fmu, setup, writer, h, n_sub, record, allow_unstable)
         try:
@@ -280,6 +282,7 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup, writer, *,
                 "iterations_max": out.pop("iterations_max"), "initial_iterations": out.pop("initial_iterations"),
                 "iterations": np.asarray(loop.iterations, int) if mb.plan.scheme == "implicit" else None}
     return {**out, "client": "fmu", "fmi_version": fmu.fmi_version, "coupling": coupling,
+            "warnings": list(setup.warnings),
             "fmu_us_per_step": mb.t_fmu / steps * 1e6,
             "recorded": {name: np.array([r[i] for r in mb.recorded]) for i, name in enumerate(mb.record)}}
 

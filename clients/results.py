@@ -26,6 +26,7 @@ that ``append`` adds (a variable not staged for a row keeps its previous value, 
 from __future__ import annotations
 
 import datetime as _dt
+import json
 import time as _time
 from importlib import metadata
 from pathlib import Path
@@ -103,13 +104,14 @@ class ResultWriter:
         self._last_flush = _time.monotonic()
         self._ds = netCDF4.Dataset(self.path, "w", format="NETCDF4")
         try:
-            self._create(bodies, eq, scene_text, dt)
+            self._create(bodies, eq, scene_text, dt, setup.warnings if setup else ())
         except BaseException:
             self._ds.close()
             raise
 
     # -- layout ------------------------------------------------------------------------------
-    def _create(self, bodies: list[str], eq: np.ndarray, scene_text: str, dt: float | None) -> None:
+    def _create(self, bodies: list[str], eq: np.ndarray, scene_text: str, dt: float | None,
+                warnings: tuple[str, ...]) -> None:
         ds, n = self._ds, len(bodies)
         ds.createDimension("time", None)
         ds.createDimension("body", n)
@@ -144,6 +146,7 @@ class ResultWriter:
         }
         if dt is not None:
             attrs["dt"] = float(dt)
+        attrs["warnings"] = json.dumps(list(warnings))  # the setup's; run_scene_file writes the run's final list
         attrs.update({f"{k}_version": v for k, v in package_versions().items()})
         ds.setncatts(attrs)
         ds.sync()

@@ -6,6 +6,8 @@ or, when none is given, embeds one in this process — and drives the Exudyn cli
 
 from __future__ import annotations
 
+import json
+
 import logging
 from contextlib import ExitStack
 from pathlib import Path
@@ -86,6 +88,7 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
         with ResultWriter(output, scene=scene, scene_text=text, dt=scene.simulation.dt,
                           bodies=names, equilibrium_position=reference) as writer:
             summary = run(scene, text, None, None, writer, progress=progress)
+            writer.set_attribute("warnings", json.dumps(summary["warnings"]))
         summary["output"], summary["server"] = str(output), None
         return summary
     with ExitStack() as stack:
@@ -125,6 +128,7 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
             summary = run_fmu(scene, text, conn, setup, writer, scene_path=scene_path, progress=progress)
         else:
             summary = run(scene, text, conn, setup, writer, progress=progress)
+        writer.set_attribute("warnings", json.dumps(summary["warnings"]))
         goodbye = conn.bye()
     summary["output"] = str(output)
     summary["server"] = server

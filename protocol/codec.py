@@ -10,8 +10,10 @@ from __future__ import annotations
 import hashlib
 import hmac
 import itertools
+import json
 import math
 import os
+import re
 from enum import IntEnum
 from typing import Any, Iterator
 
@@ -204,6 +206,16 @@ def unpack(frame: bytes, key: bytes | None = None) -> dict:
 
 
 # ---------------------------------------------------------------- fields
+
+_IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+
+
+def key_path(prefix: str, key: str) -> str:
+    """The error path of map entry ``key`` under ``prefix`` (SPEC §5.6): ``prefix.key`` for an
+    identifier, else ``prefix["key"]`` (JSON string), so keys holding dots stay one step."""
+    key = str(key)
+    return f"{prefix}.{key}" if _IDENTIFIER.fullmatch(key) else f"{prefix}[{json.dumps(key)}]"
+
 
 def require(msg: dict, field: str, path: str | None = None) -> Any:
     """The value of a required field (nil counts as missing); ProtocolError 4 otherwise."""

@@ -87,6 +87,9 @@ class Setup:
     elevation_resampled: bool
     elevation_start: float
     warnings: tuple[str, ...]
+    # -- the run's extent and the force's direct dependence on the state (None from older servers)
+    last_seq: int | None = None                  # the last step index accepted (seq * dt reaches the duration)
+    radiation_feedthrough: np.ndarray | None = None  # (6N, 6N): dF_radiation/dv of the velocity sent
 
     @property
     def n(self) -> int:
@@ -149,7 +152,10 @@ class Setup:
             wave_headings=tuple(float(x) for x in r.array("wave_headings", (None,))),
             elevation_resampled=r.bool("elevation_resampled"),
             elevation_start=r.number("elevation_start"),
-            warnings=r.strs("warnings"))
+            warnings=r.strs("warnings"),
+            last_seq=r.int("last_seq") if r.data.get("last_seq") is not None else None,
+            radiation_feedthrough=(r.array("radiation_feedthrough", (6 * n, 6 * n))
+                                   if r.data.get("radiation_feedthrough") is not None else None))
 
 
 def _state_space(data: Any) -> StateSpaceReport:
@@ -193,35 +199,29 @@ class _Reader:
             raise self._bad(name, f"must be an int, got {type(v).__name__}")
         return int(v)
 
-    def bool(self, name: str) -> bool:
+    def _typed(self, name: str, kinds: type | tuple[type, ...], label: str) -> Any:
         v = self.get(name)
-        if not isinstance(v, (bool, np.bool_)):
-            raise self._bad(name, f"must be a bool, got {type(v).__name__}")
-        return bool(v)
-
-    def str(self, name: str) -> str:
-        v = self.get(name)
-        if not isinstance(v, str):
-            raise self._bad(name, f"must be a str, got {type(v).__name__}")
+        if not isinstance(v, kinds):
+            raise self._bad(name, f"must be {label}, got {type(v).__name__}")
         return v
 
+    def bool(self, name: str) -> bool:
+        return bool(self._typed(name, (bool, np.bool_), "a bool"))
+
+    def str(self, name: str) -> str:
+        return self._typed(name, str, "a str")
+
     def list(self, name: str) -> list:
-        v = self.get(name)
-        if not isinstance(v, (list, tuple)):
-            raise self._bad(name, f"must be a list, got {type(v).__name__}")
-        return list(v)
+        return list(self._typed(name, (list, tuple), "a list"))
+
+    def map(self, name: str) -> dict:
+        return self._typed(name, dict, "a map")
 
     def strs(self, name: str) -> tuple[str, ...]:
         v = self.list(name)
         if not all(isinstance(s, str) for s in v):
             raise self._bad(name, "must be a list of str")
         return tuple(v)
-
-    def map(self, name: str) -> dict:
-        v = self.get(name)
-        if not isinstance(v, dict):
-            raise self._bad(name, f"must be a map, got {type(v).__name__}")
-        return v
 
     def numbers(self, name: str) -> dict[str, float]:
         """A map of names to finite numbers."""

@@ -124,6 +124,12 @@ class HydroModel:
         if len(memories) == 1 and memories[0][0].size == self._idx.size:
             memories = [(slice(None), memories[0][1])]  # one group over every active DOF: no gather
         self._memories = memories
+        self.radiation_feedthrough = np.zeros((self.n, self.n))   # dF_rad/dv of the newest sample
+        for pos, memory in radiation.forces:
+            rows = self._idx[pos]
+            self.radiation_feedthrough[np.ix_(rows, rows)] = memory.feedthrough()
+        # the last step index a client may send: seq * dt runs to simulation.duration
+        self.last_seq = int(round(scene.simulation.duration / scene.simulation.dt)) // int(scene.coupling.exchange_every)
         self._excitation(data, lo, hi, wave_elevation)
         self._step = -1           # index of the newest step pushed
         na = self._idx.size
@@ -145,8 +151,16 @@ class HydroModel:
             sub = select_bodies(ds, [b.hdb_body_name for b in bodies])
         except HDBError as exc:
             raise ModelError(f"bodies[{self._scene_index[members[0]]}].hdb_body", str(exc)) from None
-        s_rho = water.density / float(ds.attrs["rho"])
-        s_rg = water.density * water.gravity / (float(ds.attrs["rho"]) * float(ds.attrs["g"]))
+        rho, g = float(ds.attrs["rho"]), float(ds.attrs["g"])
+        s_rho = water.density / rho
+        s_rg = water.density * water.gravity / (rho * g)
+        if s_rho != 1.0 or water.gravity != g:
+            note = (f"water: the scene's density {water.density:g} kg/m^3 and gravity {water.gravity:g} m/s^2 differ "
+                    f"from the HDB {src!r} ({rho:g} kg/m^3, {g:g} m/s^2): its added mass and radiation damping are "
+                    f"scaled by {s_rho:.6g}, its excitation and hydrostatic stiffness by {s_rg:.6g}; set [water] "
+                    f"density and gravity to the HDB's values if that is not meant")
+            if note not in self.warnings:
+                self.warnings.append(note)
         rows = (6 * np.asarray(members)[:, None] + np.arange(6)).reshape(-1)
         return _GroupData(members, src, sub, sub["omega"].values.astype(float), s_rho, s_rg, rows)
 
@@ -329,7 +343,8 @@ class HydroModel:
             wave_headings=tuple(np.rad2deg(self._headings).tolist()) if self.waves.kind != "still" else (),
             elevation_resampled=bool(self.elevation_series.resampled) if self.elevation_series else False,
             elevation_start=float(self.elevation_series.start) if self.elevation_series else 0.0,
-            warnings=tuple(self.warnings))
+            warnings=tuple(self.warnings), last_seq=self.last_seq,
+            radiation_feedthrough=self.radiation_feedthrough.copy())
 
     def radiation_coefficients(self, omega: float) -> tuple[np.ndarray, np.ndarray]:
         """A(omega), B(omega) (6N x 6N over the wet bodies, zero outside the active DOFs and the

@@ -65,6 +65,13 @@ class RadiationMemory:
         self._buf[p + L] = v
         return self._k @ self._buf[p:p + L].reshape(-1)
 
+    def feedthrough(self) -> np.ndarray:
+        """dF/dv of the newest sample (n, n): -dt/2 K(0) on the kept pairs (zero when memory is off)."""
+        if not self.enabled:
+            return np.zeros((self.n, self.n))
+        first = self._k[:, :self.n]
+        return first.toarray() if self.sparse else first.copy()
+
     def window(self) -> np.ndarray:
         """The velocity window, newest first (L, n) (a copy; for tests and diagnostics)."""
         return self._buf[self._p:self._p + self.samples].copy()

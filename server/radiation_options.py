@@ -40,6 +40,10 @@ class RadiationForce(Protocol):
 
     def push(self, v: np.ndarray, replace_last: bool = False) -> np.ndarray: ...
 
+    def feedthrough(self) -> np.ndarray:
+        """dF/dv (n, n) of the newest sample: how push()'s force moves with the velocity it is given."""
+        ...
+
 
 class ConstantDamping:
     """radiation = "constant": F = -B(w0) v (the push() interface of RadiationMemory)."""
@@ -50,6 +54,9 @@ class ConstantDamping:
 
     def push(self, v: np.ndarray, replace_last: bool = False) -> np.ndarray:
         return -(self.b @ v)
+
+    def feedthrough(self) -> np.ndarray:
+        return -self.b.copy()
 
 
 @dataclass(frozen=True)

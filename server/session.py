@@ -37,19 +37,19 @@ def build_model(msg: dict) -> HydroModel:
         key = body.hdb
         if key is None or key in datasets:
             continue
+        where = codec.key_path("hdbs", key)
         if key not in hdb_maps:
-            raise ProtocolError(Code.BAD_HDB, f"hdbs.{key}",
+            raise ProtocolError(Code.BAD_HDB, where,
                                 f"scene body {body.name!r} (bodies[{i}].hdb) uses HDB {key!r} but hello.hdbs "
                                 f"holds {sorted(hdb_maps)}")
         try:
             data = codec.decode_tree(hdb_maps[key])
         except ProtocolError as exc:
-            raise ProtocolError(Code.BAD_HDB, f"hdbs.{key}", exc.message) from None
+            raise ProtocolError(Code.BAD_HDB, where, exc.message) from None
         try:
             datasets[key] = from_wire(data, key)
         except HDBError as exc:
-            raise ProtocolError(Code.BAD_HDB, f"hdbs.{key}.{exc.field}" if exc.field else f"hdbs.{key}",
-                                str(exc)) from None
+            raise ProtocolError(Code.BAD_HDB, f"{where}.{exc.field}" if exc.field else where, str(exc)) from None
     series = None
     if msg.get("wave_elevation") is not None:  # [waves] type = "elevation": the client read the file
         we = codec.require_map(msg, "wave_elevation")
@@ -60,7 +60,7 @@ def build_model(msg: dict) -> HydroModel:
     except ModelError as exc:
         raise ProtocolError(Code.BAD_SCENE, _scene_field(exc.key), str(exc)) from None
     except HDBError as exc:
-        raise ProtocolError(Code.BAD_HDB, f"hdbs.{exc.source}.{exc.field}", str(exc)) from None
+        raise ProtocolError(Code.BAD_HDB, f"{codec.key_path('hdbs', exc.source)}.{exc.field}", str(exc)) from None
 
 
 class Session:
@@ -90,6 +90,9 @@ class Session:
     def step(self, msg: dict) -> dict:
         """Reply fields for a ``step`` request (SPEC §5.2–5.3); ProtocolError leaves state unchanged."""
         seq = codec.require_int(msg, "seq", minimum=0)
+        if seq > self.model.last_seq:
+            raise ProtocolError(Code.BAD_VALUE, "seq", f"seq {seq} is past the run's end: the last step is "
+                                f"{self.model.last_seq} (setup.last_seq; simulation.duration / dt)")
         iteration = codec.require_int(msg, "iteration", default=0, minimum=0)
         t_req = codec.require_float(msg, "time")
         t = seq * self.dt

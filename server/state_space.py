@@ -324,6 +324,13 @@ class StateSpaceRadiation:
         self._v_last[:] = 0
         self._count = 0
 
+    def feedthrough(self) -> np.ndarray:
+        """dF/dv of the newest sample (n, n): the first-order hold's direct term of every state
+        (Re 2 c g1) plus D, negated like the force."""
+        out = self.d.copy()
+        np.add.at(out, (self._rows, self._cols), (self._c2 * self._g1).real)
+        return -out
+
     def push(self, v: np.ndarray, replace_last: bool = False) -> np.ndarray:
         v = np.asarray(v, float)
         if not (replace_last and self._count):

@@ -33,6 +33,16 @@ def sphere_path(shared_data: Path) -> Path:
     return shared_data / "sphere_task10" / "sphere.h5"
 
 
+@pytest.fixture(scope="module")
+def server() -> str:
+    """The address of a force server in a thread of this process, one per test module."""
+    from hydrolink.server.service import serve_in_thread
+    srv, thread = serve_in_thread("tcp://127.0.0.1:*")
+    yield srv.address
+    srv.stop()
+    thread.join(5.0)
+
+
 @pytest.fixture(scope="session")
 def sphere(sphere_path: Path):
     """The sphere's HDB, loaded once."""

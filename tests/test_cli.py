@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import shutil
@@ -77,6 +78,21 @@ def test_bad_scene_is_one_clear_line(scene_dir: Path):
     assert "bad.toml: bodies[0].mass: Input should be greater than 0" in result.stderr
     assert "Traceback" not in result.stderr
     assert not (scene_dir / "bad.out.nc").exists()
+
+
+def test_water_that_differs_from_the_hdb_is_said_and_kept_with_the_results(scene_dir: Path):
+    """The sphere's HDB is at rho = 1000: a scene at 1025 runs, rescaled, and says so on stderr and in
+    the results' `warnings` attribute, naming both densities and the file."""
+    text = sphere_scene().replace("density = 1000.0", "density = 1025.0")
+    assert "density = 1025.0" in text
+    write_scene(scene_dir, text, "salty.toml")
+    result = _cli("run", "salty.toml", "-o", "salty.nc", "--no-progress", cwd=scene_dir)
+    assert result.returncode == 0, result.stderr
+    expect = "the scene's density 1025 kg/m^3 and gravity 9.81 m/s^2 differ from the HDB"
+    assert expect in result.stderr and "(1000 kg/m^3" in result.stderr
+    with xr.open_dataset(scene_dir / "salty.nc") as ds:
+        notes = json.loads(ds.attrs["warnings"])
+    assert any(expect in n and "sphere.h5" in n for n in notes), notes
 
 
 def test_missing_hdb_names_the_key(scene_dir: Path):

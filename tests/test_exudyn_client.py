@@ -35,13 +35,6 @@ REPORT: dict[str, str] = {}
 
 # ------------------------------------------------------------------------------------ fixtures
 
-@pytest.fixture(scope="module")
-def server():
-    srv, thread = serve_in_thread("tcp://127.0.0.1:*")
-    yield srv.address
-    srv.stop()
-    thread.join(5.0)
-
 
 def sphere_scene(hdb_path: Path, *, dt: float, duration: float, waves: dict | None = None, dofs=("heave",),
                  displacement=(0.0,) * 6, irf: float = 40.0, cog=(0.0, 0.0, -2.0),

@@ -23,7 +23,6 @@ from hydrolink.clients.connection import ServerConnection
 from hydrolink.clients.exudyn_client import SimulationDiverged
 from hydrolink.clients.results import ResultWriter
 from hydrolink.protocol.scene import SceneError, parse_scene
-from hydrolink.server.service import serve_in_thread
 
 HEAVE = 2
 C_PTO = 2.0e5            # N s/m
@@ -34,14 +33,6 @@ REPORT: dict[str, str] = {}
 def rho_v(sphere) -> float:
     """The sphere's displaced mass: floating at equilibrium with no net buoyancy."""
     return float(1000.0 * sphere["displaced_volume"].values[0])
-
-
-@pytest.fixture(scope="module")
-def server():
-    srv, thread = serve_in_thread("tcp://127.0.0.1:*")
-    yield srv.address
-    srv.stop()
-    thread.join(5.0)
 
 
 @pytest.fixture(scope="module")

@@ -249,3 +249,47 @@ def test_sphere_hydrostatics_and_heave_rao(shared_data):
     rao = abs(f_ex / (-w ** 2 * (mass + a_w) - 1j * w * b_w + c33))
     print(f"sphere T={period}: amplitude {amp:.6f}, RAO {rao:.6f}, rel {amp / rao - 1:.2e}")
     assert amp == pytest.approx(rao, rel=1e-2)
+
+
+def test_density_and_gravity_that_differ_from_the_hdb_are_named():
+    """The analytic HDB is at rho 1000, g 9.81: the scene's 1025 rescales it, and the setup says so
+    (both values, the file, the factors); the same water as the HDB gives no such warning."""
+    notes = [w for w in HydroModel(scene(), {"float": an.make_body_hdb()}).setup_info().warnings
+             if w.startswith("water:")]
+    assert len(notes) == 1
+    assert all(s in notes[0] for s in ("density 1025", "gravity 9.81", "'analytic'", "1000 kg/m^3", "1.025"))
+    same = parse_scene(scene_toml(dt=0.01, duration=10, water={"density": 1000.0, "gravity": 9.81},
+                                  bodies=[body("float", hdb="x.nc", mass=3e5, center_of_mass=[0, 0, -1],
+                                               inertia=[1e6] * 3)]))
+    assert not [w for w in HydroModel(same, {"float": an.make_body_hdb()}).setup_info().warnings
+                if w.startswith("water:")]
+
+
+@pytest.mark.parametrize("radiation", ["convolution", "state-space", "constant", "off"])
+def test_radiation_feedthrough_is_the_force_per_velocity_of_the_step(radiation):
+    """setup.radiation_feedthrough D: re-sending the newest step with another velocity changes the
+    radiation force by exactly D times the change, whatever the history; for the convolution D is
+    -dt/2 K(0) of the analytic IRF, for "constant" -B(w0)."""
+    dt, w0 = 0.05, 2 * np.pi / 6.0
+    m = HydroModel(parse_scene(scene_toml(
+        dt=dt, duration=10, water={"density": 1000.0, "gravity": 9.81}, waves=regular_waves(1.0, 6.0),
+        hydro={"irf_duration": 20.0, "radiation": radiation},
+        bodies=[body("float", hdb="x.nc", mass=3e5, center_of_mass=[0, 0, -1], inertia=[1e6] * 3,
+                     dofs=["surge", "heave", "pitch"])])), {"float": an.make_body_hdb()})
+    d = m.setup_info().radiation_feedthrough
+    rng = np.random.default_rng(5)
+    pos = m.setup_info().equilibrium_position
+    for k in range(40):
+        m.step(k * dt, pos, rng.standard_normal((1, 6)))
+    v1, v2 = rng.standard_normal((1, 6)), rng.standard_normal((1, 6))
+    f1 = m.step(40 * dt, pos, v1)["radiation"]
+    f2 = m.step(40 * dt, pos, v2, replace_last=True)["radiation"]
+    np.testing.assert_allclose((f2 - f1).reshape(-1), d @ (v2 - v1).reshape(-1), rtol=1e-9, atol=1e-9 * np.abs(f1).max())
+    heave = an.DOF_PARAMS[2]
+    expect = {"convolution": -dt / 2 * an.irf(0.0, heave[1], heave[2]),
+              "constant": -an.damping(w0, heave[1], heave[2]), "off": 0.0}
+    if radiation in expect:
+        assert d[2, 2] == pytest.approx(expect[radiation], rel=1e-3, abs=1e-9)
+    assert np.all(d[[1, 3, 5], :] == 0) and np.all(d[:, [1, 3, 5]] == 0)
+    if radiation == "state-space":
+        assert d[2, 2] < 0   # dissipative, like the convolution's -dt/2 K(0)

@@ -12,7 +12,6 @@ from hydrolink.clients.connection import RemoteError, ServerConnection
 from hydrolink.protocol.scene import parse_scene
 from hydrolink.server.hdb.schema import select_bodies
 from hydrolink.server.model import HydroModel, ModelError
-from hydrolink.server.service import serve_in_thread
 
 DT, IRF = 0.1, 20.0
 
@@ -157,14 +156,6 @@ def test_scene_without_wet_bodies_is_refused(rm3):
     with pytest.raises(ModelError) as err:
         HydroModel(parse_scene(text), {})
     assert err.value.key == "bodies" and "without a server" in str(err.value)
-
-
-@pytest.fixture()
-def server():
-    srv, thread = serve_in_thread("tcp://127.0.0.1:*")
-    yield srv.address
-    srv.stop()
-    thread.join(5)
 
 
 def test_rm3_over_the_wire_with_a_dry_body(server, rm3):

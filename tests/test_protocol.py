@@ -158,3 +158,11 @@ def test_hot_path_codec_cost_is_small():
     """pack+unpack+validate of a one-body step is tens of µs at most (measured ≈ 8-15 µs)."""
     costs = codec._bench(n_bodies=1, repeat=2000)
     assert costs["step binary"] < 200 and costs["forces binary"] < 200
+
+
+def test_error_paths_quote_keys_that_are_not_identifiers():
+    """SPEC §5.6: a path splits without ambiguity, also when a map key holds dots."""
+    from hydrolink.protocol.codec import key_path
+    assert key_path("hdbs", "float") == "hdbs.float"
+    assert key_path("hdbs", "cylinder.nc") == 'hdbs["cylinder.nc"]'
+    assert key_path("hdbs", 'a "b".h5') == 'hdbs["a \\"b\\".h5"]'

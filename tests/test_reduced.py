@@ -28,7 +28,6 @@ from hydrolink.clients.exudyn_client import build_model, result_bodies, run
 from hydrolink.clients.mechanism import build_mechanism, marker_at
 from hydrolink.clients.results import ResultWriter
 from hydrolink.protocol.scene import DOF_NAMES, SceneError, parse_scene
-from hydrolink.server.service import serve_in_thread
 
 REPO = Path(__file__).resolve().parents[1]
 G, RHO = 9.81, 1000.0
@@ -85,14 +84,6 @@ def assert_agree(red: xr.Dataset, full: xr.Dataset) -> None:
     top = max(worst, key=worst.get)
     print(f"reduced vs full: worst {top} {worst[top]:.2e} (relative to its largest magnitude)")
     assert worst[top] < AGREE, worst
-
-
-@pytest.fixture(scope="module")
-def server():
-    srv, thread = serve_in_thread("tcp://127.0.0.1:*")
-    yield srv.address
-    srv.stop()
-    thread.join(5.0)
 
 
 # ------------------------------------------------------------------ dry scenes: analytic motions

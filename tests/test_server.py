@@ -133,12 +133,12 @@ def test_bad_hdb_names_the_field(server, hdb):
         wire["omega"] = wire["omega"].copy()
         wire["omega"][3] = np.nan
         err = expect_error(lambda: c.request("hello", role="multibody", scene=SCENE, hdbs={"float.nc": wire}),
-                           9, "hdbs.float.nc.omega")
+                           9, 'hdbs["float.nc"].omega')
         assert err.name == "bad_hdb" and "float.nc" in err.message
         del wire["added_mass"]
         expect_error(lambda: c.request("hello", role="multibody", scene=SCENE, hdbs={"float.nc": wire}),
-                     9, "hdbs.float.nc.added_mass")
-        expect_error(lambda: c.hello(SCENE, {"other.nc": hdb}), 9, "hdbs.float.nc")
+                     9, 'hdbs["float.nc"].added_mass')
+        expect_error(lambda: c.hello(SCENE, {"other.nc": hdb}), 9, 'hdbs["float.nc"]')
 
 
 # ------------------------------------------------------------------ steps

@@ -72,11 +72,11 @@ def test_hello_builds_the_model_of_the_wet_bodies_in_the_scene_water(session):
 def test_hello_errors_name_the_field(hdb):
     refused(lambda: build_model(hello(hdb, mass=-1.0)), Code.BAD_SCENE, "scene.bodies[0].mass")
     refused(lambda: build_model(hello(hdb, hdb_body="buoy")), Code.BAD_SCENE, "scene.bodies[0].hdb_body")
-    refused(lambda: build_model(hello(hdb, hdbs={})), Code.BAD_HDB, "hdbs.float.nc")
+    refused(lambda: build_model(hello(hdb, hdbs={})), Code.BAD_HDB, 'hdbs["float.nc"]')
     bad = to_wire(hdb)
     bad["omega"] = bad["omega"].copy()
     bad["omega"][2] = np.nan
-    refused(lambda: build_model(hello(hdb, hdbs={"float.nc": bad})), Code.BAD_HDB, "hdbs.float.nc.omega")
+    refused(lambda: build_model(hello(hdb, hdbs={"float.nc": bad})), Code.BAD_HDB, 'hdbs["float.nc"].omega')
     refused(lambda: build_model(wire(scene="[simulation\n", hdbs={})), Code.BAD_SCENE, "scene")
 
 
