@@ -23,27 +23,13 @@ import pytest
 import xarray as xr
 from click.testing import CliRunner
 
-from conftest import SPHERE_WATER, irregular_waves, linear_pto, regular_waves, scene_toml, sphere_body, write_scene
+from conftest import SPHERE_WATER, irregular_waves, linear_pto, regular_waves, scene_toml, sphere_body, sweep_toml, write_scene
 from hydrolink.clients.cli import cli
 from hydrolink.clients.sweep import open_cluster, run_sweep
 
 MASS, HEIGHT, DT = 261.724e3, 1.0, 0.04
 OMEGA_INDEX = (19, 27)                    # HDB grid frequencies 1.0 and 1.4 rad/s (no interpolation)
 DAMPING = (1.0e5, 4.0e5)
-
-
-def _sweep_text(scene: str = "sphere.toml", **sections) -> str:
-    """Sweep TOML: top-level keys, then tables ([set], [grid], [site]) and [[cases]]."""
-    lines = [f"{k} = {json.dumps(v)}" for k, v in sections.items() if k not in ("set", "grid", "site", "cases")]
-    lines.insert(0, f'scene = "{scene}"')
-    for name in ("set", "grid", "site"):
-        if name in sections:
-            lines.append(f"[{name}]")
-            lines += [f"{json.dumps(k)} = {json.dumps(v)}" for k, v in sections[name].items()]
-    for case in sections.get("cases", []):
-        lines.append("[[cases]]")
-        lines += [f"{json.dumps(k)} = {json.dumps(v)}" for k, v in case.items()]
-    return "\n".join(lines) + "\n"
 
 
 @pytest.fixture(scope="module")
@@ -92,7 +78,7 @@ def local_client():
 def regular_sweep(sphere_dir, periods, tmp_path_factory):
     """The CLI on a 2 x 2 regular sweep plus a case outside the HDB's range, LocalCluster of 2."""
     sweep = sphere_dir / "regular.toml"
-    sweep.write_text(_sweep_text(window=[60.0, 130.0], characteristic_width=10.0,
+    sweep.write_text(sweep_toml("sphere.toml", window=[60.0, 130.0], characteristic_width=10.0,
                                  grid={"waves.period": periods, "ptos.damper.damping": list(DAMPING)},
                                  cases=[{"label": "too long", "waves.period": 200.0}]))
     out = tmp_path_factory.mktemp("regular_out")
@@ -152,7 +138,7 @@ def test_steady_cases_equal_the_frequency_domain(sphere_dir, periods, sphere_hdb
     """solver = "steady": hydrolink steady per case (linear: its harmonic balance is the
     frequency-domain solution), power over its one period."""
     sweep = sphere_dir / "steady.toml"
-    sweep.write_text(_sweep_text(solver="steady", grid={"waves.period": periods, "ptos.damper.damping": list(DAMPING)}))
+    sweep.write_text(sweep_toml("sphere.toml", solver="steady", grid={"waves.period": periods, "ptos.damper.damping": list(DAMPING)}))
     report = run_sweep(sweep, tmp_path, client=local_client, progress=False, log_line=lambda m: None)
     assert (report.cases, report.run, report.failed) == (4, 4, [])
     ds = xr.load_dataset(tmp_path / "sweep.nc")
@@ -200,7 +186,7 @@ def test_remote_scheduler_and_workers_same_results(regular_sweep, sphere_dir, tm
                 np.testing.assert_array_equal(x["position"].values, y["position"].values)
         # state-space: the warm-up fits, the cases read the fit
         ss = sphere_dir / "state_space.toml"
-        ss.write_text(_sweep_text(set={"hydro.radiation": "state-space", "simulation.duration": 20.0},
+        ss.write_text(sweep_toml("sphere.toml", set={"hydro.radiation": "state-space", "simulation.duration": 20.0},
                                   grid={"ptos.damper.damping": list(DAMPING)}))
         report = run_sweep(ss, tmp_path / "ss", scheduler=address, progress=False, log_line=lambda m: None)
         assert (report.run, report.failed, report.notes) == (2, [], [])
@@ -221,7 +207,7 @@ def test_remote_scheduler_and_workers_same_results(regular_sweep, sphere_dir, tm
 def test_resume_after_a_killed_sweep_runs_only_the_missing_cases(sphere_dir, local_client, tmp_path):
     sweep = sphere_dir / "resume.toml"
     dampings = [1e5, 2e5, 3e5, 4e5, 5e5, 6e5]
-    sweep.write_text(_sweep_text(set={"simulation.duration": 300.0}, grid={"ptos.damper.damping": dampings}))
+    sweep.write_text(sweep_toml("sphere.toml", set={"simulation.duration": 300.0}, grid={"ptos.damper.damping": dampings}))
     out = tmp_path / "out"
     proc = subprocess.Popen([sys.executable, "-m", "hydrolink.clients.cli", "sweep", str(sweep), "-o", str(out),
                              "--workers", "1", "--no-progress"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
@@ -252,7 +238,7 @@ def test_resume_after_a_killed_sweep_runs_only_the_missing_cases(sphere_dir, loc
 
 def test_a_worker_killed_mid_case_has_its_case_run_once_more(sphere_dir, local_client, tmp_path):
     sweep = sphere_dir / "kill.toml"
-    sweep.write_text(_sweep_text(set={"simulation.duration": 900.0}, grid={"ptos.damper.damping": [1e5, 2e5]}))
+    sweep.write_text(sweep_toml("sphere.toml", set={"simulation.duration": 900.0}, grid={"ptos.damper.damping": [1e5, 2e5]}))
     pids = local_client.run(os.getpid)
     killed: list[int] = []
 
@@ -290,7 +276,7 @@ def test_irregular_sweep_power_matrix_and_aep_equal_mhkit(sphere_dir, sphere_pat
         bodies=[sphere_body(str(sphere_path), mass=MASS, dofs=["heave"])],
         ptos=[linear_pto("damper", "sphere", [0, 0, 0], "ground", [0, 0, -50], damping=2e5)]), "irregular_scene.toml")
     sweep = sphere_dir / "irregular.toml"
-    sweep.write_text(_sweep_text("irregular_scene.toml", window=[20.0, 120.0],
+    sweep.write_text(sweep_toml("irregular_scene.toml", window=[20.0, 120.0],
                                  grid={"waves.hs": [0.75, 1.25], "waves.te": [6.5, 7.5]},
                                  site={"scatter": "scatter.csv"}))
     report = run_sweep(sweep, tmp_path, client=local_client, progress=False, log_line=lambda m: None)
@@ -311,86 +297,3 @@ def test_irregular_sweep_power_matrix_and_aep_equal_mhkit(sphere_dir, sphere_pat
     assert float(ds.annual_energy) == pytest.approx(float(aep), rel=1e-12)
     assert float(ds.uncovered_occurrence) == pytest.approx(1 - (300 + 200 + 400 + 350) / 1800)
     assert (tmp_path / "power_matrix.png").is_file() and (tmp_path / "capture_width.png").is_file()
-
-
-BAD = [
-    ({"frobnicate": 1, "grid": {"waves.period": [6.0]}}, "frobnicate: unknown key"),
-    ({"grid": {"waves.hs": [1.0]}}, 'grid."waves.hs": not a key of the scene'),
-    ({"grid": {"waves.period": ["long"]}}, 'grid."waves.period": Input should be a valid number'),
-    ({"grid": {"waves.period": []}}, "grid.waves.period: a non-empty list"),
-    ({"grid": {"ptos.pump.damping": [1e5]}}, 'grid."ptos.pump.damping": not a key of the scene: no ptos entry named'),
-    ({"grid": {"bodies.sphere.mass": [-1.0]}}, 'grid."bodies.sphere.mass": Input should be greater than 0'),
-    ({}, "grid: no cases"),
-    ({"mode": "zip", "grid": {"waves.period": [6.0, 7.0], "ptos.damper.damping": [1e5]}}, 'mode = "zip" needs lists'),
-    ({"solver": "quick", "grid": {"waves.period": [6.0]}}, "solver: Input should be 'run', 'steady' or 'auto'"),
-    ({"site": {"scatter": "nowhere.csv"}, "grid": {"waves.period": [6.0]}}, "site.scatter:"),
-    ({"grid": {"waves.te": [7.0]}}, 'grid."waves.te": the energy period needs irregular waves'),
-    ({"cases": [{"label": "x", "simulation.dt": 0.0}]}, 'cases[0]."simulation.dt": Input should be greater than 0'),
-    ({"window": [10.0, 5.0], "grid": {"waves.period": [6.0]}}, "window: [start, end]"),
-]
-
-
-@pytest.mark.parametrize("keys,why", BAD, ids=[b[1][:30] for b in BAD])
-def test_bad_sweep_files_one_clear_line(sphere_dir, tmp_path, keys, why):
-    sweep = tmp_path / "bad.toml"
-    sweep.write_text(_sweep_text(str(sphere_dir / "sphere.toml"), **keys))
-    out = tmp_path / "out"
-    r = CliRunner().invoke(cli, ["sweep", str(sweep), "-o", str(out)])
-    assert r.exit_code == 1
-    lines = r.output.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith(f"Error: {sweep}: ") and why in lines[0], r.output
-    assert not out.exists()                     # nothing ran
-
-
-def test_missing_scene_and_both_cluster_options(tmp_path):
-    sweep = tmp_path / "s.toml"
-    sweep.write_text(_sweep_text("nothing.toml", grid={"waves.period": [6.0]}))
-    r = CliRunner().invoke(cli, ["sweep", str(sweep)])
-    assert r.exit_code == 1 and f"{sweep}: scene: " in r.output and "cannot read the scene file" in r.output
-    r = CliRunner().invoke(cli, ["sweep", str(sweep), "--workers", "2", "--scheduler", "tcp://127.0.0.1:1"])
-    assert r.exit_code == 1 and "give one" in r.output
-
-
-def test_summary_of_a_results_file(tmp_path):
-    """A results file written row by row (ResultWriter, as the clients write them) with PTOs, joints
-    and moorings: the summary's means, standard deviations and maxima over the window against the
-    same numbers from the arrays."""
-    from hydrolink.clients.results import ResultWriter
-    from hydrolink.clients.sweep_results import summarise
-    rng = np.random.default_rng(5)
-    n, dt = 400, 0.1
-    t = np.arange(n) * dt
-    eq = np.array([[0, 0, -1.0, 0, 0, 0], [1.0, 0, -5.0, 0, 0, 0]])
-    pos = eq[None] + rng.normal(size=(n, 2, 6))
-    pto_f, pto_v = rng.normal(size=(n, 2)), rng.normal(size=(n, 2))
-    joint = rng.normal(size=(n, 1, 6))
-    moor = rng.normal(size=(n, 3, 6))
-    path = tmp_path / "case.nc"
-    with ResultWriter(path, scene_text="", bodies=["a", "b"], equilibrium_position=eq, dt=dt) as w:
-        w.add_variable("joint_force", ("joint", "joint_component"),
-                       {"joint": ["hinge"], "joint_component": ["fx", "fy", "fz", "mx", "my", "mz"]})
-        w.add_variable("pto_force", ("pto",), {"pto": ["p1", "p2"]})
-        w.add_variable("pto_velocity", ("pto",))
-        w.add_variable("pto_power", ("pto",))
-        w.add_variable("total_pto_power", ())
-        w.add_variable("mooring_force", ("mooring", "mooring_component"),
-                       {"mooring": ["m1", "m2", "m3"], "mooring_component": ["fx", "fy", "fz", "mx", "my", "mz"]})
-        z = np.zeros((2, 6))
-        for i in range(n):
-            w.stage_extra({"joint_force": joint[i], "pto_force": pto_f[i], "pto_velocity": pto_v[i],
-                           "pto_power": pto_f[i] * pto_v[i], "total_pto_power": (pto_f[i] * pto_v[i]).sum(),
-                           "mooring_force": moor[i]})
-            w.append(t[i], pos[i], z, z, z, z, 0.0)
-        w.finish("complete")
-    s = summarise(path, (10.0, 35.0), steady=False)
-    sel = (t > 10.0) & (t <= 35.0)
-    p = pto_f * pto_v
-    assert s.mean_total_pto_power == pytest.approx(p[sel].sum(axis=1).mean(), rel=1e-12)
-    assert s.mean_pto_power == pytest.approx({"p1": p[sel, 0].mean(), "p2": p[sel, 1].mean()}, rel=1e-12)
-    assert s.max_pto_force == pytest.approx({"p1": np.abs(pto_f[sel, 0]).max(), "p2": np.abs(pto_f[sel, 1]).max()})
-    assert s.bodies == ["a", "b"]
-    np.testing.assert_allclose(s.motion_std, (pos - eq)[sel].std(axis=0), rtol=1e-12)
-    np.testing.assert_allclose(s.motion_max, np.abs(pos - eq)[sel].max(axis=0), rtol=1e-12)
-    assert s.joint_force[0] == ["hinge"] and s.mooring_force[0] == ["m1", "m2", "m3"]
-    np.testing.assert_allclose(s.joint_force[2], np.abs(joint[sel]).max(axis=0))
-    np.testing.assert_allclose(s.mooring_force[2], np.abs(moor[sel]).max(axis=0))
