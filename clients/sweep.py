@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from hydrolink.clients.sweep_file import Sweep, SweepError, case_identity, dataset_digest, full_key, load_sweep
-from hydrolink.clients.sweep_worker import (TOKEN_FILE, CaseOutcome, CaseTask, case_paths, run_case, store_outcome,
+from hydrolink.clients.sweep_worker import (TOKEN_FILE, CaseOutcome, CaseRecord, CaseTask, case_paths, run_case, store_outcome,
                                             warm_setup)
 
 log = logging.getLogger(__name__)
@@ -66,14 +66,11 @@ def load_hdbs(sweep: Sweep, progress: bool) -> tuple[dict, dict[str, str]]:
     return hdbs, {k: dataset_digest(ds) for k, ds in hdbs.items()}
 
 
-def read_record(outdir: Path, case_id: str) -> dict | None:
+def read_record(outdir: Path, case_id: str) -> CaseRecord | None:
     """A finished case's record, None if it has none (or a complete one lost its results file)."""
     paths = case_paths(outdir, case_id)
-    try:
-        rec = json.loads(paths["record"].read_text())
-    except (OSError, ValueError):
-        return None
-    if rec.get("status") == "complete" and not paths["results"].exists():
+    rec = CaseRecord.read(paths["record"])
+    if rec is not None and rec.status == "complete" and not paths["results"].exists():
         return None
     return rec
 
@@ -218,7 +215,7 @@ def run_sweep(sweep_path: str | Path, outdir: str | Path, *, workers: int | None
         case.case_id = case_identity(case, digests)
     records = {c.case_id: read_record(outdir, c.case_id) for c in sweep.cases}
     todo = [c for c in sweep.cases if records[c.case_id] is None
-            or (retry_failed and records[c.case_id]["status"] != "complete")]
+            or (retry_failed and records[c.case_id].status != "complete")]
     report = SweepReport(outdir, len(sweep.cases), len(sweep.cases) - len(todo), len(todo))
     log_line(f"hydrolink sweep: {len(sweep.cases)} cases, {report.skipped} finished before, {len(todo)} to run")
     if todo:
@@ -248,13 +245,14 @@ def run_sweep(sweep_path: str | Path, outdir: str | Path, *, workers: int | None
             if len(fs) > 1:
                 report.notes.append(f"the workers used {len(fs)} different {kind} cache folders ({fs}): set "
                                     "HYDROLINK_CACHE to one folder they all see to share it")
-    report.failed = [c.label for c in sweep.cases if (records.get(c.case_id) or {}).get("status") == "failed"]
+    report.failed = [c.label for c in sweep.cases
+                     if records[c.case_id] is not None and records[c.case_id].status == "failed"]
     report.outputs, report.annual_energy = write_outputs(sweep, outdir, records)
     report.wall_time = time.perf_counter() - t0
     return report
 
 
-def write_outputs(sweep: Sweep, outdir: Path, records: dict[str, dict | None]) -> tuple[list[str], list[str]]:
+def write_outputs(sweep: Sweep, outdir: Path, records: dict[str, CaseRecord | None]) -> tuple[list[str], list[str]]:
     """sweep.nc, cases.csv and the plots from every finished case; returns the files written and,
     with a site, one AEP line per combination of the other sweep keys."""
     from hydrolink.clients.sweep_plots import plot_capture_width, plot_power_matrix
@@ -264,14 +262,14 @@ def write_outputs(sweep: Sweep, outdir: Path, records: dict[str, dict | None]) -
     done = {k: r for k, r in records.items() if r is not None}
     for case in sweep.cases:
         rec = done.get(case.case_id)
-        if rec is None or rec["status"] != "complete":
+        if rec is None or rec.status != "complete":
             continue
         steady = case.solver == "steady"
         try:
             summaries[case.case_id] = summarise(case_paths(outdir, case.case_id)["results"],
                                                 averaging_window(case, sweep.spec.window, steady), steady)
         except (OSError, ValueError) as exc:
-            rec.update(status="failed", error=f"summary: {exc}")
+            rec.status, rec.error = "failed", f"summary: {exc}"
     ds = build_dataset(sweep, done, summaries, case_sea_states(sweep))
     paths = [outdir / "sweep.nc", outdir / "cases.csv"]
     from hydrolink.server.disk_cache import write_atomic

@@ -42,6 +42,7 @@ import xarray as xr
 from hydrolink.clients.power_matrix import PowerMatrix, SeaState, annual_energy, power_matrix, sea_state
 from hydrolink.clients.results import DOF_NAMES, package_versions
 from hydrolink.clients.sweep_file import Case, Sweep
+from hydrolink.clients.sweep_worker import CaseRecord
 from hydrolink.protocol.scene import RegularWave
 
 
@@ -124,7 +125,7 @@ def _cell(coords: dict[str, list], case: Case) -> tuple[int, ...]:
     return tuple(index(values, case.coords[k]) for k, values in coords.items())
 
 
-def build_dataset(sweep: Sweep, records: dict[str, dict], summaries: dict[str, CaseSummary],
+def build_dataset(sweep: Sweep, records: dict[str, CaseRecord], summaries: dict[str, CaseSummary],
                   states: dict[str, SeaState | None]) -> xr.Dataset:
     """sweep.nc's dataset (module docstring) from each case's record, summary and sea state."""
     coords = _coords(sweep)
@@ -159,8 +160,8 @@ def build_dataset(sweep: Sweep, records: dict[str, dict], summaries: dict[str, C
         if rec is None:
             text["status"][cell] = "not run"
             continue
-        text["status"][cell], text["error"][cell] = rec["status"], rec["error"]
-        v["wall_time"][cell], v["attempts"][cell] = rec["wall_time"], rec["attempt"]
+        text["status"][cell], text["error"][cell] = rec.status, rec.error
+        v["wall_time"][cell], v["attempts"][cell] = rec.wall_time, rec.attempt
         s = summaries.get(case.case_id)
         if s is None:
             continue

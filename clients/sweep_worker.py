@@ -53,10 +53,36 @@ class CaseOutcome:
     stored: bool = False         # the worker wrote the case's files itself (it sees OUTDIR)
     files: dict[str, bytes] = field(default_factory=dict)   # name -> bytes (remote workers only)
 
-    def record(self, label: str) -> dict:
-        d = {k: v for k, v in asdict(self).items() if k not in ("files", "stored")}
-        d["label"] = label
-        return d
+    def record(self, label: str) -> "CaseRecord":
+        return CaseRecord(self.case_id, label, self.status, self.error, self.wall_time, self.solver, self.worker,
+                          self.attempt, dict(self.caches), self.fitted_pairs)
+
+
+@dataclass
+class CaseRecord:
+    """A finished case (``<id>.json``): what the sweep keeps of it besides its results file."""
+    case_id: str
+    label: str
+    status: str                  # "complete" | "failed"
+    error: str
+    wall_time: float             # s
+    solver: str
+    worker: str
+    attempt: int
+    caches: dict[str, str]
+    fitted_pairs: int | None = None
+
+    def to_json(self) -> bytes:
+        return json.dumps(asdict(self), indent=1).encode()
+
+    @classmethod
+    def read(cls, path: Path) -> "CaseRecord | None":
+        """The record in ``path``; None when there is none or it is not a whole record (the case
+        then runs again)."""
+        try:
+            return cls(**json.loads(path.read_text()))
+        except (OSError, ValueError, TypeError):
+            return None
 
 
 def case_paths(outdir: str | Path, case_id: str) -> dict[str, Path]:
@@ -79,7 +105,7 @@ def store_outcome(task: CaseTask, outcome: CaseOutcome, results: Path | None, sc
         os.replace(results, target)
     elif "results" in outcome.files:
         write_file_atomic(target, outcome.files["results"])
-    write_file_atomic(paths["record"], json.dumps(outcome.record(task.label), indent=1).encode())
+    write_file_atomic(paths["record"], outcome.record(task.label).to_json())
 
 
 def sees_outdir(task: CaseTask) -> bool:
@@ -151,18 +177,14 @@ def run_case(task: CaseTask, hdbs: dict, *after) -> CaseOutcome:
     return outcome
 
 
-def warm_setup(scene_text: str, hdbs: dict) -> dict:
-    """Build the server model of a scene once (its state-space fits land in the on-disk cache
-    the cases of this setup then read); returns the fit count and this worker's cache folders.
-    A failure is returned, not raised: the cases run (and report it) all the same."""
+def warm_setup(scene_text: str, hdbs: dict) -> None:
+    """Build the server model of a scene once, so that its state-space fits land in the on-disk
+    cache the cases of this setup then read. A failure is left to the cases, which report it."""
     from hydrolink.clients.run import load_wave_elevation
     from hydrolink.protocol.scene import parse_scene
     from hydrolink.server.model import HydroModel
     try:
         scene = parse_scene(scene_text, "scene")   # its file paths are absolute
-        model = HydroModel(scene, {b.name: hdbs[b.hdb] for b in scene.bodies if b.wet},
-                           load_wave_elevation(scene, "scene.toml"))
-        ss = model.setup_info().state_space
-    except Exception as exc:  # noqa: BLE001 - the cases will say what is wrong
-        return {"error": _first_line(exc), "caches": cache_folders()}
-    return {"fitted_pairs": None if ss is None else ss.fitted_pairs, "caches": cache_folders()}
+        HydroModel(scene, {b.name: hdbs[b.hdb] for b in scene.bodies if b.wet}, load_wave_elevation(scene, "scene.toml"))
+    except Exception:  # noqa: BLE001 - the cases will say what is wrong
+        pass
