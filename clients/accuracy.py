@@ -81,14 +81,6 @@ class Grid(GridSpec):
     duration: float | None = Field(default=None, gt=0)
     window: tuple[float, float] | None = None
 
-    @field_validator("grid", mode="before")
-    @classmethod
-    def _lists(cls, grid):
-        for k, v in (grid or {}).items():
-            if not isinstance(v, list) or not v:
-                raise ValueError(f"grid.{k}: a non-empty list of values")
-        return grid
-
     @classmethod
     def from_toml(cls, path: str | Path) -> "Grid":
         path = Path(path)

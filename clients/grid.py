@@ -74,12 +74,12 @@ class GridSpec(BaseModel):
     grid: dict[str, list[Value]] = {}
     cases: list[dict[str, Value]] = []
 
-    @field_validator("grid")
+    @field_validator("grid", mode="before")
     @classmethod
-    def _non_empty(cls, grid: dict[str, list]) -> dict[str, list]:
-        for key, values in grid.items():
-            if not values:
-                raise ValueError(f"grid.{quoted(key)}: a non-empty list of values")
+    def _non_empty(cls, grid):
+        for key, values in (grid or {}).items():
+            if not isinstance(values, list) or not values:
+                raise ValueError(f"grid.{quoted(key)}: a non-empty list of values (got {values!r})")
         return grid
 
     @field_validator("cases")

@@ -83,14 +83,6 @@ class SweepFile(GridSpec):
     fixed: dict[str, Value] = Field(default={}, alias="set")
     site: Site | None = None
 
-    @field_validator("grid", mode="before")
-    @classmethod
-    def _lists(cls, grid):
-        for k, v in (grid or {}).items():
-            if not isinstance(v, list) or not v:
-                raise ValueError(f"grid.{k}: a non-empty list of values (got {v!r})")
-        return grid
-
     @field_validator("window")
     @classmethod
     def _window(cls, w):

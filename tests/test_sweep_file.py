@@ -30,7 +30,7 @@ BAD = [
     ({"frobnicate": 1, "grid": {"waves.period": [6.0]}}, "frobnicate: unknown key"),
     ({"grid": {"waves.hs": [1.0]}}, 'grid."waves.hs": not a key of the scene'),
     ({"grid": {"waves.period": ["long"]}}, 'grid."waves.period": Input should be a valid number'),
-    ({"grid": {"waves.period": []}}, "grid.waves.period: a non-empty list"),
+    ({"grid": {"waves.period": []}}, 'grid."waves.period": a non-empty list'),
     ({"grid": {"ptos.pump.damping": [1e5]}}, 'grid."ptos.pump.damping": not a key of the scene: no ptos entry named'),
     ({"grid": {"bodies.sphere.mass": [-1.0]}}, 'grid."bodies.sphere.mass": Input should be greater than 0'),
     ({}, "grid: no cases"),
