@@ -53,6 +53,15 @@ def cli(verbose: int) -> None:
     multibody client (Exudyn) over ZeroMQ."""
     level = logging.WARNING - 10 * min(verbose, 2)
     logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    if verbose < 2:   # -vv keeps Python's own format (file and line of the warning)
+        import warnings
+        warnings.showwarning = _show_warning
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """A warning as the user reads it: one plain line on stderr, no source file or line."""
+    text = " ".join(str(message).split())
+    print(f"warning: {text}", file=file or sys.stderr)
 
 
 @cli.group()
