@@ -22,7 +22,9 @@ import numpy as np
 
 PROTOCOL_VERSION = 1
 SUPPORTED_VERSIONS = (1,)
-MAX_MESSAGE_BYTES = 256 * 2**20
+MAX_MESSAGE_BYTES = 256 * 2**20       # all frames of a message together (SPEC §1)
+MAX_ROUTING_FRAMES = 8
+MAX_ROUTING_FRAME_BYTES = 255         # a ZeroMQ routing identity's limit
 SIG_TRAILER = b"\xa3sig\xc4\x20"  # fixstr "sig" + bin8 header of length 32
 SIG_LEN = 32
 ROLES = ("multibody", "controller", "monitor")
@@ -110,10 +112,10 @@ def decode_array(value: Any, field: str, kind: str = "f") -> np.ndarray:
             dtype = ACCEPTED_DTYPES[value["dtype"]]
         except (KeyError, TypeError):
             raise ProtocolError(Code.BAD_VALUE, field,
-                                f"array dtype must be one of {sorted(ACCEPTED_DTYPES)}, got {value.get('dtype')!r}") from None
+                                f"array dtype must be one of {sorted(ACCEPTED_DTYPES)}, got {describe(value.get('dtype'))}") from None
         shape, data = value.get("shape"), value.get("data")
         if not isinstance(shape, list) or not all(type(n) is int and n >= 0 for n in shape):
-            raise ProtocolError(Code.BAD_VALUE, field, f"array shape must be a list of ints >= 0, got {shape!r}")
+            raise ProtocolError(Code.BAD_VALUE, field, f"array shape must be a list of ints >= 0, got {describe(shape)}")
         if not isinstance(data, (bytes, bytearray)):
             raise ProtocolError(Code.BAD_VALUE, field, f"array data must be bin, got {type(data).__name__}")
         if len(data) != math.prod(shape) * dtype.itemsize:
@@ -152,14 +154,20 @@ def decode_array(value: Any, field: str, kind: str = "f") -> np.ndarray:
     return arr
 
 
-def decode_tree(obj: Any) -> Any:
-    """Recursively replace every array map by an ndarray (for setup/HDB maps, not the hot path)."""
+MAX_TREE_DEPTH = 16   # maps and lists nested deeper than this in a setup map are refused
+
+
+def decode_tree(obj: Any, field: str = "", depth: int = 0) -> Any:
+    """Recursively replace every array map by an ndarray (for setup/HDB maps, not the hot path);
+    ``field`` is the value's error path. Nesting deeper than MAX_TREE_DEPTH is error 5."""
+    if depth > MAX_TREE_DEPTH:
+        raise ProtocolError(Code.BAD_VALUE, field or None, f"nested deeper than {MAX_TREE_DEPTH} levels")
     if _is_array_map(obj):
-        return decode_array(obj, "", kind="")
+        return decode_array(obj, field, kind="")
     if isinstance(obj, dict):
-        return {k: decode_tree(v) for k, v in obj.items()}
+        return {k: decode_tree(v, key_path(field, k) if field else str(k), depth + 1) for k, v in obj.items()}
     if isinstance(obj, list):
-        return [decode_tree(v) for v in obj]
+        return [decode_tree(v, f"{field}[{i}]", depth + 1) for i, v in enumerate(obj)]
     return obj
 
 
@@ -217,6 +225,25 @@ def key_path(prefix: str, key: str) -> str:
     return f"{prefix}.{key}" if _IDENTIFIER.fullmatch(key) else f"{prefix}[{json.dumps(key)}]"
 
 
+def describe(value: Any, limit: int = 60) -> str:
+    """A client's value as an error message shows it: scalars by their repr cut to ``limit``
+    characters, containers by their type and length only (never walked: a value nested a
+    million deep, or a 100 MB string, costs nothing to describe)."""
+    if value is None or isinstance(value, (bool, int, float)):
+        text = repr(value)
+    elif isinstance(value, str):
+        text = repr(value[:limit + 1])
+    elif isinstance(value, (bytes, bytearray, memoryview)):
+        return f"bin of {len(value)} bytes"
+    elif isinstance(value, (list, tuple)):
+        return f"array of {len(value)} items"
+    elif isinstance(value, dict):
+        return f"map of {len(value)} entries"
+    else:
+        return type(value).__name__
+    return text if len(text) <= limit else text[:limit] + "..."
+
+
 def require(msg: dict, field: str, path: str | None = None) -> Any:
     """The value of a required field (nil counts as missing); ProtocolError 4 otherwise."""
     value = msg.get(field)
@@ -234,7 +261,7 @@ def require_int(msg: dict, field: str, *, default: int | None = None, minimum: i
             return default
         return require(msg, field, path)
     if type(value) is not int:
-        raise ProtocolError(Code.BAD_VALUE, path or field, f"must be an int, got {type(value).__name__} {value!r}")
+        raise ProtocolError(Code.BAD_VALUE, path or field, f"must be an int, got {describe(value)}")
     if minimum is not None and value < minimum:
         raise ProtocolError(Code.BAD_VALUE, path or field, f"must be >= {minimum}, got {value}")
     return value
@@ -244,7 +271,7 @@ def require_float(msg: dict, field: str, path: str | None = None) -> float:
     """A required finite number."""
     value = require(msg, field, path)
     if type(value) not in (float, int):
-        raise ProtocolError(Code.BAD_VALUE, path or field, f"must be a number, got {type(value).__name__} {value!r}")
+        raise ProtocolError(Code.BAD_VALUE, path or field, f"must be a number, got {describe(value)}")
     if not math.isfinite(value):
         raise ProtocolError(Code.BAD_VALUE, path or field, f"must be finite, got {value}")
     return float(value)
@@ -301,13 +328,13 @@ def check_envelope(msg: dict) -> tuple[str, Any, str | None]:
         raise ProtocolError(Code.MISSING_FIELD, "v", "required field 'v' (protocol version) is missing")
     if msg["v"] not in SUPPORTED_VERSIONS or type(msg["v"]) is not int:
         raise ProtocolError(Code.VERSION_MISMATCH, "v",
-                            f"protocol version {msg['v']!r} not supported; this server speaks {list(SUPPORTED_VERSIONS)}")
+                            f"protocol version {describe(msg['v'])} not supported; this server speaks {list(SUPPORTED_VERSIONS)}")
     mtype = msg.get("type")
     if mtype is None:
         raise ProtocolError(Code.MISSING_FIELD, "type", "required field 'type' is missing")
     if mtype not in REQUEST_TYPES or not isinstance(mtype, str):
         raise ProtocolError(Code.UNKNOWN_TYPE, "type",
-                            f"unknown request type {mtype!r}; expected one of {list(REQUEST_TYPES)}")
+                            f"unknown request type {describe(mtype)}; expected one of {list(REQUEST_TYPES)}")
     msg_id = msg.get("msg_id")
     if msg_id is None:
         raise ProtocolError(Code.MISSING_FIELD, "msg_id", "required field 'msg_id' is missing")

@@ -200,7 +200,7 @@ class ControlHub:
     def _wait(self, msg: dict) -> float:
         w = msg.get("wait", 1.0)
         if type(w) not in (int, float) or not math.isfinite(w) or w < 0:
-            raise ProtocolError(Code.BAD_VALUE, "wait", f"must be a number of seconds >= 0, got {w!r}")
+            raise ProtocolError(Code.BAD_VALUE, "wait", f"must be a number of seconds >= 0, got {codec.describe(w)}")
         return min(float(w), MAX_WAIT)
 
     def measure(self, msg: dict, route, msg_id) -> tuple[str, dict] | None:
@@ -254,7 +254,7 @@ class ControlHub:
             entry = commands[name]
             if not isinstance(entry, dict):
                 raise ProtocolError(Code.BAD_VALUE, f"commands.{name}",
-                                    f"must be a map with {' and/or '.join(map(repr, keys))}, got {entry!r}")
+                                    f"must be a map with {' and/or '.join(map(repr, keys))}, got {codec.describe(entry)}")
             for key in entry:
                 if key not in keys:
                     raise ProtocolError(Code.BAD_VALUE, f"commands.{name}.{key}", f"not a {c.command} setpoint "

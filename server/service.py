@@ -38,7 +38,8 @@ class ForceServer:
     """Serve hydrodynamic forces on ``bind`` (e.g. ``tcp://127.0.0.1:*``) until :meth:`stop`."""
 
     def __init__(self, bind: str | None, *, context: zmq.Context | None = None, session_timeout: float = 300.0,
-                 key: bytes | None = None, curve_secret: str | None = None, curve_clients: str | None = None):
+                 key: bytes | None = None, curve_secret: str | None = None, curve_clients: str | None = None,
+                 max_message_bytes: int = codec.MAX_MESSAGE_BYTES):
         """``bind=None`` makes an in-process server without a socket: clients in the same process
         call :meth:`respond` with the same frames a socket would carry (see ServerConnection).
 
@@ -53,7 +54,7 @@ class ForceServer:
             self._ctx = context or zmq.Context()
             self._sock = self._ctx.socket(zmq.ROUTER)
             self._sock.setsockopt(zmq.LINGER, 0)
-            self._sock.setsockopt(zmq.MAXMSGSIZE, codec.MAX_MESSAGE_BYTES)
+            self._sock.setsockopt(zmq.MAXMSGSIZE, max_message_bytes)   # per frame; all frames: _over_limits
             self._sock.setsockopt(zmq.ROUTER_MANDATORY, 0)
             self._sock.setsockopt(zmq.RCVTIMEO, POLL_MS)
             if curve_secret is not None or curve_clients is not None:
@@ -70,6 +71,7 @@ class ForceServer:
             self._sock.bind(bind)
             self._address = self._sock.getsockopt_string(zmq.LAST_ENDPOINT)
         self.session_timeout = float(session_timeout)
+        self.max_message_bytes = int(max_message_bytes)
         self.key = key
         self.sessions: dict[str, Session] = {}
         self._closed: dict[str, str] = {}
@@ -145,7 +147,12 @@ class ForceServer:
     def _serve_one(self, frames: list[bytes]) -> None:
         if len(frames) < 2:
             return  # no routing identity: nothing to answer to
-        reply = self.handle(frames[-1], frames[:-1])
+        over = self._over_limits(frames)
+        if over:   # answered to the identity alone: nothing the sender added is echoed
+            reply = codec.error_reply(next(self._ids), None, None, Code.MALFORMED, None, over)
+            frames = [frames[0], b""]
+        else:
+            reply = self.handle(frames[-1], frames[:-1])
         if reply is None:
             return  # deferred (SPEC §5.7): sent later by the session's ControlHub
         frames[-1] = codec.pack(reply, self.key)  # routing frames stay in front, verbatim
@@ -153,6 +160,20 @@ class ForceServer:
             self._sock.send_multipart(frames, zmq.NOBLOCK)
         except zmq.ZMQError as exc:  # peer gone or its queue full: drop the reply
             log.warning("reply dropped: %s", exc)
+
+    def _over_limits(self, frames: list[bytes]) -> str:
+        """Why a received message breaks SPEC §1's limits ('' when it does not)."""
+        total = sum(len(f) for f in frames)
+        if total > self.max_message_bytes:
+            return f"message of {total} bytes over all its frames; at most {self.max_message_bytes} (SPEC §1)"
+        routing = frames[:-1]
+        if len(routing) > codec.MAX_ROUTING_FRAMES:   # the ROUTER's identity frame included
+            return f"{len(routing)} routing frames before the message; at most {codec.MAX_ROUTING_FRAMES} (SPEC §1)"
+        big = next((i for i, f in enumerate(routing) if len(f) > codec.MAX_ROUTING_FRAME_BYTES), None)
+        if big is not None:
+            return (f"routing frame {big} is {len(routing[big])} bytes; at most {codec.MAX_ROUTING_FRAME_BYTES} "
+                    "(SPEC §1)")
+        return ""
 
     def _send_later(self, session: str, route: list[bytes], mtype: str, parent: Any, fields: dict) -> None:
         """Send a deferred reply (a ControlHub's callback)."""
@@ -219,7 +240,7 @@ class ForceServer:
     def _hello(self, msg: dict, msg_id: Any, session: str | None) -> tuple[str, dict, str | None]:
         role = codec.require_str(msg, "role")
         if role not in codec.ROLES:
-            raise ProtocolError(Code.BAD_VALUE, "role", f"must be one of {list(codec.ROLES)}, got {role!r}")
+            raise ProtocolError(Code.BAD_VALUE, "role", f"must be one of {list(codec.ROLES)}, got {codec.describe(role)}")
         if role not in codec.IMPLEMENTED_ROLES:
             raise ProtocolError(Code.NOT_IMPLEMENTED, "role", f"role {role!r} is reserved; protocol 1 "
                                 f"servers implement only {list(codec.IMPLEMENTED_ROLES)}")

@@ -43,9 +43,9 @@ def build_model(msg: dict) -> HydroModel:
                                 f"scene body {body.name!r} (bodies[{i}].hdb) uses HDB {key!r} but hello.hdbs "
                                 f"holds {sorted(hdb_maps)}")
         try:
-            data = codec.decode_tree(hdb_maps[key])
+            data = codec.decode_tree(hdb_maps[key], where)
         except ProtocolError as exc:
-            raise ProtocolError(Code.BAD_HDB, where, exc.message) from None
+            raise ProtocolError(Code.BAD_HDB, exc.field or where, exc.message) from None
         try:
             datasets[key] = from_wire(data, key)
         except HDBError as exc:

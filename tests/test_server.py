@@ -114,6 +114,35 @@ def test_ping_and_req_socket(server):
     assert reply["type"] == "pong" and reply["parent"] == 5 and reply["sessions"] >= 0
 
 
+def test_size_limit_covers_every_frame_and_nothing_is_echoed():
+    """SPEC §1: the size limit counts all frames of a message, routing frames included, and the
+    routing frames are at most 8 of at most 255 bytes. A message over a limit is answered with
+    error 1 to the sender's identity alone (its own frames are not echoed) and the server goes on."""
+    srv, thread = serve_in_thread(session_timeout=60.0, max_message_bytes=2**20)
+    ctx = zmq.Context.instance()
+    sock = ctx.socket(zmq.DEALER)
+    sock.setsockopt(zmq.LINGER, 0)
+    sock.setsockopt(zmq.RCVTIMEO, RECV_MS)
+    try:
+        sock.connect(srv.address)
+        ping = codec.pack(codec.message("ping", 1, None))
+        cases = [([b"r" * 600_000, b"s" * 600_000, ping], "over all its frames; at most 1048576"),
+                 ([b"x" * 300, ping], "routing frame 1 is 300 bytes; at most 255"),
+                 ([b""] * 8 + [ping], "9 routing frames before the message; at most 8")]
+        for frames, why in cases:
+            sock.send_multipart(frames)
+            reply = sock.recv_multipart()
+            assert len(reply) == 1, [len(f) for f in reply]          # nothing the sender added comes back
+            msg = codec.unpack(reply[0])
+            assert (msg["type"], msg["code"], msg["field"]) == ("error", 1, None) and why in msg["message"], msg
+        sock.send_multipart([b"", ping])                            # a REQ-like delimiter is fine
+        assert codec.unpack(sock.recv_multipart()[-1])["type"] == "pong"
+    finally:
+        sock.close(0)
+        srv.stop()
+        thread.join(timeout=5)
+
+
 # ------------------------------------------------------------------ hello errors
 
 def test_bad_scene_names_the_key(server, hdb):
