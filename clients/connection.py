@@ -21,8 +21,34 @@ from hydrolink.protocol import codec
 from hydrolink.protocol.codec import ProtocolError
 from hydrolink.protocol.setup import Setup
 from hydrolink.protocol.hdb_wire import to_wire
+from hydrolink.protocol.transport import HEARTBEAT_TIMEOUT_MS, apply_heartbeats
 
 FORCE_FIELDS = ("excitation", "radiation", "hydrostatic")
+WATCH_S = 0.2                 # a pending reply's link is checked this often
+
+
+class LinkWatch:
+    """The state of a DEALER's connection from its monitor socket: connected, or lost since when."""
+
+    def __init__(self, sock: zmq.Socket):
+        self._monitor = sock.get_monitor_socket(zmq.EVENT_HANDSHAKE_SUCCEEDED | zmq.EVENT_DISCONNECTED)
+        self.lost_since: float | None = None
+        self.ever_connected = False
+
+    def update(self) -> None:
+        from zmq.utils.monitor import recv_monitor_message
+        while True:
+            try:
+                event = recv_monitor_message(self._monitor, zmq.NOBLOCK)["event"]
+            except zmq.Again:
+                return
+            if event == zmq.EVENT_DISCONNECTED:
+                self.lost_since = time.monotonic()
+            else:
+                self.ever_connected, self.lost_since = True, None
+
+    def close(self) -> None:
+        self._monitor.close(0)
 
 
 class RemoteError(RuntimeError):
@@ -47,8 +73,10 @@ class ServerConnection:
     ``curve``: a :class:`hydrolink.protocol.security.ClientKeys` for a server that requires CURVE."""
 
     def __init__(self, address: Any, *, timeout: float = 30.0, context: zmq.Context | None = None,
-                 key: bytes | None = None, client_name: str = "hydrolink-python", curve=None):
+                 key: bytes | None = None, client_name: str = "hydrolink-python", curve=None,
+                 lost_after: float = 1.0):
         self.timeout = float(timeout)
+        self.lost_after = float(lost_after)   # s a pending reply's lost connection may take to come back
         self.key = key
         self.client_name = client_name
         self.session: str | None = None
@@ -70,6 +98,8 @@ class ServerConnection:
         self._ctx = context or zmq.Context()
         self._sock = self._ctx.socket(zmq.DEALER)
         self._sock.setsockopt(zmq.LINGER, 0)
+        apply_heartbeats(self._sock)
+        self._watch = LinkWatch(self._sock)
         self.curve = curve
         if curve is not None:
             curve.apply(self._sock)
@@ -91,23 +121,36 @@ class ServerConnection:
             if frame is not None:
                 return frame
         else:
-            left = deadline - time.monotonic()
-            if left > 0:
+            while (left := deadline - time.monotonic()) > 0:
                 # a receive timeout on the socket (cheaper than a poller), reset only when it
-                # changes by more than 1 ms: once per run in lockstep
-                ms = max(1, int(left * 1000))
+                # changes by more than 1 ms: once per run in lockstep; between slices of WATCH_S
+                # the link is checked, so a dead server is noticed within ~lost_after + WATCH_S
+                ms = max(1, int(min(left, WATCH_S) * 1000))
                 if abs(ms - self._recv_timeout_ms) > 1:
                     self._sock.setsockopt(zmq.RCVTIMEO, ms)
                     self._recv_timeout_ms = ms
                 try:
                     return self._sock.recv()
                 except zmq.Again:
-                    pass
+                    self._check_link(mtype)
         hint = ("; with CURVE: is this client's public key in the server's --curve-clients directory, and "
                 "--curve-server-key the server's key?" if getattr(self, "curve", None) is not None else
                 "; a server started with --curve-secret refuses plaintext clients")
         raise TimeoutError(f"no reply to {mtype!r} from the hydrolink server at {self.address} "
                            f"within {limit:g} s (is it running and reachable?{hint})")
+
+    def _check_link(self, mtype: str) -> None:
+        """ConnectionError when the connection to the server has been lost for ``lost_after`` s
+        while a reply is pending (heartbeats drop a dead or silent peer's connection). A link that
+        never came up (nothing listening, a refused CURVE handshake) is left to the timeout and
+        its hints."""
+        self._watch.update()
+        lost = self._watch.lost_since
+        if lost is not None and self._watch.ever_connected and time.monotonic() - lost >= self.lost_after:
+            raise ConnectionError(f"lost the connection to the hydrolink server at {self.address} while waiting "
+                                  f"for the reply to {mtype!r} (no heartbeat for {HEARTBEAT_TIMEOUT_MS / 1000:g} s "
+                                  f"or the connection closed, and not back within {self.lost_after:g} s): "
+                                  "the server stopped or the network is down")
 
     def request(self, mtype: str, timeout: float | None = None, **fields: Any) -> dict:
         """Send one request, wait for its reply (matched by ``parent``); RemoteError on ``error``."""
@@ -204,6 +247,7 @@ class ServerConnection:
         """Close the socket (linger 0); does not send ``bye``."""
         self._local = None
         if self._sock is not None:
+            self._watch.close()
             self._sock.close(0)
             self._sock = None
             if self._own_context:

@@ -15,7 +15,7 @@ from typing import Any, Callable
 
 import zmq
 
-from hydrolink.protocol import codec
+from hydrolink.protocol import codec, transport
 from hydrolink.protocol.codec import Code, ProtocolError
 from hydrolink.server.control import ControlHub
 from hydrolink.server.session import Session, build_model
@@ -56,6 +56,7 @@ class ForceServer:
             self._sock.setsockopt(zmq.LINGER, 0)
             self._sock.setsockopt(zmq.MAXMSGSIZE, max_message_bytes)   # per frame; all frames: _over_limits
             self._sock.setsockopt(zmq.ROUTER_MANDATORY, 0)
+            transport.apply_heartbeats(self._sock)   # a dead client's connection is dropped (SPEC §1)
             self._sock.setsockopt(zmq.RCVTIMEO, POLL_MS)
             if curve_secret is not None or curve_clients is not None:
                 from hydrolink.protocol.security import CurveKeyError, ServerSecurity

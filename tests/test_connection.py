@@ -1,0 +1,78 @@
+"""clients/connection.py: ZeroMQ heartbeats and the link watch. A server killed (SIGKILL) while a
+reply is pending is noticed within about two seconds, not after the receive timeout, with a line
+naming the server; a slow but live server is waited for."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+import zmq
+
+from analytic_hdb import make_body_hdb
+from conftest import body, regular_waves, scene_toml
+from hydrolink.clients.connection import ServerConnection
+from hydrolink.protocol import codec
+
+HYDROLINK = [sys.executable, "-m", "hydrolink.clients.cli"]
+SCENE = scene_toml(dt=0.05, duration=100.0, waves=regular_waves(1.0, 6.0), hydro={"irf_duration": 4.0},
+                   bodies=[body("float", hdb="float.nc", mass=3.0e5, center_of_mass=[0, 0, -1],
+                                inertia=[1e7, 1e7, 2e7])])
+
+
+def start_server() -> tuple[subprocess.Popen, str]:
+    proc = subprocess.Popen([*HYDROLINK, "serve", "--bind", "tcp://127.0.0.1:*"], stderr=subprocess.PIPE, text=True)
+    line = proc.stderr.readline()
+    assert "listening on" in line, line
+    return proc, line.split("listening on ")[1].split()[0]
+
+
+def test_a_killed_server_is_noticed_within_two_seconds():
+    proc, address = start_server()
+    try:
+        with ServerConnection(address, timeout=60.0) as conn:
+            conn.hello(SCENE, {"float.nc": make_body_hdb()})
+            z = np.zeros((1, 6))
+            conn.step(0, 0.0, z, z)
+            proc.send_signal(signal.SIGKILL)
+            proc.wait(10)
+            t0 = time.monotonic()
+            with pytest.raises(ConnectionError, match=f"lost the connection to the hydrolink server at {address}"):
+                conn.step(1, 0.05, z, z)
+            assert time.monotonic() - t0 < 2.5          # the receive timeout is 60 s
+    finally:
+        proc.kill()
+        proc.wait(10)
+
+
+def test_a_slow_live_server_is_waited_for():
+    """A server that takes 3 s to answer (longer than the heartbeat timeout) is not cut off:
+    ZeroMQ's I/O thread answers the heartbeats while the reply is being computed."""
+    ctx = zmq.Context.instance()
+    router = ctx.socket(zmq.ROUTER)
+    router.setsockopt(zmq.LINGER, 0)
+    from hydrolink.protocol.transport import apply_heartbeats
+    apply_heartbeats(router)
+    port = router.bind_to_random_port("tcp://127.0.0.1")
+
+    def slow_server() -> None:
+        ident, frame = router.recv_multipart()
+        msg = codec.unpack(frame)
+        time.sleep(3.0)
+        router.send_multipart([ident, codec.pack(codec.message("pong", "srv-1", None, msg["msg_id"], sessions=0))])
+
+    thread = threading.Thread(target=slow_server, daemon=True)
+    thread.start()
+    try:
+        with ServerConnection(f"tcp://127.0.0.1:{port}", timeout=10.0) as conn:
+            t0 = time.monotonic()
+            assert conn.ping()["type"] == "pong"
+            assert time.monotonic() - t0 >= 2.9
+    finally:
+        thread.join(5)
+        router.close(0)
