@@ -1,0 +1,152 @@
+"""MoorDyn moorings (clients/moordyn_mooring.py) against independent references written here: the
+elastic catenary with seabed contact (static), and a monolithic integration of a moored body with
+constant added mass and damping that calls MoorDyn directly (dynamic)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import xarray as xr
+from scipy.optimize import fsolve
+
+from conftest import body, regular_waves, scene_toml, write_scene
+
+from hydrolink.protocol.scene import SceneError, parse_scene
+from hydrolink.server.hdb.schema import make_hdb
+
+moordyn = pytest.importorskip("moordyn")
+
+RHO, G, DEPTH = 1025.0, 9.81, 200.0
+# chain: diameter, mass per metre, EA; 480 m lines from anchors 400 m out on the seabed
+D, MU, EA, LENGTH, SPAN0 = 0.1, 60.0, 1.0e8, 480.0, 400.0
+W = (MU - RHO * math.pi * D * D / 4) * G                  # submerged weight per metre
+Z0 = -2.0                                                  # the body's reference point
+FAIRLEAD_R = 10.0                                          # fairlead radius on the body
+
+
+# -- MoorDyn input files -----------------------------------------------------------------------------
+def moordyn_file(path: Path, headings_deg, *, coupled: str = "body", origin=(0.0, 0.0, Z0), segments: int = 40,
+                 dtm: float = 2e-3, output_tail: bool = True) -> Path:
+    """A MoorDyn v2 input file: one chain line per heading, from an anchor on the seabed SPAN0 out to a
+    fairlead FAIRLEAD_R out on a coupled body at ``origin`` (``coupled="body"``), or to coupled points
+    at the same places (``coupled="points"``)."""
+    anchors, fairleads, rows_lines = [], [], []
+    n = len(headings_deg)
+    for k, h in enumerate(np.radians(headings_deg)):
+        c, s = math.cos(h), math.sin(h)
+        anchors.append(f"{k + 1} Fixed {SPAN0 * c:.9g} {SPAN0 * s:.9g} {-DEPTH} 0 0 0 0")
+        if coupled == "body":
+            fairleads.append(f"{n + k + 1} Body1 {FAIRLEAD_R * c:.9g} {FAIRLEAD_R * s:.9g} 0 0 0 0 0")
+        else:
+            fairleads.append(f"{n + k + 1} Coupled {origin[0] + FAIRLEAD_R * c:.9g} {origin[1] + FAIRLEAD_R * s:.9g} "
+                             f"{origin[2]} 0 0 0 0")
+        rows_lines.append(f"{k + 1} chain {k + 1} {n + k + 1} {LENGTH} {segments} -")
+    rows_points = anchors + fairleads
+    bodies = ("---------------------- BODIES ----------------------\n"
+              "ID Attachment X0 Y0 Z0 r0 p0 y0 Mass CG* I* Volume CdA* Ca*\n"
+              "(#) (word) (m) (m) (m) (deg) (deg) (deg) (kg) (m) (kg-m^2) (m^3) (m^2) (-)\n"
+              f"1 Coupled {origin[0]} {origin[1]} {origin[2]} 0 0 0 0 0 0 0 0 0\n") if coupled == "body" else ""
+    text = (
+        "--------------------- MoorDyn Input File -----------------------\n"
+        "test mooring written by tests/test_moordyn_mooring.py\n"
+        "---------------------- LINE TYPES ----------------------\n"
+        "TypeName Diam Mass/m EA BA/-zeta EI Cd Ca CdAx CaAx\n"
+        "(name) (m) (kg/m) (N) (N-s/-) (N-m^2) (-) (-) (-) (-)\n"
+        f"chain {D} {MU} {EA} -1.0 0 1.2 1.0 0.2 0.0\n"
+        + bodies +
+        "---------------------- POINTS ----------------------\n"
+        "ID Attachment X Y Z Mass Volume CdA Ca\n"
+        "(#) (word/ID) (m) (m) (m) (kg) (m^3) (m^2) (-)\n"
+        + "\n".join(rows_points) + "\n"
+        "---------------------- LINES ----------------------\n"
+        "ID LineType AttachA AttachB UnstrLen NumSegs LineOutputs\n"
+        "(#) (name) (#) (#) (m) (-) (-)\n"
+        + "\n".join(rows_lines) + "\n"
+        "---------------------- OPTIONS ----------------------\n"
+        f"{dtm} dtM\n{DEPTH} WtrDpth\n{RHO} WtrDnsty\n{G} g\n"
+        "1.0 dtIC\n100 TmaxIC\n4.0 CdScaleIC\n1e-5 threshIC\n"
+        "---------------------- OUTPUTS ----------------------\n"
+        "END\n" + ("---------------------- need this line ----------------------\n" if output_tail else ""))
+    path.write_text(text)
+    return path
+
+
+def catenary(span: float, height: float) -> tuple[float, float]:
+    """Elastic catenary with a frictionless seabed (anchor on the bed): horizontal and vertical
+    fairlead force (H, V) of a LENGTH line, weight W per metre, stiffness EA, for a fairlead ``span``
+    from the anchor horizontally and ``height`` above it."""
+    def eqs(p):
+        h, v = math.exp(p[0]), p[1]
+        if v < W * LENGTH:      # part of the line on the seabed
+            x = LENGTH - v / W + h / W * math.asinh(v / h) + h * LENGTH / EA
+            z = h / W * (math.sqrt(1 + (v / h) ** 2) - 1) + v * v / (2 * EA * W)
+        else:
+            vb = v - W * LENGTH
+            x = h / W * (math.asinh(v / h) - math.asinh(vb / h)) + h * LENGTH / EA
+            z = h / W * (math.sqrt(1 + (v / h) ** 2) - math.sqrt(1 + (vb / h) ** 2)) + (v * LENGTH - W * LENGTH ** 2 / 2) / EA
+        return [x - span, z - height]
+    sol = fsolve(eqs, [math.log(W * LENGTH / 4), W * height], xtol=1e-13)
+    return math.exp(sol[0]), float(sol[1])
+
+
+def dry_float(**keys) -> dict:
+    """A dry 2e5 kg body whose buoyancy cancels its weight, reference point at (0, 0, Z0)."""
+    return body("float", mass=2.0e5, center_of_mass=[0.0, 0.0, Z0], inertia=[1e7, 1e7, 1e7],
+                buoyancy_volume=2.0e5 / RHO, **keys)
+
+
+def mooring(**keys) -> dict:
+    return {"type": "moordyn", "name": "spread", "file": "lines.dat", "bodies": ["float"], **keys}
+
+
+def _model(tmp_path: Path, scene_text: str, layouts=None):
+    """Scene file -> its MoorDyn layouts (or ``layouts``) -> the Exudyn model (MoorDyn started at the
+    initial pose)."""
+    from hydrolink.clients.exudyn_client import build_model
+    from hydrolink.clients.moordyn_mooring import load_moordyn_files
+    path = write_scene(tmp_path, scene_text)
+    scene = parse_scene(scene_text, path)
+    return build_model(scene, None, moordyn_files=layouts or load_moordyn_files(scene, path))
+
+
+# -- static: the elastic catenary -----------------------------------------------------------------------
+def _catenary_loads(headings_deg, dx: float) -> tuple[np.ndarray, np.ndarray]:
+    """Force and moment about the reference point on the body (6,) and fairlead tensions (lines,)
+    with the body moved ``dx`` in surge."""
+    load, tension = np.zeros(6), []
+    for h in np.radians(headings_deg):
+        e = np.array([math.cos(h), math.sin(h)])
+        fair, anchor = np.array([dx, 0.0]) + FAIRLEAD_R * e, SPAN0 * e
+        span = float(np.linalg.norm(anchor - fair))
+        hf, vf = catenary(span, Z0 + DEPTH)
+        f = np.r_[hf * (anchor - fair) / span, -vf]
+        load += np.r_[f, np.cross(np.r_[FAIRLEAD_R * e, 0.0], f)]
+        tension.append(math.hypot(hf, vf))
+    return load, np.array(tension)
+
+
+@pytest.mark.parametrize("headings", [[0.0], [0.0, 120.0, 240.0]], ids=["one-line", "three-lines"])
+def test_static_tension_and_restoring_force_against_the_elastic_catenary(tmp_path, headings):
+    """MoorDyn's initial-condition solve with the body held at a few surge offsets: fairlead tensions
+    and the force on the body within 1 % of the elastic catenary with seabed contact."""
+    from hydrolink.clients.moordyn_mooring import read_layout
+    layouts = {0: read_layout(moordyn_file(tmp_path / "lines.dat", headings))}
+    for dx in (6.0, -9.0) if len(headings) > 1 else (0.0, 6.0, -9.0):
+        model = _model(tmp_path, scene_toml(dt=0.01, duration=0.01, progress=False, moorings=[mooring()],
+                                            bodies=[dry_float(dofs=["surge"], initial_displacement=[dx, 0, 0, 0, 0, 0])]),
+                       layouts)
+        try:
+            load = model.moorings.sample(model.mbs)[0]
+            tension = model.moorings.moordyn[0].tensions()
+        finally:
+            model.close()
+        force, tension_ref = _catenary_loads(headings, dx)
+        h_line = catenary(SPAN0 - FAIRLEAD_R, Z0 + DEPTH)[0]
+        np.testing.assert_allclose(tension, tension_ref, rtol=0.01)
+        assert abs(load[0] - force[0]) <= 0.01 * max(abs(force[0]), h_line), (dx, load[0], force[0])
+        assert load[2] == pytest.approx(force[2], rel=0.01)
+        # moments about the reference point: the fairleads' vertical pull FAIRLEAD_R off it
+        np.testing.assert_allclose(load[3:], force[3:], rtol=0, atol=0.01 * abs(force[2]) * FAIRLEAD_R)
