@@ -510,7 +510,7 @@ class ExudynMultibody:
     def _step_moordyn(self, t0: float, t1: float) -> None:
         """Step the MoorDyn systems over t0 -> t1 towards the predicted (or, on a redo, the last
         pass's) end poses; a MoorDyn failure stops the run naming the file and the step."""
-        m, h = self.model, t1 - t0
+        m, h = self.model, self.h          # the nominal step: t1 - t0 carries round-off into MoorDyn's substeps
         pose0 = m.poses(self._q)
         if self._targets:
             pose1 = self._targets.pop(0)
