@@ -22,6 +22,11 @@ Coupling (:class:`MoorDynSystem`), MoorDyn's conventions (MoorDyn2.cpp ``Step``,
   fairlead path ends exactly where the body does);
 - a step advances MoorDyn's state (calling it twice is not idempotent): a redo restores it with
   ``Serialize``/``Deserialize`` (:meth:`MoorDynSystem.save` / :meth:`MoorDynSystem.restore`);
+- MoorDyn returns a coupled body's force less the inertia of what it carries (the line end nodes
+  attached to it: −M a, with a = the change of the velocity passed in over dt), but a coupled
+  point's force without it; hydrolink subtracts a coupled point's mass matrix (``GetPointM``: the
+  end nodes' mass and added mass) times that same finite-difference acceleration, so a spread
+  coupled through points moves as the same spread on a coupled body;
 - ``Init`` runs MoorDyn's initial-condition solve (options dtIC, TmaxIC, threshIC in the file) with
   the bodies at their initial pose: the lines start at rest in equilibrium, no jerk.
 
@@ -77,12 +82,10 @@ class _Quiet:
             os.close(saved[0])
             os.close(saved[1])
 
-    def tail(self, n: int = 4) -> str:
-        """The last ``n`` non-empty lines MoorDyn wrote (its "\\rt = ..." progress left out)."""
+    def said(self) -> str:
+        """What MoorDyn complained about since the last :meth:`clear` (its error lines)."""
         self.file.seek(0)
-        text = self.file.read().decode("utf-8", "replace").replace("\r", "\n")
-        lines = [ln.strip() for ln in text.splitlines() if ln.strip() and not ln.strip().startswith("t = ")]
-        return " | ".join(lines[-n:])
+        return _complaint(self.file.read())
 
     def clear(self) -> None:
         self.file.seek(0)
@@ -128,11 +131,11 @@ def _complaint(output: bytes) -> str:
     """MoorDyn's error lines (from its first "ERR" line on, the file path shortened), else its last
     warning, else its last lines."""
     lines = [ln.strip() for ln in output.decode("utf-8", "replace").replace("\r", "\n").splitlines()
-             if ln.strip() and not ln.startswith((" ", "Traceback", "  File", "RuntimeError"))]
+             if ln.strip() and not ln.startswith((" ", "\t", "t = ", "Traceback", "  File", "RuntimeError"))]
     for marker in ("ERR ", "WRN "):
         first = [k for k, ln in enumerate(lines) if ln.startswith(marker)]
         if first:
-            said = lines[first[0]:first[0] + 3] if marker == "ERR " else lines[first[-1]:first[-1] + 3]
+            said = lines[first[0]:first[0] + 3] if marker == "ERR " else lines[first[-1]:first[-1] + 1]
             said[0] = said[0].split("): ", 1)[-1]      # drop MoorDyn's source location
             return " | ".join(said)
     return " | ".join(lines[-3:]) or "no message"
@@ -230,6 +233,8 @@ class MoorDynSystem:
         self._lines: list = []
         self._fairlead: list[int] = []
         self._nodes: list[int] = []
+        self._cpoints: list = []                       # MoorDyn's coupled points, file order
+        self._point_velocity = np.zeros((len(spec.points), 3))   # passed at the last step
         self.steps = 0
 
     # -- kinematics --------------------------------------------------------------------------------
@@ -243,22 +248,25 @@ class MoorDynSystem:
     def _coupled(self, pose: np.ndarray) -> np.ndarray:
         return np.concatenate([pose[self._body_rows].reshape(-1), self._points(pose).reshape(-1)])
 
-    def _to_bodies(self, f: np.ndarray, pose: np.ndarray) -> np.ndarray:
-        """MoorDyn's coupled forces -> (len(names), 6) loads about the bodies' reference points."""
+    def _to_bodies(self, f: np.ndarray, pose: np.ndarray, point_accel: np.ndarray | None = None) -> np.ndarray:
+        """MoorDyn's coupled forces -> (len(names), 6) loads about the bodies' reference points; a
+        coupled point's force less its mass matrix times ``point_accel`` (module docstring)."""
         out = np.zeros((len(self.names), 6))
         nb = len(self._body_rows)
         if nb:
             np.add.at(out, self._body_out, f[:6 * nb].reshape(nb, 6))
         if len(self._point_rows):
             fp = f[6 * nb:].reshape(-1, 3)
+            if point_accel is not None:
+                import moordyn
+                fp = fp - np.einsum("pij,pj->pi", np.array([moordyn.GetPointM(p) for p in self._cpoints]), point_accel)
             r = self._points(pose) - pose[self._point_rows, :3]
             np.add.at(out, self._point_out, np.hstack([fp, np.cross(r, fp)]))
         return out
 
     # -- life cycle ----------------------------------------------------------------------------------
     def _fail(self, why: str) -> MoorDynFailure:
-        said = self._quiet.tail()
-        return MoorDynFailure(f"{self.label}: {why}" + (f" (MoorDyn: {said})" if said else ""))
+        return MoorDynFailure(f"{self.label}: {why} (MoorDyn: {self._quiet.said()})")
 
     def start(self, pose: np.ndarray, velocity: np.ndarray) -> np.ndarray:
         """Create the instance and run MoorDyn's initial-condition solve with the bodies at ``pose``
@@ -283,6 +291,9 @@ class MoorDynSystem:
             raise self._fail(f"MoorDyn's initial-condition solve failed (error code {err})")
         if not np.isfinite(f0).all():
             raise self._fail("MoorDyn's initial-condition solve gave non-finite forces")
+        self._point_velocity = v[6 * len(self._body_rows):].reshape(-1, 3).copy()
+        points = (moordyn.GetPoint(self.instance, k) for k in range(1, moordyn.GetNumberPoints(self.instance) + 1))
+        self._cpoints = [p for p in points if moordyn.GetPointType(p) == moordyn.POINT_TYPE_COUPLED]
         self._lines = [moordyn.GetLine(self.instance, k) for k in range(1, self.n_lines + 1)]
         self._nodes = [moordyn.GetLineN(line) for line in self._lines]
         # the fairlead end of each line: the end nearer the surface at t = 0
@@ -309,17 +320,20 @@ class MoorDynSystem:
         self.steps += 1
         if self.steps % 4096 == 0:
             self._quiet.clear()
-        self.loads = self._to_bodies(f, pose1)
+        vp = v[6 * len(self._body_rows):].reshape(-1, 3)
+        accel = (vp - self._point_velocity) / dt
+        self._point_velocity = vp
+        self.loads = self._to_bodies(f, pose1, accel)
         return self.loads
 
-    def save(self) -> tuple[bytes, np.ndarray]:
+    def save(self) -> tuple[bytes, np.ndarray, np.ndarray]:
         import moordyn
-        return moordyn.Serialize(self.instance), self.loads
+        return moordyn.Serialize(self.instance), self.loads, self._point_velocity
 
-    def restore(self, saved: tuple[bytes, np.ndarray]) -> None:
+    def restore(self, saved: tuple[bytes, np.ndarray, np.ndarray]) -> None:
         import moordyn
         moordyn.Deserialize(self.instance, saved[0])
-        self.loads = saved[1]
+        self.loads, self._point_velocity = saved[1], saved[2]
 
     # -- outputs -------------------------------------------------------------------------------------
     def tensions(self) -> np.ndarray:

@@ -443,10 +443,11 @@ class MoorDynMooring(_Section):
 
     @model_validator(mode="after")
     def _coupled(self) -> "MoorDynMooring":
+        # (".bodies": relative to the mooring, not the scene's bodies)
         if not self.bodies and not self.points:
-            raise ValueError("bodies: a MoorDyn mooring needs at least one coupled scene body (bodies or points)")
+            raise ValueError(".bodies: a MoorDyn mooring needs at least one coupled scene body (bodies or points)")
         if len(set(self.bodies)) != len(self.bodies):
-            raise ValueError(f"bodies: repeated body in {self.bodies}")
+            raise ValueError(f".bodies: repeated body in {self.bodies} (one scene body per coupled MoorDyn body)")
         return self
 
     @property

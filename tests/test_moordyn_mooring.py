@@ -31,7 +31,7 @@ FAIRLEAD_R = 10.0                                          # fairlead radius on 
 
 # -- MoorDyn input files -----------------------------------------------------------------------------
 def moordyn_file(path: Path, headings_deg, *, coupled: str = "body", origin=(0.0, 0.0, Z0), segments: int = 40,
-                 dtm: float = 2e-3, output_tail: bool = True) -> Path:
+                 dtm: float = 2e-3) -> Path:
     """A MoorDyn v2 input file: one chain line per heading, from an anchor on the seabed SPAN0 out to a
     fairlead FAIRLEAD_R out on a coupled body at ``origin`` (``coupled="body"``), or to coupled points
     at the same places (``coupled="points"``)."""
@@ -71,7 +71,7 @@ def moordyn_file(path: Path, headings_deg, *, coupled: str = "body", origin=(0.0
         f"{dtm} dtM\n{DEPTH} WtrDpth\n{RHO} WtrDnsty\n{G} g\n"
         "1.0 dtIC\n100 TmaxIC\n4.0 CdScaleIC\n1e-5 threshIC\n"
         "---------------------- OUTPUTS ----------------------\n"
-        "END\n" + ("---------------------- need this line ----------------------\n" if output_tail else ""))
+        "END\n---------------------- need this line ----------------------\n")
     path.write_text(text)
     return path
 
@@ -252,3 +252,102 @@ def test_surge_decay_equals_a_monolithic_integration_with_moordyn(tmp_path):
     assert err <= 1e-6, err
     err_mm = np.abs(results["mass-matrix"] - reference).max() / X0
     assert err_mm <= 5e-3, err_mm
+
+
+# -- results ----------------------------------------------------------------------------------------------
+def test_results_line_tension_mooring_force_and_nodes_with_coupled_points(tmp_path):
+    """The same spread coupled as three points on the body and as a coupled body: the same motion;
+    line_tension (time, line), mooring_force of the body and line_node_position (time, line, node,
+    xyz) in the results, the fairlead nodes on the body's points."""
+    from hydrolink.clients.run import run_scene_file
+    headings = [0.0, 120.0, 240.0]
+    (tmp_path / "points").mkdir()
+    moordyn_file(tmp_path / "lines.dat", headings, segments=24)
+    moordyn_file(tmp_path / "points" / "lines.dat", headings, coupled="points", segments=24)
+    hdbs = {"float.nc": constant_hdb()}
+    runs = {}
+    for name, folder, keys in (("body", tmp_path, {}),
+                               ("points", tmp_path / "points", {"bodies": [], "points": ["float"] * 3,
+                                                                 "record_nodes": True})):
+        scene = _decay_scene(folder, 0.05, 3.0, "mass-matrix", **keys)
+        summary = run_scene_file(scene, folder / "out.nc", progress=False, hdbs=hdbs)
+        runs[name] = ds = xr.load_dataset(folder / "out.nc")
+        assert ds.attrs["status"] == "complete" and summary["moordyn"][0]["lines"] == 3
+    a, b = runs["body"], runs["points"]
+    x = a["position"].values[:, 0, 0]
+    assert x[0] == X0 and x[-1] < X0 - 0.01                                    # it moves
+    np.testing.assert_allclose(b["position"].values[:, 0, 0], x, rtol=0, atol=1e-4 * X0)
+    assert list(a["line"].values) == ["spread:1", "spread:2", "spread:3"]
+    assert a["line_tension"].dims == ("time", "line") and "line_node_position" not in a
+    np.testing.assert_allclose(b["line_tension"].values, a["line_tension"].values, rtol=2e-3)
+    tension0 = a["line_tension"].values[0]
+    h0, v0 = catenary(math.hypot(SPAN0 * math.cos(0) - X0 - FAIRLEAD_R, 0.0), Z0 + DEPTH)
+    assert tension0[0] == pytest.approx(math.hypot(h0, v0), rel=0.01)
+    # the mooring force on the body: MoorDyn's coupled force (points: their forces moved to the
+    # reference point), the same both ways
+    fa, fb = a["mooring_force"].values[:, 0], b["mooring_force"].values[:, 0]
+    np.testing.assert_allclose(fb[:, :3], fa[:, :3], rtol=0, atol=2e-3 * np.abs(fa[:, 2]).max())
+    # nodes: anchors fixed on the seabed, fairleads on the body's points
+    nodes = b["line_node_position"].values                     # (time, line, node, xyz)
+    assert nodes.shape == (x.size, 3, 25, 3)
+    for k, h in enumerate(np.radians(headings)):
+        np.testing.assert_allclose(nodes[:, k, 0], np.tile([SPAN0 * math.cos(h), SPAN0 * math.sin(h), -DEPTH], (x.size, 1)),
+                                   atol=1e-9)
+        fair = np.column_stack([b["position"].values[:, 0, 0] + FAIRLEAD_R * math.cos(h),
+                                np.full(x.size, FAIRLEAD_R * math.sin(h)), np.full(x.size, Z0)])
+        # (MoorDyn's fairlead ends each step at the predicted pose: O(dt³) from where the body ends)
+        np.testing.assert_allclose(nodes[:, k, -1], fair, atol=1e-4)
+
+
+# -- errors -------------------------------------------------------------------------------------------------
+def test_scene_errors_name_the_key():
+    base = dict(dt=0.1, duration=1.0, bodies=[dry_float()])
+    with pytest.raises(SceneError, match=r"moorings\[0\]\.bodies\[0\]: no body named 'buoy'"):
+        parse_scene(scene_toml(**base, moorings=[mooring(bodies=["buoy"])]))
+    with pytest.raises(SceneError, match=r"moorings\[0\].*at least one coupled scene body"):
+        parse_scene(scene_toml(**base, moorings=[mooring(bodies=[])]))
+    with pytest.raises(SceneError, match=r"moorings\[1\]\.name: duplicate mooring name 'spread'"):
+        parse_scene(scene_toml(**base, moorings=[mooring(), mooring()]))
+
+
+def test_file_errors_name_the_file_and_key(tmp_path):
+    """Missing file, a file MoorDyn rejects, a coupled count that does not match the scene: one
+    SceneError naming the scene, the key and the file. (A file that crashes MoorDyn's reader — an
+    OUTPUTS section without a closing "---" line reads past the end of its buffer — crashes only
+    sometimes, so it is not tested here; the child process turns a crash into the same SceneError.)"""
+    from hydrolink.clients.moordyn_mooring import load_moordyn_files
+    text = scene_toml(dt=0.1, duration=1.0, bodies=[dry_float()], moorings=[mooring()])
+    path = write_scene(tmp_path, text)
+    scene = parse_scene(text, path)
+    with pytest.raises(SceneError, match=r"scene\.toml: moorings\[0\]\.file: MoorDyn input file not found: .*lines\.dat"):
+        load_moordyn_files(scene, path)
+    f = moordyn_file(tmp_path / "lines.dat", [0.0])
+    f.write_text(f.read_text().replace("1 chain 1 2", "1 chain 1 7"))
+    with pytest.raises(SceneError, match=r"moorings\[0\]\.file: .*lines\.dat: MoorDyn could not read it: "):
+        load_moordyn_files(scene, path)
+    moordyn_file(tmp_path / "lines.dat", [0.0], coupled="points")
+    with pytest.raises(SceneError, match=r"moorings\[0\]\.bodies: lines\.dat has 0 coupled bodies, moorings\[0\]\.bodies "
+                                         r"lists 1 scene body \['float'\]"):
+        load_moordyn_files(scene, path)
+
+
+def test_moordyn_failure_mid_run_names_the_file_and_step_and_keeps_the_rows(tmp_path):
+    """dtM too large for the line's axial stiffness: MoorDyn reports NaN node positions a few steps
+    in; the run stops with one line naming the mooring, its file and the step; rows are kept."""
+    from hydrolink.clients.lockstep import RunInterrupted
+    from hydrolink.clients.run import run_scene_file
+    moordyn_file(tmp_path / "lines.dat", [0.0], dtm=0.01)
+    with pytest.raises(RunInterrupted, match=r"^MoorDyn failed at step (\d+) \(t = [\d.]+ s\): moorings\[0\] \(.*lines\.dat\): "
+                                             r".*NaN.*; the \1 rows before it are saved in .*out\.nc$") as info:
+        run_scene_file(_decay_scene(tmp_path, 0.05, 5.0, "mass-matrix"), tmp_path / "out.nc", progress=False,
+                       hdbs={"float.nc": constant_hdb()})
+    ds = xr.load_dataset(tmp_path / "out.nc")
+    assert ds.sizes["time"] == info.value.rows > 0 and ds.attrs["status"].startswith("interrupted: MoorDyn failed")
+
+
+def test_steady_refuses_moordyn_moorings(tmp_path):
+    from hydrolink.clients.steady import SteadyError, check_scene
+    scene = parse_scene(scene_toml(dt=0.1, duration=1.0, bodies=[dry_float()], waves=regular_waves(1.0, 8.0),
+                                   moorings=[mooring()]))
+    with pytest.raises(SteadyError, match=r"moorings\[0\].*MoorDyn moorings are not supported by hydrolink steady"):
+        check_scene(scene)
