@@ -277,7 +277,9 @@ def build_model(scene: Scene, setup: Setup | None, *, spectral_radius: float = 1
         sd, shape = mbs.systemData, (len(all_names), 6)
         q0 = np.append(sd.GetODE2Coordinates(configuration=exu.ConfigurationType.Initial), 0.0)
         v0 = np.append(sd.GetODE2Coordinates_t(configuration=exu.ConfigurationType.Initial), 0.0)
-        moorings.start_moordyn(mbs, reference + q0[body_index].reshape(shape), v0[body_index].reshape(shape))
+        pose0 = reference + q0[body_index].reshape(shape)
+        moorings.start_moordyn(mbs, pose0, v0[body_index].reshape(shape))
+        _moordyn_offsets(scene, moorings, pose0, all_names, names, stiffness)
     return ExudynModel(sc, mbs, exu.MainSolverImplicitSecondOrder(), ss, hydro, equilibrium,
                        active, stiffness, dt, mech, wet_index, all_names, reference, body_index,
                        np.array([all_names.index(nm) for nm in names], int), ptos, moorings,
@@ -319,6 +321,22 @@ def _add_pto_mooring_variables(writer, ptos: PTOSet | None, moorings: MooringSet
                             "mooring point (linear) / the attachment point (rope)")
 
 
+def _moordyn_offsets(scene: Scene, moorings: MooringSet, pose: np.ndarray, all_names: list[str],
+                     wet_names: list[str], stiffness: np.ndarray) -> None:
+    """Each MoorDyn system's static offset estimate (``static_offset = true``): the coupled bodies'
+    hydrostatic stiffness (wet; dry bodies: none) against the mooring's load at ``pose``."""
+    c = np.zeros((len(all_names), 6, 6))
+    for i, nm in enumerate(wet_names):
+        c[all_names.index(nm)] = stiffness[6 * i:6 * i + 6, 6 * i:6 * i + 6]
+    active = np.array([b.active_mask for b in scene.bodies], bool)
+    for system in moorings.moordyn:
+        if system.spec.static_offset:
+            system.offset, system.offset_residual = system.static_offset(pose, c, active)
+            for name, off in zip(system.names, system.offset):
+                log.info("%s: %s's static offset under the mooring: %s (m, rad)", system.key, name,
+                         np.array2string(off, precision=4))
+
+
 def _add_moordyn_variables(writer, moorings: MooringSet) -> None:
     """Declare the MoorDyn outputs: ``line_tension`` (dim ``line``: "mooring:k", MoorDyn's line k)
     and, when a system records them, ``line_node_position`` (line, node, xyz)."""
@@ -336,9 +354,12 @@ def _add_moordyn_variables(writer, moorings: MooringSet) -> None:
 
 def _moordyn_report(moorings: MooringSet) -> list[dict]:
     """What each MoorDyn system started from: its file, lines, the fairlead tensions and the loads
-    on the coupled bodies after MoorDyn's initial-condition solve."""
+    on the coupled bodies after MoorDyn's initial-condition solve, and the bodies' static offset
+    under those loads (m, rad; None with static_offset = false) with the out-of-balance load left."""
     return [{"mooring": s.spec.name, "file": str(s.layout.path), "lines": s.n_lines, "bodies": s.names,
-             "initial_line_tension": s.tensions().tolist(), "initial_load": s.initial_loads.tolist()}
+             "initial_line_tension": s.tensions().tolist(), "initial_load": s.initial_loads.tolist(),
+             "static_offset": None if s.offset is None else s.offset.tolist(),
+             "static_offset_residual": s.offset_residual}
             for s in moorings.moordyn]
 
 

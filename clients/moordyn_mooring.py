@@ -228,6 +228,8 @@ class MoorDynSystem:
         self.n_lines = layout.lines
         self.loads = np.zeros((len(self.names), 6))
         self.initial_loads = np.zeros((len(self.names), 6))
+        self.offset: np.ndarray | None = None          # static offset under the mooring (static_offset)
+        self.offset_residual = 0.0
         self.instance = None
         self._quiet = _Quiet()
         self._lines: list = []
@@ -302,6 +304,73 @@ class MoorDynSystem:
         self._quiet.clear()
         self.loads = self.initial_loads = self._to_bodies(f0, pose)
         return self.loads
+
+    def loads_at(self, pose: np.ndarray) -> np.ndarray:
+        """The loads (len(names), 6) after MoorDyn's initial-condition solve with the bodies held at
+        ``pose`` (B, 6), from a separate MoorDyn instance (the running one is left alone)."""
+        import moordyn
+        x = self._coupled(pose)
+        zero = [0.0] * x.size
+        cwd = os.getcwd()
+        try:
+            with self._quiet():
+                os.chdir(self.layout.path.parent)
+                try:
+                    m = moordyn.Create(str(self.layout.path))
+                    moordyn.Init(m, x.tolist(), zero)
+                    f = np.asarray(moordyn.Step(m, x.tolist(), zero, 0.0, 0.0), float)
+                    moordyn.Close(m)
+                finally:
+                    os.chdir(cwd)
+        except (RuntimeError, ValueError) as exc:
+            raise self._fail(f"MoorDyn failed in the static offset estimate: {exc}") from None
+        return self._to_bodies(f, pose)
+
+    def static_offset(self, pose: np.ndarray, stiffness: np.ndarray, active: np.ndarray,
+                      iterations: int = 6, tolerance: float = 1e-3) -> tuple[np.ndarray, float]:
+        """Offset (len(names), 6) of the coupled bodies from ``pose`` (B, 6) at which their restoring
+        force −C Δ (``stiffness`` (B, 6, 6) about the reference points; zero for dry bodies) balances
+        the mooring's load, over their ``active`` (B, 6) DOFs, the other bodies held where they are
+        (joints and PTOs are not part of it). Chord Newton: the mooring's stiffness by one-sided
+        finite differences (0.1 m, 0.01 rad) of MoorDyn's initial-condition solve, then one solve per
+        iteration until the out-of-balance load is below ``tolerance`` × the initial one. Returns the
+        offset and the remaining out-of-balance load (N, N m)."""
+        rows = [self._row_of[n] for n in self.names]
+        dofs = [(j, d) for j, r in enumerate(rows) for d in range(6) if active[r, d]]
+        offset = np.zeros((len(self.names), 6))
+        if not dofs:
+            return offset, 0.0
+
+        def vec(a: np.ndarray) -> np.ndarray:
+            return np.array([a[j, d] for j, d in dofs])
+
+        def moved(delta: np.ndarray) -> np.ndarray:
+            p = pose.copy()
+            for (j, d), x in zip(dofs, delta):
+                p[rows[j], d] += x
+            return p
+
+        c = np.array([[stiffness[rows[j], d, e] if j == k else 0.0 for k, e in dofs] for j, d in dofs])
+        f0 = vec(self.initial_loads)
+        k_moor = np.zeros((len(dofs), len(dofs)))
+        for i, (j, d) in enumerate(dofs):
+            step = 0.1 if d < 3 else 0.01
+            e = np.zeros(len(dofs))
+            e[i] = step
+            k_moor[:, i] = -(vec(self.loads_at(moved(e))) - f0) / step
+        k = c + k_moor
+        delta, f = np.zeros(len(dofs)), f0
+        scale = max(float(np.abs(f0).max()), 1e-300)
+        for _ in range(iterations):
+            r = f - c @ delta
+            if float(np.abs(r).max()) <= tolerance * scale:
+                break
+            delta = delta + np.linalg.lstsq(k, r, rcond=None)[0]
+            f = vec(self.loads_at(moved(delta)))
+        r = f - c @ delta
+        for (j, d), x in zip(dofs, delta):
+            offset[j, d] = x
+        return offset, float(np.abs(r).max())
 
     def step(self, t0: float, dt: float, pose0: np.ndarray, pose1: np.ndarray) -> np.ndarray:
         """Advance MoorDyn over [t0, t0 + dt] with the bodies moving linearly from ``pose0`` to

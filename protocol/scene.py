@@ -433,13 +433,19 @@ class MoorDynMooring(_Section):
     body's reference point and Tait-Bryan xyz angles; the file's points on a coupled body are
     relative to that reference point); points: the scene body each of the file's coupled points is
     fixed to, in the file's order (where the file puts the point at t = 0 is where it sits on that
-    body). record_nodes: line node positions in the results (time, line, node, xyz)."""
+    body). record_nodes: line node positions in the results (time, line, node, xyz). static_offset:
+    estimate the bodies' equilibrium offset under the mooring at t = 0 (their restoring force
+    against the mooring's load; reported, the run still starts where the scene says)."""
     name: Name
     type: Literal["moordyn"]
     file: Annotated[str, Field(min_length=1)]
     bodies: list[Name] = []
     points: list[Name] = []
     record_nodes: bool = False
+    # estimate the coupled bodies' static offset under the mooring's pretension at t = 0 (reported
+    # in the run summary and the results' moordyn attribute; costs 1 + DOFs + iterations MoorDyn
+    # initial-condition solves)
+    static_offset: bool = True
 
     @model_validator(mode="after")
     def _coupled(self) -> "MoorDynMooring":

@@ -4,6 +4,7 @@ constant added mass and damping that calls MoorDyn directly (dynamic)."""
 
 from __future__ import annotations
 
+import json
 import math
 import os
 from contextlib import contextmanager
@@ -137,7 +138,7 @@ def test_static_tension_and_restoring_force_against_the_elastic_catenary(tmp_pat
     from hydrolink.clients.moordyn_mooring import read_layout
     layouts = {0: read_layout(moordyn_file(tmp_path / "lines.dat", headings))}
     for dx in (6.0, -9.0) if len(headings) > 1 else (0.0, 6.0, -9.0):
-        model = _model(tmp_path, scene_toml(dt=0.01, duration=0.01, progress=False, moorings=[mooring()],
+        model = _model(tmp_path, scene_toml(dt=0.01, duration=0.01, progress=False, moorings=[mooring(static_offset=False)],
                                             bodies=[dry_float(dofs=["surge"], initial_displacement=[dx, 0, 0, 0, 0, 0])]),
                        layouts)
         try:
@@ -222,7 +223,7 @@ def _decay_scene(tmp_path: Path, dt: float, duration: float, scheme: str, **moor
         coupling={"scheme": scheme, "tolerance": 1e-10, "max_iterations": 100} if scheme == "implicit" else {"scheme": scheme},
         bodies=[body("float", hdb="float.nc", mass=MASS, center_of_mass=[0, 0, Z0], inertia=[1e6] * 3, dofs=["surge"],
                      initial_displacement=[X0, 0, 0, 0, 0, 0])],
-        moorings=[mooring(**mooring_keys)]), f"decay_{scheme}.toml")
+        moorings=[mooring(**{"static_offset": False, **mooring_keys})]), f"decay_{scheme}.toml")
 
 
 def test_surge_decay_equals_a_monolithic_integration_with_moordyn(tmp_path):
@@ -351,3 +352,30 @@ def test_steady_refuses_moordyn_moorings(tmp_path):
                                    moorings=[mooring()]))
     with pytest.raises(SteadyError, match=r"moorings\[0\].*MoorDyn moorings are not supported by hydrolink steady"):
         check_scene(scene)
+
+
+def test_static_offset_under_pretension_against_the_catenary(tmp_path):
+    """A wet body (heave stiffness C33, surge free) on the three-line spread: the reported static
+    offset is where C33 Δz balances the three lines' vertical pull at the lowered fairleads (the
+    elastic catenary), and no surge offset (symmetric spread)."""
+    from hydrolink.clients.run import run_scene_file
+    from scipy.optimize import brentq
+    headings = [0.0, 120.0, 240.0]
+    moordyn_file(tmp_path / "lines.dat", headings, segments=24)
+    scene = write_scene(tmp_path, scene_toml(
+        dt=0.05, duration=0.1, progress=False, water={"density": RHO, "depth": DEPTH},
+        waves=regular_waves(0.0, 8.0), hydro={"radiation": "constant"},
+        bodies=[body("float", hdb="float.nc", mass=MASS, center_of_mass=[0, 0, Z0], inertia=[1e6] * 3,
+                     dofs=["surge", "heave"])],
+        moorings=[mooring()]))
+    summary = run_scene_file(scene, tmp_path / "out.nc", progress=False, hdbs={"float.nc": constant_hdb()})
+    report = summary["moordyn"][0]
+    offset = np.asarray(report["static_offset"])[0]
+    c33 = 3e5                                                  # constant_hdb's heave stiffness
+    dz = brentq(lambda z: c33 * z + len(headings) * catenary(SPAN0 - FAIRLEAD_R, Z0 + z + DEPTH)[1], -5.0, 0.0)
+    assert dz < -0.3
+    assert offset[2] == pytest.approx(dz, rel=0.01)
+    assert abs(offset[0]) < 1e-3 and not np.any(offset[3:])
+    assert report["static_offset_residual"] < 1e-3 * c33 * abs(dz)
+    with xr.open_dataset(tmp_path / "out.nc") as ds:
+        assert json.loads(ds.attrs["moordyn"])[0]["static_offset"] == report["static_offset"]
