@@ -279,7 +279,7 @@ def build_model(scene: Scene, setup: Setup | None, *, spectral_radius: float = 1
         v0 = np.append(sd.GetODE2Coordinates_t(configuration=exu.ConfigurationType.Initial), 0.0)
         pose0 = reference + q0[body_index].reshape(shape)
         moorings.start_moordyn(mbs, pose0, v0[body_index].reshape(shape))
-        _moordyn_offsets(scene, moorings, pose0, all_names, names, stiffness)
+        _moordyn_offsets(scene, moorings, pose0, pose0 - reference, all_names, names, stiffness)
     return ExudynModel(sc, mbs, exu.MainSolverImplicitSecondOrder(), ss, hydro, equilibrium,
                        active, stiffness, dt, mech, wet_index, all_names, reference, body_index,
                        np.array([all_names.index(nm) for nm in names], int), ptos, moorings,
@@ -321,20 +321,22 @@ def _add_pto_mooring_variables(writer, ptos: PTOSet | None, moorings: MooringSet
                             "mooring point (linear) / the attachment point (rope)")
 
 
-def _moordyn_offsets(scene: Scene, moorings: MooringSet, pose: np.ndarray, all_names: list[str],
-                     wet_names: list[str], stiffness: np.ndarray) -> None:
+def _moordyn_offsets(scene: Scene, moorings: MooringSet, pose: np.ndarray, displacement: np.ndarray,
+                     all_names: list[str], wet_names: list[str], stiffness: np.ndarray) -> None:
     """Each MoorDyn system's static offset estimate (``static_offset = true``): the coupled bodies'
-    hydrostatic stiffness (wet; dry bodies: none) against the mooring's load at ``pose``."""
+    displacement from their reference positions where their hydrostatic stiffness (wet; dry
+    bodies: none) balances the mooring's load, from their initial ``pose`` (= reference +
+    ``displacement``)."""
     c = np.zeros((len(all_names), 6, 6))
     for i, nm in enumerate(wet_names):
         c[all_names.index(nm)] = stiffness[6 * i:6 * i + 6, 6 * i:6 * i + 6]
     active = np.array([b.active_mask for b in scene.bodies], bool)
     for system in moorings.moordyn:
         if system.spec.static_offset:
-            system.offset, system.offset_residual = system.static_offset(pose, c, active)
+            system.offset, system.offset_residual = system.static_offset(pose, displacement, c, active)
             for name, off in zip(system.names, system.offset):
-                log.info("%s: %s's static offset under the mooring: %s (m, rad)", system.key, name,
-                         np.array2string(off, precision=4))
+                log.info("%s: %s's moored equilibrium is %s (m, rad) from its reference position (its "
+                         "initial_displacement to start there)", system.key, name, np.array2string(off, precision=4))
 
 
 def _add_moordyn_variables(writer, moorings: MooringSet) -> None:
@@ -355,7 +357,8 @@ def _add_moordyn_variables(writer, moorings: MooringSet) -> None:
 def _moordyn_report(moorings: MooringSet) -> list[dict]:
     """What each MoorDyn system started from: its file, lines, the fairlead tensions and the loads
     on the coupled bodies after MoorDyn's initial-condition solve, and the bodies' static offset
-    under those loads (m, rad; None with static_offset = false) with the out-of-balance load left."""
+    under the mooring — their displacement from the reference position at the moored equilibrium,
+    m and rad (None with static_offset = false) — with the out-of-balance load left."""
     return [{"mooring": s.spec.name, "file": str(s.layout.path), "lines": s.n_lines, "bodies": s.names,
              "initial_line_tension": s.tensions().tolist(), "initial_load": s.initial_loads.tolist(),
              "static_offset": None if s.offset is None else s.offset.tolist(),
@@ -697,6 +700,11 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup | None, writer, 
     if moordyn is not None:
         _add_moordyn_variables(writer, model.moorings)
         writer.set_attribute("moordyn", json.dumps(moordyn))
+        for system in model.moorings.moordyn:
+            note = system.step_note(h)
+            if note:
+                warnings.append(note)
+                log.warning("%s", note)
     control = None
     if scene.controllers:
         if n == 0:

@@ -238,6 +238,7 @@ class MoorDynSystem:
         self._cpoints: list = []                       # MoorDyn's coupled points, file order
         self._point_velocity = np.zeros((len(spec.points), 3))   # passed at the last step
         self.steps = 0
+        self.dtm = 0.0                                   # MoorDyn's own step (from its file)
 
     # -- kinematics --------------------------------------------------------------------------------
     def _points(self, pose: np.ndarray) -> np.ndarray:
@@ -301,9 +302,19 @@ class MoorDynSystem:
         # the fairlead end of each line: the end nearer the surface at t = 0
         self._fairlead = [n if moordyn.GetLineNodePos(line, n)[2] >= moordyn.GetLineNodePos(line, 0)[2] else 0
                           for line, n in zip(self._lines, self._nodes)]
+        import cmoordyn          # moordyn.GetDt (2.7.2) drops the value it gets from here
+        self.dtm = float(cmoordyn.get_dt(self.instance))
         self._quiet.clear()
         self.loads = self.initial_loads = self._to_bodies(f0, pose)
         return self.loads
+
+    def step_note(self, dt: float) -> str | None:
+        """Why ``dt`` (the multibody step) does not suit MoorDyn's dtM (None when it does)."""
+        n = dt / self.dtm
+        if abs(n - round(n)) <= 1e-6 * max(n, 1.0):
+            return None
+        return (f"{self.key}: simulation.dt = {dt:g} s is not a multiple of dtM = {self.dtm:g} s in {self.layout.path.name}: "
+                f"MoorDyn takes {math.ceil(n - 1e-9)} substeps per step, the last one shorter; make dt a multiple of dtM")
 
     def loads_at(self, pose: np.ndarray) -> np.ndarray:
         """The loads (len(names), 6) after MoorDyn's initial-condition solve with the bodies held at
@@ -326,20 +337,21 @@ class MoorDynSystem:
             raise self._fail(f"MoorDyn failed in the static offset estimate: {exc}") from None
         return self._to_bodies(f, pose)
 
-    def static_offset(self, pose: np.ndarray, stiffness: np.ndarray, active: np.ndarray,
-                      iterations: int = 6, tolerance: float = 1e-3) -> tuple[np.ndarray, float]:
-        """Offset (len(names), 6) of the coupled bodies from ``pose`` (B, 6) at which their restoring
-        force −C Δ (``stiffness`` (B, 6, 6) about the reference points; zero for dry bodies) balances
-        the mooring's load, over their ``active`` (B, 6) DOFs, the other bodies held where they are
-        (joints and PTOs are not part of it). Chord Newton: the mooring's stiffness by one-sided
-        finite differences (0.1 m, 0.01 rad) of MoorDyn's initial-condition solve, then one solve per
-        iteration until the out-of-balance load is below ``tolerance`` × the initial one. Returns the
-        offset and the remaining out-of-balance load (N, N m)."""
+    def static_offset(self, pose: np.ndarray, displacement: np.ndarray, stiffness: np.ndarray,
+                      active: np.ndarray, iterations: int = 6, tolerance: float = 1e-3) -> tuple[np.ndarray, float]:
+        """Displacement (len(names), 6) from their reference positions at which the coupled bodies'
+        restoring force −C x (``stiffness`` (B, 6, 6) about the reference points; zero for dry
+        bodies) balances the mooring's load, over their ``active`` (B, 6) DOFs, starting from the
+        bodies' ``pose`` (B, 6) = reference + ``displacement`` (B, 6) where MoorDyn was started; the
+        other bodies are held (joints and PTOs are not part of it). Chord Newton: the mooring's
+        stiffness by one-sided finite differences (0.1 m, 0.01 rad) of MoorDyn's initial-condition
+        solve, then one solve per iteration until the out-of-balance load is below ``tolerance`` ×
+        the mooring's load. Returns the displacement and the out-of-balance load left (N, N m)."""
         rows = [self._row_of[n] for n in self.names]
         dofs = [(j, d) for j, r in enumerate(rows) for d in range(6) if active[r, d]]
-        offset = np.zeros((len(self.names), 6))
+        out = displacement[rows].copy()
         if not dofs:
-            return offset, 0.0
+            return out, 0.0
 
         def vec(a: np.ndarray) -> np.ndarray:
             return np.array([a[j, d] for j, d in dofs])
@@ -351,6 +363,7 @@ class MoorDynSystem:
             return p
 
         c = np.array([[stiffness[rows[j], d, e] if j == k else 0.0 for k, e in dofs] for j, d in dofs])
+        q0 = vec(displacement[rows])
         f0 = vec(self.initial_loads)
         k_moor = np.zeros((len(dofs), len(dofs)))
         for i, (j, d) in enumerate(dofs):
@@ -362,15 +375,15 @@ class MoorDynSystem:
         delta, f = np.zeros(len(dofs)), f0
         scale = max(float(np.abs(f0).max()), 1e-300)
         for _ in range(iterations):
-            r = f - c @ delta
+            r = f - c @ (q0 + delta)
             if float(np.abs(r).max()) <= tolerance * scale:
                 break
             delta = delta + np.linalg.lstsq(k, r, rcond=None)[0]
             f = vec(self.loads_at(moved(delta)))
-        r = f - c @ delta
-        for (j, d), x in zip(dofs, delta):
-            offset[j, d] = x
-        return offset, float(np.abs(r).max())
+        r = f - c @ (q0 + delta)
+        for (j, d), x in zip(dofs, q0 + delta):
+            out[j, d] = x
+        return out, float(np.abs(r).max())
 
     def step(self, t0: float, dt: float, pose0: np.ndarray, pose1: np.ndarray) -> np.ndarray:
         """Advance MoorDyn over [t0, t0 + dt] with the bodies moving linearly from ``pose0`` to

@@ -379,3 +379,12 @@ def test_static_offset_under_pretension_against_the_catenary(tmp_path):
     assert report["static_offset_residual"] < 1e-3 * c33 * abs(dz)
     with xr.open_dataset(tmp_path / "out.nc") as ds:
         assert json.loads(ds.attrs["moordyn"])[0]["static_offset"] == report["static_offset"]
+
+
+def test_a_step_that_is_not_a_multiple_of_dtm_is_a_warning(tmp_path):
+    from hydrolink.clients.run import run_scene_file
+    moordyn_file(tmp_path / "lines.dat", [0.0], segments=12, dtm=0.003)
+    summary = run_scene_file(_decay_scene(tmp_path, 0.05, 0.1, "mass-matrix"), tmp_path / "out.nc", progress=False,
+                             hdbs={"float.nc": constant_hdb()})
+    assert summary["warnings"] == ["moorings[0]: simulation.dt = 0.05 s is not a multiple of dtM = 0.003 s in lines.dat: "
+                                   "MoorDyn takes 17 substeps per step, the last one shorter; make dt a multiple of dtM"]
