@@ -276,9 +276,8 @@ def build_model(scene: Scene, setup: Setup | None, *, spectral_radius: float = 1
     if moorings is not None and moorings.moordyn:
         sd, shape = mbs.systemData, (len(all_names), 6)
         q0 = np.append(sd.GetODE2Coordinates(configuration=exu.ConfigurationType.Initial), 0.0)
-        v0 = np.append(sd.GetODE2Coordinates_t(configuration=exu.ConfigurationType.Initial), 0.0)
         pose0 = reference + q0[body_index].reshape(shape)
-        moorings.start_moordyn(mbs, pose0, v0[body_index].reshape(shape))
+        moorings.start_moordyn(mbs, pose0)
         _moordyn_offsets(scene, moorings, pose0, pose0 - reference, all_names, names, stiffness)
     return ExudynModel(sc, mbs, exu.MainSolverImplicitSecondOrder(), ss, hydro, equilibrium,
                        active, stiffness, dt, mech, wet_index, all_names, reference, body_index,

@@ -271,13 +271,14 @@ class MoorDynSystem:
     def _fail(self, why: str) -> MoorDynFailure:
         return MoorDynFailure(f"{self.label}: {why} (MoorDyn: {self._quiet.said()})")
 
-    def start(self, pose: np.ndarray, velocity: np.ndarray) -> np.ndarray:
-        """Create the instance and run MoorDyn's initial-condition solve with the bodies at ``pose``
-        (B, 6) moving at ``velocity`` (B, 6); returns the loads at t = 0."""
+    def start(self, pose: np.ndarray) -> np.ndarray:
+        """Create the instance and run MoorDyn's initial-condition solve with the bodies held at
+        ``pose`` (B, 6); returns the loads at t = 0. (The bodies are passed at rest: MoorDyn moves a
+        coupled body along its velocity during the solve. A body that starts moving enters the first
+        step's finite-difference inertia of the end nodes, M v0 / dt, once.)"""
         import moordyn
         x = self._coupled(pose)
-        eps = 1e-6
-        v = (self._coupled(pose + eps * velocity) - x) / eps
+        v = np.zeros_like(x)
         cwd = os.getcwd()
         try:
             with self._quiet():

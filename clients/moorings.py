@@ -311,10 +311,10 @@ class MooringSet:
             set_load(int(lf), "loadVector", f[:3])
             set_load(int(lt), "loadVector", f[3:])
 
-    def start_moordyn(self, mbs, pose: np.ndarray, velocity: np.ndarray) -> None:
+    def start_moordyn(self, mbs, pose: np.ndarray) -> None:
         """Initialise every MoorDyn system at the bodies' poses (B, 6) and set its loads at t = 0."""
         for k, system in enumerate(self.moordyn):
-            system.start(pose, velocity)
+            system.start(pose)
             self._set_moordyn_loads(mbs, k)
 
     def step_moordyn(self, mbs, t0: float, dt: float, pose0: np.ndarray, pose1: np.ndarray) -> None:
