@@ -278,7 +278,7 @@ def build_model(scene: Scene, setup: Setup | None, *, spectral_radius: float = 1
         q0 = np.append(sd.GetODE2Coordinates(configuration=exu.ConfigurationType.Initial), 0.0)
         pose0 = reference + q0[body_index].reshape(shape)
         moorings.start_moordyn(mbs, pose0)
-        _moordyn_offsets(scene, moorings, pose0, pose0 - reference, all_names, names, stiffness)
+        _moordyn_offsets(scene, moorings, pose0, pose0 - reference, all_names, names, stiffness, net)
     return ExudynModel(sc, mbs, exu.MainSolverImplicitSecondOrder(), ss, hydro, equilibrium,
                        active, stiffness, dt, mech, wet_index, all_names, reference, body_index,
                        np.array([all_names.index(nm) for nm in names], int), ptos, moorings,
@@ -321,18 +321,31 @@ def _add_pto_mooring_variables(writer, ptos: PTOSet | None, moorings: MooringSet
 
 
 def _moordyn_offsets(scene: Scene, moorings: MooringSet, pose: np.ndarray, displacement: np.ndarray,
-                     all_names: list[str], wet_names: list[str], stiffness: np.ndarray) -> None:
+                     all_names: list[str], wet_names: list[str], stiffness: np.ndarray,
+                     net_buoyancy: dict[str, float]) -> None:
     """Each MoorDyn system's static offset estimate (``static_offset = true``): the coupled bodies'
-    displacement from their reference positions where their hydrostatic stiffness (wet; dry
-    bodies: none) balances the mooring's load, from their initial ``pose`` (= reference +
-    ``displacement``)."""
+    displacement from their reference positions where their hydrostatic stiffness and net
+    buoyancy (wet) or constant weight and buoyancy (dry) balance the mooring's load, from their
+    initial ``pose`` (= reference + ``displacement``)."""
     c = np.zeros((len(all_names), 6, 6))
     for i, nm in enumerate(wet_names):
         c[all_names.index(nm)] = stiffness[6 * i:6 * i + 6, 6 * i:6 * i + 6]
+    g, rho = scene.water.gravity, scene.water.density
+    constant = np.zeros((len(all_names), 6))
+    for row, b in enumerate(scene.bodies):
+        if b.wet:
+            constant[row, 2] = net_buoyancy.get(b.name, 0.0)
+            continue
+        ref = body_reference(b)
+        com = np.asarray(b.center_of_mass, float)
+        cob = np.asarray(b.center_of_buoyancy if b.center_of_buoyancy is not None else com, float)
+        weight, lift = np.array([0.0, 0.0, -b.mass * g]), np.array([0.0, 0.0, rho * g * b.buoyancy_volume])
+        constant[row, :3] = weight + lift
+        constant[row, 3:] = np.cross(com - ref, weight) + np.cross(cob - ref, lift)
     active = np.array([b.active_mask for b in scene.bodies], bool)
     for system in moorings.moordyn:
         if system.spec.static_offset:
-            system.offset, system.offset_residual = system.static_offset(pose, displacement, c, active)
+            system.offset, system.offset_residual = system.static_offset(pose, displacement, c, constant, active)
             for name, off in zip(system.names, system.offset):
                 log.info("%s: %s's moored equilibrium is %s (m, rad) from its reference position (its "
                          "initial_displacement to start there)", system.key, name, np.array2string(off, precision=4))

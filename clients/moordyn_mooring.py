@@ -339,10 +339,12 @@ class MoorDynSystem:
         return self._to_bodies(f, pose)
 
     def static_offset(self, pose: np.ndarray, displacement: np.ndarray, stiffness: np.ndarray,
-                      active: np.ndarray, iterations: int = 6, tolerance: float = 1e-3) -> tuple[np.ndarray, float]:
+                      constant: np.ndarray, active: np.ndarray, iterations: int = 6,
+                      tolerance: float = 1e-3) -> tuple[np.ndarray, float]:
         """Displacement (len(names), 6) from their reference positions at which the coupled bodies'
         restoring force −C x (``stiffness`` (B, 6, 6) about the reference points; zero for dry
-        bodies) balances the mooring's load, over their ``active`` (B, 6) DOFs, starting from the
+        bodies) and ``constant`` loads (B, 6: a wet body's net buoyancy, a dry body's weight and
+        buoyancy) balance the mooring's load, over their ``active`` (B, 6) DOFs, starting from the
         bodies' ``pose`` (B, 6) = reference + ``displacement`` (B, 6) where MoorDyn was started; the
         other bodies are held (joints and PTOs are not part of it). Chord Newton: the mooring's
         stiffness by one-sided finite differences (0.1 m, 0.01 rad) of MoorDyn's initial-condition
@@ -365,13 +367,14 @@ class MoorDynSystem:
 
         c = np.array([[stiffness[rows[j], d, e] if j == k else 0.0 for k, e in dofs] for j, d in dofs])
         q0 = vec(displacement[rows])
-        f0 = vec(self.initial_loads)
+        f_const = vec(constant[rows])
+        f0 = vec(self.initial_loads) + f_const
         k_moor = np.zeros((len(dofs), len(dofs)))
         for i, (j, d) in enumerate(dofs):
             step = 0.1 if d < 3 else 0.01
             e = np.zeros(len(dofs))
             e[i] = step
-            k_moor[:, i] = -(vec(self.loads_at(moved(e))) - f0) / step
+            k_moor[:, i] = -(vec(self.loads_at(moved(e))) + f_const - f0) / step
         k = c + k_moor
         delta, f = np.zeros(len(dofs)), f0
         scale = max(float(np.abs(f0).max()), 1e-300)
@@ -380,7 +383,7 @@ class MoorDynSystem:
             if float(np.abs(r).max()) <= tolerance * scale:
                 break
             delta = delta + np.linalg.lstsq(k, r, rcond=None)[0]
-            f = vec(self.loads_at(moved(delta)))
+            f = vec(self.loads_at(moved(delta))) + f_const
         r = f - c @ (q0 + delta)
         for (j, d), x in zip(dofs, q0 + delta):
             out[j, d] = x

@@ -388,3 +388,36 @@ def test_a_step_that_is_not_a_multiple_of_dtm_is_a_warning(tmp_path):
                              hdbs={"float.nc": constant_hdb()})
     assert summary["warnings"] == ["moorings[0]: simulation.dt = 0.05 s is not a multiple of dtM = 0.003 s in lines.dat: "
                                    "MoorDyn takes 17 substeps per step, the last one shorter; make dt a multiple of dtM"]
+
+
+def test_static_offset_of_a_dry_body_with_spare_buoyancy(tmp_path):
+    """A dry body whose buoyancy exceeds its weight by the three lines' vertical pull (elastic
+    catenary) at 1 m above its reference: at the reported equilibrium MoorDyn, called directly,
+    pulls down by that spare buoyancy (to 1 % of the change of pull over that metre), and the
+    equilibrium is near 1 m (the lumped-mass lines' vertical stiffness is a difference of large
+    pulls: 0.1 % on the pull moves the equilibrium by 10 %)."""
+    from hydrolink.clients.moordyn_mooring import read_layout
+    headings = [0.0, 120.0, 240.0]
+    lift = len(headings) * catenary(SPAN0 - FAIRLEAD_R, Z0 + 1.0 + DEPTH)[1]            # N, net upward
+    path = moordyn_file(tmp_path / "lines.dat", headings, segments=24)
+    float_ = body("float", mass=2.0e5, center_of_mass=[0.0, 0.0, Z0], inertia=[1e7, 1e7, 1e7],
+                  buoyancy_volume=(2.0e5 * G + lift) / (RHO * G), dofs=["surge", "heave"])
+    model = _model(tmp_path, scene_toml(dt=0.01, duration=0.01, bodies=[float_], moorings=[mooring()]),
+                   {0: read_layout(path)})
+    try:
+        offset = model.moorings.moordyn[0].offset[0]
+    finally:
+        model.close()
+
+    def pull(dz: float) -> float:
+        with silenced():
+            m = moordyn.Create(str(path))
+            x = [0.0, 0.0, Z0 + dz, 0.0, 0.0, 0.0]
+            moordyn.Init(m, x, [0.0] * 6)
+            fz = moordyn.Step(m, x, [0.0] * 6, 0.0, 0.0)[2]
+            moordyn.Close(m)
+        return -fz
+
+    change = lift - len(headings) * catenary(SPAN0 - FAIRLEAD_R, Z0 + DEPTH)[1]
+    assert abs(pull(offset[2]) - lift) <= 0.01 * change
+    assert offset[2] == pytest.approx(1.0, rel=0.15) and abs(offset[0]) < 1e-3
