@@ -17,9 +17,11 @@ Coupling (:class:`MoorDynSystem`), MoorDyn's conventions (MoorDyn2.cpp ``Step``,
   at t + dt (a body: force and moment about its origin, global axes). The multibody step applies
   loads at its end (implicit integrators), so the step t_k -> t_k+1 is driven from the pose at t_k
   towards the pose the step ends in: x = pose(t_k), v = (pose_end - pose(t_k)) / dt, where pose_end
-  is predicted (x + dt v + dt²/2 a: the predictor of the explicit and mass-matrix schemes) or, when
-  the implicit scheme redoes the step, the end pose of its previous iteration (at convergence the
-  fairlead path ends exactly where the body does);
+  is predicted (x + dt v + dt²/2 a: the predictor of the explicit and mass-matrix schemes; the
+  fairlead then ends O(dt³) from the body) or, when the implicit scheme redoes the step, the end
+  pose of its previous iteration (the fairlead path converges to the body's with the iteration; what
+  is left is the last iteration's change of the end pose — a scene without wet bodies has no
+  server forces to iterate on, so its implicit steps are not redone and use the prediction);
 - a step advances MoorDyn's state (calling it twice is not idempotent): a redo restores it with
   ``Serialize``/``Deserialize`` (:meth:`MoorDynSystem.save` / :meth:`MoorDynSystem.restore`);
 - MoorDyn returns a coupled body's force less the inertia of what it carries (the line end nodes
