@@ -17,12 +17,13 @@ The **Pareto front** (per error measure and cost measure): the options no other 
 both cost and error (ties in both do not dominate). Outputs in the output folder:
 ``accuracy.md`` (table), ``accuracy.png`` (error against cost, front joined), ``accuracy.csv``.
 
-The grid (a TOML file, or CLI flags) names scene keys by their dotted path or a short alias::
+The grid (a TOML file, or CLI flags; the shared grid format of clients/grid.py) names scene keys by
+their dotted path (entries of arrays of tables by name: ``ptos.pto.damping``) or a short alias::
 
     duration = 60.0              # s, overrides simulation.duration of every run (optional)
     window = [20.0, 60.0]        # s, comparison window (optional)
     mode = "axes"                # "axes": one key varied at a time, the others at the reference;
-                                 # "product": every combination
+                                 # "product": every combination; "zip": the i-th values together
     [reference]                  # the reference run (default: the scene's own values, with the
     dt = 0.005                   #  smallest dt and the longest irf_duration of the grid)
     [grid]
@@ -42,171 +43,63 @@ The grid (a TOML file, or CLI flags) names scene keys by their dotted path or a 
 from __future__ import annotations
 
 import csv
-import itertools
 import json
 import math
 import shutil
 import sys
 import tempfile
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from pydantic import Field, field_validator
+
+from hydrolink.clients.grid import (ALIASES, SHORT, GridMode, GridSpec, Value, absolute_paths, combinations,  # noqa: F401
+                                    dump_toml, effective_value, full_key, get_key, set_key, short_key)
+from hydrolink.protocol.toml_model import validate_toml
 
 if sys.version_info >= (3, 11):
     import tomllib
 else:  # pragma: no cover
     import tomli as tomllib
 
-ALIASES = {
-    "dt": "simulation.dt",
-    "duration": "simulation.duration",
-    "irf_duration": "hydro.irf_duration",
-    "irf_taper": "hydro.irf_taper",
-    "radiation": "hydro.radiation",
-    "ss_tolerance": "hydro.ss_tolerance",
-    "excitation": "waves.excitation",
-    "excitation_irf_duration": "waves.excitation_irf_duration",
-    "coupling": "coupling.scheme",
-    "exchange_every": "coupling.exchange_every",
-    "between_exchanges": "coupling.between_exchanges",
-    "reduce": "client.reduce",
-}
-SHORT = {v: k for k, v in ALIASES.items()}
-
 
 class BenchError(ValueError):
     """A grid the bench cannot run; the message names the key."""
 
 
-def full_key(key: str) -> str:
-    return ALIASES.get(key, key)
+def _bench_error(source, key: str, why: str) -> BenchError:
+    return BenchError(f"{source}: {key}: {why}" if key else f"{source}: {why}")
 
 
-def short_key(key: str) -> str:
-    return SHORT.get(key, key)
-
-
-@dataclass
-class Grid:
-    grid: dict[str, list] = field(default_factory=dict)
-    reference: dict[str, Any] = field(default_factory=dict)
-    cases: list[dict[str, Any]] = field(default_factory=list)
-    mode: str = "axes"
-    duration: float | None = None
+class Grid(GridSpec):
+    """The bench's grid file: the shared grid (clients/grid.py; mode "axes" by default) plus the
+    reference run's keys, the simulated duration and the comparison window. Keys are held as
+    dotted scene keys (aliases resolved)."""
+    mode: GridMode = "axes"
+    reference: dict[str, Value] = {}
+    duration: float | None = Field(default=None, gt=0)
     window: tuple[float, float] | None = None
 
     @classmethod
     def from_toml(cls, path: str | Path) -> "Grid":
         path = Path(path)
         try:
-            raw = tomllib.loads(path.read_text())
-        except (OSError, tomllib.TOMLDecodeError) as exc:
+            text = path.read_text()
+        except OSError as exc:
             raise BenchError(f"{path}: {exc}") from None
-        known = {"grid", "reference", "cases", "mode", "duration", "window"}
-        for k in raw:
-            if k not in known:
-                raise BenchError(f"{path}: {k}: unknown key (known: {sorted(known)})")
-        g = cls(mode=raw.get("mode", "axes"), duration=raw.get("duration"),
-                window=tuple(raw["window"]) if "window" in raw else None)
-        for k, v in raw.get("grid", {}).items():
-            if not isinstance(v, list) or not v:
-                raise BenchError(f"{path}: grid.{k}: a non-empty list of values")
-            g.grid[full_key(k)] = v
-        g.reference = {full_key(k): v for k, v in raw.get("reference", {}).items()}
-        for i, c in enumerate(raw.get("cases", [])):
-            g.cases.append({(k if k == "label" else full_key(k)): v for k, v in c.items()})
+        g = validate_toml(text, path, cls, _bench_error)
+        g.grid = {full_key(k): v for k, v in g.grid.items()}
+        g.reference = {full_key(k): v for k, v in g.reference.items()}
+        g.cases = [{(k if k == "label" else full_key(k)): v for k, v in c.items()} for c in g.cases]
         g.check(str(path))
         return g
 
     def check(self, source: str = "grid") -> None:
-        if self.mode not in ("axes", "product"):
-            raise BenchError(f"{source}: mode: \"axes\" or \"product\" (got {self.mode!r})")
         if self.window is not None and (len(self.window) != 2 or not self.window[0] < self.window[1]):
             raise BenchError(f"{source}: window: [start, end] with start < end (got {list(self.window)})")
         if not self.grid and not self.cases:
             raise BenchError(f"{source}: no options: give [grid] keys, [[cases]] or CLI flags")
-
-
-# ------------------------------------------------------------------ scene documents
-
-def get_key(doc: dict, dotted: str, default=None):
-    cur = doc
-    for part in dotted.split("."):
-        if not isinstance(cur, dict) or part not in cur:
-            return default
-        cur = cur[part]
-    return cur
-
-
-def set_key(doc: dict, dotted: str, value) -> None:
-    parts = dotted.split(".")
-    cur = doc
-    for part in parts[:-1]:
-        cur = cur.setdefault(part, {})
-        if not isinstance(cur, dict):
-            raise BenchError(f"{dotted}: {part} is not a table in the scene")
-    cur[parts[-1]] = value
-
-
-def _toml_value(v) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, float):
-        if math.isnan(v):
-            return "nan"
-        if math.isinf(v):
-            return "inf" if v > 0 else "-inf"
-        return repr(v)
-    if isinstance(v, str):
-        return json.dumps(v)
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    if isinstance(v, dict):
-        return "{" + ", ".join(f"{json.dumps(k)} = {_toml_value(x)}" for k, x in v.items()) + "}"
-    raise BenchError(f"cannot write {v!r} to TOML")
-
-
-def dump_toml(doc: dict) -> str:
-    """TOML text of a scene document: top-level tables as [sections], lists of tables as [[...]],
-    deeper tables inline."""
-    out: list[str] = []
-    for k, v in doc.items():  # plain top-level keys first
-        if not isinstance(v, dict) and not (isinstance(v, list) and v and all(isinstance(x, dict) for x in v)):
-            out.append(f"{json.dumps(k)} = {_toml_value(v)}")
-    for k, v in doc.items():
-        if isinstance(v, dict):
-            out.append(f"\n[{k}]")
-            out += [f"{json.dumps(kk)} = {_toml_value(vv)}" for kk, vv in v.items()]
-        elif isinstance(v, list) and v and all(isinstance(x, dict) for x in v):
-            for item in v:
-                out.append(f"\n[[{k}]]")
-                out += [f"{json.dumps(kk)} = {_toml_value(vv)}" for kk, vv in item.items()]
-    return "\n".join(out) + "\n"
-
-
-def absolute_paths(doc: dict, scene_path: Path) -> dict:
-    """The scene document with its relative file paths (bodies[i].hdb, waves.file, client.fmu,
-    moorings[i].file) made absolute, so that it runs from any folder."""
-    base = scene_path.resolve().parent
-
-    def fix(p: str) -> str:
-        q = Path(p).expanduser()
-        return str(q if q.is_absolute() else (base / q).resolve())
-    for b in doc.get("bodies", []):
-        if "hdb" in b:
-            b["hdb"] = fix(b["hdb"])
-    if isinstance(doc.get("waves"), dict) and "file" in doc["waves"]:
-        doc["waves"]["file"] = fix(doc["waves"]["file"])
-    if isinstance(doc.get("client"), dict) and "fmu" in doc["client"]:
-        doc["client"]["fmu"] = fix(doc["client"]["fmu"])
-    for m in doc.get("moorings", []):
-        if "file" in m:
-            m["file"] = fix(m["file"])
-    return doc
 
 
 # ------------------------------------------------------------------ cases
@@ -223,13 +116,10 @@ def scene_value(doc: dict, key: str):
         return v
     from hydrolink.protocol.scene import Scene
     try:
-        obj: Any = Scene.model_validate(doc)
+        scene = Scene.model_validate(doc)
     except Exception:  # noqa: BLE001 - an invalid document has no defaults to offer
         return None
-    for part in key.split("."):
-        obj = getattr(obj, part, None)
-        if obj is None:
-            return None
+    obj = effective_value(scene, key)
     return obj if isinstance(obj, (int, float, str, bool)) else None
 
 
@@ -271,16 +161,12 @@ def make_cases(grid: Grid, reference: dict[str, Any]) -> list[tuple[str, dict[st
         if sig not in seen:
             seen.add(sig)
             out.append((label, full))
-    if grid.mode == "product" and grid.grid:
-        keys = list(grid.grid)
-        for combo in itertools.product(*(grid.grid[k] for k in keys)):
-            over = dict(zip(keys, combo))
+    for over in combinations(grid.grid, grid.mode):
+        if grid.mode == "product":
             changed = [f"{short_key(k)}={_fmt(v)}" for k, v in over.items() if reference.get(k) != v]
             add(", ".join(changed) or "reference", over)
-    else:
-        for k, values in grid.grid.items():
-            for v in values:
-                add(f"{short_key(k)}={_fmt(v)}", {k: v})
+        else:
+            add(", ".join(f"{short_key(k)}={_fmt(v)}" for k, v in over.items()), over)
     for c in grid.cases:
         over = {k: v for k, v in c.items() if k != "label"}
         add(c.get("label") or ", ".join(f"{short_key(k)}={_fmt(v)}" for k, v in over.items()), over)

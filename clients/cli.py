@@ -53,6 +53,15 @@ def cli(verbose: int) -> None:
     multibody client (Exudyn) over ZeroMQ."""
     level = logging.WARNING - 10 * min(verbose, 2)
     logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    if verbose < 2:   # -vv keeps Python's own format (file and line of the warning)
+        import warnings
+        warnings.showwarning = _show_warning
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """A warning as the user reads it: one plain line on stderr, no source file or line."""
+    text = " ".join(str(message).split())
+    print(f"warning: {text}", file=file or sys.stderr)
 
 
 @cli.group()
@@ -301,6 +310,44 @@ def bench_accuracy_cmd(scene: Path, grid_file: Path | None, dt, irf_duration, ra
     front = [r["label"] for r in rows if r["front_rms_error_us_per_step"]]
     click.echo(f"wrote {output / 'accuracy.md'}, {output / 'accuracy.png'}: {len(rows) - 1} options; "
                f"Pareto front (RMS error vs us/step): {front}")
+
+
+@cli.command("sweep")
+@click.argument("sweep_file", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("-o", "--output", type=click.Path(file_okay=False, path_type=Path),
+              help="Output folder (default: the sweep file's name, in the current folder); a folder of an "
+                   "earlier run of the same sweep is resumed: its finished cases are not run again.")
+@click.option("--workers", type=click.IntRange(1, 4096),
+              help="Local worker processes (one thread each); default: the CPUs this process may use.")
+@click.option("--scheduler", help="Address of a running Dask scheduler (tcp://HOST:8786) instead of local workers.")
+@click.option("--retry-failed", is_flag=True, help="Run the cases that failed in an earlier run again.")
+@click.option("--no-progress", is_flag=True, help="Hide the progress bar.")
+def sweep_cmd(sweep_file: Path, output: Path | None, workers: int | None, scheduler: str | None, retry_failed: bool,
+              no_progress: bool) -> None:
+    """Run every case of a SWEEP_FILE (TOML: a scene and a grid of its keys) on Dask; writes each
+    case's results, sweep.nc (one dimension per swept key), the power matrix / AEP and plots (docs/sweeps.md)."""
+    from hydrolink.clients.power_matrix import PowerMatrixError
+    from hydrolink.clients.sweep import SweepError, run_sweep
+
+    if workers and scheduler:
+        raise _UserError("--workers and --scheduler: give one (the scheduler's workers are its own)")
+    try:
+        report = _guard(run_sweep, sweep_file, output or Path(sweep_file.stem), workers=workers, scheduler=scheduler,
+                        retry_failed=retry_failed, progress=not no_progress, log_line=lambda m: click.echo(m, err=True))
+    except (SweepError, PowerMatrixError) as exc:
+        raise _UserError(str(exc)) from None
+    except KeyboardInterrupt:
+        click.echo("hydrolink sweep: interrupted (finished cases are kept; run the same command to resume)", err=True)
+        raise SystemExit(130) from None
+    for note in report.notes:
+        click.echo(f"note: {note}", err=True)
+    for line in report.annual_energy:
+        click.echo(line)
+    failed = f", {len(report.failed)} failed: {report.failed[:5]}{' ...' if len(report.failed) > 5 else ''}" \
+        if report.failed else ""
+    retried = f", {report.retried} re-run after a worker died" if report.retried else ""
+    click.echo(f"wrote {report.outdir}: {report.cases} cases ({report.skipped} finished before, {report.run} run"
+               f"{retried}{failed}) in {report.wall_time:.1f} s; {', '.join(Path(p).name for p in report.outputs)}")
 
 
 @cli.group()

@@ -141,4 +141,6 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
     if setup:  # radiation option and coupling pruning ([hydro] radiation, coupling_tolerance)
         for key in ("radiation", "radiation_pairs", "dropped_pair_fraction", "dropped_block_fraction"):
             summary[key] = getattr(setup, key)
+        # state-space pairs fitted in this setup (the rest came from the on-disk fit cache)
+        summary["state_space_fitted_pairs"] = setup.state_space.fitted_pairs if setup.state_space else None
     return summary

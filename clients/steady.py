@@ -570,15 +570,18 @@ def hydro_model(scene: Scene, hdbs: dict):
 
 
 def steady_scene_file(scene_path: str | Path, output: str | Path | None = None, *, order: int | None = None,
-                      formulation: str | None = None, dt: float | None = None, progress: bool = True) -> dict:
-    """``hydrolink steady``: load, linearise, solve, write; returns a summary."""
+                      formulation: str | None = None, dt: float | None = None, progress: bool = True,
+                      hdbs: dict | None = None) -> dict:
+    """``hydrolink steady``: load, linearise, solve, write; returns a summary. ``hdbs``: the scene's
+    HDBs already loaded (keyed by each body's ``hdb`` string, as :func:`load_scene_hdbs` returns them)."""
     from hydrolink.clients.run import load_scene_hdbs
     from hydrolink.protocol.scene import load_scene
 
     scene_path = Path(scene_path)
     scene, text = load_scene(scene_path)
     check_scene(scene)
-    hdbs = load_scene_hdbs(scene, scene_path, progress=progress)
+    if hdbs is None:
+        hdbs = load_scene_hdbs(scene, scene_path, progress=progress)
     wall0 = _time.perf_counter()
     model = hydro_model(scene, hdbs)
     setup = model.setup_info()

@@ -99,6 +99,17 @@ class IrregularWave(_Section):
     spreading: Literal["none", "cos2s"] = "none"
     s: Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)] | None = None     # default 10
     directions: Annotated[int, Field(ge=1, le=360)] | None = None                      # default 9
+    # rad/s: the band the components span (HydroDyn's WvLowCOff/WvHiCOff); the spectrum's energy
+    # outside it is left out by the scene's choice. Default: the HDB's whole range (and a setup
+    # warning when more than 1 % of the energy falls outside it)
+    omega_range: tuple[PositiveFloat, PositiveFloat] | None = None
+
+    @field_validator("omega_range")
+    @classmethod
+    def _band(cls, band):
+        if band is not None and not band[0] < band[1]:
+            raise ValueError(f"[low, high] in rad/s with low < high (got {list(band)})")
+        return band
 
     @model_validator(mode="after")
     def _spreading_keys(self) -> "IrregularWave":

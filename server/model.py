@@ -240,7 +240,7 @@ class HydroModel:
                                 f"{np.round(np.rad2deg(self._headings), 2).tolist()} deg; reduce the spreading or "
                                 "give an HDB with headings covering them)")
                     raise ModelError(key, f"{why} (HDB {src!r})") from None
-        if self.waves.energy_outside > 0.01:
+        if self.waves.energy_outside > 0.01 and scene.waves.omega_range is None:   # irregular only
             self.warnings.append(f"waves: {100 * self.waves.energy_outside:.2g} % of the spectrum's energy lies "
                                  f"outside the HDB range {lo:.3g}-{hi:.3g} rad/s and is left out")
 

@@ -143,6 +143,12 @@ def wave_components(waves, omega_min: float, omega_max: float) -> WaveComponents
             spec = jonswap_spectrum(waves.hs, waves.tp, waves.gamma)
         else:
             spec = lambda w: pierson_moskowitz(w, waves.hs, waves.tp)  # noqa: E731
+        if waves.omega_range is not None:
+            lo, hi = waves.omega_range
+            if lo < omega_min * (1 - 1e-9) or hi > omega_max * (1 + 1e-9):
+                raise WaveError("waves.omega_range", f"[{lo:g}, {hi:g}] rad/s reaches outside the HDB's range "
+                                f"{omega_min:.4g}-{omega_max:.4g} rad/s")
+            omega_min, omega_max = lo, hi
         edges = np.linspace(omega_min, omega_max, waves.components + 1)
         dw = edges[1] - edges[0]
         w = 0.5 * (edges[:-1] + edges[1:])

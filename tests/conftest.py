@@ -188,6 +188,15 @@ def rm3_pto(damping: float = 1.2e6) -> dict[str, Any]:
     return linear_pto("pto", "float", [0.0, 0.0, -0.72], "spar", [0.0, 0.0, -21.29], damping=damping)
 
 
+def sweep_toml(scene: str | Path, *, set: Section | None = None, grid: Section | None = None,
+               site: Section | None = None, cases: Sequence[Section] = (), **top: Any) -> str:
+    """Sweep TOML text (``hydrolink sweep``): ``scene`` and the other top-level keys (mode, solver,
+    window, ...), then [set], [grid], [site] and the [[cases]]."""
+    head = [f"scene = {toml_value(str(scene))}"] + [f"{toml_key(k)} = {toml_value(v)}" for k, v in top.items()]
+    tables = {k: v for k, v in (("set", set), ("grid", grid), ("site", site), ("cases", list(cases))) if v}
+    return "\n".join(head) + "\n" + (toml_document(tables) if tables else "")
+
+
 def write_scene(folder: Path, text: str, name: str = "scene.toml") -> Path:
     """Write scene text into ``folder`` (beside its HDBs, so relative paths resolve) and return the path."""
     path = folder / name

@@ -166,3 +166,27 @@ def test_hdb_build_bad_spec_names_the_key(tmp_path: Path):
     result = _cli("hdb", "build", "bad.toml", "-o", "b.nc", cwd=tmp_path)
     assert result.returncode != 0
     assert "bad.toml: body.radius" in result.stderr and "Traceback" not in result.stderr
+
+
+def test_reader_warnings_are_one_plain_line(tmp_path: Path):
+    """A Capytaine file that records no rotation centre: the reader's warning reaches the user as
+    one line 'warning: ...', without Python's source file, line number or category."""
+    cpt = pytest.importorskip("capytaine")
+    import logging
+
+    logging.getLogger("capytaine").setLevel(logging.ERROR)
+    mesh = cpt.mesh_sphere(radius=1.0, center=(0, 0, 0), resolution=(8, 8)).immersed_part()
+    body = cpt.FloatingBody(mesh=mesh, dofs=cpt.rigid_body_dofs(rotation_center=(0, 0, 0)), name="buoy")
+    ds = cpt.BEMSolver().fill_dataset(xr.Dataset(coords={"omega": [0.5, 1.0, 2.0], "wave_direction": [0.0],
+                                                         "radiating_dof": ["Heave"]}), body)
+    ds = ds.drop_vars([v for v in ("rotation_center", "center_of_mass") if v in ds.variables])
+    ds["hydrostatic_stiffness"] = xr.DataArray(np.diag([0, 0, 1000 * 9.81 * np.pi, 0, 0, 0.0]),
+                                               dims=("influenced_dof", "radiating_dof"),
+                                               coords={"influenced_dof": list(body.dofs), "radiating_dof": list(body.dofs)})
+    path = tmp_path / "buoy.nc"
+    cpt.export_dataset(path, ds, format="netcdf")
+    r = _cli("hdb", "info", "buoy.nc", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    lines = [line for line in r.stderr.splitlines() if "rotation_center" in line]
+    assert len(lines) == 1 and lines[0].startswith("warning: ") and "no rotation_center" in lines[0], r.stderr
+    assert "UserWarning" not in r.stderr and ".py:" not in r.stderr

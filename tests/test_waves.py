@@ -102,3 +102,22 @@ def test_errors_name_the_key():
     interpolate_excitation(omega, np.deg2rad([0.0, 90.0]), x, omega, np.deg2rad(-360.0))
     interpolate_excitation(omega, np.deg2rad([0.0, 90.0]), x, omega, np.deg2rad(45.0))
     assert wave_components(StillWater(type="still"), 0.1, 5.0).size == 0
+
+
+def test_omega_range_is_the_band_the_components_span():
+    """waves.omega_range: the components span the stated band (inside the HDB's range), the energy
+    outside it (PM closed-form CDF exp(-5/4 (wp/W)^4)) is left out; a band beyond the HDB's range is
+    an error naming the key, and low >= high is refused by the scene model."""
+    hs, tp = 3.0, 10.0
+    wp = 2 * np.pi / tp
+    w = IrregularWave(type="irregular", spectrum="pierson-moskowitz", hs=hs, tp=tp, components=100,
+                      omega_range=(0.3, 1.5))
+    c = wave_components(w, 0.1, 4.0)
+    dw = 1.2 / 100
+    np.testing.assert_allclose(c.omega, 0.3 + dw * (np.arange(100) + 0.5))
+    cdf = lambda x: np.exp(-1.25 * (wp / x) ** 4)  # noqa: E731 - fraction of m0 below x
+    assert c.energy_outside == pytest.approx(1 - (cdf(1.5) - cdf(0.3)), rel=1e-6)
+    with pytest.raises(WaveError, match=r"waves.omega_range.*outside the HDB's range"):
+        wave_components(w, 0.5, 4.0)
+    with pytest.raises(ValueError, match="low < high"):
+        IrregularWave(type="irregular", spectrum="jonswap", hs=1.0, tp=8.0, omega_range=(1.0, 0.5))
