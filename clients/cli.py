@@ -209,6 +209,11 @@ def run(scene: Path, output: Path | None, server: str | None, no_progress: bool,
     steps, wall = summary["steps"], summary["wall_time"]
     click.echo(f"wrote {summary['output']}: {steps} steps in {wall:.2f} s ({steps / max(wall, 1e-9):.0f} steps/s; "
                f"server compute {summary.get('server_compute_us_per_step', float('nan')):.1f} us/step)")
+    for report in summary.get("moordyn") or []:
+        for body, offset in zip(report["bodies"], report["static_offset"] or []):
+            click.echo(f"MoorDyn {report['mooring']!r}: {body}'s moored equilibrium is "
+                       f"[{', '.join(f'{x:.4g}' for x in offset)}] (m, rad) from its reference position "
+                       f"(initial_displacement to start there)")
 
 
 @cli.command()

@@ -42,6 +42,7 @@ A scene without wet bodies runs without a force server (``connection`` and ``set
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import sys
@@ -160,6 +161,16 @@ class ExudynModel:
             self.solver.FinalizeSolver(self.mbs, self.settings)
             self.initialized = False
 
+    def close(self) -> None:
+        """Finalize the solver and release what the moorings hold (MoorDyn instances)."""
+        self.finalize()
+        if self.moorings is not None:
+            self.moorings.close()
+
+    def poses(self, q: np.ndarray) -> np.ndarray:
+        """Every scene body's absolute pose (B, 6) from a (padded) state vector ``q``."""
+        return self.body_reference + q[self.body_index].reshape(-1, 6)
+
 
 def _scene_bodies(scene: Scene, names: list[str]):
     by_name = {b.name: b for b in scene.bodies}
@@ -190,7 +201,7 @@ def _body_indices(mech: Mechanism, names: list[str], ltg, pad: int) -> np.ndarra
 
 def build_model(scene: Scene, setup: Setup | None, *, spectral_radius: float = 1.0,
                 added_mass_in_matrix: bool = True, newmark: bool = False,
-                reduce: bool | None = None) -> ExudynModel:
+                reduce: bool | None = None, moordyn_files: dict | None = None) -> ExudynModel:
     """Build the Exudyn system from the scene (bodies, point masses, joints, constraints, initial
     state) and the server's setup (wet bodies by name, active DOFs, A∞, hydrostatic stiffness,
     equilibrium, net buoyancy, dt); ``setup`` None when no body is wet.
@@ -201,7 +212,10 @@ def build_model(scene: Scene, setup: Setup | None, *, spectral_radius: float = 1
     coupling schemes feed it back as a force); ``newmark`` uses Newmark's trapezoidal rule
     (bit-exact rollback, for the implicit scheme) instead of generalized-alpha. ``reduce`` (default:
     the scene's ``[client] reduce``) builds the bodies that qualify with their active coordinates
-    only (clients/mechanism.py, "Reduced bodies"); False is the full form."""
+    only (clients/mechanism.py, "Reduced bodies"); False is the full form. ``moordyn_files``: the
+    layouts of the scene's MoorDyn files by mooring index (clients/moordyn_mooring.py); their
+    systems are started (initial-condition solve) at the bodies' initial poses before the solver's
+    initial accelerations."""
     names = list(setup.bodies) if setup else []
     n = len(names)
     wet_scene = [b.name for b in scene.bodies if b.wet]
@@ -223,7 +237,9 @@ def build_model(scene: Scene, setup: Setup | None, *, spectral_radius: float = 1
     mech = build_mechanism(mbs, scene, {nm: equilibrium[i, :3] for i, nm in enumerate(names)}, net,
                            reduce=reduce)
     ptos = build_ptos(mbs, scene.ptos, mech.handles) if scene.ptos else None
-    moorings = build_moorings(mbs, scene.moorings, mech.handles, scene.water) if scene.moorings else None
+    all_names, reference = result_bodies(scene, setup)
+    moorings = build_moorings(mbs, scene.moorings, mech.handles, scene.water, moordyn_files, all_names,
+                              reference) if scene.moorings else None
     padded = any(h.dofs is not None for h in mech.handles.values())
     # the hydro object's coordinates: each wet body's node coordinates (a reduced body's active DOFs)
     sel = np.concatenate([6 * i + np.asarray(mech.handles[nm].dofs or range(6), int) for i, nm in enumerate(names)]
@@ -239,7 +255,6 @@ def build_model(scene: Scene, setup: Setup | None, *, spectral_radius: float = 1
     mbs.Assemble()
     ltg = mbs.systemData.GetNodeLTGODE2
     pad = len(mbs.systemData.GetODE2Coordinates())
-    all_names, reference = result_bodies(scene, setup)
     body_index = _body_indices(mech, all_names, ltg, pad)
     wet_index = _body_indices(mech, names, ltg, pad)
 
@@ -258,6 +273,12 @@ def build_model(scene: Scene, setup: Setup | None, *, spectral_radius: float = 1
         # large mechanisms (arrays of bodies + arms): Exudyn's default dense LU dominates the step;
         # measured on 9N9LA (108 body coordinates + 54 constraints): 9.8 -> 2.3 ms per step
         ss.linearSolver.solverType = exu.LinearSolverType.EigenSparse
+    if moorings is not None and moorings.moordyn:
+        sd, shape = mbs.systemData, (len(all_names), 6)
+        q0 = np.append(sd.GetODE2Coordinates(configuration=exu.ConfigurationType.Initial), 0.0)
+        pose0 = reference + q0[body_index].reshape(shape)
+        moorings.start_moordyn(mbs, pose0)
+        _moordyn_offsets(scene, moorings, pose0, pose0 - reference, all_names, names, stiffness, net)
     return ExudynModel(sc, mbs, exu.MainSolverImplicitSecondOrder(), ss, hydro, equilibrium,
                        active, stiffness, dt, mech, wet_index, all_names, reference, body_index,
                        np.array([all_names.index(nm) for nm in names], int), ptos, moorings,
@@ -297,6 +318,64 @@ def _add_pto_mooring_variables(writer, ptos: PTOSet | None, moorings: MooringSet
                             "N (fx, fy, fz); N m (mx, my, mz)",
                             "force and moment the mooring exerts on its body, global frame, about the "
                             "mooring point (linear) / the attachment point (rope)")
+
+
+def _moordyn_offsets(scene: Scene, moorings: MooringSet, pose: np.ndarray, displacement: np.ndarray,
+                     all_names: list[str], wet_names: list[str], stiffness: np.ndarray,
+                     net_buoyancy: dict[str, float]) -> None:
+    """Each MoorDyn system's static offset estimate (``static_offset = true``): the coupled bodies'
+    displacement from their reference positions where their hydrostatic stiffness and net
+    buoyancy (wet) or constant weight and buoyancy (dry) balance the mooring's load, from their
+    initial ``pose`` (= reference + ``displacement``)."""
+    c = np.zeros((len(all_names), 6, 6))
+    for i, nm in enumerate(wet_names):
+        c[all_names.index(nm)] = stiffness[6 * i:6 * i + 6, 6 * i:6 * i + 6]
+    g, rho = scene.water.gravity, scene.water.density
+    constant = np.zeros((len(all_names), 6))
+    for row, b in enumerate(scene.bodies):
+        if b.wet:
+            constant[row, 2] = net_buoyancy.get(b.name, 0.0)
+            continue
+        ref = body_reference(b)
+        com = np.asarray(b.center_of_mass, float)
+        cob = np.asarray(b.center_of_buoyancy if b.center_of_buoyancy is not None else com, float)
+        weight, lift = np.array([0.0, 0.0, -b.mass * g]), np.array([0.0, 0.0, rho * g * b.buoyancy_volume])
+        constant[row, :3] = weight + lift
+        constant[row, 3:] = np.cross(com - ref, weight) + np.cross(cob - ref, lift)
+    active = np.array([b.active_mask for b in scene.bodies], bool)
+    for system in moorings.moordyn:
+        if system.spec.static_offset:
+            system.offset, system.offset_residual = system.static_offset(pose, displacement, c, constant, active)
+            for name, off in zip(system.names, system.offset):
+                log.info("%s: %s's moored equilibrium is %s (m, rad) from its reference position (its "
+                         "initial_displacement to start there)", system.key, name, np.array2string(off, precision=4))
+
+
+def _add_moordyn_variables(writer, moorings: MooringSet) -> None:
+    """Declare the MoorDyn outputs: ``line_tension`` (dim ``line``: "mooring:k", MoorDyn's line k)
+    and, when a system records them, ``line_node_position`` (line, node, xyz)."""
+    systems = moorings.moordyn
+    lines = [f"{s.spec.name}:{k}" for s in systems for k in range(1, s.n_lines + 1)]
+    writer.add_variable("line_tension", ("line",), {"line": lines}, "N",
+                        "MoorDyn line tension at the fairlead end (the force the line's end node passes on)")
+    n_nodes = max((s.max_nodes for s in systems if s.spec.record_nodes), default=0)
+    if n_nodes:
+        writer.add_variable("line_node_position", ("line", "node", "xyz"),
+                            {"node": [str(k) for k in range(n_nodes)], "xyz": ["x", "y", "z"]}, "m",
+                            "MoorDyn line node positions from the anchor end (NaN past a line's last node and "
+                            "for systems without record_nodes)")
+
+
+def _moordyn_report(moorings: MooringSet) -> list[dict]:
+    """What each MoorDyn system started from: its file, lines, the fairlead tensions and the loads
+    on the coupled bodies after MoorDyn's initial-condition solve, and the bodies' static offset
+    under the mooring — their displacement from the reference position at the moored equilibrium,
+    m and rad (None with static_offset = false) — with the out-of-balance load left."""
+    return [{"mooring": s.spec.name, "file": str(s.layout.path), "lines": s.n_lines, "bodies": s.names,
+             "initial_line_tension": s.tensions().tolist(), "initial_load": s.initial_loads.tolist(),
+             "static_offset": None if s.offset is None else s.offset.tolist(),
+             "static_offset_residual": s.offset_residual}
+            for s in moorings.moordyn]
 
 
 def wet_rigid_mass(scene: Scene, setup: Setup) -> np.ndarray:
@@ -397,6 +476,14 @@ class ExudynMultibody:
         self._all_wet = self.n == self.nb and np.array_equal(model.wet_rows, np.arange(self.nb))
         self._hs = np.zeros(6 * self.n)   # scratch: C q
         self._pto_sample = None
+        # MoorDyn: each step is driven towards the pose it ends in (clients/moordyn_mooring.py):
+        # predicted, or on a redo the end poses of the previous pass (one per step since the save)
+        moorings = model.moorings
+        self._md = moorings if moorings is not None and moorings.moordyn else None
+        self._md_nodes = max((s.max_nodes for s in moorings.moordyn if s.spec.record_nodes), default=0) \
+            if self._md else 0
+        self._ends: list[np.ndarray] = []
+        self._targets: list[np.ndarray] = []
         self._refresh()
 
     def _refresh(self) -> None:
@@ -448,15 +535,42 @@ class ExudynMultibody:
         return s1.load if acc is None else s1.load - self.a_fb @ acc
 
     def advance(self, t0: float, t1: float, u: np.ndarray) -> None:
+        if self._md is not None:
+            self._step_moordyn(t0, t1)
         self.model.set_force(u)
         self.model.advance(t0, t1)
         self._refresh()
+        if self._md is not None:
+            self._ends.append(self.model.poses(self._q))
+
+    def _step_moordyn(self, t0: float, t1: float) -> None:
+        """Step the MoorDyn systems over t0 -> t1 towards the predicted (or, on a redo, the last
+        pass's) end poses; a MoorDyn failure stops the run naming the file and the step."""
+        m, h = self.model, self.h          # the nominal step: t1 - t0 carries round-off into MoorDyn's substeps
+        pose0 = m.poses(self._q)
+        if self._targets:
+            pose1 = self._targets.pop(0)
+        else:
+            idx = m.body_index
+            pose1 = pose0 + (h * self._v[idx] + 0.5 * h * h * self._a[idx]).reshape(pose0.shape)
+        try:
+            self._md.step_moordyn(m.mbs, t0, h, pose0, pose1)
+        except RuntimeError as exc:
+            step, rows = int(round(t1 / m.dt)), self.writer.rows
+            where = getattr(self.writer, "path", "the results file")
+            raise RunInterrupted(f"MoorDyn failed at step {step} (t = {t1:.6g} s): {exc}; the {rows} rows before "
+                                 f"it are saved in {where}", step=step, time=t1, rows=rows) from None
 
     def save(self):
-        return self.model.save()
+        self._ends = []
+        return self.model.save(), (self._md.save_moordyn() if self._md is not None else None)
 
     def restore(self, saved) -> None:
-        self.model.restore(saved)
+        state, moordyn = saved
+        self.model.restore(state)
+        if self._md is not None:
+            self._md.restore_moordyn(self.model.mbs, moordyn)
+            self._targets, self._ends = self._ends, []
         self._refresh()
 
     def snapshot(self):
@@ -511,12 +625,19 @@ class ExudynMultibody:
             out["total_pto_power"] = s.total_power
         if m.moorings is not None:
             out["mooring_force"] = m.moorings.sample(m.mbs)
+        if self._md is not None:
+            systems = self._md.moordyn
+            out["line_tension"] = np.concatenate([s.tensions() for s in systems])
+            if self._md_nodes:
+                out["line_node_position"] = np.concatenate([
+                    s.node_positions(self._md_nodes) if s.spec.record_nodes
+                    else np.full((s.n_lines, self._md_nodes, 3), np.nan) for s in systems])
         return out
 
 
 def run(scene: Scene, scene_text: str, connection, setup: Setup | None, writer, *, progress: bool = True,
         spectral_radius: float | None = None, blow_up_limit: float = BLOW_UP_LIMIT,
-        allow_unstable: bool = False) -> dict:
+        allow_unstable: bool = False, moordyn_files: dict | None = None) -> dict:
     """Run the lockstep co-simulation to ``scene.simulation.duration`` (:mod:`hydrolink.clients.lockstep`).
 
     ``connection`` has already said hello (``setup`` is its reply); it is not closed here. With no
@@ -531,7 +652,8 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup | None, writer, 
 
     The scene's ``[coupling]`` picks the scheme (module docstring); an explicit scheme above
     ``coupling.explicit_limit`` is refused (SceneError naming coupling.scheme) unless
-    ``allow_unstable`` (only to demonstrate the added-mass instability).
+    ``allow_unstable`` (only to demonstrate the added-mass instability). ``moordyn_files``: the
+    layouts of the scene's MoorDyn files (:func:`~hydrolink.clients.moordyn_mooring.load_moordyn_files`).
 
     Returns a summary: steps, time, wall_time, rows, status, ``coupling`` (scheme, exchange_every,
     added-mass ratio, iterations per exchange: mean/max, and the list for "implicit"),
@@ -557,7 +679,7 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup | None, writer, 
         warnings.append(f"simulation.spectral_radius = {spectral_radius:g} is not used by coupling.scheme = "
                         "\"implicit\" (Newmark's trapezoidal rule: bit-exact rollback)")
     model = build_model(scene, setup, spectral_radius=spectral_radius, added_mass_in_matrix=not feedback,
-                        newmark=scheme == "implicit")
+                        newmark=scheme == "implicit", moordyn_files=moordyn_files)
     stiff = _stiffest(scene)
     if stiff and stiff[0] > STIFF_NOTE:
         model.failure_hint = (f"; the stiffest spring is {stiff[1]} = {stiff[0]:.3g} N/m (N m/rad): above "
@@ -586,6 +708,15 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup | None, writer, 
     if mech and mech.joints:
         _add_joint_variables(writer, mech.joint_labels)
     _add_pto_mooring_variables(writer, model.ptos, model.moorings)
+    moordyn = _moordyn_report(model.moorings) if model.moorings is not None and model.moorings.moordyn else None
+    if moordyn is not None:
+        _add_moordyn_variables(writer, model.moorings)
+        writer.set_attribute("moordyn", json.dumps(moordyn))
+        for system in model.moorings.moordyn:
+            note = system.step_note(h)
+            if note:
+                warnings.append(note)
+                log.warning("%s", note)
     control = None
     if scene.controllers:
         if n == 0:
@@ -604,7 +735,7 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup | None, writer, 
                            n_ex, first_timeout=first_timeout,
                            hint=lambda exc: _divergence_hint(scheme, ratio, kx, big_h))
     finally:
-        model.finalize()
+        model.close()
     controllers = control.finish() if control is not None else None
     coupling = {"scheme": scheme, "exchange_every": kx, "between_exchanges": between,
                 "added_mass_ratio": coupling_ratio(scene, setup) if n else 0.0,
@@ -612,7 +743,7 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup | None, writer, 
                 "initial_iterations": out.pop("initial_iterations"),
                 "iterations": np.asarray(loop.iterations, int) if scheme == "implicit" else None}
     return {**out, "controllers": controllers, "mechanism_notes": (mech.warnings + mech.reductions) if mech else [],
-            "coupling": coupling, "warnings": warnings}
+            "coupling": coupling, "warnings": warnings, "moordyn": moordyn}
 
 
 def _divergence_hint(scheme: str, ratio: float, kx: int, big_h: float) -> str:

@@ -233,7 +233,8 @@ def dump_toml(doc: dict) -> str:
 
 
 def absolute_paths(doc: dict, scene_path: Path) -> dict:
-    """The scene document with its relative file paths (bodies[i].hdb, waves.file, client.fmu)
+    """The scene document with its relative file paths (bodies[i].hdb, waves.file, client.fmu,
+    moorings[i].file)
     made absolute, so that it runs from any folder."""
     base = Path(scene_path).resolve().parent
 
@@ -247,6 +248,9 @@ def absolute_paths(doc: dict, scene_path: Path) -> dict:
         doc["waves"]["file"] = fix(doc["waves"]["file"])
     if isinstance(doc.get("client"), dict) and "fmu" in doc["client"]:
         doc["client"]["fmu"] = fix(doc["client"]["fmu"])
+    for m in doc.get("moorings", []):
+        if "file" in m:
+            m["file"] = fix(m["file"])
     return doc
 
 

@@ -263,7 +263,7 @@ def reduction_blocker(scene: Scene, body: Body, reference) -> str | None:
         if body.name in (j.body1, j.body2):
             return f"joints[{i}] needs its pose"
     for i, m in enumerate(scene.moorings):
-        if body.name in (getattr(m, "body", None), getattr(m, "attach_to", None)):
+        if body.name in (getattr(m, "body", None), getattr(m, "attach_to", None), *getattr(m, "coupled_bodies", ())):
             return f"moorings[{i}] needs its pose"
     slider = len(dofs) == 1 and dofs[0] < 3
     for i, p in enumerate(scene.ptos):

@@ -31,8 +31,16 @@
     system starts from it — the rope does not snap. The bodies start where the scene says; the
     rope's tension then acts on them from t = 0.
 
-Outputs: ``MooringSet.sample(mbs)`` → (n_moorings, 6): force (N) and moment (N m) the mooring exerts
-on the body, global frame, moment about the mooring point (linear) / attachment point (rope: zero).
+``MoorDynMooring``
+    A MoorDyn v2 system (clients/moordyn_mooring.py) acting on one or more scene bodies: per coupled
+    body a ``LoadForceVector`` and a ``LoadTorqueVector`` (global directions) at its reference point,
+    set every step from MoorDyn's forces (:meth:`MooringSet.step_moordyn`, called by the Exudyn
+    adapter before each step: loads act at the step's end, so they are MoorDyn's forces at t_k+1).
+
+Outputs: ``MooringSet.sample(mbs)`` → (n_entries, 6): force (N) and moment (N m) the mooring exerts
+on the body, global frame, moment about the mooring point (linear) / attachment point (rope: zero) /
+the body's reference point (MoorDyn: one entry per coupled body, named "mooring:body" when the
+system couples several bodies).
 """
 
 from __future__ import annotations
@@ -52,7 +60,7 @@ from exudyn.itemInterface import (LoadForceVector, LoadMassProportional, LoadTor
                                   VObjectJointSpherical)
 
 from hydrolink.clients.mechanism import BodyHandle, marker_at
-from hydrolink.protocol.scene import LinearMooring, RopeMooring, SceneError, Water
+from hydrolink.protocol.scene import LinearMooring, MoorDynMooring, RopeMooring, SceneError, Water
 
 _OV = exu.OutputVariableType
 #: static seabed penetration of a rope node under its own submerged weight (m)
@@ -285,20 +293,57 @@ class MooringSet:
     """The moorings built into one Exudyn system and their per-step force sampler."""
 
     names: list[str] = field(default_factory=list)
-    kinds: list[str] = field(default_factory=list)          # "linear" | "rope"
-    objects: list[int] = field(default_factory=list)        # connector / attachment joint
+    kinds: list[str] = field(default_factory=list)          # "linear" | "rope" | "moordyn"
+    objects: list = field(default_factory=list)             # connector / attachment joint / (system, body)
     pretension: list[np.ndarray] = field(default_factory=list)
     ropes: dict[int, RopeItems] = field(default_factory=dict)   # by mooring index
+    moordyn: list = field(default_factory=list)             # MoorDynSystem, scene order
+    moordyn_loads: list[np.ndarray] = field(default_factory=list)   # per system: (bodies, 2) load ids
+    moordyn_rows: list[np.ndarray] = field(default_factory=list)    # per system: scene body rows
 
     def __len__(self) -> int:
         return len(self.names)
+
+    # -- MoorDyn ---------------------------------------------------------------------------------
+    def _set_moordyn_loads(self, mbs, k: int) -> None:
+        set_load = mbs.SetLoadParameter
+        for (lf, lt), f in zip(self.moordyn_loads[k], self.moordyn[k].loads.tolist()):
+            set_load(int(lf), "loadVector", f[:3])
+            set_load(int(lt), "loadVector", f[3:])
+
+    def start_moordyn(self, mbs, pose: np.ndarray) -> None:
+        """Initialise every MoorDyn system at the bodies' poses (B, 6) and set its loads at t = 0."""
+        for k, system in enumerate(self.moordyn):
+            system.start(pose)
+            self._set_moordyn_loads(mbs, k)
+
+    def step_moordyn(self, mbs, t0: float, dt: float, pose0: np.ndarray, pose1: np.ndarray) -> None:
+        """Step every MoorDyn system over [t0, t0 + dt] (bodies moving from pose0 to pose1, (B, 6))
+        and set the loads the multibody step applies at its end."""
+        for k, system in enumerate(self.moordyn):
+            system.step(t0, dt, pose0, pose1)
+            self._set_moordyn_loads(mbs, k)
+
+    def save_moordyn(self) -> list:
+        return [system.save() for system in self.moordyn]
+
+    def restore_moordyn(self, mbs, saved: list) -> None:
+        for k, (system, state) in enumerate(zip(self.moordyn, saved)):
+            system.restore(state)
+            self._set_moordyn_loads(mbs, k)
+
+    def close(self) -> None:
+        for system in self.moordyn:
+            system.close()
 
     def sample(self, mbs) -> np.ndarray:
         """Force and moment each mooring exerts on its body (n, 6), global frame."""
         out = np.zeros((len(self.names), 6))
         get = mbs.GetObjectOutput
         for i, (kind, obj) in enumerate(zip(self.kinds, self.objects)):
-            if kind == "linear":
+            if kind == "moordyn":
+                out[i] = self.moordyn[obj[0]].loads[obj[1]]
+            elif kind == "linear":
                 out[i, :3] = -np.asarray(get(obj, _OV.ForceLocal))
                 out[i, 3:] = -np.asarray(get(obj, _OV.TorqueLocal))
                 out[i] += self.pretension[i]
@@ -310,12 +355,38 @@ class MooringSet:
         return out
 
 
-def build_moorings(mbs, moorings: list, handles: dict[str, BodyHandle], water: Water) -> MooringSet:
+def build_moorings(mbs, moorings: list, handles: dict[str, BodyHandle], water: Water,
+                   moordyn_files: dict | None = None, body_names: list[str] | None = None,
+                   body_reference: np.ndarray | None = None) -> MooringSet:
     """Add the scene's moorings to ``mbs`` (before ``Assemble``); ropes get their static
-    equilibrium shape first."""
+    equilibrium shape first. MoorDyn moorings need their files' layouts (``moordyn_files`` by
+    mooring index, :func:`hydrolink.clients.moordyn_mooring.load_moordyn_files`) and every scene
+    body's name and reference position (B, 6), the rows of the poses they are stepped with."""
     out = MooringSet()
     ground = handles["ground"]
     for i, m in enumerate(moorings):
+        if isinstance(m, MoorDynMooring):
+            from hydrolink.clients.moordyn_mooring import MoorDynSystem
+            if moordyn_files is None or i not in moordyn_files:
+                raise SceneError("scene", f"moorings[{i}].file", "MoorDyn files are read with the scene file "
+                                 "(hydrolink run; run_scene_file or exudyn_client.run with moordyn_files)")
+            rows = {n: k for k, n in enumerate(body_names)}
+            system = MoorDynSystem(m, moordyn_files[i], f"moorings[{i}]", rows, body_reference)
+            loads = []
+            for j, name in enumerate(m.coupled_bodies):
+                h = handles[name]
+                mk = marker_at(mbs, h, h.reference)
+                loads.append((mbs.AddLoad(LoadForceVector(markerNumber=mk, loadVector=[0.0] * 3, bodyFixed=False)),
+                              mbs.AddLoad(LoadTorqueVector(markerNumber=mk, loadVector=[0.0] * 3, bodyFixed=False))))
+                several = len(m.coupled_bodies) > 1
+                out.names.append(f"{m.name}:{name}" if several else m.name)
+                out.kinds.append("moordyn")
+                out.objects.append((len(out.moordyn), j))
+                out.pretension.append(np.zeros(6))
+            out.moordyn.append(system)
+            out.moordyn_loads.append(np.asarray(loads, int))
+            out.moordyn_rows.append(np.array([rows[n] for n in m.coupled_bodies], int))
+            continue
         out.names.append(mooring_label(m, i))
         if isinstance(m, LinearMooring):
             h = handles[m.body]

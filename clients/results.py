@@ -15,7 +15,9 @@ Layout (readable with ``xarray.open_dataset``)::
     extra  variables declared by the client with :meth:`ResultWriter.add_variable`, dims
            (time, *their dims): joint outputs over ``joint``; ``pto_force``, ``pto_velocity``,
            ``pto_power`` over ``pto`` and ``total_pto_power``; ``mooring_force`` over
-           (``mooring``, ``mooring_component``)
+           (``mooring``, ``mooring_component``); MoorDyn: ``line_tension`` over ``line`` and
+           ``line_node_position`` over (``line``, ``node``, ``xyz``); attribute ``moordyn`` (JSON:
+           files, initial tensions and loads, static offsets)
 
 Extra variables: ``add_variable(name, dims, coords, units, long_name)`` before the first row
 (``coords`` gives the labels of any dimension not yet in the file), then per row

@@ -80,6 +80,10 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
     if hdbs is None:  # (a caller running one scene many times may pass them, e.g. hydrolink bench)
         hdbs = load_scene_hdbs(scene, scene_path, progress=progress)
     series = load_wave_elevation(scene, scene_path)
+    moordyn_files = None
+    if any(getattr(m, "type", "") == "moordyn" for m in scene.moorings):
+        from hydrolink.clients.moordyn_mooring import load_moordyn_files
+        moordyn_files = load_moordyn_files(scene, scene_path)
     output = Path(output) if output else scene_path.with_suffix(".out.nc")
     if not scene.wet_bodies:
         # no hydrodynamics: the mechanism runs alone, without a force server
@@ -87,7 +91,7 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
         names, reference = result_bodies(scene, None)
         with ResultWriter(output, scene=scene, scene_text=text, dt=scene.simulation.dt,
                           bodies=names, equilibrium_position=reference) as writer:
-            summary = run(scene, text, None, None, writer, progress=progress)
+            summary = run(scene, text, None, None, writer, progress=progress, moordyn_files=moordyn_files)
             writer.set_attribute("warnings", json.dumps(summary["warnings"]))
         summary["output"], summary["server"] = str(output), None
         return summary
@@ -127,7 +131,7 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
             from hydrolink.clients.fmu_client import run as run_fmu
             summary = run_fmu(scene, text, conn, setup, writer, scene_path=scene_path, progress=progress)
         else:
-            summary = run(scene, text, conn, setup, writer, progress=progress)
+            summary = run(scene, text, conn, setup, writer, progress=progress, moordyn_files=moordyn_files)
         writer.set_attribute("warnings", json.dumps(summary["warnings"]))
         goodbye = conn.bye()
     summary["output"] = str(output)

@@ -49,7 +49,7 @@ Two formulations (``[steady] formulation`` / ``--formulation``):
 A mode with no static stiffness (e.g. a free surge) has an undetermined mean: its mean is set to
 zero; a nonzero mean force on it (a drift) is an error. Results: one period, resampled at dt by
 trigonometric interpolation, written in the layout of ``hydrolink run`` (clients/results.py).
-Not supported (refused with the reason): irregular or still waves, rope moorings (their catenary and
+Not supported (refused with the reason): irregular or still waves, rope and MoorDyn moorings (catenary and
 seabed contact), joint friction, controllers, FMU clients, nonzero constraint values.
 """
 
@@ -62,7 +62,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hydrolink.protocol.scene import DOF_NAMES, LinearMooring, LinearPTO, RegularWave, RopeMooring, Scene
+from hydrolink.protocol.scene import DOF_NAMES, LinearMooring, LinearPTO, MoorDynMooring, RegularWave, RopeMooring, Scene
 from hydrolink.protocol.setup import Setup
 
 TIME_DOMAIN_NOTE = "steady state by pseudo-spectral collocation (hydrolink steady)"
@@ -88,6 +88,10 @@ def check_scene(scene: Scene) -> None:
         if isinstance(m, RopeMooring):
             raise SteadyError(f"moorings[{i}]", "rope moorings are not supported by hydrolink steady "
                                                 "(catenary and seabed contact); use a linear mooring")
+        if isinstance(m, MoorDynMooring):
+            raise SteadyError(f"moorings[{i}]", "MoorDyn moorings are not supported by hydrolink steady "
+                                                "(lumped-mass line dynamics with seabed contact, stepped in time); "
+                                                "run the scene with hydrolink run, or use a linear mooring")
     for i, j in enumerate(scene.joints):
         if j.friction is not None:
             raise SteadyError(f"joints[{i}].friction", "joint friction is not supported by hydrolink steady")

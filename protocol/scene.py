@@ -435,7 +435,45 @@ class RopeMooring(_Section):
     seabed: bool = True                   # contact with a flat seabed at z = -depth (finite depth)
 
 
-Mooring = Annotated[Union[LinearMooring, RopeMooring], Field(discriminator="type")]
+class MoorDynMooring(_Section):
+    """A MoorDyn v2 mooring system (lumped-mass lines with seabed contact): its own input ``file``
+    (relative to the scene) holds the lines, its time step dtM, initial-condition and output
+    options; hydrolink steps it every multibody step (clients/moordyn_mooring.py).
+
+    bodies: the scene bodies driving the file's coupled bodies, in the file's order (pose = the scene
+    body's reference point and Tait-Bryan xyz angles; the file's points on a coupled body are
+    relative to that reference point); points: the scene body each of the file's coupled points is
+    fixed to, in the file's order (where the file puts the point at t = 0 is where it sits on that
+    body). record_nodes: line node positions in the results (time, line, node, xyz). static_offset:
+    estimate the bodies' equilibrium offset under the mooring at t = 0 (their restoring force
+    against the mooring's load; reported, the run still starts where the scene says)."""
+    name: Name
+    type: Literal["moordyn"]
+    file: Annotated[str, Field(min_length=1)]
+    bodies: list[Name] = []
+    points: list[Name] = []
+    record_nodes: bool = False
+    # estimate the coupled bodies' static offset under the mooring's pretension at t = 0 (reported
+    # in the run summary and the results' moordyn attribute; costs 1 + DOFs + iterations MoorDyn
+    # initial-condition solves)
+    static_offset: bool = True
+
+    @model_validator(mode="after")
+    def _coupled(self) -> "MoorDynMooring":
+        # (".bodies": relative to the mooring, not the scene's bodies)
+        if not self.bodies and not self.points:
+            raise ValueError(".bodies: a MoorDyn mooring needs at least one coupled scene body (bodies or points)")
+        if len(set(self.bodies)) != len(self.bodies):
+            raise ValueError(f".bodies: repeated body in {self.bodies} (one scene body per coupled MoorDyn body)")
+        return self
+
+    @property
+    def coupled_bodies(self) -> list[str]:
+        """Every scene body the mooring acts on, first appearance order (its rows in mooring_force)."""
+        return list(dict.fromkeys([*self.bodies, *self.points]))
+
+
+Mooring = Annotated[Union[LinearMooring, RopeMooring, MoorDynMooring], Field(discriminator="type")]
 
 
 DofName = Literal["surge", "sway", "heave", "roll", "pitch", "yaw"]
@@ -632,6 +670,12 @@ class Scene(_Section):
         for i, m in enumerate(self.moorings):
             if isinstance(m, LinearMooring):
                 known(f"moorings[{i}].body", m.body, set(names), "body")
+            elif isinstance(m, MoorDynMooring):
+                for key in ("bodies", "points"):
+                    for j, b in enumerate(getattr(m, key)):
+                        known(f"moorings[{i}].{key}[{j}]", b, set(names), "body")
+                if m.name in [getattr(o, "name", None) for o in self.moorings[:i]]:
+                    raise ValueError(f"moorings[{i}].name: duplicate mooring name {m.name!r}")
             else:
                 known(f"moorings[{i}].attach_to", m.attach_to, set(names) | set(points), "body or point mass")
                 if m.attach_to in names and m.point is None:
@@ -711,7 +755,7 @@ class Scene(_Section):
         return [b for b in self.bodies if b.wet]
 
 
-_UNION_TAGS = ("regular", "irregular", "still", "elevation", "linear", "rotary", "rope", "exudyn", "fmu")
+_UNION_TAGS = ("regular", "irregular", "still", "elevation", "linear", "rotary", "rope", "moordyn", "exudyn", "fmu")
 
 
 def parse_scene(text: str, source: str | Path = "<scene>") -> Scene:
