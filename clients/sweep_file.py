@@ -336,6 +336,9 @@ def case_identity(case: Case, hdb_digests: dict[str, str]) -> str:
     client = doc.get("client", {})
     if isinstance(client, dict) and "fmu" in client:
         client["fmu"] = "sha256:" + file_digest(client["fmu"])
+    for m in doc.get("moorings", []):
+        if "file" in m:      # a MoorDyn input file
+            m["file"] = "sha256:" + file_digest(m["file"])
     blob = json.dumps({"scene": doc, "solver": case.solver, "hydrolink": hydrolink_version()},
                       sort_keys=True, default=str)
     return hashlib.sha256(blob.encode()).hexdigest()[:20]
