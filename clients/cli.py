@@ -112,8 +112,11 @@ def hdb_info(file: Path, plot: Path | None, dofs: str | None) -> None:
 @click.option("--curve-clients", type=click.Path(file_okay=False, path_type=Path), envvar="HYDROLINK_CURVE_CLIENTS",
               help="Directory of the allowed clients' public .key files (with --curve-secret); "
                    "env HYDROLINK_CURVE_CLIENTS.")
+@click.option("--key-file", type=click.Path(dir_okay=False, path_type=Path), envvar="HYDROLINK_KEY_FILE",
+              help="Shared HMAC key file: every request must be signed with it (SPEC §3.3); "
+                   "env HYDROLINK_KEY_FILE.")
 def serve(bind: str, session_timeout: float, cpu: int | None, curve_secret: Path | None,
-          curve_clients: Path | None) -> None:
+          curve_clients: Path | None, key_file: Path | None) -> None:
     """Run the force server until interrupted (SIGINT or SIGTERM)."""
     import signal
 
@@ -121,14 +124,16 @@ def serve(bind: str, session_timeout: float, cpu: int | None, curve_secret: Path
     from hydrolink.server.service import ForceServer
 
     _pin_to_cpu(cpu)
+    key = _hmac_key(key_file)
     try:
-        server = ForceServer(bind, session_timeout=session_timeout,
+        server = ForceServer(bind, session_timeout=session_timeout, key=key,
                              curve_secret=str(curve_secret) if curve_secret else None,
                              curve_clients=str(curve_clients) if curve_clients else None)
     except CurveKeyError as exc:
         raise _UserError(str(exc)) from None
     signal.signal(signal.SIGTERM, lambda signum, frame: server.stop())  # docker stop
-    secure = " (CURVE: authenticated and encrypted)" if curve_secret else ""
+    secure = (" (CURVE: authenticated and encrypted)" if curve_secret else "") + \
+        (" (every message signed: HMAC key file)" if key else "")
     click.echo(f"hydrolink force server listening on {server.address}{secure}", err=True)
     try:
         server.serve_forever()
@@ -148,6 +153,23 @@ def _curve_options(func):
                         help="The server's public .key file (CURVE); env HYDROLINK_CURVE_SERVER_KEY.")(func)
 
 
+def _key_file_option(func):
+    """--key-file for a client of a signing server."""
+    return click.option("--key-file", type=click.Path(dir_okay=False, path_type=Path), envvar="HYDROLINK_KEY_FILE",
+                        help="The server's shared HMAC key file: every message signed (SPEC §3.3); "
+                             "env HYDROLINK_KEY_FILE.")(func)
+
+
+def _hmac_key(path: Path | None) -> bytes | None:
+    from hydrolink.protocol.security import CurveKeyError, read_hmac_key
+    if path is None:
+        return None
+    try:
+        return read_hmac_key(path)
+    except CurveKeyError as exc:
+        raise _UserError(str(exc)) from None
+
+
 def _client_keys(server_key: Path | None, secret: Path | None):
     from hydrolink.protocol.security import CurveKeyError, client_keys
     try:
@@ -158,7 +180,18 @@ def _client_keys(server_key: Path | None, secret: Path | None):
 
 @cli.group()
 def keys() -> None:
-    """CURVE key pairs for `hydrolink serve --curve-secret` and its clients."""
+    """Keys: CURVE key pairs (`new`) and shared HMAC signing keys (`hmac`)."""
+
+
+@keys.command("hmac")
+@click.argument("file", type=click.Path(dir_okay=False, path_type=Path))
+def keys_hmac(file: Path) -> None:
+    """Write a new shared HMAC key to FILE (owner-only): give it to `serve`, `run`, `control` with --key-file."""
+    from hydrolink.protocol.security import CurveKeyError, new_hmac_key
+    try:
+        click.echo(f"wrote {new_hmac_key(file)} (keep it secret; the server and its clients share it)")
+    except CurveKeyError as exc:
+        raise _UserError(str(exc)) from None
 
 
 @keys.command("new")
@@ -184,8 +217,9 @@ def keys_new(directory: Path, name: str) -> None:
 @click.option("--listen", default="tcp://127.0.0.1:*", show_default=True,
               help="With [[controllers]] and no --server: where the run's own force server listens.")
 @_curve_options
+@_key_file_option
 def run(scene: Path, output: Path | None, server: str | None, no_progress: bool, cpu: int | None,
-        listen: str, curve_server_key: Path | None, curve_secret: Path | None) -> None:
+        listen: str, curve_server_key: Path | None, curve_secret: Path | None, key_file: Path | None) -> None:
     """Co-simulate a SCENE (TOML) in lockstep with the force server."""
     from hydrolink.clients.run import run_scene_file
 
@@ -202,7 +236,7 @@ def run(scene: Path, output: Path | None, server: str | None, no_progress: bool,
     signal.signal(signal.SIGTERM, _terminate)
     try:
         summary = _guard(run_scene_file, scene, output, server=server, progress=not no_progress, listen=listen,
-                         **({"curve": curve} if curve is not None else {}))
+                         key=_hmac_key(key_file), **({"curve": curve} if curve is not None else {}))
     except KeyboardInterrupt as exc:
         click.echo(f"hydrolink run: {exc or 'interrupted'}", err=True)
         raise SystemExit(130) from None
@@ -224,15 +258,16 @@ def run(scene: Path, output: Path | None, server: str | None, no_progress: bool,
 @click.option("--class", "class_name", help="Controller class in FILE, when it defines several.")
 @click.option("--join-wait", default=30.0, show_default=True, help="Seconds to keep trying to join.")
 @_curve_options
+@_key_file_option
 def control(file: Path, server: str, session: str | None, name: str | None, class_name: str | None,
-            join_wait: float, curve_server_key: Path | None, curve_secret: Path | None) -> None:
+            join_wait: float, curve_server_key: Path | None, curve_secret: Path | None, key_file: Path | None) -> None:
     """Run the Python controller in FILE (a hydrolink.clients.control.Controller subclass)."""
     from hydrolink.clients.control import ControllerError, load_controller, run_controller
 
     curve = _client_keys(curve_server_key, curve_secret)
     try:
         stats = run_controller(load_controller(file, class_name), server, session=session, name=name,
-                               join_wait=join_wait, curve=curve)
+                               join_wait=join_wait, curve=curve, key=_hmac_key(key_file))
     except ControllerError as exc:
         raise _UserError(str(exc)) from None
     except KeyboardInterrupt:

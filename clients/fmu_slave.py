@@ -7,7 +7,8 @@ FMI 2.0 co-simulation (pythonfmu). Per active DOF of each wet body ("sphere.heav
   its parts ``.excitation``, ``.radiation``, ``.hydrostatic``; ``wave_elevation``;
 - constant outputs ``A_inf.<body>.<dof>.<body>.<dof>``: the infinite-frequency added mass, which
   the importer MUST add to its mass matrix (the force excludes −A∞·a);
-- parameters ``server_address`` ("" = an embedded server in this process) and ``timeout`` (s).
+- parameters ``server_address`` ("" = an embedded server in this process), ``timeout`` (s) and
+  ``key_file`` (the shared HMAC key file of a signing server, SPEC §3.3; "" = none).
 
 Outputs are the forces at the current communication point for the inputs set at that point
 (direct feedthrough): set the state at t, read F(t). Setting the inputs again at the same point
@@ -47,8 +48,10 @@ class HydrolinkForces(Fmi2Slave):
         self._eta = 0.0
         self._seq, self._iteration, self._sent = 0, -1, None       # sample of the current step
         self._conn = self._server = None
-        self.server_address, self.timeout = "", 30.0
+        self.server_address, self.timeout, self.key_file = "", 30.0, ""
         self.register_variable(String("server_address", causality=Fmi2Causality.parameter,
+                                      variability=Fmi2Variability.fixed))
+        self.register_variable(String("key_file", causality=Fmi2Causality.parameter,
                                       variability=Fmi2Variability.fixed))
         self.register_variable(Real("timeout", causality=Fmi2Causality.parameter,
                                     variability=Fmi2Variability.fixed))
@@ -79,7 +82,11 @@ class HydrolinkForces(Fmi2Slave):
         if not address:           # embedded: the server's request handler in this process
             from hydrolink.server.service import ForceServer
             self._server = address = ForceServer(None)
-        self._conn = ServerConnection(address, timeout=float(self.timeout), client_name="hydrolink-fmu")
+        key = None
+        if self.key_file:         # a signing server (SPEC §3.3): the shared key file on this machine
+            from hydrolink.protocol.security import read_hmac_key
+            key = read_hmac_key(self.key_file)
+        self._conn = ServerConnection(address, timeout=float(self.timeout), client_name="hydrolink-fmu", key=key)
         hdbs = {key: load_hdb(self._res / name) for key, name in self._cfg["hdbs"].items()}
         setup = self._conn.hello(self._cfg["scene"], hdbs)
         if abs(setup.dt - self._dt) > 1e-12 * self._dt:

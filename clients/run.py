@@ -64,13 +64,15 @@ def load_wave_elevation(scene: Scene, scene_path: str | Path):
 def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
                    server: str | None = None, progress: bool = True, timeout: float = 60.0,
                    listen: str = "tcp://127.0.0.1:*", hdbs: dict[str, xr.Dataset] | None = None,
-                   curve=None) -> dict:
+                   curve=None, key: bytes | None = None) -> dict:
     """Run a scene end to end; returns the run summary (steps, wall time, output path).
 
     A scene with ``[[controllers]]`` and no ``server`` starts a force server with a socket on
     ``listen`` in a thread of this process (controllers connect to it; SPEC §5.7) instead of the
     in-process one, and says on stderr where the controllers should connect. ``curve``: a
-    :class:`hydrolink.protocol.security.ClientKeys` for a ``server`` that requires CURVE."""
+    :class:`hydrolink.protocol.security.ClientKeys` for a ``server`` that requires CURVE; ``key``:
+    the shared HMAC key (SPEC §3.3) of ``server``, or of the run's own listening server, whose
+    controllers must then sign too."""
     from hydrolink.clients.connection import ServerConnection
     from hydrolink.clients.exudyn_client import result_bodies, run
     from hydrolink.clients.results import ResultWriter
@@ -89,8 +91,8 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
         # no hydrodynamics: the mechanism runs alone, without a force server
         setup = None
         names, reference = result_bodies(scene, None)
-        with ResultWriter(output, scene=scene, scene_text=text, dt=scene.simulation.dt,
-                          bodies=names, equilibrium_position=reference) as writer:
+        with ResultWriter(output, scene=scene, scene_text=text, dt=scene.simulation.dt, bodies=names,
+                          equilibrium_position=reference, flush_seconds=scene.simulation.flush_seconds) as writer:
             summary = run(scene, text, None, None, writer, progress=progress, moordyn_files=moordyn_files)
             writer.set_attribute("warnings", json.dumps(summary["warnings"]))
         summary["output"], summary["server"] = str(output), None
@@ -98,14 +100,14 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
     with ExitStack() as stack:
         if server is None and scene.controllers:
             from hydrolink.server.service import serve_in_thread
-            srv, thread = serve_in_thread(listen)
+            srv, thread = serve_in_thread(listen, key=key)
 
             def _stop_server() -> None:
                 srv.stop()
                 thread.join(5.0)
             stack.callback(_stop_server)
             server = srv.address
-            conn = stack.enter_context(ServerConnection(server, timeout=timeout))
+            conn = stack.enter_context(ServerConnection(server, timeout=timeout, key=key))
         elif server is None:
             # embedded: the force server's request handler in this process, fed the same wire
             # frames as over a socket (same codec, same results) but with no thread or transport
@@ -117,7 +119,7 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
             server = embedded.address
             log.info("embedded force server (in-process)")
         else:
-            conn = stack.enter_context(ServerConnection(server, timeout=timeout, curve=curve))
+            conn = stack.enter_context(ServerConnection(server, timeout=timeout, curve=curve, key=key))
         setup = conn.hello(text, hdbs, wave_elevation=series)
         if scene.controllers:
             import sys
@@ -126,7 +128,8 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
                   f"--session {conn.session}", file=sys.stderr, flush=True)
         names, reference = result_bodies(scene, setup)
         writer = stack.enter_context(ResultWriter(output, scene=scene, scene_text=text, setup=setup,
-                                                  bodies=names, equilibrium_position=reference))
+                                                  bodies=names, equilibrium_position=reference,
+                                                  flush_seconds=scene.simulation.flush_seconds))
         if scene.client.type == "fmu":
             from hydrolink.clients.fmu_client import run as run_fmu
             summary = run_fmu(scene, text, conn, setup, writer, scene_path=scene_path, progress=progress)

@@ -44,6 +44,8 @@ class Simulation(_Section):
     # Exudyn client: generalized-alpha spectral radius (1 = trapezoidal rule, no numerical damping;
     # < 1 damps the constraint forces of long runs with joint loops and slack ropes)
     spectral_radius: Annotated[float, Field(ge=0.0, le=1.0)] = 1.0
+    # s of wall time between results flushes (written + synced): a crash loses at most this much work
+    flush_seconds: PositiveFloat = 1.0
 
     @property
     def n_steps(self) -> int:

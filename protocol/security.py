@@ -8,11 +8,17 @@
   the handshakes that fail before authentication (a plaintext client: mechanism mismatch; a client
   holding the wrong server key).
 - A client needs the server's public key file and its own secret file.
+
+The shared HMAC key of SPEC §3.3 (every message signed) lives in a key file too:
+``hydrolink keys hmac FILE`` writes one (:func:`new_hmac_key`), ``--key-file`` (env
+``HYDROLINK_KEY_FILE``) on ``serve``, ``run``, ``control`` reads it (:func:`read_hmac_key`).
 """
 
 from __future__ import annotations
 
 import logging
+import os
+import secrets
 import threading
 from dataclasses import dataclass
 from pathlib import Path
@@ -169,3 +175,38 @@ class ServerSecurity:
             pass
         self._thread.join(2.0)
         self.auth.stop()
+
+
+# ---------------------------------------------------------------- HMAC key files (SPEC §3.3)
+
+HMAC_KEY_BYTES = 32
+
+
+def new_hmac_key(path: str | Path) -> Path:
+    """Write a new shared HMAC key (32 random bytes, hex, one line) to ``path``, readable by its
+    owner only; refuses to overwrite."""
+    path = Path(path)
+    if path.exists():
+        raise CurveKeyError(f"{path} exists: choose another file (a key is never overwritten)")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    with os.fdopen(fd, "w") as fh:
+        fh.write(secrets.token_hex(HMAC_KEY_BYTES) + "\n")
+    return path
+
+
+def read_hmac_key(path: str | Path) -> bytes:
+    """The shared key in a key file (hex, at least 32 bytes); CurveKeyError naming the file."""
+    path = Path(path)
+    try:
+        text = path.read_text().strip()
+    except OSError as exc:
+        raise CurveKeyError(f"{path}: cannot read the key file: {exc.strerror}") from None
+    try:
+        key = bytes.fromhex(text)
+    except ValueError:
+        raise CurveKeyError(f"{path}: not a key file (one line of hex digits; make one with "
+                            "`hydrolink keys hmac FILE`)") from None
+    if len(key) < HMAC_KEY_BYTES:
+        raise CurveKeyError(f"{path}: the key is {len(key)} bytes; at least {HMAC_KEY_BYTES}")
+    return key

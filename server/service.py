@@ -215,7 +215,10 @@ class ForceServer:
             rtype, fields, session = out
             return codec.message(rtype, next(self._ids), session, msg_id, **fields)
         except ProtocolError as exc:
-            if exc.code not in (Code.OUT_OF_ORDER,):
+            if exc.code == Code.BAD_SIGNATURE:
+                log.warning("refused a request: %s (from routing identity %s)", exc.message,
+                            route[0].hex() if route else "in-process")
+            elif exc.code not in (Code.OUT_OF_ORDER,):
                 log.info("error %d %s [%s] session %s: %s", exc.code, exc.name, exc.field, session, exc.message)
             parent = codec.readable_id(msg) if msg is not None else exc.parent
             return codec.error_from(exc, next(self._ids), parent, session)

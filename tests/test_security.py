@@ -1,0 +1,93 @@
+"""Signed sessions (SPEC §3.3) from the command line: `hydrolink keys hmac` makes a key file,
+`hydrolink serve --key-file` (or HYDROLINK_KEY_FILE) requires every request signed with it,
+`hydrolink run --key-file` signs; unsigned and wrongly signed requests are refused with error 11
+and logged by the server. Real processes on loopback."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import stat
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from conftest import SPHERE_WATER, regular_waves, scene_toml, sphere_body, write_scene
+from hydrolink.clients.connection import RemoteError, ServerConnection
+from hydrolink.protocol.security import CurveKeyError, read_hmac_key
+
+HYDROLINK = [sys.executable, "-m", "hydrolink.clients.cli"]
+
+
+def _cli(*args: str, cwd: Path, env: dict | None = None) -> subprocess.CompletedProcess:
+    return subprocess.run([*HYDROLINK, *args], cwd=cwd, capture_output=True, text=True, timeout=120,
+                          env={**os.environ, **(env or {})})
+
+
+@pytest.fixture()
+def signed_server(tmp_path: Path):
+    """`hydrolink serve` with a key file given by HYDROLINK_KEY_FILE; yields (address, key file, log file)."""
+    assert _cli("keys", "hmac", "shared.key", cwd=tmp_path).returncode == 0
+    log = tmp_path / "server.log"
+    with open(log, "w") as fh:
+        proc = subprocess.Popen([*HYDROLINK, "serve", "--bind", "tcp://127.0.0.1:*"], cwd=tmp_path, stderr=fh,
+                                env={**os.environ, "HYDROLINK_KEY_FILE": str(tmp_path / "shared.key")})
+    try:
+        end = time.monotonic() + 30
+        while "listening on" not in log.read_text() and time.monotonic() < end:
+            time.sleep(0.05)
+        first = log.read_text().splitlines()[0]
+        assert "every message signed" in first, first
+        yield first.split("listening on ")[1].split()[0], tmp_path / "shared.key", log
+    finally:
+        proc.terminate()
+        proc.wait(10)
+
+
+def test_key_file_is_new_private_and_never_overwritten(tmp_path: Path):
+    r = _cli("keys", "hmac", "k", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert stat.S_IMODE((tmp_path / "k").stat().st_mode) == 0o600
+    assert len(read_hmac_key(tmp_path / "k")) == 32
+    again = _cli("keys", "hmac", "k", cwd=tmp_path)
+    assert again.returncode != 0 and "exists" in again.stderr
+    (tmp_path / "bad").write_text("not hex\n")
+    with pytest.raises(CurveKeyError, match=r"bad: not a key file"):
+        read_hmac_key(tmp_path / "bad")
+    (tmp_path / "short").write_text("abcd\n")
+    with pytest.raises(CurveKeyError, match=r"short: the key is 2 bytes; at least 32"):
+        read_hmac_key(tmp_path / "short")
+
+
+def test_signed_server_refuses_unsigned_and_wrong_key_and_logs(signed_server, tmp_path: Path):
+    address, key_file, log = signed_server
+    key = read_hmac_key(key_file)
+    with ServerConnection(address, timeout=5.0, key=key) as conn:
+        assert conn.ping()["type"] == "pong"
+    for wrong in (None, b"\x01" * 32):
+        with ServerConnection(address, timeout=5.0, key=wrong) as conn:
+            with pytest.raises((RemoteError, ConnectionError)) as err:
+                conn.ping()
+            if isinstance(err.value, RemoteError):        # unsigned: the reply is signed, the client cannot check it
+                assert err.value.code == 11
+    end = time.monotonic() + 5
+    while log.read_text().count("refused a request") < 2 and time.monotonic() < end:
+        time.sleep(0.05)
+    text = log.read_text()
+    assert "refused a request: message is not signed" in text and "refused a request: signature does not match" in text
+
+
+def test_run_signs_with_its_key_file(signed_server, tmp_path: Path, shared_data: Path):
+    address, key_file, _ = signed_server
+    shutil.copy(shared_data / "sphere_task10" / "sphere.h5", tmp_path / "sphere.h5")
+    write_scene(tmp_path, scene_toml(dt=0.05, duration=2.0, progress=False, water=SPHERE_WATER,
+                                     waves=regular_waves(1.0, 6.0), hydro={"irf_duration": 5.0},
+                                     bodies=[sphere_body("sphere.h5", mass=261.8e3, dofs=["heave"])]))
+    ok = _cli("run", "scene.toml", "-o", "out.nc", "--server", address, "--key-file", str(key_file), cwd=tmp_path)
+    assert ok.returncode == 0 and "40 steps" in ok.stdout, ok.stderr
+    unsigned = _cli("run", "scene.toml", "-o", "x.nc", "--server", address, cwd=tmp_path)
+    assert unsigned.returncode != 0
+    assert "bad_signature" in unsigned.stderr or "unreadable reply" in unsigned.stderr, unsigned.stderr
