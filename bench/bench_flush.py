@@ -92,7 +92,7 @@ def main() -> None:
     ap.add_argument("--kills", type=int, default=3)
     args = ap.parse_args()
     work = Path(tempfile.mkdtemp(prefix="bench-flush-"))
-    shutil.copy(SHARED / "sphere_task10" / "sphere.h5", work / "sphere.h5")
+    shutil.copy(SHARED / "data" / "sphere_task10" / "sphere.h5", work / "sphere.h5")
     rng = random.Random(1)
     print(f"# bench_flush (load {os.getloadavg()[0]:.2f})\n")
     print("| flush_seconds | wall time lost at SIGKILL (worst of %d) | rows lost (worst) | µs/step (20,000 steps, whole run) |" % args.kills)
