@@ -161,8 +161,31 @@ class HydroModel:
                     f"density and gravity to the HDB's values if that is not meant")
             if note not in self.warnings:
                 self.warnings.append(note)
+        self.warnings.extend(self._recorded_body_checks(sub, members, src))
         rows = (6 * np.asarray(members)[:, None] + np.arange(6)).reshape(-1)
         return _GroupData(members, src, sub, sub["omega"].values.astype(float), s_rho, s_rg, rows)
+
+    def _recorded_body_checks(self, sub: xr.Dataset, members: list[int], src: str) -> list[str]:
+        """Setup warnings for a scene body whose mass or centre of gravity differs from what its
+        HDB file records (Capytaine's inertia_matrix / center_of_mass): both values, named."""
+        notes = []
+        for k in members:
+            i = self._scene_index[k]
+            body = self.scene.bodies[i]
+            name = body.hdb_body_name
+            if "mass" in sub:
+                m = float(sub["mass"].sel(body=name))
+                if not math.isclose(body.mass, m, rel_tol=1e-3):
+                    notes.append(f"bodies[{i}].mass: the scene's {body.mass:.6g} kg differs from the {m:.6g} kg the "
+                                 f"HDB {src!r} records for body {name!r} ({100 * (body.mass / m - 1):+.3g} %); "
+                                 "set the scene's mass to the file's if that is not meant")
+            if "center_of_mass" in sub:
+                c = sub["center_of_mass"].sel(body=name).values
+                if np.max(np.abs(np.asarray(body.center_of_mass) - c)) > 1e-3:
+                    notes.append(f"bodies[{i}].center_of_mass: the scene's {list(body.center_of_mass)} m differs from "
+                                 f"{np.round(c, 6).tolist()} m, the centre of gravity the HDB {src!r} records for body "
+                                 f"{name!r}")
+        return notes
 
     def _radiation_group(self, d: _GroupData) -> RadiationGroup:
         """The group's radiation coefficients over its active DOFs, in the scene's density."""

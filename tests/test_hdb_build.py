@@ -288,6 +288,13 @@ def test_summary_and_plot(cylinder, tmp_path):
     period, note = heave_natural_period(ds, "cyl")
     assert period == pytest.approx(2 * math.pi / w, rel=1e-6) and "self-consistent" in note
     assert f"{period:.4g} s" in text
+    # a file that records the body's mass (not a freely floating rho V): the period uses it
+    heavy = ds.drop_vars([v for v in ("mass",) if v in ds]).assign(mass=("body", [1.5 * m]))
+    w = math.sqrt(c / (1.5 * m))
+    for _ in range(200):
+        w = math.sqrt(c / (1.5 * m + np.interp(w, w_grid, a33)))
+    period, note = heave_natural_period(heavy, "cyl")
+    assert period == pytest.approx(2 * math.pi / w, rel=1e-6) and "the file's mass" in note
     missing = ds.drop_vars("added_mass_inf")
     assert "missing -> computed from A(w), B(w) with Ogilvie" in hdb_summary(missing)
     png = plot_hdb(ds, tmp_path / "hdb.png")

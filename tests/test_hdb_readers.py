@@ -146,6 +146,11 @@ def test_capytaine_in_memory_dataset(tmp_path):
     assert list(hdb["body"].values) == ["buoy"]
     np.testing.assert_allclose(hdb["omega"].values, [0.5, 1.0])
     np.testing.assert_allclose(hdb["reference_point"].values, [[0, 0, -0.2]])
+    # the mass and centre of gravity the file records (Capytaine's inertia_matrix: rho V of the
+    # immersed hemisphere, as its rigid-body inertia is computed for a neutrally buoyant body)
+    assert float(hdb["mass"].item()) == pytest.approx(ds["inertia_matrix"].sel(influenced_dof="Heave",
+                                                                             radiating_dof="Heave").item())
+    np.testing.assert_allclose(hdb["center_of_mass"].values, [[0, 0, -0.3]])
     a_inf = ds["added_mass"].sel(omega=np.inf, influenced_dof="Heave", radiating_dof="Heave").item()
     assert hdb["added_mass_inf"].sel(influenced_dof="buoy.heave", radiating_dof="buoy.heave").item() == a_inf
     # buoyancy + waterplane only: the same as Capytaine's stiffness for a centre of mass at the

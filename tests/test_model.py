@@ -265,6 +265,27 @@ def test_density_and_gravity_that_differ_from_the_hdb_are_named():
                 if w.startswith("water:")]
 
 
+def test_a_mass_or_centre_of_gravity_that_differs_from_the_file_is_named():
+    """An HDB that records its body's mass and centre of gravity (as Capytaine's inertia_matrix and
+    center_of_mass do): a scene that disagrees gets a setup warning with both values; one that
+    agrees (to 0.1 %, 1 mm) gets none."""
+    hdb = an.make_body_hdb()
+    hdb["mass"] = ("body", [874.0])
+    hdb["center_of_mass"] = (("body", "xyz"), [[0.0, 0.0, -0.5]])
+
+    def warnings_for(mass: float, com: list[float]) -> list[str]:
+        sc = parse_scene(scene_toml(dt=0.01, duration=10, water={"density": 1000.0, "gravity": 9.81},
+                                    bodies=[body("float", hdb="x.nc", mass=mass, center_of_mass=com,
+                                                 inertia=[1e3] * 3)]))
+        return [w for w in HydroModel(sc, {"float": hdb}).setup_info().warnings if w.startswith("bodies[0]")]
+
+    notes = warnings_for(1000.0, [0.0, 0.0, -0.2])
+    assert len(notes) == 2, notes
+    assert "bodies[0].mass: the scene's 1000 kg differs from the 874 kg" in notes[0] and "+14.4 %" in notes[0]
+    assert "bodies[0].center_of_mass: the scene's [0.0, 0.0, -0.2] m differs from [0.0, 0.0, -0.5] m" in notes[1]
+    assert warnings_for(874.5, [0.0, 0.0, -0.5005]) == []
+
+
 @pytest.mark.parametrize("radiation", ["convolution", "state-space", "constant", "off"])
 def test_radiation_feedthrough_is_the_force_per_velocity_of_the_step(radiation):
     """setup.radiation_feedthrough D: re-sending the newest step with another velocity changes the

@@ -253,11 +253,20 @@ def from_capytaine_dataset(ds: xr.Dataset, source: str | Path, *,
         if volume.size != len(names):
             volume = None
 
+    # the body mass and centre of gravity the file records (Capytaine's inertia_matrix and
+    # center_of_mass): kept so that a scene that disagrees can be told (server/model.py)
+    mass = _mass_per_body(ds, file_bodies, source) if "inertia_matrix" in ds else None
+    if mass is not None and not np.all(mass > 0):
+        mass = None                     # no translational DOF in the inertia matrix: not recorded
+    cog = _per_body(ds, "center_of_mass", file_bodies, source)
+    if cog is not None and not np.all(np.isfinite(cog)):
+        cog = None
     out = make_hdb(
         bodies=names, omega=omega, wave_direction=np.asarray(exc["wave_direction"].values, float),
         added_mass=added_mass, radiation_damping=damping, excitation_force=excitation,
         hydrostatic_stiffness=stiffness, reference_point=ref, rho=rho, g=g, water_depth=depth,
         source=source, added_mass_inf=a_inf, displaced_volume=volume, center_of_buoyancy=cb,
+        mass=mass, center_of_mass=cog,
     )
     out.attrs["body_names_in_file"] = ",".join(file_bodies)
     out.attrs["reference_point_from"] = ref_from

@@ -47,12 +47,15 @@ def active_dofs(ds: xr.Dataset, rel_tol: float = 1e-4) -> list[str]:
 
 
 def heave_natural_period(ds: xr.Dataset, body: str) -> tuple[float | None, str]:
-    """Undamped heave period T = 2 pi / w_n with w_n^2 (m + A33(w_n)) = C33, m = rho V (a freely
-    floating body), A33 interpolated on the grid (A_inf above it, if known). Returns (T, note)."""
+    """Undamped heave period T = 2 pi / w_n with w_n^2 (m + A33(w_n)) = C33, m the mass the file
+    records, else rho V (a freely floating body), A33 interpolated on the grid (A_inf above it, if known). Returns (T, note)."""
     label = f"{body}.heave"
-    if "displaced_volume" not in ds:
-        return None, "needs displaced_volume (not in this HDB): give the mass in the scene"
-    m = float(ds.attrs["rho"]) * float(ds["displaced_volume"].sel(body=body))
+    if "mass" in ds:                    # the mass the file records
+        m, which = float(ds["mass"].sel(body=body)), "the file's mass"
+    elif "displaced_volume" in ds:      # a freely floating body
+        m, which = float(ds.attrs["rho"]) * float(ds["displaced_volume"].sel(body=body)), "rho V"
+    else:
+        return None, "needs the body's mass or displaced_volume (neither is in this HDB): give the mass in the scene"
     c = float(ds["hydrostatic_stiffness"].sel(influenced_dof=label, radiating_dof=label))
     if not c > 0 or not m > 0:
         return None, "no heave restoring (C33 <= 0): no natural period"
@@ -61,16 +64,16 @@ def heave_natural_period(ds: xr.Dataset, body: str) -> tuple[float | None, str]:
     f = omega ** 2 * (m + a) - c
     if f[0] > 0:
         w = math.sqrt(c / (m + a[0]))
-        return 2 * math.pi / w, f"below the frequency grid: used A33(w_min) (m = rho V = {m:.4g} kg)"
+        return 2 * math.pi / w, f"below the frequency grid: used A33(w_min) (m = {which} = {m:.4g} kg)"
     if f[-1] < 0:
         if "added_mass_inf" in ds:
             a_inf = float(ds["added_mass_inf"].sel(influenced_dof=label, radiating_dof=label))
             w = math.sqrt(c / (m + a_inf))
-            return 2 * math.pi / w, f"above the frequency grid: used A_inf (m = rho V = {m:.4g} kg)"
+            return 2 * math.pi / w, f"above the frequency grid: used A_inf (m = {which} = {m:.4g} kg)"
         return None, "above the frequency grid and A_inf unknown"
     i = int(np.flatnonzero((f[:-1] <= 0) & (f[1:] >= 0))[0])  # first upward crossing
     w = brentq(lambda x: x ** 2 * (m + np.interp(x, omega, a)) - c, omega[i], omega[i + 1])
-    return 2 * math.pi / w, f"self-consistent with A33(w_n) = {np.interp(w, omega, a):.4g} kg (m = rho V = {m:.4g} kg)"
+    return 2 * math.pi / w, f"self-consistent with A33(w_n) = {np.interp(w, omega, a):.4g} kg (m = {which} = {m:.4g} kg)"
 
 
 def _fmt_grid(omega: np.ndarray) -> str:

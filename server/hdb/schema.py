@@ -18,6 +18,8 @@ Every reader converts its format into this layout once; everything downstream (I
             added_mass_inf        (influenced_dof, radiating_dof)   optional; absent -> Ogilvie
             displaced_volume      (body)        optional (m^3)
             center_of_buoyancy    (body, xyz)   optional (m)
+            mass                  (body)        optional (kg): the body mass the file records
+            center_of_mass        (body, xyz)   optional (m): the centre of gravity the file records
     attrs   rho, g, water_depth (float, inf for deep water), time_convention = "exp(-iwt)",
             source (where it came from), hdb_schema_version = 1
 
@@ -50,6 +52,8 @@ OPTIONAL_VARS = {
     "added_mass_inf": ("influenced_dof", "radiating_dof"),
     "displaced_volume": ("body",),
     "center_of_buoyancy": ("body", "xyz"),
+    "mass": ("body",),
+    "center_of_mass": ("body", "xyz"),
 }
 REQUIRED_ATTRS = ("rho", "g", "water_depth")
 
@@ -84,6 +88,8 @@ def make_hdb(
     added_mass_inf: np.ndarray | None = None,
     displaced_volume: np.ndarray | None = None,
     center_of_buoyancy: np.ndarray | None = None,
+    mass: np.ndarray | None = None,
+    center_of_mass: np.ndarray | None = None,
 ) -> xr.Dataset:
     """Assemble an HDB dataset in the schema's layout from plain arrays (already converted to
     SI units and the exp(-iwt) convention), then validate it."""
@@ -96,7 +102,8 @@ def make_hdb(
         "reference_point": (REQUIRED_VARS["reference_point"], np.asarray(reference_point, float)),
     }
     for name, value in (("added_mass_inf", added_mass_inf), ("displaced_volume", displaced_volume),
-                        ("center_of_buoyancy", center_of_buoyancy)):
+                        ("center_of_buoyancy", center_of_buoyancy), ("mass", mass),
+                        ("center_of_mass", center_of_mass)):
         if value is not None:
             data_vars[name] = (OPTIONAL_VARS[name], np.asarray(value, float))
     ds = xr.Dataset(
