@@ -220,7 +220,9 @@ class Body(_Section):
     hdb_body: str | None = None
     mass: PositiveFloat
     center_of_mass: Vector3
-    inertia: Union[Vector3, Annotated[list[Vector3], Field(min_length=3, max_length=3)]]
+    # about the centre of mass, global axes: principal moments or a 3x3 matrix; not needed (and
+    # then unused) when the body's rotations are all locked (dofs without roll, pitch and yaw)
+    inertia: Union[Vector3, Annotated[list[Vector3], Field(min_length=3, max_length=3)], None] = None
     dofs: list[Literal["surge", "sway", "heave", "roll", "pitch", "yaw"]] = list(DOF_NAMES)
     initial_displacement: Vector6 = [0.0] * 6
     initial_velocity: Vector6 = [0.0] * 6
@@ -228,6 +230,14 @@ class Body(_Section):
     reference_point: Vector3 | None = None
     buoyancy_volume: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 0.0
     center_of_buoyancy: Vector3 | None = None
+
+    @model_validator(mode="after")
+    def _inertia_if_it_rotates(self) -> "Body":
+        turning = [d for d in ("roll", "pitch", "yaw") if d in self.dofs]
+        if self.inertia is None and turning:
+            raise ValueError(f"inertia: required: the body's rotational DOFs {turning} are active (a body that "
+                             "only translates needs none)")
+        return self
 
     @model_validator(mode="after")
     def _dry_only_keys(self) -> "Body":
@@ -261,6 +271,8 @@ class Body(_Section):
     @classmethod
     def _inertia_valid(cls, v):
         import numpy as np
+        if v is None:
+            return v
         m = np.diag(v) if len(v) == 3 and not isinstance(v[0], list) else np.asarray(v, float)
         if not np.allclose(m, m.T, rtol=1e-9, atol=0):
             raise ValueError("3x3 inertia must be symmetric")
@@ -270,8 +282,12 @@ class Body(_Section):
 
     @property
     def inertia_matrix(self):
+        """The 3x3 inertia; for a body whose rotations are all locked and that gives none,
+        mass x (1 m)^2 isotropic: a well-conditioned value that never enters its motion."""
         import numpy as np
         v = self.inertia
+        if v is None:
+            return np.eye(3) * float(self.mass)
         return np.diag(v).astype(float) if not isinstance(v[0], list) else np.asarray(v, float)
 
     @property

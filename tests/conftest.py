@@ -130,13 +130,14 @@ def scene_toml(*, dt: float, duration: float, bodies: Sequence[Section], progres
     return toml_document({k: given[k] for k in SCENE_SECTIONS if given.get(k)})
 
 
-def body(name: str, *, mass: float, center_of_mass: Sequence[float], inertia: Sequence[Any],
+def body(name: str, *, mass: float, center_of_mass: Sequence[float], inertia: Sequence[Any] | None,
          hdb: str | None = None, **keys: Any) -> dict[str, Any]:
-    """One ``[[bodies]]`` entry: wet with ``hdb``, dry without; further keys as the scene names them
-    (dofs, initial_displacement, hdb_body, ...)."""
+    """One ``[[bodies]]`` entry: wet with ``hdb``, dry without; ``inertia`` None leaves the key out
+    (a body that only translates); further keys as the scene names them (dofs, initial_displacement,
+    hdb_body, ...)."""
     wet = {"hdb": hdb} if hdb is not None else {}
-    return {"name": name, **wet, "mass": mass, "center_of_mass": list(center_of_mass), "inertia": list(inertia),
-            **keys}
+    given = {} if inertia is None else {"inertia": list(inertia)}
+    return {"name": name, **wet, "mass": mass, "center_of_mass": list(center_of_mass), **given, **keys}
 
 
 def joint(kind: str, body1: str, body2: str, point: Sequence[float], **keys: Any) -> dict[str, Any]:

@@ -108,3 +108,15 @@ def test_one_coupling_table_for_every_client():
     with pytest.raises(SceneError, match="coupling.exchange_every: an FMU client exchanges every simulation.dt"):
         parse_scene(fmu_scene(FMU_CLIENT, coupling={"exchange_every": 2}))
     assert parse_scene(fmu_scene(FMU_CLIENT)).coupling.scheme == "auto"
+
+
+def test_inertia_is_needed_only_by_a_body_that_rotates():
+    """A heave-only body needs no inertia (its rotations are locked); one with a rotational DOF
+    must give it, and the error names the key and the DOFs."""
+    heave = parse_scene(scene_toml(dt=0.01, duration=1.0, bodies=[body("b", hdb="h.nc", mass=874.0,
+                                                                      center_of_mass=[0, 0, 0], inertia=None,
+                                                                      dofs=["heave"])]))
+    assert heave.bodies[0].inertia is None
+    with pytest.raises(SceneError, match=r"bodies\[0\]\.inertia: required: the body's rotational DOFs \['pitch'\]"):
+        parse_scene(scene_toml(dt=0.01, duration=1.0, bodies=[body("b", hdb="h.nc", mass=874.0, center_of_mass=[0, 0, 0],
+                                                                    inertia=None, dofs=["heave", "pitch"])]))
