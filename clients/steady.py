@@ -228,9 +228,14 @@ def linearize(scene: Scene, model, setup: Setup) -> LinearizedSystem:
     ptos: list[PTOLine] = []
     for p in scene.ptos:
         if isinstance(p, LinearPTO):
-            p1, p2 = np.asarray(p.point1, float), np.asarray(p.point2, float)
-            length = float(np.linalg.norm(p2 - p1))
-            e = (p2 - p1) / length
+            p1 = np.asarray(p.point1, float)
+            if p.direction is not None:   # to ground along a fixed axis: a line of rest length L0
+                e = np.asarray(p.unit_direction, float)
+                length, p2 = 1.0, p1 + e
+            else:
+                p2 = np.asarray(p.point2, float)
+                length = float(np.linalg.norm(p2 - p1))
+                e = (p2 - p1) / length
             g = np.zeros(n)
             for name, point, sign in ((p.body1, p1, -1.0), (p.body2, p2, 1.0)):
                 if handles[name].kind == "ground":

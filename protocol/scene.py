@@ -375,17 +375,41 @@ class Constraint(_Section):
 
 
 class LinearPTO(_Section):
-    """A spring-damper along the line between point1 (on body1) and point2 (on body2 or ground)."""
+    """A spring-damper along the line between point1 (on body1) and point2 (on body2 or ground); to
+    ground it may instead act along a fixed global ``direction`` from point1 (no anchor point to
+    invent: a heave PTO is ``direction = [0, 0, -1]``), exactly, whatever the body's motion."""
     name: Name
     type: Literal["linear"]
     body1: Name
     point1: Vector3
     body2: Name
-    point2: Vector3
+    point2: Vector3 | None = None
+    direction: UnitVector | None = None         # to ground: along a global axis, e.g. [0, 0, -1]
     stiffness: NonNegative = 0.0
     damping: NonNegative = 0.0
     rest_length: NonNegative | None = None      # default: the initial distance (no preload)
     force_limit: PositiveFloat | None = None
+
+    @model_validator(mode="after")
+    def _point_or_direction(self) -> "LinearPTO":
+        if (self.point2 is None) == (self.direction is None):
+            raise ValueError("point2 or direction: give one (direction: a PTO to ground along a fixed axis)")
+        if self.direction is not None:
+            if self.body2 != "ground":
+                raise ValueError(f"direction: only for a PTO to ground (body2 = \"ground\", not {self.body2!r})")
+            e = _unit(self.direction, "direction")
+            if sorted(abs(x) for x in e) != [0.0, 0.0, 1.0]:
+                raise ValueError(f"direction: along a global axis, e.g. [0, 0, -1] (got {self.direction}); for "
+                                 "another direction give point2")
+            for key in ("rest_length", "force_limit"):
+                if getattr(self, key) is not None:
+                    raise ValueError(f"{key}: not with direction (give point2)")
+        return self
+
+    @property
+    def unit_direction(self) -> list[float] | None:
+        """``direction`` normalised (None for a PTO given by point2)."""
+        return None if self.direction is None else _unit(self.direction, "direction")
 
 
 RotaryAxis = Literal["roll", "pitch", "yaw"]
@@ -744,13 +768,16 @@ class Scene(_Section):
         return list(self._notes)
 
     def _check_controllers(self, names: list[str]) -> None:
-        linear = {p.name for p in self.ptos if isinstance(p, LinearPTO)}
+        linear = {p.name: p for p in self.ptos if isinstance(p, LinearPTO)}
         driven: dict[str, str] = {}
         dt = self.simulation.dt
         for i, c in enumerate(self.controllers):
             if c.name in [d.name for d in self.controllers[:i]]:
                 raise ValueError(f"controllers[{i}].name: duplicate controller name {c.name!r}")
             for p in c.ptos:
+                if p in linear and linear[p].direction is not None:
+                    raise ValueError(f"controllers[{i}].ptos: PTO {p!r} is given by a direction; a controller "
+                                     "drives PTOs given by point2")
                 if p in {q.name for q in self.ptos} and p not in linear:
                     raise ValueError(f"controllers[{i}].ptos: {p!r} is not a linear PTO (controllers drive "
                                      "linear PTOs only)")

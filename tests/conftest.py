@@ -145,12 +145,12 @@ def joint(kind: str, body1: str, body2: str, point: Sequence[float], **keys: Any
     return {"type": kind, "body1": body1, "body2": body2, "point": list(point), **keys}
 
 
-def linear_pto(name: str, body1: str, point1: Sequence[float], body2: str, point2: Sequence[float],
+def linear_pto(name: str, body1: str, point1: Sequence[float], body2: str, point2: Sequence[float] | None,
                **keys: Any) -> dict[str, Any]:
-    """One ``[[ptos]]`` entry of type "linear" from point1 on body1 to point2 on body2 (damping,
-    stiffness, force_limit, ... as keys)."""
-    return {"name": name, "type": "linear", "body1": body1, "point1": list(point1), "body2": body2,
-            "point2": list(point2), **keys}
+    """One ``[[ptos]]`` entry of type "linear" from point1 on body1 to point2 on body2, or, with
+    point2 None, along ``direction`` to ground (damping, stiffness, force_limit, ... as keys)."""
+    to = {} if point2 is None else {"point2": list(point2)}
+    return {"name": name, "type": "linear", "body1": body1, "point1": list(point1), "body2": body2, **to, **keys}
 
 
 def regular_waves(height: float, period: float, **keys: Any) -> dict[str, Any]:

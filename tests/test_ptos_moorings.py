@@ -354,3 +354,58 @@ def test_rope_force_on_a_hanging_body_in_a_run_equals_its_weight(tmp_path):
     settled = fz[ds["time"].values > 3.0]
     assert settled.min() > 0                                  # the rope pulls the body up
     assert settled.mean() == pytest.approx(100.0 * 9.81, rel=0.02)
+
+
+@pytest.mark.parametrize("reduce", [True, False])
+def test_pto_to_ground_by_direction(shared_data, tmp_path, reduce):
+    """A heave PTO given by direction = [0, 0, -1] (no anchor point): mean power against the
+    frequency-domain 1/2 c w^2 |X|^2 with its spring in the restoring term; the same run with an
+    anchor 50 m below gives the same motion and PTO outputs (a vertical line stays vertical in
+    heave); tension = k z + c w and extension rate = w (moving up, away from the ground below,
+    stretches the line)."""
+    from hydrolink.clients.run import run_scene_file
+    from hydrolink.server.hdb.io import load_hdb
+
+    path = shared_data / "sphere_task10" / "sphere.h5"
+    hdb = load_hdb(path)
+    mass, heave, c_pto, k_pto, height = 261.724e3, 2, 2.0e5, 1.0e5, 1.0
+    i = int(np.argmin(np.abs(hdb["omega"].values - 1.15)))
+    w = float(hdb["omega"].values[i])
+    a, b = hdb["added_mass"].values[i, heave, heave], hdb["radiation_damping"].values[i, heave, heave]
+    f, c = hdb["excitation_force"].values[i, 0, heave], hdb["hydrostatic_stiffness"].values[heave, heave]
+    x = f * height / 2 / (-w ** 2 * (mass + a) - 1j * w * (b + c_pto) + c + k_pto)
+    period = 2 * math.pi / w
+    out = {}
+    for kind, pto in (("direction", linear_pto("pto", "sphere", [0, 0, 0], "ground", None, direction=[0, 0, -1],
+                                                damping=c_pto, stiffness=k_pto)),
+                      ("anchor", linear_pto("pto", "sphere", [0, 0, 0], "ground", [0, 0, -50],
+                                            damping=c_pto, stiffness=k_pto))):
+        scene = write_scene(tmp_path, scene_toml(
+            dt=period / 100, duration=20 * period, progress=False, water={**SPHERE_WATER, "gravity": 9.81},
+            waves=regular_waves(height, period, ramp=2 * period), client={"type": "exudyn", "reduce": reduce},
+            bodies=[sphere_body(str(path), mass=mass, dofs=["heave"], inertia=None)], ptos=[pto]), f"{kind}.toml")
+        run_scene_file(scene, tmp_path / f"{kind}.nc", progress=False)
+        out[kind] = xr.load_dataset(tmp_path / f"{kind}.nc")
+    ds = out["direction"]
+    t = ds["time"].values
+    sel = t > t[-1] - 4 * period + 1e-9
+    assert ds["pto_power"].values[sel, 0].mean() == pytest.approx(0.5 * c_pto * w ** 2 * abs(x) ** 2, rel=0.02)
+    z = ds["position"].sel(body="sphere", dof="heave").values - ds["position"].sel(body="sphere", dof="heave").values[0]
+    v = ds["velocity"].sel(body="sphere", dof="heave").values
+    np.testing.assert_allclose(ds["pto_velocity"].values[:, 0], v, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(ds["pto_force"].values[:, 0], k_pto * z + c_pto * v, rtol=1e-9, atol=1e-6)
+    for name in ("position", "pto_force", "pto_velocity", "pto_power"):
+        np.testing.assert_allclose(ds[name].values, out["anchor"][name].values, rtol=1e-9, atol=1e-9)
+
+
+def test_pto_direction_errors_name_the_key():
+    def bad(**keys) -> str:
+        with pytest.raises(Exception) as err:
+            parse_scene(scene_toml(dt=0.1, duration=1.0, bodies=[body("b", mass=1.0, center_of_mass=[0, 0, 0],
+                                                                         inertia=[1, 1, 1])],
+                                   ptos=[{"name": "p", "type": "linear", "body1": "b", "point1": [0, 0, 0], **keys}]))
+        return str(err.value)
+    assert "ptos[0]: point2 or direction: give one" in bad(body2="ground")
+    assert "ptos[0].direction: only for a PTO to ground" in bad(body2="b", direction=[0, 0, -1])
+    assert "ptos[0].direction: along a global axis" in bad(body2="ground", direction=[0, 1, -1])
+    assert "ptos[0].rest_length: not with direction" in bad(body2="ground", direction=[0, 0, 1], rest_length=2.0)
