@@ -386,7 +386,7 @@ def wet_rigid_mass(scene: Scene, setup: Setup) -> np.ndarray:
     m = np.zeros((6 * len(names), 6 * len(names)))
     for i, b in enumerate(_scene_bodies(scene, names)):
         m[6 * i:6 * i + 6, 6 * i:6 * i + 6] = rigid_body_mass_matrix(
-            b.mass, b.inertia_matrix, np.asarray(b.center_of_mass, float) - eq[i, :3])
+            b.mass, b.inertia_matrix, b.com_or(eq[i, :3]) - eq[i, :3])
     return m
 
 

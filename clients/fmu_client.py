@@ -162,7 +162,7 @@ def wire(fmu: FMUInstance, scene: Scene, setup: Setup) -> Wiring:
     for b, name in enumerate(names):
         m, body, base = client.bodies[name], by_name[name], f"client.bodies.{name}"
         mass[6 * b:6 * b + 6, 6 * b:6 * b + 6] = rigid_body_mass_matrix(
-            body.mass, body.inertia_matrix, np.asarray(body.center_of_mass) - eq[b, :3])
+            body.mass, body.inertia_matrix, body.com_or(eq[b, :3]) - eq[b, :3])
         for k in active[active // 6 == b]:
             d = DOF_NAMES[k % 6]
             pos.append(fmu.variable(m.position[d], f"{base}.position.{d}", ("output",)).valueReference)

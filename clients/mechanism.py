@@ -235,7 +235,7 @@ def add_rigid_body(mbs, scene: Scene, body: Body, reference, initial_displacemen
                    initial_velocity=None) -> BodyHandle:
     """``NodeRigidBodyRxyz`` at ``reference`` + ``ObjectRigidBody`` (inertia moved to the node)."""
     ref = np.asarray(reference, float).reshape(3)
-    com = np.asarray(body.center_of_mass, float) - ref
+    com = body.com_or(ref) - ref
     _check_inertia(scene, body)
     inertia = RigidBodyInertia(body.mass, body.inertia_matrix, com, inertiaTensorAtCOM=True)
     q0 = initial_displacement if initial_displacement is not None else _initial(scene, body, "initial_displacement")
@@ -279,7 +279,7 @@ def reduction_blocker(scene: Scene, body: Body, reference) -> str | None:
     ref = np.asarray(reference, float).reshape(3)
     points = []
     if len(dofs) > 1 or not body.wet:
-        points.append(("centre of mass", body.center_of_mass))
+        points.append(("centre of mass", body.com_or(ref)))
     if not body.wet and body.buoyancy_volume > 0 and body.center_of_buoyancy is not None:
         points.append(("centre of buoyancy", body.center_of_buoyancy))
     for what, point in points:
@@ -312,7 +312,7 @@ def add_reduced_body(mbs, scene: Scene, body: Body, reference, initial_displacem
                                          referencePosition=ref.tolist(), referenceRotation=slider_rotation(dofs[0]),
                                          visualization=VObjectMass1D(show=False)))
         return BodyHandle(body.name, "slider", node, obj, tuple(float(x) for x in ref), dofs)
-    m6 = rigid_body_mass_matrix(body.mass, body.inertia_matrix, np.asarray(body.center_of_mass, float) - ref)
+    m6 = rigid_body_mass_matrix(body.mass, body.inertia_matrix, body.com_or(ref) - ref)
     node = mbs.AddNode(NodeGenericODE2(name=f"{body.name}_node", numberOfODE2Coordinates=len(dofs),
                                        referenceCoordinates=np.r_[ref, 0.0, 0.0, 0.0][list(dofs)].tolist(),
                                        initialCoordinates=q0.tolist(), initialCoordinates_t=v0.tolist()))
@@ -456,7 +456,7 @@ def _check_joint_distance(scene: Scene, i: int, handles: dict[str, BodyHandle]) 
             return None
         b = by_name[name]
         r_gyr = math.sqrt(float(np.trace(b.inertia_matrix)) / (2.0 * b.mass))
-        d = float(np.linalg.norm(np.asarray(joint.point) - np.asarray(b.center_of_mass)))
+        d = float(np.linalg.norm(np.asarray(joint.point) - b.com_or(handles[name].reference)))
         limit = 10.0 * max(r_gyr, 0.1)
         if d <= limit:
             return None

@@ -219,7 +219,9 @@ class Body(_Section):
     hdb: Annotated[str, Field(min_length=1)] | None = None   # None: a dry body (no hydrodynamics)
     hdb_body: str | None = None
     mass: PositiveFloat
-    center_of_mass: Vector3
+    # global frame at equilibrium; not needed by a wet body whose rotations are all locked (it
+    # then sits at its HDB reference point, where the forces act)
+    center_of_mass: Vector3 | None = None
     # about the centre of mass, global axes: principal moments or a 3x3 matrix; not needed (and
     # then unused) when the body's rotations are all locked (dofs without roll, pitch and yaw)
     inertia: Union[Vector3, Annotated[list[Vector3], Field(min_length=3, max_length=3)], None] = None
@@ -237,7 +239,18 @@ class Body(_Section):
         if self.inertia is None and turning:
             raise ValueError(f"inertia: required: the body's rotational DOFs {turning} are active (a body that "
                              "only translates needs none)")
+        if self.center_of_mass is None and turning:
+            raise ValueError(f"center_of_mass: required: the body's rotational DOFs {turning} are active (a wet "
+                             "body that only translates needs none)")
+        if self.center_of_mass is None and self.hdb is None:
+            raise ValueError("center_of_mass: required for a dry body (it places the body)")
         return self
+
+    def com_or(self, reference) -> "np.ndarray":
+        """The centre of mass, or for a wet body that gives none (its rotations all locked) the
+        ``reference`` point it sits at (its HDB reference point, the body's node)."""
+        import numpy as np
+        return np.asarray(reference if self.center_of_mass is None else self.center_of_mass, float).reshape(3)
 
     @model_validator(mode="after")
     def _dry_only_keys(self) -> "Body":

@@ -179,7 +179,7 @@ class HydroModel:
                     notes.append(f"bodies[{i}].mass: the scene's {body.mass:.6g} kg differs from the {m:.6g} kg the "
                                  f"HDB {src!r} records for body {name!r} ({100 * (body.mass / m - 1):+.3g} %); "
                                  "set the scene's mass to the file's if that is not meant")
-            if "center_of_mass" in sub:
+            if "center_of_mass" in sub and body.center_of_mass is not None:
                 c = sub["center_of_mass"].sel(body=name).values
                 if np.max(np.abs(np.asarray(body.center_of_mass) - c)) > 1e-3:
                     notes.append(f"bodies[{i}].center_of_mass: the scene's {list(body.center_of_mass)} m differs from "
@@ -210,7 +210,7 @@ class HydroModel:
             c_hs[np.ix_(d.rows, d.rows)] = d.rg_scale * d.data["hydrostatic_stiffness"].values
         wet_bodies = [self.scene.bodies[i] for i in self._scene_index]
         masses = np.array([b.mass for b in wet_bodies])
-        cogs = np.array([b.center_of_mass for b in wet_bodies], float)
+        cogs = np.array([b.com_or(r) for b, r in zip(wet_bodies, refs)], float)
         mask = self.active.reshape(-1)
         g = self.scene.water.gravity
         self.hydrostatic_stiffness = np.where(np.outer(mask, mask), total_stiffness(c_hs, masses, cogs, refs, g), 0.0)

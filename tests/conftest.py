@@ -130,14 +130,14 @@ def scene_toml(*, dt: float, duration: float, bodies: Sequence[Section], progres
     return toml_document({k: given[k] for k in SCENE_SECTIONS if given.get(k)})
 
 
-def body(name: str, *, mass: float, center_of_mass: Sequence[float], inertia: Sequence[Any] | None,
+def body(name: str, *, mass: float, center_of_mass: Sequence[float] | None, inertia: Sequence[Any] | None,
          hdb: str | None = None, **keys: Any) -> dict[str, Any]:
-    """One ``[[bodies]]`` entry: wet with ``hdb``, dry without; ``inertia`` None leaves the key out
-    (a body that only translates); further keys as the scene names them (dofs, initial_displacement,
-    hdb_body, ...)."""
+    """One ``[[bodies]]`` entry: wet with ``hdb``, dry without; ``center_of_mass`` or ``inertia``
+    None leaves the key out (a wet body that only translates); further keys as the scene names them
+    (dofs, initial_displacement, hdb_body, ...)."""
     wet = {"hdb": hdb} if hdb is not None else {}
-    given = {} if inertia is None else {"inertia": list(inertia)}
-    return {"name": name, **wet, "mass": mass, "center_of_mass": list(center_of_mass), **given, **keys}
+    given = {k: list(v) for k, v in (("center_of_mass", center_of_mass), ("inertia", inertia)) if v is not None}
+    return {"name": name, **wet, "mass": mass, **given, **keys}
 
 
 def joint(kind: str, body1: str, body2: str, point: Sequence[float], **keys: Any) -> dict[str, Any]:

@@ -339,16 +339,18 @@ def test_initial_displacement_in_a_locked_dof_is_a_scene_error(server, sphere, s
 
 @pytest.mark.parametrize("reduce", [True, False])
 def test_a_heave_only_body_needs_no_inertia(tmp_path, sphere_path, reduce):
-    """The same heave-only sphere run with and without an inertia in the scene: the same motion, bit
-    for bit (the inertia of a body whose rotations are locked never enters its motion), reduced or
-    as a full rigid body with its rotations constrained."""
+    """The same heave-only sphere run with an inertia and a centre of mass, and with neither (it
+    then sits at its HDB reference point): the same motion, bit for bit (neither enters the motion
+    of a body whose rotations are locked), reduced or as a full rigid body with its rotations
+    constrained."""
     from hydrolink.clients.run import run_scene_file
     heave = []
-    for inertia in ([2.6e6] * 3, None):
+    for inertia, com in (([2.6e6] * 3, [0.0, 0.0, -2.0]), (None, None)):
         text = scene_toml(dt=0.05, duration=10.0, progress=False, water=SPHERE_WATER,
                           waves=regular_waves(1.0, 6.0, ramp=2.0), hydro={"irf_duration": 8.0},
                           client={"type": "exudyn", "reduce": reduce},
-                          bodies=[sphere_body(str(sphere_path), mass=261.8e3, dofs=["heave"], inertia=inertia)])
+                          bodies=[sphere_body(str(sphere_path), mass=261.8e3, dofs=["heave"], inertia=inertia,
+                                              center_of_mass=com)])
         path = write_scene(tmp_path, text, f"s{len(heave)}.toml")
         run_scene_file(path, tmp_path / f"s{len(heave)}.nc", progress=False)
         with xr.open_dataset(tmp_path / f"s{len(heave)}.nc") as ds:

@@ -120,3 +120,15 @@ def test_inertia_is_needed_only_by_a_body_that_rotates():
     with pytest.raises(SceneError, match=r"bodies\[0\]\.inertia: required: the body's rotational DOFs \['pitch'\]"):
         parse_scene(scene_toml(dt=0.01, duration=1.0, bodies=[body("b", hdb="h.nc", mass=874.0, center_of_mass=[0, 0, 0],
                                                                     inertia=None, dofs=["heave", "pitch"])]))
+
+
+def test_centre_of_mass_is_needed_by_a_body_that_rotates_or_is_dry():
+    ok = parse_scene(scene_toml(dt=0.01, duration=1.0, bodies=[body("b", hdb="h.nc", mass=874.0, center_of_mass=None,
+                                                                   inertia=None, dofs=["heave"])]))
+    assert ok.bodies[0].center_of_mass is None and list(ok.bodies[0].com_or([0, 0, -0.1])) == [0, 0, -0.1]
+    with pytest.raises(SceneError, match=r"bodies\[0\]\.center_of_mass: required: the body's rotational DOFs \['roll'\]"):
+        parse_scene(scene_toml(dt=0.01, duration=1.0, bodies=[body("b", hdb="h.nc", mass=874.0, center_of_mass=None,
+                                                                    inertia=[1, 1, 1], dofs=["heave", "roll"])]))
+    with pytest.raises(SceneError, match=r"bodies\[0\]\.center_of_mass: required for a dry body"):
+        parse_scene(scene_toml(dt=0.01, duration=1.0, bodies=[body("b", mass=874.0, center_of_mass=None,
+                                                                    inertia=None, dofs=["heave"])]))
