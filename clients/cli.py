@@ -89,12 +89,15 @@ def hdb_build(spec: Path, output: Path, no_progress: bool) -> None:
 @click.argument("file", type=click.Path(path_type=Path))
 @click.option("--plot", type=click.Path(dir_okay=False, path_type=Path), help="Write a PNG of A, B, |F_ex|, K(t).")
 @click.option("--dofs", help="Comma-separated DOFs to plot (default: all with data).")
-def hdb_info(file: Path, plot: Path | None, dofs: str | None) -> None:
+@click.option("--convention", type=click.Choice(["exp(-iwt)", "exp(+iwt)"]),
+              help="Time convention of a Capytaine-layout file's complex amplitudes, when the file does not "
+                   "declare it (default Capytaine's exp(-iwt); WecOptTool writes exp(+iwt)).")
+def hdb_info(file: Path, plot: Path | None, dofs: str | None, convention: str | None) -> None:
     """Summarise an HDB (Capytaine .nc, BEMIO .h5, WAMIT .1/.3/.hst, hydrolink .nc)."""
     from hydrolink.server.hdb.info import hdb_summary, plot_hdb
     from hydrolink.server.hdb.io import load_hdb
 
-    ds = _guard(load_hdb, file)
+    ds = _guard(load_hdb, file, convention=convention)
     click.echo(hdb_summary(ds))
     if plot:
         _guard(plot_hdb, ds, plot, dofs=dofs.split(",") if dofs else None)

@@ -36,7 +36,8 @@ def load_scene_hdbs(scene: Scene, scene_path: str | Path, *, progress: bool = Tr
             from hydrolink.server.hdb.build import build_hdb
             hdbs[body.hdb] = build_hdb(path, progress=progress)
         else:
-            hdbs[body.hdb] = load_hdb(path)
+            stated = next((b.hdb_convention for b in scene.bodies if b.hdb == body.hdb and b.hdb_convention), None)
+            hdbs[body.hdb] = load_hdb(path, convention=stated)
     for i, body in enumerate(scene.bodies):
         if body.hdb is None:
             continue

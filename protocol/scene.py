@@ -218,6 +218,9 @@ class Body(_Section):
     name: Annotated[str, Field(min_length=1, pattern=r"^[A-Za-z0-9_\-]+$")]
     hdb: Annotated[str, Field(min_length=1)] | None = None   # None: a dry body (no hydrodynamics)
     hdb_body: str | None = None
+    # the time convention of a Capytaine-layout HDB file's complex amplitudes when the file does not
+    # declare it (default Capytaine's "exp(-iwt)"; WecOptTool writes "exp(+iwt)")
+    hdb_convention: Literal["exp(-iwt)", "exp(+iwt)"] | None = None
     mass: PositiveFloat
     # global frame at equilibrium; not needed by a wet body whose rotations are all locked (it
     # then sits at its HDB reference point, where the forces act)
@@ -265,6 +268,8 @@ class Body(_Section):
                 raise ValueError("hdb_body: must not be empty")
         elif self.hdb_body is not None:
             raise ValueError("hdb_body: needs hdb")
+        elif self.hdb_convention is not None:
+            raise ValueError("hdb_convention: needs hdb")
         return self
 
     @property
@@ -700,6 +705,12 @@ class Scene(_Section):
                 raise ValueError(f"point_masses[{i}].name: name {n!r} is already used")
         if "ground" in names:
             raise ValueError(f"bodies[{names.index('ground')}].name: 'ground' is reserved")
+        stated: dict[str, str] = {}
+        for i, b in enumerate(self.bodies):
+            if b.hdb is not None and b.hdb_convention is not None:
+                if stated.setdefault(b.hdb, b.hdb_convention) != b.hdb_convention:
+                    raise ValueError(f"bodies[{i}].hdb_convention: {b.hdb_convention} but another body states "
+                                     f"{stated[b.hdb]} for the same HDB {b.hdb!r}")
         rigid = set(names) | {"ground"}
         anything = rigid | set(points)
 

@@ -322,3 +322,81 @@ def test_read_capytaine_missing_variable(shared_data, tmp_path):
     with pytest.raises(HDBError) as info:
         read_capytaine(path)
     assert info.value.field == "excitation_force" and "no_exc.nc" in info.value.source
+
+
+# ---------------------------------------------------------------- time convention of Capytaine-layout files
+
+@pytest.fixture(scope="module")
+def capytaine_buoy(tmp_path_factory):
+    """A small Capytaine solve (heave and pitch of a floating sphere off the origin) exported as
+    Capytaine writes it; returns the file."""
+    cpt = pytest.importorskip("capytaine")
+    import logging
+    logging.getLogger("capytaine").setLevel(logging.ERROR)
+    mesh = cpt.mesh_sphere(radius=1.0, center=(2.0, 0, 0), resolution=(8, 8)).immersed_part()
+    body = cpt.FloatingBody(mesh=mesh, dofs=cpt.rigid_body_dofs(rotation_center=(2.0, 0, 0)),
+                            center_of_mass=(2.0, 0, -0.2), name="buoy")
+    ds = cpt.BEMSolver().fill_dataset(xr.Dataset(coords={"omega": [0.8, 1.6, 2.4], "wave_direction": [0.0],
+                                                         "radiating_dof": ["Heave", "Pitch"]}), body, hydrostatics=True)
+    path = tmp_path_factory.mktemp("buoy") / "buoy.nc"
+    cpt.export_dataset(path, ds, format="netcdf")
+    return path
+
+
+def _rewrite(src: Path, dst: Path, conj: tuple[str, ...] = (), attrs: dict | None = None, extra: bool = False) -> Path:
+    """The file with the named variables conjugated (their 'im' part negated), attributes added and
+    optionally a variable Capytaine does not write (WecOptTool's 'friction')."""
+    with xr.open_dataset(src) as raw:
+        ds = raw.load()
+    for name in conj:
+        ds[name] = xr.where(ds["complex"] == "im", -ds[name], ds[name]).transpose(*ds[name].dims)
+    ds.attrs.update(attrs or {})
+    if extra:
+        ds["friction"] = xr.zeros_like(ds["hydrostatic_stiffness"])
+    ds.to_netcdf(dst)
+    return dst
+
+
+def _heave_force(hdb, period: float = 2 * np.pi / 1.6) -> np.ndarray:
+    """The server's excitation force on the buoy in regular waves (H 1 m), heave and pitch, over one
+    period after the ramp: the regular-wave phase check of the convention."""
+    from hydrolink.server.model import HydroModel
+    from hydrolink.protocol.scene import parse_scene
+    from conftest import body, regular_waves, scene_toml
+    scene = parse_scene(scene_toml(dt=period / 40, duration=3 * period, water={"density": 1025.0, "depth": "inf"},
+                                   waves=regular_waves(1.0, period), hydro={"radiation": "constant", "irf_duration": 3.0},
+                                   bodies=[body("buoy", hdb="buoy.nc", mass=2000.0, center_of_mass=[2.0, 0, -0.2],
+                                                inertia=[500.0] * 3, dofs=["heave", "pitch"])]))
+    m = HydroModel(scene, {"buoy": hdb})
+    pos = m.setup_info().equilibrium_position
+    return np.array([m.step(k * period / 40, pos, np.zeros_like(pos))["excitation"][0, [2, 4]] for k in range(40)])
+
+
+def test_capytaine_file_convention_declared_stated_or_noted(capytaine_buoy, tmp_path):
+    """Capytaine's own file: exp(-iwt), no note. The same file converted to exp(+iwt) (excitation,
+    Froude-Krylov and diffraction conjugated, as WecOptTool holds them) with a variable Capytaine
+    does not write: read as exp(-iwt) with a note naming the variable and the key to state; stated
+    (hdb_convention) or declared by an attribute, it is conjugated back and the server's force in a
+    regular wave is the original's to round-off; a statement that contradicts the file is an error."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")          # Capytaine's own file: nothing to note
+        plain = load_hdb(capytaine_buoy)
+    assert plain.attrs["time_convention_in_file"] == "exp(-iwt)"
+    ref = _heave_force(plain)
+    assert np.abs(ref).max() > 1e3
+    every = ("excitation_force", "Froude_Krylov_force", "diffraction_force")
+    wot = _rewrite(capytaine_buoy, tmp_path / "wot.nc", conj=every, extra=True)
+    with pytest.warns(UserWarning, match=r"variables Capytaine does not write \(friction \(WecOptTool\)\).*hdb_convention = \"exp\(\+iwt\)\""):
+        silent = load_hdb(wot)
+    assert np.abs(_heave_force(silent) - ref).max() > 0.1 * np.abs(ref).max()   # what a wrong read costs
+    stated = load_hdb(wot, convention="exp(+iwt)")
+    np.testing.assert_allclose(_heave_force(stated), ref, rtol=1e-12, atol=1e-9 * np.abs(ref).max())
+    declared = _rewrite(capytaine_buoy, tmp_path / "declared.nc", conj=every, attrs={"time_convention": "exp(+iwt)"})
+    np.testing.assert_allclose(_heave_force(load_hdb(declared)), ref, rtol=1e-12, atol=1e-9 * np.abs(ref).max())
+    with pytest.raises(HDBError, match=r"the file declares exp\(\+iwt\), the scene states exp\(-iwt\)"):
+        load_hdb(declared, convention="exp(-iwt)")
+    half = _rewrite(capytaine_buoy, tmp_path / "half.nc", conj=("Froude_Krylov_force", "diffraction_force"))
+    with pytest.warns(UserWarning, match="are the complex conjugates of its excitation_force"):
+        load_hdb(half)
+    with pytest.raises(HDBError, match="only for a Capytaine-layout NetCDF"):
+        load_hdb(tmp_path / "x.h5", convention="exp(+iwt)")

@@ -132,3 +132,21 @@ def test_centre_of_mass_is_needed_by_a_body_that_rotates_or_is_dry():
     with pytest.raises(SceneError, match=r"bodies\[0\]\.center_of_mass: required for a dry body"):
         parse_scene(scene_toml(dt=0.01, duration=1.0, bodies=[body("b", mass=874.0, center_of_mass=None,
                                                                     inertia=None, dofs=["heave"])]))
+
+
+def test_hdb_convention_is_for_wet_bodies_and_one_per_hdb():
+    def scene(*bodies) -> str:
+        return scene_toml(dt=0.01, duration=1.0, bodies=list(bodies))
+    ok = parse_scene(scene(body("a", hdb="w.nc", mass=1.0, center_of_mass=[0, 0, 0], inertia=[1, 1, 1],
+                                hdb_convention="exp(+iwt)")))
+    assert ok.bodies[0].hdb_convention == "exp(+iwt)"
+    with pytest.raises(SceneError, match=r"bodies\[0\]\.hdb_convention: Input should be 'exp\(-iwt\)' or 'exp\(\+iwt\)'"):
+        parse_scene(scene(body("a", hdb="w.nc", mass=1.0, center_of_mass=[0, 0, 0], inertia=[1, 1, 1],
+                               hdb_convention="+iwt")))
+    with pytest.raises(SceneError, match=r"bodies\[0\]\.hdb_convention: needs hdb"):
+        parse_scene(scene(body("a", mass=1.0, center_of_mass=[0, 0, 0], inertia=[1, 1, 1], hdb_convention="exp(+iwt)")))
+    with pytest.raises(SceneError, match=r"bodies\[1\]\.hdb_convention: exp\(-iwt\) but another body states exp\(\+iwt\)"):
+        parse_scene(scene(body("a", hdb="w.nc", mass=1.0, center_of_mass=[0, 0, 0], inertia=[1, 1, 1],
+                               hdb_convention="exp(+iwt)"),
+                          body("b", hdb="w.nc", mass=1.0, center_of_mass=[0, 0, 0], inertia=[1, 1, 1],
+                               hdb_convention="exp(-iwt)")))

@@ -14,6 +14,13 @@ Capytaine already uses exp(-i w t) and SI units: nothing is conjugated or rescal
   Capytaine's ``rotation_center`` coordinate, the ``center_of_mass`` coordinate (Capytaine puts
   rotation DOFs there when no centre is given), else the origin with a warning (Capytaine's
   ``rigid_body_dofs()`` default). The attribute ``reference_point_from`` says which.
+* Time convention of the complex amplitudes: Capytaine's exp(-i w t), unless the file declares
+  another (an attribute whose name holds "convention", e.g. ``time_convention = "exp(+iwt)"``) or
+  the caller states it (``convention``: a scene's ``bodies[i].hdb_convention``); exp(+i w t)
+  amplitudes are conjugated here, once. A file that shows it went through another tool (a
+  variable that tool adds, such as WecOptTool's ``friction``) or whose
+  Froude-Krylov + diffraction forces are the conjugates of its ``excitation_force`` (WecOptTool's
+  ``change_bem_convention`` conjugates only those two) gets a note saying what was assumed.
 * Hydrostatics: Capytaine's ``hydrostatic_stiffness`` includes the gravity terms -m g (z_G - z_c)
   (roll/pitch) and m g (x_G - x_c), m g (y_G - y_c) (roll-yaw/pitch-yaw); they are removed here
   (schema: buoyancy and waterplane only) when ``center_of_mass`` is recorded. Without it the
@@ -177,11 +184,60 @@ def _scatter(target: np.ndarray, values: np.ndarray, rows: np.ndarray | None, co
         target[(*index, rows if rows is not None else cols)] = values
 
 
+CONVENTIONS = ("exp(-iwt)", "exp(+iwt)")
+# variables another tool adds to a Capytaine dataset (it then went through that tool, whose time
+# convention may differ): WecOptTool's linear_hydrodynamics / add_linear_friction add "friction"
+_OTHER_TOOLS = {"friction": "WecOptTool"}
+
+
+def declared_convention(ds: xr.Dataset, source: str) -> str | None:
+    """The time convention a file's attributes declare ("exp(-iwt)" / "exp(+iwt)"), else None."""
+    for name, value in ds.attrs.items():
+        if "convention" not in name.lower():
+            continue
+        text = str(value).replace(" ", "").replace("ω", "w").lower()
+        if "+iwt" in text or "+i*w*t" in text:
+            return "exp(+iwt)"
+        if "-iwt" in text or "-i*w*t" in text or "−iwt" in text:
+            return "exp(-iwt)"
+        raise HDBError(source, f"attrs.{name}", f"{value!r} names no time convention (exp(-iwt) or exp(+iwt))")
+    return None
+
+
+def _convention(ds: xr.Dataset, source: str, stated: str | None) -> str:
+    """The convention to read the file's complex amplitudes in (module docstring)."""
+    declared = declared_convention(ds, source)
+    if stated is not None and stated not in CONVENTIONS:
+        raise HDBError(source, "convention", f"{stated!r}: one of {list(CONVENTIONS)}")
+    if declared and stated and declared != stated:
+        raise HDBError(source, "convention", f"the file declares {declared}, the scene states {stated}")
+    if declared or stated:
+        return declared or stated
+    foreign = sorted(f"{v} ({tool})" for v, tool in _OTHER_TOOLS.items() if v in ds.variables)
+    if foreign:
+        warnings.warn(f"{source}: read as Capytaine's exp(-iwt), but the file holds variables Capytaine does "
+                      f"not write ({', '.join(foreign)}): if that tool wrote it in exp(+iwt) (WecOptTool does), "
+                      "state the body's hdb_convention = \"exp(+iwt)\"", stacklevel=4)
+    elif all(n in ds for n in ("Froude_Krylov_force", "diffraction_force", "excitation_force")):
+        fk_d = (ds["Froude_Krylov_force"] + ds["diffraction_force"]).values
+        exc = ds["excitation_force"].values
+        scale = float(np.abs(exc).max()) or 1.0
+        if (np.abs(exc - np.conj(fk_d)).max() < 1e-6 * scale < np.abs(exc - fk_d).max()):
+            warnings.warn(f"{source}: its Froude_Krylov_force + diffraction_force are the complex conjugates of "
+                          "its excitation_force (as after WecOptTool's change_bem_convention): excitation_force is "
+                          "read as Capytaine's exp(-iwt); state the body's hdb_convention if it is not",
+                          stacklevel=4)
+    return "exp(-iwt)"
+
+
 def from_capytaine_dataset(ds: xr.Dataset, source: str | Path, *,
-                           reference_points: Mapping[str, Sequence[float]] | None = None) -> xr.Dataset:
-    """Convert a Capytaine result dataset (in memory or re-opened NetCDF) to the internal HDB."""
+                           reference_points: Mapping[str, Sequence[float]] | None = None,
+                           convention: str | None = None) -> xr.Dataset:
+    """Convert a Capytaine result dataset (in memory or re-opened NetCDF) to the internal HDB;
+    ``convention``: the time convention of its complex amplitudes when the file does not say."""
     source = str(source)
     ds = _frequency_axis(merge_complex(ds), source)
+    time_convention = _convention(ds, source, convention)
     for name in ("added_mass", "radiation_damping", "excitation_force", "hydrostatic_stiffness"):
         if name not in ds:
             hint = " (solve the diffraction problems too)" if name == "excitation_force" else (
@@ -233,6 +289,8 @@ def from_capytaine_dataset(ds: xr.Dataset, source: str | Path, *,
     exc = exc.sortby("wave_direction")
     excitation = np.zeros((omega.size, exc.sizes["wave_direction"], n_dof), complex)
     exc_values = np.asarray(exc.transpose("omega", "wave_direction", "influenced_dof").values)
+    if time_convention == "exp(+iwt)":      # converted once, here (schema: exp(-iwt))
+        exc_values = np.conj(exc_values)
     _scatter(excitation, exc_values[regular][order], None, inf_idx)
 
     ref, ref_from = _reference_points(ds, file_bodies, names, reference_points, source)
@@ -269,5 +327,6 @@ def from_capytaine_dataset(ds: xr.Dataset, source: str | Path, *,
         mass=mass, center_of_mass=cog,
     )
     out.attrs["body_names_in_file"] = ",".join(file_bodies)
+    out.attrs["time_convention_in_file"] = time_convention
     out.attrs["reference_point_from"] = ref_from
     return out

@@ -31,7 +31,7 @@ def _check_rho(ds: xr.Dataset, rho: float | None, path: Path) -> xr.Dataset:
     return ds
 
 
-def _load_netcdf(path: Path) -> xr.Dataset:
+def _load_netcdf(path: Path, convention: str | None = None) -> xr.Dataset:
     try:
         with xr.open_dataset(path) as raw:
             ds = raw.load()
@@ -40,7 +40,7 @@ def _load_netcdf(path: Path) -> xr.Dataset:
     if "hydrolink_hdb" in ds.attrs:
         return from_netcdf_dataset(ds, path)
     if "radiating_dof" in ds.variables and "influenced_dof" in ds.variables and "added_mass" in ds:
-        return from_capytaine_dataset(ds, path)
+        return from_capytaine_dataset(ds, path, convention=convention)
     raise HDBError(path, "format", "NetCDF file is neither a hydrolink HDB (attribute 'hydrolink_hdb') "
                                    "nor a Capytaine dataset (added_mass over radiating_dof/influenced_dof)")
 
@@ -51,16 +51,21 @@ def _is_wamit(path: Path) -> bool:
     return stem != path or (not path.is_file() and stem.with_name(stem.name + ".1").is_file())
 
 
-def load_hdb(path: str | Path, *, rho: float | None = None) -> xr.Dataset:
-    """Read an HDB file of any supported format into the internal layout (validated)."""
+def load_hdb(path: str | Path, *, rho: float | None = None, convention: str | None = None) -> xr.Dataset:
+    """Read an HDB file of any supported format into the internal layout (validated).
+    ``convention``: the time convention of a Capytaine-layout file's complex amplitudes when the
+    file does not declare it ("exp(-iwt)", Capytaine's, by default; "exp(+iwt)": conjugated)."""
     path = Path(path)
     suffix = path.suffix.lower()
+    if convention is not None and suffix != ".nc":
+        raise HDBError(path, "convention", "only for a Capytaine-layout NetCDF file: WAMIT and BEMIO files have "
+                                          "their own (exp(+iwt)), converted by their readers")
     if suffix in (".h5", ".hdf5"):
         return _check_rho(read_bemio(path), rho, path)
     if suffix == ".nc":
         if not path.is_file():
             raise HDBError(path, "file", "not found")
-        return _check_rho(_load_netcdf(path), rho, path)
+        return _check_rho(_load_netcdf(path, convention), rho, path)
     if _is_wamit(path):
         return read_wamit(path, rho=DEFAULT_RHO if rho is None else rho)
     if not path.exists():
