@@ -21,18 +21,23 @@ from hydrolink.protocol import codec
 from hydrolink.protocol.codec import ProtocolError
 from hydrolink.protocol.setup import Setup
 from hydrolink.protocol.hdb_wire import to_wire
-from hydrolink.protocol.transport import HEARTBEAT_TIMEOUT_MS, apply_heartbeats
+from hydrolink.protocol.transport import apply_heartbeats
 
 FORCE_FIELDS = ("excitation", "radiation", "hydrostatic")
 WATCH_S = 0.2                 # a pending reply's link is checked this often
 
 
 class LinkWatch:
-    """The state of a DEALER's connection from its monitor socket: connected, or lost since when."""
+    """The state of a DEALER's connection from its monitor socket: connected, or lost since when;
+    how often ZeroMQ's reconnects were refused since (a stopped server on a live host refuses at
+    once; a link that is down does not answer at all); how many times it came back."""
 
     def __init__(self, sock: zmq.Socket):
-        self._monitor = sock.get_monitor_socket(zmq.EVENT_HANDSHAKE_SUCCEEDED | zmq.EVENT_DISCONNECTED)
+        self._monitor = sock.get_monitor_socket(zmq.EVENT_HANDSHAKE_SUCCEEDED | zmq.EVENT_DISCONNECTED
+                                                | zmq.EVENT_CONNECT_RETRIED)
         self.lost_since: float | None = None
+        self.refused = 0
+        self.reconnects = 0
         self.ever_connected = False
 
     def update(self) -> None:
@@ -43,8 +48,11 @@ class LinkWatch:
             except zmq.Again:
                 return
             if event == zmq.EVENT_DISCONNECTED:
-                self.lost_since = time.monotonic()
+                self.lost_since, self.refused = time.monotonic(), 0
+            elif event == zmq.EVENT_CONNECT_RETRIED:
+                self.refused += self.lost_since is not None
             else:
+                self.reconnects += self.ever_connected and self.lost_since is not None
                 self.ever_connected, self.lost_since = True, None
 
     def close(self) -> None:
@@ -74,9 +82,10 @@ class ServerConnection:
 
     def __init__(self, address: Any, *, timeout: float = 30.0, context: zmq.Context | None = None,
                  key: bytes | None = None, client_name: str = "hydrolink-python", curve=None,
-                 lost_after: float = 1.0):
+                 lost_after: float = 1.0, link_timeout: float = 10.0):
         self.timeout = float(timeout)
-        self.lost_after = float(lost_after)   # s a pending reply's lost connection may take to come back
+        self.lost_after = float(lost_after)       # s of refused reconnects before the server counts as stopped
+        self.link_timeout = float(link_timeout)   # s a silent link may stay down while a reply is pending
         self.key = key
         self.client_name = client_name
         self.session: str | None = None
@@ -98,13 +107,15 @@ class ServerConnection:
         self._ctx = context or zmq.Context()
         self._sock = self._ctx.socket(zmq.DEALER)
         self._sock.setsockopt(zmq.LINGER, 0)
-        apply_heartbeats(self._sock)
+        apply_heartbeats(self._sock, self.link_timeout)
         self._watch = LinkWatch(self._sock)
         self.curve = curve
         if curve is not None:
             curve.apply(self._sock)
         self._sock.connect(address)
         self._recv_timeout_ms = -1
+        self._in_flight: tuple[str, bytes] | None = None   # the pending request (type, frame)
+        self._reconnects_seen = 0
 
     # ------------------------------------------------------------ requests
 
@@ -140,17 +151,29 @@ class ServerConnection:
                            f"within {limit:g} s (is it running and reachable?{hint})")
 
     def _check_link(self, mtype: str) -> None:
-        """ConnectionError when the connection to the server has been lost for ``lost_after`` s
-        while a reply is pending (heartbeats drop a dead or silent peer's connection). A link that
-        never came up (nothing listening, a refused CURVE handshake) is left to the timeout and
-        its hints."""
-        self._watch.update()
-        lost = self._watch.lost_since
-        if lost is not None and self._watch.ever_connected and time.monotonic() - lost >= self.lost_after:
-            raise ConnectionError(f"lost the connection to the hydrolink server at {self.address} while waiting "
-                                  f"for the reply to {mtype!r} (no heartbeat for {HEARTBEAT_TIMEOUT_MS / 1000:g} s "
-                                  f"or the connection closed, and not back within {self.lost_after:g} s): "
-                                  "the server stopped or the network is down")
+        """While a reply is pending: ConnectionError when the server refuses reconnects for
+        ``lost_after`` s (it stopped) or the link stays down for ``link_timeout`` s; a link that
+        came back gets an idempotent request (step, ping: SPEC §5.3 answers a repeated step from
+        its cache) sent again, as the reply may have been lost with the old connection. A link
+        that never came up (nothing listening, a refused CURVE handshake) is left to the timeout
+        and its hints."""
+        w = self._watch
+        w.update()
+        if w.reconnects > self._reconnects_seen:
+            self._reconnects_seen = w.reconnects
+            if self._in_flight is not None and self._in_flight[0] in ("step", "ping"):
+                self._sock.send(self._in_flight[1])
+        if w.lost_since is None or not w.ever_connected:
+            return
+        down = time.monotonic() - w.lost_since
+        if w.refused >= 2 and down >= self.lost_after:
+            raise ConnectionError(f"the hydrolink server at {self.address} went away while this client waited for "
+                                  f"the reply to {mtype!r}: the connection closed and its host refuses to reconnect "
+                                  f"({down:.1f} s): the server stopped")
+        if down >= self.link_timeout:
+            raise ConnectionError(f"lost the connection to the hydrolink server at {self.address} while waiting for "
+                                  f"the reply to {mtype!r}: no link for {down:.1f} s (link_timeout "
+                                  f"{self.link_timeout:g} s): the network is down or the server's host stopped")
 
     def request(self, mtype: str, timeout: float | None = None, **fields: Any) -> dict:
         """Send one request, wait for its reply (matched by ``parent``); RemoteError on ``error``."""
@@ -164,7 +187,9 @@ class ServerConnection:
         msg = codec.message(mtype, msg_id, self.session, **fields)
         if as_map:
             return self._checked(self._local.respond_map(msg), msg_id)
-        self._send(codec.pack(msg, self.key))
+        frame = codec.pack(msg, self.key)
+        self._in_flight = (mtype, frame)
+        self._send(frame)
         limit = self.timeout if timeout is None else timeout
         deadline = time.monotonic() + limit
         while True:

@@ -96,12 +96,22 @@ class Lab:
     Every process started with :meth:`popen` is ended (SIGTERM, then SIGKILL) and every namespace
     deleted on exit, also after an error."""
 
-    def __init__(self, participants: list[str], delay: float = 0.0, *, mode: str = "auto", max_time: float = 900.0):
+    def __init__(self, participants: list[str], delay: float = 0.0, *, mode: str = "auto", max_time: float = 900.0,
+                 loss: float = 0.0):
+        """``loss``: the probability that a frame is dropped (each frame alone, seeded), and
+        :meth:`outage` takes the link down for a while: both in the user-space switch (``mode``
+        "auto" then picks it)."""
         if mode not in ("auto", "netem", "switch"):
             raise ValueError(f"mode must be auto, netem or switch, got {mode!r}")
+        if not 0.0 <= loss < 1.0:
+            raise ValueError(f"loss must be in [0, 1), got {loss}")
         self.participants = list(participants)
         self.delay = float(delay)
-        self.mode = ("netem" if has_netem() else "switch") if mode == "auto" else mode
+        self.loss = float(loss)
+        self.mode = ("netem" if has_netem() and not loss else "switch") if mode == "auto" else mode
+        if self.loss and self.mode != "switch":
+            raise ValueError("loss is simulated by the user-space switch: mode = \"switch\" or \"auto\"")
+        self._switch: subprocess.Popen | None = None
         self.max_time = max_time
         self.prefix = f"hl{os.getpid() % 100000}{os.urandom(2).hex()}"
         self.hub = f"{self.prefix}-hub"
@@ -157,10 +167,22 @@ class Lab:
                 _ip("-n", self.hub, "link", "set", port, "master", "br0")
             _ip("-n", self.hub, "link", "set", "br0", "up")
         else:
-            self.popen(None, [sys.executable, "-m", "hydrolink.clients.netlab", "switch", "--delay", repr(self.delay),
-                              "--max-time", repr(self.max_time), *hub_ports], namespace=self.hub,
-                       stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+            self._switch = self.popen(None, [sys.executable, "-m", "hydrolink.clients.netlab", "switch", "--delay",
+                                             repr(self.delay), "--loss", repr(self.loss), "--max-time",
+                                             repr(self.max_time), *hub_ports], namespace=self.hub,
+                                      stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
         self._wait_reachable()
+
+    def outage(self, seconds: float) -> None:
+        """Take the link down (every frame dropped, both ways) for ``seconds``, then up again
+        (user-space switch only: SIGUSR1 toggles it)."""
+        if self._switch is None:
+            raise RuntimeError("an outage needs the user-space switch (mode \"switch\")")
+        self._switch.send_signal(signal.SIGUSR1)
+        try:
+            time.sleep(seconds)
+        finally:
+            self._switch.send_signal(signal.SIGUSR1)
 
     def _wait_reachable(self, timeout: float = 10.0) -> None:
         """Until the first participant reaches every other one (a TCP connect refused counts:
@@ -216,10 +238,15 @@ class Lab:
 
 # ---------------------------------------------------------------- the delay switch
 
-def delay_switch(ports: list[str], delay: float, max_time: float) -> None:
+def delay_switch(ports: list[str], delay: float, max_time: float, loss: float = 0.0, seed: int = 1) -> None:
     """Forward frames between the interfaces ``ports`` (MAC learning, flooding unknown and
-    broadcast destinations), each ``delay`` s after it arrived; returns after ``max_time`` s or on
-    SIGTERM/SIGINT."""
+    broadcast destinations), each ``delay`` s after it arrived, dropping each with probability
+    ``loss`` and all of them while the link is down (SIGUSR1 toggles it); returns after
+    ``max_time`` s or on SIGTERM/SIGINT."""
+    import random
+    rng = random.Random(seed)
+    down = [False]
+    signal.signal(signal.SIGUSR1, lambda *a: down.__setitem__(0, not down[0]))
     socks = []
     for port in ports:
         s = socket.socket(socket.AF_PACKET, socket.SOCK_RAW, socket.htons(ETH_P_ALL))
@@ -270,7 +297,7 @@ def delay_switch(ports: list[str], delay: float, max_time: float) -> None:
                 where[src] = i
                 o = where.get(dst) if not dst[0] & 1 else None
                 outs = [o] if o is not None else [j for j in everyone if j != i]
-                if o == i:
+                if o == i or down[0] or (loss and rng.random() < loss):
                     continue
                 queue.append((time.monotonic() + delay, outs, frame))
 
@@ -282,9 +309,10 @@ def main(argv: list[str] | None = None) -> None:
     sw = sub.add_parser("switch", help="user-space delay switch between interfaces (run inside a namespace)")
     sw.add_argument("ports", nargs="+")
     sw.add_argument("--delay", type=float, default=0.0, help="one-way delay per frame, s")
+    sw.add_argument("--loss", type=float, default=0.0, help="probability that a frame is dropped")
     sw.add_argument("--max-time", type=float, default=900.0, help="stop after this many seconds")
     args = p.parse_args(argv)
-    delay_switch(args.ports, args.delay, args.max_time)
+    delay_switch(args.ports, args.delay, args.max_time, args.loss)
 
 
 if __name__ == "__main__":

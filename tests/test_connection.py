@@ -1,6 +1,7 @@
 """clients/connection.py: ZeroMQ heartbeats and the link watch. A server killed (SIGKILL) while a
-reply is pending is noticed within about two seconds, not after the receive timeout, with a line
-naming the server; a slow but live server is waited for."""
+reply is pending is noticed within about a second (its host refuses the reconnects), not after
+the receive timeout, with a line naming the server; a slow but live server is waited for. Lossy
+links and outages: tests/test_remote.py (network namespaces)."""
 
 from __future__ import annotations
 
@@ -42,7 +43,7 @@ def test_a_killed_server_is_noticed_within_two_seconds():
             proc.send_signal(signal.SIGKILL)
             proc.wait(10)
             t0 = time.monotonic()
-            with pytest.raises(ConnectionError, match=f"lost the connection to the hydrolink server at {address}"):
+            with pytest.raises(ConnectionError, match=f"the hydrolink server at {address} went away .* the server stopped"):
                 conn.step(1, 0.05, z, z)
             assert time.monotonic() - t0 < 2.5          # the receive timeout is 60 s
     finally:
