@@ -78,24 +78,25 @@ def identical(a: Path, b: Path) -> bool:
     return all(np.array_equal(x[v].values, y[v].values, equal_nan=True) for v in COMPARED if v in x)
 
 
-def latency_table(tmp: Path, delays: list[float], steps: int, mode: str) -> list[str]:
-    rows = ["| one-way delay | round trip | participants | steps/s | per step | identical to loopback |",
-            "|---|---|---|---|---|---|"]
+def latency_table(tmp: Path, delays: list[float], steps: int, mode: str, losses: list[float] = (0.0,)) -> list[str]:
+    rows = ["| one-way delay | frames lost | round trip | participants | steps/s | per step | identical to loopback |",
+            "|---|---|---|---|---|---|---|"]
     for controller in (False, True):
         scene = tmp / f"lat_{controller}.toml"
         scene.write_text(rm3(steps * 0.04, period=4.0, dt=0.04, ramp=1.0, controller=controller))
         ref = tmp / f"lat_{controller}_local.nc"
         sps = run_three(local, scene, ref, "tcp://127.0.0.1:*", None, controller)
         who = "server + client + controller" if controller else "server + client"
-        rows.append(f"| loopback (no namespaces) | - | {who} | {sps:.0f} | {1e3 / sps:.2f} ms | (reference) |")
+        rows.append(f"| loopback (no namespaces) | - | - | {who} | {sps:.0f} | {1e3 / sps:.2f} ms | (reference) |")
         for d in delays:
-            names = ["server", "client", "ctl"] if controller else ["server", "client"]
-            with netlab.Lab(names, delay=d / 1e3, mode=mode) as lab:
-                addr = f"tcp://{lab.address('server')}:5555"
-                out = tmp / f"lat_{controller}_{d}.nc"
-                sps = run_three(lambda w, a: lab.popen(w, a), scene, out, addr, addr, controller)
-                rows.append(f"| {d:g} ms ({lab.mode}) | {2 * d:g} ms | {who} | {sps:.1f} | {1e3 / sps:.1f} ms | "
-                            f"{'yes' if identical(out, ref) else 'NO'} |")
+            for loss in losses:
+                names = ["server", "client", "ctl"] if controller else ["server", "client"]
+                with netlab.Lab(names, delay=d / 1e3, mode="switch" if loss else mode, loss=loss) as lab:
+                    addr = f"tcp://{lab.address('server')}:5555"
+                    out = tmp / f"lat_{controller}_{d}_{loss}.nc"
+                    sps = run_three(lambda w, a: lab.popen(w, a), scene, out, addr, addr, controller)
+                    rows.append(f"| {d:g} ms ({lab.mode}) | {100 * loss:g} % | {2 * d:g} ms | {who} | {sps:.1f} | "
+                                f"{1e3 / sps:.1f} ms | {'yes' if identical(out, ref) else 'NO'} |")
             print(rows[-1], flush=True)
     return rows
 
@@ -149,7 +150,10 @@ def main() -> None:
     p.add_argument("--steps", type=int, default=40, help="steps per latency run")
     p.add_argument("--ks", type=int, nargs="+", default=[1, 2, 5, 10], help="exchange_every values")
     p.add_argument("--mode", default="auto", choices=["auto", "netem", "switch"])
+    p.add_argument("--losses", type=float, nargs="+", default=[0.0],
+                   help="fractions of frames dropped (the user-space switch), e.g. 0 0.05")
     p.add_argument("--skip-latency", action="store_true")
+    p.add_argument("--latency-only", action="store_true", help="only the latency table")
     args = p.parse_args()
     reason = netlab.unsupported_reason()
     if reason:
@@ -159,10 +163,11 @@ def main() -> None:
         tmp = Path(tmp)
         tables = []
         if not args.skip_latency:
-            tables.append(latency_table(tmp, args.delays, args.steps, args.mode))
-        tables.append(accuracy_table(tmp, args.ks))
-        tables.append(throughput_table(tmp, args.ks, [d for d in args.delays if d >= 10] or args.delays,
-                                       max(args.ks) * 10, args.mode))
+            tables.append(latency_table(tmp, args.delays, args.steps, args.mode, args.losses))
+        if not args.latency_only:
+            tables.append(accuracy_table(tmp, args.ks))
+            tables.append(throughput_table(tmp, args.ks, [d for d in args.delays if d >= 10] or args.delays,
+                                           max(args.ks) * 10, args.mode))
     for t in tables:
         print("\n" + "\n".join(t))
     print(f"\n(total {time.perf_counter() - t0:.0f} s)")

@@ -219,10 +219,13 @@ def keys_new(directory: Path, name: str) -> None:
 @click.option("--cpu", type=int, help="Pin the process to this CPU (Linux); see README 'Performance'.")
 @click.option("--listen", default="tcp://127.0.0.1:*", show_default=True,
               help="With [[controllers]] and no --server: where the run's own force server listens.")
+@click.option("--link-timeout", default=10.0, show_default=True, type=click.FloatRange(min=0, min_open=True),
+              help="With --server: seconds the link may stay down (an outage) before the run ends, its rows kept.")
 @_curve_options
 @_key_file_option
 def run(scene: Path, output: Path | None, server: str | None, no_progress: bool, cpu: int | None,
-        listen: str, curve_server_key: Path | None, curve_secret: Path | None, key_file: Path | None) -> None:
+        listen: str, link_timeout: float, curve_server_key: Path | None, curve_secret: Path | None,
+        key_file: Path | None) -> None:
     """Co-simulate a SCENE (TOML) in lockstep with the force server."""
     from hydrolink.clients.run import run_scene_file
 
@@ -239,7 +242,8 @@ def run(scene: Path, output: Path | None, server: str | None, no_progress: bool,
     signal.signal(signal.SIGTERM, _terminate)
     try:
         summary = _guard(run_scene_file, scene, output, server=server, progress=not no_progress, listen=listen,
-                         key=_hmac_key(key_file), **({"curve": curve} if curve is not None else {}))
+                         key=_hmac_key(key_file), link_timeout=link_timeout,
+                         **({"curve": curve} if curve is not None else {}))
     except KeyboardInterrupt as exc:
         click.echo(f"hydrolink run: {exc or 'interrupted'}", err=True)
         raise SystemExit(130) from None

@@ -65,7 +65,7 @@ def load_wave_elevation(scene: Scene, scene_path: str | Path):
 def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
                    server: str | None = None, progress: bool = True, timeout: float = 60.0,
                    listen: str = "tcp://127.0.0.1:*", hdbs: dict[str, xr.Dataset] | None = None,
-                   curve=None, key: bytes | None = None) -> dict:
+                   curve=None, key: bytes | None = None, link_timeout: float = 10.0) -> dict:
     """Run a scene end to end; returns the run summary (steps, wall time, output path).
 
     A scene with ``[[controllers]]`` and no ``server`` starts a force server with a socket on
@@ -73,7 +73,8 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
     in-process one, and says on stderr where the controllers should connect. ``curve``: a
     :class:`hydrolink.protocol.security.ClientKeys` for a ``server`` that requires CURVE; ``key``:
     the shared HMAC key (SPEC §3.3) of ``server``, or of the run's own listening server, whose
-    controllers must then sign too."""
+    controllers must then sign too; ``link_timeout``: how long the link to a remote ``server`` may
+    stay down (SPEC §1) before the run ends (its rows kept)."""
     from hydrolink.clients.connection import ServerConnection
     from hydrolink.clients.exudyn_client import result_bodies, run
     from hydrolink.clients.results import ResultWriter
@@ -120,7 +121,8 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
             server = embedded.address
             log.info("embedded force server (in-process)")
         else:
-            conn = stack.enter_context(ServerConnection(server, timeout=timeout, curve=curve, key=key))
+            conn = stack.enter_context(ServerConnection(server, timeout=timeout, curve=curve, key=key,
+                                                        link_timeout=link_timeout))
         setup = conn.hello(text, hdbs, wave_elevation=series)
         if scene.controllers:
             import sys

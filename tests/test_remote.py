@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -120,3 +121,50 @@ def test_lab_delay_and_cleanup():
     assert 0.04 <= rtt < 0.5, rtt
     listed = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True).stdout
     assert not any(n in listed for n in names)
+
+
+@needs_netns
+@pytest.mark.parametrize("loss,outage", [(0.05, 0.0), (0.0, 3.0)], ids=["5% loss", "3 s outage"])
+def test_netns_run_survives_loss_and_an_outage(local_run, tmp_path, loss, outage):
+    """10 ms one way through the user-space switch, with 5 % of the frames dropped, or with the
+    link down for 3 s in the middle of the run: TCP retransmits, the heartbeats keep the
+    connections (link timeout 10 s), and the results equal the loopback run's bit for bit."""
+    scene, ref = local_run
+    with netlab.Lab(["server", "client", "ctl"], delay=0.01, mode="switch", loss=loss) as lab:
+        addr = f"tcp://{lab.address('server')}:5555"
+        if outage:
+            threading.Timer(2.0, lab.outage, (outage,)).start()   # the run takes ~2 s at this delay
+        wall = three_processes(lambda who, argv: lab.popen(who, argv), scene, tmp_path / "remote.nc", addr, addr)
+    ds = xr.load_dataset(tmp_path / "remote.nc")
+    assert ds.sizes["time"] == ref.sizes["time"] == 51
+    assert json.loads(ds.attrs["controller_events"])["ctl"]["ok"] == 50
+    for v in COMPARED:
+        assert np.array_equal(ds[v].values, ref[v].values, equal_nan=True), v
+    if outage:
+        assert wall > outage
+
+
+@needs_netns
+def test_netns_link_down_past_the_timeout_ends_the_run_with_its_rows(shared_data, tmp_path):
+    """A link that stays down longer than --link-timeout ends the run with one line saying so; the
+    rows computed before stay in the results file."""
+    scene = tmp_path / "rm3.toml"
+    scene.write_text(rm3_scene(shared_data, 20.0).split("\n[[controllers]]")[0])
+    with netlab.Lab(["server", "client"], delay=0.01, mode="switch") as lab:
+        addr = f"tcp://{lab.address('server')}:5555"
+        lab.popen("server", [*HYDROLINK, "serve", "--bind", addr], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        client = lab.popen("client", [*HYDROLINK, "run", str(scene), "-o", str(tmp_path / "cut.nc"), "--server", addr,
+                                      "--no-progress", "--link-timeout", "2"],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        time.sleep(3.0)
+        t0 = time.monotonic()
+        down = threading.Thread(target=lab.outage, args=(8.0,), daemon=True)
+        down.start()
+        _, err = client.communicate(timeout=60)
+        ended = time.monotonic() - t0
+        down.join(15)
+    assert client.returncode != 0
+    assert "no link for" in err and "link_timeout 2 s" in err and "rows before it are saved" in err, err
+    assert ended < 6.0, ended
+    ds = xr.load_dataset(tmp_path / "cut.nc")
+    assert 1 < ds.sizes["time"] < 501 and ds.attrs["status"].startswith("interrupted")
