@@ -475,6 +475,8 @@ class ExudynMultibody:
         # every scene body wet, in setup order: the forces go straight into the results row
         self._all_wet = self.n == self.nb and np.array_equal(model.wet_rows, np.arange(self.nb))
         self._hs = np.zeros(6 * self.n)   # scratch: C q
+        # the wet bodies' 6N entries in the (B, 6) rows (viscous force)
+        self._wet_flat = (6 * np.asarray(model.wet_rows, int)[:, None] + np.arange(6)).reshape(-1)
         self._pto_sample = None
         # MoorDyn: each step is driven towards the pose it ends in (clients/moordyn_mooring.py):
         # predicted, or on a redo the end poses of the previous pass (one per step since the save)
@@ -599,6 +601,10 @@ class ExudynMultibody:
                 f[0, rows], f[1, rows] = s.excitation.reshape(shape), s.radiation.reshape(shape)
                 f[2, rows] = -(m.stiffness @ q[m.wet_index]).reshape(shape)
             row[2:] = f
+        if s.viscous is not None:
+            vis = np.zeros((self.nb, 6))
+            vis.reshape(-1)[self._wet_flat] = s.viscous
+            self.writer.stage_extra({"viscous_force": vis, "viscous_power": -(vis * row[1]).sum(axis=1)})
         self.writer.commit(t, s.eta)
 
     def measurements(self, step: int) -> dict | None:
@@ -708,6 +714,12 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup | None, writer, 
     if mech and mech.joints:
         _add_joint_variables(writer, mech.joint_labels)
     _add_pto_mooring_variables(writer, model.ptos, model.moorings)
+    if any(b.linear_damping is not None or b.quadratic_damping is not None for b in scene.bodies):
+        writer.add_variable("viscous_force", ("body", "dof"), None, "N (surge, sway, heave); N m (roll, pitch, yaw)",
+                            "viscous damping force -B_lin v - B_quad v|v| about the reference point (server)")
+        writer.add_variable("viscous_power", ("body",), None, "W",
+                            "power dissipated by the viscous damping, -viscous_force . velocity (>= 0 for "
+                            "positive damping)")
     moordyn = _moordyn_report(model.moorings) if model.moorings is not None and model.moorings.moordyn else None
     if moordyn is not None:
         _add_moordyn_variables(writer, model.moorings)

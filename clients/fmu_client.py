@@ -255,6 +255,12 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup, writer, *,
     client: FMUClient = scene.client
     if not isinstance(client, FMUClient):
         raise SceneError("scene", "client.type", "the FMU master needs [client] type = \"fmu\"")
+    for i, b in enumerate(scene.bodies):
+        for key in ("linear_damping", "quadratic_damping"):
+            if getattr(b, key) is not None:
+                raise SceneError("scene", f"bodies[{i}].{key}", "the FMU master does not apply viscous damping "
+                                 "yet (its force ports carry excitation, radiation and hydrostatics); use the "
+                                 "Exudyn client")
     h = setup.dt
     hc = client.communication_step or h
     n_sub = int(round(h / hc))

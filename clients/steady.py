@@ -92,6 +92,11 @@ def check_scene(scene: Scene) -> None:
             raise SteadyError(f"moorings[{i}]", "MoorDyn moorings are not supported by hydrolink steady "
                                                 "(lumped-mass line dynamics with seabed contact, stepped in time); "
                                                 "run the scene with hydrolink run, or use a linear mooring")
+    for i, b in enumerate(scene.bodies):
+        for key in ("linear_damping", "quadratic_damping"):
+            if getattr(b, key) is not None:
+                raise SteadyError(f"bodies[{i}].{key}", "viscous damping is not evaluated by hydrolink steady "
+                                                        "yet; run the scene with hydrolink run")
     for i, j in enumerate(scene.joints):
         if j.friction is not None:
             raise SteadyError(f"joints[{i}].friction", "joint friction is not supported by hydrolink steady")

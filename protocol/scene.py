@@ -231,6 +231,10 @@ class Body(_Section):
     dofs: list[Literal["surge", "sway", "heave", "roll", "pitch", "yaw"]] = list(DOF_NAMES)
     initial_displacement: Vector6 = [0.0] * 6
     initial_velocity: Vector6 = [0.0] * 6
+    # wet bodies: additional damping about the reference point, body DOF order (HydroDyn's AddBLin,
+    # AddBQuad): F = -B_lin v - B_quad (v |v|), absolute velocity; 6 values (diagonal) or a 6x6 table
+    linear_damping: Vector6 | Annotated[list[Vector6], Field(min_length=6, max_length=6)] | None = None
+    quadratic_damping: Vector6 | Annotated[list[Vector6], Field(min_length=6, max_length=6)] | None = None
     # dry bodies only: the node's position (default: the centre of mass) and a constant buoyancy
     reference_point: Vector3 | None = None
     buoyancy_volume: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 0.0
@@ -270,7 +274,26 @@ class Body(_Section):
             raise ValueError("hdb_body: needs hdb")
         elif self.hdb_convention is not None:
             raise ValueError("hdb_convention: needs hdb")
+        for key in ("linear_damping", "quadratic_damping"):
+            value = getattr(self, key)
+            if value is None:
+                continue
+            if self.hdb is None:
+                raise ValueError(f"{key}: only for a wet body (with hdb): the force server applies it")
+            import numpy as np
+            m = np.diag(value) if not isinstance(value[0], list) else np.asarray(value, float)
+            if np.any(np.diag(m) < 0):
+                raise ValueError(f"{key}: the diagonal must be >= 0 (got {np.diag(m).tolist()})")
         return self
+
+    def damping_matrix(self, key: str):
+        """``linear_damping`` or ``quadratic_damping`` as a 6x6 array (None when not given)."""
+        import numpy as np
+        value = getattr(self, key)
+        if value is None:
+            return None
+        return np.diag(np.asarray(value, float)) if not isinstance(value[0], list) else np.asarray(value, float)
+
 
     @property
     def wet(self) -> bool:

@@ -136,6 +136,10 @@ class HydroModel:
         self._all_active = na == self.n
         self._sel = slice(None) if self._all_active else self._idx  # a view when every DOF is active
         self._red = np.zeros((3, na))  # scratch: excitation, radiation, hydrostatic (active DOFs)
+        from hydrolink.server.viscous import build_viscous
+        self.viscous = build_viscous(scene, wet, self._idx)   # None: no viscous term, nothing computed
+        if self.viscous is not None:
+            self._red = np.zeros((4, na))
 
     def _group_data(self, ds: xr.Dataset, members: list[int]) -> _GroupData:
         """The group's bodies from its HDB, checked against the scene's depth."""
@@ -412,14 +416,20 @@ class HydroModel:
         vs = v[sel]
         # the reply's arrays: fresh each step (a reply may be kept, e.g. cached for a retry, and
         # goes out in-process as is), written in place, then made read-only like a frame's arrays
-        out = np.zeros((3, len(self.bodies), 6))
-        red = out.reshape(3, self.n) if self._all_active else self._red
+        parts = 3 if self.viscous is None else 4
+        out = np.zeros((parts, len(self.bodies), 6))
+        red = out.reshape(parts, self.n) if self._all_active else self._red
         for pos, memory in self._memories:
             red[1, pos] = memory.push(vs[pos], replace_last)
         red[0], eta = self._forcing(time)
         np.dot(self._k_hs, self._x_eq - x[sel], out=red[2])
+        if self.viscous is not None:
+            red[3] = self.viscous.force(vs)
         self._step = k
         if not self._all_active:
-            out.reshape(3, self.n)[:, sel] = red
+            out.reshape(parts, self.n)[:, sel] = red
         out.flags.writeable = False
-        return {"excitation": out[0], "radiation": out[1], "hydrostatic": out[2], "wave_elevation": eta}
+        reply = {"excitation": out[0], "radiation": out[1], "hydrostatic": out[2], "wave_elevation": eta}
+        if self.viscous is not None:
+            reply["viscous"] = out[3]
+        return reply

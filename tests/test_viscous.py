@@ -1,0 +1,97 @@
+"""Viscous damping on wet bodies (server/viscous.py, issue 10): F = -B_lin v - B_quad v|v|.
+The Task-10 sphere in heave, run through the whole co-simulation (server reply field ``viscous``,
+Exudyn client), against a monolithic integration written here of
+(m + A) x'' + (B + B_lin) x' + B_quad x'|x'| + C x = F_ex(t), with A, B, C and F_ex from the HDB."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import xarray as xr
+from scipy.integrate import solve_ivp
+
+from conftest import SPHERE_WATER, regular_waves, scene_toml, sphere_body, write_scene
+from hydrolink.clients.run import run_scene_file
+from hydrolink.protocol.scene import SceneError, parse_scene
+from hydrolink.server.hdb.io import load_hdb
+
+MASS, HEAVE = 261.724e3, 2
+B_LIN, B_QUAD = 2.0e4, 8.0e4
+
+
+def _hdb_heave(sphere_path, omega: float | None):
+    hdb = load_hdb(sphere_path)
+    c = float(hdb["hydrostatic_stiffness"].values[HEAVE, HEAVE])
+    if omega is None:
+        return hdb, c
+    i = int(np.argmin(np.abs(hdb["omega"].values - omega)))
+    return (hdb, c, float(hdb["omega"].values[i]), float(hdb["added_mass"].values[i, HEAVE, HEAVE]),
+            float(hdb["radiation_damping"].values[i, HEAVE, HEAVE]), complex(hdb["excitation_force"].values[i, 0, HEAVE]))
+
+
+def _run(tmp_path, sphere_path, name: str, **scene) -> xr.Dataset:
+    path = write_scene(tmp_path, scene_toml(progress=False, water={**SPHERE_WATER, "gravity": 9.81}, **scene), name)
+    run_scene_file(path, tmp_path / f"{name}.nc", progress=False)
+    return xr.load_dataset(tmp_path / f"{name}.nc")
+
+
+def test_regular_wave_heave_with_linear_and_quadratic_damping(tmp_path, sphere_path):
+    hdb, c, w, a, b, x_exc = _hdb_heave(sphere_path, 1.15)
+    period, height, ramp = 2 * math.pi / w, 2.0, 2 * 2 * math.pi / w
+    dt = period / 200
+    ds = _run(tmp_path, sphere_path, "waves", dt=dt, duration=25 * period, waves=regular_waves(height, period, ramp=ramp),
+              hydro={"radiation": "constant"},
+              bodies=[sphere_body(str(sphere_path), mass=MASS, dofs=["heave"], linear_damping=[0, 0, B_LIN, 0, 0, 0],
+                                  quadratic_damping=[0, 0, B_QUAD, 0, 0, 0])])
+
+    def force(t):
+        r = 1.0 if t >= ramp else 0.5 * (1 - math.cos(math.pi * t / ramp))
+        return r * (x_exc * height / 2 * np.exp(-1j * w * t)).real
+
+    def rhs(t, y):
+        x, v = y
+        return [v, (force(t) - (b + B_LIN) * v - B_QUAD * v * abs(v) - c * x) / (MASS + a)]
+    t = ds["time"].values
+    ref = solve_ivp(rhs, (0, t[-1]), [0.0, 0.0], t_eval=t, rtol=1e-10, atol=1e-12, max_step=dt)
+    z = ds["position"].sel(body="sphere", dof="heave").values - ds["position"].sel(body="sphere", dof="heave").values[0]
+    last = t > t[-1] - 4 * period
+    amp, amp_ref = 0.5 * np.ptp(z[last]), 0.5 * np.ptp(ref.y[0][last])
+    undamped = abs(x_exc * height / 2 / (-w ** 2 * (MASS + a) - 1j * w * b + c))
+    assert amp < 0.9 * undamped                       # the damping acts
+    assert amp == pytest.approx(amp_ref, rel=5e-3)
+    v = ds["velocity"].sel(body="sphere", dof="heave").values
+    f = ds["viscous_force"].sel(body="sphere", dof="heave").values
+    np.testing.assert_allclose(f[10:], -(B_LIN * v + B_QUAD * v * np.abs(v))[10:], rtol=0.02,
+                               atol=1e-3 * np.abs(f).max())
+    assert np.all(ds["viscous_power"].values >= -1e-6 * np.abs(ds["viscous_power"].values).max())
+
+
+def test_free_decay_with_quadratic_damping(tmp_path, sphere_path):
+    """Heave decay from 1 m in still water with quadratic damping, radiation off (A_inf in the mass):
+    the envelope against the monolithic integration."""
+    hdb, c = _hdb_heave(sphere_path, None)
+    a_inf = float(hdb["added_mass_inf"].values[HEAVE, HEAVE])
+    period = 2 * math.pi * math.sqrt((MASS + a_inf) / c)
+    dt = period / 200
+    ds = _run(tmp_path, sphere_path, "decay", dt=dt, duration=6 * period, hydro={"radiation": "off"},
+              bodies=[sphere_body(str(sphere_path), mass=MASS, dofs=["heave"], quadratic_damping=[0, 0, B_QUAD * 5, 0, 0, 0],
+                                  initial_displacement=[0, 0, 1.0, 0, 0, 0])])
+    t = ds["time"].values
+    ref = solve_ivp(lambda t, y: [y[1], (-5 * B_QUAD * y[1] * abs(y[1]) - c * y[0]) / (MASS + a_inf)], (0, t[-1]),
+                    [1.0, 0.0], t_eval=t, rtol=1e-10, atol=1e-12, max_step=dt)
+    z = ds["position"].sel(body="sphere", dof="heave").values - (ds["position"].sel(body="sphere", dof="heave").values[0] - 1.0)
+    assert np.abs(z - ref.y[0]).max() < 5e-3 * 1.0
+    assert abs(z[-1]) < 0.5                            # it decays
+
+
+def test_viscous_keys_are_checked():
+    def parse(**keys):
+        return parse_scene(scene_toml(dt=0.1, duration=1.0, bodies=[sphere_body("s.h5", mass=1.0, **keys)]))
+    with pytest.raises(SceneError, match=r"bodies\[0\]\.quadratic_damping: the diagonal must be >= 0"):
+        parse(quadratic_damping=[0, 0, -1.0, 0, 0, 0])
+    with pytest.raises(SceneError, match=r"bodies\[0\]\.linear_damping"):
+        parse(linear_damping=[1.0, 2.0])
+    assert parse(linear_damping=[[float(i == j) for j in range(6)] for i in range(6)]).bodies[0].damping_matrix(
+        "linear_damping").trace() == 6.0
