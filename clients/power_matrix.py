@@ -39,6 +39,7 @@ import numpy as np
 from scipy.integrate import quad
 
 from hydrolink.protocol.scene import IrregularWave, RegularWave, Scene
+from hydrolink.server.kinematics import wave_number
 
 HOURS_PER_YEAR = 8766.0   # IEC TS 62600-100 (365.25 days)
 
@@ -61,23 +62,6 @@ class SeaState:
 
 
 # ------------------------------------------------------------------ waves
-
-def wave_number(omega: float, gravity: float, depth: float) -> float:
-    """k of w^2 = g k tanh(k h) (deep water: w^2 / g)."""
-    k_deep = omega ** 2 / gravity
-    if math.isinf(depth) or k_deep * depth > 20.0:
-        return k_deep
-    k = k_deep / math.sqrt(math.tanh(k_deep * depth))      # a good start, then Newton
-    for _ in range(50):
-        t = math.tanh(k * depth)
-        f = gravity * k * t - omega ** 2
-        df = gravity * t + gravity * k * depth * (1 - t * t)
-        step = f / df
-        k -= step
-        if abs(step) < 1e-14 * k:
-            break
-    return k
-
 
 def group_velocity(omega, gravity: float, depth: float):
     """c_g(w) = (w / k) / 2 (1 + 2 k h / sinh 2 k h); deep water g / (2 w)."""

@@ -214,6 +214,15 @@ Vector3 = Annotated[list[FiniteFloat], Field(min_length=3, max_length=3)]
 Vector6 = Annotated[list[FiniteFloat], Field(min_length=6, max_length=6)]
 
 
+class Drag(_Section):
+    """WEC-Sim's quadratic drag of a wet body, per DOF about its reference point:
+    F_i = -1/2 rho cd_i area_i |u_i| u_i, u = v - (the undisturbed wave particle velocity at the
+    reference point; rotational DOFs: none) when ``relative``, else u = v."""
+    cd: Annotated[list[Annotated[float, Field(ge=0, allow_inf_nan=False)]], Field(min_length=6, max_length=6)]
+    area: Annotated[list[Annotated[float, Field(ge=0, allow_inf_nan=False)]], Field(min_length=6, max_length=6)]
+    relative: bool = True
+
+
 class Body(_Section):
     name: Annotated[str, Field(min_length=1, pattern=r"^[A-Za-z0-9_\-]+$")]
     hdb: Annotated[str, Field(min_length=1)] | None = None   # None: a dry body (no hydrodynamics)
@@ -235,6 +244,7 @@ class Body(_Section):
     # AddBQuad): F = -B_lin v - B_quad (v |v|), absolute velocity; 6 values (diagonal) or a 6x6 table
     linear_damping: Vector6 | Annotated[list[Vector6], Field(min_length=6, max_length=6)] | None = None
     quadratic_damping: Vector6 | Annotated[list[Vector6], Field(min_length=6, max_length=6)] | None = None
+    drag: Drag | None = None
     # dry bodies only: the node's position (default: the centre of mass) and a constant buoyancy
     reference_point: Vector3 | None = None
     buoyancy_volume: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 0.0
@@ -274,6 +284,8 @@ class Body(_Section):
             raise ValueError("hdb_body: needs hdb")
         elif self.hdb_convention is not None:
             raise ValueError("hdb_convention: needs hdb")
+        if self.drag is not None and self.hdb is None:
+            raise ValueError("drag: only for a wet body (with hdb): the force server applies it")
         for key in ("linear_damping", "quadratic_damping"):
             value = getattr(self, key)
             if value is None:

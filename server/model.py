@@ -137,7 +137,8 @@ class HydroModel:
         self._sel = slice(None) if self._all_active else self._idx  # a view when every DOF is active
         self._red = np.zeros((3, na))  # scratch: excitation, radiation, hydrostatic (active DOFs)
         from hydrolink.server.viscous import build_viscous
-        self.viscous = build_viscous(scene, wet, self._idx)   # None: no viscous term, nothing computed
+        self.viscous = build_viscous(scene, wet, self._idx, self.waves,   # None: no viscous term, nothing computed
+                                     self.equilibrium_position[:, :3])
         if self.viscous is not None:
             self._red = np.zeros((4, na))
 
@@ -424,7 +425,7 @@ class HydroModel:
         red[0], eta = self._forcing(time)
         np.dot(self._k_hs, self._x_eq - x[sel], out=red[2])
         if self.viscous is not None:
-            red[3] = self.viscous.force(vs)
+            red[3] = self.viscous.force(time, vs)
         self._step = k
         if not self._all_active:
             out.reshape(parts, self.n)[:, sel] = red

@@ -1,7 +1,12 @@
-"""Viscous damping of wet bodies, beyond potential flow (issue 10; HydroDyn's AddBLin / AddBQuad):
-F = -B_lin v - B_quad (v |v|) per body, 6x6 about the body's reference point, absolute velocity,
-in the body DOF order. Built only when some body has it (no term costs anything unused); the
-force is the reply's ``viscous`` field (SPEC §5.2) over the active DOFs."""
+"""Viscous forces on wet bodies, beyond potential flow (issue 10), one reply field ``viscous``
+(SPEC §5.2) over the active DOFs, built only when some body has one (no term costs anything
+unused):
+
+- HydroDyn's AddBLin / AddBQuad: F = -B_lin v - B_quad (v |v|) per body, 6x6 about the body's
+  reference point, absolute velocity, in the body DOF order;
+- WEC-Sim's quadratic drag: F_i = -1/2 rho cd_i area_i |u_i| u_i per DOF with u = v - u_wave, the
+  undisturbed wave particle velocity at the reference point (server/kinematics.py; zero for the
+  rotational DOFs), when ``relative``, else u = v."""
 
 from __future__ import annotations
 
@@ -10,33 +15,53 @@ from dataclasses import dataclass
 import numpy as np
 
 from hydrolink.protocol.scene import Scene
+from hydrolink.server.kinematics import Kinematics
+from hydrolink.server.waves import WaveComponents
+
+
+@dataclass(frozen=True)
+class DragTerm:
+    """WEC-Sim drag over the active DOFs: coefficient 1/2 rho cd area per DOF, and for relative
+    drag the wave particle velocity at the bodies' reference points."""
+
+    coefficient: np.ndarray            # (n_active,)
+    wave: Kinematics | None            # at the reference points (N, 3); None: absolute velocity
+    rows: np.ndarray                   # (n_active,) index into the (N, 3) translational velocities, -1: none
+
+    def force(self, t: float, v: np.ndarray) -> np.ndarray:
+        u = v
+        if self.wave is not None:
+            flow = np.append(self.wave.velocity(t).reshape(-1), 0.0)   # the last entry: rotations
+            u = v - flow[self.rows]
+        return -self.coefficient * u * np.abs(u)
 
 
 @dataclass(frozen=True)
 class ViscousDamping:
-    """The wet bodies' added damping restricted to their active DOFs (``idx`` of the 6N vector)."""
+    """The wet bodies' added damping and drag restricted to their active DOFs (``idx`` of 6N)."""
 
     linear: np.ndarray | None      # (n_active, n_active)
     quadratic: np.ndarray | None   # (n_active, n_active)
+    drag: DragTerm | None = None
 
-    def force(self, v: np.ndarray) -> np.ndarray:
-        """The damping force on the active DOFs for their velocities ``v``."""
+    def force(self, t: float, v: np.ndarray) -> np.ndarray:
+        """The viscous force on the active DOFs at time ``t`` for their velocities ``v``."""
         f = np.zeros_like(v)
         if self.linear is not None:
             f -= self.linear @ v
         if self.quadratic is not None:
             f -= self.quadratic @ (v * np.abs(v))
+        if self.drag is not None:
+            f += self.drag.force(t, v)
         return f
 
-    def feedthrough(self) -> np.ndarray:
-        """dF/dv at v = 0 (the linear part; the quadratic part's slope is 0 there)."""
-        n = (self.linear if self.linear is not None else self.quadratic).shape[0]
-        return -self.linear if self.linear is not None else np.zeros((n, n))
 
 
-def build_viscous(scene: Scene, wet: list[int], idx: np.ndarray) -> ViscousDamping | None:
-    """The damping of the scene's wet bodies (scene indices ``wet``, in the server's body order)
-    over the active DOFs ``idx`` of their 6N vector; None when no body has any."""
+def build_viscous(scene: Scene, wet: list[int], idx: np.ndarray, waves: WaveComponents,
+                  reference_points: np.ndarray) -> ViscousDamping | None:
+    """The damping and drag of the scene's wet bodies (scene indices ``wet``, in the server's body
+    order) over the active DOFs ``idx`` of their 6N vector; None when no body has any.
+    ``reference_points`` (N, 3): where relative drag takes the wave's particle velocity."""
     bodies = [scene.bodies[i] for i in wet]
     parts = {}
     for key in ("linear_damping", "quadratic_damping"):
@@ -49,6 +74,23 @@ def build_viscous(scene: Scene, wet: list[int], idx: np.ndarray) -> ViscousDampi
             if m is not None:
                 full[6 * k:6 * k + 6, 6 * k:6 * k + 6] = m
         parts[key] = np.ascontiguousarray(full[np.ix_(idx, idx)])
-    if parts["linear_damping"] is None and parts["quadratic_damping"] is None:
+    drag = None
+    if any(b.drag is not None for b in bodies):
+        coef = np.zeros(6 * len(bodies))
+        relative = False
+        for k, b in enumerate(bodies):
+            if b.drag is not None:
+                coef[6 * k:6 * k + 6] = 0.5 * scene.water.density * np.asarray(b.drag.cd) * np.asarray(b.drag.area)
+                relative |= b.drag.relative
+        # a body's translational DOF j reads the wave velocity entry 3 k + j; rotations and
+        # bodies with absolute drag read the appended zero (index 3N)
+        n = len(bodies)
+        rows = np.full(6 * n, 3 * n)
+        for k, b in enumerate(bodies):
+            if b.drag is not None and b.drag.relative:
+                rows[6 * k:6 * k + 3] = 3 * k + np.arange(3)
+        wave = Kinematics(waves, reference_points, scene.water.gravity, scene.water.depth_m) if relative else None
+        drag = DragTerm(coef[idx], wave, rows[idx])
+    if parts["linear_damping"] is None and parts["quadratic_damping"] is None and drag is None:
         return None
-    return ViscousDamping(parts["linear_damping"], parts["quadratic_damping"])
+    return ViscousDamping(parts["linear_damping"], parts["quadratic_damping"], drag)

@@ -95,3 +95,33 @@ def test_viscous_keys_are_checked():
         parse(linear_damping=[1.0, 2.0])
     assert parse(linear_damping=[[float(i == j) for j in range(6)] for i in range(6)]).bodies[0].damping_matrix(
         "linear_damping").trace() == 6.0
+
+
+def test_relative_drag_at_rest_is_the_drag_of_the_wave_particle_velocity(sphere_path):
+    """A body held at rest in a regular wave: the drag is 1/2 rho cd A |u| u of the Airy particle
+    velocity at its reference point (200 m, k h > 20: deep water, u = a w e^{kz} (cos wt, 0, -sin wt) at x = 0),
+    written in the test; absolute drag gives nothing at rest."""
+    from hydrolink.server.model import HydroModel
+    rho, height, period = 1000.0, 1.0, 6.0
+    w = 2 * math.pi / period
+    k = w ** 2 / 9.81
+    cd, area = [1.0, 0.0, 0.8, 0.0, 0.0, 0.0], [40.0, 0.0, 78.5, 0.0, 0.0, 0.0]
+    for relative in (True, False):
+        scene = parse_scene(scene_toml(dt=0.05, duration=60.0, water={"density": rho, "depth": 200.0, "gravity": 9.81},
+                                       waves=regular_waves(height, period),
+                                       bodies=[sphere_body(str(sphere_path), mass=MASS, dofs=["surge", "heave"],
+                                                           drag={"cd": cd, "area": area, "relative": relative})]))
+        m = HydroModel(scene, {"sphere": load_hdb(sphere_path)})
+        pos = m.setup_info().equilibrium_position
+        z = float(pos[0, 2])
+        for step in range(200):
+            t = step * 0.05
+            f = m.step(t, pos, np.zeros_like(pos))["viscous"][0]
+            ux = 0.5 * height * w * math.exp(k * z) * math.cos(w * t)
+            uz = -0.5 * height * w * math.exp(k * z) * math.sin(w * t)
+            if relative:
+                expect = [0.5 * rho * cd[0] * area[0] * abs(ux) * ux, 0.5 * rho * cd[2] * area[2] * abs(uz) * uz]
+                np.testing.assert_allclose([f[0], f[2]], expect, rtol=1e-9, atol=1e-9 * (1 + abs(expect[0]) + abs(expect[1])))
+            else:
+                assert not np.any(f)
+    assert abs(expect[0]) + abs(expect[1]) > 1.0

@@ -1,0 +1,75 @@
+"""Undisturbed incident-wave kinematics (linear Airy theory) at points, for the forces that need
+the fluid's own motion (relative drag, Morison elements; issue 10).
+
+With the elevation eta = Re(sum_c a_c e^{i(k_c (x cos b_c + y sin b_c) - w_c t + phi_c)}) of
+server/waves.py (the ramp multiplies it), the particle velocity at (x, y, z <= 0) is
+u_h = Re(w a C e^{i theta}) (along the heading), u_z = Re(-i w a S e^{i theta}) with
+C = cosh(k (z + h)) / sinh(k h), S = sinh(k (z + h)) / sinh(k h) in depth h, both e^{k z} in deep
+water, and the acceleration its time derivative (-i w times the phasor). Points above the still
+water line are given the kinematics at z = 0 (no stretching)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from hydrolink.server.waves import WaveComponents, ramp_factor
+
+
+def wave_number(omega: float, gravity: float, depth: float) -> float:
+    """k of w^2 = g k tanh(k h) (deep water: w^2 / g)."""
+    k_deep = omega ** 2 / gravity
+    if math.isinf(depth) or k_deep * depth > 20.0:
+        return k_deep
+    k = k_deep / math.sqrt(math.tanh(k_deep * depth))      # a good start, then Newton
+    for _ in range(50):
+        t = math.tanh(k * depth)
+        f = gravity * k * t - omega ** 2
+        df = gravity * t + gravity * k * depth * (1 - t * t)
+        step = f / df
+        k -= step
+        if abs(step) < 1e-14 * k:
+            break
+    return k
+
+
+class Kinematics:
+    """Particle velocity and acceleration of the incident wave at fixed points (P, 3)."""
+
+    def __init__(self, comps: WaveComponents, points: np.ndarray, gravity: float, depth: float):
+        pts = np.asarray(points, float).reshape(-1, 3)
+        self.n_points = len(pts)
+        self.ramp = comps.ramp
+        self.omega = comps.omega.copy()
+        self.still = comps.size == 0
+        if self.still:
+            return
+        k = np.array([wave_number(float(w), gravity, depth) for w in comps.omega])
+        beta = comps.heading_of()
+        z = np.minimum(pts[:, 2], 0.0)[:, None]                       # (P, 1)
+        if math.isinf(depth) or np.all(k * depth > 20.0):
+            ch = sh = np.exp(k[None, :] * z)
+        else:
+            ch = np.cosh(k[None, :] * (z + depth)) / np.sinh(k * depth)[None, :]
+            sh = np.sinh(k[None, :] * (z + depth)) / np.sinh(k * depth)[None, :]
+        theta = k[None, :] * (pts[:, 0:1] * np.cos(beta)[None, :] + pts[:, 1:2] * np.sin(beta)[None, :])
+        c = comps.amplitude * np.exp(1j * comps.phase) * self.omega    # w a e^{i phi}
+        base = c[None, :] * np.exp(1j * theta)                          # (P, n_c)
+        # velocity phasors (P, n_c, 3): horizontal along each heading, vertical
+        self._vel = np.stack([base * ch * np.cos(beta)[None, :], base * ch * np.sin(beta)[None, :],
+                              -1j * base * sh], axis=-1)
+
+    def velocity(self, t: float) -> np.ndarray:
+        """(P, 3) particle velocity at time t [m/s], ramp included."""
+        if self.still:
+            return np.zeros((self.n_points, 3))
+        e = np.exp(-1j * self.omega * t)
+        return ramp_factor(t, self.ramp) * np.real(np.einsum("pcj,c->pj", self._vel, e))
+
+    def acceleration(self, t: float) -> np.ndarray:
+        """(P, 3) particle acceleration at time t [m/s^2] (the ramp's own rate left out)."""
+        if self.still:
+            return np.zeros((self.n_points, 3))
+        e = -1j * self.omega * np.exp(-1j * self.omega * t)
+        return ramp_factor(t, self.ramp) * np.real(np.einsum("pcj,c->pj", self._vel, e))
