@@ -48,11 +48,12 @@ class Kinematics:
         k = np.array([wave_number(float(w), gravity, depth) for w in comps.omega])
         beta = comps.heading_of()
         z = np.minimum(pts[:, 2], 0.0)[:, None]                       # (P, 1)
-        if math.isinf(depth) or np.all(k * depth > 20.0):
-            ch = sh = np.exp(k[None, :] * z)
-        else:
-            ch = np.cosh(k[None, :] * (z + depth)) / np.sinh(k * depth)[None, :]
-            sh = np.sinh(k[None, :] * (z + depth)) / np.sinh(k * depth)[None, :]
+        # cosh(k(z+h)) / sinh(kh) and sinh(k(z+h)) / sinh(kh) in a form that cannot overflow:
+        # (e^{kz} +- e^{-k(z+2h)}) / (1 - e^{-2kh}); deep water (h = inf): e^{kz}
+        kz = k[None, :] * z
+        far = np.exp(-k[None, :] * (z + 2 * depth)) if not math.isinf(depth) else 0.0
+        norm = 1.0 - (np.exp(-2 * k * depth)[None, :] if not math.isinf(depth) else 0.0)
+        ch, sh = (np.exp(kz) + far) / norm, (np.exp(kz) - far) / norm
         theta = k[None, :] * (pts[:, 0:1] * np.cos(beta)[None, :] + pts[:, 1:2] * np.sin(beta)[None, :])
         c = comps.amplitude * np.exp(1j * comps.phase) * self.omega    # w a e^{i phi}
         base = c[None, :] * np.exp(1j * theta)                          # (P, n_c)

@@ -1,0 +1,91 @@
+"""Server cost per step of the viscous force terms (issue 10): the Task-10 sphere (6 DOFs) in
+regular and irregular seas, HydroModel.step without viscous terms, with quadratic damping, with
+relative drag; and the drag term alone for 9 bodies (54 DOFs) with 300 wave components.
+
+    python bench/bench_forces.py [--steps 4000]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED = Path(os.environ.get("HYDROLINK_SHARED", REPO.parent / "shared")) / "data"
+
+
+def scene_text(waves: str, extra: str) -> str:
+    return f"""[simulation]
+dt = 0.05
+duration = 1000.0
+[water]
+density = 1000.0
+depth = 200.0
+[waves]
+{waves}
+[hydro]
+irf_duration = 10.0
+[[bodies]]
+name = "sphere"
+hdb = "sphere.h5"
+mass = 261800.0
+center_of_mass = [0.0, 0.0, -2.0]
+inertia = [2.6e6, 2.6e6, 2.6e6]
+{extra}
+"""
+
+
+def per_step(model, steps: int) -> float:
+    pos = model.setup_info().equilibrium_position
+    rng = np.random.default_rng(0)
+    vel = 0.1 * rng.standard_normal((steps, 1, 6))
+    t0 = time.perf_counter()
+    for k in range(steps):
+        model.step(k * model.dt, pos, vel[k])
+    return 1e6 * (time.perf_counter() - t0) / steps
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--steps", type=int, default=4000)
+    args = ap.parse_args()
+    from hydrolink.protocol.scene import parse_scene
+    from hydrolink.server.hdb.io import load_hdb
+    from hydrolink.server.kinematics import Kinematics
+    from hydrolink.server.model import HydroModel
+    from hydrolink.server.viscous import DragTerm, ViscousDamping
+    from hydrolink.server.waves import wave_components
+    from hydrolink.protocol.scene import IrregularWave
+
+    hdb = load_hdb(SHARED / "sphere_task10" / "sphere.h5")
+    seas = {"regular": 'type = "regular"\nheight = 1.0\nperiod = 6.0',
+            "irregular (300 components)": 'type = "irregular"\nspectrum = "jonswap"\nhs = 2.0\ntp = 8.0'}
+    terms = {"none": "", "quadratic_damping": "quadratic_damping = [1e4, 1e4, 8e4, 1e6, 1e6, 1e6]",
+             "relative drag": 'drag = { cd = [1, 1, 0.8, 0, 0, 0], area = [40, 40, 78.5, 0, 0, 0], relative = true }'}
+    print(f"# bench_forces: server µs per step (HydroModel.step, {args.steps} steps; load {os.getloadavg()[0]:.2f})\n")
+    print("| sea | " + " | ".join(terms) + " |")
+    print("|---|" + "---|" * len(terms))
+    for sea, waves in seas.items():
+        cells = [f"{per_step(HydroModel(parse_scene(scene_text(waves, extra)), {'sphere': hdb}), args.steps):.1f}"
+                 for extra in terms.values()]
+        print(f"| {sea} | " + " | ".join(cells) + " |")
+    comps = wave_components(IrregularWave(type="irregular", spectrum="jonswap", hs=2.0, tp=8.0), 0.2, 3.0)
+    points = np.column_stack([np.arange(9) * 20.0, np.zeros(9), np.full(9, -2.0)])
+    rows = np.full(54, 27)
+    for k in range(9):
+        rows[6 * k:6 * k + 3] = 3 * k + np.arange(3)
+    term = ViscousDamping(None, None, DragTerm(np.full(54, 1e4), Kinematics(comps, points, 9.81, 200.0), rows))
+    v = np.zeros(54)
+    t0 = time.perf_counter()
+    for k in range(args.steps):
+        term.force(k * 0.05, v)
+    print(f"\n9 bodies (54 DOFs), relative drag, 300 components: {1e6 * (time.perf_counter() - t0) / args.steps:.1f} µs "
+          "per step for the drag term alone")
+
+
+if __name__ == "__main__":
+    main()
