@@ -92,11 +92,6 @@ def check_scene(scene: Scene) -> None:
             raise SteadyError(f"moorings[{i}]", "MoorDyn moorings are not supported by hydrolink steady "
                                                 "(lumped-mass line dynamics with seabed contact, stepped in time); "
                                                 "run the scene with hydrolink run, or use a linear mooring")
-    for i, b in enumerate(scene.bodies):
-        for key in ("linear_damping", "quadratic_damping"):
-            if getattr(b, key) is not None:
-                raise SteadyError(f"bodies[{i}].{key}", "viscous damping is not evaluated by hydrolink steady "
-                                                        "yet; run the scene with hydrolink run")
     for i, j in enumerate(scene.joints):
         if j.friction is not None:
             raise SteadyError(f"joints[{i}].friction", "joint friction is not supported by hydrolink steady")
@@ -146,6 +141,12 @@ class LinearizedSystem:
     setup_seconds: float = 0.0
     memory: bool = True
     wet_names: list[str] = field(default_factory=list)
+    # viscous forces of the server (server/viscous.py), evaluated pointwise at the collocation
+    # nodes: the term, the ODE2 indices of the active wet DOFs it acts on, and the time shift that
+    # puts the nodes past the wave ramp (the steady state is periodic)
+    viscous: object | None = None
+    viscous_index: np.ndarray | None = None
+    viscous_shift: float = 0.0
 
     @property
     def pto_names(self) -> list[str]:
@@ -283,7 +284,9 @@ def linearize(scene: Scene, model, setup: Setup) -> LinearizedSystem:
                    else model.radiation_coefficients), ptos=ptos, moorings=moorings,
         body_names=list(ex.body_names), reference=ex.body_reference,
         setup_seconds=_time.perf_counter() - t0, memory=scene.hydro.radiation != "off",
-        wet_names=list(setup.bodies))
+        wet_names=list(setup.bodies), viscous=model.viscous,
+        viscous_index=np.asarray(ex.wet_index, int)[model.active_index] if model.viscous is not None else None,
+        viscous_shift=math.ceil(model.waves.ramp / (2 * math.pi / omega)) * 2 * math.pi / omega)
 
 
 def convolution_radiation(model, scene: Scene):
@@ -445,6 +448,13 @@ def solve(sys_: LinearizedSystem, order: int, formulation: str = "dae", *, toler
     rhs = np.r_[b, np.zeros(m * p)]
     norm_b = max(float(np.linalg.norm(b)), 1e-300)
 
+    if sys_.viscous is not None:   # coordinates -> velocities of the active wet DOFs: S (n_act, n)
+        S = np.zeros((sys_.viscous_index.size, n_full))
+        S[np.arange(sys_.viscous_index.size), sys_.viscous_index] = 1.0
+        if N is not None:
+            S = S @ N
+        tv = t + sys_.viscous_shift
+
     def residual(y):
         X = y[:n * p].reshape(n, p)
         r = A @ y - rhs
@@ -453,6 +463,12 @@ def solve(sys_: LinearizedSystem, order: int, formulation: str = "dae", *, toler
             r[:n * p] += np.outer(g, f).reshape(-1)          # the PTO's generalised force is -g T
             dT = fr[:, None] * (pl.stiffness * np.eye(p) + pl.damping * D1)   # dT_j / d(g.X)_l
             jac[:n * p, :n * p] += np.kron(np.outer(g, g), dT)
+        if sys_.viscous is not None:   # pointwise at the nodes: F(t_j, v_j), a load (minus in r)
+            V = S @ X @ D1.T                                  # (n_act, P) velocities at the nodes
+            F = np.column_stack([sys_.viscous.force(tj, V[:, j]) for j, tj in enumerate(tv)])
+            r[:n * p] -= (S.T @ F).reshape(-1)
+            Jn = np.stack([S.T @ sys_.viscous.jacobian(tj, V[:, j]) @ S for j, tj in enumerate(tv)])   # (P, n, n)
+            jac[:n * p, :n * p] -= np.einsum("jab,jl->ajbl", Jn, D1).reshape(n * p, n * p)
         return r, jac
 
     y = np.zeros(n * p + m * p)

@@ -96,6 +96,7 @@ class HydroModel:
         self.interaction = scene.hydro.interaction
         self.active = np.array([scene.bodies[i].active_mask for i in wet], bool)  # (N, 6)
         self._idx = np.flatnonzero(self.active.reshape(-1))
+        self.active_index = self._idx          # the active DOFs' positions in the 6N vector
         option = radiation_option(scene.hydro, scene.waves, self.dt)  # refuses what it cannot run
         self.radiation, self.irf_samples = option.name, option.samples
         self.radiation_frequency = option.radiation_frequency

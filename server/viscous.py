@@ -55,6 +55,21 @@ class ViscousDamping:
             f += self.drag.force(t, v)
         return f
 
+    def jacobian(self, t: float, v: np.ndarray) -> np.ndarray:
+        """dF/dv (n_active, n_active) at time ``t`` and velocities ``v`` (Newton in hydrolink steady)."""
+        n = v.size
+        jac = np.zeros((n, n))
+        if self.linear is not None:
+            jac -= self.linear
+        if self.quadratic is not None:
+            jac -= self.quadratic * (2.0 * np.abs(v))[None, :]
+        if self.drag is not None:
+            u = v
+            if self.drag.wave is not None:
+                u = v - np.append(self.drag.wave.velocity(t).reshape(-1), 0.0)[self.drag.rows]
+            jac -= np.diag(2.0 * self.drag.coefficient * np.abs(u))
+        return jac
+
 
 
 def build_viscous(scene: Scene, wet: list[int], idx: np.ndarray, waves: WaveComponents,
