@@ -87,5 +87,40 @@ def main() -> None:
           "per step for the drag term alone")
 
 
+def rm3_power(duration: float = 400.0) -> None:
+    """RM3 (examples/rm3/rm3.toml, H 2.5 m, T 8 s, PTO 1.2e6 N s/m) with and without quadratic
+    drag on the float's heave: Cd 1 on the waterplane area pi 10^2 m^2 (the float's radius is 10 m;
+    Cd 1 in heave is the value of a WEC-Sim RM3 input in a public model library, quadDrag.cd =
+    [1 1 1 0 0 0]); mean PTO power over the last 200 s."""
+    import tomllib
+    import tempfile
+    import xarray as xr
+    from hydrolink.clients.grid import absolute_paths, dump_toml
+    from hydrolink.clients.run import run_scene_file
+    rm3 = REPO / "examples" / "rm3" / "rm3.toml"
+    base = absolute_paths(tomllib.loads(rm3.read_text()), rm3)
+    base["simulation"]["duration"] = duration
+    out = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for label, drag in (("no drag", None), ("float heave drag Cd 1", {"cd": [0, 0, 1.0, 0, 0, 0],
+                                                                         "area": [0, 0, 314.16, 0, 0, 0],
+                                                                         "relative": True})):
+            doc = {k: (dict(v) if isinstance(v, dict) else [dict(e) for e in v] if isinstance(v, list) else v)
+                   for k, v in base.items()}
+            if drag:
+                doc["bodies"][0]["drag"] = drag
+            path = Path(tmp) / "rm3.toml"
+            path.write_text(dump_toml(doc))
+            run_scene_file(path, Path(tmp) / "rm3.nc", progress=False)
+            ds = xr.load_dataset(Path(tmp) / "rm3.nc")
+            sel = ds["time"].values > duration - 200.0
+            out[label] = float(ds["total_pto_power"].values[sel].mean())
+    base_p = out["no drag"]
+    print("\n| RM3 at T = 8 s, H 2.5 m | mean PTO power | vs no drag |\n|---|---|---|")
+    for label, p in out.items():
+        print(f"| {label} | {p / 1e3:.1f} kW | {100 * (p / base_p - 1):+.1f} % |")
+
+
 if __name__ == "__main__":
     main()
+    rm3_power()

@@ -714,7 +714,7 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup | None, writer, 
     if mech and mech.joints:
         _add_joint_variables(writer, mech.joint_labels)
     _add_pto_mooring_variables(writer, model.ptos, model.moorings)
-    if any(b.linear_damping is not None or b.quadratic_damping is not None for b in scene.bodies):
+    if any(b.viscous for b in scene.bodies):
         writer.add_variable("viscous_force", ("body", "dof"), None, "N (surge, sway, heave); N m (roll, pitch, yaw)",
                             "viscous damping force -B_lin v - B_quad v|v| about the reference point (server)")
         writer.add_variable("viscous_power", ("body",), None, "W",

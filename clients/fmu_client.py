@@ -256,9 +256,9 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup, writer, *,
     if not isinstance(client, FMUClient):
         raise SceneError("scene", "client.type", "the FMU master needs [client] type = \"fmu\"")
     for i, b in enumerate(scene.bodies):
-        for key in ("linear_damping", "quadratic_damping"):
+        for key in ("linear_damping", "quadratic_damping", "drag"):
             if getattr(b, key) is not None:
-                raise SceneError("scene", f"bodies[{i}].{key}", "the FMU master does not apply viscous damping "
+                raise SceneError("scene", f"bodies[{i}].{key}", "the FMU master does not apply viscous forces "
                                  "yet (its force ports carry excitation, radiation and hydrostatics); use the "
                                  "Exudyn client")
     h = setup.dt

@@ -298,6 +298,11 @@ class Body(_Section):
                 raise ValueError(f"{key}: the diagonal must be >= 0 (got {np.diag(m).tolist()})")
         return self
 
+    @property
+    def viscous(self) -> bool:
+        """True when the body has a viscous term (linear or quadratic damping, drag)."""
+        return self.linear_damping is not None or self.quadratic_damping is not None or self.drag is not None
+
     def damping_matrix(self, key: str):
         """``linear_damping`` or ``quadratic_damping`` as a 6x6 array (None when not given)."""
         import numpy as np

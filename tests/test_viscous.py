@@ -125,3 +125,25 @@ def test_relative_drag_at_rest_is_the_drag_of_the_wave_particle_velocity(sphere_
             else:
                 assert not np.any(f)
     assert abs(expect[0]) + abs(expect[1]) > 1.0
+
+
+def test_a_run_with_drag_only_records_it(tmp_path, sphere_path):
+    """A scene whose only viscous term is drag (relative): the run applies and records it, and the
+    recorded force is -1/2 rho cd A |u| u of the recorded velocity minus the Airy particle velocity."""
+    period, height = 6.0, 1.0
+    w, rho = 2 * math.pi / period, 1000.0
+    ds = _run(tmp_path, sphere_path, "drag", dt=0.05, duration=30.0, waves=regular_waves(height, period, ramp=6.0),
+              bodies=[sphere_body(str(sphere_path), mass=MASS, dofs=["heave"],
+                                  drag={"cd": [0, 0, 1.0, 0, 0, 0], "area": [0, 0, 78.5, 0, 0, 0]})])
+    t = ds["time"].values
+    v = ds["velocity"].sel(body="sphere", dof="heave").values
+    z = float(ds["position"].sel(body="sphere", dof="heave").values[0])
+    k = w ** 2 / 9.81
+    ramp = np.where(t >= 6.0, 1.0, 0.5 * (1 - np.cos(np.pi * np.clip(t, 0, 6.0) / 6.0)))
+    uz = -ramp * 0.5 * height * w * np.exp(k * z) * np.sin(w * t)
+    u = v - uz
+    f = ds["viscous_force"].sel(body="sphere", dof="heave").values
+    later = t > 10.0
+    np.testing.assert_allclose(f[later], (-0.5 * rho * 78.5 * np.abs(u) * u)[later], rtol=0.05,
+                               atol=0.02 * np.abs(f).max())
+    assert np.abs(f).max() > 100.0
