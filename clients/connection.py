@@ -251,8 +251,9 @@ class ServerConnection:
         reply = self._request("step", timeout, fields, self._maps and measurements is None)
         for k in FORCE_FIELDS:  # (N, 6) like the state sent; the caller checks the values
             reply[k] = codec.require_array(reply, k, position.shape, finite=False)
-        if reply.get("viscous") is not None:   # scenes with viscous damping (SPEC §5.2)
-            reply["viscous"] = codec.require_array(reply, "viscous", position.shape, finite=False)
+        for k in ("viscous", "morison"):        # scenes with those terms (SPEC §5.2)
+            if reply.get(k) is not None:
+                reply[k] = codec.require_array(reply, k, position.shape, finite=False)
         eta = reply.get("wave_elevation")
         if isinstance(eta, dict):
             reply["wave_elevation"] = codec.decode_array(eta, "wave_elevation")

@@ -605,6 +605,10 @@ class ExudynMultibody:
             vis = np.zeros((self.nb, 6))
             vis.reshape(-1)[self._wet_flat] = s.viscous
             self.writer.stage_extra({"viscous_force": vis, "viscous_power": -(vis * row[1]).sum(axis=1)})
+        if s.morison is not None:
+            mor = np.zeros((self.nb, 6))
+            mor.reshape(-1)[self._wet_flat] = s.morison
+            self.writer.stage_extra({"morison_force": mor})
         self.writer.commit(t, s.eta)
 
     def measurements(self, step: int) -> dict | None:
@@ -714,6 +718,9 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup | None, writer, 
     if mech and mech.joints:
         _add_joint_variables(writer, mech.joint_labels)
     _add_pto_mooring_variables(writer, model.ptos, model.moorings)
+    if scene.morison:
+        writer.add_variable("morison_force", ("body", "dof"), None, "N (surge, sway, heave); N m (roll, pitch, yaw)",
+                            "Morison elements' force and moment about the reference point (server)")
     if any(b.viscous for b in scene.bodies):
         writer.add_variable("viscous_force", ("body", "dof"), None, "N (surge, sway, heave); N m (roll, pitch, yaw)",
                             "viscous damping force -B_lin v - B_quad v|v| about the reference point (server)")

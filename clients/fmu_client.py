@@ -255,6 +255,8 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup, writer, *,
     client: FMUClient = scene.client
     if not isinstance(client, FMUClient):
         raise SceneError("scene", "client.type", "the FMU master needs [client] type = \"fmu\"")
+    if scene.morison:
+        raise SceneError("scene", "morison", "the FMU master does not apply Morison forces yet; use the Exudyn client")
     for i, b in enumerate(scene.bodies):
         for key in ("linear_damping", "quadratic_damping", "drag"):
             if getattr(b, key) is not None:

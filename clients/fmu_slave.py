@@ -107,8 +107,9 @@ class HydrolinkForces(Fmi2Slave):
             self._out[key][:] = np.asarray(reply[key], float).reshape(-1)[self._flat]
         self._out["hydrostatic"] += self._net
         self._out["force"][:] = self._out["excitation"] + self._out["radiation"] + self._out["hydrostatic"]
-        if reply.get("viscous") is not None:     # scenes with viscous damping: part of the total force
-            self._out["force"] += np.asarray(reply["viscous"], float).reshape(-1)[self._flat]
+        for key in ("viscous", "morison"):       # scenes with those terms: part of the total force
+            if reply.get(key) is not None:
+                self._out["force"] += np.asarray(reply[key], float).reshape(-1)[self._flat]
         self._eta = float(np.asarray(reply["wave_elevation"], float).reshape(-1)[0])
         self._sent = state
 

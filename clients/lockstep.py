@@ -52,8 +52,8 @@ class CouplingError(RunInterrupted):
 
 class Sample(NamedTuple):
     """One server reply over the wet bodies' 6N DOFs (body-major); immutable (a tuple: cheap to
-    make once a step). ``load`` = excitation + radiation (+ viscous, for scenes with viscous
-    damping): what the client applies as a force (hydrostatics are in its matrix); :meth:`of`
+    make once a step). ``load`` = excitation + radiation (+ viscous, + morison, for scenes with
+    those terms): what the client applies as a force (hydrostatics are in its matrix); :meth:`of`
     computes it."""
 
     excitation: np.ndarray
@@ -62,20 +62,25 @@ class Sample(NamedTuple):
     eta: float
     load: np.ndarray
     viscous: np.ndarray | None = None
+    morison: np.ndarray | None = None
 
     @classmethod
     def of(cls, excitation: np.ndarray, radiation: np.ndarray, hydrostatic: np.ndarray, eta: float,
-           viscous: np.ndarray | None = None) -> "Sample":
-        load = excitation + radiation if viscous is None else excitation + radiation + viscous
-        return cls(excitation, radiation, hydrostatic, eta, load, viscous)
+           viscous: np.ndarray | None = None, morison: np.ndarray | None = None) -> "Sample":
+        load = excitation + radiation
+        if viscous is not None:
+            load = load + viscous
+        if morison is not None:
+            load = load + morison
+        return cls(excitation, radiation, hydrostatic, eta, load, viscous, morison)
 
     def toward(self, other: "Sample", w: float) -> "Sample":
         """self + w (other − self): linear in time between (w in [0, 1]) or past (w > 1) two samples."""
-        vis = None if self.viscous is None else self.viscous + w * (other.viscous - self.viscous)
-        return Sample.of(self.excitation + w * (other.excitation - self.excitation),
-                         self.radiation + w * (other.radiation - self.radiation),
-                         self.hydrostatic + w * (other.hydrostatic - self.hydrostatic),
-                         self.eta + w * (other.eta - self.eta), vis)
+        def lerp(a, b):
+            return None if a is None else a + w * (b - a)
+        return Sample.of(lerp(self.excitation, other.excitation), lerp(self.radiation, other.radiation),
+                         lerp(self.hydrostatic, other.hydrostatic), self.eta + w * (other.eta - self.eta),
+                         lerp(self.viscous, other.viscous), lerp(self.morison, other.morison))
 
 
 class ForceLink:
@@ -121,9 +126,10 @@ class ForceLink:
         self.decisions = reply.get("control")
         eta = reply["wave_elevation"]
         eta = eta if type(eta) is float else float(np.asarray(eta, float).reshape(-1)[0])
-        vis = reply.get("viscous")
+        vis, mor = reply.get("viscous"), reply.get("morison")
         s = Sample.of(reply["excitation"].reshape(-1), reply["radiation"].reshape(-1),
-                      reply["hydrostatic"].reshape(-1), eta, None if vis is None else vis.reshape(-1))
+                      reply["hydrostatic"].reshape(-1), eta, None if vis is None else vis.reshape(-1),
+                      None if mor is None else mor.reshape(-1))
         # NaN or inf anywhere makes a sum non-finite (excitation and radiation through their sum)
         if not math.isfinite(float(_sum(s.load)) + float(_sum(s.hydrostatic)) + eta):
             rows = self.writer.rows

@@ -92,6 +92,9 @@ def check_scene(scene: Scene) -> None:
             raise SteadyError(f"moorings[{i}]", "MoorDyn moorings are not supported by hydrolink steady "
                                                 "(lumped-mass line dynamics with seabed contact, stepped in time); "
                                                 "run the scene with hydrolink run, or use a linear mooring")
+    if scene.morison:
+        raise SteadyError("morison", "Morison elements are not evaluated by hydrolink steady yet; run the scene "
+                                     "with hydrolink run")
     for i, j in enumerate(scene.joints):
         if j.friction is not None:
             raise SteadyError(f"joints[{i}].friction", "joint friction is not supported by hydrolink steady")

@@ -576,6 +576,29 @@ class MoorDynMooring(_Section):
 Mooring = Annotated[Union[LinearMooring, RopeMooring, MoorDynMooring], Field(discriminator="type")]
 
 
+class MorisonElement(_Section):
+    """A slender cylindrical member on a wet body, from ``point_a`` to ``point_b`` (global frame at
+    equilibrium): Morison's equation in relative form on each of its ``segments``, over its wetted
+    part (below the still water line), with the undisturbed wave's kinematics at the segment's
+    mean position: f = rho (1 + ca) V a_n + 1/2 rho cd D L |u_n - v_n| (u_n - v_n) per segment (n:
+    normal to the member), the member's added mass rho ca V in the body's mass matrix (SPEC §5.1
+    setup.added_mass); forces and moments about the body's reference point."""
+    name: Name | None = None
+    body: Name
+    point_a: Vector3
+    point_b: Vector3
+    diameter: PositiveFloat
+    cd: NonNegative
+    ca: NonNegative = 1.0
+    segments: Annotated[int, Field(ge=1, le=1000)] = 20
+
+    @model_validator(mode="after")
+    def _length(self) -> "MorisonElement":
+        if math.dist(self.point_a, self.point_b) < 1e-9:
+            raise ValueError("point_b: must differ from point_a (a member has a length)")
+        return self
+
+
 DofName = Literal["surge", "sway", "heave", "roll", "pitch", "yaw"]
 FMUVariable = Annotated[str, Field(min_length=1)]
 
@@ -730,6 +753,7 @@ class Scene(_Section):
     constraints: list[Constraint] = []
     ptos: list[PTO] = []
     moorings: list[Mooring] = []
+    morison: list[MorisonElement] = []
     client: Client = ExudynClient(type="exudyn")
     controllers: list[Controller] = []
 
@@ -745,6 +769,14 @@ class Scene(_Section):
                 raise ValueError(f"point_masses[{i}].name: name {n!r} is already used")
         if "ground" in names:
             raise ValueError(f"bodies[{names.index('ground')}].name: 'ground' is reserved")
+        for i, m in enumerate(self.morison):
+            if m.body not in names:
+                raise ValueError(f"morison[{i}].body: no body named {m.body!r} (known: {names})")
+            if not self.bodies[names.index(m.body)].wet:
+                raise ValueError(f"morison[{i}].body: {m.body!r} is dry; Morison elements go on wet bodies (with "
+                                 "hdb) for now")
+            if min(m.point_a[2], m.point_b[2]) >= 0.0:
+                raise ValueError(f"morison[{i}]: the member lies above the still water line (z >= 0 at both ends)")
         stated: dict[str, str] = {}
         for i, b in enumerate(self.bodies):
             if b.hdb is not None and b.hdb_convention is not None:

@@ -142,6 +142,14 @@ class HydroModel:
                                      self.equilibrium_position[:, :3])
         if self.viscous is not None:
             self._red = np.zeros((4, na))
+        from hydrolink.server.morison import build_morison
+        built = build_morison(scene, wet, self.waves, self.equilibrium_position[:, :3])
+        self.morison = None if built is None else built[0]      # None: no Morison element
+        if built is not None:
+            self.added_mass_client = self.added_mass_client + built[1] * self.active.reshape(-1)[:, None] \
+                * self.active.reshape(-1)[None, :]
+            self._eq_flat = self.equilibrium_position.reshape(-1).copy()
+            self._active_mask = self.active.astype(float)
 
     def _group_data(self, ds: xr.Dataset, members: list[int]) -> _GroupData:
         """The group's bodies from its HDB, checked against the scene's depth."""
@@ -434,4 +442,8 @@ class HydroModel:
         reply = {"excitation": out[0], "radiation": out[1], "hydrostatic": out[2], "wave_elevation": eta}
         if self.viscous is not None:
             reply["viscous"] = out[3]
+        if self.morison is not None:
+            f = self.morison.force(time, (x - self._eq_flat).reshape(-1, 6), v.reshape(-1, 6)) * self._active_mask
+            f.flags.writeable = False
+            reply["morison"] = f
         return reply

@@ -74,7 +74,7 @@ def _state_space_fit_cache(tmp_path_factory):
 
 Section = Mapping[str, Any]
 SCENE_SECTIONS: tuple[str, ...] = ("simulation", "water", "waves", "hydro", "steady", "coupling", "bodies",
-                                   "point_masses", "joints", "constraints", "ptos", "moorings", "client",
+                                   "point_masses", "joints", "constraints", "ptos", "moorings", "morison", "client",
                                    "controllers")
 _BARE_KEY = re.compile(r"^[A-Za-z0-9_-]+$")
 

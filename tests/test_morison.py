@@ -1,0 +1,133 @@
+"""Morison elements (server/morison.py): a fixed vertical surface-piercing cylinder in regular
+waves, its inline force against the closed-form Morison integrals over depth written here
+(inertia and drag parts separately); the member's added mass in the body's mass matrix; bad input."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from conftest import SPHERE_WATER, regular_waves, scene_toml, sphere_body
+from hydrolink.protocol.scene import SceneError, parse_scene
+from hydrolink.server.hdb.io import load_hdb
+from hydrolink.server.model import HydroModel
+
+RHO, G, DEPTH = 1000.0, 9.81, 200.0     # the Task-10 sphere's water (deep for these waves: k h > 20)
+
+
+def model(sphere_path, *, cd: float, ca: float, diameter: float = 2.0, draft: float = 20.0, segments: int = 400,
+          period: float = 7.0, height: float = 2.0) -> HydroModel:
+    """The sphere (a carrier: its HDB forces are not looked at) with a vertical member from 5 m above
+    the water to ``draft`` below, 30 m beside its centre."""
+    scene = parse_scene(scene_toml(dt=0.05, duration=100.0, water={**SPHERE_WATER, "gravity": G},
+                                   waves=regular_waves(height, period),
+                                   bodies=[sphere_body(str(sphere_path), mass=261.8e3)],
+                                   morison=[{"body": "sphere", "point_a": [30.0, 0.0, 5.0],
+                                             "point_b": [30.0, 0.0, -draft], "diameter": diameter, "cd": cd,
+                                             "ca": ca, "segments": segments}]))
+    return HydroModel(scene, {"sphere": load_hdb(sphere_path)})
+
+
+@pytest.mark.parametrize("part", ["inertia", "drag"])
+def test_fixed_vertical_cylinder_against_the_morison_integral(sphere_path, part):
+    """Deep water, eta = a cos(k x - w t), u = a w e^{kz} cos, du/dt = a w^2 e^{kz} sin over z in
+    [-d, 0]: inertia F = rho Cm (pi D^2/4) a w^2 (1 - e^{-kd}) / k sin(kx - wt); drag
+    F = 1/2 rho Cd D (a w)^2 (1 - e^{-2kd}) / (2k) |cos| cos. The moment about the reference point
+    is the same integrals weighted by the lever arm (checked through the pitch moment)."""
+    cd, ca = (0.0, 1.0) if part == "inertia" else (1.2, 0.0)
+    period, height, diameter, draft = 7.0, 2.0, 2.0, 20.0
+    m = model(sphere_path, cd=cd, ca=ca, diameter=diameter, draft=draft, period=period, height=height)
+    w, a = 2 * math.pi / period, height / 2
+    k = w ** 2 / G
+    pos = m.setup_info().equilibrium_position
+    for step in range(140):
+        t = step * 0.05
+        f = m.step(t, pos, np.zeros_like(pos))["morison"][0]
+        if step % 7:
+            continue
+        theta = k * 30.0 - w * t
+        inertia = RHO * (1 + ca) * math.pi * diameter ** 2 / 4 * a * w ** 2 * (1 - math.exp(-k * draft)) / k * math.sin(theta)
+        drag = 0.5 * RHO * cd * diameter * (a * w) ** 2 * (1 - math.exp(-2 * k * draft)) / (2 * k) \
+            * abs(math.cos(theta)) * math.cos(theta)
+        # the drag part: what the member gets beyond the Froude-Krylov inertia (Cm = 1 at ca = 0)
+        got, expect = (f[0], inertia) if part == "inertia" else (f[0] - inertia, drag)
+        scale = RHO * math.pi * diameter ** 2 / 4 * a * w ** 2 / k if part == "inertia" else 0.5 * RHO * cd * diameter * (a * w) ** 2 / (2 * k)
+        assert got == pytest.approx(expect, abs=2e-3 * scale), (t, got, expect)
+        assert abs(f[1]) < 1e-9 * scale and abs(f[2]) < 1e-9 * scale   # no vertical force on a vertical member
+
+
+def test_the_members_added_mass_is_in_the_mass_matrix(sphere_path):
+    """rho ca V of the wetted length on the surge and sway (normal) directions, with its lever arm
+    into the rotations (surge-pitch coupling rho ca A int z dz about the reference point)."""
+    base = model(sphere_path, cd=0.0, ca=0.0).setup_info().added_mass
+    with_ca = model(sphere_path, cd=0.0, ca=1.0).setup_info().added_mass
+    d = with_ca - base
+    area, draft = math.pi * 2.0 ** 2 / 4, 20.0
+    assert d[0, 0] == pytest.approx(RHO * area * draft, rel=1e-9)
+    assert d[1, 1] == pytest.approx(RHO * area * draft, rel=1e-9)
+    assert abs(d[2, 2]) < 1e-6                                             # not along the axis
+    zref = float(model(sphere_path, cd=0.0, ca=0.0).setup_info().equilibrium_position[0, 2])
+    # surge-pitch: f = -m a, moment about y of a force along x at height z: (z - zref) f_x
+    assert d[4, 0] == pytest.approx(RHO * area * (-draft ** 2 / 2 - zref * draft), rel=1e-6)
+
+
+def test_bad_members_are_named():
+    def parse(**member):
+        return parse_scene(scene_toml(dt=0.1, duration=1.0, bodies=[sphere_body("s.h5", mass=1.0)],
+                                      morison=[{"body": "sphere", "point_a": [0, 0, -1], "point_b": [0, 0, -5],
+                                                "diameter": 1.0, "cd": 1.0, **member}]))
+    with pytest.raises(SceneError, match=r"morison\[0\]\.cd: Input should be greater than or equal to 0"):
+        parse(cd=-1.0)
+    with pytest.raises(SceneError, match=r"morison\[0\]: the member lies above the still water line"):
+        parse(point_a=[0, 0, 1.0], point_b=[0, 0, 3.0])
+    with pytest.raises(SceneError, match=r"morison\[0\]\.body: no body named 'hull'"):
+        parse(body="hull")
+    with pytest.raises(SceneError, match=r"morison\[0\]\.point_b: must differ from point_a"):
+        parse(point_b=[0, 0, -1])
+
+
+def test_a_run_with_a_horizontal_member_against_a_monolithic_integration(sphere_path, tmp_path):
+    """The sphere in heave with a horizontal member (10 m long, D 1 m, 5 m deep, ca 1, cd 0) in a
+    regular wave: the co-simulation (member force in the reply, its added mass in the client's mass)
+    against (m + A + rho ca V) z'' + B z' + C z = F_ex + rho (1 + ca) V <a_z> written here, <a_z> the
+    fluid's vertical acceleration averaged over the member: -a w^2 e^{kz} (2 sin(kL/2) / (k L))."""
+    import xarray as xr
+    from scipy.integrate import solve_ivp
+
+    from conftest import write_scene
+    from hydrolink.clients.run import run_scene_file
+    mass, height, length, diameter, depth_m = 261.724e3, 1.0, 10.0, 1.0, -5.0
+    hdb = load_hdb(sphere_path)
+    i = int(np.argmin(np.abs(hdb["omega"].values - 1.0)))
+    w = float(hdb["omega"].values[i])
+    a_33, b_33 = float(hdb["added_mass"].values[i, 2, 2]), float(hdb["radiation_damping"].values[i, 2, 2])
+    x_exc, c = complex(hdb["excitation_force"].values[i, 0, 2]), float(hdb["hydrostatic_stiffness"].values[2, 2])
+    period = 2 * math.pi / w
+    k = w ** 2 / G
+    vol = math.pi * diameter ** 2 / 4 * length
+    path = write_scene(tmp_path, scene_toml(
+        dt=period / 200, duration=20 * period, progress=False, water={**SPHERE_WATER, "gravity": G},
+        waves=regular_waves(height, period, ramp=2 * period), hydro={"radiation": "constant"},
+        bodies=[sphere_body(str(sphere_path), mass=mass, dofs=["heave"])],
+        morison=[{"body": "sphere", "point_a": [-length / 2, 0.0, depth_m], "point_b": [length / 2, 0.0, depth_m],
+                  "diameter": diameter, "cd": 0.0, "ca": 1.0, "segments": 100}]), "s.toml")
+    run_scene_file(path, tmp_path / "s.nc", progress=False)
+    ds = xr.load_dataset(tmp_path / "s.nc")
+    a = height / 2
+    f_mor = RHO * 2.0 * vol * (-a * w ** 2 * math.exp(k * depth_m) * 2 * math.sin(k * length / 2) / (k * length))
+    ramp = 2 * period
+
+    def rhs(t, y):
+        r = 1.0 if t >= ramp else 0.5 * (1 - math.cos(math.pi * t / ramp))
+        f = r * ((x_exc * a + f_mor) * np.exp(-1j * w * t)).real
+        return [y[1], (f - b_33 * y[1] - c * y[0]) / (mass + a_33 + RHO * 1.0 * vol)]
+    t = ds["time"].values
+    ref = solve_ivp(rhs, (0, t[-1]), [0.0, 0.0], t_eval=t, rtol=1e-10, atol=1e-12, max_step=period / 200)
+    z = ds["position"].sel(body="sphere", dof="heave").values
+    z = z - z[0]
+    last = t > t[-1] - 4 * period
+    assert 0.5 * np.ptp(z[last]) == pytest.approx(0.5 * np.ptp(ref.y[0][last]), rel=5e-3)
+    fz = ds["morison_force"].sel(body="sphere", dof="heave").values
+    assert np.abs(fz[last]).max() == pytest.approx(abs(f_mor), rel=5e-3)
