@@ -92,9 +92,6 @@ def check_scene(scene: Scene) -> None:
             raise SteadyError(f"moorings[{i}]", "MoorDyn moorings are not supported by hydrolink steady "
                                                 "(lumped-mass line dynamics with seabed contact, stepped in time); "
                                                 "run the scene with hydrolink run, or use a linear mooring")
-    if scene.morison:
-        raise SteadyError("morison", "Morison elements are not evaluated by hydrolink steady yet; run the scene "
-                                     "with hydrolink run")
     for i, j in enumerate(scene.joints):
         if j.friction is not None:
             raise SteadyError(f"joints[{i}].friction", "joint friction is not supported by hydrolink steady")
@@ -150,6 +147,10 @@ class LinearizedSystem:
     viscous: object | None = None
     viscous_index: np.ndarray | None = None
     viscous_shift: float = 0.0
+    # Morison elements (server/morison.py), pointwise like the viscous terms: the set and the mask
+    # of the wet bodies' active DOFs (N, 6)
+    morison: object | None = None
+    morison_active: np.ndarray | None = None
 
     @property
     def pto_names(self) -> list[str]:
@@ -287,7 +288,8 @@ def linearize(scene: Scene, model, setup: Setup) -> LinearizedSystem:
                    else model.radiation_coefficients), ptos=ptos, moorings=moorings,
         body_names=list(ex.body_names), reference=ex.body_reference,
         setup_seconds=_time.perf_counter() - t0, memory=scene.hydro.radiation != "off",
-        wet_names=list(setup.bodies), viscous=model.viscous,
+        wet_names=list(setup.bodies), viscous=model.viscous, morison=model.morison,
+        morison_active=model.active.astype(float) if model.morison is not None else None,
         viscous_index=np.asarray(ex.wet_index, int)[model.active_index] if model.viscous is not None else None,
         viscous_shift=math.ceil(model.waves.ramp / (2 * math.pi / omega)) * 2 * math.pi / omega)
 
@@ -456,7 +458,17 @@ def solve(sys_: LinearizedSystem, order: int, formulation: str = "dae", *, toler
         S[np.arange(sys_.viscous_index.size), sys_.viscous_index] = 1.0
         if N is not None:
             S = S @ N
-        tv = t + sys_.viscous_shift
+    tv = t + sys_.viscous_shift
+    if sys_.morison is not None:   # coordinates -> the wet bodies' 6N displacements: W (6N, n)
+        W = np.zeros((sys_.wet_index.size, n_full))
+        W[np.arange(sys_.wet_index.size), sys_.wet_index] = 1.0
+        if N is not None:
+            W = W @ N
+        mask = sys_.morison_active.reshape(-1)
+        nb = mask.size // 6
+
+        def morison_at(j: int, x: np.ndarray, v: np.ndarray) -> np.ndarray:
+            return sys_.morison.force(tv[j], x.reshape(nb, 6), v.reshape(nb, 6)).reshape(-1) * mask
 
     def residual(y):
         X = y[:n * p].reshape(n, p)
@@ -472,6 +484,22 @@ def solve(sys_: LinearizedSystem, order: int, formulation: str = "dae", *, toler
             r[:n * p] -= (S.T @ F).reshape(-1)
             Jn = np.stack([S.T @ sys_.viscous.jacobian(tj, V[:, j]) @ S for j, tj in enumerate(tv)])   # (P, n, n)
             jac[:n * p, :n * p] -= np.einsum("jab,jl->ajbl", Jn, D1).reshape(n * p, n * p)
+        if sys_.morison is not None:   # pointwise too; dF/dv by central differences (the wetted
+            Xw = W @ X                 # length's dependence on x is piecewise constant: left out)
+            Vw = Xw @ D1.T
+            F = np.column_stack([morison_at(j, Xw[:, j], Vw[:, j]) for j in range(p)])
+            r[:n * p] -= (W.T @ F).reshape(-1)
+            cols = np.flatnonzero(mask)
+            Jm = np.zeros((p, n, n))
+            for j in range(p):
+                jv = np.zeros((mask.size, mask.size))
+                for c in cols:
+                    h = 1e-6 * max(1.0, abs(Vw[c, j]))
+                    dv = np.zeros(mask.size)
+                    dv[c] = h
+                    jv[:, c] = (morison_at(j, Xw[:, j], Vw[:, j] + dv) - morison_at(j, Xw[:, j], Vw[:, j] - dv)) / (2 * h)
+                Jm[j] = W.T @ jv @ W
+            jac[:n * p, :n * p] -= np.einsum("jab,jl->ajbl", Jm, D1).reshape(n * p, n * p)
         return r, jac
 
     y = np.zeros(n * p + m * p)

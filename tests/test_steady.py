@@ -257,3 +257,38 @@ def test_viscous_damping_pointwise_against_time_integration_and_lorentz(sphere_p
     # a quarter off the amplitude)
     assert first == pytest.approx(abs(x), rel=2e-2)
     assert abs(x) < 0.8 * abs(f / (-w ** 2 * (mass + a) - 1j * w * (b + b_lin) + c))   # the drag matters
+
+
+def test_morison_member_pointwise_against_the_time_domain(sphere_path, tmp_path):
+    """The heaving sphere with a horizontal Morison member (fluid inertia, relative drag, its added
+    mass): the steady solution against the co-simulated time domain of the same scene (constant
+    radiation, T/200)."""
+    import math
+
+    import xarray as xr
+
+    from conftest import SPHERE_WATER, regular_waves, scene_toml, sphere_body, write_scene
+    from hydrolink.clients.run import run_scene_file
+    from hydrolink.clients.steady import steady_scene_file
+
+    w = 1.0
+    period = 2 * math.pi / w
+    text = scene_toml(dt=period / 200, duration=25 * period, progress=False, water={**SPHERE_WATER, "gravity": 9.81},
+                      waves=regular_waves(2.0, period, ramp=2 * period), hydro={"radiation": "constant"},
+                      steady={"order": 9, "radiation": "hdb"},
+                      bodies=[sphere_body(str(sphere_path), mass=261.724e3, dofs=["heave"])],
+                      morison=[{"body": "sphere", "point_a": [-10.0, 0.0, -3.0], "point_b": [10.0, 0.0, -3.0],
+                                "diameter": 3.0, "cd": 2.0, "ca": 1.0, "segments": 40}])
+    path = write_scene(tmp_path, text, "m.toml")
+    steady_scene_file(path, tmp_path / "steady.nc", progress=False)
+    run_scene_file(path, tmp_path / "run.nc", progress=False)
+    st, td = xr.load_dataset(tmp_path / "steady.nc"), xr.load_dataset(tmp_path / "run.nc")
+    zs = st["position"].sel(body="sphere", dof="heave").values
+    zt = td["position"].sel(body="sphere", dof="heave").values
+    t = td["time"].values
+    last = t > t[-1] - 4 * period
+    assert 0.5 * np.ptp(zs) == pytest.approx(0.5 * np.ptp(zt[last]), rel=1e-2)
+    bare = write_scene(tmp_path, text.split("[[morison]]")[0], "bare.toml")
+    steady_scene_file(bare, tmp_path / "bare.nc", progress=False)
+    zb = xr.load_dataset(tmp_path / "bare.nc")["position"].sel(body="sphere", dof="heave").values
+    assert abs(np.ptp(zs) / np.ptp(zb) - 1) > 0.05      # the member matters at this size
