@@ -118,12 +118,18 @@ def hdb_info(file: Path, plot: Path | None, dofs: str | None, convention: str | 
 @click.option("--key-file", type=click.Path(dir_okay=False, path_type=Path), envvar="HYDROLINK_KEY_FILE",
               help="Shared HMAC key file: every request must be signed with it (SPEC §3.3); "
                    "env HYDROLINK_KEY_FILE.")
+@click.option("--store", type=click.Path(file_okay=False, path_type=Path),
+              help="Folder of the HDB content store (files sent by hash, SPEC §5.8); default "
+                   "$HYDROLINK_HDB_STORE, else $HYDROLINK_CACHE/hdb_store, else ~/.cache/hydrolink/hdb_store.")
+@click.option("--store-mib", default=4096, show_default=True, type=click.IntRange(min=1),
+              help="Bound of the HDB content store on disk, MiB (least recently used contents leave first).")
 def serve(bind: str, session_timeout: float, cpu: int | None, curve_secret: Path | None,
-          curve_clients: Path | None, key_file: Path | None) -> None:
+          curve_clients: Path | None, key_file: Path | None, store: Path | None, store_mib: int) -> None:
     """Run the force server until interrupted (SIGINT or SIGTERM)."""
     import signal
 
     from hydrolink.protocol.security import CurveKeyError
+    from hydrolink.server.hdb_store import ContentStore, default_folder
     from hydrolink.server.service import ForceServer
 
     _pin_to_cpu(cpu)
@@ -131,7 +137,8 @@ def serve(bind: str, session_timeout: float, cpu: int | None, curve_secret: Path
     try:
         server = ForceServer(bind, session_timeout=session_timeout, key=key,
                              curve_secret=str(curve_secret) if curve_secret else None,
-                             curve_clients=str(curve_clients) if curve_clients else None)
+                             curve_clients=str(curve_clients) if curve_clients else None,
+                             store=ContentStore(store or default_folder(), disk_bytes=store_mib * 2**20))
     except CurveKeyError as exc:
         raise _UserError(str(exc)) from None
     signal.signal(signal.SIGTERM, lambda signum, frame: server.stop())  # docker stop
@@ -221,10 +228,13 @@ def keys_new(directory: Path, name: str) -> None:
               help="With [[controllers]] and no --server: where the run's own force server listens.")
 @click.option("--link-timeout", default=10.0, show_default=True, type=click.FloatRange(min=0, min_open=True),
               help="With --server: seconds the link may stay down (an outage) before the run ends, its rows kept.")
+@click.option("--hdb-files", is_flag=True,
+              help="With --server: send each HDB file as itself, by SHA-256 (SPEC §5.8): the server reads it and "
+                   "keeps it, so only what it lacks is uploaded, once. Default: the converted HDB every run.")
 @_curve_options
 @_key_file_option
 def run(scene: Path, output: Path | None, server: str | None, no_progress: bool, cpu: int | None,
-        listen: str, link_timeout: float, curve_server_key: Path | None, curve_secret: Path | None,
+        listen: str, link_timeout: float, hdb_files: bool, curve_server_key: Path | None, curve_secret: Path | None,
         key_file: Path | None) -> None:
     """Co-simulate a SCENE (TOML) in lockstep with the force server."""
     from hydrolink.clients.run import run_scene_file
@@ -233,6 +243,8 @@ def run(scene: Path, output: Path | None, server: str | None, no_progress: bool,
     curve = _client_keys(curve_server_key, curve_secret)
     if curve is not None and server is None:
         raise _UserError("--curve-server-key/--curve-secret are for a remote server: give --server")
+    if hdb_files and server is None:
+        raise _UserError("--hdb-files is for a remote server (the embedded one reads the files itself): give --server")
 
     import signal
 
@@ -242,7 +254,7 @@ def run(scene: Path, output: Path | None, server: str | None, no_progress: bool,
     signal.signal(signal.SIGTERM, _terminate)
     try:
         summary = _guard(run_scene_file, scene, output, server=server, progress=not no_progress, listen=listen,
-                         key=_hmac_key(key_file), link_timeout=link_timeout,
+                         key=_hmac_key(key_file), link_timeout=link_timeout, hdb_files=hdb_files,
                          **({"curve": curve} if curve is not None else {}))
     except KeyboardInterrupt as exc:
         click.echo(f"hydrolink run: {exc or 'interrupted'}", err=True)
@@ -250,6 +262,8 @@ def run(scene: Path, output: Path | None, server: str | None, no_progress: bool,
     steps, wall = summary["steps"], summary["wall_time"]
     click.echo(f"wrote {summary['output']}: {steps} steps in {wall:.2f} s ({steps / max(wall, 1e-9):.0f} steps/s; "
                f"server compute {summary.get('server_compute_us_per_step', float('nan')):.1f} us/step)")
+    if hdb_files:
+        click.echo(f"HDB files sent by hash: {summary['hdb_uploads']} content(s) uploaded, the rest held by the server")
     for report in summary.get("moordyn") or []:
         for body, offset in zip(report["bodies"], report["static_offset"] or []):
             click.echo(f"MoorDyn {report['mooring']!r}: {body}'s moored equilibrium is "

@@ -20,10 +20,11 @@ import zmq
 from hydrolink.protocol import codec
 from hydrolink.protocol.codec import ProtocolError
 from hydrolink.protocol.setup import Setup
-from hydrolink.protocol.hdb_wire import to_wire
+from hydrolink.protocol.hdb_wire import HDBFiles, to_wire
 from hydrolink.protocol.transport import apply_heartbeats
 
 FORCE_FIELDS = ("excitation", "radiation", "hydrostatic")
+ENVELOPE_AND_ERROR = ("v", "type", "msg_id", "session", "parent", "code", "name", "field", "message", "sig")
 WATCH_S = 0.2                 # a pending reply's link is checked this often
 
 
@@ -62,8 +63,10 @@ class LinkWatch:
 class RemoteError(RuntimeError):
     """The server answered with an ``error`` (SPEC §5.6)."""
 
-    def __init__(self, code: int, name: str, field: str | None, message: str, address: str = ""):
+    def __init__(self, code: int, name: str, field: str | None, message: str, address: str = "",
+                 extra: dict | None = None):
         self.code, self.name, self.field, self.message = code, name, field, message
+        self.extra = extra or {}   # the further fields of the error (13: ``missing``)
         where = f" [{field}]" if field else ""
         at = f" from {address}" if address else ""
         super().__init__(f"server error {code} {name}{where}{at}: {message}")
@@ -93,6 +96,7 @@ class ServerConnection:
         self.server_info: dict | None = None
         self.protocol: int | None = None
         self.session_timeout: float | None = None
+        self.uploads: list[str] = []   # contents the last hello uploaded (SPEC §5.8)
         self._ids = codec.id_source("c")
         self._local = None if isinstance(address, str) else address
         self._maps = self._local is not None and key is None and hasattr(address, "respond_map")
@@ -207,15 +211,20 @@ class ServerConnection:
             raise ConnectionError(f"the in-process server answered {reply.get('parent')!r}, not {msg_id!r}")
         if reply.get("type") == "error":
             raise RemoteError(reply.get("code", 99), reply.get("name", "internal"), reply.get("field"),
-                              reply.get("message", ""), self.address)
+                              reply.get("message", ""), self.address,
+                              {k: v for k, v in reply.items() if k not in ENVELOPE_AND_ERROR})
         return reply
 
-    def hello(self, scene_text: str, hdbs: dict[str, xr.Dataset], role: str = "multibody",
+    def hello(self, scene_text: str, hdbs: dict[str, xr.Dataset | HDBFiles], role: str = "multibody",
               client: dict | None = None, wave_elevation: tuple | None = None) -> Setup:
         """Open a session and return its :class:`Setup`; the session id, the server's name/version,
         the protocol version and the session timeout stay on the connection (``session``,
         ``server_info``, ``protocol``, ``session_timeout``). ``wave_elevation``: the (time, eta)
-        series of a scene with ``[waves] type = "elevation"`` (clients/run.py load_wave_elevation)."""
+        series of a scene with ``[waves] type = "elevation"`` (clients/run.py load_wave_elevation).
+
+        An HDB given as :class:`HDBFiles` goes by its files' SHA-256 (SPEC §5.8): the contents the
+        server lacks (error 13) are uploaded, once each, and the ``hello`` is sent again;
+        ``uploads`` then lists what was sent."""
         from importlib import metadata
         try:
             version = metadata.version("hydrolink")
@@ -224,9 +233,23 @@ class ServerConnection:
         extra = {} if wave_elevation is None else {"wave_elevation": {
             "time": np.ascontiguousarray(wave_elevation[0], np.float64),
             "eta": np.ascontiguousarray(wave_elevation[1], np.float64)}}
-        reply = self.request("hello", role=role, scene=scene_text,
-                             hdbs={k: to_wire(ds) for k, ds in hdbs.items()},
-                             client=client or {"name": self.client_name, "version": version}, **extra)
+        wire = {k: (ds.entry() if isinstance(ds, HDBFiles) else to_wire(ds)) for k, ds in hdbs.items()}
+        client = client or {"name": self.client_name, "version": version}
+        self.uploads = []
+        try:
+            reply = self.request("hello", role=role, scene=scene_text, hdbs=wire, client=client, **extra)
+        except RemoteError as exc:
+            if exc.code != codec.Code.MISSING_CONTENT:
+                raise
+            contents = {d: data for ds in hdbs.values() if isinstance(ds, HDBFiles)
+                        for d, data in ds.contents().items()}
+            for digest in exc.extra.get("missing") or ():
+                if digest not in contents:
+                    raise ConnectionError(f"the server at {self.address} asked for content {digest!r}, "
+                                          "which this hello did not name") from None
+                self.request("upload", sha256=digest, data=contents[digest])
+                self.uploads.append(digest)
+            reply = self.request("hello", role=role, scene=scene_text, hdbs=wire, client=client, **extra)
         self.session = reply["session"]
         self.server_info, self.protocol = reply.get("server"), reply.get("protocol")
         self.session_timeout = reply.get("session_timeout")

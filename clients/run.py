@@ -14,6 +14,7 @@ from pathlib import Path
 
 import xarray as xr
 
+from hydrolink.protocol.hdb_wire import HDBFiles
 from hydrolink.protocol.scene import Scene, SceneError, load_scene, resolve_path
 
 log = logging.getLogger(__name__)
@@ -50,6 +51,27 @@ def load_scene_hdbs(scene: Scene, scene_path: str | Path, *, progress: bool = Tr
     return hdbs
 
 
+def scene_hdb_files(scene: Scene, scene_path: str | Path, *, progress: bool = True) -> dict[str, xr.Dataset | HDBFiles]:
+    """The scene's HDBs as their original files (SPEC §5.1 "HDB file set"), keyed like
+    :func:`load_scene_hdbs`; a ``.toml`` build spec is built here (or taken from the build cache)
+    and sent as the HDB map. The server checks the files and the bodies' names in them."""
+    from hydrolink.server.hdb.io import file_set   # raises HDBError naming the file
+
+    out: dict[str, xr.Dataset | HDBFiles] = {}
+    for i, body in enumerate(scene.bodies):
+        if body.hdb is None or body.hdb in out:
+            continue
+        path = resolve_path(scene_path, body.hdb)
+        if not path.exists() and not path.with_suffix(".1").exists():
+            raise SceneError(scene_path, f"bodies[{i}].hdb", f"file not found: {path}")
+        if path.suffix == ".toml":
+            from hydrolink.server.hdb.build import build_hdb
+            out[body.hdb] = build_hdb(path, progress=progress)
+        else:
+            out[body.hdb] = file_set(path)
+    return out
+
+
 def load_wave_elevation(scene: Scene, scene_path: str | Path):
     """The (time, eta) series of ``[waves] type = "elevation"`` read from its file (relative to the
     scene), or None for other waves; SceneError naming waves.file when missing or malformed."""
@@ -65,7 +87,8 @@ def load_wave_elevation(scene: Scene, scene_path: str | Path):
 def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
                    server: str | None = None, progress: bool = True, timeout: float = 60.0,
                    listen: str = "tcp://127.0.0.1:*", hdbs: dict[str, xr.Dataset] | None = None,
-                   curve=None, key: bytes | None = None, link_timeout: float = 10.0) -> dict:
+                   curve=None, key: bytes | None = None, link_timeout: float = 10.0,
+                   hdb_files: bool = False) -> dict:
     """Run a scene end to end; returns the run summary (steps, wall time, output path).
 
     A scene with ``[[controllers]]`` and no ``server`` starts a force server with a socket on
@@ -74,14 +97,18 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
     :class:`hydrolink.protocol.security.ClientKeys` for a ``server`` that requires CURVE; ``key``:
     the shared HMAC key (SPEC §3.3) of ``server``, or of the run's own listening server, whose
     controllers must then sign too; ``link_timeout``: how long the link to a remote ``server`` may
-    stay down (SPEC §1) before the run ends (its rows kept)."""
+    stay down (SPEC §1) before the run ends (its rows kept); ``hdb_files``: send the HDBs as their
+    files by SHA-256 (:func:`scene_hdb_files`; the summary's ``hdb_uploads`` counts the contents
+    the server lacked)."""
     from hydrolink.clients.connection import ServerConnection
     from hydrolink.clients.exudyn_client import result_bodies, run
     from hydrolink.clients.results import ResultWriter
 
     scene_path = Path(scene_path)
     scene, text = load_scene(scene_path)
-    if hdbs is None:  # (a caller running one scene many times may pass them, e.g. hydrolink bench)
+    if hdbs is None and hdb_files:
+        hdbs = scene_hdb_files(scene, scene_path, progress=progress)
+    elif hdbs is None:  # (a caller running one scene many times may pass them, e.g. hydrolink bench)
         hdbs = load_scene_hdbs(scene, scene_path, progress=progress)
     series = load_wave_elevation(scene, scene_path)
     moordyn_files = None
@@ -142,6 +169,7 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
         goodbye = conn.bye()
     summary["output"] = str(output)
     summary["server"] = server
+    summary["hdb_uploads"] = len(conn.uploads)
     if goodbye.get("steps"):
         summary["server_compute_us_per_step"] = 1e6 * goodbye["compute_s"] / goodbye["steps"]
     if setup:  # radiation option and coupling pruning ([hydro] radiation, coupling_tolerance)

@@ -29,8 +29,8 @@ SIG_TRAILER = b"\xa3sig\xc4\x20"  # fixstr "sig" + bin8 header of length 32
 SIG_LEN = 32
 ROLES = ("multibody", "controller", "monitor")
 IMPLEMENTED_ROLES = ("multibody", "controller")
-REQUEST_TYPES = ("hello", "step", "ping", "bye", "measure", "command")
-REPLY_TYPES = ("welcome", "forces", "pong", "goodbye", "error", "measurements", "idle", "stop")
+REQUEST_TYPES = ("hello", "step", "ping", "bye", "measure", "command", "upload")
+REPLY_TYPES = ("welcome", "forces", "pong", "goodbye", "error", "measurements", "idle", "stop", "uploaded")
 
 # dtypes a decoder takes; senders use "<f8", "<c16", "<i8", "|b1"
 ACCEPTED_DTYPES = {s: np.dtype(s) for s in ("<f8", "<f4", "<c16", "<i8", "<i4", "|b1")}
@@ -52,6 +52,7 @@ class Code(IntEnum):
     WRONG_STATE = 10
     BAD_SIGNATURE = 11
     NOT_IMPLEMENTED = 12
+    MISSING_CONTENT = 13
     INTERNAL = 99
 
 
@@ -66,11 +67,13 @@ def code_name(code: int) -> str:
 class ProtocolError(Exception):
     """A request that breaks the protocol; becomes an ``error`` reply with these fields."""
 
-    def __init__(self, code: int, field: str | None, message: str, name: str | None = None):
+    def __init__(self, code: int, field: str | None, message: str, name: str | None = None,
+                 extra: dict | None = None):
         self.code = int(code)
         self.name = name or code_name(code)
         self.field = field
         self.message = message
+        self.extra = extra or {}   # further reply fields a code defines (13: ``missing``)
         self.parent: Any = None  # msg_id of the offending request, when known only here
         where = f" [{field}]" if field else ""
         super().__init__(f"error {self.code} {self.name}{where}: {message}")
@@ -363,15 +366,15 @@ def message(mtype: str, msg_id: Any, session: str | None, parent: Any = None, **
 
 
 def error_reply(msg_id: Any, parent: Any, session: str | None, code: int, field: str | None,
-                text: str, name: str | None = None) -> dict:
-    """An ``error`` message (SPEC §5.6)."""
+                text: str, name: str | None = None, **extra: Any) -> dict:
+    """An ``error`` message (SPEC §5.6), with the further fields its code defines."""
     return message("error", msg_id, session, parent, code=int(code), name=name or code_name(code),
-                   field=field, message=text)
+                   field=field, message=text, **extra)
 
 
 def error_from(exc: ProtocolError, msg_id: Any, parent: Any, session: str | None) -> dict:
     """``error`` message for a ProtocolError."""
-    return error_reply(msg_id, parent, session, exc.code, exc.field, exc.message, exc.name)
+    return error_reply(msg_id, parent, session, exc.code, exc.field, exc.message, exc.name, **exc.extra)
 
 
 def id_source(prefix: str) -> Iterator[str]:

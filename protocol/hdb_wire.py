@@ -1,12 +1,18 @@
-"""The HDB on the wire (SPEC §5.1 "HDB map"): an internal HDB dataset as a plain map and back.
+"""The HDB on the wire (SPEC §5.1): an internal HDB dataset as a plain map and back ("HDB map"),
+or an HDB's original files by content ("HDB file set", :class:`HDBFiles`).
 
 One half of the session contract (the other is :mod:`hydrolink.protocol.setup`): a client sends
-``to_wire(ds)`` for each ``hdbs`` entry of ``hello``; the server rebuilds and validates it with
-``from_wire`` — the same checks as for a file (:func:`hydrolink.server.hdb.schema.validate_hdb`),
-every error naming the entry and the field.
+``to_wire(ds)`` or ``HDBFiles.entry()`` for each ``hdbs`` entry of ``hello``; the server rebuilds
+and validates a map with ``from_wire`` — the same checks as for a file
+(:func:`hydrolink.server.hdb.schema.validate_hdb`), every error naming the entry and the field —
+and reads a file set with the readers of :mod:`hydrolink.server.hdb` (``server/hdb_files.py``).
 """
 
 from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import xarray as xr
@@ -56,3 +62,43 @@ def from_wire(data: dict, source: str) -> xr.Dataset:
         raise
     except (ValueError, TypeError) as exc:
         raise HDBError(source, "", f"fields do not fit together: {exc}") from None
+
+
+FILE_FORMATS = ("wamit", "bemio", "netcdf")
+
+
+@dataclass(frozen=True)
+class HDBFiles:
+    """An HDB as its original files (SPEC §5.1 "HDB file set"): ``format`` one of FILE_FORMATS,
+    the files' paths (WAMIT: the run's ``.1``, ``.3`` or ``.2``, ``.hst`` and, where present,
+    ``.out``/``.cfg``; BEMIO: the ``.h5``; NetCDF: the Capytaine or hydrolink ``.nc``), ``rho``
+    for WAMIT's nondimensional files. Contents are read once, on first use."""
+
+    format: str
+    paths: tuple[Path, ...]
+    rho: float | None = None
+    _read: dict = field(default_factory=dict, compare=False, repr=False)
+
+    def _load(self) -> None:
+        if not self._read:
+            digests, contents = [], {}
+            for p in self.paths:
+                data = Path(p).read_bytes()
+                digests.append(hashlib.sha256(data).hexdigest())
+                contents[digests[-1]] = data
+            self._read.update(digests=digests, contents=contents)
+
+    def contents(self) -> dict[str, bytes]:
+        """Each file's bytes by the lowercase hex SHA-256 of those bytes."""
+        self._load()
+        return self._read["contents"]
+
+    def entry(self, inline: bool = False) -> dict:
+        """The ``hdbs`` entry: every file by its SHA-256, or by its bytes with ``inline``."""
+        self._load()
+        contents = self._read["contents"]
+        files = {Path(p).name: (contents[d] if inline else d) for p, d in zip(self.paths, self._read["digests"])}
+        out: dict = {"format": self.format, "files": files}
+        if self.rho is not None:
+            out["rho"] = float(self.rho)
+        return out

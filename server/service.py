@@ -18,6 +18,8 @@ import zmq
 from hydrolink.protocol import codec, transport
 from hydrolink.protocol.codec import Code, ProtocolError
 from hydrolink.server.control import ControlHub
+from hydrolink.server.hdb_files import FileSetReader
+from hydrolink.server.hdb_store import HASH, ContentStore, default_folder
 from hydrolink.server.session import Session, build_model
 
 log = logging.getLogger("hydrolink.server")
@@ -39,12 +41,15 @@ class ForceServer:
 
     def __init__(self, bind: str | None, *, context: zmq.Context | None = None, session_timeout: float = 300.0,
                  key: bytes | None = None, curve_secret: str | None = None, curve_clients: str | None = None,
-                 max_message_bytes: int = codec.MAX_MESSAGE_BYTES):
+                 max_message_bytes: int = codec.MAX_MESSAGE_BYTES, store: ContentStore | None = None):
         """``bind=None`` makes an in-process server without a socket: clients in the same process
         call :meth:`respond` with the same frames a socket would carry (see ServerConnection).
 
         ``curve_secret`` (the server's ``.key_secret`` file) and ``curve_clients`` (a directory of
-        allowed client ``.key`` files) require CURVE authentication and encryption (SPEC §1.1)."""
+        allowed client ``.key`` files) require CURVE authentication and encryption (SPEC §1.1).
+
+        ``store``: the content store of HDB files sent by hash (SPEC §5.8); default a store in
+        :func:`hydrolink.server.hdb_store.default_folder`, opened on first use."""
         self._own_context = context is None and bind is not None
         self._security = None  # CURVE (protocol/security.py)
         self._ctx = context
@@ -73,6 +78,8 @@ class ForceServer:
             self._address = self._sock.getsockopt_string(zmq.LAST_ENDPOINT)
         self.session_timeout = float(session_timeout)
         self.max_message_bytes = int(max_message_bytes)
+        self._store = store
+        self._files: FileSetReader | None = None
         self.key = key
         self.sessions: dict[str, Session] = {}
         self._closed: dict[str, str] = {}
@@ -82,7 +89,7 @@ class ForceServer:
         self._version = server_version()
         self._handlers: dict[str, Callable[[dict, Any, str | None], tuple[str, dict, str | None] | None]] = {
             "hello": self._hello, "step": self._step, "ping": self._ping, "bye": self._bye,
-            "measure": self._measure, "command": self._command}
+            "measure": self._measure, "command": self._command, "upload": self._upload}
         self._route: list[bytes] | None = None   # routing frames of the request being handled
         self._hubs: dict[str, ControlHub] = {}   # sessions with controllers (SPEC §5.7)
         self._rcv_ms = POLL_MS
@@ -228,6 +235,13 @@ class ForceServer:
             return codec.error_reply(next(self._ids), codec.readable_id(msg), session, Code.INTERNAL, None,
                                      f"internal server error: {type(exc).__name__}: {exc}")
 
+    @property
+    def files(self) -> FileSetReader:
+        """The reader of HDB file sets over this server's content store (opened on first use)."""
+        if self._files is None:
+            self._files = FileSetReader(self._store or ContentStore(default_folder()))
+        return self._files
+
     def _session(self, session: str | None) -> Session:
         if session is None:
             raise ProtocolError(Code.MISSING_FIELD, "session", "this message needs the session id from welcome")
@@ -257,7 +271,7 @@ class ForceServer:
             raise ProtocolError(Code.BAD_VALUE, "session", "a multibody hello must not carry a session id")
         client = codec.require_map(msg, "client", default={})
         t0 = time.perf_counter()
-        model = build_model(msg)
+        model = build_model(msg, self.files)
         sid = os.urandom(16).hex()
         if model.scene.controllers:
             if self._sock is None:
@@ -340,6 +354,26 @@ class ForceServer:
 
     def _command(self, msg: dict, msg_id: Any, session: str | None):
         return self._controller_request("command", msg, msg_id, session)
+
+    def _upload(self, msg: dict, msg_id: Any, session: str | None) -> tuple[str, dict, str | None]:
+        """One content into the HDB store (SPEC §5.8): checked against its SHA-256, bounded."""
+        data = codec.require(msg, "data")
+        if not isinstance(data, (bytes, bytearray, memoryview)):
+            raise ProtocolError(Code.BAD_VALUE, "data", f"must be bin (the file's bytes), got {codec.describe(data)}")
+        digest = codec.require_str(msg, "sha256")
+        if not HASH.fullmatch(digest):
+            raise ProtocolError(Code.BAD_VALUE, "sha256", "must be the lowercase hex SHA-256 of data "
+                                f"(64 characters), got {codec.describe(digest)}")
+        store = self.files.store
+        if len(data) > store.max_content_bytes:
+            raise ProtocolError(Code.BAD_VALUE, "data", f"{len(data)} bytes is over this server's store bound "
+                                f"of {store.max_content_bytes} bytes per content")
+        try:
+            _, new = store.put(bytes(data), digest)
+        except ValueError as exc:
+            raise ProtocolError(Code.BAD_VALUE, "sha256", str(exc)) from None
+        log.info("HDB store: %s %s (%d bytes)", "stored" if new else "already held", digest[:12], len(data))
+        return "uploaded", {"sha256": digest, "size": len(data), "new": new}, session
 
     def _ping(self, msg: dict, msg_id: Any, session: str | None) -> tuple[str, dict, str | None]:
         if session is not None:

@@ -16,6 +16,7 @@ from hydrolink.protocol.codec import Code, ProtocolError
 from hydrolink.protocol.scene import Scene, SceneError, parse_scene
 from hydrolink.protocol.hdb_wire import from_wire
 from hydrolink.server.hdb.schema import HDBError
+from hydrolink.server.hdb_files import FileSetReader, is_file_set
 from hydrolink.server.model import HydroModel, ModelError
 
 
@@ -23,9 +24,10 @@ def _scene_field(key: str) -> str:
     return f"scene.{key}" if key else "scene"
 
 
-def build_model(msg: dict) -> HydroModel:
+def build_model(msg: dict, files: FileSetReader | None = None) -> HydroModel:
     """Validate a ``hello``'s scene and HDBs and build the model over the scene's wet bodies (dry
-    bodies need no HDB); ProtocolError 8/9 naming the field."""
+    bodies need no HDB); ProtocolError 8/9 naming the field (13 for file contents ``files``, the
+    server's store reader, lacks; 5 for a file set when there is no store)."""
     text = codec.require_str(msg, "scene")
     hdb_maps = codec.require_map(msg, "hdbs")
     try:
@@ -42,6 +44,12 @@ def build_model(msg: dict) -> HydroModel:
             raise ProtocolError(Code.BAD_HDB, where,
                                 f"scene body {body.name!r} (bodies[{i}].hdb) uses HDB {key!r} but hello.hdbs "
                                 f"holds {sorted(hdb_maps)}")
+        if is_file_set(hdb_maps[key]):
+            if files is None:
+                raise ProtocolError(Code.BAD_VALUE, where, "this server keeps no HDB store: send the HDB as a map")
+            stated = next((b.hdb_convention for b in scene.bodies if b.hdb == key and b.hdb_convention), None)
+            datasets[key] = files.read(hdb_maps[key], where, stated)
+            continue
         try:
             data = codec.decode_tree(hdb_maps[key], where)
         except ProtocolError as exc:

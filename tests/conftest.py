@@ -59,6 +59,15 @@ def _state_space_fit_cache(tmp_path_factory):
         yield
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _hdb_store(tmp_path_factory):
+    """Servers keep HDB file contents sent by hash (SPEC §5.8) in a temporary folder for the
+    session, never in the user's cache (servers started by tests inherit the variable)."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("HYDROLINK_HDB_STORE", str(tmp_path_factory.mktemp("hdb_store")))
+        yield
+
+
 # ------------------------------------------------------------------------------ scene builder
 #
 # Tests describe scenes as keyword arguments and get TOML text back, so the real parser

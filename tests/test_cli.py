@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import re
@@ -69,6 +70,45 @@ def test_remote_server_run_equals_embedded_run(scene_dir: Path):
         diff = float(np.abs(a[name] - b[name]).max())
         assert diff <= 1e-9 * scale, f"{name}: max difference {diff:g} (scale {scale:g})"
     assert float(np.abs(a["position"].sel(dof="surge") - a["equilibrium_position"].sel(dof="surge")).max()) > 1e-4
+
+
+def test_run_with_hdb_files_uploads_once_and_equals_the_map_run(scene_dir: Path, tmp_path_factory):
+    """`hydrolink run --server ... --hdb-files` against `hydrolink serve --store DIR`: the first run
+    uploads the sphere's file, the second nothing (also after the server restarts on the same
+    store); both equal a run that sent the converted HDB, bit for bit."""
+    store = tmp_path_factory.mktemp("cli_store")
+
+    def serve() -> tuple[subprocess.Popen, str]:
+        proc = subprocess.Popen([*HYDROLINK, "serve", "--bind", "tcp://127.0.0.1:*", "--store", str(store)],
+                                cwd=scene_dir, stderr=subprocess.PIPE, text=True)
+        match = re.search(r"listening on (tcp://\S+)", proc.stderr.readline())
+        assert match
+        return proc, match.group(1)
+
+    outputs = {}
+    for restart in (False, True):
+        server, address = serve()
+        try:
+            runs = (("map", []), ("files", ["--hdb-files"]), ("files again", ["--hdb-files"]))
+            for name, flag in runs[1:] if restart else runs:
+                out = f"{name.replace(' ', '_')}{int(restart)}.nc"
+                result = _cli("run", "scene.toml", "-o", out, "--server", address, "--no-progress", *flag, cwd=scene_dir)
+                assert result.returncode == 0, result.stderr
+                outputs[name, restart] = xr.load_dataset(scene_dir / out)
+                if flag:
+                    uploaded = 1 if (name, restart) == ("files", False) else 0
+                    assert f"{uploaded} content(s) uploaded" in result.stdout, result.stdout
+        finally:
+            server.terminate()
+            server.wait(10)
+    assert [p.name for p in store.iterdir()] == [hashlib.sha256(
+        (scene_dir / "sphere.h5").read_bytes()).hexdigest()]
+    ref = outputs["map", False]
+    for key, ds in outputs.items():
+        for name in ("position", "velocity", "excitation_force", "radiation_force", "hydrostatic_force"):
+            assert np.array_equal(ref[name].values, ds[name].values), (key, name)
+    assert _cli("run", "scene.toml", "--hdb-files", cwd=scene_dir).stderr.strip().endswith(
+        "--hdb-files is for a remote server (the embedded one reads the files itself): give --server")
 
 
 def test_bad_scene_is_one_clear_line(scene_dir: Path):

@@ -1,9 +1,9 @@
 """Hostile input never reaches error 99 and never stops the server (SPEC §5.6): a bounded fuzz of
 every field of every request type — hello (multibody and controller), step, measure, command,
-ping, bye — through the real codec and server (in process, frames as a socket carries them).
+ping, bye, upload, and hello with an HDB file set (inline and by hash) — through the real codec and server (in process, frames as a socket carries them).
 Each message takes one mutation of one field at any depth: a value of another type, a huge
 string, extreme numbers, NaN, a value nested far deeper than any field allows (lists and maps), a
-deleted or an extra field. Every reply must be a regular reply or a named error (code 1–12 with
+deleted or an extra field. Every reply must be a regular reply or a named error (code 1–13 with
 its field for 4/5), and the server must answer a ping after each one."""
 
 from __future__ import annotations
@@ -18,7 +18,8 @@ import pytest
 from analytic_hdb import make_body_hdb
 from conftest import body, linear_pto, regular_waves, scene_toml
 from hydrolink.protocol import codec
-from hydrolink.protocol.hdb_wire import to_wire
+from hydrolink.protocol.hdb_wire import HDBFiles, to_wire
+from hydrolink.server.hdb.schema import to_netcdf
 from hydrolink.server.service import ForceServer
 
 MESSAGES = 20_000
@@ -77,14 +78,18 @@ def _mutate(msg: dict, rng: random.Random) -> dict:
 
 
 @pytest.fixture(scope="module")
-def templates():
+def templates(tmp_path_factory):
     """A live server with a session that declares a controller, and one valid message per type."""
     scene = scene_toml(dt=DT, duration=1e4, waves=regular_waves(1.0, 6.0), hydro={"irf_duration": 2.0},
                        bodies=[body("float", hdb="float.nc", mass=3.0e5, center_of_mass=[0, 0, -1],
                                     inertia=[1e7, 1e7, 2e7])],
                        ptos=[linear_pto("pto", "float", [0, 0, -1], "ground", [0, 0, -20], damping=1e5)],
                        controllers=[{"name": "ctl", "ptos": ["pto"], "timeout": 0.01, "join_timeout": 0.01}])
-    hdbs = {"float.nc": to_wire(make_body_hdb(omega=np.linspace(0.2, 4.0, 12)))}
+    hdb = make_body_hdb(omega=np.linspace(0.2, 4.0, 12))
+    hdbs = {"float.nc": to_wire(hdb)}
+    nc = tmp_path_factory.mktemp("fuzz") / "float.nc"
+    to_netcdf(hdb, nc)
+    files = HDBFiles("netcdf", (nc,))
     server = ForceServer("tcp://127.0.0.1:*", session_timeout=600.0)   # bound (controllers need one), not served
     welcome = send(server, codec.pack(codec.message("hello", "h0", None, role="multibody", scene=scene, hdbs=hdbs,
                                                     client={"name": "fuzz"})))
@@ -102,6 +107,12 @@ def templates():
          "measure": wire(codec.message("measure", "m1", sid, controller="ctl", epoch=ctl["epoch"], wait=0.0)),
          "command": wire(codec.message("command", "k1", sid, controller="ctl", epoch=ctl["epoch"], step=0,
                                        commands={"pto": {"force": 1.0}}, wait=0.0)),
+         "hello_files": wire(codec.message("hello", "f1", None, role="multibody", scene=scene,
+                                           hdbs={"float.nc": files.entry(inline=True)})),
+         "hello_hash": wire(codec.message("hello", "f2", None, role="multibody", scene=scene,
+                                          hdbs={"float.nc": files.entry()})),
+         "upload": wire(codec.message("upload", "u1", None, sha256=next(iter(files.contents())),
+                                      data=nc.read_bytes())),
          "ping": wire(codec.message("ping", "p1", None)),
          "bye": wire(codec.message("bye", "b1", "f" * 32))}   # not the fuzzed session: it stays open
     yield server, t
@@ -119,7 +130,7 @@ def test_no_hostile_message_reaches_internal_error(templates):
     server, t = templates
     rng = random.Random(20261124)
     names = list(t)
-    weights = [0.1 if n == "hello" else 1.0 for n in names]   # a valid hello builds a model: fewer of them
+    weights = [0.1 if n.startswith("hello") and n != "hello_controller" else 1.0 for n in names]   # a valid hello builds a model: fewer of them
     ping = codec.pack(codec.message("ping", "alive", None))
     codes: dict[int, int] = {}
     for i in range(MESSAGES):

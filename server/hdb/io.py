@@ -21,6 +21,8 @@ from .capytaine_io import from_capytaine_dataset
 from .schema import HDBError, from_netcdf_dataset
 from .wamit import WAMIT_SUFFIXES, read_wamit, wamit_stem
 
+WAMIT_READ = (".1", ".2", ".3", ".hst", ".out", ".cfg")   # the files read_wamit opens (where present)
+
 DEFAULT_RHO = 1000.0
 
 
@@ -72,3 +74,26 @@ def load_hdb(path: str | Path, *, rho: float | None = None, convention: str | No
         raise HDBError(path, "file", "not found")
     raise HDBError(path, "format", "unknown HDB format (expected WAMIT .1/.3/.hst or stem, BEMIO .h5, "
                                    f"hydrolink or Capytaine .nc; WAMIT suffixes: {' '.join(WAMIT_SUFFIXES)})")
+
+
+def file_set(path: str | Path, *, rho: float | None = None) -> "HDBFiles":
+    """The files ``load_hdb(path)`` reads, as an HDB file set to send by content (SPEC §5.1):
+    a WAMIT run's ``.1``, ``.2``/``.3``, ``.hst``, ``.out``, ``.cfg`` where present; a BEMIO or
+    NetCDF file alone. HDBError naming the file when it is not an HDB file of a known format."""
+    from hydrolink.protocol.hdb_wire import HDBFiles
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix in (".h5", ".hdf5", ".nc"):
+        if not path.is_file():
+            raise HDBError(path, "file", "not found")
+        if rho is not None:
+            raise HDBError(path, "rho", "only for nondimensional (WAMIT) files")
+        return HDBFiles("bemio" if suffix != ".nc" else "netcdf", (path,))
+    if _is_wamit(path):
+        stem = wamit_stem(path)
+        paths = tuple(p for s in WAMIT_READ if (p := stem.with_name(stem.name + s)).is_file()
+                      and not (s == ".2" and stem.with_name(stem.name + ".3").is_file()))
+        if not any(p.suffix == ".1" for p in paths):
+            raise HDBError(path, "file", f"WAMIT radiation file {stem.name}.1 not found")
+        return HDBFiles("wamit", paths, rho)
+    raise HDBError(path, "format", "no HDB file set for this file (WAMIT .1 or stem, BEMIO .h5, .nc)")
