@@ -282,6 +282,18 @@ class ServerConnection:
             reply["wave_elevation"] = codec.decode_array(eta, "wave_elevation")
         return reply
 
+    def save(self) -> int:
+        """Keep the session's state at this point (SPEC §5.9); the id to :meth:`restore` it."""
+        return self.request("save")["state"]
+
+    def restore(self, state: int) -> int:
+        """Roll the session back to a saved state; the last step seq it holds (-1: none)."""
+        return self.request("restore", state=int(state))["seq"]
+
+    def release(self, state: int) -> None:
+        """Forget a saved state."""
+        self.request("release", state=int(state))
+
     def ping(self) -> dict:
         """Heartbeat: refreshes the session's idle timer."""
         return self.request("ping")

@@ -29,8 +29,9 @@ SIG_TRAILER = b"\xa3sig\xc4\x20"  # fixstr "sig" + bin8 header of length 32
 SIG_LEN = 32
 ROLES = ("multibody", "controller", "monitor")
 IMPLEMENTED_ROLES = ("multibody", "controller")
-REQUEST_TYPES = ("hello", "step", "ping", "bye", "measure", "command", "upload")
-REPLY_TYPES = ("welcome", "forces", "pong", "goodbye", "error", "measurements", "idle", "stop", "uploaded")
+REQUEST_TYPES = ("hello", "step", "ping", "bye", "measure", "command", "upload", "save", "restore", "release")
+REPLY_TYPES = ("welcome", "forces", "pong", "goodbye", "error", "measurements", "idle", "stop", "uploaded",
+               "saved", "restored", "released")
 
 # dtypes a decoder takes; senders use "<f8", "<c16", "<i8", "|b1"
 ACCEPTED_DTYPES = {s: np.dtype(s) for s in ("<f8", "<f4", "<c16", "<i8", "<i4", "|b1")}

@@ -407,6 +407,17 @@ class HydroModel:
         c = self.waves.amplitude * np.exp(1j * self.waves.phase)
         return self.waves.omega.copy(), self._x_comp * c[:, None], c
 
+    def state(self) -> tuple:
+        """Everything :meth:`step` changes, copied: the newest step's index and the radiation
+        memories (excitation, hydrostatics, viscous and Morison terms keep no state)."""
+        return self._step, tuple(memory.state() for _, memory in self._memories)
+
+    def set_state(self, state: tuple) -> None:
+        """Back to a :meth:`state` of this model (a session rolled back, SPEC §5.9)."""
+        self._step, memories = state
+        for (_, memory), saved in zip(self._memories, memories):
+            memory.set_state(saved)
+
     def step(self, time: float, position: np.ndarray, velocity: np.ndarray, *,
              replace_last: bool = False) -> dict:
         """Forces at ``time`` (= k dt) for the state at that time; see the module docstring.

@@ -52,6 +52,18 @@ class RadiationMemory:
         """Samples pushed so far (replacements not counted)."""
         return self._count
 
+    def state(self) -> tuple:
+        """What push() changes, copied (a session rolled back restores it: :meth:`set_state`)."""
+        return self._buf[self._p:self._p + self.samples].copy(), self._p, self._count
+
+    def set_state(self, state: tuple) -> None:
+        window, self._p, self._count = state
+        L = self.samples
+        # the ring holds each sample twice: row j of the window sits at (p + j) mod L and at that + L
+        rows = (self._p + np.arange(L)) % L
+        self._buf[rows] = window
+        self._buf[rows + L] = window
+
     def push(self, v: np.ndarray, replace_last: bool = False) -> np.ndarray:
         """Add the velocity at the new step (or replace the newest one) and return F_r (n,)."""
         if not self.enabled:

@@ -44,6 +44,14 @@ class RadiationForce(Protocol):
         """dF/dv (n, n) of the newest sample: how push()'s force moves with the velocity it is given."""
         ...
 
+    def state(self) -> tuple:
+        """What push() changes, copied (for a session rolled back, SPEC §5.9)."""
+        ...
+
+    def set_state(self, state: tuple) -> None:
+        """Back to a :meth:`state`."""
+        ...
+
 
 class ConstantDamping:
     """radiation = "constant": F = -B(w0) v (the push() interface of RadiationMemory)."""
@@ -57,6 +65,12 @@ class ConstantDamping:
 
     def feedthrough(self) -> np.ndarray:
         return -self.b.copy()
+
+    def state(self) -> tuple:
+        return ()
+
+    def set_state(self, state: tuple) -> None:
+        pass
 
 
 @dataclass(frozen=True)

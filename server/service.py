@@ -89,7 +89,8 @@ class ForceServer:
         self._version = server_version()
         self._handlers: dict[str, Callable[[dict, Any, str | None], tuple[str, dict, str | None] | None]] = {
             "hello": self._hello, "step": self._step, "ping": self._ping, "bye": self._bye,
-            "measure": self._measure, "command": self._command, "upload": self._upload}
+            "measure": self._measure, "command": self._command, "upload": self._upload,
+            "save": self._rollback, "restore": self._rollback, "release": self._rollback}
         self._route: list[bytes] | None = None   # routing frames of the request being handled
         self._hubs: dict[str, ControlHub] = {}   # sessions with controllers (SPEC §5.7)
         self._rcv_ms = POLL_MS
@@ -374,6 +375,19 @@ class ForceServer:
             raise ProtocolError(Code.BAD_VALUE, "sha256", str(exc)) from None
         log.info("HDB store: %s %s (%d bytes)", "stored" if new else "already held", digest[:12], len(data))
         return "uploaded", {"sha256": digest, "size": len(data), "new": new}, session
+
+    def _rollback(self, msg: dict, msg_id: Any, session: str | None) -> tuple[str, dict, str | None]:
+        """save / restore / release a session's state (SPEC §5.9)."""
+        s = self._session(session)
+        kind = msg["type"]
+        if s.id in self._hubs:
+            raise ProtocolError(Code.NOT_IMPLEMENTED, "type", f"{kind!r}: a session with controllers cannot be "
+                                "rolled back (its controllers' decisions are not part of a saved state)")
+        if kind == "save":
+            return "saved", s.save(), session
+        if kind == "restore":
+            return "restored", s.restore(msg), session
+        return "released", s.release(msg), session
 
     def _ping(self, msg: dict, msg_id: Any, session: str | None) -> tuple[str, dict, str | None]:
         if session is not None:

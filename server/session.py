@@ -6,6 +6,7 @@ State machine and rules: SPEC.md §4.2 and §5.3. A rejected request leaves the 
 from __future__ import annotations
 
 import time as _time
+from collections import OrderedDict
 from typing import Any
 
 import numpy as np
@@ -71,6 +72,20 @@ def build_model(msg: dict, files: FileSetReader | None = None) -> HydroModel:
         raise ProtocolError(Code.BAD_HDB, f"{codec.key_path('hdbs', exc.source)}.{exc.field}", str(exc)) from None
 
 
+MAX_SAVED_BYTES = 256 * 2**20   # per session: saved states kept (SPEC §5.9)
+
+
+def _nbytes(obj: Any) -> int:
+    """Bytes of the arrays in a nested tuple/list/dict (what a saved state costs)."""
+    if isinstance(obj, np.ndarray):
+        return obj.nbytes
+    if isinstance(obj, (tuple, list)):
+        return sum(_nbytes(o) for o in obj)
+    if isinstance(obj, dict):
+        return sum(_nbytes(o) for o in obj.values())
+    return 8
+
+
 class Session:
     """A multibody session: the model plus the sequencing state of SPEC §5.3."""
 
@@ -87,6 +102,9 @@ class Session:
         self._cached: dict[str, Any] | None = None
         self.steps = 0
         self.compute_s = 0.0
+        self._saved: OrderedDict[int, tuple] = OrderedDict()   # SPEC §5.9, oldest first
+        self._saved_bytes = 0
+        self._next_state = 1
 
     @property
     def state(self) -> str:
@@ -94,6 +112,45 @@ class Session:
 
     def touch(self) -> None:
         self.last_seen = _time.monotonic()
+
+    # ------------------------------------------------------------ rollback (SPEC §5.9)
+
+    def save(self) -> dict:
+        """Keep the session's state now; ``saved`` fields. Older saved states leave first once
+        the session's kept states pass MAX_SAVED_BYTES (the newest always stays)."""
+        saved = (self.model.state(), self.last_seq, self.last_iteration,
+                 None if self._last_state is None else (self._last_state[0].copy(), self._last_state[1].copy()),
+                 self._cached)
+        size = _nbytes(saved)
+        sid = self._next_state
+        self._next_state += 1
+        self._saved[sid] = (saved, size)
+        self._saved_bytes += size
+        while self._saved_bytes > MAX_SAVED_BYTES and len(self._saved) > 1:
+            _, (_, old) = self._saved.popitem(last=False)
+            self._saved_bytes -= old
+        return {"state": sid, "seq": self.last_seq, "iteration": self.last_iteration, "bytes": size}
+
+    def restore(self, msg: dict) -> dict:
+        """Back to a saved state (it stays saved: a master may restore it again); ``restored`` fields."""
+        sid = codec.require_int(msg, "state", minimum=1)
+        if sid not in self._saved:
+            oldest = next(iter(self._saved), None)
+            raise ProtocolError(Code.BAD_VALUE, "state", f"no saved state {sid} in this session (saved: "
+                                + (f"{oldest}..{self._next_state - 1}, older ones released or dropped past "
+                                   f"{MAX_SAVED_BYTES // 2**20} MiB)" if oldest else "none)"))
+        model_state, self.last_seq, self.last_iteration, last_state, self._cached = self._saved[sid][0]
+        self.model.set_state(model_state)
+        self._last_state = None if last_state is None else (last_state[0].copy(), last_state[1].copy())
+        return {"state": sid, "seq": self.last_seq, "iteration": self.last_iteration}
+
+    def release(self, msg: dict) -> dict:
+        """Forget a saved state; ``released`` fields (releasing an unknown state is no error)."""
+        sid = codec.require_int(msg, "state", minimum=1)
+        entry = self._saved.pop(sid, None)
+        if entry is not None:
+            self._saved_bytes -= entry[1]
+        return {"state": sid, "kept": len(self._saved)}
 
     def step(self, msg: dict) -> dict:
         """Reply fields for a ``step`` request (SPEC §5.2–5.3); ProtocolError leaves state unchanged."""

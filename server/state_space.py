@@ -317,6 +317,14 @@ class StateSpaceRadiation:
     def count(self) -> int:
         return self._count
 
+    def state(self) -> tuple:
+        """What push() changes, copied (a session rolled back restores it: :meth:`set_state`)."""
+        return self._z.copy(), self._z_prev.copy(), self._v_prev.copy(), self._v_last.copy(), self._count
+
+    def set_state(self, state: tuple) -> None:
+        z, z_prev, v_prev, v_last, self._count = state
+        self._z, self._z_prev, self._v_prev, self._v_last = z.copy(), z_prev.copy(), v_prev.copy(), v_last.copy()
+
     def reset(self) -> None:
         self._z[:] = 0
         self._z_prev[:] = 0

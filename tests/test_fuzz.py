@@ -1,6 +1,6 @@
 """Hostile input never reaches error 99 and never stops the server (SPEC §5.6): a bounded fuzz of
 every field of every request type — hello (multibody and controller), step, measure, command,
-ping, bye, upload, and hello with an HDB file set (inline and by hash) — through the real codec and server (in process, frames as a socket carries them).
+ping, bye, upload, save, restore, release, and hello with an HDB file set (inline and by hash) — through the real codec and server (in process, frames as a socket carries them).
 Each message takes one mutation of one field at any depth: a value of another type, a huge
 string, extreme numbers, NaN, a value nested far deeper than any field allows (lists and maps), a
 deleted or an extra field. Every reply must be a regular reply or a named error (code 1–13 with
@@ -85,6 +85,9 @@ def templates(tmp_path_factory):
                                     inertia=[1e7, 1e7, 2e7])],
                        ptos=[linear_pto("pto", "float", [0, 0, -1], "ground", [0, 0, -20], damping=1e5)],
                        controllers=[{"name": "ctl", "ptos": ["pto"], "timeout": 0.01, "join_timeout": 0.01}])
+    scene_plain = scene_toml(dt=DT, duration=1e4, waves=regular_waves(1.0, 6.0), hydro={"irf_duration": 2.0},
+                             bodies=[body("float", hdb="float.nc", mass=3.0e5, center_of_mass=[0, 0, -1],
+                                          inertia=[1e7, 1e7, 2e7])])
     hdb = make_body_hdb(omega=np.linspace(0.2, 4.0, 12))
     hdbs = {"float.nc": to_wire(hdb)}
     nc = tmp_path_factory.mktemp("fuzz") / "float.nc"
@@ -98,6 +101,9 @@ def templates(tmp_path_factory):
     ctl = send(server, codec.pack(codec.message("hello", "c0", sid, role="controller", controller="ctl")))
     assert ctl["type"] == "welcome", ctl
     zeros = np.zeros((1, 6))
+    plain = send(server, codec.pack(codec.message("hello", "h2", None, role="multibody", scene=scene_plain, hdbs=hdbs)))
+    assert plain["type"] == "welcome", plain
+    plain = plain["session"]   # no controllers: a session that can be rolled back (SPEC §5.9)
     wire = lambda m: codec.unpack(codec.pack(m))  # noqa: E731 - as the server receives it
     t = {"hello": wire(codec.message("hello", "h1", None, role="multibody", scene=scene, hdbs=hdbs,
                                      client={"name": "fuzz", "version": "1"})),
@@ -113,6 +119,9 @@ def templates(tmp_path_factory):
                                           hdbs={"float.nc": files.entry()})),
          "upload": wire(codec.message("upload", "u1", None, sha256=next(iter(files.contents())),
                                       data=nc.read_bytes())),
+         "save": wire(codec.message("save", "v1", plain)),
+         "restore": wire(codec.message("restore", "r1", plain, state=1)),
+         "release": wire(codec.message("release", "l1", plain, state=2)),
          "ping": wire(codec.message("ping", "p1", None)),
          "bye": wire(codec.message("bye", "b1", "f" * 32))}   # not the fuzzed session: it stays open
     yield server, t

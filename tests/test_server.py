@@ -412,3 +412,36 @@ def test_in_process_map_gets_the_checks_a_frame_gets(hdb, fields):
             assert not f_map[k].flags.writeable
             assert f_map[k].tobytes() == codec.require_array(f_frame, k, (1, 6)).tobytes()
         assert f_map["wave_elevation"] == f_frame["wave_elevation"]
+
+
+def test_save_restore_release_over_the_wire(server, hdb, conn):
+    """SPEC §5.9 through the socket: a restored session answers the steps after its save as
+    before; release forgets; a session with controllers refuses to be rolled back (error 12)."""
+    sts = states(30, seed=5)
+    for k in range(20):
+        conn.step(k, k * DT, *sts[k])
+    state = conn.save()
+    for k in range(20, 30):
+        conn.step(k, k * DT, *states(1, seed=k)[0])
+    assert conn.restore(state) == 19
+    with pytest.raises(RemoteError) as err:
+        conn.step(21, 21 * DT, *sts[21])
+    assert err.value.code == 6
+    replayed = conn.step(20, 20 * DT, *sts[20])
+    with ServerConnection(server.address) as ref:
+        ref.hello(SCENE, {"float.nc": hdb})
+        for k in range(21):
+            expect = ref.step(k, k * DT, *sts[k])
+        assert np.array_equal(expect["radiation"], replayed["radiation"])
+    conn.release(state)
+    with pytest.raises(RemoteError) as err:
+        conn.restore(state)
+    assert (err.value.code, err.value.field) == (5, "state")
+    controlled = float_scene().replace("[[bodies]]", '[[ptos]]\nname = "pto"\ntype = "linear"\nbody1 = "float"\n'
+                                       'point1 = [0.0, 0.0, -1.0]\nbody2 = "ground"\npoint2 = [0.0, 0.0, -20.0]\n'
+                                       'damping = 1e5\n\n[[controllers]]\nname = "ctl"\nptos = ["pto"]\n\n[[bodies]]', 1)
+    with ServerConnection(server.address) as other:
+        other.hello(controlled, {"float.nc": hdb})
+        with pytest.raises(RemoteError) as err:
+            other.save()
+        assert (err.value.code, err.value.field) == (12, "type")

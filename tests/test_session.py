@@ -134,3 +134,97 @@ def test_refused_steps_leave_the_session_as_it_was(session):
     refused(lambda: session.step(step(0, eq, zero)), Code.OUT_OF_ORDER, "seq")                      # the past
     assert (session.state, session.last_seq, session.last_iteration, session.steps) == ("running", 1, 2, 2)
     assert session.step(step(2, eq, zero))["seq"] == 2
+
+
+# ---------------------------------------------------------------- rollback (SPEC §5.9)
+
+def rollback_session(hdb, radiation: str) -> Session:
+    """The analytic float in regular waves with quadratic damping and relative drag (every term
+    that depends on the state sent), radiation by ``radiation``."""
+    text = scene_toml(dt=DT, duration=10.0, waves={"type": "regular", "height": 1.0, "period": 6.0},
+                      hydro={"irf_duration": 4.0, "radiation": radiation},
+                      bodies=[body("float", hdb="float.nc", mass=3.0e5, center_of_mass=[0, 0, -1],
+                                   inertia=[1e7, 1e7, 2e7], quadratic_damping=[1e4] * 6,
+                                   drag={"cd": [1.0] * 6, "area": [20.0] * 6, "relative": True})])
+    return Session("r" * 32, build_model(wire(scene=text, hdbs={"float.nc": to_wire(hdb)})))
+
+
+def states(n: int, seed: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    rng = np.random.default_rng(seed)
+    eq = np.array([[0.0, 0.0, 0.0, 0.0, 0.0, 0.0]])
+    return [(eq + 0.1 * rng.standard_normal((1, 6)), 0.5 * rng.standard_normal((1, 6))) for _ in range(n)]
+
+
+FIELDS = ("excitation", "radiation", "hydrostatic", "viscous")
+
+
+@pytest.mark.parametrize("radiation", ["convolution", "state-space", "constant", "off"])
+def test_a_restored_session_answers_as_if_the_steps_after_its_save_never_happened(hdb, radiation):
+    """Reference: 120 steps, step 40 replaced once (iteration 1). Rolled back: at step 60 the
+    state is saved, 30 other steps are sent (other states, one replaced), the state is restored and
+    the reference's steps 61.. are sent: every reply equals the reference's, bit for bit; restored
+    twice, the same again; a state saved before any step replays the whole run."""
+    good = states(120, 1)
+    other = states(120, 2)
+
+    def run(s: Session, seqs, sts, replace_at=None) -> dict[int, dict]:
+        out = {}
+        for k in seqs:
+            out[k] = s.step(step(k, *sts[k]))
+            if k == replace_at:
+                out[k] = s.step(step(k, sts[k][0] * 1.5, sts[k][1] * 0.5, iteration=1))
+        return out
+
+    ref = run(rollback_session(hdb, radiation), range(120), good, replace_at=40)
+    s = rollback_session(hdb, radiation)
+    at_start = s.save()
+    assert at_start["seq"] == -1
+    run(s, range(61), good, replace_at=40)
+    saved = s.save()
+    assert (saved["seq"], saved["iteration"]) == (60, 0)
+    for attempt in range(2):
+        run(s, range(61, 91), other, replace_at=70)
+        assert s.restore(wire(state=saved["state"]))["seq"] == 60
+        refused(lambda: s.step(step(62, *good[62])), Code.OUT_OF_ORDER, "seq")
+        again = run(s, range(61, 120), good)
+        for k, reply in again.items():
+            for f in FIELDS:
+                assert np.array_equal(reply[f], ref[k][f]), (attempt, k, f)
+        s.restore(wire(state=saved["state"]))
+    s.restore(wire(state=at_start["state"]))
+    whole = run(s, range(120), good, replace_at=40)
+    for k in (0, 40, 119):
+        for f in FIELDS:
+            assert np.array_equal(whole[k][f], ref[k][f]), (k, f)
+
+
+def test_a_restored_step_can_be_replaced_and_retried(hdb):
+    """Right after a restore the saved step is the newest: a retry gets its cached reply, a higher
+    iteration replaces it exactly as it would have before the save."""
+    sts = states(12, 3)
+    ref = rollback_session(hdb, "convolution")
+    for k in range(10):
+        ref.step(step(k, *sts[k]))
+    replaced = ref.step(step(9, sts[11][0], sts[11][1], iteration=1))
+    s = rollback_session(hdb, "convolution")
+    for k in range(10):
+        first9 = s.step(step(k, *sts[k]))
+    state = s.save()["state"]
+    s.step(step(10, *sts[10]))
+    s.restore(wire(state=state))
+    assert s.step(step(9, *sts[9]))["compute_us"] == 0.0           # the retry: from the cache
+    assert np.array_equal(s.step(step(9, *sts[9]))["radiation"], first9["radiation"])
+    again = s.step(step(9, sts[11][0], sts[11][1], iteration=1))
+    for f in FIELDS:
+        assert np.array_equal(again[f], replaced[f]), f
+
+
+def test_unknown_and_released_states_are_named(hdb):
+    s = rollback_session(hdb, "convolution")
+    refused(lambda: s.restore(wire(state=7)), Code.BAD_VALUE, "state")
+    refused(lambda: s.restore(wire(state=0)), Code.BAD_VALUE, "state")
+    refused(lambda: s.restore(wire()), Code.MISSING_FIELD, "state")
+    state = s.save()["state"]
+    assert s.release(wire(state=state))["kept"] == 0
+    err = refused(lambda: s.restore(wire(state=state)), Code.BAD_VALUE, "state")
+    assert "none" in err.message
