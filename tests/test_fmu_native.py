@@ -1,0 +1,248 @@
+"""The native FMU (clients/fmu_native.py, C binary in clients/fmu_native/): FMI 2.0 and 3.0,
+exported from the Task-10 sphere in heave and imported with fmpy against a separately started
+`hydrolink serve`.
+
+- It passes fmpy's validation, its binary depends on the C library alone (no Python, no libzmq),
+  and its model description tells the truth (fixed step, dependencies, units, A_inf).
+- An iterating master written here (Newmark, fixed point on the force, A_inf from the FMU in its
+  mass) that also rejects and redoes steps with Get/SetFMUState: heave RAO against the frequency
+  domain of the same HDB (0.5 %), and the same run without rejections bit for bit.
+- Errors reach the importer as an FMI status with a logged message: no server, a wrong step."""
+
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import SPHERE_WATER, regular_waves, scene_toml, sphere_body, write_scene
+
+DT, DURATION, FIT_FROM = 0.02, 80.0, 50.0
+
+
+def _needs_compiler():
+    if shutil.which("cc") is None and shutil.which("gcc") is None:
+        pytest.skip("needs a C compiler (Debian package gcc)")
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory):
+    proc = subprocess.Popen([sys.executable, "-m", "hydrolink.clients.cli", "serve", "--bind", "tcp://127.0.0.1:*",
+                             "--store", str(tmp_path_factory.mktemp("native_store"))], stderr=subprocess.PIPE, text=True)
+    try:
+        match = re.search(r"listening on (tcp://\S+)", proc.stderr.readline())
+        assert match
+        yield match.group(1)
+    finally:
+        proc.terminate()
+        proc.wait(10)
+
+
+@pytest.fixture(scope="module")
+def omega(sphere) -> float:
+    return float(sphere["omega"].values[23])      # 1.2 rad/s, an HDB frequency
+
+
+@pytest.fixture(scope="module")
+def fmus(tmp_path_factory, sphere_path, sphere, omega) -> dict[int, Path]:
+    _needs_compiler()
+    from hydrolink.clients.fmu_native import export_native_fmu
+    folder = tmp_path_factory.mktemp("native_fmu")
+    shutil.copy(sphere_path, folder / "sphere.h5")
+    mass = 1000.0 * float(sphere["displaced_volume"].values[0])
+    write_scene(folder, scene_toml(dt=DT, duration=DURATION, water=SPHERE_WATER,
+                                   waves=regular_waves(1.0, 2 * np.pi / omega, ramp=10.0), hydro={"irf_duration": 15.0},
+                                   bodies=[sphere_body("sphere.h5", mass=mass, dofs=["heave"])]))
+    return {fmi: export_native_fmu(folder / "scene.toml", folder / f"sphere{fmi}.fmu", fmi=fmi, progress=False)[0]
+            for fmi in (2, 3)}
+
+
+class Slave:
+    """One FMU instance through fmpy, the same few calls for FMI 2 and 3; log lines collected."""
+
+    def __init__(self, path: Path, fmi: int, tmp: Path, server: str, timeout: float = 30.0):
+        from fmpy import extract, read_model_description
+        self.md = read_model_description(path)
+        self.vr = {v.name: v.valueReference for v in self.md.modelVariables}
+        self.fmi, self.log = fmi, []
+        unzipped = extract(path, unzipdir=tmp / f"fmu{fmi}")
+        if fmi == 2:
+            from fmpy.fmi2 import FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE
+            from fmpy import calloc, free
+            self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=unzipped,
+                                 modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName="hydro")
+            cb = fmi2CallbackFunctions()
+            cb.logger = fmi2CallbackLoggerTYPE(lambda env, name, status, cat, msg, *a: self.log.append(msg.decode()))
+            cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+            cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+            self._cb = cb
+            self.fmu.instantiate(callbacks=cb)
+            self.fmu.setupExperiment(startTime=0.0)
+            self.fmu.setString([self.vr["server_address"]], [server])
+            self.fmu.setReal([self.vr["timeout"]], [timeout])
+            self.fmu.enterInitializationMode()
+        else:
+            from fmpy.fmi3 import FMU3Slave, fmi3LogMessageCallback
+            self.fmu = FMU3Slave(guid=self.md.instantiationToken, unzipDirectory=unzipped,
+                                 modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName="hydro")
+            self._cb = fmi3LogMessageCallback(lambda env, status, cat, msg: self.log.append(msg.decode()))
+            self.fmu.instantiate(logMessage=self._cb)
+            self.fmu.setString([self.vr["server_address"]], [server])
+            self.fmu.setFloat64([self.vr["timeout"]], [timeout])
+            self.fmu.enterInitializationMode()
+
+    def start(self) -> None:
+        self.fmu.exitInitializationMode()
+
+    def set(self, names, values) -> None:
+        (self.fmu.setReal if self.fmi == 2 else self.fmu.setFloat64)([self.vr[n] for n in names], list(values))
+
+    def get(self, names) -> list[float]:
+        return (self.fmu.getReal if self.fmi == 2 else self.fmu.getFloat64)([self.vr[n] for n in names])
+
+    def step(self, t: float, h: float) -> None:
+        self.fmu.doStep(t, h) if self.fmi == 2 else self.fmu.doStep(t, h)
+
+    def save(self):
+        return self.fmu.getFMUstate() if self.fmi == 2 else self.fmu.getFMUState()
+
+    def restore(self, state) -> None:
+        self.fmu.setFMUstate(state) if self.fmi == 2 else self.fmu.setFMUState(state)
+
+    def release(self, state) -> None:
+        self.fmu.freeFMUstate(state) if self.fmi == 2 else self.fmu.freeFMUState(state)
+
+    def close(self) -> None:
+        self.fmu.terminate()
+        self.fmu.freeInstance()
+
+
+def master(slave: Slave, mass: float, reject_every: int = 0) -> tuple[np.ndarray, np.ndarray, int]:
+    """Newmark (average acceleration), M = mass + A_inf (read from the FMU): at every step the
+    force at t_k+1 is iterated to a fixed point (inputs set again at the same point). With
+    ``reject_every``, every such step is first taken with a poor guess and one pass, then rejected:
+    the FMU state saved at t_k is restored and the step is taken again."""
+    a_inf = slave.get(["A_inf.sphere.heave.sphere.heave"])[0]
+    big_m = mass + a_inf
+    names_in = ["sphere.heave.displacement", "sphere.heave.velocity"]
+    u = v = 0.0
+    slave.set(names_in, [u, v])
+    f, eta = slave.get(["sphere.heave.force", "wave_elevation"])
+    a = f / big_m
+    n = round(DURATION / DT)
+    zs, etas, redos = [u], [eta], 0
+    for k in range(n):
+        t = k * DT
+        state = slave.save()
+        if reject_every and k % reject_every == 3:
+            slave.step(t, DT)
+            slave.set(names_in, [0.0, 0.0])          # a poor first try, then rejected
+            slave.get(["sphere.heave.force"])
+            slave.restore(state)
+            redos += 1
+        slave.step(t, DT)
+        a_new = a
+        for _ in range(30):
+            u1 = u + DT * v + 0.25 * DT * DT * (a + a_new)
+            v1 = v + 0.5 * DT * (a + a_new)
+            slave.set(names_in, [u1, v1])
+            f, eta = slave.get(["sphere.heave.force", "wave_elevation"])
+            a_next = f / big_m
+            done = abs(a_next - a_new) <= 1e-12 * max(1.0, abs(a_next))
+            a_new = a_next
+            if done:
+                break
+        slave.release(state)
+        u, v, a = u + DT * v + 0.25 * DT * DT * (a + a_new), v + 0.5 * DT * (a + a_new), a_new
+        zs.append(u)
+        etas.append(eta)
+    return np.array(zs), np.array(etas), redos
+
+
+def complex_amplitude(t, y, w):
+    basis = np.column_stack([np.cos(w * t), np.sin(w * t), np.ones_like(t)])
+    coef = np.linalg.lstsq(basis, y, rcond=None)[0]
+    return complex(coef[0], coef[1])
+
+
+def test_validates_links_no_python_and_tells_the_truth(fmus, sphere):
+    from fmpy import read_model_description
+    from fmpy.validation import validate_fmu
+    for fmi, path in fmus.items():
+        assert validate_fmu(str(path)) == [], fmi
+        with zipfile.ZipFile(path) as z:
+            binary = next(n for n in z.namelist() if n.startswith("binaries/") and n.endswith(".so"))
+            so = path.parent / f"check{fmi}.so"
+            so.write_bytes(z.read(binary))
+        libs = subprocess.run(["ldd", str(so)], capture_output=True, text=True).stdout
+        needed = {line.split()[0] for line in libs.splitlines() if "=>" in line}
+        assert needed <= {"libc.so.6", "libm.so.6"}, libs
+        md = read_model_description(path)
+        cs = md.coSimulation
+        assert not cs.canHandleVariableCommunicationStepSize
+        assert cs.canGetAndSetFMUstate          # fmpy reads FMI 3's canGetAndSetFMUState into the same field
+        by_name = {v.name: v for v in md.modelVariables}
+        for v in md.modelVariables:
+            assert v.description, v.name
+            if v.type in ("Real", "Float64"):
+                assert v.unit, v.name
+        assert by_name["sphere.heave.force"].unit == "N" and by_name["sphere.heave.displacement"].unit == "m"
+        a_inf = by_name["A_inf.sphere.heave.sphere.heave"]
+        assert (a_inf.causality, a_inf.unit) == ("calculatedParameter", "kg")
+        deps = {u.variable.name: sorted(d.name for d in u.dependencies) for u in md.outputs}
+        assert deps["sphere.heave.force"] == ["sphere.heave.displacement", "sphere.heave.velocity"]
+        assert deps["sphere.heave.hydrostatic"] == ["sphere.heave.displacement"]
+        assert deps["sphere.heave.radiation"] == ["sphere.heave.velocity"]
+        assert deps["sphere.heave.excitation"] == [] and deps["wave_elevation"] == []
+        assert md.defaultExperiment.stepSize == str(DT) or float(md.defaultExperiment.stepSize) == DT
+
+
+@pytest.mark.parametrize("fmi", [2, 3])
+def test_iterating_master_with_rollback_against_the_frequency_domain(fmi, fmus, server, sphere, omega, tmp_path):
+    mass = 1000.0 * float(sphere["displaced_volume"].values[0])
+    runs = {}
+    for reject in (0, 7):
+        slave = Slave(fmus[fmi], fmi, tmp_path / f"r{reject}", server)
+        slave.start()
+        try:
+            assert slave.get(["A_inf.sphere.heave.sphere.heave"])[0] == pytest.approx(
+                float(sphere["added_mass_inf"].values[2, 2]), rel=1e-12)
+            runs[reject] = master(slave, mass, reject)
+        finally:
+            slave.close()
+    z, eta, redos = runs[7]
+    assert redos == len(range(3, round(DURATION / DT), 7))
+    assert np.array_equal(z, runs[0][0]) and np.array_equal(eta, runs[0][1])   # the redo changed nothing
+    t = np.arange(z.size) * DT
+    late = t >= FIT_FROM
+    rao = complex_amplitude(t[late], z[late], omega) / complex_amplitude(t[late], eta[late], omega)
+    k = int(np.flatnonzero(sphere["omega"].values == omega)[0])
+    a, b = sphere["added_mass"].values[k, 2, 2], sphere["radiation_damping"].values[k, 2, 2]
+    ref = sphere["excitation_force"].values[k, 0, 2] / (
+        sphere["hydrostatic_stiffness"].values[2, 2] - omega ** 2 * (mass + a) - 1j * omega * b)
+    print(f"FMI {fmi}: |RAO| {abs(rao):.5f} against {abs(ref):.5f} ({abs(rao) / abs(ref) - 1:+.2e}), "
+          f"phase {np.angle(rao / ref, deg=True):+.3f} deg; {redos} steps rejected and redone")
+    assert abs(abs(rao) / abs(ref) - 1) <= 0.005
+    assert abs(np.angle(rao / ref, deg=True)) <= 0.5
+
+
+@pytest.mark.parametrize("fmi", [2, 3])
+def test_errors_are_fmi_statuses_with_a_logged_message(fmi, fmus, server, tmp_path):
+    from fmpy.fmi1 import FMICallException
+    nobody = "tcp://127.0.0.1:9"                       # the discard port: nothing listens
+    slave = Slave(fmus[fmi], fmi, tmp_path / "none", nobody, timeout=1.0)
+    with pytest.raises(FMICallException):
+        slave.start()
+    assert any("no hydrolink server answered at tcp://127.0.0.1:9" in line for line in slave.log), slave.log
+    slave.fmu.freeInstance()
+    slave = Slave(fmus[fmi], fmi, tmp_path / "step", server)
+    slave.start()
+    with pytest.raises(FMICallException):
+        slave.step(0.0, 2 * DT)
+    assert any("this FMU takes only its scene's dt" in line for line in slave.log), slave.log
+    slave.close()
