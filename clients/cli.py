@@ -414,12 +414,26 @@ def fmu() -> None:
 @fmu.command("export")
 @click.argument("scene", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
-              help="FMU file to write (FMI 2.0 co-simulation).")
-def fmu_export(scene: Path, output: Path) -> None:
+              help="FMU file to write (co-simulation).")
+@click.option("--native/--python", default=True, show_default=True,
+              help="--native (default): a C binary, no Python where it is imported, FMI 2.0 or 3.0, state "
+                   "save/restore; it needs a running hydrolink serve. --python: pythonfmu, FMI 2.0, needs a Python "
+                   "with hydrolink where it is imported, and can embed its server (server_address \"\").")
+@click.option("--fmi", type=click.Choice(["2", "3"]), default="2", show_default=True,
+              help="FMI version of a --native FMU (2.0 is what every importer takes; 3.0 for FMI 3 masters).")
+def fmu_export(scene: Path, output: Path, native: bool, fmi: str) -> None:
     """Export the SCENE's hydrodynamic forces as an FMU (inputs: body states; outputs: forces)."""
-    from hydrolink.clients.fmu_export import export_fmu
-
-    path, notes = _guard(export_fmu, scene, output)
+    if native:
+        from hydrolink.clients.fmu_native import NativeFMUError, export_native_fmu
+        try:
+            path, notes = _guard(export_native_fmu, scene, output, fmi=int(fmi))
+        except NativeFMUError as exc:
+            raise _UserError(str(exc)) from None
+    elif fmi != "2":
+        raise _UserError("--python FMUs are FMI 2.0 only (use --native for FMI 3.0)")
+    else:
+        from hydrolink.clients.fmu_export import export_fmu
+        path, notes = _guard(export_fmu, scene, output)
     for note in notes:
         click.echo(f"note: {note}", err=True)
     click.echo(f"wrote {path}")

@@ -33,7 +33,7 @@ from hydrolink.protocol.scene import load_scene
 SOURCES = Path(__file__).with_name("fmu_native")
 MODEL_IDENTIFIER = "hydrolink_forces"
 VR_TIME, VR_SERVER, VR_TIMEOUT, VR_ETA, VR_DOF, VR_AINF = 0, 1, 2, 3, 1000, 1000000
-QUANTITIES = ("displacement", "velocity", "force", "excitation", "radiation", "hydrostatic")
+QUANTITIES = ("displacement", "velocity", "force", "excitation", "radiation", "hydrostatic", "dynamic")
 UNITS = {  # name: base-unit exponents (kg, m, s, rad)
     "m": {"m": 1}, "rad": {"rad": 1}, "m/s": {"m": 1, "s": -1}, "rad/s": {"rad": 1, "s": -1},
     "N": {"kg": 1, "m": 1, "s": -2}, "N.m": {"kg": 1, "m": 2, "s": -2}, "kg": {"kg": 1},
@@ -192,7 +192,9 @@ def _dependencies(scene, setup, flat: np.ndarray) -> dict[tuple[int, str], list[
         deps[i, "radiation"] = rad
         extra = ([(j, q) for j in range(flat.size) if body_of[j] == body_of[i] for q in ("displacement", "velocity")]
                  if body_of[i] in pointwise else [])
-        deps[i, "force"] = sorted(set(hyd) | set(rad) | set(extra), key=lambda t: (t[1] != "displacement", t[0]))
+        order = lambda t: (t[1] != "displacement", t[0])  # noqa: E731
+        deps[i, "force"] = sorted(set(hyd) | set(rad) | set(extra), key=order)
+        deps[i, "dynamic"] = sorted(set(rad) | set(extra), key=order)
     return deps
 
 
@@ -211,7 +213,9 @@ def _model_description(fmi: int, scene, setup, flat, labels, added, token) -> st
             "force": "total hydrodynamic force: excitation + radiation memory + hydrostatic + net buoyancy "
                      "(+ viscous and Morison terms where the scene has them); apply it, with A_inf in the mass matrix",
             "excitation": "wave excitation force", "radiation": "radiation memory force (without -A_inf a)",
-            "hydrostatic": "linear hydrostatic restoring force plus the net buoyancy"}
+            "hydrostatic": "linear hydrostatic restoring force plus the net buoyancy",
+            "dynamic": "force minus hydrostatic: for an importer whose model holds the hydrostatic stiffness and "
+                       "net buoyancy itself (better with an explicit master: no stiffness lagged a step)"}
     for i, label in enumerate(labels):
         dof = label.rsplit(".", 1)[1]
         for q, quantity in enumerate(QUANTITIES):

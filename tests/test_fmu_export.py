@@ -32,7 +32,7 @@ def setting(sphere, sphere_path, tmp_path_factory):
     scene = folder / "scene.toml"
     scene.write_text(base_scene(sphere_path, rho_v, 2 * np.pi / w, periods=16))
     fmu = folder / "hydro.fmu"
-    result = CliRunner().invoke(cli, ["fmu", "export", str(scene), "-o", str(fmu)])
+    result = CliRunner().invoke(cli, ["fmu", "export", str(scene), "-o", str(fmu), "--python"])
     assert result.exit_code == 0, result.output
     assert f"wrote {fmu}" in result.output
     return {"scene": scene, "fmu": fmu, "mass": rho_v, "omega": w}
@@ -163,7 +163,7 @@ def test_exported_added_mass_is_what_the_mass_matrix_takes(sphere, sphere_path, 
     scene.write_text(base_scene(sphere_path, rho_v, 2 * np.pi / float(om[i]), periods=2)
                      + '[hydro]\nradiation = "constant"\n')
     fmu = tmp_path / "constant.fmu"
-    result = CliRunner().invoke(cli, ["fmu", "export", str(scene), "-o", str(fmu)])
+    result = CliRunner().invoke(cli, ["fmu", "export", str(scene), "-o", str(fmu), "--python"])
     assert result.exit_code == 0, result.output
     md = read_model_description(str(fmu))
     exported = float(next(v.start for v in md.modelVariables if v.name == "A_inf.sphere.heave.sphere.heave"))

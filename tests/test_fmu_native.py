@@ -198,6 +198,7 @@ def test_validates_links_no_python_and_tells_the_truth(fmus, sphere):
         assert deps["sphere.heave.force"] == ["sphere.heave.displacement", "sphere.heave.velocity"]
         assert deps["sphere.heave.hydrostatic"] == ["sphere.heave.displacement"]
         assert deps["sphere.heave.radiation"] == ["sphere.heave.velocity"]
+        assert deps["sphere.heave.dynamic"] == ["sphere.heave.velocity"]
         assert deps["sphere.heave.excitation"] == [] and deps["wave_elevation"] == []
         assert md.defaultExperiment.stepSize == str(DT) or float(md.defaultExperiment.stepSize) == DT
 
@@ -246,3 +247,74 @@ def test_errors_are_fmi_statuses_with_a_logged_message(fmi, fmus, server, tmp_pa
         slave.step(0.0, 2 * DT)
     assert any("this FMU takes only its scene's dt" in line for line in slave.log), slave.log
     slave.close()
+
+
+def test_simulate_fmu_against_a_separate_server(fmus, server, tmp_path):
+    """fmpy's own master (simulate_fmu), the FMU alone with its inputs at rest: its excitation is
+    the server's, bit for bit, as the Python client gets it for the same states."""
+    from fmpy import simulate_fmu
+    from hydrolink.clients.connection import ServerConnection
+    from hydrolink.server.hdb.io import load_hdb
+    for fmi, path in fmus.items():
+        out = simulate_fmu(str(path), start_values={"server_address": server}, stop_time=2.0, step_size=DT,
+                           output=["sphere.heave.excitation", "sphere.heave.force", "wave_elevation"])
+        assert out["time"][-1] == pytest.approx(2.0)
+        scene = (path.parent / "scene.toml").read_text()
+        with ServerConnection(server) as conn:
+            setup = conn.hello(scene, {"sphere.h5": load_hdb(path.parent / "sphere.h5")})
+            rest = setup.equilibrium_position
+            for k, t in enumerate(out["time"]):
+                r = conn.step(k, k * DT, rest, np.zeros_like(rest))
+                assert r["excitation"][0, 2] == out["sphere.heave.excitation"][k], (fmi, k)
+        assert np.abs(out["sphere.heave.excitation"]).max() > 1e3
+
+
+def test_libcosim_couples_it_to_a_body_fmu(fmus, server, sphere, omega, tmp_path):
+    """libcosim (libcosimpy, a C++ master nobody here wrote) with its fixed-step algorithm: the
+    native FMU's `dynamic` force (excitation + radiation) into tests/fmu_src's heave body FMU
+    (mass + A_inf, the hydrostatic stiffness its own), the body's state back. An explicit master
+    reads the forces before it sets the new state: the radiation lags a step, and its RAO is
+    O(dt) off the frequency domain (measured here, within 1 %)."""
+    pytest.importorskip("libcosimpy", reason="needs libcosimpy (pip install libcosimpy; in the test extras)")
+    from libcosimpy.CosimExecution import CosimExecution
+    from libcosimpy.CosimEnums import CosimVariableType
+    from libcosimpy.CosimObserver import CosimObserver
+    from libcosimpy.CosimSlave import CosimLocalSlave
+    from fmpy import read_model_description
+    from fmu_build import build_c_fmu
+    body_fmu = build_c_fmu(tmp_path / "body")
+    mass = 1000.0 * float(sphere["displaced_volume"].values[0])
+    a_inf = float(sphere["added_mass_inf"].values[2, 2])
+    hydro_vr = {v.name: v.valueReference for v in read_model_description(fmus[2]).modelVariables}
+    body_vr = {v.name: v.valueReference for v in read_model_description(body_fmu).modelVariables}
+    ex = CosimExecution.from_step_size(step_size=int(round(DT * 1e9)))
+    hydro = ex.add_local_slave(CosimLocalSlave(fmu_path=str(fmus[2]), instance_name="hydro"))
+    body = ex.add_local_slave(CosimLocalSlave(fmu_path=str(body_fmu), instance_name="body"))
+    assert ex.string_initial_value(hydro, hydro_vr["server_address"], server)
+    c33 = float(sphere["hydrostatic_stiffness"].values[2, 2])
+    for name, value in (("m", mass), ("a_inf", a_inf), ("k_hs", c33), ("c_pto", 0.0), ("z0", 0.0), ("v0", 0.0)):
+        assert ex.real_initial_value(body, body_vr[name], value)
+    assert ex.connect_real_variables(hydro, hydro_vr["sphere.heave.dynamic"], body, body_vr["F"]) == 0   # the C API's status
+    assert ex.connect_real_variables(body, body_vr["z"], hydro, hydro_vr["sphere.heave.displacement"]) == 0   # the C API's status
+    assert ex.connect_real_variables(body, body_vr["v"], hydro, hydro_vr["sphere.heave.velocity"]) == 0   # the C API's status
+    observer = CosimObserver.create_time_series(buffer_size=round(DURATION / DT) + 10)
+    ex.add_observer(observer)
+    assert observer.start_time_series(body, value_reference=body_vr["z"], variable_type=CosimVariableType.REAL)
+    assert observer.start_time_series(hydro, value_reference=hydro_vr["wave_elevation"], variable_type=CosimVariableType.REAL)
+    assert ex.simulate_until(target_time=int(round(DURATION * 1e9)))
+    n = round(DURATION / DT) + 1
+    times, _, z = observer.time_series_real_samples(body, value_reference=body_vr["z"], from_step=0, sample_count=n)
+    _, _, eta = observer.time_series_real_samples(hydro, value_reference=hydro_vr["wave_elevation"], from_step=0,
+                                                  sample_count=n)
+    m = min(len(times), len(z), len(eta))
+    t, z, eta = np.array(times[:m]) * 1e-9, np.array(z[:m]), np.array(eta[:m])
+    assert t[-1] >= DURATION - 2 * DT
+    late = t >= FIT_FROM
+    rao = complex_amplitude(t[late], z[late], omega) / complex_amplitude(t[late], eta[late], omega)
+    k = int(np.flatnonzero(sphere["omega"].values == omega)[0])
+    a, b = sphere["added_mass"].values[k, 2, 2], sphere["radiation_damping"].values[k, 2, 2]
+    ref = sphere["excitation_force"].values[k, 0, 2] / (
+        sphere["hydrostatic_stiffness"].values[2, 2] - omega ** 2 * (mass + a) - 1j * omega * b)
+    print(f"libcosim (explicit): |RAO| {abs(rao):.5f} against {abs(ref):.5f} ({abs(rao) / abs(ref) - 1:+.2e}), "
+          f"phase {np.angle(rao / ref, deg=True):+.3f} deg")
+    assert abs(abs(rao) / abs(ref) - 1) <= 0.01

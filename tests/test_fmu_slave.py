@@ -30,7 +30,7 @@ def exported(sphere, sphere_path, tmp_path_factory) -> dict:
                                            bodies=[sphere_body(str(sphere_path), mass=MASS_RATIO * rho_v,
                                                                dofs=["heave"])]))
     fmu = folder / "hydro.fmu"
-    result = CliRunner().invoke(cli, ["fmu", "export", str(scene), "-o", str(fmu)])
+    result = CliRunner().invoke(cli, ["fmu", "export", str(scene), "-o", str(fmu), "--python"])
     assert result.exit_code == 0, result.output
     return {"fmu": fmu, "mass": MASS_RATIO * rho_v, "unzipped": extract(str(fmu))}
 

@@ -59,7 +59,7 @@ struct hl_fmu {
     double timeout;
     /* inputs, outputs, the step */
     double *x, *v, *sent;         /* na, na, 2 na */
-    double *out;                  /* 4 na: force, excitation, radiation, hydrostatic */
+    double *out;                  /* 5 na: force, excitation, radiation, hydrostatic, dynamic */
     double eta;
     clock_t_ clk;
     /* the session */
@@ -68,6 +68,7 @@ struct hl_fmu {
     long next_id;
     char msg_id[32];
     int failed;                   /* a fatal error happened: every later call fails */
+    int closing;                  /* bye: no reconnect, no error if the server is gone */
     double *pos6, *vel6;          /* 6N scratch */
 };
 
@@ -189,7 +190,7 @@ hl_fmu *hl_new(const char *resources, const char *name, hl_log_fn log, void *env
     f->x = calloc((size_t)f->na, sizeof(double));
     f->v = calloc((size_t)f->na, sizeof(double));
     f->sent = calloc((size_t)(2 * f->na), sizeof(double));
-    f->out = calloc((size_t)(4 * f->na), sizeof(double));
+    f->out = calloc((size_t)(5 * f->na), sizeof(double));
     f->pos6 = calloc((size_t)(6 * f->n_bodies), sizeof(double));
     f->vel6 = calloc((size_t)(6 * f->n_bodies), sizeof(double));
     return f;
@@ -604,7 +605,7 @@ static void begin(hl_fmu *f, buf_t *b, const char *type, int extra) {
 static int request(hl_fmu *f, buf_t *b, reply_t *out, long code_ok) {
     memset(out, 0, sizeof *out);
     if (b->oom) { hl_log(f, 1, "out of memory building a request"); return -1; }
-    for (int attempt = 0; attempt < 2; attempt++) {
+    for (int attempt = 0; attempt < (f->closing ? 1 : 2); attempt++) {
         if (f->sock < 0 && open_link(f)) return -1;
         double deadline = now_s() + f->timeout;
         int lost = send_frame(f, 0x00, b->p, b->n, deadline) != 0;
@@ -653,7 +654,7 @@ static int request(hl_fmu *f, buf_t *b, reply_t *out, long code_ok) {
         }
         close_socket(f);                               /* the connection was lost: once more */
     }
-    hl_log(f, 1, "lost the connection to the hydrolink server at %s", f->server);
+    if (!f->closing) hl_log(f, 1, "lost the connection to the hydrolink server at %s", f->server);
     return -1;
 }
 
@@ -790,7 +791,8 @@ static int evaluate(hl_fmu *f) {
     if (ok) {
         for (int i = 0; i < na; i++) {
             f->out[3 * na + i] += f->net_buoyancy[i];
-            f->out[i] = f->out[na + i] + f->out[2 * na + i] + f->out[3 * na + i] + extra[f->flat[i]];
+            f->out[4 * na + i] = f->out[na + i] + f->out[2 * na + i] + extra[f->flat[i]];
+            f->out[i] = f->out[4 * na + i] + f->out[3 * na + i];
         }
         memcpy(f->sent, f->x, na * sizeof(double));
         memcpy(f->sent + na, f->v, na * sizeof(double));
@@ -844,7 +846,7 @@ int hl_get_real(hl_fmu *f, unsigned vr, double *value) {
     if (vr == HL_VR_TIMEOUT) { *value = f->timeout; return 0; }
     if (vr == HL_VR_TIME) { *value = f->clk.seq * f->dt; return 0; }
     if (vr >= HL_VR_AINF && vr < HL_VR_AINF + (unsigned)(na * na)) { *value = f->a_inf[vr - HL_VR_AINF]; return 0; }
-    if (vr >= HL_VR_DOF && vr < HL_VR_DOF + 8u * (unsigned)na && (vr - HL_VR_DOF) % 8 < 6) {
+    if (vr >= HL_VR_DOF && vr < HL_VR_DOF + 8u * (unsigned)na && (vr - HL_VR_DOF) % 8 < 7) {
         unsigned i = (vr - HL_VR_DOF) / 8, k = (vr - HL_VR_DOF) % 8;
         if (k < 2) { *value = (k ? f->v : f->x)[i]; return 0; }
         if (!f->session[0]) { *value = 0.0; return 0; }   /* before initialization: the start value */
@@ -878,12 +880,12 @@ int hl_get_string(hl_fmu *f, unsigned vr, const char **value) {
 
 /* ------------------------------------------------------------------ states (SPEC §5.9) */
 
-typedef struct { long server_state; clock_t_ clk; double vals[]; } state_t;   /* vals: x, v, sent, out, eta */
+typedef struct { long server_state; clock_t_ clk; double vals[]; } state_t;   /* vals: x, v, sent, out (5 na), eta */
 
 int hl_get_state(hl_fmu *f, void **state) {
     if (f->failed) return -1;
     int na = f->na;
-    state_t *s = malloc(sizeof *s + (size_t)(8 * na + 1) * sizeof(double));
+    state_t *s = malloc(sizeof *s + (size_t)(9 * na + 1) * sizeof(double));
     if (!s) { hl_log(f, 1, "out of memory saving the FMU state"); return -1; }
     s->server_state = 0;
     if (f->session[0]) {
@@ -901,8 +903,8 @@ int hl_get_state(hl_fmu *f, void **state) {
     memcpy(s->vals, f->x, na * sizeof(double));
     memcpy(s->vals + na, f->v, na * sizeof(double));
     memcpy(s->vals + 2 * na, f->sent, 2 * na * sizeof(double));
-    memcpy(s->vals + 4 * na, f->out, 4 * na * sizeof(double));
-    s->vals[8 * na] = f->eta;
+    memcpy(s->vals + 4 * na, f->out, 5 * na * sizeof(double));
+    s->vals[9 * na] = f->eta;
     *state = s;
     return 0;
 }
@@ -927,8 +929,8 @@ int hl_set_state(hl_fmu *f, const void *state) {
     memcpy(f->x, s->vals, na * sizeof(double));
     memcpy(f->v, s->vals + na, na * sizeof(double));
     memcpy(f->sent, s->vals + 2 * na, 2 * na * sizeof(double));
-    memcpy(f->out, s->vals + 4 * na, 4 * na * sizeof(double));
-    f->eta = s->vals[8 * na];
+    memcpy(f->out, s->vals + 4 * na, 5 * na * sizeof(double));
+    f->eta = s->vals[9 * na];
     return 0;
 }
 
@@ -952,10 +954,12 @@ void hl_terminate(hl_fmu *f) {
         reply_t r;
         double keep = f->timeout;
         f->timeout = keep < 2.0 ? keep : 2.0;
+        f->closing = 1;
         begin(f, &b, "bye", 0);
         if (!request(f, &b, &r, -1)) reply_free(&r);
         free(b.p);
         f->timeout = keep;
+        f->closing = 0;
     }
     f->session[0] = 0;
     close_socket(f);

@@ -5,7 +5,7 @@
  * Value references (the same in both model descriptions, written by clients/fmu_native.py):
  *   0 time (FMI 3's independent variable), 1 server_address (string parameter), 2 timeout (s, parameter), 3 wave_elevation (output);
  *   1000 + 8 i + k for active DOF i: k = 0 displacement, 1 velocity (inputs), 2 force,
- *     3 excitation, 4 radiation, 5 hydrostatic (outputs);
+ *     3 excitation, 4 radiation, 5 hydrostatic, 6 dynamic (= force - hydrostatic) (outputs);
  *   1000000 + i na + j: A_inf of DOFs i, j (calculated parameter).
  * Every function returns 0 on success and -1 on an error it has logged. */
 #ifndef HYDRO_CORE_H
