@@ -156,7 +156,10 @@ def test_netns_link_down_past_the_timeout_ends_the_run_with_its_rows(shared_data
         client = lab.popen("client", [*HYDROLINK, "run", str(scene), "-o", str(tmp_path / "cut.nc"), "--server", addr,
                                       "--no-progress", "--link-timeout", "2"],
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        time.sleep(3.0)
+        started = time.monotonic()   # the outage after the session is open (its results file exists)
+        while not (tmp_path / "cut.nc").exists() and time.monotonic() - started < 60 and client.poll() is None:
+            time.sleep(0.1)
+        time.sleep(1.0)
         t0 = time.monotonic()
         down = threading.Thread(target=lab.outage, args=(8.0,), daemon=True)
         down.start()
