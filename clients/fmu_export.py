@@ -1,4 +1,5 @@
-"""``hydrolink fmu export``: hydrolink's forces as an FMI 2.0 co-simulation FMU (built with pythonfmu).
+"""``hydrolink fmu export --python``: hydrolink's forces as an FMI 2.0 co-simulation FMU (built with
+pythonfmu; the default is the native FMU of :mod:`hydrolink.clients.fmu_native`).
 
 The FMU carries the scene text and its HDBs (as hydrolink NetCDF) in ``resources/``; its model
 class is :mod:`hydrolink.clients.fmu_slave`. At run time it needs a Python with hydrolink installed
@@ -67,5 +68,6 @@ def export_fmu(scene_path: str | Path, output: str | Path, *, progress: bool = T
         shutil.copy2(Path(__file__).with_name("fmu_slave.py"), script)
         output.parent.mkdir(parents=True, exist_ok=True)
         built = FmuBuilder.build_FMU(script, dest=output, project_files=[work / "hydrolink_fmu.json",
-                                                                          *(work / f for f in files.values())])
+                                                                          *(work / f for f in files.values())],
+                                     canHandleVariableCommunicationStepSize=False)   # only the scene's dt
     return Path(built), notes
