@@ -147,3 +147,61 @@ def test_a_run_with_drag_only_records_it(tmp_path, sphere_path):
     np.testing.assert_allclose(f[later], (-0.5 * rho * 78.5 * np.abs(u) * u)[later], rtol=0.05,
                                atol=0.02 * np.abs(f).max())
     assert np.abs(f).max() > 100.0
+
+
+def test_rm3_float_drag_against_the_lorentz_frequency_domain(tmp_path, shared_data):
+    """RM3 (float and spar in heave, the linear PTO between them) at T = 8.06 s, H = 2.5 m, with
+    quadratic drag on the float's heave (Cd 1 on its 20 m disc, absolute velocity): the run's float
+    amplitude and mean PTO power against the two-body frequency domain with the drag replaced by
+    Lorentz's equivalent linear damping B_eq = (8 / 3 pi) 1/2 rho Cd A w |X_f|, iterated to a fixed
+    point, from the HDB's A(w), B(w), C, X(w) at that frequency (a grid point). The drag lowers
+    the power by more than the test's tolerance."""
+    from conftest import linear_pto, rm3_float, rm3_spar
+    hdb = load_hdb(shared_data / "rm3_wamit" / "rm3.1")
+    k = int(np.argmin(np.abs(hdb["omega"].values - 0.78)))
+    w = float(hdb["omega"].values[k])
+    rho, height, c_pto, cd, area = 1000.0, 2.5, 1.2e6, 1.0, math.pi * 10.0 ** 2
+    heave = [2, 8]
+    mass = np.diag([725833.0, 886687.0])
+    a = hdb["added_mass"].values[k][np.ix_(heave, heave)]
+    b = hdb["radiation_damping"].values[k][np.ix_(heave, heave)]
+    c = hdb["hydrostatic_stiffness"].values[np.ix_(heave, heave)]
+    f = hdb["excitation_force"].values[k, 0, heave] * height / 2
+    b_pto = c_pto * np.array([[1.0, -1.0], [-1.0, 1.0]])
+
+    def frequency_domain(drag: bool) -> tuple[np.ndarray, float]:
+        b_eq = 0.0
+        for _ in range(200):
+            z = c - w * w * (mass + a) - 1j * w * (b + b_pto + np.diag([b_eq, 0.0]))
+            x = np.linalg.solve(z, f)
+            new = (8 / (3 * math.pi)) * 0.5 * rho * cd * area * w * abs(x[0]) if drag else 0.0
+            if abs(new - b_eq) <= 1e-12 * max(new, 1.0):
+                break
+            b_eq = new
+        return x, 0.5 * c_pto * w * w * abs(x[0] - x[1]) ** 2
+
+    period = 2 * math.pi / w
+    results = {}
+    for drag in (False, True):
+        keys = {"drag": {"cd": [0, 0, cd, 0, 0, 0], "area": [0, 0, area, 0, 0, 0], "relative": False}} if drag else {}
+        path = write_scene(tmp_path, scene_toml(
+            dt=0.05, duration=300.0, progress=False, water={"density": rho, "gravity": 9.81},
+            waves=regular_waves(height, period, ramp=20.0), hydro={"irf_duration": 40.0},
+            bodies=[rm3_float(str(shared_data / "rm3_wamit" / "rm3.1"), dofs=["heave"], **keys),
+                    rm3_spar(str(shared_data / "rm3_wamit" / "rm3.1"), dofs=["heave"])],
+            ptos=[linear_pto("pto", "float", [0.0, 0.0, -0.72], "spar", [0.0, 0.0, -21.29], damping=c_pto)]),
+            f"rm3_drag{int(drag)}.toml")
+        run_scene_file(path, tmp_path / f"rm3_drag{int(drag)}.nc", progress=False)
+        ds = xr.load_dataset(tmp_path / f"rm3_drag{int(drag)}.nc")
+        t = ds["time"].values
+        late = t > t[-1] - 10 * period + 1e-9
+        z = (ds["position"] - ds["equilibrium_position"]).sel(body="float", dof="heave").values[late]
+        basis = np.c_[np.ones(late.sum()), np.cos(w * t[late]), np.sin(w * t[late])]
+        fit = np.linalg.lstsq(basis, z, rcond=None)[0]
+        amp, power = math.hypot(fit[1], fit[2]), float(ds["pto_power"].sel(pto="pto").values[late].mean())
+        x, p = frequency_domain(drag)
+        print(f"drag {drag}: float {amp:.4f} m (FD {abs(x[0]):.4f}, {amp / abs(x[0]) - 1:+.2e}), "
+              f"P {power / 1e3:.1f} kW (FD {p / 1e3:.1f}, {power / p - 1:+.2e})")
+        assert amp == pytest.approx(abs(x[0]), rel=0.005) and power == pytest.approx(p, rel=0.005)
+        results[drag] = power
+    assert results[True] < 0.95 * results[False]
