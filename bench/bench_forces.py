@@ -1,6 +1,7 @@
-"""Server cost per step of the viscous force terms (issue 10): the Task-10 sphere (6 DOFs) in
-regular and irregular seas, HydroModel.step without viscous terms, with quadratic damping, with
-relative drag; and the drag term alone for 9 bodies (54 DOFs) with 300 wave components.
+"""Server cost per step of the force terms beyond potential flow (issue 10): the Task-10 sphere
+(6 DOFs) in regular and irregular seas, HydroModel.step without them, with quadratic damping, with
+relative drag, with a 20-segment Morison member (20 m x 3 m below the sphere); and the drag term
+alone for 9 bodies (54 DOFs) with 300 wave components.
 
     python bench/bench_forces.py [--steps 4000]
 """
@@ -65,7 +66,9 @@ def main() -> None:
     seas = {"regular": 'type = "regular"\nheight = 1.0\nperiod = 6.0',
             "irregular (300 components)": 'type = "irregular"\nspectrum = "jonswap"\nhs = 2.0\ntp = 8.0'}
     terms = {"none": "", "quadratic_damping": "quadratic_damping = [1e4, 1e4, 8e4, 1e6, 1e6, 1e6]",
-             "relative drag": 'drag = { cd = [1, 1, 0.8, 0, 0, 0], area = [40, 40, 78.5, 0, 0, 0], relative = true }'}
+             "relative drag": 'drag = { cd = [1, 1, 0.8, 0, 0, 0], area = [40, 40, 78.5, 0, 0, 0], relative = true }',
+             "Morison, 20 segments": '[[morison]]\nbody = "sphere"\npoint_a = [0.0, 0.0, -25.0]\n'
+                                     'point_b = [0.0, 0.0, -5.0]\ndiameter = 3.0\ncd = 1.0\nca = 1.0\nsegments = 20'}
     print(f"# bench_forces: server µs per step (HydroModel.step, {args.steps} steps; load {os.getloadavg()[0]:.2f})\n")
     print("| sea | " + " | ".join(terms) + " |")
     print("|---|" + "---|" * len(terms))

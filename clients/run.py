@@ -20,13 +20,16 @@ from hydrolink.protocol.scene import Scene, SceneError, load_scene, resolve_path
 log = logging.getLogger(__name__)
 
 
-def load_scene_hdbs(scene: Scene, scene_path: str | Path, *, progress: bool = True) -> dict[str, xr.Dataset]:
+def load_scene_hdbs(scene: Scene, scene_path: str | Path, *, progress: bool = True,
+                    as_files: bool = False) -> dict[str, xr.Dataset | HDBFiles]:
     """HDBs of a scene keyed by each body's ``hdb`` string (one load per distinct file).
 
-    A ``.toml`` HDB is a build spec: it is built with Capytaine (or taken from the cache)."""
-    from hydrolink.server.hdb.io import load_hdb   # raises HDBError naming the file and field
+    A ``.toml`` HDB is a build spec: it is built with Capytaine (or taken from the cache).
+    ``as_files``: the other HDBs as their original files (SPEC §5.1 "HDB file set"), not read here:
+    the server reads them and checks the bodies' names in them."""
+    from hydrolink.server.hdb.io import file_set, load_hdb   # raise HDBError naming the file and field
 
-    hdbs: dict[str, xr.Dataset] = {}
+    hdbs: dict[str, xr.Dataset | HDBFiles] = {}
     for i, body in enumerate(scene.bodies):
         if body.hdb is None or body.hdb in hdbs:
             continue
@@ -36,11 +39,13 @@ def load_scene_hdbs(scene: Scene, scene_path: str | Path, *, progress: bool = Tr
         if path.suffix == ".toml":
             from hydrolink.server.hdb.build import build_hdb
             hdbs[body.hdb] = build_hdb(path, progress=progress)
+        elif as_files:
+            hdbs[body.hdb] = file_set(path)
         else:
             stated = next((b.hdb_convention for b in scene.bodies if b.hdb == body.hdb and b.hdb_convention), None)
             hdbs[body.hdb] = load_hdb(path, convention=stated)
     for i, body in enumerate(scene.bodies):
-        if body.hdb is None:
+        if body.hdb is None or isinstance(hdbs[body.hdb], HDBFiles):
             continue
         names = [str(b) for b in hdbs[body.hdb]["body"].values]
         if body.hdb_body_name not in names:
@@ -49,27 +54,6 @@ def load_scene_hdbs(scene: Scene, scene_path: str | Path, *, progress: bool = Tr
                              f"the HDB {body.hdb} holds no body {body.hdb_body_name!r} (it holds {names}); "
                              "set hdb_body to one of those")
     return hdbs
-
-
-def scene_hdb_files(scene: Scene, scene_path: str | Path, *, progress: bool = True) -> dict[str, xr.Dataset | HDBFiles]:
-    """The scene's HDBs as their original files (SPEC §5.1 "HDB file set"), keyed like
-    :func:`load_scene_hdbs`; a ``.toml`` build spec is built here (or taken from the build cache)
-    and sent as the HDB map. The server checks the files and the bodies' names in them."""
-    from hydrolink.server.hdb.io import file_set   # raises HDBError naming the file
-
-    out: dict[str, xr.Dataset | HDBFiles] = {}
-    for i, body in enumerate(scene.bodies):
-        if body.hdb is None or body.hdb in out:
-            continue
-        path = resolve_path(scene_path, body.hdb)
-        if not path.exists() and not path.with_suffix(".1").exists():
-            raise SceneError(scene_path, f"bodies[{i}].hdb", f"file not found: {path}")
-        if path.suffix == ".toml":
-            from hydrolink.server.hdb.build import build_hdb
-            out[body.hdb] = build_hdb(path, progress=progress)
-        else:
-            out[body.hdb] = file_set(path)
-    return out
 
 
 def load_wave_elevation(scene: Scene, scene_path: str | Path):
@@ -98,18 +82,16 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
     the shared HMAC key (SPEC §3.3) of ``server``, or of the run's own listening server, whose
     controllers must then sign too; ``link_timeout``: how long the link to a remote ``server`` may
     stay down (SPEC §1) before the run ends (its rows kept); ``hdb_files``: send the HDBs as their
-    files by SHA-256 (:func:`scene_hdb_files`; the summary's ``hdb_uploads`` counts the contents
-    the server lacked)."""
+    files by SHA-256 (:func:`load_scene_hdbs` ``as_files``; the summary's ``hdb_uploads`` counts
+    the contents the server lacked)."""
     from hydrolink.clients.connection import ServerConnection
     from hydrolink.clients.exudyn_client import result_bodies, run
     from hydrolink.clients.results import ResultWriter
 
     scene_path = Path(scene_path)
     scene, text = load_scene(scene_path)
-    if hdbs is None and hdb_files:
-        hdbs = scene_hdb_files(scene, scene_path, progress=progress)
-    elif hdbs is None:  # (a caller running one scene many times may pass them, e.g. hydrolink bench)
-        hdbs = load_scene_hdbs(scene, scene_path, progress=progress)
+    if hdbs is None:  # (a caller running one scene many times may pass them, e.g. hydrolink bench)
+        hdbs = load_scene_hdbs(scene, scene_path, progress=progress, as_files=hdb_files)
     series = load_wave_elevation(scene, scene_path)
     moordyn_files = None
     if any(getattr(m, "type", "") == "moordyn" for m in scene.moorings):

@@ -3,10 +3,13 @@ scene builder every test uses to write scene TOML."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import numbers
 import os
 import re
+import subprocess
+import sys
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -41,6 +44,22 @@ def server() -> str:
     yield srv.address
     srv.stop()
     thread.join(5.0)
+
+
+@contextlib.contextmanager
+def serve_process(*args: str, cwd: Path | None = None):
+    """A `hydrolink serve` process on a free loopback port (``args``: more options, e.g. --store
+    DIR); yields its address and stops it on exit."""
+    proc = subprocess.Popen([sys.executable, "-m", "hydrolink.clients.cli", "serve", "--bind", "tcp://127.0.0.1:*",
+                             *args], cwd=cwd, stderr=subprocess.PIPE, text=True)
+    try:
+        line = proc.stderr.readline()
+        match = re.search(r"listening on (tcp://\S+)", line)
+        assert match, f"hydrolink serve printed {line!r}"
+        yield match.group(1)
+    finally:
+        proc.terminate()
+        proc.wait(10)
 
 
 @pytest.fixture(scope="session")

@@ -5,15 +5,13 @@ received equal, bit for bit, those a Python client gets for the same states."""
 
 from __future__ import annotations
 
-import re
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import SPHERE_WATER, regular_waves, scene_toml, sphere_body, write_scene
+from conftest import SPHERE_WATER, regular_waves, scene_toml, serve_process, sphere_body, write_scene
 
 from hydrolink.clients.connection import ServerConnection
 from hydrolink.server.hdb.io import load_hdb
@@ -38,16 +36,8 @@ def heave_exe(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def server(tmp_path_factory):
-    store = tmp_path_factory.mktemp("c_store")
-    proc = subprocess.Popen([sys.executable, "-m", "hydrolink.clients.cli", "serve", "--bind", "tcp://127.0.0.1:*",
-                             "--store", str(store)], stderr=subprocess.PIPE, text=True)
-    try:
-        match = re.search(r"listening on (tcp://\S+)", proc.stderr.readline())
-        assert match
-        yield match.group(1)
-    finally:
-        proc.terminate()
-        proc.wait(10)
+    with serve_process("--store", str(tmp_path_factory.mktemp("store"))) as address:
+        yield address
 
 
 def complex_amplitude(t: np.ndarray, y: np.ndarray, w: float) -> complex:

@@ -11,14 +11,13 @@ import shutil
 import subprocess
 import sys
 import textwrap
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 import xarray as xr
 
-from conftest import SPHERE_WATER, irregular_waves, scene_toml, sphere_body, write_scene
+from conftest import SPHERE_WATER, irregular_waves, scene_toml, serve_process, sphere_body, write_scene
 
 from hydrolink.clients.run import run_scene_file
 
@@ -78,17 +77,9 @@ def test_run_with_hdb_files_uploads_once_and_equals_the_map_run(scene_dir: Path,
     store); both equal a run that sent the converted HDB, bit for bit."""
     store = tmp_path_factory.mktemp("cli_store")
 
-    def serve() -> tuple[subprocess.Popen, str]:
-        proc = subprocess.Popen([*HYDROLINK, "serve", "--bind", "tcp://127.0.0.1:*", "--store", str(store)],
-                                cwd=scene_dir, stderr=subprocess.PIPE, text=True)
-        match = re.search(r"listening on (tcp://\S+)", proc.stderr.readline())
-        assert match
-        return proc, match.group(1)
-
     outputs = {}
     for restart in (False, True):
-        server, address = serve()
-        try:
+        with serve_process("--store", str(store), cwd=scene_dir) as address:
             runs = (("map", []), ("files", ["--hdb-files"]), ("files again", ["--hdb-files"]))
             for name, flag in runs[1:] if restart else runs:
                 out = f"{name.replace(' ', '_')}{int(restart)}.nc"
@@ -98,9 +89,6 @@ def test_run_with_hdb_files_uploads_once_and_equals_the_map_run(scene_dir: Path,
                 if flag:
                     uploaded = 1 if (name, restart) == ("files", False) else 0
                     assert f"{uploaded} content(s) uploaded" in result.stdout, result.stdout
-        finally:
-            server.terminate()
-            server.wait(10)
     assert [p.name for p in store.iterdir()] == [hashlib.sha256(
         (scene_dir / "sphere.h5").read_bytes()).hexdigest()]
     ref = outputs["map", False]
