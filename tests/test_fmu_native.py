@@ -318,3 +318,52 @@ def test_libcosim_couples_it_to_a_body_fmu(fmus, server, sphere, omega, tmp_path
     assert t[-1] >= DURATION - 2 * DT
     err, _ = rao_error(t, z, eta, sphere, omega, mass, "libcosim (explicit)")
     assert abs(err) <= 0.01
+
+
+def test_two_bodies_from_wamit_files_give_the_servers_forces(tmp_path, shared_data, server):
+    """RM3 (float and spar, heave and pitch active: 4 inputs of each kind), its HDB as the WAMIT
+    run's five files: every output equals, bit for bit, what the Python client gets for the same
+    states (force = excitation + radiation + hydrostatic + net buoyancy); the dependencies hold the
+    float-spar coupling of the radiation feedthrough."""
+    _needs_compiler()
+    from fmpy import read_model_description
+    from conftest import rm3_float, rm3_spar
+    from hydrolink.clients.connection import ServerConnection
+    from hydrolink.clients.fmu_native import export_native_fmu
+    from hydrolink.server.hdb.io import load_hdb
+    for name in ("rm3.1", "rm3.3", "rm3.hst", "rm3.out", "rm3.cfg"):
+        shutil.copy(shared_data / "rm3_wamit" / name, tmp_path / name)
+    dofs = ["heave", "pitch"]
+    path = write_scene(tmp_path, scene_toml(dt=0.05, duration=20.0, waves=regular_waves(2.0, 8.0, ramp=5.0),
+                                            hydro={"irf_duration": 20.0},
+                                            bodies=[rm3_float("rm3.1", dofs=dofs), rm3_spar("rm3.1", dofs=dofs)]))
+    fmu, _ = export_native_fmu(path, tmp_path / "rm3.fmu", fmi=3, progress=False)
+    md = read_model_description(fmu)
+    deps = {u.variable.name: sorted(d.name for d in u.dependencies) for u in md.outputs}
+    assert "spar.heave.velocity" in deps["float.heave.radiation"]            # coupled through the HDB
+    labels = [f"{b}.{d}" for b in ("float", "spar") for d in dofs]
+    slave = Slave(fmu, 3, tmp_path, server)
+    slave.start()
+    rng = np.random.default_rng(3)
+    scene_text = path.read_text()
+    try:
+        with ServerConnection(server) as conn:
+            setup = conn.hello(scene_text, {"rm3.1": load_hdb(tmp_path / "rm3.1")})
+            active = np.flatnonzero(setup.active.reshape(-1))
+            net = np.where(active % 6 == 2, setup.net_buoyancy[active // 6], 0.0)
+            for k in range(60):
+                x, v = 0.05 * rng.standard_normal(4), 0.2 * rng.standard_normal(4)
+                slave.set([f"{lab}.displacement" for lab in labels] + [f"{lab}.velocity" for lab in labels], [*x, *v])
+                got = np.array(slave.get([f"{lab}.{q}" for q in ("force", "excitation", "radiation", "hydrostatic")
+                                          for lab in labels])).reshape(4, 4)
+                pos, vel = setup.equilibrium_position.copy().reshape(-1), np.zeros(12)
+                pos[active] += x
+                vel[active] = v
+                r = conn.step(k, k * 0.05, pos.reshape(2, 6), vel.reshape(2, 6))
+                parts = [np.asarray(r[f]).reshape(-1)[active] for f in ("excitation", "radiation", "hydrostatic")]
+                parts[2] = parts[2] + net
+                assert np.array_equal(got[1:], np.array(parts)), k
+                assert np.array_equal(got[0], parts[0] + parts[1] + parts[2]), k
+                slave.step(k * 0.05, 0.05)
+    finally:
+        slave.close()
