@@ -67,7 +67,8 @@ def compile_binary(fmi: int, out: Path) -> None:
     """Compile the core and the FMI ``fmi`` wrapper into the shared library ``out``."""
     cc = shutil.which("cc") or shutil.which("gcc")
     if cc is None:
-        raise NativeFMUError("building the native FMU needs a C compiler (Debian package gcc)")
+        raise NativeFMUError("building the native FMU needs a C compiler (Debian package gcc); "
+                             "or export the pythonfmu FMU with --python")
     cmd = [cc, "-std=c99", "-O2", "-shared", "-fPIC", "-fvisibility=hidden", "-Wall", "-Wextra",
            "-Wno-unused-parameter", f"-I{_headers()}", "-o", str(out),
            str(SOURCES / "hydro_core.c"), str(SOURCES / f"fmi{fmi}.c"), "-lm", "-static-libgcc"]
