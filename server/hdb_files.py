@@ -47,11 +47,8 @@ class FileSet:
 
     format: str
     files: tuple[tuple[str, str], ...]   # (name, sha256), in the client's order
+    main: str                            # the file the reader opens (.1, .h5, .nc)
     rho: float | None
-
-    def main_file(self) -> str:
-        """The file the reader opens (WAMIT: the ``.1``; BEMIO: the ``.h5``; NetCDF: the ``.nc``)."""
-        return next(n for n, _ in self.files if n.lower().endswith(MAIN_SUFFIXES[self.format]))
 
 
 def is_file_set(entry: object) -> bool:
@@ -75,7 +72,7 @@ def check_file_set(entry: dict, where: str, store: ContentStore) -> tuple[FileSe
         if fmt != "wamit":
             raise ProtocolError(Code.BAD_VALUE, f"{where}.rho", "only for WAMIT files (nondimensional); "
                                 "BEMIO and NetCDF files carry their own rho")
-    named, inline, missing = [], {}, []
+    named, inline = [], {}
     for name, value in files.items():
         at = codec.key_path(f"{where}.files", name)
         if not isinstance(name, str) or not FILE_NAME.fullmatch(name) or name in (".", ".."):
@@ -89,15 +86,13 @@ def check_file_set(entry: dict, where: str, store: ContentStore) -> tuple[FileSe
             inline[digest] = bytes(value)
         elif isinstance(value, str) and HASH.fullmatch(value):
             digest = value
-            if not store.has(digest):
-                missing.append(digest)
         else:
             raise ProtocolError(Code.BAD_VALUE, at, "must be the file's bytes (bin) or the lowercase hex SHA-256 "
                                 f"of its bytes (64 characters), got {codec.describe(value)}")
         named.append((name, digest))
+    missing = store.missing([d for _, d in named])
     if missing:
-        raise MissingContent(f"{where}.files", list(dict.fromkeys(missing)))
-    fs = FileSet(fmt, tuple(named), rho)
+        raise MissingContent(f"{where}.files", missing)
     suffixes = MAIN_SUFFIXES[fmt]
     mains = [n for n, _ in named if n.lower().endswith(suffixes)]
     if len(mains) != 1:
@@ -111,7 +106,7 @@ def check_file_set(entry: dict, where: str, store: ContentStore) -> tuple[FileSe
                                 f"{stem}{{{','.join(WAMIT_SUFFIXES)}}}; not {strays}")
     elif len(named) != 1:
         raise ProtocolError(Code.BAD_VALUE, f"{where}.files", f"a {fmt} file set is one file, got {len(named)}")
-    return fs, inline
+    return FileSet(fmt, tuple(named), mains[0], rho), inline
 
 
 class FileSetReader:
@@ -137,7 +132,7 @@ class FileSetReader:
                 if data is None:   # evicted between the check and now
                     raise MissingContent(f"{where}.files", [digest])
                 (Path(tmp) / name).write_bytes(data)
-            main = fs.main_file()
+            main = fs.main
             try:
                 ds = load_hdb(Path(tmp) / main, rho=fs.rho,
                               convention=convention if fs.format == "netcdf" else None)

@@ -31,6 +31,10 @@ def default_folder() -> Path:
     return env_dir("HYDROLINK_HDB_STORE") or (shared / "hdb_store" if shared else user_cache_dir("hdb_store"))
 
 
+class ContentTooLarge(ValueError):
+    """A content over the store's bound (``put``)."""
+
+
 def sha256(data: bytes) -> str:
     """Lowercase hex SHA-256 of ``data`` (the name of a content on the wire and in the store)."""
     return hashlib.sha256(data).hexdigest()
@@ -68,13 +72,15 @@ class ContentStore:
         return [d for d in dict.fromkeys(digests) if not self.has(d)]
 
     def put(self, data: bytes, digest: str | None = None) -> tuple[str, bool]:
-        """Store ``data``; returns (its digest, whether it was new). ValueError when ``digest``
-        is given and does not match, or the content is over the store's bound."""
+        """Store ``data``; returns (its digest, whether it was new). ContentTooLarge when the
+        content is over the store's bound (checked first: nothing is hashed), ValueError when
+        ``digest`` is given and does not match."""
+        if len(data) > self.max_content_bytes:
+            raise ContentTooLarge(f"{len(data)} bytes is over the store's bound of {self.max_content_bytes} bytes "
+                                  "per content")
         actual = sha256(data)
         if digest is not None and digest != actual:
             raise ValueError(f"the content's SHA-256 is {actual}, not {digest} (corrupted or a wrong hash)")
-        if len(data) > self.max_content_bytes:
-            raise ValueError(f"{len(data)} bytes is over the store's bound of {self.max_content_bytes} bytes")
         new = not self.has(actual)
         if new and self.folder is not None:
             write_atomic(self._path(actual), lambda tmp: Path(tmp).write_bytes(data))

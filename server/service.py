@@ -19,7 +19,7 @@ from hydrolink.protocol import codec, transport
 from hydrolink.protocol.codec import Code, ProtocolError
 from hydrolink.server.control import ControlHub
 from hydrolink.server.hdb_files import FileSetReader
-from hydrolink.server.hdb_store import HASH, ContentStore, default_folder
+from hydrolink.server.hdb_store import HASH, ContentStore, ContentTooLarge, default_folder
 from hydrolink.server.session import Session, build_model
 
 log = logging.getLogger("hydrolink.server")
@@ -365,12 +365,10 @@ class ForceServer:
         if not HASH.fullmatch(digest):
             raise ProtocolError(Code.BAD_VALUE, "sha256", "must be the lowercase hex SHA-256 of data "
                                 f"(64 characters), got {codec.describe(digest)}")
-        store = self.files.store
-        if len(data) > store.max_content_bytes:
-            raise ProtocolError(Code.BAD_VALUE, "data", f"{len(data)} bytes is over this server's store bound "
-                                f"of {store.max_content_bytes} bytes per content")
         try:
-            _, new = store.put(bytes(data), digest)
+            _, new = self.files.store.put(bytes(data), digest)
+        except ContentTooLarge as exc:
+            raise ProtocolError(Code.BAD_VALUE, "data", str(exc)) from None
         except ValueError as exc:
             raise ProtocolError(Code.BAD_VALUE, "sha256", str(exc)) from None
         log.info("HDB store: %s %s (%d bytes)", "stored" if new else "already held", digest[:12], len(data))

@@ -118,9 +118,8 @@ class Session:
     def save(self) -> dict:
         """Keep the session's state now; ``saved`` fields. Older saved states leave first once
         the session's kept states pass MAX_SAVED_BYTES (the newest always stays)."""
-        saved = (self.model.state(), self.last_seq, self.last_iteration,
-                 None if self._last_state is None else (self._last_state[0].copy(), self._last_state[1].copy()),
-                 self._cached)
+        # the last state and the cached reply are replaced by each step, never written to: kept as they are
+        saved = (self.model.state(), self.last_seq, self.last_iteration, self._last_state, self._cached)
         size = _nbytes(saved)
         sid = self._next_state
         self._next_state += 1
@@ -139,9 +138,8 @@ class Session:
             raise ProtocolError(Code.BAD_VALUE, "state", f"no saved state {sid} in this session (saved: "
                                 + (f"{oldest}..{self._next_state - 1}, older ones released or dropped past "
                                    f"{MAX_SAVED_BYTES // 2**20} MiB)" if oldest else "none)"))
-        model_state, self.last_seq, self.last_iteration, last_state, self._cached = self._saved[sid][0]
+        model_state, self.last_seq, self.last_iteration, self._last_state, self._cached = self._saved[sid][0]
         self.model.set_state(model_state)
-        self._last_state = None if last_state is None else (last_state[0].copy(), last_state[1].copy())
         return {"state": sid, "seq": self.last_seq, "iteration": self.last_iteration}
 
     def release(self, msg: dict) -> dict:

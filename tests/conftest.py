@@ -8,6 +8,7 @@ import json
 import numbers
 import os
 import re
+import shutil
 import subprocess
 import sys
 from collections.abc import Mapping, Sequence
@@ -44,6 +45,20 @@ def server() -> str:
     yield srv.address
     srv.stop()
     thread.join(5.0)
+
+
+def build_zmq_msgpack_program(source: Path, exe: Path, *flags: str) -> Path:
+    """Compile a C program against libzmq and msgpack-c into ``exe`` (gcc ``flags``); the test is
+    skipped, naming the Debian packages, when gcc or the headers are not on this machine."""
+    if shutil.which("gcc") is None:
+        pytest.skip("needs gcc (Debian package gcc)")
+    missing = [h for h in ("zmq.h", "msgpack.h") if not Path("/usr/include", h).is_file()]
+    if missing:
+        pytest.skip(f"needs {', '.join(missing)} (Debian packages libzmq3-dev libmsgpack-dev; .ci/run installs them)")
+    out = subprocess.run(["gcc", *flags, "-o", str(exe), str(source), "-lzmq", "-lmsgpackc", "-lm"],
+                         capture_output=True, text=True)
+    assert out.returncode == 0, f"building {source.name} failed (apt-get install libzmq3-dev libmsgpack-dev):\n{out.stderr}"
+    return exe
 
 
 @contextlib.contextmanager

@@ -11,7 +11,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import SPHERE_WATER, regular_waves, scene_toml, serve_process, sphere_body, write_scene
+from conftest import (SPHERE_WATER, build_zmq_msgpack_program, regular_waves, scene_toml, serve_process,
+                      sphere_body, write_scene)
 
 from hydrolink.clients.connection import ServerConnection
 from hydrolink.server.hdb.io import load_hdb
@@ -22,16 +23,8 @@ DT, DURATION, FIT_FROM = 0.02, 80.0, 50.0
 
 @pytest.fixture(scope="module")
 def heave_exe(tmp_path_factory) -> Path:
-    if shutil.which("gcc") is None:
-        pytest.skip("needs gcc (Debian package gcc)")
-    missing = [h for h in ("zmq.h", "msgpack.h") if not Path("/usr/include", h).is_file()]
-    if missing:
-        pytest.skip(f"needs {', '.join(missing)} (Debian packages libzmq3-dev libmsgpack-dev; .ci/run installs them)")
-    exe = tmp_path_factory.mktemp("cclient") / "heave"
-    out = subprocess.run(["gcc", "-O2", "-Wall", "-Wextra", "-Werror", "-o", str(exe), str(SOURCE),
-                          "-lzmq", "-lmsgpackc", "-lm"], capture_output=True, text=True)
-    assert out.returncode == 0, f"building the C client failed:\n{out.stderr}"
-    return exe
+    return build_zmq_msgpack_program(SOURCE, tmp_path_factory.mktemp("cclient") / "heave",
+                                     "-O2", "-Wall", "-Wextra", "-Werror")
 
 
 @pytest.fixture(scope="module")

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import subprocess
 import sys
 import threading
@@ -30,6 +29,7 @@ import numpy as np
 import pytest
 import xarray as xr
 import zmq
+from conftest import build_zmq_msgpack_program
 
 from hydrolink.clients.run import run_scene_file
 from hydrolink.server.service import serve_in_thread
@@ -72,16 +72,8 @@ def controller_process(file: Path, server: str, *extra: str) -> subprocess.Popen
 
 
 def c_controller(tmp_path_factory) -> Path:
-    if shutil.which("gcc") is None:
-        pytest.skip("needs gcc (Debian package gcc)")
-    missing = [h for h in ("zmq.h", "msgpack.h") if not Path("/usr/include", h).is_file()]
-    if missing:
-        pytest.skip(f"needs {', '.join(missing)} (Debian packages libzmq3-dev libmsgpack-dev; .ci/run installs them)")
-    exe = tmp_path_factory.mktemp("cctl") / "reactive"
-    out = subprocess.run(["gcc", "-O2", "-Wall", "-Werror", "-ffp-contract=off", "-o", str(exe),
-                          str(EXAMPLES / "c" / "reactive.c"), "-lzmq", "-lmsgpackc"], capture_output=True, text=True)
-    assert out.returncode == 0, f"building the C controller failed (apt-get install libzmq3-dev libmsgpack-dev):\n{out.stderr}"
-    return exe
+    return build_zmq_msgpack_program(EXAMPLES / "c" / "reactive.c", tmp_path_factory.mktemp("cctl") / "reactive",
+                                     "-O2", "-Wall", "-Werror", "-ffp-contract=off")
 
 
 @pytest.fixture()

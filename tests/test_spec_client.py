@@ -6,9 +6,6 @@ X / (C - w^2 (m + A(w)) - i w B(w)) of the same analytic coefficients, in amplit
 from __future__ import annotations
 
 import ast
-import re
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +13,7 @@ import pytest
 from scipy.special import dawsn
 
 import spec_client
-from conftest import body, regular_waves, scene_toml
+from conftest import body, regular_waves, scene_toml, serve_process
 
 RHO, G = 1000.0, 9.81
 MASS, A_INF, B0, W0 = 3.0e5, 3.0e5, 4.0e5, 1.0     # heave: B(w) = B0 x^2 exp(-x^2), x = w/W0
@@ -92,16 +89,8 @@ def complex_amplitude(t: np.ndarray, y: np.ndarray, w: float) -> complex:
 
 @pytest.fixture(scope="module")
 def server():
-    proc = subprocess.Popen([sys.executable, "-m", "hydrolink.clients.cli", "serve", "--bind", "tcp://127.0.0.1:*"],
-                            stderr=subprocess.PIPE, text=True)
-    try:
-        line = proc.stderr.readline()
-        match = re.search(r"listening on (tcp://\S+)", line)
-        assert match, f"serve printed {line!r}"
-        yield match.group(1)
-    finally:
-        proc.terminate()
-        proc.wait(10)
+    with serve_process() as address:
+        yield address
 
 
 def test_the_client_imports_nothing_of_hydrolink():
