@@ -137,16 +137,20 @@ static int read_config(hl_fmu *f, const char *res) {
             f->na = (int)strtol(value, &end, 10);
             if (f->na <= 0 || f->n_bodies <= 0) goto bad;
             f->flat = calloc((size_t)f->na, sizeof(int));
-            for (int i = 0; i < f->na; i++) f->flat[i] = (int)strtol(end, &end, 10);
+            if (!f->flat) goto bad;
+            for (int i = 0; i < f->na; i++) {
+                f->flat[i] = (int)strtol(end, &end, 10);
+                if (f->flat[i] < 0 || f->flat[i] >= 6 * f->n_bodies) goto bad;   /* an index into 6N */
+            }
         } else if (!strcmp(line, "equilibrium")) {
             f->equilibrium = calloc((size_t)(6 * f->n_bodies), sizeof(double));
-            if (parse_doubles(value, f->equilibrium, 6 * f->n_bodies)) goto bad;
+            if (!f->equilibrium || parse_doubles(value, f->equilibrium, 6 * f->n_bodies)) goto bad;
         } else if (!strcmp(line, "net_buoyancy")) {
             f->net_buoyancy = calloc((size_t)f->na, sizeof(double));
-            if (parse_doubles(value, f->net_buoyancy, f->na)) goto bad;
+            if (!f->net_buoyancy || parse_doubles(value, f->net_buoyancy, f->na)) goto bad;
         } else if (!strcmp(line, "added_mass")) {
             f->a_inf = calloc((size_t)(f->na * f->na), sizeof(double));
-            if (parse_doubles(value, f->a_inf, f->na * f->na)) goto bad;
+            if (!f->a_inf || parse_doubles(value, f->a_inf, f->na * f->na)) goto bad;
         } else if (!strcmp(line, "scene")) {
             snprintf(path, sizeof path, "%s/%s", res, value);
             f->scene = (char *)read_file(path, &size);
@@ -193,6 +197,11 @@ hl_fmu *hl_new(const char *resources, const char *name, hl_log_fn log, void *env
     f->out = calloc((size_t)(5 * f->na), sizeof(double));
     f->pos6 = calloc((size_t)(6 * f->n_bodies), sizeof(double));
     f->vel6 = calloc((size_t)(6 * f->n_bodies), sizeof(double));
+    if (!f->x || !f->v || !f->sent || !f->out || !f->pos6 || !f->vel6) {
+        hl_log(f, 1, "out of memory creating the FMU instance");
+        hl_free(f);
+        return NULL;
+    }
     return f;
 }
 
