@@ -24,6 +24,8 @@ from hydrolink.protocol.hdb_wire import HDBFiles, to_wire
 from hydrolink.protocol.transport import apply_heartbeats
 
 FORCE_FIELDS = ("excitation", "radiation", "hydrostatic")
+# (N, 6) reply fields of scenes with forces beyond linear potential flow, each part of the load (SPEC §5.2)
+EXTRA_FORCE_FIELDS = ("viscous", "morison", "nonlinear_hydrostatic", "nonlinear_froude_krylov")
 ENVELOPE_AND_ERROR = ("v", "type", "msg_id", "session", "parent", "code", "name", "field", "message", "sig")
 WATCH_S = 0.2                 # a pending reply's link is checked this often
 
@@ -216,11 +218,14 @@ class ServerConnection:
         return reply
 
     def hello(self, scene_text: str, hdbs: dict[str, xr.Dataset | HDBFiles], role: str = "multibody",
-              client: dict | None = None, wave_elevation: tuple | None = None) -> Setup:
+              client: dict | None = None, wave_elevation: tuple | None = None,
+              meshes: dict[str, tuple[np.ndarray, np.ndarray]] | None = None) -> Setup:
         """Open a session and return its :class:`Setup`; the session id, the server's name/version,
         the protocol version and the session timeout stay on the connection (``session``,
         ``server_info``, ``protocol``, ``session_timeout``). ``wave_elevation``: the (time, eta)
-        series of a scene with ``[waves] type = "elevation"`` (clients/run.py load_wave_elevation).
+        series of a scene with ``[waves] type = "elevation"`` (clients/run.py load_wave_elevation);
+        ``meshes``: the closed hulls (vertices, faces) of its nonlinear bodies by name
+        (clients/run.py load_scene_hulls).
 
         An HDB given as :class:`HDBFiles` goes by its files' SHA-256 (SPEC §5.8): the contents the
         server lacks (error 13) are uploaded, once each, and the ``hello`` is sent again;
@@ -233,6 +238,9 @@ class ServerConnection:
         extra = {} if wave_elevation is None else {"wave_elevation": {
             "time": np.ascontiguousarray(wave_elevation[0], np.float64),
             "eta": np.ascontiguousarray(wave_elevation[1], np.float64)}}
+        if meshes:
+            extra["meshes"] = {name: {"vertices": np.ascontiguousarray(v, np.float64),
+                                      "faces": np.ascontiguousarray(f, np.int64)} for name, (v, f) in meshes.items()}
         wire = {k: (ds.entry() if isinstance(ds, HDBFiles) else to_wire(ds)) for k, ds in hdbs.items()}
         client = client or {"name": self.client_name, "version": version}
         self.uploads = []
@@ -274,7 +282,7 @@ class ServerConnection:
         reply = self._request("step", timeout, fields, self._maps and measurements is None)
         for k in FORCE_FIELDS:  # (N, 6) like the state sent; the caller checks the values
             reply[k] = codec.require_array(reply, k, position.shape, finite=False)
-        for k in ("viscous", "morison"):        # scenes with those terms (SPEC §5.2)
+        for k in EXTRA_FORCE_FIELDS:        # scenes with those terms (SPEC §5.2)
             if reply.get(k) is not None:
                 reply[k] = codec.require_array(reply, k, position.shape, finite=False)
         eta = reply.get("wave_elevation")

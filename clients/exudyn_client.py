@@ -605,10 +605,12 @@ class ExudynMultibody:
             vis = np.zeros((self.nb, 6))
             vis.reshape(-1)[self._wet_flat] = s.viscous
             self.writer.stage_extra({"viscous_force": vis, "viscous_power": -(vis * row[1]).sum(axis=1)})
-        if s.morison is not None:
-            mor = np.zeros((self.nb, 6))
-            mor.reshape(-1)[self._wet_flat] = s.morison
-            self.writer.stage_extra({"morison_force": mor})
+        for name, part in (("morison_force", s.morison), ("nonlinear_hydrostatic_force", s.nonlinear_hydrostatic),
+                           ("nonlinear_froude_krylov_force", s.nonlinear_froude_krylov)):
+            if part is not None:
+                full = np.zeros((self.nb, 6))
+                full.reshape(-1)[self._wet_flat] = part
+                self.writer.stage_extra({name: full})
         self.writer.commit(t, s.eta)
 
     def measurements(self, step: int) -> dict | None:
@@ -721,6 +723,20 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup | None, writer, 
     if scene.morison:
         writer.add_variable("morison_force", ("body", "dof"), None, "N (surge, sway, heave); N m (roll, pitch, yaw)",
                             "Morison elements' force and moment about the reference point (server)")
+    modes = {b.name: scene.nonlinear_of(b) for b in scene.nonlinear_bodies}
+    if modes:
+        writer.set_attribute("nonlinear", json.dumps(modes))
+        writer.add_variable("nonlinear_hydrostatic_force", ("body", "dof"), None,
+                            "N (surge, sway, heave); N m (roll, pitch, yaw)",
+                            "nonlinear minus linear hydrostatics (server): pressure -rho g z on the instantaneous "
+                            "wetted surface plus the weight, minus net buoyancy and the linear restoring force "
+                            "(hydrostatic_force); total restoring = hydrostatic_force + net buoyancy + this")
+    if "froude-krylov" in modes.values():
+        writer.add_variable("nonlinear_froude_krylov_force", ("body", "dof"), None,
+                            "N (surge, sway, heave); N m (roll, pitch, yaw)",
+                            "nonlinear minus linear Froude-Krylov force (server): the incident wave's pressure on "
+                            "the instantaneous wetted surface under the wave, minus its linear value on the mean "
+                            "wetted surface (part of excitation_force)")
     if any(b.viscous for b in scene.bodies):
         writer.add_variable("viscous_force", ("body", "dof"), None, "N (surge, sway, heave); N m (roll, pitch, yaw)",
                             "viscous damping force -B_lin v - B_quad v|v| about the reference point (server)")

@@ -257,6 +257,9 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup, writer, *,
         raise SceneError("scene", "client.type", "the FMU master needs [client] type = \"fmu\"")
     if scene.morison:
         raise SceneError("scene", "morison", "the FMU master does not apply Morison forces yet; use the Exudyn client")
+    if scene.nonlinear_key():
+        raise SceneError("scene", scene.nonlinear_key(), "the FMU master does not apply nonlinear hydrostatics yet; "
+                         "use the Exudyn client")
     for i, b in enumerate(scene.bodies):
         for key in ("linear_damping", "quadratic_damping", "drag"):
             if getattr(b, key) is not None:

@@ -21,6 +21,8 @@ from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 
+from hydrolink.clients.connection import EXTRA_FORCE_FIELDS
+
 _sum = np.add.reduce   # ndarray.sum without its Python wrapper
 
 #: default bound on |displacement| (m, rad) and |velocity| (m/s, rad/s) before a run is called diverged
@@ -54,7 +56,7 @@ class Sample(NamedTuple):
     """One server reply over the wet bodies' 6N DOFs (body-major); immutable (a tuple: cheap to
     make once a step). ``load`` = excitation + radiation (+ viscous, + morison, for scenes with
     those terms): what the client applies as a force (hydrostatics are in its matrix); :meth:`of`
-    computes it."""
+    computes it. The optional parts are the reply's EXTRA_FORCE_FIELDS, in that order."""
 
     excitation: np.ndarray
     radiation: np.ndarray
@@ -63,16 +65,23 @@ class Sample(NamedTuple):
     load: np.ndarray
     viscous: np.ndarray | None = None
     morison: np.ndarray | None = None
+    nonlinear_hydrostatic: np.ndarray | None = None
+    nonlinear_froude_krylov: np.ndarray | None = None
 
     @classmethod
     def of(cls, excitation: np.ndarray, radiation: np.ndarray, hydrostatic: np.ndarray, eta: float,
-           viscous: np.ndarray | None = None, morison: np.ndarray | None = None) -> "Sample":
+           *extra: np.ndarray | None) -> "Sample":
+        """A sample; ``extra``: the optional parts (None when the scene has no such term)."""
         load = excitation + radiation
-        if viscous is not None:
-            load = load + viscous
-        if morison is not None:
-            load = load + morison
-        return cls(excitation, radiation, hydrostatic, eta, load, viscous, morison)
+        for part in extra:
+            if part is not None:
+                load = load + part
+        return cls(excitation, radiation, hydrostatic, eta, load, *extra)
+
+    @property
+    def extra(self) -> tuple[np.ndarray | None, ...]:
+        """The optional parts, in EXTRA_FORCE_FIELDS order."""
+        return self[5:]
 
     def toward(self, other: "Sample", w: float) -> "Sample":
         """self + w (other − self): linear in time between (w in [0, 1]) or past (w > 1) two samples."""
@@ -80,7 +89,7 @@ class Sample(NamedTuple):
             return None if a is None else a + w * (b - a)
         return Sample.of(lerp(self.excitation, other.excitation), lerp(self.radiation, other.radiation),
                          lerp(self.hydrostatic, other.hydrostatic), self.eta + w * (other.eta - self.eta),
-                         lerp(self.viscous, other.viscous), lerp(self.morison, other.morison))
+                         *(lerp(a, b) for a, b in zip(self.extra, other.extra)))
 
 
 class ForceLink:
@@ -126,10 +135,9 @@ class ForceLink:
         self.decisions = reply.get("control")
         eta = reply["wave_elevation"]
         eta = eta if type(eta) is float else float(np.asarray(eta, float).reshape(-1)[0])
-        vis, mor = reply.get("viscous"), reply.get("morison")
+        extra = (reply.get(k) for k in EXTRA_FORCE_FIELDS)
         s = Sample.of(reply["excitation"].reshape(-1), reply["radiation"].reshape(-1),
-                      reply["hydrostatic"].reshape(-1), eta, None if vis is None else vis.reshape(-1),
-                      None if mor is None else mor.reshape(-1))
+                      reply["hydrostatic"].reshape(-1), eta, *(None if e is None else e.reshape(-1) for e in extra))
         # NaN or inf anywhere makes a sum non-finite (excitation and radiation through their sum)
         if not math.isfinite(float(_sum(s.load)) + float(_sum(s.hydrostatic)) + eta):
             rows = self.writer.rows

@@ -12,6 +12,7 @@ import logging
 from contextlib import ExitStack
 from pathlib import Path
 
+import numpy as np
 import xarray as xr
 
 from hydrolink.protocol.hdb_wire import HDBFiles
@@ -54,6 +55,42 @@ def load_scene_hdbs(scene: Scene, scene_path: str | Path, *, progress: bool = Tr
                              f"the HDB {body.hdb} holds no body {body.hdb_body_name!r} (it holds {names}); "
                              "set hdb_body to one of those")
     return hdbs
+
+
+def load_scene_hulls(scene: Scene, scene_path: str | Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """The closed hulls (vertices, faces) of the scene's nonlinear bodies by name, for
+    ``hello.meshes`` (SPEC §5.1): the body's ``mesh`` file (relative to the scene; any format
+    Capytaine reads), else the hull of its HDB build spec. SceneError naming bodies[i].mesh when
+    there is neither or the file cannot be read; the server checks that each hull is closed."""
+    hulls: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    for i, body in enumerate(scene.bodies):
+        if scene.nonlinear_of(body) == "none":
+            continue
+        key = f"bodies[{i}].mesh"
+        if body.mesh is not None:
+            import capytaine as cpt
+
+            path = resolve_path(scene_path, body.mesh)
+            if not path.is_file():
+                raise SceneError(scene_path, key, f"file not found: {path}")
+            try:
+                mesh = cpt.load_mesh(str(path))
+            except Exception as exc:  # noqa: BLE001 - any reader failure is a bad scene input
+                raise SceneError(scene_path, key, f"cannot read the mesh {path}: {exc}") from None
+            hulls[body.name] = (np.asarray(mesh.vertices, float), np.asarray(mesh.faces))
+            continue
+        spec_path = resolve_path(scene_path, body.hdb)
+        if spec_path.suffix != ".toml":
+            raise SceneError(scene_path, key, f"required: body {body.name!r} has nonlinear hydrostatics "
+                                              f"({scene.nonlinear_of(body)!r}) and its HDB {body.hdb} is not a build spec "
+                                              "to take the hull from; name its closed hull's mesh file")
+        from hydrolink.server.hdb.build_mesh import closed_hull
+        from hydrolink.server.hdb.build_spec import load_spec
+        spec = load_spec(spec_path)
+        names = [b.name for b in spec.all_bodies]
+        index = names.index(body.hdb_body_name) if body.hdb_body_name in names else 0
+        hulls[body.name] = closed_hull(spec, index, spec_path)
+    return hulls
 
 
 def load_wave_elevation(scene: Scene, scene_path: str | Path):
@@ -132,7 +169,7 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
         else:
             conn = stack.enter_context(ServerConnection(server, timeout=timeout, curve=curve, key=key,
                                                         link_timeout=link_timeout))
-        setup = conn.hello(text, hdbs, wave_elevation=series)
+        setup = conn.hello(text, hdbs, wave_elevation=series, meshes=load_scene_hulls(scene, scene_path))
         if scene.controllers:
             import sys
             print(f"hydrolink run: session {conn.session} on {server} waits for controllers "

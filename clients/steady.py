@@ -97,6 +97,10 @@ def check_scene(scene: Scene) -> None:
             raise SteadyError(f"joints[{i}].friction", "joint friction is not supported by hydrolink steady")
     if scene.controllers:
         raise SteadyError("controllers", "a controller's commands are not part of the periodic model")
+    if scene.nonlinear_key():
+        raise SteadyError(scene.nonlinear_key(), "nonlinear hydrostatics are not part of hydrolink steady's model yet "
+                                                 "(its Newton needs their Jacobian in position); run the scene with "
+                                                 "hydrolink run")
     for i, c in enumerate(scene.constraints):
         if c.value != 0.0:
             raise SteadyError(f"constraints[{i}].value", "hydrolink steady needs constraint values of 0 "

@@ -180,11 +180,13 @@ def run_case(task: CaseTask, hdbs: dict, *after) -> CaseOutcome:
 def warm_setup(scene_text: str, hdbs: dict) -> None:
     """Build the server model of a scene once, so that its state-space fits land in the on-disk
     cache the cases of this setup then read. A failure is left to the cases, which report it."""
-    from hydrolink.clients.run import load_wave_elevation
+    from hydrolink.clients.run import load_scene_hulls, load_wave_elevation
     from hydrolink.protocol.scene import parse_scene
     from hydrolink.server.model import HydroModel
+    from hydrolink.server.wetted_surface import closed_hull
     try:
         scene = parse_scene(scene_text, "scene")   # its file paths are absolute
-        HydroModel(scene, {b.name: hdbs[b.hdb] for b in scene.bodies if b.wet}, load_wave_elevation(scene, "scene.toml"))
+        HydroModel(scene, {b.name: hdbs[b.hdb] for b in scene.bodies if b.wet}, load_wave_elevation(scene, "scene.toml"),
+                   hulls={n: closed_hull(v, f) for n, (v, f) in load_scene_hulls(scene, "scene.toml").items()})
     except Exception:  # noqa: BLE001 - the cases will say what is wrong
         pass

@@ -147,6 +147,9 @@ class ElevationWave(_Section):
 Waves = Annotated[Union[StillWater, RegularWave, IrregularWave, ElevationWave], Field(discriminator="type")]
 
 
+Nonlinear = Literal["none", "hydrostatic", "froude-krylov"]
+
+
 class Hydro(_Section):
     irf_duration: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 40.0
     interaction: Literal["full", "none"] = "full"   # body-to-body radiation blocks: all, or none
@@ -161,6 +164,9 @@ class Hydro(_Section):
     ss_max_order: Annotated[int, Field(ge=2, le=60)] = 24
     ss_enforce_stability: bool = True
     coupling_tolerance: Annotated[float, Field(ge=0, lt=1, allow_inf_nan=False)] = 0.0
+    # hydrostatics (and the incident wave's Froude-Krylov force) on the instantaneous wetted surface
+    # of every wet body's hull (server/nonlinear_hydro.py); a body's own ``nonlinear`` overrides it
+    nonlinear: Nonlinear = "none"
 
     @model_validator(mode="after")
     def _orders(self) -> "Hydro":
@@ -245,6 +251,11 @@ class Body(_Section):
     linear_damping: Vector6 | Annotated[list[Vector6], Field(min_length=6, max_length=6)] | None = None
     quadratic_damping: Vector6 | Annotated[list[Vector6], Field(min_length=6, max_length=6)] | None = None
     drag: Drag | None = None
+    # wet bodies: nonlinear hydrostatics / Froude-Krylov for this body (default: [hydro] nonlinear)
+    # and its closed hull, freeboard included (a mesh file Capytaine reads, global frame at
+    # equilibrium; default: the hull of the body's HDB build spec)
+    nonlinear: Nonlinear | None = None
+    mesh: Annotated[str, Field(min_length=1)] | None = None
     # dry bodies only: the node's position (default: the centre of mass) and a constant buoyancy
     reference_point: Vector3 | None = None
     buoyancy_volume: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 0.0
@@ -284,8 +295,9 @@ class Body(_Section):
             raise ValueError("hdb_body: needs hdb")
         elif self.hdb_convention is not None:
             raise ValueError("hdb_convention: needs hdb")
-        if self.drag is not None and self.hdb is None:
-            raise ValueError("drag: only for a wet body (with hdb): the force server applies it")
+        for key in ("drag", "nonlinear", "mesh"):
+            if getattr(self, key) is not None and self.hdb is None:
+                raise ValueError(f"{key}: only for a wet body (with hdb): the force server applies it")
         for key in ("linear_damping", "quadratic_damping"):
             value = getattr(self, key)
             if value is None:
@@ -894,6 +906,26 @@ class Scene(_Section):
     @property
     def wet_bodies(self) -> list[Body]:
         return [b for b in self.bodies if b.wet]
+
+    def nonlinear_of(self, body: Body) -> str:
+        """The body's nonlinear hydrostatics mode: its own ``nonlinear``, else ``[hydro] nonlinear``
+        for a wet body; "none" for a dry one."""
+        if not body.wet:
+            return "none"
+        return body.nonlinear if body.nonlinear is not None else self.hydro.nonlinear
+
+    def nonlinear_key(self) -> str | None:
+        """The key that makes some body's hydrostatics nonlinear (``bodies[i].nonlinear`` or
+        ``hydro.nonlinear``), for a tool that refuses them; None when every body is linear."""
+        for i, b in enumerate(self.bodies):
+            if b.nonlinear not in (None, "none") and b.wet:
+                return f"bodies[{i}].nonlinear"
+        return "hydro.nonlinear" if self.nonlinear_bodies else None
+
+    @property
+    def nonlinear_bodies(self) -> list[Body]:
+        """The wet bodies whose hydrostatics are nonlinear."""
+        return [b for b in self.bodies if self.nonlinear_of(b) != "none"]
 
 
 _UNION_TAGS = ("regular", "irregular", "still", "elevation", "linear", "rotary", "rope", "moordyn", "exudyn", "fmu")

@@ -90,6 +90,9 @@ class Setup:
     # -- the run's extent and the force's direct dependence on the state (None from older servers)
     last_seq: int | None = None                  # the last step index accepted (seq * dt reaches the duration)
     radiation_feedthrough: np.ndarray | None = None  # (6N, 6N): dF_radiation/dv of the velocity sent
+    # bodies with nonlinear hydrostatics: name -> "hydrostatic" | "froude-krylov" (reply fields
+    # nonlinear_hydrostatic / nonlinear_froude_krylov; empty from older servers and linear scenes)
+    nonlinear: dict[str, str] | None = None
 
     @property
     def n(self) -> int:
@@ -155,7 +158,9 @@ class Setup:
             warnings=r.strs("warnings"),
             last_seq=r.int("last_seq") if r.data.get("last_seq") is not None else None,
             radiation_feedthrough=(r.array("radiation_feedthrough", (6 * n, 6 * n))
-                                   if r.data.get("radiation_feedthrough") is not None else None))
+                                   if r.data.get("radiation_feedthrough") is not None else None),
+            nonlinear=({str(k): str(v) for k, v in r.map("nonlinear").items()}
+                       if r.data.get("nonlinear") is not None else None))
 
 
 def _state_space(data: Any) -> StateSpaceReport:

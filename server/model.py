@@ -27,8 +27,10 @@ import xarray as xr
 from hydrolink.protocol.scene import Scene
 from hydrolink.protocol.setup import IRFProcessing, Setup, StateSpaceReport
 from hydrolink.server.errors import ModelError
+from hydrolink.server.wetted_surface import Hull
 from hydrolink.server.hdb.schema import DOF_NAMES, HDBError, select_bodies
 from hydrolink.server.hydrostatics import total_stiffness
+from hydrolink.server.nonlinear_hydro import NonlinearHydro, build_nonlinear
 from hydrolink.server.radiation_options import RadiationGroup, radiation_option
 from hydrolink.server.waves import (ConvolutionForcing, WaveError, WaveForcing, convolution_kernel, elevation_on_grid,
                                     interpolate_excitation, kernel_transfer, wave_components)
@@ -79,10 +81,12 @@ class HydroModel:
     """Linear potential-flow forces for one session (see module docstring)."""
 
     def __init__(self, scene: Scene, hdbs: dict[str, xr.Dataset],
-                 wave_elevation: tuple[np.ndarray, np.ndarray] | None = None):
+                 wave_elevation: tuple[np.ndarray, np.ndarray] | None = None, *,
+                 hulls: dict[str, Hull] | None = None):
         """``hdbs`` maps each wet body's name to its HDB dataset (bodies sharing a file share the
         same object); ``wave_elevation`` the (time, eta) series of ``[waves] type = "elevation"``
-        (read from the scene's file by the client; hello.wave_elevation)."""
+        (read from the scene's file by the client; hello.wave_elevation); ``hulls`` the closed
+        hulls of the bodies with nonlinear hydrostatics by name (hello.meshes)."""
         self.scene = scene
         wet = [i for i, b in enumerate(scene.bodies) if b.wet]
         if not wet:
@@ -150,6 +154,23 @@ class HydroModel:
                 * self.active.reshape(-1)[None, :]
             self._eq_flat = self.equilibrium_position.reshape(-1).copy()
             self._active_mask = self.active.astype(float)
+        self.nonlinear = self._nonlinear(hulls or {})    # None: every body linear, nothing computed
+
+    def _nonlinear(self, hulls: dict[str, Hull]) -> NonlinearHydro | None:
+        """The nonlinear hydrostatics of the scene's nonlinear bodies (server/nonlinear_hydro.py)."""
+        scene = self.scene
+        for i in self._scene_index:
+            body = scene.bodies[i]
+            if scene.nonlinear_of(body) != "none" and body.name not in hulls:
+                raise ModelError(f"bodies[{i}].mesh", f"body {body.name!r} has nonlinear hydrostatics "
+                                 f"({scene.nonlinear_of(body)!r}) but the hello brought no hull for it (meshes, "
+                                 "SPEC §5.1: the client sends the closed hull it reads from the body's mesh or "
+                                 "build spec)")
+        nonlinear = build_nonlinear(scene, self._scene_index, hulls, self.waves, self.equilibrium_position[:, :3],
+                                    self.hydrostatic_stiffness, self._net_buoyancy, self.active)
+        if nonlinear is not None:
+            self.warnings.extend(nonlinear.warnings)
+        return nonlinear
 
     def _group_data(self, ds: xr.Dataset, members: list[int]) -> _GroupData:
         """The group's bodies from its HDB, checked against the scene's depth."""
@@ -381,7 +402,8 @@ class HydroModel:
             elevation_resampled=bool(self.elevation_series.resampled) if self.elevation_series else False,
             elevation_start=float(self.elevation_series.start) if self.elevation_series else 0.0,
             warnings=tuple(self.warnings), last_seq=self.last_seq,
-            radiation_feedthrough=self.radiation_feedthrough.copy())
+            radiation_feedthrough=self.radiation_feedthrough.copy(),
+            nonlinear={b.name: self.scene.nonlinear_of(b) for b in self.scene.nonlinear_bodies})
 
     def radiation_coefficients(self, omega: float) -> tuple[np.ndarray, np.ndarray]:
         """A(omega), B(omega) (6N x 6N over the wet bodies, zero outside the active DOFs and the
@@ -409,7 +431,7 @@ class HydroModel:
 
     def state(self) -> tuple:
         """Everything :meth:`step` changes, copied: the newest step's index and the radiation
-        memories (excitation, hydrostatics, viscous and Morison terms keep no state)."""
+        memories (excitation, hydrostatics, viscous, Morison and nonlinear terms keep no state)."""
         return self._step, tuple(memory.state() for _, memory in self._memories)
 
     def set_state(self, state: tuple) -> None:
@@ -457,4 +479,11 @@ class HydroModel:
             f = self.morison.force(time, (x - self._eq_flat).reshape(-1, 6), v.reshape(-1, 6)) * self._active_mask
             f.flags.writeable = False
             reply["morison"] = f
+        if self.nonlinear is not None:
+            hs, fk = self.nonlinear.force(time, x.reshape(-1, 6))
+            hs.flags.writeable = False
+            reply["nonlinear_hydrostatic"] = hs
+            if any(b.mode == "froude-krylov" for b in self.nonlinear.bodies):
+                fk.flags.writeable = False
+                reply["nonlinear_froude_krylov"] = fk
         return reply

@@ -19,6 +19,7 @@ from hydrolink.protocol.hdb_wire import from_wire
 from hydrolink.server.hdb.schema import HDBError
 from hydrolink.server.hdb_files import FileSetReader, is_file_set
 from hydrolink.server.model import HydroModel, ModelError
+from hydrolink.server.wetted_surface import MeshError, closed_hull
 
 
 def _scene_field(key: str) -> str:
@@ -64,8 +65,20 @@ def build_model(msg: dict, files: FileSetReader | None = None) -> HydroModel:
         we = codec.require_map(msg, "wave_elevation")
         series = (codec.require_array(we, "time", (None,), finite=False, path="wave_elevation.time"),
                   codec.require_array(we, "eta", (None,), finite=False, path="wave_elevation.eta"))
+    hulls = {}
+    if msg.get("meshes") is not None:   # the closed hulls of nonlinear bodies (SPEC §5.1)
+        for name, mesh in codec.require_map(msg, "meshes").items():
+            where = codec.key_path("meshes", str(name))
+            if not isinstance(mesh, dict):
+                raise ProtocolError(Code.BAD_VALUE, where, "must be a map with vertices and faces")
+            vertices = codec.decode_array(codec.require(mesh, "vertices", f"{where}.vertices"), f"{where}.vertices", "f")
+            faces = codec.decode_array(codec.require(mesh, "faces", f"{where}.faces"), f"{where}.faces", "i")
+            try:
+                hulls[str(name)] = closed_hull(vertices, faces)
+            except MeshError as exc:
+                raise ProtocolError(Code.BAD_VALUE, where, f"body {name!r}'s hull: {exc.why}") from None
     try:
-        return HydroModel(scene, {b.name: datasets[b.hdb] for b in scene.wet_bodies}, series)
+        return HydroModel(scene, {b.name: datasets[b.hdb] for b in scene.wet_bodies}, series, hulls=hulls)
     except ModelError as exc:
         raise ProtocolError(Code.BAD_SCENE, _scene_field(exc.key), str(exc)) from None
     except HDBError as exc:

@@ -241,6 +241,17 @@ def sweep_toml(scene: str | Path, *, set: Section | None = None, grid: Section |
     return "\n".join(head) + "\n" + (toml_document(tables) if tables else "")
 
 
+def write_gdf(path: Path, vertices: np.ndarray, faces: np.ndarray) -> Path:
+    """A panel mesh as a WAMIT GDF file (ULEN 1, g 9.81, no symmetry; one quadrilateral a panel,
+    a triangle's last corner repeated), for scenes that name a body's ``mesh``."""
+    quads = np.asarray(faces) if np.shape(faces)[1] == 4 else np.column_stack([faces, np.asarray(faces)[:, 2]])
+    corners = np.asarray(vertices, float)[quads].reshape(-1, 3)
+    lines = ["hydrolink test mesh", "1.0 9.81", "0 0", str(len(quads))]
+    lines += [" ".join(repr(float(c)) for c in p) for p in corners]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
 def write_scene(folder: Path, text: str, name: str = "scene.toml") -> Path:
     """Write scene text into ``folder`` (beside its HDBs, so relative paths resolve) and return the path."""
     path = folder / name

@@ -308,3 +308,18 @@ def test_example_spec_is_valid():
     spec = load_spec(Path(__file__).resolve().parents[1] / "examples" / "cylinder" / "cylinder_hdb.toml")
     assert spec.body.shape == "vertical_cylinder" and spec.frequencies.omega[0] == pytest.approx(0.2)
     assert spec.frequencies.omega[-1] == pytest.approx(6.0)
+
+
+def test_closed_hull_of_a_spec_is_the_whole_body(cylinder):
+    """The hull nonlinear hydrostatics integrate over (build_mesh.closed_hull): closed, freeboard
+    included, with the HDB's displaced volume below the still-water line (the same equal-area
+    polygon as the solved mesh: pi R^2 per metre of height)."""
+    from hydrolink.server.hdb.build_mesh import closed_hull as spec_hull
+    from hydrolink.server.wetted_surface import clip_wet, closed_hull, pressure_load
+
+    spec_path, ds = cylinder
+    hull = closed_hull(*spec_hull(load_spec(spec_path), 0, spec_path))
+    assert hull.volume == pytest.approx(math.pi * 1.5 ** 2 * (0.8 + 0.4), rel=1e-9)
+    corners = hull.vertices[hull.triangles]
+    pts, _, _ = clip_wet(corners, corners[..., 2])
+    assert pressure_load(pts, -pts[..., 2])[2] == pytest.approx(float(ds["displaced_volume"].values[0]), rel=1e-9)

@@ -104,12 +104,9 @@ def _downward(mesh):
     return mesh
 
 
-def _primitive(p: PartSpec, h: float, name: str, depth: float, *, lid: bool, symmetric: bool,
-               even_theta: bool = False):
-    """Hull (immersed part) and lid (or None) of one primitive with panel size h.
-
-    ``symmetric``: use Capytaine's symmetric meshes (only for a lone body). ``even_theta``: a
-    number of sectors divisible by 4, so the merged mesh can be split at y = 0 (xOz symmetry)."""
+def _closed_primitive(p: PartSpec, h: float, name: str, *, symmetric: bool, even_theta: bool, top: float | None):
+    """The closed mesh of one primitive with panel size h, from -draft up to ``top`` (cylinders and
+    boxes; None for a sphere), and its number of sectors and horizontal resolution (for lids)."""
     import capytaine as cpt
 
     cx, cy, cz = p.center
@@ -121,8 +118,6 @@ def _primitive(p: PartSpec, h: float, name: str, depth: float, *, lid: bool, sym
         # equal-area polygon: the waterplane area and displaced volume are exact
         r_mesh = p.radius * math.sqrt(2 * np.pi / (n_theta * math.sin(2 * np.pi / n_theta)))
         n_r = max(2, int(math.ceil(p.radius / h)))
-        # top at +draft when it pierces the surface, so z = 0 falls on a panel edge before clipping
-        top = p.draft if p.top >= 0 else p.top
         n_z = max(2, int(math.ceil((top + p.draft) / h)))
         if p.top >= 0:
             n_z += n_z % 2
@@ -140,7 +135,6 @@ def _primitive(p: PartSpec, h: float, name: str, depth: float, *, lid: bool, sym
         full = cpt.mesh_sphere(radius=p.radius * scale, center=(cx, cy, cz), resolution=(n_z, n_theta),
                                axial_symmetry=symmetric, name=name)
     else:
-        top = p.draft if p.top >= 0 else p.top
         n_z = max(1 if p.top < 0 else 2, int(math.ceil((top + p.draft) / h)))
         if p.top >= 0:
             n_z += n_z % 2
@@ -148,6 +142,21 @@ def _primitive(p: PartSpec, h: float, name: str, depth: float, *, lid: bool, sym
         full = cpt.mesh_parallelepiped(size=(p.length, p.width, top + p.draft),
                                        center=(cx, cy, (top - p.draft) / 2), resolution=res_xy + (n_z,),
                                        reflection_symmetry=symmetric and cx == 0 and cy == 0, name=name)
+    return full, n_theta, res_xy
+
+
+def _primitive(p: PartSpec, h: float, name: str, depth: float, *, lid: bool, symmetric: bool,
+               even_theta: bool = False):
+    """Hull (immersed part) and lid (or None) of one primitive with panel size h.
+
+    ``symmetric``: use Capytaine's symmetric meshes (only for a lone body). ``even_theta``: a
+    number of sectors divisible by 4, so the merged mesh can be split at y = 0 (xOz symmetry)."""
+    import capytaine as cpt
+
+    cx, cy, _ = p.center
+    # top at +draft when it pierces the surface, so z = 0 falls on a panel edge before clipping
+    full, n_theta, res_xy = _closed_primitive(p, h, name, symmetric=symmetric, even_theta=even_theta,
+                                              top=None if p.shape == "sphere" else p.draft if p.top >= 0 else p.top)
     hull = full.immersed_part(water_depth=depth)
     if not (lid and p.pierces and hull.nb_faces):
         return hull, None
@@ -219,6 +228,30 @@ def body_meshes(spec: BuildSpec, index: int, spec_path: str | Path, *, lone: boo
     if body.lid and lid is None and body.shape != "mesh" and any(p.pierces for p in body.global_parts()):
         warnings.warn(f"{spec_path}: {key}.lid: no lid could be built; solving without one", stacklevel=3)
     return hull, lid
+
+
+def closed_hull(spec: BuildSpec, index: int, spec_path: str | Path):
+    """The whole closed hull of ``spec.all_bodies[index]`` (freeboard and deck included, no lid),
+    global frame, as (vertices (V, 3), faces (F, 4)): what nonlinear hydrostatics integrate over
+    (server/nonlinear_hydro.py). Primitives use the body's panel size; a mesh body is its file."""
+    import capytaine as cpt
+
+    body, key = spec.all_bodies[index], spec.body_keys[index]
+    if body.shape == "mesh":
+        path = mesh_path(body, spec_path)
+        try:
+            full = cpt.load_mesh(str(path), body.mesh_format) if body.mesh_format else cpt.load_mesh(str(path))
+        except Exception as exc:  # noqa: BLE001 - any reader failure is a bad spec input
+            raise SpecError(spec_path, f"{key}.mesh", f"cannot read mesh {path}: {exc}") from None
+        if any(body.center):
+            full = full.translated(tuple(body.center))
+        meshes = [full]
+    else:
+        h_body = body.panel_size or default_panel_size(spec, body)
+        meshes = [_closed_primitive(p, p.panel_size or h_body, body.name, symmetric=False, even_theta=False,
+                                    top=None if p.shape == "sphere" else p.top)[0] for p in body.global_parts()]
+    joined = _join(meshes, body.name)
+    return np.asarray(joined.vertices, float), np.asarray(joined.faces)
 
 
 def xoz_symmetric(mesh, tol: float = 1e-9):

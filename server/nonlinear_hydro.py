@@ -1,0 +1,189 @@
+"""Nonlinear hydrostatics and Froude–Krylov forces on the instantaneous wetted surface (issue 10;
+``[hydro] nonlinear`` or a body's ``nonlinear``; docs/forces.md).
+
+Each step, for every nonlinear body, its closed hull (server/wetted_surface.py) is put in the pose
+the client sent (reference point + Tait–Bryan angles), cut at the free surface and the pressure
+integrated over the wet part:
+
+- ``"hydrostatic"``: the still-water plane z = 0 and p = -rho g z;
+- ``"froude-krylov"``: the undisturbed incident wave's surface z = eta(x, y, t) and
+  p = -rho g z + p_FK, with the linear incident-wave pressure p_FK = rho g Re sum_c a_c e^{i(theta_c -
+  w_c t)} f_c(z_s) (ramp included) at the Wheeler-stretched height z_s = h (z - eta) / (h + eta)
+  (z - eta in deep water): the total pressure is zero on the free surface.
+
+The body's weight moves with it (its moment about the reference point follows the rotation). The
+client keeps applying the linear parts it already has (the hydrostatic stiffness in its matrix,
+the net buoyancy, the HDB's excitation), so this term sends the **difference** to them, two reply
+fields over the wet bodies (zero for linear bodies and inactive DOFs):
+
+    nonlinear_hydrostatic   = F_p,hs(x) + F_weight(x) - (net buoyancy e_z - C (x - x_eq))
+    nonlinear_froude_krylov = F_p,FK(x, t) - F_FK,lin(t)
+
+F_FK,lin is the same pressure integrated over the hull's mean wetted surface (z <= 0 at rest,
+unstretched): in small motion and small waves both differences vanish and the run is the linear
+one (up to the HDB's own hydrostatics against the mesh's). The diffraction part stays linear."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from hydrolink.protocol.scene import Scene
+from hydrolink.server.kinematics import wave_number
+from hydrolink.server.waves import WaveComponents, ramp_factor
+from hydrolink.server.wetted_surface import Hull, clip_wet, interpolate, pressure_load, rotation_xyz
+
+__all__ = ["NonlinearBody", "NonlinearHydro", "build_nonlinear"]
+
+
+def _depth_factor(k: np.ndarray, z: np.ndarray, depth: float) -> np.ndarray:
+    """cosh(k (z + h)) / cosh(k h) for z <= 0 (e^{kz} in deep water), (P, n_c), overflow-safe."""
+    kz = k[None, :] * z[:, None]
+    if math.isinf(depth):
+        return np.exp(kz)
+    return (np.exp(kz) + np.exp(-k[None, :] * (z[:, None] + 2 * depth))) / (1.0 + np.exp(-2 * k * depth))[None, :]
+
+
+@dataclass(frozen=True)
+class NonlinearBody:
+    """One nonlinear body: where it sits among the wet bodies and what its linear model holds."""
+    index: int              # position among the server's wet bodies
+    mode: str               # "hydrostatic" | "froude-krylov"
+    hull: Hull
+    reference: np.ndarray   # (3,) reference point at equilibrium
+    weight: float           # m g [N]
+    lever: np.ndarray       # (3,) centre of mass minus reference point, at equilibrium
+    linear_net: float       # the net buoyancy rho g V - m g the client applies (setup.net_buoyancy)
+    stiffness: np.ndarray   # (6, 6) the body's block of setup.hydrostatic_stiffness (active DOFs only)
+    fk_linear: np.ndarray | None   # (6, n_c) phasors of the Froude–Krylov force on the mean wetted surface
+    active: np.ndarray      # (6,) 1.0 on active DOFs
+
+
+class NonlinearHydro:
+    """The nonlinear hydrostatic and Froude–Krylov differences for a scene's nonlinear bodies."""
+
+    def __init__(self, bodies: list[NonlinearBody], waves: WaveComponents, rho: float, g: float, depth: float,
+                 n_bodies: int):
+        self.bodies, self.rho, self.g, self.depth, self.n_bodies = bodies, rho, g, depth, n_bodies
+        self.ramp = waves.ramp
+        self.still = waves.size == 0
+        self.omega = waves.omega.copy()
+        if not self.still:
+            self.k = np.array([wave_number(float(w), g, depth) for w in waves.omega])
+            beta = waves.heading_of()
+            self.kx, self.ky = self.k * np.cos(beta), self.k * np.sin(beta)
+            self.amp = waves.amplitude * np.exp(1j * waves.phase)
+        self.wet_area = np.zeros(n_bodies)   # the newest step's wetted area per body [m^2]
+        self.warnings: list[str] = []
+
+    def _phasors(self, pts: np.ndarray) -> np.ndarray:
+        """a_c e^{i theta_c(x, y)} at points (P, 3): (P, n_c)."""
+        return self.amp[None, :] * np.exp(1j * (np.outer(pts[:, 0], self.kx) + np.outer(pts[:, 1], self.ky)))
+
+    def _fk_pressure(self, pts: np.ndarray, e: np.ndarray, eta: np.ndarray | None) -> np.ndarray:
+        """p_FK / (rho g) at points (P, 3) with phasors ``e`` (P, n_c) times e^{-iwt} and ramp; ``eta``
+        (P,) the elevation there for Wheeler stretching (None: unstretched, z clipped at 0)."""
+        z = np.minimum(pts[:, 2], 0.0) if eta is None else self._stretched(pts[:, 2], eta)
+        return np.real(np.sum(e * _depth_factor(self.k, z, self.depth), axis=1))
+
+    def _stretched(self, z: np.ndarray, eta: np.ndarray) -> np.ndarray:
+        if math.isinf(self.depth):
+            return np.minimum(z - eta, 0.0)
+        h = self.depth
+        return np.minimum(h * (z - eta) / (h + eta), 0.0)
+
+    def fk_linear_phasors(self, hull: Hull, reference: np.ndarray) -> np.ndarray:
+        """(6, n_c) complex: the Froude–Krylov force and moment of each wave component (unit time
+        factor e^{-iwt}) over the hull's wetted surface at rest, unstretched."""
+        corners = (hull.vertices + reference)[hull.triangles]
+        pts, _, _ = clip_wet(corners, corners[..., 2])
+        flat = pts.reshape(-1, 3)
+        p = self.rho * self.g * self._phasors(flat) * _depth_factor(self.k, np.minimum(flat[:, 2], 0.0), self.depth)
+        p = p.reshape(len(pts), 3, -1)
+        lever = pts - reference
+        return pressure_load(lever, p.real) + 1j * pressure_load(lever, p.imag)
+
+    def force(self, t: float, position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The two differences (N, 6) each (module docstring) for the absolute poses (N, 6)."""
+        hs, fk = np.zeros((self.n_bodies, 6)), np.zeros((self.n_bodies, 6))
+        rg = self.rho * self.g
+        ramp = ramp_factor(t, self.ramp)
+        time_factor = None if self.still else ramp * np.exp(-1j * self.omega * t)
+        for b in self.bodies:
+            pose = position[b.index]
+            rot = rotation_xyz(pose[3:])
+            verts = pose[:3] + b.hull.vertices @ rot.T
+            waves = b.mode == "froude-krylov" and not self.still
+            if waves:
+                e = self._phasors(verts) * time_factor[None, :]
+                eta = np.real(e.sum(axis=1))
+            else:
+                eta = np.zeros(len(verts))
+            tris = b.hull.triangles
+            pts, src, w = clip_wet(verts[tris], (verts[:, 2] - eta)[tris])
+            lever = pts - pose[:3]
+            z = pts[..., 2]
+            f_hs = pressure_load(lever, -rg * z)
+            weight = np.array([0.0, 0.0, -b.weight])
+            f_hs[2] -= b.weight
+            f_hs[3:] += np.cross(rot @ b.lever, weight)
+            x = np.concatenate([pose[:3] - b.reference, pose[3:]])
+            linear = -b.stiffness @ x
+            linear[2] += b.linear_net
+            hs[b.index] = (f_hs - linear) * b.active
+            self.wet_area[b.index] = float(np.linalg.norm(0.5 * np.cross(pts[:, 1] - pts[:, 0], pts[:, 2] - pts[:, 0]),
+                                                          axis=1).sum())
+            if b.mode != "froude-krylov" or self.still:
+                continue
+            wet_v = np.unique(tris[src])
+            p_v = np.zeros(len(verts))
+            p_v[wet_v] = self._fk_pressure(verts[wet_v], e[wet_v], eta[wet_v])
+            p_c = interpolate(p_v[tris], src, w)
+            cut = w[..., 2] < 1.0
+            p_c[cut] = z[cut]           # on the free surface p_FK = rho g eta = rho g z (stretched)
+            f_fk = pressure_load(lever, rg * p_c)
+            f_lin = np.real(b.fk_linear @ time_factor)
+            fk[b.index] = (f_fk - f_lin) * b.active
+        return hs, fk
+
+
+def build_nonlinear(scene: Scene, wet: list[int], hulls: dict[str, Hull], waves: WaveComponents,
+                    references: np.ndarray, stiffness: np.ndarray, net_buoyancy: list[float | None],
+                    active: np.ndarray) -> NonlinearHydro | None:
+    """The scene's nonlinear bodies over the server's wet bodies (scene indices ``wet``), or None
+    when every body is linear. ``hulls`` by body name (checked by the caller: one for each
+    nonlinear body); ``stiffness`` the setup's (6N, 6N) hydrostatic stiffness, ``net_buoyancy``
+    the setup's per wet body (None: none applied)."""
+    water = scene.water
+    model = NonlinearHydro([], waves, water.density, water.gravity, water.depth_m, len(wet))
+    bodies = []
+    for k, i in enumerate(wet):
+        body = scene.bodies[i]
+        mode = scene.nonlinear_of(body)
+        if mode == "none":
+            continue
+        ref = np.asarray(references[k], float)
+        hull = Hull(hulls[body.name].vertices - ref, hulls[body.name].triangles, hulls[body.name].volume)
+        fk = model.fk_linear_phasors(hull, ref) if mode == "froude-krylov" and waves.size else None
+        at_rest = hull.vertices[hull.triangles]
+        pts, _, _ = clip_wet(at_rest, at_rest[..., 2] + ref[2])
+        volume = float(pressure_load(pts, -(pts[..., 2] + ref[2]))[2])    # buoyancy / (rho g) at rest
+        linear_volume = (float(net_buoyancy[k]) + body.mass * water.gravity) / (water.density * water.gravity) \
+            if net_buoyancy[k] is not None else None
+        if linear_volume is not None and abs(volume - linear_volume) > 0.01 * linear_volume:
+            model.warnings.append(
+                f"bodies[{i}].mesh: the hull of body {body.name!r} displaces {volume:.6g} m^3 at rest, its HDB "
+                f"{linear_volume:.6g} m^3 ({100 * (volume / linear_volume - 1):+.3g} %): the nonlinear hydrostatic "
+                f"force holds the difference, {water.density * water.gravity * (volume - linear_volume):.4g} N, "
+                "from the start")
+        bodies.append(NonlinearBody(
+            index=k, mode=mode, hull=hull, reference=ref, weight=body.mass * water.gravity,
+            lever=body.com_or(ref) - ref, linear_net=float(net_buoyancy[k] or 0.0),
+            stiffness=stiffness[6 * k:6 * k + 6, 6 * k:6 * k + 6].copy(), fk_linear=fk,
+            active=active[k].astype(float)))
+    if not bodies:
+        return None
+    model.bodies = bodies
+    return model
