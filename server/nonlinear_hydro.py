@@ -33,7 +33,7 @@ import numpy as np
 from hydrolink.protocol.scene import Scene
 from hydrolink.server.kinematics import wave_number
 from hydrolink.server.waves import WaveComponents, ramp_factor
-from hydrolink.server.wetted_surface import Hull, clip_wet, interpolate, pressure_load, rotation_xyz
+from hydrolink.server.wetted_surface import Hull, clip_wet, corner_loads, interpolate, pressure_load, rotation_xyz
 
 __all__ = ["NonlinearBody", "NonlinearHydro", "build_nonlinear"]
 
@@ -51,7 +51,8 @@ class NonlinearBody:
     """One nonlinear body: where it sits among the wet bodies and what its linear model holds."""
     index: int              # position among the server's wet bodies
     mode: str               # "hydrostatic" | "froude-krylov"
-    hull: Hull
+    hull: Hull              # relative to the reference point
+    loads: np.ndarray       # (3T, 6) its triangles' corner_loads in the body's frame, corners flattened
     reference: np.ndarray   # (3,) reference point at equilibrium
     weight: float           # m g [N]
     lever: np.ndarray       # (3,) centre of mass minus reference point, at equilibrium
@@ -75,7 +76,6 @@ class NonlinearHydro:
             beta = waves.heading_of()
             self.kx, self.ky = self.k * np.cos(beta), self.k * np.sin(beta)
             self.amp = waves.amplitude * np.exp(1j * waves.phase)
-        self.wet_area = np.zeros(n_bodies)   # the newest step's wetted area per body [m^2]
         self.warnings: list[str] = []
 
     def _phasors(self, pts: np.ndarray) -> np.ndarray:
@@ -98,7 +98,7 @@ class NonlinearHydro:
         """(6, n_c) complex: the Froude–Krylov force and moment of each wave component (unit time
         factor e^{-iwt}) over the hull's wetted surface at rest, unstretched."""
         corners = (hull.vertices + reference)[hull.triangles]
-        pts, _, _ = clip_wet(corners, corners[..., 2])
+        pts, _ = clip_wet(corners, corners[..., 2])
         flat = pts.reshape(-1, 3)
         p = self.rho * self.g * self._phasors(flat) * _depth_factor(self.k, np.minimum(flat[:, 2], 0.0), self.depth)
         p = p.reshape(len(pts), 3, -1)
@@ -106,46 +106,51 @@ class NonlinearHydro:
         return pressure_load(lever, p.real) + 1j * pressure_load(lever, p.imag)
 
     def force(self, t: float, position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The two differences (N, 6) each (module docstring) for the absolute poses (N, 6)."""
+        """The two differences (N, 6) each (module docstring) for the absolute poses (N, 6).
+
+        The wholly wet triangles' integral is linear in their corner pressures with coefficients
+        fixed in the body's frame (``NonlinearBody.loads``): one matrix-vector product; only the
+        triangles the free surface cuts go through :func:`clip_wet`. Loads are summed in the body's
+        frame about its reference point and turned to the global axes at the end."""
         hs, fk = np.zeros((self.n_bodies, 6)), np.zeros((self.n_bodies, 6))
         rg = self.rho * self.g
-        ramp = ramp_factor(t, self.ramp)
-        time_factor = None if self.still else ramp * np.exp(-1j * self.omega * t)
+        time_factor = None if self.still else ramp_factor(t, self.ramp) * np.exp(-1j * self.omega * t)
         for b in self.bodies:
             pose = position[b.index]
             rot = rotation_xyz(pose[3:])
-            verts = pose[:3] + b.hull.vertices @ rot.T
+            local, tris = b.hull.vertices, b.hull.triangles
+            verts = pose[:3] + local @ rot.T
             waves = b.mode == "froude-krylov" and not self.still
-            if waves:
-                e = self._phasors(verts) * time_factor[None, :]
-                eta = np.real(e.sum(axis=1))
-            else:
-                eta = np.zeros(len(verts))
-            tris = b.hull.triangles
-            pts, src, w = clip_wet(verts[tris], (verts[:, 2] - eta)[tris])
-            lever = pts - pose[:3]
-            z = pts[..., 2]
-            f_hs = pressure_load(lever, -rg * z)
-            weight = np.array([0.0, 0.0, -b.weight])
+            e = self._phasors(verts) * time_factor[None, :] if waves else None
+            eta = np.real(e.sum(axis=1)) if waves else 0.0
+            d = verts[:, 2] - eta
+            wet = d[tris] <= 0.0
+            count = wet.sum(axis=1)
+            full = (count == 3).astype(float)[:, None]                       # (T, 1)
+            part = np.flatnonzero((count == 1) | (count == 2))
+            pts, cut = clip_wet(local[tris[part]], d[tris[part]])           # body frame
+            z = interpolate(verts[tris[part], 2], cut)                       # global heights of their corners
+            z_v = verts[:, 2]
+            load = (-rg * z_v[tris] * full).reshape(-1) @ b.loads + pressure_load(pts, -rg * z)
+            f_hs = np.concatenate([rot @ load[:3], rot @ load[3:]])
             f_hs[2] -= b.weight
-            f_hs[3:] += np.cross(rot @ b.lever, weight)
+            arm = rot @ b.lever
+            f_hs[3:] += [-arm[1] * b.weight, arm[0] * b.weight, 0.0]       # arm x (0, 0, -m g)
             x = np.concatenate([pose[:3] - b.reference, pose[3:]])
             linear = -b.stiffness @ x
             linear[2] += b.linear_net
             hs[b.index] = (f_hs - linear) * b.active
-            self.wet_area[b.index] = float(np.linalg.norm(0.5 * np.cross(pts[:, 1] - pts[:, 0], pts[:, 2] - pts[:, 0]),
-                                                          axis=1).sum())
-            if b.mode != "froude-krylov" or self.still:
+            if not waves:
                 continue
-            wet_v = np.unique(tris[src])
+            wet_v = np.flatnonzero(d <= 0.0)
             p_v = np.zeros(len(verts))
             p_v[wet_v] = self._fk_pressure(verts[wet_v], e[wet_v], eta[wet_v])
-            p_c = interpolate(p_v[tris], src, w)
-            cut = w[..., 2] < 1.0
-            p_c[cut] = z[cut]           # on the free surface p_FK = rho g eta = rho g z (stretched)
-            f_fk = pressure_load(lever, rg * p_c)
-            f_lin = np.real(b.fk_linear @ time_factor)
-            fk[b.index] = (f_fk - f_lin) * b.active
+            p_c = interpolate(p_v[tris[part]], cut)
+            surface = cut.s < 1.0
+            p_c[surface] = z[surface]   # on the free surface p_FK = rho g eta = rho g z (stretched)
+            load = rg * ((p_v[tris] * full).reshape(-1) @ b.loads + pressure_load(pts, p_c))
+            f_fk = np.concatenate([rot @ load[:3], rot @ load[3:]])
+            fk[b.index] = (f_fk - np.real(b.fk_linear @ time_factor)) * b.active
         return hs, fk
 
 
@@ -168,7 +173,7 @@ def build_nonlinear(scene: Scene, wet: list[int], hulls: dict[str, Hull], waves:
         hull = Hull(hulls[body.name].vertices - ref, hulls[body.name].triangles, hulls[body.name].volume)
         fk = model.fk_linear_phasors(hull, ref) if mode == "froude-krylov" and waves.size else None
         at_rest = hull.vertices[hull.triangles]
-        pts, _, _ = clip_wet(at_rest, at_rest[..., 2] + ref[2])
+        pts, _ = clip_wet(at_rest, at_rest[..., 2] + ref[2])
         volume = float(pressure_load(pts, -(pts[..., 2] + ref[2]))[2])    # buoyancy / (rho g) at rest
         linear_volume = (float(net_buoyancy[k]) + body.mass * water.gravity) / (water.density * water.gravity) \
             if net_buoyancy[k] is not None else None
@@ -179,7 +184,7 @@ def build_nonlinear(scene: Scene, wet: list[int], hulls: dict[str, Hull], waves:
                 f"force holds the difference, {water.density * water.gravity * (volume - linear_volume):.4g} N, "
                 "from the start")
         bodies.append(NonlinearBody(
-            index=k, mode=mode, hull=hull, reference=ref, weight=body.mass * water.gravity,
+            index=k, mode=mode, hull=hull, loads=corner_loads(hull.vertices[hull.triangles]).reshape(-1, 6), reference=ref, weight=body.mass * water.gravity,
             lever=body.com_or(ref) - ref, linear_net=float(net_buoyancy[k] or 0.0),
             stiffness=stiffness[6 * k:6 * k + 6, 6 * k:6 * k + 6].copy(), fk_linear=fk,
             active=active[k].astype(float)))

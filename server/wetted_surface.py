@@ -19,10 +19,12 @@ sum p_i sum r_i)).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["Hull", "MeshError", "clip_wet", "closed_hull", "interpolate", "pressure_load", "rotation_xyz"]
+__all__ = ["Cut", "Hull", "MeshError", "clip_wet", "closed_hull", "corner_loads", "interpolate", "pressure_load",
+           "rotation_xyz"]
 
 
 class MeshError(ValueError):
@@ -56,9 +58,16 @@ def rotation_xyz(angles: np.ndarray) -> np.ndarray:
     return rx @ ry @ rz
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a x b over the last axis (broadcast; np.cross without its axis handling, for the hot path)."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+
+
 def _area_vectors(corners: np.ndarray) -> np.ndarray:
     """(T, 3) area vectors of triangles given as (T, 3, 3) corners."""
-    return 0.5 * np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    return 0.5 * _cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
 
 
 def closed_hull(vertices: np.ndarray, faces: np.ndarray) -> Hull:
@@ -115,65 +124,62 @@ def closed_hull(vertices: np.ndarray, faces: np.ndarray) -> Hull:
     return Hull(verts, np.ascontiguousarray(tris), volume)
 
 
-def clip_wet(corners: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The wet part (d <= 0) of triangles with corners (T, 3, 3) and signed heights d (T, 3) above
-    the free surface, as triangles.
+class Cut(NamedTuple):
+    """Where each corner of :func:`clip_wet`'s triangles lies: point = s c_i + (1 - s) c_j with c_i,
+    c_j corners (local indices 0..2) of its source triangle ``src`` (s = 1, i = j for an original
+    corner; s < 1 on the free surface)."""
+    src: np.ndarray     # (W,)
+    i: np.ndarray       # (W, 3)
+    j: np.ndarray       # (W, 3)
+    s: np.ndarray       # (W, 3)
 
-    Returns their corners (W, 3, 3), the source triangle of each (W,) and, per corner, the weight
-    of the first of the two original corners it lies between together with those corners' local
-    indices: (W, 3, 3) as (i, j, s) with the point = s c_i + (1 - s) c_j (s = 1, i = j for an
-    original corner). A caller interpolates any per-corner quantity with the same weights."""
+
+def clip_wet(corners: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, Cut]:
+    """The wet part (d <= 0) of triangles with corners (T, 3, 3) and signed heights d (T, 3) above
+    the free surface, as triangles (W, 3, 3) with the same orientation, and where their corners
+    come from (:class:`Cut`; :func:`interpolate` carries any per-corner quantity over).
+
+    A triangle with one wet corner a (the corners rolled so that the odd one is first) keeps
+    (a, ab, ac); with two wet corners b, c it becomes (b, c, ca) and (b, ca, ab), ab the point of
+    the edge a-b where d = 0 (linear interpolation)."""
     wet = d <= 0.0
     n_wet = wet.sum(axis=1)
-    t_all = np.flatnonzero(n_wet == 3)
-    t_one = np.flatnonzero(n_wet == 1)
-    t_two = np.flatnonzero(n_wet == 2)
-    # the odd corner (the wet one of one-wet triangles, the dry one of two-wet ones) first, keeping
-    # the orientation: (a, b, c) with a odd
-    odd_one = np.argmax(wet[t_one], axis=1)
-    odd_two = np.argmin(wet[t_two], axis=1)
-
-    def cut(tri, a, b):
-        """Weight s of corner a on the edge a-b where d = 0 (point = s c_a + (1 - s) c_b)."""
-        da, db = d[tri, a], d[tri, b]
-        return db / (db - da)
-
-    specs = []   # (triangles, (i, j, s) for three corners)
-    ones = np.ones(len(t_all))
-    specs.append((t_all, [(np.zeros(len(t_all), int), np.zeros(len(t_all), int), ones),
-                          (np.ones(len(t_all), int), np.ones(len(t_all), int), ones),
-                          (np.full(len(t_all), 2), np.full(len(t_all), 2), ones)]))
-    a, b, c = odd_one, (odd_one + 1) % 3, (odd_one + 2) % 3
-    one = np.ones(len(t_one))
-    specs.append((t_one, [(a, a, one), (a, b, cut(t_one, a, b)), (a, c, cut(t_one, a, c))]))
-    a, b, c = odd_two, (odd_two + 1) % 3, (odd_two + 2) % 3
-    one = np.ones(len(t_two))
-    s_ab, s_ac = cut(t_two, b, a), cut(t_two, c, a)     # weights of the wet corners b, c
-    specs.append((t_two, [(b, b, one), (c, c, one), (c, a, s_ac)]))
-    specs.append((t_two, [(b, b, one), (c, a, s_ac), (b, a, s_ab)]))
-    src = np.concatenate([t for t, _ in specs])
-    w = np.zeros((len(src), 3, 3))
-    k = 0
-    for tri, cs in specs:
-        n = len(tri)
-        for m, (i, j, s) in enumerate(cs):
-            w[k:k + n, m, 0], w[k:k + n, m, 1], w[k:k + n, m, 2] = i, j, s
+    full = np.flatnonzero(n_wet == 3)
+    part = np.flatnonzero((n_wet == 1) | (n_wet == 2))
+    two = n_wet[part] == 2
+    a = np.where(two, np.argmin(wet[part], axis=1), np.argmax(wet[part], axis=1))   # the odd corner
+    b, c = (a + 1) % 3, (a + 2) % 3
+    dp = d[part]
+    rows = np.arange(len(part))
+    da, db, dc = dp[rows, a], dp[rows, b], dp[rows, c]
+    s_ab, s_ac = db / (db - da), dc / (dc - da)          # weight of a on a-b and on a-c
+    ones = np.ones(len(part))
+    # (i, j, s) of the three corners of the new triangles: one wet corner, then two (two triangles)
+    shapes = ((~two, ((a, a, ones), (a, b, s_ab), (a, c, s_ac))),
+              (two, ((b, b, ones), (c, c, ones), (a, c, s_ac))),
+              (two, ((b, b, ones), (a, c, s_ac), (a, b, s_ab))))
+    n_full = len(full)
+    src = np.concatenate([full] + [part[sel] for sel, _ in shapes])
+    i = np.empty((len(src), 3), int)
+    j = np.empty((len(src), 3), int)
+    s = np.empty((len(src), 3))
+    i[:n_full], j[:n_full], s[:n_full] = np.arange(3), np.arange(3), 1.0
+    k = n_full
+    for sel, corners_of in shapes:
+        n = int(sel.sum())
+        for m, (ii, jj, ss) in enumerate(corners_of):
+            i[k:k + n, m], j[k:k + n, m], s[k:k + n, m] = ii[sel], jj[sel], ss[sel]
         k += n
-    i, j, s = w[..., 0].astype(int), w[..., 1].astype(int), w[..., 2]
-    c_src = corners[src]
-    rows = np.arange(len(src))[:, None]
-    pts = s[..., None] * c_src[rows, i] + (1 - s)[..., None] * c_src[rows, j]
-    return pts, src, w
+    cut = Cut(src, i, j, s)
+    return interpolate(corners, cut), cut
 
 
-def interpolate(values: np.ndarray, src: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """A per-corner quantity (T, 3, ...) of the source triangles at the clipped triangles' corners
-    (:func:`clip_wet`'s ``src`` and weights)."""
-    i, j, s = w[..., 0].astype(int), w[..., 1].astype(int), w[..., 2]
-    v = values[src]
-    rows = np.arange(len(src))[:, None]
-    s = s.reshape(s.shape + (1,) * (v.ndim - 2))
-    return s * v[rows, i] + (1 - s) * v[rows, j]
+def interpolate(values: np.ndarray, cut: Cut) -> np.ndarray:
+    """A per-corner quantity (T, 3, ...) of the source triangles at the clipped triangles' corners."""
+    v = values[cut.src]
+    rows = np.arange(len(cut.src))[:, None]
+    s = cut.s.reshape(cut.s.shape + (1,) * (v.ndim - 2))
+    return s * v[rows, cut.i] + (1 - s) * v[rows, cut.j]
 
 
 def pressure_load(corners: np.ndarray, pressure: np.ndarray) -> np.ndarray:
@@ -181,12 +187,20 @@ def pressure_load(corners: np.ndarray, pressure: np.ndarray) -> np.ndarray:
     (W, 3, 3) (relative to the reference point) of wet triangles, pushing on the body (-p n);
     exact for a pressure linear over each triangle (module docstring). Trailing pressure
     dimensions (e.g. one per wave component) are kept."""
-    s = _area_vectors(corners)
-    p_sum = pressure.sum(axis=1)                                          # (W, ...)
-    force = -np.einsum("w...,wi->i...", p_sum, s) / 3.0
-    lever = np.einsum("wk...,wki->wi...", pressure, corners) + np.einsum("w...,wi->wi...", p_sum, corners.sum(axis=1))
-    sx, sy, sz = (s[:, i].reshape((-1,) + (1,) * (pressure.ndim - 2)) for i in range(3))
-    lx, ly, lz = lever[:, 0], lever[:, 1], lever[:, 2]
-    moment = -np.stack([(ly * sz - lz * sy).sum(axis=0), (lz * sx - lx * sz).sum(axis=0),
-                        (lx * sy - ly * sx).sum(axis=0)]) / 12.0
-    return np.concatenate([force, moment])
+    loads = corner_loads(corners).reshape(-1, 6)
+    flat = pressure.reshape((loads.shape[0], -1))
+    return (loads.T @ flat).reshape((6,) + pressure.shape[2:])
+
+
+def corner_loads(corners: np.ndarray) -> np.ndarray:
+    """(T, 3, 6): the load (force, moment about the origin) per unit pressure at each corner of
+    triangles (T, 3, 3), so that :func:`pressure_load` of corner pressures p (T, 3) is
+    ``einsum("tc,tck->k", p, corner_loads(corners))``: the integral is linear in the corner values
+    (module docstring: F = -sum S (p1 + p2 + p3) / 3, M = -sum (1/12) sum_i p_i (r_i + sum_j r_j) x S).
+    For a hull that moves rigidly, computed once in its own frame and rotated with the body."""
+    s = _area_vectors(corners)[:, None, :]                               # (T, 1, 3)
+    q = corners + corners.sum(axis=1, keepdims=True)                     # (T, 3, 3): r_i + sum_j r_j
+    out = np.empty(corners.shape[:2] + (6,))
+    out[..., :3] = -s / 3.0
+    out[..., 3:] = -_cross(q, s) / 12.0
+    return out

@@ -321,5 +321,5 @@ def test_closed_hull_of_a_spec_is_the_whole_body(cylinder):
     hull = closed_hull(*spec_hull(load_spec(spec_path), 0, spec_path))
     assert hull.volume == pytest.approx(math.pi * 1.5 ** 2 * (0.8 + 0.4), rel=1e-9)
     corners = hull.vertices[hull.triangles]
-    pts, _, _ = clip_wet(corners, corners[..., 2])
+    pts, _ = clip_wet(corners, corners[..., 2])
     assert pressure_load(pts, -pts[..., 2])[2] == pytest.approx(float(ds["displaced_volume"].values[0]), rel=1e-9)

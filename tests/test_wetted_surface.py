@@ -23,7 +23,7 @@ def _buoyancy(hull, offset=(0.0, 0.0, 0.0), rotation=np.eye(3)):
     """(6,) buoyancy / (rho g) and its moment about the moved reference point, still water."""
     offset = np.asarray(offset, float)
     corners = hull.vertices[hull.triangles] @ rotation.T + offset
-    pts, _, _ = clip_wet(corners, corners[..., 2])
+    pts, _ = clip_wet(corners, corners[..., 2])
     return pressure_load(pts - offset, -pts[..., 2])
 
 
@@ -118,11 +118,11 @@ def test_pressure_load_keeps_trailing_dimensions():
 def test_clipping_keeps_orientation_and_area():
     """The wet part of a tilted unit square cut by z = 0: its area vector stays outward."""
     square = np.array([[[0, 0, -1.0], [1, 0, 1.0], [1, 1, 1.0]], [[0, 0, -1.0], [1, 1, 1.0], [0, 1, -1.0]]])
-    pts, src, _ = clip_wet(square, square[..., 2])
+    pts, cut = clip_wet(square, square[..., 2])
     s = 0.5 * np.cross(pts[:, 1] - pts[:, 0], pts[:, 2] - pts[:, 0]).sum(axis=0)
     full = 0.5 * np.cross(square[:, 1] - square[:, 0], square[:, 2] - square[:, 0]).sum(axis=0)
     assert np.allclose(s, full / 2)     # half the square is below z = 0, same direction
-    assert set(src.tolist()) == {0, 1}
+    assert set(cut.src.tolist()) == {0, 1}
 
 
 def test_hull_checks_name_what_is_wrong():
