@@ -1,7 +1,8 @@
 """Server cost per step of the force terms beyond potential flow (issue 10): the Task-10 sphere
 (6 DOFs) in regular and irregular seas, HydroModel.step without them, with quadratic damping, with
 relative drag, with a 20-segment Morison member (20 m x 3 m below the sphere); and the drag term
-alone for 9 bodies (54 DOFs) with 300 wave components.
+alone for 9 bodies (54 DOFs) with 300 wave components; nonlinear hydrostatics and Froude-Krylov
+on sphere hulls of about 1,000 and 4,000 triangles, the body moving (heave and pitch) each step.
 
     python bench/bench_forces.py [--steps 4000]
 """
@@ -40,13 +41,19 @@ inertia = [2.6e6, 2.6e6, 2.6e6]
 """
 
 
-def per_step(model, steps: int) -> float:
-    pos = model.setup_info().equilibrium_position
+def per_step(model, steps: int, moving: bool = False) -> float:
+    """µs per HydroModel.step; ``moving``: heave 0.5 m and pitch 0.1 rad at 0.2 Hz (else at rest)."""
+    eq = model.setup_info().equilibrium_position
     rng = np.random.default_rng(0)
     vel = 0.1 * rng.standard_normal((steps, 1, 6))
+    phase = np.sin(2 * np.pi * 0.2 * model.dt * np.arange(steps))
+    pos = np.repeat(eq[None], steps, axis=0)
+    if moving:
+        pos[:, 0, 2] += 0.5 * phase
+        pos[:, 0, 4] += 0.1 * phase
     t0 = time.perf_counter()
     for k in range(steps):
-        model.step(k * model.dt, pos, vel[k])
+        model.step(k * model.dt, pos[k], vel[k])
     return 1e6 * (time.perf_counter() - t0) / steps
 
 
@@ -90,6 +97,37 @@ def main() -> None:
           "per step for the drag term alone")
 
 
+def nonlinear(steps: int) -> None:
+    """Server µs per step with [hydro] nonlinear on the sphere (hull: Capytaine sphere meshes), in
+    still water ("hydrostatic"), regular and irregular seas ("froude-krylov"); the pose moves
+    (heave 0.5 m, pitch 0.1 rad at 0.2 Hz) so the cut changes every step."""
+    import capytaine as cpt
+    from hydrolink.protocol.scene import parse_scene
+    from hydrolink.server.hdb.io import load_hdb
+    from hydrolink.server.model import HydroModel
+    from hydrolink.server.wetted_surface import closed_hull
+
+    hdb = load_hdb(SHARED / "sphere_task10" / "sphere.h5")
+    seas = {"still water, hydrostatic": ('type = "still"', "hydrostatic"),
+            "regular, froude-krylov": ('type = "regular"\nheight = 1.0\nperiod = 6.0', "froude-krylov"),
+            "irregular (300 components), froude-krylov": ('type = "irregular"\nspectrum = "jonswap"\nhs = 2.0\ntp = 8.0',
+                                                           "froude-krylov")}
+    hulls = []
+    for res in ((20, 26), (40, 52)):
+        mesh = cpt.mesh_sphere(radius=5.0, resolution=res)
+        mesh = mesh.merged() if hasattr(mesh, "merged") else mesh
+        hulls.append(closed_hull(mesh.vertices, mesh.faces))
+    print("\n| nonlinear, sphere | none | " + " | ".join(f"{h.n_triangles} triangles" for h in hulls) + " |")
+    print("|---|---|" + "---|" * len(hulls))
+    for sea, (waves, mode) in seas.items():
+        cells = [f"{per_step(HydroModel(parse_scene(scene_text(waves, '')), {'sphere': hdb}), steps):.1f}"]
+        for hull in hulls:
+            text = scene_text(waves, "").replace("irf_duration = 10.0", f'irf_duration = 10.0\nnonlinear = "{mode}"')
+            model = HydroModel(parse_scene(text), {"sphere": hdb}, hulls={"sphere": hull})
+            cells.append(f"{per_step(model, steps, moving=True):.1f}")
+        print(f"| {sea} | " + " | ".join(cells) + " |")
+
+
 def rm3_power(duration: float = 400.0) -> None:
     """RM3 (examples/rm3/rm3.toml, H 2.5 m, T 8 s, PTO 1.2e6 N s/m) with and without quadratic
     drag on the float's heave: Cd 1 on the waterplane area pi 10^2 m^2 (the float's radius is 10 m;
@@ -126,4 +164,5 @@ def rm3_power(duration: float = 400.0) -> None:
 
 if __name__ == "__main__":
     main()
+    nonlinear(2000)
     rm3_power()
