@@ -218,9 +218,10 @@ def build_model(scene: Scene, setup: Setup | None, *, spectral_radius: float = 1
     initial accelerations."""
     names = list(setup.bodies) if setup else []
     n = len(names)
-    wet_scene = [b.name for b in scene.bodies if b.wet]
-    if sorted(names) != sorted(wet_scene):
-        raise ValueError(f"server setup names bodies {names}, the scene's wet bodies are {wet_scene}")
+    served = [b.name for b in scene.served_bodies]
+    if sorted(names) != sorted(served):
+        raise ValueError(f"server setup names bodies {names}, the scene's served bodies (wet, or with Morison "
+                         f"elements) are {served}")
     _scene_bodies(scene, names)
     equilibrium = setup.equilibrium_position if setup else np.zeros((0, 6))
     active = setup.active if setup else np.zeros((0, 6), bool)

@@ -135,7 +135,7 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
         from hydrolink.clients.moordyn_mooring import load_moordyn_files
         moordyn_files = load_moordyn_files(scene, scene_path)
     output = Path(output) if output else scene_path.with_suffix(".out.nc")
-    if not scene.wet_bodies:
+    if not scene.served_bodies:
         # no hydrodynamics: the mechanism runs alone, without a force server
         setup = None
         names, reference = result_bodies(scene, None)

@@ -105,8 +105,8 @@ def check_scene(scene: Scene) -> None:
         if c.value != 0.0:
             raise SteadyError(f"constraints[{i}].value", "hydrolink steady needs constraint values of 0 "
                                                          "(a prescribed velocity has no periodic state)")
-    if not scene.wet_bodies:
-        raise SteadyError("bodies", "no wet body: nothing is forced by the waves")
+    if not scene.served_bodies:
+        raise SteadyError("bodies", "no wet body and no Morison element: nothing is forced by the waves")
 
 
 # -- the linearised system ---------------------------------------------------------------------

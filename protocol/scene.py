@@ -784,9 +784,6 @@ class Scene(_Section):
         for i, m in enumerate(self.morison):
             if m.body not in names:
                 raise ValueError(f"morison[{i}].body: no body named {m.body!r} (known: {names})")
-            if not self.bodies[names.index(m.body)].wet:
-                raise ValueError(f"morison[{i}].body: {m.body!r} is dry; Morison elements go on wet bodies (with "
-                                 "hdb) for now")
             if min(m.point_a[2], m.point_b[2]) >= 0.0:
                 raise ValueError(f"morison[{i}]: the member lies above the still water line (z >= 0 at both ends)")
         stated: dict[str, str] = {}
@@ -906,6 +903,14 @@ class Scene(_Section):
     @property
     def wet_bodies(self) -> list[Body]:
         return [b for b in self.bodies if b.wet]
+
+    @property
+    def served_bodies(self) -> list[Body]:
+        """The bodies the force server computes forces for, in scene order: the wet bodies and the
+        bodies without an HDB that carry Morison elements (Morison-only: no radiation, excitation
+        or hydrostatics; the client applies their weight and buoyancy as a dry body's)."""
+        carried = {m.body for m in self.morison}
+        return [b for b in self.bodies if b.wet or b.name in carried]
 
     def nonlinear_of(self, body: Body) -> str:
         """The body's nonlinear hydrostatics mode: its own ``nonlinear``, else ``[hydro] nonlinear``

@@ -1,8 +1,11 @@
 """The per-session force model: excitation, radiation memory and hydrostatics for a scene.
 
-Only the scene's wet bodies (those with an ``hdb``) take part, in scene order: every (N, 6) array
-and every 6N matrix here is over the wet bodies; dry bodies belong to the client alone. A scene
-without any wet body is a ModelError (nothing to compute: SPEC §5.1).
+The scene's served bodies take part, in scene order: the wet bodies (those with an ``hdb``) and the
+Morison-only bodies (no HDB, with ``[[morison]]`` members: no radiation, excitation or
+hydrostatics; their weight and buoyancy are the client's, as for a dry body, and their reference
+point is the dry body's node). Every (N, 6) array and every 6N matrix here is over the served
+bodies; other dry bodies belong to the client alone. A scene without any served body is a
+ModelError (nothing to compute: SPEC §5.1). "Wet bodies" below means the served ones.
 
 Hydrodynamic interaction (``[hydro] interaction``): with "full" (default), bodies that share one
 HDB dataset (the same object in ``hdbs``) keep all their body-to-body blocks of A∞, A(w), B(w),
@@ -60,6 +63,8 @@ def _groups(scene: Scene, wet: list[int], hdbs: dict[str, xr.Dataset]) -> list[t
     groups: list[tuple[xr.Dataset, list[int]]] = []
     for k, i in enumerate(wet):
         body = scene.bodies[i]
+        if not body.wet:                 # Morison-only: in no group
+            continue
         if body.name not in hdbs:
             raise ModelError(f"bodies[{i}].hdb", f"no HDB loaded for body {body.name!r}")
         ds = hdbs[body.name]
@@ -88,10 +93,11 @@ class HydroModel:
         (read from the scene's file by the client; hello.wave_elevation); ``hulls`` the closed
         hulls of the bodies with nonlinear hydrostatics by name (hello.meshes)."""
         self.scene = scene
-        wet = [i for i, b in enumerate(scene.bodies) if b.wet]
+        served = {b.name for b in scene.served_bodies}
+        wet = [i for i, b in enumerate(scene.bodies) if b.name in served]
         if not wet:
-            raise ModelError("bodies", "no wet body (no bodies[i].hdb): a force server has nothing to "
-                                       "compute for this scene; simulate it without a server")
+            raise ModelError("bodies", "no wet body (no bodies[i].hdb) and no Morison element: a force server "
+                                       "has nothing to compute for this scene; simulate it without a server")
         self._scene_index = wet
         self.bodies = [scene.bodies[i].name for i in wet]
         self.n = 6 * len(self.bodies)
@@ -109,8 +115,7 @@ class HydroModel:
         self.groups = [[self.bodies[k] for k in members] for _, members in groups]
         self.coupled_blocks = sum(len(m) * (len(m) - 1) for _, m in groups)
         self._check_waves()
-        lo = max(float(ds["omega"].values[0]) for ds, _ in groups)
-        hi = min(float(ds["omega"].values[-1]) for ds, _ in groups)
+        lo, hi = self._frequency_range(groups)
         if lo >= hi:
             raise ModelError("bodies", f"the bodies' HDB frequency ranges do not overlap ({lo}..{hi} rad/s)")
         try:
@@ -171,6 +176,18 @@ class HydroModel:
         if nonlinear is not None:
             self.warnings.extend(nonlinear.warnings)
         return nonlinear
+
+    def _frequency_range(self, groups: list[tuple[xr.Dataset, list[int]]]) -> tuple[float, float]:
+        """The frequencies the waves may use: the HDBs' common range; without any HDB (Morison-only
+        bodies) the whole axis for regular waves and 0.2-5 times the peak frequency for irregular
+        ones (unless waves.omega_range says otherwise; the energy left out is reported)."""
+        if groups:
+            return (max(float(ds["omega"].values[0]) for ds, _ in groups),
+                    min(float(ds["omega"].values[-1]) for ds, _ in groups))
+        waves = self.scene.waves
+        if getattr(waves, "type", "") == "irregular":
+            return 0.2 * 2 * math.pi / waves.tp, 5.0 * 2 * math.pi / waves.tp
+        return 1e-9, math.inf
 
     def _group_data(self, ds: xr.Dataset, members: list[int]) -> _GroupData:
         """The group's bodies from its HDB, checked against the scene's depth."""
@@ -240,11 +257,16 @@ class HydroModel:
         """Hydrostatic plus gravity stiffness over the active DOFs, equilibrium and net buoyancy."""
         n_b = len(self.bodies)
         c_hs, refs = np.zeros((self.n, self.n)), np.zeros((n_b, 3))
+        wet_bodies = [self.scene.bodies[i] for i in self._scene_index]
+        for k, b in enumerate(wet_bodies):   # Morison-only bodies: the dry body's node
+            if not b.wet:
+                refs[k] = b.reference_point if b.reference_point is not None else b.center_of_mass
         for d in data:
             refs[d.members] = d.data["reference_point"].values
             c_hs[np.ix_(d.rows, d.rows)] = d.rg_scale * d.data["hydrostatic_stiffness"].values
-        wet_bodies = [self.scene.bodies[i] for i in self._scene_index]
-        masses = np.array([b.mass for b in wet_bodies])
+        # weight: the gravity stiffness of the bodies with an HDB (a Morison-only body's weight is
+        # applied by the client, exactly)
+        masses = np.array([b.mass if b.wet else 0.0 for b in wet_bodies])
         cogs = np.array([b.com_or(r) for b, r in zip(wet_bodies, refs)], float)
         mask = self.active.reshape(-1)
         g = self.scene.water.gravity

@@ -131,3 +131,58 @@ def test_a_run_with_a_horizontal_member_against_a_monolithic_integration(sphere_
     assert 0.5 * np.ptp(z[last]) == pytest.approx(0.5 * np.ptp(ref.y[0][last]), rel=5e-3)
     fz = ds["morison_force"].sel(body="sphere", dof="heave").values
     assert np.abs(fz[last]).max() == pytest.approx(abs(f_mor), rel=5e-3)
+
+
+def test_a_morison_only_body_without_an_hdb(tmp_path):
+    """A neutrally buoyant horizontal pontoon with no HDB (a dry body carrying a member: L 12 m,
+    D 1.2 m along y, 6 m deep, Cd 1.2, Ca 1), held by a linear mooring in surge and heave, in a
+    regular wave travelling along x (every segment sees the same wave): the co-simulation against
+    the monolithic 2-DOF integration written here,
+    (m + rho Ca V) x'' = -K x + rho (1 + Ca) V a(t) + 1/2 rho Cd D L |w| w,  w = u(t) - x'
+    in the (x, z) plane normal to the member, u and a the Airy particle velocity and acceleration
+    at the member (deep water: e^{kz}). The pontoon's weight and buoyancy are the client's, as for
+    any dry body; the server serves it with Morison forces only."""
+    import xarray as xr
+    from scipy.integrate import solve_ivp
+
+    from conftest import body, write_scene
+    from hydrolink.clients.run import run_scene_file
+    length, diameter, depth_m, cd, ca = 12.0, 1.2, -6.0, 1.2, 1.0
+    vol = math.pi * diameter ** 2 / 4 * length
+    mass, k_x, k_z = RHO * vol, 4.0e4, 6.0e4
+    period, height = 6.0, 2.0
+    w, a = 2 * math.pi / period, height / 2
+    k = w ** 2 / G
+    ramp = 2 * period
+    pontoon = body("pontoon", mass=mass, center_of_mass=[0.0, 0.0, depth_m], inertia=[1e4, 1e4, 1e4],
+                   dofs=["surge", "heave"], buoyancy_volume=vol)
+    path = write_scene(tmp_path, scene_toml(
+        dt=period / 200, duration=12 * period, progress=False, water={**SPHERE_WATER, "gravity": G},
+        waves=regular_waves(height, period, ramp=ramp), bodies=[pontoon],
+        moorings=[{"type": "linear", "body": "pontoon", "point": [0.0, 0.0, depth_m],
+                   "stiffness": [k_x, 0.0, k_z, 0.0, 0.0, 0.0]}],
+        morison=[{"body": "pontoon", "point_a": [0.0, -length / 2, depth_m], "point_b": [0.0, length / 2, depth_m],
+                  "diameter": diameter, "cd": cd, "ca": ca, "segments": 24}]), "pontoon.toml")
+    run_scene_file(path, tmp_path / "pontoon.nc", progress=False)
+    ds = xr.load_dataset(tmp_path / "pontoon.nc")
+    decay = math.exp(k * depth_m)
+
+    def rhs(t, y):
+        r = 1.0 if t >= ramp else 0.5 * (1 - math.cos(math.pi * t / ramp))
+        u = r * a * w * decay * np.array([math.cos(w * t), -math.sin(w * t)])
+        acc = r * a * w * w * decay * np.array([-math.sin(w * t), -math.cos(w * t)])
+        rel = u - y[2:]
+        f = RHO * (1 + ca) * vol * acc + 0.5 * RHO * cd * diameter * length * np.hypot(*rel) * rel
+        f -= np.array([k_x, k_z]) * y[:2]
+        return [y[2], y[3], *(f / (mass + RHO * ca * vol))]
+    t = ds["time"].values
+    ref = solve_ivp(rhs, (0, t[-1]), [0.0, 0.0, 0.0, 0.0], t_eval=t, rtol=1e-10, atol=1e-12, max_step=period / 200)
+    last = t > t[-1] - 4 * period
+    for j, dof in enumerate(("surge", "heave")):
+        x = (ds["position"] - ds["equilibrium_position"]).sel(body="pontoon", dof=dof).values
+        assert 0.5 * np.ptp(x[last]) == pytest.approx(0.5 * np.ptp(ref.y[j][last]), rel=5e-3)
+        assert np.abs(x - ref.y[j]).max() < 0.01 * np.ptp(ref.y[j][last])
+    assert np.abs(ds["morison_force"].sel(body="pontoon", dof="heave").values).max() > 0.1 * mass
+    # no HDB: nothing else from the server
+    assert np.abs(ds["excitation_force"].sel(body="pontoon").values).max() == 0.0
+    assert np.abs(ds["radiation_force"].sel(body="pontoon").values).max() == 0.0
