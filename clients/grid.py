@@ -37,6 +37,7 @@ ALIASES = {
     "exchange_every": "coupling.exchange_every",
     "between_exchanges": "coupling.between_exchanges",
     "reduce": "client.reduce",
+    "nonlinear": "hydro.nonlinear",
 }
 SHORT = {v: k for k, v in ALIASES.items()}
 GridMode = Literal["product", "zip", "axes"]
