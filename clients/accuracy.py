@@ -25,13 +25,16 @@ their dotted path (entries of arrays of tables by name: ``ptos.pto.damping``) or
     mode = "axes"                # "axes": one key varied at a time, the others at the reference;
                                  # "product": every combination; "zip": the i-th values together
     [reference]                  # the reference run (default: the scene's own values, with the
-    dt = 0.005                   #  smallest dt and the longest irf_duration of the grid)
+    dt = 0.005                   #  smallest dt, the longest irf_duration and the most complete
+                                 #  nonlinear of the grid)
     [grid]
     dt = [0.01, 0.02, 0.04]
     irf_duration = [5.0, 10.0, 20.0]
     radiation = ["convolution", "state-space", "constant"]
     excitation = ["superposition", "convolution"]
     coupling = ["mass-matrix", "implicit"]
+    nonlinear = ["none", "froude-krylov"]   # linear hydrostatics / Froude-Krylov vs the hull's
+                                            # instantaneous wetted surface (hydro.nonlinear)
     reduce = [true, false]       # reduced bodies vs the full form ([client] reduce): same results to
                                  # round-off, the per-step cost of the DAE vs the ODE-like model
     [[cases]]                    # extra options, each a set of keys (optional label)
@@ -123,10 +126,21 @@ def scene_value(doc: dict, key: str):
     return obj if isinstance(obj, (int, float, str, bool)) else None
 
 
+# the nonlinear hydrostatics modes (hydro.nonlinear, bodies.<name>.nonlinear), least to most complete
+NONLINEAR_ORDER = ("none", "hydrostatic", "froude-krylov")
+
+
+def _is_nonlinear_key(key: str) -> bool:
+    parts = key.split(".")
+    return key == "hydro.nonlinear" or (len(parts) == 3 and parts[0] == "bodies" and parts[2] == "nonlinear")
+
+
 def reference_settings(grid: Grid, doc: dict) -> dict[str, Any]:
     """The reference run's keys: grid.reference, else per grid key the scene's value (written or
-    default) — except the smallest dt (simulation.dt) and longest IRFs (hydro.irf_duration,
-    waves.excitation_irf_duration), which take the finest of the grid and the scene."""
+    default) — except the smallest dt (simulation.dt), the longest IRFs (hydro.irf_duration,
+    waves.excitation_irf_duration) and the most complete nonlinear hydrostatics (hydro.nonlinear,
+    bodies.<name>.nonlinear: none < hydrostatic < froude-krylov), which take the finest of the grid
+    and the scene."""
     ref: dict[str, Any] = {}
     keys = list(grid.grid) + [k for c in grid.cases for k in c if k != "label"]
     for key in dict.fromkeys(keys):
@@ -138,6 +152,10 @@ def reference_settings(grid: Grid, doc: dict) -> dict[str, Any]:
             ref[key] = min(values + ([scene_v] if scene_v is not None else []))
         elif key in ("hydro.irf_duration", "waves.excitation_irf_duration"):
             ref[key] = max(values + ([scene_v] if scene_v is not None else []))
+        elif _is_nonlinear_key(key) and any(v in NONLINEAR_ORDER for v in values):
+            # a misspelt mode is never the reference: it fails as an option, naming the key
+            known = [v for v in values + [scene_v] if v in NONLINEAR_ORDER]
+            ref[key] = max(known, key=NONLINEAR_ORDER.index)
         elif scene_v is not None:
             ref[key] = scene_v
         elif values:

@@ -337,6 +337,7 @@ def bench() -> None:
 @click.option("--coupling", help="Comma-separated coupling.scheme values.")
 @click.option("--reduce", help="Comma-separated client.reduce values: true,false measures reduced bodies "
                                "against the full rigid-body form (same results, per-step cost).")
+@click.option("--nonlinear", help="Comma-separated hydro.nonlinear modes (none, hydrostatic, froude-krylov).")
 @click.option("--ref", "refs", multiple=True, help="Reference setting KEY=VALUE (repeatable), e.g. dt=0.005.")
 @click.option("--mode", type=click.Choice(["axes", "product"]), help="One key at a time (default) or all combinations.")
 @click.option("--duration", type=float, help="Simulated seconds of every run (default: the scene's).")
@@ -348,7 +349,7 @@ def bench() -> None:
 @click.option("--repeat", type=click.IntRange(1, 20), default=1, show_default=True,
               help="Runs per option; the cheapest wall time counts (a busy machine only adds time).")
 def bench_accuracy_cmd(scene: Path, grid_file: Path | None, dt, irf_duration, radiation, excitation, coupling,
-                       reduce, refs, mode, duration, window, output: Path, title, keep_runs: bool,
+                       reduce, nonlinear, refs, mode, duration, window, output: Path, title, keep_runs: bool,
                        repeat: int) -> None:
     """Run SCENE under a grid of options against a reference run; table + plots of error vs cost."""
     from hydrolink.clients.accuracy import BenchError, Grid, bench_accuracy, grid_from_flags
@@ -356,7 +357,8 @@ def bench_accuracy_cmd(scene: Path, grid_file: Path | None, dt, irf_duration, ra
     try:
         base = Grid.from_toml(grid_file) if grid_file else None
         grid = grid_from_flags(base, {"dt": dt, "irf_duration": irf_duration, "radiation": radiation,
-                                      "excitation": excitation, "coupling": coupling, "reduce": reduce},
+                                      "excitation": excitation, "coupling": coupling, "reduce": reduce,
+                                      "nonlinear": nonlinear},
                                refs, mode, duration,
                                tuple(window) if window else None)
     except BenchError as exc:

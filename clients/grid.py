@@ -37,6 +37,7 @@ ALIASES = {
     "exchange_every": "coupling.exchange_every",
     "between_exchanges": "coupling.between_exchanges",
     "reduce": "client.reduce",
+    "nonlinear": "hydro.nonlinear",
 }
 SHORT = {v: k for k, v in ALIASES.items()}
 GridMode = Literal["product", "zip", "axes"]
@@ -233,17 +234,17 @@ def dump_toml(doc: dict) -> str:
 
 
 def absolute_paths(doc: dict, scene_path: Path) -> dict:
-    """The scene document with its relative file paths (bodies[i].hdb, waves.file, client.fmu,
-    moorings[i].file)
-    made absolute, so that it runs from any folder."""
+    """The scene document with its relative file paths (bodies[i].hdb, bodies[i].mesh, waves.file,
+    client.fmu, moorings[i].file) made absolute, so that it runs from any folder."""
     base = Path(scene_path).resolve().parent
 
     def fix(p: str) -> str:
         q = Path(p).expanduser()
         return str(q if q.is_absolute() else (base / q).resolve())
     for b in doc.get("bodies", []):
-        if "hdb" in b:
-            b["hdb"] = fix(b["hdb"])
+        for key in ("hdb", "mesh"):
+            if key in b:
+                b[key] = fix(b[key])
     if isinstance(doc.get("waves"), dict) and "file" in doc["waves"]:
         doc["waves"]["file"] = fix(doc["waves"]["file"])
     if isinstance(doc.get("client"), dict) and "fmu" in doc["client"]:

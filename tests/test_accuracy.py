@@ -1,5 +1,6 @@
-"""``hydrolink bench accuracy``: grid and reference logic, TOML round trip, Pareto front, and a tiny
-real bench (RM3, 40 s, three time steps + two radiation options) through the command line."""
+"""``hydrolink bench accuracy``: grid and reference logic, TOML round trip, Pareto front, and tiny
+real benches through the command line (RM3, 40 s, three time steps + two radiation options; the
+example cylinder in a steep wave, linear against nonlinear Froude-Krylov)."""
 
 from __future__ import annotations
 
@@ -12,9 +13,11 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from hydrolink.clients.accuracy import (Grid, compare, dump_toml, make_cases, pareto_front, reference_settings)
+from conftest import toml_document
+from hydrolink.clients.accuracy import (Grid, compare, dump_toml, grid_from_flags, make_cases, pareto_front,
+                                        reference_settings, set_key)
 from hydrolink.clients.cli import cli
-from hydrolink.protocol.scene import parse_scene
+from hydrolink.protocol.scene import Scene, parse_scene
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -68,6 +71,57 @@ def test_cases_and_reference():
     assert len(make_cases(g, ref)) == 3 * 2 * 2 - 1   # the reference combination is not run twice
     g2 = Grid(grid={"simulation.dt": [0.01]}, reference={"simulation.dt": 0.001})
     assert reference_settings(g2, doc)["simulation.dt"] == 0.001
+
+
+def json_copy(doc: dict) -> dict:
+    """A deep copy of a scene document (through its TOML text)."""
+    return tomllib.loads(dump_toml(doc))
+
+
+def test_nonlinear_alias_and_its_reference(tmp_path):
+    """``nonlinear`` (file key or --nonlinear) is hydro.nonlinear; unless [reference] says otherwise the
+    reference takes the most complete mode of the grid and the scene (none < hydrostatic <
+    froude-krylov), a misspelt mode never."""
+    cylinder = tomllib.loads((REPO / "examples" / "cylinder" / "scene.toml").read_text())
+    path = tmp_path / "grid.toml"
+    path.write_text(toml_document({"grid": {"nonlinear": ["none", "froude-krylov", "hydrostatic"]}}))
+    from_file = Grid.from_toml(path)
+    from_flag = grid_from_flags(None, {"nonlinear": "none,froude-krylov,hydrostatic"}, (), None, None, None)
+    assert from_file.grid == from_flag.grid == {"hydro.nonlinear": ["none", "froude-krylov", "hydrostatic"]}
+    assert reference_settings(from_file, cylinder) == {"hydro.nonlinear": "froude-krylov"}
+    assert [lbl for lbl, _ in make_cases(from_file, reference_settings(from_file, cylinder))] == [
+        "nonlinear=none", "nonlinear=hydrostatic"]
+    # the scene's own mode counts like its dt does; a typo is an option (it fails naming the key)
+    hydrostatic = json_copy(cylinder)
+    set_key(hydrostatic, "hydro.nonlinear", "hydrostatic")
+    assert reference_settings(Grid(grid={"hydro.nonlinear": ["none", "froude_krylov"]}), hydrostatic) == {
+        "hydro.nonlinear": "hydrostatic"}
+    # per body, and [reference] wins
+    g = Grid(grid={"bodies.cylinder.nonlinear": ["hydrostatic", "none"]}, reference={"hydro.irf_duration": 10.0})
+    assert reference_settings(g, cylinder) == {"bodies.cylinder.nonlinear": "hydrostatic", "hydro.irf_duration": 10.0}
+    g = Grid(grid={"hydro.nonlinear": ["none", "froude-krylov"]}, reference={"hydro.nonlinear": "hydrostatic"})
+    assert reference_settings(g, cylinder) == {"hydro.nonlinear": "hydrostatic"}
+
+
+def test_drag_on_and_off_in_a_grid(tmp_path):
+    """A body's drag is a grid key like any other: the whole inline table (``bodies.<name>.drag``)
+    per option, cd = 0 for "off"; each option's scene carries exactly the drag it names."""
+    cylinder = tomllib.loads((REPO / "examples" / "cylinder" / "scene.toml").read_text())
+    on = {"cd": [1.0, 0.0, 1.0, 0.0, 0.0, 0.0], "area": [2.0, 0.0, 3.14, 0.0, 0.0, 0.0]}
+    off = {"cd": [0.0] * 6, "area": on["area"]}
+    path = tmp_path / "grid.toml"
+    path.write_text(toml_document({"grid": {"bodies.cylinder.drag": [off, on]}}))
+    g = Grid.from_toml(path)
+    ref = reference_settings(g, cylinder)
+    assert ref == {"bodies.cylinder.drag": off}       # the scene has none: the first value
+    (label, settings), = make_cases(g, ref)
+    case = json_copy(cylinder)
+    for k, v in settings.items():
+        set_key(case, k, v)
+    drag = Scene.model_validate(case).bodies[0].drag
+    assert drag.cd == on["cd"] and drag.area == on["area"] and drag.relative   # relative by default
+    with pytest.raises(KeyError, match="no bodies entry named 'cylindre'"):
+        set_key(json_copy(cylinder), "bodies.cylindre.drag", on)
 
 
 def test_compare_against_a_known_error():
@@ -138,3 +192,33 @@ def test_bench_errors(tmp_path):
     assert r.exit_code != 0 and "grid.dt: a non-empty list" in r.output
     r = CliRunner().invoke(cli, ["bench", "accuracy", str(REPO / "examples" / "rm3" / "rm3.toml")])
     assert r.exit_code != 0 and "no options" in r.output
+
+
+def test_bench_nonlinear_cylinder(tmp_path, monkeypatch):
+    """The example cylinder (surge, heave, pitch; hull from its HDB build spec) in a wave three times
+    the example's (H 0.6 m, T 4 s; a third of the draft), 10 s: the reference is the most complete
+    mode of --nonlinear (froude-krylov); the same physics written per body has zero error, the
+    linear model a clear one at a fraction of the server's cost, and a misspelt mode fails naming
+    the key."""
+    monkeypatch.setenv("HYDROLINK_CACHE", str(tmp_path / "cache"))   # the HDB is built here, not in ~
+    grid = tmp_path / "grid.toml"
+    grid.write_text(toml_document({"cases": [{"label": "per body", "hydro.nonlinear": "none",
+                                              "bodies.cylinder.nonlinear": "froude-krylov"}]}))
+    out = tmp_path / "acc"
+    r = CliRunner().invoke(cli, ["bench", "accuracy", str(REPO / "examples" / "cylinder" / "scene.toml"),
+                                 "--grid", str(grid), "--nonlinear", "none,froude-krylov,froude_krylov",
+                                 "--ref", "waves.height=0.6", "--ref", "waves.ramp=4", "--duration", "10",
+                                 "-o", str(out)], catch_exceptions=False)
+    assert r.exit_code == 0, r.output
+    rows = {row["label"]: row for row in csv.DictReader(open(out / "accuracy.csv"))}
+    assert list(rows) == ["reference", "nonlinear=none", "nonlinear=froude_krylov", "per body"]
+    assert "`hydro.nonlinear = froude-krylov`" in (out / "accuracy.md").read_text()
+    fk, linear = rows["per body"], rows["nonlinear=none"]
+    # the body's own mode over [hydro] none is the reference's physics: the same response
+    assert float(fk["rms_error"]) == float(fk["max_error"]) == 0.0
+    # a 0.6 m wave on a 1 m draft: the wetted surface's change is not a small correction
+    assert float(linear["rms_error"]) > 0.05 and float(linear["max_error"]) > 0.05
+    # clipping ~1,600 hull triangles each step costs the server far more than the linear terms
+    assert float(linear["server_us_per_step"]) < 0.3 * float(fk["server_us_per_step"])
+    assert "hydro.nonlinear" in rows["nonlinear=froude_krylov"]["note"]
+    assert "froude_krylov" in rows["nonlinear=froude_krylov"]["note"]

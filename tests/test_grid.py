@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from hydrolink.clients.grid import GridSpec, combinations, get_key, scene_location, set_key
+from hydrolink.clients.grid import GridSpec, absolute_paths, combinations, get_key, scene_location, set_key
 
 DOC = {"simulation": {"dt": 0.1},
        "ptos": [{"name": "pto", "damping": 1e6}, {"name": "aux", "damping": 2e5}],
@@ -50,3 +50,14 @@ def test_missing_parts_are_named(key, why):
     with pytest.raises(KeyError) as err:
         set_key(doc, key, 1.0)
     assert why in str(err.value)
+
+
+def test_absolute_paths_include_the_hull_mesh(tmp_path):
+    """A scene run from another folder (the bench's and the sweep's temporary copies) still finds
+    the files it names relative to itself: the HDB and the nonlinear body's hull mesh."""
+    doc = {"bodies": [{"name": "float", "hdb": "float.nc", "mesh": "hulls/float.gdf"},
+                      {"name": "dry", "mass": 1.0}]}
+    absolute_paths(doc, tmp_path / "cases" / "scene.toml")
+    assert doc["bodies"][0]["hdb"] == str((tmp_path / "cases" / "float.nc").resolve())
+    assert doc["bodies"][0]["mesh"] == str((tmp_path / "cases" / "hulls" / "float.gdf").resolve())
+    assert "mesh" not in doc["bodies"][1] and "hdb" not in doc["bodies"][1]
