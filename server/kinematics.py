@@ -57,20 +57,29 @@ class Kinematics:
         theta = k[None, :] * (pts[:, 0:1] * np.cos(beta)[None, :] + pts[:, 1:2] * np.sin(beta)[None, :])
         c = comps.amplitude * np.exp(1j * comps.phase) * self.omega    # w a e^{i phi}
         base = c[None, :] * np.exp(1j * theta)                          # (P, n_c)
-        # velocity phasors (P, n_c, 3): horizontal along each heading, vertical
-        self._vel = np.stack([base * ch * np.cos(beta)[None, :], base * ch * np.sin(beta)[None, :],
-                              -1j * base * sh], axis=-1)
+        # velocity phasors, one row per point and axis (3P, n_c): horizontal along each heading, vertical
+        self._rows = np.stack([base * ch * np.cos(beta)[None, :], base * ch * np.sin(beta)[None, :],
+                               -1j * base * sh], axis=1).reshape(-1, self.omega.size)
 
     def velocity(self, t: float) -> np.ndarray:
         """(P, 3) particle velocity at time t [m/s], ramp included."""
         if self.still:
             return np.zeros((self.n_points, 3))
         e = np.exp(-1j * self.omega * t)
-        return ramp_factor(t, self.ramp) * np.real(np.einsum("pcj,c->pj", self._vel, e))
+        return ramp_factor(t, self.ramp) * np.real(self._rows @ e).reshape(-1, 3)
+
+    def velocity_acceleration(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """(P, 3) particle velocity and acceleration at time t, both from one product (the
+        acceleration without the ramp's own rate, as :meth:`acceleration`)."""
+        if self.still:
+            return np.zeros((self.n_points, 3)), np.zeros((self.n_points, 3))
+        e = np.exp(-1j * self.omega * t)
+        both = np.real(self._rows @ np.column_stack([e, -1j * self.omega * e])) * ramp_factor(t, self.ramp)
+        return both[:, 0].reshape(-1, 3), both[:, 1].reshape(-1, 3)
 
     def acceleration(self, t: float) -> np.ndarray:
         """(P, 3) particle acceleration at time t [m/s^2] (the ramp's own rate left out)."""
         if self.still:
             return np.zeros((self.n_points, 3))
         e = -1j * self.omega * np.exp(-1j * self.omega * t)
-        return ramp_factor(t, self.ramp) * np.real(np.einsum("pcj,c->pj", self._vel, e))
+        return ramp_factor(t, self.ramp) * np.real(self._rows @ e).reshape(-1, 3)

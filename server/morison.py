@@ -22,12 +22,19 @@ from hydrolink.server.kinematics import Kinematics
 from hydrolink.server.waves import WaveComponents
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise a x b of (S, 3) arrays (np.cross without its axis handling: the hot path)."""
+    return np.column_stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+                            a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]])
+
+
 @dataclass(frozen=True)
 class MorisonSet:
     body: np.ndarray        # (S,) server body index of each segment
     lever: np.ndarray       # (S, 3) segment centre minus the body's reference point, at equilibrium
     z0: np.ndarray          # (S,) segment centre height at equilibrium
-    normal: np.ndarray      # (S, 3, 3) projector on the plane normal to the member axis
+    axis: np.ndarray        # (S, 3) unit vector along the member (the normal part of w: w - (w.a) a)
+    gather: np.ndarray      # (N, S) 1 where segment s belongs to body n (sums segments per body)
     inertia: np.ndarray     # (S,) rho (1 + ca) V
     drag: np.ndarray        # (S,) 1/2 rho cd D L
     wave: Kinematics        # at the segments' centres
@@ -39,15 +46,12 @@ class MorisonSet:
         xb, vb = x[self.body], v[self.body]                          # (S, 6)
         z = self.z0 + xb[:, 2] + xb[:, 3] * self.lever[:, 1] - xb[:, 4] * self.lever[:, 0]
         wet = z <= 0.0
-        vs = vb[:, :3] + np.cross(vb[:, 3:], self.lever)
-        w = self.wave.velocity(t) - vs
-        wn = np.einsum("sij,sj->si", self.normal, w)
-        an = np.einsum("sij,sj->si", self.normal, self.wave.acceleration(t))
-        f = (self.inertia[:, None] * an + (self.drag * np.linalg.norm(wn, axis=1))[:, None] * wn) * wet[:, None]
-        out = np.zeros((self.n_bodies, 6))
-        np.add.at(out[:, :3], self.body, f)
-        np.add.at(out[:, 3:], self.body, np.cross(self.lever, f))
-        return out
+        u, acc = self.wave.velocity_acceleration(t)
+        w = u - vb[:, :3] - _cross(vb[:, 3:], self.lever)
+        wn = w - (w * self.axis).sum(axis=1)[:, None] * self.axis
+        an = acc - (acc * self.axis).sum(axis=1)[:, None] * self.axis
+        f = (self.inertia[:, None] * an + (self.drag * np.sqrt((wn * wn).sum(axis=1)))[:, None] * wn) * wet[:, None]
+        return np.hstack([self.gather @ f, self.gather @ _cross(self.lever, f)])
 
 
 def build_morison(scene: Scene, wet: list[int], waves: WaveComponents,
@@ -58,7 +62,7 @@ def build_morison(scene: Scene, wet: list[int], waves: WaveComponents,
         return None
     rho = scene.water.density
     names = [scene.bodies[i].name for i in wet]
-    body, centre, normal, inertia, drag, ca_vol = [], [], [], [], [], []
+    body, centre, normal, axes, inertia, drag, ca_vol = [], [], [], [], [], [], []
     for m in scene.morison:
         a, b = np.asarray(m.point_a, float), np.asarray(m.point_b, float)
         axis = (b - a) / np.linalg.norm(b - a)
@@ -69,6 +73,7 @@ def build_morison(scene: Scene, wet: list[int], waves: WaveComponents,
             body.append(names.index(m.body))
             centre.append(a + (s + 0.5) / n * (b - a))
             normal.append(proj)
+            axes.append(axis)
             vol = np.pi * m.diameter ** 2 / 4 * length
             inertia.append(rho * (1.0 + m.ca) * vol)
             drag.append(0.5 * rho * m.cd * m.diameter * length)
@@ -76,8 +81,9 @@ def build_morison(scene: Scene, wet: list[int], waves: WaveComponents,
     body, centre = np.asarray(body), np.asarray(centre)
     lever = centre - reference_points[body]
     normal = np.asarray(normal)
-    ms = MorisonSet(body, lever, centre[:, 2].copy(), normal, np.asarray(inertia), np.asarray(drag),
-                    Kinematics(waves, centre, scene.water.gravity, scene.water.depth_m), len(wet))
+    gather = (np.arange(len(wet))[:, None] == body[None, :]).astype(float)
+    ms = MorisonSet(body, lever, centre[:, 2].copy(), np.asarray(axes), gather, np.asarray(inertia),
+                    np.asarray(drag), Kinematics(waves, centre, scene.water.gravity, scene.water.depth_m), len(wet))
     n6 = 6 * len(wet)
     added = np.zeros((n6, n6))
     for s in np.flatnonzero(centre[:, 2] <= 0.0):
