@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 from conftest import SPHERE_WATER, regular_waves, scene_toml, serve_process, sphere_body, write_scene
 
-DT, DURATION, FIT_FROM = 0.02, 80.0, 50.0
+DT, DURATION, FIT_FROM = 0.02, 60.0, 35.0
 
 
 def _needs_compiler():
@@ -113,7 +113,8 @@ class Slave:
         self.fmu.freeInstance()
 
 
-def master(slave: Slave, mass: float, reject_every: int = 0) -> tuple[np.ndarray, np.ndarray, int]:
+def master(slave: Slave, mass: float, reject_every: int = 0, steps: int | None = None
+           ) -> tuple[np.ndarray, np.ndarray, int]:
     """Newmark (average acceleration), M = mass + A_inf (read from the FMU): at every step the
     force at t_k+1 is iterated to a fixed point (inputs set again at the same point). With
     ``reject_every``, every such step is first taken with a poor guess and one pass, then rejected:
@@ -125,7 +126,7 @@ def master(slave: Slave, mass: float, reject_every: int = 0) -> tuple[np.ndarray
     slave.set(names_in, [u, v])
     f, eta = slave.get(["sphere.heave.force", "wave_elevation"])
     a = f / big_m
-    n = round(DURATION / DT)
+    n = round(DURATION / DT) if steps is None else steps
     zs, etas, redos = [u], [eta], 0
     for k in range(n):
         t = k * DT
@@ -208,15 +209,16 @@ def test_validates_links_no_python_and_tells_the_truth(fmus, sphere):
         assert md.defaultExperiment.stepSize == str(DT) or float(md.defaultExperiment.stepSize) == DT
 
 
-@pytest.mark.parametrize("fmi", [2, 3])
-def coupled_run(path: Path, fmi: int, server: str, sphere, folder: Path, reject_every: int):
-    """The iterating master's run of the sphere with the FMU at ``path``."""
+def coupled_run(path: Path, fmi: int, server: str, sphere, folder: Path, reject_every: int,
+                steps: int | None = None):
+    """The iterating master's run of the sphere with the FMU at ``path`` (``steps``: of DT, default
+    the whole DURATION)."""
     slave = Slave(path, fmi, folder, server)
     slave.start()
     try:
         assert slave.get(["A_inf.sphere.heave.sphere.heave"])[0] == pytest.approx(
             float(sphere["added_mass_inf"].values[2, 2]), rel=1e-12)
-        return master(slave, 1000.0 * float(sphere["displaced_volume"].values[0]), reject_every)
+        return master(slave, 1000.0 * float(sphere["displaced_volume"].values[0]), reject_every, steps)
     finally:
         slave.close()
 
@@ -230,9 +232,15 @@ def straight_run(fmus, server, sphere, tmp_path_factory):
 @pytest.mark.parametrize("fmi", [2, 3])
 def test_iterating_master_with_rollback_against_the_frequency_domain(fmi, fmus, server, sphere, omega, tmp_path,
                                                                      straight_run):
-    z, eta, redos = coupled_run(fmus[fmi], fmi, server, sphere, tmp_path, 7)
-    assert redos == len(range(3, round(DURATION / DT), 7))
-    assert np.array_equal(z, straight_run[0]) and np.array_equal(eta, straight_run[1])   # the redos changed nothing
+    """FMI 2: the whole run with every 7th step rejected and redone equals the straight run bit
+    for bit, and its RAO the frequency domain's. FMI 3 (its own Get/SetFMUState code, twice as slow
+    under fmpy): the first 20 s with rejections equal the FMI 2 straight run bit for bit."""
+    steps = None if fmi == 2 else round(20.0 / DT)
+    z, eta, redos = coupled_run(fmus[fmi], fmi, server, sphere, tmp_path, 7, steps)
+    assert redos == len(range(3, steps or round(DURATION / DT), 7))
+    assert np.array_equal(z, straight_run[0][:z.size]) and np.array_equal(eta, straight_run[1][:eta.size])
+    if fmi == 3:
+        return
     mass = 1000.0 * float(sphere["displaced_volume"].values[0])
     err, phase = rao_error(np.arange(z.size) * DT, z, eta, sphere, omega, mass,
                            f"FMI {fmi}, {redos} steps rejected and redone")
