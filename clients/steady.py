@@ -105,8 +105,12 @@ def check_scene(scene: Scene) -> None:
         if c.value != 0.0:
             raise SteadyError(f"constraints[{i}].value", "hydrolink steady needs constraint values of 0 "
                                                          "(a prescribed velocity has no periodic state)")
-    if not scene.served_bodies:
-        raise SteadyError("bodies", "no wet body and no Morison element: nothing is forced by the waves")
+    for i, m in enumerate(scene.morison):
+        if not next(b for b in scene.bodies if b.name == m.body).wet:
+            raise SteadyError(f"morison[{i}].body", f"{m.body!r} is a Morison-only body (no HDB): not supported by "
+                                                    "hydrolink steady yet; run the scene with hydrolink run")
+    if not scene.wet_bodies:
+        raise SteadyError("bodies", "no wet body: nothing is forced by the waves")
 
 
 # -- the linearised system ---------------------------------------------------------------------

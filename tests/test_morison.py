@@ -186,3 +186,7 @@ def test_a_morison_only_body_without_an_hdb(tmp_path):
     # no HDB: nothing else from the server
     assert np.abs(ds["excitation_force"].sel(body="pontoon").values).max() == 0.0
     assert np.abs(ds["radiation_force"].sel(body="pontoon").values).max() == 0.0
+    from hydrolink.clients.steady import SteadyError, check_scene
+    from hydrolink.protocol.scene import load_scene
+    with pytest.raises(SteadyError, match=r"morison\[0\]\.body: 'pontoon' is a Morison-only body"):
+        check_scene(load_scene(path)[0])
