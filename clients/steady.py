@@ -105,12 +105,8 @@ def check_scene(scene: Scene) -> None:
         if c.value != 0.0:
             raise SteadyError(f"constraints[{i}].value", "hydrolink steady needs constraint values of 0 "
                                                          "(a prescribed velocity has no periodic state)")
-    for i, m in enumerate(scene.morison):
-        if not next(b for b in scene.bodies if b.name == m.body).wet:
-            raise SteadyError(f"morison[{i}].body", f"{m.body!r} is a Morison-only body (no HDB): not supported by "
-                                                    "hydrolink steady yet; run the scene with hydrolink run")
-    if not scene.wet_bodies:
-        raise SteadyError("bodies", "no wet body: nothing is forced by the waves")
+    if not scene.served_bodies:
+        raise SteadyError("bodies", "no wet body and no Morison element: nothing is forced by the waves")
 
 
 # -- the linearised system ---------------------------------------------------------------------
@@ -512,6 +508,9 @@ def solve(sys_: LinearizedSystem, order: int, formulation: str = "dae", *, toler
 
     y = np.zeros(n * p + m * p)
     r, jac = residual(y)
+    # the residual relative to the forcing: the excitation and, at rest, the pointwise loads (a
+    # Morison-only body has no excitation: its members' wave loads are all it gets)
+    norm_b = max(norm_b, float(np.linalg.norm(r)))
     it = 0
     rel = float(np.linalg.norm(r)) / norm_b
     while rel > tolerance and it < max_iterations:
