@@ -120,27 +120,19 @@ fmi2Status fmi2Reset(fmi2Component c) {
 }
 
 fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Real value[]) {
-    for (size_t k = 0; k < n; k++)
-        if (hl_get_real(((inst_t *)c)->core, vr[k], &value[k])) return fmi2Error;
-    return fmi2OK;
+    return hl_get_reals(((inst_t *)c)->core, vr, n, value) ? fmi2Error : fmi2OK;
 }
 
 fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Real value[]) {
-    for (size_t k = 0; k < n; k++)
-        if (hl_set_real(((inst_t *)c)->core, vr[k], value[k])) return fmi2Error;
-    return fmi2OK;
+    return hl_set_reals(((inst_t *)c)->core, vr, n, value) ? fmi2Error : fmi2OK;
 }
 
 fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2String value[]) {
-    for (size_t k = 0; k < n; k++)
-        if (hl_get_string(((inst_t *)c)->core, vr[k], &value[k])) return fmi2Error;
-    return fmi2OK;
+    return hl_get_strings(((inst_t *)c)->core, vr, n, value) ? fmi2Error : fmi2OK;
 }
 
 fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2String value[]) {
-    for (size_t k = 0; k < n; k++)
-        if (hl_set_string(((inst_t *)c)->core, vr[k], value[k])) return fmi2Error;
-    return fmi2OK;
+    return hl_set_strings(((inst_t *)c)->core, vr, n, value) ? fmi2Error : fmi2OK;
 }
 
 static fmi2Status no_such(fmi2Component c, const char *what, size_t n) {

@@ -99,30 +99,22 @@ fmi3Status fmi3Reset(fmi3Instance c) { hl_terminate(((inst_t *)c)->core); return
 
 fmi3Status fmi3GetFloat64(fmi3Instance c, const fmi3ValueReference vr[], size_t n, fmi3Float64 v[], size_t nv) {
     if (nv != n) return unsupported(c, "arrays");
-    for (size_t k = 0; k < n; k++)
-        if (hl_get_real(((inst_t *)c)->core, vr[k], &v[k])) return fmi3Error;
-    return fmi3OK;
+    return hl_get_reals(((inst_t *)c)->core, vr, n, v) ? fmi3Error : fmi3OK;
 }
 
 fmi3Status fmi3SetFloat64(fmi3Instance c, const fmi3ValueReference vr[], size_t n, const fmi3Float64 v[], size_t nv) {
     if (nv != n) return unsupported(c, "arrays");
-    for (size_t k = 0; k < n; k++)
-        if (hl_set_real(((inst_t *)c)->core, vr[k], v[k])) return fmi3Error;
-    return fmi3OK;
+    return hl_set_reals(((inst_t *)c)->core, vr, n, v) ? fmi3Error : fmi3OK;
 }
 
 fmi3Status fmi3GetString(fmi3Instance c, const fmi3ValueReference vr[], size_t n, fmi3String v[], size_t nv) {
     if (nv != n) return unsupported(c, "arrays");
-    for (size_t k = 0; k < n; k++)
-        if (hl_get_string(((inst_t *)c)->core, vr[k], &v[k])) return fmi3Error;
-    return fmi3OK;
+    return hl_get_strings(((inst_t *)c)->core, vr, n, v) ? fmi3Error : fmi3OK;
 }
 
 fmi3Status fmi3SetString(fmi3Instance c, const fmi3ValueReference vr[], size_t n, const fmi3String v[], size_t nv) {
     if (nv != n) return unsupported(c, "arrays");
-    for (size_t k = 0; k < n; k++)
-        if (hl_set_string(((inst_t *)c)->core, vr[k], v[k])) return fmi3Error;
-    return fmi3OK;
+    return hl_set_strings(((inst_t *)c)->core, vr, n, v) ? fmi3Error : fmi3OK;
 }
 
 /* variable types this FMU has none of */

@@ -835,7 +835,7 @@ int hl_do_step(hl_fmu *f, double time, double step) {
     return 0;
 }
 
-int hl_set_real(hl_fmu *f, unsigned vr, double value) {
+static int set_real(hl_fmu *f, unsigned vr, double value) {
     if (vr == HL_VR_TIMEOUT) {
         if (!(value > 0)) { hl_log(f, 1, "timeout must be > 0 s, got %g", value); return -1; }
         f->timeout = value;
@@ -850,7 +850,7 @@ int hl_set_real(hl_fmu *f, unsigned vr, double value) {
     return -1;
 }
 
-int hl_get_real(hl_fmu *f, unsigned vr, double *value) {
+static int get_real(hl_fmu *f, unsigned vr, double *value) {
     int na = f->na;
     if (vr == HL_VR_TIMEOUT) { *value = f->timeout; return 0; }
     if (vr == HL_VR_TIME) { *value = f->clk.seq * f->dt; return 0; }
@@ -873,7 +873,7 @@ int hl_get_real(hl_fmu *f, unsigned vr, double *value) {
     return -1;
 }
 
-int hl_set_string(hl_fmu *f, unsigned vr, const char *value) {
+static int set_string(hl_fmu *f, unsigned vr, const char *value) {
     if (vr != HL_VR_SERVER) { hl_log(f, 1, "value reference %u is not a string parameter", vr); return -1; }
     if (f->session[0]) { hl_log(f, 1, "server_address is fixed once the session is open"); return -1; }
     if (strlen(value ? value : "") >= sizeof f->server) { hl_log(f, 1, "server_address is too long"); return -1; }
@@ -881,9 +881,34 @@ int hl_set_string(hl_fmu *f, unsigned vr, const char *value) {
     return 0;
 }
 
-int hl_get_string(hl_fmu *f, unsigned vr, const char **value) {
+static int get_string(hl_fmu *f, unsigned vr, const char **value) {
     if (vr != HL_VR_SERVER) { hl_log(f, 1, "value reference %u is not a string parameter", vr); return -1; }
     *value = f->server;
+    return 0;
+}
+
+/* the FMI getters and setters: one value reference after the other, stopping at the first error */
+int hl_set_reals(hl_fmu *f, const unsigned vr[], size_t n, const double value[]) {
+    for (size_t k = 0; k < n; k++)
+        if (set_real(f, vr[k], value[k])) return -1;
+    return 0;
+}
+
+int hl_get_reals(hl_fmu *f, const unsigned vr[], size_t n, double value[]) {
+    for (size_t k = 0; k < n; k++)
+        if (get_real(f, vr[k], &value[k])) return -1;
+    return 0;
+}
+
+int hl_set_strings(hl_fmu *f, const unsigned vr[], size_t n, const char *const value[]) {
+    for (size_t k = 0; k < n; k++)
+        if (set_string(f, vr[k], value[k])) return -1;
+    return 0;
+}
+
+int hl_get_strings(hl_fmu *f, const unsigned vr[], size_t n, const char *value[]) {
+    for (size_t k = 0; k < n; k++)
+        if (get_string(f, vr[k], &value[k])) return -1;
     return 0;
 }
 

@@ -25,10 +25,10 @@ typedef struct hl_fmu hl_fmu;
 
 hl_fmu *hl_new(const char *resources, const char *name, hl_log_fn log, void *env);
 void hl_free(hl_fmu *f);
-int hl_set_real(hl_fmu *f, unsigned vr, double value);
-int hl_get_real(hl_fmu *f, unsigned vr, double *value);
-int hl_set_string(hl_fmu *f, unsigned vr, const char *value);
-int hl_get_string(hl_fmu *f, unsigned vr, const char **value);
+int hl_set_reals(hl_fmu *f, const unsigned vr[], size_t n, const double value[]);
+int hl_get_reals(hl_fmu *f, const unsigned vr[], size_t n, double value[]);
+int hl_set_strings(hl_fmu *f, const unsigned vr[], size_t n, const char *const value[]);
+int hl_get_strings(hl_fmu *f, const unsigned vr[], size_t n, const char *value[]);
 int hl_start(hl_fmu *f);                 /* connect, hello (HDB files by hash, uploads on a miss) */
 int hl_do_step(hl_fmu *f, double time, double step);
 int hl_get_state(hl_fmu *f, void **state);
