@@ -58,7 +58,7 @@ from hydrolink.clients import lockstep
 from hydrolink.clients.coupling_schemes import make_scheme
 from hydrolink.clients.lockstep import (BLOW_UP_LIMIT, CouplingError, DivergenceWatch, ForceLink, Lockstep,  # noqa: F401
                                         RunInterrupted, SimulationDiverged, progress_bar)
-from hydrolink.clients.mechanism import Mechanism, body_reference, build_mechanism
+from hydrolink.clients.mechanism import Mechanism, build_mechanism
 from hydrolink.clients.moorings import MooringSet, build_moorings
 from hydrolink.clients.ptos import PTOSet, build_ptos
 from hydrolink.protocol.scene import Coupling, Scene
@@ -185,7 +185,7 @@ def result_bodies(scene: Scene, setup: Setup | None) -> tuple[list[str], np.ndar
     """Every scene body's name and reference position (N, 6): wet bodies' from the server's setup
     (by name), dry bodies' from the scene (``reference_point``, default the centre of mass)."""
     wet = {n: setup.equilibrium_position[i] for i, n in enumerate(setup.bodies)} if setup else {}
-    ref = [wet[b.name] if b.name in wet else np.r_[body_reference(b), 0.0, 0.0, 0.0] for b in scene.bodies]
+    ref = [wet[b.name] if b.name in wet else np.r_[b.dry_node(), 0.0, 0.0, 0.0] for b in scene.bodies]
     return [b.name for b in scene.bodies], np.asarray(ref, float).reshape(len(ref), 6)
 
 
@@ -337,7 +337,7 @@ def _moordyn_offsets(scene: Scene, moorings: MooringSet, pose: np.ndarray, displ
         if b.wet:
             constant[row, 2] = net_buoyancy.get(b.name, 0.0)
             continue
-        ref = body_reference(b)
+        ref = b.dry_node()
         com = np.asarray(b.center_of_mass, float)
         cob = np.asarray(b.center_of_buoyancy if b.center_of_buoyancy is not None else com, float)
         weight, lift = np.array([0.0, 0.0, -b.mass * g]), np.array([0.0, 0.0, rho * g * b.buoyancy_volume])

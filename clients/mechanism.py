@@ -192,11 +192,6 @@ class Mechanism:
 
 # -- bodies ------------------------------------------------------------------------------------
 
-def body_reference(body: Body) -> np.ndarray:
-    """A dry body's node position: ``reference_point``, default the centre of mass."""
-    return np.asarray(body.reference_point if body.reference_point is not None else body.center_of_mass, float)
-
-
 def _initial(scene: Scene, body: Body, what: str) -> np.ndarray:
     """A body's initial displacement/velocity; nonzero values in inactive DOFs are a scene error."""
     value = np.asarray(getattr(body, what), float)
@@ -671,7 +666,7 @@ def build_mechanism(mbs, scene: Scene, wet_references: dict[str, np.ndarray],
                 raise SceneError("scene", f"bodies[{i}].hdb", f"the force server did not set up wet body {body.name!r}")
             ref = wet_references[body.name]
         else:
-            ref = body_reference(body)
+            ref = body.dry_node()
         q0, v0 = constrained_initial_state(scene, body)
         why = reduction_blocker(scene, body, ref) if reduce else "reduction off"
         if why is None:

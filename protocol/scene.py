@@ -274,6 +274,12 @@ class Body(_Section):
             raise ValueError("center_of_mass: required for a dry body (it places the body)")
         return self
 
+    def dry_node(self) -> "np.ndarray":
+        """A body without an HDB: its node's position, ``reference_point``, default the centre of
+        mass (where the client puts it, and a Morison-only body's forces refer to)."""
+        import numpy as np
+        return np.asarray(self.reference_point if self.reference_point is not None else self.center_of_mass, float)
+
     def com_or(self, reference) -> "np.ndarray":
         """The centre of mass, or for a wet body that gives none (its rotations all locked) the
         ``reference`` point it sits at (its HDB reference point, the body's node)."""

@@ -69,17 +69,10 @@ class Kinematics:
         return ramp_factor(t, self.ramp) * np.real(self._rows @ e).reshape(-1, 3)
 
     def velocity_acceleration(self, t: float) -> tuple[np.ndarray, np.ndarray]:
-        """(P, 3) particle velocity and acceleration at time t, both from one product (the
-        acceleration without the ramp's own rate, as :meth:`acceleration`)."""
+        """(P, 3) particle velocity and acceleration [m/s^2] at time t, both from one product (the
+        acceleration without the ramp's own rate)."""
         if self.still:
             return np.zeros((self.n_points, 3)), np.zeros((self.n_points, 3))
         e = np.exp(-1j * self.omega * t)
         both = np.real(self._rows @ np.column_stack([e, -1j * self.omega * e])) * ramp_factor(t, self.ramp)
         return both[:, 0].reshape(-1, 3), both[:, 1].reshape(-1, 3)
-
-    def acceleration(self, t: float) -> np.ndarray:
-        """(P, 3) particle acceleration at time t [m/s^2] (the ramp's own rate left out)."""
-        if self.still:
-            return np.zeros((self.n_points, 3))
-        e = -1j * self.omega * np.exp(-1j * self.omega * t)
-        return ramp_factor(t, self.ramp) * np.real(self._rows @ e).reshape(-1, 3)

@@ -260,7 +260,7 @@ class HydroModel:
         wet_bodies = [self.scene.bodies[i] for i in self._scene_index]
         for k, b in enumerate(wet_bodies):   # Morison-only bodies: the dry body's node
             if not b.wet:
-                refs[k] = b.reference_point if b.reference_point is not None else b.center_of_mass
+                refs[k] = b.dry_node()
         for d in data:
             refs[d.members] = d.data["reference_point"].values
             c_hs[np.ix_(d.rows, d.rows)] = d.rg_scale * d.data["hydrostatic_stiffness"].values
@@ -425,7 +425,7 @@ class HydroModel:
             elevation_start=float(self.elevation_series.start) if self.elevation_series else 0.0,
             warnings=tuple(self.warnings), last_seq=self.last_seq,
             radiation_feedthrough=self.radiation_feedthrough.copy(),
-            nonlinear={b.name: self.scene.nonlinear_of(b) for b in self.scene.nonlinear_bodies})
+            nonlinear={self.bodies[b.index]: b.mode for b in self.nonlinear.bodies} if self.nonlinear else {})
 
     def radiation_coefficients(self, omega: float) -> tuple[np.ndarray, np.ndarray]:
         """A(omega), B(omega) (6N x 6N over the wet bodies, zero outside the active DOFs and the
@@ -505,7 +505,7 @@ class HydroModel:
             hs, fk = self.nonlinear.force(time, x.reshape(-1, 6))
             hs.flags.writeable = False
             reply["nonlinear_hydrostatic"] = hs
-            if any(b.mode == "froude-krylov" for b in self.nonlinear.bodies):
+            if self.nonlinear.froude_krylov:
                 fk.flags.writeable = False
                 reply["nonlinear_froude_krylov"] = fk
         return reply

@@ -62,17 +62,15 @@ def build_morison(scene: Scene, wet: list[int], waves: WaveComponents,
         return None
     rho = scene.water.density
     names = [scene.bodies[i].name for i in wet]
-    body, centre, normal, axes, inertia, drag, ca_vol = [], [], [], [], [], [], []
+    body, centre, axes, inertia, drag, ca_vol = [], [], [], [], [], []
     for m in scene.morison:
         a, b = np.asarray(m.point_a, float), np.asarray(m.point_b, float)
         axis = (b - a) / np.linalg.norm(b - a)
         n = m.segments
         length = float(np.linalg.norm(b - a)) / n
-        proj = np.eye(3) - np.outer(axis, axis)
         for s in range(n):
             body.append(names.index(m.body))
             centre.append(a + (s + 0.5) / n * (b - a))
-            normal.append(proj)
             axes.append(axis)
             vol = np.pi * m.diameter ** 2 / 4 * length
             inertia.append(rho * (1.0 + m.ca) * vol)
@@ -80,14 +78,13 @@ def build_morison(scene: Scene, wet: list[int], waves: WaveComponents,
             ca_vol.append(rho * m.ca * vol)
     body, centre = np.asarray(body), np.asarray(centre)
     lever = centre - reference_points[body]
-    normal = np.asarray(normal)
     gather = (np.arange(len(wet))[:, None] == body[None, :]).astype(float)
     ms = MorisonSet(body, lever, centre[:, 2].copy(), np.asarray(axes), gather, np.asarray(inertia),
                     np.asarray(drag), Kinematics(waves, centre, scene.water.gravity, scene.water.depth_m), len(wet))
     n6 = 6 * len(wet)
     added = np.zeros((n6, n6))
     for s in np.flatnonzero(centre[:, 2] <= 0.0):
-        p = ca_vol[s] * normal[s]
+        p = ca_vol[s] * (np.eye(3) - np.outer(axes[s], axes[s]))      # normal to the member
         rx = np.array([[0, -lever[s, 2], lever[s, 1]], [lever[s, 2], 0, -lever[s, 0]], [-lever[s, 1], lever[s, 0], 0]])
         m6 = np.block([[p, -p @ rx], [rx @ p, -rx @ p @ rx]])
         k = 6 * body[s]

@@ -77,22 +77,18 @@ class NonlinearHydro:
             self.kx, self.ky = self.k * np.cos(beta), self.k * np.sin(beta)
             self.amp = waves.amplitude * np.exp(1j * waves.phase)
         self.warnings: list[str] = []
+        self.froude_krylov = False   # some body has "froude-krylov": the reply carries that field
 
     def _phasors(self, pts: np.ndarray) -> np.ndarray:
         """a_c e^{i theta_c(x, y)} at points (P, 3): (P, n_c)."""
         return self.amp[None, :] * np.exp(1j * (np.outer(pts[:, 0], self.kx) + np.outer(pts[:, 1], self.ky)))
 
-    def _fk_pressure(self, pts: np.ndarray, e: np.ndarray, eta: np.ndarray | None) -> np.ndarray:
-        """p_FK / (rho g) at points (P, 3) with phasors ``e`` (P, n_c) times e^{-iwt} and ramp; ``eta``
-        (P,) the elevation there for Wheeler stretching (None: unstretched, z clipped at 0)."""
-        z = np.minimum(pts[:, 2], 0.0) if eta is None else self._stretched(pts[:, 2], eta)
-        return np.real(np.sum(e * _depth_factor(self.k, z, self.depth), axis=1))
-
-    def _stretched(self, z: np.ndarray, eta: np.ndarray) -> np.ndarray:
-        if math.isinf(self.depth):
-            return np.minimum(z - eta, 0.0)
+    def _fk_pressure(self, z: np.ndarray, e: np.ndarray, eta: np.ndarray) -> np.ndarray:
+        """p_FK / (rho g) at wet points of heights z (P,) with phasors ``e`` (P, n_c) times e^{-iwt}
+        and ramp, Wheeler-stretched by the elevation ``eta`` (P,) there."""
         h = self.depth
-        return np.minimum(h * (z - eta) / (h + eta), 0.0)
+        z_s = z - eta if math.isinf(h) else h * (z - eta) / (h + eta)
+        return np.real(np.sum(e * _depth_factor(self.k, np.minimum(z_s, 0.0), h), axis=1))
 
     def fk_linear_phasors(self, hull: Hull, reference: np.ndarray) -> np.ndarray:
         """(6, n_c) complex: the Froude–Krylov force and moment of each wave component (unit time
@@ -144,7 +140,7 @@ class NonlinearHydro:
                 continue
             wet_v = np.flatnonzero(d <= 0.0)
             p_v = np.zeros(len(verts))
-            p_v[wet_v] = self._fk_pressure(verts[wet_v], e[wet_v], eta[wet_v])
+            p_v[wet_v] = self._fk_pressure(verts[wet_v, 2], e[wet_v], eta[wet_v])
             p_c = interpolate(p_v[tris[part]], cut)
             surface = cut.s < 1.0
             p_c[surface] = z[surface]   # on the free surface p_FK = rho g eta = rho g z (stretched)
@@ -191,4 +187,5 @@ def build_nonlinear(scene: Scene, wet: list[int], hulls: dict[str, Hull], waves:
     if not bodies:
         return None
     model.bodies = bodies
+    model.froude_krylov = any(b.mode == "froude-krylov" for b in bodies)
     return model

@@ -178,7 +178,8 @@ def _join(meshes: list, name: str):
     return meshes[0].join_meshes(*meshes[1:], name=name) if len(meshes) > 1 else meshes[0]
 
 
-def _file_mesh(body: BodySpec, key: str, spec_path: str | Path, depth: float):
+def _read_mesh_file(body: BodySpec, key: str, spec_path: str | Path):
+    """A mesh body's whole mesh from its file, moved to the body's ``center``."""
     import capytaine as cpt
 
     path = mesh_path(body, spec_path)
@@ -188,8 +189,11 @@ def _file_mesh(body: BodySpec, key: str, spec_path: str | Path, depth: float):
         full = cpt.load_mesh(str(path), body.mesh_format) if body.mesh_format else cpt.load_mesh(str(path))
     except Exception as exc:  # noqa: BLE001 - any reader failure is a bad spec input
         raise SpecError(spec_path, f"{key}.mesh", f"cannot read mesh {path}: {exc}") from None
-    if any(body.center):
-        full = full.translated(tuple(body.center), name=body.name)
+    return full.translated(tuple(body.center), name=body.name) if any(body.center) else full
+
+
+def _file_mesh(body: BodySpec, key: str, spec_path: str | Path, depth: float):
+    full = _read_mesh_file(body, key, spec_path)
     hull = full.immersed_part(water_depth=depth)
     if hull.nb_faces == 0 or not body.lid or hull.z_span[1] < -1e-9:
         return hull, None
@@ -234,18 +238,9 @@ def closed_hull(spec: BuildSpec, index: int, spec_path: str | Path):
     """The whole closed hull of ``spec.all_bodies[index]`` (freeboard and deck included, no lid),
     global frame, as (vertices (V, 3), faces (F, 4)): what nonlinear hydrostatics integrate over
     (server/nonlinear_hydro.py). Primitives use the body's panel size; a mesh body is its file."""
-    import capytaine as cpt
-
     body, key = spec.all_bodies[index], spec.body_keys[index]
     if body.shape == "mesh":
-        path = mesh_path(body, spec_path)
-        try:
-            full = cpt.load_mesh(str(path), body.mesh_format) if body.mesh_format else cpt.load_mesh(str(path))
-        except Exception as exc:  # noqa: BLE001 - any reader failure is a bad spec input
-            raise SpecError(spec_path, f"{key}.mesh", f"cannot read mesh {path}: {exc}") from None
-        if any(body.center):
-            full = full.translated(tuple(body.center))
-        meshes = [full]
+        meshes = [_read_mesh_file(body, key, spec_path)]
     else:
         h_body = body.panel_size or default_panel_size(spec, body)
         meshes = [_closed_primitive(p, p.panel_size or h_body, body.name, symmetric=False, even_theta=False,
