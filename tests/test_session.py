@@ -80,6 +80,27 @@ def test_hello_errors_name_the_field(hdb):
     refused(lambda: build_model(wire(scene="[simulation\n", hdbs={})), Code.BAD_SCENE, "scene")
 
 
+def test_hello_meshes_errors_name_the_field(hdb):
+    """hello.meshes (SPEC §5.1): each malformed hull is refused naming meshes.<body> or its array."""
+    cube = np.array([[x, y, z] for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in (-2.0, 1.0)])
+    faces = np.array([[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]])
+
+    def with_mesh(meshes):
+        return wire(**hello(hdb, nonlinear="hydrostatic"), meshes=meshes)
+    assert build_model(with_mesh({"float": {"vertices": cube, "faces": faces}})).nonlinear is not None
+    refused(lambda: build_model(with_mesh([1, 2])), Code.BAD_VALUE, "meshes")
+    refused(lambda: build_model(with_mesh({"float": 3})), Code.BAD_VALUE, "meshes.float")
+    refused(lambda: build_model(with_mesh({"float": {"faces": faces}})), Code.MISSING_FIELD, "meshes.float.vertices")
+    refused(lambda: build_model(with_mesh({"float": {"vertices": cube, "faces": faces + 0.5}})), Code.BAD_VALUE,
+            "meshes.float.faces")
+    err = refused(lambda: build_model(with_mesh({"float": {"vertices": cube, "faces": faces[:5]}})), Code.BAD_VALUE,
+                  "meshes.float")
+    assert "not closed: 4 edges belong to one panel only" in err.message
+    refused(lambda: build_model(with_mesh({"float": {"vertices": cube[:, :2], "faces": faces}})), Code.BAD_VALUE,
+            "meshes.float")
+    refused(lambda: build_model(hello(hdb, nonlinear="hydrostatic")), Code.BAD_SCENE, "scene.bodies[0].mesh")
+
+
 def test_replace_rolls_the_radiation_memory_back(hdb):
     """Step 1 sent with one velocity and replaced (iteration 1) with another gives exactly the
     forces of a session that only ever saw the second; step 2 then convolves the second. With a
