@@ -26,7 +26,7 @@ from pathlib import Path
 import netCDF4
 
 REPO = Path(__file__).resolve().parents[1]
-SHARED = Path(os.environ.get("HYDROLINK_SHARED", REPO.parent / "shared"))
+DATA = REPO / "examples" / "data"
 HYDROLINK = [sys.executable, "-m", "hydrolink.clients.cli"]
 SCENE = """[simulation]
 dt = 0.01
@@ -92,7 +92,7 @@ def main() -> None:
     ap.add_argument("--kills", type=int, default=3)
     args = ap.parse_args()
     work = Path(tempfile.mkdtemp(prefix="bench-flush-"))
-    shutil.copy(SHARED / "data" / "sphere_task10" / "sphere.h5", work / "sphere.h5")
+    shutil.copy(DATA / "sphere_task10" / "sphere.h5", work / "sphere.h5")
     rng = random.Random(1)
     print(f"# bench_flush (load {os.getloadavg()[0]:.2f})\n")
     print("| flush_seconds | wall time lost at SIGKILL (worst of %d) | rows lost (worst) | µs/step (20,000 steps, whole run) |" % args.kills)

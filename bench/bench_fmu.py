@@ -28,7 +28,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
-SHARED = Path(os.environ.get("HYDROLINK_SHARED", REPO.parent / "shared"))
+DATA = REPO / "examples" / "data"
 SCENE = """[simulation]
 dt = 0.02
 duration = 600.0
@@ -97,7 +97,7 @@ def main() -> None:
     print(f"load average {os.getloadavg()[0]:.2f}")
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        shutil.copy(SHARED / "data" / "sphere_task10" / "sphere.h5", tmp / "sphere.h5")
+        shutil.copy(DATA / "sphere_task10" / "sphere.h5", tmp / "sphere.h5")
         (tmp / "scene.toml").write_text(SCENE)
         cli = [sys.executable, "-m", "hydrolink.clients.cli"]
         for flag in ("--native", "--python"):

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-SHARED = Path(os.environ.get("HYDROLINK_SHARED", REPO.parent / "shared")) / "data"
+DATA = REPO / "examples" / "data"
 
 
 def scene_text(waves: str, extra: str) -> str:
@@ -69,7 +69,7 @@ def main() -> None:
     from hydrolink.server.waves import wave_components
     from hydrolink.protocol.scene import IrregularWave
 
-    hdb = load_hdb(SHARED / "sphere_task10" / "sphere.h5")
+    hdb = load_hdb(DATA / "sphere_task10" / "sphere.h5")
     seas = {"regular": 'type = "regular"\nheight = 1.0\nperiod = 6.0',
             "irregular (300 components)": 'type = "irregular"\nspectrum = "jonswap"\nhs = 2.0\ntp = 8.0'}
     terms = {"none": "", "quadratic_damping": "quadratic_damping = [1e4, 1e4, 8e4, 1e6, 1e6, 1e6]",
@@ -107,7 +107,7 @@ def nonlinear(steps: int) -> None:
     from hydrolink.server.model import HydroModel
     from hydrolink.server.wetted_surface import closed_hull
 
-    hdb = load_hdb(SHARED / "sphere_task10" / "sphere.h5")
+    hdb = load_hdb(DATA / "sphere_task10" / "sphere.h5")
     seas = {"still water, hydrostatic": ('type = "still"', "hydrostatic"),
             "regular, froude-krylov": ('type = "regular"\nheight = 1.0\nperiod = 6.0', "froude-krylov"),
             "irregular (300 components), froude-krylov": ('type = "irregular"\nspectrum = "jonswap"\nhs = 2.0\ntp = 8.0',

@@ -53,8 +53,8 @@ HEADINGS = (0.0, 120.0, 240.0)
 def example_text() -> str:
     """The example scene with its HDB path made absolute and progress off."""
     text = (EXAMPLE / "rm3_moordyn.toml").read_text()
-    hdb = (EXAMPLE / "../../../shared/data/rm3_wamit/rm3.1").resolve()
-    text = text.replace('"../../../shared/data/rm3_wamit/rm3.1"', f'"{hdb}"')
+    hdb = (EXAMPLE / "../data/rm3_wamit/rm3.1").resolve()
+    text = text.replace('"../data/rm3_wamit/rm3.1"', f'"{hdb}"')
     return text.replace("[simulation]\n", "[simulation]\nprogress = false\n", 1)
 
 

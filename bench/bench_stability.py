@@ -42,7 +42,7 @@ X0, DURATION, IRF = 0.5, 10.0, 20.0
 
 
 def load_sphere():
-    ds = load_hdb(REPO.parent / "shared" / "data" / "sphere_task10" / "sphere.h5")
+    ds = load_hdb(REPO / "examples" / "data" / "sphere_task10" / "sphere.h5")
     return ds.drop_vars(["displaced_volume", "center_of_buoyancy"])
 
 

@@ -1,12 +1,11 @@
-"""Shared test fixtures (the leads' reference data lives in ../shared beside the repository) and the
-scene builder every test uses to write scene TOML."""
+"""Shared test fixtures (the reference HDBs live in examples/data, with their sources and licences in
+its README) and the scene builder every test uses to write scene TOML."""
 
 from __future__ import annotations
 
 import contextlib
 import json
 import numbers
-import os
 import re
 import shutil
 import subprocess
@@ -19,22 +18,19 @@ import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-SHARED = Path(os.environ.get("HYDROLINK_SHARED", REPO.parent / "shared"))
+REFERENCE_DATA = REPO / "examples" / "data"
 
 
 @pytest.fixture(scope="session")
-def shared_data() -> Path:
-    """Folder with the reference HDBs (rm3_wamit/, rm3_capytaine/, sphere_task10/)."""
-    data = SHARED / "data"
-    if not data.is_dir():
-        raise RuntimeError(f"reference data not found at {data}: set HYDROLINK_SHARED to the shared/ folder")
-    return data
+def reference_data() -> Path:
+    """Folder with the reference HDBs in the repository (rm3_wamit/, rm3_capytaine/, sphere_task10/)."""
+    return REFERENCE_DATA
 
 
 @pytest.fixture(scope="session")
-def sphere_path(shared_data: Path) -> Path:
+def sphere_path(reference_data: Path) -> Path:
     """The IEA Task-10 floating sphere (BEMIO .h5; depth 200 m, rho 1000)."""
-    return shared_data / "sphere_task10" / "sphere.h5"
+    return reference_data / "sphere_task10" / "sphere.h5"
 
 
 @pytest.fixture(scope="module")

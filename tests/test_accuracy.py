@@ -142,11 +142,11 @@ def test_compare_against_a_known_error():
     assert e["power_error"] == pytest.approx(0.02, rel=1e-2)
 
 
-def test_bench_accuracy_tiny_rm3(tmp_path, shared_data):
+def test_bench_accuracy_tiny_rm3(tmp_path, reference_data):
     """RM3 (heave float + spar, PTO), 40 s: reference dt 0.02; options dt 0.04/0.08/0.16 and the
     state-space and constant radiation, through the CLI."""
     text = (REPO / "examples" / "rm3" / "rm3.toml").read_text()
-    text = text.replace("../../../shared/data/rm3_wamit/rm3.1", str(shared_data / "rm3_wamit" / "rm3.1"))
+    text = text.replace("../data/rm3_wamit/rm3.1", str(reference_data / "rm3_wamit" / "rm3.1"))
     text = text.replace("ramp = 40.0", "ramp = 10.0")
     scene = tmp_path / "rm3.toml"
     scene.write_text(text)

@@ -33,8 +33,8 @@ def sphere_scene(*, hdb: str = "sphere.h5", mass: float = 261800.0, **body_keys)
 
 
 @pytest.fixture()
-def scene_dir(tmp_path: Path, shared_data: Path) -> Path:
-    shutil.copy(shared_data / "sphere_task10" / "sphere.h5", tmp_path / "sphere.h5")
+def scene_dir(tmp_path: Path, reference_data: Path) -> Path:
+    shutil.copy(reference_data / "sphere_task10" / "sphere.h5", tmp_path / "sphere.h5")
     write_scene(tmp_path, sphere_scene())
     return tmp_path
 
@@ -138,8 +138,8 @@ def test_wrong_hdb_body_names_the_key(scene_dir: Path):
     assert "wrong.toml: bodies[0].hdb_body: the HDB sphere.h5 holds no body 'float'" in result.stderr
 
 
-def test_hdb_info_on_wamit_files_with_plot(tmp_path: Path, shared_data: Path):
-    for f in (shared_data / "rm3_wamit").iterdir():
+def test_hdb_info_on_wamit_files_with_plot(tmp_path: Path, reference_data: Path):
+    for f in (reference_data / "rm3_wamit").iterdir():
         shutil.copy(f, tmp_path / f.name)
     result = _cli("hdb", "info", "rm3.1", "--plot", "rm3.png", "--dofs", "heave", cwd=tmp_path)
     assert result.returncode == 0, result.stderr

@@ -46,19 +46,19 @@ HEAVE = [2, 8]
 # ---------------------------------------------------------------- reference
 
 @pytest.fixture(scope="module")
-def thevenin(shared_data):
+def thevenin(reference_data):
     from hydrolink.server.hdb.io import load_hdb
-    th = _thevenin_port(load_hdb(shared_data / "rm3_wamit" / "rm3.1"))
+    th = _thevenin_port(load_hdb(reference_data / "rm3_wamit" / "rm3.1"))
     f2 = abs(th["G"] * H / 2) ** 2
     return {**th, "absZ": abs(th["R"] + 1j * th["X"]), "passive": f2 / (4 * (abs(th["R"] + 1j * th["X"]) + th["R"]))}
 
 
 # ---------------------------------------------------------------- helpers
 
-def scene_text(shared_data: Path, duration: float, controller: str) -> str:
+def scene_text(reference_data: Path, duration: float, controller: str) -> str:
     text = (REPO / "examples" / "rm3" / "rm3.toml").read_text()
-    hdb = (shared_data / "rm3_wamit" / "rm3.1").as_posix()
-    for a, b in (('"../../../shared/data/rm3_wamit/rm3.1"', f'"{hdb}"'), ("duration = 400.0", f"duration = {duration}"),
+    hdb = (reference_data / "rm3_wamit" / "rm3.1").as_posix()
+    for a, b in (('"../data/rm3_wamit/rm3.1"', f'"{hdb}"'), ("duration = 400.0", f"duration = {duration}"),
                  ("period = 8.0", f"period = {PERIOD}"), ("dt = 0.08", f"dt = {DT}"), ("ramp = 40.0", "ramp = 20.0"),
                  ("damping = 1.2e6          # N s/m", "damping = 0.0")):
         assert a in text
@@ -135,7 +135,7 @@ class Impedance(Controller):
 # ---------------------------------------------------------------- power
 
 @pytest.mark.parametrize("command", ["impedance", "force"])
-def test_reactive_beats_passive_against_the_optimum(shared_data, thevenin, server, tmp_path, command):
+def test_reactive_beats_passive_against_the_optimum(reference_data, thevenin, server, tmp_path, command):
     """RM3 at T = 4 s: the controller in its own process sets the best passive damper, then the
     conjugate-matched spring-damper. ``impedance``: setpoints of the connector (continuous in the
     integrator): both within 0.5 % of the frequency domain. ``force``: F = c u + k x from the
@@ -151,7 +151,7 @@ def test_reactive_beats_passive_against_the_optimum(shared_data, thevenin, serve
     assert k_opt > 0  # off resonance on the stiff side: a positive spring, a stable closed loop
     powers = {}
     for name, c, k in (("passive", th["absZ"], 0.0), ("reactive", th["R"], k_opt)):
-        ds, summary, (rc, err) = run_with(tmp_path, name, scene_text(shared_data, 80.0, controller_block(command, c, k)),
+        ds, summary, (rc, err) = run_with(tmp_path, name, scene_text(reference_data, 80.0, controller_block(command, c, k)),
                                           server.address, python_ctl(file, server.address))
         assert rc == 0, err
         ev = json.loads(ds.attrs["controller_events"])["ctl"]
@@ -173,13 +173,13 @@ def test_reactive_beats_passive_against_the_optimum(shared_data, thevenin, serve
 
 # ---------------------------------------------------------------- C == Python
 
-def test_c_controller_equals_python_bit_for_bit(shared_data, tmp_path, tmp_path_factory):
+def test_c_controller_equals_python_bit_for_bit(reference_data, tmp_path, tmp_path_factory):
     """The same run with the Python reactive controller and with its C twin, both against one
     separate `hydrolink serve` process: identical results, bit for bit. (One server for both: a
     server in the test process runs BLAS with its default thread count, `hydrolink serve` with one,
     and OpenBLAS may sum in another order with more threads.)"""
     exe = c_controller(tmp_path_factory)
-    text = scene_text(shared_data, 12.0, controller_block("force", 3.9e5, 1.36e6,
+    text = scene_text(reference_data, 12.0, controller_block("force", 3.9e5, 1.36e6,
                                                           measurements=["pto_displacement", "pto_velocity"]))
     serve = subprocess.Popen([sys.executable, "-m", "hydrolink.clients.cli", "serve", "--bind", "tcp://127.0.0.1:0"],
                              stderr=subprocess.PIPE, text=True)
@@ -235,7 +235,7 @@ print(run_controller(controller, sys.argv[3], join_wait=5.0), flush=True)
 '''
 
 
-def test_slow_and_crashed_controller_fall_back_and_reconnect(shared_data, server, tmp_path):
+def test_slow_and_crashed_controller_fall_back_and_reconnect(reference_data, server, tmp_path):
     """A controller that misses one deadline (sleeps 0.8 s > timeout 0.5 s) and later crashes: the
     run never hangs; the passive fallback takes over (logged, counted, recorded) and, once a
     controller is known to be gone, costs no waiting ("absent"); the slow one's late command is
@@ -245,7 +245,7 @@ def test_slow_and_crashed_controller_fall_back_and_reconnect(shared_data, server
     marker = tmp_path / "crashed"
     succ = tmp_path / "successor.py"
     succ.write_text(SUCCESSOR)
-    text = scene_text(shared_data, 60.0, controller_block("force", 1.0e6, 0.0, fallback="passive",
+    text = scene_text(reference_data, 60.0, controller_block("force", 1.0e6, 0.0, fallback="passive",
                                                            fallback_damping=7.0e5))
     text = text.replace("timeout = 10.0", "timeout = 0.5")
     successor = subprocess.Popen([sys.executable, str(succ), str(marker), str(file), server.address],
@@ -303,10 +303,10 @@ class Bad(Controller):
 '''
 
 
-def test_malformed_commands_get_clear_errors_and_the_fallback(shared_data, server, tmp_path):
+def test_malformed_commands_get_clear_errors_and_the_fallback(reference_data, server, tmp_path):
     file = tmp_path / "bad.py"
     file.write_text(BAD)
-    text = scene_text(shared_data, 4.0, controller_block("force", 1.0e6, 0.0, max_force=1.0e7))
+    text = scene_text(reference_data, 4.0, controller_block("force", 1.0e6, 0.0, max_force=1.0e7))
     ds, _, (rc, err) = run_with(tmp_path, "bad", text, server.address, python_ctl(file, server.address))
     assert rc == 0, err
     ev = json.loads(ds.attrs["controller_events"])["ctl"]
@@ -319,13 +319,13 @@ def test_malformed_commands_get_clear_errors_and_the_fallback(shared_data, serve
     assert f[6] == f[5] and f[11] == f[10] and f[16] == f[15]
 
 
-def test_wrong_session_version_and_name(shared_data, server, tmp_path):
+def test_wrong_session_version_and_name(reference_data, server, tmp_path):
     """Raw messages against a session with a controller: clear errors, the session unharmed."""
     from hydrolink.clients.connection import ServerConnection
     from hydrolink.clients.run import load_scene_hdbs
     from hydrolink.protocol.scene import parse_scene
 
-    text = scene_text(shared_data, 4.0, controller_block("force", 1.0e6, 0.0, join_timeout=0.2))
+    text = scene_text(reference_data, 4.0, controller_block("force", 1.0e6, 0.0, join_timeout=0.2))
     scene_path = tmp_path / "s.toml"
     scene_path.write_text(text)
     hdbs = load_scene_hdbs(parse_scene(text), scene_path)
@@ -374,20 +374,20 @@ def test_wrong_session_version_and_name(shared_data, server, tmp_path):
         ctx.term()
 
 
-def test_in_process_server_refuses_controllers(shared_data, tmp_path):
+def test_in_process_server_refuses_controllers(reference_data, tmp_path):
     from hydrolink.clients.connection import RemoteError, ServerConnection
     from hydrolink.clients.run import load_scene_hdbs
     from hydrolink.protocol.scene import parse_scene
     from hydrolink.server.service import ForceServer
 
-    text = scene_text(shared_data, 4.0, controller_block("force", 1.0e6, 0.0))
+    text = scene_text(reference_data, 4.0, controller_block("force", 1.0e6, 0.0))
     (tmp_path / "s.toml").write_text(text)
     hdbs = load_scene_hdbs(parse_scene(text), tmp_path / "s.toml")
     with ServerConnection(ForceServer(None)) as conn, pytest.raises(RemoteError, match="scene.controllers"):
         conn.hello(text, hdbs)
 
 
-def test_wave_probes_match_the_model_and_travel(shared_data):
+def test_wave_probes_match_the_model_and_travel(reference_data):
     """The server's elevation probes: at the origin exactly the model's wave_elevation; a probe
     downstream sees the same wave later by x / c (phase speed w / k, deep water k = w^2 / g)."""
     from hydrolink.protocol.scene import parse_scene
@@ -395,8 +395,8 @@ def test_wave_probes_match_the_model_and_travel(shared_data):
     from hydrolink.server.hdb.io import load_hdb
     from hydrolink.server.model import HydroModel
 
-    scene = parse_scene(scene_text(shared_data, 4.0, controller_block("force", 1.0, 0.0)))
-    rm3 = load_hdb(shared_data / "rm3_wamit" / "rm3.1")
+    scene = parse_scene(scene_text(reference_data, 4.0, controller_block("force", 1.0, 0.0)))
+    rm3 = load_hdb(reference_data / "rm3_wamit" / "rm3.1")
     model = HydroModel(scene, {"float": rm3, "spar": rm3})
     k = W * W / 9.81
     lag = 10.0 / (W / k)
@@ -414,7 +414,7 @@ def test_wave_probes_match_the_model_and_travel(shared_data):
             assert eta[1, 0] == pytest.approx(probes(t - lag)[0, 0], abs=1e-9)   # downstream = earlier at 0
 
 
-def test_pseudospectral_preview_controller_reaches_the_optimum(shared_data, thevenin, server, tmp_path):
+def test_pseudospectral_preview_controller_reaches_the_optimum(reference_data, thevenin, server, tmp_path):
     """examples/controllers/pseudospectral.py: feedforward from the server's perfect wave preview
     (one Fourier component, 2 s of preview) plus velocity tracking; mean power near |F|^2/(8R)."""
     th = thevenin
@@ -423,7 +423,7 @@ def test_pseudospectral_preview_controller_reaches_the_optimum(shared_data, thev
     block = controller_block("force", 0.0, 0.0, measurements=["pto_velocity", "wave_elevation"], preview=2.0)
     block = block.replace("parameters = { damping = 0.0, stiffness = 0.0 }",
                           "parameters = { " + ", ".join(f"{k} = {float(v)!r}" for k, v in params.items()) + " }")
-    ds, _, (rc, err) = run_with(tmp_path, "ps", scene_text(shared_data, 80.0, block), server.address,
+    ds, _, (rc, err) = run_with(tmp_path, "ps", scene_text(reference_data, 80.0, block), server.address,
                                 python_ctl(EXAMPLES / "pseudospectral.py", server.address))
     assert rc == 0, err
     p = mean_power(ds)
@@ -432,7 +432,7 @@ def test_pseudospectral_preview_controller_reaches_the_optimum(shared_data, thev
 
 
 @pytest.mark.parametrize("example", ["passive", "latching"])
-def test_examples_run(shared_data, server, tmp_path, example):
+def test_examples_run(reference_data, server, tmp_path, example):
     """The other examples drive the device: passive damping (force) and latching (impedance)."""
     if example == "passive":
         block = controller_block("force", 9.5e5, 0.0)
@@ -440,7 +440,7 @@ def test_examples_run(shared_data, server, tmp_path, example):
         block = controller_block("impedance", 0.0, 0.0).replace(
             "parameters = { damping = 0.0, stiffness = 0.0 }",
             "parameters = { damping = 9.5e5, latch_damping = 1.0e9, latch_time = 0.4 }")
-    ds, _, (rc, err) = run_with(tmp_path, example, scene_text(shared_data, 40.0, block), server.address,
+    ds, _, (rc, err) = run_with(tmp_path, example, scene_text(reference_data, 40.0, block), server.address,
                                 python_ctl(EXAMPLES / f"{example}.py", server.address))
     assert rc == 0, err
     assert json.loads(ds.attrs["controller_events"])["ctl"]["ok"] == 1000
@@ -471,12 +471,12 @@ def _thevenin_port(rm3) -> dict:
     return {"R": r, "X": z_th.imag, "G": g, "optimum": abs(g * H / 2) ** 2 / (8 * r)}
 
 
-def test_period_and_latency(shared_data, server, tmp_path):
+def test_period_and_latency(reference_data, server, tmp_path):
     """period = 2 dt, latency = 2: the command from the measurements of step k (k even) is in force
     from step k + 2 until the next one, and equals c v_k + k x_k of the state at t_k."""
     c, k = 3.9e5, 1.36e6
     block = controller_block("force", c, k, period=2 * DT, latency=2)
-    ds, _, (rc, err) = run_with(tmp_path, "lat", scene_text(shared_data, 4.0, block), server.address,
+    ds, _, (rc, err) = run_with(tmp_path, "lat", scene_text(reference_data, 4.0, block), server.address,
                                 python_ctl(EXAMPLES / "reactive.py", server.address))
     assert rc == 0, err
     status = ds["controller_status"].sel(controller="ctl").values

@@ -73,10 +73,10 @@ def test_keys_new_refuses_to_overwrite(tmp_path):
     assert oct((tmp_path / "a.key_secret").stat().st_mode & 0o777) == "0o600"
 
 
-def test_authenticated_run(curve_server, shared_data, tmp_path):
+def test_authenticated_run(curve_server, reference_data, tmp_path):
     """An allowed key runs an RM3 scene end to end over the encrypted connection (CLI `hydrolink run`)."""
     text = (REPO / "examples" / "rm3" / "rm3.toml").read_text()
-    text = text.replace('"../../../shared/data/rm3_wamit/rm3.1"', f'"{(shared_data / "rm3_wamit" / "rm3.1").as_posix()}"')
+    text = text.replace('"../data/rm3_wamit/rm3.1"', f'"{(reference_data / "rm3_wamit" / "rm3.1").as_posix()}"')
     text = text.replace("duration = 400.0", "duration = 0.8")
     scene = tmp_path / "rm3.toml"
     scene.write_text(text)

@@ -47,7 +47,7 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def test_compose_stack_runs_on_loopback(shared_data, tmp_path):
+def test_compose_stack_runs_on_loopback(reference_data, tmp_path):
     entry, image_env = dockerfile()
     compose = yaml.safe_load((REPO / "docker" / "compose.yaml").read_text())["services"]
     assert set(compose) == {"server", "client", "controller"}
@@ -60,7 +60,7 @@ def test_compose_stack_runs_on_loopback(shared_data, tmp_path):
         assert out.returncode == 0, out.stderr
     scene_dir.mkdir()
     text = (REPO / "examples" / "rm3" / "rm3.toml").read_text()
-    for a, b in (('"../../../shared/data/rm3_wamit/rm3.1"', f'"{(shared_data / "rm3_wamit" / "rm3.1").as_posix()}"'),
+    for a, b in (('"../data/rm3_wamit/rm3.1"', f'"{(reference_data / "rm3_wamit" / "rm3.1").as_posix()}"'),
                  ("duration = 400.0", "duration = 1.6")):
         text = text.replace(a, b)
     (scene_dir / "rm3.toml").write_text(text + '\n[[controllers]]\nname = "ctl"\nptos = ["pto"]\ntimeout = 20.0\n'

@@ -46,9 +46,9 @@ def _elevation(file: str, **keys) -> dict:
 
 
 @pytest.fixture(scope="module")
-def rm3(shared_data):
+def rm3(reference_data):
     from hydrolink.server.hdb.io import load_hdb
-    return load_hdb(shared_data / "rm3_wamit" / "rm3.1")
+    return load_hdb(reference_data / "rm3_wamit" / "rm3.1")
 
 
 def _forces(model: HydroModel, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -129,12 +129,12 @@ def test_convolution_with_a_cut_hdb_range(rm3):
     assert models[0].waves.energy_outside > 0.01
 
 
-def test_regular_wave_convolution_run_matches_superposition(rm3, tmp_path, shared_data):
+def test_regular_wave_convolution_run_matches_superposition(rm3, tmp_path, reference_data):
     """End to end (hydrolink run, Exudyn client): RM3 in a regular wave, excitation by convolution
     vs superposition: heave motions and PTO power agree."""
     import xarray as xr
     from hydrolink.clients.run import run_scene_file
-    hdb = shared_data / "rm3_wamit" / "rm3.1"
+    hdb = reference_data / "rm3_wamit" / "rm3.1"
     res = {}
     for exc in ("superposition", "convolution"):
         waves = regular_waves(2.5, 8.0, ramp=20.0, excitation=exc, excitation_irf_duration=30.0)
@@ -183,7 +183,7 @@ def test_elevation_file_matches_superposition(rm3, tmp_path, fmt, spacing):
     assert np.abs(f - f0).max() < 2e-3 * np.abs(f0).max()
 
 
-def test_elevation_run_end_to_end(rm3, tmp_path, shared_data):
+def test_elevation_run_end_to_end(rm3, tmp_path, reference_data):
     """hydrolink run with a CSV (default start = first time + T_c): results' wave_elevation is the
     file's eta from there on."""
     import xarray as xr
@@ -191,7 +191,7 @@ def test_elevation_run_end_to_end(rm3, tmp_path, shared_data):
     t = np.arange(0.0, 100.0, 0.08)
     eta = 0.8 * np.cos(2 * np.pi / 8.0 * t) + 0.3 * np.sin(2 * np.pi / 5.5 * t + 1.0)
     (tmp_path / "eta.csv").write_text("\n".join(f"{a:.4f} {b:.10f}" for a, b in zip(t, eta)))
-    hdb = shared_data / "rm3_wamit" / "rm3.1"
+    hdb = reference_data / "rm3_wamit" / "rm3.1"
     p = write_scene(tmp_path, _rm3_scene(_elevation("eta.csv", excitation_irf_duration=20.0), hdb=str(hdb), dt=0.08,
                                          duration=40.0))
     s = run_scene_file(p, tmp_path / "out.nc", progress=False, hdbs={str(hdb): rm3})

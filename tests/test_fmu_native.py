@@ -328,7 +328,7 @@ def test_libcosim_couples_it_to_a_body_fmu(fmus, server, sphere, omega, tmp_path
     assert abs(err) <= 0.01
 
 
-def test_two_bodies_from_wamit_files_give_the_servers_forces(tmp_path, shared_data, server):
+def test_two_bodies_from_wamit_files_give_the_servers_forces(tmp_path, reference_data, server):
     """RM3 (float and spar, heave and pitch active: 4 inputs of each kind), its HDB as the WAMIT
     run's five files: every output equals, bit for bit, what the Python client gets for the same
     states (force = excitation + radiation + hydrostatic + net buoyancy); the dependencies hold the
@@ -340,7 +340,7 @@ def test_two_bodies_from_wamit_files_give_the_servers_forces(tmp_path, shared_da
     from hydrolink.clients.fmu_native import export_native_fmu
     from hydrolink.server.hdb.io import load_hdb
     for name in ("rm3.1", "rm3.3", "rm3.hst", "rm3.out", "rm3.cfg"):
-        shutil.copy(shared_data / "rm3_wamit" / name, tmp_path / name)
+        shutil.copy(reference_data / "rm3_wamit" / name, tmp_path / name)
     dofs = ["heave", "pitch"]
     path = write_scene(tmp_path, scene_toml(dt=0.05, duration=20.0, waves=regular_waves(2.0, 8.0, ramp=5.0),
                                             hydro={"irf_duration": 20.0},

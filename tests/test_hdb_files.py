@@ -63,9 +63,9 @@ def forces(address: str, scene: str, hdbs: dict, steps: int = 40) -> tuple[list[
 
 @pytest.mark.filterwarnings("ignore:.*rotational modes are taken about the origin")
 @pytest.mark.parametrize("fmt", list(CASES))
-def test_files_by_hash_give_the_map_forces_bit_for_bit(fmt, shared_data, server):
+def test_files_by_hash_give_the_map_forces_bit_for_bit(fmt, reference_data, server):
     rel, make_scene = CASES[fmt]
-    path = shared_data / rel
+    path = reference_data / rel
     key = path.name
     scene = make_scene(key)
     files = file_set(path)
@@ -81,13 +81,13 @@ def test_files_by_hash_give_the_map_forces_bit_for_bit(fmt, shared_data, server)
     assert np.abs(by_map[-1]["radiation"]).max() > 0
 
 
-def test_wamit_file_set_holds_what_the_reader_reads(shared_data):
-    files = file_set(shared_data / "rm3_wamit" / "rm3")
+def test_wamit_file_set_holds_what_the_reader_reads(reference_data):
+    files = file_set(reference_data / "rm3_wamit" / "rm3")
     assert [p.name for p in files.paths] == ["rm3.1", "rm3.3", "rm3.hst", "rm3.out", "rm3.cfg"]
 
 
-def test_inline_bytes_fill_the_store(shared_data, server, store):
-    path = shared_data / "sphere_task10" / "sphere.h5"
+def test_inline_bytes_fill_the_store(reference_data, server, store):
+    path = reference_data / "sphere_task10" / "sphere.h5"
     data = path.read_bytes()
     digest = hashlib.sha256(data).hexdigest()
     with ServerConnection(server.address) as conn:
@@ -99,8 +99,8 @@ def test_inline_bytes_fill_the_store(shared_data, server, store):
     assert ContentStore(store.folder).get(digest) == data
 
 
-def test_missing_hash_is_error_13_listing_it(shared_data, server):
-    files = file_set(shared_data / "rm3_wamit" / "rm3.1")
+def test_missing_hash_is_error_13_listing_it(reference_data, server):
+    files = file_set(reference_data / "rm3_wamit" / "rm3.1")
     entry = files.entry()
     with ServerConnection(server.address) as conn:
         with pytest.raises(RemoteError) as err:
@@ -111,7 +111,7 @@ def test_missing_hash_is_error_13_listing_it(shared_data, server):
     assert "upload" in e.message
 
 
-def test_bad_uploads_are_refused_and_the_server_keeps_serving(tmp_path, shared_data):
+def test_bad_uploads_are_refused_and_the_server_keeps_serving(tmp_path, reference_data):
     small = ContentStore(tmp_path / "small", disk_bytes=100_000)
     srv, thread = serve_in_thread(store=small)
     try:
@@ -160,10 +160,10 @@ def test_bad_file_sets_name_the_field(entry, field, words, server):
         assert conn.request("ping")["type"] == "pong"
 
 
-def test_corrupt_contents_are_bad_hdb_naming_the_file(shared_data, server, tmp_path):
+def test_corrupt_contents_are_bad_hdb_naming_the_file(reference_data, server, tmp_path):
     """Real file names with damaged contents: error 9 naming the file; nothing is written outside
     the server's temporary folder and the next good session works."""
-    src = shared_data / "rm3_wamit"
+    src = reference_data / "rm3_wamit"
     damaged = tmp_path / "rm3.1"
     damaged.write_bytes((src / "rm3.1").read_bytes()[:5000] + b"\nnot numbers at all\n")
     files = HDBFiles("wamit", (damaged, src / "rm3.3", src / "rm3.hst"))
@@ -183,10 +183,10 @@ def test_corrupt_contents_are_bad_hdb_naming_the_file(shared_data, server, tmp_p
 
 
 @pytest.mark.filterwarnings("ignore:.*rotational modes are taken about the origin")
-def test_map_and_file_set_mix_in_one_hello(shared_data, server):
+def test_map_and_file_set_mix_in_one_hello(reference_data, server):
     """Bodies from two HDBs, one sent as files and one as a map: the forces of the same scene sent
     as two maps, bit for bit."""
-    rm3, nc = shared_data / "rm3_wamit" / "rm3.1", shared_data / "rm3_capytaine" / "rm3_hydrodynamics.nc"
+    rm3, nc = reference_data / "rm3_wamit" / "rm3.1", reference_data / "rm3_capytaine" / "rm3_hydrodynamics.nc"
     scene = scene_toml(dt=0.05, duration=5.0, waves=regular_waves(1.0, 8.0), hydro={"irf_duration": 10.0},
                        bodies=[rm3_float("rm3.1"), rm3_spar("rm3_hydrodynamics.nc")])
     mixed, _ = forces(server.address, scene, {"rm3.1": file_set(rm3), "rm3_hydrodynamics.nc": load_hdb(nc)}, 10)

@@ -21,25 +21,25 @@ HEAVE = dict(influenced_dof="float.heave", radiating_dof="float.heave")
 
 
 @pytest.fixture(scope="module")
-def rm3_wamit(shared_data: Path) -> xr.Dataset:
-    return load_hdb(shared_data / "rm3_wamit" / "rm3.1", rho=1000.0)
+def rm3_wamit(reference_data: Path) -> xr.Dataset:
+    return load_hdb(reference_data / "rm3_wamit" / "rm3.1", rho=1000.0)
 
 
 @pytest.fixture(scope="module")
-def rm3_capytaine(shared_data: Path) -> xr.Dataset:
+def rm3_capytaine(reference_data: Path) -> xr.Dataset:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)  # rotation centre not recorded in this file
-        return load_hdb(shared_data / "rm3_capytaine" / "rm3_hydrodynamics.nc")
+        return load_hdb(reference_data / "rm3_capytaine" / "rm3_hydrodynamics.nc")
 
 
 @pytest.fixture(scope="module")
-def sphere(shared_data: Path) -> xr.Dataset:
-    return load_hdb(shared_data / "sphere_task10" / "sphere.h5")
+def sphere(reference_data: Path) -> xr.Dataset:
+    return load_hdb(reference_data / "sphere_task10" / "sphere.h5")
 
 
-def _copy_wamit(shared_data: Path, tmp_path: Path, exts=(".1", ".3", ".hst")) -> Path:
+def _copy_wamit(reference_data: Path, tmp_path: Path, exts=(".1", ".3", ".hst")) -> Path:
     for ext in exts:
-        shutil.copy(shared_data / "rm3_wamit" / f"rm3{ext}", tmp_path / f"rm3{ext}")
+        shutil.copy(reference_data / "rm3_wamit" / f"rm3{ext}", tmp_path / f"rm3{ext}")
     return tmp_path / "rm3"
 
 
@@ -75,8 +75,8 @@ def test_wamit_rm3_run_facts(rm3_wamit):
     assert -2.0 < rm3_wamit["center_of_buoyancy"].sel(body="float", xyz="z").item() < 0.0
 
 
-def test_wamit_stem_and_shuffled_frequencies(shared_data, tmp_path, rm3_wamit):
-    stem = _copy_wamit(shared_data, tmp_path)
+def test_wamit_stem_and_shuffled_frequencies(reference_data, tmp_path, rm3_wamit):
+    stem = _copy_wamit(reference_data, tmp_path)
     rng = np.random.default_rng(0)
     for ext in (".1", ".3"):
         lines = (tmp_path / f"rm3{ext}").read_text().splitlines()
@@ -91,8 +91,8 @@ def test_wamit_stem_and_shuffled_frequencies(shared_data, tmp_path, rm3_wamit):
     np.testing.assert_allclose(ds["excitation_force"].values, rm3_wamit["excitation_force"].values)
 
 
-def test_wamit_rho_scales_coefficients(shared_data, rm3_wamit):
-    ds = load_hdb(shared_data / "rm3_wamit" / "rm3", rho=1025.0)
+def test_wamit_rho_scales_coefficients(reference_data, rm3_wamit):
+    ds = load_hdb(reference_data / "rm3_wamit" / "rm3", rho=1025.0)
     ratio = ds["added_mass"].sel(**HEAVE).values / rm3_wamit["added_mass"].sel(**HEAVE).values
     np.testing.assert_allclose(ratio, 1.025)
     assert ds.attrs["rho"] == 1025.0
@@ -100,7 +100,7 @@ def test_wamit_rho_scales_coefficients(shared_data, rm3_wamit):
 
 # ---------------------------------------------------------------- Capytaine (RM3)
 
-def test_capytaine_rm3_agrees_with_wamit(rm3_capytaine, rm3_wamit, shared_data):
+def test_capytaine_rm3_agrees_with_wamit(rm3_capytaine, rm3_wamit, reference_data):
     assert list(rm3_capytaine["body"].values) == ["float", "spar"]
     assert rm3_capytaine.attrs["body_names_in_file"] == "rm3_float,rm3_spar"
     for name in ("added_mass", "radiation_damping"):
@@ -115,9 +115,9 @@ def test_capytaine_rm3_agrees_with_wamit(rm3_capytaine, rm3_wamit, shared_data):
     assert abs(np.angle(xw, deg=True)) > 10.0  # and the phase is large enough for that test to bite
 
 
-def test_capytaine_raw_file_is_exp_minus_iwt(shared_data, rm3_capytaine):
+def test_capytaine_raw_file_is_exp_minus_iwt(reference_data, rm3_capytaine):
     """The reader does not conjugate Capytaine data (it is already exp(-iwt))."""
-    raw = xr.open_dataset(shared_data / "rm3_capytaine" / "rm3_hydrodynamics.nc")
+    raw = xr.open_dataset(reference_data / "rm3_capytaine" / "rm3_hydrodynamics.nc")
     x = raw["excitation_force"].sel(complex="re") + 1j * raw["excitation_force"].sel(complex="im")
     x = x.sel(influenced_dof="rm3_float__Heave").squeeze().values
     np.testing.assert_allclose(rm3_capytaine["excitation_force"].sel(influenced_dof="float.heave").squeeze(), x)
@@ -195,8 +195,8 @@ def test_bemio_reference_point_is_cg(sphere):
     assert a.sel(influenced_dof="sphere.pitch", radiating_dof="sphere.pitch").item() == pytest.approx(4 * a11, rel=1e-3)
 
 
-def test_bemio_excitation_is_conjugated(sphere, shared_data):
-    with h5py.File(shared_data / "sphere_task10" / "sphere.h5") as fh:
+def test_bemio_excitation_is_conjugated(sphere, reference_data):
+    with h5py.File(reference_data / "sphere_task10" / "sphere.h5") as fh:
         im = fh["body1/hydro_coeffs/excitation/im"][2, 0, :]
     x = sphere["excitation_force"].sel(influenced_dof="sphere.heave").squeeze().values
     np.testing.assert_allclose(x.imag, -1000 * 9.81 * im)
@@ -230,8 +230,8 @@ def test_missing_files(tmp_path):
     assert _error(tmp_path / "notes.txt").field == "format"
 
 
-def test_wamit_truncated_line(shared_data, tmp_path):
-    stem = _copy_wamit(shared_data, tmp_path)
+def test_wamit_truncated_line(reference_data, tmp_path):
+    stem = _copy_wamit(reference_data, tmp_path)
     lines = (tmp_path / "rm3.1").read_text().splitlines()
     n = next(i for i, line in enumerate(lines) if i > 0 and float(line.split()[0]) > 0)
     lines[n] = " ".join(lines[n].split()[:2])
@@ -240,8 +240,8 @@ def test_wamit_truncated_line(shared_data, tmp_path):
     assert str(err).startswith(f"rm3.1: line {n + 1}: expected 'PER I J Abar [Bbar]'")
 
 
-def test_wamit_missing_damping_column(shared_data, tmp_path):
-    stem = _copy_wamit(shared_data, tmp_path)
+def test_wamit_missing_damping_column(reference_data, tmp_path):
+    stem = _copy_wamit(reference_data, tmp_path)
     lines = (tmp_path / "rm3.1").read_text().splitlines()
     n = next(i for i, line in enumerate(lines) if i > 0 and float(line.split()[0]) > 0)
     lines[n] = " ".join(lines[n].split()[:4])
@@ -249,36 +249,36 @@ def test_wamit_missing_damping_column(shared_data, tmp_path):
     assert str(_error(stem)).startswith(f"rm3.1: line {n + 1}:")
 
 
-def test_wamit_nan(shared_data, tmp_path):
-    stem = _copy_wamit(shared_data, tmp_path)
+def test_wamit_nan(reference_data, tmp_path):
+    stem = _copy_wamit(reference_data, tmp_path)
     lines = (tmp_path / "rm3.hst").read_text().splitlines()
     lines[5] = "     1     5   NaN"
     (tmp_path / "rm3.hst").write_text("\n".join(lines) + "\n")
     assert str(_error(stem)).startswith("rm3.hst: line 6: not a finite number")
 
 
-def test_wamit_missing_excitation_file(shared_data, tmp_path):
-    stem = _copy_wamit(shared_data, tmp_path, exts=(".1", ".hst"))
+def test_wamit_missing_excitation_file(reference_data, tmp_path):
+    stem = _copy_wamit(reference_data, tmp_path, exts=(".1", ".hst"))
     err = _error(stem)
     assert err.field == "excitation_force" and "rm3.3" in str(err)
 
 
-def _sphere_copy(shared_data: Path, tmp_path: Path) -> Path:
+def _sphere_copy(reference_data: Path, tmp_path: Path) -> Path:
     path = tmp_path / "sphere.h5"
-    shutil.copy(shared_data / "sphere_task10" / "sphere.h5", path)
+    shutil.copy(reference_data / "sphere_task10" / "sphere.h5", path)
     return path
 
 
-def test_bemio_missing_dataset(shared_data, tmp_path):
-    path = _sphere_copy(shared_data, tmp_path)
+def test_bemio_missing_dataset(reference_data, tmp_path):
+    path = _sphere_copy(reference_data, tmp_path)
     with h5py.File(path, "a") as fh:
         del fh["body1/hydro_coeffs/excitation/re"]
     err = _error(path)
     assert err.field == "body1/hydro_coeffs/excitation/re" and "sphere.h5" in err.source
 
 
-def test_bemio_wrong_shape(shared_data, tmp_path):
-    path = _sphere_copy(shared_data, tmp_path)
+def test_bemio_wrong_shape(reference_data, tmp_path):
+    path = _sphere_copy(reference_data, tmp_path)
     with h5py.File(path, "a") as fh:
         data = fh["body1/hydro_coeffs/radiation_damping/all"][()]
         del fh["body1/hydro_coeffs/radiation_damping/all"]
@@ -287,26 +287,26 @@ def test_bemio_wrong_shape(shared_data, tmp_path):
     assert err.field == "body1/hydro_coeffs/radiation_damping/all" and "shape" in err.why
 
 
-def test_bemio_nan_and_repeated_frequency(shared_data, tmp_path):
-    path = _sphere_copy(shared_data, tmp_path)
+def test_bemio_nan_and_repeated_frequency(reference_data, tmp_path):
+    path = _sphere_copy(reference_data, tmp_path)
     with h5py.File(path, "a") as fh:
         fh["body1/hydro_coeffs/added_mass/all"][2, 2, 7] = np.nan
     err = _error(path)
     assert err.field == "added_mass" and "NaN" in err.why and "sphere.heave" in err.why
-    path = _sphere_copy(shared_data, tmp_path)
+    path = _sphere_copy(reference_data, tmp_path)
     with h5py.File(path, "a") as fh:
         fh["simulation_parameters/w"][5, 0] = fh["simulation_parameters/w"][4, 0]
     err = _error(path)
     assert err.field == "omega" and "increasing" in err.why
 
 
-def test_dimensional_file_refuses_other_rho(sphere, shared_data):
-    err = _error(shared_data / "sphere_task10" / "sphere.h5", rho=1025.0)
+def test_dimensional_file_refuses_other_rho(sphere, reference_data):
+    err = _error(reference_data / "sphere_task10" / "sphere.h5", rho=1025.0)
     assert err.field == "rho"
 
 
-def test_capytaine_unknown_dof(shared_data, tmp_path):
-    raw = xr.open_dataset(shared_data / "rm3_capytaine" / "rm3_hydrodynamics.nc").load()
+def test_capytaine_unknown_dof(reference_data, tmp_path):
+    raw = xr.open_dataset(reference_data / "rm3_capytaine" / "rm3_hydrodynamics.nc").load()
     labels = [str(v) for v in raw["radiating_dof"].values]
     labels[0] = "rm3_float__Bending"
     raw = raw.assign_coords(radiating_dof=labels, influenced_dof=labels)
@@ -315,8 +315,8 @@ def test_capytaine_unknown_dof(shared_data, tmp_path):
     assert info.value.field in ("influenced_dof", "radiating_dof") and "Bending" in info.value.why
 
 
-def test_read_capytaine_missing_variable(shared_data, tmp_path):
-    raw = xr.open_dataset(shared_data / "rm3_capytaine" / "rm3_hydrodynamics.nc").load()
+def test_read_capytaine_missing_variable(reference_data, tmp_path):
+    raw = xr.open_dataset(reference_data / "rm3_capytaine" / "rm3_hydrodynamics.nc").load()
     path = tmp_path / "no_exc.nc"
     raw.drop_vars("excitation_force").to_netcdf(path)
     with pytest.raises(HDBError) as info:

@@ -14,10 +14,10 @@ HEAVE = 2
 
 
 @pytest.fixture(scope="module")
-def rm3(shared_data):
+def rm3(reference_data):
     """The RM3 WAMIT HDB (float + spar), exp(+iωt) on file, read into the internal convention."""
     from hydrolink.server.hdb.io import load_hdb
-    return load_hdb(shared_data / "rm3_wamit" / "rm3.1")
+    return load_hdb(reference_data / "rm3_wamit" / "rm3.1")
 
 
 def through_codec(data: dict) -> dict:

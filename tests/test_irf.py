@@ -76,9 +76,9 @@ def test_irf_report_exact_vs_truncated():
     assert aliasing_time(omega) == pytest.approx(np.pi / 0.02)
 
 
-def test_sphere_ogilvie_matches_hdb_a_inf(shared_data):
+def test_sphere_ogilvie_matches_hdb_a_inf(reference_data):
     io = pytest.importorskip("hydrolink.server.hdb.io")
-    ds = io.load_hdb(shared_data / "sphere_task10" / "sphere.h5")
+    ds = io.load_hdb(reference_data / "sphere_task10" / "sphere.h5")
     omega = ds["omega"].values
     t = np.arange(0, 40.0 + 1e-9, 0.01)
     k = radiation_irf(omega, ds["radiation_damping"].values, t)

@@ -222,11 +222,11 @@ def test_cummins_heave_matches_frequency_domain_rao(period):
     assert amp == pytest.approx(rao, rel=2e-3)  # actually much closer: the 1 % bound is the brief's
 
 
-def test_sphere_hydrostatics_and_heave_rao(shared_data):
+def test_sphere_hydrostatics_and_heave_rao(reference_data):
     """Task-10 hemisphere (r = 5 m): C33 = rho g pi r^2, and a lockstep heave run vs the RAO from the
     HDB's own A(w), B(w), X(w)."""
     io = pytest.importorskip("hydrolink.server.hdb.io")
-    ds = io.load_hdb(shared_data / "sphere_task10" / "sphere.h5")
+    ds = io.load_hdb(reference_data / "sphere_task10" / "sphere.h5")
     r = 5.0
     mass = RHO * 2 / 3 * np.pi * r ** 3
     period, dt = 4.0, 0.01

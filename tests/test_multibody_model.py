@@ -37,9 +37,9 @@ def scene_text(interaction: str = "full", *, float_hdb="rm3.1", spar_hdb="rm3.1"
 
 
 @pytest.fixture(scope="module")
-def rm3(shared_data):
+def rm3(reference_data):
     from hydrolink.server.hdb.io import load_hdb
-    return load_hdb(shared_data / "rm3_wamit" / "rm3.1")
+    return load_hdb(reference_data / "rm3_wamit" / "rm3.1")
 
 
 def model(rm3, interaction="full", **kw) -> HydroModel:

@@ -297,14 +297,14 @@ def test_rope_on_seabed_does_not_penetrate():
 
 
 # -- wave-driven: heaving sphere with a PTO damper to ground ---------------------------------------
-def test_sphere_pto_damper_mean_power_in_regular_waves(shared_data, tmp_path):
+def test_sphere_pto_damper_mean_power_in_regular_waves(reference_data, tmp_path):
     """Mean absorbed power vs the frequency-domain ½ c ω² |X|², X = F_ex a / (−ω²(m+A) − iω(B+c) + C)."""
     import xarray as xr
 
     from hydrolink.clients.run import run_scene_file
     from hydrolink.server.hdb.io import load_hdb
 
-    path = shared_data / "sphere_task10" / "sphere.h5"
+    path = reference_data / "sphere_task10" / "sphere.h5"
     hdb = load_hdb(path)
     mass, heave, c_pto, height = 261.724e3, 2, 2.0e5, 1.0
     i = int(np.argmin(np.abs(hdb["omega"].values - 1.15)))
@@ -357,7 +357,7 @@ def test_rope_force_on_a_hanging_body_in_a_run_equals_its_weight(tmp_path):
 
 
 @pytest.mark.parametrize("reduce", [True, False])
-def test_pto_to_ground_by_direction(shared_data, tmp_path, reduce):
+def test_pto_to_ground_by_direction(reference_data, tmp_path, reduce):
     """A heave PTO given by direction = [0, 0, -1] (no anchor point): mean power against the
     frequency-domain 1/2 c w^2 |X|^2 with its spring in the restoring term; the same run with an
     anchor 50 m below gives the same motion and PTO outputs (a vertical line stays vertical in
@@ -366,7 +366,7 @@ def test_pto_to_ground_by_direction(shared_data, tmp_path, reduce):
     from hydrolink.clients.run import run_scene_file
     from hydrolink.server.hdb.io import load_hdb
 
-    path = shared_data / "sphere_task10" / "sphere.h5"
+    path = reference_data / "sphere_task10" / "sphere.h5"
     hdb = load_hdb(path)
     mass, heave, c_pto, k_pto, height = 261.724e3, 2, 2.0e5, 1.0e5, 1.0
     i = int(np.argmin(np.abs(hdb["omega"].values - 1.15)))

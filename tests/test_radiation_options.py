@@ -82,12 +82,12 @@ def _convolution_hydro(irf: float) -> Hydro:
                                   bodies=[body("a", mass=1, center_of_mass=[0, 0, 0], inertia=[1, 1, 1])])).hydro
 
 
-def test_state_space_reproduces_sphere_irf_and_frequency_response(shared_data):
+def test_state_space_reproduces_sphere_irf_and_frequency_response(reference_data):
     """Task-10 sphere, surge/heave/pitch (surge-pitch coupled): every fitted pair within the stated
     tolerance of the IRF's transfer function on a grid 7x finer than the fit's; B(w) and A(w) of the
     realisation against B_K, A_K from an independently integrated K(t); K(t) itself; poles stable."""
     from hydrolink.server.hdb.io import load_hdb
-    ds = load_hdb(shared_data / "sphere_task10" / "sphere.h5")
+    ds = load_hdb(reference_data / "sphere_task10" / "sphere.h5")
     name = str(ds["body"].values[0])
     sphere = body("s", hdb="x", hdb_body=name, mass=1000 * 2 / 3 * np.pi * 125, center_of_mass=[0, 0, -2],
                   inertia=[1e6, 1e6, 1e6], dofs=["surge", "heave", "pitch"])
@@ -131,12 +131,12 @@ def test_state_space_reproduces_sphere_irf_and_frequency_response(shared_data):
     assert np.abs(hb.real - b_hdb).max() < (tol + 0.003) * np.abs(b_hdb).max()
 
 
-def test_state_space_rm3_coupled_blocks_and_forces(shared_data):
+def test_state_space_rm3_coupled_blocks_and_forces(reference_data):
     """RM3 (float + spar, all 12 DOFs, full interaction): the float-spar blocks are fitted, all poles
     stable, and the radiation force for a smooth velocity history matches the convolution's to a
     fraction of a percent of its peak."""
     from hydrolink.server.hdb.io import load_hdb
-    ds = load_hdb(shared_data / "rm3_wamit" / "rm3.1")
+    ds = load_hdb(reference_data / "rm3_wamit" / "rm3.1")
     bodies = [rm3_float("rm3.1"), rm3_spar("rm3.1")]
     dt, T = 0.1, 20.0
     ss_model = HydroModel(_fit_model(ds, bodies, T, 0.01, dt=dt), {"float": ds, "spar": ds})

@@ -243,12 +243,12 @@ def test_build_model_maps_the_hydrodynamics_onto_active_coordinates(server, sphe
 
 
 @pytest.mark.parametrize("example", ["rm3.toml", "rm3_none.toml"])
-def test_rm3_examples_reduced_match_full_form(server, shared_data, tmp_path, example):
+def test_rm3_examples_reduced_match_full_form(server, reference_data, tmp_path, example):
     """RM3 (float + spar heave, the linear PTO on their relative heave): 20 s of the example, both forms."""
     from hydrolink.server.hdb.io import load_hdb
     text = (REPO / "examples" / "rm3" / example).read_text()
-    hdb = shared_data / "rm3_wamit" / "rm3.1"
-    text = text.replace('"../../../shared/data/rm3_wamit/rm3.1"', f'"{hdb.as_posix()}"')
+    hdb = reference_data / "rm3_wamit" / "rm3.1"
+    text = text.replace('"../data/rm3_wamit/rm3.1"', f'"{hdb.as_posix()}"')
     text = text.replace("duration = 400.0", "duration = 20.0")
     s_red, red, s_full, full = both_forms(text, tmp_path, address=server, hdbs={hdb.as_posix(): load_hdb(hdb)})
     assert any("'float' (heave), 'spar' (heave): 2 coordinates instead of 12 and 10 constraints" in n
@@ -256,7 +256,7 @@ def test_rm3_examples_reduced_match_full_form(server, shared_data, tmp_path, exa
     assert_agree(red, full)
 
 
-def test_bench_accuracy_measures_reduced_against_full(tmp_path, shared_data):
+def test_bench_accuracy_measures_reduced_against_full(tmp_path, reference_data):
     """``hydrolink bench accuracy --reduce true,false``: the full form is an option against the
     (reduced) reference — no error beyond round-off, its own per-step cost."""
     import csv
@@ -265,7 +265,7 @@ def test_bench_accuracy_measures_reduced_against_full(tmp_path, shared_data):
 
     from hydrolink.clients.cli import cli
     text = (REPO / "examples" / "rm3" / "rm3.toml").read_text()
-    text = text.replace("../../../shared/data/rm3_wamit/rm3.1", str(shared_data / "rm3_wamit" / "rm3.1"))
+    text = text.replace("../data/rm3_wamit/rm3.1", str(reference_data / "rm3_wamit" / "rm3.1"))
     scene = tmp_path / "rm3.toml"
     scene.write_text(text.replace("ramp = 40.0", "ramp = 5.0"))
     out = tmp_path / "acc"

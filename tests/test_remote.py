@@ -30,11 +30,11 @@ _reason = netlab.unsupported_reason()
 needs_netns = pytest.mark.skipif(_reason is not None, reason=f"netns lab unavailable: {_reason}")
 
 
-def rm3_scene(shared_data: Path, duration: float) -> str:
+def rm3_scene(reference_data: Path, duration: float) -> str:
     """RM3 (two bodies, one PTO) at T = 4 s, dt = 0.04 s, a reactive force controller over the server."""
     text = (REPO / "examples" / "rm3" / "rm3.toml").read_text()
-    hdb = (shared_data / "rm3_wamit" / "rm3.1").as_posix()
-    for a, b in (('"../../../shared/data/rm3_wamit/rm3.1"', f'"{hdb}"'), ("duration = 400.0", f"duration = {duration}"),
+    hdb = (reference_data / "rm3_wamit" / "rm3.1").as_posix()
+    for a, b in (('"../data/rm3_wamit/rm3.1"', f'"{hdb}"'), ("duration = 400.0", f"duration = {duration}"),
                  ("period = 8.0", "period = 4.0"), ("dt = 0.08", "dt = 0.04"), ("ramp = 40.0", "ramp = 1.0"),
                  ("damping = 1.2e6          # N s/m", "damping = 0.0")):
         assert a in text
@@ -80,10 +80,10 @@ def local_popen(who: str, argv: list[str]) -> subprocess.Popen:
 
 
 @pytest.fixture(scope="module")
-def local_run(shared_data, tmp_path_factory):
+def local_run(reference_data, tmp_path_factory):
     tmp = tmp_path_factory.mktemp("remote")
     scene = tmp / "rm3.toml"
-    scene.write_text(rm3_scene(shared_data, 2.0))
+    scene.write_text(rm3_scene(reference_data, 2.0))
     three_processes(local_popen, scene, tmp / "local.nc", "tcp://127.0.0.1:*")
     return scene, xr.load_dataset(tmp / "local.nc")
 
@@ -145,11 +145,11 @@ def test_netns_run_survives_loss_and_an_outage(local_run, tmp_path, loss, outage
 
 
 @needs_netns
-def test_netns_link_down_past_the_timeout_ends_the_run_with_its_rows(shared_data, tmp_path):
+def test_netns_link_down_past_the_timeout_ends_the_run_with_its_rows(reference_data, tmp_path):
     """A link that stays down longer than --link-timeout ends the run with one line saying so; the
     rows computed before stay in the results file."""
     scene = tmp_path / "rm3.toml"
-    scene.write_text(rm3_scene(shared_data, 20.0).split("\n[[controllers]]")[0])
+    scene.write_text(rm3_scene(reference_data, 20.0).split("\n[[controllers]]")[0])
     with netlab.Lab(["server", "client"], delay=0.01, mode="switch") as lab:
         addr = f"tcp://{lab.address('server')}:5555"
         lab.popen("server", [*HYDROLINK, "serve", "--bind", addr], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)

@@ -20,8 +20,8 @@ HYDROLINK = [sys.executable, "-m", "hydrolink.clients.cli"]
 
 
 @pytest.mark.parametrize("flush_seconds", [0.25, 1.0])
-def test_sigkill_loses_at_most_the_flush_interval(tmp_path: Path, shared_data: Path, flush_seconds: float):
-    shutil.copy(shared_data / "sphere_task10" / "sphere.h5", tmp_path / "sphere.h5")
+def test_sigkill_loses_at_most_the_flush_interval(tmp_path: Path, reference_data: Path, flush_seconds: float):
+    shutil.copy(reference_data / "sphere_task10" / "sphere.h5", tmp_path / "sphere.h5")
     write_scene(tmp_path, scene_toml(dt=0.01, duration=5000.0, progress=False, water=SPHERE_WATER,
                                      simulation={"flush_seconds": flush_seconds},
                                      waves=regular_waves(1.0, 6.0, ramp=5.0), hydro={"irf_duration": 10.0},

@@ -46,9 +46,9 @@ DURATION = 200.0                           # s: steady to < 1e-5 by 160 s with t
 
 
 @pytest.fixture(scope="module")
-def rm3(shared_data):
+def rm3(reference_data):
     from hydrolink.server.hdb.io import load_hdb
-    return load_hdb(shared_data / "rm3_wamit" / "rm3.1")
+    return load_hdb(reference_data / "rm3_wamit" / "rm3.1")
 
 
 def _at_w(rm3, values: np.ndarray) -> np.ndarray:
@@ -116,12 +116,12 @@ def scene_text(interaction: str, hdb: Path, duration: float = DURATION) -> str:
     """The example scene with the HDB at ``hdb`` and a shorter duration."""
     name = "rm3.toml" if interaction == "full" else "rm3_none.toml"
     text = (EXAMPLE / name).read_text()
-    text = text.replace('"../../../shared/data/rm3_wamit/rm3.1"', f'"{hdb.as_posix()}"')
+    text = text.replace('"../data/rm3_wamit/rm3.1"', f'"{hdb.as_posix()}"')
     return text.replace("duration = 400.0", f"duration = {duration}")
 
 
 def test_example_scenes_are_the_device():
-    """The example files: their HDB path reaches ../shared from the repository, the 2-DOF device."""
+    """The example files: their HDB is the repository's RM3 WAMIT data (examples/data), the 2-DOF device."""
     for name, interaction in (("rm3.toml", "full"), ("rm3_none.toml", "none")):
         scene, _ = load_scene(EXAMPLE / name)
         assert scene.hydro.interaction == interaction
@@ -130,7 +130,7 @@ def test_example_scenes_are_the_device():
         assert [b.dofs for b in scene.bodies] == [["heave"], ["heave"]]
         assert [b.mass for b in scene.bodies] == list(MASS) and scene.water.density == 1000.0
         assert [(p.type, p.damping, p.body1, p.body2) for p in scene.ptos] == [("linear", C_PTO, "float", "spar")]
-        assert (EXAMPLE / scene.bodies[0].hdb).resolve() == (REPO.parent / "shared/data/rm3_wamit/rm3.1").resolve()
+        assert (EXAMPLE / scene.bodies[0].hdb).resolve() == (REPO / "examples/data/rm3_wamit/rm3.1").resolve()
 
 
 def lockstep(model: HydroModel, n_steps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -183,14 +183,14 @@ def test_interaction_matters_for_rm3(rm3):
 
 
 @pytest.mark.parametrize("interaction", ["full", "none"])
-def test_hydrolink_run_matches_frequency_domain(rm3, shared_data, tmp_path, interaction):
+def test_hydrolink_run_matches_frequency_domain(rm3, reference_data, tmp_path, interaction):
     """The example scenes through ``hydrolink run`` (Exudyn client, its linear PTO, embedded server)."""
     import xarray as xr
 
     from hydrolink.clients.run import run_scene_file
 
     scene = tmp_path / "rm3.toml"
-    scene.write_text(scene_text(interaction, shared_data / "rm3_wamit" / "rm3.1"))
+    scene.write_text(scene_text(interaction, reference_data / "rm3_wamit" / "rm3.1"))
     run_scene_file(scene, tmp_path / "rm3.nc", progress=False)
     ds = xr.load_dataset(tmp_path / "rm3.nc")
     assert ds.attrs["status"] == "complete"

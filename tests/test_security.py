@@ -80,9 +80,9 @@ def test_signed_server_refuses_unsigned_and_wrong_key_and_logs(signed_server, tm
     assert "refused a request: message is not signed" in text and "refused a request: signature does not match" in text
 
 
-def test_run_signs_with_its_key_file(signed_server, tmp_path: Path, shared_data: Path):
+def test_run_signs_with_its_key_file(signed_server, tmp_path: Path, reference_data: Path):
     address, key_file, _ = signed_server
-    shutil.copy(shared_data / "sphere_task10" / "sphere.h5", tmp_path / "sphere.h5")
+    shutil.copy(reference_data / "sphere_task10" / "sphere.h5", tmp_path / "sphere.h5")
     write_scene(tmp_path, scene_toml(dt=0.05, duration=2.0, progress=False, water=SPHERE_WATER,
                                      waves=regular_waves(1.0, 6.0), hydro={"irf_duration": 5.0},
                                      bodies=[sphere_body("sphere.h5", mass=261.8e3, dofs=["heave"])]))

@@ -324,10 +324,10 @@ def test_close_without_serving_is_idempotent():
     srv.close()
 
 
-def test_real_hdb_file_over_the_wire(server, shared_data):
+def test_real_hdb_file_over_the_wire(server, reference_data):
     """The shared WEC-Sim sphere (BEMIO .h5) travels in hello; heave hydrostatics come back."""
     from hydrolink.server.hdb.io import load_hdb
-    ds = load_hdb(shared_data / "sphere_task10" / "sphere.h5")
+    ds = load_hdb(reference_data / "sphere_task10" / "sphere.h5")
     scene = float_scene(name="sphere", hdb="sphere.h5", water=SPHERE_WATER)
     with ServerConnection(server.address, timeout=20.0) as c:
         setup = c.hello(scene, {"sphere.h5": ds})
@@ -347,7 +347,7 @@ RM3_COMPARED = ("time", "position", "velocity", "excitation_force", "radiation_f
 
 
 @pytest.mark.parametrize("scheme", ["mass-matrix", "implicit"])
-def test_embedded_run_equals_socket_run_bit_for_bit(shared_data, tmp_path, scheme):
+def test_embedded_run_equals_socket_run_bit_for_bit(reference_data, tmp_path, scheme):
     """RM3 (two bodies, PTO) run embedded — step requests handed to the in-process server as maps,
     no msgpack — and over loopback TCP (frames): every results value is the same bit for bit
     (the implicit scheme also exercises the iteration/replace requests)."""
@@ -356,7 +356,7 @@ def test_embedded_run_equals_socket_run_bit_for_bit(shared_data, tmp_path, schem
     from hydrolink.clients.run import run_scene_file
 
     text = (REPO / "examples" / "rm3" / "rm3.toml").read_text()
-    for a, b in (('"../../../shared/data/rm3_wamit/rm3.1"', f'"{(shared_data / "rm3_wamit" / "rm3.1").as_posix()}"'),
+    for a, b in (('"../data/rm3_wamit/rm3.1"', f'"{(reference_data / "rm3_wamit" / "rm3.1").as_posix()}"'),
                  ("duration = 400.0", "duration = 16.0"), ("ramp = 40.0", "ramp = 4.0")):
         assert a in text
         text = text.replace(a, b)

@@ -30,8 +30,8 @@ HEAVE = 2
 
 
 @pytest.fixture(scope="module")
-def sphere(shared_data: Path) -> xr.Dataset:
-    ds = load_hdb(shared_data / "sphere_task10" / "sphere.h5")
+def sphere(reference_data: Path) -> xr.Dataset:
+    ds = load_hdb(reference_data / "sphere_task10" / "sphere.h5")
     return ds.drop_vars(["displaced_volume", "center_of_buoyancy"])
 
 

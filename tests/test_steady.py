@@ -23,9 +23,9 @@ LIMIT = 2.0e5   # N: the linear PTO's peak force is ~3.3e5 N
 
 
 @pytest.fixture(scope="module")
-def rm3(shared_data):
+def rm3(reference_data):
     from hydrolink.server.hdb.io import load_hdb
-    return load_hdb(shared_data / "rm3_wamit" / "rm3.1")
+    return load_hdb(reference_data / "rm3_wamit" / "rm3.1")
 
 
 def _system(text: str, rm3):
@@ -121,7 +121,7 @@ damping = [3.0e5, 4.0e5]
 
 
 @pytest.fixture(scope="module")
-def time_domain(rm3, shared_data, tmp_path_factory):
+def time_domain(rm3, reference_data, tmp_path_factory):
     """``hydrolink run`` of the linear and the force-limited RM3 (240 s, dt = T/100)."""
     import xarray as xr
 
@@ -129,7 +129,7 @@ def time_domain(rm3, shared_data, tmp_path_factory):
     out = {}
     tmp = tmp_path_factory.mktemp("steady_td")
     for kind in ("linear", "limited"):
-        text = scene_text("full", shared_data / "rm3_wamit" / "rm3.1", duration=240.0)
+        text = scene_text("full", reference_data / "rm3_wamit" / "rm3.1", duration=240.0)
         (tmp / f"{kind}.toml").write_text(_limited(text) if kind == "limited" else text)
         run_scene_file(tmp / f"{kind}.toml", tmp / f"{kind}.nc", progress=False)
         ds = xr.load_dataset(tmp / f"{kind}.nc")
@@ -167,13 +167,13 @@ def test_against_time_domain(rm3, time_domain, kind):
         assert np.abs(_heave(sols[0], 3)).max() > 1e-4      # the clipped force excites odd harmonics
 
 
-def test_cli_one_period_in_the_run_layout(rm3, shared_data, tmp_path):
+def test_cli_one_period_in_the_run_layout(rm3, reference_data, tmp_path):
     import xarray as xr
     from click.testing import CliRunner
 
     from hydrolink.clients.cli import cli
     scene = tmp_path / "rm3.toml"
-    scene.write_text(scene_text("full", shared_data / "rm3_wamit" / "rm3.1") + "\n[steady]\norder = 3\n")
+    scene.write_text(scene_text("full", reference_data / "rm3_wamit" / "rm3.1") + "\n[steady]\norder = 3\n")
     res = CliRunner().invoke(cli, ["steady", str(scene), "-o", str(tmp_path / "s.nc"), "--formulation", "ode",
                                    "--no-progress"])
     assert res.exit_code == 0, res.output
@@ -194,10 +194,10 @@ def test_cli_one_period_in_the_run_layout(rm3, shared_data, tmp_path):
                                rtol=1e-9, atol=1e-6 * np.abs(zz @ c_hs.T).max())
 
 
-def test_refuses_irregular_waves(shared_data, tmp_path):
+def test_refuses_irregular_waves(reference_data, tmp_path):
     from hydrolink.clients.steady import SteadyError, steady_scene_file
     scene = tmp_path / "rm3.toml"
-    text = scene_text("full", shared_data / "rm3_wamit" / "rm3.1")
+    text = scene_text("full", reference_data / "rm3_wamit" / "rm3.1")
     text = text.replace('type = "regular"', 'type = "irregular"\nspectrum = "jonswap"\nhs = 2.0\ntp = 8.0')
     text = text.replace("height = 2.5             # m", "").replace("period = 8.0             # s", "")
     scene.write_text(text)

@@ -149,7 +149,7 @@ def test_a_run_with_drag_only_records_it(tmp_path, sphere_path):
     assert np.abs(f).max() > 100.0
 
 
-def test_rm3_float_drag_against_the_lorentz_frequency_domain(tmp_path, shared_data):
+def test_rm3_float_drag_against_the_lorentz_frequency_domain(tmp_path, reference_data):
     """RM3 (float and spar in heave, the linear PTO between them) at T = 8.06 s, H = 2.5 m, with
     quadratic drag on the float's heave (Cd 1 on its 20 m disc, absolute velocity): the run's float
     amplitude and mean PTO power against the two-body frequency domain with the drag replaced by
@@ -157,7 +157,7 @@ def test_rm3_float_drag_against_the_lorentz_frequency_domain(tmp_path, shared_da
     point, from the HDB's A(w), B(w), C, X(w) at that frequency (a grid point). The drag lowers
     the power by more than the test's tolerance."""
     from conftest import linear_pto, rm3_float, rm3_spar
-    hdb = load_hdb(shared_data / "rm3_wamit" / "rm3.1")
+    hdb = load_hdb(reference_data / "rm3_wamit" / "rm3.1")
     k = int(np.argmin(np.abs(hdb["omega"].values - 0.78)))
     w = float(hdb["omega"].values[k])
     rho, height, c_pto, cd, area = 1000.0, 2.5, 1.2e6, 1.0, math.pi * 10.0 ** 2
@@ -187,8 +187,8 @@ def test_rm3_float_drag_against_the_lorentz_frequency_domain(tmp_path, shared_da
         path = write_scene(tmp_path, scene_toml(
             dt=0.05, duration=300.0, progress=False, water={"density": rho, "gravity": 9.81},
             waves=regular_waves(height, period, ramp=20.0), hydro={"irf_duration": 40.0},
-            bodies=[rm3_float(str(shared_data / "rm3_wamit" / "rm3.1"), dofs=["heave"], **keys),
-                    rm3_spar(str(shared_data / "rm3_wamit" / "rm3.1"), dofs=["heave"])],
+            bodies=[rm3_float(str(reference_data / "rm3_wamit" / "rm3.1"), dofs=["heave"], **keys),
+                    rm3_spar(str(reference_data / "rm3_wamit" / "rm3.1"), dofs=["heave"])],
             ptos=[linear_pto("pto", "float", [0.0, 0.0, -0.72], "spar", [0.0, 0.0, -21.29], damping=c_pto)]),
             f"rm3_drag{int(drag)}.toml")
         run_scene_file(path, tmp_path / f"rm3_drag{int(drag)}.nc", progress=False)
