@@ -61,6 +61,7 @@ from hydrolink.clients.lockstep import (BLOW_UP_LIMIT, CouplingError, Divergence
 from hydrolink.clients.mechanism import Mechanism, build_mechanism
 from hydrolink.clients.moorings import MooringSet, build_moorings
 from hydrolink.clients.ptos import PTOSet, build_ptos
+from hydrolink.protocol.capabilities import reply_fields
 from hydrolink.protocol.scene import Coupling, Scene
 from hydrolink.protocol.setup import Setup
 
@@ -476,7 +477,7 @@ class ExudynMultibody:
         # every scene body wet, in setup order: the forces go straight into the results row
         self._all_wet = self.n == self.nb and np.array_equal(model.wet_rows, np.arange(self.nb))
         self._hs = np.zeros(6 * self.n)   # scratch: C q
-        # the wet bodies' 6N entries in the (B, 6) rows (viscous force)
+        # the wet bodies' 6N entries in the (B, 6) rows (the optional forces' results variables)
         self._wet_flat = (6 * np.asarray(model.wet_rows, int)[:, None] + np.arange(6)).reshape(-1)
         self._pto_sample = None
         # MoorDyn: each step is driven towards the pose it ends in (clients/moordyn_mooring.py):
@@ -602,16 +603,8 @@ class ExudynMultibody:
                 f[0, rows], f[1, rows] = s.excitation.reshape(shape), s.radiation.reshape(shape)
                 f[2, rows] = -(m.stiffness @ q[m.wet_index]).reshape(shape)
             row[2:] = f
-        if s.viscous is not None:
-            vis = np.zeros((self.nb, 6))
-            vis.reshape(-1)[self._wet_flat] = s.viscous
-            self.writer.stage_extra({"viscous_force": vis, "viscous_power": -(vis * row[1]).sum(axis=1)})
-        for name, part in (("morison_force", s.morison), ("nonlinear_hydrostatic_force", s.nonlinear_hydrostatic),
-                           ("nonlinear_froude_krylov_force", s.nonlinear_froude_krylov)):
-            if part is not None:
-                full = np.zeros((self.nb, 6))
-                full.reshape(-1)[self._wet_flat] = part
-                self.writer.stage_extra({name: full})
+        if s.optional:
+            self.writer.stage_forces(s.optional, self._wet_flat, row[1])
         self.writer.commit(t, s.eta)
 
     def measurements(self, step: int) -> dict | None:
@@ -721,29 +714,10 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup | None, writer, 
     if mech and mech.joints:
         _add_joint_variables(writer, mech.joint_labels)
     _add_pto_mooring_variables(writer, model.ptos, model.moorings)
-    if scene.morison:
-        writer.add_variable("morison_force", ("body", "dof"), None, "N (surge, sway, heave); N m (roll, pitch, yaw)",
-                            "Morison elements' force and moment about the reference point (server)")
     modes = {b.name: scene.nonlinear_of(b) for b in scene.nonlinear_bodies}
     if modes:
         writer.set_attribute("nonlinear", json.dumps(modes))
-        writer.add_variable("nonlinear_hydrostatic_force", ("body", "dof"), None,
-                            "N (surge, sway, heave); N m (roll, pitch, yaw)",
-                            "nonlinear minus linear hydrostatics (server): pressure -rho g z on the instantaneous "
-                            "wetted surface plus the weight, minus net buoyancy and the linear restoring force "
-                            "(hydrostatic_force); total restoring = hydrostatic_force + net buoyancy + this")
-    if "froude-krylov" in modes.values():
-        writer.add_variable("nonlinear_froude_krylov_force", ("body", "dof"), None,
-                            "N (surge, sway, heave); N m (roll, pitch, yaw)",
-                            "nonlinear minus linear Froude-Krylov force (server): the incident wave's pressure on "
-                            "the instantaneous wetted surface under the wave, minus its linear value on the mean "
-                            "wetted surface (part of excitation_force)")
-    if any(b.viscous for b in scene.bodies):
-        writer.add_variable("viscous_force", ("body", "dof"), None, "N (surge, sway, heave); N m (roll, pitch, yaw)",
-                            "viscous damping force -B_lin v - B_quad v|v| about the reference point (server)")
-        writer.add_variable("viscous_power", ("body",), None, "W",
-                            "power dissipated by the viscous damping, -viscous_force . velocity (>= 0 for "
-                            "positive damping)")
+    writer.add_force_variables(reply_fields(scene))
     moordyn = _moordyn_report(model.moorings) if model.moorings is not None and model.moorings.moordyn else None
     if moordyn is not None:
         _add_moordyn_variables(writer, model.moorings)

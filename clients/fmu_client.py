@@ -40,6 +40,7 @@ from hydrolink.clients import lockstep
 from hydrolink.clients.coupling import added_mass_ratio, rigid_body_mass_matrix
 from hydrolink.clients.coupling_schemes import make_scheme
 from hydrolink.clients.lockstep import BLOW_UP_LIMIT, DivergenceWatch, ForceLink, Lockstep, progress_bar
+from hydrolink.protocol.capabilities import refuse_unsupported
 from hydrolink.protocol.scene import DOF_NAMES, Coupling, FMUClient, Scene, SceneError, resolve_path
 from hydrolink.protocol.setup import Setup
 
@@ -255,17 +256,7 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup, writer, *,
     client: FMUClient = scene.client
     if not isinstance(client, FMUClient):
         raise SceneError("scene", "client.type", "the FMU master needs [client] type = \"fmu\"")
-    if scene.morison:
-        raise SceneError("scene", "morison", "the FMU master does not apply Morison forces yet; use the Exudyn client")
-    if scene.nonlinear_key():
-        raise SceneError("scene", scene.nonlinear_key(), "the FMU master does not apply nonlinear hydrostatics yet; "
-                         "use the Exudyn client")
-    for i, b in enumerate(scene.bodies):
-        for key in ("linear_damping", "quadratic_damping", "drag"):
-            if getattr(b, key) is not None:
-                raise SceneError("scene", f"bodies[{i}].{key}", "the FMU master does not apply viscous forces "
-                                 "yet (its force ports carry excitation, radiation and hydrostatics); use the "
-                                 "Exudyn client")
+    refuse_unsupported(scene, "fmu_master", lambda key, why: SceneError("scene", key, why))
     h = setup.dt
     hc = client.communication_step or h
     n_sub = int(round(h / hc))

@@ -17,7 +17,9 @@ Layout (readable with ``xarray.open_dataset``)::
            ``pto_power`` over ``pto`` and ``total_pto_power``; ``mooring_force`` over
            (``mooring``, ``mooring_component``); MoorDyn: ``line_tension`` over ``line`` and
            ``line_node_position`` over (``line``, ``node``, ``xyz``); attribute ``moordyn`` (JSON:
-           files, initial tensions and loads, static offsets)
+           files, initial tensions and loads, static offsets); the optional forces' variables
+           (``viscous_force``, ``viscous_power``, ``morison_force``, ...: protocol/reply.py) with
+           :meth:`ResultWriter.add_force_variables` / :meth:`ResultWriter.stage_forces`
 
 Extra variables: ``add_variable(name, dims, coords, units, long_name)`` before the first row
 (``coords`` gives the labels of any dimension not yet in the file), then per row
@@ -32,11 +34,12 @@ import json
 import time as _time
 from importlib import metadata
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 import netCDF4
 
+from hydrolink.protocol.reply import dissipated_power, reply_field
 from hydrolink.protocol.setup import Setup
 
 DOF_NAMES: tuple[str, ...] = ("surge", "sway", "heave", "roll", "pitch", "yaw")
@@ -177,6 +180,23 @@ class ResultWriter:
         block = np.empty((self._time.size, *shape))
         block[0] = np.nan
         self._extra[name] = block
+
+    def add_force_variables(self, fields: Sequence[str]) -> None:
+        """Declare the results variables of the optional forces ``fields`` (protocol/reply.py: each
+        field's variables with their dims, units and descriptions)."""
+        for name in fields:
+            for v in reply_field(name).variables:
+                self.add_variable(v.name, v.dims, None, v.units, v.description)
+
+    def stage_forces(self, optional: Mapping[str, np.ndarray], rows: np.ndarray, velocity: np.ndarray) -> None:
+        """Stage the variables of the optional forces for the next row: each force (6N over the
+        served bodies) put at the flat positions ``rows`` of the file's (B, 6) bodies (zero for the
+        others); ``velocity`` (B, 6) the row's, for a dissipated power."""
+        for name, part in optional.items():
+            full = np.zeros((self.n_bodies, 6))
+            full.reshape(-1)[rows] = part
+            self.stage_extra({v.name: full if v.value == "force" else dissipated_power(full, velocity)
+                              for v in reply_field(name).variables})
 
     def stage_extra(self, values: dict[str, Any]) -> None:
         """Values of extra variables for the row the next :meth:`append` adds."""

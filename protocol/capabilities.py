@@ -13,6 +13,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Callable
 
+from hydrolink.protocol.reply import OPTIONAL_FORCES
+
 if TYPE_CHECKING:  # the scene imports this module
     from hydrolink.protocol.scene import Scene
 
@@ -65,6 +67,13 @@ TOOLS: dict[str, Tool] = {
     # or ForceTerm.state/set_state; tests/test_capabilities.py checks the server's terms)
     "save_restore": Tool("the session rollback (save/restore)", frozenset(FEATURES), ""),
 }
+
+
+def reply_fields(scene: "Scene") -> tuple[str, ...]:
+    """The optional forces (protocol/reply.py) the replies of a session of ``scene`` carry, in
+    reply order: those its features bring."""
+    brought = {f for feature in scene.features() for f in FEATURES[feature].reply_fields}
+    return tuple(f for f in OPTIONAL_FORCES if f in brought)
 
 
 def unsupported(scene: "Scene", tool: str) -> dict[str, str]:
