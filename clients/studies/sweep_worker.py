@@ -146,7 +146,7 @@ def run_case(task: CaseTask, hdbs: dict, *after) -> CaseOutcome:
         if task.solver == "steady":
             import math
 
-            from hydrolink.clients.steady import steady_scene_file
+            from hydrolink.clients.studies.steady import steady_scene_file
             from hydrolink.protocol.scene import parse_scene
             scene = parse_scene(task.scene_text, "scene")
             period, dt = scene.waves.period, scene.simulation.dt
