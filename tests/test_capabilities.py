@@ -82,17 +82,19 @@ def _refusal(tool: str, scene_path: Path, text: str, tmp_path: Path) -> Exceptio
     """Call the tool's own entry point on the scene and return what it raised."""
     scene = parse_scene(text)
     with pytest.raises(Exception) as err:
-        if tool == "fmu_master":
-            from hydrolink.clients.fmu_client import run
-            run(scene, text, None, None, None)       # refused before the connection is used
+        if tool == "fmu_master":                # refused by the shared preflight: nothing stepped
+            from hydrolink.clients.fmu.master import run
+            from hydrolink.clients.lockstep.results import ResultWriter
+            with ResultWriter(tmp_path / "refused.nc", scene=scene, scene_text=text) as writer:
+                run(scene, text, None, None, writer)
         elif tool == "steady":
-            from hydrolink.clients.steady import check_scene
+            from hydrolink.clients.studies.steady import check_scene
             check_scene(scene)
         elif tool == "native_fmu":
-            from hydrolink.clients.fmu_native import export_native_fmu
+            from hydrolink.clients.fmu.native import export_native_fmu
             export_native_fmu(scene_path, tmp_path / "x.fmu")
         elif tool == "python_fmu":
-            from hydrolink.clients.fmu_export import export_fmu
+            from hydrolink.clients.fmu.export import export_fmu
             export_fmu(scene_path, tmp_path / "x.fmu")
         else:
             raise AssertionError(f"no entry point for {tool} in this test")
@@ -112,18 +114,18 @@ def _runs(tool: str, feature: str, sphere, sphere_path: Path, hull, tmp_path: Pa
                 assert ds[v.name].dims[1:] == v.dims and np.isfinite(ds[v.name].values).all(), v.name
         assert np.abs(ds[reply_field(fields[-1]).variables[0].name].values[1:]).max() > 0
     elif tool == "steady":                   # the server's terms of the scene are evaluated pointwise
-        from hydrolink.clients.steady import check_scene
+        from hydrolink.clients.studies.steady import check_scene
         check_scene(parse_scene(scene_text(sphere_path, feature)))
         model = _model(sphere, sphere_path, feature, hull)
         assert model.terms and all(t.steady is not None for t in model.terms)
     elif tool == "native_fmu":               # the C core adds these reply fields to its force output
-        source = (Path(__import__("hydrolink.clients.fmu_native", fromlist=["SOURCES"]).SOURCES)
-                  / "hydro_core.c").read_text()
+        from hydrolink.clients.fmu.native import SOURCES
+        source = (SOURCES / "hydro_core.c").read_text()
         listed = re.search(r"more\[\d+\] = \{([^}]*)\}", source).group(1)
         assert set(fields) <= set(re.findall(r'"(\w+)"', listed))
     elif tool == "python_fmu":               # the slave adds every optional force to its force output
-        from hydrolink.clients import fmu_slave
-        assert "self._optional" in Path(fmu_slave.__file__).read_text() and set(fields) <= set(OPTIONAL_FORCES)
+        from hydrolink.clients.fmu import slave
+        assert "self._optional" in Path(slave.__file__).read_text() and set(fields) <= set(OPTIONAL_FORCES)
     elif tool == "save_restore":             # a rollback repeats the steps bit for bit, these fields included
         model = _model(sphere, sphere_path, feature, hull)
         eq = model.setup_info().equilibrium_position
@@ -152,3 +154,5 @@ def test_every_feature_tool_pair_runs_or_is_refused_with_its_key(feature, tool, 
     key = USES[feature][2]
     assert getattr(err, "key", None) == key, err
     assert t.name in str(err) and key in str(err)
+    if tool == "fmu_master":
+        assert xr.open_dataset(tmp_path / "refused.nc").attrs["status"].startswith("refused: ")
