@@ -343,3 +343,28 @@ def test_build_drift_equals_capytaines_own_wamit_8(built_cylinder, tmp_path):
     assert np.allclose(read.omega, ds["drift_omega"].values, rtol=1e-6)
     built = ds["mean_drift"].sel(drift_method="far-field").values
     assert np.allclose(read.values[0], built, rtol=2e-3, atol=1e-6 * np.abs(built).max())
+
+
+@pytest.mark.parametrize("edit, field", [
+    (lambda d: d.pop("drift_omega"), "drift_omega"),
+    (lambda d: d.update(drift_method=["momentum", 7]), "drift_method"),
+    (lambda d: d.update(drift_method=["momentum", "guess"]), "drift_method"),
+    (lambda d: d.update(drift_omega=d["drift_omega"][::-1].copy()), "drift_omega"),
+    (lambda d: d.update(mean_drift=np.full_like(d["mean_drift"], np.inf)), "mean_drift"),
+    (lambda d: d.update(mean_drift=d["mean_drift"][:, :2]), ""),
+    (lambda d: d.pop("qtf_direction_j"), "qtf_direction_j"),
+    (lambda d: d.update(qtf_direction_j=d["qtf_direction_j"] + 1.0), "qtf_heading"),
+    (lambda d: d.update(sum_qtf=d["sum_qtf"] + np.triu(np.ones(d["sum_qtf"].shape[:2]))[:, :, None, None]), "sum_qtf"),
+    (lambda d: d.update(difference_qtf=np.full_like(d["difference_qtf"], 2 ** 70 * (1 + 1j))), "difference_qtf"),
+])
+def test_bad_second_order_map_names_the_field(run, edit, field):
+    """A second-order HDB map that breaks the layout is an HDBError naming the entry and the field;
+    extreme but valid numbers (1e300, subnormals) pass."""
+    _, ds = run
+    data = to_wire(ds)
+    edit(data)
+    with pytest.raises(HDBError, match=rf"cyl.*{field}"):
+        from_wire(data, "cyl")
+    data = to_wire(ds)
+    data["mean_drift"] = data["mean_drift"] * 1e-320 + 1e300 * (data["mean_drift"] > 0)
+    assert from_wire(data, "cyl")["mean_drift"].values.max() == 1e300
