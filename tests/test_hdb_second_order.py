@@ -368,3 +368,34 @@ def test_bad_second_order_map_names_the_field(run, edit, field):
     data = to_wire(ds)
     data["mean_drift"] = data["mean_drift"] * 1e-320 + 1e300 * (data["mean_drift"] > 0)
     assert from_wire(data, "cyl")["mean_drift"].values.max() == 1e300
+
+
+def test_kochin_angles_hold_every_heading():
+    """[0, 2 pi] sampled with both ends exact (Capytaine integrates over it), headings such as
+    -30 deg and 400 deg strictly inside the range."""
+    from hydrolink.server.hdb.build_drift import kochin_angles
+
+    theta = kochin_angles(360, np.radians([-30.0, 0.0, 400.0]))
+    assert np.all(np.diff(theta) > 0) and np.allclose(np.diff(theta), 2 * np.pi / 360)
+    assert 0.0 in theta and 2 * np.pi in theta
+    assert theta[0] < np.radians(-30.0) - 3 * 2 * np.pi / 360 and theta[-1] > np.radians(400.0) + 3 * 2 * np.pi / 360
+
+
+def test_a_file_with_both_triangles_is_made_exactly_symmetric(tmp_path):
+    """Both triangles stored, agreeing to the printed digits only: the square is their mean."""
+    path = _write_run(tmp_path)
+    qtf = tmp_path / "cyl.12s"
+    extra = []
+    for line in qtf.read_text().splitlines():
+        pi, pj, bi, bj, i, mod, pha, re, im = line.split()
+        if pi != pj:
+            extra.append(f"{pj} {pi} {bj} {bi} {i} {mod} {pha} {float(re) * (1 + 2e-7)} {im}")
+    qtf.write_text(qtf.read_text() + "\n".join(extra) + "\n")
+    ds = load_hdb(path, rho=RHO)
+    t = ds["sum_qtf"].isel(qtf_heading=0).values
+    assert np.array_equal(t, np.swapaxes(t, 0, 1))
+    w = ds["qtf_omega_i"].values
+    a, b = int(np.argmin(np.abs(w - 2 * np.pi / 8.0))), int(np.argmin(np.abs(w - 2 * np.pi / 5.0)))
+    bar = _qtf_bar(8.0, 5.0, 1)
+    want = RHO * G * _scale(1) * complex(bar.real * (1 + 1e-7), -bar.imag)
+    assert t[a, b, 0] == pytest.approx(want, rel=1e-9)

@@ -3,9 +3,9 @@ Capytaine's Kochin-function formulation (``capytaine.post_pro.mean_drift_force``
 diffraction and radiation problems, as the schema's :class:`MeanDrift` (surge, sway, yaw; N/m^2
 and N m/m^2 per unit amplitude squared; the wave heading's own drift, k = l).
 
-The Kochin functions are sampled on ``kochin_directions`` equal steps over [0, 2 pi] plus a few
-beyond each end (Capytaine differentiates in theta and wants the headings inside, not on, the
-range). Motions: the body held fixed (RAO 0): the diffraction drift.
+The Kochin functions are sampled on ``kochin_directions`` equal steps over [0, 2 pi] (the range
+Capytaine integrates over), continued beyond each end to hold every heading of the spec with a few
+steps to spare (Capytaine differentiates in theta and wants the headings inside, not on, the range). Motions: the body held fixed (RAO 0): the diffraction drift.
 """
 
 from __future__ import annotations
@@ -18,10 +18,14 @@ DRIFT_DOFS = {"Surge": 0, "Sway": 1, "Yaw": 5}
 _EXTRA = 4   # Kochin samples beyond each end of [0, 2 pi]
 
 
-def kochin_angles(n: int) -> np.ndarray:
-    """``n`` equal steps over [0, 2 pi] (both ends exact) and _EXTRA steps beyond each end."""
-    base = np.linspace(0.0, 2 * np.pi, n + 1)
-    return np.concatenate([base[-_EXTRA - 1:-1] - 2 * np.pi, base, base[1:_EXTRA + 1] + 2 * np.pi])
+def kochin_angles(n: int, headings: np.ndarray) -> np.ndarray:
+    """``n`` equal steps over [0, 2 pi] (both ends exact), continued beyond each end far enough
+    to hold every heading with _EXTRA steps to spare."""
+    step = 2 * np.pi / n
+    below = _EXTRA + int(np.ceil(max(0.0, -float(np.min(headings))) / step))
+    above = _EXTRA + int(np.ceil(max(0.0, float(np.max(headings)) - 2 * np.pi) / step))
+    return np.concatenate([-step * np.arange(below, 0, -1), np.linspace(0.0, 2 * np.pi, n + 1),
+                           2 * np.pi + step * np.arange(1, above + 1)])
 
 
 def far_field_drift(results: list, cds, n_directions: int, motions: str) -> MeanDrift:
@@ -32,7 +36,7 @@ def far_field_drift(results: list, cds, n_directions: int, motions: str) -> Mean
     from capytaine.post_pro.mean_drift_force import far_field_mean_drift_force
 
     finite = [r for r in results if np.isfinite(r.omega) and r.omega > 0]
-    theta = xr.DataArray(kochin_angles(n_directions), dims=("theta",))
+    theta = xr.DataArray(kochin_angles(n_directions, cds["wave_direction"].values), dims=("theta",))
     kochin = kochin_data_array(finite, theta)
     grid = cds.sel(omega=cds["omega"].values[np.isfinite(cds["omega"].values)])
     data = kochin.assign_coords(wavenumber=grid["wavenumber"])
