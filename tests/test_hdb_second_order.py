@@ -399,3 +399,25 @@ def test_a_file_with_both_triangles_is_made_exactly_symmetric(tmp_path):
     bar = _qtf_bar(8.0, 5.0, 1)
     want = RHO * G * _scale(1) * complex(bar.real * (1 + 1e-7), -bar.imag)
     assert t[a, b, 0] == pytest.approx(want, rel=1e-9)
+
+
+@pytest.mark.parametrize("extra, why", [
+    ('[second_order]\nmean_drift = "near-field"\n', "second_order.mean_drift"),
+    ('[second_order]\nmean_drift = "far-field"\nmotions = "free"\n', "second_order.motions"),
+    ('[second_order]\nmean_drift = "far-field"\nkochin_directions = 10\n', "second_order.kochin_directions"),
+])
+def test_bad_second_order_spec_names_the_key(extra, why):
+    from hydrolink.server.hdb.build_spec import SpecError, parse_spec
+
+    base = '[body]\nname = "c"\nshape = "vertical_cylinder"\nradius = 1.0\ndraft = 1.0\n[frequencies]\nvalues = [1.0, 2.0]\n'
+    with pytest.raises(SpecError, match=why):
+        parse_spec(base + extra, "c.toml")
+
+
+def test_far_field_drift_of_several_bodies_is_refused():
+    from hydrolink.server.hdb.build_spec import SpecError, parse_spec
+
+    text = "".join(f'[[bodies]]\nname = "c{i}"\nshape = "vertical_cylinder"\nradius = 1.0\ndraft = 1.0\n'
+                   f'center = [{5 * i}.0, 0.0, 0.0]\n' for i in range(2))
+    with pytest.raises(SpecError, match="second_order.mean_drift.*one-body"):
+        parse_spec(text + '[frequencies]\nvalues = [1.0, 2.0]\n[second_order]\nmean_drift = "far-field"\n', "two.toml")
