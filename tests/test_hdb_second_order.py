@@ -342,7 +342,8 @@ def test_build_drift_equals_capytaines_own_wamit_8(built_cylinder, tmp_path):
     assert read.methods == ("momentum",)                 # WAMIT's .8 slot; the numbers are far-field
     assert np.allclose(read.omega, ds["drift_omega"].values, rtol=1e-6)
     built = ds["mean_drift"].sel(drift_method="far-field").values
-    assert np.allclose(read.values[0], built, rtol=2e-3, atol=1e-6 * np.abs(built).max())
+    # measured: 1.1e-6 of the largest value (the .8 prints 7 digits; Kochin grids of 720 and 360 steps)
+    assert np.allclose(read.values[0], built, rtol=1e-5, atol=1e-5 * np.abs(built).max())
 
 
 @pytest.mark.parametrize("edit, field", [
