@@ -90,8 +90,9 @@ def test_fixed_vertical_cylinder_in_current_and_waves_against_the_strip_integral
     for axis in (0, 1):
         mean_ref, mean_got = ref[:, axis].mean(), got[:, axis].mean()
         h_ref, h_got = np.fft.rfft(ref[:, axis])[1] * 2 / n, np.fft.rfft(got[:, axis])[1] * 2 / n
-        assert mean_got == pytest.approx(mean_ref, abs=1e-3 * scale), (axis, mean_got, mean_ref)
-        assert abs(h_got - h_ref) < 1e-3 * scale, (axis, h_got, h_ref)
+        # measured: within 5e-7 of the scale (uniform: mean 18192.108 N against 18192.115 N)
+        assert mean_got == pytest.approx(mean_ref, abs=1e-5 * scale), (axis, mean_got, mean_ref)
+        assert abs(h_got - h_ref) < 1e-5 * scale, (axis, h_got, h_ref)
     assert abs(ref[:, 0].mean()) > 0.05 * scale            # the current makes a mean load
     assert np.abs(got[:, 2]).max() < 1e-9 * scale          # none along the member
 
@@ -151,7 +152,7 @@ def test_steady_mean_offset_is_the_current_drag_over_the_mooring_stiffness(spher
     steady_scene_file(path, tmp_path / "s.nc", progress=False)
     x = xr.load_dataset(tmp_path / "s.nc")["position"].sel(body="sphere", dof="surge").values
     force = 0.5 * RHO * cd * diameter * quad(lambda z: profile("power", u0, depth, z) ** 2, -draft, 0.0)[0]
-    assert x.mean() == pytest.approx(force / k, rel=1e-5)
+    assert x.mean() == pytest.approx(force / k, rel=1e-6)       # measured 2.6e-8 (3.0966 m)
     assert np.ptp(x) < 1e-9 * force / k
 
 
