@@ -80,6 +80,15 @@ class ProtocolError(Exception):
         super().__init__(f"error {self.code} {self.name}{where}: {message}")
 
 
+class EncodeError(ValueError):
+    """A message holding a value msgpack cannot carry (an int outside [-2^63, 2^64), an object);
+    ``field`` is the value's path in the message."""
+
+    def __init__(self, field: str, why: str):
+        self.field, self.why = field, why
+        super().__init__(f"{field}: {why}")
+
+
 # ---------------------------------------------------------------- arrays
 
 def encode_array(a: np.ndarray) -> dict:
@@ -100,7 +109,32 @@ def _default(obj: Any) -> Any:
         return obj.item()
     if isinstance(obj, (tuple, set, frozenset)):
         return list(obj)
+    if isinstance(obj, int):
+        raise TypeError(f"the int {obj:.6g} is outside the 64-bit range the wire carries ([-2^63, 2^64))")
     raise TypeError(f"cannot encode {type(obj).__name__} for the wire")
+
+
+def _unencodable(value: Any, path: str, depth: int = 0) -> tuple[str, str] | None:
+    """(path, why) of the first value in ``value`` msgpack cannot carry (the cold path of :func:`pack`)."""
+    if depth > MAX_TREE_DEPTH + 4:
+        return None
+    if isinstance(value, dict):
+        for k, v in value.items():
+            found = _unencodable(v, key_path(path, k) if path else str(k), depth + 1)
+            if found:
+                return found
+        return None
+    if isinstance(value, (list, tuple)):
+        for i, v in enumerate(value):
+            found = _unencodable(v, f"{path}[{i}]", depth + 1)
+            if found:
+                return found
+        return None
+    try:
+        msgpack.packb(value, default=_default)
+    except (TypeError, ValueError, OverflowError) as exc:
+        return path, str(exc)
+    return None
 
 
 def _is_array_map(value: Any) -> bool:
@@ -177,13 +211,22 @@ def decode_tree(obj: Any, field: str = "", depth: int = 0) -> Any:
 
 # ---------------------------------------------------------------- frames
 
-def pack(msg: dict, key: bytes | None = None) -> bytes:
-    """Message map -> one frame; with ``key`` appends the HMAC ``sig`` as the last entry."""
-    if key is None:
+def _packb(msg: dict) -> bytes:
+    try:
         return msgpack.packb(msg, default=_default)
+    except (TypeError, ValueError, OverflowError) as exc:
+        field, why = _unencodable(msg, "") or ("", str(exc))
+        raise EncodeError(field, why) from None
+
+
+def pack(msg: dict, key: bytes | None = None) -> bytes:
+    """Message map -> one frame; with ``key`` appends the HMAC ``sig`` as the last entry.
+    EncodeError naming the field when a value cannot travel (an int past 64 bits)."""
+    if key is None:
+        return _packb(msg)
     body = {k: v for k, v in msg.items() if k != "sig"}
     body["sig"] = bytes(SIG_LEN)
-    frame = msgpack.packb(body, default=_default)
+    frame = _packb(body)
     head = frame[:-SIG_LEN]
     return head + hmac.new(key, head, hashlib.sha256).digest()
 
