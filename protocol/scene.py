@@ -916,8 +916,9 @@ class Scene(_Section):
                     raise ValueError(f"controllers[{i}].bodies: no body named {b!r} (known: {sorted(names)})")
             for key in ("period", "preview_step"):
                 v = getattr(c, key)
-                if v is not None and abs(v / dt - round(v / dt)) > 1e-6 * max(1.0, v / dt):
-                    raise ValueError(f"controllers[{i}].{key}: {v} s must be a multiple of simulation.dt = {dt} s")
+                if v is not None and (round(v / dt) < 1 or abs(v / dt - round(v / dt)) > 1e-6 * max(1.0, v / dt)):
+                    raise ValueError(f"controllers[{i}].{key}: {v} s must be a multiple of simulation.dt = {dt} s "
+                                     "(one step or more)")
 
 
     @property

@@ -62,10 +62,13 @@ FileTime = bounded(ge=-1e10, le=1e10, why="a time in the elevation file within 1
 PreviewTime = bounded(ge=0.0, le=3600.0, why="at most an hour of wave preview")
 WallTimeout = bounded(gt=0.0, le=86400.0, why="seconds of wall time, at most a day")
 
-# -- water and waves
-Density = bounded(ge=100.0, le=2e4, why="a liquid's density in kg/m^3 (sea water 1025)")
-Gravity = bounded(ge=0.1, le=100.0, why="m/s^2 (Earth 9.81)")
-Depth = bounded(ge=0.01, le=1e5, why="metres of water (or \"inf\")")
+# -- water and waves (the ranges also bound an HDB's rho, g and water_depth: server/hdb/schema.py)
+DENSITY_RANGE = (100.0, 2e4)     # kg/m^3
+GRAVITY_RANGE = (0.1, 100.0)     # m/s^2
+DEPTH_RANGE = (0.01, 1e5)        # m (or inf)
+Density = bounded(ge=DENSITY_RANGE[0], le=DENSITY_RANGE[1], why="a liquid's density in kg/m^3 (sea water 1025)")
+Gravity = bounded(ge=GRAVITY_RANGE[0], le=GRAVITY_RANGE[1], why="m/s^2 (Earth 9.81)")
+Depth = bounded(ge=DEPTH_RANGE[0], le=DEPTH_RANGE[1], why="metres of water (or \"inf\")")
 WaveHeight = bounded(ge=0.0, le=100.0, why="metres (the largest ocean waves are ~30 m)")
 SignificantHeight = bounded(gt=0.0, floor=1e-4, le=100.0, why="metres (the largest ocean waves are ~30 m)")
 WavePeriod = bounded(ge=0.1, le=1000.0, why="seconds, from ripples to swell")

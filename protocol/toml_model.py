@@ -33,7 +33,7 @@ def _loc(loc: tuple, union_tags: tuple[str, ...]) -> str:
     for part in loc:
         if isinstance(part, int):
             out += f"[{part}]"
-        elif part in union_tags or str(part).startswith(_SKIP_PREFIXES) or part in ("float", "str"):
+        elif part in union_tags or str(part).startswith(_SKIP_PREFIXES) or part in ("float", "str", "int", "bool"):
             continue  # union branch tags, not keys
         else:
             out += ("." if out else "") + str(part)
