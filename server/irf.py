@@ -170,6 +170,8 @@ def taper_window(t: np.ndarray, duration: float, fraction: float) -> np.ndarray:
     if fraction <= 0:
         return np.ones_like(t)
     t1 = (1.0 - fraction) * duration
+    if not duration > t1:   # a fraction too small to shorten the IRF by anything
+        return np.ones_like(t)
     u = np.clip((t - t1) / (duration - t1), 0.0, 1.0)
     return 0.5 * (1.0 + np.cos(np.pi * u))
 

@@ -346,6 +346,19 @@ def extreme_server():
     server.close()
 
 
+def _setup_numbers(value, path):
+    """(path, value) of every number and numeric array in a decoded setup map."""
+    if isinstance(value, dict):
+        for k, v in value.items():
+            yield from _setup_numbers(v, f"{path}.{k}")
+    elif isinstance(value, list):
+        for i, v in enumerate(value):
+            yield from _setup_numbers(v, f"{path}[{i}]")
+    elif isinstance(value, np.ndarray) and value.dtype.kind in "fc" or \
+            isinstance(value, float):
+        yield path, value
+
+
 def _hello(server, hdbs, sections: dict, **fields) -> dict:
     text = toml_document({k: sections[k] for k in
                           ("simulation", "water", "waves", "hydro", "steady", "coupling", "bodies", "point_masses",
@@ -353,7 +366,9 @@ def _hello(server, hdbs, sections: dict, **fields) -> dict:
                           if k in sections})
     reply = send(server, codec.pack(codec.message("hello", "x", None, role="multibody", scene=text, hdbs=hdbs,
                                                   **fields)))
-    if reply["type"] == "welcome":   # close it again: hundreds of sessions are built here
+    if reply["type"] == "welcome":   # every number it sends is finite; then closed: hundreds of sessions are built here
+        bad = [path for path, v in _setup_numbers(codec.decode_tree(reply["setup"]), "setup") if not np.all(np.isfinite(v))]
+        assert not bad, f"a welcome with non-finite values in {bad}"
         send(server, codec.pack(codec.message("bye", "b", reply["session"])))
     return reply
 
