@@ -445,3 +445,18 @@ def test_save_restore_release_over_the_wire(server, hdb, conn):
         with pytest.raises(RemoteError) as err:
             other.save()
         assert (err.value.code, err.value.field) == (12, "type")
+
+
+def test_a_reply_the_wire_cannot_carry_is_an_error_and_the_server_serves_on():
+    """The one place replies are packed: a reply holding an int past 64 bits (a server fault: scene
+    bounds keep every sent value in range) becomes error 99 naming the field, and the next request
+    is answered (issue 22: TypeError in the server loop ended the server)."""
+    from hydrolink.server.service import ForceServer
+    srv = ForceServer(None)
+    ping = codec.pack(codec.message("ping", "p1", None))
+    srv._handlers["ping"] = lambda msg, msg_id, session: ("pong", {"time": 2 ** 70}, session)
+    reply = codec.unpack(srv.respond(ping))
+    assert (reply["type"], reply["code"], reply["field"], reply["parent"]) == ("error", 99, "time", "p1"), reply
+    srv._handlers["ping"] = srv._ping
+    assert codec.unpack(srv.respond(ping))["type"] == "pong"
+    srv.close()
