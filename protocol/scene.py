@@ -21,7 +21,10 @@ from hydrolink.protocol.scene_bounds import (MAX_STEPS, AngleDeg, Area, Coeffici
                                              NonNegativeDiameter, NonNegativeLength, ParameterFloat, ParameterInt,
                                              PeakEnhancement, PositiveCoefficient, PreviewTime, RampTime,
                                              RegularisationSpeed, Seed, SignificantHeight, Speed, SpreadingExponent,
-                                             TimeStep, Tolerance, Volume, WallTimeout, WaveHeight, WavePeriod, count)
+                                             TimeStep, Tolerance, Volume, WallTimeout, WaveHeight, WavePeriod,
+                                             CableElements, ComponentCount, DirectionCount, ExchangeSteps,
+                                             HarmonicCount, IterationCount, LatencySteps, SegmentCount,
+                                             StateSpaceOrder)
 from hydrolink.protocol.toml_model import validate_toml
 
 DOF_NAMES: tuple[str, ...] = ("surge", "sway", "heave", "roll", "pitch", "yaw")
@@ -102,7 +105,7 @@ class IrregularWave(_Section):
     gamma: PeakEnhancement = 3.3
     seed: Seed = 0
     direction: AngleDeg = 0.0
-    components: count(1, 100_000, "spectral components") = 300
+    components: ComponentCount = 300
     ramp: RampTime = 0.0
     excitation: Excitation = "superposition"
     excitation_irf_duration: ExcitationIRFDuration = 20.0
@@ -110,7 +113,7 @@ class IrregularWave(_Section):
     # ``directions`` equal-energy sectors (one heading each, at the sector's centroid)
     spreading: Literal["none", "cos2s"] = "none"
     s: SpreadingExponent | None = None     # default 10
-    directions: count(1, 360, "spreading directions") | None = None                      # default 9
+    directions: DirectionCount | None = None                      # default 9
     # rad/s: the band the components span (HydroDyn's WvLowCOff/WvHiCOff); the spectrum's energy
     # outside it is left out by the scene's choice. Default: the HDB's whole range (and a setup
     # warning when more than 1 % of the energy falls outside it)
@@ -170,8 +173,8 @@ class Hydro(_Section):
     irf_tail: Literal["none", "asymptotic"] = "none"            # B(w) ~ c/w^n beyond the HDB grid
     irf_tail_cutoff: Frequency | None = None  # rad/s (default 3 w_max)
     ss_tolerance: Tolerance = 0.01
-    ss_order: count(2, 60, "state-space order per DOF pair") | None = None  # fixed order per DOF pair (even)
-    ss_max_order: count(2, 60, "state-space order per DOF pair") = 24
+    ss_order: StateSpaceOrder | None = None  # fixed order per DOF pair (even)
+    ss_max_order: StateSpaceOrder = 24
     ss_enforce_stability: bool = True
     coupling_tolerance: Fraction = 0.0
     # hydrostatics (and the incident wave's Froude-Krylov force) on the instantaneous wetted surface
@@ -207,10 +210,10 @@ class Coupling(_Section):
     are held (``between_exchanges = "hold"``) or varied linearly through the last two exchanged
     samples ("extrapolate")."""
     scheme: Literal["auto", "mass-matrix", "explicit", "explicit-predictor", "implicit"] = "auto"
-    exchange_every: count(1, 100_000, "client steps per exchange") = 1
+    exchange_every: ExchangeSteps = 1
     between_exchanges: Literal["hold", "extrapolate"] = "hold"
     tolerance: Tolerance = 1e-8   # implicit: relative
-    max_iterations: count(1, 1000, "iterations per step") = 50                    # implicit, per step
+    max_iterations: IterationCount = 50                    # implicit, per step
     explicit_limit: Annotated[float, Field(gt=0, le=1.0, allow_inf_nan=False)] = 0.9  # max A_inf/m
 
 
@@ -218,10 +221,10 @@ class Steady(_Section):
     """``hydrolink steady``: periodic steady state in regular waves by pseudo-spectral collocation
     (Fourier series of ``order`` harmonics, collocated at 2 order + 1 points over one period, Newton
     on the nonlinear terms; clients/studies/steady.py, docs/steady.md)."""
-    order: count(1, 200, "harmonics") = 10
+    order: HarmonicCount = 10
     formulation: Literal["dae", "ode"] = "dae"     # body coordinates + multipliers | null space of G
     tolerance: Tolerance = 1e-10  # Newton, relative residual
-    max_iterations: count(1, 1000, "Newton iterations") = 50
+    max_iterations: IterationCount = 50
     # radiation at harmonic k: "hdb": A(kw), B(kw) of the HDB; "convolution": the A, B that the time
     # domain's truncated, sampled convolution realises (K(t) at dt over irf_duration)
     radiation: Literal["hdb", "convolution"] = "hdb"
@@ -559,7 +562,7 @@ class RopeMooring(_Section):
     axial_stiffness: PositiveCoefficient  # EA, N
     mass_per_length: LineDensity         # kg/m (in water: submerged weight is computed with the
     diameter: NonNegativeDiameter = 0.0  #  displaced volume pi d^2/4 per metre)
-    elements: count(1, 500, "cable elements") = 10
+    elements: CableElements = 10
     bending_stiffness: NonNegativeCoefficient = 0.0  # EI, N m^2 (0: a small value for numerical robustness)
     seabed: bool = True                   # contact with a flat seabed at z = -depth (finite depth)
 
@@ -619,7 +622,7 @@ class MorisonElement(_Section):
     diameter: Diameter
     cd: FlowCoefficient
     ca: FlowCoefficient = 1.0
-    segments: count(1, 1000, "segments per member") = 20
+    segments: SegmentCount = 20
 
     @model_validator(mode="after")
     def _length(self) -> "MorisonElement":
@@ -662,7 +665,7 @@ class FMUCoupling(_Section):
     """Deprecated: ``[client.coupling]`` of an FMU client, read as ``[coupling]`` (MODE_SCHEME)."""
     mode: Literal["auto", "parameters", "iterative", "explicit"] = "auto"
     tolerance: Tolerance = 1e-6                          # relative interface-force residual
-    max_iterations: count(1, 1000, "iterations per step") = 50
+    max_iterations: IterationCount = 50
     explicit_limit: Annotated[float, Field(gt=0, le=0.9, allow_inf_nan=False)] = 0.5   # max spectral radius of M⁻¹A∞
 
 
@@ -740,7 +743,7 @@ class Controller(_Section):
                            Field(min_length=1)] = [[0.0, 0.0]]   # x, y (m) of the elevation probes
     preview: PreviewTime = 0.0                           # s of future wave elevation at the probes
     preview_step: Duration | None = None                 # s between preview samples; default period
-    latency: count(1, 1000, "steps") = 1              # steps from measurement to command
+    latency: LatencySteps = 1              # steps from measurement to command
     timeout: WallTimeout = 1.0                           # s per command, wall clock
     join_timeout: WallTimeout = 30.0                   # s the run waits at t = 0 for the controller
     fallback: Literal["hold", "passive"] = "hold"

@@ -99,6 +99,17 @@ RegularisationSpeed = bounded(ge=1e-9, le=1e3, why="m/s or rad/s, from 1e-9 to 1
 Fraction = bounded(ge=0.0, lt=1.0, why="a fraction in [0, 1)")
 Tolerance = bounded(gt=0.0, lt=1.0, why="a relative tolerance in (0, 1)")
 
+# -- counts
+ComponentCount = count(1, 100_000, "spectral components")
+DirectionCount = count(1, 360, "spreading directions")
+StateSpaceOrder = count(2, 60, "a state-space order per DOF pair")
+ExchangeSteps = count(1, 100_000, "client steps per exchange")
+IterationCount = count(1, 1000, "iterations")
+HarmonicCount = count(1, 200, "harmonics")
+CableElements = count(1, 500, "cable elements")
+SegmentCount = count(1, 1000, "segments per member")
+LatencySteps = count(1, 1000, "steps")
+
 # -- free parameters handed to an FMU or a controller: finite floats, 64-bit ints
 ParameterFloat = bounded(ge=-1e300, le=1e300, why="a finite float")
 ParameterInt = bounded(ge=-2**63, le=2**63 - 1, why="a 64-bit int", kind=int)

@@ -3,6 +3,8 @@
 Shared by the scene format (protocol/scene.py) and the HDB build spec (server/hdb/build_spec.py).
 A validator may raise ``ValueError("key: why")``: an absolute key (its first part is one of the
 model's top-level keys) replaces the location; any other key (or ``.key``) is relative to it.
+Every problem is reported (up to MAX_PROBLEMS), each with its key; an unknown key gets the closest
+valid key of its table ("did you mean").
 """
 
 from __future__ import annotations
@@ -40,11 +42,11 @@ def _loc(loc: tuple, union_tags: tuple[str, ...]) -> str:
     return out
 
 
-def _models(annotation: Any) -> list[type[BaseModel]]:
+def models_in(annotation: Any) -> list[type[BaseModel]]:
     """The pydantic models an annotation holds (through Annotated, unions, lists, dicts)."""
     if isinstance(annotation, type) and issubclass(annotation, BaseModel):
         return [annotation]
-    return [m for arg in get_args(annotation) for m in _models(arg)]
+    return [m for arg in get_args(annotation) for m in models_in(arg)]
 
 
 def _keys_at(model: type[BaseModel], loc: tuple) -> list[str]:
@@ -53,7 +55,7 @@ def _keys_at(model: type[BaseModel], loc: tuple) -> list[str]:
     for part in loc[:-1]:
         if isinstance(part, int):
             continue
-        inner = [m for c in here if part in c.model_fields for m in _models(c.model_fields[part].annotation)]
+        inner = [m for c in here if part in c.model_fields for m in models_in(c.model_fields[part].annotation)]
         tagged = [c for c in here if "type" in c.model_fields and part in get_args(c.model_fields["type"].annotation)]
         here = inner or tagged or here   # neither: a key of a dict of tables (the same tables hold)
     return sorted({k for c in here for k in c.model_fields})

@@ -9,16 +9,21 @@ its field for 4/5), and the server must answer a ping after each one."""
 from __future__ import annotations
 
 import copy
+import math
 import random
+import typing
 
 import msgpack
 import numpy as np
 import pytest
+from pydantic import BaseModel
 
 from analytic_hdb import make_body_hdb
-from conftest import body, linear_pto, regular_waves, scene_toml
+from conftest import body, joint, linear_pto, regular_waves, scene_toml, toml_document
 from hydrolink.protocol import codec
 from hydrolink.protocol.hdb_wire import HDBFiles, to_wire
+from hydrolink.protocol.scene import Scene, parse_scene
+from hydrolink.protocol.toml_model import models_in
 from hydrolink.protocol.hdb_schema import to_netcdf
 from hydrolink.server.service import ForceServer
 
@@ -186,14 +191,6 @@ def test_deep_nesting_in_scalar_fields_is_a_named_error(templates):
 # a value in bounds builds a session (welcome); nothing is error 99, and the server serves on: a
 # valid session runs steps afterwards.
 
-import math
-import typing
-
-from pydantic import BaseModel
-
-from conftest import joint, toml_document
-from hydrolink.protocol.scene import Scene, parse_scene
-
 EXTREMES = [1e300, -1e300, 1e-308, 5e-324, float("nan"), float("inf"), -float("inf"), 2 ** 70, -2 ** 70]
 IN_RANGE_POSSIBLE = (1e-308, 5e-324)   # tiny: within some keys' bounds (a tolerance, an angle)
 FREE_KEYS = ("client.parameters.", "controllers[0].parameters.")   # values handed on as they are (finite)
@@ -215,15 +212,9 @@ def numeric_fields(model: type[BaseModel] = Scene, seen: set | None = None) -> s
     for name, f in model.model_fields.items():
         if _numeric(f.annotation):
             out.add((model.__name__, name))
-        for sub in _submodels(f.annotation):
+        for sub in models_in(f.annotation):
             out |= numeric_fields(sub, seen)
     return out
-
-
-def _submodels(annotation) -> list[type[BaseModel]]:
-    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
-        return [annotation]
-    return [m for a in typing.get_args(annotation) for m in _submodels(a)]
 
 
 def set_fields(obj) -> set[tuple[str, str]]:
