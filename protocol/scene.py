@@ -14,17 +14,18 @@ from typing import Annotated, Literal, Union
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, field_validator, model_validator
 
 from hydrolink.protocol.errors import KeyedError
-from hydrolink.protocol.scene_bounds import (MAX_STEPS, AngleDeg, Area, Coefficient, Coordinate, Density, Depth,
-                                             Diameter, Displacement, Duration, ExcitationIRFDuration, FileTime,
-                                             FlowCoefficient, Fraction, Frequency, FrequencyStep, Gravity,
-                                             IRFDuration, Interval, Length, LineDensity, Mass, NonNegativeCoefficient,
-                                             NonNegativeDiameter, NonNegativeLength, ParameterFloat, ParameterInt,
-                                             PeakEnhancement, PositiveCoefficient, PreviewTime, RampTime,
-                                             RegularisationSpeed, Seed, SignificantHeight, Speed, SpreadingExponent,
-                                             TimeStep, Tolerance, Volume, WallTimeout, WaveHeight, WavePeriod,
-                                             CableElements, ComponentCount, DirectionCount, ExchangeSteps,
-                                             HarmonicCount, IterationCount, LatencySteps, SegmentCount,
-                                             StateSpaceOrder)
+from hydrolink.protocol.scene_bounds import (MAX_STEPS, AddedMassRatio, AngleDeg, Area, CableElements, Coefficient,
+                                             ComponentCount, Coordinate, Density, Depth, Diameter, DirectionCount,
+                                             Displacement, Duration, ExchangeSteps, ExcitationIRFDuration,
+                                             ExplicitSpectralRadius, FileTime, FlowCoefficient, Fraction, Frequency,
+                                             FrequencyStep, Gravity, HarmonicCount, IRFDuration, Interval,
+                                             IterationCount, LatencySteps, Length, LineDensity, Mass,
+                                             NonNegativeCoefficient, NonNegativeDiameter, NonNegativeLength,
+                                             ParameterFloat, ParameterInt, PeakEnhancement, PositiveCoefficient,
+                                             PreviewTime, RampTime, RegularisationSpeed, Seed, SegmentCount,
+                                             SignificantHeight, SpectralRadius, Speed, SpreadingExponent,
+                                             StateSpaceOrder, TimeStep, Tolerance, Volume, WallTimeout, WaveHeight,
+                                             WavePeriod)
 from hydrolink.protocol.toml_model import validate_toml
 
 DOF_NAMES: tuple[str, ...] = ("surge", "sway", "heave", "roll", "pitch", "yaw")
@@ -49,7 +50,7 @@ class Simulation(_Section):
     progress: bool = True
     # Exudyn client: generalized-alpha spectral radius (1 = trapezoidal rule, no numerical damping;
     # < 1 damps the constraint forces of long runs with joint loops and slack ropes)
-    spectral_radius: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)] = 1.0
+    spectral_radius: SpectralRadius = 1.0
     # s of wall time between results flushes (written + synced): a crash loses at most this much work
     flush_seconds: Interval = 1.0
 
@@ -214,7 +215,7 @@ class Coupling(_Section):
     between_exchanges: Literal["hold", "extrapolate"] = "hold"
     tolerance: Tolerance = 1e-8   # implicit: relative
     max_iterations: IterationCount = 50                    # implicit, per step
-    explicit_limit: Annotated[float, Field(gt=0, le=1.0, allow_inf_nan=False)] = 0.9  # max A_inf/m
+    explicit_limit: AddedMassRatio = 0.9  # max A_inf/m
 
 
 class Steady(_Section):
@@ -666,7 +667,7 @@ class FMUCoupling(_Section):
     mode: Literal["auto", "parameters", "iterative", "explicit"] = "auto"
     tolerance: Tolerance = 1e-6                          # relative interface-force residual
     max_iterations: IterationCount = 50
-    explicit_limit: Annotated[float, Field(gt=0, le=0.9, allow_inf_nan=False)] = 0.5   # max spectral radius of M⁻¹A∞
+    explicit_limit: ExplicitSpectralRadius = 0.5   # max spectral radius of M⁻¹A∞
 
 
 class ExudynClient(_Section):
