@@ -156,6 +156,23 @@ def test_bad_scene_names_the_key(server, hdb):
         assert c.session is None
 
 
+@pytest.mark.parametrize("old,new,field", [
+    ("duration = 10.0", "duration = 1e300", "scene.simulation.duration"),   # killed the server (issue 22)
+    ("dt = 0.05", "dt = 1e-300", "scene.simulation.dt"),
+    ("period = 6.0", "period = 1e300", "scene.waves.period"),
+    ("irf_duration = 4.0", "irf_duration = 1e300", "scene.hydro.irf_duration"),
+    ("[waves]", "[water]\ngravity = 1e-308\n[waves]", "scene.water.gravity"),
+])
+def test_extreme_scene_values_are_named_and_the_served_server_serves_on(server, hdb, old, new, field):
+    """Over the socket, as `hydrolink serve` answers: each was error 99 or ended the server."""
+    assert old in SCENE
+    with ServerConnection(server.address, timeout=10.0) as c:
+        expect_error(lambda: c.hello(SCENE.replace(old, new), {"float.nc": hdb}), 8, field)
+        c.hello(SCENE, {"float.nc": hdb})
+        pos, vel = states(1)[0]
+        assert c.step(0, 0.0, pos, vel)["seq"] == 0
+
+
 def test_bad_hdb_names_the_field(server, hdb):
     with ServerConnection(server.address, timeout=10.0) as c:
         wire = to_wire(hdb)
