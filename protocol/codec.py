@@ -345,8 +345,9 @@ def require_map(msg: dict, field: str, *, default: dict | None = None, path: str
 
 
 def require_array(msg: dict, field: str, shape: tuple[int | None, ...], *, finite: bool = True,
-                  path: str | None = None) -> np.ndarray:
-    """A required float64 array of ``shape`` (None = any length), all finite by default."""
+                  bound: float | None = None, path: str | None = None) -> np.ndarray:
+    """A required float64 array of ``shape`` (None = any length), all finite by default; with
+    ``bound`` every element within [-bound, bound] (NaN and inf fail it too)."""
     name = path or field
     value = msg.get(field)
     if type(value) is np.ndarray and value.dtype is _F8 and value.shape == shape:
@@ -360,10 +361,19 @@ def require_array(msg: dict, field: str, shape: tuple[int | None, ...], *, finit
                                or any(w is not None and w != n for w, n in zip(shape, arr.shape))):
         want = "(" + ", ".join("*" if w is None else str(w) for w in shape) + ")"
         raise ProtocolError(Code.BAD_VALUE, name, f"shape must be {want}, got {tuple(arr.shape)}")
-    if finite and not (all(map(math.isfinite, arr.ravel().tolist())) if arr.size <= 64
-                       else np.isfinite(arr).all()):
-        bad = tuple(int(i) for i in np.argwhere(~np.isfinite(arr))[0])
-        raise ProtocolError(Code.BAD_VALUE, name, f"contains NaN or inf (first at index {list(bad)})")
+    if bound is not None:   # one pass: NaN and inf fail the comparisons too
+        inside = all(-bound <= x <= bound for x in arr.ravel().tolist()) if arr.size <= 64 \
+            else bool(np.all(np.abs(arr) <= bound))
+    else:
+        inside = not finite or (all(map(math.isfinite, arr.ravel().tolist())) if arr.size <= 64
+                                else bool(np.isfinite(arr).all()))
+    if not inside:
+        if not np.isfinite(arr).all():
+            bad = tuple(int(i) for i in np.argwhere(~np.isfinite(arr))[0])
+            raise ProtocolError(Code.BAD_VALUE, name, f"contains NaN or inf (first at index {list(bad)})")
+        bad = tuple(int(i) for i in np.argwhere(np.abs(arr) > bound)[0])
+        raise ProtocolError(Code.BAD_VALUE, name, f"|value| must be <= {bound:g}, got {float(arr[bad]):g} at index "
+                                                  f"{list(bad)}")
     return arr
 
 

@@ -81,9 +81,11 @@ SpreadingExponent = bounded(gt=0.0, le=1000.0, why="cos-2s spreading exponent s"
 
 # -- bodies and mechanism (SI; coefficients up to 1e15 cover the largest structures)
 Mass = bounded(gt=0.0, floor=1e-3, le=1e10, why="kg, from a gram to 10 million tonnes")
-Coordinate = bounded(ge=-1e5, le=1e5, why="metres, within 100 km of the origin")
-Displacement = bounded(ge=-1e5, le=1e5, why="metres or radians, within 1e5")
-Speed = bounded(ge=-1e4, le=1e4, why="m/s or rad/s, within 1e4")
+MAX_COORDINATE = 1e5   # m (or rad): also the bound of a step's position (server/session.py)
+MAX_SPEED = 1e4        # m/s (or rad/s): also the bound of a step's velocity
+Coordinate = bounded(ge=-MAX_COORDINATE, le=MAX_COORDINATE, why="metres, within 100 km of the origin")
+Displacement = bounded(ge=-MAX_COORDINATE, le=MAX_COORDINATE, why="metres or radians, within 1e5")
+Speed = bounded(ge=-MAX_SPEED, le=MAX_SPEED, why="m/s or rad/s, within 1e4")
 Length = bounded(gt=0.0, le=1e5, why="metres, at most 100 km")
 NonNegativeLength = bounded(ge=0.0, le=1e5, why="metres, at most 100 km")
 Diameter = bounded(gt=0.0, le=1000.0, why="metres, at most 1 km")

@@ -473,3 +473,22 @@ def test_a_controller_session_step_with_a_non_integer_iteration_is_error_5(templ
         msg["iteration"] = value
         reply = send(server, codec.pack(msg))
         assert (reply["type"], reply["code"], reply["field"]) == ("error", codec.Code.BAD_VALUE, "iteration"), reply
+
+
+def test_extreme_state_values_in_a_step_are_error_5_naming_the_array(templates):
+    """A step's position and velocity hold numbers too: each extreme float in one element is error 5
+    naming the array (beyond 1e5 m / 1e4 m/s the forces overflowed to inf and NaN: a reply hydrolink
+    cannot vouch for); 1e-308 and 5e-324 are states like any other."""
+    server, t = templates
+    for field in ("position", "velocity"):
+        for value in MESSAGE_EXTREMES[:7]:
+            msg = copy.deepcopy(t["step"])
+            state = np.zeros((1, 6))
+            state[0, 2] = value
+            msg[field] = state
+            reply = send(server, codec.pack(msg))
+            if value in IN_RANGE_POSSIBLE:
+                assert reply["type"] != "error" or reply["field"] != field, reply
+                continue
+            assert (reply["type"], reply["code"], reply["field"]) == ("error", codec.Code.BAD_VALUE, field), reply
+            assert "NaN or inf" in reply["message"] or "|value| must be <= 10000" in reply["message"], reply
