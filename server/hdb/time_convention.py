@@ -36,6 +36,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hydrolink.server.control import wave_number
+
 LONG_WAVE = 0.5       # k * body size up to which the long-wave limits are used
 MIN_PHASE = 0.05      # |Im p| / |p| below which a prediction carries no phase information
 CONCLUSIVE = 3.0      # d below 1/CONCLUSIVE or above CONCLUSIVE is a vote
@@ -51,16 +53,6 @@ class ConventionEvidence:
     detail: str
 
 
-def wavenumber(omega: np.ndarray, g: float, depth: float) -> np.ndarray:
-    """Wavenumbers of the dispersion relation w^2 = g k tanh(k h) (deep water when h is inf)."""
-    k = omega**2 / g
-    if np.isfinite(depth):
-        for _ in range(60):                       # Newton from the deep-water value
-            t = np.tanh(k * depth)
-            k = k - (g * k * t - omega**2) / (g * t + g * k * depth * (1 - t * t))
-    return k
-
-
 def _votes(d: np.ndarray) -> tuple[int, int]:
     return int(np.sum(d < 1 / CONCLUSIVE)), int(np.sum(d > CONCLUSIVE))
 
@@ -72,7 +64,7 @@ def evidence(*, omega: np.ndarray, wave_direction: np.ndarray, bodies: list[str]
     """Judge the convention of ``froude_krylov`` (and ``diffraction``), as stored: (n_omega, n_beta,
     6N); the other arrays in exp(-iwt)-free schema layout ((n_omega,) 6N x 6N, stiffness buoyancy +
     waterplane only, volume (N,) or None)."""
-    k_all = wavenumber(omega, g, depth)
+    k_all = wave_number(omega, g, depth)
     beta = np.asarray(wave_direction, float)
     minus = plus = 0
     used: list[str] = []
