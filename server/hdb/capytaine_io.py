@@ -270,6 +270,38 @@ def _excitation_evidence(physics: ConventionEvidence, fk_plus_d: np.ndarray, exc
                                     "diffraction_force: not carried to it")
 
 
+def _radiation_matrix(ds: xr.Dataset, name: str) -> np.ndarray:
+    """A radiation coefficient as stored, (omega, influenced_dof, radiating_dof)."""
+    da = ds[name]
+    if "wave_direction" in da.dims:  # Capytaine may repeat radiation data per heading
+        da = da.isel(wave_direction=0, drop=True)
+    return np.asarray(da.transpose("omega", "influenced_dof", "radiating_dof").values)
+
+
+def _hydrostatic_stiffness(ds: xr.Dataset, file_bodies: list[str], single: str, source: str) -> np.ndarray:
+    """The file's hydrostatic stiffness on the 6N DOFs of its bodies (gravity terms still in)."""
+    k = ds["hydrostatic_stiffness"]
+    idx = [np.array([6 * file_bodies.index(b) + d for b, d in _parse_dofs(
+        [str(v) for v in k[dim].values], single, source, "hydrostatic_stiffness")])
+        for dim in ("influenced_dof", "radiating_dof")]
+    stiffness = np.zeros((6 * len(file_bodies), 6 * len(file_bodies)))
+    _scatter(stiffness, np.asarray(k.transpose("influenced_dof", "radiating_dof").values, float), *idx)
+    return stiffness
+
+
+def _recorded_mass(ds: xr.Dataset, file_bodies: list[str], source: str) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The body mass and centre of gravity the file records (Capytaine's inertia_matrix and
+    center_of_mass), None where it records none: kept so that a scene that disagrees can be told
+    (server/model.py)."""
+    mass = _mass_per_body(ds, file_bodies, source) if "inertia_matrix" in ds else None
+    if mass is not None and not np.all(mass > 0):
+        mass = None                     # no translational DOF in the inertia matrix: not recorded
+    cog = _per_body(ds, "center_of_mass", file_bodies, source)
+    if cog is not None and not np.all(np.isfinite(cog)):
+        cog = None
+    return mass, cog
+
+
 def from_capytaine_dataset(ds: xr.Dataset, source: str | Path, *,
                            reference_points: Mapping[str, Sequence[float]] | None = None,
                            convention: str | None = None) -> xr.Dataset:
@@ -304,14 +336,7 @@ def from_capytaine_dataset(ds: xr.Dataset, source: str | Path, *,
     at_inf = np.isinf(omega_all)
     order = np.argsort(omega_all[regular], kind="stable")
     omega = omega_all[regular][order]
-
-    def matrix(name: str) -> np.ndarray:
-        da = ds[name]
-        if "wave_direction" in da.dims:  # Capytaine may repeat radiation data per heading
-            da = da.isel(wave_direction=0, drop=True)
-        return np.asarray(da.transpose("omega", "influenced_dof", "radiating_dof").values)
-
-    a_raw, b_raw = matrix("added_mass").real, matrix("radiation_damping").real
+    a_raw, b_raw = _radiation_matrix(ds, "added_mass").real, _radiation_matrix(ds, "radiation_damping").real
     added_mass = np.zeros((omega.size, n_dof, n_dof))
     damping = np.zeros_like(added_mass)
     _scatter(added_mass, a_raw[regular][order], inf_idx, rad_idx)
@@ -339,25 +364,16 @@ def from_capytaine_dataset(ds: xr.Dataset, source: str | Path, *,
         if "wave_direction" in ds.variables else np.zeros(1)
 
     ref, ref_from = _reference_points(ds, file_bodies, names, reference_points, source)
-    k_raw = np.asarray(ds["hydrostatic_stiffness"].transpose("influenced_dof", "radiating_dof").values, float)
-    k_inf = _parse_dofs([str(v) for v in ds["hydrostatic_stiffness"]["influenced_dof"].values], single, source,
-                        "hydrostatic_stiffness")
-    k_rad = _parse_dofs([str(v) for v in ds["hydrostatic_stiffness"]["radiating_dof"].values], single, source,
-                        "hydrostatic_stiffness")
-    stiffness = np.zeros((n_dof, n_dof))
-    _scatter(stiffness, k_raw, np.array([6 * file_bodies.index(b) + d for b, d in k_inf]),
-             np.array([6 * file_bodies.index(b) + d for b, d in k_rad]))
-    stiffness = _remove_gravity(stiffness, ds, file_bodies, ref, g, source)
+    stiffness = _remove_gravity(_hydrostatic_stiffness(ds, file_bodies, single, source), ds, file_bodies, ref, g,
+                                source)
 
     cb = _per_body(ds, "center_of_buoyancy", file_bodies, source)
-    volume = None
-    if "disp_mass" in ds.variables:
-        volume = np.asarray(ds["disp_mass"].values, float).ravel() / rho
-        if volume.size != len(names):
-            volume = None
+    volume = np.asarray(ds["disp_mass"].values, float).ravel() / rho if "disp_mass" in ds.variables else None
+    if volume is not None and volume.size != len(names):
+        volume = None
 
     physics = None
-    if "Froude_Krylov_force" in ds:
+    if "Froude_Krylov_force" in ds:     # the forces' phases against the long-wave limits
         froude_krylov = forces("Froude_Krylov_force")
         diffraction = forces("diffraction_force") if "diffraction_force" in ds else None
         physics = evidence(omega=omega, wave_direction=directions, bodies=names, rho=rho, g=g, depth=depth,
@@ -369,14 +385,7 @@ def from_capytaine_dataset(ds: xr.Dataset, source: str | Path, *,
     if time_convention == "exp(+iwt)":      # converted once, here (schema: exp(-iwt))
         excitation = np.conj(excitation)
 
-    # the body mass and centre of gravity the file records (Capytaine's inertia_matrix and
-    # center_of_mass): kept so that a scene that disagrees can be told (server/model.py)
-    mass = _mass_per_body(ds, file_bodies, source) if "inertia_matrix" in ds else None
-    if mass is not None and not np.all(mass > 0):
-        mass = None                     # no translational DOF in the inertia matrix: not recorded
-    cog = _per_body(ds, "center_of_mass", file_bodies, source)
-    if cog is not None and not np.all(np.isfinite(cog)):
-        cog = None
+    mass, cog = _recorded_mass(ds, file_bodies, source)
     out = make_hdb(
         bodies=names, omega=omega, wave_direction=directions,
         added_mass=added_mass, radiation_damping=damping, excitation_force=excitation,
