@@ -17,15 +17,15 @@ dispersion (no Doppler shift) and the current does not change the excitation or 
 from __future__ import annotations
 
 import math
-from typing import Annotated, Literal
+from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, model_validator
 
-#: m/s, the fastest current a scene may give (the fastest tidal streams are about 5 m/s)
-MAX_SPEED = 10.0
-#: m, the deepest profile depth (the deepest ocean trench)
-MAX_DEPTH = 11_000.0
+from hydrolink.protocol.scene_bounds import DEPTH_RANGE, AngleDeg, CurrentSpeed, ProfileDepth
+
+#: m, the deepest a profile reaches (the deepest water a scene can hold)
+MAX_DEPTH = DEPTH_RANGE[1]
 
 
 class Current(BaseModel):
@@ -34,10 +34,10 @@ class Current(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    speed: Annotated[float, Field(ge=0.0, le=MAX_SPEED, allow_inf_nan=False)]
-    direction: Annotated[float, Field(ge=-360.0, le=360.0, allow_inf_nan=False)] = 0.0
+    speed: CurrentSpeed
+    direction: AngleDeg = 0.0
     profile: Literal["uniform", "power", "linear"] = "uniform"
-    depth: Annotated[float, Field(gt=0.0, le=MAX_DEPTH, allow_inf_nan=False)] | None = None
+    depth: ProfileDepth | None = None
 
     @model_validator(mode="after")
     def _depth_with_profile(self) -> "Current":
@@ -60,7 +60,7 @@ class Current(BaseModel):
         z = np.minimum(np.asarray(z, float), 0.0)
         if self.profile == "uniform":
             return np.full(z.shape, self.speed)
-        s = np.clip(1.0 + z / self.depth, 0.0, None)
+        s = 1.0 + np.maximum(z, -self.depth) / self.depth       # in [0, 1]: no overflow for a tiny depth
         return self.speed * (s ** (1.0 / 7.0) if self.profile == "power" else s)
 
     def velocity(self, z: np.ndarray) -> np.ndarray:
