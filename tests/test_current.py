@@ -156,6 +156,20 @@ def test_steady_mean_offset_is_the_current_drag_over_the_mooring_stiffness(spher
     assert np.ptp(x) < 1e-9 * force / k
 
 
+def test_steady_refuses_a_current_on_an_unmoored_body(sphere_path, tmp_path):
+    """Without the spring the current's drag has nothing to balance it: an error naming the key."""
+    from conftest import write_scene
+    from hydrolink.clients.studies.steady import SteadyError, steady_scene_file
+
+    path = write_scene(tmp_path, scene_toml(
+        dt=0.1, duration=10.0, progress=False, water={**SPHERE_WATER, "gravity": G},
+        waves=regular_waves(1.0, 8.0), steady={"order": 3}, current={"speed": 1.0},
+        bodies=[sphere_body(str(sphere_path), mass=261.8e3, dofs=["surge"],
+                            drag={"cd": [1.0, 0, 0, 0, 0, 0], "area": [50.0, 0, 0, 0, 0, 0]})]), "free.toml")
+    with pytest.raises(SteadyError, match="current: the drag and Morison terms put a mean load"):
+        steady_scene_file(path, tmp_path / "free.nc", progress=False)
+
+
 def test_bad_current_is_named():
     def parse(current, water=None):
         return parse_scene(scene_toml(dt=0.1, duration=1.0, water=water, current=current,
