@@ -81,8 +81,9 @@ def build_morison(scene: Scene, wet: list[int], waves: WaveComponents,
     body, centre = np.asarray(body), np.asarray(centre)
     lever = centre - reference_points[body]
     gather = (np.arange(len(wet))[:, None] == body[None, :]).astype(float)
+    flow = Kinematics(waves, centre, scene.water.gravity, scene.water.depth_m, scene.current)
     ms = MorisonSet(body, lever, centre[:, 2].copy(), np.asarray(axes), gather, np.asarray(inertia),
-                    np.asarray(drag), Kinematics(waves, centre, scene.water.gravity, scene.water.depth_m, scene.current), len(wet))
+                    np.asarray(drag), flow, len(wet))
     n6 = 6 * len(wet)
     added = np.zeros((n6, n6))
     for s in np.flatnonzero(centre[:, 2] <= 0.0):

@@ -170,6 +170,27 @@ def test_steady_refuses_a_current_on_an_unmoored_body(sphere_path, tmp_path):
         steady_scene_file(path, tmp_path / "free.nc", progress=False)
 
 
+def test_a_moordyn_file_with_its_own_water_kinematics_is_refused_with_a_current(tmp_path):
+    """A MoorDyn file setting WaveKin (or Currents) with a scene [current]: which applies would be a
+    guess; the error names the mooring's file key and the option."""
+    pytest.importorskip("moordyn")
+    from test_moordyn_mooring import moordyn_file
+
+    from hydrolink.clients.exudyn.moordyn_mooring import load_moordyn_files
+
+    text = moordyn_file(tmp_path / "lines.dat", [0.0], segments=10).read_text()
+    (tmp_path / "lines.dat").write_text(text.replace("-- OPTIONS ----------------------\n",
+                                                     "-- OPTIONS ----------------------\n2 Currents\n"))
+    scene_text = scene_toml(dt=0.05, duration=1.0, current={"speed": 0.5},
+                            bodies=[{"name": "float", "mass": 1e5, "center_of_mass": [0.0, 0.0, -2.0],
+                                     "inertia": [1e6] * 3, "buoyancy_volume": 100.0}],
+                            moorings=[{"type": "moordyn", "name": "m", "file": "lines.dat", "bodies": ["float"]}])
+    path = tmp_path / "scene.toml"
+    path.write_text(scene_text)
+    with pytest.raises(SceneError, match=r"moorings\[0\]\.file.*sets its own water kinematics \(2 currents\)"):
+        load_moordyn_files(parse_scene(scene_text, path), path)
+
+
 def test_bad_current_is_named():
     def parse(current, water=None):
         return parse_scene(scene_toml(dt=0.1, duration=1.0, water=water, current=current,

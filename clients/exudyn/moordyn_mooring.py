@@ -185,26 +185,32 @@ def read_layout(path: Path) -> MoorDynLayout:
 
 
 # -- the current ----------------------------------------------------------------------------------------
-def _options(text: str) -> dict[str, tuple[int, str]]:
-    """The OPTIONS section of a MoorDyn file's ``text``: option name (lower case) -> (line index,
-    value)."""
-    out: dict[str, tuple[int, str]] = {}
+def _options(text: str) -> dict[str, str] | None:
+    """The OPTIONS section of a MoorDyn file's ``text``: option name (lower case) -> value as
+    written; None when the file has no such section."""
+    out: dict[str, str] | None = None
     inside = False
-    for i, line in enumerate(text.splitlines()):
+    for line in text.splitlines():
         if line.lstrip().startswith("---"):
             inside = "OPTIONS" in line.upper()
+            out = {} if inside and out is None else out
             continue
         words = line.split()
         if inside and len(words) >= 2:
-            out[words[1].lower()] = (i, words[0])
+            out[words[1].lower()] = words[0]
     return out
 
 
-def water_options(path: Path) -> list[str]:
-    """The options of MoorDyn file ``path`` that set its own water kinematics (non-zero
-    ``Currents``, ``WaveKin``, or a ``WaterKin`` file), as written."""
+def current_conflict(path: Path) -> str | None:
+    """Why MoorDyn file ``path`` cannot take a scene's current (None: it can): it sets its own water
+    kinematics (non-zero ``Currents``, ``WaveKin``, or a ``WaterKin`` file), or it has no OPTIONS
+    section to set ``Currents`` in."""
     found = _options(path.read_text(errors="replace"))
-    return [f"{v} {k}" for k, (_, v) in found.items() if k in _WATER_OPTIONS and v not in ("0", "0.0")]
+    if found is None:
+        return f"{path.name} has no OPTIONS section to set the scene's [current] in (Currents = 1)"
+    own = [f"{v} {k}" for k, v in found.items() if k in _WATER_OPTIONS and v not in ("0", "0.0")]
+    return (f"{path.name} sets its own water kinematics ({', '.join(own)}) and the scene has a [current]: keep "
+            "one of them") if own else None
 
 
 def current_profile(current: Current) -> np.ndarray:
@@ -218,13 +224,11 @@ def current_profile(current: Current) -> np.ndarray:
 
 def with_current(path: Path, current: Current, folder: Path) -> Path:
     """A copy of MoorDyn file ``path`` in ``folder`` with ``Currents`` = 1 and its grid
-    ``current_profile.txt`` for ``current`` beside it (the file must not set its own water
-    kinematics: :func:`water_options`)."""
+    ``current_profile.txt`` for ``current`` beside it (a file :func:`current_conflict` passes)."""
     lines = path.read_text(errors="replace").splitlines()
-    header = next((i for i, ln in enumerate(lines) if ln.lstrip().startswith("---") and "OPTIONS" in ln.upper()), None)
-    if header is None:
-        raise MoorDynFailure(f"{path} has no OPTIONS section to set the scene's current in (Currents = 1)")
-    lines.insert(header + 1, "1 Currents - steady current grid current_profile.txt, written by hydrolink from [current]")
+    header = next(i for i, ln in enumerate(lines)
+                  if ln.lstrip().startswith("---") and "OPTIONS" in ln.upper())
+    lines.insert(header + 1, "1 Currents - steady current grid current_profile.txt (hydrolink, from [current])")
     out = folder / path.name
     out.write_text("\n".join(lines) + "\n")
     rows = "\n".join(" ".join(f"{v:.17g}" for v in row) for row in current_profile(current))
@@ -248,9 +252,8 @@ def load_moordyn_files(scene: Scene, scene_path: str | Path) -> dict[int, MoorDy
             layout = read_layout(path)
         except MoorDynFailure as exc:
             raise SceneError(scene_path, f"{key}.file", f"{path}: {exc}") from None
-        if scene.current is not None and (own := water_options(path)):
-            raise SceneError(scene_path, f"{key}.file", f"{path.name} sets its own water kinematics ({', '.join(own)}) "
-                                                        "and the scene has a [current]: keep one of them")
+        if scene.current is not None and (why := current_conflict(path)):
+            raise SceneError(scene_path, f"{key}.file", why)
         if layout.coupled_rods:
             raise SceneError(scene_path, f"{key}.file", f"{path}: {layout.coupled_rods} coupled rod(s): hydrolink "
                                                         "couples MoorDyn bodies and points only")
@@ -289,7 +292,8 @@ class MoorDynSystem:
         self.label = f"{key} ({layout.path})"
         # the file MoorDyn runs: the scene's, or its copy with the current in a temporary folder
         self._folder = tempfile.TemporaryDirectory(prefix="hydrolink-moordyn-") if current is not None else None
-        self.model_path = layout.path if current is None else with_current(layout.path, current, Path(self._folder.name))
+        self.model_path = (layout.path if current is None
+                           else with_current(layout.path, current, Path(self._folder.name)))
         self.names = spec.coupled_bodies
         self._row_of = {n: rows[n] for n in self.names}
         self._body_rows = np.array([rows[n] for n in spec.bodies], int)
