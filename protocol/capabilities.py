@@ -36,6 +36,7 @@ FEATURES: dict[str, Feature] = {
     "nonlinear_hydrostatics": Feature("nonlinear hydrostatics", ("nonlinear_hydrostatic",)),
     "nonlinear_froude_krylov": Feature("nonlinear Froude-Krylov forces",
                                        ("nonlinear_hydrostatic", "nonlinear_froude_krylov")),
+    "second_order": Feature("second-order wave forces (mean and slow drift)", ("drift",)),
 }
 
 _POINTWISE = frozenset({"linear_damping", "quadratic_damping", "drag", "morison"})
