@@ -194,7 +194,8 @@ def body_second_order(scene: Scene, i: int, row: int, ds: xr.Dataset, waves: Wav
         if mode == "mean-drift":
             parts["mean"] = (waves.amplitude ** 2) @ diag
         else:
-            parts["standing"] = np.hstack([np.sqrt(np.maximum(diag, 0.0)), np.sqrt(np.maximum(-diag, 0.0))])
+            # complex already: a real right operand would be cast on every step
+            parts["standing"] = np.hstack([np.sqrt(np.maximum(diag, 0.0)), np.sqrt(np.maximum(-diag, 0.0))]).astype(complex)
         note = str(ds.attrs.get("mean_drift_note", ""))
         moving = [d for d in body.dofs]
         if "fixed" in note and moving:
@@ -203,28 +204,39 @@ def body_second_order(scene: Scene, i: int, row: int, ds: xr.Dataset, waves: Wav
                             f"lock bodies[{i}].dofs or use coefficients computed with the body's motions")
     if kinds:
         lift, g = _qtf_parts(sub, kinds, waves, scale, src)
-        parts["lift"] = lift
+        parts["lift"] = lift.astype(complex)   # complex once, not cast each step
         for kind in kinds:
             parts[kind] = g[kind]
     return BodySecondOrder(row, **parts), warnings
 
 
 class SecondOrderTerm(ForceTerm):
-    """The second-order wave forces of the served bodies (reply field ``drift``)."""
+    """The second-order wave forces of the served bodies (reply field ``drift``).
+
+    The phasors z_i(t) = c_i e^{-i w_i t} are advanced from the previous step by the rotation
+    e^{-i w_i dt} (one complex product per component instead of an exponential), evaluated afresh
+    at any other time and every RESYNC steps (the rotations' round-off stays ~1e-13); the phasors
+    are the term's state for the session rollback."""
 
     name = "second_order"
     scene_keys = ("hydro.second_order", "bodies[i].second_order", "hydro.drift_method", "hydro.sum_frequency")
     features = ("second_order",)
     needs = frozenset({"time"})
     steady = None
+    stateless = False
+    RESYNC = 1024
 
-    def __init__(self, parts: list[BodySecondOrder], waves: WaveComponents, active: np.ndarray,
+    def __init__(self, parts: list[BodySecondOrder], waves: WaveComponents, active: np.ndarray, dt: float,
                  warnings: list[str]):
         super().__init__(("drift",))
         self.parts, self._mask = parts, active.astype(float)
         self._c = waves.amplitude * np.exp(1j * waves.phase)
         self._w = waves.omega
+        self._dt = float(dt)
+        self._rotation = np.exp(-1j * self._w * self._dt)
         self._ramp = float(waves.ramp)
+        self._phasors = any(p.standing is not None or p.lift is not None for p in parts)  # else constant
+        self._t, self._z, self._since = np.nan, self._c, 0    # the newest phasors, at time _t
         self.warnings = tuple(warnings)
 
     @classmethod
@@ -242,15 +254,33 @@ class SecondOrderTerm(ForceTerm):
             part, warn = body_second_order(scene, i, row, ctx.hdbs[scene.bodies[i].name], ctx.waves)
             parts.append(part)
             warnings += warn
-        return cls(parts, ctx.waves, ctx.active, warnings)
+        return cls(parts, ctx.waves, ctx.active, scene.exchange_dt, warnings)
+
+    def _phasors_at(self, t: float) -> np.ndarray:
+        """z(t), rotated from the newest phasors when t is one step later."""
+        if t == self._t:
+            return self._z
+        if abs(t - self._t - self._dt) <= 1e-9 * self._dt and self._since < self.RESYNC:
+            self._z, self._since = self._z * self._rotation, self._since + 1
+        else:
+            self._z, self._since = self._c * np.exp(-1j * self._w * t), 0
+        self._t = t
+        return self._z
 
     def force(self, t: float, position: np.ndarray, velocity: np.ndarray) -> tuple[np.ndarray]:
         out = np.zeros(self._mask.shape)
         if self._w.size == 0:
             return (out,)
-        z = self._c * np.exp(-1j * self._w * t)
-        r = float(ramp_factor(t, self._ramp)) if self._ramp > 0 else 1.0
+        z = self._phasors_at(float(t)) if self._phasors else self._c
         for part in self.parts:
             out[part.row] = part.force(z)
+        r = 1.0 if t >= self._ramp else float(ramp_factor(t, self._ramp))
         out *= self._mask * (r * r)
         return (out,)
+
+    def state(self) -> tuple[float, np.ndarray, int]:
+        return self._t, self._z.copy(), self._since
+
+    def set_state(self, state: tuple[float, np.ndarray, int]) -> None:
+        self._t, z, self._since = state
+        self._z = z.copy()
