@@ -20,6 +20,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")   # before numpy, as the hydr
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np
+from bench_forces import scene_text   # the same sphere scene (bench/ is on the path)
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO / "examples" / "data"
@@ -48,30 +49,11 @@ def drift_hdb(n_q: int, folder: Path) -> Path:
     return path
 
 
-def scene_text(hdb: Path, components: int, mode: str, sum_frequency: bool) -> str:
-    return f"""[simulation]
-dt = 0.05
-duration = 1000.0
-[water]
-density = 1000.0
-depth = 200.0
-[waves]
-type = "irregular"
-spectrum = "jonswap"
-hs = 2.5
-tp = 8.0
-components = {components}
-[hydro]
-irf_duration = 10.0
-second_order = "{mode}"
-sum_frequency = {str(sum_frequency).lower()}
-[[bodies]]
-name = "sphere"
-hdb = "{hdb}"
-mass = 261800.0
-center_of_mass = [0.0, 0.0, -2.0]
-inertia = [2.6e6, 2.6e6, 2.6e6]
-"""
+def scene(components: int, mode: str, sum_frequency: bool) -> str:
+    """bench_forces' sphere scene in a JONSWAP sea, the body's second_order and [hydro] sum_frequency."""
+    waves = f'type = "irregular"\nspectrum = "jonswap"\nhs = 2.5\ntp = 8.0\ncomponents = {components}'
+    text = scene_text(waves, f'second_order = "{mode}"')
+    return text.replace("[hydro]\n", f"[hydro]\nsum_frequency = {str(sum_frequency).lower()}\n", 1)
 
 
 def per_step(model, steps: int, blocks: int = 4) -> tuple[float, float]:
@@ -113,7 +95,7 @@ def main() -> None:
         for n in (100, 300, 600):
             base = None
             for mode, summ in MODES:
-                model = HydroModel(parse_scene(scene_text(path, n, mode, summ)), {"sphere": ds})
+                model = HydroModel(parse_scene(scene(n, mode, summ)), {"sphere": ds})
                 step, term = per_step(model, args.steps)
                 base = step if base is None else base
                 label = mode + (" + sum" if summ else "")
