@@ -848,6 +848,9 @@ class Scene(_Section):
                 known(f"moorings[{i}].attach_to", m.attach_to, set(names) | set(points), "body or point mass")
                 if m.attach_to in names and m.point is None:
                     raise ValueError(f"moorings[{i}].point: required when a rope is attached to a body")
+        if self.hydro.sum_frequency and all(self.second_order_of(b) == "none" for b in self.bodies):
+            raise ValueError("hydro.sum_frequency: adds to a second-order force: set hydro.second_order (or a "
+                             "wet body's second_order) other than \"none\"")
         if isinstance(self.client, FMUClient):
             self.client.check(self)
         self._check_controllers(names)

@@ -243,3 +243,32 @@ def test_rotated_phasors_stay_on_the_exact_ones(drift_hdb):
     np.testing.assert_allclose(f, fresh.force(3000 * 0.1, zero, zero)[0], rtol=1e-10, atol=1e-10 * np.abs(f).max())
     stepped.set_state(saved)
     np.testing.assert_array_equal([stepped.force(j * 0.1, zero, zero)[0] for j in (1501, 1502)], again)
+
+
+def test_fixed_body_drift_on_a_moving_body_is_a_warning_naming_the_key(sphere, tmp_path):
+    from hydrolink.protocol.hdb_second_order import MeanDrift
+    w = sphere["omega"].values
+    values = np.zeros((1, w.size, 1, 6))
+    values[0, :, 0, 0] = 500.0
+    ds = with_second_order(sphere, mean_drift=MeanDrift(("far-field",), w, np.zeros(1), values,
+                                                        "Capytaine far-field (Kochin), body fixed"))
+    text = scene_toml(dt=0.1, duration=10.0, water=SPHERE_WATER, waves=regular_waves(1.0, 7.0),
+                      bodies=[sphere_body("sphere_drift.nc", mass=MASS, second_order="mean-drift")])
+    model = HydroModel(parse_scene(text), {"sphere": ds})
+    assert any(m.startswith("bodies[0].second_order:") and "fixed" in m for m in model.warnings)
+    f = model.step(0.0, model.setup_info().equilibrium_position, np.zeros((1, 6)))["drift"][0]
+    assert f[0] == pytest.approx(500.0 * 0.5 ** 2, rel=1e-12)
+
+
+@pytest.mark.parametrize("body,hydro,key", [
+    ({"hdb": None, "center_of_mass": [0, 0, 0], "second_order": "newman"}, {}, "bodies[0].second_order"),
+    ({}, {"sum_frequency": True}, "hydro.sum_frequency"),
+    ({}, {"second_order": "slow"}, "hydro.second_order"),
+])
+def test_bad_scene_keys_are_named(body, hydro, key):
+    from hydrolink.protocol.scene import SceneError
+    keys = {**sphere_body("x.nc", mass=MASS), **body}
+    keys = {k: v for k, v in keys.items() if v is not None}
+    with pytest.raises(SceneError) as err:
+        parse_scene(scene_toml(dt=0.1, duration=1.0, hydro=hydro, bodies=[keys]))
+    assert err.value.key == key, err.value
