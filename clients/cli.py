@@ -321,6 +321,29 @@ def steady(scene: Path, output: Path | None, order: int | None, formulation: str
                f"solve {1e3 * s['solve_seconds']:.1f} ms")
 
 
+@cli.command()
+@click.argument("scene", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
+              help="The plant: .npz (A, B, C, D, states, inputs, outputs), .mat (MATLAB) or .nc.")
+@click.option("--dt", type=click.FloatRange(min=0, min_open=True),
+              help="Discretise at DT s (zero-order hold); default: continuous time.")
+@click.option("--no-progress", is_flag=True, help="Hide the HDB build progress bar.")
+def linearize(scene: Path, output: Path, dt: float | None, no_progress: bool) -> None:
+    """The device of SCENE as a linear state-space plant about its equilibrium (docs/plant.md)."""
+    from hydrolink.clients.studies.plant import linearize_scene_file
+    from hydrolink.clients.studies.steady import SteadyError
+
+    try:
+        p = _guard(linearize_scene_file, scene, output, dt=dt, progress=not no_progress)
+    except SteadyError as exc:
+        raise _UserError(f"{scene}: {exc}") from None
+    for note in p.warnings:
+        click.echo(f"note: {note}", err=True)
+    kind = "continuous" if p.dt is None else f"discrete, dt = {p.dt:g} s (zero-order hold)"
+    click.echo(f"wrote {output}: {len(p.states)} states ({len(p.states) - sum(s.startswith('radiation:') for s in p.states)}"
+               f" mechanical), {len(p.inputs)} inputs, {len(p.outputs)} outputs, {kind}")
+
+
 @cli.group()
 def bench() -> None:
     """Measure a scene's options: hydrolink bench accuracy SCENE.toml (docs/accuracy.md)."""

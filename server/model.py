@@ -35,6 +35,7 @@ from hydrolink.protocol.hdb_schema import DOF_NAMES, HDBError, select_bodies
 from hydrolink.server.hydrostatics import total_stiffness
 from hydrolink.server.nonlinear_hydro import NonlinearHydro, build_nonlinear
 from hydrolink.server.radiation_options import RadiationGroup, radiation_option
+from hydrolink.server.state_space import Realization
 from hydrolink.server.waves import (ConvolutionForcing, WaveError, WaveForcing, convolution_kernel, elevation_on_grid,
                                     interpolate_excitation, kernel_transfer, wave_components)
 
@@ -443,6 +444,27 @@ class HydroModel:
             a[ix] = (1 - s) * am[j] + s * am[j + 1]
             b[ix] = (1 - s) * bd[j] + s * bd[j + 1]
         return a, b
+
+    def radiation_realization(self) -> Realization:
+        """The radiation force as one continuous-time linear system over the 6N wet DOFs (states of
+        every group stacked; ``rows``/``cols`` in the 6N vector): needs a force object with a
+        realisation ("state-space", "constant", "off" or no memory); the convolution has none."""
+        parts = []
+        for pos, memory in self._memories:
+            if not hasattr(memory, "realization"):
+                raise ModelError("hydro.radiation", f"{self.radiation!r} has no finite-state realisation; "
+                                                    "use \"state-space\"")
+            parts.append((self._idx[pos], memory.realization()))
+        s = sum(r.a.shape[0] for _, r in parts)
+        a, b, c, d = np.zeros((s, s)), np.zeros((s, self.n)), np.zeros((self.n, s)), np.zeros((self.n, self.n))
+        rows, cols, k = np.zeros(s, int), np.zeros(s, int), 0
+        for dofs, r in parts:
+            span = slice(k, k + r.a.shape[0])
+            a[span, span], b[span, dofs], c[dofs, span] = r.a, r.b, r.c
+            d[np.ix_(dofs, dofs)] += r.d
+            rows[span], cols[span] = dofs[r.rows], dofs[r.cols]
+            k = span.stop
+        return Realization(a, b, c, d, rows, cols)
 
     def excitation_phasors(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Wave components: omega (n_c,), complex force phasors (n_c, 6N) and elevation phasors
