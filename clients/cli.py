@@ -231,11 +231,15 @@ def keys_new(directory: Path, name: str) -> None:
 @click.option("--hdb-files", is_flag=True,
               help="With --server: send each HDB file as itself, by SHA-256 (SPEC §5.8): the server reads it and "
                    "keeps it, so only what it lacks is uploaded, once. Default: the converted HDB every run.")
+@click.option("--realtime", "realtime", type=click.FloatRange(min=0, min_open=True), is_flag=False, flag_value=1.0,
+              default=None, metavar="[FACTOR]",
+              help="Release each exchange at its wall-clock time, FACTOR x wall clock (default 1); overruns "
+                   "and step latencies are reported (docs/realtime.md).")
 @_curve_options
 @_key_file_option
 def run(scene: Path, output: Path | None, server: str | None, no_progress: bool, cpu: int | None,
-        listen: str, link_timeout: float, hdb_files: bool, curve_server_key: Path | None, curve_secret: Path | None,
-        key_file: Path | None) -> None:
+        listen: str, link_timeout: float, hdb_files: bool, realtime: float | None, curve_server_key: Path | None,
+        curve_secret: Path | None, key_file: Path | None) -> None:
     """Co-simulate a SCENE (TOML) in lockstep with the force server."""
     from hydrolink.clients.run import run_scene_file
 
@@ -255,13 +259,19 @@ def run(scene: Path, output: Path | None, server: str | None, no_progress: bool,
     try:
         summary = _guard(run_scene_file, scene, output, server=server, progress=not no_progress, listen=listen,
                          key=_hmac_key(key_file), link_timeout=link_timeout, hdb_files=hdb_files,
-                         **({"curve": curve} if curve is not None else {}))
+                         realtime=realtime, **({"curve": curve} if curve is not None else {}))
     except KeyboardInterrupt as exc:
         click.echo(f"hydrolink run: {exc or 'interrupted'}", err=True)
         raise SystemExit(130) from None
     steps, wall = summary.steps, summary.wall_time
     click.echo(f"wrote {summary.output}: {steps} steps in {wall:.2f} s ({steps / max(wall, 1e-9):.0f} steps/s; "
                f"server compute {(summary.server_compute_us_per_step or float('nan')):.1f} us/step)")
+    if summary.realtime is not None:
+        rt = summary.realtime
+        click.echo(f"paced at {rt.factor:g}x wall clock ({1e3 * rt.period:.3g} ms per exchange): step latency "
+                   f"p50 {1e3 * rt.latency_p50:.3f} ms, p99 {1e3 * rt.latency_p99:.3f} ms, max "
+                   f"{1e3 * rt.latency_max:.3f} ms; {rt.overruns} overrun(s) of {rt.steps} steps"
+                   + (f", worst {1e3 * rt.worst_lateness:.3f} ms late" if rt.overruns else ""))
     if hdb_files:
         click.echo(f"HDB files sent by hash: {summary.hdb_uploads} content(s) uploaded, the rest held by the server")
     for report in summary.moordyn or []:
