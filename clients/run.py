@@ -130,7 +130,7 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
     stay down (SPEC §1) before the run ends (its rows kept); ``hdb_files``: send the HDBs as their
     files by SHA-256 (:func:`load_scene_hdbs` ``as_files``; the summary's ``hdb_uploads`` counts
     the contents the server lacked); ``realtime``: release each exchange at its wall-clock time,
-    FACTOR x wall clock (clients/lockstep/pacing.py; the summary's ``realtime`` and the results'
+    FACTOR x wall clock (protocol/pacing.py; the summary's ``realtime`` and the results'
     ``step_latency``)."""
     from hydrolink.clients.lockstep.connection import ServerConnection
     from hydrolink.clients.exudyn.client import result_bodies, run

@@ -94,6 +94,7 @@ class HydroModel:
         (read from the scene's file by the client; hello.wave_elevation); ``hulls`` the closed
         hulls of the bodies with nonlinear hydrostatics by name (hello.meshes)."""
         self.scene = scene
+        self.hdbs = dict(hdbs)   # by body name: for what is rebuilt from the same data (a controller's plant, SPEC §5.7)
         served = {b.name for b in scene.served_bodies}
         wet = [i for i, b in enumerate(scene.bodies) if b.name in served]
         if not wet:

@@ -167,3 +167,53 @@ def test_force_limit_linearised_with_a_warning(rm3):
                                                                              "damping = 1.2e6\nforce_limit = 2e5")
     p = _plant(text, rm3)
     assert any(w.startswith("ptos[0].force_limit") for w in p.warnings)
+
+
+def test_controller_gets_the_plant_at_join(reference_data, tmp_path):
+    """SPEC §5.7.2: a controller's hello with ``plant`` gets the session's plant in welcome.control
+    (continuous, or ZOH at plant.dt), equal to ``hydrolink linearize`` of the scene; a bad dt is
+    error 5 naming plant.dt."""
+    import zmq
+    from test_controllers import controller_block
+    from test_controllers import scene_text as controlled_scene
+
+    from hydrolink.clients.lockstep.connection import ServerConnection
+    from hydrolink.clients.run import load_scene_hdbs
+    from hydrolink.clients.studies.plant import Plant, build_plant
+    from hydrolink.protocol import codec
+    from hydrolink.server.service import serve_in_thread
+
+    text = controlled_scene(reference_data, 4.0, controller_block("force", 1.0e6, 0.0, join_timeout=0.2))
+    (tmp_path / "s.toml").write_text(text)
+    scene = parse_scene(text)
+    hdbs = load_scene_hdbs(scene, tmp_path / "s.toml", progress=False)
+    expect = build_plant(scene, hdbs)
+    srv, thread = serve_in_thread("tcp://127.0.0.1:*", session_timeout=60.0)
+    ctx = zmq.Context()
+    sock = ctx.socket(zmq.DEALER)
+    sock.setsockopt(zmq.LINGER, 0)
+    sock.connect(srv.address)
+
+    def ask(**fields) -> dict:
+        sock.send(codec.pack(codec.message("hello", "x", fields.pop("session"), **fields)))
+        assert sock.poll(30000), "no reply"
+        return codec.unpack(sock.recv())
+
+    try:
+        with ServerConnection(srv.address, timeout=10) as conn:
+            conn.hello(text, hdbs)
+            r = ask(role="controller", controller="ctl", session=conn.session, plant={"dt": None})
+            got = Plant.from_wire(codec.decode_tree(r["control"])["plant"])
+            assert got.states == expect.states and got.inputs == expect.inputs and got.dt is None
+            np.testing.assert_allclose(got.A, expect.A, rtol=1e-12, atol=1e-12 * np.abs(expect.A).max())
+            r = ask(role="controller", controller="ctl", session=conn.session, plant={"dt": 0.04})
+            got = Plant.from_wire(codec.decode_tree(r["control"])["plant"])
+            np.testing.assert_allclose(got.B, expect.discretize(0.04).B, rtol=1e-9, atol=1e-15)
+            for bad in (0.0, "x"):
+                r = ask(role="controller", controller="ctl", session=conn.session, plant={"dt": bad})
+                assert (r["code"], r["field"]) == (5, "plant.dt")
+    finally:
+        sock.close(0)
+        ctx.term()
+        srv.stop()
+        thread.join(5)

@@ -1,4 +1,4 @@
-"""``hydrolink run --realtime`` (clients/lockstep/pacing.py): exchanges released at wall-clock times,
+"""``hydrolink run --realtime`` (protocol/pacing.py): exchanges released at wall-clock times,
 overruns counted, per-step latency in the results. Timing is measured by bench/bench_realtime.py;
 here only what holds on any machine: a step made slow on purpose is counted as an overrun with
 (at least) its delay as lateness, and a paced run cannot finish before its simulated duration."""
@@ -57,7 +57,63 @@ def test_unpaced_run_has_no_latency_variable(reference_data, tmp_path):
 
 
 def test_pace_factor_must_be_positive():
-    from hydrolink.clients.lockstep.pacing import Pacer
+    from hydrolink.protocol.pacing import Pacer
     for bad in (0.0, -1.0, float("nan"), float("inf")):
         with pytest.raises(ValueError, match="--realtime"):
             Pacer(0.01, bad)
+
+
+@pytest.mark.parametrize("where", ["socket", "in-process"])
+def test_server_paces_a_session_that_asks(where):
+    """hello.realtime = 2 on dt = 0.05 s: no reply of step k leaves before t0 + k·25 ms (t0: step 0's
+    arrival, after the client sent it); a client 0.2 s late for one step is an overrun in goodbye."""
+    from analytic_hdb import make_body_hdb
+    from test_server import DT, SCENE
+
+    from hydrolink.clients.lockstep.connection import ServerConnection
+    from hydrolink.server.service import ForceServer, serve_in_thread
+    if where == "socket":
+        srv, thread = serve_in_thread(session_timeout=60.0)
+        address = srv.address
+    else:
+        srv = ForceServer(None)
+        address = srv
+    try:
+        with ServerConnection(address, timeout=10.0) as c:
+            c.hello(SCENE, {"float.nc": make_body_hdb()}, realtime=2.0)
+            period = DT / 2.0
+            x, v = np.zeros((1, 6)), np.zeros((1, 6))
+            sent0 = time.perf_counter()
+            early = []
+            for k in range(14):
+                if k == 13:
+                    time.sleep(0.2)
+                c.step(k, k * DT, x, v)
+                early.append(k * period - (time.perf_counter() - sent0))
+            report = c.bye()["realtime"]
+    finally:
+        if where == "socket":
+            srv.stop()
+            thread.join(5.0)
+        else:
+            srv.close()
+    print(f"{where}: latest reply ahead of its release by {max(early) * 1e3:.3f} ms; {report}")
+    assert max(early) <= 0.0
+    assert report["overruns"] >= 1 and report["worst_lateness"] >= 0.2 - period - 1e-3
+    assert report["steps"] == 13 and report["factor"] == 2.0
+
+
+@pytest.mark.parametrize("value", [0, -1.0, "fast", float("inf")])
+def test_server_refuses_a_bad_pace(value):
+    from analytic_hdb import make_body_hdb
+    from test_server import SCENE
+
+    from hydrolink.clients.lockstep.connection import RemoteError, ServerConnection
+    from hydrolink.server.service import ForceServer
+    srv = ForceServer(None)
+    with ServerConnection(srv, timeout=10.0) as c:
+        with pytest.raises(RemoteError) as err:
+            c.request("hello", role="multibody", scene=SCENE, hdbs={"float.nc": __import__(
+                "hydrolink.protocol.hdb_wire", fromlist=["to_wire"]).to_wire(make_body_hdb())}, realtime=value)
+    assert err.value.code == 5 and err.value.field == "realtime"
+    srv.close()

@@ -56,7 +56,7 @@ from hydrolink.clients.lockstep import driver as lockstep
 from hydrolink.clients.lockstep.coupling_schemes import make_scheme
 from hydrolink.clients.lockstep.driver import (BLOW_UP_LIMIT, CouplingError, DivergenceWatch, ForceLink, Lockstep,  # noqa: F401
                                         RunInterrupted, SimulationDiverged, progress_bar)
-from hydrolink.clients.lockstep.pacing import Pacer
+from hydrolink.protocol.pacing import Pacer
 from hydrolink.clients.lockstep.preflight import preflight
 from hydrolink.clients.lockstep.results import add_force_term_variables
 from hydrolink.clients.lockstep.summary import CouplingReport, RunSummary
@@ -641,7 +641,7 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup | None, writer, 
     ``coupling.explicit_limit`` is refused (SceneError naming coupling.scheme) unless
     ``allow_unstable`` (only to demonstrate the added-mass instability). ``moordyn_files``: the
     layouts of the scene's MoorDyn files (:func:`~hydrolink.clients.exudyn.moordyn_mooring.load_moordyn_files`).
-    ``realtime``: pace the exchanges at FACTOR x wall clock (:mod:`hydrolink.clients.lockstep.pacing`).
+    ``realtime``: pace the exchanges at FACTOR x wall clock (:mod:`hydrolink.protocol.pacing`).
 
     Returns the :class:`~hydrolink.clients.lockstep.summary.RunSummary` (the checks before the run:
     :func:`~hydrolink.clients.lockstep.preflight.preflight`)."""

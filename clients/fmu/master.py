@@ -37,7 +37,7 @@ import numpy as np
 from hydrolink.clients.lockstep import driver as lockstep
 from hydrolink.clients.fmu.coupling import added_mass_ratio, rigid_body_mass_matrix
 from hydrolink.clients.lockstep.coupling_schemes import make_scheme
-from hydrolink.clients.lockstep.pacing import Pacer
+from hydrolink.protocol.pacing import Pacer
 from hydrolink.clients.lockstep.driver import BLOW_UP_LIMIT, DivergenceWatch, ForceLink, Lockstep, progress_bar
 from hydrolink.clients.lockstep.preflight import preflight
 from hydrolink.clients.lockstep.summary import CouplingReport, RunSummary
@@ -253,7 +253,7 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup, writer, *,
     at every step are returned in ``summary.recorded``; ``allow_unstable`` lets the explicit mode
     run beyond its limit (only to demonstrate the instability). The summary adds mode, iterations per
     step (mean, max) and per-step costs in µs (FMU calls, server round trips, the rest). ``realtime``:
-    pace the exchanges at FACTOR x wall clock (:mod:`hydrolink.clients.lockstep.pacing`)."""
+    pace the exchanges at FACTOR x wall clock (:mod:`hydrolink.protocol.pacing`)."""
     client: FMUClient = scene.client
     if not isinstance(client, FMUClient):
         raise SceneError("scene", "client.type", "the FMU master needs [client] type = \"fmu\"")

@@ -23,7 +23,7 @@ from typing import Any, NamedTuple, Protocol
 import numpy as np
 
 from hydrolink.clients.lockstep.connection import EXTRA_FORCE_FIELDS
-from hydrolink.clients.lockstep.pacing import Pacer
+from hydrolink.protocol.pacing import Pacer
 from hydrolink.clients.lockstep.summary import CouplingReport, RunSummary
 
 _sum = np.add.reduce   # ndarray.sum without its Python wrapper
@@ -247,7 +247,7 @@ class Lockstep:
     step: int = 0                           # client steps done
     bar: Any = None
     iterations: list[int] = field(default_factory=list)
-    pacer: Pacer | None = None              # --realtime: wall-clock releases (clients/lockstep/pacing.py)
+    pacer: Pacer | None = None              # --realtime: wall-clock releases (protocol/pacing.py)
 
     @property
     def big_h(self) -> float:
@@ -287,7 +287,7 @@ def run(loop: Lockstep, scheme: Any, n_exchanges: int, coupling: CouplingReport,
     """Run ``n_exchanges`` exchanges of ``scheme`` (module docstring); the writer gets its final
     status before this returns or raises. Returns the loop's counts and costs, with ``coupling``
     (the adapter's description of the scheme) completed by the iterations it took. ``pacer``: release
-    each exchange at its wall-clock time (clients/lockstep/pacing.py); the summary's ``realtime``."""
+    each exchange at its wall-clock time (protocol/pacing.py); the summary's ``realtime``."""
     mb, link, writer = loop.mb, loop.link, loop.writer
     if pacer is not None:
         loop.pacer = pacer

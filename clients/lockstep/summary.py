@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from hydrolink.clients.lockstep.pacing import RealtimeReport
+from hydrolink.protocol.pacing import RealtimeReport
 
 
 @dataclass(frozen=True)

@@ -162,6 +162,20 @@ class Plant:
         return path
 
 
+    def to_wire(self) -> dict:
+        """The plant as a message map (SPEC §5.7.2 ``control.plant``)."""
+        return {"A": self.A, "B": self.B, "C": self.C, "D": self.D, "states": list(self.states),
+                "inputs": list(self.inputs), "outputs": list(self.outputs), "dt": self.dt,
+                "warnings": list(self.warnings)}
+
+    @classmethod
+    def from_wire(cls, m: dict) -> "Plant":
+        """A plant from its message map (arrays already decoded)."""
+        return cls(*(np.asarray(m[k], float) for k in "ABCD"), tuple(m["states"]), tuple(m["inputs"]),
+                   tuple(m["outputs"]), None if m.get("dt") is None else float(m["dt"]),
+                   warnings=tuple(m.get("warnings") or ()))
+
+
 def load_plant(path: str | Path) -> Plant:
     """A plant written by :meth:`Plant.save` as .npz (what a controller loads)."""
     with np.load(path) as f:

@@ -1,4 +1,7 @@
-"""Wall-clock pacing of a lockstep run (``hydrolink run --realtime [FACTOR]``, docs/realtime.md).
+"""Wall-clock pacing of a lockstep run (``hydrolink run --realtime [FACTOR]``, a ``hello`` with
+``realtime``: SPEC §5.1; docs/realtime.md). One schedule for both sides: the client's loop waits for
+each release (:meth:`Pacer.release`), a server holds each ``forces`` reply until its release
+(:meth:`Pacer.release_time`; server/service.py).
 
 Exchange e (simulated time e·H to (e+1)·H) is released at wall time t0 + e·H/FACTOR, t0 the first
 release; its deadline is the next release, t0 + (e+1)·H/FACTOR. A step that completes after its
@@ -60,12 +63,16 @@ class Pacer:
     def period(self) -> float:
         return self.exchange_dt / self.factor
 
+    def release_time(self, e: int) -> float:
+        """Exchange ``e``'s release (``time.perf_counter`` clock); the first call anchors t0 now."""
+        if self.t0 is None:
+            self.t0 = time.perf_counter()
+        return self.t0 + e * self.period
+
     def release(self, e: int) -> None:
         """Wait until exchange ``e``'s wall-clock time (at once when it has passed)."""
+        target = self.release_time(e)
         now = time.perf_counter()
-        if self.t0 is None:
-            self.t0 = now
-        target = self.t0 + e * self.period
         if target - now > SPIN:
             time.sleep(target - now - SPIN)
         while (now := time.perf_counter()) < target:
@@ -76,11 +83,12 @@ class Pacer:
         """Wall seconds since the current exchange's release (NaN before the first)."""
         return time.perf_counter() - self.released
 
-    def done(self, e: int) -> None:
-        """Exchange ``e`` completed: its latency, and an overrun if past its deadline."""
+    def done(self, e: int, started: float | None = None) -> None:
+        """Exchange ``e`` completed now: its latency (from ``started``, default its release) and an
+        overrun if past its deadline, the release of e + 1."""
         now = time.perf_counter()
-        self.latencies.append(now - self.released)
-        late = now - (self.t0 + (e + 1) * self.period)
+        self.latencies.append(now - (self.released if started is None else started))
+        late = now - self.release_time(e + 1)
         if late > 0:
             self.overruns += 1
             self.worst_lateness = max(self.worst_lateness, late)
