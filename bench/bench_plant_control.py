@@ -121,7 +121,7 @@ def main() -> None:
     p_passive_fd = fd_power(u0, y, c_best)
     # the controller's gains, as it computes them from the plant
     sys.path.insert(0, str(REPO / "examples" / "controllers"))
-    from plant_pi import conjugate_gains
+    from plant_pi import MARGIN, design
 
     from hydrolink.clients.run import load_scene_hdbs
     from hydrolink.clients.studies.plant import build_plant
@@ -129,7 +129,7 @@ def main() -> None:
     path.write_text(text0)
     plant = build_plant(sc, load_scene_hdbs(sc, path, progress=False))
     wp = 2 * np.pi / float(sc.waves.tp)
-    c, k = conjugate_gains(plant, "pto", wp)
+    c, k = design(plant, "pto", wp)
     p_pi_fd = fd_power(u0, y, c + 1j * k / w)        # exp(-iwt): T = c u + k x, x = u / (-i w)
     def ctl(limit: float) -> str:
         return (f'\n[[controllers]]\nname = "ctl"\nptos = ["pto"]\ncommand = "force"\ntimeout = 5.0\n'
@@ -141,7 +141,7 @@ def main() -> None:
         pis = [td(tmp, f"plant_pi_{i}", scene(args.duration, 0.0, ctl(lim)), ramp, True) for i, lim in enumerate(limits)]
     print(f"sea: JONSWAP Hs {sc.waves.hs} m, Tp {sc.waves.tp} s, gamma {sc.waves.gamma}, seed {sc.waves.seed}, "
           f"{w.size} components; mean over t >= {ramp:g} s of {args.duration:g} s, dt {sc.simulation.dt} s")
-    print(f"plant PI gains at Tp: c = {c:.4g} N s/m, k = {k:.4g} N/m; best passive c = {c_best:.4g} N s/m\n")
+    print(f"plant PI gains at Tp (stability margin {MARGIN} 1/s): c = {c:.4g} N s/m, k = {k:.4g} N/m; best passive c = {c_best:.4g} N s/m\n")
     print("| PTO | mean power FD (kW) | mean power TD (kW) | % of best passive (TD) | % of CC limit | max |force| TD (N) | max |stroke| TD (m) |")
     print("|---|---|---|---|---|---|---|")
     print(f"| complex-conjugate limit (unconstrained) | {p_cc / 1e3:.1f} | - | {100 * p_cc / passive[0]:.0f} | 100 | - | - |")

@@ -47,9 +47,13 @@ def test_rm3_plant_layout(rm3):
     assert all(s.startswith("radiation:") for s in p.states[4:]) and len(p.states) > 4
     assert p.inputs == ("pto:pto", "excitation:float.heave", "excitation:spar.heave")
     assert p.outputs == ("float.heave.position", "spar.heave.position", "float.heave.velocity",
-                         "spar.heave.velocity", "pto:pto.velocity")
+                         "spar.heave.velocity", "pto:pto.displacement", "pto:pto.velocity")
+    # the PTO line runs float -> spar, vertical: its extension is z_float - z_spar
+    out = {name: p.C[i] for i, name in enumerate(p.outputs)}
+    np.testing.assert_allclose(out["pto:pto.displacement"], out["float.heave.position"] - out["spar.heave.position"],
+                               atol=1e-12)
     assert np.linalg.eigvals(p.A).real.max() < 0          # damped: every mode decays
-    assert p.A.shape == (len(p.states),) * 2 and p.B.shape == (len(p.states), 3) and p.C.shape == (5, len(p.states))
+    assert p.A.shape == (len(p.states),) * 2 and p.B.shape == (len(p.states), 3) and p.C.shape == (6, len(p.states))
 
 
 def test_frequency_response_against_frequency_domain(rm3):

@@ -20,7 +20,9 @@ Plant (continuous, x = [z, z', x_r])::
     inputs   pto:<name> (the added tension a controller's force command sets, SPEC §5.7; a rotary
              PTO: pto:<name>.<axis>), excitation:<body>.<dof> (every active DOF of a wet body)
     outputs  <body>.<dof>.position, <body>.<dof>.velocity (every active DOF of every body,
-             displacements from equilibrium), pto:<name>.velocity (extension rate)
+             displacements from equilibrium), pto:<name>.displacement, pto:<name>.velocity
+             (the PTO's extension from equilibrium and its rate: the measurements' pto_displacement,
+             pto_velocity)
 
 The states are deviations from the equilibrium; where the scene's reference configuration is not
 in equilibrium (a constant load on a stiff mode), the static offset is reported (``equilibrium``)
@@ -283,11 +285,12 @@ def build_plant(scene: Scene, hdbs: dict) -> Plant:
             row[off:off + k] = N[c]
             rows.append(row)
             outputs.append(f"{label}.{part}")
-    for pl in sys_.ptos:
-        row = np.zeros(A.shape[0])
-        row[k:2 * k] = pl.g @ N
-        rows.append(row)
-        outputs.append(f"pto:{pl.name}.velocity")
+    for part, off in (("displacement", 0), ("velocity", k)):   # the PTO extension from rest and its rate
+        for pl in sys_.ptos:
+            row = np.zeros(A.shape[0])
+            row[off:off + k] = pl.g @ N
+            rows.append(row)
+            outputs.append(f"pto:{pl.name}.{part}")
     C = np.array(rows).reshape(len(rows), A.shape[0])
 
     rad_names = [f"radiation:{wet_labels[r]}<-{wet_labels[c]}:{i // 2}{'re' if i % 2 == 0 else 'im'}"
