@@ -16,6 +16,7 @@ loopback), mean PTO power over [ramp, end]. Prints a markdown table.
 from __future__ import annotations
 
 import argparse
+import re
 import socket
 import subprocess
 import sys
@@ -37,14 +38,13 @@ def scene(duration: float, damping: float, controller: str = "") -> str:
     for a, b in (('"../data/rm3_wamit/rm3.1"', f'"{HDB.as_posix()}"'), ("duration = 700.0", f"duration = {duration}")):
         assert a in text
         text = text.replace(a, b)
-    text, n = __import__("re").subn(r"(?m)^damping = [0-9.e+]+", f"damping = {damping!r}", text)
+    text, n = re.subn(r"(?m)^damping = [0-9.e+]+", f"damping = {damping!r}", text)
     assert n == 1
     return text + controller
 
 
 def thevenin(text: str):
     """(omega, u0, Y) per wave component of the scene's sea (exp(-iwt))."""
-    from hydrolink.clients.run import load_scene_hdbs
     from hydrolink.protocol.scene import parse_scene
     from hydrolink.server.hdb.io import load_hdb
     from hydrolink.server.model import HydroModel

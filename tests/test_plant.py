@@ -9,6 +9,8 @@ References, independent of the plant's assembly (reduced coordinates, state-spac
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -41,7 +43,7 @@ def _frequency_domain(rm3, omega_index: np.ndarray, force: np.ndarray) -> np.nda
 
 
 def test_rm3_plant_layout(rm3):
-    p = _plant(scene_text("full", __import__("pathlib").Path("rm3.1")), rm3)
+    p = _plant(scene_text("full", Path("rm3.1")), rm3)
     assert p.states[:4] == ("float.heave.position", "spar.heave.position", "float.heave.velocity",
                             "spar.heave.velocity")
     assert all(s.startswith("radiation:") for s in p.states[4:]) and len(p.states) > 4
@@ -59,7 +61,7 @@ def test_rm3_plant_layout(rm3):
 def test_frequency_response_against_frequency_domain(rm3):
     """excitation -> position and PTO force -> PTO velocity equal the FD model within the state-space
     fit's tolerance over the wave band (0.3..2 rad/s)."""
-    p = _plant(scene_text("full", __import__("pathlib").Path("rm3.1")), rm3)
+    p = _plant(scene_text("full", Path("rm3.1")), rm3)
     w_all = rm3["omega"].values
     idx = np.flatnonzero((w_all >= 0.3) & (w_all <= 2.0))
     w = w_all[idx]
@@ -155,7 +157,7 @@ def test_files_and_discretisation(rm3, reference_data, tmp_path):
 ])
 def test_nonlinear_terms_refused_with_their_key(rm3, edit, key):
     from hydrolink.clients.studies.plant import PlantError
-    text = scene_text("full", __import__("pathlib").Path("rm3.1")).replace(*edit)
+    text = scene_text("full", Path("rm3.1")).replace(*edit)
     if key is None:   # nonlinear hydrostatics: parse may already ask for the hull
         try:
             scene = parse_scene(text)
@@ -167,7 +169,7 @@ def test_nonlinear_terms_refused_with_their_key(rm3, edit, key):
 
 
 def test_force_limit_linearised_with_a_warning(rm3):
-    text = scene_text("full", __import__("pathlib").Path("rm3.1")).replace("damping = 1.2e6",
+    text = scene_text("full", Path("rm3.1")).replace("damping = 1.2e6",
                                                                              "damping = 1.2e6\nforce_limit = 2e5")
     p = _plant(text, rm3)
     assert any(w.startswith("ptos[0].force_limit") for w in p.warnings)

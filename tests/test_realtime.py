@@ -109,11 +109,10 @@ def test_server_refuses_a_bad_pace(value):
     from test_server import SCENE
 
     from hydrolink.clients.lockstep.connection import RemoteError, ServerConnection
+    from hydrolink.protocol.hdb_wire import to_wire
     from hydrolink.server.service import ForceServer
     srv = ForceServer(None)
-    with ServerConnection(srv, timeout=10.0) as c:
-        with pytest.raises(RemoteError) as err:
-            c.request("hello", role="multibody", scene=SCENE, hdbs={"float.nc": __import__(
-                "hydrolink.protocol.hdb_wire", fromlist=["to_wire"]).to_wire(make_body_hdb())}, realtime=value)
+    with ServerConnection(srv, timeout=10.0) as c, pytest.raises(RemoteError) as err:
+        c.request("hello", role="multibody", scene=SCENE, hdbs={"float.nc": to_wire(make_body_hdb())}, realtime=value)
     assert err.value.code == 5 and err.value.field == "realtime"
     srv.close()
