@@ -30,7 +30,8 @@ def _plant(text: str, rm3):
     return build_plant(scene, {b.hdb: rm3 for b in scene.bodies})
 
 
-def _frequency_domain(rm3, omega_index: np.ndarray, force: np.ndarray) -> np.ndarray:
+def _frequency_domain(rm3, omega_index: np.ndarray, force: np.ndarray, extra_damping: np.ndarray | None = None
+                      ) -> np.ndarray:
     """Heave responses (n_w, 2) of RM3 to generalised heave forces ``force`` (2,) or (n_w, 2):
     [-w^2 (M + A(w)) - i w (B(w) + B_pto) + C] X = F at the HDB's own frequencies."""
     w = rm3["omega"].values[omega_index]
@@ -38,6 +39,7 @@ def _frequency_domain(rm3, omega_index: np.ndarray, force: np.ndarray) -> np.nda
     b = rm3["radiation_damping"].values[omega_index][:, HEAVE][:, :, HEAVE]
     c = rm3["hydrostatic_stiffness"].values[np.ix_(HEAVE, HEAVE)]
     b_pto = C_PTO * np.array([[1.0, -1.0], [-1.0, 1.0]])
+    b_pto = b_pto + (0.0 if extra_damping is None else extra_damping)
     z = -w[:, None, None] ** 2 * (np.diag(MASS) + a) - 1j * w[:, None, None] * (b + b_pto) + c
     return np.linalg.solve(z, np.broadcast_to(force, (w.size, 2))[..., None])[..., 0]
 
@@ -82,6 +84,23 @@ def test_frequency_response_against_frequency_domain(rm3):
     print(f"pto force -> pto velocity: max relative error {err.max():.2e}; fit error {p.radiation_fit_error:.2e}")
     worst = max(worst, float(err.max()))
     assert worst < 3 * max(p.radiation_fit_error, 0.01)    # hydro.ss_tolerance = 0.01 (default)
+
+
+def test_linear_damping_is_in_the_plant(rm3):
+    """bodies[0].linear_damping (a linear force term of the server) enters as a damping: the float's
+    response equals the frequency-domain model with B + diag(b_lin, 0)."""
+    text = scene_text("full", Path("rm3.1")).replace(
+        "mass = 725833.0", "mass = 725833.0\nlinear_damping = [0, 0, 4e5, 0, 0, 0]")
+    p = _plant(text, rm3)
+    idx = np.flatnonzero((rm3["omega"].values >= 0.3) & (rm3["omega"].values <= 2.0))
+    h = np.conj(p.frequency_response(rm3["omega"].values[idx]))[:, p.outputs.index("float.heave.position"),
+                                                                  p.inputs.index("excitation:float.heave")]
+    x = _frequency_domain(rm3, idx, np.array([1.0, 0.0]), np.diag([4e5, 0.0]))[:, 0]
+    x0 = _frequency_domain(rm3, idx, np.array([1.0, 0.0]))[:, 0]
+    err = np.abs(h - x) / np.abs(x)
+    print(f"linear damping: max relative error {err.max():.2e}; the damping changes |x| by up to "
+          f"{np.abs(np.abs(x) / np.abs(x0) - 1).max():.1%}")
+    assert err.max() < 0.03 and np.abs(np.abs(x) / np.abs(x0) - 1).max() > 0.1
 
 
 def test_time_simulation_against_hydrolink_run(rm3, reference_data, tmp_path):

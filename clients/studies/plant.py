@@ -247,9 +247,11 @@ def build_plant(scene: Scene, hdbs: dict) -> Plant:
         Dm += pl.damping * np.outer(pl.g, pl.g)
     W = np.zeros((sys_.wet_index.size, n))      # coordinates -> the wet bodies' 6N DOFs
     W[np.arange(sys_.wet_index.size), sys_.wet_index] = 1.0
-    if model.viscous is not None and model.viscous.linear is not None:
-        act = model.active_index
-        Dm += W[act].T @ model.viscous.linear @ W[act]
+    eq = setup.equilibrium_position
+    for term in model.terms:   # the linear force terms (check_plant_scene refused the others): F = J v
+        if term.steady != "jacobian":
+            raise PlantError(term.scene_keys[0], f"the {term.name} force term has no linear model")
+        Dm -= W.T @ term.velocity_jacobian(0.0, eq, np.zeros_like(eq)) @ W
     rad = model.radiation_realization()
     Dm -= W.T @ rad.d @ W                       # F_rad = C_r x_r + D_r v: a damping -D_r
 
