@@ -8,6 +8,8 @@ from pathlib import Path
 
 import click
 
+from hydrolink.protocol.pacing import FACTOR_RANGE
+
 
 class _UserError(click.ClickException):
     """An error in the user's input, shown as one clear line (no traceback)."""
@@ -231,7 +233,7 @@ def keys_new(directory: Path, name: str) -> None:
 @click.option("--hdb-files", is_flag=True,
               help="With --server: send each HDB file as itself, by SHA-256 (SPEC §5.8): the server reads it and "
                    "keeps it, so only what it lacks is uploaded, once. Default: the converted HDB every run.")
-@click.option("--realtime", "realtime", type=click.FloatRange(min=0, min_open=True), is_flag=False, flag_value=1.0,
+@click.option("--realtime", "realtime", type=click.FloatRange(*FACTOR_RANGE), is_flag=False, flag_value=1.0,
               default=None, metavar="[FACTOR]",
               help="Release each exchange at its wall-clock time, FACTOR x wall clock (default 1); overruns "
                    "and step latencies are reported (docs/realtime.md).")

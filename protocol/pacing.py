@@ -28,6 +28,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 SPIN = 3e-4   # s before a release spent spinning instead of sleeping
+FACTOR_RANGE = (1e-3, 1e9)   # pace factors accepted: 1/1000 of wall clock to "as fast as it goes"
+
+
+def check_factor(factor: float, key: str) -> float:
+    """``factor`` as a float within FACTOR_RANGE; ValueError naming ``key`` otherwise."""
+    lo, hi = FACTOR_RANGE
+    if not (isinstance(factor, (int, float)) and math.isfinite(factor) and lo <= factor <= hi):
+        raise ValueError(f"{key} {factor!r}: the pace factor must be a number in [{lo:g}, {hi:g}] "
+                         "(1 = wall clock, 2 = twice as fast)")
+    return float(factor)
 
 
 @dataclass(frozen=True)
@@ -55,9 +65,7 @@ class Pacer:
     worst_lateness: float = 0.0
 
     def __post_init__(self) -> None:
-        if not (math.isfinite(self.factor) and self.factor > 0):
-            raise ValueError(f"--realtime {self.factor!r}: the pace factor must be a positive number "
-                             "(1 = wall clock, 2 = twice as fast)")
+        self.factor = check_factor(self.factor, "--realtime")
 
     @property
     def period(self) -> float:

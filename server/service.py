@@ -21,6 +21,7 @@ import zmq
 
 from hydrolink.protocol import codec, transport
 from hydrolink.protocol.codec import Code, ProtocolError
+from hydrolink.protocol.pacing import check_factor
 from hydrolink.server.control import ControlHub
 from hydrolink.server.errors import ModelError
 from hydrolink.server.hdb_files import FileSetReader
@@ -30,6 +31,7 @@ from hydrolink.server.session import Session, build_model
 log = logging.getLogger("hydrolink.server")
 
 POLL_MS = 50
+PLANT_DT = (1e-6, 3600.0)   # s: the sampling times a controller may ask its plant at (SPEC §5.7.2)
 RELEASE_SPIN = 1.5e-3   # s: a held reply due sooner is waited for by spinning (the receive timeout is in ms)
 IN_PROCESS = "in-process"  # the address of a server without a socket (bind=None)
 TOMBSTONES = 1000  # remembered closed sessions, for a helpful error 7
@@ -330,10 +332,10 @@ class ForceServer:
         client = codec.require_map(msg, "client", default={})
         realtime = None
         if msg.get("realtime") is not None:   # pace the session's replies (SPEC §5.1)
-            realtime = codec.require_float(msg, "realtime")
-            if realtime <= 0:
-                raise ProtocolError(Code.BAD_VALUE, "realtime", f"must be > 0 (the pace factor: 1 = wall clock), "
-                                    f"got {realtime}")
+            try:
+                realtime = check_factor(codec.require_float(msg, "realtime"), "realtime")
+            except ValueError as exc:
+                raise ProtocolError(Code.BAD_VALUE, "realtime", str(exc)) from None
         t0 = time.perf_counter()
         model = build_model(msg, self.files)
         sid = os.urandom(16).hex()
@@ -400,8 +402,9 @@ class ForceServer:
         if msg.get("plant") is not None:   # the device as a linear plant (SPEC §5.7.2)
             ask = codec.require_map(msg, "plant")
             dt = None if ask.get("dt") is None else codec.require_float(ask, "dt", "plant.dt")
-            if dt is not None and dt <= 0:
-                raise ProtocolError(Code.BAD_VALUE, "plant.dt", f"must be > 0 s (nil: continuous time), got {dt}")
+            if dt is not None and not PLANT_DT[0] <= dt <= PLANT_DT[1]:
+                raise ProtocolError(Code.BAD_VALUE, "plant.dt", f"must be in [{PLANT_DT[0]:g}, {PLANT_DT[1]:g}] s "
+                                    f"(nil: continuous time), got {dt}")
             plant = s.plant(dt)
         slot, rejoined = hub.join(name)
         control = hub.info(slot)

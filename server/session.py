@@ -183,6 +183,8 @@ class Session:
                 self._plants[dt] = plant if dt is None else plant.discretize(dt)
             except (KeyedError, ModelError) as exc:
                 raise ProtocolError(Code.BAD_SCENE, _scene_field(exc.key), f"no linear plant: {exc}") from None
+            except (ValueError, ArithmeticError, np.linalg.LinAlgError, RuntimeError) as exc:   # e.g. a singular
+                raise ProtocolError(Code.BAD_SCENE, "scene", f"no linear plant: {type(exc).__name__}: {exc}") from None
         return self._plants[dt]
 
     def release_time(self, seq: int, arrived: float) -> float | None:

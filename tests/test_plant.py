@@ -234,7 +234,7 @@ def test_controller_gets_the_plant_at_join(reference_data, tmp_path):
             r = ask(role="controller", controller="ctl", session=conn.session, plant={"dt": 0.04})
             got = Plant.from_wire(codec.decode_tree(r["control"])["plant"])
             np.testing.assert_allclose(got.B, expect.discretize(0.04).B, rtol=1e-9, atol=1e-15)
-            for bad in (0.0, "x"):
+            for bad in (0.0, "x", 5e-324, 1e300, -1e300, 2**62):
                 r = ask(role="controller", controller="ctl", session=conn.session, plant={"dt": bad})
                 assert (r["code"], r["field"]) == (5, "plant.dt")
     finally:
