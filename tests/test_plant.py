@@ -242,3 +242,22 @@ def test_controller_gets_the_plant_at_join(reference_data, tmp_path):
         ctx.term()
         srv.stop()
         thread.join(5)
+
+
+def test_constant_radiation_has_no_states_and_is_exact_at_its_frequency(rm3):
+    """[hydro] radiation = "constant": A(w0) in the mass, B(w0) a damping, no radiation state; at w0
+    the plant is the frequency-domain model exactly (HDB interpolated linearly at w0 here)."""
+    text = scene_text("full", Path("rm3.1")).replace('interaction = "full"', 'interaction = "full"\nradiation = "constant"')
+    p = _plant(text, rm3)
+    assert not any(s.startswith("radiation:") for s in p.states) and len(p.states) == 4
+    w0 = 2 * np.pi / 8.0
+    om = rm3["omega"].values
+    a = np.array([[np.interp(w0, om, rm3["added_mass"].values[:, i, j]) for j in HEAVE] for i in HEAVE])
+    b = np.array([[np.interp(w0, om, rm3["radiation_damping"].values[:, i, j]) for j in HEAVE] for i in HEAVE])
+    c = rm3["hydrostatic_stiffness"].values[np.ix_(HEAVE, HEAVE)]
+    b_pto = C_PTO * np.array([[1.0, -1.0], [-1.0, 1.0]])
+    x = np.linalg.solve(-w0 ** 2 * (np.diag(MASS) + a) - 1j * w0 * (b + b_pto) + c, np.eye(2))
+    h = np.conj(p.frequency_response([w0])[0])
+    rows = [p.outputs.index("float.heave.position"), p.outputs.index("spar.heave.position")]
+    cols = [p.inputs.index("excitation:float.heave"), p.inputs.index("excitation:spar.heave")]
+    np.testing.assert_allclose(h[np.ix_(rows, cols)], x, rtol=1e-9, atol=1e-9 * np.abs(x).max())
