@@ -34,6 +34,7 @@ import xarray as xr
 from hydrolink.protocol.hdb_schema import MEAN_DRIFT_DIMS, QTF_DIMS, HDBError, select_bodies
 from hydrolink.protocol.hdb_second_order import drift_methods, qtf_kinds
 from hydrolink.protocol.scene import Scene
+from hydrolink.server.allocation import require_size
 from hydrolink.server.errors import ModelError
 from hydrolink.server.force_term import ForceTerm, TermContext
 from hydrolink.server.waves import WaveComponents, ramp_factor
@@ -140,6 +141,10 @@ def _qtf_parts(sub: xr.Dataset, kinds: tuple[str, ...], waves: WaveComponents, s
         raise ModelError(_wave_key(waves, "heading"), f"the QTF of {src!r} has no heading pair ({np.degrees(bi):g}, "
                                                       f"{np.degrees(bj):g}) deg (it holds {held} deg)")
 
+    key = _wave_key(waves, "heading")
+    require_size(key, "the QTF over the wave headings' pairs", (6 * n_g * n_q, n_g * n_q), 16,
+                 "fewer spreading directions, or a coarser QTF grid")
+    require_size("waves.components", "the QTF interpolation onto the wave components", (waves.size, n_g * n_q), 16)
     lift = np.zeros((waves.size, n_g * n_q))
     for g, b in enumerate(groups):
         on = np.isclose(np.round(heads, 9), b)

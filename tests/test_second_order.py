@@ -272,3 +272,12 @@ def test_bad_scene_keys_are_named(body, hydro, key):
     with pytest.raises(SceneError) as err:
         parse_scene(scene_toml(dt=0.1, duration=1.0, hydro=hydro, bodies=[keys]))
     assert err.value.key == key, err.value
+
+
+def test_a_qtf_too_large_for_the_headings_is_refused_before_allocating(drift_hdb, monkeypatch):
+    from hydrolink.server import allocation
+    ds, _ = drift_hdb
+    monkeypatch.setattr(allocation, "MAX_ARRAY_BYTES", 1000)
+    with pytest.raises(ModelError) as err:
+        _term(ds, _bichromatic([0.7, 0.9], [1.0, 1.0], [0.0, 0.0]), second_order="qtf")
+    assert err.value.key == "waves.direction" and "QTF" in str(err.value)
