@@ -227,7 +227,7 @@ class SecondOrderTerm(ForceTerm):
     scene_keys = ("hydro.second_order", "bodies[i].second_order", "hydro.drift_method", "hydro.sum_frequency")
     features = ("second_order",)
     needs = frozenset({"time"})
-    steady = None
+    steady = "pointwise"     # hydrolink steady: a load at its nodes (regular waves: mean, and 2w with sum)
     stateless = False
     RESYNC = 1024
 

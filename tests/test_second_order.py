@@ -281,3 +281,21 @@ def test_a_qtf_too_large_for_the_headings_is_refused_before_allocating(drift_hdb
     with pytest.raises(ModelError) as err:
         _term(ds, _bichromatic([0.7, 0.9], [1.0, 1.0], [0.0, 0.0]), second_order="qtf")
     assert err.value.key == "waves.direction" and "QTF" in str(err.value)
+
+
+def test_steady_mean_offset_on_a_surge_spring_is_drift_over_k(drift_hdb, tmp_path):
+    """hydrolink steady (the drift a load at its collocation nodes): the sphere on a surge spring k
+    in a regular wave sits on average at F/k, F = rho g A^2 L Fbar of the .8."""
+    from hydrolink.clients.studies.steady import steady_scene_file
+
+    ds, path = drift_hdb
+    a, period, k = 1.0, 7.0, 1.0e5
+    text = scene_toml(dt=period / 64, duration=10 * period, progress=False, water=SPHERE_WATER,
+                      waves=regular_waves(2 * a, period, ramp=period), hydro={"second_order": "mean-drift"},
+                      steady={"order": 3},
+                      bodies=[sphere_body(str(path), mass=MASS, dofs=["surge"])],
+                      moorings=[{"type": "linear", "body": "sphere", "point": [0.0, 0.0, 0.0],
+                                 "stiffness": [k, 0, 0, 0, 0, 0]}])
+    steady_scene_file(write_scene(tmp_path, text, "steady.toml"), tmp_path / "steady.nc", progress=False)
+    x = xr.load_dataset(tmp_path / "steady.nc")["position"].sel(body="sphere", dof="surge").values
+    assert x.mean() == pytest.approx(_rho_g(ds) * a ** 2 * ULEN * drift_bar(period, 1) / k, rel=1e-6)
