@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from conftest import SPHERE_WATER, regular_waves, scene_toml, sphere_body, write_scene
+from conftest import SPHERE_WATER, irregular_waves, regular_waves, scene_toml, sphere_body, write_scene
 
 from hydrolink.protocol.hdb_schema import to_netcdf
 from hydrolink.protocol.hdb_second_order import with_second_order
@@ -299,3 +299,34 @@ def test_steady_mean_offset_on_a_surge_spring_is_drift_over_k(drift_hdb, tmp_pat
     steady_scene_file(write_scene(tmp_path, text, "steady.toml"), tmp_path / "steady.nc", progress=False)
     x = xr.load_dataset(tmp_path / "steady.nc")["position"].sel(body="sphere", dof="surge").values
     assert x.mean() == pytest.approx(_rho_g(ds) * a ** 2 * ULEN * drift_bar(period, 1) / k, rel=1e-6)
+
+
+@pytest.mark.parametrize("mode", ["mean-drift", "newman", "qtf"])
+def test_still_water_gives_zero(drift_hdb, mode):
+    ds, path = drift_hdb
+    text = scene_toml(dt=0.1, duration=1.0, water=SPHERE_WATER, hydro={"second_order": mode, "sum_frequency": True},
+                      bodies=[sphere_body(str(path), mass=MASS)])
+    model = HydroModel(parse_scene(text), {"sphere": ds})
+    f = model.step(0.0, model.setup_info().equilibrium_position, np.zeros((1, 6)))["drift"]
+    assert f.shape == (1, 6) and not f.any()
+
+
+def test_irregular_sea_slow_drift_averages_to_the_mean_drift(drift_hdb):
+    """A JONSWAP sea of equally spaced components: over one beat period 2 pi / dw every
+    difference-frequency term averages out, so the time mean of the Newman force is the mean
+    drift sum A_i^2 T_ii (mode "mean-drift"); and spreading over headings the data lack is refused."""
+    ds, path = drift_hdb
+    waves = irregular_waves(2.0, 8.0, components=30, seed=4, omega_range=[0.35, 1.35])
+    mean = HydroModel(parse_scene(_scene(path, waves, second_order="mean-drift")), {"sphere": ds})
+    newman = HydroModel(parse_scene(_scene(path, waves, second_order="newman")), {"sphere": ds})
+    x0 = mean.setup_info().equilibrium_position
+    f_mean = mean.step(0.0, x0, np.zeros((1, 6)))["drift"][0]
+    term = newman.terms[0]
+    dw = 1.0 / 30
+    times = np.arange(64) * (2 * np.pi / dw) / 64
+    avg = np.mean([term.force(t, x0, np.zeros((1, 6)))[0][0] for t in times], axis=0)
+    np.testing.assert_allclose(avg, f_mean, rtol=1e-9, atol=1e-9 * np.abs(f_mean).max())
+    spread = irregular_waves(2.0, 8.0, components=30, omega_range=[0.35, 1.35], spreading="cos2s", s=10.0)
+    with pytest.raises(ModelError) as err:
+        HydroModel(parse_scene(_scene(path, spread, second_order="mean-drift")), {"sphere": ds})
+    assert err.value.key == "waves.spreading"
