@@ -248,6 +248,17 @@ def describe(value: Any, limit: int = 60) -> str:
     return text if len(text) <= limit else text[:limit] + "..."
 
 
+def without_nil(msg: dict, depth: int = 0) -> dict:
+    """The request map with every nil entry removed, in nested maps too (SPEC §2: a field whose
+    value is nil counts as absent): one rule for every optional field, applied once on receipt.
+    Array maps (§2.1) are values and lists hold values, not fields: both are left as sent, as are
+    maps nested deeper than MAX_TREE_DEPTH (:func:`decode_tree` refuses them)."""
+    if depth > MAX_TREE_DEPTH:
+        return msg
+    return {k: without_nil(v, depth + 1) if type(v) is dict and not _is_array_map(v) else v
+            for k, v in msg.items() if v is not None}
+
+
 def require(msg: dict, field: str, path: str | None = None) -> Any:
     """The value of a required field (nil counts as missing); ProtocolError 4 otherwise."""
     value = msg.get(field)

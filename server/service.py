@@ -1,7 +1,9 @@
 """The force server: one ZeroMQ ROUTER socket, a poll loop, many sessions (protocol: SPEC.md).
 
 Every request gets exactly one reply; any exception while handling a message becomes an ``error``
-reply to that message and the loop carries on.
+reply to that message and the loop carries on. A hello's set-up (HDB parsing, the model) runs in a
+worker thread (server/setup_workers.py): the loop answers other sessions' steps meanwhile and the
+``welcome`` when the set-up is done.
 """
 
 from __future__ import annotations
@@ -10,6 +12,8 @@ import logging
 import os
 import threading
 import time
+from concurrent.futures import Future
+from dataclasses import dataclass
 from importlib import metadata
 from typing import Any, Callable
 
@@ -20,13 +24,27 @@ from hydrolink.protocol.codec import Code, ProtocolError
 from hydrolink.server.control import ControlHub
 from hydrolink.server.hdb_files import FileSetReader
 from hydrolink.server.hdb_store import HASH, ContentStore, ContentTooLarge, default_folder
+from hydrolink.server.model import HydroModel
 from hydrolink.server.session import Session, build_model
+from hydrolink.server.setup_workers import SetupWorkers
 
 log = logging.getLogger("hydrolink.server")
 
 POLL_MS = 50
+SETUP_POLL_MS = 5   # the receive timeout while set-ups run: a finished one is answered within it
 IN_PROCESS = "in-process"  # the address of a server without a socket (bind=None)
 TOMBSTONES = 1000  # remembered closed sessions, for a helpful error 7
+
+
+@dataclass(frozen=True)
+class PendingHello:
+    """A multibody hello whose set-up runs in a worker: answered when ``model`` is done."""
+    msg: dict
+    msg_id: Any
+    route: list[bytes]
+    client: dict
+    started: float
+    model: Future
 
 
 def server_version() -> str:
@@ -94,6 +112,8 @@ class ForceServer:
         self._route: list[bytes] | None = None   # routing frames of the request being handled
         self._hubs: dict[str, ControlHub] = {}   # sessions with controllers (SPEC §5.7)
         self._rcv_ms = POLL_MS
+        self._workers = SetupWorkers()
+        self._setups: list[PendingHello] = []    # hellos being set up, oldest first
 
     @property
     def address(self) -> str:
@@ -123,8 +143,8 @@ class ForceServer:
             while not self._stop.is_set():
                 # a blocking receive with a POLL_MS timeout (RCVTIMEO): no poller and no exception
                 # per message on the hot path, only when the socket was idle for POLL_MS; shorter
-                # when a controller deadline (SPEC §5.7) comes sooner
-                if self._hubs:
+                # when a controller deadline (SPEC §5.7) comes sooner or a set-up runs
+                if self._hubs or self._setups or self._rcv_ms != POLL_MS:
                     self._set_rcv_timeout()
                 try:
                     frames = self._sock.recv_multipart()
@@ -132,11 +152,14 @@ class ForceServer:
                     frames = None
                 if frames:
                     self._serve_one(frames)
+                if self._setups:
+                    self._finish_setups()
                 now = time.monotonic()
                 if self._hubs:
                     for hub in list(self._hubs.values()):
                         if hub.next_deadline() <= now:
                             hub.poll(now)
+                    self._resume_held()
                 if now >= next_sweep:
                     self._expire(now)
                     next_sweep = now + min(1.0, self.session_timeout / 4)
@@ -147,8 +170,11 @@ class ForceServer:
     # ------------------------------------------------------------ dispatch
 
     def _set_rcv_timeout(self) -> None:
-        left = min(hub.next_deadline() for hub in self._hubs.values()) - time.monotonic()
-        ms = POLL_MS if left >= POLL_MS / 1000 else max(1, int(left * 1000) + 1)
+        ms = SETUP_POLL_MS if self._setups else POLL_MS
+        if self._hubs:
+            left = min(hub.next_deadline() for hub in self._hubs.values()) - time.monotonic()
+            if left < ms / 1000:
+                ms = max(1, int(left * 1000) + 1)
         if ms != self._rcv_ms:
             self._sock.setsockopt(zmq.RCVTIMEO, ms)
             self._rcv_ms = ms
@@ -162,11 +188,13 @@ class ForceServer:
             frames = [frames[0], b""]
         else:
             reply = self.handle(frames[-1], frames[:-1])
-        if reply is None:
-            return  # deferred (SPEC §5.7): sent later by the session's ControlHub
-        frames[-1] = codec.pack(reply, self.key)  # routing frames stay in front, verbatim
+        if reply is not None:   # None: deferred (SPEC §5.7, a hello being set up), sent later
+            self._send(frames[:-1], reply)
+
+    def _send(self, route: list[bytes], reply: dict) -> None:
+        """Send a reply map to the routing frames it answers (kept in front, verbatim)."""
         try:
-            self._sock.send_multipart(frames, zmq.NOBLOCK)
+            self._sock.send_multipart([*route, codec.pack(reply, self.key)], zmq.NOBLOCK)
         except zmq.ZMQError as exc:  # peer gone or its queue full: drop the reply
             log.warning("reply dropped: %s", exc)
 
@@ -186,11 +214,7 @@ class ForceServer:
 
     def _send_later(self, session: str, route: list[bytes], mtype: str, parent: Any, fields: dict) -> None:
         """Send a deferred reply (a ControlHub's callback)."""
-        frame = codec.pack(codec.message(mtype, next(self._ids), session, parent, **fields), self.key)
-        try:
-            self._sock.send_multipart([*route, frame], zmq.NOBLOCK)
-        except zmq.ZMQError as exc:
-            log.warning("deferred reply dropped: %s", exc)
+        self._send(route, codec.message(mtype, next(self._ids), session, parent, **fields))
 
     def respond(self, frame: bytes) -> bytes:
         """One request frame -> its reply frame (never raises): what the socket loop sends back."""
@@ -216,25 +240,33 @@ class ForceServer:
             msg = frame if type(frame) is dict else codec.unpack(frame, self.key)
             session = msg.get("session") if isinstance(msg.get("session"), str) else None
             mtype, msg_id, session = codec.check_envelope(msg)
+            msg = codec.without_nil(msg)   # SPEC §2: a nil field is an absent one, for every field
+            hub = self._hubs.get(session) if session is not None else None
+            if hub is not None and route is not None and hub.holds(mtype, msg, route):
+                return None   # answered in order once the session's deferred step is (SPEC §1, §5.7)
             self._route = route
             out = self._handlers[mtype](msg, msg_id, session)
             if out is None:
                 return None
             rtype, fields, session = out
             return codec.message(rtype, next(self._ids), session, msg_id, **fields)
-        except ProtocolError as exc:
-            if exc.code == Code.BAD_SIGNATURE:
-                log.warning("refused a request: %s (from routing identity %s)", exc.message,
-                            route[0].hex() if route else "in-process")
-            elif exc.code not in (Code.OUT_OF_ORDER,):
-                log.info("error %d %s [%s] session %s: %s", exc.code, exc.name, exc.field, session, exc.message)
-            parent = codec.readable_id(msg) if msg is not None else exc.parent
-            return codec.error_from(exc, next(self._ids), parent, session)
         except Exception as exc:  # noqa: BLE001 - the loop must never die
-            log.exception("internal error handling a %s (session %s)",
-                          msg.get("type") if isinstance(msg, dict) else "message", session)
+            return self._error(exc, msg, session, route)
+
+    def _error(self, exc: Exception, msg: Any, session: str | None, route: list[bytes] | None) -> dict:
+        """The ``error`` reply to a request that raised ``exc`` (logged; code 99 unless a ProtocolError)."""
+        if not isinstance(exc, ProtocolError):
+            log.error("internal error handling a %s (session %s)",
+                      msg.get("type") if isinstance(msg, dict) else "message", session, exc_info=exc)
             return codec.error_reply(next(self._ids), codec.readable_id(msg), session, Code.INTERNAL, None,
                                      f"internal server error: {type(exc).__name__}: {exc}")
+        if exc.code == Code.BAD_SIGNATURE:
+            log.warning("refused a request: %s (from routing identity %s)", exc.message,
+                        route[0].hex() if route else "in-process")
+        elif exc.code not in (Code.OUT_OF_ORDER,):
+            log.info("error %d %s [%s] session %s: %s", exc.code, exc.name, exc.field, session, exc.message)
+        parent = codec.readable_id(msg) if msg is not None else exc.parent
+        return codec.error_from(exc, next(self._ids), parent, session)
 
     @property
     def files(self) -> FileSetReader:
@@ -272,7 +304,29 @@ class ForceServer:
             raise ProtocolError(Code.BAD_VALUE, "session", "a multibody hello must not carry a session id")
         client = codec.require_map(msg, "client", default={})
         t0 = time.perf_counter()
-        model = build_model(msg, self.files)
+        if self._route is None:   # in-process: the caller waits for its own reply
+            return self._open(msg, client, t0, build_model(msg, self.files))
+        self._setups.append(PendingHello(msg, msg_id, self._route, client, t0,
+                                         self._workers.submit(build_model, msg, self.files)))
+        return None   # answered by _finish_setups
+
+    def _finish_setups(self) -> None:
+        """Answer the hellos whose set-up is done (in the loop: sessions change only here)."""
+        running = []
+        for hello in self._setups:
+            if not hello.model.done():
+                running.append(hello)
+                continue
+            try:
+                rtype, fields, sid = self._open(hello.msg, hello.client, hello.started, hello.model.result())
+                reply = codec.message(rtype, next(self._ids), sid, hello.msg_id, **fields)
+            except Exception as exc:  # noqa: BLE001 - a failed set-up is that hello's error reply
+                reply = self._error(exc, hello.msg, None, hello.route)
+            self._send(hello.route, reply)
+        self._setups = running
+
+    def _open(self, msg: dict, client: dict, t0: float, model: HydroModel) -> tuple[str, dict, str]:
+        """A new session over a built model: its ``welcome``."""
         sid = os.urandom(16).hex()
         if model.scene.controllers:
             if self._sock is None:
@@ -291,6 +345,18 @@ class ForceServer:
             "session_timeout": self.session_timeout,
             "setup": model.setup_info().to_wire(),
         }, sid
+
+    def _resume_held(self) -> None:
+        """Handle the requests held behind a deferred step once it is answered, in their order."""
+        for hub in list(self._hubs.values()):
+            self._answer_held(hub)
+
+    def _answer_held(self, hub: ControlHub) -> None:
+        while hub.held and hub.pending is None:
+            msg, route = hub.held.popleft()
+            reply = self.handle(msg, route)
+            if reply is not None:
+                self._send(route, reply)
 
     def _step(self, msg: dict, msg_id: Any, session: str | None) -> tuple[str, dict, str | None] | None:
         s = self._session(session)
@@ -402,10 +468,11 @@ class ForceServer:
     def _close(self, s: Session, why: str) -> None:
         self.sessions.pop(s.id, None)
         hub = self._hubs.pop(s.id, None)
+        self._closed[s.id] = f"{why} at {time.strftime('%H:%M:%S')}"
         if hub is not None:
             hub.end(why)
+            self._answer_held(hub)   # the held requests learn why (error 7)
             log.info("session %s controllers: %s", s.id, hub.summary())
-        self._closed[s.id] = f"{why} at {time.strftime('%H:%M:%S')}"
         while len(self._closed) > TOMBSTONES:
             self._closed.pop(next(iter(self._closed)))
         log.info("session %s %s after %d steps (%.3f s model time)", s.id, why, s.steps, s.compute_s)
@@ -415,6 +482,8 @@ class ForceServer:
             self._close(s, f"expired after {self.session_timeout:g} s idle")
 
     def _shutdown(self) -> None:
+        self._workers.close()
+        self._setups = []
         for s in list(self.sessions.values()):
             self._close(s, "closed by server shutdown")
         if self._sock is None or self._sock.closed:

@@ -445,3 +445,55 @@ def test_save_restore_release_over_the_wire(server, hdb, conn):
         with pytest.raises(RemoteError) as err:
             other.save()
         assert (err.value.code, err.value.field) == (12, "type")
+
+
+# ------------------------------------------------------------------ set-up off the step path
+
+def _float_scene(dt: float, duration: float, irf_duration: float) -> str:
+    return scene_toml(dt=dt, duration=duration, waves=regular_waves(1.0, 6.0), hydro={"irf_duration": irf_duration},
+                      bodies=[body("float", hdb="float.nc", mass=3.0e5, center_of_mass=[0.0, 0.0, -1.0],
+                                   inertia=[1.0e7, 1.0e7, 2.0e7])])
+
+
+def test_steps_of_another_session_are_answered_while_a_hello_is_set_up(server, hdb):
+    """A hello whose set-up takes long (dt = 2e-5 s: an IRF of 2e5 samples over 400 frequencies)
+    is answered when its set-up is done; meanwhile the loop answers another session's steps (before
+    the set-up moved to a worker thread, they waited for it: 0 or 1 step got through)."""
+    slow = _float_scene(2e-5, 0.01, 4.0)
+    conn = ServerConnection(server.address, timeout=10.0)
+    sock = zmq.Context.instance().socket(zmq.DEALER)
+    sock.setsockopt(zmq.LINGER, 0)
+    try:
+        conn.hello(_float_scene(DT, 1.0e5, 4.0), {"float.nc": hdb})
+        sock.connect(server.address)
+        sock.send(codec.pack(codec.message("hello", "slow-1", None, role="multibody", scene=slow,
+                                           hdbs={"float.nc": to_wire(hdb)})))
+        answered, seq = 0, 0
+        sts = states(1)
+        deadline = time.monotonic() + 600
+        while not sock.poll(0):
+            assert time.monotonic() < deadline, "the slow hello got no reply"
+            conn.step(seq, seq * DT, *sts[0])
+            seq, answered = seq + 1, answered + 1
+        welcome = codec.unpack(sock.recv())
+        assert welcome["type"] == "welcome" and welcome["parent"] == "slow-1", welcome
+        assert welcome["setup"]["dt"] == 2e-5 and welcome["setup"]["irf_samples"] == 200_000
+        assert answered >= 10, f"only {answered} steps of the other session were answered during the set-up"
+        conn.step(seq, seq * DT, *sts[0])
+    finally:
+        sock.close(0)
+        conn.close()
+
+
+def test_irf_work_over_the_setup_bound_is_refused_naming_the_key(server, hdb):
+    """An IRF of 6e6 samples (irf_duration 60 s at dt 1e-5) over 400 frequencies is 2.4e9
+    sample-frequency products per transform, over MAX_IRF_PRODUCTS: error 8 naming the key,
+    before any transform; the server serves on."""
+    text = _float_scene(1e-5, 0.01, 60.0)
+    with ServerConnection(server.address, timeout=60.0) as c:
+        t0 = time.perf_counter()
+        err = expect_error(lambda: c.hello(text, {"float.nc": hdb}), 8, "scene.hydro.irf_duration")
+        assert "6000001 samples" in err.message and "2.41e+09" in err.message and "hydro.irf_domega" in err.message
+        assert time.perf_counter() - t0 < 30.0
+        c.hello(SCENE, {"float.nc": hdb})
+        assert c.step(0, 0.0, *states(1)[0])["seq"] == 0
