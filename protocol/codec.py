@@ -22,7 +22,7 @@ import numpy as np
 
 PROTOCOL_VERSION = 1
 SUPPORTED_VERSIONS = (1,)
-MAX_MESSAGE_BYTES = 256 * 2**20       # all frames of a message together (SPEC §1)
+MAX_MESSAGE_BYTES = 64 * 2**20        # default: all frames of a message together (SPEC §1; serve --max-message-mib)
 MAX_ROUTING_FRAMES = 8
 MAX_ROUTING_FRAME_BYTES = 255         # a ZeroMQ routing identity's limit
 SIG_TRAILER = b"\xa3sig\xc4\x20"  # fixstr "sig" + bin8 header of length 32

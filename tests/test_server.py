@@ -497,3 +497,51 @@ def test_irf_work_over_the_setup_bound_is_refused_naming_the_key(server, hdb):
         assert time.perf_counter() - t0 < 30.0
         c.hello(SCENE, {"float.nc": hdb})
         assert c.step(0, 0.0, *states(1)[0])["seq"] == 0
+
+
+def test_a_frame_over_the_limit_is_refused_before_it_is_buffered(tmp_path):
+    """SPEC §1: ``hydrolink serve --max-message-mib 1`` refuses a 200 MiB frame from its header
+    (ZMQ_MAXMSGSIZE: the connection is dropped, no reply) without buffering it: the server's peak
+    RSS grows by far less than the frame (before, a frame under the 256 MiB limit cost twice its
+    size); the server serves on."""
+    import re
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen([sys.executable, "-m", "hydrolink.clients.cli", "serve", "--bind", "tcp://127.0.0.1:*",
+                             "--max-message-mib", "1", "--store", str(tmp_path)], stderr=subprocess.PIPE, text=True)
+    ctx = zmq.Context.instance()
+    socks = []
+
+    def peak_mib() -> float:
+        return int(re.search(r"VmHWM:\s+(\d+) kB", Path(f"/proc/{proc.pid}/status").read_text()).group(1)) / 1024
+
+    def dealer() -> zmq.Socket:
+        sock = ctx.socket(zmq.DEALER)
+        sock.setsockopt(zmq.LINGER, 0)
+        sock.connect(address)
+        socks.append(sock)
+        return sock
+
+    try:
+        address = re.search(r"listening on (tcp://\S+)", proc.stderr.readline()).group(1)
+        ping = codec.pack(codec.message("ping", 1, None))
+        first = dealer()
+        first.send(ping)
+        assert first.poll(RECV_MS) and codec.unpack(first.recv())["type"] == "pong"
+        before = peak_mib()
+        big = dealer()
+        big.send(bytes(200 * 2**20))
+        assert not big.poll(3000), "a frame over the limit was answered: it was received"
+        grown = peak_mib() - before
+        assert grown < 50, f"the server's peak RSS grew by {grown:.0f} MiB for a refused 200 MiB frame"
+        under = dealer()   # a message just under the limit is still read
+        under.send(codec.pack(codec.message("upload", 2, None, sha256="0" * 64, data=bytes(2**20 - 200))))
+        assert under.poll(RECV_MS) and codec.unpack(under.recv())["field"] == "sha256"
+        first.send(ping)
+        assert first.poll(RECV_MS) and codec.unpack(first.recv())["type"] == "pong"
+    finally:
+        for sock in socks:
+            sock.close(0)
+        proc.terminate()
+        proc.wait(10)
