@@ -242,7 +242,7 @@ class ForceServer:
             mtype, msg_id, session = codec.check_envelope(msg)
             msg = codec.without_nil(msg)   # SPEC §2: a nil field is an absent one, for every field
             hub = self._hubs.get(session) if session is not None else None
-            if hub is not None and route is not None and hub.holds(mtype, msg, route):
+            if hub is not None and route is not None and self._running and hub.holds(mtype, msg, route):
                 return None   # answered in order once the session's deferred step is (SPEC §1, §5.7)
             self._route = route
             out = self._handlers[mtype](msg, msg_id, session)
@@ -304,7 +304,7 @@ class ForceServer:
             raise ProtocolError(Code.BAD_VALUE, "session", "a multibody hello must not carry a session id")
         client = codec.require_map(msg, "client", default={})
         t0 = time.perf_counter()
-        if self._route is None:   # in-process: the caller waits for its own reply
+        if self._route is None or not self._running:   # no loop to answer later: the caller waits
             return self._open(msg, client, t0, build_model(msg, self.files))
         self._setups.append(PendingHello(msg, msg_id, self._route, client, t0,
                                          self._workers.submit(build_model, msg, self.files)))

@@ -23,9 +23,10 @@ DT = 0.05
 
 
 def float_scene(*, name: str = "float", hdb: str = "float.nc", mass: float = 3.0e5, water: dict | None = None,
-                **body_keys) -> str:
+                dt: float = DT, duration: float = 10.0, irf_duration: float = 4.0, **body_keys) -> str:
     """The analytic float in regular waves; ``body_keys`` add to the body's keys."""
-    return scene_toml(dt=DT, duration=10.0, water=water, waves=regular_waves(1.0, 6.0), hydro={"irf_duration": 4.0},
+    return scene_toml(dt=dt, duration=duration, water=water, waves=regular_waves(1.0, 6.0),
+                      hydro={"irf_duration": irf_duration},
                       bodies=[body(name, hdb=hdb, mass=mass, center_of_mass=[0.0, 0.0, -1.0],
                                    inertia=[1.0e7, 1.0e7, 2.0e7], **body_keys)])
 
@@ -449,22 +450,16 @@ def test_save_restore_release_over_the_wire(server, hdb, conn):
 
 # ------------------------------------------------------------------ set-up off the step path
 
-def _float_scene(dt: float, duration: float, irf_duration: float) -> str:
-    return scene_toml(dt=dt, duration=duration, waves=regular_waves(1.0, 6.0), hydro={"irf_duration": irf_duration},
-                      bodies=[body("float", hdb="float.nc", mass=3.0e5, center_of_mass=[0.0, 0.0, -1.0],
-                                   inertia=[1.0e7, 1.0e7, 2.0e7])])
-
-
 def test_steps_of_another_session_are_answered_while_a_hello_is_set_up(server, hdb):
     """A hello whose set-up takes long (dt = 2e-5 s: an IRF of 2e5 samples over 400 frequencies)
     is answered when its set-up is done; meanwhile the loop answers another session's steps (before
     the set-up moved to a worker thread, they waited for it: 0 or 1 step got through)."""
-    slow = _float_scene(2e-5, 0.01, 4.0)
+    slow = float_scene(dt=2e-5, duration=0.01)
     conn = ServerConnection(server.address, timeout=10.0)
     sock = zmq.Context.instance().socket(zmq.DEALER)
     sock.setsockopt(zmq.LINGER, 0)
     try:
-        conn.hello(_float_scene(DT, 1.0e5, 4.0), {"float.nc": hdb})
+        conn.hello(float_scene(duration=1.0e5), {"float.nc": hdb})
         sock.connect(server.address)
         sock.send(codec.pack(codec.message("hello", "slow-1", None, role="multibody", scene=slow,
                                            hdbs={"float.nc": to_wire(hdb)})))
@@ -489,7 +484,7 @@ def test_irf_work_over_the_setup_bound_is_refused_naming_the_key(server, hdb):
     """An IRF of 6e6 samples (irf_duration 60 s at dt 1e-5) over 400 frequencies is 2.4e9
     sample-frequency products per transform, over MAX_IRF_PRODUCTS: error 8 naming the key,
     before any transform; the server serves on."""
-    text = _float_scene(1e-5, 0.01, 60.0)
+    text = float_scene(dt=1e-5, duration=0.01, irf_duration=60.0)
     with ServerConnection(server.address, timeout=60.0) as c:
         t0 = time.perf_counter()
         err = expect_error(lambda: c.hello(text, {"float.nc": hdb}), 8, "scene.hydro.irf_duration")
