@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from hydrolink.clients.run import load_scene_hdbs, run_scene_file
-from hydrolink.clients.steady import hydro_model, linearize, solve
+from hydrolink.clients.studies.steady import hydro_model, linearize, solve
 from hydrolink.protocol.scene import load_scene, resolve_path
 
 
@@ -61,7 +61,7 @@ def time_domain(scene_path: Path, dt: float, duration: float, folder: Path, extr
     scene, _ = load_scene(path)
     w = 2 * np.pi / scene.waves.period
     x = (ds["position"] - ds["equilibrium_position"]).values
-    out = {"wall": wall, "run_wall": summary["wall_time"], "steps": summary["steps"],
+    out = {"wall": wall, "run_wall": summary.wall_time, "steps": summary.steps,
            "amplitude": fundamental(ds["time"].values, x, w), "ds": ds}
     if "pto_power" in ds:
         sel = ds["time"].values > ds["time"].values[-1] - 5 * scene.waves.period + 1e-9
@@ -92,7 +92,7 @@ def spectral(scene_path: Path, order: int, formulation: str, repeat: int = 3) ->
     p = sol.t.size
     if lin.ptos:
         tt = np.linspace(0, 2 * np.pi / lin.omega, 64 * p, endpoint=False)
-        from hydrolink.clients.steady import sample
+        from hydrolink.clients.studies.steady import sample
         best["power"] = sample(sol, tt)["pto_power"].mean(axis=0)
     return best
 

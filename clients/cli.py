@@ -16,10 +16,10 @@ class _UserError(click.ClickException):
 def _user_errors():
     """Exception types that are the user's input at fault and deserve a one-line message."""
     from hydrolink.protocol.scene import SceneError
-    from hydrolink.server.hdb.schema import HDBError
-    from hydrolink.clients.connection import RemoteError
+    from hydrolink.protocol.hdb_schema import HDBError
+    from hydrolink.clients.lockstep.connection import RemoteError
     errors: list[type[BaseException]] = [SceneError, HDBError, FileNotFoundError, RemoteError]
-    from hydrolink.clients.exudyn_client import RunInterrupted
+    from hydrolink.clients.exudyn.client import RunInterrupted
     from hydrolink.server.model import ModelError
     errors += [ModelError, RunInterrupted]
     return tuple(errors)
@@ -77,7 +77,7 @@ def hdb() -> None:
 def hdb_build(spec: Path, output: Path, no_progress: bool) -> None:
     """Compute an HDB with Capytaine from a build SPEC (TOML); cached by its inputs."""
     from hydrolink.server.hdb.build import build_hdb
-    from hydrolink.server.hdb.schema import to_netcdf
+    from hydrolink.protocol.hdb_schema import to_netcdf
 
     ds = _guard(build_hdb, spec, progress=not no_progress)
     output.parent.mkdir(parents=True, exist_ok=True)
@@ -268,12 +268,12 @@ def run(scene: Path, output: Path | None, server: str | None, no_progress: bool,
     except KeyboardInterrupt as exc:
         click.echo(f"hydrolink run: {exc or 'interrupted'}", err=True)
         raise SystemExit(130) from None
-    steps, wall = summary["steps"], summary["wall_time"]
-    click.echo(f"wrote {summary['output']}: {steps} steps in {wall:.2f} s ({steps / max(wall, 1e-9):.0f} steps/s; "
-               f"server compute {summary.get('server_compute_us_per_step', float('nan')):.1f} us/step)")
+    steps, wall = summary.steps, summary.wall_time
+    click.echo(f"wrote {summary.output}: {steps} steps in {wall:.2f} s ({steps / max(wall, 1e-9):.0f} steps/s; "
+               f"server compute {(summary.server_compute_us_per_step or float('nan')):.1f} us/step)")
     if hdb_files:
-        click.echo(f"HDB files sent by hash: {summary['hdb_uploads']} content(s) uploaded, the rest held by the server")
-    for report in summary.get("moordyn") or []:
+        click.echo(f"HDB files sent by hash: {summary.hdb_uploads} content(s) uploaded, the rest held by the server")
+    for report in summary.moordyn or []:
         for body, offset in zip(report["bodies"], report["static_offset"] or []):
             click.echo(f"MoorDyn {report['mooring']!r}: {body}'s moored equilibrium is "
                        f"[{', '.join(f'{x:.4g}' for x in offset)}] (m, rad) from its reference position "
@@ -316,7 +316,7 @@ def control(file: Path, server: str, session: str | None, name: str | None, clas
 def steady(scene: Path, output: Path | None, order: int | None, formulation: str | None, dt: float | None,
            no_progress: bool) -> None:
     """Periodic steady state of a SCENE in regular waves by pseudo-spectral collocation (docs/steady.md)."""
-    from hydrolink.clients.steady import SteadyError, steady_scene_file
+    from hydrolink.clients.studies.steady import SteadyError, steady_scene_file
 
     try:
         s = _guard(steady_scene_file, scene, output, order=order, formulation=formulation, dt=dt,
@@ -338,7 +338,7 @@ def bench() -> None:
 @bench.command("accuracy")
 @click.argument("scene", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--grid", "grid_file", type=click.Path(dir_okay=False, exists=True, path_type=Path),
-              help="TOML grid of options (clients/accuracy.py); combined with the flags below.")
+              help="TOML grid of options (clients/studies/accuracy.py); combined with the flags below.")
 @click.option("--dt", help="Comma-separated simulation.dt values.")
 @click.option("--irf-duration", help="Comma-separated hydro.irf_duration values (s).")
 @click.option("--radiation", help="Comma-separated hydro.radiation methods.")
@@ -361,7 +361,7 @@ def bench_accuracy_cmd(scene: Path, grid_file: Path | None, dt, irf_duration, ra
                        reduce, nonlinear, refs, mode, duration, window, output: Path, title, keep_runs: bool,
                        repeat: int) -> None:
     """Run SCENE under a grid of options against a reference run; table + plots of error vs cost."""
-    from hydrolink.clients.accuracy import BenchError, Grid, bench_accuracy, grid_from_flags
+    from hydrolink.clients.studies.accuracy import BenchError, Grid, bench_accuracy, grid_from_flags
 
     try:
         base = Grid.from_toml(grid_file) if grid_file else None
@@ -393,8 +393,8 @@ def sweep_cmd(sweep_file: Path, output: Path | None, workers: int | None, schedu
               no_progress: bool) -> None:
     """Run every case of a SWEEP_FILE (TOML: a scene and a grid of its keys) on Dask; writes each
     case's results, sweep.nc (one dimension per swept key), the power matrix / AEP and plots (docs/sweeps.md)."""
-    from hydrolink.clients.power_matrix import PowerMatrixError
-    from hydrolink.clients.sweep import SweepError, run_sweep
+    from hydrolink.clients.studies.power_matrix import PowerMatrixError
+    from hydrolink.clients.studies.sweep import SweepError, run_sweep
 
     if workers and scheduler:
         raise _UserError("--workers and --scheduler: give one (the scheduler's workers are its own)")
@@ -435,7 +435,7 @@ def fmu() -> None:
 def fmu_export(scene: Path, output: Path, native: bool, fmi: str) -> None:
     """Export the SCENE's hydrodynamic forces as an FMU (inputs: body states; outputs: forces)."""
     if native:
-        from hydrolink.clients.fmu_native import NativeFMUError, export_native_fmu
+        from hydrolink.clients.fmu.native import NativeFMUError, export_native_fmu
         try:
             path, notes = _guard(export_native_fmu, scene, output, fmi=int(fmi))
         except NativeFMUError as exc:
@@ -443,7 +443,7 @@ def fmu_export(scene: Path, output: Path, native: bool, fmi: str) -> None:
     elif fmi != "2":
         raise _UserError("--python FMUs are FMI 2.0 only (use --native for FMI 3.0)")
     else:
-        from hydrolink.clients.fmu_export import export_fmu
+        from hydrolink.clients.fmu.export import export_fmu
         path, notes = _guard(export_fmu, scene, output)
     for note in notes:
         click.echo(f"note: {note}", err=True)

@@ -7,14 +7,15 @@ or, when none is given, embeds one in this process — and drives the Exudyn cli
 from __future__ import annotations
 
 import json
-
 import logging
 from contextlib import ExitStack
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import xarray as xr
 
+from hydrolink.clients.lockstep.summary import RunSummary
 from hydrolink.protocol.hdb_wire import HDBFiles
 from hydrolink.protocol.scene import Scene, SceneError, load_scene, resolve_path
 
@@ -109,8 +110,8 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
                    server: str | None = None, progress: bool = True, timeout: float = 60.0,
                    listen: str = "tcp://127.0.0.1:*", hdbs: dict[str, xr.Dataset] | None = None,
                    curve=None, key: bytes | None = None, link_timeout: float = 10.0,
-                   hdb_files: bool = False) -> dict:
-    """Run a scene end to end; returns the run summary (steps, wall time, output path).
+                   hdb_files: bool = False) -> RunSummary:
+    """Run a scene end to end; returns the run summary (steps, wall time, output path, the server's side).
 
     A scene with ``[[controllers]]`` and no ``server`` starts a force server with a socket on
     ``listen`` in a thread of this process (controllers connect to it; SPEC §5.7) instead of the
@@ -121,9 +122,9 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
     stay down (SPEC §1) before the run ends (its rows kept); ``hdb_files``: send the HDBs as their
     files by SHA-256 (:func:`load_scene_hdbs` ``as_files``; the summary's ``hdb_uploads`` counts
     the contents the server lacked)."""
-    from hydrolink.clients.connection import ServerConnection
-    from hydrolink.clients.exudyn_client import result_bodies, run
-    from hydrolink.clients.results import ResultWriter
+    from hydrolink.clients.lockstep.connection import ServerConnection
+    from hydrolink.clients.exudyn.client import result_bodies, run
+    from hydrolink.clients.lockstep.results import ResultWriter
 
     scene_path = Path(scene_path)
     scene, text = load_scene(scene_path)
@@ -132,7 +133,7 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
     series = load_wave_elevation(scene, scene_path)
     moordyn_files = None
     if any(getattr(m, "type", "") == "moordyn" for m in scene.moorings):
-        from hydrolink.clients.moordyn_mooring import load_moordyn_files
+        from hydrolink.clients.exudyn.moordyn_mooring import load_moordyn_files
         moordyn_files = load_moordyn_files(scene, scene_path)
     output = Path(output) if output else scene_path.with_suffix(".out.nc")
     if not scene.served_bodies:
@@ -142,9 +143,8 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
         with ResultWriter(output, scene=scene, scene_text=text, dt=scene.simulation.dt, bodies=names,
                           equilibrium_position=reference, flush_seconds=scene.simulation.flush_seconds) as writer:
             summary = run(scene, text, None, None, writer, progress=progress, moordyn_files=moordyn_files)
-            writer.set_attribute("warnings", json.dumps(summary["warnings"]))
-        summary["output"], summary["server"] = str(output), None
-        return summary
+            writer.set_attribute("warnings", json.dumps(summary.warnings))
+        return replace(summary, output=str(output), server=None)
     with ExitStack() as stack:
         if server is None and scene.controllers:
             from hydrolink.server.service import serve_in_thread
@@ -180,20 +180,19 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
                                                   bodies=names, equilibrium_position=reference,
                                                   flush_seconds=scene.simulation.flush_seconds))
         if scene.client.type == "fmu":
-            from hydrolink.clients.fmu_client import run as run_fmu
+            from hydrolink.clients.fmu.master import run as run_fmu
             summary = run_fmu(scene, text, conn, setup, writer, scene_path=scene_path, progress=progress)
         else:
             summary = run(scene, text, conn, setup, writer, progress=progress, moordyn_files=moordyn_files)
-        writer.set_attribute("warnings", json.dumps(summary["warnings"]))
+        writer.set_attribute("warnings", json.dumps(summary.warnings))
         goodbye = conn.bye()
-    summary["output"] = str(output)
-    summary["server"] = server
-    summary["hdb_uploads"] = len(conn.uploads)
-    if goodbye.get("steps"):
-        summary["server_compute_us_per_step"] = 1e6 * goodbye["compute_s"] / goodbye["steps"]
-    if setup:  # radiation option and coupling pruning ([hydro] radiation, coupling_tolerance)
-        for key in ("radiation", "radiation_pairs", "dropped_pair_fraction", "dropped_block_fraction"):
-            summary[key] = getattr(setup, key)
-        # state-space pairs fitted in this setup (the rest came from the on-disk fit cache)
-        summary["state_space_fitted_pairs"] = setup.state_space.fitted_pairs if setup.state_space else None
-    return summary
+    # the server's side: its compute per step, the radiation option and its pruning ([hydro]
+    # radiation, coupling_tolerance), the state-space pairs fitted in this setup (the rest came
+    # from the on-disk fit cache)
+    return replace(summary, output=str(output), server=server, hdb_uploads=len(conn.uploads),
+                   server_compute_us_per_step=(1e6 * goodbye["compute_s"] / goodbye["steps"]
+                                               if goodbye.get("steps") else None),
+                   radiation=setup.radiation, radiation_pairs=setup.radiation_pairs,
+                   dropped_pair_fraction=setup.dropped_pair_fraction,
+                   dropped_block_fraction=setup.dropped_block_fraction,
+                   state_space_fitted_pairs=setup.state_space.fitted_pairs if setup.state_space else None)

@@ -13,6 +13,7 @@ from typing import Annotated, Literal, Union
 
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, field_validator, model_validator
 
+from hydrolink.protocol.errors import KeyedError
 from hydrolink.protocol.toml_model import validate_toml
 
 DOF_NAMES: tuple[str, ...] = ("surge", "sway", "heave", "roll", "pitch", "yaw")
@@ -21,12 +22,8 @@ DOF_NAMES: tuple[str, ...] = ("surge", "sway", "heave", "roll", "pitch", "yaw")
 log = logging.getLogger(__name__)
 
 
-class SceneError(ValueError):
+class SceneError(KeyedError):
     """A scene that cannot be run; the message names the file, the key and why."""
-
-    def __init__(self, source: str | Path, key: str, why: str):
-        self.source, self.key, self.why = str(source), key, why
-        super().__init__(f"{source}: {key}: {why}" if key else f"{source}: {why}")
 
 
 class _Section(BaseModel):
@@ -180,7 +177,7 @@ class Hydro(_Section):
 
 class Coupling(_Section):
     """How the multibody client (Exudyn or an FMU) and the force server exchange (README "Coupling
-    schemes", docs/stability.md; clients/coupling_schemes.py).
+    schemes", docs/stability.md; clients/lockstep/coupling_schemes.py).
 
     scheme: "auto" (default) - "mass-matrix" when the client can take A_inf in its mass matrix (the
     Exudyn client always; an FMU when its added_mass parameters cover A_inf), else "implicit" when it
@@ -207,7 +204,7 @@ class Coupling(_Section):
 class Steady(_Section):
     """``hydrolink steady``: periodic steady state in regular waves by pseudo-spectral collocation
     (Fourier series of ``order`` harmonics, collocated at 2 order + 1 points over one period, Newton
-    on the nonlinear terms; clients/steady.py, docs/steady.md)."""
+    on the nonlinear terms; clients/studies/steady.py, docs/steady.md)."""
     order: Annotated[int, Field(ge=1, le=200)] = 10
     formulation: Literal["dae", "ode"] = "dae"     # body coordinates + multipliers | null space of G
     tolerance: Annotated[float, Field(gt=0, lt=1, allow_inf_nan=False)] = 1e-10  # Newton, relative residual
@@ -556,7 +553,7 @@ class RopeMooring(_Section):
 class MoorDynMooring(_Section):
     """A MoorDyn v2 mooring system (lumped-mass lines with seabed contact): its own input ``file``
     (relative to the scene) holds the lines, its time step dtM, initial-condition and output
-    options; hydrolink steps it every multibody step (clients/moordyn_mooring.py).
+    options; hydrolink steps it every multibody step (clients/exudyn/moordyn_mooring.py).
 
     bodies: the scene bodies driving the file's coupled bodies, in the file's order (pose = the scene
     body's reference point and Tait-Bryan xyz angles; the file's points on a coupled body are
@@ -657,7 +654,7 @@ class FMUCoupling(_Section):
 
 class ExudynClient(_Section):
     """The Exudyn multibody client. ``reduce``: bodies whose locked DOFs need no rigid-body node are
-    built with their active coordinates only (clients/mechanism.py, "Reduced bodies"); false keeps
+    built with their active coordinates only (clients/exudyn/mechanism.py, "Reduced bodies"); false keeps
     every body a 6-DOF rigid body with its locked DOFs as coordinate constraints."""
     type: Literal["exudyn"]
     reduce: bool = True
@@ -905,6 +902,16 @@ class Scene(_Section):
                 if v is not None and abs(v / dt - round(v / dt)) > 1e-6 * max(1.0, v / dt):
                     raise ValueError(f"controllers[{i}].{key}: {v} s must be a multiple of simulation.dt = {dt} s")
 
+
+    @property
+    def exchange_dt(self) -> float:
+        """s, the server's step: coupling.exchange_every client steps of simulation.dt (setup.dt)."""
+        return float(self.simulation.dt) * int(self.coupling.exchange_every)
+
+    @property
+    def n_exchanges(self) -> int:
+        """Exchanges with the server to simulation.duration (the last step index is this, setup.last_seq)."""
+        return self.simulation.n_steps // int(self.coupling.exchange_every)
 
     @property
     def wet_bodies(self) -> list[Body]:

@@ -159,7 +159,7 @@ def test_reactive_beats_passive_against_the_optimum(reference_data, thevenin, se
         powers[name] = mean_power(ds)
         print(f"{command:9s} {name:8s} P = {powers[name] / 1e3:8.2f} kW  (FD passive optimum {th['passive'] / 1e3:.2f}, "
               f"FD optimum {th['optimum'] / 1e3:.2f}); latency mean {1e3 * ev['mean_latency_s']:.2f} ms, "
-              f"max {1e3 * ev['max_latency_s']:.2f} ms; {summary['wall_time']:.2f} s wall")
+              f"max {1e3 * ev['max_latency_s']:.2f} ms; {summary.wall_time:.2f} s wall")
     assert powers["reactive"] > 1.5 * powers["passive"]
     assert th["optimum"] / th["passive"] == pytest.approx(1.72, abs=0.01)
     if command == "impedance":
@@ -321,7 +321,7 @@ def test_malformed_commands_get_clear_errors_and_the_fallback(reference_data, se
 
 def test_wrong_session_version_and_name(reference_data, server, tmp_path):
     """Raw messages against a session with a controller: clear errors, the session unharmed."""
-    from hydrolink.clients.connection import ServerConnection
+    from hydrolink.clients.lockstep.connection import ServerConnection
     from hydrolink.clients.run import load_scene_hdbs
     from hydrolink.protocol.scene import parse_scene
 
@@ -375,7 +375,7 @@ def test_wrong_session_version_and_name(reference_data, server, tmp_path):
 
 
 def test_in_process_server_refuses_controllers(reference_data, tmp_path):
-    from hydrolink.clients.connection import RemoteError, ServerConnection
+    from hydrolink.clients.lockstep.connection import RemoteError, ServerConnection
     from hydrolink.clients.run import load_scene_hdbs
     from hydrolink.protocol.scene import parse_scene
     from hydrolink.server.service import ForceServer

@@ -1,4 +1,4 @@
-"""MoorDyn moorings (clients/moordyn_mooring.py) against independent references written here: the
+"""MoorDyn moorings (clients/exudyn/moordyn_mooring.py) against independent references written here: the
 elastic catenary with seabed contact (static), and a monolithic integration of a moored body with
 constant added mass and damping that calls MoorDyn directly (dynamic)."""
 
@@ -18,7 +18,7 @@ from scipy.optimize import fsolve
 from conftest import body, regular_waves, scene_toml, write_scene
 
 from hydrolink.protocol.scene import SceneError, parse_scene
-from hydrolink.server.hdb.schema import make_hdb
+from hydrolink.protocol.hdb_schema import make_hdb
 
 moordyn = pytest.importorskip("moordyn")
 
@@ -108,8 +108,8 @@ def mooring(**keys) -> dict:
 def _model(tmp_path: Path, scene_text: str, layouts=None):
     """Scene file -> its MoorDyn layouts (or ``layouts``) -> the Exudyn model (MoorDyn started at the
     initial pose)."""
-    from hydrolink.clients.exudyn_client import build_model
-    from hydrolink.clients.moordyn_mooring import load_moordyn_files
+    from hydrolink.clients.exudyn.client import build_model
+    from hydrolink.clients.exudyn.moordyn_mooring import load_moordyn_files
     path = write_scene(tmp_path, scene_text)
     scene = parse_scene(scene_text, path)
     return build_model(scene, None, moordyn_files=layouts or load_moordyn_files(scene, path))
@@ -135,7 +135,7 @@ def _catenary_loads(headings_deg, dx: float) -> tuple[np.ndarray, np.ndarray]:
 def test_static_tension_and_restoring_force_against_the_elastic_catenary(tmp_path, headings):
     """MoorDyn's initial-condition solve with the body held at a few surge offsets: fairlead tensions
     and the force on the body within 1 % of the elastic catenary with seabed contact."""
-    from hydrolink.clients.moordyn_mooring import read_layout
+    from hydrolink.clients.exudyn.moordyn_mooring import read_layout
     layouts = {0: read_layout(moordyn_file(tmp_path / "lines.dat", headings))}
     for dx in (6.0, -9.0) if len(headings) > 1 else (0.0, 6.0, -9.0):
         model = _model(tmp_path, scene_toml(dt=0.01, duration=0.01, progress=False, moorings=[mooring(static_offset=False)],
@@ -241,11 +241,11 @@ def test_surge_decay_equals_a_monolithic_integration_with_moordyn(tmp_path):
     for scheme in ("implicit", "mass-matrix"):
         summary = run_scene_file(_decay_scene(tmp_path, dt, duration, scheme), tmp_path / f"{scheme}.nc",
                                  progress=False, hdbs=hdbs)
-        assert summary["status"] == "complete" and not summary["warnings"]
+        assert summary.status == "complete" and not summary.warnings
         with xr.open_dataset(tmp_path / f"{scheme}.nc") as ds:
             results[scheme] = ds["position"].values[:, 0, 0].copy()
             if scheme == "implicit":
-                iterations = summary["coupling"]["iterations_mean"]
+                iterations = summary.coupling.iterations_mean
     x_imp = results["implicit"]
     assert iterations > 2                                   # every step was redone (MoorDyn rolled back)
     err = np.abs(x_imp - reference).max() / X0
@@ -272,7 +272,7 @@ def test_results_line_tension_mooring_force_and_nodes_with_coupled_points(tmp_pa
         scene = _decay_scene(folder, 0.05, 3.0, "mass-matrix", **keys)
         summary = run_scene_file(scene, folder / "out.nc", progress=False, hdbs=hdbs)
         runs[name] = ds = xr.load_dataset(folder / "out.nc")
-        assert ds.attrs["status"] == "complete" and summary["moordyn"][0]["lines"] == 3
+        assert ds.attrs["status"] == "complete" and summary.moordyn[0]["lines"] == 3
     a, b = runs["body"], runs["points"]
     x = a["position"].values[:, 0, 0]
     assert x[0] == X0 and x[-1] < X0 - 0.01                                    # it moves
@@ -315,7 +315,7 @@ def test_file_errors_name_the_file_and_key(tmp_path):
     SceneError naming the scene, the key and the file. (A file that crashes MoorDyn's reader — an
     OUTPUTS section without a closing "---" line reads past the end of its buffer — crashes only
     sometimes, so it is not tested here; the child process turns a crash into the same SceneError.)"""
-    from hydrolink.clients.moordyn_mooring import load_moordyn_files
+    from hydrolink.clients.exudyn.moordyn_mooring import load_moordyn_files
     text = scene_toml(dt=0.1, duration=1.0, bodies=[dry_float()], moorings=[mooring()])
     path = write_scene(tmp_path, text)
     scene = parse_scene(text, path)
@@ -334,7 +334,7 @@ def test_file_errors_name_the_file_and_key(tmp_path):
 def test_moordyn_failure_mid_run_names_the_file_and_step_and_keeps_the_rows(tmp_path):
     """dtM too large for the line's axial stiffness: MoorDyn reports NaN node positions a few steps
     in; the run stops with one line naming the mooring, its file and the step; rows are kept."""
-    from hydrolink.clients.lockstep import RunInterrupted
+    from hydrolink.clients.lockstep.driver import RunInterrupted
     from hydrolink.clients.run import run_scene_file
     moordyn_file(tmp_path / "lines.dat", [0.0], dtm=0.01)
     with pytest.raises(RunInterrupted, match=r"^MoorDyn failed at step (\d+) \(t = [\d.]+ s\): moorings\[0\] \(.*lines\.dat\): "
@@ -346,7 +346,7 @@ def test_moordyn_failure_mid_run_names_the_file_and_step_and_keeps_the_rows(tmp_
 
 
 def test_steady_refuses_moordyn_moorings(tmp_path):
-    from hydrolink.clients.steady import SteadyError, check_scene
+    from hydrolink.clients.studies.steady import SteadyError, check_scene
     scene = parse_scene(scene_toml(dt=0.1, duration=1.0, bodies=[dry_float()], waves=regular_waves(1.0, 8.0),
                                    moorings=[mooring()]))
     with pytest.raises(SteadyError, match=r"moorings\[0\].*MoorDyn moorings are not supported by hydrolink steady"):
@@ -368,7 +368,7 @@ def test_static_offset_under_pretension_against_the_catenary(tmp_path):
                      dofs=["surge", "heave"])],
         moorings=[mooring()]))
     summary = run_scene_file(scene, tmp_path / "out.nc", progress=False, hdbs={"float.nc": constant_hdb()})
-    report = summary["moordyn"][0]
+    report = summary.moordyn[0]
     offset = np.asarray(report["static_offset"])[0]
     c33 = 3e5                                                  # constant_hdb's heave stiffness
     dz = brentq(lambda z: c33 * z + len(headings) * catenary(SPAN0 - FAIRLEAD_R, Z0 + z + DEPTH)[1], -5.0, 0.0)
@@ -385,7 +385,7 @@ def test_a_step_that_is_not_a_multiple_of_dtm_is_a_warning(tmp_path):
     moordyn_file(tmp_path / "lines.dat", [0.0], segments=12, dtm=0.003)
     summary = run_scene_file(_decay_scene(tmp_path, 0.05, 0.1, "mass-matrix"), tmp_path / "out.nc", progress=False,
                              hdbs={"float.nc": constant_hdb()})
-    assert summary["warnings"] == ["moorings[0]: simulation.dt = 0.05 s is not a multiple of dtM = 0.003 s in lines.dat: "
+    assert summary.warnings == ["moorings[0]: simulation.dt = 0.05 s is not a multiple of dtM = 0.003 s in lines.dat: "
                                    "MoorDyn takes 17 substeps per step, the last one shorter; make dt a multiple of dtM"]
 
 
@@ -395,7 +395,7 @@ def test_static_offset_of_a_dry_body_with_spare_buoyancy(tmp_path):
     pulls down by that spare buoyancy (to 1 % of the change of pull over that metre), and the
     equilibrium is near 1 m (the lumped-mass lines' vertical stiffness is a difference of large
     pulls: 0.1 % on the pull moves the equilibrium by 10 %)."""
-    from hydrolink.clients.moordyn_mooring import read_layout
+    from hydrolink.clients.exudyn.moordyn_mooring import read_layout
     headings = [0.0, 120.0, 240.0]
     lift = len(headings) * catenary(SPAN0 - FAIRLEAD_R, Z0 + 1.0 + DEPTH)[1]            # N, net upward
     path = moordyn_file(tmp_path / "lines.dat", headings, segments=24)

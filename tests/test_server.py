@@ -13,7 +13,7 @@ from analytic_hdb import make_body_hdb
 
 from conftest import SPHERE_WATER, body, regular_waves, scene_toml
 
-from hydrolink.clients.connection import RemoteError, ServerConnection
+from hydrolink.clients.lockstep.connection import RemoteError, ServerConnection
 from hydrolink.protocol import codec
 from hydrolink.protocol.hdb_wire import to_wire
 from hydrolink.server.service import serve_in_thread
@@ -370,8 +370,8 @@ def test_embedded_run_equals_socket_run_bit_for_bit(reference_data, tmp_path, sc
     finally:
         srv.stop()
         thread.join(5)
-    assert embedded["status"] == remote["status"] == "complete"
-    assert embedded["server"] == "in-process" and remote["server"].startswith("tcp://")
+    assert embedded.status == remote.status == "complete"
+    assert embedded.server == "in-process" and remote.server.startswith("tcp://")
     with netCDF4.Dataset(tmp_path / "embedded.nc") as a, netCDF4.Dataset(tmp_path / "socket.nc") as b:
         assert a.dimensions["time"].size == b.dimensions["time"].size == 201
         for name in RM3_COMPARED:

@@ -1,0 +1,717 @@
+"""The mechanism in Exudyn: bodies (wet, dry), point masses, ground, markers; joints and constraints.
+
+Interface for other client modules (PTOs, moorings) — kept small and stable:
+
+``BodyHandle(name, kind, node, object, reference, dofs)``
+    ``kind`` is ``"rigid"`` (a scene body, wet or dry: ``NodeRigidBodyRxyz`` + ``ObjectRigidBody``),
+    ``"slider"`` or ``"reduced"`` (a scene body built with its active coordinates only, see
+    "Reduced bodies" below), ``"point"`` (a point mass: ``NodePoint`` + ``ObjectMassPoint``) or
+    ``"ground"`` (an ``ObjectGround`` at the origin; ``node`` is -1). ``reference`` is the body's
+    global reference position at t = 0 (for ground: the origin). Bodies start unrotated: their body
+    frame is the global frame in the reference configuration, so a body-fixed point is
+    ``point_global - reference`` in local coordinates. ``dofs``: for a slider/reduced body the DOFs
+    (0..5, surge..yaw) its node's coordinates are, in order; None for the others.
+
+``marker_at(mbs, handle, point_global, rotation=None) -> int``
+    A marker at a point given in the global frame of the reference configuration:
+    ``MarkerBodyRigid`` (position and orientation; ``rotation`` — a 3x3 matrix whose columns are the
+    marker frame's axes in the global frame — gives the marker frame, default the global axes) on
+    rigid bodies and on ground, ``MarkerBodyPosition`` (position only) on point masses — a point
+    mass has no extent, so ``point_global`` and ``rotation`` are ignored there — and on sliders (no
+    ``rotation``: a slider has no orientation); a ``"reduced"`` body takes no marker.
+
+``Mechanism.handles`` maps every name (bodies, point masses, ``"ground"``) to its handle.
+
+Gravity and buoyancy: dry bodies and point masses carry their weight (-m g ez at the centre of mass,
+exact for large rotations) and, when ``buoyancy_volume`` > 0, a constant rho g V ez at the centre of
+buoyancy (default: the centre of mass). Wet bodies get no Exudyn gravity — their restoring
+stiffness (hydrostatics + gravity) comes from the force server — only the constant net vertical force
+rho g V - m g the server reports, at the reference point.
+
+Reduced bodies (``build_mechanism(..., reduce=True)``): a body whose locked DOFs need no rigid-body
+node is built with its active coordinates only — no ``NodeRigidBodyRxyz``, no coordinate
+constraints, no Newton iterations on a DAE. It qualifies when (:func:`reduction_blocker`) no joint,
+mooring or rotary PTO attaches to it (they need its pose), and its full-form equations of motion
+restricted to the active DOFs are exactly linear, so that both forms agree to round-off: at most
+one active rotation, and with a rotation plus translations (or a dry body's weight/buoyancy) the
+centre of mass (and of buoyancy) on that rotation's axis through the reference point (else the
+inertia coupling / gravity moment depends on the angle). Built as
+
+- ``"slider"``: one active translation (heave-only, ...): ``Node1D`` + ``ObjectMass1D`` along the
+  DOF's global axis. Its points translate with it, so it takes position markers: linear PTOs attach
+  to it unchanged (a PTO line between two heave-only bodies acts on their relative heave);
+- ``"reduced"``: otherwise: ``NodeGenericODE2`` over the active DOFs + ``ObjectGenericODE2`` with
+  the 6×6 rigid-body mass matrix about the reference point (centre-of-mass offset included)
+  restricted to them; nothing attaches to it.
+
+Constant loads (weight, buoyancy, net buoyancy) act on a reduced body's coordinates as
+``LoadCoordinate`` (the force and its moment about the reference point, active components); a
+locked DOF's share is what the full form's coordinate constraint would carry. The node's
+coordinates are displacements from the reference, like a rigid body node's.
+
+Joints are ``ObjectJointGeneric`` with the constrained axes of the joint frame (see
+:data:`JOINT_AXES`). Redundant constraints are found from the constraint Jacobian at t = 0: a planar
+loop (revolute axes parallel to one normal, prismatic axes in the plane) is reduced by freeing the
+dependent (out-of-plane) axes of the joint that closes the loop; anything else is refused naming the
+joints. Friction on a revolute/prismatic joint is a regularised Coulomb force/torque
+``F tanh(v / v_reg)`` on the free relative coordinate, an ``ObjectConnectorRigidBodySpringDamper``
+with a Python user function (about 2 calls per Newton step; measured ≈ 120 µs per step and joint
+in a client run on the 2-core VM). ``joint_outputs`` costs ≈ 30 µs per joint and step.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+import exudyn as exu
+from exudyn.itemInterface import (CoordinateConstraint, LoadCoordinate, LoadForceVector, MarkerBodyPosition,
+                                  MarkerBodyRigid, MarkerNodeCoordinate, Node1D, NodeGenericODE2, NodePoint,
+                                  NodePointGround, NodeRigidBodyRxyz, ObjectConnectorRigidBodySpringDamper,
+                                  ObjectGenericODE2, ObjectGround, ObjectJointGeneric, ObjectJointSpherical,
+                                  ObjectMass1D, ObjectMassPoint, ObjectRigidBody, VObjectGenericODE2,
+                                  VObjectJointSpherical, VObjectMass1D, VObjectRigidBody)
+from exudyn.rigidBodyUtilities import RigidBodyInertia
+
+from hydrolink.clients.fmu.coupling import rigid_body_mass_matrix
+from hydrolink.protocol.scene import DOF_NAMES, Body, Joint, LinearPTO, PointMass, Scene, SceneError
+
+GROUND = "ground"
+
+#: constrained axes (x, y, z translation; x, y, z rotation) of each joint type in its joint frame.
+#: Joint frame: revolute/cylindrical z = axis; prismatic x = axis; planar z = normal;
+#: universal x = axis (free, body1), y = axis2 (free, body2), z = x × y (locked: x1 · y2 = 0).
+JOINT_AXES: dict[str, tuple[int, ...]] = {
+    "fixed": (1, 1, 1, 1, 1, 1),
+    "spherical": (1, 1, 1, 0, 0, 0),
+    "revolute": (1, 1, 1, 1, 1, 0),
+    "prismatic": (0, 1, 1, 1, 1, 1),
+    "cylindrical": (1, 1, 0, 1, 1, 0),
+    "planar": (0, 0, 1, 1, 1, 0),
+    "universal": (1, 1, 1, 0, 0, 1),
+}
+_AXIS_WORDS = ("translation along x", "translation along y", "translation along z",
+               "rotation about x", "rotation about y", "rotation about z")
+
+
+@dataclass(frozen=True)
+class BodyHandle:
+    """An Exudyn body of the scene: see the module docstring."""
+
+    name: str
+    kind: str                 # "rigid" | "slider" | "reduced" | "point" | "ground"
+    node: int                 # Exudyn node index (-1 for ground)
+    object: int               # Exudyn object index (ObjectRigidBody / ObjectMass1D / ObjectGenericODE2 /
+    #                           ObjectMassPoint / ObjectGround)
+    reference: tuple[float, float, float]   # global reference position at t = 0
+    dofs: tuple[int, ...] | None = None      # slider/reduced: the body DOF of each node coordinate
+
+
+def marker_at(mbs, handle: BodyHandle, point_global, rotation=None) -> int:
+    """A marker on ``handle`` at ``point_global`` (global frame at t = 0); see the module docstring."""
+    if handle.kind == "point":
+        return mbs.AddMarker(MarkerBodyPosition(bodyNumber=handle.object, localPosition=[0.0, 0.0, 0.0]))
+    local = (np.asarray(point_global, float).reshape(3) - np.asarray(handle.reference, float)).tolist()
+    if handle.kind == "slider" and rotation is None:
+        local = (slider_rotation(handle.dofs[0]).T @ np.asarray(local)).tolist()
+        return mbs.AddMarker(MarkerBodyPosition(bodyNumber=handle.object, localPosition=local))
+    if handle.kind in ("slider", "reduced"):
+        raise ValueError(f"body {handle.name!r} is built with its active coordinates only ({handle.kind}): "
+                         "it takes no marker frame" + ("" if handle.kind == "slider" else " or point"))
+    if handle.kind not in ("rigid", "ground"):
+        raise ValueError(f"unknown body kind {handle.kind!r}")
+    if rotation is None:
+        return mbs.AddMarker(MarkerBodyRigid(bodyNumber=handle.object, localPosition=local))
+    ht = exu.HT(rotation=np.asarray(rotation, float).reshape(3, 3), translation=local)
+    return mbs.AddMarker(MarkerBodyRigid(bodyNumber=handle.object, localHT=ht))
+
+
+@dataclass(frozen=True)
+class JointInfo:
+    """A joint as built: its label (``name`` or ``joints[i]``), Exudyn indices and locked axes."""
+
+    label: str
+    key: str                  # joints[i]
+    type: str
+    object: int
+    markers: tuple[int, int]
+    constrained: tuple[int, ...]
+    frame: np.ndarray         # 3x3, columns = joint axes (global, reference configuration)
+    friction_object: int = -1
+    point_mass: bool = False  # a spherical joint with a point mass: ObjectJointSpherical, global outputs
+
+
+@dataclass
+class Mechanism:
+    """Everything the mechanism added to an Exudyn system."""
+
+    handles: dict[str, BodyHandle]
+    joints: list[JointInfo]
+    ground_coordinate_marker: int
+    warnings: list[str] = field(default_factory=list)
+    reductions: list[str] = field(default_factory=list)   # reduced bodies; planar-loop joints whose axes were freed
+    full_bodies: dict[str, str] = field(default_factory=dict)   # bodies with locked DOFs kept rigid: why
+    coordinate_constraints: list[tuple[str, int]] = field(default_factory=list)  # (key, object)
+
+    @property
+    def ground(self) -> BodyHandle:
+        return self.handles[GROUND]
+
+    def rigid_nodes(self, names: list[str]) -> list[int]:
+        """Node indices of the named scene bodies (rigid, slider or reduced), in that order."""
+        return [self.handles[n].node for n in names]
+
+    def joint_outputs(self, mbs) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Reaction force and moment on body2 from body1 (J, 3, global frame, about the joint point)
+        and the position-level violation: constrained relative translation (m) and rotation (rad)."""
+        n = len(self.joints)
+        force, moment = np.zeros((n, 3)), np.zeros((n, 3))
+        gap, rot_gap = np.zeros(n), np.zeros(n)
+        ovt = exu.OutputVariableType
+        for k, j in enumerate(self.joints):
+            if j.point_mass:      # ObjectJointSpherical: -Force is the force on body2 (dynamic solver), global
+                force[k] = -np.asarray(mbs.GetObjectOutput(j.object, ovt.Force))
+                gap[k] = float(np.linalg.norm(mbs.GetObjectOutput(j.object, ovt.Displacement)))
+                continue
+            a0 = np.asarray(mbs.GetMarkerOutput(j.markers[0], ovt.RotationMatrix)).reshape(3, 3)
+            force[k] = -(a0 @ np.asarray(mbs.GetObjectOutput(j.object, ovt.ForceLocal)))
+            moment[k] = -(a0 @ np.asarray(mbs.GetObjectOutput(j.object, ovt.TorqueLocal)))
+            c = np.asarray(j.constrained, bool)
+            d = np.asarray(mbs.GetObjectOutput(j.object, ovt.DisplacementLocal))
+            r = np.asarray(mbs.GetObjectOutput(j.object, ovt.Rotation))
+            gap[k] = float(np.linalg.norm(d[c[:3]]))
+            rot_gap[k] = float(np.linalg.norm(r[c[3:]]))
+        return force, moment, gap, rot_gap
+
+    @property
+    def joint_labels(self) -> list[str]:
+        return [j.label for j in self.joints]
+
+
+# -- bodies ------------------------------------------------------------------------------------
+
+def _initial(scene: Scene, body: Body, what: str) -> np.ndarray:
+    """A body's initial displacement/velocity; nonzero values in inactive DOFs are a scene error."""
+    value = np.asarray(getattr(body, what), float)
+    active = np.asarray(body.active_mask, bool)
+    locked = ~active & (value != 0)
+    if locked.any():
+        i = scene.bodies.index(body)
+        dofs = [DOF_NAMES[j] for j in np.flatnonzero(locked)]
+        raise SceneError("scene", f"bodies[{i}].{what}",
+                         f"nonzero in inactive DOF(s) {dofs}; inactive DOFs are held at equilibrium "
+                         f"(add them to bodies[{i}].dofs or set them to 0)")
+    return value
+
+
+def add_ground(mbs) -> tuple[BodyHandle, int]:
+    """Ground object (for markers) and a ground coordinate marker (for coordinate constraints)."""
+    obj = mbs.AddObject(ObjectGround(name=GROUND, referencePosition=[0.0, 0.0, 0.0]))
+    node = mbs.AddNode(NodePointGround(referenceCoordinates=[0.0, 0.0, 0.0]))
+    marker = mbs.AddMarker(MarkerNodeCoordinate(nodeNumber=node, coordinate=0))
+    return BodyHandle(GROUND, "ground", -1, obj, (0.0, 0.0, 0.0)), marker
+
+
+def _check_inertia(scene: Scene, body: Body) -> None:
+    """SceneError naming ``bodies[i].inertia`` when the body's mass matrix is numerically singular."""
+    m6 = np.zeros((6, 6))
+    m6[:3, :3] = body.mass * np.eye(3)
+    m6[3:, 3:] = body.inertia_matrix
+    ev = np.linalg.eigvalsh(m6)
+    if ev[0] <= 1e-12 * ev[-1]:
+        raise SceneError("scene", f"bodies[{scene.bodies.index(body)}].inertia",
+                         f"the body's mass matrix is numerically singular (eigenvalues {ev[0]:.3g} .. {ev[-1]:.3g}); "
+                         "give every principal moment of inertia a physical value")
+
+
+def add_rigid_body(mbs, scene: Scene, body: Body, reference, initial_displacement=None,
+                   initial_velocity=None) -> BodyHandle:
+    """``NodeRigidBodyRxyz`` at ``reference`` + ``ObjectRigidBody`` (inertia moved to the node)."""
+    ref = np.asarray(reference, float).reshape(3)
+    com = body.com_or(ref) - ref
+    _check_inertia(scene, body)
+    inertia = RigidBodyInertia(body.mass, body.inertia_matrix, com, inertiaTensorAtCOM=True)
+    q0 = initial_displacement if initial_displacement is not None else _initial(scene, body, "initial_displacement")
+    v0 = initial_velocity if initial_velocity is not None else _initial(scene, body, "initial_velocity")
+    node = mbs.AddNode(NodeRigidBodyRxyz(name=f"{body.name}_node", referenceCoordinates=[*ref, 0.0, 0.0, 0.0],
+                                         initialCoordinates=list(q0), initialVelocities=list(v0)))
+    obj = mbs.AddObject(ObjectRigidBody(name=body.name, nodeNumber=node, mass=body.mass,
+                                        inertia=inertia.GetInertia6D(), centerOfMass=com.tolist(),
+                                        visualization=VObjectRigidBody(show=False)))
+    return BodyHandle(body.name, "rigid", node, obj, tuple(float(x) for x in ref))
+
+
+def active_dofs(body: Body) -> tuple[int, ...]:
+    """The body's active DOFs (0..5: surge, sway, heave, roll, pitch, yaw), in that order."""
+    return tuple(j for j, on in enumerate(body.active_mask) if on)
+
+
+def reduction_blocker(scene: Scene, body: Body, reference) -> str | None:
+    """Why ``body`` (reference point ``reference``) needs a full rigid-body node; None when it can be
+    built with its active coordinates only (module docstring, "Reduced bodies")."""
+    dofs = active_dofs(body)
+    if len(dofs) in (0, 6):
+        return "no DOF is locked" if dofs else "no active DOF"
+    for i, j in enumerate(scene.joints):
+        if body.name in (j.body1, j.body2):
+            return f"joints[{i}] needs its pose"
+    for i, m in enumerate(scene.moorings):
+        if body.name in (getattr(m, "body", None), getattr(m, "attach_to", None), *getattr(m, "coupled_bodies", ())):
+            return f"moorings[{i}] needs its pose"
+    slider = len(dofs) == 1 and dofs[0] < 3
+    for i, p in enumerate(scene.ptos):
+        if body.name in (p.body1, p.body2) and not (slider and isinstance(p, LinearPTO)):
+            return (f"ptos[{i}] needs its pose (a linear PTO attaches to a body with one active translation "
+                    "only)")
+    rot = [j for j in dofs if j >= 3]
+    if len(rot) > 1:
+        return f"{' and '.join(DOF_NAMES[j] for j in rot)} are active: the rotation kinematics are nonlinear"
+    if not rot:
+        return None
+    axis = np.eye(3)[rot[0] - 3]
+    ref = np.asarray(reference, float).reshape(3)
+    points = []
+    if len(dofs) > 1 or not body.wet:
+        points.append(("centre of mass", body.com_or(ref)))
+    if not body.wet and body.buoyancy_volume > 0 and body.center_of_buoyancy is not None:
+        points.append(("centre of buoyancy", body.center_of_buoyancy))
+    for what, point in points:
+        r = np.asarray(point, float) - ref
+        off = float(np.linalg.norm(r - axis * float(r @ axis)))
+        if off > 1e-12 * max(1.0, float(np.abs(ref).max())):
+            return (f"its {what} is {off:.3g} m off the {DOF_NAMES[rot[0]]} axis through its reference point: "
+                    f"the {'gravity moment' if len(dofs) == 1 else 'inertia coupling'} depends on the angle")
+    return None
+
+
+def slider_rotation(dof: int) -> np.ndarray:
+    """Rotation whose first column is the global axis of translation DOF ``dof`` (right-handed)."""
+    return np.roll(np.eye(3), -dof, axis=1)
+
+
+def add_reduced_body(mbs, scene: Scene, body: Body, reference, initial_displacement: np.ndarray,
+                     initial_velocity: np.ndarray) -> BodyHandle:
+    """A body with its active coordinates only (module docstring, "Reduced bodies"): a slider
+    (``Node1D`` + ``ObjectMass1D``) for one active translation, else ``NodeGenericODE2`` +
+    ``ObjectGenericODE2`` with the rigid-body mass matrix restricted to the active DOFs."""
+    dofs = active_dofs(body)
+    ref = np.asarray(reference, float).reshape(3)
+    _check_inertia(scene, body)
+    q0, v0 = np.asarray(initial_displacement, float)[list(dofs)], np.asarray(initial_velocity, float)[list(dofs)]
+    if len(dofs) == 1 and dofs[0] < 3:
+        node = mbs.AddNode(Node1D(name=f"{body.name}_node", referenceCoordinates=[0.0],
+                                  initialCoordinates=q0.tolist(), initialVelocities=v0.tolist()))
+        obj = mbs.AddObject(ObjectMass1D(name=body.name, nodeNumber=node, mass=body.mass,
+                                         referencePosition=ref.tolist(), referenceRotation=slider_rotation(dofs[0]),
+                                         visualization=VObjectMass1D(show=False)))
+        return BodyHandle(body.name, "slider", node, obj, tuple(float(x) for x in ref), dofs)
+    m6 = rigid_body_mass_matrix(body.mass, body.inertia_matrix, body.com_or(ref) - ref)
+    node = mbs.AddNode(NodeGenericODE2(name=f"{body.name}_node", numberOfODE2Coordinates=len(dofs),
+                                       referenceCoordinates=np.r_[ref, 0.0, 0.0, 0.0][list(dofs)].tolist(),
+                                       initialCoordinates=q0.tolist(), initialCoordinates_t=v0.tolist()))
+    obj = mbs.AddObject(ObjectGenericODE2(name=body.name, nodeNumbers=[node], massMatrix=m6[np.ix_(dofs, dofs)],
+                                          visualization=VObjectGenericODE2(show=False)))
+    return BodyHandle(body.name, "reduced", node, obj, tuple(float(x) for x in ref), dofs)
+
+
+def add_coordinate_loads(mbs, handle: BodyHandle, point, force) -> list[int]:
+    """A constant global ``force`` at ``point`` on a slider/reduced body: its generalised force
+    (force; moment about the reference point) on the node's coordinates, as ``LoadCoordinate``."""
+    f = np.asarray(force, float).reshape(3)
+    r = np.asarray(point, float).reshape(3) - np.asarray(handle.reference, float)
+    f6 = np.r_[f, np.cross(r, f)]
+    loads = []
+    for c, dof in enumerate(handle.dofs):
+        if f6[dof] != 0.0:
+            m = mbs.AddMarker(MarkerNodeCoordinate(nodeNumber=handle.node, coordinate=c))
+            loads.append(mbs.AddLoad(LoadCoordinate(markerNumber=m, load=float(f6[dof]))))
+    return loads
+
+
+def add_point_mass(mbs, pm: PointMass) -> BodyHandle:
+    """``NodePoint`` + ``ObjectMassPoint`` at the point mass's position."""
+    node = mbs.AddNode(NodePoint(name=f"{pm.name}_node", referenceCoordinates=list(pm.position),
+                                 initialVelocities=list(pm.initial_velocity)))
+    obj = mbs.AddObject(ObjectMassPoint(name=pm.name, nodeNumber=node, mass=pm.mass))
+    return BodyHandle(pm.name, "point", node, obj, tuple(float(x) for x in pm.position))
+
+
+def add_vertical_force(mbs, handle: BodyHandle, point, fz: float) -> int | None:
+    """A constant global vertical force ``fz`` at ``point`` (global, reference configuration)."""
+    if fz == 0.0:
+        return None
+    if handle.dofs is not None:
+        loads = add_coordinate_loads(mbs, handle, point, [0.0, 0.0, fz])
+        return loads[0] if loads else None
+    if handle.kind == "point":
+        m = marker_at(mbs, handle, point)
+    else:
+        local = (np.asarray(point, float) - np.asarray(handle.reference, float)).tolist()
+        m = mbs.AddMarker(MarkerBodyPosition(bodyNumber=handle.object, localPosition=local))
+    return mbs.AddLoad(LoadForceVector(markerNumber=m, loadVector=[0.0, 0.0, float(fz)], bodyFixed=False))
+
+
+def add_dry_loads(mbs, scene: Scene, handles: dict[str, BodyHandle]) -> None:
+    """Weight (and constant buoyancy) of the dry bodies and point masses."""
+    g, rho = scene.water.gravity, scene.water.density
+    for body in scene.bodies:
+        if body.wet:
+            continue
+        h = handles[body.name]
+        add_vertical_force(mbs, h, body.center_of_mass, -body.mass * g)
+        if body.buoyancy_volume > 0:
+            cob = body.center_of_buoyancy if body.center_of_buoyancy is not None else body.center_of_mass
+            add_vertical_force(mbs, h, cob, rho * g * body.buoyancy_volume)
+    for pm in scene.point_masses:
+        add_vertical_force(mbs, handles[pm.name], pm.position, (rho * pm.buoyancy_volume - pm.mass) * g)
+
+
+# -- joints ------------------------------------------------------------------------------------
+
+def frame_from_axis(axis, column: int = 2) -> np.ndarray:
+    """A right-handed orthonormal frame whose column ``column`` is ``axis`` (normalised)."""
+    a = np.asarray(axis, float)
+    a = a / np.linalg.norm(a)
+    helper = np.eye(3)[int(np.argmin(np.abs(a)))]
+    b = np.cross(a, helper)
+    b /= np.linalg.norm(b)
+    c = np.cross(a, b)
+    cols = [None, None, None]
+    cols[column], cols[(column + 1) % 3], cols[(column + 2) % 3] = a, b, c
+    return np.column_stack(cols)
+
+
+def joint_frame(joint: Joint) -> np.ndarray:
+    """The joint frame (columns = axes in the global frame) for ``joint``'s type and axes."""
+    if joint.type in ("fixed", "spherical"):
+        return np.eye(3)
+    if joint.type == "prismatic":
+        return frame_from_axis(joint.axis, 0)
+    if joint.type == "universal":
+        x = np.asarray(joint.axis, float) / np.linalg.norm(joint.axis)
+        y = np.asarray(joint.axis2, float) / np.linalg.norm(joint.axis2)
+        y = y - x * float(x @ y)
+        y /= np.linalg.norm(y)
+        return np.column_stack([x, y, np.cross(x, y)])
+    return frame_from_axis(joint.axis, 2)
+
+
+def joint_label(scene: Scene, i: int) -> str:
+    return scene.joints[i].name or f"joints[{i}]"
+
+
+def _friction_function(free_axis: int, level: float, v_reg: float):
+    """User function: regularised Coulomb force/torque on the joint's free axis (joint frame)."""
+    def friction(mbs, t, item, displacement, rotation, velocity, angular_velocity, *args):
+        out = [0.0] * 6
+        v = velocity[free_axis] if free_axis < 3 else angular_velocity[free_axis - 3]
+        out[free_axis] = level * math.tanh(v / v_reg)   # the connector applies minus this to body2
+        return out
+    return friction
+
+
+def add_joint(mbs, scene: Scene, i: int, handles: dict[str, BodyHandle]) -> JointInfo:
+    """One scene joint as an ``ObjectJointGeneric`` (+ friction connector); a spherical joint with a
+    point mass (a rope connection point on a body) as an ``ObjectJointSpherical``."""
+    joint = scene.joints[i]
+    frame = joint_frame(joint)
+    h1, h2 = handles[joint.body1], handles[joint.body2]
+    label = joint_label(scene, i)
+    if "point" in (h1.kind, h2.kind):   # the scene admits only spherical joints with point masses
+        m0, m1 = marker_at(mbs, h1, joint.point), marker_at(mbs, h2, joint.point)
+        obj = mbs.AddObject(ObjectJointSpherical(name=label if joint.name else f"joint{i}", markerNumbers=[m0, m1],
+                                                 visualization=VObjectJointSpherical(show=False)))
+        return JointInfo(label, f"joints[{i}]", joint.type, obj, (m0, m1), JOINT_AXES["spherical"], frame,
+                         point_mass=True)
+    m0 = marker_at(mbs, h1, joint.point, frame)
+    m1 = marker_at(mbs, h2, joint.point, frame)
+    axes = JOINT_AXES[joint.type]
+    obj = mbs.AddObject(ObjectJointGeneric(name=label if joint.name else f"joint{i}", markerNumbers=[m0, m1],
+                                           constrainedAxes=list(axes)))
+    fobj = -1
+    if joint.friction is not None:
+        free = 0 if joint.type == "prismatic" else 5
+        fobj = mbs.AddObject(ObjectConnectorRigidBodySpringDamper(
+            name=f"{label}_friction", markerNumbers=[m0, m1],
+            springForceTorqueUserFunction=_friction_function(free, joint.friction.force, joint.friction.velocity)))
+    return JointInfo(label, f"joints[{i}]", joint.type, obj, (m0, m1), axes, frame, fobj)
+
+
+def _check_joint_distance(scene: Scene, i: int, handles: dict[str, BodyHandle]) -> str | None:
+    """A warning when a joint's point is far from every (non-ground) body it connects."""
+    joint = scene.joints[i]
+    by_name = {b.name: b for b in scene.bodies}
+    far = []
+    for name in (joint.body1, joint.body2):
+        if name == GROUND:
+            continue
+        if name not in by_name:   # a point mass: the joint point is the point mass (gap checked at t = 0)
+            return None
+        b = by_name[name]
+        r_gyr = math.sqrt(float(np.trace(b.inertia_matrix)) / (2.0 * b.mass))
+        d = float(np.linalg.norm(np.asarray(joint.point) - b.com_or(handles[name].reference)))
+        limit = 10.0 * max(r_gyr, 0.1)
+        if d <= limit:
+            return None
+        far.append(f"{d:.3g} m from {name!r}'s centre of mass (radius of gyration {r_gyr:.3g} m)")
+    if not far:
+        return None
+    return f"joints[{i}].point: far from the bodies it joins ({'; '.join(far)}); is it in global coordinates?"
+
+
+# -- constraints ---------------------------------------------------------------------------------
+
+def add_coordinate_constraints(mbs, scene: Scene, handles: dict[str, BodyHandle], ground_marker: int,
+                               initial: dict[str, tuple[np.ndarray, np.ndarray]]) -> list[tuple[str, int]]:
+    """Locked DOFs (``dofs`` shorthand) and ``[[constraints]]`` as coordinate constraints to ground."""
+    out = []
+    for i, body in enumerate(scene.bodies):
+        node = handles[body.name].node
+        for j, on in enumerate(body.active_mask):
+            if not on and handles[body.name].dofs is None:
+                m = mbs.AddMarker(MarkerNodeCoordinate(nodeNumber=node, coordinate=j))
+                out.append((f"bodies[{i}].dofs", mbs.AddObject(CoordinateConstraint(
+                    markerNumbers=[ground_marker, m]))))
+    for i, c in enumerate(scene.constraints):
+        bi = [b.name for b in scene.bodies].index(c.body)
+        j = DOF_NAMES.index(c.dof)
+        if not scene.bodies[bi].active_mask[j]:
+            raise SceneError("scene", f"constraints[{i}].dof",
+                             f"{c.dof} of {c.body!r} is already locked (not in bodies[{bi}].dofs)")
+        h = handles[c.body]
+        m = mbs.AddMarker(MarkerNodeCoordinate(nodeNumber=h.node, coordinate=j if h.dofs is None else h.dofs.index(j)))
+        obj = mbs.AddObject(CoordinateConstraint(markerNumbers=[ground_marker, m], offset=float(c.value),
+                                                 velocityLevel=c.type == "velocity"))
+        out.append((f"constraints[{i}]", obj))
+    return out
+
+
+def constrained_initial_state(scene: Scene, body: Body) -> tuple[np.ndarray, np.ndarray]:
+    """Initial displacement and velocity of a body with its ``[[constraints]]`` applied.
+
+    A constrained DOF left at 0 starts at the constraint's value; a different nonzero initial value
+    is a scene error."""
+    q = _initial(scene, body, "initial_displacement").copy()
+    v = _initial(scene, body, "initial_velocity").copy()
+    bi = scene.bodies.index(body)
+    for i, c in enumerate(scene.constraints):
+        if c.body != body.name:
+            continue
+        j = DOF_NAMES.index(c.dof)
+        arr, what = (q, "initial_displacement") if c.type == "position" else (v, "initial_velocity")
+        if arr[j] == 0.0:
+            arr[j] = c.value
+        elif arr[j] != c.value:
+            raise SceneError("scene", f"constraints[{i}].value",
+                             f"{c.value:g} contradicts bodies[{bi}].{what} ({arr[j]:g}) in {c.dof}")
+    return q, v
+
+
+# -- redundancy ------------------------------------------------------------------------------------
+
+def _constraint_jacobian(mbs) -> tuple[np.ndarray, int]:
+    """Columns = constraints (all AE coordinates), rows = ODE2 coordinates (+ AE): C_q^T stacked on C_λ."""
+    ss = exu.SimulationSettings()
+    ss.solution.file.write = False
+    ss.staticSolver.verboseMode = 0
+    solver = exu.MainSolverStatic()
+    solver.InitializeSolver(mbs, ss)
+    try:
+        n2 = solver.GetODE2size()
+        solver.ComputeJacobianODE2RHS(mbs, scalarFactor_ODE2=-1, scalarFactor_ODE2_t=0, scalarFactor_ODE1=0)
+        solver.ComputeJacobianAE(mbs, scalarFactor_ODE2=1.0, scalarFactor_ODE2_t=0.0, scalarFactor_ODE1=1.0,
+                                 velocityLevel=False)
+        jac = np.asarray(solver.GetSystemJacobian())
+    finally:
+        solver.FinalizeSolver(mbs, ss)
+    return jac[:n2, n2:], n2
+
+
+def _planar_normal(joints: list[Joint]) -> np.ndarray | None:
+    """The common plane normal of a set of revolute/prismatic joints, None if they are not planar."""
+    normal = None
+    for j in joints:
+        if j.type == "revolute":
+            a = np.asarray(j.axis, float) / np.linalg.norm(j.axis)
+            if normal is None:
+                normal = a
+            elif np.linalg.norm(np.cross(normal, a)) > 1e-9:
+                return None
+        elif j.type != "prismatic":
+            return None
+    if normal is None:
+        return None
+    for j in joints:
+        if j.type == "prismatic" and abs(float(np.asarray(j.axis) @ normal)) > 1e-9 * np.linalg.norm(j.axis):
+            return None
+    return normal
+
+
+def _first_redundancy(mbs, mech: Mechanism, tol: float) -> tuple[int, list[str], int] | None:
+    """The first joint (scene order, after the coordinate constraints) with constraint-Jacobian
+    columns dependent on those before it: (joint index, keys of the items involved, how many)."""
+    cq, _ = _constraint_jacobian(mbs)
+    ltg = mbs.systemData.GetObjectLTGAE
+    columns: list[np.ndarray] = []
+    owners: list[str] = []
+    for key, obj in mech.coordinate_constraints:
+        col = cq[:, ltg(obj)[0]]
+        if _dependent(columns, col, tol) is None:
+            columns.append(col)
+            owners.append(key)
+    for k, info in enumerate(mech.joints):
+        idx = ltg(info.object)
+        involved: set[str] = set()
+        n_dep = 0
+        for axis in range(6):
+            if not info.constrained[axis]:
+                continue
+            col = cq[:, idx[axis]]
+            coef = _dependent(columns, col, tol)
+            if coef is None:
+                columns.append(col)
+                owners.append(info.key)
+            else:
+                n_dep += 1
+                big = np.abs(coef) > 1e-6 * max(float(np.abs(coef).max()), 1e-300)
+                involved |= {owners[c] for c in np.flatnonzero(big)}
+        if n_dep:
+            return k, sorted(involved - {info.key}, key=_key_order), n_dep
+    return None
+
+
+def _key_order(key: str) -> tuple:
+    head, _, rest = key.partition("[")
+    return (head != "bodies" and head != "constraints", head, int(rest.split("]")[0]) if rest else 0)
+
+
+def _planar_free_axes(info: JointInfo, normal: np.ndarray) -> tuple[int, ...]:
+    """The joint's constrained axes that are out-of-plane motions for a plane with ``normal``: a
+    translation along the normal, rotations about in-plane directions."""
+    out = []
+    for a in range(6):
+        if not info.constrained[a]:
+            continue
+        c = float(info.frame[:, a % 3] @ normal)
+        if (a < 3 and abs(abs(c) - 1.0) < 1e-9) or (a >= 3 and abs(c) < 1e-9):
+            out.append(a)
+    return tuple(out)
+
+
+def resolve_redundancy(mbs, scene: Scene, mech: Mechanism, tol: float = 1e-9) -> None:
+    """Find redundant constraints at t = 0; reduce planar loops, refuse anything else (SceneError).
+
+    Coordinate constraints (locked DOFs, ``[[constraints]]``) come first, then the joints in scene
+    order; a joint whose constraint-Jacobian columns depend on those before it is redundant. If all
+    joints involved are revolute with parallel axes (or prismatic in that plane), the redundant
+    joint's out-of-plane axes are freed and the check repeats; otherwise a SceneError names them."""
+    reduced: set[int] = set()
+    for _ in range(len(mech.joints) + 1):
+        found = _first_redundancy(mbs, mech, tol)
+        if found is None:
+            return
+        k, involved, n_dep = found
+        info = mech.joints[k]
+        joint_keys = [o for o in involved if o.startswith("joints[")]
+        normal = _planar_normal([scene.joints[int(o[7:-1])] for o in [*joint_keys, info.key]])
+        free = _planar_free_axes(info, normal) if normal is not None and joint_keys and k not in reduced else ()
+        if len(free) >= n_dep:
+            axes = tuple(0 if a in free else c for a, c in enumerate(info.constrained))
+            mbs.SetObjectParameter(info.object, "constrainedAxes", list(axes))
+            mech.joints[k] = JointInfo(info.label, info.key, info.type, info.object, info.markers, axes,
+                                       info.frame, info.friction_object)
+            mech.reductions.append(f"{info.key}: closes a planar loop with {', '.join(joint_keys)}; freed its "
+                                   f"{', '.join(_AXIS_WORDS[a] for a in free)} (joint frame, out of plane)")
+            reduced.add(k)
+            mbs.Assemble()
+            continue
+        names = " and ".join([*involved, info.key])
+        raise SceneError("scene", info.key,
+                         f"singular mechanism: {names} constrain the same motion ({n_dep} of {info.key}'s "
+                         "constraints are already imposed by the others at t = 0); remove a joint, use one "
+                         "that constrains less (e.g. spherical instead of revolute) or free a DOF")
+    raise SceneError("scene", "joints", "singular mechanism: redundant constraints could not be reduced")
+
+
+def _dependent(columns: list[np.ndarray], col: np.ndarray, tol: float) -> np.ndarray | None:
+    """Coefficients expressing ``col`` by ``columns``, or None when it is independent of them."""
+    norm = float(np.linalg.norm(col))
+    if norm == 0.0:
+        return np.zeros(len(columns))
+    if not columns:
+        return None
+    a = np.column_stack(columns)
+    coef, *_ = np.linalg.lstsq(a, col, rcond=None)
+    if np.linalg.norm(a @ coef - col) <= tol * max(norm, float(np.abs(a).max())):
+        return coef
+    return None
+
+
+# -- assembly ------------------------------------------------------------------------------------
+
+def build_mechanism(mbs, scene: Scene, wet_references: dict[str, np.ndarray],
+                    net_buoyancy: dict[str, float] | None = None, *, reduce: bool = False) -> Mechanism:
+    """Add ground, bodies (wet at ``wet_references``, dry at their reference point), point masses,
+    gravity/buoyancy, coordinate constraints and joints to ``mbs``; assemble; check redundancy and
+    the initial joint gaps. PTOs/moorings may be added afterwards (then call ``mbs.Assemble()``).
+    ``reduce``: build qualifying bodies with their active coordinates only (module docstring)."""
+    ground, ground_marker = add_ground(mbs)
+    handles: dict[str, BodyHandle] = {GROUND: ground}
+    full: dict[str, str] = {}
+    for i, body in enumerate(scene.bodies):
+        if body.wet:
+            if body.name not in wet_references:
+                raise SceneError("scene", f"bodies[{i}].hdb", f"the force server did not set up wet body {body.name!r}")
+            ref = wet_references[body.name]
+        else:
+            ref = body.dry_node()
+        q0, v0 = constrained_initial_state(scene, body)
+        why = reduction_blocker(scene, body, ref) if reduce else "reduction off"
+        if why is None:
+            handles[body.name] = add_reduced_body(mbs, scene, body, ref, q0, v0)
+        else:
+            handles[body.name] = add_rigid_body(mbs, scene, body, ref, q0, v0)
+            if 0 < len(active_dofs(body)) < 6:
+                full[body.name] = why
+    for pm in scene.point_masses:
+        handles[pm.name] = add_point_mass(mbs, pm)
+    add_dry_loads(mbs, scene, handles)
+    for name, fz in (net_buoyancy or {}).items():
+        if fz:
+            add_vertical_force(mbs, handles[name], handles[name].reference, float(fz))
+    coords = add_coordinate_constraints(mbs, scene, handles, ground_marker, {})
+    joints = [add_joint(mbs, scene, i, handles) for i in range(len(scene.joints))]
+    mech = Mechanism(handles, joints, ground_marker, coordinate_constraints=coords, full_bodies=full)
+    reduced = [h for h in handles.values() if h.dofs is not None]
+    if reduced:
+        n_act = sum(len(h.dofs) for h in reduced)
+        mech.reductions.append(
+            "reduced bodies (active coordinates only, no rigid-body node or coordinate constraints): "
+            + ", ".join(f"{h.name!r} ({'+'.join(DOF_NAMES[j] for j in h.dofs)})" for h in reduced)
+            + f": {n_act} coordinates instead of {6 * len(reduced)} and {6 * len(reduced) - n_act} constraints")
+    mech.warnings.extend(w for i in range(len(scene.joints)) if (w := _check_joint_distance(scene, i, handles)))
+    mbs.Assemble()
+    if joints:
+        resolve_redundancy(mbs, scene, mech)
+        _, _, gap, rot = mech.joint_outputs(mbs)
+        ovt = exu.OutputVariableType
+        for k, info in enumerate(mech.joints):
+            if gap[k] > 1e-6 or rot[k] > 1e-6:
+                raise SceneError("scene", info.key,
+                                 f"the bodies' initial displacements violate this joint by {gap[k]:.3g} m / "
+                                 f"{rot[k]:.3g} rad at t = 0; start the joined bodies consistently")
+            c = np.asarray(info.constrained, bool)
+            if info.point_mass:
+                dv, dw = np.asarray(mbs.GetObjectOutput(info.object, ovt.Velocity)), np.zeros(0)
+            else:
+                dv = np.asarray(mbs.GetObjectOutput(info.object, ovt.VelocityLocal))[c[:3]]
+                dw = np.asarray(mbs.GetObjectOutput(info.object, ovt.AngularVelocityLocal))[c[3:]]
+            bad = max(float(np.linalg.norm(dv)), float(np.linalg.norm(dw)))
+            if bad > 1e-6:
+                raise SceneError("scene", info.key,
+                                 f"the bodies' initial velocities violate this joint (relative velocity {bad:.3g} "
+                                 "m/s or rad/s along its locked axes at t = 0); give the joined bodies "
+                                 "consistent initial velocities (an impulse would ring undamped)")
+    return mech

@@ -1,0 +1,452 @@
+"""MoorDyn v2 moorings (scene ``[[moorings]] type = "moordyn"``): lumped-mass lines with seabed
+contact, stepped by MoorDyn's own library (Python package ``moordyn``) once per multibody step.
+
+Layout of a file (:func:`load_moordyn_files`, before anything runs): the file is opened by MoorDyn in
+a child process — a malformed file can crash MoorDyn's reader (a segmentation fault, e.g. an OUTPUTS
+section not followed by a ``---`` line), and that must be an error naming the file, not the end of the
+run. It gives the number of coupled bodies, rods and points, the coupled points' positions and the
+number of lines; the counts must match the scene's ``bodies`` / ``points``.
+
+Coupling (:class:`MoorDynSystem`), MoorDyn's conventions (MoorDyn2.cpp ``Step``, Body.cpp):
+
+- the coupled state is 6 values per coupled body (position of the body origin, then roll, pitch,
+  yaw in rad with R = Rx(roll) Ry(pitch) Rz(yaw) — Exudyn's ``NodeRigidBodyRxyz`` convention), then
+  3 per coupled point; the coupled body's origin is the scene body's reference point;
+- ``Step(x, v, t, dt)`` moves each coupled entity from x along x + v τ (τ in [0, dt]) while MoorDyn
+  integrates its lines over dt in substeps of its dtM, and returns the forces on the coupled entities
+  at t + dt (a body: force and moment about its origin, global axes). The multibody step applies
+  loads at its end (implicit integrators), so the step t_k -> t_k+1 is driven from the pose at t_k
+  towards the pose the step ends in: x = pose(t_k), v = (pose_end - pose(t_k)) / dt, where pose_end
+  is predicted (x + dt v + dt²/2 a: the predictor of the explicit and mass-matrix schemes; the
+  fairlead then ends O(dt³) from the body) or, when the implicit scheme redoes the step, the end
+  pose of its previous iteration (the fairlead path converges to the body's with the iteration; what
+  is left is the last iteration's change of the end pose — a scene without wet bodies has no
+  server forces to iterate on, so its implicit steps are not redone and use the prediction);
+- a step advances MoorDyn's state (calling it twice is not idempotent): a redo restores it with
+  ``Serialize``/``Deserialize`` (:meth:`MoorDynSystem.save` / :meth:`MoorDynSystem.restore`);
+- MoorDyn returns a coupled body's force less the inertia of what it carries (the line end nodes
+  attached to it: −M a, with a = the change of the velocity passed in over dt), but a coupled
+  point's force without it; hydrolink subtracts a coupled point's mass matrix (``GetPointM``: the
+  end nodes' mass and added mass) times that same finite-difference acceleration, so a spread
+  coupled through points moves as the same spread on a coupled body;
+- ``Init`` runs MoorDyn's initial-condition solve (options dtIC, TmaxIC, threshIC in the file) with
+  the bodies at their initial pose: the lines start at rest in equilibrium, no jerk.
+
+MoorDyn writes to the process's stdout/stderr (banner, per-line report, "t = ..." every step unless
+the file says ``1 disableOutTime``): every call is made with both redirected to a scratch file, whose
+last lines go into the error message when MoorDyn fails.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from hydrolink.protocol.scene import MoorDynMooring, Scene, SceneError, resolve_path
+
+#: seconds the child process may take to read a MoorDyn file
+PROBE_TIMEOUT = 60.0
+
+
+class MoorDynFailure(RuntimeError):
+    """MoorDyn failed (an error code, non-finite forces); the message names the file."""
+
+
+# -- quiet calls ------------------------------------------------------------------------------------
+class _Quiet:
+    """Redirects fds 1 and 2 to one scratch file around MoorDyn calls (its C++ output)."""
+
+    def __init__(self) -> None:
+        self.file = tempfile.TemporaryFile(mode="w+b")
+        self.fd = self.file.fileno()
+
+    @contextmanager
+    def __call__(self):
+        sys.stdout.flush()
+        sys.stderr.flush()
+        saved = os.dup(1), os.dup(2)
+        os.dup2(self.fd, 1)
+        os.dup2(self.fd, 2)
+        try:
+            yield
+        finally:
+            os.dup2(saved[0], 1)
+            os.dup2(saved[1], 2)
+            os.close(saved[0])
+            os.close(saved[1])
+
+    def said(self) -> str:
+        """What MoorDyn complained about since the last :meth:`clear` (its error lines)."""
+        self.file.seek(0)
+        return _complaint(self.file.read())
+
+    def clear(self) -> None:
+        self.file.seek(0)
+        self.file.truncate()
+
+    def close(self) -> None:
+        self.file.close()
+
+
+# -- the file's layout (child process) -----------------------------------------------------------------
+@dataclass(frozen=True)
+class MoorDynLayout:
+    """What a MoorDyn input file couples, read by MoorDyn itself."""
+
+    path: Path
+    coupled_bodies: int
+    coupled_rods: int
+    coupled_points: np.ndarray      # (n, 3) positions the file gives the coupled points
+    lines: int
+
+    @property
+    def coupled_dofs(self) -> int:
+        return 6 * self.coupled_bodies + 6 * self.coupled_rods + 3 * len(self.coupled_points)
+
+
+def _probe_main(path: str, out: str) -> None:
+    """Child process: open ``path`` with MoorDyn and write its coupled layout to ``out`` (JSON)."""
+    import moordyn
+    m = moordyn.Create(path)
+    bodies = sum(moordyn.GetBodyType(moordyn.GetBody(m, i)) == moordyn.BODY_TYPE_COUPLED
+                 for i in range(1, moordyn.GetNumberBodies(m) + 1))
+    rods = sum(moordyn.GetRodType(moordyn.GetRod(m, i)) in (moordyn.ROD_TYPE_COUPLED, moordyn.ROD_TYPE_CPLDPIN)
+               for i in range(1, moordyn.GetNumberRods(m) + 1))
+    points = [list(moordyn.GetPointPos(p)) for p in (moordyn.GetPoint(m, i) for i in range(1, moordyn.GetNumberPoints(m) + 1))
+              if moordyn.GetPointType(p) == moordyn.POINT_TYPE_COUPLED]
+    layout = {"bodies": int(bodies), "rods": int(rods), "points": points, "lines": moordyn.GetNumberLines(m),
+              "dofs": moordyn.NCoupledDOF(m)}
+    moordyn.Close(m)
+    Path(out).write_text(json.dumps(layout))
+
+
+def _complaint(output: bytes) -> str:
+    """MoorDyn's error lines (from its first "ERR" line on, the file path shortened), else its last
+    warning, else its last lines."""
+    lines = [ln.strip() for ln in output.decode("utf-8", "replace").replace("\r", "\n").splitlines()
+             if ln.strip() and not ln.startswith((" ", "\t", "t = ", "Traceback", "  File", "RuntimeError"))]
+    for marker in ("ERR ", "WRN "):
+        first = [k for k, ln in enumerate(lines) if ln.startswith(marker)]
+        if first:
+            said = lines[first[0]:first[0] + 3] if marker == "ERR " else lines[first[-1]:first[-1] + 1]
+            said[0] = said[0].split("): ", 1)[-1]      # drop MoorDyn's source location
+            return " | ".join(said)
+    return " | ".join(lines[-3:]) or "no message"
+
+
+def read_layout(path: Path) -> MoorDynLayout:
+    """The coupled layout of a MoorDyn file (MoorDynFailure naming the file and MoorDyn's complaint)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "layout.json"
+        code = ("import numpy, sys; from hydrolink.clients.exudyn.moordyn_mooring import _probe_main; "
+                "_probe_main(sys.argv[1], sys.argv[2])")
+        try:
+            proc = subprocess.run([sys.executable, "-c", code, str(path), str(out)], capture_output=True,
+                                  timeout=PROBE_TIMEOUT, cwd=str(path.parent))
+        except subprocess.TimeoutExpired:
+            raise MoorDynFailure(f"MoorDyn took more than {PROBE_TIMEOUT:g} s to read {path}") from None
+        if proc.returncode != 0 or not out.exists():
+            raise MoorDynFailure(("MoorDyn crashed reading it (signal {-proc.returncode})" if proc.returncode < 0
+                                  else "MoorDyn could not read it") + ": " + _complaint(proc.stdout + proc.stderr))
+        d = json.loads(out.read_text())
+    points = np.asarray(d["points"], float).reshape(-1, 3)
+    layout = MoorDynLayout(path, d["bodies"], d["rods"], points, d["lines"])
+    if layout.coupled_dofs != d["dofs"]:
+        raise MoorDynFailure(f"MoorDyn couples {d['dofs']} DOFs, the bodies, rods and points it lists make "
+                             f"{layout.coupled_dofs}")
+    return layout
+
+
+def load_moordyn_files(scene: Scene, scene_path: str | Path) -> dict[int, MoorDynLayout]:
+    """The layouts of the scene's MoorDyn files by mooring index, checked against the scene
+    (SceneError naming the scene file, the key and why)."""
+    out: dict[int, MoorDynLayout] = {}
+    for i, m in enumerate(scene.moorings):
+        if not isinstance(m, MoorDynMooring):
+            continue
+        key = f"moorings[{i}]"
+        path = resolve_path(scene_path, m.file)
+        if not path.is_file():
+            raise SceneError(scene_path, f"{key}.file", f"MoorDyn input file not found: {path}")
+        try:
+            layout = read_layout(path)
+        except MoorDynFailure as exc:
+            raise SceneError(scene_path, f"{key}.file", f"{path}: {exc}") from None
+        if layout.coupled_rods:
+            raise SceneError(scene_path, f"{key}.file", f"{path}: {layout.coupled_rods} coupled rod(s): hydrolink "
+                                                        "couples MoorDyn bodies and points only")
+        for what, n, given in (("bodies", layout.coupled_bodies, m.bodies),
+                               ("points", len(layout.coupled_points), m.points)):
+            if n != len(given):
+                raise SceneError(scene_path, f"{key}.{what}",
+                                 f"{path.name} has {n} coupled {what[:-1] if n == 1 else what}, {key}.{what} "
+                                 f"lists {len(given)} scene bod{'y' if len(given) == 1 else 'ies'} {given}")
+        out[i] = layout
+    return out
+
+
+# -- kinematics -------------------------------------------------------------------------------------
+def rotation_xyz(angles: np.ndarray) -> np.ndarray:
+    """R = Rx(a) Ry(b) Rz(c) for (..., 3) angles: (..., 3, 3)."""
+    a, b, c = (np.asarray(angles, float)[..., k] for k in range(3))
+    ca, sa, cb, sb, cc, sc = np.cos(a), np.sin(a), np.cos(b), np.sin(b), np.cos(c), np.sin(c)
+    return np.stack([
+        np.stack([cb * cc, -cb * sc, sb], -1),
+        np.stack([sa * sb * cc + ca * sc, -sa * sb * sc + ca * cc, -sa * cb], -1),
+        np.stack([-ca * sb * cc + sa * sc, ca * sb * sc + sa * cc, ca * cb], -1)], -2)
+
+
+# -- the running system -------------------------------------------------------------------------------
+class MoorDynSystem:
+    """One MoorDyn instance coupled to scene bodies (module docstring).
+
+    ``rows``: each scene body's row in the (B, 6) pose arrays the caller passes; the loads come back
+    per coupled scene body (``spec.coupled_bodies`` order), force and moment about its reference
+    point, global axes."""
+
+    def __init__(self, spec: MoorDynMooring, layout: MoorDynLayout, key: str, rows: dict[str, int],
+                 reference: np.ndarray):
+        self.spec, self.layout, self.key = spec, layout, key
+        self.label = f"{key} ({layout.path})"
+        self.names = spec.coupled_bodies
+        self._row_of = {n: rows[n] for n in self.names}
+        self._body_rows = np.array([rows[n] for n in spec.bodies], int)
+        self._point_rows = np.array([rows[n] for n in spec.points], int)
+        # a coupled point's offset from its body's reference point (body axes = global at zero angles)
+        ref = np.asarray(reference, float)
+        self._point_local = layout.coupled_points - ref[self._point_rows, :3] if len(spec.points) else np.zeros((0, 3))
+        # where each coupled entity's force goes: scene body index in `names`
+        self._body_out = np.array([self.names.index(n) for n in spec.bodies], int)
+        self._point_out = np.array([self.names.index(n) for n in spec.points], int)
+        self.n_lines = layout.lines
+        self.loads = np.zeros((len(self.names), 6))
+        self.initial_loads = np.zeros((len(self.names), 6))
+        self.offset: np.ndarray | None = None          # static offset under the mooring (static_offset)
+        self.offset_residual = 0.0
+        self.instance = None
+        self._quiet = _Quiet()
+        self._lines: list = []
+        self._fairlead: list[int] = []
+        self._nodes: list[int] = []
+        self._cpoints: list = []                       # MoorDyn's coupled points, file order
+        self._point_velocity = np.zeros((len(spec.points), 3))   # passed at the last step
+        self.steps = 0
+        self.dtm = 0.0                                   # MoorDyn's own step (from its file)
+
+    # -- kinematics --------------------------------------------------------------------------------
+    def _points(self, pose: np.ndarray) -> np.ndarray:
+        """Global positions (P, 3) of the coupled points for body poses (B, 6)."""
+        if not len(self._point_rows):
+            return np.zeros((0, 3))
+        p = pose[self._point_rows]
+        return p[:, :3] + np.einsum("pij,pj->pi", rotation_xyz(p[:, 3:]), self._point_local)
+
+    def _coupled(self, pose: np.ndarray) -> np.ndarray:
+        return np.concatenate([pose[self._body_rows].reshape(-1), self._points(pose).reshape(-1)])
+
+    def _to_bodies(self, f: np.ndarray, pose: np.ndarray, point_accel: np.ndarray | None = None) -> np.ndarray:
+        """MoorDyn's coupled forces -> (len(names), 6) loads about the bodies' reference points; a
+        coupled point's force less its mass matrix times ``point_accel`` (module docstring)."""
+        out = np.zeros((len(self.names), 6))
+        nb = len(self._body_rows)
+        if nb:
+            np.add.at(out, self._body_out, f[:6 * nb].reshape(nb, 6))
+        if len(self._point_rows):
+            fp = f[6 * nb:].reshape(-1, 3)
+            if point_accel is not None:
+                import moordyn
+                fp = fp - np.einsum("pij,pj->pi", np.array([moordyn.GetPointM(p) for p in self._cpoints]), point_accel)
+            r = self._points(pose) - pose[self._point_rows, :3]
+            np.add.at(out, self._point_out, np.hstack([fp, np.cross(r, fp)]))
+        return out
+
+    # -- life cycle ----------------------------------------------------------------------------------
+    def _fail(self, why: str) -> MoorDynFailure:
+        return MoorDynFailure(f"{self.label}: {why} (MoorDyn: {self._quiet.said()})")
+
+    def start(self, pose: np.ndarray) -> np.ndarray:
+        """Create the instance and run MoorDyn's initial-condition solve with the bodies held at
+        ``pose`` (B, 6); returns the loads at t = 0. (The bodies are passed at rest: MoorDyn moves a
+        coupled body along its velocity during the solve. A body that starts moving enters the first
+        step's finite-difference inertia of the end nodes, M v0 / dt, once.)"""
+        import moordyn
+        x = self._coupled(pose)
+        v = np.zeros_like(x)
+        cwd = os.getcwd()
+        try:
+            with self._quiet():
+                os.chdir(self.layout.path.parent)    # MoorDyn writes its own outputs beside its file
+                try:
+                    self.instance = moordyn.Create(str(self.layout.path))
+                    err = moordyn.Init(self.instance, x.tolist(), v.tolist())
+                    f0 = np.asarray(moordyn.Step(self.instance, x.tolist(), v.tolist(), 0.0, 0.0), float)
+                finally:
+                    os.chdir(cwd)
+        except (RuntimeError, ValueError) as exc:
+            raise self._fail(f"MoorDyn failed to start: {exc}") from None
+        if err:
+            raise self._fail(f"MoorDyn's initial-condition solve failed (error code {err})")
+        if not np.isfinite(f0).all():
+            raise self._fail("MoorDyn's initial-condition solve gave non-finite forces")
+        self._point_velocity = v[6 * len(self._body_rows):].reshape(-1, 3).copy()
+        points = (moordyn.GetPoint(self.instance, k) for k in range(1, moordyn.GetNumberPoints(self.instance) + 1))
+        self._cpoints = [p for p in points if moordyn.GetPointType(p) == moordyn.POINT_TYPE_COUPLED]
+        self._lines = [moordyn.GetLine(self.instance, k) for k in range(1, self.n_lines + 1)]
+        self._nodes = [moordyn.GetLineN(line) for line in self._lines]
+        # the fairlead end of each line: the end nearer the surface at t = 0
+        self._fairlead = [n if moordyn.GetLineNodePos(line, n)[2] >= moordyn.GetLineNodePos(line, 0)[2] else 0
+                          for line, n in zip(self._lines, self._nodes)]
+        import cmoordyn          # moordyn.GetDt (2.7.2) drops the value it gets from here
+        self.dtm = float(cmoordyn.get_dt(self.instance))
+        self._quiet.clear()
+        self.loads = self.initial_loads = self._to_bodies(f0, pose)
+        return self.loads
+
+    def step_note(self, dt: float) -> str | None:
+        """Why ``dt`` (the multibody step) does not suit MoorDyn's dtM (None when it does)."""
+        n = dt / self.dtm
+        if abs(n - round(n)) <= 1e-6 * max(n, 1.0):
+            return None
+        return (f"{self.key}: simulation.dt = {dt:g} s is not a multiple of dtM = {self.dtm:g} s in {self.layout.path.name}: "
+                f"MoorDyn takes {math.ceil(n - 1e-9)} substeps per step, the last one shorter; make dt a multiple of dtM")
+
+    def loads_at(self, pose: np.ndarray) -> np.ndarray:
+        """The loads (len(names), 6) after MoorDyn's initial-condition solve with the bodies held at
+        ``pose`` (B, 6), from a separate MoorDyn instance (the running one is left alone)."""
+        import moordyn
+        x = self._coupled(pose)
+        zero = [0.0] * x.size
+        cwd = os.getcwd()
+        try:
+            with self._quiet():
+                os.chdir(self.layout.path.parent)
+                try:
+                    m = moordyn.Create(str(self.layout.path))
+                    moordyn.Init(m, x.tolist(), zero)
+                    f = np.asarray(moordyn.Step(m, x.tolist(), zero, 0.0, 0.0), float)
+                    moordyn.Close(m)
+                finally:
+                    os.chdir(cwd)
+        except (RuntimeError, ValueError) as exc:
+            raise self._fail(f"MoorDyn failed in the static offset estimate: {exc}") from None
+        return self._to_bodies(f, pose)
+
+    def static_offset(self, pose: np.ndarray, displacement: np.ndarray, stiffness: np.ndarray,
+                      constant: np.ndarray, active: np.ndarray, iterations: int = 6,
+                      tolerance: float = 1e-3) -> tuple[np.ndarray, float]:
+        """Displacement (len(names), 6) from their reference positions at which the coupled bodies'
+        restoring force −C x (``stiffness`` (B, 6, 6) about the reference points; zero for dry
+        bodies) and ``constant`` loads (B, 6: a wet body's net buoyancy, a dry body's weight and
+        buoyancy) balance the mooring's load, over their ``active`` (B, 6) DOFs, starting from the
+        bodies' ``pose`` (B, 6) = reference + ``displacement`` (B, 6) where MoorDyn was started; the
+        other bodies are held (joints and PTOs are not part of it). Chord Newton: the mooring's
+        stiffness by one-sided finite differences (0.1 m, 0.01 rad) of MoorDyn's initial-condition
+        solve, then one solve per iteration until the out-of-balance load is below ``tolerance`` ×
+        the mooring's load. Returns the displacement and the out-of-balance load left (N, N m)."""
+        rows = [self._row_of[n] for n in self.names]
+        dofs = [(j, d) for j, r in enumerate(rows) for d in range(6) if active[r, d]]
+        out = displacement[rows].copy()
+        if not dofs:
+            return out, 0.0
+
+        def vec(a: np.ndarray) -> np.ndarray:
+            return np.array([a[j, d] for j, d in dofs])
+
+        def moved(delta: np.ndarray) -> np.ndarray:
+            p = pose.copy()
+            for (j, d), x in zip(dofs, delta):
+                p[rows[j], d] += x
+            return p
+
+        c = np.array([[stiffness[rows[j], d, e] if j == k else 0.0 for k, e in dofs] for j, d in dofs])
+        q0 = vec(displacement[rows])
+        f_const = vec(constant[rows])
+        f0 = vec(self.initial_loads) + f_const
+        k_moor = np.zeros((len(dofs), len(dofs)))
+        for i, (j, d) in enumerate(dofs):
+            step = 0.1 if d < 3 else 0.01
+            e = np.zeros(len(dofs))
+            e[i] = step
+            k_moor[:, i] = -(vec(self.loads_at(moved(e))) + f_const - f0) / step
+        k = c + k_moor
+        delta, f = np.zeros(len(dofs)), f0
+        scale = max(float(np.abs(f0).max()), 1e-300)
+        for _ in range(iterations):
+            r = f - c @ (q0 + delta)
+            if float(np.abs(r).max()) <= tolerance * scale:
+                break
+            delta = delta + np.linalg.lstsq(k, r, rcond=None)[0]
+            f = vec(self.loads_at(moved(delta))) + f_const
+        r = f - c @ (q0 + delta)
+        for (j, d), x in zip(dofs, q0 + delta):
+            out[j, d] = x
+        return out, float(np.abs(r).max())
+
+    def step(self, t0: float, dt: float, pose0: np.ndarray, pose1: np.ndarray) -> np.ndarray:
+        """Advance MoorDyn over [t0, t0 + dt] with the bodies moving linearly from ``pose0`` to
+        ``pose1`` (B, 6); returns the loads at t0 + dt (and keeps them in ``loads``)."""
+        import moordyn
+        x0 = self._coupled(pose0)
+        v = (self._coupled(pose1) - x0) / dt
+        try:
+            with self._quiet():
+                f = moordyn.Step(self.instance, x0.tolist(), v.tolist(), t0, dt)
+        except (RuntimeError, ValueError) as exc:
+            raise self._fail(str(exc)) from None
+        f = np.asarray(f, float)
+        if not np.isfinite(f).all():
+            raise self._fail("MoorDyn returned non-finite forces")
+        self.steps += 1
+        if self.steps % 4096 == 0:
+            self._quiet.clear()
+        vp = v[6 * len(self._body_rows):].reshape(-1, 3)
+        accel = (vp - self._point_velocity) / dt
+        self._point_velocity = vp
+        self.loads = self._to_bodies(f, pose1, accel)
+        return self.loads
+
+    def save(self) -> tuple[bytes, np.ndarray, np.ndarray]:
+        import moordyn
+        return moordyn.Serialize(self.instance), self.loads, self._point_velocity
+
+    def restore(self, saved: tuple[bytes, np.ndarray, np.ndarray]) -> None:
+        import moordyn
+        moordyn.Deserialize(self.instance, saved[0])
+        self.loads, self._point_velocity = saved[1], saved[2]
+
+    # -- outputs -------------------------------------------------------------------------------------
+    def tensions(self) -> np.ndarray:
+        """Tension at each line's fairlead end (N): the magnitude of the force the line's end node
+        passes to what it is attached to (segment tension + the node's weight, drag, seabed)."""
+        import moordyn
+        return np.array([math.hypot(*moordyn.GetLineNodeForce(line, k))
+                         for line, k in zip(self._lines, self._fairlead)])
+
+    def node_positions(self, n_nodes: int) -> np.ndarray:
+        """(lines, n_nodes, 3) node positions from the anchor end, NaN past a line's last node."""
+        import moordyn
+        out = np.full((self.n_lines, n_nodes, 3), np.nan)
+        for i, (line, n) in enumerate(zip(self._lines, self._nodes)):
+            out[i, :n + 1] = [moordyn.GetLineNodePos(line, k) for k in range(n + 1)]
+        return out
+
+    @property
+    def max_nodes(self) -> int:
+        return max(self._nodes, default=0) + 1
+
+    def close(self) -> None:
+        if self.instance is not None:
+            import moordyn
+            with self._quiet():
+                moordyn.Close(self.instance)
+            self.instance = None
+        self._quiet.close()

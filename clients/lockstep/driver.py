@@ -1,0 +1,329 @@
+"""The lockstep driver: one multibody code, the force server, one coupling scheme, one loop.
+
+The multibody side is an adapter (:class:`Multibody`: the Exudyn model in
+:mod:`hydrolink.clients.exudyn.client`, an FMU in :mod:`hydrolink.clients.fmu.master`); the force
+server is a :class:`ForceLink`; the coupling scheme (scene ``[coupling] scheme``, README "Coupling
+schemes", docs/stability.md) is one object from :mod:`hydrolink.clients.lockstep.coupling_schemes`. The loop
+itself (:func:`run`) only sequences exchanges, writes rows, watches for divergence and turns every
+failure into one error that names the step and keeps the rows written so far.
+
+Time: exchange e runs from e·H to (e+1)·H, H = ``exchange_every`` × dt, in ``substeps`` client
+steps of dt; the server's sample of exchange e is taken at the state of time e·H (SPEC §5.2).
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time as _time
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from typing import Any, NamedTuple, Protocol
+
+import numpy as np
+
+from hydrolink.clients.lockstep.connection import EXTRA_FORCE_FIELDS
+from hydrolink.clients.lockstep.summary import CouplingReport, RunSummary
+
+_sum = np.add.reduce   # ndarray.sum without its Python wrapper
+
+#: default bound on |displacement| (m, rad) and |velocity| (m/s, rad/s) before a run is called diverged
+BLOW_UP_LIMIT = 1.0e4
+
+#: explicit schemes: the added-mass instability is called after this many consecutive steps whose
+#: second difference of the fed-back accelerations alternates in sign and grows by more than
+#: WATCH_GROWTH, once it exceeds WATCH_FLOOR times the largest acceleration seen (clear of round-off)
+WATCH_STEPS, WATCH_GROWTH, WATCH_FLOOR = 6, 1.001, 1e-6
+
+
+class RunInterrupted(RuntimeError):
+    """A run stopped before its end; every row computed before ``step`` is in the results file."""
+
+    def __init__(self, message: str, *, step: int, time: float, rows: int):
+        super().__init__(message)
+        self.step, self.time, self.rows = step, time, rows
+
+
+class SimulationDiverged(RunInterrupted):
+    """The state went non-finite or absurdly large, or the added-mass instability set in."""
+
+
+class CouplingError(RunInterrupted):
+    """The iterated coupling did not converge within ``coupling.max_iterations``."""
+
+
+# ------------------------------------------------------------------------------ the server side
+
+class Sample(NamedTuple):
+    """One server reply over the wet bodies' 6N DOFs (body-major); immutable (a tuple: cheap to
+    make once a step). ``load`` = excitation + radiation (+ viscous, + morison, for scenes with
+    those terms): what the client applies as a force (hydrostatics are in its matrix); :meth:`of`
+    computes it. The optional parts are the reply's EXTRA_FORCE_FIELDS, in that order."""
+
+    excitation: np.ndarray
+    radiation: np.ndarray
+    hydrostatic: np.ndarray
+    eta: float
+    load: np.ndarray
+    viscous: np.ndarray | None = None
+    morison: np.ndarray | None = None
+    nonlinear_hydrostatic: np.ndarray | None = None
+    nonlinear_froude_krylov: np.ndarray | None = None
+
+    @classmethod
+    def of(cls, excitation: np.ndarray, radiation: np.ndarray, hydrostatic: np.ndarray, eta: float,
+           *extra: np.ndarray | None) -> "Sample":
+        """A sample; ``extra``: the optional parts (None when the scene has no such term)."""
+        load = excitation + radiation
+        for part in extra:
+            if part is not None:
+                load = load + part
+        return cls(excitation, radiation, hydrostatic, eta, load, *extra)
+
+    @property
+    def extra(self) -> tuple[np.ndarray | None, ...]:
+        """The optional parts, in EXTRA_FORCE_FIELDS order."""
+        return self[5:]
+
+    def toward(self, other: "Sample", w: float) -> "Sample":
+        """self + w (other − self): linear in time between (w in [0, 1]) or past (w > 1) two samples."""
+        def lerp(a, b):
+            return None if a is None else a + w * (b - a)
+        return Sample.of(lerp(self.excitation, other.excitation), lerp(self.radiation, other.radiation),
+                         lerp(self.hydrostatic, other.hydrostatic), self.eta + w * (other.eta - self.eta),
+                         *(lerp(a, b) for a, b in zip(self.extra, other.extra)))
+
+
+class ForceLink:
+    """The force server as the loop sees it: a wet state in, a :class:`Sample` out.
+
+    Positions go out absolute (equilibrium + displacement), rows in ``setup.bodies`` order. A server
+    failure becomes one :class:`RunInterrupted` naming the step, the time and the rows kept; a
+    non-finite reply a :class:`SimulationDiverged`. With no wet body nothing is asked."""
+
+    def __init__(self, connection: Any, setup: Any, writer: Any):
+        self.conn, self.writer = connection, writer
+        self.n = setup.n if setup is not None else 0
+        self.eq = setup.equilibrium_position.reshape(-1) if self.n else np.zeros(0)
+        self.dt = setup.dt if self.n else 0.0
+        self.seconds = 0.0
+        self.decisions: dict | None = None
+        self._zero = Sample.of(np.zeros(0), np.zeros(0), np.zeros(0), 0.0)
+        self._shape = (self.n, 6)
+        self._pos = np.zeros(self._shape)   # the absolute position sent (reused: the server copies it)
+
+    def sample(self, seq: int, x: np.ndarray, v: np.ndarray, *, iteration: int = 0,
+               measurements: dict | None = None, timeout: float | None = None) -> Sample:
+        """The server's forces at step ``seq`` for displacement ``x`` and velocity ``v`` (6N)."""
+        if not self.n:
+            return self._zero
+        t = seq * self.dt
+        t0 = _time.perf_counter()
+        shape, pos = self._shape, self._pos
+        np.add(self.eq, x, out=pos.reshape(-1))
+        try:
+            if measurements is not None or timeout is not None:
+                reply = self.conn.step(seq, t, pos, v.reshape(shape), iteration, measurements=measurements,
+                                       timeout=timeout)
+            else:
+                reply = self.conn.step(seq, t, pos, v.reshape(shape), iteration)
+        except (KeyboardInterrupt, RunInterrupted):
+            raise
+        except Exception as exc:
+            rows, where = self.writer.rows, getattr(self.writer, "path", "the results file")
+            raise RunInterrupted(f"force server error at step {seq} (t = {t:.6g} s): {exc}; the {rows} rows "
+                                 f"before it are saved in {where}", step=seq, time=t, rows=rows) from exc
+        self.seconds += _time.perf_counter() - t0
+        self.decisions = reply.get("control")
+        eta = reply["wave_elevation"]
+        eta = eta if type(eta) is float else float(np.asarray(eta, float).reshape(-1)[0])
+        extra = (reply.get(k) for k in EXTRA_FORCE_FIELDS)
+        s = Sample.of(reply["excitation"].reshape(-1), reply["radiation"].reshape(-1),
+                      reply["hydrostatic"].reshape(-1), eta, *(None if e is None else e.reshape(-1) for e in extra))
+        # NaN or inf anywhere makes a sum non-finite (excitation and radiation through their sum)
+        if not math.isfinite(float(_sum(s.load)) + float(_sum(s.hydrostatic)) + eta):
+            rows = self.writer.rows
+            raise SimulationDiverged(f"the force server returned non-finite forces at step {seq} (t = {t:.6g} s); "
+                                     f"the {rows} rows before it are saved", step=seq, time=t, rows=rows)
+        return s
+
+
+# ------------------------------------------------------------------------------ the multibody side
+
+class Multibody(Protocol):
+    """What the loop needs of a multibody code (an adapter around Exudyn or an FMU)."""
+
+    label: str           # "the body state" / "the FMU state": for messages
+    h: float             # the client's step
+    substeps: int        # client steps per exchange
+
+    def begin(self, s0: Sample, feedback: bool) -> int:
+        """Initialise with the server's first sample; returns fixed-point iterations spent (0 if none)."""
+
+    def state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Wet displacement and velocity (6N) and the acceleration a fed-back −A·a uses."""
+
+    def extent(self, limit: float) -> float:
+        """max(|x|, |v|) over everything it integrates (NaN if not finite), or any value below
+        ``limit`` when that maximum is below it (a cheap bound may stand in)."""
+
+    def inputs(self, s0: Sample, s1: Sample, acc: np.ndarray | None, x0: np.ndarray, x1: np.ndarray) -> np.ndarray:
+        """Its input over a step from the samples at the step's start and end; ``acc`` the
+        acceleration of the fed-back −A·a (None: A is in its mass matrix)."""
+
+    def advance(self, t0: float, t1: float, u: np.ndarray) -> None:
+        """Integrate one step with input ``u`` held."""
+
+    def save(self) -> Any: ...
+
+    def restore(self, saved: Any) -> None: ...
+
+    def snapshot(self) -> Any:
+        """What a results row needs of the current state (kept while a step is iterated)."""
+
+    def write(self, t: float, s: Sample, snap: Any) -> None:
+        """One results row."""
+
+    def measurements(self, step: int) -> dict | None:
+        """Controller measurements due at client step ``step`` (None: none due)."""
+
+    def apply_control(self, decisions: dict | None) -> None: ...
+
+
+# ------------------------------------------------------------------------------ divergence
+
+@dataclass
+class DivergenceWatch:
+    """Stops a run that blows up, or that shows the added-mass instability's signature: the second
+    difference of the fed-back accelerations alternates in sign and grows every step (a lag error
+    multiplied by −M⁻¹A every step; physical motion cannot alternate step by step)."""
+
+    limit: float = BLOW_UP_LIMIT
+    history: list = field(default_factory=list)
+    run: int = 0
+    top: float = 0.0
+
+    def check(self, mb: Multibody, step: int, t: float, rows: int, where: str) -> None:
+        big = mb.extent(self.limit)
+        if big < self.limit:
+            return
+        bad = "absurdly large" if math.isfinite(big) else "non-finite"
+        raise SimulationDiverged(
+            f"simulation diverged at step {step} (t = {t:.6g} s): {where} is {bad} (max |x|, |v| = {big:.3g}, "
+            f"limit {self.limit:g}); the {rows} rows before it are saved. Try a smaller dt or check the "
+            f"scene's masses, stiffness and DOFs", step=step, time=t, rows=rows)
+
+    def feedback(self, a: np.ndarray, step: int, t: float) -> None:
+        """Explicit schemes: record the fed-back acceleration of this step."""
+        hist = self.history
+        hist.append(a.copy())
+        self.top = max(self.top, float(np.abs(a).max(initial=0.0)))
+        if len(hist) < 4:
+            return
+        d1, d2 = hist[2] - 2 * hist[1] + hist[0], hist[3] - 2 * hist[2] + hist[1]
+        del hist[0]
+        n1, n2 = float(np.abs(d1).max(initial=0.0)), float(np.abs(d2).max(initial=0.0))
+        self.run = self.run + 1 if (float(d1 @ d2) < 0 and n2 > WATCH_GROWTH * n1
+                                    and n2 > WATCH_FLOOR * self.top) else 0
+        if self.run >= WATCH_STEPS:
+            raise SimulationDiverged(
+                f"stopped at step {step} (t = {t:.6g} s): the accelerations fed back as −A∞·a alternate in "
+                f"sign and grow every step ({WATCH_STEPS} steps in a row, x{n2 / n1:.3g} in the last): the "
+                f"added-mass instability; the {step} rows before it are saved", step=step, time=t, rows=step)
+
+
+# ------------------------------------------------------------------------------ the loop
+
+@dataclass
+class Lockstep:
+    """One run's parts: what the coupling schemes use to take an exchange."""
+
+    mb: Multibody
+    link: ForceLink
+    writer: Any                             # a ResultWriter
+    watch: DivergenceWatch
+    between: str = "hold"                   # "hold" | "extrapolate" (exchange_every > 1)
+    step: int = 0                           # client steps done
+    bar: Any = None
+    iterations: list[int] = field(default_factory=list)
+
+    @property
+    def big_h(self) -> float:
+        return self.mb.h * self.mb.substeps
+
+    def between_samples(self, s0: Sample, s1: Sample, j: int, extrapolate: bool = False) -> Sample:
+        """The sample at client step j (1..substeps) of an exchange: s1 held, or linear from s0 (the
+        exchange's start) to s1 (its end), or on past them (``extrapolate``: both in the past)."""
+        kx = self.mb.substeps
+        if self.between == "hold" or kx == 1:
+            return s1
+        return s0.toward(s1, 1.0 + j / kx if extrapolate else j / kx)
+
+    def client_step(self, t0: float, t1: float, u: np.ndarray, where: str | None = None) -> None:
+        """Advance the multibody code one client step and check it."""
+        self.mb.advance(t0, t1, u)
+        self.step += 1
+        self.watch.check(self.mb, self.step, t1, self.writer.rows, where or self.mb.label)
+
+    def write(self, t: float, s: Sample, snap: Any = None) -> None:
+        self.mb.write(t, s, self.mb.snapshot() if snap is None else snap)
+        if self.bar is not None:
+            self.bar.update(1)
+
+
+def progress_bar(total: int, enabled: bool, desc: str = "hydrolink run"):
+    from tqdm import tqdm
+    return tqdm(total=total, unit="step", desc=desc, mininterval=0.5,
+                disable=not (enabled and sys.stderr.isatty()))
+
+
+def run(loop: Lockstep, scheme: Any, n_exchanges: int, coupling: CouplingReport, *,
+        first_timeout: float | None = None,
+        hint: Callable[[SimulationDiverged], str] = lambda exc: "") -> RunSummary:
+    """Run ``n_exchanges`` exchanges of ``scheme`` (module docstring); the writer gets its final
+    status before this returns or raises. Returns the loop's counts and costs, with ``coupling``
+    (the adapter's description of the scheme) completed by the iterations it took."""
+    mb, link, writer = loop.mb, loop.link, loop.writer
+    wall0 = _time.perf_counter()
+    init_iterations = 0
+    t = 0.0
+    try:
+        x, v, _ = mb.state()
+        loop.watch.check(mb, 0, 0.0, 0, "the initial state")
+        s = link.sample(0, x, v, timeout=first_timeout)
+        init_iterations = mb.begin(s, scheme.feedback)
+        loop.write(0.0, s)
+        for e in range(n_exchanges):
+            s = scheme.exchange(loop, e, s)
+            t = (e + 1) * loop.big_h
+    except KeyboardInterrupt:
+        t = loop.step * mb.h
+        writer.finish(f"interrupted: KeyboardInterrupt at step {loop.step} (t = {t:.6g} s)")
+        raise KeyboardInterrupt(f"run interrupted at step {loop.step} (t = {t:.6g} s); {writer.rows_written} "
+                                f"rows saved in {getattr(writer, 'path', 'the results file')}") from None
+    except SimulationDiverged as exc:
+        extra = hint(exc)
+        if extra:
+            exc = SimulationDiverged(f"{exc}. {extra}", step=exc.step, time=exc.time, rows=exc.rows)
+        writer.finish(f"interrupted: {exc}")
+        raise exc from None
+    except RunInterrupted as exc:
+        writer.finish(f"interrupted: {exc}")
+        raise
+    except BaseException as exc:
+        t = loop.step * mb.h
+        writer.finish(f"interrupted: {type(exc).__name__} at step {loop.step} (t = {t:.6g} s): {exc}")
+        raise
+    finally:
+        if loop.bar is not None:
+            loop.bar.close()
+    writer.finish("complete")
+    wall = _time.perf_counter() - wall0
+    steps = max(loop.step, 1)
+    its = np.asarray(loop.iterations or [1])
+    coupling = replace(coupling, initial_iterations=init_iterations, iterations_mean=float(its.mean()),
+                       iterations_max=int(its.max()),
+                       iterations=np.asarray(loop.iterations, int) if coupling.scheme == "implicit" else None)
+    return RunSummary(steps=loop.step, time=loop.step * mb.h, wall_time=wall, rows=writer.rows_written,
+                      status="complete", coupling=coupling, client_us_per_step=(wall - link.seconds) / steps * 1e6,
+                      round_trip_us_per_step=link.seconds / steps * 1e6)

@@ -1,0 +1,221 @@
+"""The internal hydrodynamic database (HDB): one labelled xarray dataset, one convention.
+
+Every reader converts its format into this layout once; everything downstream (IRF, forces,
+``hdb info``, the wire) reads only this. Layout::
+
+    dims    omega (n_w, strictly increasing, > 0), influenced_dof (6N), radiating_dof (6N),
+            wave_direction (n_b, radians), body (N), xyz (3)
+    coords  omega [rad/s]; wave_direction [rad]; body (names);
+            influenced_dof / radiating_dof: labels "<body>.<dof>", body-major, dof in DOF_NAMES order
+    vars    added_mass            (omega, influenced_dof, radiating_dof)   kg, kg m, kg m^2
+            radiation_damping     (omega, influenced_dof, radiating_dof)   N s/m, ...
+            excitation_force      (omega, wave_direction, influenced_dof)  complex, per metre of wave
+                                                                            amplitude, exp(-i w t)
+            hydrostatic_stiffness (influenced_dof, radiating_dof)          buoyancy + waterplane only
+                                                                            (no gravity terms)
+            reference_point       (body, xyz)   point the rotational modes refer to, global frame
+                                                at equilibrium (m)
+            added_mass_inf        (influenced_dof, radiating_dof)   optional; absent -> Ogilvie
+            displaced_volume      (body)        optional (m^3)
+            center_of_buoyancy    (body, xyz)   optional (m)
+            mass                  (body)        optional (kg): the body mass the file records
+            center_of_mass        (body, xyz)   optional (m): the centre of gravity the file records
+    attrs   rho, g, water_depth (float, inf for deep water), time_convention = "exp(-iwt)",
+            source (where it came from), hdb_schema_version = 1
+
+Time convention: a regular wave with elevation eta(t) = Re{a exp(-i w t)} at the origin gives the
+excitation force Re{a X(w) exp(-i w t)} (Capytaine's convention). Readers of exp(+i w t) formats
+(WAMIT, BEMIO/WEC-Sim) take the complex conjugate.
+
+Row index = force component (influenced), column = motion (radiating): F = -A a - B v.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import xarray as xr
+
+from hydrolink.protocol.errors import KeyedError
+
+DOF_NAMES: tuple[str, ...] = ("surge", "sway", "heave", "roll", "pitch", "yaw")
+TIME_CONVENTION = "exp(-iwt)"
+SCHEMA_VERSION = 1
+
+REQUIRED_VARS = {
+    "added_mass": ("omega", "influenced_dof", "radiating_dof"),
+    "radiation_damping": ("omega", "influenced_dof", "radiating_dof"),
+    "excitation_force": ("omega", "wave_direction", "influenced_dof"),
+    "hydrostatic_stiffness": ("influenced_dof", "radiating_dof"),
+    "reference_point": ("body", "xyz"),
+}
+OPTIONAL_VARS = {
+    "added_mass_inf": ("influenced_dof", "radiating_dof"),
+    "displaced_volume": ("body",),
+    "center_of_buoyancy": ("body", "xyz"),
+    "mass": ("body",),
+    "center_of_mass": ("body", "xyz"),
+}
+REQUIRED_ATTRS = ("rho", "g", "water_depth")
+
+
+class HDBError(KeyedError):
+    """A hydrodynamic database that cannot be used; the message names the file and the field."""
+
+    @property
+    def field(self) -> str:
+        """The file's field (variable, column, line) at fault: the error's key."""
+        return self.key
+
+
+def dof_labels(bodies: list[str]) -> list[str]:
+    """Mode labels "<body>.<dof>" in the schema's order (body-major)."""
+    return [f"{b}.{d}" for b in bodies for d in DOF_NAMES]
+
+
+def make_hdb(
+    *,
+    bodies: list[str],
+    omega: np.ndarray,
+    wave_direction: np.ndarray,
+    added_mass: np.ndarray,
+    radiation_damping: np.ndarray,
+    excitation_force: np.ndarray,
+    hydrostatic_stiffness: np.ndarray,
+    reference_point: np.ndarray,
+    rho: float,
+    g: float,
+    water_depth: float,
+    source: str,
+    added_mass_inf: np.ndarray | None = None,
+    displaced_volume: np.ndarray | None = None,
+    center_of_buoyancy: np.ndarray | None = None,
+    mass: np.ndarray | None = None,
+    center_of_mass: np.ndarray | None = None,
+) -> xr.Dataset:
+    """Assemble an HDB dataset in the schema's layout from plain arrays (already converted to
+    SI units and the exp(-iwt) convention), then validate it."""
+    labels = dof_labels(list(bodies))
+    data_vars = {
+        "added_mass": (REQUIRED_VARS["added_mass"], np.asarray(added_mass, float)),
+        "radiation_damping": (REQUIRED_VARS["radiation_damping"], np.asarray(radiation_damping, float)),
+        "excitation_force": (REQUIRED_VARS["excitation_force"], np.asarray(excitation_force, complex)),
+        "hydrostatic_stiffness": (REQUIRED_VARS["hydrostatic_stiffness"], np.asarray(hydrostatic_stiffness, float)),
+        "reference_point": (REQUIRED_VARS["reference_point"], np.asarray(reference_point, float)),
+    }
+    for name, value in (("added_mass_inf", added_mass_inf), ("displaced_volume", displaced_volume),
+                        ("center_of_buoyancy", center_of_buoyancy), ("mass", mass),
+                        ("center_of_mass", center_of_mass)):
+        if value is not None:
+            data_vars[name] = (OPTIONAL_VARS[name], np.asarray(value, float))
+    ds = xr.Dataset(
+        data_vars,
+        coords={
+            "omega": np.asarray(omega, float),
+            "wave_direction": np.asarray(wave_direction, float),
+            "body": list(bodies),
+            "xyz": ["x", "y", "z"],
+            "influenced_dof": labels,
+            "radiating_dof": labels,
+        },
+        attrs={
+            "rho": float(rho), "g": float(g), "water_depth": float(water_depth),
+            "time_convention": TIME_CONVENTION, "source": str(source),
+            "hdb_schema_version": SCHEMA_VERSION,
+        },
+    )
+    return validate_hdb(ds, source)
+
+
+def validate_hdb(ds: xr.Dataset, source: str | Path) -> xr.Dataset:
+    """Check an HDB dataset against the schema; raise HDBError naming the file and field.
+
+    Returns the dataset with every variable transposed to the schema's dimension order."""
+    for attr in REQUIRED_ATTRS:
+        if attr not in ds.attrs:
+            raise HDBError(source, attr, "missing attribute")
+        try:
+            value = float(ds.attrs[attr])
+        except (TypeError, ValueError):
+            raise HDBError(source, attr, f"must be a number, got {ds.attrs[attr]!r}") from None
+        if attr == "water_depth":
+            if not value > 0:
+                raise HDBError(source, attr, f"must be > 0 or inf, got {value}")
+        elif not (np.isfinite(value) and value > 0):
+            raise HDBError(source, attr, f"must be finite and > 0, got {value}")
+    if ds.attrs.get("time_convention", TIME_CONVENTION) != TIME_CONVENTION:
+        raise HDBError(source, "time_convention",
+                       f"must be {TIME_CONVENTION!r} (convert at the reader), got {ds.attrs['time_convention']!r}")
+    for coord in ("omega", "body", "influenced_dof", "radiating_dof", "wave_direction"):
+        if coord not in ds.coords:
+            raise HDBError(source, coord, "missing coordinate")
+    omega = np.asarray(ds["omega"].values, float)
+    if omega.ndim != 1 or omega.size < 2:
+        raise HDBError(source, "omega", f"needs at least 2 frequencies, got {omega.size}")
+    if not np.all(np.isfinite(omega)) or omega[0] <= 0:
+        raise HDBError(source, "omega", "must be finite and > 0 (zero/infinite frequency rows go elsewhere)")
+    if np.any(np.diff(omega) <= 0):
+        i = int(np.argmax(np.diff(omega) <= 0))
+        raise HDBError(source, "omega", f"must be strictly increasing; omega[{i + 1}]={omega[i + 1]} "
+                                        f"follows omega[{i}]={omega[i]}")
+    bodies = [str(b) for b in ds["body"].values]
+    expected = dof_labels(bodies)
+    for coord in ("influenced_dof", "radiating_dof"):
+        got = [str(v) for v in ds[coord].values]
+        if got != expected:
+            raise HDBError(source, coord, f"labels must be {expected}, got {got}")
+    sizes = dict(ds.sizes)
+    out = {}
+    for name, dims in {**REQUIRED_VARS, **{k: v for k, v in OPTIONAL_VARS.items() if k in ds}}.items():
+        if name not in ds:
+            raise HDBError(source, name, "missing variable")
+        var = ds[name]
+        if set(var.dims) != set(dims):
+            raise HDBError(source, name, f"dimensions must be {dims}, got {var.dims}")
+        var = var.transpose(*dims)
+        want = tuple(sizes[d] for d in dims)
+        if var.shape != want:
+            raise HDBError(source, name, f"shape must be {want}, got {var.shape}")
+        values = np.asarray(var.values)
+        if not np.all(np.isfinite(values)):
+            bad = np.argwhere(~np.isfinite(values))[0]
+            where = ", ".join(f"{d}={ds[d].values[i].item()!r}" if d in ds.coords else f"{d}={i}"
+                              for d, i in zip(dims, bad))
+            raise HDBError(source, name, f"contains NaN or inf (first at {where})")
+        out[name] = var
+    if not np.iscomplexobj(out["excitation_force"].values):
+        out["excitation_force"] = out["excitation_force"].astype(complex)
+    return ds.assign(out)
+
+
+def to_netcdf(ds: xr.Dataset, path: str | Path) -> None:
+    """Write an HDB in hydrolink's own NetCDF form (complex excitation split into re/im)."""
+    ds = validate_hdb(ds, path)
+    exc = ds["excitation_force"]
+    out = ds.drop_vars("excitation_force").assign(
+        excitation_force_re=exc.real, excitation_force_im=exc.imag)
+    out.attrs["hydrolink_hdb"] = 1
+    out.to_netcdf(path, engine="netcdf4")
+
+
+def from_netcdf_dataset(raw: xr.Dataset, source: str | Path) -> xr.Dataset:
+    """Inverse of :func:`to_netcdf` for an already opened dataset."""
+    for part in ("excitation_force_re", "excitation_force_im"):
+        if part not in raw:
+            raise HDBError(source, part, "missing variable")
+    exc = raw["excitation_force_re"] + 1j * raw["excitation_force_im"]
+    ds = raw.drop_vars(["excitation_force_re", "excitation_force_im"]).assign(excitation_force=exc)
+    return validate_hdb(ds, source)
+
+
+def select_bodies(ds: xr.Dataset, bodies: list[str]) -> xr.Dataset:
+    """Sub-HDB holding only ``bodies`` (their own blocks and the blocks between them)."""
+    missing = [b for b in bodies if b not in list(ds["body"].values)]
+    if missing:
+        raise HDBError(ds.attrs.get("source", "?"), "body",
+                       f"no body named {missing} (the file holds {list(map(str, ds['body'].values))})")
+    labels = dof_labels(bodies)
+    return ds.sel(body=bodies, influenced_dof=labels, radiating_dof=labels)
+
+
