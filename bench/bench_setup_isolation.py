@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hydrolink.clients.connection import ServerConnection
+from hydrolink.clients.lockstep.connection import ServerConnection
 from hydrolink.clients.run import load_scene_hdbs
 from hydrolink.protocol.scene import parse_scene
 

@@ -496,7 +496,7 @@ def test_step_pipelined_behind_a_deferred_step_is_answered_in_order(reference_da
     and handled after it: forces seq 1 (the command of step 0) then forces seq 2 (the command of
     step 1), each with its own decision. Before, seq 2 replaced the deferred reply and seq 1 was
     never answered. A ``measure`` with ``wait`` = nil is one without ``wait`` (SPEC §2)."""
-    from hydrolink.clients.connection import ServerConnection
+    from hydrolink.clients.lockstep.connection import ServerConnection
     from hydrolink.clients.run import load_scene_hdbs
     from hydrolink.protocol import codec
     from hydrolink.protocol.scene import parse_scene
