@@ -252,8 +252,14 @@ def without_nil(msg: dict, depth: int = 0) -> dict:
     """The request map with every nil entry removed, in nested maps too (SPEC §2: a field whose
     value is nil counts as absent): one rule for every optional field, applied once on receipt.
     Array maps (§2.1) are values and lists hold values, not fields: both are left as sent, as are
-    maps nested deeper than MAX_TREE_DEPTH (:func:`decode_tree` refuses them)."""
+    maps nested deeper than MAX_TREE_DEPTH (:func:`decode_tree` refuses them). A map with neither
+    nil nor a nested map is returned as it is (a step: no copy on the hot path)."""
     if depth > MAX_TREE_DEPTH:
+        return msg
+    for v in msg.values():
+        if v is None or (type(v) is dict and not _is_array_map(v)):
+            break
+    else:
         return msg
     return {k: without_nil(v, depth + 1) if type(v) is dict and not _is_array_map(v) else v
             for k, v in msg.items() if v is not None}
