@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-_CHUNK = 2048  # rows of the cos/sin table evaluated at once (bounds memory for long IRFs)
+COS_TABLE_ROWS = 2048  # rows of the cos/sin table evaluated at once (bounds memory for long IRFs)
 
 
 def trapezoid_weights(x: np.ndarray) -> np.ndarray:
@@ -42,8 +42,8 @@ def radiation_irf(omega: np.ndarray, damping: np.ndarray, t: np.ndarray) -> np.n
     b = np.concatenate((np.zeros((1, *damping.shape[1:])), damping)).reshape(w.size, -1)
     bw = (2.0 / np.pi) * trapezoid_weights(w)[:, None] * b  # (n_w+1, n*n)
     out = np.empty((t.size, b.shape[1]))
-    for s in range(0, t.size, _CHUNK):
-        out[s:s + _CHUNK] = np.cos(np.outer(t[s:s + _CHUNK], w)) @ bw
+    for s in range(0, t.size, COS_TABLE_ROWS):
+        out[s:s + COS_TABLE_ROWS] = np.cos(np.outer(t[s:s + COS_TABLE_ROWS], w)) @ bw
     return out.reshape((t.size, *damping.shape[1:]))
 
 
@@ -51,8 +51,8 @@ def _sine_transform(omega: np.ndarray, t: np.ndarray, k: np.ndarray, fun=np.sin)
     """int_0^T k(t) fun(w t) dt by the trapezoid rule over t: (n_t, ...) -> (n_w, ...)."""
     kw = trapezoid_weights(t)[:, None] * k.reshape(t.size, -1)
     out = np.zeros((omega.size, kw.shape[1]))
-    for s in range(0, t.size, _CHUNK):
-        out += fun(np.outer(omega, t[s:s + _CHUNK])) @ kw[s:s + _CHUNK]
+    for s in range(0, t.size, COS_TABLE_ROWS):
+        out += fun(np.outer(omega, t[s:s + COS_TABLE_ROWS])) @ kw[s:s + COS_TABLE_ROWS]
     return out.reshape((omega.size, *k.shape[1:]))
 
 
@@ -170,6 +170,8 @@ def taper_window(t: np.ndarray, duration: float, fraction: float) -> np.ndarray:
     if fraction <= 0:
         return np.ones_like(t)
     t1 = (1.0 - fraction) * duration
+    if not duration > t1:   # a fraction too small to shorten the IRF by anything
+        return np.ones_like(t)
     u = np.clip((t - t1) / (duration - t1), 0.0, 1.0)
     return 0.5 * (1.0 + np.cos(np.pi * u))
 

@@ -22,8 +22,10 @@ from typing import ClassVar, Protocol
 import numpy as np
 
 from hydrolink.protocol.scene import Hydro, Waves
+from hydrolink.server.allocation import require_size
 from hydrolink.server.errors import ModelError
-from hydrolink.server.irf import (aliasing_time, asymptotic_tail, irf_report, irf_transfer, ogilvie_added_mass_inf,
+from hydrolink.server.irf import (COS_TABLE_ROWS, aliasing_time, asymptotic_tail, irf_report, irf_transfer,
+                                  ogilvie_added_mass_inf,
                                   ogilvie_report, radiation_irf, resample_damping, taper_window)
 from hydrolink.server.radiation import RadiationMemory
 from hydrolink.server.state_space import StateSpaceError, StateSpaceRadiation
@@ -222,7 +224,9 @@ class RadiationOption:
         self.hydro, self.dt = hydro, float(dt)
         self.duration = float(hydro.irf_duration)
         self.samples = int(round(self.duration / self.dt))
+        self._key = "hydro.irf_duration" if self.samples > 0 else "simulation.dt"
         m = self.samples if self.samples > 0 else int(round(OGILVIE_DEFAULT_DURATION / self.dt))
+        require_size(self._key, "the IRF's time grid", (m + 1,), hint=self._hint)
         self.t = np.arange(m + 1) * self.dt
         self.taper = float(hydro.irf_taper) if self.samples > 0 else 0.0
         self._window = taper_window(self.t, self.duration, self.taper)[:, None, None] if self.taper > 0 else None
@@ -272,16 +276,32 @@ class RadiationOption:
         """Setup ``state_space``: None except for "state-space"."""
         return None
 
+    @property
+    def _hint(self) -> str:
+        return (f"at dt = {self.dt:g} s the IRF has one sample per step: a shorter hydro.irf_duration "
+                f"({self.duration:g} s) or a longer dt")
+
     def _irf(self, g: RadiationGroup) -> GroupIrf:
         """B(w) resampled and tailed as the scene asks, K(t) on the step grid (tapered), A_inf."""
         hyd = self.hydro
         omega, damping, tail = g.omega, g.damping, None
+        pairs = damping.shape[1] * damping.shape[2]
         if hyd.irf_domega is not None:
+            require_size("hydro.irf_domega", "B(w) resampled", (float(omega[-1]) / hyd.irf_domega + 2, pairs),
+                         hint=f"a coarser step than {hyd.irf_domega:g} rad/s up to w_max = {omega[-1]:.4g} rad/s")
             omega, damping = resample_damping(omega, damping, float(hyd.irf_domega))
         if hyd.irf_tail == "asymptotic":
             cutoff = hyd.irf_tail_cutoff or TAIL_CUTOFF_FACTOR * omega[-1]
+            step = float(omega[-1] - omega[-2])
+            require_size("hydro.irf_tail_cutoff", "B(w)'s asymptotic tail", ((cutoff - omega[-1]) / step + 1, pairs),
+                         hint=f"a lower cutoff than {cutoff:g} rad/s (the tail continues the HDB's spacing "
+                              f"{step:.3g} rad/s)")
             omega, damping, n_tail = asymptotic_tail(omega, damping, float(cutoff))
             tail = float(np.median(np.diagonal(n_tail)))
+        require_size(self._key, "the radiation IRF K(t)", (self.t.size, pairs), hint=self._hint)
+        require_size("hydro.irf_domega" if hyd.irf_domega is not None else "hydro.irf_tail_cutoff",
+                     "the IRF's cosine table", (min(self.t.size, COS_TABLE_ROWS), omega.size + 1),
+                     hint="fewer frequencies in B(w)")
         self._check_work(omega.size)
         k = radiation_irf(omega, damping, self.t)
         if self._window is not None:
@@ -294,11 +314,10 @@ class RadiationOption:
         """Refuse an IRF whose transforms cost more than MAX_IRF_PRODUCTS (before computing it)."""
         products = self.t.size * (n_omega + 1)
         if products > MAX_IRF_PRODUCTS:
-            key = "hydro.irf_duration" if self.samples > 0 else "simulation.dt"
-            raise ModelError(key, f"the IRF of {self.t.size} samples (irf_duration / dt) over {n_omega} frequencies "
-                                  f"is {products:.3g} sample-frequency products per transform, over the set-up "
-                                  f"bound of {MAX_IRF_PRODUCTS:.3g}: shorten hydro.irf_duration, raise "
-                                  "simulation.dt or resample coarser with hydro.irf_domega")
+            raise ModelError(self._key, f"the IRF of {self.t.size} samples (irf_duration / dt) over {n_omega} "
+                                        f"frequencies is {products:.3g} sample-frequency products per transform, over "
+                                        f"the set-up bound of {MAX_IRF_PRODUCTS:.3g}: {self._hint}, or resample "
+                                        "coarser with hydro.irf_domega")
 
     def _check_aliasing(self, irf: GroupIrf, source: str, warnings: list[str]) -> None:
         """A badly sampled HDB: the transform of B on a grid of spacing dw repeats with period
