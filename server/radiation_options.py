@@ -24,9 +24,9 @@ import numpy as np
 from hydrolink.protocol.scene import Hydro, Waves
 from hydrolink.server.allocation import require_size
 from hydrolink.server.errors import ModelError
-from hydrolink.server.irf import (COS_TABLE_ROWS, aliasing_time, asymptotic_tail, irf_report, irf_transfer,
-                                  ogilvie_added_mass_inf,
-                                  ogilvie_report, radiation_irf, resample_damping, taper_window)
+from hydrolink.server.irf import (COS_TABLE_ROWS, RINGING_WARN, RINGING_WINDOW, aliasing_time, asymptotic_tail,
+                                  irf_report, irf_transfer, ogilvie_added_mass_inf, ogilvie_report, radiation_irf,
+                                  resample_damping, ringing_at_cut, taper_window)
 from hydrolink.server.radiation import RadiationMemory
 from hydrolink.server.state_space import StateSpaceError, StateSpaceRadiation
 from hydrolink.server.state_space_cache import FitCache, FitSettings, default_cache_dir
@@ -259,6 +259,7 @@ class RadiationOption:
                 fit_a[g.source] = max(ogilvie_report(g.omega, g.added_mass, irf.added_mass_inf, self.t,
                                                      irf.kernel)["worst"], fit_a.get(g.source, 0.0))
                 self._check_aliasing(irf, g.source, log.warnings)
+                self._check_ringing(irf, g, log.warnings)
         hyd = self.hydro
         report = RadiationReport(
             radiation=self.name, irf_samples=self.samples, irf_duration=self.samples * self.dt,
@@ -340,6 +341,22 @@ class RadiationOption:
         warning = f"hydro.irf_duration: {why}"
         if warning not in warnings:
             warnings.append(warning)
+
+
+    def _check_ringing(self, irf: GroupIrf, g: RadiationGroup, warnings: list[str]) -> None:
+        """A memory cut sharply while K(t) still rings (irf.py ``ringing_at_cut``): warned, unless
+        the scene states ``irf_taper = 0`` (a sharp cut chosen, e.g. checked against the effective
+        coefficients it realises)."""
+        if self.taper > 0 or "irf_taper" in self.hydro.model_fields_set or not irf.kernel.size:
+            return
+        share, (i, j) = ringing_at_cut(self.t, irf.kernel, self.duration, g.act % 6 >= 3)
+        if share > RINGING_WARN:
+            warnings.append(
+                f"hydro.irf_duration: K(t) of {g.source!r} ({g.labels[i]}, {g.labels[j]}) is still at "
+                f"{100 * share:.3g} % of the peak of its kind over the last {100 * RINGING_WINDOW:g} % of the "
+                f"{self.duration:g} s kept (warned above {100 * RINGING_WARN:g} %): the sharp cut changes the "
+                "radiation damping near the frequency it rings at; lengthen hydro.irf_duration, or taper "
+                "the cut with hydro.irf_taper (e.g. 0.3; irf_taper = 0 stated keeps the sharp cut)")
 
 
 class OffOption(RadiationOption):
