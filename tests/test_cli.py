@@ -116,8 +116,8 @@ def test_water_that_differs_from_the_hdb_is_said_and_kept_with_the_results(scene
     write_scene(scene_dir, text, "salty.toml")
     result = _cli("run", "salty.toml", "-o", "salty.nc", "--no-progress", cwd=scene_dir)
     assert result.returncode == 0, result.stderr
-    expect = "the scene's density 1025 kg/m^3 and gravity 9.81 m/s^2 differ from the HDB"
-    assert expect in result.stderr and "(1000 kg/m^3" in result.stderr
+    expect = "the scene's density 1025 kg/m^3 differs from the HDB"
+    assert expect in result.stderr and "(1000 kg/m^3; gravity 9.81 m/s^2 in both)" in result.stderr
     with xr.open_dataset(scene_dir / "salty.nc") as ds:
         notes = json.loads(ds.attrs["warnings"])
     assert any(expect in n and "sphere.h5" in n for n in notes), notes
