@@ -189,6 +189,34 @@ def test_hdb_build_writes_a_loadable_hdb_and_caches(tmp_path: Path):
         pytest.approx(1000 * 9.81 * np.pi, rel=0.02)
 
 
+def test_first_build_on_a_fresh_machine_says_what_happens_in_one_plain_line(tmp_path: Path):
+    """A fresh Capytaine cache (its Green function not tabulated yet): `hdb build` prints one plain
+    line of hydrolink's saying Capytaine tabulates once, never Capytaine's timestamped
+    `WARNING capytaine...: Precomputing tabulation`; the tabulation is really made (its file in
+    the fresh cache) and the next build, which loads it, says nothing of it."""
+    (tmp_path / "sphere.toml").write_text(textwrap.dedent("""\
+        [body]
+        name = "ball"
+        shape = "sphere"
+        radius = 1.0
+        panel_size = 0.5
+        [frequencies]
+        values = [1.0, 2.0]
+        """))
+    env = {**os.environ, "CAPYTAINE_CACHE_DIR": str(tmp_path / "capytaine")}
+    runs = []
+    for out in ("a.nc", "b.nc"):
+        env["HYDROLINK_CACHE"] = str(tmp_path / f"cache-{out}")      # no HDB cache hit: Capytaine runs both times
+        runs.append(subprocess.run([*HYDROLINK, "hdb", "build", "sphere.toml", "-o", out], cwd=tmp_path,
+                                   capture_output=True, text=True, timeout=600, env=env))
+        assert runs[-1].returncode == 0, runs[-1].stderr
+    first, second = runs[0].stderr, runs[1].stderr
+    assert "Precomputing tabulation" not in first + second and "WARNING" not in first + second, first
+    line = "hdb build: Capytaine is tabulating its Green function, once on this machine (a few seconds; kept in "
+    assert first.count(line) == 1 and line not in second
+    assert list((tmp_path / "capytaine").rglob("tabulation_*.npz"))
+
+
 def test_hdb_build_bad_spec_names_the_key(tmp_path: Path):
     (tmp_path / "bad.toml").write_text('[body]\nname = "b"\nshape = "sphere"\n[frequencies]\nvalues = [1.0, 2.0]\n')
     result = _cli("hdb", "build", "bad.toml", "-o", "b.nc", cwd=tmp_path)
