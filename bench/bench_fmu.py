@@ -76,7 +76,7 @@ def drive_fmu(path: Path, server: str, steps: int, tmp: Path) -> float:
 
 
 def drive_client(folder: Path, server: str, steps: int) -> float:
-    from hydrolink.clients.connection import ServerConnection
+    from hydrolink.clients.lockstep.connection import ServerConnection
     from hydrolink.server.hdb.io import file_set
     with ServerConnection(server) as conn:
         setup = conn.hello(SCENE, {"sphere.h5": file_set(folder / "sphere.h5")})

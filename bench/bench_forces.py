@@ -136,7 +136,7 @@ def rm3_power(duration: float = 400.0) -> None:
     import tomllib
     import tempfile
     import xarray as xr
-    from hydrolink.clients.grid import absolute_paths, dump_toml
+    from hydrolink.clients.studies.grid import absolute_paths, dump_toml
     from hydrolink.clients.run import run_scene_file
     rm3 = REPO / "examples" / "rm3" / "rm3.toml"
     base = absolute_paths(tomllib.loads(rm3.read_text()), rm3)

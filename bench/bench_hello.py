@@ -26,7 +26,7 @@ from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-from hydrolink.clients.connection import ServerConnection  # noqa: E402
+from hydrolink.clients.lockstep.connection import ServerConnection  # noqa: E402
 from hydrolink.clients.run import load_scene_hdbs  # noqa: E402
 from hydrolink.protocol import codec  # noqa: E402
 from hydrolink.protocol.hdb_wire import HDBFiles, to_wire  # noqa: E402

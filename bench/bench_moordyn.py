@@ -124,9 +124,9 @@ def static_comparison(folder: Path) -> list[tuple[float, float, float, float]]:
     with a frictionless seabed."""
     from scipy.optimize import fsolve
 
-    from hydrolink.clients.exudyn_client import build_model
-    from hydrolink.clients.moordyn_mooring import load_moordyn_files
-    from hydrolink.clients.moorings import rope_properties
+    from hydrolink.clients.exudyn.client import build_model
+    from hydrolink.clients.exudyn.moordyn_mooring import load_moordyn_files
+    from hydrolink.clients.exudyn.moorings import rope_properties
     from hydrolink.protocol.scene import RopeMooring, Water, parse_scene
 
     water = Water(density=1000.0, gravity=9.81, depth=DEPTH)

@@ -1,5 +1,5 @@
 """Remote lockstep under latency (docs/remote.md): steps/s versus one-way delay with the force server,
-the multibody client and a controller each in its own network namespace (clients/netlab.py), the
+the multibody client and a controller each in its own network namespace (tests/netlab.py), the
 results checked bit for bit against the same run on loopback; and the throughput option
 ``[coupling] exchange_every = k`` — its steps/s under latency and its accuracy cost against
 lockstep (k = 1) on RM3.
@@ -22,9 +22,10 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from hydrolink.clients import netlab
-
 REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "tests"))
+import netlab  # noqa: E402  (tests/netlab.py)
+
 DATA = REPO / "examples" / "data"
 HYDROLINK = [sys.executable, "-m", "hydrolink.clients.cli"]
 COMPARED = ("position", "velocity", "excitation_force", "radiation_force", "pto_force", "pto_power")

@@ -39,7 +39,7 @@ def main() -> None:
     work = Path(tempfile.mkdtemp(prefix="bench-security-"))
     import tomllib
 
-    from hydrolink.clients.grid import absolute_paths, dump_toml
+    from hydrolink.clients.studies.grid import absolute_paths, dump_toml
     rm3 = REPO / "examples" / "rm3" / "rm3.toml"
     doc = absolute_paths(tomllib.loads(rm3.read_text()), rm3)
     doc["simulation"]["duration"] = args.duration

@@ -31,7 +31,7 @@ sys.path.insert(0, str(REPO / "tests"))
 
 from test_stability import cummins, heave, kernel, scene_text, simulate  # noqa: E402
 
-from hydrolink.clients.exudyn_client import RunInterrupted  # noqa: E402
+from hydrolink.clients.exudyn.client import RunInterrupted  # noqa: E402
 from hydrolink.protocol.scene import SceneError  # noqa: E402
 from hydrolink.server.hdb.io import load_hdb  # noqa: E402
 

@@ -17,9 +17,9 @@ def _user_errors():
     """Exception types that are the user's input at fault and deserve a one-line message."""
     from hydrolink.protocol.scene import SceneError
     from hydrolink.server.hdb.schema import HDBError
-    from hydrolink.clients.connection import RemoteError
+    from hydrolink.clients.lockstep.connection import RemoteError
     errors: list[type[BaseException]] = [SceneError, HDBError, FileNotFoundError, RemoteError]
-    from hydrolink.clients.exudyn_client import RunInterrupted
+    from hydrolink.clients.exudyn.client import RunInterrupted
     from hydrolink.server.model import ModelError
     errors += [ModelError, RunInterrupted]
     return tuple(errors)
@@ -307,7 +307,7 @@ def control(file: Path, server: str, session: str | None, name: str | None, clas
 def steady(scene: Path, output: Path | None, order: int | None, formulation: str | None, dt: float | None,
            no_progress: bool) -> None:
     """Periodic steady state of a SCENE in regular waves by pseudo-spectral collocation (docs/steady.md)."""
-    from hydrolink.clients.steady import SteadyError, steady_scene_file
+    from hydrolink.clients.studies.steady import SteadyError, steady_scene_file
 
     try:
         s = _guard(steady_scene_file, scene, output, order=order, formulation=formulation, dt=dt,
@@ -329,7 +329,7 @@ def bench() -> None:
 @bench.command("accuracy")
 @click.argument("scene", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--grid", "grid_file", type=click.Path(dir_okay=False, exists=True, path_type=Path),
-              help="TOML grid of options (clients/accuracy.py); combined with the flags below.")
+              help="TOML grid of options (clients/studies/accuracy.py); combined with the flags below.")
 @click.option("--dt", help="Comma-separated simulation.dt values.")
 @click.option("--irf-duration", help="Comma-separated hydro.irf_duration values (s).")
 @click.option("--radiation", help="Comma-separated hydro.radiation methods.")
@@ -352,7 +352,7 @@ def bench_accuracy_cmd(scene: Path, grid_file: Path | None, dt, irf_duration, ra
                        reduce, nonlinear, refs, mode, duration, window, output: Path, title, keep_runs: bool,
                        repeat: int) -> None:
     """Run SCENE under a grid of options against a reference run; table + plots of error vs cost."""
-    from hydrolink.clients.accuracy import BenchError, Grid, bench_accuracy, grid_from_flags
+    from hydrolink.clients.studies.accuracy import BenchError, Grid, bench_accuracy, grid_from_flags
 
     try:
         base = Grid.from_toml(grid_file) if grid_file else None
@@ -384,8 +384,8 @@ def sweep_cmd(sweep_file: Path, output: Path | None, workers: int | None, schedu
               no_progress: bool) -> None:
     """Run every case of a SWEEP_FILE (TOML: a scene and a grid of its keys) on Dask; writes each
     case's results, sweep.nc (one dimension per swept key), the power matrix / AEP and plots (docs/sweeps.md)."""
-    from hydrolink.clients.power_matrix import PowerMatrixError
-    from hydrolink.clients.sweep import SweepError, run_sweep
+    from hydrolink.clients.studies.power_matrix import PowerMatrixError
+    from hydrolink.clients.studies.sweep import SweepError, run_sweep
 
     if workers and scheduler:
         raise _UserError("--workers and --scheduler: give one (the scheduler's workers are its own)")
@@ -426,7 +426,7 @@ def fmu() -> None:
 def fmu_export(scene: Path, output: Path, native: bool, fmi: str) -> None:
     """Export the SCENE's hydrodynamic forces as an FMU (inputs: body states; outputs: forces)."""
     if native:
-        from hydrolink.clients.fmu_native import NativeFMUError, export_native_fmu
+        from hydrolink.clients.fmu.native import NativeFMUError, export_native_fmu
         try:
             path, notes = _guard(export_native_fmu, scene, output, fmi=int(fmi))
         except NativeFMUError as exc:
@@ -434,7 +434,7 @@ def fmu_export(scene: Path, output: Path, native: bool, fmi: str) -> None:
     elif fmi != "2":
         raise _UserError("--python FMUs are FMI 2.0 only (use --native for FMI 3.0)")
     else:
-        from hydrolink.clients.fmu_export import export_fmu
+        from hydrolink.clients.fmu.export import export_fmu
         path, notes = _guard(export_fmu, scene, output)
     for note in notes:
         click.echo(f"note: {note}", err=True)

@@ -121,9 +121,9 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
     stay down (SPEC §1) before the run ends (its rows kept); ``hdb_files``: send the HDBs as their
     files by SHA-256 (:func:`load_scene_hdbs` ``as_files``; the summary's ``hdb_uploads`` counts
     the contents the server lacked)."""
-    from hydrolink.clients.connection import ServerConnection
-    from hydrolink.clients.exudyn_client import result_bodies, run
-    from hydrolink.clients.results import ResultWriter
+    from hydrolink.clients.lockstep.connection import ServerConnection
+    from hydrolink.clients.exudyn.client import result_bodies, run
+    from hydrolink.clients.lockstep.results import ResultWriter
 
     scene_path = Path(scene_path)
     scene, text = load_scene(scene_path)
@@ -132,7 +132,7 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
     series = load_wave_elevation(scene, scene_path)
     moordyn_files = None
     if any(getattr(m, "type", "") == "moordyn" for m in scene.moorings):
-        from hydrolink.clients.moordyn_mooring import load_moordyn_files
+        from hydrolink.clients.exudyn.moordyn_mooring import load_moordyn_files
         moordyn_files = load_moordyn_files(scene, scene_path)
     output = Path(output) if output else scene_path.with_suffix(".out.nc")
     if not scene.served_bodies:
@@ -180,7 +180,7 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
                                                   bodies=names, equilibrium_position=reference,
                                                   flush_seconds=scene.simulation.flush_seconds))
         if scene.client.type == "fmu":
-            from hydrolink.clients.fmu_client import run as run_fmu
+            from hydrolink.clients.fmu.master import run as run_fmu
             summary = run_fmu(scene, text, conn, setup, writer, scene_path=scene_path, progress=progress)
         else:
             summary = run(scene, text, conn, setup, writer, progress=progress, moordyn_files=moordyn_files)

@@ -180,7 +180,7 @@ class Hydro(_Section):
 
 class Coupling(_Section):
     """How the multibody client (Exudyn or an FMU) and the force server exchange (README "Coupling
-    schemes", docs/stability.md; clients/coupling_schemes.py).
+    schemes", docs/stability.md; clients/lockstep/coupling_schemes.py).
 
     scheme: "auto" (default) - "mass-matrix" when the client can take A_inf in its mass matrix (the
     Exudyn client always; an FMU when its added_mass parameters cover A_inf), else "implicit" when it
@@ -207,7 +207,7 @@ class Coupling(_Section):
 class Steady(_Section):
     """``hydrolink steady``: periodic steady state in regular waves by pseudo-spectral collocation
     (Fourier series of ``order`` harmonics, collocated at 2 order + 1 points over one period, Newton
-    on the nonlinear terms; clients/steady.py, docs/steady.md)."""
+    on the nonlinear terms; clients/studies/steady.py, docs/steady.md)."""
     order: Annotated[int, Field(ge=1, le=200)] = 10
     formulation: Literal["dae", "ode"] = "dae"     # body coordinates + multipliers | null space of G
     tolerance: Annotated[float, Field(gt=0, lt=1, allow_inf_nan=False)] = 1e-10  # Newton, relative residual
@@ -556,7 +556,7 @@ class RopeMooring(_Section):
 class MoorDynMooring(_Section):
     """A MoorDyn v2 mooring system (lumped-mass lines with seabed contact): its own input ``file``
     (relative to the scene) holds the lines, its time step dtM, initial-condition and output
-    options; hydrolink steps it every multibody step (clients/moordyn_mooring.py).
+    options; hydrolink steps it every multibody step (clients/exudyn/moordyn_mooring.py).
 
     bodies: the scene bodies driving the file's coupled bodies, in the file's order (pose = the scene
     body's reference point and Tait-Bryan xyz angles; the file's points on a coupled body are
@@ -657,7 +657,7 @@ class FMUCoupling(_Section):
 
 class ExudynClient(_Section):
     """The Exudyn multibody client. ``reduce``: bodies whose locked DOFs need no rigid-body node are
-    built with their active coordinates only (clients/mechanism.py, "Reduced bodies"); false keeps
+    built with their active coordinates only (clients/exudyn/mechanism.py, "Reduced bodies"); false keeps
     every body a 6-DOF rigid body with its locked DOFs as coordinate constraints."""
     type: Literal["exudyn"]
     reduce: bool = True

@@ -14,7 +14,7 @@ import pytest
 from conftest import (SPHERE_WATER, build_zmq_msgpack_program, regular_waves, scene_toml, serve_process,
                       sphere_body, write_scene)
 
-from hydrolink.clients.connection import ServerConnection
+from hydrolink.clients.lockstep.connection import ServerConnection
 from hydrolink.server.hdb.io import load_hdb
 
 SOURCE = Path(__file__).resolve().parents[1] / "examples" / "clients" / "c" / "heave.c"

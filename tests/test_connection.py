@@ -1,4 +1,4 @@
-"""clients/connection.py: ZeroMQ heartbeats and the link watch. A server killed (SIGKILL) while a
+"""clients/lockstep/connection.py: ZeroMQ heartbeats and the link watch. A server killed (SIGKILL) while a
 reply is pending is noticed within about a second (its host refuses the reconnects), not after
 the receive timeout, with a line naming the server; a slow but live server is waited for. Lossy
 links and outages: tests/test_remote.py (network namespaces)."""
@@ -17,7 +17,7 @@ import zmq
 
 from analytic_hdb import make_body_hdb
 from conftest import body, regular_waves, scene_toml
-from hydrolink.clients.connection import ServerConnection
+from hydrolink.clients.lockstep.connection import ServerConnection
 from hydrolink.protocol import codec
 
 HYDROLINK = [sys.executable, "-m", "hydrolink.clients.cli"]

@@ -321,7 +321,7 @@ def test_malformed_commands_get_clear_errors_and_the_fallback(reference_data, se
 
 def test_wrong_session_version_and_name(reference_data, server, tmp_path):
     """Raw messages against a session with a controller: clear errors, the session unharmed."""
-    from hydrolink.clients.connection import ServerConnection
+    from hydrolink.clients.lockstep.connection import ServerConnection
     from hydrolink.clients.run import load_scene_hdbs
     from hydrolink.protocol.scene import parse_scene
 
@@ -375,7 +375,7 @@ def test_wrong_session_version_and_name(reference_data, server, tmp_path):
 
 
 def test_in_process_server_refuses_controllers(reference_data, tmp_path):
-    from hydrolink.clients.connection import RemoteError, ServerConnection
+    from hydrolink.clients.lockstep.connection import RemoteError, ServerConnection
     from hydrolink.clients.run import load_scene_hdbs
     from hydrolink.protocol.scene import parse_scene
     from hydrolink.server.service import ForceServer

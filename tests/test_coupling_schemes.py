@@ -1,4 +1,4 @@
-"""Each coupling scheme (clients/coupling_schemes.py) driven by the lockstep loop (clients/lockstep.py)
+"""Each coupling scheme (clients/lockstep/coupling_schemes.py) driven by the lockstep loop (clients/lockstep/driver.py)
 against the real force server, with a multibody code written here: one heaving sphere integrated by
 the average-acceleration Newmark rule in numpy — no Exudyn. References: the monolithic Cummins
 integration of tests/test_stability.py, and the added-mass instability's known threshold A∞/m = 1."""
@@ -8,10 +8,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hydrolink.clients.connection import ServerConnection
-from hydrolink.clients.coupling_schemes import Iterated, Predictor, Staggered, make_scheme
-from hydrolink.clients.lockstep import DivergenceWatch, ForceLink, Lockstep, SimulationDiverged, run
-from hydrolink.clients.results import ResultWriter
+from hydrolink.clients.lockstep.connection import ServerConnection
+from hydrolink.clients.lockstep.coupling_schemes import Iterated, Predictor, Staggered, make_scheme
+from hydrolink.clients.lockstep.driver import DivergenceWatch, ForceLink, Lockstep, SimulationDiverged, run
+from hydrolink.clients.lockstep.results import ResultWriter
 from hydrolink.server.service import ForceServer
 from test_stability import HEAVE, a33, c33, decay_reference, scene_text, sphere  # noqa: F401 (fixtures)
 

@@ -13,7 +13,7 @@ import pytest
 import xarray as xr
 import zmq
 
-from hydrolink.clients.connection import ServerConnection
+from hydrolink.clients.lockstep.connection import ServerConnection
 from hydrolink.clients.run import run_scene_file
 from hydrolink.protocol.security import ClientKeys
 

@@ -101,7 +101,7 @@ def test_compose_stack_runs_on_loopback(reference_data, tmp_path):
         _, err = ctl.communicate(timeout=30)
         assert ctl.returncode == 0, err
         # a plaintext client is refused by the deployed server
-        from hydrolink.clients.connection import ServerConnection
+        from hydrolink.clients.lockstep.connection import ServerConnection
         with ServerConnection(f"tcp://127.0.0.1:{port}", timeout=1.0) as conn:
             with pytest.raises(TimeoutError):
                 conn.ping()

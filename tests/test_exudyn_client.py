@@ -21,9 +21,9 @@ import xarray as xr
 
 from conftest import SPHERE_WATER, regular_waves, scene_toml, sphere_body, write_scene
 
-from hydrolink.clients.connection import ServerConnection
-from hydrolink.clients.exudyn_client import RunInterrupted, SimulationDiverged, build_model, run
-from hydrolink.clients.results import ResultWriter
+from hydrolink.clients.lockstep.connection import ServerConnection
+from hydrolink.clients.exudyn.client import RunInterrupted, SimulationDiverged, build_model, run
+from hydrolink.clients.lockstep.results import ResultWriter
 from hydrolink.protocol.scene import SceneError, parse_scene
 from hydrolink.server.hdb.io import load_hdb
 from hydrolink.server.service import serve_in_thread
@@ -232,9 +232,9 @@ def test_results_file_layout(server, sphere, sphere_path, tmp_path):
 
 KILLED_RUN = """
 import sys, time
-from hydrolink.clients.connection import ServerConnection
-from hydrolink.clients.exudyn_client import run
-from hydrolink.clients.results import ResultWriter
+from hydrolink.clients.lockstep.connection import ServerConnection
+from hydrolink.clients.exudyn.client import run
+from hydrolink.clients.lockstep.results import ResultWriter
 from hydrolink.protocol.scene import SceneError, parse_scene
 from hydrolink.server.hdb.io import load_hdb
 from hydrolink.server.service import serve_in_thread

@@ -18,7 +18,7 @@ from fmpy.validation import validate_fmu
 from hydrolink.clients.cli import cli
 from hydrolink.clients.run import run_scene_file
 from hydrolink.server.service import serve_in_thread
-from test_fmu_client import base_scene, reference
+from test_fmu_master import base_scene, reference
 
 HEAVE = 2
 

@@ -1,4 +1,4 @@
-"""The native FMU (clients/fmu_native.py, C binary in clients/fmu_native/): FMI 2.0 and 3.0,
+"""The native FMU (clients/fmu/native.py, C binary in clients/fmu/native_c/): FMI 2.0 and 3.0,
 exported from the Task-10 sphere in heave and imported with fmpy against a separately started
 `hydrolink serve`.
 
@@ -42,7 +42,7 @@ def omega(sphere) -> float:
 @pytest.fixture(scope="module")
 def fmus(tmp_path_factory, sphere_path, sphere, omega) -> dict[int, Path]:
     _needs_compiler()
-    from hydrolink.clients.fmu_native import export_native_fmu
+    from hydrolink.clients.fmu.native import export_native_fmu
     folder = tmp_path_factory.mktemp("native_fmu")
     shutil.copy(sphere_path, folder / "sphere.h5")
     mass = 1000.0 * float(sphere["displaced_volume"].values[0])
@@ -268,7 +268,7 @@ def test_simulate_fmu_against_a_separate_server(fmus, server, tmp_path):
     """fmpy's own master (simulate_fmu), the FMU alone with its inputs at rest: its excitation is
     the server's, bit for bit, as the Python client gets it for the same states."""
     from fmpy import simulate_fmu
-    from hydrolink.clients.connection import ServerConnection
+    from hydrolink.clients.lockstep.connection import ServerConnection
     from hydrolink.server.hdb.io import load_hdb
     for fmi, path in fmus.items():
         out = simulate_fmu(str(path), start_values={"server_address": server}, stop_time=2.0, step_size=DT,
@@ -336,8 +336,8 @@ def test_two_bodies_from_wamit_files_give_the_servers_forces(tmp_path, reference
     _needs_compiler()
     from fmpy import read_model_description
     from conftest import rm3_float, rm3_spar
-    from hydrolink.clients.connection import ServerConnection
-    from hydrolink.clients.fmu_native import export_native_fmu
+    from hydrolink.clients.lockstep.connection import ServerConnection
+    from hydrolink.clients.fmu.native import export_native_fmu
     from hydrolink.server.hdb.io import load_hdb
     for name in ("rm3.1", "rm3.3", "rm3.hst", "rm3.out", "rm3.cfg"):
         shutil.copy(reference_data / "rm3_wamit" / name, tmp_path / name)

@@ -1,4 +1,4 @@
-"""clients/fmu_slave.py, the model class of an exported FMU, through fmpy: its variables (inputs,
+"""clients/fmu/slave.py, the model class of an exported FMU, through fmpy: its variables (inputs,
 outputs, the A∞ constants), direct feedthrough (set the state at t, read F(t)), an iterating
 master replacing the step's sample, and the communication step it accepts. References: the
 sphere HDB's own C33, A∞ and displaced volume, and a second FMU instance that saw one state only."""

@@ -1,12 +1,12 @@
 """The grid of scene keys shared by ``hydrolink sweep`` and ``hydrolink bench accuracy``
-(clients/grid.py): combinations per mode, keys into arrays of tables by name or index, and the
+(clients/studies/grid.py): combinations per mode, keys into arrays of tables by name or index, and the
 errors that name the part of a key that does not exist."""
 
 from __future__ import annotations
 
 import pytest
 
-from hydrolink.clients.grid import GridSpec, absolute_paths, combinations, get_key, scene_location, set_key
+from hydrolink.clients.studies.grid import GridSpec, absolute_paths, combinations, get_key, scene_location, set_key
 
 DOC = {"simulation": {"dt": 0.1},
        "ptos": [{"name": "pto", "damping": 1e6}, {"name": "aux", "damping": 2e5}],

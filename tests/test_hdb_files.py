@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from conftest import SPHERE_WATER, regular_waves, rm3_float, rm3_spar, scene_toml, sphere_body
 
-from hydrolink.clients.connection import RemoteError, ServerConnection
+from hydrolink.clients.lockstep.connection import RemoteError, ServerConnection
 from hydrolink.protocol.hdb_wire import HDBFiles
 from hydrolink.server.hdb.io import file_set, load_hdb
 from hydrolink.server.hdb_store import ContentStore

@@ -1,4 +1,4 @@
-"""Mechanism (clients/mechanism.py) through the Exudyn client on dry scenes — no force server: a
+"""Mechanism (clients/exudyn/mechanism.py) through the Exudyn client on dry scenes — no force server: a
 scene without wet bodies runs the mechanism alone. Every joint type against an analytic result."""
 
 from __future__ import annotations
@@ -14,9 +14,9 @@ import exudyn as exu
 
 from conftest import body, joint, scene_toml
 
-from hydrolink.clients.exudyn_client import build_model, result_bodies, run
-from hydrolink.clients.mechanism import BodyHandle, build_mechanism, marker_at
-from hydrolink.clients.results import ResultWriter
+from hydrolink.clients.exudyn.client import build_model, result_bodies, run
+from hydrolink.clients.exudyn.mechanism import BodyHandle, build_mechanism, marker_at
+from hydrolink.clients.lockstep.results import ResultWriter
 from hydrolink.protocol.scene import SceneError, parse_scene
 
 G = 9.81

@@ -1,4 +1,4 @@
-"""MoorDyn moorings (clients/moordyn_mooring.py) against independent references written here: the
+"""MoorDyn moorings (clients/exudyn/moordyn_mooring.py) against independent references written here: the
 elastic catenary with seabed contact (static), and a monolithic integration of a moored body with
 constant added mass and damping that calls MoorDyn directly (dynamic)."""
 
@@ -108,8 +108,8 @@ def mooring(**keys) -> dict:
 def _model(tmp_path: Path, scene_text: str, layouts=None):
     """Scene file -> its MoorDyn layouts (or ``layouts``) -> the Exudyn model (MoorDyn started at the
     initial pose)."""
-    from hydrolink.clients.exudyn_client import build_model
-    from hydrolink.clients.moordyn_mooring import load_moordyn_files
+    from hydrolink.clients.exudyn.client import build_model
+    from hydrolink.clients.exudyn.moordyn_mooring import load_moordyn_files
     path = write_scene(tmp_path, scene_text)
     scene = parse_scene(scene_text, path)
     return build_model(scene, None, moordyn_files=layouts or load_moordyn_files(scene, path))
@@ -147,7 +147,7 @@ def _segment_tensions(headings_deg, dx: float, segments: int) -> np.ndarray:
 def test_static_tension_and_restoring_force_against_the_elastic_catenary(tmp_path, headings):
     """MoorDyn's initial-condition solve with the body held at a few surge offsets: fairlead tensions
     and the force on the body within 1 % of the elastic catenary with seabed contact."""
-    from hydrolink.clients.moordyn_mooring import read_layout
+    from hydrolink.clients.exudyn.moordyn_mooring import read_layout
     layouts = {0: read_layout(moordyn_file(tmp_path / "lines.dat", headings))}
     for dx in (6.0, -9.0) if len(headings) > 1 else (0.0, 6.0, -9.0):
         model = _model(tmp_path, scene_toml(dt=0.01, duration=0.01, progress=False, moorings=[mooring(static_offset=False)],
@@ -343,7 +343,7 @@ def test_file_errors_name_the_file_and_key(tmp_path):
     SceneError naming the scene, the key and the file. (A file that crashes MoorDyn's reader — an
     OUTPUTS section without a closing "---" line reads past the end of its buffer — crashes only
     sometimes, so it is not tested here; the child process turns a crash into the same SceneError.)"""
-    from hydrolink.clients.moordyn_mooring import load_moordyn_files
+    from hydrolink.clients.exudyn.moordyn_mooring import load_moordyn_files
     text = scene_toml(dt=0.1, duration=1.0, bodies=[dry_float()], moorings=[mooring()])
     path = write_scene(tmp_path, text)
     scene = parse_scene(text, path)
@@ -362,7 +362,7 @@ def test_file_errors_name_the_file_and_key(tmp_path):
 def test_moordyn_failure_mid_run_names_the_file_and_step_and_keeps_the_rows(tmp_path):
     """dtM too large for the line's axial stiffness: MoorDyn reports NaN node positions a few steps
     in; the run stops with one line naming the mooring, its file and the step; rows are kept."""
-    from hydrolink.clients.lockstep import RunInterrupted
+    from hydrolink.clients.lockstep.driver import RunInterrupted
     from hydrolink.clients.run import run_scene_file
     moordyn_file(tmp_path / "lines.dat", [0.0], dtm=0.01)
     with pytest.raises(RunInterrupted, match=r"^MoorDyn failed at step (\d+) \(t = [\d.]+ s\): moorings\[0\] \(.*lines\.dat\): "
@@ -374,7 +374,7 @@ def test_moordyn_failure_mid_run_names_the_file_and_step_and_keeps_the_rows(tmp_
 
 
 def test_steady_refuses_moordyn_moorings(tmp_path):
-    from hydrolink.clients.steady import SteadyError, check_scene
+    from hydrolink.clients.studies.steady import SteadyError, check_scene
     scene = parse_scene(scene_toml(dt=0.1, duration=1.0, bodies=[dry_float()], waves=regular_waves(1.0, 8.0),
                                    moorings=[mooring()]))
     with pytest.raises(SteadyError, match=r"moorings\[0\].*MoorDyn moorings are not supported by hydrolink steady"):
@@ -423,7 +423,7 @@ def test_static_offset_of_a_dry_body_with_spare_buoyancy(tmp_path):
     pulls down by that spare buoyancy (to 1 % of the change of pull over that metre), and the
     equilibrium is near 1 m (the lumped-mass lines' vertical stiffness is a difference of large
     pulls: 0.1 % on the pull moves the equilibrium by 10 %)."""
-    from hydrolink.clients.moordyn_mooring import read_layout
+    from hydrolink.clients.exudyn.moordyn_mooring import read_layout
     headings = [0.0, 120.0, 240.0]
     lift = len(headings) * catenary(SPAN0 - FAIRLEAD_R, Z0 + 1.0 + DEPTH)[1]            # N, net upward
     path = moordyn_file(tmp_path / "lines.dat", headings, segments=24)

@@ -187,7 +187,7 @@ def test_a_morison_only_body_without_an_hdb(tmp_path):
     assert np.abs(ds["excitation_force"].sel(body="pontoon").values).max() == 0.0
     assert np.abs(ds["radiation_force"].sel(body="pontoon").values).max() == 0.0
     # hydrolink steady on the same scene: its members' loads are all the forcing there is
-    from hydrolink.clients.steady import steady_scene_file
+    from hydrolink.clients.studies.steady import steady_scene_file
     steady_scene_file(path, tmp_path / "steady.nc", progress=False)
     st = xr.load_dataset(tmp_path / "steady.nc")
     for j, dof in enumerate(("surge", "heave")):

@@ -8,7 +8,7 @@ import pytest
 
 from conftest import body, regular_waves, rm3_float, rm3_spar, scene_toml
 
-from hydrolink.clients.connection import RemoteError, ServerConnection
+from hydrolink.clients.lockstep.connection import RemoteError, ServerConnection
 from hydrolink.protocol.scene import parse_scene
 from hydrolink.server.hdb.schema import select_bodies
 from hydrolink.server.model import HydroModel, ModelError

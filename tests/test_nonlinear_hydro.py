@@ -201,13 +201,13 @@ def test_nonlinear_keys_and_hulls_are_checked(tmp_path, sphere_path):
     with pytest.raises(ModelError, match=r"bodies\[0\]\.mesh.*no hull"):
         HydroModel(parse_scene(scene(nonlinear="froude-krylov")), {"sphere": load_hdb(sphere_path)})
     # the tools that do not take nonlinear hydrostatics yet say so
-    from hydrolink.clients.steady import check_scene, SteadyError
+    from hydrolink.clients.studies.steady import check_scene, SteadyError
     linear_waves = scene_toml(dt=0.1, duration=1.0, water=WATER, waves=regular_waves(0.1, 7.0),
                               hydro={"nonlinear": "hydrostatic"}, bodies=[sphere_body(str(sphere_path), mass=MASS)])
     with pytest.raises(SteadyError, match="hydro.nonlinear"):
         check_scene(parse_scene(linear_waves))
     scene_path = write_scene(tmp_path, linear_waves, "fmu.toml")
-    from hydrolink.clients.fmu_native import export_native_fmu
+    from hydrolink.clients.fmu.native import export_native_fmu
     with pytest.raises(SceneError, match=r"fmu\.toml: hydro\.nonlinear: .*native FMU"):
         export_native_fmu(scene_path, tmp_path / "x.fmu")
     assert load_scene(scene_path)[0].nonlinear_key() == "hydro.nonlinear"

@@ -51,7 +51,7 @@ def legend_against_lines(ax) -> list[str]:
 def test_capture_width_of_a_linear_model_has_one_entry_per_visible_line():
     """The RM3 example's case: the capture width does not depend on Hm0 (a linear model); 9 heights x
     2 dampings were 18 entries over 2 visible lines: now 2 lines, 2 entries naming the 9 heights."""
-    from hydrolink.clients.sweep_plots import capture_width_figure
+    from hydrolink.clients.studies.sweep_plots import capture_width_figure
     rng = np.random.default_rng(1)
     ds = sweep_dataset(lambda h, t, c: 40.0 / t * (c / 1e6) ** 0.3 * (1 + 1e-9 * rng.normal(size=h.shape)))
     fig = capture_width_figure(ds, KEYS, "waves.te", "example")
@@ -66,7 +66,7 @@ def test_capture_width_of_a_linear_model_has_one_entry_per_visible_line():
 def test_capture_width_that_depends_on_every_key_keeps_every_line_and_skips_empty_ones():
     """A capture width that falls with Hm0 (drag): 18 distinct lines, 18 entries; combinations
     without a finite case (failed) get no line and no entry."""
-    from hydrolink.clients.sweep_plots import capture_width_figure
+    from hydrolink.clients.studies.sweep_plots import capture_width_figure
 
     def cw(h, t, c):
         out = 40.0 / t * (c / 1e6) ** 0.3 / (1 + 0.2 * h)
@@ -85,7 +85,7 @@ def test_accuracy_figure_names_only_what_it_draws():
     """Every option failed (errors NaN; the front is the reference alone): the legend holds the
     reference and its front, no "options"; with options it holds all three, each a drawn artist
     with data."""
-    from hydrolink.clients.accuracy import report_figure
+    from hydrolink.clients.studies.accuracy import report_figure
     errs, costs = ("max_error", "rms_error"), ("us_per_step", "wall_per_sim_s")
 
     def row(label, err, cost, front):

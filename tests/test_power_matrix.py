@@ -1,4 +1,4 @@
-"""clients/power_matrix.py: sea states, scatter diagrams, power matrix and AEP against MHKiT (the
+"""clients/studies/power_matrix.py: sea states, scatter diagrams, power matrix and AEP against MHKiT (the
 marine energy community's IEC TS 62600-100 toolkit) and closed forms."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from hydrolink.clients.power_matrix import (HOURS_PER_YEAR, PowerMatrixError, annual_energy, bin_edges,
+from hydrolink.clients.studies.power_matrix import (HOURS_PER_YEAR, PowerMatrixError, annual_energy, bin_edges,
                                             group_velocity, power_matrix, read_scatter, sea_state, te_over_tp)
 from hydrolink.protocol.scene import IrregularWave, parse_scene
 from conftest import body, irregular_waves, regular_waves, scene_toml

@@ -14,9 +14,9 @@ from scipy.optimize import brentq
 from conftest import (SPHERE_WATER, body, joint, linear_pto, regular_waves, scene_toml, sphere_body,
                       write_scene)
 
-from hydrolink.clients.mechanism import build_mechanism
-from hydrolink.clients.moorings import SEABED_PENETRATION, build_moorings, rope_properties
-from hydrolink.clients.ptos import build_ptos
+from hydrolink.clients.exudyn.mechanism import build_mechanism
+from hydrolink.clients.exudyn.moorings import SEABED_PENETRATION, build_moorings, rope_properties
+from hydrolink.clients.exudyn.ptos import build_ptos
 from hydrolink.protocol.scene import parse_scene
 
 RHO, G = 1025.0, 9.81

@@ -1,4 +1,4 @@
-"""Reduced bodies (clients/mechanism.py, "Reduced bodies"): a body built with its active coordinates
+"""Reduced bodies (clients/exudyn/mechanism.py, "Reduced bodies"): a body built with its active coordinates
 only, against analytic motions (dry scenes, no server) and against the full form — a 6-DOF rigid
 body whose locked DOFs are coordinate constraints (``[client] reduce = false``) — on wet scenes
 (real server, real HDBs). The full form is the independent model here: rigid-body node, constraints
@@ -23,10 +23,10 @@ import exudyn as exu
 from conftest import (SPHERE_WATER, body, joint, linear_pto, regular_waves, scene_toml, sphere_body,
                       toml_document)
 
-from hydrolink.clients.connection import ServerConnection
-from hydrolink.clients.exudyn_client import build_model, result_bodies, run
-from hydrolink.clients.mechanism import build_mechanism, marker_at
-from hydrolink.clients.results import ResultWriter
+from hydrolink.clients.lockstep.connection import ServerConnection
+from hydrolink.clients.exudyn.client import build_model, result_bodies, run
+from hydrolink.clients.exudyn.mechanism import build_mechanism, marker_at
+from hydrolink.clients.lockstep.results import ResultWriter
 from hydrolink.protocol.scene import DOF_NAMES, SceneError, parse_scene
 
 REPO = Path(__file__).resolve().parents[1]

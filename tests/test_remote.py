@@ -1,5 +1,5 @@
 """Remote lockstep: force server, multibody client and controller each in its own network namespace
-(clients/netlab.py), frames delayed on the way; the results equal the local run bit for bit.
+(tests/netlab.py), frames delayed on the way; the results equal the local run bit for bit.
 
 Skipped, with the reason, where this machine cannot create namespaces (not root, no ``ip``, no
 netns support). The delay is netem where the kernel has it, else the lab's user-space delay switch.
@@ -18,7 +18,7 @@ import pytest
 import subprocess
 import xarray as xr
 
-from hydrolink.clients import netlab
+import netlab  # tests/netlab.py
 
 REPO = Path(__file__).resolve().parents[1]
 REACTIVE = REPO / "examples" / "controllers" / "reactive.py"

@@ -1,4 +1,4 @@
-"""clients/results.py: a run killed with SIGKILL keeps a readable results file holding every row
+"""clients/lockstep/results.py: a run killed with SIGKILL keeps a readable results file holding every row
 up to its last flush, and flushes come by wall time (``simulation.flush_seconds``): the work lost
 is at most that long. The kill is a real one, of a real ``hydrolink run`` process."""
 

@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from conftest import SPHERE_WATER, regular_waves, scene_toml, sphere_body, write_scene
-from hydrolink.clients.connection import RemoteError, ServerConnection
+from hydrolink.clients.lockstep.connection import RemoteError, ServerConnection
 from hydrolink.protocol.security import CurveKeyError, read_hmac_key
 
 HYDROLINK = [sys.executable, "-m", "hydrolink.clients.cli"]

@@ -13,7 +13,7 @@ from analytic_hdb import make_body_hdb
 
 from conftest import SPHERE_WATER, body, regular_waves, scene_toml
 
-from hydrolink.clients.connection import RemoteError, ServerConnection
+from hydrolink.clients.lockstep.connection import RemoteError, ServerConnection
 from hydrolink.protocol import codec
 from hydrolink.protocol.hdb_wire import to_wire
 from hydrolink.server.service import serve_in_thread

@@ -18,9 +18,9 @@ import xarray as xr
 
 from conftest import SPHERE_WATER, body, linear_pto, regular_waves, scene_toml, sphere_body
 
-from hydrolink.clients.connection import ServerConnection
-from hydrolink.clients.exudyn_client import SimulationDiverged, build_model, run
-from hydrolink.clients.results import ResultWriter
+from hydrolink.clients.lockstep.connection import ServerConnection
+from hydrolink.clients.exudyn.client import SimulationDiverged, build_model, run
+from hydrolink.clients.lockstep.results import ResultWriter
 from hydrolink.protocol.scene import Scene, SceneError, parse_scene
 from hydrolink.server.hdb.io import load_hdb
 from hydrolink.server.model import HydroModel, ModelError

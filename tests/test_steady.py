@@ -1,4 +1,4 @@
-"""``hydrolink steady`` (clients/steady.py): pseudo-spectral periodic steady state on RM3.
+"""``hydrolink steady`` (clients/studies/steady.py): pseudo-spectral periodic steady state on RM3.
 
 References, all independent of the collocation code:
 - the two-body frequency-domain solution written in tests/test_rm3.py (HDB A(w), B(w), excitation,
@@ -29,7 +29,7 @@ def rm3(reference_data):
 
 
 def _system(text: str, rm3):
-    from hydrolink.clients.steady import hydro_model, linearize
+    from hydrolink.clients.studies.steady import hydro_model, linearize
     scene = parse_scene(text)
     model = hydro_model(scene, {b.hdb: rm3 for b in scene.bodies})
     return scene, linearize(scene, model, model.setup_info())
@@ -47,7 +47,7 @@ def _limited(text: str) -> str:
 
 @pytest.mark.parametrize("interaction", ["full", "none"])
 def test_order_one_reproduces_frequency_domain(rm3, interaction):
-    from hydrolink.clients.steady import solve
+    from hydrolink.clients.studies.steady import solve
     _, lin = _system(scene_text(interaction, __import__("pathlib").Path("rm3.1")), rm3)
     x_fd, p_fd = frequency_domain(rm3, *hdb_radiation(rm3), interaction)
     for form in ("dae", "ode"):
@@ -61,7 +61,7 @@ def test_order_one_reproduces_frequency_domain(rm3, interaction):
         np.testing.assert_allclose(_heave(sol5), x_fd, rtol=1e-9)
         assert np.abs(sol5.harmonic(sol5.q, 3)).max() < 1e-9 * np.abs(x_fd).max()
     # the PTO's mean absorbed power from the sampled results
-    from hydrolink.clients.steady import sample
+    from hydrolink.clients.studies.steady import sample
     t = np.linspace(0, PERIOD, 400, endpoint=False)
     assert sample(sol5, t)["pto_power"].mean() == pytest.approx(p_fd, rel=1e-9)
 
@@ -71,8 +71,8 @@ def test_matrices_against_scene_assembly_and_exudyn_ptos(rm3):
     but heave; the PTO lines g (k g g^T, c g g^T) equal Exudyn's linearisation of its connectors."""
     import exudyn as exu
 
-    from hydrolink.clients.exudyn_client import build_model
-    from hydrolink.clients.steady import hydro_model, linearize
+    from hydrolink.clients.exudyn.client import build_model
+    from hydrolink.clients.studies.steady import hydro_model, linearize
 
     text = scene_text("full", __import__("pathlib").Path("rm3.1"))
     text = text.replace('dofs = ["heave"]         # the other five DOFs are locked to ground', "")
@@ -146,7 +146,7 @@ def time_domain(rm3, reference_data, tmp_path_factory):
 def test_against_time_domain(rm3, time_domain, kind):
     """Heave amplitude (both bodies) and mean PTO power within 0.5 % of the time-domain steady state;
     the force-limited PTO needs Newton (several iterations) and higher harmonics."""
-    from hydrolink.clients.steady import sample, solve
+    from hydrolink.clients.studies.steady import sample, solve
     text = scene_text("full", __import__("pathlib").Path("rm3.1"))
     _, lin = _system(_limited(text) if kind == "limited" else text, rm3)
     x_td, p_td = time_domain[kind]
@@ -195,7 +195,7 @@ def test_cli_one_period_in_the_run_layout(rm3, reference_data, tmp_path):
 
 
 def test_refuses_irregular_waves(reference_data, tmp_path):
-    from hydrolink.clients.steady import SteadyError, steady_scene_file
+    from hydrolink.clients.studies.steady import SteadyError, steady_scene_file
     scene = tmp_path / "rm3.toml"
     text = scene_text("full", reference_data / "rm3_wamit" / "rm3.1")
     text = text.replace('type = "regular"', 'type = "irregular"\nspectrum = "jonswap"\nhs = 2.0\ntp = 8.0')
@@ -217,7 +217,7 @@ def test_viscous_damping_pointwise_against_time_integration_and_lorentz(sphere_p
     from scipy.integrate import solve_ivp
 
     from conftest import SPHERE_WATER, regular_waves, scene_toml, sphere_body, write_scene
-    from hydrolink.clients.steady import steady_scene_file
+    from hydrolink.clients.studies.steady import steady_scene_file
     from hydrolink.server.hdb.io import load_hdb
 
     mass, b_lin, b_quad, height = 261.724e3, 1.0e4, 6.0e5, 2.0
@@ -269,7 +269,7 @@ def test_morison_member_pointwise_against_the_time_domain(sphere_path, tmp_path)
 
     from conftest import SPHERE_WATER, regular_waves, scene_toml, sphere_body, write_scene
     from hydrolink.clients.run import run_scene_file
-    from hydrolink.clients.steady import steady_scene_file
+    from hydrolink.clients.studies.steady import steady_scene_file
 
     w = 1.0
     period = 2 * math.pi / w

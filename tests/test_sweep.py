@@ -25,7 +25,7 @@ from click.testing import CliRunner
 
 from conftest import SPHERE_WATER, irregular_waves, linear_pto, regular_waves, scene_toml, sphere_body, sweep_toml, write_scene
 from hydrolink.clients.cli import cli
-from hydrolink.clients.sweep import open_cluster, run_sweep
+from hydrolink.clients.studies.sweep import open_cluster, run_sweep
 
 MASS, HEIGHT, DT = 261.724e3, 1.0, 0.04
 OMEGA_INDEX = (19, 27)                    # HDB grid frequencies 1.0 and 1.4 rad/s (no interpolation)

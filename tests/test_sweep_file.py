@@ -1,4 +1,4 @@
-"""The sweep file (clients/sweep_file.py): every kind of bad sweep file is one line naming the file
+"""The sweep file (clients/studies/sweep_file.py): every kind of bad sweep file is one line naming the file
 and the key, before anything runs; cases take the grid's values and the derived energy period."""
 
 from __future__ import annotations
@@ -72,7 +72,7 @@ def test_missing_scene_and_both_cluster_options(tmp_path):
 def test_cases_take_the_grid_values(sphere_dir, tmp_path, mode, count):
     """product: every combination; zip: the i-th values together; axes: one key at a time, the
     others as the scene has them. Each case's validated scene holds its values."""
-    from hydrolink.clients.sweep_file import load_sweep
+    from hydrolink.clients.studies.sweep_file import load_sweep
     grid = {"waves.period": [6.0, 7.0] if mode == "zip" else [6.0, 7.0, 8.0],
             "ptos.damper.damping": [1e5, 3e5]}
     sweep = tmp_path / "s.toml"
@@ -94,7 +94,7 @@ def test_energy_period_key_sets_the_peak_period(sphere_dir, tmp_path):
     """waves.te sets waves.tp through the JONSWAP spectrum's own Te/Tp: m_-1/m_0 of the spectrum
     integrated in the test (gamma 3.3, sigma 0.07/0.09)."""
     import numpy as np
-    from hydrolink.clients.sweep_file import load_sweep
+    from hydrolink.clients.studies.sweep_file import load_sweep
     sweep = tmp_path / "s.toml"
     sweep.write_text(sweep_toml(sphere_dir / "irregular.toml", grid={"waves.te": [7.5, 9.5]}))
     f = np.linspace(1e-3, 40.0, 2_000_001)     # tp = 1 s; the f^-5 tail matters to 1e-3
@@ -111,7 +111,7 @@ def test_case_files_are_named_by_their_keys_and_values(sphere_dir, tmp_path):
     the sweep says ``tail`` (s), and "full" keeps every sample."""
     import re
 
-    from hydrolink.clients.sweep_file import load_sweep
+    from hydrolink.clients.studies.sweep_file import load_sweep
     sweep = tmp_path / "s.toml"
     sweep.write_text(sweep_toml(sphere_dir / "sphere.toml", grid={"waves.period": [6.0, 7.5],
                                                                   "ptos.damper.damping": [1.2e6, 2.5e5]},

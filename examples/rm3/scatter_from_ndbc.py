@@ -7,7 +7,7 @@ f1 f2 ...`` (band centre frequencies, Hz) and one row per hour of spectral densi
 rows with missing values (999) are left out. Per row, with the moments m_n = sum f^n S df over
 the bands (df: the band spacing): Hm0 = 4 sqrt(m0), Te = m_-1 / m0 (IEC TS 62600-101). The sea
 states are counted in bins of 0.5 m x 1 s (IEC TS 62600-100's largest) with centres at 0.25 + k/2 m
-and 0.5 + k s; the output (clients/power_matrix.py's CSV layout) is the hours per bin, its comment
+and 0.5 + k s; the output (clients/studies/power_matrix.py's CSV layout) is the hours per bin, its comment
 lines saying where the data came from and how the bins were made.
 """
 

@@ -147,7 +147,7 @@ def read_layout(path: Path) -> MoorDynLayout:
     """The coupled layout of a MoorDyn file (MoorDynFailure naming the file and MoorDyn's complaint)."""
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "layout.json"
-        code = ("import numpy, sys; from hydrolink.clients.moordyn_mooring import _probe_main; "
+        code = ("import numpy, sys; from hydrolink.clients.exudyn.moordyn_mooring import _probe_main; "
                 "_probe_main(sys.argv[1], sys.argv[2])")
         try:
             proc = subprocess.run([sys.executable, "-c", code, str(path), str(out)], capture_output=True,

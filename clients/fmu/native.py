@@ -1,7 +1,7 @@
 """``hydrolink fmu export --native``: hydrolink's forces as a native FMU (FMI 2.0 or 3.0
 co-simulation) whose binary is C: no Python where it is imported.
 
-The binary (``clients/fmu_native/``: the core, ``fmi2.c`` or ``fmi3.c``) is compiled here with the
+The binary (``clients/fmu/native_c/``: the core, ``fmi2.c`` or ``fmi3.c``) is compiled here with the
 machine's C compiler against the FMI headers fmpy ships, and depends on the C library alone (its
 ZeroMQ transport and msgpack codec are its own). It talks to a ``hydrolink serve`` at its
 ``server_address`` parameter and sends the scene and the HDB files it carries in ``resources/``
@@ -30,7 +30,7 @@ import numpy as np
 
 from hydrolink.protocol.scene import SceneError, load_scene
 
-SOURCES = Path(__file__).with_name("fmu_native")
+SOURCES = Path(__file__).with_name("native_c")
 MODEL_IDENTIFIER = "hydrolink_forces"
 VR_TIME, VR_SERVER, VR_TIMEOUT, VR_ETA, VR_DOF, VR_AINF = 0, 1, 2, 3, 1000, 1000000
 QUANTITIES = ("displacement", "velocity", "force", "excitation", "radiation", "hydrostatic", "dynamic")
@@ -99,7 +99,7 @@ def _hdb_sources(scene, scene_path: Path, progress: bool) -> tuple[dict, dict]:
 
 
 def _setup(text: str, datasets: dict):
-    from hydrolink.clients.connection import ServerConnection
+    from hydrolink.clients.lockstep.connection import ServerConnection
     from hydrolink.server.service import ForceServer
 
     server = ForceServer(None)
@@ -124,7 +124,7 @@ def _a_inf_unit(a: str, b: str) -> str:
 def export_native_fmu(scene_path: str | Path, output: str | Path, *, fmi: int = 3,
                       progress: bool = True) -> tuple[Path, list[str]]:
     """Write the native FMU (``fmi`` 2 or 3); returns its path and notes."""
-    from hydrolink.clients.fmu_export import MECHANISM_KEYS
+    from hydrolink.clients.fmu.export import MECHANISM_KEYS
 
     if fmi not in (2, 3):
         raise NativeFMUError(f"--fmi must be 2 or 3, got {fmi}")

@@ -3,7 +3,7 @@ server, or ``hydrolink steady``) and the warm-up of a setup's on-disk caches.
 
 A case's files live in ``OUTDIR/cases/``, named by the case (``case-012_waves.hs=2.5_ptos.pto.damping=1.2e6``,
 clients/sweep_file.py ``case_name``): ``<name>.toml`` (the case's scene), ``<name>.nc`` (its summary
-and the tail of its series, or every sample: clients/sweep_case_file.py) and ``<name>.json`` (its
+and the tail of its series, or every sample: clients/studies/sweep_case_file.py) and ``<name>.json`` (its
 record: the case's key, status, error, wall time, attempts, ...), written in that order, each
 atomically; a case whose record (with its key) exists is finished. A
 worker that sees OUTDIR (same machine or a shared file system: it holds the sweep's token file)
@@ -144,10 +144,10 @@ def _first_line(exc: BaseException) -> str:
 
 def run_case(task: CaseTask, hdbs: dict, *after) -> CaseOutcome:
     """Run one case into a full results file, summarise it over the case's window and write the
-    case's file (clients/sweep_case_file.py); never raises for the case's own failure (recorded in
+    case's file (clients/studies/sweep_case_file.py); never raises for the case's own failure (recorded in
     the outcome, with the partial results as its file). ``after``: futures this case waits for (the
     warm-up of its setup's caches), unused."""
-    from hydrolink.clients.sweep_case_file import summarise, write_case_file
+    from hydrolink.clients.studies.sweep_case_file import summarise, write_case_file
     work = Path(tempfile.mkdtemp(prefix=f"hydrolink-case-{task.case_id[:8]}-"))
     scene_path = work / "scene.toml"
     scene_path.write_text(task.scene_text)
@@ -158,7 +158,7 @@ def run_case(task: CaseTask, hdbs: dict, *after) -> CaseOutcome:
         if task.solver == "steady":
             import math
 
-            from hydrolink.clients.steady import steady_scene_file
+            from hydrolink.clients.studies.steady import steady_scene_file
             from hydrolink.protocol.scene import parse_scene
             scene = parse_scene(task.scene_text, "scene")
             period, dt = scene.waves.period, scene.simulation.dt

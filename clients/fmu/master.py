@@ -5,7 +5,7 @@ the bodies' state (FMU outputs) for the hydrodynamic forces (FMU inputs). Over a
 the FMU input is held constant at the step average ½(F(t_k) + F(t_k+1)) — the trapezoidal rule —
 with F(t_k+1) evaluated at the state the step ends in.
 
-A∞ (see :mod:`hydrolink.clients.coupling`), per the scene's ``[coupling] scheme`` (the one
+A∞ (see :mod:`hydrolink.clients.fmu.coupling`), per the scene's ``[coupling] scheme`` (the one
 vocabulary of every client; the deprecated ``[client.coupling] mode`` is read as it, see
 ``protocol/scene.py`` MODE_SCHEME):
 
@@ -36,10 +36,10 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from hydrolink.clients import lockstep
-from hydrolink.clients.coupling import added_mass_ratio, rigid_body_mass_matrix
-from hydrolink.clients.coupling_schemes import make_scheme
-from hydrolink.clients.lockstep import BLOW_UP_LIMIT, DivergenceWatch, ForceLink, Lockstep, progress_bar
+from hydrolink.clients.lockstep import driver as lockstep
+from hydrolink.clients.fmu.coupling import added_mass_ratio, rigid_body_mass_matrix
+from hydrolink.clients.lockstep.coupling_schemes import make_scheme
+from hydrolink.clients.lockstep.driver import BLOW_UP_LIMIT, DivergenceWatch, ForceLink, Lockstep, progress_bar
 from hydrolink.protocol.scene import DOF_NAMES, Coupling, FMUClient, Scene, SceneError, resolve_path
 from hydrolink.protocol.setup import Setup
 
@@ -67,9 +67,9 @@ class FMUInstance:
         try:
             extract(str(self.path), unzipdir=self._dir)
             if self.md.fmiVersion.startswith("3"):
-                from hydrolink.clients.fmi3 import FMI3Slave as Slave
+                from hydrolink.clients.fmu.fmi3 import FMI3Slave as Slave
             elif self.md.fmiVersion.startswith("2"):
-                from hydrolink.clients.fmi2 import FMI2Slave as Slave
+                from hydrolink.clients.fmu.fmi2 import FMI2Slave as Slave
             else:
                 raise ValueError(f"{self.path.name}: FMI {self.md.fmiVersion} is not supported (2.0, 3.0)")
             self.slave = Slave(self.md, self._dir, instance_name)
@@ -247,8 +247,8 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup, writer, *,
         allow_unstable: bool = False) -> dict:
     """Run the scene's FMU in lockstep with the server to ``scene.simulation.duration``.
 
-    Like :func:`hydrolink.clients.exudyn_client.run` (same results rows, same errors, the same
-    driver: :mod:`hydrolink.clients.lockstep`); ``record`` names further FMU real outputs whose values
+    Like :func:`hydrolink.clients.exudyn.client.run` (same results rows, same errors, the same
+    driver: :mod:`hydrolink.clients.lockstep.driver`); ``record`` names further FMU real outputs whose values
     at every step are returned in ``summary["recorded"]``; ``allow_unstable`` lets the explicit mode
     run beyond its limit (only to demonstrate the instability). The summary adds mode, iterations per
     step (mean, max) and per-step costs in µs (FMU calls, server round trips, the rest)."""
@@ -299,7 +299,7 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup, writer, *,
 
 
 class FMUMultibody:
-    """The FMU as the lockstep driver's multibody code (:class:`~hydrolink.clients.lockstep.Multibody`).
+    """The FMU as the lockstep driver's multibody code (:class:`~hydrolink.clients.lockstep.driver.Multibody`).
 
     Its inputs are the FMU's force ports, held over the step at the step average ½(F(t_k) + F(t_k+1))
     (the trapezoidal rule), component by component, with the A∞ it does not take as parameters fed

@@ -18,10 +18,10 @@ from fmpy.validation import validate_fmu
 
 from conftest import SPHERE_WATER, linear_pto, regular_waves, scene_toml, sphere_body, write_scene
 from fmu_build import build_c_fmu, build_python3_fmu, build_python_fmu
-from hydrolink.clients import fmu_client
-from hydrolink.clients.connection import ServerConnection
-from hydrolink.clients.exudyn_client import SimulationDiverged
-from hydrolink.clients.results import ResultWriter
+from hydrolink.clients.fmu import master as fmu_client
+from hydrolink.clients.lockstep.connection import ServerConnection
+from hydrolink.clients.exudyn.client import SimulationDiverged
+from hydrolink.clients.lockstep.results import ResultWriter
 from hydrolink.protocol.scene import SceneError, parse_scene
 
 HEAVE = 2

@@ -3,7 +3,7 @@
 Model (see shared/notes/exudyn-coupling.md for the measured facts behind it):
 
 - the mechanism (bodies wet and dry, point masses, gravity/buoyancy, joints, constraints) is built by
-  :mod:`hydrolink.clients.mechanism`: one ``NodeRigidBodyRxyz`` per body at its reference point (for
+  :mod:`hydrolink.clients.exudyn.mechanism`: one ``NodeRigidBodyRxyz`` per body at its reference point (for
   a wet body the point the HDB's rotational modes refer to); its coordinates are displacements from equilibrium (xyz + Tait-Bryan angles, angle
   rates ≈ angular velocity for small angles) and ``ObjectRigidBody`` with the body's mass, its
   centre of mass relative to the reference point and the inertia moved there (parallel axes);
@@ -54,13 +54,13 @@ import numpy as np
 import exudyn as exu
 from exudyn.itemInterface import ObjectGenericODE2, VObjectGenericODE2
 
-from hydrolink.clients import lockstep
-from hydrolink.clients.coupling_schemes import make_scheme
-from hydrolink.clients.lockstep import (BLOW_UP_LIMIT, CouplingError, DivergenceWatch, ForceLink, Lockstep,  # noqa: F401
+from hydrolink.clients.lockstep import driver as lockstep
+from hydrolink.clients.lockstep.coupling_schemes import make_scheme
+from hydrolink.clients.lockstep.driver import (BLOW_UP_LIMIT, CouplingError, DivergenceWatch, ForceLink, Lockstep,  # noqa: F401
                                         RunInterrupted, SimulationDiverged, progress_bar)
-from hydrolink.clients.mechanism import Mechanism, build_mechanism
-from hydrolink.clients.moorings import MooringSet, build_moorings
-from hydrolink.clients.ptos import PTOSet, build_ptos
+from hydrolink.clients.exudyn.mechanism import Mechanism, build_mechanism
+from hydrolink.clients.exudyn.moorings import MooringSet, build_moorings
+from hydrolink.clients.exudyn.ptos import PTOSet, build_ptos
 from hydrolink.protocol.scene import Coupling, Scene
 from hydrolink.protocol.setup import Setup
 
@@ -212,8 +212,8 @@ def build_model(scene: Scene, setup: Setup | None, *, spectral_radius: float = 1
     coupling schemes feed it back as a force); ``newmark`` uses Newmark's trapezoidal rule
     (bit-exact rollback, for the implicit scheme) instead of generalized-alpha. ``reduce`` (default:
     the scene's ``[client] reduce``) builds the bodies that qualify with their active coordinates
-    only (clients/mechanism.py, "Reduced bodies"); False is the full form. ``moordyn_files``: the
-    layouts of the scene's MoorDyn files by mooring index (clients/moordyn_mooring.py); their
+    only (clients/exudyn/mechanism.py, "Reduced bodies"); False is the full form. ``moordyn_files``: the
+    layouts of the scene's MoorDyn files by mooring index (clients/exudyn/moordyn_mooring.py); their
     systems are started (initial-condition solve) at the bodies' initial poses before the solver's
     initial accelerations."""
     names = list(setup.bodies) if setup else []
@@ -388,7 +388,7 @@ def _moordyn_report(moorings: MooringSet) -> list[dict]:
 def wet_rigid_mass(scene: Scene, setup: Setup) -> np.ndarray:
     """Rigid-body mass matrix (6N × 6N) of the wet bodies about their reference points (dry bodies
     attached by joints are left out, which can only overstate the added-mass ratio)."""
-    from hydrolink.clients.coupling import rigid_body_mass_matrix
+    from hydrolink.clients.fmu.coupling import rigid_body_mass_matrix
     names, eq = list(setup.bodies), setup.equilibrium_position
     m = np.zeros((6 * len(names), 6 * len(names)))
     for i, b in enumerate(_scene_bodies(scene, names)):
@@ -401,7 +401,7 @@ def coupling_ratio(scene: Scene, setup: Setup | None) -> float:
     """The added-mass ratio of the explicit schemes: spectral radius of M⁻¹A∞ over the wet bodies'
     active DOFs (M the rigid-body mass matrix). An explicitly fed-back −A∞·a multiplies an
     acceleration error by −M⁻¹A∞ every step: unstable above 1."""
-    from hydrolink.clients.coupling import added_mass_ratio
+    from hydrolink.clients.fmu.coupling import added_mass_ratio
     if not setup or not setup.bodies:
         return 0.0
     act = np.flatnonzero(setup.active.reshape(-1))
@@ -461,7 +461,7 @@ def explicit_refusal(scheme: str, ratio: float, limit: float) -> str:
 
 
 class ExudynMultibody:
-    """The Exudyn model as the lockstep driver's multibody code (:class:`~hydrolink.clients.lockstep.Multibody`).
+    """The Exudyn model as the lockstep driver's multibody code (:class:`~hydrolink.clients.lockstep.driver.Multibody`).
 
     Its input is the wet bodies' force vector (6N): excitation + radiation at the step's end (the
     implicit integrator applies loads at the end of the step), minus A∞·a when A∞ is fed back.
@@ -485,7 +485,7 @@ class ExudynMultibody:
         # the wet bodies' 6N entries in the (B, 6) rows (viscous force)
         self._wet_flat = (6 * np.asarray(model.wet_rows, int)[:, None] + np.arange(6)).reshape(-1)
         self._pto_sample = None
-        # MoorDyn: each step is driven towards the pose it ends in (clients/moordyn_mooring.py):
+        # MoorDyn: each step is driven towards the pose it ends in (clients/exudyn/moordyn_mooring.py):
         # predicted, or on a redo the end poses of the previous pass (one per step since the save)
         moorings = model.moorings
         self._md = moorings if moorings is not None and moorings.moordyn else None
@@ -513,7 +513,7 @@ class ExudynMultibody:
         return its
 
     def _consistent_start(self, f0: np.ndarray) -> int:
-        from hydrolink.clients.coupling import Aitken
+        from hydrolink.clients.fmu.coupling import Aitken
         m, cpl = self.model, self.coupling
         aitken = Aitken(1.0 / (1.0 + self.ratio))
         u = f0.copy()
@@ -658,12 +658,12 @@ class ExudynMultibody:
 def run(scene: Scene, scene_text: str, connection, setup: Setup | None, writer, *, progress: bool = True,
         spectral_radius: float | None = None, blow_up_limit: float = BLOW_UP_LIMIT,
         allow_unstable: bool = False, moordyn_files: dict | None = None) -> dict:
-    """Run the lockstep co-simulation to ``scene.simulation.duration`` (:mod:`hydrolink.clients.lockstep`).
+    """Run the lockstep co-simulation to ``scene.simulation.duration`` (:mod:`hydrolink.clients.lockstep.driver`).
 
     ``connection`` has already said hello (``setup`` is its reply); it is not closed here. With no
     wet body both are None and no server is asked. Rows hold every scene body (hydrodynamic forces
-    zero for dry bodies) and, with joints, the joint outputs (see :mod:`hydrolink.clients.results`).
-    Every step is written to ``writer`` (a :class:`~hydrolink.clients.results.ResultWriter`),
+    zero for dry bodies) and, with joints, the joint outputs (see :mod:`hydrolink.clients.lockstep.results`).
+    Every step is written to ``writer`` (a :class:`~hydrolink.clients.lockstep.results.ResultWriter`),
     which gets its final status ("complete" / "interrupted: ...") before this returns or raises.
     On Ctrl-C or a server error the rows computed so far are flushed and the error re-raised with
     the step and time named (KeyboardInterrupt stays a KeyboardInterrupt, server errors become
@@ -673,7 +673,7 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup | None, writer, 
     The scene's ``[coupling]`` picks the scheme (module docstring); an explicit scheme above
     ``coupling.explicit_limit`` is refused (SceneError naming coupling.scheme) unless
     ``allow_unstable`` (only to demonstrate the added-mass instability). ``moordyn_files``: the
-    layouts of the scene's MoorDyn files (:func:`~hydrolink.clients.moordyn_mooring.load_moordyn_files`).
+    layouts of the scene's MoorDyn files (:func:`~hydrolink.clients.exudyn.moordyn_mooring.load_moordyn_files`).
 
     Returns a summary: steps, time, wall_time, rows, status, ``coupling`` (scheme, exchange_every,
     added-mass ratio, iterations per exchange: mean/max, and the list for "implicit"),
@@ -765,7 +765,7 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup | None, writer, 
         if n == 0:
             raise ValueError("controllers: a scene with controllers needs a wet body (the controllers "
                              "talk to the multibody client through the force server's session)")
-        from hydrolink.clients.pto_control import PTOControl
+        from hydrolink.clients.lockstep.pto_control import PTOControl
         control = PTOControl(scene, model.ptos, model.mbs, writer)
     mb = ExudynMultibody(model, writer, kx, feedback, cpl, ratio, control)
     loop = Lockstep(mb, ForceLink(connection, setup if n else None, writer), writer, DivergenceWatch(blow_up_limit),

@@ -26,7 +26,7 @@ import logging
 
 import numpy as np
 
-from hydrolink.clients.ptos import PTOSample, PTOSet
+from hydrolink.clients.exudyn.ptos import PTOSample, PTOSet
 from hydrolink.protocol.scene import LinearPTO, Scene
 
 log = logging.getLogger(__name__)

@@ -17,7 +17,7 @@ The **Pareto front** (per error measure and cost measure): the options no other 
 both cost and error (ties in both do not dominate). Outputs in the output folder:
 ``accuracy.md`` (table), ``accuracy.png`` (error against cost, front joined), ``accuracy.csv``.
 
-The grid (a TOML file, or CLI flags; the shared grid format of clients/grid.py) names scene keys by
+The grid (a TOML file, or CLI flags; the shared grid format of clients/studies/grid.py) names scene keys by
 their dotted path (entries of arrays of tables by name: ``ptos.pto.damping``) or a short alias::
 
     duration = 60.0              # s, overrides simulation.duration of every run (optional)
@@ -57,7 +57,7 @@ from typing import Any
 import numpy as np
 from pydantic import Field, field_validator
 
-from hydrolink.clients.grid import (ALIASES, SHORT, GridMode, GridSpec, Value, absolute_paths, combinations,  # noqa: F401
+from hydrolink.clients.studies.grid import (ALIASES, SHORT, GridMode, GridSpec, Value, absolute_paths, combinations,  # noqa: F401
                                     dump_toml, effective_value, full_key, get_key, set_key, short_key)
 from hydrolink.protocol.toml_model import validate_toml
 
@@ -76,7 +76,7 @@ def _bench_error(source, key: str, why: str) -> BenchError:
 
 
 class Grid(GridSpec):
-    """The bench's grid file: the shared grid (clients/grid.py; mode "axes" by default) plus the
+    """The bench's grid file: the shared grid (clients/studies/grid.py; mode "axes" by default) plus the
     reference run's keys, the simulated duration and the comparison window. Keys are held as
     dotted scene keys (aliases resolved)."""
     mode: GridMode = "axes"

@@ -1,8 +1,8 @@
 """``hydrolink fmu export --python``: hydrolink's forces as an FMI 2.0 co-simulation FMU (built with
-pythonfmu; the default is the native FMU of :mod:`hydrolink.clients.fmu_native`).
+pythonfmu; the default is the native FMU of :mod:`hydrolink.clients.fmu.native`).
 
 The FMU carries the scene text and its HDBs (as hydrolink NetCDF) in ``resources/``; its model
-class is :mod:`hydrolink.clients.fmu_slave`. At run time it needs a Python with hydrolink installed
+class is :mod:`hydrolink.clients.fmu.slave`. At run time it needs a Python with hydrolink installed
 (pythonfmu FMUs run their Python code in the importing process or in the Python that pythonfmu's
 binary finds) and connects to the server named by its ``server_address`` parameter — or starts an
 embedded one when that is empty.
@@ -28,7 +28,7 @@ def export_fmu(scene_path: str | Path, output: str | Path, *, progress: bool = T
         from pythonfmu import FmuBuilder
     except ImportError:  # pragma: no cover - an install without the extra
         raise RuntimeError("hydrolink fmu export needs pythonfmu: pip install 'hydrolink[fmu]'") from None
-    from hydrolink.clients.connection import ServerConnection
+    from hydrolink.clients.lockstep.connection import ServerConnection
     from hydrolink.clients.run import load_scene_hdbs
     from hydrolink.server.hdb.schema import to_netcdf
     from hydrolink.server.service import serve_in_thread
@@ -68,7 +68,7 @@ def export_fmu(scene_path: str | Path, output: str | Path, *, progress: bool = T
         }
         (work / "hydrolink_fmu.json").write_text(json.dumps(config))
         script = work / "hydrolink_forces.py"
-        shutil.copy2(Path(__file__).with_name("fmu_slave.py"), script)
+        shutil.copy2(Path(__file__).with_name("slave.py"), script)
         output.parent.mkdir(parents=True, exist_ok=True)
         built = FmuBuilder.build_FMU(script, dest=output, project_files=[work / "hydrolink_fmu.json",
                                                                           *(work / f for f in files.values())],

@@ -1,6 +1,6 @@
 """``sweep.nc``: every case's summary on one dimension per sweep key, and the power matrix + AEP.
 
-Per case (its file's summary over its averaging window; clients/sweep_case_file.py):
+Per case (its file's summary over its averaging window; clients/studies/sweep_case_file.py):
 
 =========================  =================================  =====================================
 variable                   dims (after the sweep keys)        meaning
@@ -23,7 +23,7 @@ window_start, window_end   -                                  s, the averaging w
 =========================  =================================  =====================================
 
 A cell of the key grid that no case fills ("zip" and "axes" modes, explicit cases) has status
-"absent" and NaN elsewhere. Power matrix (clients/power_matrix.py), one per combination of the
+"absent" and NaN elsewhere. Power matrix (clients/studies/power_matrix.py), one per combination of the
 sweep keys other than the sea state's and ``waves.seed``: ``power_matrix``,
 ``capture_width_matrix``, ``energy_flux_matrix``, ``case_count`` over (hm0, te) (H, T for regular
 waves), and with a site ``occurrence`` (hm0, te), ``annual_energy`` (Wh) and
@@ -39,11 +39,11 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from hydrolink.clients.power_matrix import PowerMatrix, SeaState, annual_energy, power_matrix, sea_state
-from hydrolink.clients.results import DOF_NAMES, package_versions
-from hydrolink.clients.sweep_file import Case, Sweep
-from hydrolink.clients.sweep_case_file import CaseSummary
-from hydrolink.clients.sweep_worker import CaseRecord
+from hydrolink.clients.studies.power_matrix import PowerMatrix, SeaState, annual_energy, power_matrix, sea_state
+from hydrolink.clients.lockstep.results import DOF_NAMES, package_versions
+from hydrolink.clients.studies.sweep_file import Case, Sweep
+from hydrolink.clients.studies.sweep_case_file import CaseSummary
+from hydrolink.clients.studies.sweep_worker import CaseRecord
 from hydrolink.protocol.scene import RegularWave
 
 

@@ -2,7 +2,7 @@
  * (protocol/SPEC.md over ZMTP 3.0, written here: no libzmq, no Python) and its saved states.
  * fmi2.c and fmi3.c map their FMI version's API onto these functions; nothing here knows FMI.
  *
- * Value references (the same in both model descriptions, written by clients/fmu_native.py):
+ * Value references (the same in both model descriptions, written by clients/fmu/native.py):
  *   0 time (FMI 3's independent variable), 1 server_address (string parameter), 2 timeout (s, parameter), 3 wave_elevation (output);
  *   1000 + 8 i + k for active DOF i: k = 0 displacement, 1 velocity (inputs), 2 force,
  *     3 excitation, 4 radiation, 5 hydrostatic, 6 dynamic (= force - hydrostatic) (outputs);

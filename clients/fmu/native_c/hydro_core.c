@@ -115,7 +115,7 @@ static int parse_doubles(const char *s, double *out, int n) {
     return 0;
 }
 
-/* resources/hydrolink_native.cfg: one "tag value" per line (written by clients/fmu_native.py) */
+/* resources/hydrolink_native.cfg: one "tag value" per line (written by clients/fmu/native.py) */
 static int read_config(hl_fmu *f, const char *res) {
     char path[4096];
     size_t size;

@@ -43,7 +43,7 @@ from exudyn.itemInterface import (ObjectConnectorCartesianSpringDamper, ObjectCo
                                   ObjectConnectorSpringDamper, VObjectConnectorCartesianSpringDamper,
                                   VObjectConnectorRigidBodySpringDamper, VObjectConnectorSpringDamper)
 
-from hydrolink.clients.mechanism import BodyHandle, marker_at
+from hydrolink.clients.exudyn.mechanism import BodyHandle, marker_at
 from hydrolink.protocol.scene import LinearPTO, RotaryPTO, SceneError
 
 AXES = ("roll", "pitch", "yaw")

@@ -1,10 +1,10 @@
 """``hydrolink sweep SWEEP.toml``: every case of a sweep on Dask distributed, then sweep.nc and plots.
 
-1. The sweep file and every case are validated (clients/sweep_file.py) before anything runs.
+1. The sweep file and every case are validated (clients/studies/sweep_file.py) before anything runs.
 2. The HDBs are loaded (HDB build specs built or taken from the on-disk cache) once, in this
    process; a case's key is the sha256 of its scene with every file replaced by its content's
    digest, its solver, the hydrolink version and what its file keeps
-   (:func:`~hydrolink.clients.sweep_file.case_identity`); its files are named by its index, keys and
+   (:func:`~hydrolink.clients.studies.sweep_file.case_identity`); its files are named by its index, keys and
    values (``cases/case-012_waves.hs=2.5_ptos.pto.damping=1.2e6.*``), its record holds its key.
 3. Cases whose record (by key) exists in ``OUTDIR/cases`` are finished and skipped (failed ones too, unless
    ``retry_failed``); the others run on Dask: a ``LocalCluster`` of ``workers`` processes with one
@@ -14,8 +14,8 @@
    others go on; a case whose worker dies is run once more (the LocalCluster's scheduler is told
    to give up on a task after one death; a separate scheduler's ``allowed-failures`` applies
    before that); a progress bar shows cases done / failed / running and the ETA.
-4. ``OUTDIR/sweep.nc`` (clients/sweep_results.py), ``cases.csv``, ``power_matrix.png`` and
-   ``capture_width.png`` (clients/sweep_plots.py) are written from every finished case.
+4. ``OUTDIR/sweep.nc`` (clients/studies/sweep_results.py), ``cases.csv``, ``power_matrix.png`` and
+   ``capture_width.png`` (clients/studies/sweep_plots.py) are written from every finished case.
 """
 
 from __future__ import annotations
@@ -32,8 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
-from hydrolink.clients.sweep_file import Sweep, SweepError, case_identity, dataset_digest, full_key, load_sweep
-from hydrolink.clients.sweep_worker import (CASE_FILES, TOKEN_FILE, CaseOutcome, CaseRecord, CaseTask, case_paths, run_case,
+from hydrolink.clients.studies.sweep_file import Sweep, SweepError, case_identity, dataset_digest, full_key, load_sweep
+from hydrolink.clients.studies.sweep_worker import (CASE_FILES, TOKEN_FILE, CaseOutcome, CaseRecord, CaseTask, case_paths, run_case,
                                             store_outcome, warm_setup, write_file_atomic)
 
 log = logging.getLogger(__name__)
@@ -247,7 +247,7 @@ def run_sweep(sweep_path: str | Path, outdir: str | Path, *, workers: int | None
     if todo:
         token = secrets.token_hex(16)
         (outdir / TOKEN_FILE).write_text(token)
-        from hydrolink.clients.sweep_results import averaging_window
+        from hydrolink.clients.studies.sweep_results import averaging_window
         tasks = [CaseTask(c.case_id, c.name, c.label, c.text, c.solver,
                           tuple(sorted({b.hdb for b in c.scene.bodies if b.wet})), str(outdir), token,
                           averaging_window(c, sweep.spec.window, c.solver == "steady"), c.tail) for c in todo]
@@ -283,9 +283,9 @@ def run_sweep(sweep_path: str | Path, outdir: str | Path, *, workers: int | None
 def write_outputs(sweep: Sweep, outdir: Path, records: dict[str, CaseRecord | None]) -> tuple[list[str], list[str]]:
     """sweep.nc, cases.csv and the plots from every finished case; returns the files written and,
     with a site, one AEP line per combination of the other sweep keys."""
-    from hydrolink.clients.sweep_plots import plot_capture_width, plot_power_matrix
-    from hydrolink.clients.sweep_case_file import read_summary
-    from hydrolink.clients.sweep_results import build_dataset, case_sea_states, write_cases_csv
+    from hydrolink.clients.studies.sweep_plots import plot_capture_width, plot_power_matrix
+    from hydrolink.clients.studies.sweep_case_file import read_summary
+    from hydrolink.clients.studies.sweep_results import build_dataset, case_sea_states, write_cases_csv
     summaries = {}
     done = {k: r for k, r in records.items() if r is not None}
     for case in sweep.cases:

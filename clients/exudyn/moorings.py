@@ -32,7 +32,7 @@
     rope's tension then acts on them from t = 0.
 
 ``MoorDynMooring``
-    A MoorDyn v2 system (clients/moordyn_mooring.py) acting on one or more scene bodies: per coupled
+    A MoorDyn v2 system (clients/exudyn/moordyn_mooring.py) acting on one or more scene bodies: per coupled
     body a ``LoadForceVector`` and a ``LoadTorqueVector`` (global directions) at its reference point,
     set every step from MoorDyn's forces (:meth:`MooringSet.step_moordyn`, called by the Exudyn
     adapter before each step: loads act at the step's end, so they are MoorDyn's forces at t_k+1).
@@ -59,7 +59,7 @@ from exudyn.itemInterface import (LoadForceVector, LoadMassProportional, LoadTor
                                   VObjectConnectorRigidBodySpringDamper, VObjectContactCoordinate,
                                   VObjectJointSpherical)
 
-from hydrolink.clients.mechanism import BodyHandle, marker_at
+from hydrolink.clients.exudyn.mechanism import BodyHandle, marker_at
 from hydrolink.protocol.scene import LinearMooring, MoorDynMooring, RopeMooring, SceneError, Water
 
 _OV = exu.OutputVariableType
@@ -360,13 +360,13 @@ def build_moorings(mbs, moorings: list, handles: dict[str, BodyHandle], water: W
                    body_reference: np.ndarray | None = None) -> MooringSet:
     """Add the scene's moorings to ``mbs`` (before ``Assemble``); ropes get their static
     equilibrium shape first. MoorDyn moorings need their files' layouts (``moordyn_files`` by
-    mooring index, :func:`hydrolink.clients.moordyn_mooring.load_moordyn_files`) and every scene
+    mooring index, :func:`hydrolink.clients.exudyn.moordyn_mooring.load_moordyn_files`) and every scene
     body's name and reference position (B, 6), the rows of the poses they are stepped with."""
     out = MooringSet()
     ground = handles["ground"]
     for i, m in enumerate(moorings):
         if isinstance(m, MoorDynMooring):
-            from hydrolink.clients.moordyn_mooring import MoorDynSystem
+            from hydrolink.clients.exudyn.moordyn_mooring import MoorDynSystem
             if moordyn_files is None or i not in moordyn_files:
                 raise SceneError("scene", f"moorings[{i}].file", "MoorDyn files are read with the scene file "
                                  "(hydrolink run; run_scene_file or exudyn_client.run with moordyn_files)")

@@ -3,7 +3,7 @@
 ::
 
     scene = "rm3.toml"              # relative to this file
-    mode = "product"                # "product" | "zip" | "axes" (clients/grid.py)
+    mode = "product"                # "product" | "zip" | "axes" (clients/studies/grid.py)
     solver = "run"                  # "run": hydrolink run (embedded server); "steady": hydrolink steady
                                     # (regular waves; a case it cannot solve is an error); "auto": steady
                                     # where the case allows, run elsewhere
@@ -48,7 +48,7 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from hydrolink.clients.grid import (GridSpec, Value, absolute_paths, dump_toml, effective_value, full_key, quoted,
+from hydrolink.clients.studies.grid import (GridSpec, Value, absolute_paths, dump_toml, effective_value, full_key, quoted,
                                     scene_location, set_key)
 from hydrolink.protocol.scene import IrregularWave, Scene, SceneError, load_scene, parse_scene
 from hydrolink.protocol.toml_model import validate_toml
@@ -214,7 +214,7 @@ class _CaseBuilder:
             raise SweepError(self.source, key, "give waves.te or waves.tp, not both")
         if isinstance(te, bool) or not isinstance(te, (int, float)) or not te > 0 or not math.isfinite(te):
             raise SweepError(self.source, key, f"a period in s > 0 (got {te!r})")
-        from hydrolink.clients.power_matrix import te_over_tp
+        from hydrolink.clients.studies.power_matrix import te_over_tp
         set_key(doc, "waves.tp", float(te) / te_over_tp(scene.waves))
         return self.validate(doc, {}, key)
 
@@ -281,7 +281,7 @@ def load_sweep(path: str | Path) -> Sweep:
     sweep = Sweep(path, spec, text, scene_path, scene_text, keys, cases)
     _check_coordinates(sweep)
     if spec.site is not None:
-        from hydrolink.clients.power_matrix import PowerMatrixError, read_scatter
+        from hydrolink.clients.studies.power_matrix import PowerMatrixError, read_scatter
         try:
             sweep.scatter = read_scatter((path.parent / spec.site.scatter).resolve())
         except PowerMatrixError as exc:
@@ -296,7 +296,7 @@ def load_sweep(path: str | Path) -> Sweep:
 def _scene_coordinate(scene: Scene, key: str, path: Path):
     """A case's coordinate on a sweep key it does not set: the scene's value (written or default)."""
     if full_key(key) == TE_KEY:
-        from hydrolink.clients.power_matrix import sea_state
+        from hydrolink.clients.studies.power_matrix import sea_state
         state = sea_state(scene)
         return round(state.period, 9) if state and state.kind == "irregular" else math.nan
     v = effective_value(scene, full_key(key))
@@ -333,7 +333,7 @@ def _tail(spec: SweepFile, scene: Scene, path: Path, what: str) -> float | None:
 def _solver(solver: str, scene: Scene, path: Path, what: str) -> str:
     if solver == "run":
         return "run"
-    from hydrolink.clients.steady import SteadyError, check_scene
+    from hydrolink.clients.studies.steady import SteadyError, check_scene
     try:
         check_scene(scene)
     except SteadyError as exc:
@@ -352,7 +352,7 @@ def hydrolink_version() -> str:
         return "unknown"
 
 
-CASE_FILE_FORMAT = 2       # 2: summary + tail (clients/sweep_case_file.py); 1 (hash names, full series) is not resumed
+CASE_FILE_FORMAT = 2       # 2: summary + tail (clients/studies/sweep_case_file.py); 1 (hash names, full series) is not resumed
 _VOLATILE_ATTRS = {"cache_file", "cache_hit", "build_seconds", "mesh_seconds", "solve_seconds"}
 
 

@@ -1,9 +1,9 @@
 """The lockstep driver: one multibody code, the force server, one coupling scheme, one loop.
 
 The multibody side is an adapter (:class:`Multibody`: the Exudyn model in
-:mod:`hydrolink.clients.exudyn_client`, an FMU in :mod:`hydrolink.clients.fmu_client`); the force
+:mod:`hydrolink.clients.exudyn.client`, an FMU in :mod:`hydrolink.clients.fmu.master`); the force
 server is a :class:`ForceLink`; the coupling scheme (scene ``[coupling] scheme``, README "Coupling
-schemes", docs/stability.md) is one object from :mod:`hydrolink.clients.coupling_schemes`. The loop
+schemes", docs/stability.md) is one object from :mod:`hydrolink.clients.lockstep.coupling_schemes`. The loop
 itself (:func:`run`) only sequences exchanges, writes rows, watches for divergence and turns every
 failure into one error that names the step and keeps the rows written so far.
 
@@ -21,7 +21,7 @@ from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 
-from hydrolink.clients.connection import EXTRA_FORCE_FIELDS
+from hydrolink.clients.lockstep.connection import EXTRA_FORCE_FIELDS
 
 _sum = np.add.reduce   # ndarray.sum without its Python wrapper
 

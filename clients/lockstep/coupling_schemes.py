@@ -20,8 +20,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from hydrolink.clients.coupling import Aitken
-from hydrolink.clients.lockstep import CouplingError, Lockstep, Sample
+from hydrolink.clients.fmu.coupling import Aitken
+from hydrolink.clients.lockstep.driver import CouplingError, Lockstep, Sample
 
 
 def _times(loop: Lockstep, e: int, j: int) -> tuple[float, float]:

@@ -75,7 +75,7 @@ class HydrolinkForces(Fmi2Slave):
 
     # -- the server ---------------------------------------------------------------------------
     def exit_initialization_mode(self):
-        from hydrolink.clients.connection import EXTRA_FORCE_FIELDS, ServerConnection
+        from hydrolink.clients.lockstep.connection import EXTRA_FORCE_FIELDS, ServerConnection
         self._extra_fields = EXTRA_FORCE_FIELDS
         from hydrolink.server.hdb.io import load_hdb
 

@@ -14,7 +14,7 @@ seconds, so a request/reply between two participants takes 2 x ``delay`` more th
 - ``mode = "netem"``: a kernel bridge in the hub and ``tc qdisc ... netem delay`` on every
   participant's egress (kernels built with sch_netem);
 - ``mode = "switch"``: this module's user-space delay switch in the hub (``python -m
-  hydrolink.clients.netlab switch``): AF_PACKET sockets with PACKET_VNET_HDR on the hub's ends of
+  netlab switch``): AF_PACKET sockets with PACKET_VNET_HDR on the hub's ends of
   the veths (so checksum-offload and GSO metadata pass through unchanged), a MAC-learning switch
   whose frames leave ``delay`` after they came in. For kernels without netem (this project's VMs:
   ``CONFIG_NET_SCH_NETEM`` is not set). It adds a few tens of µs per hop (one Python process).
@@ -167,7 +167,7 @@ class Lab:
                 _ip("-n", self.hub, "link", "set", port, "master", "br0")
             _ip("-n", self.hub, "link", "set", "br0", "up")
         else:
-            self._switch = self.popen(None, [sys.executable, "-m", "hydrolink.clients.netlab", "switch", "--delay",
+            self._switch = self.popen(None, [sys.executable, str(Path(__file__).resolve()), "switch", "--delay",
                                              repr(self.delay), "--loss", repr(self.loss), "--max-time",
                                              repr(self.max_time), *hub_ports], namespace=self.hub,
                                       stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
@@ -304,7 +304,7 @@ def delay_switch(ports: list[str], delay: float, max_time: float, loss: float = 
 
 def main(argv: list[str] | None = None) -> None:
     import argparse
-    p = argparse.ArgumentParser(prog="python -m hydrolink.clients.netlab")
+    p = argparse.ArgumentParser(prog="python -m netlab")
     sub = p.add_subparsers(dest="cmd", required=True)
     sw = sub.add_parser("switch", help="user-space delay switch between interfaces (run inside a namespace)")
     sw.add_argument("ports", nargs="+")

@@ -16,7 +16,7 @@ displacements from equilibrium, Tait-Bryan angles of every body node, point-mass
 Where each term comes from — the same sources as ``hydrolink run``:
 
 - ``M``, ``K``, ``D``: ``mbs.ComputeLinearizedSystem`` of the system the time-domain client builds
-  (:func:`hydrolink.clients.exudyn_client.build_model`, bodies at their reference configuration,
+  (:func:`hydrolink.clients.exudyn.client.build_model`, bodies at their reference configuration,
   PTOs left out): rigid-body mass matrices about the reference points, A_inf (the hydrodynamic
   ``ObjectGenericODE2`` mass matrix), hydrostatic + gravity stiffness (its stiffness matrix, from the
   server model's ``setup_info``), linear mooring connectors (stiffness and damping).
@@ -26,7 +26,7 @@ Where each term comes from — the same sources as ``hydrolink run``:
   (geometric) stiffness, which Exudyn's Jacobian leaves out, is added here from the scene
   (a constant global force F at a body point r: d(moment)/d(theta) = r F^T - (F.r) I).
 - ``G``: the constraint Jacobian of Exudyn's algebraic equations (locked DOFs, ``[[constraints]]``,
-  joints, as built and reduced by clients/mechanism.py) at the reference configuration; rows of
+  joints, as built and reduced by clients/exudyn/mechanism.py) at the reference configuration; rows of
   unconstrained joint axes (zero) are dropped.
 - ``F_mem``: radiation memory, per harmonic k >= 1 the frequency-dependent coefficients
   ``-(A(kw) - A_inf) q'' - B(kw) q'`` from the server model (:meth:`HydroModel.radiation_coefficients`,
@@ -37,7 +37,7 @@ Where each term comes from — the same sources as ``hydrolink run``:
 - ``F_pto``: each PTO as a line (linear PTO: extension g^T q of point1 -> point2, linearised
   geometry) or an axis (rotary PTO: relative rotation about a frame axis), force clipped at
   ``force_limit``/``torque_limit``, generalised force -g T; this is the same spring-damper law as
-  clients/ptos.py. The test checks g g^T k, g g^T c against Exudyn's linearisation with the PTOs in.
+  clients/exudyn/ptos.py. The test checks g g^T k, g g^T c against Exudyn's linearisation with the PTOs in.
 
 Two formulations (``[steady] formulation`` / ``--formulation``):
 
@@ -48,7 +48,7 @@ Two formulations (``[steady] formulation`` / ``--formulation``):
 
 A mode with no static stiffness (e.g. a free surge) has an undetermined mean: its mean is set to
 zero; a nonzero mean force on it (a drift) is an error. Results: one period, resampled at dt by
-trigonometric interpolation, written in the layout of ``hydrolink run`` (clients/results.py).
+trigonometric interpolation, written in the layout of ``hydrolink run`` (clients/lockstep/results.py).
 Not supported (refused with the reason): irregular or still waves, rope and MoorDyn moorings (catenary and
 seabed contact), joint friction, controllers, FMU clients, nonzero constraint values.
 """
@@ -189,7 +189,7 @@ def linearize(scene: Scene, model, setup: Setup) -> LinearizedSystem:
     model (built as for ``hydrolink run``, PTOs left out) and the server model ``model``."""
     import exudyn as exu
 
-    from hydrolink.clients.exudyn_client import build_model
+    from hydrolink.clients.exudyn.client import build_model
 
     t0 = _time.perf_counter()
     check_scene(scene)
@@ -261,7 +261,7 @@ def linearize(scene: Scene, model, setup: Setup) -> LinearizedSystem:
                                 float(p.stiffness) * (length - rest),
                                 math.inf if p.force_limit is None else float(p.force_limit)))
         else:
-            from hydrolink.clients.ptos import AXES, _per_axis, frame_matrix
+            from hydrolink.clients.exudyn.ptos import AXES, _per_axis, frame_matrix
             frame = frame_matrix(p.frame)
             ks, cs = _per_axis(p.stiffness, len(p.axes)), _per_axis(p.damping, len(p.axes))
             for a, k, c in zip(p.axes, ks, cs):
@@ -274,7 +274,7 @@ def linearize(scene: Scene, model, setup: Setup) -> LinearizedSystem:
                                     math.inf if p.torque_limit is None else float(p.torque_limit)))
     moorings = []
     for i, m in enumerate(scene.moorings):
-        from hydrolink.clients.moorings import matrix6, mooring_label
+        from hydrolink.clients.exudyn.moorings import matrix6, mooring_label
         r = np.asarray(m.point, float) - np.asarray(handles[m.body].reference, float)
         moorings.append((mooring_label(m, i), _point_jacobian(n, index_of(m.body), r),
                          np.asarray(matrix6(m.stiffness), float), np.asarray(matrix6(m.damping), float),
@@ -584,13 +584,13 @@ def sample(sol: SteadySolution, times: np.ndarray) -> dict[str, np.ndarray]:
 
 def write_results(path: str | Path, sol: SteadySolution, scene: Scene, scene_text: str, setup: Setup,
                   dt: float) -> int:
-    """One period [0, T) sampled every ``dt`` into ``path`` (clients/results.py's layout); returns
+    """One period [0, T) sampled every ``dt`` into ``path`` (clients/lockstep/results.py's layout); returns
     the number of rows. Extra attributes: steady_order, steady_formulation, steady_iterations,
     steady_residual, steady_period, steady_solve_seconds."""
     import netCDF4
 
-    from hydrolink.clients.exudyn_client import _add_pto_mooring_variables
-    from hydrolink.clients.results import ResultWriter
+    from hydrolink.clients.exudyn.client import _add_pto_mooring_variables
+    from hydrolink.clients.lockstep.results import ResultWriter
 
     s = sol.system
     period = 2 * np.pi / s.omega

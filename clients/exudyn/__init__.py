@@ -1,0 +1,1 @@
+"""The Exudyn adapter: the mechanism (bodies, joints), PTOs, moorings, MoorDyn."""

@@ -1,0 +1,1 @@
+"""Studies built on runs: sweeps on Dask, the grid of scene keys, accuracy benches, IEC power matrices, the steady-state solver."""
