@@ -49,10 +49,10 @@ def main() -> None:
     finite = all(np.isfinite(ds[v].values).all() for v in ("position", "velocity", "joint_violation", "pto_power"))
     t = ds.time.values
     half = t >= t[-1] / 2
-    print(f"9N9LA {args.duration:g} s, dt {t[1] - t[0]:g} s, {s['steps']} steps: status {ds.attrs['status']}")
-    print(f"  wall time {wall:.1f} s (run {s['wall_time']:.1f} s) = {s['wall_time'] / args.duration:.3f} s per simulated s")
-    print(f"  client {s['client_us_per_step']:.0f} us/step, server round trip {s['round_trip_us_per_step']:.0f} "
-          f"us/step (server compute {s.get('server_compute_us_per_step', float('nan')):.0f})")
+    print(f"9N9LA {args.duration:g} s, dt {t[1] - t[0]:g} s, {s.steps} steps: status {ds.attrs['status']}")
+    print(f"  wall time {wall:.1f} s (run {s.wall_time:.1f} s) = {s.wall_time / args.duration:.3f} s per simulated s")
+    print(f"  client {s.client_us_per_step:.0f} us/step, server round trip {s.round_trip_us_per_step:.0f} "
+          f"us/step (server compute {(s.server_compute_us_per_step or float('nan')):.0f})")
     print(f"  joint violation at the end: max {viol[-1].max():.3e} m (whole run max {viol.max():.3e} m); "
           f"rotation violation {rot[-1].max():.3e} rad")
     jf = np.abs(ds.joint_force.values)

@@ -32,7 +32,7 @@ from hydrolink.protocol import codec  # noqa: E402
 from hydrolink.protocol.hdb_wire import HDBFiles, to_wire  # noqa: E402
 from hydrolink.protocol.scene import load_scene  # noqa: E402
 from hydrolink.server.hdb.io import file_set  # noqa: E402
-from hydrolink.server.hdb.schema import to_netcdf  # noqa: E402
+from hydrolink.protocol.hdb_schema import to_netcdf  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 HYDROLINK = [sys.executable, "-m", "hydrolink.clients.cli"]

@@ -215,8 +215,8 @@ def start_server(pin: bool) -> tuple[subprocess.Popen, str]:
 def run_us(scene_path: Path, out: Path, hdbs: dict, server: str | None = None) -> float:
     """µs per step of one whole run (client + server + transport + results file)."""
     summary = run_scene_file(scene_path, out, server=server, progress=False, hdbs=hdbs)
-    assert summary["status"] == "complete", summary["status"]
-    return summary["wall_time"] / summary["steps"] * 1e6
+    assert summary.status == "complete", summary.status
+    return summary.wall_time / summary.steps * 1e6
 
 
 def med(xs: list[float]) -> str:

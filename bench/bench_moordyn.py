@@ -181,7 +181,7 @@ def timed(folder: Path, cases: dict[str, str], duration: float, repeat: int, hdb
     for _ in range(repeat):
         for name, text in cases.items():
             summary, files[name] = run_case(folder, text, duration, hdbs, name)
-            per_step[name].append(summary["wall_time"] / summary["steps"] * 1e6)
+            per_step[name].append(summary.wall_time / summary.steps * 1e6)
     return per_step, files
 
 

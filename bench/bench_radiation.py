@@ -31,7 +31,7 @@ import xarray as xr
 
 from hydrolink.protocol.scene import parse_scene
 from hydrolink.server.hdb.build import build_hdb
-from hydrolink.server.hdb.schema import make_hdb, select_bodies, to_netcdf
+from hydrolink.protocol.hdb_schema import make_hdb, select_bodies, to_netcdf
 from hydrolink.server.model import HydroModel
 
 REPO = Path(__file__).resolve().parents[1]
@@ -191,7 +191,7 @@ def accuracy(args) -> None:
                             for b in names])
             n_per = int(round(5 * PERIOD / DT))
             power = out["pto_power"].values[-n_per:].mean(axis=0)
-            results[label] = (amp, power, summary.get("server_compute_us_per_step", float("nan")), wall)
+            results[label] = (amp, power, (summary.server_compute_us_per_step or float("nan")), wall)
     ref_amp, ref_pow = results["convolution"][:2]
     print(f"| setting | server µs/step | run wall s | max heave amplitude error | max PTO power error | total power error |")
     print("|---|---|---|---|---|---|")

@@ -67,7 +67,7 @@ def main() -> None:
                 best = float("inf")
                 for _ in range(args.repeat):
                     s = run_scene_file(scene, work / "out.nc", server=address, progress=False, **client)
-                    best = min(best, 1e6 * s["wall_time"] / s["steps"])
+                    best = min(best, 1e6 * s.wall_time / s.steps)
             finally:
                 proc.terminate()
                 proc.wait(10)

@@ -67,7 +67,7 @@ def one(sphere, scheme, mass, dt, ref, folder, allow_unstable=True):
     assert np.isfinite(z).all()
     err = float(np.abs(z - np.interp(t, *ref)).max() / X0)
     return {"outcome": "accurate" if err < 0.01 else "stable", "error": err, "wall": wall,
-            "iterations": summary["coupling"]["iterations_mean"]}
+            "iterations": summary.coupling.iterations_mean}
 
 
 def stability_map(sphere, folder, ratios, dts):

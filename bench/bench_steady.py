@@ -61,7 +61,7 @@ def time_domain(scene_path: Path, dt: float, duration: float, folder: Path, extr
     scene, _ = load_scene(path)
     w = 2 * np.pi / scene.waves.period
     x = (ds["position"] - ds["equilibrium_position"]).values
-    out = {"wall": wall, "run_wall": summary["wall_time"], "steps": summary["steps"],
+    out = {"wall": wall, "run_wall": summary.wall_time, "steps": summary.steps,
            "amplitude": fundamental(ds["time"].values, x, w), "ds": ds}
     if "pto_power" in ds:
         sel = ds["time"].values > ds["time"].values[-1] - 5 * scene.waves.period + 1e-9

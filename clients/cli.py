@@ -16,7 +16,7 @@ class _UserError(click.ClickException):
 def _user_errors():
     """Exception types that are the user's input at fault and deserve a one-line message."""
     from hydrolink.protocol.scene import SceneError
-    from hydrolink.server.hdb.schema import HDBError
+    from hydrolink.protocol.hdb_schema import HDBError
     from hydrolink.clients.lockstep.connection import RemoteError
     errors: list[type[BaseException]] = [SceneError, HDBError, FileNotFoundError, RemoteError]
     from hydrolink.clients.exudyn.client import RunInterrupted
@@ -77,7 +77,7 @@ def hdb() -> None:
 def hdb_build(spec: Path, output: Path, no_progress: bool) -> None:
     """Compute an HDB with Capytaine from a build SPEC (TOML); cached by its inputs."""
     from hydrolink.server.hdb.build import build_hdb
-    from hydrolink.server.hdb.schema import to_netcdf
+    from hydrolink.protocol.hdb_schema import to_netcdf
 
     ds = _guard(build_hdb, spec, progress=not no_progress)
     output.parent.mkdir(parents=True, exist_ok=True)
@@ -259,12 +259,12 @@ def run(scene: Path, output: Path | None, server: str | None, no_progress: bool,
     except KeyboardInterrupt as exc:
         click.echo(f"hydrolink run: {exc or 'interrupted'}", err=True)
         raise SystemExit(130) from None
-    steps, wall = summary["steps"], summary["wall_time"]
-    click.echo(f"wrote {summary['output']}: {steps} steps in {wall:.2f} s ({steps / max(wall, 1e-9):.0f} steps/s; "
-               f"server compute {summary.get('server_compute_us_per_step', float('nan')):.1f} us/step)")
+    steps, wall = summary.steps, summary.wall_time
+    click.echo(f"wrote {summary.output}: {steps} steps in {wall:.2f} s ({steps / max(wall, 1e-9):.0f} steps/s; "
+               f"server compute {(summary.server_compute_us_per_step or float('nan')):.1f} us/step)")
     if hdb_files:
-        click.echo(f"HDB files sent by hash: {summary['hdb_uploads']} content(s) uploaded, the rest held by the server")
-    for report in summary.get("moordyn") or []:
+        click.echo(f"HDB files sent by hash: {summary.hdb_uploads} content(s) uploaded, the rest held by the server")
+    for report in summary.moordyn or []:
         for body, offset in zip(report["bodies"], report["static_offset"] or []):
             click.echo(f"MoorDyn {report['mooring']!r}: {body}'s moored equilibrium is "
                        f"[{', '.join(f'{x:.4g}' for x in offset)}] (m, rad) from its reference position "

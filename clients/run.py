@@ -7,14 +7,15 @@ or, when none is given, embeds one in this process — and drives the Exudyn cli
 from __future__ import annotations
 
 import json
-
 import logging
 from contextlib import ExitStack
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import xarray as xr
 
+from hydrolink.clients.lockstep.summary import RunSummary
 from hydrolink.protocol.hdb_wire import HDBFiles
 from hydrolink.protocol.scene import Scene, SceneError, load_scene, resolve_path
 
@@ -109,8 +110,8 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
                    server: str | None = None, progress: bool = True, timeout: float = 60.0,
                    listen: str = "tcp://127.0.0.1:*", hdbs: dict[str, xr.Dataset] | None = None,
                    curve=None, key: bytes | None = None, link_timeout: float = 10.0,
-                   hdb_files: bool = False) -> dict:
-    """Run a scene end to end; returns the run summary (steps, wall time, output path).
+                   hdb_files: bool = False) -> RunSummary:
+    """Run a scene end to end; returns the run summary (steps, wall time, output path, the server's side).
 
     A scene with ``[[controllers]]`` and no ``server`` starts a force server with a socket on
     ``listen`` in a thread of this process (controllers connect to it; SPEC §5.7) instead of the
@@ -142,9 +143,8 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
         with ResultWriter(output, scene=scene, scene_text=text, dt=scene.simulation.dt, bodies=names,
                           equilibrium_position=reference, flush_seconds=scene.simulation.flush_seconds) as writer:
             summary = run(scene, text, None, None, writer, progress=progress, moordyn_files=moordyn_files)
-            writer.set_attribute("warnings", json.dumps(summary["warnings"]))
-        summary["output"], summary["server"] = str(output), None
-        return summary
+            writer.set_attribute("warnings", json.dumps(summary.warnings))
+        return replace(summary, output=str(output), server=None)
     with ExitStack() as stack:
         if server is None and scene.controllers:
             from hydrolink.server.service import serve_in_thread
@@ -184,16 +184,15 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
             summary = run_fmu(scene, text, conn, setup, writer, scene_path=scene_path, progress=progress)
         else:
             summary = run(scene, text, conn, setup, writer, progress=progress, moordyn_files=moordyn_files)
-        writer.set_attribute("warnings", json.dumps(summary["warnings"]))
+        writer.set_attribute("warnings", json.dumps(summary.warnings))
         goodbye = conn.bye()
-    summary["output"] = str(output)
-    summary["server"] = server
-    summary["hdb_uploads"] = len(conn.uploads)
-    if goodbye.get("steps"):
-        summary["server_compute_us_per_step"] = 1e6 * goodbye["compute_s"] / goodbye["steps"]
-    if setup:  # radiation option and coupling pruning ([hydro] radiation, coupling_tolerance)
-        for key in ("radiation", "radiation_pairs", "dropped_pair_fraction", "dropped_block_fraction"):
-            summary[key] = getattr(setup, key)
-        # state-space pairs fitted in this setup (the rest came from the on-disk fit cache)
-        summary["state_space_fitted_pairs"] = setup.state_space.fitted_pairs if setup.state_space else None
-    return summary
+    # the server's side: its compute per step, the radiation option and its pruning ([hydro]
+    # radiation, coupling_tolerance), the state-space pairs fitted in this setup (the rest came
+    # from the on-disk fit cache)
+    return replace(summary, output=str(output), server=server, hdb_uploads=len(conn.uploads),
+                   server_compute_us_per_step=(1e6 * goodbye["compute_s"] / goodbye["steps"]
+                                               if goodbye.get("steps") else None),
+                   radiation=setup.radiation, radiation_pairs=setup.radiation_pairs,
+                   dropped_pair_fraction=setup.dropped_pair_fraction,
+                   dropped_block_fraction=setup.dropped_block_fraction,
+                   state_space_fitted_pairs=setup.state_space.fitted_pairs if setup.state_space else None)

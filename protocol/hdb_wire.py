@@ -4,7 +4,7 @@ or an HDB's original files by content ("HDB file set", :class:`HDBFiles`).
 One half of the session contract (the other is :mod:`hydrolink.protocol.setup`): a client sends
 ``to_wire(ds)`` or ``HDBFiles.entry()`` for each ``hdbs`` entry of ``hello``; the server rebuilds
 and validates a map with ``from_wire`` — the same checks as for a file
-(:func:`hydrolink.server.hdb.schema.validate_hdb`), every error naming the entry and the field —
+(:func:`hydrolink.protocol.hdb_schema.validate_hdb`), every error naming the entry and the field —
 and reads a file set with the readers of :mod:`hydrolink.server.hdb` (``server/hdb_files.py``).
 """
 
@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from hydrolink.server.hdb.schema import (OPTIONAL_VARS, REQUIRED_ATTRS, REQUIRED_VARS, HDBError, make_hdb,
+from hydrolink.protocol.hdb_schema import (OPTIONAL_VARS, REQUIRED_ATTRS, REQUIRED_VARS, HDBError, make_hdb,
                                          validate_hdb)
 
 

@@ -13,6 +13,7 @@ from typing import Annotated, Literal, Union
 
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, field_validator, model_validator
 
+from hydrolink.protocol.errors import KeyedError
 from hydrolink.protocol.toml_model import validate_toml
 
 DOF_NAMES: tuple[str, ...] = ("surge", "sway", "heave", "roll", "pitch", "yaw")
@@ -21,12 +22,8 @@ DOF_NAMES: tuple[str, ...] = ("surge", "sway", "heave", "roll", "pitch", "yaw")
 log = logging.getLogger(__name__)
 
 
-class SceneError(ValueError):
+class SceneError(KeyedError):
     """A scene that cannot be run; the message names the file, the key and why."""
-
-    def __init__(self, source: str | Path, key: str, why: str):
-        self.source, self.key, self.why = str(source), key, why
-        super().__init__(f"{source}: {key}: {why}" if key else f"{source}: {why}")
 
 
 class _Section(BaseModel):
@@ -905,6 +902,16 @@ class Scene(_Section):
                 if v is not None and abs(v / dt - round(v / dt)) > 1e-6 * max(1.0, v / dt):
                     raise ValueError(f"controllers[{i}].{key}: {v} s must be a multiple of simulation.dt = {dt} s")
 
+
+    @property
+    def exchange_dt(self) -> float:
+        """s, the server's step: coupling.exchange_every client steps of simulation.dt (setup.dt)."""
+        return float(self.simulation.dt) * int(self.coupling.exchange_every)
+
+    @property
+    def n_exchanges(self) -> int:
+        """Exchanges with the server to simulation.duration (the last step index is this, setup.last_seq)."""
+        return self.simulation.n_steps // int(self.coupling.exchange_every)
 
     @property
     def wet_bodies(self) -> list[Body]:

@@ -36,14 +36,20 @@ def _loc(loc: tuple, union_tags: tuple[str, ...]) -> str:
     return out
 
 
+def parse_toml(text: str, source: str | Path, error: Callable[[str | Path, str, str], Exception]) -> dict:
+    """The TOML document ``text`` as a dict; ``error(source, "", why)`` when it is not TOML. (The
+    one TOML reader: scenes, build specs, grids and sweeps all come through it.)"""
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise error(source, "", f"not valid TOML: {exc}") from None
+
+
 def validate_toml(text: str, source: str | Path, model: type[M],
                   error: Callable[[str | Path, str, str], Exception],
                   union_tags: tuple[str, ...] = ()) -> M:
     """Parse ``text`` and validate it as ``model``; raise ``error(source, key, why)`` on the first problem."""
-    try:
-        raw = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise error(source, "", f"not valid TOML: {exc}") from None
+    raw = parse_toml(text, source, error)
     try:
         return model.model_validate(raw)
     except ValidationError as exc:

@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+from hydrolink.protocol.errors import KeyedError
 
-class ModelError(ValueError):
+
+class ModelError(KeyedError):
     """A scene/HDB combination the model cannot run; the message names the scene key and why."""
 
     def __init__(self, key: str, why: str):
-        self.key, self.why = key, why
-        super().__init__(f"{key}: {why}")
+        super().__init__("", key, why)

@@ -22,7 +22,7 @@ from hydrolink.protocol import codec
 from hydrolink.protocol.codec import Code, ProtocolError
 from hydrolink.protocol.hdb_wire import FILE_FORMATS
 from hydrolink.server.hdb.io import load_hdb
-from hydrolink.server.hdb.schema import HDBError
+from hydrolink.protocol.hdb_schema import HDBError
 from hydrolink.server.hdb.wamit import WAMIT_SUFFIXES
 from hydrolink.server.hdb_store import HASH, ContentStore
 

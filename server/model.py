@@ -31,7 +31,7 @@ from hydrolink.protocol.scene import Scene
 from hydrolink.protocol.setup import IRFProcessing, Setup, StateSpaceReport
 from hydrolink.server.errors import ModelError
 from hydrolink.server.wetted_surface import Hull
-from hydrolink.server.hdb.schema import DOF_NAMES, HDBError, select_bodies
+from hydrolink.protocol.hdb_schema import DOF_NAMES, HDBError, select_bodies
 from hydrolink.server.hydrostatics import total_stiffness
 from hydrolink.server.nonlinear_hydro import NonlinearHydro, build_nonlinear
 from hydrolink.server.radiation_options import RadiationGroup, radiation_option
@@ -102,7 +102,7 @@ class HydroModel:
         self.bodies = [scene.bodies[i].name for i in wet]
         self.n = 6 * len(self.bodies)
         # one server step per exchange: [coupling] exchange_every client steps of simulation.dt
-        self.dt = float(scene.simulation.dt) * int(scene.coupling.exchange_every)
+        self.dt = scene.exchange_dt
         self.interaction = scene.hydro.interaction
         self.active = np.array([scene.bodies[i].active_mask for i in wet], bool)  # (N, 6)
         self._idx = np.flatnonzero(self.active.reshape(-1))
@@ -139,7 +139,7 @@ class HydroModel:
             rows = self._idx[pos]
             self.radiation_feedthrough[np.ix_(rows, rows)] = memory.feedthrough()
         # the last step index a client may send: seq * dt runs to simulation.duration
-        self.last_seq = int(round(scene.simulation.duration / scene.simulation.dt)) // int(scene.coupling.exchange_every)
+        self.last_seq = scene.n_exchanges
         self._excitation(data, lo, hi, wave_elevation)
         self._step = -1           # index of the newest step pushed
         na = self._idx.size
@@ -339,7 +339,7 @@ class HydroModel:
                                                "sends it in hello.wave_elevation: SPEC §5.1)")
             time, eta = wave_elevation
             try:
-                ser = elevation_on_grid(time, eta, self.dt, int(round(scene.simulation.duration / self.dt)),
+                ser = elevation_on_grid(time, eta, self.dt, scene.n_exchanges,
                                         float(scene.waves.excitation_irf_duration), scene.waves.start, omega_max)
             except WaveError as exc:
                 raise ModelError(exc.key, f"{scene.waves.file}: {exc.why}") from None

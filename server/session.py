@@ -16,7 +16,7 @@ from hydrolink.protocol import codec
 from hydrolink.protocol.codec import Code, ProtocolError
 from hydrolink.protocol.scene import Scene, SceneError, parse_scene
 from hydrolink.protocol.hdb_wire import from_wire
-from hydrolink.server.hdb.schema import HDBError
+from hydrolink.protocol.hdb_schema import HDBError
 from hydrolink.server.hdb_files import FileSetReader, is_file_set
 from hydrolink.server.model import HydroModel, ModelError
 from hydrolink.server.wetted_surface import MeshError, closed_hull

@@ -28,20 +28,21 @@ multiplies the convolved force (as it multiplies the superposed one).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.integrate import quad
 
+from hydrolink.protocol.errors import KeyedError
 from hydrolink.protocol.scene import ElevationWave, IrregularWave, RegularWave, StillWater
 
 
-class WaveError(ValueError):
+class WaveError(KeyedError):
     """A wave definition the HDB cannot serve; ``key`` is the scene key at fault."""
 
     def __init__(self, key: str, why: str):
-        self.key, self.why = key, why
-        super().__init__(f"{key}: {why}")
+        super().__init__("", key, why)
 
 
 @dataclass(frozen=True)
@@ -109,6 +110,19 @@ def pierson_moskowitz(omega, hs: float, tp: float):
     return (5.0 / 16.0) * hs ** 2 * wp ** 4 * _jonswap_shape(omega, tp, 1.0)
 
 
+#: the scene's ``waves.spectrum`` names: S(omega) of (hs, tp, gamma) and the name a report shows
+SPECTRA = {
+    "jonswap": (lambda hs, tp, gamma: jonswap_spectrum(hs, tp, gamma), "JONSWAP (gamma {gamma:g})"),
+    "pierson-moskowitz": (lambda hs, tp, gamma: (lambda w: pierson_moskowitz(w, hs, tp)), "Pierson-Moskowitz"),
+}
+
+
+def wave_spectrum(waves: IrregularWave) -> tuple[Callable[[np.ndarray], np.ndarray], str]:
+    """S(omega) (m^2 s/rad) of an irregular sea and its name (:data:`SPECTRA`)."""
+    make, name = SPECTRA[waves.spectrum]
+    return make(waves.hs, waves.tp, waves.gamma), name.format(gamma=waves.gamma)
+
+
 def spectrum_fraction(spectrum, omega_min: float, omega_max: float, m0: float) -> float:
     """Fraction of m0 outside [omega_min, omega_max]."""
     inside = quad(lambda w: float(spectrum(w)), omega_min, omega_max, limit=400)[0]
@@ -139,10 +153,7 @@ def wave_components(waves, omega_min: float, omega_max: float) -> WaveComponents
         return WaveComponents(np.array([w]), np.array([waves.height / 2]),
                               np.array([np.deg2rad(waves.phase)]), direction, waves.ramp, 0.0, "regular")
     if isinstance(waves, IrregularWave):
-        if waves.spectrum == "jonswap":
-            spec = jonswap_spectrum(waves.hs, waves.tp, waves.gamma)
-        else:
-            spec = lambda w: pierson_moskowitz(w, waves.hs, waves.tp)  # noqa: E731
+        spec, _ = wave_spectrum(waves)
         if waves.omega_range is not None:
             lo, hi = waves.omega_range
             if lo < omega_min * (1 - 1e-9) or hi > omega_max * (1 + 1e-9):

@@ -47,7 +47,7 @@ def _cli(*args: str, cwd: Path, timeout: float = 120) -> subprocess.CompletedPro
 def test_remote_server_run_equals_embedded_run(scene_dir: Path):
     """Deterministic lockstep: the same scene against `hydrolink serve` over TCP equals the embedded run."""
     embedded = run_scene_file(scene_dir / "scene.toml", scene_dir / "embedded.nc", progress=False)
-    assert embedded["status"] == "complete"
+    assert embedded.status == "complete"
 
     server = subprocess.Popen([*HYDROLINK, "serve", "--bind", "tcp://127.0.0.1:*"], cwd=scene_dir,
                               stderr=subprocess.PIPE, text=True)

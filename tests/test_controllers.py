@@ -159,7 +159,7 @@ def test_reactive_beats_passive_against_the_optimum(reference_data, thevenin, se
         powers[name] = mean_power(ds)
         print(f"{command:9s} {name:8s} P = {powers[name] / 1e3:8.2f} kW  (FD passive optimum {th['passive'] / 1e3:.2f}, "
               f"FD optimum {th['optimum'] / 1e3:.2f}); latency mean {1e3 * ev['mean_latency_s']:.2f} ms, "
-              f"max {1e3 * ev['max_latency_s']:.2f} ms; {summary['wall_time']:.2f} s wall")
+              f"max {1e3 * ev['max_latency_s']:.2f} ms; {summary.wall_time:.2f} s wall")
     assert powers["reactive"] > 1.5 * powers["passive"]
     assert th["optimum"] / th["passive"] == pytest.approx(1.72, abs=0.01)
     if command == "impedance":

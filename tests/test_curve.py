@@ -90,7 +90,7 @@ def test_authenticated_run(curve_server, reference_data, tmp_path):
     # the same in-process, with the library API
     keys = ClientKeys.from_files(d / "server" / "server.key", d / "client" / "alice.key_secret")
     summary = run_scene_file(scene, tmp_path / "out2.nc", server=curve_server["address"], progress=False, curve=keys)
-    assert summary["steps"] == 10
+    assert summary.steps == 10
 
 
 def test_unknown_key_refused_and_logged(curve_server):

@@ -195,7 +195,7 @@ def test_elevation_run_end_to_end(rm3, tmp_path, reference_data):
     p = write_scene(tmp_path, _rm3_scene(_elevation("eta.csv", excitation_irf_duration=20.0), hdb=str(hdb), dt=0.08,
                                          duration=40.0))
     s = run_scene_file(p, tmp_path / "out.nc", progress=False, hdbs={str(hdb): rm3})
-    assert s["status"] == "complete"
+    assert s.status == "complete"
     with xr.open_dataset(tmp_path / "out.nc") as ds:
         np.testing.assert_allclose(ds["wave_elevation"].values, eta[250:250 + 501], atol=1e-9)
         assert np.isfinite(ds["position"].values).all() and np.abs(ds["position"].values[:, :, 2]).max() > 0.1

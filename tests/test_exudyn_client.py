@@ -131,8 +131,8 @@ def test_heave_rao_matches_frequency_domain(server, sphere, sphere_path, tmp_pat
     amp_err = abs(measured) / abs(rao) - 1
     phase_err = np.degrees(np.angle(measured / rao))
     REPORT[f"rao w={w:.2f}"] = (f"|RAO| {abs(rao):.4f} m/m, amplitude error {amp_err:+.2e}, phase error "
-                                f"{phase_err:+.3f} deg, client {summary['client_us_per_step']:.0f} us/step, "
-                                f"round trip {summary['round_trip_us_per_step']:.0f} us/step")
+                                f"{phase_err:+.3f} deg, client {summary.client_us_per_step:.0f} us/step, "
+                                f"round trip {summary.round_trip_us_per_step:.0f} us/step")
     print(REPORT[f"rao w={w:.2f}"])
     assert abs(ce[0] + 1j * ce[1]) == pytest.approx(0.5, rel=1e-6)   # the wave the body felt
     assert abs(amp_err) < 0.01
@@ -204,7 +204,7 @@ def test_results_file_layout(server, sphere, sphere_path, tmp_path):
     dt = 0.05
     text = sphere_scene(sphere_path, dt=dt, duration=2.0, waves=regular_waves(1.0, 5.0, ramp=1.0))
     summary, ds = simulate(server, text, sphere, tmp_path / "layout.nc")
-    assert summary["steps"] == 40 and summary["rows"] == 41
+    assert summary.steps == 40 and summary.rows == 41
     assert dict(ds.sizes) == {"time": 41, "body": 1, "dof": 6}
     assert list(ds["body"].values) == ["sphere"]
     assert list(ds["dof"].values) == ["surge", "sway", "heave", "roll", "pitch", "yaw"]

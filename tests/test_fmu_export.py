@@ -106,7 +106,7 @@ def test_exported_fmu_with_mass_matches_native_run(setting, tmp_path):
     native, imported = heave_amplitude(tn, zn, w), heave_amplitude(t, z, w)
     err = abs(imported) / abs(native) - 1
     print(f"export vs native: amplitude {abs(imported):.5f} vs {abs(native):.5f} m ({err:+.2e}), phase "
-          f"{np.degrees(np.angle(imported / native)):+.3f} deg; native {summary['steps']} steps")
+          f"{np.degrees(np.angle(imported / native)):+.3f} deg; native {summary.steps} steps")
     assert abs(err) < 0.005
     assert abs(np.degrees(np.angle(imported / native))) < 0.5
 

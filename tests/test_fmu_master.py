@@ -126,16 +126,16 @@ def test_fmu_heave_and_pto_power_match_frequency_domain(server, sphere, sphere_p
     text = base_scene(sphere_path, rho_v, period, client=fmu_section(fmus[which], rho_v, a_inf=which == "c"))
     summary, ds = run_fmu(server, text, sphere, tmp_path / "run.nc", record=["E_pto"])
     got = steady_heave(ds, w)
-    p = mean_power(ds["time"].values, summary["recorded"]["E_pto"], w)
+    p = mean_power(ds["time"].values, summary.recorded["E_pto"], w)
     amp_err, p_err = abs(got) / abs(rao) - 1, p / power - 1
-    REPORT[f"fd {which}"] = (f"{which}: mode {summary['coupling']['scheme']}, |RAO| {abs(rao):.4f}, amplitude error "
+    REPORT[f"fd {which}"] = (f"{which}: mode {summary.coupling.scheme}, |RAO| {abs(rao):.4f}, amplitude error "
                              f"{amp_err:+.2e}, power {p:.0f} W vs {power:.0f} W ({p_err:+.2e}), "
-                             f"iterations/step {summary['coupling']['iterations_mean']:.2f} (max {summary['coupling']['iterations_max']}), "
-                             f"client {summary['client_us_per_step']:.0f} us/step (FMU {summary['fmu_us_per_step']:.0f}), "
-                             f"round trip {summary['round_trip_us_per_step']:.0f} us/step")
+                             f"iterations/step {summary.coupling.iterations_mean:.2f} (max {summary.coupling.iterations_max}), "
+                             f"client {summary.client_us_per_step:.0f} us/step (FMU {summary.fmu_us_per_step:.0f}), "
+                             f"round trip {summary.round_trip_us_per_step:.0f} us/step")
     print(REPORT[f"fd {which}"])
-    assert summary["coupling"]["scheme"] == ("mass-matrix" if which == "c" else "implicit")
-    assert summary["fmi_version"] == ("3.0" if which == "py3" else "2.0")
+    assert summary.coupling.scheme == ("mass-matrix" if which == "c" else "implicit")
+    assert summary.fmi_version == ("3.0" if which == "py3" else "2.0")
     assert abs(amp_err) < 0.01 and abs(p_err) < 0.01
     assert abs(np.degrees(np.angle(got / rao))) < 1.0
 
@@ -181,9 +181,9 @@ def test_explicit_at_a_small_ratio_is_stable_but_lagged(server, sphere, sphere_p
                               "scheme": "explicit-predictor", "explicit_limit": 0.6}), sphere,
                           tmp_path / "explicit.nc")
     err = abs(steady_heave(ds, w)) / abs(rao) - 1
-    REPORT["explicit 0.5"] = f"explicit at A∞/m = {summary['coupling']['added_mass_ratio']:.2f}: amplitude error {err:+.2e}"
+    REPORT["explicit 0.5"] = f"explicit at A∞/m = {summary.coupling.added_mass_ratio:.2f}: amplitude error {err:+.2e}"
     print(REPORT["explicit 0.5"])
-    assert summary["coupling"]["scheme"] == "explicit-predictor"
+    assert summary.coupling.scheme == "explicit-predictor"
     assert -0.08 < err < -0.01
     heavier = 1.001 * rho_v     # ratio just under 0.5: `auto` still refuses, naming the explicit option
     with pytest.raises(SceneError, match=r'scheme = "explicit-predictor" would be stable here \(ratio 0.5\d* ≤ 0.5\) '
@@ -202,13 +202,13 @@ def test_light_body_iterative_is_stable_and_accurate(server, sphere, sphere_path
     text = base_scene(sphere_path, mass, period, client=fmu_section(fmus["py"], mass, a_inf=False))
     summary, ds = run_fmu(server, text, sphere, tmp_path / "light.nc", record=["E_pto"])
     got = steady_heave(ds, w)
-    p = mean_power(ds["time"].values, summary["recorded"]["E_pto"], w)
-    its = summary["coupling"]["iterations"]
-    REPORT["light iterative"] = (f"A∞/m = {a_inf / mass:.2f}: mode {summary['coupling']['scheme']}, iterations/step mean "
+    p = mean_power(ds["time"].values, summary.recorded["E_pto"], w)
+    its = summary.coupling.iterations
+    REPORT["light iterative"] = (f"A∞/m = {a_inf / mass:.2f}: mode {summary.coupling.scheme}, iterations/step mean "
                                  f"{its.mean():.2f}, median {np.median(its):.0f}, max {its.max()}; amplitude error "
                                  f"{abs(got) / abs(rao) - 1:+.2e}, power error {p / power - 1:+.2e}")
     print(REPORT["light iterative"])
-    assert summary["coupling"]["scheme"] == "implicit"
+    assert summary.coupling.scheme == "implicit"
     assert abs(abs(got) / abs(rao) - 1) < 0.01 and abs(p / power - 1) < 0.01
     assert its.mean() <= 3.5 and its.max() <= 10
 
@@ -252,7 +252,7 @@ def test_initial_displacement_via_parameters_and_substeps(server, sphere, sphere
     c = float(sphere["hydrostatic_stiffness"].values[HEAVE, HEAVE])
     t_n = 2 * np.pi * np.sqrt((rho_v + a_inf) / c)
     assert (crossings[1] - crossings[0]) == pytest.approx(t_n, rel=0.05)
-    assert summary["coupling"]["scheme"] == "mass-matrix"
+    assert summary.coupling.scheme == "mass-matrix"
 
 
 def test_hydrolink_run_dispatches_to_the_fmu_client(sphere, sphere_path, rho_v, fmus, tmp_path):
@@ -299,13 +299,13 @@ def test_fmu_matches_exudyn_client_on_the_same_scene(server, sphere, sphere_path
 
     text = base_scene(sphere_path, rho_v, period, client=fmu_section(fmus[which], rho_v, a_inf=which == "c"))
     summary, dsf = run_fmu(server, text, sphere, tmp_path / "fmu.nc", record=["E_pto"])
-    p_fmu = mean_power(dsf["time"].values, summary["recorded"]["E_pto"], w)
+    p_fmu = mean_power(dsf["time"].values, summary.recorded["E_pto"], w)
     z_fmu = steady_heave(dsf, w)
     amp_err, p_err = abs(z_fmu) / abs(z_native) - 1, p_fmu / p_native - 1
-    REPORT[f"exudyn {which}"] = (f"{which} ({summary['coupling']['scheme']}) vs Exudyn: |RAO| {abs(z_fmu):.5f} vs "
+    REPORT[f"exudyn {which}"] = (f"{which} ({summary.coupling.scheme}) vs Exudyn: |RAO| {abs(z_fmu):.5f} vs "
                                  f"{abs(z_native):.5f} ({amp_err:+.2e}), PTO power {p_fmu:.0f} vs {p_native:.0f} W "
-                                 f"({p_err:+.2e}); wall {summary['wall_time'] / summary['steps'] * 1e6:.0f} vs "
-                                 f"{native['wall_time'] / native['steps'] * 1e6:.0f} us/step")
+                                 f"({p_err:+.2e}); wall {summary.wall_time / summary.steps * 1e6:.0f} vs "
+                                 f"{native.wall_time / native.steps * 1e6:.0f} us/step")
     print(REPORT[f"exudyn {which}"])
     assert abs(amp_err) < 0.005 and abs(p_err) < 0.005
     assert abs(np.degrees(np.angle(z_fmu / z_native))) < 0.5

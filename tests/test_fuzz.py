@@ -19,7 +19,7 @@ from analytic_hdb import make_body_hdb
 from conftest import body, linear_pto, regular_waves, scene_toml
 from hydrolink.protocol import codec
 from hydrolink.protocol.hdb_wire import HDBFiles, to_wire
-from hydrolink.server.hdb.schema import to_netcdf
+from hydrolink.protocol.hdb_schema import to_netcdf
 from hydrolink.server.service import ForceServer
 
 MESSAGES = 20_000

@@ -31,7 +31,7 @@ import xarray as xr
 
 from hydrolink.server.hdb.build import SpecError, build_hdb, default_cache_dir, load_spec
 from hydrolink.server.hdb.info import heave_natural_period, hdb_summary, plot_hdb
-from hydrolink.server.hdb.schema import validate_hdb
+from hydrolink.protocol.hdb_schema import validate_hdb
 
 RHO, G = 1025.0, 9.81
 # Hulme (1982) Table 1, heave: kR, A33/(rho 2/3 pi R^3), B33/(rho w 2/3 pi R^3)

@@ -8,7 +8,7 @@ import pytest
 
 from hydrolink.protocol import codec
 from hydrolink.protocol.hdb_wire import from_wire, to_wire
-from hydrolink.server.hdb.schema import HDBError
+from hydrolink.protocol.hdb_schema import HDBError
 
 HEAVE = 2
 

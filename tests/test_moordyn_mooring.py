@@ -18,7 +18,7 @@ from scipy.optimize import fsolve
 from conftest import body, regular_waves, scene_toml, write_scene
 
 from hydrolink.protocol.scene import SceneError, parse_scene
-from hydrolink.server.hdb.schema import make_hdb
+from hydrolink.protocol.hdb_schema import make_hdb
 
 moordyn = pytest.importorskip("moordyn")
 
@@ -262,11 +262,11 @@ def test_surge_decay_equals_a_monolithic_integration_with_moordyn(tmp_path):
     for scheme in ("implicit", "mass-matrix"):
         summary = run_scene_file(_decay_scene(tmp_path, dt, duration, scheme), tmp_path / f"{scheme}.nc",
                                  progress=False, hdbs=hdbs)
-        assert summary["status"] == "complete" and not summary["warnings"]
+        assert summary.status == "complete" and not summary.warnings
         with xr.open_dataset(tmp_path / f"{scheme}.nc") as ds:
             results[scheme] = ds["position"].values[:, 0, 0].copy()
             if scheme == "implicit":
-                iterations = summary["coupling"]["iterations_mean"]
+                iterations = summary.coupling.iterations_mean
     x_imp = results["implicit"]
     assert iterations > 2                                   # every step was redone (MoorDyn rolled back)
     err = np.abs(x_imp - reference).max() / X0
@@ -293,7 +293,7 @@ def test_results_line_tension_mooring_force_and_nodes_with_coupled_points(tmp_pa
         scene = _decay_scene(folder, 0.05, 3.0, "mass-matrix", **keys)
         summary = run_scene_file(scene, folder / "out.nc", progress=False, hdbs=hdbs)
         runs[name] = ds = xr.load_dataset(folder / "out.nc")
-        assert ds.attrs["status"] == "complete" and summary["moordyn"][0]["lines"] == 3
+        assert ds.attrs["status"] == "complete" and summary.moordyn[0]["lines"] == 3
     a, b = runs["body"], runs["points"]
     x = a["position"].values[:, 0, 0]
     assert x[0] == X0 and x[-1] < X0 - 0.01                                    # it moves
@@ -396,7 +396,7 @@ def test_static_offset_under_pretension_against_the_catenary(tmp_path):
                      dofs=["surge", "heave"])],
         moorings=[mooring()]))
     summary = run_scene_file(scene, tmp_path / "out.nc", progress=False, hdbs={"float.nc": constant_hdb()})
-    report = summary["moordyn"][0]
+    report = summary.moordyn[0]
     offset = np.asarray(report["static_offset"])[0]
     c33 = 3e5                                                  # constant_hdb's heave stiffness
     dz = brentq(lambda z: c33 * z + len(headings) * catenary(SPAN0 - FAIRLEAD_R, Z0 + z + DEPTH)[1], -5.0, 0.0)
@@ -413,7 +413,7 @@ def test_a_step_that_is_not_a_multiple_of_dtm_is_a_warning(tmp_path):
     moordyn_file(tmp_path / "lines.dat", [0.0], segments=12, dtm=0.003)
     summary = run_scene_file(_decay_scene(tmp_path, 0.05, 0.1, "mass-matrix"), tmp_path / "out.nc", progress=False,
                              hdbs={"float.nc": constant_hdb()})
-    assert summary["warnings"] == ["moorings[0]: simulation.dt = 0.05 s is not a multiple of dtM = 0.003 s in lines.dat: "
+    assert summary.warnings == ["moorings[0]: simulation.dt = 0.05 s is not a multiple of dtM = 0.003 s in lines.dat: "
                                    "MoorDyn takes 17 substeps per step, the last one shorter; make dt a multiple of dtM"]
 
 

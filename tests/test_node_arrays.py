@@ -86,7 +86,7 @@ def _energy_balance(ds: xr.Dataset) -> tuple[float, float, float]:
 # -- 4N3LA -------------------------------------------------------------------------------------------
 def test_4n3la_irregular_short_run(tmp_path):
     summary, ds = _run(_scene(EX4, "node_4n3la.toml", tmp_path, {"duration": "12.0", "ramp": "3.0"}))
-    assert ds.attrs["status"] == "complete" and summary["mechanism_notes"] == []
+    assert ds.attrs["status"] == "complete" and summary.mechanism_notes == []
     for v in ("position", "velocity", "joint_violation", "pto_power", "mooring_force"):
         assert np.isfinite(ds[v].values).all(), v
     assert float(ds.joint_violation.max()) < 1e-6
@@ -103,7 +103,7 @@ def test_4n3la_irregular_short_run(tmp_path):
     assert p > 0 and d > 0
     assert p == pytest.approx(d + de, rel=0.01)
     print(f"4N3LA 12 s: mean PTO power {p:.4f} W, damping {d:.4f} W, dE_spring/T {de:.2e} W; "
-          f"client {summary['client_us_per_step']:.0f} us/step, server {summary['server_compute_us_per_step']:.0f}")
+          f"client {summary.client_us_per_step:.0f} us/step, server {summary.server_compute_us_per_step:.0f}")
 
 
 def test_4n3la_neutral_arms_stay_level_in_still_water(tmp_path):
@@ -123,7 +123,7 @@ def test_4n3la_neutral_arms_stay_level_in_still_water(tmp_path):
 def test_9n9la_hexagonal_loop_runs(tmp_path):
     summary, ds = _run(_scene(EX9, "node_9n9la.toml", tmp_path, {"duration": "4.0", "ramp": "1.0"}))
     assert ds.attrs["status"] == "complete"
-    assert summary["mechanism_notes"] == []            # a spatial loop of spherical joints: not redundant
+    assert summary.mechanism_notes == []            # a spatial loop of spherical joints: not redundant
     assert ds.sizes["joint"] == 18 and ds.sizes["body"] == 18
     for v in ("position", "velocity", "joint_violation", "pto_power"):
         assert np.isfinite(ds[v].values).all(), v

@@ -11,7 +11,7 @@ from scipy.integrate import quad
 import analytic_hdb as an
 from conftest import body, irregular_waves, regular_waves, rm3_float, rm3_spar, scene_toml
 from hydrolink.protocol.scene import Hydro, Scene, parse_scene
-from hydrolink.server.hdb.schema import make_hdb
+from hydrolink.protocol.hdb_schema import make_hdb
 from hydrolink.server.irf import irf_transfer
 from hydrolink.server.model import HydroModel, ModelError
 from hydrolink.server.state_space import (PairFits, StateSpaceError, StateSpaceRadiation, evaluate, fit_pairs,

@@ -103,8 +103,8 @@ def test_heave_slider_on_a_pto_spring_oscillates_about_its_buoyant_equilibrium(t
     spring = linear_pto("spring", "buoy", [0.3, 0.1, -0.4], "ground", [0.3, 0.1, -2.4], stiffness=k, damping=0.0)
     s_red, red, s_full, full = both_forms(dry_scene([buoy], dt=1e-3, duration=2.0, ptos=[spring]), tmp_path)
     assert_agree(red, full)
-    assert any("'buoy' (heave)" in n for n in s_red["mechanism_notes"])
-    assert not any("reduced bodies" in n for n in s_full["mechanism_notes"])
+    assert any("'buoy' (heave)" in n for n in s_red.mechanism_notes)
+    assert not any("reduced bodies" in n for n in s_full.mechanism_notes)
     t = red["time"].values
     w, z_eq = math.sqrt(k / m), (RHO * G * vol - m * G) / k
     z_ref = z_eq + (z0 - z_eq) * np.cos(w * t) + v0 / w * np.sin(w * t)
@@ -130,7 +130,7 @@ def test_reduced_translations_rotation_and_velocity_constraint_move_as_free_body
     surge_rate = {"body": "b", "dof": "surge", "type": "velocity", "value": 0.3}
     s_red, red, _, full = both_forms(dry_scene([b], duration=1.0, constraints=[surge_rate]), tmp_path)
     assert_agree(red, full)
-    assert any("'b' (surge+heave+pitch)" in n for n in s_red["mechanism_notes"])
+    assert any("'b' (surge+heave+pitch)" in n for n in s_red.mechanism_notes)
     t = red["time"].values
     pos = red["position"].values[:, 0] - red["equilibrium_position"].values[0]
     a = RHO * G * vol / m - G
@@ -209,7 +209,7 @@ def sphere_scene(path: Path, dofs, cog, coupling: str = "mass-matrix") -> dict:
 def test_wet_sphere_reduced_matches_full_form(server, sphere, sphere_path, tmp_path, dofs, cog, coupling):
     s_red, red, s_full, full = both_forms(sphere_scene(sphere_path, dofs, cog, coupling), tmp_path, address=server,
                                           hdbs={str(sphere_path): sphere})
-    assert any("reduced bodies" in n for n in s_red["mechanism_notes"])
+    assert any("reduced bodies" in n for n in s_red.mechanism_notes)
     assert_agree(red, full)
     locked = [j for j, d in enumerate(DOF_NAMES) if d not in dofs]
     assert red["position"].dims == ("time", "body", "dof")
@@ -252,7 +252,7 @@ def test_rm3_examples_reduced_match_full_form(server, reference_data, tmp_path, 
     text = text.replace("duration = 400.0", "duration = 20.0")
     s_red, red, s_full, full = both_forms(text, tmp_path, address=server, hdbs={hdb.as_posix(): load_hdb(hdb)})
     assert any("'float' (heave), 'spar' (heave): 2 coordinates instead of 12 and 10 constraints" in n
-               for n in s_red["mechanism_notes"])
+               for n in s_red.mechanism_notes)
     assert_agree(red, full)
 
 

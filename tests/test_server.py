@@ -369,8 +369,8 @@ def test_embedded_run_equals_socket_run_bit_for_bit(reference_data, tmp_path, sc
     finally:
         srv.stop()
         thread.join(5)
-    assert embedded["status"] == remote["status"] == "complete"
-    assert embedded["server"] == "in-process" and remote["server"].startswith("tcp://")
+    assert embedded.status == remote.status == "complete"
+    assert embedded.server == "in-process" and remote.server.startswith("tcp://")
     with netCDF4.Dataset(tmp_path / "embedded.nc") as a, netCDF4.Dataset(tmp_path / "socket.nc") as b:
         assert a.dimensions["time"].size == b.dimensions["time"].size == 201
         for name in RM3_COMPARED:

@@ -113,7 +113,7 @@ def test_classic_added_mass_instability(sphere, a33, c33, tmp_path, ratio):
     assert np.abs(heave(ds) - ref).max() < 0.005 * 0.5
     if ratio < 1:
         summary, ds, _ = simulate(scene_text(mass, scheme="explicit"), sphere, tmp_path / "ex.nc")
-        assert summary["coupling"]["added_mass_ratio"] == pytest.approx(ratio, rel=1e-6)
+        assert summary.coupling.added_mass_ratio == pytest.approx(ratio, rel=1e-6)
         assert np.abs(heave(ds) - ref).max() < 0.05 * 0.5      # stable, first order in the lag
         return
     with pytest.raises(SimulationDiverged, match=r"added-mass instability.*A∞/m > 1.*mass-matrix") as info:
@@ -142,9 +142,9 @@ def test_implicit_and_mass_matrix_across_mass_ratios(sphere, a33, c33, tmp_path,
         summary, ds, _ = simulate(scene_text(mass, duration=6.0, scheme=scheme), sphere, tmp_path / f"{scheme}.nc")
         err = np.abs(heave(ds) - ref).max() / 0.5
         print(f"A/m = {ratio:g} {scheme}: max error {err:.2e}, iterations/step "
-              f"{summary['coupling']['iterations_mean']:.3f} (max {summary['coupling']['iterations_max']})")
+              f"{summary.coupling.iterations_mean:.3f} (max {summary.coupling.iterations_max})")
         assert err < 0.005
-    assert summary["coupling"]["iterations_mean"] <= 3.0 and summary["coupling"]["iterations_max"] <= 6
+    assert summary.coupling.iterations_mean <= 3.0 and summary.coupling.iterations_max <= 6
 
 
 def test_implicit_rollback_is_bit_exact(sphere, a33):
@@ -208,7 +208,7 @@ def test_coarse_dt_refused_or_warned(sphere, tmp_path):
         simulate(scene_text(mass, dt=1.0, duration=20.0, waves=regular_waves(1.0, 5.0)), sphere, tmp_path / "c.nc")
     summary, ds, _ = simulate(scene_text(mass, dt=0.5, duration=20.0, waves=regular_waves(1.0, 5.0)), sphere,
                               tmp_path / "w.nc")
-    assert any("simulation.dt" in w and "3.2 %" in w for w in summary["warnings"])
+    assert any("simulation.dt" in w and "3.2 %" in w for w in summary.warnings)
     assert np.isfinite(heave(ds)).all()
 
 
@@ -275,7 +275,7 @@ def test_badly_sampled_hdb(sphere, tmp_path):
                                            r"pi/d_omega = 7\.8\d s.*set hydro\.irf_duration <= 7\.8"):
         simulate(scene_text(mass, irf=20.0), coarse, tmp_path / "c.nc")
     summary, ds, _ = simulate(scene_text(mass, irf=7.0), coarse, tmp_path / "c7.nc")
-    assert np.isfinite(heave(ds)).all() and summary["status"] == "complete"
+    assert np.isfinite(heave(ds)).all() and summary.status == "complete"
 
 
 # ------------------------------------------------------------------ waves up to breaking
@@ -289,7 +289,7 @@ def test_waves_up_to_the_breaking_limit(sphere, tmp_path):
         simulate(scene_text(mass, x0=0.0, waves=regular_waves(lam / 6, period)), sphere, tmp_path / "b.nc")
     summary, ds, _ = simulate(scene_text(mass, x0=0.0, duration=20.0, waves=regular_waves(lam / 8, period, ramp=4.0)),
                               sphere, tmp_path / "s.nc")
-    assert any("breaking limit" in w for w in summary["warnings"])
+    assert any("breaking limit" in w for w in summary.warnings)
     _, small, _ = simulate(scene_text(mass, x0=0.0, duration=20.0, waves=regular_waves(0.1, period, ramp=4.0)),
                            sphere, tmp_path / "l.nc")
     assert np.allclose(heave(ds), heave(small) * (lam / 8) / 0.1, atol=1e-9 * lam)

@@ -45,9 +45,7 @@ from __future__ import annotations
 import json
 import logging
 import math
-import sys
-import time as _time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -58,6 +56,9 @@ from hydrolink.clients.lockstep import driver as lockstep
 from hydrolink.clients.lockstep.coupling_schemes import make_scheme
 from hydrolink.clients.lockstep.driver import (BLOW_UP_LIMIT, CouplingError, DivergenceWatch, ForceLink, Lockstep,  # noqa: F401
                                         RunInterrupted, SimulationDiverged, progress_bar)
+from hydrolink.clients.lockstep.preflight import preflight
+from hydrolink.clients.lockstep.results import add_force_term_variables
+from hydrolink.clients.lockstep.summary import CouplingReport, RunSummary
 from hydrolink.clients.exudyn.mechanism import Mechanism, build_mechanism
 from hydrolink.clients.exudyn.moorings import MooringSet, build_moorings
 from hydrolink.clients.exudyn.ptos import PTOSet, build_ptos
@@ -409,34 +410,6 @@ def coupling_ratio(scene: Scene, setup: Setup | None) -> float:
     return added_mass_ratio(wet_rigid_mass(scene, setup)[np.ix_(act, act)], a[np.ix_(act, act)])
 
 
-#: period stretch of the trapezoidal rule (of the wave period at the exchange step) above which a run
-#: is refused / warned: 10 % is dt > T/5.6 (T/5 is refused), 1 % is dt > T/18
-DT_REFUSE, DT_WARN = 0.10, 0.01
-
-
-def wave_resolution(scene: Scene, step: float) -> tuple[str, str] | None:
-    """("refuse" | "warn", why) when ``step`` (the exchange step, exchange_every × dt) resolves the
-    wave period (regular) or peak period (irregular) too coarsely: the trapezoidal rule stretches
-    a period T by ωh / (2 atan(ωh/2)) − 1 (12 % at T/5, 3.2 % at T/10, 0.8 % at T/20)."""
-    w = scene.waves
-    kind = getattr(w, "type", "still")
-    if kind not in ("regular", "irregular"):
-        return None
-    period, what = (w.period, "waves.period") if kind == "regular" else (w.tp, "waves.tp")
-    wh = 2 * math.pi * step / period
-    stretch = wh / (2 * math.atan(wh / 2)) - 1
-    if stretch <= DT_WARN:
-        return None
-    kx = scene.coupling.exchange_every
-    what_step = f"{step:g} s" + (f" (coupling.exchange_every = {kx} × dt)" if kx > 1 else "")
-    why = (f"a step of {what_step} resolves {what} = {period:g} s with {period / step:.3g} steps: the "
-           f"trapezoidal rule stretches that period by {100 * stretch:.2g} %; use simulation.dt <= "
-           f"{period / 20 / kx:.3g} s (T/20: < 1 %)")
-    if stretch > DT_REFUSE:
-        return "refuse", f"{why} — refused above {100 * DT_REFUSE:g} %"
-    return "warn", why
-
-
 #: PTO/mooring stiffness (N/m) above which a solver failure names the stiffness (docs/stability.md)
 STIFF_NOTE = 1e7
 
@@ -657,7 +630,7 @@ class ExudynMultibody:
 
 def run(scene: Scene, scene_text: str, connection, setup: Setup | None, writer, *, progress: bool = True,
         spectral_radius: float | None = None, blow_up_limit: float = BLOW_UP_LIMIT,
-        allow_unstable: bool = False, moordyn_files: dict | None = None) -> dict:
+        allow_unstable: bool = False, moordyn_files: dict | None = None) -> RunSummary:
     """Run the lockstep co-simulation to ``scene.simulation.duration`` (:mod:`hydrolink.clients.lockstep.driver`).
 
     ``connection`` has already said hello (``setup`` is its reply); it is not closed here. With no
@@ -675,118 +648,89 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup | None, writer, 
     ``allow_unstable`` (only to demonstrate the added-mass instability). ``moordyn_files``: the
     layouts of the scene's MoorDyn files (:func:`~hydrolink.clients.exudyn.moordyn_mooring.load_moordyn_files`).
 
-    Returns a summary: steps, time, wall_time, rows, status, ``coupling`` (scheme, exchange_every,
-    added-mass ratio, iterations per exchange: mean/max, and the list for "implicit"),
-    ``warnings`` (the server's setup warnings) and per-step costs in µs (``client_us_per_step``
-    excludes the server round trips, ``round_trip_us_per_step`` is them)."""
+    Returns the :class:`~hydrolink.clients.lockstep.summary.RunSummary` (the checks before the run:
+    :func:`~hydrolink.clients.lockstep.preflight.preflight`)."""
     from hydrolink.protocol.scene import SceneError
 
     cpl = scene.coupling
     scheme = "mass-matrix" if cpl.scheme == "auto" else cpl.scheme   # Exudyn always takes A∞ in its matrix
-    kx, between = int(cpl.exchange_every), cpl.between_exchanges
     feedback = scheme != "mass-matrix"
     if spectral_radius is None:
         spectral_radius = scene.simulation.spectral_radius
-    warnings = list(setup.warnings) if setup else []
-    for note in warnings:
-        log.warning("%s", note)
     ratio = coupling_ratio(scene, setup) if feedback else 0.0
     if scheme in ("explicit", "explicit-predictor") and ratio > cpl.explicit_limit and not allow_unstable:
         why = explicit_refusal(scheme, ratio, cpl.explicit_limit)
         writer.finish(f"refused: {why}")
         raise SceneError("scene", "coupling.scheme", why)
+    pre = preflight(scene, setup, writer)
+    warnings = pre.warnings
     if scheme == "implicit" and spectral_radius != 1.0:
         warnings.append(f"simulation.spectral_radius = {spectral_radius:g} is not used by coupling.scheme = "
                         "\"implicit\" (Newmark's trapezoidal rule: bit-exact rollback)")
     model = build_model(scene, setup, spectral_radius=spectral_radius, added_mass_in_matrix=not feedback,
                         newmark=scheme == "implicit", moordyn_files=moordyn_files)
-    stiff = _stiffest(scene)
-    if stiff and stiff[0] > STIFF_NOTE:
-        model.failure_hint = (f"; the stiffest spring is {stiff[1]} = {stiff[0]:.3g} N/m (N m/rad): above "
-                              f"~{STIFF_NOTE:.0e} Exudyn's Newton iteration can stall (measured: 1e9 N/m on "
-                              f"a 2.6e5 kg body at dt = 0.01 s); lower it (a joint or constraint models a "
-                              f"rigid link) or simulation.dt")
-    n, h = model.n_bodies, model.dt
-    big_h = kx * h                                    # the server's step
-    if setup and abs(setup.dt - big_h) > 1e-9 * big_h:
-        raise ValueError(f"the server's step {setup.dt} s is not coupling.exchange_every × simulation.dt "
-                         f"= {big_h} s")
-    n_steps = int(round(scene.simulation.duration / h))
-    n_ex = n_steps // kx
-    note = wave_resolution(scene, big_h)
-    if note and note[0] == "refuse":
-        writer.finish(f"refused: {note[1]}")
-        raise SceneError("scene", "simulation.dt", note[1])
-    if note:
-        warnings.append(f"simulation.dt: {note[1]}")
-        log.warning("simulation.dt: %s", note[1])
+    model.failure_hint = _stiffness_hint(scene)
     mech = model.mechanism
     for note in mech.warnings if mech else []:
         log.warning("%s", note)
     for note in mech.reductions if mech else []:   # what the model did for the scene: no action needed
         log.info("%s", note)
+    moordyn = _add_variables(scene, model, writer, warnings)
+    control = None
+    if scene.controllers:
+        if model.n_bodies == 0:
+            raise ValueError("controllers: a scene with controllers needs a wet body (the controllers "
+                             "talk to the multibody client through the force server's session)")
+        from hydrolink.clients.lockstep.pto_control import PTOControl
+        control = PTOControl(scene, model.ptos, model.mbs, writer)
+    kx = pre.exchange_every
+    mb = ExudynMultibody(model, writer, kx, feedback, cpl, ratio, control)
+    loop = Lockstep(mb, ForceLink(connection, setup if model.n_bodies else None, writer), writer,
+                    DivergenceWatch(blow_up_limit), cpl.between_exchanges,
+                    bar=progress_bar(pre.n_steps, progress and scene.simulation.progress))
+    first_timeout = control.join_timeout + getattr(connection, "timeout", 30.0) if control else None
+    coupling = CouplingReport(scheme=scheme, exchange_every=kx, between_exchanges=cpl.between_exchanges,
+                              added_mass_ratio=coupling_ratio(scene, setup) if model.n_bodies else 0.0)
+    try:
+        out = lockstep.run(loop, make_scheme(scheme, tolerance=cpl.tolerance, max_iterations=cpl.max_iterations,
+                                             ratio=ratio, n_exchanges=pre.n_exchanges),
+                           pre.n_exchanges, coupling, first_timeout=first_timeout,
+                           hint=lambda exc: _divergence_hint(scheme, ratio, kx, pre.exchange_dt))
+    finally:
+        model.close()
+    return replace(out, warnings=warnings, controllers=control.finish() if control is not None else None,
+                   mechanism_notes=(mech.warnings + mech.reductions) if mech else [], moordyn=moordyn)
+
+
+def _stiffness_hint(scene: Scene) -> str:
+    """What a solver failure should add when a spring is stiff enough to stall Newton's iteration."""
+    stiff = _stiffest(scene)
+    if not stiff or stiff[0] <= STIFF_NOTE:
+        return ""
+    return (f"; the stiffest spring is {stiff[1]} = {stiff[0]:.3g} N/m (N m/rad): above ~{STIFF_NOTE:.0e} "
+            f"Exudyn's Newton iteration can stall (measured: 1e9 N/m on a 2.6e5 kg body at dt = 0.01 s); lower "
+            f"it (a joint or constraint models a rigid link) or simulation.dt")
+
+
+def _add_variables(scene: Scene, model: ExudynModel, writer, warnings: list[str]) -> list[dict] | None:
+    """The results variables of the mechanism's joints, PTOs, moorings, MoorDyn systems and the
+    server's optional force terms; returns the MoorDyn report (None without MoorDyn) and appends
+    MoorDyn's step notes to ``warnings``."""
+    mech = model.mechanism
     if mech and mech.joints:
         _add_joint_variables(writer, mech.joint_labels)
     _add_pto_mooring_variables(writer, model.ptos, model.moorings)
-    if scene.morison:
-        writer.add_variable("morison_force", ("body", "dof"), None, "N (surge, sway, heave); N m (roll, pitch, yaw)",
-                            "Morison elements' force and moment about the reference point (server)")
-    modes = {b.name: scene.nonlinear_of(b) for b in scene.nonlinear_bodies}
-    if modes:
-        writer.set_attribute("nonlinear", json.dumps(modes))
-        writer.add_variable("nonlinear_hydrostatic_force", ("body", "dof"), None,
-                            "N (surge, sway, heave); N m (roll, pitch, yaw)",
-                            "nonlinear minus linear hydrostatics (server): pressure -rho g z on the instantaneous "
-                            "wetted surface plus the weight, minus net buoyancy and the linear restoring force "
-                            "(hydrostatic_force); total restoring = hydrostatic_force + net buoyancy + this")
-    if "froude-krylov" in modes.values():
-        writer.add_variable("nonlinear_froude_krylov_force", ("body", "dof"), None,
-                            "N (surge, sway, heave); N m (roll, pitch, yaw)",
-                            "nonlinear minus linear Froude-Krylov force (server): the incident wave's pressure on "
-                            "the instantaneous wetted surface under the wave, minus its linear value on the mean "
-                            "wetted surface (part of excitation_force)")
-    if any(b.viscous for b in scene.bodies):
-        writer.add_variable("viscous_force", ("body", "dof"), None, "N (surge, sway, heave); N m (roll, pitch, yaw)",
-                            "viscous damping force -B_lin v - B_quad v|v| about the reference point (server)")
-        writer.add_variable("viscous_power", ("body",), None, "W",
-                            "power dissipated by the viscous damping, -viscous_force . velocity (>= 0 for "
-                            "positive damping)")
+    add_force_term_variables(writer, scene)
     moordyn = _moordyn_report(model.moorings) if model.moorings is not None and model.moorings.moordyn else None
     if moordyn is not None:
         _add_moordyn_variables(writer, model.moorings)
         writer.set_attribute("moordyn", json.dumps(moordyn))
         for system in model.moorings.moordyn:
-            note = system.step_note(h)
+            note = system.step_note(model.dt)
             if note:
                 warnings.append(note)
                 log.warning("%s", note)
-    control = None
-    if scene.controllers:
-        if n == 0:
-            raise ValueError("controllers: a scene with controllers needs a wet body (the controllers "
-                             "talk to the multibody client through the force server's session)")
-        from hydrolink.clients.lockstep.pto_control import PTOControl
-        control = PTOControl(scene, model.ptos, model.mbs, writer)
-    mb = ExudynMultibody(model, writer, kx, feedback, cpl, ratio, control)
-    loop = Lockstep(mb, ForceLink(connection, setup if n else None, writer), writer, DivergenceWatch(blow_up_limit),
-                    between,
-                    bar=progress_bar(n_steps, progress and scene.simulation.progress))
-    first_timeout = control.join_timeout + getattr(connection, "timeout", 30.0) if control else None
-    try:
-        out = lockstep.run(loop, make_scheme(scheme, tolerance=cpl.tolerance, max_iterations=cpl.max_iterations,
-                                             ratio=ratio, n_exchanges=n_ex),
-                           n_ex, first_timeout=first_timeout,
-                           hint=lambda exc: _divergence_hint(scheme, ratio, kx, big_h))
-    finally:
-        model.close()
-    controllers = control.finish() if control is not None else None
-    coupling = {"scheme": scheme, "exchange_every": kx, "between_exchanges": between,
-                "added_mass_ratio": coupling_ratio(scene, setup) if n else 0.0,
-                "iterations_mean": out.pop("iterations_mean"), "iterations_max": out.pop("iterations_max"),
-                "initial_iterations": out.pop("initial_iterations"),
-                "iterations": np.asarray(loop.iterations, int) if scheme == "implicit" else None}
-    return {**out, "controllers": controllers, "mechanism_notes": (mech.warnings + mech.reductions) if mech else [],
-            "coupling": coupling, "warnings": warnings, "moordyn": moordyn}
+    return moordyn
 
 
 def _divergence_hint(scheme: str, ratio: float, kx: int, big_h: float) -> str:

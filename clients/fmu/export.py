@@ -30,7 +30,7 @@ def export_fmu(scene_path: str | Path, output: str | Path, *, progress: bool = T
         raise RuntimeError("hydrolink fmu export needs pythonfmu: pip install 'hydrolink[fmu]'") from None
     from hydrolink.clients.lockstep.connection import ServerConnection
     from hydrolink.clients.run import load_scene_hdbs
-    from hydrolink.server.hdb.schema import to_netcdf
+    from hydrolink.protocol.hdb_schema import to_netcdf
     from hydrolink.server.service import serve_in_thread
 
     scene_path, output = Path(scene_path), Path(output)

@@ -25,12 +25,10 @@ vocabulary of every client; the deprecated ``[client.coupling] mode`` is read as
 
 from __future__ import annotations
 
-import math
 import shutil
-import sys
 import tempfile
 import time as _time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -40,6 +38,8 @@ from hydrolink.clients.lockstep import driver as lockstep
 from hydrolink.clients.fmu.coupling import added_mass_ratio, rigid_body_mass_matrix
 from hydrolink.clients.lockstep.coupling_schemes import make_scheme
 from hydrolink.clients.lockstep.driver import BLOW_UP_LIMIT, DivergenceWatch, ForceLink, Lockstep, progress_bar
+from hydrolink.clients.lockstep.preflight import preflight
+from hydrolink.clients.lockstep.summary import CouplingReport, RunSummary
 from hydrolink.protocol.scene import DOF_NAMES, Coupling, FMUClient, Scene, SceneError, resolve_path
 from hydrolink.protocol.setup import Setup
 
@@ -244,12 +244,12 @@ def plan(wiring: Wiring, coupling: Coupling, can_roll_back: bool, *, allow_unsta
 def run(scene: Scene, scene_text: str, connection, setup: Setup, writer, *,
         scene_path: str | Path = "scene.toml", progress: bool = True,
         blow_up_limit: float = BLOW_UP_LIMIT, record: Sequence[str] = (),
-        allow_unstable: bool = False) -> dict:
+        allow_unstable: bool = False) -> RunSummary:
     """Run the scene's FMU in lockstep with the server to ``scene.simulation.duration``.
 
     Like :func:`hydrolink.clients.exudyn.client.run` (same results rows, same errors, the same
     driver: :mod:`hydrolink.clients.lockstep.driver`); ``record`` names further FMU real outputs whose values
-    at every step are returned in ``summary["recorded"]``; ``allow_unstable`` lets the explicit mode
+    at every step are returned in ``summary.recorded``; ``allow_unstable`` lets the explicit mode
     run beyond its limit (only to demonstrate the instability). The summary adds mode, iterations per
     step (mean, max) and per-step costs in µs (FMU calls, server round trips, the rest)."""
     client: FMUClient = scene.client
@@ -272,30 +272,25 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup, writer, *,
     if n_sub < 1 or abs(n_sub * hc - h) > 1e-9 * h:
         raise SceneError("scene", "client.communication_step",
                          f"must divide simulation.dt = {h:g} s into whole steps (got {hc:g} s)")
-    for note in setup.warnings:
-        log.warning("%s", note)
+    pre = preflight(scene, setup, writer)
     with FMUInstance(resolve_path(scene_path, client.fmu)) as fmu:
         mb = FMUMultibody(scene, client, fmu, setup, writer, h, n_sub, record, allow_unstable)
         try:
             mb.initialize()
-            n_steps = int(round(scene.simulation.duration / h))
             loop = Lockstep(mb, ForceLink(connection, setup, writer), writer, DivergenceWatch(blow_up_limit),
-                            bar=progress_bar(n_steps, progress and scene.simulation.progress, "hydrolink run (fmu)"))
+                            bar=progress_bar(pre.n_steps, progress and scene.simulation.progress,
+                                             "hydrolink run (fmu)"))
             cpl = scene.coupling
             scheme = make_scheme(mb.plan.scheme, tolerance=cpl.tolerance, max_iterations=cpl.max_iterations,
-                                 ratio=mb.plan.ratio, n_exchanges=n_steps)
-            out = lockstep.run(loop, scheme, n_steps, hint=lambda exc: f"coupling.scheme = \"{mb.plan.scheme}\"")
+                                 ratio=mb.plan.ratio, n_exchanges=pre.n_exchanges)
+            coupling = CouplingReport(scheme=mb.plan.scheme, reason=mb.plan.reason, added_mass_ratio=mb.plan.ratio)
+            out = lockstep.run(loop, scheme, pre.n_exchanges, coupling,
+                               hint=lambda exc: f"coupling.scheme = \"{mb.plan.scheme}\"")
         finally:
             mb.close()
-    steps = max(out["steps"], 1)
-    coupling = {"scheme": mb.plan.scheme, "reason": mb.plan.reason, "added_mass_ratio": mb.plan.ratio,
-                "exchange_every": 1, "iterations_mean": out.pop("iterations_mean"),
-                "iterations_max": out.pop("iterations_max"), "initial_iterations": out.pop("initial_iterations"),
-                "iterations": np.asarray(loop.iterations, int) if mb.plan.scheme == "implicit" else None}
-    return {**out, "client": "fmu", "fmi_version": fmu.fmi_version, "coupling": coupling,
-            "warnings": list(setup.warnings),
-            "fmu_us_per_step": mb.t_fmu / steps * 1e6,
-            "recorded": {name: np.array([r[i] for r in mb.recorded]) for i, name in enumerate(mb.record)}}
+    return replace(out, client="fmu", fmi_version=fmu.fmi_version, warnings=pre.warnings,
+                   fmu_us_per_step=mb.t_fmu / max(out.steps, 1) * 1e6,
+                   recorded={name: np.array([r[i] for r in mb.recorded]) for i, name in enumerate(mb.record)})
 
 
 class FMUMultibody:

@@ -82,7 +82,7 @@ def _hdb_sources(scene, scene_path: Path, progress: bool) -> tuple[dict, dict]:
     from hydrolink.clients.run import load_scene_hdbs
     from hydrolink.server.hdb.io import file_set
     from hydrolink.protocol.scene import resolve_path
-    from hydrolink.server.hdb.schema import to_netcdf
+    from hydrolink.protocol.hdb_schema import to_netcdf
 
     datasets = load_scene_hdbs(scene, scene_path, progress=progress)
     sources = {}

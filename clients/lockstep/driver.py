@@ -16,12 +16,14 @@ from __future__ import annotations
 import math
 import sys
 import time as _time
-from dataclasses import dataclass, field
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
 from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 
 from hydrolink.clients.lockstep.connection import EXTRA_FORCE_FIELDS
+from hydrolink.clients.lockstep.summary import CouplingReport, RunSummary
 
 _sum = np.add.reduce   # ndarray.sum without its Python wrapper
 
@@ -275,10 +277,12 @@ def progress_bar(total: int, enabled: bool, desc: str = "hydrolink run"):
                 disable=not (enabled and sys.stderr.isatty()))
 
 
-def run(loop: Lockstep, scheme: Any, n_exchanges: int, *, first_timeout: float | None = None,
-        hint: "Callable[[SimulationDiverged], str]" = lambda exc: "") -> dict:
+def run(loop: Lockstep, scheme: Any, n_exchanges: int, coupling: CouplingReport, *,
+        first_timeout: float | None = None,
+        hint: Callable[[SimulationDiverged], str] = lambda exc: "") -> RunSummary:
     """Run ``n_exchanges`` exchanges of ``scheme`` (module docstring); the writer gets its final
-    status before this returns or raises. Returns the loop's counts and costs."""
+    status before this returns or raises. Returns the loop's counts and costs, with ``coupling``
+    (the adapter's description of the scheme) completed by the iterations it took."""
     mb, link, writer = loop.mb, loop.link, loop.writer
     wall0 = _time.perf_counter()
     init_iterations = 0
@@ -317,8 +321,9 @@ def run(loop: Lockstep, scheme: Any, n_exchanges: int, *, first_timeout: float |
     wall = _time.perf_counter() - wall0
     steps = max(loop.step, 1)
     its = np.asarray(loop.iterations or [1])
-    return {"steps": loop.step, "time": loop.step * mb.h, "wall_time": wall, "rows": writer.rows_written,
-            "status": "complete", "initial_iterations": init_iterations,
-            "iterations_mean": float(its.mean()), "iterations_max": int(its.max()),
-            "client_us_per_step": (wall - link.seconds) / steps * 1e6,
-            "round_trip_us_per_step": link.seconds / steps * 1e6}
+    coupling = replace(coupling, initial_iterations=init_iterations, iterations_mean=float(its.mean()),
+                       iterations_max=int(its.max()),
+                       iterations=np.asarray(loop.iterations, int) if coupling.scheme == "implicit" else None)
+    return RunSummary(steps=loop.step, time=loop.step * mb.h, wall_time=wall, rows=writer.rows_written,
+                      status="complete", coupling=coupling, client_us_per_step=(wall - link.seconds) / steps * 1e6,
+                      round_trip_us_per_step=link.seconds / steps * 1e6)

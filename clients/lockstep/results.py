@@ -38,6 +38,7 @@ from typing import Any
 import numpy as np
 import netCDF4
 
+from hydrolink.protocol.scene import Scene
 from hydrolink.protocol.setup import Setup
 
 DOF_NAMES: tuple[str, ...] = ("surge", "sway", "heave", "roll", "pitch", "yaw")
@@ -278,3 +279,33 @@ class ResultWriter:
             why = f"{exc_type.__name__}: {exc}" if str(exc) else exc_type.__name__
             self.finish(f"interrupted: {why}")
         self.close()
+
+
+#: unit of a (body, dof) force row
+FORCE_UNITS = "N (surge, sway, heave); N m (roll, pitch, yaw)"
+
+
+def add_force_term_variables(writer: ResultWriter, scene: Scene) -> None:
+    """The results variables of the server's optional force terms the scene has (reply fields
+    beyond excitation, radiation and hydrostatics), and the ``nonlinear`` attribute."""
+    if scene.morison:
+        writer.add_variable("morison_force", ("body", "dof"), None, FORCE_UNITS,
+                            "Morison elements' force and moment about the reference point (server)")
+    modes = {b.name: scene.nonlinear_of(b) for b in scene.nonlinear_bodies}
+    if modes:
+        writer.set_attribute("nonlinear", json.dumps(modes))
+        writer.add_variable("nonlinear_hydrostatic_force", ("body", "dof"), None, FORCE_UNITS,
+                            "nonlinear minus linear hydrostatics (server): pressure -rho g z on the instantaneous "
+                            "wetted surface plus the weight, minus net buoyancy and the linear restoring force "
+                            "(hydrostatic_force); total restoring = hydrostatic_force + net buoyancy + this")
+    if "froude-krylov" in modes.values():
+        writer.add_variable("nonlinear_froude_krylov_force", ("body", "dof"), None, FORCE_UNITS,
+                            "nonlinear minus linear Froude-Krylov force (server): the incident wave's pressure on "
+                            "the instantaneous wetted surface under the wave, minus its linear value on the mean "
+                            "wetted surface (part of excitation_force)")
+    if any(b.viscous for b in scene.bodies):
+        writer.add_variable("viscous_force", ("body", "dof"), None, FORCE_UNITS,
+                            "viscous damping force -B_lin v - B_quad v|v| about the reference point (server)")
+        writer.add_variable("viscous_power", ("body",), None, "W",
+                            "power dissipated by the viscous damping, -viscous_force . velocity (>= 0 for "
+                            "positive damping)")

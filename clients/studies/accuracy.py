@@ -49,30 +49,21 @@ import csv
 import json
 import math
 import shutil
-import sys
 import tempfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from pydantic import Field, field_validator
+from pydantic import Field
 
+from hydrolink.protocol.errors import KeyedError
 from hydrolink.clients.studies.grid import (ALIASES, SHORT, GridMode, GridSpec, Value, absolute_paths, combinations,  # noqa: F401
                                     dump_toml, effective_value, full_key, get_key, set_key, short_key)
-from hydrolink.protocol.toml_model import validate_toml
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
+from hydrolink.protocol.toml_model import parse_toml, validate_toml
 
 
-class BenchError(ValueError):
-    """A grid the bench cannot run; the message names the key."""
-
-
-def _bench_error(source, key: str, why: str) -> BenchError:
-    return BenchError(f"{source}: {key}: {why}" if key else f"{source}: {why}")
+class BenchError(KeyedError):
+    """A grid the bench cannot run; the message names the file, the key and why."""
 
 
 class Grid(GridSpec):
@@ -91,7 +82,7 @@ class Grid(GridSpec):
             text = path.read_text()
         except OSError as exc:
             raise BenchError(f"{path}: {exc}") from None
-        g = validate_toml(text, path, cls, _bench_error)
+        g = validate_toml(text, path, cls, BenchError)
         g.grid = {full_key(k): v for k, v in g.grid.items()}
         g.reference = {full_key(k): v for k, v in g.reference.items()}
         g.cases = [{(k if k == "label" else full_key(k)): v for k, v in c.items()} for c in g.cases]
@@ -277,11 +268,11 @@ def run_option(doc: dict, settings: dict[str, Any], duration: float | None, work
         scene, _ = load_scene(path)
         hdbs.update(load_scene_hdbs(scene, path, progress=progress))
     s = run_scene_file(path, workdir / f"{name}.nc", progress=False, hdbs=hdbs or None)
-    steps = max(int(s["steps"]), 1)
-    sim_time = float(s.get("time") or steps * float(get_key(case, "simulation.dt")))
-    cost = {"us_per_step": 1e6 * s["wall_time"] / steps, "wall_per_sim_s": s["wall_time"] / sim_time,
-            "server_us_per_step": float(s.get("server_compute_us_per_step", math.nan)), "steps": steps,
-            "wall_time": float(s["wall_time"])}
+    steps = max(int(s.steps), 1)
+    sim_time = float(s.time or steps * float(get_key(case, "simulation.dt")))
+    cost = {"us_per_step": 1e6 * s.wall_time / steps, "wall_per_sim_s": s.wall_time / sim_time,
+            "server_us_per_step": float((s.server_compute_us_per_step or math.nan)), "steps": steps,
+            "wall_time": float(s.wall_time)}
     return _read(workdir / f"{name}.nc"), cost
 
 
@@ -303,7 +294,7 @@ def bench_accuracy(scene_path: str | Path, grid: Grid, outdir: str | Path, *, ti
     from hydrolink.protocol.scene import load_scene
     scene_path = Path(scene_path)
     scene, text = load_scene(scene_path)     # validates the scene as it is
-    doc = absolute_paths(tomllib.loads(text), scene_path)
+    doc = absolute_paths(parse_toml(text, scene_path, BenchError), scene_path)
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     reference = reference_settings(grid, doc)

@@ -24,6 +24,8 @@ from typing import Any, Literal, Union
 
 from pydantic import BaseModel, ConfigDict, field_validator, model_validator
 
+from hydrolink.protocol.errors import KeyedError
+
 ALIASES = {
     "dt": "simulation.dt",
     "duration": "simulation.duration",
@@ -44,12 +46,8 @@ GridMode = Literal["product", "zip", "axes"]
 Value = Union[bool, int, float, str, list, dict]
 
 
-class GridError(ValueError):
+class GridError(KeyedError):
     """A grid or scene key that cannot be used; the message names the file, the key and why."""
-
-    def __init__(self, source: str | Path, key: str, why: str):
-        self.source, self.key, self.why = str(source), key, why
-        super().__init__(f"{source}: {key}: {why}" if key else f"{source}: {why}")
 
 
 def full_key(key: str) -> str:

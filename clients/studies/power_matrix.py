@@ -40,6 +40,7 @@ from scipy.integrate import quad
 
 from hydrolink.protocol.scene import IrregularWave, RegularWave, Scene
 from hydrolink.server.kinematics import wave_number
+from hydrolink.server.waves import wave_spectrum
 
 HOURS_PER_YEAR = 8766.0   # IEC TS 62600-100 (365.25 days)
 
@@ -75,13 +76,6 @@ def group_velocity(omega, gravity: float, depth: float):
     return out if np.ndim(omega) else float(out[0])
 
 
-def _spectrum(waves: IrregularWave):
-    from hydrolink.server.waves import jonswap_spectrum, pierson_moskowitz
-    if waves.spectrum == "jonswap":
-        return jonswap_spectrum(waves.hs, waves.tp, waves.gamma), f"JONSWAP (gamma {waves.gamma:g})"
-    return (lambda w: pierson_moskowitz(w, waves.hs, waves.tp)), "Pierson-Moskowitz"
-
-
 def _integral(f, wp: float) -> float:
     """int_0^inf f(w) dw, split around the spectral peak wp."""
     edges = (0.0, 0.6 * wp, 0.9 * wp, 1.1 * wp, 1.5 * wp, 4 * wp, 20 * wp, math.inf)
@@ -90,7 +84,7 @@ def _integral(f, wp: float) -> float:
 
 def te_over_tp(waves: IrregularWave) -> float:
     """Te / Tp of the scene's spectrum (its shape in w / wp; Hs and Tp do not change it)."""
-    spec, _ = _spectrum(waves)
+    spec, _ = wave_spectrum(waves)
     wp = 2 * math.pi / waves.tp
     m0 = _integral(spec, wp)
     m_1 = _integral(lambda w: spec(w) / w if w > 0 else 0.0, wp)      # int S(w)/w dw
@@ -106,7 +100,7 @@ def sea_state(scene: Scene) -> SeaState | None:
         j = rho * g * w.height ** 2 / 8 * group_velocity(omega, g, depth)
         return SeaState("regular", w.height, w.period, float(j), math.nan, "regular")
     if isinstance(w, IrregularWave):
-        spec, name = _spectrum(w)
+        spec, name = wave_spectrum(w)
         wp = 2 * math.pi / w.tp
         m0 = _integral(spec, wp)
         te = 2 * math.pi * _integral(lambda x: spec(x) / x if x > 0 else 0.0, wp) / m0

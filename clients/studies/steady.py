@@ -62,18 +62,18 @@ from pathlib import Path
 
 import numpy as np
 
+from hydrolink.protocol.errors import KeyedError
 from hydrolink.protocol.scene import DOF_NAMES, LinearMooring, LinearPTO, MoorDynMooring, RegularWave, RopeMooring, Scene
 from hydrolink.protocol.setup import Setup
 
 TIME_DOMAIN_NOTE = "steady state by pseudo-spectral collocation (hydrolink steady)"
 
 
-class SteadyError(ValueError):
+class SteadyError(KeyedError):
     """A scene the steady-state solver cannot solve; the message names the key and why."""
 
     def __init__(self, key: str, why: str):
-        self.key, self.why = key, why
-        super().__init__(f"{key}: {why}")
+        super().__init__("", key, why)
 
 
 def check_scene(scene: Scene) -> None:
@@ -221,7 +221,39 @@ def linearize(scene: Scene, model, setup: Setup) -> LinearizedSystem:
     def index_of(name: str) -> np.ndarray:
         return np.asarray(ltg(handles[name].node), int)
 
-    # geometric stiffness of the constant loads (Exudyn's Jacobian leaves loads out)
+    for name, point, f in _constant_loads(scene):   # their geometric stiffness: Exudyn's Jacobian leaves loads out
+        r = point - np.asarray(handles[name].reference, float)
+        K[np.ix_(index_of(name)[3:], index_of(name)[3:])] += _load_stiffness(r, f)
+    ptos = _pto_lines(scene, handles, index_of, n)
+    moorings = []
+    for i, m in enumerate(scene.moorings):
+        from hydrolink.clients.exudyn.moorings import matrix6, mooring_label
+        r = np.asarray(m.point, float) - np.asarray(handles[m.body].reference, float)
+        moorings.append((mooring_label(m, i), _point_jacobian(n, index_of(m.body), r),
+                         np.asarray(matrix6(m.stiffness), float), np.asarray(matrix6(m.damping), float),
+                         np.asarray(m.pretension, float)))
+
+    w, x_c, e_c = model.excitation_phasors()
+    omega = float(w[0])
+    exc = np.zeros(n, complex)
+    exc[ex.wet_index] = x_c[0]
+    return LinearizedSystem(
+        omega=omega, M=M, K=K, D=D, G=G, f0=f0, wet_index=ex.wet_index, body_index=ex.body_index,
+        excitation=exc, elevation=complex(e_c[0]),
+        added_mass_inf=setup.added_mass_inf, hydrostatic=setup.hydrostatic_stiffness,
+        radiation=(convolution_radiation(model, scene) if scene.steady.radiation == "convolution"
+                   else model.radiation_coefficients), ptos=ptos, moorings=moorings,
+        body_names=list(ex.body_names), reference=ex.body_reference,
+        setup_seconds=_time.perf_counter() - t0, memory=scene.hydro.radiation != "off",
+        wet_names=list(setup.bodies), viscous=model.viscous, morison=model.morison,
+        morison_active=model.active.astype(float) if model.morison is not None else None,
+        viscous_index=np.asarray(ex.wet_index, int)[model.active_index] if model.viscous is not None else None,
+        viscous_shift=math.ceil(model.waves.ramp / (2 * math.pi / omega)) * 2 * math.pi / omega)
+
+
+def _constant_loads(scene: Scene) -> list[tuple[str, np.ndarray, np.ndarray]]:
+    """(body, point, force) of the loads that keep their direction: the dry bodies' weight and
+    buoyancy and the linear moorings' pretension."""
     g_, rho = scene.water.gravity, scene.water.density
     loads: list[tuple[str, np.ndarray, np.ndarray]] = []
     for b in scene.bodies:
@@ -233,12 +265,11 @@ def linearize(scene: Scene, model, setup: Setup) -> LinearizedSystem:
     for m in scene.moorings:
         if isinstance(m, LinearMooring) and np.any(m.pretension[:3]):
             loads.append((m.body, np.asarray(m.point, float), np.asarray(m.pretension[:3], float)))
-    for name, point, f in loads:
-        idx = index_of(name)
-        r = point - np.asarray(handles[name].reference, float)
-        K[np.ix_(idx[3:], idx[3:])] += _load_stiffness(r, f)
+    return loads
 
-    # PTOs as lines/axes in the coordinates
+
+def _pto_lines(scene: Scene, handles, index_of, n: int) -> list[PTOLine]:
+    """The scene's PTOs as lines (linear PTOs) or axes (rotary PTOs) in the n coordinates."""
     ptos: list[PTOLine] = []
     for p in scene.ptos:
         if isinstance(p, LinearPTO):
@@ -272,30 +303,7 @@ def linearize(scene: Scene, model, setup: Setup) -> LinearizedSystem:
                         g[index_of(name)[3:]] += sign * axis
                 ptos.append(PTOLine(f"{p.name}.{a}", g, k, c, 0.0,
                                     math.inf if p.torque_limit is None else float(p.torque_limit)))
-    moorings = []
-    for i, m in enumerate(scene.moorings):
-        from hydrolink.clients.exudyn.moorings import matrix6, mooring_label
-        r = np.asarray(m.point, float) - np.asarray(handles[m.body].reference, float)
-        moorings.append((mooring_label(m, i), _point_jacobian(n, index_of(m.body), r),
-                         np.asarray(matrix6(m.stiffness), float), np.asarray(matrix6(m.damping), float),
-                         np.asarray(m.pretension, float)))
-
-    w, x_c, e_c = model.excitation_phasors()
-    omega = float(w[0])
-    exc = np.zeros(n, complex)
-    exc[ex.wet_index] = x_c[0]
-    return LinearizedSystem(
-        omega=omega, M=M, K=K, D=D, G=G, f0=f0, wet_index=ex.wet_index, body_index=ex.body_index,
-        excitation=exc, elevation=complex(e_c[0]),
-        added_mass_inf=setup.added_mass_inf, hydrostatic=setup.hydrostatic_stiffness,
-        radiation=(convolution_radiation(model, scene) if scene.steady.radiation == "convolution"
-                   else model.radiation_coefficients), ptos=ptos, moorings=moorings,
-        body_names=list(ex.body_names), reference=ex.body_reference,
-        setup_seconds=_time.perf_counter() - t0, memory=scene.hydro.radiation != "off",
-        wet_names=list(setup.bodies), viscous=model.viscous, morison=model.morison,
-        morison_active=model.active.astype(float) if model.morison is not None else None,
-        viscous_index=np.asarray(ex.wet_index, int)[model.active_index] if model.viscous is not None else None,
-        viscous_shift=math.ceil(model.waves.ramp / (2 * math.pi / omega)) * 2 * math.pi / omega)
+    return ptos
 
 
 def convolution_radiation(model, scene: Scene):
@@ -434,22 +442,9 @@ def solve(sys_: LinearizedSystem, order: int, formulation: str = "dae", *, toler
     p = t.size
     G = sys_.G if formulation == "dae" else np.zeros((0, n))
     m = G.shape[0]
-    # static (mean) problem: modes without stiffness get their mean pinned to 0
-    Ns = N if N is not None else (null_space(sys_.G) if m else np.eye(n_full))
-    k_static = sys_.K + sum(pl.stiffness * np.outer(pl.g, pl.g) for pl in sys_.ptos)
-    kr = Ns.T @ k_static @ Ns
-    scale = max(float(np.abs(kr).max(initial=0.0)), float(np.abs(Ns.T @ sys_.M @ Ns).max()) * sys_.omega ** 2)
-    ev, vec = np.linalg.eigh(0.5 * (kr + kr.T))
-    free = vec[:, np.abs(ev) <= 1e-9 * scale]
-    if free.shape[1]:
-        zq = Ns @ free                       # free modes in the full coordinates
-        zz = zq if N is None else N.T @ zq
-        mean_force = zq.T @ sys_.f0
-        if np.abs(mean_force).max() > 1e-9 * max(1.0, float(np.abs(sys_.f0).max())):
-            raise SteadyError("bodies", f"a constant force {mean_force} acts on a mode without stiffness: "
-                                        "the bodies drift, there is no periodic steady state")
-        L = L + np.kron(scale * zz @ zz.T, np.full((p, p), 1.0 / p))
-        warnings.append(f"{free.shape[1]} mode(s) without static stiffness: their mean displacement is set to 0")
+    pin = _pin_free_modes(sys_, N, m, p, warnings)
+    if pin is not None:
+        L = L + pin
     if m:
         A = np.block([[L, np.kron(G.T, np.eye(p))], [np.kron(G, np.eye(p)), np.zeros((m * p, m * p))]])
     else:
@@ -506,10 +501,47 @@ def solve(sys_: LinearizedSystem, order: int, formulation: str = "dae", *, toler
             jac[:n * p, :n * p] -= np.einsum("jab,jl->ajbl", Jm, D1).reshape(n * p, n * p)
         return r, jac
 
-    y = np.zeros(n * p + m * p)
+    y, it, rel = _newton(residual, np.zeros(n * p + m * p), norm_b, tolerance, max_iterations)
+    X = y[:n * p].reshape(n, p)
+    q = N @ X if N is not None else X
+    lam = y[n * p:].reshape(m, p) if m else None
+    return SteadySolution(sys_, order, formulation, t, q, lam, it, rel, _time.perf_counter() - t0,
+                          y.size, warnings)
+
+
+def _pin_free_modes(sys_: LinearizedSystem, N: np.ndarray | None, m: int, p: int,
+                    warnings: list[str]) -> np.ndarray | None:
+    """The static (mean) problem: modes without stiffness get their mean pinned to 0 by the term
+    returned (to add to the collocation operator; None when every mode has stiffness); a constant
+    force on such a mode is refused."""
+    from scipy.linalg import null_space
+
+    n_full = sys_.M.shape[0]
+    Ns = N if N is not None else (null_space(sys_.G) if m else np.eye(n_full))
+    k_static = sys_.K + sum(pl.stiffness * np.outer(pl.g, pl.g) for pl in sys_.ptos)
+    kr = Ns.T @ k_static @ Ns
+    scale = max(float(np.abs(kr).max(initial=0.0)), float(np.abs(Ns.T @ sys_.M @ Ns).max()) * sys_.omega ** 2)
+    ev, vec = np.linalg.eigh(0.5 * (kr + kr.T))
+    free = vec[:, np.abs(ev) <= 1e-9 * scale]
+    if not free.shape[1]:
+        return None
+    zq = Ns @ free                       # free modes in the full coordinates
+    zz = zq if N is None else N.T @ zq
+    mean_force = zq.T @ sys_.f0
+    if np.abs(mean_force).max() > 1e-9 * max(1.0, float(np.abs(sys_.f0).max())):
+        raise SteadyError("bodies", f"a constant force {mean_force} acts on a mode without stiffness: "
+                                    "the bodies drift, there is no periodic steady state")
+    warnings.append(f"{free.shape[1]} mode(s) without static stiffness: their mean displacement is set to 0")
+    return np.kron(scale * zz @ zz.T, np.full((p, p), 1.0 / p))
+
+
+def _newton(residual, y: np.ndarray, norm_b: float, tolerance: float, max_iterations: int
+            ) -> tuple[np.ndarray, int, float]:
+    """Damped Newton on ``residual(y) -> (r, dr/dy)`` from ``y``; returns (y, iterations, relative
+    residual). The residual is measured relative to the forcing: the excitation ``norm_b`` and, at
+    rest, the pointwise loads (a Morison-only body has no excitation: its members' wave loads are
+    all it gets). SteadyError naming steady.max_iterations when it does not converge."""
     r, jac = residual(y)
-    # the residual relative to the forcing: the excitation and, at rest, the pointwise loads (a
-    # Morison-only body has no excitation: its members' wave loads are all it gets)
     norm_b = max(norm_b, float(np.linalg.norm(r)))
     it = 0
     rel = float(np.linalg.norm(r)) / norm_b
@@ -529,11 +561,7 @@ def solve(sys_: LinearizedSystem, order: int, formulation: str = "dae", *, toler
         raise SteadyError("steady.max_iterations", f"Newton did not converge in {max_iterations} iterations "
                                                    f"(relative residual {rel:.3g}); raise steady.max_iterations "
                                                    "or the order")
-    X = y[:n * p].reshape(n, p)
-    q = N @ X if N is not None else X
-    lam = y[n * p:].reshape(m, p) if m else None
-    return SteadySolution(sys_, order, formulation, t, q, lam, it, rel, _time.perf_counter() - t0,
-                          y.size, warnings)
+    return y, it, rel
 
 
 # -- results -----------------------------------------------------------------------------------

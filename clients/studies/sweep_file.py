@@ -39,7 +39,6 @@ import hashlib
 import json
 import math
 import re
-import sys
 from dataclasses import dataclass, field
 from importlib import metadata
 from pathlib import Path
@@ -48,27 +47,19 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from hydrolink.protocol.errors import KeyedError
 from hydrolink.clients.studies.grid import (GridSpec, Value, absolute_paths, dump_toml, effective_value, full_key, quoted,
                                     scene_location, set_key)
 from hydrolink.protocol.scene import IrregularWave, Scene, SceneError, load_scene, parse_scene
-from hydrolink.protocol.toml_model import validate_toml
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
+from hydrolink.protocol.toml_model import parse_toml, validate_toml
 
 TE_KEY = "waves.te"
 SEA_STATE_KEYS = ("waves.hs", "waves.tp", TE_KEY, "waves.height", "waves.period")
 REALISATION_KEYS = ("waves.seed",)
 
 
-class SweepError(ValueError):
+class SweepError(KeyedError):
     """A sweep that cannot run; the message names the sweep file, the key and why (one line)."""
-
-    def __init__(self, source: str | Path, key: str, why: str):
-        self.source, self.key, self.why = str(source), key, why
-        super().__init__(f"{source}: {key}: {why}" if key else f"{source}: {why}")
 
 
 class Site(BaseModel):
@@ -234,7 +225,7 @@ def load_sweep(path: str | Path) -> Sweep:
         _, scene_text = load_scene(scene_path)
     except SceneError as exc:
         raise SweepError(path, "scene", str(exc)) from None
-    base = absolute_paths(tomllib.loads(scene_text), scene_path)
+    base = absolute_paths(parse_toml(scene_text, scene_path, SweepError), scene_path)
     set_key(base, "simulation.progress", False)
     if isinstance(base.get("client"), dict):
         base["client"].setdefault("type", "exudyn")
@@ -380,7 +371,7 @@ def file_digest(path: str | Path) -> str:
 def case_identity(case: Case, hdb_digests: dict[str, str]) -> str:
     """The key of a case's results: sha256 of its scene (file paths replaced by their content's
     digests), its solver, the hydrolink version and what its file keeps (format, tail)."""
-    doc = tomllib.loads(case.text)
+    doc = parse_toml(case.text, f"case {case.label}", SweepError)
     for b in doc.get("bodies", []):
         if "hdb" in b:
             b["hdb"] = "sha256:" + hdb_digests[b["hdb"]]

@@ -168,7 +168,7 @@ def run_case(task: CaseTask, hdbs: dict, *after) -> CaseOutcome:
         else:
             from hydrolink.clients.run import run_scene_file
             summary = run_scene_file(scene_path, results, progress=False, hdbs=hdbs)
-            fitted = summary.get("state_space_fitted_pairs")
+            fitted = summary.state_space_fitted_pairs
     except Exception as exc:  # noqa: BLE001 - a failing case is a result; the sweep goes on
         status, error = "failed", _first_line(exc)
     if status == "complete":

@@ -66,9 +66,9 @@ def main() -> None:
                 rao = amplitude(t, rel, w, t[-1] - 4 * period) / (HEIGHT / 2)
                 power = float(ds.total_pto_power.values[t >= t[-1] - 4 * period].mean()) / (HEIGHT / 2) ** 2
                 rows.append({"K": k, "C": c, "period": period, "rel_pitch_rao": rao, "power_per_a2": power,
-                             "max_violation": float(ds.joint_violation.max()), "wall_s": s["wall_time"]})
+                             "max_violation": float(ds.joint_violation.max()), "wall_s": s.wall_time})
                 print(f"K {k:6g} C {c:5g} T {period:5g} s: RAO {rao:.3f} rad/m, P/a^2 {power:.1f} W/m^2 "
-                      f"({s['wall_time']:.1f} s)", flush=True)
+                      f"({s.wall_time:.1f} s)", flush=True)
     with open(args.output, "w", newline="") as fh:
         wr = csv.DictWriter(fh, fieldnames=list(rows[0]))
         wr.writeheader()

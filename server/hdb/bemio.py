@@ -20,7 +20,7 @@ import h5py
 import numpy as np
 import xarray as xr
 
-from .schema import HDBError, make_hdb
+from hydrolink.protocol.hdb_schema import HDBError, make_hdb
 
 
 class _H5:

@@ -5,7 +5,7 @@ The spec format is documented in ``docs/hdb-spec.md`` (model: :mod:`.build_spec`
 irregular frequencies), solves radiation for all 6N rigid-body DOFs of the bodies together (so the
 body-to-body blocks are in the HDB) and diffraction over the frequency grid, plus radiation at
 infinite frequency (A∞), computes each body's buoyancy/waterplane hydrostatics and returns the HDB
-in the schema's layout (:mod:`hydrolink.server.hdb.schema`). Results are cached on disk, keyed by
+in the schema's layout (:mod:`hydrolink.protocol.hdb_schema`). Results are cached on disk, keyed by
 everything that determines them.
 """
 
@@ -27,7 +27,7 @@ from hydrolink.server.disk_cache import env_dir, user_cache_dir, write_atomic
 from hydrolink.server.hdb.build_mesh import body_meshes, check_apart, default_panel_size, xoz_symmetric
 from hydrolink.server.hdb.build_spec import BuildSpec, SpecError, load_spec, mesh_path, parse_spec
 from hydrolink.server.hdb.capytaine_io import from_capytaine_dataset, short_body_names
-from hydrolink.server.hdb.schema import SCHEMA_VERSION, dof_labels, from_netcdf_dataset, to_netcdf
+from hydrolink.protocol.hdb_schema import SCHEMA_VERSION, dof_labels, from_netcdf_dataset, to_netcdf
 
 LOG = logging.getLogger(__name__)
 

@@ -18,16 +18,12 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from hydrolink.protocol.scene import Water  # the same [water] table as a scene's
 from hydrolink.protocol.toml_model import validate_toml
 
-from hydrolink.server.hdb.schema import HDBError
+from hydrolink.protocol.hdb_schema import HDBError
 
 
 class SpecError(HDBError):
     """A build spec that cannot be built; the message names the spec file, the key and why.
     (An HDBError, so callers reporting bad HDB inputs in one line report these too.)"""
-
-    def __init__(self, source: str | Path, key: str, why: str):
-        ValueError.__init__(self, f"{source}: {key}: {why}" if key else f"{source}: {why}")
-        self.source, self.key, self.field, self.why = str(source), key, key, why
 
 
 class _Section(BaseModel):

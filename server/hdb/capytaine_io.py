@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from .schema import DOF_NAMES, HDBError, make_hdb
+from hydrolink.protocol.hdb_schema import DOF_NAMES, HDBError, make_hdb
 
 _FREQ_DIMS = ("omega", "period", "freq", "wavenumber", "wavelength")
 

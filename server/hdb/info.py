@@ -9,7 +9,7 @@ import numpy as np
 import xarray as xr
 from scipy.optimize import brentq
 
-from hydrolink.server.hdb.schema import DOF_NAMES
+from hydrolink.protocol.hdb_schema import DOF_NAMES
 from hydrolink.server.irf import aliasing_time, irf_report, ogilvie_added_mass_inf, ogilvie_report, radiation_irf
 
 _TRANSLATIONS = DOF_NAMES[:3]

@@ -18,7 +18,7 @@ import xarray as xr
 
 from .bemio import read_bemio
 from .capytaine_io import from_capytaine_dataset
-from .schema import HDBError, from_netcdf_dataset
+from hydrolink.protocol.hdb_schema import HDBError, from_netcdf_dataset
 from .wamit import WAMIT_SUFFIXES, read_wamit, wamit_stem
 
 WAMIT_READ = (".1", ".2", ".3", ".hst", ".out", ".cfg")   # the files read_wamit opens (where present)

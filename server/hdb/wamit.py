@@ -15,12 +15,13 @@ from __future__ import annotations
 
 import math
 import re
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import xarray as xr
 
-from .schema import HDBError, make_hdb
+from hydrolink.protocol.hdb_schema import HDBError, make_hdb
 
 WAMIT_SUFFIXES = (".1", ".2", ".3", ".3fk", ".3sc", ".hst", ".out", ".cfg", ".pot", ".frc", ".4")
 DEFAULT_G = 9.80665
@@ -188,22 +189,56 @@ def read_wamit(path: str | Path, rho: float = 1000.0, g: float | None = None) ->
         iperout = int(cfg.get("IPEROUT", 1))
     except ValueError as exc:
         raise HDBError(stem.with_name(stem.name + ".cfg"), "GRAV/ULEN/IPEROUT", str(exc)) from None
+    units = _Units(rho, g, ulen, iperout)
+    rad = _read_radiation(file1, units, len(facts.get("xbody", [])))
+    betas, excitation = _read_excitation(excitation_file, file1, rad, units)
+    stiffness = _read_hydrostatics(hst_file, file1, rad.n_dof, units)
+    n_bodies = rad.n_dof // 6
+    reference_point, volume, cb = _body_geometry(stem, facts, n_bodies)
+    return make_hdb(
+        bodies=_body_names(facts.get("gdf", []), n_bodies), omega=rad.omega, wave_direction=np.deg2rad(betas),
+        added_mass=rad.added_mass, radiation_damping=rad.damping, excitation_force=excitation,
+        hydrostatic_stiffness=stiffness, reference_point=reference_point,
+        rho=rho, g=g, water_depth=facts.get("depth", math.inf), source=str(file1),
+        added_mass_inf=rad.added_mass_inf, displaced_volume=volume, center_of_buoyancy=cb,
+    )
 
-    # --- .1: added mass and damping
+
+@dataclass(frozen=True)
+class _Units:
+    """What turns WAMIT's nondimensional columns into SI: rho, g, ULEN and the period column's meaning."""
+    rho: float
+    g: float
+    ulen: float
+    iperout: int
+
+
+@dataclass(frozen=True)
+class _Radiation:
+    """The ``.1`` file in SI: its period column values, the sorted frequencies and each period's rank."""
+    periods: np.ndarray          # (n_w,) the distinct period-column values, sorted as numbers
+    rank: np.ndarray             # (n_w,) position of each of ``periods`` in ``omega``
+    omega: np.ndarray            # (n_w,) rad/s, ascending
+    added_mass: np.ndarray       # (n_w, 6N, 6N)
+    damping: np.ndarray          # (n_w, 6N, 6N)
+    added_mass_inf: np.ndarray | None   # (6N, 6N) from the PER = 0 rows
+    n_dof: int
+
+
+def _read_radiation(file1: Path, u: _Units, n_out_bodies: int) -> _Radiation:
+    """Added mass and damping (A = rho L^k Abar, B = rho omega L^k Bbar) and A_inf of a ``.1`` file."""
     t1, l1 = _read_table(file1, (4, 5), "PER I J Abar [Bbar]")
     ij = _mode_indices(file1, t1, l1, [1, 2])
-    inf_rows, skip_rows = _special_rows(t1[:, 0], iperout)
+    inf_rows, skip_rows = _special_rows(t1[:, 0], u.iperout)
     freq_rows = ~inf_rows & ~skip_rows
     missing_b = freq_rows & np.isnan(t1[:, 4])
     if np.any(missing_b):
         raise HDBError(file1.name, f"line {l1[np.argmax(missing_b)]}", "expected 'PER I J Abar Bbar' (no Bbar)")
-    n_modes = int(ij.max())
-    n_bodies = max(-(-n_modes // 6), len(facts.get("xbody", [])))
-    n_dof = 6 * n_bodies
+    n_dof = 6 * max(-(-int(ij.max()) // 6), n_out_bodies)
     periods = np.unique(t1[freq_rows, 0])
     if periods.size < 2:
         raise HDBError(file1.name, "omega", f"needs at least 2 frequencies, got {periods.size}")
-    omega_unsorted = _frequencies(periods, iperout, g, str(file1))
+    omega_unsorted = _frequencies(periods, u.iperout, u.g, str(file1))
     order = np.argsort(omega_unsorted)
     omega = omega_unsorted[order]
     rank = np.empty_like(order)
@@ -214,49 +249,60 @@ def read_wamit(path: str | Path, rho: float = 1000.0, g: float | None = None) ->
     k = _scale_exponent(i + 1, j + 1, 3)
     added_mass = np.zeros((omega.size, n_dof, n_dof))
     damping = np.zeros_like(added_mass)
-    added_mass[w_idx, i, j] = rho * ulen ** k * t1[freq_rows, 3]
-    damping[w_idx, i, j] = rho * omega[w_idx] * ulen ** k * t1[freq_rows, 4]
+    added_mass[w_idx, i, j] = u.rho * u.ulen ** k * t1[freq_rows, 3]
+    damping[w_idx, i, j] = u.rho * omega[w_idx] * u.ulen ** k * t1[freq_rows, 4]
     added_mass_inf = None
     if np.any(inf_rows):
         ii, jj = ij[inf_rows, 0] - 1, ij[inf_rows, 1] - 1
         added_mass_inf = np.zeros((n_dof, n_dof))
-        added_mass_inf[ii, jj] = rho * ulen ** _scale_exponent(ii + 1, jj + 1, 3) * t1[inf_rows, 3]
+        added_mass_inf[ii, jj] = u.rho * u.ulen ** _scale_exponent(ii + 1, jj + 1, 3) * t1[inf_rows, 3]
+    return _Radiation(periods, rank, omega, added_mass, damping, added_mass_inf, n_dof)
 
-    # --- .3 / .2: excitation per unit wave amplitude, conjugated to exp(-iwt)
-    t3, l3 = _read_table(excitation_file, (7,), "PER BETA I Mod Pha Re Im")
-    modes3 = _mode_indices(excitation_file, t3, l3, [2])[:, 0] - 1
-    inf3, skip3 = _special_rows(t3[:, 0], iperout)
+
+def _read_excitation(path: Path, file1: Path, rad: _Radiation, u: _Units) -> tuple[np.ndarray, np.ndarray]:
+    """Headings (deg) and excitation per unit wave amplitude (n_w, n_beta, 6N) of a ``.3``/``.2``
+    file, X = rho g L^m (Re + i Im), conjugated to exp(-i omega t)."""
+    t3, l3 = _read_table(path, (7,), "PER BETA I Mod Pha Re Im")
+    modes3 = _mode_indices(path, t3, l3, [2])[:, 0] - 1
+    inf3, skip3 = _special_rows(t3[:, 0], u.iperout)
     keep = ~inf3 & ~skip3
     t3, l3, modes3 = t3[keep], l3[keep], modes3[keep]
-    unknown = ~np.isin(t3[:, 0], periods)
+    unknown = ~np.isin(t3[:, 0], rad.periods)
     if np.any(unknown):
-        raise HDBError(excitation_file.name, f"line {l3[np.argmax(unknown)]}",
+        raise HDBError(path.name, f"line {l3[np.argmax(unknown)]}",
                        f"frequency column {t3[np.argmax(unknown), 0]} is not among the {file1.name} frequencies")
-    missing = np.setdiff1d(periods, t3[:, 0])
+    missing = np.setdiff1d(rad.periods, t3[:, 0])
     if missing.size:
-        raise HDBError(excitation_file.name, "excitation_force",
+        raise HDBError(path.name, "excitation_force",
                        f"no rows for frequency column {missing[0]} (present in {file1.name})")
-    if np.any(modes3 >= n_dof):
-        raise HDBError(excitation_file.name, f"line {l3[np.argmax(modes3 >= n_dof)]}",
-                       f"mode {modes3.max() + 1} exceeds the {n_dof} modes of {file1.name}")
+    if np.any(modes3 >= rad.n_dof):
+        raise HDBError(path.name, f"line {l3[np.argmax(modes3 >= rad.n_dof)]}",
+                       f"mode {modes3.max() + 1} exceeds the {rad.n_dof} modes of {file1.name}")
     betas = np.unique(t3[:, 1])
     beta_idx = np.searchsorted(betas, t3[:, 1])
     m = _scale_exponent(modes3 + 1, None, 2)
-    excitation = np.zeros((omega.size, betas.size, n_dof), complex)
-    excitation[rank[np.searchsorted(periods, t3[:, 0])], beta_idx, modes3] = (
-        rho * g * ulen ** m * (t3[:, 5] - 1j * t3[:, 6]))
+    excitation = np.zeros((rad.omega.size, betas.size, rad.n_dof), complex)
+    excitation[rad.rank[np.searchsorted(rad.periods, t3[:, 0])], beta_idx, modes3] = (
+        u.rho * u.g * u.ulen ** m * (t3[:, 5] - 1j * t3[:, 6]))
+    return betas, excitation
 
-    # --- .hst: hydrostatics
-    th, lh = _read_table(hst_file, (3,), "I J Cbar")
-    ijh = _mode_indices(hst_file, th, lh, [0, 1]) - 1
+
+def _read_hydrostatics(path: Path, file1: Path, n_dof: int, u: _Units) -> np.ndarray:
+    """The hydrostatic stiffness (6N, 6N) of a ``.hst`` file, C = rho g L^k Cbar."""
+    th, lh = _read_table(path, (3,), "I J Cbar")
+    ijh = _mode_indices(path, th, lh, [0, 1]) - 1
     if np.any(ijh >= n_dof):
-        raise HDBError(hst_file.name, f"line {lh[np.argmax((ijh >= n_dof).any(axis=1))]}",
+        raise HDBError(path.name, f"line {lh[np.argmax((ijh >= n_dof).any(axis=1))]}",
                        f"mode index exceeds the {n_dof} modes of {file1.name}")
     stiffness = np.zeros((n_dof, n_dof))
-    stiffness[ijh[:, 0], ijh[:, 1]] = rho * g * ulen ** _scale_exponent(ijh[:, 0] + 1, ijh[:, 1] + 1, 2) * th[:, 2]
+    stiffness[ijh[:, 0], ijh[:, 1]] = (u.rho * u.g * u.ulen ** _scale_exponent(ijh[:, 0] + 1, ijh[:, 1] + 1, 2)
+                                       * th[:, 2])
+    return stiffness
 
-    # --- bodies, reference points, volumes from the .out
-    bodies = _body_names(facts.get("gdf", []), n_bodies)
+
+def _body_geometry(stem: Path, facts: dict, n_bodies: int) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Reference points (XBODY), displaced volumes and centres of buoyancy of the bodies from the
+    ``.out`` report (zeros and None where it does not have them)."""
     reference_point = np.zeros((n_bodies, 3))
     volume = cb = None
     xbody = facts.get("xbody", [])
@@ -270,11 +316,4 @@ def read_wamit(path: str | Path, rho: float = 1000.0, g: float | None = None) ->
             volume = np.asarray(facts["volume"], float)
         if len(facts["cb"]) == n_bodies:
             cb = reference_point + np.asarray(facts["cb"], float)
-
-    return make_hdb(
-        bodies=bodies, omega=omega, wave_direction=np.deg2rad(betas),
-        added_mass=added_mass, radiation_damping=damping, excitation_force=excitation,
-        hydrostatic_stiffness=stiffness, reference_point=reference_point,
-        rho=rho, g=g, water_depth=facts.get("depth", math.inf), source=str(file1),
-        added_mass_inf=added_mass_inf, displaced_volume=volume, center_of_buoyancy=cb,
-    )
+    return reference_point, volume, cb

@@ -37,6 +37,8 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
+from hydrolink.protocol.errors import KeyedError
+
 DOF_NAMES: tuple[str, ...] = ("surge", "sway", "heave", "roll", "pitch", "yaw")
 TIME_CONVENTION = "exp(-iwt)"
 SCHEMA_VERSION = 1
@@ -58,12 +60,13 @@ OPTIONAL_VARS = {
 REQUIRED_ATTRS = ("rho", "g", "water_depth")
 
 
-class HDBError(ValueError):
+class HDBError(KeyedError):
     """A hydrodynamic database that cannot be used; the message names the file and the field."""
 
-    def __init__(self, source: str | Path, field: str, why: str):
-        self.source, self.field, self.why = str(source), field, why
-        super().__init__(f"{source}: {field}: {why}")
+    @property
+    def field(self) -> str:
+        """The file's field (variable, column, line) at fault: the error's key."""
+        return self.key
 
 
 def dof_labels(bodies: list[str]) -> list[str]:
