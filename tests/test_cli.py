@@ -10,7 +10,6 @@ import re
 import shutil
 import subprocess
 import sys
-import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -160,18 +159,14 @@ def test_hdb_info_bad_file_is_one_clear_line(tmp_path: Path):
     assert "junk.nc" in result.stderr and "Traceback" not in result.stderr
 
 
+def write_ball_spec(folder: Path, panel_size: float, omegas: list[float], extra: str = "") -> None:
+    """``sphere.toml``: an `hdb build` spec of a floating sphere "ball" of radius 1 m."""
+    (folder / "sphere.toml").write_text(f'[body]\nname = "ball"\nshape = "sphere"\nradius = 1.0\n'
+                                        f"panel_size = {panel_size}\n[frequencies]\nvalues = {omegas}\n{extra}")
+
+
 def test_hdb_build_writes_a_loadable_hdb_and_caches(tmp_path: Path):
-    (tmp_path / "sphere.toml").write_text(textwrap.dedent("""\
-        [body]
-        name = "ball"
-        shape = "sphere"
-        radius = 1.0
-        panel_size = 0.35
-        [frequencies]
-        values = [0.5, 1.5, 3.0]
-        [water]
-        density = 1000.0
-        """))
+    write_ball_spec(tmp_path, 0.35, [0.5, 1.5, 3.0], "[water]\ndensity = 1000.0\n")
     env_cache = dict(HYDROLINK_CACHE=str(tmp_path / "cache"))
     first = subprocess.run([*HYDROLINK, "hdb", "build", "sphere.toml", "-o", "ball.nc", "--no-progress"],
                            cwd=tmp_path, capture_output=True, text=True, timeout=300,
@@ -194,15 +189,7 @@ def test_first_build_on_a_fresh_machine_says_what_happens_in_one_plain_line(tmp_
     line of hydrolink's saying Capytaine tabulates once, never Capytaine's timestamped
     `WARNING capytaine...: Precomputing tabulation`; the tabulation is really made (its file in
     the fresh cache) and the next build, which loads it, says nothing of it."""
-    (tmp_path / "sphere.toml").write_text(textwrap.dedent("""\
-        [body]
-        name = "ball"
-        shape = "sphere"
-        radius = 1.0
-        panel_size = 0.5
-        [frequencies]
-        values = [1.0, 2.0]
-        """))
+    write_ball_spec(tmp_path, 0.5, [1.0, 2.0])
     env = {**os.environ, "CAPYTAINE_CACHE_DIR": str(tmp_path / "capytaine")}
     runs = []
     for out in ("a.nc", "b.nc"):
