@@ -20,6 +20,8 @@ Every reader converts its format into this layout once; everything downstream (I
             center_of_buoyancy    (body, xyz)   optional (m)
             mass                  (body)        optional (kg): the body mass the file records
             center_of_mass        (body, xyz)   optional (m): the centre of gravity the file records
+            mean_drift, difference_qtf, sum_qtf   optional second-order data: layout and
+                                                  conventions in :mod:`.hdb_second_order`
     attrs   rho, g, water_depth (float, inf for deep water), time_convention = "exp(-iwt)",
             source (where it came from), hdb_schema_version = 1
 
@@ -33,6 +35,7 @@ Row index = force component (influenced), column = motion (radiating): F = -A a 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import xarray as xr
@@ -50,13 +53,20 @@ REQUIRED_VARS = {
     "hydrostatic_stiffness": ("influenced_dof", "radiating_dof"),
     "reference_point": ("body", "xyz"),
 }
+DRIFT_METHODS: tuple[str, ...] = ("momentum", "control-surface", "pressure", "far-field")
+QTF_KINDS: tuple[str, ...] = ("difference", "sum")
+MEAN_DRIFT_DIMS = ("drift_method", "drift_omega", "drift_direction", "influenced_dof")
+QTF_DIMS = ("qtf_omega_i", "qtf_omega_j", "qtf_heading", "influenced_dof")
+SECOND_ORDER_VARS = {"mean_drift": MEAN_DRIFT_DIMS, "difference_qtf": QTF_DIMS, "sum_qtf": QTF_DIMS}
 OPTIONAL_VARS = {
     "added_mass_inf": ("influenced_dof", "radiating_dof"),
     "displaced_volume": ("body",),
     "center_of_buoyancy": ("body", "xyz"),
     "mass": ("body",),
     "center_of_mass": ("body", "xyz"),
+    **SECOND_ORDER_VARS,
 }
+COMPLEX_VARS = ("excitation_force", "difference_qtf", "sum_qtf")   # split into _re/_im in NetCDF
 REQUIRED_ATTRS = ("rho", "g", "water_depth")
 
 
@@ -93,9 +103,13 @@ def make_hdb(
     center_of_buoyancy: np.ndarray | None = None,
     mass: np.ndarray | None = None,
     center_of_mass: np.ndarray | None = None,
+    mean_drift: "MeanDrift | None" = None,
+    qtf: "QTF | None" = None,
 ) -> xr.Dataset:
     """Assemble an HDB dataset in the schema's layout from plain arrays (already converted to
-    SI units and the exp(-iwt) convention), then validate it."""
+    SI units and the exp(-iwt) convention) and the optional second-order parts, then validate it."""
+    from hydrolink.protocol.hdb_second_order import second_order_vars
+
     labels = dof_labels(list(bodies))
     data_vars = {
         "added_mass": (REQUIRED_VARS["added_mass"], np.asarray(added_mass, float)),
@@ -109,8 +123,9 @@ def make_hdb(
                         ("center_of_mass", center_of_mass)):
         if value is not None:
             data_vars[name] = (OPTIONAL_VARS[name], np.asarray(value, float))
+    so_vars, so_coords, so_attrs = second_order_vars(mean_drift, qtf)
     ds = xr.Dataset(
-        data_vars,
+        {**data_vars, **so_vars},
         coords={
             "omega": np.asarray(omega, float),
             "wave_direction": np.asarray(wave_direction, float),
@@ -118,11 +133,12 @@ def make_hdb(
             "xyz": ["x", "y", "z"],
             "influenced_dof": labels,
             "radiating_dof": labels,
+            **so_coords,
         },
         attrs={
             "rho": float(rho), "g": float(g), "water_depth": float(water_depth),
             "time_convention": TIME_CONVENTION, "source": str(source),
-            "hdb_schema_version": SCHEMA_VERSION,
+            "hdb_schema_version": SCHEMA_VERSION, **so_attrs,
         },
     )
     return validate_hdb(ds, source)
@@ -184,28 +200,38 @@ def validate_hdb(ds: xr.Dataset, source: str | Path) -> xr.Dataset:
                               for d, i in zip(dims, bad))
             raise HDBError(source, name, f"contains NaN or inf (first at {where})")
         out[name] = var
-    if not np.iscomplexobj(out["excitation_force"].values):
-        out["excitation_force"] = out["excitation_force"].astype(complex)
+    for name in COMPLEX_VARS:
+        if name in out and not np.iscomplexobj(out[name].values):
+            out[name] = out[name].astype(complex)
+    from hydrolink.protocol.hdb_second_order import check_second_order
+    check_second_order(ds, source)
     return ds.assign(out)
 
 
 def to_netcdf(ds: xr.Dataset, path: str | Path) -> None:
-    """Write an HDB in hydrolink's own NetCDF form (complex excitation split into re/im)."""
+    """Write an HDB in hydrolink's own NetCDF form (complex variables split into _re/_im)."""
     ds = validate_hdb(ds, path)
-    exc = ds["excitation_force"]
-    out = ds.drop_vars("excitation_force").assign(
-        excitation_force_re=exc.real, excitation_force_im=exc.imag)
+    complex_vars = [name for name in COMPLEX_VARS if name in ds]
+    out = ds.drop_vars(complex_vars).assign(
+        {f"{name}_{part}": getattr(ds[name], attr) for name in complex_vars
+         for part, attr in (("re", "real"), ("im", "imag"))})
     out.attrs["hydrolink_hdb"] = 1
     out.to_netcdf(path, engine="netcdf4")
 
 
 def from_netcdf_dataset(raw: xr.Dataset, source: str | Path) -> xr.Dataset:
     """Inverse of :func:`to_netcdf` for an already opened dataset."""
-    for part in ("excitation_force_re", "excitation_force_im"):
-        if part not in raw:
-            raise HDBError(source, part, "missing variable")
-    exc = raw["excitation_force_re"] + 1j * raw["excitation_force_im"]
-    ds = raw.drop_vars(["excitation_force_re", "excitation_force_im"]).assign(excitation_force=exc)
+    merged = {}
+    for name in COMPLEX_VARS:
+        parts = [f"{name}_re", f"{name}_im"]
+        present = [p for p in parts if p in raw]
+        if not present and name != "excitation_force":
+            continue
+        for part in parts:
+            if part not in raw:
+                raise HDBError(source, part, "missing variable")
+        merged[name] = raw[parts[0]] + 1j * raw[parts[1]]
+    ds = raw.drop_vars([f"{n}_{p}" for n in merged for p in ("re", "im")]).assign(merged)
     return validate_hdb(ds, source)
 
 
@@ -217,5 +243,9 @@ def select_bodies(ds: xr.Dataset, bodies: list[str]) -> xr.Dataset:
                        f"no body named {missing} (the file holds {list(map(str, ds['body'].values))})")
     labels = dof_labels(bodies)
     return ds.sel(body=bodies, influenced_dof=labels, radiating_dof=labels)
+
+
+if TYPE_CHECKING:
+    from hydrolink.protocol.hdb_second_order import QTF, MeanDrift
 
 

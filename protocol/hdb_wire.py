@@ -17,8 +17,14 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from hydrolink.protocol.hdb_schema import (OPTIONAL_VARS, REQUIRED_ATTRS, REQUIRED_VARS, HDBError, make_hdb,
-                                         validate_hdb)
+from hydrolink.protocol.hdb_schema import (OPTIONAL_VARS, REQUIRED_ATTRS, REQUIRED_VARS, SECOND_ORDER_VARS, HDBError,
+                                         make_hdb, validate_hdb)
+from hydrolink.protocol.hdb_second_order import QTF, MeanDrift, qtf_kinds
+
+FIRST_ORDER_OPTIONAL = tuple(k for k in OPTIONAL_VARS if k not in SECOND_ORDER_VARS)
+DRIFT_FIELDS = ("drift_method", "drift_omega", "drift_direction")        # beside "mean_drift"
+QTF_FIELDS = ("qtf_omega", "qtf_direction_i", "qtf_direction_j")        # beside "difference_qtf"/"sum_qtf"
+SECOND_ORDER_ATTRS = ("mean_drift_note", "qtf_source")                  # strings in "attrs"
 
 
 def to_wire(ds: xr.Dataset) -> dict:
@@ -34,7 +40,39 @@ def to_wire(ds: xr.Dataset) -> dict:
     for name in (*REQUIRED_VARS, *OPTIONAL_VARS):
         if name in ds:
             out[name] = np.ascontiguousarray(ds[name].values)
+    if "mean_drift" in ds:
+        out.update(drift_method=[str(m) for m in ds["drift_method"].values],
+                   drift_omega=ds["drift_omega"].values.astype(float),
+                   drift_direction=ds["drift_direction"].values.astype(float))
+    if qtf_kinds(ds):
+        out.update(qtf_omega=ds["qtf_omega_i"].values.astype(float),
+                   qtf_direction_i=ds["qtf_direction_i"].values.astype(float),
+                   qtf_direction_j=ds["qtf_direction_j"].values.astype(float))
+    for key in SECOND_ORDER_ATTRS:
+        if key in ds.attrs:
+            out["attrs"][key] = str(ds.attrs[key])
     return out
+
+
+def _second_order(data: dict, source: str) -> tuple[MeanDrift | None, QTF | None]:
+    """The mean drift and QTF parts of an HDB map (each with its grid fields), None where absent."""
+    drift = qtf = None
+    if "mean_drift" in data:
+        for key in DRIFT_FIELDS:
+            if key not in data:
+                raise HDBError(source, key, "missing field (needed with mean_drift)")
+        methods = data["drift_method"]
+        if not isinstance(methods, list) or not all(isinstance(m, str) for m in methods):
+            raise HDBError(source, "drift_method", "must be a list of method names")
+        drift = MeanDrift(tuple(methods), data["drift_omega"], data["drift_direction"], data["mean_drift"],
+                          str(data["attrs"].get("mean_drift_note", "")))
+    if "difference_qtf" in data or "sum_qtf" in data:
+        for key in QTF_FIELDS:
+            if key not in data:
+                raise HDBError(source, key, "missing field (needed with a QTF)")
+        qtf = QTF(data["qtf_omega"], data["qtf_direction_i"], data["qtf_direction_j"],
+                  data.get("difference_qtf"), data.get("sum_qtf"), str(data["attrs"].get("qtf_source", "?")))
+    return drift, qtf
 
 
 def from_wire(data: dict, source: str) -> xr.Dataset:
@@ -51,10 +89,11 @@ def from_wire(data: dict, source: str) -> xr.Dataset:
     if not isinstance(bodies, list) or not all(isinstance(b, str) for b in bodies):
         raise HDBError(source, "bodies", "must be a list of names")
     try:
+        drift, qtf = _second_order(data, source)
         return make_hdb(
             bodies=bodies, omega=data["omega"], wave_direction=data["wave_direction"],
             **{k: data[k] for k in REQUIRED_VARS},
-            **{k: data.get(k) for k in OPTIONAL_VARS},
+            **{k: data.get(k) for k in FIRST_ORDER_OPTIONAL}, mean_drift=drift, qtf=qtf,
             rho=attrs.get("rho", float("nan")), g=attrs.get("g", float("nan")),
             water_depth=attrs.get("water_depth", float("nan")),
             source=f"{source} (from {attrs.get('source', '?')})")

@@ -13,6 +13,7 @@ from typing import Annotated, Literal, Union
 
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, field_validator, model_validator
 
+from hydrolink.protocol.capabilities import FEATURES
 from hydrolink.protocol.errors import KeyedError
 from hydrolink.protocol.toml_model import validate_toml
 
@@ -944,6 +945,27 @@ class Scene(_Section):
     def nonlinear_bodies(self) -> list[Body]:
         """The wet bodies whose hydrostatics are nonlinear."""
         return [b for b in self.bodies if self.nonlinear_of(b) != "none"]
+
+    def features(self) -> dict[str, str]:
+        """The optional features this scene uses (protocol/capabilities.py ``FEATURES``), each with
+        the first key that turns it on, in ``FEATURES`` order: what a tool that cannot take one
+        names when it refuses the scene."""
+        found: dict[str, str] = {}
+        for i, b in enumerate(self.bodies):
+            for key in ("linear_damping", "quadratic_damping", "drag"):
+                if getattr(b, key) is not None:
+                    found.setdefault(key, f"bodies[{i}].{key}")
+        if self.morison:
+            found["morison"] = "morison[0]"
+        key = self.nonlinear_key()
+        if key is not None:
+            found["nonlinear_hydrostatics"] = key
+        for i, b in enumerate(self.bodies):
+            if self.nonlinear_of(b) == "froude-krylov":
+                found["nonlinear_froude_krylov"] = (f"bodies[{i}].nonlinear" if b.nonlinear is not None
+                                                    else "hydro.nonlinear")
+                break
+        return {f: found[f] for f in FEATURES if f in found}
 
 
 _UNION_TAGS = ("regular", "irregular", "still", "elevation", "linear", "rotary", "rope", "moordyn", "exudyn", "fmu")

@@ -16,7 +16,9 @@ only, so no work is spent on blocks that are zero by construction. Every matrix 
 active DOFs once at setup, so a step is a few small matvecs and no Python loop over DOFs.
 
 The radiation part ([hydro] radiation and the IRF options) is built by the option's builder in
-server/radiation_options.py, which also reports its setup fields.
+server/radiation_options.py, which also reports its setup fields. The forces beyond this linear
+core (viscous, Morison, nonlinear hydrostatics and Froude–Krylov) are force terms
+(server/force_term.py) built from the registry in server/force_terms.py; a step loops over them.
 """
 
 from __future__ import annotations
@@ -33,7 +35,8 @@ from hydrolink.server.errors import ModelError
 from hydrolink.server.wetted_surface import Hull
 from hydrolink.protocol.hdb_schema import DOF_NAMES, HDBError, select_bodies
 from hydrolink.server.hydrostatics import total_stiffness
-from hydrolink.server.nonlinear_hydro import NonlinearHydro, build_nonlinear
+from hydrolink.server.force_term import ForceTerm, TermContext
+from hydrolink.server.force_terms import TERMS, build_terms
 from hydrolink.server.radiation_options import RadiationGroup, radiation_option
 from hydrolink.server.waves import (ConvolutionForcing, WaveError, WaveForcing, convolution_kernel, elevation_on_grid,
                                     interpolate_excitation, kernel_transfer, wave_components)
@@ -87,11 +90,12 @@ class HydroModel:
 
     def __init__(self, scene: Scene, hdbs: dict[str, xr.Dataset],
                  wave_elevation: tuple[np.ndarray, np.ndarray] | None = None, *,
-                 hulls: dict[str, Hull] | None = None):
+                 hulls: dict[str, Hull] | None = None, term_types: tuple[type[ForceTerm], ...] = TERMS):
         """``hdbs`` maps each wet body's name to its HDB dataset (bodies sharing a file share the
         same object); ``wave_elevation`` the (time, eta) series of ``[waves] type = "elevation"``
         (read from the scene's file by the client; hello.wave_elevation); ``hulls`` the closed
-        hulls of the bodies with nonlinear hydrostatics by name (hello.meshes)."""
+        hulls of the bodies with nonlinear hydrostatics by name (hello.meshes); ``term_types`` the
+        force terms beyond the linear core to build where the scene has them (server/force_terms.py)."""
         self.scene = scene
         served = {b.name for b in scene.served_bodies}
         wet = [i for i, b in enumerate(scene.bodies) if b.name in served]
@@ -146,36 +150,26 @@ class HydroModel:
         self._all_active = na == self.n
         self._sel = slice(None) if self._all_active else self._idx  # a view when every DOF is active
         self._red = np.zeros((3, na))  # scratch: excitation, radiation, hydrostatic (active DOFs)
-        from hydrolink.server.viscous import build_viscous
-        self.viscous = build_viscous(scene, wet, self._idx, self.waves,   # None: no viscous term, nothing computed
-                                     self.equilibrium_position[:, :3])
-        if self.viscous is not None:
-            self._red = np.zeros((4, na))
-        from hydrolink.server.morison import build_morison
-        built = build_morison(scene, wet, self.waves, self.equilibrium_position[:, :3])
-        self.morison = None if built is None else built[0]      # None: no Morison element
-        if built is not None:
-            self.added_mass_client = self.added_mass_client + built[1] * self.active.reshape(-1)[:, None] \
-                * self.active.reshape(-1)[None, :]
-            self._eq_flat = self.equilibrium_position.reshape(-1).copy()
-            self._active_mask = self.active.astype(float)
-        self.nonlinear = self._nonlinear(hulls or {})    # None: every body linear, nothing computed
+        self.terms = build_terms(TermContext(
+            scene, wet, self.active, self._idx, self.waves, self.equilibrium_position,
+            self.hydrostatic_stiffness, self._net_buoyancy, hulls or {}), term_types)
+        self._stateful = [term for term in self.terms if not term.stateless]
+        self._add_term_contributions()
 
-    def _nonlinear(self, hulls: dict[str, Hull]) -> NonlinearHydro | None:
-        """The nonlinear hydrostatics of the scene's nonlinear bodies (server/nonlinear_hydro.py)."""
-        scene = self.scene
-        for i in self._scene_index:
-            body = scene.bodies[i]
-            if scene.nonlinear_of(body) != "none" and body.name not in hulls:
-                raise ModelError(f"bodies[{i}].mesh", f"body {body.name!r} has nonlinear hydrostatics "
-                                 f"({scene.nonlinear_of(body)!r}) but the hello brought no hull for it (meshes, "
-                                 "SPEC §5.1: the client sends the closed hull it reads from the body's mesh or "
-                                 "build spec)")
-        nonlinear = build_nonlinear(scene, self._scene_index, hulls, self.waves, self.equilibrium_position[:, :3],
-                                    self.hydrostatic_stiffness, self._net_buoyancy, self.active)
-        if nonlinear is not None:
-            self.warnings.extend(nonlinear.warnings)
-        return nonlinear
+    def _add_term_contributions(self) -> None:
+        """The terms' setup contributions (server/force_term.py) and warnings, in registry order."""
+        stiff = False
+        for term in self.terms:
+            if term.added_mass is not None:
+                self.added_mass_client = self.added_mass_client + term.added_mass
+            if term.stiffness is not None:
+                self.hydrostatic_stiffness = self.hydrostatic_stiffness + term.stiffness
+                stiff = True
+            if term.feedthrough is not None:
+                self.radiation_feedthrough = self.radiation_feedthrough + term.feedthrough
+            self.warnings.extend(term.warnings)
+        if stiff:
+            self._k_hs = np.ascontiguousarray(self.hydrostatic_stiffness[np.ix_(self._idx, self._idx)])
 
     def _frequency_range(self, groups: list[tuple[xr.Dataset, list[int]]]) -> tuple[float, float]:
         """The frequencies the waves may use: the HDBs' common range; without any HDB (Morison-only
@@ -422,7 +416,14 @@ class HydroModel:
             elevation_start=float(self.elevation_series.start) if self.elevation_series else 0.0,
             warnings=tuple(self.warnings), last_seq=self.last_seq,
             radiation_feedthrough=self.radiation_feedthrough.copy(),
-            nonlinear={self.bodies[b.index]: b.mode for b in self.nonlinear.bodies} if self.nonlinear else {})
+            **self._term_entries())
+
+    def _term_entries(self) -> dict:
+        """The setup fields the terms report (``nonlinear``: empty for a linear scene)."""
+        entries: dict = {"nonlinear": {}}
+        for term in self.terms:
+            entries.update(term.setup_entries(tuple(self.bodies)))
+        return entries
 
     def radiation_coefficients(self, omega: float) -> tuple[np.ndarray, np.ndarray]:
         """A(omega), B(omega) (6N x 6N over the wet bodies, zero outside the active DOFs and the
@@ -449,15 +450,18 @@ class HydroModel:
         return self.waves.omega.copy(), self._x_comp * c[:, None], c
 
     def state(self) -> tuple:
-        """Everything :meth:`step` changes, copied: the newest step's index and the radiation
-        memories (excitation, hydrostatics, viscous, Morison and nonlinear terms keep no state)."""
-        return self._step, tuple(memory.state() for _, memory in self._memories)
+        """Everything :meth:`step` changes, copied: the newest step's index, the radiation memories
+        and the stateful force terms' states (excitation and hydrostatics keep none)."""
+        return (self._step, tuple(memory.state() for _, memory in self._memories),
+                tuple(term.state() for term in self._stateful))
 
     def set_state(self, state: tuple) -> None:
         """Back to a :meth:`state` of this model (a session rolled back, SPEC §5.9)."""
-        self._step, memories = state
+        self._step, memories, terms = state
         for (_, memory), saved in zip(self._memories, memories):
             memory.set_state(saved)
+        for term, saved in zip(self._stateful, terms):
+            term.set_state(saved)
 
     def step(self, time: float, position: np.ndarray, velocity: np.ndarray, *,
              replace_last: bool = False) -> dict:
@@ -478,33 +482,23 @@ class HydroModel:
         vs = v[sel]
         # the reply's arrays: fresh each step (a reply may be kept, e.g. cached for a retry, and
         # goes out in-process as is), written in place, then made read-only like a frame's arrays
-        parts = 3 if self.viscous is None else 4
-        out = np.zeros((parts, len(self.bodies), 6))
-        red = out.reshape(parts, self.n) if self._all_active else self._red
+        out = np.zeros((3, len(self.bodies), 6))
+        red = out.reshape(3, self.n) if self._all_active else self._red
         for pos, memory in self._memories:
             red[1, pos] = memory.push(vs[pos], replace_last)
         red[0], eta = self._forcing(time)
         np.dot(self._k_hs, self._x_eq - x[sel], out=red[2])
-        if self.viscous is not None:
-            red[3] = self.viscous.force(time, vs)
         self._step = k
         if not self._all_active:
-            out.reshape(parts, self.n)[:, sel] = red
+            out.reshape(3, self.n)[:, sel] = red
         out.flags.writeable = False
         reply = {"excitation": out[0], "radiation": out[1], "hydrostatic": out[2], "wave_elevation": eta}
-        if self.viscous is not None:
-            reply["viscous"] = out[3]
-        if self.morison is not None:
-            f = self.morison.force(time, (x - self._eq_flat).reshape(-1, 6), v.reshape(-1, 6)) * self._active_mask
-            f.flags.writeable = False
-            reply["morison"] = f
-        if self.nonlinear is not None:
-            hs, fk = self.nonlinear.force(time, x.reshape(-1, 6))
-            hs.flags.writeable = False
-            reply["nonlinear_hydrostatic"] = hs
-            if self.nonlinear.froude_krylov:
-                fk.flags.writeable = False
-                reply["nonlinear_froude_krylov"] = fk
+        if self.terms:
+            pose, rate = x.reshape(-1, 6), v.reshape(-1, 6)
+            for term in self.terms:
+                for name, f in zip(term.fields, term.force(time, pose, rate)):
+                    f.flags.writeable = False
+                    reply[name] = f
         return reply
 
 

@@ -9,7 +9,8 @@ acceleration, v_s the segment's velocity (body velocity + angular velocity x lev
 member's own added mass, rho ca V_s on the normal directions, is constant and goes into the body's
 mass matrix (``added_mass``, SPEC §5.1), not into this force. A segment is wet while its centre is
 below the still water line (linear theory's integral to z = 0), followed with the body's heave,
-roll and pitch. Forces and moments about the body's reference point, one reply field ``morison``."""
+roll and pitch. Forces and moments about the body's reference point, one reply field ``morison``;
+the force term is :class:`MorisonTerm` (server/force_term.py)."""
 
 from __future__ import annotations
 
@@ -18,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hydrolink.protocol.scene import Scene
+from hydrolink.server.force_term import ForceTerm, TermContext
 from hydrolink.server.kinematics import Kinematics
 from hydrolink.server.waves import WaveComponents
 
@@ -90,3 +92,28 @@ def build_morison(scene: Scene, wet: list[int], waves: WaveComponents,
         k = 6 * body[s]
         added[k:k + 6, k:k + 6] += m6
     return ms, added
+
+
+class MorisonTerm(ForceTerm):
+    """The scene's Morison elements as a force term (reply field ``morison``): their force on the
+    active DOFs, and their members' added mass in the client's mass matrix."""
+
+    name = "morison"
+    scene_keys = ("morison",)
+    features = ("morison",)
+    needs = frozenset({"time", "position", "velocity"})
+    steady = "pointwise"
+
+    def __init__(self, members: MorisonSet, added_mass: np.ndarray, equilibrium: np.ndarray, active: np.ndarray):
+        super().__init__(("morison",))
+        mask = active.reshape(-1)
+        self.members, self.added_mass = members, added_mass * mask[:, None] * mask[None, :]
+        self._eq, self._active = equilibrium.copy(), active.astype(float)
+
+    @classmethod
+    def build(cls, ctx: TermContext) -> "MorisonTerm | None":
+        built = build_morison(ctx.scene, ctx.wet, ctx.waves, ctx.equilibrium[:, :3])
+        return None if built is None else cls(*built, ctx.equilibrium, ctx.active)
+
+    def force(self, t: float, position: np.ndarray, velocity: np.ndarray) -> tuple[np.ndarray]:
+        return (self.members.force(t, position - self._eq, velocity) * self._active,)

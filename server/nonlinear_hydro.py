@@ -21,21 +21,26 @@ fields over the wet bodies (zero for linear bodies and inactive DOFs):
 
 F_FK,lin is the same pressure integrated over the hull's mean wetted surface (z <= 0 at rest,
 unstretched): in small motion and small waves both differences vanish and the run is the linear
-one (up to the HDB's own hydrostatics against the mesh's). The diffraction part stays linear."""
+one (up to the HDB's own hydrostatics against the mesh's). The diffraction part stays linear.
+
+The force term is :class:`NonlinearTerm` (server/force_term.py)."""
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from hydrolink.protocol.scene import Scene
+from hydrolink.server.errors import ModelError
+from hydrolink.server.force_term import ForceTerm, TermContext
 from hydrolink.server.kinematics import wave_number
 from hydrolink.server.waves import WaveComponents, ramp_factor
 from hydrolink.server.wetted_surface import Hull, clip_wet, corner_loads, interpolate, pressure_load, rotation_xyz
 
-__all__ = ["NonlinearBody", "NonlinearHydro", "build_nonlinear"]
+__all__ = ["NonlinearBody", "NonlinearHydro", "NonlinearTerm", "build_nonlinear"]
 
 
 def _depth_factor(k: np.ndarray, z: np.ndarray, depth: float) -> np.ndarray:
@@ -189,3 +194,39 @@ def build_nonlinear(scene: Scene, wet: list[int], hulls: dict[str, Hull], waves:
     model.bodies = bodies
     model.froude_krylov = any(b.mode == "froude-krylov" for b in bodies)
     return model
+
+
+class NonlinearTerm(ForceTerm):
+    """The nonlinear hydrostatic (and Froude–Krylov) differences as a force term: reply fields
+    ``nonlinear_hydrostatic`` and, when some body has ``"froude-krylov"``, ``nonlinear_froude_krylov``."""
+
+    name = "nonlinear_hydrostatics"
+    scene_keys = ("hydro.nonlinear", "bodies[i].nonlinear", "bodies[i].mesh")
+    features = ("nonlinear_hydrostatics", "nonlinear_froude_krylov")
+    needs = frozenset({"time", "position"})
+    steady = None      # its Jacobian in position is not part of hydrolink steady's Newton yet
+
+    def __init__(self, model: NonlinearHydro):
+        super().__init__(("nonlinear_hydrostatic",) + (("nonlinear_froude_krylov",) if model.froude_krylov else ()))
+        self.model, self.warnings = model, tuple(model.warnings)
+
+    @classmethod
+    def build(cls, ctx: TermContext) -> "NonlinearTerm | None":
+        scene = ctx.scene
+        for i in ctx.wet:
+            body = scene.bodies[i]
+            if scene.nonlinear_of(body) != "none" and body.name not in ctx.hulls:
+                raise ModelError(f"bodies[{i}].mesh", f"body {body.name!r} has nonlinear hydrostatics "
+                                 f"({scene.nonlinear_of(body)!r}) but the hello brought no hull for it (meshes, "
+                                 "SPEC §5.1: the client sends the closed hull it reads from the body's mesh or "
+                                 "build spec)")
+        model = build_nonlinear(scene, ctx.wet, dict(ctx.hulls), ctx.waves, ctx.equilibrium[:, :3],
+                                ctx.hydrostatic_stiffness, ctx.net_buoyancy, ctx.active)
+        return None if model is None else cls(model)
+
+    def force(self, t: float, position: np.ndarray, velocity: np.ndarray) -> tuple[np.ndarray, ...]:
+        hs, fk = self.model.force(t, position)
+        return (hs, fk) if self.model.froude_krylov else (hs,)
+
+    def setup_entries(self, bodies: tuple[str, ...]) -> dict[str, Any]:
+        return {"nonlinear": {bodies[b.index]: b.mode for b in self.model.bodies}}

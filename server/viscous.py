@@ -1,6 +1,6 @@
 """Viscous forces on wet bodies, beyond potential flow (issue 10), one reply field ``viscous``
 (SPEC §5.2) over the active DOFs, built only when some body has one (no term costs anything
-unused):
+unused); the force term is :class:`ViscousTerm` (server/force_term.py):
 
 - HydroDyn's AddBLin / AddBQuad: F = -B_lin v - B_quad (v |v|) per body, 6x6 about the body's
   reference point, absolute velocity, in the body DOF order;
@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hydrolink.protocol.scene import Scene
+from hydrolink.server.force_term import ForceTerm, TermContext
 from hydrolink.server.kinematics import Kinematics
 from hydrolink.server.waves import WaveComponents
 
@@ -109,3 +110,36 @@ def build_viscous(scene: Scene, wet: list[int], idx: np.ndarray, waves: WaveComp
     if parts["linear_damping"] is None and parts["quadratic_damping"] is None and drag is None:
         return None
     return ViscousDamping(parts["linear_damping"], parts["quadratic_damping"], drag)
+
+
+class ViscousTerm(ForceTerm):
+    """The viscous damping and drag of the served bodies as a force term (reply field ``viscous``)."""
+
+    name = "viscous"
+    scene_keys = ("bodies[i].linear_damping", "bodies[i].quadratic_damping", "bodies[i].drag")
+    features = ("linear_damping", "quadratic_damping", "drag")
+    needs = frozenset({"time", "velocity"})
+    steady = "jacobian"
+
+    def __init__(self, damping: ViscousDamping, active_index: np.ndarray, n_bodies: int):
+        super().__init__(("viscous",))
+        self.damping, self._idx, self._n = damping, active_index, 6 * n_bodies
+        self._sel = slice(None) if active_index.size == self._n else active_index  # a view when all are active
+
+    @classmethod
+    def build(cls, ctx: TermContext) -> "ViscousTerm | None":
+        damping = build_viscous(ctx.scene, ctx.wet, ctx.active_index, ctx.waves, ctx.equilibrium[:, :3])
+        return None if damping is None else cls(damping, ctx.active_index, ctx.n_bodies)
+
+    def force(self, t: float, position: np.ndarray, velocity: np.ndarray) -> tuple[np.ndarray]:
+        f = self.damping.force(t, velocity.reshape(-1)[self._sel])
+        if self._idx.size == self._n:
+            return (f.reshape(-1, 6),)
+        out = np.zeros(self._n)
+        out[self._idx] = f
+        return (out.reshape(-1, 6),)
+
+    def velocity_jacobian(self, t: float, position: np.ndarray, velocity: np.ndarray) -> np.ndarray:
+        jac = np.zeros((self._n, self._n))
+        jac[np.ix_(self._idx, self._idx)] = self.damping.jacobian(t, velocity.reshape(-1)[self._idx])
+        return jac

@@ -87,7 +87,8 @@ def test_hello_meshes_errors_name_the_field(hdb):
 
     def with_mesh(meshes):
         return wire(**hello(hdb, nonlinear="hydrostatic"), meshes=meshes)
-    assert build_model(with_mesh({"float": {"vertices": cube, "faces": faces}})).nonlinear is not None
+    assert [t.name for t in build_model(with_mesh({"float": {"vertices": cube, "faces": faces}})).terms] \
+        == ["nonlinear_hydrostatics"]
     refused(lambda: build_model(with_mesh([1, 2])), Code.BAD_VALUE, "meshes")
     refused(lambda: build_model(with_mesh({"float": 3})), Code.BAD_VALUE, "meshes.float")
     refused(lambda: build_model(with_mesh({"float": {"faces": faces}})), Code.MISSING_FIELD, "meshes.float.vertices")

@@ -455,7 +455,7 @@ class ExudynMultibody:
         # every scene body wet, in setup order: the forces go straight into the results row
         self._all_wet = self.n == self.nb and np.array_equal(model.wet_rows, np.arange(self.nb))
         self._hs = np.zeros(6 * self.n)   # scratch: C q
-        # the wet bodies' 6N entries in the (B, 6) rows (viscous force)
+        # the wet bodies' 6N entries in the (B, 6) rows (the optional forces' results variables)
         self._wet_flat = (6 * np.asarray(model.wet_rows, int)[:, None] + np.arange(6)).reshape(-1)
         self._pto_sample = None
         # MoorDyn: each step is driven towards the pose it ends in (clients/exudyn/moordyn_mooring.py):
@@ -581,16 +581,8 @@ class ExudynMultibody:
                 f[0, rows], f[1, rows] = s.excitation.reshape(shape), s.radiation.reshape(shape)
                 f[2, rows] = -(m.stiffness @ q[m.wet_index]).reshape(shape)
             row[2:] = f
-        if s.viscous is not None:
-            vis = np.zeros((self.nb, 6))
-            vis.reshape(-1)[self._wet_flat] = s.viscous
-            self.writer.stage_extra({"viscous_force": vis, "viscous_power": -(vis * row[1]).sum(axis=1)})
-        for name, part in (("morison_force", s.morison), ("nonlinear_hydrostatic_force", s.nonlinear_hydrostatic),
-                           ("nonlinear_froude_krylov_force", s.nonlinear_froude_krylov)):
-            if part is not None:
-                full = np.zeros((self.nb, 6))
-                full.reshape(-1)[self._wet_flat] = part
-                self.writer.stage_extra({name: full})
+        if s.optional:
+            self.writer.stage_forces(s.optional, self._wet_flat, row[1])
         self.writer.commit(t, s.eta)
 
     def measurements(self, step: int) -> dict | None:
@@ -662,7 +654,7 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup | None, writer, 
         why = explicit_refusal(scheme, ratio, cpl.explicit_limit)
         writer.finish(f"refused: {why}")
         raise SceneError("scene", "coupling.scheme", why)
-    pre = preflight(scene, setup, writer)
+    pre = preflight(scene, setup, writer, "exudyn")
     warnings = pre.warnings
     if scheme == "implicit" and spectral_radius != 1.0:
         warnings.append(f"simulation.spectral_radius = {spectral_radius:g} is not used by coupling.scheme = "

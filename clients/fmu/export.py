@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hydrolink.protocol.capabilities import refuse_unsupported
 from hydrolink.protocol.scene import SceneError, load_scene
 
 MECHANISM_KEYS = ("point_masses", "joints", "constraints", "ptos", "moorings")
@@ -35,9 +36,7 @@ def export_fmu(scene_path: str | Path, output: str | Path, *, progress: bool = T
 
     scene_path, output = Path(scene_path), Path(output)
     scene, text = load_scene(scene_path)
-    if scene.nonlinear_key():
-        raise SceneError(scene_path, scene.nonlinear_key(), "nonlinear hydrostatics need the bodies' hulls in the "
-                         "hello, which the exported FMU does not carry yet; use the Exudyn client (hydrolink run)")
+    refuse_unsupported(scene, "python_fmu", lambda key, why: SceneError(scene_path, key, why))
     hdbs = load_scene_hdbs(scene, scene_path, progress=progress)
     srv, thread = serve_in_thread("tcp://127.0.0.1:*")
     try:

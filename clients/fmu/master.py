@@ -255,24 +255,13 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup, writer, *,
     client: FMUClient = scene.client
     if not isinstance(client, FMUClient):
         raise SceneError("scene", "client.type", "the FMU master needs [client] type = \"fmu\"")
-    if scene.morison:
-        raise SceneError("scene", "morison", "the FMU master does not apply Morison forces yet; use the Exudyn client")
-    if scene.nonlinear_key():
-        raise SceneError("scene", scene.nonlinear_key(), "the FMU master does not apply nonlinear hydrostatics yet; "
-                         "use the Exudyn client")
-    for i, b in enumerate(scene.bodies):
-        for key in ("linear_damping", "quadratic_damping", "drag"):
-            if getattr(b, key) is not None:
-                raise SceneError("scene", f"bodies[{i}].{key}", "the FMU master does not apply viscous forces "
-                                 "yet (its force ports carry excitation, radiation and hydrostatics); use the "
-                                 "Exudyn client")
+    pre = preflight(scene, setup, writer, "fmu_master")
     h = setup.dt
     hc = client.communication_step or h
     n_sub = int(round(h / hc))
     if n_sub < 1 or abs(n_sub * hc - h) > 1e-9 * h:
         raise SceneError("scene", "client.communication_step",
                          f"must divide simulation.dt = {h:g} s into whole steps (got {hc:g} s)")
-    pre = preflight(scene, setup, writer)
     with FMUInstance(resolve_path(scene_path, client.fmu)) as fmu:
         mb = FMUMultibody(scene, client, fmu, setup, writer, h, n_sub, record, allow_unstable)
         try:

@@ -28,6 +28,7 @@ from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
+from hydrolink.protocol.capabilities import refuse_unsupported
 from hydrolink.protocol.scene import SceneError, load_scene
 
 SOURCES = Path(__file__).with_name("native_c")
@@ -130,9 +131,7 @@ def export_native_fmu(scene_path: str | Path, output: str | Path, *, fmi: int = 
         raise NativeFMUError(f"--fmi must be 2 or 3, got {fmi}")
     scene_path, output = Path(scene_path), Path(output)
     scene, text = load_scene(scene_path)
-    if scene.nonlinear_key():
-        raise SceneError(scene_path, scene.nonlinear_key(), "nonlinear hydrostatics need the bodies' hulls in the "
-                         "hello, which the native FMU does not carry yet; use the Exudyn client (hydrolink run)")
+    refuse_unsupported(scene, "native_fmu", lambda key, why: SceneError(scene_path, key, why))
     sources, datasets = _hdb_sources(scene, scene_path, progress)
     setup = _setup(text, datasets)
     names, n = setup.bodies, setup.n

@@ -75,8 +75,9 @@ class HydrolinkForces(Fmi2Slave):
 
     # -- the server ---------------------------------------------------------------------------
     def exit_initialization_mode(self):
-        from hydrolink.clients.lockstep.connection import EXTRA_FORCE_FIELDS, ServerConnection
-        self._extra_fields = EXTRA_FORCE_FIELDS
+        from hydrolink.clients.lockstep.connection import ServerConnection
+        from hydrolink.protocol.reply import OPTIONAL_FORCES
+        self._optional = OPTIONAL_FORCES
         from hydrolink.server.hdb.io import load_hdb
 
         address = self.server_address
@@ -108,7 +109,7 @@ class HydrolinkForces(Fmi2Slave):
             self._out[key][:] = np.asarray(reply[key], float).reshape(-1)[self._flat]
         self._out["hydrostatic"] += self._net
         self._out["force"][:] = self._out["excitation"] + self._out["radiation"] + self._out["hydrostatic"]
-        for key in self._extra_fields:       # scenes with those terms: part of the total force
+        for key in self._optional:           # scenes with those terms: part of the total force
             if reply.get(key) is not None:
                 self._out["force"] += np.asarray(reply[key], float).reshape(-1)[self._flat]
         self._eta = float(np.asarray(reply["wave_elevation"], float).reshape(-1)[0])

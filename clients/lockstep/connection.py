@@ -19,13 +19,11 @@ import zmq
 
 from hydrolink.protocol import codec
 from hydrolink.protocol.codec import ProtocolError
+from hydrolink.protocol.reply import read_forces
 from hydrolink.protocol.setup import Setup
 from hydrolink.protocol.hdb_wire import HDBFiles, to_wire
 from hydrolink.protocol.transport import apply_heartbeats
 
-FORCE_FIELDS = ("excitation", "radiation", "hydrostatic")
-# (N, 6) reply fields of scenes with forces beyond linear potential flow, each part of the load (SPEC §5.2)
-EXTRA_FORCE_FIELDS = ("viscous", "morison", "nonlinear_hydrostatic", "nonlinear_froude_krylov")
 ENVELOPE_AND_ERROR = ("v", "type", "msg_id", "session", "parent", "code", "name", "field", "message", "sig")
 WATCH_S = 0.2                 # a pending reply's link is checked this often
 
@@ -271,7 +269,7 @@ class ServerConnection:
     def step(self, seq: int, time: float, position: np.ndarray, velocity: np.ndarray,
              iteration: int = 0, *, measurements: dict | None = None, timeout: float | None = None) -> dict:
         """The ``forces`` reply for the state at step ``seq``: excitation/radiation/hydrostatic (N, 6)
-        arrays (read-only), wave_elevation, seq, iteration, time, compute_us (and the envelope); with controllers (SPEC §5.7) the
+        arrays (read-only) and the optional forces of the scene's terms (protocol/reply.py), wave_elevation, seq, iteration, time, compute_us (and the envelope); with controllers (SPEC §5.7) the
         ``measurements`` of step seq - 1 go along and the reply's ``control`` decisions come back."""
         position = np.ascontiguousarray(position, dtype=np.float64)
         fields = {"seq": int(seq), "time": float(time), "iteration": int(iteration), "position": position,
@@ -280,14 +278,7 @@ class ServerConnection:
             fields["measurements"] = measurements
         # the map path only for what this method builds itself (ints, floats, float64 arrays)
         reply = self._request("step", timeout, fields, self._maps and measurements is None)
-        for k in FORCE_FIELDS:  # (N, 6) like the state sent; the caller checks the values
-            reply[k] = codec.require_array(reply, k, position.shape, finite=False)
-        for k in EXTRA_FORCE_FIELDS:        # scenes with those terms (SPEC §5.2)
-            if reply.get(k) is not None:
-                reply[k] = codec.require_array(reply, k, position.shape, finite=False)
-        eta = reply.get("wave_elevation")
-        if isinstance(eta, dict):
-            reply["wave_elevation"] = codec.decode_array(eta, "wave_elevation")
+        read_forces(reply, position.shape)   # (N, 6) like the state sent; the caller checks the values
         return reply
 
     def save(self) -> int:

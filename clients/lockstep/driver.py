@@ -18,12 +18,13 @@ import sys
 import time as _time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from typing import Any, NamedTuple, Protocol
+from types import MappingProxyType
+from typing import Any, Mapping, NamedTuple, Protocol
 
 import numpy as np
 
-from hydrolink.clients.lockstep.connection import EXTRA_FORCE_FIELDS
 from hydrolink.clients.lockstep.summary import CouplingReport, RunSummary
+from hydrolink.protocol.reply import OPTIONAL_FORCES
 
 _sum = np.add.reduce   # ndarray.sum without its Python wrapper
 
@@ -56,42 +57,33 @@ class CouplingError(RunInterrupted):
 
 class Sample(NamedTuple):
     """One server reply over the wet bodies' 6N DOFs (body-major); immutable (a tuple: cheap to
-    make once a step). ``load`` = excitation + radiation (+ viscous, + morison, for scenes with
-    those terms): what the client applies as a force (hydrostatics are in its matrix); :meth:`of`
-    computes it. The optional parts are the reply's EXTRA_FORCE_FIELDS, in that order."""
+    make once a step). ``load`` = excitation + radiation + the optional forces: what the client
+    applies as a force (hydrostatics are in its matrix); :meth:`of` computes it. ``optional``: the
+    reply's optional forces present (protocol/reply.py OPTIONAL_FORCES), in that order."""
 
     excitation: np.ndarray
     radiation: np.ndarray
     hydrostatic: np.ndarray
     eta: float
     load: np.ndarray
-    viscous: np.ndarray | None = None
-    morison: np.ndarray | None = None
-    nonlinear_hydrostatic: np.ndarray | None = None
-    nonlinear_froude_krylov: np.ndarray | None = None
+    optional: Mapping[str, np.ndarray] = MappingProxyType({})
 
     @classmethod
     def of(cls, excitation: np.ndarray, radiation: np.ndarray, hydrostatic: np.ndarray, eta: float,
-           *extra: np.ndarray | None) -> "Sample":
-        """A sample; ``extra``: the optional parts (None when the scene has no such term)."""
+           optional: Mapping[str, np.ndarray] = MappingProxyType({})) -> "Sample":
+        """A sample; ``optional`` the optional forces by reply field (none for a linear scene)."""
         load = excitation + radiation
-        for part in extra:
-            if part is not None:
-                load = load + part
-        return cls(excitation, radiation, hydrostatic, eta, load, *extra)
-
-    @property
-    def extra(self) -> tuple[np.ndarray | None, ...]:
-        """The optional parts, in EXTRA_FORCE_FIELDS order."""
-        return self[5:]
+        for part in optional.values():
+            load = load + part
+        return cls(excitation, radiation, hydrostatic, eta, load, optional)
 
     def toward(self, other: "Sample", w: float) -> "Sample":
         """self + w (other − self): linear in time between (w in [0, 1]) or past (w > 1) two samples."""
         def lerp(a, b):
-            return None if a is None else a + w * (b - a)
+            return a + w * (b - a)
         return Sample.of(lerp(self.excitation, other.excitation), lerp(self.radiation, other.radiation),
                          lerp(self.hydrostatic, other.hydrostatic), self.eta + w * (other.eta - self.eta),
-                         *(lerp(a, b) for a, b in zip(self.extra, other.extra)))
+                         {k: lerp(a, other.optional[k]) for k, a in self.optional.items()})
 
 
 class ForceLink:
@@ -137,9 +129,9 @@ class ForceLink:
         self.decisions = reply.get("control")
         eta = reply["wave_elevation"]
         eta = eta if type(eta) is float else float(np.asarray(eta, float).reshape(-1)[0])
-        extra = (reply.get(k) for k in EXTRA_FORCE_FIELDS)
+        optional = {k: reply[k].reshape(-1) for k in OPTIONAL_FORCES if reply.get(k) is not None}
         s = Sample.of(reply["excitation"].reshape(-1), reply["radiation"].reshape(-1),
-                      reply["hydrostatic"].reshape(-1), eta, *(None if e is None else e.reshape(-1) for e in extra))
+                      reply["hydrostatic"].reshape(-1), eta, optional)
         # NaN or inf anywhere makes a sum non-finite (excitation and radiation through their sum)
         if not math.isfinite(float(_sum(s.load)) + float(_sum(s.hydrostatic)) + eta):
             rows = self.writer.rows

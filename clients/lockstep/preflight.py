@@ -12,6 +12,7 @@ import logging
 import math
 from dataclasses import dataclass
 
+from hydrolink.protocol.capabilities import refuse_unsupported
 from hydrolink.protocol.scene import Scene, SceneError
 from hydrolink.protocol.setup import Setup
 
@@ -59,8 +60,15 @@ def wave_resolution(scene: Scene, step: float) -> tuple[str, str] | None:
     return "warn", why
 
 
-def preflight(scene: Scene, setup: Setup | None, writer) -> Preflight:
-    """The shared checks of a lockstep run (module docstring)."""
+def preflight(scene: Scene, setup: Setup | None, writer, tool: str) -> Preflight:
+    """The shared checks of a lockstep run (module docstring); ``tool`` the adapter's entry in
+    protocol/capabilities.py ``TOOLS`` ("exudyn", "fmu_master"): a scene feature it cannot take is
+    refused first, naming the key and the tool."""
+    try:
+        refuse_unsupported(scene, tool, lambda key, why: SceneError("scene", key, why))
+    except SceneError as exc:
+        writer.finish(f"refused: {exc.why}")
+        raise
     big_h = scene.exchange_dt
     if setup is not None and setup.n and abs(setup.dt - big_h) > 1e-9 * big_h:
         raise ValueError(f"the server's step {setup.dt} s is not coupling.exchange_every × simulation.dt "

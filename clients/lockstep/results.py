@@ -18,7 +18,9 @@ Layout (readable with ``xarray.open_dataset``)::
            (``mooring``, ``mooring_component``); MoorDyn: ``line_tension`` (its own fairlead tension)
            and ``line_end_force`` over ``line`` and
            ``line_node_position`` over (``line``, ``node``, ``xyz``); attribute ``moordyn`` (JSON:
-           files, initial tensions and loads, static offsets)
+           files, initial tensions and loads, static offsets); the optional forces' variables
+           (``viscous_force``, ``viscous_power``, ``morison_force``, ...: protocol/reply.py) with
+           :func:`add_force_term_variables` / :meth:`ResultWriter.stage_forces`
 
 Extra variables: ``add_variable(name, dims, coords, units, long_name)`` before the first row
 (``coords`` gives the labels of any dimension not yet in the file), then per row
@@ -33,11 +35,13 @@ import json
 import time as _time
 from importlib import metadata
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 import netCDF4
 
+from hydrolink.protocol.capabilities import reply_fields
+from hydrolink.protocol.reply import dissipated_power, reply_field
 from hydrolink.protocol.scene import Scene
 from hydrolink.protocol.setup import Setup
 
@@ -180,6 +184,16 @@ class ResultWriter:
         block[0] = np.nan
         self._extra[name] = block
 
+    def stage_forces(self, optional: Mapping[str, np.ndarray], rows: np.ndarray, velocity: np.ndarray) -> None:
+        """Stage the variables of the optional forces for the next row: each force (6N over the
+        served bodies) put at the flat positions ``rows`` of the file's (B, 6) bodies (zero for the
+        others); ``velocity`` (B, 6) the row's, for a dissipated power."""
+        for name, part in optional.items():
+            full = np.zeros((self.n_bodies, 6))
+            full.reshape(-1)[rows] = part
+            self.stage_extra({v.name: full if v.value == "force" else dissipated_power(full, velocity)
+                              for v in reply_field(name).variables})
+
     def stage_extra(self, values: dict[str, Any]) -> None:
         """Values of extra variables for the row the next :meth:`append` adds."""
         i = self._buffered
@@ -281,31 +295,13 @@ class ResultWriter:
         self.close()
 
 
-#: unit of a (body, dof) force row
-FORCE_UNITS = "N (surge, sway, heave); N m (roll, pitch, yaw)"
-
-
 def add_force_term_variables(writer: ResultWriter, scene: Scene) -> None:
-    """The results variables of the server's optional force terms the scene has (reply fields
-    beyond excitation, radiation and hydrostatics), and the ``nonlinear`` attribute."""
-    if scene.morison:
-        writer.add_variable("morison_force", ("body", "dof"), None, FORCE_UNITS,
-                            "Morison elements' force and moment about the reference point (server)")
+    """The results variables of the optional forces the scene's replies carry (its features'
+    reply fields, protocol/capabilities.py), each as protocol/reply.py declares it, and the
+    ``nonlinear`` attribute; :meth:`ResultWriter.stage_forces` fills them each row."""
     modes = {b.name: scene.nonlinear_of(b) for b in scene.nonlinear_bodies}
     if modes:
         writer.set_attribute("nonlinear", json.dumps(modes))
-        writer.add_variable("nonlinear_hydrostatic_force", ("body", "dof"), None, FORCE_UNITS,
-                            "nonlinear minus linear hydrostatics (server): pressure -rho g z on the instantaneous "
-                            "wetted surface plus the weight, minus net buoyancy and the linear restoring force "
-                            "(hydrostatic_force); total restoring = hydrostatic_force + net buoyancy + this")
-    if "froude-krylov" in modes.values():
-        writer.add_variable("nonlinear_froude_krylov_force", ("body", "dof"), None, FORCE_UNITS,
-                            "nonlinear minus linear Froude-Krylov force (server): the incident wave's pressure on "
-                            "the instantaneous wetted surface under the wave, minus its linear value on the mean "
-                            "wetted surface (part of excitation_force)")
-    if any(b.viscous for b in scene.bodies):
-        writer.add_variable("viscous_force", ("body", "dof"), None, FORCE_UNITS,
-                            "viscous damping force -B_lin v - B_quad v|v| about the reference point (server)")
-        writer.add_variable("viscous_power", ("body",), None, "W",
-                            "power dissipated by the viscous damping, -viscous_force . velocity (>= 0 for "
-                            "positive damping)")
+    for name in reply_fields(scene):
+        for v in reply_field(name).variables:
+            writer.add_variable(v.name, v.dims, None, v.units, v.description)

@@ -38,6 +38,9 @@ Where each term comes from — the same sources as ``hydrolink run``:
   geometry) or an axis (rotary PTO: relative rotation about a frame axis), force clipped at
   ``force_limit``/``torque_limit``, generalised force -g T; this is the same spring-damper law as
   clients/exudyn/ptos.py. The test checks g g^T k, g g^T c against Exudyn's linearisation with the PTOs in.
+- the server's force terms beyond the linear core that steady takes (viscous damping and drag,
+  Morison elements: server/force_term.py ``steady``), pointwise at the nodes with their own dF/dv
+  or one by central differences; the others are refused (protocol/capabilities.py).
 
 Two formulations (``[steady] formulation`` / ``--formulation``):
 
@@ -62,6 +65,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hydrolink.protocol.capabilities import refuse_unsupported
 from hydrolink.protocol.errors import KeyedError
 from hydrolink.protocol.scene import DOF_NAMES, LinearMooring, LinearPTO, MoorDynMooring, RegularWave, RopeMooring, Scene
 from hydrolink.protocol.setup import Setup
@@ -97,10 +101,7 @@ def check_scene(scene: Scene) -> None:
             raise SteadyError(f"joints[{i}].friction", "joint friction is not supported by hydrolink steady")
     if scene.controllers:
         raise SteadyError("controllers", "a controller's commands are not part of the periodic model")
-    if scene.nonlinear_key():
-        raise SteadyError(scene.nonlinear_key(), "nonlinear hydrostatics are not part of hydrolink steady's model yet "
-                                                 "(its Newton needs their Jacobian in position); run the scene with "
-                                                 "hydrolink run")
+    refuse_unsupported(scene, "steady", SteadyError)
     for i, c in enumerate(scene.constraints):
         if c.value != 0.0:
             raise SteadyError(f"constraints[{i}].value", "hydrolink steady needs constraint values of 0 "
@@ -145,16 +146,15 @@ class LinearizedSystem:
     setup_seconds: float = 0.0
     memory: bool = True
     wet_names: list[str] = field(default_factory=list)
-    # viscous forces of the server (server/viscous.py), evaluated pointwise at the collocation
-    # nodes: the term, the ODE2 indices of the active wet DOFs it acts on, and the time shift that
-    # puts the nodes past the wave ramp (the steady state is periodic)
-    viscous: object | None = None
-    viscous_index: np.ndarray | None = None
-    viscous_shift: float = 0.0
-    # Morison elements (server/morison.py), pointwise like the viscous terms: the set and the mask
-    # of the wet bodies' active DOFs (N, 6)
-    morison: object | None = None
-    morison_active: np.ndarray | None = None
+    # the server's force terms beyond the linear core (server/force_term.py) that steady takes
+    # (steady = "jacobian" / "pointwise"), evaluated pointwise at the collocation nodes on the
+    # wet bodies' poses (equilibrium (N, 6) + displacement); ``term_active`` the active DOFs (6N,)
+    # differences are taken in; ``term_shift`` puts the nodes past the wave ramp (the steady state
+    # is periodic)
+    terms: list = field(default_factory=list)
+    equilibrium: np.ndarray | None = None
+    term_active: np.ndarray | None = None
+    term_shift: float = 0.0
 
     @property
     def pto_names(self) -> list[str]:
@@ -245,10 +245,9 @@ def linearize(scene: Scene, model, setup: Setup) -> LinearizedSystem:
                    else model.radiation_coefficients), ptos=ptos, moorings=moorings,
         body_names=list(ex.body_names), reference=ex.body_reference,
         setup_seconds=_time.perf_counter() - t0, memory=scene.hydro.radiation != "off",
-        wet_names=list(setup.bodies), viscous=model.viscous, morison=model.morison,
-        morison_active=model.active.astype(float) if model.morison is not None else None,
-        viscous_index=np.asarray(ex.wet_index, int)[model.active_index] if model.viscous is not None else None,
-        viscous_shift=math.ceil(model.waves.ramp / (2 * math.pi / omega)) * 2 * math.pi / omega)
+        wet_names=list(setup.bodies), terms=list(model.terms), equilibrium=setup.equilibrium_position,
+        term_active=model.active.reshape(-1),
+        term_shift=math.ceil(model.waves.ramp / (2 * math.pi / omega)) * 2 * math.pi / omega)
 
 
 def _constant_loads(scene: Scene) -> list[tuple[str, np.ndarray, np.ndarray]]:
@@ -452,22 +451,32 @@ def solve(sys_: LinearizedSystem, order: int, formulation: str = "dae", *, toler
     rhs = np.r_[b, np.zeros(m * p)]
     norm_b = max(float(np.linalg.norm(b)), 1e-300)
 
-    if sys_.viscous is not None:   # coordinates -> velocities of the active wet DOFs: S (n_act, n)
-        S = np.zeros((sys_.viscous_index.size, n_full))
-        S[np.arange(sys_.viscous_index.size), sys_.viscous_index] = 1.0
-        if N is not None:
-            S = S @ N
-    tv = t + sys_.viscous_shift
-    if sys_.morison is not None:   # coordinates -> the wet bodies' 6N displacements: W (6N, n)
+    tv = t + sys_.term_shift
+    if sys_.terms:   # coordinates -> the wet bodies' 6N displacements: W (6N, n)
         W = np.zeros((sys_.wet_index.size, n_full))
         W[np.arange(sys_.wet_index.size), sys_.wet_index] = 1.0
         if N is not None:
             W = W @ N
-        mask = sys_.morison_active.reshape(-1)
-        nb = mask.size // 6
+        eq = sys_.equilibrium
+        cols = np.flatnonzero(sys_.term_active)
 
-        def morison_at(j: int, x: np.ndarray, v: np.ndarray) -> np.ndarray:
-            return sys_.morison.force(tv[j], x.reshape(nb, 6), v.reshape(nb, 6)).reshape(-1) * mask
+        def term_at(term, j: int, x: np.ndarray, v: np.ndarray) -> np.ndarray:
+            """The term's load (6N,) at node j: the sum of its reply fields."""
+            pose, rate = eq + x.reshape(eq.shape), v.reshape(eq.shape)
+            return sum(term.force(tv[j], pose, rate)).reshape(-1)
+
+        def term_jacobian(term, j: int, x: np.ndarray, v: np.ndarray) -> np.ndarray:
+            """dF/dv (6N, 6N) at node j: the term's own, or central differences over the active
+            DOFs (a wetted length's dependence on x is piecewise constant: left out)."""
+            if term.steady == "jacobian":
+                return term.velocity_jacobian(tv[j], eq + x.reshape(eq.shape), v.reshape(eq.shape))
+            jv = np.zeros((v.size, v.size))
+            for c in cols:
+                h = 1e-6 * max(1.0, abs(v[c]))
+                dv = np.zeros(v.size)
+                dv[c] = h
+                jv[:, c] = (term_at(term, j, x, v + dv) - term_at(term, j, x, v - dv)) / (2 * h)
+            return jv
 
     def residual(y):
         X = y[:n * p].reshape(n, p)
@@ -477,28 +486,14 @@ def solve(sys_: LinearizedSystem, order: int, formulation: str = "dae", *, toler
             r[:n * p] += np.outer(g, f).reshape(-1)          # the PTO's generalised force is -g T
             dT = fr[:, None] * (pl.stiffness * np.eye(p) + pl.damping * D1)   # dT_j / d(g.X)_l
             jac[:n * p, :n * p] += np.kron(np.outer(g, g), dT)
-        if sys_.viscous is not None:   # pointwise at the nodes: F(t_j, v_j), a load (minus in r)
-            V = S @ X @ D1.T                                  # (n_act, P) velocities at the nodes
-            F = np.column_stack([sys_.viscous.force(tj, V[:, j]) for j, tj in enumerate(tv)])
-            r[:n * p] -= (S.T @ F).reshape(-1)
-            Jn = np.stack([S.T @ sys_.viscous.jacobian(tj, V[:, j]) @ S for j, tj in enumerate(tv)])   # (P, n, n)
-            jac[:n * p, :n * p] -= np.einsum("jab,jl->ajbl", Jn, D1).reshape(n * p, n * p)
-        if sys_.morison is not None:   # pointwise too; dF/dv by central differences (the wetted
-            Xw = W @ X                 # length's dependence on x is piecewise constant: left out)
+        if sys_.terms:                 # pointwise at the nodes: F(t_j, x_j, v_j), a load (minus in r)
+            Xw = W @ X
             Vw = Xw @ D1.T
-            F = np.column_stack([morison_at(j, Xw[:, j], Vw[:, j]) for j in range(p)])
-            r[:n * p] -= (W.T @ F).reshape(-1)
-            cols = np.flatnonzero(mask)
-            Jm = np.zeros((p, n, n))
-            for j in range(p):
-                jv = np.zeros((mask.size, mask.size))
-                for c in cols:
-                    h = 1e-6 * max(1.0, abs(Vw[c, j]))
-                    dv = np.zeros(mask.size)
-                    dv[c] = h
-                    jv[:, c] = (morison_at(j, Xw[:, j], Vw[:, j] + dv) - morison_at(j, Xw[:, j], Vw[:, j] - dv)) / (2 * h)
-                Jm[j] = W.T @ jv @ W
-            jac[:n * p, :n * p] -= np.einsum("jab,jl->ajbl", Jm, D1).reshape(n * p, n * p)
+            for term in sys_.terms:
+                F = np.column_stack([term_at(term, j, Xw[:, j], Vw[:, j]) for j in range(p)])
+                r[:n * p] -= (W.T @ F).reshape(-1)
+                Jn = np.stack([W.T @ term_jacobian(term, j, Xw[:, j], Vw[:, j]) @ W for j in range(p)])  # (P, n, n)
+                jac[:n * p, :n * p] -= np.einsum("jab,jl->ajbl", Jn, D1).reshape(n * p, n * p)
         return r, jac
 
     y, it, rel = _newton(residual, np.zeros(n * p + m * p), norm_b, tolerance, max_iterations)

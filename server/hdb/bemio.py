@@ -4,6 +4,11 @@ BEMIO stores coefficients normalised like WAMIT (A/rho, B/(rho w), X/(rho g), K_
 exp(+i w t) convention; this reader multiplies back with the file's own rho and g and conjugates
 the excitation into the internal exp(-i w t). Only the ``all``/``re``/``im`` datasets are read.
 
+Mean drift: ``bodyN/hydro_coeffs/mean_drift/{momentum_conservation|control_surface|
+pressure_integration}/val``, laid out like the excitation (h5py: (6, n_beta, n_w)) and normalised
+like it, by rho g: the coefficient is rho g val per unit amplitude squared (real). A method is read
+when every body has it. The QTF groups (``excitation/QTF<k>``) are not read (a warning says so).
+
 Reference point: ``bodyN/properties/cg``. WEC-Sim applies every hydrodynamic force of a body at its
 centre of gravity and expects the BEM run to be set up about it (BEMIO's readWAMIT takes ``cg`` from
 the WAMIT run's body origin); the Task-10 sphere confirms it: its surge-pitch coupling A15 = 2 A11
@@ -14,6 +19,7 @@ referred to cg z = -2 m.
 from __future__ import annotations
 
 import math
+import warnings
 from pathlib import Path
 
 import h5py
@@ -21,6 +27,11 @@ import numpy as np
 import xarray as xr
 
 from hydrolink.protocol.hdb_schema import HDBError, make_hdb
+from hydrolink.protocol.hdb_second_order import MeanDrift
+
+# BEMIO's mean drift groups (hydro_coeffs/mean_drift/<group>/val) and the schema's method names
+DRIFT_GROUPS = {"momentum_conservation": "momentum", "control_surface": "control-surface",
+                "pressure_integration": "pressure"}
 
 
 class _H5:
@@ -148,6 +159,7 @@ def _read(h5: _H5) -> xr.Dataset:
             have_vol = False
     if len(set(names)) != len(names):
         names = [f"{name}{n + 1}" for n, name in enumerate(names)]
+    drift = _mean_drift(h5, groups, rho * g, omega, betas, order)
     return make_hdb(
         bodies=names, omega=omega[order], wave_direction=betas,
         added_mass=added_mass[order], radiation_damping=damping[order],
@@ -155,5 +167,34 @@ def _read(h5: _H5) -> xr.Dataset:
         reference_point=reference, rho=rho, g=g, water_depth=depth, source=str(h5.source),
         added_mass_inf=a_inf if have_inf else None,
         displaced_volume=volume if have_vol else None,
-        center_of_buoyancy=cb if have_cb else None,
+        center_of_buoyancy=cb if have_cb else None, mean_drift=drift,
     )
+
+
+def _mean_drift(h5: _H5, groups: list[str], rho_g: float, omega: np.ndarray, betas: np.ndarray,
+                order: np.ndarray) -> MeanDrift | None:
+    """The mean drift methods every body has, in SI (rho g val), on the file's sorted grid."""
+    n_w, n_beta, n_dof = omega.size, betas.size, 6 * len(groups)
+    methods, values = [], []
+    for group, method in DRIFT_GROUPS.items():
+        names = [f"{grp}/hydro_coeffs/mean_drift/{group}/val" for grp in groups]
+        have = [h5.has(name) for name in names]
+        if not any(have):
+            continue
+        if not all(have):
+            raise HDBError(h5.source, names[have.index(False)], f"missing while other bodies have {group} drift")
+        val = np.zeros((n_w, n_beta, n_dof))
+        for n, name in enumerate(names):
+            raw = np.asarray(h5.get(name, (6, n_beta, n_w)))
+            if np.iscomplexobj(raw):
+                raise HDBError(h5.source, name, "must be real (the mean drift per unit amplitude squared)")
+            val[:, :, 6 * n:6 * n + 6] = rho_g * np.transpose(raw, (2, 1, 0))
+        methods.append(method)
+        values.append(val[order][:, np.argsort(betas)])
+    if any(h5.fh.get(f"{grp}/hydro_coeffs/excitation") is not None and any(
+            k.startswith("QTF") for k in h5.fh[f"{grp}/hydro_coeffs/excitation"].keys()) for grp in groups):
+        warnings.warn(f"{h5.source}: the QTF groups (hydro_coeffs/excitation/QTF<k>) are not read; give the QTFs "
+                      "as WAMIT .12d/.12s or NEMOH files", stacklevel=4)
+    if not methods:
+        return None
+    return MeanDrift(tuple(methods), omega[order], np.sort(betas), np.stack(values))

@@ -28,6 +28,8 @@ from hydrolink.server.hdb.build_mesh import body_meshes, check_apart, default_pa
 from hydrolink.server.hdb.build_spec import BuildSpec, SpecError, load_spec, mesh_path, parse_spec
 from hydrolink.server.hdb.capytaine_io import from_capytaine_dataset, short_body_names
 from hydrolink.protocol.hdb_schema import SCHEMA_VERSION, dof_labels, from_netcdf_dataset, to_netcdf
+from hydrolink.protocol.hdb_second_order import MeanDrift, with_second_order
+from hydrolink.server.hdb.build_drift import far_field_drift
 
 LOG = logging.getLogger(__name__)
 
@@ -50,6 +52,8 @@ def cache_key(spec: BuildSpec, spec_path: str | Path) -> str:
     import capytaine as cpt
 
     normalised = spec.model_dump(mode="json")
+    if spec.second_order == spec.second_order.__class__():
+        normalised.pop("second_order")   # specs without second-order data keep their cached builds
     digests = []
     for body, key, table in zip(spec.all_bodies, spec.body_keys,
                                 [normalised["body"]] if spec.body is not None else normalised["bodies"]):
@@ -120,9 +124,10 @@ def bem_solver(progress: bool):
         logger.removeFilter(note)
 
 
-def _solve(body, spec: BuildSpec, progress: bool, desc: str) -> xr.Dataset:
+def _solve(body, spec: BuildSpec, progress: bool, desc: str) -> tuple[xr.Dataset, MeanDrift | None]:
     """Radiation (every DOF of ``body``, a FloatingBody or Multibody) and diffraction over the
-    grid, radiation at omega = inf; Capytaine's own dataset (exp(-iwt))."""
+    grid, radiation at omega = inf; Capytaine's own dataset (exp(-iwt)) and, when the spec asks
+    for it, the far-field mean drift (:mod:`.build_drift`)."""
     import capytaine as cpt
     from tqdm import tqdm
 
@@ -134,6 +139,8 @@ def _solve(body, spec: BuildSpec, progress: bool, desc: str) -> xr.Dataset:
     dofs = list(body.dofs)
     common = dict(body=body, rho=w.density, g=w.gravity, water_depth=w.depth_m)
     solver = bem_solver(progress)
+    drift_spec = spec.second_order
+    keep = drift_spec.mean_drift == "far-field"   # the Kochin functions need the sources
     n_total = sum(len(dofs) + (len(headings) if math.isfinite(om) else 0) for om in omegas)
     results = []
     with tqdm(total=n_total, desc=desc, unit="pb", disable=not progress, leave=False) as bar:
@@ -143,9 +150,11 @@ def _solve(body, spec: BuildSpec, progress: bool, desc: str) -> xr.Dataset:
                 problems += [cpt.DiffractionProblem(wave_direction=float(b), omega=om, **common)
                              for b in headings]
             for pb in problems:
-                results.append(solver.solve(pb, keep_details=False, _check_wavelength=False))
+                results.append(solver.solve(pb, keep_details=keep, _check_wavelength=False))
                 bar.update()
-    return cpt.assemble_dataset(results, hydrostatics=False)
+    cds = cpt.assemble_dataset(results, hydrostatics=False)
+    drift = far_field_drift(results, cds, drift_spec.kochin_directions, drift_spec.motions) if keep else None
+    return cds, drift
 
 
 def _hydrostatics(hull, ref: np.ndarray, rho: float, g: float) -> tuple[np.ndarray, float, np.ndarray]:
@@ -223,7 +232,7 @@ def build_hdb_uncached(spec: BuildSpec, spec_path: str | Path, *, progress: bool
                       f"be inaccurate", stacklevel=3)
     symmetric = isinstance(body.mesh_including_lid, cpt.ReflectionSymmetricMesh)
     t_mesh = time.perf_counter()
-    cds = _solve(body, spec, progress, desc=f"hdb build {'+'.join(names)}")
+    cds, drift = _solve(body, spec, progress, desc=f"hdb build {'+'.join(names)}")
     t_solve = time.perf_counter()
     w = spec.water
     hydro = [_hydrostatics(h, np.asarray(b.ref_point, float), w.density, w.gravity)
@@ -241,6 +250,8 @@ def build_hdb_uncached(spec: BuildSpec, spec_path: str | Path, *, progress: bool
                                 reference_points={s: b.ref_point for s, b in zip(short, spec.all_bodies)})
     if short != names:  # keep the spec's names (the reader shortens shared prefixes)
         ds = ds.assign_coords(body=names, influenced_dof=dof_labels(names), radiating_dof=dof_labels(names))
+    if drift is not None:
+        ds = with_second_order(ds, mean_drift=drift)
     n_panels = [int(h.nb_faces) for h in hulls]
     n_lid = [int(ld.nb_faces) if ld is not None else 0 for ld in lids]
     ds.attrs.update({

@@ -220,12 +220,22 @@ class Waves(_Section):
         return self
 
 
+class SecondOrder(_Section):
+    """``[second_order]``: second-order data the build adds. ``mean_drift = "far-field"``: Capytaine's
+    far-field (Kochin) mean drift, surge/sway/yaw, of the body held fixed (``motions = "fixed"``: the
+    diffraction drift; a moving body's drift needs its mass properties, not in a build spec)."""
+    mean_drift: Literal["none", "far-field"] = "none"
+    motions: Literal["fixed"] = "fixed"
+    kochin_directions: Annotated[int, Field(ge=36, le=3600)] = 360
+
+
 class BuildSpec(_Section):
     body: Optional[BodySpec] = None
     bodies: Optional[Annotated[list[BodySpec], Field(min_length=1)]] = None
     frequencies: Frequencies
     water: Water = Water()
     waves: Waves = Waves()
+    second_order: SecondOrder = SecondOrder()
 
     @model_validator(mode="after")
     def _bodies(self) -> "BuildSpec":
@@ -242,6 +252,9 @@ class BuildSpec(_Section):
                 if any(_overlap(p, q) for p in a.global_parts() for q in b.global_parts()):
                     raise ValueError(f"{keys[j]}.center: overlaps or touches {keys[i]} ({a.name!r}); "
                                      f"leave a gap between bodies")
+        if self.second_order.mean_drift != "none" and (self.multibody or self.all_bodies[0].shape == "compound"):
+            raise ValueError("second_order.mean_drift: the far-field drift is the total on everything in the "
+                             "water; only for a one-body spec ([body], not a compound)")
         depth = self.water.depth_m
         if math.isfinite(depth):
             for key, b in zip(keys, self.all_bodies):

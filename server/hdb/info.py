@@ -10,6 +10,7 @@ import xarray as xr
 from scipy.optimize import brentq
 
 from hydrolink.protocol.hdb_schema import DOF_NAMES
+from hydrolink.protocol.hdb_second_order import drift_methods, qtf_kinds
 from hydrolink.server.irf import aliasing_time, irf_report, ogilvie_added_mass_inf, ogilvie_report, radiation_irf
 
 _TRANSLATIONS = DOF_NAMES[:3]
@@ -113,6 +114,7 @@ def hdb_summary(ds: xr.Dataset) -> str:
     if "n_panels" in a:
         lines.append(f"built with Capytaine {a.get('capytaine_version', '?')}: {a['n_panels']} hull panels + "
                      f"{a.get('n_lid_panels', 0)} lid panels, {float(a.get('build_seconds', float('nan'))):.3g} s")
+    lines += second_order_lines(ds)
     active = set(active_dofs(ds))
     has_inf = "added_mass_inf" in ds
     for body in map(str, ds["body"].values):
@@ -146,6 +148,42 @@ def hdb_summary(ds: xr.Dataset) -> str:
     return "\n".join(lines)
 
 
+def _degrees(values: np.ndarray) -> str:
+    return ", ".join(f"{math.degrees(b):g}" for b in values)
+
+
+def second_order_lines(ds: xr.Dataset) -> list[str]:
+    """What second-order data the HDB holds: mean drift methods and QTFs with their grids."""
+    methods, kinds = drift_methods(ds), qtf_kinds(ds)
+    if not methods and not kinds:
+        return ["second order: none (no mean drift coefficients, no QTFs)"]
+    out = ["second order:"]
+    if methods:
+        note = ds.attrs.get("mean_drift_note")
+        out.append(f"  mean drift ({', '.join(methods)}): {_fmt_grid(ds['drift_omega'].values)}; headings "
+                   f"{_degrees(ds['drift_direction'].values)} deg" + (f" ({note})" if note else ""))
+    if kinds:
+        pairs = ", ".join(f"({math.degrees(a):g}, {math.degrees(b):g})" for a, b in
+                          zip(ds["qtf_direction_i"].values, ds["qtf_direction_j"].values))
+        out.append(f"  {' and '.join(kinds)} QTF from {ds.attrs.get('qtf_source', '?')}: "
+                   f"{_fmt_grid(ds['qtf_omega_i'].values)} (full square); heading pairs {pairs} deg")
+    return out
+
+
+def _plot_mean_drift(ax, ds: xr.Dataset) -> None:
+    """Surge mean drift coefficient per method, body and heading."""
+    omega = ds["drift_omega"].values
+    styles = ("-", "--", "-.", ":")
+    for m, method in enumerate(drift_methods(ds)):
+        for body in map(str, ds["body"].values):
+            for h, beta in enumerate(ds["drift_direction"].values):
+                ax.plot(omega, ds["mean_drift"].sel(drift_method=method, influenced_dof=f"{body}.surge").values[:, h],
+                        ls=styles[m % 4], label=f"{method}, {body}, {math.degrees(beta):g}°")
+    ax.set(title="Mean drift coefficient, surge (F = A² T(ω, ω))", xlabel="ω [rad/s]", ylabel="T [N/m²]")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+
+
 def _select_dofs(ds: xr.Dataset, dofs: list[str] | None) -> list[str]:
     labels = [str(v) for v in ds["influenced_dof"].values]
     if dofs is None:
@@ -171,7 +209,8 @@ def _irf_time(omega: np.ndarray, k: np.ndarray, t: np.ndarray) -> float:
 
 def plot_hdb(ds: xr.Dataset, path: str | Path, dofs: list[str] | None = None) -> Path:
     """PNG of A(w) (A_inf dashed), B(w), |F_ex(w)| (every heading) and K(t) for the chosen DOFs'
-    diagonal terms (default: the active ones); translations and rotations in separate columns."""
+    diagonal terms (default: the active ones); translations and rotations in separate columns; a
+    last row with the surge mean drift coefficient per method when the HDB has one."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -181,9 +220,14 @@ def plot_hdb(ds: xr.Dataset, path: str | Path, dofs: list[str] | None = None) ->
     groups = [g for g in groups if g]
     omega = ds["omega"].values
     t = np.linspace(0.0, aliasing_time(omega), 800)
-    fig = Figure(figsize=(6.5 * len(groups), 13), layout="constrained")
+    rows = 4 + bool(drift_methods(ds))
+    fig = Figure(figsize=(6.5 * len(groups), 3.25 * rows), layout="constrained")
     FigureCanvasAgg(fig)
-    axes = fig.subplots(4, len(groups), squeeze=False)
+    axes = fig.subplots(rows, len(groups), squeeze=False)
+    if rows == 5:
+        _plot_mean_drift(axes[4, 0], ds)
+        for ax in axes[4, 1:]:
+            ax.set_visible(False)
     headings = ds["wave_direction"].values
     for col, group in enumerate(groups):
         rot = group[0].split(".", 1)[1] not in _TRANSLATIONS
@@ -195,7 +239,7 @@ def plot_hdb(ds: xr.Dataset, path: str | Path, dofs: list[str] | None = None) ->
         k = radiation_irf(omega, b[:, :, None], t)[:, :, 0]  # diagonal terms only
         t_end = _irf_time(omega, k, t)
         f = np.abs(ds["excitation_force"].sel(influenced_dof=group).values)
-        ax_a, ax_b, ax_f, ax_k = axes[:, col]
+        ax_a, ax_b, ax_f, ax_k = axes[:4, col]
         for j, label in enumerate(group):
             style = dict(ls=("-", "--", "-.")[j % 3], lw=(2.2, 1.6, 1.2)[j % 3])  # overlaps stay visible
             line, = ax_a.plot(omega, a[:, j], label=label, **style)

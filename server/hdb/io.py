@@ -20,8 +20,9 @@ from .bemio import read_bemio
 from .capytaine_io import from_capytaine_dataset
 from hydrolink.protocol.hdb_schema import HDBError, from_netcdf_dataset
 from .wamit import WAMIT_SUFFIXES, read_wamit, wamit_stem
+from .wamit_second_order import SECOND_ORDER_SUFFIXES
 
-WAMIT_READ = (".1", ".2", ".3", ".hst", ".out", ".cfg")   # the files read_wamit opens (where present)
+WAMIT_READ = (".1", ".2", ".3", ".hst", ".out", ".cfg", *SECOND_ORDER_SUFFIXES)   # the files read_wamit opens (where present)
 
 DEFAULT_RHO = 1000.0
 

@@ -1,4 +1,5 @@
-"""Reader for WAMIT numeric output (``.1``, ``.3``/``.2``, ``.hst``, optional ``.out``/``.cfg``).
+"""Reader for WAMIT numeric output (``.1``, ``.3``/``.2``, ``.hst``, optional ``.out``/``.cfg``, and
+the second-order ``.7``/``.8``/``.9``/``.1Xd``/``.1Xs`` files of :mod:`.wamit_second_order`).
 
 WAMIT files are nondimensional and use exp(+i w t). This module dimensionalises with the ULEN
 and g of the run and the caller's rho (A = rho L^k Abar, B = rho w L^k Bbar, X = rho g L^m Xbar,
@@ -22,8 +23,10 @@ import numpy as np
 import xarray as xr
 
 from hydrolink.protocol.hdb_schema import HDBError, make_hdb
+from hydrolink.server.hdb.wamit_second_order import SECOND_ORDER_SUFFIXES, read_drift, read_qtf
+from hydrolink.server.hdb.wamit_table import Units, frequencies, mode_indices, read_table, scale_exponent, special_rows
 
-WAMIT_SUFFIXES = (".1", ".2", ".3", ".3fk", ".3sc", ".hst", ".out", ".cfg", ".pot", ".frc", ".4")
+WAMIT_SUFFIXES = (".1", ".2", ".3", ".3fk", ".3sc", ".hst", ".out", ".cfg", ".pot", ".frc", ".4", *SECOND_ORDER_SUFFIXES)
 DEFAULT_G = 9.80665
 _FLOAT = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eEdD][-+]?\d+)?"
 
@@ -35,63 +38,6 @@ def wamit_stem(path: str | Path) -> Path:
         if path.name.lower().endswith(suffix) and len(path.name) > len(suffix):
             return path.with_name(path.name[: -len(suffix)])
     return path
-
-
-def _is_number(token: str) -> bool:
-    try:
-        float(token)
-    except ValueError:
-        return False
-    return True
-
-
-def _read_table(path: Path, ncols: tuple[int, ...], expected: str) -> tuple[np.ndarray, np.ndarray]:
-    """Rows of a free-format numeric file, padded with NaN to ``max(ncols)`` columns.
-
-    Leading header lines (first token not a number) are skipped; afterwards every non-blank line
-    must hold one of ``ncols`` numbers. Returns (rows, 1-based line numbers)."""
-    try:
-        text = path.read_text(errors="replace")
-    except OSError as exc:
-        raise HDBError(path, "file", f"cannot read: {exc.strerror or exc}") from None
-    width = max(ncols)
-    rows: list[list[float]] = []
-    lines: list[int] = []
-    for number, line in enumerate(text.splitlines(), start=1):
-        tokens = line.replace("D", "E").replace("d", "e").split()
-        if not tokens or (not rows and not _is_number(tokens[0])):
-            continue
-        try:
-            values = [float(t) for t in tokens]
-        except ValueError:
-            values = []
-        if len(values) not in ncols:
-            raise HDBError(path.name, f"line {number}", f"expected '{expected}', got {line.strip()!r}")
-        if not all(math.isfinite(v) for v in values):
-            raise HDBError(path.name, f"line {number}", f"not a finite number in {line.strip()!r}")
-        rows.append(values + [math.nan] * (width - len(values)))
-        lines.append(number)
-    if not rows:
-        raise HDBError(path.name, "file", f"no data lines (expected '{expected}')")
-    return np.asarray(rows, float), np.asarray(lines)
-
-
-def _mode_indices(path: Path, table: np.ndarray, lines: np.ndarray, cols: list[int]) -> np.ndarray:
-    """Integer mode indices (1-based) from ``cols`` of ``table``; HDBError on non-integers."""
-    idx = table[:, cols]
-    bad = (idx != np.round(idx)) | (idx < 1)
-    if np.any(bad):
-        row = int(np.argwhere(bad)[0, 0])
-        raise HDBError(path.name, f"line {lines[row]}", f"mode index must be an integer >= 1, got {idx[row]}")
-    return idx.astype(int)
-
-
-def _scale_exponent(i: np.ndarray, j: np.ndarray | None, base: int) -> np.ndarray:
-    """WAMIT length-scale exponent: ``base`` plus one per rotational mode index."""
-    k = base + ((i - 1) % 6 >= 3)
-    if j is not None:
-        k = k + ((j - 1) % 6 >= 3)
-    return k
 
 
 def _read_cfg(stem: Path) -> dict[str, str]:
@@ -147,25 +93,6 @@ def _body_names(gdf: list[str], n_bodies: int) -> list[str]:
     return names
 
 
-def _frequencies(values: np.ndarray, iperout: int, g: float, source: str) -> np.ndarray:
-    """Angular frequency of each positive first-column value."""
-    if iperout == 1:
-        return 2.0 * np.pi / values
-    if iperout == 2:
-        return values
-    if iperout == 3:
-        return np.sqrt(g * values)
-    raise HDBError(source, "IPEROUT", f"output frequency type {iperout} is not supported (use 1, 2 or 3)")
-
-
-def _special_rows(first: np.ndarray, iperout: int) -> tuple[np.ndarray, np.ndarray]:
-    """Masks of (infinite-frequency, ignored) rows: with periods PER=0 is w=inf and PER<0 is w=0;
-    other output types have no infinite-frequency marker and non-positive rows are ignored."""
-    if iperout == 1:
-        return first == 0.0, first < 0.0
-    return np.zeros(first.shape, bool), first <= 0.0
-
-
 def read_wamit(path: str | Path, rho: float = 1000.0, g: float | None = None) -> xr.Dataset:
     """Read a WAMIT run (``.1`` file or common stem) into the internal HDB layout."""
     stem = wamit_stem(path)
@@ -189,7 +116,7 @@ def read_wamit(path: str | Path, rho: float = 1000.0, g: float | None = None) ->
         iperout = int(cfg.get("IPEROUT", 1))
     except ValueError as exc:
         raise HDBError(stem.with_name(stem.name + ".cfg"), "GRAV/ULEN/IPEROUT", str(exc)) from None
-    units = _Units(rho, g, ulen, iperout)
+    units = Units(rho, g, ulen, iperout)
     rad = _read_radiation(file1, units, len(facts.get("xbody", [])))
     betas, excitation = _read_excitation(excitation_file, file1, rad, units)
     stiffness = _read_hydrostatics(hst_file, file1, rad.n_dof, units)
@@ -201,16 +128,8 @@ def read_wamit(path: str | Path, rho: float = 1000.0, g: float | None = None) ->
         hydrostatic_stiffness=stiffness, reference_point=reference_point,
         rho=rho, g=g, water_depth=facts.get("depth", math.inf), source=str(file1),
         added_mass_inf=rad.added_mass_inf, displaced_volume=volume, center_of_buoyancy=cb,
+        mean_drift=read_drift(stem, units, rad.n_dof), qtf=read_qtf(stem, units, rad.n_dof),
     )
-
-
-@dataclass(frozen=True)
-class _Units:
-    """What turns WAMIT's nondimensional columns into SI: rho, g, ULEN and the period column's meaning."""
-    rho: float
-    g: float
-    ulen: float
-    iperout: int
 
 
 @dataclass(frozen=True)
@@ -225,11 +144,11 @@ class _Radiation:
     n_dof: int
 
 
-def _read_radiation(file1: Path, u: _Units, n_out_bodies: int) -> _Radiation:
+def _read_radiation(file1: Path, u: Units, n_out_bodies: int) -> _Radiation:
     """Added mass and damping (A = rho L^k Abar, B = rho omega L^k Bbar) and A_inf of a ``.1`` file."""
-    t1, l1 = _read_table(file1, (4, 5), "PER I J Abar [Bbar]")
-    ij = _mode_indices(file1, t1, l1, [1, 2])
-    inf_rows, skip_rows = _special_rows(t1[:, 0], u.iperout)
+    t1, l1 = read_table(file1, (4, 5), "PER I J Abar [Bbar]")
+    ij = mode_indices(file1, t1, l1, [1, 2])
+    inf_rows, skip_rows = special_rows(t1[:, 0], u.iperout)
     freq_rows = ~inf_rows & ~skip_rows
     missing_b = freq_rows & np.isnan(t1[:, 4])
     if np.any(missing_b):
@@ -238,7 +157,7 @@ def _read_radiation(file1: Path, u: _Units, n_out_bodies: int) -> _Radiation:
     periods = np.unique(t1[freq_rows, 0])
     if periods.size < 2:
         raise HDBError(file1.name, "omega", f"needs at least 2 frequencies, got {periods.size}")
-    omega_unsorted = _frequencies(periods, u.iperout, u.g, str(file1))
+    omega_unsorted = frequencies(periods, u.iperout, u.g, str(file1))
     order = np.argsort(omega_unsorted)
     omega = omega_unsorted[order]
     rank = np.empty_like(order)
@@ -246,7 +165,7 @@ def _read_radiation(file1: Path, u: _Units, n_out_bodies: int) -> _Radiation:
 
     i, j = ij[freq_rows, 0] - 1, ij[freq_rows, 1] - 1
     w_idx = rank[np.searchsorted(periods, t1[freq_rows, 0])]
-    k = _scale_exponent(i + 1, j + 1, 3)
+    k = scale_exponent(i + 1, j + 1, 3)
     added_mass = np.zeros((omega.size, n_dof, n_dof))
     damping = np.zeros_like(added_mass)
     added_mass[w_idx, i, j] = u.rho * u.ulen ** k * t1[freq_rows, 3]
@@ -255,16 +174,16 @@ def _read_radiation(file1: Path, u: _Units, n_out_bodies: int) -> _Radiation:
     if np.any(inf_rows):
         ii, jj = ij[inf_rows, 0] - 1, ij[inf_rows, 1] - 1
         added_mass_inf = np.zeros((n_dof, n_dof))
-        added_mass_inf[ii, jj] = u.rho * u.ulen ** _scale_exponent(ii + 1, jj + 1, 3) * t1[inf_rows, 3]
+        added_mass_inf[ii, jj] = u.rho * u.ulen ** scale_exponent(ii + 1, jj + 1, 3) * t1[inf_rows, 3]
     return _Radiation(periods, rank, omega, added_mass, damping, added_mass_inf, n_dof)
 
 
-def _read_excitation(path: Path, file1: Path, rad: _Radiation, u: _Units) -> tuple[np.ndarray, np.ndarray]:
+def _read_excitation(path: Path, file1: Path, rad: _Radiation, u: Units) -> tuple[np.ndarray, np.ndarray]:
     """Headings (deg) and excitation per unit wave amplitude (n_w, n_beta, 6N) of a ``.3``/``.2``
     file, X = rho g L^m (Re + i Im), conjugated to exp(-i omega t)."""
-    t3, l3 = _read_table(path, (7,), "PER BETA I Mod Pha Re Im")
-    modes3 = _mode_indices(path, t3, l3, [2])[:, 0] - 1
-    inf3, skip3 = _special_rows(t3[:, 0], u.iperout)
+    t3, l3 = read_table(path, (7,), "PER BETA I Mod Pha Re Im")
+    modes3 = mode_indices(path, t3, l3, [2])[:, 0] - 1
+    inf3, skip3 = special_rows(t3[:, 0], u.iperout)
     keep = ~inf3 & ~skip3
     t3, l3, modes3 = t3[keep], l3[keep], modes3[keep]
     unknown = ~np.isin(t3[:, 0], rad.periods)
@@ -280,22 +199,22 @@ def _read_excitation(path: Path, file1: Path, rad: _Radiation, u: _Units) -> tup
                        f"mode {modes3.max() + 1} exceeds the {rad.n_dof} modes of {file1.name}")
     betas = np.unique(t3[:, 1])
     beta_idx = np.searchsorted(betas, t3[:, 1])
-    m = _scale_exponent(modes3 + 1, None, 2)
+    m = scale_exponent(modes3 + 1, None, 2)
     excitation = np.zeros((rad.omega.size, betas.size, rad.n_dof), complex)
     excitation[rad.rank[np.searchsorted(rad.periods, t3[:, 0])], beta_idx, modes3] = (
         u.rho * u.g * u.ulen ** m * (t3[:, 5] - 1j * t3[:, 6]))
     return betas, excitation
 
 
-def _read_hydrostatics(path: Path, file1: Path, n_dof: int, u: _Units) -> np.ndarray:
+def _read_hydrostatics(path: Path, file1: Path, n_dof: int, u: Units) -> np.ndarray:
     """The hydrostatic stiffness (6N, 6N) of a ``.hst`` file, C = rho g L^k Cbar."""
-    th, lh = _read_table(path, (3,), "I J Cbar")
-    ijh = _mode_indices(path, th, lh, [0, 1]) - 1
+    th, lh = read_table(path, (3,), "I J Cbar")
+    ijh = mode_indices(path, th, lh, [0, 1]) - 1
     if np.any(ijh >= n_dof):
         raise HDBError(path.name, f"line {lh[np.argmax((ijh >= n_dof).any(axis=1))]}",
                        f"mode index exceeds the {n_dof} modes of {file1.name}")
     stiffness = np.zeros((n_dof, n_dof))
-    stiffness[ijh[:, 0], ijh[:, 1]] = (u.rho * u.g * u.ulen ** _scale_exponent(ijh[:, 0] + 1, ijh[:, 1] + 1, 2)
+    stiffness[ijh[:, 0], ijh[:, 1]] = (u.rho * u.g * u.ulen ** scale_exponent(ijh[:, 0] + 1, ijh[:, 1] + 1, 2)
                                        * th[:, 2])
     return stiffness
 

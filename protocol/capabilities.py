@@ -1,0 +1,96 @@
+"""Capabilities declared once: the scene features that not every tool can take, and what each
+tool takes.
+
+``Scene.features()`` reports the features a scene uses, each with the key that turns it on; each
+tool (:data:`TOOLS`) lists the features it supports; :func:`refuse_unsupported` refuses a scene
+before anything runs, naming the key and the tool. A feature added here is unsupported by every
+tool until the tool's entry says otherwise (and tests/test_capabilities.py runs it there), so no
+tool drops a term silently.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Callable
+
+from hydrolink.protocol.reply import OPTIONAL_FORCES
+
+if TYPE_CHECKING:  # the scene imports this module
+    from hydrolink.protocol.scene import Scene
+
+
+@dataclass(frozen=True)
+class Feature:
+    """A scene feature: what it is (for messages) and the optional reply fields it brings
+    (protocol/reply.py)."""
+
+    description: str
+    reply_fields: tuple[str, ...]
+
+
+FEATURES: dict[str, Feature] = {
+    "linear_damping": Feature("viscous forces (linear damping)", ("viscous",)),
+    "quadratic_damping": Feature("viscous forces (quadratic damping)", ("viscous",)),
+    "drag": Feature("viscous forces (quadratic drag)", ("viscous",)),
+    "morison": Feature("Morison elements", ("morison",)),
+    "nonlinear_hydrostatics": Feature("nonlinear hydrostatics", ("nonlinear_hydrostatic",)),
+    "nonlinear_froude_krylov": Feature("nonlinear Froude-Krylov forces",
+                                       ("nonlinear_hydrostatic", "nonlinear_froude_krylov")),
+}
+
+_POINTWISE = frozenset({"linear_damping", "quadratic_damping", "drag", "morison"})
+_HULLS = ("nonlinear hydrostatics need the bodies' hulls in the hello, which {tool} does not carry yet; use the "
+          "Exudyn client (hydrolink run)")
+
+
+@dataclass(frozen=True)
+class Tool:
+    """A hydrolink tool that runs scenes: its name in messages, the features it supports and why
+    it refuses the others (``{tool}`` is replaced by its name)."""
+
+    name: str
+    supports: frozenset[str]
+    refusal: str
+
+
+TOOLS: dict[str, Tool] = {
+    "exudyn": Tool("the Exudyn client (hydrolink run)", frozenset(FEATURES), ""),
+    "fmu_master": Tool("the FMU master", frozenset(),
+                       "{tool} does not apply {what} yet (its force ports carry excitation, radiation and "
+                       "hydrostatics); use the Exudyn client"),
+    "steady": Tool("hydrolink steady", _POINTWISE,
+                   "{what} are not part of {tool}'s model yet (its Newton needs their Jacobian in position); "
+                   "run the scene with hydrolink run"),
+    "native_fmu": Tool("the native FMU", _POINTWISE, _HULLS),
+    "python_fmu": Tool("the exported Python FMU", _POINTWISE, _HULLS),
+    # the server's session rollback (SPEC §5.9): every force term's state can be saved (stateless
+    # or ForceTerm.state/set_state; tests/test_capabilities.py checks the server's terms)
+    "save_restore": Tool("the session rollback (save/restore)", frozenset(FEATURES), ""),
+}
+
+
+def reply_fields(scene: "Scene") -> tuple[str, ...]:
+    """The optional forces (protocol/reply.py) the replies of a session of ``scene`` carry, in
+    reply order: those its features bring."""
+    brought = {f for feature in scene.features() for f in FEATURES[feature].reply_fields}
+    return tuple(f for f in OPTIONAL_FORCES if f in brought)
+
+
+def unsupported(scene: "Scene", tool: str) -> dict[str, str]:
+    """The features ``scene`` uses that ``tool`` cannot take, feature -> key (empty: it can run)."""
+    supports = TOOLS[tool].supports
+    return {f: key for f, key in scene.features().items() if f not in supports}
+
+
+def refuse_unsupported(scene: "Scene", tool: str, error: Callable[[str, str], Exception]) -> None:
+    """Raise ``error(key, why)`` (the tool's keyed error) for the first feature ``scene`` uses
+    that ``tool`` cannot take, naming its key and the tool (and any further ones in the why)."""
+    missing = unsupported(scene, tool)
+    if not missing:
+        return
+    t = TOOLS[tool]
+    (feature, key), *more = missing.items()
+    why = t.refusal.format(tool=t.name, what=FEATURES[feature].description)
+    if more:
+        why += "; it cannot take " + ", ".join(f"{FEATURES[f].description} ({k})" for f, k in more) + " either"
+    raise error(key, why)

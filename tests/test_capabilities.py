@@ -1,0 +1,158 @@
+"""Capabilities declared once (protocol/capabilities.py): every (feature, tool) pair either runs —
+the tool takes the feature's forces — or is refused by the tool's own entry point before anything
+runs, naming the feature's key and the tool. Nothing is dropped silently."""
+
+from __future__ import annotations
+
+import itertools
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+import xarray as xr
+
+from conftest import SPHERE_WATER, regular_waves, scene_toml, sphere_body, write_gdf, write_scene
+
+from hydrolink.protocol.capabilities import FEATURES, TOOLS, reply_fields
+from hydrolink.protocol.reply import OPTIONAL_FORCES, reply_field
+from hydrolink.protocol.scene import SceneError, parse_scene
+from hydrolink.server.model import HydroModel
+from hydrolink.server.wetted_surface import closed_hull
+
+cpt = pytest.importorskip("capytaine")
+
+MASS = 261.8e3
+MEMBER = {"body": "sphere", "point_a": [0.0, 0.0, -20.0], "point_b": [0.0, 0.0, -6.0], "diameter": 2.0,
+          "cd": 1.0, "ca": 1.0, "segments": 4}
+#: feature -> (body keys, scene sections) that turn it on, and the key a refusal must name
+USES: dict[str, tuple[dict, dict, str]] = {
+    "linear_damping": ({"linear_damping": [0, 0, 2e4, 0, 0, 0]}, {}, "bodies[0].linear_damping"),
+    "quadratic_damping": ({"quadratic_damping": [0, 0, 8e4, 0, 0, 0]}, {}, "bodies[0].quadratic_damping"),
+    "drag": ({"drag": {"cd": [0, 0, 1.0, 0, 0, 0], "area": [0, 0, 78.5, 0, 0, 0], "relative": True}}, {},
+             "bodies[0].drag"),
+    "morison": ({}, {"morison": [MEMBER]}, "morison[0]"),
+    "nonlinear_hydrostatics": ({"nonlinear": "hydrostatic", "mesh": "sphere.gdf"}, {}, "bodies[0].nonlinear"),
+    "nonlinear_froude_krylov": ({"nonlinear": "froude-krylov", "mesh": "sphere.gdf"}, {}, "bodies[0].nonlinear"),
+}
+FMU_CLIENT = {"type": "fmu", "fmu": "heave.fmu", "bodies": {"sphere": {
+    "position": {"heave": "z"}, "velocity": {"heave": "v"}, "force": {"heave": "F"}}}}
+
+
+def scene_text(sphere_path: Path, feature: str, *, fmu: bool = False) -> str:
+    body_keys, sections, _ = USES[feature]
+    return scene_toml(dt=0.1, duration=0.5, water=SPHERE_WATER, waves=regular_waves(0.5, 7.0),
+                      bodies=[sphere_body(str(sphere_path), mass=MASS, **({"dofs": ["heave"]} if fmu else {}),
+                                          **body_keys)],
+                      client=FMU_CLIENT if fmu else None, **sections)
+
+
+@pytest.fixture(scope="module")
+def hull(tmp_path_factory) -> tuple[Path, np.ndarray, np.ndarray]:
+    """The sphere's closed hull as a GDF file (for the nonlinear features)."""
+    mesh = cpt.mesh_sphere(radius=5.0, resolution=(10, 20))
+    mesh = mesh.merged() if hasattr(mesh, "merged") else mesh
+    folder = tmp_path_factory.mktemp("hull")
+    return write_gdf(folder / "sphere.gdf", mesh.vertices, mesh.faces), mesh.vertices, mesh.faces
+
+
+def test_every_feature_is_reported_with_its_key(sphere_path):
+    assert set(USES) == set(FEATURES)
+    for feature, (_, _, key) in USES.items():
+        scene = parse_scene(scene_text(sphere_path, feature))
+        assert scene.features()[feature] == key
+        assert set(FEATURES[feature].reply_fields) <= set(reply_fields(scene)) <= set(OPTIONAL_FORCES)
+    assert parse_scene(scene_toml(dt=0.1, duration=0.5, bodies=[sphere_body(str(sphere_path), mass=MASS)])
+                       ).features() == {}
+
+
+def test_each_tool_names_a_known_feature():
+    for tool in TOOLS.values():
+        assert tool.supports <= set(FEATURES) and tool.name
+        assert tool.supports == set(FEATURES) or "{tool}" in tool.refusal
+
+
+def _model(sphere, sphere_path: Path, feature: str, hull) -> HydroModel:
+    _, vertices, faces = hull
+    return HydroModel(parse_scene(scene_text(sphere_path, feature)), {"sphere": sphere},
+                      hulls={"sphere": closed_hull(vertices, faces)})
+
+
+def _refusal(tool: str, scene_path: Path, text: str, tmp_path: Path) -> Exception:
+    """Call the tool's own entry point on the scene and return what it raised."""
+    scene = parse_scene(text)
+    with pytest.raises(Exception) as err:
+        if tool == "fmu_master":                # refused by the shared preflight: nothing stepped
+            from hydrolink.clients.fmu.master import run
+            from hydrolink.clients.lockstep.results import ResultWriter
+            with ResultWriter(tmp_path / "refused.nc", scene=scene, scene_text=text) as writer:
+                run(scene, text, None, None, writer)
+        elif tool == "steady":
+            from hydrolink.clients.studies.steady import check_scene
+            check_scene(scene)
+        elif tool == "native_fmu":
+            from hydrolink.clients.fmu.native import export_native_fmu
+            export_native_fmu(scene_path, tmp_path / "x.fmu")
+        elif tool == "python_fmu":
+            from hydrolink.clients.fmu.export import export_fmu
+            export_fmu(scene_path, tmp_path / "x.fmu")
+        else:
+            raise AssertionError(f"no entry point for {tool} in this test")
+    return err.value
+
+
+def _runs(tool: str, feature: str, sphere, sphere_path: Path, hull, tmp_path: Path) -> None:
+    """The tool takes the feature's forces (what each tool does with them, checked on the tool)."""
+    fields = FEATURES[feature].reply_fields
+    if tool == "exudyn":                     # a short run: the forces' results variables are written
+        from hydrolink.clients.run import run_scene_file
+        path = write_scene(hull[0].parent, scene_text(sphere_path, feature), f"{feature}.toml")
+        run_scene_file(path, tmp_path / "out.nc", progress=False)
+        ds = xr.load_dataset(tmp_path / "out.nc")
+        for f in fields:
+            for v in reply_field(f).variables:
+                assert ds[v.name].dims[1:] == v.dims and np.isfinite(ds[v.name].values).all(), v.name
+        assert np.abs(ds[reply_field(fields[-1]).variables[0].name].values[1:]).max() > 0
+    elif tool == "steady":                   # the server's terms of the scene are evaluated pointwise
+        from hydrolink.clients.studies.steady import check_scene
+        check_scene(parse_scene(scene_text(sphere_path, feature)))
+        model = _model(sphere, sphere_path, feature, hull)
+        assert model.terms and all(t.steady is not None for t in model.terms)
+    elif tool == "native_fmu":               # the C core adds these reply fields to its force output
+        from hydrolink.clients.fmu.native import SOURCES
+        source = (SOURCES / "hydro_core.c").read_text()
+        listed = re.search(r"more\[\d+\] = \{([^}]*)\}", source).group(1)
+        assert set(fields) <= set(re.findall(r'"(\w+)"', listed))
+    elif tool == "python_fmu":               # the slave adds every optional force to its force output
+        from hydrolink.clients.fmu import slave
+        assert "self._optional" in Path(slave.__file__).read_text() and set(fields) <= set(OPTIONAL_FORCES)
+    elif tool == "save_restore":             # a rollback repeats the steps bit for bit, these fields included
+        model = _model(sphere, sphere_path, feature, hull)
+        eq = model.setup_info().equilibrium_position
+        x, v = eq + [[0, 0, 0.3, 0, 0, 0]], np.array([[0, 0, 0.2, 0, 0, 0]])
+        model.step(0.0, x, v)
+        saved = model.state()
+        first = [model.step(k * model.dt, x, v * k) for k in (1, 2)]
+        model.set_state(saved)
+        again = [model.step(k * model.dt, x, v * k) for k in (1, 2)]
+        for a, b in zip(first, again):
+            for f in fields:
+                np.testing.assert_array_equal(a[f], b[f])
+    else:
+        raise AssertionError(f"no check for {tool} in this test")
+
+
+@pytest.mark.parametrize("feature,tool", list(itertools.product(FEATURES, TOOLS)))
+def test_every_feature_tool_pair_runs_or_is_refused_with_its_key(feature, tool, sphere, sphere_path, hull, tmp_path):
+    t = TOOLS[tool]
+    if feature in t.supports:
+        _runs(tool, feature, sphere, sphere_path, hull, tmp_path)
+        return
+    text = scene_text(sphere_path, feature, fmu=tool == "fmu_master")
+    scene_path = write_scene(hull[0].parent, text, f"{tool}-{feature}.toml")
+    err = _refusal(tool, scene_path, text, tmp_path)
+    key = USES[feature][2]
+    assert getattr(err, "key", None) == key, err
+    assert t.name in str(err) and key in str(err)
+    if tool == "fmu_master":
+        assert xr.open_dataset(tmp_path / "refused.nc").attrs["status"].startswith("refused: ")
