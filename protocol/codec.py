@@ -80,6 +80,15 @@ class ProtocolError(Exception):
         super().__init__(f"error {self.code} {self.name}{where}: {message}")
 
 
+class EncodeError(ValueError):
+    """A message holding a value msgpack cannot carry (an int outside [-2^63, 2^64), an object);
+    ``field`` is the value's path in the message."""
+
+    def __init__(self, field: str, why: str):
+        self.field, self.why = field, why
+        super().__init__(f"{field}: {why}")
+
+
 # ---------------------------------------------------------------- arrays
 
 def encode_array(a: np.ndarray) -> dict:
@@ -100,7 +109,32 @@ def _default(obj: Any) -> Any:
         return obj.item()
     if isinstance(obj, (tuple, set, frozenset)):
         return list(obj)
+    if isinstance(obj, int):
+        raise TypeError(f"the int {obj:.6g} is outside the 64-bit range the wire carries ([-2^63, 2^64))")
     raise TypeError(f"cannot encode {type(obj).__name__} for the wire")
+
+
+def _unencodable(value: Any, path: str, depth: int = 0) -> tuple[str, str] | None:
+    """(path, why) of the first value in ``value`` msgpack cannot carry (the cold path of :func:`pack`)."""
+    if depth > MAX_TREE_DEPTH + 4:
+        return None
+    if isinstance(value, dict):
+        for k, v in value.items():
+            found = _unencodable(v, key_path(path, k) if path else str(k), depth + 1)
+            if found:
+                return found
+        return None
+    if isinstance(value, (list, tuple)):
+        for i, v in enumerate(value):
+            found = _unencodable(v, f"{path}[{i}]", depth + 1)
+            if found:
+                return found
+        return None
+    try:
+        msgpack.packb(value, default=_default)
+    except (TypeError, ValueError, OverflowError) as exc:
+        return path, str(exc)
+    return None
 
 
 def _is_array_map(value: Any) -> bool:
@@ -177,13 +211,22 @@ def decode_tree(obj: Any, field: str = "", depth: int = 0) -> Any:
 
 # ---------------------------------------------------------------- frames
 
-def pack(msg: dict, key: bytes | None = None) -> bytes:
-    """Message map -> one frame; with ``key`` appends the HMAC ``sig`` as the last entry."""
-    if key is None:
+def _packb(msg: dict) -> bytes:
+    try:
         return msgpack.packb(msg, default=_default)
+    except (TypeError, ValueError, OverflowError) as exc:
+        field, why = _unencodable(msg, "") or ("", str(exc))
+        raise EncodeError(field, why) from None
+
+
+def pack(msg: dict, key: bytes | None = None) -> bytes:
+    """Message map -> one frame; with ``key`` appends the HMAC ``sig`` as the last entry.
+    EncodeError naming the field when a value cannot travel (an int past 64 bits)."""
+    if key is None:
+        return _packb(msg)
     body = {k: v for k, v in msg.items() if k != "sig"}
     body["sig"] = bytes(SIG_LEN)
-    frame = msgpack.packb(body, default=_default)
+    frame = _packb(body)
     head = frame[:-SIG_LEN]
     return head + hmac.new(key, head, hashlib.sha256).digest()
 
@@ -302,8 +345,9 @@ def require_map(msg: dict, field: str, *, default: dict | None = None, path: str
 
 
 def require_array(msg: dict, field: str, shape: tuple[int | None, ...], *, finite: bool = True,
-                  path: str | None = None) -> np.ndarray:
-    """A required float64 array of ``shape`` (None = any length), all finite by default."""
+                  bound: float | None = None, path: str | None = None) -> np.ndarray:
+    """A required float64 array of ``shape`` (None = any length), all finite by default; with
+    ``bound`` every element within [-bound, bound] (NaN and inf fail it too)."""
     name = path or field
     value = msg.get(field)
     if type(value) is np.ndarray and value.dtype is _F8 and value.shape == shape:
@@ -317,10 +361,19 @@ def require_array(msg: dict, field: str, shape: tuple[int | None, ...], *, finit
                                or any(w is not None and w != n for w, n in zip(shape, arr.shape))):
         want = "(" + ", ".join("*" if w is None else str(w) for w in shape) + ")"
         raise ProtocolError(Code.BAD_VALUE, name, f"shape must be {want}, got {tuple(arr.shape)}")
-    if finite and not (all(map(math.isfinite, arr.ravel().tolist())) if arr.size <= 64
-                       else np.isfinite(arr).all()):
-        bad = tuple(int(i) for i in np.argwhere(~np.isfinite(arr))[0])
-        raise ProtocolError(Code.BAD_VALUE, name, f"contains NaN or inf (first at index {list(bad)})")
+    if bound is not None:   # one pass: NaN and inf fail the comparisons too
+        inside = all(-bound <= x <= bound for x in arr.ravel().tolist()) if arr.size <= 64 \
+            else bool(np.all(np.abs(arr) <= bound))
+    else:
+        inside = not finite or (all(map(math.isfinite, arr.ravel().tolist())) if arr.size <= 64
+                                else bool(np.isfinite(arr).all()))
+    if not inside:
+        if not np.isfinite(arr).all():
+            bad = tuple(int(i) for i in np.argwhere(~np.isfinite(arr))[0])
+            raise ProtocolError(Code.BAD_VALUE, name, f"contains NaN or inf (first at index {list(bad)})")
+        bad = tuple(int(i) for i in np.argwhere(np.abs(arr) > bound)[0])
+        raise ProtocolError(Code.BAD_VALUE, name, f"|value| must be <= {bound:g}, got {float(arr[bad]):g} at index "
+                                                  f"{list(bad)}")
     return arr
 
 

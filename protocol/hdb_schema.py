@@ -41,6 +41,7 @@ import numpy as np
 import xarray as xr
 
 from hydrolink.protocol.errors import KeyedError
+from hydrolink.protocol.scene_bounds import DENSITY_RANGE, DEPTH_RANGE, GRAVITY_RANGE
 
 DOF_NAMES: tuple[str, ...] = ("surge", "sway", "heave", "roll", "pitch", "yaw")
 TIME_CONVENTION = "exp(-iwt)"
@@ -68,6 +69,7 @@ OPTIONAL_VARS = {
 }
 COMPLEX_VARS = ("excitation_force", "difference_qtf", "sum_qtf")   # split into _re/_im in NetCDF
 REQUIRED_ATTRS = ("rho", "g", "water_depth")
+ATTR_RANGES = {"rho": DENSITY_RANGE, "g": GRAVITY_RANGE, "water_depth": DEPTH_RANGE}
 
 
 class HDBError(KeyedError):
@@ -155,11 +157,10 @@ def validate_hdb(ds: xr.Dataset, source: str | Path) -> xr.Dataset:
             value = float(ds.attrs[attr])
         except (TypeError, ValueError):
             raise HDBError(source, attr, f"must be a number, got {ds.attrs[attr]!r}") from None
-        if attr == "water_depth":
-            if not value > 0:
-                raise HDBError(source, attr, f"must be > 0 or inf, got {value}")
-        elif not (np.isfinite(value) and value > 0):
-            raise HDBError(source, attr, f"must be finite and > 0, got {value}")
+        lo, hi = ATTR_RANGES[attr]
+        if not (lo <= value <= hi or (attr == "water_depth" and value == np.inf)):
+            raise HDBError(source, attr, f"must be in [{lo:g}, {hi:g}]{' or inf' if attr == 'water_depth' else ''}"
+                                         f" (the scene's bounds), got {value}")
     if ds.attrs.get("time_convention", TIME_CONVENTION) != TIME_CONVENTION:
         raise HDBError(source, "time_convention",
                        f"must be {TIME_CONVENTION!r} (convert at the reader), got {ds.attrs['time_convention']!r}")

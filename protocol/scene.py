@@ -15,6 +15,18 @@ from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, field_validator,
 
 from hydrolink.protocol.capabilities import FEATURES
 from hydrolink.protocol.errors import KeyedError
+from hydrolink.protocol.scene_bounds import (MAX_STEPS, AddedMassRatio, AngleDeg, Area, CableElements, Coefficient,
+                                             ComponentCount, Coordinate, Density, Depth, Diameter, DirectionCount,
+                                             Displacement, Duration, ExchangeSteps, ExcitationIRFDuration,
+                                             ExplicitSpectralRadius, FileTime, FlowCoefficient, Fraction, Frequency,
+                                             FrequencyStep, Gravity, HarmonicCount, IRFDuration, Interval,
+                                             IterationCount, LatencySteps, Length, LineDensity, Mass,
+                                             NonNegativeCoefficient, NonNegativeDiameter, NonNegativeLength,
+                                             ParameterFloat, ParameterInt, PeakEnhancement, PositiveCoefficient,
+                                             PreviewTime, RampTime, RegularisationSpeed, Seed, SegmentCount,
+                                             SignificantHeight, SpectralRadius, Speed, SpreadingExponent,
+                                             StateSpaceOrder, TimeStep, Tolerance, Volume, WallTimeout, WaveHeight,
+                                             WavePeriod)
 from hydrolink.protocol.toml_model import validate_toml
 
 DOF_NAMES: tuple[str, ...] = ("surge", "sway", "heave", "roll", "pitch", "yaw")
@@ -31,19 +43,25 @@ class _Section(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
 
-PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
-FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
 
 
 class Simulation(_Section):
-    dt: PositiveFloat
-    duration: PositiveFloat
+    dt: TimeStep
+    duration: Duration
     progress: bool = True
     # Exudyn client: generalized-alpha spectral radius (1 = trapezoidal rule, no numerical damping;
     # < 1 damps the constraint forces of long runs with joint loops and slack ropes)
-    spectral_radius: Annotated[float, Field(ge=0.0, le=1.0)] = 1.0
+    spectral_radius: SpectralRadius = 1.0
     # s of wall time between results flushes (written + synced): a crash loses at most this much work
-    flush_seconds: PositiveFloat = 1.0
+    flush_seconds: Interval = 1.0
+
+    @model_validator(mode="after")
+    def _step_count(self) -> "Simulation":
+        steps = self.duration / self.dt
+        if steps > MAX_STEPS:
+            raise ValueError(f"duration: {self.duration:g} s at dt = {self.dt:g} s is {steps:.3g} steps; at most "
+                             f"{MAX_STEPS:.0e} (a longer dt or a shorter duration)")
+        return self
 
     @property
     def n_steps(self) -> int:
@@ -51,9 +69,9 @@ class Simulation(_Section):
 
 
 class Water(_Section):
-    density: PositiveFloat = 1025.0
-    gravity: PositiveFloat = 9.81
-    depth: Union[Literal["inf"], PositiveFloat] = "inf"
+    density: Density = 1025.0
+    gravity: Gravity = 9.81
+    depth: Union[Literal["inf"], Depth] = "inf"
 
     @property
     def depth_m(self) -> float:
@@ -68,16 +86,15 @@ class StillWater(_Section):
 # "convolution" convolves the non-causal excitation IRF K_ex over [-T_c, T_c] (T_c =
 # excitation_irf_duration) with the elevation at the origin (synthesized from the same components)
 Excitation = Literal["superposition", "convolution"]
-ExcitationIRFDuration = Annotated[float, Field(gt=0, le=3600, allow_inf_nan=False)]
 
 
 class RegularWave(_Section):
     type: Literal["regular"]
-    height: Annotated[float, Field(ge=0, allow_inf_nan=False)]
-    period: PositiveFloat
-    direction: FiniteFloat = 0.0
-    phase: FiniteFloat = 0.0
-    ramp: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 0.0
+    height: WaveHeight
+    period: WavePeriod
+    direction: AngleDeg = 0.0
+    phase: AngleDeg = 0.0
+    ramp: RampTime = 0.0
     excitation: Excitation = "superposition"
     excitation_irf_duration: ExcitationIRFDuration = 20.0
 
@@ -85,24 +102,24 @@ class RegularWave(_Section):
 class IrregularWave(_Section):
     type: Literal["irregular"]
     spectrum: Literal["jonswap", "pierson-moskowitz"]
-    hs: PositiveFloat
-    tp: PositiveFloat
-    gamma: Annotated[float, Field(ge=1, allow_inf_nan=False)] = 3.3
-    seed: Annotated[int, Field(ge=0)] = 0
-    direction: FiniteFloat = 0.0
-    components: Annotated[int, Field(ge=1, le=100_000)] = 300
-    ramp: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 0.0
+    hs: SignificantHeight
+    tp: WavePeriod
+    gamma: PeakEnhancement = 3.3
+    seed: Seed = 0
+    direction: AngleDeg = 0.0
+    components: ComponentCount = 300
+    ramp: RampTime = 0.0
     excitation: Excitation = "superposition"
     excitation_irf_duration: ExcitationIRFDuration = 20.0
     # directional spreading: D(theta) = C(s) cos^2s((theta - direction)/2), discretised into
     # ``directions`` equal-energy sectors (one heading each, at the sector's centroid)
     spreading: Literal["none", "cos2s"] = "none"
-    s: Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)] | None = None     # default 10
-    directions: Annotated[int, Field(ge=1, le=360)] | None = None                      # default 9
+    s: SpreadingExponent | None = None     # default 10
+    directions: DirectionCount | None = None                      # default 9
     # rad/s: the band the components span (HydroDyn's WvLowCOff/WvHiCOff); the spectrum's energy
     # outside it is left out by the scene's choice. Default: the HDB's whole range (and a setup
     # warning when more than 1 % of the energy falls outside it)
-    omega_range: tuple[PositiveFloat, PositiveFloat] | None = None
+    omega_range: tuple[Frequency, Frequency] | None = None
 
     @field_validator("omega_range")
     @classmethod
@@ -135,9 +152,9 @@ class ElevationWave(_Section):
     (default: the file's first time + excitation_irf_duration, so the IRF's past is covered)."""
     type: Literal["elevation"]
     file: Annotated[str, Field(min_length=1)]       # relative to the scene file
-    direction: FiniteFloat = 0.0
-    start: FiniteFloat | None = None
-    ramp: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 0.0
+    direction: AngleDeg = 0.0
+    start: FileTime | None = None
+    ramp: RampTime = 0.0
     excitation: Literal["convolution"] = "convolution"
     excitation_irf_duration: ExcitationIRFDuration = 20.0
 
@@ -149,19 +166,19 @@ Nonlinear = Literal["none", "hydrostatic", "froude-krylov"]
 
 
 class Hydro(_Section):
-    irf_duration: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 40.0
+    irf_duration: IRFDuration = 40.0
     interaction: Literal["full", "none"] = "full"   # body-to-body radiation blocks: all, or none
     # radiation memory (server/radiation_options.py, server/state_space.py, docs/radiation.md)
     radiation: Literal["convolution", "state-space", "constant", "off"] = "convolution"
-    irf_taper: Annotated[float, Field(ge=0, lt=1, allow_inf_nan=False)] = 0.0  # cosine taper, fraction of irf_duration
-    irf_domega: Annotated[float, Field(gt=0, allow_inf_nan=False)] | None = None  # resample B(w) (cubic)
+    irf_taper: Fraction = 0.0  # cosine taper, fraction of irf_duration
+    irf_domega: FrequencyStep | None = None  # resample B(w) (cubic)
     irf_tail: Literal["none", "asymptotic"] = "none"            # B(w) ~ c/w^n beyond the HDB grid
-    irf_tail_cutoff: Annotated[float, Field(gt=0, allow_inf_nan=False)] | None = None  # rad/s (default 3 w_max)
-    ss_tolerance: Annotated[float, Field(gt=0, lt=1, allow_inf_nan=False)] = 0.01
-    ss_order: Annotated[int, Field(ge=2, le=60)] | None = None  # fixed order per DOF pair (even)
-    ss_max_order: Annotated[int, Field(ge=2, le=60)] = 24
+    irf_tail_cutoff: Frequency | None = None  # rad/s (default 3 w_max)
+    ss_tolerance: Tolerance = 0.01
+    ss_order: StateSpaceOrder | None = None  # fixed order per DOF pair (even)
+    ss_max_order: StateSpaceOrder = 24
     ss_enforce_stability: bool = True
-    coupling_tolerance: Annotated[float, Field(ge=0, lt=1, allow_inf_nan=False)] = 0.0
+    coupling_tolerance: Fraction = 0.0
     # hydrostatics (and the incident wave's Froude-Krylov force) on the instantaneous wetted surface
     # of every wet body's hull (server/nonlinear_hydro.py); a body's own ``nonlinear`` overrides it
     nonlinear: Nonlinear = "none"
@@ -195,35 +212,39 @@ class Coupling(_Section):
     are held (``between_exchanges = "hold"``) or varied linearly through the last two exchanged
     samples ("extrapolate")."""
     scheme: Literal["auto", "mass-matrix", "explicit", "explicit-predictor", "implicit"] = "auto"
-    exchange_every: Annotated[int, Field(ge=1, le=100_000)] = 1
+    exchange_every: ExchangeSteps = 1
     between_exchanges: Literal["hold", "extrapolate"] = "hold"
-    tolerance: Annotated[float, Field(gt=0, lt=1, allow_inf_nan=False)] = 1e-8   # implicit: relative
-    max_iterations: Annotated[int, Field(ge=1, le=1000)] = 50                    # implicit, per step
-    explicit_limit: Annotated[float, Field(gt=0, le=1.0, allow_inf_nan=False)] = 0.9  # max A_inf/m
+    tolerance: Tolerance = 1e-8   # implicit: relative
+    max_iterations: IterationCount = 50                    # implicit, per step
+    explicit_limit: AddedMassRatio = 0.9  # max A_inf/m
 
 
 class Steady(_Section):
     """``hydrolink steady``: periodic steady state in regular waves by pseudo-spectral collocation
     (Fourier series of ``order`` harmonics, collocated at 2 order + 1 points over one period, Newton
     on the nonlinear terms; clients/studies/steady.py, docs/steady.md)."""
-    order: Annotated[int, Field(ge=1, le=200)] = 10
+    order: HarmonicCount = 10
     formulation: Literal["dae", "ode"] = "dae"     # body coordinates + multipliers | null space of G
-    tolerance: Annotated[float, Field(gt=0, lt=1, allow_inf_nan=False)] = 1e-10  # Newton, relative residual
-    max_iterations: Annotated[int, Field(ge=1, le=1000)] = 50
+    tolerance: Tolerance = 1e-10  # Newton, relative residual
+    max_iterations: IterationCount = 50
     # radiation at harmonic k: "hdb": A(kw), B(kw) of the HDB; "convolution": the A, B that the time
     # domain's truncated, sampled convolution realises (K(t) at dt over irf_duration)
     radiation: Literal["hdb", "convolution"] = "hdb"
 
-Vector3 = Annotated[list[FiniteFloat], Field(min_length=3, max_length=3)]
-Vector6 = Annotated[list[FiniteFloat], Field(min_length=6, max_length=6)]
+Vector3 = Annotated[list[Coordinate], Field(min_length=3, max_length=3)]
+Vector6 = Annotated[list[Displacement], Field(min_length=6, max_length=6)]
+Velocity6 = Annotated[list[Speed], Field(min_length=6, max_length=6)]
+Coefficients6 = Annotated[list[Coefficient], Field(min_length=6, max_length=6)]
+Matrix6 = Annotated[list[Coefficients6], Field(min_length=6, max_length=6)]
+Inertia3 = Annotated[list[Coefficient], Field(min_length=3, max_length=3)]   # kg m^2
 
 
 class Drag(_Section):
     """WEC-Sim's quadratic drag of a wet body, per DOF about its reference point:
     F_i = -1/2 rho cd_i area_i |u_i| u_i, u = v - (the undisturbed wave particle velocity at the
     reference point; rotational DOFs: none) when ``relative``, else u = v."""
-    cd: Annotated[list[Annotated[float, Field(ge=0, allow_inf_nan=False)]], Field(min_length=6, max_length=6)]
-    area: Annotated[list[Annotated[float, Field(ge=0, allow_inf_nan=False)]], Field(min_length=6, max_length=6)]
+    cd: Annotated[list[FlowCoefficient], Field(min_length=6, max_length=6)]
+    area: Annotated[list[Area], Field(min_length=6, max_length=6)]
     relative: bool = True
 
 
@@ -234,20 +255,20 @@ class Body(_Section):
     # the time convention of a Capytaine-layout HDB file's complex amplitudes when the file does not
     # declare it (default Capytaine's "exp(-iwt)"; WecOptTool writes "exp(+iwt)")
     hdb_convention: Literal["exp(-iwt)", "exp(+iwt)"] | None = None
-    mass: PositiveFloat
+    mass: Mass
     # global frame at equilibrium; not needed by a wet body whose rotations are all locked (it
     # then sits at its HDB reference point, where the forces act)
     center_of_mass: Vector3 | None = None
     # about the centre of mass, global axes: principal moments or a 3x3 matrix; not needed (and
     # then unused) when the body's rotations are all locked (dofs without roll, pitch and yaw)
-    inertia: Union[Vector3, Annotated[list[Vector3], Field(min_length=3, max_length=3)], None] = None
+    inertia: Union[Inertia3, Annotated[list[Inertia3], Field(min_length=3, max_length=3)], None] = None
     dofs: list[Literal["surge", "sway", "heave", "roll", "pitch", "yaw"]] = list(DOF_NAMES)
     initial_displacement: Vector6 = [0.0] * 6
-    initial_velocity: Vector6 = [0.0] * 6
+    initial_velocity: Velocity6 = [0.0] * 6
     # wet bodies: additional damping about the reference point, body DOF order (HydroDyn's AddBLin,
     # AddBQuad): F = -B_lin v - B_quad (v |v|), absolute velocity; 6 values (diagonal) or a 6x6 table
-    linear_damping: Vector6 | Annotated[list[Vector6], Field(min_length=6, max_length=6)] | None = None
-    quadratic_damping: Vector6 | Annotated[list[Vector6], Field(min_length=6, max_length=6)] | None = None
+    linear_damping: Coefficients6 | Matrix6 | None = None
+    quadratic_damping: Coefficients6 | Matrix6 | None = None
     drag: Drag | None = None
     # wet bodies: nonlinear hydrostatics / Froude-Krylov for this body (default: [hydro] nonlinear)
     # and its closed hull, freeboard included (a mesh file Capytaine reads, global frame at
@@ -256,7 +277,7 @@ class Body(_Section):
     mesh: Annotated[str, Field(min_length=1)] | None = None
     # dry bodies only: the node's position (default: the centre of mass) and a constant buoyancy
     reference_point: Vector3 | None = None
-    buoyancy_volume: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 0.0
+    buoyancy_volume: Volume = 0.0
     center_of_buoyancy: Vector3 | None = None
 
     @model_validator(mode="after")
@@ -374,8 +395,7 @@ class Body(_Section):
 
 
 Name = Annotated[str, Field(min_length=1, pattern=r"^[A-Za-z0-9_\-]+$")]
-UnitVector = Annotated[list[FiniteFloat], Field(min_length=3, max_length=3)]
-NonNegative = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+UnitVector = Annotated[list[Coordinate], Field(min_length=3, max_length=3)]
 JOINT_TYPES = ("fixed", "spherical", "revolute", "prismatic", "universal", "cylindrical", "planar")
 
 
@@ -389,16 +409,16 @@ def _unit(v: list[float], key: str) -> list[float]:
 class PointMass(_Section):
     """A 3-DOF point mass (e.g. a rope connection point); dry, with optional constant buoyancy."""
     name: Name
-    mass: PositiveFloat
+    mass: Mass
     position: Vector3
-    initial_velocity: Vector3 = [0.0, 0.0, 0.0]
-    buoyancy_volume: NonNegative = 0.0
+    initial_velocity: Annotated[list[Speed], Field(min_length=3, max_length=3)] = [0.0, 0.0, 0.0]
+    buoyancy_volume: Volume = 0.0
 
 
 class Friction(_Section):
     """Regularised Coulomb friction on a joint's free relative motion (force or torque)."""
-    force: PositiveFloat                 # Coulomb level, N (prismatic) or N m (revolute)
-    velocity: PositiveFloat = 1e-3       # regularisation velocity: friction = force * tanh(v / velocity)
+    force: PositiveCoefficient           # Coulomb level, N (prismatic) or N m (revolute)
+    velocity: RegularisationSpeed = 1e-3  # regularisation velocity: friction = force * tanh(v / velocity)
 
 
 class Joint(_Section):
@@ -445,7 +465,7 @@ class Constraint(_Section):
     body: Name
     dof: Literal["surge", "sway", "heave", "roll", "pitch", "yaw"]
     type: Literal["position", "velocity"] = "position"
-    value: FiniteFloat = 0.0
+    value: Displacement = 0.0
 
 
 class LinearPTO(_Section):
@@ -459,10 +479,10 @@ class LinearPTO(_Section):
     body2: Name
     point2: Vector3 | None = None
     direction: UnitVector | None = None         # to ground: along a global axis, e.g. [0, 0, -1]
-    stiffness: NonNegative = 0.0
-    damping: NonNegative = 0.0
-    rest_length: NonNegative | None = None      # default: the initial distance (no preload)
-    force_limit: PositiveFloat | None = None
+    stiffness: NonNegativeCoefficient = 0.0
+    damping: NonNegativeCoefficient = 0.0
+    rest_length: NonNegativeLength | None = None      # default: the initial distance (no preload)
+    force_limit: PositiveCoefficient | None = None
 
     @model_validator(mode="after")
     def _point_or_direction(self) -> "LinearPTO":
@@ -499,9 +519,9 @@ class RotaryPTO(_Section):
     point: Vector3
     axes: Annotated[list[RotaryAxis], Field(min_length=1, max_length=3)]
     frame: Annotated[list[UnitVector], Field(min_length=3, max_length=3)] | None = None
-    stiffness: Union[NonNegative, Annotated[list[NonNegative], Field(min_length=1, max_length=3)]] = 0.0
-    damping: Union[NonNegative, Annotated[list[NonNegative], Field(min_length=1, max_length=3)]] = 0.0
-    torque_limit: PositiveFloat | None = None
+    stiffness: Union[NonNegativeCoefficient, Annotated[list[NonNegativeCoefficient], Field(min_length=1, max_length=3)]] = 0.0
+    damping: Union[NonNegativeCoefficient, Annotated[list[NonNegativeCoefficient], Field(min_length=1, max_length=3)]] = 0.0
+    torque_limit: PositiveCoefficient | None = None
 
     @model_validator(mode="after")
     def _per_axis(self) -> "RotaryPTO":
@@ -516,8 +536,6 @@ class RotaryPTO(_Section):
 
 PTO = Annotated[Union[LinearPTO, RotaryPTO], Field(discriminator="type")]
 
-Matrix6 = Annotated[list[Annotated[list[FiniteFloat], Field(min_length=6, max_length=6)]],
-                    Field(min_length=6, max_length=6)]
 
 
 class LinearMooring(_Section):
@@ -527,9 +545,9 @@ class LinearMooring(_Section):
     type: Literal["linear"]
     body: Name
     point: Vector3
-    stiffness: Union[Vector6, Matrix6] = [0.0] * 6    # diagonal, or a 6x6 table
-    damping: Union[Vector6, Matrix6] = [0.0] * 6
-    pretension: Vector6 = [0.0] * 6
+    stiffness: Union[Coefficients6, Matrix6] = [0.0] * 6    # diagonal, or a 6x6 table
+    damping: Union[Coefficients6, Matrix6] = [0.0] * 6
+    pretension: Coefficients6 = [0.0] * 6
 
 
 class RopeMooring(_Section):
@@ -542,12 +560,12 @@ class RopeMooring(_Section):
     anchor: Vector3
     attach_to: Name
     point: Vector3 | None = None
-    length: PositiveFloat                # unstretched
-    axial_stiffness: PositiveFloat       # EA, N
-    mass_per_length: PositiveFloat       # kg/m (in water: submerged weight is computed with the
-    diameter: NonNegative = 0.0          #  displaced volume pi d^2/4 per metre)
-    elements: Annotated[int, Field(ge=1, le=500)] = 10
-    bending_stiffness: NonNegative = 0.0  # EI, N m^2 (0: a small value for numerical robustness)
+    length: Length                       # unstretched
+    axial_stiffness: PositiveCoefficient  # EA, N
+    mass_per_length: LineDensity         # kg/m (in water: submerged weight is computed with the
+    diameter: NonNegativeDiameter = 0.0  #  displaced volume pi d^2/4 per metre)
+    elements: CableElements = 10
+    bending_stiffness: NonNegativeCoefficient = 0.0  # EI, N m^2 (0: a small value for numerical robustness)
     seabed: bool = True                   # contact with a flat seabed at z = -depth (finite depth)
 
 
@@ -603,10 +621,10 @@ class MorisonElement(_Section):
     body: Name
     point_a: Vector3
     point_b: Vector3
-    diameter: PositiveFloat
-    cd: NonNegative
-    ca: NonNegative = 1.0
-    segments: Annotated[int, Field(ge=1, le=1000)] = 20
+    diameter: Diameter
+    cd: FlowCoefficient
+    ca: FlowCoefficient = 1.0
+    segments: SegmentCount = 20
 
     @model_validator(mode="after")
     def _length(self) -> "MorisonElement":
@@ -648,9 +666,9 @@ MODE_SCHEME = {"auto": "auto", "parameters": "mass-matrix", "iterative": "implic
 class FMUCoupling(_Section):
     """Deprecated: ``[client.coupling]`` of an FMU client, read as ``[coupling]`` (MODE_SCHEME)."""
     mode: Literal["auto", "parameters", "iterative", "explicit"] = "auto"
-    tolerance: PositiveFloat = 1e-6                      # relative interface-force residual
-    max_iterations: Annotated[int, Field(ge=1, le=1000)] = 50
-    explicit_limit: Annotated[float, Field(gt=0, le=0.9)] = 0.5   # max spectral radius of M⁻¹A∞
+    tolerance: Tolerance = 1e-6                          # relative interface-force residual
+    max_iterations: IterationCount = 50
+    explicit_limit: ExplicitSpectralRadius = 0.5   # max spectral radius of M⁻¹A∞
 
 
 class ExudynClient(_Section):
@@ -665,9 +683,9 @@ class FMUClient(_Section):
     """A co-simulation FMU (FMI 2.0 or 3.0) as the multibody client; it owns the whole mechanism."""
     type: Literal["fmu"]
     fmu: Annotated[str, Field(min_length=1)]                 # relative to the scene file
-    communication_step: PositiveFloat | None = None          # default simulation.dt; must divide it
+    communication_step: TimeStep | None = None               # default simulation.dt; must divide it
     positions: Literal["displacement", "absolute"] = "displacement"   # FMU position outputs
-    parameters: dict[str, Union[bool, int, float, str]] = {}
+    parameters: dict[str, Union[bool, ParameterInt, ParameterFloat, str]] = {}
     coupling: FMUCoupling | None = None                      # deprecated: [coupling]
     bodies: dict[str, FMUBodyMap]
 
@@ -718,24 +736,24 @@ class Controller(_Section):
     force 0, damping ``fallback_damping`` — default the PTO's scene damping — and the scene stiffness)."""
     name: Name
     ptos: Annotated[list[Name], Field(min_length=1)]
-    period: PositiveFloat | None = None                  # s; default simulation.dt
+    period: Duration | None = None                       # s; default simulation.dt
     command: Literal["force", "impedance"] = "force"
     measurements: list[Literal["body_position", "body_velocity", "pto_displacement", "pto_velocity",
                                "pto_force", "wave_elevation"]] = ["pto_displacement", "pto_velocity", "pto_force"]
     bodies: list[Name] | None = None                     # for body_*; default every scene body
-    wave_points: Annotated[list[Annotated[list[FiniteFloat], Field(min_length=2, max_length=2)]],
+    wave_points: Annotated[list[Annotated[list[Coordinate], Field(min_length=2, max_length=2)]],
                            Field(min_length=1)] = [[0.0, 0.0]]   # x, y (m) of the elevation probes
-    preview: NonNegative = 0.0                           # s of future wave elevation at the probes
-    preview_step: PositiveFloat | None = None            # s between preview samples; default period
-    latency: Annotated[int, Field(ge=1, le=1000)] = 1    # steps from measurement to command
-    timeout: PositiveFloat = 1.0                         # s per command, wall clock
-    join_timeout: PositiveFloat = 30.0                   # s the run waits at t = 0 for the controller
+    preview: PreviewTime = 0.0                           # s of future wave elevation at the probes
+    preview_step: Duration | None = None                 # s between preview samples; default period
+    latency: LatencySteps = 1              # steps from measurement to command
+    timeout: WallTimeout = 1.0                           # s per command, wall clock
+    join_timeout: WallTimeout = 30.0                   # s the run waits at t = 0 for the controller
     fallback: Literal["hold", "passive"] = "hold"
-    fallback_damping: NonNegative | None = None
-    max_force: PositiveFloat | None = None               # |force command| <= max_force
-    damping_range: Annotated[list[FiniteFloat], Field(min_length=2, max_length=2)] = [0.0, 1.0e12]
-    stiffness_range: Annotated[list[FiniteFloat], Field(min_length=2, max_length=2)] = [-1.0e12, 1.0e12]
-    parameters: dict[str, Union[bool, int, float, str, list[float], list[str]]] = {}   # for on_start
+    fallback_damping: NonNegativeCoefficient | None = None
+    max_force: PositiveCoefficient | None = None               # |force command| <= max_force
+    damping_range: Annotated[list[Coefficient], Field(min_length=2, max_length=2)] = [0.0, 1.0e12]
+    stiffness_range: Annotated[list[Coefficient], Field(min_length=2, max_length=2)] = [-1.0e12, 1.0e12]
+    parameters: dict[str, Union[bool, ParameterInt, ParameterFloat, str, list[ParameterFloat], list[str]]] = {}   # for on_start
 
     @model_validator(mode="after")
     def _ranges(self) -> "Controller":
@@ -900,8 +918,9 @@ class Scene(_Section):
                     raise ValueError(f"controllers[{i}].bodies: no body named {b!r} (known: {sorted(names)})")
             for key in ("period", "preview_step"):
                 v = getattr(c, key)
-                if v is not None and abs(v / dt - round(v / dt)) > 1e-6 * max(1.0, v / dt):
-                    raise ValueError(f"controllers[{i}].{key}: {v} s must be a multiple of simulation.dt = {dt} s")
+                if v is not None and (round(v / dt) < 1 or abs(v / dt - round(v / dt)) > 1e-6 * max(1.0, v / dt)):
+                    raise ValueError(f"controllers[{i}].{key}: {v} s must be a multiple of simulation.dt = {dt} s "
+                                     "(one step or more)")
 
 
     @property

@@ -3,16 +3,21 @@
 Shared by the scene format (protocol/scene.py) and the HDB build spec (server/hdb/build_spec.py).
 A validator may raise ``ValueError("key: why")``: an absolute key (its first part is one of the
 model's top-level keys) replaces the location; any other key (or ``.key``) is relative to it.
+Every problem is reported (up to MAX_PROBLEMS), each with its key; an unknown key gets the closest
+valid key of its table ("did you mean").
 """
 
 from __future__ import annotations
 
+import difflib
 import re
 import sys
 from pathlib import Path
-from typing import Callable, TypeVar
+from typing import Any, Callable, TypeVar, get_args
 
 from pydantic import BaseModel, ValidationError
+
+from hydrolink.protocol.codec import describe
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -21,6 +26,7 @@ else:  # pragma: no cover
 
 M = TypeVar("M", bound=BaseModel)
 _SKIP_PREFIXES = ("function-", "list[", "literal[", "union[")
+MAX_PROBLEMS = 100   # listed in one error (a scene with more is garbage past the first hundred)
 _KEY = re.compile(r"\.?[A-Za-z_][\w\[\]\.]*")
 
 
@@ -29,11 +35,59 @@ def _loc(loc: tuple, union_tags: tuple[str, ...]) -> str:
     for part in loc:
         if isinstance(part, int):
             out += f"[{part}]"
-        elif part in union_tags or str(part).startswith(_SKIP_PREFIXES) or part in ("float", "str"):
+        elif part in union_tags or str(part).startswith(_SKIP_PREFIXES) or part in ("float", "str", "int", "bool"):
             continue  # union branch tags, not keys
         else:
             out += ("." if out else "") + str(part)
     return out
+
+
+def models_in(annotation: Any) -> list[type[BaseModel]]:
+    """The pydantic models an annotation holds (through Annotated, unions, lists, dicts)."""
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return [annotation]
+    return [m for arg in get_args(annotation) for m in models_in(arg)]
+
+
+def _keys_at(model: type[BaseModel], loc: tuple) -> list[str]:
+    """The valid keys of the table at ``loc`` (a pydantic error location, its last part the key)."""
+    here = [model]
+    for part in loc[:-1]:
+        if isinstance(part, int):
+            continue
+        inner = [m for c in here if part in c.model_fields for m in models_in(c.model_fields[part].annotation)]
+        tagged = [c for c in here if "type" in c.model_fields and part in get_args(c.model_fields["type"].annotation)]
+        here = inner or tagged or here   # neither: a key of a dict of tables (the same tables hold)
+    return sorted({k for c in here for k in c.model_fields})
+
+
+def _problem(err: dict, model: type[BaseModel], union_tags: tuple[str, ...]) -> tuple[str, str]:
+    """(key, why) of one pydantic error."""
+    key, msg = _loc(err["loc"], union_tags), err["msg"]
+    ctx = err.get("ctx") or {}
+    if err["type"] == "extra_forbidden":
+        msg = "unknown key"
+        close = difflib.get_close_matches(str(err["loc"][-1]), _keys_at(model, err["loc"]), n=1, cutoff=0.6)
+        if close:
+            msg += f" (did you mean {close[0]!r}?)"
+    elif err["type"] == "missing":
+        msg = "required key is missing"
+    elif err["type"] == "union_tag_invalid":
+        key = f"{key}.type".lstrip(".")
+        msg = f"must be one of {ctx['expected_tags']} (got {ctx['tag']!r})"
+    elif "input" in err and not isinstance(err["input"], dict) and err["type"] != "value_error":
+        msg = f"{msg} (got {describe(err['input'])})"
+    if "why" in ctx:
+        msg += f": {ctx['why']}"
+    if msg.startswith("Value error, "):
+        msg = msg[len("Value error, "):]
+        head, _, rest = msg.partition(": ")
+        if rest and _KEY.fullmatch(head):
+            root = head.split("[")[0].split(".")[0]
+            absolute = not head.startswith(".") and root in model.model_fields
+            key = head if absolute else f"{key}.{head.lstrip('.')}".lstrip(".")
+            msg = rest
+    return key, msg
 
 
 def parse_toml(text: str, source: str | Path, error: Callable[[str | Path, str, str], Exception]) -> dict:
@@ -48,29 +102,17 @@ def parse_toml(text: str, source: str | Path, error: Callable[[str | Path, str, 
 def validate_toml(text: str, source: str | Path, model: type[M],
                   error: Callable[[str | Path, str, str], Exception],
                   union_tags: tuple[str, ...] = ()) -> M:
-    """Parse ``text`` and validate it as ``model``; raise ``error(source, key, why)`` on the first problem."""
+    """Parse ``text`` and validate it as ``model``; raise ``error(source, key, why)`` naming the
+    first problem's key, its ``why`` followed by one line "source: key: why" per further problem
+    (every problem, up to MAX_PROBLEMS)."""
     raw = parse_toml(text, source, error)
     try:
         return model.model_validate(raw)
     except ValidationError as exc:
-        err = exc.errors()[0]
-        key, msg = _loc(err["loc"], union_tags), err["msg"]
-        if err["type"] == "extra_forbidden":
-            msg = "unknown key"
-        elif err["type"] == "missing":
-            msg = "required key is missing"
-        elif err["type"] == "union_tag_invalid":
-            key = f"{key}.type".lstrip(".")
-            msg = f"must be one of {err['ctx']['expected_tags']} (got {err['ctx']['tag']!r})"
-        elif "input" in err and not isinstance(err["input"], dict) and err["type"] != "value_error":
-            msg = f"{msg} (got {err['input']!r})"
-        if msg.startswith("Value error, "):
-            msg = msg[len("Value error, "):]
-            head, _, rest = msg.partition(": ")
-            if rest and _KEY.fullmatch(head):
-                root = head.split("[")[0].split(".")[0]
-                absolute = not head.startswith(".") and root in model.model_fields
-                key = head if absolute else f"{key}.{head.lstrip('.')}".lstrip(".")
-                msg = rest
-        more = f" (and {len(exc.errors()) - 1} more problem(s))" if len(exc.errors()) > 1 else ""
-        raise error(source, key, msg + more) from None
+        errors = exc.errors()
+        problems = [_problem(err, model, union_tags) for err in errors[:MAX_PROBLEMS]]
+        (key, why), rest = problems[0], problems[1:]
+        lines = [f"\n{source}: {k}: {w}" if k else f"\n{source}: {w}" for k, w in rest]
+        if len(errors) > MAX_PROBLEMS:
+            lines.append(f"\n{source}: and {len(errors) - MAX_PROBLEMS} more problems")
+        raise error(source, key, why + "".join(lines)) from None

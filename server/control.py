@@ -21,6 +21,7 @@ import numpy as np
 from hydrolink.protocol import codec
 from hydrolink.protocol.codec import Code, ProtocolError
 from hydrolink.protocol.scene import Controller, LinearPTO, Scene
+from hydrolink.server.allocation import require_size
 from hydrolink.server.waves import WaveComponents, ramp_factor
 
 log = logging.getLogger("hydrolink.server.control")
@@ -117,10 +118,13 @@ class ControlHub:
         self.body_names = [b.name for b in scene.bodies]
         self.slots: dict[str, Slot] = {}
         water = scene.water
-        for c in scene.controllers:
+        for i, c in enumerate(scene.controllers):
             P = c.steps_per_period(self.dt)
             hstep = int(round((c.preview_step or P * self.dt) / self.dt))
             n_h = int(math.floor(c.preview / (hstep * self.dt) + 1e-9)) if c.preview > 0 else 0
+            require_size(f"controllers[{i}].preview_step", "the wave preview's phasors (components x samples)",
+                         (max(model.waves.size, 1), n_h + 1), 16,
+                         hint=f"fewer preview samples: a longer preview_step or a shorter preview ({c.preview:g} s)")
             preview_times = np.arange(1, n_h + 1) * hstep * self.dt
             probes = WaveProbes(model.waves, np.array(c.wave_points, float), preview_times, water.gravity,
                                 water.depth_m)

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-_CHUNK = 2048  # rows of the cos/sin table evaluated at once (bounds memory for long IRFs)
+COS_TABLE_ROWS = 2048  # rows of the cos/sin table evaluated at once (bounds memory for long IRFs)
 
 
 def trapezoid_weights(x: np.ndarray) -> np.ndarray:
@@ -42,8 +42,8 @@ def radiation_irf(omega: np.ndarray, damping: np.ndarray, t: np.ndarray) -> np.n
     b = np.concatenate((np.zeros((1, *damping.shape[1:])), damping)).reshape(w.size, -1)
     bw = (2.0 / np.pi) * trapezoid_weights(w)[:, None] * b  # (n_w+1, n*n)
     out = np.empty((t.size, b.shape[1]))
-    for s in range(0, t.size, _CHUNK):
-        out[s:s + _CHUNK] = np.cos(np.outer(t[s:s + _CHUNK], w)) @ bw
+    for s in range(0, t.size, COS_TABLE_ROWS):
+        out[s:s + COS_TABLE_ROWS] = np.cos(np.outer(t[s:s + COS_TABLE_ROWS], w)) @ bw
     return out.reshape((t.size, *damping.shape[1:]))
 
 
@@ -51,8 +51,8 @@ def _sine_transform(omega: np.ndarray, t: np.ndarray, k: np.ndarray, fun=np.sin)
     """int_0^T k(t) fun(w t) dt by the trapezoid rule over t: (n_t, ...) -> (n_w, ...)."""
     kw = trapezoid_weights(t)[:, None] * k.reshape(t.size, -1)
     out = np.zeros((omega.size, kw.shape[1]))
-    for s in range(0, t.size, _CHUNK):
-        out += fun(np.outer(omega, t[s:s + _CHUNK])) @ kw[s:s + _CHUNK]
+    for s in range(0, t.size, COS_TABLE_ROWS):
+        out += fun(np.outer(omega, t[s:s + COS_TABLE_ROWS])) @ kw[s:s + COS_TABLE_ROWS]
     return out.reshape((omega.size, *k.shape[1:]))
 
 
@@ -170,8 +170,42 @@ def taper_window(t: np.ndarray, duration: float, fraction: float) -> np.ndarray:
     if fraction <= 0:
         return np.ones_like(t)
     t1 = (1.0 - fraction) * duration
+    if not duration > t1:   # a fraction too small to shorten the IRF by anything
+        return np.ones_like(t)
     u = np.clip((t - t1) / (duration - t1), 0.0, 1.0)
     return 0.5 * (1.0 + np.cos(np.pi * u))
+
+
+RINGING_WARN = 0.01     # |K| near the cut above this share of its peak: the memory is cut while K rings
+RINGING_WINDOW = 0.1    # the end of the kept memory searched for it: its last 10 %
+
+
+def ringing_at_cut(t: np.ndarray, k: np.ndarray, duration: float,
+                   rotation: np.ndarray) -> tuple[float, tuple[int, int]]:
+    """How much of K is left where the memory is cut: max |K_ij(t)| over the last RINGING_WINDOW
+    of ``duration`` (an envelope: a cut at a zero crossing still drops the oscillation around
+    it) over sqrt(P_i P_j), P the largest peak max|K_kk| among the DOFs of i's kind (translation
+    or rotation: ``rotation`` (n,) bool) — a DOF whose memory is a small part of its kind's (RM3's
+    float yaw beside its pitch) is not what the cut harms; the largest share over the pairs and
+    that pair (rows of ``k`` (n_t, n, n)).
+
+    Why RINGING_WARN = 1 %: a kernel ringing as a e^(-g t) cos(w_r t) (a lightly damped trapped
+    mode) cut at T loses int_T^inf of it, about a e^(-g T) / (2 g) of damping at w_r: the damping
+    peak's own size times the envelope left at T, and the sharp cut spreads a ripple of the same
+    order over the neighbouring frequencies. At 1 % of the peak that is within the percent-level
+    accuracy the IRF itself is held to (irf_fit_error); an ordinary hull's K falls below it within
+    a few natural periods; the F3OF's trapped waves left 5-12 % at 40-100 s (issue 24)."""
+    t = np.asarray(t, float)
+    a = np.abs(np.asarray(k, float))
+    diag = np.diagonal(a.max(axis=0))
+    rotation = np.asarray(rotation, bool)
+    kind = np.where(rotation, diag[rotation].max(initial=0.0), diag[~rotation].max(initial=0.0))
+    scale = np.sqrt(np.outer(kind, kind))
+    end = a[t >= (1.0 - RINGING_WINDOW) * duration - 1e-12 * duration].max(axis=0, initial=0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        share = np.where(scale > 0, end / np.where(scale > 0, scale, 1.0), 0.0)
+    worst = np.unravel_index(int(np.argmax(share)), share.shape)
+    return float(share[worst]), (int(worst[0]), int(worst[1]))
 
 
 def _interval_exp(alpha: np.ndarray, a: float, b: float) -> np.ndarray:

@@ -31,6 +31,7 @@ import xarray as xr
 
 from hydrolink.protocol.scene import Scene
 from hydrolink.protocol.setup import IRFProcessing, Setup, StateSpaceReport
+from hydrolink.server.allocation import require_size
 from hydrolink.server.errors import ModelError
 from hydrolink.server.wetted_surface import Hull
 from hydrolink.protocol.hdb_schema import DOF_NAMES, HDBError, select_bodies
@@ -272,12 +273,17 @@ class HydroModel:
         """Excitation phasors of the wave components, or the excitation IRF kernels per heading
         (``excitation = "convolution"``), and the forcing that sums them each step."""
         scene = self.scene
+        require_size("waves.components", "the excitation of every wave component", (self.waves.size, self.n), 16)
         x_comp = np.zeros((self.waves.size, self.n), complex)
         self.excitation = getattr(scene.waves, "excitation", "superposition") if self.waves.kind != "still" \
             else "superposition"
         heads = self.waves.heading_of()
         self._headings = np.unique(heads) if self.waves.kind != "elevation" else np.array([self.waves.direction])
         exc_T = float(getattr(scene.waves, "excitation_irf_duration", 0.0))
+        if self.excitation == "convolution":
+            require_size("waves.excitation_irf_duration", "the excitation IRF kernels",
+                         (self._headings.size, 2 * max(1, round(exc_T / self.dt)) + 1, self.n),
+                         hint="a shorter excitation_irf_duration or a longer dt")
         kernels = np.zeros((self._headings.size, 2 * max(1, int(round(exc_T / self.dt))) + 1, self.n)) \
             if self.excitation == "convolution" else None
         self._exc_fit = 0.0

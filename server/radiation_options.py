@@ -22,9 +22,11 @@ from typing import ClassVar, Protocol
 import numpy as np
 
 from hydrolink.protocol.scene import Hydro, Waves
+from hydrolink.server.allocation import require_size
 from hydrolink.server.errors import ModelError
-from hydrolink.server.irf import (aliasing_time, asymptotic_tail, irf_report, irf_transfer, ogilvie_added_mass_inf,
-                                  ogilvie_report, radiation_irf, resample_damping, taper_window)
+from hydrolink.server.irf import (COS_TABLE_ROWS, RINGING_WARN, RINGING_WINDOW, aliasing_time, asymptotic_tail,
+                                  irf_report, irf_transfer, ogilvie_added_mass_inf, ogilvie_report, radiation_irf,
+                                  resample_damping, ringing_at_cut, taper_window)
 from hydrolink.server.radiation import RadiationMemory
 from hydrolink.server.state_space import StateSpaceError, StateSpaceRadiation
 from hydrolink.server.state_space_cache import FitCache, FitSettings, default_cache_dir
@@ -220,7 +222,9 @@ class RadiationOption:
         self.hydro, self.dt = hydro, float(dt)
         self.duration = float(hydro.irf_duration)
         self.samples = int(round(self.duration / self.dt))
+        self._key = "hydro.irf_duration" if self.samples > 0 else "simulation.dt"
         m = self.samples if self.samples > 0 else int(round(OGILVIE_DEFAULT_DURATION / self.dt))
+        require_size(self._key, "the IRF's time grid", (m + 1,), hint=self._hint)
         self.t = np.arange(m + 1) * self.dt
         self.taper = float(hydro.irf_taper) if self.samples > 0 else 0.0
         self._window = taper_window(self.t, self.duration, self.taper)[:, None, None] if self.taper > 0 else None
@@ -253,6 +257,7 @@ class RadiationOption:
                 fit_a[g.source] = max(ogilvie_report(g.omega, g.added_mass, irf.added_mass_inf, self.t,
                                                      irf.kernel)["worst"], fit_a.get(g.source, 0.0))
                 self._check_aliasing(irf, g.source, log.warnings)
+                self._check_ringing(irf, g, log.warnings)
         hyd = self.hydro
         report = RadiationReport(
             radiation=self.name, irf_samples=self.samples, irf_duration=self.samples * self.dt,
@@ -270,16 +275,32 @@ class RadiationOption:
         """Setup ``state_space``: None except for "state-space"."""
         return None
 
+    @property
+    def _hint(self) -> str:
+        return (f"at dt = {self.dt:g} s the IRF has one sample per step: a shorter hydro.irf_duration "
+                f"({self.duration:g} s) or a longer dt")
+
     def _irf(self, g: RadiationGroup) -> GroupIrf:
         """B(w) resampled and tailed as the scene asks, K(t) on the step grid (tapered), A_inf."""
         hyd = self.hydro
         omega, damping, tail = g.omega, g.damping, None
+        pairs = damping.shape[1] * damping.shape[2]
         if hyd.irf_domega is not None:
+            require_size("hydro.irf_domega", "B(w) resampled", (float(omega[-1]) / hyd.irf_domega + 2, pairs),
+                         hint=f"a coarser step than {hyd.irf_domega:g} rad/s up to w_max = {omega[-1]:.4g} rad/s")
             omega, damping = resample_damping(omega, damping, float(hyd.irf_domega))
         if hyd.irf_tail == "asymptotic":
             cutoff = hyd.irf_tail_cutoff or TAIL_CUTOFF_FACTOR * omega[-1]
+            step = float(omega[-1] - omega[-2])
+            require_size("hydro.irf_tail_cutoff", "B(w)'s asymptotic tail", ((cutoff - omega[-1]) / step + 1, pairs),
+                         hint=f"a lower cutoff than {cutoff:g} rad/s (the tail continues the HDB's spacing "
+                              f"{step:.3g} rad/s)")
             omega, damping, n_tail = asymptotic_tail(omega, damping, float(cutoff))
             tail = float(np.median(np.diagonal(n_tail)))
+        require_size(self._key, "the radiation IRF K(t)", (self.t.size, pairs), hint=self._hint)
+        require_size("hydro.irf_domega" if hyd.irf_domega is not None else "hydro.irf_tail_cutoff",
+                     "the IRF's cosine table", (min(self.t.size, COS_TABLE_ROWS), omega.size + 1),
+                     hint="fewer frequencies in B(w)")
         k = radiation_irf(omega, damping, self.t)
         if self._window is not None:
             k = k * self._window
@@ -308,6 +329,22 @@ class RadiationOption:
         warning = f"hydro.irf_duration: {why}"
         if warning not in warnings:
             warnings.append(warning)
+
+
+    def _check_ringing(self, irf: GroupIrf, g: RadiationGroup, warnings: list[str]) -> None:
+        """A memory cut sharply while K(t) still rings (irf.py ``ringing_at_cut``): warned, unless
+        the scene states ``irf_taper = 0`` (a sharp cut chosen, e.g. checked against the effective
+        coefficients it realises)."""
+        if self.taper > 0 or "irf_taper" in self.hydro.model_fields_set or not irf.kernel.size:
+            return
+        share, (i, j) = ringing_at_cut(self.t, irf.kernel, self.duration, g.act % 6 >= 3)
+        if share > RINGING_WARN:
+            warnings.append(
+                f"hydro.irf_duration: K(t) of {g.source!r} ({g.labels[i]}, {g.labels[j]}) is still at "
+                f"{100 * share:.3g} % of the peak of its kind over the last {100 * RINGING_WINDOW:g} % of the "
+                f"{self.duration:g} s kept (warned above {100 * RINGING_WARN:g} %): the sharp cut changes the "
+                "radiation damping near the frequency it rings at; lengthen hydro.irf_duration, or taper "
+                "the cut with hydro.irf_taper (e.g. 0.3; irf_taper = 0 stated keeps the sharp cut)")
 
 
 class OffOption(RadiationOption):

@@ -18,6 +18,7 @@ import zmq
 from hydrolink.protocol import codec, transport
 from hydrolink.protocol.codec import Code, ProtocolError
 from hydrolink.server.control import ControlHub
+from hydrolink.server.errors import ModelError
 from hydrolink.server.hdb_files import FileSetReader
 from hydrolink.server.hdb_store import HASH, ContentStore, ContentTooLarge, default_folder
 from hydrolink.server.session import Session, build_model
@@ -164,7 +165,7 @@ class ForceServer:
             reply = self.handle(frames[-1], frames[:-1])
         if reply is None:
             return  # deferred (SPEC §5.7): sent later by the session's ControlHub
-        frames[-1] = codec.pack(reply, self.key)  # routing frames stay in front, verbatim
+        frames[-1] = self._frame(reply)  # routing frames stay in front, verbatim
         try:
             self._sock.send_multipart(frames, zmq.NOBLOCK)
         except zmq.ZMQError as exc:  # peer gone or its queue full: drop the reply
@@ -186,15 +187,27 @@ class ForceServer:
 
     def _send_later(self, session: str, route: list[bytes], mtype: str, parent: Any, fields: dict) -> None:
         """Send a deferred reply (a ControlHub's callback)."""
-        frame = codec.pack(codec.message(mtype, next(self._ids), session, parent, **fields), self.key)
+        frame = self._frame(codec.message(mtype, next(self._ids), session, parent, **fields))
         try:
             self._sock.send_multipart([*route, frame], zmq.NOBLOCK)
         except zmq.ZMQError as exc:
             log.warning("deferred reply dropped: %s", exc)
 
+    def _frame(self, reply: dict) -> bytes:
+        """A reply as its frame (signed with the server's key); a reply holding a value the wire
+        cannot carry (a server fault: scene bounds keep every sent value in range) becomes an
+        internal error naming the field, so the loop never dies packing it."""
+        try:
+            return codec.pack(reply, self.key)
+        except codec.EncodeError as exc:
+            log.error("cannot send a %s reply: %s", reply.get("type"), exc)
+            return codec.pack(codec.error_reply(next(self._ids), reply.get("parent"), reply.get("session"),
+                                                Code.INTERNAL, exc.field, f"internal server error: the reply's {exc}"),
+                              self.key)
+
     def respond(self, frame: bytes) -> bytes:
         """One request frame -> its reply frame (never raises): what the socket loop sends back."""
-        return codec.pack(self.handle(frame), self.key)
+        return self._frame(self.handle(frame))
 
     def respond_map(self, msg: dict) -> dict:
         """One request map -> its reply map (never raises), for a client in this process: the
@@ -279,9 +292,12 @@ class ForceServer:
                 raise ProtocolError(Code.BAD_SCENE, "scene.controllers", "controllers connect over the network: "
                                     "this in-process server has no socket (run the session on a server with one, "
                                     "e.g. hydrolink serve, or hydrolink run without an embedded server)")
-            self._hubs[sid] = ControlHub(model.scene, msg["scene"], model, sid,
-                                         lambda route, mtype, parent, fields, _sid=sid:
-                                         self._send_later(_sid, route, mtype, parent, fields))
+            try:
+                self._hubs[sid] = ControlHub(model.scene, msg["scene"], model, sid,
+                                             lambda route, mtype, parent, fields, _sid=sid:
+                                             self._send_later(_sid, route, mtype, parent, fields))
+            except ModelError as exc:
+                raise ProtocolError(Code.BAD_SCENE, f"scene.{exc.key}", str(exc)) from None
         self.sessions[sid] = Session(sid, model, client)
         log.info("session %s opened by %s %s: %d bodies, dt %g, setup %.3f s", sid, client.get("name", "?"),
                  client.get("version", "?"), len(model.bodies), model.dt, time.perf_counter() - t0)
@@ -297,7 +313,7 @@ class ForceServer:
         hub = self._hubs.get(s.id)
         if hub is None:
             return "forces", s.step(msg), session
-        seq, iteration = msg.get("seq"), msg.get("iteration") or 0
+        seq, iteration = msg.get("seq"), codec.require_int(msg, "iteration", default=0, minimum=0)
         new = type(seq) is int and seq == s.last_seq + 1
         meas = hub.step_request(msg, seq, iteration, new) if new else None
         fields = s.step(msg)

@@ -15,6 +15,7 @@ import xarray as xr
 from hydrolink.protocol import codec
 from hydrolink.protocol.codec import Code, ProtocolError
 from hydrolink.protocol.scene import Scene, SceneError, parse_scene
+from hydrolink.protocol.scene_bounds import MAX_COORDINATE, MAX_SPEED
 from hydrolink.protocol.hdb_wire import from_wire
 from hydrolink.protocol.hdb_schema import HDBError
 from hydrolink.server.hdb_files import FileSetReader, is_file_set
@@ -176,8 +177,8 @@ class Session:
             raise ProtocolError(Code.BAD_VALUE, "time",
                                 f"time {t_req!r} does not match seq {seq} * dt {self.dt!r} = {t!r}")
         shape = (self.n_bodies, 6)
-        pos = codec.require_array(msg, "position", shape)
-        vel = codec.require_array(msg, "velocity", shape)
+        pos = codec.require_array(msg, "position", shape, bound=MAX_COORDINATE)
+        vel = codec.require_array(msg, "velocity", shape, bound=MAX_SPEED)
         if seq == self.last_seq + 1:
             replace = False
         elif seq == self.last_seq and iteration > self.last_iteration:

@@ -36,6 +36,7 @@ from scipy.integrate import quad
 
 from hydrolink.protocol.errors import KeyedError
 from hydrolink.protocol.scene import ElevationWave, IrregularWave, RegularWave, StillWater
+from hydrolink.server.allocation import require_size
 
 
 class WaveError(KeyedError):
@@ -160,12 +161,14 @@ def wave_components(waves, omega_min: float, omega_max: float) -> WaveComponents
                 raise WaveError("waves.omega_range", f"[{lo:g}, {hi:g}] rad/s reaches outside the HDB's range "
                                 f"{omega_min:.4g}-{omega_max:.4g} rad/s")
             omega_min, omega_max = lo, hi
+        n_dir = waves.spreading_directions
+        require_size("waves.components", "the wave components (amplitude, frequency, phase, heading)",
+                     (4, n_dir, waves.components), hint=f"fewer components ({waves.components}) or directions ({n_dir})")
         edges = np.linspace(omega_min, omega_max, waves.components + 1)
         dw = edges[1] - edges[0]
         w = 0.5 * (edges[:-1] + edges[1:])
         amp = np.sqrt(2 * spec(w) * dw)
         outside = spectrum_fraction(spec, omega_min, omega_max, waves.hs ** 2 / 16)
-        n_dir = waves.spreading_directions
         # phases: one draw of n_dir x n_c (direction-major); with no spreading the same draw as ever
         phase = np.random.default_rng(waves.seed).uniform(0.0, 2 * np.pi, n_dir * w.size)
         if waves.spreading == "none":
@@ -387,6 +390,9 @@ class ConvolutionForcing:
         self._k0, self._f, self._e = 0, None, None
         n = self.block + 4 * self.m                               # >= len(segment) + len(kernel) - 1
         self._nfft = 1 << int(math.ceil(math.log2(n)))
+        require_size("waves.excitation_irf_duration", "the excitation kernels' spectra",
+                     (self.kernels.shape[0], self._nfft // 2 + 1, self.kernels.shape[2]), 16,
+                     hint="a shorter excitation_irf_duration or a longer dt")
         self._kf = np.fft.rfft(self.kernels, self._nfft, axis=1)  # (S, nfft/2 + 1, n)
 
     def _compute(self, k0: int) -> None:
@@ -514,6 +520,8 @@ def elevation_on_grid(time: np.ndarray, eta: np.ndarray, dt: float, n_steps: int
                              f"excitation_irf_duration), the file covers [{t[0]:.6g}, {t[-1]:.6g}] s")
     k_first = -m
     n = n_steps + 2 * m + 2
+    require_size("simulation.duration", "the elevation series on the step grid", (n,),
+                 hint="a shorter run or a longer dt")
     h_mean = (t[-1] - t[0]) / (t.size - 1)
     uniform = np.max(np.abs(h - h_mean)) <= 1e-6 * h_mean
     offset = (need0 - t[0]) / dt

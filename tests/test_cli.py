@@ -107,6 +107,36 @@ def test_bad_scene_is_one_clear_line(scene_dir: Path):
     assert not (scene_dir / "bad.out.nc").exists()
 
 
+@pytest.mark.parametrize("old,new,line", [
+    ("duration = 12.0", "duration = 1e300", "huge.toml: simulation.duration: Input should be less than or equal to "
+                                            "10000000 (got 1e+300): at most 1e7 s (116 days) of simulated time"),
+    ("dt = 0.05", "dt = 1e-300", "huge.toml: simulation.dt: Input should be greater than or equal to 1e-06 (got "
+                                 "1e-300): a time step from 1 µs to 1 h"),
+    ("irf_duration = 10.0", "irf_duration = 1e300", "huge.toml: hydro.irf_duration: Input should be less than or "
+                                                    "equal to 3600 (got 1e+300)"),
+])
+def test_out_of_bounds_scene_value_is_one_named_line(scene_dir: Path, old, new, line):
+    """Issue 22: duration = 1e300 printed a 60-line traceback; every bound is the key's named error."""
+    assert old in sphere_scene()
+    write_scene(scene_dir, sphere_scene().replace(old, new), "huge.toml")
+    result = _cli("run", "huge.toml", cwd=scene_dir)
+    assert result.returncode != 0 and "Traceback" not in result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"Error: {line}"), lines
+
+
+def test_misspelt_keys_are_each_listed_with_the_closest_valid_key(scene_dir: Path):
+    text = sphere_scene().replace("duration = 12.0", "duraton = 12.0").replace("mass = 261800.0", "mas = 261800.0")
+    write_scene(scene_dir, text, "typo.toml")
+    result = _cli("run", "typo.toml", cwd=scene_dir)
+    assert result.returncode != 0 and "Traceback" not in result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert lines == ["Error: typo.toml: simulation.duration: required key is missing",
+                     "typo.toml: simulation.duraton: unknown key (did you mean 'duration'?)",
+                     "typo.toml: bodies[0].mass: required key is missing",
+                     "typo.toml: bodies[0].mas: unknown key (did you mean 'mass'?)"], lines
+
+
 def test_water_that_differs_from_the_hdb_is_said_and_kept_with_the_results(scene_dir: Path):
     """The sphere's HDB is at rho = 1000: a scene at 1025 runs, rescaled, and says so on stderr and in
     the results' `warnings` attribute, naming both densities and the file."""

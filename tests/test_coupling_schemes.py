@@ -12,6 +12,7 @@ from hydrolink.clients.lockstep.connection import ServerConnection
 from hydrolink.clients.lockstep.coupling_schemes import Iterated, Predictor, Staggered, make_scheme
 from hydrolink.clients.lockstep.driver import DivergenceWatch, ForceLink, Lockstep, SimulationDiverged, run
 from hydrolink.clients.lockstep.results import ResultWriter
+from hydrolink.clients.lockstep.summary import CouplingReport
 from hydrolink.server.service import ForceServer
 from test_stability import HEAVE, a33, c33, decay_reference, scene_text, sphere  # noqa: F401 (fixtures)
 
@@ -100,7 +101,7 @@ def drive(sphere, scheme, mass: float, feedback: bool, duration: float = DURATIO
         body = HeaveBody(setup, mass, feedback, DT)
         writer = Rows(body)
         loop = Lockstep(body, ForceLink(conn, setup, writer), writer, DivergenceWatch())
-        run(loop, scheme, int(round(duration / DT)))
+        run(loop, scheme, int(round(duration / DT)), CouplingReport(type(scheme).__name__, added_mass_ratio=0.0))  # (not reported here)
     return np.array(body.rows), loop, writer
 
 
@@ -158,7 +159,8 @@ def test_staggered_holds_the_sample_of_the_step_start(sphere, a33):
         setup = conn.hello(text, {"sphere.h5": sphere})
         body = Spy(setup, 2.0 * a33, True, DT)
         writer = Rows(body)
-        run(Lockstep(body, ForceLink(conn, setup, writer), writer, DivergenceWatch()), Staggered(3), 3)
+        run(Lockstep(body, ForceLink(conn, setup, writer), writer, DivergenceWatch()), Staggered(3), 3,
+            CouplingReport("Staggered", added_mass_ratio=0.0))
     assert applied[0] == pytest.approx(first["excitation"][0, HEAVE] + first["radiation"][0, HEAVE], abs=1e-9)
 
 

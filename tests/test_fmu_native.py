@@ -198,8 +198,12 @@ def test_validates_links_no_python_and_tells_the_truth(fmus, sphere):
             if v.type in ("Real", "Float64"):
                 assert v.unit, v.name
         assert by_name["sphere.heave.force"].unit == "N" and by_name["sphere.heave.displacement"].unit == "m"
-        a_inf = by_name["A_inf.sphere.heave.sphere.heave"]
-        assert (a_inf.causality, a_inf.unit) == ("calculatedParameter", "kg")
+        a_inf = by_name["A_inf.sphere.heave.sphere.heave"]   # outputs: what masters can connect
+        assert (a_inf.causality, a_inf.variability, a_inf.unit) == ("output", "constant", "kg")
+        assert float(a_inf.start) == float(sphere["added_mass_inf"].values[2, 2])
+        k_hs, net = by_name["K_hs.sphere.heave.sphere.heave"], by_name["sphere.heave.net_buoyancy"]
+        assert (k_hs.causality, k_hs.unit, net.causality, net.unit) == ("output", "N/m", "output", "N")
+        assert float(k_hs.start) == float(sphere["hydrostatic_stiffness"].values[2, 2])
         deps = {u.variable.name: sorted(d.name for d in u.dependencies) for u in md.outputs}
         assert deps["sphere.heave.force"] == ["sphere.heave.displacement", "sphere.heave.velocity"]
         assert deps["sphere.heave.hydrostatic"] == ["sphere.heave.displacement"]
@@ -286,10 +290,13 @@ def test_simulate_fmu_against_a_separate_server(fmus, server, tmp_path):
 
 def test_libcosim_couples_it_to_a_body_fmu(fmus, server, sphere, omega, tmp_path):
     """libcosim (libcosimpy, a C++ master nobody here wrote) with its fixed-step algorithm: the
-    native FMU's `dynamic` force (excitation + radiation) into tests/fmu_src's heave body FMU
-    (mass + A_inf, the hydrostatic stiffness its own), the body's state back. An explicit master
-    reads the forces before it sets the new state: the radiation lags a step, and its RAO is
-    O(dt) off the frequency domain (measured here, within 1 %)."""
+    native FMU's `dynamic` force (excitation + radiation) into tests/fmu_src's heave body FMU, whose
+    added mass, hydrostatic stiffness and net buoyancy are the hydro FMU's constant outputs, wired
+    by libcosim itself (the body's own a_inf and k_hs are 0); the body's state back. Every
+    connection is accepted (status 0; A_inf as a calculated parameter was refused with -1 and a
+    user who missed it ran with no added mass: RAO -33.7 %). An explicit master reads the forces
+    before it sets the new state: the radiation lags a step; the heave RAO is within 0.5 % of the
+    frequency-domain RAO X / (C - w^2 (m + A) - i w B) of the HDB (measured -0.40 %)."""
     pytest.importorskip("libcosimpy", reason="needs libcosimpy (pip install libcosimpy; in the test extras)")
     from libcosimpy.CosimExecution import CosimExecution
     from libcosimpy.CosimEnums import CosimVariableType
@@ -299,33 +306,66 @@ def test_libcosim_couples_it_to_a_body_fmu(fmus, server, sphere, omega, tmp_path
     from fmu_build import build_c_fmu
     body_fmu = build_c_fmu(tmp_path / "body")
     mass = 1000.0 * float(sphere["displaced_volume"].values[0])
-    a_inf = float(sphere["added_mass_inf"].values[2, 2])
     hydro_vr = {v.name: v.valueReference for v in read_model_description(fmus[2]).modelVariables}
     body_vr = {v.name: v.valueReference for v in read_model_description(body_fmu).modelVariables}
     ex = CosimExecution.from_step_size(step_size=int(round(DT * 1e9)))
     hydro = ex.add_local_slave(CosimLocalSlave(fmu_path=str(fmus[2]), instance_name="hydro"))
     body = ex.add_local_slave(CosimLocalSlave(fmu_path=str(body_fmu), instance_name="body"))
     assert ex.string_initial_value(hydro, hydro_vr["server_address"], server)
-    c33 = float(sphere["hydrostatic_stiffness"].values[2, 2])
-    for name, value in (("m", mass), ("a_inf", a_inf), ("k_hs", c33), ("c_pto", 0.0), ("z0", 0.0), ("v0", 0.0)):
+    for name, value in (("m", mass), ("a_inf", 0.0), ("k_hs", 0.0), ("c_pto", 0.0), ("z0", 0.0), ("v0", 0.0)):
         assert ex.real_initial_value(body, body_vr[name], value)
-    assert ex.connect_real_variables(hydro, hydro_vr["sphere.heave.dynamic"], body, body_vr["F"]) == 0   # the C API's status
-    assert ex.connect_real_variables(body, body_vr["z"], hydro, hydro_vr["sphere.heave.displacement"]) == 0   # the C API's status
-    assert ex.connect_real_variables(body, body_vr["v"], hydro, hydro_vr["sphere.heave.velocity"]) == 0   # the C API's status
+    for source, target in (("sphere.heave.dynamic", "F"), ("A_inf.sphere.heave.sphere.heave", "a_in"),
+                           ("K_hs.sphere.heave.sphere.heave", "k_in"), ("sphere.heave.net_buoyancy", "F0")):
+        assert ex.connect_real_variables(hydro, hydro_vr[source], body, body_vr[target]) == 0, source  # C API status
+    assert ex.connect_real_variables(body, body_vr["z"], hydro, hydro_vr["sphere.heave.displacement"]) == 0
+    assert ex.connect_real_variables(body, body_vr["v"], hydro, hydro_vr["sphere.heave.velocity"]) == 0
     observer = CosimObserver.create_time_series(buffer_size=round(DURATION / DT) + 10)
     ex.add_observer(observer)
-    assert observer.start_time_series(body, value_reference=body_vr["z"], variable_type=CosimVariableType.REAL)
-    assert observer.start_time_series(hydro, value_reference=hydro_vr["wave_elevation"], variable_type=CosimVariableType.REAL)
+    for slave, vr in ((body, body_vr["z"]), (hydro, hydro_vr["wave_elevation"]), (body, body_vr["a_in"]),
+                      (body, body_vr["k_in"])):
+        assert observer.start_time_series(slave, value_reference=vr, variable_type=CosimVariableType.REAL)
     assert ex.simulate_until(target_time=int(round(DURATION * 1e9)))
     n = round(DURATION / DT) + 1
-    times, _, z = observer.time_series_real_samples(body, value_reference=body_vr["z"], from_step=0, sample_count=n)
-    _, _, eta = observer.time_series_real_samples(hydro, value_reference=hydro_vr["wave_elevation"], from_step=0,
-                                                  sample_count=n)
+
+    def series(slave, vr):
+        return observer.time_series_real_samples(slave, value_reference=vr, from_step=0, sample_count=n)
+
+    times, _, z = series(body, body_vr["z"])
+    _, _, eta = series(hydro, hydro_vr["wave_elevation"])
+    a_in, k_in = series(body, body_vr["a_in"])[2], series(body, body_vr["k_in"])[2]
+    assert a_in[-1] == float(sphere["added_mass_inf"].values[2, 2])         # the hydro FMU's, through libcosim
+    assert k_in[-1] == float(sphere["hydrostatic_stiffness"].values[2, 2])
     m = min(len(times), len(z), len(eta))
     t, z, eta = np.array(times[:m]) * 1e-9, np.array(z[:m]), np.array(eta[:m])
     assert t[-1] >= DURATION - 2 * DT
-    err, _ = rao_error(t, z, eta, sphere, omega, mass, "libcosim (explicit)")
-    assert abs(err) <= 0.01
+    err, _ = rao_error(t, z, eta, sphere, omega, mass, "libcosim (explicit), added mass from the hydro FMU")
+    assert abs(err) <= 0.005
+
+
+def test_constant_radiation_publishes_the_added_mass_at_omega0_by_that_name(sphere, sphere_path, tmp_path):
+    """radiation = "constant": the mass-matrix output carries A(omega0) (the HDB's A33 at the wave
+    frequency, a grid frequency) and is named and described so, not as A_inf; the stiffness and
+    net buoyancy (rho g V - m g, the body 10 % lighter than its displacement) are published."""
+    _needs_compiler()
+    from fmpy import read_model_description
+    from hydrolink.clients.fmu.native import export_native_fmu
+    shutil.copy(sphere_path, tmp_path / "sphere.h5")
+    om = sphere["omega"].values
+    i = int(np.argmin(np.abs(om - 2 * np.pi / 5.0)))
+    rho_v = 1000.0 * float(sphere["displaced_volume"].values[0])
+    write_scene(tmp_path, scene_toml(dt=DT, duration=10.0, water=SPHERE_WATER,
+                                     waves=regular_waves(1.0, 2 * np.pi / float(om[i]), ramp=5.0),
+                                     hydro={"radiation": "constant"},
+                                     bodies=[sphere_body("sphere.h5", mass=0.9 * rho_v, dofs=["heave"])]))
+    fmu, _ = export_native_fmu(tmp_path / "scene.toml", tmp_path / "constant.fmu", fmi=2, progress=False)
+    by_name = {v.name: v for v in read_model_description(fmu).modelVariables}
+    assert not any(name.startswith("A_inf.") for name in by_name)
+    a = by_name["A_omega0.sphere.heave.sphere.heave"]
+    assert float(a.start) == pytest.approx(float(sphere["added_mass"].values[i, 2, 2]), rel=1e-9)
+    assert abs(float(sphere["added_mass_inf"].values[2, 2]) / float(a.start) - 1) > 0.03   # they differ
+    assert "A(omega0)" in a.description and f"omega0 = {float(om[i]):.6g} rad/s" in a.description
+    net = float(by_name["sphere.heave.net_buoyancy"].start)
+    assert net == pytest.approx(0.1 * rho_v * 9.81, rel=1e-9)
 
 
 def test_two_bodies_from_wamit_files_give_the_servers_forces(tmp_path, reference_data, server):

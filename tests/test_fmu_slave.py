@@ -5,6 +5,8 @@ sphere HDB's own C33, A∞ and displaced volume, and a second FMU instance that 
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -115,10 +117,36 @@ def test_iterating_master_replaces_the_step_sample(exported):
         b.close()
 
 
-def test_communication_step_must_be_the_scene_dt(slave, exported):
-    """Declared (no variable communication step) and refused: pythonfmu can only answer Discard
-    (a Python exception inside a pythonfmu FMU crashes its host); the native FMU answers Error."""
+def _master(code: str) -> subprocess.CompletedProcess:
+    """Run a master's Python ``code`` in its own process, as a user runs it (a Python exception in
+    a pythonfmu FMU is answered Fatal and corrupts the host's heap: the host must not be pytest)."""
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+
+
+def test_communication_step_must_be_the_scene_dt(exported):
+    """Declared (no variable communication step) and refused with an error status (Fatal: pythonfmu
+    answers Discard, taken by masters for a normal end, or Fatal for an exception)."""
     from fmpy import read_model_description
     assert read_model_description(exported["fmu"]).coSimulation.canHandleVariableCommunicationStepSize is False
-    with pytest.raises(Exception, match="fmi2DoStep"):   # pythonfmu: Discard (an exception in it crashes the host)
-        slave.fmu.doStep(0.0, DT / 2)
+    done = _master("from fmpy import read_model_description\nfrom fmpy.fmi2 import FMU2Slave\n"
+                   f"md = read_model_description({str(exported['fmu'])!r})\n"
+                   f"f = FMU2Slave(guid=md.guid, unzipDirectory={str(exported['unzipped'])!r}, "
+                   "modelIdentifier=md.coSimulation.modelIdentifier, instanceName='a')\n"
+                   "f.instantiate(); f.setupExperiment(startTime=0.0); f.enterInitializationMode(); "
+                   "f.exitInitializationMode()\n"
+                   f"f.doStep(0.0, {DT / 2!r})\nprint('STEPPED')\n")
+    assert "STEPPED" not in done.stdout and "fmi2DoStep" in done.stderr, done.stderr
+
+
+def test_other_step_size_fails_loudly_in_fmpy(exported):
+    """fmpy's simulate_fmu asked for another step than the scene's dt: the FMU answers an error
+    status (fmpy raises, naming fmi2DoStep), never ends at t = 0 reporting success, and the message
+    naming both steps is printed with fmpy's default logging (pythonfmu passes FMU log messages on
+    only with debug logging)."""
+    done = _master("from fmpy import simulate_fmu\n"
+                   f"r = simulate_fmu({str(exported['fmu'])!r}, stop_time=1.0, step_size={DT / 2!r}, "
+                   f"output_interval={DT / 2!r})\nprint('ENDED', len(r), r['time'][-1])\n")
+    assert "ENDED" not in done.stdout, done.stdout
+    assert done.returncode != 0
+    assert "fmi2DoStep failed" in done.stderr
+    assert f"communication step {DT / 2} s must equal the scene's dt {DT} s" in done.stderr

@@ -9,16 +9,21 @@ its field for 4/5), and the server must answer a ping after each one."""
 from __future__ import annotations
 
 import copy
+import math
 import random
+import typing
 
 import msgpack
 import numpy as np
 import pytest
+from pydantic import BaseModel
 
 from analytic_hdb import make_body_hdb
-from conftest import body, linear_pto, regular_waves, scene_toml
+from conftest import body, joint, linear_pto, regular_waves, scene_toml, toml_document
 from hydrolink.protocol import codec
 from hydrolink.protocol.hdb_wire import HDBFiles, to_wire
+from hydrolink.protocol.scene import Scene, parse_scene
+from hydrolink.protocol.toml_model import models_in
 from hydrolink.protocol.hdb_schema import to_netcdf
 from hydrolink.server.service import ForceServer
 
@@ -177,3 +182,313 @@ def test_deep_nesting_in_scalar_fields_is_a_named_error(templates):
             msg[field] = deep
             reply = send(server, msgpack.packb(msg, default=codec._default))
             assert (reply["type"], reply["code"], reply["field"]) == ("error", code, field), reply
+
+
+# ---------------------------------------------------------------- extreme values (issue 22)
+#
+# Every numeric scene key (found by walking the scene's pydantic models) and every numeric message
+# field gets each extreme value in turn. A scene value out of its bounds is error 8 naming its key;
+# a value in bounds builds a session (welcome); nothing is error 99, and the server serves on: a
+# valid session runs steps afterwards.
+
+EXTREMES = [1e300, -1e300, 1e-308, 5e-324, float("nan"), float("inf"), -float("inf"), 2 ** 70, -2 ** 70]
+IN_RANGE_POSSIBLE = (1e-308, 5e-324)   # tiny: within some keys' bounds (a tolerance, an angle)
+FREE_KEYS = ("client.parameters.", "controllers[0].parameters.")   # values handed on as they are (finite)
+HEADINGS = np.deg2rad(np.arange(-180.0, 181.0, 30.0))
+
+
+def _numeric(annotation) -> bool:
+    """Whether an annotation holds a float or an int (bool is no number here)."""
+    return annotation in (int, float) or any(_numeric(a) for a in typing.get_args(annotation))
+
+
+def numeric_fields(model: type[BaseModel] = Scene, seen: set | None = None) -> set[tuple[str, str]]:
+    """(model name, field) of every numeric field of the scene's models, found by walking them."""
+    seen = set() if seen is None else seen
+    out: set[tuple[str, str]] = set()
+    if model in seen:
+        return out
+    seen.add(model)
+    for name, f in model.model_fields.items():
+        if _numeric(f.annotation):
+            out.add((model.__name__, name))
+        for sub in models_in(f.annotation):
+            out |= numeric_fields(sub, seen)
+    return out
+
+
+def set_fields(obj) -> set[tuple[str, str]]:
+    """(model name, field) of the numeric fields a parsed scene sets explicitly."""
+    out: set[tuple[str, str]] = set()
+    if isinstance(obj, BaseModel):
+        for name in obj.model_fields_set:
+            if _numeric(type(obj).model_fields[name].annotation):
+                out.add((type(obj).__name__, name))
+            out |= set_fields(getattr(obj, name))
+    elif isinstance(obj, (list, tuple)):
+        for v in obj:
+            out |= set_fields(v)
+    elif isinstance(obj, dict):
+        for v in obj.values():
+            out |= set_fields(v)
+    return out
+
+
+def _rich_body(**keys):
+    return body("float", hdb="wide.nc", mass=3.0e5, center_of_mass=[0.0, 0.0, -1.0], inertia=[1e7, 1e7, 2e7],
+                initial_displacement=[0.0] * 6, initial_velocity=[0.0] * 6, linear_damping=[1e3] * 6,
+                quadratic_damping=[[1e2 if i == j else 0.0 for j in range(6)] for i in range(6)],
+                drag={"cd": [1.0] * 6, "area": [1.0] * 6}, **keys)
+
+
+def _templates() -> dict[str, dict]:
+    """Scenes (as sections) that together set every numeric scene key; each is valid as it is."""
+    sim = {"dt": 0.05, "duration": 10.0, "flush_seconds": 1.0, "spectral_radius": 0.9}
+    hydro = {"irf_duration": 2.0, "irf_taper": 0.1, "irf_domega": 0.1, "irf_tail": "asymptotic",
+             "irf_tail_cutoff": 8.0, "ss_tolerance": 0.01, "ss_order": 4, "ss_max_order": 24, "coupling_tolerance": 0.0}
+    mechanism = {
+        "steady": {"order": 10, "tolerance": 1e-10, "max_iterations": 50},
+        "coupling": {"scheme": "mass-matrix", "exchange_every": 1, "tolerance": 1e-8, "max_iterations": 50,
+                     "explicit_limit": 0.9},
+        "bodies": [_rich_body(), body("arm", mass=1e3, center_of_mass=[5.0, 0.0, 2.0], inertia=[1e3, 1e3, 1e3],
+                                      reference_point=[5.0, 0.0, 2.0], buoyancy_volume=0.5,
+                                      center_of_buoyancy=[5.0, 0.0, 1.0])],
+        "point_masses": [{"name": "buoy", "mass": 10.0, "position": [0.0, 5.0, -1.0], "initial_velocity": [0.0] * 3,
+                          "buoyancy_volume": 0.001}],
+        "joints": [joint("revolute", "float", "arm", [2.0, 0.0, 0.0], axis=[0.0, 1.0, 0.0],
+                         friction={"force": 10.0, "velocity": 1e-3}),
+                   joint("universal", "arm", "ground", [5.0, 0.0, 2.0], axis=[1.0, 0.0, 0.0], axis2=[0.0, 1.0, 0.0])],
+        "constraints": [{"body": "float", "dof": "yaw", "value": 0.0}],
+        "ptos": [linear_pto("pto", "float", [0.0, 0.0, -1.0], "ground", [0.0, 0.0, -20.0], stiffness=0.0,
+                            damping=1e5, rest_length=19.0, force_limit=1e6),
+                 {"name": "rot", "type": "rotary", "body1": "float", "body2": "arm", "point": [2.0, 0.0, 0.0],
+                  "axes": ["pitch"], "frame": [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+                  "stiffness": [1.0], "damping": 1.0, "torque_limit": 1e5}],
+        "moorings": [{"type": "linear", "body": "float", "point": [0.0, 0.0, 0.0], "stiffness": [1e3] * 6,
+                      "damping": [[0.0] * 6 for _ in range(6)], "pretension": [0.0] * 6},
+                     {"type": "rope", "anchor": [0.0, 10.0, -50.0], "attach_to": "buoy", "length": 50.0,
+                      "axial_stiffness": 1e8, "mass_per_length": 10.0, "diameter": 0.05, "elements": 5,
+                      "bending_stiffness": 0.0},
+                     {"type": "rope", "anchor": [0.0, -10.0, -50.0], "attach_to": "float", "point": [0.0, 0.0, -1.0],
+                      "length": 50.0, "axial_stiffness": 1e8, "mass_per_length": 10.0}],
+        "morison": [{"body": "float", "point_a": [0.0, 0.0, -1.0], "point_b": [0.0, 0.0, -5.0], "diameter": 0.5,
+                     "cd": 1.0, "ca": 1.0, "segments": 4}],
+        "controllers": [{"name": "ctl", "ptos": ["pto"], "period": 0.1, "preview": 1.0, "preview_step": 0.1,
+                         "latency": 1, "timeout": 0.01, "join_timeout": 0.01, "fallback": "passive",
+                         "fallback_damping": 1e5, "max_force": 1e6, "damping_range": [0.0, 1e12],
+                         "stiffness_range": [-1e12, 1e12], "wave_points": [[0.0, 0.0]],
+                         "parameters": {"gain": 1.5, "n": 3, "v": [1.0, 2.0]}}]}
+    water = {"density": 1025.0, "gravity": 9.81, "depth": 50.0}
+    return {
+        "regular": {"simulation": sim, "water": water, "hydro": hydro, **mechanism,
+                    "waves": regular_waves(1.0, 6.0, direction=0.0, phase=10.0, ramp=2.0,
+                                           excitation_irf_duration=5.0)},
+        "irregular": {"simulation": sim, "water": water, "hydro": {"irf_duration": 2.0},
+                      "waves": {"type": "irregular", "spectrum": "jonswap", "hs": 1.0, "tp": 6.0, "gamma": 3.3,
+                                "seed": 1, "direction": 0.0, "components": 40, "ramp": 1.0, "spreading": "cos2s",
+                                "s": 10.0, "directions": 3, "omega_range": [0.3, 3.5],
+                                "excitation_irf_duration": 5.0},
+                      "bodies": [_rich_body()],
+                      "ptos": [linear_pto("heave", "float", [0.0, 0.0, -1.0], "ground", None, direction=[0.0, 0.0, -1.0],
+                                          damping=1e5)]},
+        "elevation": {"simulation": sim, "water": water, "hydro": {"irf_duration": 2.0},
+                      "waves": {"type": "elevation", "file": "eta.csv", "direction": 0.0, "start": 10.0, "ramp": 1.0,
+                                "excitation_irf_duration": 5.0},
+                      "bodies": [_rich_body()]},
+        "fmu": {"simulation": sim, "water": water, "hydro": {"irf_duration": 2.0},
+                "bodies": [body("float", hdb="wide.nc", mass=3.0e5, center_of_mass=None, inertia=None, dofs=["heave"])],
+                "client": {"type": "fmu", "fmu": "x.fmu", "communication_step": 0.05, "parameters": {"k": 1.5, "n": 2},
+                           "coupling": {"mode": "auto", "tolerance": 1e-6, "max_iterations": 50, "explicit_limit": 0.5},
+                           "bodies": {"float": {"position": {"heave": "z"}, "velocity": {"heave": "v"},
+                                                "force": {"heave": "f"}}}}},
+    }
+
+
+def _numeric_leaves(value, path=""):
+    """(key path, value) of every number in a scene section tree; of a list only its first item."""
+    if isinstance(value, dict):
+        for k, v in value.items():
+            yield from _numeric_leaves(v, f"{path}.{k}" if path else k)
+    elif isinstance(value, list) and value:
+        yield from _numeric_leaves(value[0], f"{path}[0]")
+    elif isinstance(value, (int, float)) and not isinstance(value, bool):
+        yield path, value
+
+
+def _with(sections: dict, path: str, value) -> dict:
+    """A deep copy of ``sections`` with the number at ``path`` replaced."""
+    out = copy.deepcopy(sections)
+    parts = [p for p in path.replace("[0]", ".0").split(".")]
+    parent = out
+    for p in parts[:-1]:
+        parent = parent[int(p)] if p.isdigit() else parent[p]
+    last = parts[-1]
+    parent[int(last) if last.isdigit() else last] = value
+    return out
+
+
+@pytest.fixture(scope="module")
+def extreme_server():
+    hdb = make_body_hdb(omega=np.linspace(0.2, 4.0, 12), directions=HEADINGS, depth=50.0, rho=1025.0)
+    server = ForceServer("tcp://127.0.0.1:*", session_timeout=600.0)   # bound (controllers need one), not served
+    t = np.arange(0.0, 40.0, 0.05)
+    extra = {"elevation": {"wave_elevation": {"time": t, "eta": 0.5 * np.sin(1.1 * t)}}}
+    yield server, {"wide.nc": to_wire(hdb)}, extra
+    server.close()
+
+
+def _setup_numbers(value, path):
+    """(path, value) of every number and numeric array in a decoded setup map."""
+    if isinstance(value, dict):
+        for k, v in value.items():
+            yield from _setup_numbers(v, f"{path}.{k}")
+    elif isinstance(value, list):
+        for i, v in enumerate(value):
+            yield from _setup_numbers(v, f"{path}[{i}]")
+    elif isinstance(value, np.ndarray) and value.dtype.kind in "fc" or \
+            isinstance(value, float):
+        yield path, value
+
+
+def _hello(server, hdbs, sections: dict, **fields) -> dict:
+    text = toml_document({k: sections[k] for k in
+                          ("simulation", "water", "waves", "hydro", "steady", "coupling", "bodies", "point_masses",
+                           "joints", "constraints", "ptos", "moorings", "morison", "client", "controllers")
+                          if k in sections})
+    reply = send(server, codec.pack(codec.message("hello", "x", None, role="multibody", scene=text, hdbs=hdbs,
+                                                  **fields)))
+    if reply["type"] == "welcome":   # every number it sends is finite; then closed: hundreds of sessions are built here
+        bad = [path for path, v in _setup_numbers(codec.decode_tree(reply["setup"]), "setup") if not np.all(np.isfinite(v))]
+        assert not bad, f"a welcome with non-finite values in {bad}"
+        send(server, codec.pack(codec.message("bye", "b", reply["session"])))
+    return reply
+
+
+def test_the_templates_set_every_numeric_scene_key(extreme_server):
+    """The walk of the scene's models finds the numeric keys; the templates set each of them (a new
+    numeric key fails here until a template sets it), and each template builds a session."""
+    server, hdbs, extra = extreme_server
+    every = numeric_fields()
+    covered: set[tuple[str, str]] = set()
+    for name, sections in _templates().items():
+        reply = _hello(server, hdbs, sections, **extra.get(name, {}))
+        assert reply["type"] == "welcome", (name, reply)
+        covered |= set_fields(parse_scene(toml_document(sections)))
+    assert len(every) > 100 and every - covered == set(), sorted(every - covered)
+
+
+@pytest.mark.parametrize("template", ["regular", "irregular", "elevation", "fmu"])
+def test_extreme_values_in_every_numeric_scene_key(extreme_server, template):
+    server, hdbs, extra = extreme_server
+    sections = _templates()[template]
+    ping = codec.pack(codec.message("ping", "alive", None))
+    tried = 0
+    for path, _ in _numeric_leaves(sections):
+        for value in EXTREMES:
+            reply = _hello(server, hdbs, _with(sections, path, value), **extra.get(template, {}))
+            tried += 1
+            where = (path, value, reply.get("field"), reply.get("message"))
+            if reply["type"] == "welcome":
+                free = path.startswith(FREE_KEYS) and math.isfinite(value)
+                assert value in IN_RANGE_POSSIBLE or free, where
+                continue
+            assert reply["type"] == "error" and reply["code"] == codec.Code.BAD_SCENE, where
+            if value not in IN_RANGE_POSSIBLE:   # out of bounds: the key itself is named (or its list entry)
+                assert path.startswith(reply["field"].removeprefix("scene.")), where
+                assert f"{path}: " in reply["message"], where
+            else:                                # in bounds but not runnable: the key to change is named
+                assert reply["field"].startswith("scene."), where
+            assert send(server, ping)["type"] == "pong"
+    assert tried > 8 * 10
+
+
+MESSAGE_EXTREMES = [1e300, -1e300, 1e-308, 5e-324, float("nan"), float("inf"), -float("inf"), 2 ** 64 - 1, -2 ** 63,
+                    2 ** 70, -2 ** 70]
+
+
+def _field_name(path: tuple) -> str:
+    out = ""
+    for part in path:
+        out = f"{out}[{part}]" if isinstance(part, int) else codec.key_path(out, part) if out else str(part)
+    return out
+
+
+def test_extreme_values_in_every_numeric_message_field(templates):
+    """Each number of each request type (envelope, seq, time, iteration, epoch, wait, step, state,
+    commands, array shapes) takes every extreme value: a regular reply or a named error, never
+    99; an int msgpack cannot carry (2^70) is refused by the codec naming the field. Then a new
+    session runs as ever."""
+    server, t = templates
+    ping = codec.pack(codec.message("ping", "alive", None))
+    sent = 0
+    for name, msg in t.items():
+        for path in _paths(msg):
+            parent = msg
+            for part in path[:-1]:
+                parent = parent[part]
+            if not path or isinstance(parent, dict) and path[-1] == "data" or \
+                    not isinstance(parent[path[-1]], (int, float)) or isinstance(parent[path[-1]], bool):
+                continue
+            for value in MESSAGE_EXTREMES:
+                bad = copy.deepcopy(msg)
+                target = bad
+                for part in path[:-1]:
+                    target = target[part]
+                target[path[-1]] = value
+                try:
+                    frame = codec.pack(bad)
+                except codec.EncodeError as exc:
+                    assert abs(value) >= 2 ** 64 - 1 and exc.field == _field_name(path), (name, path, exc)
+                    continue
+                reply = send(server, frame)
+                sent += 1
+                if reply["type"] == "welcome" and "epoch" in reply:
+                    for other in ("measure", "command"):
+                        t[other]["epoch"] = reply["epoch"]
+                where = (name, path, value, reply)
+                if reply["type"] == "error":
+                    assert reply["code"] != codec.Code.INTERNAL, where
+                    if reply["code"] in (codec.Code.MISSING_FIELD, codec.Code.BAD_VALUE):
+                        assert reply["field"], where
+                assert send(server, ping)["type"] == "pong"
+    assert sent > 100
+    scene = parse_scene(t["hello"]["scene"])
+    plain = scene_toml(dt=DT, duration=1.0, hydro={"irf_duration": 2.0}, bodies=[
+        body("float", hdb="float.nc", mass=3.0e5, center_of_mass=[0, 0, -1], inertia=[1e7, 1e7, 2e7])])
+    welcome = send(server, codec.pack(codec.message("hello", "n0", None, role="multibody", scene=plain,
+                                                    hdbs=t["hello"]["hdbs"])))
+    assert welcome["type"] == "welcome" and scene.bodies[0].name == "float", welcome
+    zeros = np.zeros((1, 6))
+    for seq in range(3):
+        reply = send(server, codec.pack(codec.message("step", f"n{seq + 1}", welcome["session"], seq=seq,
+                                                      time=seq * DT, position=zeros, velocity=zeros)))
+        assert reply["type"] == "forces" and reply["seq"] == seq, reply
+
+
+def test_a_controller_session_step_with_a_non_integer_iteration_is_error_5(templates):
+    """Issue 22: a step with iteration = "x" in a session with controllers was a TypeError (99)."""
+    server, t = templates
+    for value in ("x", 1.5, [1], -1):
+        msg = copy.deepcopy(t["step"])
+        msg["iteration"] = value
+        reply = send(server, codec.pack(msg))
+        assert (reply["type"], reply["code"], reply["field"]) == ("error", codec.Code.BAD_VALUE, "iteration"), reply
+
+
+def test_extreme_state_values_in_a_step_are_error_5_naming_the_array(templates):
+    """A step's position and velocity hold numbers too: each extreme float in one element is error 5
+    naming the array (beyond 1e5 m / 1e4 m/s the forces overflowed to inf and NaN: a reply hydrolink
+    cannot vouch for); 1e-308 and 5e-324 are states like any other."""
+    server, t = templates
+    for field in ("position", "velocity"):
+        for value in MESSAGE_EXTREMES[:7]:
+            msg = copy.deepcopy(t["step"])
+            state = np.zeros((1, 6))
+            state[0, 2] = value
+            msg[field] = state
+            reply = send(server, codec.pack(msg))
+            if value in IN_RANGE_POSSIBLE:
+                assert reply["type"] != "error" or reply["field"] != field, reply
+                continue
+            assert (reply["type"], reply["code"], reply["field"]) == ("error", codec.Code.BAD_VALUE, field), reply
+            assert "NaN or inf" in reply["message"] or "|value| must be <= 10000" in reply["message"], reply

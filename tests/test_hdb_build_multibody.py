@@ -298,3 +298,50 @@ def test_device_layouts():
           load_spec(EXAMPLES / "node_4n3la" / "node_4n3la_hdb.toml").all_bodies}
     for leaf in ("S1", "S2", "S3"):
         assert np.linalg.norm(n4[leaf] - n4["C1"]) == pytest.approx(1.4, abs=0.005)
+
+
+def _gdf_boxes(path: Path, centers, size=(1.0, 1.0, 1.0)) -> None:
+    """One WAMIT .gdf holding closed boxes (``size`` = length, width, draft; their freeboard is half
+    the draft) at the given (x, y) centres: a frame of separate pontoons when there are several."""
+    from test_hdb_build import _gdf_box
+    panels = []
+    for cx, cy in centers:
+        one = path.with_suffix(".one.gdf")
+        _gdf_box(one, size[0], size[1], size[2], 3)       # -L/2..L/2 x -W/2..W/2 x -T..T/2
+        rows = one.read_text().splitlines()
+        pts = np.array([[float(c) for c in r.split()] for r in rows[4:]]) + [cx, cy, 0.0]
+        panels.append(pts)
+        one.unlink()
+    pts = np.concatenate(panels)
+    path.write_text("\n".join(["frame", f"1.0 {9.81}", "0 0", str(len(pts) // 4)]
+                              + [" ".join(f"{c:.9g}" for c in p) for p in pts]) + "\n")
+
+
+def _frame_and_flap(tmp_path: Path, flap_x: float, flap_size: tuple) -> Path:
+    """A frame of two 1 x 1 m pontoons, 1 m draft, at x = -2 and 2 (one mesh file: its bounding box
+    spans -2.5..2.5) and a flap (a box of flap_size) at flap_x, each in its own mesh file."""
+    _gdf_boxes(tmp_path / "frame.gdf", [(-2.0, 0.0), (2.0, 0.0)])
+    _gdf_boxes(tmp_path / "flap.gdf", [(0.0, 0.0)], size=flap_size)
+    path = tmp_path / "f.toml"
+    path.write_text('[[bodies]]\nname = "frame"\nshape = "mesh"\nmesh = "frame.gdf"\n'
+                    f'[[bodies]]\nname = "flap"\nshape = "mesh"\nmesh = "flap.gdf"\ncenter = [{flap_x}, 0.0, 0.0]\n'
+                    "[frequencies]\nvalues = [1.0, 2.0]\n")
+    return path
+
+
+def test_a_flap_inside_the_frames_box_but_apart_builds(tmp_path):
+    """The flap sits inside the frame's bounding box, 0.47 m from each pontoon: built (the check
+    compares the meshes, not their boxes), with both bodies' displaced volumes (1 m^3 per box
+    metre of length) and their hydrodynamic coupling."""
+    ds = build_hdb(_frame_and_flap(tmp_path, 0.0, (2.06, 1.0, 1.0)), cache_dir=tmp_path / "cache", progress=False)
+    assert ds["displaced_volume"].values == pytest.approx([2.0, 2.06], rel=1e-6)
+    assert np.abs(ds["added_mass"].values[:, :6, 6:]).max() > 0
+
+
+@pytest.mark.parametrize("flap_x, flap_size, how", [(0.6, (2.06, 1.0, 1.0), "intersects"),    # into a pontoon
+                                                      (2.0, (0.4, 0.4, 0.5), "is inside or holds")])  # within it
+def test_hulls_that_overlap_are_refused_naming_both(tmp_path, flap_x, flap_size, how):
+    """A flap that cuts into a pontoon, or floats within one: refused, naming both bodies."""
+    with pytest.raises(SpecError, match=rf"bodies\[1\]\.center: the immersed hull of 'flap' {how} that of "
+                                        rf"bodies\[0\] \('frame'\)"):
+        build_hdb(_frame_and_flap(tmp_path, flap_x, flap_size), cache_dir=tmp_path / "cache", progress=False)

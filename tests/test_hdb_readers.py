@@ -357,7 +357,7 @@ def _rewrite(src: Path, dst: Path, conj: tuple[str, ...] = (), attrs: dict | Non
     return dst
 
 
-def _heave_force(hdb, period: float = 2 * np.pi / 1.6) -> np.ndarray:
+def _heave_force(hdb, period: float = 2 * np.pi / 1.6, **keys) -> np.ndarray:
     """The server's excitation force on the buoy in regular waves (H 1 m), heave and pitch, over one
     period after the ramp: the regular-wave phase check of the convention."""
     from hydrolink.server.model import HydroModel
@@ -366,28 +366,34 @@ def _heave_force(hdb, period: float = 2 * np.pi / 1.6) -> np.ndarray:
     scene = parse_scene(scene_toml(dt=period / 40, duration=3 * period, water={"density": 1025.0, "depth": "inf"},
                                    waves=regular_waves(1.0, period), hydro={"radiation": "constant", "irf_duration": 3.0},
                                    bodies=[body("buoy", hdb="buoy.nc", mass=2000.0, center_of_mass=[2.0, 0, -0.2],
-                                                inertia=[500.0] * 3, dofs=["heave", "pitch"])]))
+                                                inertia=[500.0] * 3, dofs=["heave", "pitch"], **keys)]))
     m = HydroModel(scene, {"buoy": hdb})
     pos = m.setup_info().equilibrium_position
     return np.array([m.step(k * period / 40, pos, np.zeros_like(pos))["excitation"][0, [2, 4]] for k in range(40)])
 
 
-def test_capytaine_file_convention_declared_stated_or_noted(capytaine_buoy, tmp_path):
-    """Capytaine's own file: exp(-iwt), no note. The same file converted to exp(+iwt) (excitation,
-    Froude-Krylov and diffraction conjugated, as WecOptTool holds them) with a variable Capytaine
-    does not write: read as exp(-iwt) with a note naming the variable and the key to state; stated
-    (hdb_convention) or declared by an attribute, it is conjugated back and the server's force in a
-    regular wave is the original's to round-off; a statement that contradicts the file is an error."""
+def test_capytaine_file_convention_declared_stated_or_checked(capytaine_buoy, tmp_path):
+    """Capytaine's own file: exp(-iwt), checked on its force phases, no note. The same file converted
+    to exp(+iwt) (excitation, Froude-Krylov and diffraction conjugated, as WecOptTool holds them),
+    with or without a variable Capytaine does not write: an error asking for hdb_convention (read as
+    exp(-iwt) it would be wrong); stated (hdb_convention) or declared by an attribute, it is
+    conjugated back and the server's force in a regular wave is the original's to round-off; a
+    statement that contradicts the file is an error, one that contradicts its phases is noted."""
     with warnings.catch_warnings():
         warnings.simplefilter("error")          # Capytaine's own file: nothing to note
         plain = load_hdb(capytaine_buoy)
     assert plain.attrs["time_convention_in_file"] == "exp(-iwt)"
+    assert plain.attrs["time_convention_from"].startswith("Capytaine's, checked: ")
     ref = _heave_force(plain)
     assert np.abs(ref).max() > 1e3
     every = ("excitation_force", "Froude_Krylov_force", "diffraction_force")
-    wot = _rewrite(capytaine_buoy, tmp_path / "wot.nc", conj=every, extra=True)
-    with pytest.warns(UserWarning, match=r"variables Capytaine does not write \(friction \(WecOptTool\)\).*hdb_convention = \"exp\(\+iwt\)\""):
-        silent = load_hdb(wot)
+    for extra in (True, False):
+        wot = _rewrite(capytaine_buoy, tmp_path / f"wot{extra}.nc", conj=every, extra=extra)
+        with pytest.raises(HDBError, match=r"hdb_convention: the file does not declare its time convention and its "
+                                           r"force phases are exp\(\+iwt\)'s.*\"exp\(\+iwt\)\" for WecOptTool"):
+            load_hdb(wot)
+    with pytest.warns(UserWarning, match=r"read as exp\(-iwt\) \(stated \(hdb_convention\)\), but .* fit exp\(\+iwt\)"):
+        silent = load_hdb(wot, convention="exp(-iwt)")
     assert np.abs(_heave_force(silent) - ref).max() > 0.1 * np.abs(ref).max()   # what a wrong read costs
     stated = load_hdb(wot, convention="exp(+iwt)")
     np.testing.assert_allclose(_heave_force(stated), ref, rtol=1e-12, atol=1e-9 * np.abs(ref).max())
@@ -400,3 +406,38 @@ def test_capytaine_file_convention_declared_stated_or_noted(capytaine_buoy, tmp_
         load_hdb(half)
     with pytest.raises(HDBError, match="only for a Capytaine-layout NetCDF"):
         load_hdb(tmp_path / "x.h5", convention="exp(+iwt)")
+
+
+def test_wecopttool_file_refused_then_read_right(capytaine_buoy, tmp_path):
+    """A file WecOptTool 3.3 writes itself (run_bem + write_netcdf, the buoy of capytaine_buoy: the
+    same mesh, DOFs and centres): not declared, its force phases are exp(+iwt)'s, so reading it
+    stops with an error asking for hdb_convention; stated, the excitation force in a regular wave
+    (heave and pitch over one period) is the Capytaine dataset's of the same body, and hdb info
+    says which convention was read and why."""
+    wot = pytest.importorskip("wecopttool", reason="WecOptTool is not installed (.ci/run installs it)")
+    import capytaine as cpt
+    import logging
+    from hydrolink.server.hdb.info import hdb_summary
+    logging.getLogger("capytaine").setLevel(logging.ERROR)
+    logging.getLogger("wecopttool").setLevel(logging.ERROR)
+    mesh = cpt.mesh_sphere(radius=1.0, center=(2.0, 0, 0), resolution=(8, 8))
+    body = cpt.FloatingBody(mesh=mesh, dofs=cpt.rigid_body_dofs(rotation_center=(2.0, 0, 0)),
+                            center_of_mass=(2.0, 0, -0.2), name="buoy").with_only_dofs(["Heave", "Pitch"])
+    body.mass = 2000.0
+    bem = wot.run_bem(body, freq=np.array([0.8, 1.6, 2.4]) / (2 * np.pi), wave_dirs=[0.0])
+    # Capytaine >= 2.3.2 keeps the DOF coordinates categorical, which xarray cannot write; WecOptTool 3.3
+    # pins Capytaine 2.3.1, where they are strings: make them strings as that version has them
+    bem = bem.assign_coords(radiating_dof=bem["radiating_dof"].astype(str),
+                            influenced_dof=bem["influenced_dof"].astype(str))
+    path = tmp_path / "buoy.nc"
+    wot.write_netcdf(path, bem)
+    with pytest.raises(HDBError, match=r"hdb_convention: .*force phases are exp\(\+iwt\)'s"):
+        load_hdb(path)
+    stated = load_hdb(path, convention="exp(+iwt)")
+    ref = _heave_force(load_hdb(capytaine_buoy))
+    force = _heave_force(stated, hdb_body="copy_of_buoy_immersed")     # run_bem's name for the body
+    np.testing.assert_allclose(force, ref, rtol=1e-6, atol=1e-6 * np.abs(ref).max())
+    phase = np.angle(np.fft.rfft(force, axis=0)[1] / np.fft.rfft(ref, axis=0)[1], deg=True)
+    assert np.all(np.abs(phase) < 0.01)                       # the regular-wave phase, heave and pitch
+    info = hdb_summary(stated)
+    assert "time convention of the file's complex amplitudes: exp(+iwt) (stated (hdb_convention); 2" in info

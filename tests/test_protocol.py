@@ -166,3 +166,16 @@ def test_error_paths_quote_keys_that_are_not_identifiers():
     assert key_path("hdbs", "float") == "hdbs.float"
     assert key_path("hdbs", "cylinder.nc") == 'hdbs["cylinder.nc"]'
     assert key_path("hdbs", 'a "b".h5') == 'hdbs["a \\"b\\".h5"]'
+
+
+@pytest.mark.parametrize("value,field", [(2 ** 70, "setup.last_seq"), (-2 ** 64, "setup.last_seq"),
+                                         ([1, 2 ** 64], "setup.last_seq[1]"), ({"a.b": object()}, 'setup.last_seq["a.b"]')])
+def test_a_value_the_wire_cannot_carry_is_refused_naming_its_field(value, field):
+    """Issue 22: a welcome with an int past 64 bits raised TypeError in the server loop; the codec
+    now raises EncodeError naming the field (and packs the largest ints msgpack carries)."""
+    msg = codec.message("welcome", "s-1", "x" * 32, "h-1", setup={"last_seq": value, "dt": 0.1})
+    with pytest.raises(codec.EncodeError) as info:
+        codec.pack(msg)
+    assert info.value.field == field, info.value
+    for ok in (2 ** 64 - 1, -2 ** 63):
+        assert codec.unpack(codec.pack(dict(msg, setup={"last_seq": ok})))["setup"]["last_seq"] == ok

@@ -156,6 +156,23 @@ def test_bad_scene_names_the_key(server, hdb):
         assert c.session is None
 
 
+@pytest.mark.parametrize("old,new,field", [
+    ("duration = 10.0", "duration = 1e300", "scene.simulation.duration"),   # killed the server (issue 22)
+    ("dt = 0.05", "dt = 1e-300", "scene.simulation.dt"),
+    ("period = 6.0", "period = 1e300", "scene.waves.period"),
+    ("irf_duration = 4.0", "irf_duration = 1e300", "scene.hydro.irf_duration"),
+    ("[waves]", "[water]\ngravity = 1e-308\n[waves]", "scene.water.gravity"),
+])
+def test_extreme_scene_values_are_named_and_the_served_server_serves_on(server, hdb, old, new, field):
+    """Over the socket, as `hydrolink serve` answers: each was error 99 or ended the server."""
+    assert old in SCENE
+    with ServerConnection(server.address, timeout=10.0) as c:
+        expect_error(lambda: c.hello(SCENE.replace(old, new), {"float.nc": hdb}), 8, field)
+        c.hello(SCENE, {"float.nc": hdb})
+        pos, vel = states(1)[0]
+        assert c.step(0, 0.0, pos, vel)["seq"] == 0
+
+
 def test_bad_hdb_names_the_field(server, hdb):
     with ServerConnection(server.address, timeout=10.0) as c:
         wire = to_wire(hdb)
@@ -445,3 +462,18 @@ def test_save_restore_release_over_the_wire(server, hdb, conn):
         with pytest.raises(RemoteError) as err:
             other.save()
         assert (err.value.code, err.value.field) == (12, "type")
+
+
+def test_a_reply_the_wire_cannot_carry_is_an_error_and_the_server_serves_on():
+    """The one place replies are packed: a reply holding an int past 64 bits (a server fault: scene
+    bounds keep every sent value in range) becomes error 99 naming the field, and the next request
+    is answered (issue 22: TypeError in the server loop ended the server)."""
+    from hydrolink.server.service import ForceServer
+    srv = ForceServer(None)
+    ping = codec.pack(codec.message("ping", "p1", None))
+    srv._handlers["ping"] = lambda msg, msg_id, session: ("pong", {"time": 2 ** 70}, session)
+    reply = codec.unpack(srv.respond(ping))
+    assert (reply["type"], reply["code"], reply["field"], reply["parent"]) == ("error", 99, "time", "p1"), reply
+    srv._handlers["ping"] = srv._ping
+    assert codec.unpack(srv.respond(ping))["type"] == "pong"
+    srv.close()

@@ -111,6 +111,37 @@ def test_validator_keys_relative_to_the_model_or_absolute():
     assert (e.key, e.why) == ("legs[1]", "a table needs 3 legs to stand")
 
 
-def test_several_problems_report_the_first_and_count_the_rest():
+def test_several_problems_are_each_listed_with_their_key():
+    """The first problem names the key (the server's error field); every further one follows, one
+    line each as "file: key: why" (issue 22: not "(and 2 more problem(s))")."""
     e = error('size = "big"\ncolour = 1\n')
-    assert (e.key, e.why) == ("title", "required key is missing (and 2 more problem(s))")
+    assert e.key == "title"
+    assert e.why.splitlines() == ["required key is missing",
+                                  "t.toml: size: Input should be a valid number, unable to parse string as a number "
+                                  "(got 'big')",
+                                  "t.toml: colour: unknown key"]
+    assert "more problem" not in str(e)
+
+
+@pytest.mark.parametrize("text,key,close", [
+    ('titel = "oak"\n', "titel", "title"),                                              # top level
+    ('title = "oak"\n[[legs]]\nlenght = 1.0\n', "legs[0].lenght", "length"),             # in a list of tables
+    ('title = "oak"\n[pet]\ntype = "cat"\nlifes = 3\n', "pet.lifes", "lives"),           # in a union branch
+    ('title = "oak"\n[pet]\ntype = "dog"\ngoood = true\n', "pet.goood", "good"),         # the other branch
+])
+def test_an_unknown_key_names_the_closest_valid_key(text, key, close):
+    lines = str(error(text)).splitlines()
+    assert f"t.toml: {key}: unknown key (did you mean {close!r}?)" in lines, lines
+
+
+def test_an_unknown_key_far_from_every_valid_key_gets_no_guess():
+    e = error('title = "oak"\nzzzzzz = 1\n')
+    assert (e.key, e.why) == ("zzzzzz", "unknown key")
+
+
+def test_every_problem_is_listed_up_to_the_cap():
+    from hydrolink.protocol.toml_model import MAX_PROBLEMS
+    legs = "".join(f"[[legs]]\nlength = {-i - 1}.0\n" for i in range(MAX_PROBLEMS + 5))
+    lines = str(error('title = "oak"\n' + legs)).splitlines()
+    assert len(lines) == MAX_PROBLEMS + 1 and lines[-1] == "t.toml: and 5 more problems"
+    assert [ln.split(": ")[1] for ln in lines[:3]] == ["legs[0].length", "legs[1].length", "legs[2].length"]

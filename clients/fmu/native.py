@@ -11,8 +11,10 @@ restore the server's session (SPEC §5.9), so iterating masters can redo a step.
 The model description says what the FMU does: a fixed communication step (the scene's dt; any
 other is an error with a logged message), ``dependencies`` of every output on the inputs it
 depends on (from the setup's hydrostatic stiffness and radiation feedthrough, plus every DOF of a
-body with viscous or Morison terms), units and descriptions on every variable, and A∞ as
-calculated parameters for the importer's mass matrix.
+body with viscous or Morison terms), units and descriptions on every variable, and as constant
+outputs (which masters can connect) the added mass for the importer's mass matrix (A∞, or A(ω0)
+named ``A_omega0.*`` with radiation = "constant"), the hydrostatic stiffness ``K_hs.*`` and the net
+buoyancy ``<body>.heave.net_buoyancy`` that a model using the ``dynamic`` output applies itself.
 """
 
 from __future__ import annotations
@@ -33,12 +35,15 @@ from hydrolink.protocol.scene import SceneError, load_scene
 
 SOURCES = Path(__file__).with_name("native_c")
 MODEL_IDENTIFIER = "hydrolink_forces"
-VR_TIME, VR_SERVER, VR_TIMEOUT, VR_ETA, VR_DOF, VR_AINF = 0, 1, 2, 3, 1000, 1000000
+VR_TIME, VR_SERVER, VR_TIMEOUT, VR_ETA, VR_DOF, VR_AINF, VR_KHS = 0, 1, 2, 3, 1000, 1000000, 2000000
+VR_NET = 7            # VR_DOF + 8 i + VR_NET: the DOF's net buoyancy
 QUANTITIES = ("displacement", "velocity", "force", "excitation", "radiation", "hydrostatic", "dynamic")
 UNITS = {  # name: base-unit exponents (kg, m, s, rad)
     "m": {"m": 1}, "rad": {"rad": 1}, "m/s": {"m": 1, "s": -1}, "rad/s": {"rad": 1, "s": -1},
     "N": {"kg": 1, "m": 1, "s": -2}, "N.m": {"kg": 1, "m": 2, "s": -2}, "kg": {"kg": 1},
-    "kg.m": {"kg": 1, "m": 1}, "kg.m2": {"kg": 1, "m": 2}, "s": {"s": 1}}
+    "kg.m": {"kg": 1, "m": 1}, "kg.m2": {"kg": 1, "m": 2}, "s": {"s": 1}, "N/m": {"kg": 1, "s": -2},
+    "N/rad": {"kg": 1, "m": 1, "s": -2, "rad": -1}, "N.m/m": {"kg": 1, "m": 1, "s": -2},
+    "N.m/rad": {"kg": 1, "m": 2, "s": -2, "rad": -1}}
 TRANSLATIONS = ("surge", "sway", "heave")
 
 
@@ -122,6 +127,11 @@ def _a_inf_unit(a: str, b: str) -> str:
     return {2: "kg", 1: "kg.m", 0: "kg.m2"}[n]
 
 
+def _stiffness_unit(a: str, b: str) -> str:
+    """Force (moment) on DOF a per displacement (rotation) of DOF b."""
+    return ("N" if a in TRANSLATIONS else "N.m") + ("/m" if b in TRANSLATIONS else "/rad")
+
+
 def export_native_fmu(scene_path: str | Path, output: str | Path, *, fmi: int = 3,
                       progress: bool = True) -> tuple[Path, list[str]]:
     """Write the native FMU (``fmi`` 2 or 3); returns its path and notes."""
@@ -138,6 +148,7 @@ def export_native_fmu(scene_path: str | Path, output: str | Path, *, fmi: int = 
     flat = np.flatnonzero(setup.active.reshape(6 * n))
     labels = [f"{names[k // 6]}.{setup.dofs[k % 6]}" for k in flat]
     added = setup.added_mass[np.ix_(flat, flat)]
+    stiffness = setup.hydrostatic_stiffness[np.ix_(flat, flat)]
     net = [float(setup.net_buoyancy[k // 6]) if k % 6 == 2 else 0.0 for k in flat]
     notes = [f"[{k}] is not in the FMU: the importer models the mechanism" for k in MECHANISM_KEYS
              if getattr(scene, k)]
@@ -149,7 +160,8 @@ def export_native_fmu(scene_path: str | Path, output: str | Path, *, fmi: int = 
         cfg = [f"dt {setup.dt!r}", f"n_bodies {n}", f"active {len(flat)} " + " ".join(map(str, flat)),
                "equilibrium " + " ".join(repr(float(x)) for x in setup.equilibrium_position.reshape(-1)),
                "net_buoyancy " + " ".join(repr(x) for x in net),
-               "added_mass " + " ".join(repr(float(x)) for x in added.reshape(-1)), "scene scene.toml"]
+               "added_mass " + " ".join(repr(float(x)) for x in added.reshape(-1)),
+               "hydrostatic_stiffness " + " ".join(repr(float(x)) for x in stiffness.reshape(-1)), "scene scene.toml"]
         for i, (key, (fmt, paths)) in enumerate(sources.items()):
             folder = res / "hdb" / str(i)
             folder.mkdir()
@@ -160,7 +172,7 @@ def export_native_fmu(scene_path: str | Path, output: str | Path, *, fmi: int = 
         config = "\n".join(cfg) + "\n"
         (res / "hydrolink_native.cfg").write_text(config)
         token = "{" + hashlib.sha256(config.encode() + text.encode()).hexdigest()[:32] + "}"
-        description = _model_description(fmi, scene, setup, flat, labels, added, token)
+        description = _model_description(fmi, scene, setup, flat, labels, token)
         (root / "modelDescription.xml").write_text(description)
         binaries = root / "binaries" / _platform(fmi)
         binaries.mkdir(parents=True)
@@ -201,7 +213,44 @@ def _dependencies(scene, setup, flat: np.ndarray) -> dict[tuple[int, str], list[
     return deps
 
 
-def _model_description(fmi: int, scene, setup, flat, labels, added, token) -> str:
+def _constants(setup, flat: np.ndarray, labels: list[str]) -> list[tuple]:
+    """The constant outputs a master wires into its body model: the added mass of its mass matrix
+    (A_inf; A(omega0) with radiation = "constant", named so), the hydrostatic stiffness and the net
+    buoyancy (what the ``dynamic`` output leaves to the model). Outputs, not calculated parameters:
+    masters connect outputs (libcosim refuses a calculated parameter as a connection's source)."""
+    added = setup.added_mass[np.ix_(flat, flat)]
+    stiffness = setup.hydrostatic_stiffness[np.ix_(flat, flat)]
+    w0 = setup.radiation_frequency
+    if w0 is None:
+        prefix, what = "A_inf", ("infinite-frequency added mass A_inf, force {a} per acceleration {b}: add it to the "
+                                 "mass matrix (the force excludes -A_inf a)")
+    else:
+        prefix, what = "A_omega0", (f"added mass A(omega0) at the radiation frequency omega0 = {w0:.6g} rad/s "
+                                    "(radiation = \"constant\"), force {a} per acceleration {b}: add it to the mass "
+                                    "matrix (the force holds B(omega0) v, no memory)")
+    out = []
+    for i, a in enumerate(labels):
+        for j, b in enumerate(labels):
+            da, db = a.rsplit(".", 1)[1], b.rsplit(".", 1)[1]
+            out.append((f"{prefix}.{a}.{b}", VR_AINF + flat.size * i + j, "real", "output", "constant",
+                        float(added[i, j]), _a_inf_unit(da, db), what.format(a=a, b=b), "exact"))
+    for i, a in enumerate(labels):
+        for j, b in enumerate(labels):
+            da, db = a.rsplit(".", 1)[1], b.rsplit(".", 1)[1]
+            out.append((f"K_hs.{a}.{b}", VR_KHS + flat.size * i + j, "real", "output", "constant",
+                        float(stiffness[i, j]), _stiffness_unit(da, db),
+                        f"linear hydrostatic stiffness, force {a} per displacement {b} (buoyancy and waterplane): "
+                        "with the dynamic output, the model applies -K_hs x itself", "exact"))
+    for i, (k, a) in enumerate(zip(flat, labels)):
+        if k % 6 == 2:
+            out.append((f"{a}.net_buoyancy", VR_DOF + 8 * i + VR_NET, "real", "output", "constant",
+                        float(setup.net_buoyancy[k // 6]), "N",
+                        f"{a}: net buoyancy rho g V - m g, a constant force: with the dynamic output, the model "
+                        "applies it itself", "exact"))
+    return out
+
+
+def _model_description(fmi: int, scene, setup, flat, labels, token) -> str:
     deps = _dependencies(scene, setup, flat)
     na = flat.size
     stop = scene.simulation.duration
@@ -214,11 +263,13 @@ def _model_description(fmi: int, scene, setup, flat, labels, added, token) -> st
          "undisturbed wave elevation at the origin", "calculated")]
     text = {"displacement": "displacement from equilibrium", "velocity": "velocity",
             "force": "total hydrodynamic force: excitation + radiation memory + hydrostatic + net buoyancy "
-                     "(+ viscous and Morison terms where the scene has them); apply it, with A_inf in the mass matrix",
-            "excitation": "wave excitation force", "radiation": "radiation memory force (without -A_inf a)",
+                     "(+ viscous and Morison terms where the scene has them); apply it, with the added mass "
+                     "output in the mass matrix",
+            "excitation": "wave excitation force", "radiation": "radiation force (without the added mass term)",
             "hydrostatic": "linear hydrostatic restoring force plus the net buoyancy",
             "dynamic": "force minus hydrostatic: for an importer whose model holds the hydrostatic stiffness and "
-                       "net buoyancy itself (better with an explicit master: no stiffness lagged a step)"}
+                       "net buoyancy itself (K_hs.* and net_buoyancy outputs; better with an explicit master: no "
+                       "stiffness lagged a step)"}
     for i, label in enumerate(labels):
         dof = label.rsplit(".", 1)[1]
         for q, quantity in enumerate(QUANTITIES):
@@ -226,16 +277,12 @@ def _model_description(fmi: int, scene, setup, flat, labels, added, token) -> st
             variables.append((f"{label}.{quantity}", VR_DOF + 8 * i + q, "real", "input" if is_input else "output",
                               "continuous", 0.0 if is_input else None, _unit(dof, quantity),
                               f"{label}: {text[quantity]}", None if is_input else "calculated"))
-    for i, a in enumerate(labels):
-        for j, b in enumerate(labels):
-            variables.append((f"A_inf.{a}.{b}", VR_AINF + na * i + j, "real", "calculatedParameter", "fixed", None,
-                              _a_inf_unit(a.rsplit(".", 1)[1], b.rsplit(".", 1)[1]),
-                              f"infinite-frequency added mass, force {a} per acceleration {b}: add it to the mass "
-                              "matrix (the force excludes -A_inf a)", "calculated"))
+    constants = _constants(setup, flat, labels)
+    variables += constants
     index = {v[1]: k + 1 for k, v in enumerate(variables)}
     vr_of = lambda i, q: VR_DOF + 8 * i + QUANTITIES.index(q)  # noqa: E731
     outputs = [(VR_ETA, [])] + [(vr_of(i, q), [vr_of(j, p) for j, p in deps[i, q]])
-                                for i in range(na) for q in QUANTITIES[2:]]
+                                for i in range(na) for q in QUANTITIES[2:]] + [(c[1], []) for c in constants]
     units = "\n".join(f'    <Unit name="{u}"><BaseUnit {" ".join(f"{k}={chr(34)}{v}{chr(34)}" for k, v in e.items())}/></Unit>'
                       for u, e in UNITS.items())
     if fmi == 2:
@@ -259,9 +306,8 @@ def _fmi2(variables, outputs, index, units, token, dt, stop) -> str:
         rows.append(f"    <ScalarVariable {attrs}>{body}</ScalarVariable>")
     out_rows = [f'      <Unknown index="{index[vr]}" dependencies="{" ".join(str(index[d]) for d in ds)}"'
                 f' dependenciesKind="{" ".join("dependent" for _ in ds)}"/>' for vr, ds in outputs]
-    init_rows = list(out_rows) + [f'      <Unknown index="{index[v[1]]}" dependencies=""/>'
-                                  for v in variables if v[3] == "calculatedParameter"]
-    init_rows.sort(key=lambda r: int(r.split('"')[1]))
+    exact = {index[v[1]] for v in variables if v[4] == "constant"}
+    init_rows = [r for r in out_rows if int(r.split('"')[1]) not in exact]      # constants are not unknowns
     return f"""<?xml version="1.0" encoding="UTF-8"?>
 <fmiModelDescription fmiVersion="2.0" modelName="{MODEL_IDENTIFIER}" guid="{token}"
   description="hydrolink linear potential-flow forces from a hydrolink server (native C FMU)"
@@ -305,9 +351,9 @@ def _fmi3(variables, outputs, units, token, dt, stop) -> str:
     out_rows = [f'    <Output valueReference="{vr}" dependencies="{" ".join(map(str, ds))}"'
                 f' dependenciesKind="{" ".join("dependent" for _ in ds)}"/>' if ds else
                 f'    <Output valueReference="{vr}" dependencies=""/>' for vr, ds in outputs]
-    init_rows = [r.replace("<Output ", "<InitialUnknown ") for r in out_rows] + [
-        f'    <InitialUnknown valueReference="{v[1]}" dependencies=""/>' for v in variables
-        if v[3] == "calculatedParameter"]
+    exact = {v[1] for v in variables if v[4] == "constant"}
+    init_rows = [r.replace("<Output ", "<InitialUnknown ") for r in out_rows
+                 if int(r.split('"')[1]) not in exact]                       # constants are not unknowns
     return f"""<?xml version="1.0" encoding="UTF-8"?>
 <fmiModelDescription fmiVersion="3.0" modelName="{MODEL_IDENTIFIER}" instantiationToken="{token}"
   description="hydrolink linear potential-flow forces from a hydrolink server (native C FMU)"

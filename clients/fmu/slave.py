@@ -13,16 +13,18 @@ FMI 2.0 co-simulation (pythonfmu). Per active DOF of each wet body ("sphere.heav
 Outputs are the forces at the current communication point for the inputs set at that point
 (direct feedthrough): set the state at t, read F(t). Setting the inputs again at the same point
 (an iterating master) replaces the server's sample (SPEC §5.3 rule 2). The communication step
-must equal the scene's dt. No rollback (the server keeps one sample per step).
+must equal the scene's dt (another is an error status, logged as an error). No rollback (the server keeps one sample per step).
 """
 
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
 from pythonfmu import Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Real, String
+from pythonfmu.enums import Fmi2Status
 
 CONFIG = "hydrolink_fmu.json"
 
@@ -123,8 +125,13 @@ class HydrolinkForces(Fmi2Slave):
 
     def do_step(self, current_time: float, step_size: float) -> bool:
         if abs(step_size - self._dt) > 1e-9 * self._dt:
-            self.log(f"communication step {step_size} s must equal the scene's dt {self._dt} s")
-            return False
+            # raised: pythonfmu answers an exception with a status the master must see (Fatal);
+            # returning False would answer Discard, which fmpy takes for a normal end at t = 0.
+            # pythonfmu passes log messages on only with debug logging: the text also goes to stderr
+            message = f"hydrolink FMU: communication step {step_size} s must equal the scene's dt {self._dt} s"
+            self.log(message, Fmi2Status.error)
+            print(message, file=sys.stderr, flush=True)
+            raise ValueError(message)
         self._evaluate()                # every step gets its sample, even if no output was read
         self._seq += 1
         self._iteration, self._sent = -1, None

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from hydrolink.server.hdb.build_spec import BodySpec, BuildSpec, PartSpec, SpecError, mesh_path
+from hydrolink.server.hdb.mesh_overlap import Hull, overlap
 
 
 def default_panel_size(spec: BuildSpec, body: BodySpec | None = None) -> float:
@@ -273,18 +274,25 @@ def xoz_symmetric(mesh, tol: float = 1e-9):
 
 
 def check_apart(hulls: list, spec: BuildSpec, spec_path: str | Path) -> None:
-    """Bodies whose meshes' bounding boxes intersect are an error (mesh-file bodies are only
-    checked here; primitives were checked exactly when the spec was read)."""
-    boxes = [(np.min(_merged(h).vertices, axis=0), np.max(_merged(h).vertices, axis=0)) for h in hulls]
+    """Bodies whose immersed hulls intersect, hold one another or touch are an error naming both
+    (the meshes themselves are compared: mesh_overlap.py). Mesh-file bodies are only checked here;
+    primitives were checked when the spec was read."""
     bodies, keys = spec.all_bodies, spec.body_keys
+    solids = [None] * len(hulls)
     for j in range(len(hulls)):
         for i in range(j):
             if "mesh" not in (bodies[i].shape, bodies[j].shape):
                 continue
-            (alo, ahi), (blo, bhi) = boxes[i], boxes[j]
-            if np.all(alo < bhi) and np.all(blo < ahi):
+            for k in (i, j):
+                if solids[k] is None:
+                    m = _merged(hulls[k])
+                    solids[k] = Hull.from_mesh(m.vertices, m.faces)
+            found = overlap(solids[i], solids[j])
+            if found.how is not None:
+                verb = {"intersect": "intersects", "contains": "is inside or holds", "touch": "touches"}[found.how]
                 raise SpecError(spec_path, f"{keys[j]}.center",
-                                f"the mesh overlaps {keys[i]} ({bodies[i].name!r}); move the bodies apart")
+                                f"the immersed hull of {bodies[j].name!r} {verb} that of {keys[i]} ({bodies[i].name!r}): "
+                                f"{found.detail}; move the bodies apart")
 
 
 __all__ = ["body_meshes", "check_apart", "default_panel_size", "xoz_symmetric"]

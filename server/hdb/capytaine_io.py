@@ -1,6 +1,6 @@
 """Capytaine datasets (in memory, or saved by ``capytaine.export_dataset(..., format="netcdf")``).
 
-Capytaine already uses exp(-i w t) and SI units: nothing is conjugated or rescaled. Conversions:
+Capytaine uses exp(-i w t) and SI units: nothing is rescaled. Conversions:
 
 * Frequencies: the ``omega`` coordinate (made the dimension if Capytaine used period/freq/...);
   omega = inf rows become ``added_mass_inf``, omega = 0 rows are dropped.
@@ -14,13 +14,16 @@ Capytaine already uses exp(-i w t) and SI units: nothing is conjugated or rescal
   Capytaine's ``rotation_center`` coordinate, the ``center_of_mass`` coordinate (Capytaine puts
   rotation DOFs there when no centre is given), else the origin with a warning (Capytaine's
   ``rigid_body_dofs()`` default). The attribute ``reference_point_from`` says which.
-* Time convention of the complex amplitudes: Capytaine's exp(-i w t), unless the file declares
-  another (an attribute whose name holds "convention", e.g. ``time_convention = "exp(+iwt)"``) or
-  the caller states it (``convention``: a scene's ``bodies[i].hdb_convention``); exp(+i w t)
-  amplitudes are conjugated here, once. A file that shows it went through another tool (a
-  variable that tool adds, such as WecOptTool's ``friction``) or whose
-  Froude-Krylov + diffraction forces are the conjugates of its ``excitation_force`` (WecOptTool's
-  ``change_bem_convention`` conjugates only those two) gets a note saying what was assumed.
+* Time convention of the complex amplitudes (Capytaine: exp(-i w t); WecOptTool 3.3's ``run_bem``
+  conjugates the Froude-Krylov, diffraction and excitation forces to exp(+i w t) and marks nothing):
+  the one the file declares (an attribute whose name holds "convention", e.g.
+  ``time_convention = "exp(+iwt)"``) or the caller states (``convention``: a scene's
+  ``bodies[i].hdb_convention``); else the forces' phases decide (time_convention.py: long-wave
+  limits of the Froude-Krylov and diffraction forces): exp(-iwt) is read, exp(+iwt) is an error
+  asking for ``hdb_convention``. When the phases cannot tell, a file that shows it went through
+  another tool (WecOptTool's ``friction`` variable or ``<body>_immersed`` names) is an error too, and
+  any other is read as exp(-iwt) with a warning. exp(+i w t) amplitudes are conjugated here, once;
+  the attributes ``time_convention_in_file`` and ``time_convention_from`` say what was read and why.
 * Hydrostatics: Capytaine's ``hydrostatic_stiffness`` includes the gravity terms -m g (z_G - z_c)
   (roll/pitch) and m g (x_G - x_c), m g (y_G - y_c) (roll-yaw/pitch-yaw); they are removed here
   (schema: buoyancy and waterplane only) when ``center_of_mass`` is recorded. Without it the
@@ -39,6 +42,8 @@ import numpy as np
 import xarray as xr
 
 from hydrolink.protocol.hdb_schema import DOF_NAMES, HDBError, make_hdb
+
+from .time_convention import ConventionEvidence, evidence
 
 _FREQ_DIMS = ("omega", "period", "freq", "wavenumber", "wavelength")
 
@@ -185,9 +190,11 @@ def _scatter(target: np.ndarray, values: np.ndarray, rows: np.ndarray | None, co
 
 
 CONVENTIONS = ("exp(-iwt)", "exp(+iwt)")
-# variables another tool adds to a Capytaine dataset (it then went through that tool, whose time
-# convention may differ): WecOptTool's linear_hydrodynamics / add_linear_friction add "friction"
-_OTHER_TOOLS = {"friction": "WecOptTool"}
+# a variable or body name another tool leaves in a Capytaine dataset (it went through that tool,
+# whose time convention may differ): WecOptTool's add_linear_friction adds "friction", its run_bem
+# names the solved body "<name>_immersed"
+_OTHER_TOOLS = {"friction": "WecOptTool's add_linear_friction"}
+_OTHER_TOOL_BODY_SUFFIX = {"_immersed": "WecOptTool's run_bem"}
 
 
 def declared_convention(ds: xr.Dataset, source: str) -> str | None:
@@ -204,30 +211,95 @@ def declared_convention(ds: xr.Dataset, source: str) -> str | None:
     return None
 
 
-def _convention(ds: xr.Dataset, source: str, stated: str | None) -> str:
-    """The convention to read the file's complex amplitudes in (module docstring)."""
+def _other_tool(ds: xr.Dataset, file_bodies: list[str]) -> str | None:
+    """The other tool a file shows it went through, else None."""
+    marks = [f"variable {v!r} ({tool})" for v, tool in _OTHER_TOOLS.items() if v in ds.variables]
+    marks += [f"body name {b!r} ({tool})" for b in file_bodies for suffix, tool in _OTHER_TOOL_BODY_SUFFIX.items()
+              if b.endswith(suffix)]
+    return ", ".join(marks) or None
+
+
+def _convention(ds: xr.Dataset, source: str, stated: str | None, file_bodies: list[str],
+                physics: ConventionEvidence | None) -> tuple[str, str]:
+    """The convention to read the file's complex amplitudes in, and why (module docstring).
+    ``physics``: what the excitation's phases say (time_convention.py), None without the
+    Froude-Krylov force."""
     declared = declared_convention(ds, source)
     if stated is not None and stated not in CONVENTIONS:
         raise HDBError(source, "convention", f"{stated!r}: one of {list(CONVENTIONS)}")
     if declared and stated and declared != stated:
         raise HDBError(source, "convention", f"the file declares {declared}, the scene states {stated}")
+    checked = physics.detail if physics is not None else "no Froude_Krylov_force to check the phases on"
     if declared or stated:
-        return declared or stated
-    foreign = sorted(f"{v} ({tool})" for v, tool in _OTHER_TOOLS.items() if v in ds.variables)
-    if foreign:
-        warnings.warn(f"{source}: read as Capytaine's exp(-iwt), but the file holds variables Capytaine does "
-                      f"not write ({', '.join(foreign)}): if that tool wrote it in exp(+iwt) (WecOptTool does), "
-                      "state the body's hdb_convention = \"exp(+iwt)\"", stacklevel=4)
-    elif all(n in ds for n in ("Froude_Krylov_force", "diffraction_force", "excitation_force")):
-        fk_d = (ds["Froude_Krylov_force"] + ds["diffraction_force"]).values
-        exc = ds["excitation_force"].values
-        scale = float(np.abs(exc).max()) or 1.0
-        if (np.abs(exc - np.conj(fk_d)).max() < 1e-6 * scale < np.abs(exc - fk_d).max()):
-            warnings.warn(f"{source}: its Froude_Krylov_force + diffraction_force are the complex conjugates of "
-                          "its excitation_force (as after WecOptTool's change_bem_convention): excitation_force is "
-                          "read as Capytaine's exp(-iwt); state the body's hdb_convention if it is not",
-                          stacklevel=4)
-    return "exp(-iwt)"
+        chosen = declared or stated
+        why = "declared by the file's attributes" if declared else "stated (hdb_convention)"
+        if physics is not None and physics.verdict not in (None, chosen):
+            warnings.warn(f"{source}: read as {chosen} ({why}), but {checked}: check hdb_convention", stacklevel=4)
+        return chosen, f"{why}; {checked}"
+    ask = f'state the body\'s hdb_convention ("exp(-iwt)" for Capytaine, "exp(+iwt)" for WecOptTool)'
+    if physics is not None and physics.verdict == "exp(+iwt)":
+        raise HDBError(source, "hdb_convention", f"the file does not declare its time convention and its force "
+                       f"phases are exp(+iwt)'s, not Capytaine's exp(-iwt) ({checked}): {ask}")
+    if physics is not None and physics.verdict == "exp(-iwt)":
+        return "exp(-iwt)", f"Capytaine's, checked: {checked}"
+    tool = _other_tool(ds, file_bodies)
+    if tool:
+        raise HDBError(source, "hdb_convention", f"the file does not declare its time convention, holds {tool} "
+                       f"whose convention may not be Capytaine's, and {checked}: {ask}")
+    warnings.warn(f"{source}: read in Capytaine's exp(-iwt), not declared and not checked ({checked}); "
+                  f"{ask} to be sure", stacklevel=4)
+    return "exp(-iwt)", f"Capytaine's, assumed: not declared and {checked}"
+
+
+def _excitation_evidence(physics: ConventionEvidence, fk_plus_d: np.ndarray, excitation: np.ndarray,
+                         source: str) -> ConventionEvidence:
+    """The phases' verdict, judged on the Froude-Krylov and diffraction forces, carried to the
+    excitation force: the same when it is their sum, the other when it is its conjugate (a file
+    whose parts were conjugated and not the excitation: noted)."""
+    scale = float(np.abs(excitation).max()) or 1.0
+    if np.abs(excitation - fk_plus_d).max() <= 1e-6 * scale:
+        return physics
+    if np.abs(excitation - np.conj(fk_plus_d)).max() <= 1e-6 * scale:
+        other = CONVENTIONS[1 - CONVENTIONS.index(physics.verdict)]
+        warnings.warn(f"{source}: its Froude_Krylov_force + diffraction_force are the complex conjugates of its "
+                      f"excitation_force: their phases are {physics.verdict}'s, so excitation_force is read as "
+                      f"{other}; state the body's hdb_convention if it is not", stacklevel=4)
+        return ConventionEvidence(other, f"{physics.detail}, on Froude_Krylov_force + diffraction_force, the "
+                                         "conjugates of excitation_force")
+    return ConventionEvidence(None, f"{physics.detail}, but excitation_force is not Froude_Krylov_force + "
+                                    "diffraction_force: not carried to it")
+
+
+def _radiation_matrix(ds: xr.Dataset, name: str) -> np.ndarray:
+    """A radiation coefficient as stored, (omega, influenced_dof, radiating_dof)."""
+    da = ds[name]
+    if "wave_direction" in da.dims:  # Capytaine may repeat radiation data per heading
+        da = da.isel(wave_direction=0, drop=True)
+    return np.asarray(da.transpose("omega", "influenced_dof", "radiating_dof").values)
+
+
+def _hydrostatic_stiffness(ds: xr.Dataset, file_bodies: list[str], single: str, source: str) -> np.ndarray:
+    """The file's hydrostatic stiffness on the 6N DOFs of its bodies (gravity terms still in)."""
+    k = ds["hydrostatic_stiffness"]
+    idx = [np.array([6 * file_bodies.index(b) + d for b, d in _parse_dofs(
+        [str(v) for v in k[dim].values], single, source, "hydrostatic_stiffness")])
+        for dim in ("influenced_dof", "radiating_dof")]
+    stiffness = np.zeros((6 * len(file_bodies), 6 * len(file_bodies)))
+    _scatter(stiffness, np.asarray(k.transpose("influenced_dof", "radiating_dof").values, float), *idx)
+    return stiffness
+
+
+def _recorded_mass(ds: xr.Dataset, file_bodies: list[str], source: str) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The body mass and centre of gravity the file records (Capytaine's inertia_matrix and
+    center_of_mass), None where it records none: kept so that a scene that disagrees can be told
+    (server/model.py)."""
+    mass = _mass_per_body(ds, file_bodies, source) if "inertia_matrix" in ds else None
+    if mass is not None and not np.all(mass > 0):
+        mass = None                     # no translational DOF in the inertia matrix: not recorded
+    cog = _per_body(ds, "center_of_mass", file_bodies, source)
+    if cog is not None and not np.all(np.isfinite(cog)):
+        cog = None
+    return mass, cog
 
 
 def from_capytaine_dataset(ds: xr.Dataset, source: str | Path, *,
@@ -237,7 +309,6 @@ def from_capytaine_dataset(ds: xr.Dataset, source: str | Path, *,
     ``convention``: the time convention of its complex amplitudes when the file does not say."""
     source = str(source)
     ds = _frequency_axis(merge_complex(ds), source)
-    time_convention = _convention(ds, source, convention)
     for name in ("added_mass", "radiation_damping", "excitation_force", "hydrostatic_stiffness"):
         if name not in ds:
             hint = " (solve the diffraction problems too)" if name == "excitation_force" else (
@@ -265,14 +336,7 @@ def from_capytaine_dataset(ds: xr.Dataset, source: str | Path, *,
     at_inf = np.isinf(omega_all)
     order = np.argsort(omega_all[regular], kind="stable")
     omega = omega_all[regular][order]
-
-    def matrix(name: str) -> np.ndarray:
-        da = ds[name]
-        if "wave_direction" in da.dims:  # Capytaine may repeat radiation data per heading
-            da = da.isel(wave_direction=0, drop=True)
-        return np.asarray(da.transpose("omega", "influenced_dof", "radiating_dof").values)
-
-    a_raw, b_raw = matrix("added_mass").real, matrix("radiation_damping").real
+    a_raw, b_raw = _radiation_matrix(ds, "added_mass").real, _radiation_matrix(ds, "radiation_damping").real
     added_mass = np.zeros((omega.size, n_dof, n_dof))
     damping = np.zeros_like(added_mass)
     _scatter(added_mass, a_raw[regular][order], inf_idx, rad_idx)
@@ -282,45 +346,48 @@ def from_capytaine_dataset(ds: xr.Dataset, source: str | Path, *,
         a_inf = np.zeros((n_dof, n_dof))
         _scatter(a_inf, a_raw[np.argmax(at_inf)], inf_idx, rad_idx)
 
-    exc = ds["excitation_force"]
-    if "wave_direction" not in exc.dims:
-        exc = exc.expand_dims(wave_direction=np.atleast_1d(ds["wave_direction"].values)
-                              if "wave_direction" in ds.variables else [0.0])
-    exc = exc.sortby("wave_direction")
-    excitation = np.zeros((omega.size, exc.sizes["wave_direction"], n_dof), complex)
-    exc_values = np.asarray(exc.transpose("omega", "wave_direction", "influenced_dof").values)
-    if time_convention == "exp(+iwt)":      # converted once, here (schema: exp(-iwt))
-        exc_values = np.conj(exc_values)
-    _scatter(excitation, exc_values[regular][order], None, inf_idx)
+    def forces(name: str) -> np.ndarray:
+        """A wave force as stored, (omega, wave_direction, 6N) on the sorted regular frequencies."""
+        da = ds[name]
+        if "wave_direction" not in da.dims:
+            da = da.expand_dims(wave_direction=np.atleast_1d(ds["wave_direction"].values)
+                                if "wave_direction" in ds.variables else [0.0])
+        da = da.sortby("wave_direction")
+        out = np.zeros((omega.size, da.sizes["wave_direction"], n_dof), complex)
+        _scatter(out, np.asarray(da.transpose("omega", "wave_direction", "influenced_dof").values)[regular][order],
+                 None, np.array([6 * file_bodies.index(b) + d for b, d in _parse_dofs(
+                     [str(v) for v in da["influenced_dof"].values], single, source, name)]))
+        return out
+
+    excitation = forces("excitation_force")
+    directions = np.sort(np.atleast_1d(ds["wave_direction"].values).astype(float)) \
+        if "wave_direction" in ds.variables else np.zeros(1)
 
     ref, ref_from = _reference_points(ds, file_bodies, names, reference_points, source)
-    k_raw = np.asarray(ds["hydrostatic_stiffness"].transpose("influenced_dof", "radiating_dof").values, float)
-    k_inf = _parse_dofs([str(v) for v in ds["hydrostatic_stiffness"]["influenced_dof"].values], single, source,
-                        "hydrostatic_stiffness")
-    k_rad = _parse_dofs([str(v) for v in ds["hydrostatic_stiffness"]["radiating_dof"].values], single, source,
-                        "hydrostatic_stiffness")
-    stiffness = np.zeros((n_dof, n_dof))
-    _scatter(stiffness, k_raw, np.array([6 * file_bodies.index(b) + d for b, d in k_inf]),
-             np.array([6 * file_bodies.index(b) + d for b, d in k_rad]))
-    stiffness = _remove_gravity(stiffness, ds, file_bodies, ref, g, source)
+    stiffness = _remove_gravity(_hydrostatic_stiffness(ds, file_bodies, single, source), ds, file_bodies, ref, g,
+                                source)
 
     cb = _per_body(ds, "center_of_buoyancy", file_bodies, source)
-    volume = None
-    if "disp_mass" in ds.variables:
-        volume = np.asarray(ds["disp_mass"].values, float).ravel() / rho
-        if volume.size != len(names):
-            volume = None
+    volume = np.asarray(ds["disp_mass"].values, float).ravel() / rho if "disp_mass" in ds.variables else None
+    if volume is not None and volume.size != len(names):
+        volume = None
 
-    # the body mass and centre of gravity the file records (Capytaine's inertia_matrix and
-    # center_of_mass): kept so that a scene that disagrees can be told (server/model.py)
-    mass = _mass_per_body(ds, file_bodies, source) if "inertia_matrix" in ds else None
-    if mass is not None and not np.all(mass > 0):
-        mass = None                     # no translational DOF in the inertia matrix: not recorded
-    cog = _per_body(ds, "center_of_mass", file_bodies, source)
-    if cog is not None and not np.all(np.isfinite(cog)):
-        cog = None
+    physics = None
+    if "Froude_Krylov_force" in ds:     # the forces' phases against the long-wave limits
+        froude_krylov = forces("Froude_Krylov_force")
+        diffraction = forces("diffraction_force") if "diffraction_force" in ds else None
+        physics = evidence(omega=omega, wave_direction=directions, bodies=names, rho=rho, g=g, depth=depth,
+                           added_mass=added_mass, radiation_damping=damping, stiffness=stiffness, volume=volume,
+                           froude_krylov=froude_krylov, diffraction=diffraction)
+        if diffraction is not None and physics.verdict is not None:
+            physics = _excitation_evidence(physics, froude_krylov + diffraction, excitation, source)
+    time_convention, convention_from = _convention(ds, source, convention, file_bodies, physics)
+    if time_convention == "exp(+iwt)":      # converted once, here (schema: exp(-iwt))
+        excitation = np.conj(excitation)
+
+    mass, cog = _recorded_mass(ds, file_bodies, source)
     out = make_hdb(
-        bodies=names, omega=omega, wave_direction=np.asarray(exc["wave_direction"].values, float),
+        bodies=names, omega=omega, wave_direction=directions,
         added_mass=added_mass, radiation_damping=damping, excitation_force=excitation,
         hydrostatic_stiffness=stiffness, reference_point=ref, rho=rho, g=g, water_depth=depth,
         source=source, added_mass_inf=a_inf, displaced_volume=volume, center_of_buoyancy=cb,
@@ -328,5 +395,6 @@ def from_capytaine_dataset(ds: xr.Dataset, source: str | Path, *,
     )
     out.attrs["body_names_in_file"] = ",".join(file_bodies)
     out.attrs["time_convention_in_file"] = time_convention
+    out.attrs["time_convention_from"] = convention_from
     out.attrs["reference_point_from"] = ref_from
     return out

@@ -110,7 +110,9 @@ def hdb_summary(ds: xr.Dataset) -> str:
              + ("infinite" if math.isinf(depth) else f"{depth:g} m"),
              f"frequencies: {_fmt_grid(omega)}",
              f"  radiation IRF K(t) resolved for t < pi/dw_max = {aliasing_time(omega):.3g} s",
-             "wave headings: " + ", ".join(f"{math.degrees(b):g}" for b in ds["wave_direction"].values) + " deg"]
+             "wave headings: " + ", ".join(f"{math.degrees(b):g}" for b in ds["wave_direction"].values) + " deg",
+             f"time convention of the file's complex amplitudes: {a.get('time_convention_in_file', '?')} "
+             f"({a.get('time_convention_from', 'not recorded')}); held as exp(-iwt)"]
     if "n_panels" in a:
         lines.append(f"built with Capytaine {a.get('capytaine_version', '?')}: {a['n_panels']} hull panels + "
                      f"{a.get('n_lid_panels', 0)} lid panels, {float(a.get('build_seconds', float('nan'))):.3g} s")

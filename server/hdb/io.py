@@ -54,6 +54,14 @@ def _is_wamit(path: Path) -> bool:
     return stem != path or (not path.is_file() and stem.with_name(stem.name + ".1").is_file())
 
 
+def _noted(ds: xr.Dataset, in_file: str, why: str) -> xr.Dataset:
+    """Record the time convention the file was read in and why, unless its reader did
+    (``hydrolink hdb info`` shows them)."""
+    ds.attrs.setdefault("time_convention_in_file", in_file)
+    ds.attrs.setdefault("time_convention_from", why)
+    return ds
+
+
 def load_hdb(path: str | Path, *, rho: float | None = None, convention: str | None = None) -> xr.Dataset:
     """Read an HDB file of any supported format into the internal layout (validated).
     ``convention``: the time convention of a Capytaine-layout file's complex amplitudes when the
@@ -64,13 +72,15 @@ def load_hdb(path: str | Path, *, rho: float | None = None, convention: str | No
         raise HDBError(path, "convention", "only for a Capytaine-layout NetCDF file: WAMIT and BEMIO files have "
                                           "their own (exp(+iwt)), converted by their readers")
     if suffix in (".h5", ".hdf5"):
-        return _check_rho(read_bemio(path), rho, path)
+        return _noted(_check_rho(read_bemio(path), rho, path), "exp(+iwt)", "BEMIO's (WEC-Sim), conjugated at reading")
     if suffix == ".nc":
         if not path.is_file():
             raise HDBError(path, "file", "not found")
-        return _check_rho(_load_netcdf(path, convention), rho, path)
+        return _noted(_check_rho(_load_netcdf(path, convention), rho, path), "exp(-iwt)",
+                      "hydrolink's own HDB file (its attribute time_convention)")
     if _is_wamit(path):
-        return read_wamit(path, rho=DEFAULT_RHO if rho is None else rho)
+        return _noted(read_wamit(path, rho=DEFAULT_RHO if rho is None else rho), "exp(+iwt)",
+                      "WAMIT's, conjugated at reading")
     if not path.exists():
         raise HDBError(path, "file", "not found")
     raise HDBError(path, "format", "unknown HDB format (expected WAMIT .1/.3/.hst or stem, BEMIO .h5, "

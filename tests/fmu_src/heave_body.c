@@ -1,6 +1,10 @@
 /* A heaving body with a linear PTO damper as an FMI 2.0 co-simulation FMU (hydrolink's tests).
  *
- *   (m + a_inf) z'' = F - c_pto z' - k_hs z        F: the input force, constant over a step
+ *   (m + a_inf + a_in) z'' = F + F0 - c_pto z' - (k_hs + k_in) z
+ *
+ * F: the input force, constant over a step; a_in, k_in, F0: inputs for an added mass, a stiffness
+ * and a constant force another FMU publishes as outputs (a master connects outputs to inputs, not
+ * to parameters), added to the parameters a_inf and k_hs.
  *
  * Outputs: heave displacement z, velocity v, PTO power P_pto = c_pto v^2 and the absorbed energy
  * E_pto (integral of P_pto). Each doStep integrates with `substeps` classical Runge-Kutta steps.
@@ -12,7 +16,8 @@
 
 #define GUID "{hydrolink-heave-body-0001}"
 
-enum { VR_M, VR_A_INF, VR_K_HS, VR_C_PTO, VR_Z0, VR_V0, VR_F, VR_Z, VR_V, VR_P, VR_E, N_REAL };
+enum { VR_M, VR_A_INF, VR_K_HS, VR_C_PTO, VR_Z0, VR_V0, VR_F, VR_Z, VR_V, VR_P, VR_E, VR_A_IN, VR_K_IN, VR_F0,
+       N_REAL };
 enum { VR_SUBSTEPS = 0 };
 
 typedef struct {
@@ -32,7 +37,8 @@ static void derivatives(const Body *b, const double y[3], double dy[3]) {
     const double *r = b->r;
     double v = y[1];
     dy[0] = v;
-    dy[1] = (r[VR_F] - r[VR_C_PTO] * v - r[VR_K_HS] * y[0]) / (r[VR_M] + r[VR_A_INF]);
+    dy[1] = (r[VR_F] + r[VR_F0] - r[VR_C_PTO] * v - (r[VR_K_HS] + r[VR_K_IN]) * y[0])
+            / (r[VR_M] + r[VR_A_INF] + r[VR_A_IN]);
     dy[2] = r[VR_C_PTO] * v * v;
 }
 
@@ -116,8 +122,8 @@ fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t n,
     Body *b = &((Instance *)c)->body;
     size_t i;
     for (i = 0; i < n; i++) {
-        if (vr[i] > VR_F) return fmi2Error;                         /* outputs cannot be set */
-        if (b->initialised && vr[i] != VR_F) return fmi2Error;      /* fixed parameters */
+        if (vr[i] >= N_REAL || (vr[i] > VR_F && vr[i] < VR_A_IN)) return fmi2Error;   /* outputs cannot be set */
+        if (b->initialised && vr[i] < VR_F) return fmi2Error;                         /* fixed parameters */
         b->r[vr[i]] = value[i];
     }
     return fmi2OK;

@@ -50,7 +50,8 @@ struct hl_fmu {
     int *flat;                    /* active DOF i -> index in 6N */
     double *equilibrium;          /* 6N */
     double *net_buoyancy;         /* na: constant force part (heave rows) */
-    double *a_inf;                /* na x na */
+    double *a_inf;                /* na x na: the added mass the importer's mass matrix holds */
+    double *k_hs;                 /* na x na: the hydrostatic stiffness (dynamic route) */
     char *scene;
     int n_hdb;
     hdb_t hdb[MAX_HDB];
@@ -151,6 +152,9 @@ static int read_config(hl_fmu *f, const char *res) {
         } else if (!strcmp(line, "added_mass")) {
             f->a_inf = calloc((size_t)(f->na * f->na), sizeof(double));
             if (!f->a_inf || parse_doubles(value, f->a_inf, f->na * f->na)) goto bad;
+        } else if (!strcmp(line, "hydrostatic_stiffness")) {
+            f->k_hs = calloc((size_t)(f->na * f->na), sizeof(double));
+            if (!f->k_hs || parse_doubles(value, f->k_hs, f->na * f->na)) goto bad;
         } else if (!strcmp(line, "scene")) {
             snprintf(path, sizeof path, "%s/%s", res, value);
             f->scene = (char *)read_file(path, &size);
@@ -171,7 +175,7 @@ static int read_config(hl_fmu *f, const char *res) {
             sha256_hex(h->data[k], h->size[k], h->hash[k]);
         }
     }
-    ok = f->dt > 0 && f->na > 0 && f->flat && f->equilibrium && f->net_buoyancy && f->a_inf && f->scene && f->n_hdb > 0;
+    ok = f->dt > 0 && f->na > 0 && f->flat && f->equilibrium && f->net_buoyancy && f->a_inf && f->k_hs && f->scene && f->n_hdb > 0;
     if (!ok) goto bad;
     free(text);
     return 0;
@@ -218,7 +222,7 @@ void hl_free(hl_fmu *f) {
         free(f->hdb[i].format);
         for (int k = 0; k < f->hdb[i].n_files; k++) { free(f->hdb[i].names[k]); free(f->hdb[i].data[k]); }
     }
-    free(f->flat); free(f->equilibrium); free(f->net_buoyancy); free(f->a_inf); free(f->scene);
+    free(f->flat); free(f->equilibrium); free(f->net_buoyancy); free(f->a_inf); free(f->k_hs); free(f->scene);
     free(f->x); free(f->v); free(f->sent); free(f->out); free(f->pos6); free(f->vel6);
     free(f);
 }
@@ -855,9 +859,11 @@ static int get_real(hl_fmu *f, unsigned vr, double *value) {
     if (vr == HL_VR_TIMEOUT) { *value = f->timeout; return 0; }
     if (vr == HL_VR_TIME) { *value = f->clk.seq * f->dt; return 0; }
     if (vr >= HL_VR_AINF && vr < HL_VR_AINF + (unsigned)(na * na)) { *value = f->a_inf[vr - HL_VR_AINF]; return 0; }
-    if (vr >= HL_VR_DOF && vr < HL_VR_DOF + 8u * (unsigned)na && (vr - HL_VR_DOF) % 8 < 7) {
+    if (vr >= HL_VR_KHS && vr < HL_VR_KHS + (unsigned)(na * na)) { *value = f->k_hs[vr - HL_VR_KHS]; return 0; }
+    if (vr >= HL_VR_DOF && vr < HL_VR_DOF + 8u * (unsigned)na) {
         unsigned i = (vr - HL_VR_DOF) / 8, k = (vr - HL_VR_DOF) % 8;
         if (k < 2) { *value = (k ? f->v : f->x)[i]; return 0; }
+        if (k == 7) { *value = f->net_buoyancy[i]; return 0; }
         if (!f->session[0]) { *value = 0.0; return 0; }   /* before initialization: the start value */
         if (evaluate(f)) return -1;
         *value = f->out[(k - 2) * na + i];

@@ -5,8 +5,11 @@
  * Value references (the same in both model descriptions, written by clients/fmu/native.py):
  *   0 time (FMI 3's independent variable), 1 server_address (string parameter), 2 timeout (s, parameter), 3 wave_elevation (output);
  *   1000 + 8 i + k for active DOF i: k = 0 displacement, 1 velocity (inputs), 2 force,
- *     3 excitation, 4 radiation, 5 hydrostatic, 6 dynamic (= force - hydrostatic) (outputs);
- *   1000000 + i na + j: A_inf of DOFs i, j (calculated parameter).
+ *     3 excitation, 4 radiation, 5 hydrostatic, 6 dynamic (= force - hydrostatic) (outputs),
+ *     7 net buoyancy (constant output; heave DOFs);
+ *   1000000 + i na + j: the added mass of DOFs i, j for the importer's mass matrix (A_inf, or
+ *     A(omega0) with radiation = "constant") and 2000000 + i na + j: the hydrostatic stiffness
+ *     (constant outputs: masters connect outputs, not calculated parameters).
  * Every function returns 0 on success and -1 on an error it has logged. */
 #ifndef HYDRO_CORE_H
 #define HYDRO_CORE_H
@@ -19,6 +22,7 @@
 #define HL_VR_ETA 3u
 #define HL_VR_DOF 1000u
 #define HL_VR_AINF 1000000u
+#define HL_VR_KHS 2000000u
 
 typedef void (*hl_log_fn)(void *env, int error, const char *message);
 typedef struct hl_fmu hl_fmu;

@@ -1,0 +1,36 @@
+"""The size of what a session's set-up allocates, checked before it is allocated.
+
+A scene's values are bounded (protocol/scene_bounds.py), but their products are not: an IRF of
+irf_duration / dt samples over n x n DOF pairs, wave components x DOFs, an elevation series over
+duration / dt steps. Each object that allocates such an array asks :func:`require_size` first,
+which refuses (ModelError naming the scene key) an array over MAX_ARRAY_BYTES instead of letting
+numpy fail ("Maximum allowed size exceeded", MemoryError) or the machine swap.
+"""
+
+from __future__ import annotations
+
+import math
+
+from hydrolink.server.errors import ModelError
+
+MAX_ARRAY_BYTES = 2**30   # one set-up array: at most 1 GiB
+
+
+def _human(nbytes: float) -> str:
+    for unit, size in (("TiB", 2**40), ("GiB", 2**30), ("MiB", 2**20), ("KiB", 2**10)):
+        if nbytes >= size:
+            return f"{nbytes / size:.3g} {unit}"
+    return f"{nbytes:.0f} B"
+
+
+def require_size(key: str, what: str, shape: tuple[float, ...], itemsize: int = 8, hint: str = "") -> int:
+    """The bytes of an array of ``shape`` (sizes as floats: they may be astronomical) of ``itemsize``
+    bytes; ModelError naming ``key`` when over MAX_ARRAY_BYTES. ``what`` names the array, ``hint``
+    says what to change."""
+    elements = math.prod(float(n) for n in shape)
+    nbytes = elements * itemsize
+    if not nbytes <= MAX_ARRAY_BYTES:   # also NaN
+        dims = " x ".join(f"{n:.4g}" for n in shape)
+        raise ModelError(key, f"{what} would take {dims} values ({_human(nbytes)}), over the "
+                              f"{_human(MAX_ARRAY_BYTES)} a set-up array may take" + (f"; {hint}" if hint else ""))
+    return int(nbytes)

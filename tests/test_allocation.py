@@ -1,0 +1,56 @@
+"""server/allocation.py: what a session's set-up allocates is sized before it is allocated. Scene
+values within their bounds whose products are huge (an IRF of irf_duration/dt samples over 36 DOF
+pairs, B(w) resampled at 1e-4 rad/s, 100 000 components in 360 directions, an excitation kernel
+over +-1 h at 1 µs) are refused at once, naming the key and the size (issue 22: "Maximum allowed
+size exceeded" from numpy, a 36 TiB allocation attempt)."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+import analytic_hdb as an
+from conftest import body, irregular_waves, regular_waves, scene_toml
+from hydrolink.protocol.scene import parse_scene
+from hydrolink.server.allocation import MAX_ARRAY_BYTES, require_size
+from hydrolink.server.model import HydroModel, ModelError
+
+
+def _model(*, dt: float, hydro: dict, waves: dict | None = None, dofs=("surge", "sway", "heave", "roll", "pitch", "yaw"),
+           directions=(0.0,)) -> HydroModel:
+    scene = parse_scene(scene_toml(dt=dt, duration=1.0, hydro=hydro, waves=waves, bodies=[
+        body("float", hdb="x.nc", mass=3e5, center_of_mass=[0, 0, 0], inertia=[1e6, 1e6, 1e6], dofs=list(dofs))]))
+    return HydroModel(scene, {"float": an.make_body_hdb(directions=np.asarray(directions))})
+
+
+@pytest.mark.parametrize("dt,hydro,waves,key,size", [
+    # 3.6e9 samples of the IRF's time grid
+    (1e-6, {"irf_duration": 3600.0}, None, "hydro.irf_duration", "3.6e+09 values (26.8 GiB)"),
+    # irf_duration = 0: Ogilvie's A_inf still needs 40 s of IRF, 4e7 samples x 36 pairs
+    (1e-6, {"irf_duration": 0.0}, None, "simulation.dt", "4e+07 x 36 values (10.7 GiB)"),
+    # B(w) up to 8 rad/s at 1e-4 rad/s: a cosine table of 2048 rows x 8e4 frequencies
+    (0.01, {"irf_duration": 30.0, "irf_domega": 1e-4}, None, "hydro.irf_domega", "2048 x 8e+04 values (1.22 GiB)"),
+    # 1e5 components in 360 directions
+    (0.05, {"irf_duration": 2.0}, irregular_waves(1.0, 6.0, components=100_000, spreading="cos2s", directions=360),
+     "waves.components", "4 x 360 x 1e+05 values (1.07 GiB)"),
+    # the excitation IRF over +-1 h at 1 µs
+    (1e-6, {"irf_duration": 0.001}, regular_waves(1.0, 6.0, excitation="convolution", excitation_irf_duration=3600.0),
+     "waves.excitation_irf_duration", "1 x 7.2e+09 x 6 values (322 GiB)"),
+])
+def test_oversized_setup_arrays_are_refused_before_allocating(dt, hydro, waves, key, size):
+    t0 = time.perf_counter()
+    with pytest.raises(ModelError) as info:
+        _model(dt=dt, hydro=hydro, waves=waves)
+    assert info.value.key == key, info.value
+    assert size in info.value.why and "over the 1 GiB a set-up array may take" in info.value.why, info.value.why
+    assert time.perf_counter() - t0 < 20.0   # refused, not computed (a 1 GiB array would take longer)
+
+
+def test_require_size_counts_astronomical_shapes_without_overflow():
+    assert require_size("k", "x", (1024, 1024), 8) == 8 * 2**20
+    assert require_size("k", "x", (MAX_ARRAY_BYTES // 8,)) == MAX_ARRAY_BYTES
+    for shape in ((MAX_ARRAY_BYTES // 8 + 1,), (1e300, 1e300), (float("nan"),), (float("inf"), 0.5)):
+        with pytest.raises(ModelError, match=r"^k: x would take .* over the 1 GiB"):
+            require_size("k", "x", shape)
