@@ -8,6 +8,8 @@ from pathlib import Path
 
 import click
 
+from hydrolink.protocol.pacing import FACTOR_RANGE
+
 
 class _UserError(click.ClickException):
     """An error in the user's input, shown as one clear line (no traceback)."""
@@ -231,11 +233,15 @@ def keys_new(directory: Path, name: str) -> None:
 @click.option("--hdb-files", is_flag=True,
               help="With --server: send each HDB file as itself, by SHA-256 (SPEC §5.8): the server reads it and "
                    "keeps it, so only what it lacks is uploaded, once. Default: the converted HDB every run.")
+@click.option("--realtime", "realtime", type=click.FloatRange(*FACTOR_RANGE), is_flag=False, flag_value=1.0,
+              default=None, metavar="[FACTOR]",
+              help="Release each exchange at its wall-clock time, FACTOR x wall clock (default 1); overruns "
+                   "and step latencies are reported (docs/realtime.md).")
 @_curve_options
 @_key_file_option
 def run(scene: Path, output: Path | None, server: str | None, no_progress: bool, cpu: int | None,
-        listen: str, link_timeout: float, hdb_files: bool, curve_server_key: Path | None, curve_secret: Path | None,
-        key_file: Path | None) -> None:
+        listen: str, link_timeout: float, hdb_files: bool, realtime: float | None, curve_server_key: Path | None,
+        curve_secret: Path | None, key_file: Path | None) -> None:
     """Co-simulate a SCENE (TOML) in lockstep with the force server."""
     from hydrolink.clients.run import run_scene_file
 
@@ -255,13 +261,19 @@ def run(scene: Path, output: Path | None, server: str | None, no_progress: bool,
     try:
         summary = _guard(run_scene_file, scene, output, server=server, progress=not no_progress, listen=listen,
                          key=_hmac_key(key_file), link_timeout=link_timeout, hdb_files=hdb_files,
-                         **({"curve": curve} if curve is not None else {}))
+                         realtime=realtime, **({"curve": curve} if curve is not None else {}))
     except KeyboardInterrupt as exc:
         click.echo(f"hydrolink run: {exc or 'interrupted'}", err=True)
         raise SystemExit(130) from None
     steps, wall = summary.steps, summary.wall_time
     click.echo(f"wrote {summary.output}: {steps} steps in {wall:.2f} s ({steps / max(wall, 1e-9):.0f} steps/s; "
                f"server compute {(summary.server_compute_us_per_step or float('nan')):.1f} us/step)")
+    if summary.realtime is not None:
+        rt = summary.realtime
+        click.echo(f"paced at {rt.factor:g}x wall clock ({1e3 * rt.period:.3g} ms per exchange): step latency "
+                   f"p50 {1e3 * rt.latency_p50:.3f} ms, p99 {1e3 * rt.latency_p99:.3f} ms, max "
+                   f"{1e3 * rt.latency_max:.3f} ms; {rt.overruns} overrun(s) of {rt.steps} steps"
+                   + (f", worst {1e3 * rt.worst_lateness:.3f} ms late" if rt.overruns else ""))
     if hdb_files:
         click.echo(f"HDB files sent by hash: {summary.hdb_uploads} content(s) uploaded, the rest held by the server")
     for report in summary.moordyn or []:
@@ -319,6 +331,29 @@ def steady(scene: Path, output: Path | None, order: int | None, formulation: str
     click.echo(f"wrote {s['output']}: one period, {s['rows']} rows; order {s['order']} ({s['formulation']}, "
                f"{s['unknowns']} unknowns), {s['iterations']} Newton iteration(s), residual {s['residual']:.1e}, "
                f"solve {1e3 * s['solve_seconds']:.1f} ms")
+
+
+@cli.command()
+@click.argument("scene", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
+              help="The plant: .npz (A, B, C, D, states, inputs, outputs), .mat (MATLAB) or .nc.")
+@click.option("--dt", type=click.FloatRange(min=0, min_open=True),
+              help="Discretise at DT s (zero-order hold); default: continuous time.")
+@click.option("--no-progress", is_flag=True, help="Hide the HDB build progress bar.")
+def linearize(scene: Path, output: Path, dt: float | None, no_progress: bool) -> None:
+    """The device of SCENE as a linear state-space plant about its equilibrium (docs/plant.md)."""
+    from hydrolink.clients.studies.plant import linearize_scene_file
+    from hydrolink.clients.studies.steady import SteadyError
+
+    try:
+        p = _guard(linearize_scene_file, scene, output, dt=dt, progress=not no_progress)
+    except SteadyError as exc:
+        raise _UserError(f"{scene}: {exc}") from None
+    for note in p.warnings:
+        click.echo(f"note: {note}", err=True)
+    kind = "continuous" if p.dt is None else f"discrete, dt = {p.dt:g} s (zero-order hold)"
+    click.echo(f"wrote {output}: {len(p.states)} states ({len(p.states) - sum(s.startswith('radiation:') for s in p.states)}"
+               f" mechanical), {len(p.inputs)} inputs, {len(p.outputs)} outputs, {kind}")
 
 
 @cli.group()

@@ -45,6 +45,10 @@ class Controller:
     #: the scene's ``controllers[i].name`` this class serves (``--name`` overrides; None: the
     #: session's only controller)
     name: str | None = None
+    #: ask for the device as a linear plant at join (SPEC §5.7.2): None: no; "continuous"; or a
+    #: sampling time in s (zero-order hold). ``on_start``'s ``info["plant"]`` is then a
+    #: :class:`hydrolink.clients.studies.plant.Plant`
+    plant: str | float | None = None
 
     def on_start(self, info: dict) -> None:
         """Called once with the welcome's ``control`` map (ptos, bodies, dt, period, parameters...)."""
@@ -143,9 +147,11 @@ def run_controller(controller: Controller, server: str, *, session: str | None =
     try:
         t_end = time.monotonic() + join_wait
         while True:
+            ask = {} if controller.plant is None else {
+                "plant": {"dt": None if controller.plant == "continuous" else float(controller.plant)}}
             reply = link.request("hello", role="controller", controller=name,
                                  client={"name": f"hydrolink-python-controller {type(controller).__name__}",
-                                         "version": _version()})
+                                         "version": _version()}, **ask)
             if reply["type"] == "welcome":
                 break
             if reply.get("code") == codec.Code.UNKNOWN_SESSION and session is None and time.monotonic() < t_end:
@@ -156,6 +162,9 @@ def run_controller(controller: Controller, server: str, *, session: str | None =
         link.session = reply["session"]
         epoch = reply["epoch"]
         info = codec.decode_tree(reply["control"])
+        if "plant" in info:
+            from hydrolink.clients.studies.plant import Plant
+            info["plant"] = Plant.from_wire(info["plant"])
         name = info["name"]
         controller.ptos = list(info["ptos"])
         log.info("controller %r joined session %s (epoch %d)", name, link.session, epoch)

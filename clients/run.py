@@ -106,11 +106,19 @@ def load_wave_elevation(scene: Scene, scene_path: str | Path):
         raise SceneError(scene_path, exc.key, exc.why) from None
 
 
+def _write_summary_attributes(writer, summary: RunSummary) -> None:
+    """The run's warnings and, when paced, its realtime report (JSON global attributes)."""
+    writer.set_attribute("warnings", json.dumps(summary.warnings))
+    if summary.realtime is not None:
+        from dataclasses import asdict
+        writer.set_attribute("realtime", json.dumps(asdict(summary.realtime)))
+
+
 def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
                    server: str | None = None, progress: bool = True, timeout: float = 60.0,
                    listen: str = "tcp://127.0.0.1:*", hdbs: dict[str, xr.Dataset] | None = None,
                    curve=None, key: bytes | None = None, link_timeout: float = 10.0,
-                   hdb_files: bool = False) -> RunSummary:
+                   hdb_files: bool = False, realtime: float | None = None) -> RunSummary:
     """Run a scene end to end; returns the run summary (steps, wall time, output path, the server's side).
 
     A scene with ``[[controllers]]`` and no ``server`` starts a force server with a socket on
@@ -121,7 +129,9 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
     controllers must then sign too; ``link_timeout``: how long the link to a remote ``server`` may
     stay down (SPEC §1) before the run ends (its rows kept); ``hdb_files``: send the HDBs as their
     files by SHA-256 (:func:`load_scene_hdbs` ``as_files``; the summary's ``hdb_uploads`` counts
-    the contents the server lacked)."""
+    the contents the server lacked); ``realtime``: release each exchange at its wall-clock time,
+    FACTOR x wall clock (protocol/pacing.py; the summary's ``realtime`` and the results'
+    ``step_latency``)."""
     from hydrolink.clients.lockstep.connection import ServerConnection
     from hydrolink.clients.exudyn.client import result_bodies, run
     from hydrolink.clients.lockstep.results import ResultWriter
@@ -142,8 +152,9 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
         names, reference = result_bodies(scene, None)
         with ResultWriter(output, scene=scene, scene_text=text, dt=scene.simulation.dt, bodies=names,
                           equilibrium_position=reference, flush_seconds=scene.simulation.flush_seconds) as writer:
-            summary = run(scene, text, None, None, writer, progress=progress, moordyn_files=moordyn_files)
-            writer.set_attribute("warnings", json.dumps(summary.warnings))
+            summary = run(scene, text, None, None, writer, progress=progress, moordyn_files=moordyn_files,
+                          realtime=realtime)
+            _write_summary_attributes(writer, summary)
         return replace(summary, output=str(output), server=None)
     with ExitStack() as stack:
         if server is None and scene.controllers:
@@ -181,10 +192,12 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
                                                   flush_seconds=scene.simulation.flush_seconds))
         if scene.client.type == "fmu":
             from hydrolink.clients.fmu.master import run as run_fmu
-            summary = run_fmu(scene, text, conn, setup, writer, scene_path=scene_path, progress=progress)
+            summary = run_fmu(scene, text, conn, setup, writer, scene_path=scene_path, progress=progress,
+                              realtime=realtime)
         else:
-            summary = run(scene, text, conn, setup, writer, progress=progress, moordyn_files=moordyn_files)
-        writer.set_attribute("warnings", json.dumps(summary.warnings))
+            summary = run(scene, text, conn, setup, writer, progress=progress, moordyn_files=moordyn_files,
+                          realtime=realtime)
+        _write_summary_attributes(writer, summary)
         goodbye = conn.bye()
     # the server's side: its compute per step, the radiation option and its pruning ([hydro]
     # radiation, coupling_tolerance), the state-space pairs fitted in this setup (the rest came

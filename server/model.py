@@ -39,6 +39,7 @@ from hydrolink.server.hydrostatics import total_stiffness
 from hydrolink.server.force_term import ForceTerm, TermContext
 from hydrolink.server.force_terms import TERMS, build_terms
 from hydrolink.server.radiation_options import RadiationGroup, radiation_option
+from hydrolink.server.state_space import Realization
 from hydrolink.server.waves import (ConvolutionForcing, WaveError, WaveForcing, convolution_kernel, elevation_on_grid,
                                     interpolate_excitation, kernel_transfer, wave_components)
 
@@ -98,6 +99,7 @@ class HydroModel:
         hulls of the bodies with nonlinear hydrostatics by name (hello.meshes); ``term_types`` the
         force terms beyond the linear core to build where the scene has them (server/force_terms.py)."""
         self.scene = scene
+        self.hdbs = dict(hdbs)   # by body name: for what is rebuilt from the same data (a controller's plant, SPEC §5.7)
         served = {b.name for b in scene.served_bodies}
         wet = [i for i, b in enumerate(scene.bodies) if b.name in served]
         if not wet:
@@ -447,6 +449,27 @@ class HydroModel:
             a[ix] = (1 - s) * am[j] + s * am[j + 1]
             b[ix] = (1 - s) * bd[j] + s * bd[j + 1]
         return a, b
+
+    def radiation_realization(self) -> Realization:
+        """The radiation force as one continuous-time linear system over the 6N wet DOFs (states of
+        every group stacked; ``rows``/``cols`` in the 6N vector): needs a force object with a
+        realisation ("state-space", "constant", "off" or no memory); the convolution has none."""
+        parts = []
+        for pos, memory in self._memories:
+            if not hasattr(memory, "realization"):
+                raise ModelError("hydro.radiation", f"{self.radiation!r} has no finite-state realisation; "
+                                                    "use \"state-space\"")
+            parts.append((self._idx[pos], memory.realization()))
+        s = sum(r.a.shape[0] for _, r in parts)
+        a, b, c, d = np.zeros((s, s)), np.zeros((s, self.n)), np.zeros((self.n, s)), np.zeros((self.n, self.n))
+        rows, cols, k = np.zeros(s, int), np.zeros(s, int), 0
+        for dofs, r in parts:
+            span = slice(k, k + r.a.shape[0])
+            a[span, span], b[span, dofs], c[dofs, span] = r.a, r.b, r.c
+            d[np.ix_(dofs, dofs)] += r.d
+            rows[span], cols[span] = dofs[r.rows], dofs[r.cols]
+            k = span.stop
+        return Realization(a, b, c, d, rows, cols)
 
     def excitation_phasors(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Wave components: omega (n_c,), complex force phasors (n_c, 6N) and elevation phasors

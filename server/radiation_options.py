@@ -28,7 +28,7 @@ from hydrolink.server.irf import (COS_TABLE_ROWS, RINGING_WARN, RINGING_WINDOW, 
                                   irf_report, irf_transfer, ogilvie_added_mass_inf, ogilvie_report, radiation_irf,
                                   resample_damping, ringing_at_cut, taper_window)
 from hydrolink.server.radiation import RadiationMemory
-from hydrolink.server.state_space import StateSpaceError, StateSpaceRadiation
+from hydrolink.server.state_space import Realization, StateSpaceError, StateSpaceRadiation
 from hydrolink.server.state_space_cache import FitCache, FitSettings, default_cache_dir
 
 OGILVIE_DEFAULT_DURATION = 40.0  # s of IRF used for Ogilvie's A_inf when hydro.irf_duration = 0
@@ -67,6 +67,11 @@ class ConstantDamping:
 
     def feedthrough(self) -> np.ndarray:
         return -self.b.copy()
+
+    def realization(self) -> Realization:
+        """F = -B(w0) v: no state, all feedthrough."""
+        e = np.zeros(0, int)
+        return Realization(np.zeros((0, 0)), np.zeros((0, self.n)), np.zeros((self.n, 0)), -self.b.copy(), e, e)
 
     def state(self) -> tuple:
         return ()

@@ -6,17 +6,22 @@ reply to that message and the loop carries on.
 
 from __future__ import annotations
 
+import heapq
+import itertools
 import logging
+import math
 import os
 import threading
 import time
 from importlib import metadata
+from dataclasses import asdict
 from typing import Any, Callable
 
 import zmq
 
 from hydrolink.protocol import codec, transport
 from hydrolink.protocol.codec import Code, ProtocolError
+from hydrolink.protocol.pacing import check_factor
 from hydrolink.server.control import ControlHub
 from hydrolink.server.errors import ModelError
 from hydrolink.server.hdb_files import FileSetReader
@@ -26,6 +31,8 @@ from hydrolink.server.session import Session, build_model
 log = logging.getLogger("hydrolink.server")
 
 POLL_MS = 50
+PLANT_DT = (1e-6, 3600.0)   # s: the sampling times a controller may ask its plant at (SPEC §5.7.2)
+RELEASE_SPIN = 1.5e-3   # s: a held reply due sooner is waited for by spinning (the receive timeout is in ms)
 IN_PROCESS = "in-process"  # the address of a server without a socket (bind=None)
 TOMBSTONES = 1000  # remembered closed sessions, for a helpful error 7
 
@@ -95,6 +102,9 @@ class ForceServer:
         self._route: list[bytes] | None = None   # routing frames of the request being handled
         self._hubs: dict[str, ControlHub] = {}   # sessions with controllers (SPEC §5.7)
         self._rcv_ms = POLL_MS
+        self._paced: list[tuple[float, int, list[bytes]]] = []   # held replies: (release, order, frames)
+        self._order = itertools.count()
+        self._hold: float | None = None   # release time of the reply being handled (paced session)
 
     @property
     def address(self) -> str:
@@ -125,7 +135,7 @@ class ForceServer:
                 # a blocking receive with a POLL_MS timeout (RCVTIMEO): no poller and no exception
                 # per message on the hot path, only when the socket was idle for POLL_MS; shorter
                 # when a controller deadline (SPEC §5.7) comes sooner
-                if self._hubs:
+                if self._hubs or self._paced:
                     self._set_rcv_timeout()
                 try:
                     frames = self._sock.recv_multipart()
@@ -133,6 +143,8 @@ class ForceServer:
                     frames = None
                 if frames:
                     self._serve_one(frames)
+                if self._paced:
+                    self._send_due()
                 now = time.monotonic()
                 if self._hubs:
                     for hub in list(self._hubs.values()):
@@ -148,8 +160,10 @@ class ForceServer:
     # ------------------------------------------------------------ dispatch
 
     def _set_rcv_timeout(self) -> None:
-        left = min(hub.next_deadline() for hub in self._hubs.values()) - time.monotonic()
-        ms = POLL_MS if left >= POLL_MS / 1000 else max(1, int(left * 1000) + 1)
+        left = min((hub.next_deadline() - time.monotonic() for hub in self._hubs.values()), default=math.inf)
+        if self._paced:
+            left = min(left, self._paced[0][0] - time.perf_counter())
+        ms = POLL_MS if left >= POLL_MS / 1000 else max(1, int(left * 1000))
         if ms != self._rcv_ms:
             self._sock.setsockopt(zmq.RCVTIMEO, ms)
             self._rcv_ms = ms
@@ -166,6 +180,9 @@ class ForceServer:
         if reply is None:
             return  # deferred (SPEC §5.7): sent later by the session's ControlHub
         frames[-1] = self._frame(reply)  # routing frames stay in front, verbatim
+        if self._hold is not None and self._hold > time.perf_counter():   # a paced session's reply
+            heapq.heappush(self._paced, (self._hold, next(self._order), frames))
+            return
         try:
             self._sock.send_multipart(frames, zmq.NOBLOCK)
         except zmq.ZMQError as exc:  # peer gone or its queue full: drop the reply
@@ -185,9 +202,27 @@ class ForceServer:
                     "(SPEC §1)")
         return ""
 
+    def _send_due(self) -> None:
+        """Send the held replies of paced sessions whose release has come."""
+        now = time.perf_counter()
+        while self._paced and now < self._paced[0][0] < now + RELEASE_SPIN:   # the receive timeout is in whole ms
+            now = time.perf_counter()
+        while self._paced and self._paced[0][0] <= now:
+            frames = heapq.heappop(self._paced)[2]
+            try:
+                self._sock.send_multipart(frames, zmq.NOBLOCK)
+            except zmq.ZMQError as exc:
+                log.warning("paced reply dropped: %s", exc)
+
     def _send_later(self, session: str, route: list[bytes], mtype: str, parent: Any, fields: dict) -> None:
-        """Send a deferred reply (a ControlHub's callback)."""
+        """Send a deferred reply (a ControlHub's callback); a paced session's ``forces`` wait for
+        their release."""
         frame = self._frame(codec.message(mtype, next(self._ids), session, parent, **fields))
+        s = self.sessions.get(session)
+        due = s.pacer.release_time(fields["seq"]) if s is not None and s.pacer and mtype == "forces" else None
+        if due is not None and due > time.perf_counter():
+            heapq.heappush(self._paced, (due, next(self._order), [*route, frame]))
+            return
         try:
             self._sock.send_multipart([*route, frame], zmq.NOBLOCK)
         except zmq.ZMQError as exc:
@@ -206,8 +241,16 @@ class ForceServer:
                               self.key)
 
     def respond(self, frame: bytes) -> bytes:
-        """One request frame -> its reply frame (never raises): what the socket loop sends back."""
-        return self._frame(self.handle(frame))
+        """One request frame -> its reply frame (never raises): what the socket loop sends back
+        (a paced session's reply when its release has come: this in-process caller waits)."""
+        reply = self._frame(self.handle(frame))
+        self._wait_hold()
+        return reply
+
+    def _wait_hold(self) -> None:
+        """In-process: sleep until the reply being handled may leave (paced sessions)."""
+        if self._hold is not None:
+            time.sleep(max(0.0, self._hold - time.perf_counter()))
 
     def respond_map(self, msg: dict) -> dict:
         """One request map -> its reply map (never raises), for a client in this process: the
@@ -217,7 +260,9 @@ class ForceServer:
         if self.key is not None:
             return codec.error_reply(next(self._ids), codec.readable_id(msg), None, Code.BAD_SIGNATURE, "sig",
                                      "a signing server takes frames only (respond), not maps")
-        return self.handle(msg)
+        reply = self.handle(msg)
+        self._wait_hold()
+        return reply
 
     def handle(self, frame: bytes | dict, route: list[bytes] | None = None) -> dict | None:
         """One request frame (or, in-process, its unpacked map) -> its reply message (never
@@ -225,6 +270,7 @@ class ForceServer:
         the socket loop)."""
         msg: Any = None
         session: str | None = None
+        self._hold = None
         try:
             msg = frame if type(frame) is dict else codec.unpack(frame, self.key)
             session = msg.get("session") if isinstance(msg.get("session"), str) else None
@@ -284,6 +330,12 @@ class ForceServer:
                                     f"({self.sessions[session].state}); a multibody hello creates a new session")
             raise ProtocolError(Code.BAD_VALUE, "session", "a multibody hello must not carry a session id")
         client = codec.require_map(msg, "client", default={})
+        realtime = None
+        if msg.get("realtime") is not None:   # pace the session's replies (SPEC §5.1)
+            try:
+                realtime = check_factor(codec.require_float(msg, "realtime"), "realtime")
+            except ValueError as exc:
+                raise ProtocolError(Code.BAD_VALUE, "realtime", str(exc)) from None
         t0 = time.perf_counter()
         model = build_model(msg, self.files)
         sid = os.urandom(16).hex()
@@ -298,7 +350,7 @@ class ForceServer:
                                              self._send_later(_sid, route, mtype, parent, fields))
             except ModelError as exc:
                 raise ProtocolError(Code.BAD_SCENE, f"scene.{exc.key}", str(exc)) from None
-        self.sessions[sid] = Session(sid, model, client)
+        self.sessions[sid] = Session(sid, model, client, realtime)
         log.info("session %s opened by %s %s: %d bodies, dt %g, setup %.3f s", sid, client.get("name", "?"),
                  client.get("version", "?"), len(model.bodies), model.dt, time.perf_counter() - t0)
         return "welcome", {
@@ -310,13 +362,17 @@ class ForceServer:
 
     def _step(self, msg: dict, msg_id: Any, session: str | None) -> tuple[str, dict, str | None] | None:
         s = self._session(session)
+        arrived = time.perf_counter()
         hub = self._hubs.get(s.id)
         if hub is None:
-            return "forces", s.step(msg), session
+            fields = s.step(msg)
+            self._hold = s.release_time(fields["seq"], arrived)
+            return "forces", fields, session
         seq, iteration = msg.get("seq"), codec.require_int(msg, "iteration", default=0, minimum=0)
         new = type(seq) is int and seq == s.last_seq + 1
         meas = hub.step_request(msg, seq, iteration, new) if new else None
         fields = s.step(msg)
+        self._hold = s.release_time(fields["seq"], arrived)
         fields = hub.after_step(seq, iteration, new, meas, fields, self._route, msg_id)
         return None if fields is None else ("forces", fields, session)
 
@@ -342,12 +398,23 @@ class ForceServer:
         hub = self._hubs.get(s.id)
         if hub is None:
             raise ProtocolError(Code.BAD_VALUE, "controller", f"session {session!r} declares no controllers")
+        plant = None
+        if msg.get("plant") is not None:   # the device as a linear plant (SPEC §5.7.2)
+            ask = codec.require_map(msg, "plant")
+            dt = None if ask.get("dt") is None else codec.require_float(ask, "dt", "plant.dt")
+            if dt is not None and not PLANT_DT[0] <= dt <= PLANT_DT[1]:
+                raise ProtocolError(Code.BAD_VALUE, "plant.dt", f"must be in [{PLANT_DT[0]:g}, {PLANT_DT[1]:g}] s "
+                                    f"(nil: continuous time), got {dt}")
+            plant = s.plant(dt)
         slot, rejoined = hub.join(name)
+        control = hub.info(slot)
+        if plant is not None:
+            control = {**control, "plant": plant.to_wire()}
         return "welcome", {
             "protocol": codec.PROTOCOL_VERSION,
             "server": {"name": "hydrolink", "version": self._version},
             "session_timeout": self.session_timeout,
-            "epoch": slot.epoch, "rejoined": rejoined, "control": hub.info(slot),
+            "epoch": slot.epoch, "rejoined": rejoined, "control": control,
         }, session
 
     def _controller_request(self, kind: str, msg: dict, msg_id: Any,
@@ -411,7 +478,10 @@ class ForceServer:
     def _bye(self, msg: dict, msg_id: Any, session: str | None) -> tuple[str, dict, str | None]:
         s = self._session(session)
         self._close(s, "closed by bye")
-        return "goodbye", {"steps": s.steps, "compute_s": s.compute_s}, session
+        out = {"steps": s.steps, "compute_s": s.compute_s}
+        if s.pacer is not None:
+            out["realtime"] = asdict(s.pacer.report())
+        return "goodbye", out, session
 
     # ------------------------------------------------------------ lifecycle
 

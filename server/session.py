@@ -18,6 +18,7 @@ from hydrolink.protocol.scene import Scene, SceneError, parse_scene
 from hydrolink.protocol.scene_bounds import MAX_COORDINATE, MAX_SPEED
 from hydrolink.protocol.hdb_wire import from_wire
 from hydrolink.protocol.hdb_schema import HDBError
+from hydrolink.protocol.pacing import Pacer
 from hydrolink.server.hdb_files import FileSetReader, is_file_set
 from hydrolink.server.model import HydroModel, ModelError
 from hydrolink.server.wetted_surface import MeshError, closed_hull
@@ -103,8 +104,13 @@ def _nbytes(obj: Any) -> int:
 class Session:
     """A multibody session: the model plus the sequencing state of SPEC §5.3."""
 
-    def __init__(self, session_id: str, model: HydroModel, client: dict | None = None):
+    def __init__(self, session_id: str, model: HydroModel, client: dict | None = None, realtime: float | None = None):
+        """``realtime``: the hello's pace factor (SPEC §5.1): each ``forces`` reply of step seq is
+        held until t0 + seq·dt/realtime, t0 the arrival of seq 0 (:attr:`pacer`)."""
         self.id = session_id
+        self.pacer = None if realtime is None else Pacer(model.dt, realtime)
+        self._paced_seq = -1
+        self._plants: dict = {}   # dt (None: continuous) -> Plant, for controllers that ask (SPEC §5.7.2)
         self.model = model
         self.client = client or {}
         self.n_bodies = len(model.bodies)
@@ -163,6 +169,36 @@ class Session:
         if entry is not None:
             self._saved_bytes -= entry[1]
         return {"state": sid, "kept": len(self._saved)}
+
+    def plant(self, dt: float | None):
+        """The session's device as a linear plant (clients/studies/plant.py), continuous or at
+        ``dt``; built once per dt. ProtocolError 8 naming the scene key it cannot represent."""
+        from hydrolink.clients.studies.plant import build_plant
+        from hydrolink.protocol.errors import KeyedError
+
+        if dt not in self._plants:
+            scene = self.model.scene
+            try:
+                plant = build_plant(scene, {b.hdb: self.model.hdbs[b.name] for b in scene.bodies if b.wet})
+                self._plants[dt] = plant if dt is None else plant.discretize(dt)
+            except (KeyedError, ModelError) as exc:
+                raise ProtocolError(Code.BAD_SCENE, _scene_field(exc.key), f"no linear plant: {exc}") from None
+            except (ValueError, ArithmeticError, np.linalg.LinAlgError, RuntimeError) as exc:   # e.g. a singular
+                raise ProtocolError(Code.BAD_SCENE, "scene", f"no linear plant: {type(exc).__name__}: {exc}") from None
+        return self._plants[dt]
+
+    def release_time(self, seq: int, arrived: float) -> float | None:
+        """When the reply to step ``seq`` may leave (``time.perf_counter`` clock; None: unpaced).
+        The first request of a new step is counted: an overrun when its reply is ready after its
+        release (the client or the link took longer than the step's wall-clock budget)."""
+        if self.pacer is None:
+            return None
+        due = self.pacer.release_time(seq)
+        if seq > self._paced_seq:      # a new step (not a retry or an iteration of the last)
+            self._paced_seq = seq
+            if seq:
+                self.pacer.done(seq - 1, started=arrived)
+        return due
 
     def step(self, msg: dict) -> dict:
         """Reply fields for a ``step`` request (SPEC §5.2–5.3); ProtocolError leaves state unchanged."""

@@ -274,6 +274,18 @@ def foh_coefficients(poles: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarra
     return phi, g0, g1
 
 
+@dataclass(frozen=True)
+class Realization:
+    """A radiation force as a continuous-time linear system of the velocities v of its DOFs:
+    x' = a x + b v, F = c x + d v; ``rows``/``cols``: the DOF pair (output, input) of every state."""
+    a: np.ndarray
+    b: np.ndarray
+    c: np.ndarray
+    d: np.ndarray
+    rows: np.ndarray
+    cols: np.ndarray
+
+
 class StateSpaceRadiation:
     """Radiation force of n DOFs from fitted pairs; the same push() interface as RadiationMemory."""
 
@@ -331,6 +343,20 @@ class StateSpaceRadiation:
         self._v_prev[:] = 0
         self._v_last[:] = 0
         self._count = 0
+
+    def realization(self) -> "Realization":
+        """The continuous-time model of this force, F = C x + D v, x' = A x + B v, in real states:
+        each complex state z_r (z' = p z + v_j) as (Re z, Im z), F_i -= 2 Re(c_r z_r) + D_ij v_j."""
+        s = self.poles.size
+        a, b, c = np.zeros((2 * s, 2 * s)), np.zeros((2 * s, self.n)), np.zeros((self.n, 2 * s))
+        re, im = 2 * np.arange(s), 2 * np.arange(s) + 1
+        a[re, re] = a[im, im] = self.poles.real
+        a[re, im] = -self.poles.imag
+        a[im, re] = self.poles.imag
+        b[re, self._cols] = 1.0
+        c[self._rows, re] = -self._c2.real
+        c[self._rows, im] = self._c2.imag
+        return Realization(a, b, c, -self.d, np.repeat(self._rows, 2), np.repeat(self._cols, 2))
 
     def feedthrough(self) -> np.ndarray:
         """dF/dv of the newest sample (n, n): the first-order hold's direct term of every state

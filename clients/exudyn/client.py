@@ -56,6 +56,7 @@ from hydrolink.clients.lockstep import driver as lockstep
 from hydrolink.clients.lockstep.coupling_schemes import make_scheme
 from hydrolink.clients.lockstep.driver import (BLOW_UP_LIMIT, CouplingError, DivergenceWatch, ForceLink, Lockstep,  # noqa: F401
                                         RunInterrupted, SimulationDiverged, progress_bar)
+from hydrolink.protocol.pacing import Pacer
 from hydrolink.clients.lockstep.preflight import preflight
 from hydrolink.clients.lockstep.results import add_force_term_variables
 from hydrolink.clients.lockstep.summary import CouplingReport, RunSummary
@@ -622,7 +623,7 @@ class ExudynMultibody:
 
 def run(scene: Scene, scene_text: str, connection, setup: Setup | None, writer, *, progress: bool = True,
         spectral_radius: float | None = None, blow_up_limit: float = BLOW_UP_LIMIT,
-        allow_unstable: bool = False, moordyn_files: dict | None = None) -> RunSummary:
+        allow_unstable: bool = False, moordyn_files: dict | None = None, realtime: float | None = None) -> RunSummary:
     """Run the lockstep co-simulation to ``scene.simulation.duration`` (:mod:`hydrolink.clients.lockstep.driver`).
 
     ``connection`` has already said hello (``setup`` is its reply); it is not closed here. With no
@@ -639,6 +640,7 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup | None, writer, 
     ``coupling.explicit_limit`` is refused (SceneError naming coupling.scheme) unless
     ``allow_unstable`` (only to demonstrate the added-mass instability). ``moordyn_files``: the
     layouts of the scene's MoorDyn files (:func:`~hydrolink.clients.exudyn.moordyn_mooring.load_moordyn_files`).
+    ``realtime``: pace the exchanges at FACTOR x wall clock (:mod:`hydrolink.protocol.pacing`).
 
     Returns the :class:`~hydrolink.clients.lockstep.summary.RunSummary` (the checks before the run:
     :func:`~hydrolink.clients.lockstep.preflight.preflight`)."""
@@ -687,7 +689,8 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup | None, writer, 
         out = lockstep.run(loop, make_scheme(scheme, tolerance=cpl.tolerance, max_iterations=cpl.max_iterations,
                                              ratio=ratio, n_exchanges=pre.n_exchanges),
                            pre.n_exchanges, coupling, first_timeout=first_timeout,
-                           hint=lambda exc: _divergence_hint(scheme, ratio, kx, pre.exchange_dt))
+                           hint=lambda exc: _divergence_hint(scheme, ratio, kx, pre.exchange_dt),
+                           pacer=None if realtime is None else Pacer(pre.exchange_dt, realtime))
     finally:
         model.close()
     return replace(out, warnings=warnings, controllers=control.finish() if control is not None else None,

@@ -37,6 +37,7 @@ import numpy as np
 from hydrolink.clients.lockstep import driver as lockstep
 from hydrolink.clients.fmu.coupling import added_mass_ratio, rigid_body_mass_matrix
 from hydrolink.clients.lockstep.coupling_schemes import make_scheme
+from hydrolink.protocol.pacing import Pacer
 from hydrolink.clients.lockstep.driver import BLOW_UP_LIMIT, DivergenceWatch, ForceLink, Lockstep, progress_bar
 from hydrolink.clients.lockstep.preflight import preflight
 from hydrolink.clients.lockstep.summary import CouplingReport, RunSummary
@@ -244,14 +245,15 @@ def plan(wiring: Wiring, coupling: Coupling, can_roll_back: bool, *, allow_unsta
 def run(scene: Scene, scene_text: str, connection, setup: Setup, writer, *,
         scene_path: str | Path = "scene.toml", progress: bool = True,
         blow_up_limit: float = BLOW_UP_LIMIT, record: Sequence[str] = (),
-        allow_unstable: bool = False) -> RunSummary:
+        allow_unstable: bool = False, realtime: float | None = None) -> RunSummary:
     """Run the scene's FMU in lockstep with the server to ``scene.simulation.duration``.
 
     Like :func:`hydrolink.clients.exudyn.client.run` (same results rows, same errors, the same
     driver: :mod:`hydrolink.clients.lockstep.driver`); ``record`` names further FMU real outputs whose values
     at every step are returned in ``summary.recorded``; ``allow_unstable`` lets the explicit mode
     run beyond its limit (only to demonstrate the instability). The summary adds mode, iterations per
-    step (mean, max) and per-step costs in µs (FMU calls, server round trips, the rest)."""
+    step (mean, max) and per-step costs in µs (FMU calls, server round trips, the rest). ``realtime``:
+    pace the exchanges at FACTOR x wall clock (:mod:`hydrolink.protocol.pacing`)."""
     client: FMUClient = scene.client
     if not isinstance(client, FMUClient):
         raise SceneError("scene", "client.type", "the FMU master needs [client] type = \"fmu\"")
@@ -274,7 +276,8 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup, writer, *,
                                  ratio=mb.plan.ratio, n_exchanges=pre.n_exchanges)
             coupling = CouplingReport(scheme=mb.plan.scheme, reason=mb.plan.reason, added_mass_ratio=mb.plan.ratio)
             out = lockstep.run(loop, scheme, pre.n_exchanges, coupling,
-                               hint=lambda exc: f"coupling.scheme = \"{mb.plan.scheme}\"")
+                               hint=lambda exc: f"coupling.scheme = \"{mb.plan.scheme}\"",
+                               pacer=None if realtime is None else Pacer(pre.exchange_dt, realtime))
         finally:
             mb.close()
     return replace(out, client="fmu", fmi_version=fmu.fmi_version, warnings=pre.warnings,

@@ -217,13 +217,15 @@ class ServerConnection:
 
     def hello(self, scene_text: str, hdbs: dict[str, xr.Dataset | HDBFiles], role: str = "multibody",
               client: dict | None = None, wave_elevation: tuple | None = None,
-              meshes: dict[str, tuple[np.ndarray, np.ndarray]] | None = None) -> Setup:
+              meshes: dict[str, tuple[np.ndarray, np.ndarray]] | None = None,
+              realtime: float | None = None) -> Setup:
         """Open a session and return its :class:`Setup`; the session id, the server's name/version,
         the protocol version and the session timeout stay on the connection (``session``,
         ``server_info``, ``protocol``, ``session_timeout``). ``wave_elevation``: the (time, eta)
         series of a scene with ``[waves] type = "elevation"`` (clients/run.py load_wave_elevation);
         ``meshes``: the closed hulls (vertices, faces) of its nonlinear bodies by name
-        (clients/run.py load_scene_hulls).
+        (clients/run.py load_scene_hulls); ``realtime``: ask the server to pace the session, each
+        ``forces`` reply held until its wall-clock time at that factor (SPEC §5.1).
 
         An HDB given as :class:`HDBFiles` goes by its files' SHA-256 (SPEC §5.8): the contents the
         server lacks (error 13) are uploaded, once each, and the ``hello`` is sent again;
@@ -239,6 +241,8 @@ class ServerConnection:
         if meshes:
             extra["meshes"] = {name: {"vertices": np.ascontiguousarray(v, np.float64),
                                       "faces": np.ascontiguousarray(f, np.int64)} for name, (v, f) in meshes.items()}
+        if realtime is not None:
+            extra["realtime"] = float(realtime)
         wire = {k: (ds.entry() if isinstance(ds, HDBFiles) else to_wire(ds)) for k, ds in hdbs.items()}
         client = client or {"name": self.client_name, "version": version}
         self.uploads = []
@@ -298,10 +302,10 @@ class ServerConnection:
         return self.request("ping")
 
     def bye(self) -> dict:
-        """Close the session; returns ``goodbye`` (steps, compute_s)."""
+        """Close the session; returns ``goodbye`` (steps, compute_s; realtime for a paced session)."""
         reply = self.request("bye")
         self.session = None
-        return {k: reply[k] for k in ("steps", "compute_s") if k in reply}
+        return {k: reply[k] for k in ("steps", "compute_s", "realtime") if k in reply}
 
     # ------------------------------------------------------------ lifecycle
 

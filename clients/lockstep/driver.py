@@ -23,6 +23,7 @@ from typing import Any, Mapping, NamedTuple, Protocol
 
 import numpy as np
 
+from hydrolink.protocol.pacing import Pacer
 from hydrolink.clients.lockstep.summary import CouplingReport, RunSummary
 from hydrolink.protocol.reply import OPTIONAL_FORCES
 
@@ -238,6 +239,7 @@ class Lockstep:
     step: int = 0                           # client steps done
     bar: Any = None
     iterations: list[int] = field(default_factory=list)
+    pacer: Pacer | None = None              # --realtime: wall-clock releases (protocol/pacing.py)
 
     @property
     def big_h(self) -> float:
@@ -258,6 +260,8 @@ class Lockstep:
         self.watch.check(self.mb, self.step, t1, self.writer.rows, where or self.mb.label)
 
     def write(self, t: float, s: Sample, snap: Any = None) -> None:
+        if self.pacer is not None and self.pacer.t0 is not None:
+            self.writer.stage_extra({"step_latency": self.pacer.since_release()})
         self.mb.write(t, s, self.mb.snapshot() if snap is None else snap)
         if self.bar is not None:
             self.bar.update(1)
@@ -271,11 +275,16 @@ def progress_bar(total: int, enabled: bool, desc: str = "hydrolink run"):
 
 def run(loop: Lockstep, scheme: Any, n_exchanges: int, coupling: CouplingReport, *,
         first_timeout: float | None = None,
-        hint: Callable[[SimulationDiverged], str] = lambda exc: "") -> RunSummary:
+        hint: Callable[[SimulationDiverged], str] = lambda exc: "", pacer: Pacer | None = None) -> RunSummary:
     """Run ``n_exchanges`` exchanges of ``scheme`` (module docstring); the writer gets its final
     status before this returns or raises. Returns the loop's counts and costs, with ``coupling``
-    (the adapter's description of the scheme) completed by the iterations it took."""
+    (the adapter's description of the scheme) completed by the iterations it took. ``pacer``: release
+    each exchange at its wall-clock time (protocol/pacing.py); the summary's ``realtime``."""
     mb, link, writer = loop.mb, loop.link, loop.writer
+    if pacer is not None:
+        loop.pacer = pacer
+        writer.add_variable("step_latency", (), units="s",
+                            long_name="wall time from the exchange's release to this row (paced run)")
     wall0 = _time.perf_counter()
     init_iterations = 0
     t = 0.0
@@ -286,7 +295,11 @@ def run(loop: Lockstep, scheme: Any, n_exchanges: int, coupling: CouplingReport,
         init_iterations = mb.begin(s, scheme.feedback)
         loop.write(0.0, s)
         for e in range(n_exchanges):
+            if pacer is not None:
+                pacer.release(e)
             s = scheme.exchange(loop, e, s)
+            if pacer is not None:
+                pacer.done(e)
             t = (e + 1) * loop.big_h
     except KeyboardInterrupt:
         t = loop.step * mb.h
@@ -318,4 +331,5 @@ def run(loop: Lockstep, scheme: Any, n_exchanges: int, coupling: CouplingReport,
                        iterations=np.asarray(loop.iterations, int) if coupling.scheme == "implicit" else None)
     return RunSummary(steps=loop.step, time=loop.step * mb.h, wall_time=wall, rows=writer.rows_written,
                       status="complete", coupling=coupling, client_us_per_step=(wall - link.seconds) / steps * 1e6,
-                      round_trip_us_per_step=link.seconds / steps * 1e6)
+                      round_trip_us_per_step=link.seconds / steps * 1e6,
+                      realtime=pacer.report() if pacer is not None else None)

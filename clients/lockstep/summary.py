@@ -13,6 +13,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from hydrolink.protocol.pacing import RealtimeReport
+
 
 @dataclass(frozen=True)
 class CouplingReport:
@@ -56,3 +58,4 @@ class RunSummary:
     dropped_pair_fraction: float | None = None
     dropped_block_fraction: float | None = None
     state_space_fitted_pairs: int | None = None   # fitted in this setup (the rest from the fit cache)
+    realtime: RealtimeReport | None = None   # --realtime: overruns and step latencies (None: not paced)

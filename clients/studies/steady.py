@@ -184,15 +184,16 @@ def _load_stiffness(r: np.ndarray, f: np.ndarray) -> np.ndarray:
     return -(np.outer(r, f) - float(f @ r) * np.eye(3))
 
 
-def linearize(scene: Scene, model, setup: Setup) -> LinearizedSystem:
+def linearize(scene: Scene, model, setup: Setup, check=check_scene) -> LinearizedSystem:
     """Assemble the linearised system of ``scene`` (see the module docstring) from the Exudyn client's
-    model (built as for ``hydrolink run``, PTOs left out) and the server model ``model``."""
+    model (built as for ``hydrolink run``, PTOs left out) and the server model ``model``; ``check``
+    refuses what the caller cannot represent (default: the steady solver's :func:`check_scene`)."""
     import exudyn as exu
 
     from hydrolink.clients.exudyn.client import build_model
 
     t0 = _time.perf_counter()
-    check_scene(scene)
+    check(scene)
     bodies = [b.model_copy(update={"initial_displacement": [0.0] * 6, "initial_velocity": [0.0] * 6})
               for b in scene.bodies]
     bare = scene.model_copy(update={"bodies": bodies, "ptos": []})
@@ -234,12 +235,13 @@ def linearize(scene: Scene, model, setup: Setup) -> LinearizedSystem:
                          np.asarray(m.pretension, float)))
 
     w, x_c, e_c = model.excitation_phasors()
-    omega = float(w[0])
+    omega = float(w[0]) if w.size else math.inf     # the first wave component (none in still water)
     exc = np.zeros(n, complex)
-    exc[ex.wet_index] = x_c[0]
+    if w.size:
+        exc[ex.wet_index] = x_c[0]
     return LinearizedSystem(
         omega=omega, M=M, K=K, D=D, G=G, f0=f0, wet_index=ex.wet_index, body_index=ex.body_index,
-        excitation=exc, elevation=complex(e_c[0]),
+        excitation=exc, elevation=complex(e_c[0]) if w.size else 0j,
         added_mass_inf=setup.added_mass_inf, hydrostatic=setup.hydrostatic_stiffness,
         radiation=(convolution_radiation(model, scene) if scene.steady.radiation == "convolution"
                    else model.radiation_coefficients), ptos=ptos, moorings=moorings,
@@ -247,7 +249,7 @@ def linearize(scene: Scene, model, setup: Setup) -> LinearizedSystem:
         setup_seconds=_time.perf_counter() - t0, memory=scene.hydro.radiation != "off",
         wet_names=list(setup.bodies), terms=list(model.terms), equilibrium=setup.equilibrium_position,
         term_active=model.active.reshape(-1),
-        term_shift=math.ceil(model.waves.ramp / (2 * math.pi / omega)) * 2 * math.pi / omega)
+        term_shift=(math.ceil(model.waves.ramp / (2 * math.pi / omega)) * 2 * math.pi / omega if w.size else 0.0))
 
 
 def _constant_loads(scene: Scene) -> list[tuple[str, np.ndarray, np.ndarray]]:
