@@ -125,11 +125,18 @@ def hdb_info(file: Path, plot: Path | None, dofs: str | None, convention: str | 
                    "$HYDROLINK_HDB_STORE, else $HYDROLINK_CACHE/hdb_store, else ~/.cache/hydrolink/hdb_store.")
 @click.option("--store-mib", default=4096, show_default=True, type=click.IntRange(min=1),
               help="Bound of the HDB content store on disk, MiB (least recently used contents leave first).")
+@click.option("--max-message-mib", type=click.IntRange(1, 4096),
+              help="Largest message received, MiB over all its frames (SPEC §1; default 64, the protocol's "
+                   "codec.MAX_MESSAGE_BYTES): a larger frame is refused by "
+                   "ZeroMQ before it is buffered (its connection is dropped). Large HDBs: send their files by hash "
+                   "(run --hdb-files), each file one upload under the limit, or raise it.")
 def serve(bind: str, session_timeout: float, cpu: int | None, curve_secret: Path | None,
-          curve_clients: Path | None, key_file: Path | None, store: Path | None, store_mib: int) -> None:
+          curve_clients: Path | None, key_file: Path | None, store: Path | None, store_mib: int,
+          max_message_mib: int | None) -> None:
     """Run the force server until interrupted (SIGINT or SIGTERM)."""
     import signal
 
+    from hydrolink.protocol import codec
     from hydrolink.protocol.security import CurveKeyError
     from hydrolink.server.hdb_store import ContentStore, default_folder
     from hydrolink.server.service import ForceServer
@@ -140,7 +147,9 @@ def serve(bind: str, session_timeout: float, cpu: int | None, curve_secret: Path
         server = ForceServer(bind, session_timeout=session_timeout, key=key,
                              curve_secret=str(curve_secret) if curve_secret else None,
                              curve_clients=str(curve_clients) if curve_clients else None,
-                             store=ContentStore(store or default_folder(), disk_bytes=store_mib * 2**20))
+                             store=ContentStore(store or default_folder(), disk_bytes=store_mib * 2**20),
+                             max_message_bytes=codec.MAX_MESSAGE_BYTES if max_message_mib is None
+                             else max_message_mib * 2**20)
     except CurveKeyError as exc:
         raise _UserError(str(exc)) from None
     signal.signal(signal.SIGTERM, lambda signum, frame: server.stop())  # docker stop

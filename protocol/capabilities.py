@@ -36,6 +36,7 @@ FEATURES: dict[str, Feature] = {
     "nonlinear_hydrostatics": Feature("nonlinear hydrostatics", ("nonlinear_hydrostatic",)),
     "nonlinear_froude_krylov": Feature("nonlinear Froude-Krylov forces",
                                        ("nonlinear_hydrostatic", "nonlinear_froude_krylov")),
+    "second_order": Feature("second-order wave forces (mean and slow drift)", ("drift",)),
 }
 
 _POINTWISE = frozenset({"linear_damping", "quadratic_damping", "drag", "morison"})
@@ -58,7 +59,9 @@ TOOLS: dict[str, Tool] = {
     "fmu_master": Tool("the FMU master", frozenset(),
                        "{tool} does not apply {what} yet (its force ports carry excitation, radiation and "
                        "hydrostatics); use the Exudyn client"),
-    "steady": Tool("hydrolink steady", _POINTWISE,
+    # steady: the second-order force of its regular wave (mean A^2 T(w, w), with sum_frequency the 2w
+    # force) pointwise at the nodes like any time-dependent load
+    "steady": Tool("hydrolink steady", _POINTWISE | {"second_order"},
                    "{what} are not part of {tool}'s model yet (its Newton needs their Jacobian in position); "
                    "run the scene with hydrolink run"),
     "native_fmu": Tool("the native FMU", _POINTWISE, _HULLS),

@@ -22,7 +22,7 @@ import numpy as np
 
 PROTOCOL_VERSION = 1
 SUPPORTED_VERSIONS = (1,)
-MAX_MESSAGE_BYTES = 256 * 2**20       # all frames of a message together (SPEC §1)
+MAX_MESSAGE_BYTES = 64 * 2**20        # default: all frames of a message together (SPEC §1; serve --max-message-mib)
 MAX_ROUTING_FRAMES = 8
 MAX_ROUTING_FRAME_BYTES = 255         # a ZeroMQ routing identity's limit
 SIG_TRAILER = b"\xa3sig\xc4\x20"  # fixstr "sig" + bin8 header of length 32
@@ -289,6 +289,23 @@ def describe(value: Any, limit: int = 60) -> str:
     else:
         return type(value).__name__
     return text if len(text) <= limit else text[:limit] + "..."
+
+
+def without_nil(msg: dict, depth: int = 0) -> dict:
+    """The request map with every nil entry removed, in nested maps too (SPEC §2: a field whose
+    value is nil counts as absent): one rule for every optional field, applied once on receipt.
+    Array maps (§2.1) are values and lists hold values, not fields: both are left as sent, as are
+    maps nested deeper than MAX_TREE_DEPTH (:func:`decode_tree` refuses them). A map with neither
+    nil nor a nested map is returned as it is (a step: no copy on the hot path)."""
+    if depth > MAX_TREE_DEPTH:
+        return msg
+    for v in msg.values():
+        if v is None or (type(v) is dict and not _is_array_map(v)):
+            break
+    else:
+        return msg
+    return {k: without_nil(v, depth + 1) if type(v) is dict and not _is_array_map(v) else v
+            for k, v in msg.items() if v is not None}
 
 
 def require(msg: dict, field: str, path: str | None = None) -> Any:

@@ -78,6 +78,9 @@ REPLY_FIELDS: tuple[ReplyField, ...] = (
                "nonlinear minus linear Froude-Krylov force (server): the incident wave's pressure on the "
                "instantaneous wetted surface under the wave, minus its linear value on the mean wetted surface "
                "(part of excitation_force)"),)),
+    ReplyField("drift", "array (N, 6)", FORCE_UNITS, False, load=True, variables=(
+        _force("drift_force", "second-order wave force applied (server): mean drift, Newman slow drift or the "
+               "difference-frequency QTF force, plus the sum-frequency force where asked, at the reference point"),)),
     ReplyField("wave_elevation", "float", "m", True),
     ReplyField("compute_us", "float", "µs", True),
     ReplyField("control", "map", "", False),

@@ -163,6 +163,9 @@ Waves = Annotated[Union[StillWater, RegularWave, IrregularWave, ElevationWave], 
 
 
 Nonlinear = Literal["none", "hydrostatic", "froude-krylov"]
+# second-order wave forces (server/second_order.py): none, the mean drift, Newman's slow drift
+# (Standing's factorised form) or the full difference QTF
+SecondOrder = Literal["none", "mean-drift", "newman", "qtf"]
 
 
 class Hydro(_Section):
@@ -182,6 +185,12 @@ class Hydro(_Section):
     # hydrostatics (and the incident wave's Froude-Krylov force) on the instantaneous wetted surface
     # of every wet body's hull (server/nonlinear_hydro.py); a body's own ``nonlinear`` overrides it
     nonlinear: Nonlinear = "none"
+    # second-order wave forces of every wet body (a body's own ``second_order`` overrides it);
+    # ``drift_method``: which mean drift coefficients "mean-drift" and "newman" read (default: the
+    # one method the HDB holds); ``sum_frequency``: add the sum-frequency QTF too
+    second_order: SecondOrder = "none"
+    drift_method: Literal["momentum", "control-surface", "pressure", "far-field"] | None = None
+    sum_frequency: bool = False
 
     @model_validator(mode="after")
     def _orders(self) -> "Hydro":
@@ -275,6 +284,8 @@ class Body(_Section):
     # equilibrium; default: the hull of the body's HDB build spec)
     nonlinear: Nonlinear | None = None
     mesh: Annotated[str, Field(min_length=1)] | None = None
+    # wet bodies: second-order wave forces of this body (default: [hydro] second_order)
+    second_order: SecondOrder | None = None
     # dry bodies only: the node's position (default: the centre of mass) and a constant buoyancy
     reference_point: Vector3 | None = None
     buoyancy_volume: Volume = 0.0
@@ -304,6 +315,12 @@ class Body(_Section):
         ``reference`` point it sits at (its HDB reference point, the body's node)."""
         import numpy as np
         return np.asarray(reference if self.center_of_mass is None else self.center_of_mass, float).reshape(3)
+
+    @model_validator(mode="after")
+    def _second_order_if_wet(self) -> "Body":
+        if self.hdb is None and self.second_order not in (None, "none"):
+            raise ValueError("second_order: only for a wet body (with hdb): the coefficients come from its HDB")
+        return self
 
     @model_validator(mode="after")
     def _dry_only_keys(self) -> "Body":
@@ -849,6 +866,9 @@ class Scene(_Section):
                 known(f"moorings[{i}].attach_to", m.attach_to, set(names) | set(points), "body or point mass")
                 if m.attach_to in names and m.point is None:
                     raise ValueError(f"moorings[{i}].point: required when a rope is attached to a body")
+        if self.hydro.sum_frequency and all(self.second_order_of(b) == "none" for b in self.bodies):
+            raise ValueError("hydro.sum_frequency: adds to a second-order force: set hydro.second_order (or a "
+                             "wet body's second_order) other than \"none\"")
         if isinstance(self.client, FMUClient):
             self.client.check(self)
         self._check_controllers(names)
@@ -965,6 +985,17 @@ class Scene(_Section):
         """The wet bodies whose hydrostatics are nonlinear."""
         return [b for b in self.bodies if self.nonlinear_of(b) != "none"]
 
+    def second_order_of(self, body: Body) -> str:
+        """The body's second-order wave force: its own ``second_order``, else ``[hydro]
+        second_order`` for a wet body; "none" for a dry one."""
+        if not body.wet:
+            return "none"
+        return body.second_order if body.second_order is not None else self.hydro.second_order
+
+    def second_order_key(self, i: int) -> str:
+        """The key that sets body ``i``'s second-order force (its own, else ``hydro.second_order``)."""
+        return f"bodies[{i}].second_order" if self.bodies[i].second_order is not None else "hydro.second_order"
+
     def features(self) -> dict[str, str]:
         """The optional features this scene uses (protocol/capabilities.py ``FEATURES``), each with
         the first key that turns it on, in ``FEATURES`` order: what a tool that cannot take one
@@ -983,6 +1014,10 @@ class Scene(_Section):
             if self.nonlinear_of(b) == "froude-krylov":
                 found["nonlinear_froude_krylov"] = (f"bodies[{i}].nonlinear" if b.nonlinear is not None
                                                     else "hydro.nonlinear")
+                break
+        for i, b in enumerate(self.bodies):
+            if self.second_order_of(b) != "none":
+                found["second_order"] = self.second_order_key(i)
                 break
         return {f: found[f] for f in FEATURES if f in found}
 

@@ -5,7 +5,9 @@ The server mediates: the multibody client and each controller talk only to the s
 :class:`ControlHub` per session keeps one :class:`Slot` per declared controller. Deferred replies
 (a controller waiting for measurements, a multibody step waiting for a command) are parked with
 their routing frames and sent through the ``send(route, type, parent, fields)`` callback of the
-service when their condition is met or their deadline passes (:meth:`ControlHub.poll`).
+service when their condition is met or their deadline passes (:meth:`ControlHub.poll`). Requests
+pipelined behind a deferred step wait in :attr:`ControlHub.held` and are handled, in order, once
+it is answered (SPEC §1: a client's requests are answered in order).
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ from __future__ import annotations
 import logging
 import math
 import time as _time
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -29,6 +32,7 @@ log = logging.getLogger("hydrolink.server.control")
 MAX_WAIT = 30.0
 STATUSES = ("ok", "timeout", "absent", "invalid")
 MB_FIELDS = ("pto_displacement", "pto_velocity", "pto_force", "body_position", "body_velocity")
+SEQUENCED = ("step", "bye", "save", "restore", "release")   # requests that act on the step sequence
 
 
 # ---------------------------------------------------------------- waves at points
@@ -136,6 +140,7 @@ class ControlHub:
                                       np.array([self.body_names.index(b) for b in (c.bodies or self.body_names)], int),
                                       P, int(c.latency), probes, fb)
         self.pending: dict | None = None   # the multibody step reply waiting for commands
+        self.held: deque[tuple[dict, list[bytes]]] = deque()   # (request, route) behind the pending step
         self.pending_deadline = math.inf
         self.last_control: tuple[int, dict] | None = None
         self.ended: str | None = None
@@ -300,6 +305,22 @@ class ControlHub:
 
     # ------------------------------------------------------------ multibody side
 
+    def holds(self, mtype: str, msg: dict, route: list[bytes]) -> bool:
+        """Whether a request waits for the deferred step (then kept in :attr:`held`): the later
+        requests of the same client (its routing frames) and any step, bye, save, restore or
+        release of the session. A retry of the deferred step itself (a client on a new
+        connection) is not held: it takes over the deferred reply (:meth:`after_step`)."""
+        p = self.pending
+        if p is None:
+            return False
+        if mtype == "step" and type(msg.get("seq")) is int and msg["seq"] == p["seq"] \
+                and msg.get("iteration", 0) == 0:
+            return False
+        if route != p["route"] and mtype not in SEQUENCED:
+            return False
+        self.held.append((msg, route))
+        return True
+
     def step_request(self, msg: dict, seq: int, iteration: int, new: bool) -> dict | None:
         """Parse (and check) a step's ``measurements`` before the step is computed; None if absent."""
         if not new or iteration > 0:
@@ -463,8 +484,10 @@ class ControlHub:
         self._maybe_finish_pending(now=now)
 
     def end(self, reason: str) -> None:
-        """The session is closing: parked controller requests get ``stop``."""
+        """The session is closing: parked controller requests get ``stop``; a deferred step's reply
+        is dropped (its client is gone: the session closed by expiry or server shutdown)."""
         self.ended = reason
+        self.pending = None
         for s in self.slots.values():
             if s.parked is not None:
                 route, msg_id, _ = s.parked

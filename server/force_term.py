@@ -23,10 +23,11 @@ server/force_terms.py holds the registry that builds a scene's terms; :class:`Hy
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, ClassVar, Literal, Mapping
 
 import numpy as np
+import xarray as xr
 
 from hydrolink.protocol.capabilities import FEATURES
 from hydrolink.protocol.reply import OPTIONAL_FORCES
@@ -52,6 +53,7 @@ class TermContext:
     hydrostatic_stiffness: np.ndarray  # (6N, 6N) the linear core's, gravity included
     net_buoyancy: list[float | None]   # per body, rho g V - m g (None: the HDB gives no volume)
     hulls: Mapping[str, Hull]          # the closed hulls the hello brought, by body name
+    hdbs: Mapping[str, xr.Dataset] = field(default_factory=dict)  # each wet body's HDB, by body name
 
     @property
     def n_bodies(self) -> int:

@@ -7,10 +7,11 @@ from __future__ import annotations
 from hydrolink.server.force_term import ForceTerm, TermContext
 from hydrolink.server.morison import MorisonTerm
 from hydrolink.server.nonlinear_hydro import NonlinearTerm
+from hydrolink.server.second_order import SecondOrderTerm
 from hydrolink.server.viscous import ViscousTerm
 
 #: every force term the server knows, in reply order
-TERMS: tuple[type[ForceTerm], ...] = (ViscousTerm, MorisonTerm, NonlinearTerm)
+TERMS: tuple[type[ForceTerm], ...] = (ViscousTerm, MorisonTerm, NonlinearTerm, SecondOrderTerm)
 
 
 def build_terms(ctx: TermContext, registry: tuple[type[ForceTerm], ...] = TERMS) -> list[ForceTerm]:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import re
 import tempfile
+import threading
 from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
@@ -115,15 +116,17 @@ class FileSetReader:
     def __init__(self, store: ContentStore):
         self.store = store
         self._parsed: OrderedDict[tuple, xr.Dataset] = OrderedDict()
+        self._lock = threading.Lock()   # hellos are set up in worker threads (server/setup_workers.py)
 
     def read(self, entry: dict, where: str, convention: str | None) -> xr.Dataset:
         """The HDB of a file-set ``hdbs`` entry; ProtocolError 5/13 for the set, 9 for the files."""
         fs, inline = check_file_set(entry, where, self.store)
         key = (fs.format, tuple(sorted(fs.files)), fs.rho, convention)
-        ds = self._parsed.get(key)
-        if ds is not None:
-            self._parsed.move_to_end(key)
-            return ds
+        with self._lock:
+            ds = self._parsed.get(key)
+            if ds is not None:
+                self._parsed.move_to_end(key)
+                return ds
         with tempfile.TemporaryDirectory(prefix="hydrolink-hdb-") as tmp:
             for name, digest in fs.files:
                 data = inline.get(digest)
@@ -146,8 +149,9 @@ class FileSetReader:
                                     f"not a readable {fs.format} file: {type(exc).__name__}: "
                                     f"{str(exc).replace(tmp + '/', '')}") from None
         ds.attrs["source"] = f"{main} (sha256 {dict(fs.files)[main][:12]})"
-        self._parsed[key] = ds
-        while len(self._parsed) > PARSED_KEEP:
-            self._parsed.popitem(last=False)
+        with self._lock:
+            self._parsed[key] = ds
+            while len(self._parsed) > PARSED_KEEP:
+                self._parsed.popitem(last=False)
         return ds
 

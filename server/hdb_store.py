@@ -4,7 +4,8 @@ A client names an HDB's files by the SHA-256 of their bytes; what the server hol
 here, what it lacks the client uploads once (``upload``). Two tiers, both bounded and least
 recently used first out: a memory tier (the contents in use) and a folder on disk (one file per
 content, named by its hash and nothing else, so no client value ever becomes a path). Every
-content is checked against its hash when it enters and when it is read back from disk.
+content is checked against its hash when it enters and when it is read back from disk. Thread-safe:
+hellos are set up in worker threads while the server loop stores uploads.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import hashlib
 import logging
 import os
 import re
+import threading
 from collections import OrderedDict
 from pathlib import Path
 
@@ -53,6 +55,7 @@ class ContentStore:
         self.memory_bytes = int(memory_bytes)
         self._memory: OrderedDict[str, bytes] = OrderedDict()
         self._memory_used = 0
+        self._lock = threading.Lock()   # over the memory tier (the disk tier's writes are atomic)
 
     @property
     def max_content_bytes(self) -> int:
@@ -91,9 +94,11 @@ class ContentStore:
     def get(self, digest: str) -> bytes | None:
         """The content named ``digest`` (marked as recently used), or None when absent. A disk
         entry that no longer matches its name is removed and counts as absent."""
-        data = self._memory.get(digest)
+        with self._lock:
+            data = self._memory.get(digest)
+            if data is not None:
+                self._memory.move_to_end(digest)
         if data is not None:
-            self._memory.move_to_end(digest)
             if self.folder is not None:
                 self._touch(digest)
             return data
@@ -115,16 +120,17 @@ class ContentStore:
     # ------------------------------------------------------------ bounds
 
     def _remember(self, digest: str, data: bytes) -> None:
-        if digest in self._memory:
-            self._memory.move_to_end(digest)
-            return
         if len(data) > self.memory_bytes:
             return
-        self._memory[digest] = data
-        self._memory_used += len(data)
-        while self._memory_used > self.memory_bytes:
-            _, old = self._memory.popitem(last=False)
-            self._memory_used -= len(old)
+        with self._lock:
+            if digest in self._memory:
+                self._memory.move_to_end(digest)
+                return
+            self._memory[digest] = data
+            self._memory_used += len(data)
+            while self._memory_used > self.memory_bytes:
+                _, old = self._memory.popitem(last=False)
+                self._memory_used -= len(old)
 
     def _touch(self, digest: str) -> None:
         try:

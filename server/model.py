@@ -155,7 +155,7 @@ class HydroModel:
         self._red = np.zeros((3, na))  # scratch: excitation, radiation, hydrostatic (active DOFs)
         self.terms = build_terms(TermContext(
             scene, wet, self.active, self._idx, self.waves, self.equilibrium_position,
-            self.hydrostatic_stiffness, self._net_buoyancy, hulls or {}), term_types)
+            self.hydrostatic_stiffness, self._net_buoyancy, hulls or {}, hdbs), term_types)
         self._stateful = [term for term in self.terms if not term.stateless]
         self._add_term_contributions()
 

@@ -35,6 +35,8 @@ OGILVIE_DEFAULT_DURATION = 40.0  # s of IRF used for Ogilvie's A_inf when hydro.
 SS_FIT_POINTS = 120              # frequencies on [0, w_max] the state-space fit is made (and checked) on
 TAIL_CUTOFF_FACTOR = 10.0        # default hydro.irf_tail_cutoff: 10 w_max
 ALIAS_REFUSE = 0.25              # refuse an IRF whose part past pi/d_omega exceeds this share of max |K|
+MAX_IRF_PRODUCTS = 2.0e9         # IRF samples x frequencies of one transform: the set-up work one hello may
+                                 # ask (three transforms; about 10 s of CPU at 8e8 on this project's machine)
 
 
 class RadiationForce(Protocol):
@@ -306,12 +308,22 @@ class RadiationOption:
         require_size("hydro.irf_domega" if hyd.irf_domega is not None else "hydro.irf_tail_cutoff",
                      "the IRF's cosine table", (min(self.t.size, COS_TABLE_ROWS), omega.size + 1),
                      hint="fewer frequencies in B(w)")
+        self._check_work(omega.size)
         k = radiation_irf(omega, damping, self.t)
         if self._window is not None:
             k = k * self._window
         a_inf = g.added_mass_inf if g.added_mass_inf is not None else \
             ogilvie_added_mass_inf(g.omega, g.added_mass, self.t, k)
         return GroupIrf(omega, damping, k, a_inf, tail)
+
+    def _check_work(self, n_omega: int) -> None:
+        """Refuse an IRF whose transforms cost more than MAX_IRF_PRODUCTS (before computing it)."""
+        products = self.t.size * (n_omega + 1)
+        if products > MAX_IRF_PRODUCTS:
+            raise ModelError(self._key, f"the IRF of {self.t.size} samples (irf_duration / dt) over {n_omega} "
+                                        f"frequencies is {products:.3g} sample-frequency products per transform, over "
+                                        f"the set-up bound of {MAX_IRF_PRODUCTS:.3g}: {self._hint}, or resample "
+                                        "coarser with hydro.irf_domega")
 
     def _check_aliasing(self, irf: GroupIrf, source: str, warnings: list[str]) -> None:
         """A badly sampled HDB: the transform of B on a grid of spacing dw repeats with period

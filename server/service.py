@@ -1,7 +1,9 @@
 """The force server: one ZeroMQ ROUTER socket, a poll loop, many sessions (protocol: SPEC.md).
 
 Every request gets exactly one reply; any exception while handling a message becomes an ``error``
-reply to that message and the loop carries on.
+reply to that message and the loop carries on. A hello's set-up (HDB parsing, the model) runs in a
+worker thread (server/setup_workers.py): the loop answers other sessions' steps meanwhile and the
+``welcome`` when the set-up is done.
 """
 
 from __future__ import annotations
@@ -13,8 +15,9 @@ import math
 import os
 import threading
 import time
+from concurrent.futures import Future
+from dataclasses import asdict, dataclass
 from importlib import metadata
-from dataclasses import asdict
 from typing import Any, Callable
 
 import zmq
@@ -26,15 +29,30 @@ from hydrolink.server.control import ControlHub
 from hydrolink.server.errors import ModelError
 from hydrolink.server.hdb_files import FileSetReader
 from hydrolink.server.hdb_store import HASH, ContentStore, ContentTooLarge, default_folder
+from hydrolink.server.model import HydroModel
 from hydrolink.server.session import Session, build_model
+from hydrolink.server.setup_workers import SetupWorkers
 
 log = logging.getLogger("hydrolink.server")
 
 POLL_MS = 50
+SETUP_POLL_MS = 5   # the receive timeout while set-ups run: a finished one is answered within it
 PLANT_DT = (1e-6, 3600.0)   # s: the sampling times a controller may ask its plant at (SPEC §5.7.2)
 RELEASE_SPIN = 1.5e-3   # s: a held reply due sooner is waited for by spinning (the receive timeout is in ms)
 IN_PROCESS = "in-process"  # the address of a server without a socket (bind=None)
 TOMBSTONES = 1000  # remembered closed sessions, for a helpful error 7
+
+
+@dataclass(frozen=True)
+class PendingHello:
+    """A multibody hello whose set-up runs in a worker: answered when ``model`` is done."""
+    msg: dict
+    msg_id: Any
+    route: list[bytes]
+    client: dict
+    realtime: float | None
+    started: float
+    model: Future
 
 
 def server_version() -> str:
@@ -102,6 +120,8 @@ class ForceServer:
         self._route: list[bytes] | None = None   # routing frames of the request being handled
         self._hubs: dict[str, ControlHub] = {}   # sessions with controllers (SPEC §5.7)
         self._rcv_ms = POLL_MS
+        self._workers = SetupWorkers()
+        self._setups: list[PendingHello] = []    # hellos being set up, oldest first
         self._paced: list[tuple[float, int, list[bytes]]] = []   # held replies: (release, order, frames)
         self._order = itertools.count()
         self._hold: float | None = None   # release time of the reply being handled (paced session)
@@ -134,8 +154,8 @@ class ForceServer:
             while not self._stop.is_set():
                 # a blocking receive with a POLL_MS timeout (RCVTIMEO): no poller and no exception
                 # per message on the hot path, only when the socket was idle for POLL_MS; shorter
-                # when a controller deadline (SPEC §5.7) comes sooner
-                if self._hubs or self._paced:
+                # when a controller deadline (SPEC §5.7) or a paced reply comes sooner, or a set-up runs
+                if self._hubs or self._paced or self._setups or self._rcv_ms != POLL_MS:
                     self._set_rcv_timeout()
                 try:
                     frames = self._sock.recv_multipart()
@@ -143,6 +163,8 @@ class ForceServer:
                     frames = None
                 if frames:
                     self._serve_one(frames)
+                if self._setups:
+                    self._finish_setups()
                 if self._paced:
                     self._send_due()
                 now = time.monotonic()
@@ -150,6 +172,7 @@ class ForceServer:
                     for hub in list(self._hubs.values()):
                         if hub.next_deadline() <= now:
                             hub.poll(now)
+                    self._resume_held()
                 if now >= next_sweep:
                     self._expire(now)
                     next_sweep = now + min(1.0, self.session_timeout / 4)
@@ -163,7 +186,8 @@ class ForceServer:
         left = min((hub.next_deadline() - time.monotonic() for hub in self._hubs.values()), default=math.inf)
         if self._paced:
             left = min(left, self._paced[0][0] - time.perf_counter())
-        ms = POLL_MS if left >= POLL_MS / 1000 else max(1, int(left * 1000))
+        cap = SETUP_POLL_MS if self._setups else POLL_MS
+        ms = cap if left >= cap / 1000 else max(1, int(left * 1000))
         if ms != self._rcv_ms:
             self._sock.setsockopt(zmq.RCVTIMEO, ms)
             self._rcv_ms = ms
@@ -175,13 +199,19 @@ class ForceServer:
         if over:   # answered to the identity alone: nothing the sender added is echoed
             reply = codec.error_reply(next(self._ids), None, None, Code.MALFORMED, None, over)
             frames = [frames[0], b""]
+            release = None
         else:
             reply = self.handle(frames[-1], frames[:-1])
-        if reply is None:
-            return  # deferred (SPEC §5.7): sent later by the session's ControlHub
-        frames[-1] = self._frame(reply)  # routing frames stay in front, verbatim
-        if self._hold is not None and self._hold > time.perf_counter():   # a paced session's reply
-            heapq.heappush(self._paced, (self._hold, next(self._order), frames))
+            release = self._hold
+        if reply is not None:   # None: deferred (SPEC §5.7, a hello being set up), sent later
+            self._send(frames[:-1], reply, release)
+
+    def _send(self, route: list[bytes], reply: dict, release: float | None = None) -> None:
+        """Send a reply map to the routing frames it answers (kept in front, verbatim); a paced
+        session's reply waits for its ``release`` time (perf_counter s)."""
+        frames = [*route, self._frame(reply)]
+        if release is not None and release > time.perf_counter():
+            heapq.heappush(self._paced, (release, next(self._order), frames))
             return
         try:
             self._sock.send_multipart(frames, zmq.NOBLOCK)
@@ -217,16 +247,9 @@ class ForceServer:
     def _send_later(self, session: str, route: list[bytes], mtype: str, parent: Any, fields: dict) -> None:
         """Send a deferred reply (a ControlHub's callback); a paced session's ``forces`` wait for
         their release."""
-        frame = self._frame(codec.message(mtype, next(self._ids), session, parent, **fields))
         s = self.sessions.get(session)
         due = s.pacer.release_time(fields["seq"]) if s is not None and s.pacer and mtype == "forces" else None
-        if due is not None and due > time.perf_counter():
-            heapq.heappush(self._paced, (due, next(self._order), [*route, frame]))
-            return
-        try:
-            self._sock.send_multipart([*route, frame], zmq.NOBLOCK)
-        except zmq.ZMQError as exc:
-            log.warning("deferred reply dropped: %s", exc)
+        self._send(route, codec.message(mtype, next(self._ids), session, parent, **fields), due)
 
     def _frame(self, reply: dict) -> bytes:
         """A reply as its frame (signed with the server's key); a reply holding a value the wire
@@ -275,25 +298,33 @@ class ForceServer:
             msg = frame if type(frame) is dict else codec.unpack(frame, self.key)
             session = msg.get("session") if isinstance(msg.get("session"), str) else None
             mtype, msg_id, session = codec.check_envelope(msg)
+            msg = codec.without_nil(msg)   # SPEC §2: a nil field is an absent one, for every field
+            hub = self._hubs.get(session) if session is not None else None
+            if hub is not None and route is not None and self._running and hub.holds(mtype, msg, route):
+                return None   # answered in order once the session's deferred step is (SPEC §1, §5.7)
             self._route = route
             out = self._handlers[mtype](msg, msg_id, session)
             if out is None:
                 return None
             rtype, fields, session = out
             return codec.message(rtype, next(self._ids), session, msg_id, **fields)
-        except ProtocolError as exc:
-            if exc.code == Code.BAD_SIGNATURE:
-                log.warning("refused a request: %s (from routing identity %s)", exc.message,
-                            route[0].hex() if route else "in-process")
-            elif exc.code not in (Code.OUT_OF_ORDER,):
-                log.info("error %d %s [%s] session %s: %s", exc.code, exc.name, exc.field, session, exc.message)
-            parent = codec.readable_id(msg) if msg is not None else exc.parent
-            return codec.error_from(exc, next(self._ids), parent, session)
         except Exception as exc:  # noqa: BLE001 - the loop must never die
-            log.exception("internal error handling a %s (session %s)",
-                          msg.get("type") if isinstance(msg, dict) else "message", session)
+            return self._error(exc, msg, session, route)
+
+    def _error(self, exc: Exception, msg: Any, session: str | None, route: list[bytes] | None) -> dict:
+        """The ``error`` reply to a request that raised ``exc`` (logged; code 99 unless a ProtocolError)."""
+        if not isinstance(exc, ProtocolError):
+            log.error("internal error handling a %s (session %s)",
+                      msg.get("type") if isinstance(msg, dict) else "message", session, exc_info=exc)
             return codec.error_reply(next(self._ids), codec.readable_id(msg), session, Code.INTERNAL, None,
                                      f"internal server error: {type(exc).__name__}: {exc}")
+        if exc.code == Code.BAD_SIGNATURE:
+            log.warning("refused a request: %s (from routing identity %s)", exc.message,
+                        route[0].hex() if route else "in-process")
+        elif exc.code not in (Code.OUT_OF_ORDER,):
+            log.info("error %d %s [%s] session %s: %s", exc.code, exc.name, exc.field, session, exc.message)
+        parent = codec.readable_id(msg) if msg is not None else exc.parent
+        return codec.error_from(exc, next(self._ids), parent, session)
 
     @property
     def files(self) -> FileSetReader:
@@ -337,7 +368,31 @@ class ForceServer:
             except ValueError as exc:
                 raise ProtocolError(Code.BAD_VALUE, "realtime", str(exc)) from None
         t0 = time.perf_counter()
-        model = build_model(msg, self.files)
+        if self._route is None or not self._running:   # no loop to answer later: the caller waits
+            return self._open(msg, client, realtime, t0, build_model(msg, self.files))
+        self._setups.append(PendingHello(msg, msg_id, self._route, client, realtime, t0,
+                                         self._workers.submit(build_model, msg, self.files)))
+        return None   # answered by _finish_setups
+
+    def _finish_setups(self) -> None:
+        """Answer the hellos whose set-up is done (in the loop: sessions change only here)."""
+        running = []
+        for hello in self._setups:
+            if not hello.model.done():
+                running.append(hello)
+                continue
+            try:
+                rtype, fields, sid = self._open(hello.msg, hello.client, hello.realtime, hello.started,
+                                                hello.model.result())
+                reply = codec.message(rtype, next(self._ids), sid, hello.msg_id, **fields)
+            except Exception as exc:  # noqa: BLE001 - a failed set-up is that hello's error reply
+                reply = self._error(exc, hello.msg, None, hello.route)
+            self._send(hello.route, reply)
+        self._setups = running
+
+    def _open(self, msg: dict, client: dict, realtime: float | None, t0: float,
+              model: HydroModel) -> tuple[str, dict, str]:
+        """A new session over a built model: its ``welcome``."""
         sid = os.urandom(16).hex()
         if model.scene.controllers:
             if self._sock is None:
@@ -359,6 +414,18 @@ class ForceServer:
             "session_timeout": self.session_timeout,
             "setup": model.setup_info().to_wire(),
         }, sid
+
+    def _resume_held(self) -> None:
+        """Handle the requests held behind a deferred step once it is answered, in their order."""
+        for hub in list(self._hubs.values()):
+            self._answer_held(hub)
+
+    def _answer_held(self, hub: ControlHub) -> None:
+        while hub.held and hub.pending is None:
+            msg, route = hub.held.popleft()
+            reply = self.handle(msg, route)
+            if reply is not None:
+                self._send(route, reply, self._hold)
 
     def _step(self, msg: dict, msg_id: Any, session: str | None) -> tuple[str, dict, str | None] | None:
         s = self._session(session)
@@ -488,10 +555,11 @@ class ForceServer:
     def _close(self, s: Session, why: str) -> None:
         self.sessions.pop(s.id, None)
         hub = self._hubs.pop(s.id, None)
+        self._closed[s.id] = f"{why} at {time.strftime('%H:%M:%S')}"
         if hub is not None:
             hub.end(why)
+            self._answer_held(hub)   # the held requests learn why (error 7)
             log.info("session %s controllers: %s", s.id, hub.summary())
-        self._closed[s.id] = f"{why} at {time.strftime('%H:%M:%S')}"
         while len(self._closed) > TOMBSTONES:
             self._closed.pop(next(iter(self._closed)))
         log.info("session %s %s after %d steps (%.3f s model time)", s.id, why, s.steps, s.compute_s)
@@ -501,6 +569,8 @@ class ForceServer:
             self._close(s, f"expired after {self.session_timeout:g} s idle")
 
     def _shutdown(self) -> None:
+        self._workers.close()
+        self._setups = []
         for s in list(self.sessions.values()):
             self._close(s, "closed by server shutdown")
         if self._sock is None or self._sock.closed:

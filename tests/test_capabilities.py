@@ -34,6 +34,7 @@ USES: dict[str, tuple[dict, dict, str]] = {
     "morison": ({}, {"morison": [MEMBER]}, "morison[0]"),
     "nonlinear_hydrostatics": ({"nonlinear": "hydrostatic", "mesh": "sphere.gdf"}, {}, "bodies[0].nonlinear"),
     "nonlinear_froude_krylov": ({"nonlinear": "froude-krylov", "mesh": "sphere.gdf"}, {}, "bodies[0].nonlinear"),
+    "second_order": ({}, {"hydro": {"second_order": "mean-drift"}}, "hydro.second_order"),   # on sphere_drift
 }
 FMU_CLIENT = {"type": "fmu", "fmu": "heave.fmu", "bodies": {"sphere": {
     "position": {"heave": "z"}, "velocity": {"heave": "v"}, "force": {"heave": "F"}}}}
@@ -70,6 +71,21 @@ def test_each_tool_names_a_known_feature():
     for tool in TOOLS.values():
         assert tool.supports <= set(FEATURES) and tool.name
         assert tool.supports == set(FEATURES) or "{tool}" in tool.refusal
+
+
+@pytest.fixture(scope="module")
+def sphere_drift(sphere, tmp_path_factory) -> tuple[xr.Dataset, Path]:
+    """The sphere's HDB with a momentum mean drift T(w) = 1e3 (w / 1 rad/s)^2 N/m^2 in surge
+    (the second_order feature needs drift data)."""
+    from hydrolink.protocol.hdb_schema import to_netcdf
+    from hydrolink.protocol.hdb_second_order import MeanDrift, with_second_order
+    w = sphere["omega"].values
+    values = np.zeros((1, w.size, 1, 6))
+    values[0, :, 0, 0] = 1e3 * w ** 2
+    ds = with_second_order(sphere, mean_drift=MeanDrift(("momentum",), w, np.zeros(1), values))
+    path = tmp_path_factory.mktemp("drift") / "sphere_drift.nc"
+    to_netcdf(ds, path)
+    return ds, path
 
 
 def _model(sphere, sphere_path: Path, feature: str, hull) -> HydroModel:
@@ -143,7 +159,10 @@ def _runs(tool: str, feature: str, sphere, sphere_path: Path, hull, tmp_path: Pa
 
 
 @pytest.mark.parametrize("feature,tool", list(itertools.product(FEATURES, TOOLS)))
-def test_every_feature_tool_pair_runs_or_is_refused_with_its_key(feature, tool, sphere, sphere_path, hull, tmp_path):
+def test_every_feature_tool_pair_runs_or_is_refused_with_its_key(feature, tool, sphere, sphere_path, sphere_drift,
+                                                                 hull, tmp_path):
+    if feature == "second_order":    # its data: the sphere's HDB with mean drift coefficients
+        sphere, sphere_path = sphere_drift
     t = TOOLS[tool]
     if feature in t.supports:
         _runs(tool, feature, sphere, sphere_path, hull, tmp_path)

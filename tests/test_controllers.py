@@ -490,6 +490,76 @@ def test_period_and_latency(reference_data, server, tmp_path):
     assert np.all(f[:2] == 0.0)
 
 
+def test_step_pipelined_behind_a_deferred_step_is_answered_in_order(reference_data, server, tmp_path):
+    """SPEC §1 and §5.7: a client's requests are answered in order, and a step waiting for a
+    command is deferred. A step pipelined behind it (sent before the deferred reply came) is held
+    and handled after it: forces seq 1 (the command of step 0) then forces seq 2 (the command of
+    step 1), each with its own decision. Before, seq 2 replaced the deferred reply and seq 1 was
+    never answered. A ``measure`` with ``wait`` = nil is one without ``wait`` (SPEC §2)."""
+    from hydrolink.clients.lockstep.connection import ServerConnection
+    from hydrolink.clients.run import load_scene_hdbs
+    from hydrolink.protocol import codec
+    from hydrolink.protocol.scene import parse_scene
+
+    text = scene_text(reference_data, 4.0, controller_block("force", 1.0e6, 0.0))
+    scene_path = tmp_path / "s.toml"
+    scene_path.write_text(text)
+    hdbs = load_scene_hdbs(parse_scene(text), scene_path)
+    ctx = zmq.Context.instance()
+    mb, ctl = ctx.socket(zmq.DEALER), ctx.socket(zmq.DEALER)
+    for sock in (mb, ctl):
+        sock.setsockopt(zmq.LINGER, 0)
+        sock.connect(server.address)
+
+    def recv(sock) -> dict:
+        assert sock.poll(8000), "no reply within 8 s"
+        return codec.unpack(sock.recv())
+
+    try:
+        with ServerConnection(server.address, timeout=30) as conn:
+            conn.hello(text, hdbs)
+            sid = conn.session
+            x = np.array(conn.setup.equilibrium_position, float)
+
+            def step(seq: int) -> None:
+                meas = None if seq == 0 else {
+                    "step": seq - 1, "pto_displacement": np.zeros(1), "pto_velocity": np.full(1, 0.1 * seq),
+                    "pto_force": np.zeros(1), "body_position": np.zeros((2, 6)), "body_velocity": np.zeros((2, 6))}
+                mb.send(codec.pack(codec.message("step", f"mb-{seq}", sid, seq=seq, time=seq * DT, position=x,
+                                                 velocity=np.zeros((2, 6)), measurements=meas)))
+
+            ctl.send(codec.pack(codec.message("hello", "c-0", sid, role="controller", controller="ctl")))
+            epoch = recv(ctl)["epoch"]
+            ctl.send(codec.pack(codec.message("measure", "c-1", sid, controller="ctl", epoch=epoch, wait=None)))
+            step(0)
+            assert recv(mb)["seq"] == 0
+            step(1)                       # deferred: the command of step 0 is due at seq 1
+            step(2)                       # pipelined behind it
+            m0 = recv(ctl)
+            assert (m0["type"], m0["parent"], m0["step"]) == ("measurements", "c-1", 0), m0
+            assert not mb.poll(200), "a reply came before the command it waits for"
+            ctl.send(codec.pack(codec.message("command", "c-2", sid, controller="ctl", epoch=epoch, step=0,
+                                              commands={"pto": {"force": 1000.0}})))
+            f1 = recv(mb)
+            assert (f1["type"], f1["parent"], f1["seq"]) == ("forces", "mb-1", 1), f1
+            assert f1["control"]["ctl"]["status"] == "ok" and f1["control"]["ctl"]["commands"] == {"pto": {"force": 1000.0}}
+            m1 = recv(ctl)                # the held step 2 relayed the measurements of step 1
+            assert (m1["type"], m1["parent"], m1["step"]) == ("measurements", "c-2", 1), m1
+            ctl.send(codec.pack(codec.message("command", "c-3", sid, controller="ctl", epoch=epoch, step=1,
+                                              commands={"pto": {"force": 2000.0}}, wait=0.05)))
+            f2 = recv(mb)
+            assert (f2["type"], f2["parent"], f2["seq"]) == ("forces", "mb-2", 2), f2
+            assert f2["control"]["ctl"]["commands"] == {"pto": {"force": 2000.0}}
+            assert recv(ctl)["type"] == "idle"
+            ctl.send(codec.pack(codec.message("measure", "c-4", sid, controller="ctl", epoch=epoch, wait=None)))
+            t0 = time.monotonic()
+            idle = recv(ctl)               # nil wait = the default 1 s, not an error
+            assert idle["type"] == "idle" and 0.5 < time.monotonic() - t0 < 5.0, idle
+    finally:
+        mb.close(0)
+        ctl.close(0)
+
+
 def test_plant_pi_gains_from_the_plant_reach_the_optimum(reference_data, thevenin, server, tmp_path):
     """examples/controllers/plant_pi.py takes the linear plant at join (SPEC §5.7.2) and designs the
     conjugate spring-damper from the plant's own PTO response (no tuning parameter but the period):

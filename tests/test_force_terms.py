@@ -24,8 +24,9 @@ def test_the_registry_covers_the_contract_and_the_features():
     """Every optional reply field and every scene feature belongs to a registered term, in the
     contract's order; steady's and the rollback's capabilities are what the terms declare."""
     classes = {cls: cls.__name__ for cls in TERMS}
-    assert [cls.name for cls in classes] == ["viscous", "morison", "nonlinear_hydrostatics"]   # = reply order
-    assert [f for f in OPTIONAL_FORCES] == ["viscous", "morison", "nonlinear_hydrostatic", "nonlinear_froude_krylov"]
+    assert [cls.name for cls in classes] == ["viscous", "morison", "nonlinear_hydrostatics", "second_order"]   # = reply order
+    assert [f for f in OPTIONAL_FORCES] == ["viscous", "morison", "nonlinear_hydrostatic", "nonlinear_froude_krylov",
+                                     "drift"]
     features = [f for cls in TERMS for f in cls.features]
     assert sorted(features) == sorted(FEATURES) and len(features) == len(set(features))
     assert TOOLS["steady"].supports == {f for cls in TERMS if cls.steady is not None for f in cls.features}

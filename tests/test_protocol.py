@@ -168,6 +168,22 @@ def test_error_paths_quote_keys_that_are_not_identifiers():
     assert key_path("hdbs", 'a "b".h5') == 'hdbs["a \\"b\\".h5"]'
 
 
+def test_nil_is_absent_in_every_map_of_a_request():
+    """SPEC §2: a nil field counts as absent, in nested maps too; array maps and lists are values."""
+    pos = codec.encode_array(np.zeros((1, 6)))
+    msg = codec.unpack(codec.pack({"v": 1, "type": "command", "msg_id": 1, "session": None, "wait": None,
+                                   "commands": {"pto": {"damping": None, "stiffness": 5.0}},
+                                   "position": pos, "list": [None, {"a": None}], "keep": 0}))
+    got = codec.without_nil(msg)
+    assert got == {"v": 1, "type": "command", "msg_id": 1, "commands": {"pto": {"stiffness": 5.0}},
+                   "position": pos, "list": [None, {"a": None}], "keep": 0}
+    assert codec.require_int(got, "iteration", default=0) == 0 and "wait" not in got
+    deep: dict = {"x": None}
+    for _ in range(3 * codec.MAX_TREE_DEPTH):
+        deep = {"d": deep}
+    codec.without_nil(deep)   # bounded: no recursion past MAX_TREE_DEPTH
+
+
 @pytest.mark.parametrize("value,field", [(2 ** 70, "setup.last_seq"), (-2 ** 64, "setup.last_seq"),
                                          ([1, 2 ** 64], "setup.last_seq[1]"), ({"a.b": object()}, 'setup.last_seq["a.b"]')])
 def test_a_value_the_wire_cannot_carry_is_refused_naming_its_field(value, field):

@@ -23,9 +23,10 @@ DT = 0.05
 
 
 def float_scene(*, name: str = "float", hdb: str = "float.nc", mass: float = 3.0e5, water: dict | None = None,
-                **body_keys) -> str:
+                dt: float = DT, duration: float = 10.0, irf_duration: float = 4.0, **body_keys) -> str:
     """The analytic float in regular waves; ``body_keys`` add to the body's keys."""
-    return scene_toml(dt=DT, duration=10.0, water=water, waves=regular_waves(1.0, 6.0), hydro={"irf_duration": 4.0},
+    return scene_toml(dt=dt, duration=duration, water=water, waves=regular_waves(1.0, 6.0),
+                      hydro={"irf_duration": irf_duration},
                       bodies=[body(name, hdb=hdb, mass=mass, center_of_mass=[0.0, 0.0, -1.0],
                                    inertia=[1.0e7, 1.0e7, 2.0e7], **body_keys)])
 
@@ -462,6 +463,101 @@ def test_save_restore_release_over_the_wire(server, hdb, conn):
         with pytest.raises(RemoteError) as err:
             other.save()
         assert (err.value.code, err.value.field) == (12, "type")
+
+
+# ------------------------------------------------------------------ set-up off the step path
+
+def test_steps_of_another_session_are_answered_while_a_hello_is_set_up(server, hdb):
+    """A hello whose set-up takes long (dt = 2e-5 s: an IRF of 2e5 samples over 400 frequencies)
+    is answered when its set-up is done; meanwhile the loop answers another session's steps (before
+    the set-up moved to a worker thread, they waited for it: 0 or 1 step got through)."""
+    slow = float_scene(dt=2e-5, duration=0.01)
+    conn = ServerConnection(server.address, timeout=10.0)
+    sock = zmq.Context.instance().socket(zmq.DEALER)
+    sock.setsockopt(zmq.LINGER, 0)
+    try:
+        conn.hello(float_scene(duration=1.0e5), {"float.nc": hdb})
+        sock.connect(server.address)
+        sock.send(codec.pack(codec.message("hello", "slow-1", None, role="multibody", scene=slow,
+                                           hdbs={"float.nc": to_wire(hdb)})))
+        answered, seq = 0, 0
+        sts = states(1)
+        deadline = time.monotonic() + 600
+        while not sock.poll(0):
+            assert time.monotonic() < deadline, "the slow hello got no reply"
+            conn.step(seq, seq * DT, *sts[0])
+            seq, answered = seq + 1, answered + 1
+        welcome = codec.unpack(sock.recv())
+        assert welcome["type"] == "welcome" and welcome["parent"] == "slow-1", welcome
+        assert welcome["setup"]["dt"] == 2e-5 and welcome["setup"]["irf_samples"] == 200_000
+        assert answered >= 10, f"only {answered} steps of the other session were answered during the set-up"
+        conn.step(seq, seq * DT, *sts[0])
+    finally:
+        sock.close(0)
+        conn.close()
+
+
+def test_irf_work_over_the_setup_bound_is_refused_naming_the_key(server, hdb):
+    """An IRF of 6e6 samples (irf_duration 60 s at dt 1e-5) over 400 frequencies is 2.4e9
+    sample-frequency products per transform, over MAX_IRF_PRODUCTS: error 8 naming the key,
+    before any transform; the server serves on. Heave only: K(t) itself (6e6 x 1 pair, 48 MB) is
+    within the set-up allocation bound, only the work is not."""
+    text = float_scene(dt=1e-5, duration=0.01, irf_duration=60.0, dofs=["heave"])
+    with ServerConnection(server.address, timeout=60.0) as c:
+        t0 = time.perf_counter()
+        err = expect_error(lambda: c.hello(text, {"float.nc": hdb}), 8, "scene.hydro.irf_duration")
+        assert "6000001 samples" in err.message and "2.41e+09" in err.message and "hydro.irf_domega" in err.message
+        assert time.perf_counter() - t0 < 30.0
+        c.hello(SCENE, {"float.nc": hdb})
+        assert c.step(0, 0.0, *states(1)[0])["seq"] == 0
+
+
+def test_a_frame_over_the_limit_is_refused_before_it_is_buffered(tmp_path):
+    """SPEC §1: ``hydrolink serve --max-message-mib 1`` refuses a 200 MiB frame from its header
+    (ZMQ_MAXMSGSIZE: the connection is dropped, no reply) without buffering it: the server's peak
+    RSS grows by far less than the frame (before, a frame under the 256 MiB limit cost twice its
+    size); the server serves on."""
+    import re
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen([sys.executable, "-m", "hydrolink.clients.cli", "serve", "--bind", "tcp://127.0.0.1:*",
+                             "--max-message-mib", "1", "--store", str(tmp_path)], stderr=subprocess.PIPE, text=True)
+    ctx = zmq.Context.instance()
+    socks = []
+
+    def peak_mib() -> float:
+        return int(re.search(r"VmHWM:\s+(\d+) kB", Path(f"/proc/{proc.pid}/status").read_text()).group(1)) / 1024
+
+    def dealer() -> zmq.Socket:
+        sock = ctx.socket(zmq.DEALER)
+        sock.setsockopt(zmq.LINGER, 0)
+        sock.connect(address)
+        socks.append(sock)
+        return sock
+
+    try:
+        address = re.search(r"listening on (tcp://\S+)", proc.stderr.readline()).group(1)
+        ping = codec.pack(codec.message("ping", 1, None))
+        first = dealer()
+        first.send(ping)
+        assert first.poll(RECV_MS) and codec.unpack(first.recv())["type"] == "pong"
+        before = peak_mib()
+        big = dealer()
+        big.send(bytes(200 * 2**20))
+        assert not big.poll(3000), "a frame over the limit was answered: it was received"
+        grown = peak_mib() - before
+        assert grown < 50, f"the server's peak RSS grew by {grown:.0f} MiB for a refused 200 MiB frame"
+        under = dealer()   # a message just under the limit is still read
+        under.send(codec.pack(codec.message("upload", 2, None, sha256="0" * 64, data=bytes(2**20 - 200))))
+        assert under.poll(RECV_MS) and codec.unpack(under.recv())["field"] == "sha256"
+        first.send(ping)
+        assert first.poll(RECV_MS) and codec.unpack(first.recv())["type"] == "pong"
+    finally:
+        for sock in socks:
+            sock.close(0)
+        proc.terminate()
+        proc.wait(10)
 
 
 def test_a_reply_the_wire_cannot_carry_is_an_error_and_the_server_serves_on():

@@ -151,6 +151,12 @@ class ServerConnection:
         hint = ("; with CURVE: is this client's public key in the server's --curve-clients directory, and "
                 "--curve-server-key the server's key?" if getattr(self, "curve", None) is not None else
                 "; a server started with --curve-secret refuses plaintext clients")
+        size = len(self._in_flight[1]) if self._in_flight is not None else 0
+        if size > codec.MAX_MESSAGE_BYTES:
+            hint += (f"; this request is {size / 2**20:.1f} MiB, over the default message limit of "
+                     f"{codec.MAX_MESSAGE_BYTES // 2**20} MiB, and a server drops a message over its limit "
+                     "unanswered (SPEC §1): send the HDB files by hash (hydrolink run --hdb-files) or start the "
+                     "server with a larger --max-message-mib")
         raise TimeoutError(f"no reply to {mtype!r} from the hydrolink server at {self.address} "
                            f"within {limit:g} s (is it running and reachable?{hint})")
 

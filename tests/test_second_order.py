@@ -1,0 +1,332 @@
+"""Second-order wave forces (server/second_order.py, issue 23) against references written here:
+the WAMIT formulas (F = rho g A^2 L Fbar for a .8 row; T = rho g L conj(Re + i Im) for a .12d/.12s
+row), the two-component closed forms of the mean, Newman (Standing) and full-QTF forces, and the
+static offset F/k of a body on a surge spring in a hydrolink run."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import xarray as xr
+
+from conftest import SPHERE_WATER, irregular_waves, regular_waves, scene_toml, sphere_body, write_scene
+
+from hydrolink.protocol.hdb_schema import to_netcdf
+from hydrolink.protocol.hdb_second_order import with_second_order
+from hydrolink.protocol.scene import parse_scene
+from hydrolink.server.errors import ModelError
+from hydrolink.server.force_term import TermContext
+from hydrolink.server.hdb.wamit_second_order import read_drift, read_qtf
+from hydrolink.server.hdb.wamit_table import Units
+from hydrolink.server.model import HydroModel
+from hydrolink.server.second_order import SecondOrderTerm
+from hydrolink.server.waves import WaveComponents
+
+ULEN = 5.0
+PERIODS = (20.0, 12.0, 9.0, 7.0, 5.5, 4.5)
+MASS = 261.8e3
+
+
+def drift_bar(per: float, mode: int) -> float:
+    """Nondimensional mean drift written into the .8 (surge, sway, yaw)."""
+    return {1: 0.3 / (1 + (per / 7.0) ** 2), 2: 0.0, 6: 0.01 * per}[mode]
+
+
+def qtf_bar(pi: float, pj: float, mode: int, kind: str) -> complex:
+    """Nondimensional QTF written into the .12d / .12s (one triangle; the difference diagonal real)."""
+    t = complex(0.2 + 0.01 * pi + 0.02 * pj + 0.1 * mode, 0.03 * (pi - pj) + (0.01 * mode if kind == "s" else 0))
+    return t
+
+
+def write_wamit_second_order(folder: Path) -> Path:
+    """.8 mean drift (beta 0) and .12d/.12s QTFs (surge, heave) of stem ``folder/run``."""
+    folder.mkdir(parents=True, exist_ok=True)
+    rows = [f"{p} 0.0 0.0 {i} {abs(drift_bar(p, i))} 0.0 {drift_bar(p, i)} 0.0" for p in PERIODS for i in (1, 2, 6)]
+    (folder / "run.8").write_text("\n".join(rows) + "\n")
+    for kind in ("d", "s"):
+        rows = []
+        for a, pi in enumerate(PERIODS):
+            for pj in PERIODS[a:]:
+                for i in (1, 3):
+                    t = qtf_bar(pi, pj, i, kind)
+                    rows.append(f"{pi} {pj} 0.0 0.0 {i} {abs(t)} {np.degrees(np.angle(t))} {t.real} {t.imag}")
+        (folder / f"run.12{kind}").write_text("\n".join(rows) + "\n")
+    return folder / "run"
+
+
+@pytest.fixture(scope="module")
+def drift_hdb(sphere, tmp_path_factory) -> tuple[xr.Dataset, Path]:
+    """The Task-10 sphere's HDB with the WAMIT second-order files above (read by the WAMIT readers)."""
+    folder = tmp_path_factory.mktemp("drift")
+    stem = write_wamit_second_order(folder)
+    units = Units(float(sphere.attrs["rho"]), float(sphere.attrs["g"]), ULEN, 1)
+    ds = with_second_order(sphere, mean_drift=read_drift(stem, units, 6), qtf=read_qtf(stem, units, 6))
+    path = folder / "sphere_drift.nc"
+    to_netcdf(ds, path)
+    return ds, path
+
+
+def _rho_g(ds: xr.Dataset) -> float:
+    return float(ds.attrs["rho"]) * float(ds.attrs["g"])
+
+
+def _t_file(ds: xr.Dataset, pi: float, pj: float, mode: int, kind: str) -> complex:
+    """T of the file's row (or its mirror) in SI and exp(-iwt): rho g L conj(Re + i Im)."""
+    if PERIODS.index(pi) > PERIODS.index(pj):
+        t = qtf_bar(pj, pi, mode, kind)
+        t = np.conj(t) if kind == "d" else t
+    else:
+        t = qtf_bar(pi, pj, mode, kind)
+    return _rho_g(ds) * ULEN * np.conj(t)
+
+
+def _scene(path: Path, waves: dict, **hydro) -> str:
+    return scene_toml(dt=0.1, duration=10.0, water=SPHERE_WATER, waves=waves, hydro=hydro,
+                      bodies=[sphere_body(str(path), mass=MASS)])
+
+
+def test_regular_wave_drift_is_rho_g_a2_l_fbar(drift_hdb):
+    ds, path = drift_hdb
+    a, period = 1.5, 7.0
+    model = HydroModel(parse_scene(_scene(path, regular_waves(2 * a, period), second_order="mean-drift")),
+                       {"sphere": ds})
+    f = model.step(0.0, model.setup_info().equilibrium_position, np.zeros((1, 6)))["drift"][0]
+    rg = _rho_g(ds)
+    assert f[0] == pytest.approx(rg * a ** 2 * ULEN * drift_bar(period, 1), rel=1e-9)
+    assert f[5] == pytest.approx(rg * a ** 2 * ULEN ** 2 * drift_bar(period, 6), rel=1e-9)
+    assert np.all(f[1:5] == 0)
+    # the full QTF in a regular wave: A^2 T-(w, w) plus the sum-frequency A^2 Re(T+ c^2 e^{-2iwt})
+    scene = parse_scene(_scene(path, regular_waves(2 * a, period, phase=30.0), second_order="qtf",
+                               sum_frequency=True))
+    model = HydroModel(scene, {"sphere": ds})
+    w, phi = 2 * np.pi / period, np.radians(30.0)
+    x0 = model.setup_info().equilibrium_position
+    for k in range(3):
+        t = k * model.dt
+        f = model.step(t, x0, np.zeros((1, 6)))["drift"][0]
+        for mode, dof in ((1, 0), (3, 2)):
+            mean = a ** 2 * _t_file(ds, period, period, mode, "d").real
+            osc = (a ** 2 * _t_file(ds, period, period, mode, "s") * np.exp(2j * phi - 2j * w * t)).real
+            assert f[dof] == pytest.approx(mean + osc, rel=1e-9)
+
+
+def _bichromatic(omega, amp, phase) -> WaveComponents:
+    return WaveComponents(np.array(omega), np.array(amp), np.array(phase), 0.0, 0.0, 0.0, "irregular")
+
+
+def _term(ds: xr.Dataset, waves: WaveComponents, **hydro) -> SecondOrderTerm:
+    scene = parse_scene(_scene(Path("sphere_drift.nc"), regular_waves(1.0, 7.0), **hydro))
+    ctx = TermContext(scene, [0], np.ones((1, 6), bool), np.arange(6), waves, np.zeros((1, 6)),
+                      np.zeros((6, 6)), [None], {}, {"sphere": ds})
+    return SecondOrderTerm.build(ctx)
+
+
+@pytest.mark.parametrize("mode", ["mean-drift", "newman", "qtf"])
+def test_bichromatic_sea_against_the_closed_form(drift_hdb, mode):
+    """Two components on the data's grid: the mean, Newman (Standing) and full difference (+ sum)
+    force against the two-component formulas written out here."""
+    ds, _ = drift_hdb
+    (p1, p2), amp, phase = (9.0, 7.0), (1.2, 0.7), (0.4, 2.1)
+    w = [2 * np.pi / p1, 2 * np.pi / p2]
+    term = _term(ds, _bichromatic(w, amp, phase), second_order=mode, sum_frequency=mode == "qtf")
+    rg, (a1, a2), (f1, f2) = _rho_g(ds), amp, phase
+    dw, dphi = w[0] - w[1], f1 - f2
+    for t in (0.0, 3.3, 17.9, 101.0):
+        f = term.force(t, np.zeros((1, 6)), np.zeros((1, 6)))[0][0]
+        if mode in ("mean-drift", "newman"):
+            t11, t22 = rg * ULEN * drift_bar(p1, 1), rg * ULEN * drift_bar(p2, 1)
+            expect = a1 ** 2 * t11 + a2 ** 2 * t22
+            if mode == "newman":   # Standing: T12 = sqrt(T11 T22) (both positive here)
+                expect += 2 * a1 * a2 * np.sqrt(t11 * t22) * np.cos(dw * t - dphi)
+            assert f[0] == pytest.approx(expect, rel=1e-9)
+            continue
+        for qmode, dof in ((1, 0), (3, 2)):
+            t11, t22, t12 = (_t_file(ds, p1, p1, qmode, "d").real, _t_file(ds, p2, p2, qmode, "d").real,
+                             _t_file(ds, p1, p2, qmode, "d"))
+            diff = (a1 ** 2 * t11 + a2 ** 2 * t22
+                    + 2 * a1 * a2 * (t12.real * np.cos(dw * t - dphi) + t12.imag * np.sin(dw * t - dphi)))
+            s11, s22, s12 = (_t_file(ds, p1, p1, qmode, "s"), _t_file(ds, p2, p2, qmode, "s"),
+                             _t_file(ds, p1, p2, qmode, "s"))
+            total = (a1 ** 2 * abs(s11) * np.cos(2 * w[0] * t - 2 * f1 - np.angle(s11))
+                     + a2 ** 2 * abs(s22) * np.cos(2 * w[1] * t - 2 * f2 - np.angle(s22))
+                     + 2 * a1 * a2 * abs(s12) * np.cos((w[0] + w[1]) * t - f1 - f2 - np.angle(s12)))
+            assert f[dof] == pytest.approx(diff + total, rel=1e-9, abs=1e-9 * abs(diff))
+
+
+def test_interpolated_qtf_equals_the_dense_double_sum(drift_hdb):
+    """Off-grid components: the factorised force equals the O(N^2) double sum over a T_ij
+    interpolated bilinearly here (np.interp along each axis) from the file's square."""
+    ds, _ = drift_hdb
+    rng = np.random.default_rng(3)
+    w = np.sort(rng.uniform(2 * np.pi / 19.0, 2 * np.pi / 4.6, 40))
+    amp, phase = rng.uniform(0.05, 0.3, w.size), rng.uniform(0, 2 * np.pi, w.size)
+    term = _term(ds, _bichromatic(w, amp, phase), second_order="qtf")
+    grid = np.sort([2 * np.pi / p for p in PERIODS])
+    per = [2 * np.pi / g for g in grid]
+    square = np.array([[_t_file(ds, pi, pj, 1, "d") for pj in per] for pi in per])
+    rows = np.array([np.interp(w, grid, square[:, b].real) + 1j * np.interp(w, grid, square[:, b].imag)
+                     for b in range(grid.size)]).T                      # (n_c, n_q)
+    t_ij = np.array([np.interp(w, grid, r.real) + 1j * np.interp(w, grid, r.imag) for r in rows])
+    for t in (0.0, 55.5):
+        z = amp * np.exp(1j * phase - 1j * w * t)
+        expect = np.real(np.sum(z[:, None] * np.conj(z)[None, :] * t_ij))
+        assert term.force(t, np.zeros((1, 6)), np.zeros((1, 6)))[0][0, 0] == pytest.approx(expect, rel=1e-9)
+
+
+@pytest.mark.parametrize("hydro,key", [
+    ({"second_order": "qtf", "sum_frequency": True}, None),
+    ({"second_order": "mean-drift", "drift_method": "pressure"}, "hydro.drift_method"),
+])
+def test_missing_data_names_the_key_and_the_file(sphere, drift_hdb, hydro, key, sphere_path):
+    ds, path = drift_hdb
+    scene = parse_scene(_scene(path, regular_waves(1.0, 7.0), **hydro))
+    if key is None:      # the plain sphere HDB has no second-order data at all
+        with pytest.raises(ModelError) as err:
+            HydroModel(scene, {"sphere": sphere})
+        assert err.value.key == "hydro.second_order" and "sphere.h5" in str(err.value)
+        return
+    with pytest.raises(ModelError) as err:
+        HydroModel(scene, {"sphere": ds})
+    assert err.value.key == key and "momentum" in str(err.value)
+
+
+def test_direction_and_period_outside_the_data_are_refused(drift_hdb):
+    ds, path = drift_hdb
+    for waves, key in ((regular_waves(1.0, 7.0, direction=30.0), "waves.direction"),
+                       (regular_waves(1.0, 4.0), "waves.period")):
+        with pytest.raises(ModelError) as err:
+            HydroModel(parse_scene(_scene(path, waves, second_order="qtf")), {"sphere": ds})
+        assert err.value.key == key, err.value
+
+
+def test_surge_spring_sits_at_drift_over_k(drift_hdb, tmp_path):
+    """A hydrolink run: the sphere in surge on a linear spring k (damped) in regular waves with
+    the mean drift sits on average at F/k, F = rho g A^2 L Fbar of the .8 (the first-order motion
+    averages out over whole wave periods)."""
+    from hydrolink.clients.run import run_scene_file
+
+    ds, path = drift_hdb
+    a, period, k = 1.0, 7.0, 1.0e5
+    text = scene_toml(dt=0.1, duration=231.0, water=SPHERE_WATER,
+                      waves=regular_waves(2 * a, period, ramp=20.0), hydro={"second_order": "mean-drift"},
+                      bodies=[sphere_body(str(path), mass=MASS, dofs=["surge"], linear_damping=[3e5, 0, 0, 0, 0, 0])],
+                      moorings=[{"type": "linear", "body": "sphere", "point": [0.0, 0.0, 0.0],
+                                 "stiffness": [k, 0, 0, 0, 0, 0]}])
+    out = tmp_path / "spring.nc"
+    run_scene_file(write_scene(tmp_path, text), out, progress=False)
+    res = xr.load_dataset(out)
+    t = res["time"].values
+    window = t >= t[-1] - 20 * period - 1e-9
+    x = res["position"].values[:, 0, 0]
+    expect = _rho_g(ds) * a ** 2 * ULEN * drift_bar(period, 1) / k
+    assert np.trapezoid(x[window], t[window]) / (20 * period) == pytest.approx(expect, rel=0.01)
+    assert res["drift_force"].values[-1, 0, 0] == pytest.approx(expect * k, rel=1e-9)
+
+
+def test_rotated_phasors_stay_on_the_exact_ones(drift_hdb):
+    """Stepping by dt (phasors rotated, resynchronised every RESYNC steps) gives the force of a
+    fresh evaluation at the same time to round-off, over 3000 steps; a rollback repeats bit for bit."""
+    ds, _ = drift_hdb
+    rng = np.random.default_rng(5)
+    w = np.sort(rng.uniform(2 * np.pi / 19.0, 2 * np.pi / 4.6, 200))
+    waves = _bichromatic(w, rng.uniform(0.05, 0.3, w.size), rng.uniform(0, 2 * np.pi, w.size))
+    stepped, fresh = (_term(ds, waves, second_order="qtf", sum_frequency=True) for _ in range(2))
+    zero = np.zeros((1, 6))
+    for k in range(3001):
+        f = stepped.force(k * 0.1, zero, zero)[0]
+        if k == 1500:
+            saved = stepped.state()
+            again = [stepped.force(j * 0.1, zero, zero)[0] for j in (1501, 1502)]
+            stepped.set_state(saved)
+    np.testing.assert_allclose(f, fresh.force(3000 * 0.1, zero, zero)[0], rtol=1e-10, atol=1e-10 * np.abs(f).max())
+    stepped.set_state(saved)
+    np.testing.assert_array_equal([stepped.force(j * 0.1, zero, zero)[0] for j in (1501, 1502)], again)
+
+
+def test_fixed_body_drift_on_a_moving_body_is_a_warning_naming_the_key(sphere, tmp_path):
+    from hydrolink.protocol.hdb_second_order import MeanDrift
+    w = sphere["omega"].values
+    values = np.zeros((1, w.size, 1, 6))
+    values[0, :, 0, 0] = 500.0
+    ds = with_second_order(sphere, mean_drift=MeanDrift(("far-field",), w, np.zeros(1), values,
+                                                        "Capytaine far-field (Kochin), body fixed"))
+    text = scene_toml(dt=0.1, duration=10.0, water=SPHERE_WATER, waves=regular_waves(1.0, 7.0),
+                      bodies=[sphere_body("sphere_drift.nc", mass=MASS, second_order="mean-drift")])
+    model = HydroModel(parse_scene(text), {"sphere": ds})
+    assert any(m.startswith("bodies[0].second_order:") and "fixed" in m for m in model.warnings)
+    f = model.step(0.0, model.setup_info().equilibrium_position, np.zeros((1, 6)))["drift"][0]
+    assert f[0] == pytest.approx(500.0 * 0.5 ** 2, rel=1e-12)
+
+
+@pytest.mark.parametrize("body,hydro,key", [
+    ({"hdb": None, "center_of_mass": [0, 0, 0], "second_order": "newman"}, {}, "bodies[0].second_order"),
+    ({}, {"sum_frequency": True}, "hydro.sum_frequency"),
+    ({}, {"second_order": "slow"}, "hydro.second_order"),
+])
+def test_bad_scene_keys_are_named(body, hydro, key):
+    from hydrolink.protocol.scene import SceneError
+    keys = {**sphere_body("x.nc", mass=MASS), **body}
+    keys = {k: v for k, v in keys.items() if v is not None}
+    with pytest.raises(SceneError) as err:
+        parse_scene(scene_toml(dt=0.1, duration=1.0, hydro=hydro, bodies=[keys]))
+    assert err.value.key == key, err.value
+
+
+def test_a_qtf_too_large_for_the_headings_is_refused_before_allocating(drift_hdb, monkeypatch):
+    from hydrolink.server import allocation
+    ds, _ = drift_hdb
+    monkeypatch.setattr(allocation, "MAX_ARRAY_BYTES", 1000)
+    with pytest.raises(ModelError) as err:
+        _term(ds, _bichromatic([0.7, 0.9], [1.0, 1.0], [0.0, 0.0]), second_order="qtf")
+    assert err.value.key == "waves.direction" and "QTF" in str(err.value)
+
+
+def test_steady_mean_offset_on_a_surge_spring_is_drift_over_k(drift_hdb, tmp_path):
+    """hydrolink steady (the drift a load at its collocation nodes): the sphere on a surge spring k
+    in a regular wave sits on average at F/k, F = rho g A^2 L Fbar of the .8."""
+    from hydrolink.clients.studies.steady import steady_scene_file
+
+    ds, path = drift_hdb
+    a, period, k = 1.0, 7.0, 1.0e5
+    text = scene_toml(dt=period / 64, duration=10 * period, progress=False, water=SPHERE_WATER,
+                      waves=regular_waves(2 * a, period, ramp=period), hydro={"second_order": "mean-drift"},
+                      steady={"order": 3},
+                      bodies=[sphere_body(str(path), mass=MASS, dofs=["surge"])],
+                      moorings=[{"type": "linear", "body": "sphere", "point": [0.0, 0.0, 0.0],
+                                 "stiffness": [k, 0, 0, 0, 0, 0]}])
+    steady_scene_file(write_scene(tmp_path, text, "steady.toml"), tmp_path / "steady.nc", progress=False)
+    x = xr.load_dataset(tmp_path / "steady.nc")["position"].sel(body="sphere", dof="surge").values
+    assert x.mean() == pytest.approx(_rho_g(ds) * a ** 2 * ULEN * drift_bar(period, 1) / k, rel=1e-6)
+
+
+@pytest.mark.parametrize("mode", ["mean-drift", "newman", "qtf"])
+def test_still_water_gives_zero(drift_hdb, mode):
+    ds, path = drift_hdb
+    text = scene_toml(dt=0.1, duration=1.0, water=SPHERE_WATER, hydro={"second_order": mode, "sum_frequency": True},
+                      bodies=[sphere_body(str(path), mass=MASS)])
+    model = HydroModel(parse_scene(text), {"sphere": ds})
+    f = model.step(0.0, model.setup_info().equilibrium_position, np.zeros((1, 6)))["drift"]
+    assert f.shape == (1, 6) and not f.any()
+
+
+def test_irregular_sea_slow_drift_averages_to_the_mean_drift(drift_hdb):
+    """A JONSWAP sea of equally spaced components: over one beat period 2 pi / dw every
+    difference-frequency term averages out, so the time mean of the Newman force is the mean
+    drift sum A_i^2 T_ii (mode "mean-drift"); and spreading over headings the data lack is refused."""
+    ds, path = drift_hdb
+    waves = irregular_waves(2.0, 8.0, components=30, seed=4, omega_range=[0.35, 1.35])
+    mean = HydroModel(parse_scene(_scene(path, waves, second_order="mean-drift")), {"sphere": ds})
+    newman = HydroModel(parse_scene(_scene(path, waves, second_order="newman")), {"sphere": ds})
+    x0 = mean.setup_info().equilibrium_position
+    f_mean = mean.step(0.0, x0, np.zeros((1, 6)))["drift"][0]
+    term = newman.terms[0]
+    dw = 1.0 / 30
+    times = np.arange(64) * (2 * np.pi / dw) / 64
+    avg = np.mean([term.force(t, x0, np.zeros((1, 6)))[0][0] for t in times], axis=0)
+    np.testing.assert_allclose(avg, f_mean, rtol=1e-9, atol=1e-9 * np.abs(f_mean).max())
+    spread = irregular_waves(2.0, 8.0, components=30, omega_range=[0.35, 1.35], spreading="cos2s", s=10.0)
+    with pytest.raises(ModelError) as err:
+        HydroModel(parse_scene(_scene(path, spread, second_order="mean-drift")), {"sphere": ds})
+    assert err.value.key == "waves.spreading"
