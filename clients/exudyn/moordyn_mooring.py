@@ -502,11 +502,18 @@ class MoorDynSystem:
 
     # -- outputs -------------------------------------------------------------------------------------
     def tensions(self) -> np.ndarray:
-        """Tension at each line's fairlead end (N): the magnitude of the force the line's end node
-        passes to what it is attached to (segment tension + the node's weight, drag, seabed)."""
+        """MoorDyn's own tension at each line's fairlead end (N): the tension of the line's end
+        segment, the number MoorDyn's ``GetLineFairTen`` and its output channels give (FairTen;
+        AnchTen for a line written from its fairlead down)."""
         import moordyn
-        return np.array([math.hypot(*moordyn.GetLineNodeForce(line, k))
-                         for line, k in zip(self._lines, self._fairlead)])
+        return np.array([math.hypot(*moordyn.GetLineNodeTen(line, k)) for line, k in zip(self._lines, self._fairlead)])
+
+    def end_forces(self) -> np.ndarray:
+        """Magnitude of the force each line's fairlead end node passes on to what it is attached to
+        (N): the end segment's tension plus the node's own weight, buoyancy, drag and seabed
+        contact (half a segment's): the line's pull on its fairlead point."""
+        import moordyn
+        return np.array([math.hypot(*moordyn.GetLineNodeForce(line, k)) for line, k in zip(self._lines, self._fairlead)])
 
     def node_positions(self, n_nodes: int) -> np.ndarray:
         """(lines, n_nodes, 3) node positions from the anchor end, NaN past a line's last node."""
