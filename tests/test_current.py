@@ -240,7 +240,7 @@ def test_moordyn_lines_in_current_against_standalone_moordyn_with_external_kinem
         system.start(pose)
         for k in range(n):
             loads = system.step(k * dt, dt, pose, pose)
-        out = loads[0].copy(), system.tensions()
+        out = loads[0].copy(), np.r_[system.tensions(), system.end_forces()]
         system.close()
         return out
 
@@ -264,11 +264,13 @@ def test_moordyn_lines_in_current_against_standalone_moordyn_with_external_kinem
             u = np.column_stack([speed * math.cos(b), speed * math.sin(b), np.zeros(len(r))])
             moordyn.ExternalWaveKinSet(m, u.tolist(), np.zeros_like(u).tolist(), k * dt)
             f = np.asarray(moordyn.Step(m, x, [0.0] * 6, k * dt, dt), float)
-        ref_tensions = np.array([math.hypot(*moordyn.GetLineNodeForce(moordyn.GetLine(m, i), 24)) for i in (1, 2, 3)])
+        lines = [moordyn.GetLine(m, i) for i in (1, 2, 3)]
+        ref_tensions = np.array([math.hypot(*get(line, 24)) for get in (moordyn.GetLineNodeTen, moordyn.GetLineNodeForce)
+                                 for line in lines])
         moordyn.Close(m)
     change = np.linalg.norm(f[:2] - still_loads[:2])
     assert change > 0.03 * np.linalg.norm(still_loads[:3])          # the current matters (4 %: 21 kN of 483 kN)
-    # measured: horizontal load 18001.01 N vs 18001.15 N, fairlead tensions within 3e-7
+    # measured: horizontal load 18001.01 N vs 18001.15 N, fairlead tensions and end forces within 3e-7
     assert np.linalg.norm(loads[:2] - f[:2]) < 1e-3 * change, (loads[:3], f[:3], still_loads[:3])
     np.testing.assert_allclose(loads[2:], f[2:], rtol=1e-4, atol=1e-3 * change)
     np.testing.assert_allclose(tensions, ref_tensions, rtol=1e-5)
