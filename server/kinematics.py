@@ -6,7 +6,11 @@ server/waves.py (the ramp multiplies it), the particle velocity at (x, y, z <= 0
 u_h = Re(w a C e^{i theta}) (along the heading), u_z = Re(-i w a S e^{i theta}) with
 C = cosh(k (z + h)) / sinh(k h), S = sinh(k (z + h)) / sinh(k h) in depth h, both e^{k z} in deep
 water, and the acceleration its time derivative (-i w times the phasor). Points above the still
-water line are given the kinematics at z = 0 (no stretching)."""
+water line are given the kinematics at z = 0 (no stretching).
+
+The scene's steady current (protocol/current.py), when given, adds its velocity at each point's
+depth to the particle velocity (not to the acceleration, nor ramped): the fluid velocity the
+relative-velocity terms see is u_wave + u_current."""
 
 from __future__ import annotations
 
@@ -14,6 +18,7 @@ import math
 
 import numpy as np
 
+from hydrolink.protocol.current import Current
 from hydrolink.server.waves import WaveComponents, ramp_factor
 
 
@@ -35,11 +40,14 @@ def wave_number(omega: float, gravity: float, depth: float) -> float:
 
 
 class Kinematics:
-    """Particle velocity and acceleration of the incident wave at fixed points (P, 3)."""
+    """Particle velocity and acceleration of the incident wave, plus the steady ``current`` (its
+    velocity only), at fixed points (P, 3)."""
 
-    def __init__(self, comps: WaveComponents, points: np.ndarray, gravity: float, depth: float):
+    def __init__(self, comps: WaveComponents, points: np.ndarray, gravity: float, depth: float,
+                 current: Current | None = None):
         pts = np.asarray(points, float).reshape(-1, 3)
         self.n_points = len(pts)
+        self.steady = np.zeros((self.n_points, 3)) if current is None else current.velocity(pts[:, 2])
         self.ramp = comps.ramp
         self.omega = comps.omega.copy()
         self.still = comps.size == 0
@@ -62,17 +70,17 @@ class Kinematics:
                                -1j * base * sh], axis=1).reshape(-1, self.omega.size)
 
     def velocity(self, t: float) -> np.ndarray:
-        """(P, 3) particle velocity at time t [m/s], ramp included."""
+        """(P, 3) fluid velocity at time t [m/s]: the wave's (ramp included) plus the current."""
         if self.still:
-            return np.zeros((self.n_points, 3))
+            return self.steady.copy()
         e = np.exp(-1j * self.omega * t)
-        return ramp_factor(t, self.ramp) * np.real(self._rows @ e).reshape(-1, 3)
+        return ramp_factor(t, self.ramp) * np.real(self._rows @ e).reshape(-1, 3) + self.steady
 
     def velocity_acceleration(self, t: float) -> tuple[np.ndarray, np.ndarray]:
-        """(P, 3) particle velocity and acceleration [m/s^2] at time t, both from one product (the
-        acceleration without the ramp's own rate)."""
+        """(P, 3) fluid velocity (as :meth:`velocity`) and acceleration [m/s^2] at time t, both
+        from one product (the acceleration without the ramp's own rate)."""
         if self.still:
-            return np.zeros((self.n_points, 3)), np.zeros((self.n_points, 3))
+            return self.steady.copy(), np.zeros((self.n_points, 3))
         e = np.exp(-1j * self.omega * t)
         both = np.real(self._rows @ np.column_stack([e, -1j * self.omega * e])) * ramp_factor(t, self.ramp)
-        return both[:, 0].reshape(-1, 3), both[:, 1].reshape(-1, 3)
+        return both[:, 0].reshape(-1, 3) + self.steady, both[:, 1].reshape(-1, 3)

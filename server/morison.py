@@ -1,6 +1,6 @@
 """Morison elements on wet bodies (issue 10): slender members cut into segments, Morison's
 equation in relative form on each wetted segment with the undisturbed wave's kinematics at the
-segment's mean position (server/kinematics.py):
+segment's mean position, u plus the scene's steady current there (server/kinematics.py):
 
     f_s = rho (1 + ca) V_s a_n + 1/2 rho cd D L_s |w_n| w_n,    w = u - v_s,
 
@@ -81,8 +81,9 @@ def build_morison(scene: Scene, wet: list[int], waves: WaveComponents,
     body, centre = np.asarray(body), np.asarray(centre)
     lever = centre - reference_points[body]
     gather = (np.arange(len(wet))[:, None] == body[None, :]).astype(float)
+    flow = Kinematics(waves, centre, scene.water.gravity, scene.water.depth_m, scene.current)
     ms = MorisonSet(body, lever, centre[:, 2].copy(), np.asarray(axes), gather, np.asarray(inertia),
-                    np.asarray(drag), Kinematics(waves, centre, scene.water.gravity, scene.water.depth_m), len(wet))
+                    np.asarray(drag), flow, len(wet))
     n6 = 6 * len(wet)
     added = np.zeros((n6, n6))
     for s in np.flatnonzero(centre[:, 2] <= 0.0):

@@ -242,7 +242,7 @@ def build_model(scene: Scene, setup: Setup | None, *, spectral_radius: float = 1
     ptos = build_ptos(mbs, scene.ptos, mech.handles) if scene.ptos else None
     all_names, reference = result_bodies(scene, setup)
     moorings = build_moorings(mbs, scene.moorings, mech.handles, scene.water, moordyn_files, all_names,
-                              reference) if scene.moorings else None
+                              reference, scene.current) if scene.moorings else None
     padded = any(h.dofs is not None for h in mech.handles.values())
     # the hydro object's coordinates: each wet body's node coordinates (a reduced body's active DOFs)
     sel = np.concatenate([6 * i + np.asarray(mech.handles[nm].dofs or range(6), int) for i, nm in enumerate(names)]
