@@ -378,9 +378,12 @@ def require_array(msg: dict, field: str, shape: tuple[int | None, ...], *, finit
                                or any(w is not None and w != n for w, n in zip(shape, arr.shape))):
         want = "(" + ", ".join("*" if w is None else str(w) for w in shape) + ")"
         raise ProtocolError(Code.BAD_VALUE, name, f"shape must be {want}, got {tuple(arr.shape)}")
-    if bound is not None:   # one pass: NaN and inf fail the comparisons too
-        inside = all(-bound <= x <= bound for x in arr.ravel().tolist()) if arr.size <= 64 \
-            else bool(np.all(np.abs(arr) <= bound))
+    if bound is not None:   # max |x| <= bound; NaN and inf (which max can pass over) fail the sum
+        if arr.size <= 64:
+            values = arr.ravel().tolist()
+            inside = not values or (max(map(abs, values)) <= bound and math.isfinite(sum(values)))
+        else:
+            inside = bool(np.all(np.abs(arr) <= bound))
     else:
         inside = not finite or (all(map(math.isfinite, arr.ravel().tolist())) if arr.size <= 64
                                 else bool(np.isfinite(arr).all()))
