@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from hydrolink.server.waves import WaveComponents, ramp_factor
+from hydrolink.server.waves import WaveComponents, ramp_at
 
 
 def wave_number(omega: float, gravity: float, depth: float) -> float:
@@ -58,21 +58,33 @@ class Kinematics:
         c = comps.amplitude * np.exp(1j * comps.phase) * self.omega    # w a e^{i phi}
         base = c[None, :] * np.exp(1j * theta)                          # (P, n_c)
         # velocity phasors, one row per point and axis (3P, n_c): horizontal along each heading, vertical
-        self._rows = np.stack([base * ch * np.cos(beta)[None, :], base * ch * np.sin(beta)[None, :],
-                               -1j * base * sh], axis=1).reshape(-1, self.omega.size)
+        rows = np.stack([base * ch * np.cos(beta)[None, :], base * ch * np.sin(beta)[None, :],
+                         -1j * base * sh], axis=1).reshape(-1, self.omega.size)
+        # Re(R e^{-iwt}) = Re(R) cos(wt) + Im(R) sin(wt): velocity rows then acceleration rows (R times
+        # -iw), one real (6P, 2 n_c) matrix over [cos wt; sin wt] (no complex exponential per step)
+        acc = -1j * rows * self.omega[None, :]
+        self._m = np.ascontiguousarray(np.vstack([np.hstack([rows.real, rows.imag]),
+                                                  np.hstack([acc.real, acc.imag])]))
+        self._trig = np.empty(2 * self.omega.size)
+
+    def _product(self, t: float, n_rows: int) -> np.ndarray:
+        """The first ``n_rows`` rows of the real matrix times [cos wt; sin wt], ramp included."""
+        n = self.omega.size
+        np.multiply(self.omega, t, out=self._trig[:n])
+        np.sin(self._trig[:n], out=self._trig[n:])
+        np.cos(self._trig[:n], out=self._trig[:n])
+        return (self._m[:n_rows] @ self._trig) * ramp_at(t, self.ramp)
 
     def velocity(self, t: float) -> np.ndarray:
         """(P, 3) particle velocity at time t [m/s], ramp included."""
         if self.still:
             return np.zeros((self.n_points, 3))
-        e = np.exp(-1j * self.omega * t)
-        return ramp_factor(t, self.ramp) * np.real(self._rows @ e).reshape(-1, 3)
+        return self._product(t, 3 * self.n_points).reshape(-1, 3)
 
     def velocity_acceleration(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """(P, 3) particle velocity and acceleration [m/s^2] at time t, both from one product (the
         acceleration without the ramp's own rate)."""
         if self.still:
             return np.zeros((self.n_points, 3)), np.zeros((self.n_points, 3))
-        e = np.exp(-1j * self.omega * t)
-        both = np.real(self._rows @ np.column_stack([e, -1j * self.omega * e])) * ramp_factor(t, self.ramp)
-        return both[:, 0].reshape(-1, 3), both[:, 1].reshape(-1, 3)
+        both = self._product(t, 6 * self.n_points).reshape(2, -1, 3)
+        return both[0], both[1]
