@@ -37,7 +37,10 @@ def wave_number(omega: float, gravity: float, depth: float) -> float:
 class Kinematics:
     """Particle velocity and acceleration of the incident wave at fixed points (P, 3)."""
 
-    def __init__(self, comps: WaveComponents, points: np.ndarray, gravity: float, depth: float):
+    def __init__(self, comps: WaveComponents, points: np.ndarray, gravity: float, depth: float,
+                 normal_to: np.ndarray | None = None):
+        """``normal_to`` (P, 3) unit vectors: give only the components normal to them (a Morison
+        member's axis at each point), projected once here rather than every step."""
         pts = np.asarray(points, float).reshape(-1, 3)
         self.n_points = len(pts)
         self.ramp = comps.ramp
@@ -59,7 +62,11 @@ class Kinematics:
         base = c[None, :] * np.exp(1j * theta)                          # (P, n_c)
         # velocity phasors, one row per point and axis (3P, n_c): horizontal along each heading, vertical
         rows = np.stack([base * ch * np.cos(beta)[None, :], base * ch * np.sin(beta)[None, :],
-                         -1j * base * sh], axis=1).reshape(-1, self.omega.size)
+                         -1j * base * sh], axis=1)                     # (P, 3, n_c)
+        if normal_to is not None:
+            axis = np.asarray(normal_to, float).reshape(-1, 3)
+            rows = rows - axis[:, :, None] * np.einsum("pi,pic->pc", axis, rows)[:, None, :]
+        rows = rows.reshape(-1, self.omega.size)
         # Re(R e^{-iwt}) = Re(R) cos(wt) + Im(R) sin(wt): velocity rows then acceleration rows (R times
         # -iw), one real (6P, 2 n_c) matrix over [cos wt; sin wt] (no complex exponential per step)
         acc = -1j * rows * self.omega[None, :]

@@ -36,19 +36,19 @@ class MorisonSet:
     """The segments and the fixed linear maps of a step (built once by :func:`build_morison`)."""
     lever: np.ndarray       # (S, 3) segment centre minus the body's reference point, at equilibrium
     z0: np.ndarray          # (S,) segment centre height at equilibrium
-    axis: np.ndarray        # (S, 3) unit vector along the member (the normal part of w: w - (w.a) a)
     inertia: np.ndarray     # (S,) rho (1 + ca) V
     drag: np.ndarray        # (S,) 1/2 rho cd D L
     heave: np.ndarray       # (S, 6N): the centre's height change for displacements x (heave, roll, pitch)
-    motion: np.ndarray      # (3S, 6N): the centres' velocities v + omega x lever for body velocities v
+    motion: np.ndarray      # (3S, 6N): the centres' velocities v + omega x lever, normal to the member
     loads: np.ndarray       # (6N, 3S): force and moment about the reference point of the segment forces
-    wave: Kinematics        # at the segments' centres
+    wave: Kinematics        # at the segments' centres, normal to the member
     n_bodies: int
 
     @classmethod
     def of(cls, body: np.ndarray, lever: np.ndarray, z0: np.ndarray, axis: np.ndarray, inertia: np.ndarray,
            drag: np.ndarray, wave: Kinematics, n_bodies: int) -> "MorisonSet":
-        """The set of segments on server bodies ``body`` (S,), its linear maps assembled."""
+        """The set of segments on server bodies ``body`` (S,) along unit ``axis`` (S, 3), its linear
+        maps assembled (``wave`` already normal to the axes: Kinematics ``normal_to``)."""
         n_seg = len(body)
         heave = np.zeros((n_seg, 6 * n_bodies))
         cols = 6 * body
@@ -58,20 +58,20 @@ class MorisonSet:
         motion = np.zeros((n_seg, 3, n_bodies, 6))
         motion[rows, :, body, :3] = np.eye(3)
         motion[rows, :, body, 3:] = -skew                                   # omega x r = -[r]x omega
+        normal = np.eye(3)[None] - axis[:, :, None] * axis[:, None, :]        # (S, 3, 3): w - (w.a) a
+        motion = np.einsum("sij,sjnk->sink", normal, motion)
         loads = np.zeros((n_bodies, 6, n_seg, 3))
         loads[body, :3, rows, :] = np.eye(3)
         loads[body, 3:, rows, :] = skew                                     # r x f
-        return cls(lever, z0, axis, inertia, drag, heave, motion.reshape(3 * n_seg, -1),
+        return cls(lever, z0, inertia, drag, heave, motion.reshape(3 * n_seg, -1),
                    loads.reshape(6 * n_bodies, -1), wave, n_bodies)
 
     def force(self, t: float, x: np.ndarray, v: np.ndarray) -> np.ndarray:
         """(N, 6) force and moment on each body for displacements ``x`` and velocities ``v``
         (N, 6) from equilibrium."""
         wet = (self.z0 + self.heave @ x.reshape(-1)) <= 0.0
-        u, acc = self.wave.velocity_acceleration(t)
-        w = u - (self.motion @ v.reshape(-1)).reshape(-1, 3)
-        wn = w - (w * self.axis).sum(axis=1)[:, None] * self.axis
-        an = acc - (acc * self.axis).sum(axis=1)[:, None] * self.axis
+        un, an = self.wave.velocity_acceleration(t)
+        wn = un - (self.motion @ v.reshape(-1)).reshape(-1, 3)
         f = (self.inertia[:, None] * an + (self.drag * np.sqrt((wn * wn).sum(axis=1)))[:, None] * wn) * wet[:, None]
         return (self.loads @ f.reshape(-1)).reshape(self.n_bodies, 6)
 
@@ -101,7 +101,8 @@ def build_morison(scene: Scene, wet: list[int], waves: WaveComponents,
     body, centre = np.asarray(body), np.asarray(centre)
     lever = centre - reference_points[body]
     ms = MorisonSet.of(body, lever, centre[:, 2].copy(), np.asarray(axes), np.asarray(inertia), np.asarray(drag),
-                       Kinematics(waves, centre, scene.water.gravity, scene.water.depth_m), len(wet))
+                       Kinematics(waves, centre, scene.water.gravity, scene.water.depth_m, normal_to=np.asarray(axes)),
+                       len(wet))
     n6 = 6 * len(wet)
     added = np.zeros((n6, n6))
     skew = _skew(lever)
