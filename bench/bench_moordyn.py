@@ -221,7 +221,7 @@ def main() -> None:
                "wall time per step", per_step)
 
         md, ro = xr.load_dataset(files["moordyn-3"]), xr.load_dataset(files["ropes-3"])
-        t_md = md["line_tension"].values
+        t_md = md["line_end_force"].values    # the pull on the fairlead, as the rope's mooring_force
         t_ro = np.linalg.norm(ro["mooring_force"].values[:, :, :3], axis=2)
         print("the same three lines, MoorDyn vs ANCF ropes (the spar pushed off at 0.2 m/s):")
         for k in range(3):

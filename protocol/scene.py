@@ -14,6 +14,7 @@ from typing import Annotated, Literal, Union
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, field_validator, model_validator
 
 from hydrolink.protocol.capabilities import FEATURES
+from hydrolink.protocol.current import Current
 from hydrolink.protocol.errors import KeyedError
 from hydrolink.protocol.scene_bounds import (MAX_STEPS, AddedMassRatio, AngleDeg, Area, CableElements, Coefficient,
                                              ComponentCount, Coordinate, Density, Depth, Diameter, DirectionCount,
@@ -250,8 +251,9 @@ Inertia3 = Annotated[list[Coefficient], Field(min_length=3, max_length=3)]   # k
 
 class Drag(_Section):
     """WEC-Sim's quadratic drag of a wet body, per DOF about its reference point:
-    F_i = -1/2 rho cd_i area_i |u_i| u_i, u = v - (the undisturbed wave particle velocity at the
-    reference point; rotational DOFs: none) when ``relative``, else u = v."""
+    F_i = -1/2 rho cd_i area_i |u_i| u_i, u = v - (the undisturbed wave particle velocity plus the
+    ``[current]`` at the reference point; rotational DOFs: none) when ``relative``, else u = v (the
+    current is then ignored)."""
     cd: Annotated[list[FlowCoefficient], Field(min_length=6, max_length=6)]
     area: Annotated[list[Area], Field(min_length=6, max_length=6)]
     relative: bool = True
@@ -630,8 +632,9 @@ Mooring = Annotated[Union[LinearMooring, RopeMooring, MoorDynMooring], Field(dis
 class MorisonElement(_Section):
     """A slender cylindrical member on a wet body, from ``point_a`` to ``point_b`` (global frame at
     equilibrium): Morison's equation in relative form on each of its ``segments``, over its wetted
-    part (below the still water line), with the undisturbed wave's kinematics at the segment's
-    mean position: f = rho (1 + ca) V a_n + 1/2 rho cd D L |u_n - v_n| (u_n - v_n) per segment (n:
+    part (below the still water line), with the undisturbed wave's kinematics (u: plus the
+    ``[current]``) at the segment's mean position:
+    f = rho (1 + ca) V a_n + 1/2 rho cd D L |u_n - v_n| (u_n - v_n) per segment (n:
     normal to the member), the member's added mass rho ca V in the body's mass matrix (SPEC §5.1
     setup.added_mass); forces and moments about the body's reference point."""
     name: Name | None = None
@@ -795,6 +798,7 @@ class Scene(_Section):
     simulation: Simulation
     water: Water = Water()
     waves: Waves = StillWater(type="still")
+    current: Current | None = None
     hydro: Hydro = Hydro()
     steady: Steady = Steady()
     coupling: Coupling = Coupling()
@@ -871,9 +875,26 @@ class Scene(_Section):
                              "wet body's second_order) other than \"none\"")
         if isinstance(self.client, FMUClient):
             self.client.check(self)
+        self._check_current()
         self._check_controllers(names)
         self._check_coupling()
         return self
+
+    def _check_current(self) -> None:
+        c = self.current
+        if c is None:
+            return
+        if c.depth is not None and c.depth > self.water.depth_m:
+            raise ValueError(f"current.depth: {c.depth:g} m is below the seabed (water.depth = {self.water.depth_m:g} m)")
+        if not self.current_users():
+            self._notes.append("current: nothing in this scene feels the current (it acts on bodies[i].drag with "
+                               "relative = true, morison members and MoorDyn lines): it changes no result")
+
+    def current_users(self) -> list[str]:
+        """The keys of what feels ``[current]``: relative drag, Morison members, MoorDyn moorings."""
+        users = [f"bodies[{i}].drag" for i, b in enumerate(self.bodies) if b.drag is not None and b.drag.relative]
+        users += [f"morison[{i}]" for i in range(len(self.morison))]
+        return users + [f"moorings[{i}]" for i, m in enumerate(self.moorings) if isinstance(m, MoorDynMooring)]
 
     def _check_coupling(self) -> None:
         fmu = isinstance(self.client, FMUClient)

@@ -78,6 +78,8 @@ Frequency = bounded(gt=0.0, le=1000.0, why="rad/s")
 FrequencyStep = bounded(ge=1e-4, le=10.0, why="rad/s: a resampling step from 1e-4 to 10 rad/s")
 Seed = bounded(ge=0, le=2**63 - 1, why="a 64-bit random seed", kind=int)
 SpreadingExponent = bounded(gt=0.0, le=1000.0, why="cos-2s spreading exponent s")
+CurrentSpeed = bounded(ge=0.0, le=10.0, why="m/s (the fastest tidal streams are ~5 m/s)")
+ProfileDepth = bounded(gt=0.0, le=DEPTH_RANGE[1], why="metres below the still water line")
 
 # -- bodies and mechanism (SI; coefficients up to 1e15 cover the largest structures)
 Mass = bounded(gt=0.0, floor=1e-3, le=1e10, why="kg, from a gram to 10 million tonnes")

@@ -5,7 +5,8 @@ variable naming the folder itself, and the atomic write every entry goes through
 from __future__ import annotations
 
 import os
-import tempfile
+import secrets
+import stat
 from collections.abc import Callable
 from pathlib import Path
 
@@ -22,14 +23,32 @@ def user_cache_dir(kind: str) -> Path:
     return Path(base).expanduser() / "hydrolink" / kind
 
 
+def _create_beside(path: Path) -> tuple[str, int]:
+    """A new empty file beside ``path`` (hidden, unique name), created as ``open()`` creates files:
+    mode 0666 less the process's umask. Returns its name and that mode (read back, so the umask is
+    never changed, not even for a moment)."""
+    while True:
+        tmp = str(path.parent / f".{path.stem}.{secrets.token_hex(6)}{path.suffix}.tmp")
+        try:
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        except FileExistsError:
+            continue
+        try:
+            return tmp, stat.S_IMODE(os.fstat(fd).st_mode)
+        finally:
+            os.close(fd)
+
+
 def write_atomic(path: Path, write: Callable[[str], None]) -> None:
     """Create ``path``'s folder, let ``write`` fill a temporary file beside it, then rename it to
-    ``path`` (readers never see a partial entry; the temporary file is removed on failure)."""
+    ``path`` (readers never see a partial entry; the temporary file is removed on failure). The
+    file gets the mode any file the user creates gets (0666 less the umask), whatever ``write`` did
+    to the temporary file (a writer may delete and recreate it)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f"{path.suffix}.tmp", dir=path.parent)
-    os.close(fd)
+    tmp, mode = _create_beside(path)
     try:
         write(tmp)
+        os.chmod(tmp, mode)
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):

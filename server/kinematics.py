@@ -6,7 +6,11 @@ server/waves.py (the ramp multiplies it), the particle velocity at (x, y, z <= 0
 u_h = Re(w a C e^{i theta}) (along the heading), u_z = Re(-i w a S e^{i theta}) with
 C = cosh(k (z + h)) / sinh(k h), S = sinh(k (z + h)) / sinh(k h) in depth h, both e^{k z} in deep
 water, and the acceleration its time derivative (-i w times the phasor). Points above the still
-water line are given the kinematics at z = 0 (no stretching)."""
+water line are given the kinematics at z = 0 (no stretching).
+
+The scene's steady current (protocol/current.py), when given, adds its velocity at each point's
+depth to the particle velocity (not to the acceleration, nor ramped): the fluid velocity the
+relative-velocity terms see is u_wave + u_current."""
 
 from __future__ import annotations
 
@@ -14,6 +18,7 @@ import math
 
 import numpy as np
 
+from hydrolink.protocol.current import Current
 from hydrolink.server.waves import WaveComponents, ramp_at
 
 
@@ -35,14 +40,19 @@ def wave_number(omega: float, gravity: float, depth: float) -> float:
 
 
 class Kinematics:
-    """Particle velocity and acceleration of the incident wave at fixed points (P, 3)."""
+    """Particle velocity and acceleration of the incident wave, plus the steady ``current`` (its
+    velocity only), at fixed points (P, 3)."""
 
     def __init__(self, comps: WaveComponents, points: np.ndarray, gravity: float, depth: float,
-                 normal_to: np.ndarray | None = None):
+                 current: Current | None = None, normal_to: np.ndarray | None = None):
         """``normal_to`` (P, 3) unit vectors: give only the components normal to them (a Morison
         member's axis at each point), projected once here rather than every step."""
         pts = np.asarray(points, float).reshape(-1, 3)
         self.n_points = len(pts)
+        axis = None if normal_to is None else np.asarray(normal_to, float).reshape(-1, 3)
+        self.steady = np.zeros((self.n_points, 3)) if current is None else current.velocity(pts[:, 2])
+        if axis is not None:
+            self.steady = self.steady - axis * (self.steady * axis).sum(axis=1)[:, None]
         self.ramp = comps.ramp
         self.omega = comps.omega.copy()
         self.still = comps.size == 0
@@ -63,8 +73,7 @@ class Kinematics:
         # velocity phasors, one row per point and axis (3P, n_c): horizontal along each heading, vertical
         rows = np.stack([base * ch * np.cos(beta)[None, :], base * ch * np.sin(beta)[None, :],
                          -1j * base * sh], axis=1)                     # (P, 3, n_c)
-        if normal_to is not None:
-            axis = np.asarray(normal_to, float).reshape(-1, 3)
+        if axis is not None:
             rows = rows - axis[:, :, None] * np.einsum("pi,pic->pc", axis, rows)[:, None, :]
         rows = rows.reshape(-1, self.omega.size)
         # Re(R e^{-iwt}) = Re(R) cos(wt) + Im(R) sin(wt): velocity rows then acceleration rows (R times
@@ -83,15 +92,15 @@ class Kinematics:
         return (self._m[:n_rows] @ self._trig) * ramp_at(t, self.ramp)
 
     def velocity(self, t: float) -> np.ndarray:
-        """(P, 3) particle velocity at time t [m/s], ramp included."""
+        """(P, 3) fluid velocity at time t [m/s]: the wave's (ramp included) plus the current."""
         if self.still:
-            return np.zeros((self.n_points, 3))
-        return self._product(t, 3 * self.n_points).reshape(-1, 3)
+            return self.steady.copy()
+        return self._product(t, 3 * self.n_points).reshape(-1, 3) + self.steady
 
     def velocity_acceleration(self, t: float) -> tuple[np.ndarray, np.ndarray]:
-        """(P, 3) particle velocity and acceleration [m/s^2] at time t, both from one product (the
-        acceleration without the ramp's own rate)."""
+        """(P, 3) fluid velocity (as :meth:`velocity`) and acceleration [m/s^2] at time t, both
+        from one product (the acceleration without the ramp's own rate)."""
         if self.still:
-            return np.zeros((self.n_points, 3)), np.zeros((self.n_points, 3))
+            return self.steady.copy(), np.zeros((self.n_points, 3))
         both = self._product(t, 6 * self.n_points).reshape(2, -1, 3)
-        return both[0], both[1]
+        return both[0] + self.steady, both[1]

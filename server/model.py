@@ -204,10 +204,7 @@ class HydroModel:
         s_rho = water.density / rho
         s_rg = water.density * water.gravity / (rho * g)
         if s_rho != 1.0 or water.gravity != g:
-            note = (f"water: the scene's density {water.density:g} kg/m^3 and gravity {water.gravity:g} m/s^2 differ "
-                    f"from the HDB {src!r} ({rho:g} kg/m^3, {g:g} m/s^2): its added mass and radiation damping are "
-                    f"scaled by {s_rho:.6g}, its excitation and hydrostatic stiffness by {s_rg:.6g}; set [water] "
-                    f"density and gravity to the HDB's values if that is not meant")
+            note = _water_note(water.density, water.gravity, rho, g, src, s_rho, s_rg)
             if note not in self.warnings:
                 self.warnings.append(note)
         self.warnings.extend(self._recorded_body_checks(sub, members, src))
@@ -532,3 +529,19 @@ class HydroModel:
                     f.flags.writeable = False
                     reply[name] = f
         return reply
+
+
+def _water_note(density: float, gravity: float, rho: float, g: float, src: str, s_rho: float, s_rg: float) -> str:
+    """The setup warning for a scene whose water differs from an HDB's: it names only the values
+    that differ (and the keys to set); a value both share is said as shared."""
+    pairs = (("density", density, rho, "kg/m^3"), ("gravity", gravity, g, "m/s^2"))
+    differ = [p for p in pairs if p[1] != p[2]]
+    shared = "".join(f"; {k} {mine:g} {unit} in both" for k, mine, theirs, unit in pairs if mine == theirs)
+    keys = " and ".join(k for k, *_ in differ)
+    mine = " and ".join(f"{k} {v:g} {unit}" for k, v, _, unit in differ)
+    theirs = ", ".join(f"{t:g} {unit}" for _, _, t, unit in differ)
+    one = len(differ) == 1
+    return (f"water: the scene's {mine} {'differs' if one else 'differ'} from the HDB {src!r} ({theirs}{shared}): "
+            f"its added mass and radiation damping are scaled by {s_rho:.6g}, its excitation and hydrostatic "
+            f"stiffness by {s_rg:.6g}; set [water] {keys} to the HDB's {'value' if one else 'values'} if that is "
+            f"not meant")

@@ -1,6 +1,6 @@
 """Morison elements on wet bodies (issue 10): slender members cut into segments, Morison's
 equation in relative form on each wetted segment with the undisturbed wave's kinematics at the
-segment's mean position (server/kinematics.py):
+segment's mean position, u plus the scene's steady current there (server/kinematics.py):
 
     f_s = rho (1 + ca) V_s a_n + 1/2 rho cd D L_s |w_n| w_n,    w = u - v_s,
 
@@ -100,9 +100,9 @@ def build_morison(scene: Scene, wet: list[int], waves: WaveComponents,
             ca_vol.append(rho * m.ca * vol)
     body, centre = np.asarray(body), np.asarray(centre)
     lever = centre - reference_points[body]
+    flow = Kinematics(waves, centre, scene.water.gravity, scene.water.depth_m, scene.current, normal_to=np.asarray(axes))
     ms = MorisonSet.of(body, lever, centre[:, 2].copy(), np.asarray(axes), np.asarray(inertia), np.asarray(drag),
-                       Kinematics(waves, centre, scene.water.gravity, scene.water.depth_m, normal_to=np.asarray(axes)),
-                       len(wet))
+                       flow, len(wet))
     n6 = 6 * len(wet)
     added = np.zeros((n6, n6))
     skew = _skew(lever)

@@ -224,6 +224,7 @@ class RadiationOption:
     mass (:meth:`_force`); its constructor refuses scene settings the option cannot run."""
     name: ClassVar[str]
     radiation_frequency: float | None = None
+    memory: ClassVar[bool] = False    # the force convolves (or fits) the kept K(t): its cut matters
 
     def __init__(self, hydro: Hydro, waves: Waves, dt: float):
         self.hydro, self.dt = hydro, float(dt)
@@ -351,8 +352,8 @@ class RadiationOption:
     def _check_ringing(self, irf: GroupIrf, g: RadiationGroup, warnings: list[str]) -> None:
         """A memory cut sharply while K(t) still rings (irf.py ``ringing_at_cut``): warned, unless
         the scene states ``irf_taper = 0`` (a sharp cut chosen, e.g. checked against the effective
-        coefficients it realises)."""
-        if self.taper > 0 or "irf_taper" in self.hydro.model_fields_set or not irf.kernel.size:
+        coefficients it realises) or the option uses no memory ("constant", "off")."""
+        if not self.memory or self.taper > 0 or "irf_taper" in self.hydro.model_fields_set or not irf.kernel.size:
             return
         share, (i, j) = ringing_at_cut(self.t, irf.kernel, self.duration, g.act % 6 >= 3)
         if share > RINGING_WARN:
@@ -374,6 +375,7 @@ class OffOption(RadiationOption):
 
 class _MemoryOption(RadiationOption):
     """Radiation memory over irf_duration (none when it is 0) on the DOF pairs kept by pruning."""
+    memory = True
 
     def _force(self, g: RadiationGroup, irf: GroupIrf, log: _Log) -> tuple[RadiationForce | None, np.ndarray | None]:
         if self.samples == 0:

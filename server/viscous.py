@@ -5,8 +5,8 @@ unused); the force term is :class:`ViscousTerm` (server/force_term.py):
 - HydroDyn's AddBLin / AddBQuad: F = -B_lin v - B_quad (v |v|) per body, 6x6 about the body's
   reference point, absolute velocity, in the body DOF order;
 - WEC-Sim's quadratic drag: F_i = -1/2 rho cd_i area_i |u_i| u_i per DOF with u = v - u_wave, the
-  undisturbed wave particle velocity at the reference point (server/kinematics.py; zero for the
-  rotational DOFs), when ``relative``, else u = v."""
+  undisturbed wave particle velocity plus the scene's current at the reference point
+  (server/kinematics.py; zero for the rotational DOFs), when ``relative``, else u = v (no current)."""
 
 from __future__ import annotations
 
@@ -105,7 +105,8 @@ def build_viscous(scene: Scene, wet: list[int], idx: np.ndarray, waves: WaveComp
         for k, b in enumerate(bodies):
             if b.drag is not None and b.drag.relative:
                 rows[6 * k:6 * k + 3] = 3 * k + np.arange(3)
-        wave = Kinematics(waves, reference_points, scene.water.gravity, scene.water.depth_m) if relative else None
+        wave = (Kinematics(waves, reference_points, scene.water.gravity, scene.water.depth_m, scene.current)
+                if relative else None)
         drag = DragTerm(coef[idx], wave, rows[idx])
     if parts["linear_damping"] is None and parts["quadratic_damping"] is None and drag is None:
         return None

@@ -416,10 +416,14 @@ class ConvolutionForcing:
 
 # ------------------------------------------------------------------ elevation time series (files)
 
+_SEPARATORS = str.maketrans({",": " ", ";": " ", ":": " "})   # column separators of elevation text files
+
+
 def read_elevation(path, key: str = "waves.file") -> tuple[np.ndarray, np.ndarray]:
-    """(time, eta) from a CSV (two columns time, eta; one header line allowed; comma, semicolon or
-    whitespace separated) or a NetCDF file (variable ``eta`` over ``time``). WaveError(key)
-    naming the file when it is missing or malformed."""
+    """(time, eta) from a text file (two columns time, eta; header lines allowed before the first
+    row; separated by whitespace, a comma, a semicolon or a colon: CSV, and HydroChrono's ``t : eta``
+    eta files) or a NetCDF file (variable ``eta`` over ``time``). WaveError(key) naming the file
+    when it is missing or malformed."""
     from pathlib import Path
     path = Path(path)
     if not path.is_file():
@@ -450,7 +454,7 @@ def read_elevation(path, key: str = "waves.file") -> tuple[np.ndarray, np.ndarra
         line = line.split("#", 1)[0].strip()
         if not line:
             continue
-        parts = [p for p in line.replace(",", " ").replace(";", " ").split() if p]
+        parts = line.translate(_SEPARATORS).split()
         try:
             vals = [float(p) for p in parts]
         except ValueError:
@@ -461,7 +465,9 @@ def read_elevation(path, key: str = "waves.file") -> tuple[np.ndarray, np.ndarra
             raise WaveError(key, f"{path}: line {n}: expected two columns (time, eta), got {len(vals)}")
         rows.append((vals[0], vals[1]))
     if not rows:
-        raise WaveError(key, f"{path}: no data rows (two columns time, eta)")
+        first = next((ln.strip() for ln in text.splitlines() if ln.strip()), "")
+        raise WaveError(key, f"{path}: no data rows: expected lines of two numbers, time and eta, separated by "
+                             f"spaces, ',', ';' or ':' (HydroChrono's 't : eta'); its first line is {first[:80]!r}")
     a = np.asarray(rows, float)
     return a[:, 0], a[:, 1]
 

@@ -10,7 +10,6 @@ import re
 import shutil
 import subprocess
 import sys
-import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -146,8 +145,8 @@ def test_water_that_differs_from_the_hdb_is_said_and_kept_with_the_results(scene
     write_scene(scene_dir, text, "salty.toml")
     result = _cli("run", "salty.toml", "-o", "salty.nc", "--no-progress", cwd=scene_dir)
     assert result.returncode == 0, result.stderr
-    expect = "the scene's density 1025 kg/m^3 and gravity 9.81 m/s^2 differ from the HDB"
-    assert expect in result.stderr and "(1000 kg/m^3" in result.stderr
+    expect = "the scene's density 1025 kg/m^3 differs from the HDB"
+    assert expect in result.stderr and "(1000 kg/m^3; gravity 9.81 m/s^2 in both)" in result.stderr
     with xr.open_dataset(scene_dir / "salty.nc") as ds:
         notes = json.loads(ds.attrs["warnings"])
     assert any(expect in n and "sphere.h5" in n for n in notes), notes
@@ -190,18 +189,14 @@ def test_hdb_info_bad_file_is_one_clear_line(tmp_path: Path):
     assert "junk.nc" in result.stderr and "Traceback" not in result.stderr
 
 
+def write_ball_spec(folder: Path, panel_size: float, omegas: list[float], extra: str = "") -> None:
+    """``sphere.toml``: an `hdb build` spec of a floating sphere "ball" of radius 1 m."""
+    (folder / "sphere.toml").write_text(f'[body]\nname = "ball"\nshape = "sphere"\nradius = 1.0\n'
+                                        f"panel_size = {panel_size}\n[frequencies]\nvalues = {omegas}\n{extra}")
+
+
 def test_hdb_build_writes_a_loadable_hdb_and_caches(tmp_path: Path):
-    (tmp_path / "sphere.toml").write_text(textwrap.dedent("""\
-        [body]
-        name = "ball"
-        shape = "sphere"
-        radius = 1.0
-        panel_size = 0.35
-        [frequencies]
-        values = [0.5, 1.5, 3.0]
-        [water]
-        density = 1000.0
-        """))
+    write_ball_spec(tmp_path, 0.35, [0.5, 1.5, 3.0], "[water]\ndensity = 1000.0\n")
     env_cache = dict(HYDROLINK_CACHE=str(tmp_path / "cache"))
     first = subprocess.run([*HYDROLINK, "hdb", "build", "sphere.toml", "-o", "ball.nc", "--no-progress"],
                            cwd=tmp_path, capture_output=True, text=True, timeout=300,
@@ -217,6 +212,26 @@ def test_hdb_build_writes_a_loadable_hdb_and_caches(tmp_path: Path):
     # only approximately for the waterplane; 2 % covers the coarse mesh)
     assert float(ds["hydrostatic_stiffness"].sel(influenced_dof="ball.heave", radiating_dof="ball.heave")) == \
         pytest.approx(1000 * 9.81 * np.pi, rel=0.02)
+
+
+def test_first_build_on_a_fresh_machine_says_what_happens_in_one_plain_line(tmp_path: Path):
+    """A fresh Capytaine cache (its Green function not tabulated yet): `hdb build` prints one plain
+    line of hydrolink's saying Capytaine tabulates once, never Capytaine's timestamped
+    `WARNING capytaine...: Precomputing tabulation`; the tabulation is really made (its file in
+    the fresh cache) and the next build, which loads it, says nothing of it."""
+    write_ball_spec(tmp_path, 0.5, [1.0, 2.0])
+    env = {**os.environ, "CAPYTAINE_CACHE_DIR": str(tmp_path / "capytaine")}
+    runs = []
+    for out in ("a.nc", "b.nc"):
+        env["HYDROLINK_CACHE"] = str(tmp_path / f"cache-{out}")      # no HDB cache hit: Capytaine runs both times
+        runs.append(subprocess.run([*HYDROLINK, "hdb", "build", "sphere.toml", "-o", out], cwd=tmp_path,
+                                   capture_output=True, text=True, timeout=600, env=env))
+        assert runs[-1].returncode == 0, runs[-1].stderr
+    first, second = runs[0].stderr, runs[1].stderr
+    assert "Precomputing tabulation" not in first + second and "WARNING" not in first + second, first
+    line = "hdb build: Capytaine is tabulating its Green function, once on this machine (a few seconds; kept in "
+    assert first.count(line) == 1 and line not in second
+    assert list((tmp_path / "capytaine").rglob("tabulation_*.npz"))
 
 
 def test_hdb_build_bad_spec_names_the_key(tmp_path: Path):

@@ -201,6 +201,27 @@ def test_elevation_run_end_to_end(rm3, tmp_path, reference_data):
         assert np.isfinite(ds["position"].values).all() and np.abs(ds["position"].values[:, :, 2]).max() > 0.1
 
 
+def test_hydrochrono_eta_file_is_read(tmp_path):
+    """HydroChrono's eta file format: one 't : eta' pair a line (its IrregularWaves reads
+    'time >> delimiter >> eta' with delimiter ':'), as in its data/verification/rm3_mooring/inputs
+    eta file ('0.000000 : -1.7947502460e+00'); also without spaces. Read to the values written."""
+    t = np.arange(0.0, 20.0, 0.01)
+    eta = 1.2 * np.cos(2 * np.pi / 8.0 * t + 0.4) - 0.3 * np.sin(2 * np.pi / 5.0 * t)
+    spaced, tight = tmp_path / "eta.txt", tmp_path / "eta_tight.txt"
+    spaced.write_text("".join(f"{a:.6f} : {b:.10e}\n" for a, b in zip(t, eta)))
+    tight.write_text("".join(f"{a:.6f}:{b:.10e}\n" for a, b in zip(t, eta)))
+    for path in (spaced, tight):
+        tt, ee = read_elevation(path)
+        np.testing.assert_allclose(tt, np.round(t, 6), rtol=0, atol=1e-12)
+        np.testing.assert_allclose(ee, eta, rtol=1e-10, atol=1e-12)
+    words = tmp_path / "words.txt"
+    words.write_text("time eta\nseconds metres\n")
+    with pytest.raises(WaveError, match=r"no data rows: expected lines of two numbers, time and eta, separated by "
+                                        r"spaces, ',', ';' or ':' \(HydroChrono's 't : eta'\); its first line is "
+                                        r"'time eta'"):
+        read_elevation(words)
+
+
 def test_elevation_errors_name_the_key(rm3, tmp_path):
     from hydrolink.clients.run import run_scene_file
     from hydrolink.protocol.scene import SceneError

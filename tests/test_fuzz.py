@@ -282,7 +282,8 @@ def _templates() -> dict[str, dict]:
     return {
         "regular": {"simulation": sim, "water": water, "hydro": hydro, **mechanism,
                     "waves": regular_waves(1.0, 6.0, direction=0.0, phase=10.0, ramp=2.0,
-                                           excitation_irf_duration=5.0)},
+                                           excitation_irf_duration=5.0),
+                    "current": {"speed": 0.5, "direction": 10.0, "profile": "power", "depth": 20.0}},
         "irregular": {"simulation": sim, "water": water, "hydro": {"irf_duration": 2.0},
                       "waves": {"type": "irregular", "spectrum": "jonswap", "hs": 1.0, "tp": 6.0, "gamma": 3.3,
                                 "seed": 1, "direction": 0.0, "components": 40, "ramp": 1.0, "spreading": "cos2s",
@@ -352,7 +353,7 @@ def _setup_numbers(value, path):
 
 def _hello(server, hdbs, sections: dict, **fields) -> dict:
     text = toml_document({k: sections[k] for k in
-                          ("simulation", "water", "waves", "hydro", "steady", "coupling", "bodies", "point_masses",
+                          ("simulation", "water", "waves", "current", "hydro", "steady", "coupling", "bodies", "point_masses",
                            "joints", "constraints", "ptos", "moorings", "morison", "client", "controllers")
                           if k in sections})
     reply = send(server, codec.pack(codec.message("hello", "x", None, role="multibody", scene=text, hdbs=hdbs,

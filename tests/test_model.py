@@ -265,6 +265,31 @@ def test_density_and_gravity_that_differ_from_the_hdb_are_named():
                 if w.startswith("water:")]
 
 
+def test_the_water_warning_names_only_what_differs():
+    """Only the density differs (1025 against the HDB's 1000, both at g 9.81): the warning says the
+    density differs and asks for [water] density alone; only the gravity differs: the gravity alone;
+    both: both."""
+    def note(density: float, gravity: float) -> str:
+        sc = parse_scene(scene_toml(dt=0.01, duration=10, water={"density": density, "gravity": gravity},
+                                    bodies=[body("float", hdb="x.nc", mass=3e5, center_of_mass=[0, 0, -1],
+                                                 inertia=[1e6] * 3)]))
+        (w,) = [w for w in HydroModel(sc, {"float": an.make_body_hdb()}).setup_info().warnings
+                if w.startswith("water:")]
+        return w
+
+    rho_only = note(1025.0, 9.81)
+    assert "the scene's density 1025 kg/m^3 differs from the HDB 'analytic' (1000 kg/m^3; gravity 9.81 m/s^2 " \
+           "in both)" in rho_only
+    assert "set [water] density to the HDB's value" in rho_only and "and gravity" not in rho_only
+    g_only = note(1000.0, 9.80665)
+    assert "the scene's gravity 9.80665 m/s^2 differs from the HDB 'analytic' (9.81 m/s^2; density 1000 kg/m^3 " \
+           "in both)" in g_only
+    assert "set [water] gravity to the HDB's value" in g_only
+    both = note(1025.0, 9.8)
+    assert "the scene's density 1025 kg/m^3 and gravity 9.8 m/s^2 differ from the HDB 'analytic' " \
+           "(1000 kg/m^3, 9.81 m/s^2)" in both and "set [water] density and gravity" in both
+
+
 def test_a_mass_or_centre_of_gravity_that_differs_from_the_file_is_named():
     """An HDB that records its body's mass and centre of gravity (as Capytaine's inertia_matrix and
     center_of_mass do): a scene that disagrees gets a setup warning with both values; one that

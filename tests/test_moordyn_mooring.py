@@ -131,6 +131,18 @@ def _catenary_loads(headings_deg, dx: float) -> tuple[np.ndarray, np.ndarray]:
     return load, np.array(tension)
 
 
+def _segment_tensions(headings_deg, dx: float, segments: int) -> np.ndarray:
+    """The elastic catenary's tension at the middle of each line's end segment (half a segment's
+    submerged weight below the fairlead): what MoorDyn reports as the fairlead tension."""
+    out = []
+    for h in np.radians(headings_deg):
+        e = np.array([math.cos(h), math.sin(h)])
+        span = float(np.linalg.norm(SPAN0 * e - (np.array([dx, 0.0]) + FAIRLEAD_R * e)))
+        hf, vf = catenary(span, Z0 + DEPTH)
+        out.append(math.hypot(hf, vf - W * LENGTH / segments / 2))
+    return np.array(out)
+
+
 @pytest.mark.parametrize("headings", [[0.0], [0.0, 120.0, 240.0]], ids=["one-line", "three-lines"])
 def test_static_tension_and_restoring_force_against_the_elastic_catenary(tmp_path, headings):
     """MoorDyn's initial-condition solve with the body held at a few surge offsets: fairlead tensions
@@ -143,11 +155,20 @@ def test_static_tension_and_restoring_force_against_the_elastic_catenary(tmp_pat
                        layouts)
         try:
             load = model.moorings.sample(model.mbs)[0]
-            tension = model.moorings.moordyn[0].tensions()
+            system = model.moorings.moordyn[0]
+            tension, end_force = system.tensions(), system.end_forces()
+            own = np.array([moordyn.GetLineFairTen(moordyn.GetLine(system.instance, k))
+                            for k in range(1, len(headings) + 1)])
         finally:
             model.close()
         force, tension_ref = _catenary_loads(headings, dx)
-        np.testing.assert_allclose(tension, tension_ref, rtol=0.01)
+        # the end node's pull on the fairlead: the catenary's tension at the fairlead point
+        np.testing.assert_allclose(end_force, tension_ref, rtol=0.01)
+        # line_tension: MoorDyn's own number (GetLineFairTen), the catenary's tension half a
+        # segment below the fairlead (the end segment's), not the end node's pull
+        np.testing.assert_allclose(tension, own, rtol=1e-12)
+        np.testing.assert_allclose(tension, _segment_tensions(headings, dx, 40), rtol=0.01)
+        assert (end_force > tension).all()
         assert load[0] == pytest.approx(force[0], rel=0.01)      # the (net) horizontal restoring force
         assert load[2] == pytest.approx(force[2], rel=0.01)
         # moments about the reference point: the fairleads' vertical pull FAIRLEAD_R off it
@@ -280,9 +301,16 @@ def test_results_line_tension_mooring_force_and_nodes_with_coupled_points(tmp_pa
     assert list(a["line"].values) == ["spread:1", "spread:2", "spread:3"]
     assert a["line_tension"].dims == ("time", "line") and "line_node_position" not in a
     np.testing.assert_allclose(b["line_tension"].values, a["line_tension"].values, rtol=2e-3)
-    tension0 = a["line_tension"].values[0]
+    tension0 = a["line_end_force"].values[0]
     h0, v0 = catenary(math.hypot(SPAN0 * math.cos(0) - X0 - FAIRLEAD_R, 0.0), Z0 + DEPTH)
     assert tension0[0] == pytest.approx(math.hypot(h0, v0), rel=0.01)
+    # line_tension is MoorDyn's own fairlead tension: the end segment's (24 segments), and the same as
+    # MoorDyn's initial report of GetLineFairTen in the run's attribute
+    assert a["line_tension"].values[0, 0] == pytest.approx(math.hypot(h0, v0 - W * LENGTH / 24 / 2), rel=0.01)
+    report = json.loads(a.attrs["moordyn"])[0]
+    np.testing.assert_allclose(a["line_tension"].values[0], report["initial_line_tension"], rtol=1e-12)
+    np.testing.assert_allclose(a["line_end_force"].values[0], report["initial_line_end_force"], rtol=1e-12)
+    assert (a["line_end_force"].values > a["line_tension"].values).all()
     # the mooring force on the body: MoorDyn's coupled force (points: their forces moved to the
     # reference point), the same both ways
     fa, fb = a["mooring_force"].values[:, 0], b["mooring_force"].values[:, 0]

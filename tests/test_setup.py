@@ -39,6 +39,21 @@ def test_every_field_is_in_the_spec_table():
     assert listed == {f.name for f in fields(Setup)}
 
 
+def test_the_spec_states_the_water_defaults_and_that_clients_show_the_warnings():
+    """SPEC §5.1 states the scene's [water] defaults as protocol/scene.py has them (a client writer
+    who assumes fresh water, 1000 kg/m^3, otherwise gets a 2.5 % force difference with a warning
+    they were not told to show), and makes showing setup.warnings a must."""
+    from hydrolink.protocol.scene import Water
+    spec = resources.files("hydrolink.protocol").joinpath("SPEC.md").read_text()
+    hello = spec.split("### 5.1 `hello`", 1)[1].split("#### `setup`", 1)[0]
+    defaults = {k: f.default for k, f in Water.model_fields.items()}
+    assert defaults["density"] == 1025.0
+    assert f"`[water] density = {defaults['density']!r}` kg/m³" in hello
+    assert f"`gravity = {defaults['gravity']!r}` m/s²" in hello and f'`depth = "{defaults["depth"]}"`' in hello
+    (row,) = [line for line in spec.split("#### `setup`", 1)[1].splitlines() if line.startswith("| `warnings` ")]
+    assert "A client **must** show every one to its user" in row and "naming the key to change" in row
+
+
 def test_round_trip_over_the_wire_is_exact(setup, sphere):
     back = Setup.from_wire(wire(setup))
     for f in fields(Setup):

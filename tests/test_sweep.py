@@ -105,10 +105,19 @@ def test_regular_sweep_powers_against_frequency_domain(regular_sweep, sphere_hdb
             assert float(cell.mean_pto_power.sel(pto="damper")) == float(cell.mean_total_pto_power)
             assert float(cell.motion_std.sel(body="sphere", dof="heave")) == pytest.approx(abs(x) / math.sqrt(2), rel=0.01)
             # the maximum excursion from equilibrium: amplitude plus the mean offset (the sphere's weight
-            # is not exactly its buoyancy), the offset read from the case's own results
-            with xr.open_dataset(out / "cases" / f"{cell.case_id.values}.nc") as res:
+            # is not exactly its buoyancy), the offset read from the case's own file: its tail, the last
+            # 5 wave periods of the run at the run's sampling
+            name = str(cell.case_name.values)
+            assert name == f"case-{int(name[5:8]):03d}_waves.period={period:g}_ptos.damper.damping={c:g}".replace(
+                "e+0", "e")
+            with xr.open_dataset(out / "cases" / f"{name}.nc") as res:
                 z = res.position.sel(body="sphere", dof="heave") - res.equilibrium_position.sel(body="sphere", dof="heave")
-                offset = float(z.sel(time=slice(float(cell.window_start) + 1e-9, 130.0)).mean())
+                offset = float(z.mean())
+                t = res.time.values
+                assert res.attrs["case_series"] == "tail" and float(res.attrs["tail_seconds"]) == pytest.approx(5 * period)
+                assert t[-1] == pytest.approx(130.0) and t[-1] - t[0] == pytest.approx(5 * period, abs=DT)
+                assert np.diff(t) == pytest.approx(DT)
+                assert float(res.summary_mean_total_pto_power) == float(cell.mean_total_pto_power)
             assert float(cell.motion_max.sel(body="sphere", dof="heave")) == pytest.approx(abs(x) + abs(offset), rel=0.01)
             assert float(cell.max_pto_force.sel(pto="damper")) == pytest.approx(c * w * abs(x), rel=0.01)
             j = 1000.0 * 9.81 ** 2 * HEIGHT ** 2 * period / (32 * math.pi)        # deep water (200 m)
@@ -117,9 +126,9 @@ def test_regular_sweep_powers_against_frequency_domain(regular_sweep, sphere_hdb
             assert float(cell.capture_width_ratio) == pytest.approx(float(cell.capture_width) / 10.0)
             assert 60.0 <= float(cell.window_start) < 60.0 + period and float(cell.window_end) == 130.0
             # the case's own files
-            cid = str(cell.case_id.values)
             for suffix in (".toml", ".nc", ".json"):
-                assert (out / "cases" / f"{cid}{suffix}").is_file()
+                assert (out / "cases" / f"{name}{suffix}").is_file()
+            assert json.loads((out / "cases" / f"{name}.json").read_text())["case_id"] == str(cell.case_id.values)
     failed = ds.where(ds.status == "failed", drop=True)
     assert failed.status.size == 1 and "waves.period" in str(failed.error.values.ravel()[0])
     assert int((ds.status == "absent").sum()) == 4      # 3 periods x 3 dampings, 5 cases
@@ -180,9 +189,9 @@ def test_remote_scheduler_and_workers_same_results(regular_sweep, sphere_dir, tm
         for name in a.data_vars:
             if name not in ("wall_time",):
                 np.testing.assert_array_equal(a[name].values, b[name].values, err_msg=name)
-        for cid in a.case_id.values.ravel():
-            if cid and (local_out / "cases" / f"{cid}.nc").exists():
-                x, y = xr.load_dataset(local_out / "cases" / f"{cid}.nc"), xr.load_dataset(out / "cases" / f"{cid}.nc")
+        for name in a.case_name.values.ravel():
+            if name and (local_out / "cases" / f"{name}.nc").exists():
+                x, y = xr.load_dataset(local_out / "cases" / f"{name}.nc"), xr.load_dataset(out / "cases" / f"{name}.nc")
                 np.testing.assert_array_equal(x["position"].values, y["position"].values)
         # state-space: the warm-up fits, the cases read the fit
         ss = sphere_dir / "state_space.toml"
@@ -234,6 +243,30 @@ def test_resume_after_a_killed_sweep_runs_only_the_missing_cases(sphere_dir, loc
     assert set(ds.status.values) == {"complete"} and np.isfinite(ds.mean_total_pto_power.values).all()
     again = run_sweep(sweep, out, client=local_client, progress=False, log_line=lambda m: None)
     assert (again.skipped, again.run) == (6, 0)
+
+
+def test_a_case_whose_name_changes_is_found_by_its_key_and_renamed(sphere_dir, local_client, tmp_path):
+    """Files are named by the case's index, keys and values; a value inserted before finished cases
+    shifts their index: they are found by their key (in their record), not run again, and their
+    files are renamed (bytes unchanged); only the new case runs."""
+    sweep = sphere_dir / "rename.toml"
+    fixed = {"simulation.duration": 30.0}
+    sweep.write_text(sweep_toml("sphere.toml", set=fixed, grid={"ptos.damper.damping": [2e5, 3e5]}))
+    first = run_sweep(sweep, tmp_path, client=local_client, progress=False, log_line=lambda m: None)
+    assert (first.run, first.failed) == (2, [])
+    cases = tmp_path / "cases"
+    before = {p.name: p.read_bytes() for p in cases.glob("*.nc")}
+    assert sorted(before) == ["case-000_ptos.damper.damping=200000.nc", "case-001_ptos.damper.damping=300000.nc"]
+    sweep.write_text(sweep_toml("sphere.toml", set=fixed, grid={"ptos.damper.damping": [1e5, 2e5, 3e5]}))
+    again = run_sweep(sweep, tmp_path, client=local_client, progress=False, log_line=lambda m: None)
+    assert (again.skipped, again.run, again.failed) == (2, 1, [])
+    stems = [f"case-00{i}_ptos.damper.damping={c}" for i, c in enumerate((100000, 200000, 300000))]
+    assert sorted(p.name for p in cases.iterdir()) == sorted(f"{s}{x}" for s in stems for x in (".json", ".nc", ".toml"))
+    assert (cases / f"{stems[1]}.nc").read_bytes() == before["case-000_ptos.damper.damping=200000.nc"]
+    assert (cases / f"{stems[2]}.nc").read_bytes() == before["case-001_ptos.damper.damping=300000.nc"]
+    assert [json.loads((cases / f"{s}.json").read_text())["name"] for s in stems] == stems
+    ds = xr.load_dataset(tmp_path / "sweep.nc")
+    assert list(ds.case_name.values) == stems and set(ds.status.values) == {"complete"}
 
 
 def test_a_worker_killed_mid_case_has_its_case_run_once_more(sphere_dir, local_client, tmp_path):

@@ -40,6 +40,8 @@ BAD = [
     ({"grid": {"waves.te": [7.0]}}, 'grid."waves.te": the energy period needs irregular waves'),
     ({"cases": [{"label": "x", "simulation.dt": 0.0}]}, 'cases[0]."simulation.dt": Input should be greater than 0'),
     ({"window": [10.0, 5.0], "grid": {"waves.period": [6.0]}}, "window: [start, end]"),
+    ({"case_series": "some", "grid": {"waves.period": [6.0]}}, "case_series: Input should be 'tail' or 'full'"),
+    ({"tail": 0.0, "grid": {"waves.period": [6.0]}}, "tail: Input should be greater than 0"),
 ]
 
 
@@ -101,3 +103,29 @@ def test_energy_period_key_sets_the_peak_period(sphere_dir, tmp_path):
     ratio = np.trapezoid(s_f / f, f) / np.trapezoid(s_f, f)
     for case in load_sweep(sweep).cases:
         assert case.scene.waves.tp * ratio == pytest.approx(case.overrides["waves.te"], rel=1e-4)
+
+
+def test_case_files_are_named_by_their_keys_and_values(sphere_dir, tmp_path):
+    """Each case's files are named by its index and its keys and values (or its label), unique,
+    with nothing a file system or a shell minds; the tail of its series is 5 wave periods unless
+    the sweep says ``tail`` (s), and "full" keeps every sample."""
+    import re
+
+    from hydrolink.clients.studies.sweep_file import load_sweep
+    sweep = tmp_path / "s.toml"
+    sweep.write_text(sweep_toml(sphere_dir / "sphere.toml", grid={"waves.period": [6.0, 7.5],
+                                                                  "ptos.damper.damping": [1.2e6, 2.5e5]},
+                                cases=[{"label": "stiff PTO / v2", "ptos.damper.stiffness": 1e5}]))
+    s = load_sweep(sweep)
+    names = [c.name for c in s.cases]
+    assert names == ["case-000_waves.period=6_ptos.damper.damping=1.2e6",
+                     "case-001_waves.period=6_ptos.damper.damping=250000",
+                     "case-002_waves.period=7.5_ptos.damper.damping=1.2e6",
+                     "case-003_waves.period=7.5_ptos.damper.damping=250000",
+                     "case-004_stiff_PTO_v2"]
+    assert all(re.fullmatch(r"[A-Za-z0-9.=+,_-]+", n) for n in names) and len(set(names)) == len(names)
+    assert [c.tail for c in s.cases] == [30.0, 30.0, 37.5, 37.5, 30.0]
+    sweep.write_text(sweep_toml(sphere_dir / "sphere.toml", tail=12.0, grid={"waves.period": [6.0, 7.5]}))
+    assert [c.tail for c in load_sweep(sweep).cases] == [12.0, 12.0]
+    sweep.write_text(sweep_toml(sphere_dir / "sphere.toml", case_series="full", grid={"waves.period": [6.0]}))
+    assert [c.tail for c in load_sweep(sweep).cases] == [None]

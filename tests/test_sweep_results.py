@@ -1,4 +1,4 @@
-"""Per-case summaries (clients/studies/sweep_results.py): a results file written row by row as the clients
+"""Per-case summaries (clients/studies/sweep_case_file.py): a results file written row by row as the clients
 write it, summarised over a window, against the same numbers computed from the arrays in the test."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ def test_summary_of_a_results_file(tmp_path):
     and moorings: the summary's means, standard deviations and maxima over the window against the
     same numbers from the arrays."""
     from hydrolink.clients.lockstep.results import ResultWriter
-    from hydrolink.clients.studies.sweep_results import summarise
+    from hydrolink.clients.studies.sweep_case_file import summarise
     rng = np.random.default_rng(5)
     n, dt = 400, 0.1
     t = np.arange(n) * dt

@@ -242,7 +242,7 @@ def build_model(scene: Scene, setup: Setup | None, *, spectral_radius: float = 1
     ptos = build_ptos(mbs, scene.ptos, mech.handles) if scene.ptos else None
     all_names, reference = result_bodies(scene, setup)
     moorings = build_moorings(mbs, scene.moorings, mech.handles, scene.water, moordyn_files, all_names,
-                              reference) if scene.moorings else None
+                              reference, scene.current) if scene.moorings else None
     padded = any(h.dofs is not None for h in mech.handles.values())
     # the hydro object's coordinates: each wet body's node coordinates (a reduced body's active DOFs)
     sel = np.concatenate([6 * i + np.asarray(mech.handles[nm].dofs or range(6), int) for i, nm in enumerate(names)]
@@ -355,12 +355,17 @@ def _moordyn_offsets(scene: Scene, moorings: MooringSet, pose: np.ndarray, displ
 
 
 def _add_moordyn_variables(writer, moorings: MooringSet) -> None:
-    """Declare the MoorDyn outputs: ``line_tension`` (dim ``line``: "mooring:k", MoorDyn's line k)
-    and, when a system records them, ``line_node_position`` (line, node, xyz)."""
+    """Declare the MoorDyn outputs: ``line_tension`` (MoorDyn's own fairlead tension) and
+    ``line_end_force`` (the end node's pull on the fairlead), dim ``line``: "mooring:k", MoorDyn's
+    line k, and, when a system records them, ``line_node_position`` (line, node, xyz)."""
     systems = moorings.moordyn
     lines = [f"{s.spec.name}:{k}" for s in systems for k in range(1, s.n_lines + 1)]
     writer.add_variable("line_tension", ("line",), {"line": lines}, "N",
-                        "MoorDyn line tension at the fairlead end (the force the line's end node passes on)")
+                        "MoorDyn's fairlead tension: the tension of the line's end segment at its fairlead, as "
+                        "MoorDyn reports it (GetLineFairTen, its FairTen output channel)")
+    writer.add_variable("line_end_force", ("line",), {"line": lines}, "N",
+                        "magnitude of the force the line's fairlead end node passes on to its fairlead: "
+                        "line_tension plus the node's weight, buoyancy, drag and seabed contact")
     n_nodes = max((s.max_nodes for s in systems if s.spec.record_nodes), default=0)
     if n_nodes:
         writer.add_variable("line_node_position", ("line", "node", "xyz"),
@@ -375,7 +380,8 @@ def _moordyn_report(moorings: MooringSet) -> list[dict]:
     under the mooring — their displacement from the reference position at the moored equilibrium,
     m and rad (None with static_offset = false) — with the out-of-balance load left."""
     return [{"mooring": s.spec.name, "file": str(s.layout.path), "lines": s.n_lines, "bodies": s.names,
-             "initial_line_tension": s.tensions().tolist(), "initial_load": s.initial_loads.tolist(),
+             "initial_line_tension": s.tensions().tolist(),
+             "initial_line_end_force": s.end_forces().tolist(), "initial_load": s.initial_loads.tolist(),
              "static_offset": None if s.offset is None else s.offset.tolist(),
              "static_offset_residual": s.offset_residual}
             for s in moorings.moordyn]
@@ -607,6 +613,7 @@ class ExudynMultibody:
         if self._md is not None:
             systems = self._md.moordyn
             out["line_tension"] = np.concatenate([s.tensions() for s in systems])
+            out["line_end_force"] = np.concatenate([s.end_forces() for s in systems])
             if self._md_nodes:
                 out["line_node_position"] = np.concatenate([
                     s.node_positions(self._md_nodes) if s.spec.record_nodes

@@ -32,6 +32,16 @@ Coupling (:class:`MoorDynSystem`), MoorDyn's conventions (MoorDyn2.cpp ``Step``,
 - ``Init`` runs MoorDyn's initial-condition solve (options dtIC, TmaxIC, threshIC in the file) with
   the bodies at their initial pose: the lines start at rest in equilibrium, no jerk.
 
+The scene's ``[current]`` (protocol/current.py) reaches the lines through MoorDyn's own steady
+current grid (option ``Currents`` = 1): hydrolink writes a copy of the file with that option and
+the grid ``current_profile.txt`` (the profile tabulated in depth, MoorDyn interpolating linearly
+between levels and holding the end values beyond them) into a temporary folder, runs MoorDyn on the
+copy and moves MoorDyn's output files beside the original file when it closes. MoorDyn sets its
+runtime water kinematics after its initial-condition solve: the lines start in their still-water
+shape and take the current's drag from t = 0 on (so does the static-offset estimate, which uses
+that solve: it leaves the current out). A file that sets its own ``Currents``, ``WaveKin`` or
+``WaterKin`` together with a scene ``[current]`` is refused (which one applies would be a guess).
+
 MoorDyn writes to the process's stdout/stderr (banner, per-line report, "t = ..." every step unless
 the file says ``1 disableOutTime``): every call is made with both redirected to a scratch file, whose
 last lines go into the error message when MoorDyn fails.
@@ -42,6 +52,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -51,10 +62,17 @@ from pathlib import Path
 
 import numpy as np
 
+from hydrolink.protocol.current import MAX_DEPTH, Current
 from hydrolink.protocol.scene import MoorDynMooring, Scene, SceneError, resolve_path
 
 #: seconds the child process may take to read a MoorDyn file
 PROBE_TIMEOUT = 60.0
+#: MoorDyn's steady current grid, read beside its input file (option Currents = 1)
+CURRENT_FILE = "current_profile.txt"
+#: levels of the tabulated power-law and linear profiles (clustered towards the profile's depth)
+CURRENT_LEVELS = 201
+#: MoorDyn options a scene [current] would contradict
+_WATER_OPTIONS = ("currents", "wavekin", "waterkin")
 
 
 class MoorDynFailure(RuntimeError):
@@ -166,6 +184,59 @@ def read_layout(path: Path) -> MoorDynLayout:
     return layout
 
 
+# -- the current ----------------------------------------------------------------------------------------
+def _options(text: str) -> dict[str, str] | None:
+    """The OPTIONS section of a MoorDyn file's ``text``: option name (lower case) -> value as
+    written; None when the file has no such section."""
+    out: dict[str, str] | None = None
+    inside = False
+    for line in text.splitlines():
+        if line.lstrip().startswith("---"):
+            inside = "OPTIONS" in line.upper()
+            out = {} if inside and out is None else out
+            continue
+        words = line.split()
+        if inside and len(words) >= 2:
+            out[words[1].lower()] = words[0]
+    return out
+
+
+def current_conflict(path: Path) -> str | None:
+    """Why MoorDyn file ``path`` cannot take a scene's current (None: it can): it sets its own water
+    kinematics (non-zero ``Currents``, ``WaveKin``, or a ``WaterKin`` file), or it has no OPTIONS
+    section to set ``Currents`` in."""
+    found = _options(path.read_text(errors="replace"))
+    if found is None:
+        return f"{path.name} has no OPTIONS section to set the scene's [current] in (Currents = 1)"
+    own = [f"{v} {k}" for k, v in found.items() if k in _WATER_OPTIONS and v not in ("0", "0.0")]
+    return (f"{path.name} sets its own water kinematics ({', '.join(own)}) and the scene has a [current]: keep "
+            "one of them") if own else None
+
+
+def current_profile(current: Current) -> np.ndarray:
+    """(L, 4) rows z, ux, uy, uz of MoorDyn's steady current grid for ``current``: z from the
+    profile's depth (or the deepest water for a uniform one) to the still water line."""
+    depth = MAX_DEPTH if current.depth is None else current.depth
+    s = np.linspace(0.0, 1.0, 2 if current.profile == "uniform" else CURRENT_LEVELS) ** 3
+    z = -depth * (1.0 - s)
+    return np.column_stack([z, current.velocity(z)])
+
+
+def with_current(path: Path, current: Current, folder: Path) -> Path:
+    """A copy of MoorDyn file ``path`` in ``folder`` with ``Currents`` = 1 and its grid
+    ``current_profile.txt`` for ``current`` beside it (a file :func:`current_conflict` passes)."""
+    lines = path.read_text(errors="replace").splitlines()
+    header = next(i for i, ln in enumerate(lines)
+                  if ln.lstrip().startswith("---") and "OPTIONS" in ln.upper())
+    lines.insert(header + 1, "1 Currents - steady current grid current_profile.txt (hydrolink, from [current])")
+    out = folder / path.name
+    out.write_text("\n".join(lines) + "\n")
+    rows = "\n".join(" ".join(f"{v:.17g}" for v in row) for row in current_profile(current))
+    (folder / CURRENT_FILE).write_text("--- MoorDyn steady currents file written by hydrolink ---\n"
+                                       f"{current!r}\nz (m), ux (m/s), uy (m/s), uz (m/s)\n{rows}\n")
+    return out
+
+
 def load_moordyn_files(scene: Scene, scene_path: str | Path) -> dict[int, MoorDynLayout]:
     """The layouts of the scene's MoorDyn files by mooring index, checked against the scene
     (SceneError naming the scene file, the key and why)."""
@@ -181,6 +252,8 @@ def load_moordyn_files(scene: Scene, scene_path: str | Path) -> dict[int, MoorDy
             layout = read_layout(path)
         except MoorDynFailure as exc:
             raise SceneError(scene_path, f"{key}.file", f"{path}: {exc}") from None
+        if scene.current is not None and (why := current_conflict(path)):
+            raise SceneError(scene_path, f"{key}.file", why)
         if layout.coupled_rods:
             raise SceneError(scene_path, f"{key}.file", f"{path}: {layout.coupled_rods} coupled rod(s): hydrolink "
                                                         "couples MoorDyn bodies and points only")
@@ -211,12 +284,16 @@ class MoorDynSystem:
 
     ``rows``: each scene body's row in the (B, 6) pose arrays the caller passes; the loads come back
     per coupled scene body (``spec.coupled_bodies`` order), force and moment about its reference
-    point, global axes."""
+    point, global axes. ``current``: the scene's, on the lines (module docstring)."""
 
     def __init__(self, spec: MoorDynMooring, layout: MoorDynLayout, key: str, rows: dict[str, int],
-                 reference: np.ndarray):
+                 reference: np.ndarray, current: Current | None = None):
         self.spec, self.layout, self.key = spec, layout, key
         self.label = f"{key} ({layout.path})"
+        # the file MoorDyn runs: the scene's, or its copy with the current in a temporary folder
+        self._folder = tempfile.TemporaryDirectory(prefix="hydrolink-moordyn-") if current is not None else None
+        self.model_path = (layout.path if current is None
+                           else with_current(layout.path, current, Path(self._folder.name)))
         self.names = spec.coupled_bodies
         self._row_of = {n: rows[n] for n in self.names}
         self._body_rows = np.array([rows[n] for n in spec.bodies], int)
@@ -286,7 +363,7 @@ class MoorDynSystem:
             with self._quiet():
                 os.chdir(self.layout.path.parent)    # MoorDyn writes its own outputs beside its file
                 try:
-                    self.instance = moordyn.Create(str(self.layout.path))
+                    self.instance = moordyn.Create(str(self.model_path))
                     err = moordyn.Init(self.instance, x.tolist(), v.tolist())
                     f0 = np.asarray(moordyn.Step(self.instance, x.tolist(), v.tolist(), 0.0, 0.0), float)
                 finally:
@@ -330,7 +407,7 @@ class MoorDynSystem:
             with self._quiet():
                 os.chdir(self.layout.path.parent)
                 try:
-                    m = moordyn.Create(str(self.layout.path))
+                    m = moordyn.Create(str(self.model_path))
                     moordyn.Init(m, x.tolist(), zero)
                     f = np.asarray(moordyn.Step(m, x.tolist(), zero, 0.0, 0.0), float)
                     moordyn.Close(m)
@@ -425,11 +502,18 @@ class MoorDynSystem:
 
     # -- outputs -------------------------------------------------------------------------------------
     def tensions(self) -> np.ndarray:
-        """Tension at each line's fairlead end (N): the magnitude of the force the line's end node
-        passes to what it is attached to (segment tension + the node's weight, drag, seabed)."""
+        """MoorDyn's own tension at each line's fairlead end (N): the tension of the line's end
+        segment, the number MoorDyn's ``GetLineFairTen`` and its output channels give (FairTen;
+        AnchTen for a line written from its fairlead down)."""
         import moordyn
-        return np.array([math.hypot(*moordyn.GetLineNodeForce(line, k))
-                         for line, k in zip(self._lines, self._fairlead)])
+        return np.array([math.hypot(*moordyn.GetLineNodeTen(line, k)) for line, k in zip(self._lines, self._fairlead)])
+
+    def end_forces(self) -> np.ndarray:
+        """Magnitude of the force each line's fairlead end node passes on to what it is attached to
+        (N): the end segment's tension plus the node's own weight, buoyancy, drag and seabed
+        contact (half a segment's): the line's pull on its fairlead point."""
+        import moordyn
+        return np.array([math.hypot(*moordyn.GetLineNodeForce(line, k)) for line, k in zip(self._lines, self._fairlead)])
 
     def node_positions(self, n_nodes: int) -> np.ndarray:
         """(lines, n_nodes, 3) node positions from the anchor end, NaN past a line's last node."""
@@ -450,3 +534,9 @@ class MoorDynSystem:
                 moordyn.Close(self.instance)
             self.instance = None
         self._quiet.close()
+        if self._folder is not None:      # MoorDyn's own outputs of the copy go beside the scene's file
+            for f in Path(self._folder.name).iterdir():
+                if f.name not in (self.model_path.name, CURRENT_FILE):
+                    shutil.move(str(f), str(self.layout.path.parent / f.name))
+            self._folder.cleanup()
+            self._folder = None

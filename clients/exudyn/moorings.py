@@ -60,6 +60,7 @@ from exudyn.itemInterface import (LoadForceVector, LoadMassProportional, LoadTor
                                   VObjectJointSpherical)
 
 from hydrolink.clients.exudyn.mechanism import BodyHandle, marker_at
+from hydrolink.protocol.current import Current
 from hydrolink.protocol.scene import LinearMooring, MoorDynMooring, RopeMooring, SceneError, Water
 
 _OV = exu.OutputVariableType
@@ -357,7 +358,7 @@ class MooringSet:
 
 def build_moorings(mbs, moorings: list, handles: dict[str, BodyHandle], water: Water,
                    moordyn_files: dict | None = None, body_names: list[str] | None = None,
-                   body_reference: np.ndarray | None = None) -> MooringSet:
+                   body_reference: np.ndarray | None = None, current: Current | None = None) -> MooringSet:
     """Add the scene's moorings to ``mbs`` (before ``Assemble``); ropes get their static
     equilibrium shape first. MoorDyn moorings need their files' layouts (``moordyn_files`` by
     mooring index, :func:`hydrolink.clients.exudyn.moordyn_mooring.load_moordyn_files`) and every scene
@@ -371,7 +372,7 @@ def build_moorings(mbs, moorings: list, handles: dict[str, BodyHandle], water: W
                 raise SceneError("scene", f"moorings[{i}].file", "MoorDyn files are read with the scene file "
                                  "(hydrolink run; run_scene_file or exudyn_client.run with moordyn_files)")
             rows = {n: k for k, n in enumerate(body_names)}
-            system = MoorDynSystem(m, moordyn_files[i], f"moorings[{i}]", rows, body_reference)
+            system = MoorDynSystem(m, moordyn_files[i], f"moorings[{i}]", rows, body_reference, current)
             loads = []
             for j, name in enumerate(m.coupled_bodies):
                 h = handles[name]

@@ -15,7 +15,8 @@ Layout (readable with ``xarray.open_dataset``)::
     extra  variables declared by the client with :meth:`ResultWriter.add_variable`, dims
            (time, *their dims): joint outputs over ``joint``; ``pto_force``, ``pto_velocity``,
            ``pto_power`` over ``pto`` and ``total_pto_power``; ``mooring_force`` over
-           (``mooring``, ``mooring_component``); MoorDyn: ``line_tension`` over ``line`` and
+           (``mooring``, ``mooring_component``); MoorDyn: ``line_tension`` (its own fairlead tension)
+           and ``line_end_force`` over ``line`` and
            ``line_node_position`` over (``line``, ``node``, ``xyz``); attribute ``moordyn`` (JSON:
            files, initial tensions and loads, static offsets); the optional forces' variables
            (``viscous_force``, ``viscous_power``, ``morison_force``, ...: protocol/reply.py) with

@@ -302,7 +302,11 @@ def bench_accuracy(scene_path: str | Path, grid: Grid, outdir: str | Path, *, ti
     duration = grid.duration or float(scene.simulation.duration)
     ramp = float(getattr(scene.waves, "ramp", 0.0) or 0.0)
     window = grid.window or (min(ramp, 0.5 * duration), duration)
-    work = Path(tempfile.mkdtemp(prefix="hydrolink-accuracy-"))
+    if keep_runs:   # runs straight into OUTDIR/runs (made as the user makes folders: the umask's mode)
+        work = outdir / "runs"
+        work.mkdir(exist_ok=True)
+    else:
+        work = Path(tempfile.mkdtemp(prefix="hydrolink-accuracy-"))
     hdbs: dict = {}
     rows: list[dict] = []
     try:
@@ -326,9 +330,8 @@ def bench_accuracy(scene_path: str | Path, grid: Grid, outdir: str | Path, *, ti
             rows.append({"label": label, "settings": dict(settings), **cost, **err, "note": note})
             log(f"  {cost['us_per_step']:.0f} us/step, RMS error {100 * err['rms_error']:.3g} % {note}")
     finally:
-        if keep_runs:
-            shutil.copytree(work, outdir / "runs", dirs_exist_ok=True)
-        shutil.rmtree(work, ignore_errors=True)
+        if not keep_runs:
+            shutil.rmtree(work, ignore_errors=True)
     mark_fronts(rows)
     meta = {"scene": str(scene_path), "duration": duration, "window": list(window), "mode": grid.mode,
             "title": title or scene_path.stem, "repeat": repeat}
@@ -399,7 +402,9 @@ def write_report(rows: list[dict], outdir: Path, meta: dict) -> None:
     plot_report(rows, outdir / "accuracy.png", meta, has_power)
 
 
-def plot_report(rows: list[dict], path: Path, meta: dict, has_power: bool) -> None:
+def report_figure(rows: list[dict], meta: dict, has_power: bool):
+    """The error-against-cost figure (matplotlib): one panel per error and cost, the options, the
+    reference and the Pareto front; the legend (first panel) names only what that panel draws."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -414,23 +419,34 @@ def plot_report(rows: list[dict], path: Path, meta: dict, has_power: bool) -> No
             ax = axes[i][j]
             x = np.array([r[c] for r in rows], float)
             y = np.array([max(r[e], floor) if np.isfinite(r[e]) else np.nan for r in rows], float)
-            front = np.array([r[f"front_{e}_{c}"] for r in rows])
-            ax.scatter(x[1:], 100 * y[1:], s=18, color="tab:blue", label="options")
-            ax.scatter(x[:1], 100 * y[:1], s=60, marker="*", color="k", label="reference (0, at the floor)")
-            o = np.argsort(x[front])
-            ax.plot(x[front][o], 100 * y[front][o], "-o", color="tab:red", mfc="none", ms=9, label="Pareto front")
+            shown = np.isfinite(x) & np.isfinite(y)
+            front = np.array([r[f"front_{e}_{c}"] for r in rows]) & shown
+            options, o = np.flatnonzero(shown[1:]) + 1, np.argsort(x[front])
+            if options.size:
+                ax.scatter(x[options], 100 * y[options], s=18, color="tab:blue", label="options")
+            if shown[0]:
+                ax.scatter(x[:1], 100 * y[:1], s=60, marker="*", color="k", label="reference (0, at the floor)")
+            if front.any():
+                ax.plot(x[front][o], 100 * y[front][o], "-o", color="tab:red", mfc="none", ms=9, label="Pareto front")
             for k, r in enumerate(rows):
-                if front[k] and k and np.isfinite(y[k]):
+                if front[k] and k:
                     ax.annotate(r["label"], (x[k], 100 * y[k]), fontsize=6, xytext=(3, 3), textcoords="offset points")
             ax.set_xscale("log")
             ax.set_yscale("log")
             ax.set_xlabel(clabel)
             ax.set_ylabel(f"{elabel} (%)")
             ax.grid(True, which="both", alpha=0.3)
-            if i == 0 and j == 0:
+            if i == 0 and j == 0 and ax.get_legend_handles_labels()[0]:
                 ax.legend(fontsize=6)
     fig.suptitle(f"{meta['title']}: error against cost", fontsize=10)
     fig.tight_layout()
+    return fig
+
+
+def plot_report(rows: list[dict], path: Path, meta: dict, has_power: bool) -> None:
+    """``accuracy.png`` (:func:`report_figure`)."""
+    import matplotlib.pyplot as plt
+    fig = report_figure(rows, meta, has_power)
     fig.savefig(path, dpi=80)
     plt.close(fig)
 

@@ -50,7 +50,8 @@ Two formulations (``[steady] formulation`` / ``--formulation``):
   (SVD): the dynamics are projected, N^T (...) N, and the multipliers drop out.
 
 A mode with no static stiffness (e.g. a free surge) has an undetermined mean: its mean is set to
-zero; a nonzero mean force on it (a drift) is an error. Results: one period, resampled at dt by
+zero; a nonzero mean force on it (a drift: constant loads, or a force term's mean such as a current's
+drag) is an error. Results: one period, resampled at dt by
 trigonometric interpolation, written in the layout of ``hydrolink run`` (clients/lockstep/results.py).
 Not supported (refused with the reason): irregular or still waves, rope and MoorDyn moorings (catenary and
 seabed contact), joint friction, controllers, FMU clients, nonzero constraint values.
@@ -500,6 +501,13 @@ def solve(sys_: LinearizedSystem, order: int, formulation: str = "dae", *, toler
 
     y, it, rel = _newton(residual, np.zeros(n * p + m * p), norm_b, tolerance, max_iterations)
     X = y[:n * p].reshape(n, p)
+    if pin is not None and sys_.terms:   # the pin holds a free mode's mean: a mean term load on it
+        held = (pin @ X.reshape(-1)).reshape(n, p).mean(axis=1)
+        if np.linalg.norm(held) > 1e-6 * max(norm_b, float(np.linalg.norm(rhs))):
+            names = ", ".join(t.name for t in sys_.terms)
+            raise SteadyError("bodies", f"a mean load of the force terms ({names}: a current's drag, a wave drift) "
+                                        "acts on a mode without stiffness: the bodies drift, there is no periodic "
+                                        "steady state (moor them)")
     q = N @ X if N is not None else X
     lam = y[n * p:].reshape(m, p) if m else None
     return SteadySolution(sys_, order, formulation, t, q, lam, it, rel, _time.perf_counter() - t0,

@@ -3,8 +3,10 @@
 1. The sweep file and every case are validated (clients/studies/sweep_file.py) before anything runs.
 2. The HDBs are loaded (HDB build specs built or taken from the on-disk cache) once, in this
    process; a case's key is the sha256 of its scene with every file replaced by its content's
-   digest, its solver and the hydrolink version (:func:`~hydrolink.clients.studies.sweep_file.case_identity`).
-3. Cases whose record exists in ``OUTDIR/cases`` are finished and skipped (failed ones too, unless
+   digest, its solver, the hydrolink version and what its file keeps
+   (:func:`~hydrolink.clients.studies.sweep_file.case_identity`); its files are named by its index, keys and
+   values (``cases/case-012_waves.hs=2.5_ptos.pto.damping=1.2e6.*``), its record holds its key.
+3. Cases whose record (by key) exists in ``OUTDIR/cases`` are finished and skipped (failed ones too, unless
    ``retry_failed``); the others run on Dask: a ``LocalCluster`` of ``workers`` processes with one
    thread each (BLAS/OpenMP threads 1), or the scheduler at ``scheduler``. The HDBs are scattered
    to the workers once; a setup with state-space radiation is warmed first (its fits land in the
@@ -31,8 +33,8 @@ from pathlib import Path
 import numpy as np
 
 from hydrolink.clients.studies.sweep_file import Sweep, SweepError, case_identity, dataset_digest, full_key, load_sweep
-from hydrolink.clients.studies.sweep_worker import (TOKEN_FILE, CaseOutcome, CaseRecord, CaseTask, case_paths, run_case, store_outcome,
-                                            warm_setup)
+from hydrolink.clients.studies.sweep_worker import (CASE_FILES, TOKEN_FILE, CaseOutcome, CaseRecord, CaseTask, case_paths, run_case,
+                                            store_outcome, warm_setup, write_file_atomic)
 
 log = logging.getLogger(__name__)
 PERIOD_KEYS = ("waves.te", "waves.tp", "waves.period")
@@ -66,13 +68,37 @@ def load_hdbs(sweep: Sweep, progress: bool) -> tuple[dict, dict[str, str]]:
     return hdbs, {k: dataset_digest(ds) for k, ds in hdbs.items()}
 
 
-def read_record(outdir: Path, case_id: str) -> CaseRecord | None:
-    """A finished case's record, None if it has none (or a complete one lost its results file)."""
-    paths = case_paths(outdir, case_id)
-    rec = CaseRecord.read(paths["record"])
-    if rec is not None and rec.status == "complete" and not paths["results"].exists():
-        return None
-    return rec
+def finished_records(outdir: Path, cases: list) -> dict[str, CaseRecord | None]:
+    """Per case key, its finished record (None: the case is to run). A record is found by the case's
+    key whatever name its files have (a case whose name changed, e.g. another grid value before it,
+    has its files renamed to its name now); a complete record whose file is gone does not count."""
+    found: dict[str, CaseRecord] = {}
+    for path in sorted((outdir / "cases").glob(f"*{CASE_FILES['record']}")):
+        rec = CaseRecord.read(path)
+        if rec is not None and rec.name == path.name[:-len(CASE_FILES["record"])]:
+            found[rec.case_id] = rec
+    out: dict[str, CaseRecord | None] = {}
+    for case in cases:
+        rec = found.get(case.case_id)
+        if rec is not None and rec.name != case.name:
+            rec = _rename_case_files(outdir, rec, case.name)
+        if rec is not None and rec.status == "complete" and not case_paths(outdir, rec.name)["results"].exists():
+            rec = None
+        out[case.case_id] = rec
+    return out
+
+
+def _rename_case_files(outdir: Path, rec: CaseRecord, name: str) -> CaseRecord:
+    """Move a finished case's files to its name now (the record last, rewritten with the name);
+    files under that name belong to no case of this sweep (names are unique within it)."""
+    old, new = case_paths(outdir, rec.name), case_paths(outdir, name)
+    for kind in ("scene", "results", "failed"):
+        if old[kind].exists():
+            os.replace(old[kind], new[kind])
+    moved = replace(rec, name=name)
+    write_file_atomic(new["record"], moved.to_json())
+    old["record"].unlink(missing_ok=True)
+    return moved
 
 
 def _setup_group(case, digests: dict[str, str]) -> str | None:
@@ -213,7 +239,7 @@ def run_sweep(sweep_path: str | Path, outdir: str | Path, *, workers: int | None
     hdbs, digests = load_hdbs(sweep, progress)
     for case in sweep.cases:
         case.case_id = case_identity(case, digests)
-    records = {c.case_id: read_record(outdir, c.case_id) for c in sweep.cases}
+    records = finished_records(outdir, sweep.cases)
     todo = [c for c in sweep.cases if records[c.case_id] is None
             or (retry_failed and records[c.case_id].status != "complete")]
     report = SweepReport(outdir, len(sweep.cases), len(sweep.cases) - len(todo), len(todo))
@@ -221,8 +247,10 @@ def run_sweep(sweep_path: str | Path, outdir: str | Path, *, workers: int | None
     if todo:
         token = secrets.token_hex(16)
         (outdir / TOKEN_FILE).write_text(token)
-        tasks = [CaseTask(c.case_id, c.label, c.text, c.solver, tuple(sorted({b.hdb for b in c.scene.bodies if b.wet})),
-                          str(outdir), token) for c in todo]
+        from hydrolink.clients.studies.sweep_results import averaging_window
+        tasks = [CaseTask(c.case_id, c.name, c.label, c.text, c.solver,
+                          tuple(sorted({b.hdb for b in c.scene.bodies if b.wet})), str(outdir), token,
+                          averaging_window(c, sweep.spec.window, c.solver == "steady"), c.tail) for c in todo]
         groups: dict[str, list[CaseTask]] = {}
         for c, t in zip(todo, tasks):
             g = _setup_group(c, digests)
@@ -233,7 +261,7 @@ def run_sweep(sweep_path: str | Path, outdir: str | Path, *, workers: int | None
         def on_outcome(task: CaseTask, outcome: CaseOutcome) -> None:
             if not outcome.stored:   # a worker that does not see OUTDIR, or one that died
                 store_outcome(task, outcome, None, task.scene_text.encode())
-            records[task.case_id] = outcome.record(task.label)
+            records[task.case_id] = outcome.record(task.name, task.label)
             for kind, folder in outcome.caches.items():
                 folders.setdefault(kind, set()).add(folder)
         with ExitStack() as stack:
@@ -256,18 +284,16 @@ def write_outputs(sweep: Sweep, outdir: Path, records: dict[str, CaseRecord | No
     """sweep.nc, cases.csv and the plots from every finished case; returns the files written and,
     with a site, one AEP line per combination of the other sweep keys."""
     from hydrolink.clients.studies.sweep_plots import plot_capture_width, plot_power_matrix
-    from hydrolink.clients.studies.sweep_results import (averaging_window, build_dataset, case_sea_states, summarise,
-                                                 write_cases_csv)
+    from hydrolink.clients.studies.sweep_case_file import read_summary
+    from hydrolink.clients.studies.sweep_results import build_dataset, case_sea_states, write_cases_csv
     summaries = {}
     done = {k: r for k, r in records.items() if r is not None}
     for case in sweep.cases:
         rec = done.get(case.case_id)
         if rec is None or rec.status != "complete":
             continue
-        steady = case.solver == "steady"
         try:
-            summaries[case.case_id] = summarise(case_paths(outdir, case.case_id)["results"],
-                                                averaging_window(case, sweep.spec.window, steady), steady)
+            summaries[case.case_id] = read_summary(case_paths(outdir, rec.name)["results"])
         except (OSError, ValueError) as exc:
             rec.status, rec.error = "failed", f"summary: {exc}"
     ds = build_dataset(sweep, done, summaries, case_sea_states(sweep))

@@ -10,6 +10,9 @@
     window = [100.0, 1200.0]        # s, the summaries' averaging window (default: end of the wave ramp
                                     # to the end; regular waves: shortened to whole wave periods)
     characteristic_width = 20.0     # m, for the capture width ratio (optional)
+    case_series = "tail"            # each case's file: "tail" (default): its summary and the last `tail`
+                                    # s of every series; "full": its summary and every sample of the run
+    tail = 60.0                     # s (default: 5 wave periods of the case, T or Tp)
     [set]                           # keys set in every case, not swept (optional)
     "simulation.duration" = 1200.0
     [grid]                          # dotted scene keys; entries of arrays of tables by name
@@ -35,6 +38,7 @@ import copy
 import hashlib
 import json
 import math
+import re
 from dataclasses import dataclass, field
 from importlib import metadata
 from pathlib import Path
@@ -73,6 +77,8 @@ class SweepFile(GridSpec):
     characteristic_width: float | None = Field(default=None, gt=0, allow_inf_nan=False)
     fixed: dict[str, Value] = Field(default={}, alias="set")
     site: Site | None = None
+    case_series: Literal["tail", "full"] = "tail"
+    tail: float | None = Field(default=None, gt=0, allow_inf_nan=False)
 
     @field_validator("window")
     @classmethod
@@ -85,7 +91,8 @@ class SweepFile(GridSpec):
 @dataclass
 class Case:
     """One case of a sweep: its overrides (sweep keys as written), its coordinate on every sweep
-    key, the validated scene and its TOML text (absolute paths), and the solver it runs with."""
+    key, the validated scene and its TOML text (absolute paths), the solver it runs with, the
+    seconds of series its file keeps (None: all) and its files' name (:func:`case_name`)."""
     index: int
     label: str
     overrides: dict[str, Any]
@@ -93,6 +100,8 @@ class Case:
     scene: Scene
     text: str
     solver: str
+    tail: float | None
+    name: str = ""
     case_id: str = ""
 
 
@@ -121,6 +130,33 @@ def _fmt(v) -> str:
 
 def case_label(overrides: dict[str, Any]) -> str:
     return ", ".join(f"{k}={_fmt(v)}" for k, v in overrides.items())
+
+
+TAIL_PERIODS = 5           # default tail of a case's series, in wave periods
+NAME_CHARS = 160           # the most characters of keys and values in a case's file name
+
+
+def _name_value(v) -> str:
+    """A value as a file name shows it: 1.2e6 (not 1.2e+06), 0.75, true, text as it is."""
+    if isinstance(v, float):
+        mantissa, _, exp = f"{v:g}".partition("e")
+        return mantissa + (f"e{int(exp)}" if exp else "")
+    return json.dumps(v) if isinstance(v, (bool, list, dict)) else str(v)
+
+
+def case_name(index: int, count: int, label: str | None, overrides: dict[str, Any]) -> str:
+    """The stem of a case's files: ``case-012_waves.hs=2.5_ptos.pto.damping=1.2e6`` (the case's
+    index, then its explicit label or its keys and values); filesystem-safe (letters, digits and
+    ``.=+,-`` kept, anything else one ``_``), unique by its index, at most :data:`NAME_CHARS`
+    characters after it."""
+    text = label if label else "_".join(f"{k}={_name_value(v)}" for k, v in overrides.items())
+    safe = re.sub(r"[^A-Za-z0-9.=+,-]+", "_", text).strip("_")[:NAME_CHARS]
+    return f"case-{index:0{max(3, len(str(count - 1)))}d}" + (f"_{safe}" if safe else "")
+
+
+def wave_period(scene: Scene) -> float | None:
+    """The case's wave period (T of regular waves, Tp of irregular ones), None for other waves."""
+    return getattr(scene.waves, "period", None) or getattr(scene.waves, "tp", None)
 
 
 def _coordinate(v):
@@ -212,6 +248,7 @@ def load_sweep(path: str | Path) -> Sweep:
     raw += [(c.get("label"), {k: v for k, v in c.items() if k != "label"}) for c in spec.cases]
     keys = spec.keys()
     cases: list[Case] = []
+    names: list[str | None] = []
     seen: set[str] = set()
     for i, (label, over) in enumerate(raw):
         n_grid = len(raw) - len(spec.cases)
@@ -228,7 +265,10 @@ def load_sweep(path: str | Path) -> Sweep:
             continue   # the same case twice (e.g. an explicit case inside the grid)
         seen.add(sig)
         cases.append(Case(len(cases), label or case_label(over), over, coords, scene, dump_toml(doc),
-                          _solver(spec.solver, scene, path, what)))
+                          _solver(spec.solver, scene, path, what), _tail(spec, scene, path, what)))
+        names.append(label)
+    for case, label in zip(cases, names):
+        case.name = case_name(case.index, len(cases), label, case.overrides)
     sweep = Sweep(path, spec, text, scene_path, scene_text, keys, cases)
     _check_coordinates(sweep)
     if spec.site is not None:
@@ -268,6 +308,19 @@ def _check_coordinates(sweep: Sweep) -> None:
                 c.coords[key] = float(c.coords[key])
 
 
+def _tail(spec: SweepFile, scene: Scene, path: Path, what: str) -> float | None:
+    """Seconds of series the case's file keeps: None for "full", else ``tail`` or 5 wave periods."""
+    if spec.case_series == "full":
+        return None
+    if spec.tail is not None:
+        return spec.tail
+    period = wave_period(scene)
+    if period is None:
+        raise SweepError(path, "tail", f"{what} has {scene.waves.type!r} waves, without a wave period to count the "
+                                       f"default tail of its series in: give tail (s), or case_series = \"full\"")
+    return TAIL_PERIODS * float(period)
+
+
 def _solver(solver: str, scene: Scene, path: Path, what: str) -> str:
     if solver == "run":
         return "run"
@@ -290,6 +343,7 @@ def hydrolink_version() -> str:
         return "unknown"
 
 
+CASE_FILE_FORMAT = 2       # 2: summary + tail (clients/studies/sweep_case_file.py); 1 (hash names, full series) is not resumed
 _VOLATILE_ATTRS = {"cache_file", "cache_hit", "build_seconds", "mesh_seconds", "solve_seconds"}
 
 
@@ -316,7 +370,7 @@ def file_digest(path: str | Path) -> str:
 
 def case_identity(case: Case, hdb_digests: dict[str, str]) -> str:
     """The key of a case's results: sha256 of its scene (file paths replaced by their content's
-    digests), its solver and the hydrolink version."""
+    digests), its solver, the hydrolink version and what its file keeps (format, tail)."""
     doc = parse_toml(case.text, f"case {case.label}", SweepError)
     for b in doc.get("bodies", []):
         if "hdb" in b:
@@ -330,6 +384,7 @@ def case_identity(case: Case, hdb_digests: dict[str, str]) -> str:
     for m in doc.get("moorings", []):
         if "file" in m:      # a MoorDyn input file
             m["file"] = "sha256:" + file_digest(m["file"])
-    blob = json.dumps({"scene": doc, "solver": case.solver, "hydrolink": hydrolink_version()},
+    blob = json.dumps({"scene": doc, "solver": case.solver, "hydrolink": hydrolink_version(),
+                       "case_file": {"format": CASE_FILE_FORMAT, "tail": case.tail}},
                       sort_keys=True, default=str)
     return hashlib.sha256(blob.encode()).hexdigest()[:20]

@@ -1,6 +1,6 @@
 """``sweep.nc``: every case's summary on one dimension per sweep key, and the power matrix + AEP.
 
-Per case (from its results file, over its averaging window; clients/studies/sweep_file.py):
+Per case (its file's summary over its averaging window; clients/studies/sweep_case_file.py):
 
 =========================  =================================  =====================================
 variable                   dims (after the sweep keys)        meaning
@@ -17,7 +17,8 @@ energy_flux                -                                  W/m, J of the sea 
 capture_width(_ratio)      -                                  m (P / J), - (CW / characteristic width)
 wall_time, attempts        -                                  s of the whole case; runs it took
 status, error, solver      -                                  "complete" / "failed" / "absent"
-case_id, label             -                                  the case's key (cases/<id>.*) and name
+case_id, label             -                                  the case's key (its record's) and name
+case_name                  -                                  the stem of its files (cases/<case_name>.*)
 window_start, window_end   -                                  s, the averaging window
 =========================  =================================  =====================================
 
@@ -33,7 +34,6 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -42,22 +42,9 @@ import xarray as xr
 from hydrolink.clients.studies.power_matrix import PowerMatrix, SeaState, annual_energy, power_matrix, sea_state
 from hydrolink.clients.lockstep.results import DOF_NAMES, package_versions
 from hydrolink.clients.studies.sweep_file import Case, Sweep
+from hydrolink.clients.studies.sweep_case_file import CaseSummary
 from hydrolink.clients.studies.sweep_worker import CaseRecord
 from hydrolink.protocol.scene import RegularWave
-
-
-@dataclass
-class CaseSummary:
-    """The numbers a case contributes to sweep.nc (NaN / empty where it has none)."""
-    mean_total_pto_power: float = math.nan
-    mean_pto_power: dict[str, float] = field(default_factory=dict)
-    max_pto_force: dict[str, float] = field(default_factory=dict)
-    bodies: list[str] = field(default_factory=list)
-    motion_std: np.ndarray | None = None        # (body, dof)
-    motion_max: np.ndarray | None = None
-    joint_force: tuple[list[str], list[str], np.ndarray] | None = None
-    mooring_force: tuple[list[str], list[str], np.ndarray] | None = None
-    window: tuple[float, float] = (math.nan, math.nan)
 
 
 def averaging_window(case: Case, window: tuple[float, float] | None, steady: bool) -> tuple[float, float]:
@@ -76,34 +63,6 @@ def averaging_window(case: Case, window: tuple[float, float] | None, steady: boo
         if k >= 1:
             start = end - k * period
     return (start, end)
-
-
-def summarise(path: Path, window: tuple[float, float], steady: bool) -> CaseSummary:
-    """A case's summary from its results file over ``window`` (samples start < t <= end; a steady
-    file's one period: every row)."""
-    with xr.open_dataset(path) as ds:
-        t = ds["time"].values
-        sel = np.ones(t.size, bool) if steady else (t > window[0] + 1e-9) & (t <= window[1] + 1e-9)
-        if sel.sum() < 2:
-            raise ValueError(f"{path.name}: fewer than 2 samples in the window [{window[0]:g}, {window[1]:g}] s")
-        d = ds.isel(time=np.flatnonzero(sel)).load()
-    s = CaseSummary(window=window)
-    if "total_pto_power" in d:
-        s.mean_total_pto_power = float(d["total_pto_power"].mean())
-        for name in map(str, d["pto"].values):
-            s.mean_pto_power[name] = float(d["pto_power"].sel(pto=name).mean())
-            s.max_pto_force[name] = float(np.abs(d["pto_force"].sel(pto=name)).max())
-    s.bodies = [str(b) for b in d["body"].values]
-    motion = d["position"].values - d["equilibrium_position"].values[None]
-    s.motion_std = motion.std(axis=0)
-    s.motion_max = np.abs(motion).max(axis=0)
-    if "joint_force" in d:
-        s.joint_force = ([str(x) for x in d["joint"].values], [str(x) for x in d["joint_component"].values],
-                         np.abs(d["joint_force"].values).max(axis=0))
-    if "mooring_force" in d:
-        s.mooring_force = ([str(x) for x in d["mooring"].values], [str(x) for x in d["mooring_component"].values],
-                           np.abs(d["mooring_force"].values).max(axis=0))
-    return s
 
 
 def _coords(sweep: Sweep) -> dict[str, list]:
@@ -142,7 +101,8 @@ def build_dataset(sweep: Sweep, records: dict[str, CaseRecord], summaries: dict[
                                    "capture_width", "capture_width_ratio", "wall_time", "window_start",
                                    "window_end")}
     v["attempts"] = grid(fill=0, dtype=int)
-    text = {name: grid(fill="", dtype=object) for name in ("status", "error", "solver", "case_id", "label")}
+    text = {name: grid(fill="", dtype=object) for name in ("status", "error", "solver", "case_id", "case_name",
+                                                          "label")}
     text["status"][...] = "absent"
     per_pto = {name: grid((len(ptos),)) for name in ("mean_pto_power", "max_pto_force")}
     motion = {name: grid((len(bodies), 6)) for name in ("motion_std", "motion_max")}
@@ -153,6 +113,7 @@ def build_dataset(sweep: Sweep, records: dict[str, CaseRecord], summaries: dict[
         cell = _cell(coords, case)
         rec = records.get(case.case_id)
         text["case_id"][cell], text["label"][cell], text["solver"][cell] = case.case_id, case.label, case.solver
+        text["case_name"][cell] = case.name
         state = states.get(case.case_id)
         if state is not None:
             v["sea_state_height"][cell], v["sea_state_period"][cell] = state.height, state.period
@@ -304,7 +265,7 @@ def write_cases_csv(ds: xr.Dataset, sweep: Sweep, path: Path) -> None:
     import csv
     cols = ["label", *sweep.keys, "status", "mean_total_pto_power", "sea_state_height", "sea_state_period",
             "energy_flux", "capture_width", "capture_width_ratio", "wall_time", "attempts", "solver", "case_id",
-            "error"]
+            "case_name", "error"]
     with open(path, "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(cols)

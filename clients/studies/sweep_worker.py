@@ -1,9 +1,11 @@
 """What a Dask worker runs for ``hydrolink sweep``: one case (``hydrolink run`` with an embedded
 server, or ``hydrolink steady``) and the warm-up of a setup's on-disk caches.
 
-A case's files live in ``OUTDIR/cases/``: ``<id>.toml`` (the case's scene), ``<id>.nc`` (its results,
-as ``hydrolink run``/``steady`` write them) and ``<id>.json`` (its record: status, error, wall time,
-attempts, ...), written in that order, each atomically; a case whose record exists is finished. A
+A case's files live in ``OUTDIR/cases/``, named by the case (``case-012_waves.hs=2.5_ptos.pto.damping=1.2e6``,
+clients/sweep_file.py ``case_name``): ``<name>.toml`` (the case's scene), ``<name>.nc`` (its summary
+and the tail of its series, or every sample: clients/studies/sweep_case_file.py) and ``<name>.json`` (its
+record: the case's key, status, error, wall time, attempts, ...), written in that order, each
+atomically; a case whose record (with its key) exists is finished. A
 worker that sees OUTDIR (same machine or a shared file system: it holds the sweep's token file)
 writes them itself; a worker elsewhere returns the files' bytes and the client writes them.
 
@@ -16,6 +18,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import socket
 import tempfile
 import time
@@ -29,12 +32,15 @@ TOKEN_FILE = ".hydrolink-sweep"
 class CaseTask:
     """Everything a worker needs for one case (the HDBs travel separately)."""
     case_id: str
+    name: str                    # stem of its files
     label: str
     scene_text: str
     solver: str                  # "run" | "steady"
     hdbs: tuple[str, ...]        # the HDB keys (bodies' hdb strings) of its scene
     outdir: str
     token: str
+    window: tuple[float, float]  # s, its summary's averaging window
+    tail: float | None           # s of series its file keeps (None: all)
     attempt: int = 1
 
 
@@ -53,9 +59,9 @@ class CaseOutcome:
     stored: bool = False         # the worker wrote the case's files itself (it sees OUTDIR)
     files: dict[str, bytes] = field(default_factory=dict)   # name -> bytes (remote workers only)
 
-    def record(self, label: str) -> "CaseRecord":
+    def record(self, name: str, label: str) -> "CaseRecord":
         return CaseRecord(self.case_id, label, self.status, self.error, self.wall_time, self.solver, self.worker,
-                          self.attempt, dict(self.caches), self.fitted_pairs)
+                          self.attempt, dict(self.caches), self.fitted_pairs, name)
 
 
 @dataclass
@@ -71,6 +77,7 @@ class CaseRecord:
     attempt: int
     caches: dict[str, str]
     fitted_pairs: int | None = None
+    name: str = ""               # stem of its files
 
     def to_json(self) -> bytes:
         return json.dumps(asdict(self), indent=1).encode()
@@ -85,10 +92,13 @@ class CaseRecord:
             return None
 
 
-def case_paths(outdir: str | Path, case_id: str) -> dict[str, Path]:
+CASE_FILES = {"scene": ".toml", "results": ".nc", "failed": ".failed.nc", "record": ".json"}
+
+
+def case_paths(outdir: str | Path, name: str) -> dict[str, Path]:
+    """A case's files by kind (:data:`CASE_FILES`), from the stem of their names."""
     base = Path(outdir) / "cases"
-    return {"scene": base / f"{case_id}.toml", "results": base / f"{case_id}.nc",
-            "failed": base / f"{case_id}.failed.nc", "record": base / f"{case_id}.json"}
+    return {kind: base / f"{name}{suffix}" for kind, suffix in CASE_FILES.items()}
 
 
 def write_file_atomic(path: Path, data: bytes) -> None:
@@ -96,16 +106,20 @@ def write_file_atomic(path: Path, data: bytes) -> None:
     write_atomic(path, lambda tmp: Path(tmp).write_bytes(data))
 
 
-def store_outcome(task: CaseTask, outcome: CaseOutcome, results: Path | None, scene: bytes) -> None:
-    """Write a case's scene, results (moved from ``results``, or from ``outcome.files``) and record."""
-    paths = case_paths(task.outdir, task.case_id)
+def store_outcome(task: CaseTask, outcome: CaseOutcome, case_file: Path | None, scene: bytes) -> None:
+    """Write a case's scene, its file (copied from ``case_file``, or from ``outcome.files``) and its
+    record; a complete case's file replaces a failed attempt's."""
+    paths = case_paths(task.outdir, task.name)
     write_file_atomic(paths["scene"], scene)
     target = paths["results"] if outcome.status == "complete" else paths["failed"]
-    if results is not None and results.exists():
-        os.replace(results, target)
+    if case_file is not None and case_file.exists():
+        from hydrolink.server.disk_cache import write_atomic
+        write_atomic(target, lambda tmp: shutil.copyfile(case_file, tmp))
     elif "results" in outcome.files:
         write_file_atomic(target, outcome.files["results"])
-    write_file_atomic(paths["record"], outcome.record(task.label).to_json())
+    if outcome.status == "complete":
+        paths["failed"].unlink(missing_ok=True)
+    write_file_atomic(paths["record"], outcome.record(task.name, task.label).to_json())
 
 
 def sees_outdir(task: CaseTask) -> bool:
@@ -129,17 +143,15 @@ def _first_line(exc: BaseException) -> str:
 
 
 def run_case(task: CaseTask, hdbs: dict, *after) -> CaseOutcome:
-    """Run one case; never raises for the case's own failure (recorded in the outcome). ``after``:
-    futures this case waits for (the warm-up of its setup's caches), unused."""
-    local = sees_outdir(task)
+    """Run one case into a full results file, summarise it over the case's window and write the
+    case's file (clients/studies/sweep_case_file.py); never raises for the case's own failure (recorded in
+    the outcome, with the partial results as its file). ``after``: futures this case waits for (the
+    warm-up of its setup's caches), unused."""
+    from hydrolink.clients.studies.sweep_case_file import summarise, write_case_file
     work = Path(tempfile.mkdtemp(prefix=f"hydrolink-case-{task.case_id[:8]}-"))
     scene_path = work / "scene.toml"
     scene_path.write_text(task.scene_text)
-    results = work / "results.nc"
-    if local:   # write beside the final place: the move into place is a rename
-        part = Path(task.outdir) / "cases" / f"{task.case_id}.nc.part"
-        part.parent.mkdir(parents=True, exist_ok=True)
-        results = part
+    results, case_file = work / "results.nc", work / "case.nc"
     t0 = time.perf_counter()
     status, error, fitted = "complete", "", None
     try:
@@ -159,21 +171,24 @@ def run_case(task: CaseTask, hdbs: dict, *after) -> CaseOutcome:
             fitted = summary.state_space_fitted_pairs
     except Exception as exc:  # noqa: BLE001 - a failing case is a result; the sweep goes on
         status, error = "failed", _first_line(exc)
+    if status == "complete":
+        try:
+            steady = task.solver == "steady"
+            write_case_file(results, case_file, summarise(results, task.window, steady), None if steady else task.tail)
+        except (OSError, ValueError) as exc:
+            status, error = "failed", f"summary: {_first_line(exc)}"
     wall = time.perf_counter() - t0
     outcome = CaseOutcome(task.case_id, status, error, wall, task.solver, f"{socket.gethostname()}:{os.getpid()}",
                           task.attempt, cache_folders(), fitted)
+    kept = case_file if status == "complete" else results
     try:
-        if local:
-            store_outcome(task, outcome, results, task.scene_text.encode())
+        if sees_outdir(task):
+            store_outcome(task, outcome, kept, task.scene_text.encode())
             outcome.stored = True
-        elif results.exists():
-            outcome.files["results"] = results.read_bytes()
+        elif kept.exists():
+            outcome.files["results"] = kept.read_bytes()
     finally:
-        for p in work.iterdir():
-            p.unlink()
-        work.rmdir()
-        if local and results.exists():
-            results.unlink()
+        shutil.rmtree(work, ignore_errors=True)
     return outcome
 
 

@@ -15,6 +15,7 @@ import hashlib
 import json
 import logging
 import math
+import sys
 import time
 import warnings
 from pathlib import Path
@@ -84,6 +85,45 @@ def _read_cached(path: Path) -> xr.Dataset | None:
 # Solve
 # ----------------------------------------------------------------------------------------------
 
+TABULATION_LOGGER = "capytaine.green_functions.delhommeau"
+
+
+class _TabulationNote(logging.Filter):
+    """Capytaine's first-run ``WARNING ... Precomputing tabulation`` (timestamped, it reads like a
+    fault) replaced by one plain line of hydrolink's saying what happens."""
+
+    def __init__(self, say):
+        super().__init__()
+        self.say = say
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.getMessage().startswith("Precomputing tabulation"):
+            from capytaine.tools.cache_on_disk import cache_directory
+            self.say("hdb build: Capytaine is tabulating its Green function, once on this machine (a few seconds; "
+                     f"kept in {cache_directory()})")
+            return False
+        return True
+
+
+def bem_solver(progress: bool):
+    """Capytaine's BEM solver, its one-off Green-function tabulation said in hydrolink's words: one
+    line on stderr with ``progress`` (else at INFO level), never Capytaine's warning."""
+    import capytaine as cpt
+
+    def say(line: str) -> None:
+        if progress:
+            print(line, file=sys.stderr, flush=True)
+        else:
+            LOG.info(line)
+    note = _TabulationNote(say)
+    logger = logging.getLogger(TABULATION_LOGGER)
+    logger.addFilter(note)
+    try:
+        return cpt.BEMSolver()
+    finally:
+        logger.removeFilter(note)
+
+
 def _solve(body, spec: BuildSpec, progress: bool, desc: str) -> tuple[xr.Dataset, MeanDrift | None]:
     """Radiation (every DOF of ``body``, a FloatingBody or Multibody) and diffraction over the
     grid, radiation at omega = inf; Capytaine's own dataset (exp(-iwt)) and, when the spec asks
@@ -98,7 +138,7 @@ def _solve(body, spec: BuildSpec, progress: bool, desc: str) -> tuple[xr.Dataset
     headings = np.radians(spec.waves.directions)
     dofs = list(body.dofs)
     common = dict(body=body, rho=w.density, g=w.gravity, water_depth=w.depth_m)
-    solver = cpt.BEMSolver()
+    solver = bem_solver(progress)
     drift_spec = spec.second_order
     keep = drift_spec.mean_drift == "far-field"   # the Kochin functions need the sources
     n_total = sum(len(dofs) + (len(headings) if math.isfinite(om) else 0) for om in omegas)
