@@ -28,7 +28,7 @@ The force term is :class:`NonlinearTerm` (server/force_term.py)."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -41,7 +41,7 @@ from hydrolink.server.phase_expansion import PhaseExpansion
 from hydrolink.server.waves import WaveComponents, ramp_at
 from hydrolink.server.wetted_surface import Hull, clip_wet, corner_loads, interpolate, pressure_load, rotation_xyz
 
-__all__ = ["NonlinearBody", "NonlinearHydro", "NonlinearTerm", "build_nonlinear"]
+__all__ = ["NonlinearBody", "NonlinearHydro", "NonlinearTerm", "build_nonlinear", "strongest_components"]
 
 
 def _depth_factor(k: np.ndarray, z: np.ndarray, depth: float) -> np.ndarray:
@@ -173,6 +173,20 @@ class NonlinearHydro:
         return hs, fk
 
 
+def strongest_components(waves: WaveComponents, fraction: float) -> WaveComponents:
+    """The fewest components, most energetic first, whose variance sum a_c^2 / 2 reaches
+    ``fraction`` of the sea's (``[hydro] froude_krylov_energy``; all of them at 1), in their
+    original order."""
+    if fraction >= 1.0 or waves.size <= 1:
+        return waves
+    energy = waves.amplitude ** 2
+    order = np.argsort(-energy, kind="stable")
+    n = int(np.searchsorted(np.cumsum(energy[order]), fraction * energy.sum() * (1 - 1e-12))) + 1
+    keep = np.sort(order[:min(n, waves.size)])
+    return replace(waves, omega=waves.omega[keep], amplitude=waves.amplitude[keep], phase=waves.phase[keep],
+                   headings=None if waves.headings is None else waves.headings[keep])
+
+
 def build_nonlinear(scene: Scene, wet: list[int], hulls: dict[str, Hull], waves: WaveComponents,
                     references: np.ndarray, stiffness: np.ndarray, net_buoyancy: list[float | None],
                     active: np.ndarray) -> NonlinearHydro | None:
@@ -181,7 +195,8 @@ def build_nonlinear(scene: Scene, wet: list[int], hulls: dict[str, Hull], waves:
     nonlinear body); ``stiffness`` the setup's (6N, 6N) hydrostatic stiffness, ``net_buoyancy``
     the setup's per wet body (None: none applied)."""
     water = scene.water
-    model = NonlinearHydro([], waves, water.density, water.gravity, water.depth_m, len(wet))
+    kept = strongest_components(waves, scene.hydro.froude_krylov_energy)
+    model = NonlinearHydro([], kept, water.density, water.gravity, water.depth_m, len(wet))
     bodies = []
     for k, i in enumerate(wet):
         body = scene.bodies[i]
@@ -190,7 +205,7 @@ def build_nonlinear(scene: Scene, wet: list[int], hulls: dict[str, Hull], waves:
             continue
         ref = np.asarray(references[k], float)
         hull = Hull(hulls[body.name].vertices - ref, hulls[body.name].triangles, hulls[body.name].volume)
-        fk = model.fk_linear_phasors(hull, ref) if mode == "froude-krylov" and waves.size else None
+        fk = model.fk_linear_phasors(hull, ref) if mode == "froude-krylov" and kept.size else None
         at_rest = hull.vertices[hull.triangles]
         pts, _ = clip_wet(at_rest, at_rest[..., 2] + ref[2])
         volume = float(pressure_load(pts, -(pts[..., 2] + ref[2]))[2])    # buoyancy / (rho g) at rest
@@ -210,9 +225,15 @@ def build_nonlinear(scene: Scene, wet: list[int], hulls: dict[str, Hull], waves:
     if not bodies:
         return None
     model.bodies = bodies
+    if kept.size < waves.size and any(b.mode == "froude-krylov" for b in bodies):
+        share = float(np.sum(kept.amplitude ** 2) / np.sum(waves.amplitude ** 2))
+        model.warnings.append(
+            f"hydro.froude_krylov_energy: the nonlinear Froude-Krylov pressure and free surface use the "
+            f"{kept.size} most energetic of {waves.size} wave components ({100 * share:.4g} % of the variance); "
+            "the others act through the linear excitation only. Set it to 1 for all of them")
     if not model.still:
         radius = max(float(np.linalg.norm(b.hull.vertices, axis=1).max()) for b in bodies)
-        model.expansion = PhaseExpansion(model.k, waves.heading_of(), radius)
+        model.expansion = PhaseExpansion(model.k, kept.heading_of(), radius)
     model.froude_krylov = any(b.mode == "froude-krylov" for b in bodies)
     return model
 

@@ -6,6 +6,8 @@ z = eta)."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -59,18 +61,28 @@ def _direct_fk(hull, pose: np.ndarray, t: float, amp: np.ndarray, k: np.ndarray,
     return RHO * G * pressure_load(pts - pose[:3], p_c)
 
 
-def test_nonlinear_froude_krylov_equals_the_direct_evaluation(sphere_path):
+@pytest.mark.parametrize("energy", [1.0, 0.99])
+def test_nonlinear_froude_krylov_equals_the_direct_evaluation(sphere_path, energy):
     """300 components over the HDB's whole range (to 12 rad/s), a hull moving in all six DOFs,
-    150 steps through the ramp (the HDB has one heading: several are the expansion test's)."""
+    150 steps through the ramp (the HDB has one heading: several are the expansion test's). With
+    ``froude_krylov_energy`` < 1: the direct evaluation over the fewest most energetic components
+    holding that share of the variance, and a warning naming the key."""
     waves = irregular_waves(3.0, 8.0, ramp=4.0, seed=5)
     text = scene_toml(dt=0.05, duration=100.0, water={**SPHERE_WATER, "gravity": G}, waves=waves,
-                      hydro={"nonlinear": "froude-krylov"}, bodies=[sphere_body(str(sphere_path), mass=261.724e3)])
+                      hydro={"nonlinear": "froude-krylov", "froude_krylov_energy": energy},
+                      bodies=[sphere_body(str(sphere_path), mass=261.724e3)])
     mesh = cpt.mesh_sphere(radius=5.0, resolution=(16, 20))
     mesh = mesh.merged() if hasattr(mesh, "merged") else mesh
     model = HydroModel(parse_scene(text), {"sphere": load_hdb(sphere_path)},
                        hulls={"sphere": closed_hull(mesh.vertices, mesh.faces)})
     nl = next(term.model for term in model.terms if term.name == "nonlinear_hydrostatics")
     comps, body = model.waves, nl.bodies[0]
+    energy_c = comps.amplitude ** 2
+    kept = np.full(comps.size, True) if energy == 1 else energy_c >= np.sort(energy_c)[::-1][np.searchsorted(np.cumsum(np.sort(energy_c)[::-1]), energy * energy_c.sum() * (1 - 1e-12))]
+    warned = [w for w in model.warnings if w.startswith("hydro.froude_krylov_energy")]
+    assert (len(warned) == 1 and f"the {kept.sum()} most energetic of 300" in warned[0]) if energy < 1 else not warned
+    assert energy_c[kept].sum() >= energy * energy_c.sum() * (1 - 1e-12) and (kept.all() if energy == 1 else kept.sum() < 300)
+    comps = replace(comps, omega=comps.omega[kept], amplitude=comps.amplitude[kept], phase=comps.phase[kept])
     depth = nl.depth
     k = np.array([wave_number(float(w), G, depth) for w in comps.omega])
     eq = model.setup_info().equilibrium_position
