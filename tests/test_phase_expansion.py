@@ -10,7 +10,6 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-
 from conftest import SPHERE_WATER, irregular_waves, scene_toml, sphere_body
 from hydrolink.protocol.scene import parse_scene
 from hydrolink.server.hdb.io import load_hdb
@@ -18,7 +17,13 @@ from hydrolink.server.kinematics import wave_number
 from hydrolink.server.model import HydroModel
 from hydrolink.server.phase_expansion import PhaseExpansion
 from hydrolink.server.waves import ramp_factor
-from hydrolink.server.wetted_surface import clip_wet, closed_hull, interpolate, pressure_load, rotation_xyz
+from hydrolink.server.wetted_surface import (
+    clip_wet,
+    closed_hull,
+    interpolate,
+    pressure_load,
+    rotation_xyz,
+)
 
 cpt = pytest.importorskip("capytaine")
 RHO, G = 1000.0, 9.81
