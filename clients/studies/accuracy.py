@@ -81,7 +81,7 @@ class Grid(GridSpec):
         try:
             text = path.read_text()
         except OSError as exc:
-            raise BenchError(f"{path}: {exc}") from None
+            raise BenchError(path, "", str(exc)) from None
         g = validate_toml(text, path, cls, BenchError)
         g.grid = {full_key(k): v for k, v in g.grid.items()}
         g.reference = {full_key(k): v for k, v in g.reference.items()}
@@ -91,9 +91,9 @@ class Grid(GridSpec):
 
     def check(self, source: str = "grid") -> None:
         if self.window is not None and (len(self.window) != 2 or not self.window[0] < self.window[1]):
-            raise BenchError(f"{source}: window: [start, end] with start < end (got {list(self.window)})")
+            raise BenchError(source, "window", f"[start, end] with start < end (got {list(self.window)})")
         if not self.grid and not self.cases:
-            raise BenchError(f"{source}: no options: give [grid] keys, [[cases]] or CLI flags")
+            raise BenchError(source, "", "no options: give [grid] keys, [[cases]] or CLI flags")
 
 
 # ------------------------------------------------------------------ cases
@@ -203,11 +203,11 @@ def compare(ref: dict, run: dict, window: tuple[float, float]) -> dict[str, floa
     tr = ref["time"]
     sr = (tr >= window[0] - 1e-9) & (tr <= window[1] + 1e-9)
     if sel.sum() < 2 or sr.sum() < 2:
-        raise BenchError(f"window [{window[0]:g}, {window[1]:g}] s holds too few samples")
+        raise BenchError("", "window", f"[{window[0]:g}, {window[1]:g}] s holds too few samples")
     x_ref_w = ref["position"][sr]
     keep = _channels(x_ref_w)
     if not keep.any():
-        raise BenchError("the reference run does not move (no response channel to compare)")
+        raise BenchError("", "reference", "the reference run does not move (no response channel to compare)")
     xr_at = CubicSpline(tr, ref["position"].reshape(tr.size, -1), axis=0)(t[sel]).reshape((-1,) + keep.shape)
     x = run["position"][sel]
     if not np.all(np.isfinite(x)):
@@ -461,7 +461,7 @@ def grid_from_flags(base: Grid | None, flags: dict[str, str | None], refs: tuple
     for item in refs:
         k, sep, v = item.partition("=")
         if not sep:
-            raise BenchError(f"--ref {item!r}: KEY=VALUE")
+            raise BenchError("--ref", "", f"{item!r}: KEY=VALUE")
         g.reference[full_key(k.strip())] = _parse_value(v)
     if mode:
         g.mode = mode
