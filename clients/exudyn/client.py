@@ -651,7 +651,8 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup | None, writer, 
     feedback = scheme != "mass-matrix"
     if spectral_radius is None:
         spectral_radius = scene.simulation.spectral_radius
-    ratio = coupling_ratio(scene, setup) if feedback else 0.0
+    mass_ratio = coupling_ratio(scene, setup)      # 0 without wet bodies
+    ratio = mass_ratio if feedback else 0.0        # what the scheme feeds back
     if scheme in ("explicit", "explicit-predictor") and ratio > cpl.explicit_limit and not allow_unstable:
         why = explicit_refusal(scheme, ratio, cpl.explicit_limit)
         writer.finish(f"refused: {why}")
@@ -684,7 +685,7 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup | None, writer, 
                     bar=progress_bar(pre.n_steps, progress and scene.simulation.progress))
     first_timeout = control.join_timeout + getattr(connection, "timeout", 30.0) if control else None
     coupling = CouplingReport(scheme=scheme, exchange_every=kx, between_exchanges=cpl.between_exchanges,
-                              added_mass_ratio=coupling_ratio(scene, setup) if model.n_bodies else 0.0)
+                              added_mass_ratio=mass_ratio)
     try:
         out = lockstep.run(loop, make_scheme(scheme, tolerance=cpl.tolerance, max_iterations=cpl.max_iterations,
                                              ratio=ratio, n_exchanges=pre.n_exchanges),

@@ -82,4 +82,5 @@ def preflight(scene: Scene, setup: Setup | None, writer, tool: str) -> Preflight
         warnings.append(f"simulation.dt: {note[1]}")
     for text in warnings:
         log.warning("%s", text)
-    return Preflight(exchange_every=scene.coupling.exchange_every, exchange_dt=big_h, n_exchanges=scene.n_exchanges, warnings=warnings)
+    return Preflight(exchange_every=scene.coupling.exchange_every, exchange_dt=big_h,
+                     n_exchanges=scene.n_exchanges, warnings=warnings)
