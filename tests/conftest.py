@@ -4,8 +4,10 @@ its README) and the scene builder every test uses to write scene TOML."""
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import json
 import numbers
+import os
 import re
 import shutil
 import subprocess
@@ -19,6 +21,41 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 REFERENCE_DATA = REPO / "examples" / "data"
+
+
+def pytest_sessionstart(session: pytest.Session) -> None:
+    """Under pytest-xdist the controller makes (or loads) Capytaine's one-off Green-function
+    tabulation before any worker starts: Capytaine writes it into its cache folder in place, not
+    atomically, so on a fresh machine two workers making it at once could read each other's
+    half-written file. Serial runs (``-n 0``) and the workers themselves skip this."""
+    config = session.config
+    if getattr(config, "workerinput", None) is None and getattr(config.option, "numprocesses", None):
+        import capytaine
+        capytaine.BEMSolver()
+
+
+@pytest.fixture(autouse=True)
+def _timing_tests_run_alone(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory):
+    """Under pytest-xdist a test marked ``timing`` (it asserts wall-clock bounds) runs while no other
+    test of the suite runs: every test holds a shared lock on a file the run's workers share, a timing
+    test the exclusive lock, taken through a turnstile lock that keeps the other workers from queueing
+    new shared holds meanwhile (flock favours none). Serial runs have nothing to share."""
+    if not hasattr(request.config, "workerinput"):
+        yield
+        return
+    folder = tmp_path_factory.getbasetemp().parent            # one per run: the workers' base folders' parent
+    turnstile = os.open(folder / "timing-turnstile.lock", os.O_RDWR | os.O_CREAT, 0o600)
+    tests = os.open(folder / "timing-tests.lock", os.O_RDWR | os.O_CREAT, 0o600)
+    alone = request.node.get_closest_marker("timing") is not None
+    try:
+        fcntl.flock(turnstile, fcntl.LOCK_EX)
+        fcntl.flock(tests, fcntl.LOCK_EX if alone else fcntl.LOCK_SH)
+        if not alone:
+            fcntl.flock(turnstile, fcntl.LOCK_UN)
+        yield
+    finally:
+        os.close(tests)                                        # closing releases the locks
+        os.close(turnstile)
 
 
 @pytest.fixture(scope="session")

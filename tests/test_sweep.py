@@ -27,6 +27,10 @@ from conftest import SPHERE_WATER, irregular_waves, linear_pto, regular_waves, s
 from hydrolink.clients.cli import cli
 from hydrolink.clients.studies.sweep import open_cluster, run_sweep
 
+# One pytest-xdist worker runs this whole module (pyproject: --dist loadgroup): its module fixtures (a Dask
+# LocalCluster, the regular sweep run) cost ~11 s, paid once per worker otherwise.
+pytestmark = pytest.mark.xdist_group("sweep")
+
 MASS, HEIGHT, DT = 261.724e3, 1.0, 0.04
 OMEGA_INDEX = (19, 27)                    # HDB grid frequencies 1.0 and 1.4 rad/s (no interpolation)
 DAMPING = (1.0e5, 4.0e5)
