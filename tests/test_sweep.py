@@ -220,7 +220,7 @@ def test_remote_scheduler_and_workers_same_results(regular_sweep, sphere_dir, tm
 def test_resume_after_a_killed_sweep_runs_only_the_missing_cases(sphere_dir, local_client, tmp_path):
     sweep = sphere_dir / "resume.toml"
     dampings = [1e5, 2e5, 3e5, 4e5, 5e5, 6e5]
-    sweep.write_text(sweep_toml("sphere.toml", set={"simulation.duration": 150.0}, grid={"ptos.damper.damping": dampings}))
+    sweep.write_text(sweep_toml("sphere.toml", set={"simulation.duration": 40.0}, grid={"ptos.damper.damping": dampings}))
     out = tmp_path / "out"
     proc = subprocess.Popen([sys.executable, "-m", "hydrolink.clients.cli", "sweep", str(sweep), "-o", str(out),
                              "--workers", "1", "--no-progress"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
