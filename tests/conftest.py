@@ -24,14 +24,23 @@ REFERENCE_DATA = REPO / "examples" / "data"
 
 
 def pytest_sessionstart(session: pytest.Session) -> None:
-    """Under pytest-xdist the controller makes (or loads) Capytaine's one-off Green-function
-    tabulation before any worker starts: Capytaine writes it into its cache folder in place, not
-    atomically, so on a fresh machine two workers making it at once could read each other's
-    half-written file. Serial runs (``-n 0``) and the workers themselves skip this."""
+    """Under pytest-xdist, before any worker starts, the controller
+
+    - makes (or loads) Capytaine's one-off Green-function tabulation: Capytaine writes it into its
+      cache folder in place, not atomically, so on a fresh machine two workers making it at once
+      could read each other's half-written file;
+    - gives the workers (and the processes they start) one BLAS/OpenMP thread each, as `hydrolink`
+      itself defaults to (clients/cli.py main): one worker a core, with every pool sized to the
+      machine the threads only contend (tests/test_hdb_build_multibody.py alone: 25.9 s of CPU
+      with the default pools, 17.7 s with one thread). Variables already set are kept.
+
+    Serial runs (``-n 0``) and the workers themselves skip this."""
     config = session.config
     if getattr(config, "workerinput", None) is None and getattr(config.option, "numprocesses", None):
         import capytaine
         capytaine.BEMSolver()
+        for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+            os.environ.setdefault(var, "1")
 
 
 @pytest.fixture(autouse=True)
