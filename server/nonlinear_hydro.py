@@ -28,7 +28,7 @@ The force term is :class:`NonlinearTerm` (server/force_term.py)."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -37,18 +37,26 @@ from hydrolink.protocol.scene import Scene
 from hydrolink.server.errors import ModelError
 from hydrolink.server.force_term import ForceTerm, TermContext
 from hydrolink.server.kinematics import wave_number
-from hydrolink.server.waves import WaveComponents, ramp_factor
+from hydrolink.server.phase_expansion import PhaseExpansion
+from hydrolink.server.waves import WaveComponents, ramp_at
 from hydrolink.server.wetted_surface import Hull, clip_wet, corner_loads, interpolate, pressure_load, rotation_xyz
 
-__all__ = ["NonlinearBody", "NonlinearHydro", "NonlinearTerm", "build_nonlinear"]
+__all__ = ["NonlinearBody", "NonlinearHydro", "NonlinearTerm", "build_nonlinear", "strongest_components"]
 
 
 def _depth_factor(k: np.ndarray, z: np.ndarray, depth: float) -> np.ndarray:
-    """cosh(k (z + h)) / cosh(k h) for z <= 0 (e^{kz} in deep water), (P, n_c), overflow-safe."""
-    kz = k[None, :] * z[:, None]
-    if math.isinf(depth):
-        return np.exp(kz)
-    return (np.exp(kz) + np.exp(-k[None, :] * (z[:, None] + 2 * depth))) / (1.0 + np.exp(-2 * k * depth))[None, :]
+    """cosh(k (z + h)) / cosh(k h) for z <= 0 (e^{kz} in deep water), (P, n_c), overflow-safe:
+    (e^{kz} + e^{-k (z + 2h)}) / (1 + e^{-2kh}), the second term and the division evaluated only
+    for the components where, at the lowest point, they reach round-off (e^{-2k (z + h)} > e^{-40}):
+    elsewhere they change nothing in floating point."""
+    out = np.exp(k[None, :] * z[:, None])
+    if math.isinf(depth) or not len(z):
+        return out
+    near = np.flatnonzero(2.0 * k * (float(z.min()) + depth) < 40.0)
+    if len(near):
+        kn = k[near]
+        out[:, near] = (out[:, near] + np.exp(-kn[None, :] * (z[:, None] + 2 * depth))) / (1.0 + np.exp(-2 * kn * depth))
+    return out
 
 
 @dataclass(frozen=True)
@@ -81,6 +89,9 @@ class NonlinearHydro:
             beta = waves.heading_of()
             self.kx, self.ky = self.k * np.cos(beta), self.k * np.sin(beta)
             self.amp = waves.amplitude * np.exp(1j * waves.phase)
+            self.amplitude, self.phase = waves.amplitude.copy(), waves.phase.copy()
+            self.k_xy = np.vstack([self.kx, self.ky])                  # (2, n_c): theta = (x, y) @ k_xy
+        self.expansion: PhaseExpansion | None = None   # set by build_nonlinear once the hulls are known
         self.warnings: list[str] = []
         self.froude_krylov = False   # some body has "froude-krylov": the reply carries that field
 
@@ -88,12 +99,17 @@ class NonlinearHydro:
         """a_c e^{i theta_c(x, y)} at points (P, 3): (P, n_c)."""
         return self.amp[None, :] * np.exp(1j * (np.outer(pts[:, 0], self.kx) + np.outer(pts[:, 1], self.ky)))
 
-    def _fk_pressure(self, z: np.ndarray, e: np.ndarray, eta: np.ndarray) -> np.ndarray:
-        """p_FK / (rho g) at wet points of heights z (P,) with phasors ``e`` (P, n_c) times e^{-iwt}
-        and ramp, Wheeler-stretched by the elevation ``eta`` (P,) there."""
-        h = self.depth
+    def _fk_pressure(self, pts: np.ndarray, eta: np.ndarray, t: float, ramp: float) -> np.ndarray:
+        """p_FK / (rho g) at wet points (P, 3), Wheeler-stretched by the elevation ``eta`` (P,)
+        there: ramp sum_c a_c cos(theta_c(x, y) + phi_c - w_c t) f_c(z_s), one cosine and one depth
+        factor per point and component (no complex exponential, no sine)."""
+        h, z = self.depth, pts[:, 2]
         z_s = z - eta if math.isinf(h) else h * (z - eta) / (h + eta)
-        return np.real(np.sum(e * _depth_factor(self.k, np.minimum(z_s, 0.0), h), axis=1))
+        theta = pts[:, :2] @ self.k_xy
+        theta += self.phase - self.omega * t
+        f = _depth_factor(self.k, np.minimum(z_s, 0.0), h)
+        f *= np.cos(theta, out=theta)
+        return ramp * (f @ self.amplitude)
 
     def fk_linear_phasors(self, hull: Hull, reference: np.ndarray) -> np.ndarray:
         """(6, n_c) complex: the Froude–Krylov force and moment of each wave component (unit time
@@ -115,15 +131,17 @@ class NonlinearHydro:
         frame about its reference point and turned to the global axes at the end."""
         hs, fk = np.zeros((self.n_bodies, 6)), np.zeros((self.n_bodies, 6))
         rg = self.rho * self.g
-        time_factor = None if self.still else ramp_factor(t, self.ramp) * np.exp(-1j * self.omega * t)
+        ramp = ramp_at(t, self.ramp)
+        time_factor = None if self.still else ramp * np.exp(-1j * self.omega * t)
         for b in self.bodies:
             pose = position[b.index]
             rot = rotation_xyz(pose[3:])
             local, tris = b.hull.vertices, b.hull.triangles
-            verts = pose[:3] + local @ rot.T
+            offset = local @ rot.T
+            verts = pose[:3] + offset
             waves = b.mode == "froude-krylov" and not self.still
-            e = self._phasors(verts) * time_factor[None, :] if waves else None
-            eta = np.real(e.sum(axis=1)) if waves else 0.0
+            phases = self.expansion.phases(offset[:, :2], pose[:2], self.phase - self.omega * t) if waves else None
+            eta = ramp * self.expansion.elevation(phases, self.amplitude) if waves else 0.0
             d = verts[:, 2] - eta
             wet = d[tris] <= 0.0
             count = wet.sum(axis=1)
@@ -145,7 +163,7 @@ class NonlinearHydro:
                 continue
             wet_v = np.flatnonzero(d <= 0.0)
             p_v = np.zeros(len(verts))
-            p_v[wet_v] = self._fk_pressure(verts[wet_v, 2], e[wet_v], eta[wet_v])
+            p_v[wet_v] = self._fk_pressure(verts[wet_v], eta[wet_v], t, ramp)
             p_c = interpolate(p_v[tris[part]], cut)
             surface = cut.s < 1.0
             p_c[surface] = z[surface]   # on the free surface p_FK = rho g eta = rho g z (stretched)
@@ -153,6 +171,20 @@ class NonlinearHydro:
             f_fk = np.concatenate([rot @ load[:3], rot @ load[3:]])
             fk[b.index] = (f_fk - np.real(b.fk_linear @ time_factor)) * b.active
         return hs, fk
+
+
+def strongest_components(waves: WaveComponents, fraction: float) -> WaveComponents:
+    """The fewest components, most energetic first, whose variance sum a_c^2 / 2 reaches
+    ``fraction`` of the sea's (``[hydro] froude_krylov_energy``; all of them at 1), in their
+    original order."""
+    if fraction >= 1.0 or waves.size <= 1:
+        return waves
+    energy = waves.amplitude ** 2
+    order = np.argsort(-energy, kind="stable")
+    n = int(np.searchsorted(np.cumsum(energy[order]), fraction * energy.sum() * (1 - 1e-12))) + 1
+    keep = np.sort(order[:min(n, waves.size)])
+    return replace(waves, omega=waves.omega[keep], amplitude=waves.amplitude[keep], phase=waves.phase[keep],
+                   headings=None if waves.headings is None else waves.headings[keep])
 
 
 def build_nonlinear(scene: Scene, wet: list[int], hulls: dict[str, Hull], waves: WaveComponents,
@@ -163,7 +195,8 @@ def build_nonlinear(scene: Scene, wet: list[int], hulls: dict[str, Hull], waves:
     nonlinear body); ``stiffness`` the setup's (6N, 6N) hydrostatic stiffness, ``net_buoyancy``
     the setup's per wet body (None: none applied)."""
     water = scene.water
-    model = NonlinearHydro([], waves, water.density, water.gravity, water.depth_m, len(wet))
+    kept = strongest_components(waves, scene.hydro.froude_krylov_energy)
+    model = NonlinearHydro([], kept, water.density, water.gravity, water.depth_m, len(wet))
     bodies = []
     for k, i in enumerate(wet):
         body = scene.bodies[i]
@@ -172,7 +205,7 @@ def build_nonlinear(scene: Scene, wet: list[int], hulls: dict[str, Hull], waves:
             continue
         ref = np.asarray(references[k], float)
         hull = Hull(hulls[body.name].vertices - ref, hulls[body.name].triangles, hulls[body.name].volume)
-        fk = model.fk_linear_phasors(hull, ref) if mode == "froude-krylov" and waves.size else None
+        fk = model.fk_linear_phasors(hull, ref) if mode == "froude-krylov" and kept.size else None
         at_rest = hull.vertices[hull.triangles]
         pts, _ = clip_wet(at_rest, at_rest[..., 2] + ref[2])
         volume = float(pressure_load(pts, -(pts[..., 2] + ref[2]))[2])    # buoyancy / (rho g) at rest
@@ -192,6 +225,15 @@ def build_nonlinear(scene: Scene, wet: list[int], hulls: dict[str, Hull], waves:
     if not bodies:
         return None
     model.bodies = bodies
+    if kept.size < waves.size and any(b.mode == "froude-krylov" for b in bodies):
+        share = float(np.sum(kept.amplitude ** 2) / np.sum(waves.amplitude ** 2))
+        model.warnings.append(
+            f"hydro.froude_krylov_energy: the nonlinear Froude-Krylov pressure and free surface use the "
+            f"{kept.size} most energetic of {waves.size} wave components ({100 * share:.4g} % of the variance); "
+            "the others act through the linear excitation only. Set it to 1 for all of them")
+    if not model.still:
+        radius = max(float(np.linalg.norm(b.hull.vertices, axis=1).max()) for b in bodies)
+        model.expansion = PhaseExpansion(model.k, kept.heading_of(), radius)
     model.froude_krylov = any(b.mode == "froude-krylov" for b in bodies)
     return model
 
