@@ -89,8 +89,10 @@ class Kinematics:
         self.omega, self.matrix = np.zeros(0), np.zeros((0, n_rows))
         if comps.size > 0:
             self._set_matrix(comps, pts, gravity, depth, basis)
-        n_all = comps.size
-        self._sin_band = slice(n_all + self._band.start, n_all + self._band.stop)
+        n_all, band = comps.size, self._band
+        # the band's cos and sin in the shared phases (views: they follow each step's values)
+        self._cos_in = self._phases.values[band]
+        self._sin_in = self._phases.values[n_all + band.start:n_all + band.stop]
         self._minus_omega = -self.omega
         n = self.omega.size
         #: (2, 2n + extra) the rows :meth:`trig` writes, then the caller's ``extra`` columns (zero)
@@ -134,9 +136,9 @@ class Kinematics:
         """Write the ramped [cos wt, sin wt] into ``rhs[0, :2n]`` and, with ``rates``,
         [-w sin wt, w cos wt] into ``rhs[1, :2n]``: the rows that :attr:`matrix` turns into
         velocities and accelerations (the acceleration without the ramp's own rate)."""
-        full = self._phases.at(t)
-        self._cos[:] = full[self._band]
-        self._sin[:] = full[self._sin_band]
+        self._phases.at(t)
+        np.copyto(self._cos, self._cos_in)
+        np.copyto(self._sin, self._sin_in)
         ramp = ramp_at(t, self.ramp)
         if ramp != 1.0:
             self._trig *= ramp

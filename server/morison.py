@@ -73,12 +73,12 @@ class MorisonSet:
         self.flow = np.ascontiguousarray(np.vstack([waves, -along.T, wave.steady.T.reshape(1, -1)]))
         if wave.rhs.shape[1] != self.flow.shape[0]:
             raise ValueError("MorisonSet: the kinematics' rhs needs 6N + 1 extra columns")
-        #: (6N, 4S): force and moment about the reference point of the drag and inertia forces along
+        #: (N, 6, 4S): force and moment about the reference point of the drag and inertia forces along
         #: the directions (the transpose of ``along``), per unit |w| w and a (their coefficients
         #: 1/2 rho cd D L and rho (1 + ca) V taken in), zero in inactive DOFs
         loads = along.T * active.reshape(-1, 1)
-        self.loads = np.ascontiguousarray(np.hstack([loads * np.tile(drag, 2), loads * np.tile(inertia, 2)]))
-        self._v = wave.rhs[0, n2:-1]                         # rhs rows [cos, sin, v, 1], [-w sin, w cos, 0, 0]
+        self.loads = np.hstack([loads * np.tile(drag, 2), loads * np.tile(inertia, 2)]).reshape(n_bodies, 6, -1)
+        self._v = wave.rhs[0, n2:-1].reshape(n_bodies, 6)   # rhs rows [cos, sin, v, 1], [-w sin, w cos, 0, 0]
         wave.rhs[0, -1] = 1.0
         self._out = np.empty((2, 2, n_seg))                 # w, a along the two directions
         self._flat_out = self._out.reshape(2, -1)
@@ -92,13 +92,13 @@ class MorisonSet:
         """(N, 6) force and moment on each body for displacements ``x`` and velocities ``v``
         (N, 6) from equilibrium, zero in inactive DOFs."""
         self.wave.trig(t)
-        self._v[:] = v.reshape(-1)
+        np.copyto(self._v, v)
         np.dot(self.wave.rhs, self.flow, out=self._flat_out)
         self._wet[:] = np.dot(self.heave, x.reshape(-1)) <= self.below
         np.hypot(self._w0, self._w1, out=self._speed)
         self._speed *= self._wet
         np.multiply(self._out, self._mask, out=self._f)
-        return np.dot(self.loads, self._flat_f).reshape(-1, 6)
+        return np.dot(self.loads, self._flat_f)
 
 
 def build_morison(scene: Scene, wet: list[int], waves: WaveComponents, reference_points: np.ndarray,

@@ -277,8 +277,9 @@ class WavePhases:
     def __init__(self, omega: np.ndarray):
         self.omega = np.array(omega, float)
         self._trig = np.empty(2 * self.omega.size)
-        self._view = self._trig.view()
-        self._view.flags.writeable = False
+        #: (2 n_c,) read-only: the values of the last :meth:`at` (views of it follow each step)
+        self.values = self._trig.view()
+        self.values.flags.writeable = False
         self._t: float | None = None
 
     def at(self, t: float) -> np.ndarray:
@@ -289,7 +290,7 @@ class WavePhases:
             np.cos(wt, out=self._trig[:n])
             np.sin(wt, out=self._trig[n:])
             self._t = t
-        return self._view
+        return self.values
 
 
 class WaveForcing:
