@@ -165,7 +165,7 @@ Waves = Annotated[Union[StillWater, RegularWave, IrregularWave, ElevationWave], 
 
 Nonlinear = Literal["none", "hydrostatic", "froude-krylov"]
 # second-order wave forces (server/second_order.py): none, the mean drift, Newman's slow drift
-# (Standing's factorised form) or the full difference QTF
+# (T_ij = (T_ii + T_jj)/2) or the full difference QTF
 SecondOrder = Literal["none", "mean-drift", "newman", "qtf"]
 
 

@@ -1,6 +1,6 @@
 """Second-order wave forces (server/second_order.py, issue 23) against references written here:
 the WAMIT formulas (F = rho g A^2 L Fbar for a .8 row; T = rho g L conj(Re + i Im) for a .12d/.12s
-row), the two-component closed forms of the mean, Newman (Standing) and full-QTF forces, and the
+row), the two-component closed forms of the mean, Newman (arithmetic mean) and full-QTF forces, and the
 static offset F/k of a body on a surge spring in a hydrolink run."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import xarray as xr
 
 from conftest import SPHERE_WATER, irregular_waves, regular_waves, scene_toml, sphere_body, write_scene
 
-from hydrolink.protocol.hdb_schema import to_netcdf
+from hydrolink.protocol.hdb_schema import HDBError, to_netcdf
 from hydrolink.protocol.hdb_second_order import with_second_order
 from hydrolink.protocol.scene import parse_scene
 from hydrolink.server.errors import ModelError
@@ -125,7 +125,7 @@ def _term(ds: xr.Dataset, waves: WaveComponents, **hydro) -> SecondOrderTerm:
 
 @pytest.mark.parametrize("mode", ["mean-drift", "newman", "qtf"])
 def test_bichromatic_sea_against_the_closed_form(drift_hdb, mode):
-    """Two components on the data's grid: the mean, Newman (Standing) and full difference (+ sum)
+    """Two components on the data's grid: the mean, Newman (T12 = (T11 + T22)/2) and full difference (+ sum)
     force against the two-component formulas written out here."""
     ds, _ = drift_hdb
     (p1, p2), amp, phase = (9.0, 7.0), (1.2, 0.7), (0.4, 2.1)
@@ -138,8 +138,9 @@ def test_bichromatic_sea_against_the_closed_form(drift_hdb, mode):
         if mode in ("mean-drift", "newman"):
             t11, t22 = rg * ULEN * drift_bar(p1, 1), rg * ULEN * drift_bar(p2, 1)
             expect = a1 ** 2 * t11 + a2 ** 2 * t22
-            if mode == "newman":   # Standing: T12 = sqrt(T11 T22) (both positive here)
-                expect += 2 * a1 * a2 * np.sqrt(t11 * t22) * np.cos(dw * t - dphi)
+            if mode == "newman":   # Newman: T12 = T21 = (T11 + T22) / 2
+                # (eta = sum A_i cos(w_i t - phi_i) here: the beat is cos((w1 - w2) t - (phi1 - phi2)))
+                expect += a1 * a2 * (t11 + t22) * np.cos(dw * t - dphi)
             assert f[0] == pytest.approx(expect, rel=1e-9)
             continue
         for qmode, dof in ((1, 0), (3, 2)):
@@ -251,11 +252,27 @@ def test_fixed_body_drift_on_a_moving_body_is_a_warning_naming_the_key(sphere, t
     values = np.zeros((1, w.size, 1, 6))
     values[0, :, 0, 0] = 500.0
     ds = with_second_order(sphere, mean_drift=MeanDrift(("far-field",), w, np.zeros(1), values,
-                                                        "Capytaine far-field (Kochin), body fixed"))
+                                                        "Capytaine far-field (Kochin)", body_fixed=True))
     text = scene_toml(dt=0.1, duration=10.0, water=SPHERE_WATER, waves=regular_waves(1.0, 7.0),
                       bodies=[sphere_body("sphere_drift.nc", mass=MASS, second_order="mean-drift")])
     model = HydroModel(parse_scene(text), {"sphere": ds})
     assert any(m.startswith("bodies[0].second_order:") and "fixed" in m for m in model.warnings)
+    # the typed field decides, not the note's words: the same note with the body's motions warns nothing
+    free = with_second_order(sphere, mean_drift=MeanDrift(("far-field",), w, np.zeros(1), values,
+                                                          "Capytaine far-field (Kochin), body fixed"))
+    assert not HydroModel(parse_scene(text), {"sphere": free}).warnings
+    # and it survives the NetCDF file and the wire
+    from hydrolink.protocol.hdb_schema import from_netcdf_dataset
+    from hydrolink.protocol.hdb_second_order import drift_body_fixed
+    from hydrolink.protocol.hdb_wire import from_wire, to_wire
+    to_netcdf(ds, tmp_path / "fixed.nc")
+    with xr.open_dataset(tmp_path / "fixed.nc") as raw:
+        assert drift_body_fixed(from_netcdf_dataset(raw.load(), "fixed.nc"))
+    assert drift_body_fixed(from_wire(to_wire(ds), "h")) and not drift_body_fixed(from_wire(to_wire(free), "h"))
+    bad = ds.copy()
+    bad.attrs["mean_drift_body_fixed"] = "yes"
+    with pytest.raises(HDBError, match="mean_drift_body_fixed"):
+        with_second_order(bad)
     f = model.step(0.0, model.setup_info().equilibrium_position, np.zeros((1, 6)))["drift"][0]
     assert f[0] == pytest.approx(500.0 * 0.5 ** 2, rel=1e-12)
 
