@@ -347,3 +347,95 @@ def test_irregular_sea_slow_drift_averages_to_the_mean_drift(drift_hdb):
     with pytest.raises(ModelError) as err:
         HydroModel(parse_scene(_scene(path, spread, second_order="mean-drift")), {"sphere": ds})
     assert err.value.key == "waves.spreading"
+
+
+# ------------------------------------------------------------------------------------------------
+# WEC-Sim BEMIO QTF groups (server/hdb/bemio_qtf.py)
+# ------------------------------------------------------------------------------------------------
+
+BEMIO_PERIODS = (7.0, 9.0, 5.5)      # the file's order (as WEC-Sim's assignIDs keeps it): not sorted
+
+
+def bemio_t(pi: float, pj: float, mode: int) -> complex:
+    """The QTF per A_i A_j / (rho g) written into the BEMIO file, exp(-iwt) (Hermitian: T_ji = conj T_ij)."""
+    return complex(0.2 + 0.01 * (pi + pj) + 0.1 * mode, 0.03 * (pi - pj) * mode)
+
+
+def write_bemio_qtf(src: Path, dst: Path, rho_g: float, *, sum_groups: bool = True) -> Path:
+    """``src`` (a BEMIO file) with body1's QTF1 groups in writeBEMIOH5's layout (WEC-Sim v6.1-v7.1):
+    per DOF, PER_i / BETA_i / BETA_j as MATLAB (n, 1) columns (h5py (1, n)) and the full square,
+    dimensional, as MATLAB's column-major F(:) in Re_F_ij / Im_F_ij (h5py (1, n^2)); Diff holds the
+    conjugate of the WAMIT (exp(+iwt)) row, i.e. the exp(-iwt) value. Surge and heave non-zero."""
+    import shutil
+
+    import h5py
+
+    shutil.copy(src, dst)
+    n = len(BEMIO_PERIODS)
+    with h5py.File(dst, "a") as fh:
+        for dof in range(1, 7):
+            square = np.array([[rho_g * bemio_t(pi, pj, dof) if dof in (1, 3) else 0j for pj in BEMIO_PERIODS]
+                               for pi in BEMIO_PERIODS])
+            flat = square.ravel(order="F")[None, :]
+            for kind in ("Diff", "Sum") if sum_groups else ("Diff",):
+                g = fh.create_group(f"body1/hydro_coeffs/excitation/QTF1/{kind}{dof}")
+                g["PER_i"] = np.array(BEMIO_PERIODS)[None, :]
+                g["BETA_i"] = np.zeros((1, n))
+                g["BETA_j"] = np.zeros((1, n))
+                g["Re_F_ij"] = flat.real
+                g["Im_F_ij"] = flat.imag
+                g["PHS_F_ij"] = np.angle(flat)
+    return dst
+
+
+def test_bemio_difference_qtf_against_the_bichromatic_closed_form(sphere_path, tmp_path):
+    """The BEMIO file's Diff square read in SI and exp(-iwt): the full-QTF force of a bichromatic sea
+    against the two-component closed form over the coefficients written into the file; its Sum
+    groups are left out with a warning (their sign depends on the WEC-Sim version), so
+    sum_frequency is refused naming the key."""
+    from hydrolink.server.hdb.io import load_hdb
+
+    rho_g = 1000.0 * 9.81
+    with pytest.warns(UserWarning, match="QTF1/Sum1.*left out"):
+        ds = load_hdb(write_bemio_qtf(sphere_path, tmp_path / "sphere_qtf.h5", rho_g))
+    assert "sum_qtf" not in ds and "Diff (WEC-Sim BEMIO)" in ds.attrs["qtf_source"]
+    (p1, p2), amp, phase = (9.0, 5.5), (0.9, 0.6), (1.1, -0.3)
+    w = [2 * np.pi / p1, 2 * np.pi / p2]
+    term = _term(ds, _bichromatic(w, amp, phase), second_order="qtf")
+    (a1, a2), (f1, f2) = amp, phase
+    dw, dphi = w[0] - w[1], f1 - f2
+    for t in (0.0, 2.9, 41.3):
+        f = term.force(t, np.zeros((1, 6)), np.zeros((1, 6)))[0][0]
+        for dof in (1, 3):
+            t11, t22, t12 = (rho_g * bemio_t(p1, p1, dof).real, rho_g * bemio_t(p2, p2, dof).real,
+                             rho_g * bemio_t(p1, p2, dof))
+            expect = (a1 ** 2 * t11 + a2 ** 2 * t22
+                      + 2 * a1 * a2 * (t12.real * np.cos(dw * t - dphi) + t12.imag * np.sin(dw * t - dphi)))
+            assert f[dof - 1] == pytest.approx(expect, rel=1e-9)
+        assert np.all(f[[1, 3, 4, 5]] == 0)
+    with pytest.raises(ModelError) as err:
+        _term(ds, _bichromatic(w, amp, phase), second_order="qtf", sum_frequency=True)
+    assert err.value.key == "hydro.sum_frequency"
+
+
+@pytest.mark.parametrize("edit, field", [
+    (lambda g: g.__setitem__("Re_F_ij", np.zeros((1, 5))), "Diff2/Re_F_ij"),
+    (lambda g: g.__setitem__("BETA_i", np.array([[0.0, 30.0, 0.0]])), "Diff2/BETA_i"),
+    (lambda g: g.__setitem__("PER_i", np.array([[7.0, 7.0, 5.5]])), "Diff2/PER_i"),
+    (lambda g: g.__delitem__("Im_F_ij"), "Diff2/Im_F_ij"),
+])
+def test_bad_bemio_qtf_names_the_dataset(sphere_path, tmp_path, edit, field):
+    import h5py
+
+    from hydrolink.server.hdb.io import load_hdb
+
+    path = write_bemio_qtf(sphere_path, tmp_path / "bad.h5", 9810.0, sum_groups=False)
+    with h5py.File(path, "a") as fh:
+        g = fh["body1/hydro_coeffs/excitation/QTF1/Diff2"]
+        name = field.split("/")[1]
+        if name in g and name != "Im_F_ij":
+            del g[name]
+        edit(g)
+    with pytest.raises(HDBError) as err:
+        load_hdb(path)
+    assert err.value.field.endswith(field) and "bad.h5" in str(err.value)
