@@ -439,3 +439,122 @@ def test_bad_bemio_qtf_names_the_dataset(sphere_path, tmp_path, edit, field):
     with pytest.raises(HDBError) as err:
         load_hdb(path)
     assert err.value.field.endswith(field) and "bad.h5" in str(err.value)
+
+
+# ------------------------------------------------------------------------------------------------
+# NEMOH QTF files named by a scene (bodies[i].qtf)
+# ------------------------------------------------------------------------------------------------
+
+NEMOH_PERIODS = (9.0, 7.0, 5.5)
+
+
+def nemoh_t(wa: float, wb: float, dof: int) -> complex:
+    """The QTF / (rho g) written into OUT_QTFM_N.dat for (w_a, w_b), w_a >= w_b, exp(+iwt)."""
+    return complex(0.3 + 0.05 * (wa + wb) + 0.1 * dof, 0.0 if wa == wb else 0.04 * (wa - wb) * dof)
+
+
+def write_nemoh_difference(folder: Path) -> Path:
+    """A NEMOH v3 OUT_QTFM_N.dat: a header line, the lower triangle (w1 >= w2) of surge and heave,
+    frequencies in Hz (as a Nemoh.cal QTF line may choose), complex values exp(+iwt) / (rho g)."""
+    w = sorted(2 * np.pi / p for p in NEMOH_PERIODS)
+    rows = ["    w1[Hz]    w2[Hz]  beta1  beta2  DOF  |QTF|/rho/g  arg  Re  Im"]
+    for a, wa in enumerate(w):
+        for wb in w[:a + 1]:
+            for dof in (1, 3):
+                t = nemoh_t(wa, wb, dof)
+                rows.append(f"{wa / (2 * np.pi):.12g} {wb / (2 * np.pi):.12g} 0.0 0.0 {dof} {abs(t):.12g} "
+                            f"{np.degrees(np.angle(t)):.12g} {t.real:.12g} {t.imag:.12g}")
+    path = folder / "QTF" / "OUT_QTFM_N.dat"
+    path.parent.mkdir(exist_ok=True)
+    path.write_text("\n".join(rows) + "\n")
+    return path
+
+
+def _nemoh_scene(folder: Path, hdb: Path, waves: dict, **qtf) -> Path:
+    qtf = {"difference": "QTF/OUT_QTFM_N.dat", "frequency_unit": "Hz", "convention": "exp(+iwt)", **qtf}
+    qtf = {k: v for k, v in qtf.items() if v is not None}
+    text = scene_toml(dt=0.1, duration=10.0, water=SPHERE_WATER, waves=waves, hydro={"second_order": "qtf"},
+                      bodies=[sphere_body(str(hdb), mass=MASS, qtf=qtf)])
+    return write_scene(folder, text)
+
+
+def test_nemoh_qtf_named_by_the_scene_against_the_closed_form(sphere_path, tmp_path):
+    """bodies[0].qtf names a NEMOH difference file (Hz, exp(+iwt)) beside the scene: the HDB the
+    scene loads carries rho g conj(Re + i Im) per A_i A_j, and the full-QTF force of a regular and
+    a bichromatic sea equals the closed forms over the coefficients written into the file."""
+    from hydrolink.clients.run import load_scene_hdbs
+    from hydrolink.protocol.scene import load_scene
+
+    write_nemoh_difference(tmp_path)
+    a, period = 1.3, 7.0
+    path = _nemoh_scene(tmp_path, sphere_path, regular_waves(2 * a, period))
+    scene, _ = load_scene(path)
+    ds = load_scene_hdbs(scene, path, progress=False)[str(sphere_path)]
+    assert "OUT_QTFM_N.dat (NEMOH)" in ds.attrs["qtf_source"]
+    rho_g = 1000.0 * 9.81
+    model = HydroModel(scene, {"sphere": ds})
+    f = model.step(0.0, model.setup_info().equilibrium_position, np.zeros((1, 6)))["drift"][0]
+    w = 2 * np.pi / period
+    assert f[0] == pytest.approx(rho_g * a ** 2 * nemoh_t(w, w, 1).real, rel=1e-9)
+    assert f[2] == pytest.approx(rho_g * a ** 2 * nemoh_t(w, w, 3).real, rel=1e-9)
+    # hydrolink run sending the HDBs as files: this one goes as a map with its QTF (the server
+    # cannot read the scene's NEMOH files): the recorded drift force is the same
+    from hydrolink.clients.run import run_scene_file
+    run_scene_file(path, tmp_path / "out.nc", progress=False, hdb_files=True)
+    with xr.open_dataset(tmp_path / "out.nc") as out:
+        np.testing.assert_allclose(out["drift_force"].sel(body="sphere", dof="surge").values,
+                                   rho_g * a ** 2 * nemoh_t(w, w, 1).real, rtol=1e-9)
+
+    w1, w2 = 2 * np.pi / 5.5, 2 * np.pi / 9.0     # w1 > w2: the file's own row
+    (a1, a2), (f1, f2) = (0.8, 0.5), (0.3, 2.4)
+    term = _term(ds, _bichromatic([w1, w2], (a1, a2), (f1, f2)), second_order="qtf")
+    for t in (0.0, 5.1, 33.3):
+        f = term.force(t, np.zeros((1, 6)), np.zeros((1, 6)))[0][0]
+        for dof in (1, 3):
+            t12 = rho_g * np.conj(nemoh_t(w1, w2, dof))           # exp(+iwt) conjugated
+            expect = (rho_g * (a1 ** 2 * nemoh_t(w1, w1, dof).real + a2 ** 2 * nemoh_t(w2, w2, dof).real)
+                      + 2 * a1 * a2 * (t12.real * np.cos((w1 - w2) * t - (f1 - f2))
+                                       + t12.imag * np.sin((w1 - w2) * t - (f1 - f2))))
+            assert f[dof - 1] == pytest.approx(expect, rel=1e-9)
+
+
+@pytest.mark.parametrize("qtf, key", [
+    ({"frequency_unit": None}, "bodies[0].qtf.frequency_unit"),
+    ({"convention": None}, "bodies[0].qtf.convention"),
+    ({"frequency_unit": "rpm"}, "bodies[0].qtf.frequency_unit"),
+    ({"difference": None}, "bodies[0].qtf.difference"),
+    ({"difference": "QTF/missing.dat"}, "bodies[0].qtf.difference"),
+])
+def test_nemoh_qtf_scene_keys_are_named(sphere_path, tmp_path, qtf, key):
+    from hydrolink.clients.run import load_scene_hdbs
+    from hydrolink.protocol.scene import SceneError, load_scene
+
+    write_nemoh_difference(tmp_path)
+    path = _nemoh_scene(tmp_path, sphere_path, regular_waves(1.0, 7.0), **qtf)
+    with pytest.raises(SceneError) as err:
+        scene, _ = load_scene(path)
+        load_scene_hdbs(scene, path, progress=False)
+    assert err.value.key == key
+
+
+def test_nemoh_qtf_file_errors_name_the_key_and_the_line(sphere_path, drift_hdb, tmp_path):
+    """A bad row names bodies[0].qtf.difference with the file and line; an HDB that already holds a
+    QTF (the WAMIT .12d here) is refused naming bodies[0].qtf."""
+    from hydrolink.clients.run import load_scene_hdbs
+    from hydrolink.protocol.scene import SceneError, load_scene
+
+    bad = write_nemoh_difference(tmp_path)
+    lines = bad.read_text().splitlines()
+    lines[3] = lines[3].replace(" 0.0 0.0 1 ", " 0.0 0.0 9 ", 1)
+    bad.write_text("\n".join(lines) + "\n")
+    path = _nemoh_scene(tmp_path, sphere_path, regular_waves(1.0, 7.0))
+    scene, _ = load_scene(path)
+    with pytest.raises(SceneError) as err:
+        load_scene_hdbs(scene, path, progress=False)
+    assert err.value.key == "bodies[0].qtf.difference" and "OUT_QTFM_N.dat" in str(err.value) and "line 4" in str(err.value)
+    write_nemoh_difference(tmp_path)
+    path = _nemoh_scene(tmp_path, drift_hdb[1], regular_waves(1.0, 7.0))
+    scene, _ = load_scene(path)
+    with pytest.raises(SceneError) as err:
+        load_scene_hdbs(scene, path, progress=False)
+    assert err.value.key == "bodies[0].qtf" and "already holds a QTF" in str(err.value)
