@@ -25,6 +25,7 @@ is rho g (Re - i Im) in WEC-Sim v6.1.x but rho g (Re + i Im) from v7.0 (commit b
 from __future__ import annotations
 
 import warnings
+from pathlib import Path
 
 import h5py
 import numpy as np
@@ -33,19 +34,19 @@ from hydrolink.protocol.hdb_schema import HDBError
 from hydrolink.protocol.hdb_second_order import QTF, fill_qtf_square
 
 
-def qtf_group(fh: h5py.File, body: str) -> str | None:
+def qtf_group(fh: h5py.File, body: str, source: Path) -> str | None:
     """The ``QTF<k>`` group under a body's excitation (None when there is none; HDBError for several)."""
     where = f"{body}/hydro_coeffs/excitation"
     found = [k for k in fh[where].keys() if k.startswith("QTF")] if where in fh else []
     if len(found) > 1:
-        raise HDBError(fh.filename, where, f"holds several QTF groups {found}; WEC-Sim writes one per body")
+        raise HDBError(source, where, f"holds several QTF groups {found}; WEC-Sim writes one per body")
     return f"{where}/{found[0]}" if found else None
 
 
-def read_bemio_qtf(fh: h5py.File, bodies: list[str], source) -> QTF | None:
+def read_bemio_qtf(fh: h5py.File, bodies: list[str], source: Path) -> QTF | None:
     """The difference QTF of every body's ``QTF<k>/Diff<dof>`` groups (see the module docstring),
     in SI and exp(-iwt), on one grid; None when no body has QTF groups."""
-    groups = {n: g for n, body in enumerate(bodies) if (g := qtf_group(fh, body)) is not None}
+    groups = {n: g for n, body in enumerate(bodies) if (g := qtf_group(fh, body, source)) is not None}
     if not groups:
         return None
     rows: list[tuple[np.ndarray, ...]] = []
@@ -66,12 +67,10 @@ def read_bemio_qtf(fh: h5py.File, bodies: list[str], source) -> QTF | None:
     w_i, w_j, b_i, b_j, dof, value = (np.concatenate(c) for c in zip(*rows))
     omega, d_i, d_j, square = fill_qtf_square(w_i, w_j, b_i, b_j, dof, value, 6 * len(bodies), "difference",
                                               source)
-    groups_read = ", ".join(dict.fromkeys(groups.values()))
-    return QTF(omega, d_i, d_j, square, None, f"{source.name if hasattr(source, 'name') else source}: "
-                                              f"{groups_read} Diff (WEC-Sim BEMIO)")
+    return QTF(omega, d_i, d_j, square, None, f"{Path(source).name}: {', '.join(groups.values())} Diff (WEC-Sim BEMIO)")
 
 
-def _vector(fh: h5py.File, name: str, source) -> np.ndarray:
+def _vector(fh: h5py.File, name: str, source: Path) -> np.ndarray:
     """A dataset as a flat float vector (MATLAB writes (n, 1) as h5py (1, n))."""
     if name not in fh or not isinstance(fh[name], h5py.Dataset):
         raise HDBError(source, name, "missing dataset")
@@ -84,7 +83,7 @@ def _vector(fh: h5py.File, name: str, source) -> np.ndarray:
     return value
 
 
-def _square_rows(fh: h5py.File, group: str, dof: int, source) -> tuple[np.ndarray, ...]:
+def _square_rows(fh: h5py.File, group: str, dof: int, source: Path) -> tuple[np.ndarray, ...]:
     """Every cell of one Diff<dof> square as rows (w_i, w_j, beta_i, beta_j, dof, T)."""
     per = _vector(fh, f"{group}/PER_i", source)
     n = per.size
