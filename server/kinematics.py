@@ -13,8 +13,8 @@ depth to the particle velocity (not to the acceleration, nor ramped): the fluid 
 relative-velocity terms see is u_wave + u_current.
 
 Per step the kinematics are one real product over the components' [cos wt; sin wt] (no complex
-exponential): velocity rows [Re R, Im R] of the velocity phasors R, the acceleration from the same
-rows over [-w sin wt; w cos wt]. Components whose share of every row is below round-off are left
+exponential): rows [Re R, Im R] of the velocity phasors R, then the same of the acceleration's
+-i w R. Components whose share of every row is below round-off are left
 out at set-up (:func:`_significant`): deep below the surface the short waves' e^{kz} and the
 spectrum's far tails vanish, a third of a JONSWAP sea of 300 components at a Morison member 5-25 m
 deep; what is left out is below 2^-53 of each row's sum of magnitudes, under the product's own
@@ -86,20 +86,18 @@ class Kinematics:
         self.ramp = comps.ramp
         n_rows = self.n_points * self.n_axes
         self._band = slice(0, 0)
-        self.omega, self.matrix = np.zeros(0), np.zeros((0, n_rows))
+        self.omega, self.matrix = np.zeros(0), np.zeros((0, 2 * n_rows))
         if comps.size > 0:
             self._set_matrix(comps, pts, gravity, depth, basis)
         n_all, band = comps.size, self._band
         # the band's cos and sin in the shared phases (views: they follow each step's values)
         self._cos_in = self._phases.values[band]
         self._sin_in = self._phases.values[n_all + band.start:n_all + band.stop]
-        self._minus_omega = -self.omega
         n = self.omega.size
-        #: (2, 2n + extra) the rows :meth:`trig` writes, then the caller's ``extra`` columns (zero)
-        self.rhs = np.zeros((2, 2 * n + extra))
-        self._cos, self._sin = self.rhs[0, :n], self.rhs[0, n:2 * n]
-        self._trig = self.rhs[0, :2 * n]
-        self._minus_sin_rate, self._cos_rate = self.rhs[1, :n], self.rhs[1, n:2 * n]
+        #: (2n + extra,) the ramped [cos wt, sin wt] :meth:`trig` writes, then the caller's ``extra`` entries
+        self.rhs = np.zeros(2 * n + extra)
+        self._cos, self._sin, self._trig = self.rhs[:n], self.rhs[n:2 * n], self.rhs[:2 * n]
+        self._velocity_columns = self.matrix[:, :n_rows]
 
     def _set_matrix(self, comps: WaveComponents, pts: np.ndarray, gravity: float, depth: float,
                     basis: np.ndarray | None) -> None:
@@ -128,32 +126,30 @@ class Kinematics:
         rows = rows[:, self._band]
         #: (n,) the kept components' angular frequencies
         self.omega = comps.omega[self._band].copy()
-        #: (2n, mP): the velocities, Re(R e^{-iwt}) = Re(R) cos(wt) + Im(R) sin(wt), are
-        #: [cos wt; sin wt] @ matrix, the accelerations, Re(-iw R e^{-iwt}), [-w sin wt; w cos wt] @ matrix
-        self.matrix = np.ascontiguousarray(np.vstack([rows.real.T, rows.imag.T]))
+        acc = -1j * rows * self.omega[None, :]
+        #: (2n, 2mP): [cos wt; sin wt] @ matrix gives the velocities, Re(R e^{-iwt}) = Re(R) cos(wt) +
+        #: Im(R) sin(wt), then the accelerations, the same of -iw R (without the ramp's own rate)
+        self.matrix = np.ascontiguousarray(np.vstack([np.hstack([rows.real.T, acc.real.T]),
+                                                      np.hstack([rows.imag.T, acc.imag.T])]))
 
-    def trig(self, t: float, rates: bool = True) -> None:
-        """Write the ramped [cos wt, sin wt] into ``rhs[0, :2n]`` and, with ``rates``,
-        [-w sin wt, w cos wt] into ``rhs[1, :2n]``: the rows that :attr:`matrix` turns into
-        velocities and accelerations (the acceleration without the ramp's own rate)."""
+    def trig(self, t: float) -> None:
+        """Write the ramped [cos wt, sin wt] into ``rhs[:2n]``, the row :attr:`matrix` turns into
+        velocities and accelerations."""
         self._phases.at(t)
         np.copyto(self._cos, self._cos_in)
         np.copyto(self._sin, self._sin_in)
         ramp = ramp_at(t, self.ramp)
         if ramp != 1.0:
             self._trig *= ramp
-        if rates:
-            np.multiply(self._minus_omega, self._sin, out=self._minus_sin_rate)
-            np.multiply(self.omega, self._cos, out=self._cos_rate)
 
     def velocity(self, t: float) -> np.ndarray:
         """(P, m) fluid velocity at time t [m/s]: the wave's (ramp included) plus the current."""
-        self.trig(t, rates=False)
-        return (self._trig @ self.matrix).reshape(self.n_points, -1) + self.steady
+        self.trig(t)
+        return (self._trig @ self._velocity_columns).reshape(self.n_points, -1) + self.steady
 
     def velocity_acceleration(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """(P, m) fluid velocity (as :meth:`velocity`) and acceleration [m/s^2] at time t, both
         from one product (the acceleration without the ramp's own rate)."""
         self.trig(t)
-        both = (self.rhs[:, :2 * self.omega.size] @ self.matrix).reshape(2, self.n_points, -1)
+        both = (self._trig @ self.matrix).reshape(2, self.n_points, -1)
         return both[0] + self.steady, both[1]

@@ -43,8 +43,8 @@ class MorisonSet:
 
     Velocities, accelerations and forces are taken along the two directions normal to each member
     (:func:`normal_basis`), plane-major: entry d S + s is segment s along direction d. One product
-    [trig row; v 1] @ ``flow`` gives the relative velocities w = u + current - v_s and, over the
-    rates' row, the accelerations (Kinematics.trig); one more, ``loads``, the bodies' loads."""
+    ``flow`` @ [cos, sin, v, 1] gives the relative velocities w = u + current - v_s and the
+    accelerations (Kinematics.trig); one more, ``loads``, the bodies' loads."""
 
     def __init__(self, body: np.ndarray, lever: np.ndarray, z0: np.ndarray, basis: np.ndarray, inertia: np.ndarray,
                  drag: np.ndarray, wave: Kinematics, active: np.ndarray):
@@ -68,20 +68,24 @@ class MorisonSet:
         along[:, rows, body, 3:] = arm.transpose(1, 0, 2)
         along = along.reshape(2 * n_seg, 6 * n_bodies)
         n2 = 2 * wave.omega.size
-        waves = wave.matrix.reshape(n2, n_seg, 2).transpose(0, 2, 1).reshape(n2, 2 * n_seg)
-        #: (2n + 6N + 1, 2S): rows over [cos, sin, v, 1]: the wave's velocity, -along, the current
-        self.flow = np.ascontiguousarray(np.vstack([waves, -along.T, wave.steady.T.reshape(1, -1)]))
-        if wave.rhs.shape[1] != self.flow.shape[0]:
-            raise ValueError("MorisonSet: the kinematics' rhs needs 6N + 1 extra columns")
+        # the wave's velocities then accelerations, each plane-major
+        waves = wave.matrix.reshape(n2, 2, n_seg, 2).transpose(0, 1, 3, 2).reshape(n2, 4 * n_seg)
+        rest = np.zeros((6 * n_bodies + 1, 4 * n_seg))
+        rest[:-1, :2 * n_seg], rest[-1, :2 * n_seg] = -along.T, wave.steady.T.reshape(-1)
+        #: (4S, 2n + 6N + 1): [w; a] = flow @ [cos, sin, v, 1]: the wave's velocity, -along and the
+        #: current, then the wave's acceleration
+        self.flow = np.ascontiguousarray(np.vstack([waves, rest]).T)
+        if wave.rhs.size != self.flow.shape[1]:
+            raise ValueError("MorisonSet: the kinematics' rhs needs 6N + 1 extra entries")
         #: (N, 6, 4S): force and moment about the reference point of the drag and inertia forces along
         #: the directions (the transpose of ``along``), per unit |w| w and a (their coefficients
         #: 1/2 rho cd D L and rho (1 + ca) V taken in), zero in inactive DOFs
         loads = along.T * active.reshape(-1, 1)
         self.loads = np.hstack([loads * np.tile(drag, 2), loads * np.tile(inertia, 2)]).reshape(n_bodies, 6, -1)
-        self._v = wave.rhs[0, n2:-1].reshape(n_bodies, 6)   # rhs rows [cos, sin, v, 1], [-w sin, w cos, 0, 0]
-        wave.rhs[0, -1] = 1.0
+        self._v = wave.rhs[n2:-1].reshape(n_bodies, 6)      # rhs: [cos, sin, v, 1]
+        wave.rhs[-1] = 1.0
         self._out = np.empty((2, 2, n_seg))                 # w, a along the two directions
-        self._flat_out = self._out.reshape(2, -1)
+        self._flat_out = self._out.reshape(-1)
         self._w0, self._w1 = self._out[0]
         self._mask = np.empty((2, 1, n_seg))                # |w| if wet, 1 if wet
         self._speed, self._wet = self._mask[:, 0]
@@ -93,7 +97,7 @@ class MorisonSet:
         (N, 6) from equilibrium, zero in inactive DOFs."""
         self.wave.trig(t)
         np.copyto(self._v, v)
-        np.dot(self.wave.rhs, self.flow, out=self._flat_out)
+        np.dot(self.flow, self.wave.rhs, out=self._flat_out)
         self._wet[:] = np.dot(self.heave, x.reshape(-1)) <= self.below
         np.hypot(self._w0, self._w1, out=self._speed)
         self._speed *= self._wet
