@@ -36,6 +36,7 @@ import numpy as np
 from hydrolink.protocol.scene import Scene
 from hydrolink.server.errors import ModelError
 from hydrolink.server.force_term import ForceTerm, TermContext
+from hydrolink.server.incident_kernels import AVAILABLE, deep_pressure, warm_up
 from hydrolink.server.kinematics import wave_number
 from hydrolink.server.phase_expansion import PhaseExpansion
 from hydrolink.server.waves import WaveComponents, ramp_at
@@ -60,6 +61,55 @@ def _depth_factor(k: np.ndarray, z: np.ndarray, depth: float) -> np.ndarray:
 
 
 @dataclass(frozen=True)
+class _Recurrence:
+    """Components of one heading whose wave numbers are a quadratic in their index, ordered by
+    frequency: k_c = k0 + c dk + c (c - 1) d2 / 2 (w_c = w0 + c dw, k = w^2 / g in deep water), the
+    pressure's sum over them by the compiled recurrence (server/incident_kernels.py)."""
+    columns: np.ndarray      # (n_g,) component indices, by increasing frequency
+    direction: np.ndarray    # (2,) cos b, sin b
+    k0: float
+    dk: float
+    d2: float
+
+
+@dataclass(frozen=True)
+class _PressureSplit:
+    """How the Froude–Krylov pressure's sum over the components is taken: the short waves (deep
+    water for them, k h >= 20, and their depth factor e^{kz} to round-off at every height above
+    ``floor``) by recurrences, the long ones (``direct``) one cosine and depth factor each."""
+    recurrences: tuple[_Recurrence, ...]
+    direct: np.ndarray       # component indices
+    floor: float             # m: the lowest stretched height the split holds for (below: all direct)
+
+
+def _split_components(omega: np.ndarray, k: np.ndarray, heading: np.ndarray, g: float, depth: float,
+                      reach: float, floor: float) -> _PressureSplit:
+    """The :class:`_PressureSplit` of the components for hulls within ``reach`` (m) horizontally of
+    their reference points: per heading, the components from the first one deep to round-off down
+    to ``floor`` (k h >= 20 and 2 k (floor + h) >= 40) are one recurrence if their wave numbers are
+    its quadratic to within a phase of 1e-11 over ``reach`` (evenly spaced frequencies; not where
+    ``froude_krylov_energy`` < 1 kept a subset), else direct."""
+    recurrences, direct = [], []
+    for b in np.unique(heading):
+        cols = np.flatnonzero(heading == b)
+        cols = cols[np.argsort(omega[cols], kind="stable")]
+        deep = np.ones(len(cols), bool) if math.isinf(depth) else \
+            (k[cols] * depth >= 20.0) & (2.0 * k[cols] * (floor + depth) >= 40.0)
+        first = int(np.argmax(deep)) if deep.any() else len(cols)
+        w, kg = omega[cols[first:]], k[cols[first:]]
+        if len(w):
+            c = np.arange(len(w), dtype=float)
+            dw = (w[-1] - w[0]) / max(len(w) - 1, 1)
+            k0, dk, d2 = w[0] ** 2 / g, (2.0 * w[0] * dw + dw * dw) / g, 2.0 * dw * dw / g
+            if np.max(np.abs(k0 + c * dk + 0.5 * c * (c - 1.0) * d2 - kg)) * reach <= 1e-11:
+                recurrences.append(_Recurrence(cols[first:], np.array([np.cos(b), np.sin(b)]), k0, dk, d2))
+            else:
+                first = len(cols)
+        direct.append(cols[:first])
+    return _PressureSplit(tuple(recurrences), np.sort(np.concatenate(direct)), floor)
+
+
+@dataclass(frozen=True)
 class NonlinearBody:
     """One nonlinear body: where it sits among the wet bodies and what its linear model holds."""
     index: int              # position among the server's wet bodies
@@ -79,7 +129,11 @@ class NonlinearHydro:
     """The nonlinear hydrostatic and Froude–Krylov differences for a scene's nonlinear bodies."""
 
     def __init__(self, bodies: list[NonlinearBody], waves: WaveComponents, rho: float, g: float, depth: float,
-                 n_bodies: int):
+                 n_bodies: int, compiled: bool = AVAILABLE):
+        """``compiled``: the incident wave on the hulls by the compiled kernels where they apply
+        (server/incident_kernels.py), else by numpy (same results to round-off)."""
+        self.compiled = compiled
+        self.split: _PressureSplit | None = None   # set by build_nonlinear (needs the hulls' reach)
         self.bodies, self.rho, self.g, self.depth, self.n_bodies = bodies, rho, g, depth, n_bodies
         self.ramp = waves.ramp
         self.still = waves.size == 0
@@ -99,17 +153,35 @@ class NonlinearHydro:
         """a_c e^{i theta_c(x, y)} at points (P, 3): (P, n_c)."""
         return self.amp[None, :] * np.exp(1j * (np.outer(pts[:, 0], self.kx) + np.outer(pts[:, 1], self.ky)))
 
-    def _fk_pressure(self, pts: np.ndarray, eta: np.ndarray, t: float, ramp: float) -> np.ndarray:
+    def _fk_pressure(self, pts: np.ndarray, eta: np.ndarray, reference: np.ndarray, t: float,
+                     ramp: float) -> np.ndarray:
         """p_FK / (rho g) at wet points (P, 3), Wheeler-stretched by the elevation ``eta`` (P,)
-        there: ramp sum_c a_c cos(theta_c(x, y) + phi_c - w_c t) f_c(z_s), one cosine and one depth
-        factor per point and component (no complex exponential, no sine)."""
+        there: ramp sum_c a_c cos(theta_c(x, y) + phi_c - w_c t) f_c(z_s). The short waves by the
+        compiled recurrences where ``self.split`` has them (horizontal coordinates from the body's
+        ``reference`` point (2,), its phase in the amplitudes), the rest by :meth:`_direct_pressure`."""
         h, z = self.depth, pts[:, 2]
-        z_s = z - eta if math.isinf(h) else h * (z - eta) / (h + eta)
-        theta = pts[:, :2] @ self.k_xy
-        theta += self.phase - self.omega * t
-        f = _depth_factor(self.k, np.minimum(z_s, 0.0), h)
+        z_s = np.minimum(z - eta if math.isinf(h) else h * (z - eta) / (h + eta), 0.0)
+        split = self.split
+        if split is None or not len(z_s) or float(z_s.min()) < split.floor:
+            return ramp * self._direct_pressure(pts, z_s, slice(None), t)
+        out = ramp * self._direct_pressure(pts, z_s, split.direct, t) if len(split.direct) else np.zeros(len(pts))
+        offsets = pts[:, :2] - reference
+        for r in split.recurrences:
+            col = r.columns
+            a = ramp * self.amplitude[col] * np.exp(
+                1j * (self.k[col] * float(reference @ r.direction) + self.phase[col] - self.omega[col] * t))
+            deep_pressure(offsets @ r.direction, z_s, a, r.k0, r.dk, r.d2, out)
+        return out
+
+    def _direct_pressure(self, pts: np.ndarray, z_s: np.ndarray, cols, t: float) -> np.ndarray:
+        """sum_c a_c cos(theta_c(x, y) + phi_c - w_c t) f_c(z_s) over the components ``cols`` at
+        points (P, 3), stretched heights ``z_s`` (P,) <= 0: one cosine and one depth factor per
+        point and component (no complex exponential, no sine)."""
+        theta = pts[:, :2] @ self.k_xy[:, cols]
+        theta += self.phase[cols] - self.omega[cols] * t
+        f = _depth_factor(self.k[cols], z_s, self.depth)
         f *= np.cos(theta, out=theta)
-        return ramp * (f @ self.amplitude)
+        return f @ self.amplitude[cols]
 
     def fk_linear_phasors(self, hull: Hull, reference: np.ndarray) -> np.ndarray:
         """(6, n_c) complex: the Froude–Krylov force and moment of each wave component (unit time
@@ -140,8 +212,8 @@ class NonlinearHydro:
             offset = local @ rot.T
             verts = pose[:3] + offset
             waves = b.mode == "froude-krylov" and not self.still
-            phases = self.expansion.phases(offset[:, :2], pose[:2], self.phase - self.omega * t) if waves else None
-            eta = ramp * self.expansion.elevation(phases, self.amplitude) if waves else 0.0
+            eta = ramp * self.expansion.elevation(offset[:, :2], pose[:2], self.phase - self.omega * t,
+                                                  self.amplitude) if waves else 0.0
             d = verts[:, 2] - eta
             wet = d[tris] <= 0.0
             count = wet.sum(axis=1)
@@ -163,7 +235,7 @@ class NonlinearHydro:
                 continue
             wet_v = np.flatnonzero(d <= 0.0)
             p_v = np.zeros(len(verts))
-            p_v[wet_v] = self._fk_pressure(verts[wet_v], eta[wet_v], t, ramp)
+            p_v[wet_v] = self._fk_pressure(verts[wet_v], eta[wet_v], pose[:2], t, ramp)
             p_c = interpolate(p_v[tris[part]], cut)
             surface = cut.s < 1.0
             p_c[surface] = z[surface]   # on the free surface p_FK = rho g eta = rho g z (stretched)
@@ -196,7 +268,7 @@ def build_nonlinear(scene: Scene, wet: list[int], hulls: dict[str, Hull], waves:
     the setup's per wet body (None: none applied)."""
     water = scene.water
     kept = strongest_components(waves, scene.hydro.froude_krylov_energy)
-    model = NonlinearHydro([], kept, water.density, water.gravity, water.depth_m, len(wet))
+    model = NonlinearHydro([], kept, water.density, water.gravity, water.depth_m, len(wet), compiled=AVAILABLE)
     bodies = []
     for k, i in enumerate(wet):
         body = scene.bodies[i]
@@ -233,7 +305,12 @@ def build_nonlinear(scene: Scene, wet: list[int], hulls: dict[str, Hull], waves:
             "the others act through the linear excitation only. Set it to 1 for all of them")
     if not model.still:
         radius = max(float(np.linalg.norm(b.hull.vertices, axis=1).max()) for b in bodies)
-        model.expansion = PhaseExpansion(model.k, kept.heading_of(), radius)
+        model.expansion = PhaseExpansion(model.k, kept.heading_of(), radius, compiled=model.compiled)
+        if model.compiled:
+            warm_up()
+            floor = 2.0 * min(float(b.reference[2]) - radius for b in bodies)
+            model.split = _split_components(model.omega, model.k, kept.heading_of(), model.g, model.depth,
+                                            2.0 * radius, floor)
     model.froude_krylov = any(b.mode == "froude-krylov" for b in bodies)
     return model
 

@@ -16,7 +16,9 @@ n > x; N is the smallest order with |J_n(k_max rho)| <= 1e-17 for every n >= N (
 with x for x < n, so every component of the group is bounded by its largest), so the expansion
 is exact to round-off (tests/test_phase_expansion.py holds it to the direct sums). Per step: the
 Chebyshev values T_n(u) of the points (N recurrences over the points) and an (N, n_c) coefficient
-matrix per heading; the elevation sum_c a_c cos(.) is then two matrix-vector products.
+matrix per heading; the elevation sum_c a_c cos(.) is then one matrix-vector product for the
+series' coefficients and the series summed at the points (Clenshaw's recurrence, compiled, or a
+product with the points' Chebyshev values).
 
 Its cost grows with k_max rho (N ~ k_max rho + 10): it pays for the elevation, which needs one
 sum over the components per point, not for a sum weighted per point and component (the
@@ -30,7 +32,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import jv
 
-__all__ = ["PhaseExpansion", "SpatialPhases"]
+from hydrolink.server.incident_kernels import AVAILABLE, chebyshev_sum
+
+__all__ = ["PhaseExpansion"]
 
 _TAIL = 1e-17   # coefficient magnitude below which the expansions' terms are dropped
 
@@ -63,19 +67,14 @@ class _Heading:
     coefficients: np.ndarray   # (N, n_g) complex: i^n eps_n J_n(k rho)
 
 
-@dataclass(frozen=True)
-class SpatialPhases:
-    """The points' Chebyshev values along each heading and the components' weights at one time:
-    cos(k_c s + psi_c) = sum_n cheb[g][n] weights[g][n, c] for the components c of heading g."""
-    cheb: tuple[np.ndarray, ...]      # per heading (N, P)
-    weights: tuple[np.ndarray, ...]   # per heading (N, n_g) real
-
-
 class PhaseExpansion:
     """The incident wave's elevation at points within ``radius`` of a reference point (module
     docstring)."""
 
-    def __init__(self, k: np.ndarray, heading: np.ndarray, radius: float):
+    def __init__(self, k: np.ndarray, heading: np.ndarray, radius: float, compiled: bool = AVAILABLE):
+        """``compiled``: sum the series with the compiled kernel (server/incident_kernels.py), else
+        as a matrix product of the points' Chebyshev values."""
+        self.compiled = compiled
         self.radius = float(radius) * (1.0 + 1e-12) or 1.0
         self.k = np.asarray(k, float)
         self.n_components = len(k)
@@ -86,21 +85,25 @@ class PhaseExpansion:
             n = _orders(jv, float(kg.max()) * self.radius)
             n_eps = np.where(np.arange(n) == 0, 1.0, 2.0)
             coef = (1j ** np.arange(n) * n_eps)[:, None] * jv(np.arange(n)[:, None], kg[None, :] * self.radius)
+            # the terms below the truncation's tail dropped here too: the long waves' high orders
+            # are subnormal numbers (J_n(x) ~ (x/2)^n / n!), which cost a hundred times a normal
+            # number's arithmetic in every product
+            coef[np.abs(coef) < _TAIL] = 0.0
             groups.append(_Heading(cols, np.array([np.cos(b), np.sin(b)]), kg, coef))
         self.groups = tuple(groups)
 
-    def phases(self, offsets: np.ndarray, reference: np.ndarray, psi: np.ndarray) -> SpatialPhases:
-        """The :class:`SpatialPhases` of points whose horizontal offsets from the reference point
-        are ``offsets`` (P, 2) (|offset| <= radius), the reference point at ``reference`` (2,), and
-        the components' phases ``psi`` (n_c,) (phi_c - w_c t)."""
-        cheb, weights = [], []
+    def elevation(self, offsets: np.ndarray, reference: np.ndarray, psi: np.ndarray,
+                  amplitude: np.ndarray) -> np.ndarray:
+        """(P,): sum_c a_c cos(k_c s + psi_c) at points whose horizontal offsets from the reference
+        point are ``offsets`` (P, 2) (|offset| <= radius), the reference point at ``reference`` (2,),
+        the components' amplitudes ``amplitude`` and phases ``psi`` (n_c,) (phi_c - w_c t)."""
+        out = np.zeros(len(offsets))
         for g in self.groups:
             u = np.clip(offsets @ g.direction / self.radius, -1.0, 1.0)
-            cheb.append(_chebyshev(u, len(g.coefficients)))
-            turn = np.exp(1j * (g.k * float(reference @ g.direction) + psi[g.columns]))
-            weights.append(np.real(g.coefficients * turn[None, :]))
-        return SpatialPhases(tuple(cheb), tuple(weights))
-
-    def elevation(self, phases: SpatialPhases, amplitude: np.ndarray) -> np.ndarray:
-        """(P,): sum_c a_c cos(k_c s + psi_c) at the points."""
-        return sum(cheb.T @ (w @ amplitude[g.columns]) for g, cheb, w in zip(self.groups, phases.cheb, phases.weights))
+            turn = amplitude[g.columns] * np.exp(1j * (g.k * float(reference @ g.direction) + psi[g.columns]))
+            c = np.real(g.coefficients @ turn)                   # (N,): the series' coefficients now
+            if self.compiled:
+                chebyshev_sum(u, c, out)
+            else:
+                out += _chebyshev(u, len(c)).T @ c
+        return out
