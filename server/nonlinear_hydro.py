@@ -38,7 +38,7 @@ from hydrolink.server.errors import ModelError
 from hydrolink.server.force_term import ForceTerm, TermContext
 from hydrolink.server.incident_kernels import AVAILABLE, deep_pressure, warm_up
 from hydrolink.server.kinematics import wave_number
-from hydrolink.server.phase_expansion import PhaseExpansion
+from hydrolink.server.phase_expansion import DepthExpansion, PhaseExpansion
 from hydrolink.server.waves import WaveComponents, ramp_at
 from hydrolink.server.wetted_surface import Hull, clip_wet, corner_loads, interpolate, pressure_load, rotation_xyz
 
@@ -78,8 +78,10 @@ class _PressureSplit:
     water for them, k h >= 20, and their depth factor e^{kz} to round-off at every height above
     ``floor``) by recurrences, the long ones (``direct``) one cosine and depth factor each."""
     recurrences: tuple[_Recurrence, ...]
-    direct: np.ndarray       # component indices
-    floor: float             # m: the lowest stretched height the split holds for (below: all direct)
+    long: DepthExpansion | None   # the long waves' sum as a series (where that is cheaper than direct)
+    long_columns: np.ndarray      # its component indices
+    direct: np.ndarray            # component indices summed one by one
+    floor: float                  # m: the lowest stretched height the split holds for (below: all direct)
 
 
 def _split_components(omega: np.ndarray, k: np.ndarray, heading: np.ndarray, g: float, depth: float,
@@ -106,7 +108,12 @@ def _split_components(omega: np.ndarray, k: np.ndarray, heading: np.ndarray, g: 
             else:
                 first = len(cols)
         direct.append(cols[:first])
-    return _PressureSplit(tuple(recurrences), np.sort(np.concatenate(direct)), floor)
+    rest = np.sort(np.concatenate(direct))
+    if len(rest):
+        long = DepthExpansion(k[rest], heading[rest], 0.5 * reach, floor, lambda kc, z: _depth_factor(kc, z, depth))
+        if long.converged and long.terms <= 10 * len(rest):
+            return _PressureSplit(tuple(recurrences), long, rest, rest[:0], floor)
+    return _PressureSplit(tuple(recurrences), None, rest[:0], rest, floor)
 
 
 @dataclass(frozen=True)
@@ -115,7 +122,8 @@ class NonlinearBody:
     index: int              # position among the server's wet bodies
     mode: str               # "hydrostatic" | "froude-krylov"
     hull: Hull              # relative to the reference point
-    loads: np.ndarray       # (3T, 6) its triangles' corner_loads in the body's frame, corners flattened
+    loads: np.ndarray       # (T, 3, 6) its triangles' corner_loads in the body's frame
+    vertex_loads: np.ndarray   # (V, 6) their sums over each vertex's triangles
     reference: np.ndarray   # (3,) reference point at equilibrium
     weight: float           # m g [N]
     lever: np.ndarray       # (3,) centre of mass minus reference point, at equilibrium
@@ -166,6 +174,10 @@ class NonlinearHydro:
             return ramp * self._direct_pressure(pts, z_s, slice(None), t)
         out = ramp * self._direct_pressure(pts, z_s, split.direct, t) if len(split.direct) else np.zeros(len(pts))
         offsets = pts[:, :2] - reference
+        if split.long is not None:
+            col = split.long_columns
+            out += ramp * split.long.pressure(offsets, z_s, reference, self.phase[col] - self.omega[col] * t,
+                                              self.amplitude[col])
         for r in split.recurrences:
             col = r.columns
             a = ramp * self.amplitude[col] * np.exp(
@@ -198,9 +210,10 @@ class NonlinearHydro:
         """The two differences (N, 6) each (module docstring) for the absolute poses (N, 6).
 
         The wholly wet triangles' integral is linear in their corner pressures with coefficients
-        fixed in the body's frame (``NonlinearBody.loads``): one matrix-vector product; only the
-        triangles the free surface cuts go through :func:`clip_wet`. Loads are summed in the body's
-        frame about its reference point and turned to the global axes at the end."""
+        fixed in the body's frame: summed per vertex (``NonlinearBody.vertex_loads``), it is the
+        wet vertices' pressures times their loads, less what the cut triangles' wet corners added
+        there; the cut triangles go through :func:`clip_wet`. Loads are summed in the body's frame
+        about its reference point and turned to the global axes at the end."""
         hs, fk = np.zeros((self.n_bodies, 6)), np.zeros((self.n_bodies, 6))
         rg = self.rho * self.g
         ramp = ramp_at(t, self.ramp)
@@ -215,14 +228,22 @@ class NonlinearHydro:
             eta = ramp * self.expansion.elevation(offset[:, :2], pose[:2], self.phase - self.omega * t,
                                                   self.amplitude) if waves else 0.0
             d = verts[:, 2] - eta
-            wet = d[tris] <= 0.0
-            count = wet.sum(axis=1)
-            full = (count == 3).astype(float)[:, None]                       # (T, 1)
+            wet_v = d <= 0.0
+            count = wet_v[tris].sum(axis=1)
             part = np.flatnonzero((count == 1) | (count == 2))
+            wet_v = np.flatnonzero(wet_v)
             pts, cut = clip_wet(local[tris[part]], d[tris[part]])           # body frame
             z = interpolate(verts[tris[part], 2], cut)                       # global heights of their corners
-            z_v = verts[:, 2]
-            load = (-rg * z_v[tris] * full).reshape(-1) @ b.loads + pressure_load(pts, -rg * z)
+            cut_loads = corner_loads(pts).reshape(-1, 6)
+            # per wet vertex: the hydrostatic pressure / (rho g) and, with waves, the Froude-Krylov one
+            p_w = np.empty((2 if waves else 1, len(wet_v)))
+            p_w[0] = -verts[wet_v, 2]
+            if waves:
+                p_w[1] = self._fk_pressure(verts[wet_v], eta[wet_v], pose[:2], t, ramp)
+            p_v = np.zeros((len(p_w), len(verts)))
+            p_v[:, wet_v] = p_w
+            full = p_w @ b.vertex_loads[wet_v] - p_v[:, tris[part]].reshape(len(p_w), -1) @ b.loads[part].reshape(-1, 6)
+            load = rg * (full[0] - z.reshape(-1) @ cut_loads)
             f_hs = np.concatenate([rot @ load[:3], rot @ load[3:]])
             f_hs[2] -= b.weight
             arm = rot @ b.lever
@@ -233,16 +254,20 @@ class NonlinearHydro:
             hs[b.index] = (f_hs - linear) * b.active
             if not waves:
                 continue
-            wet_v = np.flatnonzero(d <= 0.0)
-            p_v = np.zeros(len(verts))
-            p_v[wet_v] = self._fk_pressure(verts[wet_v], eta[wet_v], pose[:2], t, ramp)
-            p_c = interpolate(p_v[tris[part]], cut)
+            p_c = interpolate(p_v[1][tris[part]], cut)
             surface = cut.s < 1.0
             p_c[surface] = z[surface]   # on the free surface p_FK = rho g eta = rho g z (stretched)
-            load = rg * ((p_v[tris] * full).reshape(-1) @ b.loads + pressure_load(pts, p_c))
+            load = rg * (full[1] + p_c.reshape(-1) @ cut_loads)
             f_fk = np.concatenate([rot @ load[:3], rot @ load[3:]])
             fk[b.index] = (f_fk - np.real(b.fk_linear @ time_factor)) * b.active
         return hs, fk
+
+
+def _vertex_sums(hull: Hull, loads: np.ndarray) -> np.ndarray:
+    """(V, 6): the corner loads (T, 3, 6) of the hull's triangles summed over each vertex."""
+    out = np.zeros((len(hull.vertices), 6))
+    np.add.at(out, hull.triangles.reshape(-1), loads.reshape(-1, 6))
+    return out
 
 
 def strongest_components(waves: WaveComponents, fraction: float) -> WaveComponents:
@@ -289,8 +314,10 @@ def build_nonlinear(scene: Scene, wet: list[int], hulls: dict[str, Hull], waves:
                 f"{linear_volume:.6g} m^3 ({100 * (volume / linear_volume - 1):+.3g} %): the nonlinear hydrostatic "
                 f"force holds the difference, {water.density * water.gravity * (volume - linear_volume):.4g} N, "
                 "from the start")
+        loads = corner_loads(hull.vertices[hull.triangles])
         bodies.append(NonlinearBody(
-            index=k, mode=mode, hull=hull, loads=corner_loads(hull.vertices[hull.triangles]).reshape(-1, 6), reference=ref, weight=body.mass * water.gravity,
+            index=k, mode=mode, hull=hull, loads=loads, vertex_loads=_vertex_sums(hull, loads), reference=ref,
+            weight=body.mass * water.gravity,
             lever=body.com_or(ref) - ref, linear_net=float(net_buoyancy[k] or 0.0),
             stiffness=stiffness[6 * k:6 * k + 6, 6 * k:6 * k + 6].copy(), fk_linear=fk,
             active=active[k].astype(float)))

@@ -34,9 +34,11 @@ from scipy.special import jv
 
 from hydrolink.server.incident_kernels import AVAILABLE, chebyshev_sum
 
-__all__ = ["PhaseExpansion"]
+__all__ = ["DepthExpansion", "PhaseExpansion"]
 
 _TAIL = 1e-17   # coefficient magnitude below which the expansions' terms are dropped
+_DEPTH_NODES = 64   # Chebyshev nodes each depth factor is fitted on (DepthExpansion)
+_DEPTH_TAIL = 1e-15   # the depth series' cut: the fit's own round-off floor (f <= 1)
 
 
 def _chebyshev(u: np.ndarray, n: int) -> np.ndarray:
@@ -106,4 +108,71 @@ class PhaseExpansion:
                 chebyshev_sum(u, c, out)
             else:
                 out += _chebyshev(u, len(c)).T @ c
+        return out
+
+
+@dataclass(frozen=True)
+class _DepthHeading:
+    """The components of one heading: the horizontal expansion's coefficients and their depth
+    factors' Chebyshev coefficients."""
+    columns: np.ndarray        # (n_g,) component indices
+    direction: np.ndarray      # (2,) cos b, sin b
+    k: np.ndarray              # (n_g,)
+    horizontal: np.ndarray     # (N, n_g) complex: i^n eps_n J_n(k rho)
+    vertical: np.ndarray       # (n_g, M) real: f_c(z) = sum_m vertical[c, m] T_m(v)
+
+
+class DepthExpansion:
+    """The incident wave's pressure sum_c a_c f_c(z) cos(k_c s + psi_c) (f_c the depth factor) at
+    points within ``radius`` horizontally of a reference point and at heights in [floor, 0], for
+    long waves: the Jacobi–Anger series of the module docstring in the horizontal times each depth
+    factor's Chebyshev series in v = 1 - 2 z / floor (v = 1 at the surface, -1 at ``floor``),
+
+        sum_c a_c f_c(z) cos(k_c s + psi_c) = sum_{n, m} T_n(u) T_m(v) C_nm(t),
+        C_nm = Re sum_c a_c e^{i (k_c s_ref + psi_c)} i^n eps_n J_n(k_c rho) F_cm,
+
+    the horizontal series cut where its coefficients fall below 1e-17, the depth series (fitted on
+    64 Chebyshev nodes) below 1e-15, its fit's round-off floor (f_c <= 1): exact to round-off.
+    Per step an (N, M) coefficient matrix and the points' Chebyshev values: cheap while k rho and
+    k |floor| are small (N, M ~ k rho + 10, k |floor| / 2 + 10), the short waves being the
+    recurrence's (server/incident_kernels.py). ``terms`` is N M summed over the headings."""
+
+    def __init__(self, k: np.ndarray, heading: np.ndarray, radius: float, floor: float, depth_factor):
+        """``depth_factor(k, z)``: f (P, n_c) at heights z (P,) in [floor, 0]."""
+        from numpy.polynomial import chebyshev
+        self.radius = float(radius) * (1.0 + 1e-12) or 1.0
+        self.floor = float(floor)
+        nodes = chebyshev.chebpts2(_DEPTH_NODES)                      # v in [-1, 1]
+        groups = []
+        for b in np.unique(heading):
+            cols = np.flatnonzero(heading == b)
+            kg = np.asarray(k, float)[cols]
+            n = _orders(jv, float(kg.max()) * self.radius)
+            eps = np.where(np.arange(n) == 0, 1.0, 2.0)
+            horizontal = (1j ** np.arange(n) * eps)[:, None] * jv(np.arange(n)[:, None], kg[None, :] * self.radius)
+            horizontal[np.abs(horizontal) < _TAIL] = 0.0
+            f = depth_factor(kg, 0.5 * (1.0 - nodes) * self.floor)     # (nodes, n_g)
+            vertical = chebyshev.chebfit(nodes, f, _DEPTH_NODES - 1).T     # (n_g, nodes)
+            big = np.flatnonzero(np.abs(vertical).max(axis=0) > _DEPTH_TAIL)
+            vertical = vertical[:, :int(big[-1]) + 1 if len(big) else 1].copy()
+            groups.append(_DepthHeading(cols, np.array([np.cos(b), np.sin(b)]), kg, horizontal, vertical))
+        self.groups = tuple(groups)
+        self.terms = sum(g.horizontal.shape[0] * g.vertical.shape[1] for g in groups)
+        # the depth series must have converged within the nodes: its last kept order well below them
+        self.converged = all(g.vertical.shape[1] < _DEPTH_NODES - 8 for g in groups)
+
+    def pressure(self, offsets: np.ndarray, z: np.ndarray, reference: np.ndarray, psi: np.ndarray,
+                 amplitude: np.ndarray) -> np.ndarray:
+        """(P,): sum_c a_c f_c(z) cos(k_c s + psi_c) at points with horizontal ``offsets`` (P, 2) from
+        the reference point at ``reference`` (2,), heights ``z`` (P,) in [floor, 0]; ``amplitude``
+        and ``psi`` (phi_c - w_c t) of all the components (n_c,)."""
+        v = np.clip(1.0 - 2.0 * z / self.floor, -1.0, 1.0)
+        out = np.zeros(len(z))
+        t_v = _chebyshev(v, max(g.vertical.shape[1] for g in self.groups)).T      # (P, M)
+        for g in self.groups:
+            u = np.clip(offsets @ g.direction / self.radius, -1.0, 1.0)
+            a = amplitude[g.columns] * np.exp(1j * (g.k * float(reference @ g.direction) + psi[g.columns]))
+            coefficients = np.real((g.horizontal * a[None, :]) @ g.vertical)       # (N, M)
+            m = coefficients.shape[1]
+            out += np.einsum("pn,pn->p", _chebyshev(u, coefficients.shape[0]).T @ coefficients, t_v[:, :m])
         return out
