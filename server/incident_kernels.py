@@ -7,7 +7,7 @@ points inside (vectorised by the compiler), with no transcendental function in t
   are a quadratic in their index, k_c = k0 + c dk + c (c - 1) d2 / 2 (deep water, frequencies
   equally spaced: k = w^2 / g). Then e^{k_{c+1} zeta} = e^{k_c zeta} r_c with r_{c+1} = r_c q, q
   = e^{d2 zeta}: two complex products per point and component, three complex exponentials per
-  point. The products' round-off grows with c; over 300 components it stays near 1e-13 of the
+  point. The products' round-off grows with c; over 300 components it stays below 1e-12 of the
   amplitude sum (tests/test_incident_kernels.py).
 - :func:`chebyshev_sum`: sum_n c_n T_n(u_p) by Clenshaw's recurrence (the Jacobi–Anger expansion of
   server/phase_expansion.py).

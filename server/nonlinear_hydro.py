@@ -36,7 +36,9 @@ import numpy as np
 from hydrolink.protocol.scene import Scene
 from hydrolink.server.errors import ModelError
 from hydrolink.server.force_term import ForceTerm, TermContext
-from hydrolink.server.incident_kernels import AVAILABLE, deep_pressure, warm_up
+from hydrolink.server import incident_kernels, wet_surface_kernel
+from hydrolink.server.incident_kernels import AVAILABLE, deep_pressure
+from hydrolink.server.wet_surface_kernel import cut_hull_loads
 from hydrolink.server.kinematics import wave_number
 from hydrolink.server.phase_expansion import DepthExpansion, PhaseExpansion
 from hydrolink.server.waves import WaveComponents, ramp_at
@@ -209,11 +211,9 @@ class NonlinearHydro:
     def force(self, t: float, position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The two differences (N, 6) each (module docstring) for the absolute poses (N, 6).
 
-        The wholly wet triangles' integral is linear in their corner pressures with coefficients
-        fixed in the body's frame: summed per vertex (``NonlinearBody.vertex_loads``), it is the
-        wet vertices' pressures times their loads, less what the cut triangles' wet corners added
-        there; the cut triangles go through :func:`clip_wet`. Loads are summed in the body's frame
-        about its reference point and turned to the global axes at the end."""
+        The pressures are integrated over the wet part of each hull (server/wet_surface_kernel.py,
+        compiled, or :func:`_wet_loads`) in the body's frame about its reference point, and the
+        loads turned to the global axes at the end."""
         hs, fk = np.zeros((self.n_bodies, 6)), np.zeros((self.n_bodies, 6))
         rg = self.rho * self.g
         ramp = ramp_at(t, self.ramp)
@@ -228,23 +228,15 @@ class NonlinearHydro:
             eta = ramp * self.expansion.elevation(offset[:, :2], pose[:2], self.phase - self.omega * t,
                                                   self.amplitude) if waves else 0.0
             d = verts[:, 2] - eta
-            wet_v = d <= 0.0
-            count = wet_v[tris].sum(axis=1)
-            part = np.flatnonzero((count == 1) | (count == 2))
-            wet_v = np.flatnonzero(wet_v)
-            pts, cut = clip_wet(local[tris[part]], d[tris[part]])           # body frame
-            z = interpolate(verts[tris[part], 2], cut)                       # global heights of their corners
-            cut_loads = corner_loads(pts).reshape(-1, 6)
-            # per wet vertex: the hydrostatic pressure / (rho g) and, with waves, the Froude-Krylov one
-            p_w = np.empty((2 if waves else 1, len(wet_v)))
-            p_w[0] = -verts[wet_v, 2]
+            wet_v = np.flatnonzero(d <= 0.0)
+            p_v = np.zeros(len(verts))            # the Froude-Krylov pressure / (rho g) at the wet vertices
             if waves:
-                p_w[1] = self._fk_pressure(verts[wet_v], eta[wet_v], pose[:2], t, ramp)
-            p_v = np.zeros((len(p_w), len(verts)))
-            p_v[:, wet_v] = p_w
-            full = p_w @ b.vertex_loads[wet_v] - p_v[:, tris[part]].reshape(len(p_w), -1) @ b.loads[part].reshape(-1, 6)
-            load = rg * (full[0] - z.reshape(-1) @ cut_loads)
-            f_hs = np.concatenate([rot @ load[:3], rot @ load[3:]])
+                p_v[wet_v] = self._fk_pressure(verts[wet_v], eta[wet_v], pose[:2], t, ramp)
+            if self.compiled:
+                load_hs, load_fk = rg * cut_hull_loads(local, tris, d, verts[:, 2], p_v, b.loads)
+            else:
+                load_hs, load_fk = rg * _wet_loads(b, verts[:, 2], d, wet_v, p_v)
+            f_hs = np.concatenate([rot @ load_hs[:3], rot @ load_hs[3:]])
             f_hs[2] -= b.weight
             arm = rot @ b.lever
             f_hs[3:] += [-arm[1] * b.weight, arm[0] * b.weight, 0.0]       # arm x (0, 0, -m g)
@@ -254,13 +246,29 @@ class NonlinearHydro:
             hs[b.index] = (f_hs - linear) * b.active
             if not waves:
                 continue
-            p_c = interpolate(p_v[1][tris[part]], cut)
-            surface = cut.s < 1.0
-            p_c[surface] = z[surface]   # on the free surface p_FK = rho g eta = rho g z (stretched)
-            load = rg * (full[1] + p_c.reshape(-1) @ cut_loads)
-            f_fk = np.concatenate([rot @ load[:3], rot @ load[3:]])
+            f_fk = np.concatenate([rot @ load_fk[:3], rot @ load_fk[3:]])
             fk[b.index] = (f_fk - np.real(b.fk_linear @ time_factor)) * b.active
         return hs, fk
+
+
+def _wet_loads(b: NonlinearBody, z: np.ndarray, d: np.ndarray, wet_v: np.ndarray, p_v: np.ndarray) -> np.ndarray:
+    """(2, 6): the loads per unit rho g of the hydrostatic pressure -z and the Froude–Krylov
+    pressure ``p_v`` (V,) over the wet part of the hull (d <= 0) in the body's frame, by numpy
+    (server/wet_surface_kernel.py compiles the same sum): the wholly wet triangles as the wet
+    vertices' pressures times their per-vertex load sums, less what the cut triangles' wet corners
+    added there; the cut triangles through :func:`clip_wet`."""
+    tris = b.hull.triangles
+    count = (d <= 0.0)[tris].sum(axis=1)
+    part = np.flatnonzero((count == 1) | (count == 2))
+    pts, cut = clip_wet(b.hull.vertices[tris[part]], d[tris[part]])
+    z_c = interpolate(z[tris[part]], cut)                       # global heights of their corners
+    p_c = interpolate(p_v[tris[part]], cut)
+    surface = cut.s < 1.0
+    p_c[surface] = z_c[surface]   # on the free surface p_FK = rho g eta = rho g z (stretched)
+    p = np.stack([-z, p_v])
+    p[0, d > 0.0] = 0.0
+    full = p[:, wet_v] @ b.vertex_loads[wet_v] - p[:, tris[part]].reshape(2, -1) @ b.loads[part].reshape(-1, 6)
+    return full + np.stack([-z_c.reshape(-1), p_c.reshape(-1)]) @ corner_loads(pts).reshape(-1, 6)
 
 
 def _vertex_sums(hull: Hull, loads: np.ndarray) -> np.ndarray:
@@ -324,6 +332,9 @@ def build_nonlinear(scene: Scene, wet: list[int], hulls: dict[str, Hull], waves:
     if not bodies:
         return None
     model.bodies = bodies
+    if model.compiled:
+        incident_kernels.warm_up()
+        wet_surface_kernel.warm_up()
     if kept.size < waves.size and any(b.mode == "froude-krylov" for b in bodies):
         share = float(np.sum(kept.amplitude ** 2) / np.sum(waves.amplitude ** 2))
         model.warnings.append(
@@ -334,7 +345,6 @@ def build_nonlinear(scene: Scene, wet: list[int], hulls: dict[str, Hull], waves:
         radius = max(float(np.linalg.norm(b.hull.vertices, axis=1).max()) for b in bodies)
         model.expansion = PhaseExpansion(model.k, kept.heading_of(), radius, compiled=model.compiled)
         if model.compiled:
-            warm_up()
             floor = 2.0 * min(float(b.reference[2]) - radius for b in bodies)
             model.split = _split_components(model.omega, model.k, kept.heading_of(), model.g, model.depth,
                                             2.0 * radius, floor)
