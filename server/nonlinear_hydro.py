@@ -89,33 +89,48 @@ class _PressureSplit:
 def _split_components(omega: np.ndarray, k: np.ndarray, heading: np.ndarray, g: float, depth: float,
                       reach: float, floor: float) -> _PressureSplit:
     """The :class:`_PressureSplit` of the components for hulls within ``reach`` (m) horizontally of
-    their reference points: per heading, the components from the first one deep to round-off down
-    to ``floor`` (k h >= 20 and 2 k (floor + h) >= 40) are one recurrence if their wave numbers are
-    its quadratic to within a phase of 1e-11 over ``reach`` (evenly spaced frequencies; not where
-    ``froude_krylov_energy`` < 1 kept a subset), else direct."""
-    recurrences, direct = [], []
+    their reference points: per heading, the components deep to round-off down to ``floor``
+    (k h >= 20 and 2 k (floor + h) >= 40), in runs of evenly spaced frequencies of three or more
+    (one run for a sea's grid; several where ``froude_krylov_energy`` < 1 kept a subset), are
+    recurrences where their wave numbers are the recurrence's quadratic to within a phase of 1e-11
+    over ``reach``; the rest long (a series) or direct."""
+    recurrences, rest = [], []
     for b in np.unique(heading):
         cols = np.flatnonzero(heading == b)
         cols = cols[np.argsort(omega[cols], kind="stable")]
         deep = np.ones(len(cols), bool) if math.isinf(depth) else \
             (k[cols] * depth >= 20.0) & (2.0 * k[cols] * (floor + depth) >= 40.0)
-        first = int(np.argmax(deep)) if deep.any() else len(cols)
-        w, kg = omega[cols[first:]], k[cols[first:]]
-        if len(w):
-            c = np.arange(len(w), dtype=float)
-            dw = (w[-1] - w[0]) / max(len(w) - 1, 1)
+        rest.append(cols[~deep])
+        for run in _even_runs(omega[cols[deep]]):
+            run_cols = cols[deep][run]
+            w, c = omega[run_cols], np.arange(len(run_cols), dtype=float)
+            dw = (w[-1] - w[0]) / (len(w) - 1)
             k0, dk, d2 = w[0] ** 2 / g, (2.0 * w[0] * dw + dw * dw) / g, 2.0 * dw * dw / g
-            if np.max(np.abs(k0 + c * dk + 0.5 * c * (c - 1.0) * d2 - kg)) * reach <= 1e-11:
-                recurrences.append(_Recurrence(cols[first:], np.array([np.cos(b), np.sin(b)]), k0, dk, d2))
+            if len(w) >= 3 and np.max(np.abs(k0 + c * dk + 0.5 * c * (c - 1.0) * d2 - k[run_cols])) * reach <= 1e-11:
+                recurrences.append(_Recurrence(run_cols, np.array([np.cos(b), np.sin(b)]), k0, dk, d2))
             else:
-                first = len(cols)
-        direct.append(cols[:first])
-    rest = np.sort(np.concatenate(direct))
+                rest.append(run_cols)
+    rest = np.sort(np.concatenate(rest))
     if len(rest):
         long = DepthExpansion(k[rest], heading[rest], 0.5 * reach, floor, lambda kc, z: _depth_factor(kc, z, depth))
         if long.converged and long.terms <= 10 * len(rest):
             return _PressureSplit(tuple(recurrences), long, rest, rest[:0], floor)
     return _PressureSplit(tuple(recurrences), None, rest[:0], rest, floor)
+
+
+def _even_runs(w: np.ndarray) -> list[np.ndarray]:
+    """Index runs of ``w`` (sorted) whose steps are equal to within 1e-9 of the step."""
+    if len(w) < 2:
+        return [np.arange(len(w))] if len(w) else []
+    step = np.diff(w)
+    breaks = np.flatnonzero(np.abs(np.diff(step)) > 1e-9 * np.abs(step[1:])) + 1   # step i differs from i - 1
+    runs, start = [], 0
+    for i in breaks:      # step i joins w[i] and w[i + 1]: a run ends at w[i]
+        if i > start:
+            runs.append(np.arange(start, i + 1))
+            start = i + 1
+    runs.append(np.arange(start, len(w)))
+    return [r for r in runs if len(r)]
 
 
 @dataclass(frozen=True)
