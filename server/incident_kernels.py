@@ -12,24 +12,22 @@ points inside (vectorised by the compiler), with no transcendental function in t
 - :func:`chebyshev_sum`: sum_n c_n T_n(u_p) by Clenshaw's recurrence (the Jacobi–Anger expansion of
   server/phase_expansion.py).
 
-``AVAILABLE`` is False where numba does not import: the callers then take their numpy paths
+``AVAILABLE`` is False where numba is not installed: the callers then take their numpy paths
 (the same sums as matrix products; slower, same results to round-off).
 """
 
 from __future__ import annotations
 
+import functools
+import importlib.util
 import math
 
 import numpy as np
 
-try:
-    import numba
-except ImportError:          # pragma: no cover - numba is a dependency; the numpy paths stay
-    numba = None
 
 __all__ = ["AVAILABLE", "chebyshev_sum", "deep_pressure", "warm_up"]
 
-AVAILABLE = numba is not None
+AVAILABLE = importlib.util.find_spec("numba") is not None   # numba itself imported on first use
 
 
 def _deep_pressure(xi, z, ar, ai, k0, dk, d2, out):
@@ -70,9 +68,13 @@ def _chebyshev_sum(u, c, out):
         out[p] += u[p] * b1[p] - b2[p] + c0
 
 
-if AVAILABLE:
-    _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
-    _deep_pressure, _chebyshev_sum = _jit(_deep_pressure), _jit(_chebyshev_sum)
+@functools.cache
+def _compiled():
+    """Both kernels compiled (or loaded from numba's cache) on first use: numba is imported only by
+    a scene that needs it (its import costs about half a second)."""
+    import numba
+    jit = numba.njit(cache=True, nogil=True, error_model="numpy")
+    return jit(_deep_pressure), jit(_chebyshev_sum)
 
 
 def deep_pressure(xi: np.ndarray, z: np.ndarray, a: np.ndarray, k0: float, dk: float, d2: float,
@@ -80,14 +82,14 @@ def deep_pressure(xi: np.ndarray, z: np.ndarray, a: np.ndarray, k0: float, dk: f
     """Adds sum_c Re(a_c e^{k_c (z + i xi)}) to ``out`` (P,), k_c = k0 + c dk + c (c - 1) d2 / 2,
     at points with horizontal coordinates ``xi`` (P,) along the heading and heights ``z`` (P,)
     <= 0, for the complex amplitudes ``a`` (n_c,) (module docstring)."""
-    _deep_pressure(np.ascontiguousarray(xi, float), np.ascontiguousarray(z, float),
+    _compiled()[0](np.ascontiguousarray(xi, float), np.ascontiguousarray(z, float),
                    np.ascontiguousarray(a.real), np.ascontiguousarray(a.imag), float(k0), float(dk), float(d2), out)
 
 
 def chebyshev_sum(u: np.ndarray, c: np.ndarray, out: np.ndarray) -> None:
     """Adds sum_n c_n T_n(u) to ``out`` (P,) at points ``u`` (P,) in [-1, 1] (Clenshaw)."""
     if c.size:
-        _chebyshev_sum(np.ascontiguousarray(u, float), np.ascontiguousarray(c, float), out)
+        _compiled()[1](np.ascontiguousarray(u, float), np.ascontiguousarray(c, float), out)
 
 
 def warm_up() -> None:

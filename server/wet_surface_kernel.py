@@ -14,6 +14,8 @@ the wet vertices; on the free surface equal to the height there, z = eta).
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from hydrolink.server.incident_kernels import AVAILABLE
@@ -21,29 +23,10 @@ from hydrolink.server.incident_kernels import AVAILABLE
 __all__ = ["AVAILABLE", "cut_hull_loads", "warm_up"]
 
 
-def _add_piece(r, ph, pf, out):
-    """A triangle's corners r (3, 3) with pressures ph, pf (3,) added to out (2, 6)."""
-    e1x, e1y, e1z = r[1, 0] - r[0, 0], r[1, 1] - r[0, 1], r[1, 2] - r[0, 2]
-    e2x, e2y, e2z = r[2, 0] - r[0, 0], r[2, 1] - r[0, 1], r[2, 2] - r[0, 2]
-    sx, sy, sz = 0.5 * (e1y * e2z - e1z * e2y), 0.5 * (e1z * e2x - e1x * e2z), 0.5 * (e1x * e2y - e1y * e2x)
-    rx, ry, rz = r[0, 0] + r[1, 0] + r[2, 0], r[0, 1] + r[1, 1] + r[2, 1], r[0, 2] + r[1, 2] + r[2, 2]
-    for i in range(3):
-        qx, qy, qz = r[i, 0] + rx, r[i, 1] + ry, r[i, 2] + rz
-        mx, my, mz = qy * sz - qz * sy, qz * sx - qx * sz, qx * sy - qy * sx
-        for row in range(2):
-            q = ph[i] if row == 0 else pf[i]
-            out[row, 0] -= q * sx / 3.0
-            out[row, 1] -= q * sy / 3.0
-            out[row, 2] -= q * sz / 3.0
-            out[row, 3] -= q * mx / 12.0
-            out[row, 4] -= q * my / 12.0
-            out[row, 5] -= q * mz / 12.0
-
-
 def _cut_hull_loads(local, tris, d, z, p, loads, out):
-    r = np.empty((3, 3))
-    ph, pf = np.empty(3), np.empty(3)
-    pos = np.empty((4, 3))      # the odd corner a, then b, c; the cut points ab, ac (weights of a)
+    r = np.empty((2, 3, 3))     # up to two pieces of a cut triangle: corners, then their pressures
+    ph, pf = np.empty((2, 3)), np.empty((2, 3))
+    ab, ac = np.empty(3), np.empty(3)      # the cut points on edges a-b and a-c
     for t in range(tris.shape[0]):
         n = 0
         for c in range(3):
@@ -63,7 +46,7 @@ def _cut_hull_loads(local, tris, d, z, p, loads, out):
             if (d[tris[t, c]] <= 0.0) == (n == 1):
                 a = c
         ia, ib, ic = tris[t, a], tris[t, (a + 1) % 3], tris[t, (a + 2) % 3]
-        s_ab = d[ib] / (d[ib] - d[ia])
+        s_ab = d[ib] / (d[ib] - d[ia])     # the weight of a
         s_ac = d[ic] / (d[ic] - d[ia])
         z_ab = s_ab * z[ia] + (1.0 - s_ab) * z[ib]
         z_ac = s_ac * z[ia] + (1.0 - s_ac) * z[ic]
@@ -71,32 +54,47 @@ def _cut_hull_loads(local, tris, d, z, p, loads, out):
         f_ab = z_ab if s_ab < 1.0 else s_ab * p[ia] + (1.0 - s_ab) * p[ib]
         f_ac = z_ac if s_ac < 1.0 else s_ac * p[ia] + (1.0 - s_ac) * p[ic]
         for k in range(3):
-            pos[0, k] = s_ab * local[ia, k] + (1.0 - s_ab) * local[ib, k]
-            pos[1, k] = s_ac * local[ia, k] + (1.0 - s_ac) * local[ic, k]
+            ab[k] = s_ab * local[ia, k] + (1.0 - s_ab) * local[ib, k]
+            ac[k] = s_ac * local[ia, k] + (1.0 - s_ac) * local[ic, k]
         if n == 1:              # (a, ab, ac)
             for k in range(3):
-                r[0, k], r[1, k], r[2, k] = local[ia, k], pos[0, k], pos[1, k]
-            ph[0], ph[1], ph[2] = -z[ia], -z_ab, -z_ac
-            pf[0], pf[1], pf[2] = p[ia], f_ab, f_ac
-            _add_piece(r, ph, pf, out)
-            continue
-        for k in range(3):      # (b, c, ca) and (b, ca, ab)
-            r[0, k], r[1, k], r[2, k] = local[ib, k], local[ic, k], pos[1, k]
-        ph[0], ph[1], ph[2] = -z[ib], -z[ic], -z_ac
-        pf[0], pf[1], pf[2] = p[ib], p[ic], f_ac
-        _add_piece(r, ph, pf, out)
-        for k in range(3):
-            r[0, k], r[1, k], r[2, k] = local[ib, k], pos[1, k], pos[0, k]
-        ph[0], ph[1], ph[2] = -z[ib], -z_ac, -z_ab
-        pf[0], pf[1], pf[2] = p[ib], f_ac, f_ab
-        _add_piece(r, ph, pf, out)
+                r[0, 0, k], r[0, 1, k], r[0, 2, k] = local[ia, k], ab[k], ac[k]
+            ph[0, 0], ph[0, 1], ph[0, 2] = -z[ia], -z_ab, -z_ac
+            pf[0, 0], pf[0, 1], pf[0, 2] = p[ia], f_ab, f_ac
+        else:                   # (b, c, ca) and (b, ca, ab)
+            for k in range(3):
+                r[0, 0, k], r[0, 1, k], r[0, 2, k] = local[ib, k], local[ic, k], ac[k]
+                r[1, 0, k], r[1, 1, k], r[1, 2, k] = local[ib, k], ac[k], ab[k]
+            ph[0, 0], ph[0, 1], ph[0, 2] = -z[ib], -z[ic], -z_ac
+            pf[0, 0], pf[0, 1], pf[0, 2] = p[ib], p[ic], f_ac
+            ph[1, 0], ph[1, 1], ph[1, 2] = -z[ib], -z_ac, -z_ab
+            pf[1, 0], pf[1, 1], pf[1, 2] = p[ib], f_ac, f_ab
+        for q in range(n):      # each piece (one of one wet corner, two of two): F = -S sum p / 3, M = -sum p_i (r_i + R) x S / 12
+            e1x, e1y, e1z = r[q, 1, 0] - r[q, 0, 0], r[q, 1, 1] - r[q, 0, 1], r[q, 1, 2] - r[q, 0, 2]
+            e2x, e2y, e2z = r[q, 2, 0] - r[q, 0, 0], r[q, 2, 1] - r[q, 0, 1], r[q, 2, 2] - r[q, 0, 2]
+            sx, sy, sz = 0.5 * (e1y * e2z - e1z * e2y), 0.5 * (e1z * e2x - e1x * e2z), 0.5 * (e1x * e2y - e1y * e2x)
+            rx = r[q, 0, 0] + r[q, 1, 0] + r[q, 2, 0]
+            ry = r[q, 0, 1] + r[q, 1, 1] + r[q, 2, 1]
+            rz = r[q, 0, 2] + r[q, 1, 2] + r[q, 2, 2]
+            for i in range(3):
+                qx, qy, qz = r[q, i, 0] + rx, r[q, i, 1] + ry, r[q, i, 2] + rz
+                mx, my, mz = qy * sz - qz * sy, qz * sx - qx * sz, qx * sy - qy * sx
+                for row in range(2):
+                    w = ph[q, i] if row == 0 else pf[q, i]
+                    out[row, 0] -= w * sx / 3.0
+                    out[row, 1] -= w * sy / 3.0
+                    out[row, 2] -= w * sz / 3.0
+                    out[row, 3] -= w * mx / 12.0
+                    out[row, 4] -= w * my / 12.0
+                    out[row, 5] -= w * mz / 12.0
 
 
-if AVAILABLE:
+@functools.cache
+def _compiled():
+    """The kernel compiled (or loaded from numba's cache) on first use: numba is imported only by
+    a scene that needs it (its import costs about half a second)."""
     import numba
-    _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
-    _add_piece = _jit(_add_piece)
-    _cut_hull_loads = _jit(_cut_hull_loads)
+    return numba.njit(cache=True, nogil=True, error_model="numpy")(_cut_hull_loads)
 
 
 def cut_hull_loads(local: np.ndarray, triangles: np.ndarray, d: np.ndarray, z: np.ndarray, p: np.ndarray,
@@ -109,7 +107,7 @@ def cut_hull_loads(local: np.ndarray, triangles: np.ndarray, d: np.ndarray, z: n
     wet vertices, ``loads`` (T, 3, 6) the triangles' corner loads (corner_loads of ``local``)."""
     out = np.zeros((2, 6))
     f, c = np.float64, np.ascontiguousarray     # one compiled signature: contiguous float64 and int64
-    _cut_hull_loads(c(local, f), c(triangles, np.int64), c(d, f), c(z, f), c(p, f), c(loads, f), out)
+    _compiled()(c(local, f), c(triangles, np.int64), c(d, f), c(z, f), c(p, f), c(loads, f), out)
     return out
 
 
