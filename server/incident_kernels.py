@@ -10,7 +10,8 @@ points inside (vectorised by the compiler), with no transcendental function in t
   point. The products' round-off grows with c; over 300 components it stays below 1e-12 of the
   amplitude sum (tests/test_incident_kernels.py).
 - :func:`chebyshev_sum`: sum_n c_n T_n(u_p) by Clenshaw's recurrence (the Jacobi–Anger expansion of
-  server/phase_expansion.py).
+  server/phase_expansion.py); :func:`chebyshev_sum2` the two-dimensional sum of its long-wave
+  pressure series, the depth series' Chebyshev values by their recurrence, then Clenshaw.
 
 ``AVAILABLE`` is False where numba is not installed: the callers then take their numpy paths
 (the same sums as matrix products; slower, same results to round-off).
@@ -25,7 +26,7 @@ import math
 import numpy as np
 
 
-__all__ = ["AVAILABLE", "chebyshev_sum", "deep_pressure", "warm_up"]
+__all__ = ["AVAILABLE", "chebyshev_sum", "chebyshev_sum2", "deep_pressure", "warm_up"]
 
 AVAILABLE = importlib.util.find_spec("numba") is not None   # numba itself imported on first use
 
@@ -68,13 +69,33 @@ def _chebyshev_sum(u, c, out):
         out[p] += u[p] * b1[p] - b2[p] + c0
 
 
+def _chebyshev_sum2(u, v, c, out):
+    p_n, n, m = u.size, c.shape[0], c.shape[1]
+    tv, s = np.empty(m), np.empty(n)
+    for p in range(p_n):
+        tv[0] = 1.0
+        if m > 1:
+            tv[1] = v[p]
+        for j in range(2, m):
+            tv[j] = 2.0 * v[p] * tv[j - 1] - tv[j - 2]
+        for i in range(n):
+            acc = 0.0
+            for j in range(m):
+                acc += c[i, j] * tv[j]
+            s[i] = acc
+        b1, b2 = 0.0, 0.0
+        for i in range(n - 1, 0, -1):
+            b1, b2 = 2.0 * u[p] * b1 - b2 + s[i], b1
+        out[p] += u[p] * b1 - b2 + s[0]
+
+
 @functools.cache
 def _compiled():
     """Both kernels compiled (or loaded from numba's cache) on first use: numba is imported only by
     a scene that needs it (its import costs about half a second)."""
     import numba
     jit = numba.njit(cache=True, nogil=True, error_model="numpy")
-    return jit(_deep_pressure), jit(_chebyshev_sum)
+    return jit(_deep_pressure), jit(_chebyshev_sum), jit(_chebyshev_sum2)
 
 
 def deep_pressure(xi: np.ndarray, z: np.ndarray, a: np.ndarray, k0: float, dk: float, d2: float,
@@ -92,8 +113,16 @@ def chebyshev_sum(u: np.ndarray, c: np.ndarray, out: np.ndarray) -> None:
         _compiled()[1](np.ascontiguousarray(u, float), np.ascontiguousarray(c, float), out)
 
 
+def chebyshev_sum2(u: np.ndarray, v: np.ndarray, c: np.ndarray, out: np.ndarray) -> None:
+    """Adds sum_{n, m} c_nm T_n(u) T_m(v) to ``out`` (P,) at points ``u``, ``v`` (P,) in [-1, 1]."""
+    if c.size:
+        _compiled()[2](np.ascontiguousarray(u, float), np.ascontiguousarray(v, float),
+                       np.ascontiguousarray(c, float), out)
+
+
 def warm_up() -> None:
     """Compile (or load from numba's cache) both kernels now, at set-up, not in a run's first step."""
     out = np.zeros(1)
     deep_pressure(np.zeros(1), np.zeros(1), np.ones(1, complex), 0.0, 0.0, 0.0, out)
     chebyshev_sum(np.zeros(1), np.ones(2), out)
+    chebyshev_sum2(np.zeros(1), np.zeros(1), np.ones((2, 2)), out)

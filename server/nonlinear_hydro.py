@@ -112,7 +112,8 @@ def _split_components(omega: np.ndarray, k: np.ndarray, heading: np.ndarray, g: 
                 rest.append(run_cols)
     rest = np.sort(np.concatenate(rest))
     if len(rest):
-        long = DepthExpansion(k[rest], heading[rest], 0.5 * reach, floor, lambda kc, z: _depth_factor(kc, z, depth))
+        long = DepthExpansion(k[rest], heading[rest], 0.5 * reach, floor, lambda kc, z: _depth_factor(kc, z, depth),
+                              compiled=True)
         if long.converged and long.terms <= 10 * len(rest):
             return _PressureSplit(tuple(recurrences), long, rest, rest[:0], floor)
     return _PressureSplit(tuple(recurrences), None, rest[:0], rest, floor)

@@ -17,7 +17,7 @@ from hydrolink.server.hdb.io import load_hdb
 from hydrolink.server.incident_kernels import AVAILABLE
 from hydrolink.server.kinematics import wave_number
 from hydrolink.server.model import HydroModel
-from hydrolink.server.phase_expansion import PhaseExpansion
+from hydrolink.server.phase_expansion import DepthExpansion, PhaseExpansion
 from hydrolink.server.waves import ramp_factor
 from hydrolink.server.wetted_surface import (
     clip_wet,
@@ -47,6 +47,25 @@ def test_expansion_elevation_is_the_direct_sum(radius, k_max, headings, compiled
     pts = reference + offsets
     direct = np.cos(np.outer(pts[:, 0], k * np.cos(heading)) + np.outer(pts[:, 1], k * np.sin(heading)) + psi) @ amp
     np.testing.assert_allclose(got, direct, rtol=0, atol=1e-12 * amp.sum())
+
+
+@pytest.mark.parametrize("compiled", [True, False] if AVAILABLE else [False])
+@pytest.mark.parametrize("depth", [200.0, 30.0])
+def test_depth_expansion_is_the_direct_sum(depth, compiled):
+    """The long waves' pressure series against one cosine and cosh depth factor per point and
+    component (two headings, points over a 5 m radius and 10 m deep)."""
+    rng = np.random.default_rng(8)
+    omega = np.linspace(0.05, 1.0, 24)
+    k = np.array([wave_number(float(w), G, depth) for w in omega])
+    heading = np.where(np.arange(24) % 2 == 0, 0.2, -1.1)
+    amp, psi = rng.uniform(0.0, 1.0, 24), rng.uniform(-20.0, 20.0, 24)
+    offsets, z = rng.uniform(-3.5, 3.5, (300, 2)), -rng.uniform(0.0, 10.0, 300)
+    reference = np.array([40.0, -7.0])
+    factor = lambda kc, zz: np.cosh(np.outer(zz + depth, kc)) / np.cosh(kc * depth)   # noqa: E731
+    got = DepthExpansion(k, heading, 5.0, -10.0, factor, compiled=compiled).pressure(offsets, z, reference, psi, amp)
+    pts = reference + offsets
+    theta = np.outer(pts[:, 0], k * np.cos(heading)) + np.outer(pts[:, 1], k * np.sin(heading)) + psi
+    np.testing.assert_allclose(got, (factor(k, z) * np.cos(theta)) @ amp, rtol=0, atol=1e-12 * amp.sum())
 
 
 def _direct_fk(hull, pose: np.ndarray, t: float, amp: np.ndarray, k: np.ndarray, beta: np.ndarray,
