@@ -19,8 +19,8 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")   # before numpy, as the hydrolink command (README "Performance")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-import numpy as np  # noqa: E402
-from bench_forces import DATA, per_step, scene_text  # noqa: E402
+import numpy as np
+from bench_forces import DATA, per_step, scene_text
 
 IRREGULAR = 'type = "irregular"\nspectrum = "jonswap"\nhs = 2.0\ntp = 8.0'
 MORISON = ('[[morison]]\nbody = "sphere"\npoint_a = [0.0, 0.0, -25.0]\npoint_b = [0.0, 0.0, -5.0]\n'

@@ -25,7 +25,6 @@ import math
 
 import numpy as np
 
-
 __all__ = ["AVAILABLE", "chebyshev_sum", "chebyshev_sum2", "deep_pressure", "warm_up"]
 
 AVAILABLE = importlib.util.find_spec("numba") is not None   # numba itself imported on first use

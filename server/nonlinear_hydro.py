@@ -32,17 +32,23 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
-
 from hydrolink.protocol.scene import Scene
+from hydrolink.server import incident_kernels, wet_surface_kernel
 from hydrolink.server.errors import ModelError
 from hydrolink.server.force_term import ForceTerm, TermContext
-from hydrolink.server import incident_kernels, wet_surface_kernel
 from hydrolink.server.incident_kernels import AVAILABLE, deep_pressure
-from hydrolink.server.wet_surface_kernel import cut_hull_loads
 from hydrolink.server.kinematics import wave_number
 from hydrolink.server.phase_expansion import DepthExpansion, PhaseExpansion
 from hydrolink.server.waves import WaveComponents, ramp_at
-from hydrolink.server.wetted_surface import Hull, clip_wet, corner_loads, interpolate, pressure_load, rotation_xyz
+from hydrolink.server.wet_surface_kernel import cut_hull_loads
+from hydrolink.server.wetted_surface import (
+    Hull,
+    clip_wet,
+    corner_loads,
+    interpolate,
+    pressure_load,
+    rotation_xyz,
+)
 
 __all__ = ["NonlinearBody", "NonlinearHydro", "NonlinearTerm", "build_nonlinear", "strongest_components"]
 
@@ -78,7 +84,8 @@ class _Recurrence:
 class _PressureSplit:
     """How the Froude–Krylov pressure's sum over the components is taken: the short waves (deep
     water for them, k h >= 20, and their depth factor e^{kz} to round-off at every height above
-    ``floor``) by recurrences, the long ones (``direct``) one cosine and depth factor each."""
+    ``floor``) by recurrences; the others as one series (``long``, :class:`DepthExpansion`) where
+    it has fewer than ten terms per component, else (``direct``) one cosine and depth factor each."""
     recurrences: tuple[_Recurrence, ...]
     long: DepthExpansion | None   # the long waves' sum as a series (where that is cheaper than direct)
     long_columns: np.ndarray      # its component indices
@@ -383,7 +390,7 @@ class NonlinearTerm(ForceTerm):
         self.model, self.warnings = model, tuple(model.warnings)
 
     @classmethod
-    def build(cls, ctx: TermContext) -> "NonlinearTerm | None":
+    def build(cls, ctx: TermContext) -> NonlinearTerm | None:
         scene = ctx.scene
         for i in ctx.wet:
             body = scene.bodies[i]

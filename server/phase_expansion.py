@@ -30,9 +30,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import jv
-
 from hydrolink.server.incident_kernels import AVAILABLE, chebyshev_sum, chebyshev_sum2
+from scipy.special import jv
 
 __all__ = ["DepthExpansion", "PhaseExpansion"]
 

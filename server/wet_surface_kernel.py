@@ -17,7 +17,6 @@ from __future__ import annotations
 import functools
 
 import numpy as np
-
 from hydrolink.server.incident_kernels import AVAILABLE
 
 __all__ = ["AVAILABLE", "cut_hull_loads", "warm_up"]

@@ -61,7 +61,7 @@ def test_depth_expansion_is_the_direct_sum(depth, compiled):
     amp, psi = rng.uniform(0.0, 1.0, 24), rng.uniform(-20.0, 20.0, 24)
     offsets, z = rng.uniform(-3.5, 3.5, (300, 2)), -rng.uniform(0.0, 10.0, 300)
     reference = np.array([40.0, -7.0])
-    factor = lambda kc, zz: np.cosh(np.outer(zz + depth, kc)) / np.cosh(kc * depth)   # noqa: E731
+    factor = lambda kc, zz: np.cosh(np.outer(zz + depth, kc)) / np.cosh(kc * depth)
     got = DepthExpansion(k, heading, 5.0, -10.0, factor, compiled=compiled).pressure(offsets, z, reference, psi, amp)
     pts = reference + offsets
     theta = np.outer(pts[:, 0], k * np.cos(heading)) + np.outer(pts[:, 1], k * np.sin(heading)) + psi

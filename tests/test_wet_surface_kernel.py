@@ -7,7 +7,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from hydrolink.server import wet_surface_kernel
-from hydrolink.server.wetted_surface import clip_wet, closed_hull, corner_loads, interpolate, pressure_load, rotation_xyz
+from hydrolink.server.wetted_surface import (
+    clip_wet,
+    closed_hull,
+    corner_loads,
+    interpolate,
+    pressure_load,
+    rotation_xyz,
+)
 
 cpt = pytest.importorskip("capytaine")
 pytestmark = pytest.mark.skipif(not wet_surface_kernel.AVAILABLE, reason="numba not installed")
