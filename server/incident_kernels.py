@@ -70,22 +70,31 @@ def _chebyshev_sum(u, c, out):
 
 def _chebyshev_sum2(u, v, c, out):
     p_n, n, m = u.size, c.shape[0], c.shape[1]
-    tv, s = np.empty(m), np.empty(n)
+    tv = np.empty((m, p_n))                 # T_m(v) by their recurrence
     for p in range(p_n):
-        tv[0] = 1.0
-        if m > 1:
-            tv[1] = v[p]
-        for j in range(2, m):
-            tv[j] = 2.0 * v[p] * tv[j - 1] - tv[j - 2]
-        for i in range(n):
-            acc = 0.0
-            for j in range(m):
-                acc += c[i, j] * tv[j]
-            s[i] = acc
-        b1, b2 = 0.0, 0.0
-        for i in range(n - 1, 0, -1):
-            b1, b2 = 2.0 * u[p] * b1 - b2 + s[i], b1
-        out[p] += u[p] * b1 - b2 + s[0]
+        tv[0, p] = 1.0
+    if m > 1:
+        for p in range(p_n):
+            tv[1, p] = v[p]
+    for j in range(2, m):
+        for p in range(p_n):
+            tv[j, p] = 2.0 * v[p] * tv[j - 1, p] - tv[j - 2, p]
+    s, b1, b2 = np.empty(p_n), np.zeros(p_n), np.zeros(p_n)
+    for i in range(n - 1, -1, -1):          # Clenshaw in u over s_i = sum_m c_im T_m(v)
+        for p in range(p_n):
+            s[p] = 0.0
+        for j in range(m):
+            cij = c[i, j]
+            for p in range(p_n):
+                s[p] += cij * tv[j, p]
+        if i > 0:
+            for p in range(p_n):
+                t = 2.0 * u[p] * b1[p] - b2[p] + s[p]
+                b2[p] = b1[p]
+                b1[p] = t
+        else:
+            for p in range(p_n):
+                out[p] += u[p] * b1[p] - b2[p] + s[p]
 
 
 @functools.cache
