@@ -20,9 +20,10 @@ matrix per heading; the elevation sum_c a_c cos(.) is then one matrix-vector pro
 series' coefficients and the series summed at the points (Clenshaw's recurrence, compiled, or a
 product with the points' Chebyshev values).
 
-Its cost grows with k_max rho (N ~ k_max rho + 10): it pays for the elevation, which needs one
-sum over the components per point, not for a sum weighted per point and component (the
-pressure's depth factor), where the direct cosines are cheaper when N is large.
+Its cost grows with k_max rho (N ~ k_max rho + 10): it pays for the elevation, one sum over the
+components per point. The pressure weighs each component by its depth factor at each point:
+:class:`DepthExpansion` adds a Chebyshev series in depth, which pays for the long waves (few
+terms); the short ones go to the recurrence of server/incident_kernels.py.
 """
 
 from __future__ import annotations
@@ -59,6 +60,18 @@ def _orders(coefficient, x_max: float) -> int:
     return int(big[-1]) + 1 if len(big) else 1
 
 
+def _jacobi_anger(k: np.ndarray, radius: float) -> np.ndarray:
+    """(N, n_c) complex: i^n eps_n J_n(k rho), N past the last order above the tail (module
+    docstring). The terms below the tail are dropped here too: the long waves' high orders are
+    subnormal numbers (J_n(x) ~ (x/2)^n / n!), which cost a hundred times a normal number's
+    arithmetic in every product."""
+    n = _orders(jv, float(k.max()) * radius)
+    eps = np.where(np.arange(n) == 0, 1.0, 2.0)
+    out = (1j ** np.arange(n) * eps)[:, None] * jv(np.arange(n)[:, None], k[None, :] * radius)
+    out[np.abs(out) < _TAIL] = 0.0
+    return out
+
+
 @dataclass(frozen=True)
 class _Heading:
     """The components of one heading and their expansion coefficients."""
@@ -83,14 +96,7 @@ class PhaseExpansion:
         for b in np.unique(heading):
             cols = np.flatnonzero(heading == b)
             kg = self.k[cols]
-            n = _orders(jv, float(kg.max()) * self.radius)
-            n_eps = np.where(np.arange(n) == 0, 1.0, 2.0)
-            coef = (1j ** np.arange(n) * n_eps)[:, None] * jv(np.arange(n)[:, None], kg[None, :] * self.radius)
-            # the terms below the truncation's tail dropped here too: the long waves' high orders
-            # are subnormal numbers (J_n(x) ~ (x/2)^n / n!), which cost a hundred times a normal
-            # number's arithmetic in every product
-            coef[np.abs(coef) < _TAIL] = 0.0
-            groups.append(_Heading(cols, np.array([np.cos(b), np.sin(b)]), kg, coef))
+            groups.append(_Heading(cols, np.array([np.cos(b), np.sin(b)]), kg, _jacobi_anger(kg, self.radius)))
         self.groups = tuple(groups)
 
     def elevation(self, offsets: np.ndarray, reference: np.ndarray, psi: np.ndarray,
@@ -149,10 +155,7 @@ class DepthExpansion:
         for b in np.unique(heading):
             cols = np.flatnonzero(heading == b)
             kg = np.asarray(k, float)[cols]
-            n = _orders(jv, float(kg.max()) * self.radius)
-            eps = np.where(np.arange(n) == 0, 1.0, 2.0)
-            horizontal = (1j ** np.arange(n) * eps)[:, None] * jv(np.arange(n)[:, None], kg[None, :] * self.radius)
-            horizontal[np.abs(horizontal) < _TAIL] = 0.0
+            horizontal = _jacobi_anger(kg, self.radius)
             f = depth_factor(kg, 0.5 * (1.0 - nodes) * self.floor)     # (nodes, n_g)
             vertical = chebyshev.chebfit(nodes, f, _DEPTH_NODES - 1).T     # (n_g, nodes)
             big = np.flatnonzero(np.abs(vertical).max(axis=0) > _DEPTH_TAIL)
