@@ -19,8 +19,8 @@ from hydrolink.protocol.errors import KeyedError
 from hydrolink.protocol.scene_bounds import (MAX_STEPS, AddedMassRatio, AngleDeg, Area, CableElements, Coefficient,
                                              ComponentCount, Coordinate, Density, Depth, Diameter, DirectionCount,
                                              Displacement, Duration, ExchangeSteps, ExcitationIRFDuration,
-                                             ExplicitSpectralRadius, FileTime, FlowCoefficient, Fraction, Frequency,
-                                             FrequencyStep, Gravity, HarmonicCount, IRFDuration, Interval,
+                                             EnergyFraction, ExplicitSpectralRadius, FileTime, FlowCoefficient, Fraction,
+                                             Frequency, FrequencyStep, Gravity, HarmonicCount, IRFDuration, Interval,
                                              IterationCount, LatencySteps, Length, LineDensity, Mass,
                                              NonNegativeCoefficient, NonNegativeDiameter, NonNegativeLength,
                                              ParameterFloat, ParameterInt, PeakEnhancement, PositiveCoefficient,
@@ -186,6 +186,10 @@ class Hydro(_Section):
     # hydrostatics (and the incident wave's Froude-Krylov force) on the instantaneous wetted surface
     # of every wet body's hull (server/nonlinear_hydro.py); a body's own ``nonlinear`` overrides it
     nonlinear: Nonlinear = "none"
+    # the Froude-Krylov pressure and free surface on the hulls from the most energetic wave
+    # components holding this fraction of the variance (1: all; the rest acts through the linear
+    # excitation only; a setup warning names this key and what was left out)
+    froude_krylov_energy: EnergyFraction = 1.0
     # second-order wave forces of every wet body (a body's own ``second_order`` overrides it);
     # ``drift_method``: which mean drift coefficients "mean-drift" and "newman" read (default: the
     # one method the HDB holds); ``sum_frequency``: add the sum-frequency QTF too

@@ -19,7 +19,7 @@ import math
 import numpy as np
 
 from hydrolink.protocol.current import Current
-from hydrolink.server.waves import WaveComponents, ramp_factor
+from hydrolink.server.waves import WaveComponents, ramp_at
 
 
 def wave_number(omega: float, gravity: float, depth: float) -> float:
@@ -44,10 +44,15 @@ class Kinematics:
     velocity only), at fixed points (P, 3)."""
 
     def __init__(self, comps: WaveComponents, points: np.ndarray, gravity: float, depth: float,
-                 current: Current | None = None):
+                 current: Current | None = None, normal_to: np.ndarray | None = None):
+        """``normal_to`` (P, 3) unit vectors: give only the components normal to them (a Morison
+        member's axis at each point), projected once here rather than every step."""
         pts = np.asarray(points, float).reshape(-1, 3)
         self.n_points = len(pts)
+        axis = None if normal_to is None else np.asarray(normal_to, float).reshape(-1, 3)
         self.steady = np.zeros((self.n_points, 3)) if current is None else current.velocity(pts[:, 2])
+        if axis is not None:
+            self.steady = self.steady - axis * (self.steady * axis).sum(axis=1)[:, None]
         self.ramp = comps.ramp
         self.omega = comps.omega.copy()
         self.still = comps.size == 0
@@ -66,21 +71,36 @@ class Kinematics:
         c = comps.amplitude * np.exp(1j * comps.phase) * self.omega    # w a e^{i phi}
         base = c[None, :] * np.exp(1j * theta)                          # (P, n_c)
         # velocity phasors, one row per point and axis (3P, n_c): horizontal along each heading, vertical
-        self._rows = np.stack([base * ch * np.cos(beta)[None, :], base * ch * np.sin(beta)[None, :],
-                               -1j * base * sh], axis=1).reshape(-1, self.omega.size)
+        rows = np.stack([base * ch * np.cos(beta)[None, :], base * ch * np.sin(beta)[None, :],
+                         -1j * base * sh], axis=1)                     # (P, 3, n_c)
+        if axis is not None:
+            rows = rows - axis[:, :, None] * np.einsum("pi,pic->pc", axis, rows)[:, None, :]
+        rows = rows.reshape(-1, self.omega.size)
+        # Re(R e^{-iwt}) = Re(R) cos(wt) + Im(R) sin(wt): velocity rows then acceleration rows (R times
+        # -iw), one real (6P, 2 n_c) matrix over [cos wt; sin wt] (no complex exponential per step)
+        acc = -1j * rows * self.omega[None, :]
+        self._m = np.ascontiguousarray(np.vstack([np.hstack([rows.real, rows.imag]),
+                                                  np.hstack([acc.real, acc.imag])]))
+        self._trig = np.empty(2 * self.omega.size)
+
+    def _product(self, t: float, n_rows: int) -> np.ndarray:
+        """The first ``n_rows`` rows of the real matrix times [cos wt; sin wt], ramp included."""
+        n = self.omega.size
+        np.multiply(self.omega, t, out=self._trig[:n])
+        np.sin(self._trig[:n], out=self._trig[n:])
+        np.cos(self._trig[:n], out=self._trig[:n])
+        return (self._m[:n_rows] @ self._trig) * ramp_at(t, self.ramp)
 
     def velocity(self, t: float) -> np.ndarray:
         """(P, 3) fluid velocity at time t [m/s]: the wave's (ramp included) plus the current."""
         if self.still:
             return self.steady.copy()
-        e = np.exp(-1j * self.omega * t)
-        return ramp_factor(t, self.ramp) * np.real(self._rows @ e).reshape(-1, 3) + self.steady
+        return self._product(t, 3 * self.n_points).reshape(-1, 3) + self.steady
 
     def velocity_acceleration(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """(P, 3) fluid velocity (as :meth:`velocity`) and acceleration [m/s^2] at time t, both
         from one product (the acceleration without the ramp's own rate)."""
         if self.still:
             return self.steady.copy(), np.zeros((self.n_points, 3))
-        e = np.exp(-1j * self.omega * t)
-        both = np.real(self._rows @ np.column_stack([e, -1j * self.omega * e])) * ramp_factor(t, self.ramp)
-        return both[:, 0].reshape(-1, 3) + self.steady, both[:, 1].reshape(-1, 3)
+        both = self._product(t, 6 * self.n_points).reshape(2, -1, 3)
+        return both[0] + self.steady, both[1]

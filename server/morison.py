@@ -24,36 +24,56 @@ from hydrolink.server.kinematics import Kinematics
 from hydrolink.server.waves import WaveComponents
 
 
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise a x b of (S, 3) arrays (np.cross without its axis handling: the hot path)."""
-    return np.column_stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
-                            a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]])
+def _skew(r: np.ndarray) -> np.ndarray:
+    """(S, 3, 3): the matrices [r]x with [r]x f = r x f, for rows r (S, 3)."""
+    out = np.zeros(r.shape[:1] + (3, 3))
+    out[:, 0, 1], out[:, 0, 2], out[:, 1, 2] = -r[:, 2], r[:, 1], -r[:, 0]
+    return out - out.transpose(0, 2, 1)
 
 
 @dataclass(frozen=True)
 class MorisonSet:
-    body: np.ndarray        # (S,) server body index of each segment
+    """The segments and the fixed linear maps of a step (built once by :func:`build_morison`)."""
     lever: np.ndarray       # (S, 3) segment centre minus the body's reference point, at equilibrium
     z0: np.ndarray          # (S,) segment centre height at equilibrium
-    axis: np.ndarray        # (S, 3) unit vector along the member (the normal part of w: w - (w.a) a)
-    gather: np.ndarray      # (N, S) 1 where segment s belongs to body n (sums segments per body)
     inertia: np.ndarray     # (S,) rho (1 + ca) V
     drag: np.ndarray        # (S,) 1/2 rho cd D L
-    wave: Kinematics        # at the segments' centres
+    heave: np.ndarray       # (S, 6N): the centre's height change for displacements x (heave, roll, pitch)
+    motion: np.ndarray      # (3S, 6N): the centres' velocities v + omega x lever, normal to the member
+    loads: np.ndarray       # (6N, 3S): force and moment about the reference point of the segment forces
+    wave: Kinematics        # at the segments' centres, normal to the member
     n_bodies: int
+
+    @classmethod
+    def of(cls, body: np.ndarray, lever: np.ndarray, z0: np.ndarray, axis: np.ndarray, inertia: np.ndarray,
+           drag: np.ndarray, wave: Kinematics, n_bodies: int) -> "MorisonSet":
+        """The set of segments on server bodies ``body`` (S,) along unit ``axis`` (S, 3), its linear
+        maps assembled (``wave`` already normal to the axes: Kinematics ``normal_to``)."""
+        n_seg = len(body)
+        heave = np.zeros((n_seg, 6 * n_bodies))
+        cols = 6 * body
+        rows = np.arange(n_seg)
+        heave[rows, cols + 2], heave[rows, cols + 3], heave[rows, cols + 4] = 1.0, lever[:, 1], -lever[:, 0]
+        skew = _skew(lever)
+        motion = np.zeros((n_seg, 3, n_bodies, 6))
+        motion[rows, :, body, :3] = np.eye(3)
+        motion[rows, :, body, 3:] = -skew                                   # omega x r = -[r]x omega
+        normal = np.eye(3)[None] - axis[:, :, None] * axis[:, None, :]        # (S, 3, 3): w - (w.a) a
+        motion = np.einsum("sij,sjnk->sink", normal, motion)
+        loads = np.zeros((n_bodies, 6, n_seg, 3))
+        loads[body, :3, rows, :] = np.eye(3)
+        loads[body, 3:, rows, :] = skew                                     # r x f
+        return cls(lever, z0, inertia, drag, heave, motion.reshape(3 * n_seg, -1),
+                   loads.reshape(6 * n_bodies, -1), wave, n_bodies)
 
     def force(self, t: float, x: np.ndarray, v: np.ndarray) -> np.ndarray:
         """(N, 6) force and moment on each body for displacements ``x`` and velocities ``v``
         (N, 6) from equilibrium."""
-        xb, vb = x[self.body], v[self.body]                          # (S, 6)
-        z = self.z0 + xb[:, 2] + xb[:, 3] * self.lever[:, 1] - xb[:, 4] * self.lever[:, 0]
-        wet = z <= 0.0
-        u, acc = self.wave.velocity_acceleration(t)
-        w = u - vb[:, :3] - _cross(vb[:, 3:], self.lever)
-        wn = w - (w * self.axis).sum(axis=1)[:, None] * self.axis
-        an = acc - (acc * self.axis).sum(axis=1)[:, None] * self.axis
+        wet = (self.z0 + self.heave @ x.reshape(-1)) <= 0.0
+        un, an = self.wave.velocity_acceleration(t)
+        wn = un - (self.motion @ v.reshape(-1)).reshape(-1, 3)
         f = (self.inertia[:, None] * an + (self.drag * np.sqrt((wn * wn).sum(axis=1)))[:, None] * wn) * wet[:, None]
-        return np.hstack([self.gather @ f, self.gather @ _cross(self.lever, f)])
+        return (self.loads @ f.reshape(-1)).reshape(self.n_bodies, 6)
 
 
 def build_morison(scene: Scene, wet: list[int], waves: WaveComponents,
@@ -80,15 +100,15 @@ def build_morison(scene: Scene, wet: list[int], waves: WaveComponents,
             ca_vol.append(rho * m.ca * vol)
     body, centre = np.asarray(body), np.asarray(centre)
     lever = centre - reference_points[body]
-    gather = (np.arange(len(wet))[:, None] == body[None, :]).astype(float)
-    flow = Kinematics(waves, centre, scene.water.gravity, scene.water.depth_m, scene.current)
-    ms = MorisonSet(body, lever, centre[:, 2].copy(), np.asarray(axes), gather, np.asarray(inertia),
-                    np.asarray(drag), flow, len(wet))
+    flow = Kinematics(waves, centre, scene.water.gravity, scene.water.depth_m, scene.current, normal_to=np.asarray(axes))
+    ms = MorisonSet.of(body, lever, centre[:, 2].copy(), np.asarray(axes), np.asarray(inertia), np.asarray(drag),
+                       flow, len(wet))
     n6 = 6 * len(wet)
     added = np.zeros((n6, n6))
+    skew = _skew(lever)
     for s in np.flatnonzero(centre[:, 2] <= 0.0):
         p = ca_vol[s] * (np.eye(3) - np.outer(axes[s], axes[s]))      # normal to the member
-        rx = np.array([[0, -lever[s, 2], lever[s, 1]], [lever[s, 2], 0, -lever[s, 0]], [-lever[s, 1], lever[s, 0], 0]])
+        rx = skew[s]
         m6 = np.block([[p, -p @ rx], [rx @ p, -rx @ p @ rx]])
         k = 6 * body[s]
         added[k:k + 6, k:k + 6] += m6

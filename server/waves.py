@@ -75,6 +75,11 @@ def ramp_factor(t, t_ramp: float):
     return r[()]
 
 
+def ramp_at(t: float, t_ramp: float) -> float:
+    """:func:`ramp_factor` at one time, as a float (the per-step hot paths: no array calls)."""
+    return 0.5 * (1.0 - math.cos(math.pi * max(t, 0.0) / t_ramp)) if (t_ramp > 0 and t < t_ramp) else 1.0
+
+
 def _jonswap_shape(omega, tp: float, gamma: float):
     omega = np.asarray(omega, float)
     wp = 2 * np.pi / tp
@@ -297,9 +302,7 @@ class WaveForcing:
             np.cos(wt, out=self._trig[:nc])
             np.sin(wt, out=self._trig[nc:])
             out = self._m @ self._trig
-        r = self.comps.ramp
-        if r > 0 and t < r:
-            out *= 0.5 * (1.0 - math.cos(math.pi * max(t, 0.0) / r))
+        out *= ramp_at(t, self.comps.ramp)
         return out[:-1], float(out[-1])
 
 
@@ -407,8 +410,7 @@ class ConvolutionForcing:
         if self._f is None or not (self._k0 <= k < self._k0 + self.block):
             self._compute(k)
         i = k - self._k0
-        r = self.ramp
-        fac = 0.5 * (1.0 - math.cos(math.pi * max(t, 0.0) / r)) if (r > 0 and t < r) else 1.0
+        fac = ramp_at(t, self.ramp)
         return self._f[i] * fac, float(self._e[i] * fac)
 
 
