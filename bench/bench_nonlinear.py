@@ -10,15 +10,15 @@ motion, per DOF relative to the full one's largest value. ``--only morison``: th
 alone. BLAS runs one thread, as under the ``hydrolink`` command (README "BLAS threads"), unless
 OPENBLAS_NUM_THREADS is set.
 
-    python bench/bench_nonlinear.py [--steps 300] [--only morison] [--repeat 1]
+    python bench/bench_nonlinear.py [--steps 300] [--repeat 3] [--only morison]
 """
 
 from __future__ import annotations
 
 import os
 
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")   # before numpy, as the hydrolink command (README "Performance")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse
 
@@ -34,9 +34,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--steps", type=int, default=300)
     ap.add_argument("--only", choices=["morison"], help="the Morison row alone (no hull is built)")
-    ap.add_argument("--repeat", type=int, default=1,
-                    help="first table: each case this many times, linear and with the term alternately, "
-                         "the fastest of each kept (a loaded machine's noise is all upward)")
+    ap.add_argument("--repeat", type=int, default=3, help="runs of each (linear, term) pair, alternating; the "
+                    "fastest of each counted (other jobs on the machine only ever add time)")
     args = ap.parse_args()
     import capytaine as cpt
     from hydrolink.protocol.scene import parse_scene
@@ -56,13 +55,12 @@ def main() -> None:
               for hull, goal in zip(hulls.values(), (5.0, 20.0))]
     rows = []
     for label, goal, scene, hull, moving in cases:
-        linear, cost = float("inf"), float("inf")
+        linear, cost = np.inf, np.inf
         for _ in range(args.repeat):
-            linear = min(linear, per_step(HydroModel(parse_scene(scene_text(IRREGULAR, "")), {"sphere": hdb}),
-                                          args.steps))
+            linear = min(linear, per_step(HydroModel(parse_scene(scene_text(IRREGULAR, "")), {"sphere": hdb}), args.steps))
             cost = min(cost, per_step(HydroModel(scene, {"sphere": hdb}, hulls=hull), args.steps, moving=moving))
         rows.append((label, linear, cost, goal))
-    print(f"# bench_nonlinear: µs per HydroModel.step, {args.steps} steps (best of {args.repeat}), "
+    print(f"# bench_nonlinear: µs per HydroModel.step, {args.steps} steps, fastest of {args.repeat}, "
           f"load {os.getloadavg()[0]:.2f}, OPENBLAS_NUM_THREADS={os.environ['OPENBLAS_NUM_THREADS']}\n")
     print("| case | linear step | with the term | ratio | goal |\n|---|---|---|---|---|")
     for label, linear, cost, goal in rows:

@@ -12,10 +12,12 @@ import numpy as np
 import pytest
 from conftest import SPHERE_WATER, irregular_waves, scene_toml, sphere_body
 from hydrolink.protocol.scene import parse_scene
+from hydrolink.server import nonlinear_hydro
 from hydrolink.server.hdb.io import load_hdb
+from hydrolink.server.incident_kernels import AVAILABLE
 from hydrolink.server.kinematics import wave_number
 from hydrolink.server.model import HydroModel
-from hydrolink.server.phase_expansion import PhaseExpansion
+from hydrolink.server.phase_expansion import DepthExpansion, PhaseExpansion
 from hydrolink.server.waves import ramp_factor
 from hydrolink.server.wetted_surface import (
     clip_wet,
@@ -29,8 +31,9 @@ cpt = pytest.importorskip("capytaine")
 RHO, G = 1000.0, 9.81
 
 
+@pytest.mark.parametrize("compiled", [True, False] if AVAILABLE else [False])
 @pytest.mark.parametrize("radius, k_max, headings", [(7.0, 14.7, [0.3]), (3.0, 2.0, [-0.8, 0.1, 1.2])])
-def test_expansion_elevation_is_the_direct_sum(radius, k_max, headings):
+def test_expansion_elevation_is_the_direct_sum(radius, k_max, headings, compiled):
     rng = np.random.default_rng(3)
     n = 120
     k = rng.uniform(0.004, k_max, n)
@@ -40,11 +43,29 @@ def test_expansion_elevation_is_the_direct_sum(radius, k_max, headings):
     a = rng.uniform(0.0, 2 * np.pi, 400)
     offsets = np.column_stack([r * np.cos(a), r * np.sin(a)])
     reference = np.array([123.4, -56.7])
-    exp = PhaseExpansion(k, heading, radius)
-    got = exp.elevation(exp.phases(offsets, reference, psi), amp)
+    got = PhaseExpansion(k, heading, radius, compiled=compiled).elevation(offsets, reference, psi, amp)
     pts = reference + offsets
     direct = np.cos(np.outer(pts[:, 0], k * np.cos(heading)) + np.outer(pts[:, 1], k * np.sin(heading)) + psi) @ amp
     np.testing.assert_allclose(got, direct, rtol=0, atol=1e-12 * amp.sum())
+
+
+@pytest.mark.parametrize("compiled", [True, False] if AVAILABLE else [False])
+@pytest.mark.parametrize("depth", [200.0, 30.0])
+def test_depth_expansion_is_the_direct_sum(depth, compiled):
+    """The long waves' pressure series against one cosine and cosh depth factor per point and
+    component (two headings, points over a 5 m radius and 10 m deep)."""
+    rng = np.random.default_rng(8)
+    omega = np.linspace(0.05, 1.0, 24)
+    k = np.array([wave_number(float(w), G, depth) for w in omega])
+    heading = np.where(np.arange(24) % 2 == 0, 0.2, -1.1)
+    amp, psi = rng.uniform(0.0, 1.0, 24), rng.uniform(-20.0, 20.0, 24)
+    offsets, z = rng.uniform(-3.5, 3.5, (300, 2)), -rng.uniform(0.0, 10.0, 300)
+    reference = np.array([40.0, -7.0])
+    factor = lambda kc, zz: np.cosh(np.outer(zz + depth, kc)) / np.cosh(kc * depth)
+    got = DepthExpansion(k, heading, 5.0, -10.0, factor, compiled=compiled).pressure(offsets, z, reference, psi, amp)
+    pts = reference + offsets
+    theta = np.outer(pts[:, 0], k * np.cos(heading)) + np.outer(pts[:, 1], k * np.sin(heading)) + psi
+    np.testing.assert_allclose(got, (factor(k, z) * np.cos(theta)) @ amp, rtol=0, atol=1e-12 * amp.sum())
 
 
 def _direct_fk(hull, pose: np.ndarray, t: float, amp: np.ndarray, k: np.ndarray, beta: np.ndarray,
@@ -66,12 +87,16 @@ def _direct_fk(hull, pose: np.ndarray, t: float, amp: np.ndarray, k: np.ndarray,
     return RHO * G * pressure_load(pts - pose[:3], p_c)
 
 
+@pytest.mark.parametrize("compiled", [True, False] if AVAILABLE else [False])
 @pytest.mark.parametrize("energy", [1.0, 0.99])
-def test_nonlinear_froude_krylov_equals_the_direct_evaluation(sphere_path, energy):
+def test_nonlinear_froude_krylov_equals_the_direct_evaluation(sphere_path, energy, compiled, monkeypatch):
     """300 components over the HDB's whole range (to 12 rad/s), a hull moving in all six DOFs,
     150 steps through the ramp (the HDB has one heading: several are the expansion test's). With
     ``froude_krylov_energy`` < 1: the direct evaluation over the fewest most energetic components
-    holding that share of the variance, and a warning naming the key."""
+    holding that share of the variance, and a warning naming the key. ``compiled``: with the
+    compiled kernels (the short waves' pressure by recurrences, the long ones direct: the sphere's
+    200 m depth) or numpy alone."""
+    monkeypatch.setattr(nonlinear_hydro, "AVAILABLE", compiled)
     waves = irregular_waves(3.0, 8.0, ramp=4.0, seed=5)
     text = scene_toml(dt=0.05, duration=100.0, water={**SPHERE_WATER, "gravity": G}, waves=waves,
                       hydro={"nonlinear": "froude-krylov", "froude_krylov_energy": energy},
@@ -81,6 +106,9 @@ def test_nonlinear_froude_krylov_equals_the_direct_evaluation(sphere_path, energ
     model = HydroModel(parse_scene(text), {"sphere": load_hdb(sphere_path)},
                        hulls={"sphere": closed_hull(mesh.vertices, mesh.faces)})
     nl = next(term.model for term in model.terms if term.name == "nonlinear_hydrostatics")
+    # compiled: the short waves of the 300 evenly spaced by the recurrence, the long ones direct
+    assert (200 < sum(len(r.columns) for r in nl.split.recurrences) < 300) if compiled and energy == 1 else True
+    assert nl.split is None if not compiled else True
     comps, body = model.waves, nl.bodies[0]
     energy_c = comps.amplitude ** 2
     kept = np.full(comps.size, True) if energy == 1 else energy_c >= np.sort(energy_c)[::-1][np.searchsorted(np.cumsum(np.sort(energy_c)[::-1]), energy * energy_c.sum() * (1 - 1e-12))]
