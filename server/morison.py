@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from hydrolink.protocol.scene import Scene
+from hydrolink.server import morison_kernel
 from hydrolink.server.force_term import ForceTerm, TermContext
 from hydrolink.server.kinematics import Kinematics
 from hydrolink.server.waves import WaveComponents, WavePhases
@@ -44,14 +45,16 @@ class MorisonSet:
     Velocities, accelerations and forces are taken along the two directions normal to each member
     (:func:`normal_basis`), plane-major: entry d S + s is segment s along direction d. One product
     ``flow`` @ [cos, sin, v, 1] gives the relative velocities w = u + current - v_s and the
-    accelerations (Kinematics.trig); one more, ``loads``, the bodies' loads."""
+    accelerations (Kinematics.trig); one more, ``loads``, the bodies' loads. With ``compiled``
+    (numba installed) all of it after the trig row is one call (server/morison_kernel.py)."""
 
     def __init__(self, body: np.ndarray, lever: np.ndarray, z0: np.ndarray, basis: np.ndarray, inertia: np.ndarray,
-                 drag: np.ndarray, wave: Kinematics, active: np.ndarray):
+                 drag: np.ndarray, wave: Kinematics, active: np.ndarray, compiled: bool = morison_kernel.AVAILABLE):
         """The segments on server bodies ``body`` (S,) with levers (S, 3) from their body's
         reference point, centre heights ``z0`` (S,) at equilibrium, normal directions ``basis``
         (S, 2, 3), coefficients rho (1 + ca) V and 1/2 rho cd D L (S,), ``wave`` along the
-        directions, for the bodies' ``active`` DOFs (N, 6)."""
+        directions, for the bodies' ``active`` DOFs (N, 6); ``compiled``: the step by the compiled
+        kernel, else by numpy (same results to round-off)."""
         n_seg, n_bodies = len(body), active.shape[0]
         rows = np.arange(n_seg)
         #: (S, 6N) the centre's height change for displacements x (heave, roll, pitch)
@@ -82,6 +85,7 @@ class MorisonSet:
         #: 1/2 rho cd D L and rho (1 + ca) V taken in), zero in inactive DOFs
         loads = along.T * active.reshape(-1, 1)
         self.loads = np.hstack([loads * np.tile(drag, 2), loads * np.tile(inertia, 2)]).reshape(n_bodies, 6, -1)
+        self._loads = self.loads.reshape(6 * n_bodies, -1)
         self._v = wave.rhs[n2:-1].reshape(n_bodies, 6)      # rhs: [cos, sin, v, 1]
         wave.rhs[-1] = 1.0
         self._out = np.empty((2, 2, n_seg))                 # w, a along the two directions
@@ -91,12 +95,18 @@ class MorisonSet:
         self._speed, self._wet = self._mask[:, 0]
         self._f = np.empty((2, 2, n_seg))                   # |w| w, a on the wet segments
         self._flat_f = self._f.reshape(-1)
+        self.compiled = compiled
+        if compiled:
+            morison_kernel.warm_up()
 
     def force(self, t: float, x: np.ndarray, v: np.ndarray) -> np.ndarray:
         """(N, 6) force and moment on each body for displacements ``x`` and velocities ``v``
-        (N, 6) from equilibrium, zero in inactive DOFs."""
+        (N, 6) from equilibrium, zero in inactive DOFs (``x`` writable and C contiguous)."""
         self.wave.trig(t)
         np.copyto(self._v, v)
+        if self.compiled:
+            return morison_kernel.morison_loads(self.flow, self.wave.rhs, self.heave, x.reshape(-1), self.below,
+                                                self._loads).reshape(-1, 6)
         np.dot(self.flow, self.wave.rhs, out=self._flat_out)
         self._wet[:] = np.dot(self.heave, x.reshape(-1)) <= self.below
         np.hypot(self._w0, self._w1, out=self._speed)

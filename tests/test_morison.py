@@ -12,6 +12,7 @@ from scipy.optimize import brentq
 
 from conftest import SPHERE_WATER, regular_waves, scene_toml, sphere_body
 from hydrolink.protocol.scene import SceneError, parse_scene
+from hydrolink.server import morison_kernel
 from hydrolink.server.hdb.io import load_hdb
 from hydrolink.server.model import HydroModel
 
@@ -74,9 +75,12 @@ def test_the_members_added_mass_is_in_the_mass_matrix(sphere_path):
     assert d[4, 0] == pytest.approx(RHO * area * (-draft ** 2 / 2 - zref * draft), rel=1e-6)
 
 
-def test_a_slanted_member_on_a_moving_body_against_the_strip_sum(sphere_path):
+@pytest.mark.parametrize("compiled", [False, pytest.param(True, marks=pytest.mark.skipif(
+    not morison_kernel.AVAILABLE, reason="numba not installed"))])
+def test_a_slanted_member_on_a_moving_body_against_the_strip_sum(sphere_path, compiled):
     """A member slanted in x, y and z through the water line, on the sphere moving in all six DOFs
-    (displaced and with velocity and angular velocity): the reply against Morison's equation
+    (displaced and with velocity and angular velocity), by numpy and by the compiled kernel
+    (server/morison_kernel.py): the reply against Morison's equation
     evaluated here segment by segment, Airy kinematics in 200 m of water (dispersion solved with
     brentq) at each segment's centre (at rest:
     the segments' mean positions), the normal parts by (I - t t^T), the segment's velocity
@@ -91,6 +95,7 @@ def test_a_slanted_member_on_a_moving_body_against_the_strip_sum(sphere_path):
                                    morison=[{"body": "sphere", "point_a": a_pt.tolist(), "point_b": b_pt.tolist(),
                                              "diameter": diameter, "cd": cd, "ca": ca, "segments": n}]))
     m = HydroModel(scene, {"sphere": load_hdb(sphere_path)})
+    next(t for t in m.terms if t.name == "morison").members.compiled = compiled
     eq = m.setup_info().equilibrium_position
     ref = eq[0, :3]
     w, amp, phi, depth = 2 * math.pi / period, height / 2, math.radians(40.0), SPHERE_WATER["depth"]
