@@ -256,7 +256,7 @@ class NonlinearHydro:
             if waves:
                 p_v[wet_v] = self._fk_pressure(verts[wet_v], eta[wet_v], pose[:2], t, ramp)
             if self.compiled:
-                load_hs, load_fk = rg * cut_hull_loads(local, tris, d, verts[:, 2], p_v, b.loads)
+                load_hs, load_fk = rg * cut_hull_loads(local, tris, d, verts[:, 2], p_v, b.loads, b.vertex_loads)
             else:
                 load_hs, load_fk = rg * _wet_loads(b, verts[:, 2], d, wet_v, p_v)
             f_hs = np.concatenate([rot @ load_hs[:3], rot @ load_hs[3:]])

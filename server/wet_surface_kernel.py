@@ -1,12 +1,14 @@
 """The pressure integral over a hull cut by the free surface, compiled (issue 26; numba, optional).
 
-One pass over the hull's triangles does what server/nonlinear_hydro.py's numpy path does with
+It does what server/nonlinear_hydro.py's numpy path does with
 :func:`~hydrolink.server.wetted_surface.clip_wet`, :func:`~hydrolink.server.wetted_surface.interpolate`
-and :func:`~hydrolink.server.wetted_surface.corner_loads`: a wholly wet triangle adds its corner
-pressures times its fixed corner loads; a triangle the surface cuts is clipped where the signed
-height d = 0 (linear along its edges; the same sub-triangles and orientation as ``clip_wet``) and
-each piece adds its corner pressures times its own corner loads (F = -S sum p_i / 3,
-M = -sum_i p_i (r_i + sum_j r_j) x S / 12, S the area vector); a dry one adds nothing.
+and :func:`~hydrolink.server.wetted_surface.corner_loads`: every wet vertex adds its pressures times
+the fixed corner loads of all its triangles (summed per vertex at set-up), which is the wholly wet
+triangles' integral once the cut triangles' wet corners are taken off again; a triangle the surface
+cuts is clipped where the signed height d = 0 (linear along its edges; the same sub-triangles and
+orientation as ``clip_wet``) and each piece adds its corner pressures times its own corner loads
+(F = -S sum p_i / 3, M = -sum_i p_i (r_i + sum_j r_j) x S / 12, S the area vector); a dry one
+adds nothing.
 
 Two pressures at once, per unit rho g: the hydrostatic one -z and the Froude–Krylov one (given at
 the wet vertices; on the free surface equal to the height there, z = eta).
@@ -22,24 +24,28 @@ from hydrolink.server.incident_kernels import AVAILABLE
 __all__ = ["AVAILABLE", "cut_hull_loads", "warm_up"]
 
 
-def _cut_hull_loads(local, tris, d, z, p, loads, out):
+def _cut_hull_loads(local, tris, d, z, p, loads, vertex_loads, out):
     r = np.empty((2, 3, 3))     # up to two pieces of a cut triangle: corners, then their pressures
     ph, pf = np.empty((2, 3)), np.empty((2, 3))
     ab, ac = np.empty(3), np.empty(3)      # the cut points on edges a-b and a-c
+    for v in range(d.size):     # every wet vertex with all its triangles' corner loads ...
+        if d[v] <= 0.0:
+            for k in range(6):
+                out[0, k] -= z[v] * vertex_loads[v, k]
+                out[1, k] += p[v] * vertex_loads[v, k]
     for t in range(tris.shape[0]):
         n = 0
         for c in range(3):
             if d[tris[t, c]] <= 0.0:
                 n += 1
-        if n == 0:
+        if n == 0 or n == 3:
             continue
-        if n == 3:
-            for c in range(3):
-                v = tris[t, c]
+        for c in range(3):      # ... less those of the cut triangles, which are clipped instead
+            v = tris[t, c]
+            if d[v] <= 0.0:
                 for k in range(6):
-                    out[0, k] -= z[v] * loads[t, c, k]
-                    out[1, k] += p[v] * loads[t, c, k]
-            continue
+                    out[0, k] += z[v] * loads[t, c, k]
+                    out[1, k] -= p[v] * loads[t, c, k]
         a = 0                   # the odd corner: the wet one of one, the dry one of two
         for c in range(3):
             if (d[tris[t, c]] <= 0.0) == (n == 1):
@@ -97,20 +103,22 @@ def _compiled():
 
 
 def cut_hull_loads(local: np.ndarray, triangles: np.ndarray, d: np.ndarray, z: np.ndarray, p: np.ndarray,
-                   loads: np.ndarray) -> np.ndarray:
+                   loads: np.ndarray, vertex_loads: np.ndarray) -> np.ndarray:
     """(2, 6): the load (force, moment about the reference point, in the body's frame) per unit
     rho g of the hydrostatic pressure -z and of the Froude–Krylov pressure ``p`` over the part of
     the hull below the free surface (module docstring). ``local`` (V, 3) vertices relative to the
     reference point in the body's frame, ``triangles`` (T, 3), ``d`` (V,) signed heights above the
     free surface, ``z`` (V,) global heights, ``p`` (V,) the Froude–Krylov pressure / (rho g) at the
-    wet vertices, ``loads`` (T, 3, 6) the triangles' corner loads (corner_loads of ``local``)."""
+    wet vertices, ``loads`` (T, 3, 6) the triangles' corner loads (corner_loads of ``local``) and
+    ``vertex_loads`` (V, 6) their sums over each vertex's triangles."""
     out = np.zeros((2, 6))
     f, c = np.float64, np.ascontiguousarray     # one compiled signature: contiguous float64 and int64
-    _compiled()(c(local, f), c(triangles, np.int64), c(d, f), c(z, f), c(p, f), c(loads, f), out)
+    _compiled()(c(local, f), c(triangles, np.int64), c(d, f), c(z, f), c(p, f), c(loads, f), c(vertex_loads, f), out)
     return out
 
 
 def warm_up() -> None:
     """Compile (or load from numba's cache) the kernel now, at set-up, not in a run's first step."""
     local = np.array([[0.0, 0.0, -1.0], [1.0, 0.0, 1.0], [0.0, 1.0, 1.0]])
-    cut_hull_loads(local, np.array([[0, 1, 2]]), local[:, 2], local[:, 2], np.zeros(3), np.zeros((1, 3, 6)))
+    cut_hull_loads(local, np.array([[0, 1, 2]]), local[:, 2], local[:, 2], np.zeros(3), np.zeros((1, 3, 6)),
+                   np.zeros((3, 6)))

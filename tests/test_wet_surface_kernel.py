@@ -32,7 +32,9 @@ def test_cut_hull_loads_equal_the_clipped_integral():
         eta = 0.4 * np.sin(1.3 * verts[:, 0] + 0.7 * verts[:, 1])
         d = verts[:, 2] - eta
         p = np.where(d <= 0.0, np.cos(verts[:, 0]) * np.exp(verts[:, 2]), 0.0)
-        got = wet_surface_kernel.cut_hull_loads(hull.vertices, hull.triangles, d, verts[:, 2], p, loads)
+        vertex_loads = np.zeros((len(hull.vertices), 6))
+        np.add.at(vertex_loads, hull.triangles.reshape(-1), loads.reshape(-1, 6))
+        got = wet_surface_kernel.cut_hull_loads(hull.vertices, hull.triangles, d, verts[:, 2], p, loads, vertex_loads)
         # the reference: clip every triangle, interpolate both pressures, integrate (body frame)
         tris = hull.triangles
         pts, cut = clip_wet(hull.vertices[tris], d[tris])
