@@ -6,18 +6,21 @@ changes every step; with a 20-segment Morison member. Goals: FK <= 5x (1,000) an
 (8,000) the linear step, Morison <= 2x. Then ``[hydro] froude_krylov_energy`` (the FK pressure
 from the most energetic components holding that share of the variance): cost, and the largest
 difference of the ``nonlinear_froude_krylov`` reply from the full evaluation over the same
-motion, per DOF relative to the full one's largest value.
+motion, per DOF relative to the full one's largest value. ``--only morison``: the Morison row
+alone. BLAS runs one thread, as under the ``hydrolink`` command (README "BLAS threads"), unless
+OPENBLAS_NUM_THREADS is set.
 
-    python bench/bench_nonlinear.py [--steps 300]
+    python bench/bench_nonlinear.py [--steps 300] [--repeat 3] [--only morison]
 """
 
 from __future__ import annotations
 
-import argparse
 import os
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")   # before numpy, as the hydrolink command (README "Performance")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import argparse
 
 import numpy as np
 from bench_forces import DATA, per_step, scene_text
@@ -30,6 +33,7 @@ MORISON = ('[[morison]]\nbody = "sphere"\npoint_a = [0.0, 0.0, -25.0]\npoint_b =
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--steps", type=int, default=300)
+    ap.add_argument("--only", choices=["morison"], help="the Morison row alone (no hull is built)")
     ap.add_argument("--repeat", type=int, default=3, help="runs of each (linear, term) pair, alternating; the "
                     "fastest of each counted (other jobs on the machine only ever add time)")
     args = ap.parse_args()
@@ -42,7 +46,7 @@ def main() -> None:
     hdb = load_hdb(DATA / "sphere_task10" / "sphere.h5")
     fk = scene_text(IRREGULAR, "").replace("irf_duration = 10.0", 'irf_duration = 10.0\nnonlinear = "froude-krylov"')
     hulls = {}
-    for res in ((20, 26), (60, 70)):
+    for res in (() if args.only else ((20, 26), (60, 70))):
         mesh = cpt.mesh_sphere(radius=5.0, resolution=res)
         mesh = mesh.merged() if hasattr(mesh, "merged") else mesh
         hulls[res] = closed_hull(mesh.vertices, mesh.faces)
@@ -57,10 +61,12 @@ def main() -> None:
             cost = min(cost, per_step(HydroModel(scene, {"sphere": hdb}, hulls=hull), args.steps, moving=moving))
         rows.append((label, linear, cost, goal))
     print(f"# bench_nonlinear: µs per HydroModel.step, {args.steps} steps, fastest of {args.repeat}, "
-          f"load {os.getloadavg()[0]:.2f}\n")
+          f"load {os.getloadavg()[0]:.2f}, OPENBLAS_NUM_THREADS={os.environ['OPENBLAS_NUM_THREADS']}\n")
     print("| case | linear step | with the term | ratio | goal |\n|---|---|---|---|---|")
     for label, linear, cost, goal in rows:
-        print(f"| {label} | {linear:.1f} | {cost:.1f} | {cost / linear:.1f}x | <= {goal:g}x |")
+        print(f"| {label} | {linear:.1f} | {cost:.1f} | {cost / linear:.2f}x | <= {goal:g}x |")
+    if args.only:
+        return
     print("\n| hull | froude_krylov_energy | components | µs per step | ratio to linear | largest FK difference |")
     print("|---|---|---|---|---|---|")
     for hull in hulls.values():
