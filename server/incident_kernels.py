@@ -42,16 +42,25 @@ def _deep_pressure(xi, z, ar, ai, k0, dk, d2, out):
         rr[p], ri[p] = m * math.cos(dk * xi[p]), m * math.sin(dk * xi[p])
         m = math.exp(d2 * z[p])
         qr[p], qi[p] = m * math.cos(d2 * xi[p]), m * math.sin(d2 * xi[p])
-    for c in range(n_c):
-        a_r, a_i = ar[c], ai[c]
+    c = 0
+    while c + 2 <= n_c:         # two components per pass over the points: half the loads and stores
         for p in range(p_n):
-            out[p] += a_r * ur[p] - a_i * ui[p]
-            t = ur[p] * rr[p] - ui[p] * ri[p]
-            ui[p] = ur[p] * ri[p] + ui[p] * rr[p]
-            ur[p] = t
-            t = rr[p] * qr[p] - ri[p] * qi[p]
-            ri[p] = rr[p] * qi[p] + ri[p] * qr[p]
-            rr[p] = t
+            xr, xi_, yr, yi, zr, zi = ur[p], ui[p], rr[p], ri[p], qr[p], qi[p]
+            s = 0.0
+            for q in range(2):
+                s += ar[c + q] * xr - ai[c + q] * xi_
+                t = xr * yr - xi_ * yi
+                xi_ = xr * yi + xi_ * yr
+                xr = t
+                t = yr * zr - yi * zi
+                yi = yr * zi + yi * zr
+                yr = t
+            out[p] += s
+            ur[p], ui[p], rr[p], ri[p] = xr, xi_, yr, yi
+        c += 2
+    if c < n_c:
+        for p in range(p_n):
+            out[p] += ar[c] * ur[p] - ai[c] * ui[p]
 
 
 def _chebyshev_sum(u, c, out):
