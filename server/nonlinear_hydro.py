@@ -193,7 +193,9 @@ class NonlinearHydro:
         compiled recurrences where ``self.split`` has them (horizontal coordinates from the body's
         ``reference`` point (2,), its phase in the amplitudes), the rest by :meth:`_direct_pressure`."""
         h, z = self.depth, pts[:, 2]
-        z_s = np.minimum(z - eta if math.isinf(h) else h * (z - eta) / (h + eta), 0.0)
+        # stretched, at most at the surface and at least at the seabed (a hull sent below the seabed
+        # gets the seabed's pressure, not an overflow of the depth factor)
+        z_s = np.clip(z - eta if math.isinf(h) else h * (z - eta) / (h + eta), -h, 0.0)
         split = self.split
         if split is None or not len(z_s) or float(z_s.min()) < split.floor:
             return ramp * self._direct_pressure(pts, z_s, slice(None), t)

@@ -135,3 +135,23 @@ def test_nonlinear_froude_krylov_equals_the_direct_evaluation(sphere_path, energ
     scale = np.abs(want).max(axis=0)          # per DOF over the run (the ramp starts from zero)
     assert np.all(scale > 0)
     np.testing.assert_array_less(np.abs(got - want).max(axis=0), 1e-9 * scale)
+
+
+@pytest.mark.parametrize("compiled", [True, False] if AVAILABLE else [False])
+def test_a_hull_sent_below_the_seabed_gets_finite_forces(sphere_path, compiled, monkeypatch):
+    """A pose within the server's coordinate bound but below the 200 m seabed: the incident-wave
+    pressure there is the seabed's (the depth factor used to overflow into NaN forces)."""
+    monkeypatch.setattr(nonlinear_hydro, "AVAILABLE", compiled)
+    text = scene_toml(dt=0.05, duration=10.0, water={**SPHERE_WATER, "gravity": G},
+                      waves=irregular_waves(3.0, 8.0, ramp=0.0, seed=5), hydro={"nonlinear": "froude-krylov"},
+                      bodies=[sphere_body(str(sphere_path), mass=261.724e3)])
+    mesh = cpt.mesh_sphere(radius=5.0, resolution=(8, 10))
+    mesh = mesh.merged() if hasattr(mesh, "merged") else mesh
+    model = HydroModel(parse_scene(text), {"sphere": load_hdb(sphere_path)},
+                       hulls={"sphere": closed_hull(mesh.vertices, mesh.faces)})
+    nl = next(term.model for term in model.terms if term.name == "nonlinear_hydrostatics")
+    for heave in (-1e3, -1e5):
+        pose = model.setup_info().equilibrium_position.copy()
+        pose[0, 2] = heave
+        hs, fk = nl.force(1.0, pose)
+        assert np.all(np.isfinite(hs)) and np.all(np.isfinite(fk)), heave
