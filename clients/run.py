@@ -38,14 +38,17 @@ def load_scene_hdbs(scene: Scene, scene_path: str | Path, *, progress: bool = Tr
         path = resolve_path(scene_path, body.hdb)
         if not path.exists() and not path.with_suffix(".1").exists():
             raise SceneError(scene_path, f"bodies[{i}].hdb", f"file not found: {path}")
+        qtf = next((j for j, b in enumerate(scene.bodies) if b.hdb == body.hdb and b.qtf is not None), None)
         if path.suffix == ".toml":
             from hydrolink.server.hdb.build import build_hdb
             hdbs[body.hdb] = build_hdb(path, progress=progress)
-        elif as_files:
+        elif as_files and qtf is None:   # with NEMOH QTF files: read here and sent as a map
             hdbs[body.hdb] = file_set(path)
         else:
             stated = next((b.hdb_convention for b in scene.bodies if b.hdb == body.hdb and b.hdb_convention), None)
             hdbs[body.hdb] = load_hdb(path, convention=stated)
+        if qtf is not None:
+            hdbs[body.hdb] = with_nemoh_qtf(hdbs[body.hdb], scene, qtf, scene_path)
     for i, body in enumerate(scene.bodies):
         if body.hdb is None or isinstance(hdbs[body.hdb], HDBFiles):
             continue
@@ -56,6 +59,35 @@ def load_scene_hdbs(scene: Scene, scene_path: str | Path, *, progress: bool = Tr
                              f"the HDB {body.hdb} holds no body {body.hdb_body_name!r} (it holds {names}); "
                              "set hdb_body to one of those")
     return hdbs
+
+
+def with_nemoh_qtf(ds: xr.Dataset, scene: Scene, i: int, scene_path: str | Path) -> xr.Dataset:
+    """The HDB ``ds`` of body ``i`` with the NEMOH QTF files its ``qtf`` names (relative to the
+    scene; unit and convention as stated there); SceneError naming ``bodies[i].qtf`` and the key
+    (the file's own line or field in the message) when a file is missing or unreadable, or the HDB
+    already holds a QTF (one source per HDB)."""
+    from hydrolink.protocol.hdb_schema import HDBError
+    from hydrolink.protocol.hdb_second_order import qtf_kinds, with_second_order
+    from hydrolink.server.hdb.nemoh_qtf import read_nemoh_qtf
+
+    q, key = scene.bodies[i].qtf, f"bodies[{i}].qtf"
+    if qtf_kinds(ds):
+        raise SceneError(scene_path, key, f"the HDB {scene.bodies[i].hdb} already holds a QTF "
+                                          f"({ds.attrs.get('qtf_source', '?')}): one QTF source per HDB")
+    paths = {}
+    for name in ("difference", "sum"):
+        if getattr(q, name) is not None:
+            paths[name] = resolve_path(scene_path, getattr(q, name))
+            if not paths[name].is_file():
+                raise SceneError(scene_path, f"{key}.{name}", f"file not found: {paths[name]}")
+    try:
+        qtf = read_nemoh_qtf(difference=paths.get("difference"), total_sum=paths.get("sum"),
+                             rho=float(ds.attrs["rho"]), g=float(ds.attrs["g"]), n_dof=6 * ds.sizes["body"],
+                             frequency_unit=q.frequency_unit, convention=q.convention)
+        return with_second_order(ds, qtf=qtf)
+    except HDBError as exc:
+        which = next((n for n, p in paths.items() if Path(str(exc.source)).name == p.name), None)
+        raise SceneError(scene_path, f"{key}.{which}" if which else key, str(exc)) from None
 
 
 def load_scene_hulls(scene: Scene, scene_path: str | Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:

@@ -23,7 +23,8 @@ Every reader converts its format into this layout once; everything downstream (I
             mean_drift, difference_qtf, sum_qtf   optional second-order data: layout and
                                                   conventions in :mod:`.hdb_second_order`
     attrs   rho, g, water_depth (float, inf for deep water), time_convention = "exp(-iwt)",
-            source (where it came from), hdb_schema_version = 1
+            source (where it came from), hdb_schema_version = 2 (2: mean_drift_body_fixed required
+            with mean_drift; hdb build's cache keys change with it)
 
 Time convention: a regular wave with elevation eta(t) = Re{a exp(-i w t)} at the origin gives the
 excitation force Re{a X(w) exp(-i w t)} (Capytaine's convention). Readers of exp(+i w t) formats
@@ -45,7 +46,7 @@ from hydrolink.protocol.scene_bounds import DENSITY_RANGE, DEPTH_RANGE, GRAVITY_
 
 DOF_NAMES: tuple[str, ...] = ("surge", "sway", "heave", "roll", "pitch", "yaw")
 TIME_CONVENTION = "exp(-iwt)"
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 
 REQUIRED_VARS = {
     "added_mass": ("omega", "influenced_dof", "radiating_dof"),

@@ -19,7 +19,9 @@ Layout (optional parts of :mod:`hydrolink.protocol.hdb_schema`'s dataset, SI, ex
                             the full square, T-_ji(b_j, b_i) = conj(T-_ij(b_i, b_j)).
             sum_qtf         same dims: F(t) = Re sum_i sum_j a_i a_j T+_ij exp(-i (w_i + w_j) t);
                             T+_ji(b_j, b_i) = T+_ij(b_i, b_j).
-    attrs   qtf_source      where the QTFs come from (file and method), when there are QTFs
+    attrs   mean_drift_body_fixed  0 or 1, with mean_drift: 1 when the coefficients were computed with
+                            the body held fixed (diffraction only, no motion terms), 0 when with its motions
+            qtf_source      where the QTFs come from (file and method), when there are QTFs
 
 Mean drift in a regular wave: A^2 T-(w, w) (real); an exp(+i w t) format's QTF is the complex
 conjugate of the internal one (readers conjugate once).
@@ -36,6 +38,8 @@ import xarray as xr
 from hydrolink.protocol.hdb_schema import (DRIFT_METHODS, MEAN_DRIFT_DIMS, QTF_DIMS, QTF_KINDS,
                                            HDBError)
 
+BODY_FIXED = "mean_drift_body_fixed"   # the dataset attribute of MeanDrift.body_fixed (0 or 1)
+
 
 @dataclass(frozen=True)
 class MeanDrift:
@@ -45,7 +49,8 @@ class MeanDrift:
     omega: np.ndarray            # (n_w,) rad/s
     direction: np.ndarray        # (n_b,) rad
     values: np.ndarray           # (n_methods, n_w, n_b, 6N) N/m^2, N m/m^2
-    note: str = ""               # how the coefficients were obtained (e.g. the body's motions)
+    note: str = ""               # how the coefficients were obtained (for people: hdb info shows it)
+    body_fixed: bool = False     # computed with the body held fixed (no motion terms), else with its motions
 
 
 @dataclass(frozen=True)
@@ -76,7 +81,8 @@ def merge_drift(parts: list[MeanDrift], source: str | Path) -> MeanDrift | None:
     order = sorted(range(len(parts)), key=lambda k: DRIFT_METHODS.index(parts[k].methods[0]))
     return MeanDrift(tuple(m for k in order for m in parts[k].methods), first.omega, first.direction,
                      np.concatenate([parts[k].values for k in order]),
-                     "; ".join(dict.fromkeys(parts[k].note for k in order if parts[k].note)))
+                     "; ".join(dict.fromkeys(parts[k].note for k in order if parts[k].note)),
+                     any(p.body_fixed for p in parts))
 
 
 def fill_qtf_square(omega_i: np.ndarray, omega_j: np.ndarray, beta_i: np.ndarray, beta_j: np.ndarray,
@@ -152,6 +158,7 @@ def second_order_vars(drift: MeanDrift | None, qtf: QTF | None) -> tuple[dict, d
                       drift_direction=np.asarray(drift.direction, float))
         if drift.note:
             attrs["mean_drift_note"] = drift.note
+        attrs[BODY_FIXED] = int(bool(drift.body_fixed))
     if qtf is not None:
         for kind, value in (("difference", qtf.difference), ("sum", qtf.sum)):
             if value is not None:
@@ -193,6 +200,12 @@ def check_second_order(ds: xr.Dataset, source: str | Path) -> None:
         _check_grid(ds["drift_direction"].values, "drift_direction", source, positive=False)
         if np.iscomplexobj(ds["mean_drift"].values):
             raise HDBError(source, "mean_drift", "must be real (the regular-wave mean force per A^2)")
+        fixed = ds.attrs.get(BODY_FIXED)
+        if fixed is None:
+            raise HDBError(source, BODY_FIXED, "missing attribute (needed with mean_drift): 1 when the drift was "
+                                               "computed with the body held fixed, 0 when with its motions")
+        if isinstance(fixed, (bool, np.bool_)) or not (isinstance(fixed, (int, np.integer)) and int(fixed) in (0, 1)):
+            raise HDBError(source, BODY_FIXED, f"must be the integer 0 or 1, got {fixed!r}")
     qtfs = [k for k in QTF_KINDS if f"{k}_qtf" in ds]
     if not qtfs:
         return
@@ -226,6 +239,11 @@ def _check_grid(values: np.ndarray, name: str, source: str | Path, *, positive: 
         raise HDBError(source, name, f"must be > 0, got {v[0]}")
     if np.any(np.diff(v) <= 0):
         raise HDBError(source, name, "must be strictly increasing")
+
+
+def drift_body_fixed(ds: xr.Dataset) -> bool:
+    """Whether an HDB's mean drift was computed with the body held fixed (False without mean drift)."""
+    return "mean_drift" in ds and int(ds.attrs[BODY_FIXED]) == 1
 
 
 def drift_methods(ds: xr.Dataset) -> tuple[str, ...]:

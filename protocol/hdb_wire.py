@@ -19,12 +19,13 @@ import xarray as xr
 
 from hydrolink.protocol.hdb_schema import (OPTIONAL_VARS, REQUIRED_ATTRS, REQUIRED_VARS, SECOND_ORDER_VARS, HDBError,
                                          make_hdb, validate_hdb)
-from hydrolink.protocol.hdb_second_order import QTF, MeanDrift, qtf_kinds
+from hydrolink.protocol.hdb_second_order import BODY_FIXED, QTF, MeanDrift, drift_body_fixed, qtf_kinds
 
 FIRST_ORDER_OPTIONAL = tuple(k for k in OPTIONAL_VARS if k not in SECOND_ORDER_VARS)
 DRIFT_FIELDS = ("drift_method", "drift_omega", "drift_direction")        # beside "mean_drift"
 QTF_FIELDS = ("qtf_omega", "qtf_direction_i", "qtf_direction_j")        # beside "difference_qtf"/"sum_qtf"
 SECOND_ORDER_ATTRS = ("mean_drift_note", "qtf_source")                  # strings in "attrs"
+# and "attrs".mean_drift_body_fixed (0 or 1) with mean_drift
 
 
 def to_wire(ds: xr.Dataset) -> dict:
@@ -51,6 +52,8 @@ def to_wire(ds: xr.Dataset) -> dict:
     for key in SECOND_ORDER_ATTRS:
         if key in ds.attrs:
             out["attrs"][key] = str(ds.attrs[key])
+    if "mean_drift" in ds:
+        out["attrs"][BODY_FIXED] = int(drift_body_fixed(ds))
     return out
 
 
@@ -64,8 +67,12 @@ def _second_order(data: dict, source: str) -> tuple[MeanDrift | None, QTF | None
         methods = data["drift_method"]
         if not isinstance(methods, list) or not all(isinstance(m, str) for m in methods):
             raise HDBError(source, "drift_method", "must be a list of method names")
+        fixed = data["attrs"].get(BODY_FIXED)
+        if isinstance(fixed, bool) or fixed not in (0, 1):
+            raise HDBError(source, f"attrs.{BODY_FIXED}", f"must be 0 or 1 with mean_drift (1: computed with the body "
+                                                         f"held fixed), got {fixed!r}")
         drift = MeanDrift(tuple(methods), data["drift_omega"], data["drift_direction"], data["mean_drift"],
-                          str(data["attrs"].get("mean_drift_note", "")))
+                          str(data["attrs"].get("mean_drift_note", "")), fixed == 1)
     if "difference_qtf" in data or "sum_qtf" in data:
         for key in QTF_FIELDS:
             if key not in data:

@@ -19,8 +19,8 @@ from hydrolink.protocol.errors import KeyedError
 from hydrolink.protocol.scene_bounds import (MAX_STEPS, AddedMassRatio, AngleDeg, Area, CableElements, Coefficient,
                                              ComponentCount, Coordinate, Density, Depth, Diameter, DirectionCount,
                                              Displacement, Duration, ExchangeSteps, ExcitationIRFDuration,
-                                             ExplicitSpectralRadius, FileTime, FlowCoefficient, Fraction, Frequency,
-                                             FrequencyStep, Gravity, HarmonicCount, IRFDuration, Interval,
+                                             EnergyFraction, ExplicitSpectralRadius, FileTime, FlowCoefficient, Fraction,
+                                             Frequency, FrequencyStep, Gravity, HarmonicCount, IRFDuration, Interval,
                                              IterationCount, LatencySteps, Length, LineDensity, Mass,
                                              NonNegativeCoefficient, NonNegativeDiameter, NonNegativeLength,
                                              ParameterFloat, ParameterInt, PeakEnhancement, PositiveCoefficient,
@@ -165,7 +165,7 @@ Waves = Annotated[Union[StillWater, RegularWave, IrregularWave, ElevationWave], 
 
 Nonlinear = Literal["none", "hydrostatic", "froude-krylov"]
 # second-order wave forces (server/second_order.py): none, the mean drift, Newman's slow drift
-# (Standing's factorised form) or the full difference QTF
+# (T_ij = (T_ii + T_jj)/2) or the full difference QTF
 SecondOrder = Literal["none", "mean-drift", "newman", "qtf"]
 
 
@@ -186,6 +186,10 @@ class Hydro(_Section):
     # hydrostatics (and the incident wave's Froude-Krylov force) on the instantaneous wetted surface
     # of every wet body's hull (server/nonlinear_hydro.py); a body's own ``nonlinear`` overrides it
     nonlinear: Nonlinear = "none"
+    # the Froude-Krylov pressure and free surface on the hulls from the most energetic wave
+    # components holding this fraction of the variance (1: all; the rest acts through the linear
+    # excitation only; a setup warning names this key and what was left out)
+    froude_krylov_energy: EnergyFraction = 1.0
     # second-order wave forces of every wet body (a body's own ``second_order`` overrides it);
     # ``drift_method``: which mean drift coefficients "mean-drift" and "newman" read (default: the
     # one method the HDB holds); ``sum_frequency``: add the sum-frequency QTF too
@@ -259,6 +263,23 @@ class Drag(_Section):
     relative: bool = True
 
 
+class NemohQTF(_Section):
+    """``bodies[i].qtf``: NEMOH v3 QTF files added to the body's HDB (server/hdb/nemoh_qtf.py):
+    ``difference`` (``OUT_QTFM_N*.dat``) and/or ``sum`` (``OUT_QTFP_N*.dat``), relative to the scene.
+    The files record neither the unit of their frequency columns (Nemoh.cal's choice) nor the time
+    convention of their complex values: both are stated here, required (never guessed)."""
+    difference: Annotated[str, Field(min_length=1)] | None = None
+    sum: Annotated[str, Field(min_length=1)] | None = None
+    frequency_unit: Literal["rad/s", "Hz", "s"]
+    convention: Literal["exp(-iwt)", "exp(+iwt)"]
+
+    @model_validator(mode="after")
+    def _some_file(self) -> "NemohQTF":
+        if self.difference is None and self.sum is None:
+            raise ValueError("difference: give the difference (OUT_QTFM_N*.dat) and/or the sum (OUT_QTFP_N*.dat) file")
+        return self
+
+
 class Body(_Section):
     name: Annotated[str, Field(min_length=1, pattern=r"^[A-Za-z0-9_\-]+$")]
     hdb: Annotated[str, Field(min_length=1)] | None = None   # None: a dry body (no hydrodynamics)
@@ -288,6 +309,8 @@ class Body(_Section):
     mesh: Annotated[str, Field(min_length=1)] | None = None
     # wet bodies: second-order wave forces of this body (default: [hydro] second_order)
     second_order: SecondOrder | None = None
+    # wet bodies: NEMOH QTF files added to the body's HDB (every body of that HDB gets them)
+    qtf: NemohQTF | None = None
     # dry bodies only: the node's position (default: the centre of mass) and a constant buoyancy
     reference_point: Vector3 | None = None
     buoyancy_volume: Volume = 0.0
@@ -322,6 +345,8 @@ class Body(_Section):
     def _second_order_if_wet(self) -> "Body":
         if self.hdb is None and self.second_order not in (None, "none"):
             raise ValueError("second_order: only for a wet body (with hdb): the coefficients come from its HDB")
+        if self.hdb is None and self.qtf is not None:
+            raise ValueError("qtf: only for a wet body (with hdb): the QTF is added to its HDB")
         return self
 
     @model_validator(mode="after")
@@ -830,11 +855,15 @@ class Scene(_Section):
             if min(m.point_a[2], m.point_b[2]) >= 0.0:
                 raise ValueError(f"morison[{i}]: the member lies above the still water line (z >= 0 at both ends)")
         stated: dict[str, str] = {}
+        qtfs: dict[str, NemohQTF] = {}
         for i, b in enumerate(self.bodies):
             if b.hdb is not None and b.hdb_convention is not None:
                 if stated.setdefault(b.hdb, b.hdb_convention) != b.hdb_convention:
                     raise ValueError(f"bodies[{i}].hdb_convention: {b.hdb_convention} but another body states "
                                      f"{stated[b.hdb]} for the same HDB {b.hdb!r}")
+            if b.qtf is not None and qtfs.setdefault(b.hdb, b.qtf) != b.qtf:
+                raise ValueError(f"bodies[{i}].qtf: differs from another body's qtf for the same HDB {b.hdb!r} "
+                                 "(the QTF belongs to the HDB: state it once, or the same)")
         rigid = set(names) | {"ground"}
         anything = rigid | set(points)
 

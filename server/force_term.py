@@ -32,7 +32,7 @@ import xarray as xr
 from hydrolink.protocol.capabilities import FEATURES
 from hydrolink.protocol.reply import OPTIONAL_FORCES
 from hydrolink.protocol.scene import Scene
-from hydrolink.server.waves import WaveComponents
+from hydrolink.server.waves import WaveComponents, WavePhases
 from hydrolink.server.wetted_surface import Hull
 
 #: what a term may read each step (ForceTerm.needs)
@@ -54,6 +54,7 @@ class TermContext:
     net_buoyancy: list[float | None]   # per body, rho g V - m g (None: the HDB gives no volume)
     hulls: Mapping[str, Hull]          # the closed hulls the hello brought, by body name
     hdbs: Mapping[str, xr.Dataset] = field(default_factory=dict)  # each wet body's HDB, by body name
+    phases: WavePhases | None = None   # the step's [cos wt; sin wt] of ``waves``, shared (None: a term's own)
 
     @property
     def n_bodies(self) -> int:

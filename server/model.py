@@ -40,8 +40,8 @@ from hydrolink.server.force_term import ForceTerm, TermContext
 from hydrolink.server.force_terms import TERMS, build_terms
 from hydrolink.server.radiation_options import RadiationGroup, radiation_option
 from hydrolink.server.state_space import Realization
-from hydrolink.server.waves import (ConvolutionForcing, WaveError, WaveForcing, convolution_kernel, elevation_on_grid,
-                                    interpolate_excitation, kernel_transfer, wave_components)
+from hydrolink.server.waves import (ConvolutionForcing, WaveError, WaveForcing, WavePhases, convolution_kernel,
+                                    elevation_on_grid, interpolate_excitation, kernel_transfer, wave_components)
 
 __all__ = ["HydroModel", "ModelError"]
 
@@ -129,6 +129,7 @@ class HydroModel:
             self.waves = wave_components(scene.waves, lo, hi)
         except WaveError as exc:
             raise ModelError(exc.key, exc.why) from None
+        self._phases = WavePhases(self.waves.omega)   # the step's [cos wt; sin wt], shared with the terms
         data = [self._group_data(ds, members) for ds, members in groups]
         self._hydrostatics(data)
         rad_groups = [self._radiation_group(d) for d in data]
@@ -155,7 +156,7 @@ class HydroModel:
         self._red = np.zeros((3, na))  # scratch: excitation, radiation, hydrostatic (active DOFs)
         self.terms = build_terms(TermContext(
             scene, wet, self.active, self._idx, self.waves, self.equilibrium_position,
-            self.hydrostatic_stiffness, self._net_buoyancy, hulls or {}, hdbs), term_types)
+            self.hydrostatic_stiffness, self._net_buoyancy, hulls or {}, hdbs, self._phases), term_types)
         self._stateful = [term for term in self.terms if not term.stateless]
         self._add_term_contributions()
 
@@ -328,7 +329,7 @@ class HydroModel:
             self._forcing = ConvolutionForcing(kernels[:, :, self._idx], self._eta_source(scene, wave_elevation, hi),
                                                self.dt, float(self.waves.ramp))
         else:
-            self._forcing = WaveForcing(self.waves, x_comp[:, self._idx])
+            self._forcing = WaveForcing(self.waves, x_comp[:, self._idx], self._phases)
         self._x_comp = x_comp
 
     def _eta_source(self, scene: Scene, wave_elevation, omega_max: float):

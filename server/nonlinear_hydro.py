@@ -28,27 +28,117 @@ The force term is :class:`NonlinearTerm` (server/force_term.py)."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
-
 from hydrolink.protocol.scene import Scene
+from hydrolink.server import incident_kernels, wet_surface_kernel
 from hydrolink.server.errors import ModelError
 from hydrolink.server.force_term import ForceTerm, TermContext
+from hydrolink.server.incident_kernels import AVAILABLE, deep_pressure
 from hydrolink.server.kinematics import wave_number
-from hydrolink.server.waves import WaveComponents, ramp_factor
-from hydrolink.server.wetted_surface import Hull, clip_wet, corner_loads, interpolate, pressure_load, rotation_xyz
+from hydrolink.server.phase_expansion import DepthExpansion, PhaseExpansion
+from hydrolink.server.waves import WaveComponents, ramp_at
+from hydrolink.server.wet_surface_kernel import cut_hull_loads
+from hydrolink.server.wetted_surface import (
+    Hull,
+    clip_wet,
+    corner_loads,
+    interpolate,
+    pressure_load,
+    rotation_xyz,
+)
 
-__all__ = ["NonlinearBody", "NonlinearHydro", "NonlinearTerm", "build_nonlinear"]
+__all__ = ["NonlinearBody", "NonlinearHydro", "NonlinearTerm", "build_nonlinear", "strongest_components"]
 
 
 def _depth_factor(k: np.ndarray, z: np.ndarray, depth: float) -> np.ndarray:
-    """cosh(k (z + h)) / cosh(k h) for z <= 0 (e^{kz} in deep water), (P, n_c), overflow-safe."""
-    kz = k[None, :] * z[:, None]
-    if math.isinf(depth):
-        return np.exp(kz)
-    return (np.exp(kz) + np.exp(-k[None, :] * (z[:, None] + 2 * depth))) / (1.0 + np.exp(-2 * k * depth))[None, :]
+    """cosh(k (z + h)) / cosh(k h) for z <= 0 (e^{kz} in deep water), (P, n_c), overflow-safe:
+    (e^{kz} + e^{-k (z + 2h)}) / (1 + e^{-2kh}), the second term and the division evaluated only
+    for the components where, at the lowest point, they reach round-off (e^{-2k (z + h)} > e^{-40}):
+    elsewhere they change nothing in floating point."""
+    out = np.exp(k[None, :] * z[:, None])
+    if math.isinf(depth) or not len(z):
+        return out
+    near = np.flatnonzero(2.0 * k * (float(z.min()) + depth) < 40.0)
+    if len(near):
+        kn = k[near]
+        out[:, near] = (out[:, near] + np.exp(-kn[None, :] * (z[:, None] + 2 * depth))) / (1.0 + np.exp(-2 * kn * depth))
+    return out
+
+
+@dataclass(frozen=True)
+class _Recurrence:
+    """Components of one heading whose wave numbers are a quadratic in their index, ordered by
+    frequency: k_c = k0 + c dk + c (c - 1) d2 / 2 (w_c = w0 + c dw, k = w^2 / g in deep water), the
+    pressure's sum over them by the compiled recurrence (server/incident_kernels.py)."""
+    columns: np.ndarray      # (n_g,) component indices, by increasing frequency
+    direction: np.ndarray    # (2,) cos b, sin b
+    k0: float
+    dk: float
+    d2: float
+
+
+@dataclass(frozen=True)
+class _PressureSplit:
+    """How the Froude–Krylov pressure's sum over the components is taken: the short waves (deep
+    water for them, k h >= 20, and their depth factor e^{kz} to round-off at every height above
+    ``floor``) by recurrences; the others as one series (``long``, :class:`DepthExpansion`) where
+    it has fewer than ten terms per component, else (``direct``) one cosine and depth factor each."""
+    recurrences: tuple[_Recurrence, ...]
+    long: DepthExpansion | None   # the long waves' sum as a series (where that is cheaper than direct)
+    long_columns: np.ndarray      # its component indices
+    direct: np.ndarray            # component indices summed one by one
+    floor: float                  # m: the lowest stretched height the split holds for (below: all direct)
+
+
+def _split_components(omega: np.ndarray, k: np.ndarray, heading: np.ndarray, g: float, depth: float,
+                      reach: float, floor: float) -> _PressureSplit:
+    """The :class:`_PressureSplit` of the components for hulls within ``reach`` (m) horizontally of
+    their reference points: per heading, the components deep to round-off down to ``floor``
+    (k h >= 20 and 2 k (floor + h) >= 40), in runs of evenly spaced frequencies of three or more
+    (one run for a sea's grid; several where ``froude_krylov_energy`` < 1 kept a subset), are
+    recurrences where their wave numbers are the recurrence's quadratic to within a phase of 1e-11
+    over ``reach``; the rest long (a series) or direct."""
+    recurrences, rest = [], []
+    for b in np.unique(heading):
+        cols = np.flatnonzero(heading == b)
+        cols = cols[np.argsort(omega[cols], kind="stable")]
+        deep = np.ones(len(cols), bool) if math.isinf(depth) else \
+            (k[cols] * depth >= 20.0) & (2.0 * k[cols] * (floor + depth) >= 40.0)
+        rest.append(cols[~deep])
+        for run in _even_runs(omega[cols[deep]]):
+            run_cols = cols[deep][run]
+            w, c = omega[run_cols], np.arange(len(run_cols), dtype=float)
+            dw = (w[-1] - w[0]) / (len(w) - 1)
+            k0, dk, d2 = w[0] ** 2 / g, (2.0 * w[0] * dw + dw * dw) / g, 2.0 * dw * dw / g
+            if len(w) >= 3 and np.max(np.abs(k0 + c * dk + 0.5 * c * (c - 1.0) * d2 - k[run_cols])) * reach <= 1e-11:
+                recurrences.append(_Recurrence(run_cols, np.array([np.cos(b), np.sin(b)]), k0, dk, d2))
+            else:
+                rest.append(run_cols)
+    rest = np.sort(np.concatenate(rest))
+    if len(rest):
+        long = DepthExpansion(k[rest], heading[rest], 0.5 * reach, floor, lambda kc, z: _depth_factor(kc, z, depth),
+                              compiled=True)
+        if long.converged and long.terms <= 10 * len(rest):
+            return _PressureSplit(tuple(recurrences), long, rest, rest[:0], floor)
+    return _PressureSplit(tuple(recurrences), None, rest[:0], rest, floor)
+
+
+def _even_runs(w: np.ndarray) -> list[np.ndarray]:
+    """Index runs of ``w`` (sorted) whose steps are equal to within 1e-9 of the step."""
+    if len(w) < 2:
+        return [np.arange(len(w))] if len(w) else []
+    step = np.diff(w)
+    breaks = np.flatnonzero(np.abs(np.diff(step)) > 1e-9 * np.abs(step[1:])) + 1   # step i differs from i - 1
+    runs, start = [], 0
+    for i in breaks:      # step i joins w[i] and w[i + 1]: a run ends at w[i]
+        if i > start:
+            runs.append(np.arange(start, i + 1))
+            start = i + 1
+    runs.append(np.arange(start, len(w)))
+    return [r for r in runs if len(r)]
 
 
 @dataclass(frozen=True)
@@ -57,7 +147,8 @@ class NonlinearBody:
     index: int              # position among the server's wet bodies
     mode: str               # "hydrostatic" | "froude-krylov"
     hull: Hull              # relative to the reference point
-    loads: np.ndarray       # (3T, 6) its triangles' corner_loads in the body's frame, corners flattened
+    loads: np.ndarray       # (T, 3, 6) its triangles' corner_loads in the body's frame
+    vertex_loads: np.ndarray   # (V, 6) their sums over each vertex's triangles
     reference: np.ndarray   # (3,) reference point at equilibrium
     weight: float           # m g [N]
     lever: np.ndarray       # (3,) centre of mass minus reference point, at equilibrium
@@ -71,7 +162,11 @@ class NonlinearHydro:
     """The nonlinear hydrostatic and Froude–Krylov differences for a scene's nonlinear bodies."""
 
     def __init__(self, bodies: list[NonlinearBody], waves: WaveComponents, rho: float, g: float, depth: float,
-                 n_bodies: int):
+                 n_bodies: int, compiled: bool = AVAILABLE):
+        """``compiled``: the incident wave on the hulls by the compiled kernels where they apply
+        (server/incident_kernels.py), else by numpy (same results to round-off)."""
+        self.compiled = compiled
+        self.split: _PressureSplit | None = None   # set by build_nonlinear (needs the hulls' reach)
         self.bodies, self.rho, self.g, self.depth, self.n_bodies = bodies, rho, g, depth, n_bodies
         self.ramp = waves.ramp
         self.still = waves.size == 0
@@ -81,6 +176,9 @@ class NonlinearHydro:
             beta = waves.heading_of()
             self.kx, self.ky = self.k * np.cos(beta), self.k * np.sin(beta)
             self.amp = waves.amplitude * np.exp(1j * waves.phase)
+            self.amplitude, self.phase = waves.amplitude.copy(), waves.phase.copy()
+            self.k_xy = np.vstack([self.kx, self.ky])                  # (2, n_c): theta = (x, y) @ k_xy
+        self.expansion: PhaseExpansion | None = None   # set by build_nonlinear once the hulls are known
         self.warnings: list[str] = []
         self.froude_krylov = False   # some body has "froude-krylov": the reply carries that field
 
@@ -88,12 +186,41 @@ class NonlinearHydro:
         """a_c e^{i theta_c(x, y)} at points (P, 3): (P, n_c)."""
         return self.amp[None, :] * np.exp(1j * (np.outer(pts[:, 0], self.kx) + np.outer(pts[:, 1], self.ky)))
 
-    def _fk_pressure(self, z: np.ndarray, e: np.ndarray, eta: np.ndarray) -> np.ndarray:
-        """p_FK / (rho g) at wet points of heights z (P,) with phasors ``e`` (P, n_c) times e^{-iwt}
-        and ramp, Wheeler-stretched by the elevation ``eta`` (P,) there."""
-        h = self.depth
-        z_s = z - eta if math.isinf(h) else h * (z - eta) / (h + eta)
-        return np.real(np.sum(e * _depth_factor(self.k, np.minimum(z_s, 0.0), h), axis=1))
+    def _fk_pressure(self, pts: np.ndarray, eta: np.ndarray, reference: np.ndarray, t: float,
+                     ramp: float) -> np.ndarray:
+        """p_FK / (rho g) at wet points (P, 3), Wheeler-stretched by the elevation ``eta`` (P,)
+        there: ramp sum_c a_c cos(theta_c(x, y) + phi_c - w_c t) f_c(z_s). The short waves by the
+        compiled recurrences where ``self.split`` has them (horizontal coordinates from the body's
+        ``reference`` point (2,), its phase in the amplitudes), the rest by :meth:`_direct_pressure`."""
+        h, z = self.depth, pts[:, 2]
+        # stretched, at most at the surface and at least at the seabed (a hull sent below the seabed
+        # gets the seabed's pressure, not an overflow of the depth factor)
+        z_s = np.clip(z - eta if math.isinf(h) else h * (z - eta) / (h + eta), -h, 0.0)
+        split = self.split
+        if split is None or not len(z_s) or float(z_s.min()) < split.floor:
+            return ramp * self._direct_pressure(pts, z_s, slice(None), t)
+        out = ramp * self._direct_pressure(pts, z_s, split.direct, t) if len(split.direct) else np.zeros(len(pts))
+        offsets = pts[:, :2] - reference
+        if split.long is not None:
+            col = split.long_columns
+            out += ramp * split.long.pressure(offsets, z_s, reference, self.phase[col] - self.omega[col] * t,
+                                              self.amplitude[col])
+        for r in split.recurrences:
+            col = r.columns
+            a = ramp * self.amplitude[col] * np.exp(
+                1j * (self.k[col] * float(reference @ r.direction) + self.phase[col] - self.omega[col] * t))
+            deep_pressure(offsets @ r.direction, z_s, a, r.k0, r.dk, r.d2, out)
+        return out
+
+    def _direct_pressure(self, pts: np.ndarray, z_s: np.ndarray, cols, t: float) -> np.ndarray:
+        """sum_c a_c cos(theta_c(x, y) + phi_c - w_c t) f_c(z_s) over the components ``cols`` at
+        points (P, 3), stretched heights ``z_s`` (P,) <= 0: one cosine and one depth factor per
+        point and component (no complex exponential, no sine)."""
+        theta = pts[:, :2] @ self.k_xy[:, cols]
+        theta += self.phase[cols] - self.omega[cols] * t
+        f = _depth_factor(self.k[cols], z_s, self.depth)
+        f *= np.cos(theta, out=theta)
+        return f @ self.amplitude[cols]
 
     def fk_linear_phasors(self, hull: Hull, reference: np.ndarray) -> np.ndarray:
         """(6, n_c) complex: the Froude–Krylov force and moment of each wave component (unit time
@@ -109,31 +236,32 @@ class NonlinearHydro:
     def force(self, t: float, position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The two differences (N, 6) each (module docstring) for the absolute poses (N, 6).
 
-        The wholly wet triangles' integral is linear in their corner pressures with coefficients
-        fixed in the body's frame (``NonlinearBody.loads``): one matrix-vector product; only the
-        triangles the free surface cuts go through :func:`clip_wet`. Loads are summed in the body's
-        frame about its reference point and turned to the global axes at the end."""
+        The pressures are integrated over the wet part of each hull (server/wet_surface_kernel.py,
+        compiled, or :func:`_wet_loads`) in the body's frame about its reference point, and the
+        loads turned to the global axes at the end."""
         hs, fk = np.zeros((self.n_bodies, 6)), np.zeros((self.n_bodies, 6))
         rg = self.rho * self.g
-        time_factor = None if self.still else ramp_factor(t, self.ramp) * np.exp(-1j * self.omega * t)
+        ramp = ramp_at(t, self.ramp)
+        time_factor = None if self.still else ramp * np.exp(-1j * self.omega * t)
         for b in self.bodies:
             pose = position[b.index]
             rot = rotation_xyz(pose[3:])
             local, tris = b.hull.vertices, b.hull.triangles
-            verts = pose[:3] + local @ rot.T
+            offset = local @ rot.T
+            verts = pose[:3] + offset
             waves = b.mode == "froude-krylov" and not self.still
-            e = self._phasors(verts) * time_factor[None, :] if waves else None
-            eta = np.real(e.sum(axis=1)) if waves else 0.0
+            eta = ramp * self.expansion.elevation(offset[:, :2], pose[:2], self.phase - self.omega * t,
+                                                  self.amplitude) if waves else 0.0
             d = verts[:, 2] - eta
-            wet = d[tris] <= 0.0
-            count = wet.sum(axis=1)
-            full = (count == 3).astype(float)[:, None]                       # (T, 1)
-            part = np.flatnonzero((count == 1) | (count == 2))
-            pts, cut = clip_wet(local[tris[part]], d[tris[part]])           # body frame
-            z = interpolate(verts[tris[part], 2], cut)                       # global heights of their corners
-            z_v = verts[:, 2]
-            load = (-rg * z_v[tris] * full).reshape(-1) @ b.loads + pressure_load(pts, -rg * z)
-            f_hs = np.concatenate([rot @ load[:3], rot @ load[3:]])
+            wet_v = np.flatnonzero(d <= 0.0)
+            p_v = np.zeros(len(verts))            # the Froude-Krylov pressure / (rho g) at the wet vertices
+            if waves:
+                p_v[wet_v] = self._fk_pressure(verts[wet_v], eta[wet_v], pose[:2], t, ramp)
+            if self.compiled:
+                load_hs, load_fk = rg * cut_hull_loads(local, tris, d, verts[:, 2], p_v, b.loads, b.vertex_loads)
+            else:
+                load_hs, load_fk = rg * _wet_loads(b, verts[:, 2], d, wet_v, p_v)
+            f_hs = np.concatenate([rot @ load_hs[:3], rot @ load_hs[3:]])
             f_hs[2] -= b.weight
             arm = rot @ b.lever
             f_hs[3:] += [-arm[1] * b.weight, arm[0] * b.weight, 0.0]       # arm x (0, 0, -m g)
@@ -143,16 +271,50 @@ class NonlinearHydro:
             hs[b.index] = (f_hs - linear) * b.active
             if not waves:
                 continue
-            wet_v = np.flatnonzero(d <= 0.0)
-            p_v = np.zeros(len(verts))
-            p_v[wet_v] = self._fk_pressure(verts[wet_v, 2], e[wet_v], eta[wet_v])
-            p_c = interpolate(p_v[tris[part]], cut)
-            surface = cut.s < 1.0
-            p_c[surface] = z[surface]   # on the free surface p_FK = rho g eta = rho g z (stretched)
-            load = rg * ((p_v[tris] * full).reshape(-1) @ b.loads + pressure_load(pts, p_c))
-            f_fk = np.concatenate([rot @ load[:3], rot @ load[3:]])
+            f_fk = np.concatenate([rot @ load_fk[:3], rot @ load_fk[3:]])
             fk[b.index] = (f_fk - np.real(b.fk_linear @ time_factor)) * b.active
         return hs, fk
+
+
+def _wet_loads(b: NonlinearBody, z: np.ndarray, d: np.ndarray, wet_v: np.ndarray, p_v: np.ndarray) -> np.ndarray:
+    """(2, 6): the loads per unit rho g of the hydrostatic pressure -z and the Froude–Krylov
+    pressure ``p_v`` (V,) over the wet part of the hull (d <= 0) in the body's frame, by numpy
+    (server/wet_surface_kernel.py compiles the same sum): the wholly wet triangles as the wet
+    vertices' pressures times their per-vertex load sums, less what the cut triangles' wet corners
+    added there; the cut triangles through :func:`clip_wet`."""
+    tris = b.hull.triangles
+    count = (d <= 0.0)[tris].sum(axis=1)
+    part = np.flatnonzero((count == 1) | (count == 2))
+    pts, cut = clip_wet(b.hull.vertices[tris[part]], d[tris[part]])
+    z_c = interpolate(z[tris[part]], cut)                       # global heights of their corners
+    p_c = interpolate(p_v[tris[part]], cut)
+    surface = cut.s < 1.0
+    p_c[surface] = z_c[surface]   # on the free surface p_FK = rho g eta = rho g z (stretched)
+    p = np.stack([-z, p_v])
+    p[0, d > 0.0] = 0.0
+    full = p[:, wet_v] @ b.vertex_loads[wet_v] - p[:, tris[part]].reshape(2, -1) @ b.loads[part].reshape(-1, 6)
+    return full + np.stack([-z_c.reshape(-1), p_c.reshape(-1)]) @ corner_loads(pts).reshape(-1, 6)
+
+
+def _vertex_sums(hull: Hull, loads: np.ndarray) -> np.ndarray:
+    """(V, 6): the corner loads (T, 3, 6) of the hull's triangles summed over each vertex."""
+    out = np.zeros((len(hull.vertices), 6))
+    np.add.at(out, hull.triangles.reshape(-1), loads.reshape(-1, 6))
+    return out
+
+
+def strongest_components(waves: WaveComponents, fraction: float) -> WaveComponents:
+    """The fewest components, most energetic first, whose variance sum a_c^2 / 2 reaches
+    ``fraction`` of the sea's (``[hydro] froude_krylov_energy``; all of them at 1), in their
+    original order."""
+    if fraction >= 1.0 or waves.size <= 1:
+        return waves
+    energy = waves.amplitude ** 2
+    order = np.argsort(-energy, kind="stable")
+    n = int(np.searchsorted(np.cumsum(energy[order]), fraction * energy.sum() * (1 - 1e-12))) + 1
+    keep = np.sort(order[:min(n, waves.size)])
+    return replace(waves, omega=waves.omega[keep], amplitude=waves.amplitude[keep], phase=waves.phase[keep],
+                   headings=None if waves.headings is None else waves.headings[keep])
 
 
 def build_nonlinear(scene: Scene, wet: list[int], hulls: dict[str, Hull], waves: WaveComponents,
@@ -163,7 +325,8 @@ def build_nonlinear(scene: Scene, wet: list[int], hulls: dict[str, Hull], waves:
     nonlinear body); ``stiffness`` the setup's (6N, 6N) hydrostatic stiffness, ``net_buoyancy``
     the setup's per wet body (None: none applied)."""
     water = scene.water
-    model = NonlinearHydro([], waves, water.density, water.gravity, water.depth_m, len(wet))
+    kept = strongest_components(waves, scene.hydro.froude_krylov_energy)
+    model = NonlinearHydro([], kept, water.density, water.gravity, water.depth_m, len(wet), compiled=AVAILABLE)
     bodies = []
     for k, i in enumerate(wet):
         body = scene.bodies[i]
@@ -172,7 +335,7 @@ def build_nonlinear(scene: Scene, wet: list[int], hulls: dict[str, Hull], waves:
             continue
         ref = np.asarray(references[k], float)
         hull = Hull(hulls[body.name].vertices - ref, hulls[body.name].triangles, hulls[body.name].volume)
-        fk = model.fk_linear_phasors(hull, ref) if mode == "froude-krylov" and waves.size else None
+        fk = model.fk_linear_phasors(hull, ref) if mode == "froude-krylov" and kept.size else None
         at_rest = hull.vertices[hull.triangles]
         pts, _ = clip_wet(at_rest, at_rest[..., 2] + ref[2])
         volume = float(pressure_load(pts, -(pts[..., 2] + ref[2]))[2])    # buoyancy / (rho g) at rest
@@ -184,14 +347,32 @@ def build_nonlinear(scene: Scene, wet: list[int], hulls: dict[str, Hull], waves:
                 f"{linear_volume:.6g} m^3 ({100 * (volume / linear_volume - 1):+.3g} %): the nonlinear hydrostatic "
                 f"force holds the difference, {water.density * water.gravity * (volume - linear_volume):.4g} N, "
                 "from the start")
+        loads = corner_loads(hull.vertices[hull.triangles])
         bodies.append(NonlinearBody(
-            index=k, mode=mode, hull=hull, loads=corner_loads(hull.vertices[hull.triangles]).reshape(-1, 6), reference=ref, weight=body.mass * water.gravity,
+            index=k, mode=mode, hull=hull, loads=loads, vertex_loads=_vertex_sums(hull, loads), reference=ref,
+            weight=body.mass * water.gravity,
             lever=body.com_or(ref) - ref, linear_net=float(net_buoyancy[k] or 0.0),
             stiffness=stiffness[6 * k:6 * k + 6, 6 * k:6 * k + 6].copy(), fk_linear=fk,
             active=active[k].astype(float)))
     if not bodies:
         return None
     model.bodies = bodies
+    if model.compiled:
+        incident_kernels.warm_up()
+        wet_surface_kernel.warm_up()
+    if kept.size < waves.size and any(b.mode == "froude-krylov" for b in bodies):
+        share = float(np.sum(kept.amplitude ** 2) / np.sum(waves.amplitude ** 2))
+        model.warnings.append(
+            f"hydro.froude_krylov_energy: the nonlinear Froude-Krylov pressure and free surface use the "
+            f"{kept.size} most energetic of {waves.size} wave components ({100 * share:.4g} % of the variance); "
+            "the others act through the linear excitation only. Set it to 1 for all of them")
+    if not model.still:
+        radius = max(float(np.linalg.norm(b.hull.vertices, axis=1).max()) for b in bodies)
+        model.expansion = PhaseExpansion(model.k, kept.heading_of(), radius, compiled=model.compiled)
+        if model.compiled:
+            floor = 2.0 * min(float(b.reference[2]) - radius for b in bodies)
+            model.split = _split_components(model.omega, model.k, kept.heading_of(), model.g, model.depth,
+                                            2.0 * radius, floor)
     model.froude_krylov = any(b.mode == "froude-krylov" for b in bodies)
     return model
 
@@ -211,7 +392,7 @@ class NonlinearTerm(ForceTerm):
         self.model, self.warnings = model, tuple(model.warnings)
 
     @classmethod
-    def build(cls, ctx: TermContext) -> "NonlinearTerm | None":
+    def build(cls, ctx: TermContext) -> NonlinearTerm | None:
         scene = ctx.scene
         for i in ctx.wet:
             body = scene.bodies[i]

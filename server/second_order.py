@@ -9,9 +9,9 @@ eta = sum A_i cos(w_i t + phi_i), i.e. a_i is our c_i with phi -> -phi: the HDB'
 with a_i e^{-i w_i t} = z_i(t). So, for each force DOF d and r(t) the excitation's ramp,
 
     mean drift   F_d = r^2 sum_i A_i^2 T_ii,d                      (T_ii: mean_drift at w_i, b_i)
-    Newman       F_d = r^2 (|sum_i z_i s+_id|^2 - |sum_i z_i s-_id|^2),  s+-_id = sqrt(max(+-T_ii,d, 0))
-                 (Standing's factorised form: off-diagonal sign(T) sqrt(T_ii T_jj) where the signs
-                 agree, 0 where they differ; Newman's 1/2 (T_ii + T_jj) to second order in w_i - w_j)
+    Newman       F_d = r^2 Re[(sum_i z_i T_ii,d) conj(sum_j z_j)]
+                 (Newman's T_ij = 1/2 (T_ii + T_jj) exactly: the double sum Re sum_ij z_i conj(z_j)
+                 1/2 (T_ii + T_jj) is the real part of one product of two single sums, O(N))
     difference   F_d = r^2 Re sum_ij z_i conj(z_j) T-_ij,d
     sum          F_d = r^2 Re sum_ij z_i z_j T+_ij,d
 
@@ -32,7 +32,7 @@ import numpy as np
 import xarray as xr
 
 from hydrolink.protocol.hdb_schema import MEAN_DRIFT_DIMS, QTF_DIMS, HDBError, select_bodies
-from hydrolink.protocol.hdb_second_order import drift_methods, qtf_kinds
+from hydrolink.protocol.hdb_second_order import drift_body_fixed, drift_methods, qtf_kinds
 from hydrolink.protocol.scene import Scene
 from hydrolink.server.allocation import require_size
 from hydrolink.server.errors import ModelError
@@ -77,13 +77,13 @@ def _same_angle(a: float, b: float) -> bool:
 class BodySecondOrder:
     """One body's second-order force from the components z (n_c,) at a time, before the ramp.
 
-    ``mean`` (6,) constant; ``standing`` (n_c, 12) the real s+ and s- weights (Newman); ``lift``
+    ``mean`` (6,) constant; ``newman`` (n_c, 6) the diagonal T_ii (Newman); ``lift``
     (n_c, n_y) the QTF interpolation L over the heading groups; ``difference`` / ``sum``
     (6 n_y, n_y) the QTF G of each DOF stacked (rows d n_y + a)."""
 
     row: int                           # the body's position among the served bodies
     mean: np.ndarray | None = None
-    standing: np.ndarray | None = None
+    newman: np.ndarray | None = None
     lift: np.ndarray | None = None
     difference: np.ndarray | None = None
     sum: np.ndarray | None = None
@@ -91,10 +91,8 @@ class BodySecondOrder:
     def force(self, z: np.ndarray) -> np.ndarray:
         """(6,) the force for the component phasors ``z`` (no ramp)."""
         f = np.zeros(6) if self.mean is None else self.mean.copy()
-        if self.standing is not None:
-            s = z @ self.standing
-            p = s.real ** 2 + s.imag ** 2
-            f += p[:6] - p[6:]
+        if self.newman is not None:
+            f += ((z @ self.newman) * np.conj(z.sum())).real
         if self.lift is not None:
             y = z @ self.lift
             n = y.size
@@ -199,11 +197,10 @@ def body_second_order(scene: Scene, i: int, row: int, ds: xr.Dataset, waves: Wav
         if mode == "mean-drift":
             parts["mean"] = (waves.amplitude ** 2) @ diag
         else:
-            # complex already: a real right operand would be cast on every step
-            parts["standing"] = np.hstack([np.sqrt(np.maximum(diag, 0.0)), np.sqrt(np.maximum(-diag, 0.0))]).astype(complex)
-        note = str(ds.attrs.get("mean_drift_note", ""))
+            parts["newman"] = diag.astype(complex)   # complex already: a real operand would be cast each step
         moving = [d for d in body.dofs]
-        if "fixed" in note and moving:
+        if drift_body_fixed(sub) and moving:
+            note = str(ds.attrs.get("mean_drift_note", ""))
             warnings.append(f"{key}: the mean drift of {src!r} was computed for the body held fixed ({note}) "
                             f"but body {body.name!r} moves in {moving}: its drift includes no motion effect; "
                             f"lock bodies[{i}].dofs or use coefficients computed with the body's motions")
@@ -240,7 +237,7 @@ class SecondOrderTerm(ForceTerm):
         self._dt = float(dt)
         self._rotation = np.exp(-1j * self._w * self._dt)
         self._ramp = float(waves.ramp)
-        self._phasors = any(p.standing is not None or p.lift is not None for p in parts)  # else constant
+        self._phasors = any(p.newman is not None or p.lift is not None for p in parts)  # else constant
         self._t, self._z, self._since = np.nan, self._c, 0    # the newest phasors, at time _t
         self.warnings = tuple(warnings)
 

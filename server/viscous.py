@@ -17,7 +17,7 @@ import numpy as np
 from hydrolink.protocol.scene import Scene
 from hydrolink.server.force_term import ForceTerm, TermContext
 from hydrolink.server.kinematics import Kinematics
-from hydrolink.server.waves import WaveComponents
+from hydrolink.server.waves import WaveComponents, WavePhases
 
 
 @dataclass(frozen=True)
@@ -74,10 +74,11 @@ class ViscousDamping:
 
 
 def build_viscous(scene: Scene, wet: list[int], idx: np.ndarray, waves: WaveComponents,
-                  reference_points: np.ndarray) -> ViscousDamping | None:
+                  reference_points: np.ndarray, phases: WavePhases | None = None) -> ViscousDamping | None:
     """The damping and drag of the scene's wet bodies (scene indices ``wet``, in the server's body
     order) over the active DOFs ``idx`` of their 6N vector; None when no body has any.
-    ``reference_points`` (N, 3): where relative drag takes the wave's particle velocity."""
+    ``reference_points`` (N, 3): where relative drag takes the wave's particle velocity; ``phases``
+    the step's [cos wt; sin wt] shared with the linear excitation (None: its own)."""
     bodies = [scene.bodies[i] for i in wet]
     parts = {}
     for key in ("linear_damping", "quadratic_damping"):
@@ -105,8 +106,8 @@ def build_viscous(scene: Scene, wet: list[int], idx: np.ndarray, waves: WaveComp
         for k, b in enumerate(bodies):
             if b.drag is not None and b.drag.relative:
                 rows[6 * k:6 * k + 3] = 3 * k + np.arange(3)
-        wave = (Kinematics(waves, reference_points, scene.water.gravity, scene.water.depth_m, scene.current)
-                if relative else None)
+        wave = (Kinematics(waves, reference_points, scene.water.gravity, scene.water.depth_m, scene.current,
+                           phases=phases) if relative else None)
         drag = DragTerm(coef[idx], wave, rows[idx])
     if parts["linear_damping"] is None and parts["quadratic_damping"] is None and drag is None:
         return None
@@ -129,7 +130,8 @@ class ViscousTerm(ForceTerm):
 
     @classmethod
     def build(cls, ctx: TermContext) -> "ViscousTerm | None":
-        damping = build_viscous(ctx.scene, ctx.wet, ctx.active_index, ctx.waves, ctx.equilibrium[:, :3])
+        damping = build_viscous(ctx.scene, ctx.wet, ctx.active_index, ctx.waves, ctx.equilibrium[:, :3],
+                                ctx.phases)
         return None if damping is None else cls(damping, ctx.active_index, ctx.n_bodies)
 
     def force(self, t: float, position: np.ndarray, velocity: np.ndarray) -> tuple[np.ndarray]:

@@ -75,6 +75,11 @@ def ramp_factor(t, t_ramp: float):
     return r[()]
 
 
+def ramp_at(t: float, t_ramp: float) -> float:
+    """:func:`ramp_factor` at one time, as a float (the per-step hot paths: no array calls)."""
+    return 0.5 * (1.0 - math.cos(math.pi * max(t, 0.0) / t_ramp)) if (t_ramp > 0 and t < t_ramp) else 1.0
+
+
 def _jonswap_shape(omega, tp: float, gamma: float):
     omega = np.asarray(omega, float)
     wp = 2 * np.pi / tp
@@ -265,13 +270,37 @@ def interpolate_excitation(omega_hdb: np.ndarray, directions: np.ndarray, x: np.
     return re + 1j * im
 
 
+class WavePhases:
+    """[cos(w t); sin(w t)] of the wave components, computed once per time for every user of a
+    step (the linear excitation, the incident-wave kinematics of drag and Morison terms)."""
+
+    def __init__(self, omega: np.ndarray):
+        self.omega = np.array(omega, float)
+        self._trig = np.empty(2 * self.omega.size)
+        #: (2 n_c,) read-only: the values of the last :meth:`at` (views of it follow each step)
+        self.values = self._trig.view()
+        self.values.flags.writeable = False
+        self._t: float | None = None
+
+    def at(self, t: float) -> np.ndarray:
+        """(2 n_c,) read-only [cos(w t); sin(w t)] at time ``t`` (computed when ``t`` changes)."""
+        if t != self._t:
+            n = self.omega.size
+            wt = self.omega * t
+            np.cos(wt, out=self._trig[:n])
+            np.sin(wt, out=self._trig[n:])
+            self._t = t
+        return self.values
+
+
 class WaveForcing:
     """Per-step excitation and elevation: one real matvec over [cos(w t); sin(w t)].
 
     Re{c e^{-i w t}} = Re(c) cos(w t) + Im(c) sin(w t); the elevation is one extra row."""
 
-    def __init__(self, comps: WaveComponents, x_components: np.ndarray):
-        """x_components (n_c, n): X at the component frequencies and the wave heading."""
+    def __init__(self, comps: WaveComponents, x_components: np.ndarray, phases: WavePhases | None = None):
+        """x_components (n_c, n): X at the component frequencies and the wave heading; ``phases``
+        the step's shared [cos; sin] of ``comps`` (None: its own)."""
         self.comps = comps
         n = x_components.shape[1]
         c = comps.amplitude * np.exp(1j * comps.phase)  # (n_c,)
@@ -279,7 +308,7 @@ class WaveForcing:
         self._m = np.ascontiguousarray(np.hstack([coef.real, coef.imag]))  # (n+1, 2 n_c)
         if comps.size == 1:   # regular wave: the two columns contiguous
             self._m0, self._m1 = self._m[:, 0].copy(), self._m[:, 1].copy()
-        self._trig = np.empty(2 * comps.size)
+        self._phases = WavePhases(comps.omega) if phases is None else phases
         self._n = n
         self._still = comps.size == 0
         self._w0 = float(comps.omega[0]) if comps.size else 0.0
@@ -288,18 +317,12 @@ class WaveForcing:
         """(F_ex (n,), eta) at time t."""
         if self._still:
             return np.zeros(self._n), 0.0
-        nc = self.comps.size
-        if nc == 1:  # regular wave: scalar trig is cheaper than array calls
+        if self.comps.size == 1:  # regular wave: scalar trig is cheaper than array calls
             wt = self._w0 * t
             out = self._m0 * math.cos(wt) + self._m1 * math.sin(wt)
         else:
-            wt = self.comps.omega * t
-            np.cos(wt, out=self._trig[:nc])
-            np.sin(wt, out=self._trig[nc:])
-            out = self._m @ self._trig
-        r = self.comps.ramp
-        if r > 0 and t < r:
-            out *= 0.5 * (1.0 - math.cos(math.pi * max(t, 0.0) / r))
+            out = self._m @ self._phases.at(t)
+        out *= ramp_at(t, self.comps.ramp)
         return out[:-1], float(out[-1])
 
 
@@ -407,8 +430,7 @@ class ConvolutionForcing:
         if self._f is None or not (self._k0 <= k < self._k0 + self.block):
             self._compute(k)
         i = k - self._k0
-        r = self.ramp
-        fac = 0.5 * (1.0 - math.cos(math.pi * max(t, 0.0) / r)) if (r > 0 and t < r) else 1.0
+        fac = ramp_at(t, self.ramp)
         return self._f[i] * fac, float(self._e[i] * fac)
 
 

@@ -284,7 +284,7 @@ def _templates() -> dict[str, dict]:
                     "waves": regular_waves(1.0, 6.0, direction=0.0, phase=10.0, ramp=2.0,
                                            excitation_irf_duration=5.0),
                     "current": {"speed": 0.5, "direction": 10.0, "profile": "power", "depth": 20.0}},
-        "irregular": {"simulation": sim, "water": water, "hydro": {"irf_duration": 2.0},
+        "irregular": {"simulation": sim, "water": water, "hydro": {"irf_duration": 2.0, "froude_krylov_energy": 0.99},
                       "waves": {"type": "irregular", "spectrum": "jonswap", "hs": 1.0, "tp": 6.0, "gamma": 3.3,
                                 "seed": 1, "direction": 0.0, "components": 40, "ramp": 1.0, "spreading": "cos2s",
                                 "s": 10.0, "directions": 3, "omega_range": [0.3, 3.5],

@@ -58,3 +58,26 @@ def test_irregular_sea_in_finite_depth_is_the_sum_of_its_components():
     got = kin.velocity(t)[0]
     assert np.all(np.isfinite(got)) and np.all(np.isfinite(kin.velocity_acceleration(t)[1]))
     np.testing.assert_allclose(got, total, atol=1e-10)
+
+
+def test_deep_points_leave_out_only_what_is_below_round_off():
+    """A JONSWAP sea of 300 components at points 5-25 m deep (deep water): the short waves' e^{kz}
+    and the spectrum's tails vanish there, so components are left out, and the velocity and
+    acceleration still equal the closed-form sum over all 300 components (written here) to
+    round-off of the terms' magnitudes."""
+    from hydrolink.protocol.scene import IrregularWave
+    g = 9.81
+    comps = wave_components(IrregularWave(type="irregular", spectrum="jonswap", hs=2.0, tp=8.0), 0.05, 12.0)
+    points = np.array([[0.0, 0.0, -5.0], [3.0, -1.0, -12.0], [0.0, 0.0, -25.0]])
+    kin = Kinematics(comps, points, g, math.inf)
+    assert comps.size == 300 and kin.omega.size < 250
+    for t in (0.0, 37.3, 1234.5):
+        vel, acc = kin.velocity_acceleration(t)
+        for p, (x, y, z) in enumerate(points):
+            k = comps.omega ** 2 / g
+            theta = k * x - comps.omega * t + comps.phase          # heading 0
+            amp = comps.amplitude * comps.omega * np.exp(k * z)
+            u = np.array([amp * np.cos(theta), 0.0 * theta, amp * np.sin(theta)])
+            du = np.array([amp * comps.omega * np.sin(theta), 0.0 * theta, -amp * comps.omega * np.cos(theta)])
+            np.testing.assert_allclose(vel[p], u.sum(axis=1), rtol=0, atol=1e-13 * np.abs(u).sum())
+            np.testing.assert_allclose(acc[p], du.sum(axis=1), rtol=0, atol=1e-13 * np.abs(du).sum())

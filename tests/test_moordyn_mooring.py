@@ -77,10 +77,13 @@ def moordyn_file(path: Path, headings_deg, *, coupled: str = "body", origin=(0.0
     return path
 
 
-def catenary(span: float, height: float) -> tuple[float, float]:
+def catenary(span: float, height: float, *, length: float = LENGTH, w: float = W, ea: float = EA
+             ) -> tuple[float, float]:
     """Elastic catenary with a frictionless seabed (anchor on the bed): horizontal and vertical
-    fairlead force (H, V) of a LENGTH line, weight W per metre, stiffness EA, for a fairlead ``span``
-    from the anchor horizontally and ``height`` above it."""
+    fairlead force (H, V) of a ``length`` line (default LENGTH), submerged weight ``w`` per metre
+    (W), stiffness ``ea`` (EA), for a fairlead ``span`` from the anchor horizontally and ``height``
+    above it."""
+    LENGTH, W, EA = length, w, ea   # noqa: N806 - the formulas below in the module's names
     def eqs(p):
         h, v = math.exp(p[0]), p[1]
         if v < W * LENGTH:      # part of the line on the seabed

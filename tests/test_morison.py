@@ -8,9 +8,11 @@ import math
 
 import numpy as np
 import pytest
+from scipy.optimize import brentq
 
 from conftest import SPHERE_WATER, regular_waves, scene_toml, sphere_body
 from hydrolink.protocol.scene import SceneError, parse_scene
+from hydrolink.server import morison_kernel
 from hydrolink.server.hdb.io import load_hdb
 from hydrolink.server.model import HydroModel
 
@@ -71,6 +73,59 @@ def test_the_members_added_mass_is_in_the_mass_matrix(sphere_path):
     zref = float(model(sphere_path, cd=0.0, ca=0.0).setup_info().equilibrium_position[0, 2])
     # surge-pitch: f = -m a, moment about y of a force along x at height z: (z - zref) f_x
     assert d[4, 0] == pytest.approx(RHO * area * (-draft ** 2 / 2 - zref * draft), rel=1e-6)
+
+
+@pytest.mark.parametrize("compiled", [False, pytest.param(True, marks=pytest.mark.skipif(
+    not morison_kernel.AVAILABLE, reason="numba not installed"))])
+def test_a_slanted_member_on_a_moving_body_against_the_strip_sum(sphere_path, compiled):
+    """A member slanted in x, y and z through the water line, on the sphere moving in all six DOFs
+    (displaced and with velocity and angular velocity), by numpy and by the compiled kernel
+    (server/morison_kernel.py): the reply against Morison's equation
+    evaluated here segment by segment, Airy kinematics in 200 m of water (dispersion solved with
+    brentq) at each segment's centre (at rest:
+    the segments' mean positions), the normal parts by (I - t t^T), the segment's velocity
+    v + omega x r, wet while the displaced centre is below z = 0 (heave, roll, pitch), and the
+    moments about the reference point."""
+    cd, ca, diameter, n = 0.9, 0.8, 1.5, 23
+    a_pt, b_pt = np.array([3.0, -4.0, 2.0]), np.array([12.0, 5.0, -9.0])
+    height, period = 2.0, 7.0
+    scene = parse_scene(scene_toml(dt=0.05, duration=100.0, water={**SPHERE_WATER, "gravity": G},
+                                   waves=regular_waves(height, period, phase=40.0),
+                                   bodies=[sphere_body(str(sphere_path), mass=261.8e3)],
+                                   morison=[{"body": "sphere", "point_a": a_pt.tolist(), "point_b": b_pt.tolist(),
+                                             "diameter": diameter, "cd": cd, "ca": ca, "segments": n}]))
+    m = HydroModel(scene, {"sphere": load_hdb(sphere_path)})
+    next(t for t in m.terms if t.name == "morison").members.compiled = compiled
+    eq = m.setup_info().equilibrium_position
+    ref = eq[0, :3]
+    w, amp, phi, depth = 2 * math.pi / period, height / 2, math.radians(40.0), SPHERE_WATER["depth"]
+    k = brentq(lambda k: G * k * math.tanh(k * depth) - w ** 2, 1e-6, 10.0)
+    axis = (b_pt - a_pt) / np.linalg.norm(b_pt - a_pt)
+    normal = np.eye(3) - np.outer(axis, axis)
+    length = np.linalg.norm(b_pt - a_pt) / n
+    vol = math.pi * diameter ** 2 / 4 * length
+    rng = np.random.default_rng(3)
+    for step in range(60):
+        t = step * 0.05
+        x = rng.normal(size=6) * [0.5, 0.5, 0.8, 0.05, 0.05, 0.1]
+        v = rng.normal(size=6) * [0.5, 0.5, 0.5, 0.1, 0.1, 0.1]
+        got = m.step(t, eq + x, v[None, :])["morison"][0]
+        expect = np.zeros(6)
+        for s in range(n):
+            c = a_pt + (s + 0.5) / n * (b_pt - a_pt)
+            r = c - ref
+            if c[2] + x[2] + x[3] * r[1] - x[4] * r[0] > 0.0:
+                continue
+            theta = k * c[0] - w * t + phi
+            zc = min(c[2], 0.0)
+            ch, sh = (math.cosh(k * (zc + depth)) / math.sinh(k * depth), math.sinh(k * (zc + depth)) / math.sinh(k * depth))
+            u = amp * w * np.array([ch * math.cos(theta), 0.0, sh * math.sin(theta)])
+            du = amp * w * w * np.array([ch * math.sin(theta), 0.0, -sh * math.cos(theta)])
+            rel = normal @ (u - v[:3] - np.cross(v[3:], r))
+            f = RHO * (1 + ca) * vol * (normal @ du) + 0.5 * RHO * cd * diameter * length * np.linalg.norm(rel) * rel
+            expect += np.concatenate([f, np.cross(r, f)])
+        scale = np.abs(expect).max()
+        np.testing.assert_allclose(got, expect, rtol=0, atol=1e-12 * scale)
 
 
 def test_bad_members_are_named():

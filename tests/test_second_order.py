@@ -1,6 +1,6 @@
 """Second-order wave forces (server/second_order.py, issue 23) against references written here:
 the WAMIT formulas (F = rho g A^2 L Fbar for a .8 row; T = rho g L conj(Re + i Im) for a .12d/.12s
-row), the two-component closed forms of the mean, Newman (Standing) and full-QTF forces, and the
+row), the two-component closed forms of the mean, Newman (arithmetic mean) and full-QTF forces, and the
 static offset F/k of a body on a surge spring in a hydrolink run."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import xarray as xr
 
 from conftest import SPHERE_WATER, irregular_waves, regular_waves, scene_toml, sphere_body, write_scene
 
-from hydrolink.protocol.hdb_schema import to_netcdf
+from hydrolink.protocol.hdb_schema import HDBError, to_netcdf
 from hydrolink.protocol.hdb_second_order import with_second_order
 from hydrolink.protocol.scene import parse_scene
 from hydrolink.server.errors import ModelError
@@ -125,7 +125,7 @@ def _term(ds: xr.Dataset, waves: WaveComponents, **hydro) -> SecondOrderTerm:
 
 @pytest.mark.parametrize("mode", ["mean-drift", "newman", "qtf"])
 def test_bichromatic_sea_against_the_closed_form(drift_hdb, mode):
-    """Two components on the data's grid: the mean, Newman (Standing) and full difference (+ sum)
+    """Two components on the data's grid: the mean, Newman (T12 = (T11 + T22)/2) and full difference (+ sum)
     force against the two-component formulas written out here."""
     ds, _ = drift_hdb
     (p1, p2), amp, phase = (9.0, 7.0), (1.2, 0.7), (0.4, 2.1)
@@ -138,8 +138,9 @@ def test_bichromatic_sea_against_the_closed_form(drift_hdb, mode):
         if mode in ("mean-drift", "newman"):
             t11, t22 = rg * ULEN * drift_bar(p1, 1), rg * ULEN * drift_bar(p2, 1)
             expect = a1 ** 2 * t11 + a2 ** 2 * t22
-            if mode == "newman":   # Standing: T12 = sqrt(T11 T22) (both positive here)
-                expect += 2 * a1 * a2 * np.sqrt(t11 * t22) * np.cos(dw * t - dphi)
+            if mode == "newman":   # Newman: T12 = T21 = (T11 + T22) / 2
+                # (eta = sum A_i cos(w_i t - phi_i) here: the beat is cos((w1 - w2) t - (phi1 - phi2)))
+                expect += a1 * a2 * (t11 + t22) * np.cos(dw * t - dphi)
             assert f[0] == pytest.approx(expect, rel=1e-9)
             continue
         for qmode, dof in ((1, 0), (3, 2)):
@@ -251,11 +252,27 @@ def test_fixed_body_drift_on_a_moving_body_is_a_warning_naming_the_key(sphere, t
     values = np.zeros((1, w.size, 1, 6))
     values[0, :, 0, 0] = 500.0
     ds = with_second_order(sphere, mean_drift=MeanDrift(("far-field",), w, np.zeros(1), values,
-                                                        "Capytaine far-field (Kochin), body fixed"))
+                                                        "Capytaine far-field (Kochin)", body_fixed=True))
     text = scene_toml(dt=0.1, duration=10.0, water=SPHERE_WATER, waves=regular_waves(1.0, 7.0),
                       bodies=[sphere_body("sphere_drift.nc", mass=MASS, second_order="mean-drift")])
     model = HydroModel(parse_scene(text), {"sphere": ds})
     assert any(m.startswith("bodies[0].second_order:") and "fixed" in m for m in model.warnings)
+    # the typed field decides, not the note's words: the same note with the body's motions warns nothing
+    free = with_second_order(sphere, mean_drift=MeanDrift(("far-field",), w, np.zeros(1), values,
+                                                          "Capytaine far-field (Kochin), body fixed"))
+    assert not HydroModel(parse_scene(text), {"sphere": free}).warnings
+    # and it survives the NetCDF file and the wire
+    from hydrolink.protocol.hdb_schema import from_netcdf_dataset
+    from hydrolink.protocol.hdb_second_order import drift_body_fixed
+    from hydrolink.protocol.hdb_wire import from_wire, to_wire
+    to_netcdf(ds, tmp_path / "fixed.nc")
+    with xr.open_dataset(tmp_path / "fixed.nc") as raw:
+        assert drift_body_fixed(from_netcdf_dataset(raw.load(), "fixed.nc"))
+    assert drift_body_fixed(from_wire(to_wire(ds), "h")) and not drift_body_fixed(from_wire(to_wire(free), "h"))
+    bad = ds.copy()
+    bad.attrs["mean_drift_body_fixed"] = "yes"
+    with pytest.raises(HDBError, match="mean_drift_body_fixed"):
+        with_second_order(bad)
     f = model.step(0.0, model.setup_info().equilibrium_position, np.zeros((1, 6)))["drift"][0]
     assert f[0] == pytest.approx(500.0 * 0.5 ** 2, rel=1e-12)
 
@@ -330,3 +347,214 @@ def test_irregular_sea_slow_drift_averages_to_the_mean_drift(drift_hdb):
     with pytest.raises(ModelError) as err:
         HydroModel(parse_scene(_scene(path, spread, second_order="mean-drift")), {"sphere": ds})
     assert err.value.key == "waves.spreading"
+
+
+# ------------------------------------------------------------------------------------------------
+# WEC-Sim BEMIO QTF groups (server/hdb/bemio_qtf.py)
+# ------------------------------------------------------------------------------------------------
+
+BEMIO_PERIODS = (7.0, 9.0, 5.5)      # the file's order (as WEC-Sim's assignIDs keeps it): not sorted
+
+
+def bemio_t(pi: float, pj: float, mode: int) -> complex:
+    """The QTF per A_i A_j / (rho g) written into the BEMIO file, exp(-iwt) (Hermitian: T_ji = conj T_ij)."""
+    return complex(0.2 + 0.01 * (pi + pj) + 0.1 * mode, 0.03 * (pi - pj) * mode)
+
+
+def write_bemio_qtf(src: Path, dst: Path, rho_g: float, *, sum_groups: bool = True) -> Path:
+    """``src`` (a BEMIO file) with body1's QTF1 groups in writeBEMIOH5's layout (WEC-Sim v6.1-v7.1):
+    per DOF, PER_i / BETA_i / BETA_j as MATLAB (n, 1) columns (h5py (1, n)) and the full square,
+    dimensional, as MATLAB's column-major F(:) in Re_F_ij / Im_F_ij (h5py (1, n^2)); Diff holds the
+    conjugate of the WAMIT (exp(+iwt)) row, i.e. the exp(-iwt) value. Surge and heave non-zero."""
+    import shutil
+
+    import h5py
+
+    shutil.copy(src, dst)
+    n = len(BEMIO_PERIODS)
+    with h5py.File(dst, "a") as fh:
+        for dof in range(1, 7):
+            square = np.array([[rho_g * bemio_t(pi, pj, dof) if dof in (1, 3) else 0j for pj in BEMIO_PERIODS]
+                               for pi in BEMIO_PERIODS])
+            flat = square.ravel(order="F")[None, :]
+            for kind in ("Diff", "Sum") if sum_groups else ("Diff",):
+                g = fh.create_group(f"body1/hydro_coeffs/excitation/QTF1/{kind}{dof}")
+                g["PER_i"] = np.array(BEMIO_PERIODS)[None, :]
+                g["BETA_i"] = np.zeros((1, n))
+                g["BETA_j"] = np.zeros((1, n))
+                g["Re_F_ij"] = flat.real
+                g["Im_F_ij"] = flat.imag
+                g["PHS_F_ij"] = np.angle(flat)
+    return dst
+
+
+def test_bemio_difference_qtf_against_the_bichromatic_closed_form(sphere_path, tmp_path):
+    """The BEMIO file's Diff square read in SI and exp(-iwt): the full-QTF force of a bichromatic sea
+    against the two-component closed form over the coefficients written into the file; its Sum
+    groups are left out with a warning (their sign depends on the WEC-Sim version), so
+    sum_frequency is refused naming the key."""
+    from hydrolink.server.hdb.io import load_hdb
+
+    rho_g = 1000.0 * 9.81
+    with pytest.warns(UserWarning, match="QTF1/Sum1.*left out"):
+        ds = load_hdb(write_bemio_qtf(sphere_path, tmp_path / "sphere_qtf.h5", rho_g))
+    assert "sum_qtf" not in ds and "Diff (WEC-Sim BEMIO)" in ds.attrs["qtf_source"]
+    (p1, p2), amp, phase = (9.0, 5.5), (0.9, 0.6), (1.1, -0.3)
+    w = [2 * np.pi / p1, 2 * np.pi / p2]
+    term = _term(ds, _bichromatic(w, amp, phase), second_order="qtf")
+    (a1, a2), (f1, f2) = amp, phase
+    dw, dphi = w[0] - w[1], f1 - f2
+    for t in (0.0, 2.9, 41.3):
+        f = term.force(t, np.zeros((1, 6)), np.zeros((1, 6)))[0][0]
+        for dof in (1, 3):
+            t11, t22, t12 = (rho_g * bemio_t(p1, p1, dof).real, rho_g * bemio_t(p2, p2, dof).real,
+                             rho_g * bemio_t(p1, p2, dof))
+            expect = (a1 ** 2 * t11 + a2 ** 2 * t22
+                      + 2 * a1 * a2 * (t12.real * np.cos(dw * t - dphi) + t12.imag * np.sin(dw * t - dphi)))
+            assert f[dof - 1] == pytest.approx(expect, rel=1e-9)
+        assert np.all(f[[1, 3, 4, 5]] == 0)
+    with pytest.raises(ModelError) as err:
+        _term(ds, _bichromatic(w, amp, phase), second_order="qtf", sum_frequency=True)
+    assert err.value.key == "hydro.sum_frequency"
+
+
+@pytest.mark.parametrize("edit, field", [
+    (lambda g: g.__setitem__("Re_F_ij", np.zeros((1, 5))), "Diff2/Re_F_ij"),
+    (lambda g: g.__setitem__("BETA_i", np.array([[0.0, 30.0, 0.0]])), "Diff2/BETA_i"),
+    (lambda g: g.__setitem__("PER_i", np.array([[7.0, 7.0, 5.5]])), "Diff2/PER_i"),
+    (lambda g: g.__delitem__("Im_F_ij"), "Diff2/Im_F_ij"),
+])
+def test_bad_bemio_qtf_names_the_dataset(sphere_path, tmp_path, edit, field):
+    import h5py
+
+    from hydrolink.server.hdb.io import load_hdb
+
+    path = write_bemio_qtf(sphere_path, tmp_path / "bad.h5", 9810.0, sum_groups=False)
+    with h5py.File(path, "a") as fh:
+        g = fh["body1/hydro_coeffs/excitation/QTF1/Diff2"]
+        name = field.split("/")[1]
+        if name in g and name != "Im_F_ij":
+            del g[name]
+        edit(g)
+    with pytest.raises(HDBError) as err:
+        load_hdb(path)
+    assert err.value.field.endswith(field) and "bad.h5" in str(err.value)
+
+
+# ------------------------------------------------------------------------------------------------
+# NEMOH QTF files named by a scene (bodies[i].qtf)
+# ------------------------------------------------------------------------------------------------
+
+NEMOH_PERIODS = (9.0, 7.0, 5.5)
+
+
+def nemoh_t(wa: float, wb: float, dof: int) -> complex:
+    """The QTF / (rho g) written into OUT_QTFM_N.dat for (w_a, w_b), w_a >= w_b, exp(+iwt)."""
+    return complex(0.3 + 0.05 * (wa + wb) + 0.1 * dof, 0.0 if wa == wb else 0.04 * (wa - wb) * dof)
+
+
+def write_nemoh_difference(folder: Path) -> Path:
+    """A NEMOH v3 OUT_QTFM_N.dat: a header line, the lower triangle (w1 >= w2) of surge and heave,
+    frequencies in Hz (as a Nemoh.cal QTF line may choose), complex values exp(+iwt) / (rho g)."""
+    w = sorted(2 * np.pi / p for p in NEMOH_PERIODS)
+    rows = ["    w1[Hz]    w2[Hz]  beta1  beta2  DOF  |QTF|/rho/g  arg  Re  Im"]
+    for a, wa in enumerate(w):
+        for wb in w[:a + 1]:
+            for dof in (1, 3):
+                t = nemoh_t(wa, wb, dof)
+                rows.append(f"{wa / (2 * np.pi):.12g} {wb / (2 * np.pi):.12g} 0.0 0.0 {dof} {abs(t):.12g} "
+                            f"{np.degrees(np.angle(t)):.12g} {t.real:.12g} {t.imag:.12g}")
+    path = folder / "QTF" / "OUT_QTFM_N.dat"
+    path.parent.mkdir(exist_ok=True)
+    path.write_text("\n".join(rows) + "\n")
+    return path
+
+
+def _nemoh_scene(folder: Path, hdb: Path, waves: dict, **qtf) -> Path:
+    qtf = {"difference": "QTF/OUT_QTFM_N.dat", "frequency_unit": "Hz", "convention": "exp(+iwt)", **qtf}
+    qtf = {k: v for k, v in qtf.items() if v is not None}
+    text = scene_toml(dt=0.1, duration=10.0, water=SPHERE_WATER, waves=waves, hydro={"second_order": "qtf"},
+                      bodies=[sphere_body(str(hdb), mass=MASS, qtf=qtf)])
+    return write_scene(folder, text)
+
+
+def test_nemoh_qtf_named_by_the_scene_against_the_closed_form(sphere_path, tmp_path):
+    """bodies[0].qtf names a NEMOH difference file (Hz, exp(+iwt)) beside the scene: the HDB the
+    scene loads carries rho g conj(Re + i Im) per A_i A_j, and the full-QTF force of a regular and
+    a bichromatic sea equals the closed forms over the coefficients written into the file."""
+    from hydrolink.clients.run import load_scene_hdbs
+    from hydrolink.protocol.scene import load_scene
+
+    write_nemoh_difference(tmp_path)
+    a, period = 1.3, 7.0
+    path = _nemoh_scene(tmp_path, sphere_path, regular_waves(2 * a, period))
+    scene, _ = load_scene(path)
+    ds = load_scene_hdbs(scene, path, progress=False)[str(sphere_path)]
+    assert "OUT_QTFM_N.dat (NEMOH)" in ds.attrs["qtf_source"]
+    rho_g = 1000.0 * 9.81
+    model = HydroModel(scene, {"sphere": ds})
+    f = model.step(0.0, model.setup_info().equilibrium_position, np.zeros((1, 6)))["drift"][0]
+    w = 2 * np.pi / period
+    assert f[0] == pytest.approx(rho_g * a ** 2 * nemoh_t(w, w, 1).real, rel=1e-9)
+    assert f[2] == pytest.approx(rho_g * a ** 2 * nemoh_t(w, w, 3).real, rel=1e-9)
+    # hydrolink run sending the HDBs as files: this one goes as a map with its QTF (the server
+    # cannot read the scene's NEMOH files): the recorded drift force is the same
+    from hydrolink.clients.run import run_scene_file
+    run_scene_file(path, tmp_path / "out.nc", progress=False, hdb_files=True)
+    with xr.open_dataset(tmp_path / "out.nc") as out:
+        np.testing.assert_allclose(out["drift_force"].sel(body="sphere", dof="surge").values,
+                                   rho_g * a ** 2 * nemoh_t(w, w, 1).real, rtol=1e-9)
+
+    w1, w2 = 2 * np.pi / 5.5, 2 * np.pi / 9.0     # w1 > w2: the file's own row
+    (a1, a2), (f1, f2) = (0.8, 0.5), (0.3, 2.4)
+    term = _term(ds, _bichromatic([w1, w2], (a1, a2), (f1, f2)), second_order="qtf")
+    for t in (0.0, 5.1, 33.3):
+        f = term.force(t, np.zeros((1, 6)), np.zeros((1, 6)))[0][0]
+        for dof in (1, 3):
+            t12 = rho_g * np.conj(nemoh_t(w1, w2, dof))           # exp(+iwt) conjugated
+            expect = (rho_g * (a1 ** 2 * nemoh_t(w1, w1, dof).real + a2 ** 2 * nemoh_t(w2, w2, dof).real)
+                      + 2 * a1 * a2 * (t12.real * np.cos((w1 - w2) * t - (f1 - f2))
+                                       + t12.imag * np.sin((w1 - w2) * t - (f1 - f2))))
+            assert f[dof - 1] == pytest.approx(expect, rel=1e-9)
+
+
+@pytest.mark.parametrize("qtf, key", [
+    ({"frequency_unit": None}, "bodies[0].qtf.frequency_unit"),
+    ({"convention": None}, "bodies[0].qtf.convention"),
+    ({"frequency_unit": "rpm"}, "bodies[0].qtf.frequency_unit"),
+    ({"difference": None}, "bodies[0].qtf.difference"),
+    ({"difference": "QTF/missing.dat"}, "bodies[0].qtf.difference"),
+])
+def test_nemoh_qtf_scene_keys_are_named(sphere_path, tmp_path, qtf, key):
+    from hydrolink.clients.run import load_scene_hdbs
+    from hydrolink.protocol.scene import SceneError, load_scene
+
+    write_nemoh_difference(tmp_path)
+    path = _nemoh_scene(tmp_path, sphere_path, regular_waves(1.0, 7.0), **qtf)
+    with pytest.raises(SceneError) as err:
+        scene, _ = load_scene(path)
+        load_scene_hdbs(scene, path, progress=False)
+    assert err.value.key == key
+
+
+def test_nemoh_qtf_file_errors_name_the_key_and_the_line(sphere_path, drift_hdb, tmp_path):
+    """A bad row names bodies[0].qtf.difference with the file and line; an HDB that already holds a
+    QTF (the WAMIT .12d here) is refused naming bodies[0].qtf."""
+    from hydrolink.clients.run import load_scene_hdbs
+    from hydrolink.protocol.scene import SceneError, load_scene
+
+    bad = write_nemoh_difference(tmp_path)
+    lines = bad.read_text().splitlines()
+    lines[3] = lines[3].replace(" 0.0 0.0 1 ", " 0.0 0.0 9 ", 1)
+    bad.write_text("\n".join(lines) + "\n")
+    path = _nemoh_scene(tmp_path, sphere_path, regular_waves(1.0, 7.0))
+    scene, _ = load_scene(path)
+    with pytest.raises(SceneError) as err:
+        load_scene_hdbs(scene, path, progress=False)
+    assert err.value.key == "bodies[0].qtf.difference" and "OUT_QTFM_N.dat" in str(err.value) and "line 4" in str(err.value)
+    write_nemoh_difference(tmp_path)
+    path = _nemoh_scene(tmp_path, drift_hdb[1], regular_waves(1.0, 7.0))
+    scene, _ = load_scene(path)
+    with pytest.raises(SceneError) as err:
+        load_scene_hdbs(scene, path, progress=False)
+    assert err.value.key == "bodies[0].qtf" and "already holds a QTF" in str(err.value)

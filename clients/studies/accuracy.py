@@ -195,9 +195,20 @@ def _channels(x_ref: np.ndarray) -> np.ndarray:
     return keep
 
 
+def _reference_at(tr: np.ndarray, x_ref: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """The reference positions (t, body, dof) at times ``t``: its own samples where a time is one of
+    its sample times, the cubic spline through them elsewhere (a spline evaluated at a knot rounds
+    differently from the sample it passes through: identical runs must compare at zero)."""
+    from scipy.interpolate import CubicSpline
+    out = CubicSpline(tr, x_ref.reshape(tr.size, -1), axis=0)(t).reshape((-1,) + x_ref.shape[1:])
+    i = np.minimum(np.searchsorted(tr, t), tr.size - 1)
+    at_sample = tr[i] == t
+    out[at_sample] = x_ref[i[at_sample]]
+    return out
+
+
 def compare(ref: dict, run: dict, window: tuple[float, float]) -> dict[str, float]:
     """Errors of ``run`` against ``ref`` (dicts of time, position (t, body, dof), power (t,) or None)."""
-    from scipy.interpolate import CubicSpline
     t = run["time"]
     sel = (t >= window[0] - 1e-9) & (t <= window[1] + 1e-9)
     tr = ref["time"]
@@ -208,7 +219,7 @@ def compare(ref: dict, run: dict, window: tuple[float, float]) -> dict[str, floa
     keep = _channels(x_ref_w)
     if not keep.any():
         raise BenchError("", "reference", "the reference run does not move (no response channel to compare)")
-    xr_at = CubicSpline(tr, ref["position"].reshape(tr.size, -1), axis=0)(t[sel]).reshape((-1,) + keep.shape)
+    xr_at = _reference_at(tr, ref["position"], t[sel])
     x = run["position"][sel]
     if not np.all(np.isfinite(x)):
         return {"max_error": math.inf, "rms_error": math.inf, "power_error": math.inf}

@@ -7,7 +7,8 @@ the excitation into the internal exp(-i w t). Only the ``all``/``re``/``im`` dat
 Mean drift: ``bodyN/hydro_coeffs/mean_drift/{momentum_conservation|control_surface|
 pressure_integration}/val``, laid out like the excitation (h5py: (6, n_beta, n_w)) and normalised
 like it, by rho g: the coefficient is rho g val per unit amplitude squared (real). A method is read
-when every body has it. The QTF groups (``excitation/QTF<k>``) are not read (a warning says so).
+when every body has it. QTFs: the difference QTF of the ``excitation/QTF<k>/Diff<dof>`` groups
+(:mod:`.bemio_qtf`, which says why the ``Sum<dof>`` groups are left out).
 
 Reference point: ``bodyN/properties/cg``. WEC-Sim applies every hydrodynamic force of a body at its
 centre of gravity and expects the BEM run to be set up about it (BEMIO's readWAMIT takes ``cg`` from
@@ -19,7 +20,6 @@ referred to cg z = -2 m.
 from __future__ import annotations
 
 import math
-import warnings
 from pathlib import Path
 
 import h5py
@@ -28,6 +28,7 @@ import xarray as xr
 
 from hydrolink.protocol.hdb_schema import HDBError, make_hdb
 from hydrolink.protocol.hdb_second_order import MeanDrift
+from hydrolink.server.hdb.bemio_qtf import read_bemio_qtf
 
 # BEMIO's mean drift groups (hydro_coeffs/mean_drift/<group>/val) and the schema's method names
 DRIFT_GROUPS = {"momentum_conservation": "momentum", "control_surface": "control-surface",
@@ -168,6 +169,7 @@ def _read(h5: _H5) -> xr.Dataset:
         added_mass_inf=a_inf if have_inf else None,
         displaced_volume=volume if have_vol else None,
         center_of_buoyancy=cb if have_cb else None, mean_drift=drift,
+        qtf=read_bemio_qtf(h5.fh, groups, h5.source),
     )
 
 
@@ -191,10 +193,6 @@ def _mean_drift(h5: _H5, groups: list[str], rho_g: float, omega: np.ndarray, bet
             val[:, :, 6 * n:6 * n + 6] = rho_g * np.transpose(raw, (2, 1, 0))
         methods.append(method)
         values.append(val[order][:, np.argsort(betas)])
-    if any(h5.fh.get(f"{grp}/hydro_coeffs/excitation") is not None and any(
-            k.startswith("QTF") for k in h5.fh[f"{grp}/hydro_coeffs/excitation"].keys()) for grp in groups):
-        warnings.warn(f"{h5.source}: the QTF groups (hydro_coeffs/excitation/QTF<k>) are not read; give the QTFs "
-                      "as WAMIT .12d/.12s or NEMOH files", stacklevel=4)
     if not methods:
         return None
     return MeanDrift(tuple(methods), omega[order], np.sort(betas), np.stack(values))

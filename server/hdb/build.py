@@ -124,10 +124,12 @@ def bem_solver(progress: bool):
         logger.removeFilter(note)
 
 
-def _solve(body, spec: BuildSpec, progress: bool, desc: str) -> tuple[xr.Dataset, MeanDrift | None]:
+def _solve(body, spec: BuildSpec, progress: bool, desc: str, motion: tuple[np.ndarray, np.ndarray] | None = None,
+           ) -> tuple[xr.Dataset, MeanDrift | None]:
     """Radiation (every DOF of ``body``, a FloatingBody or Multibody) and diffraction over the
     grid, radiation at omega = inf; Capytaine's own dataset (exp(-iwt)) and, when the spec asks
-    for it, the far-field mean drift (:mod:`.build_drift`)."""
+    for it, the far-field mean drift (:mod:`.build_drift`; ``motion`` its free body's mass and
+    stiffness matrices, None for the body held fixed)."""
     import capytaine as cpt
     from tqdm import tqdm
 
@@ -153,12 +155,14 @@ def _solve(body, spec: BuildSpec, progress: bool, desc: str) -> tuple[xr.Dataset
                 results.append(solver.solve(pb, keep_details=keep, _check_wavelength=False))
                 bar.update()
     cds = cpt.assemble_dataset(results, hydrostatics=False)
-    drift = far_field_drift(results, cds, drift_spec.kochin_directions, drift_spec.motions) if keep else None
+    drift = far_field_drift(results, cds, drift_spec.kochin_directions, motion) if keep else None
     return cds, drift
 
 
-def _hydrostatics(hull, ref: np.ndarray, rho: float, g: float) -> tuple[np.ndarray, float, np.ndarray]:
-    """Buoyancy + waterplane stiffness about ``ref`` (no gravity terms), volume, centre of buoyancy.
+def _hydrostatics(hull, ref: np.ndarray, rho: float, g: float, *, mass: float = 0.0,
+                  center_of_mass: np.ndarray | None = None) -> tuple[np.ndarray, float, np.ndarray]:
+    """Buoyancy + waterplane stiffness about ``ref`` (no gravity terms), volume, centre of buoyancy;
+    with ``mass`` and ``center_of_mass``, the full stiffness (gravity terms added).
 
     Capytaine's ``compute_hydrostatic_stiffness`` adds the weight terms -m g (z_G - z_ref) (and
     m g (x_G - x_ref) in roll-yaw/pitch-yaw) with m the displaced mass unless ``mass`` is given;
@@ -169,10 +173,23 @@ def _hydrostatics(hull, ref: np.ndarray, rho: float, g: float) -> tuple[np.ndarr
     # one-point rule is ~1.5 % off for a coarse cylinder's C44)
     body = cpt.FloatingBody(mesh=hull.with_quadrature("Gauss-Legendre 2"),
                             dofs=cpt.rigid_body_dofs(rotation_center=ref),
-                            center_of_mass=ref, mass=0.0, name="hydrostatics")
+                            center_of_mass=ref if center_of_mass is None else center_of_mass, mass=mass,
+                            name="hydrostatics")
     K = body.compute_hydrostatic_stiffness(rho=rho, g=g).sel(influenced_dof=list(CPT_DOFS),
                                                              radiating_dof=list(CPT_DOFS))
     return np.asarray(K.values, float), float(body.disp_volume), np.asarray(body.center_of_buoyancy, float)
+
+
+def _free_motion(spec: BuildSpec, hull, volume: float) -> tuple[np.ndarray, np.ndarray]:
+    """The one body's mass matrix and full hydrostatic stiffness (6x6 about its reference point)
+    floating freely: mass rho V, the spec's ``[second_order]`` centre of mass and inertia."""
+    from hydrolink.clients.fmu.coupling import rigid_body_mass_matrix
+
+    so, w = spec.second_order, spec.water
+    ref, cog = np.asarray(spec.all_bodies[0].ref_point, float), np.asarray(so.center_of_mass, float)
+    mass = w.density * volume
+    stiffness = _hydrostatics(hull, ref, w.density, w.gravity, mass=mass, center_of_mass=cog)[0]
+    return rigid_body_mass_matrix(mass, np.diag(so.inertia), cog - ref), stiffness
 
 
 def _with_hydrostatics(cds: xr.Dataset, labels: list[str], names: list[str], stiffness: np.ndarray,
@@ -232,11 +249,12 @@ def build_hdb_uncached(spec: BuildSpec, spec_path: str | Path, *, progress: bool
                       f"be inaccurate", stacklevel=3)
     symmetric = isinstance(body.mesh_including_lid, cpt.ReflectionSymmetricMesh)
     t_mesh = time.perf_counter()
-    cds, drift = _solve(body, spec, progress, desc=f"hdb build {'+'.join(names)}")
-    t_solve = time.perf_counter()
     w = spec.water
     hydro = [_hydrostatics(h, np.asarray(b.ref_point, float), w.density, w.gravity)
              for h, b in zip(hulls, spec.all_bodies)]
+    cds, drift = _solve(body, spec, progress, desc=f"hdb build {'+'.join(names)}",
+                        motion=_free_motion(spec, hulls[0], hydro[0][1]) if spec.second_order.motions == "free" else None)
+    t_solve = time.perf_counter()
     stiffness = np.zeros((6 * len(names), 6 * len(names)))
     for i, (k, _, _) in enumerate(hydro):
         stiffness[6 * i:6 * i + 6, 6 * i:6 * i + 6] = k

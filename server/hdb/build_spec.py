@@ -222,11 +222,27 @@ class Waves(_Section):
 
 class SecondOrder(_Section):
     """``[second_order]``: second-order data the build adds. ``mean_drift = "far-field"``: Capytaine's
-    far-field (Kochin) mean drift, surge/sway/yaw, of the body held fixed (``motions = "fixed"``: the
-    diffraction drift; a moving body's drift needs its mass properties, not in a build spec)."""
+    far-field (Kochin) mean drift, surge/sway/yaw. ``motions = "fixed"``: of the body held fixed (the
+    diffraction drift); ``"free"``: of the body floating freely in the regular wave, moving with its
+    linear RAO, which needs its mass properties: mass rho V (it floats), ``center_of_mass`` (global
+    frame) and ``inertia`` (principal moments about the centre of mass, kg m^2; global axes)."""
     mean_drift: Literal["none", "far-field"] = "none"
-    motions: Literal["fixed"] = "fixed"
+    motions: Literal["fixed", "free"] = "fixed"
     kochin_directions: Annotated[int, Field(ge=36, le=3600)] = 360
+    center_of_mass: Optional[Vector3] = None
+    inertia: Optional[Annotated[list[PositiveFloat], Field(min_length=3, max_length=3)]] = None
+
+    @model_validator(mode="after")
+    def _mass_properties_if_free(self) -> "SecondOrder":
+        for key in ("center_of_mass", "inertia"):
+            given = getattr(self, key) is not None
+            if self.motions == "free" and not given:
+                raise ValueError(f".{key}: required with motions = \"free\" (the body's RAO needs it)")
+            if self.motions != "free" and given:
+                raise ValueError(f".{key}: only with motions = \"free\" (a fixed body does not move)")
+        if self.motions == "free" and self.mean_drift == "none":
+            raise ValueError(".motions: \"free\" is for mean_drift = \"far-field\" (nothing to compute here)")
+        return self
 
 
 class BuildSpec(_Section):

@@ -7,7 +7,9 @@ symmetry for the sum), headings in degrees, DoF 1..6N, no length scale. The freq
 is the one ``Nemoh.cal``'s QTF post-processing line chose and the file does not record it, nor the
 time convention of its complex values: the caller states both (``frequency_unit``, ``convention``);
 exp(+i w t) values are conjugated here, once. NEMOH has no linear HDB reader in hydrolink: the QTF
-is attached to an HDB read from another format with :func:`hydrolink.protocol.hdb_second_order.with_second_order`.
+is added to an HDB read from another format, from a scene by ``bodies[i].qtf`` (which states the
+unit and convention; :func:`hydrolink.clients.run.with_nemoh_qtf`), or in Python with
+:func:`hydrolink.protocol.hdb_second_order.with_second_order`.
 """
 
 from __future__ import annotations

@@ -1,0 +1,186 @@
+"""The incident wave's elevation sum_c a_c cos(k_c s + psi_c) on the points of a moving hull for
+many components at once, as real matrix products instead of one cosine per point and component
+(issue 26; server/nonlinear_hydro.py uses it).
+
+For a component of wave number k along the heading (cos b, sin b), the spatial phase at a point is
+k s with s = (x, y).(cos b, sin b) = s_ref + rho u: s_ref that of the body's reference point and
+u in [-1, 1] the point's offset from it along the heading divided by ``rho``, a radius bounding
+every offset of the hull (fixed in the body's frame, so any pose keeps |u| <= 1). The
+Jacobi–Anger expansion e^{i z cos t} = sum_n i^n eps_n J_n(z) cos(n t) (eps_0 = 1, eps_n = 2),
+with cos t = u and cos(n t) = T_n(u) the Chebyshev polynomials, gives
+
+    cos(k s + psi) = Re( e^{i (k s_ref + psi)} sum_{n < N} i^n eps_n J_n(k rho) T_n(u) ) + tail,
+
+the tail bounded by sum_{n >= N} 2 |J_n(k rho)|. J_n(x) falls faster than geometrically once
+n > x; N is the smallest order with |J_n(k_max rho)| <= 1e-17 for every n >= N (and J_n(x) grows
+with x for x < n, so every component of the group is bounded by its largest), so the expansion
+is exact to round-off (tests/test_phase_expansion.py holds it to the direct sums). Per step: the
+Chebyshev values T_n(u) of the points (N recurrences over the points) and an (N, n_c) coefficient
+matrix per heading; the elevation sum_c a_c cos(.) is then one matrix-vector product for the
+series' coefficients and the series summed at the points (Clenshaw's recurrence, compiled, or a
+product with the points' Chebyshev values).
+
+Its cost grows with k_max rho (N ~ k_max rho + 10): it pays for the elevation, one sum over the
+components per point. The pressure weighs each component by its depth factor at each point:
+:class:`DepthExpansion` adds a Chebyshev series in depth, which pays for the long waves (few
+terms); the short ones go to the recurrence of server/incident_kernels.py.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from hydrolink.server.incident_kernels import AVAILABLE, chebyshev_sum, chebyshev_sum2
+from scipy.special import jv
+
+__all__ = ["DepthExpansion", "PhaseExpansion"]
+
+_TAIL = 1e-17   # coefficient magnitude below which the expansions' terms are dropped
+_DEPTH_NODES = 64   # Chebyshev nodes each depth factor is fitted on (DepthExpansion)
+_DEPTH_TAIL = 1e-15   # the depth series' cut: the fit's own round-off floor (f <= 1)
+
+
+def _chebyshev(u: np.ndarray, n: int) -> np.ndarray:
+    """(n, P): T_m(u) for m < n at points u (P,) in [-1, 1] (three-term recurrence)."""
+    out = np.empty((n, len(u)))
+    out[0] = 1.0
+    if n > 1:
+        out[1] = u
+    for m in range(2, n):
+        np.multiply(2.0 * u, out[m - 1], out=out[m])
+        out[m] -= out[m - 2]
+    return out
+
+
+def _orders(coefficient, x_max: float) -> int:
+    """The number of terms: past the last order whose ``coefficient(m, x_max)`` exceeds the tail."""
+    m = np.arange(int(x_max + 20.0 * x_max ** (1.0 / 3.0)) + 60)
+    big = np.flatnonzero(np.abs(coefficient(m, x_max)) > _TAIL)
+    return int(big[-1]) + 1 if len(big) else 1
+
+
+def _jacobi_anger(k: np.ndarray, radius: float) -> np.ndarray:
+    """(N, n_c) complex: i^n eps_n J_n(k rho), N past the last order above the tail (module
+    docstring). The terms below the tail are dropped here too: the long waves' high orders are
+    subnormal numbers (J_n(x) ~ (x/2)^n / n!), which cost a hundred times a normal number's
+    arithmetic in every product."""
+    n = _orders(jv, float(k.max()) * radius)
+    eps = np.where(np.arange(n) == 0, 1.0, 2.0)
+    out = (1j ** np.arange(n) * eps)[:, None] * jv(np.arange(n)[:, None], k[None, :] * radius)
+    out[np.abs(out) < _TAIL] = 0.0
+    return out
+
+
+@dataclass(frozen=True)
+class _Heading:
+    """The components of one heading and their expansion coefficients."""
+    columns: np.ndarray        # (n_g,) component indices
+    direction: np.ndarray      # (2,) cos b, sin b
+    k: np.ndarray              # (n_g,) wave numbers
+    coefficients: np.ndarray   # (N, n_g) complex: i^n eps_n J_n(k rho)
+
+
+class PhaseExpansion:
+    """The incident wave's elevation at points within ``radius`` of a reference point (module
+    docstring)."""
+
+    def __init__(self, k: np.ndarray, heading: np.ndarray, radius: float, compiled: bool = AVAILABLE):
+        """``compiled``: sum the series with the compiled kernel (server/incident_kernels.py), else
+        as a matrix product of the points' Chebyshev values."""
+        self.compiled = compiled
+        self.radius = float(radius) * (1.0 + 1e-12) or 1.0
+        self.k = np.asarray(k, float)
+        self.n_components = len(k)
+        groups = []
+        for b in np.unique(heading):
+            cols = np.flatnonzero(heading == b)
+            kg = self.k[cols]
+            groups.append(_Heading(cols, np.array([np.cos(b), np.sin(b)]), kg, _jacobi_anger(kg, self.radius)))
+        self.groups = tuple(groups)
+
+    def elevation(self, offsets: np.ndarray, reference: np.ndarray, psi: np.ndarray,
+                  amplitude: np.ndarray) -> np.ndarray:
+        """(P,): sum_c a_c cos(k_c s + psi_c) at points whose horizontal offsets from the reference
+        point are ``offsets`` (P, 2) (|offset| <= radius), the reference point at ``reference`` (2,),
+        the components' amplitudes ``amplitude`` and phases ``psi`` (n_c,) (phi_c - w_c t)."""
+        out = np.zeros(len(offsets))
+        for g in self.groups:
+            u = np.clip(offsets @ g.direction / self.radius, -1.0, 1.0)
+            turn = amplitude[g.columns] * np.exp(1j * (g.k * float(reference @ g.direction) + psi[g.columns]))
+            c = np.real(g.coefficients @ turn)                   # (N,): the series' coefficients now
+            if self.compiled:
+                chebyshev_sum(u, c, out)
+            else:
+                out += _chebyshev(u, len(c)).T @ c
+        return out
+
+
+@dataclass(frozen=True)
+class _DepthHeading:
+    """The components of one heading: the horizontal expansion's coefficients and their depth
+    factors' Chebyshev coefficients."""
+    columns: np.ndarray        # (n_g,) component indices
+    direction: np.ndarray      # (2,) cos b, sin b
+    k: np.ndarray              # (n_g,)
+    horizontal: np.ndarray     # (N, n_g) complex: i^n eps_n J_n(k rho)
+    vertical: np.ndarray       # (n_g, M) real: f_c(z) = sum_m vertical[c, m] T_m(v)
+
+
+class DepthExpansion:
+    """The incident wave's pressure sum_c a_c f_c(z) cos(k_c s + psi_c) (f_c the depth factor) at
+    points within ``radius`` horizontally of a reference point and at heights in [floor, 0], for
+    long waves: the Jacobi–Anger series of the module docstring in the horizontal times each depth
+    factor's Chebyshev series in v = 1 - 2 z / floor (v = 1 at the surface, -1 at ``floor``),
+
+        sum_c a_c f_c(z) cos(k_c s + psi_c) = sum_{n, m} T_n(u) T_m(v) C_nm(t),
+        C_nm = Re sum_c a_c e^{i (k_c s_ref + psi_c)} i^n eps_n J_n(k_c rho) F_cm,
+
+    the horizontal series cut where its coefficients fall below 1e-17, the depth series (fitted on
+    64 Chebyshev nodes) below 1e-15, its fit's round-off floor (f_c <= 1): exact to round-off.
+    Per step an (N, M) coefficient matrix and the points' Chebyshev values: cheap while k rho and
+    k |floor| are small (N, M ~ k rho + 10, k |floor| / 2 + 10), the short waves being the
+    recurrence's (server/incident_kernels.py). ``terms`` is N M summed over the headings."""
+
+    def __init__(self, k: np.ndarray, heading: np.ndarray, radius: float, floor: float, depth_factor,
+                 compiled: bool = AVAILABLE):
+        """``depth_factor(k, z)``: f (P, n_c) at heights z (P,) in [floor, 0]; ``compiled``: the sum
+        at the points by the compiled kernel (server/incident_kernels.py), else by numpy."""
+        from numpy.polynomial import chebyshev
+        self.compiled = compiled
+        self.radius = float(radius) * (1.0 + 1e-12) or 1.0
+        self.floor = float(floor)
+        nodes = chebyshev.chebpts2(_DEPTH_NODES)                      # v in [-1, 1]
+        groups = []
+        for b in np.unique(heading):
+            cols = np.flatnonzero(heading == b)
+            kg = np.asarray(k, float)[cols]
+            horizontal = _jacobi_anger(kg, self.radius)
+            f = depth_factor(kg, 0.5 * (1.0 - nodes) * self.floor)     # (nodes, n_g)
+            vertical = chebyshev.chebfit(nodes, f, _DEPTH_NODES - 1).T     # (n_g, nodes)
+            big = np.flatnonzero(np.abs(vertical).max(axis=0) > _DEPTH_TAIL)
+            vertical = vertical[:, :int(big[-1]) + 1 if len(big) else 1].copy()
+            groups.append(_DepthHeading(cols, np.array([np.cos(b), np.sin(b)]), kg, horizontal, vertical))
+        self.groups = tuple(groups)
+        self.terms = sum(g.horizontal.shape[0] * g.vertical.shape[1] for g in groups)
+        # the depth series must have converged within the nodes: its last kept order well below them
+        self.converged = all(g.vertical.shape[1] < _DEPTH_NODES - 8 for g in groups)
+
+    def pressure(self, offsets: np.ndarray, z: np.ndarray, reference: np.ndarray, psi: np.ndarray,
+                 amplitude: np.ndarray) -> np.ndarray:
+        """(P,): sum_c a_c f_c(z) cos(k_c s + psi_c) at points with horizontal ``offsets`` (P, 2) from
+        the reference point at ``reference`` (2,), heights ``z`` (P,) in [floor, 0]; ``amplitude``
+        and ``psi`` (phi_c - w_c t) of all the components (n_c,)."""
+        v = np.clip(1.0 - 2.0 * z / self.floor, -1.0, 1.0)
+        out = np.zeros(len(z))
+        t_v = None if self.compiled else _chebyshev(v, max(g.vertical.shape[1] for g in self.groups)).T   # (P, M)
+        for g in self.groups:
+            u = np.clip(offsets @ g.direction / self.radius, -1.0, 1.0)
+            a = amplitude[g.columns] * np.exp(1j * (g.k * float(reference @ g.direction) + psi[g.columns]))
+            coefficients = np.real((g.horizontal * a[None, :]) @ g.vertical)       # (N, M)
+            if self.compiled:
+                chebyshev_sum2(u, v, coefficients, out)
+            else:
+                m = coefficients.shape[1]
+                out += np.einsum("pn,pn->p", _chebyshev(u, coefficients.shape[0]).T @ coefficients, t_v[:, :m])
+        return out

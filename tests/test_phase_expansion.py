@@ -1,0 +1,157 @@
+"""The incident-wave evaluation of the nonlinear Froude–Krylov force (issue 26): the elevation by
+the Jacobi–Anger expansion (server/phase_expansion.py) against the direct sum of cosines, and the
+whole force over a moving hull in irregular seas, many steps, against a direct evaluation written
+here (complex exponentials per point and component, cosh depth factor, the wet part cut where
+z = eta)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from conftest import SPHERE_WATER, irregular_waves, scene_toml, sphere_body
+from hydrolink.protocol.scene import parse_scene
+from hydrolink.server import nonlinear_hydro
+from hydrolink.server.hdb.io import load_hdb
+from hydrolink.server.incident_kernels import AVAILABLE
+from hydrolink.server.kinematics import wave_number
+from hydrolink.server.model import HydroModel
+from hydrolink.server.phase_expansion import DepthExpansion, PhaseExpansion
+from hydrolink.server.waves import ramp_factor
+from hydrolink.server.wetted_surface import (
+    clip_wet,
+    closed_hull,
+    interpolate,
+    pressure_load,
+    rotation_xyz,
+)
+
+cpt = pytest.importorskip("capytaine")
+RHO, G = 1000.0, 9.81
+
+
+@pytest.mark.parametrize("compiled", [True, False] if AVAILABLE else [False])
+@pytest.mark.parametrize("radius, k_max, headings", [(7.0, 14.7, [0.3]), (3.0, 2.0, [-0.8, 0.1, 1.2])])
+def test_expansion_elevation_is_the_direct_sum(radius, k_max, headings, compiled):
+    rng = np.random.default_rng(3)
+    n = 120
+    k = rng.uniform(0.004, k_max, n)
+    heading = np.asarray(headings)[rng.integers(0, len(headings), n)]
+    amp, psi = rng.uniform(0.0, 1.0, n), rng.uniform(-50.0, 50.0, n)
+    r = radius * np.sqrt(rng.uniform(0.0, 1.0, 400))
+    a = rng.uniform(0.0, 2 * np.pi, 400)
+    offsets = np.column_stack([r * np.cos(a), r * np.sin(a)])
+    reference = np.array([123.4, -56.7])
+    got = PhaseExpansion(k, heading, radius, compiled=compiled).elevation(offsets, reference, psi, amp)
+    pts = reference + offsets
+    direct = np.cos(np.outer(pts[:, 0], k * np.cos(heading)) + np.outer(pts[:, 1], k * np.sin(heading)) + psi) @ amp
+    np.testing.assert_allclose(got, direct, rtol=0, atol=1e-12 * amp.sum())
+
+
+@pytest.mark.parametrize("compiled", [True, False] if AVAILABLE else [False])
+@pytest.mark.parametrize("depth", [200.0, 30.0])
+def test_depth_expansion_is_the_direct_sum(depth, compiled):
+    """The long waves' pressure series against one cosine and cosh depth factor per point and
+    component (two headings, points over a 5 m radius and 10 m deep)."""
+    rng = np.random.default_rng(8)
+    omega = np.linspace(0.05, 1.0, 24)
+    k = np.array([wave_number(float(w), G, depth) for w in omega])
+    heading = np.where(np.arange(24) % 2 == 0, 0.2, -1.1)
+    amp, psi = rng.uniform(0.0, 1.0, 24), rng.uniform(-20.0, 20.0, 24)
+    offsets, z = rng.uniform(-3.5, 3.5, (300, 2)), -rng.uniform(0.0, 10.0, 300)
+    reference = np.array([40.0, -7.0])
+    factor = lambda kc, zz: np.cosh(np.outer(zz + depth, kc)) / np.cosh(kc * depth)
+    got = DepthExpansion(k, heading, 5.0, -10.0, factor, compiled=compiled).pressure(offsets, z, reference, psi, amp)
+    pts = reference + offsets
+    theta = np.outer(pts[:, 0], k * np.cos(heading)) + np.outer(pts[:, 1], k * np.sin(heading)) + psi
+    np.testing.assert_allclose(got, (factor(k, z) * np.cos(theta)) @ amp, rtol=0, atol=1e-12 * amp.sum())
+
+
+def _direct_fk(hull, pose: np.ndarray, t: float, amp: np.ndarray, k: np.ndarray, beta: np.ndarray,
+               phase: np.ndarray, omega: np.ndarray, ramp: float, depth: float) -> np.ndarray:
+    """F_p,FK (global axes, about the reference point) by the direct formulas."""
+    rot = rotation_xyz(pose[3:])
+    verts = pose[:3] + hull.vertices @ rot.T
+    e = ramp_factor(t, ramp) * amp * np.exp(1j * (np.outer(verts[:, 0], k * np.cos(beta))
+                                                   + np.outer(verts[:, 1], k * np.sin(beta)) + phase - omega * t))
+    eta = e.sum(axis=1).real
+    d = verts[:, 2] - eta
+    z_s = np.minimum(depth * (verts[:, 2] - eta) / (depth + eta), 0.0)
+    depth_factor = np.exp(np.outer(z_s, k)) * (1 + np.exp(-2 * np.outer(z_s + depth, k))) / (1 + np.exp(-2 * k * depth))
+    p_v = np.where(d <= 0.0, (e * depth_factor).sum(axis=1).real, 0.0)
+    tris = hull.triangles
+    pts, cut = clip_wet(verts[tris], d[tris])
+    p_c = interpolate(p_v[tris], cut)
+    p_c[cut.s < 1.0] = pts[..., 2][cut.s < 1.0]        # on the free surface p_FK = rho g eta
+    return RHO * G * pressure_load(pts - pose[:3], p_c)
+
+
+@pytest.mark.parametrize("compiled", [True, False] if AVAILABLE else [False])
+@pytest.mark.parametrize("energy", [1.0, 0.99])
+def test_nonlinear_froude_krylov_equals_the_direct_evaluation(sphere_path, energy, compiled, monkeypatch):
+    """300 components over the HDB's whole range (to 12 rad/s), a hull moving in all six DOFs,
+    150 steps through the ramp (the HDB has one heading: several are the expansion test's). With
+    ``froude_krylov_energy`` < 1: the direct evaluation over the fewest most energetic components
+    holding that share of the variance, and a warning naming the key. ``compiled``: with the
+    compiled kernels (the short waves' pressure by recurrences, the long ones direct: the sphere's
+    200 m depth) or numpy alone."""
+    monkeypatch.setattr(nonlinear_hydro, "AVAILABLE", compiled)
+    waves = irregular_waves(3.0, 8.0, ramp=4.0, seed=5)
+    text = scene_toml(dt=0.05, duration=100.0, water={**SPHERE_WATER, "gravity": G}, waves=waves,
+                      hydro={"nonlinear": "froude-krylov", "froude_krylov_energy": energy},
+                      bodies=[sphere_body(str(sphere_path), mass=261.724e3)])
+    mesh = cpt.mesh_sphere(radius=5.0, resolution=(16, 20))
+    mesh = mesh.merged() if hasattr(mesh, "merged") else mesh
+    model = HydroModel(parse_scene(text), {"sphere": load_hdb(sphere_path)},
+                       hulls={"sphere": closed_hull(mesh.vertices, mesh.faces)})
+    nl = next(term.model for term in model.terms if term.name == "nonlinear_hydrostatics")
+    # compiled: the short waves of the 300 evenly spaced by the recurrence, the long ones direct
+    assert (200 < sum(len(r.columns) for r in nl.split.recurrences) < 300) if compiled and energy == 1 else True
+    assert nl.split is None if not compiled else True
+    comps, body = model.waves, nl.bodies[0]
+    energy_c = comps.amplitude ** 2
+    kept = np.full(comps.size, True) if energy == 1 else energy_c >= np.sort(energy_c)[::-1][np.searchsorted(np.cumsum(np.sort(energy_c)[::-1]), energy * energy_c.sum() * (1 - 1e-12))]
+    warned = [w for w in model.warnings if w.startswith("hydro.froude_krylov_energy")]
+    assert (len(warned) == 1 and f"the {kept.sum()} most energetic of 300" in warned[0]) if energy < 1 else not warned
+    assert energy_c[kept].sum() >= energy * energy_c.sum() * (1 - 1e-12) and (kept.all() if energy == 1 else kept.sum() < 300)
+    comps = replace(comps, omega=comps.omega[kept], amplitude=comps.amplitude[kept], phase=comps.phase[kept])
+    depth = nl.depth
+    k = np.array([wave_number(float(w), G, depth) for w in comps.omega])
+    eq = model.setup_info().equilibrium_position
+    got, want = [], []
+    for step in range(150):
+        t = 0.05 * step
+        pose = eq.copy()
+        pose[0, :3] += [1.5 * np.sin(0.2 * t), 0.5 * np.cos(0.3 * t), 2.0 * np.sin(0.7 * t)]
+        pose[0, 3:] += [0.15 * np.sin(0.4 * t), 0.3 * np.sin(0.5 * t), 0.5 * np.sin(0.1 * t)]
+        _, fk = nl.force(t, pose)
+        direct = _direct_fk(body.hull, pose[0], t, comps.amplitude, k, comps.heading_of(), comps.phase,
+                            comps.omega, comps.ramp, depth)
+        direct -= np.real(body.fk_linear @ (ramp_factor(t, comps.ramp) * np.exp(-1j * comps.omega * t)))
+        got.append(fk[0])
+        want.append(direct)
+    got, want = np.array(got), np.array(want)
+    scale = np.abs(want).max(axis=0)          # per DOF over the run (the ramp starts from zero)
+    assert np.all(scale > 0)
+    np.testing.assert_array_less(np.abs(got - want).max(axis=0), 1e-9 * scale)
+
+
+@pytest.mark.parametrize("compiled", [True, False] if AVAILABLE else [False])
+def test_a_hull_sent_below_the_seabed_gets_finite_forces(sphere_path, compiled, monkeypatch):
+    """A pose within the server's coordinate bound but below the 200 m seabed: the incident-wave
+    pressure there is the seabed's (the depth factor used to overflow into NaN forces)."""
+    monkeypatch.setattr(nonlinear_hydro, "AVAILABLE", compiled)
+    text = scene_toml(dt=0.05, duration=10.0, water={**SPHERE_WATER, "gravity": G},
+                      waves=irregular_waves(3.0, 8.0, ramp=0.0, seed=5), hydro={"nonlinear": "froude-krylov"},
+                      bodies=[sphere_body(str(sphere_path), mass=261.724e3)])
+    mesh = cpt.mesh_sphere(radius=5.0, resolution=(8, 10))
+    mesh = mesh.merged() if hasattr(mesh, "merged") else mesh
+    model = HydroModel(parse_scene(text), {"sphere": load_hdb(sphere_path)},
+                       hulls={"sphere": closed_hull(mesh.vertices, mesh.faces)})
+    nl = next(term.model for term in model.terms if term.name == "nonlinear_hydrostatics")
+    for heave in (-1e3, -1e5):
+        pose = model.setup_info().equilibrium_position.copy()
+        pose[0, 2] = heave
+        hs, fk = nl.force(1.0, pose)
+        assert np.all(np.isfinite(hs)) and np.all(np.isfinite(fk)), heave
