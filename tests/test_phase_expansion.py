@@ -87,6 +87,19 @@ def _direct_fk(hull, pose: np.ndarray, t: float, amp: np.ndarray, k: np.ndarray,
     return RHO * G * pressure_load(pts - pose[:3], p_c)
 
 
+def _sphere_froude_krylov(sphere_path, hydro: dict, ramp: float, resolution: tuple[int, int]):
+    """The Task-10 sphere with nonlinear Froude-Krylov forces on a Capytaine sphere hull in a
+    JONSWAP sea (Hs 3 m, Tp 8 s, 300 components to 12 rad/s): the model and its nonlinear term."""
+    text = scene_toml(dt=0.05, duration=100.0, water={**SPHERE_WATER, "gravity": G},
+                      waves=irregular_waves(3.0, 8.0, ramp=ramp, seed=5), hydro={"nonlinear": "froude-krylov", **hydro},
+                      bodies=[sphere_body(str(sphere_path), mass=261.724e3)])
+    mesh = cpt.mesh_sphere(radius=5.0, resolution=resolution)
+    mesh = mesh.merged() if hasattr(mesh, "merged") else mesh
+    model = HydroModel(parse_scene(text), {"sphere": load_hdb(sphere_path)},
+                       hulls={"sphere": closed_hull(mesh.vertices, mesh.faces)})
+    return model, next(term.model for term in model.terms if term.name == "nonlinear_hydrostatics")
+
+
 @pytest.mark.parametrize("compiled", [True, False] if AVAILABLE else [False])
 @pytest.mark.parametrize("energy", [1.0, 0.99])
 def test_nonlinear_froude_krylov_equals_the_direct_evaluation(sphere_path, energy, compiled, monkeypatch):
@@ -97,15 +110,7 @@ def test_nonlinear_froude_krylov_equals_the_direct_evaluation(sphere_path, energ
     compiled kernels (the short waves' pressure by recurrences, the long ones direct: the sphere's
     200 m depth) or numpy alone."""
     monkeypatch.setattr(nonlinear_hydro, "AVAILABLE", compiled)
-    waves = irregular_waves(3.0, 8.0, ramp=4.0, seed=5)
-    text = scene_toml(dt=0.05, duration=100.0, water={**SPHERE_WATER, "gravity": G}, waves=waves,
-                      hydro={"nonlinear": "froude-krylov", "froude_krylov_energy": energy},
-                      bodies=[sphere_body(str(sphere_path), mass=261.724e3)])
-    mesh = cpt.mesh_sphere(radius=5.0, resolution=(16, 20))
-    mesh = mesh.merged() if hasattr(mesh, "merged") else mesh
-    model = HydroModel(parse_scene(text), {"sphere": load_hdb(sphere_path)},
-                       hulls={"sphere": closed_hull(mesh.vertices, mesh.faces)})
-    nl = next(term.model for term in model.terms if term.name == "nonlinear_hydrostatics")
+    model, nl = _sphere_froude_krylov(sphere_path, {"froude_krylov_energy": energy}, ramp=4.0, resolution=(16, 20))
     # compiled: the short waves of the 300 evenly spaced by the recurrence, the long ones direct
     assert (200 < sum(len(r.columns) for r in nl.split.recurrences) < 300) if compiled and energy == 1 else True
     assert nl.split is None if not compiled else True
@@ -142,14 +147,7 @@ def test_a_hull_sent_below_the_seabed_gets_finite_forces(sphere_path, compiled, 
     """A pose within the server's coordinate bound but below the 200 m seabed: the incident-wave
     pressure there is the seabed's (the depth factor used to overflow into NaN forces)."""
     monkeypatch.setattr(nonlinear_hydro, "AVAILABLE", compiled)
-    text = scene_toml(dt=0.05, duration=10.0, water={**SPHERE_WATER, "gravity": G},
-                      waves=irregular_waves(3.0, 8.0, ramp=0.0, seed=5), hydro={"nonlinear": "froude-krylov"},
-                      bodies=[sphere_body(str(sphere_path), mass=261.724e3)])
-    mesh = cpt.mesh_sphere(radius=5.0, resolution=(8, 10))
-    mesh = mesh.merged() if hasattr(mesh, "merged") else mesh
-    model = HydroModel(parse_scene(text), {"sphere": load_hdb(sphere_path)},
-                       hulls={"sphere": closed_hull(mesh.vertices, mesh.faces)})
-    nl = next(term.model for term in model.terms if term.name == "nonlinear_hydrostatics")
+    model, nl = _sphere_froude_krylov(sphere_path, {}, ramp=0.0, resolution=(8, 10))
     for heave in (-1e3, -1e5):
         pose = model.setup_info().equilibrium_position.copy()
         pose[0, 2] = heave
