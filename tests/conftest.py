@@ -43,19 +43,20 @@ def pytest_sessionstart(session: pytest.Session) -> None:
             os.environ.setdefault(var, "1")
 
 
-@pytest.fixture(autouse=True)
-def _timing_tests_run_alone(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory):
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None):
     """Under pytest-xdist a test marked ``timing`` (it asserts wall-clock bounds) runs while no other
-    test of the suite runs: every test holds a shared lock on a file the run's workers share, a timing
-    test the exclusive lock, taken through a turnstile lock that keeps the other workers from queueing
-    new shared holds meanwhile (flock favours none). Serial runs have nothing to share."""
-    if not hasattr(request.config, "workerinput"):
+    test of the suite runs, nor any fixture set-up or teardown: every test's whole protocol holds a
+    shared lock on a file the run's workers share, a timing test's the exclusive lock, taken through
+    a turnstile lock that keeps the other workers from queueing new shared holds meanwhile (flock
+    favours none). Serial runs have nothing to share."""
+    if not hasattr(item.config, "workerinput"):
         yield
         return
-    folder = tmp_path_factory.getbasetemp().parent            # one per run: the workers' base folders' parent
+    folder = Path(item.config.option.basetemp).parent          # one per run: the workers' base folders' parent
     turnstile = os.open(folder / "timing-turnstile.lock", os.O_RDWR | os.O_CREAT, 0o600)
     tests = os.open(folder / "timing-tests.lock", os.O_RDWR | os.O_CREAT, 0o600)
-    alone = request.node.get_closest_marker("timing") is not None
+    alone = item.get_closest_marker("timing") is not None
     try:
         fcntl.flock(turnstile, fcntl.LOCK_EX)
         fcntl.flock(tests, fcntl.LOCK_EX if alone else fcntl.LOCK_SH)
@@ -63,7 +64,7 @@ def _timing_tests_run_alone(request: pytest.FixtureRequest, tmp_path_factory: py
             fcntl.flock(turnstile, fcntl.LOCK_UN)
         yield
     finally:
-        os.close(tests)                                        # closing releases the locks
+        os.close(tests)                                          # closing releases the locks
         os.close(turnstile)
 
 
