@@ -4,8 +4,10 @@ its README) and the scene builder every test uses to write scene TOML."""
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import json
 import numbers
+import os
 import re
 import shutil
 import subprocess
@@ -19,6 +21,51 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 REFERENCE_DATA = REPO / "examples" / "data"
+
+
+def pytest_sessionstart(session: pytest.Session) -> None:
+    """Under pytest-xdist, before any worker starts, the controller
+
+    - makes (or loads) Capytaine's one-off Green-function tabulation: Capytaine writes it into its
+      cache folder in place, not atomically, so on a fresh machine two workers making it at once
+      could read each other's half-written file;
+    - gives the workers (and the processes they start) one BLAS/OpenMP thread each, as `hydrolink`
+      itself defaults to (clients/cli.py main): one worker a core, with every pool sized to the
+      machine the threads only contend (tests/test_hdb_build_multibody.py alone: 25.9 s of CPU
+      with the default pools, 17.7 s with one thread). Variables already set are kept.
+
+    Serial runs (``-n 0``) and the workers themselves skip this."""
+    config = session.config
+    if getattr(config, "workerinput", None) is None and getattr(config.option, "numprocesses", None):
+        import capytaine
+        capytaine.BEMSolver()
+        for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+            os.environ.setdefault(var, "1")
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None):
+    """Under pytest-xdist a test marked ``timing`` (it asserts wall-clock bounds) runs while no other
+    test of the suite runs, nor any fixture set-up or teardown: every test's whole protocol holds a
+    shared lock on a file the run's workers share, a timing test's the exclusive lock, taken through
+    a turnstile lock that keeps the other workers from queueing new shared holds meanwhile (flock
+    favours none). Serial runs have nothing to share."""
+    if not hasattr(item.config, "workerinput"):
+        yield
+        return
+    folder = Path(item.config.option.basetemp).parent          # one per run: the workers' base folders' parent
+    turnstile = os.open(folder / "timing-turnstile.lock", os.O_RDWR | os.O_CREAT, 0o600)
+    tests = os.open(folder / "timing-tests.lock", os.O_RDWR | os.O_CREAT, 0o600)
+    alone = item.get_closest_marker("timing") is not None
+    try:
+        fcntl.flock(turnstile, fcntl.LOCK_EX)
+        fcntl.flock(tests, fcntl.LOCK_EX if alone else fcntl.LOCK_SH)
+        if not alone:
+            fcntl.flock(turnstile, fcntl.LOCK_UN)
+        yield
+    finally:
+        os.close(tests)                                          # closing releases the locks
+        os.close(turnstile)
 
 
 @pytest.fixture(scope="session")

@@ -33,6 +33,7 @@ def start_server() -> tuple[subprocess.Popen, str]:
     return proc, line.split("listening on ")[1].split()[0]
 
 
+@pytest.mark.timing
 def test_a_killed_server_is_noticed_within_two_seconds():
     proc, address = start_server()
     try:

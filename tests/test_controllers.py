@@ -235,6 +235,7 @@ print(run_controller(controller, sys.argv[3], join_wait=5.0), flush=True)
 '''
 
 
+@pytest.mark.timing
 def test_slow_and_crashed_controller_fall_back_and_reconnect(reference_data, server, tmp_path):
     """A controller that misses one deadline (sleeps 0.8 s > timeout 0.5 s) and later crashes: the
     run never hangs; the passive fallback takes over (logged, counted, recorded) and, once a
@@ -490,6 +491,7 @@ def test_period_and_latency(reference_data, server, tmp_path):
     assert np.all(f[:2] == 0.0)
 
 
+@pytest.mark.timing
 def test_step_pipelined_behind_a_deferred_step_is_answered_in_order(reference_data, server, tmp_path):
     """SPEC §1 and §5.7: a client's requests are answered in order, and a step waiting for a
     command is deferred. A step pipelined behind it (sent before the deferred reply came) is held

@@ -17,6 +17,10 @@ from hydrolink.clients.lockstep.connection import ServerConnection
 from hydrolink.clients.run import run_scene_file
 from hydrolink.protocol.security import ClientKeys
 
+# One pytest-xdist worker runs this whole module (pyproject: --dist loadgroup): its module fixture (a CURVE
+# server process) costs ~4 s, paid once per worker otherwise.
+pytestmark = pytest.mark.xdist_group("curve")
+
 REPO = Path(__file__).resolve().parents[1]
 HYDROLINK = [sys.executable, "-m", "hydrolink.clients.cli"]
 

@@ -20,6 +20,10 @@ import numpy as np
 import pytest
 from conftest import SPHERE_WATER, regular_waves, scene_toml, serve_process, sphere_body, write_scene
 
+# One pytest-xdist worker runs this whole module (pyproject: --dist loadgroup): its module fixtures (a server
+# process, the native FMUs compiled, a straight run) cost ~12 s, paid once per worker otherwise.
+pytestmark = pytest.mark.xdist_group("fmu_native")
+
 DT, DURATION, FIT_FROM = 0.02, 60.0, 35.0
 
 

@@ -33,6 +33,10 @@ from hydrolink.server.hdb.build import SpecError, build_hdb, default_cache_dir, 
 from hydrolink.server.hdb.info import heave_natural_period, hdb_summary, plot_hdb
 from hydrolink.protocol.hdb_schema import validate_hdb
 
+# One pytest-xdist worker runs this whole module (pyproject: --dist loadgroup): its module fixtures (a sphere
+# and a cylinder built with Capytaine) cost ~9 s, paid once per worker otherwise.
+pytestmark = pytest.mark.xdist_group("hdb_build")
+
 RHO, G = 1025.0, 9.81
 # Hulme (1982) Table 1, heave: kR, A33/(rho 2/3 pi R^3), B33/(rho w 2/3 pi R^3)
 HULME_KR = np.array([0.05, 0.5, 1.0, 2.0])

@@ -34,6 +34,10 @@ from scipy.special import j0
 
 from hydrolink.server.hdb.build import SpecError, body_hydrostatics, build_hdb, load_spec, parse_spec
 
+# One pytest-xdist worker runs this whole module (pyproject: --dist loadgroup): its module fixtures (two
+# multibody Capytaine builds) cost ~6 s, paid once per worker otherwise.
+pytestmark = pytest.mark.xdist_group("hdb_build_multibody")
+
 RHO, G = 1025.0, 9.81
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 OMEGAS = [0.8, 1.5, 2.5]

@@ -22,6 +22,10 @@ from hydrolink.server.hdb.info import hdb_summary, plot_hdb
 from hydrolink.server.hdb.io import file_set, load_hdb
 from hydrolink.server.hdb.nemoh_qtf import read_nemoh_qtf
 
+# One pytest-xdist worker runs this whole module (pyproject: --dist loadgroup): its module fixtures (two
+# Capytaine builds) cost ~7 s, paid once per worker otherwise.
+pytestmark = pytest.mark.xdist_group("hdb_second_order")
+
 RHO, G, ULEN = 1025.0, 9.81, 2.0
 PERIODS = (8.0, 5.0, 3.0)          # in file order (not sorted): the reader sorts by omega
 SURGE, HEAVE, PITCH, YAW = 0, 2, 4, 5

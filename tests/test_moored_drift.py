@@ -5,6 +5,7 @@ far-field coefficients, and the elastic catenary's equilibrium of the example's 
 from __future__ import annotations
 
 import math
+import shutil
 import tomllib
 from pathlib import Path
 
@@ -45,6 +46,8 @@ def _run(tmp_path: Path, second_order: str, duration: float) -> xr.Dataset:
     from hydrolink.clients.studies.grid import absolute_paths, dump_toml
 
     doc = absolute_paths(tomllib.loads(example.SCENE.read_text()), example.SCENE)
+    for mooring in doc["moorings"]:   # MoorDyn writes its outputs beside its input: a copy here, not in examples/
+        mooring["file"] = shutil.copy(mooring["file"], tmp_path)
     doc = example.variant(doc, second_order, False, duration)
     doc["waves"]["ramp"] = 150.0      # a ramp over ~2.5 surge periods: little transient to average out
     scene = tmp_path / f"{second_order}.toml"

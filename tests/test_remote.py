@@ -20,6 +20,10 @@ import xarray as xr
 
 import netlab  # tests/netlab.py
 
+# One pytest-xdist worker runs this whole module (pyproject: --dist loadgroup): its module fixture (the
+# loopback reference run of three processes) costs ~8 s, paid once per worker otherwise.
+pytestmark = pytest.mark.xdist_group("remote")
+
 REPO = Path(__file__).resolve().parents[1]
 REACTIVE = REPO / "examples" / "controllers" / "reactive.py"
 HYDROLINK = [sys.executable, "-m", "hydrolink.clients.cli"]
@@ -108,6 +112,7 @@ def test_netns_run_equals_local_bit_for_bit(local_run, tmp_path, delay, mode):
         assert wall > 50 * 4 * delay
 
 
+@pytest.mark.timing
 @needs_netns
 def test_lab_delay_and_cleanup():
     """The delay is what was asked (round trip >= 2 x one-way) and the namespaces are gone after."""
@@ -144,6 +149,7 @@ def test_netns_run_survives_loss_and_an_outage(local_run, tmp_path, loss, outage
         assert wall > outage
 
 
+@pytest.mark.timing
 @needs_netns
 def test_netns_link_down_past_the_timeout_ends_the_run_with_its_rows(reference_data, tmp_path):
     """A link that stays down longer than --link-timeout ends the run with one line saying so; the

@@ -19,6 +19,7 @@ from conftest import SPHERE_WATER, regular_waves, scene_toml, sphere_body, write
 HYDROLINK = [sys.executable, "-m", "hydrolink.clients.cli"]
 
 
+@pytest.mark.timing
 @pytest.mark.parametrize("flush_seconds", [0.25, 1.0])
 def test_sigkill_loses_at_most_the_flush_interval(tmp_path: Path, reference_data: Path, flush_seconds: float):
     shutil.copy(reference_data / "sphere_task10" / "sphere.h5", tmp_path / "sphere.h5")

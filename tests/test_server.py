@@ -281,6 +281,7 @@ def test_concurrent_sessions_do_not_interfere(server, hdb):
                 np.testing.assert_array_equal(x[k], y[k])
 
 
+@pytest.mark.timing
 def test_vanished_client_expires_while_others_keep_running(hdb):
     srv, thread = serve_in_thread(session_timeout=0.4)
     try:
@@ -321,6 +322,7 @@ def test_signed_server_rejects_unsigned_and_wrong_key(hdb):
         thread.join(timeout=5)
 
 
+@pytest.mark.timing
 def test_receive_times_out_naming_the_address():
     ctx = zmq.Context.instance()
     with ctx.socket(zmq.ROUTER) as silent:  # accepts connections, never answers

@@ -15,6 +15,10 @@ from scipy.special import dawsn
 import spec_client
 from conftest import body, regular_waves, scene_toml, serve_process
 
+# One pytest-xdist worker runs this whole module (pyproject: --dist loadgroup): its module fixture (a server
+# process) costs ~3 s, paid once per worker otherwise.
+pytestmark = pytest.mark.xdist_group("spec_client")
+
 RHO, G = 1000.0, 9.81
 MASS, A_INF, B0, W0 = 3.0e5, 3.0e5, 4.0e5, 1.0     # heave: B(w) = B0 x^2 exp(-x^2), x = w/W0
 C33 = RHO * G * 78.5                                 # waterplane of a 5 m radius buoy

@@ -19,6 +19,10 @@ from hydrolink.protocol.scene import parse_scene
 from test_rm3 import (C_PTO, H, HEAVE, MASS, PERIOD, W, frequency_domain, hdb_radiation,
                       scene_text, steady_state)
 
+# One pytest-xdist worker runs this whole module (pyproject: --dist loadgroup): its module fixture (an RM3
+# time-domain run) costs ~4 s, paid once per worker otherwise.
+pytestmark = pytest.mark.xdist_group("steady")
+
 LIMIT = 2.0e5   # N: the linear PTO's peak force is ~3.3e5 N
 
 

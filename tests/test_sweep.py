@@ -27,6 +27,10 @@ from conftest import SPHERE_WATER, irregular_waves, linear_pto, regular_waves, s
 from hydrolink.clients.cli import cli
 from hydrolink.clients.studies.sweep import open_cluster, run_sweep
 
+# One pytest-xdist worker runs this whole module (pyproject: --dist loadgroup): its module fixtures (a Dask
+# LocalCluster, the regular sweep run) cost ~11 s, paid once per worker otherwise.
+pytestmark = pytest.mark.xdist_group("sweep")
+
 MASS, HEIGHT, DT = 261.724e3, 1.0, 0.04
 OMEGA_INDEX = (19, 27)                    # HDB grid frequencies 1.0 and 1.4 rad/s (no interpolation)
 DAMPING = (1.0e5, 4.0e5)
@@ -216,7 +220,7 @@ def test_remote_scheduler_and_workers_same_results(regular_sweep, sphere_dir, tm
 def test_resume_after_a_killed_sweep_runs_only_the_missing_cases(sphere_dir, local_client, tmp_path):
     sweep = sphere_dir / "resume.toml"
     dampings = [1e5, 2e5, 3e5, 4e5, 5e5, 6e5]
-    sweep.write_text(sweep_toml("sphere.toml", set={"simulation.duration": 150.0}, grid={"ptos.damper.damping": dampings}))
+    sweep.write_text(sweep_toml("sphere.toml", set={"simulation.duration": 40.0}, grid={"ptos.damper.damping": dampings}))
     out = tmp_path / "out"
     proc = subprocess.Popen([sys.executable, "-m", "hydrolink.clients.cli", "sweep", str(sweep), "-o", str(out),
                              "--workers", "1", "--no-progress"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
