@@ -25,9 +25,20 @@ import math
 
 import numpy as np
 
-__all__ = ["AVAILABLE", "chebyshev_sum", "chebyshev_sum2", "deep_pressure", "warm_up"]
+__all__ = ["AVAILABLE", "chebyshev_sum", "chebyshev_sum2", "deep_pressure", "imports", "warm_up"]
 
 AVAILABLE = importlib.util.find_spec("numba") is not None   # numba itself imported on first use
+
+
+@functools.cache
+def imports() -> bool:
+    """Whether numba, installed, also imports here (a numba built for another numpy raises): the
+    set-ups ask this before choosing the compiled paths, so such a machine runs the numpy ones."""
+    try:
+        import numba  # noqa: F401
+    except Exception:  # noqa: BLE001 - any failure to import means: no compiled paths
+        return False
+    return True
 
 
 def _deep_pressure(xi, z, ar, ai, k0, dk, d2, out):

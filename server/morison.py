@@ -15,9 +15,8 @@ the force term is :class:`MorisonTerm` (server/force_term.py)."""
 from __future__ import annotations
 
 import numpy as np
-
 from hydrolink.protocol.scene import Scene
-from hydrolink.server import morison_kernel
+from hydrolink.server import incident_kernels, morison_kernel
 from hydrolink.server.force_term import ForceTerm, TermContext
 from hydrolink.server.kinematics import Kinematics
 from hydrolink.server.waves import WaveComponents, WavePhases
@@ -49,7 +48,7 @@ class MorisonSet:
     (numba installed) all of it after the trig row is one call (server/morison_kernel.py)."""
 
     def __init__(self, body: np.ndarray, lever: np.ndarray, z0: np.ndarray, basis: np.ndarray, inertia: np.ndarray,
-                 drag: np.ndarray, wave: Kinematics, active: np.ndarray, compiled: bool = morison_kernel.AVAILABLE):
+                 drag: np.ndarray, wave: Kinematics, active: np.ndarray, compiled: bool | None = None):
         """The segments on server bodies ``body`` (S,) with levers (S, 3) from their body's
         reference point, centre heights ``z0`` (S,) at equilibrium, normal directions ``basis``
         (S, 2, 3), coefficients rho (1 + ca) V and 1/2 rho cd D L (S,), ``wave`` along the
@@ -95,8 +94,9 @@ class MorisonSet:
         self._speed, self._wet = self._mask[:, 0]
         self._f = np.empty((2, 2, n_seg))                   # |w| w, a on the wet segments
         self._flat_f = self._f.reshape(-1)
-        self.compiled = compiled
-        if compiled:
+        # None: compiled where numba is installed and imports (server/incident_kernels.py)
+        self.compiled = morison_kernel.AVAILABLE and incident_kernels.imports() if compiled is None else compiled
+        if self.compiled:
             morison_kernel.warm_up()
 
     def force(self, t: float, x: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -173,7 +173,7 @@ class MorisonTerm(ForceTerm):
         self._eq = equilibrium.copy()
 
     @classmethod
-    def build(cls, ctx: TermContext) -> "MorisonTerm | None":
+    def build(cls, ctx: TermContext) -> MorisonTerm | None:
         built = build_morison(ctx.scene, ctx.wet, ctx.waves, ctx.equilibrium[:, :3], ctx.active, ctx.phases)
         return None if built is None else cls(*built, ctx.equilibrium, ctx.active)
 

@@ -326,7 +326,8 @@ def build_nonlinear(scene: Scene, wet: list[int], hulls: dict[str, Hull], waves:
     the setup's per wet body (None: none applied)."""
     water = scene.water
     kept = strongest_components(waves, scene.hydro.froude_krylov_energy)
-    model = NonlinearHydro([], kept, water.density, water.gravity, water.depth_m, len(wet), compiled=AVAILABLE)
+    model = NonlinearHydro([], kept, water.density, water.gravity, water.depth_m, len(wet),
+                           compiled=AVAILABLE and incident_kernels.imports())
     bodies = []
     for k, i in enumerate(wet):
         body = scene.bodies[i]

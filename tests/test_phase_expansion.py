@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from conftest import SPHERE_WATER, irregular_waves, scene_toml, sphere_body
 from hydrolink.protocol.scene import parse_scene
-from hydrolink.server import nonlinear_hydro
+from hydrolink.server import incident_kernels, nonlinear_hydro
 from hydrolink.server.hdb.io import load_hdb
 from hydrolink.server.incident_kernels import AVAILABLE
 from hydrolink.server.kinematics import wave_number
@@ -153,3 +153,18 @@ def test_a_hull_sent_below_the_seabed_gets_finite_forces(sphere_path, compiled, 
         pose[0, 2] = heave
         hs, fk = nl.force(1.0, pose)
         assert np.all(np.isfinite(hs)) and np.all(np.isfinite(fk)), heave
+
+
+@pytest.mark.skipif(not AVAILABLE, reason="numba not installed")
+def test_a_numba_that_does_not_import_leaves_the_numpy_paths(sphere_path, monkeypatch):
+    """numba installed but failing to import (built for another numpy): the set-up takes the numpy
+    paths, which give the compiled ones' force to round-off."""
+    _, compiled = _sphere_froude_krylov(sphere_path, {}, ramp=0.0, resolution=(8, 10))
+    monkeypatch.setattr(incident_kernels, "imports", lambda: False)
+    model, fallback = _sphere_froude_krylov(sphere_path, {}, ramp=0.0, resolution=(8, 10))
+    assert compiled.compiled and not fallback.compiled
+    pose = model.setup_info().equilibrium_position.copy()
+    pose[0, 2] += 0.7
+    pose[0, 4] += 0.1
+    for got, want in zip(fallback.force(3.0, pose), compiled.force(3.0, pose)):
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-9 * np.abs(want).max())
