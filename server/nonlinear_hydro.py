@@ -119,8 +119,7 @@ def _split_components(omega: np.ndarray, k: np.ndarray, heading: np.ndarray, g: 
                 rest.append(run_cols)
     rest = np.sort(np.concatenate(rest))
     if len(rest):
-        long = DepthExpansion(k[rest], heading[rest], 0.5 * reach, floor, lambda kc, z: _depth_factor(kc, z, depth),
-                              compiled=True)
+        long = DepthExpansion(k[rest], heading[rest], 0.5 * reach, floor, lambda kc, z: _depth_factor(kc, z, depth))
         if long.converged and long.terms <= 10 * len(rest):
             return _PressureSplit(tuple(recurrences), long, rest, rest[:0], floor)
     return _PressureSplit(tuple(recurrences), None, rest[:0], rest, floor)
@@ -174,17 +173,16 @@ class NonlinearHydro:
         if not self.still:
             self.k = np.array([wave_number(float(w), g, depth) for w in waves.omega])
             beta = waves.heading_of()
-            self.kx, self.ky = self.k * np.cos(beta), self.k * np.sin(beta)
             self.amp = waves.amplitude * np.exp(1j * waves.phase)
             self.amplitude, self.phase = waves.amplitude.copy(), waves.phase.copy()
-            self.k_xy = np.vstack([self.kx, self.ky])                  # (2, n_c): theta = (x, y) @ k_xy
+            self.k_xy = self.k * np.vstack([np.cos(beta), np.sin(beta)])   # (2, n_c): theta = (x, y) @ k_xy
         self.expansion: PhaseExpansion | None = None   # set by build_nonlinear once the hulls are known
         self.warnings: list[str] = []
         self.froude_krylov = False   # some body has "froude-krylov": the reply carries that field
 
     def _phasors(self, pts: np.ndarray) -> np.ndarray:
         """a_c e^{i theta_c(x, y)} at points (P, 3): (P, n_c)."""
-        return self.amp[None, :] * np.exp(1j * (np.outer(pts[:, 0], self.kx) + np.outer(pts[:, 1], self.ky)))
+        return self.amp[None, :] * np.exp(1j * (pts[:, :2] @ self.k_xy))
 
     def _fk_pressure(self, pts: np.ndarray, eta: np.ndarray, reference: np.ndarray, t: float,
                      ramp: float) -> np.ndarray:

@@ -142,12 +142,11 @@ class DepthExpansion:
     k |floor| are small (N, M ~ k rho + 10, k |floor| / 2 + 10), the short waves being the
     recurrence's (server/incident_kernels.py). ``terms`` is N M summed over the headings."""
 
-    def __init__(self, k: np.ndarray, heading: np.ndarray, radius: float, floor: float, depth_factor,
-                 compiled: bool = AVAILABLE):
-        """``depth_factor(k, z)``: f (P, n_c) at heights z (P,) in [floor, 0]; ``compiled``: the sum
-        at the points by the compiled kernel (server/incident_kernels.py), else by numpy."""
+    def __init__(self, k: np.ndarray, heading: np.ndarray, radius: float, floor: float, depth_factor):
+        """``depth_factor(k, z)``: f (P, n_c) at heights z (P,) in [floor, 0]. Only on the compiled
+        path (its sum at the points is a kernel of server/incident_kernels.py); without numba the
+        long waves' pressure is summed directly."""
         from numpy.polynomial import chebyshev
-        self.compiled = compiled
         self.radius = float(radius) * (1.0 + 1e-12) or 1.0
         self.floor = float(floor)
         nodes = chebyshev.chebpts2(_DEPTH_NODES)                      # v in [-1, 1]
@@ -173,14 +172,9 @@ class DepthExpansion:
         and ``psi`` (phi_c - w_c t) of all the components (n_c,)."""
         v = np.clip(1.0 - 2.0 * z / self.floor, -1.0, 1.0)
         out = np.zeros(len(z))
-        t_v = None if self.compiled else _chebyshev(v, max(g.vertical.shape[1] for g in self.groups)).T   # (P, M)
         for g in self.groups:
             u = np.clip(offsets @ g.direction / self.radius, -1.0, 1.0)
             a = amplitude[g.columns] * np.exp(1j * (g.k * float(reference @ g.direction) + psi[g.columns]))
             coefficients = np.real((g.horizontal * a[None, :]) @ g.vertical)       # (N, M)
-            if self.compiled:
-                chebyshev_sum2(u, v, coefficients, out)
-            else:
-                m = coefficients.shape[1]
-                out += np.einsum("pn,pn->p", _chebyshev(u, coefficients.shape[0]).T @ coefficients, t_v[:, :m])
+            chebyshev_sum2(u, v, coefficients, out)
         return out
