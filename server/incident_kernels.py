@@ -59,6 +59,7 @@ class ElevationTable(NamedTuple):
     direction: np.ndarray      # (G, 2) cos b, sin b
     start: np.ndarray          # (G + 1,) int64: heading g's components are columns[start[g]:start[g + 1]] (by k)
     columns: np.ndarray        # (n_c,) int64
+    reach: np.ndarray          # (n_c,) int64: each component's orders (by columns; its weights beyond are zero)
     bins: np.ndarray           # (G,) int64: bin count
     orders: np.ndarray         # (G,) int64: N, the series' orders per bin
     weights: np.ndarray        # from weight_start[g]: the (n_g, ceil(N/2)) even-order weights, then the odd ones
@@ -129,13 +130,16 @@ def binned_chebyshev_sum(u: np.ndarray, c: np.ndarray, out: np.ndarray) -> None:
         _compiled().binned_chebyshev_sum(np.ascontiguousarray(u, float), np.ascontiguousarray(c, float), out)
 
 
-def bin_coefficients(even: np.ndarray, odd: np.ndarray, turn: np.ndarray, shift: np.ndarray, out: np.ndarray) -> None:
+def bin_coefficients(even: np.ndarray, odd: np.ndarray, reach: np.ndarray, turn: np.ndarray, shift: np.ndarray,
+                     out: np.ndarray) -> None:
     """out[j, n] = sum_c w_nc Re(turn_c shift_jc) for even n, w_nc Im(turn_c shift_jc) for odd n,
     the weights given per component as ``even`` (n_c, ceil(N / 2)) = w_{2m, c} and ``odd``
-    (n_c, floor(N / 2)) = w_{2m+1, c}: the Jacobi–Anger coefficients of server/phase_expansion.py
-    for each bin j, ``turn`` (n_c,) and ``shift`` (B, n_c) complex, ``out`` (B, N)."""
-    _compiled().bin_coefficients(even, odd, np.ascontiguousarray(turn.real), np.ascontiguousarray(turn.imag),
-                   np.ascontiguousarray(shift.real), np.ascontiguousarray(shift.imag), out)
+    (n_c, floor(N / 2)) = w_{2m+1, c}, zero from order ``reach[c]`` on: the Jacobi–Anger
+    coefficients of server/phase_expansion.py for each bin j, ``turn`` (n_c,) and ``shift``
+    (B, n_c) complex, ``out`` (B, N)."""
+    _compiled().bin_coefficients(even, odd, np.asarray(reach, np.int64), np.ascontiguousarray(turn.real),
+                                 np.ascontiguousarray(turn.imag), np.ascontiguousarray(shift.real),
+                                 np.ascontiguousarray(shift.imag), out)
 
 
 def chebyshev_sum2(u: np.ndarray, v: np.ndarray, c: np.ndarray, out: np.ndarray,
@@ -189,9 +193,10 @@ def warm_up() -> None:
     deep_pressure(np.zeros(1), np.zeros(1), np.ones(1, complex), 0.0, 0.0, 0.0, out)
     chebyshev_sum(np.zeros(1), np.ones(2), out)
     chebyshev_sum2(np.zeros(1), np.zeros(1), np.ones((2, 2)), out)
-    bin_coefficients(np.ones((1, 1)), np.ones((1, 1)), np.ones(1, complex), np.ones((1, 1), complex), np.zeros((1, 2)))
+    bin_coefficients(np.ones((1, 1)), np.ones((1, 1)), np.full(1, 2), np.ones(1, complex), np.ones((1, 1), complex),
+                     np.zeros((1, 2)))
     none, count, heads, start = np.zeros(0), np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros(1, np.int64)
-    elevation = ElevationTable(heads, start, count, count, count, none, count, none, none, count, 1.0)
+    elevation = ElevationTable(heads, start, count, count, count, count, none, count, none, none, count, 1.0)
     recurrences = RecurrenceTable(heads, start, count, none, none, none, -1.0)
     long = LongTable(heads, start, count, np.zeros((0, 2), np.int64), none, none, count, none, count, count, 1.0, -1.0)
     tables = HullTables(elevation, recurrences, long, count, heads, np.ones((1, 2)))

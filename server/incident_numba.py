@@ -124,7 +124,7 @@ def binned_chebyshev_sum(u, c, out):
 
 
 @_jit
-def bin_coefficients(even, odd, tr, ti, sr, si, out):
+def bin_coefficients(even, odd, reach, tr, ti, sr, si, out):
     """out[j, n]: the bins' Jacobi–Anger coefficients (incident_kernels.bin_coefficients)."""
     n_b = out.shape[0]
     n_c, n_e, n_o = tr.size, even.shape[1], odd.shape[1]
@@ -135,9 +135,10 @@ def bin_coefficients(even, odd, tr, ti, sr, si, out):
         for c in range(n_c):    # each component adds its weights times Re (even orders) or Im (odd) of its phasor
             xr = tr[c] * sr[j, c] - ti[c] * si[j, c]
             xi = tr[c] * si[j, c] + ti[c] * sr[j, c]
-            for k in range(n_e):
+            r = reach[c]
+            for k in range((r + 1) // 2):
                 se[k] += even[c, k] * xr
-            for k in range(n_o):
+            for k in range(r // 2):
                 so[k] += odd[c, k] * xi
         for k in range(n_e):
             out[j, 2 * k] = se[k]
@@ -244,7 +245,7 @@ def hull_pressure(local, rot, pos, x_re, x_im, k, depth, elevation, recurrences,
         sr = e.shift_re[s0:s0 + n_b * n_g].reshape((n_b, n_g))
         si = e.shift_im[s0:s0 + n_b * n_g].reshape((n_b, n_g))
         coefficients = np.empty((n_b, n_o))
-        bin_coefficients(even, odd, tr, ti, sr, si, coefficients)
+        bin_coefficients(even, odd, e.reach[e.start[g]:e.start[g + 1]], tr, ti, sr, si, coefficients)
         _along(ox, oy, e.direction[g, 0], e.direction[g, 1], 1.0 / e.radius, u)
         binned_chebyshev_sum(u, coefficients, d)            # d holds the elevation for now
     wet_n = 0

@@ -97,6 +97,7 @@ class _Bins:
     X_c the component's phasor at the bin's centre."""
     count: int
     orders: int          # N
+    reach: np.ndarray    # (n_g,) int64: each component's orders (its weights beyond are zero)
     even: np.ndarray     # (n_g, ceil(N / 2)): w_{2m, c}, per component
     odd: np.ndarray      # (n_g, floor(N / 2)): w_{2m+1, c}
     shift: np.ndarray    # (count, n_g) complex: e^{i k s_j}, s_j the bin centres' offsets along the heading
@@ -115,13 +116,18 @@ class _Heading:
 
 def _bins(k: np.ndarray, radius: float, points: int) -> _Bins:
     """The bin count, of 1 to 64, with the fewest multiply-adds per evaluation at ``points`` points:
-    the coefficients (N per component and bin) plus the points' orders (Clenshaw)."""
-    orders = {c: _orders(jv, float(k.max()) * radius / c) for c in range(1, 65)}     # N per bin count
-    count = min(orders, key=lambda c: (c * len(k) + points) * orders[c])
+    the coefficients (each component's orders, per bin) plus the points' orders (Clenshaw). The
+    orders of J_n(x) above the tail, tabulated over x, give each component's."""
+    x = np.linspace(0.0, float(k.max()) * radius, 129)
+    table = np.array([_orders(jv, v) for v in x])          # orders at x, growing with x
+    reach = lambda count: table[np.minimum(np.searchsorted(x, k * radius / count), len(x) - 1)]   # noqa: E731
+    count = min(range(1, 65), key=lambda c: c * int(reach(c).sum()) + points * int(reach(c).max()))
     coefficients = _jacobi_anger(k, radius / count)
     weight = np.where((np.arange(len(coefficients)) % 2 == 0)[:, None], coefficients.real, -coefficients.imag)
+    nonzero = weight != 0.0
+    last = np.where(nonzero.any(axis=0), len(weight) - np.argmax(nonzero[::-1], axis=0), 0).astype(np.int64)
     centres = radius * (-1.0 + (2.0 * np.arange(count) + 1.0) / count)
-    return _Bins(count, len(weight), np.ascontiguousarray(weight[0::2].T), np.ascontiguousarray(weight[1::2].T),
+    return _Bins(count, len(weight), last, np.ascontiguousarray(weight[0::2].T), np.ascontiguousarray(weight[1::2].T),
                  np.exp(1j * np.outer(centres, k)))
 
 
@@ -159,7 +165,7 @@ class PhaseExpansion:
             turn = amplitude[g.columns] * np.exp(1j * (g.k * float(reference @ g.direction) + psi[g.columns]))
             if g.bins is not None:
                 c = np.empty((g.bins.count, g.bins.orders))          # each bin's series coefficients now
-                bin_coefficients(g.bins.even, g.bins.odd, turn, g.bins.shift, c)
+                bin_coefficients(g.bins.even, g.bins.odd, g.bins.reach, turn, g.bins.shift, c)
                 binned_chebyshev_sum(u, c, out)
             else:
                 c = np.real(g.coefficients @ turn)                   # (N,): the series' coefficients now
@@ -176,6 +182,7 @@ class PhaseExpansion:
             direction=np.array([g.direction for g in self.groups]).reshape(-1, 2),
             start=np.cumsum([0] + [len(g.columns) for g in self.groups]).astype(np.int64),
             columns=flatten([g.columns for g in self.groups], np.int64)[0],
+            reach=flatten([b.reach for b in bins], np.int64)[0],
             bins=np.array([b.count for b in bins], np.int64), orders=np.array([b.orders for b in bins], np.int64),
             weights=weights, weight_start=weight_start, shift_re=shift_re, shift_im=shift_im,
             shift_start=shift_start, radius=self.radius)
