@@ -1,20 +1,30 @@
 """Compiled kernels for the incident wave on a hull's points (issue 26; numba, optional).
 
-Two sums over many points and components, each a loop over the components outside and over the
-points inside (vectorised by the compiler), with no transcendental function in the loops:
+The kernels themselves are in server/incident_numba.py, imported (and numba with it) on first
+use; this module holds what the callers need without numba: whether it is there, the kernels'
+typed tables and thin wrappers.
 
+- :func:`hull_loads`: one Froude–Krylov body's whole step in one compiled pass (no Python between
+  the pieces): the pose's rotation, each component's phasor at the reference point, the vertices'
+  heights, the elevation (the Jacobi–Anger series of server/phase_expansion.py by bins), the wet
+  vertices, sorted from the surface down, their Wheeler-stretched heights, the pressure there (the
+  short waves by :func:`deep_pressure`'s recurrence, the long ones by the series in the horizontal
+  and in depth, any others one by one) and its integral over the cut hull
+  (server/wet_surface_kernel.py).
 - :func:`deep_pressure`: sum_c Re(a_c e^{k_c (z_p + i xi_p)}) for components whose wave numbers
   are a quadratic in their index, k_c = k0 + c dk + c (c - 1) d2 / 2 (deep water, frequencies
   equally spaced: k = w^2 / g). Then e^{k_{c+1} zeta} = e^{k_c zeta} r_c with r_{c+1} = r_c q, q
   = e^{d2 zeta}: two complex products per point and component, three complex exponentials per
-  point. The products' round-off grows with c; over 300 components it stays below 1e-12 of the
-  amplitude sum (tests/test_incident_kernels.py).
-- :func:`chebyshev_sum`: sum_n c_n T_n(u_p) by Clenshaw's recurrence (the Jacobi–Anger expansion of
-  server/phase_expansion.py); :func:`chebyshev_sum2` the two-dimensional sum of its long-wave
-  pressure series, the depth series' Chebyshev values by their recurrence, then Clenshaw.
+  point. A block of points stops where the remaining components add at most 2^-53 of the
+  amplitude sum at its highest point. The products' round-off grows with c; over 300 components it
+  stays below 1e-12 of the amplitude sum (tests/test_incident_kernels.py).
+- :func:`binned_chebyshev_sum` (and :func:`chebyshev_sum`, one bin): Clenshaw's recurrence over
+  the points of each bin; :func:`bin_coefficients` the bins' coefficients; :func:`chebyshev_sum2`
+  the two-dimensional sum of the long-wave pressure series.
 
-``AVAILABLE`` is False where numba is not installed: the callers then take their numpy paths
-(the same sums as matrix products; slower, same results to round-off).
+``AVAILABLE`` is False where numba is not installed, :func:`imports` where it does not import:
+the callers then take their numpy paths (the same sums as matrix products; slower, same results
+to round-off).
 """
 
 from __future__ import annotations
@@ -22,10 +32,12 @@ from __future__ import annotations
 import functools
 import importlib.util
 import math
+from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["AVAILABLE", "chebyshev_sum", "chebyshev_sum2", "deep_pressure", "imports", "warm_up"]
+__all__ = ["AVAILABLE", "ElevationTable", "HullTables", "LongTable", "RecurrenceTable", "bin_coefficients",
+           "binned_chebyshev_sum", "chebyshev_sum", "chebyshev_sum2", "deep_pressure", "hull_loads", "imports", "warm_up"]
 
 AVAILABLE = importlib.util.find_spec("numba") is not None   # numba itself imported on first use
 
@@ -41,89 +53,59 @@ def imports() -> bool:
     return True
 
 
-def _deep_pressure(xi, z, ar, ai, k0, dk, d2, out):
-    p_n, n_c = xi.size, ar.size
-    ur, ui = np.empty(p_n), np.empty(p_n)
-    rr, ri = np.empty(p_n), np.empty(p_n)
-    qr, qi = np.empty(p_n), np.empty(p_n)
-    for p in range(p_n):
-        m = math.exp(k0 * z[p])
-        ur[p], ui[p] = m * math.cos(k0 * xi[p]), m * math.sin(k0 * xi[p])
-        m = math.exp(dk * z[p])
-        rr[p], ri[p] = m * math.cos(dk * xi[p]), m * math.sin(dk * xi[p])
-        m = math.exp(d2 * z[p])
-        qr[p], qi[p] = m * math.cos(d2 * xi[p]), m * math.sin(d2 * xi[p])
-    c = 0
-    while c + 2 <= n_c:         # two components per pass over the points: half the loads and stores
-        for p in range(p_n):
-            xr, xi_, yr, yi, zr, zi = ur[p], ui[p], rr[p], ri[p], qr[p], qi[p]
-            s = 0.0
-            for q in range(2):
-                s += ar[c + q] * xr - ai[c + q] * xi_
-                t = xr * yr - xi_ * yi
-                xi_ = xr * yi + xi_ * yr
-                xr = t
-                t = yr * zr - yi * zi
-                yi = yr * zi + yi * zr
-                yr = t
-            out[p] += s
-            ur[p], ui[p], rr[p], ri[p] = xr, xi_, yr, yi
-        c += 2
-    if c < n_c:
-        for p in range(p_n):
-            out[p] += ar[c] * ur[p] - ai[c] * ui[p]
+class ElevationTable(NamedTuple):
+    """The incident wave's elevation for :func:`hull_pressure`: per heading g (of G), its components'
+    Jacobi–Anger series by bins (server/phase_expansion.py), the ragged parts flattened."""
+    direction: np.ndarray      # (G, 2) cos b, sin b
+    start: np.ndarray          # (G + 1,) int64: heading g's components are columns[start[g]:start[g + 1]] (by k)
+    columns: np.ndarray        # (n_c,) int64
+    reach: np.ndarray          # (n_c,) int64: each component's orders (by columns; its weights beyond are zero)
+    bins: np.ndarray           # (G,) int64: bin count
+    orders: np.ndarray         # (G,) int64: N, the series' orders per bin
+    weights: np.ndarray        # from weight_start[g]: the (n_g, ceil(N/2)) even-order weights, then the odd ones
+    weight_start: np.ndarray   # (G,) int64
+    shift_re: np.ndarray       # from shift_start[g]: (bins, n_g) e^{i k s_j} of the bins' centres
+    shift_im: np.ndarray
+    shift_start: np.ndarray    # (G,) int64
+    radius: float              # m: the expansion's half-width (every vertex's horizontal offset within it)
 
 
-def _chebyshev_sum(u, c, out):
-    p_n, n = u.size, c.size
-    b1, b2 = np.zeros(p_n), np.zeros(p_n)
-    for m in range(n - 1, 0, -1):
-        cm = c[m]
-        for p in range(p_n):
-            t = 2.0 * u[p] * b1[p] - b2[p] + cm
-            b2[p] = b1[p]
-            b1[p] = t
-    c0 = c[0]
-    for p in range(p_n):
-        out[p] += u[p] * b1[p] - b2[p] + c0
+class RecurrenceTable(NamedTuple):
+    """The short waves' pressure for :func:`hull_pressure`: per run g of evenly spaced deep-water
+    components of one heading, k_c = k0 + c dk + c (c - 1) d2 / 2 (server/nonlinear_hydro.py)."""
+    direction: np.ndarray      # (R, 2)
+    start: np.ndarray          # (R + 1,) int64 into columns
+    columns: np.ndarray        # int64, by increasing frequency within each run
+    k0: np.ndarray             # (R,) 1/m
+    dk: np.ndarray             # (R,)
+    d2: np.ndarray             # (R,)
+    floor: float               # m: the lowest stretched height the split into short and long waves holds for
 
 
-def _chebyshev_sum2(u, v, c, out):
-    p_n, n, m = u.size, c.shape[0], c.shape[1]
-    tv = np.empty((m, p_n))                 # T_m(v) by their recurrence
-    for p in range(p_n):
-        tv[0, p] = 1.0
-    if m > 1:
-        for p in range(p_n):
-            tv[1, p] = v[p]
-    for j in range(2, m):
-        for p in range(p_n):
-            tv[j, p] = 2.0 * v[p] * tv[j - 1, p] - tv[j - 2, p]
-    s, b1, b2 = np.empty(p_n), np.zeros(p_n), np.zeros(p_n)
-    for i in range(n - 1, -1, -1):          # Clenshaw in u over s_i = sum_m c_im T_m(v)
-        for p in range(p_n):
-            s[p] = 0.0
-        for j in range(m):
-            cij = c[i, j]
-            for p in range(p_n):
-                s[p] += cij * tv[j, p]
-        if i > 0:
-            for p in range(p_n):
-                t = 2.0 * u[p] * b1[p] - b2[p] + s[p]
-                b2[p] = b1[p]
-                b1[p] = t
-        else:
-            for p in range(p_n):
-                out[p] += u[p] * b1[p] - b2[p] + s[p]
+class LongTable(NamedTuple):
+    """The long waves' pressure series for :func:`hull_pressure` (server/phase_expansion.py's
+    DepthExpansion), per heading g (of L): C_nm = Re(sum_c H_nc a_c) V_cm."""
+    direction: np.ndarray      # (L, 2)
+    start: np.ndarray          # (L + 1,) int64 into columns
+    columns: np.ndarray        # int64
+    orders: np.ndarray         # (L, 2) int64: N horizontal, M vertical
+    horizontal_re: np.ndarray  # from horizontal_start[g]: (N, n_g) H = i^n eps_n J_n(k rho)
+    horizontal_im: np.ndarray
+    horizontal_start: np.ndarray   # (L,) int64
+    vertical: np.ndarray       # from vertical_start[g]: (n_g, M) the depth factors' Chebyshev coefficients
+    vertical_start: np.ndarray     # (L,) int64
+    row_terms: np.ndarray      # (sum of N,) int64: the depth terms kept per horizontal order (the rest below 2^-53 of the amplitude sum)
+    radius: float              # m
+    floor: float               # m: v = 1 - 2 z / floor
 
 
 @functools.cache
 def _compiled():
-    """Both kernels compiled (or loaded from numba's cache) on first use: numba is imported only by
-    a scene that needs it (its import costs about half a second)."""
-    import numba
-    jit = numba.njit(cache=True, nogil=True, error_model="numpy")
-    return jit(_deep_pressure), jit(_chebyshev_sum), jit(_chebyshev_sum2)
+    """The kernels' module (server/incident_numba.py), compiled or loaded from numba's cache on
+    first use: numba is imported only by a scene that needs it (its import costs about half a
+    second)."""
+    from hydrolink.server import incident_numba
+    return incident_numba
 
 
 def deep_pressure(xi: np.ndarray, z: np.ndarray, a: np.ndarray, k0: float, dk: float, d2: float,
@@ -131,26 +113,93 @@ def deep_pressure(xi: np.ndarray, z: np.ndarray, a: np.ndarray, k0: float, dk: f
     """Adds sum_c Re(a_c e^{k_c (z + i xi)}) to ``out`` (P,), k_c = k0 + c dk + c (c - 1) d2 / 2,
     at points with horizontal coordinates ``xi`` (P,) along the heading and heights ``z`` (P,)
     <= 0, for the complex amplitudes ``a`` (n_c,) (module docstring)."""
-    _compiled()[0](np.ascontiguousarray(xi, float), np.ascontiguousarray(z, float),
+    _compiled().deep_pressure(np.ascontiguousarray(xi, float), np.ascontiguousarray(z, float),
                    np.ascontiguousarray(a.real), np.ascontiguousarray(a.imag), float(k0), float(dk), float(d2), out)
 
 
 def chebyshev_sum(u: np.ndarray, c: np.ndarray, out: np.ndarray) -> None:
     """Adds sum_n c_n T_n(u) to ``out`` (P,) at points ``u`` (P,) in [-1, 1] (Clenshaw)."""
-    if c.size:
-        _compiled()[1](np.ascontiguousarray(u, float), np.ascontiguousarray(c, float), out)
+    binned_chebyshev_sum(u, c[None, :], out)
 
 
-def chebyshev_sum2(u: np.ndarray, v: np.ndarray, c: np.ndarray, out: np.ndarray) -> None:
-    """Adds sum_{n, m} c_nm T_n(u) T_m(v) to ``out`` (P,) at points ``u``, ``v`` (P,) in [-1, 1]."""
+def binned_chebyshev_sum(u: np.ndarray, c: np.ndarray, out: np.ndarray) -> None:
+    """Adds sum_n c_jn T_n(v) to ``out`` (P,) at points ``u`` (P,) in [-1, 1] cut into B = len(c)
+    equal bins: j the bin of u, v = B (u - u_j) in [-1, 1] its coordinate about the bin's centre u_j
+    (Clenshaw over the points of each bin; ``c`` (B, N))."""
     if c.size:
-        _compiled()[2](np.ascontiguousarray(u, float), np.ascontiguousarray(v, float),
-                       np.ascontiguousarray(c, float), out)
+        _compiled().binned_chebyshev_sum(np.ascontiguousarray(u, float), np.ascontiguousarray(c, float), out)
+
+
+def bin_coefficients(even: np.ndarray, odd: np.ndarray, reach: np.ndarray, turn: np.ndarray, shift: np.ndarray,
+                     out: np.ndarray) -> None:
+    """out[j, n] = sum_c w_nc Re(turn_c shift_jc) for even n, w_nc Im(turn_c shift_jc) for odd n,
+    the weights given per component as ``even`` (n_c, ceil(N / 2)) = w_{2m, c} and ``odd``
+    (n_c, floor(N / 2)) = w_{2m+1, c}, zero from order ``reach[c]`` on: the Jacobi–Anger
+    coefficients of server/phase_expansion.py for each bin j, ``turn`` (n_c,) and ``shift``
+    (B, n_c) complex, ``out`` (B, N)."""
+    _compiled().bin_coefficients(even, odd, np.asarray(reach, np.int64), np.ascontiguousarray(turn.real),
+                                 np.ascontiguousarray(turn.imag), np.ascontiguousarray(shift.real),
+                                 np.ascontiguousarray(shift.imag), out)
+
+
+def chebyshev_sum2(u: np.ndarray, v: np.ndarray, c: np.ndarray, out: np.ndarray,
+                   terms: np.ndarray | None = None) -> None:
+    """Adds sum_n sum_{m < terms[n]} c_nm T_n(u) T_m(v) to ``out`` (P,) at points ``u``, ``v`` (P,)
+    in [-1, 1] (``terms`` (N,): all M by default)."""
+    if c.size:
+        terms = np.full(c.shape[0], c.shape[1], np.int64) if terms is None else np.asarray(terms, np.int64)
+        _compiled().chebyshev_sum2(np.ascontiguousarray(u, float), np.ascontiguousarray(v, float),
+                                   np.ascontiguousarray(c, float), terms, out)
+
+
+class HullTables(NamedTuple):
+    """What :func:`hull_loads` needs of the sea beyond the hull: how each component's pressure is
+    summed (the split of server/nonlinear_hydro.py) and the elevation's series."""
+    elevation: ElevationTable
+    recurrences: RecurrenceTable
+    long: LongTable
+    direct: np.ndarray           # int64: the components summed one by one (neither a recurrence nor the series)
+    direct_direction: np.ndarray   # (n, 2) their headings' cos b, sin b
+    heading: np.ndarray          # (n_c, 2) every component's cos b, sin b
+
+
+def hull_loads(local: np.ndarray, triangles: np.ndarray, loads: np.ndarray, vertex_loads: np.ndarray,
+               pose: np.ndarray, omega: np.ndarray, amplitude: np.ndarray, t: float, ramp: float, k: np.ndarray,
+               depth: float, tables: HullTables, fk_linear: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """One Froude–Krylov body's step in one compiled pass: (out, rot), ``rot`` (3, 3) the rotation
+    of the pose's Tait–Bryan angles (as wetted_surface.rotation_xyz), ``out`` (3, 6) the hydrostatic
+    and the Froude–Krylov load per unit rho g in the body's frame (force, moment about the
+    reference point) over the part of the hull below the incident free surface, and
+    Re(fk_linear e^{-i w t}) ramp (global). The hull: ``local`` (V, 3) vertices about the reference
+    point, ``triangles``, their corner ``loads`` and ``vertex_loads`` (server/wet_surface_kernel.py);
+    the pose (6,); the components' ``omega``, complex ``amplitude`` a_c e^{i phi_c} and wave
+    numbers ``k``; ``fk_linear`` (6, n_c) complex. The pressure at the wet vertices is the
+    Wheeler-stretched Froude–Krylov one, by the ``tables``. None where a wet vertex's stretched
+    height is below the tables' floor (the caller then takes the numpy path)."""
+    out, rot = np.zeros((3, 6)), np.empty((3, 3))
+    v = np.empty((3, len(local)))
+    f, c = np.float64, np.ascontiguousarray     # one compiled signature (no copies where they are so already)
+    ok = _compiled().hull_loads(
+        c(local, f), c(triangles, np.int64), c(loads, f), c(vertex_loads, f), c(pose, f), c(omega, f), amplitude.real, amplitude.imag, float(t), float(ramp), c(k, f),
+        tables.heading, float(depth), *tables[:3], tables.direct, tables.direct_direction, fk_linear.real, fk_linear.imag, rot,
+        v[0], v[1], v[2], out)
+    return (out, rot) if ok else None
 
 
 def warm_up() -> None:
-    """Compile (or load from numba's cache) both kernels now, at set-up, not in a run's first step."""
+    """Compile (or load from numba's cache) the kernels now, at set-up, not in a run's first step:
+    each with the one signature the callers use (tables of empty headings have their types)."""
     out = np.zeros(1)
     deep_pressure(np.zeros(1), np.zeros(1), np.ones(1, complex), 0.0, 0.0, 0.0, out)
     chebyshev_sum(np.zeros(1), np.ones(2), out)
     chebyshev_sum2(np.zeros(1), np.zeros(1), np.ones((2, 2)), out)
+    bin_coefficients(np.ones((1, 1)), np.ones((1, 1)), np.full(1, 2), np.ones(1, complex), np.ones((1, 1), complex),
+                     np.zeros((1, 2)))
+    none, count, heads, start = np.zeros(0), np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros(1, np.int64)
+    elevation = ElevationTable(heads, start, count, count, count, count, none, count, none, none, count, 1.0)
+    recurrences = RecurrenceTable(heads, start, count, none, none, none, -1.0)
+    long = LongTable(heads, start, count, np.zeros((0, 2), np.int64), none, none, count, none, count, count, 1.0, -1.0)
+    tables = HullTables(elevation, recurrences, long, count, heads, np.ones((1, 2)))
+    local = np.array([[0.0, 0.0, -1.0], [1.0, 0.0, 1.0], [0.0, 1.0, 1.0]])
+    hull_loads(local, np.array([[0, 1, 2]]), np.zeros((1, 3, 6)), np.zeros((3, 6)), np.zeros(6), np.ones(1),
+               np.ones(1, complex), 0.0, 1.0, np.ones(1), math.inf, tables, np.zeros((6, 1), complex))

@@ -36,9 +36,15 @@ from hydrolink.protocol.scene import Scene
 from hydrolink.server import incident_kernels, wet_surface_kernel
 from hydrolink.server.errors import ModelError
 from hydrolink.server.force_term import ForceTerm, TermContext
-from hydrolink.server.incident_kernels import AVAILABLE, deep_pressure
+from hydrolink.server.incident_kernels import (
+    AVAILABLE,
+    HullTables,
+    LongTable,
+    RecurrenceTable,
+    hull_loads,
+)
 from hydrolink.server.kinematics import wave_number
-from hydrolink.server.phase_expansion import DepthExpansion, PhaseExpansion
+from hydrolink.server.phase_expansion import DepthExpansion, PhaseExpansion, flatten
 from hydrolink.server.waves import WaveComponents, ramp_at
 from hydrolink.server.wet_surface_kernel import cut_hull_loads
 from hydrolink.server.wetted_surface import (
@@ -68,6 +74,12 @@ def _depth_factor(k: np.ndarray, z: np.ndarray, depth: float) -> np.ndarray:
     return out
 
 
+# A point's sum over the long-wave series costs about 0.35 ns a term (compiled, blocked), one
+# component summed directly about 40 ns (two exponentials, a cosine and a sine): the series is
+# taken while it has at most this many terms per component it replaces.
+_TERMS_PER_COMPONENT = 100
+
+
 @dataclass(frozen=True)
 class _Recurrence:
     """Components of one heading whose wave numbers are a quadratic in their index, ordered by
@@ -85,7 +97,8 @@ class _PressureSplit:
     """How the Froude–Krylov pressure's sum over the components is taken: the short waves (deep
     water for them, k h >= 20, and their depth factor e^{kz} to round-off at every height above
     ``floor``) by recurrences; the others as one series (``long``, :class:`DepthExpansion`) where
-    it has fewer than ten terms per component, else (``direct``) one cosine and depth factor each."""
+    it has at most ``_TERMS_PER_COMPONENT`` terms per component, else (``direct``) one cosine and depth
+    factor each."""
     recurrences: tuple[_Recurrence, ...]
     long: DepthExpansion | None   # the long waves' sum as a series (where that is cheaper than direct)
     long_columns: np.ndarray      # its component indices
@@ -110,17 +123,20 @@ def _split_components(omega: np.ndarray, k: np.ndarray, heading: np.ndarray, g: 
         rest.append(cols[~deep])
         for run in _even_runs(omega[cols[deep]]):
             run_cols = cols[deep][run]
+            if len(run_cols) < 3:
+                rest.append(run_cols)
+                continue
             w, c = omega[run_cols], np.arange(len(run_cols), dtype=float)
             dw = (w[-1] - w[0]) / (len(w) - 1)
             k0, dk, d2 = w[0] ** 2 / g, (2.0 * w[0] * dw + dw * dw) / g, 2.0 * dw * dw / g
-            if len(w) >= 3 and np.max(np.abs(k0 + c * dk + 0.5 * c * (c - 1.0) * d2 - k[run_cols])) * reach <= 1e-11:
+            if np.max(np.abs(k0 + c * dk + 0.5 * c * (c - 1.0) * d2 - k[run_cols])) * reach <= 1e-11:
                 recurrences.append(_Recurrence(run_cols, np.array([np.cos(b), np.sin(b)]), k0, dk, d2))
             else:
                 rest.append(run_cols)
     rest = np.sort(np.concatenate(rest))
     if len(rest):
         long = DepthExpansion(k[rest], heading[rest], 0.5 * reach, floor, lambda kc, z: _depth_factor(kc, z, depth))
-        if long.converged and long.terms <= 10 * len(rest):
+        if long.converged and long.terms <= _TERMS_PER_COMPONENT * len(rest):
             return _PressureSplit(tuple(recurrences), long, rest, rest[:0], floor)
     return _PressureSplit(tuple(recurrences), None, rest[:0], rest, floor)
 
@@ -140,6 +156,29 @@ def _even_runs(w: np.ndarray) -> list[np.ndarray]:
     return [r for r in runs if len(r)]
 
 
+def _recurrence_table(split: _PressureSplit) -> RecurrenceTable:
+    """The split's recurrences as the compiled pass's flat table."""
+    r = split.recurrences
+    return RecurrenceTable(
+        direction=np.array([x.direction for x in r], float).reshape(-1, 2),
+        start=np.cumsum([0] + [len(x.columns) for x in r]).astype(np.int64),
+        columns=flatten([x.columns for x in r], np.int64)[0],
+        k0=np.array([x.k0 for x in r], float), dk=np.array([x.dk for x in r], float),
+        d2=np.array([x.d2 for x in r], float), floor=float(split.floor))
+
+
+def _long_table(split: _PressureSplit, amplitude: np.ndarray) -> LongTable:
+    """The split's long-wave series as the compiled pass's flat table (an empty one without);
+    ``amplitude`` of all the components."""
+    if split.long is not None:
+        return split.long.table(split.long_columns, amplitude[split.long_columns], float(amplitude.sum()))
+    none, count = np.zeros(0), np.zeros(0, np.int64)
+    return LongTable(direction=np.zeros((0, 2)), start=np.zeros(1, np.int64), columns=count,
+                     orders=np.zeros((0, 2), np.int64), horizontal_re=none, horizontal_im=none,
+                     horizontal_start=count, vertical=none, vertical_start=count, row_terms=count, radius=1.0,
+                     floor=float(split.floor))
+
+
 @dataclass(frozen=True)
 class NonlinearBody:
     """One nonlinear body: where it sits among the wet bodies and what its linear model holds."""
@@ -148,7 +187,7 @@ class NonlinearBody:
     hull: Hull              # relative to the reference point
     loads: np.ndarray       # (T, 3, 6) its triangles' corner_loads in the body's frame
     vertex_loads: np.ndarray   # (V, 6) their sums over each vertex's triangles
-    reference: np.ndarray   # (3,) reference point at equilibrium
+    reference: np.ndarray   # (6,) the pose at equilibrium: reference point, zero angles
     weight: float           # m g [N]
     lever: np.ndarray       # (3,) centre of mass minus reference point, at equilibrium
     linear_net: float       # the net buoyancy rho g V - m g the client applies (setup.net_buoyancy)
@@ -165,50 +204,56 @@ class NonlinearHydro:
         """``compiled``: the incident wave on the hulls by the compiled kernels where they apply
         (server/incident_kernels.py), else by numpy (same results to round-off)."""
         self.compiled = compiled
-        self.split: _PressureSplit | None = None   # set by build_nonlinear (needs the hulls' reach)
+        self.split: _PressureSplit | None = None   # set by prepare (needs the hulls' reach)
+        self.tables: HullTables | None = None   # the compiled pass's tables (with the split)
         self.bodies, self.rho, self.g, self.depth, self.n_bodies = bodies, rho, g, depth, n_bodies
         self.ramp = waves.ramp
         self.still = waves.size == 0
         self.omega = waves.omega.copy()
         if not self.still:
             self.k = np.array([wave_number(float(w), g, depth) for w in waves.omega])
-            beta = waves.heading_of()
+            beta = self.heading = waves.heading_of()
             self.amp = waves.amplitude * np.exp(1j * waves.phase)
             self.amplitude, self.phase = waves.amplitude.copy(), waves.phase.copy()
             self.k_xy = self.k * np.vstack([np.cos(beta), np.sin(beta)])   # (2, n_c): theta = (x, y) @ k_xy
-        self.expansion: PhaseExpansion | None = None   # set by build_nonlinear once the hulls are known
+        self.expansion: PhaseExpansion | None = None   # set by prepare once the hulls are known
         self.warnings: list[str] = []
-        self.froude_krylov = False   # some body has "froude-krylov": the reply carries that field
+        self.froude_krylov = False   # some body has "froude-krylov": the reply carries that field (prepare)
+
+    def prepare(self, bodies: list[NonlinearBody]) -> None:
+        """Takes the bodies and builds what the steps need of the sea over their hulls: the
+        elevation's expansion (every vertex within its radius of the reference point) and, on the
+        compiled path, the split of the components (its floor twice the lowest hull's depth) and
+        the compiled pass's tables, the kernels compiled or loaded now."""
+        self.bodies = bodies
+        self.froude_krylov = any(b.mode == "froude-krylov" for b in bodies)
+        if self.compiled:
+            incident_kernels.warm_up()
+            wet_surface_kernel.warm_up()
+        if self.still:
+            return
+        radius = max(float(np.linalg.norm(b.hull.vertices, axis=1).max()) for b in bodies)
+        self.expansion = PhaseExpansion(self.k, self.heading, radius, compiled=self.compiled,
+                                        points=max(len(b.hull.vertices) for b in bodies))
+        if self.compiled:
+            floor = 2.0 * min(float(b.reference[2]) - radius for b in bodies)
+            self.split = _split_components(self.omega, self.k, self.heading, self.g, self.depth, 2.0 * radius, floor)
+            direct = self.split.direct
+            direction = np.column_stack([np.cos(self.heading), np.sin(self.heading)])
+            self.tables = HullTables(self.expansion.table(), _recurrence_table(self.split),
+                                     _long_table(self.split, self.amplitude), direct.astype(np.int64),
+                                     direction[direct], direction)
 
     def _phasors(self, pts: np.ndarray) -> np.ndarray:
         """a_c e^{i theta_c(x, y)} at points (P, 3): (P, n_c)."""
         return self.amp[None, :] * np.exp(1j * (pts[:, :2] @ self.k_xy))
 
-    def _fk_pressure(self, pts: np.ndarray, eta: np.ndarray, reference: np.ndarray, t: float,
-                     ramp: float) -> np.ndarray:
-        """p_FK / (rho g) at wet points (P, 3), Wheeler-stretched by the elevation ``eta`` (P,)
-        there: ramp sum_c a_c cos(theta_c(x, y) + phi_c - w_c t) f_c(z_s). The short waves by the
-        compiled recurrences where ``self.split`` has them (horizontal coordinates from the body's
-        ``reference`` point (2,), its phase in the amplitudes), the rest by :meth:`_direct_pressure`."""
-        h, z = self.depth, pts[:, 2]
-        # stretched, at most at the surface and at least at the seabed (a hull sent below the seabed
-        # gets the seabed's pressure, not an overflow of the depth factor)
-        z_s = np.clip(z - eta if math.isinf(h) else h * (z - eta) / (h + eta), -h, 0.0)
-        split = self.split
-        if split is None or not len(z_s) or float(z_s.min()) < split.floor:
-            return ramp * self._direct_pressure(pts, z_s, slice(None), t)
-        out = ramp * self._direct_pressure(pts, z_s, split.direct, t) if len(split.direct) else np.zeros(len(pts))
-        offsets = pts[:, :2] - reference
-        if split.long is not None:
-            col = split.long_columns
-            out += ramp * split.long.pressure(offsets, z_s, reference, self.phase[col] - self.omega[col] * t,
-                                              self.amplitude[col])
-        for r in split.recurrences:
-            col = r.columns
-            a = ramp * self.amplitude[col] * np.exp(
-                1j * (self.k[col] * float(reference @ r.direction) + self.phase[col] - self.omega[col] * t))
-            deep_pressure(offsets @ r.direction, z_s, a, r.k0, r.dk, r.d2, out)
-        return out
+    def _stretched(self, z: np.ndarray, eta: np.ndarray) -> np.ndarray:
+        """Wheeler-stretched heights of points at heights ``z`` under the elevation ``eta``, at most
+        at the surface and at least at the seabed (a hull sent below the seabed gets the seabed's
+        pressure, not an overflow of the depth factor)."""
+        h = self.depth
+        return np.clip(z - eta if math.isinf(h) else h * (z - eta) / (h + eta), -h, 0.0)
 
     def _direct_pressure(self, pts: np.ndarray, z_s: np.ndarray, cols, t: float) -> np.ndarray:
         """sum_c a_c cos(theta_c(x, y) + phi_c - w_c t) f_c(z_s) over the components ``cols`` at
@@ -234,44 +279,62 @@ class NonlinearHydro:
     def force(self, t: float, position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The two differences (N, 6) each (module docstring) for the absolute poses (N, 6).
 
-        The pressures are integrated over the wet part of each hull (server/wet_surface_kernel.py,
-        compiled, or :func:`_wet_loads`) in the body's frame about its reference point, and the
-        loads turned to the global axes at the end."""
+        The pressures are integrated over the wet part of each hull in the body's frame about its
+        reference point, and the loads turned to the global axes at the end: for a Froude–Krylov
+        body on the compiled path in one pass (incident_kernels.hull_loads), else the pressures at
+        the vertices by :meth:`_surface` and their integral by server/wet_surface_kernel.py
+        (compiled) or :func:`_wet_loads`."""
         hs, fk = np.zeros((self.n_bodies, 6)), np.zeros((self.n_bodies, 6))
         rg = self.rho * self.g
         ramp = ramp_at(t, self.ramp)
-        time_factor = None if self.still else ramp * np.exp(-1j * self.omega * t)
         for b in self.bodies:
             pose = position[b.index]
-            rot = rotation_xyz(pose[3:])
-            local, tris = b.hull.vertices, b.hull.triangles
-            offset = local @ rot.T
-            verts = pose[:3] + offset
             waves = b.mode == "froude-krylov" and not self.still
-            eta = ramp * self.expansion.elevation(offset[:, :2], pose[:2], self.phase - self.omega * t,
-                                                  self.amplitude) if waves else 0.0
-            d = verts[:, 2] - eta
-            wet_v = np.flatnonzero(d <= 0.0)
-            p_v = np.zeros(len(verts))            # the Froude-Krylov pressure / (rho g) at the wet vertices
-            if waves:
-                p_v[wet_v] = self._fk_pressure(verts[wet_v], eta[wet_v], pose[:2], t, ramp)
-            if self.compiled:
-                load_hs, load_fk = rg * cut_hull_loads(local, tris, d, verts[:, 2], p_v, b.loads, b.vertex_loads)
+            step = None
+            if waves and self.tables is not None:
+                step = hull_loads(b.hull.vertices, b.hull.triangles, b.loads, b.vertex_loads, pose, self.omega,
+                                  self.amp, t, ramp, self.k, self.depth, self.tables, b.fk_linear)
+            if step is not None:
+                (out, rot), fk_linear = step, step[0][2]
+                loads = rg * out[:2]
             else:
-                load_hs, load_fk = rg * _wet_loads(b, verts[:, 2], d, wet_v, p_v)
-            f_hs = np.concatenate([rot @ load_hs[:3], rot @ load_hs[3:]])
-            f_hs[2] -= b.weight
+                rot = rotation_xyz(pose[3:])
+                z, d, p_v = self._surface(b, pose, rot, t, ramp) if waves else self._still_surface(b, pose, rot)
+                if self.compiled:
+                    loads = rg * cut_hull_loads(b.hull.vertices, b.hull.triangles, d, z, p_v, b.loads, b.vertex_loads)
+                else:
+                    loads = rg * _wet_loads(b, z, d, np.flatnonzero(d <= 0.0), p_v)
+                fk_linear = np.real(b.fk_linear @ (ramp * np.exp(-1j * self.omega * t))) if waves else None
+            f = (loads.reshape(4, 3) @ rot.T).reshape(2, 6)      # both loads in the global axes
             arm = rot @ b.lever
-            f_hs[3:] += [-arm[1] * b.weight, arm[0] * b.weight, 0.0]       # arm x (0, 0, -m g)
-            x = np.concatenate([pose[:3] - b.reference, pose[3:]])
-            linear = -b.stiffness @ x
-            linear[2] += b.linear_net
-            hs[b.index] = (f_hs - linear) * b.active
-            if not waves:
-                continue
-            f_fk = np.concatenate([rot @ load_fk[:3], rot @ load_fk[3:]])
-            fk[b.index] = (f_fk - np.real(b.fk_linear @ time_factor)) * b.active
+            f[0, 2:5] += (-b.weight, -arm[1] * b.weight, arm[0] * b.weight)    # the weight, arm x (0, 0, -m g)
+            f[0] += b.stiffness @ (pose - b.reference)        # less the linear model's -C (x - x_eq) + net buoyancy
+            f[0, 2] -= b.linear_net
+            hs[b.index] = f[0] * b.active
+            if waves:
+                fk[b.index] = (f[1] - fk_linear) * b.active
         return hs, fk
+
+    @staticmethod
+    def _still_surface(b: NonlinearBody, pose: np.ndarray, rot: np.ndarray) -> tuple[np.ndarray, ...]:
+        """(z, d, p) of :meth:`_surface` on the still-water plane: d = z, no Froude–Krylov pressure."""
+        z = pose[2] + b.hull.vertices @ rot[2]
+        return z, z, np.zeros(len(z))
+
+    def _surface(self, b: NonlinearBody, pose: np.ndarray, rot: np.ndarray, t: float,
+                 ramp: float) -> tuple[np.ndarray, ...]:
+        """(z, d, p) (V,) each: the hull's vertices' global heights, their signed heights above the
+        incident free surface (z - eta, the elevation by the Jacobi–Anger series) and the
+        Froude–Krylov pressure per unit rho g at the wet ones (zero at the dry), Wheeler-stretched,
+        by :meth:`_direct_pressure`: the numpy path, and the compiled one's below its floor."""
+        offset = b.hull.vertices @ rot.T
+        verts = pose[:3] + offset
+        eta = ramp * self.expansion.elevation(offset[:, :2], pose[:2], self.phase - self.omega * t, self.amplitude)
+        d = verts[:, 2] - eta
+        wet = np.flatnonzero(d <= 0.0)
+        p = np.zeros(len(verts))
+        p[wet] = ramp * self._direct_pressure(verts[wet], self._stretched(verts[wet, 2], eta[wet]), slice(None), t)
+        return verts[:, 2], d, p
 
 
 def _wet_loads(b: NonlinearBody, z: np.ndarray, d: np.ndarray, wet_v: np.ndarray, p_v: np.ndarray) -> np.ndarray:
@@ -333,6 +396,7 @@ def build_nonlinear(scene: Scene, wet: list[int], hulls: dict[str, Hull], waves:
         if mode == "none":
             continue
         ref = np.asarray(references[k], float)
+        equilibrium = np.concatenate([ref, np.zeros(3)])
         hull = Hull(hulls[body.name].vertices - ref, hulls[body.name].triangles, hulls[body.name].volume)
         fk = model.fk_linear_phasors(hull, ref) if mode == "froude-krylov" and kept.size else None
         at_rest = hull.vertices[hull.triangles]
@@ -348,31 +412,20 @@ def build_nonlinear(scene: Scene, wet: list[int], hulls: dict[str, Hull], waves:
                 "from the start")
         loads = corner_loads(hull.vertices[hull.triangles])
         bodies.append(NonlinearBody(
-            index=k, mode=mode, hull=hull, loads=loads, vertex_loads=_vertex_sums(hull, loads), reference=ref,
+            index=k, mode=mode, hull=hull, loads=loads, vertex_loads=_vertex_sums(hull, loads), reference=equilibrium,
             weight=body.mass * water.gravity,
             lever=body.com_or(ref) - ref, linear_net=float(net_buoyancy[k] or 0.0),
             stiffness=stiffness[6 * k:6 * k + 6, 6 * k:6 * k + 6].copy(), fk_linear=fk,
             active=active[k].astype(float)))
     if not bodies:
         return None
-    model.bodies = bodies
-    if model.compiled:
-        incident_kernels.warm_up()
-        wet_surface_kernel.warm_up()
     if kept.size < waves.size and any(b.mode == "froude-krylov" for b in bodies):
         share = float(np.sum(kept.amplitude ** 2) / np.sum(waves.amplitude ** 2))
         model.warnings.append(
             f"hydro.froude_krylov_energy: the nonlinear Froude-Krylov pressure and free surface use the "
             f"{kept.size} most energetic of {waves.size} wave components ({100 * share:.4g} % of the variance); "
             "the others act through the linear excitation only. Set it to 1 for all of them")
-    if not model.still:
-        radius = max(float(np.linalg.norm(b.hull.vertices, axis=1).max()) for b in bodies)
-        model.expansion = PhaseExpansion(model.k, kept.heading_of(), radius, compiled=model.compiled)
-        if model.compiled:
-            floor = 2.0 * min(float(b.reference[2]) - radius for b in bodies)
-            model.split = _split_components(model.omega, model.k, kept.heading_of(), model.g, model.depth,
-                                            2.0 * radius, floor)
-    model.froude_krylov = any(b.mode == "froude-krylov" for b in bodies)
+    model.prepare(bodies)
     return model
 
 

@@ -31,10 +31,17 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from hydrolink.server.incident_kernels import AVAILABLE, chebyshev_sum, chebyshev_sum2
+from hydrolink.server.incident_kernels import (
+    AVAILABLE,
+    ElevationTable,
+    LongTable,
+    bin_coefficients,
+    binned_chebyshev_sum,
+    chebyshev_sum2,
+)
 from scipy.special import jv
 
-__all__ = ["DepthExpansion", "PhaseExpansion"]
+__all__ = ["DepthExpansion", "PhaseExpansion", "flatten"]
 
 _TAIL = 1e-17   # coefficient magnitude below which the expansions' terms are dropped
 _DEPTH_NODES = 64   # Chebyshev nodes each depth factor is fitted on (DepthExpansion)
@@ -72,22 +79,67 @@ def _jacobi_anger(k: np.ndarray, radius: float) -> np.ndarray:
     return out
 
 
+def flatten(parts: list[np.ndarray], dtype=float) -> tuple[np.ndarray, np.ndarray]:
+    """The arrays ``parts`` raveled one after the other, and where each starts (int64): the ragged
+    tables of the compiled kernels (server/incident_kernels.py)."""
+    sizes = [p.size for p in parts]
+    flat = np.concatenate([np.ravel(p) for p in parts]).astype(dtype) if parts else np.zeros(0, dtype)
+    return np.ascontiguousarray(flat), np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64) \
+        if parts else np.zeros(0, np.int64)
+
+
+@dataclass(frozen=True)
+class _Bins:
+    """The compiled path's expansion of one heading: [-rho, rho] along it cut into ``count`` equal
+    bins, each with the series about its own centre over its own half-width rho / count (fewer
+    orders per point; the coefficients once per bin). The order-n coefficient of a bin is
+    Re(i^n eps_n sum_c J_n(k_c rho_b) X_c) = sum_c w_nc Re X_c (n even) or w_nc Im X_c (n odd),
+    X_c the component's phasor at the bin's centre."""
+    count: int
+    orders: int          # N
+    reach: np.ndarray    # (n_g,) int64: each component's orders (its weights beyond are zero)
+    even: np.ndarray     # (n_g, ceil(N / 2)): w_{2m, c}, per component
+    odd: np.ndarray      # (n_g, floor(N / 2)): w_{2m+1, c}
+    shift: np.ndarray    # (count, n_g) complex: e^{i k s_j}, s_j the bin centres' offsets along the heading
+
+
 @dataclass(frozen=True)
 class _Heading:
-    """The components of one heading and their expansion coefficients."""
-    columns: np.ndarray        # (n_g,) component indices
+    """The components of one heading and their expansion coefficients: over the whole radius for
+    the numpy path, by bins (:class:`_Bins`) for the compiled one."""
+    columns: np.ndarray        # (n_g,) component indices (by increasing k)
     direction: np.ndarray      # (2,) cos b, sin b
     k: np.ndarray              # (n_g,) wave numbers
-    coefficients: np.ndarray   # (N, n_g) complex: i^n eps_n J_n(k rho)
+    coefficients: np.ndarray | None   # (N, n_g) complex: i^n eps_n J_n(k rho) (numpy path)
+    bins: _Bins | None                # (compiled path)
+
+
+def _bins(k: np.ndarray, radius: float, points: int) -> _Bins:
+    """The bin count, of 1 to 64, with the fewest multiply-adds per evaluation at ``points`` points:
+    the coefficients (each component's orders, per bin) plus the points' orders (Clenshaw). The
+    orders of J_n(x) above the tail, tabulated over x, give each component's."""
+    x = np.linspace(0.0, float(k.max()) * radius, 129)
+    table = np.array([_orders(jv, v) for v in x])          # orders at x, growing with x
+    reach = lambda count: table[np.minimum(np.searchsorted(x, k * radius / count), len(x) - 1)]   # noqa: E731
+    count = min(range(1, 65), key=lambda c: c * int(reach(c).sum()) + points * int(reach(c).max()))
+    coefficients = _jacobi_anger(k, radius / count)
+    weight = np.where((np.arange(len(coefficients)) % 2 == 0)[:, None], coefficients.real, -coefficients.imag)
+    nonzero = weight != 0.0
+    last = np.where(nonzero.any(axis=0), len(weight) - np.argmax(nonzero[::-1], axis=0), 0).astype(np.int64)
+    centres = radius * (-1.0 + (2.0 * np.arange(count) + 1.0) / count)
+    return _Bins(count, len(weight), last, np.ascontiguousarray(weight[0::2].T), np.ascontiguousarray(weight[1::2].T),
+                 np.exp(1j * np.outer(centres, k)))
 
 
 class PhaseExpansion:
     """The incident wave's elevation at points within ``radius`` of a reference point (module
     docstring)."""
 
-    def __init__(self, k: np.ndarray, heading: np.ndarray, radius: float, compiled: bool = AVAILABLE):
-        """``compiled``: sum the series with the compiled kernel (server/incident_kernels.py), else
-        as a matrix product of the points' Chebyshev values."""
+    def __init__(self, k: np.ndarray, heading: np.ndarray, radius: float, compiled: bool = AVAILABLE,
+                 points: int = 1000):
+        """``compiled``: sum the series by bins with the compiled kernels (server/incident_kernels.py,
+        the bins chosen for ``points`` points per evaluation), else over the whole radius as a
+        matrix product of the points' Chebyshev values."""
         self.compiled = compiled
         self.radius = float(radius) * (1.0 + 1e-12) or 1.0
         self.k = np.asarray(k, float)
@@ -95,8 +147,11 @@ class PhaseExpansion:
         groups = []
         for b in np.unique(heading):
             cols = np.flatnonzero(heading == b)
+            cols = cols[np.argsort(self.k[cols], kind="stable")]
             kg = self.k[cols]
-            groups.append(_Heading(cols, np.array([np.cos(b), np.sin(b)]), kg, _jacobi_anger(kg, self.radius)))
+            groups.append(_Heading(cols, np.array([np.cos(b), np.sin(b)]), kg,
+                                   None if compiled else _jacobi_anger(kg, self.radius),
+                                   _bins(kg, self.radius, points) if compiled else None))
         self.groups = tuple(groups)
 
     def elevation(self, offsets: np.ndarray, reference: np.ndarray, psi: np.ndarray,
@@ -108,12 +163,29 @@ class PhaseExpansion:
         for g in self.groups:
             u = np.clip(offsets @ g.direction / self.radius, -1.0, 1.0)
             turn = amplitude[g.columns] * np.exp(1j * (g.k * float(reference @ g.direction) + psi[g.columns]))
-            c = np.real(g.coefficients @ turn)                   # (N,): the series' coefficients now
-            if self.compiled:
-                chebyshev_sum(u, c, out)
+            if g.bins is not None:
+                c = np.empty((g.bins.count, g.bins.orders))          # each bin's series coefficients now
+                bin_coefficients(g.bins.even, g.bins.odd, g.bins.reach, turn, g.bins.shift, c)
+                binned_chebyshev_sum(u, c, out)
             else:
+                c = np.real(g.coefficients @ turn)                   # (N,): the series' coefficients now
                 out += _chebyshev(u, len(c)).T @ c
         return out
+
+    def table(self) -> ElevationTable:
+        """The compiled path's bins as one flat table (server/incident_kernels.py's hull_pressure)."""
+        bins = [g.bins for g in self.groups]
+        weights, weight_start = flatten([np.concatenate([b.even.ravel(), b.odd.ravel()]) for b in bins])
+        shift_re, shift_start = flatten([b.shift.real for b in bins])
+        shift_im, _ = flatten([b.shift.imag for b in bins])
+        return ElevationTable(
+            direction=np.array([g.direction for g in self.groups]).reshape(-1, 2),
+            start=np.cumsum([0] + [len(g.columns) for g in self.groups]).astype(np.int64),
+            columns=flatten([g.columns for g in self.groups], np.int64)[0],
+            reach=flatten([b.reach for b in bins], np.int64)[0],
+            bins=np.array([b.count for b in bins], np.int64), orders=np.array([b.orders for b in bins], np.int64),
+            weights=weights, weight_start=weight_start, shift_re=shift_re, shift_im=shift_im,
+            shift_start=shift_start, radius=self.radius)
 
 
 @dataclass(frozen=True)
@@ -178,3 +250,24 @@ class DepthExpansion:
             coefficients = np.real((g.horizontal * a[None, :]) @ g.vertical)       # (N, M)
             chebyshev_sum2(u, v, coefficients, out)
         return out
+
+    def table(self, columns: np.ndarray, amplitude: np.ndarray, total: float) -> LongTable:
+        """The series as one flat table for server/incident_kernels.py's hull_loads, ``columns`` the
+        indices among all the components of the wave numbers it was built on, ``amplitude`` theirs:
+        per horizontal order the depth terms up to the last whose bound sum_c |H_nc| a_c |V_cm|
+        reaches 2^-53 of ``total``, the sea's amplitude sum (the rest change the sum by round-off)."""
+        g_ = self.groups
+        h_re, h_start = flatten([g.horizontal.real for g in g_])
+        h_im, _ = flatten([g.horizontal.imag for g in g_])
+        vertical, v_start = flatten([g.vertical for g in g_])
+        terms = []
+        for g in g_:
+            big = (np.abs(g.horizontal) * amplitude[g.columns]) @ np.abs(g.vertical) > 2.0 ** -53 * total
+            terms.append(np.where(big.any(axis=1), big.shape[1] - np.argmax(big[:, ::-1], axis=1), 0))
+        return LongTable(
+            direction=np.array([g.direction for g in g_]).reshape(-1, 2),
+            start=np.cumsum([0] + [len(g.columns) for g in g_]).astype(np.int64),
+            columns=flatten([np.asarray(columns)[g.columns] for g in g_], np.int64)[0],
+            orders=np.array([[g.horizontal.shape[0], g.vertical.shape[1]] for g in g_], np.int64).reshape(-1, 2),
+            horizontal_re=h_re, horizontal_im=h_im, horizontal_start=h_start, vertical=vertical,
+            vertical_start=v_start, row_terms=flatten(terms, np.int64)[0], radius=self.radius, floor=self.floor)

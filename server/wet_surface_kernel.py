@@ -16,8 +16,6 @@ the wet vertices; on the free surface equal to the height there, z = eta).
 
 from __future__ import annotations
 
-import functools
-
 import numpy as np
 from hydrolink.server.incident_kernels import AVAILABLE
 
@@ -94,12 +92,11 @@ def _cut_hull_loads(local, tris, d, z, p, loads, vertex_loads, out):
                     out[row, 5] -= w * mz / 12.0
 
 
-@functools.cache
 def _compiled():
-    """The kernel compiled (or loaded from numba's cache) on first use: numba is imported only by
-    a scene that needs it (its import costs about half a second)."""
-    import numba
-    return numba.njit(cache=True, nogil=True, error_model="numpy")(_cut_hull_loads)
+    """The kernel compiled (or loaded from numba's cache) on first use, with server/incident_numba.py's
+    kernels: numba is imported only by a scene that needs it (its import costs about half a second)."""
+    from hydrolink.server import incident_numba
+    return incident_numba.cut_hull_loads
 
 
 def cut_hull_loads(local: np.ndarray, triangles: np.ndarray, d: np.ndarray, z: np.ndarray, p: np.ndarray,

@@ -1,0 +1,351 @@
+"""The compiled kernels of server/incident_kernels.py (numba; this module is imported only from
+there, on first use, so that numba is imported only by a scene that needs it).
+
+Each sum is a loop over the components (or orders) outside and over a block of points inside,
+vectorised by the compiler, the block's running values in the first-level cache. Floating-point
+contraction (a fused multiply-add for a product and a sum) is the only liberty taken with the
+arithmetic. :func:`hull_pressure` is one body's whole incident wave for one step: the pieces below
+composed, with no Python between them.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+from hydrolink.server.wet_surface_kernel import _cut_hull_loads
+
+_jit = numba.njit(cache=True, nogil=True, error_model="numpy", fastmath={"contract"})
+_BLOCK = 128   # points per pass over a block
+
+cut_hull_loads = _jit(_cut_hull_loads)   # server/wet_surface_kernel.py's integral, callable from the kernels here
+
+
+@_jit
+def deep_pressure(xi, z, ar, ai, k0, dk, d2, out):
+    """out += sum_c Re(a_c e^{k_c (z + i xi)}), k_c = k0 + c dk + c (c - 1) d2 / 2 (incident_kernels).
+    Each block of points stops at the component past which the rest add at most 2^-53 sum |a_c|
+    at its highest point (faster where the points come sorted by height)."""
+    p_n, n_c = xi.size, ar.size
+    tail = np.empty(n_c + 1)                # sum_{c' >= c} |a_c'|
+    tail[n_c] = 0.0
+    for c in range(n_c - 1, -1, -1):
+        tail[c] = tail[c + 1] + math.hypot(ar[c], ai[c])
+    tol = 2.0 ** -53 * tail[0]
+    ur, ui = np.empty(_BLOCK), np.empty(_BLOCK)
+    rr, ri = np.empty(_BLOCK), np.empty(_BLOCK)
+    qr, qi = np.empty(_BLOCK), np.empty(_BLOCK)
+    acc = np.empty(_BLOCK)
+    for s in range(0, p_n, _BLOCK):
+        m = min(_BLOCK, p_n - s)
+        top = -math.inf
+        for p in range(m):
+            x, h = xi[s + p], z[s + p]
+            top = max(top, h)
+            e = math.exp(k0 * h)
+            ur[p], ui[p] = e * math.cos(k0 * x), e * math.sin(k0 * x)
+            e = math.exp(dk * h)
+            rr[p], ri[p] = e * math.cos(dk * x), e * math.sin(dk * x)
+            e = math.exp(d2 * h)
+            qr[p], qi[p] = e * math.cos(d2 * x), e * math.sin(d2 * x)
+            acc[p] = 0.0
+        lo, hi = 0, n_c                 # the fewest components c_n whose rest, tail[c_n] e^{k_c_n top}, is below tol
+        while lo < hi:
+            mid = (lo + hi) // 2
+            if tail[mid] * math.exp((k0 + mid * dk + 0.5 * mid * (mid - 1.0) * d2) * top) <= tol:
+                hi = mid
+            else:
+                lo = mid + 1
+        n_b = lo
+        c = 0
+        while c + 2 <= n_b:     # two components per pass over the block: half the loads and stores
+            a0r, a0i, a1r, a1i = ar[c], ai[c], ar[c + 1], ai[c + 1]
+            for p in range(m):
+                xr, xs, yr, ys, zr, zs = ur[p], ui[p], rr[p], ri[p], qr[p], qi[p]
+                t = a0r * xr - a0i * xs
+                xr, xs = xr * yr - xs * ys, xr * ys + xs * yr
+                yr, ys = yr * zr - ys * zs, yr * zs + ys * zr
+                acc[p] += t + (a1r * xr - a1i * xs)
+                ur[p], ui[p] = xr * yr - xs * ys, xr * ys + xs * yr
+                rr[p], ri[p] = yr * zr - ys * zs, yr * zs + ys * zr
+            c += 2
+        if c < n_b:
+            for p in range(m):
+                acc[p] += ar[c] * ur[p] - ai[c] * ui[p]
+        for p in range(m):
+            out[s + p] += acc[p]
+
+
+@_jit
+def binned_chebyshev_sum(u, c, out):
+    """out += sum_n c[j, n] T_n(v), j the bin of u among len(c) equal bins of [-1, 1], v its
+    coordinate in the bin (incident_kernels.binned_chebyshev_sum)."""
+    n_b, n = c.shape
+    p_n = u.size
+    which = np.empty(p_n, np.int64)        # the points sorted by bin (a counting sort)
+    first = np.zeros(n_b + 1, np.int64)
+    for p in range(p_n):
+        j = min(max(int((u[p] + 1.0) * 0.5 * n_b), 0), n_b - 1)
+        which[p] = j
+        first[j + 1] += 1
+    for j in range(n_b):
+        first[j + 1] += first[j]
+    order, fill = np.empty(p_n, np.int64), first[:n_b].copy()
+    for p in range(p_n):
+        order[fill[which[p]]] = p
+        fill[which[p]] += 1
+    v, w = np.empty(_BLOCK), np.empty(_BLOCK)
+    b1, b2 = np.empty(_BLOCK), np.empty(_BLOCK)
+    for j in range(n_b):
+        centre = -1.0 + (2.0 * j + 1.0) / n_b
+        for s in range(first[j], first[j + 1], _BLOCK):
+            m = min(_BLOCK, first[j + 1] - s)
+            for q in range(m):
+                x = min(max((u[order[s + q]] - centre) * n_b, -1.0), 1.0)
+                v[q], w[q], b1[q], b2[q] = x, 2.0 * x, 0.0, 0.0
+            k = n - 1
+            while k >= 2:       # Clenshaw, two orders per pass over the block
+                ca, cb = c[j, k], c[j, k - 1]
+                for q in range(m):
+                    t = w[q] * b1[q] - b2[q] + ca
+                    b2[q] = t
+                    b1[q] = w[q] * t - b1[q] + cb
+                k -= 2
+            if k == 1:
+                ca = c[j, 1]
+                for q in range(m):
+                    t = w[q] * b1[q] - b2[q] + ca
+                    b2[q] = b1[q]
+                    b1[q] = t
+            c0 = c[j, 0]
+            for q in range(m):
+                out[order[s + q]] += v[q] * b1[q] - b2[q] + c0
+
+
+@_jit
+def bin_coefficients(even, odd, reach, tr, ti, sr, si, out):
+    """out[j, n]: the bins' Jacobi–Anger coefficients (incident_kernels.bin_coefficients)."""
+    n_b = out.shape[0]
+    n_c, n_e, n_o = tr.size, even.shape[1], odd.shape[1]
+    se, so = np.empty(n_e), np.empty(n_o)
+    for j in range(n_b):
+        se[:] = 0.0
+        so[:] = 0.0
+        for c in range(n_c):    # each component adds its weights times Re (even orders) or Im (odd) of its phasor
+            xr = tr[c] * sr[j, c] - ti[c] * si[j, c]
+            xi = tr[c] * si[j, c] + ti[c] * sr[j, c]
+            r = reach[c]
+            for k in range((r + 1) // 2):
+                se[k] += even[c, k] * xr
+            for k in range(r // 2):
+                so[k] += odd[c, k] * xi
+        for k in range(n_e):
+            out[j, 2 * k] = se[k]
+        for k in range(n_o):
+            out[j, 2 * k + 1] = so[k]
+
+
+@_jit
+def chebyshev_sum2(u, v, c, terms, out):
+    """out += sum_n sum_{m < terms[n]} c_nm T_n(u) T_m(v) (incident_kernels.chebyshev_sum2)."""
+    p_n, n, m = u.size, c.shape[0], c.shape[1]
+    tv = np.empty(m * _BLOCK)               # T_j(v) of a block's points by their recurrence, row j at j * _BLOCK
+    s, b1, b2, w = np.empty(_BLOCK), np.empty(_BLOCK), np.empty(_BLOCK), np.empty(_BLOCK)
+    for st in range(0, p_n, _BLOCK):
+        q_n = min(_BLOCK, p_n - st)
+        for q in range(q_n):
+            tv[q] = 1.0
+            b1[q], b2[q], w[q] = 0.0, 0.0, 2.0 * u[st + q]
+        if m > 1:
+            for q in range(q_n):
+                tv[_BLOCK + q] = v[st + q]
+        for j in range(2, m):
+            for q in range(q_n):
+                tv[j * _BLOCK + q] = 2.0 * v[st + q] * tv[(j - 1) * _BLOCK + q] - tv[(j - 2) * _BLOCK + q]
+        for i in range(n - 1, -1, -1):      # Clenshaw in u over s_i = sum_j c_ij T_j(v)
+            for q in range(q_n):
+                s[q] = 0.0
+            for j in range(terms[i]):
+                cij, o = c[i, j], j * _BLOCK
+                for q in range(q_n):
+                    s[q] += cij * tv[o + q]
+            if i > 0:
+                for q in range(q_n):
+                    t = w[q] * b1[q] - b2[q] + s[q]
+                    b2[q] = b1[q]
+                    b1[q] = t
+            else:
+                for q in range(q_n):
+                    out[st + q] += 0.5 * w[q] * b1[q] - b2[q] + s[q]
+
+
+@_jit
+def _gather(cols, x_re, x_im, out_re, out_im):
+    """out = x[cols]."""
+    for i in range(cols.size):
+        out_re[i], out_im[i] = x_re[cols[i]], x_im[cols[i]]
+
+
+@_jit
+def _along(ox, oy, dx, dy, scale, out):
+    """out = clip((ox dx + oy dy) * scale, -1, 1), or unclipped where scale is 1 (a coordinate)."""
+    for p in range(ox.size):
+        x = (ox[p] * dx + oy[p] * dy) * scale
+        out[p] = min(max(x, -1.0), 1.0) if scale != 1.0 else x
+
+
+@_jit
+def _by_height(z, floor):
+    """The order of ``z`` (in [floor, 0]) from the highest, by 64 bands (a counting sort)."""
+    n = z.size
+    band = np.empty(n, np.int64)
+    first = np.zeros(65, np.int64)
+    for i in range(n):
+        b = min(max(int(z[i] / floor * 64.0), 0), 63) if floor < 0.0 else 0
+        band[i] = b
+        first[b + 1] += 1
+    for b in range(64):
+        first[b + 1] += first[b]
+    order = np.empty(n, np.int64)
+    for i in range(n):
+        order[first[band[i]]] = i
+        first[band[i]] += 1
+    return order
+
+
+@_jit
+def hull_pressure(local, rot, pos, x_re, x_im, k, depth, elevation, recurrences, long, direct, direct_dir, z, d, p):
+    """One body's incident wave for one step (incident_kernels.hull_loads): the vertices' global
+    heights ``z``, signed heights above the free surface ``d`` and the Froude–Krylov pressure per
+    unit rho g at the wet ones ``p`` (V,), for the hull's vertices ``local`` (V, 3) in the pose
+    (rotation ``rot``, reference point ``pos``), the components' phasors at the reference point
+    ``x`` (ramp a_c e^{i (k_c s_ref + phi_c - w_c t)}) and wave numbers ``k``; the components
+    ``direct`` one by one. False (p left zero) where a wet vertex's stretched height is below the
+    tables' floor: the caller then sums the pressure directly."""
+    v_n = local.shape[0]
+    ox, oy = np.empty(v_n), np.empty(v_n)
+    for v in range(v_n):
+        ox[v] = rot[0, 0] * local[v, 0] + rot[0, 1] * local[v, 1] + rot[0, 2] * local[v, 2]
+        oy[v] = rot[1, 0] * local[v, 0] + rot[1, 1] * local[v, 1] + rot[1, 2] * local[v, 2]
+        z[v] = pos[2] + rot[2, 0] * local[v, 0] + rot[2, 1] * local[v, 1] + rot[2, 2] * local[v, 2]
+        d[v] = 0.0
+        p[v] = 0.0
+    u = np.empty(v_n)
+    e = elevation
+    for g in range(e.direction.shape[0]):   # the elevation: each heading's Jacobi–Anger series by bins
+        cols = e.columns[e.start[g]:e.start[g + 1]]
+        n_g, n_b, n_o = cols.size, e.bins[g], e.orders[g]
+        tr, ti = np.empty(n_g), np.empty(n_g)
+        _gather(cols, x_re, x_im, tr, ti)
+        w0, n_e = e.weight_start[g], (n_o + 1) // 2
+        even = e.weights[w0:w0 + n_g * n_e].reshape((n_g, n_e))
+        odd = e.weights[w0 + n_g * n_e:w0 + n_g * n_o].reshape((n_g, n_o - n_e))
+        s0 = e.shift_start[g]
+        sr = e.shift_re[s0:s0 + n_b * n_g].reshape((n_b, n_g))
+        si = e.shift_im[s0:s0 + n_b * n_g].reshape((n_b, n_g))
+        coefficients = np.empty((n_b, n_o))
+        bin_coefficients(even, odd, e.reach[e.start[g]:e.start[g + 1]], tr, ti, sr, si, coefficients)
+        _along(ox, oy, e.direction[g, 0], e.direction[g, 1], 1.0 / e.radius, u)
+        binned_chebyshev_sum(u, coefficients, d)            # d holds the elevation for now
+    wet_n = 0
+    low = 0.0
+    for v in range(v_n):
+        eta = d[v]
+        d[v] = z[v] - eta
+        if d[v] <= 0.0:
+            wet_n += 1
+            # stretched, at most at the surface, at least at the seabed
+            h = d[v] if math.isinf(depth) else depth * d[v] / (depth + eta)
+            u[v] = min(max(h, -depth), 0.0)
+            low = min(low, u[v])
+    if wet_n == 0:
+        return True
+    if low < recurrences.floor:
+        return False
+    wet = np.empty(wet_n, np.int64)
+    i = 0
+    for v in range(v_n):
+        if d[v] <= 0.0:
+            wet[i] = v
+            i += 1
+    wet = wet[_by_height(u[wet], recurrences.floor)]      # from the surface down: the recurrences stop earlier
+    zs, wx, wy = u[wet], ox[wet], oy[wet]
+    out, xi = np.zeros(wet_n), np.empty(wet_n)
+    r = recurrences
+    for g in range(r.direction.shape[0]):   # the short waves: recurrences over evenly spaced components
+        cols = r.columns[r.start[g]:r.start[g + 1]]
+        ar, ai = np.empty(cols.size), np.empty(cols.size)
+        _gather(cols, x_re, x_im, ar, ai)
+        _along(wx, wy, r.direction[g, 0], r.direction[g, 1], 1.0, xi)
+        deep_pressure(xi, zs, ar, ai, r.k0[g], r.dk[g], r.d2[g], out)
+    q = long
+    if q.direction.shape[0]:
+        vz = np.empty(wet_n)
+        for i in range(wet_n):
+            vz[i] = min(max(1.0 - 2.0 * zs[i] / q.floor, -1.0), 1.0)
+    row = 0
+    for g in range(q.direction.shape[0]):   # the long waves: a series in the horizontal and in depth
+        cols = q.columns[q.start[g]:q.start[g + 1]]
+        n_g, n_h, n_v = cols.size, q.orders[g, 0], q.orders[g, 1]
+        ar, ai = np.empty(n_g), np.empty(n_g)
+        _gather(cols, x_re, x_im, ar, ai)
+        h0, v0 = q.horizontal_start[g], q.vertical_start[g]
+        hr = q.horizontal_re[h0:h0 + n_h * n_g].reshape((n_h, n_g))
+        hi = q.horizontal_im[h0:h0 + n_h * n_g].reshape((n_h, n_g))
+        vert = q.vertical[v0:v0 + n_g * n_v].reshape((n_g, n_v))
+        terms = q.row_terms[row:row + n_h]
+        row += n_h
+        c = np.zeros((n_h, n_v))
+        for n in range(n_h):
+            for j in range(n_g):
+                x = hr[n, j] * ar[j] - hi[n, j] * ai[j]      # Re(horizontal a)
+                for m in range(terms[n]):
+                    c[n, m] += x * vert[j, m]
+        _along(wx, wy, q.direction[g, 0], q.direction[g, 1], 1.0 / q.radius, xi)
+        chebyshev_sum2(xi, vz, c, terms, out)
+    for j in range(direct.size):            # the rest: one cosine and depth factor per point and component
+        c = direct[j]
+        kc = k[c]
+        for i in range(wet_n):
+            f = math.exp(kc * zs[i])
+            if not math.isinf(depth):           # cosh(k (z + h)) / cosh(k h), overflow-safe
+                f *= (1.0 + math.exp(-2.0 * kc * (zs[i] + depth))) / (1.0 + math.exp(-2.0 * kc * depth))
+            theta = kc * (wx[i] * direct_dir[j, 0] + wy[i] * direct_dir[j, 1])
+            out[i] += f * (x_re[c] * math.cos(theta) - x_im[c] * math.sin(theta))
+    for i in range(wet_n):
+        p[wet[i]] = out[i]
+    return True
+
+
+@_jit
+def hull_loads(local, tris, loads, vertex_loads, pose, omega, amp_re, amp_im, t, ramp, k, heading, depth, elevation,
+               recurrences, long, direct, direct_dir, fk_re, fk_im, rot, z, d, p, out):
+    """One Froude–Krylov body's step (incident_kernels.hull_loads): the rotation ``rot`` of the
+    pose's angles, the components' phasors, the pressure at the vertices (:func:`hull_pressure`)
+    and its integral over the wet part of the hull; ``out`` (3, 6): the hydrostatic and
+    Froude–Krylov loads per unit rho g in the body's frame, and Re(fk_linear e^{-i w t}) ramp.
+    False where :func:`hull_pressure` is (``out`` then incomplete)."""
+    ca, sa = math.cos(pose[3]), math.sin(pose[3])
+    cb, sb = math.cos(pose[4]), math.sin(pose[4])
+    cc, sc = math.cos(pose[5]), math.sin(pose[5])
+    rot[0, 0], rot[0, 1], rot[0, 2] = cb * cc, -cb * sc, sb          # Rx(a) Ry(b) Rz(c)
+    rot[1, 0], rot[1, 1], rot[1, 2] = ca * sc + sa * sb * cc, ca * cc - sa * sb * sc, -sa * cb
+    rot[2, 0], rot[2, 1], rot[2, 2] = sa * sc - ca * sb * cc, sa * cc + ca * sb * sc, ca * cb
+    n_c = omega.size
+    x_re, x_im = np.empty(n_c), np.empty(n_c)
+    for r in range(3):
+        for j in range(6):
+            out[r, j] = 0.0
+    for c in range(n_c):
+        tr, ti = ramp * math.cos(omega[c] * t), -ramp * math.sin(omega[c] * t)     # ramp e^{-i w t}
+        for j in range(6):
+            out[2, j] += fk_re[j, c] * tr - fk_im[j, c] * ti
+        theta = k[c] * (pose[0] * heading[c, 0] + pose[1] * heading[c, 1]) - omega[c] * t
+        tr, ti = ramp * math.cos(theta), ramp * math.sin(theta)                      # at the reference point
+        x_re[c], x_im[c] = amp_re[c] * tr - amp_im[c] * ti, amp_re[c] * ti + amp_im[c] * tr
+    if not hull_pressure(local, rot, pose, x_re, x_im, k, depth, elevation, recurrences, long, direct,
+                         direct_dir, z, d, p):
+        return False
+    cut_hull_loads(local, tris, d, z, p, loads, vertex_loads, out[:2])
+    return True
