@@ -18,9 +18,9 @@ typed tables and thin wrappers.
   point. A block of points stops where the remaining components add at most 2^-53 of the
   amplitude sum at its highest point. The products' round-off grows with c; over 300 components it
   stays below 1e-12 of the amplitude sum (tests/test_incident_kernels.py).
-- :func:`binned_chebyshev_sum` (and :func:`chebyshev_sum`, one bin): Clenshaw's recurrence over
-  the points of each bin; :func:`bin_coefficients` the bins' coefficients; :func:`chebyshev_sum2`
-  the two-dimensional sum of the long-wave pressure series.
+- :func:`elevation` and :func:`long_pressure`: those two parts of the pass alone (the expansions'
+  own uses and tests); :func:`chebyshev_sum` (Clenshaw, the elevation's sum with one bin) and
+  :func:`chebyshev_sum2` (the long-wave series' two-dimensional sum) its building blocks.
 
 ``AVAILABLE`` is False where numba is not installed, :func:`imports` where it does not import:
 the callers then take their numpy paths (the same sums as matrix products; slower, same results
@@ -36,8 +36,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["AVAILABLE", "ElevationTable", "HullTables", "LongTable", "RecurrenceTable", "bin_coefficients",
-           "binned_chebyshev_sum", "chebyshev_sum", "chebyshev_sum2", "deep_pressure", "hull_loads", "imports", "warm_up"]
+__all__ = ["AVAILABLE", "ElevationTable", "HullTables", "LongTable", "RecurrenceTable", "chebyshev_sum", "chebyshev_sum2",
+           "deep_pressure", "elevation", "hull_loads", "imports", "long_pressure", "warm_up"]
 
 AVAILABLE = importlib.util.find_spec("numba") is not None   # numba itself imported on first use
 
@@ -118,28 +118,10 @@ def deep_pressure(xi: np.ndarray, z: np.ndarray, a: np.ndarray, k0: float, dk: f
 
 
 def chebyshev_sum(u: np.ndarray, c: np.ndarray, out: np.ndarray) -> None:
-    """Adds sum_n c_n T_n(u) to ``out`` (P,) at points ``u`` (P,) in [-1, 1] (Clenshaw)."""
-    binned_chebyshev_sum(u, c[None, :], out)
-
-
-def binned_chebyshev_sum(u: np.ndarray, c: np.ndarray, out: np.ndarray) -> None:
-    """Adds sum_n c_jn T_n(v) to ``out`` (P,) at points ``u`` (P,) in [-1, 1] cut into B = len(c)
-    equal bins: j the bin of u, v = B (u - u_j) in [-1, 1] its coordinate about the bin's centre u_j
-    (Clenshaw over the points of each bin; ``c`` (B, N))."""
+    """Adds sum_n c_n T_n(u) to ``out`` (P,) at points ``u`` (P,) in [-1, 1] (Clenshaw; the
+    elevation's kernel with one bin)."""
     if c.size:
-        _compiled().binned_chebyshev_sum(np.ascontiguousarray(u, float), np.ascontiguousarray(c, float), out)
-
-
-def bin_coefficients(even: np.ndarray, odd: np.ndarray, reach: np.ndarray, turn: np.ndarray, shift: np.ndarray,
-                     out: np.ndarray) -> None:
-    """out[j, n] = sum_c w_nc Re(turn_c shift_jc) for even n, w_nc Im(turn_c shift_jc) for odd n,
-    the weights given per component as ``even`` (n_c, ceil(N / 2)) = w_{2m, c} and ``odd``
-    (n_c, floor(N / 2)) = w_{2m+1, c}, zero from order ``reach[c]`` on: the Jacobi–Anger
-    coefficients of server/phase_expansion.py for each bin j, ``turn`` (n_c,) and ``shift``
-    (B, n_c) complex, ``out`` (B, N)."""
-    _compiled().bin_coefficients(even, odd, np.asarray(reach, np.int64), np.ascontiguousarray(turn.real),
-                                 np.ascontiguousarray(turn.imag), np.ascontiguousarray(shift.real),
-                                 np.ascontiguousarray(shift.imag), out)
+        _compiled().binned_chebyshev_sum(np.ascontiguousarray(u, float), np.ascontiguousarray(c[None, :], float), out)
 
 
 def chebyshev_sum2(u: np.ndarray, v: np.ndarray, c: np.ndarray, out: np.ndarray,
@@ -150,6 +132,30 @@ def chebyshev_sum2(u: np.ndarray, v: np.ndarray, c: np.ndarray, out: np.ndarray,
         terms = np.full(c.shape[0], c.shape[1], np.int64) if terms is None else np.asarray(terms, np.int64)
         _compiled().chebyshev_sum2(np.ascontiguousarray(u, float), np.ascontiguousarray(v, float),
                                    np.ascontiguousarray(c, float), terms, out)
+
+
+def elevation(table: ElevationTable, phasor: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """(P,): the elevation sum_c Re(X_c e^{i k_c (offset . (cos b_c, sin b_c))}) at points with
+    horizontal ``offsets`` (P, 2) from the reference point, the components' phasors there
+    ``phasor`` X (n_c,) (the kernel :func:`hull_loads` runs)."""
+    out, u = np.zeros(len(offsets)), np.empty(len(offsets))
+    off = np.ascontiguousarray(offsets, float)
+    _compiled().elevation_sum(table, np.ascontiguousarray(phasor.real), np.ascontiguousarray(phasor.imag),
+                              np.ascontiguousarray(off[:, 0]), np.ascontiguousarray(off[:, 1]), u, out)
+    return out
+
+
+def long_pressure(table: LongTable, phasor: np.ndarray, offsets: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """(P,): the long waves' pressure per unit rho g, sum_c Re(X_c e^{i k_c (offset . (cos b_c,
+    sin b_c))}) f_c(z), at points with horizontal ``offsets`` (P, 2) from the reference point and
+    (stretched) heights ``z`` (P,) in [floor, 0], by the table's series (the kernel
+    :func:`hull_loads` runs); ``phasor`` X (n_c,) of all the components."""
+    out, u = np.zeros(len(z)), np.empty(len(z))
+    off = np.ascontiguousarray(offsets, float)
+    _compiled().long_sum(table, np.ascontiguousarray(phasor.real), np.ascontiguousarray(phasor.imag),
+                         np.ascontiguousarray(off[:, 0]), np.ascontiguousarray(off[:, 1]),
+                         np.ascontiguousarray(z, float), u, out)
+    return out
 
 
 class HullTables(NamedTuple):
@@ -193,8 +199,6 @@ def warm_up() -> None:
     deep_pressure(np.zeros(1), np.zeros(1), np.ones(1, complex), 0.0, 0.0, 0.0, out)
     chebyshev_sum(np.zeros(1), np.ones(2), out)
     chebyshev_sum2(np.zeros(1), np.zeros(1), np.ones((2, 2)), out)
-    bin_coefficients(np.ones((1, 1)), np.ones((1, 1)), np.full(1, 2), np.ones(1, complex), np.ones((1, 1), complex),
-                     np.zeros((1, 2)))
     none, count, heads, start = np.zeros(0), np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros(1, np.int64)
     elevation = ElevationTable(heads, start, count, count, count, count, none, count, none, none, count, 1.0)
     recurrences = RecurrenceTable(heads, start, count, none, none, none, -1.0)

@@ -215,6 +215,61 @@ def _by_height(z, floor):
 
 
 @_jit
+def elevation_sum(e, x_re, x_im, ox, oy, u, out):
+    """out += the elevation at points with horizontal offsets ``ox``, ``oy`` from the reference
+    point: each heading's Jacobi–Anger series by bins (``e`` an ElevationTable), the components'
+    phasors at the reference point ``x``; ``u`` scratch, as long as the points."""
+    for g in range(e.direction.shape[0]):
+        cols = e.columns[e.start[g]:e.start[g + 1]]
+        n_g, n_b, n_o = cols.size, e.bins[g], e.orders[g]
+        tr, ti = np.empty(n_g), np.empty(n_g)
+        _gather(cols, x_re, x_im, tr, ti)
+        w0, n_e = e.weight_start[g], (n_o + 1) // 2
+        even = e.weights[w0:w0 + n_g * n_e].reshape((n_g, n_e))
+        odd = e.weights[w0 + n_g * n_e:w0 + n_g * n_o].reshape((n_g, n_o - n_e))
+        s0 = e.shift_start[g]
+        sr = e.shift_re[s0:s0 + n_b * n_g].reshape((n_b, n_g))
+        si = e.shift_im[s0:s0 + n_b * n_g].reshape((n_b, n_g))
+        coefficients = np.empty((n_b, n_o))
+        bin_coefficients(even, odd, e.reach[e.start[g]:e.start[g + 1]], tr, ti, sr, si, coefficients)
+        _along(ox, oy, e.direction[g, 0], e.direction[g, 1], 1.0 / e.radius, u)
+        binned_chebyshev_sum(u, coefficients, out)
+
+
+@_jit
+def long_sum(q, x_re, x_im, wx, wy, zs, u, out):
+    """out += the long waves' pressure per unit rho g at points with horizontal offsets ``wx``,
+    ``wy`` from the reference point and stretched heights ``zs``: each heading's series in the
+    horizontal and in depth (``q`` a LongTable), C_nm = Re(sum_c H_nc X_c) V_cm; ``u`` scratch."""
+    if not q.direction.shape[0]:
+        return
+    vz = np.empty(zs.size)
+    for i in range(zs.size):
+        vz[i] = min(max(1.0 - 2.0 * zs[i] / q.floor, -1.0), 1.0)
+    row = 0
+    for g in range(q.direction.shape[0]):
+        cols = q.columns[q.start[g]:q.start[g + 1]]
+        n_g, n_h, n_v = cols.size, q.orders[g, 0], q.orders[g, 1]
+        ar, ai = np.empty(n_g), np.empty(n_g)
+        _gather(cols, x_re, x_im, ar, ai)
+        h0, v0 = q.horizontal_start[g], q.vertical_start[g]
+        hr = q.horizontal_re[h0:h0 + n_h * n_g].reshape((n_h, n_g))
+        hi = q.horizontal_im[h0:h0 + n_h * n_g].reshape((n_h, n_g))
+        vert = q.vertical[v0:v0 + n_g * n_v].reshape((n_g, n_v))
+        terms = q.row_terms[row:row + n_h]
+        row += n_h
+        c = np.zeros((n_h, n_v))
+        for n in range(n_h):
+            t_n = terms[n]
+            for j in range(n_g):
+                x = hr[n, j] * ar[j] - hi[n, j] * ai[j]      # Re(horizontal X)
+                for m in range(t_n):
+                    c[n, m] += x * vert[j, m]
+        _along(wx, wy, q.direction[g, 0], q.direction[g, 1], 1.0 / q.radius, u)
+        chebyshev_sum2(u, vz, c, terms, out)
+
+
+@_jit
 def hull_pressure(local, rot, pos, x_re, x_im, k, depth, elevation, recurrences, long, direct, direct_dir, z, d, p):
     """One body's incident wave for one step (incident_kernels.hull_loads): the vertices' global
     heights ``z``, signed heights above the free surface ``d`` and the Froude–Krylov pressure per
@@ -232,22 +287,7 @@ def hull_pressure(local, rot, pos, x_re, x_im, k, depth, elevation, recurrences,
         d[v] = 0.0
         p[v] = 0.0
     u = np.empty(v_n)
-    e = elevation
-    for g in range(e.direction.shape[0]):   # the elevation: each heading's Jacobi–Anger series by bins
-        cols = e.columns[e.start[g]:e.start[g + 1]]
-        n_g, n_b, n_o = cols.size, e.bins[g], e.orders[g]
-        tr, ti = np.empty(n_g), np.empty(n_g)
-        _gather(cols, x_re, x_im, tr, ti)
-        w0, n_e = e.weight_start[g], (n_o + 1) // 2
-        even = e.weights[w0:w0 + n_g * n_e].reshape((n_g, n_e))
-        odd = e.weights[w0 + n_g * n_e:w0 + n_g * n_o].reshape((n_g, n_o - n_e))
-        s0 = e.shift_start[g]
-        sr = e.shift_re[s0:s0 + n_b * n_g].reshape((n_b, n_g))
-        si = e.shift_im[s0:s0 + n_b * n_g].reshape((n_b, n_g))
-        coefficients = np.empty((n_b, n_o))
-        bin_coefficients(even, odd, e.reach[e.start[g]:e.start[g + 1]], tr, ti, sr, si, coefficients)
-        _along(ox, oy, e.direction[g, 0], e.direction[g, 1], 1.0 / e.radius, u)
-        binned_chebyshev_sum(u, coefficients, d)            # d holds the elevation for now
+    elevation_sum(elevation, x_re, x_im, ox, oy, u, d)          # d holds the elevation for now
     wet_n = 0
     low = 0.0
     for v in range(v_n):
@@ -279,31 +319,7 @@ def hull_pressure(local, rot, pos, x_re, x_im, k, depth, elevation, recurrences,
         _gather(cols, x_re, x_im, ar, ai)
         _along(wx, wy, r.direction[g, 0], r.direction[g, 1], 1.0, xi)
         deep_pressure(xi, zs, ar, ai, r.k0[g], r.dk[g], r.d2[g], out)
-    q = long
-    if q.direction.shape[0]:
-        vz = np.empty(wet_n)
-        for i in range(wet_n):
-            vz[i] = min(max(1.0 - 2.0 * zs[i] / q.floor, -1.0), 1.0)
-    row = 0
-    for g in range(q.direction.shape[0]):   # the long waves: a series in the horizontal and in depth
-        cols = q.columns[q.start[g]:q.start[g + 1]]
-        n_g, n_h, n_v = cols.size, q.orders[g, 0], q.orders[g, 1]
-        ar, ai = np.empty(n_g), np.empty(n_g)
-        _gather(cols, x_re, x_im, ar, ai)
-        h0, v0 = q.horizontal_start[g], q.vertical_start[g]
-        hr = q.horizontal_re[h0:h0 + n_h * n_g].reshape((n_h, n_g))
-        hi = q.horizontal_im[h0:h0 + n_h * n_g].reshape((n_h, n_g))
-        vert = q.vertical[v0:v0 + n_g * n_v].reshape((n_g, n_v))
-        terms = q.row_terms[row:row + n_h]
-        row += n_h
-        c = np.zeros((n_h, n_v))
-        for n in range(n_h):
-            for j in range(n_g):
-                x = hr[n, j] * ar[j] - hi[n, j] * ai[j]      # Re(horizontal a)
-                for m in range(terms[n]):
-                    c[n, m] += x * vert[j, m]
-        _along(wx, wy, q.direction[g, 0], q.direction[g, 1], 1.0 / q.radius, xi)
-        chebyshev_sum2(xi, vz, c, terms, out)
+    long_sum(long, x_re, x_im, wx, wy, zs, xi, out)
     for j in range(direct.size):            # the rest: one cosine and depth factor per point and component
         c = direct[j]
         kc = k[c]

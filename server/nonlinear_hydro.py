@@ -240,7 +240,7 @@ class NonlinearHydro:
             self.split = _split_components(self.omega, self.k, self.heading, self.g, self.depth, 2.0 * radius, floor)
             direct = self.split.direct
             direction = np.column_stack([np.cos(self.heading), np.sin(self.heading)])
-            self.tables = HullTables(self.expansion.table(), _recurrence_table(self.split),
+            self.tables = HullTables(self.expansion.table, _recurrence_table(self.split),
                                      _long_table(self.split, self.amplitude), direct.astype(np.int64),
                                      direction[direct], direction)
 

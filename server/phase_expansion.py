@@ -17,8 +17,11 @@ with x for x < n, so every component of the group is bounded by its largest), so
 is exact to round-off (tests/test_phase_expansion.py holds it to the direct sums). Per step: the
 Chebyshev values T_n(u) of the points (N recurrences over the points) and an (N, n_c) coefficient
 matrix per heading; the elevation sum_c a_c cos(.) is then one matrix-vector product for the
-series' coefficients and the series summed at the points (Clenshaw's recurrence, compiled, or a
-product with the points' Chebyshev values).
+series' coefficients and the series summed at the points (a product with the points' Chebyshev
+values: the numpy path). The compiled path (server/incident_kernels.py) cuts [-rho, rho] into
+equal bins, each with the series about its centre over its half-width (fewer orders per point,
+the coefficients once per bin: :func:`_bins` picks their number), each component's coefficients
+to its own last order, Clenshaw's recurrence over each bin's points.
 
 Its cost grows with k_max rho (N ~ k_max rho + 10): it pays for the elevation, one sum over the
 components per point. The pressure weighs each component by its depth factor at each point:
@@ -31,14 +34,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from hydrolink.server.incident_kernels import (
-    AVAILABLE,
-    ElevationTable,
-    LongTable,
-    bin_coefficients,
-    binned_chebyshev_sum,
-    chebyshev_sum2,
-)
+from hydrolink.server import incident_kernels
+from hydrolink.server.incident_kernels import AVAILABLE, ElevationTable, LongTable
 from scipy.special import jv
 
 __all__ = ["DepthExpansion", "PhaseExpansion", "flatten"]
@@ -120,8 +117,12 @@ def _bins(k: np.ndarray, radius: float, points: int) -> _Bins:
     orders of J_n(x) above the tail, tabulated over x, give each component's."""
     x = np.linspace(0.0, float(k.max()) * radius, 129)
     table = np.array([_orders(jv, v) for v in x])          # orders at x, growing with x
-    reach = lambda count: table[np.minimum(np.searchsorted(x, k * radius / count), len(x) - 1)]   # noqa: E731
-    count = min(range(1, 65), key=lambda c: c * int(reach(c).sum()) + points * int(reach(c).max()))
+
+    def cost(count: int) -> int:
+        reach = table[np.minimum(np.searchsorted(x, k * radius / count), len(x) - 1)]   # each component's orders
+        return count * int(reach.sum()) + points * int(reach.max())
+
+    count = min(range(1, 65), key=cost)
     coefficients = _jacobi_anger(k, radius / count)
     weight = np.where((np.arange(len(coefficients)) % 2 == 0)[:, None], coefficients.real, -coefficients.imag)
     nonzero = weight != 0.0
@@ -153,27 +154,29 @@ class PhaseExpansion:
                                    None if compiled else _jacobi_anger(kg, self.radius),
                                    _bins(kg, self.radius, points) if compiled else None))
         self.groups = tuple(groups)
+        self.table = self._table() if compiled else None   # the compiled kernels' form of the bins
 
     def elevation(self, offsets: np.ndarray, reference: np.ndarray, psi: np.ndarray,
                   amplitude: np.ndarray) -> np.ndarray:
         """(P,): sum_c a_c cos(k_c s + psi_c) at points whose horizontal offsets from the reference
         point are ``offsets`` (P, 2) (|offset| <= radius), the reference point at ``reference`` (2,),
         the components' amplitudes ``amplitude`` and phases ``psi`` (n_c,) (phi_c - w_c t)."""
+        if self.table is not None:
+            phasor = np.empty(self.n_components, complex)
+            for g in self.groups:
+                phasor[g.columns] = amplitude[g.columns] * np.exp(1j * (g.k * float(reference @ g.direction)
+                                                                        + psi[g.columns]))
+            return incident_kernels.elevation(self.table, phasor, offsets)
         out = np.zeros(len(offsets))
         for g in self.groups:
             u = np.clip(offsets @ g.direction / self.radius, -1.0, 1.0)
             turn = amplitude[g.columns] * np.exp(1j * (g.k * float(reference @ g.direction) + psi[g.columns]))
-            if g.bins is not None:
-                c = np.empty((g.bins.count, g.bins.orders))          # each bin's series coefficients now
-                bin_coefficients(g.bins.even, g.bins.odd, g.bins.reach, turn, g.bins.shift, c)
-                binned_chebyshev_sum(u, c, out)
-            else:
-                c = np.real(g.coefficients @ turn)                   # (N,): the series' coefficients now
-                out += _chebyshev(u, len(c)).T @ c
+            c = np.real(g.coefficients @ turn)                   # (N,): the series' coefficients now
+            out += _chebyshev(u, len(c)).T @ c
         return out
 
-    def table(self) -> ElevationTable:
-        """The compiled path's bins as one flat table (server/incident_kernels.py's hull_pressure)."""
+    def _table(self) -> ElevationTable:
+        """The compiled path's bins as one flat table (server/incident_kernels.py)."""
         bins = [g.bins for g in self.groups]
         weights, weight_start = flatten([np.concatenate([b.even.ravel(), b.odd.ravel()]) for b in bins])
         shift_re, shift_start = flatten([b.shift.real for b in bins])
@@ -216,8 +219,8 @@ class DepthExpansion:
 
     def __init__(self, k: np.ndarray, heading: np.ndarray, radius: float, floor: float, depth_factor):
         """``depth_factor(k, z)``: f (P, n_c) at heights z (P,) in [floor, 0]. Only on the compiled
-        path (its sum at the points is a kernel of server/incident_kernels.py); without numba the
-        long waves' pressure is summed directly."""
+        path: :meth:`table` is what its kernels sum (incident_kernels.long_pressure, and within
+        hull_loads); without numba the long waves' pressure is summed directly."""
         from numpy.polynomial import chebyshev
         self.radius = float(radius) * (1.0 + 1e-12) or 1.0
         self.floor = float(floor)
@@ -236,20 +239,6 @@ class DepthExpansion:
         self.terms = sum(g.horizontal.shape[0] * g.vertical.shape[1] for g in groups)
         # the depth series must have converged within the nodes: its last kept order well below them
         self.converged = all(g.vertical.shape[1] < _DEPTH_NODES - 8 for g in groups)
-
-    def pressure(self, offsets: np.ndarray, z: np.ndarray, reference: np.ndarray, psi: np.ndarray,
-                 amplitude: np.ndarray) -> np.ndarray:
-        """(P,): sum_c a_c f_c(z) cos(k_c s + psi_c) at points with horizontal ``offsets`` (P, 2) from
-        the reference point at ``reference`` (2,), heights ``z`` (P,) in [floor, 0]; ``amplitude``
-        and ``psi`` (phi_c - w_c t) of all the components (n_c,)."""
-        v = np.clip(1.0 - 2.0 * z / self.floor, -1.0, 1.0)
-        out = np.zeros(len(z))
-        for g in self.groups:
-            u = np.clip(offsets @ g.direction / self.radius, -1.0, 1.0)
-            a = amplitude[g.columns] * np.exp(1j * (g.k * float(reference @ g.direction) + psi[g.columns]))
-            coefficients = np.real((g.horizontal * a[None, :]) @ g.vertical)       # (N, M)
-            chebyshev_sum2(u, v, coefficients, out)
-        return out
 
     def table(self, columns: np.ndarray, amplitude: np.ndarray, total: float) -> LongTable:
         """The series as one flat table for server/incident_kernels.py's hull_loads, ``columns`` the

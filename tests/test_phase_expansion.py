@@ -54,8 +54,9 @@ def test_expansion_elevation_is_the_direct_sum(radius, k_max, headings, compiled
 @pytest.mark.skipif(not AVAILABLE, reason="numba not installed")
 @pytest.mark.parametrize("depth", [200.0, 30.0])
 def test_depth_expansion_is_the_direct_sum(depth):
-    """The long waves' pressure series against one cosine and cosh depth factor per point and
-    component (two headings, points over a 5 m radius and 10 m deep)."""
+    """The long waves' pressure series (its table, summed by the compiled pass's kernel) against one
+    cosine and cosh depth factor per point and component (two headings, points over a 5 m radius
+    and 10 m deep)."""
     rng = np.random.default_rng(8)
     omega = np.linspace(0.05, 1.0, 24)
     k = np.array([wave_number(float(w), G, depth) for w in omega])
@@ -64,7 +65,9 @@ def test_depth_expansion_is_the_direct_sum(depth):
     offsets, z = rng.uniform(-3.5, 3.5, (300, 2)), -rng.uniform(0.0, 10.0, 300)
     reference = np.array([40.0, -7.0])
     factor = lambda kc, zz: np.cosh(np.outer(zz + depth, kc)) / np.cosh(kc * depth)
-    got = DepthExpansion(k, heading, 5.0, -10.0, factor).pressure(offsets, z, reference, psi, amp)
+    table = DepthExpansion(k, heading, 5.0, -10.0, factor).table(np.arange(24), amp, float(amp.sum()))
+    phasor = amp * np.exp(1j * (k * (reference[0] * np.cos(heading) + reference[1] * np.sin(heading)) + psi))
+    got = incident_kernels.long_pressure(table, phasor, offsets, z)
     pts = reference + offsets
     theta = np.outer(pts[:, 0], k * np.cos(heading)) + np.outer(pts[:, 1], k * np.sin(heading)) + psi
     np.testing.assert_allclose(got, (factor(k, z) * np.cos(theta)) @ amp, rtol=0, atol=1e-12 * amp.sum())
@@ -145,14 +148,16 @@ def test_nonlinear_froude_krylov_equals_the_direct_evaluation(sphere_path, energ
 
 
 @pytest.mark.skipif(not AVAILABLE, reason="numba not installed")
-@pytest.mark.parametrize("depth, headings, count, scattered", [(200.0, [-0.7, 0.9], 150, 0),
-                                                               (30.0, [-0.7, 0.2, 1.4], 60, 7)])
-def test_compiled_pass_in_finite_depth_and_a_spread_sea(depth, headings, count, scattered):
+@pytest.mark.parametrize("depth, headings, count, scattered, series", [
+    (200.0, [-0.7, 0.9], 150, 0, True), (30.0, [-0.7, 0.2, 1.4], 60, 7, True), (30.0, [-0.7, 0.2, 1.4], 60, 7, False)])
+def test_compiled_pass_in_finite_depth_and_a_spread_sea(depth, headings, count, scattered, series, monkeypatch):
     """Headings of ``count`` evenly spaced components each (to 6 rad/s), and ``scattered`` ones of random
     frequency and heading, a hull 8.5 m from the origin moving in six DOFs: the compiled pass
-    against the direct evaluation, 1e-9 of each DOF's largest value over 120 steps. In 200 m the
-    short waves go to one recurrence per heading and the long ones to the series; in 30 m the
-    long ones (k h < 20, and the scattered) are summed one by one."""
+    against the direct evaluation, 1e-9 of each DOF's largest value over 120 steps. The short
+    waves go to one recurrence per heading, the long ones (k h < 20, and the scattered) to the
+    series or, with ``series`` False (no series is cheap enough), one by one."""
+    if not series:
+        monkeypatch.setattr(nonlinear_hydro, "_TERMS_PER_COMPONENT", 0)
     rng = np.random.default_rng(21)
     grid = np.linspace(6.0 / count, 6.0, count)
     omega = np.concatenate([np.tile(grid, len(headings)), rng.uniform(0.4, 5.0, scattered)])
@@ -174,7 +179,7 @@ def test_compiled_pass_in_finite_depth_and_a_spread_sea(depth, headings, count, 
         stiffness=np.zeros((6, 6)), fk_linear=nl.fk_linear_phasors(hull, ref), active=np.ones(6))
     nl.prepare([body])
     assert len(nl.split.recurrences) == len(headings)
-    assert (nl.split.long is not None and not len(nl.split.direct)) if depth > 100 else \
+    assert (nl.split.long is not None and not len(nl.split.direct)) if series else \
         (nl.split.long is None and len(nl.split.direct) > 80)
     k = np.array([wave_number(float(w), G, depth) for w in omega])
     got, want = [], []
