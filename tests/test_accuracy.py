@@ -218,7 +218,8 @@ def test_bench_nonlinear_cylinder(tmp_path, monkeypatch):
     assert float(fk["rms_error"]) == float(fk["max_error"]) == 0.0
     # a 0.6 m wave on a 1 m draft: the wetted surface's change is not a small correction
     assert float(linear["rms_error"]) > 0.05 and float(linear["max_error"]) > 0.05
-    # clipping ~1,600 hull triangles each step costs the server far more than the linear terms
-    assert float(linear["server_us_per_step"]) < 0.3 * float(fk["server_us_per_step"])
+    # the incident wave on ~1,600 hull triangles and their clipping each step cost the server more
+    # than the linear terms (about 3x since issue 26's compiled pass; over 10x before it)
+    assert float(linear["server_us_per_step"]) < 0.6 * float(fk["server_us_per_step"])
     assert "hydro.nonlinear" in rows["nonlinear=froude_krylov"]["note"]
     assert "froude_krylov" in rows["nonlinear=froude_krylov"]["note"]
