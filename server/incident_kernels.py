@@ -54,7 +54,7 @@ def imports() -> bool:
 
 
 class ElevationTable(NamedTuple):
-    """The incident wave's elevation for :func:`hull_pressure`: per heading g (of G), its components'
+    """The incident wave's elevation for :func:`hull_loads`: per heading g (of G), its components'
     Jacobi–Anger series by bins (server/phase_expansion.py), the ragged parts flattened."""
     direction: np.ndarray      # (G, 2) cos b, sin b
     start: np.ndarray          # (G + 1,) int64: heading g's components are columns[start[g]:start[g + 1]] (by k)
@@ -71,7 +71,7 @@ class ElevationTable(NamedTuple):
 
 
 class RecurrenceTable(NamedTuple):
-    """The short waves' pressure for :func:`hull_pressure`: per run g of evenly spaced deep-water
+    """The short waves' pressure for :func:`hull_loads`: per run g of evenly spaced deep-water
     components of one heading, k_c = k0 + c dk + c (c - 1) d2 / 2 (server/nonlinear_hydro.py)."""
     direction: np.ndarray      # (R, 2)
     start: np.ndarray          # (R + 1,) int64 into columns
@@ -83,7 +83,7 @@ class RecurrenceTable(NamedTuple):
 
 
 class LongTable(NamedTuple):
-    """The long waves' pressure series for :func:`hull_pressure` (server/phase_expansion.py's
+    """The long waves' pressure series for :func:`hull_loads` (server/phase_expansion.py's
     DepthExpansion), per heading g (of L): C_nm = Re(sum_c H_nc a_c) V_cm."""
     direction: np.ndarray      # (L, 2)
     start: np.ndarray          # (L + 1,) int64 into columns
@@ -186,9 +186,9 @@ def hull_loads(local: np.ndarray, triangles: np.ndarray, loads: np.ndarray, vert
     v = np.empty((3, len(local)))
     f, c = np.float64, np.ascontiguousarray     # one compiled signature (no copies where they are so already)
     ok = _compiled().hull_loads(
-        c(local, f), c(triangles, np.int64), c(loads, f), c(vertex_loads, f), c(pose, f), c(omega, f), amplitude.real, amplitude.imag, float(t), float(ramp), c(k, f),
-        tables.heading, float(depth), *tables[:3], tables.direct, tables.direct_direction, fk_linear.real, fk_linear.imag, rot,
-        v[0], v[1], v[2], out)
+        c(local, f), c(triangles, np.int64), c(loads, f), c(vertex_loads, f), c(pose, f), c(omega, f), amplitude.real,
+        amplitude.imag, float(t), float(ramp), c(k, f), tables.heading, float(depth), *tables[:3], tables.direct,
+        tables.direct_direction, fk_linear.real, fk_linear.imag, rot, v[0], v[1], v[2], out)
     return (out, rot) if ok else None
 
 

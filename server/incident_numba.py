@@ -188,11 +188,11 @@ def _gather(cols, x_re, x_im, out_re, out_im):
 
 
 @_jit
-def _along(ox, oy, dx, dy, scale, out):
-    """out = clip((ox dx + oy dy) * scale, -1, 1), or unclipped where scale is 1 (a coordinate)."""
+def _along(ox, oy, dx, dy, scale, clip, out):
+    """out = (ox dx + oy dy) * scale, held within [-1, 1] where ``clip`` (a series' coordinate)."""
     for p in range(ox.size):
         x = (ox[p] * dx + oy[p] * dy) * scale
-        out[p] = min(max(x, -1.0), 1.0) if scale != 1.0 else x
+        out[p] = min(max(x, -1.0), 1.0) if clip else x
 
 
 @_jit
@@ -232,7 +232,7 @@ def elevation_sum(e, x_re, x_im, ox, oy, u, out):
         si = e.shift_im[s0:s0 + n_b * n_g].reshape((n_b, n_g))
         coefficients = np.empty((n_b, n_o))
         bin_coefficients(even, odd, e.reach[e.start[g]:e.start[g + 1]], tr, ti, sr, si, coefficients)
-        _along(ox, oy, e.direction[g, 0], e.direction[g, 1], 1.0 / e.radius, u)
+        _along(ox, oy, e.direction[g, 0], e.direction[g, 1], 1.0 / e.radius, True, u)
         binned_chebyshev_sum(u, coefficients, out)
 
 
@@ -265,7 +265,7 @@ def long_sum(q, x_re, x_im, wx, wy, zs, u, out):
                 x = hr[n, j] * ar[j] - hi[n, j] * ai[j]      # Re(horizontal X)
                 for m in range(t_n):
                     c[n, m] += x * vert[j, m]
-        _along(wx, wy, q.direction[g, 0], q.direction[g, 1], 1.0 / q.radius, u)
+        _along(wx, wy, q.direction[g, 0], q.direction[g, 1], 1.0 / q.radius, True, u)
         chebyshev_sum2(u, vz, c, terms, out)
 
 
@@ -317,7 +317,7 @@ def hull_pressure(local, rot, pos, x_re, x_im, k, depth, elevation, recurrences,
         cols = r.columns[r.start[g]:r.start[g + 1]]
         ar, ai = np.empty(cols.size), np.empty(cols.size)
         _gather(cols, x_re, x_im, ar, ai)
-        _along(wx, wy, r.direction[g, 0], r.direction[g, 1], 1.0, xi)
+        _along(wx, wy, r.direction[g, 0], r.direction[g, 1], 1.0, False, xi)
         deep_pressure(xi, zs, ar, ai, r.k0[g], r.dk[g], r.d2[g], out)
     long_sum(long, x_re, x_im, wx, wy, zs, xi, out)
     for j in range(direct.size):            # the rest: one cosine and depth factor per point and component
