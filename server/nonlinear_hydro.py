@@ -36,12 +36,13 @@ from hydrolink.protocol.scene import Scene
 from hydrolink.server import incident_kernels, wet_surface_kernel
 from hydrolink.server.errors import ModelError
 from hydrolink.server.force_term import ForceTerm, TermContext
+from hydrolink.server.body_rows import reply_rows
 from hydrolink.server.incident_kernels import (
     AVAILABLE,
+    HullPass,
     HullTables,
     LongTable,
     RecurrenceTable,
-    hull_loads,
 )
 from hydrolink.server.kinematics import wave_number
 from hydrolink.server.phase_expansion import DepthExpansion, PhaseExpansion, flatten
@@ -206,6 +207,8 @@ class NonlinearHydro:
         self.compiled = compiled
         self.split: _PressureSplit | None = None   # set by prepare (needs the hulls' reach)
         self.tables: HullTables | None = None   # the compiled pass's tables (with the split)
+        self.passes: dict[int, HullPass] = {}   # by body index: the Froude-Krylov bodies' compiled passes
+        self._rows = reply_rows   # server/body_rows.py's, compiled on the compiled path (prepare)
         self.bodies, self.rho, self.g, self.depth, self.n_bodies = bodies, rho, g, depth, n_bodies
         self.ramp = waves.ramp
         self.still = waves.size == 0
@@ -230,6 +233,7 @@ class NonlinearHydro:
         if self.compiled:
             incident_kernels.warm_up()
             wet_surface_kernel.warm_up()
+            self._rows = incident_kernels.reply_rows()
         if self.still:
             return
         radius = max(float(np.linalg.norm(b.hull.vertices, axis=1).max()) for b in bodies)
@@ -243,6 +247,9 @@ class NonlinearHydro:
             self.tables = HullTables(self.expansion.table, _recurrence_table(self.split),
                                      _long_table(self.split, self.amplitude), direct.astype(np.int64),
                                      direction[direct], direction)
+            self.passes = {b.index: HullPass(b.hull.vertices, b.hull.triangles, b.loads, b.vertex_loads, self.omega,
+                                             self.amp, self.k, self.depth, self.tables, b.fk_linear)
+                           for b in bodies if b.mode == "froude-krylov"}
 
     def _phasors(self, pts: np.ndarray) -> np.ndarray:
         """a_c e^{i theta_c(x, y)} at points (P, 3): (P, n_c)."""
@@ -281,38 +288,30 @@ class NonlinearHydro:
 
         The pressures are integrated over the wet part of each hull in the body's frame about its
         reference point, and the loads turned to the global axes at the end: for a Froude–Krylov
-        body on the compiled path in one pass (incident_kernels.hull_loads), else the pressures at
+        body on the compiled path in one pass (incident_kernels.HullPass), else the pressures at
         the vertices by :meth:`_surface` and their integral by server/wet_surface_kernel.py
-        (compiled) or :func:`_wet_loads`."""
+        (compiled) or :func:`_wet_loads`; the rows from the loads by server/body_rows.py."""
         hs, fk = np.zeros((self.n_bodies, 6)), np.zeros((self.n_bodies, 6))
-        rg = self.rho * self.g
         ramp = ramp_at(t, self.ramp)
+        no_waves = np.zeros(6)
         for b in self.bodies:
-            pose = position[b.index]
+            pose = np.ascontiguousarray(position[b.index], np.float64)
             waves = b.mode == "froude-krylov" and not self.still
-            step = None
-            if waves and self.tables is not None:
-                step = hull_loads(b.hull.vertices, b.hull.triangles, b.loads, b.vertex_loads, pose, self.omega,
-                                  self.amp, t, ramp, self.k, self.depth, self.tables, b.fk_linear)
+            step = self.passes[b.index](pose, t, ramp) if waves and b.index in self.passes else None
             if step is not None:
-                (out, rot), fk_linear = step, step[0][2]
-                loads = rg * out[:2]
+                out, rot = step
+                loads, fk_linear = out[:2], out[2]
             else:
                 rot = rotation_xyz(pose[3:])
                 z, d, p_v = self._surface(b, pose, rot, t, ramp) if waves else self._still_surface(b, pose, rot)
                 if self.compiled:
-                    loads = rg * cut_hull_loads(b.hull.vertices, b.hull.triangles, d, z, p_v, b.loads, b.vertex_loads)
+                    loads = cut_hull_loads(b.hull.vertices, b.hull.triangles, d, z, p_v, b.loads, b.vertex_loads)
                 else:
-                    loads = rg * _wet_loads(b, z, d, np.flatnonzero(d <= 0.0), p_v)
-                fk_linear = np.real(b.fk_linear @ (ramp * np.exp(-1j * self.omega * t))) if waves else None
-            f = (loads.reshape(4, 3) @ rot.T).reshape(2, 6)      # both loads in the global axes
-            arm = rot @ b.lever
-            f[0, 2:5] += (-b.weight, -arm[1] * b.weight, arm[0] * b.weight)    # the weight, arm x (0, 0, -m g)
-            f[0] += b.stiffness @ (pose - b.reference)        # less the linear model's -C (x - x_eq) + net buoyancy
-            f[0, 2] -= b.linear_net
-            hs[b.index] = f[0] * b.active
-            if waves:
-                fk[b.index] = (f[1] - fk_linear) * b.active
+                    loads = _wet_loads(b, z, d, np.flatnonzero(d <= 0.0), p_v)
+                fk_linear = np.ascontiguousarray(np.real(b.fk_linear @ (ramp * np.exp(-1j * self.omega * t)))) \
+                    if waves else no_waves
+            self._rows(loads, fk_linear, self.rho * self.g, rot, b.lever, b.weight, b.stiffness, pose, b.reference,
+                       b.linear_net, b.active, hs[b.index], fk[b.index])
         return hs, fk
 
     @staticmethod
