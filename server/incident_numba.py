@@ -145,40 +145,6 @@ def bin_coefficients(even, odd, tr, ti, sr, si, out):
 
 
 @_jit
-def chebyshev_sum2(u, v, c, terms, out):
-    """out += sum_n sum_{m < terms[n]} c_nm T_n(u) T_m(v) (incident_kernels.chebyshev_sum2)."""
-    p_n, n, m = u.size, c.shape[0], c.shape[1]
-    tv = np.empty(m * _BLOCK)               # T_j(v) of a block's points by their recurrence, row j at j * _BLOCK
-    s, b1, b2, w = np.empty(_BLOCK), np.empty(_BLOCK), np.empty(_BLOCK), np.empty(_BLOCK)
-    for st in range(0, p_n, _BLOCK):
-        q_n = min(_BLOCK, p_n - st)
-        for q in range(q_n):
-            tv[q] = 1.0
-            b1[q], b2[q], w[q] = 0.0, 0.0, 2.0 * u[st + q]
-        if m > 1:
-            for q in range(q_n):
-                tv[_BLOCK + q] = v[st + q]
-        for j in range(2, m):
-            for q in range(q_n):
-                tv[j * _BLOCK + q] = 2.0 * v[st + q] * tv[(j - 1) * _BLOCK + q] - tv[(j - 2) * _BLOCK + q]
-        for i in range(n - 1, -1, -1):      # Clenshaw in u over s_i = sum_j c_ij T_j(v)
-            for q in range(q_n):
-                s[q] = 0.0
-            for j in range(terms[i]):
-                cij, o = c[i, j], j * _BLOCK
-                for q in range(q_n):
-                    s[q] += cij * tv[o + q]
-            if i > 0:
-                for q in range(q_n):
-                    t = w[q] * b1[q] - b2[q] + s[q]
-                    b2[q] = b1[q]
-                    b1[q] = t
-            else:
-                for q in range(q_n):
-                    out[st + q] += 0.5 * w[q] * b1[q] - b2[q] + s[q]
-
-
-@_jit
 def _gather(cols, x_re, x_im, out_re, out_im):
     """out = x[cols]."""
     for i in range(cols.size):
@@ -235,40 +201,90 @@ def elevation_sum(e, x_re, x_im, ox, oy, u, out):
 
 
 @_jit
-def long_sum(q, x_re, x_im, wx, wy, zs, u, out):
-    """out += the long waves' pressure per unit rho g at points with horizontal offsets ``wx``,
-    ``wy`` from the reference point and stretched heights ``zs``: each heading's series in the
-    horizontal and in depth (``q`` a LongTable), C_nm = Re(sum_c H_nc X_c) V_cm; ``u`` scratch."""
-    if not q.direction.shape[0]:
-        return
-    vz = np.empty(zs.size)
-    for i in range(zs.size):
-        vz[i] = min(max(1.0 - 2.0 * zs[i] / q.floor, -1.0), 1.0)
-    row = 0
-    for g in range(q.direction.shape[0]):
-        cols = q.columns[q.start[g]:q.start[g + 1]]
-        n_g, n_h, n_v = cols.size, q.orders[g, 0], q.orders[g, 1]
-        ar, ai = np.empty(n_g), np.empty(n_g)
-        _gather(cols, x_re, x_im, ar, ai)
-        h0, v0 = q.horizontal_start[g], q.vertical_start[g]
-        hr = q.horizontal_re[h0:h0 + n_h * n_g].reshape((n_h, n_g))
-        hi = q.horizontal_im[h0:h0 + n_h * n_g].reshape((n_h, n_g))
-        vert = q.vertical[v0:v0 + n_g * n_v].reshape((n_g, n_v))
-        terms = q.row_terms[row:row + n_h]
-        row += n_h
-        c = np.zeros((n_h, n_v))
-        for n in range(n_h):
-            t_n = terms[n]
-            for j in range(n_g):
-                x = hr[n, j] * ar[j] - hi[n, j] * ai[j]      # Re(horizontal X)
-                for m in range(t_n):
-                    c[n, m] += x * vert[j, m]
-        _along(wx, wy, q.direction[g, 0], q.direction[g, 1], 1.0 / q.radius, True, u)
-        chebyshev_sum2(u, vz, c, terms, out)
+def box_sum(b, x_re, x_im, wx, wy, zs, out):
+    """out += the pressure per unit rho g of the components of ``b`` (a BoxTable: server/
+    box_expansion.py) at points with horizontal offsets ``wx``, ``wy`` from the reference point
+    and stretched heights ``zs`` in [floor, 0]: per heading, the points sorted by box (a counting
+    sort), the occupied boxes' coefficients B_n = sum_c m_cn (P_c + (-1)^n conj Q_c) by four matrix
+    products, Horner's scheme in zeta = ((z - z_b) + i (s - s_b)) / rho at each point."""
+    p_n = zs.size
+    box = np.empty(p_n, np.int64)
+    zr, zi = np.empty(_BLOCK), np.empty(_BLOCK)
+    br, bi = np.empty(_BLOCK), np.empty(_BLOCK)
+    for g in range(b.direction.shape[0]):
+        cols = b.columns[b.start[g]:b.start[g + 1]]
+        n_g, n_s, n_z, n_o = cols.size, b.grid[g, 0], b.grid[g, 1], b.orders[g]
+        n_box = n_s * n_z
+        side_s, side_z = 2.0 * b.radius / n_s, -b.floor / n_z
+        rho = 0.5 * math.sqrt(side_s * side_s + side_z * side_z)
+        dx, dy = b.direction[g, 0], b.direction[g, 1]
+        first = np.zeros(n_box + 1, np.int64)
+        for p in range(p_n):
+            i = min(max(int((wx[p] * dx + wy[p] * dy + b.radius) / side_s), 0), n_s - 1)
+            j = min(max(int((zs[p] - b.floor) / side_z), 0), n_z - 1)
+            box[p] = i * n_z + j
+            first[box[p] + 1] += 1
+        occupied = np.empty(n_box, np.int64)
+        n_occ = 0
+        for q in range(n_box):
+            if first[q + 1] > 0:
+                occupied[n_occ] = q
+                n_occ += 1
+            first[q + 1] += first[q]
+        order, fill = np.empty(p_n, np.int64), first[:n_box].copy()
+        for p in range(p_n):
+            order[fill[box[p]]] = p
+            fill[box[p]] += 1
+        xr, xi = np.empty(n_g), np.empty(n_g)
+        _gather(cols, x_re, x_im, xr, xi)
+        f0, n_e = b.factor_start[g], (n_o + 1) // 2
+        pr = b.factor_re[f0:f0 + n_box * n_g].reshape((n_box, n_g))
+        pi = b.factor_im[f0:f0 + n_box * n_g].reshape((n_box, n_g))
+        er, ei = np.empty((n_occ, n_g)), np.empty((n_occ, n_g))     # P + conj Q (even orders)
+        or_, oi = np.empty((n_occ, n_g)), np.empty((n_occ, n_g))    # P - conj Q (odd orders)
+        qr = b.mirror_re[f0:f0 + n_box * n_g].reshape((n_box, n_g))
+        qi = b.mirror_im[f0:f0 + n_box * n_g].reshape((n_box, n_g))
+        mirror = b.mirror[g] != 0
+        for o in range(n_occ):
+            q = occupied[o]
+            for c in range(n_g):
+                ar = xr[c] * pr[q, c] - xi[c] * pi[q, c]
+                ai = xr[c] * pi[q, c] + xi[c] * pr[q, c]
+                cr, ci = 0.0, 0.0
+                if mirror:
+                    cr = xr[c] * qr[q, c] - xi[c] * qi[q, c]
+                    ci = -(xr[c] * qi[q, c] + xi[c] * qr[q, c])
+                er[o, c], ei[o, c] = ar + cr, ai + ci
+                or_[o, c], oi[o, c] = ar - cr, ai - ci
+        w0 = b.weight_start[g]
+        even = b.weights[w0:w0 + n_g * n_e].reshape((n_g, n_e))
+        odd = b.weights[w0 + n_g * n_e:w0 + n_g * n_o].reshape((n_g, n_o - n_e))
+        cer, cei, cor, coi = er @ even, ei @ even, or_ @ odd, oi @ odd
+        for o in range(n_occ):
+            q = occupied[o]
+            s_b = -b.radius + (q // n_z + 0.5) * side_s
+            z_b = b.floor + (q % n_z + 0.5) * side_z
+            for st in range(first[q], first[q + 1], _BLOCK):
+                m = min(_BLOCK, first[q + 1] - st)
+                top = n_o - 1
+                hr, hi = (cer[o, top // 2], cei[o, top // 2]) if top % 2 == 0 else (cor[o, top // 2], coi[o, top // 2])
+                for t in range(m):
+                    p = order[st + t]
+                    zr[t] = (zs[p] - z_b) / rho
+                    zi[t] = (wx[p] * dx + wy[p] * dy - s_b) / rho
+                    br[t], bi[t] = hr, hi
+                for n in range(n_o - 2, -1, -1):
+                    cr, ci = (cer[o, n // 2], cei[o, n // 2]) if n % 2 == 0 else (cor[o, n // 2], coi[o, n // 2])
+                    for t in range(m):
+                        ur, ui = br[t], bi[t]
+                        br[t] = ur * zr[t] - ui * zi[t] + cr
+                        bi[t] = ur * zi[t] + ui * zr[t] + ci
+                for t in range(m):
+                    out[order[st + t]] += br[t]
 
 
 @_jit
-def hull_pressure(local, rot, pos, x_re, x_im, k, depth, elevation, recurrences, long, direct, direct_dir, z, d, p):
+def hull_pressure(local, rot, pos, x_re, x_im, k, depth, elevation, recurrences, boxes, direct, direct_dir, z, d, p):
     """One body's incident wave for one step (incident_kernels.HullPass): the vertices' global
     heights ``z``, signed heights above the free surface ``d`` and the Froude–Krylov pressure per
     unit rho g at the wet ones ``p`` (V,), for the hull's vertices ``local`` (V, 3) in the pose
@@ -317,7 +333,7 @@ def hull_pressure(local, rot, pos, x_re, x_im, k, depth, elevation, recurrences,
         _gather(cols, x_re, x_im, ar, ai)
         _along(wx, wy, r.direction[g, 0], r.direction[g, 1], 1.0, False, xi)
         deep_pressure(xi, zs, ar, ai, r.k0[g], r.dk[g], r.d2[g], out)
-    long_sum(long, x_re, x_im, wx, wy, zs, xi, out)
+    box_sum(boxes, x_re, x_im, wx, wy, zs, out)
     for j in range(direct.size):            # the rest: one cosine and depth factor per point and component
         c = direct[j]
         kc = k[c]
@@ -334,7 +350,7 @@ def hull_pressure(local, rot, pos, x_re, x_im, k, depth, elevation, recurrences,
 
 @_jit
 def hull_loads(local, tris, loads, vertex_loads, pose, omega, amp_re, amp_im, t, ramp, k, heading, depth, elevation,
-               recurrences, long, direct, direct_dir, fk_re, fk_im, rot, z, d, p, out):
+               recurrences, boxes, direct, direct_dir, fk_re, fk_im, rot, z, d, p, out):
     """One Froude–Krylov body's step (incident_kernels.HullPass): the rotation ``rot`` of the
     pose's angles, the components' phasors, the pressure at the vertices (:func:`hull_pressure`)
     and its integral over the wet part of the hull; ``out`` (3, 6): the hydrostatic and
@@ -358,7 +374,7 @@ def hull_loads(local, tris, loads, vertex_loads, pose, omega, amp_re, amp_im, t,
         theta = k[c] * (pose[0] * heading[c, 0] + pose[1] * heading[c, 1]) - omega[c] * t
         tr, ti = ramp * math.cos(theta), ramp * math.sin(theta)                      # at the reference point
         x_re[c], x_im[c] = amp_re[c] * tr - amp_im[c] * ti, amp_re[c] * ti + amp_im[c] * tr
-    if not hull_pressure(local, rot, pose, x_re, x_im, k, depth, elevation, recurrences, long, direct,
+    if not hull_pressure(local, rot, pose, x_re, x_im, k, depth, elevation, recurrences, boxes, direct,
                          direct_dir, z, d, p):
         return False
     cut_hull_loads(local, tris, d, z, p, loads, vertex_loads, out[:2])
