@@ -23,12 +23,12 @@ components is one series in zeta:
     P_c = X_c D_c e^{k_c w_b},   Q_c = X_c D_c e^{-2 k_c h} e^{k_c w'_b}.
 
 The factors of X_c are fixed (tabulated here per box); per step the occupied boxes' B by four
-real matrix products and Horner's scheme at each point. N is the least order whose remainder
-bound, sum_c a_c D_c (e^{k_c z_top} + e^{-k_c (2h + z_low)}) (k_c rho)^N / N! e^{k_c rho} (z_top,
-z_low the highest and lowest boxes' centres), is at most 2^-53 of the sea's amplitude sum: exact
-to round-off, like the recurrences and direct sums it stands for, in any depth, for any k. Its
-cost, boxes x components x N + points x N, is low while k rho is: :func:`layout` picks the box size
-that makes it least for a hull's points.
+real matrix products and Horner's scheme at each point. In a row of boxes of centre height z_b, N
+is the least order whose remainder bound, sum_c a_c D_c (e^{k_c z_b} + e^{-k_c (2h + z_b)})
+(k_c rho)^N / N! e^{k_c rho}, is at most 2^-53 of the sea's amplitude sum (deeper rows need fewer:
+their short waves are weaker): exact to round-off, like the recurrences and direct sums it stands
+for, in any depth, for any k. Its cost, boxes x components x N + points x N, is low while k rho
+is: :func:`layout` picks the box size that makes it least for a hull's points.
 """
 
 from __future__ import annotations
@@ -55,12 +55,13 @@ _POINT = 10.0             # a point's box and place in the sort
 @dataclass(frozen=True)
 class BoxGroup:
     """One heading's components summed by boxes: the (s, z) region [-radius, radius] x [floor, 0]
-    cut into ``n_s`` x ``n_z`` equal boxes, ``orders`` terms of the series in each."""
+    cut into ``n_s`` x ``n_z`` equal boxes, ``row_orders`` terms of the series in each row of boxes
+    (from the floor up: the deeper rows need fewer, their short waves being weaker)."""
     columns: np.ndarray     # (n_g,) component indices
     direction: np.ndarray   # (2,) cos b, sin b
     n_s: int
     n_z: int
-    orders: int
+    row_orders: np.ndarray  # (n_z,) int64
 
 
 def _orders(k: np.ndarray, weight: np.ndarray, rho: float, tol: float) -> int:
@@ -70,12 +71,11 @@ def _orders(k: np.ndarray, weight: np.ndarray, rho: float, tol: float) -> int:
     keep = (weight > 0.0) & (x > 0.0)
     if not keep.any():
         return 1
-    x, lw = x[keep], np.log(weight[keep]) + x[keep]
-    lx = np.log(x)
-    for n in range(1, _MAX_ORDERS + 1):
-        if np.exp(lw + n * lx - gammaln(n + 1.0)).sum() <= tol:
-            return n
-    return _MAX_ORDERS + 1
+    n = np.arange(1, _MAX_ORDERS + 1)
+    lw = np.log(weight[keep]) + x[keep]
+    bound = np.exp(lw[:, None] + np.outer(np.log(x[keep]), n) - gammaln(n + 1.0)[None, :]).sum(axis=0)
+    fits = np.flatnonzero(bound <= tol)
+    return int(n[fits[0]]) if len(fits) else _MAX_ORDERS + 1
 
 
 def _grid(n_s: int, radius: float, floor: float) -> tuple[int, float, float, float]:
@@ -86,50 +86,60 @@ def _grid(n_s: int, radius: float, floor: float) -> tuple[int, float, float, flo
     return n_z, side_s, side_z, 0.5 * math.hypot(side_s, side_z)
 
 
-def _weights(k: np.ndarray, amplitude: np.ndarray, depth: float, z_top: float, z_low: float) -> np.ndarray:
-    """Each component's a_c D_c (e^{k z_top} + e^{-k (2h + z_low)}): the bound of its P and Q."""
-    if math.isinf(depth):
-        return amplitude * np.exp(k * z_top)
-    d = 1.0 / (1.0 + np.exp(-2.0 * k * depth))
-    return amplitude * d * (np.exp(k * z_top) + np.exp(-k * (2.0 * depth + z_low)))
+def row_orders(k: np.ndarray, amplitude: np.ndarray, depth: float, n_s: int, radius: float, floor: float,
+               total: float) -> np.ndarray:
+    """(n_z,) each row's orders: the least N whose remainder bound, sum_c a_c D_c (e^{k_c z_b} +
+    e^{-k_c (2h + z_b)}) (k_c rho)^N / N! e^{k_c rho} (z_b the row's centre), is at most 2^-53 of
+    the sea's amplitude sum ``total`` (more than _MAX_ORDERS: not feasible)."""
+    n_z, _, side_z, rho = _grid(n_s, radius, floor)
+    d = np.ones_like(k) if math.isinf(depth) else 1.0 / (1.0 + np.exp(-2.0 * k * depth))
+    out = np.empty(n_z, np.int64)
+    for j in range(n_z):
+        z_b = floor + (j + 0.5) * side_z
+        weight = amplitude * d * (np.exp(k * z_b) + (0.0 if math.isinf(depth) else np.exp(-k * (2.0 * depth + z_b))))
+        out[j] = _orders(k, weight, rho, _ROUND * total)
+    return out
 
 
 def layout(k: np.ndarray, amplitude: np.ndarray, depth: float, radius: float, floor: float, points: np.ndarray,
-           total: float) -> tuple[int, int, int, float]:
-    """(n_s, n_z, orders, cost [ns]) of the least costly box grid for components of wave numbers
+           total: float) -> tuple[int, np.ndarray, float]:
+    """(n_s, row orders, cost [ns]) of the least costly box grid for components of wave numbers
     ``k`` and amplitudes ``amplitude`` at ``points`` (P, 2), their (s, z) (the hull at rest, to
-    count the occupied boxes, a third more for its motion); ``total`` the sea's amplitude sum."""
-    best = (1, 1, _MAX_ORDERS + 1, math.inf)
-    for n_s in range(1, 41):
-        n_z, side_s, side_z, rho = _grid(n_s, radius, floor)
-        n_o = _orders(k, _weights(k, amplitude, depth, floor + (n_z - 0.5) * side_z, floor + 0.5 * side_z), rho,
-                      _ROUND * total)
-        if n_o > _MAX_ORDERS:
-            continue
+    count the occupied boxes, a third more for its motion); ``total`` the sea's amplitude sum.
+    The cost is infinite where no grid is feasible."""
+    best = (1, np.zeros(0, np.int64), math.inf)
+    for n_s in (1, 2, 3, 4, 5, 6, 7, 8, 10, 12, 14, 17, 20, 24, 28, 34, 40):
+        n_z, side_s, side_z, _ = _grid(n_s, radius, floor)
+        rows = row_orders(k, amplitude, depth, n_s, radius, floor, total)
         i = np.clip(((points[:, 0] + radius) / side_s).astype(int), 0, n_s - 1)
         j = np.clip(((points[:, 1] - floor) / side_z).astype(int), 0, n_z - 1)
-        boxes = 1.33 * len(np.unique(i * n_z + j))
-        cost = boxes * len(k) * (_BOX_COMPONENT + _BOX_PRODUCT * n_o) + len(points) * (_POINT + _POINT_ORDER * n_o)
-        if cost < best[3]:
-            best = (n_s, n_z, n_o, cost)
+        if rows.max() > _MAX_ORDERS:
+            continue
+        occupied = np.unique(j * n_s + i) // n_s           # the occupied boxes' rows
+        cost = 1.33 * len(k) * (_BOX_COMPONENT * len(occupied) + _BOX_PRODUCT * rows[occupied].sum()) \
+            + _POINT * len(points) + _POINT_ORDER * rows[j].sum()
+        if cost < best[2]:
+            best = (n_s, rows, cost)
     return best
 
 
 def box_table(groups: list[BoxGroup], k: np.ndarray, depth: float, radius: float, floor: float) -> BoxTable:
     """The groups as the compiled pass's flat table (``k`` of all the components)."""
-    weights, factors, mirrors, flags = [], [], [], []
+    weights, factors, mirrors, flags, rows = [], [], [], [], []
     for g in groups:
         n_z, side_s, side_z, rho = _grid(g.n_s, radius, floor)
         kg = k[g.columns]
-        n = np.arange(g.orders)
+        row = np.asarray(g.row_orders, np.int64)
+        n = np.arange(int(row.max()))
         with np.errstate(divide="ignore", under="ignore"):
             m = np.exp(n[None, :] * np.log(kg[:, None] * rho) - gammaln(n + 1.0)[None, :])     # (n_g, N)
         m[:, 0] = 1.0
         m[m < 1e-200] = 0.0      # no subnormal numbers in the products (each far below round-off)
-        weights.append(np.concatenate([m[:, 0::2].ravel(), m[:, 1::2].ravel()]))
+        weights.append(np.concatenate([m[:, 0::2].T.ravel(), m[:, 1::2].T.ravel()]))
+        rows.append(row)
         s_b = -radius + (np.arange(g.n_s) + 0.5) * side_s
         z_b = floor + (np.arange(n_z) + 0.5) * side_z
-        s_box, z_box = np.repeat(s_b, n_z), np.tile(z_b, g.n_s)          # box q = i n_z + j
+        s_box, z_box = np.tile(s_b, n_z), np.repeat(z_b, g.n_s)          # box q = j n_s + i
         d = np.ones_like(kg) if math.isinf(depth) else 1.0 / (1.0 + np.exp(-2.0 * kg * depth))
         turn = np.exp(1j * np.outer(s_box, kg))
         factors.append(d * np.exp(np.outer(z_box, kg)) * turn)
@@ -138,12 +148,13 @@ def box_table(groups: list[BoxGroup], k: np.ndarray, depth: float, radius: float
         flags.append(int(mirror))
     w, w_start = flatten(weights)
     f_re, f_start = flatten([f.real for f in factors])
+    row_flat, row_start = flatten(rows, np.int64)
     return BoxTable(
         direction=np.array([g.direction for g in groups], float).reshape(-1, 2),
         start=np.cumsum([0] + [len(g.columns) for g in groups]).astype(np.int64),
         columns=flatten([g.columns for g in groups], np.int64)[0],
         grid=np.array([[g.n_s, _grid(g.n_s, radius, floor)[0]] for g in groups], np.int64).reshape(-1, 2),
-        orders=np.array([g.orders for g in groups], np.int64), weights=w, weight_start=w_start,
-        factor_re=f_re, factor_im=flatten([f.imag for f in factors])[0], mirror_re=flatten([q.real for q in mirrors])[0],
-        mirror_im=flatten([q.imag for q in mirrors])[0], factor_start=f_start, mirror=np.array(flags, np.int64),
-        radius=float(radius), floor=float(floor))
+        orders=np.array([int(r.max()) for r in rows], np.int64), row_orders=row_flat, row_start=row_start,
+        weights=w, weight_start=w_start, factor_re=f_re, factor_im=flatten([f.imag for f in factors])[0],
+        mirror_re=flatten([q.real for q in mirrors])[0], mirror_im=flatten([q.imag for q in mirrors])[0],
+        factor_start=f_start, mirror=np.array(flags, np.int64), radius=float(radius), floor=float(floor))

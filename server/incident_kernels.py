@@ -84,13 +84,16 @@ class RecurrenceTable(NamedTuple):
 class BoxTable(NamedTuple):
     """The pressure of the components summed by boxes (server/box_expansion.py) for
     :class:`HullPass`, per heading g (of B): the (s, z) region [-radius, radius] x [floor, 0] cut
-    into n_s x n_z boxes (box q = i n_z + j, i along the heading), N orders of the series in each."""
+    into n_s x n_z boxes (box q = j n_s + i: row j from the floor up, column i along the heading),
+    up to N orders of the series in each, N_j in row j."""
     direction: np.ndarray      # (B, 2)
     start: np.ndarray          # (B + 1,) int64 into columns
     columns: np.ndarray        # int64
     grid: np.ndarray           # (B, 2) int64: n_s, n_z
-    orders: np.ndarray         # (B,) int64: N
-    weights: np.ndarray        # from weight_start[g]: (n_g, ceil(N/2)) m_cn of the even orders, then (n_g, floor(N/2)) odd
+    orders: np.ndarray         # (B,) int64: N, the most of any row
+    row_orders: np.ndarray     # from row_start[g]: (n_z,) int64 N_j
+    row_start: np.ndarray      # (B,) int64
+    weights: np.ndarray        # from weight_start[g]: (ceil(N/2), n_g) m_cn of the even orders, then (floor(N/2), n_g) odd
     weight_start: np.ndarray   # (B,) int64
     factor_re: np.ndarray      # from factor_start[g]: (n_s n_z, n_g) D_c e^{k_c w_b} of each box
     factor_im: np.ndarray
@@ -209,8 +212,8 @@ def warm_up() -> None:
     none, count, heads, start = np.zeros(0), np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros(1, np.int64)
     elevation = ElevationTable(heads, start, count, count, count, np.zeros(0), count, none, none, count, 1.0)
     recurrences = RecurrenceTable(heads, start, count, none, none, none, -1.0)
-    boxes = BoxTable(heads, start, count, np.zeros((0, 2), np.int64), count, none, count, none, none, none, none, count,
-                     count, 1.0, -1.0)
+    boxes = BoxTable(heads, start, count, np.zeros((0, 2), np.int64), count, count, count, none, count, none, none, none,
+                     none, count, count, 1.0, -1.0)
     tables = HullTables(elevation, recurrences, boxes, count, heads, np.ones((1, 2)))
     local = np.array([[0.0, 0.0, -1.0], [1.0, 0.0, 1.0], [0.0, 1.0, 1.0]])
     step = HullPass(local, np.array([[0, 1, 2]]), np.zeros((1, 3, 6)), np.zeros((3, 6)), np.ones(1),

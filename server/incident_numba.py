@@ -205,8 +205,9 @@ def box_sum(b, x_re, x_im, wx, wy, zs, out):
     """out += the pressure per unit rho g of the components of ``b`` (a BoxTable: server/
     box_expansion.py) at points with horizontal offsets ``wx``, ``wy`` from the reference point
     and stretched heights ``zs`` in [floor, 0]: per heading, the points sorted by box (a counting
-    sort), the occupied boxes' coefficients B_n = sum_c m_cn (P_c + (-1)^n conj Q_c) by four matrix
-    products, Horner's scheme in zeta = ((z - z_b) + i (s - s_b)) / rho at each point."""
+    sort); per row of boxes, its occupied boxes' coefficients B_n = sum_c m_cn (P_c + (-1)^n conj Q_c)
+    to the row's order by four matrix products; Horner's scheme in zeta = ((z - z_b) + i (s - s_b))
+    / rho at each point."""
     p_n = zs.size
     box = np.empty(p_n, np.int64)
     zr, zi = np.empty(_BLOCK), np.empty(_BLOCK)
@@ -218,18 +219,13 @@ def box_sum(b, x_re, x_im, wx, wy, zs, out):
         side_s, side_z = 2.0 * b.radius / n_s, -b.floor / n_z
         rho = 0.5 * math.sqrt(side_s * side_s + side_z * side_z)
         dx, dy = b.direction[g, 0], b.direction[g, 1]
-        first = np.zeros(n_box + 1, np.int64)
+        first = np.zeros(n_box + 1, np.int64)      # box q = j n_s + i: row j (from the floor up), column i
         for p in range(p_n):
             i = min(max(int((wx[p] * dx + wy[p] * dy + b.radius) / side_s), 0), n_s - 1)
             j = min(max(int((zs[p] - b.floor) / side_z), 0), n_z - 1)
-            box[p] = i * n_z + j
+            box[p] = j * n_s + i
             first[box[p] + 1] += 1
-        occupied = np.empty(n_box, np.int64)
-        n_occ = 0
         for q in range(n_box):
-            if first[q + 1] > 0:
-                occupied[n_occ] = q
-                n_occ += 1
             first[q + 1] += first[q]
         order, fill = np.empty(p_n, np.int64), first[:n_box].copy()
         for p in range(p_n):
@@ -237,50 +233,61 @@ def box_sum(b, x_re, x_im, wx, wy, zs, out):
             fill[box[p]] += 1
         xr, xi = np.empty(n_g), np.empty(n_g)
         _gather(cols, x_re, x_im, xr, xi)
-        f0, n_e = b.factor_start[g], (n_o + 1) // 2
+        f0, w0, n_e = b.factor_start[g], b.weight_start[g], (n_o + 1) // 2
         pr = b.factor_re[f0:f0 + n_box * n_g].reshape((n_box, n_g))
         pi = b.factor_im[f0:f0 + n_box * n_g].reshape((n_box, n_g))
-        er, ei = np.empty((n_occ, n_g)), np.empty((n_occ, n_g))     # P + conj Q (even orders)
-        or_, oi = np.empty((n_occ, n_g)), np.empty((n_occ, n_g))    # P - conj Q (odd orders)
         qr = b.mirror_re[f0:f0 + n_box * n_g].reshape((n_box, n_g))
         qi = b.mirror_im[f0:f0 + n_box * n_g].reshape((n_box, n_g))
         mirror = b.mirror[g] != 0
-        for o in range(n_occ):
-            q = occupied[o]
-            for c in range(n_g):
-                ar = xr[c] * pr[q, c] - xi[c] * pi[q, c]
-                ai = xr[c] * pi[q, c] + xi[c] * pr[q, c]
-                cr, ci = 0.0, 0.0
-                if mirror:
-                    cr = xr[c] * qr[q, c] - xi[c] * qi[q, c]
-                    ci = -(xr[c] * qi[q, c] + xi[c] * qr[q, c])
-                er[o, c], ei[o, c] = ar + cr, ai + ci
-                or_[o, c], oi[o, c] = ar - cr, ai - ci
-        w0 = b.weight_start[g]
-        even = b.weights[w0:w0 + n_g * n_e].reshape((n_g, n_e))
-        odd = b.weights[w0 + n_g * n_e:w0 + n_g * n_o].reshape((n_g, n_o - n_e))
-        cer, cei, cor, coi = er @ even, ei @ even, or_ @ odd, oi @ odd
-        for o in range(n_occ):
-            q = occupied[o]
-            s_b = -b.radius + (q // n_z + 0.5) * side_s
-            z_b = b.floor + (q % n_z + 0.5) * side_z
-            for st in range(first[q], first[q + 1], _BLOCK):
-                m = min(_BLOCK, first[q + 1] - st)
-                top = n_o - 1
-                hr, hi = (cer[o, top // 2], cei[o, top // 2]) if top % 2 == 0 else (cor[o, top // 2], coi[o, top // 2])
-                for t in range(m):
-                    p = order[st + t]
-                    zr[t] = (zs[p] - z_b) / rho
-                    zi[t] = (wx[p] * dx + wy[p] * dy - s_b) / rho
-                    br[t], bi[t] = hr, hi
-                for n in range(n_o - 2, -1, -1):
-                    cr, ci = (cer[o, n // 2], cei[o, n // 2]) if n % 2 == 0 else (cor[o, n // 2], coi[o, n // 2])
+        even = b.weights[w0:w0 + n_e * n_g].reshape((n_e, n_g))
+        odd = b.weights[w0 + n_e * n_g:w0 + n_o * n_g].reshape((n_o - n_e, n_g))
+        ys = np.empty((4, n_g, n_s))        # per component and box of the row: Re, Im of P + conj Q, of P - conj Q
+        for j in range(n_z):
+            n_j = b.row_orders[b.row_start[g] + j]
+            occ = np.empty(n_s, np.int64)
+            n_occ = 0
+            for i in range(n_s):
+                if first[j * n_s + i + 1] > first[j * n_s + i]:
+                    occ[n_occ] = j * n_s + i
+                    n_occ += 1
+            if n_occ == 0:
+                continue
+            for o in range(n_occ):
+                q = occ[o]
+                for c in range(n_g):
+                    ar = xr[c] * pr[q, c] - xi[c] * pi[q, c]
+                    ai = xr[c] * pi[q, c] + xi[c] * pr[q, c]
+                    cr, ci = 0.0, 0.0
+                    if mirror:
+                        cr = xr[c] * qr[q, c] - xi[c] * qi[q, c]
+                        ci = -(xr[c] * qi[q, c] + xi[c] * qr[q, c])
+                    ys[0, c, o], ys[1, c, o] = ar + cr, ai + ci
+                    ys[2, c, o], ys[3, c, o] = ar - cr, ai - ci
+            y = np.ascontiguousarray(ys[:, :, :n_occ])
+            m_e, m_o = (n_j + 1) // 2, n_j // 2
+            cer, cei = even[:m_e] @ y[0], even[:m_e] @ y[1]      # (orders, boxes)
+            cor, coi = odd[:m_o] @ y[2], odd[:m_o] @ y[3]
+            z_b = b.floor + (j + 0.5) * side_z
+            for o in range(n_occ):
+                q = occ[o]
+                s_b = -b.radius + (q - j * n_s + 0.5) * side_s
+                for st in range(first[q], first[q + 1], _BLOCK):
+                    m = min(_BLOCK, first[q + 1] - st)
+                    top = n_j - 1
+                    hr, hi = (cer[top // 2, o], cei[top // 2, o]) if top % 2 == 0 else (cor[top // 2, o], coi[top // 2, o])
                     for t in range(m):
-                        ur, ui = br[t], bi[t]
-                        br[t] = ur * zr[t] - ui * zi[t] + cr
-                        bi[t] = ur * zi[t] + ui * zr[t] + ci
-                for t in range(m):
-                    out[order[st + t]] += br[t]
+                        p = order[st + t]
+                        zr[t] = (zs[p] - z_b) / rho
+                        zi[t] = (wx[p] * dx + wy[p] * dy - s_b) / rho
+                        br[t], bi[t] = hr, hi
+                    for n in range(n_j - 2, -1, -1):
+                        cr, ci = (cer[n // 2, o], cei[n // 2, o]) if n % 2 == 0 else (cor[n // 2, o], coi[n // 2, o])
+                        for t in range(m):
+                            ur, ui = br[t], bi[t]
+                            br[t] = ur * zr[t] - ui * zi[t] + cr
+                            bi[t] = ur * zi[t] + ui * zr[t] + ci
+                    for t in range(m):
+                        out[order[st + t]] += br[t]
 
 
 @_jit

@@ -154,10 +154,10 @@ def _split_components(omega: np.ndarray, k: np.ndarray, heading: np.ndarray, amp
             boxed = np.concatenate([forced] + [r[k[r] <= cut] for r in runs] + [r for r in kept if len(r) < 3])
             if not len(boxed):
                 continue
-            n_s, n_z, n_o, cost = layout(k[boxed], amplitude[boxed], depth, radius, floor, sz, total)
+            n_s, rows, cost = layout(k[boxed], amplitude[boxed], depth, radius, floor, sz, total)
             cost += n_p * sum(len(r) for r in kept if len(r) >= 3) * _RECURRENCE_PAIR
             if cost < best[0]:
-                best = (cost, (n_s, n_z, n_o), cut)
+                best = (cost, (n_s, rows), cut)
         cost, grid, cut = best
         for r in runs:
             kept = r[k[r] > cut]
@@ -168,7 +168,7 @@ def _split_components(omega: np.ndarray, k: np.ndarray, heading: np.ndarray, amp
             continue
         boxed = np.concatenate([forced] + [r[k[r] <= cut] for r in runs] + [r[k[r] > cut] for r in runs
                                                                              if np.count_nonzero(k[r] > cut) < 3])
-        boxes.append(BoxGroup(np.sort(boxed), direction, grid[0], grid[1], grid[2]))
+        boxes.append(BoxGroup(np.sort(boxed), direction, grid[0], len(grid[1]), grid[1]))
     direct = np.sort(np.concatenate(direct)) if direct else np.zeros(0, np.int64)
     return _PressureSplit(tuple(recurrences), tuple(boxes), direct.astype(np.int64), floor)
 

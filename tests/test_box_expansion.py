@@ -31,11 +31,11 @@ def _direct(k, heading, amp, psi, reference, offsets, z, depth) -> np.ndarray:
     return (factor * np.cos(theta)) @ amp
 
 
-@pytest.mark.parametrize("depth, w_max, n_s", [(math.inf, 3.0, None), (200.0, 2.0, 1), (30.0, 3.0, None),
+@pytest.mark.parametrize("depth, w_max, columns", [(math.inf, 3.0, None), (200.0, 2.0, 1), (30.0, 3.0, None),
                                                (30.0, 3.0, 7), (8.0, 4.0, None)])
-def test_box_series_is_the_direct_sum(depth, w_max, n_s):
+def test_box_series_is_the_direct_sum(depth, w_max, columns):
     """Points over a 5 m radius and down to 10 m (the seabed at 8 m: to it), the grid by
-    :func:`layout` for those points (or ``n_s`` columns), against the direct sums at 1e-12 of the
+    :func:`layout` for those points (or ``columns`` columns), against the direct sums at 1e-12 of the
     amplitude sum; every point in a box of its own heading's grid."""
     rng = np.random.default_rng(8)
     k, heading, amp, psi = _sea(depth, w_max, rng)
@@ -49,15 +49,12 @@ def test_box_series_is_the_direct_sum(depth, w_max, n_s):
         cols = np.flatnonzero(heading == b)
         direction = np.array([np.cos(b), np.sin(b)])
         sz = np.column_stack([offsets @ direction, z])
-        grid = layout(k[cols], amp[cols], depth, radius, floor, sz, float(amp.sum()))
-        if n_s is not None:
-            n_z = box_expansion._grid(n_s, radius, floor)[0]
-            grid = (n_s, n_z, box_expansion._orders(
-                k[cols], box_expansion._weights(k[cols], amp[cols], depth, floor + (n_z - 0.5) * (-floor / n_z),
-                                                floor + 0.5 * (-floor / n_z)),
-                box_expansion._grid(n_s, radius, floor)[3], 2.0 ** -53 * float(amp.sum())), 0.0)
-        assert grid[2] <= box_expansion._MAX_ORDERS
-        groups.append(BoxGroup(cols, direction, grid[0], grid[1], grid[2]))
+        n_s, rows, cost = layout(k[cols], amp[cols], depth, radius, floor, sz, float(amp.sum()))
+        if columns is not None:
+            n_s, rows = columns, box_expansion.row_orders(k[cols], amp[cols], depth, columns, radius, floor,
+                                                          float(amp.sum()))
+        assert rows.max() <= box_expansion._MAX_ORDERS and cost < math.inf
+        groups.append(BoxGroup(cols, direction, n_s, len(rows), rows))
     table = box_table(groups, k, depth, radius, floor)
     assert bool(table.mirror.any()) == (not math.isinf(depth))        # the long waves feel the seabed
     reference = np.array([40.0, -7.0])
