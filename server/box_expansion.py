@@ -64,20 +64,6 @@ class BoxGroup:
     row_orders: np.ndarray  # (n_z,) int64
 
 
-def _orders(k: np.ndarray, weight: np.ndarray, rho: float, tol: float) -> int:
-    """The least N <= _MAX_ORDERS with sum_c weight_c (k_c rho)^N / N! e^{k_c rho} <= tol (else
-    _MAX_ORDERS + 1)."""
-    x = k * rho
-    keep = (weight > 0.0) & (x > 0.0)
-    if not keep.any():
-        return 1
-    n = np.arange(1, _MAX_ORDERS + 1)
-    lw = np.log(weight[keep]) + x[keep]
-    bound = np.exp(lw[:, None] + np.outer(np.log(x[keep]), n) - gammaln(n + 1.0)[None, :]).sum(axis=0)
-    fits = np.flatnonzero(bound <= tol)
-    return int(n[fits[0]]) if len(fits) else _MAX_ORDERS + 1
-
-
 def _grid(n_s: int, radius: float, floor: float) -> tuple[int, float, float, float]:
     """(n_z, side_s, side_z, rho) of near-square boxes with ``n_s`` columns over [-radius, radius]."""
     side_s = 2.0 * radius / n_s
@@ -90,15 +76,19 @@ def row_orders(k: np.ndarray, amplitude: np.ndarray, depth: float, n_s: int, rad
                total: float) -> np.ndarray:
     """(n_z,) each row's orders: the least N whose remainder bound, sum_c a_c D_c (e^{k_c z_b} +
     e^{-k_c (2h + z_b)}) (k_c rho)^N / N! e^{k_c rho} (z_b the row's centre), is at most 2^-53 of
-    the sea's amplitude sum ``total`` (more than _MAX_ORDERS: not feasible)."""
+    the sea's amplitude sum ``total`` (more than _MAX_ORDERS where none up to it is)."""
     n_z, _, side_z, rho = _grid(n_s, radius, floor)
+    z_b = floor + (np.arange(n_z) + 0.5) * side_z
     d = np.ones_like(k) if math.isinf(depth) else 1.0 / (1.0 + np.exp(-2.0 * k * depth))
-    out = np.empty(n_z, np.int64)
-    for j in range(n_z):
-        z_b = floor + (j + 0.5) * side_z
-        weight = amplitude * d * (np.exp(k * z_b) + (0.0 if math.isinf(depth) else np.exp(-k * (2.0 * depth + z_b))))
-        out[j] = _orders(k, weight, rho, _ROUND * total)
-    return out
+    weight = amplitude * d * np.exp(np.outer(z_b, k))                    # (n_z, n_c)
+    if not math.isinf(depth):
+        weight += amplitude * d * np.exp(-np.outer(2.0 * depth + z_b, k))
+    x = np.maximum(k * rho, 1e-300)
+    n = np.arange(1, _MAX_ORDERS + 1)
+    with np.errstate(under="ignore"):      # (n_c, N), held below overflow (a bound that large fails anyway)
+        tail = np.exp(np.minimum(np.outer(np.log(x), n) - gammaln(n + 1.0)[None, :] + x[:, None], 700.0))
+    fits = weight @ tail <= _ROUND * total
+    return np.where(fits.any(axis=1), n[np.argmax(fits, axis=1)], _MAX_ORDERS + 1).astype(np.int64)
 
 
 def layout(k: np.ndarray, amplitude: np.ndarray, depth: float, radius: float, floor: float, points: np.ndarray,

@@ -64,16 +64,18 @@ def test_box_series_is_the_direct_sum(depth, w_max, columns):
                                atol=1e-12 * amp.sum())
 
 
-def test_orders_bound_the_remainder():
-    """The order chosen is the least whose stated remainder bound is below the tolerance, and the
-    series cut one order earlier is off by more than the round-off at some point (the bound is
-    not loose by orders of magnitude)."""
+def test_row_orders_are_the_least_within_the_stated_bound():
+    """One row (a 2 m x 2 m box about z_b = -1 m, rho = sqrt 2 m), deep water: the order chosen is
+    the least whose remainder bound sum_c a_c e^{k z_b} (k rho)^N / N! e^{k rho} is below 2^-53 of
+    the amplitude sum, and the series cut a few orders earlier is off by more than round-off at the
+    box's corners (the bound is not loose by many orders of magnitude)."""
     k, amp = np.array([0.5, 1.0, 2.0]), np.array([1.0, 0.5, 0.1])
-    rho, tol = 1.5, 2.0 ** -53 * amp.sum()
-    n = box_expansion._orders(k, amp, rho, tol)
-    bound = lambda m: float(np.sum(amp * (k * rho) ** m / math.factorial(m) * np.exp(k * rho)))
+    rows = box_expansion.row_orders(k, amp, math.inf, 1, 1.0, -2.0, float(amp.sum()))
+    assert rows.shape == (1,)
+    n, rho, tol = int(rows[0]), math.sqrt(2.0), 2.0 ** -53 * amp.sum()
+    bound = lambda m: float(np.sum(amp * np.exp(-k) * (k * rho) ** m / math.factorial(m) * np.exp(k * rho)))
     assert bound(n) <= tol < bound(n - 1)
-    zeta = np.exp(1j * np.linspace(0, 2 * np.pi, 64))            # the disc's edge
-    exact = (amp[None, :] * np.exp(np.outer(zeta, k * rho))).sum(axis=1)
-    cut = sum((amp * (k * rho) ** m / math.factorial(m)).sum() * zeta ** m for m in range(n - 3))
-    assert np.abs(exact - cut).max() > 1e-3 * bound(n - 3)
+    corners = np.array([1 + 1j, 1 - 1j, -1 + 1j, -1 - 1j])      # (z - z_b) + i s at the box's corners
+    exact = (amp * np.exp(-k) * np.exp(np.outer(corners, k))).sum(axis=1)
+    cut = sum((amp * np.exp(-k) * k ** m / math.factorial(m)).sum() * corners ** m for m in range(n - 4))
+    assert np.abs(exact - cut).max() > 10 * tol
