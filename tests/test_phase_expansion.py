@@ -137,7 +137,7 @@ def test_compiled_pass_in_finite_depth_and_a_spread_sea(depth, headings, count, 
     waves go to one recurrence per heading, the long ones (k h < 20, and the scattered) to the
     boxes' series or, with ``series`` False (no box grid feasible), one by one."""
     if not series:
-        monkeypatch.setattr(box_expansion, "_MAX_ORDERS", 0)
+        monkeypatch.setattr(box_expansion, "_MAX_ORDERS", 1)
     rng = np.random.default_rng(21)
     grid = np.linspace(6.0 / count, 6.0, count)
     omega = np.concatenate([np.tile(grid, len(headings)), rng.uniform(0.4, 5.0, scattered)])
