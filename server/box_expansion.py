@@ -45,11 +45,12 @@ __all__ = ["BoxGroup", "box_table", "layout"]
 
 _ROUND = 2.0 ** -53
 _MAX_ORDERS = 96      # a layout needing more is not considered
-# Measured costs [ns] of the compiled kernel's pieces (server/incident_numba.py, this 2-vCPU VM):
-_BOX_COMPONENT = 3.0      # a component's phasor times its box factors, per occupied box
-_BOX_PRODUCT = 0.25       # a component's order in the box's matrix products
+# Measured costs [ns] of the compiled kernel's pieces (server/incident_numba.py's box_sum on the
+# bench's sphere hulls, 25-300 components, 1-14 columns of boxes; fitted, this 2-vCPU VM):
+_BOX_COMPONENT = 21.0     # a component in an occupied box (its phasor times the box's factors, ...)
+_BOX_PRODUCT = 0.13       # a component's order in an occupied box (the matrix products)
 _POINT_ORDER = 0.6        # a point's order in Horner's scheme
-_POINT = 10.0             # a point's box and place in the sort
+_POINT = 14.0             # a point's box and place in the sort
 
 
 @dataclass(frozen=True)
@@ -132,9 +133,9 @@ def box_table(groups: list[BoxGroup], k: np.ndarray, depth: float, radius: float
         s_box, z_box = np.tile(s_b, n_z), np.repeat(z_b, g.n_s)          # box q = j n_s + i
         d = np.ones_like(kg) if math.isinf(depth) else 1.0 / (1.0 + np.exp(-2.0 * kg * depth))
         turn = np.exp(1j * np.outer(s_box, kg))
-        factors.append(d * np.exp(np.outer(z_box, kg)) * turn)
+        factors.append((d * np.exp(np.outer(z_box, kg)) * turn).T)         # (n_g, boxes): a component's row
         mirror = not math.isinf(depth) and bool(np.any(2.0 * kg * (depth + floor) < 40.0))
-        mirrors.append(d * np.exp(-np.outer(2.0 * depth + z_box, kg)) * turn if mirror else np.zeros_like(turn))
+        mirrors.append((d * np.exp(-np.outer(2.0 * depth + z_box, kg)) * turn).T if mirror else np.zeros_like(turn.T))
         flags.append(int(mirror))
     w, w_start = flatten(weights)
     f_re, f_start = flatten([f.real for f in factors])

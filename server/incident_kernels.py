@@ -95,9 +95,9 @@ class BoxTable(NamedTuple):
     row_start: np.ndarray      # (B,) int64
     weights: np.ndarray        # from weight_start[g]: (ceil(N/2), n_g) m_cn of the even orders, then (floor(N/2), n_g) odd
     weight_start: np.ndarray   # (B,) int64
-    factor_re: np.ndarray      # from factor_start[g]: (n_s n_z, n_g) D_c e^{k_c w_b} of each box
+    factor_re: np.ndarray      # from factor_start[g]: (n_g, n_s n_z) D_c e^{k_c w_b} of each box
     factor_im: np.ndarray
-    mirror_re: np.ndarray      # from factor_start[g]: (n_s n_z, n_g) D_c e^{-2 k_c h} e^{k_c w'_b} (zero in deep water)
+    mirror_re: np.ndarray      # from factor_start[g]: (n_g, n_s n_z) D_c e^{-2 k_c h} e^{k_c w'_b} (zero in deep water)
     mirror_im: np.ndarray
     factor_start: np.ndarray   # (B,) int64
     mirror: np.ndarray         # (B,) int64: 1 where the mirror factors count (finite depth)

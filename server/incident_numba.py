@@ -234,14 +234,14 @@ def box_sum(b, x_re, x_im, wx, wy, zs, out):
         xr, xi = np.empty(n_g), np.empty(n_g)
         _gather(cols, x_re, x_im, xr, xi)
         f0, w0, n_e = b.factor_start[g], b.weight_start[g], (n_o + 1) // 2
-        pr = b.factor_re[f0:f0 + n_box * n_g].reshape((n_box, n_g))
-        pi = b.factor_im[f0:f0 + n_box * n_g].reshape((n_box, n_g))
-        qr = b.mirror_re[f0:f0 + n_box * n_g].reshape((n_box, n_g))
-        qi = b.mirror_im[f0:f0 + n_box * n_g].reshape((n_box, n_g))
+        pr = b.factor_re[f0:f0 + n_box * n_g].reshape((n_g, n_box))
+        pi = b.factor_im[f0:f0 + n_box * n_g].reshape((n_g, n_box))
+        qr = b.mirror_re[f0:f0 + n_box * n_g].reshape((n_g, n_box))
+        qi = b.mirror_im[f0:f0 + n_box * n_g].reshape((n_g, n_box))
         mirror = b.mirror[g] != 0
         even = b.weights[w0:w0 + n_e * n_g].reshape((n_e, n_g))
         odd = b.weights[w0 + n_e * n_g:w0 + n_o * n_g].reshape((n_o - n_e, n_g))
-        ys = np.empty((4, n_g, n_s))        # per component and box of the row: Re, Im of P + conj Q, of P - conj Q
+        ys = np.empty((2, n_g, 2 * n_s))    # per component: Re then Im of P + conj Q (even orders), of P - conj Q (odd)
         for j in range(n_z):
             n_j = b.row_orders[b.row_start[g] + j]
             occ = np.empty(n_s, np.int64)
@@ -252,21 +252,24 @@ def box_sum(b, x_re, x_im, wx, wy, zs, out):
                     n_occ += 1
             if n_occ == 0:
                 continue
-            for o in range(n_occ):
-                q = occ[o]
-                for c in range(n_g):
-                    ar = xr[c] * pr[q, c] - xi[c] * pi[q, c]
-                    ai = xr[c] * pi[q, c] + xi[c] * pr[q, c]
-                    cr, ci = 0.0, 0.0
-                    if mirror:
-                        cr = xr[c] * qr[q, c] - xi[c] * qi[q, c]
-                        ci = -(xr[c] * qi[q, c] + xi[c] * qr[q, c])
-                    ys[0, c, o], ys[1, c, o] = ar + cr, ai + ci
-                    ys[2, c, o], ys[3, c, o] = ar - cr, ai - ci
-            y = np.ascontiguousarray(ys[:, :, :n_occ])
-            m_e, m_o = (n_j + 1) // 2, n_j // 2
-            cer, cei = even[:m_e] @ y[0], even[:m_e] @ y[1]      # (orders, boxes)
-            cor, coi = odd[:m_o] @ y[2], odd[:m_o] @ y[3]
+            for c in range(n_g):
+                for o in range(n_occ):
+                    q = occ[o]
+                    ar = xr[c] * pr[c, q] - xi[c] * pi[c, q]
+                    ai = xr[c] * pi[c, q] + xi[c] * pr[c, q]
+                    ys[0, c, o], ys[0, c, n_occ + o], ys[1, c, o], ys[1, c, n_occ + o] = ar, ai, ar, ai
+                if mirror:
+                    for o in range(n_occ):
+                        q = occ[o]
+                        cr = xr[c] * qr[c, q] - xi[c] * qi[c, q]
+                        ci = -(xr[c] * qi[c, q] + xi[c] * qr[c, q])
+                        ys[0, c, o] += cr
+                        ys[0, c, n_occ + o] += ci
+                        ys[1, c, o] -= cr
+                        ys[1, c, n_occ + o] -= ci
+            y = np.ascontiguousarray(ys[:, :, :2 * n_occ])
+            ce = even[:(n_j + 1) // 2] @ y[0]      # (orders, Re of the boxes then Im)
+            co = odd[:n_j // 2] @ y[1]
             z_b = b.floor + (j + 0.5) * side_z
             for o in range(n_occ):
                 q = occ[o]
@@ -274,14 +277,16 @@ def box_sum(b, x_re, x_im, wx, wy, zs, out):
                 for st in range(first[q], first[q + 1], _BLOCK):
                     m = min(_BLOCK, first[q + 1] - st)
                     top = n_j - 1
-                    hr, hi = (cer[top // 2, o], cei[top // 2, o]) if top % 2 == 0 else (cor[top // 2, o], coi[top // 2, o])
+                    hr, hi = (ce[top // 2, o], ce[top // 2, n_occ + o]) if top % 2 == 0 else \
+                        (co[top // 2, o], co[top // 2, n_occ + o])
                     for t in range(m):
                         p = order[st + t]
                         zr[t] = (zs[p] - z_b) / rho
                         zi[t] = (wx[p] * dx + wy[p] * dy - s_b) / rho
                         br[t], bi[t] = hr, hi
                     for n in range(n_j - 2, -1, -1):
-                        cr, ci = (cer[n // 2, o], cei[n // 2, o]) if n % 2 == 0 else (cor[n // 2, o], coi[n // 2, o])
+                        cr, ci = (ce[n // 2, o], ce[n // 2, n_occ + o]) if n % 2 == 0 else \
+                            (co[n // 2, o], co[n // 2, n_occ + o])
                         for t in range(m):
                             ur, ui = br[t], bi[t]
                             br[t] = ur * zr[t] - ui * zi[t] + cr

@@ -75,10 +75,12 @@ def _depth_factor(k: np.ndarray, z: np.ndarray, depth: float) -> np.ndarray:
     return out
 
 
-# Measured costs [ns] a point and component of the compiled sums (server/incident_numba.py): the
-# recurrence (blocks stop early in depth: about 0.8 of the pairs) and one component summed directly
-# (two exponentials, a cosine and a sine).
-_RECURRENCE_PAIR = 0.8
+# Measured costs [ns] of the compiled sums (server/incident_numba.py, this 2-vCPU VM): a recurrence's
+# start at each point (three complex exponentials), a point and component of it (blocks of points
+# sorted by height stop early), and one component summed directly (two exponentials, a cosine and a
+# sine) at a point.
+_RECURRENCE_POINT = 80.0
+_RECURRENCE_PAIR = 0.5
 _DIRECT_PAIR = 40.0
 
 
@@ -119,6 +121,11 @@ def _recurrence(cols: np.ndarray, omega: np.ndarray, k: np.ndarray, direction: n
     return _Recurrence(cols, direction, k0, dk, d2)
 
 
+def _recurrence_cost(runs: list[np.ndarray], points: int) -> float:
+    """The estimated cost [ns] of the recurrences ``runs`` (component indices each) at ``points``."""
+    return points * sum(_RECURRENCE_POINT + _RECURRENCE_PAIR * len(r) for r in runs)
+
+
 def _split_components(omega: np.ndarray, k: np.ndarray, heading: np.ndarray, amplitude: np.ndarray, g: float,
                       depth: float, radius: float, floor: float, points: np.ndarray) -> _PressureSplit:
     """The :class:`_PressureSplit` of the components for hulls within ``radius`` (m) horizontally
@@ -148,14 +155,14 @@ def _split_components(omega: np.ndarray, k: np.ndarray, heading: np.ndarray, amp
         forced = np.concatenate(forced)
         sz = np.column_stack([points[:, :2] @ direction, points[:, 2]])
         short = np.sort(k[np.concatenate(runs)]) if runs else np.zeros(0)
-        best = (n_p * len(forced) * _DIRECT_PAIR + n_p * len(short) * _RECURRENCE_PAIR, None, -math.inf)
+        best = (n_p * len(forced) * _DIRECT_PAIR + _recurrence_cost(runs, n_p), None, -math.inf)
         for cut in np.unique(np.concatenate([[-math.inf], short[::max(1, len(short) // 24)], short[-1:]])):
             kept = [r[k[r] > cut] for r in runs]
             boxed = np.concatenate([forced] + [r[k[r] <= cut] for r in runs] + [r for r in kept if len(r) < 3])
             if not len(boxed):
                 continue
             n_s, rows, cost = layout(k[boxed], amplitude[boxed], depth, radius, floor, sz, total)
-            cost += n_p * sum(len(r) for r in kept if len(r) >= 3) * _RECURRENCE_PAIR
+            cost += _recurrence_cost([r for r in kept if len(r) >= 3], n_p)
             if cost < best[0]:
                 best = (cost, (n_s, rows), cut)
         cost, grid, cut = best
