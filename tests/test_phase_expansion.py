@@ -128,15 +128,22 @@ def test_nonlinear_froude_krylov_equals_the_direct_evaluation(sphere_path, energ
 
 
 @pytest.mark.skipif(not AVAILABLE, reason="numba not installed")
-@pytest.mark.parametrize("depth, headings, count, scattered, series", [
-    (200.0, [-0.7, 0.9], 150, 0, True), (30.0, [-0.7, 0.2, 1.4], 60, 7, True), (30.0, [-0.7, 0.2, 1.4], 60, 7, False)])
-def test_compiled_pass_in_finite_depth_and_a_spread_sea(depth, headings, count, scattered, series, monkeypatch):
+@pytest.mark.parametrize("depth, headings, count, scattered, split", [
+    (200.0, [-0.7, 0.9], 150, 0, "recurrences"), (200.0, [-0.7, 0.9], 150, 0, "boxes"),
+    (30.0, [-0.7, 0.2, 1.4], 60, 7, "recurrences"), (30.0, [-0.7, 0.2, 1.4], 60, 7, "direct")])
+def test_compiled_pass_in_finite_depth_and_a_spread_sea(depth, headings, count, scattered, split, monkeypatch):
     """Headings of ``count`` evenly spaced components each (to 6 rad/s), and ``scattered`` ones of random
     frequency and heading, a hull 8.5 m from the origin moving in six DOFs: the compiled pass
-    against the direct evaluation, 1e-9 of each DOF's largest value over 120 steps. The short
-    waves go to one recurrence per heading, the long ones (k h < 20, and the scattered) to the
-    boxes' series or, with ``series`` False (no box grid feasible), one by one."""
-    if not series:
+    against the direct evaluation, 1e-9 of each DOF's largest value over 120 steps. Each way of
+    the split's made to carry the load in turn by its cost: ``recurrences`` (one per heading; the
+    long waves, k h < 20, and the scattered ones by boxes), ``boxes`` (all of them), ``direct`` (no
+    box grid feasible: the long and scattered ones one by one)."""
+    if split == "recurrences":
+        monkeypatch.setattr(nonlinear_hydro, "_RECURRENCE_POINT", 0.0)
+        monkeypatch.setattr(nonlinear_hydro, "_RECURRENCE_PAIR", 1e-6)
+    elif split == "boxes":
+        monkeypatch.setattr(nonlinear_hydro, "_RECURRENCE_POINT", 1e9)
+    else:
         monkeypatch.setattr(box_expansion, "_MAX_ORDERS", 1)
     rng = np.random.default_rng(21)
     grid = np.linspace(6.0 / count, 6.0, count)
@@ -158,9 +165,10 @@ def test_compiled_pass_in_finite_depth_and_a_spread_sea(depth, headings, count, 
         reference=np.concatenate([ref, np.zeros(3)]), weight=0.0, lever=np.zeros(3), linear_net=0.0,
         stiffness=np.zeros((6, 6)), fk_linear=nl.fk_linear_phasors(hull, ref), active=np.ones(6))
     nl.prepare([body])
-    assert len(nl.split.recurrences) == len(headings)
-    assert (len(nl.split.boxes) >= len(headings) and not len(nl.split.direct)) if series else \
-        (not nl.split.boxes and len(nl.split.direct) > 80)
+    ways = len(nl.split.recurrences), len(nl.split.boxes), len(nl.split.direct)
+    assert ways == {"recurrences": (len(headings), len(headings) + scattered, 0),
+                    "boxes": (0, len(headings) + scattered, 0)}[split] if split != "direct" else \
+        (ways[0] == len(headings) and not ways[1] and ways[2] > 80)
     k = np.array([wave_number(float(w), G, depth) for w in omega])
     got, want = [], []
     for step in range(120):
