@@ -85,18 +85,10 @@ def binned_chebyshev_sum(u, c, out):
     coordinate in the bin (incident_kernels.binned_chebyshev_sum)."""
     n_b, n = c.shape
     p_n = u.size
-    which = np.empty(p_n, np.int64)        # the points sorted by bin (a counting sort)
-    first = np.zeros(n_b + 1, np.int64)
+    which = np.empty(p_n, np.int64)
     for p in range(p_n):
-        j = min(max(int((u[p] + 1.0) * 0.5 * n_b), 0), n_b - 1)
-        which[p] = j
-        first[j + 1] += 1
-    for j in range(n_b):
-        first[j + 1] += first[j]
-    order, fill = np.empty(p_n, np.int64), first[:n_b].copy()
-    for p in range(p_n):
-        order[fill[which[p]]] = p
-        fill[which[p]] += 1
+        which[p] = min(max(int((u[p] + 1.0) * 0.5 * n_b), 0), n_b - 1)
+    order, first = _grouped(which, n_b)
     v, w = np.empty(_BLOCK), np.empty(_BLOCK)
     b1, b2 = np.empty(_BLOCK), np.empty(_BLOCK)
     for j in range(n_b):
@@ -160,22 +152,28 @@ def _along(ox, oy, dx, dy, scale, clip, out):
 
 
 @_jit
+def _grouped(key, n):
+    """(order, first): the indices of ``key`` (values in [0, n)) grouped by value in increasing
+    order, each group in index order (a counting sort); group v is order[first[v]:first[v + 1]]."""
+    first = np.zeros(n + 1, np.int64)
+    for p in range(key.size):
+        first[key[p] + 1] += 1
+    for v in range(n):
+        first[v + 1] += first[v]
+    order, fill = np.empty(key.size, np.int64), first[:n].copy()
+    for p in range(key.size):
+        order[fill[key[p]]] = p
+        fill[key[p]] += 1
+    return order, first
+
+
+@_jit
 def _by_height(z, floor):
     """The order of ``z`` (in [floor, 0]) from the highest, by 64 bands (a counting sort)."""
-    n = z.size
-    band = np.empty(n, np.int64)
-    first = np.zeros(65, np.int64)
-    for i in range(n):
-        b = min(max(int(z[i] / floor * 64.0), 0), 63) if floor < 0.0 else 0
-        band[i] = b
-        first[b + 1] += 1
-    for b in range(64):
-        first[b + 1] += first[b]
-    order = np.empty(n, np.int64)
-    for i in range(n):
-        order[first[band[i]]] = i
-        first[band[i]] += 1
-    return order
+    band = np.empty(z.size, np.int64)
+    for i in range(z.size):
+        band[i] = min(max(int(z[i] / floor * 64.0), 0), 63) if floor < 0.0 else 0
+    return _grouped(band, 64)[0]
 
 
 @_jit
@@ -219,18 +217,11 @@ def box_sum(b, x_re, x_im, wx, wy, zs, out):
         side_s, side_z = 2.0 * b.radius / n_s, -b.floor / n_z
         rho = 0.5 * math.sqrt(side_s * side_s + side_z * side_z)
         dx, dy = b.direction[g, 0], b.direction[g, 1]
-        first = np.zeros(n_box + 1, np.int64)      # box q = j n_s + i: row j (from the floor up), column i
-        for p in range(p_n):
+        for p in range(p_n):      # box q = j n_s + i: row j (from the floor up), column i
             i = min(max(int((wx[p] * dx + wy[p] * dy + b.radius) / side_s), 0), n_s - 1)
             j = min(max(int((zs[p] - b.floor) / side_z), 0), n_z - 1)
             box[p] = j * n_s + i
-            first[box[p] + 1] += 1
-        for q in range(n_box):
-            first[q + 1] += first[q]
-        order, fill = np.empty(p_n, np.int64), first[:n_box].copy()
-        for p in range(p_n):
-            order[fill[box[p]]] = p
-            fill[box[p]] += 1
+        order, first = _grouped(box, n_box)
         xr, xi = np.empty(n_g), np.empty(n_g)
         _gather(cols, x_re, x_im, xr, xi)
         f0, w0, n_e = b.factor_start[g], b.weight_start[g], (n_o + 1) // 2
