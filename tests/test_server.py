@@ -11,7 +11,7 @@ import pytest
 import zmq
 from analytic_hdb import make_body_hdb
 
-from conftest import SPHERE_WATER, body, linear_pto, regular_waves, scene_toml
+from conftest import SPHERE_WATER, body, linear_pto, regular_waves, scene_toml, serve_process
 
 from hydrolink.clients.lockstep.connection import RemoteError, ServerConnection
 from hydrolink.protocol import codec
@@ -703,3 +703,15 @@ def test_a_bound_that_admits_nothing_is_refused_naming_the_argument(kw):
     from hydrolink.server.service import ForceServer
     with pytest.raises(ValueError, match=f"{next(iter(kw))} must be an int >= 1"):
         ForceServer(None, **kw)
+
+
+def test_hydrolink_serve_takes_the_bounds_from_its_options(hdb, tmp_path):
+    """`hydrolink serve --max-sessions 1`: the second hello is error 14 naming the option and 1."""
+    with serve_process("--max-setups", "1", "--max-sessions", "1", "--store", str(tmp_path)) as address, \
+            ServerConnection(address, timeout=30.0) as a, ServerConnection(address, timeout=30.0) as b:
+        a.hello(SCENE, {"float.nc": hdb})
+        err = expect_error(lambda: b.hello(SCENE, {"float.nc": hdb}), 14, None)
+        assert err.extra == {"limit": "sessions", "maximum": 1, "current": 1} and "--max-sessions" in err.message
+        a.bye()
+        b.hello(SCENE, {"float.nc": hdb})
+        assert b.step(0, 0.0, *states(1)[0])["seq"] == 0
