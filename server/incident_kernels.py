@@ -4,13 +4,13 @@ The kernels themselves are in server/incident_numba.py, imported (and numba with
 use; this module holds what the callers need without numba: whether it is there, the kernels'
 typed tables and thin wrappers.
 
-- :func:`hull_loads`: one Froude–Krylov body's whole step in one compiled pass (no Python between
+- :class:`HullPass`: one Froude–Krylov body's whole step in one compiled pass (no Python between
   the pieces): the pose's rotation, each component's phasor at the reference point, the vertices'
   heights, the elevation (the Jacobi–Anger series of server/phase_expansion.py by bins), the wet
   vertices, sorted from the surface down, their Wheeler-stretched heights, the pressure there (the
-  short waves by :func:`deep_pressure`'s recurrence, the long ones by the series in the horizontal
-  and in depth, any others one by one) and its integral over the cut hull
-  (server/wet_surface_kernel.py).
+  short waves by :func:`deep_pressure`'s recurrence, the longer ones and those of any depth by the
+  boxes' power series of server/box_expansion.py, any others one by one) and its integral over the
+  cut hull (server/wet_surface_kernel.py).
 - :func:`deep_pressure`: sum_c Re(a_c e^{k_c (z_p + i xi_p)}) for components whose wave numbers
   are a quadratic in their index, k_c = k0 + c dk + c (c - 1) d2 / 2 (deep water, frequencies
   equally spaced: k = w^2 / g). Then e^{k_{c+1} zeta} = e^{k_c zeta} r_c with r_{c+1} = r_c q, q
@@ -18,9 +18,9 @@ typed tables and thin wrappers.
   point. A block of points stops where the remaining components add at most 2^-53 of the
   amplitude sum at its highest point. The products' round-off grows with c; over 300 components it
   stays below 1e-12 of the amplitude sum (tests/test_incident_kernels.py).
-- :func:`elevation` and :func:`long_pressure`: those two parts of the pass alone (the expansions'
-  own uses and tests); :func:`chebyshev_sum` (Clenshaw, the elevation's sum with one bin) and
-  :func:`chebyshev_sum2` (the long-wave series' two-dimensional sum) its building blocks.
+- :func:`elevation` and :func:`box_pressure`: those two parts of the pass alone (the expansions'
+  own uses and tests); :func:`chebyshev_sum` (Clenshaw, the elevation's sum with one bin) a
+  building block.
 
 ``AVAILABLE`` is False where numba is not installed, :func:`imports` where it does not import:
 the callers then take their numpy paths (the same sums as matrix products; slower, same results
@@ -32,12 +32,12 @@ from __future__ import annotations
 import functools
 import importlib.util
 import math
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import numpy as np
 
-__all__ = ["AVAILABLE", "ElevationTable", "HullTables", "LongTable", "RecurrenceTable", "chebyshev_sum", "chebyshev_sum2",
-           "deep_pressure", "elevation", "hull_loads", "imports", "long_pressure", "warm_up"]
+__all__ = ["AVAILABLE", "BoxTable", "ElevationTable", "HullPass", "HullTables", "RecurrenceTable", "box_pressure",
+           "chebyshev_sum", "deep_pressure", "elevation", "imports", "reply_rows", "warm_up"]
 
 AVAILABLE = importlib.util.find_spec("numba") is not None   # numba itself imported on first use
 
@@ -54,12 +54,11 @@ def imports() -> bool:
 
 
 class ElevationTable(NamedTuple):
-    """The incident wave's elevation for :func:`hull_loads`: per heading g (of G), its components'
+    """The incident wave's elevation for :class:`HullPass`: per heading g (of G), its components'
     Jacobi–Anger series by bins (server/phase_expansion.py), the ragged parts flattened."""
     direction: np.ndarray      # (G, 2) cos b, sin b
     start: np.ndarray          # (G + 1,) int64: heading g's components are columns[start[g]:start[g + 1]] (by k)
     columns: np.ndarray        # (n_c,) int64
-    reach: np.ndarray          # (n_c,) int64: each component's orders (by columns; its weights beyond are zero)
     bins: np.ndarray           # (G,) int64: bin count
     orders: np.ndarray         # (G,) int64: N, the series' orders per bin
     weights: np.ndarray        # from weight_start[g]: the (n_g, ceil(N/2)) even-order weights, then the odd ones
@@ -71,7 +70,7 @@ class ElevationTable(NamedTuple):
 
 
 class RecurrenceTable(NamedTuple):
-    """The short waves' pressure for :func:`hull_loads`: per run g of evenly spaced deep-water
+    """The short waves' pressure for :class:`HullPass`: per run g of evenly spaced deep-water
     components of one heading, k_c = k0 + c dk + c (c - 1) d2 / 2 (server/nonlinear_hydro.py)."""
     direction: np.ndarray      # (R, 2)
     start: np.ndarray          # (R + 1,) int64 into columns
@@ -82,21 +81,29 @@ class RecurrenceTable(NamedTuple):
     floor: float               # m: the lowest stretched height the split into short and long waves holds for
 
 
-class LongTable(NamedTuple):
-    """The long waves' pressure series for :func:`hull_loads` (server/phase_expansion.py's
-    DepthExpansion), per heading g (of L): C_nm = Re(sum_c H_nc a_c) V_cm."""
-    direction: np.ndarray      # (L, 2)
-    start: np.ndarray          # (L + 1,) int64 into columns
+class BoxTable(NamedTuple):
+    """The pressure of the components summed by boxes (server/box_expansion.py) for
+    :class:`HullPass`, per heading g (of B): the (s, z) region [-radius, radius] x [floor, 0] cut
+    into n_s x n_z boxes (box q = j n_s + i: row j from the floor up, column i along the heading),
+    up to N orders of the series in each, N_j in row j."""
+    direction: np.ndarray      # (B, 2)
+    start: np.ndarray          # (B + 1,) int64 into columns
     columns: np.ndarray        # int64
-    orders: np.ndarray         # (L, 2) int64: N horizontal, M vertical
-    horizontal_re: np.ndarray  # from horizontal_start[g]: (N, n_g) H = i^n eps_n J_n(k rho)
-    horizontal_im: np.ndarray
-    horizontal_start: np.ndarray   # (L,) int64
-    vertical: np.ndarray       # from vertical_start[g]: (n_g, M) the depth factors' Chebyshev coefficients
-    vertical_start: np.ndarray     # (L,) int64
-    row_terms: np.ndarray      # (sum of N,) int64: the depth terms kept per horizontal order (the rest below 2^-53 of the amplitude sum)
+    grid: np.ndarray           # (B, 2) int64: n_s, n_z
+    orders: np.ndarray         # (B,) int64: N, the most of any row
+    row_orders: np.ndarray     # from row_start[g]: (n_z,) int64 N_j
+    row_start: np.ndarray      # (B,) int64
+    weights: np.ndarray        # from weight_start[g]: (ceil(N/2), n_g) m_cn of the even orders, then (floor(N/2), n_g) odd
+    weight_start: np.ndarray   # (B,) int64
+    factor_re: np.ndarray      # from factor_start[g]: (n_g, n_s n_z) D_c e^{k_c w_b} of each box
+    factor_im: np.ndarray
+    factor_start: np.ndarray   # (B,) int64
+    mirror_re: np.ndarray      # from mirror_start[g]: (n_m, n_s n_z) D_c e^{-2 k_c h} e^{k_c w'_b} of the first n_m components
+    mirror_im: np.ndarray
+    mirror_start: np.ndarray   # (B,) int64
+    mirror: np.ndarray         # (B,) int64: n_m, the components (by increasing k) whose seabed term reaches round-off
     radius: float              # m
-    floor: float               # m: v = 1 - 2 z / floor
+    floor: float               # m
 
 
 @functools.cache
@@ -124,20 +131,10 @@ def chebyshev_sum(u: np.ndarray, c: np.ndarray, out: np.ndarray) -> None:
         _compiled().binned_chebyshev_sum(np.ascontiguousarray(u, float), np.ascontiguousarray(c[None, :], float), out)
 
 
-def chebyshev_sum2(u: np.ndarray, v: np.ndarray, c: np.ndarray, out: np.ndarray,
-                   terms: np.ndarray | None = None) -> None:
-    """Adds sum_n sum_{m < terms[n]} c_nm T_n(u) T_m(v) to ``out`` (P,) at points ``u``, ``v`` (P,)
-    in [-1, 1] (``terms`` (N,): all M by default)."""
-    if c.size:
-        terms = np.full(c.shape[0], c.shape[1], np.int64) if terms is None else np.asarray(terms, np.int64)
-        _compiled().chebyshev_sum2(np.ascontiguousarray(u, float), np.ascontiguousarray(v, float),
-                                   np.ascontiguousarray(c, float), terms, out)
-
-
 def elevation(table: ElevationTable, phasor: np.ndarray, offsets: np.ndarray) -> np.ndarray:
     """(P,): the elevation sum_c Re(X_c e^{i k_c (offset . (cos b_c, sin b_c))}) at points with
     horizontal ``offsets`` (P, 2) from the reference point, the components' phasors there
-    ``phasor`` X (n_c,) (the kernel :func:`hull_loads` runs)."""
+    ``phasor`` X (n_c,) (the pass :class:`HullPass` runs)."""
     out, u = np.zeros(len(offsets)), np.empty(len(offsets))
     off = np.ascontiguousarray(offsets, float)
     _compiled().elevation_sum(table, np.ascontiguousarray(phasor.real), np.ascontiguousarray(phasor.imag),
@@ -145,51 +142,66 @@ def elevation(table: ElevationTable, phasor: np.ndarray, offsets: np.ndarray) ->
     return out
 
 
-def long_pressure(table: LongTable, phasor: np.ndarray, offsets: np.ndarray, z: np.ndarray) -> np.ndarray:
-    """(P,): the long waves' pressure per unit rho g, sum_c Re(X_c e^{i k_c (offset . (cos b_c,
-    sin b_c))}) f_c(z), at points with horizontal ``offsets`` (P, 2) from the reference point and
-    (stretched) heights ``z`` (P,) in [floor, 0], by the table's series (the kernel
-    :func:`hull_loads` runs); ``phasor`` X (n_c,) of all the components."""
-    out, u = np.zeros(len(z)), np.empty(len(z))
+def box_pressure(table: BoxTable, phasor: np.ndarray, offsets: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """(P,): the pressure per unit rho g of the table's components, sum_c Re(X_c e^{i k_c (offset .
+    (cos b_c, sin b_c))}) f_c(z), at points with horizontal ``offsets`` (P, 2) from the reference
+    point and (stretched) heights ``z`` (P,) in [floor, 0], by the boxes' series (as
+    :class:`HullPass` sums them); ``phasor`` X (n_c,) of all the components."""
+    out = np.zeros(len(z))
     off = np.ascontiguousarray(offsets, float)
-    _compiled().long_sum(table, np.ascontiguousarray(phasor.real), np.ascontiguousarray(phasor.imag),
-                         np.ascontiguousarray(off[:, 0]), np.ascontiguousarray(off[:, 1]),
-                         np.ascontiguousarray(z, float), u, out)
+    _compiled().box_sum(table, np.ascontiguousarray(phasor.real), np.ascontiguousarray(phasor.imag),
+                        np.ascontiguousarray(off[:, 0]), np.ascontiguousarray(off[:, 1]),
+                        np.ascontiguousarray(z, float), out)
     return out
 
 
 class HullTables(NamedTuple):
-    """What :func:`hull_loads` needs of the sea beyond the hull: how each component's pressure is
+    """What :class:`HullPass` needs of the sea beyond the hull: how each component's pressure is
     summed (the split of server/nonlinear_hydro.py) and the elevation's series."""
     elevation: ElevationTable
     recurrences: RecurrenceTable
-    long: LongTable
+    boxes: BoxTable
     direct: np.ndarray           # int64: the components summed one by one (neither a recurrence nor the series)
     direct_direction: np.ndarray   # (n, 2) their headings' cos b, sin b
     heading: np.ndarray          # (n_c, 2) every component's cos b, sin b
 
 
-def hull_loads(local: np.ndarray, triangles: np.ndarray, loads: np.ndarray, vertex_loads: np.ndarray,
-               pose: np.ndarray, omega: np.ndarray, amplitude: np.ndarray, t: float, ramp: float, k: np.ndarray,
-               depth: float, tables: HullTables, fk_linear: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-    """One Froude–Krylov body's step in one compiled pass: (out, rot), ``rot`` (3, 3) the rotation
-    of the pose's Tait–Bryan angles (as wetted_surface.rotation_xyz), ``out`` (3, 6) the hydrostatic
-    and the Froude–Krylov load per unit rho g in the body's frame (force, moment about the
-    reference point) over the part of the hull below the incident free surface, and
-    Re(fk_linear e^{-i w t}) ramp (global). The hull: ``local`` (V, 3) vertices about the reference
-    point, ``triangles``, their corner ``loads`` and ``vertex_loads`` (server/wet_surface_kernel.py);
-    the pose (6,); the components' ``omega``, complex ``amplitude`` a_c e^{i phi_c} and wave
-    numbers ``k``; ``fk_linear`` (6, n_c) complex. The pressure at the wet vertices is the
-    Wheeler-stretched Froude–Krylov one, by the ``tables``. None where a wet vertex's stretched
-    height is below the tables' floor (the caller then takes the numpy path)."""
-    out, rot = np.zeros((3, 6)), np.empty((3, 3))
-    v = np.empty((3, len(local)))
-    f, c = np.float64, np.ascontiguousarray     # one compiled signature (no copies where they are so already)
-    ok = _compiled().hull_loads(
-        c(local, f), c(triangles, np.int64), c(loads, f), c(vertex_loads, f), c(pose, f), c(omega, f), amplitude.real,
-        amplitude.imag, float(t), float(ramp), c(k, f), tables.heading, float(depth), *tables[:3], tables.direct,
-        tables.direct_direction, fk_linear.real, fk_linear.imag, rot, v[0], v[1], v[2], out)
-    return (out, rot) if ok else None
+class HullPass:
+    """One Froude–Krylov body's step in one compiled pass (the kernel ``hull_loads`` of
+    server/incident_numba.py), with what does not change between steps made once: the hull
+    (``local`` (V, 3) vertices about the reference point, ``triangles``, their corner ``loads`` and
+    ``vertex_loads``, server/wet_surface_kernel.py), the components' ``omega``, complex
+    ``amplitude`` a_c e^{i phi_c} and wave numbers ``k``, the water ``depth``, the ``tables``,
+    ``fk_linear`` (6, n_c) complex, and the buffers the kernel writes."""
+
+    def __init__(self, local: np.ndarray, triangles: np.ndarray, loads: np.ndarray, vertex_loads: np.ndarray,
+                 omega: np.ndarray, amplitude: np.ndarray, k: np.ndarray, depth: float, tables: HullTables,
+                 fk_linear: np.ndarray):
+        f, c = np.float64, np.ascontiguousarray      # one compiled signature
+        self._hull = (c(local, f), c(triangles, np.int64), c(loads, f), c(vertex_loads, f))
+        self._sea = (c(omega, f), c(amplitude.real, f), c(amplitude.imag, f))
+        self._tables = (c(k, f), c(tables.heading, f), float(depth), *tables[:3], tables.direct, tables.direct_direction,
+                        c(fk_linear.real, f), c(fk_linear.imag, f))
+        self.out, self.rot, self._v = np.zeros((3, 6)), np.empty((3, 3)), np.empty((3, len(local)))
+
+    def __call__(self, pose: np.ndarray, t: float, ramp: float) -> tuple[np.ndarray, np.ndarray] | None:
+        """(out, rot) for the pose (6,) at time ``t`` [s] with the ``ramp`` factor: ``rot`` (3, 3) the
+        rotation of the pose's Tait–Bryan angles (as wetted_surface.rotation_xyz), ``out`` (3, 6) the
+        hydrostatic and the Froude–Krylov load per unit rho g in the body's frame (force, moment
+        about the reference point) over the part of the hull below the incident free surface, and
+        Re(fk_linear e^{-i w t}) ramp (global) [N]; both this pass's buffers, overwritten by the
+        next call. The pressure at the wet vertices is the Wheeler-stretched Froude–Krylov one, by
+        the tables. None where a wet vertex's stretched height is below the tables' floor (the
+        caller then takes the numpy path)."""
+        v = self._v
+        ok = _compiled().hull_loads(*self._hull, np.ascontiguousarray(pose, np.float64), *self._sea, float(t),
+                                    float(ramp), *self._tables, self.rot, v[0], v[1], v[2], self.out)
+        return (self.out, self.rot) if ok else None
+
+
+def reply_rows() -> Callable[..., None]:
+    """server/body_rows.py's ``reply_rows`` compiled."""
+    return _compiled().reply_rows
 
 
 def warm_up() -> None:
@@ -198,12 +210,16 @@ def warm_up() -> None:
     out = np.zeros(1)
     deep_pressure(np.zeros(1), np.zeros(1), np.ones(1, complex), 0.0, 0.0, 0.0, out)
     chebyshev_sum(np.zeros(1), np.ones(2), out)
-    chebyshev_sum2(np.zeros(1), np.zeros(1), np.ones((2, 2)), out)
     none, count, heads, start = np.zeros(0), np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros(1, np.int64)
-    elevation = ElevationTable(heads, start, count, count, count, count, none, count, none, none, count, 1.0)
+    elevation = ElevationTable(heads, start, count, count, count, np.zeros(0), count, none, none, count, 1.0)
     recurrences = RecurrenceTable(heads, start, count, none, none, none, -1.0)
-    long = LongTable(heads, start, count, np.zeros((0, 2), np.int64), none, none, count, none, count, count, 1.0, -1.0)
-    tables = HullTables(elevation, recurrences, long, count, heads, np.ones((1, 2)))
+    boxes = BoxTable(heads, start, count, np.zeros((0, 2), np.int64), count, count, count, none, count, none, none, count,
+                     none, none, count, count, 1.0, -1.0)
+    tables = HullTables(elevation, recurrences, boxes, count, heads, np.ones((1, 2)))
     local = np.array([[0.0, 0.0, -1.0], [1.0, 0.0, 1.0], [0.0, 1.0, 1.0]])
-    hull_loads(local, np.array([[0, 1, 2]]), np.zeros((1, 3, 6)), np.zeros((3, 6)), np.zeros(6), np.ones(1),
-               np.ones(1, complex), 0.0, 1.0, np.ones(1), math.inf, tables, np.zeros((6, 1), complex))
+    step = HullPass(local, np.array([[0, 1, 2]]), np.zeros((1, 3, 6)), np.zeros((3, 6)), np.ones(1),
+                    np.ones(1, complex), np.ones(1), math.inf, tables, np.zeros((6, 1), complex))
+    step(np.zeros(6), 0.0, 1.0)
+    six = np.zeros(6)
+    reply_rows()(np.zeros((2, 6)), six, 1.0, np.eye(3), np.zeros(3), 0.0, np.zeros((6, 6)), six, six, 0.0, six,
+                 np.zeros(6), np.zeros(6))

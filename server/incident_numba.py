@@ -14,12 +14,14 @@ import math
 
 import numba
 import numpy as np
+from hydrolink.server.body_rows import reply_rows as _reply_rows
 from hydrolink.server.wet_surface_kernel import _cut_hull_loads
 
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy", fastmath={"contract"})
 _BLOCK = 128   # points per pass over a block
 
 cut_hull_loads = _jit(_cut_hull_loads)   # server/wet_surface_kernel.py's integral, callable from the kernels here
+reply_rows = _jit(_reply_rows)           # server/body_rows.py's
 
 
 @_jit
@@ -83,18 +85,10 @@ def binned_chebyshev_sum(u, c, out):
     coordinate in the bin (incident_kernels.binned_chebyshev_sum)."""
     n_b, n = c.shape
     p_n = u.size
-    which = np.empty(p_n, np.int64)        # the points sorted by bin (a counting sort)
-    first = np.zeros(n_b + 1, np.int64)
+    which = np.empty(p_n, np.int64)
     for p in range(p_n):
-        j = min(max(int((u[p] + 1.0) * 0.5 * n_b), 0), n_b - 1)
-        which[p] = j
-        first[j + 1] += 1
-    for j in range(n_b):
-        first[j + 1] += first[j]
-    order, fill = np.empty(p_n, np.int64), first[:n_b].copy()
-    for p in range(p_n):
-        order[fill[which[p]]] = p
-        fill[which[p]] += 1
+        which[p] = min(max(int((u[p] + 1.0) * 0.5 * n_b), 0), n_b - 1)
+    order, first = _grouped(which, n_b)
     v, w = np.empty(_BLOCK), np.empty(_BLOCK)
     b1, b2 = np.empty(_BLOCK), np.empty(_BLOCK)
     for j in range(n_b):
@@ -124,60 +118,22 @@ def binned_chebyshev_sum(u, c, out):
 
 
 @_jit
-def bin_coefficients(even, odd, reach, tr, ti, sr, si, out):
-    """out[j, n]: the bins' Jacobi–Anger coefficients (incident_kernels.bin_coefficients)."""
-    n_b = out.shape[0]
-    n_c, n_e, n_o = tr.size, even.shape[1], odd.shape[1]
-    se, so = np.empty(n_e), np.empty(n_o)
+def bin_coefficients(even, odd, tr, ti, sr, si, out):
+    """out[j, n]: the bins' Jacobi–Anger coefficients (server/phase_expansion.py's _Bins): the
+    phasors at bin j's centre, Re times the even orders' weights and Im times the odd ones', as
+    two matrix products (BLAS: a third of the time of a loop over each component's orders)."""
+    n_b, n_c = sr.shape
+    yr, yi = np.empty((n_b, n_c)), np.empty((n_b, n_c))
     for j in range(n_b):
-        se[:] = 0.0
-        so[:] = 0.0
-        for c in range(n_c):    # each component adds its weights times Re (even orders) or Im (odd) of its phasor
-            xr = tr[c] * sr[j, c] - ti[c] * si[j, c]
-            xi = tr[c] * si[j, c] + ti[c] * sr[j, c]
-            r = reach[c]
-            for k in range((r + 1) // 2):
-                se[k] += even[c, k] * xr
-            for k in range(r // 2):
-                so[k] += odd[c, k] * xi
-        for k in range(n_e):
-            out[j, 2 * k] = se[k]
-        for k in range(n_o):
-            out[j, 2 * k + 1] = so[k]
-
-
-@_jit
-def chebyshev_sum2(u, v, c, terms, out):
-    """out += sum_n sum_{m < terms[n]} c_nm T_n(u) T_m(v) (incident_kernels.chebyshev_sum2)."""
-    p_n, n, m = u.size, c.shape[0], c.shape[1]
-    tv = np.empty(m * _BLOCK)               # T_j(v) of a block's points by their recurrence, row j at j * _BLOCK
-    s, b1, b2, w = np.empty(_BLOCK), np.empty(_BLOCK), np.empty(_BLOCK), np.empty(_BLOCK)
-    for st in range(0, p_n, _BLOCK):
-        q_n = min(_BLOCK, p_n - st)
-        for q in range(q_n):
-            tv[q] = 1.0
-            b1[q], b2[q], w[q] = 0.0, 0.0, 2.0 * u[st + q]
-        if m > 1:
-            for q in range(q_n):
-                tv[_BLOCK + q] = v[st + q]
-        for j in range(2, m):
-            for q in range(q_n):
-                tv[j * _BLOCK + q] = 2.0 * v[st + q] * tv[(j - 1) * _BLOCK + q] - tv[(j - 2) * _BLOCK + q]
-        for i in range(n - 1, -1, -1):      # Clenshaw in u over s_i = sum_j c_ij T_j(v)
-            for q in range(q_n):
-                s[q] = 0.0
-            for j in range(terms[i]):
-                cij, o = c[i, j], j * _BLOCK
-                for q in range(q_n):
-                    s[q] += cij * tv[o + q]
-            if i > 0:
-                for q in range(q_n):
-                    t = w[q] * b1[q] - b2[q] + s[q]
-                    b2[q] = b1[q]
-                    b1[q] = t
-            else:
-                for q in range(q_n):
-                    out[st + q] += 0.5 * w[q] * b1[q] - b2[q] + s[q]
+        for c in range(n_c):
+            yr[j, c] = tr[c] * sr[j, c] - ti[c] * si[j, c]
+            yi[j, c] = tr[c] * si[j, c] + ti[c] * sr[j, c]
+    e, o = yr @ even, yi @ odd
+    for j in range(n_b):
+        for m in range(e.shape[1]):
+            out[j, 2 * m] = e[j, m]
+        for m in range(o.shape[1]):
+            out[j, 2 * m + 1] = o[j, m]
 
 
 @_jit
@@ -196,22 +152,28 @@ def _along(ox, oy, dx, dy, scale, clip, out):
 
 
 @_jit
+def _grouped(key, n):
+    """(order, first): the indices of ``key`` (values in [0, n)) grouped by value in increasing
+    order, each group in index order (a counting sort); group v is order[first[v]:first[v + 1]]."""
+    first = np.zeros(n + 1, np.int64)
+    for p in range(key.size):
+        first[key[p] + 1] += 1
+    for v in range(n):
+        first[v + 1] += first[v]
+    order, fill = np.empty(key.size, np.int64), first[:n].copy()
+    for p in range(key.size):
+        order[fill[key[p]]] = p
+        fill[key[p]] += 1
+    return order, first
+
+
+@_jit
 def _by_height(z, floor):
     """The order of ``z`` (in [floor, 0]) from the highest, by 64 bands (a counting sort)."""
-    n = z.size
-    band = np.empty(n, np.int64)
-    first = np.zeros(65, np.int64)
-    for i in range(n):
-        b = min(max(int(z[i] / floor * 64.0), 0), 63) if floor < 0.0 else 0
-        band[i] = b
-        first[b + 1] += 1
-    for b in range(64):
-        first[b + 1] += first[b]
-    order = np.empty(n, np.int64)
-    for i in range(n):
-        order[first[band[i]]] = i
-        first[band[i]] += 1
-    return order
+    band = np.empty(z.size, np.int64)
+    for i in range(z.size):
+        band[i] = min(max(int(z[i] / floor * 64.0), 0), 63) if floor < 0.0 else 0
+    return _grouped(band, 64)[0]
 
 
 @_jit
@@ -231,47 +193,102 @@ def elevation_sum(e, x_re, x_im, ox, oy, u, out):
         sr = e.shift_re[s0:s0 + n_b * n_g].reshape((n_b, n_g))
         si = e.shift_im[s0:s0 + n_b * n_g].reshape((n_b, n_g))
         coefficients = np.empty((n_b, n_o))
-        bin_coefficients(even, odd, e.reach[e.start[g]:e.start[g + 1]], tr, ti, sr, si, coefficients)
+        bin_coefficients(even, odd, tr, ti, sr, si, coefficients)
         _along(ox, oy, e.direction[g, 0], e.direction[g, 1], 1.0 / e.radius, True, u)
         binned_chebyshev_sum(u, coefficients, out)
 
 
 @_jit
-def long_sum(q, x_re, x_im, wx, wy, zs, u, out):
-    """out += the long waves' pressure per unit rho g at points with horizontal offsets ``wx``,
-    ``wy`` from the reference point and stretched heights ``zs``: each heading's series in the
-    horizontal and in depth (``q`` a LongTable), C_nm = Re(sum_c H_nc X_c) V_cm; ``u`` scratch."""
-    if not q.direction.shape[0]:
-        return
-    vz = np.empty(zs.size)
-    for i in range(zs.size):
-        vz[i] = min(max(1.0 - 2.0 * zs[i] / q.floor, -1.0), 1.0)
-    row = 0
-    for g in range(q.direction.shape[0]):
-        cols = q.columns[q.start[g]:q.start[g + 1]]
-        n_g, n_h, n_v = cols.size, q.orders[g, 0], q.orders[g, 1]
-        ar, ai = np.empty(n_g), np.empty(n_g)
-        _gather(cols, x_re, x_im, ar, ai)
-        h0, v0 = q.horizontal_start[g], q.vertical_start[g]
-        hr = q.horizontal_re[h0:h0 + n_h * n_g].reshape((n_h, n_g))
-        hi = q.horizontal_im[h0:h0 + n_h * n_g].reshape((n_h, n_g))
-        vert = q.vertical[v0:v0 + n_g * n_v].reshape((n_g, n_v))
-        terms = q.row_terms[row:row + n_h]
-        row += n_h
-        c = np.zeros((n_h, n_v))
-        for n in range(n_h):
-            t_n = terms[n]
-            for j in range(n_g):
-                x = hr[n, j] * ar[j] - hi[n, j] * ai[j]      # Re(horizontal X)
-                for m in range(t_n):
-                    c[n, m] += x * vert[j, m]
-        _along(wx, wy, q.direction[g, 0], q.direction[g, 1], 1.0 / q.radius, True, u)
-        chebyshev_sum2(u, vz, c, terms, out)
+def box_sum(b, x_re, x_im, wx, wy, zs, out):
+    """out += the pressure per unit rho g of the components of ``b`` (a BoxTable: server/
+    box_expansion.py) at points with horizontal offsets ``wx``, ``wy`` from the reference point
+    and stretched heights ``zs`` in [floor, 0]: per heading, the points sorted by box (a counting
+    sort); per row of boxes, its occupied boxes' coefficients B_n = sum_c m_cn (P_c + (-1)^n conj Q_c)
+    to the row's order by four matrix products; Horner's scheme in zeta = ((z - z_b) + i (s - s_b))
+    / rho at each point."""
+    p_n = zs.size
+    box = np.empty(p_n, np.int64)
+    zr, zi = np.empty(_BLOCK), np.empty(_BLOCK)
+    br, bi = np.empty(_BLOCK), np.empty(_BLOCK)
+    for g in range(b.direction.shape[0]):
+        cols = b.columns[b.start[g]:b.start[g + 1]]
+        n_g, n_s, n_z, n_o = cols.size, b.grid[g, 0], b.grid[g, 1], b.orders[g]
+        n_box = n_s * n_z
+        side_s, side_z = 2.0 * b.radius / n_s, -b.floor / n_z
+        rho = 0.5 * math.sqrt(side_s * side_s + side_z * side_z)
+        dx, dy = b.direction[g, 0], b.direction[g, 1]
+        for p in range(p_n):      # box q = j n_s + i: row j (from the floor up), column i
+            i = min(max(int((wx[p] * dx + wy[p] * dy + b.radius) / side_s), 0), n_s - 1)
+            j = min(max(int((zs[p] - b.floor) / side_z), 0), n_z - 1)
+            box[p] = j * n_s + i
+        order, first = _grouped(box, n_box)
+        xr, xi = np.empty(n_g), np.empty(n_g)
+        _gather(cols, x_re, x_im, xr, xi)
+        f0, w0, n_e = b.factor_start[g], b.weight_start[g], (n_o + 1) // 2
+        pr = b.factor_re[f0:f0 + n_box * n_g].reshape((n_g, n_box))
+        pi = b.factor_im[f0:f0 + n_box * n_g].reshape((n_g, n_box))
+        n_m, m0 = b.mirror[g], b.mirror_start[g]     # the first n_m components feel the seabed
+        qr = b.mirror_re[m0:m0 + n_m * n_box].reshape((n_m, n_box))
+        qi = b.mirror_im[m0:m0 + n_m * n_box].reshape((n_m, n_box))
+        even = b.weights[w0:w0 + n_e * n_g].reshape((n_e, n_g))
+        odd = b.weights[w0 + n_e * n_g:w0 + n_o * n_g].reshape((n_o - n_e, n_g))
+        ys = np.empty((2, n_g, 2 * n_s))    # per component: Re then Im of P + conj Q (even orders), of P - conj Q (odd)
+        for j in range(n_z):
+            n_j = b.row_orders[b.row_start[g] + j]
+            occ = np.empty(n_s, np.int64)
+            n_occ = 0
+            for i in range(n_s):
+                if first[j * n_s + i + 1] > first[j * n_s + i]:
+                    occ[n_occ] = j * n_s + i
+                    n_occ += 1
+            if n_occ == 0:
+                continue
+            for c in range(n_g):
+                for o in range(n_occ):
+                    q = occ[o]
+                    ar = xr[c] * pr[c, q] - xi[c] * pi[c, q]
+                    ai = xr[c] * pi[c, q] + xi[c] * pr[c, q]
+                    ys[0, c, o], ys[0, c, n_occ + o], ys[1, c, o], ys[1, c, n_occ + o] = ar, ai, ar, ai
+                if c < n_m:
+                    for o in range(n_occ):
+                        q = occ[o]
+                        cr = xr[c] * qr[c, q] - xi[c] * qi[c, q]
+                        ci = -(xr[c] * qi[c, q] + xi[c] * qr[c, q])
+                        ys[0, c, o] += cr
+                        ys[0, c, n_occ + o] += ci
+                        ys[1, c, o] -= cr
+                        ys[1, c, n_occ + o] -= ci
+            y = np.ascontiguousarray(ys[:, :, :2 * n_occ])
+            ce = even[:(n_j + 1) // 2] @ y[0]      # (orders, Re of the boxes then Im)
+            co = odd[:n_j // 2] @ y[1]
+            z_b = b.floor + (j + 0.5) * side_z
+            for o in range(n_occ):
+                q = occ[o]
+                s_b = -b.radius + (q - j * n_s + 0.5) * side_s
+                for st in range(first[q], first[q + 1], _BLOCK):
+                    m = min(_BLOCK, first[q + 1] - st)
+                    top = n_j - 1
+                    hr, hi = (ce[top // 2, o], ce[top // 2, n_occ + o]) if top % 2 == 0 else \
+                        (co[top // 2, o], co[top // 2, n_occ + o])
+                    for t in range(m):
+                        p = order[st + t]
+                        zr[t] = (zs[p] - z_b) / rho
+                        zi[t] = (wx[p] * dx + wy[p] * dy - s_b) / rho
+                        br[t], bi[t] = hr, hi
+                    for n in range(n_j - 2, -1, -1):
+                        cr, ci = (ce[n // 2, o], ce[n // 2, n_occ + o]) if n % 2 == 0 else \
+                            (co[n // 2, o], co[n // 2, n_occ + o])
+                        for t in range(m):
+                            ur, ui = br[t], bi[t]
+                            br[t] = ur * zr[t] - ui * zi[t] + cr
+                            bi[t] = ur * zi[t] + ui * zr[t] + ci
+                    for t in range(m):
+                        out[order[st + t]] += br[t]
 
 
 @_jit
-def hull_pressure(local, rot, pos, x_re, x_im, k, depth, elevation, recurrences, long, direct, direct_dir, z, d, p):
-    """One body's incident wave for one step (incident_kernels.hull_loads): the vertices' global
+def hull_pressure(local, rot, pos, x_re, x_im, k, depth, elevation, recurrences, boxes, direct, direct_dir, z, d, p):
+    """One body's incident wave for one step (incident_kernels.HullPass): the vertices' global
     heights ``z``, signed heights above the free surface ``d`` and the Froude–Krylov pressure per
     unit rho g at the wet ones ``p`` (V,), for the hull's vertices ``local`` (V, 3) in the pose
     (rotation ``rot``, reference point ``pos``), the components' phasors at the reference point
@@ -319,7 +336,7 @@ def hull_pressure(local, rot, pos, x_re, x_im, k, depth, elevation, recurrences,
         _gather(cols, x_re, x_im, ar, ai)
         _along(wx, wy, r.direction[g, 0], r.direction[g, 1], 1.0, False, xi)
         deep_pressure(xi, zs, ar, ai, r.k0[g], r.dk[g], r.d2[g], out)
-    long_sum(long, x_re, x_im, wx, wy, zs, xi, out)
+    box_sum(boxes, x_re, x_im, wx, wy, zs, out)
     for j in range(direct.size):            # the rest: one cosine and depth factor per point and component
         c = direct[j]
         kc = k[c]
@@ -336,8 +353,8 @@ def hull_pressure(local, rot, pos, x_re, x_im, k, depth, elevation, recurrences,
 
 @_jit
 def hull_loads(local, tris, loads, vertex_loads, pose, omega, amp_re, amp_im, t, ramp, k, heading, depth, elevation,
-               recurrences, long, direct, direct_dir, fk_re, fk_im, rot, z, d, p, out):
-    """One Froude–Krylov body's step (incident_kernels.hull_loads): the rotation ``rot`` of the
+               recurrences, boxes, direct, direct_dir, fk_re, fk_im, rot, z, d, p, out):
+    """One Froude–Krylov body's step (incident_kernels.HullPass): the rotation ``rot`` of the
     pose's angles, the components' phasors, the pressure at the vertices (:func:`hull_pressure`)
     and its integral over the wet part of the hull; ``out`` (3, 6): the hydrostatic and
     Froude–Krylov loads per unit rho g in the body's frame, and Re(fk_linear e^{-i w t}) ramp.
@@ -360,7 +377,7 @@ def hull_loads(local, tris, loads, vertex_loads, pose, omega, amp_re, amp_im, t,
         theta = k[c] * (pose[0] * heading[c, 0] + pose[1] * heading[c, 1]) - omega[c] * t
         tr, ti = ramp * math.cos(theta), ramp * math.sin(theta)                      # at the reference point
         x_re[c], x_im[c] = amp_re[c] * tr - amp_im[c] * ti, amp_re[c] * ti + amp_im[c] * tr
-    if not hull_pressure(local, rot, pose, x_re, x_im, k, depth, elevation, recurrences, long, direct,
+    if not hull_pressure(local, rot, pose, x_re, x_im, k, depth, elevation, recurrences, boxes, direct,
                          direct_dir, z, d, p):
         return False
     cut_hull_loads(local, tris, d, z, p, loads, vertex_loads, out[:2])

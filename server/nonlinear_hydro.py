@@ -36,15 +36,16 @@ from hydrolink.protocol.scene import Scene
 from hydrolink.server import incident_kernels, wet_surface_kernel
 from hydrolink.server.errors import ModelError
 from hydrolink.server.force_term import ForceTerm, TermContext
+from hydrolink.server.body_rows import reply_rows
+from hydrolink.server.box_expansion import BoxGroup, box_table, layout
 from hydrolink.server.incident_kernels import (
     AVAILABLE,
+    HullPass,
     HullTables,
-    LongTable,
     RecurrenceTable,
-    hull_loads,
 )
 from hydrolink.server.kinematics import wave_number
-from hydrolink.server.phase_expansion import DepthExpansion, PhaseExpansion, flatten
+from hydrolink.server.phase_expansion import PhaseExpansion, flatten
 from hydrolink.server.waves import WaveComponents, ramp_at
 from hydrolink.server.wet_surface_kernel import cut_hull_loads
 from hydrolink.server.wetted_surface import (
@@ -74,10 +75,13 @@ def _depth_factor(k: np.ndarray, z: np.ndarray, depth: float) -> np.ndarray:
     return out
 
 
-# A point's sum over the long-wave series costs about 0.35 ns a term (compiled, blocked), one
-# component summed directly about 40 ns (two exponentials, a cosine and a sine): the series is
-# taken while it has at most this many terms per component it replaces.
-_TERMS_PER_COMPONENT = 100
+# Measured costs [ns] of the compiled sums (server/incident_numba.py, this 2-vCPU VM): a recurrence's
+# start at each point (three complex exponentials), a point and component of it (blocks of points
+# sorted by height stop early), and one component summed directly (two exponentials, a cosine and a
+# sine) at a point.
+_RECURRENCE_POINT = 80.0
+_RECURRENCE_PAIR = 0.5
+_DIRECT_PAIR = 40.0
 
 
 @dataclass(frozen=True)
@@ -94,51 +98,86 @@ class _Recurrence:
 
 @dataclass(frozen=True)
 class _PressureSplit:
-    """How the Froude–Krylov pressure's sum over the components is taken: the short waves (deep
-    water for them, k h >= 20, and their depth factor e^{kz} to round-off at every height above
-    ``floor``) by recurrences; the others as one series (``long``, :class:`DepthExpansion`) where
-    it has at most ``_TERMS_PER_COMPONENT`` terms per component, else (``direct``) one cosine and depth
-    factor each."""
+    """How the compiled pass sums the Froude–Krylov pressure over the components, per heading:
+    the short waves (deep water for them, k h >= 20, and their depth factor e^{kz} to round-off at
+    every height above ``floor``) in runs of evenly spaced frequencies by recurrences; the others,
+    and the longest of those where that is cheaper, by the boxes' series (server/box_expansion.py);
+    a heading's others one by one (``direct``) where no box grid is cheaper."""
     recurrences: tuple[_Recurrence, ...]
-    long: DepthExpansion | None   # the long waves' sum as a series (where that is cheaper than direct)
-    long_columns: np.ndarray      # its component indices
+    boxes: tuple[BoxGroup, ...]
     direct: np.ndarray            # component indices summed one by one
     floor: float                  # m: the lowest stretched height the split holds for (below: all direct)
 
 
-def _split_components(omega: np.ndarray, k: np.ndarray, heading: np.ndarray, g: float, depth: float,
-                      reach: float, floor: float) -> _PressureSplit:
-    """The :class:`_PressureSplit` of the components for hulls within ``reach`` (m) horizontally of
-    their reference points: per heading, the components deep to round-off down to ``floor``
-    (k h >= 20 and 2 k (floor + h) >= 40), in runs of evenly spaced frequencies of three or more
-    (one run for a sea's grid; several where ``froude_krylov_energy`` < 1 kept a subset), are
-    recurrences where their wave numbers are the recurrence's quadratic to within a phase of 1e-11
-    over ``reach``; the rest long (a series) or direct."""
-    recurrences, rest = [], []
+def _recurrence(cols: np.ndarray, omega: np.ndarray, k: np.ndarray, direction: np.ndarray, g: float,
+                reach: float) -> _Recurrence | None:
+    """The recurrence of evenly spaced deep-water components ``cols`` (three or more, by frequency)
+    where their wave numbers are its quadratic to within a phase of 1e-11 over ``reach``."""
+    w, c = omega[cols], np.arange(len(cols), dtype=float)
+    dw = (w[-1] - w[0]) / (len(w) - 1)
+    k0, dk, d2 = w[0] ** 2 / g, (2.0 * w[0] * dw + dw * dw) / g, 2.0 * dw * dw / g
+    if np.max(np.abs(k0 + c * dk + 0.5 * c * (c - 1.0) * d2 - k[cols])) * reach > 1e-11:
+        return None
+    return _Recurrence(cols, direction, k0, dk, d2)
+
+
+def _recurrence_cost(runs: list[np.ndarray], points: int) -> float:
+    """The estimated cost [ns] of the recurrences ``runs`` (component indices each) at ``points``."""
+    return points * sum(_RECURRENCE_POINT + _RECURRENCE_PAIR * len(r) for r in runs)
+
+
+def _split_components(omega: np.ndarray, k: np.ndarray, heading: np.ndarray, amplitude: np.ndarray, g: float,
+                      depth: float, radius: float, floor: float, points: np.ndarray) -> _PressureSplit:
+    """The :class:`_PressureSplit` of the components for hulls within ``radius`` (m) horizontally
+    of their reference points, ``points`` (P, 3) the largest one's wet vertices at rest (offsets
+    x, y from its reference point, height z) to weigh the costs: per heading, the components deep
+    to round-off down to ``floor`` (k h >= 20 and 2 k (floor + h) >= 40), in runs of evenly spaced
+    frequencies of three or more (one run for a sea's grid; several where ``froude_krylov_energy``
+    < 1 kept a subset), whose wave numbers are the recurrence's quadratic to within a phase of 1e-11
+    over the hull's diameter, are recurrences but for the longest of them, the boxes' (with the
+    others) up to the wave number that makes the heading's estimated cost least."""
+    recurrences, boxes, direct = [], [], []
+    total = float(amplitude.sum())
+    n_p = len(points)
     for b in np.unique(heading):
+        direction = np.array([np.cos(b), np.sin(b)])
         cols = np.flatnonzero(heading == b)
         cols = cols[np.argsort(omega[cols], kind="stable")]
         deep = np.ones(len(cols), bool) if math.isinf(depth) else \
             (k[cols] * depth >= 20.0) & (2.0 * k[cols] * (floor + depth) >= 40.0)
-        rest.append(cols[~deep])
+        runs, forced = [], [cols[~deep]]
         for run in _even_runs(omega[cols[deep]]):
             run_cols = cols[deep][run]
-            if len(run_cols) < 3:
-                rest.append(run_cols)
-                continue
-            w, c = omega[run_cols], np.arange(len(run_cols), dtype=float)
-            dw = (w[-1] - w[0]) / (len(w) - 1)
-            k0, dk, d2 = w[0] ** 2 / g, (2.0 * w[0] * dw + dw * dw) / g, 2.0 * dw * dw / g
-            if np.max(np.abs(k0 + c * dk + 0.5 * c * (c - 1.0) * d2 - k[run_cols])) * reach <= 1e-11:
-                recurrences.append(_Recurrence(run_cols, np.array([np.cos(b), np.sin(b)]), k0, dk, d2))
+            if len(run_cols) >= 3 and _recurrence(run_cols, omega, k, direction, g, 2.0 * radius) is not None:
+                runs.append(run_cols)
             else:
-                rest.append(run_cols)
-    rest = np.sort(np.concatenate(rest))
-    if len(rest):
-        long = DepthExpansion(k[rest], heading[rest], 0.5 * reach, floor, lambda kc, z: _depth_factor(kc, z, depth))
-        if long.converged and long.terms <= _TERMS_PER_COMPONENT * len(rest):
-            return _PressureSplit(tuple(recurrences), long, rest, rest[:0], floor)
-    return _PressureSplit(tuple(recurrences), None, rest[:0], rest, floor)
+                forced.append(run_cols)
+        forced = np.concatenate(forced)
+        sz = np.column_stack([points[:, :2] @ direction, points[:, 2]])
+        short = np.sort(k[np.concatenate(runs)]) if runs else np.zeros(0)
+        best = (n_p * len(forced) * _DIRECT_PAIR + _recurrence_cost(runs, n_p), None, -math.inf)
+        for cut in np.unique(np.concatenate([[-math.inf], short[::max(1, len(short) // 24)], short[-1:]])):
+            kept = [r[k[r] > cut] for r in runs]
+            boxed = np.concatenate([forced] + [r[k[r] <= cut] for r in runs] + [r for r in kept if len(r) < 3])
+            if not len(boxed):
+                continue
+            n_s, rows, cost = layout(k[boxed], amplitude[boxed], depth, radius, floor, sz, total)
+            cost += _recurrence_cost([r for r in kept if len(r) >= 3], n_p)
+            if cost < best[0]:
+                best = (cost, (n_s, rows), cut)
+        cost, grid, cut = best
+        for r in runs:
+            kept = r[k[r] > cut]
+            if len(kept) >= 3:
+                recurrences.append(_recurrence(kept, omega, k, direction, g, 2.0 * radius))
+        if grid is None:
+            direct.append(forced)
+            continue
+        boxed = np.concatenate([forced] + [r[k[r] <= cut] for r in runs] + [r[k[r] > cut] for r in runs
+                                                                             if np.count_nonzero(k[r] > cut) < 3])
+        boxes.append(BoxGroup(boxed[np.argsort(k[boxed], kind="stable")], direction, grid[0], len(grid[1]), grid[1]))
+    direct = np.sort(np.concatenate(direct)) if direct else np.zeros(0, np.int64)
+    return _PressureSplit(tuple(recurrences), tuple(boxes), direct.astype(np.int64), floor)
 
 
 def _even_runs(w: np.ndarray) -> list[np.ndarray]:
@@ -165,18 +204,6 @@ def _recurrence_table(split: _PressureSplit) -> RecurrenceTable:
         columns=flatten([x.columns for x in r], np.int64)[0],
         k0=np.array([x.k0 for x in r], float), dk=np.array([x.dk for x in r], float),
         d2=np.array([x.d2 for x in r], float), floor=float(split.floor))
-
-
-def _long_table(split: _PressureSplit, amplitude: np.ndarray) -> LongTable:
-    """The split's long-wave series as the compiled pass's flat table (an empty one without);
-    ``amplitude`` of all the components."""
-    if split.long is not None:
-        return split.long.table(split.long_columns, amplitude[split.long_columns], float(amplitude.sum()))
-    none, count = np.zeros(0), np.zeros(0, np.int64)
-    return LongTable(direction=np.zeros((0, 2)), start=np.zeros(1, np.int64), columns=count,
-                     orders=np.zeros((0, 2), np.int64), horizontal_re=none, horizontal_im=none,
-                     horizontal_start=count, vertical=none, vertical_start=count, row_terms=count, radius=1.0,
-                     floor=float(split.floor))
 
 
 @dataclass(frozen=True)
@@ -206,6 +233,8 @@ class NonlinearHydro:
         self.compiled = compiled
         self.split: _PressureSplit | None = None   # set by prepare (needs the hulls' reach)
         self.tables: HullTables | None = None   # the compiled pass's tables (with the split)
+        self.passes: dict[int, HullPass] = {}   # by body index: the Froude-Krylov bodies' compiled passes
+        self._rows = reply_rows   # server/body_rows.py's, compiled on the compiled path (prepare)
         self.bodies, self.rho, self.g, self.depth, self.n_bodies = bodies, rho, g, depth, n_bodies
         self.ramp = waves.ramp
         self.still = waves.size == 0
@@ -230,6 +259,7 @@ class NonlinearHydro:
         if self.compiled:
             incident_kernels.warm_up()
             wet_surface_kernel.warm_up()
+            self._rows = incident_kernels.reply_rows()
         if self.still:
             return
         radius = max(float(np.linalg.norm(b.hull.vertices, axis=1).max()) for b in bodies)
@@ -237,12 +267,18 @@ class NonlinearHydro:
                                         points=max(len(b.hull.vertices) for b in bodies))
         if self.compiled:
             floor = 2.0 * min(float(b.reference[2]) - radius for b in bodies)
-            self.split = _split_components(self.omega, self.k, self.heading, self.g, self.depth, 2.0 * radius, floor)
+            largest = max(bodies, key=lambda b: len(b.hull.vertices))
+            at_rest = largest.hull.vertices + [0.0, 0.0, float(largest.reference[2])]
+            self.split = _split_components(self.omega, self.k, self.heading, self.amplitude, self.g, self.depth,
+                                           self.expansion.radius, floor, at_rest[at_rest[:, 2] <= 0.0])
             direct = self.split.direct
             direction = np.column_stack([np.cos(self.heading), np.sin(self.heading)])
             self.tables = HullTables(self.expansion.table, _recurrence_table(self.split),
-                                     _long_table(self.split, self.amplitude), direct.astype(np.int64),
-                                     direction[direct], direction)
+                                     box_table(list(self.split.boxes), self.k, self.depth, self.expansion.radius, floor),
+                                     direct, direction[direct], direction)
+            self.passes = {b.index: HullPass(b.hull.vertices, b.hull.triangles, b.loads, b.vertex_loads, self.omega,
+                                             self.amp, self.k, self.depth, self.tables, b.fk_linear)
+                           for b in bodies if b.mode == "froude-krylov"}
 
     def _phasors(self, pts: np.ndarray) -> np.ndarray:
         """a_c e^{i theta_c(x, y)} at points (P, 3): (P, n_c)."""
@@ -281,38 +317,30 @@ class NonlinearHydro:
 
         The pressures are integrated over the wet part of each hull in the body's frame about its
         reference point, and the loads turned to the global axes at the end: for a Froude–Krylov
-        body on the compiled path in one pass (incident_kernels.hull_loads), else the pressures at
+        body on the compiled path in one pass (incident_kernels.HullPass), else the pressures at
         the vertices by :meth:`_surface` and their integral by server/wet_surface_kernel.py
-        (compiled) or :func:`_wet_loads`."""
+        (compiled) or :func:`_wet_loads`; the rows from the loads by server/body_rows.py."""
         hs, fk = np.zeros((self.n_bodies, 6)), np.zeros((self.n_bodies, 6))
-        rg = self.rho * self.g
         ramp = ramp_at(t, self.ramp)
+        no_waves = np.zeros(6)
         for b in self.bodies:
-            pose = position[b.index]
+            pose = np.ascontiguousarray(position[b.index], np.float64)
             waves = b.mode == "froude-krylov" and not self.still
-            step = None
-            if waves and self.tables is not None:
-                step = hull_loads(b.hull.vertices, b.hull.triangles, b.loads, b.vertex_loads, pose, self.omega,
-                                  self.amp, t, ramp, self.k, self.depth, self.tables, b.fk_linear)
+            step = self.passes[b.index](pose, t, ramp) if waves and b.index in self.passes else None
             if step is not None:
-                (out, rot), fk_linear = step, step[0][2]
-                loads = rg * out[:2]
+                out, rot = step
+                loads, fk_linear = out[:2], out[2]
             else:
                 rot = rotation_xyz(pose[3:])
                 z, d, p_v = self._surface(b, pose, rot, t, ramp) if waves else self._still_surface(b, pose, rot)
                 if self.compiled:
-                    loads = rg * cut_hull_loads(b.hull.vertices, b.hull.triangles, d, z, p_v, b.loads, b.vertex_loads)
+                    loads = cut_hull_loads(b.hull.vertices, b.hull.triangles, d, z, p_v, b.loads, b.vertex_loads)
                 else:
-                    loads = rg * _wet_loads(b, z, d, np.flatnonzero(d <= 0.0), p_v)
-                fk_linear = np.real(b.fk_linear @ (ramp * np.exp(-1j * self.omega * t))) if waves else None
-            f = (loads.reshape(4, 3) @ rot.T).reshape(2, 6)      # both loads in the global axes
-            arm = rot @ b.lever
-            f[0, 2:5] += (-b.weight, -arm[1] * b.weight, arm[0] * b.weight)    # the weight, arm x (0, 0, -m g)
-            f[0] += b.stiffness @ (pose - b.reference)        # less the linear model's -C (x - x_eq) + net buoyancy
-            f[0, 2] -= b.linear_net
-            hs[b.index] = f[0] * b.active
-            if waves:
-                fk[b.index] = (f[1] - fk_linear) * b.active
+                    loads = _wet_loads(b, z, d, np.flatnonzero(d <= 0.0), p_v)
+                fk_linear = np.ascontiguousarray(np.real(b.fk_linear @ (ramp * np.exp(-1j * self.omega * t)))) \
+                    if waves else no_waves
+            self._rows(loads, fk_linear, self.rho * self.g, rot, b.lever, b.weight, b.stiffness, pose, b.reference,
+                       b.linear_net, b.active, hs[b.index], fk[b.index])
         return hs, fk
 
     @staticmethod

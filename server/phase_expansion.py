@@ -20,13 +20,13 @@ matrix per heading; the elevation sum_c a_c cos(.) is then one matrix-vector pro
 series' coefficients and the series summed at the points (a product with the points' Chebyshev
 values: the numpy path). The compiled path (server/incident_kernels.py) cuts [-rho, rho] into
 equal bins, each with the series about its centre over its half-width (fewer orders per point,
-the coefficients once per bin: :func:`_bins` picks their number), each component's coefficients
-to its own last order, Clenshaw's recurrence over each bin's points.
+the coefficients once per bin as two matrix products: :func:`_bins` picks their number),
+Clenshaw's recurrence over each bin's points.
 
 Its cost grows with k_max rho (N ~ k_max rho + 10): it pays for the elevation, one sum over the
-components per point. The pressure weighs each component by its depth factor at each point:
-:class:`DepthExpansion` adds a Chebyshev series in depth, which pays for the long waves (few
-terms); the short ones go to the recurrence of server/incident_kernels.py.
+components per point. The pressure, each component weighed by its depth factor at each point, is
+server/box_expansion.py's (power series in the complex height z + i s, by boxes) and the
+recurrences' of server/incident_kernels.py.
 """
 
 from __future__ import annotations
@@ -35,14 +35,12 @@ from dataclasses import dataclass
 
 import numpy as np
 from hydrolink.server import incident_kernels
-from hydrolink.server.incident_kernels import AVAILABLE, ElevationTable, LongTable
+from hydrolink.server.incident_kernels import AVAILABLE, ElevationTable
 from scipy.special import jv
 
-__all__ = ["DepthExpansion", "PhaseExpansion", "flatten"]
+__all__ = ["PhaseExpansion", "flatten"]
 
 _TAIL = 1e-17   # coefficient magnitude below which the expansions' terms are dropped
-_DEPTH_NODES = 64   # Chebyshev nodes each depth factor is fitted on (DepthExpansion)
-_DEPTH_TAIL = 1e-15   # the depth series' cut: the fit's own round-off floor (f <= 1)
 
 
 def _chebyshev(u: np.ndarray, n: int) -> np.ndarray:
@@ -94,7 +92,6 @@ class _Bins:
     X_c the component's phasor at the bin's centre."""
     count: int
     orders: int          # N
-    reach: np.ndarray    # (n_g,) int64: each component's orders (its weights beyond are zero)
     even: np.ndarray     # (n_g, ceil(N / 2)): w_{2m, c}, per component
     odd: np.ndarray      # (n_g, floor(N / 2)): w_{2m+1, c}
     shift: np.ndarray    # (count, n_g) complex: e^{i k s_j}, s_j the bin centres' offsets along the heading
@@ -112,23 +109,22 @@ class _Heading:
 
 
 def _bins(k: np.ndarray, radius: float, points: int) -> _Bins:
-    """The bin count, of 1 to 64, with the fewest multiply-adds per evaluation at ``points`` points:
-    the coefficients (each component's orders, per bin) plus the points' orders (Clenshaw). The
-    orders of J_n(x) above the tail, tabulated over x, give each component's."""
+    """The bin count, of 1 to 64, with the least work per evaluation at ``points`` points: the
+    coefficients (a matrix product per heading, every component's weights to the bins' highest
+    order: measured 0.12 ns a multiply-add) plus the points' orders (Clenshaw, 0.4 ns a point and
+    order). The orders of J_n(x) above the tail, tabulated over x, give the bins' highest."""
     x = np.linspace(0.0, float(k.max()) * radius, 129)
     table = np.array([_orders(jv, v) for v in x])          # orders at x, growing with x
 
-    def cost(count: int) -> int:
-        reach = table[np.minimum(np.searchsorted(x, k * radius / count), len(x) - 1)]   # each component's orders
-        return count * int(reach.sum()) + points * int(reach.max())
+    def cost(count: int) -> float:
+        orders = int(table[min(int(np.searchsorted(x, float(k.max()) * radius / count)), len(x) - 1)])
+        return 0.3 * count * len(k) * orders + points * orders
 
     count = min(range(1, 65), key=cost)
     coefficients = _jacobi_anger(k, radius / count)
     weight = np.where((np.arange(len(coefficients)) % 2 == 0)[:, None], coefficients.real, -coefficients.imag)
-    nonzero = weight != 0.0
-    last = np.where(nonzero.any(axis=0), len(weight) - np.argmax(nonzero[::-1], axis=0), 0).astype(np.int64)
     centres = radius * (-1.0 + (2.0 * np.arange(count) + 1.0) / count)
-    return _Bins(count, len(weight), last, np.ascontiguousarray(weight[0::2].T), np.ascontiguousarray(weight[1::2].T),
+    return _Bins(count, len(weight), np.ascontiguousarray(weight[0::2].T), np.ascontiguousarray(weight[1::2].T),
                  np.exp(1j * np.outer(centres, k)))
 
 
@@ -185,78 +181,6 @@ class PhaseExpansion:
             direction=np.array([g.direction for g in self.groups]).reshape(-1, 2),
             start=np.cumsum([0] + [len(g.columns) for g in self.groups]).astype(np.int64),
             columns=flatten([g.columns for g in self.groups], np.int64)[0],
-            reach=flatten([b.reach for b in bins], np.int64)[0],
             bins=np.array([b.count for b in bins], np.int64), orders=np.array([b.orders for b in bins], np.int64),
             weights=weights, weight_start=weight_start, shift_re=shift_re, shift_im=shift_im,
             shift_start=shift_start, radius=self.radius)
-
-
-@dataclass(frozen=True)
-class _DepthHeading:
-    """The components of one heading: the horizontal expansion's coefficients and their depth
-    factors' Chebyshev coefficients."""
-    columns: np.ndarray        # (n_g,) component indices
-    direction: np.ndarray      # (2,) cos b, sin b
-    k: np.ndarray              # (n_g,)
-    horizontal: np.ndarray     # (N, n_g) complex: i^n eps_n J_n(k rho)
-    vertical: np.ndarray       # (n_g, M) real: f_c(z) = sum_m vertical[c, m] T_m(v)
-
-
-class DepthExpansion:
-    """The incident wave's pressure sum_c a_c f_c(z) cos(k_c s + psi_c) (f_c the depth factor) at
-    points within ``radius`` horizontally of a reference point and at heights in [floor, 0], for
-    long waves: the Jacobi–Anger series of the module docstring in the horizontal times each depth
-    factor's Chebyshev series in v = 1 - 2 z / floor (v = 1 at the surface, -1 at ``floor``),
-
-        sum_c a_c f_c(z) cos(k_c s + psi_c) = sum_{n, m} T_n(u) T_m(v) C_nm(t),
-        C_nm = Re sum_c a_c e^{i (k_c s_ref + psi_c)} i^n eps_n J_n(k_c rho) F_cm,
-
-    the horizontal series cut where its coefficients fall below 1e-17, the depth series (fitted on
-    64 Chebyshev nodes) below 1e-15, its fit's round-off floor (f_c <= 1): exact to round-off.
-    Per step an (N, M) coefficient matrix and the points' Chebyshev values: cheap while k rho and
-    k |floor| are small (N, M ~ k rho + 10, k |floor| / 2 + 10), the short waves being the
-    recurrence's (server/incident_kernels.py). ``terms`` is N M summed over the headings."""
-
-    def __init__(self, k: np.ndarray, heading: np.ndarray, radius: float, floor: float, depth_factor):
-        """``depth_factor(k, z)``: f (P, n_c) at heights z (P,) in [floor, 0]. Only on the compiled
-        path: :meth:`table` is what its kernels sum (incident_kernels.long_pressure, and within
-        hull_loads); without numba the long waves' pressure is summed directly."""
-        from numpy.polynomial import chebyshev
-        self.radius = float(radius) * (1.0 + 1e-12) or 1.0
-        self.floor = float(floor)
-        nodes = chebyshev.chebpts2(_DEPTH_NODES)                      # v in [-1, 1]
-        groups = []
-        for b in np.unique(heading):
-            cols = np.flatnonzero(heading == b)
-            kg = np.asarray(k, float)[cols]
-            horizontal = _jacobi_anger(kg, self.radius)
-            f = depth_factor(kg, 0.5 * (1.0 - nodes) * self.floor)     # (nodes, n_g)
-            vertical = chebyshev.chebfit(nodes, f, _DEPTH_NODES - 1).T     # (n_g, nodes)
-            big = np.flatnonzero(np.abs(vertical).max(axis=0) > _DEPTH_TAIL)
-            vertical = vertical[:, :int(big[-1]) + 1 if len(big) else 1].copy()
-            groups.append(_DepthHeading(cols, np.array([np.cos(b), np.sin(b)]), kg, horizontal, vertical))
-        self.groups = tuple(groups)
-        self.terms = sum(g.horizontal.shape[0] * g.vertical.shape[1] for g in groups)
-        # the depth series must have converged within the nodes: its last kept order well below them
-        self.converged = all(g.vertical.shape[1] < _DEPTH_NODES - 8 for g in groups)
-
-    def table(self, columns: np.ndarray, amplitude: np.ndarray, total: float) -> LongTable:
-        """The series as one flat table for server/incident_kernels.py's hull_loads, ``columns`` the
-        indices among all the components of the wave numbers it was built on, ``amplitude`` theirs:
-        per horizontal order the depth terms up to the last whose bound sum_c |H_nc| a_c |V_cm|
-        reaches 2^-53 of ``total``, the sea's amplitude sum (the rest change the sum by round-off)."""
-        g_ = self.groups
-        h_re, h_start = flatten([g.horizontal.real for g in g_])
-        h_im, _ = flatten([g.horizontal.imag for g in g_])
-        vertical, v_start = flatten([g.vertical for g in g_])
-        terms = []
-        for g in g_:
-            big = (np.abs(g.horizontal) * amplitude[g.columns]) @ np.abs(g.vertical) > 2.0 ** -53 * total
-            terms.append(np.where(big.any(axis=1), big.shape[1] - np.argmax(big[:, ::-1], axis=1), 0))
-        return LongTable(
-            direction=np.array([g.direction for g in g_]).reshape(-1, 2),
-            start=np.cumsum([0] + [len(g.columns) for g in g_]).astype(np.int64),
-            columns=flatten([np.asarray(columns)[g.columns] for g in g_], np.int64)[0],
-            orders=np.array([[g.horizontal.shape[0], g.vertical.shape[1]] for g in g_], np.int64).reshape(-1, 2),
-            horizontal_re=h_re, horizontal_im=h_im, horizontal_start=h_start, vertical=vertical,
-            vertical_start=v_start, row_terms=flatten(terms, np.int64)[0], radius=self.radius, floor=self.floor)

@@ -32,11 +32,3 @@ def test_chebyshev_sum_is_clenshaw():
     out = np.full(500, 3.0)
     incident_kernels.chebyshev_sum(u, c, out)
     np.testing.assert_allclose(out - 3.0, chebyshev.chebval(u, c), rtol=0, atol=1e-12 * np.abs(c).sum())
-
-
-def test_chebyshev_sum2_is_the_double_series():
-    rng = np.random.default_rng(4)
-    u, v, c = rng.uniform(-1.0, 1.0, 400), rng.uniform(-1.0, 1.0, 400), rng.standard_normal((13, 9))
-    out = np.zeros(400)
-    incident_kernels.chebyshev_sum2(u, v, c, out)
-    np.testing.assert_allclose(out, chebyshev.chebval2d(u, v, c), rtol=0, atol=1e-12 * np.abs(c).sum())

@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 from conftest import SPHERE_WATER, irregular_waves, scene_toml, sphere_body
 from hydrolink.protocol.scene import parse_scene
-from hydrolink.server import incident_kernels, nonlinear_hydro
+from hydrolink.server import box_expansion, incident_kernels, nonlinear_hydro
 from hydrolink.server.hdb.io import load_hdb
 from hydrolink.server.incident_kernels import AVAILABLE
 from hydrolink.server.kinematics import wave_number
 from hydrolink.server.model import HydroModel
-from hydrolink.server.phase_expansion import DepthExpansion, PhaseExpansion
+from hydrolink.server.phase_expansion import PhaseExpansion
 from hydrolink.server.waves import WaveComponents, ramp_factor
 from hydrolink.server.wetted_surface import (
     Hull,
@@ -49,28 +49,6 @@ def test_expansion_elevation_is_the_direct_sum(radius, k_max, headings, compiled
     pts = reference + offsets
     direct = np.cos(np.outer(pts[:, 0], k * np.cos(heading)) + np.outer(pts[:, 1], k * np.sin(heading)) + psi) @ amp
     np.testing.assert_allclose(got, direct, rtol=0, atol=1e-12 * amp.sum())
-
-
-@pytest.mark.skipif(not AVAILABLE, reason="numba not installed")
-@pytest.mark.parametrize("depth", [200.0, 30.0])
-def test_depth_expansion_is_the_direct_sum(depth):
-    """The long waves' pressure series (its table, summed by the compiled pass's kernel) against one
-    cosine and cosh depth factor per point and component (two headings, points over a 5 m radius
-    and 10 m deep)."""
-    rng = np.random.default_rng(8)
-    omega = np.linspace(0.05, 1.0, 24)
-    k = np.array([wave_number(float(w), G, depth) for w in omega])
-    heading = np.where(np.arange(24) % 2 == 0, 0.2, -1.1)
-    amp, psi = rng.uniform(0.0, 1.0, 24), rng.uniform(-20.0, 20.0, 24)
-    offsets, z = rng.uniform(-3.5, 3.5, (300, 2)), -rng.uniform(0.0, 10.0, 300)
-    reference = np.array([40.0, -7.0])
-    factor = lambda kc, zz: np.cosh(np.outer(zz + depth, kc)) / np.cosh(kc * depth)
-    table = DepthExpansion(k, heading, 5.0, -10.0, factor).table(np.arange(24), amp, float(amp.sum()))
-    phasor = amp * np.exp(1j * (k * (reference[0] * np.cos(heading) + reference[1] * np.sin(heading)) + psi))
-    got = incident_kernels.long_pressure(table, phasor, offsets, z)
-    pts = reference + offsets
-    theta = np.outer(pts[:, 0], k * np.cos(heading)) + np.outer(pts[:, 1], k * np.sin(heading)) + psi
-    np.testing.assert_allclose(got, (factor(k, z) * np.cos(theta)) @ amp, rtol=0, atol=1e-12 * amp.sum())
 
 
 def _direct_fk(hull, pose: np.ndarray, t: float, amp: np.ndarray, k: np.ndarray, beta: np.ndarray,
@@ -112,12 +90,14 @@ def test_nonlinear_froude_krylov_equals_the_direct_evaluation(sphere_path, energ
     150 steps through the ramp (the HDB has one heading: several are the expansion test's). With
     ``froude_krylov_energy`` < 1: the direct evaluation over the fewest most energetic components
     holding that share of the variance, and a warning naming the key. ``compiled``: with the
-    compiled kernels (the short waves' pressure by recurrences, the long ones direct: the sphere's
-    200 m depth) or numpy alone."""
+    compiled kernels (the short waves' pressure by recurrences, the others by boxes' series) or
+    numpy alone."""
     monkeypatch.setattr(nonlinear_hydro, "AVAILABLE", compiled)
     model, nl = _sphere_froude_krylov(sphere_path, {"froude_krylov_energy": energy}, ramp=4.0, resolution=(16, 20))
-    # compiled: the short waves of the 300 evenly spaced by the recurrence, the long ones direct
-    assert (200 < sum(len(r.columns) for r in nl.split.recurrences) < 300) if compiled and energy == 1 else True
+    # compiled: the shorter waves of the 300 evenly spaced by the recurrence, the others by boxes
+    if compiled and energy == 1:
+        by = [len(r.columns) for r in nl.split.recurrences], [len(g.columns) for g in nl.split.boxes]
+        assert all(by) and sum(by[0]) + sum(by[1]) == 300 and not len(nl.split.direct)
     assert nl.split is None if not compiled else True
     comps, body = model.waves, nl.bodies[0]
     energy_c = comps.amplitude ** 2
@@ -148,16 +128,23 @@ def test_nonlinear_froude_krylov_equals_the_direct_evaluation(sphere_path, energ
 
 
 @pytest.mark.skipif(not AVAILABLE, reason="numba not installed")
-@pytest.mark.parametrize("depth, headings, count, scattered, series", [
-    (200.0, [-0.7, 0.9], 150, 0, True), (30.0, [-0.7, 0.2, 1.4], 60, 7, True), (30.0, [-0.7, 0.2, 1.4], 60, 7, False)])
-def test_compiled_pass_in_finite_depth_and_a_spread_sea(depth, headings, count, scattered, series, monkeypatch):
+@pytest.mark.parametrize("depth, headings, count, scattered, split", [
+    (200.0, [-0.7, 0.9], 150, 0, "recurrences"), (200.0, [-0.7, 0.9], 150, 0, "boxes"),
+    (30.0, [-0.7, 0.2, 1.4], 60, 7, "recurrences"), (30.0, [-0.7, 0.2, 1.4], 60, 7, "direct")])
+def test_compiled_pass_in_finite_depth_and_a_spread_sea(depth, headings, count, scattered, split, monkeypatch):
     """Headings of ``count`` evenly spaced components each (to 6 rad/s), and ``scattered`` ones of random
     frequency and heading, a hull 8.5 m from the origin moving in six DOFs: the compiled pass
-    against the direct evaluation, 1e-9 of each DOF's largest value over 120 steps. The short
-    waves go to one recurrence per heading, the long ones (k h < 20, and the scattered) to the
-    series or, with ``series`` False (no series is cheap enough), one by one."""
-    if not series:
-        monkeypatch.setattr(nonlinear_hydro, "_TERMS_PER_COMPONENT", 0)
+    against the direct evaluation, 1e-9 of each DOF's largest value over 120 steps. Each way of
+    the split's made to carry the load in turn by its cost: ``recurrences`` (one per heading; the
+    long waves, k h < 20, and the scattered ones by boxes), ``boxes`` (all of them), ``direct`` (no
+    box grid feasible: the long and scattered ones one by one)."""
+    if split == "recurrences":
+        monkeypatch.setattr(nonlinear_hydro, "_RECURRENCE_POINT", 0.0)
+        monkeypatch.setattr(nonlinear_hydro, "_RECURRENCE_PAIR", 1e-6)
+    elif split == "boxes":
+        monkeypatch.setattr(nonlinear_hydro, "_RECURRENCE_POINT", 1e9)
+    else:
+        monkeypatch.setattr(box_expansion, "_MAX_ORDERS", 1)
     rng = np.random.default_rng(21)
     grid = np.linspace(6.0 / count, 6.0, count)
     omega = np.concatenate([np.tile(grid, len(headings)), rng.uniform(0.4, 5.0, scattered)])
@@ -178,9 +165,10 @@ def test_compiled_pass_in_finite_depth_and_a_spread_sea(depth, headings, count, 
         reference=np.concatenate([ref, np.zeros(3)]), weight=0.0, lever=np.zeros(3), linear_net=0.0,
         stiffness=np.zeros((6, 6)), fk_linear=nl.fk_linear_phasors(hull, ref), active=np.ones(6))
     nl.prepare([body])
-    assert len(nl.split.recurrences) == len(headings)
-    assert (nl.split.long is not None and not len(nl.split.direct)) if series else \
-        (nl.split.long is None and len(nl.split.direct) > 80)
+    ways = len(nl.split.recurrences), len(nl.split.boxes), len(nl.split.direct)
+    assert ways == {"recurrences": (len(headings), len(headings) + scattered, 0),
+                    "boxes": (0, len(headings) + scattered, 0)}[split] if split != "direct" else \
+        (ways[0] == len(headings) and not ways[1] and ways[2] > 80)
     k = np.array([wave_number(float(w), G, depth) for w in omega])
     got, want = [], []
     for step in range(120):
