@@ -9,6 +9,7 @@ from pathlib import Path
 import click
 
 from hydrolink.protocol.pacing import FACTOR_RANGE
+from hydrolink.server.capacity import MAX_SESSIONS, MAX_SETUPS
 
 
 class _UserError(click.ClickException):
@@ -130,9 +131,15 @@ def hdb_info(file: Path, plot: Path | None, dofs: str | None, convention: str | 
                    "codec.MAX_MESSAGE_BYTES): a larger frame is refused by "
                    "ZeroMQ before it is buffered (its connection is dropped). Large HDBs: send their files by hash "
                    "(run --hdb-files), each file one upload under the limit, or raise it.")
+@click.option("--max-setups", default=MAX_SETUPS, show_default=True, type=click.IntRange(min=1),
+              help="Multibody hellos being set up (waiting for a worker or running) at once; one more is "
+                   "refused at once with error 14 busy (SPEC §4.2): each holds its message and builds a model.")
+@click.option("--max-sessions", default=MAX_SESSIONS, show_default=True, type=click.IntRange(min=1),
+              help="Sessions open or being set up; one more multibody hello is refused at once with error 14 "
+                   "busy (a session holds its model until bye or --session-timeout).")
 def serve(bind: str, session_timeout: float, cpu: int | None, curve_secret: Path | None,
           curve_clients: Path | None, key_file: Path | None, store: Path | None, store_mib: int,
-          max_message_mib: int | None) -> None:
+          max_message_mib: int | None, max_setups: int, max_sessions: int) -> None:
     """Run the force server until interrupted (SIGINT or SIGTERM)."""
     import signal
 
@@ -149,7 +156,7 @@ def serve(bind: str, session_timeout: float, cpu: int | None, curve_secret: Path
                              curve_clients=str(curve_clients) if curve_clients else None,
                              store=ContentStore(store or default_folder(), disk_bytes=store_mib * 2**20),
                              max_message_bytes=codec.MAX_MESSAGE_BYTES if max_message_mib is None
-                             else max_message_mib * 2**20)
+                             else max_message_mib * 2**20, max_setups=max_setups, max_sessions=max_sessions)
     except CurveKeyError as exc:
         raise _UserError(str(exc)) from None
     signal.signal(signal.SIGTERM, lambda signum, frame: server.stop())  # docker stop

@@ -54,6 +54,7 @@ class Code(IntEnum):
     BAD_SIGNATURE = 11
     NOT_IMPLEMENTED = 12
     MISSING_CONTENT = 13
+    BUSY = 14
     INTERNAL = 99
 
 

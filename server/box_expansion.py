@@ -58,7 +58,7 @@ class BoxGroup:
     """One heading's components summed by boxes: the (s, z) region [-radius, radius] x [floor, 0]
     cut into ``n_s`` x ``n_z`` equal boxes, ``row_orders`` terms of the series in each row of boxes
     (from the floor up: the deeper rows need fewer, their short waves being weaker)."""
-    columns: np.ndarray     # (n_g,) component indices
+    columns: np.ndarray     # (n_g,) component indices, by increasing k (the seabed term only the first ones')
     direction: np.ndarray   # (2,) cos b, sin b
     n_s: int
     n_z: int
@@ -134,11 +134,13 @@ def box_table(groups: list[BoxGroup], k: np.ndarray, depth: float, radius: float
         d = np.ones_like(kg) if math.isinf(depth) else 1.0 / (1.0 + np.exp(-2.0 * kg * depth))
         turn = np.exp(1j * np.outer(s_box, kg))
         factors.append((d * np.exp(np.outer(z_box, kg)) * turn).T)         # (n_g, boxes): a component's row
-        mirror = not math.isinf(depth) and bool(np.any(2.0 * kg * (depth + floor) < 40.0))
-        mirrors.append((d * np.exp(-np.outer(2.0 * depth + z_box, kg)) * turn).T if mirror else np.zeros_like(turn.T))
-        flags.append(int(mirror))
+        near = np.zeros(len(kg), bool) if math.isinf(depth) else 2.0 * kg * (depth + floor) < 40.0
+        n_m = int(np.flatnonzero(near)[-1]) + 1 if near.any() else 0     # the seabed term to round-off: a prefix by k
+        mirrors.append((d * np.exp(-np.outer(2.0 * depth + z_box, kg)) * turn).T[:n_m])
+        flags.append(n_m)
     w, w_start = flatten(weights)
     f_re, f_start = flatten([f.real for f in factors])
+    m_re, m_start = flatten([q.real for q in mirrors])
     row_flat, row_start = flatten(rows, np.int64)
     return BoxTable(
         direction=np.array([g.direction for g in groups], float).reshape(-1, 2),
@@ -147,5 +149,5 @@ def box_table(groups: list[BoxGroup], k: np.ndarray, depth: float, radius: float
         grid=np.array([[g.n_s, _grid(g.n_s, radius, floor)[0]] for g in groups], np.int64).reshape(-1, 2),
         orders=np.array([int(r.max()) for r in rows], np.int64), row_orders=row_flat, row_start=row_start,
         weights=w, weight_start=w_start, factor_re=f_re, factor_im=flatten([f.imag for f in factors])[0],
-        mirror_re=flatten([q.real for q in mirrors])[0], mirror_im=flatten([q.imag for q in mirrors])[0],
-        factor_start=f_start, mirror=np.array(flags, np.int64), radius=float(radius), floor=float(floor))
+        factor_start=f_start, mirror_re=m_re, mirror_im=flatten([q.imag for q in mirrors])[0], mirror_start=m_start,
+        mirror=np.array(flags, np.int64), radius=float(radius), floor=float(floor))

@@ -97,10 +97,11 @@ class BoxTable(NamedTuple):
     weight_start: np.ndarray   # (B,) int64
     factor_re: np.ndarray      # from factor_start[g]: (n_g, n_s n_z) D_c e^{k_c w_b} of each box
     factor_im: np.ndarray
-    mirror_re: np.ndarray      # from factor_start[g]: (n_g, n_s n_z) D_c e^{-2 k_c h} e^{k_c w'_b} (zero in deep water)
-    mirror_im: np.ndarray
     factor_start: np.ndarray   # (B,) int64
-    mirror: np.ndarray         # (B,) int64: 1 where the mirror factors count (finite depth)
+    mirror_re: np.ndarray      # from mirror_start[g]: (n_m, n_s n_z) D_c e^{-2 k_c h} e^{k_c w'_b} of the first n_m components
+    mirror_im: np.ndarray
+    mirror_start: np.ndarray   # (B,) int64
+    mirror: np.ndarray         # (B,) int64: n_m, the components (by increasing k) whose seabed term reaches round-off
     radius: float              # m
     floor: float               # m
 
@@ -212,8 +213,8 @@ def warm_up() -> None:
     none, count, heads, start = np.zeros(0), np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros(1, np.int64)
     elevation = ElevationTable(heads, start, count, count, count, np.zeros(0), count, none, none, count, 1.0)
     recurrences = RecurrenceTable(heads, start, count, none, none, none, -1.0)
-    boxes = BoxTable(heads, start, count, np.zeros((0, 2), np.int64), count, count, count, none, count, none, none, none,
-                     none, count, count, 1.0, -1.0)
+    boxes = BoxTable(heads, start, count, np.zeros((0, 2), np.int64), count, count, count, none, count, none, none, count,
+                     none, none, count, count, 1.0, -1.0)
     tables = HullTables(elevation, recurrences, boxes, count, heads, np.ones((1, 2)))
     local = np.array([[0.0, 0.0, -1.0], [1.0, 0.0, 1.0], [0.0, 1.0, 1.0]])
     step = HullPass(local, np.array([[0, 1, 2]]), np.zeros((1, 3, 6)), np.zeros((3, 6)), np.ones(1),

@@ -227,9 +227,9 @@ def box_sum(b, x_re, x_im, wx, wy, zs, out):
         f0, w0, n_e = b.factor_start[g], b.weight_start[g], (n_o + 1) // 2
         pr = b.factor_re[f0:f0 + n_box * n_g].reshape((n_g, n_box))
         pi = b.factor_im[f0:f0 + n_box * n_g].reshape((n_g, n_box))
-        qr = b.mirror_re[f0:f0 + n_box * n_g].reshape((n_g, n_box))
-        qi = b.mirror_im[f0:f0 + n_box * n_g].reshape((n_g, n_box))
-        mirror = b.mirror[g] != 0
+        n_m, m0 = b.mirror[g], b.mirror_start[g]     # the first n_m components feel the seabed
+        qr = b.mirror_re[m0:m0 + n_m * n_box].reshape((n_m, n_box))
+        qi = b.mirror_im[m0:m0 + n_m * n_box].reshape((n_m, n_box))
         even = b.weights[w0:w0 + n_e * n_g].reshape((n_e, n_g))
         odd = b.weights[w0 + n_e * n_g:w0 + n_o * n_g].reshape((n_o - n_e, n_g))
         ys = np.empty((2, n_g, 2 * n_s))    # per component: Re then Im of P + conj Q (even orders), of P - conj Q (odd)
@@ -249,7 +249,7 @@ def box_sum(b, x_re, x_im, wx, wy, zs, out):
                     ar = xr[c] * pr[c, q] - xi[c] * pi[c, q]
                     ai = xr[c] * pi[c, q] + xi[c] * pr[c, q]
                     ys[0, c, o], ys[0, c, n_occ + o], ys[1, c, o], ys[1, c, n_occ + o] = ar, ai, ar, ai
-                if mirror:
+                if c < n_m:
                     for o in range(n_occ):
                         q = occ[o]
                         cr = xr[c] * qr[c, q] - xi[c] * qi[c, q]

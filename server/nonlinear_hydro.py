@@ -175,7 +175,7 @@ def _split_components(omega: np.ndarray, k: np.ndarray, heading: np.ndarray, amp
             continue
         boxed = np.concatenate([forced] + [r[k[r] <= cut] for r in runs] + [r[k[r] > cut] for r in runs
                                                                              if np.count_nonzero(k[r] > cut) < 3])
-        boxes.append(BoxGroup(np.sort(boxed), direction, grid[0], len(grid[1]), grid[1]))
+        boxes.append(BoxGroup(boxed[np.argsort(k[boxed], kind="stable")], direction, grid[0], len(grid[1]), grid[1]))
     direct = np.sort(np.concatenate(direct)) if direct else np.zeros(0, np.int64)
     return _PressureSplit(tuple(recurrences), tuple(boxes), direct.astype(np.int64), floor)
 

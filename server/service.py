@@ -25,6 +25,7 @@ import zmq
 from hydrolink.protocol import codec, transport
 from hydrolink.protocol.codec import Code, ProtocolError
 from hydrolink.protocol.pacing import check_factor
+from hydrolink.server.capacity import MAX_SESSIONS, MAX_SETUPS, HelloLimits
 from hydrolink.server.control import ControlHub
 from hydrolink.server.errors import ModelError
 from hydrolink.server.hdb_files import FileSetReader
@@ -67,7 +68,8 @@ class ForceServer:
 
     def __init__(self, bind: str | None, *, context: zmq.Context | None = None, session_timeout: float = 300.0,
                  key: bytes | None = None, curve_secret: str | None = None, curve_clients: str | None = None,
-                 max_message_bytes: int = codec.MAX_MESSAGE_BYTES, store: ContentStore | None = None):
+                 max_message_bytes: int = codec.MAX_MESSAGE_BYTES, store: ContentStore | None = None,
+                 max_setups: int = MAX_SETUPS, max_sessions: int = MAX_SESSIONS):
         """``bind=None`` makes an in-process server without a socket: clients in the same process
         call :meth:`respond` with the same frames a socket would carry (see ServerConnection).
 
@@ -75,7 +77,12 @@ class ForceServer:
         allowed client ``.key`` files) require CURVE authentication and encryption (SPEC §1.1).
 
         ``store``: the content store of HDB files sent by hash (SPEC §5.8); default a store in
-        :func:`hydrolink.server.hdb_store.default_folder`, opened on first use."""
+        :func:`hydrolink.server.hdb_store.default_folder`, opened on first use.
+
+        ``max_setups`` / ``max_sessions``: the multibody hellos being set up, and the sessions open
+        or being set up, beyond which a hello is refused at once with error 14 ``busy`` (SPEC §4.2;
+        server/capacity.py)."""
+        self.limits = HelloLimits(max_setups, max_sessions)   # checked before a socket is bound
         self._own_context = context is None and bind is not None
         self._security = None  # CURVE (protocol/security.py)
         self._ctx = context
@@ -121,7 +128,7 @@ class ForceServer:
         self._hubs: dict[str, ControlHub] = {}   # sessions with controllers (SPEC §5.7)
         self._rcv_ms = POLL_MS
         self._workers = SetupWorkers()
-        self._setups: list[PendingHello] = []    # hellos being set up, oldest first
+        self._setups: list[PendingHello] = []    # hellos being set up, oldest first (at most max_setups)
         self._paced: list[tuple[float, int, list[bytes]]] = []   # held replies: (release, order, frames)
         self._order = itertools.count()
         self._hold: float | None = None   # release time of the reply being handled (paced session)
@@ -143,8 +150,9 @@ class ForceServer:
 
     def serve_forever(self) -> None:
         """Poll loop: handle requests, expire idle sessions; returns after :meth:`stop`."""
-        log.info("hydrolink server %s listening on %s (protocol %d, session timeout %g s%s%s)",
-                 self._version, self._address, codec.PROTOCOL_VERSION, self.session_timeout,
+        log.info("hydrolink server %s listening on %s (protocol %d, session timeout %g s, at most %d set-ups "
+                 "and %d sessions%s%s)", self._version, self._address, codec.PROTOCOL_VERSION, self.session_timeout,
+                 self.limits.max_setups, self.limits.max_sessions,
                  ", signed" if self.key else "", ", CURVE" if self._security else "")
         if self._sock is None:
             raise RuntimeError("an in-process server (bind=None) has no socket to serve; call respond()")
@@ -367,6 +375,7 @@ class ForceServer:
                 realtime = check_factor(codec.require_float(msg, "realtime"), "realtime")
             except ValueError as exc:
                 raise ProtocolError(Code.BAD_VALUE, "realtime", str(exc)) from None
+        self.limits.admit(len(self._setups), len(self.sessions))
         t0 = time.perf_counter()
         if self._route is None or not self._running:   # no loop to answer later: the caller waits
             return self._open(msg, client, realtime, t0, build_model(msg, self.files))

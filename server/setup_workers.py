@@ -5,7 +5,8 @@ the hello when the set-up's :class:`~concurrent.futures.Future` is done. The hea
 set-up (the IRF transforms: numpy ufuncs and BLAS) release the GIL; what the loop then competes
 for is a core, so the workers run at a lower scheduling priority (SETUP_NICE, Linux: per thread)
 and a step that arrives takes the core first (bench/bench_setup_isolation.py measures the step
-latency meanwhile). Daemon threads: a server that stops does not wait for a set-up nobody will be
+latency meanwhile). The queue itself is unbounded: the server admits at most ``max_setups`` hellos
+at once (server/capacity.py), so it holds no more. Daemon threads: a server that stops does not wait for a set-up nobody will be
 answered for.
 """
 

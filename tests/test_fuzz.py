@@ -133,6 +133,13 @@ def templates(tmp_path_factory):
     server.close()
 
 
+def _close_new_session(server: ForceServer, reply: dict) -> None:
+    """Say bye to the session a fuzzed multibody hello opened: the fixture's sessions stay open,
+    the others would fill the server's session bound (max_sessions; then error 14 busy)."""
+    if reply["type"] == "welcome" and "epoch" not in reply:
+        assert send(server, codec.pack(codec.message("bye", "bye-new", reply["session"])))["type"] == "goodbye"
+
+
 def send(server: ForceServer, frame: bytes) -> dict:
     """One request frame through the server's handler as its socket loop calls it (with routing
     frames); the reply as the client decodes it, or {"type": "deferred"} (SPEC §5.7)."""
@@ -157,6 +164,7 @@ def test_no_hostile_message_reaches_internal_error(templates):
         if reply["type"] == "welcome" and "epoch" in reply:   # a controller re-joined: later requests carry its epoch
             for name in ("measure", "command"):
                 t[name]["epoch"] = reply["epoch"]
+        _close_new_session(server, reply)
         code = reply.get("code", 0) if reply["type"] == "error" else 0
         codes[code] = codes.get(code, 0) + 1
         assert code != codec.Code.INTERNAL, (i, reply)
@@ -446,6 +454,7 @@ def test_extreme_values_in_every_numeric_message_field(templates):
                 if reply["type"] == "welcome" and "epoch" in reply:
                     for other in ("measure", "command"):
                         t[other]["epoch"] = reply["epoch"]
+                _close_new_session(server, reply)
                 where = (name, path, value, reply)
                 if reply["type"] == "error":
                     assert reply["code"] != codec.Code.INTERNAL, where

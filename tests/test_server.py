@@ -11,7 +11,7 @@ import pytest
 import zmq
 from analytic_hdb import make_body_hdb
 
-from conftest import SPHERE_WATER, body, regular_waves, scene_toml
+from conftest import SPHERE_WATER, body, linear_pto, regular_waves, scene_toml, serve_process
 
 from hydrolink.clients.lockstep.connection import RemoteError, ServerConnection
 from hydrolink.protocol import codec
@@ -575,3 +575,143 @@ def test_a_reply_the_wire_cannot_carry_is_an_error_and_the_server_serves_on():
     srv._handlers["ping"] = srv._ping
     assert codec.unpack(srv.respond(ping))["type"] == "pong"
     srv.close()
+
+
+# ------------------------------------------------------------------ bounds on hellos (SPEC §4.2, error 14)
+
+def _dealer(address: str) -> zmq.Socket:
+    sock = zmq.Context.instance().socket(zmq.DEALER)
+    sock.setsockopt(zmq.LINGER, 0)
+    sock.connect(address)
+    return sock
+
+
+def _reply(sock: zmq.Socket, timeout_s: float) -> dict:
+    assert sock.poll(int(timeout_s * 1000)), f"no reply within {timeout_s} s"
+    return codec.unpack(sock.recv())
+
+
+def test_a_hello_beyond_the_setup_bound_is_refused_at_once_and_the_others_are_served(hdb):
+    """max_setups = 2: two hellos with set-ups of seconds (dt = 5e-4 s: an IRF of 8e3
+    samples) are being set up; a third is refused with error 14 at once — while both set-ups still
+    run — naming the bound, its value and the option; the two are welcomed and step, the existing
+    session steps throughout, and once the set-ups are done a new hello is welcomed."""
+    srv, thread = serve_in_thread(session_timeout=60.0, max_setups=2)
+    slow = float_scene(dt=5e-4, duration=0.1)
+    socks = [_dealer(srv.address) for _ in range(2)]
+    try:
+        with ServerConnection(srv.address, timeout=10.0) as live, \
+                ServerConnection(srv.address, timeout=10.0) as late:
+            live.hello(float_scene(duration=1.0e5), {"float.nc": hdb})
+            t_sent = time.perf_counter()
+            for i, sock in enumerate(socks):   # the ping's pong: the hello before it was handled
+                sock.send(codec.pack(codec.message("hello", f"slow-{i}", None, role="multibody", scene=slow,
+                                                   hdbs={"float.nc": to_wire(hdb)})))
+                sock.send(codec.pack(codec.message("ping", f"ping-{i}", None)))
+                assert _reply(sock, 5.0)["type"] == "pong"
+            t0 = time.perf_counter()
+            err = expect_error(lambda: late.hello(SCENE, {"float.nc": hdb}), 14, None)
+            refused_s = time.perf_counter() - t0
+            still_running = [sock.poll(0) == 0 for sock in socks]
+            assert err.name == "busy" and err.extra == {"limit": "setups", "maximum": 2, "current": 2}, err
+            assert "2 hellos are being set up, at most 2" in err.message and "--max-setups" in err.message
+            assert all(still_running), "the refusal came after a set-up was done: not at once"
+            steps = 0
+            while not all(sock.poll(0) for sock in socks):   # the live session is answered meanwhile
+                assert time.perf_counter() - t_sent < 120.0, "the slow hellos got no reply"
+                live.step(steps, steps * DT, *states(1, seed=steps)[0])
+                steps += 1
+            setup_s = time.perf_counter() - t_sent
+            for i, sock in enumerate(socks):
+                welcome = codec.unpack(sock.recv())
+                assert welcome["type"] == "welcome" and welcome["parent"] == f"slow-{i}", welcome
+                assert welcome["setup"]["irf_samples"] == 8_000
+                sock.send(codec.pack(codec.message("step", f"step-{i}", welcome["session"], seq=0, time=0.0,
+                                                   position=np.zeros((1, 6)), velocity=np.zeros((1, 6)))))
+                forces = _reply(sock, 10.0)
+                assert forces["type"] == "forces" and forces["seq"] == 0, forces
+            print(f"busy after {refused_s * 1e3:.1f} ms; the two set-ups took {setup_s:.2f} s; "
+                  f"{steps} steps of the live session answered meanwhile")
+            assert refused_s < 0.25 * setup_s and steps >= 10, (refused_s, setup_s, steps)
+            late.hello(SCENE, {"float.nc": hdb})   # the set-ups are done: room again
+            assert late.step(0, 0.0, *states(1)[0])["seq"] == 0
+            assert live.step(steps, steps * DT, *states(1)[0])["seq"] == steps
+    finally:
+        for sock in socks:
+            sock.close(0)
+        srv.stop()
+        thread.join(timeout=5)
+
+
+def test_a_hello_beyond_the_session_bound_is_refused_until_a_bye_frees_one(hdb):
+    """max_sessions = 2: the third hello is refused with error 14 naming the bound; the open
+    sessions step on unchanged; after one says bye a hello is welcomed."""
+    srv, thread = serve_in_thread(session_timeout=60.0, max_sessions=2)
+    try:
+        with ServerConnection(srv.address, timeout=10.0) as a, ServerConnection(srv.address, timeout=10.0) as b, \
+                ServerConnection(srv.address, timeout=10.0) as c:
+            a.hello(SCENE, {"float.nc": hdb})
+            b.hello(SCENE, {"float.nc": hdb})
+            sts = states(4, seed=5)
+            before = a.step(0, 0.0, *sts[0])
+            t0 = time.perf_counter()
+            err = expect_error(lambda: c.hello(SCENE, {"float.nc": hdb}), 14, None)
+            refused_s = time.perf_counter() - t0
+            assert err.name == "busy" and err.extra == {"limit": "sessions", "maximum": 2, "current": 2}, err
+            assert "2 sessions open and 0 being set up, at most 2" in err.message and "--max-sessions" in err.message
+            assert c.session is None and len(srv.sessions) == 2
+            print(f"busy after {refused_s * 1e3:.1f} ms")
+            assert refused_s < 1.0
+            repeat = a.step(0, 0.0, *sts[0])   # §5.3: the cached reply, the session as it was
+            for k in ("excitation", "radiation", "hydrostatic"):
+                np.testing.assert_array_equal(repeat[k], before[k])
+            assert a.step(1, DT, *sts[1])["seq"] == 1 and b.step(0, 0.0, *sts[0])["seq"] == 0
+            b.bye()
+            c.hello(SCENE, {"float.nc": hdb})
+            assert c.step(0, 0.0, *sts[0])["seq"] == 0 and a.step(2, 2 * DT, *sts[2])["seq"] == 2
+    finally:
+        srv.stop()
+        thread.join(timeout=5)
+
+
+def test_a_controller_hello_is_not_counted_against_the_session_bound(hdb):
+    """A controller joins an existing session: with max_sessions = 1 reached it is still welcomed,
+    while a second multibody hello is refused (error 14)."""
+    from hydrolink.server.service import ForceServer
+    text = scene_toml(dt=DT, duration=10.0, waves=regular_waves(1.0, 6.0), hydro={"irf_duration": 2.0},
+                      bodies=[body("float", hdb="float.nc", mass=3.0e5, center_of_mass=[0, 0, -1],
+                                   inertia=[1e7, 1e7, 2e7])],
+                      ptos=[linear_pto("pto", "float", [0, 0, -1], "ground", [0, 0, -20], damping=1e5)],
+                      controllers=[{"name": "ctl", "ptos": ["pto"]}])
+    srv = ForceServer("tcp://127.0.0.1:*", max_sessions=1)   # bound (controllers need one), not served
+    try:
+        hello = codec.message("hello", "h", None, role="multibody", scene=text, hdbs={"float.nc": to_wire(hdb)})
+        welcome = srv.handle(codec.pack(hello), [b"c"])
+        assert welcome["type"] == "welcome", welcome
+        joined = srv.handle(codec.pack(codec.message("hello", "j", welcome["session"], role="controller",
+                                                     controller="ctl")), [b"k"])
+        assert joined["type"] == "welcome" and joined["session"] == welcome["session"], joined
+        refused = srv.handle(codec.pack(hello), [b"d"])
+        assert (refused["type"], refused["code"], refused["name"], refused["limit"]) == \
+            ("error", 14, "busy", "sessions"), refused
+    finally:
+        srv.close()
+
+
+@pytest.mark.parametrize("kw", [{"max_setups": 0}, {"max_sessions": -1}, {"max_sessions": 2.5}])
+def test_a_bound_that_admits_nothing_is_refused_naming_the_argument(kw):
+    from hydrolink.server.service import ForceServer
+    with pytest.raises(ValueError, match=f"{next(iter(kw))} must be an int >= 1"):
+        ForceServer(None, **kw)
+
+
+def test_hydrolink_serve_takes_the_bounds_from_its_options(hdb, tmp_path):
+    """`hydrolink serve --max-sessions 1`: the second hello is error 14 naming the option and 1."""
+    with serve_process("--max-setups", "1", "--max-sessions", "1", "--store", str(tmp_path)) as address, \
+            ServerConnection(address, timeout=30.0) as a, ServerConnection(address, timeout=30.0) as b:
+        a.hello(SCENE, {"float.nc": hdb})
+        err = expect_error(lambda: b.hello(SCENE, {"float.nc": hdb}), 14, None)
+        assert err.extra == {"limit": "sessions", "maximum": 1, "current": 1} and "--max-sessions" in err.message
+        a.bye()
+        b.hello(SCENE, {"float.nc": hdb})
+        assert b.step(0, 0.0, *states(1)[0])["seq"] == 0
