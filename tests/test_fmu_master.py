@@ -10,6 +10,7 @@ the Exudyn client on the same scene with a linear PTO to ground.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pytest
@@ -280,23 +281,41 @@ def test_hydrolink_run_dispatches_to_the_fmu_client(sphere, sphere_path, rho_v, 
 PTO_TO_GROUND = linear_pto("pto", "sphere", [0.0, 0.0, -2.0], "ground", [0.0, 0.0, -50.0], damping=C_PTO)
 
 
-@pytest.mark.parametrize("which", ["c", "py", "py3"])
-def test_fmu_matches_exudyn_client_on_the_same_scene(server, sphere, sphere_path, rho_v, fmus, tmp_path, which):
-    """The same scene — sphere, regular waves near heave resonance, PTO damper to ground — run
-    natively (Exudyn, `[[ptos]] type = "linear"`) and with the FMU client (the PTO inside the FMU):
-    heave amplitude and mean PTO power agree within 0.5 %."""
+class NativeRun(NamedTuple):
+    """What the FMU runs are compared with: the wave frequency (rad/s), the mean PTO power (W) over
+    the last 4 periods, the steady heave (complex amplitude, m) and the wall time per step (s)."""
+    omega: float
+    power: float
+    heave: complex
+    step_time: float
+
+
+@pytest.fixture(scope="module")
+def native_run(sphere, sphere_path, rho_v, tmp_path_factory) -> NativeRun:
+    """The scene of test_fmu_matches_exudyn_client_on_the_same_scene run natively (Exudyn, the PTO
+    a `[[ptos]] type = "linear"` damper to ground), once for the three FMUs compared with it."""
     from hydrolink.clients.run import run_scene_file
 
     w = float(sphere["omega"].values[np.argmin(np.abs(sphere["omega"].values - 1.45))])
     period = 2 * np.pi / w
-    write_scene(tmp_path, base_scene(sphere_path, rho_v, period, ptos=[PTO_TO_GROUND]), "native.toml")
-    native = run_scene_file(tmp_path / "native.toml", tmp_path / "native.nc", progress=False)
-    ds = xr.load_dataset(tmp_path / "native.nc")
+    folder = tmp_path_factory.mktemp("native")
+    write_scene(folder, base_scene(sphere_path, rho_v, period, ptos=[PTO_TO_GROUND]), "native.toml")
+    native = run_scene_file(folder / "native.toml", folder / "native.nc", progress=False)
+    ds = xr.load_dataset(folder / "native.nc")
     t = ds["time"].values
     last = t >= t[-1] - 4 * period - 1e-9
     p_native = float(np.trapezoid(ds["total_pto_power"].values[last], t[last]) / (t[last][-1] - t[last][0]))
-    z_native = steady_heave(ds, w)
+    return NativeRun(w, p_native, steady_heave(ds, w), native.wall_time / native.steps)
 
+
+@pytest.mark.parametrize("which", ["c", "py", "py3"])
+def test_fmu_matches_exudyn_client_on_the_same_scene(server, sphere, sphere_path, rho_v, fmus, native_run, tmp_path,
+                                                     which):
+    """The same scene — sphere, regular waves near heave resonance, PTO damper to ground — run
+    natively (Exudyn, `[[ptos]] type = "linear"`; once, ``native_run``) and with the FMU client (the
+    PTO inside the FMU): heave amplitude and mean PTO power agree within 0.5 %."""
+    w, p_native, z_native, native_step = native_run
+    period = 2 * np.pi / w
     text = base_scene(sphere_path, rho_v, period, client=fmu_section(fmus[which], rho_v, a_inf=which == "c"))
     summary, dsf = run_fmu(server, text, sphere, tmp_path / "fmu.nc", record=["E_pto"])
     p_fmu = mean_power(dsf["time"].values, summary.recorded["E_pto"], w)
@@ -305,7 +324,7 @@ def test_fmu_matches_exudyn_client_on_the_same_scene(server, sphere, sphere_path
     REPORT[f"exudyn {which}"] = (f"{which} ({summary.coupling.scheme}) vs Exudyn: |RAO| {abs(z_fmu):.5f} vs "
                                  f"{abs(z_native):.5f} ({amp_err:+.2e}), PTO power {p_fmu:.0f} vs {p_native:.0f} W "
                                  f"({p_err:+.2e}); wall {summary.wall_time / summary.steps * 1e6:.0f} vs "
-                                 f"{native.wall_time / native.steps * 1e6:.0f} us/step")
+                                 f"{native_step * 1e6:.0f} us/step")
     print(REPORT[f"exudyn {which}"])
     assert abs(amp_err) < 0.005 and abs(p_err) < 0.005
     assert abs(np.degrees(np.angle(z_fmu / z_native))) < 0.5
