@@ -88,18 +88,10 @@ def _cut_hull_loads(local, tris, d, z, p, loads, vertex_loads, out):
                 h0, h1, h2, h3, h4, h5 = h0 - wh * sx, h1 - wh * sy, h2 - wh * sz, h3 - wh * mx, h4 - wh * my, h5 - wh * mz
                 f0, f1, f2, f3, f4, f5 = f0 - wf * sx, f1 - wf * sy, f2 - wf * sz, f3 - wf * mx, f4 - wf * my, f5 - wf * mz
     out += w @ vertex_loads     # every wet vertex with all its triangles' corner loads
-    out[0, 0] += h0 / 3.0
-    out[0, 1] += h1 / 3.0
-    out[0, 2] += h2 / 3.0
-    out[0, 3] += h3 / 12.0
-    out[0, 4] += h4 / 12.0
-    out[0, 5] += h5 / 12.0
-    out[1, 0] += f0 / 3.0
-    out[1, 1] += f1 / 3.0
-    out[1, 2] += f2 / 3.0
-    out[1, 3] += f3 / 12.0
-    out[1, 4] += f4 / 12.0
-    out[1, 5] += f5 / 12.0
+    pieces = ((h0, h1, h2, h3, h4, h5), (f0, f1, f2, f3, f4, f5))
+    for row in range(2):
+        for k in range(6):
+            out[row, k] += pieces[row][k] / (3.0 if k < 3 else 12.0)
 
 
 def _compiled():
