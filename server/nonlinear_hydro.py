@@ -155,7 +155,7 @@ def _split_components(omega: np.ndarray, k: np.ndarray, heading: np.ndarray, amp
         forced = np.concatenate(forced)
         sz = np.column_stack([points[:, :2] @ direction, points[:, 2]])
         short = np.sort(k[np.concatenate(runs)]) if runs else np.zeros(0)
-        best = (n_p * len(forced) * _DIRECT_PAIR + _recurrence_cost(runs, n_p), None, -math.inf)
+        best = (n_p * len(forced) * _DIRECT_PAIR + _recurrence_cost(runs, n_p), None, -math.inf, forced)
         for cut in np.unique(np.concatenate([[-math.inf], short[::max(1, len(short) // 24)], short[-1:]])):
             kept = [r[k[r] > cut] for r in runs]
             boxed = np.concatenate([forced] + [r[k[r] <= cut] for r in runs] + [r for r in kept if len(r) < 3])
@@ -164,8 +164,8 @@ def _split_components(omega: np.ndarray, k: np.ndarray, heading: np.ndarray, amp
             n_s, rows, cost = layout(k[boxed], amplitude[boxed], depth, radius, floor, sz, total)
             cost += _recurrence_cost([r for r in kept if len(r) >= 3], n_p)
             if cost < best[0]:
-                best = (cost, (n_s, rows), cut)
-        cost, grid, cut = best
+                best = (cost, (n_s, rows), cut, boxed)
+        cost, grid, cut, boxed = best
         for r in runs:
             kept = r[k[r] > cut]
             if len(kept) >= 3:
@@ -173,8 +173,6 @@ def _split_components(omega: np.ndarray, k: np.ndarray, heading: np.ndarray, amp
         if grid is None:
             direct.append(forced)
             continue
-        boxed = np.concatenate([forced] + [r[k[r] <= cut] for r in runs] + [r[k[r] > cut] for r in runs
-                                                                             if np.count_nonzero(k[r] > cut) < 3])
         boxes.append(BoxGroup(boxed[np.argsort(k[boxed], kind="stable")], direction, grid[0], len(grid[1]), grid[1]))
     direct = np.sort(np.concatenate(direct)) if direct else np.zeros(0, np.int64)
     return _PressureSplit(tuple(recurrences), tuple(boxes), direct.astype(np.int64), floor)
