@@ -56,13 +56,13 @@ _POINT = 14.0             # a point's box and place in the sort
 @dataclass(frozen=True)
 class BoxGroup:
     """One heading's components summed by boxes: the (s, z) region [-radius, radius] x [floor, 0]
-    cut into ``n_s`` x ``n_z`` equal boxes, ``row_orders`` terms of the series in each row of boxes
-    (from the floor up: the deeper rows need fewer, their short waves being weaker)."""
+    cut into ``n_s`` columns and as many rows of near-square boxes as ``row_orders`` has, its terms
+    of the series in each row (from the floor up: the deeper rows need fewer, their short waves
+    being weaker)."""
     columns: np.ndarray     # (n_g,) component indices, by increasing k (the seabed term only the first ones')
     direction: np.ndarray   # (2,) cos b, sin b
     n_s: int
-    n_z: int
-    row_orders: np.ndarray  # (n_z,) int64
+    row_orders: np.ndarray  # (n_z,) int64, n_z the rows of _grid(n_s, ...)
 
 
 def _grid(n_s: int, radius: float, floor: float) -> tuple[int, float, float, float]:

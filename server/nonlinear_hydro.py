@@ -173,7 +173,7 @@ def _split_components(omega: np.ndarray, k: np.ndarray, heading: np.ndarray, amp
         if grid is None:
             direct.append(forced)
             continue
-        boxes.append(BoxGroup(boxed[np.argsort(k[boxed], kind="stable")], direction, grid[0], len(grid[1]), grid[1]))
+        boxes.append(BoxGroup(boxed[np.argsort(k[boxed], kind="stable")], direction, grid[0], grid[1]))
     direct = np.sort(np.concatenate(direct)) if direct else np.zeros(0, np.int64)
     return _PressureSplit(tuple(recurrences), tuple(boxes), direct.astype(np.int64), floor)
 

@@ -54,7 +54,7 @@ def test_box_series_is_the_direct_sum(depth, w_max, columns):
             n_s, rows = columns, box_expansion.row_orders(k[cols], amp[cols], depth, columns, radius, floor,
                                                           float(amp.sum()))
         assert rows.max() <= box_expansion._MAX_ORDERS and cost < math.inf
-        groups.append(BoxGroup(cols, direction, n_s, len(rows), rows))
+        groups.append(BoxGroup(cols, direction, n_s, rows))
     table = box_table(groups, k, depth, radius, floor)
     assert bool(table.mirror.any()) == (not math.isinf(depth))        # the long waves feel the seabed
     reference = np.array([40.0, -7.0])
