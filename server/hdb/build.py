@@ -99,8 +99,8 @@ class _TabulationNote(logging.Filter):
     def filter(self, record: logging.LogRecord) -> bool:
         if record.getMessage().startswith("Precomputing tabulation"):
             from capytaine.tools.cache_on_disk import cache_directory
-            self.say("hdb build: Capytaine is tabulating its Green function, once on this machine (a few seconds; "
-                     f"kept in {cache_directory()})")
+            self.say("hdb build: Capytaine is tabulating its Green function, once on this machine (about half a "
+                     f"minute on 2 cores; kept in {cache_directory()})")
             return False
         return True
 
