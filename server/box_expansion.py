@@ -73,6 +73,11 @@ def _grid(n_s: int, radius: float, floor: float) -> tuple[int, float, float, flo
     return n_z, side_s, side_z, 0.5 * math.hypot(side_s, side_z)
 
 
+def _seabed(k: np.ndarray, depth: float) -> np.ndarray:
+    """D = 1 / (1 + e^{-2kh}), the depth factor's normalisation (1 in deep water)."""
+    return np.ones_like(k) if math.isinf(depth) else 1.0 / (1.0 + np.exp(-2.0 * k * depth))
+
+
 def row_orders(k: np.ndarray, amplitude: np.ndarray, depth: float, n_s: int, radius: float, floor: float,
                total: float) -> np.ndarray:
     """(n_z,) each row's orders: the least N whose remainder bound, sum_c a_c D_c (e^{k_c z_b} +
@@ -80,7 +85,7 @@ def row_orders(k: np.ndarray, amplitude: np.ndarray, depth: float, n_s: int, rad
     the sea's amplitude sum ``total`` (more than _MAX_ORDERS where none up to it is)."""
     n_z, _, side_z, rho = _grid(n_s, radius, floor)
     z_b = floor + (np.arange(n_z) + 0.5) * side_z
-    d = np.ones_like(k) if math.isinf(depth) else 1.0 / (1.0 + np.exp(-2.0 * k * depth))
+    d = _seabed(k, depth)
     weight = amplitude * d * np.exp(np.outer(z_b, k))                    # (n_z, n_c)
     if not math.isinf(depth):
         weight += amplitude * d * np.exp(-np.outer(2.0 * depth + z_b, k))
@@ -100,12 +105,12 @@ def layout(k: np.ndarray, amplitude: np.ndarray, depth: float, radius: float, fl
     The cost is infinite where no grid is feasible."""
     best = (1, np.zeros(0, np.int64), math.inf)
     for n_s in (1, 2, 3, 4, 5, 6, 7, 8, 10, 12, 14, 17, 20, 24, 28, 34, 40):
-        n_z, side_s, side_z, _ = _grid(n_s, radius, floor)
         rows = row_orders(k, amplitude, depth, n_s, radius, floor, total)
-        i = np.clip(((points[:, 0] + radius) / side_s).astype(int), 0, n_s - 1)
-        j = np.clip(((points[:, 1] - floor) / side_z).astype(int), 0, n_z - 1)
         if rows.max() > _MAX_ORDERS:
             continue
+        n_z, side_s, side_z, _ = _grid(n_s, radius, floor)
+        i = np.clip(((points[:, 0] + radius) / side_s).astype(int), 0, n_s - 1)
+        j = np.clip(((points[:, 1] - floor) / side_z).astype(int), 0, n_z - 1)
         occupied = np.unique(j * n_s + i) // n_s           # the occupied boxes' rows
         cost = 1.33 * len(k) * (_BOX_COMPONENT * len(occupied) + _BOX_PRODUCT * rows[occupied].sum()) \
             + _POINT * len(points) + _POINT_ORDER * rows[j].sum()
@@ -131,12 +136,12 @@ def box_table(groups: list[BoxGroup], k: np.ndarray, depth: float, radius: float
         s_b = -radius + (np.arange(g.n_s) + 0.5) * side_s
         z_b = floor + (np.arange(n_z) + 0.5) * side_z
         s_box, z_box = np.tile(s_b, n_z), np.repeat(z_b, g.n_s)          # box q = j n_s + i
-        d = np.ones_like(kg) if math.isinf(depth) else 1.0 / (1.0 + np.exp(-2.0 * kg * depth))
+        d = _seabed(kg, depth)
         turn = np.exp(1j * np.outer(s_box, kg))
         factors.append((d * np.exp(np.outer(z_box, kg)) * turn).T)         # (n_g, boxes): a component's row
         near = np.zeros(len(kg), bool) if math.isinf(depth) else 2.0 * kg * (depth + floor) < 40.0
         n_m = int(np.flatnonzero(near)[-1]) + 1 if near.any() else 0     # the seabed term to round-off: a prefix by k
-        mirrors.append((d * np.exp(-np.outer(2.0 * depth + z_box, kg)) * turn).T[:n_m])
+        mirrors.append((d[:n_m] * np.exp(-np.outer(2.0 * depth + z_box, kg[:n_m])) * turn[:, :n_m]).T)
         flags.append(n_m)
     w, w_start = flatten(weights)
     f_re, f_start = flatten([f.real for f in factors])
