@@ -233,9 +233,9 @@ def box_sum(b, x_re, x_im, wx, wy, zs, out):
         even = b.weights[w0:w0 + n_e * n_g].reshape((n_e, n_g))
         odd = b.weights[w0 + n_e * n_g:w0 + n_o * n_g].reshape((n_o - n_e, n_g))
         ys = np.empty((2, n_g, 2 * n_s))    # per component: Re then Im of P + conj Q (even orders), of P - conj Q (odd)
+        occ = np.empty(n_s, np.int64)       # a row's occupied boxes
         for j in range(n_z):
             n_j = b.row_orders[b.row_start[g] + j]
-            occ = np.empty(n_s, np.int64)
             n_occ = 0
             for i in range(n_s):
                 if first[j * n_s + i + 1] > first[j * n_s + i]:
