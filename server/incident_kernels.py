@@ -172,16 +172,17 @@ class HullPass:
     (``local`` (V, 3) vertices about the reference point, ``triangles``, their corner ``loads`` and
     ``vertex_loads``, server/wet_surface_kernel.py), the components' ``omega``, complex
     ``amplitude`` a_c e^{i phi_c} and wave numbers ``k``, the water ``depth``, the ``tables``,
-    ``fk_linear`` (6, n_c) complex, and the buffers the kernel writes."""
+    ``fk_linear`` (6, n_c) complex, and the buffers the kernel writes. The fixed inputs are handed
+    to the compiled code once (a ``HullState``): a step passes the pose, time and ramp."""
 
     def __init__(self, local: np.ndarray, triangles: np.ndarray, loads: np.ndarray, vertex_loads: np.ndarray,
                  omega: np.ndarray, amplitude: np.ndarray, k: np.ndarray, depth: float, tables: HullTables,
                  fk_linear: np.ndarray):
         f, c = np.float64, np.ascontiguousarray      # one compiled signature
-        self._hull = (c(local, f), c(triangles, np.int64), c(loads, f), c(vertex_loads, f))
-        self._sea = (c(omega, f), c(amplitude.real, f), c(amplitude.imag, f))
-        self._tables = (c(k, f), c(tables.heading, f), float(depth), *tables[:3], tables.direct, tables.direct_direction,
-                        c(fk_linear.real, f), c(fk_linear.imag, f))
+        self._state = _compiled().hull_state(c(local, f), c(triangles, np.int64), c(loads, f), c(vertex_loads, f),
+                                             c(omega, f), c(amplitude.real, f), c(amplitude.imag, f), c(k, f),
+                                             c(tables.heading, f), float(depth), *tables[:3], tables.direct,
+                                             tables.direct_direction, c(fk_linear.real, f), c(fk_linear.imag, f))
         self.out, self.rot, self._v = np.zeros((3, 6)), np.empty((3, 3)), np.empty((3, len(local)))
 
     def __call__(self, pose: np.ndarray, t: float, ramp: float) -> tuple[np.ndarray, np.ndarray] | None:
@@ -193,9 +194,8 @@ class HullPass:
         next call. The pressure at the wet vertices is the Wheeler-stretched Froude–Krylov one, by
         the tables. None where a wet vertex's stretched height is below the tables' floor (the
         caller then takes the numpy path)."""
-        v = self._v
-        ok = _compiled().hull_loads(*self._hull, np.ascontiguousarray(pose, np.float64), *self._sea, float(t),
-                                    float(ramp), *self._tables, self.rot, v[0], v[1], v[2], self.out)
+        ok = _compiled().hull_step(self._state, np.ascontiguousarray(pose, np.float64), float(t), float(ramp), self.rot,
+                                   self._v, self.out)
         return (self.out, self.rot) if ok else None
 
 
