@@ -11,19 +11,31 @@ point), R the pose's rotation; the weight acts at the centre of mass, R times it
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
-__all__ = ["reply_rows"]
+__all__ = ["BodyConstants", "reply_rows"]
 
 
-def reply_rows(loads: np.ndarray, fk_linear: np.ndarray, rg: float, rot: np.ndarray, lever: np.ndarray,
-               weight: float, stiffness: np.ndarray, pose: np.ndarray, reference: np.ndarray, linear_net: float,
-               active: np.ndarray, hs: np.ndarray, fk: np.ndarray) -> None:
-    """Writes the rows ``hs`` and ``fk`` (6,) (zero on inactive DOFs, ``active`` 1.0 or 0.0):
-    ``loads`` (2, 6) the hydrostatic and Froude–Krylov loads per unit rho g ``rg`` in the body's
-    frame, ``fk_linear`` (6,) [N] the linear Froude–Krylov force now, ``rot`` (3, 3), ``lever``
-    (3,) centre of mass minus reference point at equilibrium, ``weight`` m g [N], ``stiffness``
-    (6, 6) and ``reference`` (6,) the linear model's, ``linear_net`` its net buoyancy [N]."""
+class BodyConstants(NamedTuple):
+    """A nonlinear body's fixed inputs to :func:`reply_rows` (float64 arrays, contiguous)."""
+    rg: float                  # rho g [N/m^3]: the loads are per unit rho g
+    lever: np.ndarray          # (3,) centre of mass minus reference point at equilibrium [m]
+    weight: float              # m g [N]
+    stiffness: np.ndarray      # (6, 6) the linear model's hydrostatic stiffness (active DOFs only)
+    reference: np.ndarray      # (6,) the linear model's equilibrium pose
+    linear_net: float          # its net buoyancy [N]
+    active: np.ndarray         # (6,) 1.0 on active DOFs, else 0.0
+
+
+def reply_rows(loads: np.ndarray, fk_linear: np.ndarray, rot: np.ndarray, pose: np.ndarray, body: BodyConstants,
+               hs: np.ndarray, fk: np.ndarray) -> None:
+    """Writes the rows ``hs`` and ``fk`` (6,) (zero on inactive DOFs): ``loads`` (2, 6) the
+    hydrostatic and Froude–Krylov loads per unit rho g in the body's frame, ``fk_linear`` (6,) [N]
+    the linear Froude–Krylov force now, ``rot`` (3, 3) the rotation of the ``pose`` (6,)."""
+    rg, lever, weight, stiffness = body.rg, body.lever, body.weight, body.stiffness
+    reference, linear_net, active = body.reference, body.linear_net, body.active
     for j in range(6):
         hs[j] = 0.0
         fk[j] = 0.0

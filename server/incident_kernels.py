@@ -35,6 +35,7 @@ import math
 from typing import Callable, NamedTuple
 
 import numpy as np
+from hydrolink.server.body_rows import BodyConstants
 
 __all__ = ["AVAILABLE", "BoxTable", "ElevationTable", "HullPass", "HullTables", "RecurrenceTable", "box_pressure",
            "chebyshev_sum", "deep_pressure", "elevation", "imports", "reply_rows", "warm_up"]
@@ -167,36 +168,33 @@ class HullTables(NamedTuple):
 
 
 class HullPass:
-    """One Froude–Krylov body's step in one compiled pass (the kernel ``hull_loads`` of
+    """One Froude–Krylov body's step in one compiled pass (the kernel ``hull_step`` of
     server/incident_numba.py), with what does not change between steps made once: the hull
     (``local`` (V, 3) vertices about the reference point, ``triangles``, their corner ``loads`` and
     ``vertex_loads``, server/wet_surface_kernel.py), the components' ``omega``, complex
     ``amplitude`` a_c e^{i phi_c} and wave numbers ``k``, the water ``depth``, the ``tables``,
-    ``fk_linear`` (6, n_c) complex, and the buffers the kernel writes. The fixed inputs are handed
-    to the compiled code once (a ``HullState``): a step passes the pose, time and ramp."""
+    ``fk_linear`` (6, n_c) complex, the ``body``'s constants of its reply rows, and the buffers the
+    kernel writes. The fixed inputs are handed to the compiled code once (a ``HullState``): a step
+    passes the pose, time and ramp."""
 
     def __init__(self, local: np.ndarray, triangles: np.ndarray, loads: np.ndarray, vertex_loads: np.ndarray,
                  omega: np.ndarray, amplitude: np.ndarray, k: np.ndarray, depth: float, tables: HullTables,
-                 fk_linear: np.ndarray):
+                 fk_linear: np.ndarray, body: BodyConstants):
         f, c = np.float64, np.ascontiguousarray      # one compiled signature
         self._state = _compiled().hull_state(c(local, f), c(triangles, np.int64), c(loads, f), c(vertex_loads, f),
                                              c(omega, f), c(amplitude.real, f), c(amplitude.imag, f), c(k, f),
                                              c(tables.heading, f), float(depth), *tables[:3], tables.direct,
-                                             tables.direct_direction, c(fk_linear.real, f), c(fk_linear.imag, f))
+                                             tables.direct_direction, c(fk_linear.real, f), c(fk_linear.imag, f), body)
         self.out, self.rot, self._v = np.zeros((3, 6)), np.empty((3, 3)), np.empty((3, len(local)))
 
-    def __call__(self, pose: np.ndarray, t: float, ramp: float) -> tuple[np.ndarray, np.ndarray] | None:
-        """(out, rot) for the pose (6,) at time ``t`` [s] with the ``ramp`` factor: ``rot`` (3, 3) the
-        rotation of the pose's Tait–Bryan angles (as wetted_surface.rotation_xyz), ``out`` (3, 6) the
-        hydrostatic and the Froude–Krylov load per unit rho g in the body's frame (force, moment
-        about the reference point) over the part of the hull below the incident free surface, and
-        Re(fk_linear e^{-i w t}) ramp (global) [N]; both this pass's buffers, overwritten by the
-        next call. The pressure at the wet vertices is the Wheeler-stretched Froude–Krylov one, by
-        the tables. None where a wet vertex's stretched height is below the tables' floor (the
-        caller then takes the numpy path)."""
-        ok = _compiled().hull_step(self._state, np.ascontiguousarray(pose, np.float64), float(t), float(ramp), self.rot,
-                                   self._v, self.out)
-        return (self.out, self.rot) if ok else None
+    def __call__(self, pose: np.ndarray, t: float, ramp: float, hs: np.ndarray, fk: np.ndarray) -> bool:
+        """Writes the body's rows ``hs`` and ``fk`` (6,) (server/body_rows.py) for the pose (6,) at
+        time ``t`` [s] with the ``ramp`` factor: the hydrostatic and the Froude–Krylov load over the
+        part of the hull below the incident free surface, the pressure at the wet vertices the
+        Wheeler-stretched Froude–Krylov one, by the tables. False (the rows not written) where a
+        wet vertex's stretched height is below the tables' floor: the caller then takes the numpy
+        path."""
+        return _compiled().hull_step(self._state, pose, float(t), float(ramp), self.rot, self._v, self.out, hs, fk)
 
 
 def reply_rows() -> Callable[..., None]:
@@ -217,9 +215,9 @@ def warm_up() -> None:
                      none, none, count, count, 1.0, -1.0)
     tables = HullTables(elevation, recurrences, boxes, count, heads, np.ones((1, 2)))
     local = np.array([[0.0, 0.0, -1.0], [1.0, 0.0, 1.0], [0.0, 1.0, 1.0]])
-    step = HullPass(local, np.array([[0, 1, 2]]), np.zeros((1, 3, 6)), np.zeros((3, 6)), np.ones(1),
-                    np.ones(1, complex), np.ones(1), math.inf, tables, np.zeros((6, 1), complex))
-    step(np.zeros(6), 0.0, 1.0)
     six = np.zeros(6)
-    reply_rows()(np.zeros((2, 6)), six, 1.0, np.eye(3), np.zeros(3), 0.0, np.zeros((6, 6)), six, six, 0.0, six,
-                 np.zeros(6), np.zeros(6))
+    body = BodyConstants(1.0, np.zeros(3), 0.0, np.zeros((6, 6)), six, 0.0, np.ones(6))
+    step = HullPass(local, np.array([[0, 1, 2]]), np.zeros((1, 3, 6)), np.zeros((3, 6)), np.ones(1),
+                    np.ones(1, complex), np.ones(1), math.inf, tables, np.zeros((6, 1), complex), body)
+    step(six, 0.0, 1.0, np.zeros(6), np.zeros(6))
+    reply_rows()(np.zeros((2, 6)), six, np.eye(3), six, body, np.zeros(6), np.zeros(6))

@@ -416,21 +416,26 @@ class HullState(structref.StructRefProxy):
 
 structref.define_proxy(HullState, _HullStateType, ["local", "tris", "loads", "vertex_loads", "omega", "amp_re", "amp_im",
                                                    "k", "heading", "depth", "elevation", "recurrences", "boxes",
-                                                   "direct", "direct_dir", "fk_re", "fk_im"])
+                                                   "direct", "direct_dir", "fk_re", "fk_im", "body"])
 
 
 @_jit
 def hull_state(local, tris, loads, vertex_loads, omega, amp_re, amp_im, k, heading, depth, elevation, recurrences,
-               boxes, direct, direct_dir, fk_re, fk_im):
-    """The :class:`HullState` of these inputs (:func:`hull_loads`' own)."""
+               boxes, direct, direct_dir, fk_re, fk_im, body):
+    """The :class:`HullState` of these inputs (:func:`hull_loads`' own, and ``body`` the
+    server/body_rows.py BodyConstants of :func:`reply_rows`)."""
     return HullState(local, tris, loads, vertex_loads, omega, amp_re, amp_im, k, heading, depth, elevation, recurrences,
-                     boxes, direct, direct_dir, fk_re, fk_im)
+                     boxes, direct, direct_dir, fk_re, fk_im, body)
 
 
 @_jit
-def hull_step(st, pose, t, ramp, rot, v, out):
-    """:func:`hull_loads` with the fixed inputs of ``st`` (a :class:`HullState`), ``v`` (3, V) the
-    buffers z, d, p."""
-    return hull_loads(st.local, st.tris, st.loads, st.vertex_loads, pose, st.omega, st.amp_re, st.amp_im, t, ramp, st.k,
-                      st.heading, st.depth, st.elevation, st.recurrences, st.boxes, st.direct, st.direct_dir, st.fk_re,
-                      st.fk_im, rot, v[0], v[1], v[2], out)
+def hull_step(st, pose, t, ramp, rot, v, out, hs, fk):
+    """:func:`hull_loads` with the fixed inputs of ``st`` (a :class:`HullState`; ``v`` (3, V) the
+    buffers z, d, p), then the body's reply rows ``hs`` and ``fk`` (6,) (:func:`reply_rows`).
+    False where :func:`hull_loads` is (the rows then not written)."""
+    if not hull_loads(st.local, st.tris, st.loads, st.vertex_loads, pose, st.omega, st.amp_re, st.amp_im, t, ramp,
+                      st.k, st.heading, st.depth, st.elevation, st.recurrences, st.boxes, st.direct, st.direct_dir,
+                      st.fk_re, st.fk_im, rot, v[0], v[1], v[2], out):
+        return False
+    reply_rows(out[:2], out[2], rot, pose, st.body, hs, fk)
+    return True

@@ -36,7 +36,7 @@ from hydrolink.protocol.scene import Scene
 from hydrolink.server import incident_kernels, wet_surface_kernel
 from hydrolink.server.errors import ModelError
 from hydrolink.server.force_term import ForceTerm, TermContext
-from hydrolink.server.body_rows import reply_rows
+from hydrolink.server.body_rows import BodyConstants, reply_rows
 from hydrolink.server.box_expansion import BoxGroup, box_table, layout
 from hydrolink.server.incident_kernels import (
     AVAILABLE,
@@ -233,6 +233,7 @@ class NonlinearHydro:
         self.tables: HullTables | None = None   # the compiled pass's tables (with the split)
         self.passes: dict[int, HullPass] = {}   # by body index: the Froude-Krylov bodies' compiled passes
         self._rows = reply_rows   # server/body_rows.py's, compiled on the compiled path (prepare)
+        self.constants: dict[int, BodyConstants] = {}   # by body index: the rows' constants (prepare)
         self.bodies, self.rho, self.g, self.depth, self.n_bodies = bodies, rho, g, depth, n_bodies
         self.ramp = waves.ramp
         self.still = waves.size == 0
@@ -254,6 +255,10 @@ class NonlinearHydro:
         the compiled pass's tables, the kernels compiled or loaded now."""
         self.bodies = bodies
         self.froude_krylov = any(b.mode == "froude-krylov" for b in bodies)
+        c = np.ascontiguousarray
+        self.constants = {b.index: BodyConstants(self.rho * self.g, c(b.lever, float), float(b.weight),
+                                                 c(b.stiffness, float), c(b.reference, float), float(b.linear_net),
+                                                 c(b.active, float)) for b in bodies}
         if self.compiled:
             incident_kernels.warm_up()
             wet_surface_kernel.warm_up()
@@ -275,7 +280,8 @@ class NonlinearHydro:
                                      box_table(list(self.split.boxes), self.k, self.depth, self.expansion.radius, floor),
                                      direct, direction[direct], direction)
             self.passes = {b.index: HullPass(b.hull.vertices, b.hull.triangles, b.loads, b.vertex_loads, self.omega,
-                                             self.amp, self.k, self.depth, self.tables, b.fk_linear)
+                                             self.amp, self.k, self.depth, self.tables, b.fk_linear,
+                                             self.constants[b.index])
                            for b in bodies if b.mode == "froude-krylov"}
 
     def _phasors(self, pts: np.ndarray) -> np.ndarray:
@@ -320,25 +326,21 @@ class NonlinearHydro:
         (compiled) or :func:`_wet_loads`; the rows from the loads by server/body_rows.py."""
         hs, fk = np.zeros((self.n_bodies, 6)), np.zeros((self.n_bodies, 6))
         ramp = ramp_at(t, self.ramp)
-        no_waves = np.zeros(6)
         for b in self.bodies:
             pose = np.ascontiguousarray(position[b.index], np.float64)
+            compiled = self.passes.get(b.index)     # a Froude–Krylov body in waves, on the compiled path
+            if compiled is not None and compiled(pose, t, ramp, hs[b.index], fk[b.index]):
+                continue
             waves = b.mode == "froude-krylov" and not self.still
-            step = self.passes[b.index](pose, t, ramp) if waves and b.index in self.passes else None
-            if step is not None:
-                out, rot = step
-                loads, fk_linear = out[:2], out[2]
+            rot = rotation_xyz(pose[3:])
+            z, d, p_v = self._surface(b, pose, rot, t, ramp) if waves else self._still_surface(b, pose, rot)
+            if self.compiled:
+                loads = cut_hull_loads(b.hull.vertices, b.hull.triangles, d, z, p_v, b.loads, b.vertex_loads)
             else:
-                rot = rotation_xyz(pose[3:])
-                z, d, p_v = self._surface(b, pose, rot, t, ramp) if waves else self._still_surface(b, pose, rot)
-                if self.compiled:
-                    loads = cut_hull_loads(b.hull.vertices, b.hull.triangles, d, z, p_v, b.loads, b.vertex_loads)
-                else:
-                    loads = _wet_loads(b, z, d, np.flatnonzero(d <= 0.0), p_v)
-                fk_linear = np.ascontiguousarray(np.real(b.fk_linear @ (ramp * np.exp(-1j * self.omega * t)))) \
-                    if waves else no_waves
-            self._rows(loads, fk_linear, self.rho * self.g, rot, b.lever, b.weight, b.stiffness, pose, b.reference,
-                       b.linear_net, b.active, hs[b.index], fk[b.index])
+                loads = _wet_loads(b, z, d, np.flatnonzero(d <= 0.0), p_v)
+            fk_linear = np.ascontiguousarray(np.real(b.fk_linear @ (ramp * np.exp(-1j * self.omega * t)))) \
+                if waves else np.zeros(6)
+            self._rows(loads, fk_linear, rot, pose, self.constants[b.index], hs[b.index], fk[b.index])
         return hs, fk
 
     @staticmethod
