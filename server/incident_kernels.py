@@ -48,7 +48,8 @@ def imports() -> bool:
     """Whether numba, installed, also imports here (a numba built for another numpy raises): the
     set-ups ask this before choosing the compiled paths, so such a machine runs the numpy ones."""
     try:
-        import numba  # noqa: F401
+        from hydrolink.server import compiler
+        compiler.load()
     except Exception:  # noqa: BLE001 - any failure to import means: no compiled paths
         return False
     return True
@@ -76,6 +77,7 @@ class RecurrenceTable(NamedTuple):
     direction: np.ndarray      # (R, 2)
     start: np.ndarray          # (R + 1,) int64 into columns
     columns: np.ndarray        # int64, by increasing frequency within each run
+    tail: np.ndarray           # as columns: sum of |a| over the run's components from each on (for deep_pressure's stop)
     k0: np.ndarray             # (R,) 1/m
     dk: np.ndarray             # (R,)
     d2: np.ndarray             # (R,)
@@ -121,8 +123,10 @@ def deep_pressure(xi: np.ndarray, z: np.ndarray, a: np.ndarray, k0: float, dk: f
     """Adds sum_c Re(a_c e^{k_c (z + i xi)}) to ``out`` (P,), k_c = k0 + c dk + c (c - 1) d2 / 2,
     at points with horizontal coordinates ``xi`` (P,) along the heading and heights ``z`` (P,)
     <= 0, for the complex amplitudes ``a`` (n_c,) (module docstring)."""
+    tail = np.ascontiguousarray(np.cumsum(np.abs(a)[::-1])[::-1])
     _compiled().deep_pressure(np.ascontiguousarray(xi, float), np.ascontiguousarray(z, float),
-                   np.ascontiguousarray(a.real), np.ascontiguousarray(a.imag), float(k0), float(dk), float(d2), out)
+                              np.ascontiguousarray(a.real), np.ascontiguousarray(a.imag), tail, float(k0), float(dk),
+                              float(d2), out)
 
 
 def chebyshev_sum(u: np.ndarray, c: np.ndarray, out: np.ndarray) -> None:
@@ -210,7 +214,7 @@ def warm_up() -> None:
     chebyshev_sum(np.zeros(1), np.ones(2), out)
     none, count, heads, start = np.zeros(0), np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros(1, np.int64)
     elevation = ElevationTable(heads, start, count, count, count, np.zeros(0), count, none, none, count, 1.0)
-    recurrences = RecurrenceTable(heads, start, count, none, none, none, -1.0)
+    recurrences = RecurrenceTable(heads, start, count, none, none, none, none, -1.0)
     boxes = BoxTable(heads, start, count, np.zeros((0, 2), np.int64), count, count, count, none, count, none, none, count,
                      none, none, count, count, 1.0, -1.0)
     tables = HullTables(elevation, recurrences, boxes, count, heads, np.ones((1, 2)))

@@ -14,13 +14,14 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
-from numba.core import types
-from numba.experimental import structref
-from hydrolink.server import vector_math
+from hydrolink.server import compiler, vector_math
 from hydrolink.server.body_rows import reply_rows as _reply_rows
 from hydrolink.server.wet_surface_kernel import _cut_hull_loads
+
+numba = compiler.load()      # numba with 512-bit vectors where the CPU has them (server/compiler.py)
+from numba.core import types  # noqa: E402 - after numba's set-up
+from numba.experimental import structref  # noqa: E402
 
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy", fastmath={"contract"})
 _BLOCK = 128   # points per pass over a block
@@ -32,16 +33,13 @@ exp = _jit(vector_math.exp)
 
 
 @_jit
-def deep_pressure(xi, z, ar, ai, k0, dk, d2, out):
+def deep_pressure(xi, z, ar, ai, tail, k0, dk, d2, out):
     """out += sum_c Re(a_c e^{k_c (z + i xi)}), k_c = k0 + c dk + c (c - 1) d2 / 2 (incident_kernels).
     Each block of points stops at the component past which the rest add at most 2^-53 sum |a_c|
-    at its highest point (faster where the points come sorted by height)."""
+    at its highest point (faster where the points come sorted by height); ``tail`` sum_{c' >= c}
+    |a_c'| to any common scale (the amplitudes' at set-up)."""
     p_n, n_c = xi.size, ar.size
-    tail = np.empty(n_c + 1)                # sum_{c' >= c} |a_c'|
-    tail[n_c] = 0.0
-    for c in range(n_c - 1, -1, -1):
-        tail[c] = tail[c + 1] + math.hypot(ar[c], ai[c])
-    tol = 2.0 ** -53 * tail[0]
+    tol = 2.0 ** -53 * tail[0] if n_c else 0.0
     ur, ui = np.empty(_BLOCK), np.empty(_BLOCK)
     rr, ri = np.empty(_BLOCK), np.empty(_BLOCK)
     qr, qi = np.empty(_BLOCK), np.empty(_BLOCK)
@@ -346,7 +344,7 @@ def hull_pressure(local, rot, pos, x_re, x_im, k, depth, elevation, recurrences,
         ar, ai = np.empty(cols.size), np.empty(cols.size)
         _gather(cols, x_re, x_im, ar, ai)
         _along(wx, wy, r.direction[g, 0], r.direction[g, 1], 1.0, False, xi)
-        deep_pressure(xi, zs, ar, ai, r.k0[g], r.dk[g], r.d2[g], out)
+        deep_pressure(xi, zs, ar, ai, r.tail[r.start[g]:r.start[g + 1]], r.k0[g], r.dk[g], r.d2[g], out)
     box_sum(boxes, x_re, x_im, wx, wy, zs, out)
     for j in range(direct.size):            # the rest: one cosine and depth factor per point and component
         c = direct[j]

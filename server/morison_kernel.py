@@ -43,9 +43,10 @@ def _morison_loads(flow, rhs, heave, x, below, loads):
 
 @functools.cache
 def _compiled():
-    """The kernel compiled (or loaded from numba's cache) on first use."""
-    import numba
-    return numba.njit(cache=True, nogil=True, error_model="numpy")(_morison_loads)
+    """The kernel compiled (or loaded from numba's cache) on first use (numba as server/compiler.py
+    imports it)."""
+    from hydrolink.server import compiler
+    return compiler.load().njit(cache=True, nogil=True, error_model="numpy")(_morison_loads)
 
 
 def morison_loads(flow: np.ndarray, rhs: np.ndarray, heave: np.ndarray, x: np.ndarray, below: np.ndarray,

@@ -76,10 +76,10 @@ def _depth_factor(k: np.ndarray, z: np.ndarray, depth: float) -> np.ndarray:
 
 
 # Measured costs [ns] of the compiled sums (server/incident_numba.py, this 2-vCPU VM): a recurrence's
-# start at each point (three complex exponentials), a point and component of it (blocks of points
-# sorted by height stop early), and one component summed directly (two exponentials, a cosine and a
-# sine) at a point.
-_RECURRENCE_POINT = 80.0
+# start at each point (three complex exponentials, server/vector_math.py's), a point and component
+# of it (blocks of points sorted by height stop early), and one component summed directly (two
+# exponentials, a cosine and a sine) at a point.
+_RECURRENCE_POINT = 25.0
 _RECURRENCE_PAIR = 0.5
 _DIRECT_PAIR = 40.0
 
@@ -193,13 +193,15 @@ def _even_runs(w: np.ndarray) -> list[np.ndarray]:
     return [r for r in runs if len(r)]
 
 
-def _recurrence_table(split: _PressureSplit) -> RecurrenceTable:
-    """The split's recurrences as the compiled pass's flat table."""
+def _recurrence_table(split: _PressureSplit, amplitude: np.ndarray) -> RecurrenceTable:
+    """The split's recurrences as the compiled pass's flat table, for the components' real
+    ``amplitude`` (n_c,)."""
     r = split.recurrences
     return RecurrenceTable(
         direction=np.array([x.direction for x in r], float).reshape(-1, 2),
         start=np.cumsum([0] + [len(x.columns) for x in r]).astype(np.int64),
         columns=flatten([x.columns for x in r], np.int64)[0],
+        tail=flatten([np.cumsum(np.abs(amplitude[x.columns])[::-1])[::-1] for x in r])[0],
         k0=np.array([x.k0 for x in r], float), dk=np.array([x.dk for x in r], float),
         d2=np.array([x.d2 for x in r], float), floor=float(split.floor))
 
@@ -276,7 +278,7 @@ class NonlinearHydro:
                                            self.expansion.radius, floor, at_rest[at_rest[:, 2] <= 0.0])
             direct = self.split.direct
             direction = np.column_stack([np.cos(self.heading), np.sin(self.heading)])
-            self.tables = HullTables(self.expansion.table, _recurrence_table(self.split),
+            self.tables = HullTables(self.expansion.table, _recurrence_table(self.split, self.amplitude),
                                      box_table(list(self.split.boxes), self.k, self.depth, self.expansion.radius, floor),
                                      direct, direction[direct], direction)
             self.passes = {b.index: HullPass(b.hull.vertices, b.hull.triangles, b.loads, b.vertex_loads, self.omega,
