@@ -24,13 +24,12 @@ from __future__ import annotations
 
 import math
 import struct
-from decimal import Decimal, getcontext
+from decimal import Decimal, localcontext
 
 import numpy as np
 
 __all__ = ["exp", "sincos"]
 
-getcontext().prec = 60
 _PI = Decimal("3.14159265358979323846264338327950288419716939937510582097494459")
 
 
@@ -50,17 +49,20 @@ def _parts(x: Decimal, bits: int, n: int) -> tuple[float, ...]:
     return (*out, float(x))
 
 
-_PIO2_1, _PIO2_2, _PIO2_3 = _parts(_PI / 2, 27, 3)
-_TWO_OVER_PI = float(2 / _PI)
-_REDUCE_MAX = float(2 ** 25 * _PI / 2)      # beyond: q needs more than 26 bits
-_LN2_1, _LN2_2 = _parts(Decimal(2).ln(), 32, 2)
-_LOG2_E = float(1 / Decimal(2).ln())
+with localcontext() as _context:       # 60 digits for the constants (the caller's context untouched)
+    _context.prec = 60
+    _PIO2_1, _PIO2_2, _PIO2_3 = _parts(_PI / 2, 27, 3)
+    _TWO_OVER_PI = float(2 / _PI)
+    _REDUCE_MAX = float(2 ** 25 * _PI / 2)      # beyond: q needs more than 26 bits
+    _LN2_1, _LN2_2 = _parts(Decimal(2).ln(), 32, 2)
+    _LOG2_E = float(1 / Decimal(2).ln())
+    # Taylor coefficients: sin r = r + r^3 (S1 + r^2 (S2 + ...)), cos r = 1 + r^2 (C1 + r^2 (C2 + ...))
+    _S1, _S2, _S3, _S4, _S5, _S6, _S7, _S8, _S9 = (float((-1) ** m / Decimal(math.factorial(2 * m + 1)))
+                                                   for m in range(1, 10))
+    _C1, _C2, _C3, _C4, _C5, _C6, _C7, _C8, _C9 = (float((-1) ** m / Decimal(math.factorial(2 * m)))
+                                                   for m in range(1, 10))
+    _E = tuple(float(1 / Decimal(math.factorial(m))) for m in range(14))
 _EXP_MAX = 709.782712893384                # ln of the largest double: e^x overflows above
-
-# Taylor coefficients: sin r = r + r^3 (S1 + r^2 (S2 + ...)), cos r = 1 + r^2 (C1 + r^2 (C2 + ...))
-_S1, _S2, _S3, _S4, _S5, _S6, _S7, _S8, _S9 = (float((-1) ** m / Decimal(math.factorial(2 * m + 1))) for m in range(1, 10))
-_C1, _C2, _C3, _C4, _C5, _C6, _C7, _C8, _C9 = (float((-1) ** m / Decimal(math.factorial(2 * m))) for m in range(1, 10))
-_E = tuple(float(1 / Decimal(math.factorial(m))) for m in range(14))
 
 
 def sincos(x: np.ndarray, c: np.ndarray, s: np.ndarray) -> None:
