@@ -8,6 +8,7 @@ import math
 
 import matplotlib
 import numpy as np
+import pytest
 import xarray as xr
 
 matplotlib.use("Agg")
@@ -81,6 +82,7 @@ def test_capture_width_that_depends_on_every_key_keeps_every_line_and_skips_empt
     assert "waves.hs = 0.75, ptos.pto.damping = 1.2e+06" in labels
 
 
+@pytest.mark.filterwarnings("error:Attempting to set identical")     # one value on a log axis: limits set, no warning
 def test_accuracy_figure_names_only_what_it_draws():
     """Every option failed (errors NaN; the front is the reference alone): the legend holds the
     reference and its front, no "options"; with options it holds all three, each a drawn artist

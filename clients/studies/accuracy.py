@@ -442,6 +442,9 @@ def report_figure(rows: list[dict], meta: dict, has_power: bool):
             for k, r in enumerate(rows):
                 if front[k] and k:
                     ax.annotate(r["label"], (x[k], 100 * y[k]), fontsize=6, xytext=(3, 3), textcoords="offset points")
+            for values, set_lim in ((x[shown], ax.set_xlim), (100 * y[shown], ax.set_ylim)):
+                if values.size and np.ptp(values) == 0 and values[0] > 0:    # one value: a decade about it
+                    set_lim(values[0] / 3.0, values[0] * 3.0)
             ax.set_xscale("log")
             ax.set_yscale("log")
             ax.set_xlabel(clabel)
