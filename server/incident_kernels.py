@@ -189,7 +189,7 @@ class HullPass:
                                              c(omega, f), c(amplitude.real, f), c(amplitude.imag, f), c(k, f),
                                              c(tables.heading, f), float(depth), *tables[:3], tables.direct,
                                              tables.direct_direction, c(fk_linear.real, f), c(fk_linear.imag, f), body)
-        self.out, self.rot, self._v = np.zeros((3, 6)), np.empty((3, 3)), np.empty((3, len(local)))
+        self._out, self._rot, self._v = np.zeros((3, 6)), np.empty((3, 3)), np.empty((3, len(local)))  # scratch
 
     def __call__(self, pose: np.ndarray, t: float, ramp: float, hs: np.ndarray, fk: np.ndarray) -> bool:
         """Writes the body's rows ``hs`` and ``fk`` (6,) (server/body_rows.py) for the pose (6,) at
@@ -198,7 +198,7 @@ class HullPass:
         Wheeler-stretched Froude–Krylov one, by the tables. False (the rows not written) where a
         wet vertex's stretched height is below the tables' floor: the caller then takes the numpy
         path."""
-        return _compiled().hull_step(self._state, pose, float(t), float(ramp), self.rot, self._v, self.out, hs, fk)
+        return _compiled().hull_step(self._state, pose, float(t), float(ramp), self._rot, self._v, self._out, hs, fk)
 
 
 def reply_rows() -> Callable[..., None]:

@@ -20,8 +20,8 @@ from hydrolink.server.body_rows import reply_rows as _reply_rows
 from hydrolink.server.wet_surface_kernel import _cut_hull_loads
 
 numba = compiler.load()      # numba with 512-bit vectors where the CPU has them (server/compiler.py)
-from numba.core import types  # noqa: E402 - after numba's set-up
-from numba.experimental import structref  # noqa: E402
+from numba.core import types  # (after numba's set-up above)
+from numba.experimental import structref
 
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy", fastmath={"contract"})
 _BLOCK = 128   # points per pass over a block

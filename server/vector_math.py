@@ -102,4 +102,4 @@ def exp(x: np.ndarray, out: np.ndarray) -> None:
         v = x[i]
         e = out[i] * scale[0, i] * scale[1, i]
         e = math.inf if v > _EXP_MAX else e
-        out[i] = v if v != v else e
+        out[i] = v if math.isnan(v) else e

@@ -36,7 +36,6 @@ def _cut_hull_loads(local, tris, d, z, p, loads, vertex_loads, out):
     ph, pf = np.empty((2, 3)), np.empty((2, 3))
     ab, ac = np.empty(3), np.empty(3)      # the cut points on edges a-b and a-c
     h0 = h1 = h2 = h3 = h4 = h5 = f0 = f1 = f2 = f3 = f4 = f5 = 0.0    # the pieces' loads, per pressure
-    c0 = c1 = c2 = c3 = c4 = c5 = e0 = e1 = e2 = e3 = e4 = e5 = 0.0    # the cut triangles' wet corners'
     for t in range(tris.shape[0]):
         n = wet[tris[t, 0]] + wet[tris[t, 1]] + wet[tris[t, 2]]
         if n == 0 or n == 3:
@@ -44,11 +43,9 @@ def _cut_hull_loads(local, tris, d, z, p, loads, vertex_loads, out):
         for c in range(3):      # ... less those of the cut triangles, which are clipped instead
             v = tris[t, c]
             if wet[v]:
-                zv, pv = z[v], p[v]
-                c0, c1, c2 = c0 + zv * loads[t, c, 0], c1 + zv * loads[t, c, 1], c2 + zv * loads[t, c, 2]
-                c3, c4, c5 = c3 + zv * loads[t, c, 3], c4 + zv * loads[t, c, 4], c5 + zv * loads[t, c, 5]
-                e0, e1, e2 = e0 - pv * loads[t, c, 0], e1 - pv * loads[t, c, 1], e2 - pv * loads[t, c, 2]
-                e3, e4, e5 = e3 - pv * loads[t, c, 3], e4 - pv * loads[t, c, 4], e5 - pv * loads[t, c, 5]
+                for k in range(6):
+                    out[0, k] += z[v] * loads[t, c, k]
+                    out[1, k] -= p[v] * loads[t, c, k]
         a = 0                   # the odd corner: the wet one of one, the dry one of two
         for c in range(3):
             if (wet[tris[t, c]] == 1) == (n == 1):
@@ -92,10 +89,9 @@ def _cut_hull_loads(local, tris, d, z, p, loads, vertex_loads, out):
                 f0, f1, f2, f3, f4, f5 = f0 - wf * sx, f1 - wf * sy, f2 - wf * sz, f3 - wf * mx, f4 - wf * my, f5 - wf * mz
     out += w @ vertex_loads     # every wet vertex with all its triangles' corner loads
     pieces = ((h0, h1, h2, h3, h4, h5), (f0, f1, f2, f3, f4, f5))
-    corners = ((c0, c1, c2, c3, c4, c5), (e0, e1, e2, e3, e4, e5))
     for row in range(2):
         for k in range(6):
-            out[row, k] += corners[row][k] + pieces[row][k] / (3.0 if k < 3 else 12.0)
+            out[row, k] += pieces[row][k] / (3.0 if k < 3 else 12.0)
 
 
 def _compiled():
