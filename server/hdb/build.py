@@ -265,7 +265,8 @@ def build_hdb_uncached(spec: BuildSpec, spec_path: str | Path, *, progress: bool
         cds = cds.assign_coords(body=names[0])
     short = short_body_names(names)
     ds = from_capytaine_dataset(cds, f"capytaine {cpt.__version__} build of {Path(spec_path).name}",
-                                reference_points={s: b.ref_point for s, b in zip(short, spec.all_bodies)})
+                                reference_points={s: b.ref_point for s, b in zip(short, spec.all_bodies)},
+                                convention="exp(-iwt)")   # solved here by Capytaine: its convention, known
     if short != names:  # keep the spec's names (the reader shortens shared prefixes)
         ds = ds.assign_coords(body=names, influenced_dof=dof_labels(names), radiating_dof=dof_labels(names))
     if drift is not None:
