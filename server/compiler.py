@@ -5,7 +5,7 @@ LLVM, which numba compiles with, prefers 256-bit vectors on Intel's server CPUs 
 have 512-bit ones (the wider instructions lower the clock on some of them). The Froude–Krylov
 kernels are arithmetic-bound loops over blocks of points; measured on this 2-vCPU VM (Cascade Lake,
 bench/bench_nonlinear.py, the Task-10 sphere of 988 triangles in 300 components, the linear step
-and the rest of the server included): a server step 192 µs with 256-bit vectors, 177 µs with
+and the rest of the server included): a server step 187 µs with 256-bit vectors, 161 µs with
 512-bit ones. So, where the CPU has AVX-512 and neither ``NUMBA_CPU_FEATURES`` nor
 ``NUMBA_CPU_NAME`` is set, :func:`load` sets ``NUMBA_CPU_FEATURES`` to the host's features without
 that preference before numba is first imported (numba reads it then; numba's cache keeps the
