@@ -26,6 +26,7 @@ from hydrolink.protocol import codec, transport
 from hydrolink.protocol.codec import Code, ProtocolError
 from hydrolink.protocol.pacing import check_factor
 from hydrolink.server.capacity import MAX_SESSIONS, MAX_SETUPS, HelloLimits
+from hydrolink.server.log_limit import LimitedLog
 from hydrolink.server.control import ControlHub
 from hydrolink.server.errors import ModelError
 from hydrolink.server.hdb_files import FileSetReader
@@ -119,6 +120,7 @@ class ForceServer:
         self._stop = threading.Event()
         self._running = False
         self._ids = codec.id_source("s")
+        self._error_log = LimitedLog(log)     # error replies' log lines, per code (server/log_limit.py)
         self._version = server_version()
         self._handlers: dict[str, Callable[[dict, Any, str | None], tuple[str, dict, str | None] | None]] = {
             "hello": self._hello, "step": self._step, "ping": self._ping, "bye": self._bye,
@@ -322,15 +324,16 @@ class ForceServer:
     def _error(self, exc: Exception, msg: Any, session: str | None, route: list[bytes] | None) -> dict:
         """The ``error`` reply to a request that raised ``exc`` (logged; code 99 unless a ProtocolError)."""
         if not isinstance(exc, ProtocolError):
-            log.error("internal error handling a %s (session %s)",
-                      msg.get("type") if isinstance(msg, dict) else "message", session, exc_info=exc)
+            self._error_log.log(Code.INTERNAL, logging.ERROR, "internal error handling a %s (session %s)",
+                                msg.get("type") if isinstance(msg, dict) else "message", session, exc_info=exc)
             return codec.error_reply(next(self._ids), codec.readable_id(msg), session, Code.INTERNAL, None,
                                      f"internal server error: {type(exc).__name__}: {exc}")
         if exc.code == Code.BAD_SIGNATURE:
-            log.warning("refused a request: %s (from routing identity %s)", exc.message,
-                        route[0].hex() if route else "in-process")
+            self._error_log.log(exc.code, logging.WARNING, "refused a request: %s (from routing identity %s)",
+                                exc.message, route[0].hex() if route else "in-process")
         elif exc.code not in (Code.OUT_OF_ORDER,):
-            log.info("error %d %s [%s] session %s: %s", exc.code, exc.name, exc.field, session, exc.message)
+            self._error_log.log(exc.code, logging.INFO, "error %d %s [%s] session %s: %s", exc.code, exc.name,
+                                exc.field, session, exc.message)
         parent = codec.readable_id(msg) if msg is not None else exc.parent
         return codec.error_from(exc, next(self._ids), parent, session)
 
