@@ -26,11 +26,11 @@ from hydrolink.protocol import codec, transport
 from hydrolink.protocol.codec import Code, ProtocolError
 from hydrolink.protocol.pacing import check_factor
 from hydrolink.server.capacity import MAX_SESSIONS, MAX_SETUPS, HelloLimits
-from hydrolink.server.log_limit import LimitedLog
 from hydrolink.server.control import ControlHub
 from hydrolink.server.errors import ModelError
 from hydrolink.server.hdb_files import FileSetReader
 from hydrolink.server.hdb_store import HASH, ContentStore, ContentTooLarge, default_folder
+from hydrolink.server.log_limit import LimitedLog
 from hydrolink.server.model import HydroModel
 from hydrolink.server.session import Session, build_model
 from hydrolink.server.setup_workers import SetupWorkers

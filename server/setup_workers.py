@@ -6,8 +6,8 @@ set-up (the IRF transforms: numpy ufuncs and BLAS) release the GIL; what the loo
 for is a core, so the workers run at a lower scheduling priority (SETUP_NICE, Linux: per thread)
 and a step that arrives takes the core first (bench/bench_setup_isolation.py measures the step
 latency meanwhile). The queue itself is unbounded: the server admits at most ``max_setups`` hellos
-at once (server/capacity.py), so it holds no more. Daemon threads: a server that stops does not wait for a set-up nobody will be
-answered for.
+at once (server/capacity.py), so it holds no more. Daemon threads: a server that stops does not
+wait for a set-up nobody will be answered for.
 """
 
 from __future__ import annotations
