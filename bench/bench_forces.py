@@ -63,10 +63,10 @@ def main() -> None:
     args = ap.parse_args()
     from hydrolink.protocol.scene import parse_scene
     from hydrolink.server.hdb.io import load_hdb
-    from hydrolink.server.kinematics import Kinematics
+    from hydrolink.server.sea.kinematics import Kinematics
     from hydrolink.server.model import HydroModel
-    from hydrolink.server.viscous import DragTerm, ViscousDamping
-    from hydrolink.server.waves import wave_components
+    from hydrolink.server.terms.viscous import DragTerm, ViscousDamping
+    from hydrolink.server.sea.waves import wave_components
     from hydrolink.protocol.scene import IrregularWave
 
     hdb = load_hdb(DATA / "sphere_task10" / "sphere.h5")
@@ -105,7 +105,7 @@ def nonlinear(steps: int) -> None:
     from hydrolink.protocol.scene import parse_scene
     from hydrolink.server.hdb.io import load_hdb
     from hydrolink.server.model import HydroModel
-    from hydrolink.server.wetted_surface import closed_hull
+    from hydrolink.server.terms.hulls import closed_hull
 
     hdb = load_hdb(DATA / "sphere_task10" / "sphere.h5")
     seas = {"still water, hydrostatic": ('type = "still"', "hydrostatic"),

@@ -27,12 +27,12 @@ from pathlib import Path
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 from hydrolink.clients.lockstep.connection import ServerConnection  # noqa: E402
-from hydrolink.clients.run import load_scene_hdbs  # noqa: E402
+from hydrolink.clients.scene_inputs import load_scene_hdbs  # noqa: E402
 from hydrolink.protocol import codec  # noqa: E402
-from hydrolink.protocol.hdb_wire import HDBFiles, to_wire  # noqa: E402
+from hydrolink.protocol.hdb.wire import HDBFiles, to_wire  # noqa: E402
 from hydrolink.protocol.scene import load_scene  # noqa: E402
 from hydrolink.server.hdb.io import file_set  # noqa: E402
-from hydrolink.protocol.hdb_schema import to_netcdf  # noqa: E402
+from hydrolink.protocol.hdb.schema import to_netcdf  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 HYDROLINK = [sys.executable, "-m", "hydrolink.clients.cli"]

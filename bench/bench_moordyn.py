@@ -40,7 +40,8 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from hydrolink.clients.run import load_scene_hdbs, run_scene_file
+from hydrolink.clients.scene_inputs import load_scene_hdbs
+from hydrolink.clients.run import run_scene_file
 from hydrolink.protocol.scene import load_scene
 
 REPO = Path(__file__).resolve().parents[1]

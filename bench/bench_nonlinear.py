@@ -41,7 +41,7 @@ def main() -> None:
     from hydrolink.protocol.scene import parse_scene
     from hydrolink.server.hdb.io import load_hdb
     from hydrolink.server.model import HydroModel
-    from hydrolink.server.wetted_surface import closed_hull
+    from hydrolink.server.terms.hulls import closed_hull
 
     hdb = load_hdb(DATA / "sphere_task10" / "sphere.h5")
     fk = scene_text(IRREGULAR, "").replace("irf_duration = 10.0", 'irf_duration = 10.0\nnonlinear = "froude-krylov"')

@@ -123,8 +123,8 @@ def main() -> None:
     sys.path.insert(0, str(REPO / "examples" / "controllers"))
     from plant_pi import MARGIN, design
 
-    from hydrolink.clients.run import load_scene_hdbs
-    from hydrolink.clients.studies.plant import build_plant
+    from hydrolink.clients.scene_inputs import load_scene_hdbs
+    from hydrolink.clients.analysis.plant import build_plant
     path = Path(tempfile.mkdtemp()) / "s.toml"
     path.write_text(text0)
     plant = build_plant(sc, load_scene_hdbs(sc, path, progress=False))

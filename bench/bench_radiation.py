@@ -30,8 +30,8 @@ import numpy as np
 import xarray as xr
 
 from hydrolink.protocol.scene import parse_scene
-from hydrolink.server.hdb.build import build_hdb
-from hydrolink.protocol.hdb_schema import make_hdb, select_bodies, to_netcdf
+from hydrolink.server.hdb.build.builder import build_hdb
+from hydrolink.protocol.hdb.schema import make_hdb, select_bodies, to_netcdf
 from hydrolink.server.model import HydroModel
 
 REPO = Path(__file__).resolve().parents[1]

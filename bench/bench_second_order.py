@@ -1,4 +1,4 @@
-"""Server cost per step of the second-order wave force (server/second_order.py, issue 23): the
+"""Server cost per step of the second-order wave force (server/terms/second_order.py, issue 23): the
 Task-10 sphere (6 DOFs) in a JONSWAP sea of 100, 300 and 600 components, HydroModel.step with no
 second-order force beside "mean-drift", "newman", "qtf" and "qtf" + sum_frequency, all in the same
 run; and the term's own force() per step. The sphere's HDB gets a mean drift on its own grid and
@@ -29,8 +29,9 @@ MODES = (("none", False), ("mean-drift", False), ("newman", False), ("qtf", Fals
 
 def drift_hdb(n_q: int, folder: Path) -> Path:
     """The sphere's HDB with mean drift and QTFs (see module docstring), written as NetCDF."""
-    from hydrolink.protocol.hdb_schema import to_netcdf
-    from hydrolink.protocol.hdb_second_order import QTF, MeanDrift, with_second_order
+    from hydrolink.protocol.hdb.schema import to_netcdf
+    from hydrolink.protocol.hdb.second_order import QTF, MeanDrift
+    from hydrolink.protocol.hdb.schema import with_second_order
     from hydrolink.server.hdb.io import load_hdb
 
     ds = load_hdb(DATA / "sphere_task10" / "sphere.h5")

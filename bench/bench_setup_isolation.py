@@ -1,4 +1,4 @@
-"""Does one session's set-up stall the others? (issue 22 item 3; server/setup_workers.py)
+"""Does one session's set-up stall the others? (issue 22 item 3; server/service/setup_workers.py)
 
 Against a separately started ``hydrolink serve`` over loopback TCP: session A (the IEA Task-10
 sphere, examples/data/sphere_task10, heave, regular waves, dt = 0.05 s, irf_duration = 4 s) steps
@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from hydrolink.clients.lockstep.connection import ServerConnection
-from hydrolink.clients.run import load_scene_hdbs
+from hydrolink.clients.scene_inputs import load_scene_hdbs
 from hydrolink.protocol.scene import parse_scene
 
 REPO = Path(__file__).resolve().parents[1]

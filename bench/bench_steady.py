@@ -23,8 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
-from hydrolink.clients.run import load_scene_hdbs, run_scene_file
-from hydrolink.clients.studies.steady import hydro_model, linearize, solve
+from hydrolink.clients.scene_inputs import load_scene_hdbs
+from hydrolink.clients.run import run_scene_file
+from hydrolink.clients.analysis.steady import hydro_model, linearize, solve
 from hydrolink.protocol.scene import load_scene, resolve_path
 
 
@@ -92,7 +93,7 @@ def spectral(scene_path: Path, order: int, formulation: str, repeat: int = 3) ->
     p = sol.t.size
     if lin.ptos:
         tt = np.linspace(0, 2 * np.pi / lin.omega, 64 * p, endpoint=False)
-        from hydrolink.clients.studies.steady import sample
+        from hydrolink.clients.analysis.steady import sample
         best["power"] = sample(sol, tt)["pto_power"].mean(axis=0)
     return best
 

@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 
 from hydrolink.protocol.pacing import FACTOR_RANGE
-from hydrolink.server.capacity import MAX_SESSIONS, MAX_SETUPS
+from hydrolink.server.service.capacity import MAX_SESSIONS, MAX_SETUPS
 
 
 class _UserError(click.ClickException):
@@ -19,7 +19,7 @@ class _UserError(click.ClickException):
 def _user_errors():
     """Exception types that are the user's input at fault and deserve a one-line message."""
     from hydrolink.protocol.scene import SceneError
-    from hydrolink.protocol.hdb_schema import HDBError
+    from hydrolink.protocol.hdb.layout import HDBError
     from hydrolink.clients.lockstep.connection import RemoteError
     errors: list[type[BaseException]] = [SceneError, HDBError, FileNotFoundError, RemoteError]
     from hydrolink.clients.exudyn.client import RunInterrupted
@@ -79,8 +79,8 @@ def hdb() -> None:
 @click.option("--no-progress", is_flag=True, help="Hide the progress bar.")
 def hdb_build(spec: Path, output: Path, no_progress: bool) -> None:
     """Compute an HDB with Capytaine from a build SPEC (TOML); cached by its inputs."""
-    from hydrolink.server.hdb.build import build_hdb
-    from hydrolink.protocol.hdb_schema import to_netcdf
+    from hydrolink.server.hdb.build.builder import build_hdb
+    from hydrolink.protocol.hdb.schema import to_netcdf
 
     ds = _guard(build_hdb, spec, progress=not no_progress)
     output.parent.mkdir(parents=True, exist_ok=True)
@@ -143,10 +143,11 @@ def serve(bind: str, session_timeout: float, cpu: int | None, curve_secret: Path
     """Run the force server until interrupted (SIGINT or SIGTERM)."""
     import signal
 
+    from hydrolink.clients.analysis.plant import build_plant
     from hydrolink.protocol import codec
     from hydrolink.protocol.security import CurveKeyError
-    from hydrolink.server.hdb_store import ContentStore, default_folder
-    from hydrolink.server.service import ForceServer
+    from hydrolink.server.hdb.store import ContentStore, default_folder
+    from hydrolink.server.service.force_server import ForceServer
 
     _pin_to_cpu(cpu)
     key = _hmac_key(key_file)
@@ -156,7 +157,8 @@ def serve(bind: str, session_timeout: float, cpu: int | None, curve_secret: Path
                              curve_clients=str(curve_clients) if curve_clients else None,
                              store=ContentStore(store or default_folder(), disk_bytes=store_mib * 2**20),
                              max_message_bytes=codec.MAX_MESSAGE_BYTES if max_message_mib is None
-                             else max_message_mib * 2**20, max_setups=max_setups, max_sessions=max_sessions)
+                             else max_message_mib * 2**20, max_setups=max_setups, max_sessions=max_sessions,
+                             plant_builder=build_plant)
     except CurveKeyError as exc:
         raise _UserError(str(exc)) from None
     signal.signal(signal.SIGTERM, lambda signum, frame: server.stop())  # docker stop
@@ -335,7 +337,7 @@ def control(file: Path, server: str, session: str | None, name: str | None, clas
 def steady(scene: Path, output: Path | None, order: int | None, formulation: str | None, dt: float | None,
            no_progress: bool) -> None:
     """Periodic steady state of a SCENE in regular waves by pseudo-spectral collocation (docs/steady.md)."""
-    from hydrolink.clients.studies.steady import SteadyError, steady_scene_file
+    from hydrolink.clients.analysis.steady import SteadyError, steady_scene_file
 
     try:
         s = _guard(steady_scene_file, scene, output, order=order, formulation=formulation, dt=dt,
@@ -358,8 +360,8 @@ def steady(scene: Path, output: Path | None, order: int | None, formulation: str
 @click.option("--no-progress", is_flag=True, help="Hide the HDB build progress bar.")
 def linearize(scene: Path, output: Path, dt: float | None, no_progress: bool) -> None:
     """The device of SCENE as a linear state-space plant about its equilibrium (docs/plant.md)."""
-    from hydrolink.clients.studies.plant import linearize_scene_file
-    from hydrolink.clients.studies.steady import SteadyError
+    from hydrolink.clients.analysis.plant import linearize_scene_file
+    from hydrolink.clients.analysis.steady import SteadyError
 
     try:
         p = _guard(linearize_scene_file, scene, output, dt=dt, progress=not no_progress)

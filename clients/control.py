@@ -47,7 +47,7 @@ class Controller:
     name: str | None = None
     #: ask for the device as a linear plant at join (SPEC §5.7.2): None: no; "continuous"; or a
     #: sampling time in s (zero-order hold). ``on_start``'s ``info["plant"]`` is then a
-    #: :class:`hydrolink.clients.studies.plant.Plant`
+    #: :class:`hydrolink.clients.analysis.plant.Plant`
     plant: str | float | None = None
 
     def on_start(self, info: dict) -> None:
@@ -163,7 +163,7 @@ def run_controller(controller: Controller, server: str, *, session: str | None =
         epoch = reply["epoch"]
         info = codec.decode_tree(reply["control"])
         if "plant" in info:
-            from hydrolink.clients.studies.plant import Plant
+            from hydrolink.clients.analysis.plant import Plant
             info["plant"] = Plant.from_wire(info["plant"])
         name = info["name"]
         controller.ptos = list(info["ptos"])

@@ -11,12 +11,16 @@ tool drops a term silently.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Callable
+from typing import Callable, Protocol
 
 from hydrolink.protocol.reply import OPTIONAL_FORCES
 
-if TYPE_CHECKING:  # the scene imports this module
-    from hydrolink.protocol.scene import Scene
+
+class UsesFeatures(Protocol):
+    """What a tool is checked on: a scene (protocol/scene.py ``Scene``, which imports this module)."""
+
+    def features(self) -> dict[str, str]:
+        """The optional features it uses (names of :data:`FEATURES`), each with the key turning it on."""
 
 
 @dataclass(frozen=True)
@@ -64,6 +68,12 @@ TOOLS: dict[str, Tool] = {
     "steady": Tool("hydrolink steady", _POINTWISE | {"second_order"},
                    "{what} are not part of {tool}'s model yet (its Newton needs their Jacobian in position); "
                    "run the scene with hydrolink run"),
+    # linearize: the device as a linear plant about rest (clients/analysis/plant.py)
+    "linearize": Tool("hydrolink linearize", frozenset({"linear_damping"}),
+                      "{what} have no linear model about rest in {tool} (quadratic drag's slope is zero there; "
+                      "nonlinear hydrostatics and Froude–Krylov have no single linearisation; second-order forces "
+                      "are quadratic in the wave): use their linear counterparts (an equivalent linear_damping, "
+                      "hydro.nonlinear = \"none\", second_order = \"none\") for the plant"),
     "native_fmu": Tool("the native FMU", _POINTWISE, _HULLS),
     "python_fmu": Tool("the exported Python FMU", _POINTWISE, _HULLS),
     # the server's session rollback (SPEC §5.9): every force term's state can be saved (stateless
@@ -72,20 +82,20 @@ TOOLS: dict[str, Tool] = {
 }
 
 
-def reply_fields(scene: "Scene") -> tuple[str, ...]:
+def reply_fields(scene: UsesFeatures) -> tuple[str, ...]:
     """The optional forces (protocol/reply.py) the replies of a session of ``scene`` carry, in
     reply order: those its features bring."""
     brought = {f for feature in scene.features() for f in FEATURES[feature].reply_fields}
     return tuple(f for f in OPTIONAL_FORCES if f in brought)
 
 
-def unsupported(scene: "Scene", tool: str) -> dict[str, str]:
+def unsupported(scene: UsesFeatures, tool: str) -> dict[str, str]:
     """The features ``scene`` uses that ``tool`` cannot take, feature -> key (empty: it can run)."""
     supports = TOOLS[tool].supports
     return {f: key for f, key in scene.features().items() if f not in supports}
 
 
-def refuse_unsupported(scene: "Scene", tool: str, error: Callable[[str, str], Exception]) -> None:
+def refuse_unsupported(scene: UsesFeatures, tool: str, error: Callable[[str, str], Exception]) -> None:
     """Raise ``error(key, why)`` (the tool's keyed error) for the first feature ``scene`` uses
     that ``tool`` cannot take, naming its key and the tool (and any further ones in the why)."""
     missing = unsupported(scene, tool)

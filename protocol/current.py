@@ -8,7 +8,7 @@ waves' heading convention) with the depth profile
 - ``"linear"``: U(z) = U0 (1 + z/d) down to d, zero below;
 
 z up from the still water line; points above it get the surface value (no stretching, as the wave
-kinematics of server/kinematics.py). Time-independent: the waves' ramp does not apply. Shared by the
+kinematics of server/sea/kinematics.py). Time-independent: the waves' ramp does not apply. Shared by the
 server's force terms (relative drag, Morison members) and the MoorDyn client (its ``Currents``
 grid), so it lives at protocol level. No wave-current interaction: the waves keep their own
 dispersion (no Doppler shift) and the current does not change the excitation or radiation.

@@ -1,7 +1,7 @@
 """Wall-clock pacing of a lockstep run (``hydrolink run --realtime [FACTOR]``, a ``hello`` with
 ``realtime``: SPEC §5.1; docs/realtime.md). One schedule for both sides: the client's loop waits for
 each release (:meth:`Pacer.release`), a server holds each ``forces`` reply until its release
-(:meth:`Pacer.release_time`; server/service.py).
+(:meth:`Pacer.release_time`; server/service/force_server.py).
 
 Exchange e (simulated time e·H to (e+1)·H) is released at wall time t0 + e·H/FACTOR, t0 the first
 release; its deadline is the next release, t0 + (e+1)·H/FACTOR. A step that completes after its

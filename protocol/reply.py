@@ -2,7 +2,7 @@
 
 Each field of the reply is one :class:`ReplyField`: its wire type, units, whether every reply
 carries it, whether it is part of the load the client applies, and — for the optional forces of
-the terms beyond linear potential flow (server/force_terms.py) — the results variables a client
+the terms beyond linear potential flow (server/terms/registry.py) — the results variables a client
 writes for it (:class:`ResultVariable`). A test holds SPEC §5.2's table against
 :data:`REPLY_FIELDS`. Clients read the reply's forces with :func:`read_forces`; they never import
 server/.

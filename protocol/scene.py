@@ -16,18 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, field_validator,
 from hydrolink.protocol.capabilities import FEATURES
 from hydrolink.protocol.current import Current
 from hydrolink.protocol.errors import KeyedError
-from hydrolink.protocol.scene_bounds import (MAX_STEPS, AddedMassRatio, AngleDeg, Area, CableElements, Coefficient,
-                                             ComponentCount, Coordinate, Density, Depth, Diameter, DirectionCount,
-                                             Displacement, Duration, ExchangeSteps, ExcitationIRFDuration,
-                                             EnergyFraction, ExplicitSpectralRadius, FileTime, FlowCoefficient, Fraction,
-                                             Frequency, FrequencyStep, Gravity, HarmonicCount, IRFDuration, Interval,
-                                             IterationCount, LatencySteps, Length, LineDensity, Mass,
-                                             NonNegativeCoefficient, NonNegativeDiameter, NonNegativeLength,
-                                             ParameterFloat, ParameterInt, PeakEnhancement, PositiveCoefficient,
-                                             PreviewTime, RampTime, RegularisationSpeed, Seed, SegmentCount,
-                                             SignificantHeight, SpectralRadius, Speed, SpreadingExponent,
-                                             StateSpaceOrder, TimeStep, Tolerance, Volume, WallTimeout, WaveHeight,
-                                             WavePeriod)
+from hydrolink.protocol.scene_bounds import MAX_STEPS, AddedMassRatio, AngleDeg, Area, CableElements, Coefficient, ComponentCount, Coordinate, Density, Depth, Diameter, DirectionCount, Displacement, Duration, ExchangeSteps, ExcitationIRFDuration, EnergyFraction, ExplicitSpectralRadius, FileTime, FlowCoefficient, Fraction, Frequency, FrequencyStep, Gravity, HarmonicCount, IRFDuration, Interval, IterationCount, LatencySteps, Length, LineDensity, Mass, NonNegativeCoefficient, NonNegativeDiameter, NonNegativeLength, ParameterFloat, ParameterInt, PeakEnhancement, PositiveCoefficient, PreviewTime, RampTime, RegularisationSpeed, Seed, SegmentCount, SignificantHeight, SpectralRadius, Speed, SpreadingExponent, StateSpaceOrder, TimeStep, Tolerance, Volume, WallTimeout, WaveHeight, WavePeriod
 from hydrolink.protocol.toml_model import validate_toml
 
 DOF_NAMES: tuple[str, ...] = ("surge", "sway", "heave", "roll", "pitch", "yaw")
@@ -83,7 +72,7 @@ class StillWater(_Section):
     type: Literal["still"]
 
 
-# excitation (server/waves.py): "superposition" sums Re{a X(w) e^{i(phi - w t)}} over the components;
+# excitation (server/sea/waves.py): "superposition" sums Re{a X(w) e^{i(phi - w t)}} over the components;
 # "convolution" convolves the non-causal excitation IRF K_ex over [-T_c, T_c] (T_c =
 # excitation_irf_duration) with the elevation at the origin (synthesized from the same components)
 Excitation = Literal["superposition", "convolution"]
@@ -149,7 +138,7 @@ class IrregularWave(_Section):
 class ElevationWave(_Section):
     """A measured or prescribed elevation eta(t) at the origin (CSV: time, eta; NetCDF: variable
     ``eta`` over ``time``), unidirectional along ``direction``; excitation by convolution with the
-    non-causal excitation IRF (server/waves.py). ``start``: the file time at simulation t = 0
+    non-causal excitation IRF (server/sea/waves.py). ``start``: the file time at simulation t = 0
     (default: the file's first time + excitation_irf_duration, so the IRF's past is covered)."""
     type: Literal["elevation"]
     file: Annotated[str, Field(min_length=1)]       # relative to the scene file
@@ -164,7 +153,7 @@ Waves = Annotated[Union[StillWater, RegularWave, IrregularWave, ElevationWave], 
 
 
 Nonlinear = Literal["none", "hydrostatic", "froude-krylov"]
-# second-order wave forces (server/second_order.py): none, the mean drift, Newman's slow drift
+# second-order wave forces (server/terms/second_order.py): none, the mean drift, Newman's slow drift
 # (T_ij = (T_ii + T_jj)/2) or the full difference QTF
 SecondOrder = Literal["none", "mean-drift", "newman", "qtf"]
 
@@ -172,7 +161,7 @@ SecondOrder = Literal["none", "mean-drift", "newman", "qtf"]
 class Hydro(_Section):
     irf_duration: IRFDuration = 40.0
     interaction: Literal["full", "none"] = "full"   # body-to-body radiation blocks: all, or none
-    # radiation memory (server/radiation_options.py, server/state_space.py, docs/radiation.md)
+    # radiation memory (server/radiation/options.py, server/radiation/state_space.py, docs/radiation.md)
     radiation: Literal["convolution", "state-space", "constant", "off"] = "convolution"
     irf_taper: Fraction = 0.0  # cosine taper, fraction of irf_duration
     irf_domega: FrequencyStep | None = None  # resample B(w) (cubic)
@@ -184,7 +173,7 @@ class Hydro(_Section):
     ss_enforce_stability: bool = True
     coupling_tolerance: Fraction = 0.0
     # hydrostatics (and the incident wave's Froude-Krylov force) on the instantaneous wetted surface
-    # of every wet body's hull (server/nonlinear_hydro.py); a body's own ``nonlinear`` overrides it
+    # of every wet body's hull (server/terms/nonlinear/term.py); a body's own ``nonlinear`` overrides it
     nonlinear: Nonlinear = "none"
     # the Froude-Krylov pressure and free surface on the hulls from the most energetic wave
     # components holding this fraction of the variance (1: all; the rest acts through the linear
@@ -236,7 +225,7 @@ class Coupling(_Section):
 class Steady(_Section):
     """``hydrolink steady``: periodic steady state in regular waves by pseudo-spectral collocation
     (Fourier series of ``order`` harmonics, collocated at 2 order + 1 points over one period, Newton
-    on the nonlinear terms; clients/studies/steady.py, docs/steady.md)."""
+    on the nonlinear terms; clients/analysis/steady.py, docs/steady.md)."""
     order: HarmonicCount = 10
     formulation: Literal["dae", "ode"] = "dae"     # body coordinates + multipliers | null space of G
     tolerance: Tolerance = 1e-10  # Newton, relative residual

@@ -83,7 +83,7 @@ ProfileDepth = bounded(gt=0.0, le=DEPTH_RANGE[1], why="metres below the still wa
 
 # -- bodies and mechanism (SI; coefficients up to 1e15 cover the largest structures)
 Mass = bounded(gt=0.0, floor=1e-3, le=1e10, why="kg, from a gram to 10 million tonnes")
-MAX_COORDINATE = 1e5   # m (or rad): also the bound of a step's position (server/session.py)
+MAX_COORDINATE = 1e5   # m (or rad): also the bound of a step's position (server/service/session.py)
 MAX_SPEED = 1e4        # m/s (or rad/s): also the bound of a step's velocity
 Coordinate = bounded(ge=-MAX_COORDINATE, le=MAX_COORDINATE, why="metres, within 100 km of the origin")
 Displacement = bounded(ge=-MAX_COORDINATE, le=MAX_COORDINATE, why="metres or radians, within 1e5")

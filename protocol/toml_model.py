@@ -1,6 +1,6 @@
 """TOML text validated by a pydantic model, with errors that name the file, the key and why.
 
-Shared by the scene format (protocol/scene.py) and the HDB build spec (server/hdb/build_spec.py).
+Shared by the scene format (protocol/scene.py) and the HDB build spec (server/hdb/build/spec.py).
 A validator may raise ``ValueError("key: why")``: an absolute key (its first part is one of the
 model's top-level keys) replaces the location; any other key (or ``.key``) is relative to it.
 Every problem is reported (up to MAX_PROBLEMS), each with its key; an unknown key gets the closest

@@ -1,4 +1,4 @@
-"""numba, as hydrolink's compiled kernels import it (server/incident_numba.py, server/morison_kernel.py):
+"""numba, as hydrolink's compiled kernels import it (server/terms/nonlinear/kernels_numba.py, server/terms/morison_kernel.py):
 on a CPU with 512-bit vector instructions (AVX-512), told to use them.
 
 LLVM, which numba compiles with, prefers 256-bit vectors on Intel's server CPUs even where they
@@ -16,11 +16,15 @@ Set ``NUMBA_CPU_FEATURES`` (or ``NUMBA_CPU_NAME``) yourself to choose otherwise.
 
 from __future__ import annotations
 
+import functools
+import importlib.util
 import os
 import sys
 from types import ModuleType
 
-__all__ = ["load"]
+__all__ = ["AVAILABLE", "imports", "load"]
+
+AVAILABLE = importlib.util.find_spec("numba") is not None   # numba itself imported on first use (load)
 
 
 def _wide_vector_features() -> str | None:
@@ -43,3 +47,14 @@ def load() -> ModuleType:
             os.environ["NUMBA_CPU_FEATURES"] = features
     import numba
     return numba
+
+
+@functools.cache
+def imports() -> bool:
+    """Whether numba, installed, also imports here (a numba built for another numpy raises): the
+    set-ups ask this before choosing the compiled paths, so such a machine runs the numpy ones."""
+    try:
+        load()
+    except Exception:  # noqa: BLE001 - any failure to import means: no compiled paths
+        return False
+    return True

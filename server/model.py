@@ -16,9 +16,9 @@ only, so no work is spent on blocks that are zero by construction. Every matrix 
 active DOFs once at setup, so a step is a few small matvecs and no Python loop over DOFs.
 
 The radiation part ([hydro] radiation and the IRF options) is built by the option's builder in
-server/radiation_options.py, which also reports its setup fields. The forces beyond this linear
+server/radiation/options.py, which also reports its setup fields. The forces beyond this linear
 core (viscous, Morison, nonlinear hydrostatics and Froude–Krylov) are force terms
-(server/force_term.py) built from the registry in server/force_terms.py; a step loops over them.
+(server/terms/base.py) built from the registry in server/terms/registry.py; a step loops over them.
 """
 
 from __future__ import annotations
@@ -32,16 +32,17 @@ import xarray as xr
 from hydrolink.protocol.scene import Scene
 from hydrolink.protocol.setup import IRFProcessing, Setup, StateSpaceReport
 from hydrolink.server.allocation import require_size
+from hydrolink.server.radiation.irf import irf_samples
 from hydrolink.server.errors import ModelError
-from hydrolink.server.wetted_surface import Hull
-from hydrolink.protocol.hdb_schema import DOF_NAMES, HDBError, select_bodies
+from hydrolink.server.terms.hulls import Hull
+from hydrolink.protocol.hdb.layout import DOF_NAMES, HDBError
+from hydrolink.protocol.hdb.schema import select_bodies
 from hydrolink.server.hydrostatics import total_stiffness
-from hydrolink.server.force_term import ForceTerm, TermContext
-from hydrolink.server.force_terms import TERMS, build_terms
-from hydrolink.server.radiation_options import RadiationGroup, radiation_option
-from hydrolink.server.state_space import Realization
-from hydrolink.server.waves import (ConvolutionForcing, WaveError, WaveForcing, WavePhases, convolution_kernel,
-                                    elevation_on_grid, interpolate_excitation, kernel_transfer, wave_components)
+from hydrolink.server.terms.base import ForceTerm, TermContext
+from hydrolink.server.terms.registry import TERMS, build_terms
+from hydrolink.server.radiation.options import RadiationGroup, radiation_option
+from hydrolink.server.radiation.state_space import Realization
+from hydrolink.server.sea.waves import ConvolutionForcing, WaveError, WaveForcing, WavePhases, convolution_kernel, elevation_on_grid, interpolate_excitation, kernel_transfer, wave_components
 
 __all__ = ["HydroModel", "ModelError"]
 
@@ -97,7 +98,7 @@ class HydroModel:
         same object); ``wave_elevation`` the (time, eta) series of ``[waves] type = "elevation"``
         (read from the scene's file by the client; hello.wave_elevation); ``hulls`` the closed
         hulls of the bodies with nonlinear hydrostatics by name (hello.meshes); ``term_types`` the
-        force terms beyond the linear core to build where the scene has them (server/force_terms.py)."""
+        force terms beyond the linear core to build where the scene has them (server/terms/registry.py)."""
         self.scene = scene
         self.hdbs = dict(hdbs)   # by body name: for what is rebuilt from the same data (a controller's plant, SPEC §5.7)
         served = {b.name for b in scene.served_bodies}
@@ -161,7 +162,7 @@ class HydroModel:
         self._add_term_contributions()
 
     def _add_term_contributions(self) -> None:
-        """The terms' setup contributions (server/force_term.py) and warnings, in registry order."""
+        """The terms' setup contributions (server/terms/base.py) and warnings, in registry order."""
         stiff = False
         for term in self.terms:
             if term.added_mass is not None:
@@ -285,9 +286,9 @@ class HydroModel:
         exc_T = float(getattr(scene.waves, "excitation_irf_duration", 0.0))
         if self.excitation == "convolution":
             require_size("waves.excitation_irf_duration", "the excitation IRF kernels",
-                         (self._headings.size, 2 * max(1, round(exc_T / self.dt)) + 1, self.n),
+                         (self._headings.size, 2 * irf_samples(exc_T, self.dt, at_least=1) + 1, self.n),
                          hint="a shorter excitation_irf_duration or a longer dt")
-        kernels = np.zeros((self._headings.size, 2 * max(1, int(round(exc_T / self.dt))) + 1, self.n)) \
+        kernels = np.zeros((self._headings.size, 2 * irf_samples(exc_T, self.dt, at_least=1) + 1, self.n)) \
             if self.excitation == "convolution" else None
         self._exc_fit = 0.0
         for d in data:
@@ -367,7 +368,7 @@ class HydroModel:
         kind = getattr(w, "type", "still")
         if kind not in ("regular", "irregular"):
             return
-        from hydrolink.server.control import wave_number
+        from hydrolink.server.sea.dispersion import wave_number
         period, height, key = (w.period, w.height, "waves.height") if kind == "regular" else (w.tp, w.hs, "waves.hs")
         water = self.scene.water
         lam = 2 * np.pi / float(wave_number(np.array([2 * np.pi / period]), water.gravity, water.depth_m)[0])
@@ -475,7 +476,7 @@ class HydroModel:
     def excitation_phasors(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Wave components: omega (n_c,), complex force phasors (n_c, 6N) and elevation phasors
         (n_c,) such that, after the ramp, F_ex(t) = Re(sum_c F_c e^{-i omega_c t}) and likewise the
-        elevation at the origin (server/waves.py convention)."""
+        elevation at the origin (server/sea/waves.py convention)."""
         c = self.waves.amplitude * np.exp(1j * self.waves.phase)
         return self.waves.omega.copy(), self._x_comp * c[:, None], c
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import dawsn
 
-from hydrolink.protocol.hdb_schema import make_hdb
+from hydrolink.protocol.hdb.schema import make_hdb
 
 
 def damping(w, b0=1.0, w0=1.0):

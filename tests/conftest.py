@@ -83,7 +83,7 @@ def sphere_path(reference_data: Path) -> Path:
 @pytest.fixture(scope="module")
 def server() -> str:
     """The address of a force server in a thread of this process, one per test module."""
-    from hydrolink.server.service import serve_in_thread
+    from hydrolink.server.service.force_server import serve_in_thread
     srv, thread = serve_in_thread("tcp://127.0.0.1:*")
     yield srv.address
     srv.stop()

@@ -14,8 +14,7 @@ import pytest
 from click.testing import CliRunner
 
 from conftest import toml_document
-from hydrolink.clients.studies.accuracy import (Grid, compare, dump_toml, grid_from_flags, make_cases, pareto_front,
-                                        reference_settings, set_key)
+from hydrolink.clients.studies.accuracy import Grid, compare, dump_toml, grid_from_flags, make_cases, pareto_front, reference_settings, set_key
 from hydrolink.clients.cli import cli
 from hydrolink.protocol.scene import Scene, parse_scene
 

@@ -18,7 +18,7 @@ from hydrolink.protocol.capabilities import FEATURES, TOOLS, reply_fields
 from hydrolink.protocol.reply import OPTIONAL_FORCES, reply_field
 from hydrolink.protocol.scene import SceneError, parse_scene
 from hydrolink.server.model import HydroModel
-from hydrolink.server.wetted_surface import closed_hull
+from hydrolink.server.terms.hulls import closed_hull
 
 cpt = pytest.importorskip("capytaine")
 
@@ -77,8 +77,9 @@ def test_each_tool_names_a_known_feature():
 def sphere_drift(sphere, tmp_path_factory) -> tuple[xr.Dataset, Path]:
     """The sphere's HDB with a momentum mean drift T(w) = 1e3 (w / 1 rad/s)^2 N/m^2 in surge
     (the second_order feature needs drift data)."""
-    from hydrolink.protocol.hdb_schema import to_netcdf
-    from hydrolink.protocol.hdb_second_order import MeanDrift, with_second_order
+    from hydrolink.protocol.hdb.schema import to_netcdf
+    from hydrolink.protocol.hdb.second_order import MeanDrift
+    from hydrolink.protocol.hdb.schema import with_second_order
     w = sphere["omega"].values
     values = np.zeros((1, w.size, 1, 6))
     values[0, :, 0, 0] = 1e3 * w ** 2
@@ -104,8 +105,11 @@ def _refusal(tool: str, scene_path: Path, text: str, tmp_path: Path) -> Exceptio
             with ResultWriter(tmp_path / "refused.nc", scene=scene, scene_text=text) as writer:
                 run(scene, text, None, None, writer)
         elif tool == "steady":
-            from hydrolink.clients.studies.steady import check_scene
+            from hydrolink.clients.analysis.steady import check_scene
             check_scene(scene)
+        elif tool == "linearize":
+            from hydrolink.clients.analysis.plant import check_plant_scene
+            check_plant_scene(scene)
         elif tool == "native_fmu":
             from hydrolink.clients.fmu.native import export_native_fmu
             export_native_fmu(scene_path, tmp_path / "x.fmu")
@@ -130,10 +134,16 @@ def _runs(tool: str, feature: str, sphere, sphere_path: Path, hull, tmp_path: Pa
                 assert ds[v.name].dims[1:] == v.dims and np.isfinite(ds[v.name].values).all(), v.name
         assert np.abs(ds[reply_field(fields[-1]).variables[0].name].values[1:]).max() > 0
     elif tool == "steady":                   # the server's terms of the scene are evaluated pointwise
-        from hydrolink.clients.studies.steady import check_scene
+        from hydrolink.clients.analysis.steady import check_scene
         check_scene(parse_scene(scene_text(sphere_path, feature)))
         model = _model(sphere, sphere_path, feature, hull)
         assert model.terms and all(t.steady is not None for t in model.terms)
+    elif tool == "linearize":                # the plant is built, its term in it
+        from hydrolink.clients.analysis.plant import build_plant, check_plant_scene
+        scene = parse_scene(scene_text(sphere_path, feature))
+        check_plant_scene(scene)
+        plant = build_plant(scene, {b.hdb: sphere for b in scene.bodies if b.wet})
+        assert np.isfinite(plant.A).all() and np.isfinite(plant.B).all()
     elif tool == "native_fmu":               # the C core adds these reply fields to its force output
         from hydrolink.clients.fmu.native import SOURCES
         source = (SOURCES / "hydro_core.c").read_text()

@@ -8,9 +8,9 @@ import subprocess
 import sys
 
 import pytest
-from hydrolink.server import incident_kernels
+from hydrolink.server import compiler
 
-pytestmark = pytest.mark.skipif(not incident_kernels.AVAILABLE, reason="numba not installed")
+pytestmark = pytest.mark.skipif(not compiler.AVAILABLE, reason="numba not installed")
 
 _PRINT = "import os; print(os.environ.get('NUMBA_CPU_FEATURES', ''))"
 

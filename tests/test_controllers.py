@@ -32,7 +32,8 @@ import zmq
 from conftest import build_zmq_msgpack_program
 
 from hydrolink.clients.run import run_scene_file
-from hydrolink.server.service import serve_in_thread
+from hydrolink.clients.analysis.plant import build_plant
+from hydrolink.server.service.force_server import serve_in_thread
 
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLES = REPO / "examples" / "controllers"
@@ -78,7 +79,7 @@ def c_controller(tmp_path_factory) -> Path:
 
 @pytest.fixture()
 def server():
-    srv, thread = serve_in_thread("tcp://127.0.0.1:*", session_timeout=60.0)
+    srv, thread = serve_in_thread("tcp://127.0.0.1:*", session_timeout=60.0, plant_builder=build_plant)
     yield srv
     srv.stop()
     thread.join(5)
@@ -323,7 +324,7 @@ def test_malformed_commands_get_clear_errors_and_the_fallback(reference_data, se
 def test_wrong_session_version_and_name(reference_data, server, tmp_path):
     """Raw messages against a session with a controller: clear errors, the session unharmed."""
     from hydrolink.clients.lockstep.connection import ServerConnection
-    from hydrolink.clients.run import load_scene_hdbs
+    from hydrolink.clients.scene_inputs import load_scene_hdbs
     from hydrolink.protocol.scene import parse_scene
 
     text = scene_text(reference_data, 4.0, controller_block("force", 1.0e6, 0.0, join_timeout=0.2))
@@ -377,9 +378,9 @@ def test_wrong_session_version_and_name(reference_data, server, tmp_path):
 
 def test_in_process_server_refuses_controllers(reference_data, tmp_path):
     from hydrolink.clients.lockstep.connection import RemoteError, ServerConnection
-    from hydrolink.clients.run import load_scene_hdbs
+    from hydrolink.clients.scene_inputs import load_scene_hdbs
     from hydrolink.protocol.scene import parse_scene
-    from hydrolink.server.service import ForceServer
+    from hydrolink.server.service.force_server import ForceServer
 
     text = scene_text(reference_data, 4.0, controller_block("force", 1.0e6, 0.0))
     (tmp_path / "s.toml").write_text(text)
@@ -392,7 +393,7 @@ def test_wave_probes_match_the_model_and_travel(reference_data):
     """The server's elevation probes: at the origin exactly the model's wave_elevation; a probe
     downstream sees the same wave later by x / c (phase speed w / k, deep water k = w^2 / g)."""
     from hydrolink.protocol.scene import parse_scene
-    from hydrolink.server.control import WaveProbes
+    from hydrolink.server.sea.probes import WaveProbes
     from hydrolink.server.hdb.io import load_hdb
     from hydrolink.server.model import HydroModel
 
@@ -499,7 +500,7 @@ def test_step_pipelined_behind_a_deferred_step_is_answered_in_order(reference_da
     step 1), each with its own decision. Before, seq 2 replaced the deferred reply and seq 1 was
     never answered. A ``measure`` with ``wait`` = nil is one without ``wait`` (SPEC §2)."""
     from hydrolink.clients.lockstep.connection import ServerConnection
-    from hydrolink.clients.run import load_scene_hdbs
+    from hydrolink.clients.scene_inputs import load_scene_hdbs
     from hydrolink.protocol import codec
     from hydrolink.protocol.scene import parse_scene
 

@@ -19,7 +19,7 @@ import xarray as xr
 from conftest import body, regular_waves, scene_toml, write_scene
 
 from hydrolink.clients.run import run_scene_file
-from hydrolink.server.hdb.build import build_hdb
+from hydrolink.server.hdb.build.builder import build_hdb
 
 REPO = Path(__file__).resolve().parents[1]
 SPEC = REPO / "examples" / "cylinder" / "cylinder_hdb.toml"
@@ -55,7 +55,7 @@ def test_surge_heave_pitch_with_offset_cog(cylinder, tmp_path):
         hydro={"irf_duration": irf},
         bodies=[body("cylinder", hdb="hdb.nc", mass=MASS, center_of_mass=[0.0, 0.0, ZG], inertia=[IYY_G, IYY_G, 1609.6],
                      dofs=["surge", "heave", "pitch"])]))
-    from hydrolink.protocol.hdb_schema import to_netcdf
+    from hydrolink.protocol.hdb.schema import to_netcdf
     to_netcdf(cylinder, tmp_path / "hdb.nc")
     run_scene_file(scene, tmp_path / "out.nc", progress=False)
     ds = xr.load_dataset(tmp_path / "out.nc")

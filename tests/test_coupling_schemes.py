@@ -13,7 +13,7 @@ from hydrolink.clients.lockstep.coupling_schemes import Iterated, Predictor, Sta
 from hydrolink.clients.lockstep.driver import DivergenceWatch, ForceLink, Lockstep, SimulationDiverged, run
 from hydrolink.clients.lockstep.results import ResultWriter
 from hydrolink.clients.lockstep.summary import CouplingReport
-from hydrolink.server.service import ForceServer
+from hydrolink.server.service.force_server import ForceServer
 from test_stability import HEAVE, a33, c33, decay_reference, scene_text, sphere  # noqa: F401 (fixtures)
 
 DT, DURATION, X0 = 0.01, 8.0, 0.5

@@ -137,7 +137,7 @@ def test_steady_mean_offset_is_the_current_drag_over_the_mooring_stiffness(spher
     import xarray as xr
 
     from conftest import write_scene
-    from hydrolink.clients.studies.steady import steady_scene_file
+    from hydrolink.clients.analysis.steady import steady_scene_file
 
     cd, diameter, draft, u0, depth, k = 1.0, 3.0, 20.0, 1.5, 40.0, 2.0e4
     body = sphere_body(str(sphere_path), mass=261.8e3, dofs=["surge"])
@@ -159,7 +159,7 @@ def test_steady_mean_offset_is_the_current_drag_over_the_mooring_stiffness(spher
 def test_steady_refuses_a_current_on_an_unmoored_body(sphere_path, tmp_path):
     """Without the spring the current's drag has nothing to balance it: an error naming the key."""
     from conftest import write_scene
-    from hydrolink.clients.studies.steady import SteadyError, steady_scene_file
+    from hydrolink.clients.analysis.steady import SteadyError, steady_scene_file
 
     path = write_scene(tmp_path, scene_toml(
         dt=0.1, duration=10.0, progress=False, water={**SPHERE_WATER, "gravity": G},

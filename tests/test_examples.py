@@ -33,7 +33,7 @@ FILES = sorted(p for p in EXAMPLES.rglob("*.toml") if _kind(p) != "hdb build spe
 
 @pytest.mark.parametrize("path", FILES, ids=[str(p.relative_to(EXAMPLES)) for p in FILES])
 def test_example_sets_up_without_warnings(path: Path, reference_data):
-    from hydrolink.clients.run import load_scene_hdbs, load_wave_elevation
+    from hydrolink.clients.scene_inputs import load_scene_hdbs, load_wave_elevation
     from hydrolink.clients.studies.sweep_file import load_sweep
     from hydrolink.protocol.scene import load_scene
     from hydrolink.server.model import HydroModel

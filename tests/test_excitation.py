@@ -19,9 +19,7 @@ from scipy.integrate import quad
 
 from hydrolink.protocol.scene import parse_scene
 from hydrolink.server.model import HydroModel, ModelError
-from hydrolink.server.waves import (WaveError, convolution_kernel, cos2s, cos2s_directions, cos2s_normalisation,
-                                    elevation, elevation_on_grid, excitation_irf, excitation_nodes,
-                                    kernel_transfer, read_elevation, wave_components)
+from hydrolink.server.sea.waves import WaveError, convolution_kernel, cos2s, cos2s_directions, cos2s_normalisation, elevation, elevation_on_grid, excitation_irf, excitation_nodes, kernel_transfer, read_elevation, wave_components
 from analytic_hdb import make_body_hdb
 from conftest import body, irregular_waves, regular_waves, rm3_float, rm3_pto, rm3_spar, scene_toml, write_scene
 

@@ -26,7 +26,7 @@ from hydrolink.clients.exudyn.client import RunInterrupted, SimulationDiverged, 
 from hydrolink.clients.lockstep.results import ResultWriter
 from hydrolink.protocol.scene import SceneError, parse_scene
 from hydrolink.server.hdb.io import load_hdb
-from hydrolink.server.service import serve_in_thread
+from hydrolink.server.service.force_server import serve_in_thread
 
 MASS = 261.724e3         # kg: rho V of the Task 10 sphere HDB (floats at equilibrium: no net buoyancy)
 HEAVE = 2
@@ -237,7 +237,7 @@ from hydrolink.clients.exudyn.client import run
 from hydrolink.clients.lockstep.results import ResultWriter
 from hydrolink.protocol.scene import SceneError, parse_scene
 from hydrolink.server.hdb.io import load_hdb
-from hydrolink.server.service import serve_in_thread
+from hydrolink.server.service.force_server import serve_in_thread
 text, out = open(sys.argv[1]).read(), sys.argv[2]
 scene = parse_scene(text)
 srv, _ = serve_in_thread("tcp://127.0.0.1:*")

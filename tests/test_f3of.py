@@ -46,7 +46,7 @@ DECAY_IRF, DECAY_TAPER = 30.0, 0.3          # the decay scenes' [hydro] memory
 @pytest.fixture(scope="module")
 def hdb():
     """The F3OF HDB, built once (Capytaine, ~35 s on an idle machine) and cached like any scene's."""
-    from hydrolink.server.hdb.build import build_hdb
+    from hydrolink.server.hdb.build.builder import build_hdb
     return build_hdb(SPEC, progress=False)
 
 
@@ -261,7 +261,7 @@ def test_regular_wave_rao_matches_frequency_domain(hdb, tmp_path, period):
 # of a pure translation and of a pure rotation about the CoG, each on its own. (Surge alone is not
 # enough: in the 11 s mode a flap turns about a point close to its CoG, whose surge velocity is
 # ~1/5 of a flap end's.) Relative velocity in surge (the plate's drag is set by the flow relative
-# to it; the wave's particle velocity at the CoG), none in pitch (server/viscous.py).
+# to it; the wave's particle velocity at the CoG), none in pitch (server/terms/viscous.py).
 FLAP_WIDTH, FLAP_DRAFT, FLAP_CD = 17.4878, 10.0, 2.0
 DRAG_SURGE_AREA = FLAP_WIDTH * FLAP_DRAFT
 DRAG_PITCH_AREA = FLAP_WIDTH * ((FLAP_DRAFT - 5.5) ** 4 + 5.5 ** 4) / 4

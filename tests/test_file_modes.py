@@ -48,7 +48,7 @@ def test_write_atomic_gives_the_umask_mode(tmp_path, umask):
 
 
 def test_hdb_store_entries_get_the_umask_mode(tmp_path, umask):
-    from hydrolink.server.hdb_store import ContentStore
+    from hydrolink.server.hdb.store import ContentStore
     store = ContentStore(tmp_path / "store")
     digest, new = store.put(b"an HDB's bytes")
     assert new and oct(mode(tmp_path / "store" / digest)) == oct(0o666 & ~umask)

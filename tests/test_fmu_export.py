@@ -17,7 +17,7 @@ from fmpy.validation import validate_fmu
 
 from hydrolink.clients.cli import cli
 from hydrolink.clients.run import run_scene_file
-from hydrolink.server.service import serve_in_thread
+from hydrolink.server.service.force_server import serve_in_thread
 from test_fmu_master import base_scene, reference
 
 HEAVE = 2

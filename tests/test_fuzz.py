@@ -21,11 +21,11 @@ from pydantic import BaseModel
 from analytic_hdb import make_body_hdb
 from conftest import body, joint, linear_pto, regular_waves, scene_toml, toml_document
 from hydrolink.protocol import codec
-from hydrolink.protocol.hdb_wire import HDBFiles, to_wire
+from hydrolink.protocol.hdb.wire import HDBFiles, to_wire
 from hydrolink.protocol.scene import Scene, parse_scene
 from hydrolink.protocol.toml_model import models_in
-from hydrolink.protocol.hdb_schema import to_netcdf
-from hydrolink.server.service import ForceServer
+from hydrolink.protocol.hdb.schema import to_netcdf
+from hydrolink.server.service.force_server import ForceServer
 
 MESSAGES = 20_000
 DT = 0.05

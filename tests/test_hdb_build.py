@@ -29,9 +29,9 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from hydrolink.server.hdb.build import SpecError, build_hdb, default_cache_dir, load_spec
+from hydrolink.server.hdb.build.builder import SpecError, build_hdb, default_cache_dir, load_spec
 from hydrolink.server.hdb.info import heave_natural_period, hdb_summary, plot_hdb
-from hydrolink.protocol.hdb_schema import validate_hdb
+from hydrolink.protocol.hdb.schema import validate_hdb
 
 # One pytest-xdist worker runs this whole module (pyproject: --dist loadgroup): its module fixtures (a sphere
 # and a cylinder built with Capytaine) cost ~9 s, paid once per worker otherwise.
@@ -318,8 +318,9 @@ def test_closed_hull_of_a_spec_is_the_whole_body(cylinder):
     """The hull nonlinear hydrostatics integrate over (build_mesh.closed_hull): closed, freeboard
     included, with the HDB's displaced volume below the still-water line (the same equal-area
     polygon as the solved mesh: pi R^2 per metre of height)."""
-    from hydrolink.server.hdb.build_mesh import closed_hull as spec_hull
-    from hydrolink.server.wetted_surface import clip_wet, closed_hull, pressure_load
+    from hydrolink.server.hdb.build.mesh import closed_hull as spec_hull
+    from hydrolink.server.terms.nonlinear.hull import clip_wet, pressure_load
+    from hydrolink.server.terms.hulls import closed_hull
 
     spec_path, ds = cylinder
     hull = closed_hull(*spec_hull(load_spec(spec_path), 0, spec_path))

@@ -32,7 +32,7 @@ import numpy as np
 import pytest
 from scipy.special import j0
 
-from hydrolink.server.hdb.build import SpecError, body_hydrostatics, build_hdb, load_spec, parse_spec
+from hydrolink.server.hdb.build.builder import SpecError, body_hydrostatics, build_hdb, load_spec, parse_spec
 
 # One pytest-xdist worker runs this whole module (pyproject: --dist loadgroup): its module fixtures (two
 # multibody Capytaine builds) cost ~6 s, paid once per worker otherwise.

@@ -13,7 +13,8 @@ import xarray as xr
 
 from hydrolink.server.hdb.capytaine_io import from_capytaine_dataset, read_capytaine, short_body_names
 from hydrolink.server.hdb.io import load_hdb
-from hydrolink.protocol.hdb_schema import HDBError, to_netcdf
+from hydrolink.protocol.hdb.layout import HDBError
+from hydrolink.protocol.hdb.schema import to_netcdf
 from hydrolink.server.hdb.wamit import read_wamit
 
 W_T8 = 2 * np.pi / 8.0  # RM3 standard case, T = 8 s

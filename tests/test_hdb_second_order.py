@@ -14,9 +14,11 @@ import numpy as np
 import pytest
 
 from hydrolink.protocol import codec
-from hydrolink.protocol.hdb_schema import HDBError, from_netcdf_dataset, to_netcdf
-from hydrolink.protocol.hdb_second_order import drift_methods, qtf_kinds, with_second_order
-from hydrolink.protocol.hdb_wire import from_wire, to_wire
+from hydrolink.protocol.hdb.layout import HDBError
+from hydrolink.protocol.hdb.schema import from_netcdf_dataset, to_netcdf
+from hydrolink.protocol.hdb.second_order import drift_methods, qtf_kinds
+from hydrolink.protocol.hdb.schema import with_second_order
+from hydrolink.protocol.hdb.wire import from_wire, to_wire
 from hydrolink.server.hdb.bemio import read_bemio
 from hydrolink.server.hdb.info import hdb_summary, plot_hdb
 from hydrolink.server.hdb.io import file_set, load_hdb
@@ -265,7 +267,7 @@ CYL_R, CYL_OMEGA = 1.0, (2.0, 6.3)     # kR = omega^2 R / g = 0.41 and 4.05
 
 @pytest.fixture(scope="module")
 def built_cylinder(tmp_path_factory):
-    from hydrolink.server.hdb.build import build_hdb
+    from hydrolink.server.hdb.build.builder import build_hdb
 
     tmp = tmp_path_factory.mktemp("drift_build")
     spec = tmp / "cyl.toml"
@@ -317,7 +319,7 @@ def test_build_drift_equals_capytaines_own_wamit_8(built_cylinder, tmp_path):
     from capytaine.io.xarray import kochin_data_array
     from capytaine.post_pro.mean_drift_force import far_field_mean_drift_force
 
-    from hydrolink.server.hdb.build import load_spec, make_meshes
+    from hydrolink.server.hdb.build.builder import load_spec, make_meshes
     from hydrolink.server.hdb.wamit_second_order import read_drift
     from hydrolink.server.hdb.wamit_table import Units
 
@@ -363,8 +365,8 @@ def test_build_drift_of_a_free_body_equals_capytaines_own_rao_route(tmp_path):
     from capytaine.post_pro.mean_drift_force import far_field_mean_drift_force
     from capytaine.post_pro.rao import rao as capytaine_rao
 
-    from hydrolink.protocol.hdb_second_order import drift_body_fixed
-    from hydrolink.server.hdb.build import build_hdb, load_spec, make_meshes
+    from hydrolink.protocol.hdb.second_order import drift_body_fixed
+    from hydrolink.server.hdb.build.builder import build_hdb, load_spec, make_meshes
 
     omegas, draft = (1.2, 2.2, 3.0), 2.0
     base = f"""
@@ -459,7 +461,7 @@ def test_bad_second_order_map_names_the_field(run, edit, field):
 def test_kochin_angles_hold_every_heading():
     """[0, 2 pi] sampled with both ends exact (Capytaine integrates over it), headings such as
     -30 deg and 400 deg strictly inside the range."""
-    from hydrolink.server.hdb.build_drift import kochin_angles
+    from hydrolink.server.hdb.build.drift import kochin_angles
 
     theta = kochin_angles(360, np.radians([-30.0, 0.0, 400.0]))
     assert np.all(np.diff(theta) > 0) and np.allclose(np.diff(theta), 2 * np.pi / 360)
@@ -501,7 +503,7 @@ def test_a_file_with_both_triangles_is_made_exactly_symmetric(tmp_path):
     ('[second_order]\nmean_drift = "far-field"\nkochin_directions = 10\n', "second_order.kochin_directions"),
 ])
 def test_bad_second_order_spec_names_the_key(extra, why):
-    from hydrolink.server.hdb.build_spec import SpecError, parse_spec
+    from hydrolink.server.hdb.build.spec import SpecError, parse_spec
 
     base = '[body]\nname = "c"\nshape = "vertical_cylinder"\nradius = 1.0\ndraft = 1.0\n[frequencies]\nvalues = [1.0, 2.0]\n'
     with pytest.raises(SpecError, match=why):
@@ -509,7 +511,7 @@ def test_bad_second_order_spec_names_the_key(extra, why):
 
 
 def test_far_field_drift_of_several_bodies_is_refused():
-    from hydrolink.server.hdb.build_spec import SpecError, parse_spec
+    from hydrolink.server.hdb.build.spec import SpecError, parse_spec
 
     text = "".join(f'[[bodies]]\nname = "c{i}"\nshape = "vertical_cylinder"\nradius = 1.0\ndraft = 1.0\n'
                    f'center = [{5 * i}.0, 0.0, 0.0]\n' for i in range(2))

@@ -1,4 +1,4 @@
-"""The server's content store (server/hdb_store.py): contents by SHA-256, bounded, least recently
+"""The server's content store (server/hdb/store.py): contents by SHA-256, bounded, least recently
 used out, checked when they enter and when they are read back."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import time
 
 import pytest
 
-from hydrolink.server.hdb_store import ContentStore, default_folder
+from hydrolink.server.hdb.store import ContentStore, default_folder
 
 
 def blob(i: int, size: int = 1000) -> bytes:

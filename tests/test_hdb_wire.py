@@ -1,4 +1,4 @@
-"""The HDB map of `hello` (protocol/hdb_wire.py, SPEC §5.1): exact round trip through the codec, the
+"""The HDB map of `hello` (protocol/hdb/wire.py, SPEC §5.1): exact round trip through the codec, the
 exp(−iωt) convention on the wire, and errors that name the entry and field."""
 
 from __future__ import annotations
@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from hydrolink.protocol import codec
-from hydrolink.protocol.hdb_wire import from_wire, to_wire
-from hydrolink.protocol.hdb_schema import HDBError
+from hydrolink.protocol.hdb.wire import from_wire, to_wire
+from hydrolink.protocol.hdb.layout import HDBError
 
 HEAVE = 2
 

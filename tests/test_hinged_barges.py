@@ -84,8 +84,8 @@ PLANAR = [0, 2, 4, 6, 8, 10]                # surge, heave, pitch of both barges
 def barges_hdb(tmp_path_factory):
     """The HDB built from the example's spec once per session (Capytaine, disk cache: ~20 s the
     first time), and a NetCDF copy the scenes point to."""
-    from hydrolink.server.hdb.build import build_hdb
-    from hydrolink.protocol.hdb_schema import to_netcdf
+    from hydrolink.server.hdb.build.builder import build_hdb
+    from hydrolink.protocol.hdb.schema import to_netcdf
     ds = build_hdb(SPEC, progress=False)
     path = tmp_path_factory.mktemp("hinged_barges") / "hinged_barges_hdb.nc"
     to_netcdf(ds, path)

@@ -16,7 +16,7 @@ import pytest
 
 from conftest import body, scene_toml
 from hydrolink.protocol.scene import parse_scene
-from hydrolink.protocol.hdb_schema import make_hdb
+from hydrolink.protocol.hdb.schema import make_hdb
 from hydrolink.server.hydrostatics import gravity_stiffness, total_stiffness
 from hydrolink.server.model import HydroModel
 

@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 
 import analytic_hdb as an
-from hydrolink.server.irf import (aliasing_time, irf_report, ogilvie_added_mass_inf, ogilvie_estimates,
-                                  radiation_irf, trapezoid_weights)
+from hydrolink.server.radiation.irf import aliasing_time, irf_report, ogilvie_added_mass_inf, ogilvie_estimates, radiation_irf, trapezoid_weights
 
 
 def test_trapezoid_weights_integrate_exactly_linear():

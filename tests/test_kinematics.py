@@ -1,4 +1,4 @@
-"""server/kinematics.py: Airy particle velocity and acceleration of the incident wave against the
+"""server/sea/kinematics.py: Airy particle velocity and acceleration of the incident wave against the
 closed forms written here (dispersion solved with brentq), finite and deep water, a heading and
 a point off the origin; acceleration = time derivative of the velocity."""
 
@@ -11,8 +11,8 @@ import pytest
 from scipy.optimize import brentq
 
 from hydrolink.protocol.scene import RegularWave
-from hydrolink.server.kinematics import Kinematics
-from hydrolink.server.waves import wave_components
+from hydrolink.server.sea.kinematics import Kinematics
+from hydrolink.server.sea.waves import wave_components
 
 
 @pytest.mark.parametrize("depth", [10.0, math.inf])

@@ -1,4 +1,4 @@
-"""server/log_limit.py: at most ``burst`` lines per kind and window, the rest counted and reported
+"""server/service/log_limit.py: at most ``burst`` lines per kind and window, the rest counted and reported
 with the next line of that kind after the window; and a real server flooded with bad requests
 answers each of them while its log holds at most the burst of that error code."""
 
@@ -8,8 +8,8 @@ import logging
 
 import zmq
 from hydrolink.protocol import codec
-from hydrolink.server.log_limit import LimitedLog
-from hydrolink.server.service import serve_in_thread
+from hydrolink.server.service.log_limit import LimitedLog
+from hydrolink.server.service.force_server import serve_in_thread
 
 
 def test_burst_per_kind_then_the_left_out_count(caplog):

@@ -9,7 +9,7 @@ import pytest
 import analytic_hdb as an
 from conftest import body, regular_waves, scene_toml
 from hydrolink.protocol.scene import DOF_NAMES, Scene, parse_scene
-from hydrolink.protocol.hdb_schema import make_hdb
+from hydrolink.protocol.hdb.schema import make_hdb
 from hydrolink.server.model import HydroModel, ModelError
 
 RHO, G = 1025.0, 9.81  # scene water; the analytic HDBs are written for rho = 1000, g = 9.81

@@ -18,7 +18,7 @@ from scipy.optimize import fsolve
 from conftest import body, regular_waves, scene_toml, write_scene
 
 from hydrolink.protocol.scene import SceneError, parse_scene
-from hydrolink.protocol.hdb_schema import make_hdb
+from hydrolink.protocol.hdb.schema import make_hdb
 
 moordyn = pytest.importorskip("moordyn")
 
@@ -377,7 +377,7 @@ def test_moordyn_failure_mid_run_names_the_file_and_step_and_keeps_the_rows(tmp_
 
 
 def test_steady_refuses_moordyn_moorings(tmp_path):
-    from hydrolink.clients.studies.steady import SteadyError, check_scene
+    from hydrolink.clients.analysis.steady import SteadyError, check_scene
     scene = parse_scene(scene_toml(dt=0.1, duration=1.0, bodies=[dry_float()], waves=regular_waves(1.0, 8.0),
                                    moorings=[mooring()]))
     with pytest.raises(SteadyError, match=r"moorings\[0\].*MoorDyn moorings are not supported by hydrolink steady"):

@@ -77,7 +77,7 @@ def test_mean_offset_with_mean_drift_is_the_catenary_equilibrium(runs):
     dynamics and seabed against the static catenary)."""
     from hydrolink.protocol.scene import load_scene
     from hydrolink.server.hdb.io import load_hdb
-    from hydrolink.server.waves import wave_components
+    from hydrolink.server.sea.waves import wave_components
 
     scene, _ = load_scene(EXAMPLE / "moored_drift.toml")
     hdb = load_hdb(EXAMPLE.parent / "data" / "sphere_drift" / "sphere_drift.nc")

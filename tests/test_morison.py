@@ -1,4 +1,4 @@
-"""Morison elements (server/morison.py): a fixed vertical surface-piercing cylinder in regular
+"""Morison elements (server/terms/morison.py): a fixed vertical surface-piercing cylinder in regular
 waves, its inline force against the closed-form Morison integrals over depth written here
 (inertia and drag parts separately); the member's added mass in the body's mass matrix; bad input."""
 
@@ -11,8 +11,8 @@ import pytest
 from scipy.optimize import brentq
 
 from conftest import SPHERE_WATER, regular_waves, scene_toml, sphere_body
+from hydrolink.server import compiler
 from hydrolink.protocol.scene import SceneError, parse_scene
-from hydrolink.server import morison_kernel
 from hydrolink.server.hdb.io import load_hdb
 from hydrolink.server.model import HydroModel
 
@@ -76,11 +76,11 @@ def test_the_members_added_mass_is_in_the_mass_matrix(sphere_path):
 
 
 @pytest.mark.parametrize("compiled", [False, pytest.param(True, marks=pytest.mark.skipif(
-    not morison_kernel.AVAILABLE, reason="numba not installed"))])
+    not compiler.AVAILABLE, reason="numba not installed"))])
 def test_a_slanted_member_on_a_moving_body_against_the_strip_sum(sphere_path, compiled):
     """A member slanted in x, y and z through the water line, on the sphere moving in all six DOFs
     (displaced and with velocity and angular velocity), by numpy and by the compiled kernel
-    (server/morison_kernel.py): the reply against Morison's equation
+    (server/terms/morison_kernel.py): the reply against Morison's equation
     evaluated here segment by segment, Airy kinematics in 200 m of water (dispersion solved with
     brentq) at each segment's centre (at rest:
     the segments' mean positions), the normal parts by (I - t t^T), the segment's velocity
@@ -242,7 +242,7 @@ def test_a_morison_only_body_without_an_hdb(tmp_path):
     assert np.abs(ds["excitation_force"].sel(body="pontoon").values).max() == 0.0
     assert np.abs(ds["radiation_force"].sel(body="pontoon").values).max() == 0.0
     # hydrolink steady on the same scene: its members' loads are all the forcing there is
-    from hydrolink.clients.studies.steady import steady_scene_file
+    from hydrolink.clients.analysis.steady import steady_scene_file
     steady_scene_file(path, tmp_path / "steady.nc", progress=False)
     st = xr.load_dataset(tmp_path / "steady.nc")
     for j, dof in enumerate(("surge", "heave")):

@@ -10,7 +10,7 @@ from conftest import body, regular_waves, rm3_float, rm3_spar, scene_toml
 
 from hydrolink.clients.lockstep.connection import RemoteError, ServerConnection
 from hydrolink.protocol.scene import parse_scene
-from hydrolink.protocol.hdb_schema import select_bodies
+from hydrolink.protocol.hdb.schema import select_bodies
 from hydrolink.server.model import HydroModel, ModelError
 
 DT, IRF = 0.1, 20.0

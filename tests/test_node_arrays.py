@@ -230,7 +230,7 @@ def _amplitude(t: np.ndarray, x: np.ndarray, t0: float) -> float:
 
 def test_two_nodes_one_arm_relative_pitch_rao_vs_frequency_domain(tmp_path):
     from hydrolink.protocol.scene import load_scene
-    from hydrolink.server.hdb.build import build_hdb
+    from hydrolink.server.hdb.build.builder import build_hdb
     text = (EX4 / "node_4n3la.toml").read_text()
     head = text.split("\n[[")[0]
     head = _replace_waves(head, f'type = "regular"\nheight = {H_WAVE}\nperiod = {2 * math.pi / OMEGA!r}\nramp = 5.0')

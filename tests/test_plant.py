@@ -1,4 +1,4 @@
-"""``hydrolink linearize`` (clients/studies/plant.py): the device as a linear state-space plant.
+"""``hydrolink linearize`` (clients/analysis/plant.py): the device as a linear state-space plant.
 
 References, independent of the plant's assembly (reduced coordinates, state-space realisation):
 - RM3's two-body frequency-domain model written here from the HDB (A(w), B(w), hydrostatics at its
@@ -25,7 +25,7 @@ def rm3(reference_data):
 
 
 def _plant(text: str, rm3):
-    from hydrolink.clients.studies.plant import build_plant
+    from hydrolink.clients.analysis.plant import build_plant
     scene = parse_scene(text)
     return build_plant(scene, {b.hdb: rm3 for b in scene.bodies})
 
@@ -141,7 +141,7 @@ def test_files_and_discretisation(rm3, reference_data, tmp_path):
     from scipy.signal import lsim
 
     from hydrolink.clients.cli import cli
-    from hydrolink.clients.studies.plant import load_plant
+    from hydrolink.clients.analysis.plant import load_plant
     text = scene_text("full", reference_data / "rm3_wamit" / "rm3.1")
     (tmp_path / "rm3.toml").write_text(text)
     for out, extra in (("p.npz", []), ("p.mat", []), ("pd.nc", ["--dt", "0.05"]), ("pd.npz", ["--dt", "0.05"])):
@@ -175,7 +175,7 @@ def test_files_and_discretisation(rm3, reference_data, tmp_path):
     (('interaction = "full"', 'interaction = "full"\nnonlinear = "hydrostatic"'), None),
 ])
 def test_nonlinear_terms_refused_with_their_key(rm3, edit, key):
-    from hydrolink.clients.studies.plant import PlantError
+    from hydrolink.clients.analysis.plant import PlantError
     text = scene_text("full", Path("rm3.1")).replace(*edit)
     if key is None:   # nonlinear hydrostatics: parse may already ask for the hull
         try:
@@ -203,17 +203,17 @@ def test_controller_gets_the_plant_at_join(reference_data, tmp_path):
     from test_controllers import scene_text as controlled_scene
 
     from hydrolink.clients.lockstep.connection import ServerConnection
-    from hydrolink.clients.run import load_scene_hdbs
-    from hydrolink.clients.studies.plant import Plant, build_plant
+    from hydrolink.clients.scene_inputs import load_scene_hdbs
+    from hydrolink.clients.analysis.plant import Plant, build_plant
     from hydrolink.protocol import codec
-    from hydrolink.server.service import serve_in_thread
+    from hydrolink.server.service.force_server import serve_in_thread
 
     text = controlled_scene(reference_data, 4.0, controller_block("force", 1.0e6, 0.0, join_timeout=0.2))
     (tmp_path / "s.toml").write_text(text)
     scene = parse_scene(text)
     hdbs = load_scene_hdbs(scene, tmp_path / "s.toml", progress=False)
     expect = build_plant(scene, hdbs)
-    srv, thread = serve_in_thread("tcp://127.0.0.1:*", session_timeout=60.0)
+    srv, thread = serve_in_thread("tcp://127.0.0.1:*", session_timeout=60.0, plant_builder=build_plant)
     ctx = zmq.Context()
     sock = ctx.socket(zmq.DEALER)
     sock.setsockopt(zmq.LINGER, 0)

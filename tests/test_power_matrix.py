@@ -9,8 +9,7 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from hydrolink.clients.studies.power_matrix import (HOURS_PER_YEAR, PowerMatrixError, annual_energy, bin_edges,
-                                            group_velocity, power_matrix, read_scatter, sea_state, te_over_tp)
+from hydrolink.clients.studies.power_matrix import HOURS_PER_YEAR, PowerMatrixError, annual_energy, bin_edges, group_velocity, power_matrix, read_scatter, sea_state, te_over_tp
 from hydrolink.protocol.scene import IrregularWave, parse_scene
 from conftest import body, irregular_waves, regular_waves, scene_toml
 
@@ -39,9 +38,9 @@ def test_te_over_tp_pierson_moskowitz_closed_form():
 
 @pytest.mark.parametrize("spectrum,gamma", [("jonswap", 3.3), ("jonswap", 1.5), ("pierson-moskowitz", 3.3)])
 def test_sea_state_against_mhkit_and_deep_water_closed_form(spectrum, gamma):
-    """Hm0, Te and J of the scene's spectrum (server/waves.py's S) against MHKiT's moments and energy
+    """Hm0, Te and J of the scene's spectrum (server/sea/waves.py's S) against MHKiT's moments and energy
     flux of the same S(f) sampled finely, and J against rho g^2 Hm0^2 Te / (64 pi)."""
-    from hydrolink.server.waves import jonswap, pierson_moskowitz
+    from hydrolink.server.sea.waves import jonswap, pierson_moskowitz
     hs, tp = 2.5, 9.0
     state = sea_state(_scene(irregular_waves(hs, tp, spectrum, gamma=gamma)))
     f = np.arange(0.0025, 2.0, 0.0005)                    # Hz
@@ -62,7 +61,7 @@ def test_sea_state_against_mhkit_and_deep_water_closed_form(spectrum, gamma):
 def test_finite_depth_energy_flux_against_mhkit():
     """At 30 m the group velocity of the long components is below g/(2w): J against MHKiT's
     finite-depth flux (its own dispersion solver) of the same spectrum."""
-    from hydrolink.server.waves import jonswap
+    from hydrolink.server.sea.waves import jonswap
     hs, tp, depth = 2.0, 11.0, 30.0
     state = sea_state(_scene(irregular_waves(hs, tp), depth=depth))
     f = np.arange(0.0025, 1.2, 0.0005)

@@ -1,4 +1,4 @@
-"""clients/lockstep/pto_control.py: controller decisions applied to a real Exudyn PTO (SPEC §5.7).
+"""clients/exudyn/pto_control.py: controller decisions applied to a real Exudyn PTO (SPEC §5.7).
 
 A dry surge body held by a linear PTO spring to ground and pushed by a constant load P (a linear
 mooring's pretension); its static surge is the closed form of whatever is in force: x = (P - F) / k
@@ -18,7 +18,7 @@ import xarray as xr
 from conftest import body, linear_pto, scene_toml
 from hydrolink.clients.exudyn.mechanism import build_mechanism
 from hydrolink.clients.exudyn.moorings import build_moorings
-from hydrolink.clients.lockstep.pto_control import PTOControl
+from hydrolink.clients.exudyn.pto_control import PTOControl
 from hydrolink.clients.exudyn.ptos import build_ptos
 from hydrolink.clients.lockstep.results import ResultWriter
 from hydrolink.protocol.scene import parse_scene

@@ -1,4 +1,4 @@
-"""The radiation factory (server/radiation_options.py): each option's own checks and setup report,
+"""The radiation factory (server/radiation/options.py): each option's own checks and setup report,
 on hand-made groups, against closed forms and hand-computed values (no HydroModel, no HDB file)."""
 
 from __future__ import annotations
@@ -9,10 +9,9 @@ import pytest
 import analytic_hdb as an
 from hydrolink.protocol.scene import Hydro, RegularWave, StillWater
 from hydrolink.server.errors import ModelError
-from hydrolink.server.radiation import RadiationMemory
-from hydrolink.server.radiation_options import (ConstantDamping, PairCount, RadiationGroup, prune_pairs,
-                                                radiation_option)
-from hydrolink.server.state_space import StateSpaceRadiation, evaluate
+from hydrolink.server.radiation.convolution import RadiationMemory
+from hydrolink.server.radiation.options import ConstantDamping, PairCount, RadiationGroup, prune_pairs, radiation_option
+from hydrolink.server.radiation.state_space import StateSpaceRadiation, evaluate
 
 STILL = StillWater(type="still")
 REGULAR = RegularWave(type="regular", height=1.0, period=5.0)

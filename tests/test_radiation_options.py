@@ -11,11 +11,10 @@ from scipy.integrate import quad
 import analytic_hdb as an
 from conftest import body, irregular_waves, regular_waves, rm3_float, rm3_spar, scene_toml
 from hydrolink.protocol.scene import Hydro, Scene, parse_scene
-from hydrolink.protocol.hdb_schema import make_hdb
-from hydrolink.server.irf import irf_transfer
+from hydrolink.protocol.hdb.schema import make_hdb
+from hydrolink.server.radiation.irf import irf_transfer
 from hydrolink.server.model import HydroModel, ModelError
-from hydrolink.server.state_space import (PairFits, StateSpaceError, StateSpaceRadiation, evaluate, fit_pairs,
-                                          impulse_response, vector_fit)
+from hydrolink.server.radiation.state_space import PairFits, StateSpaceError, StateSpaceRadiation, evaluate, fit_pairs, impulse_response, vector_fit
 
 RHO = 1025.0
 

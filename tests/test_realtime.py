@@ -68,10 +68,10 @@ def test_server_paces_a_session_that_asks(where):
     """hello.realtime = 2 on dt = 0.05 s: no reply of step k leaves before t0 + k·25 ms (t0: step 0's
     arrival, after the client sent it); a client 0.2 s late for one step is an overrun in goodbye."""
     from analytic_hdb import make_body_hdb
-    from test_server import DT, SCENE
+    from test_force_server import DT, SCENE
 
     from hydrolink.clients.lockstep.connection import ServerConnection
-    from hydrolink.server.service import ForceServer, serve_in_thread
+    from hydrolink.server.service.force_server import ForceServer, serve_in_thread
     if where == "socket":
         srv, thread = serve_in_thread(session_timeout=60.0)
         address = srv.address
@@ -106,11 +106,11 @@ def test_server_paces_a_session_that_asks(where):
 @pytest.mark.parametrize("value", [0, -1.0, "fast", float("inf"), 5e-324, 1e-308, 1e300, 2**62])
 def test_server_refuses_a_bad_pace(value):
     from analytic_hdb import make_body_hdb
-    from test_server import SCENE
+    from test_force_server import SCENE
 
     from hydrolink.clients.lockstep.connection import RemoteError, ServerConnection
-    from hydrolink.protocol.hdb_wire import to_wire
-    from hydrolink.server.service import ForceServer
+    from hydrolink.protocol.hdb.wire import to_wire
+    from hydrolink.server.service.force_server import ForceServer
     srv = ForceServer(None)
     with ServerConnection(srv, timeout=10.0) as c, pytest.raises(RemoteError) as err:
         c.request("hello", role="multibody", scene=SCENE, hdbs={"float.nc": to_wire(make_body_hdb())}, realtime=value)

@@ -1,4 +1,4 @@
-"""Second-order wave forces (server/second_order.py, issue 23) against references written here:
+"""Second-order wave forces (server/terms/second_order.py, issue 23) against references written here:
 the WAMIT formulas (F = rho g A^2 L Fbar for a .8 row; T = rho g L conj(Re + i Im) for a .12d/.12s
 row), the two-component closed forms of the mean, Newman (arithmetic mean) and full-QTF forces, and the
 static offset F/k of a body on a surge spring in a hydrolink run."""
@@ -13,16 +13,17 @@ import xarray as xr
 
 from conftest import SPHERE_WATER, irregular_waves, regular_waves, scene_toml, sphere_body, write_scene
 
-from hydrolink.protocol.hdb_schema import HDBError, to_netcdf
-from hydrolink.protocol.hdb_second_order import with_second_order
+from hydrolink.protocol.hdb.layout import HDBError
+from hydrolink.protocol.hdb.schema import to_netcdf
+from hydrolink.protocol.hdb.schema import with_second_order
 from hydrolink.protocol.scene import parse_scene
 from hydrolink.server.errors import ModelError
-from hydrolink.server.force_term import TermContext
+from hydrolink.server.terms.base import TermContext
 from hydrolink.server.hdb.wamit_second_order import read_drift, read_qtf
 from hydrolink.server.hdb.wamit_table import Units
 from hydrolink.server.model import HydroModel
-from hydrolink.server.second_order import SecondOrderTerm
-from hydrolink.server.waves import WaveComponents
+from hydrolink.server.terms.second_order import SecondOrderTerm
+from hydrolink.server.sea.waves import WaveComponents
 
 ULEN = 5.0
 PERIODS = (20.0, 12.0, 9.0, 7.0, 5.5, 4.5)
@@ -247,7 +248,7 @@ def test_rotated_phasors_stay_on_the_exact_ones(drift_hdb):
 
 
 def test_fixed_body_drift_on_a_moving_body_is_a_warning_naming_the_key(sphere, tmp_path):
-    from hydrolink.protocol.hdb_second_order import MeanDrift
+    from hydrolink.protocol.hdb.second_order import MeanDrift
     w = sphere["omega"].values
     values = np.zeros((1, w.size, 1, 6))
     values[0, :, 0, 0] = 500.0
@@ -262,9 +263,9 @@ def test_fixed_body_drift_on_a_moving_body_is_a_warning_naming_the_key(sphere, t
                                                           "Capytaine far-field (Kochin), body fixed"))
     assert not HydroModel(parse_scene(text), {"sphere": free}).warnings
     # and it survives the NetCDF file and the wire
-    from hydrolink.protocol.hdb_schema import from_netcdf_dataset
-    from hydrolink.protocol.hdb_second_order import drift_body_fixed
-    from hydrolink.protocol.hdb_wire import from_wire, to_wire
+    from hydrolink.protocol.hdb.schema import from_netcdf_dataset
+    from hydrolink.protocol.hdb.second_order import drift_body_fixed
+    from hydrolink.protocol.hdb.wire import from_wire, to_wire
     to_netcdf(ds, tmp_path / "fixed.nc")
     with xr.open_dataset(tmp_path / "fixed.nc") as raw:
         assert drift_body_fixed(from_netcdf_dataset(raw.load(), "fixed.nc"))
@@ -303,7 +304,7 @@ def test_a_qtf_too_large_for_the_headings_is_refused_before_allocating(drift_hdb
 def test_steady_mean_offset_on_a_surge_spring_is_drift_over_k(drift_hdb, tmp_path):
     """hydrolink steady (the drift a load at its collocation nodes): the sphere on a surge spring k
     in a regular wave sits on average at F/k, F = rho g A^2 L Fbar of the .8."""
-    from hydrolink.clients.studies.steady import steady_scene_file
+    from hydrolink.clients.analysis.steady import steady_scene_file
 
     ds, path = drift_hdb
     a, period, k = 1.0, 7.0, 1.0e5
@@ -482,7 +483,7 @@ def test_nemoh_qtf_named_by_the_scene_against_the_closed_form(sphere_path, tmp_p
     """bodies[0].qtf names a NEMOH difference file (Hz, exp(+iwt)) beside the scene: the HDB the
     scene loads carries rho g conj(Re + i Im) per A_i A_j, and the full-QTF force of a regular and
     a bichromatic sea equals the closed forms over the coefficients written into the file."""
-    from hydrolink.clients.run import load_scene_hdbs
+    from hydrolink.clients.scene_inputs import load_scene_hdbs
     from hydrolink.protocol.scene import load_scene
 
     write_nemoh_difference(tmp_path)
@@ -526,7 +527,7 @@ def test_nemoh_qtf_named_by_the_scene_against_the_closed_form(sphere_path, tmp_p
     ({"difference": "QTF/missing.dat"}, "bodies[0].qtf.difference"),
 ])
 def test_nemoh_qtf_scene_keys_are_named(sphere_path, tmp_path, qtf, key):
-    from hydrolink.clients.run import load_scene_hdbs
+    from hydrolink.clients.scene_inputs import load_scene_hdbs
     from hydrolink.protocol.scene import SceneError, load_scene
 
     write_nemoh_difference(tmp_path)
@@ -540,7 +541,7 @@ def test_nemoh_qtf_scene_keys_are_named(sphere_path, tmp_path, qtf, key):
 def test_nemoh_qtf_file_errors_name_the_key_and_the_line(sphere_path, drift_hdb, tmp_path):
     """A bad row names bodies[0].qtf.difference with the file and line; an HDB that already holds a
     QTF (the WAMIT .12d here) is refused naming bodies[0].qtf."""
-    from hydrolink.clients.run import load_scene_hdbs
+    from hydrolink.clients.scene_inputs import load_scene_hdbs
     from hydrolink.protocol.scene import SceneError, load_scene
 
     bad = write_nemoh_difference(tmp_path)

@@ -1,4 +1,4 @@
-"""server/session.py: a hello's scene and HDBs become the model (errors naming the field), and the
+"""server/service/session.py: a hello's scene and HDBs become the model (errors naming the field), and the
 step sequencing rules of SPEC §5.3 — new step, replace (higher iteration, the radiation memory
 rolled back), retry (the cached reply) and the refusals that leave the session as it was. Messages
 go through the real codec (pack/unpack), as over the wire."""
@@ -12,8 +12,8 @@ from analytic_hdb import DOF_PARAMS, irf, make_body_hdb
 from conftest import body, scene_toml
 from hydrolink.protocol import codec
 from hydrolink.protocol.codec import Code, ProtocolError
-from hydrolink.protocol.hdb_wire import to_wire
-from hydrolink.server.session import Session, build_model
+from hydrolink.protocol.hdb.wire import to_wire
+from hydrolink.server.service.session import Session, build_model
 
 DT, RHO = 0.05, 1025.0
 HEAVE = 2

@@ -24,7 +24,7 @@ from hydrolink.clients.lockstep.results import ResultWriter
 from hydrolink.protocol.scene import Scene, SceneError, parse_scene
 from hydrolink.server.hdb.io import load_hdb
 from hydrolink.server.model import HydroModel, ModelError
-from hydrolink.server.service import ForceServer
+from hydrolink.server.service.force_server import ForceServer
 
 HEAVE = 2
 

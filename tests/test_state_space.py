@@ -1,5 +1,5 @@
-"""State-space fits (server/state_space.py) against closed-form rational kernels, and their cache
-(server/state_space_cache.py): hits return the stored fit without refitting, damaged entries are
+"""State-space fits (server/radiation/state_space.py) against closed-form rational kernels, and their cache
+(server/radiation/state_space_cache.py): hits return the stored fit without refitting, damaged entries are
 refitted with a setup warning, keys follow the fit's inputs, identical kernels are fitted once and an
 unwritable folder only costs the caching."""
 
@@ -11,8 +11,8 @@ import pytest
 import analytic_hdb as an
 from hydrolink.protocol.scene import parse_scene
 from hydrolink.server.model import HydroModel
-from hydrolink.server.state_space import StateSpaceRadiation, fit_pairs, impulse_response
-from hydrolink.server.state_space_cache import FitCache, FitSettings, default_cache_dir, fit_key
+from hydrolink.server.radiation.state_space import StateSpaceRadiation, fit_pairs, impulse_response
+from hydrolink.server.radiation.state_space_cache import FitCache, FitSettings, default_cache_dir, fit_key
 from conftest import body, scene_toml
 
 OMEGA = np.linspace(0.0, 6.0, 120)

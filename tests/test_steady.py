@@ -1,4 +1,4 @@
-"""``hydrolink steady`` (clients/studies/steady.py): pseudo-spectral periodic steady state on RM3.
+"""``hydrolink steady`` (clients/analysis/steady.py): pseudo-spectral periodic steady state on RM3.
 
 References, all independent of the collocation code:
 - the two-body frequency-domain solution written in tests/test_rm3.py (HDB A(w), B(w), excitation,
@@ -33,7 +33,7 @@ def rm3(reference_data):
 
 
 def _system(text: str, rm3):
-    from hydrolink.clients.studies.steady import hydro_model, linearize
+    from hydrolink.clients.analysis.steady import hydro_model, linearize
     scene = parse_scene(text)
     model = hydro_model(scene, {b.hdb: rm3 for b in scene.bodies})
     return scene, linearize(scene, model, model.setup_info())
@@ -51,7 +51,7 @@ def _limited(text: str) -> str:
 
 @pytest.mark.parametrize("interaction", ["full", "none"])
 def test_order_one_reproduces_frequency_domain(rm3, interaction):
-    from hydrolink.clients.studies.steady import solve
+    from hydrolink.clients.analysis.steady import solve
     _, lin = _system(scene_text(interaction, __import__("pathlib").Path("rm3.1")), rm3)
     x_fd, p_fd = frequency_domain(rm3, *hdb_radiation(rm3), interaction)
     for form in ("dae", "ode"):
@@ -65,7 +65,7 @@ def test_order_one_reproduces_frequency_domain(rm3, interaction):
         np.testing.assert_allclose(_heave(sol5), x_fd, rtol=1e-9)
         assert np.abs(sol5.harmonic(sol5.q, 3)).max() < 1e-9 * np.abs(x_fd).max()
     # the PTO's mean absorbed power from the sampled results
-    from hydrolink.clients.studies.steady import sample
+    from hydrolink.clients.analysis.steady import sample
     t = np.linspace(0, PERIOD, 400, endpoint=False)
     assert sample(sol5, t)["pto_power"].mean() == pytest.approx(p_fd, rel=1e-9)
 
@@ -76,7 +76,7 @@ def test_matrices_against_scene_assembly_and_exudyn_ptos(rm3):
     import exudyn as exu
 
     from hydrolink.clients.exudyn.client import build_model
-    from hydrolink.clients.studies.steady import hydro_model, linearize
+    from hydrolink.clients.analysis.steady import hydro_model, linearize
 
     text = scene_text("full", __import__("pathlib").Path("rm3.1"))
     text = text.replace('dofs = ["heave"]         # the other five DOFs are locked to ground', "")
@@ -150,7 +150,7 @@ def time_domain(rm3, reference_data, tmp_path_factory):
 def test_against_time_domain(rm3, time_domain, kind):
     """Heave amplitude (both bodies) and mean PTO power within 0.5 % of the time-domain steady state;
     the force-limited PTO needs Newton (several iterations) and higher harmonics."""
-    from hydrolink.clients.studies.steady import sample, solve
+    from hydrolink.clients.analysis.steady import sample, solve
     text = scene_text("full", __import__("pathlib").Path("rm3.1"))
     _, lin = _system(_limited(text) if kind == "limited" else text, rm3)
     x_td, p_td = time_domain[kind]
@@ -199,7 +199,7 @@ def test_cli_one_period_in_the_run_layout(rm3, reference_data, tmp_path):
 
 
 def test_refuses_irregular_waves(reference_data, tmp_path):
-    from hydrolink.clients.studies.steady import SteadyError, steady_scene_file
+    from hydrolink.clients.analysis.steady import SteadyError, steady_scene_file
     scene = tmp_path / "rm3.toml"
     text = scene_text("full", reference_data / "rm3_wamit" / "rm3.1")
     text = text.replace('type = "regular"', 'type = "irregular"\nspectrum = "jonswap"\nhs = 2.0\ntp = 8.0')
@@ -221,7 +221,7 @@ def test_viscous_damping_pointwise_against_time_integration_and_lorentz(sphere_p
     from scipy.integrate import solve_ivp
 
     from conftest import SPHERE_WATER, regular_waves, scene_toml, sphere_body, write_scene
-    from hydrolink.clients.studies.steady import steady_scene_file
+    from hydrolink.clients.analysis.steady import steady_scene_file
     from hydrolink.server.hdb.io import load_hdb
 
     mass, b_lin, b_quad, height = 261.724e3, 1.0e4, 6.0e5, 2.0
@@ -273,7 +273,7 @@ def test_morison_member_pointwise_against_the_time_domain(sphere_path, tmp_path)
 
     from conftest import SPHERE_WATER, regular_waves, scene_toml, sphere_body, write_scene
     from hydrolink.clients.run import run_scene_file
-    from hydrolink.clients.studies.steady import steady_scene_file
+    from hydrolink.clients.analysis.steady import steady_scene_file
 
     w = 1.0
     period = 2 * math.pi / w
@@ -296,3 +296,32 @@ def test_morison_member_pointwise_against_the_time_domain(sphere_path, tmp_path)
     steady_scene_file(bare, tmp_path / "bare.nc", progress=False)
     zb = xr.load_dataset(tmp_path / "bare.nc")["position"].sel(body="sphere", dof="heave").values
     assert abs(np.ptp(zs) / np.ptp(zb) - 1) > 0.05      # the member matters at this size
+
+
+def test_convolution_radiation_is_sampled_at_the_exchange_step(rm3):
+    """``[steady] radiation = "convolution"`` realises the time-domain run's radiation memory, whose IRF
+    the server samples at its own step, one exchange ([coupling] exchange_every x simulation.dt; it
+    took simulation.dt before): a scene exchanging every 2 steps of 0.2 s has the effective A(w), B(w)
+    of one exchanging every step of 0.4 s to round-off, and not those of 0.2 s (RM3's IRF is smooth:
+    the two steps' sums differ by ~5e-7 of B at T = 8 s, far above round-off and small in practice)."""
+    from pathlib import Path
+
+    from hydrolink.clients.analysis.steady import convolution_radiation, hydro_model
+    base = scene_text("full", Path("rm3.1"))
+    assert "dt = 0.08" in base
+
+    def coefficients(dt: float, every: int):
+        text = base.replace("dt = 0.08", f"dt = {dt}") + f"\n[coupling]\nexchange_every = {every}\n"
+        scene = parse_scene(text)
+        model = hydro_model(scene, {b.hdb: rm3 for b in scene.bodies})
+        assert model.dt == pytest.approx(dt * every)
+        return convolution_radiation(model, scene)(W)
+
+    held = coefficients(0.2, 2)
+    every_step = coefficients(0.4, 1)
+    fine = coefficients(0.2, 1)
+    for a, b in zip(held, every_step):
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-9 * np.abs(b).max())
+    # the step matters: the 0.2 s sums differ from the 0.4 s ones by far more than round-off
+    for a, b in zip(fine, every_step):
+        assert np.abs(a - b).max() > 1e-9 * np.abs(b).max()

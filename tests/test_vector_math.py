@@ -1,4 +1,4 @@
-"""server/vector_math.py's vectorised cosine, sine and exponential, compiled as the kernels use
+"""server/terms/nonlinear/vector_math.py's vectorised cosine, sine and exponential, compiled as the kernels use
 them, against the C library's (numpy's np.cos, np.sin, np.exp): within 2 ulp of the result (and
 0.5 ulp of 1 absolute for the cosine and sine) over the reduction's whole range and past it (the
 library's own there), at the special values, and for subnormal and overflowing exponentials."""
@@ -7,9 +7,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hydrolink.server import incident_kernels
+from hydrolink.server import compiler
+from hydrolink.server.terms.nonlinear import kernels as incident_kernels
 
-pytestmark = pytest.mark.skipif(not incident_kernels.AVAILABLE, reason="numba not installed")
+pytestmark = pytest.mark.skipif(not compiler.AVAILABLE, reason="numba not installed")
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""Viscous damping on wet bodies (server/viscous.py, issue 10): F = -B_lin v - B_quad v|v|.
+"""Viscous damping on wet bodies (server/terms/viscous.py, issue 10): F = -B_lin v - B_quad v|v|.
 The Task-10 sphere in heave, run through the whole co-simulation (server reply field ``viscous``,
 Exudyn client), against a monolithic integration written here of
 (m + A) x'' + (B + B_lin) x' + B_quad x'|x'| + C x = F_ex(t), with A, B, C and F_ex from the HDB."""

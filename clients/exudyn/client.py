@@ -54,8 +54,7 @@ from exudyn.itemInterface import ObjectGenericODE2, VObjectGenericODE2
 
 from hydrolink.clients.lockstep import driver as lockstep
 from hydrolink.clients.lockstep.coupling_schemes import make_scheme
-from hydrolink.clients.lockstep.driver import (BLOW_UP_LIMIT, CouplingError, DivergenceWatch, ForceLink, Lockstep,  # noqa: F401
-                                        RunInterrupted, SimulationDiverged, progress_bar)
+from hydrolink.clients.lockstep.driver import BLOW_UP_LIMIT, CouplingError, DivergenceWatch, ForceLink, Lockstep, RunInterrupted, SimulationDiverged, progress_bar
 from hydrolink.protocol.pacing import Pacer
 from hydrolink.clients.lockstep.preflight import preflight
 from hydrolink.clients.lockstep.results import add_force_term_variables
@@ -390,7 +389,7 @@ def _moordyn_report(moorings: MooringSet) -> list[dict]:
 def wet_rigid_mass(scene: Scene, setup: Setup) -> np.ndarray:
     """Rigid-body mass matrix (6N × 6N) of the wet bodies about their reference points (dry bodies
     attached by joints are left out, which can only overstate the added-mass ratio)."""
-    from hydrolink.clients.fmu.coupling import rigid_body_mass_matrix
+    from hydrolink.server.rigid_body import rigid_body_mass_matrix
     names, eq = list(setup.bodies), setup.equilibrium_position
     m = np.zeros((6 * len(names), 6 * len(names)))
     for i, b in enumerate(_scene_bodies(scene, names)):
@@ -403,7 +402,7 @@ def coupling_ratio(scene: Scene, setup: Setup | None) -> float:
     """The added-mass ratio of the explicit schemes: spectral radius of M⁻¹A∞ over the wet bodies'
     active DOFs (M the rigid-body mass matrix). An explicitly fed-back −A∞·a multiplies an
     acceleration error by −M⁻¹A∞ every step: unstable above 1."""
-    from hydrolink.clients.fmu.coupling import added_mass_ratio
+    from hydrolink.clients.lockstep.relaxation import added_mass_ratio
     if not setup or not setup.bodies:
         return 0.0
     act = np.flatnonzero(setup.active.reshape(-1))
@@ -487,7 +486,7 @@ class ExudynMultibody:
         return its
 
     def _consistent_start(self, f0: np.ndarray) -> int:
-        from hydrolink.clients.fmu.coupling import Aitken
+        from hydrolink.clients.lockstep.relaxation import Aitken
         m, cpl = self.model, self.coupling
         aitken = Aitken(1.0 / (1.0 + self.ratio))
         u = f0.copy()
@@ -676,7 +675,7 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup | None, writer, 
         if model.n_bodies == 0:
             raise ValueError("controllers: a scene with controllers needs a wet body (the controllers "
                              "talk to the multibody client through the force server's session)")
-        from hydrolink.clients.lockstep.pto_control import PTOControl
+        from hydrolink.clients.exudyn.pto_control import PTOControl
         control = PTOControl(scene, model.ptos, model.mbs, writer)
     kx = pre.exchange_every
     mb = ExudynMultibody(model, writer, kx, feedback, cpl, ratio, control)

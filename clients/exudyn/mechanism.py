@@ -75,7 +75,7 @@ from exudyn.itemInterface import (CoordinateConstraint, LoadCoordinate, LoadForc
                                   VObjectJointSpherical, VObjectMass1D, VObjectRigidBody)
 from exudyn.rigidBodyUtilities import RigidBodyInertia
 
-from hydrolink.clients.fmu.coupling import rigid_body_mass_matrix
+from hydrolink.server.rigid_body import rigid_body_mass_matrix
 from hydrolink.protocol.scene import DOF_NAMES, Body, Joint, LinearPTO, PointMass, Scene, SceneError
 
 GROUND = "ground"

@@ -30,9 +30,9 @@ def export_fmu(scene_path: str | Path, output: str | Path, *, progress: bool = T
     except ImportError:  # pragma: no cover - an install without the extra
         raise RuntimeError("hydrolink fmu export needs pythonfmu: pip install 'hydrolink[fmu]'") from None
     from hydrolink.clients.lockstep.connection import ServerConnection
-    from hydrolink.clients.run import load_scene_hdbs
-    from hydrolink.protocol.hdb_schema import to_netcdf
-    from hydrolink.server.service import serve_in_thread
+    from hydrolink.clients.scene_inputs import load_scene_hdbs
+    from hydrolink.protocol.hdb.schema import to_netcdf
+    from hydrolink.server.service.force_server import serve_in_thread
 
     scene_path, output = Path(scene_path), Path(output)
     scene, text = load_scene(scene_path)

@@ -5,7 +5,7 @@ the bodies' state (FMU outputs) for the hydrodynamic forces (FMU inputs). Over a
 the FMU input is held constant at the step average ½(F(t_k) + F(t_k+1)) — the trapezoidal rule —
 with F(t_k+1) evaluated at the state the step ends in.
 
-A∞ (see :mod:`hydrolink.clients.fmu.coupling`), per the scene's ``[coupling] scheme`` (the one
+A∞ (see :mod:`hydrolink.clients.lockstep.relaxation`), per the scene's ``[coupling] scheme`` (the one
 vocabulary of every client; the deprecated ``[client.coupling] mode`` is read as it, see
 ``protocol/scene.py`` MODE_SCHEME):
 
@@ -35,7 +35,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from hydrolink.clients.lockstep import driver as lockstep
-from hydrolink.clients.fmu.coupling import added_mass_ratio, rigid_body_mass_matrix
+from hydrolink.clients.lockstep.relaxation import added_mass_ratio
+from hydrolink.server.rigid_body import rigid_body_mass_matrix
 from hydrolink.clients.lockstep.coupling_schemes import make_scheme
 from hydrolink.protocol.pacing import Pacer
 from hydrolink.clients.lockstep.driver import BLOW_UP_LIMIT, DivergenceWatch, ForceLink, Lockstep, progress_bar

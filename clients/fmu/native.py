@@ -85,10 +85,10 @@ def compile_binary(fmi: int, out: Path) -> None:
 
 def _hdb_sources(scene, scene_path: Path, progress: bool) -> tuple[dict, dict]:
     """Per HDB key: (format, [paths]) of the files the FMU carries, and the loaded datasets."""
-    from hydrolink.clients.run import load_scene_hdbs
+    from hydrolink.clients.scene_inputs import load_scene_hdbs
     from hydrolink.server.hdb.io import file_set
     from hydrolink.protocol.scene import resolve_path
-    from hydrolink.protocol.hdb_schema import to_netcdf
+    from hydrolink.protocol.hdb.schema import to_netcdf
 
     datasets = load_scene_hdbs(scene, scene_path, progress=progress)
     sources = {}
@@ -106,7 +106,7 @@ def _hdb_sources(scene, scene_path: Path, progress: bool) -> tuple[dict, dict]:
 
 def _setup(text: str, datasets: dict):
     from hydrolink.clients.lockstep.connection import ServerConnection
-    from hydrolink.server.service import ForceServer
+    from hydrolink.server.service.force_server import ForceServer
 
     server = ForceServer(None)
     try:

@@ -84,7 +84,7 @@ class HydrolinkForces(Fmi2Slave):
 
         address = self.server_address
         if not address:           # embedded: the server's request handler in this process
-            from hydrolink.server.service import ForceServer
+            from hydrolink.server.service.force_server import ForceServer
             self._server = address = ForceServer(None)
         key = None
         if self.key_file:         # a signing server (SPEC §3.3): the shared key file on this machine

@@ -21,7 +21,7 @@ from hydrolink.protocol import codec
 from hydrolink.protocol.codec import ProtocolError
 from hydrolink.protocol.reply import read_forces
 from hydrolink.protocol.setup import Setup
-from hydrolink.protocol.hdb_wire import HDBFiles, to_wire
+from hydrolink.protocol.hdb.wire import HDBFiles, to_wire
 from hydrolink.protocol.transport import apply_heartbeats
 
 ENVELOPE_AND_ERROR = ("v", "type", "msg_id", "session", "parent", "code", "name", "field", "message", "sig")
@@ -79,7 +79,7 @@ class ServerConnection:
     with ``respond_map(map) -> map``, or ``respond(frame) -> frame``): then each request is handed
     to it directly, without the transport's wake-ups and — as a map, when there is no signing
     ``key`` — without msgpack. The server checks a map as it checks a frame's content and the
-    reply carries the same values (float64 arrays, bit for bit; tests/test_server.py).
+    reply carries the same values (float64 arrays, bit for bit; tests/test_force_server.py).
 
     ``curve``: a :class:`hydrolink.protocol.security.ClientKeys` for a server that requires CURVE."""
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from hydrolink.clients.fmu.coupling import Aitken
+from hydrolink.clients.lockstep.relaxation import Aitken
 from hydrolink.clients.lockstep.driver import CouplingError, Lockstep, Sample
 
 

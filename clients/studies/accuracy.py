@@ -57,8 +57,7 @@ import numpy as np
 from pydantic import Field
 
 from hydrolink.protocol.errors import KeyedError
-from hydrolink.clients.studies.grid import (ALIASES, SHORT, GridMode, GridSpec, Value, absolute_paths, combinations,  # noqa: F401
-                                    dump_toml, effective_value, full_key, get_key, set_key, short_key)
+from hydrolink.clients.studies.grid import ALIASES, SHORT, GridMode, GridSpec, Value, absolute_paths, combinations, dump_toml, effective_value, full_key, get_key, set_key, short_key
 from hydrolink.protocol.toml_model import parse_toml, validate_toml
 
 
@@ -263,7 +262,8 @@ def _read(path: Path) -> dict:
 def run_option(doc: dict, settings: dict[str, Any], duration: float | None, workdir: Path, name: str,
                hdbs: dict | None, progress: bool = False) -> tuple[dict, dict]:
     """Run the scene with ``settings`` applied; returns (results arrays, cost summary)."""
-    from hydrolink.clients.run import load_scene_hdbs, run_scene_file
+    from hydrolink.clients.scene_inputs import load_scene_hdbs
+    from hydrolink.clients.run import run_scene_file
     from hydrolink.protocol.scene import load_scene
     case = json.loads(json.dumps(doc))
     for k, v in settings.items():

@@ -2,7 +2,7 @@
 
 **Sea state of a case** (:func:`sea_state`), from the scene's own wave definition:
 
-- irregular waves: the spectrum the force server synthesises (server/waves.py: JONSWAP with the
+- irregular waves: the spectrum the force server synthesises (server/sea/waves.py: JONSWAP with the
   scene's ``gamma``, or Pierson-Moskowitz), as the continuous S(w) normalised to Hm0 = ``hs``.
   Energy period Te = m_-1 / m_0 (moments in Hz), so Te / Tp is that spectrum's own ratio
   (:func:`te_over_tp`: JONSWAP gamma 3.3: 0.9033, Pierson-Moskowitz: Gamma(5/4) / 1.25^(1/4) = 0.8572);
@@ -39,8 +39,8 @@ import numpy as np
 from scipy.integrate import quad
 
 from hydrolink.protocol.scene import IrregularWave, RegularWave, Scene
-from hydrolink.server.kinematics import wave_number
-from hydrolink.server.waves import wave_spectrum
+from hydrolink.server.sea.dispersion import wave_number
+from hydrolink.server.sea.waves import wave_spectrum
 
 HOURS_PER_YEAR = 8766.0   # IEC TS 62600-100 (365.25 days)
 

@@ -33,8 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from hydrolink.clients.studies.sweep_file import Sweep, SweepError, case_identity, dataset_digest, full_key, load_sweep
-from hydrolink.clients.studies.sweep_worker import (CASE_FILES, TOKEN_FILE, CaseOutcome, CaseRecord, CaseTask, case_paths, run_case,
-                                            store_outcome, warm_setup, write_file_atomic)
+from hydrolink.clients.studies.sweep_worker import CASE_FILES, TOKEN_FILE, CaseOutcome, CaseRecord, CaseTask, case_paths, run_case, store_outcome, warm_setup, write_file_atomic
 
 log = logging.getLogger(__name__)
 PERIOD_KEYS = ("waves.te", "waves.tp", "waves.period")
@@ -60,7 +59,7 @@ class SweepReport:
 def load_hdbs(sweep: Sweep, progress: bool) -> tuple[dict, dict[str, str]]:
     """Every distinct HDB of the sweep's cases, loaded once (keyed by the absolute path the case
     scenes carry), and its content digest."""
-    from hydrolink.clients.run import load_scene_hdbs
+    from hydrolink.clients.scene_inputs import load_scene_hdbs
     hdbs: dict = {}
     for case in sweep.cases:
         if any(b.hdb is not None and b.hdb not in hdbs for b in case.scene.bodies):

@@ -48,8 +48,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from hydrolink.protocol.errors import KeyedError
-from hydrolink.clients.studies.grid import (GridSpec, Value, absolute_paths, dump_toml, effective_value, full_key, quoted,
-                                    scene_location, set_key)
+from hydrolink.clients.studies.grid import GridSpec, Value, absolute_paths, dump_toml, effective_value, full_key, quoted, scene_location, set_key
 from hydrolink.protocol.scene import IrregularWave, Scene, SceneError, load_scene, parse_scene
 from hydrolink.protocol.toml_model import parse_toml, validate_toml
 
@@ -324,7 +323,7 @@ def _tail(spec: SweepFile, scene: Scene, path: Path, what: str) -> float | None:
 def _solver(solver: str, scene: Scene, path: Path, what: str) -> str:
     if solver == "run":
         return "run"
-    from hydrolink.clients.studies.steady import SteadyError, check_scene
+    from hydrolink.clients.analysis.steady import SteadyError, check_scene
     try:
         check_scene(scene)
     except SteadyError as exc:

@@ -10,7 +10,7 @@ worker that sees OUTDIR (same machine or a shared file system: it holds the swee
 writes them itself; a worker elsewhere returns the files' bytes and the client writes them.
 
 The HDBs come from the client (loaded once, scattered to the workers), so no worker reads or builds
-an HDB; state-space fits go through the on-disk fit cache (server/state_space_cache.py), whose
+an HDB; state-space fits go through the on-disk fit cache (server/radiation/state_space_cache.py), whose
 folder every worker reports so that the client can tell when they do not share one.
 """
 
@@ -132,8 +132,8 @@ def sees_outdir(task: CaseTask) -> bool:
 
 def cache_folders() -> dict[str, str]:
     """The HDB build cache and state-space fit cache folders of this process."""
-    from hydrolink.server.hdb.build import default_cache_dir as hdb_dir
-    from hydrolink.server.state_space_cache import default_cache_dir as fit_dir
+    from hydrolink.server.hdb.build.builder import default_cache_dir as hdb_dir
+    from hydrolink.server.radiation.state_space_cache import default_cache_dir as fit_dir
     return {"hdb": str(hdb_dir().resolve()), "state_space": str(fit_dir().resolve())}
 
 
@@ -158,7 +158,7 @@ def run_case(task: CaseTask, hdbs: dict, *after) -> CaseOutcome:
         if task.solver == "steady":
             import math
 
-            from hydrolink.clients.studies.steady import steady_scene_file
+            from hydrolink.clients.analysis.steady import steady_scene_file
             from hydrolink.protocol.scene import parse_scene
             scene = parse_scene(task.scene_text, "scene")
             period, dt = scene.waves.period, scene.simulation.dt
@@ -195,10 +195,10 @@ def run_case(task: CaseTask, hdbs: dict, *after) -> CaseOutcome:
 def warm_setup(scene_text: str, hdbs: dict) -> None:
     """Build the server model of a scene once, so that its state-space fits land in the on-disk
     cache the cases of this setup then read. A failure is left to the cases, which report it."""
-    from hydrolink.clients.run import load_scene_hulls, load_wave_elevation
+    from hydrolink.clients.scene_inputs import load_scene_hulls, load_wave_elevation
     from hydrolink.protocol.scene import parse_scene
     from hydrolink.server.model import HydroModel
-    from hydrolink.server.wetted_surface import closed_hull
+    from hydrolink.server.terms.hulls import closed_hull
     try:
         scene = parse_scene(scene_text, "scene")   # its file paths are absolute
         HydroModel(scene, {b.name: hdbs[b.hdb] for b in scene.bodies if b.wet}, load_wave_elevation(scene, "scene.toml"),

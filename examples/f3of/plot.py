@@ -135,7 +135,7 @@ def run_period(period: float, folder: Path, duration: float = DURATION) -> xr.Da
 
 
 def rao(output: str) -> None:
-    from hydrolink.server.hdb.build import build_hdb
+    from hydrolink.server.hdb.build.builder import build_hdb
     hdb = build_hdb(HERE / "f3of_hdb.toml", progress=False)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:

@@ -152,8 +152,8 @@ def main() -> None:
         hdb_path = Path(args.hdb).resolve()
         hdb = load_hdb(hdb_path)
     else:
-        from hydrolink.server.hdb.build import build_hdb
-        from hydrolink.protocol.hdb_schema import to_netcdf
+        from hydrolink.server.hdb.build.builder import build_hdb
+        from hydrolink.protocol.hdb.schema import to_netcdf
         hdb = build_hdb(resolve_path(scene_path, scene.bodies[0].hdb), progress=False)
     omegas = (np.array([float(w) for w in args.omegas.split(",")]) if args.omegas
               else np.linspace(2.61, 7.85, 12))

@@ -26,8 +26,9 @@ import h5py
 import numpy as np
 import xarray as xr
 
-from hydrolink.protocol.hdb_schema import HDBError, make_hdb
-from hydrolink.protocol.hdb_second_order import MeanDrift
+from hydrolink.protocol.hdb.layout import HDBError
+from hydrolink.protocol.hdb.schema import make_hdb
+from hydrolink.protocol.hdb.second_order import MeanDrift
 from hydrolink.server.hdb.bemio_qtf import read_bemio_qtf
 
 # BEMIO's mean drift groups (hydro_coeffs/mean_drift/<group>/val) and the schema's method names

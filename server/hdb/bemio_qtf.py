@@ -1,5 +1,5 @@
 """The QTF groups of a WEC-Sim BEMIO HDF5 file (``bodyN/hydro_coeffs/excitation/QTF<N>/{Sum,Diff}<dof>/``),
-read into the QTF part of an HDB (:mod:`hydrolink.protocol.hdb_second_order`).
+read into the QTF part of an HDB (:mod:`hydrolink.protocol.hdb.second_order`).
 
 Layout, from WEC-Sim's own sources (``source/functions/BEMIO/writeBEMIOH5.m``,
 ``QTFs/triToFullMatrix.m``, ``QTFs/assignIDs.m``, ``readWAMIT.m``/``readNEMOH.m``; releases v6.1 to
@@ -30,8 +30,8 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from hydrolink.protocol.hdb_schema import HDBError
-from hydrolink.protocol.hdb_second_order import QTF, fill_qtf_square
+from hydrolink.protocol.hdb.layout import HDBError
+from hydrolink.protocol.hdb.second_order import QTF, fill_qtf_square
 
 
 def qtf_group(fh: h5py.File, body: str, source: Path) -> str | None:

@@ -41,9 +41,10 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from hydrolink.protocol.hdb_schema import DOF_NAMES, HDBError, make_hdb
+from hydrolink.protocol.hdb.layout import DOF_NAMES, HDBError
+from hydrolink.protocol.hdb.schema import make_hdb
 
-from .time_convention import ConventionEvidence, evidence
+from hydrolink.server.hdb.time_convention import ConventionEvidence, evidence
 
 _FREQ_DIMS = ("omega", "period", "freq", "wavenumber", "wavelength")
 

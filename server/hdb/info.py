@@ -9,9 +9,9 @@ import numpy as np
 import xarray as xr
 from scipy.optimize import brentq
 
-from hydrolink.protocol.hdb_schema import DOF_NAMES
-from hydrolink.protocol.hdb_second_order import drift_methods, qtf_kinds
-from hydrolink.server.irf import aliasing_time, irf_report, ogilvie_added_mass_inf, ogilvie_report, radiation_irf
+from hydrolink.protocol.hdb.layout import DOF_NAMES
+from hydrolink.protocol.hdb.second_order import drift_methods, qtf_kinds
+from hydrolink.server.radiation.irf import aliasing_time, irf_report, ogilvie_added_mass_inf, ogilvie_report, radiation_irf
 
 _TRANSLATIONS = DOF_NAMES[:3]
 

@@ -16,11 +16,12 @@ from pathlib import Path
 
 import xarray as xr
 
-from .bemio import read_bemio
-from .capytaine_io import from_capytaine_dataset
-from hydrolink.protocol.hdb_schema import HDBError, from_netcdf_dataset
-from .wamit import WAMIT_SUFFIXES, read_wamit, wamit_stem
-from .wamit_second_order import SECOND_ORDER_SUFFIXES
+from hydrolink.server.hdb.bemio import read_bemio
+from hydrolink.server.hdb.capytaine_io import from_capytaine_dataset
+from hydrolink.protocol.hdb.layout import HDBError
+from hydrolink.protocol.hdb.schema import from_netcdf_dataset
+from hydrolink.server.hdb.wamit import WAMIT_SUFFIXES, read_wamit, wamit_stem
+from hydrolink.server.hdb.wamit_second_order import SECOND_ORDER_SUFFIXES
 
 WAMIT_READ = (".1", ".2", ".3", ".hst", ".out", ".cfg", *SECOND_ORDER_SUFFIXES)   # the files read_wamit opens (where present)
 
@@ -91,7 +92,7 @@ def file_set(path: str | Path, *, rho: float | None = None) -> "HDBFiles":
     """The files ``load_hdb(path)`` reads, as an HDB file set to send by content (SPEC §5.1):
     a WAMIT run's ``.1``, ``.2``/``.3``, ``.hst``, ``.out``, ``.cfg`` where present; a BEMIO or
     NetCDF file alone. HDBError naming the file when it is not an HDB file of a known format."""
-    from hydrolink.protocol.hdb_wire import HDBFiles
+    from hydrolink.protocol.hdb.wire import HDBFiles
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix in (".h5", ".hdf5", ".nc"):

@@ -1,5 +1,5 @@
 """NEMOH v3 QTF output (``results/QTF/OUT_QTFM_N*.dat`` difference, ``OUT_QTFP_N*.dat`` sum) read
-into the QTF part of an HDB (:mod:`hydrolink.protocol.hdb_second_order`).
+into the QTF part of an HDB (:mod:`hydrolink.protocol.hdb.second_order`).
 
 Rows after a header line: ``w_1 w_2 beta_1 beta_2 DoF |QTF|/(rho g) phase(deg) Re/(rho g) Im/(rho g)``
 (one triangle of the square; the other is filled: conjugate symmetry for the difference QTF, plain
@@ -9,7 +9,7 @@ time convention of its complex values: the caller states both (``frequency_unit`
 exp(+i w t) values are conjugated here, once. NEMOH has no linear HDB reader in hydrolink: the QTF
 is added to an HDB read from another format, from a scene by ``bodies[i].qtf`` (which states the
 unit and convention; :func:`hydrolink.clients.run.with_nemoh_qtf`), or in Python with
-:func:`hydrolink.protocol.hdb_second_order.with_second_order`.
+:func:`hydrolink.protocol.hdb.second_order.with_second_order`.
 """
 
 from __future__ import annotations
@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from hydrolink.protocol.hdb_schema import TIME_CONVENTION, HDBError
-from hydrolink.protocol.hdb_second_order import QTF, fill_qtf_square
+from hydrolink.protocol.hdb.layout import TIME_CONVENTION, HDBError
+from hydrolink.protocol.hdb.second_order import QTF, fill_qtf_square
 from hydrolink.server.hdb.wamit_table import read_table
 
 FREQUENCY_UNITS = ("rad/s", "Hz", "s")

@@ -36,7 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hydrolink.server.control import wave_number
+from hydrolink.server.sea.dispersion import wave_number
 
 LONG_WAVE = 0.5       # k * body size up to which the long-wave limits are used
 MIN_PHASE = 0.05      # |Im p| / |p| below which a prediction carries no phase information

@@ -22,7 +22,8 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from hydrolink.protocol.hdb_schema import HDBError, make_hdb
+from hydrolink.protocol.hdb.layout import HDBError
+from hydrolink.protocol.hdb.schema import make_hdb
 from hydrolink.server.hdb.wamit_second_order import SECOND_ORDER_SUFFIXES, read_drift, read_qtf
 from hydrolink.server.hdb.wamit_table import Units, frequencies, mode_indices, read_table, scale_exponent, special_rows
 

@@ -1,6 +1,6 @@
 """WAMIT second-order files beside the ``.1``: mean drift (``.7``/``.8``/``.9``) and QTFs
 (``.10d``/``.11d``/``.12d`` difference, ``.10s``/``.11s``/``.12s`` sum), converted once into the
-layout of :mod:`hydrolink.protocol.hdb_second_order`.
+layout of :mod:`hydrolink.protocol.hdb.second_order`.
 
 Mean drift rows ``PER BETA1 BETA2 I Mod Pha Re Im``: F = rho g A^2 L^m Re (m = 1 forces, 2
 moments); the kept rows are those with BETA1 = BETA2 (a unidirectional regular wave), the mean
@@ -24,8 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from hydrolink.protocol.hdb_schema import HDBError
-from hydrolink.protocol.hdb_second_order import QTF, MeanDrift, fill_qtf_square, merge_drift
+from hydrolink.protocol.hdb.layout import HDBError
+from hydrolink.protocol.hdb.second_order import QTF, MeanDrift, fill_qtf_square, merge_drift
 from hydrolink.server.hdb.wamit_table import Units, frequencies, read_table, scale_exponent, special_rows
 
 DRIFT_FILES = ((".8", "momentum"), (".7", "control-surface"), (".9", "pressure"))

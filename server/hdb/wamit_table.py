@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hydrolink.protocol.hdb_schema import HDBError
+from hydrolink.protocol.hdb.layout import HDBError
 
 
 def is_number(token: str) -> bool:

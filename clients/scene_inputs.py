@@ -1,0 +1,129 @@
+"""A scene's input files, loaded as every tool needs them: its HDBs (read, built or sent as files, with
+NEMOH QTFs added), its bodies' hulls for nonlinear terms, its wave elevation series."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import xarray as xr
+
+from hydrolink.protocol.hdb.wire import HDBFiles
+from hydrolink.protocol.scene import Scene, SceneError, resolve_path
+
+
+def load_scene_hdbs(scene: Scene, scene_path: str | Path, *, progress: bool = True,
+                    as_files: bool = False) -> dict[str, xr.Dataset | HDBFiles]:
+    """HDBs of a scene keyed by each body's ``hdb`` string (one load per distinct file).
+
+    A ``.toml`` HDB is a build spec: it is built with Capytaine (or taken from the cache).
+    ``as_files``: the other HDBs as their original files (SPEC §5.1 "HDB file set"), not read here:
+    the server reads them and checks the bodies' names in them."""
+    from hydrolink.server.hdb.io import file_set, load_hdb   # raise HDBError naming the file and field
+
+    hdbs: dict[str, xr.Dataset | HDBFiles] = {}
+    for i, body in enumerate(scene.bodies):
+        if body.hdb is None or body.hdb in hdbs:
+            continue
+        path = resolve_path(scene_path, body.hdb)
+        if not path.exists() and not path.with_suffix(".1").exists():
+            raise SceneError(scene_path, f"bodies[{i}].hdb", f"file not found: {path}")
+        qtf = next((j for j, b in enumerate(scene.bodies) if b.hdb == body.hdb and b.qtf is not None), None)
+        if path.suffix == ".toml":
+            from hydrolink.server.hdb.build.builder import build_hdb
+            hdbs[body.hdb] = build_hdb(path, progress=progress)
+        elif as_files and qtf is None:   # with NEMOH QTF files: read here and sent as a map
+            hdbs[body.hdb] = file_set(path)
+        else:
+            stated = next((b.hdb_convention for b in scene.bodies if b.hdb == body.hdb and b.hdb_convention), None)
+            hdbs[body.hdb] = load_hdb(path, convention=stated)
+        if qtf is not None:
+            hdbs[body.hdb] = with_nemoh_qtf(hdbs[body.hdb], scene, qtf, scene_path)
+    for i, body in enumerate(scene.bodies):
+        if body.hdb is None or isinstance(hdbs[body.hdb], HDBFiles):
+            continue
+        names = [str(b) for b in hdbs[body.hdb]["body"].values]
+        if body.hdb_body_name not in names:
+            key = "hdb_body" if body.hdb_body else "name"
+            raise SceneError(scene_path, f"bodies[{i}].{key}",
+                             f"the HDB {body.hdb} holds no body {body.hdb_body_name!r} (it holds {names}); "
+                             "set hdb_body to one of those")
+    return hdbs
+
+
+def with_nemoh_qtf(ds: xr.Dataset, scene: Scene, i: int, scene_path: str | Path) -> xr.Dataset:
+    """The HDB ``ds`` of body ``i`` with the NEMOH QTF files its ``qtf`` names (relative to the
+    scene; unit and convention as stated there); SceneError naming ``bodies[i].qtf`` and the key
+    (the file's own line or field in the message) when a file is missing or unreadable, or the HDB
+    already holds a QTF (one source per HDB)."""
+    from hydrolink.protocol.hdb.layout import HDBError
+    from hydrolink.protocol.hdb.second_order import qtf_kinds
+    from hydrolink.protocol.hdb.schema import with_second_order
+    from hydrolink.server.hdb.nemoh_qtf import read_nemoh_qtf
+
+    q, key = scene.bodies[i].qtf, f"bodies[{i}].qtf"
+    if qtf_kinds(ds):
+        raise SceneError(scene_path, key, f"the HDB {scene.bodies[i].hdb} already holds a QTF "
+                                          f"({ds.attrs.get('qtf_source', '?')}): one QTF source per HDB")
+    paths = {}
+    for name in ("difference", "sum"):
+        if getattr(q, name) is not None:
+            paths[name] = resolve_path(scene_path, getattr(q, name))
+            if not paths[name].is_file():
+                raise SceneError(scene_path, f"{key}.{name}", f"file not found: {paths[name]}")
+    try:
+        qtf = read_nemoh_qtf(difference=paths.get("difference"), total_sum=paths.get("sum"),
+                             rho=float(ds.attrs["rho"]), g=float(ds.attrs["g"]), n_dof=6 * ds.sizes["body"],
+                             frequency_unit=q.frequency_unit, convention=q.convention)
+        return with_second_order(ds, qtf=qtf)
+    except HDBError as exc:
+        which = next((n for n, p in paths.items() if Path(str(exc.source)).name == p.name), None)
+        raise SceneError(scene_path, f"{key}.{which}" if which else key, str(exc)) from None
+
+
+def load_scene_hulls(scene: Scene, scene_path: str | Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """The closed hulls (vertices, faces) of the scene's nonlinear bodies by name, for
+    ``hello.meshes`` (SPEC §5.1): the body's ``mesh`` file (relative to the scene; any format
+    Capytaine reads), else the hull of its HDB build spec. SceneError naming bodies[i].mesh when
+    there is neither or the file cannot be read; the server checks that each hull is closed."""
+    hulls: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    for i, body in enumerate(scene.bodies):
+        if scene.nonlinear_of(body) == "none":
+            continue
+        key = f"bodies[{i}].mesh"
+        if body.mesh is not None:
+            import capytaine as cpt
+
+            path = resolve_path(scene_path, body.mesh)
+            if not path.is_file():
+                raise SceneError(scene_path, key, f"file not found: {path}")
+            try:
+                mesh = cpt.load_mesh(str(path))
+            except Exception as exc:  # noqa: BLE001 - any reader failure is a bad scene input
+                raise SceneError(scene_path, key, f"cannot read the mesh {path}: {exc}") from None
+            hulls[body.name] = (np.asarray(mesh.vertices, float), np.asarray(mesh.faces))
+            continue
+        spec_path = resolve_path(scene_path, body.hdb)
+        if spec_path.suffix != ".toml":
+            raise SceneError(scene_path, key, f"required: body {body.name!r} has nonlinear hydrostatics "
+                                              f"({scene.nonlinear_of(body)!r}) and its HDB {body.hdb} is not a build spec "
+                                              "to take the hull from; name its closed hull's mesh file")
+        from hydrolink.server.hdb.build.mesh import closed_hull
+        from hydrolink.server.hdb.build.spec import load_spec
+        spec = load_spec(spec_path)
+        names = [b.name for b in spec.all_bodies]
+        index = names.index(body.hdb_body_name) if body.hdb_body_name in names else 0
+        hulls[body.name] = closed_hull(spec, index, spec_path)
+    return hulls
+
+
+def load_wave_elevation(scene: Scene, scene_path: str | Path):
+    """The (time, eta) series of ``[waves] type = "elevation"`` read from its file (relative to the
+    scene), or None for other waves; SceneError naming waves.file when missing or malformed."""
+    if getattr(scene.waves, "type", None) != "elevation":
+        return None
+    from hydrolink.server.sea.waves import WaveError, read_elevation
+    try:
+        return read_elevation(resolve_path(scene_path, scene.waves.file))
+    except WaveError as exc:
+        raise SceneError(scene_path, exc.key, exc.why) from None

@@ -1,0 +1,81 @@
+"""The internal hydrodynamic database (HDB): one labelled xarray dataset, one convention.
+
+Every reader converts its format into this layout once; everything downstream (IRF, forces,
+``hdb info``, the wire) reads only this. Layout::
+
+    dims    omega (n_w, strictly increasing, > 0), influenced_dof (6N), radiating_dof (6N),
+            wave_direction (n_b, radians), body (N), xyz (3)
+    coords  omega [rad/s]; wave_direction [rad]; body (names);
+            influenced_dof / radiating_dof: labels "<body>.<dof>", body-major, dof in DOF_NAMES order
+    vars    added_mass            (omega, influenced_dof, radiating_dof)   kg, kg m, kg m^2
+            radiation_damping     (omega, influenced_dof, radiating_dof)   N s/m, ...
+            excitation_force      (omega, wave_direction, influenced_dof)  complex, per metre of wave
+                                                                            amplitude, exp(-i w t)
+            hydrostatic_stiffness (influenced_dof, radiating_dof)          buoyancy + waterplane only
+                                                                            (no gravity terms)
+            reference_point       (body, xyz)   point the rotational modes refer to, global frame
+                                                at equilibrium (m)
+            added_mass_inf        (influenced_dof, radiating_dof)   optional; absent -> Ogilvie
+            displaced_volume      (body)        optional (m^3)
+            center_of_buoyancy    (body, xyz)   optional (m)
+            mass                  (body)        optional (kg): the body mass the file records
+            center_of_mass        (body, xyz)   optional (m): the centre of gravity the file records
+            mean_drift, difference_qtf, sum_qtf   optional second-order data: layout and
+                                                  conventions in :mod:`.second_order`
+    attrs   rho, g, water_depth (float, inf for deep water), time_convention = "exp(-iwt)",
+            source (where it came from), hdb_schema_version = 2 (2: mean_drift_body_fixed required
+            with mean_drift; hdb build's cache keys change with it)
+
+Time convention: a regular wave with elevation eta(t) = Re{a exp(-i w t)} at the origin gives the
+excitation force Re{a X(w) exp(-i w t)} (Capytaine's convention). Readers of exp(+i w t) formats
+(WAMIT, BEMIO/WEC-Sim) take the complex conjugate.
+
+Row index = force component (influenced), column = motion (radiating): F = -A a - B v.
+"""
+
+from __future__ import annotations
+
+from hydrolink.protocol.errors import KeyedError
+from hydrolink.protocol.scene_bounds import DENSITY_RANGE, DEPTH_RANGE, GRAVITY_RANGE
+
+DOF_NAMES: tuple[str, ...] = ("surge", "sway", "heave", "roll", "pitch", "yaw")
+TIME_CONVENTION = "exp(-iwt)"
+SCHEMA_VERSION = 2
+
+REQUIRED_VARS = {
+    "added_mass": ("omega", "influenced_dof", "radiating_dof"),
+    "radiation_damping": ("omega", "influenced_dof", "radiating_dof"),
+    "excitation_force": ("omega", "wave_direction", "influenced_dof"),
+    "hydrostatic_stiffness": ("influenced_dof", "radiating_dof"),
+    "reference_point": ("body", "xyz"),
+}
+DRIFT_METHODS: tuple[str, ...] = ("momentum", "control-surface", "pressure", "far-field")
+QTF_KINDS: tuple[str, ...] = ("difference", "sum")
+MEAN_DRIFT_DIMS = ("drift_method", "drift_omega", "drift_direction", "influenced_dof")
+QTF_DIMS = ("qtf_omega_i", "qtf_omega_j", "qtf_heading", "influenced_dof")
+SECOND_ORDER_VARS = {"mean_drift": MEAN_DRIFT_DIMS, "difference_qtf": QTF_DIMS, "sum_qtf": QTF_DIMS}
+OPTIONAL_VARS = {
+    "added_mass_inf": ("influenced_dof", "radiating_dof"),
+    "displaced_volume": ("body",),
+    "center_of_buoyancy": ("body", "xyz"),
+    "mass": ("body",),
+    "center_of_mass": ("body", "xyz"),
+    **SECOND_ORDER_VARS,
+}
+COMPLEX_VARS = ("excitation_force", "difference_qtf", "sum_qtf")   # split into _re/_im in NetCDF
+REQUIRED_ATTRS = ("rho", "g", "water_depth")
+ATTR_RANGES = {"rho": DENSITY_RANGE, "g": GRAVITY_RANGE, "water_depth": DEPTH_RANGE}
+
+
+class HDBError(KeyedError):
+    """A hydrodynamic database that cannot be used; the message names the file and the field."""
+
+    @property
+    def field(self) -> str:
+        """The file's field (variable, column, line) at fault: the error's key."""
+        return self.key
+
+
+def dof_labels(bodies: list[str]) -> list[str]:
+    """Mode labels "<body>.<dof>" in the schema's order (body-major)."""
+    return [f"{b}.{d}" for b in bodies for d in DOF_NAMES]

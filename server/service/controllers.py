@@ -1,0 +1,451 @@
+"""Controllers inside a session (SPEC §5.7): the relay of measurements and commands, deadlines
+and fallback decisions (the wave probes of the measurements: server/sea/probes.py).
+
+The server mediates: the multibody client and each controller talk only to the server. A
+:class:`ControlHub` per session keeps one :class:`Slot` per declared controller. Deferred replies
+(a controller waiting for measurements, a multibody step waiting for a command) are parked with
+their routing frames and sent through the ``send(route, type, parent, fields)`` callback of the
+service when their condition is met or their deadline passes (:meth:`ControlHub.poll`). Requests
+pipelined behind a deferred step wait in :attr:`ControlHub.held` and are handled, in order, once
+it is answered (SPEC §1: a client's requests are answered in order).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time as _time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+from hydrolink.protocol import codec
+from hydrolink.protocol.codec import Code, ProtocolError
+from hydrolink.protocol.scene import Controller, LinearPTO, Scene
+from hydrolink.server.allocation import require_size
+from hydrolink.server.sea.probes import WaveProbes
+
+log = logging.getLogger("hydrolink.server.service.controllers")
+
+MAX_WAIT = 30.0
+STATUSES = ("ok", "timeout", "absent", "invalid")
+MB_FIELDS = ("pto_displacement", "pto_velocity", "pto_force", "body_position", "body_velocity")
+SEQUENCED = ("step", "bye", "save", "restore", "release")   # requests that act on the step sequence
+
+
+# ---------------------------------------------------------------- one controller
+
+@dataclass
+class Slot:
+    cfg: Controller
+    pto_rows: np.ndarray           # rows of its PTOs among the scene's linear PTOs
+    body_rows: np.ndarray          # rows of its bodies among the scene bodies
+    period: int                    # P
+    latency: int                   # L
+    probes: WaveProbes
+    fallback_damping: list[float] | None
+    state: str = "waiting"         # waiting | active | absent
+    epoch: int = 0
+    parked: tuple | None = None    # (route, msg_id, idle deadline)
+    newest: int = -1               # newest step relayed to this slot
+    delivered: int = -1            # newest step delivered to the controller
+    sample: dict | None = None     # the newest measurements (reply fields)
+    relay_time: dict[int, float] = field(default_factory=dict)
+    received: dict[int, tuple] = field(default_factory=dict)   # step -> ("ok", commands, latency) | ("invalid", msg)
+    decided: set[int] = field(default_factory=set)
+    counts: dict[str, int] = field(default_factory=lambda: {s: 0 for s in (*STATUSES, "late", "joins")})
+
+    @property
+    def name(self) -> str:
+        return self.cfg.name
+
+
+class ControlHub:
+    """The controllers of one session (see module docstring)."""
+
+    def __init__(self, scene: Scene, scene_text: str, model, session_id: str, send: Callable[..., None]):
+        self.scene, self.scene_text, self.session_id, self.send = scene, scene_text, session_id, send
+        self.dt = float(scene.simulation.dt)
+        self.n_steps = scene.simulation.n_steps
+        linear = [p for p in scene.ptos if isinstance(p, LinearPTO)]
+        self.pto_names = [p.name for p in linear]
+        self.pto_damping = {p.name: float(p.damping) for p in linear}
+        self.body_names = [b.name for b in scene.bodies]
+        self.slots: dict[str, Slot] = {}
+        water = scene.water
+        for i, c in enumerate(scene.controllers):
+            P = c.steps_per_period(self.dt)
+            hstep = int(round((c.preview_step or P * self.dt) / self.dt))
+            n_h = int(math.floor(c.preview / (hstep * self.dt) + 1e-9)) if c.preview > 0 else 0
+            require_size(f"controllers[{i}].preview_step", "the wave preview's phasors (components x samples)",
+                         (max(model.waves.size, 1), n_h + 1), 16,
+                         hint=f"fewer preview samples: a longer preview_step or a shorter preview ({c.preview:g} s)")
+            preview_times = np.arange(1, n_h + 1) * hstep * self.dt
+            probes = WaveProbes(model.waves, np.array(c.wave_points, float), preview_times, water.gravity,
+                                water.depth_m)
+            fb = None
+            if c.fallback == "passive":
+                fb = [float(c.fallback_damping) if c.fallback_damping is not None else self.pto_damping[p]
+                      for p in c.ptos]
+            self.slots[c.name] = Slot(c, np.array([self.pto_names.index(p) for p in c.ptos], int),
+                                      np.array([self.body_names.index(b) for b in (c.bodies or self.body_names)], int),
+                                      P, int(c.latency), probes, fb)
+        self.pending: dict | None = None   # the multibody step reply waiting for commands
+        self.held: deque[tuple[dict, list[bytes]]] = deque()   # (request, route) behind the pending step
+        self.pending_deadline = math.inf
+        self.last_control: tuple[int, dict] | None = None
+        self.ended: str | None = None
+
+    # ------------------------------------------------------------ controller side
+
+    def info(self, slot: Slot) -> dict:
+        c = slot.cfg
+        return {
+            "name": c.name, "ptos": list(c.ptos), "bodies": [self.body_names[i] for i in slot.body_rows],
+            "command": c.command, "dt": self.dt, "period": slot.period * self.dt,
+            "steps_per_period": slot.period, "latency": slot.latency,
+            "duration": self.n_steps * self.dt, "steps": self.n_steps,
+            "measurements": list(c.measurements), "wave_points": np.array(c.wave_points, float).reshape(-1, 2),
+            "preview_times": slot.probes.offsets[1:].copy(), "timeout": c.timeout, "fallback": c.fallback,
+            "fallback_damping": slot.fallback_damping,
+            "limits": {"max_force": c.max_force, "damping": list(c.damping_range),
+                       "stiffness": list(c.stiffness_range)},
+            "parameters": dict(c.parameters), "scene": self.scene_text,
+        }
+
+    def join(self, name: str | None) -> tuple[Slot, bool]:
+        """The slot a controller hello names (ProtocolError 5 if none); (slot, rejoined)."""
+        if name is None:
+            if len(self.slots) != 1:
+                raise ProtocolError(Code.MISSING_FIELD, "controller", "this session declares controllers "
+                                    f"{sorted(self.slots)}: name one in 'controller'")
+            name = next(iter(self.slots))
+        slot = self.slots.get(name)
+        if slot is None:
+            raise ProtocolError(Code.BAD_VALUE, "controller", f"this session declares no controller "
+                                f"{name!r} (it declares {sorted(self.slots)})")
+        rejoined = slot.counts["joins"] > 0
+        slot.counts["joins"] += 1
+        slot.epoch += 1
+        if slot.parked is not None:   # the replaced connection's request: answered, not left hanging
+            route, msg_id, _ = slot.parked
+            slot.parked = None
+            self.send(route, "idle", msg_id, {})
+        self._activate(slot)
+        if slot.newest >= 0 and slot.newest not in slot.decided:
+            slot.delivered = min(slot.delivered, slot.newest - 1)   # the newest goes to the new connection
+        log.info("session %s: controller %r %s (epoch %d)", self.session_id, name,
+                 "rejoined" if rejoined else "joined", slot.epoch)
+        self._maybe_finish_pending()
+        return slot, rejoined
+
+    def slot_for(self, msg: dict) -> Slot:
+        name = codec.require_str(msg, "controller")
+        slot = self.slots.get(name)
+        if slot is None:
+            raise ProtocolError(Code.BAD_VALUE, "controller", f"this session declares no controller "
+                                f"{name!r} (it declares {sorted(self.slots)})")
+        epoch = codec.require_int(msg, "epoch", minimum=1)
+        if epoch != slot.epoch:
+            raise ProtocolError(Code.WRONG_STATE, "epoch", f"controller {name!r} epoch {epoch} was replaced by a "
+                                f"newer connection (epoch {slot.epoch}); send hello again to take over")
+        return slot
+
+    def _activate(self, slot: Slot) -> None:
+        if slot.state != "active":
+            if slot.state == "absent":
+                log.warning("session %s: controller %r is back", self.session_id, slot.name)
+            slot.state = "active"
+
+    def _wait(self, msg: dict) -> float:
+        w = msg.get("wait", 1.0)
+        if type(w) not in (int, float) or not math.isfinite(w) or w < 0:
+            raise ProtocolError(Code.BAD_VALUE, "wait", f"must be a number of seconds >= 0, got {codec.describe(w)}")
+        return min(float(w), MAX_WAIT)
+
+    def measure(self, msg: dict, route, msg_id) -> tuple[str, dict] | None:
+        """Reply to ``measure``: the next measurements now, or None (parked)."""
+        slot = self.slot_for(msg)
+        wait = self._wait(msg)
+        self._activate(slot)
+        return self._next_for(slot, route, msg_id, wait)
+
+    def command(self, msg: dict, route, msg_id) -> tuple[str, dict] | None:
+        slot = self.slot_for(msg)
+        wait = self._wait(msg)
+        self._activate(slot)
+        step = codec.require_int(msg, "step", minimum=0)
+        if step != slot.delivered:
+            raise ProtocolError(Code.OUT_OF_ORDER, "step", f"command for step {step}, but the newest measurements "
+                                f"delivered to {slot.name!r} are of step {slot.delivered}; continue with measure")
+        if step in slot.decided or step in slot.received:
+            if step in slot.decided and step not in slot.received:
+                slot.counts["late"] += 1
+                log.warning("session %s: controller %r late for step %d (fallback used)", self.session_id,
+                            slot.name, step)
+            raise ProtocolError(Code.OUT_OF_ORDER, "step", f"the decision for step {step} was already taken "
+                                "(late: its deadline passed and the fallback was used, or a second command); "
+                                "continue with measure")
+        try:
+            commands = self._validate(slot, msg.get("commands"))
+        except ProtocolError:
+            slot.received[step] = ("invalid",)
+            self._maybe_finish_pending()
+            raise
+        latency = _time.monotonic() - slot.relay_time.get(step, _time.monotonic())
+        slot.received[step] = ("ok", commands, latency)
+        self._maybe_finish_pending()
+        return self._next_for(slot, route, msg_id, wait)
+
+    def _validate(self, slot: Slot, commands: Any) -> dict:
+        c = slot.cfg
+        if not isinstance(commands, dict):
+            raise ProtocolError(Code.BAD_VALUE if commands is not None else Code.MISSING_FIELD, "commands",
+                                f"must be a map {{pto name: {{setpoint: value}}}}, got {type(commands).__name__}")
+        for name in commands:
+            if name not in c.ptos:
+                raise ProtocolError(Code.BAD_VALUE, f"commands.{name}", f"controller {c.name!r} drives no PTO "
+                                    f"{name!r} (it drives {list(c.ptos)})")
+        keys = ("force",) if c.command == "force" else ("damping", "stiffness")
+        out = {}
+        for name in c.ptos:
+            if name not in commands:
+                raise ProtocolError(Code.MISSING_FIELD, f"commands.{name}", f"no command for PTO {name!r}")
+            entry = commands[name]
+            if not isinstance(entry, dict):
+                raise ProtocolError(Code.BAD_VALUE, f"commands.{name}",
+                                    f"must be a map with {' and/or '.join(map(repr, keys))}, got {codec.describe(entry)}")
+            for key in entry:
+                if key not in keys:
+                    raise ProtocolError(Code.BAD_VALUE, f"commands.{name}.{key}", f"not a {c.command} setpoint "
+                                        f"(expected {list(keys)})")
+            if not entry or (c.command == "force" and "force" not in entry):
+                raise ProtocolError(Code.MISSING_FIELD, f"commands.{name}", f"needs {' and/or '.join(keys)}")
+            vals = {}
+            for key, value in entry.items():
+                where = f"commands.{name}.{key}"
+                if type(value) not in (int, float):
+                    raise ProtocolError(Code.BAD_VALUE, where, f"must be a number, got {type(value).__name__}")
+                value = float(value)
+                if not math.isfinite(value):
+                    raise ProtocolError(Code.BAD_VALUE, where, f"must be finite, got {value}")
+                if key == "force":
+                    if c.max_force is not None and abs(value) > c.max_force:
+                        raise ProtocolError(Code.BAD_VALUE, where, f"|{value:g}| exceeds max_force {c.max_force:g}")
+                else:
+                    lo, hi = c.damping_range if key == "damping" else c.stiffness_range
+                    if not lo <= value <= hi:
+                        raise ProtocolError(Code.BAD_VALUE, where, f"{value:g} outside the {key}_range [{lo:g}, {hi:g}]")
+                vals[key] = value
+            out[name] = vals
+        return out
+
+    def _next_for(self, slot: Slot, route, msg_id, wait: float) -> tuple[str, dict] | None:
+        if slot.newest > slot.delivered:
+            return self._deliver(slot)
+        if self.ended is not None:
+            return "stop", {"reason": self.ended}
+        if slot.parked is not None:   # an older request of the same controller: do not leave it hanging
+            self.send(slot.parked[0], "idle", slot.parked[1], {})
+        slot.parked = (route, msg_id, _time.monotonic() + wait)
+        return None
+
+    def _deliver(self, slot: Slot) -> tuple[str, dict]:
+        slot.delivered = slot.newest
+        return "measurements", slot.sample
+
+    # ------------------------------------------------------------ multibody side
+
+    def holds(self, mtype: str, msg: dict, route: list[bytes]) -> bool:
+        """Whether a request waits for the deferred step (then kept in :attr:`held`): the later
+        requests of the same client (its routing frames) and any step, bye, save, restore or
+        release of the session. A retry of the deferred step itself (a client on a new
+        connection) is not held: it takes over the deferred reply (:meth:`after_step`)."""
+        p = self.pending
+        if p is None:
+            return False
+        if mtype == "step" and type(msg.get("seq")) is int and msg["seq"] == p["seq"] \
+                and msg.get("iteration", 0) == 0:
+            return False
+        if route != p["route"] and mtype not in SEQUENCED:
+            return False
+        self.held.append((msg, route))
+        return True
+
+    def step_request(self, msg: dict, seq: int, iteration: int, new: bool) -> dict | None:
+        """Parse (and check) a step's ``measurements`` before the step is computed; None if absent."""
+        if not new or iteration > 0:
+            return None
+        k = seq - 1
+        if k < 0 or not any(k % s.period == 0 for s in self.slots.values()):
+            return None
+        raw = msg.get("measurements")
+        if raw is None:
+            raise ProtocolError(Code.MISSING_FIELD, "measurements", f"step {seq} must carry the measurements of "
+                                f"step {k} (a control step of this session's controllers)")
+        if not isinstance(raw, dict):
+            raise ProtocolError(Code.BAD_VALUE, "measurements", f"must be a map, got {type(raw).__name__}")
+        got = codec.require_int(raw, "step", path="measurements.step")
+        if got != k:
+            raise ProtocolError(Code.BAD_VALUE, "measurements.step", f"must be {k} (seq - 1), got {got}")
+        n_p, n_b = len(self.pto_names), len(self.body_names)
+        out = {"step": k}
+        for name in MB_FIELDS:
+            shape = (n_p,) if name.startswith("pto") else (n_b, 6)
+            out[name] = codec.require_array(raw, name, shape, path=f"measurements.{name}")
+        return out
+
+    def after_step(self, seq: int, iteration: int, new: bool, meas: dict | None, fields: dict,
+                   route, msg_id) -> dict | None:
+        """Relay measurements, take the decisions due at ``seq``; the reply fields, or None (deferred)."""
+        now = _time.monotonic()
+        if not new or iteration > 0:
+            if self.last_control and self.last_control[0] == seq:
+                fields["control"] = self.last_control[1]
+            if self.pending is not None and self.pending["seq"] == seq:   # a retry of the deferred step
+                self.pending.update(route=route, msg_id=msg_id)
+                return None
+            return fields
+        if meas is not None:
+            self._relay(meas, now)
+        due = [s for s in self.slots.values()
+               if seq - s.latency >= 0 and (seq - s.latency) % s.period == 0]
+        self.pending = {"seq": seq, "fields": fields, "route": route, "msg_id": msg_id,
+                        "due": due, "decisions": {}}
+        if seq == 0 and any(s.state == "waiting" for s in self.slots.values()):
+            self.pending["join"] = now + max(s.cfg.join_timeout for s in self.slots.values() if s.state == "waiting")
+        for s in due:
+            k = seq - s.latency
+            if s.state in ("absent", "waiting") and k not in s.received:
+                self._decide(s, k, "absent")
+        return self._maybe_finish_pending(send=False)
+
+    def _relay(self, meas: dict, now: float) -> None:
+        k = meas["step"]
+        t = k * self.dt
+        for s in self.slots.values():
+            if k % s.period:
+                continue
+            sample = {"step": k, "time": t, "seq": k // s.period}
+            for name in s.cfg.measurements:
+                if name == "wave_elevation":
+                    continue
+                v = meas[name]
+                sample[name] = np.ascontiguousarray(v[s.pto_rows] if name.startswith("pto") else v[s.body_rows])
+            if "wave_elevation" in s.cfg.measurements or s.probes.offsets.size > 1:
+                eta = s.probes(t)
+                if "wave_elevation" in s.cfg.measurements:
+                    sample["wave_elevation"] = np.ascontiguousarray(eta[:, 0])
+                if eta.shape[1] > 1:
+                    sample["wave_preview"] = np.ascontiguousarray(eta[:, 1:])
+            s.sample, s.newest = sample, k
+            s.relay_time[k] = now
+            if s.parked is not None and s.state == "active":
+                route, msg_id, _ = s.parked
+                s.parked = None
+                mtype, fields = self._deliver(s)
+                self.send(route, mtype, msg_id, fields)
+
+    def _decide(self, s: Slot, k: int, status: str) -> None:
+        p = self.pending
+        if p is None or k in s.decided:
+            return
+        s.decided = {k}
+        s.counts[status] += 1
+        d = {"step": k, "status": status, "commands": None, "latency": None,
+             "fallback": None if status == "ok" else s.cfg.fallback}
+        if status == "ok":
+            _, d["commands"], d["latency"] = s.received[k]
+        elif status != "absent":
+            log.warning("session %s: controller %r %s at step %d: fallback %r", self.session_id, s.name,
+                        status, k, s.cfg.fallback)
+        p["decisions"][s.name] = d
+
+    def _maybe_finish_pending(self, send: bool = True, now: float | None = None) -> dict | None:
+        """Take every decision that can be taken; when all are in, the reply (sent, or returned)."""
+        p = self.pending
+        if p is None:
+            return None
+        now = _time.monotonic() if now is None else now
+        if "join" in p:
+            if any(s.state == "waiting" for s in self.slots.values()) and now < p["join"]:
+                return None
+            for s in self.slots.values():
+                if s.state == "waiting":
+                    s.state = "absent"
+                    log.warning("session %s: controller %r did not join within %g s: it starts absent",
+                                self.session_id, s.name, s.cfg.join_timeout)
+            del p["join"]
+        seq = p["seq"]
+        waiting = False
+        for s in p["due"]:
+            k = seq - s.latency
+            if s.name in p["decisions"]:
+                continue
+            got = s.received.get(k)
+            if got is not None:
+                self._decide(s, k, "ok" if got[0] == "ok" else "invalid")
+            elif s.state != "active":
+                self._decide(s, k, "absent")
+            elif now >= s.relay_time.get(k, now) + s.cfg.timeout:
+                self._decide(s, k, "timeout")
+                if s.parked is None:   # a controller waiting for measurements is alive: not absent
+                    s.state = "absent"
+            else:
+                waiting = True
+        if waiting:
+            return None
+        self.pending = None
+        fields = p["fields"]
+        if p["decisions"]:
+            fields["control"] = p["decisions"]
+            self.last_control = (seq, p["decisions"])
+        for s in p["due"]:   # keep only what a later decision can still refer to
+            s.received = {k: v for k, v in s.received.items() if k > seq - s.latency}
+            s.relay_time = {k: v for k, v in s.relay_time.items() if k > seq - s.latency}
+        if send:
+            self.send(p["route"], "forces", p["msg_id"], fields)
+            return None
+        return fields
+
+    # ------------------------------------------------------------ time
+
+    def next_deadline(self) -> float:
+        t = math.inf
+        p = self.pending
+        if p is not None:
+            if "join" in p:
+                t = p["join"]
+            for s in p["due"]:
+                k = p["seq"] - s.latency
+                if s.name not in p["decisions"] and s.state == "active":
+                    t = min(t, s.relay_time.get(k, 0.0) + s.cfg.timeout)
+        for s in self.slots.values():
+            if s.parked is not None:
+                t = min(t, s.parked[2])
+        return t
+
+    def poll(self, now: float) -> None:
+        """Send what is due at ``now``: idle replies, timed-out step replies."""
+        for s in self.slots.values():
+            if s.parked is not None and now >= s.parked[2]:
+                route, msg_id, _ = s.parked
+                s.parked = None
+                self.send(route, "idle", msg_id, {})
+        self._maybe_finish_pending(now=now)
+
+    def end(self, reason: str) -> None:
+        """The session is closing: parked controller requests get ``stop``; a deferred step's reply
+        is dropped (its client is gone: the session closed by expiry or server shutdown)."""
+        self.ended = reason
+        self.pending = None
+        for s in self.slots.values():
+            if s.parked is not None:
+                route, msg_id, _ = s.parked
+                s.parked = None
+                self.send(route, "stop", msg_id, {"reason": reason})
+
+    def summary(self) -> dict:
+        return {name: dict(s.counts) for name, s in self.slots.items()}

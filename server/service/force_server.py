@@ -1,0 +1,609 @@
+"""The force server: one ZeroMQ ROUTER socket, a poll loop, many sessions (protocol: SPEC.md).
+
+Every request gets exactly one reply; any exception while handling a message becomes an ``error``
+reply to that message and the loop carries on. A hello's set-up (HDB parsing, the model) runs in a
+worker thread (server/service/setup_workers.py): the loop answers other sessions' steps meanwhile and the
+``welcome`` when the set-up is done.
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+import logging
+import math
+import os
+import threading
+import time
+from concurrent.futures import Future
+from dataclasses import asdict, dataclass
+from importlib import metadata
+from typing import Any, Callable
+
+import zmq
+
+from hydrolink.protocol import codec, transport
+from hydrolink.protocol.codec import Code, ProtocolError
+from hydrolink.protocol.pacing import check_factor
+from hydrolink.server.service.capacity import MAX_SESSIONS, MAX_SETUPS, HelloLimits
+from hydrolink.server.service.controllers import ControlHub
+from hydrolink.server.errors import ModelError
+from hydrolink.server.hdb.file_set import FileSetReader
+from hydrolink.server.hdb.store import HASH, ContentStore, ContentTooLarge, default_folder
+from hydrolink.server.service.log_limit import LimitedLog
+from hydrolink.server.model import HydroModel
+from hydrolink.server.service.session import PlantBuilder, Session, build_model
+from hydrolink.server.service.setup_workers import SetupWorkers
+
+log = logging.getLogger("hydrolink.server")
+
+POLL_MS = 50
+SETUP_POLL_MS = 5   # the receive timeout while set-ups run: a finished one is answered within it
+PLANT_DT = (1e-6, 3600.0)   # s: the sampling times a controller may ask its plant at (SPEC §5.7.2)
+RELEASE_SPIN = 1.5e-3   # s: a held reply due sooner is waited for by spinning (the receive timeout is in ms)
+IN_PROCESS = "in-process"  # the address of a server without a socket (bind=None)
+TOMBSTONES = 1000  # remembered closed sessions, for a helpful error 7
+
+
+@dataclass(frozen=True)
+class PendingHello:
+    """A multibody hello whose set-up runs in a worker: answered when ``model`` is done."""
+    msg: dict
+    msg_id: Any
+    route: list[bytes]
+    client: dict
+    realtime: float | None
+    started: float
+    model: Future
+
+
+def server_version() -> str:
+    try:
+        return metadata.version("hydrolink")
+    except metadata.PackageNotFoundError:  # pragma: no cover
+        return "unknown"
+
+
+class ForceServer:
+    """Serve hydrodynamic forces on ``bind`` (e.g. ``tcp://127.0.0.1:*``) until :meth:`stop`."""
+
+    def __init__(self, bind: str | None, *, context: zmq.Context | None = None, session_timeout: float = 300.0,
+                 key: bytes | None = None, curve_secret: str | None = None, curve_clients: str | None = None,
+                 max_message_bytes: int = codec.MAX_MESSAGE_BYTES, store: ContentStore | None = None,
+                 max_setups: int = MAX_SETUPS, max_sessions: int = MAX_SESSIONS,
+                 plant_builder: PlantBuilder | None = None):
+        """``bind=None`` makes an in-process server without a socket: clients in the same process
+        call :meth:`respond` with the same frames a socket would carry (see ServerConnection).
+
+        ``curve_secret`` (the server's ``.key_secret`` file) and ``curve_clients`` (a directory of
+        allowed client ``.key`` files) require CURVE authentication and encryption (SPEC §1.1).
+
+        ``store``: the content store of HDB files sent by hash (SPEC §5.8); default a store in
+        :func:`hydrolink.server.hdb.store.default_folder`, opened on first use.
+
+        ``max_setups`` / ``max_sessions``: the multibody hellos being set up, and the sessions open
+        or being set up, beyond which a hello is refused at once with error 14 ``busy`` (SPEC §4.2;
+        server/service/capacity.py).
+
+        ``plant_builder``: what builds a session's linear plant for the controllers that ask for one
+        (SPEC §5.7.2; the clients hand in clients/analysis/plant.py's); None: such a hello is refused."""
+        self.plant_builder = plant_builder
+        self.limits = HelloLimits(max_setups, max_sessions)   # checked before a socket is bound
+        self._own_context = context is None and bind is not None
+        self._security = None  # CURVE (protocol/security.py)
+        self._ctx = context
+        self._sock: zmq.Socket | None = None
+        self._address = IN_PROCESS
+        if bind is not None:
+            self._ctx = context or zmq.Context()
+            self._sock = self._ctx.socket(zmq.ROUTER)
+            self._sock.setsockopt(zmq.LINGER, 0)
+            self._sock.setsockopt(zmq.MAXMSGSIZE, max_message_bytes)   # per frame; all frames: _over_limits
+            self._sock.setsockopt(zmq.ROUTER_MANDATORY, 0)
+            transport.apply_heartbeats(self._sock)   # a dead client's connection is dropped (SPEC §1)
+            self._sock.setsockopt(zmq.RCVTIMEO, POLL_MS)
+            if curve_secret is not None or curve_clients is not None:
+                from hydrolink.protocol.security import CurveKeyError, ServerSecurity
+                if curve_secret is None or curve_clients is None:
+                    self._sock.close(0)
+                    raise CurveKeyError("CURVE needs both the server's secret key file and the directory of "
+                                        "allowed client keys")
+                try:
+                    self._security = ServerSecurity(self._ctx, self._sock, curve_secret, curve_clients)
+                except Exception:
+                    self._sock.close(0)
+                    raise
+            self._sock.bind(bind)
+            self._address = self._sock.getsockopt_string(zmq.LAST_ENDPOINT)
+        self.session_timeout = float(session_timeout)
+        self.max_message_bytes = int(max_message_bytes)
+        self._store = store
+        self._files: FileSetReader | None = None
+        self.key = key
+        self.sessions: dict[str, Session] = {}
+        self._closed: dict[str, str] = {}
+        self._stop = threading.Event()
+        self._running = False
+        self._ids = codec.id_source("s")
+        self._error_log = LimitedLog(log)     # error replies' log lines, per code (server/service/log_limit.py)
+        self._version = server_version()
+        self._handlers: dict[str, Callable[[dict, Any, str | None], tuple[str, dict, str | None] | None]] = {
+            "hello": self._hello, "step": self._step, "ping": self._ping, "bye": self._bye,
+            "measure": self._measure, "command": self._command, "upload": self._upload,
+            "save": self._rollback, "restore": self._rollback, "release": self._rollback}
+        self._route: list[bytes] | None = None   # routing frames of the request being handled
+        self._hubs: dict[str, ControlHub] = {}   # sessions with controllers (SPEC §5.7)
+        self._rcv_ms = POLL_MS
+        self._workers = SetupWorkers()
+        self._setups: list[PendingHello] = []    # hellos being set up, oldest first (at most max_setups)
+        self._paced: list[tuple[float, int, list[bytes]]] = []   # held replies: (release, order, frames)
+        self._order = itertools.count()
+        self._hold: float | None = None   # release time of the reply being handled (paced session)
+
+    @property
+    def address(self) -> str:
+        """The bound endpoint, with the actual port (e.g. ``tcp://127.0.0.1:41235``)."""
+        return self._address
+
+    def close(self) -> None:
+        """Stop and release the socket now (idempotent; for a server whose loop is not running)."""
+        self._stop.set()
+        if not self._running:
+            self._shutdown()
+
+    def stop(self) -> None:
+        """Ask :meth:`serve_forever` to return (within one poll interval); thread-safe."""
+        self._stop.set()
+
+    def serve_forever(self) -> None:
+        """Poll loop: handle requests, expire idle sessions; returns after :meth:`stop`."""
+        log.info("hydrolink server %s listening on %s (protocol %d, session timeout %g s, at most %d set-ups "
+                 "and %d sessions%s%s)", self._version, self._address, codec.PROTOCOL_VERSION, self.session_timeout,
+                 self.limits.max_setups, self.limits.max_sessions,
+                 ", signed" if self.key else "", ", CURVE" if self._security else "")
+        if self._sock is None:
+            raise RuntimeError("an in-process server (bind=None) has no socket to serve; call respond()")
+        next_sweep = time.monotonic()
+        self._running = True
+        try:
+            while not self._stop.is_set():
+                # a blocking receive with a POLL_MS timeout (RCVTIMEO): no poller and no exception
+                # per message on the hot path, only when the socket was idle for POLL_MS; shorter
+                # when a controller deadline (SPEC §5.7) or a paced reply comes sooner, or a set-up runs
+                if self._hubs or self._paced or self._setups or self._rcv_ms != POLL_MS:
+                    self._set_rcv_timeout()
+                try:
+                    frames = self._sock.recv_multipart()
+                except zmq.Again:
+                    frames = None
+                if frames:
+                    self._serve_one(frames)
+                if self._setups:
+                    self._finish_setups()
+                if self._paced:
+                    self._send_due()
+                now = time.monotonic()
+                if self._hubs:
+                    for hub in list(self._hubs.values()):
+                        if hub.next_deadline() <= now:
+                            hub.poll(now)
+                    self._resume_held()
+                if now >= next_sweep:
+                    self._expire(now)
+                    next_sweep = now + min(1.0, self.session_timeout / 4)
+        finally:
+            self._running = False
+            self._shutdown()
+
+    # ------------------------------------------------------------ dispatch
+
+    def _set_rcv_timeout(self) -> None:
+        left = min((hub.next_deadline() - time.monotonic() for hub in self._hubs.values()), default=math.inf)
+        if self._paced:
+            left = min(left, self._paced[0][0] - time.perf_counter())
+        cap = SETUP_POLL_MS if self._setups else POLL_MS
+        ms = cap if left >= cap / 1000 else max(1, int(left * 1000))
+        if ms != self._rcv_ms:
+            self._sock.setsockopt(zmq.RCVTIMEO, ms)
+            self._rcv_ms = ms
+
+    def _serve_one(self, frames: list[bytes]) -> None:
+        if len(frames) < 2:
+            return  # no routing identity: nothing to answer to
+        over = self._over_limits(frames)
+        if over:   # answered to the identity alone: nothing the sender added is echoed
+            reply = codec.error_reply(next(self._ids), None, None, Code.MALFORMED, None, over)
+            frames = [frames[0], b""]
+            release = None
+        else:
+            reply = self.handle(frames[-1], frames[:-1])
+            release = self._hold
+        if reply is not None:   # None: deferred (SPEC §5.7, a hello being set up), sent later
+            self._send(frames[:-1], reply, release)
+
+    def _send(self, route: list[bytes], reply: dict, release: float | None = None) -> None:
+        """Send a reply map to the routing frames it answers (kept in front, verbatim); a paced
+        session's reply waits for its ``release`` time (perf_counter s)."""
+        frames = [*route, self._frame(reply)]
+        if release is not None and release > time.perf_counter():
+            heapq.heappush(self._paced, (release, next(self._order), frames))
+            return
+        try:
+            self._sock.send_multipart(frames, zmq.NOBLOCK)
+        except zmq.ZMQError as exc:  # peer gone or its queue full: drop the reply
+            log.warning("reply dropped: %s", exc)
+
+    def _over_limits(self, frames: list[bytes]) -> str:
+        """Why a received message breaks SPEC §1's limits ('' when it does not)."""
+        total = sum(len(f) for f in frames)
+        if total > self.max_message_bytes:
+            return f"message of {total} bytes over all its frames; at most {self.max_message_bytes} (SPEC §1)"
+        routing = frames[:-1]
+        if len(routing) > codec.MAX_ROUTING_FRAMES:   # the ROUTER's identity frame included
+            return f"{len(routing)} routing frames before the message; at most {codec.MAX_ROUTING_FRAMES} (SPEC §1)"
+        big = next((i for i, f in enumerate(routing) if len(f) > codec.MAX_ROUTING_FRAME_BYTES), None)
+        if big is not None:
+            return (f"routing frame {big} is {len(routing[big])} bytes; at most {codec.MAX_ROUTING_FRAME_BYTES} "
+                    "(SPEC §1)")
+        return ""
+
+    def _send_due(self) -> None:
+        """Send the held replies of paced sessions whose release has come."""
+        now = time.perf_counter()
+        while self._paced and now < self._paced[0][0] < now + RELEASE_SPIN:   # the receive timeout is in whole ms
+            now = time.perf_counter()
+        while self._paced and self._paced[0][0] <= now:
+            frames = heapq.heappop(self._paced)[2]
+            try:
+                self._sock.send_multipart(frames, zmq.NOBLOCK)
+            except zmq.ZMQError as exc:
+                log.warning("paced reply dropped: %s", exc)
+
+    def _send_later(self, session: str, route: list[bytes], mtype: str, parent: Any, fields: dict) -> None:
+        """Send a deferred reply (a ControlHub's callback); a paced session's ``forces`` wait for
+        their release."""
+        s = self.sessions.get(session)
+        due = s.pacer.release_time(fields["seq"]) if s is not None and s.pacer and mtype == "forces" else None
+        self._send(route, codec.message(mtype, next(self._ids), session, parent, **fields), due)
+
+    def _frame(self, reply: dict) -> bytes:
+        """A reply as its frame (signed with the server's key); a reply holding a value the wire
+        cannot carry (a server fault: scene bounds keep every sent value in range) becomes an
+        internal error naming the field, so the loop never dies packing it."""
+        try:
+            return codec.pack(reply, self.key)
+        except codec.EncodeError as exc:
+            log.error("cannot send a %s reply: %s", reply.get("type"), exc)
+            return codec.pack(codec.error_reply(next(self._ids), reply.get("parent"), reply.get("session"),
+                                                Code.INTERNAL, exc.field, f"internal server error: the reply's {exc}"),
+                              self.key)
+
+    def respond(self, frame: bytes) -> bytes:
+        """One request frame -> its reply frame (never raises): what the socket loop sends back
+        (a paced session's reply when its release has come: this in-process caller waits)."""
+        reply = self._frame(self.handle(frame))
+        self._wait_hold()
+        return reply
+
+    def _wait_hold(self) -> None:
+        """In-process: sleep until the reply being handled may leave (paced sessions)."""
+        if self._hold is not None:
+            time.sleep(max(0.0, self._hold - time.perf_counter()))
+
+    def respond_map(self, msg: dict) -> dict:
+        """One request map -> its reply map (never raises), for a client in this process: the
+        frame path without msgpack. The map gets every check a frame's content gets (envelope,
+        fields, arrays: :mod:`hydrolink.protocol.codec`) and the reply carries the same values a
+        frame would (arrays as read-only ndarrays). A signing server takes frames only."""
+        if self.key is not None:
+            return codec.error_reply(next(self._ids), codec.readable_id(msg), None, Code.BAD_SIGNATURE, "sig",
+                                     "a signing server takes frames only (respond), not maps")
+        reply = self.handle(msg)
+        self._wait_hold()
+        return reply
+
+    def handle(self, frame: bytes | dict, route: list[bytes] | None = None) -> dict | None:
+        """One request frame (or, in-process, its unpacked map) -> its reply message (never
+        raises); None when the reply is deferred (only with ``route``, the routing frames, from
+        the socket loop)."""
+        msg: Any = None
+        session: str | None = None
+        self._hold = None
+        try:
+            msg = frame if type(frame) is dict else codec.unpack(frame, self.key)
+            session = msg.get("session") if isinstance(msg.get("session"), str) else None
+            mtype, msg_id, session = codec.check_envelope(msg)
+            msg = codec.without_nil(msg)   # SPEC §2: a nil field is an absent one, for every field
+            hub = self._hubs.get(session) if session is not None else None
+            if hub is not None and route is not None and self._running and hub.holds(mtype, msg, route):
+                return None   # answered in order once the session's deferred step is (SPEC §1, §5.7)
+            self._route = route
+            out = self._handlers[mtype](msg, msg_id, session)
+            if out is None:
+                return None
+            rtype, fields, session = out
+            return codec.message(rtype, next(self._ids), session, msg_id, **fields)
+        except Exception as exc:  # noqa: BLE001 - the loop must never die
+            return self._error(exc, msg, session, route)
+
+    def _error(self, exc: Exception, msg: Any, session: str | None, route: list[bytes] | None) -> dict:
+        """The ``error`` reply to a request that raised ``exc`` (logged; code 99 unless a ProtocolError)."""
+        if not isinstance(exc, ProtocolError):
+            self._error_log.log(Code.INTERNAL, logging.ERROR, "internal error handling a %s (session %s)",
+                                msg.get("type") if isinstance(msg, dict) else "message", session, exc_info=exc)
+            return codec.error_reply(next(self._ids), codec.readable_id(msg), session, Code.INTERNAL, None,
+                                     f"internal server error: {type(exc).__name__}: {exc}")
+        if exc.code == Code.BAD_SIGNATURE:
+            self._error_log.log(exc.code, logging.WARNING, "refused a request: %s (from routing identity %s)",
+                                exc.message, route[0].hex() if route else "in-process")
+        elif exc.code not in (Code.OUT_OF_ORDER,):
+            self._error_log.log(exc.code, logging.INFO, "error %d %s [%s] session %s: %s", exc.code, exc.name,
+                                exc.field, session, exc.message)
+        parent = codec.readable_id(msg) if msg is not None else exc.parent
+        return codec.error_from(exc, next(self._ids), parent, session)
+
+    @property
+    def files(self) -> FileSetReader:
+        """The reader of HDB file sets over this server's content store (opened on first use)."""
+        if self._files is None:
+            self._files = FileSetReader(self._store or ContentStore(default_folder()))
+        return self._files
+
+    def _session(self, session: str | None) -> Session:
+        if session is None:
+            raise ProtocolError(Code.MISSING_FIELD, "session", "this message needs the session id from welcome")
+        try:
+            s = self.sessions[session]
+        except KeyError:
+            why = self._closed.get(session, "no such session on this server")
+            raise ProtocolError(Code.UNKNOWN_SESSION, "session", f"session {session!r}: {why}") from None
+        s.touch()
+        return s
+
+    # ------------------------------------------------------------ handlers
+
+    def _hello(self, msg: dict, msg_id: Any, session: str | None) -> tuple[str, dict, str | None]:
+        role = codec.require_str(msg, "role")
+        if role not in codec.ROLES:
+            raise ProtocolError(Code.BAD_VALUE, "role", f"must be one of {list(codec.ROLES)}, got {codec.describe(role)}")
+        if role not in codec.IMPLEMENTED_ROLES:
+            raise ProtocolError(Code.NOT_IMPLEMENTED, "role", f"role {role!r} is reserved; protocol 1 "
+                                f"servers implement only {list(codec.IMPLEMENTED_ROLES)}")
+        if role == "controller":
+            return self._controller_hello(msg, session)
+        if session is not None:
+            if session in self.sessions:
+                raise ProtocolError(Code.WRONG_STATE, "session", f"session {session!r} is already set up "
+                                    f"({self.sessions[session].state}); a multibody hello creates a new session")
+            raise ProtocolError(Code.BAD_VALUE, "session", "a multibody hello must not carry a session id")
+        client = codec.require_map(msg, "client", default={})
+        realtime = None
+        if msg.get("realtime") is not None:   # pace the session's replies (SPEC §5.1)
+            try:
+                realtime = check_factor(codec.require_float(msg, "realtime"), "realtime")
+            except ValueError as exc:
+                raise ProtocolError(Code.BAD_VALUE, "realtime", str(exc)) from None
+        self.limits.admit(len(self._setups), len(self.sessions))
+        t0 = time.perf_counter()
+        if self._route is None or not self._running:   # no loop to answer later: the caller waits
+            return self._open(msg, client, realtime, t0, build_model(msg, self.files))
+        self._setups.append(PendingHello(msg, msg_id, self._route, client, realtime, t0,
+                                         self._workers.submit(build_model, msg, self.files)))
+        return None   # answered by _finish_setups
+
+    def _finish_setups(self) -> None:
+        """Answer the hellos whose set-up is done (in the loop: sessions change only here)."""
+        running = []
+        for hello in self._setups:
+            if not hello.model.done():
+                running.append(hello)
+                continue
+            try:
+                rtype, fields, sid = self._open(hello.msg, hello.client, hello.realtime, hello.started,
+                                                hello.model.result())
+                reply = codec.message(rtype, next(self._ids), sid, hello.msg_id, **fields)
+            except Exception as exc:  # noqa: BLE001 - a failed set-up is that hello's error reply
+                reply = self._error(exc, hello.msg, None, hello.route)
+            self._send(hello.route, reply)
+        self._setups = running
+
+    def _open(self, msg: dict, client: dict, realtime: float | None, t0: float,
+              model: HydroModel) -> tuple[str, dict, str]:
+        """A new session over a built model: its ``welcome``."""
+        sid = os.urandom(16).hex()
+        if model.scene.controllers:
+            if self._sock is None:
+                raise ProtocolError(Code.BAD_SCENE, "scene.controllers", "controllers connect over the network: "
+                                    "this in-process server has no socket (run the session on a server with one, "
+                                    "e.g. hydrolink serve, or hydrolink run without an embedded server)")
+            try:
+                self._hubs[sid] = ControlHub(model.scene, msg["scene"], model, sid,
+                                             lambda route, mtype, parent, fields, _sid=sid:
+                                             self._send_later(_sid, route, mtype, parent, fields))
+            except ModelError as exc:
+                raise ProtocolError(Code.BAD_SCENE, f"scene.{exc.key}", str(exc)) from None
+        self.sessions[sid] = Session(sid, model, client, realtime, self.plant_builder)
+        log.info("session %s opened by %s %s: %d bodies, dt %g, setup %.3f s", sid, client.get("name", "?"),
+                 client.get("version", "?"), len(model.bodies), model.dt, time.perf_counter() - t0)
+        return "welcome", {
+            "protocol": codec.PROTOCOL_VERSION,
+            "server": {"name": "hydrolink", "version": self._version},
+            "session_timeout": self.session_timeout,
+            "setup": model.setup_info().to_wire(),
+        }, sid
+
+    def _resume_held(self) -> None:
+        """Handle the requests held behind a deferred step once it is answered, in their order."""
+        for hub in list(self._hubs.values()):
+            self._answer_held(hub)
+
+    def _answer_held(self, hub: ControlHub) -> None:
+        while hub.held and hub.pending is None:
+            msg, route = hub.held.popleft()
+            reply = self.handle(msg, route)
+            if reply is not None:
+                self._send(route, reply, self._hold)
+
+    def _step(self, msg: dict, msg_id: Any, session: str | None) -> tuple[str, dict, str | None] | None:
+        s = self._session(session)
+        arrived = time.perf_counter()
+        hub = self._hubs.get(s.id)
+        if hub is None:
+            fields = s.step(msg)
+            self._hold = s.release_time(fields["seq"], arrived)
+            return "forces", fields, session
+        seq, iteration = msg.get("seq"), codec.require_int(msg, "iteration", default=0, minimum=0)
+        new = type(seq) is int and seq == s.last_seq + 1
+        meas = hub.step_request(msg, seq, iteration, new) if new else None
+        fields = s.step(msg)
+        self._hold = s.release_time(fields["seq"], arrived)
+        fields = hub.after_step(seq, iteration, new, meas, fields, self._route, msg_id)
+        return None if fields is None else ("forces", fields, session)
+
+    # ------------------------------------------------------------ controllers (SPEC §5.7)
+
+    def _controller_hello(self, msg: dict, session: str | None) -> tuple[str, dict, str | None]:
+        name = msg.get("controller")
+        if name is not None and not isinstance(name, str):
+            raise ProtocolError(Code.BAD_VALUE, "controller", f"must be a str or nil, got {type(name).__name__}")
+        codec.require_map(msg, "client", default={})
+        if session is None:
+            fits = [sid for sid, hub in self._hubs.items()
+                    if ((name in hub.slots) if name is not None else len(hub.slots) == 1)]
+            if not fits:
+                raise ProtocolError(Code.UNKNOWN_SESSION, "session", "no open session declares "
+                                    + (f"a controller {name!r}" if name else "exactly one controller")
+                                    + " (is the multibody run started? give the session id)")
+            if len(fits) > 1:
+                raise ProtocolError(Code.BAD_VALUE, "session", f"{len(fits)} open sessions declare "
+                                    f"controller {name!r}: give the session id")
+            session = fits[0]
+        s = self._session(session)
+        hub = self._hubs.get(s.id)
+        if hub is None:
+            raise ProtocolError(Code.BAD_VALUE, "controller", f"session {session!r} declares no controllers")
+        plant = None
+        if msg.get("plant") is not None:   # the device as a linear plant (SPEC §5.7.2)
+            ask = codec.require_map(msg, "plant")
+            dt = None if ask.get("dt") is None else codec.require_float(ask, "dt", "plant.dt")
+            if dt is not None and not PLANT_DT[0] <= dt <= PLANT_DT[1]:
+                raise ProtocolError(Code.BAD_VALUE, "plant.dt", f"must be in [{PLANT_DT[0]:g}, {PLANT_DT[1]:g}] s "
+                                    f"(nil: continuous time), got {dt}")
+            plant = s.plant(dt)
+        slot, rejoined = hub.join(name)
+        control = hub.info(slot)
+        if plant is not None:
+            control = {**control, "plant": plant.to_wire()}
+        return "welcome", {
+            "protocol": codec.PROTOCOL_VERSION,
+            "server": {"name": "hydrolink", "version": self._version},
+            "session_timeout": self.session_timeout,
+            "epoch": slot.epoch, "rejoined": rejoined, "control": control,
+        }, session
+
+    def _controller_request(self, kind: str, msg: dict, msg_id: Any,
+                            session: str | None) -> tuple[str, dict, str | None] | None:
+        if session is not None and session not in self.sessions and session in self._closed:
+            return "stop", {"reason": f"session {self._closed[session]}"}, session
+        s = self._session(session)
+        hub = self._hubs.get(s.id)
+        if hub is None:
+            raise ProtocolError(Code.UNKNOWN_TYPE, "type", f"{kind!r} is a controller request; session "
+                                f"{session!r} declares no controllers")
+        out = (hub.measure if kind == "measure" else hub.command)(msg, self._route, msg_id)
+        if out is None:
+            if self._route is None:
+                raise ProtocolError(Code.WRONG_STATE, "type", "an in-process server cannot defer a reply")
+            return None
+        return out[0], out[1], session
+
+    def _measure(self, msg: dict, msg_id: Any, session: str | None):
+        return self._controller_request("measure", msg, msg_id, session)
+
+    def _command(self, msg: dict, msg_id: Any, session: str | None):
+        return self._controller_request("command", msg, msg_id, session)
+
+    def _upload(self, msg: dict, msg_id: Any, session: str | None) -> tuple[str, dict, str | None]:
+        """One content into the HDB store (SPEC §5.8): checked against its SHA-256, bounded."""
+        data = codec.require(msg, "data")
+        if not isinstance(data, (bytes, bytearray, memoryview)):
+            raise ProtocolError(Code.BAD_VALUE, "data", f"must be bin (the file's bytes), got {codec.describe(data)}")
+        digest = codec.require_str(msg, "sha256")
+        if not HASH.fullmatch(digest):
+            raise ProtocolError(Code.BAD_VALUE, "sha256", "must be the lowercase hex SHA-256 of data "
+                                f"(64 characters), got {codec.describe(digest)}")
+        try:
+            _, new = self.files.store.put(bytes(data), digest)
+        except ContentTooLarge as exc:
+            raise ProtocolError(Code.BAD_VALUE, "data", str(exc)) from None
+        except ValueError as exc:
+            raise ProtocolError(Code.BAD_VALUE, "sha256", str(exc)) from None
+        log.info("HDB store: %s %s (%d bytes)", "stored" if new else "already held", digest[:12], len(data))
+        return "uploaded", {"sha256": digest, "size": len(data), "new": new}, session
+
+    def _rollback(self, msg: dict, msg_id: Any, session: str | None) -> tuple[str, dict, str | None]:
+        """save / restore / release a session's state (SPEC §5.9)."""
+        s = self._session(session)
+        kind = msg["type"]
+        if s.id in self._hubs:
+            raise ProtocolError(Code.NOT_IMPLEMENTED, "type", f"{kind!r}: a session with controllers cannot be "
+                                "rolled back (its controllers' decisions are not part of a saved state)")
+        if kind == "save":
+            return "saved", s.save(), session
+        if kind == "restore":
+            return "restored", s.restore(msg), session
+        return "released", s.release(msg), session
+
+    def _ping(self, msg: dict, msg_id: Any, session: str | None) -> tuple[str, dict, str | None]:
+        if session is not None:
+            self._session(session)
+        return "pong", {"time": time.time(), "sessions": len(self.sessions)}, session
+
+    def _bye(self, msg: dict, msg_id: Any, session: str | None) -> tuple[str, dict, str | None]:
+        s = self._session(session)
+        self._close(s, "closed by bye")
+        out = {"steps": s.steps, "compute_s": s.compute_s}
+        if s.pacer is not None:
+            out["realtime"] = asdict(s.pacer.report())
+        return "goodbye", out, session
+
+    # ------------------------------------------------------------ lifecycle
+
+    def _close(self, s: Session, why: str) -> None:
+        self.sessions.pop(s.id, None)
+        hub = self._hubs.pop(s.id, None)
+        self._closed[s.id] = f"{why} at {time.strftime('%H:%M:%S')}"
+        if hub is not None:
+            hub.end(why)
+            self._answer_held(hub)   # the held requests learn why (error 7)
+            log.info("session %s controllers: %s", s.id, hub.summary())
+        while len(self._closed) > TOMBSTONES:
+            self._closed.pop(next(iter(self._closed)))
+        log.info("session %s %s after %d steps (%.3f s model time)", s.id, why, s.steps, s.compute_s)
+
+    def _expire(self, now: float) -> None:
+        for s in [s for s in self.sessions.values() if now - s.last_seen > self.session_timeout]:
+            self._close(s, f"expired after {self.session_timeout:g} s idle")
+
+    def _shutdown(self) -> None:
+        self._workers.close()
+        self._setups = []
+        for s in list(self.sessions.values()):
+            self._close(s, "closed by server shutdown")
+        if self._sock is None or self._sock.closed:
+            return
+        if self._security is not None:
+            self._security.close()
+        self._sock.close(0)
+        if self._own_context:
+            self._ctx.term()
+        log.info("hydrolink server on %s stopped", self._address)
+
+
+def serve_in_thread(bind: str = "tcp://127.0.0.1:*", **kw: Any) -> tuple[ForceServer, threading.Thread]:
+    """Start a :class:`ForceServer` in a daemon thread; stop it with ``server.stop(); thread.join()``."""
+    server = ForceServer(bind, **kw)
+    thread = threading.Thread(target=server.serve_forever, name=f"hydrolink-server {server.address}",
+                              daemon=True)
+    thread.start()
+    return server, thread

@@ -1,0 +1,268 @@
+"""One co-simulation session: hello → model, the step sequencing rules, the cached last reply.
+
+State machine and rules: SPEC.md §4.2 and §5.3. A rejected request leaves the session unchanged.
+"""
+
+from __future__ import annotations
+
+import time as _time
+from collections import OrderedDict
+from typing import Any, Callable, Protocol
+
+import numpy as np
+import xarray as xr
+
+from hydrolink.protocol import codec
+from hydrolink.protocol.codec import Code, ProtocolError
+from hydrolink.protocol.errors import KeyedError
+from hydrolink.protocol.scene import Scene, SceneError, parse_scene
+from hydrolink.protocol.scene_bounds import MAX_COORDINATE, MAX_SPEED
+from hydrolink.protocol.hdb.wire import from_wire
+from hydrolink.protocol.hdb.layout import HDBError
+from hydrolink.protocol.pacing import Pacer
+from hydrolink.server.hdb.file_set import FileSetReader, is_file_set
+from hydrolink.server.model import HydroModel, ModelError
+from hydrolink.server.terms.hulls import MeshError, closed_hull
+
+
+def _scene_field(key: str) -> str:
+    return f"scene.{key}" if key else "scene"
+
+
+def build_model(msg: dict, files: FileSetReader | None = None) -> HydroModel:
+    """Validate a ``hello``'s scene and HDBs and build the model over the scene's wet bodies (dry
+    bodies need no HDB); ProtocolError 8/9 naming the field (13 for file contents ``files``, the
+    server's store reader, lacks; 5 for a file set when there is no store)."""
+    text = codec.require_str(msg, "scene")
+    hdb_maps = codec.require_map(msg, "hdbs")
+    try:
+        scene: Scene = parse_scene(text, "scene")
+    except SceneError as exc:
+        raise ProtocolError(Code.BAD_SCENE, _scene_field(exc.key), str(exc)) from None
+    datasets: dict[str, xr.Dataset] = {}
+    for i, body in enumerate(scene.bodies):
+        key = body.hdb
+        if key is None or key in datasets:
+            continue
+        where = codec.key_path("hdbs", key)
+        if key not in hdb_maps:
+            raise ProtocolError(Code.BAD_HDB, where,
+                                f"scene body {body.name!r} (bodies[{i}].hdb) uses HDB {key!r} but hello.hdbs "
+                                f"holds {sorted(hdb_maps)}")
+        if is_file_set(hdb_maps[key]):
+            if files is None:
+                raise ProtocolError(Code.BAD_VALUE, where, "this server keeps no HDB store: send the HDB as a map")
+            stated = next((b.hdb_convention for b in scene.bodies if b.hdb == key and b.hdb_convention), None)
+            datasets[key] = files.read(hdb_maps[key], where, stated)
+            continue
+        try:
+            data = codec.decode_tree(hdb_maps[key], where)
+        except ProtocolError as exc:
+            raise ProtocolError(Code.BAD_HDB, exc.field or where, exc.message) from None
+        try:
+            datasets[key] = from_wire(data, key)
+        except HDBError as exc:
+            raise ProtocolError(Code.BAD_HDB, f"{where}.{exc.field}" if exc.field else where, str(exc)) from None
+    series = None
+    if msg.get("wave_elevation") is not None:  # [waves] type = "elevation": the client read the file
+        we = codec.require_map(msg, "wave_elevation")
+        series = (codec.require_array(we, "time", (None,), finite=False, path="wave_elevation.time"),
+                  codec.require_array(we, "eta", (None,), finite=False, path="wave_elevation.eta"))
+    hulls = {}
+    if msg.get("meshes") is not None:   # the closed hulls of nonlinear bodies (SPEC §5.1)
+        for name, mesh in codec.require_map(msg, "meshes").items():
+            where = codec.key_path("meshes", str(name))
+            if not isinstance(mesh, dict):
+                raise ProtocolError(Code.BAD_VALUE, where, "must be a map with vertices and faces")
+            vertices = codec.decode_array(codec.require(mesh, "vertices", f"{where}.vertices"), f"{where}.vertices", "f")
+            faces = codec.decode_array(codec.require(mesh, "faces", f"{where}.faces"), f"{where}.faces", "i")
+            try:
+                hulls[str(name)] = closed_hull(vertices, faces)
+            except MeshError as exc:
+                raise ProtocolError(Code.BAD_VALUE, where, f"body {name!r}'s hull: {exc.why}") from None
+    try:
+        return HydroModel(scene, {b.name: datasets[b.hdb] for b in scene.wet_bodies}, series, hulls=hulls)
+    except ModelError as exc:
+        raise ProtocolError(Code.BAD_SCENE, _scene_field(exc.key), str(exc)) from None
+    except HDBError as exc:
+        raise ProtocolError(Code.BAD_HDB, f"{codec.key_path('hdbs', exc.source)}.{exc.field}", str(exc)) from None
+
+
+MAX_SAVED_BYTES = 256 * 2**20   # per session: saved states kept (SPEC §5.9)
+
+
+def _nbytes(obj: Any) -> int:
+    """Bytes of the arrays in a nested tuple/list/dict (what a saved state costs)."""
+    if isinstance(obj, np.ndarray):
+        return obj.nbytes
+    if isinstance(obj, (tuple, list)):
+        return sum(_nbytes(o) for o in obj)
+    if isinstance(obj, dict):
+        return sum(_nbytes(o) for o in obj.values())
+    return 8
+
+
+class LinearPlant(Protocol):
+    """The device as a linear plant, as a session hands it to controllers (SPEC §5.7.2)."""
+
+    def discretize(self, dt: float) -> "LinearPlant":
+        """The plant under a zero-order hold at ``dt``."""
+
+    def to_wire(self) -> dict:
+        """The plant as the welcome's ``control.plant`` map."""
+
+
+# Builds a scene's linear plant from its HDBs (by the scene's hdb names): the server is handed one
+# (clients/analysis/plant.py's build_plant, which needs the multibody model the clients own);
+# KeyedError or ModelError naming the scene key it cannot represent.
+PlantBuilder = Callable[[Scene, dict[str, xr.Dataset]], LinearPlant]
+
+
+class Session:
+    """A multibody session: the model plus the sequencing state of SPEC §5.3."""
+
+    def __init__(self, session_id: str, model: HydroModel, client: dict | None = None, realtime: float | None = None,
+                 plant_builder: PlantBuilder | None = None):
+        """``realtime``: the hello's pace factor (SPEC §5.1): each ``forces`` reply of step seq is
+        held until t0 + seq·dt/realtime, t0 the arrival of seq 0 (:attr:`pacer`). ``plant_builder``:
+        what builds the linear plant a controller may ask for (None: such a hello is refused)."""
+        self.id = session_id
+        self._plant_builder = plant_builder
+        self.pacer = None if realtime is None else Pacer(model.dt, realtime)
+        self._paced_seq = -1
+        self._plants: dict = {}   # dt (None: continuous) -> Plant, for controllers that ask (SPEC §5.7.2)
+        self.model = model
+        self.client = client or {}
+        self.n_bodies = len(model.bodies)
+        self.dt = model.dt
+        self.opened = self.last_seen = _time.monotonic()
+        self.last_seq = -1
+        self.last_iteration = -1
+        self._last_state: tuple[np.ndarray, np.ndarray] | None = None
+        self._cached: dict[str, Any] | None = None
+        self.steps = 0
+        self.compute_s = 0.0
+        self._saved: OrderedDict[int, tuple] = OrderedDict()   # SPEC §5.9, oldest first
+        self._saved_bytes = 0
+        self._next_state = 1
+
+    @property
+    def state(self) -> str:
+        return "ready" if self.last_seq < 0 else "running"
+
+    def touch(self) -> None:
+        self.last_seen = _time.monotonic()
+
+    # ------------------------------------------------------------ rollback (SPEC §5.9)
+
+    def save(self) -> dict:
+        """Keep the session's state now; ``saved`` fields. Older saved states leave first once
+        the session's kept states pass MAX_SAVED_BYTES (the newest always stays)."""
+        # the last state and the cached reply are replaced by each step, never written to: kept as they are
+        saved = (self.model.state(), self.last_seq, self.last_iteration, self._last_state, self._cached)
+        size = _nbytes(saved)
+        sid = self._next_state
+        self._next_state += 1
+        self._saved[sid] = (saved, size)
+        self._saved_bytes += size
+        while self._saved_bytes > MAX_SAVED_BYTES and len(self._saved) > 1:
+            _, (_, old) = self._saved.popitem(last=False)
+            self._saved_bytes -= old
+        return {"state": sid, "seq": self.last_seq, "iteration": self.last_iteration, "bytes": size}
+
+    def restore(self, msg: dict) -> dict:
+        """Back to a saved state (it stays saved: a master may restore it again); ``restored`` fields."""
+        sid = codec.require_int(msg, "state", minimum=1)
+        if sid not in self._saved:
+            oldest = next(iter(self._saved), None)
+            raise ProtocolError(Code.BAD_VALUE, "state", f"no saved state {sid} in this session (saved: "
+                                + (f"{oldest}..{self._next_state - 1}, older ones released or dropped past "
+                                   f"{MAX_SAVED_BYTES // 2**20} MiB)" if oldest else "none)"))
+        model_state, self.last_seq, self.last_iteration, self._last_state, self._cached = self._saved[sid][0]
+        self.model.set_state(model_state)
+        return {"state": sid, "seq": self.last_seq, "iteration": self.last_iteration}
+
+    def release(self, msg: dict) -> dict:
+        """Forget a saved state; ``released`` fields (releasing an unknown state is no error)."""
+        sid = codec.require_int(msg, "state", minimum=1)
+        entry = self._saved.pop(sid, None)
+        if entry is not None:
+            self._saved_bytes -= entry[1]
+        return {"state": sid, "kept": len(self._saved)}
+
+    def plant(self, dt: float | None):
+        """The session's device as a linear plant (by the server's plant builder), continuous or at
+        ``dt``; built once per dt. ProtocolError 8 naming the scene key it cannot represent."""
+        if self._plant_builder is None:
+            raise ProtocolError(Code.BAD_VALUE, "plant", "this server builds no linear plants (it was started "
+                                "without a plant builder: use hydrolink serve or hydrolink run)")
+        if dt not in self._plants:
+            scene = self.model.scene
+            try:
+                plant = self._plant_builder(scene, {b.hdb: self.model.hdbs[b.name] for b in scene.bodies if b.wet})
+                self._plants[dt] = plant if dt is None else plant.discretize(dt)
+            except (KeyedError, ModelError) as exc:
+                raise ProtocolError(Code.BAD_SCENE, _scene_field(exc.key), f"no linear plant: {exc}") from None
+            except (ValueError, ArithmeticError, np.linalg.LinAlgError, RuntimeError) as exc:   # e.g. a singular
+                raise ProtocolError(Code.BAD_SCENE, "scene", f"no linear plant: {type(exc).__name__}: {exc}") from None
+        return self._plants[dt]
+
+    def release_time(self, seq: int, arrived: float) -> float | None:
+        """When the reply to step ``seq`` may leave (``time.perf_counter`` clock; None: unpaced).
+        The first request of a new step is counted: an overrun when its reply is ready after its
+        release (the client or the link took longer than the step's wall-clock budget)."""
+        if self.pacer is None:
+            return None
+        due = self.pacer.release_time(seq)
+        if seq > self._paced_seq:      # a new step (not a retry or an iteration of the last)
+            self._paced_seq = seq
+            if seq:
+                self.pacer.done(seq - 1, started=arrived)
+        return due
+
+    def step(self, msg: dict) -> dict:
+        """Reply fields for a ``step`` request (SPEC §5.2–5.3); ProtocolError leaves state unchanged."""
+        seq = codec.require_int(msg, "seq", minimum=0)
+        if seq > self.model.last_seq:
+            raise ProtocolError(Code.BAD_VALUE, "seq", f"seq {seq} is past the run's end: the last step is "
+                                f"{self.model.last_seq} (setup.last_seq; simulation.duration / dt)")
+        iteration = codec.require_int(msg, "iteration", default=0, minimum=0)
+        t_req = codec.require_float(msg, "time")
+        t = seq * self.dt
+        if abs(t_req - t) > 1e-9 * max(1.0, abs(t)):
+            raise ProtocolError(Code.BAD_VALUE, "time",
+                                f"time {t_req!r} does not match seq {seq} * dt {self.dt!r} = {t!r}")
+        shape = (self.n_bodies, 6)
+        pos = codec.require_array(msg, "position", shape, bound=MAX_COORDINATE)
+        vel = codec.require_array(msg, "velocity", shape, bound=MAX_SPEED)
+        if seq == self.last_seq + 1:
+            replace = False
+        elif seq == self.last_seq and iteration > self.last_iteration:
+            replace = True
+        elif seq == self.last_seq and iteration == self.last_iteration:
+            old_pos, old_vel = self._last_state
+            if not (np.array_equal(old_pos, pos) and np.array_equal(old_vel, vel)):
+                raise ProtocolError(Code.OUT_OF_ORDER, "iteration",
+                                    f"seq {seq} iteration {iteration} was already computed with another state; "
+                                    f"send iteration {iteration + 1} to replace it")
+            return dict(self._cached, compute_us=0.0)  # the retry: the cached reply, no compute
+        else:
+            expect = f"expected seq {self.last_seq + 1} (new step)"
+            if self.last_seq >= 0:
+                expect += (f", or seq {self.last_seq} with iteration > {self.last_iteration} (replace) "
+                           f"or = {self.last_iteration} (retry)")
+            field = "seq" if seq != self.last_seq else "iteration"
+            raise ProtocolError(Code.OUT_OF_ORDER, field, f"{expect}; got seq {seq} iteration {iteration}")
+        t0 = _time.perf_counter()
+        try:
+            out = self.model.step(t, pos, vel, replace_last=replace)
+        except ModelError as exc:
+            raise ProtocolError(Code.BAD_VALUE, exc.key, str(exc)) from None
+        elapsed = _time.perf_counter() - t0
+        self.steps += 1
+        self.compute_s += elapsed
+        self.last_seq, self.last_iteration = seq, iteration
+        self._last_state = (pos.copy(), vel.copy())
+        # one map: the reply now and, cached (its arrays are read-only), the reply to a retry
+        self._cached = reply = {"seq": seq, "iteration": iteration, "time": t, **out, "compute_us": elapsed * 1e6}
+        return reply

@@ -1,0 +1,289 @@
+"""Second-order wave forces (issue 23): mean drift, Newman slow drift, full difference QTF, sum QTF.
+
+Scene keys: ``[hydro] second_order`` (a body's own ``second_order`` overrides it), ``[hydro]
+drift_method``, ``[hydro] sum_frequency``; data: protocol/hdb/second_order.py's layout.
+
+Wave components (server/sea/waves.py): eta = sum_i A_i cos(w_i t - phi_i) = Re sum_i z_i(t) with
+z_i(t) = c_i e^{-i w_i t}, c_i = A_i e^{+i phi_i}. The HDB's a_i = A_i e^{-i phi_i} belongs to
+eta = sum A_i cos(w_i t + phi_i), i.e. a_i is our c_i with phi -> -phi: the HDB's formulas hold
+with a_i e^{-i w_i t} = z_i(t). So, for each force DOF d and r(t) the excitation's ramp,
+
+    mean drift   F_d = r^2 sum_i A_i^2 T_ii,d                      (T_ii: mean_drift at w_i, b_i)
+    Newman       F_d = r^2 Re[(sum_i z_i T_ii,d) conj(sum_j z_j)]
+                 (Newman's T_ij = 1/2 (T_ii + T_jj) exactly: the double sum Re sum_ij z_i conj(z_j)
+                 1/2 (T_ii + T_jj) is the real part of one product of two single sums, O(N))
+    difference   F_d = r^2 Re sum_ij z_i conj(z_j) T-_ij,d
+    sum          F_d = r^2 Re sum_ij z_i z_j T+_ij,d
+
+(the ramp squared: the force is quadratic in the amplitudes). The QTFs are interpolated
+bilinearly from their grid, T_ij = sum_ab L_ia L_jb G_ab with L (n_c, n_q) the linear
+interpolation weights, so with y = L^T z (n_q values per heading) the double sums are
+Re y^T G conj(y) and Re y^T G y: O(N n_q + n_q^2) per step, never O(N^2). A regular wave is the
+one-component case (mean A^2 T(w, w); the sum QTF adds the 2w force).
+Each component's heading must be one the data hold (mean drift: inside the drift_direction range,
+interpolated linearly; QTF: each heading pair present), else a ModelError naming the wave key.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import xarray as xr
+
+from hydrolink.protocol.hdb.layout import MEAN_DRIFT_DIMS, QTF_DIMS, HDBError
+from hydrolink.protocol.hdb.schema import select_bodies
+from hydrolink.protocol.hdb.second_order import drift_body_fixed, drift_methods, qtf_kinds
+from hydrolink.protocol.scene import Scene
+from hydrolink.server.allocation import require_size
+from hydrolink.server.errors import ModelError
+from hydrolink.server.terms.base import ForceTerm, TermContext
+from hydrolink.server.sea.waves import WaveComponents, ramp_factor
+
+_TOL = 1e-6   # relative tolerance on frequencies, absolute (rad) on headings
+
+
+def _wave_key(waves: WaveComponents, what: str) -> str:
+    """The scene key a component frequency (``what`` = "omega") or heading is refused under."""
+    if what == "omega":
+        return "waves.period" if waves.kind == "regular" else "waves.omega_range"
+    return "waves.spreading" if waves.headings is not None else "waves.direction"
+
+
+def interpolation_weights(grid: np.ndarray, x: np.ndarray, key: str, what: str) -> np.ndarray:
+    """(len(x), len(grid)) linear interpolation weights of ``x`` on ``grid`` (a single-point
+    grid takes only its own value); ModelError naming ``key`` for a value outside the grid."""
+    lo, hi = grid[0] * (1 - _TOL) - _TOL, grid[-1] * (1 + _TOL) + _TOL
+    bad = (x < lo) | (x > hi)
+    if np.any(bad):
+        v = x[np.argmax(bad)]
+        raise ModelError(key, f"{what} {v:.6g} is outside the data's range {grid[0]:.6g}-{grid[-1]:.6g}")
+    w = np.zeros((x.size, grid.size))
+    if grid.size == 1:
+        w[:, 0] = 1.0
+        return w
+    k = np.clip(np.searchsorted(grid, x) - 1, 0, grid.size - 2)
+    f = np.clip((x - grid[k]) / (grid[k + 1] - grid[k]), 0.0, 1.0)
+    rows = np.arange(x.size)
+    w[rows, k] = 1.0 - f
+    w[rows, k + 1] += f
+    return w
+
+
+def _same_angle(a: float, b: float) -> bool:
+    return abs(np.angle(np.exp(1j * (a - b)))) <= _TOL
+
+
+@dataclass(frozen=True)
+class BodySecondOrder:
+    """One body's second-order force from the components z (n_c,) at a time, before the ramp.
+
+    ``mean`` (6,) constant; ``newman`` (n_c, 6) the diagonal T_ii (Newman); ``lift``
+    (n_c, n_y) the QTF interpolation L over the heading groups; ``difference`` / ``sum``
+    (6 n_y, n_y) the QTF G of each DOF stacked (rows d n_y + a)."""
+
+    row: int                           # the body's position among the served bodies
+    mean: np.ndarray | None = None
+    newman: np.ndarray | None = None
+    lift: np.ndarray | None = None
+    difference: np.ndarray | None = None
+    sum: np.ndarray | None = None
+
+    def force(self, z: np.ndarray) -> np.ndarray:
+        """(6,) the force for the component phasors ``z`` (no ramp)."""
+        f = np.zeros(6) if self.mean is None else self.mean.copy()
+        if self.newman is not None:
+            f += ((z @ self.newman) * np.conj(z.sum())).real
+        if self.lift is not None:
+            y = z @ self.lift
+            n = y.size
+            if self.difference is not None:
+                f += ((self.difference @ np.conj(y)).reshape(6, n) @ y).real
+            if self.sum is not None:
+                f += ((self.sum @ y).reshape(6, n) @ y).real
+        return f
+
+
+def _mean_drift_diagonal(sub: xr.Dataset, method: str, waves: WaveComponents, scale: float) -> np.ndarray:
+    """(n_c, 6) T_ii of the method at each component's frequency and heading (N/m^2, N m/m^2)."""
+    md = sub["mean_drift"].transpose(*MEAN_DRIFT_DIMS).sel(drift_method=method).values * scale
+    w_grid, b_grid = sub["drift_omega"].values, sub["drift_direction"].values
+    heads = waves.heading_of()
+    lw = interpolation_weights(w_grid, waves.omega, _wave_key(waves, "omega"), "wave frequency (rad/s)")
+    if b_grid.size == 1:
+        off = [h for h in heads if not _same_angle(h, b_grid[0])]
+        if off:
+            raise ModelError(_wave_key(waves, "heading"),
+                             f"heading {np.degrees(off[0]):g} deg: the mean drift is given for "
+                             f"{np.degrees(b_grid[0]):g} deg only")
+        lb = np.ones((heads.size, 1))
+    else:
+        lb = interpolation_weights(b_grid, heads, _wave_key(waves, "heading"), "heading (rad)")
+    return np.einsum("ca,cb,abd->cd", lw, lb, md)
+
+
+def _qtf_parts(sub: xr.Dataset, kinds: tuple[str, ...], waves: WaveComponents, scale: float, src: str
+               ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """The interpolation L (n_c, n_g n_q) over the heading groups and each kind's stacked G."""
+    grid = sub["qtf_omega_i"].values
+    lw = interpolation_weights(grid, waves.omega, _wave_key(waves, "omega"), "wave frequency (rad/s)")
+    heads = waves.heading_of()
+    groups = np.unique(np.round(heads, 9))
+    pairs = list(zip(sub["qtf_direction_i"].values, sub["qtf_direction_j"].values))
+    n_q, n_g = grid.size, groups.size
+
+    def pair(bi: float, bj: float) -> int:
+        for h, (a, b) in enumerate(pairs):
+            if _same_angle(a, bi) and _same_angle(b, bj):
+                return h
+        held = ", ".join(f"({np.degrees(a):g}, {np.degrees(b):g})" for a, b in pairs)
+        raise ModelError(_wave_key(waves, "heading"), f"the QTF of {src!r} has no heading pair ({np.degrees(bi):g}, "
+                                                      f"{np.degrees(bj):g}) deg (it holds {held} deg)")
+
+    key = _wave_key(waves, "heading")
+    require_size(key, "the QTF over the wave headings' pairs", (6 * n_g * n_q, n_g * n_q), 16,
+                 "fewer spreading directions, or a coarser QTF grid")
+    require_size("waves.components", "the QTF interpolation onto the wave components", (waves.size, n_g * n_q), 16)
+    lift = np.zeros((waves.size, n_g * n_q))
+    for g, b in enumerate(groups):
+        on = np.isclose(np.round(heads, 9), b)
+        lift[on, g * n_q:(g + 1) * n_q] = lw[on]
+    index = np.array([[pair(bi, bj) for bj in groups] for bi in groups], int).reshape(n_g, n_g)
+    out = {}
+    for kind in kinds:
+        t = sub[f"{kind}_qtf"].transpose(*QTF_DIMS).values * scale     # (n_q, n_q, n_h, 6)
+        g_full = t[:, :, index, :]                                      # (n_q, n_q, n_g, n_g, 6)
+        g_full = g_full.transpose(4, 2, 0, 3, 1).reshape(6 * n_g * n_q, n_g * n_q)
+        out[kind] = np.ascontiguousarray(g_full)
+    return lift, out
+
+
+def body_second_order(scene: Scene, i: int, row: int, ds: xr.Dataset, waves: WaveComponents
+                      ) -> tuple[BodySecondOrder, list[str]]:
+    """Body ``i``'s (scene index) second-order part from its HDB ``ds``, and its setup warnings."""
+    body, hydro = scene.bodies[i], scene.hydro
+    mode, key = scene.second_order_of(body), scene.second_order_key(i)
+    src = str(ds.attrs.get("source", "?"))
+    try:
+        sub = select_bodies(ds, [body.hdb_body_name])
+    except HDBError as exc:
+        raise ModelError(f"bodies[{i}].hdb_body", str(exc)) from None
+    scale = scene.water.density * scene.water.gravity / (float(ds.attrs["rho"]) * float(ds.attrs["g"]))
+    warnings: list[str] = []
+    parts: dict[str, np.ndarray] = {}
+    kinds = ("difference",) if mode == "qtf" else ()
+    if hydro.sum_frequency:
+        kinds += ("sum",)
+    held = qtf_kinds(sub)
+    for kind in kinds:
+        if kind not in held:
+            k = key if kind == "difference" else "hydro.sum_frequency"
+            raise ModelError(k, f"body {body.name!r}: the HDB {src!r} holds no {kind}-frequency QTF "
+                                f"(it holds {list(held) or 'none'})")
+    if mode in ("mean-drift", "newman"):
+        methods = drift_methods(sub)
+        if not methods:
+            raise ModelError(key, f"{mode!r} for body {body.name!r}: the HDB {src!r} holds no mean drift "
+                                  "coefficients (WAMIT .7/.8/.9, BEMIO mean_drift or hdb build's far-field)")
+        method = hydro.drift_method
+        if method is None:
+            if len(methods) > 1:
+                raise ModelError("hydro.drift_method", f"the HDB {src!r} holds the mean drift of several methods "
+                                                       f"{list(methods)}: choose one")
+            method = methods[0]
+        elif method not in methods:
+            raise ModelError("hydro.drift_method", f"{method!r} for body {body.name!r}: the HDB {src!r} holds only "
+                                                   f"{list(methods)}")
+        diag = _mean_drift_diagonal(sub, method, waves, scale)
+        if mode == "mean-drift":
+            parts["mean"] = (waves.amplitude ** 2) @ diag
+        else:
+            parts["newman"] = diag.astype(complex)   # complex already: a real operand would be cast each step
+        moving = [d for d in body.dofs]
+        if drift_body_fixed(sub) and moving:
+            note = str(ds.attrs.get("mean_drift_note", ""))
+            warnings.append(f"{key}: the mean drift of {src!r} was computed for the body held fixed ({note}) "
+                            f"but body {body.name!r} moves in {moving}: its drift includes no motion effect; "
+                            f"lock bodies[{i}].dofs or use coefficients computed with the body's motions")
+    if kinds:
+        lift, g = _qtf_parts(sub, kinds, waves, scale, src)
+        parts["lift"] = lift.astype(complex)   # complex once, not cast each step
+        for kind in kinds:
+            parts[kind] = g[kind]
+    return BodySecondOrder(row, **parts), warnings
+
+
+class SecondOrderTerm(ForceTerm):
+    """The second-order wave forces of the served bodies (reply field ``drift``).
+
+    The phasors z_i(t) = c_i e^{-i w_i t} are advanced from the previous step by the rotation
+    e^{-i w_i dt} (one complex product per component instead of an exponential), evaluated afresh
+    at any other time and every RESYNC steps (the rotations' round-off stays ~1e-13); the phasors
+    are the term's state for the session rollback."""
+
+    name = "second_order"
+    scene_keys = ("hydro.second_order", "bodies[i].second_order", "hydro.drift_method", "hydro.sum_frequency")
+    features = ("second_order",)
+    needs = frozenset({"time"})
+    steady = "pointwise"     # hydrolink steady: a load at its nodes (regular waves: mean, and 2w with sum)
+    stateless = False
+    RESYNC = 1024
+
+    def __init__(self, parts: list[BodySecondOrder], waves: WaveComponents, active: np.ndarray, dt: float,
+                 warnings: list[str]):
+        super().__init__(("drift",))
+        self.parts, self._mask = parts, active.astype(float)
+        self._c = waves.amplitude * np.exp(1j * waves.phase)
+        self._w = waves.omega
+        self._dt = float(dt)
+        self._rotation = np.exp(-1j * self._w * self._dt)
+        self._ramp = float(waves.ramp)
+        self._phasors = any(p.newman is not None or p.lift is not None for p in parts)  # else constant
+        self._t, self._z, self._since = np.nan, self._c, 0    # the newest phasors, at time _t
+        self.warnings = tuple(warnings)
+
+    @classmethod
+    def build(cls, ctx: TermContext) -> "SecondOrderTerm | None":
+        scene = ctx.scene
+        bodies = [(row, i) for row, i in enumerate(ctx.wet) if scene.second_order_of(scene.bodies[i]) != "none"]
+        if not bodies:
+            return None
+        if ctx.waves.kind == "elevation":
+            raise ModelError(scene.second_order_key(bodies[0][1]),
+                             "second-order forces need wave components (regular or irregular waves); "
+                             "[waves] type = \"elevation\" has none")
+        parts, warnings = [], []
+        for row, i in bodies:
+            part, warn = body_second_order(scene, i, row, ctx.hdbs[scene.bodies[i].name], ctx.waves)
+            parts.append(part)
+            warnings += warn
+        return cls(parts, ctx.waves, ctx.active, scene.exchange_dt, warnings)
+
+    def _phasors_at(self, t: float) -> np.ndarray:
+        """z(t), rotated from the newest phasors when t is one step later."""
+        if t == self._t:
+            return self._z
+        if abs(t - self._t - self._dt) <= 1e-9 * self._dt and self._since < self.RESYNC:
+            self._z, self._since = self._z * self._rotation, self._since + 1
+        else:
+            self._z, self._since = self._c * np.exp(-1j * self._w * t), 0
+        self._t = t
+        return self._z
+
+    def force(self, t: float, position: np.ndarray, velocity: np.ndarray) -> tuple[np.ndarray]:
+        out = np.zeros(self._mask.shape)
+        if self._w.size == 0:
+            return (out,)
+        z = self._phasors_at(float(t)) if self._phasors else self._c
+        for part in self.parts:
+            out[part.row] = part.force(z)
+        r = 1.0 if t >= self._ramp else float(ramp_factor(t, self._ramp))
+        out *= self._mask * (r * r)
+        return (out,)
+
+    def state(self) -> tuple[float, np.ndarray, int]:
+        return self._t, self._z.copy(), self._since
+
+    def set_state(self, state: tuple[float, np.ndarray, int]) -> None:
+        self._t, z, self._since = state
+        self._z = z.copy()
