@@ -37,7 +37,7 @@ def sphere(reference_data: Path) -> xr.Dataset:
     return load_hdb(reference_data / "sphere_task10" / "sphere.h5")
 
 
-def _copy_wamit(reference_data: Path, tmp_path: Path, exts=(".1", ".3", ".hst")) -> Path:
+def _copy_wamit(reference_data: Path, tmp_path: Path, exts=(".1", ".3", ".hst", ".out")) -> Path:
     for ext in exts:
         shutil.copy(reference_data / "rm3_wamit" / f"rm3{ext}", tmp_path / f"rm3{ext}")
     return tmp_path / "rm3"
@@ -76,19 +76,22 @@ def test_wamit_rm3_run_facts(rm3_wamit):
 
 
 def test_wamit_stem_and_shuffled_frequencies(reference_data, tmp_path, rm3_wamit):
-    stem = _copy_wamit(reference_data, tmp_path)
+    """The stem alone, rows shuffled, no .out: XBODY, depth and names from the .pot, VCG from the
+    .frc, what no file states (ULEN, g, IPEROUT) from the scene's wamit table: the full set's HDB."""
+    stem = _copy_wamit(reference_data, tmp_path, exts=(".1", ".3", ".hst", ".pot", ".frc", ".cfg"))
     rng = np.random.default_rng(0)
     for ext in (".1", ".3"):
         lines = (tmp_path / f"rm3{ext}").read_text().splitlines()
         body = lines[1:]
         rng.shuffle(body)
         (tmp_path / f"rm3{ext}").write_text("\n".join([lines[0], *body]) + "\n")
-    ds = read_wamit(stem, g=9.81)  # the stem alone; no .out: generic body names, no g (default 9.80665)
-    assert load_hdb(stem).attrs["g"] == 9.80665
-    assert list(ds["body"].values) == ["body1", "body2"]
+    ds = load_hdb(stem, wamit={"ulen": 1.0, "gravity": 9.81, "iperout": 1})
+    assert list(ds["body"].values) == ["float", "spar"]
+    assert ds.attrs["g"] == 9.81 and np.isinf(ds.attrs["water_depth"])
+    np.testing.assert_array_equal(ds["reference_point"].values, rm3_wamit["reference_point"].values)
     np.testing.assert_allclose(ds["omega"].values, rm3_wamit["omega"].values)
-    np.testing.assert_allclose(ds["added_mass"].values, rm3_wamit["added_mass"].values)
-    np.testing.assert_allclose(ds["excitation_force"].values, rm3_wamit["excitation_force"].values)
+    for name in ("added_mass", "radiation_damping", "excitation_force", "hydrostatic_stiffness", "added_mass_inf"):
+        np.testing.assert_array_equal(ds[name].values, rm3_wamit[name].values, err_msg=name)
 
 
 def test_wamit_rho_scales_coefficients(reference_data, rm3_wamit):

@@ -1,7 +1,8 @@
 """``load_hdb``: one entry point that recognises the HDB file format and returns the internal HDB.
 
 * WAMIT: ``.1``/``.2``/``.3``/``.hst``/``.out``/... or the common stem (``rm3`` -> ``rm3.1`` ...);
-  nondimensional, so ``rho`` applies (default 1000).
+  nondimensional, so ``rho`` applies (default 1000; a scene's run passes its [water] density);
+  ``wamit``: the scene's ``bodies[i].wamit`` table for what the run's files do not state.
 * BEMIO (WEC-Sim): ``.h5``/``.hdf5``.
 * NetCDF ``.nc``: hydrolink's own (attribute ``hydrolink_hdb``) or a Capytaine export.
 
@@ -13,6 +14,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Mapping
 
 import xarray as xr
 
@@ -22,7 +24,8 @@ from hydrolink.protocol.hdb_schema import HDBError, from_netcdf_dataset
 from .wamit import WAMIT_SUFFIXES, read_wamit, wamit_stem
 from .wamit_second_order import SECOND_ORDER_SUFFIXES
 
-WAMIT_READ = (".1", ".2", ".3", ".hst", ".out", ".cfg", *SECOND_ORDER_SUFFIXES)   # the files read_wamit opens (where present)
+WAMIT_READ = (".1", ".2", ".3", ".hst", ".out", ".cfg", ".pot", ".mmx", ".frc",
+              *SECOND_ORDER_SUFFIXES)   # the files read_wamit opens (where present)
 
 DEFAULT_RHO = 1000.0
 
@@ -54,6 +57,12 @@ def _is_wamit(path: Path) -> bool:
     return stem != path or (not path.is_file() and stem.with_name(stem.name + ".1").is_file())
 
 
+def nondimensional(path: str | Path) -> bool:
+    """Whether ``path`` names a nondimensional HDB (a WAMIT run), whose density is the caller's."""
+    path = Path(path)
+    return path.suffix.lower() not in (".h5", ".hdf5", ".nc", ".toml") and _is_wamit(path)
+
+
 def _noted(ds: xr.Dataset, in_file: str, why: str) -> xr.Dataset:
     """Record the time convention the file was read in and why, unless its reader did
     (``hydrolink hdb info`` shows them)."""
@@ -62,15 +71,20 @@ def _noted(ds: xr.Dataset, in_file: str, why: str) -> xr.Dataset:
     return ds
 
 
-def load_hdb(path: str | Path, *, rho: float | None = None, convention: str | None = None) -> xr.Dataset:
+def load_hdb(path: str | Path, *, rho: float | None = None, convention: str | None = None,
+             wamit: Mapping | None = None) -> xr.Dataset:
     """Read an HDB file of any supported format into the internal layout (validated).
     ``convention``: the time convention of a Capytaine-layout file's complex amplitudes when the
-    file does not declare it ("exp(-iwt)", Capytaine's, by default; "exp(+iwt)": conjugated)."""
+    file does not declare it ("exp(-iwt)", Capytaine's, by default; "exp(+iwt)": conjugated).
+    ``wamit``: for a WAMIT run, what its files do not state (the scene's ``bodies[i].wamit`` table,
+    :meth:`Scene.wamit_statement`), with ``excitation_needed`` (False: a set without ``.3`` is read)."""
     path = Path(path)
     suffix = path.suffix.lower()
     if convention is not None and suffix != ".nc":
         raise HDBError(path, "convention", "only for a Capytaine-layout NetCDF file: WAMIT and BEMIO files have "
                                           "their own (exp(+iwt)), converted by their readers")
+    if wamit and any(k != "excitation_needed" for k in wamit) and not _is_wamit(path):
+        raise HDBError(path, "wamit", "only for a WAMIT run's files: this format states its own run facts")
     if suffix in (".h5", ".hdf5"):
         return _noted(_check_rho(read_bemio(path), rho, path), "exp(+iwt)", "BEMIO's (WEC-Sim), conjugated at reading")
     if suffix == ".nc":
@@ -79,7 +93,7 @@ def load_hdb(path: str | Path, *, rho: float | None = None, convention: str | No
         return _noted(_check_rho(_load_netcdf(path, convention), rho, path), "exp(-iwt)",
                       "hydrolink's own HDB file (its attribute time_convention)")
     if _is_wamit(path):
-        return _noted(read_wamit(path, rho=DEFAULT_RHO if rho is None else rho), "exp(+iwt)",
+        return _noted(read_wamit(path, rho=DEFAULT_RHO if rho is None else rho, stated=wamit), "exp(+iwt)",
                       "WAMIT's, conjugated at reading")
     if not path.exists():
         raise HDBError(path, "file", "not found")
@@ -89,7 +103,8 @@ def load_hdb(path: str | Path, *, rho: float | None = None, convention: str | No
 
 def file_set(path: str | Path, *, rho: float | None = None) -> "HDBFiles":
     """The files ``load_hdb(path)`` reads, as an HDB file set to send by content (SPEC §5.1):
-    a WAMIT run's ``.1``, ``.2``/``.3``, ``.hst``, ``.out``, ``.cfg`` where present; a BEMIO or
+    a WAMIT run's ``.1``, ``.2``/``.3``, ``.hst``, ``.out``, ``.cfg``, ``.pot``, ``.mmx``, ``.frc``
+    (and second-order files) where present, found beside ``path`` as given; a BEMIO or
     NetCDF file alone. HDBError naming the file when it is not an HDB file of a known format."""
     from hydrolink.protocol.hdb_wire import HDBFiles
     path = Path(path)

@@ -5,30 +5,39 @@ WAMIT files are nondimensional and use exp(+i w t). This module dimensionalises 
 and g of the run and the caller's rho (A = rho L^k Abar, B = rho w L^k Bbar, X = rho g L^m Xbar,
 C = rho g L^k Cbar) and conjugates the excitation once, here, into the internal exp(-i w t).
 
-Optional ``.out`` facts: g, ULEN, water depth, body names (from the ``.gdf`` file names), XBODY
-(the point the rotational modes refer to, used as ``reference_point``), displaced volume (VOLX)
-and centre of buoyancy (reported in body axes, shifted here by XBODY into the global frame).
-Without an ``.out``: bodies ``body1``, ``body2``..., reference points at the origin, g from the
-``.cfg`` (GRAV) or 9.80665 (WAMIT's default), infinite depth.
+The run's facts (g, ULEN, water depth, body names, XBODY: the point the rotational modes refer
+to, used as ``reference_point``; VCG; displaced volume and centre of buoyancy, shifted by XBODY into
+the global frame; the first column's meaning, IPEROUT) are read from the ``.out``, else the
+``.mmx``/``.pot``/``.frc``/``.cfg`` beside the ``.1``, else taken from the scene's
+``bodies[i].wamit`` table; none is assumed (:mod:`.wamit_run`). The siblings are looked for beside
+the path as given (a symlinked ``.1`` finds the files beside the link).
+
+Hydrostatics: WAMIT's ``.hst`` includes the gravity terms -m g VCG in C44 and C55 (m = rho V,
+alternative form 1 of the ``.frc``) when a body's VCG is not 0; they are taken out here (the
+schema's stiffness is buoyancy and waterplane only; the scene's mass and centre of gravity add
+gravity once, server/hydrostatics.py).
+
+Without a ``.3`` (or ``.2``) the set is read only for a scene that needs no excitation
+(``excitation_needed`` False: still water), with a zero excitation force at heading 0 and the
+attribute ``excitation_force`` saying so.
 """
 
 from __future__ import annotations
 
-import math
-import re
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Mapping
 
 import numpy as np
 import xarray as xr
 
 from hydrolink.protocol.hdb_schema import HDBError, make_hdb
 from hydrolink.server.hdb.wamit_second_order import SECOND_ORDER_SUFFIXES, read_drift, read_qtf
+from hydrolink.server.hdb.wamit_run import RunFacts, run_facts
 from hydrolink.server.hdb.wamit_table import Units, frequencies, mode_indices, read_table, scale_exponent, special_rows
 
-WAMIT_SUFFIXES = (".1", ".2", ".3", ".3fk", ".3sc", ".hst", ".out", ".cfg", ".pot", ".frc", ".4", *SECOND_ORDER_SUFFIXES)
-DEFAULT_G = 9.80665
-_FLOAT = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eEdD][-+]?\d+)?"
+WAMIT_SUFFIXES = (".1", ".2", ".3", ".3fk", ".3sc", ".hst", ".out", ".cfg", ".pot", ".frc", ".mmx", ".4",
+                  *SECOND_ORDER_SUFFIXES)
 
 
 def wamit_stem(path: str | Path) -> Path:
@@ -40,96 +49,61 @@ def wamit_stem(path: str | Path) -> Path:
     return path
 
 
-def _read_cfg(stem: Path) -> dict[str, str]:
-    """KEY=value settings of the ``.cfg`` (upper-case keys), empty if there is none."""
-    cfg = stem.with_name(stem.name + ".cfg")
-    if not cfg.is_file():
-        return {}
-    out = {}
-    for match in re.finditer(r"^\s*([A-Za-z_]\w*)\s*=\s*(\S+)", cfg.read_text(errors="replace"), re.M):
-        out[match.group(1).upper()] = match.group(2)
-    return out
-
-
-def _read_out(stem: Path) -> dict:
-    """Run facts from the ``.out`` report (only the part before the first frequency's results)."""
-    out_path = stem.with_name(stem.name + ".out")
-    if not out_path.is_file():
-        return {}
-    facts: dict = {"gdf": [], "xbody": [], "volume": [], "cb": []}
-    with out_path.open(errors="replace") as fh:
-        for number, line in enumerate(fh, start=1):
-            if "Wave period" in line or "Output from  WAMIT" in line:
-                break
-            try:
-                if m := re.search(r"N=\s*\d+\s+(\S+\.gdf)", line, re.I):
-                    facts["gdf"].append(Path(m.group(1)).stem)
-                elif m := re.search(rf"Gravity:\s*({_FLOAT})", line):
-                    facts["g"] = float(m.group(1))
-                    if m2 := re.search(rf"Length scale:\s*({_FLOAT})", line):
-                        facts["ulen"] = float(m2.group(1))
-                elif m := re.search(r"Water depth:\s*(\S+)", line):
-                    word = m.group(1)
-                    facts["depth"] = math.inf if word.lower().startswith("inf") else float(word)
-                elif "XBODY" in line and "=" in line:
-                    vals = [float(v) for v in re.findall(rf"=\s*({_FLOAT})", line)]
-                    facts["xbody"].append(vals[:4])
-                elif line.strip().startswith("Volumes"):
-                    facts["volume"].append(float(re.findall(_FLOAT, line.split(":", 1)[1])[0]))
-                elif line.strip().startswith("Center of Buoyancy"):
-                    facts["cb"].append([float(v) for v in re.findall(_FLOAT, line.split(":", 1)[1])[:3]])
-            except (ValueError, IndexError):
-                raise HDBError(out_path.name, f"line {number}", f"cannot parse {line.strip()!r}") from None
-    return facts
-
-
-def _body_names(gdf: list[str], n_bodies: int) -> list[str]:
-    """Body names from the ``.gdf`` stems (dots replaced, made unique) or body1, body2..."""
-    if len(gdf) != n_bodies:
-        return [f"body{n + 1}" for n in range(n_bodies)]
-    names = [g.replace(".", "_") or f"body{n + 1}" for n, g in enumerate(gdf)]
-    if len(set(names)) != len(names):
-        names = [f"{name}{n + 1}" for n, name in enumerate(names)]
-    return names
-
-
-def read_wamit(path: str | Path, rho: float = 1000.0, g: float | None = None) -> xr.Dataset:
-    """Read a WAMIT run (``.1`` file or common stem) into the internal HDB layout."""
+def read_wamit(path: str | Path, rho: float = 1000.0, stated: Mapping | None = None) -> xr.Dataset:
+    """Read a WAMIT run (``.1`` file or common stem) into the internal HDB layout.
+    ``stated``: the scene's ``bodies[i].wamit`` table (what no file of the run states) and
+    ``excitation_needed`` (default True: a set without ``.3``/``.2`` is refused)."""
+    stated = dict(stated or {})
+    excitation_needed = bool(stated.pop("excitation_needed", True))
     stem = wamit_stem(path)
     file1 = stem.with_name(stem.name + ".1")
     if not file1.is_file():
         raise HDBError(path, "file", f"WAMIT radiation file {file1.name} not found")
     excitation_file = next((stem.with_name(stem.name + s) for s in (".3", ".2")
                             if stem.with_name(stem.name + s).is_file()), None)
-    if excitation_file is None:
-        raise HDBError(file1, "excitation_force", f"no {stem.name}.3 (or .2) excitation file beside it")
+    if excitation_file is None and excitation_needed:
+        raise HDBError(file1, "excitation_force", f"no {stem.name}.3 (or .2) excitation file beside it, and the "
+                                                  "scene's waves need the excitation force (a still-water scene "
+                                                  "reads the set without it)")
     hst_file = stem.with_name(stem.name + ".hst")
     if not hst_file.is_file():
         raise HDBError(file1, "hydrostatic_stiffness", f"no {hst_file.name} beside it")
     if not (np.isfinite(rho) and rho > 0):
         raise HDBError(file1, "rho", f"must be finite and > 0, got {rho}")
 
-    cfg, facts = _read_cfg(stem), _read_out(stem)
-    try:
-        g = float(g if g is not None else facts.get("g", cfg.get("GRAV", DEFAULT_G)))
-        ulen = float(facts.get("ulen", cfg.get("ULEN", 1.0)))
-        iperout = int(cfg.get("IPEROUT", 1))
-    except ValueError as exc:
-        raise HDBError(stem.with_name(stem.name + ".cfg"), "GRAV/ULEN/IPEROUT", str(exc)) from None
-    units = Units(rho, g, ulen, iperout)
-    rad = _read_radiation(file1, units, len(facts.get("xbody", [])))
-    betas, excitation = _read_excitation(excitation_file, file1, rad, units)
-    stiffness = _read_hydrostatics(hst_file, file1, rad.n_dof, units)
-    n_bodies = rad.n_dof // 6
-    reference_point, volume, cb = _body_geometry(stem, facts, n_bodies)
-    return make_hdb(
-        bodies=_body_names(facts.get("gdf", []), n_bodies), omega=rad.omega, wave_direction=np.deg2rad(betas),
+    t1, l1 = read_table(file1, (4, 5), "PER I J Abar [Bbar]")
+    ij = mode_indices(file1, t1, l1, [1, 2])
+    facts = run_facts(stem, file1, t1[:, 0], -(-int(ij.max()) // 6), stated)
+    units = Units(rho, facts.g, facts.ulen, facts.iperout)
+    rad = _read_radiation(file1, t1, l1, ij, units, facts.n_bodies)
+    if excitation_file is not None:
+        betas, excitation = _read_excitation(excitation_file, file1, rad, units)
+    else:
+        betas, excitation = np.zeros(1), np.zeros((rad.omega.size, 1, rad.n_dof), complex)
+    stiffness = _without_gravity(_read_hydrostatics(hst_file, file1, rad.n_dof, units), facts, units)
+    ds = make_hdb(
+        bodies=facts.names, omega=rad.omega, wave_direction=np.deg2rad(betas),
         added_mass=rad.added_mass, radiation_damping=rad.damping, excitation_force=excitation,
-        hydrostatic_stiffness=stiffness, reference_point=reference_point,
-        rho=rho, g=g, water_depth=facts.get("depth", math.inf), source=str(file1),
-        added_mass_inf=rad.added_mass_inf, displaced_volume=volume, center_of_buoyancy=cb,
+        hydrostatic_stiffness=stiffness, reference_point=facts.xbody,
+        rho=rho, g=facts.g, water_depth=facts.depth, source=str(file1),
+        added_mass_inf=rad.added_mass_inf, displaced_volume=facts.volume, center_of_buoyancy=facts.cb,
         mean_drift=read_drift(stem, units, rad.n_dof), qtf=read_qtf(stem, units, rad.n_dof),
     )
+    ds.attrs["wamit_facts_from"] = "; ".join(f"{k}: {v}" for k, v in facts.origin.items())
+    if excitation_file is None:
+        ds.attrs["excitation_force"] = f"absent (no {stem.name}.3 or .2): zero, for a still-water scene only"
+    return ds
+
+
+def _without_gravity(stiffness: np.ndarray, facts: RunFacts, u: Units) -> np.ndarray:
+    """The ``.hst`` stiffness without WAMIT's gravity terms -m g VCG (m = rho V) in C44 and C55."""
+    if not np.any(facts.vcg != 0.0):
+        return stiffness
+    stiffness = stiffness.copy()
+    for n, (vcg, volume) in enumerate(zip(facts.vcg, facts.volume)):
+        for k in (6 * n + 3, 6 * n + 4):
+            stiffness[k, k] += u.rho * u.g * volume * vcg
+    return stiffness
 
 
 @dataclass(frozen=True)
@@ -144,20 +118,19 @@ class _Radiation:
     n_dof: int
 
 
-def _read_radiation(file1: Path, u: Units, n_out_bodies: int) -> _Radiation:
-    """Added mass and damping (A = rho L^k Abar, B = rho omega L^k Bbar) and A_inf of a ``.1`` file."""
-    t1, l1 = read_table(file1, (4, 5), "PER I J Abar [Bbar]")
-    ij = mode_indices(file1, t1, l1, [1, 2])
+def _read_radiation(file1: Path, t1: np.ndarray, l1: np.ndarray, ij: np.ndarray, u: Units,
+                    n_bodies: int) -> _Radiation:
+    """Added mass and damping (A = rho L^k Abar, B = rho omega L^k Bbar) and A_inf of a ``.1`` table."""
     inf_rows, skip_rows = special_rows(t1[:, 0], u.iperout)
     freq_rows = ~inf_rows & ~skip_rows
     missing_b = freq_rows & np.isnan(t1[:, 4])
     if np.any(missing_b):
         raise HDBError(file1.name, f"line {l1[np.argmax(missing_b)]}", "expected 'PER I J Abar Bbar' (no Bbar)")
-    n_dof = 6 * max(-(-int(ij.max()) // 6), n_out_bodies)
+    n_dof = 6 * n_bodies
     periods = np.unique(t1[freq_rows, 0])
     if periods.size < 2:
         raise HDBError(file1.name, "omega", f"needs at least 2 frequencies, got {periods.size}")
-    omega_unsorted = frequencies(periods, u.iperout, u.g, str(file1))
+    omega_unsorted = frequencies(periods, u.iperout, u.g, str(file1), u.ulen)
     order = np.argsort(omega_unsorted)
     omega = omega_unsorted[order]
     rank = np.empty_like(order)
@@ -217,22 +190,3 @@ def _read_hydrostatics(path: Path, file1: Path, n_dof: int, u: Units) -> np.ndar
     stiffness[ijh[:, 0], ijh[:, 1]] = (u.rho * u.g * u.ulen ** scale_exponent(ijh[:, 0] + 1, ijh[:, 1] + 1, 2)
                                        * th[:, 2])
     return stiffness
-
-
-def _body_geometry(stem: Path, facts: dict, n_bodies: int) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
-    """Reference points (XBODY), displaced volumes and centres of buoyancy of the bodies from the
-    ``.out`` report (zeros and None where it does not have them)."""
-    reference_point = np.zeros((n_bodies, 3))
-    volume = cb = None
-    xbody = facts.get("xbody", [])
-    if len(xbody) == n_bodies:
-        xb = np.asarray(xbody, float)
-        if xb.shape[1] >= 4 and np.any(xb[:, 3] != 0.0):
-            raise HDBError(stem.with_name(stem.name + ".out"), "PHIBODY",
-                           "bodies rotated about z (PHIBODY != 0) are not supported: their coefficients are in body axes")
-        reference_point = xb[:, :3]
-        if len(facts["volume"]) == n_bodies:
-            volume = np.asarray(facts["volume"], float)
-        if len(facts["cb"]) == n_bodies:
-            cb = reference_point + np.asarray(facts["cb"], float)
-    return reference_point, volume, cb
