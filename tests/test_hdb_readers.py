@@ -477,12 +477,12 @@ def test_wamit_without_out_names_what_no_file_states(reference_data, tmp_path, r
     value no file states is named with its scene key; the .pot/.frc state XBODY, depth and VCG."""
     stem = _copy_wamit(reference_data, tmp_path, exts=(".1", ".3", ".hst"))
     err = _error(stem)
-    assert err.field == "wamit.ulen, wamit.gravity, wamit.depth, wamit.xbody, wamit.vcg, wamit.iperout"
+    assert err.field == "wamit" and "the run's ULEN, g, water depth, XBODY, VCG, IPEROUT are" in err.why
     assert "stated by no file: no file beside it (no .out/.mmx/.pot/.frc/.cfg)" in err.why
     assert "[bodies.wamit] table (ulen, gravity, depth, xbody, vcg, iperout)" in err.why
     _copy_wamit(reference_data, tmp_path, exts=(".pot", ".frc", ".cfg"))
     err = _error(stem)
-    assert err.field == "wamit.ulen, wamit.gravity, wamit.iperout"
+    assert err.field == "wamit" and "(ulen, gravity, iperout)" in err.why
     assert "rm3.pot, rm3.frc, rm3.cfg beside it (no .out/.mmx)" in err.why
     ds = load_hdb(stem, wamit=RM3_STATED)
     np.testing.assert_array_equal(ds["reference_point"].values, rm3_wamit["reference_point"].values)
@@ -636,7 +636,7 @@ def test_scene_states_the_run_and_its_density(reference_data, tmp_path, rm3_wami
     model = HydroModel(scene, {"float": ds})
     assert not [w for w in model.warnings if w.startswith("water:")], model.warnings
     err = _error(tmp_path / "rm3.1", wamit=scene.wamit_statement("nope.1"))
-    assert err.field == "wamit.ulen, wamit.gravity, wamit.iperout"
+    assert err.field == "wamit" and "(ulen, gravity, iperout)" in err.why
 
 
 # ---------------------------------------------------------------- WAMIT: VCG, on a hand-built set
@@ -729,3 +729,25 @@ def test_capytaine_headings_unit_from_attributes(reference_data, tmp_path, rm3_c
         assert said in err.why and 'units to "degrees"' in err.why
     err = _error(variant("grad.nc", "grad"))
     assert err.field == "wave_direction.units"
+
+
+def test_wamit_file_set_read_with_the_scene_statement(reference_data, tmp_path, rm3_wamit):
+    """Sent by content (run --hdb-files): the .pot/.frc travel in the set, the server reads it with
+    the scene's statement (session.py passes Scene.wamit_statement) and the scene's density; the
+    same HDB as the full set's at 1025 kg/m^3. Without the statement: the error names the keys."""
+    from hydrolink.server.hdb.io import file_set
+    from hydrolink.server.hdb_files import FileSetReader
+    from hydrolink.server.hdb_store import ContentStore
+    from hydrolink.protocol.codec import ProtocolError
+    stem = _copy_wamit(reference_data, tmp_path, exts=(".1", ".3", ".hst", ".pot", ".frc"))
+    files = file_set(stem, rho=1025.0)
+    assert [p.name for p in files.paths] == ["rm3.1", "rm3.3", "rm3.hst", "rm3.pot", "rm3.frc"]
+    reader = FileSetReader(ContentStore(None))
+    ds = reader.read(files.entry(inline=True), 'hdbs["rm3.1"]', None, {**RM3_STATED, "excitation_needed": True})
+    assert ds.attrs["rho"] == 1025.0
+    np.testing.assert_array_equal(ds["reference_point"].values, rm3_wamit["reference_point"].values)
+    np.testing.assert_allclose(ds["added_mass"].values, 1.025 * rm3_wamit["added_mass"].values, rtol=1e-15)
+    with pytest.raises(ProtocolError) as info:
+        reader.read(files.entry(inline=True), 'hdbs["rm3.1"]', None, {"excitation_needed": True})
+    assert info.value.field == 'hdbs["rm3.1"].files["rm3.1"].wamit'
+    assert "the run's ULEN, g, IPEROUT are stated by no file" in info.value.message

@@ -296,7 +296,7 @@ def _missing_error(stem: Path, file1: Path, missing: list[str]) -> HDBError:
         why += " (iperout: 1 if the first column holds periods in s, 2 angular frequencies, 3 ω²L/g)"
     if "volume" in missing:
         why += " (volume: each body's displaced volume in m^3, needed to take the .hst's -m g VCG terms out)"
-    return HDBError(file1, ", ".join(f"wamit.{KEYS[f][0]}" for f in missing), why)
+    return HDBError(file1, f"wamit.{KEYS[missing[0]][0]}" if len(missing) == 1 else "wamit", why)
 
 
 def _iperout(found: dict, first_column: np.ndarray, stated: Mapping, values: dict, file1: Path,
