@@ -751,3 +751,28 @@ def test_wamit_file_set_read_with_the_scene_statement(reference_data, tmp_path, 
         reader.read(files.entry(inline=True), 'hdbs["rm3.1"]', None, {"excitation_needed": True})
     assert info.value.field == 'hdbs["rm3.1"].files["rm3.1"].wamit'
     assert "the run's ULEN, g, IPEROUT are stated by no file" in info.value.message
+
+
+def test_scene_wamit_table_is_the_runs():
+    """bodies[i].wamit: only with hdb; the bodies of one HDB state the same table (or one does);
+    keys checked like every scene key."""
+    from conftest import body, scene_toml
+    from hydrolink.protocol.scene import SceneError, parse_scene
+
+    def scene(*bodies):
+        return parse_scene(scene_toml(dt=0.1, duration=1.0, bodies=list(bodies)))
+
+    def wet(name, **keys):
+        return body(name, hdb="run.1", mass=1.0, center_of_mass=None, inertia=None, dofs=["heave"], **keys)
+
+    table = {"ulen": 2.0, "depth": "inf", "xbody": [[0, 0, 0], [5, 0, 0]], "iperout": 2}
+    ok = scene(wet("a", wamit=table), wet("b", hdb_body="body2"))
+    assert ok.wamit_statement("run.1") == {**table, "excitation_needed": False}
+    with pytest.raises(SceneError, match=r"bodies\[1\]\.wamit: differs from another body's wamit for the same HDB"):
+        scene(wet("a", wamit=table), wet("b", wamit={**table, "ulen": 1.0}))
+    with pytest.raises(SceneError, match=r"bodies\[0\]\.wamit: needs hdb"):
+        scene(body("a", mass=1.0, center_of_mass=[0, 0, 0], inertia=None, dofs=["heave"], wamit=table))
+    with pytest.raises(SceneError, match=r"bodies\[0\]\.wamit\.iperout"):
+        scene(wet("a", wamit={"iperout": 4}))
+    with pytest.raises(SceneError, match=r"bodies\[0\]\.wamit\.ulen"):
+        scene(wet("a", wamit={"ulen": -1.0}))
