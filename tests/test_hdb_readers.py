@@ -776,3 +776,21 @@ def test_scene_wamit_table_is_the_runs():
         scene(wet("a", wamit={"iperout": 4}))
     with pytest.raises(SceneError, match=r"bodies\[0\]\.wamit\.ulen"):
         scene(wet("a", wamit={"ulen": -1.0}))
+
+
+def test_wamit_file_set_within_the_protocols_16_files(tmp_path):
+    """A run with every file the reader may use (.pot/.mmx/.frc now among them), three drift files and
+    three QTF levels of each kind: the set holds the QTF level the reader reads (the most complete),
+    so it stays within SPEC §5.1's 16 files."""
+    from hydrolink.server.hdb.io import file_set
+    from hydrolink.server.hdb_files import MAX_FILES
+    suffixes = (".1", ".3", ".hst", ".out", ".cfg", ".pot", ".mmx", ".frc", ".7", ".8", ".9",
+                ".10d", ".11d", ".12d", ".10s", ".11s", ".12s")
+    for s in suffixes:
+        (tmp_path / f"run{s}").write_text("x\n")
+    names = [p.name for p in file_set(tmp_path / "run.1").paths]
+    assert len(names) <= MAX_FILES < len(suffixes)
+    assert {n for n in names if n[-1] in "ds"} == {"run.12d", "run.12s"}
+    (tmp_path / "run.12d").unlink()
+    assert {n for n in file_set(tmp_path / "run.1").paths if n.name[-1] in "ds"} == {tmp_path / "run.11d",
+                                                                                   tmp_path / "run.12s"}

@@ -22,7 +22,7 @@ from .bemio import read_bemio
 from .capytaine_io import from_capytaine_dataset
 from hydrolink.protocol.hdb_schema import HDBError, from_netcdf_dataset
 from .wamit import WAMIT_SUFFIXES, read_wamit, wamit_stem
-from .wamit_second_order import SECOND_ORDER_SUFFIXES
+from .wamit_second_order import QTF_LEVELS, SECOND_ORDER_SUFFIXES
 
 WAMIT_READ = (".1", ".2", ".3", ".hst", ".out", ".cfg", ".pot", ".mmx", ".frc",
               *SECOND_ORDER_SUFFIXES)   # the files read_wamit opens (where present)
@@ -101,6 +101,15 @@ def load_hdb(path: str | Path, *, rho: float | None = None, convention: str | No
                                    f"hydrolink or Capytaine .nc; WAMIT suffixes: {' '.join(WAMIT_SUFFIXES)})")
 
 
+def _unread_qtf_level(stem: Path, suffix: str) -> bool:
+    """A QTF file of a level the reader does not read (a more complete level of its kind is beside it)."""
+    levels = [level for level, _ in QTF_LEVELS]
+    if suffix[:-1] not in levels:
+        return False
+    better = levels[:levels.index(suffix[:-1])]
+    return any(stem.with_name(f"{stem.name}{level}{suffix[-1]}").is_file() for level in better)
+
+
 def file_set(path: str | Path, *, rho: float | None = None) -> "HDBFiles":
     """The files ``load_hdb(path)`` reads, as an HDB file set to send by content (SPEC §5.1):
     a WAMIT run's ``.1``, ``.2``/``.3``, ``.hst``, ``.out``, ``.cfg``, ``.pot``, ``.mmx``, ``.frc``
@@ -118,7 +127,8 @@ def file_set(path: str | Path, *, rho: float | None = None) -> "HDBFiles":
     if _is_wamit(path):
         stem = wamit_stem(path)
         paths = tuple(p for s in WAMIT_READ if (p := stem.with_name(stem.name + s)).is_file()
-                      and not (s == ".2" and stem.with_name(stem.name + ".3").is_file()))
+                      and not (s == ".2" and stem.with_name(stem.name + ".3").is_file())
+                      and not _unread_qtf_level(stem, s))
         if not any(p.suffix == ".1" for p in paths):
             raise HDBError(path, "file", f"WAMIT radiation file {stem.name}.1 not found")
         return HDBFiles("wamit", paths, rho)
