@@ -48,9 +48,8 @@ def load_scene_hdbs(scene: Scene, scene_path: str | Path, *, progress: bool = Tr
             hdbs[body.hdb] = file_set(path, rho=scene.water.density if nondimensional(path) else None)
         else:
             stated = next((b.hdb_convention for b in scene.bodies if b.hdb == body.hdb and b.hdb_convention), None)
-            wamit = nondimensional(path)
-            hdbs[body.hdb] = load_hdb(path, convention=stated, rho=scene.water.density if wamit else None,
-                                      wamit=scene.wamit_statement(body.hdb) if wamit else None)
+            hdbs[body.hdb] = load_hdb(path, convention=stated, wamit=scene.wamit_statement(body.hdb),
+                                      rho=scene.water.density if nondimensional(path) else None)
         if qtf is not None:
             hdbs[body.hdb] = with_nemoh_qtf(hdbs[body.hdb], scene, qtf, scene_path)
     for i, body in enumerate(scene.bodies):

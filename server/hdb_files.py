@@ -122,8 +122,9 @@ class FileSetReader:
         """The HDB of a file-set ``hdbs`` entry; ProtocolError 5/13 for the set, 9 for the files.
         ``wamit``: the scene's statement for a WAMIT run (``Scene.wamit_statement``)."""
         fs, inline = check_file_set(entry, where, self.store)
-        wamit = wamit if fs.format == "wamit" else None
-        key = (fs.format, tuple(sorted(fs.files)), fs.rho, convention, repr(sorted((wamit or {}).items())))
+        stated = repr(sorted((k, v) for k, v in (wamit or {}).items()     # other formats: without excitation_needed
+                             if fs.format == "wamit" or k != "excitation_needed"))   # (any other key is refused)
+        key = (fs.format, tuple(sorted(fs.files)), fs.rho, convention, stated)
         with self._lock:
             ds = self._parsed.get(key)
             if ds is not None:

@@ -794,3 +794,14 @@ def test_wamit_file_set_within_the_protocols_16_files(tmp_path):
     (tmp_path / "run.12d").unlink()
     assert {n for n in file_set(tmp_path / "run.1").paths if n.name[-1] in "ds"} == {tmp_path / "run.11d",
                                                                                    tmp_path / "run.12s"}
+
+
+def test_scene_wamit_table_on_another_format_is_refused(reference_data, tmp_path):
+    """A [bodies.wamit] table on a body whose HDB is not a WAMIT run: an error, not ignored."""
+    from conftest import SPHERE_WATER, scene_toml, sphere_body, write_scene
+    from hydrolink.clients.run import load_scene_hdbs
+    from hydrolink.protocol.scene import load_scene
+    path = write_scene(tmp_path, scene_toml(dt=0.1, duration=1.0, water=SPHERE_WATER, bodies=[sphere_body(
+        str(reference_data / "sphere_task10" / "sphere.h5"), mass=261.8e3, wamit={"ulen": 1.0})]))
+    with pytest.raises(HDBError, match=r"sphere\.h5: wamit: only for a WAMIT run's files"):
+        load_scene_hdbs(load_scene(path)[0], path, progress=False)
