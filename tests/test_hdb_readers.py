@@ -805,3 +805,21 @@ def test_scene_wamit_table_on_another_format_is_refused(reference_data, tmp_path
         str(reference_data / "sphere_task10" / "sphere.h5"), mass=261.8e3, wamit={"ulen": 1.0})]))
     with pytest.raises(HDBError, match=r"sphere\.h5: wamit: only for a WAMIT run's files"):
         load_scene_hdbs(load_scene(path)[0], path, progress=False)
+
+
+def test_wamit_frc_of_another_form(reference_data, tmp_path, rm3_wamit):
+    """An .frc of alternative form 2 (RHO, XCG YCG ZCG, IMASS, ...) read as form 1: an error naming the
+    file and the way out; IALTFRC = 2 in the .cfg: not read for VCG (the .out states it), the HDB is
+    the full set's; IALTFRC = 2 with a VCG != 0 is refused (its .hst's gravity terms use a mass not read)."""
+    stem = _copy_wamit(reference_data, tmp_path, exts=(".1", ".3", ".hst", ".pot"))
+    (tmp_path / "rm3.frc").write_text("rm3.frc\n1 0 1 0 0 0 0 0 0\n1000.0\n0 0 -5\n1\n" + "1 0 0 0 0 0\n" * 6)
+    err = _error(stem, wamit=RM3_STATED)
+    assert err.source == "rm3.frc" and err.field == "VCG" and "IALTFRC = 2 or 3" in err.why
+    (tmp_path / "rm3.cfg").write_text("IALTFRC=2\n")
+    shutil.copy(reference_data / "rm3_wamit" / "rm3.out", tmp_path / "rm3.out")
+    _same_as(load_hdb(stem), rm3_wamit)
+    err = _error(stem, wamit={"vcg": [0.0, -5.0]})
+    assert err.source == "rm3.out" and err.field == "VCG"      # the .out states VCG 0: contradicted
+    (tmp_path / "rm3.out").unlink()
+    err = _error(stem, wamit={**RM3_STATED, "vcg": [0.0, -5.0], "volume": [725.833, 886.687]})
+    assert err.source == "rm3.cfg" and err.field == "IALTFRC" and "only IALTFRC = 1" in err.why

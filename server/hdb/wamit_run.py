@@ -160,7 +160,8 @@ def read_frc(stem: Path, n_bodies: int) -> dict:
                 raise ValueError
     except (ValueError, IndexError):
         raise HDBError(path.name, "VCG", f"not an .frc of alternative form 1 with {n_bodies} bodies (IOPTN, then "
-                                         "per body VCG and the 3 lines of XPRDCT)") from None
+                                         "per body VCG and the 3 lines of XPRDCT); another form: say which in the "
+                                         ".cfg (IALTFRC = 2 or 3)") from None
     return {"file": path.name, "vcg": vcg}
 
 
@@ -222,7 +223,7 @@ def _file_facts(stem: Path, n_from_modes: int, cfg: dict[str, str]) -> tuple[dic
                 take(fact, kind(cfg[key].rstrip(",;")), cfg_name)
             except ValueError:
                 raise HDBError(cfg_name, key, f"not a number: {cfg[key]!r}") from None
-    if found.get("ialtfrc", (1,))[0] == 1:
+    if "vcg" not in found and found.get("ialtfrc", (1,))[0] == 1:
         frc = read_frc(stem, n_bodies)
         take("vcg", frc.get("vcg"), frc.get("file", ""))
     if out.get("periods"):
