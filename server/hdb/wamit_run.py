@@ -281,7 +281,7 @@ def run_facts(stem: Path, file1: Path, first_column: np.ndarray, n_from_modes: i
     missing = [f for f in ("ulen", "g", "depth", "xbody", "vcg", "iperout", *needed) if values.get(f) is None]
     if missing:
         raise _missing_error(stem, file1, missing)
-    return _assemble(values, origin, found, n_bodies, stem)
+    return _assemble(values, origin, found, n_bodies)
 
 
 def _missing_error(stem: Path, file1: Path, missing: list[str]) -> HDBError:
@@ -359,7 +359,7 @@ def _iperout_from_periods(out_periods: tuple, first_column: np.ndarray, values: 
     return matches[0] if len(matches) == 1 else None
 
 
-def _assemble(values: dict, origin: dict, found: dict, n_bodies: int, stem: Path) -> RunFacts:
+def _assemble(values: dict, origin: dict, found: dict, n_bodies: int) -> RunFacts:
     xbody = np.asarray(values["xbody"], float).reshape(n_bodies, -1)
     if xbody.shape[1] >= 4 and np.any(xbody[:, 3] != 0.0):
         raise HDBError(origin["xbody"], "PHIBODY",
