@@ -19,7 +19,7 @@ def load_scene_hdbs(scene: Scene, scene_path: str | Path, *, progress: bool = Tr
     A ``.toml`` HDB is a build spec: it is built with Capytaine (or taken from the cache).
     ``as_files``: the other HDBs as their original files (SPEC §5.1 "HDB file set"), not read here:
     the server reads them and checks the bodies' names in them."""
-    from hydrolink.server.hdb.io import file_set, load_hdb   # raise HDBError naming the file and field
+    from hydrolink.server.hdb.io import file_set, load_hdb, nondimensional   # raise HDBError naming the file and field
 
     hdbs: dict[str, xr.Dataset | HDBFiles] = {}
     for i, body in enumerate(scene.bodies):
@@ -33,10 +33,13 @@ def load_scene_hdbs(scene: Scene, scene_path: str | Path, *, progress: bool = Tr
             from hydrolink.server.hdb.build.builder import build_hdb
             hdbs[body.hdb] = build_hdb(path, progress=progress)
         elif as_files and qtf is None:   # with NEMOH QTF files: read here and sent as a map
-            hdbs[body.hdb] = file_set(path)
+            # a nondimensional (WAMIT) run takes the scene's density; the server reads it with the
+            # scene's bodies[i].wamit facts
+            hdbs[body.hdb] = file_set(path, rho=scene.water.density if nondimensional(path) else None)
         else:
             stated = next((b.hdb_convention for b in scene.bodies if b.hdb == body.hdb and b.hdb_convention), None)
-            hdbs[body.hdb] = load_hdb(path, convention=stated)
+            hdbs[body.hdb] = load_hdb(path, convention=stated, wamit=scene.wamit_statement(body.hdb),
+                                      rho=scene.water.density if nondimensional(path) else None)
         if qtf is not None:
             hdbs[body.hdb] = with_nemoh_qtf(hdbs[body.hdb], scene, qtf, scene_path)
     for i, body in enumerate(scene.bodies):

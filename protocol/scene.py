@@ -269,6 +269,20 @@ class NemohQTF(_Section):
         return self
 
 
+class WamitRun(_Section):
+    """``bodies[i].wamit``: what a WAMIT run's files do not state (server/hdb/wamit/run.py reads each
+    from the ``.out``, else the ``.mmx``/``.pot``/``.frc``/``.cfg`` beside the ``.1``; a value a file
+    states must agree). The run's, not the body's: the bodies of one HDB state the same table, or
+    one of them states it. Lists: one entry per body of the run, in the run's order."""
+    ulen: Length | None = None                                  # WAMIT's ULEN, m
+    gravity: Gravity | None = None                              # the run's g
+    depth: Union[Literal["inf"], Depth] | None = None           # the run's water depth (HBOT)
+    xbody: Annotated[list[Vector3], Field(min_length=1)] | None = None   # each body's XBODY(1-3)
+    vcg: Annotated[list[Coordinate], Field(min_length=1)] | None = None  # each body's VCG (body axes)
+    volume: Annotated[list[Volume], Field(min_length=1)] | None = None   # displaced volumes (VCG != 0)
+    iperout: Literal[1, 2, 3] | None = None     # first column: 1 period (s), 2 omega (rad/s), 3 omega^2 L/g
+
+
 class Body(_Section):
     name: Annotated[str, Field(min_length=1, pattern=r"^[A-Za-z0-9_\-]+$")]
     hdb: Annotated[str, Field(min_length=1)] | None = None   # None: a dry body (no hydrodynamics)
@@ -276,6 +290,8 @@ class Body(_Section):
     # the time convention of a Capytaine-layout HDB file's complex amplitudes when the file does not
     # declare it (default Capytaine's "exp(-iwt)"; WecOptTool writes "exp(+iwt)")
     hdb_convention: Literal["exp(-iwt)", "exp(+iwt)"] | None = None
+    # a WAMIT run's facts its files do not state (XBODY, ULEN, g, depth, VCG, volume, IPEROUT)
+    wamit: WamitRun | None = None
     mass: Mass
     # global frame at equilibrium; not needed by a wet body whose rotations are all locked (it
     # then sits at its HDB reference point, where the forces act)
@@ -353,6 +369,8 @@ class Body(_Section):
             raise ValueError("hdb_body: needs hdb")
         elif self.hdb_convention is not None:
             raise ValueError("hdb_convention: needs hdb")
+        elif self.wamit is not None:
+            raise ValueError("wamit: needs hdb (the WAMIT run's files)")
         for key in ("drag", "nonlinear", "mesh"):
             if getattr(self, key) is not None and self.hdb is None:
                 raise ValueError(f"{key}: only for a wet body (with hdb): the force server applies it")
@@ -845,11 +863,15 @@ class Scene(_Section):
                 raise ValueError(f"morison[{i}]: the member lies above the still water line (z >= 0 at both ends)")
         stated: dict[str, str] = {}
         qtfs: dict[str, NemohQTF] = {}
+        wamits: dict[str, WamitRun] = {}
         for i, b in enumerate(self.bodies):
             if b.hdb is not None and b.hdb_convention is not None:
                 if stated.setdefault(b.hdb, b.hdb_convention) != b.hdb_convention:
                     raise ValueError(f"bodies[{i}].hdb_convention: {b.hdb_convention} but another body states "
                                      f"{stated[b.hdb]} for the same HDB {b.hdb!r}")
+            if b.wamit is not None and wamits.setdefault(b.hdb, b.wamit) != b.wamit:
+                raise ValueError(f"bodies[{i}].wamit: differs from another body's wamit for the same HDB {b.hdb!r} "
+                                 "(the facts are the run's: state them once, or the same)")
             if b.qtf is not None and qtfs.setdefault(b.hdb, b.qtf) != b.qtf:
                 raise ValueError(f"bodies[{i}].qtf: differs from another body's qtf for the same HDB {b.hdb!r} "
                                  "(the QTF belongs to the HDB: state it once, or the same)")
@@ -1024,6 +1046,15 @@ class Scene(_Section):
         """The wet bodies whose hydrostatics are nonlinear."""
         return [b for b in self.bodies if self.nonlinear_of(b) != "none"]
 
+    def wamit_statement(self, hdb: str) -> dict:
+        """What the scene states for the WAMIT run ``hdb`` (``load_hdb(..., wamit=)``): its bodies'
+        ``wamit`` table (keys given) and ``excitation_needed`` (False in still water: a run without
+        ``.3`` is read then)."""
+        table = next((b.wamit for b in self.bodies if b.hdb == hdb and b.wamit is not None), None)
+        stated = table.model_dump(exclude_none=True) if table is not None else {}
+        stated["excitation_needed"] = getattr(self.waves, "type", "still") != "still"
+        return stated
+
     def second_order_of(self, body: Body) -> str:
         """The body's second-order wave force: its own ``second_order``, else ``[hydro]
         second_order`` for a wet body; "none" for a dry one."""
@@ -1083,6 +1114,8 @@ def load_scene(path: str | Path) -> tuple[Scene, str]:
 
 
 def resolve_path(scene_path: str | Path, relative: str) -> Path:
-    """Resolve a path written in a scene against the scene file's folder."""
+    """Resolve a path written in a scene against the scene file's folder (made absolute, symlinks
+    kept: a linked WAMIT ``.1`` finds its sibling files beside the link)."""
+    import os
     p = Path(relative).expanduser()
-    return p if p.is_absolute() else (Path(scene_path).parent / p).resolve()
+    return p if p.is_absolute() else Path(os.path.abspath(Path(scene_path).parent / p))

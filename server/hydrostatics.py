@@ -10,6 +10,10 @@ As restoring stiffness (F = -C x):
     C44 -= m g dz,  C55 -= m g dz,  C46 += m g dx,  C56 += m g dy
 (asymmetric, as in WAMIT's external stiffness). The weight's force does not change (no
 translational terms). The hydrostatic force is F_hs = -C (x - x_eq).
+
+These are added once, here: the HDB's stiffness holds none (its readers take out what the files
+include: WAMIT's -m g VCG in C44/C55 when the run's VCG != 0, server/hdb/wamit/reader.py; Capytaine's
+gravity terms, server/hdb/capytaine_io.py).
 """
 
 from __future__ import annotations

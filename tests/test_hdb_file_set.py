@@ -83,7 +83,7 @@ def test_files_by_hash_give_the_map_forces_bit_for_bit(fmt, reference_data, serv
 
 def test_wamit_file_set_holds_what_the_reader_reads(reference_data):
     files = file_set(reference_data / "rm3_wamit" / "rm3")
-    assert [p.name for p in files.paths] == ["rm3.1", "rm3.3", "rm3.hst", "rm3.out", "rm3.cfg"]
+    assert [p.name for p in files.paths] == ["rm3.1", "rm3.3", "rm3.hst", "rm3.out", "rm3.cfg", "rm3.pot", "rm3.frc"]
 
 
 def test_inline_bytes_fill_the_store(reference_data, server, store):

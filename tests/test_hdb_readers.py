@@ -15,7 +15,7 @@ from hydrolink.server.hdb.capytaine_io import from_capytaine_dataset, read_capyt
 from hydrolink.server.hdb.io import load_hdb
 from hydrolink.protocol.hdb.layout import HDBError
 from hydrolink.protocol.hdb.schema import to_netcdf
-from hydrolink.server.hdb.wamit import read_wamit
+from hydrolink.server.hdb.wamit.reader import read_wamit
 
 W_T8 = 2 * np.pi / 8.0  # RM3 standard case, T = 8 s
 HEAVE = dict(influenced_dof="float.heave", radiating_dof="float.heave")
@@ -38,7 +38,7 @@ def sphere(reference_data: Path) -> xr.Dataset:
     return load_hdb(reference_data / "sphere_task10" / "sphere.h5")
 
 
-def _copy_wamit(reference_data: Path, tmp_path: Path, exts=(".1", ".3", ".hst")) -> Path:
+def _copy_wamit(reference_data: Path, tmp_path: Path, exts=(".1", ".3", ".hst", ".out")) -> Path:
     for ext in exts:
         shutil.copy(reference_data / "rm3_wamit" / f"rm3{ext}", tmp_path / f"rm3{ext}")
     return tmp_path / "rm3"
@@ -77,19 +77,22 @@ def test_wamit_rm3_run_facts(rm3_wamit):
 
 
 def test_wamit_stem_and_shuffled_frequencies(reference_data, tmp_path, rm3_wamit):
-    stem = _copy_wamit(reference_data, tmp_path)
+    """The stem alone, rows shuffled, no .out: XBODY, depth and names from the .pot, VCG from the
+    .frc, what no file states (ULEN, g, IPEROUT) from the scene's wamit table: the full set's HDB."""
+    stem = _copy_wamit(reference_data, tmp_path, exts=(".1", ".3", ".hst", ".pot", ".frc", ".cfg"))
     rng = np.random.default_rng(0)
     for ext in (".1", ".3"):
         lines = (tmp_path / f"rm3{ext}").read_text().splitlines()
         body = lines[1:]
         rng.shuffle(body)
         (tmp_path / f"rm3{ext}").write_text("\n".join([lines[0], *body]) + "\n")
-    ds = read_wamit(stem, g=9.81)  # the stem alone; no .out: generic body names, no g (default 9.80665)
-    assert load_hdb(stem).attrs["g"] == 9.80665
-    assert list(ds["body"].values) == ["body1", "body2"]
+    ds = load_hdb(stem, wamit={"ulen": 1.0, "gravity": 9.81, "iperout": 1})
+    assert list(ds["body"].values) == ["float", "spar"]
+    assert ds.attrs["g"] == 9.81 and np.isinf(ds.attrs["water_depth"])
+    np.testing.assert_array_equal(ds["reference_point"].values, rm3_wamit["reference_point"].values)
     np.testing.assert_allclose(ds["omega"].values, rm3_wamit["omega"].values)
-    np.testing.assert_allclose(ds["added_mass"].values, rm3_wamit["added_mass"].values)
-    np.testing.assert_allclose(ds["excitation_force"].values, rm3_wamit["excitation_force"].values)
+    for name in ("added_mass", "radiation_damping", "excitation_force", "hydrostatic_stiffness", "added_mass_inf"):
+        np.testing.assert_array_equal(ds[name].values, rm3_wamit[name].values, err_msg=name)
 
 
 def test_wamit_rho_scales_coefficients(reference_data, rm3_wamit):
@@ -442,3 +445,382 @@ def test_wecopttool_file_refused_then_read_right(capytaine_buoy, tmp_path):
     assert np.all(np.abs(phase) < 0.01)                       # the regular-wave phase, heave and pitch
     info = hdb_summary(stated)
     assert "time convention of the file's complex amplitudes: exp(+iwt) (stated (hdb_convention); 2" in info
+
+
+# ---------------------------------------------------------------- WAMIT: the run's facts, read or stated (issue 40)
+
+RM3_STATED = {"ulen": 1.0, "gravity": 9.81, "iperout": 1}     # what rm3.pot/.frc/.cfg do not state
+COEFFICIENTS = ("added_mass", "radiation_damping", "excitation_force", "hydrostatic_stiffness", "added_mass_inf")
+
+
+def _same_as(ds: xr.Dataset, ref: xr.Dataset, names=COEFFICIENTS, rtol: float = 0.0) -> None:
+    for name in names:
+        np.testing.assert_allclose(ds[name].values, ref[name].values, rtol=rtol, atol=0, err_msg=name)
+
+
+def _mmx(path: Path, ulen: float = 1.0) -> Path:
+    """An .mmx as WAMIT writes it, with rm3.out's facts (g 9.81, the bodies' volumes, centres of
+    buoyancy and gravity) and ``ulen``."""
+    bodies = [("725.833      725.833      725.834", "0.000000     0.000003    -0.572734", "0.000000     0.000003     0.000000"),
+              ("886.687      886.687      886.691", "0.000000    -0.000002     5.686012", "0.000000    -0.000002     0.000000")]
+    lines = [" WAMIT -- Force Output File -- rm3.mmx", "", f" Gravity:     9.81000                Length scale:        {ulen:.5f}",
+             "", " NBODY =     2       IALTFRC = 1", " "]
+    for n, (vol, cb, cg) in enumerate(bodies, start=1):
+        lines += [f" WAMIT  Ouputs for body N =     {n}    IALTFRCN = 1", f" Volumes (VOLX,VOLY,VOLZ):           {vol}",
+                  f" Center of Buoyancy (Xb,Yb,Zb):     {cb}", f" Center of Gravity:  (Xg,Yg,Zg)     {cg}", "",
+                  " Normalized mass matrix: ", "     I     J     MASS(I,J)/RHO", "     1     1     7.258330E+02", " "]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_wamit_without_out_names_what_no_file_states(reference_data, tmp_path, rm3_wamit):
+    """Before: read with XBODY at the origin, ULEN 1, g 9.80665, infinite depth, silently. Now each
+    value no file states is named with its scene key; the .pot/.frc state XBODY, depth and VCG."""
+    stem = _copy_wamit(reference_data, tmp_path, exts=(".1", ".3", ".hst"))
+    err = _error(stem)
+    assert err.field == "wamit" and "the run's ULEN, g, water depth, XBODY, VCG, IPEROUT are" in err.why
+    assert "stated by no file: no file beside it (no .out/.mmx/.pot/.frc/.cfg)" in err.why
+    assert "[bodies.wamit] table (ulen, gravity, depth, xbody, vcg, iperout)" in err.why
+    _copy_wamit(reference_data, tmp_path, exts=(".pot", ".frc", ".cfg"))
+    err = _error(stem)
+    assert err.field == "wamit" and "(ulen, gravity, iperout)" in err.why
+    assert "rm3.pot, rm3.frc, rm3.cfg beside it (no .out/.mmx)" in err.why
+    ds = load_hdb(stem, wamit=RM3_STATED)
+    np.testing.assert_array_equal(ds["reference_point"].values, rm3_wamit["reference_point"].values)
+    assert list(ds["body"].values) == ["float", "spar"] and np.isinf(ds.attrs["water_depth"])
+    _same_as(ds, rm3_wamit)
+    # all stated, no file but the three numeric ones: the same HDB (generic body names)
+    for ext in (".pot", ".frc", ".cfg"):
+        (tmp_path / f"rm3{ext}").unlink()
+    ds = load_hdb(stem, wamit={**RM3_STATED, "depth": "inf", "xbody": [[0, 0, -0.72], [0, 0, -21.29]], "vcg": [0, 0]})
+    assert list(ds["body"].values) == ["body1", "body2"]
+    np.testing.assert_array_equal(ds["reference_point"].values, rm3_wamit["reference_point"].values)
+    _same_as(ds, rm3_wamit)
+
+
+def test_wamit_mmx_states_ulen_and_g(reference_data, tmp_path, rm3_wamit):
+    """.mmx (g, ULEN, volumes) + .pot + .frc + IPEROUT: no key needed. A run whose ULEN is 2 (before:
+    read as 1, added mass x1/8, rotational x1/32, stiffness and excitation x1/4): A = rho L^k Abar,
+    B = rho w L^k Bbar, C = rho g L^k Cbar, X = rho g L^m Xbar (WAMIT's definitions) against the
+    full set's (ULEN 1) values."""
+    stem = _copy_wamit(reference_data, tmp_path, exts=(".1", ".3", ".hst", ".pot", ".frc"))
+    (tmp_path / "rm3.cfg").write_text("IPEROUT=1\n")
+    _mmx(tmp_path / "rm3.mmx")
+    ds = load_hdb(stem)
+    _same_as(ds, rm3_wamit)
+    np.testing.assert_allclose(ds["displaced_volume"].values, rm3_wamit["displaced_volume"].values)
+    _mmx(tmp_path / "rm3.mmx", ulen=2.0)
+    scaled = load_hdb(stem)
+    pairs = {"added_mass": (8, 16, 32), "radiation_damping": (8, 16, 32), "hydrostatic_stiffness": (4, 8, 16)}
+    for name, (tt, tr, rr) in pairs.items():
+        for (i, j), factor in (((2, 2), tt), ((0, 4), tr), ((4, 4), rr), ((6, 10), tr), ((3, 9), rr)):
+            a, b = rm3_wamit[name].values[..., i, j], scaled[name].values[..., i, j]
+            np.testing.assert_allclose(b, factor * a, rtol=1e-12, err_msg=f"{name}[{i},{j}]")
+    x, xs = rm3_wamit["excitation_force"].values, scaled["excitation_force"].values
+    np.testing.assert_allclose(xs[..., [0, 2, 6, 8]], 4 * x[..., [0, 2, 6, 8]], rtol=1e-12)
+    np.testing.assert_allclose(xs[..., [4, 10]], 8 * x[..., [4, 10]], rtol=1e-12)
+
+
+def test_wamit_stated_value_a_file_contradicts(reference_data, tmp_path):
+    """The OSWEC's case: a depth stated that the .pot (HBOT 0: infinite) contradicts is an error
+    naming the file, the field and both values; a list of the wrong length names the key."""
+    stem = _copy_wamit(reference_data, tmp_path, exts=(".1", ".3", ".hst", ".pot", ".frc"))
+    err = _error(stem, wamit={**RM3_STATED, "depth": 10.9})
+    assert err.source == "rm3.pot" and err.field == "water depth"
+    assert "the file states inf, the scene's wamit.depth 10.9" in err.why
+    err = _error(stem, wamit={**RM3_STATED, "vcg": [0.0]})
+    assert err.field == "wamit.vcg" and "1 values for the run's 2 bodies" in err.why
+    err = _error(reference_data / "sphere_task10" / "sphere.h5", wamit={"ulen": 1.0})
+    assert err.field == "wamit"
+
+
+def test_wamit_symlinked_one_finds_siblings_beside_the_link(reference_data, tmp_path, rm3_wamit):
+    """Before: the siblings were looked for beside the link's target. The scene's path keeps the link."""
+    from hydrolink.protocol.scene import resolve_path
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    shutil.copy(reference_data / "rm3_wamit" / "rm3.1", elsewhere / "rm3.1")   # alone: no .3, .hst, .out
+    here = tmp_path / "here"
+    here.mkdir()
+    _copy_wamit(reference_data, here, exts=(".3", ".hst", ".out"))
+    (here / "rm3.1").symlink_to(elsewhere / "rm3.1")
+    path = resolve_path(here / "scene.toml", "rm3.1")
+    assert path == here / "rm3.1"
+    _same_as(load_hdb(path), rm3_wamit)
+
+
+def test_wamit_without_excitation_for_still_water(reference_data, tmp_path, rm3_wamit):
+    """Before: refused even for a still-water decay. Now read when the scene needs no excitation
+    (Scene.wamit_statement), refused with the reason when it does."""
+    from conftest import body, regular_waves, scene_toml
+    from hydrolink.protocol.scene import parse_scene
+    stem = _copy_wamit(reference_data, tmp_path, exts=(".1", ".hst", ".out"))
+    bodies = [body("float", hdb="rm3.1", mass=725833.0, center_of_mass=None, inertia=None, dofs=["heave"])]
+    still = parse_scene(scene_toml(dt=0.1, duration=1.0, bodies=bodies))
+    waves = parse_scene(scene_toml(dt=0.1, duration=1.0, bodies=bodies, waves=regular_waves(1.0, 8.0)))
+    assert still.wamit_statement("rm3.1") == {"excitation_needed": False}
+    err = _error(stem, wamit=waves.wamit_statement("rm3.1"))
+    assert err.field == "excitation_force" and "the scene's waves need the excitation force" in err.why
+    ds = load_hdb(stem, wamit=still.wamit_statement("rm3.1"))
+    _same_as(ds, rm3_wamit, names=("added_mass", "radiation_damping", "hydrostatic_stiffness", "added_mass_inf"))
+    assert not np.any(ds["excitation_force"].values) and "absent" in ds.attrs["excitation_force"]
+
+
+def _rewrite_first_column(path: Path, to_frequency: bool = True) -> None:
+    """The file with each positive period T of its first column written as 2 pi / T (IPEROUT 2);
+    the -1 and 0 markers as they are."""
+    lines = path.read_text().splitlines()
+    out = [lines[0]]
+    for line in lines[1:]:
+        first, rest = line.split(None, 1)
+        t = float(first)
+        out.append(f" {2 * np.pi / t if t > 0 and to_frequency else t:.6E} {rest}")
+    path.write_text("\n".join(out) + "\n")
+
+
+def test_wamit_frequency_column_from_iperout_or_the_out(reference_data, tmp_path, rm3_wamit):
+    """RM3 written with frequencies (IPEROUT 2). Before: read as periods (omega 1.2...314 rad/s) where
+    the .cfg lacks IPEROUT, and with IPEROUT 2 the A_inf rows were dropped. Now: IPEROUT 2 from the
+    .cfg keeps A_inf; without it the .out's period list tells; without both, an error naming the key;
+    a .cfg the .out contradicts, an error naming both."""
+    stem = _copy_wamit(reference_data, tmp_path, exts=(".1", ".3", ".hst", ".pot", ".frc"))
+    for ext in (".1", ".3"):
+        _rewrite_first_column(tmp_path / f"rm3{ext}")
+    (tmp_path / "rm3.cfg").write_text("IPEROUT=2\n")
+    ds = load_hdb(stem, wamit={"ulen": 1.0, "gravity": 9.81})
+    np.testing.assert_allclose(ds["omega"].values, rm3_wamit["omega"].values, rtol=1e-6)
+    _same_as(ds, rm3_wamit, names=("added_mass", "added_mass_inf", "hydrostatic_stiffness"))
+    _same_as(ds, rm3_wamit, names=("radiation_damping", "excitation_force"), rtol=1e-6)   # B = rho w L^k Bbar
+    (tmp_path / "rm3.cfg").unlink()
+    err = _error(stem, wamit={"ulen": 1.0, "gravity": 9.81})
+    assert err.field == "wamit.iperout" and "1 if the first column holds periods" in err.why
+    shutil.copy(reference_data / "rm3_wamit" / "rm3.out", tmp_path / "rm3.out")
+    ds = load_hdb(stem)
+    np.testing.assert_allclose(ds["omega"].values, rm3_wamit["omega"].values, rtol=1e-6)
+    assert "iperout: rm3.out's period list" in ds.attrs["wamit_facts_from"]
+    (tmp_path / "rm3.cfg").write_text("IPEROUT=1\n")
+    err = _error(stem)
+    assert err.source == "rm3.cfg" and err.field == "IPEROUT"
+    assert "matches rm3.out's period list as angular frequencies in rad/s (IPEROUT 2)" in err.why
+    err = _error(reference_data / "rm3_wamit" / "rm3", wamit={"iperout": 2})
+    assert err.field == "IPEROUT" and "the scene's wamit.iperout 2" in err.why
+
+
+def test_wamit_out_of_another_run(reference_data, tmp_path):
+    """An .out whose period list is not the .1's first column, read any way, is an error."""
+    stem = _copy_wamit(reference_data, tmp_path)
+    lines = (tmp_path / "rm3.1").read_text().splitlines()
+    (tmp_path / "rm3.1").write_text("\n".join(line for line in lines if not line.startswith("  3.141593E+02")) + "\n")
+    err = _error(stem)
+    assert err.source == "rm3.out" and err.field == "Period" and "is this report of the same run?" in err.why
+
+
+def test_scene_states_the_run_and_its_density(reference_data, tmp_path, rm3_wamit):
+    """Through a scene (hydrolink run's loader): the [bodies.wamit] table states what rm3.pot/.frc do
+    not; the nondimensional set takes the scene's 1025 kg/m^3 (A = rho L^k Abar), and the set-up
+    has no note that "the HDB's 1000 kg/m^3" differs (before: it had, about the reader's default)."""
+    from conftest import rm3_float, scene_toml, write_scene
+    from hydrolink.clients.scene_inputs import load_scene_hdbs
+    from hydrolink.protocol.scene import load_scene
+    from hydrolink.server.model import HydroModel
+    _copy_wamit(reference_data, tmp_path, exts=(".1", ".3", ".hst", ".pot", ".frc"))
+    text = scene_toml(dt=0.1, duration=1.0, water={"density": 1025.0, "gravity": 9.81},
+                      bodies=[rm3_float("rm3.1", dofs=["heave"], wamit=RM3_STATED)])
+    path = write_scene(tmp_path, text)
+    scene, _ = load_scene(path)
+    hdbs = load_scene_hdbs(scene, path, progress=False)
+    ds = hdbs["rm3.1"]
+    assert ds.attrs["rho"] == 1025.0
+    np.testing.assert_allclose(ds["added_mass"].values, 1.025 * rm3_wamit["added_mass"].values, rtol=1e-15)
+    np.testing.assert_allclose(ds["hydrostatic_stiffness"].values, 1.025 * rm3_wamit["hydrostatic_stiffness"].values,
+                               rtol=1e-15)
+    model = HydroModel(scene, {"float": ds})
+    assert not [w for w in model.warnings if w.startswith("water:")], model.warnings
+    err = _error(tmp_path / "rm3.1", wamit=scene.wamit_statement("nope.1"))
+    assert err.field == "wamit" and "(ulen, gravity, iperout)" in err.why
+
+
+# ---------------------------------------------------------------- WAMIT: VCG, on a hand-built set
+
+R, DRAFT, RHO, G = 3.0, 2.0, 1000.0, 9.81      # a vertical cylinder, XBODY at the waterline
+
+
+def _cylinder_run(folder: Path, vcg: float, source: str) -> Path:
+    """A one-body WAMIT run of a vertical cylinder (radius R, draft DRAFT, ULEN 1) whose .hst holds,
+    as WAMIT writes it, the hydrostatics plus the gravity term -V VCG in C44 and C55 (nondimensional,
+    m = rho V): C33 = pi R^2, C44 = C55 = pi R^4 / 4 + V z_b - V VCG with z_b = -DRAFT/2. VCG is
+    stated by the .frc (``source`` "frc") or by the .out's centre of gravity ("out")."""
+    folder.mkdir()
+    stem = folder / "cyl"
+    volume, zb = np.pi * R**2 * DRAFT, -DRAFT / 2
+    c44 = np.pi * R**4 / 4 + volume * zb - volume * vcg
+    rows = [f"{p} {i} {i} {1.0 + 0.1 * i} {0.2 * i}" for p in (8.0, 4.0) for i in range(1, 7)]
+    (folder / "cyl.1").write_text("\n".join([f"0.0 {i} {i} {0.9 + 0.1 * i}" for i in range(1, 7)] + rows) + "\n")
+    (folder / "cyl.3").write_text("\n".join(f"{p} 0.0 {i} 1.0 0.0 {0.3 * i} {0.1 * i}" for p in (8.0, 4.0)
+                                            for i in range(1, 7)) + "\n")
+    (folder / "cyl.hst").write_text(f"3 3 {np.pi * R**2!r}\n4 4 {c44!r}\n5 5 {c44!r}\n")
+    (folder / "cyl.cfg").write_text("IPEROUT=1\n")
+    if source == "frc":
+        (folder / "cyl.pot").write_text("cyl.pot\n0.0\n1 1\n2\n8.0 4.0\n1\n0.0\n1\ncyl.gdf\n0 0 0 0\n1 1 1 1 1 1\n")
+        (folder / "cyl.frc").write_text(f"cyl.frc\n1 0 1 0 0 0 0 0 0\n{vcg!r}\n0 0 0\n0 0 0\n0 0 0\n0\n0\n")
+    else:
+        (folder / "cyl.out").write_text("\n".join([
+            " Input from Geometric Data Files:", "                               N=  1     cyl.gdf", "",
+            f" Gravity:     {G:.5f}                Length scale:        1.00000",
+            " Water depth:        infinite", "",
+            " XBODY =    0.0000 YBODY =    0.0000 ZBODY =    0.0000 PHIBODY =   0.0",
+            f" Volumes (VOLX,VOLY,VOLZ):           {volume:.6f}      {volume:.6f}      {volume:.6f}",
+            f" Center of Buoyancy (Xb,Yb,Zb):     0.000000     0.000000    {zb:.6f}",
+            f" Center of Gravity  (Xg,Yg,Zg):     0.000000     0.000000    {vcg:.6f}", ""]) + "\n")
+    return stem
+
+
+@pytest.mark.parametrize("source", ["frc", "out"])
+def test_wamit_hst_gravity_terms_taken_out(tmp_path, source):
+    """Before: a VCG = -5 m .hst was read as it is and the scene's gravity terms were added again
+    (C44 +98 % here; RM3's spar pitch +46 %). Now the HDB's stiffness is buoyancy and waterplane only,
+    rho g (pi R^4/4 + V z_b), the same with VCG 0 and -5; with the scene's gravity (m = rho V, centre
+    of gravity at VCG) the total is rho g V GM, GM = KB + BM - KG (BM = R^2 / (4 DRAFT))."""
+    from hydrolink.server.hydrostatics import total_stiffness
+    volume = np.pi * R**2 * DRAFT
+    hydro = RHO * G * (np.pi * R**4 / 4 - volume * DRAFT / 2)
+    stated = {"gravity": G, "ulen": 1.0, "volume": [volume]} if source == "frc" else {}
+    for vcg in (0.0, -5.0):
+        ds = load_hdb(_cylinder_run(tmp_path / f"{source}{vcg}", vcg, source), rho=RHO, wamit=stated)
+        k = ds["hydrostatic_stiffness"].values
+        assert k[2, 2] == pytest.approx(RHO * G * np.pi * R**2, rel=1e-12)
+        assert k[3, 3] == pytest.approx(hydro, rel=1e-6) and k[4, 4] == pytest.approx(hydro, rel=1e-6)
+        total = total_stiffness(k, np.array([RHO * volume]), np.array([[0, 0, vcg]]), ds["reference_point"].values, G)
+        gm = DRAFT / 2 + R**2 / (4 * DRAFT) - (DRAFT + vcg)
+        assert total[3, 3] == pytest.approx(RHO * G * volume * gm, rel=1e-6)
+        assert total[4, 4] == pytest.approx(RHO * G * volume * gm, rel=1e-6)
+
+
+def test_wamit_vcg_without_volume_names_the_key(tmp_path):
+    stem = _cylinder_run(tmp_path / "run", -5.0, "frc")
+    err = _error(stem, wamit={"gravity": G, "ulen": 1.0})
+    assert err.field == "wamit.volume" and "-m g VCG terms" in err.why
+
+
+# ---------------------------------------------------------------- Capytaine layout: headings' units
+
+def test_capytaine_headings_unit_from_attributes(reference_data, tmp_path, rm3_capytaine):
+    """The RM3 file with its heading written as 30 (before: read as 30 rad, listed as 1719 deg):
+    units "degrees" -> pi/6 with the same forces; in a radian field (units "rad" or none) 30 is
+    more than 2 pi: refused, naming the field and the way out."""
+    with xr.open_dataset(reference_data / "rm3_capytaine" / "rm3_hydrodynamics.nc") as raw:
+        base = raw.load()
+
+    def variant(name: str, units: str | None) -> Path:
+        attrs = {k: v for k, v in base["wave_direction"].attrs.items() if k != "units"}
+        if units is not None:
+            attrs["units"] = units
+        ds = base.assign_coords(wave_direction=xr.DataArray([30.0], dims="wave_direction", attrs=attrs))
+        ds.to_netcdf(tmp_path / name)
+        return tmp_path / name
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # rotation centre not recorded in this file
+        ds = load_hdb(variant("deg.nc", "degrees"))
+    np.testing.assert_allclose(ds["wave_direction"].values, [np.pi / 6], rtol=1e-15)
+    np.testing.assert_array_equal(ds["excitation_force"].values, rm3_capytaine["excitation_force"].values)
+    for units, said in (("rad", "units = 'rad'"), (None, "no units attribute")):
+        err = _error(variant(f"rad{units}.nc", units))
+        assert err.field == "wave_direction" and "30 is more than 2 pi in a field in radians" in err.why
+        assert said in err.why and 'units to "degrees"' in err.why
+    err = _error(variant("grad.nc", "grad"))
+    assert err.field == "wave_direction.units"
+
+
+def test_wamit_file_set_read_with_the_scene_statement(reference_data, tmp_path, rm3_wamit):
+    """Sent by content (run --hdb-files): the .pot/.frc travel in the set, the server reads it with
+    the scene's statement (session.py passes Scene.wamit_statement) and the scene's density; the
+    same HDB as the full set's at 1025 kg/m^3. Without the statement: the error names the keys."""
+    from hydrolink.server.hdb.io import file_set
+    from hydrolink.server.hdb.file_set import FileSetReader
+    from hydrolink.server.hdb.store import ContentStore
+    from hydrolink.protocol.codec import ProtocolError
+    stem = _copy_wamit(reference_data, tmp_path, exts=(".1", ".3", ".hst", ".pot", ".frc"))
+    files = file_set(stem, rho=1025.0)
+    assert [p.name for p in files.paths] == ["rm3.1", "rm3.3", "rm3.hst", "rm3.pot", "rm3.frc"]
+    reader = FileSetReader(ContentStore(None))
+    ds = reader.read(files.entry(inline=True), 'hdbs["rm3.1"]', None, {**RM3_STATED, "excitation_needed": True})
+    assert ds.attrs["rho"] == 1025.0
+    np.testing.assert_array_equal(ds["reference_point"].values, rm3_wamit["reference_point"].values)
+    np.testing.assert_allclose(ds["added_mass"].values, 1.025 * rm3_wamit["added_mass"].values, rtol=1e-15)
+    with pytest.raises(ProtocolError) as info:
+        reader.read(files.entry(inline=True), 'hdbs["rm3.1"]', None, {"excitation_needed": True})
+    assert info.value.field == 'hdbs["rm3.1"].files["rm3.1"].wamit'
+    assert "the run's ULEN, g, IPEROUT are stated by no file" in info.value.message
+
+
+def test_scene_wamit_table_is_the_runs():
+    """bodies[i].wamit: only with hdb; the bodies of one HDB state the same table (or one does);
+    keys checked like every scene key."""
+    from conftest import body, scene_toml
+    from hydrolink.protocol.scene import SceneError, parse_scene
+
+    def scene(*bodies):
+        return parse_scene(scene_toml(dt=0.1, duration=1.0, bodies=list(bodies)))
+
+    def wet(name, **keys):
+        return body(name, hdb="run.1", mass=1.0, center_of_mass=None, inertia=None, dofs=["heave"], **keys)
+
+    table = {"ulen": 2.0, "depth": "inf", "xbody": [[0, 0, 0], [5, 0, 0]], "iperout": 2}
+    ok = scene(wet("a", wamit=table), wet("b", hdb_body="body2"))
+    assert ok.wamit_statement("run.1") == {**table, "excitation_needed": False}
+    with pytest.raises(SceneError, match=r"bodies\[1\]\.wamit: differs from another body's wamit for the same HDB"):
+        scene(wet("a", wamit=table), wet("b", wamit={**table, "ulen": 1.0}))
+    with pytest.raises(SceneError, match=r"bodies\[0\]\.wamit: needs hdb"):
+        scene(body("a", mass=1.0, center_of_mass=[0, 0, 0], inertia=None, dofs=["heave"], wamit=table))
+    with pytest.raises(SceneError, match=r"bodies\[0\]\.wamit\.iperout"):
+        scene(wet("a", wamit={"iperout": 4}))
+    with pytest.raises(SceneError, match=r"bodies\[0\]\.wamit\.ulen"):
+        scene(wet("a", wamit={"ulen": -1.0}))
+
+
+def test_wamit_file_set_within_the_protocols_16_files(tmp_path):
+    """A run with every file the reader may use (.pot/.mmx/.frc now among them), three drift files and
+    three QTF levels of each kind: the set holds the QTF level the reader reads (the most complete),
+    so it stays within SPEC §5.1's 16 files."""
+    from hydrolink.server.hdb.io import file_set
+    from hydrolink.server.hdb.file_set import MAX_FILES
+    suffixes = (".1", ".3", ".hst", ".out", ".cfg", ".pot", ".mmx", ".frc", ".7", ".8", ".9",
+                ".10d", ".11d", ".12d", ".10s", ".11s", ".12s")
+    for s in suffixes:
+        (tmp_path / f"run{s}").write_text("x\n")
+    names = [p.name for p in file_set(tmp_path / "run.1").paths]
+    assert len(names) <= MAX_FILES < len(suffixes)
+    assert {n for n in names if n[-1] in "ds"} == {"run.12d", "run.12s"}
+    (tmp_path / "run.12d").unlink()
+    assert {n for n in file_set(tmp_path / "run.1").paths if n.name[-1] in "ds"} == {tmp_path / "run.11d",
+                                                                                   tmp_path / "run.12s"}
+
+
+def test_scene_wamit_table_on_another_format_is_refused(reference_data, tmp_path):
+    """A [bodies.wamit] table on a body whose HDB is not a WAMIT run: an error, not ignored."""
+    from conftest import SPHERE_WATER, scene_toml, sphere_body, write_scene
+    from hydrolink.clients.scene_inputs import load_scene_hdbs
+    from hydrolink.protocol.scene import load_scene
+    path = write_scene(tmp_path, scene_toml(dt=0.1, duration=1.0, water=SPHERE_WATER, bodies=[sphere_body(
+        str(reference_data / "sphere_task10" / "sphere.h5"), mass=261.8e3, wamit={"ulen": 1.0})]))
+    with pytest.raises(HDBError, match=r"sphere\.h5: wamit: only for a WAMIT run's files"):
+        load_scene_hdbs(load_scene(path)[0], path, progress=False)
+
+
+def test_wamit_frc_of_another_form(reference_data, tmp_path, rm3_wamit):
+    """An .frc of alternative form 2 (RHO, XCG YCG ZCG, IMASS, ...) read as form 1: an error naming the
+    file and the way out; IALTFRC = 2 in the .cfg: not read for VCG (the .out states it), the HDB is
+    the full set's; IALTFRC = 2 with a VCG != 0 is refused (its .hst's gravity terms use a mass not read)."""
+    stem = _copy_wamit(reference_data, tmp_path, exts=(".1", ".3", ".hst", ".pot"))
+    (tmp_path / "rm3.frc").write_text("rm3.frc\n1 0 1 0 0 0 0 0 0\n1000.0\n0 0 -5\n1\n" + "1 0 0 0 0 0\n" * 6)
+    err = _error(stem, wamit=RM3_STATED)
+    assert err.source == "rm3.frc" and err.field == "VCG" and "IALTFRC = 2 or 3" in err.why
+    (tmp_path / "rm3.cfg").write_text("IALTFRC=2\n")
+    shutil.copy(reference_data / "rm3_wamit" / "rm3.out", tmp_path / "rm3.out")
+    _same_as(load_hdb(stem), rm3_wamit)
+    err = _error(stem, wamit={"vcg": [0.0, -5.0]})
+    assert err.source == "rm3.out" and err.field == "VCG"      # the .out states VCG 0: contradicted
+    (tmp_path / "rm3.out").unlink()
+    err = _error(stem, wamit={**RM3_STATED, "vcg": [0.0, -5.0], "volume": [725.833, 886.687]})
+    assert err.source == "rm3.cfg" and err.field == "IALTFRC" and "only IALTFRC = 1" in err.why

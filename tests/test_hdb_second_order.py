@@ -48,10 +48,14 @@ def _qtf_bar(per_i: float, per_j: float, mode: int) -> complex:
 
 
 def _write_run(folder: Path, name: str = "cyl") -> Path:
-    """A one-body WAMIT run: .1/.3/.hst/.cfg (ULEN = 2), .8 and .9 mean drift, .12d and .12s QTFs."""
+    """A one-body WAMIT run: .1/.3/.hst/.cfg (ULEN = 2, periods), .pot (deep water, XBODY at the
+    origin), .frc (VCG 0), .8 and .9 mean drift, .12d and .12s QTFs."""
     folder.mkdir(parents=True, exist_ok=True)
     stem = folder / name
-    (stem.with_suffix(".cfg")).write_text(f"ULEN = {ULEN}\nGRAV = {G}\n")
+    (stem.with_suffix(".cfg")).write_text(f"ULEN = {ULEN}\nGRAV = {G}\nIPEROUT = 1\n")
+    (stem.with_suffix(".pot")).write_text(f"{name}.pot\n0.0  HBOT\n1 1\n1\n{PERIODS[0]}\n1\n0.0\n1\n"
+                                          f"{name}.gdf\n0.0 0.0 0.0 0.0\n1 1 1 1 1 1\n")
+    (stem.with_suffix(".frc")).write_text(f"{name}.frc\n1 0 1 0 0 0 0 0 0\n0.0\n0 0 0\n0 0 0\n0 0 0\n0\n0\n")
     rows1 = ["   0.0  1  1  1.2"] + [f"{p}  {i}  {i}  {1 + 0.1 * i}  {0.5 + 0.01 * i}" for p in PERIODS for i in range(1, 7)]
     (stem.with_suffix(".1")).write_text("\n".join(rows1) + "\n")
     rows3 = [f"{p}  0.0  {i}  1.0  0.0  {0.3 * i}  {0.1 * i}" for p in PERIODS for i in range(1, 7)]
@@ -320,8 +324,8 @@ def test_build_drift_equals_capytaines_own_wamit_8(built_cylinder, tmp_path):
     from capytaine.post_pro.mean_drift_force import far_field_mean_drift_force
 
     from hydrolink.server.hdb.build.builder import load_spec, make_meshes
-    from hydrolink.server.hdb.wamit_second_order import read_drift
-    from hydrolink.server.hdb.wamit_table import Units
+    from hydrolink.server.hdb.wamit.second_order import read_drift
+    from hydrolink.server.hdb.wamit.table import Units
 
     spec_path, ds = built_cylinder
     spec = load_spec(spec_path)

@@ -19,8 +19,8 @@ from hydrolink.protocol.hdb.schema import with_second_order
 from hydrolink.protocol.scene import parse_scene
 from hydrolink.server.errors import ModelError
 from hydrolink.server.terms.base import TermContext
-from hydrolink.server.hdb.wamit_second_order import read_drift, read_qtf
-from hydrolink.server.hdb.wamit_table import Units
+from hydrolink.server.hdb.wamit.second_order import read_drift, read_qtf
+from hydrolink.server.hdb.wamit.table import Units
 from hydrolink.server.model import HydroModel
 from hydrolink.server.terms.second_order import SecondOrderTerm
 from hydrolink.server.sea.waves import WaveComponents

@@ -14,6 +14,9 @@ Capytaine uses exp(-i w t) and SI units: nothing is rescaled. Conversions:
   Capytaine's ``rotation_center`` coordinate, the ``center_of_mass`` coordinate (Capytaine puts
   rotation DOFs there when no centre is given), else the origin with a warning (Capytaine's
   ``rigid_body_dofs()`` default). The attribute ``reference_point_from`` says which.
+* Headings: the ``wave_direction`` coordinate's ``units`` attribute says radians (Capytaine's
+  "rad", or none) or degrees (converted); a value the unit cannot hold (more than 2 pi radians or
+  360 degrees) is an error.
 * Time convention of the complex amplitudes (Capytaine: exp(-i w t); WecOptTool 3.3's ``run_bem``
   conjugates the Froude-Krylov, diffraction and excitation forces to exp(+i w t) and marks nothing):
   the one the file declares (an attribute whose name holds "convention", e.g.
@@ -92,6 +95,36 @@ def _frequency_axis(ds: xr.Dataset, source: str) -> xr.Dataset:
     if dim is None or "omega" not in ds.coords:
         raise HDBError(source, "omega", "no frequency dimension with an 'omega' coordinate")
     return ds.swap_dims({dim: "omega"})
+
+
+_DEGREES = ("deg", "degree", "degrees", "°")
+_RADIANS = ("rad", "radian", "radians")
+
+
+def _headings_in_radians(ds: xr.Dataset, source: str) -> xr.Dataset:
+    """The ``wave_direction`` coordinate in radians, its unit read from its ``units`` attribute
+    (Capytaine writes "rad"; none: radians, Capytaine's). Refused: an unknown unit, and values
+    that cannot be the stated unit's (|beta| > 2 pi in radians, > 360 in degrees)."""
+    if "wave_direction" not in ds.variables:
+        return ds
+    da = ds["wave_direction"]
+    stated = str(da.attrs.get("units", "")).strip()
+    unit = stated.lower()
+    values = np.asarray(da.values, float)
+    largest = float(np.abs(values).max()) if values.size else 0.0
+    if unit in _DEGREES:
+        if largest > 360.0 + 1e-9:
+            raise HDBError(source, "wave_direction", f"{largest:g} is more than 360 degrees (units = {stated!r})")
+        return ds.assign_coords(wave_direction=xr.DataArray(np.deg2rad(values), dims=da.dims,
+                                                            attrs={**da.attrs, "units": "rad"}))
+    if unit not in ("", *_RADIANS):
+        raise HDBError(source, "wave_direction.units", f"{stated!r} is neither radians ({', '.join(_RADIANS)}) "
+                                                       f"nor degrees ({', '.join(_DEGREES)})")
+    if largest > 2 * math.pi + 1e-9:
+        said = f"units = {stated!r}" if stated else "no units attribute: radians, Capytaine's"
+        raise HDBError(source, "wave_direction", f"{largest:g} is more than 2 pi in a field in radians ({said}): "
+                                                 "headings in degrees? set the coordinate's units to \"degrees\"")
+    return ds
 
 
 def _parse_dofs(labels: Sequence[str], single_body: str, source: str, field: str) -> list[tuple[str, int]]:
@@ -309,7 +342,7 @@ def from_capytaine_dataset(ds: xr.Dataset, source: str | Path, *,
     """Convert a Capytaine result dataset (in memory or re-opened NetCDF) to the internal HDB;
     ``convention``: the time convention of its complex amplitudes when the file does not say."""
     source = str(source)
-    ds = _frequency_axis(merge_complex(ds), source)
+    ds = _headings_in_radians(_frequency_axis(merge_complex(ds), source), source)
     for name in ("added_mass", "radiation_damping", "excitation_force", "hydrostatic_stiffness"):
         if name not in ds:
             hint = " (solve the diffraction problems too)" if name == "excitation_force" else (

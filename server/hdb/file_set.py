@@ -24,7 +24,7 @@ from hydrolink.protocol.codec import Code, ProtocolError
 from hydrolink.protocol.hdb.wire import FILE_FORMATS
 from hydrolink.server.hdb.io import load_hdb
 from hydrolink.protocol.hdb.layout import HDBError
-from hydrolink.server.hdb.wamit import WAMIT_SUFFIXES
+from hydrolink.server.hdb.wamit.reader import WAMIT_SUFFIXES
 from hydrolink.server.hdb.store import HASH, ContentStore
 
 MAX_FILES = 16
@@ -118,10 +118,13 @@ class FileSetReader:
         self._parsed: OrderedDict[tuple, xr.Dataset] = OrderedDict()
         self._lock = threading.Lock()   # hellos are set up in worker threads (server/service/setup_workers.py)
 
-    def read(self, entry: dict, where: str, convention: str | None) -> xr.Dataset:
-        """The HDB of a file-set ``hdbs`` entry; ProtocolError 5/13 for the set, 9 for the files."""
+    def read(self, entry: dict, where: str, convention: str | None, wamit: dict | None = None) -> xr.Dataset:
+        """The HDB of a file-set ``hdbs`` entry; ProtocolError 5/13 for the set, 9 for the files.
+        ``wamit``: the scene's statement for a WAMIT run (``Scene.wamit_statement``)."""
         fs, inline = check_file_set(entry, where, self.store)
-        key = (fs.format, tuple(sorted(fs.files)), fs.rho, convention)
+        stated = repr(sorted((k, v) for k, v in (wamit or {}).items()     # other formats: without excitation_needed
+                             if fs.format == "wamit" or k != "excitation_needed"))   # (any other key is refused)
+        key = (fs.format, tuple(sorted(fs.files)), fs.rho, convention, stated)
         with self._lock:
             ds = self._parsed.get(key)
             if ds is not None:
@@ -138,7 +141,7 @@ class FileSetReader:
             main = fs.main
             try:
                 ds = load_hdb(Path(tmp) / main, rho=fs.rho,
-                              convention=convention if fs.format == "netcdf" else None)
+                              convention=convention if fs.format == "netcdf" else None, wamit=wamit)
             except HDBError as exc:
                 name = Path(str(exc.source)).name if exc.source else main
                 at = codec.key_path(f"{where}.files", name if name in dict(fs.files) else main)

@@ -1,7 +1,8 @@
 """``load_hdb``: one entry point that recognises the HDB file format and returns the internal HDB.
 
 * WAMIT: ``.1``/``.2``/``.3``/``.hst``/``.out``/... or the common stem (``rm3`` -> ``rm3.1`` ...);
-  nondimensional, so ``rho`` applies (default 1000).
+  nondimensional, so ``rho`` applies (default 1000; a scene's run passes its [water] density);
+  ``wamit``: the scene's ``bodies[i].wamit`` table for what the run's files do not state.
 * BEMIO (WEC-Sim): ``.h5``/``.hdf5``.
 * NetCDF ``.nc``: hydrolink's own (attribute ``hydrolink_hdb``) or a Capytaine export.
 
@@ -13,6 +14,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Mapping
 
 import xarray as xr
 
@@ -20,10 +22,11 @@ from hydrolink.server.hdb.bemio import read_bemio
 from hydrolink.server.hdb.capytaine_io import from_capytaine_dataset
 from hydrolink.protocol.hdb.layout import HDBError
 from hydrolink.protocol.hdb.schema import from_netcdf_dataset
-from hydrolink.server.hdb.wamit import WAMIT_SUFFIXES, read_wamit, wamit_stem
-from hydrolink.server.hdb.wamit_second_order import SECOND_ORDER_SUFFIXES
+from hydrolink.server.hdb.wamit.reader import WAMIT_SUFFIXES, read_wamit, wamit_stem
+from hydrolink.server.hdb.wamit.second_order import QTF_LEVELS, SECOND_ORDER_SUFFIXES
 
-WAMIT_READ = (".1", ".2", ".3", ".hst", ".out", ".cfg", *SECOND_ORDER_SUFFIXES)   # the files read_wamit opens (where present)
+WAMIT_READ = (".1", ".2", ".3", ".hst", ".out", ".cfg", ".pot", ".mmx", ".frc",
+              *SECOND_ORDER_SUFFIXES)   # the files read_wamit opens (where present)
 
 DEFAULT_RHO = 1000.0
 
@@ -55,6 +58,12 @@ def _is_wamit(path: Path) -> bool:
     return stem != path or (not path.is_file() and stem.with_name(stem.name + ".1").is_file())
 
 
+def nondimensional(path: str | Path) -> bool:
+    """Whether ``path`` names a nondimensional HDB (a WAMIT run), whose density is the caller's."""
+    path = Path(path)
+    return path.suffix.lower() not in (".h5", ".hdf5", ".nc", ".toml") and _is_wamit(path)
+
+
 def _noted(ds: xr.Dataset, in_file: str, why: str) -> xr.Dataset:
     """Record the time convention the file was read in and why, unless its reader did
     (``hydrolink hdb info`` shows them)."""
@@ -63,15 +72,20 @@ def _noted(ds: xr.Dataset, in_file: str, why: str) -> xr.Dataset:
     return ds
 
 
-def load_hdb(path: str | Path, *, rho: float | None = None, convention: str | None = None) -> xr.Dataset:
+def load_hdb(path: str | Path, *, rho: float | None = None, convention: str | None = None,
+             wamit: Mapping | None = None) -> xr.Dataset:
     """Read an HDB file of any supported format into the internal layout (validated).
     ``convention``: the time convention of a Capytaine-layout file's complex amplitudes when the
-    file does not declare it ("exp(-iwt)", Capytaine's, by default; "exp(+iwt)": conjugated)."""
+    file does not declare it ("exp(-iwt)", Capytaine's, by default; "exp(+iwt)": conjugated).
+    ``wamit``: for a WAMIT run, what its files do not state (the scene's ``bodies[i].wamit`` table,
+    :meth:`Scene.wamit_statement`), with ``excitation_needed`` (False: a set without ``.3`` is read)."""
     path = Path(path)
     suffix = path.suffix.lower()
     if convention is not None and suffix != ".nc":
         raise HDBError(path, "convention", "only for a Capytaine-layout NetCDF file: WAMIT and BEMIO files have "
                                           "their own (exp(+iwt)), converted by their readers")
+    if wamit and any(k != "excitation_needed" for k in wamit) and not _is_wamit(path):
+        raise HDBError(path, "wamit", "only for a WAMIT run's files: this format states its own run facts")
     if suffix in (".h5", ".hdf5"):
         return _noted(_check_rho(read_bemio(path), rho, path), "exp(+iwt)", "BEMIO's (WEC-Sim), conjugated at reading")
     if suffix == ".nc":
@@ -80,7 +94,7 @@ def load_hdb(path: str | Path, *, rho: float | None = None, convention: str | No
         return _noted(_check_rho(_load_netcdf(path, convention), rho, path), "exp(-iwt)",
                       "hydrolink's own HDB file (its attribute time_convention)")
     if _is_wamit(path):
-        return _noted(read_wamit(path, rho=DEFAULT_RHO if rho is None else rho), "exp(+iwt)",
+        return _noted(read_wamit(path, rho=DEFAULT_RHO if rho is None else rho, stated=wamit), "exp(+iwt)",
                       "WAMIT's, conjugated at reading")
     if not path.exists():
         raise HDBError(path, "file", "not found")
@@ -88,9 +102,19 @@ def load_hdb(path: str | Path, *, rho: float | None = None, convention: str | No
                                    f"hydrolink or Capytaine .nc; WAMIT suffixes: {' '.join(WAMIT_SUFFIXES)})")
 
 
+def _unread_qtf_level(stem: Path, suffix: str) -> bool:
+    """A QTF file of a level the reader does not read (a more complete level of its kind is beside it)."""
+    levels = [level for level, _ in QTF_LEVELS]
+    if suffix[:-1] not in levels:
+        return False
+    better = levels[:levels.index(suffix[:-1])]
+    return any(stem.with_name(f"{stem.name}{level}{suffix[-1]}").is_file() for level in better)
+
+
 def file_set(path: str | Path, *, rho: float | None = None) -> "HDBFiles":
     """The files ``load_hdb(path)`` reads, as an HDB file set to send by content (SPEC §5.1):
-    a WAMIT run's ``.1``, ``.2``/``.3``, ``.hst``, ``.out``, ``.cfg`` where present; a BEMIO or
+    a WAMIT run's ``.1``, ``.2``/``.3``, ``.hst``, ``.out``, ``.cfg``, ``.pot``, ``.mmx``, ``.frc``
+    (and second-order files) where present, found beside ``path`` as given; a BEMIO or
     NetCDF file alone. HDBError naming the file when it is not an HDB file of a known format."""
     from hydrolink.protocol.hdb.wire import HDBFiles
     path = Path(path)
@@ -104,7 +128,8 @@ def file_set(path: str | Path, *, rho: float | None = None) -> "HDBFiles":
     if _is_wamit(path):
         stem = wamit_stem(path)
         paths = tuple(p for s in WAMIT_READ if (p := stem.with_name(stem.name + s)).is_file()
-                      and not (s == ".2" and stem.with_name(stem.name + ".3").is_file()))
+                      and not (s == ".2" and stem.with_name(stem.name + ".3").is_file())
+                      and not _unread_qtf_level(stem, s))
         if not any(p.suffix == ".1" for p in paths):
             raise HDBError(path, "file", f"WAMIT radiation file {stem.name}.1 not found")
         return HDBFiles("wamit", paths, rho)

@@ -20,7 +20,7 @@ import numpy as np
 
 from hydrolink.protocol.hdb.layout import TIME_CONVENTION, HDBError
 from hydrolink.protocol.hdb.second_order import QTF, fill_qtf_square
-from hydrolink.server.hdb.wamit_table import read_table
+from hydrolink.server.hdb.wamit.table import read_table
 
 FREQUENCY_UNITS = ("rad/s", "Hz", "s")
 CONVENTIONS = (TIME_CONVENTION, "exp(+iwt)")

@@ -53,7 +53,7 @@ def build_model(msg: dict, files: FileSetReader | None = None) -> HydroModel:
             if files is None:
                 raise ProtocolError(Code.BAD_VALUE, where, "this server keeps no HDB store: send the HDB as a map")
             stated = next((b.hdb_convention for b in scene.bodies if b.hdb == key and b.hdb_convention), None)
-            datasets[key] = files.read(hdb_maps[key], where, stated)
+            datasets[key] = files.read(hdb_maps[key], where, stated, scene.wamit_statement(key))
             continue
         try:
             data = codec.decode_tree(hdb_maps[key], where)

@@ -69,23 +69,23 @@ def scale_exponent(i: np.ndarray, j: np.ndarray | None, base: int) -> np.ndarray
     return k
 
 
-def frequencies(values: np.ndarray, iperout: int, g: float, source: str) -> np.ndarray:
-    """Angular frequency of each positive first-column value."""
+def frequencies(values: np.ndarray, iperout: int, g: float, source: str, ulen: float = 1.0) -> np.ndarray:
+    """Angular frequency of each positive first-column value (IPEROUT 3: ω²L/g, so ω = sqrt(g v / L))."""
     if iperout == 1:
         return 2.0 * np.pi / values
     if iperout == 2:
         return values
     if iperout == 3:
-        return np.sqrt(g * values)
+        return np.sqrt(g * values / ulen)
     raise HDBError(source, "IPEROUT", f"output frequency type {iperout} is not supported (use 1, 2 or 3)")
 
 
 def special_rows(first: np.ndarray, iperout: int) -> tuple[np.ndarray, np.ndarray]:
-    """Masks of (infinite-frequency, ignored) rows: with periods PER=0 is w=inf and PER<0 is w=0;
-    other output types have no infinite-frequency marker and non-positive rows are ignored."""
-    if iperout == 1:
-        return first == 0.0, first < 0.0
-    return np.zeros(first.shape, bool), first <= 0.0
+    """Masks of (infinite-frequency, ignored) rows: WAMIT marks the zero and infinite periods with
+    -1 and 0 in the first column whatever IPEROUT (``iperout`` is not used): 0 is w = inf (kept
+    as A_inf), a negative value w = 0 (ignored)."""
+    del iperout
+    return first == 0.0, first < 0.0
 
 
 @dataclass(frozen=True)

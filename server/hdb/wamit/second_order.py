@@ -26,7 +26,7 @@ import numpy as np
 
 from hydrolink.protocol.hdb.layout import HDBError
 from hydrolink.protocol.hdb.second_order import QTF, MeanDrift, fill_qtf_square, merge_drift
-from hydrolink.server.hdb.wamit_table import Units, frequencies, read_table, scale_exponent, special_rows
+from hydrolink.server.hdb.wamit.table import Units, frequencies, read_table, scale_exponent, special_rows
 
 DRIFT_FILES = ((".8", "momentum"), (".7", "control-surface"), (".9", "pressure"))
 QTF_LEVELS = ((".12", "direct"), (".11", "indirect"), (".10", "quadratic part only"))
@@ -71,7 +71,7 @@ def _read_drift_file(path: Path, method: str, u: Units, n_dof: int) -> MeanDrift
         raise HDBError(path.name, "mean_drift", "no rows with a positive period, BETA1 = BETA2 and a mode 1..6N")
     table, lines, mode = table[keep], lines[keep], mode[keep]
     periods, betas = np.unique(table[:, 0]), np.unique(table[:, 1])
-    omega_unsorted = frequencies(periods, u.iperout, u.g, str(path))
+    omega_unsorted = frequencies(periods, u.iperout, u.g, str(path), u.ulen)
     order = np.argsort(omega_unsorted)
     rank = np.empty_like(order)
     rank[order] = np.arange(order.size)
@@ -120,8 +120,8 @@ def _read_qtf_file(path: Path, kind: str, u: Units, n_dof: int):
     if not np.any(keep):
         raise HDBError(path.name, f"{kind}_qtf", "no rows with positive periods and a mode 1..6N")
     table, mode = table[keep], mode[keep]
-    w_i = frequencies(table[:, 0], u.iperout, u.g, str(path))
-    w_j = frequencies(table[:, 1], u.iperout, u.g, str(path))
+    w_i = frequencies(table[:, 0], u.iperout, u.g, str(path), u.ulen)
+    w_j = frequencies(table[:, 1], u.iperout, u.g, str(path), u.ulen)
     value = u.rho * u.g * u.ulen ** scale_exponent(mode + 1, None, 1) * (table[:, 7] - 1j * table[:, 8])
     return fill_qtf_square(w_i, w_j, np.deg2rad(table[:, 2]), np.deg2rad(table[:, 3]), mode, value,
                            n_dof, kind, path.name)
