@@ -211,3 +211,28 @@ def test_server_refuses_a_bad_pace(value):
         c.request("hello", role="multibody", scene=SCENE, hdbs={"float.nc": to_wire(make_body_hdb())}, realtime=value)
     assert err.value.code == 5 and err.value.field == "realtime"
     srv.close()
+
+
+def test_blas_pools_hold_one_thread_in_the_loop(reference_data, tmp_path, monkeypatch):
+    """The lockstep loop holds every BLAS/OpenMP pool of the process to one thread (threadpoolctl),
+    whatever the environment says, and gives them back afterwards (a script importing hydrolink
+    gets this too, not only the ``hydrolink`` command)."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    from hydrolink.clients.lockstep.driver import ForceLink
+    from hydrolink.clients.run import run_scene_file
+    sample, seen = ForceLink.sample, []
+
+    def looking(self, seq, *args, **kwargs):   # the real sample; what the pools are while the loop runs
+        if seq == 5:
+            seen.extend(p["num_threads"] for p in threadpool_info())
+        return sample(self, seq, *args, **kwargs)
+
+    monkeypatch.setattr(ForceLink, "sample", looking)
+    (tmp_path / "rm3.toml").write_text(scene_text("full", reference_data / "rm3_wamit" / "rm3.1", duration=0.8))
+    with threadpool_limits(limits=2):          # as an unset environment leaves them on 2 cores
+        before = [p["num_threads"] for p in threadpool_info()]
+        run_scene_file(tmp_path / "rm3.toml", tmp_path / "rm3.nc", progress=False)
+        after = [p["num_threads"] for p in threadpool_info()]
+    assert seen and set(seen) == {1}
+    assert after == before
