@@ -76,6 +76,11 @@ _VERSIONED = ("hydrolink", "exudyn", "numpy", "capytaine", "xarray")
 #: row blocks of a writer: one being filled, the others queued for or being written by its thread
 BLOCKS = 3
 
+try:   # netCDF-C and HDF5 are not thread-safe: the writers' threads share xarray's HDF5 lock
+    from xarray.backends.locks import HDF5_LOCK as _NC_LOCK
+except ImportError:   # pragma: no cover - an xarray without it
+    _NC_LOCK = threading.Lock()
+
 
 def package_versions() -> dict[str, str]:
     """Installed versions of the packages a result depends on ("not installed" if absent)."""
@@ -143,14 +148,15 @@ class ResultWriter:
         self._queue: queue.Queue[_Block | None] = queue.Queue(maxsize=self.n_blocks)
         self._thread: threading.Thread | None = None
         self._error: BaseException | None = None
-        self._io = threading.Lock()       # every use of the dataset, either thread
+        self._io = _NC_LOCK               # every use of the dataset, either thread
         self._last_flush = _time.monotonic()
-        self._ds = netCDF4.Dataset(self.path, "w", format="NETCDF4")
-        try:
-            self._create(bodies, eq, scene_text, dt, setup.warnings if setup else ())
-        except BaseException:
-            self._ds.close()
-            raise
+        with self._io:
+            self._ds = netCDF4.Dataset(self.path, "w", format="NETCDF4")
+            try:
+                self._create(bodies, eq, scene_text, dt, setup.warnings if setup else ())
+            except BaseException:
+                self._ds.close()
+                raise
 
     # -- layout ------------------------------------------------------------------------------
     def _create(self, bodies: list[str], eq: np.ndarray, scene_text: str, dt: float | None,
