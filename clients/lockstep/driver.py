@@ -150,7 +150,6 @@ class ForceLink:
                                      f"the {rows} rows before it are saved", step=seq, time=t, rows=rows)
         return s
 
-
     def _controller_wait(self, seq: int, sent: float, rt: float, reply: dict, decisions: dict) -> float:
         """How long of this round trip the server waited for the controllers' commands: a
         decision's latency runs from the relay of step k's measurements (with the request of seq
