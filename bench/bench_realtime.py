@@ -8,12 +8,15 @@ Each rate: the scene's dt = 1/rate, the run's own force server listening on a lo
 example controller examples/controllers/reactive.py in its own process (force command every step,
 latency 1 step). The unpaced run is the same setup without --realtime: its wall time per step is
 what a step costs here; a paced run can keep its rate only if that cost stays below 1/rate.
-Prints a markdown table.
+Prints a markdown table (the load average before and after: the figures are the host's as much as
+the code's), then per paced run where the step time went (protocol/pacing.py PARTS: mean per step,
+and the overruns by cause) and the overruns counted in the results file beside the summary's.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import socket
 import subprocess
 import sys
@@ -46,7 +49,7 @@ def free_port() -> int:
 
 
 def run(tmp: Path, rate: float, seconds: float, realtime: float | None, radiation: str):
-    """One run with the controller process; returns the RunSummary."""
+    """One run with the controller process; returns the RunSummary (its results file: ``output``)."""
     from hydrolink.clients.run import run_scene_file
 
     path = tmp / f"rm3_{int(rate)}_{'paced' if realtime else 'free'}.toml"
@@ -76,25 +79,64 @@ def main() -> None:
                     help="[hydro] radiation: the convolution's cost grows with irf_duration/dt (40 000 samples "
                          "at 1 kHz), the state-space fit's does not")
     args = ap.parse_args()
-    rows = []
+    rows, notes = [], []
+    load0 = os.getloadavg()
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         for rate in args.rates:
-            # unpaced: released at once (a factor no step can keep up with); its latencies are the
-            # step costs, measured from the first release (the controller's join left out)
-            free = run(tmp, rate, args.unpaced_seconds, UNPACED, args.radiation).realtime
+            # unpaced: released at once (a factor no step can keep up with); the step costs are its
+            # steps' times from their actual start (latency less "behind"; the controller's join left out)
+            unpaced = run(tmp, rate, args.unpaced_seconds, UNPACED, args.radiation)
+            free = unpaced.realtime
             paced = run(tmp, rate, args.seconds, 1.0, args.radiation)
             rt = paced.realtime
-            rows.append((rate, 1e3 / rate, 1e3 * free.latency_p50, 1e3 * free.latency_p99, rt.steps, rt.overruns,
+            notes.append(breakdown(rate, paced) + f"; unpaced: the server's model {unpaced.server_compute_us_per_step:.1f} "
+                         "µs per step, ms per step: " + ", ".join(f"{k} {1e3 * v:.3f}" for k, v in free.parts_mean.items()
+                                                                  if k != "behind"))
+            c50, c99 = step_cost(unpaced)
+            rows.append((rate, 1e3 / rate, 1e3 * c50, 1e3 * c99, rt.steps, rt.overruns,
                          1e3 * rt.worst_lateness, 1e3 * rt.latency_p50, 1e3 * rt.latency_p99, 1e3 * rt.latency_max,
                          paced.wall_time))
             print(f"{rate:g} Hz: unpaced {free}; paced {rt}", file=sys.stderr, flush=True)
+    load1 = os.getloadavg()
+    print(f"load average {load0[0]:.2f} before, {load1[0]:.2f} after ({os.cpu_count()} CPUs)\n")
     print("| rate | budget (ms) | unpaced step p50 (ms) | unpaced p99 (ms) | paced steps | overruns | "
           "worst lateness (ms) | paced latency p50 (ms) | p99 (ms) | max (ms) | loop wall (s) |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         print(f"| {r[0]:g} Hz | {r[1]:.3g} | {r[2]:.3f} | {r[3]:.3f} | {r[4]} | {r[5]} ({100 * r[5] / max(r[4], 1):.2g} %) | "
               f"{r[6]:.2f} | {r[7]:.3f} | {r[8]:.3f} | {r[9]:.2f} | {r[10]:.1f} |")
+    print()
+    for line in notes:
+        print(line)
+
+
+def step_cost(summary) -> tuple[float, float]:
+    """p50 and p99 of a run's step times from each exchange's actual start (its results file's
+    step_time without "behind"): what a step costs when nothing waits for a release."""
+    import netCDF4
+    import numpy as np
+
+    with netCDF4.Dataset(summary.output) as ds:
+        parts = np.asarray(ds["step_time"][1:].filled(np.nan))
+        labels = list(ds["step_part"][:])
+    cost = parts[:, [i for i, k in enumerate(labels) if k != "behind"]].sum(axis=1)
+    return float(np.percentile(cost, 50)), float(np.percentile(cost, 99))
+
+
+def breakdown(rate: float, summary) -> str:
+    """Where a paced run's step time went (mean ms per step by part), its overruns by cause, and the
+    overrun flags in its results file (they must equal the summary's count)."""
+    import netCDF4
+
+    rt = summary.realtime
+    with netCDF4.Dataset(summary.output) as ds:
+        in_file = int(ds["overrun"][:].sum())
+    parts = ", ".join(f"{k} {1e3 * v:.3f}" for k, v in rt.parts_mean.items())
+    causes = ", ".join(f"{k} {n}" for k, n in rt.overrun_causes.items() if n)
+    return (f"- {rate:g} Hz: ms per step: {parts}; overruns {rt.overruns} (in the file: {in_file})"
+            + (f", by cause: {causes}" if causes else "") + f"; GC between steps: {rt.gc_collections} "
+            f"collection(s), {1e3 * rt.gc_seconds:.2f} ms")
 
 
 if __name__ == "__main__":

@@ -22,7 +22,8 @@ log = logging.getLogger(__name__)
 
 
 def _write_summary_attributes(writer, summary: RunSummary) -> None:
-    """The run's warnings and, when paced, its realtime report (JSON global attributes)."""
+    """The run's warnings and, when paced, its realtime report (JSON global attributes; its
+    ``overruns`` is the sum of the file's ``overrun``)."""
     writer.set_attribute("warnings", json.dumps(summary.warnings))
     if summary.realtime is not None:
         from dataclasses import asdict
@@ -45,8 +46,8 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
     stay down (SPEC §1) before the run ends (its rows kept); ``hdb_files``: send the HDBs as their
     files by SHA-256 (:func:`load_scene_hdbs` ``as_files``; the summary's ``hdb_uploads`` counts
     the contents the server lacked); ``realtime``: release each exchange at its wall-clock time,
-    FACTOR x wall clock (protocol/pacing.py; the summary's ``realtime`` and the results'
-    ``step_latency``)."""
+    FACTOR x wall clock (protocol/pacing.py; the summary's ``realtime``, a PacedRunReport, and the
+    results' ``step_latency``, ``overrun`` and ``step_time``, docs/realtime.md)."""
     from hydrolink.clients.lockstep.connection import ServerConnection
     from hydrolink.clients.exudyn.client import result_bodies, run
     from hydrolink.clients.lockstep.results import ResultWriter

@@ -9,26 +9,38 @@ deadline is an **overrun**: counted, its lateness (completion − deadline) kept
 stays anchored at t0 (the next step is released at once and has less time, never a shifted clock),
 so a run that falls behind shows it in every following step instead of silently absorbing it.
 
-Per step the pacer records the **latency**: wall time from the step's release to its completion
-(the server round trip and the client's integration: what a controller or a hardware rig sees).
-The results file gets it as ``step_latency`` (time,) (NaN on the initial row, which is not paced);
-the run summary's :class:`RealtimeReport` gives the count of overruns, the worst lateness and the
-50th/99th percentile and maximum latency.
+The client (:class:`StepRecord`, clients/lockstep/driver.py) records per exchange its **latency**:
+wall time from its *scheduled* release to the end of everything done in it (the server round trip,
+the controllers' relay, the client's integration, its results rows), so latency > period exactly
+when the step overran; and where that time went, :data:`PARTS`: ``behind`` (scheduled release to
+the actual start: the previous steps' overrun carried over, a late wake-up), ``server`` (the round
+trips to the force server less the wait for controllers), ``controller`` (the server's wait for the
+controllers' commands, from the decisions' latencies), ``io`` (waiting for the results writer) and
+``client`` (the rest: the multibody step, PTO sampling, the rows). An overrun's **cause** is its
+largest part. The results file gets them per row (``step_latency``, ``overrun``, ``step_time``
+over ``step_part``) and the run summary a :class:`PacedRunReport`, from the same arrays.
+
+A server pacing a session (:meth:`Pacer.done`) reports the plain :class:`RealtimeReport` in
+``goodbye``, its latency from each step's arrival to its reply being ready.
 
 Waiting: ``time.sleep`` up to ``SPIN`` before the release, then a spin on ``perf_counter``
-(Linux's sleep wakes 50–100 µs late, a large part of a 1 ms step).
+(Linux's sleep wakes 50–100 µs late, a large part of a 1 ms step); before sleeping, an ``idle``
+hook may use the time left (the client's garbage collection between steps).
 """
 
 from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
 SPIN = 3e-4   # s before a release spent spinning instead of sleeping
 FACTOR_RANGE = (1e-3, 1e9)   # pace factors accepted: 1/1000 of wall clock to "as fast as it goes"
+#: where a paced step's time goes (module docstring), the order of ``step_time``'s ``step_part``
+PARTS = ("behind", "server", "controller", "client", "io")
 
 
 def check_factor(factor: float, key: str) -> float:
@@ -63,6 +75,7 @@ class Pacer:
     latencies: list[float] = field(default_factory=list)
     overruns: int = 0
     worst_lateness: float = 0.0
+    idle: Callable[[float], None] | None = None   # called with the seconds left before a wait
 
     def __post_init__(self) -> None:
         self.factor = check_factor(self.factor, "--realtime")
@@ -81,6 +94,10 @@ class Pacer:
         """Wait until exchange ``e``'s wall-clock time (at once when it has passed)."""
         target = self.release_time(e)
         now = time.perf_counter()
+        if target - now > SPIN:
+            if self.idle is not None:
+                self.idle(target - now)
+                now = time.perf_counter()
         if target - now > SPIN:
             time.sleep(target - now - SPIN)
         while (now := time.perf_counter()) < target:
@@ -107,3 +124,61 @@ class Pacer:
         return RealtimeReport(factor=self.factor, period=self.period, steps=len(self.latencies),
                               overruns=self.overruns, worst_lateness=self.worst_lateness,
                               latency_p50=float(p50), latency_p99=float(p99), latency_max=float(lat.max()))
+
+
+@dataclass(frozen=True)
+class PacedRunReport(RealtimeReport):
+    """A paced client run: :class:`RealtimeReport` (latencies from the scheduled releases) and
+    where the time went (:data:`PARTS`, s)."""
+    parts_mean: dict[str, float] = field(default_factory=dict)   # per step
+    parts_max: dict[str, float] = field(default_factory=dict)
+    overrun_causes: dict[str, int] = field(default_factory=dict)  # overruns by their largest part
+    gc_collections: int = 0       # young-generation collections run between steps
+    gc_seconds: float = 0.0
+
+
+class StepRecord:
+    """A paced client run's per-exchange record, in arrays made before the loop (module docstring)."""
+
+    def __init__(self, pacer: Pacer, n: int):
+        self.pacer, self.n = pacer, int(n)
+        self.latency = np.full(self.n, np.nan)
+        self.parts = np.zeros((self.n, len(PARTS)))
+        self.overrun = np.zeros(self.n, bool)
+        self.steps = 0
+
+    def step(self, e: int, end: float, server: float, controller: float, io: float) -> tuple[float, bool, np.ndarray]:
+        """Exchange ``e`` ended at ``end`` (perf_counter) after ``server``, ``controller`` and
+        ``io`` seconds; returns its latency, overrun and parts (a row of :attr:`parts`)."""
+        p = self.pacer
+        release = p.release_time(e)
+        lat = end - release
+        row = self.parts[e]
+        row[0] = p.released - release
+        row[1] = server
+        row[2] = controller
+        row[4] = io
+        row[3] = end - p.released - server - controller - io
+        late = end - p.release_time(e + 1)
+        over = late > 0.0
+        self.latency[e], self.overrun[e] = lat, over
+        if over:
+            p.overruns += 1
+            if late > p.worst_lateness:
+                p.worst_lateness = late
+        self.steps = e + 1
+        return lat, over, row
+
+    def report(self, gc_collections: int = 0, gc_seconds: float = 0.0) -> PacedRunReport:
+        m = self.steps
+        lat = self.latency[:m] if m else np.zeros(1)
+        parts = self.parts[:m] if m else np.zeros((1, len(PARTS)))
+        p50, p99 = np.percentile(lat, [50, 99])
+        causes = np.argmax(parts[self.overrun[:m]], axis=1) if m else np.zeros(0, int)
+        return PacedRunReport(
+            factor=self.pacer.factor, period=self.pacer.period, steps=m, overruns=int(self.overrun[:m].sum()),
+            worst_lateness=self.pacer.worst_lateness, latency_p50=float(p50), latency_p99=float(p99),
+            latency_max=float(lat.max()), parts_mean={k: float(v) for k, v in zip(PARTS, parts.mean(axis=0))},
+            parts_max={k: float(v) for k, v in zip(PARTS, parts.max(axis=0))},
+            overrun_causes={k: int((causes == i).sum()) for i, k in enumerate(PARTS)},
+            gc_collections=gc_collections, gc_seconds=gc_seconds)

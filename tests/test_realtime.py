@@ -1,7 +1,8 @@
 """``hydrolink run --realtime`` (protocol/pacing.py): exchanges released at wall-clock times,
 overruns counted, per-step latency in the results. Timing is measured by bench/bench_realtime.py;
 here only what holds on any machine: a step made slow on purpose is counted as an overrun with
-(at least) its delay as lateness, and a paced run cannot finish before its simulated duration."""
+(at least) its delay as lateness, found in the results at its row with its cause (a sleeping
+controller, a slow results write), and a paced run cannot finish before its simulated duration."""
 
 from __future__ import annotations
 
@@ -44,6 +45,100 @@ def test_slow_step_is_an_overrun(reference_data, tmp_path, monkeypatch):
     assert lat.dims == ("time",) and np.isnan(lat.values[0])        # the initial row is not paced
     assert lat.values[SLOW_SEQ] >= DELAY                             # the row that ends the slow exchange
     assert json.loads(ds.attrs["realtime"])["overruns"] == rt.overruns
+
+
+SLEEPY = """
+import time
+from hydrolink.clients.control import Controller
+
+class Sleepy(Controller):
+    def on_start(self, info):
+        self.c = float(info["parameters"]["damping"])
+
+    def on_step(self, t, m):
+        if round(t / {dt}) == {step}:
+            time.sleep({delay})
+        return {{p: self.c * v for p, v in zip(self.ptos, m["pto_velocity"].tolist())}}
+"""
+CTL_STEP, CTL_DELAY = 6, 0.4        # the controller sleeps over its decision of step 6: exchange 6, row 7
+ROWS, SLOW_FIRST, IO_DELAY = 5, 25, 1.0   # blocks of 5 rows, two of them; the write of rows 25-29 takes 1 s more
+
+
+def test_injected_delays_are_found_at_their_step_with_their_cause(reference_data, tmp_path, monkeypatch):
+    """A paced run (RM3, 40 ms per exchange) with two delays put in on purpose: the controller (its
+    own process, over loopback) sleeps 0.4 s over step 6's command, and the results writer takes 1 s
+    more over rows 25-29 while only two blocks of five rows exist, so the stepping thread waits for
+    a free block when the next block fills (row 34). Each shows in the results file at its row, as
+    an overrun whose largest part is its cause; the file's counts are the summary's, and every
+    row's parts add up to its latency. Margins are wide: only the injected rows are asserted on."""
+    import socket
+    import subprocess
+    import sys
+
+    import xarray as xr
+
+    from test_controllers import controller_block, scene_text as controller_scene
+
+    from hydrolink.clients.lockstep import results
+    from hydrolink.clients.run import run_scene_file
+    from hydrolink.protocol.pacing import PARTS
+
+    class SmallBlocks(results.ResultWriter):   # the real writer: small blocks, one slow write
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs, flush_rows=ROWS, blocks=2)
+
+        def _write(self, blk):
+            if blk.first == SLOW_FIRST:
+                time.sleep(IO_DELAY)
+            super()._write(blk)
+
+    monkeypatch.setattr(results, "ResultWriter", SmallBlocks)
+    dt = 0.04
+    text = controller_scene(reference_data, 2.4, controller_block("force", 1.0e6, 0.0))
+    text = text.replace("[simulation]\n", "[simulation]\nflush_seconds = 3600.0\n")   # blocks seal by rows only
+    (tmp_path / "paced.toml").write_text(text)
+    ctl = tmp_path / "sleepy.py"
+    ctl.write_text(SLEEPY.format(dt=dt, step=CTL_STEP, delay=CTL_DELAY))
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        address = f"tcp://127.0.0.1:{sock.getsockname()[1]}"
+    proc = subprocess.Popen([sys.executable, "-m", "hydrolink.clients.cli", "control", str(ctl), "--server", address,
+                             "--join-wait", "60"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        summary = run_scene_file(tmp_path / "paced.toml", tmp_path / "paced.nc", progress=False, listen=address,
+                                 realtime=1.0, timeout=60.0)
+    finally:
+        try:
+            _, err = proc.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            _, err = proc.communicate()
+    assert proc.returncode == 0, err
+    rt = summary.realtime
+    ds = xr.load_dataset(tmp_path / "paced.nc")
+    lat, over, parts = ds["step_latency"].values, ds["overrun"].values, ds["step_time"].values
+    assert list(ds["step_part"].values) == list(PARTS) and ds["overrun"].dtype == np.int8
+    cause = {p: i for i, p in enumerate(PARTS)}
+    print(rt)
+    for name, row in (("controller", CTL_STEP + 1), ("io", SLOW_FIRST + 2 * ROWS - 1)):
+        print(name, row, lat[row], dict(zip(PARTS, parts[row].round(4))))
+    # the controller's sleep: its row, an overrun caused by the controller
+    row = CTL_STEP + 1
+    assert over[row] == 1 and lat[row] >= CTL_DELAY and np.argmax(parts[row]) == cause["controller"]
+    assert parts[row, cause["controller"]] >= CTL_DELAY - 0.1
+    assert np.argmax(parts[1:, cause["controller"]]) + 1 == row          # and nowhere is it as large
+    # the slow write: felt when the next block fills (row 34), an overrun caused by I/O
+    row = SLOW_FIRST + 2 * ROWS - 1
+    assert over[row] == 1 and np.argmax(parts[row]) == cause["io"] and parts[row, cause["io"]] >= 0.3
+    assert np.argmax(parts[1:, cause["io"]]) + 1 == row
+    # the file and the summary agree; the parts are the latency; the initial row is not a step
+    assert rt.steps == 60 and over.sum() == rt.overruns == json.loads(ds.attrs["realtime"])["overruns"]
+    assert rt.overrun_causes["controller"] >= 1 and rt.overrun_causes["io"] >= 1
+    assert sum(rt.overrun_causes.values()) == rt.overruns
+    assert np.all((lat[1:] > rt.period) == (over[1:] == 1))
+    assert np.allclose(parts[1:].sum(axis=1), lat[1:], rtol=0, atol=1e-9)
+    assert np.isnan(lat[0]) and over[0] == 0 and np.all(np.isnan(parts[0]))
+    assert rt.latency_max == pytest.approx(np.nanmax(lat), abs=1e-12)
 
 
 def test_unpaced_run_has_no_latency_variable(reference_data, tmp_path):
@@ -116,3 +211,28 @@ def test_server_refuses_a_bad_pace(value):
         c.request("hello", role="multibody", scene=SCENE, hdbs={"float.nc": to_wire(make_body_hdb())}, realtime=value)
     assert err.value.code == 5 and err.value.field == "realtime"
     srv.close()
+
+
+def test_blas_pools_hold_one_thread_in_the_loop(reference_data, tmp_path, monkeypatch):
+    """The lockstep loop holds every BLAS/OpenMP pool of the process to one thread (threadpoolctl),
+    whatever the environment says, and gives them back afterwards (a script importing hydrolink
+    gets this too, not only the ``hydrolink`` command)."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    from hydrolink.clients.lockstep.driver import ForceLink
+    from hydrolink.clients.run import run_scene_file
+    sample, seen = ForceLink.sample, []
+
+    def looking(self, seq, *args, **kwargs):   # the real sample; what the pools are while the loop runs
+        if seq == 5:
+            seen.extend(p["num_threads"] for p in threadpool_info())
+        return sample(self, seq, *args, **kwargs)
+
+    monkeypatch.setattr(ForceLink, "sample", looking)
+    (tmp_path / "rm3.toml").write_text(scene_text("full", reference_data / "rm3_wamit" / "rm3.1", duration=0.8))
+    with threadpool_limits(limits=2):          # as an unset environment leaves them on 2 cores
+        before = [p["num_threads"] for p in threadpool_info()]
+        run_scene_file(tmp_path / "rm3.toml", tmp_path / "rm3.nc", progress=False)
+        after = [p["num_threads"] for p in threadpool_info()]
+    assert seen and set(seen) == {1}
+    assert after == before

@@ -1,6 +1,8 @@
 """clients/lockstep/results.py: a run killed with SIGKILL keeps a readable results file holding every row
 up to its last flush, and flushes come by wall time (``simulation.flush_seconds``): the work lost
-is at most that long. The kill is a real one, of a real ``hydrolink run`` process."""
+is at most that long (the kill is a real one, of a real ``hydrolink run`` process); the writer
+thread's blocks put every row in the file as given, and a slow write makes the stepping thread wait
+only when every block is taken."""
 
 from __future__ import annotations
 
@@ -12,9 +14,12 @@ import time
 from pathlib import Path
 
 import netCDF4
+import numpy as np
 import pytest
 
 from conftest import SPHERE_WATER, regular_waves, scene_toml, sphere_body, write_scene
+
+from hydrolink.clients.lockstep.results import ResultWriter
 
 HYDROLINK = [sys.executable, "-m", "hydrolink.clients.cli"]
 
@@ -51,3 +56,84 @@ def test_sigkill_loses_at_most_the_flush_interval(tmp_path: Path, reference_data
         assert rows > 100 and ds.getncattr("status") == "running"
         t = ds["time"][:]
         assert abs(t[-1] - (rows - 1) * 0.01) < 1e-9      # every row up to the last flush, in order
+
+
+# ---------------------------------------------------------------- the writer thread's blocks
+
+def _rows(n: int, n_bodies: int = 2):
+    """Row k's values: distinct per row, body, dof and variable."""
+    base = np.arange(n_bodies * 6, dtype=float).reshape(n_bodies, 6)
+    return [tuple(base + 1000.0 * k + 100.0 * j for j in range(5)) for k in range(n)]
+
+
+def test_blocks_write_every_row_as_given(tmp_path: Path):
+    """23 rows through blocks of 5 (two blocks: the stepping thread waits for the writer at times),
+    extras staged on some rows only: an unstaged row repeats the previous one, across block
+    boundaries too, NaN before the first; a variable with a fill gets it; an integer one keeps its
+    type; values amended after commit while the block is held are the ones in the file."""
+    w = ResultWriter(tmp_path / "r.nc", scene_text="", bodies=["a", "b"], dt=0.1, flush_rows=5, blocks=2,
+                     flush_seconds=3600.0)
+    w.add_variable("g", ("pto",), {"pto": ["p", "q"]}, "N", "staged on some rows")
+    w.add_variable("lat", (), units="s", fill=np.nan)
+    w.add_variable("flag", (), dtype="i1", fill=0)
+    rows = _rows(23)
+    staged = {1: [1.0, 2.0], 4: [3.0, 4.0], 5: [5.0, 6.0], 12: [7.0, 8.0]}   # rows 0, 2-3, 6-11, 13- not
+    amended = {3: 0.5, 4: 0.25, 9: 2.0, 10: 3.0, 22: 4.0}
+    w.hold = True
+    for k, r in enumerate(rows):
+        if k in staged:
+            w.stage_extra({"g": np.array(staged[k])})
+        w.append(0.1 * k, *r, 0.01 * k)
+        if k in amended:
+            extra, i = w.amend(k)
+            extra["lat"][i], extra["flag"][i] = amended[k], 1
+        w.release_held()
+    with pytest.raises(ValueError, match="no longer buffered"):
+        w.amend(0)
+    w.finish("complete")
+    w.close()
+    with netCDF4.Dataset(tmp_path / "r.nc") as ds:
+        assert ds.getncattr("status") == "complete" and ds.getncattr("rows") == 23
+        assert np.array_equal(ds["time"][:], 0.1 * np.arange(23))
+        assert np.array_equal(ds["wave_elevation"][:], 0.01 * np.arange(23))
+        for j, name in enumerate(("position", "velocity", "excitation_force", "radiation_force",
+                                  "hydrostatic_force")):
+            assert np.array_equal(ds[name][:], np.array([r[j] for r in rows])), name
+        g = np.full((23, 2), np.nan)
+        last = [np.nan, np.nan]
+        for k in range(23):
+            last = staged.get(k, last)
+            g[k] = last
+        assert np.array_equal(np.asarray(ds["g"][:].filled(np.nan)), g, equal_nan=True)
+        lat = np.full(23, np.nan)
+        lat[list(amended)] = list(amended.values())
+        assert np.array_equal(np.asarray(ds["lat"][:].filled(np.nan)), lat, equal_nan=True)
+        assert ds["flag"].dtype == np.int8
+        assert np.array_equal(ds["flag"][:], np.isin(np.arange(23), list(amended)).astype(np.int8))
+
+
+def test_a_slow_write_stalls_the_stepping_thread_only_when_every_block_is_taken(tmp_path: Path):
+    """The writer thread takes 0.6 s over the first block: with two blocks the stepping thread waits
+    for it (counted in io_seconds, once) when the second fills; with three it does not."""
+    waits = {}
+    for blocks in (2, 3):
+        w = ResultWriter(tmp_path / f"r{blocks}.nc", scene_text="", bodies=["a"], dt=0.1, flush_rows=5,
+                         blocks=blocks, flush_seconds=3600.0)
+        write, slow = w._write, [True]
+
+        def delayed(blk, write=write, slow=slow):   # the real write, after a delay the first time
+            if slow[0]:
+                slow[0] = False
+                time.sleep(0.6)
+            write(blk)
+
+        w._write = delayed
+        for k, r in enumerate(_rows(10, 1)):
+            w.append(0.1 * k, *r, 0.0)
+        waits[blocks] = (w.io_waits, w.io_seconds)
+        w.close()
+        with netCDF4.Dataset(tmp_path / f"r{blocks}.nc") as ds:
+            assert ds.dimensions["time"].size == 10 and np.array_equal(ds["time"][:], 0.1 * np.arange(10))
+    print(waits)
+    assert waits[2][0] == 1 and waits[2][1] > 0.3
+    assert waits[3] == (0, 0.0)

@@ -73,6 +73,10 @@ class PTOControl:
                             "cumulative number of fallback decisions (timeout, absent, invalid)")
         writer.add_variable("controller_latency", ("controller",), coords, "s",
                             "wall time from relaying the measurements to receiving the command")
+        # what stage() hands the writer each row: the arrays above, changed in place (made once)
+        self._row = {"pto_command_force": self.force, "pto_damping": self.damping, "pto_stiffness": self.stiffness,
+                     "controller_status": self.status, "controller_fallbacks": self.fallbacks,
+                     "controller_latency": self.latency}
 
     def is_sample(self, k: int) -> bool:
         return any(k % p == 0 for p in self.periods)
@@ -134,9 +138,7 @@ class PTOControl:
             self.stiffness[e] = stiffness
 
     def stage(self) -> None:
-        self.writer.stage_extra({"pto_command_force": self.force, "pto_damping": self.damping,
-                                 "pto_stiffness": self.stiffness, "controller_status": self.status,
-                                 "controller_fallbacks": self.fallbacks, "controller_latency": self.latency})
+        self.writer.stage_extra(self._row)
 
     def summary(self) -> dict:
         out = {}

@@ -13,6 +13,7 @@ steps of dt; the server's sample of exchange e is taken at the state of time e·
 
 from __future__ import annotations
 
+import gc
 import math
 import sys
 import time as _time
@@ -23,7 +24,7 @@ from typing import Any, Mapping, NamedTuple, Protocol
 
 import numpy as np
 
-from hydrolink.protocol.pacing import Pacer
+from hydrolink.protocol.pacing import PARTS, Pacer, StepRecord
 from hydrolink.clients.lockstep.summary import CouplingReport, RunSummary
 from hydrolink.protocol.reply import OPTIONAL_FORCES
 
@@ -36,6 +37,9 @@ BLOW_UP_LIMIT = 1.0e4
 #: second difference of the fed-back accelerations alternates in sign and grows by more than
 #: WATCH_GROWTH, once it exceeds WATCH_FLOOR times the largest acceleration seen (clear of round-off)
 WATCH_STEPS, WATCH_GROWTH, WATCH_FLOOR = 6, 1.001, 1e-6
+
+#: recent steps whose send times ForceLink keeps (a controller decision refers back at most this far)
+SENT_RING = 256
 
 
 class RunInterrupted(RuntimeError):
@@ -99,8 +103,10 @@ class ForceLink:
         self.n = setup.n if setup is not None else 0
         self.eq = setup.equilibrium_position.reshape(-1) if self.n else np.zeros(0)
         self.dt = setup.dt if self.n else 0.0
-        self.seconds = 0.0
+        self.seconds = 0.0              # wall time in round trips to the server
+        self.controller_seconds = 0.0   # of which the server waited for controllers (estimated)
         self.decisions: dict | None = None
+        self._sent = np.zeros(SENT_RING)   # when each recent seq was sent (perf_counter), by seq % SENT_RING
         self._zero = Sample.of(np.zeros(0), np.zeros(0), np.zeros(0), 0.0)
         self._shape = (self.n, 6)
         self._pos = np.zeros(self._shape)   # the absolute position sent (reused: the server copies it)
@@ -126,8 +132,12 @@ class ForceLink:
             rows, where = self.writer.rows, getattr(self.writer, "path", "the results file")
             raise RunInterrupted(f"force server error at step {seq} (t = {t:.6g} s): {exc}; the {rows} rows "
                                  f"before it are saved in {where}", step=seq, time=t, rows=rows) from exc
-        self.seconds += _time.perf_counter() - t0
-        self.decisions = reply.get("control")
+        rt = _time.perf_counter() - t0
+        self.seconds += rt
+        self._sent[seq % SENT_RING] = t0
+        self.decisions = decisions = reply.get("control")
+        if decisions:
+            self.controller_seconds += self._controller_wait(seq, t0, rt, reply, decisions)
         eta = reply["wave_elevation"]
         eta = eta if type(eta) is float else float(np.asarray(eta, float).reshape(-1)[0])
         optional = {k: reply[k].reshape(-1) for k in OPTIONAL_FORCES if reply.get(k) is not None}
@@ -139,6 +149,22 @@ class ForceLink:
             raise SimulationDiverged(f"the force server returned non-finite forces at step {seq} (t = {t:.6g} s); "
                                      f"the {rows} rows before it are saved", step=seq, time=t, rows=rows)
         return s
+
+    def _controller_wait(self, seq: int, sent: float, rt: float, reply: dict, decisions: dict) -> float:
+        """How long of this round trip the server waited for the controllers' commands: a
+        decision's latency runs from the relay of step k's measurements (with the request of seq
+        k + 1) to its command; the part after this request was sent, at most the round trip less
+        the model's time (``compute_us``). A timeout: all of that."""
+        spare = max(rt - 1e-6 * float(reply.get("compute_us") or 0.0), 0.0)
+        wait = 0.0
+        for d in decisions.values():
+            status = d.get("status")
+            if status == "timeout":
+                return spare
+            latency, k = d.get("latency"), d.get("step")
+            if status == "ok" and latency is not None and k is not None and 0 <= seq - (k + 1) < SENT_RING:
+                wait = max(wait, self._sent[(k + 1) % SENT_RING] + float(latency) - sent)
+        return min(wait, spare)
 
 
 # ------------------------------------------------------------------------------ the multibody side
@@ -260,8 +286,6 @@ class Lockstep:
         self.watch.check(self.mb, self.step, t1, self.writer.rows, where or self.mb.label)
 
     def write(self, t: float, s: Sample, snap: Any = None) -> None:
-        if self.pacer is not None and self.pacer.t0 is not None:
-            self.writer.stage_extra({"step_latency": self.pacer.since_release()})
         self.mb.write(t, s, self.mb.snapshot() if snap is None else snap)
         if self.bar is not None:
             self.bar.update(1)
@@ -273,55 +297,154 @@ def progress_bar(total: int, enabled: bool, desc: str = "hydrolink run"):
                 disable=not (enabled and sys.stderr.isatty()))
 
 
+class GcBetweenSteps:
+    """A paced run's garbage collection, kept out of the steps: the heap frozen and automatic
+    collection off for the loop (:meth:`PacedSteps.begin`), a young-generation collection (1 when
+    generation 1 is due, else 0) in the wait before a release when one is due and the time left
+    exceeds twice the dearest seen so far plus the spin; past ``FORCE`` times the threshold, at
+    once (between steps, never inside one)."""
+
+    FORCE = 50
+
+    def __init__(self) -> None:
+        self.threshold = max(gc.get_threshold()[0], 1)
+        self.threshold1 = max(gc.get_threshold()[1], 1)
+        self.cost = 5e-5            # s: the dearest collection seen (a guess until measured)
+        self.collections, self.seconds = 0, 0.0
+
+    def __call__(self, left: float) -> None:
+        n = gc.get_count()
+        if n[0] < self.threshold or (left < 2 * self.cost + 5e-4 and n[0] < self.FORCE * self.threshold):
+            return
+        t0 = _time.perf_counter()
+        gc.collect(1 if n[1] >= self.threshold1 else 0)
+        dt = _time.perf_counter() - t0
+        self.collections += 1
+        self.seconds += dt
+        self.cost = max(self.cost, dt)
+
+
+class PacedSteps:
+    """A paced run's bookkeeping around each exchange (protocol/pacing.py): the release, where the
+    exchange's time went, the row that ends it amended with ``step_latency``, ``overrun`` and
+    ``step_time`` before its block goes to the writer (the writer holds blocks meanwhile)."""
+
+    def __init__(self, pacer: Pacer, loop: Lockstep, n_exchanges: int):
+        self.pacer, self.link, self.writer = pacer, loop.link, loop.writer
+        self.record = StepRecord(pacer, n_exchanges)
+        self.gc = GcBetweenSteps()
+        self._gc_was = gc.isenabled()
+        self._marks = (0.0, 0.0, 0.0)
+        w = self.writer
+        w.add_variable("step_latency", (), units="s", fill=np.nan,
+                       long_name="wall time from the scheduled release of the exchange ending at this row to the "
+                                 "end of everything done in it (paced run; NaN: the row ends no exchange)")
+        w.add_variable("overrun", (), units="1", dtype="i1", fill=0,
+                       long_name="1: the exchange ending at this row completed after its deadline (the next release)")
+        w.add_variable("step_time", ("step_part",), {"step_part": list(PARTS)}, "s", fill=np.nan,
+                       long_name="where step_latency went: behind (scheduled to actual release), server (round "
+                                 "trips less the wait for controllers), controller, client (the rest), io (waiting "
+                                 "for the results writer); an overrun's cause is its largest part")
+
+    def begin(self) -> None:
+        """Before the first release: GC out of the loop, blocks held until their rows are complete."""
+        gc.collect()
+        gc.freeze()
+        gc.disable()
+        self.pacer.idle = self.gc
+        self.writer.hold = True
+
+    def release(self, e: int) -> None:
+        self.pacer.release(e)
+        link = self.link
+        self._marks = (link.seconds, link.controller_seconds, self.writer.io_seconds)
+
+    def done(self, e: int) -> None:
+        """Exchange ``e`` is complete (its rows committed): record it, amend its last row."""
+        end = _time.perf_counter()
+        link, w = self.link, self.writer
+        s0, c0, io0 = self._marks
+        lat, over, parts = self.record.step(e, end, link.seconds - s0 - (link.controller_seconds - c0),
+                                            link.controller_seconds - c0, w.io_seconds - io0)
+        extra, i = w.amend(w.rows - 1)
+        extra["step_latency"][i] = lat
+        extra["overrun"][i] = over
+        extra["step_time"][i] = parts
+        w.release_held()
+        if gc.get_count()[0] >= self.gc.FORCE * self.gc.threshold:
+            self.gc(float("inf"))
+
+    def end(self) -> None:
+        """After the loop (or its failure): blocks flow again, GC as it was."""
+        self.writer.hold = False
+        self.writer.release_held()
+        self.pacer.idle = None
+        gc.unfreeze()
+        if self._gc_was:
+            gc.enable()
+
+    def report(self):
+        return self.record.report(self.gc.collections, self.gc.seconds)
+
+
 def run(loop: Lockstep, scheme: Any, n_exchanges: int, coupling: CouplingReport, *,
         first_timeout: float | None = None,
         hint: Callable[[SimulationDiverged], str] = lambda exc: "", pacer: Pacer | None = None) -> RunSummary:
     """Run ``n_exchanges`` exchanges of ``scheme`` (module docstring); the writer gets its final
     status before this returns or raises. Returns the loop's counts and costs, with ``coupling``
     (the adapter's description of the scheme) completed by the iterations it took. ``pacer``: release
-    each exchange at its wall-clock time (protocol/pacing.py); the summary's ``realtime``."""
+    each exchange at its wall-clock time (protocol/pacing.py, :class:`PacedSteps`); the summary's
+    ``realtime``. BLAS/OpenMP pools are held to one thread for the loop (the per-step products are
+    small: a second thread only fights the other participants for a core)."""
+    from threadpoolctl import threadpool_limits
+
     mb, link, writer = loop.mb, loop.link, loop.writer
-    if pacer is not None:
-        loop.pacer = pacer
-        writer.add_variable("step_latency", (), units="s",
-                            long_name="wall time from the exchange's release to this row (paced run)")
+    paced = PacedSteps(pacer, loop, n_exchanges) if pacer is not None else None
+    loop.pacer = pacer
     wall0 = _time.perf_counter()
     init_iterations = 0
-    t = 0.0
     try:
-        x, v, _ = mb.state()
-        loop.watch.check(mb, 0, 0.0, 0, "the initial state")
-        s = link.sample(0, x, v, timeout=first_timeout)
-        init_iterations = mb.begin(s, scheme.feedback)
-        loop.write(0.0, s)
-        for e in range(n_exchanges):
-            if pacer is not None:
-                pacer.release(e)
-            s = scheme.exchange(loop, e, s)
-            if pacer is not None:
-                pacer.done(e)
-            t = (e + 1) * loop.big_h
+        with threadpool_limits(limits=1):
+            x, v, _ = mb.state()
+            loop.watch.check(mb, 0, 0.0, 0, "the initial state")
+            s = link.sample(0, x, v, timeout=first_timeout)
+            init_iterations = mb.begin(s, scheme.feedback)
+            loop.write(0.0, s)
+            if paced is None:
+                for e in range(n_exchanges):
+                    s = scheme.exchange(loop, e, s)
+            else:
+                paced.begin()
+                for e in range(n_exchanges):
+                    paced.release(e)
+                    s = scheme.exchange(loop, e, s)
+                    paced.done(e)
     except KeyboardInterrupt:
         t = loop.step * mb.h
+        _end(paced)
         writer.finish(f"interrupted: KeyboardInterrupt at step {loop.step} (t = {t:.6g} s)")
         raise KeyboardInterrupt(f"run interrupted at step {loop.step} (t = {t:.6g} s); {writer.rows_written} "
                                 f"rows saved in {getattr(writer, 'path', 'the results file')}") from None
     except SimulationDiverged as exc:
+        _end(paced)
         extra = hint(exc)
         if extra:
             exc = SimulationDiverged(f"{exc}. {extra}", step=exc.step, time=exc.time, rows=exc.rows)
         writer.finish(f"interrupted: {exc}")
         raise exc from None
     except RunInterrupted as exc:
+        _end(paced)
         writer.finish(f"interrupted: {exc}")
         raise
     except BaseException as exc:
+        _end(paced)
         t = loop.step * mb.h
         writer.finish(f"interrupted: {type(exc).__name__} at step {loop.step} (t = {t:.6g} s): {exc}")
         raise
     finally:
         if loop.bar is not None:
             loop.bar.close()
+    _end(paced)
     writer.finish("complete")
     wall = _time.perf_counter() - wall0
     steps = max(loop.step, 1)
@@ -332,4 +455,9 @@ def run(loop: Lockstep, scheme: Any, n_exchanges: int, coupling: CouplingReport,
     return RunSummary(steps=loop.step, time=loop.step * mb.h, wall_time=wall, rows=writer.rows_written,
                       status="complete", coupling=coupling, client_us_per_step=(wall - link.seconds) / steps * 1e6,
                       round_trip_us_per_step=link.seconds / steps * 1e6,
-                      realtime=pacer.report() if pacer is not None else None)
+                      realtime=paced.report() if paced is not None else None)
+
+
+def _end(paced: PacedSteps | None) -> None:
+    if paced is not None:
+        paced.end()

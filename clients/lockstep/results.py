@@ -1,11 +1,16 @@
 """Progressive NetCDF results file of a run (NETCDF4, unlimited ``time``).
 
-Rows are buffered in memory and written + synced together every ``flush_seconds`` of wall time or
-``flush_rows`` rows, so the file is only touched during a flush: a run killed part way (even with
-SIGKILL) leaves a readable file holding every row up to the last flush. The global ``status``
-attribute says "running", then "complete" or "interrupted: <why>". To look at a file while its
-run is still going, read it with ``HDF5_USE_FILE_LOCKING=FALSE`` set (HDF5 locks files open for
-writing); a killed run's file opens normally.
+Rows are buffered in memory in preallocated blocks; a block is written + synced by the writer's own
+thread once ``flush_seconds`` of wall time have passed since the last hand-off or it holds
+``flush_rows`` rows, so the stepping thread never writes to the file: it hands the block over (a
+put on a bounded queue) and fills the next free one. ``blocks`` (default 3) bound the rows in
+flight; only when every block is still on its way to the file does the stepping thread wait for
+one (the time is counted in ``io_seconds``: a paced run's "io"). A run killed part way (even with
+SIGKILL) leaves a readable file holding every row up to the last completed write. The global
+``status`` attribute says "running", then "complete" or "interrupted: <why>" (:meth:`finish`
+writes every row first). To look at a file while its run is still going, read it with
+``HDF5_USE_FILE_LOCKING=FALSE`` set (HDF5 locks files open for writing); a killed run's file opens
+normally.
 
 Layout (readable with ``xarray.open_dataset``)::
 
@@ -23,15 +28,21 @@ Layout (readable with ``xarray.open_dataset``)::
            :func:`add_force_term_variables` / :meth:`ResultWriter.stage_forces`
 
 Extra variables: ``add_variable(name, dims, coords, units, long_name)`` before the first row
-(``coords`` gives the labels of any dimension not yet in the file), then per row
-``stage_extra({name: value, ...})`` BEFORE ``append(...)``: the staged values belong to the row
-that ``append`` adds (a variable not staged for a row keeps its previous value, NaN at first).
+(``coords`` gives the labels of any dimension not yet in the file; ``dtype``, default f8, and
+``fill``: the value of a row that does not stage it), then per row ``stage_extra({name: value,
+...})`` BEFORE ``append(...)``: the staged values belong to the row that ``append`` adds (a
+variable without a fill that is not staged for a row keeps its previous value, NaN at first).
+Values known only after a row is committed (a paced step's latency, clients/lockstep/driver.py)
+go in with :attr:`ResultWriter.hold` set: sealed blocks wait, :meth:`ResultWriter.amend` gives
+the row's slot, :meth:`ResultWriter.release_held` hands them on.
 """
 
 from __future__ import annotations
 
 import datetime as _dt
 import json
+import queue
+import threading
 import time as _time
 from importlib import metadata
 from pathlib import Path
@@ -62,6 +73,13 @@ ROW_VARIABLES: dict[str, tuple[str, str]] = {
                           "linear restoring force -C (x - x_eq), gravity terms included"),
 }
 _VERSIONED = ("hydrolink", "exudyn", "numpy", "capytaine", "xarray")
+#: row blocks of a writer: one being filled, the others queued for or being written by its thread
+BLOCKS = 3
+
+try:   # netCDF-C and HDF5 are not thread-safe: the writers' threads share xarray's HDF5 lock
+    from xarray.backends.locks import HDF5_LOCK as _NC_LOCK
+except ImportError:   # pragma: no cover - an xarray without it
+    _NC_LOCK = threading.Lock()
 
 
 def package_versions() -> dict[str, str]:
@@ -75,15 +93,29 @@ def package_versions() -> dict[str, str]:
     return out
 
 
+class _Block:
+    """Rows buffered for one write: ``first`` the file index of its row 0, ``n`` rows filled."""
+
+    __slots__ = ("time", "rows", "eta", "extra", "first", "n")
+
+    def __init__(self, capacity: int, n_bodies: int, extras: dict[str, tuple[tuple[int, ...], str, Any]]):
+        self.time = np.empty(capacity)
+        self.rows = np.empty((len(ROW_VARIABLES), capacity, n_bodies, 6))
+        self.eta = np.empty(capacity)
+        self.extra = {name: np.empty((capacity, *shape), dtype) for name, (shape, dtype, _) in extras.items()}
+        self.first = self.n = 0
+
+
 class ResultWriter:
     """Append-only results file; use as a context manager (an exception marks it interrupted)."""
 
     def __init__(self, path: str | Path, *, scene: Any = None, scene_text: str = "",
                  setup: Setup | None = None, bodies: list[str] | None = None,
                  equilibrium_position: np.ndarray | None = None, dt: float | None = None,
-                 flush_seconds: float = 1.0, flush_rows: int = 2000):
+                 flush_seconds: float = 1.0, flush_rows: int = 2000, blocks: int = BLOCKS):
         """``bodies``/``equilibrium_position`` default to the setup's wet bodies (else the scene's
-        bodies at the origin); ``dt`` (the row spacing, an attribute) to the setup's."""
+        bodies at the origin); ``dt`` (the row spacing, an attribute) to the setup's. ``blocks``:
+        row blocks in all (at least 2: one filling, the rest on their way to the file)."""
         if bodies is None:
             bodies = list(setup.bodies) if setup else [b.name for b in scene.bodies]
         if equilibrium_position is None:
@@ -93,29 +125,38 @@ class ResultWriter:
         eq = np.asarray(equilibrium_position, float)
         if eq.shape != (len(bodies), 6):
             raise ValueError(f"equilibrium_position must have shape ({len(bodies)}, 6), got {eq.shape}")
+        if int(blocks) < 2:
+            raise ValueError(f"blocks must be at least 2 (one filling, one being written), got {blocks}")
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.n_bodies = len(bodies)
         self.flush_seconds, self.flush_rows = float(flush_seconds), int(flush_rows)
-        self.rows_written = 0
+        self.n_blocks = int(blocks)
+        self.rows_written = 0             # rows in the file (set by the writer thread)
         self.status = "running"
-        # rows are buffered in preallocated blocks (no per-row allocation): row i of the block
-        # holds time, the (N, 6) row variables in ROW_VARIABLES order, and the wave elevation
-        rows = max(self.flush_rows, 1)
-        self._time = np.empty(rows)
-        self._rows = np.empty((len(ROW_VARIABLES), rows, self.n_bodies, 6))
-        self._eta = np.empty(rows)
-        self._buffered = 0
-        self._extra: dict[str, np.ndarray] = {}      # name -> (rows, *shape) block
-        self._staged: set[str] = set()               # extras staged for the next row
-        self._prev_row = 0                           # where row 0's unstaged extras come from
+        self.io_seconds = 0.0             # stepping thread's time waiting for a free block (the queue full)
+        self.io_waits = 0
+        self.hold = False                 # keep sealed blocks until release_held() (a paced step's rows)
+        self._rows = 0                    # rows committed
+        self._extras: dict[str, tuple[tuple[int, ...], str, Any]] = {}   # name -> (shape, dtype, fill)
+        self._staged: dict[str, bool] = {}                               # extras staged for the next row
+        self._full: dict[str, np.ndarray] = {}                           # stage_forces' (B, 6) scratch
+        self._cur: _Block | None = None   # the block being filled (None before the first row)
+        self._prev: _Block | None = None  # the last block sealed: its last row is row 0's "previous"
+        self._held: list[_Block] = []
+        self._free: queue.Queue[_Block] = queue.Queue()
+        self._queue: queue.Queue[_Block | None] = queue.Queue(maxsize=self.n_blocks)
+        self._thread: threading.Thread | None = None
+        self._error: BaseException | None = None
+        self._io = _NC_LOCK               # every use of the dataset, either thread
         self._last_flush = _time.monotonic()
-        self._ds = netCDF4.Dataset(self.path, "w", format="NETCDF4")
-        try:
-            self._create(bodies, eq, scene_text, dt, setup.warnings if setup else ())
-        except BaseException:
-            self._ds.close()
-            raise
+        with self._io:
+            self._ds = netCDF4.Dataset(self.path, "w", format="NETCDF4")
+            try:
+                self._create(bodies, eq, scene_text, dt, setup.warnings if setup else ())
+            except BaseException:
+                self._ds.close()
+                raise
 
     # -- layout ------------------------------------------------------------------------------
     def _create(self, bodies: list[str], eq: np.ndarray, scene_text: str, dt: float | None,
@@ -160,52 +201,71 @@ class ResultWriter:
         ds.sync()
 
     def add_variable(self, name: str, dims: tuple[str, ...], coords: dict[str, list[str]] | None = None,
-                     units: str = "", long_name: str = "") -> None:
-        """Declare an extra per-row variable with dims (time, *dims); see the module docstring."""
-        if self.rows_written or self._buffered:
+                     units: str = "", long_name: str = "", *, dtype: str = "f8", fill: Any = None) -> None:
+        """Declare an extra per-row variable with dims (time, *dims); see the module docstring.
+        ``fill``: the value of a row that does not stage it (None: the previous row's, NaN at
+        first; an integer ``dtype`` needs a fill)."""
+        if self._rows or self._cur is not None:
             raise RuntimeError(f"add_variable({name!r}) after rows were written")
         if name in self._ds.variables:
             raise ValueError(f"results variable {name!r} already exists")
+        if fill is None and np.dtype(dtype).kind != "f":
+            raise ValueError(f"add_variable({name!r}): a {dtype} variable needs a fill value")
         coords = coords or {}
         shape = []
-        for dim in dims:
-            if dim not in self._ds.dimensions:
-                if dim not in coords:
-                    raise ValueError(f"add_variable({name!r}): labels for the new dimension {dim!r} are needed")
-                labels = list(coords[dim])
-                self._ds.createDimension(dim, len(labels))
-                c = self._ds.createVariable(dim, str, (dim,))
-                for i, label in enumerate(labels):
-                    c[i] = str(label)
-            shape.append(len(self._ds.dimensions[dim]))
-        v = self._ds.createVariable(name, "f8", ("time", *dims), chunksizes=(512, *shape))
-        v.units, v.long_name = units, long_name
-        block = np.empty((self._time.size, *shape))
-        block[0] = np.nan
-        self._extra[name] = block
+        with self._io:
+            for dim in dims:
+                if dim not in self._ds.dimensions:
+                    if dim not in coords:
+                        raise ValueError(f"add_variable({name!r}): labels for the new dimension {dim!r} are needed")
+                    labels = list(coords[dim])
+                    self._ds.createDimension(dim, len(labels))
+                    c = self._ds.createVariable(dim, str, (dim,))
+                    for i, label in enumerate(labels):
+                        c[i] = str(label)
+                shape.append(len(self._ds.dimensions[dim]))
+            v = self._ds.createVariable(name, dtype, ("time", *dims), chunksizes=(512, *shape))
+            v.units, v.long_name = units, long_name
+        self._extras[name] = (tuple(shape), dtype, fill)
+        self._staged[name] = False
+
+    def _start(self) -> _Block:
+        """The blocks, made at the first row (every variable is declared by then)."""
+        blocks = [_Block(max(self.flush_rows, 1), self.n_bodies, self._extras) for _ in range(self.n_blocks)]
+        for name, arr in blocks[0].extra.items():
+            arr[0] = np.nan if self._extras[name][2] is None else self._extras[name][2]
+        for b in blocks[1:]:
+            self._free.put(b)
+        self._cur = blocks[0]
+        return blocks[0]
 
     def stage_forces(self, optional: Mapping[str, np.ndarray], rows: np.ndarray, velocity: np.ndarray) -> None:
         """Stage the variables of the optional forces for the next row: each force (6N over the
         served bodies) put at the flat positions ``rows`` of the file's (B, 6) bodies (zero for the
         others); ``velocity`` (B, 6) the row's, for a dissipated power."""
         for name, part in optional.items():
-            full = np.zeros((self.n_bodies, 6))
+            full = self._full.get(name)
+            if full is None:
+                full = self._full[name] = np.zeros((self.n_bodies, 6))
             full.reshape(-1)[rows] = part
-            self.stage_extra({v.name: full if v.value == "force" else dissipated_power(full, velocity)
-                              for v in reply_field(name).variables})
+            for v in reply_field(name).variables:
+                self._stage(v.name, full if v.value == "force" else dissipated_power(full, velocity))
 
     def stage_extra(self, values: dict[str, Any]) -> None:
         """Values of extra variables for the row the next :meth:`append` adds."""
-        i = self._buffered
         for name, value in values.items():
-            self._extra[name][i] = value
-        self._staged.update(values)
+            self._stage(name, value)
+
+    def _stage(self, name: str, value: Any) -> None:
+        blk = self._cur if self._cur is not None else self._start()
+        blk.extra[name][blk.n] = value
+        self._staged[name] = True
 
     # -- rows --------------------------------------------------------------------------------
     def append(self, time: float, position, velocity, excitation, radiation, hydrostatic,
                wave_elevation) -> None:
         """Buffer one row: (N, 6) arrays and a number for the elevation (copied into the block);
-        flushes when the wall-time or row budget is used up."""
+        hands the block to the writer thread when the wall-time or row budget is used up."""
         block = self.row()
         block[0] = position
         block[1] = velocity
@@ -217,73 +277,168 @@ class ResultWriter:
     def row(self) -> np.ndarray:
         """The next row's slot in the block, (5, N, 6) in ROW_VARIABLES order, to be filled in
         place (e.g. with ``out=``) and then added by :meth:`commit` — :meth:`append` without copies."""
-        return self._rows[:, self._buffered]
+        blk = self._cur if self._cur is not None else self._start()
+        return blk.rows[:, blk.n]
 
     def commit(self, time: float, wave_elevation: float) -> None:
-        """Add the row filled in :meth:`row` (and the extras staged); flushes when the wall-time
-        or row budget is used up."""
-        i = self._buffered
-        self._time[i] = time
-        self._eta[i] = wave_elevation
-        if self._extra:
-            staged = self._staged
-            if len(staged) < len(self._extra):   # unstaged values repeat the previous row
-                prev = i - 1 if i else self._prev_row
-                for name, block in self._extra.items():
-                    if name not in staged:
-                        block[i] = block[prev]
-            staged.clear()
-        self._buffered = i + 1
-        if (self._buffered >= self._time.size
-                or _time.monotonic() - self._last_flush >= self.flush_seconds):
-            self.flush()
+        """Add the row filled in :meth:`row` (and the extras staged); when the wall-time or row
+        budget is used up, the block goes to the writer thread (:meth:`hold`: after
+        :meth:`release_held`) and the next row starts a free one."""
+        blk = self._cur if self._cur is not None else self._start()
+        i = blk.n
+        blk.time[i] = time
+        blk.eta[i] = wave_elevation
+        if self._extras:
+            staged, extras = self._staged, self._extras
+            for name, arr in blk.extra.items():
+                if staged[name]:
+                    staged[name] = False
+                    continue
+                fill = extras[name][2]
+                if fill is not None:
+                    arr[i] = fill
+                elif i:                       # unstaged: the previous row's value
+                    arr[i] = arr[i - 1]
+                elif self._prev is not None:
+                    arr[0] = self._prev.extra[name][self._prev.n - 1]
+        blk.n = i + 1
+        self._rows += 1
+        if blk.n >= blk.time.size or _time.monotonic() - self._last_flush >= self.flush_seconds:
+            self._seal()
+
+    def _seal(self) -> None:
+        """The current block is complete: on to the writer (or held), and a free block next."""
+        if self._error is not None:
+            self._raise_error()
+        blk = self._cur
+        self._prev = blk
+        if self.hold:
+            self._held.append(blk)
+        else:
+            self._send(blk)
+        try:
+            nxt = self._free.get_nowait()
+        except queue.Empty:               # every block is on its way to the file: wait (I/O)
+            t0 = _time.perf_counter()
+            nxt = self._free.get()
+            self.io_seconds += _time.perf_counter() - t0
+            self.io_waits += 1
+        nxt.first, nxt.n = blk.first + blk.n, 0
+        self._cur = nxt
+        self._last_flush = _time.monotonic()
+
+    def release_held(self) -> None:
+        """Hand the blocks sealed while :attr:`hold` was set to the writer thread."""
+        held = self._held
+        while held:
+            self._send(held.pop(0))
+
+    def amend(self, row: int) -> tuple[dict[str, np.ndarray], int]:
+        """The extras of committed row ``row`` not yet handed to the writer thread, to change in
+        place: (name -> block array, index in it)."""
+        for blk in (self._cur, *self._held):
+            if blk is not None and blk.first <= row < blk.first + blk.n:
+                return blk.extra, row - blk.first
+        raise ValueError(f"row {row} is no longer buffered (already handed to the writer)")
+
+    def _send(self, blk: _Block) -> None:
+        if self._thread is None:
+            self._thread = threading.Thread(target=self._work, name=f"results {self.path.name}", daemon=True)
+            self._thread.start()
+        self._queue.put(blk)              # never waits: fewer blocks exist than the queue holds
+
+    def _work(self) -> None:
+        """The writer thread: each block into the file, then a sync; the block back to the pool."""
+        while True:
+            blk = self._queue.get()
+            try:
+                if blk is None:
+                    return
+                if self._error is None:
+                    with self._io:
+                        self._write(blk)
+            except BaseException as exc:  # noqa: BLE001 - reported on the stepping thread
+                self._error = exc
+            finally:
+                if blk is not None:
+                    self._free.put(blk)
+                self._queue.task_done()
+
+    def _write(self, blk: _Block) -> None:
+        if not self._ds.isopen():
+            return
+        m, i0 = blk.n, blk.first
+        i1 = i0 + m
+        ds = self._ds
+        if m:
+            for k, name in enumerate(ROW_VARIABLES):
+                ds[name][i0:i1] = blk.rows[k, :m]
+            ds["wave_elevation"][i0:i1] = blk.eta[:m]
+            for name, arr in blk.extra.items():
+                ds[name][i0:i1] = arr[:m]
+            ds["time"][i0:i1] = blk.time[:m]  # last: marks the rows as present
+        ds.sync()
+        self.rows_written = i1
+
+    def _raise_error(self) -> None:
+        exc = self._error
+        raise RuntimeError(f"writing the results file {self.path} failed: {type(exc).__name__}: {exc}") from exc
 
     def flush(self) -> None:
-        """Write the buffered rows and sync the file to disk."""
-        if self._buffered and self._ds.isopen():
-            m, i0 = self._buffered, self.rows_written
-            i1 = i0 + m
-            ds = self._ds
-            for k, name in enumerate(ROW_VARIABLES):
-                ds[name][i0:i1] = self._rows[k, :m]
-            ds["wave_elevation"][i0:i1] = self._eta[:m]
-            for name, block in self._extra.items():
-                ds[name][i0:i1] = block[:m]
-            self._prev_row = m - 1   # the next block's row 0 repeats the last row written
-            ds["time"][i0:i1] = self._time[:m]  # last: marks the rows as present
-            self.rows_written = i1
-            self._buffered = 0
-        if self._ds.isopen():
-            self._ds.sync()
+        """Write every row committed so far and sync the file to disk; returns when done."""
+        if self._cur is not None and self._cur.n:
+            hold, self.hold = self.hold, False
+            self.release_held()
+            self._seal()
+            self.hold = hold
+        self.release_held()
+        if self._thread is not None:
+            self._queue.join()
+        elif self._ds.isopen():
+            with self._io:
+                self._ds.sync()
         self._last_flush = _time.monotonic()
+        if self._error is not None:
+            self._raise_error()
 
     def set_attribute(self, name: str, value: Any) -> None:
         """Set a global attribute of the file (e.g. a run summary)."""
-        if self._ds.isopen():
-            self._ds.setncattr(name, value)
+        with self._io:
+            if self._ds.isopen():
+                self._ds.setncattr(name, value)
 
     # -- end ---------------------------------------------------------------------------------
     @property
     def rows(self) -> int:
         """Rows appended so far (written or still buffered; all are saved by :meth:`finish`)."""
-        return self.rows_written + self._buffered
+        return self._rows
 
     def finish(self, status: str) -> None:
         """Flush everything and record the final status ("complete" or "interrupted: ...")."""
         self.status = status
         if self._ds.isopen():
-            self.flush()
-            self._ds.setncattr("status", status)
-            self._ds.setncattr("rows", self.rows_written)
-            self._ds.sync()
+            try:
+                self.flush()
+            finally:
+                with self._io:
+                    self._ds.setncattr("status", status)
+                    self._ds.setncattr("rows", self.rows_written)
+                    self._ds.sync()
 
     def close(self) -> None:
         """Flush and close; a file still "running" is marked as not finished."""
         if not self._ds.isopen():
             return
-        if self.status == "running":
-            self.finish("interrupted: closed before the run finished")
-        self._ds.close()
+        try:
+            if self.status == "running":
+                self.finish("interrupted: closed before the run finished")
+        finally:
+            if self._thread is not None:
+                self._queue.put(None)
+                self._thread.join()
+                self._thread = None
+            with self._io:
+                self._ds.close()
 
     def __enter__(self) -> "ResultWriter":
         return self
