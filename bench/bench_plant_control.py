@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import re
+import secrets
 import socket
 import subprocess
 import sys
@@ -25,6 +26,8 @@ from pathlib import Path
 
 import numpy as np
 import xarray as xr
+
+TOKEN = secrets.token_urlsafe(32)   # the runs' join token, handed to their controllers (SPEC §5.7.2)
 
 REPO = Path(__file__).resolve().parents[1]
 HDB = REPO / "examples" / "data" / "rm3_wamit" / "rm3.1"
@@ -85,10 +88,10 @@ def td(tmp: Path, name: str, text: str, ramp: float, controller: bool):
     listen = f"tcp://127.0.0.1:{free_port()}"
     if controller:
         proc = subprocess.Popen([sys.executable, "-m", "hydrolink.clients.cli", "control",
-                                 str(REPO / "examples" / "controllers" / "plant_pi.py"), "--server", listen,
+                                 str(REPO / "examples" / "controllers" / "plant_pi.py"), "--server", listen, "--token", TOKEN,
                                  "--join-wait", "60"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
-        summary = run_scene_file(path, path.with_suffix(".nc"), progress=False, listen=listen)
+        summary = run_scene_file(path, path.with_suffix(".nc"), progress=False, listen=listen, control_token=TOKEN)
     finally:
         if proc is not None:
             _, err = proc.communicate(timeout=60)

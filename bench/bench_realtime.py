@@ -17,11 +17,14 @@ from __future__ import annotations
 
 import argparse
 import os
+import secrets
 import socket
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
+
+TOKEN = secrets.token_urlsafe(32)   # the runs' join token, handed to their controllers (SPEC §5.7.2)
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO / "examples" / "data"
@@ -57,10 +60,10 @@ def run(tmp: Path, rate: float, seconds: float, realtime: float | None, radiatio
     port = free_port()
     address = f"tcp://127.0.0.1:{port}"
     ctl = subprocess.Popen([sys.executable, "-m", "hydrolink.clients.cli", "control",
-                            str(REPO / "examples" / "controllers" / "reactive.py"), "--server", address,
+                            str(REPO / "examples" / "controllers" / "reactive.py"), "--server", address, "--token", TOKEN,
                             "--join-wait", "60"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
-        summary = run_scene_file(path, path.with_suffix(".nc"), progress=False, listen=address, realtime=realtime)
+        summary = run_scene_file(path, path.with_suffix(".nc"), progress=False, listen=address, control_token=TOKEN, realtime=realtime)
     finally:
         try:
             ctl.communicate(timeout=30)

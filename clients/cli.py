@@ -255,11 +255,14 @@ def keys_new(directory: Path, name: str) -> None:
               default=None, metavar="[FACTOR]",
               help="Release each exchange at its wall-clock time, FACTOR x wall clock (default 1); overruns "
                    "and step latencies are reported (docs/realtime.md).")
+@click.option("--control-token", envvar="HYDROLINK_CONTROL_TOKEN", metavar="TOKEN",
+              help="With [[controllers]]: the secret they show to join (32-128 characters A-Z a-z 0-9 - _; "
+                   "also $HYDROLINK_CONTROL_TOKEN). Default: the server draws one, printed with the join command.")
 @_curve_options
 @_key_file_option
 def run(scene: Path, output: Path | None, server: str | None, no_progress: bool, cpu: int | None,
-        listen: str, link_timeout: float, hdb_files: bool, realtime: float | None, curve_server_key: Path | None,
-        curve_secret: Path | None, key_file: Path | None) -> None:
+        listen: str, link_timeout: float, hdb_files: bool, realtime: float | None, control_token: str | None,
+        curve_server_key: Path | None, curve_secret: Path | None, key_file: Path | None) -> None:
     """Co-simulate a SCENE (TOML) in lockstep with the force server."""
     from hydrolink.clients.run import run_scene_file
 
@@ -279,7 +282,8 @@ def run(scene: Path, output: Path | None, server: str | None, no_progress: bool,
     try:
         summary = _guard(run_scene_file, scene, output, server=server, progress=not no_progress, listen=listen,
                          key=_hmac_key(key_file), link_timeout=link_timeout, hdb_files=hdb_files,
-                         realtime=realtime, **({"curve": curve} if curve is not None else {}))
+                         realtime=realtime, control_token=control_token,
+                         **({"curve": curve} if curve is not None else {}))
     except KeyboardInterrupt as exc:
         click.echo(f"hydrolink run: {exc or 'interrupted'}", err=True)
         raise SystemExit(130) from None
@@ -304,20 +308,24 @@ def run(scene: Path, output: Path | None, server: str | None, no_progress: bool,
 @cli.command()
 @click.argument("file", type=click.Path(dir_okay=False, exists=True, path_type=Path))
 @click.option("--server", required=True, help="Force server hosting the session, e.g. tcp://HOST:PORT.")
-@click.option("--session", help="Session id (default: the one open session declaring this controller).")
+@click.option("--token", envvar="HYDROLINK_CONTROL_TOKEN", required=True, metavar="TOKEN",
+              help="The session's join token (hydrolink run prints it, or takes it from --control-token; also "
+                   "$HYDROLINK_CONTROL_TOKEN): the server refuses a controller without it.")
+@click.option("--session", help="Session id (default: the open session holding the token and declaring this "
+                                "controller).")
 @click.option("--name", help="The scene's controllers[i].name (default: the class's name attribute).")
 @click.option("--class", "class_name", help="Controller class in FILE, when it defines several.")
 @click.option("--join-wait", default=30.0, show_default=True, help="Seconds to keep trying to join.")
 @_curve_options
 @_key_file_option
-def control(file: Path, server: str, session: str | None, name: str | None, class_name: str | None,
+def control(file: Path, server: str, token: str, session: str | None, name: str | None, class_name: str | None,
             join_wait: float, curve_server_key: Path | None, curve_secret: Path | None, key_file: Path | None) -> None:
     """Run the Python controller in FILE (a hydrolink.clients.control.Controller subclass)."""
     from hydrolink.clients.control import ControllerError, load_controller, run_controller
 
     curve = _client_keys(curve_server_key, curve_secret)
     try:
-        stats = run_controller(load_controller(file, class_name), server, session=session, name=name,
+        stats = run_controller(load_controller(file, class_name), server, token=token, session=session, name=name,
                                join_wait=join_wait, curve=curve, key=_hmac_key(key_file))
     except ControllerError as exc:
         raise _UserError(str(exc)) from None

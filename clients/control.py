@@ -10,7 +10,10 @@
         def on_step(self, t, m):                  # m: the measurements of the state at t
             return {p: self.c * v for p, v in zip(self.ptos, m["pto_velocity"])}
 
-    $ hydrolink control damper.py --server tcp://HOST:PORT [--session ID] [--name NAME]
+    $ hydrolink control damper.py --server tcp://HOST:PORT --token TOKEN [--name NAME]
+
+``TOKEN`` is the session's join token (SPEC §5.7.2), which its owner hands over: ``hydrolink run``
+prints it, or takes it from ``--control-token`` / ``$HYDROLINK_CONTROL_TOKEN``.
 
 ``on_step`` returns ``{pto: value}``: a number is a force command; a map gives the setpoints
 (``{"force": F}``, or ``{"damping": c, "stiffness": k}`` for ``command = "impedance"``).
@@ -131,10 +134,13 @@ class _Link:
         self.ctx.term()
 
 
-def run_controller(controller: Controller, server: str, *, session: str | None = None, name: str | None = None,
-                   key: bytes | None = None, join_wait: float = 30.0, wait: float = 1.0,
+def run_controller(controller: Controller, server: str, *, token: str, session: str | None = None,
+                   name: str | None = None, key: bytes | None = None, join_wait: float = 30.0, wait: float = 1.0,
                    timeout: float = 30.0, curve=None) -> dict:
     """Join a session and serve it until the run ends; returns counts (steps, errors, idles).
+
+    ``token``: the session's join token (SPEC §5.7.2), which its owner has (``hydrolink run`` prints
+    it, or takes it from ``--control-token``): without it the server refuses the join.
 
     Retries ``hello`` for ``join_wait`` s while no session declares the controller (the multibody
     run may start later). ``wait``: how long the server holds a ``measure`` before ``idle``;
@@ -149,7 +155,7 @@ def run_controller(controller: Controller, server: str, *, session: str | None =
         while True:
             ask = {} if controller.plant is None else {
                 "plant": {"dt": None if controller.plant == "continuous" else float(controller.plant)}}
-            reply = link.request("hello", role="controller", controller=name,
+            reply = link.request("hello", role="controller", controller=name, token=token,
                                  client={"name": f"hydrolink-python-controller {type(controller).__name__}",
                                          "version": _version()}, **ask)
             if reply["type"] == "welcome":

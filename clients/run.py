@@ -34,7 +34,8 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
                    server: str | None = None, progress: bool = True, timeout: float = 60.0,
                    listen: str = "tcp://127.0.0.1:*", hdbs: dict[str, xr.Dataset] | None = None,
                    curve=None, key: bytes | None = None, link_timeout: float = 10.0,
-                   hdb_files: bool = False, realtime: float | None = None) -> RunSummary:
+                   hdb_files: bool = False, realtime: float | None = None,
+                   control_token: str | None = None) -> RunSummary:
     """Run a scene end to end; returns the run summary (steps, wall time, output path, the server's side).
 
     A scene with ``[[controllers]]`` and no ``server`` starts a force server with a socket on
@@ -47,7 +48,9 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
     files by SHA-256 (:func:`load_scene_hdbs` ``as_files``; the summary's ``hdb_uploads`` counts
     the contents the server lacked); ``realtime``: release each exchange at its wall-clock time,
     FACTOR x wall clock (protocol/pacing.py; the summary's ``realtime``, a PacedRunReport, and the
-    results' ``step_latency``, ``overrun`` and ``step_time``, docs/realtime.md)."""
+    results' ``step_latency``, ``overrun`` and ``step_time``, docs/realtime.md); ``control_token``: the
+    secret the scene's controllers show to join (SPEC §5.7.2: ``hydrolink control --token``; None: the
+    server draws one, printed on stderr with the command that joins)."""
     from hydrolink.clients.lockstep.connection import ServerConnection
     from hydrolink.clients.exudyn.client import result_bodies, run
     from hydrolink.clients.lockstep.results import ResultWriter
@@ -98,12 +101,13 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
         else:
             conn = stack.enter_context(ServerConnection(server, timeout=timeout, curve=curve, key=key,
                                                         link_timeout=link_timeout))
-        setup = conn.hello(text, hdbs, wave_elevation=series, meshes=load_scene_hulls(scene, scene_path))
+        setup = conn.hello(text, hdbs, wave_elevation=series, meshes=load_scene_hulls(scene, scene_path),
+                           control_token=control_token)
         if scene.controllers:
             import sys
-            print(f"hydrolink run: session {conn.session} on {server} waits for controllers "
+            print(f"hydrolink run: session on {server} waits for controllers "
                   f"{[c.name for c in scene.controllers]}: hydrolink control FILE.py --server {server} "
-                  f"--session {conn.session}", file=sys.stderr, flush=True)
+                  f"--token {conn.control_token}", file=sys.stderr, flush=True)
         names, reference = result_bodies(scene, setup)
         writer = stack.enter_context(ResultWriter(output, scene=scene, scene_text=text, setup=setup,
                                                   bodies=names, equilibrium_position=reference,

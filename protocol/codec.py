@@ -55,6 +55,7 @@ class Code(IntEnum):
     NOT_IMPLEMENTED = 12
     MISSING_CONTENT = 13
     BUSY = 14
+    UNAUTHORIZED = 15
     INTERNAL = 99
 
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import os
+import secrets
 import subprocess
 import sys
 import threading
@@ -67,9 +68,13 @@ def scene_text(reference_data: Path, duration: float, controller: str) -> str:
     return text + "\n[[controllers]]\n" + controller
 
 
+# the join token every run of this module hands its controllers (SPEC §5.7.2)
+TOKEN = secrets.token_urlsafe(32)
+
+
 def controller_process(file: Path, server: str, *extra: str) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, "-m", "hydrolink.clients.cli", "control", str(file), "--server", server,
-                             "--join-wait", "20", *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                             "--token", TOKEN, "--join-wait", "20", *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
 def c_controller(tmp_path_factory) -> Path:
@@ -91,7 +96,8 @@ def run_with(tmp_path: Path, name: str, text: str, server: str, proc_args: list 
     scene.write_text(text)
     proc = subprocess.Popen(proc_args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) if proc_args else None
     try:
-        summary = run_scene_file(scene, tmp_path / f"{name}.nc", server=server, progress=False, timeout=30.0)
+        summary = run_scene_file(scene, tmp_path / f"{name}.nc", server=server, progress=False, timeout=30.0,
+                                 control_token=TOKEN)
     finally:
         if proc is not None:
             try:
@@ -104,7 +110,7 @@ def run_with(tmp_path: Path, name: str, text: str, server: str, proc_args: list 
 
 def python_ctl(file: Path, server: str, *extra: str) -> list:
     return [sys.executable, "-m", "hydrolink.clients.cli", "control", str(file), "--server", server,
-            "--join-wait", "20", *extra]
+            "--token", TOKEN, "--join-wait", "20", *extra]
 
 
 def mean_power(ds: xr.Dataset) -> float:
@@ -190,7 +196,7 @@ def test_c_controller_equals_python_bit_for_bit(reference_data, tmp_path, tmp_pa
         assert address.startswith("tcp://127.0.0.1:"), line
         ds_py, _, (rc, err) = run_with(tmp_path, "py", text, address, python_ctl(EXAMPLES / "reactive.py", address))
         assert rc == 0, err
-        ds_c, _, (rc, err) = run_with(tmp_path, "c", text, address, [str(exe), address])
+        ds_c, _, (rc, err) = run_with(tmp_path, "c", text, address, [str(exe), address, TOKEN])
         assert rc == 0, err
     finally:
         serve.terminate()
@@ -232,7 +238,7 @@ controller = load_controller(sys.argv[2])      # imports done before the crash: 
 marker = sys.argv[1]
 while not os.path.exists(marker):
     time.sleep(0.002)
-print(run_controller(controller, sys.argv[3], join_wait=5.0), flush=True)
+print(run_controller(controller, sys.argv[3], token=sys.argv[4], join_wait=5.0), flush=True)
 '''
 
 
@@ -250,7 +256,7 @@ def test_slow_and_crashed_controller_fall_back_and_reconnect(reference_data, ser
     text = scene_text(reference_data, 60.0, controller_block("force", 1.0e6, 0.0, fallback="passive",
                                                            fallback_damping=7.0e5))
     text = text.replace("timeout = 10.0", "timeout = 0.5")
-    successor = subprocess.Popen([sys.executable, str(succ), str(marker), str(file), server.address],
+    successor = subprocess.Popen([sys.executable, str(succ), str(marker), str(file), server.address, TOKEN],
                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     os.environ["CRASH"] = str(marker)
     try:
@@ -344,33 +350,55 @@ def test_wrong_session_version_and_name(reference_data, server, tmp_path):
     try:
         with ServerConnection(server.address, timeout=10) as conn:
             conn.hello(text, hdbs)
-            r = ask(type="hello", role="controller", controller="ctl", session="0" * 32)
+            token = conn.control_token     # drawn by the server, handed to the owner only
+            assert isinstance(token, str) and len(token) >= 32
+            r = ask(type="hello", role="controller", controller="ctl", session="0" * 32, token=token)
             assert (r["code"], r["name"], r["field"]) == (7, "unknown_session", "session")
-            r = ask(type="hello", role="controller", controller="ctl", v=2)
+            r = ask(type="hello", role="controller", controller="ctl", v=2, token=token)
             assert (r["code"], r["name"]) == (2, "version_mismatch") and "[1]" in r["message"]
-            r = ask(type="hello", role="controller", controller="other")   # by name: no such session
-            assert (r["code"], r["field"]) == (7, "session") and "'other'" in r["message"]
-            r = ask(type="hello", role="controller", controller="other", session=conn.session)
+            r = ask(type="hello", role="controller", controller="ctl")               # no token
+            assert (r["code"], r["field"]) == (4, "token")
+            r = ask(type="hello", role="controller", controller="ctl", token="x" * 32)   # a stranger's guess
+            assert (r["code"], r["field"]) == (7, "token") and r.get("session") is None
+            r = ask(type="hello", role="controller", controller="ctl", session=conn.session, token="x" * 32)
+            assert (r["code"], r["name"], r["field"]) == (15, "unauthorized", "token")
+            r = ask(type="hello", role="controller", controller="other", token=token)   # no such controller
+            assert (r["code"], r["field"]) == (7, "token") and "'other'" in r["message"]
+            r = ask(type="hello", role="controller", controller="other", session=conn.session, token=token)
             assert (r["code"], r["field"]) == (5, "controller") and "'ctl'" in r["message"]
-            r = ask(type="hello", role="controller", controller="ctl", session=conn.session)
+            r = ask(type="hello", role="controller", controller="ctl", session=conn.session, token=token)
             assert r["type"] == "welcome" and r["epoch"] == 1
+            own = r["session"]                  # the controller's own id, not the owner's
+            assert own != conn.session
             ctl = r["control"]
             assert ctl["ptos"] == ["pto"] and ctl["steps_per_period"] == 1 and ctl["latency"] == 1
-            r = ask(type="measure", session=conn.session, controller="ctl", epoch=0)
+            r = ask(type="measure", session=own, controller="ctl", epoch=0)
             assert r["code"] == 5 and r["field"] == "epoch"
-            r = ask(type="hello", role="controller", controller="ctl")   # joins by name: a second process
+            r = ask(type="measure", session=conn.session, controller="ctl", epoch=1, wait=0.0)   # the owner's id
+            assert (r["code"], r["field"]) == (7, "session")
+            r = ask(type="hello", role="controller", controller="ctl", token=token)   # by token: a second process
             assert r["epoch"] == 2 and r["rejoined"] is True
-            r = ask(type="measure", session=conn.session, controller="ctl", epoch=1, wait=0.0)
+            own2 = r["session"]
+            r = ask(type="measure", session=own, controller="ctl", epoch=1, wait=0.0)
             assert (r["code"], r["name"]) == (10, "wrong_state") and "newer connection" in r["message"]
-            r = ask(type="measure", session=conn.session, controller="ctl", epoch=2, wait=0.05)
-            assert r["type"] == "idle"
-            r = ask(type="command", session=conn.session, controller="ctl", epoch=2, step=0, commands={})
+            r = ask(type="measure", session=own2, controller="ctl", epoch=2, wait=0.05)
+            assert r["type"] == "idle" and r["session"] == own2
+            r = ask(type="command", session=own2, controller="ctl", epoch=2, step=0, commands={})
             assert (r["code"], r["field"]) == (6, "step")
+            # a controller's id can neither step, roll back nor end the owner's session
+            for kind in ("step", "save", "restore", "release"):
+                r = ask(type=kind, session=own2, seq=0, time=0.0)
+                assert (r["code"], r["name"]) == (3, "unknown_type"), r
             # the multibody's step 1 must carry the measurements of step 0
             f0 = conn.step(0, 0.0, np.array(conn.setup.equilibrium_position), np.zeros((2, 6)))
             assert "control" not in f0
             with pytest.raises(Exception, match="measurements"):
                 conn.step(1, DT, np.array(conn.setup.equilibrium_position), np.zeros((2, 6)))
+            r = ask(type="bye", session=own2)   # the controller leaves; the session goes on
+            assert r["type"] == "goodbye" and r["controller"] == "ctl"
+            r = ask(type="measure", session=own2, controller="ctl", epoch=2, wait=0.0)
+            assert (r["code"], r["field"]) == (7, "session")
+            assert conn.request("ping")["type"] == "pong"   # the owner's session is still open
     finally:
         sock.close(0)
         ctx.term()
@@ -531,9 +559,11 @@ def test_step_pipelined_behind_a_deferred_step_is_answered_in_order(reference_da
                 mb.send(codec.pack(codec.message("step", f"mb-{seq}", sid, seq=seq, time=seq * DT, position=x,
                                                  velocity=np.zeros((2, 6)), measurements=meas)))
 
-            ctl.send(codec.pack(codec.message("hello", "c-0", sid, role="controller", controller="ctl")))
-            epoch = recv(ctl)["epoch"]
-            ctl.send(codec.pack(codec.message("measure", "c-1", sid, controller="ctl", epoch=epoch, wait=None)))
+            ctl.send(codec.pack(codec.message("hello", "c-0", sid, role="controller", controller="ctl",
+                                              token=conn.control_token)))
+            welcome = recv(ctl)
+            epoch, own = welcome["epoch"], welcome["session"]   # the controller's own session id
+            ctl.send(codec.pack(codec.message("measure", "c-1", own, controller="ctl", epoch=epoch, wait=None)))
             step(0)
             assert recv(mb)["seq"] == 0
             step(1)                       # deferred: the command of step 0 is due at seq 1
@@ -541,20 +571,20 @@ def test_step_pipelined_behind_a_deferred_step_is_answered_in_order(reference_da
             m0 = recv(ctl)
             assert (m0["type"], m0["parent"], m0["step"]) == ("measurements", "c-1", 0), m0
             assert not mb.poll(200), "a reply came before the command it waits for"
-            ctl.send(codec.pack(codec.message("command", "c-2", sid, controller="ctl", epoch=epoch, step=0,
+            ctl.send(codec.pack(codec.message("command", "c-2", own, controller="ctl", epoch=epoch, step=0,
                                               commands={"pto": {"force": 1000.0}})))
             f1 = recv(mb)
             assert (f1["type"], f1["parent"], f1["seq"]) == ("forces", "mb-1", 1), f1
             assert f1["control"]["ctl"]["status"] == "ok" and f1["control"]["ctl"]["commands"] == {"pto": {"force": 1000.0}}
             m1 = recv(ctl)                # the held step 2 relayed the measurements of step 1
             assert (m1["type"], m1["parent"], m1["step"]) == ("measurements", "c-2", 1), m1
-            ctl.send(codec.pack(codec.message("command", "c-3", sid, controller="ctl", epoch=epoch, step=1,
+            ctl.send(codec.pack(codec.message("command", "c-3", own, controller="ctl", epoch=epoch, step=1,
                                               commands={"pto": {"force": 2000.0}}, wait=0.05)))
             f2 = recv(mb)
             assert (f2["type"], f2["parent"], f2["seq"]) == ("forces", "mb-2", 2), f2
             assert f2["control"]["ctl"]["commands"] == {"pto": {"force": 2000.0}}
             assert recv(ctl)["type"] == "idle"
-            ctl.send(codec.pack(codec.message("measure", "c-4", sid, controller="ctl", epoch=epoch, wait=None)))
+            ctl.send(codec.pack(codec.message("measure", "c-4", own, controller="ctl", epoch=epoch, wait=None)))
             t0 = time.monotonic()
             idle = recv(ctl)               # nil wait = the default 1 s, not an error
             assert idle["type"] == "idle" and 0.5 < time.monotonic() - t0 < 5.0, idle

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import secrets
 import shutil
 import socket
 import subprocess
@@ -69,7 +70,8 @@ def test_compose_stack_runs_on_loopback(reference_data, tmp_path):
 
     port = free_port()
     mounts = {"/keys": str(keys), "/scene": str(scene_dir), "tcp://server:5555": f"tcp://127.0.0.1:{port}",
-              "tcp://0.0.0.0:5555": f"tcp://127.0.0.1:{port}"}
+              "tcp://0.0.0.0:5555": f"tcp://127.0.0.1:{port}",
+              "${HYDROLINK_CONTROL_TOKEN}": secrets.token_urlsafe(32)}   # compose's interpolation
 
     def local(value: str) -> str:
         for a, b in mounts.items():
@@ -77,7 +79,7 @@ def test_compose_stack_runs_on_loopback(reference_data, tmp_path):
         return value
 
     def environment(service: str) -> dict[str, str]:
-        env = {k: v for k, v in os.environ.items() if not k.startswith("HYDROLINK_CURVE")}
+        env = {k: v for k, v in os.environ.items() if not k.startswith(("HYDROLINK_CURVE", "HYDROLINK_CONTROL"))}
         env.update({k: local(str(v)) for k, v in {**image_env, **compose[service].get("environment", {})}.items()})
         return env
 

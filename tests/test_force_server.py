@@ -689,8 +689,8 @@ def test_a_controller_hello_is_not_counted_against_the_session_bound(hdb):
         welcome = srv.handle(codec.pack(hello), [b"c"])
         assert welcome["type"] == "welcome", welcome
         joined = srv.handle(codec.pack(codec.message("hello", "j", welcome["session"], role="controller",
-                                                     controller="ctl")), [b"k"])
-        assert joined["type"] == "welcome" and joined["session"] == welcome["session"], joined
+                                                     controller="ctl", token=welcome["control_token"])), [b"k"])
+        assert joined["type"] == "welcome" and joined["session"] not in (None, welcome["session"]), joined
         refused = srv.handle(codec.pack(hello), [b"d"])
         assert (refused["type"], refused["code"], refused["name"], refused["limit"]) == \
             ("error", 14, "busy", "sessions"), refused

@@ -103,8 +103,10 @@ def templates(tmp_path_factory):
                                                     client={"name": "fuzz"})))
     assert welcome["type"] == "welcome", welcome
     sid = welcome["session"]
-    ctl = send(server, codec.pack(codec.message("hello", "c0", sid, role="controller", controller="ctl")))
+    token = welcome["control_token"]
+    ctl = send(server, codec.pack(codec.message("hello", "c0", sid, role="controller", controller="ctl", token=token)))
     assert ctl["type"] == "welcome", ctl
+    own = ctl["session"]   # the controller's own session id (SPEC §5.7.2)
     zeros = np.zeros((1, 6))
     plain = send(server, codec.pack(codec.message("hello", "h2", None, role="multibody", scene=scene_plain, hdbs=hdbs)))
     assert plain["type"] == "welcome", plain
@@ -112,11 +114,12 @@ def templates(tmp_path_factory):
     wire = lambda m: codec.unpack(codec.pack(m))  # noqa: E731 - as the server receives it
     t = {"hello": wire(codec.message("hello", "h1", None, role="multibody", scene=scene, hdbs=hdbs,
                                      client={"name": "fuzz", "version": "1"})),
-         "hello_controller": wire(codec.message("hello", "c1", sid, role="controller", controller="ctl")),
+         "hello_controller": wire(codec.message("hello", "c1", sid, role="controller", controller="ctl",
+                                                token=token)),
          "step": wire(codec.message("step", "s1", sid, seq=0, time=0.0, iteration=0, position=zeros,
                                     velocity=zeros)),
-         "measure": wire(codec.message("measure", "m1", sid, controller="ctl", epoch=ctl["epoch"], wait=0.0)),
-         "command": wire(codec.message("command", "k1", sid, controller="ctl", epoch=ctl["epoch"], step=0,
+         "measure": wire(codec.message("measure", "m1", own, controller="ctl", epoch=ctl["epoch"], wait=0.0)),
+         "command": wire(codec.message("command", "k1", own, controller="ctl", epoch=ctl["epoch"], step=0,
                                        commands={"pto": {"force": 1.0}}, wait=0.0)),
          "hello_files": wire(codec.message("hello", "f1", None, role="multibody", scene=scene,
                                            hdbs={"float.nc": files.entry(inline=True)})),
@@ -161,9 +164,9 @@ def test_no_hostile_message_reaches_internal_error(templates):
         except (ValueError, TypeError, OverflowError):   # not encodable by msgpack: never on the wire
             continue
         reply = send(server, frame)
-        if reply["type"] == "welcome" and "epoch" in reply:   # a controller re-joined: later requests carry its epoch
-            for name in ("measure", "command"):
-                t[name]["epoch"] = reply["epoch"]
+        if reply["type"] == "welcome" and "epoch" in reply:   # a controller re-joined: later requests carry its
+            for name in ("measure", "command"):                # epoch and its new session id (SPEC §5.7.2)
+                t[name]["epoch"], t[name]["session"] = reply["epoch"], reply["session"]
         _close_new_session(server, reply)
         code = reply.get("code", 0) if reply["type"] == "error" else 0
         codes[code] = codes.get(code, 0) + 1
@@ -181,8 +184,8 @@ def test_deep_nesting_in_scalar_fields_is_a_named_error(templates):
     """The held-out harness's case: a value nested far deeper than Python's repr can walk, in a
     scalar field (time, seq, wait, v, type), is error 5 (2, 3 for the envelope) naming the field."""
     server, t = templates
-    epoch = send(server, codec.pack(t["hello_controller"]))["epoch"]
-    t["measure"]["epoch"] = epoch
+    joined = send(server, codec.pack(t["hello_controller"]))
+    t["measure"]["epoch"], t["measure"]["session"] = joined["epoch"], joined["session"]
     for name, field, code in (("step", "time", 5), ("step", "seq", 5), ("measure", "wait", 5),
                               ("ping", "v", 2), ("ping", "type", 3)):
         for deep in (_deep_list(900), _deep_map(900)):

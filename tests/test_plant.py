@@ -227,15 +227,15 @@ def test_controller_gets_the_plant_at_join(reference_data, tmp_path):
     try:
         with ServerConnection(srv.address, timeout=10) as conn:
             conn.hello(text, hdbs)
-            r = ask(role="controller", controller="ctl", session=conn.session, plant={"dt": None})
+            r = ask(role="controller", controller="ctl", session=conn.session, token=conn.control_token, plant={"dt": None})
             got = Plant.from_wire(codec.decode_tree(r["control"])["plant"])
             assert got.states == expect.states and got.inputs == expect.inputs and got.dt is None
             np.testing.assert_allclose(got.A, expect.A, rtol=1e-12, atol=1e-12 * np.abs(expect.A).max())
-            r = ask(role="controller", controller="ctl", session=conn.session, plant={"dt": 0.04})
+            r = ask(role="controller", controller="ctl", session=conn.session, token=conn.control_token, plant={"dt": 0.04})
             got = Plant.from_wire(codec.decode_tree(r["control"])["plant"])
             np.testing.assert_allclose(got.B, expect.discretize(0.04).B, rtol=1e-9, atol=1e-15)
             for bad in (0.0, "x", 5e-324, 1e300, -1e300, 2**62):
-                r = ask(role="controller", controller="ctl", session=conn.session, plant={"dt": bad})
+                r = ask(role="controller", controller="ctl", session=conn.session, token=conn.control_token, plant={"dt": bad})
                 assert (r["code"], r["field"]) == (5, "plant.dt")
     finally:
         sock.close(0)

@@ -224,14 +224,16 @@ class ServerConnection:
     def hello(self, scene_text: str, hdbs: dict[str, xr.Dataset | HDBFiles], role: str = "multibody",
               client: dict | None = None, wave_elevation: tuple | None = None,
               meshes: dict[str, tuple[np.ndarray, np.ndarray]] | None = None,
-              realtime: float | None = None) -> Setup:
+              realtime: float | None = None, control_token: str | None = None) -> Setup:
         """Open a session and return its :class:`Setup`; the session id, the server's name/version,
         the protocol version and the session timeout stay on the connection (``session``,
         ``server_info``, ``protocol``, ``session_timeout``). ``wave_elevation``: the (time, eta)
         series of a scene with ``[waves] type = "elevation"`` (clients/run.py load_wave_elevation);
         ``meshes``: the closed hulls (vertices, faces) of its nonlinear bodies by name
         (clients/run.py load_scene_hulls); ``realtime``: ask the server to pace the session, each
-        ``forces`` reply held until its wall-clock time at that factor (SPEC §5.1).
+        ``forces`` reply held until its wall-clock time at that factor (SPEC §5.1); ``control_token``:
+        the secret the scene's controllers must show to join (SPEC §5.7.2; None: the server draws one),
+        kept as :attr:`control_token` from the welcome.
 
         An HDB given as :class:`HDBFiles` goes by its files' SHA-256 (SPEC §5.8): the contents the
         server lacks (error 13) are uploaded, once each, and the ``hello`` is sent again;
@@ -249,6 +251,8 @@ class ServerConnection:
                                       "faces": np.ascontiguousarray(f, np.int64)} for name, (v, f) in meshes.items()}
         if realtime is not None:
             extra["realtime"] = float(realtime)
+        if control_token is not None:
+            extra["control_token"] = control_token
         wire = {k: (ds.entry() if isinstance(ds, HDBFiles) else to_wire(ds)) for k, ds in hdbs.items()}
         client = client or {"name": self.client_name, "version": version}
         self.uploads = []
@@ -267,6 +271,7 @@ class ServerConnection:
                 self.uploads.append(digest)
             reply = self.request("hello", role=role, scene=scene_text, hdbs=wire, client=client, **extra)
         self.session = reply["session"]
+        self.control_token: str | None = reply.get("control_token")
         self.server_info, self.protocol = reply.get("server"), reply.get("protocol")
         self.session_timeout = reply.get("session_timeout")
         try:

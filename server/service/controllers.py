@@ -12,8 +12,11 @@ it is answered (SPEC §1: a client's requests are answered in order).
 
 from __future__ import annotations
 
+import hmac
 import logging
 import math
+import re
+import secrets
 import time as _time
 from collections import deque
 from dataclasses import dataclass, field
@@ -48,7 +51,7 @@ class Slot:
     fallback_damping: list[float] | None
     state: str = "waiting"         # waiting | active | absent
     epoch: int = 0
-    parked: tuple | None = None    # (route, msg_id, idle deadline)
+    parked: tuple | None = None    # (route, msg_id, idle deadline, the controller's session id)
     newest: int = -1               # newest step relayed to this slot
     delivered: int = -1            # newest step delivered to the controller
     sample: dict | None = None     # the newest measurements (reply fields)
@@ -62,11 +65,34 @@ class Slot:
         return self.cfg.name
 
 
+TOKEN = re.compile(r"[A-Za-z0-9_-]{32,128}")   # a join token: at least 32 characters (SPEC §5.7.2)
+
+
+def join_token(msg: dict) -> str:
+    """The multibody hello's ``control_token`` (checked), or a new one of 256 random bits."""
+    token = msg.get("control_token")
+    if token is None:
+        return secrets.token_urlsafe(32)
+    if not isinstance(token, str) or not TOKEN.fullmatch(token):
+        raise ProtocolError(Code.BAD_VALUE, "control_token", "must be 32 to 128 characters of A-Z, a-z, 0-9, "
+                            f"'-' and '_' (a secret the controllers show to join), got {codec.describe(token)}")
+    return token
+
+
+def token_matches(hub: "ControlHub", token: str) -> bool:
+    """Whether ``token`` is ``hub``'s join token (compared in constant time)."""
+    return hmac.compare_digest(hub.token.encode(), token.encode())
+
+
 class ControlHub:
     """The controllers of one session (see module docstring)."""
 
-    def __init__(self, scene: Scene, scene_text: str, model, session_id: str, send: Callable[..., None]):
+    def __init__(self, scene: Scene, scene_text: str, model, session_id: str, send: Callable[..., None],
+                 token: str):
+        """``token``: the secret a controller's hello must carry to join (SPEC §5.7.2): the owner's
+        (its hello's ``control_token``) or one drawn by the server; the owner's welcome returns it."""
         self.scene, self.scene_text, self.session_id, self.send = scene, scene_text, session_id, send
+        self.token = token
         self.dt = float(scene.simulation.dt)
         self.n_steps = scene.simulation.n_steps
         linear = [p for p in scene.ptos if isinstance(p, LinearPTO)]
@@ -130,9 +156,9 @@ class ControlHub:
         slot.counts["joins"] += 1
         slot.epoch += 1
         if slot.parked is not None:   # the replaced connection's request: answered, not left hanging
-            route, msg_id, _ = slot.parked
+            route, msg_id, _, own = slot.parked
             slot.parked = None
-            self.send(route, "idle", msg_id, {})
+            self.send(route, "idle", msg_id, {}, own)
         self._activate(slot)
         if slot.newest >= 0 and slot.newest not in slot.decided:
             slot.delivered = min(slot.delivered, slot.newest - 1)   # the newest goes to the new connection
@@ -165,14 +191,15 @@ class ControlHub:
             raise ProtocolError(Code.BAD_VALUE, "wait", f"must be a number of seconds >= 0, got {codec.describe(w)}")
         return min(float(w), MAX_WAIT)
 
-    def measure(self, msg: dict, route, msg_id) -> tuple[str, dict] | None:
-        """Reply to ``measure``: the next measurements now, or None (parked)."""
+    def measure(self, msg: dict, route, msg_id, own: str) -> tuple[str, dict] | None:
+        """Reply to ``measure``: the next measurements now, or None (parked). ``own``: the
+        controller's session id (SPEC §5.7.2), which its deferred replies carry."""
         slot = self.slot_for(msg)
         wait = self._wait(msg)
         self._activate(slot)
-        return self._next_for(slot, route, msg_id, wait)
+        return self._next_for(slot, route, msg_id, wait, own)
 
-    def command(self, msg: dict, route, msg_id) -> tuple[str, dict] | None:
+    def command(self, msg: dict, route, msg_id, own: str) -> tuple[str, dict] | None:
         slot = self.slot_for(msg)
         wait = self._wait(msg)
         self._activate(slot)
@@ -197,7 +224,7 @@ class ControlHub:
         latency = _time.monotonic() - slot.relay_time.get(step, _time.monotonic())
         slot.received[step] = ("ok", commands, latency)
         self._maybe_finish_pending()
-        return self._next_for(slot, route, msg_id, wait)
+        return self._next_for(slot, route, msg_id, wait, own)
 
     def _validate(self, slot: Slot, commands: Any) -> dict:
         c = slot.cfg
@@ -242,14 +269,14 @@ class ControlHub:
             out[name] = vals
         return out
 
-    def _next_for(self, slot: Slot, route, msg_id, wait: float) -> tuple[str, dict] | None:
+    def _next_for(self, slot: Slot, route, msg_id, wait: float, own: str) -> tuple[str, dict] | None:
         if slot.newest > slot.delivered:
             return self._deliver(slot)
         if self.ended is not None:
             return "stop", {"reason": self.ended}
         if slot.parked is not None:   # an older request of the same controller: do not leave it hanging
-            self.send(slot.parked[0], "idle", slot.parked[1], {})
-        slot.parked = (route, msg_id, _time.monotonic() + wait)
+            self.send(slot.parked[0], "idle", slot.parked[1], {}, slot.parked[3])
+        slot.parked = (route, msg_id, _time.monotonic() + wait, own)
         return None
 
     def _deliver(self, slot: Slot) -> tuple[str, dict]:
@@ -343,10 +370,10 @@ class ControlHub:
             s.sample, s.newest = sample, k
             s.relay_time[k] = now
             if s.parked is not None and s.state == "active":
-                route, msg_id, _ = s.parked
+                route, msg_id, _, own = s.parked
                 s.parked = None
                 mtype, fields = self._deliver(s)
-                self.send(route, mtype, msg_id, fields)
+                self.send(route, mtype, msg_id, fields, own)
 
     def _decide(self, s: Slot, k: int, status: str) -> None:
         p = self.pending
@@ -431,9 +458,9 @@ class ControlHub:
         """Send what is due at ``now``: idle replies, timed-out step replies."""
         for s in self.slots.values():
             if s.parked is not None and now >= s.parked[2]:
-                route, msg_id, _ = s.parked
+                route, msg_id, _, own = s.parked
                 s.parked = None
-                self.send(route, "idle", msg_id, {})
+                self.send(route, "idle", msg_id, {}, own)
         self._maybe_finish_pending(now=now)
 
     def end(self, reason: str) -> None:
@@ -443,9 +470,9 @@ class ControlHub:
         self.pending = None
         for s in self.slots.values():
             if s.parked is not None:
-                route, msg_id, _ = s.parked
+                route, msg_id, _, own = s.parked
                 s.parked = None
-                self.send(route, "stop", msg_id, {"reason": reason})
+                self.send(route, "stop", msg_id, {"reason": reason}, own)
 
     def summary(self) -> dict:
         return {name: dict(s.counts) for name, s in self.slots.items()}

@@ -13,6 +13,7 @@ import itertools
 import logging
 import math
 import os
+import secrets
 import threading
 import time
 from concurrent.futures import Future
@@ -26,7 +27,7 @@ from hydrolink.protocol import codec, transport
 from hydrolink.protocol.codec import Code, ProtocolError
 from hydrolink.protocol.pacing import check_factor
 from hydrolink.server.service.capacity import MAX_SESSIONS, MAX_SETUPS, HelloLimits
-from hydrolink.server.service.controllers import ControlHub
+from hydrolink.server.service.controllers import ControlHub, join_token, token_matches
 from hydrolink.server.errors import ModelError
 from hydrolink.server.hdb.file_set import FileSetReader
 from hydrolink.server.hdb.store import HASH, ContentStore, ContentTooLarge, default_folder
@@ -39,6 +40,7 @@ log = logging.getLogger("hydrolink.server")
 
 POLL_MS = 50
 SETUP_POLL_MS = 5   # the receive timeout while set-ups run: a finished one is answered within it
+CONTROLLER_REQUESTS = ("hello", "measure", "command", "ping", "bye")   # what a controller's session id may send
 PLANT_DT = (1e-6, 3600.0)   # s: the sampling times a controller may ask its plant at (SPEC §5.7.2)
 RELEASE_SPIN = 1.5e-3   # s: a held reply due sooner is waited for by spinning (the receive timeout is in ms)
 IN_PROCESS = "in-process"  # the address of a server without a socket (bind=None)
@@ -133,6 +135,9 @@ class ForceServer:
             "save": self._rollback, "restore": self._rollback, "release": self._rollback}
         self._route: list[bytes] | None = None   # routing frames of the request being handled
         self._hubs: dict[str, ControlHub] = {}   # sessions with controllers (SPEC §5.7)
+        # a joined controller's own session id -> (the session's id, the controller's name): a controller
+        # never learns the owner's id, so it cannot step, roll back or end the session (SPEC §5.7.2)
+        self._controllers: dict[str, tuple[str, str]] = {}
         self._rcv_ms = POLL_MS
         self._workers = SetupWorkers()
         self._setups: list[PendingHello] = []    # hellos being set up, oldest first (at most max_setups)
@@ -259,12 +264,14 @@ class ForceServer:
             except zmq.ZMQError as exc:
                 log.warning("paced reply dropped: %s", exc)
 
-    def _send_later(self, session: str, route: list[bytes], mtype: str, parent: Any, fields: dict) -> None:
-        """Send a deferred reply (a ControlHub's callback); a paced session's ``forces`` wait for
-        their release."""
+    def _send_later(self, session: str, route: list[bytes], mtype: str, parent: Any, fields: dict,
+                    own: str | None = None) -> None:
+        """Send a deferred reply (a ControlHub's callback): to a controller under its own session id
+        ``own``, to the multibody under the session's; a paced session's ``forces`` wait for their
+        release."""
         s = self.sessions.get(session)
         due = s.pacer.release_time(fields["seq"]) if s is not None and s.pacer and mtype == "forces" else None
-        self._send(route, codec.message(mtype, next(self._ids), session, parent, **fields), due)
+        self._send(route, codec.message(mtype, next(self._ids), own or session, parent, **fields), due)
 
     def _frame(self, reply: dict) -> bytes:
         """A reply as its frame (signed with the server's key); a reply holding a value the wire
@@ -314,6 +321,9 @@ class ForceServer:
             session = msg.get("session") if isinstance(msg.get("session"), str) else None
             mtype, msg_id, session = codec.check_envelope(msg)
             msg = codec.without_nil(msg)   # SPEC §2: a nil field is an absent one, for every field
+            if session in self._controllers and mtype not in CONTROLLER_REQUESTS:
+                raise ProtocolError(Code.UNKNOWN_TYPE, "type", f"{mtype!r} is not a controller's request: a "
+                                    f"controller's session id allows only {', '.join(CONTROLLER_REQUESTS)}")
             hub = self._hubs.get(session) if session is not None else None
             if hub is not None and route is not None and self._running and hub.holds(mtype, msg, route):
                 return None   # answered in order once the session's deferred step is (SPEC §1, §5.7)
@@ -418,19 +428,23 @@ class ForceServer:
                                     "e.g. hydrolink serve, or hydrolink run without an embedded server)")
             try:
                 self._hubs[sid] = ControlHub(model.scene, msg["scene"], model, sid,
-                                             lambda route, mtype, parent, fields, _sid=sid:
-                                             self._send_later(_sid, route, mtype, parent, fields))
+                                             lambda route, mtype, parent, fields, own=None, _sid=sid:
+                                             self._send_later(_sid, route, mtype, parent, fields, own),
+                                             join_token(msg))
             except ModelError as exc:
                 raise ProtocolError(Code.BAD_SCENE, f"scene.{exc.key}", str(exc)) from None
         self.sessions[sid] = Session(sid, model, client, realtime, self.plant_builder)
         log.info("session %s opened by %s %s: %d bodies, dt %g, setup %.3f s", sid, client.get("name", "?"),
                  client.get("version", "?"), len(model.bodies), model.dt, time.perf_counter() - t0)
-        return "welcome", {
+        welcome = {
             "protocol": codec.PROTOCOL_VERSION,
             "server": {"name": "hydrolink", "version": self._version},
             "session_timeout": self.session_timeout,
             "setup": model.setup_info().to_wire(),
-        }, sid
+        }
+        if sid in self._hubs:
+            welcome["control_token"] = self._hubs[sid].token   # the owner hands it to its controllers
+        return "welcome", welcome, sid
 
     def _resume_held(self) -> None:
         """Handle the requests held behind a deferred step once it is answered, in their order."""
@@ -463,25 +477,31 @@ class ForceServer:
     # ------------------------------------------------------------ controllers (SPEC §5.7)
 
     def _controller_hello(self, msg: dict, session: str | None) -> tuple[str, dict, str | None]:
+        """A controller joins the session whose join token its hello carries (SPEC §5.7.2)."""
         name = msg.get("controller")
         if name is not None and not isinstance(name, str):
             raise ProtocolError(Code.BAD_VALUE, "controller", f"must be a str or nil, got {type(name).__name__}")
         codec.require_map(msg, "client", default={})
-        if session is None:
-            fits = [sid for sid, hub in self._hubs.items()
-                    if ((name in hub.slots) if name is not None else len(hub.slots) == 1)]
+        token = codec.require_str(msg, "token")
+        if session in self._controllers:   # a rejoin over its own id: the session it joined
+            session = self._controllers[session][0]
+        if session is not None:
+            hub = self._hubs.get(self._session(session).id)
+            if hub is None:
+                raise ProtocolError(Code.BAD_VALUE, "controller", f"session {session!r} declares no controllers")
+            if not token_matches(hub, token):
+                raise ProtocolError(Code.UNAUTHORIZED, "token", "not this session's join token (the owner's "
+                                    "welcome carries it: control_token)")
+        else:
+            fits = [sid for sid, hub in self._hubs.items() if token_matches(hub, token)
+                    and ((name in hub.slots) if name is not None else len(hub.slots) == 1)]
             if not fits:
-                raise ProtocolError(Code.UNKNOWN_SESSION, "session", "no open session declares "
-                                    + (f"a controller {name!r}" if name else "exactly one controller")
-                                    + " (is the multibody run started? give the session id)")
-            if len(fits) > 1:
-                raise ProtocolError(Code.BAD_VALUE, "session", f"{len(fits)} open sessions declare "
-                                    f"controller {name!r}: give the session id")
-            session = fits[0]
+                raise ProtocolError(Code.UNKNOWN_SESSION, "token", "no open session holds this join token"
+                                    + (f" and declares a controller {name!r}" if name else " and exactly one controller")
+                                    + " (is the multibody run started?)")
+            session = fits[0]   # tokens are drawn per session: two sessions share one only by the owners' choice
         s = self._session(session)
-        hub = self._hubs.get(s.id)
-        if hub is None:
-            raise ProtocolError(Code.BAD_VALUE, "controller", f"session {session!r} declares no controllers")
+        hub = self._hubs[s.id]
         plant = None
         if msg.get("plant") is not None:   # the device as a linear plant (SPEC §5.7.2)
             ask = codec.require_map(msg, "plant")
@@ -494,28 +514,41 @@ class ForceServer:
         control = hub.info(slot)
         if plant is not None:
             control = {**control, "plant": plant.to_wire()}
+        own = secrets.token_hex(16)
+        earlier = [c for c, joined in self._controllers.items() if joined == (s.id, slot.name)]
+        for c in earlier[:max(0, len(earlier) - 7)]:   # a controller's last 8 connections keep their ids
+            del self._controllers[c]
+        self._controllers[own] = (s.id, slot.name)
         return "welcome", {
             "protocol": codec.PROTOCOL_VERSION,
             "server": {"name": "hydrolink", "version": self._version},
             "session_timeout": self.session_timeout,
             "epoch": slot.epoch, "rejoined": rejoined, "control": control,
-        }, session
+        }, own
 
     def _controller_request(self, kind: str, msg: dict, msg_id: Any,
                             session: str | None) -> tuple[str, dict, str | None] | None:
-        if session is not None and session not in self.sessions and session in self._closed:
-            return "stop", {"reason": f"session {self._closed[session]}"}, session
+        own = session
+        if session not in self._controllers:
+            raise ProtocolError(Code.UNKNOWN_SESSION, "session", f"{kind!r} needs the session id of the controller's "
+                                "welcome (a controller joins with the session's join token, SPEC §5.7.2)")
+        session, name = self._controllers[session]
+        if msg.get("controller") != name:
+            raise ProtocolError(Code.UNAUTHORIZED, "controller", f"this session id is controller {name!r}'s "
+                                f"(got {codec.describe(msg.get('controller'))})")
+        if session not in self.sessions and session in self._closed:
+            return "stop", {"reason": f"session {self._closed[session]}"}, own
         s = self._session(session)
         hub = self._hubs.get(s.id)
         if hub is None:
             raise ProtocolError(Code.UNKNOWN_TYPE, "type", f"{kind!r} is a controller request; session "
                                 f"{session!r} declares no controllers")
-        out = (hub.measure if kind == "measure" else hub.command)(msg, self._route, msg_id)
+        out = (hub.measure if kind == "measure" else hub.command)(msg, self._route, msg_id, own)
         if out is None:
             if self._route is None:
                 raise ProtocolError(Code.WRONG_STATE, "type", "an in-process server cannot defer a reply")
             return None
-        return out[0], out[1], session
+        return out[0], out[1], own
 
     def _measure(self, msg: dict, msg_id: Any, session: str | None):
         return self._controller_request("measure", msg, msg_id, session)
@@ -556,10 +589,14 @@ class ForceServer:
 
     def _ping(self, msg: dict, msg_id: Any, session: str | None) -> tuple[str, dict, str | None]:
         if session is not None:
-            self._session(session)
+            self._session(self._controllers[session][0] if session in self._controllers else session)
         return "pong", {"time": time.time(), "sessions": len(self.sessions)}, session
 
     def _bye(self, msg: dict, msg_id: Any, session: str | None) -> tuple[str, dict, str | None]:
+        if session in self._controllers:   # a controller leaves; the session goes on (its fallback decides)
+            sid, name = self._controllers.pop(session)
+            log.info("session %s: controller %r said bye", sid, name)
+            return "goodbye", {"controller": name}, session
         s = self._session(session)
         self._close(s, "closed by bye")
         out = {"steps": s.steps, "compute_s": s.compute_s}
@@ -578,7 +615,10 @@ class ForceServer:
             self._answer_held(hub)   # the held requests learn why (error 7)
             log.info("session %s controllers: %s", s.id, hub.summary())
         while len(self._closed) > TOMBSTONES:
-            self._closed.pop(next(iter(self._closed)))
+            gone = next(iter(self._closed))
+            self._closed.pop(gone)
+            for own in [c for c, (sid, _) in self._controllers.items() if sid == gone]:
+                del self._controllers[own]
         log.info("session %s %s after %d steps (%.3f s model time)", s.id, why, s.steps, s.compute_s)
 
     def _expire(self, now: float) -> None:

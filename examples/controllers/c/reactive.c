@@ -5,7 +5,9 @@
  * Only libzmq and msgpack-c (Debian: libzmq3-dev, libmsgpack-dev):
  *
  *   gcc -O2 -ffp-contract=off -o reactive reactive.c -lzmq -lmsgpackc
- *   ./reactive tcp://HOST:PORT [SESSION|-] [NAME]
+ *   ./reactive tcp://HOST:PORT TOKEN [SESSION|-] [NAME]
+ *
+ * TOKEN: the session's join token (SPEC §5.7.2), as hydrolink run prints it or was given it.
  *
  * Parameters from the scene's [[controllers]] parameters: damping, stiffness (numbers).
  * Exit status 0 when the run ended (stop), 2 when the server refused or went silent.
@@ -121,18 +123,19 @@ static void print_error(const msgpack_object *r) {
 }
 
 int main(int argc, char **argv) {
-    if (argc < 2) {
-        fprintf(stderr, "usage: %s tcp://HOST:PORT [SESSION|-] [NAME]\n", argv[0]);
+    if (argc < 3) {
+        fprintf(stderr, "usage: %s tcp://HOST:PORT TOKEN [SESSION|-] [NAME]\n", argv[0]);
         return 2;
     }
-    const char *name = argc > 3 ? argv[3] : NULL;
+    const char *token = argv[2];
+    const char *name = argc > 4 ? argv[4] : NULL;
     link_t ln = {0};
     void *ctx = zmq_ctx_new();
     ln.sock = zmq_socket(ctx, ZMQ_DEALER);
     int zero = 0;
     zmq_setsockopt(ln.sock, ZMQ_LINGER, &zero, sizeof zero);
     if (zmq_connect(ln.sock, argv[1]) != 0) { fprintf(stderr, "reactive.c: cannot connect to %s\n", argv[1]); return 2; }
-    if (argc > 2 && strcmp(argv[2], "-")) snprintf(ln.session, sizeof ln.session, "%s", argv[2]);
+    if (argc > 3 && strcmp(argv[3], "-")) snprintf(ln.session, sizeof ln.session, "%s", argv[3]);
     msgpack_unpacked_init(&ln.reply);
     zmq_msg_init(&ln.frame);
     msgpack_sbuffer buf;
@@ -144,8 +147,9 @@ int main(int argc, char **argv) {
     const msgpack_object *r = NULL;
     for (int attempt = 0;; attempt++) {
         msgpack_sbuffer_clear(&buf);
-        pack_envelope(&ln, &pk, "hello", 3);
+        pack_envelope(&ln, &pk, "hello", 4);
         pack_str(&pk, "role"); pack_str(&pk, "controller");
+        pack_str(&pk, "token"); pack_str(&pk, token);
         pack_str(&pk, "controller"); if (name) pack_str(&pk, name); else msgpack_pack_nil(&pk);
         pack_str(&pk, "client");
         msgpack_pack_map(&pk, 2);
