@@ -63,7 +63,8 @@ def run(tmp: Path, rate: float, seconds: float, realtime: float | None, radiatio
                             str(REPO / "examples" / "controllers" / "reactive.py"), "--server", address, "--token", TOKEN,
                             "--join-wait", "60"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
-        summary = run_scene_file(path, path.with_suffix(".nc"), progress=False, listen=address, control_token=TOKEN, realtime=realtime)
+        summary = run_scene_file(path, path.with_suffix(".nc"), progress=False, listen=address, control_token=TOKEN,
+                                 realtime=realtime)
     finally:
         try:
             ctl.communicate(timeout=30)

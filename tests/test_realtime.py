@@ -71,6 +71,7 @@ def test_injected_delays_are_found_at_their_step_with_their_cause(reference_data
     a free block when the next block fills (row 34). Each shows in the results file at its row, as
     an overrun whose largest part is its cause; the file's counts are the summary's, and every
     row's parts add up to its latency. Margins are wide: only the injected rows are asserted on."""
+    import secrets
     import socket
     import subprocess
     import sys
@@ -102,11 +103,13 @@ def test_injected_delays_are_found_at_their_step_with_their_cause(reference_data
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
         address = f"tcp://127.0.0.1:{sock.getsockname()[1]}"
+    token = secrets.token_urlsafe(32)   # the run's join token, handed to its controller (SPEC §5.7.2)
     proc = subprocess.Popen([sys.executable, "-m", "hydrolink.clients.cli", "control", str(ctl), "--server", address,
-                             "--join-wait", "60"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                             "--token", token, "--join-wait", "60"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
     try:
         summary = run_scene_file(tmp_path / "paced.toml", tmp_path / "paced.nc", progress=False, listen=address,
-                                 realtime=1.0, timeout=60.0)
+                                 realtime=1.0, timeout=60.0, control_token=token)
     finally:
         try:
             _, err = proc.communicate(timeout=30)
