@@ -89,9 +89,8 @@ def test_compose_stack_runs_on_loopback(reference_data, tmp_path):
         with open(log, "w") as err:
             server = subprocess.Popen(executable(entry), env=environment("server"), stdout=subprocess.DEVNULL, stderr=err)
         procs.append(server)
-        for _ in range(200):
-            if "listening on" in log.read_text():
-                break
+        deadline = time.monotonic() + 120.0   # its start-up imports take seconds on a loaded machine
+        while "listening on" not in log.read_text() and server.poll() is None and time.monotonic() < deadline:
             time.sleep(0.05)
         assert f"listening on tcp://127.0.0.1:{port} (CURVE" in log.read_text(), log.read_text()
         ctl = subprocess.Popen(executable([local(a) for a in compose["controller"]["entrypoint"]]),

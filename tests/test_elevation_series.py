@@ -196,7 +196,7 @@ def test_a_numba_that_does_not_import_leaves_the_numpy_paths(sphere_path, monkey
     """numba installed but failing to import (built for another numpy): the set-up takes the numpy
     paths, which give the compiled ones' force to round-off."""
     _, compiled = _sphere_froude_krylov(sphere_path, {}, ramp=0.0, resolution=(8, 10))
-    monkeypatch.setattr(kernels, "imports", lambda: False)
+    monkeypatch.setattr(nonlinear_term, "imports", lambda: False)
     model, fallback = _sphere_froude_krylov(sphere_path, {}, ramp=0.0, resolution=(8, 10))
     assert compiled.compiled and not fallback.compiled
     pose = model.setup_info().equilibrium_position.copy()

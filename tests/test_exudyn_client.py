@@ -299,13 +299,24 @@ def test_server_gone_mid_run_keeps_rows_and_names_the_step(sphere, sphere_path, 
     srv, thread = serve_in_thread("tcp://127.0.0.1:*")
     dt = 0.04
     text = sphere_scene(sphere_path, dt=dt, duration=4000.0, waves=regular_waves(1.0, 4.3, ramp=4.0))
-    timer = threading.Timer(0.7, srv.stop)
-    timer.start()
+    done = threading.Event()
+
+    def stop_mid_run() -> None:   # the server goes once the run has stepped (not on a clock: holds under load)
+        deadline = time.monotonic() + 120.0
+        while not done.is_set() and time.monotonic() < deadline:
+            if any(session.steps >= 20 for session in list(srv.sessions.values())):
+                break
+            time.sleep(0.01)
+        srv.stop()
+
+    watcher = threading.Thread(target=stop_mid_run, daemon=True)
+    watcher.start()
     try:
         with pytest.raises(RunInterrupted, match=r"force server error at step \d+ \(t = [\d.]+ s\)") as info:
-            simulate(srv.address, text, sphere, tmp_path / "gone.nc", timeout=1.0)
+            simulate(srv.address, text, sphere, tmp_path / "gone.nc", timeout=5.0)
     finally:
-        timer.cancel()
+        done.set()
+        watcher.join(5.0)
         srv.stop()
         thread.join(5.0)
     with xr.open_dataset(tmp_path / "gone.nc") as ds:
