@@ -194,3 +194,51 @@ def test_map_and_file_set_mix_in_one_hello(reference_data, server):
     for a, b in zip(mixed, maps):
         for f in a:
             assert np.array_equal(a[f], b[f]), f
+
+
+def test_strangers_files_are_named_errors_and_free_the_server(reference_data, server, tmp_path):
+    """Issue 35 item 7: files that make a reader allocate terabytes or raise from deep inside its
+    library are parsed in a child process (server/hdb/isolated.py): each is error 9 naming the
+    file, never 99, and a valid hello is served right after each."""
+    src = reference_data / "rm3_wamit"
+    lines = (src / "rm3.1").read_text().splitlines(keepends=True)
+    huge = tmp_path / "huge" / "rm3.1"      # one mode index 99999: a (n, 599994, 599994) table
+    huge.parent.mkdir()
+    huge.write_text("".join([lines[0], lines[1].replace("     1     1", " 99999     1", 1), *lines[2:]]))
+    nc = tmp_path / "garbage.nc"
+    nc.write_bytes(b"CDF\x01" + bytes(range(256)) * 40)         # a NetCDF-3 magic number, then noise
+    h5 = tmp_path / "garbage.h5"
+    h5.write_bytes(b"\x89HDF\r\n\x1a\n" + bytes(range(256)) * 40)
+    cases = [("rm3.1", rm3_scene("rm3.1"), HDBFiles("wamit", (huge, src / "rm3.3", src / "rm3.hst", src / "rm3.out"))),
+             ("garbage.nc", rm3_scene("garbage.nc"), HDBFiles("netcdf", (nc,))),
+             ("garbage.h5", sphere_scene("garbage.h5"), HDBFiles("bemio", (h5,)))]
+    for name, scene, files in cases:
+        with ServerConnection(server.address, timeout=60.0) as conn:
+            with pytest.raises(RemoteError) as err:
+                conn.hello(scene, {name: files})
+        assert err.value.code == 9, (name, err.value.code, err.value.message)
+        assert err.value.field.startswith(f'hdbs["{name}"].files["{name}"]'), err.value.field
+        good, _ = forces(server.address, rm3_scene("rm3.1"), {"rm3.1": file_set(src / "rm3.1")}, steps=1)
+        assert np.isfinite(good[-1]["excitation"]).all()
+
+
+def test_a_parse_over_its_time_limit_is_stopped_and_named(reference_data, tmp_path):
+    """A parse that takes longer than the reader's limit (here a valid HDB and a limit of 1 µs: the
+    child cannot answer in time) is stopped, the child killed, and named; the same set parses at
+    the default limit right after, to the same dataset as a read in this process."""
+    from hydrolink.server.hdb.file_set import FileSetReader
+    from hydrolink.server.hdb.isolated import ParseFailure, load_isolated
+    from hydrolink.protocol.codec import ProtocolError
+
+    src = reference_data / "sphere_task10" / "sphere.h5"
+    store = ContentStore(tmp_path / "store", disk_bytes=16 * 2**20)
+    entry = HDBFiles("bemio", (src,)).entry(inline=True)
+    with pytest.raises(ProtocolError) as err:
+        FileSetReader(store, parse_timeout=1e-6).read(entry, 'hdbs["sphere.h5"]', None)
+    assert err.value.code == 9 and "longer than" in err.value.message and "sphere.h5" in err.value.message
+    ds = FileSetReader(store).read(entry, 'hdbs["sphere.h5"]', None)
+    direct = load_hdb(src)
+    for var in ("added_mass", "radiation_damping", "excitation_force", "hydrostatic_stiffness"):
+        np.testing.assert_array_equal(ds[var].values, direct[var].values)
+    with pytest.raises(ParseFailure, match="longer than"):
+        load_isolated(src, timeout=1e-6)

@@ -1,6 +1,7 @@
 """An HDB sent as its original files (SPEC §5.1 "HDB file set"): check the set, resolve each file's
 content (inline bytes, or a SHA-256 the server's store holds), and read it with the same readers a
-client uses on its own disk (:func:`hydrolink.server.hdb.io.load_hdb`).
+client uses on its own disk (:func:`hydrolink.server.hdb.io.load_hdb`), in a child process with time
+and memory limits (server/hdb/isolated.py: the bytes are a stranger's).
 
 The files are written under their client-given names into a fresh temporary folder only for the
 reader; a name is a plain file name (no folder, no leading dot), so nothing lands outside it. A
@@ -22,7 +23,7 @@ import xarray as xr
 from hydrolink.protocol import codec
 from hydrolink.protocol.codec import Code, ProtocolError
 from hydrolink.protocol.hdb.wire import FILE_FORMATS
-from hydrolink.server.hdb.io import load_hdb
+from hydrolink.server.hdb.isolated import PARSE_TIMEOUT, ParseFailure, load_isolated
 from hydrolink.protocol.hdb.layout import HDBError
 from hydrolink.server.hdb.wamit.reader import WAMIT_SUFFIXES
 from hydrolink.server.hdb.store import HASH, ContentStore
@@ -113,8 +114,10 @@ def check_file_set(entry: dict, where: str, store: ContentStore) -> tuple[FileSe
 class FileSetReader:
     """Reads file sets from a store, keeping the last few read HDBs by their contents' digests."""
 
-    def __init__(self, store: ContentStore):
+    def __init__(self, store: ContentStore, parse_timeout: float = PARSE_TIMEOUT):
+        """``parse_timeout``: seconds a file set's parse may take (server/hdb/isolated.py)."""
         self.store = store
+        self.parse_timeout = parse_timeout
         self._parsed: OrderedDict[tuple, xr.Dataset] = OrderedDict()
         self._lock = threading.Lock()   # hellos are set up in worker threads (server/service/setup_workers.py)
 
@@ -139,9 +142,12 @@ class FileSetReader:
                     raise MissingContent(f"{where}.files", [digest])
                 (Path(tmp) / name).write_bytes(data)
             main = fs.main
-            try:
-                ds = load_hdb(Path(tmp) / main, rho=fs.rho,
-                              convention=convention if fs.format == "netcdf" else None, wamit=wamit)
+            try:   # untrusted bytes: parsed in a child process with time and memory limits
+                ds = load_isolated(Path(tmp) / main, timeout=self.parse_timeout, rho=fs.rho,
+                                   convention=convention if fs.format == "netcdf" else None, wamit=wamit)
+            except ParseFailure as exc:
+                raise ProtocolError(Code.BAD_HDB, codec.key_path(f"{where}.files", main),
+                                    f"{main}: not a readable {fs.format} file: {exc.why}") from None
             except HDBError as exc:
                 name = Path(str(exc.source)).name if exc.source else main
                 at = codec.key_path(f"{where}.files", name if name in dict(fs.files) else main)
