@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 
 from hydrolink.protocol.pacing import FACTOR_RANGE
-from hydrolink.server.service.capacity import MAX_SESSIONS, MAX_SETUPS
+from hydrolink.server.service.capacity import MAX_SESSIONS, MAX_SETUPS, default_memory_mib
 
 
 class _UserError(click.ClickException):
@@ -144,9 +144,12 @@ def _build_plant(scene, hdbs):
 @click.option("--max-sessions", default=MAX_SESSIONS, show_default=True, type=click.IntRange(min=1),
               help="Sessions open or being set up; one more multibody hello is refused at once with error 14 "
                    "busy (a session holds its model until bye or --session-timeout).")
+@click.option("--max-memory-mib", type=click.IntRange(min=1), default=None,
+              help="What the open sessions' models may hold together (MiB; default half the machine's memory): a "
+                   "hello whose model would pass it is refused busy (memory), naming the figures.")
 def serve(bind: str, session_timeout: float, cpu: int | None, curve_secret: Path | None,
           curve_clients: Path | None, key_file: Path | None, store: Path | None, store_mib: int,
-          max_message_mib: int | None, max_setups: int, max_sessions: int) -> None:
+          max_message_mib: int | None, max_setups: int, max_sessions: int, max_memory_mib: int | None) -> None:
     """Run the force server until interrupted (SIGINT or SIGTERM)."""
     import signal
 
@@ -164,6 +167,7 @@ def serve(bind: str, session_timeout: float, cpu: int | None, curve_secret: Path
                              store=ContentStore(store or default_folder(), disk_bytes=store_mib * 2**20),
                              max_message_bytes=codec.MAX_MESSAGE_BYTES if max_message_mib is None
                              else max_message_mib * 2**20, max_setups=max_setups, max_sessions=max_sessions,
+                             max_memory_bytes=(max_memory_mib or default_memory_mib()) * 2**20,
                              plant_builder=_build_plant)
     except CurveKeyError as exc:
         raise _UserError(str(exc)) from None

@@ -10,6 +10,11 @@ numpy fail ("Maximum allowed size exceeded", MemoryError) or the machine swap.
 from __future__ import annotations
 
 import math
+import types
+from typing import Any
+
+import numpy as np
+import xarray as xr
 
 from hydrolink.server.errors import ModelError
 
@@ -34,3 +39,44 @@ def require_size(key: str, what: str, shape: tuple[float, ...], itemsize: int = 
         raise ModelError(key, f"{what} would take {dims} values ({_human(nbytes)}), over the "
                               f"{_human(MAX_ARRAY_BYTES)} a set-up array may take" + (f"; {hint}" if hint else ""))
     return int(nbytes)
+
+
+_OPAQUE = (str, bytes, bytearray, int, float, complex, bool, type(None), type, types.ModuleType, types.FunctionType,
+           types.BuiltinFunctionType, types.MethodType)
+
+
+def footprint(obj: Any, max_objects: int = 200_000) -> int:
+    """The bytes of the numpy arrays and xarray datasets reachable from ``obj`` (its attributes,
+    containers, their attributes...), each counted once, views by their base: what a session's
+    model holds in memory, to within the Python objects around them. At most ``max_objects``
+    objects are visited."""
+    seen: set[int] = set()
+    total = 0
+    stack = [obj]
+    while stack and len(seen) < max_objects:
+        o = stack.pop()
+        if id(o) in seen or isinstance(o, _OPAQUE):
+            continue
+        seen.add(id(o))
+        if isinstance(o, np.ndarray):
+            base = o
+            while isinstance(base.base, np.ndarray):
+                base = base.base
+            if id(base) not in seen or base is o:
+                seen.add(id(base))
+                total += base.nbytes
+            continue
+        if isinstance(o, (xr.Dataset, xr.DataArray)):
+            total += int(o.nbytes)
+            continue
+        if isinstance(o, dict):
+            stack.extend(o.values())
+        elif isinstance(o, (list, tuple, set, frozenset)):
+            stack.extend(o)
+        else:
+            attrs = getattr(o, "__dict__", None)
+            if attrs is not None:
+                stack.extend(attrs.values())
+            for slot in getattr(type(o), "__slots__", ()):
+                stack.append(getattr(o, slot, None))
+    return total

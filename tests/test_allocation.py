@@ -54,3 +54,25 @@ def test_require_size_counts_astronomical_shapes_without_overflow():
     for shape in ((MAX_ARRAY_BYTES // 8 + 1,), (1e300, 1e300), (float("nan"),), (float("inf"), 0.5)):
         with pytest.raises(ModelError, match=r"^k: x would take .* over the 1 GiB"):
             require_size("k", "x", shape)
+
+
+def test_footprint_counts_each_array_once_views_by_their_base():
+    """footprint: the bytes of the arrays and datasets reachable from an object graph, written out
+    here: shared arrays and views of one base count once, datasets by their nbytes, cycles end."""
+    import numpy as np
+    import xarray as xr
+
+    from hydrolink.server.allocation import footprint
+
+    class Node:
+        def __init__(self, **kw):
+            self.__dict__.update(kw)
+
+    big = np.zeros((100, 50))                     # 40,000 bytes
+    small = np.ones(10, np.float32)               # 40 bytes
+    ds = xr.Dataset({"a": ("x", np.arange(7.0))})   # 56 bytes of data, plus its index coordinate
+    root = Node(views=[big[:10], big.T, big], table={"s": small, "again": small}, ds=ds,
+                nested=Node(deeper=(big[::2],), text="no array"))
+    root.nested.parent = root                      # a cycle
+    assert footprint(root) == big.nbytes + small.nbytes + ds.nbytes
+    assert footprint(Node()) == 0

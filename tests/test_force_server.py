@@ -674,6 +674,39 @@ def test_a_hello_beyond_the_session_bound_is_refused_until_a_bye_frees_one(hdb):
         thread.join(timeout=5)
 
 
+def test_a_hello_beyond_the_memory_budget_is_refused_until_a_bye_frees_it(hdb):
+    """Issue 35 item 5: the open sessions' models hold at most max_memory_bytes together. With room
+    for one session's model (as measured: its IRF alone is at least samples x (6N)^2 doubles), the
+    second hello is refused with error 14 naming the memory bound and the figures; the first steps
+    on; after its bye the hello is welcomed."""
+    srv, thread = serve_in_thread(session_timeout=60.0)
+    try:
+        with ServerConnection(srv.address, timeout=10.0) as a:
+            a.hello(SCENE, {"float.nc": hdb})
+            one = srv.held_bytes()
+            irf = a.setup.irf_samples * 36 * 8
+            assert one >= irf, (one, irf)
+    finally:
+        srv.stop()
+        thread.join(timeout=5)
+    srv, thread = serve_in_thread(session_timeout=60.0, max_memory_bytes=int(1.5 * one))
+    try:
+        with ServerConnection(srv.address, timeout=10.0) as a, ServerConnection(srv.address, timeout=10.0) as b:
+            a.hello(SCENE, {"float.nc": hdb})
+            err = expect_error(lambda: b.hello(SCENE, {"float.nc": hdb}), 14, None)
+            assert err.name == "busy" and err.extra["limit"] == "memory", err
+            assert err.extra["maximum"] == int(1.5 * one) // 2**20 and "--max-memory-mib" in err.message
+            assert b.session is None and len(srv.sessions) == 1
+            sts = states(2, seed=3)
+            assert a.step(0, 0.0, *sts[0])["seq"] == 0
+            a.bye()
+            b.hello(SCENE, {"float.nc": hdb})
+            assert b.step(0, 0.0, *sts[0])["seq"] == 0
+    finally:
+        srv.stop()
+        thread.join(timeout=5)
+
+
 def test_a_controller_hello_is_not_counted_against_the_session_bound(hdb):
     """A controller joins an existing session: with max_sessions = 1 reached it is still welcomed,
     while a second multibody hello is refused (error 14)."""

@@ -9,12 +9,21 @@ starts, no session is touched. Controller hellos join an existing session and ar
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 
 from hydrolink.protocol.codec import Code, ProtocolError
 
 MAX_SETUPS = 8      # hellos being set up (waiting for a worker or running) at once
 MAX_SESSIONS = 64   # sessions open or being set up
+
+
+def default_memory_mib() -> int:
+    """The server-wide budget of the sessions' models by default: half the machine's memory (MiB)."""
+    try:
+        return max(256, os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE") // 2**21)
+    except (ValueError, OSError, AttributeError):   # a platform that does not say
+        return 4096
 
 
 class ServerBusy(ProtocolError):
@@ -55,3 +64,31 @@ class HelloLimits:
                              f"{self.max_sessions} (max_sessions; hydrolink serve --max-sessions raises it); "
                              "nothing of this hello was kept: send it again after a session closes (bye or "
                              "its idle timeout)")
+
+
+@dataclass(frozen=True)
+class MemoryBudget:
+    """The bytes the open sessions' models may hold together (``hydrolink serve --max-memory-mib``):
+    a new session whose model would pass it is refused with error 14, ``limit`` ``"memory"``
+    (``maximum``, ``current`` in MiB); its model is dropped, the open sessions are untouched."""
+
+    max_bytes: int
+
+    def admit(self, held: int, needed: int) -> None:
+        """Raise :class:`ServerBusy` unless a model of ``needed`` bytes fits beside ``held``."""
+        if held + needed > self.max_bytes:
+            mib = 2**20
+            raise ServerBusy("memory", self.max_bytes // mib, -(-held // mib),
+                             f"server busy: this session's model takes {needed / mib:.0f} MiB and the open "
+                             f"sessions hold {held / mib:.0f} MiB, at most {self.max_bytes / mib:.0f} MiB together "
+                             "(max_memory; hydrolink serve --max-memory-mib raises it); nothing of this hello "
+                             "was kept: send it again after a session closes, or make the scene smaller (a "
+                             "shorter irf_duration, fewer wave components)")
+
+    def out_of_memory(self, held: int) -> ServerBusy:
+        """The error of a set-up that ran out of memory while building its model."""
+        mib = 2**20
+        return ServerBusy("memory", self.max_bytes // mib, -(-held // mib),
+                          "server busy: the machine ran out of memory setting this session up (the open sessions "
+                          f"hold {held / mib:.0f} MiB); nothing of this hello was kept: send it again after a "
+                          "session closes, or make the scene smaller")

@@ -26,7 +26,8 @@ import zmq
 from hydrolink.protocol import codec, transport
 from hydrolink.protocol.codec import Code, ProtocolError
 from hydrolink.protocol.pacing import check_factor
-from hydrolink.server.service.capacity import MAX_SESSIONS, MAX_SETUPS, HelloLimits
+from hydrolink.server.allocation import footprint
+from hydrolink.server.service.capacity import MAX_SESSIONS, MAX_SETUPS, HelloLimits, MemoryBudget
 from hydrolink.server.service.controllers import ControlHub, join_token, token_matches
 from hydrolink.server.errors import ModelError
 from hydrolink.server.hdb.file_set import FileSetReader
@@ -73,7 +74,7 @@ class ForceServer:
                  key: bytes | None = None, curve_secret: str | None = None, curve_clients: str | None = None,
                  max_message_bytes: int = codec.MAX_MESSAGE_BYTES, store: ContentStore | None = None,
                  max_setups: int = MAX_SETUPS, max_sessions: int = MAX_SESSIONS,
-                 plant_builder: PlantBuilder | None = None):
+                 plant_builder: PlantBuilder | None = None, max_memory_bytes: int | None = None):
         """``bind=None`` makes an in-process server without a socket: clients in the same process
         call :meth:`respond` with the same frames a socket would carry (see ServerConnection).
 
@@ -88,8 +89,14 @@ class ForceServer:
         server/service/capacity.py).
 
         ``plant_builder``: what builds a session's linear plant for the controllers that ask for one
-        (SPEC §5.7.2; the clients hand in clients/analysis/plant.py's); None: such a hello is refused."""
+        (SPEC §5.7.2; the clients hand in clients/analysis/plant.py's); None: such a hello is refused.
+
+        ``max_memory_bytes``: what the open sessions' models may hold together (their arrays,
+        server/allocation.py ``footprint``); a hello whose model would pass it is refused with error
+        14 ``busy``, limit ``memory`` (SPEC §4.2); None: no bound."""
         self.plant_builder = plant_builder
+        # the bytes the open sessions' models may hold together (None: unbounded, as in-process)
+        self.memory = MemoryBudget(int(max_memory_bytes)) if max_memory_bytes is not None else None
         self.limits = HelloLimits(max_setups, max_sessions)   # checked before a socket is bound
         self._own_context = context is None and bind is not None
         self._security = None  # CURVE (protocol/security.py)
@@ -396,7 +403,11 @@ class ForceServer:
         self.limits.admit(len(self._setups), len(self.sessions))
         t0 = time.perf_counter()
         if self._route is None or not self._running:   # no loop to answer later: the caller waits
-            return self._open(msg, client, realtime, t0, build_model(msg, self.files))
+            try:
+                model = build_model(msg, self.files)
+            except MemoryError:
+                raise self._out_of_memory() from None
+            return self._open(msg, client, realtime, t0, model)
         self._setups.append(PendingHello(msg, msg_id, self._route, client, realtime, t0,
                                          self._workers.submit(build_model, msg, self.files)))
         return None   # answered by _finish_setups
@@ -409,8 +420,11 @@ class ForceServer:
                 running.append(hello)
                 continue
             try:
-                rtype, fields, sid = self._open(hello.msg, hello.client, hello.realtime, hello.started,
-                                                hello.model.result())
+                try:
+                    model = hello.model.result()
+                except MemoryError:
+                    raise self._out_of_memory() from None
+                rtype, fields, sid = self._open(hello.msg, hello.client, hello.realtime, hello.started, model)
                 reply = codec.message(rtype, next(self._ids), sid, hello.msg_id, **fields)
             except Exception as exc:  # noqa: BLE001 - a failed set-up is that hello's error reply
                 reply = self._error(exc, hello.msg, None, hello.route)
@@ -419,7 +433,11 @@ class ForceServer:
 
     def _open(self, msg: dict, client: dict, realtime: float | None, t0: float,
               model: HydroModel) -> tuple[str, dict, str]:
-        """A new session over a built model: its ``welcome``."""
+        """A new session over a built model: its ``welcome``; error 14 (memory) when its model would
+        pass the server's memory budget beside the open sessions'."""
+        needed = footprint(model)
+        if self.memory is not None:
+            self.memory.admit(self.held_bytes(), needed)
         sid = os.urandom(16).hex()
         if model.scene.controllers:
             if self._sock is None:
@@ -434,6 +452,7 @@ class ForceServer:
             except ModelError as exc:
                 raise ProtocolError(Code.BAD_SCENE, f"scene.{exc.key}", str(exc)) from None
         self.sessions[sid] = Session(sid, model, client, realtime, self.plant_builder)
+        self.sessions[sid].footprint = needed
         log.info("session %s opened by %s %s: %d bodies, dt %g, setup %.3f s", sid, client.get("name", "?"),
                  client.get("version", "?"), len(model.bodies), model.dt, time.perf_counter() - t0)
         welcome = {
@@ -445,6 +464,15 @@ class ForceServer:
         if sid in self._hubs:
             welcome["control_token"] = self._hubs[sid].token   # the owner hands it to its controllers
         return "welcome", welcome, sid
+
+    def held_bytes(self) -> int:
+        """The bytes the open sessions' models hold (as measured when each opened)."""
+        return sum(s.footprint for s in self.sessions.values())
+
+    def _out_of_memory(self) -> ProtocolError:
+        """Error 14 (memory) for a set-up that ran out of memory building its model."""
+        budget = self.memory or MemoryBudget(0)
+        return budget.out_of_memory(self.held_bytes())
 
     def _resume_held(self) -> None:
         """Handle the requests held behind a deferred step once it is answered, in their order."""

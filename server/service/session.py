@@ -128,6 +128,7 @@ class Session:
         what builds the linear plant a controller may ask for (None: such a hello is refused)."""
         self.id = session_id
         self._plant_builder = plant_builder
+        self.footprint = 0   # bytes its model's arrays hold (server/allocation.py footprint), set when it opens
         self.pacer = None if realtime is None else Pacer(model.dt, realtime)
         self._paced_seq = -1
         self._plants: dict = {}   # dt (None: continuous) -> Plant, for controllers that ask (SPEC §5.7.2)
