@@ -30,7 +30,8 @@ from hydrolink.server.hdb.store import HASH, ContentStore
 
 MAX_FILES = 16
 FILE_NAME = re.compile(r"[A-Za-z0-9_-][A-Za-z0-9._-]{0,127}")
-PARSED_KEEP = 8   # read HDBs kept in memory by their files' digests
+PARSED_KEEP = 8              # read HDBs kept in memory by their files' digests ...
+PARSED_BYTES = 512 * 2**20   # ... and their arrays at most this many bytes together
 MAIN_SUFFIXES = {"wamit": (".1",), "bemio": (".h5", ".hdf5"), "netcdf": (".nc",)}   # the file a reader opens
 
 
@@ -159,8 +160,9 @@ class FileSetReader:
                                     f"{str(exc).replace(tmp + '/', '')}") from None
         ds.attrs["source"] = f"{main} (sha256 {dict(fs.files)[main][:12]})"
         with self._lock:
-            self._parsed[key] = ds
-            while len(self._parsed) > PARSED_KEEP:
+            if ds.nbytes <= PARSED_BYTES:
+                self._parsed[key] = ds
+            while len(self._parsed) > PARSED_KEEP or sum(d.nbytes for d in self._parsed.values()) > PARSED_BYTES:
                 self._parsed.popitem(last=False)
         return ds
 
