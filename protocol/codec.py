@@ -23,6 +23,9 @@ import numpy as np
 PROTOCOL_VERSION = 1
 SUPPORTED_VERSIONS = (1,)
 MAX_MESSAGE_BYTES = 64 * 2**20        # default: all frames of a message together (SPEC §1; serve --max-message-mib)
+FRAME_CAP_FACTOR = 2                  # a frame over this many times the limit is refused by ZeroMQ (SPEC §1)
+MAX_DECODED_ITEMS = 2_000_000         # maps, lists and their entries in one decoded message (SPEC §2)
+SMALL_FRAME = 32 * 2**10              # a frame this small decodes without counting (at most ~64 B an input byte)
 MAX_ROUTING_FRAMES = 8
 MAX_ROUTING_FRAME_BYTES = 255         # a ZeroMQ routing identity's limit
 SIG_TRAILER = b"\xa3sig\xc4\x20"  # fixstr "sig" + bin8 header of length 32
@@ -242,11 +245,63 @@ def verify(frame: bytes, key: bytes) -> None:
         raise ProtocolError(Code.BAD_SIGNATURE, "sig", "signature does not match (wrong key or altered message)")
 
 
-def unpack(frame: bytes, key: bytes | None = None) -> dict:
-    """Frame -> message map (``sig`` removed). ProtocolError 1 if not a msgpack map, then 11 if
-    badly signed (the error carries the unverified ``msg_id`` as ``exc.parent``)."""
+def frame_cap(max_message_bytes: int) -> int:
+    """The largest single frame a receiver takes from ZeroMQ (``ZMQ_MAXMSGSIZE``) for a message
+    limit: over it the connection is dropped unanswered; between the limit and it the message is
+    received and refused with error 1 naming the limit (SPEC §1)."""
+    return FRAME_CAP_FACTOR * int(max_message_bytes)
+
+
+def over_limit(size: int, max_message_bytes: int) -> ProtocolError:
+    """Error 1 for a message of ``size`` bytes over a receiver's limit (SPEC §1): names the limit,
+    and carries it as ``limit`` = "message_bytes", ``maximum`` (bytes)."""
+    return ProtocolError(Code.MALFORMED, None,
+                         f"message of {size} bytes over all its frames; at most {max_message_bytes} "
+                         f"({max_message_bytes / 2**20:g} MiB, this server's --max-message-mib; SPEC §1): "
+                         "send HDB files by hash, one upload each (SPEC §5.8)",
+                         extra={"limit": "message_bytes", "maximum": int(max_message_bytes)})
+
+
+class _TooMany(Exception):
+    """Raised from inside msgpack's hooks: the decoded message passed MAX_DECODED_ITEMS."""
+
+
+def _counted_unpackb(frame, max_bytes: int) -> Any:
+    """msgpack.unpackb with SPEC §2's decoding bounds: no str/bin over the frame's own size, no
+    map or list over MAX_DECODED_ITEMS entries, and at most MAX_DECODED_ITEMS maps, lists and
+    entries together (counted as each container completes; _TooMany past it)."""
+    left = MAX_DECODED_ITEMS
+
+    def count(container):
+        nonlocal left
+        left -= 1 + len(container)
+        if left < 0:
+            raise _TooMany
+        return container
+
+    return msgpack.unpackb(frame, raw=False, strict_map_key=True, list_hook=count, object_hook=count,
+                           max_str_len=max_bytes, max_bin_len=max_bytes, max_ext_len=max_bytes,
+                           max_array_len=MAX_DECODED_ITEMS, max_map_len=MAX_DECODED_ITEMS)
+
+
+def unpack(frame: bytes | memoryview, key: bytes | None = None) -> dict:
+    """Frame -> message map (``sig`` removed). ProtocolError 1 if not a msgpack map or over the
+    decoding bounds (SPEC §2: at most MAX_DECODED_ITEMS maps, lists and entries; a frame of at most
+    SMALL_FRAME bytes cannot reach them and is decoded without counting), then 11 if badly signed
+    (the error carries the unverified ``msg_id`` as ``exc.parent``). ``frame`` may be a memoryview
+    (a received frame, not copied); values never refer to it."""
     try:
-        msg = msgpack.unpackb(frame, raw=False, strict_map_key=True)
+        if len(frame) <= SMALL_FRAME:
+            msg = msgpack.unpackb(frame, raw=False, strict_map_key=True)
+        else:
+            msg = _counted_unpackb(frame, len(frame))
+    except _TooMany:
+        raise ProtocolError(Code.MALFORMED, None, f"message holds more than {MAX_DECODED_ITEMS} maps, lists and "
+                            "entries (SPEC §2: send arrays as binary array maps)",
+                            extra={"limit": "decoded_items", "maximum": MAX_DECODED_ITEMS}) from None
+    except MemoryError:
+        raise ProtocolError(Code.BUSY, None, f"the server has no memory to decode a message of {len(frame)} bytes "
+                            "now; send it again later", extra={"limit": "memory"}) from None
     except Exception as exc:  # msgpack raises several unrelated types for garbage
         raise ProtocolError(Code.MALFORMED, None, f"frame is not a msgpack object ({type(exc).__name__}: {exc})") from None
     if not isinstance(msg, dict):

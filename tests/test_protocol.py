@@ -195,3 +195,55 @@ def test_a_value_the_wire_cannot_carry_is_refused_naming_its_field(value, field)
     assert info.value.field == field, info.value
     for ok in (2 ** 64 - 1, -2 ** 63):
         assert codec.unpack(codec.pack(dict(msg, setup={"last_seq": ok})))["setup"]["last_seq"] == ok
+
+
+def _ping_with(pad: bytes) -> bytes:
+    """A ping frame with one more entry ``pad`` whose value is the raw msgpack ``pad``."""
+    head = bytearray(codec.pack(codec.message("ping", "p-1", None)))
+    head[0] += 1   # fixmap: one entry more
+    return bytes(head) + b"\xa3pad" + pad
+
+
+def _array_header(n: int) -> bytes:
+    return b"\xdd" + n.to_bytes(4, "big")
+
+
+def test_decoding_is_bounded_in_containers_and_entries_naming_the_bound():
+    """SPEC §2: a message holds at most MAX_DECODED_ITEMS maps, lists and entries (issue 35 item 2:
+    a 60 MiB ping of 63 million empty lists took 4.3 GB and 22-29 s). One list longer than the
+    bound is refused from its header; many lists each under it, together over it, are refused once
+    the count passes it; both error 1 naming the bound. A message within the bound decodes as it did."""
+    n = codec.MAX_DECODED_ITEMS
+    with pytest.raises(ProtocolError) as one:
+        codec.unpack(_ping_with(_array_header(63_000_000) + b"\x90" * 2 * codec.SMALL_FRAME))
+    assert one.value.code == Code.MALFORMED and f"exceeds max_array_len({n})" in one.value.message
+    inner = n // 40   # 64 lists of n/40 empty lists: 1.6 n containers, each list under the bound
+    many = _array_header(64) + (_array_header(inner) + b"\x90" * inner) * 64
+    with pytest.raises(ProtocolError) as total:
+        codec.unpack(_ping_with(many))
+    assert total.value.code == Code.MALFORMED and f"more than {n} maps, lists and entries" in total.value.message
+    assert total.value.extra == {"limit": "decoded_items", "maximum": n}
+    fits = _array_header(8) + (_array_header(inner) + b"\x90" * inner) * 8   # 0.2 n of each: decoded
+    msg = codec.unpack(_ping_with(fits))
+    assert msg["type"] == "ping" and len(msg["pad"]) == 8 and all(len(x) == inner for x in msg["pad"])
+
+
+def test_a_received_frame_is_decoded_from_a_view_and_nothing_refers_to_it():
+    """A large received frame is decoded in place (a memoryview, not copied: transport.recv_bounded);
+    its bin values are copies, so the frame can be freed right after."""
+    data = bytes(range(256)) * 512
+    buf = bytearray(codec.pack(codec.message("upload", 1, None, sha256="0" * 64, data=data)))
+    msg = codec.unpack(memoryview(buf))
+    buf[-1] ^= 0xFF
+    assert type(msg["data"]) is bytes and msg["data"] == data
+    key = b"k" * 32
+    signed = memoryview(bytearray(codec.pack(codec.message("ping", 2, None, pad=data), key)))
+    assert codec.unpack(signed, key)["msg_id"] == 2
+
+
+def test_over_limit_error_names_the_limit():
+    exc = codec.over_limit(70 * 2**20, 64 * 2**20)
+    assert (exc.code, exc.field, exc.extra) == (Code.MALFORMED, None, {"limit": "message_bytes",
+                                                                         "maximum": 64 * 2**20})
+    assert "message of 73400320 bytes over all its frames; at most 67108864 (64 MiB" in exc.message
+    assert codec.frame_cap(64 * 2**20) == 128 * 2**20
