@@ -149,7 +149,11 @@ def serve(bind: str, session_timeout: float, cpu: int | None, curve_secret: Path
     from hydrolink.server.service import ForceServer
 
     _pin_to_cpu(cpu)
-    key = _hmac_key(key_file)
+    try:
+        key = _hmac_key(key_file)
+    except _UserError as exc:   # a bad --key-file: one line naming the file and why, status 2 (a bad option)
+        exc.exit_code = 2
+        raise
     try:
         server = ForceServer(bind, session_timeout=session_timeout, key=key,
                              curve_secret=str(curve_secret) if curve_secret else None,

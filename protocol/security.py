@@ -195,18 +195,27 @@ def new_hmac_key(path: str | Path) -> Path:
     return path
 
 
+MAX_KEY_FILE_BYTES = 4096   # a key file is one line of hex: anything longer is not one (and is not read further)
+
+
 def read_hmac_key(path: str | Path) -> bytes:
-    """The shared key in a key file (hex, at least 32 bytes); CurveKeyError naming the file."""
+    """The shared key in a key file (hex, at least 32 bytes); CurveKeyError naming the file and
+    why. At most MAX_KEY_FILE_BYTES + 1 bytes are read (a device such as /dev/zero is not read
+    without end)."""
     path = Path(path)
     try:
-        text = path.read_text().strip()
+        with open(path, "rb") as fh:
+            raw = fh.read(MAX_KEY_FILE_BYTES + 1)
     except OSError as exc:
         raise CurveKeyError(f"{path}: cannot read the key file: {exc.strerror}") from None
+    how = "one line of hex digits; make one with `hydrolink keys hmac FILE`"
+    if len(raw) > MAX_KEY_FILE_BYTES:
+        raise CurveKeyError(f"{path}: not a key file: more than {MAX_KEY_FILE_BYTES} bytes ({how})")
     try:
-        key = bytes.fromhex(text)
-    except ValueError:
-        raise CurveKeyError(f"{path}: not a key file (one line of hex digits; make one with "
-                            "`hydrolink keys hmac FILE`)") from None
+        key = bytes.fromhex(raw.decode("ascii").strip())
+    except (UnicodeDecodeError, ValueError):
+        raise CurveKeyError(f"{path}: not a key file: {'binary data' if not raw.isascii() else 'not hex'} "
+                            f"({how})") from None
     if len(key) < HMAC_KEY_BYTES:
         raise CurveKeyError(f"{path}: the key is {len(key)} bytes; at least {HMAC_KEY_BYTES}")
     return key
