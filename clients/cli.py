@@ -128,9 +128,10 @@ def hdb_info(file: Path, plot: Path | None, dofs: str | None, convention: str | 
               help="Bound of the HDB content store on disk, MiB (least recently used contents leave first).")
 @click.option("--max-message-mib", type=click.IntRange(1, 4096),
               help="Largest message received, MiB over all its frames (SPEC §1; default 64, the protocol's "
-                   "codec.MAX_MESSAGE_BYTES): a larger frame is refused by "
-                   "ZeroMQ before it is buffered (its connection is dropped). Large HDBs: send their files by hash "
-                   "(run --hdb-files), each file one upload under the limit, or raise it.")
+                   "codec.MAX_MESSAGE_BYTES): a larger message is answered with error 1 naming the limit, unread; "
+                   "a single frame over twice the limit is refused by ZeroMQ from its header (its connection is "
+                   "dropped, no reply). Large HDBs: send their files by hash (run --hdb-files), each file one "
+                   "upload under the limit, or raise it.")
 @click.option("--max-setups", default=MAX_SETUPS, show_default=True, type=click.IntRange(min=1),
               help="Multibody hellos being set up (waiting for a worker or running) at once; one more is "
                    "refused at once with error 14 busy (SPEC §4.2): each holds its message and builds a model.")

@@ -296,8 +296,8 @@ def unpack(frame: bytes | memoryview, key: bytes | None = None) -> dict:
         else:
             msg = _counted_unpackb(frame, len(frame))
     except _TooMany:
-        raise ProtocolError(Code.MALFORMED, None, f"message holds more than {MAX_DECODED_ITEMS} maps, lists and "
-                            "entries (SPEC §2: send arrays as binary array maps)",
+        raise ProtocolError(Code.MALFORMED, None, "message holds more maps, lists and entries than a message may: at most "
+                            f"{MAX_DECODED_ITEMS} (SPEC §2: send arrays as binary array maps)",
                             extra={"limit": "decoded_items", "maximum": MAX_DECODED_ITEMS}) from None
     except MemoryError:
         raise ProtocolError(Code.BUSY, None, f"the server has no memory to decode a message of {len(frame)} bytes "

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import heapq
 import itertools
+from collections import deque
 import logging
 import math
 import os
@@ -43,6 +44,8 @@ PLANT_DT = (1e-6, 3600.0)   # s: the sampling times a controller may ask its pla
 RELEASE_SPIN = 1.5e-3   # s: a held reply due sooner is waited for by spinning (the receive timeout is in ms)
 IN_PROCESS = "in-process"  # the address of a server without a socket (bind=None)
 TOMBSTONES = 1000  # remembered closed sessions, for a helpful error 7
+RCVHWM = 4         # whole messages ZeroMQ queues per client before it stops reading that connection (SPEC §1)
+MAX_QUEUED = 64    # requests held behind a session's deferred step (SPEC §1); their bytes: the message limit
 
 
 @dataclass(frozen=True)
@@ -93,7 +96,10 @@ class ForceServer:
             self._ctx = context or zmq.Context()
             self._sock = self._ctx.socket(zmq.ROUTER)
             self._sock.setsockopt(zmq.LINGER, 0)
-            self._sock.setsockopt(zmq.MAXMSGSIZE, max_message_bytes)   # per frame; all frames: _over_limits
+            # per frame: a frame up to twice the limit is received and refused by size (_over_limits),
+            # one beyond it drops its connection; each client's queue holds at most RCVHWM messages
+            self._sock.setsockopt(zmq.MAXMSGSIZE, codec.frame_cap(max_message_bytes))
+            self._sock.setsockopt(zmq.RCVHWM, RCVHWM)
             self._sock.setsockopt(zmq.ROUTER_MANDATORY, 0)
             transport.apply_heartbeats(self._sock)   # a dead client's connection is dropped (SPEC §1)
             self._sock.setsockopt(zmq.RCVTIMEO, POLL_MS)
@@ -121,6 +127,7 @@ class ForceServer:
         self._running = False
         self._ids = codec.id_source("s")
         self._error_log = LimitedLog(log)     # error replies' log lines, per code (server/log_limit.py)
+        self._queued: dict[str, deque[int]] = {}   # the sizes of the requests each session holds (MAX_QUEUED)
         self._version = server_version()
         self._handlers: dict[str, Callable[[dict, Any, str | None], tuple[str, dict, str | None] | None]] = {
             "hello": self._hello, "step": self._step, "ping": self._ping, "bye": self._bye,
@@ -167,12 +174,7 @@ class ForceServer:
                 # when a controller deadline (SPEC §5.7) or a paced reply comes sooner, or a set-up runs
                 if self._hubs or self._paced or self._setups or self._rcv_ms != POLL_MS:
                     self._set_rcv_timeout()
-                try:
-                    frames = self._sock.recv_multipart()
-                except zmq.Again:
-                    frames = None
-                if frames:
-                    self._serve_one(frames)
+                self._receive()
                 if self._setups:
                     self._finish_setups()
                 if self._paced:
@@ -202,19 +204,46 @@ class ForceServer:
             self._sock.setsockopt(zmq.RCVTIMEO, ms)
             self._rcv_ms = ms
 
-    def _serve_one(self, frames: list[bytes]) -> None:
-        if len(frames) < 2:
+    def _receive(self) -> None:
+        """Receive one message, bounded (SPEC §1: transport.recv_bounded), and answer it. A
+        MemoryError on the way is that message's error 14 (``limit`` "memory"), never the loop's end."""
+        try:
+            frames, size, count = transport.recv_bounded(self._sock, self.max_message_bytes,
+                                                         codec.MAX_ROUTING_FRAMES + 1)
+        except zmq.Again:
+            return
+        except MemoryError:
+            self._error_log.log("memory", logging.ERROR, "out of memory while receiving a message: dropped")
+            return
+        route = frames[:1]
+        try:
+            self._serve_one(frames, size, count)
+        except MemoryError:
+            del frames
+            self._error_log.log("memory", logging.ERROR, "out of memory while handling a message: refused busy")
+            if count >= 2 and len(route[0]) <= codec.MAX_ROUTING_FRAME_BYTES:
+                self._send(route, codec.error_reply(next(self._ids), None, None, Code.BUSY, None,
+                                                    "the server ran out of memory handling this message; send it "
+                                                    "again later", limit="memory"))
+
+    def _serve_one(self, frames: list[bytes | memoryview], size: int | None = None, count: int | None = None) -> None:
+        """Answer one received message: ``frames`` as kept by transport.recv_bounded (all of them
+        when ``size``/``count``, the message's, are within the limits; else the identity alone)."""
+        size = sum(map(len, frames)) if size is None else size
+        count = len(frames) if count is None else count
+        if count < 2:
             return  # no routing identity: nothing to answer to
-        over = self._over_limits(frames)
-        if over:   # answered to the identity alone: nothing the sender added is echoed
-            reply = codec.error_reply(next(self._ids), None, None, Code.MALFORMED, None, over)
-            frames = [frames[0], b""]
-            release = None
+        over = self._over_limits(frames, size, count)
+        if over is not None:   # answered to the identity alone: nothing the sender added is echoed
+            self._error_log.log(Code.MALFORMED, logging.INFO, "refused a message: %s", over.message)
+            reply = codec.error_from(over, next(self._ids), None, None)
+            route, release = frames[:1], None
         else:
-            reply = self.handle(frames[-1], frames[:-1])
+            route = frames[:-1]
+            reply = self.handle(frames[-1], route)
             release = self._hold
         if reply is not None:   # None: deferred (SPEC §5.7, a hello being set up), sent later
-            self._send(frames[:-1], reply, release)
+            self._send(route, reply, release)
 
     def _send(self, route: list[bytes], reply: dict, release: float | None = None) -> None:
         """Send a reply map to the routing frames it answers (kept in front, verbatim); a paced
@@ -228,19 +257,21 @@ class ForceServer:
         except zmq.ZMQError as exc:  # peer gone or its queue full: drop the reply
             log.warning("reply dropped: %s", exc)
 
-    def _over_limits(self, frames: list[bytes]) -> str:
-        """Why a received message breaks SPEC §1's limits ('' when it does not)."""
-        total = sum(len(f) for f in frames)
-        if total > self.max_message_bytes:
-            return f"message of {total} bytes over all its frames; at most {self.max_message_bytes} (SPEC §1)"
+    def _over_limits(self, frames: list[bytes | memoryview], size: int, count: int) -> ProtocolError | None:
+        """Error 1 for a received message that breaks SPEC §1's limits (None when it does not)."""
+        if size > self.max_message_bytes:
+            return codec.over_limit(size, self.max_message_bytes)
+        if count - 1 > codec.MAX_ROUTING_FRAMES:   # the ROUTER's identity frame included
+            return ProtocolError(Code.MALFORMED, None, f"{count - 1} routing frames before the message; at most "
+                                 f"{codec.MAX_ROUTING_FRAMES} (SPEC §1)", extra={"limit": "routing_frames",
+                                                                               "maximum": codec.MAX_ROUTING_FRAMES})
         routing = frames[:-1]
-        if len(routing) > codec.MAX_ROUTING_FRAMES:   # the ROUTER's identity frame included
-            return f"{len(routing)} routing frames before the message; at most {codec.MAX_ROUTING_FRAMES} (SPEC §1)"
         big = next((i for i, f in enumerate(routing) if len(f) > codec.MAX_ROUTING_FRAME_BYTES), None)
         if big is not None:
-            return (f"routing frame {big} is {len(routing[big])} bytes; at most {codec.MAX_ROUTING_FRAME_BYTES} "
-                    "(SPEC §1)")
-        return ""
+            return ProtocolError(Code.MALFORMED, None, f"routing frame {big} is {len(routing[big])} bytes; at most "
+                                 f"{codec.MAX_ROUTING_FRAME_BYTES} (SPEC §1)",
+                                 extra={"limit": "routing_frame_bytes", "maximum": codec.MAX_ROUTING_FRAME_BYTES})
+        return None
 
     def _send_due(self) -> None:
         """Send the held replies of paced sessions whose release has come."""
@@ -311,6 +342,7 @@ class ForceServer:
             msg = codec.without_nil(msg)   # SPEC §2: a nil field is an absent one, for every field
             hub = self._hubs.get(session) if session is not None else None
             if hub is not None and route is not None and self._running and hub.holds(mtype, msg, route):
+                self._queue(hub, len(frame) if type(frame) is not dict else 0)
                 return None   # answered in order once the session's deferred step is (SPEC §1, §5.7)
             self._route = route
             out = self._handlers[mtype](msg, msg_id, session)
@@ -323,6 +355,9 @@ class ForceServer:
 
     def _error(self, exc: Exception, msg: Any, session: str | None, route: list[bytes] | None) -> dict:
         """The ``error`` reply to a request that raised ``exc`` (logged; code 99 unless a ProtocolError)."""
+        if isinstance(exc, MemoryError):   # not the request's fault, nor a bug: busy (SPEC §5.6)
+            exc = ProtocolError(Code.BUSY, None, "the server ran out of memory handling this request; send it "
+                                "again later", extra={"limit": "memory"})
         if not isinstance(exc, ProtocolError):
             self._error_log.log(Code.INTERNAL, logging.ERROR, "internal error handling a %s (session %s)",
                                 msg.get("type") if isinstance(msg, dict) else "message", session, exc_info=exc)
@@ -432,8 +467,26 @@ class ForceServer:
         for hub in list(self._hubs.values()):
             self._answer_held(hub)
 
+    def _queue(self, hub: ControlHub, size: int) -> None:
+        """Count a request ``hub.holds`` just queued behind the session's deferred step (SPEC §1):
+        beyond MAX_QUEUED requests, or the message limit in bytes, it is taken back and refused
+        with error 14 ``busy`` (``limit`` "queued")."""
+        sizes = self._queued.setdefault(hub.session_id, deque())
+        total = sum(sizes) + size
+        if len(sizes) < MAX_QUEUED and total <= self.max_message_bytes:
+            sizes.append(size)
+            return
+        hub.held.pop()
+        raise ProtocolError(Code.BUSY, None, f"session {hub.session_id} already holds {len(sizes)} requests "
+                            f"({sum(sizes)} bytes) behind its deferred step; at most {MAX_QUEUED} requests and "
+                            f"{self.max_message_bytes} bytes (SPEC §1): wait for the deferred reply",
+                            extra={"limit": "queued", "maximum": MAX_QUEUED, "current": len(sizes)})
+
     def _answer_held(self, hub: ControlHub) -> None:
+        sizes = self._queued.get(hub.session_id)
         while hub.held and hub.pending is None:
+            if sizes:
+                sizes.popleft()
             msg, route = hub.held.popleft()
             reply = self.handle(msg, route)
             if reply is not None:
@@ -567,6 +620,7 @@ class ForceServer:
     def _close(self, s: Session, why: str) -> None:
         self.sessions.pop(s.id, None)
         hub = self._hubs.pop(s.id, None)
+        self._queued.pop(s.id, None)
         self._closed[s.id] = f"{why} at {time.strftime('%H:%M:%S')}"
         if hub is not None:
             hub.end(why)
