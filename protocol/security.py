@@ -28,6 +28,8 @@ import zmq.auth
 from zmq.auth.thread import ThreadAuthenticator
 from zmq.utils.monitor import recv_monitor_message
 
+from hydrolink.server.log_limit import LimitedLog
+
 log = logging.getLogger("hydrolink.server.auth")
 
 
@@ -94,6 +96,7 @@ class Authenticator(ThreadAuthenticator):
     and peer address on ``hydrolink.server.auth``."""
 
     _address = ""
+    _lines: LimitedLog | None = None   # refusals logged at most 20 a minute (a client retrying in a loop)
 
     async def handle_zap_message(self, msg: list[bytes]) -> None:
         if len(msg) > 3:
@@ -103,11 +106,13 @@ class Authenticator(ThreadAuthenticator):
     async def _authenticate_curve(self, domain: str, client_key: bytes) -> tuple[bool, bytes]:
         allowed, reason = await super()._authenticate_curve(domain, client_key)
         key = zmq.utils.z85.encode(client_key).decode()
+        if self._lines is None:
+            self._lines = LimitedLog(log)
         if allowed:
-            log.debug("CURVE client %s admitted (peer %s)", key, self._address)
+            self._lines.log("admitted", logging.DEBUG, "CURVE client %s admitted (peer %s)", key, self._address)
         else:
-            log.warning("refused CURVE client key %s from %s: %s (not in the allowed client keys)",
-                        key, self._address or "?", reason.decode("utf-8", "replace"))
+            self._lines.log("refused", logging.WARNING, "refused CURVE client key %s from %s: %s (not in the allowed "
+                            "client keys)", key, self._address or "?", reason.decode("utf-8", "replace"))
         return allowed, reason
 
 
@@ -140,6 +145,7 @@ class ServerSecurity:
         self._endpoint = f"inproc://hydrolink-monitor-{id(sock):x}"
         sock.monitor(self._endpoint, sum(e for e in _FAILURES if e))
         self._sock = sock
+        self._lines = LimitedLog(log)   # failed handshakes logged at most 20 a minute (a client retrying in a loop)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._watch, args=(ctx,), name="hydrolink-curve-monitor", daemon=True)
         self._thread.start()
@@ -159,9 +165,10 @@ class ServerSecurity:
                     break
                 what = _FAILURES.get(event["event"], f"event {event['event']}")
                 if event["event"] != getattr(zmq, "EVENT_HANDSHAKE_FAILED_AUTH", -1):  # logged by the ZAP handler
-                    log.warning("refused a connection on %s: not a CURVE client of this server (a plaintext "
-                                "client, or one holding another server key): handshake %s (code %s)",
-                                event["endpoint"].decode("utf-8", "replace"), what, event["value"])
+                    self._lines.log("handshake", logging.WARNING, "refused a connection on %s: not a CURVE client "
+                                    "of this server (a plaintext client, or one holding another server key): "
+                                    "handshake %s (code %s)", event["endpoint"].decode("utf-8", "replace"), what,
+                                    event["value"])
         except zmq.ZMQError:
             pass
         finally:

@@ -8,6 +8,7 @@ worker thread (server/setup_workers.py): the loop answers other sessions' steps 
 
 from __future__ import annotations
 
+import contextvars
 import heapq
 import itertools
 from collections import deque
@@ -31,7 +32,7 @@ from hydrolink.server.control import ControlHub
 from hydrolink.server.errors import ModelError
 from hydrolink.server.hdb_files import FileSetReader
 from hydrolink.server.hdb_store import HASH, ContentStore, ContentTooLarge, default_folder
-from hydrolink.server.log_limit import LimitedLog
+from hydrolink.server.log_limit import LimitedLog, limit_lines
 from hydrolink.server.model import HydroModel
 from hydrolink.server.session import Session, build_model
 from hydrolink.server.setup_workers import SetupWorkers
@@ -127,6 +128,7 @@ class ForceServer:
         self._running = False
         self._ids = codec.id_source("s")
         self._error_log = LimitedLog(log)     # error replies' log lines, per code (server/log_limit.py)
+        self._log_limit = LimitedLog(log)     # every other line of the server's loggers, per message (limit_lines)
         self._queued: dict[str, deque[int]] = {}   # the sizes of the requests each session holds (MAX_QUEUED)
         self._version = server_version()
         self._handlers: dict[str, Callable[[dict, Any, str | None], tuple[str, dict, str | None] | None]] = {
@@ -167,6 +169,7 @@ class ForceServer:
             raise RuntimeError("an in-process server (bind=None) has no socket to serve; call respond()")
         next_sweep = time.monotonic()
         self._running = True
+        lines = limit_lines(self._log_limit)   # every log line of this loop (and its set-ups) bounded a minute
         try:
             while not self._stop.is_set():
                 # a blocking receive with a POLL_MS timeout (RCVTIMEO): no poller and no exception
@@ -190,6 +193,7 @@ class ForceServer:
                     next_sweep = now + min(1.0, self.session_timeout / 4)
         finally:
             self._running = False
+            lines.close()
             self._shutdown()
 
     # ------------------------------------------------------------ dispatch
@@ -418,7 +422,8 @@ class ForceServer:
         if self._route is None or not self._running:   # no loop to answer later: the caller waits
             return self._open(msg, client, realtime, t0, build_model(msg, self.files))
         self._setups.append(PendingHello(msg, msg_id, self._route, client, realtime, t0,
-                                         self._workers.submit(build_model, msg, self.files)))
+                                         self._workers.submit(contextvars.copy_context().run,   # its log lines: limit_lines
+                                                              build_model, msg, self.files)))
         return None   # answered by _finish_setups
 
     def _finish_setups(self) -> None:

@@ -5,6 +5,7 @@ before and after. The full sizes (47 frames of 32 MiB, a 60 MiB ping of empty li
 
 from __future__ import annotations
 
+import logging
 import re
 import subprocess
 import sys
@@ -252,6 +253,83 @@ def test_input_queued_behind_a_deferred_step_is_bounded_with_a_named_error(serve
         finally:
             mb.close(0)
             ctl.close(0)
+
+
+# ------------------------------------------------------------------ 9: log lines bounded on every path
+
+def test_a_late_command_repeated_writes_a_bounded_number_of_log_lines(served, victim, hdbs, caplog):
+    """Issue 35 item 9 (a late controller command repeated wrote 22-80 MB of log a minute): 200
+    repeats of a command whose deadline passed each get error 6, and the server writes at most 20
+    lines of that kind (log_limit.limit_lines: every line of the server's loggers, per message)."""
+    srv = served()
+    v = victim(srv)
+    with ServerConnection(srv.address, timeout=WAIT_MS / 1000) as owner, \
+            caplog.at_level(logging.INFO, logger="hydrolink.server"):
+        owner.hello(CONTROLLED, hdbs)
+        sid = owner.session
+        ctl = _dealer(srv.address)
+        try:
+            ctl.send(codec.pack(codec.message("hello", "c-0", sid, role="controller", controller="ctl")))
+            epoch = _recv(ctl)["epoch"]
+            ctl.send(codec.pack(codec.message("measure", "c-1", sid, controller="ctl", epoch=epoch, wait=60.0)))
+            owner.step(0, 0.0, np.zeros((1, 6)), np.zeros((1, 6)))
+            meas = {"step": 0, "pto_displacement": np.zeros(1), "pto_velocity": np.zeros(1), "pto_force": np.zeros(1),
+                    "body_position": np.zeros((1, 6)), "body_velocity": np.zeros((1, 6))}
+            f1 = owner.step(1, DT, np.zeros((1, 6)), np.zeros((1, 6)), measurements=meas)   # after the 0.05 s timeout
+            assert f1["control"]["ctl"]["status"] == "timeout"
+            assert _recv(ctl)["step"] == 0   # the measurements step 1 relayed: the command for them is late
+            for i in range(200):
+                ctl.send(codec.pack(codec.message("command", f"late-{i}", sid, controller="ctl", epoch=epoch, step=0,
+                                                  commands={"pto": {"force": 1.0}})))
+            replies = [_recv(ctl) for _ in range(200)]
+            assert all((r["type"], r["code"]) == ("error", 6) for r in replies)
+            v.step()
+        finally:
+            ctl.close(0)
+    late = [r for r in caplog.records if "late for step" in r.getMessage()]
+    assert 1 <= len(late) <= 20, len(late)
+
+
+def test_limit_lines_filters_per_message_in_its_thread_only(caplog):
+    """log_limit.limit_lines: per logger, level and message template at most ``burst`` lines a
+    window; the first after a window says how many were left out; lines LimitedLog.log wrote
+    (counted under their own kind) pass; other threads are not filtered."""
+    import threading
+
+    from hydrolink.server.log_limit import LimitedLog, limit_lines
+
+    logger = logging.getLogger("hydrolink.test_attacks")
+    now = [0.0]
+    limiter = LimitedLog(logger, burst=2, window=10.0, clock=lambda: now[0])
+    with caplog.at_level(logging.INFO, logger="hydrolink.test_attacks"):
+        lines = limit_lines(limiter)
+        try:
+            for i in range(5):
+                logger.info("late %d", i)
+            logger.info("other")
+            limiter.log("code", logging.INFO, "late %d", 99)          # its own kind, not the template's
+            elsewhere = threading.Thread(target=lambda: [logger.info("late %d", i) for i in range(5, 8)])
+            elsewhere.start()
+            elsewhere.join()
+            now[0] = 10.5
+            logger.info("late %d", 8)
+        finally:
+            lines.close()
+        logger.info("late %d", 9)                                        # closed: not filtered
+    assert [r.getMessage() for r in caplog.records] == [
+        "late 0", "late 1", "other", "late 99", "late 5", "late 6", "late 7",
+        "late 8 (3 more like this were not logged: at most 2 a 10 s window)", "late 9"]
+
+
+def test_sessions_opened_and_closed_in_a_loop_write_a_bounded_number_of_log_lines(served, hdbs, caplog):
+    """Every path, not only errors: 23 hello/bye cycles write at most 20 "opened" lines."""
+    srv = served()
+    with caplog.at_level(logging.INFO, logger="hydrolink.server"):
+        for _ in range(23):
+            with ServerConnection(srv.address, timeout=WAIT_MS / 1000) as c:
+                c.hello(SCENE, hdbs)
+    opened = [r for r in caplog.records if re.match(r"session \w+ opened by", r.getMessage())]
+    assert len(opened) == 20, len(opened)
 
 
 # ------------------------------------------------------------------ MemoryError on the receive path
