@@ -339,6 +339,10 @@ class ForceServer:
         msg: Any = None
         session: str | None = None
         self._hold = None
+        if route is not None and type(frame) is not dict and len(frame) > codec.SMALL_FRAME:
+            busy = self._refused_unread(frame, route)
+            if busy is not None:
+                return busy
         try:
             msg = frame if type(frame) is dict else codec.unpack(frame, self.key)
             session = msg.get("session") if isinstance(msg.get("session"), str) else None
@@ -356,6 +360,23 @@ class ForceServer:
             return codec.message(rtype, next(self._ids), session, msg_id, **fields)
         except Exception as exc:  # noqa: BLE001 - the loop must never die
             return self._error(exc, msg, session, route)
+
+    def _refused_unread(self, frame: bytes | memoryview, route: list[bytes]) -> dict | None:
+        """Error 14 ``busy`` for a large multibody hello to a full server (SPEC §4.2), read from its
+        envelope alone (codec.peek): its content (a padded scene, inline HDBs) is neither copied nor
+        decoded, so a flood of them costs the loop microseconds each. None otherwise (a signing
+        server checks every signature first)."""
+        if self.key is not None:
+            return None
+        try:
+            self.limits.admit(len(self._setups), len(self.sessions))
+            return None
+        except ProtocolError as busy:
+            env = codec.peek(frame, ("v", "type", "msg_id", "role", "session"))
+            if env is None or (env.get("type"), env.get("role"), env.get("session")) != ("hello", "multibody", None) \
+                    or type(env.get("v")) is not int or env["v"] not in codec.SUPPORTED_VERSIONS:
+                return None
+            return self._error(busy, env, None, route)
 
     def _error(self, exc: Exception, msg: Any, session: str | None, route: list[bytes] | None) -> dict:
         """The ``error`` reply to a request that raised ``exc`` (logged; code 99 unless a ProtocolError)."""
@@ -421,9 +442,9 @@ class ForceServer:
         t0 = time.perf_counter()
         if self._route is None or not self._running:   # no loop to answer later: the caller waits
             return self._open(msg, client, realtime, t0, build_model(msg, self.files))
-        self._setups.append(PendingHello(msg, msg_id, self._route, client, realtime, t0,
-                                         self._workers.submit(contextvars.copy_context().run,   # its log lines: limit_lines
-                                                              build_model, msg, self.files)))
+        work = self._workers.submit(contextvars.copy_context().run,   # its log lines too: limit_lines
+                                    build_model, msg, self.files)
+        self._setups.append(PendingHello(msg, msg_id, self._route, client, realtime, t0, work))
         return None   # answered by _finish_setups
 
     def _finish_setups(self) -> None:
