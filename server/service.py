@@ -172,29 +172,38 @@ class ForceServer:
         lines = limit_lines(self._log_limit)   # every log line of this loop (and its set-ups) bounded a minute
         try:
             while not self._stop.is_set():
-                # a blocking receive with a POLL_MS timeout (RCVTIMEO): no poller and no exception
-                # per message on the hot path, only when the socket was idle for POLL_MS; shorter
-                # when a controller deadline (SPEC §5.7) or a paced reply comes sooner, or a set-up runs
-                if self._hubs or self._paced or self._setups or self._rcv_ms != POLL_MS:
-                    self._set_rcv_timeout()
-                self._receive()
-                if self._setups:
-                    self._finish_setups()
-                if self._paced:
-                    self._send_due()
-                now = time.monotonic()
-                if self._hubs:
-                    for hub in list(self._hubs.values()):
-                        if hub.next_deadline() <= now:
-                            hub.poll(now)
-                    self._resume_held()
-                if now >= next_sweep:
-                    self._expire(now)
-                    next_sweep = now + min(1.0, self.session_timeout / 4)
+                try:
+                    next_sweep = self._turn(next_sweep)
+                except MemoryError:   # not the end of serve: what was being done is dropped, the loop goes on
+                    self._error_log.log("memory", logging.ERROR, "out of memory in the server loop (not in a "
+                                        "request: those get error 14); it goes on")
         finally:
             self._running = False
             lines.close()
             self._shutdown()
+
+    def _turn(self, next_sweep: float) -> float:
+        """One turn of the loop: at most one request received and answered, then what is due."""
+        # a blocking receive with a POLL_MS timeout (RCVTIMEO): no poller and no exception
+        # per message on the hot path, only when the socket was idle for POLL_MS; shorter
+        # when a controller deadline (SPEC §5.7) or a paced reply comes sooner, or a set-up runs
+        if self._hubs or self._paced or self._setups or self._rcv_ms != POLL_MS:
+            self._set_rcv_timeout()
+        self._receive()
+        if self._setups:
+            self._finish_setups()
+        if self._paced:
+            self._send_due()
+        now = time.monotonic()
+        if self._hubs:
+            for hub in list(self._hubs.values()):
+                if hub.next_deadline() <= now:
+                    hub.poll(now)
+            self._resume_held()
+        if now >= next_sweep:
+            self._expire(now)
+            next_sweep = now + min(1.0, self.session_timeout / 4)
+        return next_sweep
 
     # ------------------------------------------------------------ dispatch
 
