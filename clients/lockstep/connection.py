@@ -158,11 +158,12 @@ class ServerConnection:
                 "--curve-server-key the server's key?" if getattr(self, "curve", None) is not None else
                 "; a server started with --curve-secret refuses plaintext clients")
         size = len(self._in_flight[1]) if self._in_flight is not None else 0
-        if size > codec.frame_cap(codec.MAX_MESSAGE_BYTES):
-            hint += (f"; this request is {size / 2**20:.1f} MiB, over twice the default message limit of "
+        if size > codec.MAX_MESSAGE_BYTES:
+            hint += (f"; this request is {size / 2**20:.1f} MiB, over the default message limit of "
                      f"{codec.MAX_MESSAGE_BYTES // 2**20} MiB: a server drops a frame over twice its limit "
-                     "unanswered (SPEC §1; under that it answers error 1 naming its limit): send the HDB files "
-                     "by hash (hydrolink run --hdb-files) or start the server with a larger --max-message-mib")
+                     "unanswered (under that it answers error 1 naming its limit; a server before protocol "
+                     "revision 1.2 drops any frame over its limit: SPEC §1): send the HDB files by hash "
+                     "(hydrolink run --hdb-files) or start the server with a larger --max-message-mib")
         raise TimeoutError(f"no reply to {mtype!r} from the hydrolink server at {self.address} "
                            f"within {limit:g} s (is it running and reachable?{hint})")
 
