@@ -28,8 +28,6 @@ import zmq.auth
 from zmq.auth.thread import ThreadAuthenticator
 from zmq.utils.monitor import recv_monitor_message
 
-from hydrolink.server.log_limit import LimitedLog
-
 log = logging.getLogger("hydrolink.server.auth")
 
 
@@ -91,12 +89,23 @@ def client_keys(server_key: str | Path | None, secret_file: str | Path | None) -
     return ClientKeys.from_files(server_key, secret_file)
 
 
+class EveryLine:
+    """Log lines as they come: ``log(kind, level, msg, *args)`` on ``logger``. A server passes a
+    bounded one instead (server/log_limit.LimitedLog: at most 20 a minute of each kind)."""
+
+    def __init__(self, logger: logging.Logger):
+        self.logger = logger
+
+    def log(self, kind, level: int, msg: str, *args: object) -> None:
+        self.logger.log(level, msg, *args)
+
+
 class Authenticator(ThreadAuthenticator):
     """zmq.auth's ZAP handler, logging each CURVE refusal (and admission, at debug) with the key
     and peer address on ``hydrolink.server.auth``."""
 
     _address = ""
-    _lines: LimitedLog | None = None   # refusals logged at most 20 a minute (a client retrying in a loop)
+    lines = EveryLine(log)   # where refusals are logged (ServerSecurity's ``lines``)
 
     async def handle_zap_message(self, msg: list[bytes]) -> None:
         if len(msg) > 3:
@@ -106,12 +115,10 @@ class Authenticator(ThreadAuthenticator):
     async def _authenticate_curve(self, domain: str, client_key: bytes) -> tuple[bool, bytes]:
         allowed, reason = await super()._authenticate_curve(domain, client_key)
         key = zmq.utils.z85.encode(client_key).decode()
-        if self._lines is None:
-            self._lines = LimitedLog(log)
         if allowed:
-            self._lines.log("admitted", logging.DEBUG, "CURVE client %s admitted (peer %s)", key, self._address)
+            self.lines.log("admitted", logging.DEBUG, "CURVE client %s admitted (peer %s)", key, self._address)
         else:
-            self._lines.log("refused", logging.WARNING, "refused CURVE client key %s from %s: %s (not in the allowed "
+            self.lines.log("refused", logging.WARNING, "refused CURVE client key %s from %s: %s (not in the allowed "
                             "client keys)", key, self._address or "?", reason.decode("utf-8", "replace"))
         return allowed, reason
 
@@ -127,7 +134,10 @@ class ServerSecurity:
     """CURVE on a server socket: the authenticator (a thread on the socket's context) and a monitor
     thread logging failed handshakes. :meth:`close` stops both."""
 
-    def __init__(self, ctx: zmq.Context, sock: zmq.Socket, secret_file: str | Path, clients_dir: str | Path):
+    def __init__(self, ctx: zmq.Context, sock: zmq.Socket, secret_file: str | Path, clients_dir: str | Path,
+                 lines=None):
+        """``lines``: where refusals are logged (``log(kind, level, msg, *args)``), by default every
+        line on ``hydrolink.server.auth``; a shared server bounds them (a client retrying in a loop)."""
         public, secret = load_keys(secret_file, secret=True)
         clients_dir = Path(clients_dir)
         if not clients_dir.is_dir():
@@ -136,7 +146,9 @@ class ServerSecurity:
         if not self.allowed:
             log.warning("no client keys (*.key) in %s: every client will be refused", clients_dir)
         self.public = public
+        self._lines = lines or EveryLine(log)
         self.auth = Authenticator(ctx, log=logging.getLogger("hydrolink.server.zap"))
+        self.auth.lines = self._lines
         self.auth.start()
         self.auth.configure_curve(domain="*", location=str(clients_dir))
         sock.curve_server = True
@@ -145,7 +157,6 @@ class ServerSecurity:
         self._endpoint = f"inproc://hydrolink-monitor-{id(sock):x}"
         sock.monitor(self._endpoint, sum(e for e in _FAILURES if e))
         self._sock = sock
-        self._lines = LimitedLog(log)   # failed handshakes logged at most 20 a minute (a client retrying in a loop)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._watch, args=(ctx,), name="hydrolink-curve-monitor", daemon=True)
         self._thread.start()

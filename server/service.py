@@ -113,7 +113,8 @@ class ForceServer:
                     raise CurveKeyError("CURVE needs both the server's secret key file and the directory of "
                                         "allowed client keys")
                 try:
-                    self._security = ServerSecurity(self._ctx, self._sock, curve_secret, curve_clients)
+                    self._security = ServerSecurity(self._ctx, self._sock, curve_secret, curve_clients,
+                                                    LimitedLog(logging.getLogger("hydrolink.server.auth")))
                 except Exception:
                     self._sock.close(0)
                     raise
