@@ -11,12 +11,12 @@ from __future__ import annotations
 import contextvars
 import heapq
 import itertools
-from collections import deque
 import logging
 import math
 import os
 import threading
 import time
+from collections import deque
 from concurrent.futures import Future
 from dataclasses import asdict, dataclass
 from importlib import metadata
@@ -228,19 +228,21 @@ class ForceServer:
                                                          codec.MAX_ROUTING_FRAMES + 1)
         except zmq.Again:
             return
-        except MemoryError:
-            self._error_log.log("memory", logging.ERROR, "out of memory while receiving a message: dropped")
-            return
-        route = frames[:1]
-        try:
-            self._serve_one(frames, size, count)
-        except MemoryError:
+        except transport.ReceiveMemoryError as exc:   # the rest of that message was dropped
+            route, count = [exc.identity], 2
+        else:
+            route = frames[:1]
+            try:
+                self._serve_one(frames, size, count)
+                return
+            except MemoryError:
+                pass   # answered below, once the exception (and what its traceback holds) is gone
             del frames
-            self._error_log.log("memory", logging.ERROR, "out of memory while handling a message: refused busy")
-            if count >= 2 and len(route[0]) <= codec.MAX_ROUTING_FRAME_BYTES:
-                self._send(route, codec.error_reply(next(self._ids), None, None, Code.BUSY, None,
-                                                    "the server ran out of memory handling this message; send it "
-                                                    "again later", limit="memory"))
+        self._error_log.log("memory", logging.ERROR, "out of memory receiving or handling a message: refused busy")
+        if count >= 2 and 0 < len(route[0]) <= codec.MAX_ROUTING_FRAME_BYTES:
+            self._send(route, codec.error_reply(next(self._ids), None, None, Code.BUSY, None,
+                                                "the server ran out of memory handling this message; send it "
+                                                "again later", limit="memory"))
 
     def _serve_one(self, frames: list[bytes | memoryview], size: int | None = None, count: int | None = None) -> None:
         """Answer one received message: ``frames`` as kept by transport.recv_bounded (all of them
