@@ -7,6 +7,8 @@ lockstep in a process of its own and every round trip is timed; while it steps, 
 1. ``frames``: one multipart message of 47 frames x 32 MiB (each under the limit, 1.5 GiB together);
 2. ``lists``: a 60 MiB ``ping`` holding 63 million empty lists in one list (the issue's form), and
    ``nested``: 63 lists of a million empty lists each (each list under msgpack's length bound);
+   ``deep``: 20 million 2-character strings in lists nested 1000 deep (57 MiB: no list complete
+   before the innermost, so a decoder's completion hooks see none of them until the end);
 3. ``hellos``: 100 hellos padded to 30 MiB, from 100 connections at once (the victim holds the one
    session), and ``pipelined``: the same 100 on one connection without waiting.
 
@@ -18,7 +20,7 @@ source tree (a directory holding ``hydrolink/``, e.g. ``git archive`` of an olde
 before/after in the same run. Messages are sent zero-copy from one buffer: the attacker costs this
 process little.
 
-    python bench/bench_attacks.py [--only frames,lists,nested,hellos,pipelined] [--tree DIR] [--scale 1]
+    python bench/bench_attacks.py [--only frames,lists,nested,deep,hellos,pipelined] [--tree DIR] [--scale 1]
 """
 
 from __future__ import annotations
@@ -44,7 +46,7 @@ from hydrolink.protocol.scene import parse_scene
 REPO = Path(__file__).resolve().parents[1]
 SPHERE = REPO / "examples" / "data" / "sphere_task10" / "sphere.h5"
 MiB = 2**20
-ATTACKS = ("frames", "lists", "nested", "hellos", "pipelined")
+ATTACKS = ("frames", "lists", "nested", "deep", "hellos", "pipelined")
 SCENE = f"""
 [simulation]
 dt = 0.05
@@ -152,10 +154,12 @@ def attack(kind: str, ctx: zmq.Context, address: str, scale: float) -> list[str]
             return collect([sock], 1, 120)
         finally:
             sock.close(0)
-    if kind in ("lists", "nested"):
+    if kind in ("lists", "nested", "deep"):
         n = int(63_000_000 * scale)
+        per = int(20_000 * scale)
         pad = (array_header(n) + b"\x90" * n if kind == "lists" else
-               array_header(63) + (array_header(n // 63) + b"\x90" * (n // 63)) * 63)
+               array_header(63) + (array_header(n // 63) + b"\x90" * (n // 63)) * 63 if kind == "nested" else
+               b"".join(array_header(per + (i < 999)) + b"\xa2ab" * per for i in range(1000)))
         frame = ping_with(pad)
         assert len(frame) < 64 * MiB
         sock = dealer(ctx, address)

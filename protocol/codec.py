@@ -14,6 +14,7 @@ import itertools
 import json
 import math
 import os
+import sys
 import re
 from enum import IntEnum
 from typing import Any, Iterator
@@ -26,8 +27,10 @@ SUPPORTED_VERSIONS = (1,)
 MAX_MESSAGE_BYTES = 64 * 2**20        # default: all frames of a message together (SPEC §1; serve --max-message-mib)
 FRAME_CAP_FACTOR = 2                  # a frame over this many times the limit is refused by ZeroMQ (SPEC §1)
 MAX_DECODED_CONTAINERS = 2**16       # maps and lists in one decoded message (SPEC §2)
-MAX_DECODED_ITEMS = 2**20             # their entries (list items, map keys and values) in one decoded message
+MAX_DECODED_ITEMS = 2**18             # their entries (list items, map keys and values) in one decoded message
 SMALL_FRAME = 32 * 2**10              # a frame this small decodes without counting (at most ~64 B an input byte)
+FEW_OBJECTS = 2**14                   # a larger frame of at most this many objects decodes without counting
+MANY_OBJECTS_BYTES = 2 * 2**20        # a frame of more objects is at most this large (its lists' slots: 8 B a byte)
 MAX_ROUTING_FRAMES = 8
 MAX_ROUTING_FRAME_BYTES = 255         # a ZeroMQ routing identity's limit
 SIG_TRAILER = b"\xa3sig\xc4\x20"  # fixstr "sig" + bin8 header of length 32
@@ -268,12 +271,34 @@ class _TooMany(Exception):
     """Raised from inside msgpack's hooks: the decoded message passed a bound (``args``: which)."""
 
 
+class _Metered:
+    """The frame as a file msgpack's Unpacker reads in chunks; before each chunk, the objects made
+    since the start (pymalloc blocks: every str, int, float, map and list an entry makes, also in
+    lists not yet complete, which msgpack's hooks do not see) are checked against the bound."""
+
+    def __init__(self, frame, bound: int):
+        self.buf, self.pos, self.bound = memoryview(frame).cast("B"), 0, bound
+        self.start = sys.getallocatedblocks()
+
+    def read(self, n: int) -> bytes:
+        if sys.getallocatedblocks() - self.start > self.bound:
+            raise _TooMany("items")
+        if self.pos >= MANY_OBJECTS_BYTES:
+            raise _TooMany("bytes")
+        chunk = self.buf[self.pos:self.pos + n]
+        self.pos += len(chunk)
+        return bytes(chunk)
+
+
 def _counted_unpackb(frame, max_bytes: int) -> Any:
-    """msgpack.unpackb with SPEC §2's decoding bounds: no str/bin over the frame's own size, at most
-    MAX_DECODED_CONTAINERS maps and lists and MAX_DECODED_ITEMS entries (a map's counting two, key
-    and value), counted as each container completes (_TooMany past either). Python's cyclic garbage
-    collector is paused meanwhile: it would walk every container made so far, again and again
-    (2 million empty lists, counted, on a loaded 2-core machine: 1.6 s with it, 0.6 s without)."""
+    """msgpack's decoding with SPEC §2's bounds, for a frame of many objects (``_few_objects`` said
+    no): no str/bin over the frame's own size, at most MAX_DECODED_CONTAINERS maps and lists and
+    MAX_DECODED_ITEMS entries (a map's counting two, key and value), counted as each container
+    completes, and the objects made so far metered every 64 KiB read (:class:`_Metered`: lists
+    nested in lists not yet complete), of at most MANY_OBJECTS_BYTES read (what such lists hold
+    costs 8 B a byte read, singletons such as nil too); _TooMany past a bound. Python's cyclic garbage collector is
+    paused meanwhile: it would walk every container made so far, again and again (2 million empty
+    lists, counted, on a loaded 2-core machine: 1.6 s with it, 0.6 s without)."""
     containers, items = MAX_DECODED_CONTAINERS, MAX_DECODED_ITEMS
 
     def listed(container):
@@ -295,26 +320,56 @@ def _counted_unpackb(frame, max_bytes: int) -> Any:
     collecting = gc.isenabled()
     gc.disable()
     try:
-        return msgpack.unpackb(frame, raw=False, strict_map_key=True, list_hook=listed, object_hook=mapped,
-                               max_str_len=max_bytes, max_bin_len=max_bytes, max_ext_len=max_bytes,
-                               max_array_len=MAX_DECODED_ITEMS, max_map_len=MAX_DECODED_ITEMS // 2)
+        reader = _Metered(frame, MAX_DECODED_ITEMS + MAX_DECODED_CONTAINERS)
+        unpacker = msgpack.Unpacker(reader, read_size=2**16, max_buffer_size=max(max_bytes, 2**16), raw=False,
+                                    strict_map_key=True, list_hook=listed, object_hook=mapped,
+                                    max_str_len=max_bytes, max_bin_len=max_bytes, max_ext_len=max_bytes,
+                                    max_array_len=MAX_DECODED_ITEMS, max_map_len=MAX_DECODED_ITEMS // 2)
+        msg = unpacker.unpack()
+        if unpacker.tell() != len(reader.buf):
+            raise ValueError(f"{len(reader.buf) - unpacker.tell()} bytes of extra data after the message")
+        return msg
     finally:
         if collecting:
             gc.enable()
 
 
+def _few_objects(frame, budget: int = FEW_OBJECTS) -> bool:
+    """Whether a frame holds at most ``budget`` msgpack objects, from their headers alone (str and
+    bin payloads jumped over): then decoding it cannot make much more than the frame's own size. A
+    frame malformed within the budget is True too (msgpack refuses it at the same place)."""
+    try:
+        buf = memoryview(frame).cast("B")
+        pos, left = 0, 1
+        while left:
+            budget -= 1
+            if budget < 0:
+                return False
+            pos, inner = _head(buf, pos)
+            left += inner - 1
+        return True
+    except (_Unpeekable, IndexError, ValueError):
+        return True
+
+
 def unpack(frame: bytes | memoryview, key: bytes | None = None) -> dict:
     """Frame -> message map (``sig`` removed). ProtocolError 1 if not a msgpack map or over the
     decoding bounds (SPEC §2: MAX_DECODED_CONTAINERS maps and lists, MAX_DECODED_ITEMS entries; a
-    frame of at most SMALL_FRAME bytes cannot reach them and is decoded without counting), then 11
+    frame of at most SMALL_FRAME bytes, or of at most FEW_OBJECTS objects by their headers, cannot
+    reach them and is decoded without counting), then 11
     if badly signed (the error carries the unverified ``msg_id`` as ``exc.parent``). ``frame`` may
     be a memoryview (a received frame, not copied); values never refer to it."""
     try:
-        if len(frame) <= SMALL_FRAME:
+        if len(frame) <= SMALL_FRAME or _few_objects(frame):
             msg = msgpack.unpackb(frame, raw=False, strict_map_key=True)
         else:
             msg = _counted_unpackb(frame, len(frame))
     except _TooMany as exc:
+        if exc.args[0] == "bytes":
+            raise ProtocolError(Code.MALFORMED, None, f"a message of more than {FEW_OBJECTS} msgpack objects is at "
+                                f"most {MANY_OBJECTS_BYTES} bytes; this one is {len(frame)} (SPEC §2: send arrays as "
+                                "binary array maps)", extra={"limit": "many_objects_bytes",
+                                                             "maximum": MANY_OBJECTS_BYTES}) from None
         kind, bound, what = (("decoded_containers", MAX_DECODED_CONTAINERS, "maps and lists")
                              if exc.args[0] == "containers" else
                              ("decoded_items", MAX_DECODED_ITEMS, "entries (list items, map keys and values)"))
