@@ -9,6 +9,7 @@ import logging
 import re
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -268,12 +269,19 @@ def test_input_queued_behind_a_deferred_step_is_bounded_with_a_named_error(serve
 
 # ------------------------------------------------------------------ 9: log lines bounded on every path
 
+def _allowed(since: float) -> int:
+    """The lines of one kind the server's LimitedLog (20 a 60 s window) may have written since
+    ``since``: 20, and 20 more for each window begun since (a slow, loaded machine)."""
+    return 20 * (1 + int((time.monotonic() - since) // 60))
+
+
 def test_a_late_command_repeated_writes_a_bounded_number_of_log_lines(served, victim, hdbs, caplog):
     """Issue 35 item 9 (a late controller command repeated wrote 22-80 MB of log a minute): 200
     repeats of a command whose deadline passed each get error 6, and the server writes at most 20
     lines of that kind (log_limit.limit_lines: every line of the server's loggers, per message)."""
     srv = served()
     v = victim(srv)
+    t0 = time.monotonic()
     with ServerConnection(srv.address, timeout=WAIT_MS / 1000) as owner, \
             caplog.at_level(logging.INFO, logger="hydrolink.server"):
         owner.hello(CONTROLLED, hdbs)
@@ -298,7 +306,7 @@ def test_a_late_command_repeated_writes_a_bounded_number_of_log_lines(served, vi
         finally:
             ctl.close(0)
     late = [r for r in caplog.records if "late for step" in r.getMessage()]
-    assert 1 <= len(late) <= 20, len(late)
+    assert 1 <= len(late) <= _allowed(t0), len(late)
 
 
 def test_limit_lines_filters_per_message_in_its_thread_only(caplog):
@@ -335,12 +343,13 @@ def test_limit_lines_filters_per_message_in_its_thread_only(caplog):
 def test_sessions_opened_and_closed_in_a_loop_write_a_bounded_number_of_log_lines(served, hdbs, caplog):
     """Every path, not only errors: 23 hello/bye cycles write at most 20 "opened" lines."""
     srv = served()
+    t0 = time.monotonic()
     with caplog.at_level(logging.INFO, logger="hydrolink.server"):
         for _ in range(23):
             with ServerConnection(srv.address, timeout=WAIT_MS / 1000) as c:
                 c.hello(SCENE, hdbs)
     opened = [r for r in caplog.records if re.match(r"session \w+ opened by", r.getMessage())]
-    assert len(opened) == 20, len(opened)
+    assert len(opened) == min(23, _allowed(t0)), len(opened)
 
 
 # ------------------------------------------------------------------ MemoryError on the receive path
