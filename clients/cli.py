@@ -135,9 +135,10 @@ def _build_plant(scene, hdbs):
               help="Bound of the HDB content store on disk, MiB (least recently used contents leave first).")
 @click.option("--max-message-mib", type=click.IntRange(1, 4096),
               help="Largest message received, MiB over all its frames (SPEC §1; default 64, the protocol's "
-                   "codec.MAX_MESSAGE_BYTES): a larger frame is refused by "
-                   "ZeroMQ before it is buffered (its connection is dropped). Large HDBs: send their files by hash "
-                   "(run --hdb-files), each file one upload under the limit, or raise it.")
+                   "codec.MAX_MESSAGE_BYTES): a larger message is answered with error 1 naming the limit, unread; "
+                   "a single frame over twice the limit is refused by ZeroMQ from its header (its connection is "
+                   "dropped, no reply). Large HDBs: send their files by hash (run --hdb-files), each file one "
+                   "upload under the limit, or raise it.")
 @click.option("--max-setups", default=MAX_SETUPS, show_default=True, type=click.IntRange(min=1),
               help="Multibody hellos being set up (waiting for a worker or running) at once; one more is "
                    "refused at once with error 14 busy (SPEC §4.2): each holds its message and builds a model.")
@@ -159,7 +160,11 @@ def serve(bind: str, session_timeout: float, cpu: int | None, curve_secret: Path
     from hydrolink.server.service.force_server import ForceServer
 
     _pin_to_cpu(cpu)
-    key = _hmac_key(key_file)
+    try:
+        key = _hmac_key(key_file)
+    except _UserError as exc:   # a bad --key-file: one line naming the file and why, status 2 (a bad option)
+        exc.exit_code = 2
+        raise
     try:
         server = ForceServer(bind, session_timeout=session_timeout, key=key,
                              curve_secret=str(curve_secret) if curve_secret else None,

@@ -7,12 +7,14 @@ Optional HMAC-SHA256 signature: ``sig`` is the last map entry and signs every by
 
 from __future__ import annotations
 
+import gc
 import hashlib
 import hmac
 import itertools
 import json
 import math
 import os
+import sys
 import re
 from enum import IntEnum
 from typing import Any, Iterator
@@ -23,6 +25,12 @@ import numpy as np
 PROTOCOL_VERSION = 1
 SUPPORTED_VERSIONS = (1,)
 MAX_MESSAGE_BYTES = 64 * 2**20        # default: all frames of a message together (SPEC §1; serve --max-message-mib)
+FRAME_CAP_FACTOR = 2                  # a frame over this many times the limit is refused by ZeroMQ (SPEC §1)
+MAX_DECODED_CONTAINERS = 2**16       # maps and lists in one decoded message (SPEC §2)
+MAX_DECODED_ITEMS = 2**18             # their entries (list items, map keys and values) in one decoded message
+SMALL_FRAME = 32 * 2**10              # a frame this small decodes without counting (at most ~64 B an input byte)
+FEW_OBJECTS = 2**14                   # a larger frame of at most this many objects decodes without counting
+MANY_OBJECTS_BYTES = 2 * 2**20        # a frame of more objects is at most this large (its lists' slots: 8 B a byte)
 MAX_ROUTING_FRAMES = 8
 MAX_ROUTING_FRAME_BYTES = 255         # a ZeroMQ routing identity's limit
 SIG_TRAILER = b"\xa3sig\xc4\x20"  # fixstr "sig" + bin8 header of length 32
@@ -243,11 +251,135 @@ def verify(frame: bytes, key: bytes) -> None:
         raise ProtocolError(Code.BAD_SIGNATURE, "sig", "signature does not match (wrong key or altered message)")
 
 
-def unpack(frame: bytes, key: bytes | None = None) -> dict:
-    """Frame -> message map (``sig`` removed). ProtocolError 1 if not a msgpack map, then 11 if
-    badly signed (the error carries the unverified ``msg_id`` as ``exc.parent``)."""
+def frame_cap(max_message_bytes: int) -> int:
+    """The largest single frame a receiver takes from ZeroMQ (``ZMQ_MAXMSGSIZE``) for a message
+    limit: over it the connection is dropped unanswered; between the limit and it the message is
+    received and refused with error 1 naming the limit (SPEC §1)."""
+    return FRAME_CAP_FACTOR * int(max_message_bytes)
+
+
+def over_limit(size: int, max_message_bytes: int) -> ProtocolError:
+    """Error 1 for a message of ``size`` bytes over a receiver's limit (SPEC §1): names the limit,
+    and carries it as ``limit`` = "message_bytes", ``maximum`` (bytes)."""
+    return ProtocolError(Code.MALFORMED, None,
+                         f"message of {size} bytes over all its frames; at most {max_message_bytes} "
+                         f"({max_message_bytes / 2**20:g} MiB, this server's --max-message-mib; SPEC §1): "
+                         "send HDB files by hash, one upload each (SPEC §5.8)",
+                         extra={"limit": "message_bytes", "maximum": int(max_message_bytes)})
+
+
+class _TooMany(Exception):
+    """Raised from inside msgpack's hooks: the decoded message passed a bound (``args``: which)."""
+
+
+class _Metered:
+    """The frame as a file msgpack's Unpacker reads in chunks; before each chunk, the objects made
+    since the start (pymalloc blocks: every str, int, float, map and list an entry makes, also in
+    lists not yet complete, which msgpack's hooks do not see) are checked against the bound."""
+
+    def __init__(self, frame, bound: int):
+        self.buf, self.pos, self.bound = memoryview(frame).cast("B"), 0, bound
+        self.start = sys.getallocatedblocks()
+
+    def read(self, n: int) -> bytes:
+        if sys.getallocatedblocks() - self.start > self.bound:
+            raise _TooMany("items")
+        if self.pos >= MANY_OBJECTS_BYTES:
+            raise _TooMany("bytes")
+        chunk = self.buf[self.pos:self.pos + n]
+        self.pos += len(chunk)
+        return bytes(chunk)
+
+
+def _counted_unpackb(frame, max_bytes: int) -> Any:
+    """msgpack's decoding with SPEC §2's bounds, for a frame of many objects (``_few_objects`` said
+    no): no str/bin over the frame's own size, at most MAX_DECODED_CONTAINERS maps and lists and
+    MAX_DECODED_ITEMS entries (a map's counting two, key and value), counted as each container
+    completes, and the objects made so far metered every 64 KiB read (:class:`_Metered`: lists
+    nested in lists not yet complete), of at most MANY_OBJECTS_BYTES read (what such lists hold
+    costs 8 B a byte read, singletons such as nil too); _TooMany past a bound. Python's cyclic garbage collector is
+    paused meanwhile: it would walk every container made so far, again and again (2 million empty
+    lists, counted, on a loaded 2-core machine: 1.6 s with it, 0.6 s without)."""
+    containers, items = MAX_DECODED_CONTAINERS, MAX_DECODED_ITEMS
+
+    def listed(container):
+        nonlocal containers, items
+        containers -= 1
+        items -= len(container)
+        if containers < 0 or items < 0:
+            raise _TooMany("containers" if containers < 0 else "items")
+        return container
+
+    def mapped(container):
+        nonlocal containers, items
+        containers -= 1
+        items -= 2 * len(container)
+        if containers < 0 or items < 0:
+            raise _TooMany("containers" if containers < 0 else "items")
+        return container
+
+    collecting = gc.isenabled()
+    gc.disable()
     try:
-        msg = msgpack.unpackb(frame, raw=False, strict_map_key=True)
+        reader = _Metered(frame, MAX_DECODED_ITEMS + MAX_DECODED_CONTAINERS)
+        unpacker = msgpack.Unpacker(reader, read_size=2**16, max_buffer_size=max(max_bytes, 2**16), raw=False,
+                                    strict_map_key=True, list_hook=listed, object_hook=mapped,
+                                    max_str_len=max_bytes, max_bin_len=max_bytes, max_ext_len=max_bytes,
+                                    max_array_len=MAX_DECODED_ITEMS, max_map_len=MAX_DECODED_ITEMS // 2)
+        msg = unpacker.unpack()
+        if unpacker.tell() != len(reader.buf):
+            raise ValueError(f"{len(reader.buf) - unpacker.tell()} bytes of extra data after the message")
+        return msg
+    finally:
+        if collecting:
+            gc.enable()
+
+
+def _few_objects(frame, budget: int = FEW_OBJECTS) -> bool:
+    """Whether a frame holds at most ``budget`` msgpack objects, from their headers alone (str and
+    bin payloads jumped over): then decoding it cannot make much more than the frame's own size. A
+    frame malformed within the budget is True too (msgpack refuses it at the same place)."""
+    try:
+        buf = memoryview(frame).cast("B")
+        pos, left = 0, 1
+        while left:
+            budget -= 1
+            if budget < 0:
+                return False
+            pos, inner = _head(buf, pos)
+            left += inner - 1
+        return True
+    except (_Unpeekable, IndexError, ValueError):
+        return True
+
+
+def unpack(frame: bytes | memoryview, key: bytes | None = None) -> dict:
+    """Frame -> message map (``sig`` removed). ProtocolError 1 if not a msgpack map or over the
+    decoding bounds (SPEC §2: MAX_DECODED_CONTAINERS maps and lists, MAX_DECODED_ITEMS entries; a
+    frame of at most SMALL_FRAME bytes, or of at most FEW_OBJECTS objects by their headers, cannot
+    reach them and is decoded without counting), then 11
+    if badly signed (the error carries the unverified ``msg_id`` as ``exc.parent``). ``frame`` may
+    be a memoryview (a received frame, not copied); values never refer to it."""
+    try:
+        if len(frame) <= SMALL_FRAME or _few_objects(frame):
+            msg = msgpack.unpackb(frame, raw=False, strict_map_key=True)
+        else:
+            msg = _counted_unpackb(frame, len(frame))
+    except _TooMany as exc:
+        if exc.args[0] == "bytes":
+            raise ProtocolError(Code.MALFORMED, None, f"a message of more than {FEW_OBJECTS} msgpack objects is at "
+                                f"most {MANY_OBJECTS_BYTES} bytes; this one is {len(frame)} (SPEC §2: send arrays as "
+                                "binary array maps)", extra={"limit": "many_objects_bytes",
+                                                             "maximum": MANY_OBJECTS_BYTES}) from None
+        kind, bound, what = (("decoded_containers", MAX_DECODED_CONTAINERS, "maps and lists")
+                             if exc.args[0] == "containers" else
+                             ("decoded_items", MAX_DECODED_ITEMS, "entries (list items, map keys and values)"))
+        raise ProtocolError(Code.MALFORMED, None, f"message holds more {what} than a message may: at most {bound} "
+                            "(SPEC §2: send arrays as binary array maps)",
+                            extra={"limit": kind, "maximum": bound}) from None
+    except MemoryError:
+        raise ProtocolError(Code.BUSY, None, f"the server has no memory to decode a message of {len(frame)} bytes "
+                            "now; send it again later", extra={"limit": "memory"}) from None
     except Exception as exc:  # msgpack raises several unrelated types for garbage
         raise ProtocolError(Code.MALFORMED, None, f"frame is not a msgpack object ({type(exc).__name__}: {exc})") from None
     if not isinstance(msg, dict):
@@ -260,6 +392,81 @@ def unpack(frame: bytes, key: bytes | None = None) -> dict:
             raise
     msg.pop("sig", None)
     return msg
+
+
+# msgpack type bytes 0xc4-0xdf: (bytes of a length field, fixed size after the type byte, kind)
+# kind: "s" scalar, "b" a payload of that length (bin, str, ext: +1 type byte), "a" array, "m" map
+_HEADS = {0xc4: (1, 0, "b"), 0xc5: (2, 0, "b"), 0xc6: (4, 0, "b"), 0xc7: (1, 1, "b"), 0xc8: (2, 1, "b"),
+          0xc9: (4, 1, "b"), 0xca: (0, 4, "s"), 0xcb: (0, 8, "s"), 0xcc: (0, 1, "s"), 0xcd: (0, 2, "s"),
+          0xce: (0, 4, "s"), 0xcf: (0, 8, "s"), 0xd0: (0, 1, "s"), 0xd1: (0, 2, "s"), 0xd2: (0, 4, "s"),
+          0xd3: (0, 8, "s"), 0xd4: (0, 2, "s"), 0xd5: (0, 3, "s"), 0xd6: (0, 5, "s"), 0xd7: (0, 9, "s"),
+          0xd8: (0, 17, "s"), 0xd9: (1, 0, "b"), 0xda: (2, 0, "b"), 0xdb: (4, 0, "b"), 0xdc: (2, 0, "a"),
+          0xdd: (4, 0, "a"), 0xde: (2, 0, "m"), 0xdf: (4, 0, "m")}
+
+
+class _Unpeekable(Exception):
+    """A frame :func:`peek` cannot read within its budget (then it is decoded as usual)."""
+
+
+def _head(buf, pos: int) -> tuple[int, int]:
+    """(where the object at ``pos`` ends, or its first entry for a map/list; how many objects it holds)."""
+    b = buf[pos]
+    if b <= 0x7f or b >= 0xe0 or b in (0xc0, 0xc2, 0xc3):
+        return pos + 1, 0
+    if b <= 0x8f:
+        return pos + 1, 2 * (b & 0x0F)
+    if b <= 0x9f:
+        return pos + 1, b & 0x0F
+    if b <= 0xbf:
+        return pos + 1 + (b & 0x1F), 0
+    if b not in _HEADS:
+        raise _Unpeekable
+    size, fixed, kind = _HEADS[b]
+    n = int.from_bytes(buf[pos + 1:pos + 1 + size], "big")
+    end = pos + 1 + size
+    if kind == "s":
+        return end + fixed, 0
+    if kind == "b":
+        return end + fixed + n, 0
+    return end, 2 * n if kind == "m" else n
+
+
+def _plain(b: int) -> bool:
+    """Whether a msgpack type byte starts a scalar or a str (not a map, list, bin or ext)."""
+    return b <= 0x7f or b >= 0xe0 or b in (0xc0, 0xc2, 0xc3) or 0xa0 <= b <= 0xbf or 0xca <= b <= 0xd3 \
+        or 0xd9 <= b <= 0xdb
+
+
+def peek(frame: bytes | memoryview, keys: tuple[str, ...], budget: int = 4096) -> dict | None:
+    """The top-level entries named ``keys`` of a msgpack map frame whose values are scalars (nil,
+    bool, int, float, str), read without decoding the rest: str and bin payloads are jumped over,
+    nested maps and lists walked by their headers, at most ``budget`` objects in all. None for a
+    frame that is not such a map or needs a longer walk. For a receiver that can refuse a request
+    by its envelope alone (a hello to a full server) without copying its content."""
+    try:
+        buf = memoryview(frame).cast("B")
+        pos, n = _head(buf, 0)
+        if buf[0] not in (0xde, 0xdf) and not 0x80 <= buf[0] <= 0x8f:
+            return None
+        out: dict = {}
+        for _ in range(n // 2):
+            start = pos
+            pos, inner = _head(buf, pos)
+            if inner or pos - start > 64:
+                return None   # keys are short strings
+            key = msgpack.unpackb(buf[start:pos])
+            start, left = pos, 1
+            while left:   # the value: one object, with everything nested in it
+                budget -= 1
+                if budget < 0:
+                    return None
+                pos, inner = _head(buf, pos)
+                left += inner - 1
+            if key in keys and _plain(buf[start]) and pos - start <= 1024:
+                out[key] = msgpack.unpackb(buf[start:pos], raw=False)
+        return out if pos == len(buf) else None
+    except (_Unpeekable, IndexError, ValueError, TypeError, UnicodeDecodeError, msgpack.UnpackException):
+        return None
 
 
 # ---------------------------------------------------------------- fields

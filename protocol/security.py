@@ -89,11 +89,23 @@ def client_keys(server_key: str | Path | None, secret_file: str | Path | None) -
     return ClientKeys.from_files(server_key, secret_file)
 
 
+class EveryLine:
+    """Log lines as they come: ``log(kind, level, msg, *args)`` on ``logger``. A server passes a
+    bounded one instead (server/log_limit.LimitedLog: at most 20 a minute of each kind)."""
+
+    def __init__(self, logger: logging.Logger):
+        self.logger = logger
+
+    def log(self, kind, level: int, msg: str, *args: object) -> None:
+        self.logger.log(level, msg, *args)
+
+
 class Authenticator(ThreadAuthenticator):
     """zmq.auth's ZAP handler, logging each CURVE refusal (and admission, at debug) with the key
     and peer address on ``hydrolink.server.auth``."""
 
     _address = ""
+    lines = EveryLine(log)   # where refusals are logged (ServerSecurity's ``lines``)
 
     async def handle_zap_message(self, msg: list[bytes]) -> None:
         if len(msg) > 3:
@@ -104,10 +116,10 @@ class Authenticator(ThreadAuthenticator):
         allowed, reason = await super()._authenticate_curve(domain, client_key)
         key = zmq.utils.z85.encode(client_key).decode()
         if allowed:
-            log.debug("CURVE client %s admitted (peer %s)", key, self._address)
+            self.lines.log("admitted", logging.DEBUG, "CURVE client %s admitted (peer %s)", key, self._address)
         else:
-            log.warning("refused CURVE client key %s from %s: %s (not in the allowed client keys)",
-                        key, self._address or "?", reason.decode("utf-8", "replace"))
+            self.lines.log("refused", logging.WARNING, "refused CURVE client key %s from %s: %s (not in the allowed "
+                            "client keys)", key, self._address or "?", reason.decode("utf-8", "replace"))
         return allowed, reason
 
 
@@ -122,7 +134,10 @@ class ServerSecurity:
     """CURVE on a server socket: the authenticator (a thread on the socket's context) and a monitor
     thread logging failed handshakes. :meth:`close` stops both."""
 
-    def __init__(self, ctx: zmq.Context, sock: zmq.Socket, secret_file: str | Path, clients_dir: str | Path):
+    def __init__(self, ctx: zmq.Context, sock: zmq.Socket, secret_file: str | Path, clients_dir: str | Path,
+                 lines=None):
+        """``lines``: where refusals are logged (``log(kind, level, msg, *args)``), by default every
+        line on ``hydrolink.server.auth``; a shared server bounds them (a client retrying in a loop)."""
         public, secret = load_keys(secret_file, secret=True)
         clients_dir = Path(clients_dir)
         if not clients_dir.is_dir():
@@ -131,7 +146,9 @@ class ServerSecurity:
         if not self.allowed:
             log.warning("no client keys (*.key) in %s: every client will be refused", clients_dir)
         self.public = public
+        self._lines = lines or EveryLine(log)
         self.auth = Authenticator(ctx, log=logging.getLogger("hydrolink.server.zap"))
+        self.auth.lines = self._lines
         self.auth.start()
         self.auth.configure_curve(domain="*", location=str(clients_dir))
         sock.curve_server = True
@@ -159,9 +176,10 @@ class ServerSecurity:
                     break
                 what = _FAILURES.get(event["event"], f"event {event['event']}")
                 if event["event"] != getattr(zmq, "EVENT_HANDSHAKE_FAILED_AUTH", -1):  # logged by the ZAP handler
-                    log.warning("refused a connection on %s: not a CURVE client of this server (a plaintext "
-                                "client, or one holding another server key): handshake %s (code %s)",
-                                event["endpoint"].decode("utf-8", "replace"), what, event["value"])
+                    self._lines.log("handshake", logging.WARNING, "refused a connection on %s: not a CURVE client "
+                                    "of this server (a plaintext client, or one holding another server key): "
+                                    "handshake %s (code %s)", event["endpoint"].decode("utf-8", "replace"), what,
+                                    event["value"])
         except zmq.ZMQError:
             pass
         finally:
@@ -195,18 +213,27 @@ def new_hmac_key(path: str | Path) -> Path:
     return path
 
 
+MAX_KEY_FILE_BYTES = 4096   # a key file is one line of hex: anything longer is not one (and is not read further)
+
+
 def read_hmac_key(path: str | Path) -> bytes:
-    """The shared key in a key file (hex, at least 32 bytes); CurveKeyError naming the file."""
+    """The shared key in a key file (hex, at least 32 bytes); CurveKeyError naming the file and
+    why. At most MAX_KEY_FILE_BYTES + 1 bytes are read (a device such as /dev/zero is not read
+    without end)."""
     path = Path(path)
     try:
-        text = path.read_text().strip()
+        with open(path, "rb") as fh:
+            raw = fh.read(MAX_KEY_FILE_BYTES + 1)
     except OSError as exc:
         raise CurveKeyError(f"{path}: cannot read the key file: {exc.strerror}") from None
+    how = "one line of hex digits; make one with `hydrolink keys hmac FILE`"
+    if len(raw) > MAX_KEY_FILE_BYTES:
+        raise CurveKeyError(f"{path}: not a key file: more than {MAX_KEY_FILE_BYTES} bytes ({how})")
     try:
-        key = bytes.fromhex(text)
-    except ValueError:
-        raise CurveKeyError(f"{path}: not a key file (one line of hex digits; make one with "
-                            "`hydrolink keys hmac FILE`)") from None
+        key = bytes.fromhex(raw.decode("ascii").strip())
+    except (UnicodeDecodeError, ValueError):
+        raise CurveKeyError(f"{path}: not a key file: {'binary data' if not raw.isascii() else 'not hex'} "
+                            f"({how})") from None
     if len(key) < HMAC_KEY_BYTES:
         raise CurveKeyError(f"{path}: the key is {len(key)} bytes; at least {HMAC_KEY_BYTES}")
     return key

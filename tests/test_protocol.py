@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gc
 import hashlib
 import hmac
 import math
@@ -195,3 +196,119 @@ def test_a_value_the_wire_cannot_carry_is_refused_naming_its_field(value, field)
     assert info.value.field == field, info.value
     for ok in (2 ** 64 - 1, -2 ** 63):
         assert codec.unpack(codec.pack(dict(msg, setup={"last_seq": ok})))["setup"]["last_seq"] == ok
+
+
+def _ping_with(pad: bytes) -> bytes:
+    """A ping frame with one more entry ``pad`` whose value is the raw msgpack ``pad``."""
+    head = bytearray(codec.pack(codec.message("ping", "p-1", None)))
+    head[0] += 1   # fixmap: one entry more
+    return bytes(head) + b"\xa3pad" + pad
+
+
+def _array_header(n: int) -> bytes:
+    return b"\xdd" + n.to_bytes(4, "big")
+
+
+def test_decoding_is_bounded_in_containers_and_entries_naming_the_bound():
+    """SPEC §2: a message holds at most MAX_DECODED_CONTAINERS maps and lists and MAX_DECODED_ITEMS
+    entries (issue 35 item 2: a 60 MiB ping of 63 million empty lists took 4.3 GB and 22-29 s). One
+    list longer than the entries' bound is refused from its header; many lists each under it,
+    together over a bound, are refused once the count passes it; each error 1 naming its bound. A
+    message within the bounds decodes as it did."""
+    containers, items = codec.MAX_DECODED_CONTAINERS, codec.MAX_DECODED_ITEMS
+    with pytest.raises(ProtocolError) as one:
+        codec.unpack(_ping_with(_array_header(63_000_000) + b"\x90" * 2 * codec.SMALL_FRAME))
+    assert one.value.code == Code.MALFORMED and f"exceeds max_array_len({items})" in one.value.message
+    inner = containers // 8   # 9 lists of containers/8 empty lists: over the bound on containers
+    with pytest.raises(ProtocolError) as lists:
+        codec.unpack(_ping_with(_array_header(9) + (_array_header(inner) + b"\x90" * inner) * 9))
+    assert lists.value.code == Code.MALFORMED and lists.value.extra == {"limit": "decoded_containers",
+                                                                        "maximum": containers}
+    assert f"more maps and lists than a message may: at most {containers}" in lists.value.message
+    nils = items // 4   # 5 lists of items/4 nils: over the bound on entries
+    with pytest.raises(ProtocolError) as entries:
+        codec.unpack(_ping_with(_array_header(5) + (_array_header(nils) + b"\xc0" * nils) * 5))
+    assert entries.value.extra == {"limit": "decoded_items", "maximum": items}
+    assert f"more entries (list items, map keys and values) than a message may: at most {items}" \
+        in entries.value.message
+    fits = _array_header(7) + (_array_header(inner) + b"\x90" * inner) * 7   # 7/8 of the bound: decoded
+    msg = codec.unpack(_ping_with(fits))
+    assert msg["type"] == "ping" and len(msg["pad"]) == 7 and all(len(x) == inner for x in msg["pad"])
+    assert gc.isenabled()   # paused while decoding only
+
+
+def _nested(depth: int, per: int, item: bytes) -> bytes:
+    """Lists nested ``depth`` deep, each holding ``per`` copies of ``item`` then the next: none is
+    complete before the innermost, so msgpack's hooks see nothing until then."""
+    parts = [_array_header(per + (i < depth - 1)) + item * per for i in range(depth)]
+    return b"".join(parts)
+
+
+def test_objects_in_lists_not_yet_complete_are_bounded_too():
+    """A frame of more than FEW_OBJECTS objects is decoded metered (codec._Metered): objects made
+    in lists not yet complete count against MAX_DECODED_ITEMS (before: 57 MiB of 2-character
+    strings nested 1000 deep took 1.4 GB and 3.5 s before the first hook), and such a frame is at
+    most MANY_OBJECTS_BYTES (nil costs a list slot, 8 B a byte, and no object). A many-object
+    frame within the bounds decodes as msgpack decodes it."""
+    n = codec.MAX_DECODED_ITEMS
+    with pytest.raises(ProtocolError) as strings:
+        codec.unpack(_ping_with(_nested(100, n // 80, b"\xa2ab")))
+    assert strings.value.extra == {"limit": "decoded_items", "maximum": n}
+    with pytest.raises(ProtocolError) as nils:
+        codec.unpack(_ping_with(_nested(100, codec.MANY_OBJECTS_BYTES // 90, b"\xc0")))
+    assert nils.value.extra == {"limit": "many_objects_bytes", "maximum": codec.MANY_OBJECTS_BYTES}
+    assert f"more than {codec.FEW_OBJECTS} msgpack objects is at most {codec.MANY_OBJECTS_BYTES} bytes" \
+        in nils.value.message
+    rows = np.arange(60_000.0).reshape(10_000, 6) / 7
+    msg = codec.message("ping", "p-2", None, rows=rows.tolist(), pad=bytes(100_000))
+    frame = codec.pack(msg)
+    assert not codec._few_objects(frame)
+    got = codec.unpack(frame)
+    assert got == msgpack.unpackb(frame) and np.array_equal(codec.decode_array(got["rows"], "rows"), rows)
+    assert gc.isenabled()
+
+
+def test_a_received_frame_is_decoded_from_a_view_and_nothing_refers_to_it():
+    """A large received frame is decoded in place (a memoryview, not copied: transport.recv_bounded);
+    its bin values are copies, so the frame can be freed right after."""
+    data = bytes(range(256)) * 512
+    buf = bytearray(codec.pack(codec.message("upload", 1, None, sha256="0" * 64, data=data)))
+    msg = codec.unpack(memoryview(buf))
+    buf[-1] ^= 0xFF
+    assert type(msg["data"]) is bytes and msg["data"] == data
+    key = b"k" * 32
+    signed = memoryview(bytearray(codec.pack(codec.message("ping", 2, None, pad=data), key)))
+    assert codec.unpack(signed, key)["msg_id"] == 2
+
+
+def test_over_limit_error_names_the_limit():
+    exc = codec.over_limit(70 * 2**20, 64 * 2**20)
+    assert (exc.code, exc.field, exc.extra) == (Code.MALFORMED, None, {"limit": "message_bytes",
+                                                                         "maximum": 64 * 2**20})
+    assert "message of 73400320 bytes over all its frames; at most 67108864 (64 MiB" in exc.message
+    assert codec.frame_cap(64 * 2**20) == 128 * 2**20
+
+
+def test_peek_reads_the_envelope_without_decoding_the_rest():
+    """codec.peek: the named top-level scalar entries of a map frame, the rest jumped over by its
+    headers (a 1 MB bin costs nothing); None for a frame that is not a well-formed map, a walk over
+    the budget, or garbage (mutated frames never raise)."""
+    import random
+
+    msg = codec.message("hello", "h-1", None, role="multibody", scene="s" * 1000, pad=bytes(2**20), t=1.5,
+                        big=2**40, neg=-3, hdbs={"a": {"x": np.arange(10.0), "l": [[1, 2], [3]], "e": {}}})
+    frame = codec.pack(msg)
+    keys = ("v", "type", "msg_id", "session", "role", "t", "big", "neg", "hdbs", "pad", "absent")
+    assert codec.peek(frame, keys) == {"v": 1, "type": "hello", "msg_id": "h-1", "session": None,
+                                       "role": "multibody", "t": 1.5, "big": 2**40, "neg": -3}
+    assert codec.peek(memoryview(frame), ("msg_id",)) == {"msg_id": "h-1"}
+    assert codec.peek(frame, ("v",), budget=10) is None          # hdbs needs a longer walk
+    for bad in (frame[:-1], frame + b"\x00", b"\xc1", msgpack.packb([1, 2]), b""):
+        assert codec.peek(bad, ("v",)) is None
+    rng = random.Random(35)
+    for _ in range(3000):
+        mutated = bytearray(frame[:300])
+        for _ in range(3):
+            mutated[rng.randrange(len(mutated))] = rng.randrange(256)
+        got = codec.peek(bytes(mutated), keys)
+        assert got is None or isinstance(got, dict)

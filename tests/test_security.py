@@ -91,3 +91,28 @@ def test_run_signs_with_its_key_file(signed_server, tmp_path: Path, reference_da
     unsigned = _cli("run", "scene.toml", "-o", "x.nc", "--server", address, cwd=tmp_path)
     assert unsigned.returncode != 0
     assert "bad_signature" in unsigned.stderr or "unreadable reply" in unsigned.stderr, unsigned.stderr
+
+
+@pytest.mark.parametrize("content, why", [
+    (os.urandom(256) + b"\xff", "not a key file: binary data"),
+    (b"zz" * 40 + b"\n", "not a key file: not hex"),
+    (b"ab" * 3000, "not a key file: more than 4096 bytes"),
+    (b"ab" * 8 + b"\n", "the key is 8 bytes; at least 32"),
+])
+def test_serve_on_a_bad_key_file_says_why_in_one_line_and_exits_2(tmp_path: Path, content: bytes, why: str):
+    """Issue 35 item 9 (`serve --key-file` on 256 random bytes: a 35-line traceback): one line naming
+    the file and why, exit status 2, nothing bound."""
+    bad = tmp_path / "bad.key"
+    bad.write_bytes(content)
+    done = _cli("serve", "--bind", "tcp://127.0.0.1:*", "--key-file", str(bad), cwd=tmp_path)
+    assert done.returncode == 2, done
+    assert done.stderr.strip().splitlines() == [f"Error: {bad}: {why}" + (
+        " (one line of hex digits; make one with `hydrolink keys hmac FILE`)" if "not a key" in why else "")], done
+
+
+def test_a_key_file_is_read_with_a_bound():
+    """/dev/zero (endless) is refused after MAX_KEY_FILE_BYTES + 1 bytes, naming the file."""
+    if not Path("/dev/zero").exists():
+        pytest.skip("no /dev/zero")
+    with pytest.raises(CurveKeyError, match=r"^/dev/zero: not a key file: more than 4096 bytes"):
+        read_hmac_key("/dev/zero")

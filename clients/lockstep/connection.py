@@ -60,6 +60,12 @@ class LinkWatch:
         self._monitor.close(0)
 
 
+def _unread(reply: dict) -> bool:
+    """An error to a request the server could not read (``parent`` nil: SPEC §5.6), such as one over
+    its message limit (SPEC §1): with one request in flight, it is that request's answer."""
+    return reply.get("type") == "error" and reply.get("parent") is None
+
+
 class RemoteError(RuntimeError):
     """The server answered with an ``error`` (SPEC §5.6)."""
 
@@ -154,9 +160,10 @@ class ServerConnection:
         size = len(self._in_flight[1]) if self._in_flight is not None else 0
         if size > codec.MAX_MESSAGE_BYTES:
             hint += (f"; this request is {size / 2**20:.1f} MiB, over the default message limit of "
-                     f"{codec.MAX_MESSAGE_BYTES // 2**20} MiB, and a server drops a message over its limit "
-                     "unanswered (SPEC §1): send the HDB files by hash (hydrolink run --hdb-files) or start the "
-                     "server with a larger --max-message-mib")
+                     f"{codec.MAX_MESSAGE_BYTES // 2**20} MiB: a server drops a frame over twice its limit "
+                     "unanswered (under that it answers error 1 naming its limit; a server before protocol "
+                     "revision 1.2 drops any frame over its limit: SPEC §1): send the HDB files by hash "
+                     "(hydrolink run --hdb-files) or start the server with a larger --max-message-mib")
         raise TimeoutError(f"no reply to {mtype!r} from the hydrolink server at {self.address} "
                            f"within {limit:g} s (is it running and reachable?{hint})")
 
@@ -208,12 +215,13 @@ class ServerConnection:
                 reply = codec.unpack(frame, self.key)
             except ProtocolError as exc:
                 raise ConnectionError(f"unreadable reply from {self.address}: {exc}") from None
-            if reply.get("parent") == msg_id:
+            if reply.get("parent") == msg_id or _unread(reply):
                 return self._checked(reply, msg_id)
 
     def _checked(self, reply: dict, msg_id: str) -> dict:
-        """The reply to ``msg_id``; RemoteError on ``error``."""
-        if reply.get("parent") != msg_id:
+        """The reply to ``msg_id``; RemoteError on ``error`` (also on an error to a request the
+        server could not read: a message over its limit, SPEC §1, whose ``parent`` is nil)."""
+        if reply.get("parent") != msg_id and not _unread(reply):
             raise ConnectionError(f"the in-process server answered {reply.get('parent')!r}, not {msg_id!r}")
         if reply.get("type") == "error":
             raise RemoteError(reply.get("code", 99), reply.get("name", "internal"), reply.get("field"),

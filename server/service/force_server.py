@@ -8,6 +8,7 @@ worker thread (server/service/setup_workers.py): the loop answers other sessions
 
 from __future__ import annotations
 
+import contextvars
 import heapq
 import itertools
 import logging
@@ -16,6 +17,7 @@ import os
 import secrets
 import threading
 import time
+from collections import deque
 from concurrent.futures import Future
 from dataclasses import asdict, dataclass
 from importlib import metadata
@@ -32,7 +34,7 @@ from hydrolink.server.service.controllers import ControlHub, join_token, token_m
 from hydrolink.server.errors import ModelError
 from hydrolink.server.hdb.file_set import FileSetReader
 from hydrolink.server.hdb.store import HASH, ContentStore, ContentTooLarge, default_folder
-from hydrolink.server.service.log_limit import LimitedLog
+from hydrolink.server.service.log_limit import LimitedLog, limit_lines
 from hydrolink.server.model import HydroModel
 from hydrolink.server.service.session import PlantBuilder, Session, build_model
 from hydrolink.server.service.setup_workers import SetupWorkers
@@ -46,6 +48,10 @@ PLANT_DT = (1e-6, 3600.0)   # s: the sampling times a controller may ask its pla
 RELEASE_SPIN = 1.5e-3   # s: a held reply due sooner is waited for by spinning (the receive timeout is in ms)
 IN_PROCESS = "in-process"  # the address of a server without a socket (bind=None)
 TOMBSTONES = 1000  # remembered closed sessions, for a helpful error 7
+RCVHWM = 4         # whole messages ZeroMQ queues per client before it stops reading that connection (SPEC §1)
+IO_THREADS = 2     # ZeroMQ I/O threads of a server's own context: a client streaming a huge message into
+                   # one does not hold up the others' small ones as much (bench_attacks: p99 28-48 -> 5-6 ms)
+MAX_QUEUED = 64    # requests held behind a session's deferred step (SPEC §1); their bytes: the message limit
 
 
 @dataclass(frozen=True)
@@ -104,10 +110,13 @@ class ForceServer:
         self._sock: zmq.Socket | None = None
         self._address = IN_PROCESS
         if bind is not None:
-            self._ctx = context or zmq.Context()
+            self._ctx = context or zmq.Context(io_threads=IO_THREADS)
             self._sock = self._ctx.socket(zmq.ROUTER)
             self._sock.setsockopt(zmq.LINGER, 0)
-            self._sock.setsockopt(zmq.MAXMSGSIZE, max_message_bytes)   # per frame; all frames: _over_limits
+            # per frame: a frame up to twice the limit is received and refused by size (_over_limits),
+            # one beyond it drops its connection; each client's queue holds at most RCVHWM messages
+            self._sock.setsockopt(zmq.MAXMSGSIZE, codec.frame_cap(max_message_bytes))
+            self._sock.setsockopt(zmq.RCVHWM, RCVHWM)
             self._sock.setsockopt(zmq.ROUTER_MANDATORY, 0)
             transport.apply_heartbeats(self._sock)   # a dead client's connection is dropped (SPEC §1)
             self._sock.setsockopt(zmq.RCVTIMEO, POLL_MS)
@@ -118,7 +127,8 @@ class ForceServer:
                     raise CurveKeyError("CURVE needs both the server's secret key file and the directory of "
                                         "allowed client keys")
                 try:
-                    self._security = ServerSecurity(self._ctx, self._sock, curve_secret, curve_clients)
+                    self._security = ServerSecurity(self._ctx, self._sock, curve_secret, curve_clients,
+                                                    LimitedLog(logging.getLogger("hydrolink.server.auth")))
                 except Exception:
                     self._sock.close(0)
                     raise
@@ -135,6 +145,8 @@ class ForceServer:
         self._running = False
         self._ids = codec.id_source("s")
         self._error_log = LimitedLog(log)     # error replies' log lines, per code (server/service/log_limit.py)
+        self._log_limit = LimitedLog(log)     # every other line of the server's loggers, per message (limit_lines)
+        self._queued: dict[str, deque[int]] = {}   # the sizes of the requests each session holds (MAX_QUEUED)
         self._version = server_version()
         self._handlers: dict[str, Callable[[dict, Any, str | None], tuple[str, dict, str | None] | None]] = {
             "hello": self._hello, "step": self._step, "ping": self._ping, "bye": self._bye,
@@ -177,35 +189,41 @@ class ForceServer:
             raise RuntimeError("an in-process server (bind=None) has no socket to serve; call respond()")
         next_sweep = time.monotonic()
         self._running = True
+        lines = limit_lines(self._log_limit)   # every log line of this loop (and its set-ups) bounded a minute
         try:
             while not self._stop.is_set():
-                # a blocking receive with a POLL_MS timeout (RCVTIMEO): no poller and no exception
-                # per message on the hot path, only when the socket was idle for POLL_MS; shorter
-                # when a controller deadline (SPEC §5.7) or a paced reply comes sooner, or a set-up runs
-                if self._hubs or self._paced or self._setups or self._rcv_ms != POLL_MS:
-                    self._set_rcv_timeout()
                 try:
-                    frames = self._sock.recv_multipart()
-                except zmq.Again:
-                    frames = None
-                if frames:
-                    self._serve_one(frames)
-                if self._setups:
-                    self._finish_setups()
-                if self._paced:
-                    self._send_due()
-                now = time.monotonic()
-                if self._hubs:
-                    for hub in list(self._hubs.values()):
-                        if hub.next_deadline() <= now:
-                            hub.poll(now)
-                    self._resume_held()
-                if now >= next_sweep:
-                    self._expire(now)
-                    next_sweep = now + min(1.0, self.session_timeout / 4)
+                    next_sweep = self._turn(next_sweep)
+                except MemoryError:   # not the end of serve: what was being done is dropped, the loop goes on
+                    self._error_log.log("memory", logging.ERROR, "out of memory in the server loop (not in a "
+                                        "request: those get error 14); it goes on")
         finally:
             self._running = False
+            lines.close()
             self._shutdown()
+
+    def _turn(self, next_sweep: float) -> float:
+        """One turn of the loop: at most one request received and answered, then what is due."""
+        # a blocking receive with a POLL_MS timeout (RCVTIMEO): no poller and no exception
+        # per message on the hot path, only when the socket was idle for POLL_MS; shorter
+        # when a controller deadline (SPEC §5.7) or a paced reply comes sooner, or a set-up runs
+        if self._hubs or self._paced or self._setups or self._rcv_ms != POLL_MS:
+            self._set_rcv_timeout()
+        self._receive()
+        if self._setups:
+            self._finish_setups()
+        if self._paced:
+            self._send_due()
+        now = time.monotonic()
+        if self._hubs:
+            for hub in list(self._hubs.values()):
+                if hub.next_deadline() <= now:
+                    hub.poll(now)
+            self._resume_held()
+        if now >= next_sweep:
+            self._expire(now)
+            next_sweep = now + min(1.0, self.session_timeout / 4)
+        return next_sweep
 
     # ------------------------------------------------------------ dispatch
 
@@ -219,19 +237,48 @@ class ForceServer:
             self._sock.setsockopt(zmq.RCVTIMEO, ms)
             self._rcv_ms = ms
 
-    def _serve_one(self, frames: list[bytes]) -> None:
-        if len(frames) < 2:
-            return  # no routing identity: nothing to answer to
-        over = self._over_limits(frames)
-        if over:   # answered to the identity alone: nothing the sender added is echoed
-            reply = codec.error_reply(next(self._ids), None, None, Code.MALFORMED, None, over)
-            frames = [frames[0], b""]
-            release = None
+    def _receive(self) -> None:
+        """Receive one message, bounded (SPEC §1: transport.recv_bounded), and answer it. A
+        MemoryError on the way is that message's error 14 (``limit`` "memory"), never the loop's end."""
+        try:
+            frames, size, count = transport.recv_bounded(self._sock, self.max_message_bytes,
+                                                         codec.MAX_ROUTING_FRAMES + 1)
+        except zmq.Again:
+            return
+        except transport.ReceiveMemoryError as exc:   # the rest of that message was dropped
+            route, count = [exc.identity], 2
         else:
-            reply = self.handle(frames[-1], frames[:-1])
+            route = frames[:1]
+            try:
+                self._serve_one(frames, size, count)
+                return
+            except MemoryError:
+                pass   # answered below, once the exception (and what its traceback holds) is gone
+            del frames
+        self._error_log.log("memory", logging.ERROR, "out of memory receiving or handling a message: refused busy")
+        if count >= 2 and 0 < len(route[0]) <= codec.MAX_ROUTING_FRAME_BYTES:
+            self._send(route, codec.error_reply(next(self._ids), None, None, Code.BUSY, None,
+                                                "the server ran out of memory handling this message; send it "
+                                                "again later", limit="memory"))
+
+    def _serve_one(self, frames: list[bytes | memoryview], size: int | None = None, count: int | None = None) -> None:
+        """Answer one received message: ``frames`` as kept by transport.recv_bounded (all of them
+        when ``size``/``count``, the message's, are within the limits; else the identity alone)."""
+        size = sum(map(len, frames)) if size is None else size
+        count = len(frames) if count is None else count
+        if count < 2:
+            return  # no routing identity: nothing to answer to
+        over = self._over_limits(frames, size, count)
+        if over is not None:   # answered to the identity alone: nothing the sender added is echoed
+            self._error_log.log(Code.MALFORMED, logging.INFO, "refused a message: %s", over.message)
+            reply = codec.error_from(over, next(self._ids), None, None)
+            route, release = frames[:1], None
+        else:
+            route = frames[:-1]
+            reply = self.handle(frames[-1], route)
             release = self._hold
         if reply is not None:   # None: deferred (SPEC §5.7, a hello being set up), sent later
-            self._send(frames[:-1], reply, release)
+            self._send(route, reply, release)
 
     def _send(self, route: list[bytes], reply: dict, release: float | None = None) -> None:
         """Send a reply map to the routing frames it answers (kept in front, verbatim); a paced
@@ -245,19 +292,21 @@ class ForceServer:
         except zmq.ZMQError as exc:  # peer gone or its queue full: drop the reply
             log.warning("reply dropped: %s", exc)
 
-    def _over_limits(self, frames: list[bytes]) -> str:
-        """Why a received message breaks SPEC §1's limits ('' when it does not)."""
-        total = sum(len(f) for f in frames)
-        if total > self.max_message_bytes:
-            return f"message of {total} bytes over all its frames; at most {self.max_message_bytes} (SPEC §1)"
+    def _over_limits(self, frames: list[bytes | memoryview], size: int, count: int) -> ProtocolError | None:
+        """Error 1 for a received message that breaks SPEC §1's limits (None when it does not)."""
+        if size > self.max_message_bytes:
+            return codec.over_limit(size, self.max_message_bytes)
+        if count - 1 > codec.MAX_ROUTING_FRAMES:   # the ROUTER's identity frame included
+            return ProtocolError(Code.MALFORMED, None, f"{count - 1} routing frames before the message; at most "
+                                 f"{codec.MAX_ROUTING_FRAMES} (SPEC §1)", extra={"limit": "routing_frames",
+                                                                               "maximum": codec.MAX_ROUTING_FRAMES})
         routing = frames[:-1]
-        if len(routing) > codec.MAX_ROUTING_FRAMES:   # the ROUTER's identity frame included
-            return f"{len(routing)} routing frames before the message; at most {codec.MAX_ROUTING_FRAMES} (SPEC §1)"
         big = next((i for i, f in enumerate(routing) if len(f) > codec.MAX_ROUTING_FRAME_BYTES), None)
         if big is not None:
-            return (f"routing frame {big} is {len(routing[big])} bytes; at most {codec.MAX_ROUTING_FRAME_BYTES} "
-                    "(SPEC §1)")
-        return ""
+            return ProtocolError(Code.MALFORMED, None, f"routing frame {big} is {len(routing[big])} bytes; at most "
+                                 f"{codec.MAX_ROUTING_FRAME_BYTES} (SPEC §1)",
+                                 extra={"limit": "routing_frame_bytes", "maximum": codec.MAX_ROUTING_FRAME_BYTES})
+        return None
 
     def _send_due(self) -> None:
         """Send the held replies of paced sessions whose release has come."""
@@ -323,6 +372,10 @@ class ForceServer:
         msg: Any = None
         session: str | None = None
         self._hold = None
+        if route is not None and type(frame) is not dict and len(frame) > codec.SMALL_FRAME:
+            busy = self._refused_unread(frame, route)
+            if busy is not None:
+                return busy
         try:
             msg = frame if type(frame) is dict else codec.unpack(frame, self.key)
             session = msg.get("session") if isinstance(msg.get("session"), str) else None
@@ -333,6 +386,7 @@ class ForceServer:
                                     f"controller's session id allows only {', '.join(CONTROLLER_REQUESTS)}")
             hub = self._hubs.get(session) if session is not None else None
             if hub is not None and route is not None and self._running and hub.holds(mtype, msg, route):
+                self._queue(hub, len(frame) if type(frame) is not dict else 0)
                 return None   # answered in order once the session's deferred step is (SPEC §1, §5.7)
             self._route = route
             out = self._handlers[mtype](msg, msg_id, session)
@@ -343,8 +397,28 @@ class ForceServer:
         except Exception as exc:  # noqa: BLE001 - the loop must never die
             return self._error(exc, msg, session, route)
 
+    def _refused_unread(self, frame: bytes | memoryview, route: list[bytes]) -> dict | None:
+        """Error 14 ``busy`` for a large multibody hello to a full server (SPEC §4.2), read from its
+        envelope alone (codec.peek): its content (a padded scene, inline HDBs) is neither copied nor
+        decoded, so a flood of them costs the loop microseconds each. None otherwise (a signing
+        server checks every signature first)."""
+        if self.key is not None:
+            return None
+        try:
+            self.limits.admit(len(self._setups), len(self.sessions))
+            return None
+        except ProtocolError as busy:
+            env = codec.peek(frame, ("v", "type", "msg_id", "role", "session"))
+            if env is None or (env.get("type"), env.get("role"), env.get("session")) != ("hello", "multibody", None) \
+                    or type(env.get("v")) is not int or env["v"] not in codec.SUPPORTED_VERSIONS:
+                return None
+            return self._error(busy, env, None, route)
+
     def _error(self, exc: Exception, msg: Any, session: str | None, route: list[bytes] | None) -> dict:
         """The ``error`` reply to a request that raised ``exc`` (logged; code 99 unless a ProtocolError)."""
+        if isinstance(exc, MemoryError):   # not the request's fault, nor a bug: busy (SPEC §5.6)
+            exc = ProtocolError(Code.BUSY, None, "the server ran out of memory handling this request; send it "
+                                "again later", extra={"limit": "memory"})
         if not isinstance(exc, ProtocolError):
             self._error_log.log(Code.INTERNAL, logging.ERROR, "internal error handling a %s (session %s)",
                                 msg.get("type") if isinstance(msg, dict) else "message", session, exc_info=exc)
@@ -408,8 +482,9 @@ class ForceServer:
             except MemoryError:
                 raise self._out_of_memory() from None
             return self._open(msg, client, realtime, t0, model)
-        self._setups.append(PendingHello(msg, msg_id, self._route, client, realtime, t0,
-                                         self._workers.submit(build_model, msg, self.files)))
+        work = self._workers.submit(contextvars.copy_context().run,   # its log lines too: limit_lines
+                                    build_model, msg, self.files)
+        self._setups.append(PendingHello(msg, msg_id, self._route, client, realtime, t0, work))
         return None   # answered by _finish_setups
 
     def _finish_setups(self) -> None:
@@ -479,8 +554,26 @@ class ForceServer:
         for hub in list(self._hubs.values()):
             self._answer_held(hub)
 
+    def _queue(self, hub: ControlHub, size: int) -> None:
+        """Count a request ``hub.holds`` just queued behind the session's deferred step (SPEC §1):
+        beyond MAX_QUEUED requests, or the message limit in bytes, it is taken back and refused
+        with error 14 ``busy`` (``limit`` "queued")."""
+        sizes = self._queued.setdefault(hub.session_id, deque())
+        total = sum(sizes) + size
+        if len(sizes) < MAX_QUEUED and total <= self.max_message_bytes:
+            sizes.append(size)
+            return
+        hub.held.pop()
+        raise ProtocolError(Code.BUSY, None, f"session {hub.session_id} already holds {len(sizes)} requests "
+                            f"({sum(sizes)} bytes) behind its deferred step; at most {MAX_QUEUED} requests and "
+                            f"{self.max_message_bytes} bytes (SPEC §1): wait for the deferred reply",
+                            extra={"limit": "queued", "maximum": MAX_QUEUED, "current": len(sizes)})
+
     def _answer_held(self, hub: ControlHub) -> None:
+        sizes = self._queued.get(hub.session_id)
         while hub.held and hub.pending is None:
+            if sizes:
+                sizes.popleft()
             msg, route = hub.held.popleft()
             reply = self.handle(msg, route)
             if reply is not None:
@@ -637,6 +730,7 @@ class ForceServer:
     def _close(self, s: Session, why: str) -> None:
         self.sessions.pop(s.id, None)
         hub = self._hubs.pop(s.id, None)
+        self._queued.pop(s.id, None)
         self._closed[s.id] = f"{why} at {time.strftime('%H:%M:%S')}"
         if hub is not None:
             hub.end(why)
