@@ -39,7 +39,7 @@ import numpy as np
 import zmq
 
 from hydrolink.clients.lockstep.connection import ServerConnection
-from hydrolink.clients.run import load_scene_hdbs
+from hydrolink.clients.scene_inputs import load_scene_hdbs
 from hydrolink.protocol import codec
 from hydrolink.protocol.scene import parse_scene
 

@@ -20,7 +20,7 @@ from analytic_hdb import make_body_hdb
 from conftest import body, linear_pto, regular_waves, scene_toml
 from hydrolink.clients.lockstep.connection import RemoteError, ServerConnection
 from hydrolink.protocol import codec
-from hydrolink.server.service import MAX_QUEUED, serve_in_thread
+from hydrolink.server.service.force_server import MAX_QUEUED, serve_in_thread
 
 LIMIT = 2**20          # the servers' message limit here (--max-message-mib 1)
 WAIT_MS = 20_000       # a reply's bounded wait (a loaded machine)
@@ -315,7 +315,7 @@ def test_limit_lines_filters_per_message_in_its_thread_only(caplog):
     (counted under their own kind) pass; other threads are not filtered."""
     import threading
 
-    from hydrolink.server.log_limit import LimitedLog, limit_lines
+    from hydrolink.server.service.log_limit import LimitedLog, limit_lines
 
     logger = logging.getLogger("hydrolink.test_attacks")
     now = [0.0]
