@@ -30,6 +30,13 @@ def _write_summary_attributes(writer, summary: RunSummary) -> None:
         writer.set_attribute("realtime", json.dumps(asdict(summary.realtime)))
 
 
+def _announce_controllers(scene, server: str, token: str | None) -> None:
+    """Say on stderr how the scene's controllers join (the session's join token, SPEC §5.7.2)."""
+    import sys
+    print(f"hydrolink run: session on {server} waits for controllers {[c.name for c in scene.controllers]}: "
+          f"hydrolink control FILE.py --server {server} --token {token}", file=sys.stderr, flush=True)
+
+
 def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
                    server: str | None = None, progress: bool = True, timeout: float = 60.0,
                    listen: str = "tcp://127.0.0.1:*", hdbs: dict[str, xr.Dataset] | None = None,
@@ -104,10 +111,7 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
         setup = conn.hello(text, hdbs, wave_elevation=series, meshes=load_scene_hulls(scene, scene_path),
                            control_token=control_token)
         if scene.controllers:
-            import sys
-            print(f"hydrolink run: session on {server} waits for controllers "
-                  f"{[c.name for c in scene.controllers]}: hydrolink control FILE.py --server {server} "
-                  f"--token {conn.control_token}", file=sys.stderr, flush=True)
+            _announce_controllers(scene, server, conn.control_token)
         names, reference = result_bodies(scene, setup)
         writer = stack.enter_context(ResultWriter(output, scene=scene, scene_text=text, setup=setup,
                                                   bodies=names, equilibrium_position=reference,

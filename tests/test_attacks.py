@@ -255,7 +255,8 @@ def test_input_queued_behind_a_deferred_step_is_bounded_with_a_named_error(serve
             assert [r["parent"] for r in refused] == [f"p-{i}" for i in range(MAX_QUEUED - 2, MAX_QUEUED + 5)]
             assert all(r["code"] == 14 and r["limit"] == "queued" for r in refused), refused
             v.step()
-            ctl.send(codec.pack(codec.message("hello", "c-0", sid, role="controller", controller="ctl")))
+            ctl.send(codec.pack(codec.message("hello", "c-0", sid, role="controller", controller="ctl",
+                                              token=owner.control_token)))
             assert _recv(ctl)["type"] == "welcome"
             answered = [_recv(mb) for _ in range(MAX_QUEUED - 2 + 3)]
             assert [r["parent"] for r in answered] == (["s-0", "big-0", "big-1"]
@@ -288,9 +289,11 @@ def test_a_late_command_repeated_writes_a_bounded_number_of_log_lines(served, vi
         sid = owner.session
         ctl = _dealer(srv.address)
         try:
-            ctl.send(codec.pack(codec.message("hello", "c-0", sid, role="controller", controller="ctl")))
-            epoch = _recv(ctl)["epoch"]
-            ctl.send(codec.pack(codec.message("measure", "c-1", sid, controller="ctl", epoch=epoch, wait=60.0)))
+            ctl.send(codec.pack(codec.message("hello", "c-0", sid, role="controller", controller="ctl",
+                                              token=owner.control_token)))
+            welcome = _recv(ctl)
+            epoch, own = welcome["epoch"], welcome["session"]   # the controller's own session id (SPEC §5.7.2)
+            ctl.send(codec.pack(codec.message("measure", "c-1", own, controller="ctl", epoch=epoch, wait=60.0)))
             owner.step(0, 0.0, np.zeros((1, 6)), np.zeros((1, 6)))
             meas = {"step": 0, "pto_displacement": np.zeros(1), "pto_velocity": np.zeros(1), "pto_force": np.zeros(1),
                     "body_position": np.zeros((1, 6)), "body_velocity": np.zeros((1, 6))}
@@ -298,7 +301,7 @@ def test_a_late_command_repeated_writes_a_bounded_number_of_log_lines(served, vi
             assert f1["control"]["ctl"]["status"] == "timeout"
             assert _recv(ctl)["step"] == 0   # the measurements step 1 relayed: the command for them is late
             for i in range(200):
-                ctl.send(codec.pack(codec.message("command", f"late-{i}", sid, controller="ctl", epoch=epoch, step=0,
+                ctl.send(codec.pack(codec.message("command", f"late-{i}", own, controller="ctl", epoch=epoch, step=0,
                                                   commands={"pto": {"force": 1.0}})))
             replies = [_recv(ctl) for _ in range(200)]
             assert all((r["type"], r["code"]) == ("error", 6) for r in replies)

@@ -19,7 +19,7 @@ import pytest
 from pydantic import BaseModel
 
 from analytic_hdb import make_body_hdb
-from conftest import body, joint, linear_pto, regular_waves, scene_toml, toml_document
+from conftest import REPO, body, joint, linear_pto, regular_waves, rm3_float, rm3_spar, scene_toml, toml_document
 from hydrolink.protocol import codec
 from hydrolink.protocol.hdb.wire import HDBFiles, to_wire
 from hydrolink.protocol.scene import Scene, parse_scene
@@ -307,6 +307,14 @@ def _templates() -> dict[str, dict]:
                       "waves": {"type": "elevation", "file": "eta.csv", "direction": 0.0, "start": 10.0, "ramp": 1.0,
                                 "excitation_irf_duration": 5.0},
                       "bodies": [_rich_body()]},
+        # a WAMIT run sent as its .1, .3 and .hst alone: the facts its files do not state, from the scene
+        "wamit": {"simulation": sim, "water": {"density": 1000.0, "gravity": 9.81, "depth": 200.0},
+                  "hydro": {"irf_duration": 2.0}, "waves": regular_waves(1.0, 8.0),
+                  "bodies": [rm3_float("rm3.1", hdb_body="body1", dofs=["heave"],
+                                       wamit={"ulen": 1.0, "gravity": 9.81, "depth": 200.0,
+                                              "xbody": [[0.0, 0.0, -0.72], [0.0, 0.0, -21.29]], "vcg": [0.0, 0.0],
+                                              "volume": [725.833, 886.687], "iperout": 1}),
+                             rm3_spar("rm3.1", hdb_body="body2", dofs=["heave"])]},
         "fmu": {"simulation": sim, "water": water, "hydro": {"irf_duration": 2.0},
                 "bodies": [body("float", hdb="wide.nc", mass=3.0e5, center_of_mass=None, inertia=None, dofs=["heave"])],
                 "client": {"type": "fmu", "fmu": "x.fmu", "communication_step": 0.05, "parameters": {"k": 1.5, "n": 2},
@@ -344,7 +352,10 @@ def extreme_server():
     hdb = make_body_hdb(omega=np.linspace(0.2, 4.0, 12), directions=HEADINGS, depth=50.0, rho=1025.0)
     server = ForceServer("tcp://127.0.0.1:*", session_timeout=600.0)   # bound (controllers need one), not served
     t = np.arange(0.0, 40.0, 0.05)
-    extra = {"elevation": {"wave_elevation": {"time": t, "eta": 0.5 * np.sin(1.1 * t)}}}
+    rm3 = REPO / "examples" / "data" / "rm3_wamit"
+    wamit = HDBFiles("wamit", (rm3 / "rm3.1", rm3 / "rm3.3", rm3 / "rm3.hst")).entry(inline=True)
+    extra = {"elevation": {"wave_elevation": {"time": t, "eta": 0.5 * np.sin(1.1 * t)}},
+             "wamit": {"own_hdbs": {"rm3.1": wamit}}}
     yield server, {"wide.nc": to_wire(hdb)}, extra
     server.close()
 
@@ -363,6 +374,7 @@ def _setup_numbers(value, path):
 
 
 def _hello(server, hdbs, sections: dict, **fields) -> dict:
+    hdbs = fields.pop("own_hdbs", hdbs)   # a template's own HDBs (extreme_server's extra)
     text = toml_document({k: sections[k] for k in
                           ("simulation", "water", "waves", "current", "hydro", "steady", "coupling", "bodies", "point_masses",
                            "joints", "constraints", "ptos", "moorings", "morison", "client", "controllers")

@@ -8,6 +8,8 @@ netns support). The delay is netem where the kernel has it, else the lab's user-
 from __future__ import annotations
 
 import json
+import secrets
+import subprocess
 import sys
 import threading
 import time
@@ -15,7 +17,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import subprocess
 import xarray as xr
 
 import netlab  # tests/netlab.py
@@ -59,9 +60,12 @@ def three_processes(popen, scene: Path, out: Path, bind: str, connect: str | Non
     """Server, controller and multibody client via ``popen(who, argv)``; returns the run's wall time."""
     server = popen("server", [*HYDROLINK, "serve", "--bind", bind])
     address = connect or serve_address(server)
-    ctl = popen("ctl", [*HYDROLINK, "control", str(REACTIVE), "--server", address, "--join-wait", "30"])
+    token = secrets.token_urlsafe(32)   # the run's join token, handed to its controller (SPEC §5.7.2)
+    ctl = popen("ctl", [*HYDROLINK, "control", str(REACTIVE), "--server", address, "--token", token,
+                        "--join-wait", "30"])
     t0 = time.perf_counter()
-    client = popen("client", [*HYDROLINK, "run", str(scene), "-o", str(out), "--server", address, "--no-progress"])
+    client = popen("client", [*HYDROLINK, "run", str(scene), "-o", str(out), "--server", address, "--no-progress",
+                              "--control-token", token])
     try:
         _, err = client.communicate(timeout=120)
         assert client.returncode == 0, err
