@@ -73,10 +73,14 @@ def footprint(obj: Any, max_objects: int = 200_000) -> int:
             stack.extend(o.values())
         elif isinstance(o, (list, tuple, set, frozenset)):
             stack.extend(o)
-        else:
+        else:   # an object: its attributes (some wrappers' __dict__ is no dict: skipped)
             attrs = getattr(o, "__dict__", None)
-            if attrs is not None:
+            if isinstance(attrs, dict):
                 stack.extend(attrs.values())
-            for slot in getattr(type(o), "__slots__", ()):
-                stack.append(getattr(o, slot, None))
+            slots = getattr(type(o), "__slots__", ())
+            for slot in (slots,) if isinstance(slots, str) else slots:
+                try:
+                    stack.append(getattr(o, slot))
+                except AttributeError:
+                    pass
     return total

@@ -74,5 +74,13 @@ def test_footprint_counts_each_array_once_views_by_their_base():
     root = Node(views=[big[:10], big.T, big], table={"s": small, "again": small}, ds=ds,
                 nested=Node(deeper=(big[::2],), text="no array"))
     root.nested.parent = root                      # a cycle
-    assert footprint(root) == big.nbytes + small.nbytes + ds.nbytes
+
+    class Wrapper:                                 # a compiled-library wrapper whose __dict__ is no dict
+        __dict__ = property(lambda self: object())
+        __slots__ = "value"
+
+    wrapped = Wrapper()
+    wrapped.value = np.zeros(3)                    # 24 bytes, through its slot
+    root.wrapper = wrapped
+    assert footprint(root) == big.nbytes + small.nbytes + ds.nbytes + wrapped.value.nbytes
     assert footprint(Node()) == 0
