@@ -11,18 +11,13 @@ from __future__ import annotations
 
 import difflib
 import re
-import sys
+import tomllib
 from pathlib import Path
 from typing import Any, Callable, TypeVar, get_args
 
 from pydantic import BaseModel, ValidationError
 
 from hydrolink.protocol.codec import describe
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
 
 M = TypeVar("M", bound=BaseModel)
 _SKIP_PREFIXES = ("function-", "list[", "literal[", "union[")
