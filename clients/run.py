@@ -56,7 +56,7 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
     from hydrolink.clients.lockstep.results import ResultWriter
 
     scene_path = Path(scene_path)
-    scene, text = load_scene(scene_path)
+    scene, text = load_scene(scene_path, have_hdbs=hdbs or ())   # every schema and file problem at once
     if hdbs is None:  # (a caller running one scene many times may pass them, e.g. hydrolink bench)
         hdbs = load_scene_hdbs(scene, scene_path, progress=progress, as_files=hdb_files)
     series = load_wave_elevation(scene, scene_path)
