@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import logging
+import sys
 from contextlib import ExitStack
 from dataclasses import replace
 from pathlib import Path
@@ -104,7 +105,6 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
         setup = conn.hello(text, hdbs, wave_elevation=series, meshes=load_scene_hulls(scene, scene_path),
                            control_token=control_token)
         if scene.controllers:
-            import sys
             print(f"hydrolink run: session on {server} waits for controllers "
                   f"{[c.name for c in scene.controllers]}: hydrolink control FILE.py --server {server} "
                   f"--token {conn.control_token}", file=sys.stderr, flush=True)
