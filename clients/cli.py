@@ -61,7 +61,9 @@ def run_headline(output: str | Path) -> str | None:
                     said.append(f"{dofs[span][d]} std {std[d]:.3g} {unit} (max |x| {np.abs(x[:, d]).max():.3g} {unit})")
             parts.append(f"{body} " + (", ".join(said) if said else "at rest"))
         if "total_pto_power" in ds:
-            parts.append(f"mean total PTO power {float(ds['total_pto_power'].values[keep].mean()):.4g} W")
+            power = float(ds["total_pto_power"].values[keep].mean())
+            parts.append(f"mean total PTO power {power / 1e3:.4g} kW" if abs(power) >= 1e3
+                         else f"mean total PTO power {power:.4g} W")
     return f"t {t[keep][0]:g}-{t[-1]:g} s: " + "; ".join(parts)
 
 
