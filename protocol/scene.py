@@ -1127,11 +1127,11 @@ def missing_files(raw: dict, scene_path: str | Path, have_hdbs: Collection[str] 
     not the schema holds (a value of the wrong type is the schema's problem, not looked for here)."""
     problems: list[tuple[str, str]] = []
 
-    def check(key: str, value, what: str = "", exists=Path.is_file) -> None:
+    def check(key: str, value, what: str = "file", exists=Path.is_file) -> None:
         if isinstance(value, str) and value:
             path = resolve_path(scene_path, value)
             if not exists(path):
-                problems.append((key, f"{what}file not found: {path}"))
+                problems.append((key, f"{what} not found: {path}"))
 
     def tables(key: str) -> list[tuple[int, dict]]:
         value = raw.get(key)
@@ -1147,13 +1147,13 @@ def missing_files(raw: dict, scene_path: str | Path, have_hdbs: Collection[str] 
         qtf = body.get("qtf")
         for name in ("difference", "sum"):
             check(f"bodies[{i}].qtf.{name}", qtf.get(name) if isinstance(qtf, dict) else None)
-    for section, kind, key, what in (("waves", "elevation", "file", "elevation "), ("client", "fmu", "fmu", "FMU ")):
+    for section, kind, key, what in (("waves", "elevation", "file", "elevation file"), ("client", "fmu", "fmu", "FMU")):
         table = raw.get(section)
         if isinstance(table, dict) and table.get("type") == kind:
             check(f"{section}.{key}", table.get(key), what)
     for i, mooring in tables("moorings"):
         if mooring.get("type") == "moordyn":
-            check(f"moorings[{i}].file", mooring.get("file"), "MoorDyn input ")
+            check(f"moorings[{i}].file", mooring.get("file"), "MoorDyn input file")
     return problems
 
 

@@ -115,7 +115,7 @@ def test_missing_files_are_listed_with_the_schema_errors(tmp_path):
     with pytest.raises(SceneError) as info:
         load_scene(fmu)
     assert str(info.value).splitlines() == [f"{fmu}: bodies[0].hdb: file not found: {tmp_path / 'f.nc'}",
-                                            f"{fmu}: client.fmu: FMU file not found: {tmp_path / 'sub' / 'wec.fmu'}"]
+                                            f"{fmu}: client.fmu: FMU not found: {tmp_path / 'sub' / 'wec.fmu'}"]
 
 
 def test_relative_paths_resolve_against_scene(tmp_path):
