@@ -147,11 +147,19 @@ def _qtf_diagonal(sub: xr.Dataset, waves: WaveComponents, scale: float, src: str
     heads = np.round(waves.heading_of(), 9)
     t = sub["difference_qtf"].transpose(*QTF_DIMS).values * scale        # (n_q, n_q, n_h, 6)
     linear, bilinear = np.zeros((waves.size, 6)), np.zeros((waves.size, 6))
+    # each component's weights are on two neighbouring grid points k, k + 1 (one on a 1-point grid)
+    k = np.minimum(np.argmax(lw != 0.0, axis=1), max(grid.size - 2, 0))
+    wa, wb = lw[np.arange(waves.size), k][:, None], lw[np.arange(waves.size), np.minimum(k + 1, grid.size - 1)][:, None]
     for b in np.unique(heads):
         on = heads == b
         square = t[:, :, _qtf_pair(sub, b, b, waves, src), :]             # (n_q, n_q, 6), real diagonal
         linear[on] = lw[on] @ np.einsum("aad->ad", square).real
-        bilinear[on] = np.einsum("ca,abd,cb->cd", lw[on], square, lw[on]).real
+        if grid.size == 1:
+            bilinear[on] = linear[on]
+            continue
+        ko = k[on]
+        bilinear[on] = (wa[on] ** 2 * square[ko, ko] + wa[on] * wb[on] * (square[ko, ko + 1] + square[ko + 1, ko])
+                        + wb[on] ** 2 * square[ko + 1, ko + 1]).real
     return linear, bilinear
 
 
