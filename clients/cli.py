@@ -35,6 +35,38 @@ def _guard(func, *args, **kwargs):
         raise _UserError(str(exc)) from None
 
 
+def run_headline(output: str | Path) -> str | None:
+    """The headline figures of a results file over the second half of its time (past the ramp and
+    the start-up transient of most runs): per body, its translation and its rotation that vary most
+    (standard deviation and largest magnitude of position - equilibrium), and the mean of
+    ``total_pto_power`` where the scene has PTOs. None for a file of fewer than two rows."""
+    import numpy as np
+    import xarray as xr
+
+    with xr.open_dataset(output) as ds:
+        t = ds["time"].values
+        if t.size < 2:
+            return None
+        keep = t >= 0.5 * t[-1] - 0.25 * np.diff(t).min()   # (a row at half time, give or take rounding)
+        motion = ds["position"].values[keep] - ds["equilibrium_position"].values[None]
+        dofs = [str(d) for d in ds["dof"].values]
+        parts = []
+        for b, body in enumerate(ds["body"].values):
+            said = []
+            for span, unit, scale in ((slice(0, 3), "m", 1.0), (slice(3, 6), "deg", 180.0 / np.pi)):
+                x = motion[:, b, span] * scale
+                std = x.std(axis=0)
+                if std.max() > 0.0:
+                    d = int(np.argmax(std))
+                    said.append(f"{dofs[span][d]} std {std[d]:.3g} {unit} (max |x| {np.abs(x[:, d]).max():.3g} {unit})")
+            parts.append(f"{body} " + (", ".join(said) if said else "at rest"))
+        if "total_pto_power" in ds:
+            power = float(ds["total_pto_power"].values[keep].mean())
+            parts.append(f"mean total PTO power {power / 1e3:.4g} kW" if abs(power) >= 1e3
+                         else f"mean total PTO power {power:.4g} W")
+    return f"t {t[keep][0]:g}-{t[-1]:g} s: " + "; ".join(parts)
+
+
 def _pin_to_cpu(cpu: int | None) -> None:
     """Run this process (and the threads it starts later) on one CPU, e.g. the same CPU for
     ``serve`` and ``run``: lockstep has nothing to run in parallel, and waking another CPU for
@@ -305,6 +337,9 @@ def run(scene: Path, output: Path | None, server: str | None, no_progress: bool,
     steps, wall = summary.steps, summary.wall_time
     click.echo(f"wrote {summary.output}: {steps} steps in {wall:.2f} s ({steps / max(wall, 1e-9):.0f} steps/s; "
                f"server compute {(summary.server_compute_us_per_step or float('nan')):.1f} us/step)")
+    headline = run_headline(summary.output)
+    if headline:
+        click.echo(headline)
     if summary.realtime is not None:
         rt = summary.realtime
         click.echo(f"paced at {rt.factor:g}x wall clock ({1e3 * rt.period:.3g} ms per exchange): step latency "

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import logging
+import sys
 from contextlib import ExitStack
 from dataclasses import replace
 from pathlib import Path
@@ -32,7 +33,6 @@ def _write_summary_attributes(writer, summary: RunSummary) -> None:
 
 def _announce_controllers(scene, server: str, token: str | None) -> None:
     """Say on stderr how the scene's controllers join (the session's join token, SPEC §5.7.2)."""
-    import sys
     print(f"hydrolink run: session on {server} waits for controllers {[c.name for c in scene.controllers]}: "
           f"hydrolink control FILE.py --server {server} --token {token}", file=sys.stderr, flush=True)
 
@@ -63,7 +63,7 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
     from hydrolink.clients.lockstep.results import ResultWriter
 
     scene_path = Path(scene_path)
-    scene, text = load_scene(scene_path)
+    scene, text = load_scene(scene_path, have_hdbs=hdbs or ())   # every schema and file problem at once
     if hdbs is None:  # (a caller running one scene many times may pass them, e.g. hydrolink bench)
         hdbs = load_scene_hdbs(scene, scene_path, progress=progress, as_files=hdb_files)
     series = load_wave_elevation(scene, scene_path)

@@ -9,7 +9,7 @@ from __future__ import annotations
 import logging
 import math
 from pathlib import Path
-from typing import Annotated, Literal, Union
+from typing import Annotated, Collection, Literal, Union
 
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, field_validator, model_validator
 
@@ -1095,22 +1095,66 @@ class Scene(_Section):
 _UNION_TAGS = ("regular", "irregular", "still", "elevation", "linear", "rotary", "rope", "moordyn", "exudyn", "fmu")
 
 
-def parse_scene(text: str, source: str | Path = "<scene>") -> Scene:
-    """Parse and validate scene TOML text; raise SceneError naming the key."""
-    return validate_toml(text, source, Scene, SceneError, _UNION_TAGS)
+def parse_scene(text: str, source: str | Path = "<scene>", *, check_files: bool = False,
+                have_hdbs: Collection[str] = ()) -> Scene:
+    """Parse and validate scene TOML text; raise SceneError naming the key. ``check_files``: the
+    input files the scene names (relative to ``source``, a scene file's path) must exist, and a
+    missing one is listed with the schema's problems in the same error (:func:`missing_files`;
+    ``have_hdbs``: the ``hdb`` strings whose HDBs the caller already holds, not looked for)."""
+    more = (lambda raw: missing_files(raw, source, have_hdbs)) if check_files else None
+    return validate_toml(text, source, Scene, SceneError, _UNION_TAGS, more)
 
 
-def load_scene(path: str | Path) -> tuple[Scene, str]:
-    """Read a scene file; returns the validated scene and its text."""
+def load_scene(path: str | Path, *, check_files: bool = True, have_hdbs: Collection[str] = ()) -> tuple[Scene, str]:
+    """Read a scene file; returns the validated scene and its text. Every problem in one SceneError:
+    the schema's and (``check_files``) each input file it names that does not exist."""
     path = Path(path)
     try:
         text = path.read_text()
     except OSError as exc:
         raise SceneError(path, "", f"cannot read the scene file: {exc.strerror}") from None
-    scene = parse_scene(text, path)
+    scene = parse_scene(text, path, check_files=check_files, have_hdbs=have_hdbs)
     for note in scene.notes:
         log.warning("%s: %s", path, note)
     return scene, text
+
+
+def missing_files(raw: dict, scene_path: str | Path, have_hdbs: Collection[str] = ()) -> list[tuple[str, str]]:
+    """(key, why) for each input file a parsed scene document names (relative to ``scene_path``)
+    that does not exist: the bodies' HDBs (a WAMIT run by its stem or ``.1``), hull meshes and NEMOH
+    QTF files, the elevation series of ``[waves] type = "elevation"``, MoorDyn input files and the
+    FMU of ``[client] type = "fmu"``. Read off the document as written, so that it runs whether or
+    not the schema holds (a value of the wrong type is the schema's problem, not looked for here)."""
+    problems: list[tuple[str, str]] = []
+
+    def check(key: str, value, what: str = "file", exists=Path.is_file) -> None:
+        if isinstance(value, str) and value:
+            path = resolve_path(scene_path, value)
+            if not exists(path):
+                problems.append((key, f"{what} not found: {path}"))
+
+    def tables(key: str) -> list[tuple[int, dict]]:
+        value = raw.get(key)
+        return [(i, t) for i, t in enumerate(value) if isinstance(t, dict)] if isinstance(value, list) else []
+
+    seen = set(have_hdbs)
+    for i, body in tables("bodies"):
+        hdb = body.get("hdb")
+        if isinstance(hdb, str) and hdb not in seen:
+            seen.add(hdb)
+            check(f"bodies[{i}].hdb", hdb, exists=lambda p: p.exists() or p.with_suffix(".1").exists())
+        check(f"bodies[{i}].mesh", body.get("mesh"))
+        qtf = body.get("qtf")
+        for name in ("difference", "sum"):
+            check(f"bodies[{i}].qtf.{name}", qtf.get(name) if isinstance(qtf, dict) else None)
+    for section, kind, key, what in (("waves", "elevation", "file", "elevation file"), ("client", "fmu", "fmu", "FMU")):
+        table = raw.get(section)
+        if isinstance(table, dict) and table.get("type") == kind:
+            check(f"{section}.{key}", table.get(key), what)
+    for i, mooring in tables("moorings"):
+        if mooring.get("type") == "moordyn":
+            check(f"moorings[{i}].file", mooring.get("file"), "MoorDyn input file")
+    return problems
 
 
 def resolve_path(scene_path: str | Path, relative: str) -> Path:

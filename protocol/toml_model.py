@@ -11,18 +11,13 @@ from __future__ import annotations
 
 import difflib
 import re
-import sys
+import tomllib
 from pathlib import Path
 from typing import Any, Callable, TypeVar, get_args
 
 from pydantic import BaseModel, ValidationError
 
 from hydrolink.protocol.codec import describe
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
 
 M = TypeVar("M", bound=BaseModel)
 _SKIP_PREFIXES = ("function-", "list[", "literal[", "union[")
@@ -101,18 +96,32 @@ def parse_toml(text: str, source: str | Path, error: Callable[[str | Path, str, 
 
 def validate_toml(text: str, source: str | Path, model: type[M],
                   error: Callable[[str | Path, str, str], Exception],
-                  union_tags: tuple[str, ...] = ()) -> M:
+                  union_tags: tuple[str, ...] = (),
+                  more: Callable[[dict], list[tuple[str, str]]] | None = None) -> M:
     """Parse ``text`` and validate it as ``model``; raise ``error(source, key, why)`` naming the
     first problem's key, its ``why`` followed by one line "source: key: why" per further problem
-    (every problem, up to MAX_PROBLEMS)."""
+    (every problem, up to MAX_PROBLEMS). ``more``: the document's further (key, why) problems the
+    schema cannot see (e.g. files it names that do not exist), found on the parsed document and
+    listed after the schema's own, in the same error."""
     raw = parse_toml(text, source, error)
+    extra = more(raw) if more is not None else []
     try:
-        return model.model_validate(raw)
+        result = model.model_validate(raw)
     except ValidationError as exc:
         errors = exc.errors()
         problems = [_problem(err, model, union_tags) for err in errors[:MAX_PROBLEMS]]
-        (key, why), rest = problems[0], problems[1:]
-        lines = [f"\n{source}: {k}: {w}" if k else f"\n{source}: {w}" for k, w in rest]
-        if len(errors) > MAX_PROBLEMS:
-            lines.append(f"\n{source}: and {len(errors) - MAX_PROBLEMS} more problems")
-        raise error(source, key, why + "".join(lines)) from None
+        raise _listed(problems + extra, len(errors) + len(extra), source, error) from None
+    if extra:
+        raise _listed(extra, len(extra), source, error)
+    return result
+
+
+def _listed(problems: list[tuple[str, str]], total: int, source: str | Path,
+            error: Callable[[str | Path, str, str], Exception]) -> Exception:
+    """One error naming the first problem's key, one line "source: key: why" per further problem."""
+    problems = problems[:MAX_PROBLEMS]
+    (key, why), rest = problems[0], problems[1:]
+    lines = [f"\n{source}: {k}: {w}" if k else f"\n{source}: {w}" for k, w in rest]
+    if total > len(problems):
+        lines.append(f"\n{source}: and {total - len(problems)} more problems")
+    return error(source, key, why + "".join(lines))

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import csv
 import math
-import sys
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -17,11 +17,6 @@ from conftest import toml_document
 from hydrolink.clients.studies.accuracy import Grid, compare, dump_toml, grid_from_flags, make_cases, pareto_front, reference_settings, set_key
 from hydrolink.clients.cli import cli
 from hydrolink.protocol.scene import Scene, parse_scene
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
 
 REPO = Path(__file__).resolve().parents[1]
 

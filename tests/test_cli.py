@@ -152,6 +152,40 @@ def test_water_that_differs_from_the_hdb_is_said_and_kept_with_the_results(scene
     assert any(expect in n and "sphere.h5" in n for n in notes), notes
 
 
+def test_run_says_what_it_wrote_and_its_headline_figures(scene_dir: Path):
+    """`hydrolink run` ends with the file it wrote and the run's headline: over the second half of the
+    run, the sphere's most varying translation and rotation (std and max of position - equilibrium),
+    figures recomputed here from the file's own series."""
+    result = _cli("run", "scene.toml", "-o", "said.nc", "--no-progress", cwd=scene_dir)
+    assert result.returncode == 0, result.stderr
+    lines = result.stdout.strip().splitlines()
+    assert lines[0].startswith("wrote said.nc: 240 steps in "), lines
+    with xr.open_dataset(scene_dir / "said.nc") as ds:
+        t = ds["time"].values
+        x = (ds["position"] - ds["equilibrium_position"]).sel(body="sphere").values[t > 6.0 - 1e-6]
+    assert t[-1] == pytest.approx(12.0)
+    head = re.fullmatch(r"t 6-12 s: sphere (\w+) std (\S+) m \(max \|x\| (\S+) m\), (\w+) std (\S+) deg "
+                        r"\(max \|x\| (\S+) deg\)", lines[1])
+    assert head, lines
+    dofs = ["surge", "sway", "heave", "roll", "pitch", "yaw"]
+    trans, rot = int(np.argmax(x[:, :3].std(axis=0))), 3 + int(np.argmax(x[:, 3:].std(axis=0)))
+    assert head[1] == dofs[trans] and head[4] == dofs[rot] == "pitch"
+    assert float(head[2]) == pytest.approx(x[:, trans].std(), rel=2e-3)
+    assert float(head[3]) == pytest.approx(np.abs(x[:, trans]).max(), rel=2e-3)
+    assert float(head[5]) == pytest.approx(np.degrees(x[:, rot].std()), rel=2e-3)
+    assert float(head[6]) == pytest.approx(np.degrees(np.abs(x[:, rot]).max()), rel=2e-3)
+
+
+def test_missing_files_come_with_the_schema_errors(scene_dir: Path):
+    """A bad key and a missing HDB: both in the one error (before: the HDB only once the key was fixed)."""
+    write_scene(scene_dir, sphere_scene(hdb="missing.h5", mass=-1.0), "both.toml")
+    result = _cli("run", "both.toml", cwd=scene_dir)
+    assert result.returncode != 0 and "Traceback" not in result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert lines[0].startswith("Error: both.toml: bodies[0].mass: Input should be greater than 0"), lines
+    assert lines[1] == f"both.toml: bodies[0].hdb: file not found: {scene_dir / 'missing.h5'}", lines
+
+
 def test_missing_hdb_names_the_key(scene_dir: Path):
     write_scene(scene_dir, sphere_scene(hdb="missing.h5"), "nohdb.toml")
     result = _cli("run", "nohdb.toml", cwd=scene_dir)

@@ -5,16 +5,11 @@ A new example is picked up by the glob, so it cannot ship noisy."""
 
 from __future__ import annotations
 
-import sys
+import tomllib
 import warnings
 from pathlib import Path
 
 import pytest
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 

@@ -78,3 +78,34 @@ def test_the_installed_layout_is_the_one_the_contracts_see(tmp_path):
     expected = {f"{folder}/{p.relative_to(REPO / folder).as_posix()}" for folder in PACKAGES
                 for p in _modules(folder) if "api" not in p.relative_to(REPO / folder).parts}
     assert expected <= copied
+
+
+def test_python_floor_is_stated_once_and_holds_for_the_code():
+    """pyproject's requires-python and the README state the same floor, and the code runs there:
+    no module imports a standard-library module newer than the floor (tomllib is Python 3.11's),
+    and no ``tomli`` fallback or version guard is left for a Python the project does not claim."""
+    import re
+    import tomllib
+
+    project = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]
+    floor = re.fullmatch(r">=\s*3\.(\d+)", project["requires-python"])
+    assert floor, f"pyproject.toml requires-python {project['requires-python']!r} is not '>=3.N'"
+    minor = int(floor.group(1))
+    readme = re.findall(r"Python ≥ 3\.(\d+)", (REPO / "README.md").read_text())
+    assert readme and {int(m) for m in readme} == {minor}, f"README states Python ≥ 3.{readme}, pyproject 3.{minor}"
+    assert not any("tomli" in d for d in project["dependencies"]), "tomli is a fallback for Python < 3.11"
+    since = {"tomllib": 11}                      # standard-library modules newer than 3.10
+    offenders = []
+    for path in sorted(REPO.rglob("*.py")):
+        if {".venv", "__pycache__", ".git"} & set(path.parts) or "egg-info" in str(path) or path == Path(__file__).resolve():
+            continue
+        text = path.read_text()
+        if "sys.version_info" in text or re.search(r"\bimport tomli\b", text):
+            offenders.append(f"{path.relative_to(REPO)}: a version guard or tomli fallback")
+        for node in ast.walk(ast.parse(text)):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
+                [node.module or ""] if isinstance(node, ast.ImportFrom) else []
+            offenders += [f"{path.relative_to(REPO)}: imports {n} (3.{since[n]}+)"
+                          for n in names if since.get(n, 0) > minor]
+    assert not offenders, offenders
+    assert sys.version_info[:2] >= (3, minor)

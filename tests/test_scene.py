@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from conftest import body, regular_waves, scene_toml
+from conftest import body, regular_waves, scene_toml, write_scene
 
 from hydrolink.protocol.scene import SceneError, load_scene, parse_scene, resolve_path
 
@@ -68,6 +68,56 @@ def test_bad_toml_and_missing_file(tmp_path):
         load_scene(tmp_path / "nope.toml")
 
 
+def test_missing_files_are_listed_with_the_schema_errors(tmp_path):
+    """One SceneError lists the schema's problems and every input file the scene names that is not
+    there (HDB, hull mesh, NEMOH QTF, elevation series, MoorDyn file, FMU), each by its key and its
+    path; a WAMIT HDB named by its stem is there when its .1 is, and an HDB the caller already holds
+    is not looked for."""
+    (tmp_path / "here.nc").touch()
+    (tmp_path / "wamit.1").touch()
+    (tmp_path / "here.gdf").touch()
+    wet = dict(mass=1.0, center_of_mass=[0, 0, 0], inertia=[1, 1, 1])
+    bodies = [body("a", hdb="gone.nc", **wet, mesh="gone.gdf", qtf={"difference": "OUT_QTFM_N.dat", "frequency_unit": "rad/s",
+                                                                     "convention": "exp(-iwt)"}),
+              body("b", hdb="here.nc", **wet, mesh="here.gdf"),
+              body("c", hdb="gone.nc", **wet),        # the same missing HDB: listed once
+              body("d", hdb="wamit", **wet)]
+    text = scene_toml(dt=-0.1, duration=1.0, bodies=bodies, waves={"type": "elevation", "file": "eta.csv", "colour": 1},
+                      moorings=[{"name": "m", "type": "moordyn", "file": "lines.dat", "bodies": ["b"]}])
+    path = write_scene(tmp_path, text)
+    with pytest.raises(SceneError) as info:
+        load_scene(path)
+    lines = str(info.value).splitlines()
+    schema = [f"{path}: simulation.dt:", f"{path}: waves.colour: unknown key"]
+    files = [f"{path}: bodies[0].hdb: file not found: {tmp_path / 'gone.nc'}",
+             f"{path}: bodies[0].mesh: file not found: {tmp_path / 'gone.gdf'}",
+             f"{path}: bodies[0].qtf.difference: file not found: {tmp_path / 'OUT_QTFM_N.dat'}",
+             f"{path}: waves.file: elevation file not found: {tmp_path / 'eta.csv'}",
+             f"{path}: moorings[0].file: MoorDyn input file not found: {tmp_path / 'lines.dat'}"]
+    for expected in schema + files:
+        assert sum(line.startswith(expected) for line in lines) == 1, (expected, lines)
+    assert len(lines) == len(schema + files), "\n".join(lines)   # nothing else: here.nc, here.gdf, wamit(.1) are there
+    # the schema fixed: the files alone, the same list
+    fixed = text.replace("dt = -0.1", "dt = 0.1").replace("colour = 1\n", "")
+    assert fixed.count("dt = 0.1") == 1 and "colour" not in fixed
+    path.write_text(fixed)
+    with pytest.raises(SceneError) as info:
+        load_scene(path)
+    assert str(info.value).splitlines() == files
+    # the HDB in hand (hydrolink run's hdbs=) is not looked for; without check_files nothing is
+    with pytest.raises(SceneError) as info:
+        load_scene(path, have_hdbs=["gone.nc"])
+    assert str(info.value).splitlines() == files[1:]
+    scene, _ = load_scene(path, check_files=False)
+    assert [b.hdb for b in scene.bodies] == ["gone.nc", "here.nc", "gone.nc", "wamit"]
+    # an FMU client's FMU, in a folder of the scene's
+    fmu = write_scene(tmp_path, fmu_scene({**FMU_CLIENT, "fmu": "sub/wec.fmu"}), "fmu.toml")
+    with pytest.raises(SceneError) as info:
+        load_scene(fmu)
+    assert str(info.value).splitlines() == [f"{fmu}: bodies[0].hdb: file not found: {tmp_path / 'f.nc'}",
+                                            f"{fmu}: client.fmu: FMU not found: {tmp_path / 'sub' / 'wec.fmu'}"]
+
+
 def test_relative_paths_resolve_against_scene(tmp_path):
     scene = tmp_path / "sub" / "scene.toml"
     assert resolve_path(scene, "float.nc") == (tmp_path / "sub" / "float.nc").resolve()
@@ -92,6 +142,8 @@ def test_deprecated_fmu_coupling_is_read_as_the_one_vocabulary(mode, scheme, tmp
     client = {**FMU_CLIENT, "coupling": {"mode": mode, "max_iterations": 7}}
     path = tmp_path / "fmu.toml"
     path.write_text(fmu_scene(client))
+    for name in ("f.nc", "wec.fmu"):   # the files the scene names (load_scene looks for them)
+        (tmp_path / name).touch()
     scene, _ = load_scene(path)
     c = scene.coupling
     assert (c.scheme, c.tolerance, c.max_iterations, c.explicit_limit) == (scheme, 1e-6, 7, 0.5)

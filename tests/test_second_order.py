@@ -159,7 +159,8 @@ def test_bichromatic_sea_against_the_closed_form(drift_hdb, mode):
 
 def test_interpolated_qtf_equals_the_dense_double_sum(drift_hdb):
     """Off-grid components: the factorised force equals the O(N^2) double sum over a T_ij
-    interpolated bilinearly here (np.interp along each axis) from the file's square."""
+    interpolated bilinearly here (np.interp along each axis) from the file's square off the diagonal,
+    and on it T_ii interpolated along the diagonal T(w, w) (np.interp), as mean-drift and newman take it."""
     ds, _ = drift_hdb
     rng = np.random.default_rng(3)
     w = np.sort(rng.uniform(2 * np.pi / 19.0, 2 * np.pi / 4.6, 40))
@@ -171,10 +172,79 @@ def test_interpolated_qtf_equals_the_dense_double_sum(drift_hdb):
     rows = np.array([np.interp(w, grid, square[:, b].real) + 1j * np.interp(w, grid, square[:, b].imag)
                      for b in range(grid.size)]).T                      # (n_c, n_q)
     t_ij = np.array([np.interp(w, grid, r.real) + 1j * np.interp(w, grid, r.imag) for r in rows])
+    t_ij[np.diag_indices(w.size)] = np.interp(w, grid, np.diag(square).real)
     for t in (0.0, 55.5):
         z = amp * np.exp(1j * phase - 1j * w * t)
         expect = np.real(np.sum(z[:, None] * np.conj(z)[None, :] * t_ij))
         assert term.force(t, np.zeros((1, 6)), np.zeros((1, 6)))[0][0, 0] == pytest.approx(expect, rel=1e-9)
+
+
+# A difference QTF written here from an analytic T(w_i, w_j) (per DOF d, heading 0):
+#   Re T = c0_d + c1_d (w_i + w_j)/2 + c2_d (w_i - w_j)^2,  Im T = c3_d (w_i - w_j)
+# (Hermitian: T(w_j, w_i) = conj T(w_i, w_j)), whose diagonal T(w, w) = c0_d + c1_d w is linear in w:
+# any interpolation along the diagonal is exact there, the bilinear one on the square is not (its
+# off-diagonal neighbours carry the curvature c2 in).
+QTF_GRID = np.linspace(0.4, 1.6, 7)                     # rad/s
+QTF_C = np.array([[1e3 * (d + 1), 2e3 * (d + 1), 5e4 * (d + 1), 3e2 * (d + 1)] for d in range(6)])
+
+
+def analytic_t(wi, wj) -> np.ndarray:
+    """(..., 6) the analytic T(w_i, w_j) above."""
+    wi, wj = np.asarray(wi, float)[..., None], np.asarray(wj, float)[..., None]
+    c0, c1, c2, c3 = QTF_C.T
+    return c0 + c1 * (wi + wj) / 2 + c2 * (wi - wj) ** 2 + 1j * c3 * (wi - wj)
+
+
+@pytest.fixture(scope="module")
+def qtf_only_hdb(sphere) -> xr.Dataset:
+    """The sphere's HDB with only that difference QTF (no mean drift coefficients)."""
+    from hydrolink.protocol.hdb.second_order import QTF
+    wi, wj = np.meshgrid(QTF_GRID, QTF_GRID, indexing="ij")
+    square = analytic_t(wi, wj)[:, :, None, :]                      # (n_q, n_q, 1 heading pair, 6)
+    return with_second_order(sphere, qtf=QTF(QTF_GRID, np.zeros(1), np.zeros(1), square, None, "analytic (test)"))
+
+
+def _scale(ds: xr.Dataset) -> float:
+    """The term's rho g scaling from the HDB's to the test scene's water (SPHERE_WATER, g 9.81)."""
+    scene = parse_scene(_scene(Path("x.nc"), regular_waves(1.0, 7.0)))
+    return scene.water.density * scene.water.gravity / _rho_g(ds)
+
+
+@pytest.mark.parametrize("mode", ["mean-drift", "newman", "qtf"])
+def test_a_qtf_alone_gives_every_mode_the_exact_diagonal(qtf_only_hdb, mode):
+    """An HDB holding only a difference QTF: mean-drift and newman take T_ii from its diagonal
+    (before: refused, "holds no mean drift coefficients"), and all three modes interpolate the diagonal
+    alike (before: qtf bilinearly on the square, its surge T_ii 910 N/m^2 (32 %) off at w = 0.93 rad/s).
+    A regular wave off the grid gives A^2 T(w, w) exactly; over a beat period of a bichromatic sea the
+    mean force is A1^2 T(w1, w1) + A2^2 T(w2, w2) (the cross terms beat at w2 - w1 and average out
+    over the equally spaced samples); Newman's force is the closed form at every instant."""
+    ds, k = qtf_only_hdb, _scale(qtf_only_hdb)
+    a, w = 1.3, 0.93
+    term = _term(ds, _bichromatic([w], [a], [0.7]), second_order=mode)
+    for t in (0.0, 4.1):
+        f = term.force(t, np.zeros((1, 6)), np.zeros((1, 6)))[0][0]
+        np.testing.assert_allclose(f, k * a ** 2 * analytic_t(w, w).real, rtol=1e-9)
+    (w1, w2), (a1, a2), (f1, f2) = (0.93, 1.27), (1.1, 0.6), (0.4, 2.1)
+    term = _term(ds, _bichromatic([w1, w2], [a1, a2], [f1, f2]), second_order=mode)
+    t11, t22 = k * analytic_t(w1, w1).real, k * analytic_t(w2, w2).real
+    beat = 2 * np.pi / (w2 - w1)
+    times = np.arange(64) * beat / 64
+    forces = np.array([term.force(t, np.zeros((1, 6)), np.zeros((1, 6)))[0][0] for t in times])
+    np.testing.assert_allclose(forces.mean(axis=0), a1 ** 2 * t11 + a2 ** 2 * t22, rtol=1e-9)
+    if mode == "newman":
+        expect = a1 ** 2 * t11 + a2 ** 2 * t22 + a1 * a2 * (t11 + t22) * np.cos((w1 - w2) * times - (f1 - f2))[:, None]
+        np.testing.assert_allclose(forces, expect, rtol=1e-9, atol=1e-9 * np.abs(expect).max())
+
+
+def test_a_qtf_alone_with_a_drift_method_or_no_data_is_refused_naming_the_key(sphere, qtf_only_hdb):
+    """drift_method names coefficients a QTF-only HDB lacks: an error saying to leave it unset; an
+    HDB with neither mean drift nor a difference QTF: an error naming the mode's key and the file."""
+    with pytest.raises(ModelError) as err:
+        _term(qtf_only_hdb, _bichromatic([0.93], [1.0], [0.0]), second_order="newman", drift_method="momentum")
+    assert err.value.key == "hydro.drift_method" and "only a difference QTF" in str(err.value)
+    with pytest.raises(ModelError) as err:
+        _term(sphere, _bichromatic([0.93], [1.0], [0.0]), second_order="newman")
+    assert err.value.key == "hydro.second_order" and "no difference QTF" in str(err.value)
 
 
 @pytest.mark.parametrize("hydro,key", [

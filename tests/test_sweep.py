@@ -334,3 +334,43 @@ def test_irregular_sweep_power_matrix_and_aep_equal_mhkit(sphere_dir, sphere_pat
     assert float(ds.annual_energy) == pytest.approx(float(aep), rel=1e-12)
     assert float(ds.uncovered_occurrence) == pytest.approx(1 - (300 + 200 + 400 + 350) / 1800)
     assert (tmp_path / "power_matrix.png").is_file() and (tmp_path / "capture_width.png").is_file()
+
+
+class _Stream:
+    """A stderr that is, or is not, a terminal, keeping what is written to it."""
+
+    def __init__(self, tty: bool):
+        self.tty, self.text = tty, ""
+
+    def isatty(self) -> bool:
+        return self.tty
+
+    def write(self, s: str) -> int:
+        self.text += s
+        return len(s)
+
+    def flush(self) -> None:
+        pass
+
+
+@pytest.mark.parametrize("tty", [False, True])
+def test_progress_bars_draw_only_on_a_terminal(tty, monkeypatch):
+    """The run's and the sweep's tqdm bars write nothing to a stderr that is not a terminal (a CI
+    log, a pipe: no carriage-return redraws), and draw on one that is; off when not asked for."""
+    from hydrolink.clients.lockstep.driver import progress_bar
+    from hydrolink.clients.studies.sweep import _Progress
+    for enabled in (True, False):
+        stream = _Stream(tty)
+        monkeypatch.setattr(sys, "stderr", stream)
+        bar = progress_bar(50, enabled)
+        for _ in range(50):
+            bar.update(1)
+        bar.close()
+        sweep = _Progress(4, enabled)
+        for _ in range(4):
+            sweep.update(done=1, running=0)
+        sweep.close()
+        monkeypatch.undo()
+        drawn = tty and enabled
+        assert ("\r" in stream.text) == drawn, repr(stream.text)
+        assert ("50/50" in stream.text and "4/4" in stream.text) == drawn, repr(stream.text)

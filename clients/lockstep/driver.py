@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import gc
 import math
-import sys
 import time as _time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -292,9 +291,10 @@ class Lockstep:
 
 
 def progress_bar(total: int, enabled: bool, desc: str = "hydrolink run"):
+    """The run's tqdm bar on stderr; tqdm's own ``disable=None`` leaves it out where stderr is not a
+    terminal (a log, a pipe: no carriage-return redraws in it)."""
     from tqdm import tqdm
-    return tqdm(total=total, unit="step", desc=desc, mininterval=0.5,
-                disable=not (enabled and sys.stderr.isatty()))
+    return tqdm(total=total, unit="step", desc=desc, mininterval=0.5, disable=None if enabled else True)
 
 
 class GcBetweenSteps:

@@ -140,7 +140,8 @@ class _Progress:
 
     def __init__(self, total: int, enabled: bool):
         from tqdm import tqdm
-        self.bar = tqdm(total=total, unit="case", desc="sweep", disable=not enabled, dynamic_ncols=True)
+        # disable=None: tqdm leaves the bar out where stderr is not a terminal (no redraws in a log)
+        self.bar = tqdm(total=total, unit="case", desc="sweep", disable=None if enabled else True, dynamic_ncols=True)
         self.failed = 0
 
     def update(self, done: int = 0, failed: int = 0, running: int | None = None) -> None:

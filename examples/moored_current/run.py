@@ -1,10 +1,12 @@
 """RM3 on MoorDyn in an irregular sea, with and without the current: runs both and plots the spar's
 offset and the fairlead tensions.
 
-    python examples/moored_current/run.py [-o OUTDIR]
+    python examples/moored_current/run.py [-o OUTDIR]        (default OUTDIR: out/)
 
-Writes OUTDIR/with_current.nc, OUTDIR/without_current.nc (the scene with its [current] left out)
-and OUTDIR/moored_current.png, and prints the mean and extreme offset and tensions of both.
+Writes the two scenes, OUTDIR/with_current.toml (moored_current.toml as it is) and
+OUTDIR/without_current.toml (the same with its [current] left out), their results
+OUTDIR/with_current.nc and OUTDIR/without_current.nc, and OUTDIR/moored_current.png; prints the
+mean and extreme offset and tensions of both and the files it wrote.
 """
 
 from __future__ import annotations
@@ -29,13 +31,16 @@ SETTLED = 200.0        # s: the statistics leave out the ramp and the drift to t
 
 
 def run(outdir: Path) -> dict[str, Path]:
-    """Both runs: the scene as it is, and without its [current]."""
+    """Both runs, each from its scene written to OUTDIR: the scene as it is, and without its [current]."""
     doc = absolute_paths(tomllib.loads(SCENE.read_text()), SCENE)
-    still = {k: v for k, v in doc.items() if k != "current"}
-    (outdir / "without_current.toml").write_text(dump_toml(still))
-    out = {"with current": outdir / "with_current.nc", "without current": outdir / "without_current.nc"}
-    run_scene_file(SCENE, out["with current"], progress=False)
-    run_scene_file(outdir / "without_current.toml", out["without current"], progress=False)
+    scenes = {"with current": doc, "without current": {k: v for k, v in doc.items() if k != "current"}}
+    out = {}
+    for label, scene in scenes.items():
+        name = label.replace(" ", "_")
+        (outdir / f"{name}.toml").write_text(dump_toml(scene))
+        out[label] = outdir / f"{name}.nc"
+        run_scene_file(outdir / f"{name}.toml", out[label], progress=False)
+        print(f"wrote {outdir / f'{name}.toml'} and {out[label]}", flush=True)
     return out
 
 
@@ -73,7 +78,7 @@ def plot(results: dict[str, Path], output: Path) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("-o", "--outdir", type=Path, default=Path("."), help="folder for the results and plot")
+    parser.add_argument("-o", "--outdir", type=Path, default=Path("out"), help="folder for the scenes, results and plot")
     args = parser.parse_args()
     args.outdir.mkdir(parents=True, exist_ok=True)
     results = run(args.outdir)

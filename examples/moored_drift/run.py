@@ -1,7 +1,7 @@
 """The Task-10 sphere on MoorDyn in an irregular sea, with and without Newman's slow drift and the
 current: runs the four combinations and plots the sphere's offset and two fairlead tensions.
 
-    python examples/moored_drift/run.py [-o OUTDIR] [--duration SECONDS]
+    python examples/moored_drift/run.py [-o OUTDIR] [--duration SECONDS]        (default OUTDIR: out/)
 
 Writes OUTDIR/<variant>.nc and OUTDIR/moored_drift.png, and prints the mean, standard deviation and
 maximum surge offset, the mean and maximum fairlead tensions and the mean second-order force of
@@ -54,6 +54,7 @@ def run(outdir: Path, duration: float | None = None) -> dict[str, Path]:
         scene.write_text(dump_toml(variant(doc, second_order, current, duration)))
         out[name] = outdir / f"{name}.nc"
         run_scene_file(scene, out[name], progress=False)
+        print(f"wrote {scene} and {out[name]}", flush=True)
     return out
 
 
@@ -97,7 +98,7 @@ def plot(results: dict[str, Path], output: Path) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("-o", "--outdir", type=Path, default=Path("."), help="folder for the results and plot")
+    parser.add_argument("-o", "--outdir", type=Path, default=Path("out"), help="folder for the scenes, results and plot")
     parser.add_argument("--duration", type=float, default=None, help="s (default: the scene's)")
     args = parser.parse_args()
     args.outdir.mkdir(parents=True, exist_ok=True)

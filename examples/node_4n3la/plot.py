@@ -36,6 +36,7 @@ def main() -> None:
     fig.suptitle("4N3LA: absorbed PTO power, 6 rotary PTOs (pitch + yaw axes; roll = arm spin restraint)")
     fig.tight_layout()
     fig.savefig(args.output, dpi=90)
+    print(f"wrote {args.output}")
     print(f"mean total PTO power {total[steady].mean():.4f} W (t >= {t[steady][0]:g} s); max {np.max(total):.3f} W")
 
 

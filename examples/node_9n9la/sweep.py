@@ -73,6 +73,7 @@ def main() -> None:
         wr = csv.DictWriter(fh, fieldnames=list(rows[0]))
         wr.writeheader()
         wr.writerows(rows)
+    print(f"wrote {args.output}: {len(rows)} runs; largest P/a^2 {max(r['power_per_a2'] for r in rows):.1f} W/m^2")
     if args.plot:
         import matplotlib
         matplotlib.use("Agg")
@@ -87,6 +88,7 @@ def main() -> None:
         ax[0].legend(fontsize=8)
         fig.tight_layout()
         fig.savefig(args.plot, dpi=90)
+        print(f"wrote {args.plot}")
 
 
 if __name__ == "__main__":

@@ -14,6 +14,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import xarray as xr  # noqa: E402
 
 from hydrolink.protocol.scene import parse_scene  # noqa: E402
+from hydrolink.clients.cli import run_headline  # noqa: E402
 
 
 def main() -> None:
@@ -41,12 +42,14 @@ def main() -> None:
     for name in ds[dim].values:
         p = ds["pto_power"].sel({dim: name}).values
         axes[2].plot(t, p / 1e3, label=f"{name}: mean over the last 5 periods {p[steady].mean() / 1e3:.1f} kW")
+        print(f"PTO {name}: mean power over the last 5 wave periods {p[steady].mean() / 1e3:.1f} kW")
     axes[2].set_ylabel("PTO power [kW]")
     axes[2].set_xlabel("time [s]")
     axes[2].legend()
     fig.tight_layout()
     fig.savefig(args.output, dpi=110)
     print(f"wrote {args.output}")
+    print(run_headline(args.results))     # the run's headline figures (as `hydrolink run` ends with)
 
 
 if __name__ == "__main__":

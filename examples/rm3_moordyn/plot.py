@@ -13,6 +13,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import xarray as xr  # noqa: E402
 
+from hydrolink.clients.cli import run_headline  # noqa: E402
+
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -42,6 +44,7 @@ def main() -> None:
     fig.tight_layout()
     fig.savefig(args.output, dpi=110)
     print(f"wrote {args.output}")
+    print(run_headline(args.results))     # the run's headline figures (as `hydrolink run` ends with)
 
 
 if __name__ == "__main__":

@@ -8,7 +8,8 @@ z_i(t) = c_i e^{-i w_i t}, c_i = A_i e^{+i phi_i}. The HDB's a_i = A_i e^{-i phi
 eta = sum A_i cos(w_i t + phi_i), i.e. a_i is our c_i with phi -> -phi: the HDB's formulas hold
 with a_i e^{-i w_i t} = z_i(t). So, for each force DOF d and r(t) the excitation's ramp,
 
-    mean drift   F_d = r^2 sum_i A_i^2 T_ii,d                      (T_ii: mean_drift at w_i, b_i)
+    mean drift   F_d = r^2 sum_i A_i^2 T_ii,d      (T_ii: mean_drift at w_i, b_i; an HDB without mean
+                                                    drift: the difference QTF's diagonal T-(w_i, w_i))
     Newman       F_d = r^2 Re[(sum_i z_i T_ii,d) conj(sum_j z_j)]
                  (Newman's T_ij = 1/2 (T_ii + T_jj) exactly: the double sum Re sum_ij z_i conj(z_j)
                  1/2 (T_ii + T_jj) is the real part of one product of two single sums, O(N))
@@ -18,7 +19,10 @@ with a_i e^{-i w_i t} = z_i(t). So, for each force DOF d and r(t) the excitation
 (the ramp squared: the force is quadratic in the amplitudes). The QTFs are interpolated
 bilinearly from their grid, T_ij = sum_ab L_ia L_jb G_ab with L (n_c, n_q) the linear
 interpolation weights, so with y = L^T z (n_q values per heading) the double sums are
-Re y^T G conj(y) and Re y^T G y: O(N n_q + n_q^2) per step, never O(N^2). A regular wave is the
+Re y^T G conj(y) and Re y^T G y: O(N n_q + n_q^2) per step, never O(N^2). The diagonal T_ii has one
+interpolation in every mode, linear along the diagonal (along drift_omega for mean drift, along
+T-(w, w) for the QTF): the difference QTF's double sum holds the bilinear value there, so the
+constant r^2 sum_i A_i^2 (T_ii - T_ii,bilinear) is added to it. A regular wave is the
 one-component case (mean A^2 T(w, w); the sum QTF adds the 2w force).
 Each component's heading must be one the data hold (mean drift: inside the drift_direction range,
 interpolated linearly; QTF: each heading pair present), else a ModelError naming the wave key.
@@ -122,6 +126,43 @@ def _mean_drift_diagonal(sub: xr.Dataset, method: str, waves: WaveComponents, sc
     return np.einsum("ca,cb,abd->cd", lw, lb, md)
 
 
+def _qtf_pair(sub: xr.Dataset, bi: float, bj: float, waves: WaveComponents, src: str) -> int:
+    """The index of the QTF's heading pair (bi, bj); ModelError naming the wave key when it has none."""
+    pairs = list(zip(sub["qtf_direction_i"].values, sub["qtf_direction_j"].values))
+    for h, (a, b) in enumerate(pairs):
+        if _same_angle(a, bi) and _same_angle(b, bj):
+            return h
+    held = ", ".join(f"({np.degrees(a):g}, {np.degrees(b):g})" for a, b in pairs)
+    raise ModelError(_wave_key(waves, "heading"), f"the QTF of {src!r} has no heading pair ({np.degrees(bi):g}, "
+                                                  f"{np.degrees(bj):g}) deg (it holds {held} deg)")
+
+
+def _qtf_diagonal(sub: xr.Dataset, waves: WaveComponents, scale: float, src: str) -> tuple[np.ndarray, np.ndarray]:
+    """(n_c, 6) twice: the difference QTF's T_ii at each component, interpolated linearly along the
+    diagonal T(w, w) (the one interpolation of T_ii, as the mean drift's along drift_omega), and the
+    value the bilinear interpolation on the square gives there (what the factorised double sum
+    holds on its diagonal, corrected to the first by a constant)."""
+    grid = sub["qtf_omega_i"].values
+    lw = interpolation_weights(grid, waves.omega, _wave_key(waves, "omega"), "wave frequency (rad/s)")
+    heads = np.round(waves.heading_of(), 9)
+    t = sub["difference_qtf"].transpose(*QTF_DIMS).values * scale        # (n_q, n_q, n_h, 6)
+    linear, bilinear = np.zeros((waves.size, 6)), np.zeros((waves.size, 6))
+    # each component's weights are on two neighbouring grid points k, k + 1 (one on a 1-point grid)
+    k = np.minimum(np.argmax(lw != 0.0, axis=1), max(grid.size - 2, 0))
+    wa, wb = lw[np.arange(waves.size), k][:, None], lw[np.arange(waves.size), np.minimum(k + 1, grid.size - 1)][:, None]
+    for b in np.unique(heads):
+        on = heads == b
+        square = t[:, :, _qtf_pair(sub, b, b, waves, src), :]             # (n_q, n_q, 6), real diagonal
+        linear[on] = lw[on] @ np.einsum("aad->ad", square).real
+        if grid.size == 1:
+            bilinear[on] = linear[on]
+            continue
+        ko = k[on]
+        bilinear[on] = (wa[on] ** 2 * square[ko, ko] + wa[on] * wb[on] * (square[ko, ko + 1] + square[ko + 1, ko])
+                        + wb[on] ** 2 * square[ko + 1, ko + 1]).real
+    return linear, bilinear
+
+
 def _qtf_parts(sub: xr.Dataset, kinds: tuple[str, ...], waves: WaveComponents, scale: float, src: str
                ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """The interpolation L (n_c, n_g n_q) over the heading groups and each kind's stacked G."""
@@ -129,16 +170,10 @@ def _qtf_parts(sub: xr.Dataset, kinds: tuple[str, ...], waves: WaveComponents, s
     lw = interpolation_weights(grid, waves.omega, _wave_key(waves, "omega"), "wave frequency (rad/s)")
     heads = waves.heading_of()
     groups = np.unique(np.round(heads, 9))
-    pairs = list(zip(sub["qtf_direction_i"].values, sub["qtf_direction_j"].values))
     n_q, n_g = grid.size, groups.size
 
     def pair(bi: float, bj: float) -> int:
-        for h, (a, b) in enumerate(pairs):
-            if _same_angle(a, bi) and _same_angle(b, bj):
-                return h
-        held = ", ".join(f"({np.degrees(a):g}, {np.degrees(b):g})" for a, b in pairs)
-        raise ModelError(_wave_key(waves, "heading"), f"the QTF of {src!r} has no heading pair ({np.degrees(bi):g}, "
-                                                      f"{np.degrees(bj):g}) deg (it holds {held} deg)")
+        return _qtf_pair(sub, bi, bj, waves, src)
 
     key = _wave_key(waves, "heading")
     require_size(key, "the QTF over the wave headings' pairs", (6 * n_g * n_q, n_g * n_q), 16,
@@ -156,6 +191,32 @@ def _qtf_parts(sub: xr.Dataset, kinds: tuple[str, ...], waves: WaveComponents, s
         g_full = g_full.transpose(4, 2, 0, 3, 1).reshape(6 * n_g * n_q, n_g * n_q)
         out[kind] = np.ascontiguousarray(g_full)
     return lift, out
+
+
+def _drift_method(sub: xr.Dataset, mode: str, key: str, method: str | None, name: str, src: str) -> str | None:
+    """The mean drift method T_ii of ``mode`` ("mean-drift", "newman") is read from, or None for the
+    diagonal of the difference QTF (an HDB without mean drift coefficients; ``hydro.drift_method``
+    unset); ModelError naming the key when the HDB holds neither, or not the method asked for."""
+    methods = drift_methods(sub)
+    if not methods:
+        if "difference" not in qtf_kinds(sub):
+            raise ModelError(key, f"{mode!r} for body {name!r}: the HDB {src!r} holds no mean drift coefficients "
+                                  "(WAMIT .7/.8/.9, BEMIO mean_drift or hdb build's far-field) and no difference QTF "
+                                  "whose diagonal gives them")
+        if method is not None:
+            raise ModelError("hydro.drift_method", f"{method!r} for body {name!r}: the HDB {src!r} holds no mean drift "
+                                                   "coefficients, only a difference QTF: leave hydro.drift_method "
+                                                   "unset to take T_ii from the QTF's diagonal")
+        return None
+    if method is None:
+        if len(methods) > 1:
+            raise ModelError("hydro.drift_method", f"the HDB {src!r} holds the mean drift of several methods "
+                                                   f"{list(methods)}: choose one")
+        return methods[0]
+    if method not in methods:
+        raise ModelError("hydro.drift_method", f"{method!r} for body {name!r}: the HDB {src!r} holds only "
+                                               f"{list(methods)}")
+    return method
 
 
 def body_second_order(scene: Scene, i: int, row: int, ds: xr.Dataset, waves: WaveComponents
@@ -181,20 +242,9 @@ def body_second_order(scene: Scene, i: int, row: int, ds: xr.Dataset, waves: Wav
             raise ModelError(k, f"body {body.name!r}: the HDB {src!r} holds no {kind}-frequency QTF "
                                 f"(it holds {list(held) or 'none'})")
     if mode in ("mean-drift", "newman"):
-        methods = drift_methods(sub)
-        if not methods:
-            raise ModelError(key, f"{mode!r} for body {body.name!r}: the HDB {src!r} holds no mean drift "
-                                  "coefficients (WAMIT .7/.8/.9, BEMIO mean_drift or hdb build's far-field)")
-        method = hydro.drift_method
-        if method is None:
-            if len(methods) > 1:
-                raise ModelError("hydro.drift_method", f"the HDB {src!r} holds the mean drift of several methods "
-                                                       f"{list(methods)}: choose one")
-            method = methods[0]
-        elif method not in methods:
-            raise ModelError("hydro.drift_method", f"{method!r} for body {body.name!r}: the HDB {src!r} holds only "
-                                                   f"{list(methods)}")
-        diag = _mean_drift_diagonal(sub, method, waves, scale)
+        method = _drift_method(sub, mode, key, hydro.drift_method, body.name, src)
+        diag = (_mean_drift_diagonal(sub, method, waves, scale) if method is not None
+                else _qtf_diagonal(sub, waves, scale, src)[0])
         if mode == "mean-drift":
             parts["mean"] = (waves.amplitude ** 2) @ diag
         else:
@@ -207,6 +257,12 @@ def body_second_order(scene: Scene, i: int, row: int, ds: xr.Dataset, waves: Wav
                             f"lock bodies[{i}].dofs or use coefficients computed with the body's motions")
     if kinds:
         lift, g = _qtf_parts(sub, kinds, waves, scale, src)
+        if "difference" in kinds:
+            # the diagonal i = j of the double sum is A_i^2 T_ii, constant: with this constant it is the
+            # T_ii interpolated along the diagonal (as "mean-drift" and "newman" take it), not the
+            # bilinear value on the square, which mixes the neighbouring off-diagonal cells in
+            linear, bilinear = _qtf_diagonal(sub, waves, scale, src)
+            parts["mean"] = (waves.amplitude ** 2) @ (linear - bilinear)
         parts["lift"] = lift.astype(complex)   # complex once, not cast each step
         for kind in kinds:
             parts[kind] = g[kind]

@@ -147,7 +147,8 @@ def _solve(body, spec: BuildSpec, progress: bool, desc: str, motion: tuple[np.nd
     keep = drift_spec.mean_drift == "far-field"   # the Kochin functions need the sources
     n_total = sum(len(dofs) + (len(headings) if math.isfinite(om) else 0) for om in omegas)
     results = []
-    with tqdm(total=n_total, desc=desc, unit="pb", disable=not progress, leave=False) as bar:
+    # disable=None: tqdm leaves the bar out where stderr is not a terminal (no redraws in a log)
+    with tqdm(total=n_total, desc=desc, unit="pb", disable=None if progress else True, leave=False) as bar:
         for om in omegas:  # one omega at a time: Capytaine reuses the influence matrices
             problems = [cpt.RadiationProblem(radiating_dof=d, omega=om, **common) for d in dofs]
             if math.isfinite(om):
