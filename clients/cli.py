@@ -346,6 +346,12 @@ def run(scene: Path, output: Path | None, server: str | None, no_progress: bool,
                    f"p50 {1e3 * rt.latency_p50:.3f} ms, p99 {1e3 * rt.latency_p99:.3f} ms, max "
                    f"{1e3 * rt.latency_max:.3f} ms; {rt.overruns} overrun(s) of {rt.steps} steps"
                    + (f", worst {1e3 * rt.worst_lateness:.3f} ms late" if rt.overruns else ""))
+        if getattr(rt, "parts_mean", None):   # a client's paced run (protocol/pacing.py PacedRunReport)
+            click.echo("where a step's time went (mean / max ms): " + ", ".join(
+                f"{part} {1e3 * rt.parts_mean[part]:.3f} / {1e3 * rt.parts_max.get(part, 0.0):.3f}"
+                for part in rt.parts_mean)
+                + ("; overruns by cause: " + ", ".join(f"{c} {n}" for c, n in rt.overrun_causes.items() if n)
+                   if rt.overruns else ""))
     if hdb_files:
         click.echo(f"HDB files sent by hash: {summary.hdb_uploads} content(s) uploaded, the rest held by the server")
     for report in summary.moordyn or []:

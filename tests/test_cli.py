@@ -298,3 +298,26 @@ def test_reader_warnings_are_one_plain_line(tmp_path: Path):
     lines = [line for line in r.stderr.splitlines() if "rotation_center" in line]
     assert len(lines) == 1 and lines[0].startswith("warning: ") and "no rotation_center" in lines[0], r.stderr
     assert "UserWarning" not in r.stderr and ".py:" not in r.stderr
+
+
+def test_paced_run_prints_where_the_time_went_as_the_file_records_it(scene_dir: Path):
+    """`hydrolink run --realtime` says where a step's time went (mean and max per part) and its
+    overruns by cause: the figures the results file's `step_time` and `overrun` rows give, recomputed
+    here (issue 36: the summary and the file agree)."""
+    result = _cli("run", "scene.toml", "-o", "paced.nc", "--no-progress", "--realtime", "20", cwd=scene_dir)
+    assert result.returncode == 0, result.stderr
+    line = next(x for x in result.stdout.splitlines() if x.startswith("where a step's time went"))
+    printed = dict(re.findall(r"(\w+) ([\d.]+) / [\d.]+", line.split(":", 1)[1].split(";")[0]))
+    paced = next(x for x in result.stdout.splitlines() if x.startswith("paced at"))
+    overruns = int(re.search(r"; (\d+) overrun\(s\) of (\d+) steps", paced)[1])
+    with xr.open_dataset(scene_dir / "paced.nc") as ds:
+        parts = ds["step_time"].values
+        rows = np.isfinite(parts).all(axis=1)
+        mean = dict(zip(ds["step_part"].values.tolist(), 1e3 * parts[rows].mean(axis=0)))
+        assert int(ds["overrun"].values.sum()) == overruns
+    assert set(printed) == set(mean), (printed, mean)
+    for part, value in printed.items():
+        assert float(value) == pytest.approx(mean[part], abs=1.5e-3), (part, value, mean[part])
+    if overruns:
+        causes = dict(re.findall(r"(\w+) (\d+)", line.split("overruns by cause:")[1]))
+        assert sum(int(n) for n in causes.values()) == overruns
