@@ -43,32 +43,12 @@ from hydrolink.clients.scene_inputs import load_scene_hdbs
 from hydrolink.protocol import codec
 from hydrolink.protocol.scene import parse_scene
 
+from bench_setup_isolation import scene   # bench/ is on the path
+
 REPO = Path(__file__).resolve().parents[1]
-SPHERE = REPO / "examples" / "data" / "sphere_task10" / "sphere.h5"
 MiB = 2**20
 ATTACKS = ("frames", "lists", "nested", "deep", "hellos", "pipelined")
-SCENE = f"""
-[simulation]
-dt = 0.05
-duration = 1e5
-[water]
-density = 1000.0
-gravity = 9.81
-depth = 200.0
-[waves]
-type = "regular"
-height = 1.0
-period = 8.0
-[hydro]
-irf_duration = 4.0
-[[bodies]]
-name = "sphere"
-hdb = "{SPHERE.as_posix()}"
-mass = 261800.0
-center_of_mass = [0.0, 0.0, -2.0]
-inertia = [1.0e6, 1.0e6, 1.0e6]
-dofs = ["heave"]
-"""
+SCENE = scene(0.05, 1e5)   # the heave-only Task-10 sphere of bench_setup_isolation.py, for as long as an attack lasts
 
 
 def status_kb(pid: int, field: str) -> int:

@@ -104,6 +104,16 @@ def build_zmq_msgpack_program(source: Path, exe: Path, *flags: str) -> Path:
     return exe
 
 
+def dealer(address: str):
+    """A DEALER socket (linger 0) connected to ``address``, on the process's shared context: the raw
+    client of the tests that send frames by hand."""
+    import zmq
+    sock = zmq.Context.instance().socket(zmq.DEALER)
+    sock.setsockopt(zmq.LINGER, 0)
+    sock.connect(address)
+    return sock
+
+
 @contextlib.contextmanager
 def serve_process(*args: str, cwd: Path | None = None):
     """A `hydrolink serve` process on a free loopback port (``args``: more options, e.g. --store

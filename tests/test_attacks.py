@@ -17,7 +17,7 @@ import pytest
 import zmq
 from analytic_hdb import make_body_hdb
 
-from conftest import body, linear_pto, regular_waves, scene_toml
+from conftest import body, dealer, linear_pto, regular_waves, scene_toml
 from hydrolink.clients.lockstep.connection import RemoteError, ServerConnection
 from hydrolink.protocol import codec
 from hydrolink.server.service.force_server import MAX_QUEUED, serve_in_thread
@@ -94,12 +94,6 @@ def victim(hdbs):
         v.close()
 
 
-def _dealer(address: str) -> zmq.Socket:
-    sock = zmq.Context.instance().socket(zmq.DEALER)
-    sock.setsockopt(zmq.LINGER, 0)
-    sock.connect(address)
-    return sock
-
 
 def _recv(sock: zmq.Socket) -> dict:
     assert sock.poll(WAIT_MS), f"no reply within {WAIT_MS} ms"
@@ -131,7 +125,7 @@ def test_frames_each_under_the_limit_together_over_it_get_error_1_naming_the_lim
     with error 1 naming the limit, and the sender's connection stays (it is answered again)."""
     srv = served()
     v = victim(srv)
-    sock = _dealer(srv.address)
+    sock = dealer(srv.address)
     try:
         ping = codec.pack(codec.message("ping", "p-2", None))
         for _ in range(3):
@@ -161,7 +155,7 @@ def test_a_hello_over_the_limit_gets_error_1_naming_the_servers_limit(served, vi
     assert err.value.code == 1 and err.value.extra == {"limit": "message_bytes", "maximum": LIMIT}
     assert "at most 1048576 (1 MiB, this server's --max-message-mib" in str(err.value)
     v.step()
-    sock = _dealer(srv.address)
+    sock = dealer(srv.address)
     try:
         sock.send(bytes(2 * LIMIT + 1))
         assert not sock.poll(500), "a frame over twice the limit was answered"
@@ -179,7 +173,7 @@ def test_a_ping_of_millions_of_empty_lists_is_refused_by_its_count(served, victi
     session steps."""
     srv = served(max_message_bytes=4 * LIMIT)
     v = victim(srv)
-    sock = _dealer(srv.address)
+    sock = dealer(srv.address)
     try:
         n = 250_000   # 8 lists of 250,000 empty lists
         sock.send(_ping_with(b"\xdc\x00\x08" + (b"\xdd" + n.to_bytes(4, "big") + b"\x90" * n) * 8))
@@ -202,7 +196,7 @@ def test_padded_hellos_against_a_full_server_are_refused_busy_and_the_session_st
     Once the session is closed the same hello is read in full (and refused for its missing HDB)."""
     srv = served(max_sessions=1)
     v = victim(srv)
-    socks = [_dealer(srv.address) for _ in range(24)]
+    socks = [dealer(srv.address) for _ in range(24)]
     try:
         for i, sock in enumerate(socks):
             sock.send(codec.pack(codec.message("hello", f"h-{i}", None, role="multibody", scene=SCENE,
@@ -238,7 +232,7 @@ def test_input_queued_behind_a_deferred_step_is_bounded_with_a_named_error(serve
     with ServerConnection(srv.address, timeout=WAIT_MS / 1000) as owner:
         owner.hello(CONTROLLED, hdbs)
         sid = owner.session
-        mb, ctl = _dealer(srv.address), _dealer(srv.address)
+        mb, ctl = dealer(srv.address), dealer(srv.address)
         try:
             mb.send(codec.pack(codec.message("step", "s-0", sid, seq=0, time=0.0, position=np.zeros((1, 6)),
                                              velocity=np.zeros((1, 6)))))   # deferred: its controller has not joined
@@ -287,7 +281,7 @@ def test_a_late_command_repeated_writes_a_bounded_number_of_log_lines(served, vi
             caplog.at_level(logging.INFO, logger="hydrolink.server"):
         owner.hello(CONTROLLED, hdbs)
         sid = owner.session
-        ctl = _dealer(srv.address)
+        ctl = dealer(srv.address)
         try:
             ctl.send(codec.pack(codec.message("hello", "c-0", sid, role="controller", controller="ctl",
                                               token=owner.control_token)))
@@ -369,7 +363,7 @@ def test_a_memory_error_on_the_receive_path_is_an_error_reply_and_serve_goes_on(
     sock = None
     try:
         address = re.search(r"listening on (tcp://\S+)", proc.stderr.readline()).group(1)
-        sock = _dealer(address)
+        sock = dealer(address)
         sock.send(codec.pack(codec.message("ping", "p-0", None)))
         assert _recv(sock)["type"] == "pong"
         size = int(re.search(r"VmSize:\s+(\d+) kB", Path(f"/proc/{proc.pid}/status").read_text()).group(1)) * 1024

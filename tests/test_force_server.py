@@ -11,7 +11,7 @@ import pytest
 import zmq
 from analytic_hdb import make_body_hdb
 
-from conftest import SPHERE_WATER, body, linear_pto, regular_waves, scene_toml, serve_process
+from conftest import SPHERE_WATER, body, dealer, linear_pto, regular_waves, scene_toml, serve_process
 
 from hydrolink.clients.lockstep.connection import RemoteError, ServerConnection
 from hydrolink.protocol import codec
@@ -525,32 +525,29 @@ def test_a_frame_over_the_limit_is_refused_before_it_is_buffered(tmp_path):
 
     proc = subprocess.Popen([sys.executable, "-m", "hydrolink.clients.cli", "serve", "--bind", "tcp://127.0.0.1:*",
                              "--max-message-mib", "1", "--store", str(tmp_path)], stderr=subprocess.PIPE, text=True)
-    ctx = zmq.Context.instance()
     socks = []
 
     def peak_mib() -> float:
         return int(re.search(r"VmHWM:\s+(\d+) kB", Path(f"/proc/{proc.pid}/status").read_text()).group(1)) / 1024
 
-    def dealer() -> zmq.Socket:
-        sock = ctx.socket(zmq.DEALER)
-        sock.setsockopt(zmq.LINGER, 0)
-        sock.connect(address)
+    def tracked() -> zmq.Socket:   # closed at the end of the test
+        sock = dealer(address)
         socks.append(sock)
         return sock
 
     try:
         address = re.search(r"listening on (tcp://\S+)", proc.stderr.readline()).group(1)
         ping = codec.pack(codec.message("ping", 1, None))
-        first = dealer()
+        first = tracked()
         first.send(ping)
         assert first.poll(RECV_MS) and codec.unpack(first.recv())["type"] == "pong"
         before = peak_mib()
-        big = dealer()
+        big = tracked()
         big.send(bytes(200 * 2**20))
         assert not big.poll(3000), "a frame over the limit was answered: it was received"
         grown = peak_mib() - before
         assert grown < 50, f"the server's peak RSS grew by {grown:.0f} MiB for a refused 200 MiB frame"
-        under = dealer()   # a message just under the limit is still read
+        under = tracked()   # a message just under the limit is still read
         under.send(codec.pack(codec.message("upload", 2, None, sha256="0" * 64, data=bytes(2**20 - 200))))
         assert under.poll(RECV_MS) and codec.unpack(under.recv())["field"] == "sha256"
         first.send(ping)
@@ -579,12 +576,6 @@ def test_a_reply_the_wire_cannot_carry_is_an_error_and_the_server_serves_on():
 
 # ------------------------------------------------------------------ bounds on hellos (SPEC §4.2, error 14)
 
-def _dealer(address: str) -> zmq.Socket:
-    sock = zmq.Context.instance().socket(zmq.DEALER)
-    sock.setsockopt(zmq.LINGER, 0)
-    sock.connect(address)
-    return sock
-
 
 def _reply(sock: zmq.Socket, timeout_s: float) -> dict:
     assert sock.poll(int(timeout_s * 1000)), f"no reply within {timeout_s} s"
@@ -598,7 +589,7 @@ def test_a_hello_beyond_the_setup_bound_is_refused_at_once_and_the_others_are_se
     session steps throughout, and once the set-ups are done a new hello is welcomed."""
     srv, thread = serve_in_thread(session_timeout=60.0, max_setups=2)
     slow = float_scene(dt=5e-4, duration=0.1)
-    socks = [_dealer(srv.address) for _ in range(2)]
+    socks = [dealer(srv.address) for _ in range(2)]
     try:
         with ServerConnection(srv.address, timeout=10.0) as live, \
                 ServerConnection(srv.address, timeout=10.0) as late:
