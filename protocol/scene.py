@@ -17,7 +17,7 @@ from hydrolink.protocol.capabilities import FEATURES
 from hydrolink.protocol.current import Current
 from hydrolink.protocol.errors import KeyedError
 from hydrolink.protocol.scene_bounds import MAX_STEPS, AddedMassRatio, AngleDeg, Area, CableElements, Coefficient, ComponentCount, Coordinate, Density, Depth, Diameter, DirectionCount, Displacement, Duration, ExchangeSteps, ExcitationIRFDuration, EnergyFraction, ExplicitSpectralRadius, FileTime, FlowCoefficient, Fraction, Frequency, FrequencyStep, Gravity, HarmonicCount, IRFDuration, Interval, IterationCount, LatencySteps, Length, LineDensity, Mass, NonNegativeCoefficient, NonNegativeDiameter, NonNegativeLength, ParameterFloat, ParameterInt, PeakEnhancement, PositiveCoefficient, PreviewTime, RampTime, RegularisationSpeed, Seed, SegmentCount, SignificantHeight, SpectralRadius, Speed, SpreadingExponent, StateSpaceOrder, TimeStep, Tolerance, Volume, WallTimeout, WaveHeight, WavePeriod
-from hydrolink.protocol.toml_model import validate_toml
+from hydrolink.protocol.toml_model import read_toml_file, validate_toml
 
 DOF_NAMES: tuple[str, ...] = ("surge", "sway", "heave", "roll", "pitch", "yaw")
 
@@ -1109,10 +1109,7 @@ def load_scene(path: str | Path, *, check_files: bool = True, have_hdbs: Collect
     """Read a scene file; returns the validated scene and its text. Every problem in one SceneError:
     the schema's and (``check_files``) each input file it names that does not exist."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise SceneError(path, "", f"cannot read the scene file: {exc.strerror}") from None
+    text = read_toml_file(path, SceneError, "the scene file")
     scene = parse_scene(text, path, check_files=check_files, have_hdbs=have_hdbs)
     for note in scene.notes:
         log.warning("%s: %s", path, note)

@@ -85,6 +85,15 @@ def _problem(err: dict, model: type[BaseModel], union_tags: tuple[str, ...]) -> 
     return key, msg
 
 
+def read_toml_file(path: Path, error: Callable[[str | Path, str, str], Exception], what: str) -> str:
+    """The text of the TOML file at ``path``; ``error(path, "", why)`` naming ``what`` (e.g. "the
+    scene file") when it cannot be read."""
+    try:
+        return path.read_text()
+    except OSError as exc:
+        raise error(path, "", f"cannot read {what}: {exc.strerror}") from None
+
+
 def parse_toml(text: str, source: str | Path, error: Callable[[str | Path, str, str], Exception]) -> dict:
     """The TOML document ``text`` as a dict; ``error(source, "", why)`` when it is not TOML. (The
     one TOML reader: scenes, build specs, grids and sweeps all come through it.)"""

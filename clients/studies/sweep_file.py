@@ -50,7 +50,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 from hydrolink.protocol.errors import KeyedError
 from hydrolink.clients.studies.grid import GridSpec, Value, absolute_paths, dump_toml, effective_value, full_key, quoted, scene_location, set_key
 from hydrolink.protocol.scene import IrregularWave, Scene, SceneError, load_scene, parse_scene
-from hydrolink.protocol.toml_model import parse_toml, validate_toml
+from hydrolink.protocol.toml_model import parse_toml, read_toml_file, validate_toml
 
 TE_KEY = "waves.te"
 SEA_STATE_KEYS = ("waves.hs", "waves.tp", TE_KEY, "waves.height", "waves.period")
@@ -212,10 +212,7 @@ class _CaseBuilder:
 def load_sweep(path: str | Path) -> Sweep:
     """Read and validate a sweep file and every case of it (SweepError on the first problem)."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise SweepError(path, "", f"cannot read the sweep file: {exc.strerror}") from None
+    text = read_toml_file(path, SweepError, "the sweep file")
     spec = validate_toml(text, path, SweepFile, SweepError)
     if not spec.grid and not spec.cases:
         raise SweepError(path, "grid", "no cases: give [grid] keys or [[cases]]")

@@ -16,7 +16,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from hydrolink.protocol.scene import Water  # the same [water] table as a scene's
-from hydrolink.protocol.toml_model import validate_toml
+from hydrolink.protocol.toml_model import read_toml_file, validate_toml
 
 from hydrolink.protocol.hdb.layout import HDBError
 
@@ -303,10 +303,7 @@ def parse_spec(text: str, source: str | Path = "<spec>") -> BuildSpec:
 def load_spec(path: str | Path) -> BuildSpec:
     """Read and validate a build spec file."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise SpecError(path, "", f"cannot read the build spec: {exc.strerror}") from None
+    text = read_toml_file(path, SpecError, "the build spec")
     return parse_spec(text, path)
 
 
