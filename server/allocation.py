@@ -51,6 +51,7 @@ def footprint(obj: Any, max_objects: int = 200_000) -> int:
     model holds in memory, to within the Python objects around them. At most ``max_objects``
     objects are visited."""
     seen: set[int] = set()
+    counted: set[int] = set()   # the array bases already added
     total = 0
     stack = [obj]
     while stack and len(seen) < max_objects:
@@ -62,8 +63,8 @@ def footprint(obj: Any, max_objects: int = 200_000) -> int:
             base = o
             while isinstance(base.base, np.ndarray):
                 base = base.base
-            if id(base) not in seen or base is o:
-                seen.add(id(base))
+            if id(base) not in counted:
+                counted.add(id(base))
                 total += base.nbytes
             continue
         if isinstance(o, (xr.Dataset, xr.DataArray)):
