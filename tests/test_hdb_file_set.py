@@ -1,5 +1,5 @@
 """HDBs sent as their original files, by content (SPEC §5.1 "HDB file set", §5.8): the same forces
-as the converted map, bit for bit, for the WAMIT, BEMIO and Capytaine data in ../shared; hash
+as the converted map, bit for bit, for the WAMIT, BEMIO and Capytaine data in examples/data; hash
 references that hit and miss; bad sets, corrupted and oversized uploads answered with errors
 naming the field while the server keeps serving."""
 
@@ -41,7 +41,7 @@ def sphere_scene(hdb: str) -> str:
                       hydro={"irf_duration": 10.0}, bodies=[sphere_body(hdb, mass=2.6e5)])
 
 
-CASES = {   # format: (file in ../shared, scene)
+CASES = {   # format: (file in examples/data, scene)
     "wamit": ("rm3_wamit/rm3.1", rm3_scene),
     "bemio": ("sphere_task10/sphere.h5", sphere_scene),
     "netcdf": ("rm3_capytaine/rm3_hydrodynamics.nc", rm3_scene),
