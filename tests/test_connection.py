@@ -78,3 +78,16 @@ def test_a_slow_live_server_is_waited_for():
     finally:
         thread.join(5)
         router.close(0)
+
+
+def test_a_request_with_no_peer_to_send_to_times_out_instead_of_hanging():
+    """A DEALER with no connected peer (nothing accepted it, or a CURVE server refused its
+    handshake: test_deploy's plaintext client) blocks a plain send for ever; the request instead
+    gives the missing reply's TimeoutError within its timeout."""
+    address = "tcp://127.0.0.1:9"   # never connected below: the socket has no peer at all
+    with ServerConnection(address, timeout=0.5) as conn:
+        conn._sock.disconnect(address)
+        t0 = time.monotonic()
+        with pytest.raises(TimeoutError, match="no reply to 'ping'"):
+            conn.ping()
+        assert time.monotonic() - t0 < 30.0   # the timeout, not for ever (generous on a loaded machine)

@@ -129,11 +129,26 @@ class ServerConnection:
 
     # ------------------------------------------------------------ requests
 
-    def _send(self, frame: bytes) -> None:
+    def _send(self, frame: bytes, deadline: float, mtype: str, limit: float) -> None:
+        """Send a request frame; TimeoutError (as for a missing reply) when the socket cannot take it
+        by ``deadline``: a DEALER with no connected peer (nothing listening yet, a refused CURVE
+        handshake) or a full queue blocks a plain send for ever."""
         if self._local is not None:
             self._pending = self._local.respond(frame)
-        else:
-            self._sock.send(frame)
+            return
+        try:
+            self._sock.send(frame, zmq.NOBLOCK)
+            return
+        except zmq.Again:
+            pass
+        while (left := deadline - time.monotonic()) > 0:
+            if self._sock.poll(max(1, int(min(left, WATCH_S) * 1000)), zmq.POLLOUT):
+                try:
+                    self._sock.send(frame, zmq.NOBLOCK)
+                    return
+                except zmq.Again:
+                    continue
+        raise self._no_reply(mtype, limit)
 
     def _recv(self, deadline: float, mtype: str, limit: float) -> bytes:
         """The next reply frame; TimeoutError once ``deadline`` (time.monotonic) has passed."""
@@ -154,6 +169,10 @@ class ServerConnection:
                     return self._sock.recv()
                 except zmq.Again:
                     self._check_link(mtype)
+        raise self._no_reply(mtype, limit)
+
+    def _no_reply(self, mtype: str, limit: float) -> TimeoutError:
+        """The error of a request the server did not answer within ``limit`` s, with the likely causes."""
         hint = ("; with CURVE: is this client's public key in the server's --curve-clients directory, and "
                 "--curve-server-key the server's key?" if getattr(self, "curve", None) is not None else
                 "; a server started with --curve-secret refuses plaintext clients")
@@ -164,8 +183,8 @@ class ServerConnection:
                      "unanswered (under that it answers error 1 naming its limit; a server before protocol "
                      "revision 1.2 drops any frame over its limit: SPEC §1): send the HDB files by hash "
                      "(hydrolink run --hdb-files) or start the server with a larger --max-message-mib")
-        raise TimeoutError(f"no reply to {mtype!r} from the hydrolink server at {self.address} "
-                           f"within {limit:g} s (is it running and reachable?{hint})")
+        return TimeoutError(f"no reply to {mtype!r} from the hydrolink server at {self.address} "
+                            f"within {limit:g} s (is it running and reachable?{hint})")
 
     def _check_link(self, mtype: str) -> None:
         """While a reply is pending: ConnectionError when the server refuses reconnects for
@@ -179,7 +198,10 @@ class ServerConnection:
         if w.reconnects > self._reconnects_seen:
             self._reconnects_seen = w.reconnects
             if self._in_flight is not None and self._in_flight[0] in ("step", "ping"):
-                self._sock.send(self._in_flight[1])
+                try:
+                    self._sock.send(self._in_flight[1], zmq.NOBLOCK)
+                except zmq.Again:   # the link went down again: tried once more at the next check
+                    self._reconnects_seen -= 1
         if w.lost_since is None or not w.ever_connected:
             return
         down = time.monotonic() - w.lost_since
@@ -206,9 +228,9 @@ class ServerConnection:
             return self._checked(self._local.respond_map(msg), msg_id)
         frame = codec.pack(msg, self.key)
         self._in_flight = (mtype, frame)
-        self._send(frame)
         limit = self.timeout if timeout is None else timeout
         deadline = time.monotonic() + limit
+        self._send(frame, deadline, mtype, limit)
         while True:
             frame = self._recv(deadline, mtype, limit)
             try:
