@@ -316,6 +316,9 @@ class Body(_Section):
     second_order: SecondOrder | None = None
     # wet bodies: NEMOH QTF files added to the body's HDB (every body of that HDB gets them)
     qtf: NemohQTF | None = None
+    # wet bodies: the HDB's headings completed by mirror images (server/sea/headings.py) for a body
+    # symmetric about the plane y = 0 ("xz"), x = 0 ("yz") or both: a half range serves every heading
+    heading_symmetry: Literal["none", "xz", "yz", "both"] = "none"
     # dry bodies only: the node's position (default: the centre of mass) and a constant buoyancy
     reference_point: Vector3 | None = None
     buoyancy_volume: Volume = 0.0

@@ -42,7 +42,8 @@ from hydrolink.server.terms.base import ForceTerm, TermContext
 from hydrolink.server.terms.registry import TERMS, build_terms
 from hydrolink.server.radiation.options import RadiationGroup, radiation_option
 from hydrolink.server.radiation.state_space import Realization
-from hydrolink.server.sea.waves import ConvolutionForcing, WaveError, WaveForcing, WavePhases, convolution_kernel, elevation_on_grid, interpolate_excitation, kernel_transfer, wave_components
+from hydrolink.server.sea.headings import complete_headings, interpolate_excitation
+from hydrolink.server.sea.waves import ConvolutionForcing, WaveError, WaveForcing, WavePhases, convolution_kernel, elevation_on_grid, kernel_transfer, wave_components
 
 __all__ = ["HydroModel", "ModelError"]
 
@@ -100,6 +101,10 @@ class HydroModel:
         hulls of the bodies with nonlinear hydrostatics by name (hello.meshes); ``term_types`` the
         force terms beyond the linear core to build where the scene has them (server/terms/registry.py)."""
         self.scene = scene
+        try:
+            hdbs = complete_headings(scene, hdbs)    # half ranges of symmetric bodies completed
+        except WaveError as exc:
+            raise ModelError(exc.key, exc.why) from None
         self.hdbs = dict(hdbs)   # by body name: for what is rebuilt from the same data (a controller's plant, SPEC §5.7)
         served = {b.name for b in scene.served_bodies}
         wet = [i for i, b in enumerate(scene.bodies) if b.name in served]

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from hydrolink.protocol.scene import IrregularWave, RegularWave, StillWater
-from hydrolink.server.sea.waves import WaveError, WaveForcing, elevation, interpolate_excitation, jonswap, pierson_moskowitz, ramp_factor, wave_components
+from hydrolink.server.sea.headings import interpolate_excitation
+from hydrolink.server.sea.waves import WaveError, WaveForcing, elevation, jonswap, pierson_moskowitz, ramp_factor, wave_components
 
 
 def test_ramp():

@@ -234,44 +234,6 @@ def elevation(comps: WaveComponents, t) -> np.ndarray:
     return ramp_factor(t, comps.ramp) * np.real(np.exp(-1j * np.outer(t, comps.omega)) @ c)
 
 
-def _heading_weights(directions: np.ndarray, beta: float) -> tuple[int, int, float]:
-    """Indices (i, j) and weight s so that X(beta) = (1-s) X_i + s X_j; None if not covered."""
-    d = np.asarray(directions, float)
-    tol = 1e-6
-    diff = np.angle(np.exp(1j * (d - beta)))  # wrapped difference in (-pi, pi]
-    if np.any(np.abs(diff) < tol):
-        i = int(np.argmin(np.abs(diff)))
-        return i, i, 0.0
-    order = np.argsort(d)
-    ds = d[order]
-    b = ds[0] + np.mod(beta - ds[0], 2 * np.pi)  # beta mapped into [min, min + 2 pi)
-    if ds.size < 2 or b > ds[-1] + tol:
-        return None
-    k = int(np.clip(np.searchsorted(ds, b) - 1, 0, ds.size - 2))
-    s = float((b - ds[k]) / (ds[k + 1] - ds[k]))
-    return int(order[k]), int(order[k + 1]), s
-
-
-def interpolate_excitation(omega_hdb: np.ndarray, directions: np.ndarray, x: np.ndarray,
-                           omega: np.ndarray, beta: float) -> np.ndarray:
-    """X at (omega, beta): x (n_w, n_b, n) complex -> (n_c, n); linear in re/im in w and heading.
-
-    Raises WaveError("waves.direction") if beta is not within the HDB's headings (no wrap-around
-    interpolation beyond the outermost headings)."""
-    hw = _heading_weights(directions, beta)
-    if hw is None:
-        raise WaveError("waves.direction", f"{np.rad2deg(beta):.6g} deg is not covered by the HDB's headings "
-                        f"{np.round(np.rad2deg(directions), 4).tolist()} deg")
-    i, j, s = hw
-    xb = (1 - s) * x[:, i, :] + s * x[:, j, :]  # (n_w, n)
-    omega = np.asarray(omega, float)
-    if omega.size == 0:
-        return np.zeros((0, x.shape[2]), complex)
-    re = np.stack([np.interp(omega, omega_hdb, xb[:, m].real) for m in range(xb.shape[1])], axis=1)
-    im = np.stack([np.interp(omega, omega_hdb, xb[:, m].imag) for m in range(xb.shape[1])], axis=1)
-    return re + 1j * im
-
-
 class WavePhases:
     """[cos(w t); sin(w t)] of the wave components, computed once per time for every user of a
     step (the linear excitation, the incident-wave kinematics of drag and Morison terms)."""

@@ -24,8 +24,11 @@ interpolation in every mode, linear along the diagonal (along drift_omega for me
 T-(w, w) for the QTF): the difference QTF's double sum holds the bilinear value there, so the
 constant r^2 sum_i A_i^2 (T_ii - T_ii,bilinear) is added to it. A regular wave is the
 one-component case (mean A^2 T(w, w); the sum QTF adds the 2w force).
-Each component's heading must be one the data hold (mean drift: inside the drift_direction range,
-interpolated linearly; QTF: each heading pair present), else a ModelError naming the wave key.
+Headings (server/sea/headings.py, the one rule the excitation follows too): the mean drift is
+interpolated linearly in heading around the circle (any labelling of the data's headings, the wrap
+at +-180 deg included); the QTF of a unidirectional wave along its diagonal pairs (h, h), of two
+headings bilinearly over the pairs (h, k) the data hold. A heading in the gap the data leave out, or
+a pair they do not hold, is a ModelError naming the wave key.
 """
 
 from __future__ import annotations
@@ -42,7 +45,8 @@ from hydrolink.protocol.scene import Scene
 from hydrolink.server.allocation import require_size
 from hydrolink.server.errors import ModelError
 from hydrolink.server.terms.base import ForceTerm, TermContext
-from hydrolink.server.sea.waves import WaveComponents, ramp_factor
+from hydrolink.server.sea.headings import heading_weights
+from hydrolink.server.sea.waves import WaveComponents, WaveError, ramp_factor
 
 _TOL = 1e-6   # relative tolerance on frequencies, absolute (rad) on headings
 
@@ -72,10 +76,6 @@ def interpolation_weights(grid: np.ndarray, x: np.ndarray, key: str, what: str) 
     w[rows, k] = 1.0 - f
     w[rows, k + 1] += f
     return w
-
-
-def _same_angle(a: float, b: float) -> bool:
-    return abs(np.angle(np.exp(1j * (a - b)))) <= _TOL
 
 
 @dataclass(frozen=True)
@@ -109,32 +109,47 @@ class BodySecondOrder:
 
 
 def _mean_drift_diagonal(sub: xr.Dataset, method: str, waves: WaveComponents, scale: float) -> np.ndarray:
-    """(n_c, 6) T_ii of the method at each component's frequency and heading (N/m^2, N m/m^2)."""
+    """(n_c, 6) T_ii of the method at each component's frequency and heading (N/m^2, N m/m^2): linear
+    in frequency, and in heading around the circle (server/sea/headings.py, as the excitation)."""
     md = sub["mean_drift"].transpose(*MEAN_DRIFT_DIMS).sel(drift_method=method).values * scale
     w_grid, b_grid = sub["drift_omega"].values, sub["drift_direction"].values
-    heads = waves.heading_of()
     lw = interpolation_weights(w_grid, waves.omega, _wave_key(waves, "omega"), "wave frequency (rad/s)")
-    if b_grid.size == 1:
-        off = [h for h in heads if not _same_angle(h, b_grid[0])]
-        if off:
-            raise ModelError(_wave_key(waves, "heading"),
-                             f"heading {np.degrees(off[0]):g} deg: the mean drift is given for "
-                             f"{np.degrees(b_grid[0]):g} deg only")
-        lb = np.ones((heads.size, 1))
-    else:
-        lb = interpolation_weights(b_grid, heads, _wave_key(waves, "heading"), "heading (rad)")
+    lb = _heading_weights(b_grid, waves.heading_of(), waves, "the mean drift's headings")
     return np.einsum("ca,cb,abd->cd", lw, lb, md)
 
 
-def _qtf_pair(sub: xr.Dataset, bi: float, bj: float, waves: WaveComponents, src: str) -> int:
-    """The index of the QTF's heading pair (bi, bj); ModelError naming the wave key when it has none."""
-    pairs = list(zip(sub["qtf_direction_i"].values, sub["qtf_direction_j"].values))
-    for h, (a, b) in enumerate(pairs):
-        if _same_angle(a, bi) and _same_angle(b, bj):
-            return h
-    held = ", ".join(f"({np.degrees(a):g}, {np.degrees(b):g})" for a, b in pairs)
-    raise ModelError(_wave_key(waves, "heading"), f"the QTF of {src!r} has no heading pair ({np.degrees(bi):g}, "
-                                                  f"{np.degrees(bj):g}) deg (it holds {held} deg)")
+def _heading_weights(grid: np.ndarray, heads: np.ndarray, waves: WaveComponents, what: str) -> np.ndarray:
+    """heading_weights with its WaveError as the ModelError of the wave key."""
+    try:
+        return heading_weights(grid, heads, _wave_key(waves, "heading"), what)
+    except WaveError as exc:
+        raise ModelError(exc.key, exc.why) from None
+
+
+def _qtf_pair_weights(sub: xr.Dataset, groups: np.ndarray, waves: WaveComponents, src: str) -> np.ndarray:
+    """(n_g, n_g, n_h) weights C so that T(b_a, b_b) = sum_h C[a, b, h] T(pair h) for the wave
+    headings ``groups``: each heading interpolated between the QTF's headings around the circle
+    (server/sea/headings.py); the same heading twice (a unidirectional wave) along the diagonal
+    pairs (h, h), two headings bilinearly over the pairs (h, k) (bi-directional data). ModelError
+    naming the wave key for a heading the data leave out or a pair they do not hold."""
+    bi, bj = sub["qtf_direction_i"].values.astype(float), sub["qtf_direction_j"].values.astype(float)
+    grid = np.unique(np.round(np.concatenate([bi, bj]), 9))
+    w = _heading_weights(grid, groups, waves, "the QTF's headings")       # (n_g, n_grid)
+    index = {(round(float(a), 9), round(float(b), 9)): h for h, (a, b) in enumerate(zip(bi, bj))}
+    held = ", ".join(f"({np.degrees(a):g}, {np.degrees(b):g})" for a, b in zip(bi, bj))
+    out = np.zeros((groups.size, groups.size, bi.size))
+    for a in range(groups.size):
+        for b in range(groups.size):
+            terms = [(h, h, w[a, h]) for h in np.flatnonzero(w[a])] if a == b else \
+                [(h, k, w[a, h] * w[b, k]) for h in np.flatnonzero(w[a]) for k in np.flatnonzero(w[b])]
+            for h, k, c in terms:
+                pair = index.get((grid[h], grid[k]))
+                if pair is None:
+                    raise ModelError(_wave_key(waves, "heading"), f"the QTF of {src!r} has no heading pair "
+                                     f"({np.degrees(grid[h]):g}, {np.degrees(grid[k]):g}) deg for the wave headings "
+                                     f"({np.degrees(groups[a]):g}, {np.degrees(groups[b]):g}) deg (it holds {held} deg)")
+                out[a, b, pair] += c
+    return out
 
 
 def _qtf_diagonal(sub: xr.Dataset, waves: WaveComponents, scale: float, src: str) -> tuple[np.ndarray, np.ndarray]:
@@ -150,9 +165,11 @@ def _qtf_diagonal(sub: xr.Dataset, waves: WaveComponents, scale: float, src: str
     # each component's weights are on two neighbouring grid points k, k + 1 (one on a 1-point grid)
     k = np.minimum(np.argmax(lw != 0.0, axis=1), max(grid.size - 2, 0))
     wa, wb = lw[np.arange(waves.size), k][:, None], lw[np.arange(waves.size), np.minimum(k + 1, grid.size - 1)][:, None]
-    for b in np.unique(heads):
+    groups = np.unique(heads)
+    weights = _qtf_pair_weights(sub, groups, waves, src)
+    for g, b in enumerate(groups):
         on = heads == b
-        square = t[:, :, _qtf_pair(sub, b, b, waves, src), :]             # (n_q, n_q, 6), real diagonal
+        square = np.tensordot(t, weights[g, g], axes=([2], [0]))          # (n_q, n_q, 6), real diagonal
         linear[on] = lw[on] @ np.einsum("aad->ad", square).real
         if grid.size == 1:
             bilinear[on] = linear[on]
@@ -172,9 +189,6 @@ def _qtf_parts(sub: xr.Dataset, kinds: tuple[str, ...], waves: WaveComponents, s
     groups = np.unique(np.round(heads, 9))
     n_q, n_g = grid.size, groups.size
 
-    def pair(bi: float, bj: float) -> int:
-        return _qtf_pair(sub, bi, bj, waves, src)
-
     key = _wave_key(waves, "heading")
     require_size(key, "the QTF over the wave headings' pairs", (6 * n_g * n_q, n_g * n_q), 16,
                  "fewer spreading directions, or a coarser QTF grid")
@@ -183,11 +197,11 @@ def _qtf_parts(sub: xr.Dataset, kinds: tuple[str, ...], waves: WaveComponents, s
     for g, b in enumerate(groups):
         on = np.isclose(np.round(heads, 9), b)
         lift[on, g * n_q:(g + 1) * n_q] = lw[on]
-    index = np.array([[pair(bi, bj) for bj in groups] for bi in groups], int).reshape(n_g, n_g)
+    weights = _qtf_pair_weights(sub, groups, waves, src)               # (n_g, n_g, n_h)
     out = {}
     for kind in kinds:
         t = sub[f"{kind}_qtf"].transpose(*QTF_DIMS).values * scale     # (n_q, n_q, n_h, 6)
-        g_full = t[:, :, index, :]                                      # (n_q, n_q, n_g, n_g, 6)
+        g_full = np.einsum("ijhd,abh->ijabd", t, weights)               # (n_q, n_q, n_g, n_g, 6)
         g_full = g_full.transpose(4, 2, 0, 3, 1).reshape(6 * n_g * n_q, n_g * n_q)
         out[kind] = np.ascontiguousarray(g_full)
     return lift, out
