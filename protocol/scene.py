@@ -149,7 +149,141 @@ class ElevationWave(_Section):
     excitation_irf_duration: ExcitationIRFDuration = 20.0
 
 
-Waves = Annotated[Union[StillWater, RegularWave, IrregularWave, ElevationWave], Field(discriminator="type")]
+class WaveSystem(_Section):
+    """One wave system of ``[waves] type = "sea"`` (server/sea/seastate.py, docs/waves.md): a spectrum
+    S(w) (JONSWAP, Pierson-Moskowitz, or a table ``omega``/``density``) spread around ``direction``
+    (none, cos-2s of one ``s``, or Mitsuyasu's frequency-dependent s(w) = s_max (w/w_p)^5 below the
+    peak, s_max (w/w_p)^-2.5 above), or a directional table S(w, theta) (``omega``, ``theta`` in
+    degrees, ``density`` rows over omega). ``units = "hz-deg"``: the table's frequencies in Hz and
+    its density per Hz (and per degree): a buoy's or MHKiT's spectrum as it comes."""
+    spectrum: Literal["jonswap", "pierson-moskowitz", "table"]
+    hs: SignificantHeight | None = None
+    tp: WavePeriod | None = None
+    gamma: PeakEnhancement = 3.3
+    direction: AngleDeg = 0.0
+    spreading: Literal["none", "cos2s", "mitsuyasu"] = "none"
+    s: SpreadingExponent | None = None           # cos2s (default 10)
+    s_max: SpreadingExponent | None = None       # mitsuyasu (default 10: wind sea; swell 25-75)
+    directions: DirectionCount | None = None     # equal-energy sectors (default 9 when spread)
+    omega: Annotated[list[Annotated[float, Field(gt=0.0, le=1000.0, allow_inf_nan=False)]], Field(min_length=2)] | None = None
+    theta: Annotated[list[AngleDeg], Field(min_length=2)] | None = None
+    density: list[Annotated[float, Field(allow_inf_nan=False)]] | list[list[Annotated[float, Field(allow_inf_nan=False)]]] | None = None
+    units: Literal["rad", "hz-deg"] = "rad"
+
+    @model_validator(mode="after")
+    def _keys_of_the_spectrum(self) -> "WaveSystem":
+        table = self.spectrum == "table"
+        for key in ("hs", "tp"):
+            if table and getattr(self, key) is not None:
+                raise ValueError(f"{key}: not with spectrum = \"table\" (the table is the spectrum)")
+            if not table and getattr(self, key) is None:
+                raise ValueError(f"{key}: required with spectrum = \"{self.spectrum}\"")
+        if not table and (self.omega, self.theta, self.density) != (None, None, None):
+            raise ValueError("omega, theta, density: only with spectrum = \"table\"")
+        if table:
+            _check_table(self)
+        if self.spreading == "mitsuyasu" and self.tp is None and not table:
+            raise ValueError("tp: required by spreading = \"mitsuyasu\" (s depends on w/w_p)")
+        for key, want in (("s", "cos2s"), ("s_max", "mitsuyasu")):
+            if getattr(self, key) is not None and self.spreading != want:
+                raise ValueError(f"{key}: only with spreading = \"{want}\"")
+        if self.directions is not None and self.spreading == "none" and self.theta is None:
+            raise ValueError("directions: only with a spreading or a directional table")
+        return self
+
+    @property
+    def sectors(self) -> int:
+        """Directions the system is discretised into (1: unidirectional)."""
+        spread = self.spreading != "none" or self.theta is not None
+        return (9 if self.directions is None else int(self.directions)) if spread else 1
+
+
+def _check_table(system: WaveSystem) -> None:
+    """A table's shape, order and signs (every problem names the key)."""
+    if system.omega is None or system.density is None:
+        raise ValueError("omega, density: required with spectrum = \"table\"")
+    n = len(system.omega)
+    if any(b <= a for a, b in zip(system.omega, system.omega[1:])):
+        raise ValueError("omega: must increase strictly")
+    rows = system.density
+    two_d = bool(rows) and isinstance(rows[0], list)
+    if two_d != (system.theta is not None):
+        raise ValueError("density: a list over omega with no theta, or rows over omega of values over theta")
+    if len(rows) != n:
+        raise ValueError(f"density: {len(rows)} rows for {n} frequencies (omega)")
+    if two_d:
+        m = len(system.theta)
+        if any(len(r) != m for r in rows):
+            raise ValueError(f"density: every row needs {m} values (one per theta)")
+        if any(b <= a for a, b in zip(system.theta, system.theta[1:])) or system.theta[-1] - system.theta[0] >= 360.0:
+            raise ValueError("theta: must increase strictly and span less than 360 degrees")
+        if system.spreading != "none":
+            raise ValueError("spreading: a directional table spreads itself (leave spreading = \"none\")")
+    values = [v for r in rows for v in (r if two_d else [r])]
+    neg = next((k for k, v in enumerate(values) if v < 0.0), None)
+    if neg is not None:
+        where = f"row {neg // len(system.theta)}, column {neg % len(system.theta)}" if two_d else f"entry {neg}"
+        raise ValueError(f"density: a spectrum cannot be negative ({values[neg]:g} at {where})")
+    if not any(v > 0.0 for v in values):
+        raise ValueError("density: all zero (no sea)")
+
+
+class SeaState(_Section):
+    """``type = "sea"``: several wave systems at once (wind sea + swell), each its own spectrum,
+    spreading and direction (server/sea/seastate.py). ``frequencies``: bins of equal width (as
+    ``irregular``), of equal energy (each component at its bin's energy centroid, carrying E/N), or a
+    table's own frequencies (``"table"``)."""
+    type: Literal["sea"]
+    systems: Annotated[list[WaveSystem], Field(min_length=1, max_length=16)]
+    components: ComponentCount = 200
+    frequencies: Literal["equal-width", "equal-energy", "table"] = "equal-width"
+    seed: Seed = 0
+    omega_range: tuple[Frequency, Frequency] | None = None
+    ramp: RampTime = 0.0
+    excitation: Excitation = "superposition"
+    excitation_irf_duration: ExcitationIRFDuration = 20.0
+
+    @model_validator(mode="after")
+    def _table_frequencies(self) -> "SeaState":
+        if self.frequencies == "table":
+            bad = [i for i, s in enumerate(self.systems) if s.spectrum != "table"]
+            if bad:
+                raise ValueError(f"systems[{bad[0]}].spectrum: frequencies = \"table\" needs every system's own "
+                                 "table of frequencies")
+        if self.omega_range is not None and not self.omega_range[0] < self.omega_range[1]:
+            raise ValueError(f"omega_range: [low, high] in rad/s with low < high (got {list(self.omega_range)})")
+        return self
+
+    @property
+    def direction(self) -> float:
+        """The first system's direction (deg): the sea's reference heading."""
+        return self.systems[0].direction
+
+
+class ComponentWaves(_Section):
+    """``type = "components"``: a list of wave components replayed exactly (OpenFAST's WaveMod 7):
+    eta(x, t) = sum a cos(k . x - w t + phase) with k along ``direction`` (deg, where the component
+    travels to) and the phase in degrees (server/sea/seastate.py)."""
+    type: Literal["components"]
+    omega: Annotated[list[Frequency], Field(min_length=1, max_length=100_000)]
+    direction: list[AngleDeg]
+    amplitude: list[Annotated[float, Field(ge=0.0, le=50.0, allow_inf_nan=False)]]
+    phase: list[AngleDeg]
+    ramp: RampTime = 0.0
+    excitation: Excitation = "superposition"
+    excitation_irf_duration: ExcitationIRFDuration = 20.0
+
+    @model_validator(mode="after")
+    def _same_lengths(self) -> "ComponentWaves":
+        n = len(self.omega)
+        for key in ("direction", "amplitude", "phase"):
+            if len(getattr(self, key)) != n:
+                raise ValueError(f"{key}: {len(getattr(self, key))} values for {n} components (omega)")
+        return self
+
+
+Waves = Annotated[Union[StillWater, RegularWave, IrregularWave, ElevationWave, SeaState, ComponentWaves],
+                  Field(discriminator="type")]
 
 
 Nonlinear = Literal["none", "hydrostatic", "froude-krylov"]
@@ -1095,7 +1229,7 @@ class Scene(_Section):
         return {f: found[f] for f in FEATURES if f in found}
 
 
-_UNION_TAGS = ("regular", "irregular", "still", "elevation", "linear", "rotary", "rope", "moordyn", "exudyn", "fmu")
+_UNION_TAGS = ("regular", "irregular", "still", "elevation", "sea", "components", "linear", "rotary", "rope", "moordyn", "exudyn", "fmu")
 
 
 def parse_scene(text: str, source: str | Path = "<scene>", *, check_files: bool = False,

@@ -43,7 +43,8 @@ from hydrolink.server.terms.registry import TERMS, build_terms
 from hydrolink.server.radiation.options import RadiationGroup, radiation_option
 from hydrolink.server.radiation.state_space import Realization
 from hydrolink.server.sea.headings import complete_headings, interpolate_excitation
-from hydrolink.server.sea.waves import ConvolutionForcing, WaveError, WaveForcing, WavePhases, convolution_kernel, elevation_on_grid, kernel_transfer, wave_components
+from hydrolink.server.sea.seastate import sea_components
+from hydrolink.server.sea.waves import ConvolutionForcing, WaveError, WaveForcing, WavePhases, convolution_kernel, elevation_on_grid, kernel_transfer
 
 __all__ = ["HydroModel", "ModelError"]
 
@@ -132,9 +133,10 @@ class HydroModel:
         if lo >= hi:
             raise ModelError("bodies", f"the bodies' HDB frequency ranges do not overlap ({lo}..{hi} rad/s)")
         try:
-            self.waves = wave_components(scene.waves, lo, hi)
+            self.waves = sea_components(scene.waves, lo, hi)
         except WaveError as exc:
             raise ModelError(exc.key, exc.why) from None
+        self.warnings.extend(self.waves.notes)
         self._phases = WavePhases(self.waves.omega)   # the step's [cos wt; sin wt], shared with the terms
         data = [self._group_data(ds, members) for ds, members in groups]
         self._hydrostatics(data)
@@ -317,8 +319,8 @@ class HydroModel:
                             if live.any():
                                 self._exc_fit = max(self._exc_fit, float((err.max(axis=0)[live] / peak[live]).max()))
                 except WaveError as exc:
-                    key = "waves.spreading" if self.waves.headings is not None and exc.key == "waves.direction" \
-                        else exc.key
+                    key = (self.waves.heading_key or ("waves.spreading" if self.waves.headings is not None
+                                                      else "waves.direction")) if exc.key == "waves.direction" else exc.key
                     why = exc.why
                     if key == "waves.spreading":
                         why += (f" (cos-2s spreading, s = {scene.waves.spreading_s:g}, "

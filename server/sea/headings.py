@@ -94,7 +94,7 @@ def interpolate_excitation(omega_hdb: np.ndarray, directions: np.ndarray, x: np.
     """X at (omega, beta): x (n_w, n_b, n) complex -> (n_c, n); linear in re/im in w, and in heading
     around the circle (:func:`heading_weights`; WaveError(key) for a heading the data leave out)."""
     wb = heading_weights(directions, beta, key)[0]
-    xb = np.tensordot(x, wb, axes=([1], [0]))  # (n_w, n)
+    xb = sum(wb[h] * x[:, h, :] for h in np.flatnonzero(wb))  # (n_w, n): at most a few headings
     omega = np.asarray(omega, float)
     if omega.size == 0:
         return np.zeros((0, x.shape[2]), complex)

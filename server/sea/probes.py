@@ -3,8 +3,6 @@
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from hydrolink.server.sea.dispersion import wave_number
@@ -17,8 +15,8 @@ class WaveProbes:
     """Undisturbed incident elevation at probe points (x, y), now and at preview offsets.
 
     Same convention as :mod:`hydrolink.server.sea.waves`: a component a, phi, heading beta gives
-    eta(x, y, t) = r(t) a cos(k (x cos beta + y sin beta) - w t + phi) (at the origin exactly the
-    model's ``wave_elevation``)."""
+    eta(x, y, t) = r(t) a cos(k (x cos beta + y sin beta) - w t + phi), beta the component's own
+    heading (at the origin exactly the model's ``wave_elevation``)."""
 
     def __init__(self, comps: WaveComponents, points: np.ndarray, preview_times: np.ndarray, g: float,
                  depth: float):
@@ -27,8 +25,8 @@ class WaveProbes:
         self.offsets = np.r_[0.0, np.asarray(preview_times, float)]   # column 0: now
         if comps.size:
             k = wave_number(comps.omega, g, depth)
-            b = comps.direction
-            kx = np.outer(self.points[:, 0] * math.cos(b) + self.points[:, 1] * math.sin(b), k)
+            b = comps.heading_of()            # each component's own heading (spread and crossing seas)
+            kx = np.outer(self.points[:, 0], k * np.cos(b)) + np.outer(self.points[:, 1], k * np.sin(b))
             self._c = comps.amplitude * np.exp(1j * (comps.phase + kx))   # (n_p, n_c)
 
     def __call__(self, t: float) -> np.ndarray:

@@ -56,6 +56,8 @@ class WaveComponents:
     energy_outside: float   # fraction of the spectrum's m0 outside the HDB's omega range
     kind: str               # "still" | "regular" | "irregular" | "elevation"
     headings: np.ndarray | None = None  # rad (n_c,): each component's heading (directional spreading)
+    heading_key: str | None = None      # the scene key a heading is refused under (None: waves.direction/spreading)
+    notes: tuple[str, ...] = ()         # setup lines about the sea (energy per direction band)
 
     def heading_of(self) -> np.ndarray:
         """Each component's heading (rad)."""
@@ -209,20 +211,28 @@ def cos2s_directions(s: float, n: int, mean: float = 0.0, fine: int = 40001) -> 
     """``n`` equal-energy sectors of the cos-2s spreading: headings (rad, each sector's centroid
     int theta D / int D, plus ``mean``) and weights (1/n each, summing to 1 exactly).
 
-    The sectors' edges are the quantiles k/n of D's cumulative integral on a fine grid over
-    (-pi, pi]; by symmetry the weighted mean of the headings is ``mean``."""
+    The sectors of :func:`equal_energy_sectors` on a fine grid over (-pi, pi]; by symmetry the
+    weighted mean of the headings is ``mean``."""
     th = np.linspace(-np.pi, np.pi, fine)
-    d = cos2s(th, s)
+    heads, weights = equal_energy_sectors(th, cos2s(th, s), n)
+    heads = 0.5 * (heads - heads[::-1])  # exact symmetry about the mean
+    return heads + mean, weights
+
+
+def equal_energy_sectors(theta: np.ndarray, density: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """``n`` sectors of equal energy of a directional density given at ``theta`` (rad, increasing;
+    linear between): each sector's heading is its centroid int theta D / int D and its weight 1/n.
+    The sectors' edges are the quantiles k/n of D's cumulative (trapezoid) integral."""
+    th = np.asarray(theta, float)
+    d = np.asarray(density, float)
     cdf = np.concatenate([[0.0], np.cumsum(0.5 * (d[1:] + d[:-1]) * np.diff(th))])
     first = np.concatenate([[0.0], np.cumsum(0.5 * (th[1:] * d[1:] + th[:-1] * d[:-1]) * np.diff(th))])
-    cdf_n = cdf / cdf[-1]
-    q = np.linspace(0.0, 1.0, n + 1)
-    edges = np.interp(q, cdf_n, th)
+    edges = np.interp(np.linspace(0.0, 1.0, n + 1), cdf / cdf[-1], th)
     mass = np.diff(np.interp(edges, th, cdf))
     moment = np.diff(np.interp(edges, th, first))
-    heads = moment / mass
-    heads = 0.5 * (heads - heads[::-1])  # exact symmetry about the mean
-    return heads + mean, np.full(n, 1.0 / n)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        heads = np.where(mass > 0, moment / np.where(mass > 0, mass, 1.0), 0.5 * (edges[1:] + edges[:-1]))
+    return heads, np.full(n, 1.0 / n)
 
 
 def elevation(comps: WaveComponents, t) -> np.ndarray:

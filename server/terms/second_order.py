@@ -55,7 +55,7 @@ def _wave_key(waves: WaveComponents, what: str) -> str:
     """The scene key a component frequency (``what`` = "omega") or heading is refused under."""
     if what == "omega":
         return "waves.period" if waves.kind == "regular" else "waves.omega_range"
-    return "waves.spreading" if waves.headings is not None else "waves.direction"
+    return waves.heading_key or ("waves.spreading" if waves.headings is not None else "waves.direction")
 
 
 def interpolation_weights(grid: np.ndarray, x: np.ndarray, key: str, what: str) -> np.ndarray:
