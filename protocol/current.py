@@ -10,8 +10,10 @@ waves' heading convention) with the depth profile
 z up from the still water line; points above it get the surface value (no stretching, as the wave
 kinematics of server/sea/kinematics.py). Time-independent: the waves' ramp does not apply. Shared by the
 server's force terms (relative drag, Morison members) and the MoorDyn client (its ``Currents``
-grid), so it lives at protocol level. No wave-current interaction: the waves keep their own
-dispersion (no Doppler shift) and the current does not change the excitation or radiation.
+grid), so it lives at protocol level. ``doppler = true``: the waves' frequencies are their own,
+relative to the water, and a fixed point sees them Doppler-shifted to w + k U cos(beta - theta_c)
+with the surface speed U (server/sea/doppler.py); by default no wave-current interaction. The
+current never changes the radiation.
 """
 
 from __future__ import annotations
@@ -38,6 +40,7 @@ class Current(BaseModel):
     direction: AngleDeg = 0.0
     profile: Literal["uniform", "power", "linear"] = "uniform"
     depth: ProfileDepth | None = None
+    doppler: bool = False
 
     @model_validator(mode="after")
     def _depth_with_profile(self) -> "Current":

@@ -1068,8 +1068,11 @@ class Scene(_Section):
                                "relative = true, morison members and MoorDyn lines): it changes no result")
 
     def current_users(self) -> list[str]:
-        """The keys of what feels ``[current]``: relative drag, Morison members, MoorDyn moorings."""
-        users = [f"bodies[{i}].drag" for i, b in enumerate(self.bodies) if b.drag is not None and b.drag.relative]
+        """The keys of what feels ``[current]``: relative drag, Morison members, MoorDyn moorings, and
+        the waves with ``current.doppler``."""
+        users = ["current.doppler"] if self.current is not None and self.current.doppler and \
+            getattr(self.waves, "type", "still") != "still" else []
+        users += [f"bodies[{i}].drag" for i, b in enumerate(self.bodies) if b.drag is not None and b.drag.relative]
         users += [f"morison[{i}]" for i in range(len(self.morison))]
         return users + [f"moorings[{i}]" for i, m in enumerate(self.moorings) if isinstance(m, MoorDynMooring)]
 

@@ -93,6 +93,8 @@ class Setup:
     # bodies with nonlinear hydrostatics: name -> "hydrostatic" | "froude-krylov" (reply fields
     # nonlinear_hydrostatic / nonlinear_froude_krylov; empty from older servers and linear scenes)
     nonlinear: dict[str, str] | None = None
+    # the sea's variance share per 30-degree direction band, by band centre ("+30"); None from older servers
+    wave_energy_by_direction: dict[str, float] | None = None
 
     @property
     def n(self) -> int:
@@ -160,7 +162,9 @@ class Setup:
             radiation_feedthrough=(r.array("radiation_feedthrough", (6 * n, 6 * n))
                                    if r.data.get("radiation_feedthrough") is not None else None),
             nonlinear=({str(k): str(v) for k, v in r.map("nonlinear").items()}
-                       if r.data.get("nonlinear") is not None else None))
+                       if r.data.get("nonlinear") is not None else None),
+            wave_energy_by_direction=(r.numbers("wave_energy_by_direction")
+                                      if r.data.get("wave_energy_by_direction") is not None else None))
 
 
 def _state_space(data: Any) -> StateSpaceReport:

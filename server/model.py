@@ -43,7 +43,8 @@ from hydrolink.server.terms.registry import TERMS, build_terms
 from hydrolink.server.radiation.options import RadiationGroup, radiation_option
 from hydrolink.server.radiation.state_space import Realization
 from hydrolink.server.sea.headings import complete_headings, interpolate_excitation
-from hydrolink.server.sea.seastate import sea_components
+from hydrolink.server.sea.doppler import doppler_shift
+from hydrolink.server.sea.seastate import direction_bands, sea_components
 from hydrolink.server.sea.waves import ConvolutionForcing, WaveError, WaveForcing, WavePhases, convolution_kernel, elevation_on_grid, kernel_transfer
 
 __all__ = ["HydroModel", "ModelError"]
@@ -133,10 +134,10 @@ class HydroModel:
         if lo >= hi:
             raise ModelError("bodies", f"the bodies' HDB frequency ranges do not overlap ({lo}..{hi} rad/s)")
         try:
-            self.waves = sea_components(scene.waves, lo, hi)
+            self.waves = doppler_shift(sea_components(scene.waves, lo, hi), scene.current, scene.water.gravity,
+                                       scene.water.depth_m, getattr(scene.waves, "excitation", "superposition"))
         except WaveError as exc:
             raise ModelError(exc.key, exc.why) from None
-        self.warnings.extend(self.waves.notes)
         self._phases = WavePhases(self.waves.omega)   # the step's [cos wt; sin wt], shared with the terms
         data = [self._group_data(ds, members) for ds, members in groups]
         self._hydrostatics(data)
@@ -306,7 +307,7 @@ class HydroModel:
                     if on.any():
                         x_comp[np.ix_(on, gidx)] = s_rg * interpolate_excitation(
                             omega, sub["wave_direction"].values, sub["excitation_force"].values,
-                            self.waves.omega[on], float(head))
+                            self.waves.hdb_omega[on], float(head))
                     if kernels is not None:
                         x_h = s_rg * interpolate_excitation(omega, sub["wave_direction"].values,
                                                             sub["excitation_force"].values, omega, float(head))
@@ -429,6 +430,7 @@ class HydroModel:
                                      if self.excitation == "convolution" else 0.0),
             excitation_irf_error=float(self._exc_fit),
             wave_headings=tuple(np.rad2deg(self._headings).tolist()) if self.waves.kind != "still" else (),
+            wave_energy_by_direction={f"{c:+.0f}": f for c, f in direction_bands(self.waves)},
             elevation_resampled=bool(self.elevation_series.resampled) if self.elevation_series else False,
             elevation_start=float(self.elevation_series.start) if self.elevation_series else 0.0,
             warnings=tuple(self.warnings), last_seq=self.last_seq,

@@ -203,7 +203,7 @@ def test_bad_current_is_named():
                                 ({"speed": 1.0, "profile": "linear", "depth": 300.0}, {"depth": 200.0},
                                  "current.depth"),
                                 ({"speed": 1.0, "profile": "log", "depth": 3.0}, None, "current.profile"),
-                                ({"speed": 1.0, "doppler": True}, None, "current.doppler")]:
+                                ({"speed": 1.0, "doppler": [True]}, None, "current.doppler")]:
         with pytest.raises(SceneError, match=key.replace(".", r"\.")):
             parse(current, water)
     note = parse({"speed": 1.0}).notes

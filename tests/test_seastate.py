@@ -94,8 +94,12 @@ def test_crossing_sea_force_variance_matches_the_frequency_domain(frequencies):
     m = _model(_sea(WIND, SWELL, components=80, frequencies=frequencies, seed=3))
     got, ref = model_variance(m), reference_variance(wind_density, swell_density)
     np.testing.assert_allclose(got, ref, rtol=0.03)
-    note = next(w for w in m.warnings if "direction band" in w)
-    assert "+30:" in note and "-120:" in note
+    # the setup's variance per direction band: the swell's share from -120 deg, the wind sea's around +30
+    bands = m.setup_info().wave_energy_by_direction
+    assert sum(bands.values()) == pytest.approx(1.0, abs=1e-12)
+    swell = (1.2 / 4) ** 2 / ((1.2 / 4) ** 2 + (2.0 / 4) ** 2)
+    assert bands["-120"] + bands.get("-150", 0.0) + bands.get("-90", 0.0) == pytest.approx(swell, abs=0.03)
+    assert sum(bands.get(f"{c:+d}", 0.0) for c in range(-30, 91, 30)) == pytest.approx(1 - swell, abs=0.03)
 
 
 def test_directional_table_and_buoy_units():

@@ -27,7 +27,6 @@ import math
 import numpy as np
 
 from hydrolink.protocol.current import Current
-from hydrolink.server.sea.dispersion import wave_number
 from hydrolink.server.sea.waves import WaveComponents, WavePhases, ramp_at
 
 
@@ -87,7 +86,7 @@ class Kinematics:
                     basis: np.ndarray | None) -> None:
         """The velocity phasors R (one row per point and axis) of the band of components that
         matters (:func:`_significant`), as the real :attr:`matrix`."""
-        k = wave_number(comps.omega, gravity, depth)
+        k = comps.wave_numbers(gravity, depth)
         beta = comps.heading_of()
         z = np.minimum(pts[:, 2], 0.0)[:, None]                       # (P, 1)
         # cosh(k(z+h)) / sinh(kh) and sinh(k(z+h)) / sinh(kh) in a form that cannot overflow:

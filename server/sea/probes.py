@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from hydrolink.server.sea.dispersion import wave_number
 from hydrolink.server.sea.waves import WaveComponents, ramp_factor
 
 __all__ = ["WaveProbes"]
@@ -24,7 +23,7 @@ class WaveProbes:
         self.points = np.asarray(points, float).reshape(-1, 2)
         self.offsets = np.r_[0.0, np.asarray(preview_times, float)]   # column 0: now
         if comps.size:
-            k = wave_number(comps.omega, g, depth)
+            k = comps.wave_numbers(g, depth)
             b = comps.heading_of()            # each component's own heading (spread and crossing seas)
             kx = np.outer(self.points[:, 0], k * np.cos(b)) + np.outer(self.points[:, 1], k * np.sin(b))
             self._c = comps.amplitude * np.exp(1j * (comps.phase + kx))   # (n_p, n_c)

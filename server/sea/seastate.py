@@ -24,7 +24,8 @@ are concatenated (system after system, each system direction-major as ``irregula
 ``type = "components"`` replays a list (w, theta, a, phase) exactly as given: eta(x, t) = sum a
 cos(k . x - w t + phase) (the internal convention; OpenFAST's WaveMod 7 lists the same four).
 
-The setup notes (WaveComponents.notes) give the variance per direction band of 30 degrees.
+The setup (``wave_energy_by_direction``, :func:`direction_bands`) gives the variance per direction
+band of 30 degrees.
 """
 
 from __future__ import annotations
@@ -165,7 +166,7 @@ def _sea(waves: SeaState, omega_min: float, omega_max: float) -> WaveComponents:
     keep = amp > 0.0
     comps = WaveComponents(omega[keep], amp[keep], phase[keep], float(np.deg2rad(waves.direction)), waves.ramp,
                            float(max(0.0, 1.0 - inside / m0)), "irregular", heads[keep], "waves.systems")
-    return _with_notes(comps)
+    return comps
 
 
 def _replay(waves: ComponentWaves, omega_min: float, omega_max: float) -> WaveComponents:
@@ -179,23 +180,17 @@ def _replay(waves: ComponentWaves, omega_min: float, omega_max: float) -> WaveCo
     heads = np.deg2rad(np.asarray(waves.direction, float))
     comps = WaveComponents(w, np.asarray(waves.amplitude, float), np.deg2rad(np.asarray(waves.phase, float)),
                            float(heads[0]), waves.ramp, 0.0, "irregular", heads, "waves.direction")
-    return _with_notes(comps)
+    return comps
 
 
 def direction_bands(comps: WaveComponents) -> list[tuple[float, float]]:
     """(band centre in degrees, fraction of the variance) of the components per 30-degree band
     centred on multiples of 30 degrees in (-180, 180]; bands without energy are left out."""
+    if comps.size == 0:
+        return []
     var = 0.5 * comps.amplitude ** 2
     deg = np.rad2deg(np.angle(np.exp(1j * comps.heading_of())))
-    centre = BAND * np.round(deg / BAND)
+    centre = BAND * np.round(deg / BAND) + 0.0    # + 0.0: no "-0" band
     centre[centre <= -180.0] += 360.0
     total = var.sum()
     return [(float(c), float(var[centre == c].sum() / total)) for c in np.unique(centre) if var[centre == c].sum() > 0]
-
-
-def _with_notes(comps: WaveComponents) -> WaveComponents:
-    bands = ", ".join(f"{c:+.0f}: {100 * f:.3g} %" for c, f in direction_bands(comps))
-    note = (f"waves: {comps.size} components; variance per {BAND:g}-deg direction band (centre deg: share) "
-            f"{bands}")
-    return WaveComponents(comps.omega, comps.amplitude, comps.phase, comps.direction, comps.ramp,
-                          comps.energy_outside, comps.kind, comps.headings, comps.heading_key, (note,))

@@ -37,6 +37,7 @@ from hydrolink.protocol.errors import KeyedError
 from hydrolink.protocol.scene import ElevationWave, IrregularWave, RegularWave, StillWater
 from hydrolink.server.allocation import require_size
 from hydrolink.server.radiation.irf import irf_samples
+from hydrolink.server.sea.dispersion import wave_number
 
 
 class WaveError(KeyedError):
@@ -57,7 +58,17 @@ class WaveComponents:
     kind: str               # "still" | "regular" | "irregular" | "elevation"
     headings: np.ndarray | None = None  # rad (n_c,): each component's heading (directional spreading)
     heading_key: str | None = None      # the scene key a heading is refused under (None: waves.direction/spreading)
-    notes: tuple[str, ...] = ()         # setup lines about the sea (energy per direction band)
+    intrinsic: np.ndarray | None = None  # rad/s (n_c,): in a current with the Doppler shift, the frequencies
+    #                                      relative to the water (``omega`` is then the encounter frequency)
+
+    @property
+    def hdb_omega(self) -> np.ndarray:
+        """The frequencies the HDB is read at and the wave numbers follow from (the intrinsic ones)."""
+        return self.omega if self.intrinsic is None else self.intrinsic
+
+    def wave_numbers(self, gravity: float, depth: float) -> np.ndarray:
+        """k (rad/m) of each component: linear dispersion of its intrinsic frequency."""
+        return wave_number(self.hdb_omega, gravity, depth)
 
     def heading_of(self) -> np.ndarray:
         """Each component's heading (rad)."""

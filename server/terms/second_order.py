@@ -113,7 +113,7 @@ def _mean_drift_diagonal(sub: xr.Dataset, method: str, waves: WaveComponents, sc
     in frequency, and in heading around the circle (server/sea/headings.py, as the excitation)."""
     md = sub["mean_drift"].transpose(*MEAN_DRIFT_DIMS).sel(drift_method=method).values * scale
     w_grid, b_grid = sub["drift_omega"].values, sub["drift_direction"].values
-    lw = interpolation_weights(w_grid, waves.omega, _wave_key(waves, "omega"), "wave frequency (rad/s)")
+    lw = interpolation_weights(w_grid, waves.hdb_omega, _wave_key(waves, "omega"), "wave frequency (rad/s)")
     lb = _heading_weights(b_grid, waves.heading_of(), waves, "the mean drift's headings")
     return np.einsum("ca,cb,abd->cd", lw, lb, md)
 
@@ -158,7 +158,7 @@ def _qtf_diagonal(sub: xr.Dataset, waves: WaveComponents, scale: float, src: str
     value the bilinear interpolation on the square gives there (what the factorised double sum
     holds on its diagonal, corrected to the first by a constant)."""
     grid = sub["qtf_omega_i"].values
-    lw = interpolation_weights(grid, waves.omega, _wave_key(waves, "omega"), "wave frequency (rad/s)")
+    lw = interpolation_weights(grid, waves.hdb_omega, _wave_key(waves, "omega"), "wave frequency (rad/s)")
     heads = np.round(waves.heading_of(), 9)
     t = sub["difference_qtf"].transpose(*QTF_DIMS).values * scale        # (n_q, n_q, n_h, 6)
     linear, bilinear = np.zeros((waves.size, 6)), np.zeros((waves.size, 6))
@@ -184,7 +184,7 @@ def _qtf_parts(sub: xr.Dataset, kinds: tuple[str, ...], waves: WaveComponents, s
                ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """The interpolation L (n_c, n_g n_q) over the heading groups and each kind's stacked G."""
     grid = sub["qtf_omega_i"].values
-    lw = interpolation_weights(grid, waves.omega, _wave_key(waves, "omega"), "wave frequency (rad/s)")
+    lw = interpolation_weights(grid, waves.hdb_omega, _wave_key(waves, "omega"), "wave frequency (rad/s)")
     heads = waves.heading_of()
     groups = np.unique(np.round(heads, 9))
     n_q, n_g = grid.size, groups.size

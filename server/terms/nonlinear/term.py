@@ -40,7 +40,6 @@ from hydrolink.server.terms.nonlinear.rows import BodyConstants, reply_rows
 from hydrolink.server.terms.nonlinear.pressure_boxes import BoxGroup, box_table, layout
 from hydrolink.server.compiler import AVAILABLE, imports
 from hydrolink.server.terms.nonlinear.kernels import HullPass, HullTables, RecurrenceTable
-from hydrolink.server.sea.dispersion import wave_number
 from hydrolink.server.terms.nonlinear.elevation_series import PhaseExpansion, flatten
 from hydrolink.server.sea.waves import WaveComponents, ramp_at
 from hydrolink.server.terms.nonlinear.hull_kernel import cut_hull_loads
@@ -231,7 +230,7 @@ class NonlinearHydro:
         self.still = waves.size == 0
         self.omega = waves.omega.copy()
         if not self.still:
-            self.k = wave_number(waves.omega, g, depth)
+            self.k = waves.wave_numbers(g, depth)
             beta = self.heading = waves.heading_of()
             self.amp = waves.amplitude * np.exp(1j * waves.phase)
             self.amplitude, self.phase = waves.amplitude.copy(), waves.phase.copy()
