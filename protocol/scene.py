@@ -459,6 +459,12 @@ class Body(_Section):
     center_of_buoyancy: Vector3 | None = None
 
     @model_validator(mode="after")
+    def _symmetry_of_an_hdb(self) -> "Body":
+        if self.heading_symmetry != "none" and self.hdb is None:
+            raise ValueError("heading_symmetry: only for a wet body (it completes the headings of its hdb)")
+        return self
+
+    @model_validator(mode="after")
     def _inertia_if_it_rotates(self) -> "Body":
         turning = [d for d in ("roll", "pitch", "yaw") if d in self.dofs]
         if self.inertia is None and turning:

@@ -14,7 +14,7 @@ from conftest import body, irregular_waves, regular_waves, scene_toml
 
 from hydrolink.protocol.hdb.second_order import QTF, MeanDrift
 from hydrolink.protocol.hdb.schema import with_second_order
-from hydrolink.protocol.scene import parse_scene
+from hydrolink.protocol.scene import SceneError, parse_scene
 from hydrolink.server.errors import ModelError
 from hydrolink.server.model import HydroModel
 from hydrolink.server.sea.headings import heading_weights
@@ -125,9 +125,13 @@ def test_half_range_without_symmetry_is_refused_naming_the_wave_key():
     _model(ds, 0.0, "mean-drift", "xz", waves=spread)      # the completed circle serves the spread sea
 
 
-def test_symmetry_off_the_plane_is_refused():
+def test_symmetry_off_the_plane_or_of_a_dry_body_is_refused():
     b = np.deg2rad(np.arange(0, 181, 15.0))
     ds = make_body_hdb(omega=np.linspace(0.2, 3.0, 57), directions=b, exc=excitation, ref=(0.0, 3.0, 0.0))
     with pytest.raises(ModelError) as err:
         _model(ds, -170.0, "none", "xz")
     assert err.value.key == "bodies[0].heading_symmetry" and "y = 3" in err.value.why
+    dry = scene_toml(dt=0.1, duration=1.0, bodies=[body("pole", mass=1.0, center_of_mass=[0, 0, 0], inertia=[1.0] * 3,
+                                                        heading_symmetry="xz")])
+    with pytest.raises(SceneError, match=r"bodies\[0\].*heading_symmetry"):
+        parse_scene(dry)
