@@ -35,7 +35,7 @@ from hydrolink.server.allocation import require_size
 from hydrolink.server.radiation.irf import irf_samples
 from hydrolink.server.errors import ModelError
 from hydrolink.server.terms.hulls import Hull
-from hydrolink.protocol.hdb.layout import DOF_NAMES, HDBError
+from hydrolink.protocol.hdb.layout import DOF_NAMES, HDBError, hdb_warnings
 from hydrolink.protocol.hdb.schema import select_bodies
 from hydrolink.server.hydrostatics import total_stiffness
 from hydrolink.server.terms.base import ForceTerm, TermContext
@@ -202,6 +202,7 @@ class HydroModel:
             sub = select_bodies(ds, [b.hdb_body_name for b in bodies])
         except HDBError as exc:
             raise ModelError(f"bodies[{self._scene_index[members[0]]}].hdb_body", str(exc)) from None
+        self.warnings.extend(n for n in hdb_warnings(ds) if n not in self.warnings)   # its reader's
         rho, g = float(ds.attrs["rho"]), float(ds.attrs["g"])
         s_rho = water.density / rho
         s_rg = water.density * water.gravity / (rho * g)
