@@ -77,39 +77,6 @@ def test_aliasing_warned_when_the_mirror_is_small_and_resampling_removes_it():
     assert fine.warnings == []
 
 
-def ringing_group(b1: float, gamma: float = 0.02, w_r: float = 2.0) -> RadiationGroup:
-    """The analytic heave pair plus a lightly damped trapped mode: B gains the Lorentzian
-    b1 g^2 / ((w - w_r)^2 + g^2), whose K is 2 b1 g e^(-g t) cos(w_r t) (to O(g / w_r)) — it rings
-    at 2 rad/s and decays over 1/g = 50 s. Grid 0.004 rad/s: the peak resolved, aliasing at 785 s."""
-    om = np.arange(0.004, 8.0 + 1e-9, 0.004)
-    b = an.damping(om, B0, W0) + b1 * gamma ** 2 / ((om - w_r) ** 2 + gamma ** 2)
-    return heave_group(om, an.added_mass(om, A_INF, B0, W0), b)
-
-
-def test_memory_cut_while_the_kernel_rings_is_warned_and_tapering_removes_it():
-    """K(0) = b0 w0 / (2 sqrt(pi)) + 2 b1 g: the trapped mode's share 2 b1 g / K(0) = 30 %; cut at
-    60 s without a taper its envelope e^(-g t) over the last 10 % (from 54 s) leaves 30 % x
-    e^(-1.08) = 10 % of the peak (the closed form, to the cosine's sampling at dt): warned naming
-    hydro.irf_duration and hydro.irf_taper. The same cut with irf_taper = 0.3, or irf_taper = 0
-    stated (the sharp cut chosen), the analytic pair alone, or the memory kept to 300 s (0.07 %):
-    no warning."""
-    gamma, k_an = 0.02, B0 * W0 / (2 * np.sqrt(np.pi))
-    b1 = 0.3 * k_an / (2 * gamma * 0.7)                 # the mode's K amplitude 30 % of K(0)
-    share = 2 * b1 * gamma * np.exp(-gamma * 54.0) / (k_an + 2 * b1 * gamma)
-    rad = radiation_option(Hydro(irf_duration=60.0), STILL, 0.05).build([ringing_group(b1, gamma)], 6)
-    ringing = [w for w in rad.warnings if "of its kind over the last" in w]
-    assert len(ringing) == 1, rad.warnings
-    got = float(ringing[0].split("is still at ")[1].split(" %")[0]) / 100
-    assert got == pytest.approx(share, rel=0.03)
-    assert ringing[0].startswith("hydro.irf_duration: K(t) of 'hand' (float.heave, float.heave) is still at ")
-    assert "hydro.irf_taper" in ringing[0] and "warned above 1 %" in ringing[0]
-    for hydro, group in ((Hydro(irf_duration=60.0, irf_taper=0.3), ringing_group(b1, gamma)),
-                         (Hydro(irf_duration=60.0, irf_taper=0.0), ringing_group(b1, gamma)),
-                         (Hydro(irf_duration=60.0), analytic_group()),
-                         (Hydro(irf_duration=300.0), ringing_group(b1, gamma))):
-        assert radiation_option(hydro, STILL, 0.05).build([group], 6).warnings == []
-
-
 def test_ogilvie_a_inf_when_the_hdb_has_none():
     """No A_inf in the group: Ogilvie's from the IRF recovers the closed form's A_inf."""
     rad = radiation_option(Hydro(irf_duration=30.0, radiation="off"), STILL, 0.01).build(
