@@ -826,3 +826,28 @@ def test_wamit_frc_of_another_form(reference_data, tmp_path, rm3_wamit):
     (tmp_path / "rm3.out").unlink()
     err = _error(stem, wamit={**RM3_STATED, "vcg": [0.0, -5.0], "volume": [725.833, 886.687]})
     assert err.source == "rm3.cfg" and err.field == "IALTFRC" and "only IALTFRC = 1" in err.why
+
+
+def test_generalized_modes_in_bemio_and_capytaine_files_are_refused_by_name(reference_data, tmp_path):
+    """Issue 38: a body with more than six DOFs is refused naming the file, the field and the count
+    of modes beyond the rigid six, never read as something else. BEMIO: the sphere's file with its
+    properties/dof set to 10 (WEC-Sim's 6 + 4 generalized modes); Capytaine: RM3's file with two
+    flexible radiating DOFs added to the float (zero coefficients: the count is what is judged)."""
+    import h5py
+
+    bemio = tmp_path / "sphere10.h5"
+    shutil.copy(reference_data / "sphere_task10" / "sphere.h5", bemio)
+    with h5py.File(bemio, "r+") as f:
+        f["body1/properties/dof"][...] = 10.0
+    with pytest.raises(HDBError, match=r"sphere10\.h5: body1/properties/dof: 10 DOFs for this body: 4 generalized "
+                                       r"mode\(s\) beyond the rigid 6"):
+        load_hdb(bemio)
+    with xr.open_dataset(reference_data / "rm3_capytaine" / "rm3_hydrodynamics.nc") as raw:
+        ds = raw.load()
+    flex = ["rm3_float__Flex1", "rm3_float__Flex2"]
+    extra = ds.isel(radiating_dof=[0, 0]).assign_coords(radiating_dof=flex)
+    ds = xr.concat([ds, extra * 0.0], dim="radiating_dof", data_vars="minimal", coords="minimal", compat="override")
+    ds.to_netcdf(tmp_path / "rm3_flex.nc")
+    with pytest.raises(HDBError, match=r"rm3_flex\.nc: radiating_dof: 2 DOF\(s\) beyond the rigid-body ones .*"
+                                       r"\['rm3_float__Flex1', 'rm3_float__Flex2'\] — generalized modes\?"):
+        load_hdb(tmp_path / "rm3_flex.nc")

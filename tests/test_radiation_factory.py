@@ -43,11 +43,13 @@ def test_unknown_option_names_hydro_radiation():
 
 @pytest.mark.parametrize("name", ["convolution", "state-space", "constant", "off"])
 def test_each_option_reports_its_name_and_irf_grid(name):
-    """irf_samples = round(T / dt), irf_duration = samples dt (T = 7.3 s, dt = 0.25: 29 samples, 7.25 s)."""
+    """irf_samples = round(T / dt), irf_duration = samples dt (T = 7.3 s, dt = 0.25: 29 samples, 7.25 s);
+    "constant" keeps no memory: 0 and 0 s whatever irf_duration says."""
     opt = radiation_option(Hydro(radiation=name, irf_duration=7.3), REGULAR, 0.25)
-    assert opt.name == name and opt.samples == 29
+    samples = 0 if name == "constant" else 29
+    assert opt.name == name and opt.samples == samples
     rep = opt.build([], 6).report
-    assert rep.radiation == name and rep.irf_samples == 29 and rep.irf_duration == 7.25
+    assert rep.radiation == name and rep.irf_samples == samples and rep.irf_duration == 0.25 * samples
     assert (rep.state_space is not None) == (name == "state-space")
     assert (rep.radiation_frequency is not None) == (name == "constant")
 
@@ -207,3 +209,22 @@ def test_off_has_no_force_and_keeps_a_inf():
     assert rad.added_mass[2, 2] == rad.added_mass_inf[2, 2] == A_INF
     assert rad.report.added_mass_inf_source == {"float": "hdb"}
     assert rad.report.irf_fit_error["hand"] < 1e-3  # K reproduces B (the closed-form pair, 40 s)
+
+
+def test_constant_radiation_takes_a_wide_period_grid_without_irf_settings():
+    """Issue 38 item 5: an HDB on periods 0.15-150 s (uniform in period: its aliasing time pi/d_omega
+    is 0.09 s at the short end) with radiation = "constant" and the default irf_duration: no IRF
+    setting is demanded (before: refused, "40 s reaches past the aliasing time"); the force is
+    -B(w0) v and the client's added mass A(w0), both the HDB's interpolated at w0 = 2 pi / 8 s."""
+    periods = np.linspace(0.15, 150.0, 200)
+    om = np.sort(2 * np.pi / periods)
+    a, b = an.added_mass(om, A_INF, B0, W0), an.damping(om, B0, W0)
+    w0 = 2 * np.pi / 8.0
+    waves = RegularWave(type="regular", height=1.0, period=8.0)
+    rad = radiation_option(Hydro(radiation="constant"), waves, 0.05).build([heave_group(om, a, b)], 6)
+    assert rad.warnings == [] and rad.report.irf_samples == 0
+    assert rad.added_mass[2, 2] == pytest.approx(np.interp(w0, om, a), rel=1e-12)
+    (pos, force), = rad.forces
+    assert force.push(np.array([0.7]))[0] == pytest.approx(-np.interp(w0, om, b) * 0.7, rel=1e-12)
+    with pytest.raises(ModelError, match="reaches past the aliasing time"):   # a memory does need them
+        radiation_option(Hydro(), waves, 0.05).build([heave_group(om, a, b)], 6)

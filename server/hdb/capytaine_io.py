@@ -130,14 +130,19 @@ def _headings_in_radians(ds: xr.Dataset, source: str) -> xr.Dataset:
 
 def _parse_dofs(labels: Sequence[str], single_body: str, source: str, field: str) -> list[tuple[str, int]]:
     """(body name as in file, dof index) per label."""
-    out = []
+    out, other = [], []
     for label in map(str, labels):
         body, _, dof = label.rpartition("__")
         body = body or single_body
         name = dof.lower()
         if name not in DOF_NAMES:
-            raise HDBError(source, field, f"DOF {label!r} is not a rigid-body DOF ({', '.join(DOF_NAMES)})")
+            other.append(label)
+            continue
         out.append((body, DOF_NAMES.index(name)))
+    if other:   # never read as anything else (issue 38)
+        raise HDBError(source, field, f"{len(other)} DOF(s) beyond the rigid-body ones ({', '.join(DOF_NAMES)}): "
+                                      f"{other[:6]}{' ...' if len(other) > 6 else ''} — generalized modes? hydrolink "
+                                      "reads rigid bodies of 6 DOFs each (generalized modes: issue 38)")
     return out
 
 

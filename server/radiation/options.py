@@ -229,10 +229,11 @@ class RadiationOption:
     name: ClassVar[str]
     radiation_frequency: float | None = None
     memory: ClassVar[bool] = False    # the force convolves (or fits) the kept K(t): its cut matters
+    irf_settings: ClassVar[bool] = True   # hydro.irf_duration (taper, aliasing) apply: not for "constant"
 
     def __init__(self, hydro: Hydro, waves: Waves, dt: float):
         self.hydro, self.dt = hydro, float(dt)
-        self.duration = float(hydro.irf_duration)
+        self.duration = float(hydro.irf_duration) if self.irf_settings else 0.0
         self.samples = irf_samples(self.duration, self.dt)
         self._key = "hydro.irf_duration" if self.samples > 0 else "simulation.dt"
         m = self.samples if self.samples > 0 else irf_samples(OGILVIE_DEFAULT_DURATION, self.dt)
@@ -480,8 +481,12 @@ class StateSpaceOption(_MemoryOption):
 
 
 class ConstantOption(RadiationOption):
-    """radiation = "constant": -B(w0) v and A(w0) in the client's mass matrix, w0 the regular wave's."""
+    """radiation = "constant": -B(w0) v and A(w0) in the client's mass matrix, w0 the regular wave's.
+    No memory: hydro.irf_duration is not used (an HDB's wide period grid, e.g. 0.15-150 s, whose
+    aliasing time is a fraction of a second, is taken as it is); the IRF serves only Ogilvie's A_inf
+    for the setup's report when the HDB has none (issue 38 item 5)."""
     name = "constant"
+    irf_settings = False
 
     def __init__(self, hydro: Hydro, waves: Waves, dt: float):
         super().__init__(hydro, waves, dt)
