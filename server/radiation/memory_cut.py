@@ -30,6 +30,7 @@ CRITICAL_FLOOR = 0.01     # ... relative to B, or to this share of critical damp
 NATURAL_SPREAD = 1.25     # a natural frequency is judged over w_n / 1.25 .. 1.25 w_n (3 points)
 LONGER = 1.25             # the suggested duration: the first of T 1.25^k (k = 1..MAX_STEPS) that meets it
 MAX_STEPS = 12
+MAX_WAVE_FREQUENCIES = 64   # an irregular sea is judged at this many of its components' frequencies at most
 
 
 @dataclass(frozen=True)
@@ -70,7 +71,10 @@ def judged_frequencies(omega: np.ndarray, waves: np.ndarray, natural: np.ndarray
     """The frequencies the cut is judged at, inside the HDB's range: every DOF at the waves'; each
     DOF around its own natural frequency, at w_n / NATURAL_SPREAD, w_n, w_n NATURAL_SPREAD."""
     lo, hi = float(omega[0]), float(omega[-1])
-    out = [(float(w), f"at the wave frequency {float(w):.4g} rad/s", -1) for w in np.unique(np.asarray(waves, float))]
+    waves = np.unique(np.asarray(waves, float))
+    if waves.size > MAX_WAVE_FREQUENCIES:   # a spectrum's thousands of components: its quantiles
+        waves = np.quantile(waves, np.linspace(0.0, 1.0, MAX_WAVE_FREQUENCIES))
+    out = [(float(w), f"at the wave frequency {float(w):.4g} rad/s", -1) for w in waves]
     for i, w_n in enumerate(natural):
         if np.isfinite(w_n):
             why = f"near its natural frequency {w_n:.4g} rad/s (period {2 * np.pi / w_n:.3g} s)"
