@@ -136,8 +136,8 @@ class HydroModel:
         self._hydrostatics(data)
         rad_groups = [self._radiation_group(d) for d in data]
         self._coefficients = [(g.act, g.omega, g.added_mass, g.damping) for g in rad_groups]  # act, w, A, B
-        radiation = option.build(rad_groups, self.n, self.waves.omega[self.waves.amplitude >= 0.1 * self.waves.amplitude.max(
-            initial=0.0)] if self.waves.size else None)   # the memory's cut judged there (>= 1 % of the peak energy)
+        amp = self.waves.amplitude   # the memory's cut is judged at the components of >= 1 % of the peak energy
+        radiation = option.build(rad_groups, self.n, self.waves.omega[amp >= 0.1 * amp.max(initial=0.0)])
         self.added_mass_inf, self.added_mass_client = radiation.added_mass_inf, radiation.added_mass
         self._radiation = radiation.report
         self.warnings += radiation.warnings
@@ -246,7 +246,8 @@ class HydroModel:
         inertia = np.zeros(self.n)   # the memory's cut is judged at each DOF's natural frequency too
         for k in d.members:
             body, ref = self.scene.bodies[self._scene_index[k]], self.equilibrium_position[k, :3]
-            inertia[6 * k:6 * k + 6] = np.diag(rigid_body_mass_matrix(body.mass, body.inertia_matrix, body.com_or(ref) - ref))
+            offset = body.com_or(ref) - ref
+            inertia[6 * k:6 * k + 6] = np.diag(rigid_body_mass_matrix(body.mass, body.inertia_matrix, offset))
         return RadiationGroup(
             source=d.source, bodies=tuple(self.bodies[k] for k in d.members), act=act,
             pos=np.searchsorted(self._idx, act),

@@ -275,7 +275,8 @@ def _convention(ds: xr.Dataset, source: str, stated: str | None, file_bodies: li
         chosen = declared or stated
         why = "declared by the file's attributes" if declared else "stated (hdb_convention)"
         if physics is not None and physics.verdict not in (None, chosen):
-            warnings.warn(f"{source}: read as {chosen} ({why}), but {checked}: check hdb_convention", HDBWarning, stacklevel=4)
+            warnings.warn(f"{source}: read as {chosen} ({why}), but {checked}: check hdb_convention", HDBWarning,
+                          stacklevel=4)
         return chosen, f"{why}; {checked}"
     ask = f'state the body\'s hdb_convention ("exp(-iwt)" for Capytaine, "exp(+iwt)" for WecOptTool)'
     if physics is not None and physics.verdict == "exp(+iwt)":

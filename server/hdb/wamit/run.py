@@ -51,7 +51,8 @@ def read_cfg(stem: Path) -> dict[str, str]:
     if not cfg.is_file():
         return {}
     out = {}
-    for match in re.finditer(r"^\s*([A-Za-z_]\w*(?:\(\s*\d+\s*\))?)\s*=\s*(\S+)", cfg.read_text(errors="replace"), re.M):
+    key = r"[A-Za-z_]\w*(?:\(\s*\d+\s*\))?"   # NAME or NAME(k), e.g. NEWMDS(1)
+    for match in re.finditer(rf"^\s*({key})\s*=\s*(\S+)", cfg.read_text(errors="replace"), re.M):
         out[match.group(1).upper()] = match.group(2)
     return out
 
