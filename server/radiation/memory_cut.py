@@ -87,16 +87,17 @@ def cut_effect(irf_omega: np.ndarray, irf_damping: np.ndarray, duration: float, 
                judged: Judged) -> CutEffect | None:
     """The worst relative change of the diagonal B_ii at the ``judged`` frequencies between the
     kernel over ``duration`` (``taper``) built from ``irf_damping`` on ``irf_omega`` and the HDB's
-    ``damping`` on ``omega`` (linear in between); ``added_mass`` and ``damping`` (n_w, n, n),
-    ``inertia`` (n,) or None (no critical-damping floor). None without a judged frequency."""
+    ``damping`` on ``omega`` (linear in between); ``added_mass``, ``damping`` and ``irf_damping``:
+    the diagonals (n_w, n); ``inertia`` (n,) or None (no critical-damping floor). None without a
+    judged frequency."""
     if not judged:
         return None
     w = np.array([f for f, _, _ in judged])
     n = damping.shape[1]
     diag = np.arange(n)
-    realised = irf_transfer(irf_omega, irf_damping[:, diag, diag], duration, taper, w).real   # (n_e, n)
-    b = np.stack([np.interp(w, omega, damping[:, i, i]) for i in diag], axis=1)
-    a = np.stack([np.interp(w, omega, added_mass[:, i, i]) for i in diag], axis=1)
+    realised = irf_transfer(irf_omega, irf_damping, duration, taper, w).real   # (n_e, n)
+    b = np.stack([np.interp(w, omega, damping[:, i]) for i in diag], axis=1)
+    a = np.stack([np.interp(w, omega, added_mass[:, i]) for i in diag], axis=1)
     floor = CRITICAL_FLOOR * 2 * w[:, None] * (a + (0.0 if inertia is None else np.asarray(inertia)[None, :]))
     scale = np.maximum(np.abs(b), np.maximum(floor, 1e-12 * max(float(np.abs(damping).max()), 1e-300)))
     change = np.abs(realised - b) / scale
@@ -112,7 +113,8 @@ def longer_memory(omega: np.ndarray, damping: np.ndarray, duration: float, taper
                   judged: Judged) -> tuple[float, float | None, float]:
     """The first duration T 1.25^k (k = 1..MAX_STEPS) whose cut changes B by at most
     CUT_EFFECT_WARN at the judged frequencies: (duration, the B(w) resampling step it needs (None:
-    the HDB grid reaches it without aliasing), its change); the longest tried when none does."""
+    the HDB grid reaches it without aliasing), its change); the longest tried when none does.
+    ``damping``, ``added_mass``: the diagonals (n_w, n)."""
     t_alias = aliasing_time(omega)
     tried = (duration, None, np.inf)
     for k in range(1, MAX_STEPS + 1):

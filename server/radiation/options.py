@@ -362,16 +362,16 @@ class RadiationOption:
         it realises) or the option uses no memory ("constant", "off")."""
         if not self.memory or "irf_taper" in self.hydro.model_fields_set or not irf.kernel.size:
             return
-        diag = np.arange(g.act.size)
-        natural = (natural_frequencies(g.omega, g.added_mass[:, diag, diag], g.inertia, g.stiffness)
+        diag = np.arange(g.act.size)   # each DOF's own damping (diagonals: a many-body group stays small)
+        a, b = g.added_mass[:, diag, diag], g.damping[:, diag, diag]
+        natural = (natural_frequencies(g.omega, a, g.inertia, g.stiffness)
                    if g.inertia is not None and g.stiffness is not None else np.zeros(0))
         judged = judged_frequencies(g.omega, waves, natural)
-        effect = cut_effect(irf.omega, irf.damping, self.duration, self.taper, g.omega, g.damping, g.added_mass,
+        effect = cut_effect(irf.omega, irf.damping[:, diag, diag], self.duration, self.taper, g.omega, b, a,
                             g.inertia, judged)
         if effect is None or effect.change <= CUT_EFFECT_WARN:
             return
-        longer, step, left = longer_memory(g.omega, g.damping, self.duration, self.taper, g.added_mass, g.inertia,
-                                           judged)
+        longer, step, left = longer_memory(g.omega, b, self.duration, self.taper, a, g.inertia, judged)
         grid = "" if step is None else f" with hydro.irf_domega = {step:.3g} rad/s (alias-free to it)"
         advice = (f"set hydro.irf_duration = {longer:.3g} s{grid} (changes it by {100 * left:.2g} %)"
                   if left <= CUT_EFFECT_WARN else
