@@ -99,6 +99,13 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
     print(f"warning: {text}", file=file or sys.stderr)
 
 
+def _show_hdb_warnings(ds) -> None:
+    """What the HDB's reader or builder found doubtful (its ``warnings`` attribute), as warning lines."""
+    from hydrolink.protocol.hdb.layout import hdb_warnings
+    for note in hdb_warnings(ds):
+        _show_warning(note, UserWarning, "", 0)
+
+
 @cli.group()
 def hdb() -> None:
     """Hydrodynamic databases: build with Capytaine, inspect any supported format."""
@@ -115,6 +122,7 @@ def hdb_build(spec: Path, output: Path, no_progress: bool) -> None:
     from hydrolink.protocol.hdb.schema import to_netcdf
 
     ds = _guard(build_hdb, spec, progress=not no_progress)
+    _show_hdb_warnings(ds)
     output.parent.mkdir(parents=True, exist_ok=True)
     to_netcdf(ds, output)
     click.echo(f"wrote {output} ({ds.sizes['omega']} frequencies, bodies {list(map(str, ds['body'].values))})")
@@ -133,6 +141,7 @@ def hdb_info(file: Path, plot: Path | None, dofs: str | None, convention: str | 
     from hydrolink.server.hdb.io import load_hdb
 
     ds = _guard(load_hdb, file, convention=convention)
+    _show_hdb_warnings(ds)
     click.echo(hdb_summary(ds))
     if plot:
         _guard(plot_hdb, ds, plot, dofs=dofs.split(",") if dofs else None)

@@ -33,9 +33,10 @@ from hydrolink.protocol.scene import Scene
 from hydrolink.protocol.setup import IRFProcessing, Setup, StateSpaceReport
 from hydrolink.server.allocation import require_size
 from hydrolink.server.radiation.irf import irf_samples
+from hydrolink.server.rigid_body import rigid_body_mass_matrix
 from hydrolink.server.errors import ModelError
 from hydrolink.server.terms.hulls import Hull
-from hydrolink.protocol.hdb.layout import DOF_NAMES, HDBError
+from hydrolink.protocol.hdb.layout import DOF_NAMES, HDBError, hdb_warnings
 from hydrolink.protocol.hdb.schema import select_bodies
 from hydrolink.server.hydrostatics import total_stiffness
 from hydrolink.server.terms.base import ForceTerm, TermContext
@@ -143,7 +144,8 @@ class HydroModel:
         self._hydrostatics(data)
         rad_groups = [self._radiation_group(d) for d in data]
         self._coefficients = [(g.act, g.omega, g.added_mass, g.damping) for g in rad_groups]  # act, w, A, B
-        radiation = option.build(rad_groups, self.n)
+        amp = self.waves.amplitude   # the memory's cut is judged at the components of >= 1 % of the peak energy
+        radiation = option.build(rad_groups, self.n, self.waves.omega[amp >= 0.1 * amp.max(initial=0.0)])
         self.added_mass_inf, self.added_mass_client = radiation.added_mass_inf, radiation.added_mass
         self._radiation = radiation.report
         self.warnings += radiation.warnings
@@ -210,6 +212,7 @@ class HydroModel:
             sub = select_bodies(ds, [b.hdb_body_name for b in bodies])
         except HDBError as exc:
             raise ModelError(f"bodies[{self._scene_index[members[0]]}].hdb_body", str(exc)) from None
+        self.warnings.extend(n for n in hdb_warnings(ds) if n not in self.warnings)   # its reader's
         rho, g = float(ds.attrs["rho"]), float(ds.attrs["g"])
         s_rho = water.density / rho
         s_rg = water.density * water.gravity / (rho * g)
@@ -248,6 +251,11 @@ class HydroModel:
         loc = np.flatnonzero(self.active.reshape(-1)[d.rows])  # active, local to this group
         act = d.rows[loc]
         sub = d.data
+        inertia = np.zeros(self.n)   # the memory's cut is judged at each DOF's natural frequency too
+        for k in d.members:
+            body, ref = self.scene.bodies[self._scene_index[k]], self.equilibrium_position[k, :3]
+            offset = body.com_or(ref) - ref
+            inertia[6 * k:6 * k + 6] = np.diag(rigid_body_mass_matrix(body.mass, body.inertia_matrix, offset))
         return RadiationGroup(
             source=d.source, bodies=tuple(self.bodies[k] for k in d.members), act=act,
             pos=np.searchsorted(self._idx, act),
@@ -255,7 +263,8 @@ class HydroModel:
             omega=d.omega, added_mass=d.rho_scale * sub["added_mass"].values[:, loc][:, :, loc],
             damping=d.rho_scale * sub["radiation_damping"].values[:, loc][:, :, loc],
             added_mass_inf=(d.rho_scale * sub["added_mass_inf"].values[np.ix_(loc, loc)]
-                            if "added_mass_inf" in sub else None))
+                            if "added_mass_inf" in sub else None),
+            inertia=inertia[act], stiffness=np.diag(self.hydrostatic_stiffness)[act])
 
     def _hydrostatics(self, data: list[_GroupData]) -> None:
         """Hydrostatic plus gravity stiffness over the active DOFs, equilibrium and net buoyancy."""

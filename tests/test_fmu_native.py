@@ -18,7 +18,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import SPHERE_WATER, regular_waves, scene_toml, serve_process, sphere_body, write_scene
+from conftest import (SPHERE_WATER, regular_waves, rm3_float, rm3_spar, scene_toml, serve_process, sphere_body,
+                      write_scene)
 
 # One pytest-xdist worker runs this whole module (pyproject: --dist loadgroup): its module fixtures (a server
 # process, the native FMUs compiled, a straight run) cost ~12 s, paid once per worker otherwise.
@@ -64,7 +65,7 @@ class Slave:
         from fmpy import extract, read_model_description
         self.md = read_model_description(path)
         self.vr = {v.name: v.valueReference for v in self.md.modelVariables}
-        self.fmi, self.log = fmi, []
+        self.fmi, self.log, self.statuses = fmi, [], []     # each message and its FMI status (1: warning)
         unzipped = extract(path, unzipdir=tmp / f"fmu{fmi}")
         if fmi == 2:
             from fmpy.fmi2 import FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE
@@ -72,7 +73,7 @@ class Slave:
             self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=unzipped,
                                  modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName="hydro")
             cb = fmi2CallbackFunctions()
-            cb.logger = fmi2CallbackLoggerTYPE(lambda env, name, status, cat, msg, *a: self.log.append(msg.decode()))
+            cb.logger = fmi2CallbackLoggerTYPE(lambda env, name, status, cat, msg, *a: self._logged(status, msg))
             cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
             cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
             self._cb = cb
@@ -85,11 +86,15 @@ class Slave:
             from fmpy.fmi3 import FMU3Slave, fmi3LogMessageCallback
             self.fmu = FMU3Slave(guid=self.md.instantiationToken, unzipDirectory=unzipped,
                                  modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName="hydro")
-            self._cb = fmi3LogMessageCallback(lambda env, status, cat, msg: self.log.append(msg.decode()))
+            self._cb = fmi3LogMessageCallback(lambda env, status, cat, msg: self._logged(status, msg))
             self.fmu.instantiate(logMessage=self._cb)
             self.fmu.setString([self.vr["server_address"]], [server])
             self.fmu.setFloat64([self.vr["timeout"]], [timeout])
             self.fmu.enterInitializationMode()
+
+    def _logged(self, status: int, message: bytes) -> None:
+        self.log.append(message.decode())
+        self.statuses.append(int(status))
 
     def start(self) -> None:
         self.fmu.exitInitializationMode()
@@ -417,5 +422,31 @@ def test_two_bodies_from_wamit_files_give_the_servers_forces(tmp_path, reference
                 assert np.array_equal(got[1:], np.array(parts)), k
                 assert np.array_equal(got[0], parts[0] + parts[1] + parts[2]), k
                 slave.step(k * 0.05, 0.05)
+    finally:
+        slave.close()
+
+
+@pytest.mark.parametrize("fmi", [2, 3])
+def test_setup_warnings_reach_the_importers_logger(fmi, server, reference_data, tmp_path):
+    """SPEC §5.1: a client shows every setup warning. The RM3 Capytaine file records no rotation
+    centre (its reader's warning, raised in the server's child process that parses the files the FMU
+    sends by hash) and the scene's sea water differs from its 1000 kg/m³ (the server's own): both
+    reach the importer's logger once each, at FMI status warning (1 in FMI 2 and 3), without debug
+    logging, and the export's notes say them too."""
+    _needs_compiler()
+    from hydrolink.clients.fmu.native import export_native_fmu
+    shutil.copy(reference_data / "rm3_capytaine" / "rm3_hydrodynamics.nc", tmp_path / "rm3.nc")
+    write_scene(tmp_path, scene_toml(dt=0.1, duration=1.0, hydro={"irf_duration": 10.0},
+                                     bodies=[rm3_float("rm3.nc", dofs=["heave"]), rm3_spar("rm3.nc", dofs=["heave"])]))
+    fmu, notes = export_native_fmu(tmp_path / "scene.toml", tmp_path / f"rm3_{fmi}.fmu", fmi=fmi, progress=False)
+    reader, water = "rm3.nc: no rotation_center or center_of_mass recorded", "water: the scene's density 1025 kg/m^3"
+    assert sum(reader in n for n in notes) == 1 and sum(water in n for n in notes) == 1, notes
+    slave = Slave(fmu, fmi, tmp_path, server)
+    try:
+        slave.start()
+        warned = [m for m, st in zip(slave.log, slave.statuses) if st == 1]
+        assert sum(reader in m for m in warned) == 1 and sum(water in m for m in warned) == 1, slave.log
+        assert not any("hydrolink-hdb-" in m for m in warned)      # named as sent, not by the server's folder
+        assert 3 not in slave.statuses, slave.log                  # no error
     finally:
         slave.close()

@@ -150,3 +150,46 @@ def test_other_step_size_fails_loudly_in_fmpy(exported):
     assert done.returncode != 0
     assert "fmi2DoStep failed" in done.stderr
     assert f"communication step {DT / 2} s must equal the scene's dt {DT} s" in done.stderr
+
+
+def test_setup_warnings_reach_the_importers_logger(reference_data, tmp_path, capfd):
+    """SPEC §5.1: the FMU shows every setup warning — its HDB reader's (the RM3 Capytaine file records
+    no rotation centre; the FMU carries it as hydrolink NetCDF with the warning kept) and the
+    server's own (sea water against the file's 1000 kg/m³) — through the importer's logger at status
+    warning, and on stderr (pythonfmu forwards log messages only with logging on)."""
+    import shutil
+
+    from fmpy.fmi2 import fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, fmi2CallbackAllocateMemoryTYPE, \
+        fmi2CallbackFreeMemoryTYPE
+    from fmpy import calloc, free
+    from conftest import rm3_float, rm3_spar
+
+    shutil.copy(reference_data / "rm3_capytaine" / "rm3_hydrodynamics.nc", tmp_path / "rm3.nc")
+    scene = write_scene(tmp_path, scene_toml(dt=0.1, duration=1.0, hydro={"irf_duration": 10.0},
+                                             bodies=[rm3_float("rm3.nc", dofs=["heave"]),
+                                                     rm3_spar("rm3.nc", dofs=["heave"])]))
+    fmu = tmp_path / "rm3.fmu"
+    result = CliRunner().invoke(cli, ["fmu", "export", str(scene), "-o", str(fmu), "--python"])
+    assert result.exit_code == 0, result.output
+    reader, water = "rm3.nc: no rotation_center or center_of_mass recorded", "water: the scene's density 1025 kg/m^3"
+    md = read_model_description(str(fmu))
+    logged: list[tuple[int, str]] = []
+    cb = fmi2CallbackFunctions()
+    cb.logger = fmi2CallbackLoggerTYPE(lambda env, name, status, cat, msg, *a: logged.append((int(status), msg.decode())))
+    cb.allocateMemory, cb.freeMemory = fmi2CallbackAllocateMemoryTYPE(calloc), fmi2CallbackFreeMemoryTYPE(free)
+    slave = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(fmu)), modelIdentifier=md.coSimulation.modelIdentifier,
+                      instanceName="rm3")
+    slave.instantiate(callbacks=cb, loggingOn=True)
+    try:
+        slave.setupExperiment(startTime=0.0)
+        slave.enterInitializationMode()
+        capfd.readouterr()
+        slave.exitInitializationMode()
+        err = capfd.readouterr().err
+    finally:
+        slave.terminate()
+        slave.freeInstance()
+    warned = [m for status, m in logged if status == 1]   # fmi2Warning
+    for text in (reader, water):
+        assert sum(text in m for m in warned) == 1, logged
+        assert sum(text in line for line in err.splitlines()) == 1, err

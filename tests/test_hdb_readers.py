@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import shutil
 import warnings
+import re
 from pathlib import Path
 
 import h5py
@@ -13,7 +14,7 @@ import xarray as xr
 
 from hydrolink.server.hdb.capytaine_io import from_capytaine_dataset, read_capytaine, short_body_names
 from hydrolink.server.hdb.io import load_hdb
-from hydrolink.protocol.hdb.layout import HDBError
+from hydrolink.protocol.hdb.layout import HDBError, hdb_warnings
 from hydrolink.protocol.hdb.schema import to_netcdf
 from hydrolink.server.hdb.wamit.reader import read_wamit
 
@@ -386,6 +387,7 @@ def test_capytaine_file_convention_declared_stated_or_checked(capytaine_buoy, tm
     with warnings.catch_warnings():
         warnings.simplefilter("error")          # Capytaine's own file: nothing to note
         plain = load_hdb(capytaine_buoy)
+    assert hdb_warnings(plain) == ()
     assert plain.attrs["time_convention_in_file"] == "exp(-iwt)"
     assert plain.attrs["time_convention_from"].startswith("Capytaine's, checked: ")
     ref = _heave_force(plain)
@@ -396,8 +398,9 @@ def test_capytaine_file_convention_declared_stated_or_checked(capytaine_buoy, tm
         with pytest.raises(HDBError, match=r"hdb_convention: the file does not declare its time convention and its "
                                            r"force phases are exp\(\+iwt\)'s.*\"exp\(\+iwt\)\" for WecOptTool"):
             load_hdb(wot)
-    with pytest.warns(UserWarning, match=r"read as exp\(-iwt\) \(stated \(hdb_convention\)\), but .* fit exp\(\+iwt\)"):
-        silent = load_hdb(wot, convention="exp(-iwt)")
+    silent = load_hdb(wot, convention="exp(-iwt)")    # the doubt kept with the HDB (setup.warnings)
+    assert [re.search(r"read as exp\(-iwt\) \(stated \(hdb_convention\)\), but .* fit exp\(\+iwt\)", n) is not None
+            for n in hdb_warnings(silent)] == [True]
     assert np.abs(_heave_force(silent) - ref).max() > 0.1 * np.abs(ref).max()   # what a wrong read costs
     stated = load_hdb(wot, convention="exp(+iwt)")
     np.testing.assert_allclose(_heave_force(stated), ref, rtol=1e-12, atol=1e-9 * np.abs(ref).max())
@@ -406,8 +409,7 @@ def test_capytaine_file_convention_declared_stated_or_checked(capytaine_buoy, tm
     with pytest.raises(HDBError, match=r"the file declares exp\(\+iwt\), the scene states exp\(-iwt\)"):
         load_hdb(declared, convention="exp(-iwt)")
     half = _rewrite(capytaine_buoy, tmp_path / "half.nc", conj=("Froude_Krylov_force", "diffraction_force"))
-    with pytest.warns(UserWarning, match="are the complex conjugates of its excitation_force"):
-        load_hdb(half)
+    assert ["are the complex conjugates of its excitation_force" in n for n in hdb_warnings(load_hdb(half))] == [True]
     with pytest.raises(HDBError, match="only for a Capytaine-layout NetCDF"):
         load_hdb(tmp_path / "x.h5", convention="exp(+iwt)")
 
@@ -824,3 +826,28 @@ def test_wamit_frc_of_another_form(reference_data, tmp_path, rm3_wamit):
     (tmp_path / "rm3.out").unlink()
     err = _error(stem, wamit={**RM3_STATED, "vcg": [0.0, -5.0], "volume": [725.833, 886.687]})
     assert err.source == "rm3.cfg" and err.field == "IALTFRC" and "only IALTFRC = 1" in err.why
+
+
+def test_generalized_modes_in_bemio_and_capytaine_files_are_refused_by_name(reference_data, tmp_path):
+    """Issue 38: a body with more than six DOFs is refused naming the file, the field and the count
+    of modes beyond the rigid six, never read as something else. BEMIO: the sphere's file with its
+    properties/dof set to 10 (WEC-Sim's 6 + 4 generalized modes); Capytaine: RM3's file with two
+    flexible radiating DOFs added to the float (zero coefficients: the count is what is judged)."""
+    import h5py
+
+    bemio = tmp_path / "sphere10.h5"
+    shutil.copy(reference_data / "sphere_task10" / "sphere.h5", bemio)
+    with h5py.File(bemio, "r+") as f:
+        f["body1/properties/dof"][...] = 10.0
+    with pytest.raises(HDBError, match=r"sphere10\.h5: body1/properties/dof: 10 DOFs for this body: 4 generalized "
+                                       r"mode\(s\) beyond the rigid 6"):
+        load_hdb(bemio)
+    with xr.open_dataset(reference_data / "rm3_capytaine" / "rm3_hydrodynamics.nc") as raw:
+        ds = raw.load()
+    flex = ["rm3_float__Flex1", "rm3_float__Flex2"]
+    extra = ds.isel(radiating_dof=[0, 0]).assign_coords(radiating_dof=flex)
+    ds = xr.concat([ds, extra * 0.0], dim="radiating_dof", data_vars="minimal", coords="minimal", compat="override")
+    ds.to_netcdf(tmp_path / "rm3_flex.nc")
+    with pytest.raises(HDBError, match=r"rm3_flex\.nc: radiating_dof: 2 DOF\(s\) beyond the rigid-body ones .*"
+                                       r"\['rm3_float__Flex1', 'rm3_float__Flex2'\] — generalized modes\?"):
+        load_hdb(tmp_path / "rm3_flex.nc")

@@ -43,11 +43,13 @@ def test_unknown_option_names_hydro_radiation():
 
 @pytest.mark.parametrize("name", ["convolution", "state-space", "constant", "off"])
 def test_each_option_reports_its_name_and_irf_grid(name):
-    """irf_samples = round(T / dt), irf_duration = samples dt (T = 7.3 s, dt = 0.25: 29 samples, 7.25 s)."""
+    """irf_samples = round(T / dt), irf_duration = samples dt (T = 7.3 s, dt = 0.25: 29 samples, 7.25 s);
+    "constant" keeps no memory: 0 and 0 s whatever irf_duration says."""
     opt = radiation_option(Hydro(radiation=name, irf_duration=7.3), REGULAR, 0.25)
-    assert opt.name == name and opt.samples == 29
+    samples = 0 if name == "constant" else 29
+    assert opt.name == name and opt.samples == samples
     rep = opt.build([], 6).report
-    assert rep.radiation == name and rep.irf_samples == 29 and rep.irf_duration == 7.25
+    assert rep.radiation == name and rep.irf_samples == samples and rep.irf_duration == 0.25 * samples
     assert (rep.state_space is not None) == (name == "state-space")
     assert (rep.radiation_frequency is not None) == (name == "constant")
 
@@ -75,39 +77,6 @@ def test_aliasing_warned_when_the_mirror_is_small_and_resampling_removes_it():
     assert an.irf(11.1, B0, W0) / an.irf(0.0, B0, W0) < 1e-12
     fine = radiation_option(Hydro(irf_duration=14.0, irf_domega=0.02), STILL, 0.05).build([analytic_group(om)], 6)
     assert fine.warnings == []
-
-
-def ringing_group(b1: float, gamma: float = 0.02, w_r: float = 2.0) -> RadiationGroup:
-    """The analytic heave pair plus a lightly damped trapped mode: B gains the Lorentzian
-    b1 g^2 / ((w - w_r)^2 + g^2), whose K is 2 b1 g e^(-g t) cos(w_r t) (to O(g / w_r)) — it rings
-    at 2 rad/s and decays over 1/g = 50 s. Grid 0.004 rad/s: the peak resolved, aliasing at 785 s."""
-    om = np.arange(0.004, 8.0 + 1e-9, 0.004)
-    b = an.damping(om, B0, W0) + b1 * gamma ** 2 / ((om - w_r) ** 2 + gamma ** 2)
-    return heave_group(om, an.added_mass(om, A_INF, B0, W0), b)
-
-
-def test_memory_cut_while_the_kernel_rings_is_warned_and_tapering_removes_it():
-    """K(0) = b0 w0 / (2 sqrt(pi)) + 2 b1 g: the trapped mode's share 2 b1 g / K(0) = 30 %; cut at
-    60 s without a taper its envelope e^(-g t) over the last 10 % (from 54 s) leaves 30 % x
-    e^(-1.08) = 10 % of the peak (the closed form, to the cosine's sampling at dt): warned naming
-    hydro.irf_duration and hydro.irf_taper. The same cut with irf_taper = 0.3, or irf_taper = 0
-    stated (the sharp cut chosen), the analytic pair alone, or the memory kept to 300 s (0.07 %):
-    no warning."""
-    gamma, k_an = 0.02, B0 * W0 / (2 * np.sqrt(np.pi))
-    b1 = 0.3 * k_an / (2 * gamma * 0.7)                 # the mode's K amplitude 30 % of K(0)
-    share = 2 * b1 * gamma * np.exp(-gamma * 54.0) / (k_an + 2 * b1 * gamma)
-    rad = radiation_option(Hydro(irf_duration=60.0), STILL, 0.05).build([ringing_group(b1, gamma)], 6)
-    ringing = [w for w in rad.warnings if "of its kind over the last" in w]
-    assert len(ringing) == 1, rad.warnings
-    got = float(ringing[0].split("is still at ")[1].split(" %")[0]) / 100
-    assert got == pytest.approx(share, rel=0.03)
-    assert ringing[0].startswith("hydro.irf_duration: K(t) of 'hand' (float.heave, float.heave) is still at ")
-    assert "hydro.irf_taper" in ringing[0] and "warned above 1 %" in ringing[0]
-    for hydro, group in ((Hydro(irf_duration=60.0, irf_taper=0.3), ringing_group(b1, gamma)),
-                         (Hydro(irf_duration=60.0, irf_taper=0.0), ringing_group(b1, gamma)),
-                         (Hydro(irf_duration=60.0), analytic_group()),
-                         (Hydro(irf_duration=300.0), ringing_group(b1, gamma))):
-        assert radiation_option(hydro, STILL, 0.05).build([group], 6).warnings == []
 
 
 def test_ogilvie_a_inf_when_the_hdb_has_none():
@@ -240,3 +209,22 @@ def test_off_has_no_force_and_keeps_a_inf():
     assert rad.added_mass[2, 2] == rad.added_mass_inf[2, 2] == A_INF
     assert rad.report.added_mass_inf_source == {"float": "hdb"}
     assert rad.report.irf_fit_error["hand"] < 1e-3  # K reproduces B (the closed-form pair, 40 s)
+
+
+def test_constant_radiation_takes_a_wide_period_grid_without_irf_settings():
+    """Issue 38 item 5: an HDB on periods 0.15-150 s (uniform in period: its aliasing time pi/d_omega
+    is 0.09 s at the short end) with radiation = "constant" and the default irf_duration: no IRF
+    setting is demanded (before: refused, "40 s reaches past the aliasing time"); the force is
+    -B(w0) v and the client's added mass A(w0), both the HDB's interpolated at w0 = 2 pi / 8 s."""
+    periods = np.linspace(0.15, 150.0, 200)
+    om = np.sort(2 * np.pi / periods)
+    a, b = an.added_mass(om, A_INF, B0, W0), an.damping(om, B0, W0)
+    w0 = 2 * np.pi / 8.0
+    waves = RegularWave(type="regular", height=1.0, period=8.0)
+    rad = radiation_option(Hydro(radiation="constant"), waves, 0.05).build([heave_group(om, a, b)], 6)
+    assert rad.warnings == [] and rad.report.irf_samples == 0
+    assert rad.added_mass[2, 2] == pytest.approx(np.interp(w0, om, a), rel=1e-12)
+    (pos, force), = rad.forces
+    assert force.push(np.array([0.7]))[0] == pytest.approx(-np.interp(w0, om, b) * 0.7, rel=1e-12)
+    with pytest.raises(ModelError, match="reaches past the aliasing time"):   # a memory does need them
+        radiation_option(Hydro(), waves, 0.05).build([heave_group(om, a, b)], 6)

@@ -38,17 +38,30 @@ def load_scene(path: str | Path) -> "Scene":
 
 def load_hdb(path: str | Path) -> "xr.Dataset":
     """An HDB file of any supported format (Capytaine, BEMIO .h5, WAMIT, hydrolink .nc) in the internal
-    layout: SI units, exp(-iwt) (HDBError naming the file and field otherwise)."""
+    layout: SI units, exp(-iwt) (HDBError naming the file and field otherwise). What its reader
+    found doubtful is in ``attrs["warnings"]`` and shown as HDBWarnings."""
     from hydrolink.server.hdb.io import load_hdb as _load
 
-    return _load(path)
+    return _shown(_load(path))
 
 
 def build_hdb(spec_path: str | Path, *, progress: bool = False) -> "xr.Dataset":
     """The HDB of an ``hdb build`` spec, computed with Capytaine or read from the cache (docs/hdb-spec.md)."""
     from hydrolink.server.hdb.build.builder import build_hdb as _build
 
-    return _build(spec_path, progress=progress)
+    return _shown(_build(spec_path, progress=progress))
+
+
+def _shown(ds: "xr.Dataset") -> "xr.Dataset":
+    """``ds``, its reader's or builder's warnings (attribute ``warnings``) shown as HDBWarnings."""
+    import warnings
+
+    from hydrolink.protocol.hdb.layout import hdb_warnings
+    from hydrolink.server.hdb.reader_warnings import HDBWarning
+
+    for note in hdb_warnings(ds):
+        warnings.warn(note, HDBWarning, stacklevel=3)
+    return ds
 
 
 def run(scene_path: str | Path, output: str | Path | None = None, *, server: str | None = None,

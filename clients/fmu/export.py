@@ -52,6 +52,7 @@ def export_fmu(scene_path: str | Path, output: str | Path, *, progress: bool = T
     added_mass = setup.added_mass[np.ix_(active, active)]
     notes = [f"[{k}] is not in the FMU: the importer models the mechanism" for k in MECHANISM_KEYS
              if getattr(scene, k)]
+    notes += [f"the server warns (the FMU logs it when it starts): {w}" for w in setup.warnings]
     with tempfile.TemporaryDirectory(prefix="hydrolink-export-") as tmp:
         work = Path(tmp)
         files = {}

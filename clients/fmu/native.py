@@ -152,6 +152,7 @@ def export_native_fmu(scene_path: str | Path, output: str | Path, *, fmi: int = 
     net = [float(setup.net_buoyancy[k // 6]) if k % 6 == 2 else 0.0 for k in flat]
     notes = [f"[{k}] is not in the FMU: the importer models the mechanism" for k in MECHANISM_KEYS
              if getattr(scene, k)]
+    notes += [f"the server warns (the FMU logs it when it starts): {w}" for w in setup.warnings]
     with tempfile.TemporaryDirectory(prefix="hydrolink-native-") as tmp:
         root = Path(tmp)
         res = root / "resources"

@@ -14,6 +14,8 @@ Outputs are the forces at the current communication point for the inputs set at 
 (direct feedthrough): set the state at t, read F(t). Setting the inputs again at the same point
 (an iterating master) replaces the server's sample (SPEC §5.3 rule 2). The communication step
 must equal the scene's dt (another is an error status, logged as an error). No rollback (the server keeps one sample per step).
+The server's setup warnings (its HDB readers' among them, SPEC §5.1) are logged at the end of
+initialisation with status warning, and written to stderr.
 """
 
 from __future__ import annotations
@@ -93,6 +95,9 @@ class HydrolinkForces(Fmi2Slave):
         self._conn = ServerConnection(address, timeout=float(self.timeout), client_name="hydrolink-fmu", key=key)
         hdbs = {key: load_hdb(self._res / name) for key, name in self._cfg["hdbs"].items()}
         setup = self._conn.hello(self._cfg["scene"], hdbs)
+        for note in setup.warnings:   # SPEC §5.1: shown to the user before the run (and on stderr:
+            self.log(f"hydrolink: {note}", Fmi2Status.warning)   # pythonfmu's logger may be off)
+            print(f"hydrolink FMU: warning: {note}", file=sys.stderr, flush=True)
         if abs(setup.dt - self._dt) > 1e-12 * self._dt:
             raise RuntimeError(f"the server's dt {setup.dt} differs from the exported {self._dt}")
 

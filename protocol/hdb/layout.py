@@ -24,7 +24,8 @@ Every reader converts its format into this layout once; everything downstream (I
                                                   conventions in :mod:`.second_order`
     attrs   rho, g, water_depth (float, inf for deep water), time_convention = "exp(-iwt)",
             source (where it came from), hdb_schema_version = 2 (2: mean_drift_body_fixed required
-            with mean_drift; hdb build's cache keys change with it)
+            with mean_drift; hdb build's cache keys change with it), warnings (optional: a JSON
+            list of str, what its reader or builder found doubtful; :func:`hdb_warnings`)
 
 Time convention: a regular wave with elevation eta(t) = Re{a exp(-i w t)} at the origin gives the
 excitation force Re{a X(w) exp(-i w t)} (Capytaine's convention). Readers of exp(+i w t) formats
@@ -34,6 +35,8 @@ Row index = force component (influenced), column = motion (radiating): F = -A a 
 """
 
 from __future__ import annotations
+
+import json
 
 from hydrolink.protocol.errors import KeyedError
 from hydrolink.protocol.scene_bounds import DENSITY_RANGE, DEPTH_RANGE, GRAVITY_RANGE
@@ -79,3 +82,30 @@ class HDBError(KeyedError):
 def dof_labels(bodies: list[str]) -> list[str]:
     """Mode labels "<body>.<dof>" in the schema's order (body-major)."""
     return [f"{b}.{d}" for b in bodies for d in DOF_NAMES]
+
+
+WARNINGS_ATTR = "warnings"
+
+
+def hdb_warnings(ds) -> tuple[str, ...]:
+    """What the HDB's reader or builder found doubtful (attribute ``warnings``, a JSON list of str;
+    none: ``()``). HDBError naming the attribute when it is not such a list."""
+    raw = ds.attrs.get(WARNINGS_ATTR)
+    if raw is None:
+        return ()
+    try:
+        notes = json.loads(raw) if isinstance(raw, str) else None
+    except ValueError:
+        notes = None
+    if not isinstance(notes, list) or not all(isinstance(n, str) for n in notes):
+        raise HDBError(ds.attrs.get("source", "<hdb>"), WARNINGS_ATTR,
+                       f"must be a JSON list of strings (the reader's warnings), got {raw!r:.80}")
+    return tuple(notes)
+
+
+def with_hdb_warnings(ds, notes) -> None:
+    """Add ``notes`` (each once, in order) to the HDB's ``warnings`` attribute, in place."""
+    kept = list(hdb_warnings(ds))
+    kept += [n for n in dict.fromkeys(str(n) for n in notes) if n not in kept]
+    if kept:
+        ds.attrs[WARNINGS_ATTR] = json.dumps(kept)

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from hydrolink.protocol.hdb.layout import ATTR_RANGES, COMPLEX_VARS, OPTIONAL_VARS, REQUIRED_ATTRS, REQUIRED_VARS, SCHEMA_VERSION, TIME_CONVENTION, HDBError, dof_labels
+from hydrolink.protocol.hdb.layout import ATTR_RANGES, COMPLEX_VARS, OPTIONAL_VARS, REQUIRED_ATTRS, REQUIRED_VARS, SCHEMA_VERSION, TIME_CONVENTION, HDBError, dof_labels, hdb_warnings
 from hydrolink.protocol.hdb.second_order import QTF, MeanDrift, check_second_order, second_order_vars
 
 
@@ -130,6 +130,7 @@ def validate_hdb(ds: xr.Dataset, source: str | Path) -> xr.Dataset:
         if name in out and not np.iscomplexobj(out[name].values):
             out[name] = out[name].astype(complex)
     check_second_order(ds, source)
+    hdb_warnings(ds)   # the reader's warnings, if any: a JSON list of str
     return ds.assign(out)
 
 

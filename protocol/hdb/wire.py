@@ -17,7 +17,8 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from hydrolink.protocol.hdb.layout import OPTIONAL_VARS, REQUIRED_ATTRS, REQUIRED_VARS, SECOND_ORDER_VARS, HDBError
+from hydrolink.protocol.hdb.layout import (OPTIONAL_VARS, REQUIRED_ATTRS, REQUIRED_VARS, SECOND_ORDER_VARS, WARNINGS_ATTR,
+                                           HDBError, hdb_warnings, with_hdb_warnings)
 from hydrolink.protocol.hdb.schema import make_hdb, validate_hdb
 from hydrolink.protocol.hdb.second_order import BODY_FIXED, QTF, MeanDrift, drift_body_fixed, qtf_kinds
 
@@ -54,6 +55,8 @@ def to_wire(ds: xr.Dataset) -> dict:
             out["attrs"][key] = str(ds.attrs[key])
     if "mean_drift" in ds:
         out["attrs"][BODY_FIXED] = int(drift_body_fixed(ds))
+    if hdb_warnings(ds):
+        out["attrs"][WARNINGS_ATTR] = list(hdb_warnings(ds))
     return out
 
 
@@ -95,9 +98,12 @@ def from_wire(data: dict, source: str) -> xr.Dataset:
     bodies = data["bodies"]
     if not isinstance(bodies, list) or not all(isinstance(b, str) for b in bodies):
         raise HDBError(source, "bodies", "must be a list of names")
+    notes = attrs.get(WARNINGS_ATTR, [])
+    if not isinstance(notes, list) or not all(isinstance(n, str) for n in notes):
+        raise HDBError(source, f"attrs.{WARNINGS_ATTR}", "must be a list of str (what the HDB's reader found doubtful)")
     try:
         drift, qtf = _second_order(data, source)
-        return make_hdb(
+        ds = make_hdb(
             bodies=bodies, omega=data["omega"], wave_direction=data["wave_direction"],
             **{k: data[k] for k in REQUIRED_VARS},
             **{k: data.get(k) for k in FIRST_ORDER_OPTIONAL}, mean_drift=drift, qtf=qtf,
@@ -108,6 +114,8 @@ def from_wire(data: dict, source: str) -> xr.Dataset:
         raise
     except (ValueError, TypeError) as exc:
         raise HDBError(source, "", f"fields do not fit together: {exc}") from None
+    with_hdb_warnings(ds, notes)
+    return ds
 
 
 FILE_FORMATS = ("wamit", "bemio", "netcdf")

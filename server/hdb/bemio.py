@@ -134,8 +134,10 @@ def _read(h5: _H5) -> xr.Dataset:
     for n, grp in enumerate(groups):
         props, coeffs = f"{grp}/properties", f"{grp}/hydro_coeffs"
         if h5.has(f"{props}/dof") and h5.number(f"{props}/dof") != 6:
+            dof = h5.number(f"{props}/dof")
             raise HDBError(h5.source, f"{props}/dof",
-                           f"only 6 rigid-body DOFs per body are supported, got {h5.number(f'{props}/dof'):g}")
+                           f"{dof:g} DOFs for this body: {dof - 6:g} generalized mode(s) beyond the rigid 6 (or fewer "
+                           "than 6); hydrolink reads rigid bodies of 6 DOFs each (generalized modes: issue 38)")
         names.append(h5.text(f"{props}/name").replace(".", "_") if h5.has(f"{props}/name") else grp)
         rows = slice(6 * n, 6 * n + 6)
         a = h5.get(f"{coeffs}/added_mass/all", (6, n_dof, n_w))

@@ -30,6 +30,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from hydrolink.server.hdb.reader_warnings import HDBWarning
 from hydrolink.protocol.hdb.layout import HDBError
 from hydrolink.protocol.hdb.second_order import QTF, fill_qtf_square
 
@@ -61,7 +62,7 @@ def read_bemio_qtf(fh: h5py.File, bodies: list[str], source: Path) -> QTF | None
     if sums:
         warnings.warn(f"{source}: {sums[0]} (and the other Sum groups) left out: WEC-Sim v6.1 stores the sum QTF "
                       "conjugated, v7.0 on not, and the file does not say which wrote it; give the sum QTF as WAMIT "
-                      ".12s or NEMOH OUT_QTFP files", stacklevel=4)
+                      ".12s or NEMOH OUT_QTFP files", HDBWarning, stacklevel=4)
     if not rows:
         raise HDBError(source, next(iter(groups.values())), "a QTF group without Diff<dof> groups")
     w_i, w_j, b_i, b_j, dof, value = (np.concatenate(c) for c in zip(*rows))

@@ -44,6 +44,7 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
+from hydrolink.server.hdb.reader_warnings import HDBWarning
 from hydrolink.protocol.hdb.layout import DOF_NAMES, HDBError
 from hydrolink.protocol.hdb.schema import make_hdb
 
@@ -129,14 +130,19 @@ def _headings_in_radians(ds: xr.Dataset, source: str) -> xr.Dataset:
 
 def _parse_dofs(labels: Sequence[str], single_body: str, source: str, field: str) -> list[tuple[str, int]]:
     """(body name as in file, dof index) per label."""
-    out = []
+    out, other = [], []
     for label in map(str, labels):
         body, _, dof = label.rpartition("__")
         body = body or single_body
         name = dof.lower()
         if name not in DOF_NAMES:
-            raise HDBError(source, field, f"DOF {label!r} is not a rigid-body DOF ({', '.join(DOF_NAMES)})")
+            other.append(label)
+            continue
         out.append((body, DOF_NAMES.index(name)))
+    if other:   # never read as anything else (issue 38)
+        raise HDBError(source, field, f"{len(other)} DOF(s) beyond the rigid-body ones ({', '.join(DOF_NAMES)}): "
+                                      f"{other[:6]}{' ...' if len(other) > 6 else ''} — generalized modes? hydrolink "
+                                      "reads rigid bodies of 6 DOFs each (generalized modes: issue 38)")
     return out
 
 
@@ -182,7 +188,8 @@ def _reference_points(ds, file_bodies, names, given, source) -> tuple[np.ndarray
         if points is not None and np.all(np.isfinite(points)):
             return points, coord
     warnings.warn(f"{source}: no rotation_center or center_of_mass recorded; rotational modes are taken "
-                  "about the origin (pass reference_points if the run used another centre)", stacklevel=3)
+                  "about the origin; if the run used another centre, record it in the file (Capytaine's FloatingBody "
+                  "rotation_center or center_of_mass)", HDBWarning, stacklevel=3)
     return np.zeros((len(names), 3)), "origin (assumed, not recorded)"
 
 
@@ -268,7 +275,8 @@ def _convention(ds: xr.Dataset, source: str, stated: str | None, file_bodies: li
         chosen = declared or stated
         why = "declared by the file's attributes" if declared else "stated (hdb_convention)"
         if physics is not None and physics.verdict not in (None, chosen):
-            warnings.warn(f"{source}: read as {chosen} ({why}), but {checked}: check hdb_convention", stacklevel=4)
+            warnings.warn(f"{source}: read as {chosen} ({why}), but {checked}: check hdb_convention", HDBWarning,
+                          stacklevel=4)
         return chosen, f"{why}; {checked}"
     ask = f'state the body\'s hdb_convention ("exp(-iwt)" for Capytaine, "exp(+iwt)" for WecOptTool)'
     if physics is not None and physics.verdict == "exp(+iwt)":
@@ -281,7 +289,7 @@ def _convention(ds: xr.Dataset, source: str, stated: str | None, file_bodies: li
         raise HDBError(source, "hdb_convention", f"the file does not declare its time convention, holds {tool} "
                        f"whose convention may not be Capytaine's, and {checked}: {ask}")
     warnings.warn(f"{source}: read in Capytaine's exp(-iwt), not declared and not checked ({checked}); "
-                  f"{ask} to be sure", stacklevel=4)
+                  f"{ask} to be sure", HDBWarning, stacklevel=4)
     return "exp(-iwt)", f"Capytaine's, assumed: not declared and {checked}"
 
 
@@ -297,7 +305,7 @@ def _excitation_evidence(physics: ConventionEvidence, fk_plus_d: np.ndarray, exc
         other = CONVENTIONS[1 - CONVENTIONS.index(physics.verdict)]
         warnings.warn(f"{source}: its Froude_Krylov_force + diffraction_force are the complex conjugates of its "
                       f"excitation_force: their phases are {physics.verdict}'s, so excitation_force is read as "
-                      f"{other}; state the body's hdb_convention if it is not", stacklevel=4)
+                      f"{other}; state the body's hdb_convention if it is not", HDBWarning, stacklevel=4)
         return ConventionEvidence(other, f"{physics.detail}, on Froude_Krylov_force + diffraction_force, the "
                                          "conjugates of excitation_force")
     return ConventionEvidence(None, f"{physics.detail}, but excitation_force is not Froude_Krylov_force + "

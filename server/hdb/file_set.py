@@ -11,6 +11,7 @@ session on the same contents neither uploads nor parses anything.
 
 from __future__ import annotations
 
+import json
 import re
 import tempfile
 import threading
@@ -24,7 +25,7 @@ from hydrolink.protocol import codec
 from hydrolink.protocol.codec import Code, ProtocolError
 from hydrolink.protocol.hdb.wire import FILE_FORMATS
 from hydrolink.server.hdb.isolated import PARSE_TIMEOUT, ParseFailure, load_isolated
-from hydrolink.protocol.hdb.layout import HDBError
+from hydrolink.protocol.hdb.layout import WARNINGS_ATTR, HDBError, hdb_warnings
 from hydrolink.server.hdb.wamit.reader import WAMIT_SUFFIXES
 from hydrolink.server.hdb.store import HASH, ContentStore
 
@@ -158,6 +159,9 @@ class FileSetReader:
                 raise ProtocolError(Code.BAD_HDB, codec.key_path(f"{where}.files", main),
                                     f"not a readable {fs.format} file: {type(exc).__name__}: "
                                     f"{str(exc).replace(tmp + '/', '')}") from None
+            notes = hdb_warnings(ds)   # they name the files as the client did, not by the folder here
+            if notes:
+                ds.attrs[WARNINGS_ATTR] = json.dumps([n.replace(tmp + "/", "") for n in notes])
         ds.attrs["source"] = f"{main} (sha256 {dict(fs.files)[main][:12]})"
         with self._lock:
             if ds.nbytes <= PARSED_BYTES:

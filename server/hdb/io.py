@@ -20,7 +20,8 @@ import xarray as xr
 
 from hydrolink.server.hdb.bemio import read_bemio
 from hydrolink.server.hdb.capytaine_io import from_capytaine_dataset
-from hydrolink.protocol.hdb.layout import HDBError
+from hydrolink.protocol.hdb.layout import HDBError, with_hdb_warnings
+from hydrolink.server.hdb.reader_warnings import recorded
 from hydrolink.protocol.hdb.schema import from_netcdf_dataset
 from hydrolink.server.hdb.wamit.reader import WAMIT_SUFFIXES, read_wamit, wamit_stem
 from hydrolink.server.hdb.wamit.second_order import QTF_LEVELS, SECOND_ORDER_SUFFIXES
@@ -74,12 +75,22 @@ def _noted(ds: xr.Dataset, in_file: str, why: str) -> xr.Dataset:
 
 def load_hdb(path: str | Path, *, rho: float | None = None, convention: str | None = None,
              wamit: Mapping | None = None) -> xr.Dataset:
-    """Read an HDB file of any supported format into the internal layout (validated).
+    """Read an HDB file of any supported format into the internal layout (validated); what the
+    reader found doubtful is kept in the HDB's ``warnings`` attribute, not shown (server/hdb/
+    reader_warnings.py: it travels with the HDB into ``setup.warnings``).
     ``convention``: the time convention of a Capytaine-layout file's complex amplitudes when the
     file does not declare it ("exp(-iwt)", Capytaine's, by default; "exp(+iwt)": conjugated).
     ``wamit``: for a WAMIT run, what its files do not state (the scene's ``bodies[i].wamit`` table,
     :meth:`Scene.wamit_statement`), with ``excitation_needed`` (False: a set without ``.3`` is read)."""
-    path = Path(path)
+    notes: list[str] = []
+    with recorded(notes):
+        ds = _read(Path(path), rho, convention, wamit)
+    with_hdb_warnings(ds, notes)
+    return ds
+
+
+def _read(path: Path, rho: float | None, convention: str | None, wamit: Mapping | None) -> xr.Dataset:
+    """:func:`load_hdb`'s reading, by format."""
     suffix = path.suffix.lower()
     if convention is not None and suffix != ".nc":
         raise HDBError(path, "convention", "only for a Capytaine-layout NetCDF file: WAMIT and BEMIO files have "

@@ -230,38 +230,6 @@ def taper_window(t: np.ndarray, duration: float, fraction: float) -> np.ndarray:
     return 0.5 * (1.0 + np.cos(np.pi * u))
 
 
-RINGING_WARN = 0.01     # |K| near the cut above this share of its peak: the memory is cut while K rings
-RINGING_WINDOW = 0.1    # the end of the kept memory searched for it: its last 10 %
-
-
-def ringing_at_cut(t: np.ndarray, k: np.ndarray, duration: float,
-                   rotation: np.ndarray) -> tuple[float, tuple[int, int]]:
-    """How much of K is left where the memory is cut: max |K_ij(t)| over the last RINGING_WINDOW
-    of ``duration`` (an envelope: a cut at a zero crossing still drops the oscillation around
-    it) over sqrt(P_i P_j), P the largest peak max|K_kk| among the DOFs of i's kind (translation
-    or rotation: ``rotation`` (n,) bool) — a DOF whose memory is a small part of its kind's (RM3's
-    float yaw beside its pitch) is not what the cut harms; the largest share over the pairs and
-    that pair (rows of ``k`` (n_t, n, n)).
-
-    Why RINGING_WARN = 1 %: a kernel ringing as a e^(-g t) cos(w_r t) (a lightly damped trapped
-    mode) cut at T loses int_T^inf of it, about a e^(-g T) / (2 g) of damping at w_r: the damping
-    peak's own size times the envelope left at T, and the sharp cut spreads a ripple of the same
-    order over the neighbouring frequencies. At 1 % of the peak that is within the percent-level
-    accuracy the IRF itself is held to (irf_fit_error); an ordinary hull's K falls below it within
-    a few natural periods; the F3OF's trapped waves left 5-12 % at 40-100 s (issue 24)."""
-    t = np.asarray(t, float)
-    a = np.abs(np.asarray(k, float))
-    diag = np.diagonal(a.max(axis=0))
-    rotation = np.asarray(rotation, bool)
-    kind = np.where(rotation, diag[rotation].max(initial=0.0), diag[~rotation].max(initial=0.0))
-    scale = np.sqrt(np.outer(kind, kind))
-    end = a[t >= (1.0 - RINGING_WINDOW) * duration - 1e-12 * duration].max(axis=0, initial=0.0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        share = np.where(scale > 0, end / np.where(scale > 0, scale, 1.0), 0.0)
-    worst = np.unravel_index(int(np.argmax(share)), share.shape)
-    return float(share[worst]), (int(worst[0]), int(worst[1]))
-
-
 def _interval_exp(alpha: np.ndarray, a: float, b: float) -> np.ndarray:
     """int_a^b exp(i alpha t) dt, stable at alpha -> 0."""
     h = b - a

@@ -24,9 +24,11 @@ import numpy as np
 from hydrolink.protocol.scene import Hydro, Waves
 from hydrolink.server.allocation import require_size
 from hydrolink.server.errors import ModelError
-from hydrolink.server.radiation.irf import (COS_TABLE_ROWS, RINGING_WARN, RINGING_WINDOW, aliasing_time, asymptotic_tail,
-                                          irf_report, irf_samples, irf_transfer, ogilvie_added_mass_inf, ogilvie_report,
-                                          radiation_irf, resample_damping, ringing_at_cut, taper_window)
+from hydrolink.server.radiation.irf import (COS_TABLE_ROWS, aliasing_time, asymptotic_tail, irf_report, irf_samples,
+                                          irf_transfer, ogilvie_added_mass_inf, ogilvie_report, radiation_irf,
+                                          resample_damping, taper_window)
+from hydrolink.server.radiation.memory_cut import (CUT_EFFECT_WARN, cut_effect, judged_frequencies, longer_memory,
+                                                 natural_frequencies)
 from hydrolink.server.radiation.convolution import RadiationMemory
 from hydrolink.server.radiation.state_space import Realization, StateSpaceError, StateSpaceRadiation
 from hydrolink.server.radiation.state_space_cache import FitCache, FitSettings, default_cache_dir
@@ -94,6 +96,8 @@ class RadiationGroup:
     added_mass: np.ndarray              # (n_w, n, n)
     damping: np.ndarray                 # (n_w, n, n)
     added_mass_inf: np.ndarray | None   # (n, n) from the HDB; None: Ogilvie's from the IRF
+    inertia: np.ndarray | None = None   # (n,) the scene's rigid-body mass diagonal about the reference point
+    stiffness: np.ndarray | None = None  # (n,) the restoring stiffness diagonal (hydrostatics, gravity)
 
 
 @dataclass(frozen=True)
@@ -225,10 +229,11 @@ class RadiationOption:
     name: ClassVar[str]
     radiation_frequency: float | None = None
     memory: ClassVar[bool] = False    # the force convolves (or fits) the kept K(t): its cut matters
+    irf_settings: ClassVar[bool] = True   # hydro.irf_duration (taper, aliasing) apply: not for "constant"
 
     def __init__(self, hydro: Hydro, waves: Waves, dt: float):
         self.hydro, self.dt = hydro, float(dt)
-        self.duration = float(hydro.irf_duration)
+        self.duration = float(hydro.irf_duration) if self.irf_settings else 0.0
         self.samples = irf_samples(self.duration, self.dt)
         self._key = "hydro.irf_duration" if self.samples > 0 else "simulation.dt"
         m = self.samples if self.samples > 0 else irf_samples(OGILVIE_DEFAULT_DURATION, self.dt)
@@ -237,8 +242,9 @@ class RadiationOption:
         self.taper = float(hydro.irf_taper) if self.samples > 0 else 0.0
         self._window = taper_window(self.t, self.duration, self.taper)[:, None, None] if self.taper > 0 else None
 
-    def build(self, groups: list[RadiationGroup], n: int) -> Radiation:
-        """Force objects and added mass of every group (6N = ``n`` rows), with the report."""
+    def build(self, groups: list[RadiationGroup], n: int, waves: np.ndarray | None = None) -> Radiation:
+        """Force objects and added mass of every group (6N = ``n`` rows), with the report; ``waves``:
+        the scene's wave frequencies [rad/s] the memory's cut is judged at (memory_cut.py)."""
         a_inf, a_client = np.zeros((n, n)), np.zeros((n, n))
         log = _Log()
         sources: dict[str, str] = {}
@@ -265,7 +271,7 @@ class RadiationOption:
                 fit_a[g.source] = max(ogilvie_report(g.omega, g.added_mass, irf.added_mass_inf, self.t,
                                                      irf.kernel)["worst"], fit_a.get(g.source, 0.0))
                 self._check_aliasing(irf, g.source, log.warnings)
-                self._check_ringing(irf, g, log.warnings)
+                self._check_cut(irf, g, np.zeros(0) if waves is None else np.asarray(waves, float), log.warnings)
         hyd = self.hydro
         report = RadiationReport(
             radiation=self.name, irf_samples=self.samples, irf_duration=self.samples * self.dt,
@@ -349,20 +355,32 @@ class RadiationOption:
             warnings.append(warning)
 
 
-    def _check_ringing(self, irf: GroupIrf, g: RadiationGroup, warnings: list[str]) -> None:
-        """A memory cut sharply while K(t) still rings (irf.py ``ringing_at_cut``): warned, unless
-        the scene states ``irf_taper = 0`` (a sharp cut chosen, e.g. checked against the effective
-        coefficients it realises) or the option uses no memory ("constant", "off")."""
-        if not self.memory or self.taper > 0 or "irf_taper" in self.hydro.model_fields_set or not irf.kernel.size:
+    def _check_cut(self, irf: GroupIrf, g: RadiationGroup, waves: np.ndarray, warnings: list[str]) -> None:
+        """A memory cut that changes B(w) near the scene's frequencies (memory_cut.py) by more than
+        CUT_EFFECT_WARN: warned with the irf_duration (and irf_domega) that would not, unless the
+        scene states ``irf_taper`` (the cut chosen, e.g. checked against the effective coefficients
+        it realises) or the option uses no memory ("constant", "off")."""
+        if not self.memory or "irf_taper" in self.hydro.model_fields_set or not irf.kernel.size:
             return
-        share, (i, j) = ringing_at_cut(self.t, irf.kernel, self.duration, g.act % 6 >= 3)
-        if share > RINGING_WARN:
-            warnings.append(
-                f"hydro.irf_duration: K(t) of {g.source!r} ({g.labels[i]}, {g.labels[j]}) is still at "
-                f"{100 * share:.3g} % of the peak of its kind over the last {100 * RINGING_WINDOW:g} % of the "
-                f"{self.duration:g} s kept (warned above {100 * RINGING_WARN:g} %): the sharp cut changes the "
-                "radiation damping near the frequency it rings at; lengthen hydro.irf_duration, or taper "
-                "the cut with hydro.irf_taper (e.g. 0.3; irf_taper = 0 stated keeps the sharp cut)")
+        diag = np.arange(g.act.size)   # each DOF's own damping (diagonals: a many-body group stays small)
+        a, b = g.added_mass[:, diag, diag], g.damping[:, diag, diag]
+        natural = (natural_frequencies(g.omega, a, g.inertia, g.stiffness)
+                   if g.inertia is not None and g.stiffness is not None else np.zeros(0))
+        judged = judged_frequencies(g.omega, waves, natural)
+        effect = cut_effect(irf.omega, irf.damping[:, diag, diag], self.duration, self.taper, g.omega, b, a,
+                            g.inertia, judged)
+        if effect is None or effect.change <= CUT_EFFECT_WARN:
+            return
+        longer, step, left = longer_memory(g.omega, b, self.duration, self.taper, a, g.inertia, judged)
+        grid = "" if step is None else f" with hydro.irf_domega = {step:.3g} rad/s (alias-free to it)"
+        advice = (f"set hydro.irf_duration = {longer:.3g} s{grid} (changes it by {100 * left:.2g} %)"
+                  if left <= CUT_EFFECT_WARN else
+                  f"even {longer:.3g} s{grid} leaves {100 * left:.2g} %: consider hydro.radiation = \"state-space\"")
+        warnings.append(
+            f"hydro.irf_duration: cutting the radiation memory of {g.source!r} at {self.duration:g} s changes the "
+            f"damping of {g.labels[effect.dof]} by {100 * effect.change:.3g} % {effect.why} (the damping the kept "
+            f"kernel realises against the HDB's B(w); warned above {100 * CUT_EFFECT_WARN:g} %); {advice}, or "
+            "state hydro.irf_taper to keep this cut")
 
 
 class OffOption(RadiationOption):
@@ -463,8 +481,12 @@ class StateSpaceOption(_MemoryOption):
 
 
 class ConstantOption(RadiationOption):
-    """radiation = "constant": -B(w0) v and A(w0) in the client's mass matrix, w0 the regular wave's."""
+    """radiation = "constant": -B(w0) v and A(w0) in the client's mass matrix, w0 the regular wave's.
+    No memory: hydro.irf_duration is not used (an HDB's wide period grid, e.g. 0.15-150 s, whose
+    aliasing time is a fraction of a second, is taken as it is); the IRF serves only Ogilvie's A_inf
+    for the setup's report when the HDB has none (issue 38 item 5)."""
     name = "constant"
+    irf_settings = False
 
     def __init__(self, hydro: Hydro, waves: Waves, dt: float):
         super().__init__(hydro, waves, dt)

@@ -17,7 +17,7 @@ typedef struct {
 
 /* the message as the logger's format, its '%' doubled: masters that format it (C) and masters that
  * take it as text (fmpy's ctypes callback cannot read variadic arguments) both show it */
-static void fmi2_log(void *env, int error, const char *message) {
+static void fmi2_log(void *env, int level, const char *message) {
     inst_t *c = env;
     char text[4096];
     size_t k = 0;
@@ -26,9 +26,10 @@ static void fmi2_log(void *env, int error, const char *message) {
         text[k++] = *p;
     }
     text[k] = 0;
-    if (c->cb.logger && (error || c->logging))
-        c->cb.logger(c->cb.componentEnvironment, c->name, error ? fmi2Error : fmi2OK,
-                     error ? "logStatusError" : "logEvents", text);
+    if (!c->cb.logger || (level == HL_INFO && !c->logging)) return;   /* errors and warnings always */
+    c->cb.logger(c->cb.componentEnvironment, c->name,
+                 level == HL_ERROR ? fmi2Error : level == HL_WARNING ? fmi2Warning : fmi2OK,
+                 level == HL_ERROR ? "logStatusError" : level == HL_WARNING ? "logStatusWarning" : "logEvents", text);
 }
 
 /* "file:///a/b/resources" or a plain path -> a path */

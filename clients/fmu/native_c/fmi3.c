@@ -17,10 +17,11 @@ typedef struct {
     int logging;
 } inst_t;
 
-static void fmi3_log(void *env, int error, const char *message) {
+static void fmi3_log(void *env, int level, const char *message) {
     inst_t *c = env;
-    if (c->logger && (error || c->logging))
-        c->logger(c->env, error ? fmi3Error : fmi3OK, error ? "logStatusError" : "logEvents", message);
+    if (!c->logger || (level == HL_INFO && !c->logging)) return;   /* errors and warnings always */
+    c->logger(c->env, level == HL_ERROR ? fmi3Error : level == HL_WARNING ? fmi3Warning : fmi3OK,
+              level == HL_ERROR ? "logStatusError" : level == HL_WARNING ? "logStatusWarning" : "logEvents", message);
 }
 
 static fmi3Status unsupported(fmi3Instance c, const char *what) {

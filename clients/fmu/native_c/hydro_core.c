@@ -73,13 +73,13 @@ struct hl_fmu {
     double *pos6, *vel6;          /* 6N scratch */
 };
 
-void hl_log(hl_fmu *f, int error, const char *fmt, ...) {
+void hl_log(hl_fmu *f, int level, const char *fmt, ...) {
     char buf[2048];
     va_list ap;
     va_start(ap, fmt);
     vsnprintf(buf, sizeof buf, fmt, ap);
     va_end(ap);
-    if (f && f->log) f->log(f->env, error, buf);
+    if (f && f->log) f->log(f->env, level, buf);
 }
 
 /* ------------------------------------------------------------------ files and the configuration */
@@ -725,6 +725,20 @@ static int upload(hl_fmu *f, const node_t *missing) {
     return 0;
 }
 
+/* SPEC §5.1: a client shows every setup warning to its user before the run: the importer's logger,
+ * status warning (a warning that is not a string is a malformed welcome: said so, not skipped) */
+static void log_setup_warnings(hl_fmu *f, const node_t *warnings) {
+    if (!warnings || warnings->type != T_ARR) {
+        hl_log(f, HL_WARNING, "the server's welcome has no setup.warnings list: its warnings cannot be shown");
+        return;
+    }
+    for (uint32_t k = 0; k < warnings->n; k++) {
+        const node_t *w = &warnings->kids[k];
+        if (w->type == T_STR) hl_log(f, HL_WARNING, "hydrolink server: %.*s", (int)w->n, (const char *)w->p);
+        else hl_log(f, HL_WARNING, "the server's setup.warnings[%u] is not a string", (unsigned)k);
+    }
+}
+
 int hl_start(hl_fmu *f) {
     if (f->failed) return -1;
     if (!f->server[0]) {
@@ -753,6 +767,7 @@ int hl_start(hl_fmu *f) {
     }
     memcpy(f->session, sid->p, sid->n);
     f->session[sid->n] = 0;
+    log_setup_warnings(f, get(setup, "warnings"));
     reply_free(&r);
     if (fabs(dt - f->dt) > 1e-12 * f->dt) {
         hl_log(f, 1, "the server's dt %g differs from the exported %g (export the FMU again)", dt, f->dt);

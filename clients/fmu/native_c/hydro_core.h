@@ -10,7 +10,8 @@
  *   1000000 + i na + j: the added mass of DOFs i, j for the importer's mass matrix (A_inf, or
  *     A(omega0) with radiation = "constant") and 2000000 + i na + j: the hydrostatic stiffness
  *     (constant outputs: masters connect outputs, not calculated parameters).
- * Every function returns 0 on success and -1 on an error it has logged. */
+ * Every function returns 0 on success and -1 on an error it has logged. The server's setup warnings
+ * (SPEC §5.1: its HDB readers' among them) are logged at HL_WARNING when the session opens. */
 #ifndef HYDRO_CORE_H
 #define HYDRO_CORE_H
 
@@ -24,7 +25,11 @@
 #define HL_VR_AINF 1000000u
 #define HL_VR_KHS 2000000u
 
-typedef void (*hl_log_fn)(void *env, int error, const char *message);
+/* log levels: what the importer's logger gets (FMI status OK / Error / Warning) */
+#define HL_INFO 0
+#define HL_ERROR 1
+#define HL_WARNING 2
+typedef void (*hl_log_fn)(void *env, int level, const char *message);
 typedef struct hl_fmu hl_fmu;
 
 hl_fmu *hl_new(const char *resources, const char *name, hl_log_fn log, void *env);
@@ -33,12 +38,12 @@ int hl_set_reals(hl_fmu *f, const unsigned vr[], size_t n, const double value[])
 int hl_get_reals(hl_fmu *f, const unsigned vr[], size_t n, double value[]);
 int hl_set_strings(hl_fmu *f, const unsigned vr[], size_t n, const char *const value[]);
 int hl_get_strings(hl_fmu *f, const unsigned vr[], size_t n, const char *value[]);
-int hl_start(hl_fmu *f);                 /* connect, hello (HDB files by hash, uploads on a miss) */
+int hl_start(hl_fmu *f);                 /* connect, hello (HDB files by hash, uploads on a miss), log setup.warnings */
 int hl_do_step(hl_fmu *f, double time, double step);
 int hl_get_state(hl_fmu *f, void **state);
 int hl_set_state(hl_fmu *f, const void *state);
 void hl_free_state(hl_fmu *f, void *state);
 void hl_terminate(hl_fmu *f);            /* bye and close; the instance may be started again */
-void hl_log(hl_fmu *f, int error, const char *fmt, ...);
+void hl_log(hl_fmu *f, int level, const char *fmt, ...);
 
 #endif

@@ -23,11 +23,12 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
+from hydrolink.server.hdb.reader_warnings import HDBWarning, recorded
 from hydrolink.server.disk_cache import env_dir, user_cache_dir, write_atomic
 from hydrolink.server.hdb.build.mesh import body_meshes, check_apart, default_panel_size, xoz_symmetric
 from hydrolink.server.hdb.build.spec import BuildSpec, SpecError, load_spec, mesh_path, parse_spec
 from hydrolink.server.hdb.capytaine_io import from_capytaine_dataset, short_body_names
-from hydrolink.protocol.hdb.layout import SCHEMA_VERSION, dof_labels
+from hydrolink.protocol.hdb.layout import SCHEMA_VERSION, dof_labels, with_hdb_warnings
 from hydrolink.protocol.hdb.schema import from_netcdf_dataset, to_netcdf
 from hydrolink.protocol.hdb.second_order import MeanDrift
 from hydrolink.protocol.hdb.schema import with_second_order
@@ -234,7 +235,18 @@ def _floating_bodies(spec: BuildSpec, spec_path: str | Path):
 
 
 def build_hdb_uncached(spec: BuildSpec, spec_path: str | Path, *, progress: bool = True) -> xr.Dataset:
-    """Mesh, solve and convert, without looking at the cache."""
+    """Mesh, solve and convert, without looking at the cache; what the build found doubtful (a
+    coarse panel, a missing lid) is kept in the HDB's ``warnings`` attribute, cached with it
+    (server/hdb/reader_warnings.py)."""
+    notes: list[str] = []
+    with recorded(notes):
+        ds = _build(spec, spec_path, progress)
+    with_hdb_warnings(ds, notes)
+    return ds
+
+
+def _build(spec: BuildSpec, spec_path: str | Path, progress: bool) -> xr.Dataset:
+    """:func:`build_hdb_uncached`'s mesh, solve and conversion."""
     import capytaine as cpt
 
     t0 = time.perf_counter()
@@ -249,7 +261,7 @@ def build_hdb_uncached(spec: BuildSpec, spec_path: str | Path, *, progress: bool
         key = spec.body_keys[0] if len(bodies) == 1 else "bodies"
         warnings.warn(f"{spec_path}: {key}.panel_size: largest panel radius {r_max:.3g} m exceeds "
                       f"wavelength/8 = {lam_min / 8:.3g} m at omega_max; results near omega_max may "
-                      f"be inaccurate", stacklevel=3)
+                      f"be inaccurate", HDBWarning, stacklevel=3)
     symmetric = isinstance(body.mesh_including_lid, cpt.ReflectionSymmetricMesh)
     t_mesh = time.perf_counter()
     w = spec.water

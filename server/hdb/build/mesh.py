@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hydrolink.server.hdb.reader_warnings import HDBWarning
 from hydrolink.server.hdb.build.spec import BodySpec, BuildSpec, PartSpec, SpecError, mesh_path
 from hydrolink.server.hdb.build.overlap import Hull, overlap
 
@@ -204,7 +205,7 @@ def _file_mesh(body: BodySpec, key: str, spec_path: str | Path, depth: float):
         lid = hull.merged().generate_lid(z=z_lid)
     if lid.nb_faces == 0:
         warnings.warn(f"{spec_path}: {key}.lid: Capytaine could not generate a lid for this mesh; "
-                      f"solving without one (irregular frequencies may show up)", stacklevel=4)
+                      f"solving without one (irregular frequencies may show up)", HDBWarning, stacklevel=4)
         return hull, None
     return hull, lid
 
@@ -231,7 +232,7 @@ def body_meshes(spec: BuildSpec, index: int, spec_path: str | Path, *, lone: boo
         raise SpecError(spec_path, f"{key}.mesh" if body.shape == "mesh" else f"{key}.center",
                         "no part of the body is below the free surface z = 0")
     if body.lid and lid is None and body.shape != "mesh" and any(p.pierces for p in body.global_parts()):
-        warnings.warn(f"{spec_path}: {key}.lid: no lid could be built; solving without one", stacklevel=3)
+        warnings.warn(f"{spec_path}: {key}.lid: no lid could be built; solving without one", HDBWarning, stacklevel=3)
     return hull, lid
 
 

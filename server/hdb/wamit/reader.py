@@ -74,7 +74,7 @@ def read_wamit(path: str | Path, rho: float = 1000.0, stated: Mapping | None = N
 
     t1, l1 = read_table(file1, (4, 5), "PER I J Abar [Bbar]")
     ij = mode_indices(file1, t1, l1, [1, 2])
-    facts = run_facts(stem, file1, t1[:, 0], -(-int(ij.max()) // 6), stated)
+    facts = run_facts(stem, file1, t1[:, 0], int(ij.max()), stated)
     units = Units(rho, facts.g, facts.ulen, facts.iperout)
     rad = _read_radiation(file1, t1, l1, ij, units, facts.n_bodies)
     if excitation_file is not None:

@@ -51,7 +51,8 @@ def read_cfg(stem: Path) -> dict[str, str]:
     if not cfg.is_file():
         return {}
     out = {}
-    for match in re.finditer(r"^\s*([A-Za-z_]\w*)\s*=\s*(\S+)", cfg.read_text(errors="replace"), re.M):
+    key = r"[A-Za-z_]\w*(?:\(\s*\d+\s*\))?"   # NAME or NAME(k), e.g. NEWMDS(1)
+    for match in re.finditer(rf"^\s*({key})\s*=\s*(\S+)", cfg.read_text(errors="replace"), re.M):
         out[match.group(1).upper()] = match.group(2)
     return out
 
@@ -188,11 +189,49 @@ def _per_body(values: list, n: int) -> list | None:
     return values if values and len(values) == n else None
 
 
-def _file_facts(stem: Path, n_from_modes: int, cfg: dict[str, str]) -> tuple[dict[str, tuple[object, str]], int]:
+RIGID_ONLY = ("hydrolink reads rigid bodies of 6 DOFs each (generalized modes: issue 38): give it the run "
+              "without them (NEWMDS = 0)")
+
+
+def _body_count(stem: Path, file1: Path, max_mode: int, listed: list[tuple[int, str]], cfg: dict[str, str],
+                stated: Mapping) -> int:
+    """The run's number of bodies: as the files that list them say (``listed``: (count, file)), else
+    the scene's ``wamit.xbody``, never guessed from the ``.1``'s mode count. A run with generalized
+    modes (the ``.cfg``'s NEWMDS, or modes beyond 6 per body) is refused naming the file and the count:
+    read as rigid bodies, modes 7-10 of a flexible barge would become a second body's surge..roll."""
+    cfg_name = _sibling(stem, ".cfg").name
+    newmds = {k: v.rstrip(",;") for k, v in cfg.items() if re.fullmatch(r"NEWMDS(\(\s*\d+\s*\))?", k)}
+    try:
+        extra = sum(int(v) for v in newmds.values())
+    except ValueError:
+        raise HDBError(cfg_name, next(iter(newmds)), f"not a mode count: {newmds}") from None
+    if extra > 0:
+        said = ", ".join(f"{k} = {v}" for k, v in newmds.items())
+        raise HDBError(cfg_name, "NEWMDS", f"{said}: the run has {extra} generalized mode(s) beyond the rigid 6 per "
+                                           f"body ({file1.name} holds modes 1-{max_mode}); {RIGID_ONLY}")
+    counts = [(n, where) for n, where in listed if n > 0]
+    if stated.get("xbody") is not None:
+        counts.append((len(stated["xbody"]), "the scene's wamit.xbody"))
+    if not counts:
+        if max_mode % 6:
+            raise HDBError(file1.name, "modes", f"{max_mode} modes, not 6 per body, and no file (.out, .pot, .mmx) "
+                                                f"lists the run's bodies: generalized modes (NEWMDS)? {RIGID_ONLY}")
+        return max_mode // 6
+    n, where = max(counts)
+    if max_mode > 6 * n:
+        raise HDBError(file1.name, "modes", f"modes 1-{max_mode} for the run's {n} bodies ({where}): "
+                                            f"{max_mode - 6 * n} generalized mode(s) (NEWMDS) beyond the rigid 6 per "
+                                            f"body; {RIGID_ONLY}")
+    return n
+
+
+def _file_facts(stem: Path, file1: Path, max_mode: int, cfg: dict[str, str],
+                stated: Mapping) -> tuple[dict[str, tuple[object, str]], int]:
     """fact -> (value, file that states it), first found in the module docstring's order; and the
-    number of bodies (the modes of the .1, or more where a report lists more)."""
+    number of bodies (:func:`_body_count`)."""
     out, mmx, pot = read_out(stem), read_mmx(stem), read_pot(stem)
-    n_bodies = max(n_from_modes, len(out.get("xbody", [])), len(pot.get("xbody", [])), len(mmx.get("volume", [])))
+    n_bodies = _body_count(stem, file1, max_mode, [(len(r.get(k, [])), r.get("file", "")) for r, k in
+                                                   ((out, "xbody"), (pot, "xbody"), (mmx, "volume"))], cfg, stated)
     found: dict[str, tuple[object, str]] = {}
 
     def take(fact: str, value, source: str) -> None:
@@ -255,13 +294,13 @@ def _stated_value(fact: str, stated: Mapping, n_bodies: int, source: Path):
     return value
 
 
-def run_facts(stem: Path, file1: Path, first_column: np.ndarray, n_from_modes: int,
+def run_facts(stem: Path, file1: Path, first_column: np.ndarray, max_mode: int,
               stated: Mapping | None) -> RunFacts:
     """The run's facts (module docstring); ``first_column``: the ``.1``'s first column;
-    ``n_from_modes``: the bodies its mode indices reach."""
+    ``max_mode``: the highest mode index it holds."""
     stated = dict(stated or {})
     cfg = read_cfg(stem)
-    found, n_bodies = _file_facts(stem, n_from_modes, cfg)
+    found, n_bodies = _file_facts(stem, file1, max_mode, cfg, stated)
     values: dict[str, object] = {}
     origin: dict[str, str] = {}
     for fact in ("g", "ulen", "depth", "xbody", "vcg", "volume"):

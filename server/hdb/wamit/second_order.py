@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hydrolink.server.hdb.reader_warnings import HDBWarning
 from hydrolink.protocol.hdb.layout import HDBError
 from hydrolink.protocol.hdb.second_order import QTF, MeanDrift, fill_qtf_square, merge_drift
 from hydrolink.server.hdb.wamit.table import Units, frequencies, read_table, scale_exponent, special_rows
@@ -56,7 +57,7 @@ def read_drift(stem: Path, units: Units, n_dof: int) -> MeanDrift | None:
             continue
         if suffix == ".8" and n_dof > 6:
             warnings.warn(f"{path.name}: momentum-conservation drift of a {n_dof // 6}-body run is the total on "
-                          "all bodies, not each body's: left out (use the .7 or .9)", stacklevel=3)
+                          "all bodies, not each body's: left out (use the .7 or .9)", HDBWarning, stacklevel=3)
             continue
         parts.append(_read_drift_file(path, method, units, n_dof))
     return merge_drift(parts, stem.with_name(stem.name + ".1"))
