@@ -1,0 +1,104 @@
+"""A transient VTKHDF file (VTK's HDF5 format, read by ParaView 5.12+ and VTK 9.3+): one
+``UnstructuredGrid`` whose topology is written once and whose points and point/cell arrays are
+appended frame by frame (VTKHDF specification, "Temporal Data": every ``Steps`` offset of the
+connectivity and of the part is 0, the points' and arrays' offsets advance by one frame). Written with h5py, one
+frame in memory at a time; the file is valid after every :meth:`TransientGrid.append`."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+VERSION = (2, 2)
+
+
+def _growing(group: h5py.Group, name: str, width: int | None, dtype, chunk: int) -> h5py.Dataset:
+    shape, maxshape = ((0,), (None,)) if width is None else ((0, width), (None, width))
+    chunks = (chunk,) if width is None else (chunk, width)
+    return group.create_dataset(name, shape=shape, maxshape=maxshape, dtype=dtype, chunks=chunks)
+
+
+def _append(ds: h5py.Dataset, values) -> None:
+    values = np.asarray(values, ds.dtype)
+    n = ds.shape[0]
+    ds.resize(n + values.shape[0], axis=0)
+    ds[n:] = values
+
+
+class TransientGrid:
+    """One part's transient file. ``point_arrays`` / ``cell_arrays`` / ``field_arrays``: name ->
+    components (1, 3 or 6) of the arrays every frame gives (a field array: one tuple a frame)."""
+
+    def __init__(self, path: str | Path, connectivity: np.ndarray, offsets: np.ndarray, types: np.ndarray,
+                 n_points: int, point_arrays: dict[str, int], cell_arrays: dict[str, int],
+                 field_arrays: dict[str, int] | None = None):
+        self.path = Path(path)
+        self.n_points, self.n_cells = int(n_points), int(types.size)
+        self.point_arrays, self.cell_arrays = dict(point_arrays), dict(cell_arrays)
+        self.field_arrays = dict(field_arrays or {})
+        self.frames = 0
+        self._file = h5py.File(self.path, "w")
+        root = self._file.create_group("VTKHDF", track_order=True)
+        root.attrs["Version"] = np.asarray(VERSION, np.int64)
+        root.attrs.create("Type", np.bytes_("UnstructuredGrid"))
+        root.create_dataset("Connectivity", data=np.asarray(connectivity, np.int64))
+        root.create_dataset("Offsets", data=np.asarray(offsets, np.int64))
+        root.create_dataset("Types", data=np.asarray(types, np.uint8))
+        chunk_points = max(1, min(self.n_points, 65536))
+        self._points = _growing(root, "Points", 3, "f8", chunk_points)
+        for name, count in (("NumberOfPoints", self.n_points), ("NumberOfCells", self.n_cells),
+                            ("NumberOfConnectivityIds", int(np.asarray(connectivity).size))):
+            root.create_dataset(name, data=np.array([count], np.int64))   # one part, the same every frame
+        self._data = {}
+        for group, arrays, size in (("PointData", self.point_arrays, self.n_points),
+                                    ("CellData", self.cell_arrays, self.n_cells), ("FieldData", self.field_arrays, 1)):
+            g = root.create_group(group)
+            for name, width in arrays.items():
+                self._data[name] = _growing(g, name, None if width == 1 else width, "f8", max(1, min(size, 65536)))
+        steps = root.create_group("Steps")
+        self._steps = steps
+        self._step = {n: _growing(steps, n, None, "i8", 256) for n in ("PartOffsets", "NumberOfParts", "PointOffsets")}
+        self._step["Values"] = _growing(steps, "Values", None, "f8", 256)
+        self._step.update({n: _growing(steps, n, 1, "i8", 256) for n in ("CellOffsets", "ConnectivityIdOffsets")})
+        self._offsets = {}
+        for group, arrays in (("PointDataOffsets", self.point_arrays), ("CellDataOffsets", self.cell_arrays),
+                              ("FieldDataOffsets", self.field_arrays)):
+            g = steps.create_group(group)
+            for name in arrays:
+                self._offsets[name] = _growing(g, name, None, "i8", 256)
+        sizes = steps.create_group("FieldDataSizes")
+        self._sizes = {name: _growing(sizes, name, 2, "i8", 256) for name in self.field_arrays}
+        steps.attrs["NSteps"] = 0
+
+    def append(self, t: float, points: np.ndarray, point_data: dict[str, np.ndarray],
+               cell_data: dict[str, np.ndarray], field_data: dict[str, np.ndarray] | None = None) -> None:
+        """One frame at time ``t``: its points (P, 3) and every declared array."""
+        k = self.frames
+        _append(self._points, points)
+        for name, value in (*point_data.items(), *cell_data.items()):
+            _append(self._data[name], value)
+            size = self.n_points if name in point_data else self.n_cells
+            _append(self._offsets[name], [k * size])
+        for name, value in (field_data or {}).items():
+            _append(self._data[name], np.reshape(value, (1, -1)))
+            _append(self._offsets[name], [k])
+            _append(self._sizes[name], [[self.field_arrays[name], 1]])
+        _append(self._step["Values"], [t])
+        _append(self._step["PartOffsets"], [0])
+        _append(self._step["NumberOfParts"], [1])
+        _append(self._step["PointOffsets"], [k * self.n_points])
+        _append(self._step["CellOffsets"], [[0]])
+        _append(self._step["ConnectivityIdOffsets"], [[0]])
+        self.frames = k + 1
+        self._steps.attrs["NSteps"] = self.frames
+
+    def close(self) -> None:
+        self._file.close()
+
+    def __enter__(self) -> "TransientGrid":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
