@@ -47,7 +47,7 @@ def poses(t: np.ndarray) -> np.ndarray:
 
 def results_file(folder: Path, t: np.ndarray, *, scene_bodies=("a", "b"), file_bodies=("a", "b")) -> Path:
     """A results file written by the run's own ResultWriter, for a scene whose bodies name mesh files."""
-    write_gdf(folder / "a.gdf", CUBE_V + [0, 0, -0.5 + 0.5], CUBE_F)          # z from -1 to 0
+    write_gdf(folder / "a.gdf", CUBE_V, CUBE_F)               # centred on its reference point (0, 0, -0.5)
     write_gdf(folder / "b.gdf", CUBE_V * [2, 1, 1] + EQ[1, :3] + [0, 0, 0.5], CUBE_F)
     bodies = [body(n, hdb="none.nc", mass=1.0, center_of_mass=list(EQ[i, :3]), inertia=[1, 1, 1], mesh=f"{n}.gdf")
               for i, n in enumerate(scene_bodies)]
@@ -81,7 +81,7 @@ def test_vertices_are_the_rigid_transform_at_every_time(tmp_path):
                                     progress=False)
     assert summary.frames == rows.size == 10
     pos = poses(t)
-    rest = {"a": CUBE_V + [0, 0, 0.0], "b": CUBE_V * [2, 1, 1] + EQ[1, :3] + [0, 0, 0.5]}
+    rest = {"a": CUBE_V, "b": CUBE_V * [2, 1, 1] + EQ[1, :3] + [0, 0, 0.5]}
     for b, name in enumerate("ab"):
         series = read_series(tmp_path / "view" / f"{name}.vtkhdf")
         assert [s[0] for s in series] == pytest.approx(t[::3], abs=1e-12)
