@@ -114,10 +114,12 @@ def hdb_build(spec: Path, output: Path, no_progress: bool) -> None:
     from hydrolink.server.hdb.build.builder import build_hdb
     from hydrolink.protocol.hdb.schema import to_netcdf
 
-    ds = _guard(build_hdb, spec, progress=not no_progress)
+    ds = _guard(build_hdb, spec, progress=not no_progress, free_surface=True)
     output.parent.mkdir(parents=True, exist_ok=True)
     to_netcdf(ds, output)
     click.echo(f"wrote {output} ({ds.sizes['omega']} frequencies, bodies {list(map(str, ds['body'].values))})")
+    if "free_surface_file" in ds.attrs:
+        click.echo(f"free-surface solution for hydrolink view: {ds.attrs['free_surface_file']}")
 
 
 @hdb.command("info")

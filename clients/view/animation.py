@@ -34,7 +34,7 @@ class FrameFigure:
         self.canvas = FigureCanvasAgg(self.fig)
         self.ax = self.fig.add_subplot(projection="3d")
         self._cells = [_faces(m.offsets, m.connectivity) for m in stage.meshes]
-        self._bodies = [Poly3DCollection([], facecolor=BODY_COLOR, edgecolor=(0.4, 0.2, 0.05), linewidth=0.2)
+        self._bodies = [Poly3DCollection([], facecolor=BODY_COLOR, edgecolor=(0.55, 0.27, 0.06), linewidth=0.1)
                         for _ in stage.meshes]
         for coll in self._bodies:
             self.ax.add_collection3d(coll)

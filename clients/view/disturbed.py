@@ -82,7 +82,7 @@ def _stored(run: RunFile) -> Path | None:
     spec_path = resolve_path(run.scene_path, next(iter(specs)))
     if load_spec(spec_path).free_surface is None:
         return None
-    return Path(build_hdb(spec_path, progress=False).attrs["free_surface_file"])
+    return Path(build_hdb(spec_path, progress=False, free_surface=True).attrs["free_surface_file"])
 
 
 def disturbed_field(run: RunFile, comps: WaveComponents | None) -> tuple[DisturbedField | None, Grid | None, str]:

@@ -1,8 +1,8 @@
 """A transient VTKHDF file (VTK's HDF5 format, read by ParaView 5.12+ and VTK 9.3+): one
 ``UnstructuredGrid`` whose topology is written once and whose points and point/cell arrays are
 appended frame by frame (VTKHDF specification, "Temporal Data": every ``Steps`` offset of the
-connectivity and of the part is 0, the points' and arrays' offsets advance by one frame). Written with h5py, one
-frame in memory at a time; the file is valid after every :meth:`TransientGrid.append`."""
+connectivity and of the part is 0, the points' and arrays' offsets advance by one frame). Written with h5py,
+``buffer`` frames at a time (one write per array for them); the file is valid after every flush."""
 
 from __future__ import annotations
 
@@ -33,12 +33,14 @@ class TransientGrid:
 
     def __init__(self, path: str | Path, connectivity: np.ndarray, offsets: np.ndarray, types: np.ndarray,
                  n_points: int, point_arrays: dict[str, int], cell_arrays: dict[str, int],
-                 field_arrays: dict[str, int] | None = None):
+                 field_arrays: dict[str, int] | None = None, buffer: int = 16):
         self.path = Path(path)
         self.n_points, self.n_cells = int(n_points), int(types.size)
         self.point_arrays, self.cell_arrays = dict(point_arrays), dict(cell_arrays)
         self.field_arrays = dict(field_arrays or {})
-        self.frames = 0
+        self.frames = 0                    # frames in the file
+        self.buffer = max(1, int(buffer))
+        self._pending: dict[str, list] = {"Values": []}
         self._file = h5py.File(self.path, "w")
         root = self._file.create_group("VTKHDF", track_order=True)
         root.attrs["Version"] = np.asarray(VERSION, np.int64)
@@ -74,27 +76,41 @@ class TransientGrid:
 
     def append(self, t: float, points: np.ndarray, point_data: dict[str, np.ndarray],
                cell_data: dict[str, np.ndarray], field_data: dict[str, np.ndarray] | None = None) -> None:
-        """One frame at time ``t``: its points (P, 3) and every declared array."""
-        k = self.frames
-        _append(self._points, points)
+        """One frame at time ``t``: its points (P, 3) and every declared array (held until
+        ``buffer`` frames are pending, then written together)."""
+        k = self.frames + len(self._pending["Values"])
+        rows = {"Points": np.array(points, float), "Values": [t], "PartOffsets": [0], "NumberOfParts": [1],
+                "PointOffsets": [k * self.n_points], "CellOffsets": [[0]], "ConnectivityIdOffsets": [[0]]}
         for name, value in (*point_data.items(), *cell_data.items()):
-            _append(self._data[name], value)
-            size = self.n_points if name in point_data else self.n_cells
-            _append(self._offsets[name], [k * size])
+            rows[name] = np.array(value, float)   # a copy: the caller may reuse its buffers
+            rows["offset:" + name] = [k * (self.n_points if name in point_data else self.n_cells)]
         for name, value in (field_data or {}).items():
-            _append(self._data[name], np.reshape(value, (1, -1)))
-            _append(self._offsets[name], [k])
-            _append(self._sizes[name], [[self.field_arrays[name], 1]])
-        _append(self._step["Values"], [t])
-        _append(self._step["PartOffsets"], [0])
-        _append(self._step["NumberOfParts"], [1])
-        _append(self._step["PointOffsets"], [k * self.n_points])
-        _append(self._step["CellOffsets"], [[0]])
-        _append(self._step["ConnectivityIdOffsets"], [[0]])
-        self.frames = k + 1
+            rows[name] = np.reshape(value, (1, -1))
+            rows["offset:" + name] = [k]
+            rows["size:" + name] = [[self.field_arrays[name], 1]]
+        for name, value in rows.items():
+            self._pending.setdefault(name, []).append(value)
+        if len(self._pending["Values"]) >= self.buffer:
+            self.flush()
+
+    def flush(self) -> None:
+        """Write the pending frames (the file then holds every frame appended)."""
+        n = len(self._pending.get("Values", ()))
+        if n == 0:
+            return
+        for name, values in self._pending.items():
+            kind, _, array = name.partition(":")
+            target = {"offset": self._offsets, "size": self._sizes}.get(kind, {}).get(array) if array else None
+            if target is None:
+                target = self._points if name == "Points" else self._step.get(name, self._data.get(name))
+            _append(target, np.concatenate([np.asarray(v) for v in values]))
+        self._pending = {"Values": []}
+        self.frames += n
         self._steps.attrs["NSteps"] = self.frames
+        self._file.flush()
 
     def close(self) -> None:
+        self.flush()
         self._file.close()
 
     def __enter__(self) -> "TransientGrid":

@@ -296,11 +296,13 @@ def cache_file_name(spec: BuildSpec, key: str) -> str:
 
 
 def build_hdb(spec_path: str | Path, *, cache_dir: str | Path | None = None, progress: bool = True,
-              force: bool = False) -> xr.Dataset:
+              force: bool = False, free_surface: bool = False) -> xr.Dataset:
     """Build (or fetch from the cache) the HDB described by the TOML spec at ``spec_path``.
 
     ``cache_dir`` overrides ``$HYDROLINK_CACHE`` / the XDG default; ``force`` rebuilds and
-    overwrites the cache entry. The dataset's ``attrs['cache_file']`` says where it is stored."""
+    overwrites the cache entry. The dataset's ``attrs['cache_file']`` says where it is stored.
+    ``free_surface``: also the spec's ``[free_surface]`` solution (built once; its file in
+    ``attrs['free_surface_file']``): what ``hdb build`` and ``view`` ask for, not a run."""
     spec_path = Path(spec_path)
     spec = load_spec(spec_path)
     key = cache_key(spec, spec_path)
@@ -311,7 +313,7 @@ def build_hdb(spec_path: str | Path, *, cache_dir: str | Path | None = None, pro
         if ds is not None:
             ds.attrs["cache_file"] = str(path)
             ds.attrs["cache_hit"] = 1
-            return _with_free_surface(ds, spec, spec_path, folder, key, progress, force)
+            return _with_free_surface(ds, spec, spec_path, folder, key, progress, force) if free_surface else ds
     ds = build_hdb_uncached(spec, spec_path, progress=progress)
     ds.attrs["build_spec_sha256"] = key
     try:
@@ -320,7 +322,7 @@ def build_hdb(spec_path: str | Path, *, cache_dir: str | Path | None = None, pro
     except OSError as exc:
         warnings.warn(f"could not write the HDB cache {path}: {exc}", stacklevel=2)
     ds.attrs["cache_hit"] = 0
-    return _with_free_surface(ds, spec, spec_path, folder, key, progress, force)
+    return _with_free_surface(ds, spec, spec_path, folder, key, progress, force) if free_surface else ds
 
 
 def _with_free_surface(ds: xr.Dataset, spec: BuildSpec, spec_path: Path, folder: Path, key: str, progress: bool,
