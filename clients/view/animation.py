@@ -1,6 +1,6 @@
 """A picture without ParaView: the same frames drawn with matplotlib (Agg, headless) into a GIF
-(Pillow) or an MP4 (ffmpeg), or one frame into a PNG. Bodies in orange, the free surface in blue
-(every few grid points), markers and mooring lines in black."""
+(Pillow) or an MP4 (ffmpeg), or one frame into a PNG. Bodies in orange, the free surface in blues by
+its elevation (every few grid points), markers and mooring lines in black."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ from hydrolink.clients.view.frames import Frame, Stage, frames
 from hydrolink.clients.view.results import ViewError
 
 BODY_COLOR = (0.93, 0.45, 0.10)
-SURFACE_COLOR = (0.20, 0.45, 0.85)
+SURFACE_MAP = "Blues_r"                 # troughs dark, crests light
 MAX_SURFACE_LINES = 40
 
 
@@ -32,9 +32,11 @@ class FrameFigure:
         self.stage = stage
         self.fig = Figure(figsize=size, dpi=dpi)
         self.canvas = FigureCanvasAgg(self.fig)
-        self.ax = self.fig.add_subplot(projection="3d")
+        # the artists' own order, not mplot3d's depth sort: the bodies over the (translucent) water
+        self.ax = self.fig.add_subplot(projection="3d", computed_zorder=False)
         self._cells = [_faces(m.offsets, m.connectivity) for m in stage.meshes]
-        self._bodies = [Poly3DCollection([], facecolor=BODY_COLOR, edgecolor=(0.55, 0.27, 0.06), linewidth=0.1)
+        self._bodies = [Poly3DCollection([], facecolor=BODY_COLOR, edgecolor=BODY_COLOR, linewidth=0.3,
+                                         zorder=3)
                         for _ in stage.meshes]
         for coll in self._bodies:
             self.ax.add_collection3d(coll)
@@ -51,6 +53,7 @@ class FrameFigure:
         xyz = np.concatenate(pts) if pts else np.zeros((1, 3))
         lo, hi = xyz.min(axis=0), xyz.max(axis=0)
         amp = float(self.stage.incident.comps.amplitude.sum()) if self.stage.incident else 0.0
+        self._amp = max(1.5 * amp, 1e-6)
         lo[2], hi[2] = min(lo[2], -2 * amp), max(hi[2], 2 * amp)
         span = np.maximum(hi - lo, 1e-3)
         pad = 0.05 * span
@@ -75,7 +78,8 @@ class FrameFigure:
             xx, yy = np.meshgrid(g.x, g.y)
             step = max(1, max(g.x.size, g.y.size) // MAX_SURFACE_LINES)
             self._extras.append(self.ax.plot_surface(xx[::step, ::step], yy[::step, ::step], z[::step, ::step],
-                                                     color=SURFACE_COLOR, alpha=0.45, linewidth=0, shade=True))
+                                                     cmap=SURFACE_MAP, vmin=-self._amp, vmax=self._amp, alpha=0.6,
+                                                     linewidth=0, antialiased=False, zorder=1))
         if frame.markers is not None:
             m = frame.markers
             self._extras.append(self.ax.scatter(m[:, 0], m[:, 1], m[:, 2], color="k", s=12, depthshade=False))
