@@ -30,6 +30,7 @@ class RunFile:
     equilibrium: np.ndarray
     variables: frozenset[str]
     body_series: tuple[str, ...]     # the (time, body, dof) variables: position, velocity, the forces
+    steady: bool = False             # a `hydrolink steady` file: one period of the steady state (no ramp)
 
     @property
     def scene_path(self) -> Path:
@@ -66,7 +67,8 @@ def open_run(path: str | Path, scene_dir: str | Path | None = None) -> RunFile:
             raise ViewError(path, "time", "the file holds no rows")
         series = tuple(n for n, v in ds.variables.items() if v.dimensions == ("time", "body", "dof"))
         return RunFile(path, scene, base, tuple(str(b) for b in ds["body"][:]), time,
-                       np.asarray(ds["equilibrium_position"][:], float), names, series)
+                       np.asarray(ds["equilibrium_position"][:], float), names, series,
+                       "steady_period" in ds.ncattrs())
 
 
 def frame_rows(time: np.ndarray, start: float | None, end: float | None, stride: int) -> np.ndarray:

@@ -7,7 +7,7 @@ eta(x, y, t) = r(t) Re sum_c a_c e^{i phi_c} e^{i k_c (x cos b_c + y sin b_c)} e
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -60,7 +60,7 @@ def make_grid(extent: tuple[float, float, float, float], cells: tuple[int, int],
 
 def run_waves(run: RunFile) -> WaveComponents | None:
     """The run's wave components (None for ``[waves] type = "elevation"``: a series at the origin
-    has no field to draw). An irregular sea without ``omega_range`` spans the HDBs' common
+    has no field to draw; a steady file's without the ramp). An irregular sea without ``omega_range`` spans the HDBs' common
     frequency range, as the force server's: those HDBs are loaded (built ones from the cache)."""
     waves, scene = run.scene.waves, run.scene
     if isinstance(waves, ElevationWave):
@@ -72,6 +72,8 @@ def run_waves(run: RunFile) -> WaveComponents | None:
         omegas = [hdbs[b.hdb]["omega"].values for b in scene.bodies if b.wet]
         lo, hi = max(float(w[0]) for w in omegas), min(float(w[-1]) for w in omegas)
     comps = wave_components(waves, lo, hi)
+    if run.steady:                       # the steady state is the wave after its ramp
+        comps = replace(comps, ramp=0.0)
     _check_against_run(run, comps)
     return comps
 
