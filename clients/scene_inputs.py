@@ -88,14 +88,14 @@ def load_scene_hulls(scene: Scene, scene_path: str | Path) -> dict[str, tuple[np
     """The closed hulls (vertices, faces) of the scene's nonlinear bodies by name, for
     ``hello.meshes`` (SPEC §5.1): :func:`load_body_hull` of each; the server checks that each hull
     is closed."""
-    return {body.name: load_body_hull(scene, scene_path, i, f"nonlinear hydrostatics ({scene.nonlinear_of(body)!r})")
+    return {body.name: load_body_hull(scene, scene_path, i, f"it has nonlinear hydrostatics ({scene.nonlinear_of(body)!r})")
             for i, body in enumerate(scene.bodies) if scene.nonlinear_of(body) != "none"}
 
 
 def load_body_hull(scene: Scene, scene_path: str | Path, i: int, needs: str) -> tuple[np.ndarray, np.ndarray]:
     """The closed hull (vertices, faces; global frame at equilibrium) of ``scene.bodies[i]``: its
     ``mesh`` file (relative to the scene; any format Capytaine reads), else the hull of its HDB build
-    spec. SceneError naming bodies[i].mesh when there is neither (``needs``: what asks for the hull)
+    spec. SceneError naming bodies[i].mesh when there is neither (``needs``: why the hull is needed)
     or the file cannot be read."""
     body, key = scene.bodies[i], f"bodies[{i}].mesh"
     if body.mesh is not None:
@@ -111,8 +111,8 @@ def load_body_hull(scene: Scene, scene_path: str | Path, i: int, needs: str) -> 
         return np.asarray(mesh.vertices, float), np.asarray(mesh.faces)
     spec_path = resolve_path(scene_path, body.hdb) if body.hdb is not None else None
     if spec_path is None or spec_path.suffix != ".toml":
-        raise SceneError(scene_path, key, f"required: body {body.name!r} has {needs} and its HDB "
-                                          f"{body.hdb} is not a build spec to take the hull from; name its "
+        raise SceneError(scene_path, key, f"required: body {body.name!r} needs its closed hull ({needs}) and its "
+                                          f"HDB {body.hdb} is not a build spec to take the hull from; name its "
                                           "closed hull's mesh file")
     from hydrolink.server.hdb.build.mesh import closed_hull
     from hydrolink.server.hdb.build.spec import load_spec

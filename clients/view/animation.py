@@ -46,7 +46,7 @@ class FrameFigure:
         self.ax.view_init(elev=22, azim=-60)
 
     def _limits(self, first: Frame) -> None:
-        pts = [p for p, _, _ in first.bodies]
+        pts = [p for p, _, _ in first.bodies] + [p for p in (first.markers, first.lines) if p is not None]
         g = self.stage.grid
         if g is not None:
             pts.append(np.array([[g.x[0], g.y[0], 0.0], [g.x[-1], g.y[-1], 0.0]]))

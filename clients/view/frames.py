@@ -83,11 +83,11 @@ def _default_extent(meshes: list[BodyMesh], markers: list[Marker], comps, gravit
 def make_stage(run: RunFile, options: ViewOptions) -> Stage:
     """Meshes, the grid and its wave fields, markers and lines of the parts asked for."""
     parts, water = set(options.parts), run.scene.water
-    meshes = body_meshes(run) if "bodies" in parts or "surface" in parts else []
+    meshes, undrawn = body_meshes(run) if "bodies" in parts or "surface" in parts else ([], [])
     forces = tuple(n for n in run.body_series if n not in ("position", "velocity"))
     stage = Stage(run, meshes if "bodies" in parts else [], forces)
     markers, left = scene_markers(run) if "markers" in parts else ([], [])
-    stage.markers, stage.notes = markers, list(left)
+    stage.markers, stage.notes = markers, (undrawn if "bodies" in parts else []) + left
     comps = run_waves(run) if "surface" in parts or any(m.kind == "wave_gauge" for m in markers) else None
     if "surface" in parts and comps is None:
         stage.notes.append("surface: the waves are an elevation series at the origin (waves.type = \"elevation\"): "

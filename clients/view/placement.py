@@ -45,22 +45,27 @@ def cells_of(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return connectivity, offsets, np.where(tri, VTK_TRIANGLE, VTK_QUAD).astype(np.uint8)
 
 
-def body_meshes(run: RunFile) -> list[BodyMesh]:
-    """The mesh of every wet scene body (its ``mesh`` file or its HDB build spec's closed hull);
-    ViewError naming ``bodies[i].mesh`` when the body is not in the results file. Dry bodies (no
-    HDB, no mesh) are not drawn."""
-    out = []
+def body_meshes(run: RunFile) -> tuple[list[BodyMesh], list[str]]:
+    """The mesh of every wet scene body (its ``mesh`` file or its HDB build spec's closed hull), and
+    a note for each body without one (an HDB file and no ``mesh``: not drawn); ViewError naming
+    ``bodies[i].mesh`` when the body is not in the results file. Dry bodies (no HDB, no mesh) are
+    not drawn."""
+    out, notes = [], []
     for i, body in enumerate(run.scene.bodies):
         if not body.wet:
             continue
         if body.name not in run.bodies:
             raise ViewError(run.path, f"bodies[{i}].mesh", f"the scene's body {body.name!r} is not in the "
                             f"results file (its bodies: {list(run.bodies)})")
-        vertices, faces = load_body_hull(run.scene, run.scene_path, i, "a mesh to draw")
+        if body.mesh is None and not body.hdb.endswith(".toml"):
+            notes.append(f"bodies[{i}].mesh: body {body.name!r} is not drawn: its HDB {body.hdb} is not a build spec "
+                         "to take its hull from; name its closed hull's mesh file (global frame at equilibrium)")
+            continue
+        vertices, faces = load_body_hull(run.scene, run.scene_path, i, "to be drawn")
         row = run.bodies.index(body.name)
         out.append(BodyMesh(body.name, row, np.asarray(vertices, float), run.equilibrium[row, :3].copy(),
                             *cells_of(faces)))
-    return out
+    return out, notes
 
 
 def rigid_points(points: np.ndarray, reference: np.ndarray, position: np.ndarray) -> np.ndarray:
