@@ -14,9 +14,14 @@ import numpy as np
 VERSION = (2, 2)
 
 
-def _growing(group: h5py.Group, name: str, width: int | None, dtype, chunk: int) -> h5py.Dataset:
+CHUNK_BYTES = 1 << 16     # 64 KiB a chunk: few chunks (HDF5's index of them stays small) on long runs
+
+
+def _growing(group: h5py.Group, name: str, width: int | None, dtype) -> h5py.Dataset:
+    """An empty dataset growing along its first axis, in chunks of about CHUNK_BYTES."""
     shape, maxshape = ((0,), (None,)) if width is None else ((0, width), (None, width))
-    chunks = (chunk,) if width is None else (chunk, width)
+    rows = max(1, CHUNK_BYTES // (8 * (width or 1)))
+    chunks = (rows,) if width is None else (rows, width)
     return group.create_dataset(name, shape=shape, maxshape=maxshape, dtype=dtype, chunks=chunks)
 
 
@@ -48,30 +53,29 @@ class TransientGrid:
         root.create_dataset("Connectivity", data=np.asarray(connectivity, np.int64))
         root.create_dataset("Offsets", data=np.asarray(offsets, np.int64))
         root.create_dataset("Types", data=np.asarray(types, np.uint8))
-        chunk_points = max(1, min(self.n_points, 65536))
-        self._points = _growing(root, "Points", 3, "f8", chunk_points)
+        self._points = _growing(root, "Points", 3, "f8")
         for name, count in (("NumberOfPoints", self.n_points), ("NumberOfCells", self.n_cells),
                             ("NumberOfConnectivityIds", int(np.asarray(connectivity).size))):
             root.create_dataset(name, data=np.array([count], np.int64))   # one part, the same every frame
         self._data = {}
-        for group, arrays, size in (("PointData", self.point_arrays, self.n_points),
-                                    ("CellData", self.cell_arrays, self.n_cells), ("FieldData", self.field_arrays, 1)):
+        for group, arrays in (("PointData", self.point_arrays), ("CellData", self.cell_arrays),
+                              ("FieldData", self.field_arrays)):
             g = root.create_group(group)
             for name, width in arrays.items():
-                self._data[name] = _growing(g, name, None if width == 1 else width, "f8", max(1, min(size, 65536)))
+                self._data[name] = _growing(g, name, None if width == 1 else width, "f8")
         steps = root.create_group("Steps")
         self._steps = steps
-        self._step = {n: _growing(steps, n, None, "i8", 256) for n in ("PartOffsets", "NumberOfParts", "PointOffsets")}
-        self._step["Values"] = _growing(steps, "Values", None, "f8", 256)
-        self._step.update({n: _growing(steps, n, 1, "i8", 256) for n in ("CellOffsets", "ConnectivityIdOffsets")})
+        self._step = {n: _growing(steps, n, None, "i8") for n in ("PartOffsets", "NumberOfParts", "PointOffsets")}
+        self._step["Values"] = _growing(steps, "Values", None, "f8")
+        self._step.update({n: _growing(steps, n, 1, "i8") for n in ("CellOffsets", "ConnectivityIdOffsets")})
         self._offsets = {}
         for group, arrays in (("PointDataOffsets", self.point_arrays), ("CellDataOffsets", self.cell_arrays),
                               ("FieldDataOffsets", self.field_arrays)):
             g = steps.create_group(group)
             for name in arrays:
-                self._offsets[name] = _growing(g, name, None, "i8", 256)
+                self._offsets[name] = _growing(g, name, None, "i8")
         sizes = steps.create_group("FieldDataSizes")
-        self._sizes = {name: _growing(sizes, name, 2, "i8", 256) for name in self.field_arrays}
+        self._sizes = {name: _growing(sizes, name, 2, "i8") for name in self.field_arrays}
         steps.attrs["NSteps"] = 0
 
     def append(self, t: float, points: np.ndarray, point_data: dict[str, np.ndarray],
