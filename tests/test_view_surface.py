@@ -2,7 +2,7 @@
 elevation at every grid point and written time equals the wave elevation computed here from the
 run's components (the force server's own ``wave_components``: a spread irregular sea, every
 component with its own heading; deep-water dispersion written here) within 1e-9 m; a grid too
-large to allocate is refused naming --grid-cells and the limit."""
+large to allocate is refused naming --grid-cells and the limit; a steady file's wave has no ramp."""
 
 from __future__ import annotations
 
@@ -78,3 +78,20 @@ def test_a_grid_of_a_billion_points(tmp_path):
     with pytest.raises(ModelError, match=r"--grid-cells: the free-surface grid's .* over the .* a set-up array may take; "
                                          r"fewer --grid-cells"):
         view_results(run, tmp_path / "view", ViewOptions(cells=(40000, 25000), parts=("surface",)), progress=False)
+
+
+def test_a_steady_file_has_the_wave_after_its_ramp(tmp_path):
+    """``hydrolink steady`` writes one period of the steady state: its wave is the ramped-up one."""
+    import netCDF4
+    t = np.arange(0.0, 5.0, 0.25)
+    run = results_file(tmp_path, t)
+    with netCDF4.Dataset(run, "a") as ds:
+        text = ds.getncattr("scene").replace("height = 0.0", "height = 1.0\nramp = 50.0")
+        ds.setncattr("scene", text)
+        ds.setncattr("steady_period", 5.0)
+        ds["wave_elevation"][:] = 0.5 * np.cos(2 * np.pi / 5.0 * t)
+    view_results(run, tmp_path / "view", ViewOptions(extent=(-10, 10, -5, 5), cells=(4, 2), parts=("surface",)),
+                 progress=False)
+    k = (2 * np.pi / 5.0) ** 2 / 9.81
+    for tk, pts in read_series(tmp_path / "view" / "free_surface.vtkhdf"):
+        np.testing.assert_allclose(pts[:, 2], 0.5 * np.cos(k * pts[:, 0] - 2 * np.pi / 5.0 * tk), atol=1e-9)
