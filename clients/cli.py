@@ -121,11 +121,13 @@ def hdb_build(spec: Path, output: Path, no_progress: bool) -> None:
     from hydrolink.server.hdb.build.builder import build_hdb
     from hydrolink.protocol.hdb.schema import to_netcdf
 
-    ds = _guard(build_hdb, spec, progress=not no_progress)
+    ds = _guard(build_hdb, spec, progress=not no_progress, free_surface=True)
     _show_hdb_warnings(ds)
     output.parent.mkdir(parents=True, exist_ok=True)
     to_netcdf(ds, output)
     click.echo(f"wrote {output} ({ds.sizes['omega']} frequencies, bodies {list(map(str, ds['body'].values))})")
+    if "free_surface_file" in ds.attrs:
+        click.echo(f"free-surface solution for hydrolink view: {ds.attrs['free_surface_file']}")
 
 
 @hdb.command("info")
@@ -565,6 +567,57 @@ def fmu_export(scene: Path, output: Path, native: bool, fmi: str) -> None:
     for note in notes:
         click.echo(f"note: {note}", err=True)
     click.echo(f"wrote {path}")
+
+
+@cli.command()
+@click.argument("results", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("-o", "--output", type=click.Path(file_okay=False, path_type=Path), required=True,
+              help="Folder of the ParaView series (one transient .vtkhdf file per part).")
+@click.option("--scene-dir", type=click.Path(file_okay=False, path_type=Path),
+              help="Folder the results' scene paths (HDBs, meshes) are relative to (default: the results file's).")
+@click.option("--start", type=float, help="First time shown (s).")
+@click.option("--end", type=float, help="Last time shown (s).")
+@click.option("--stride", type=click.IntRange(1), default=1, show_default=True, help="Every N-th row.")
+@click.option("--grid-extent", type=float, nargs=4, help="Free-surface grid x0 x1 y0 y1 (m); default around the bodies.")
+@click.option("--grid-cells", type=int, nargs=2, help="Free-surface grid cells nx ny (default 100 100).")
+@click.option("--parts", default="bodies,surface,moorings,markers", show_default=True,
+              help="Comma-separated parts to write.")
+@click.option("--gif", "gif", is_flag=True, help="Also render OUTPUT/view.gif (matplotlib, headless).")
+@click.option("--mp4", "mp4", is_flag=True, help="Also render OUTPUT/view.mp4 (needs ffmpeg).")
+@click.option("--frames", "max_frames", type=click.IntRange(2), default=100, show_default=True,
+              help="At most this many frames in the animation (evenly strided over the shown rows).")
+@click.option("--no-progress", is_flag=True, help="Hide the progress bar.")
+def view(results: Path, output: Path, scene_dir: Path | None, start: float | None, end: float | None, stride: int,
+         grid_extent: tuple | None, grid_cells: tuple | None, parts: str, gif: bool, mp4: bool, max_frames: int,
+         no_progress: bool) -> None:
+    """A RESULTS file (run, steady or a sweep case) as a ParaView time series and an animation (docs/view.md)."""
+    import numpy as np
+
+    from hydrolink.clients.view.animation import animate
+    from hydrolink.clients.view.frames import DEFAULT_CELLS, ViewOptions
+    from hydrolink.clients.view.results import ViewError
+    from hydrolink.clients.view.series import view_results
+
+    try:
+        options = ViewOptions(start=start, end=end, stride=stride, extent=tuple(grid_extent) if grid_extent else None,
+                              cells=tuple(grid_cells) if grid_cells else DEFAULT_CELLS,
+                              parts=tuple(p.strip() for p in parts.split(",") if p.strip()))
+        summary, stage, rows = _guard(view_results, results, output, options, scene_dir=scene_dir,
+                                      progress=not no_progress)
+        movies = [output / f"view.{kind}" for kind, asked in (("gif", gif), ("mp4", mp4)) if asked]
+        for movie in movies:
+            picked = rows[np.linspace(0, rows.size - 1, min(rows.size, max_frames)).round().astype(int)]
+            _guard(animate, stage, np.unique(picked), movie, progress=not no_progress)
+    except ViewError as exc:
+        raise _UserError(str(exc)) from None
+    for note in summary.notes:
+        click.echo(f"note: {note}", err=True)
+    click.echo(f"wrote {summary.frames} frames to {output}/ in {summary.seconds:.1f} s: "
+               + ", ".join(p.name for p in summary.files))
+    for movie in movies:
+        click.echo(f"wrote {movie}")
+    click.echo(f"open in ParaView: paraview {' '.join(str(p) for p in summary.files)}  (File > Open, the "
+               "VTKHDF reader; press Play for the time series)")
 
 
 def main() -> None:

@@ -86,38 +86,40 @@ def with_nemoh_qtf(ds: xr.Dataset, scene: Scene, i: int, scene_path: str | Path)
 
 def load_scene_hulls(scene: Scene, scene_path: str | Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """The closed hulls (vertices, faces) of the scene's nonlinear bodies by name, for
-    ``hello.meshes`` (SPEC §5.1): the body's ``mesh`` file (relative to the scene; any format
-    Capytaine reads), else the hull of its HDB build spec. SceneError naming bodies[i].mesh when
-    there is neither or the file cannot be read; the server checks that each hull is closed."""
-    hulls: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-    for i, body in enumerate(scene.bodies):
-        if scene.nonlinear_of(body) == "none":
-            continue
-        key = f"bodies[{i}].mesh"
-        if body.mesh is not None:
-            import capytaine as cpt
+    ``hello.meshes`` (SPEC §5.1): :func:`load_body_hull` of each; the server checks that each hull
+    is closed."""
+    return {body.name: load_body_hull(scene, scene_path, i, f"it has nonlinear hydrostatics ({scene.nonlinear_of(body)!r})")
+            for i, body in enumerate(scene.bodies) if scene.nonlinear_of(body) != "none"}
 
-            path = resolve_path(scene_path, body.mesh)
-            if not path.is_file():
-                raise SceneError(scene_path, key, f"file not found: {path}")
-            try:
-                mesh = cpt.load_mesh(str(path))
-            except Exception as exc:  # noqa: BLE001 - any reader failure is a bad scene input
-                raise SceneError(scene_path, key, f"cannot read the mesh {path}: {exc}") from None
-            hulls[body.name] = (np.asarray(mesh.vertices, float), np.asarray(mesh.faces))
-            continue
-        spec_path = resolve_path(scene_path, body.hdb)
-        if spec_path.suffix != ".toml":
-            raise SceneError(scene_path, key, f"required: body {body.name!r} has nonlinear hydrostatics "
-                                              f"({scene.nonlinear_of(body)!r}) and its HDB {body.hdb} is not a build spec "
-                                              "to take the hull from; name its closed hull's mesh file")
-        from hydrolink.server.hdb.build.mesh import closed_hull
-        from hydrolink.server.hdb.build.spec import load_spec
-        spec = load_spec(spec_path)
-        names = [b.name for b in spec.all_bodies]
-        index = names.index(body.hdb_body_name) if body.hdb_body_name in names else 0
-        hulls[body.name] = closed_hull(spec, index, spec_path)
-    return hulls
+
+def load_body_hull(scene: Scene, scene_path: str | Path, i: int, needs: str) -> tuple[np.ndarray, np.ndarray]:
+    """The closed hull (vertices, faces; global frame at equilibrium) of ``scene.bodies[i]``: its
+    ``mesh`` file (relative to the scene; any format Capytaine reads), else the hull of its HDB build
+    spec. SceneError naming bodies[i].mesh when there is neither (``needs``: why the hull is needed)
+    or the file cannot be read."""
+    body, key = scene.bodies[i], f"bodies[{i}].mesh"
+    if body.mesh is not None:
+        import capytaine as cpt
+
+        path = resolve_path(scene_path, body.mesh)
+        if not path.is_file():
+            raise SceneError(scene_path, key, f"file not found: {path}")
+        try:
+            mesh = cpt.load_mesh(str(path))
+        except Exception as exc:  # noqa: BLE001 - any reader failure is a bad scene input
+            raise SceneError(scene_path, key, f"cannot read the mesh {path}: {exc}") from None
+        return np.asarray(mesh.vertices, float), np.asarray(mesh.faces)
+    spec_path = resolve_path(scene_path, body.hdb) if body.hdb is not None else None
+    if spec_path is None or spec_path.suffix != ".toml":
+        raise SceneError(scene_path, key, f"required: body {body.name!r} needs its closed hull ({needs}) and its "
+                                          f"HDB {body.hdb} is not a build spec to take the hull from; name its "
+                                          "closed hull's mesh file")
+    from hydrolink.server.hdb.build.mesh import closed_hull
+    from hydrolink.server.hdb.build.spec import load_spec
+    spec = load_spec(spec_path)
+    names = [b.name for b in spec.all_bodies]
+    index = names.index(body.hdb_body_name) if body.hdb_body_name in names else 0
+    return closed_hull(spec, index, spec_path)
 
 
 def load_wave_elevation(scene: Scene, scene_path: str | Path):

@@ -443,7 +443,7 @@ class Body(_Section):
     drag: Drag | None = None
     # wet bodies: nonlinear hydrostatics / Froude-Krylov for this body (default: [hydro] nonlinear)
     # and its closed hull, freeboard included (a mesh file Capytaine reads, global frame at
-    # equilibrium; default: the hull of the body's HDB build spec)
+    # equilibrium; default: the hull of the body's HDB build spec); also what `hydrolink view` draws
     nonlinear: Nonlinear | None = None
     mesh: Annotated[str, Field(min_length=1)] | None = None
     # wet bodies: second-order wave forces of this body (default: [hydro] second_order)

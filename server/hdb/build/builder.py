@@ -33,6 +33,7 @@ from hydrolink.protocol.hdb.schema import from_netcdf_dataset, to_netcdf
 from hydrolink.protocol.hdb.second_order import MeanDrift
 from hydrolink.protocol.hdb.schema import with_second_order
 from hydrolink.server.hdb.build.drift import far_field_drift
+from hydrolink.server.hdb.build.free_surface import free_surface_file, solve_free_surface, store_free_surface
 
 LOG = logging.getLogger(__name__)
 
@@ -57,6 +58,7 @@ def cache_key(spec: BuildSpec, spec_path: str | Path) -> str:
     normalised = spec.model_dump(mode="json")
     if spec.second_order == spec.second_order.__class__():
         normalised.pop("second_order")   # specs without second-order data keep their cached builds
+    normalised.pop("free_surface")       # stored in a file of its own (free_surface.py), not in the HDB
     digests = []
     for body, key, table in zip(spec.all_bodies, spec.body_keys,
                                 [normalised["body"]] if spec.body is not None else normalised["bodies"]):
@@ -306,11 +308,13 @@ def cache_file_name(spec: BuildSpec, key: str) -> str:
 
 
 def build_hdb(spec_path: str | Path, *, cache_dir: str | Path | None = None, progress: bool = True,
-              force: bool = False) -> xr.Dataset:
+              force: bool = False, free_surface: bool = False) -> xr.Dataset:
     """Build (or fetch from the cache) the HDB described by the TOML spec at ``spec_path``.
 
     ``cache_dir`` overrides ``$HYDROLINK_CACHE`` / the XDG default; ``force`` rebuilds and
-    overwrites the cache entry. The dataset's ``attrs['cache_file']`` says where it is stored."""
+    overwrites the cache entry. The dataset's ``attrs['cache_file']`` says where it is stored.
+    ``free_surface``: also the spec's ``[free_surface]`` solution (built once; its file in
+    ``attrs['free_surface_file']``): what ``hdb build`` and ``view`` ask for, not a run."""
     spec_path = Path(spec_path)
     spec = load_spec(spec_path)
     key = cache_key(spec, spec_path)
@@ -321,7 +325,7 @@ def build_hdb(spec_path: str | Path, *, cache_dir: str | Path | None = None, pro
         if ds is not None:
             ds.attrs["cache_file"] = str(path)
             ds.attrs["cache_hit"] = 1
-            return ds
+            return _with_free_surface(ds, spec, spec_path, folder, key, progress, force) if free_surface else ds
     ds = build_hdb_uncached(spec, spec_path, progress=progress)
     ds.attrs["build_spec_sha256"] = key
     try:
@@ -330,6 +334,22 @@ def build_hdb(spec_path: str | Path, *, cache_dir: str | Path | None = None, pro
     except OSError as exc:
         warnings.warn(f"could not write the HDB cache {path}: {exc}", stacklevel=2)
     ds.attrs["cache_hit"] = 0
+    return _with_free_surface(ds, spec, spec_path, folder, key, progress, force) if free_surface else ds
+
+
+def _with_free_surface(ds: xr.Dataset, spec: BuildSpec, spec_path: Path, folder: Path, key: str, progress: bool,
+                       force: bool) -> xr.Dataset:
+    """With ``[free_surface]``: its solution (free_surface.py) built once into the cache folder,
+    named by the HDB's attribute ``free_surface_file``."""
+    if spec.free_surface is None:
+        return ds
+    path = free_surface_file(spec, folder, key)
+    if force or not path.is_file():
+        bodies, _, _ = _floating_bodies(spec, spec_path)
+        import capytaine as cpt
+        body = bodies[0] if not spec.multibody else cpt.Multibody(bodies, name="+".join(b.name for b in bodies))
+        store_free_surface(solve_free_surface(body, spec, bem_solver(progress), progress), path)
+    ds.attrs["free_surface_file"] = str(path)
     return ds
 
 

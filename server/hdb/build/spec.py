@@ -245,6 +245,31 @@ class SecondOrder(_Section):
         return self
 
 
+class FreeSurface(_Section):
+    """``[free_surface]``: Capytaine's free-surface elevation of every radiation and diffraction
+    problem on a grid of ``cells`` (nx, ny) quads over ``extent`` (x0, x1, y0, y1, m), at the
+    frequencies ``omega`` (rad/s; any, solved for it), for ``hydrolink view``'s radiated and
+    diffracted waves (stored beside the cached HDB: server/hdb/build/free_surface.py)."""
+    omega: Annotated[list[PositiveFloat], Field(min_length=1, max_length=64)]
+    extent: Annotated[list[FiniteFloat], Field(min_length=4, max_length=4)]
+    cells: Annotated[list[Annotated[int, Field(ge=1, le=2000)]], Field(min_length=2, max_length=2)]
+
+    @model_validator(mode="after")
+    def _box(self) -> "FreeSurface":
+        x0, x1, y0, y1 = self.extent
+        if not (x1 > x0 and y1 > y0):
+            raise ValueError(f".extent: must be [x0, x1, y0, y1] with x0 < x1 and y0 < y1, got {self.extent}")
+        return self
+
+    @property
+    def x(self) -> np.ndarray:
+        return np.linspace(self.extent[0], self.extent[1], self.cells[0] + 1)
+
+    @property
+    def y(self) -> np.ndarray:
+        return np.linspace(self.extent[2], self.extent[3], self.cells[1] + 1)
+
+
 class BuildSpec(_Section):
     body: Optional[BodySpec] = None
     bodies: Optional[Annotated[list[BodySpec], Field(min_length=1)]] = None
@@ -252,6 +277,7 @@ class BuildSpec(_Section):
     water: Water = Water()
     waves: Waves = Waves()
     second_order: SecondOrder = SecondOrder()
+    free_surface: Optional[FreeSurface] = None
 
     @model_validator(mode="after")
     def _bodies(self) -> "BuildSpec":

@@ -1,0 +1,124 @@
+"""``hydrolink view`` on RM3: file sizes and write time per frame, against the floor (computing the
+frames without writing them) and, where the ``vtk`` package is installed, the alternative of one
+``.vtu`` file per frame written by VTK's own XML writer (what a ``.pvd`` collection would list).
+
+    python bench/bench_view.py                      # runs examples/rm3/rm3.toml first (about a minute)
+    python bench/bench_view.py --results rm3.nc     # a results file of it
+
+Prints a Markdown table with the machine's load (``os.getloadavg``): the figures are wall times.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import resource
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from hydrolink.clients.view.frames import ViewOptions, frames, make_stage
+from hydrolink.clients.view.results import frame_rows, open_run
+from hydrolink.clients.view.series import write_series
+
+REPO = Path(__file__).resolve().parents[1]
+SCENE = REPO / "examples" / "rm3" / "rm3.toml"
+
+
+def _size(files) -> int:
+    return sum(Path(f).stat().st_size for f in files)
+
+
+def floor(stage, rows) -> float:
+    """Seconds to compute the frames (read rows, move meshes, waves) without writing them."""
+    t0 = time.perf_counter()
+    for _ in frames(stage, rows):
+        pass
+    return time.perf_counter() - t0
+
+
+def vtu_per_frame(stage, rows, folder: Path) -> tuple[float, int]:
+    """Seconds and bytes of one binary .vtu per frame and part (VTK's XML writer)."""
+    import vtk
+    from vtk.util.numpy_support import numpy_to_vtk, numpy_to_vtkIdTypeArray
+
+    def grid(conn, offsets, types):
+        cells = vtk.vtkCellArray()
+        cells.SetData(numpy_to_vtkIdTypeArray(np.asarray(offsets, np.int64), deep=True),
+                      numpy_to_vtkIdTypeArray(np.asarray(conn, np.int64), deep=True))
+        g = vtk.vtkUnstructuredGrid()
+        g.SetCells(numpy_to_vtk(np.asarray(types, np.uint8), deep=True, array_type=vtk.VTK_UNSIGNED_CHAR), cells)
+        return g
+    grids = [grid(m.connectivity, m.offsets, m.types) for m in stage.meshes]
+    if stage.grid is not None:
+        grids.append(grid(*stage.grid.cells()))
+    writer = vtk.vtkXMLUnstructuredGridWriter()
+    writer.SetDataModeToAppended()
+    written = []
+    t0 = time.perf_counter()
+    for k, frame in enumerate(frames(stage, rows)):
+        parts = [(p, {"velocity": v}) for p, v, _ in frame.bodies]
+        if frame.surface is not None:
+            pts = stage.grid.points
+            pts[:, 2] = frame.surface["elevation"]
+            parts.append((pts, frame.surface))
+        for j, (g, (pts, arrays)) in enumerate(zip(grids, parts)):
+            points = vtk.vtkPoints()
+            points.SetData(numpy_to_vtk(np.ascontiguousarray(pts), deep=True))
+            g.SetPoints(points)
+            for name, a in arrays.items():
+                arr = numpy_to_vtk(np.ascontiguousarray(a), deep=True)
+                arr.SetName(name)
+                g.GetPointData().AddArray(arr)
+            path = folder / f"part{j}_{k:06d}.vtu"
+            writer.SetFileName(str(path))
+            writer.SetInputData(g)
+            writer.Write()
+            written.append(path)
+    return time.perf_counter() - t0, _size(written)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--results", type=Path, help="an RM3 results file (default: run examples/rm3/rm3.toml)")
+    ap.add_argument("--frames", type=int, default=200, help="frames written (every stride-th row)")
+    args = ap.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        results = args.results
+        if results is None:
+            from hydrolink.clients.run import run_scene_file
+            results = tmp / "rm3.nc"
+            run_scene_file(SCENE, results, progress=False)
+        run = open_run(results, SCENE.parent)
+        stride = max(1, run.time.size // args.frames)
+        rows = frame_rows(run.time, None, None, stride)[:args.frames]
+        print(f"RM3 {results.name}: {run.time.size} rows, {rows.size} frames (stride {stride}); load "
+              f"{os.getloadavg()[0]:.2f} (1 min), {os.cpu_count()} CPUs\n")
+        print("| parts | points/frame | floor ms/frame | VTKHDF ms/frame | VTKHDF kB/frame | .vtu ms/frame | .vtu kB/frame |")
+        print("|---|---|---|---|---|---|---|")
+        for parts in (("bodies",), ("surface",), ("bodies", "surface", "markers")):
+            stage = make_stage(run, ViewOptions(parts=parts))
+            n_points = sum(len(m.vertices) for m in stage.meshes) + (stage.grid.points.shape[0] if stage.grid else 0)
+            base = floor(stage, rows)
+            out = tmp / ("_".join(parts))
+            t0 = time.perf_counter()
+            files, n = write_series(stage, rows, out, progress=False)
+            hdf = time.perf_counter() - t0
+            cells = [f"{n_points}", f"{1e3 * base / n:.2f}", f"{1e3 * hdf / n:.2f}", f"{_size(files) / n / 1e3:.1f}"]
+            try:
+                vt_folder = tmp / ("vtu_" + "_".join(parts))
+                vt_folder.mkdir()
+                vt, vb = vtu_per_frame(stage, rows, vt_folder)
+                cells += [f"{1e3 * vt / n:.2f}", f"{vb / n / 1e3:.1f}"]
+            except ImportError:
+                cells += ["(no vtk)", ""]
+            print(f"| {'+'.join(parts)} | " + " | ".join(cells) + " |")
+        print(f"\npeak RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MiB; load "
+              f"{os.getloadavg()[0]:.2f} at the end")
+
+
+if __name__ == "__main__":
+    main()

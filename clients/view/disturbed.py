@@ -1,0 +1,114 @@
+"""The radiated and diffracted waves on the free surface, from the Capytaine free-surface solution an
+HDB build stores when its spec asks for it (``[free_surface]``, server/hdb/build/free_surface.py),
+combined linearly with the run's motion.
+
+Regular waves (frequency w, incident amplitude A = a e^{i phi} at the origin, ramp r(t)): at each
+frame the bodies' displacement from equilibrium x(t) - x_eq is fitted over the one wave period
+around the frame by m + Re(xi e^{-i w t}) (least squares on [1, cos w t, sin w t]: exact for a
+steady response), and
+
+    eta_R(x, t) = Re(sum_{body, dof} xi eta_R,dof(x) e^{-i w t}),   eta_D(x, t) = Re(r(t) A eta_D(x) e^{-i w t})
+
+with eta_R,dof per unit motion and eta_D per unit incident amplitude (Capytaine's solution at w)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from hydrolink.clients.view.results import RunFile, read_rows
+from hydrolink.clients.view.surface import Grid
+from hydrolink.server.sea.waves import WaveComponents, ramp_factor
+
+
+@dataclass
+class DisturbedField:
+    """A run's radiated and diffracted waves on the build's grid: ``radiated`` (B, 6, P) per unit
+    motion of the results' bodies ``rows``, ``diffracted`` (P,) per unit incident amplitude."""
+    omega: float
+    amplitude: complex
+    ramp: float
+    rows: np.ndarray
+    radiated: np.ndarray
+    diffracted: np.ndarray
+    _xi: np.ndarray | None = None     # (frames of the block, B, 6) fitted motion amplitudes
+
+    def prepare(self, run: RunFile, chunk: np.ndarray) -> None:
+        """Fit the motion amplitudes of the frames at ``chunk`` (one period around each row)."""
+        period = 2 * np.pi / self.omega
+        t = run.time
+        lo = int(np.searchsorted(t, t[chunk[0]] - period / 2 - 1e-9))
+        hi = int(np.searchsorted(t, t[chunk[-1]] + period / 2 + 1e-9, side="right"))
+        span = np.arange(lo, hi)
+        pos = read_rows(run.path, ["position"], span)["position"][:, self.rows]
+        disp = (pos - run.equilibrium[self.rows][None]).reshape(span.size, -1)
+        xi = []
+        for row in chunk:
+            a, b = window(t, row, period)
+            a, b = max(a, lo), min(b, hi)
+            tt = t[a:b]
+            basis = np.column_stack([np.ones_like(tt), np.cos(self.omega * tt), np.sin(self.omega * tt)])
+            coef = np.linalg.lstsq(basis, disp[a - lo:b - lo], rcond=None)[0]
+            xi.append((coef[1] + 1j * coef[2]).reshape(self.rows.size, 6))
+        self._xi = np.array(xi)
+
+    def at(self, k: int, t: float) -> dict[str, np.ndarray]:
+        """The radiated and diffracted elevation (P,) of the block's ``k``-th frame at time ``t``."""
+        phase = np.exp(-1j * self.omega * t)
+        radiated = np.real(np.tensordot(self._xi[k], self.radiated, axes=([0, 1], [0, 1])) * phase)
+        r = float(ramp_factor(np.array([t]), self.ramp)[0])
+        return {"radiated": radiated, "diffracted": np.real(r * self.amplitude * self.diffracted * phase)}
+
+
+def window(t: np.ndarray, row: int, period: float) -> tuple[int, int]:
+    """Rows [a, b) of the one period centred on ``row``, moved inside the file at its ends."""
+    start = min(max(t[row] - period / 2, t[0]), max(t[-1] - period, t[0]))
+    a = int(np.searchsorted(t, start - 1e-9))
+    b = int(np.searchsorted(t, start + period + 1e-9, side="right"))
+    return a, b
+
+
+def _stored(run: RunFile) -> Path | None:
+    """The free-surface file of the one build spec every wet body's HDB is, if it asks for one."""
+    from hydrolink.protocol.scene import resolve_path
+    from hydrolink.server.hdb.build.builder import build_hdb
+    from hydrolink.server.hdb.build.spec import load_spec
+
+    specs = {b.hdb for b in run.scene.bodies if b.wet}
+    if len(specs) != 1 or not next(iter(specs)).endswith(".toml"):
+        return None
+    spec_path = resolve_path(run.scene_path, next(iter(specs)))
+    if load_spec(spec_path).free_surface is None:
+        return None
+    return Path(build_hdb(spec_path, progress=False, free_surface=True).attrs["free_surface_file"])
+
+
+def disturbed_field(run: RunFile, comps: WaveComponents | None) -> tuple[DisturbedField | None, Grid | None, str]:
+    """The run's radiated and diffracted field and the build's grid, or None and a note saying why
+    not (none stored: no note)."""
+    from hydrolink.server.hdb.build.free_surface import read_free_surface
+
+    path = _stored(run)
+    if path is None:
+        return None, None, ""
+    if comps is None or comps.kind != "regular":
+        return None, None, ("radiated/diffracted waves: drawn for regular waves only (this run's are "
+                            f"{comps.kind if comps else 'an elevation series'})")
+    rad, dif = read_free_surface(path)
+    w, beta = float(comps.omega[0]), float(comps.direction)
+    iw = np.flatnonzero(np.isclose(rad["omega"].values, w, rtol=1e-9, atol=0))
+    ib = np.flatnonzero(np.isclose(np.angle(np.exp(1j * (dif["wave_direction"].values - beta))), 0, atol=1e-9))
+    if iw.size == 0 or ib.size == 0:
+        return None, None, (f"radiated/diffracted waves: the build's [free_surface] omega {rad['omega'].values.tolist()} "
+                            f"and [waves] directions do not hold the run's wave (omega {w:.6g} rad/s, direction "
+                            f"{np.degrees(beta):g} deg): add them to the build spec")
+    names = [b.hdb_body_name for b in run.scene.bodies if b.wet]
+    built = [str(b) for b in rad["body"].values]
+    rows = np.array([run.bodies.index(b.name) for b in run.scene.bodies if b.wet])
+    radiated = np.stack([rad.values[iw[0], built.index(n)] for n in names]).reshape(len(names), 6, -1)
+    grid = Grid(rad["x"].values, rad["y"].values)
+    field = DisturbedField(w, complex(comps.amplitude[0] * np.exp(1j * comps.phase[0])), comps.ramp, rows,
+                           radiated, dif.values[iw[0], ib[0]].reshape(-1))
+    return field, grid, ""

@@ -1,0 +1,55 @@
+"""hydrolink view's MoorDyn lines (clients/view/markers.py): read back with VTK's reader, the
+moorings file holds at every written time the results' ``line_node_position`` nodes of each line
+(NaN past a line's last node left out), one poly-line per line."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from conftest import body, regular_waves, scene_toml
+
+vtk = pytest.importorskip("vtk")
+
+from hydrolink.clients.lockstep.results import ResultWriter  # noqa: E402
+from hydrolink.clients.view.frames import ViewOptions  # noqa: E402
+from hydrolink.clients.view.series import view_results  # noqa: E402
+
+
+def nodes(t: float) -> np.ndarray:
+    """(2 lines, 5 nodes, xyz): line 0 has 5 nodes, line 1 three (then NaN)."""
+    out = np.full((2, 5, 3), np.nan)
+    s = np.linspace(0, 1, 5)
+    out[0] = np.column_stack([100 * s, 5 * np.sin(t) * s, -50 + 50 * s ** 2])
+    s3 = np.linspace(0, 1, 3)
+    out[1, :3] = np.column_stack([-80 * s3, 2 * np.cos(t) * s3, -50 + 45 * s3])
+    return out
+
+
+def test_lines_are_the_recorded_nodes(tmp_path):
+    t = np.arange(0.0, 2.0, 0.2)
+    text = scene_toml(dt=0.2, duration=2.0, waves=regular_waves(0.0, 5.0),
+                      bodies=[body("a", hdb="none.nc", mass=1.0, center_of_mass=[0, 0, 0], inertia=[1, 1, 1])])
+    zero = np.zeros((1, 6))
+    with ResultWriter(tmp_path / "run.nc", scene_text=text, bodies=["a"], equilibrium_position=zero, dt=0.2) as w:
+        w.add_variable("line_node_position", ("line", "node", "xyz"),
+                       {"line": ["spread:1", "spread:2"], "node": [str(i) for i in range(5)], "xyz": ["x", "y", "z"]}, "m")
+        for tk in t:
+            w.stage_extra({"line_node_position": nodes(tk)})
+            w.append(float(tk), zero, zero, zero, zero, zero, 0.0)
+    summary, stage, rows = view_results(tmp_path / "run.nc", tmp_path / "view", ViewOptions(parts=("moorings",)),
+                                        progress=False)
+    from vtk.util.numpy_support import vtk_to_numpy
+    reader = vtk.vtkHDFReader()
+    reader.SetFileName(str(tmp_path / "view" / "moorings.vtkhdf"))
+    reader.UpdateInformation()
+    times = reader.GetOutputInformation(0).Get(vtk.vtkStreamingDemandDrivenPipeline.TIME_STEPS())
+    assert len(times) == t.size
+    for tk in times:
+        reader.UpdateTimeStep(tk)
+        out = reader.GetOutput()
+        assert out.GetNumberOfCells() == 2 and out.GetCellType(0) == vtk.VTK_POLY_LINE
+        want = nodes(tk)
+        pts = vtk_to_numpy(out.GetPoints().GetData())
+        np.testing.assert_allclose(pts, np.concatenate([want[0], want[1, :3]]), atol=1e-12)
+        assert [out.GetCell(c).GetNumberOfPoints() for c in range(2)] == [5, 3]
