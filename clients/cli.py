@@ -417,6 +417,32 @@ def steady(scene: Path, output: Path | None, order: int | None, formulation: str
 
 @cli.command()
 @click.argument("scene", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path),
+              help="Results NetCDF, one (repeat) period (default: SCENE with .optimal.nc).")
+@click.option("--dt", type=click.FloatRange(min=0, min_open=True), help="Output sampling (default simulation.dt).")
+@click.option("--no-progress", is_flag=True, help="Hide the HDB build progress bar.")
+def optimize(scene: Path, output: Path | None, dt: float | None, no_progress: bool) -> None:
+    """PTO forces maximising the mean absorbed power of SCENE under its [optimize] limits (docs/optimal-control.md)."""
+    from hydrolink.clients.analysis.optimal.run import optimize_scene_file
+    from hydrolink.clients.analysis.steady import SteadyError
+
+    try:
+        s = _guard(optimize_scene_file, scene, output, dt=dt, progress=not no_progress)
+    except SteadyError as exc:
+        raise _UserError(f"{scene}: {exc}") from None
+    for note in s.warnings:
+        click.echo(f"note: {note}", err=True)
+    click.echo(f"wrote {s.output}: optimum {s.power:.6g} W = {100 * s.power / s.unconstrained_power:.1f} % of the "
+               f"unconstrained bound {s.unconstrained_power:.6g} W (period {s.period:.4g} s, order {s.order}, "
+               f"{s.solver} {s.status}, {1e3 * s.solve_seconds:.0f} ms)")
+    for use in s.metrics.limits:
+        click.echo(f"  {use.label}: {100 * use.utilisation:.1f} % of {use.bound:g}"
+                   + (" (active)" if use.label in s.active else ""))
+    click.echo(f"  peak-to-average power {s.metrics.peak_to_average:.3g}")
+
+
+@cli.command()
+@click.argument("scene", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
               help="The plant: .npz (A, B, C, D, states, inputs, outputs), .mat (MATLAB) or .nc.")
 @click.option("--dt", type=click.FloatRange(min=0, min_open=True),
