@@ -67,7 +67,7 @@ def solve_optimal(prob: OptimalProblem, *, tolerance: float = 1e-9) -> OptimalSo
         solver.setup(P=sparse.triu(Hs + 1e-10 * np.eye(Hs.shape[0]), format="csc"), q=qs,
                      A=sparse.csc_matrix(A), l=lo, u=hi, eps_abs=tolerance, eps_rel=tolerance,
                      max_iter=400000, polishing=True, verbose=False)
-        res = solver.solve()
+        res = solver.solve(raise_error=False)
         status = str(res.info.status)
         if "infeasible" in status:
             keys = ", ".join(sorted({lim.key for lim in prob.limits}))
