@@ -54,6 +54,7 @@ def scene_text(sea: str, dt: float, duration: float, base: Path = SCENE) -> str:
         start = text.index("[waves]")
         end = text.index("[hydro]")
         text = text[:start] + IRREGULAR.format(components=n, lo=lo, hi=lo + n * dw) + "\n" + text[end:]
+        text = text.replace("\norder = 7 ", "\n# order: the sea's highest harmonic ")
     return text
 
 
