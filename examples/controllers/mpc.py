@@ -106,13 +106,13 @@ class MPC(Controller):
         if abs(info["latency"] * dt - self.ts) > 1e-9 * self.ts:
             raise ValueError(f"mpc: latency x dt = {info['latency'] * dt:g} s must be one control period "
                              f"({self.ts:g} s): set the controller's latency = period / dt")
-        plant = info["plant"]
-        if plant.dt is None or abs(plant.dt - self.ts) > 1e-9:
-            plant = plant.discretize(self.ts)
         horizon = float(p.get("horizon", 4.0))
         self.n = int(round(horizon / self.ts))
         if self.n < 2:
             raise ValueError(f"mpc: horizon {horizon:g} s is shorter than two control periods ({self.ts:g} s)")
+        plant = info["plant"]
+        if plant.dt is None or abs(plant.dt - self.ts) > 1e-9:
+            plant = plant.discretize(self.ts)
         blocks = min(int(p.get("blocks", 40)), self.n)
         ui = [plant.inputs.index(f"pto:{name}") for name in self.ptos]
         ei = [i for i, name in enumerate(plant.inputs) if name.startswith("excitation:")]

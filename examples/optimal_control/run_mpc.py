@@ -29,6 +29,7 @@ HERE = Path(__file__).resolve().parent
 REPO = HERE.parents[1]
 SCENE = HERE / "wavebot.toml"
 REPEAT = 80.0       # s: the irregular sea's repeat period
+SETTLE = 10.0       # s after the ramp before the average (the MPC's start-up transient)
 IRREGULAR = '''[waves]
 type = "irregular"
 spectrum = "jonswap"
@@ -42,12 +43,14 @@ ramp = 10.0
 '''
 
 
-def scene_text(sea: str, dt: float, duration: float, base: Path = SCENE) -> str:
+def scene_text(sea: str, dt: float, duration: float, ramp: float | None = None, base: Path = SCENE) -> str:
     """The WaveBot scene (HDB path made absolute) in its regular wave or a JONSWAP sea that repeats
     after 2 pi / dw' (components at odd multiples of dw/2: omega_range starts at a multiple of dw)."""
     text = base.read_text().replace('"../data/', f'"{(base.parent.parent / "data").as_posix()}/')
     text = text.replace("dt = 0.03333333333333333   # s = T/100", f"dt = {dt!r}")
     text = text.replace("duration = 200.0", f"duration = {duration!r}")
+    if ramp is not None:
+        text = text.replace("ramp = 20.0", f"ramp = {ramp!r}")
     if sea == "irregular":
         dw = 2 * math.pi / REPEAT * 2      # components at odd multiples of dw / 2: the sea repeats after REPEAT s
         lo, n = 7 * dw, 60                 # 1.10 ... 10.5 rad/s around the peak at 1.88 rad/s
@@ -95,7 +98,7 @@ def _free_port() -> int:
 
 def mpc_run(folder: Path, *, rate: float = 10.0, predictor: str = "preview", sea: str = "regular",
             duration: float = 60.0, dt: float = 0.01, horizon: float = 4.0, gauge: float = 15.0,
-            realtime: bool = False) -> dict:
+            realtime: bool = False, ramp: float | None = None) -> dict:
     """Optimum + MPC run; returns powers, metrics and solve times (module docstring)."""
     import xarray as xr
 
@@ -109,7 +112,7 @@ def mpc_run(folder: Path, *, rate: float = 10.0, predictor: str = "preview", sea
     from hydrolink.clients.scene_inputs import load_scene_hdbs
     from hydrolink.protocol.scene import parse_scene
 
-    base = scene_text(sea, dt, duration)
+    base = scene_text(sea, dt, duration, ramp)
     scene = parse_scene(base)
     path = folder / f"wavebot_{sea}_{predictor}_{int(rate)}hz.toml"
     path.write_text(base)
@@ -155,7 +158,7 @@ def window(scene, duration: float) -> float:
     """The averaging window: whole wave periods (regular) or the last repeat period (irregular)."""
     if scene.waves.type == "regular":
         t = scene.waves.period
-        return t * math.floor(min(duration - scene.waves.ramp - 20.0, 10 * t) / t)
+        return t * math.floor(min(duration - scene.waves.ramp - SETTLE, 10 * t) / t)
     return REPEAT
 
 
