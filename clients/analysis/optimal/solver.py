@@ -65,7 +65,9 @@ def solve_optimal(prob: OptimalProblem, *, tolerance: float = 1e-6) -> OptimalSo
     scale = max(float(np.abs(u_cc).max()), 1e-12)
     Hs, qs = prob.H * scale ** 2 / p_cc, prob.q * scale / p_cc
     A, lo, hi = _stacked(prob, scale)
-    if A.shape[0]:
+    x_cc = u_cc / scale
+    binding = A.shape[0] and not (np.all(A @ x_cc <= hi) and np.all(A @ x_cc >= lo))   # else the bound is the optimum
+    if binding:
         solver = osqp.OSQP()
         solver.setup(P=sparse.triu(Hs + 1e-10 * np.eye(Hs.shape[0]), format="csc"), q=qs,
                      A=sparse.csc_matrix(A), l=lo, u=hi, eps_abs=tolerance, eps_rel=tolerance,
@@ -80,7 +82,7 @@ def solve_optimal(prob: OptimalProblem, *, tolerance: float = 1e-6) -> OptimalSo
             raise OptimizeError("optimize", f"OSQP did not solve the QP (status {status!r})")
         x, its, name = np.asarray(res.x, float), int(res.info.iter), "osqp"
     else:
-        x, its, name, status = u_cc / scale, 0, "lstsq", "solved"
+        x, its, name, status = x_cc, 0, "lstsq", "solved"
     if not prob.reactive:
         x, its, status = _no_reactive(prob, Hs, qs, A, lo, hi, x, scale)
         name = "osqp+slsqp" if A.shape[0] else "slsqp"
