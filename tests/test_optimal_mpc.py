@@ -87,3 +87,33 @@ def test_mpc_refuses_a_horizon_shorter_than_its_period():
             "preview_times": [0.1], "bodies": ["b"]}
     with pytest.raises(ValueError, match="horizon 0.05 s is shorter than two control periods"):
         ctl.on_start(info)
+
+
+def test_mpc_infeasible_qp_falls_back_and_logs(caplog):
+    """A stroke the force cannot hold (a mass-spring-damper far out with a 1 N force limit): OSQP
+    reports the QP infeasible, the controller logs it and commands the previous plan's next value (0
+    without a plan) instead of failing the step."""
+    from mpc import MPC
+
+    from hydrolink.clients.analysis.plant import Plant
+    m, c, k = 1000.0, 500.0, 2.0e4          # kg, N s/m, N/m
+    A = np.array([[0.0, 1.0], [-k / m, -c / m]])
+    B = np.array([[0.0, 0.0], [1.0 / m, 1.0 / m]])     # inputs: the PTO's force (same sign), the excitation
+    C = np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]])
+    plant = Plant(A, B, C, np.zeros((4, 2)), ("b.heave.position", "b.heave.velocity"),
+                  ("pto:pto", "excitation:b.heave"),
+                  ("b.heave.position", "b.heave.velocity", "pto:pto.displacement", "pto:pto.velocity"))
+    ctl = MPC()
+    ctl.ptos = ["pto"]
+    ctl.on_start({"parameters": {"omega": [1.0], "excitation_re": [0.0], "excitation_im": [0.0], "horizon": 1.0,
+                                 "blocks": 5, "stroke_limit": 0.01, "history": 5.0},
+                  "dt": 0.1, "period": 0.1, "latency": 1, "plant": plant, "limits": {"max_force": 1.0},
+                  "preview_times": [0.1, 0.2], "bodies": ["b"]})
+    pos, vel = np.zeros((1, 6)), np.zeros((1, 6))
+    pos[0, 2] = 0.5                          # 50 times the stroke limit, a 1 N force cannot bring it back
+    m_ = {"body_position": pos, "body_velocity": vel, "wave_elevation": np.array([0.0]),
+          "wave_preview": np.zeros((1, 2))}
+    with caplog.at_level("WARNING", logger="hydrolink.mpc"):
+        out = ctl.on_step(0.0, m_)
+    assert out == {"pto": 0.0} and ctl.fallbacks == 1
+    assert "QP not solved at t = 0.000 s (primal infeasible" in caplog.text
