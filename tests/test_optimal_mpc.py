@@ -6,8 +6,9 @@ preview and gauge predictors, irregular seas — take minutes and are in bench/b
 (docs/optimal-control.md). Here, in a few seconds: the controller closed around the zero-order-hold
 plant of the device (the plant it receives at join, ``hydrolink linearize``'s state-space radiation)
 in the regular wave, fed the measurements and the perfect preview a run would send; the reference is
-the collocation optimum (HDB A(w), B(w), 7 harmonics), an independent model and method. And a horizon
-shorter than two control periods is refused at join, naming it.
+the collocation optimum (HDB A(w), B(w), 7 harmonics), an independent model and method. A horizon
+shorter than two control periods is refused at join, naming it; a QP that has no solution at run time
+is logged and replaced by the fallback command.
 """
 
 from __future__ import annotations
