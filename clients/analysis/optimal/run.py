@@ -113,7 +113,10 @@ def results_dataset(prob: OptimalProblem, sol: OptimalSolution, scene_text: str,
                      "optimize_active_limits": json.dumps(sol.active),
                      "optimize_utilisation": json.dumps(sol.utilisation),
                      "warnings": json.dumps(prob.warnings)})
+    from importlib.metadata import version
+
     ds.attrs.update({f"{k}_version": v for k, v in package_versions().items()})
+    ds.attrs["osqp_version"] = version("osqp")
     return ds
 
 
