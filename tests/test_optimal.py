@@ -142,3 +142,28 @@ def test_no_reactive_power_order_one_is_the_best_damper(rm3, one_port):
     print(f"no reactive power: {sol.power:.6g} W vs best damper {-best.fun:.6g} W (c = {np.exp(best.x):.4g} N s/m)")
     # the rule is sampled (1024 instants a period): the force may lead v by ~pi/1024, +0.4 % here
     assert 0 <= sol.power / -best.fun - 1 < 0.01 and sol.solver == "slsqp"
+
+
+def test_irregular_sea_repeat_period():
+    """A sea whose components sit at odd multiples of dw/2 (omega_range from a multiple of dw) repeats
+    after 4 pi / dw; any other band is refused naming waves.omega_range; too low an order is refused."""
+    from hydrolink.clients.analysis.optimal.problem import OptimizeError, harmonic_grid
+    from hydrolink.server.sea.waves import wave_components
+    dw = 2 * np.pi / 40.0
+
+    def sea(lo: float, extra: str = ""):
+        text = scene_text("full", Path("rm3.1")).replace(
+            'type = "regular"\nheight = 2.5             # m\nperiod = 8.0             # s',
+            f'type = "irregular"\nspectrum = "jonswap"\nhs = 2.5\ntp = 8.0\ncomponents = 30\n'
+            f'omega_range = [{lo!r}, {lo + 30 * dw!r}]')
+        scene = parse_scene(text + extra)
+        return scene, wave_components(scene.waves, 0.02, 20.0).omega
+
+    scene, omega = sea(5 * dw)
+    w0, harmonics, order = harmonic_grid(scene, omega)
+    assert 2 * np.pi / w0 == pytest.approx(80.0) and order == 2 * 34 + 1
+    np.testing.assert_array_equal(harmonics, 2 * np.arange(5, 35) + 1)
+    with pytest.raises(OptimizeError, match="waves.omega_range: the sea's components are not harmonics"):
+        harmonic_grid(*sea(5.3 * dw))
+    with pytest.raises(OptimizeError, match="optimize.order: 20 harmonics of the repeat period 80 s"):
+        harmonic_grid(*sea(5 * dw, "\n[optimize]\norder = 20\n"))
