@@ -140,11 +140,10 @@ class MPC(Controller):
         self.Hb = 0.5 * (Hb + Hb.T) + reg * np.eye(Hb.shape[0])
         scale = float(info["limits"]["max_force"] or p.get("force_scale", 1e6))
         self.scale = scale
-        rows, self.kinds = [np.eye(Mb.shape[1])], [("force", None)]
+        rows = [np.eye(Mb.shape[1])]
         fmax = info["limits"]["max_force"]
         self.fmax = math.inf if fmax is None else float(fmax)
         X0, XU, XE = S0[nx:], Su[nx:], Se[nx:]
-        self.X0, self.XU, self.XE = X0, XU, XE
         self.limits = []
         for key, C in (("stroke_limit", Cx), ("velocity_limit", Cv)):
             if key in p:
@@ -158,27 +157,28 @@ class MPC(Controller):
         self.osqp.setup(P=sparse.triu(self.Hb * scale ** 2, format="csc"), q=q0, A=sparse.csc_matrix(self.Ac),
                         l=lo, u=hi, eps_abs=1e-5, eps_rel=1e-5, max_iter=4000, polishing=False, warm_starting=True,
                         verbose=False)
-        # excitation prediction
-        omega = np.atleast_1d(np.asarray(p["omega"], float))
-        x = (np.asarray(p["excitation_re"], float) + 1j * np.asarray(p["excitation_im"], float)).reshape(omega.size, len(ei))
-        self.predictor_kind = p.get("predictor", "preview")
-        shift = None
-        if self.predictor_kind == "gauge":
-            k = omega ** 2 / float(p.get("gravity", 9.81))
-            shift = np.exp(1j * k * float(p["gauge_distance"]))
-        elif not len(info["preview_times"]):
-            raise ValueError('mpc: predictor = "preview" needs preview > 0 in the scene\'s [[controllers]]')
-        self.pred = WavePredictor(omega, x, float(p.get("history", 2 * math.pi / omega.min())), shift)
+        self.pred = self._predictor(p, info, len(ei))
         self.preview_times = np.asarray(info["preview_times"], float)
         self.mech = [plant.states.index(s) for s in plant.states if not s.startswith("radiation:")]
         self.mech_names = [s for s in plant.states if not s.startswith("radiation:")]
         self.bodies = list(info["bodies"])
         self.x = np.zeros(nx)
         self.u_prev = np.zeros(self.m)
-        self.e_prev = np.zeros(len(ei))
         self.plan = None
         self.solve_times: list[float] = []
         self.fallbacks = 0
+
+    def _predictor(self, p: dict, info: dict, n_exc: int) -> WavePredictor:
+        """The excitation predictor of the parameters (module docstring)."""
+        omega = np.atleast_1d(np.asarray(p["omega"], float))
+        x = (np.asarray(p["excitation_re"], float) + 1j * np.asarray(p["excitation_im"], float)).reshape(omega.size, n_exc)
+        self.predictor_kind = p.get("predictor", "preview")
+        shift = None
+        if self.predictor_kind == "gauge":      # deep water: k = w^2 / g
+            shift = np.exp(1j * omega ** 2 / float(p.get("gravity", 9.81)) * float(p["gauge_distance"]))
+        elif not len(info["preview_times"]):
+            raise ValueError('mpc: predictor = "preview" needs preview > 0 in the scene\'s [[controllers]]')
+        return WavePredictor(omega, x, float(p.get("history", 2 * math.pi / omega.min())), shift)
 
     def _bounds(self, x1, E):
         """Constraint bounds (scaled force) for the state x1 at the first command's start."""

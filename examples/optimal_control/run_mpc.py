@@ -29,6 +29,7 @@ HERE = Path(__file__).resolve().parent
 REPO = HERE.parents[1]
 SCENE = HERE / "wavebot.toml"
 REPEAT = 80.0       # s: the irregular sea's repeat period
+GAUGE_HISTORY = 40.0   # s of an up-wave gauge's record fitted in an irregular sea
 SETTLE = 10.0       # s after the ramp before the average (the MPC's start-up transient)
 IRREGULAR = '''[waves]
 type = "irregular"
@@ -75,7 +76,8 @@ def excitation_per_metre(scene, hdbs, omega: np.ndarray) -> np.ndarray:
     return xi[:, active]
 
 
-def controller_block(rate: float, dt: float, predictor: str, omega, x, horizon: float, gauge: float) -> str:
+def controller_block(rate: float, dt: float, predictor: str, omega, x, horizon: float, gauge: float,
+                     history: float) -> str:
     period = 1.0 / rate
     latency = int(round(period / dt))
     preview = horizon + 1.0 if predictor == "preview" else 0.0
@@ -87,7 +89,7 @@ def controller_block(rate: float, dt: float, predictor: str, omega, x, horizon: 
             f'wave_points = {probe}\npreview = {preview!r}\n'
             f'parameters = {{ omega = {lst(omega)}, excitation_re = {lst(x.real)}, excitation_im = {lst(x.imag)}, '
             f'horizon = {horizon!r}, blocks = 40, predictor = "{predictor}", gauge_distance = {gauge!r}, '
-            f'history = {max(2 * math.pi / float(np.min(omega)), 10.0)!r} }}\n')
+            f'history = {history!r} }}\n')
 
 
 def _free_port() -> int:
@@ -97,7 +99,7 @@ def _free_port() -> int:
 
 
 def mpc_run(folder: Path, *, rate: float = 10.0, predictor: str = "preview", sea: str = "regular",
-            duration: float = 60.0, dt: float = 0.01, horizon: float = 4.0, gauge: float = 15.0,
+            duration: float = 60.0, dt: float = 0.01, horizon: float = 4.0, gauge: float = 30.0,
             realtime: bool = False, ramp: float | None = None) -> dict:
     """Optimum + MPC run; returns powers, metrics and solve times (module docstring)."""
     import xarray as xr
@@ -121,9 +123,13 @@ def mpc_run(folder: Path, *, rate: float = 10.0, predictor: str = "preview", sea
     if sea == "regular":
         omega = np.array([2 * math.pi / scene.waves.period])
     else:
-        omega = np.linspace(0.6, 6.0, 28)            # the predictor's grid over the spectrum
+        if predictor == "preview":
+            omega = np.linspace(0.6, 6.0, 28)        # the predictor's grid over the spectrum
+        else:                                        # the gauge record's own resolution, 2 pi / GAUGE_HISTORY
+            omega = 2 * math.pi / GAUGE_HISTORY * np.arange(4, 42)
     x = excitation_per_metre(scene, hdbs, omega)
-    text = base + controller_block(rate, dt, predictor, omega, x, horizon, gauge)
+    history = GAUGE_HISTORY if (sea, predictor) == ("irregular", "gauge") else max(2 * math.pi / float(np.min(omega)), 10.0)
+    text = base + controller_block(rate, dt, predictor, omega, x, horizon, gauge, history)
     path.write_text(text)
     token = secrets.token_urlsafe(32)
     listen = f"tcp://127.0.0.1:{_free_port()}"
