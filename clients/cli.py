@@ -401,6 +401,20 @@ def control(file: Path, server: str, token: str, session: str | None, name: str 
     click.echo(f"controller done: {stats['steps']} steps, {stats['errors']} errors", err=True)
 
 
+def _analysis(fn, scene: Path, *args, **kwargs):
+    """Run an analysis of SCENE (steady, linearize, optimize): its SteadyError as the user's error
+    naming the file, its notes on stderr; returns its summary."""
+    from hydrolink.clients.analysis.steady import SteadyError
+
+    try:
+        out = _guard(fn, scene, *args, **kwargs)
+    except SteadyError as exc:
+        raise _UserError(f"{scene}: {exc}") from None
+    for note in (out["warnings"] if isinstance(out, dict) else out.warnings):
+        click.echo(f"note: {note}", err=True)
+    return out
+
+
 @cli.command()
 @click.argument("scene", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path),
@@ -412,18 +426,33 @@ def control(file: Path, server: str, token: str, session: str | None, name: str 
 def steady(scene: Path, output: Path | None, order: int | None, formulation: str | None, dt: float | None,
            no_progress: bool) -> None:
     """Periodic steady state of a SCENE in regular waves by pseudo-spectral collocation (docs/steady.md)."""
-    from hydrolink.clients.analysis.steady import SteadyError, steady_scene_file
+    from hydrolink.clients.analysis.steady import steady_scene_file
 
-    try:
-        s = _guard(steady_scene_file, scene, output, order=order, formulation=formulation, dt=dt,
-                   progress=not no_progress)
-    except SteadyError as exc:
-        raise _UserError(f"{scene}: {exc}") from None
-    for note in s["warnings"]:
-        click.echo(f"note: {note}", err=True)
+    s = _analysis(steady_scene_file, scene, output, order=order, formulation=formulation, dt=dt,
+                  progress=not no_progress)
     click.echo(f"wrote {s['output']}: one period, {s['rows']} rows; order {s['order']} ({s['formulation']}, "
                f"{s['unknowns']} unknowns), {s['iterations']} Newton iteration(s), residual {s['residual']:.1e}, "
                f"solve {1e3 * s['solve_seconds']:.1f} ms")
+
+
+@cli.command()
+@click.argument("scene", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path),
+              help="Results NetCDF, one (repeat) period (default: SCENE with .optimal.nc).")
+@click.option("--dt", type=click.FloatRange(min=0, min_open=True), help="Output sampling (default simulation.dt).")
+@click.option("--no-progress", is_flag=True, help="Hide the HDB build progress bar.")
+def optimize(scene: Path, output: Path | None, dt: float | None, no_progress: bool) -> None:
+    """PTO forces maximising the mean absorbed power of SCENE under its [optimize] limits (docs/optimal-control.md)."""
+    from hydrolink.clients.analysis.optimal.run import optimize_scene_file
+
+    s = _analysis(optimize_scene_file, scene, output, dt=dt, progress=not no_progress)
+    click.echo(f"wrote {s.output}: optimum {s.power:.6g} W = {100 * s.power / s.unconstrained_power:.1f} % of the "
+               f"unconstrained bound {s.unconstrained_power:.6g} W (period {s.period:.4g} s, order {s.order}, "
+               f"{s.solver} {s.status}, {1e3 * s.solve_seconds:.0f} ms)")
+    for use in s.metrics.limits:
+        click.echo(f"  {use.label}: {100 * use.utilisation:.1f} % of {use.bound:g}"
+                   + (" (active)" if use.label in s.active else ""))
+    click.echo(f"  peak-to-average power {s.metrics.peak_to_average:.3g}")
 
 
 @cli.command()
@@ -436,14 +465,8 @@ def steady(scene: Path, output: Path | None, order: int | None, formulation: str
 def linearize(scene: Path, output: Path, dt: float | None, no_progress: bool) -> None:
     """The device of SCENE as a linear state-space plant about its equilibrium (docs/plant.md)."""
     from hydrolink.clients.analysis.plant import linearize_scene_file
-    from hydrolink.clients.analysis.steady import SteadyError
 
-    try:
-        p = _guard(linearize_scene_file, scene, output, dt=dt, progress=not no_progress)
-    except SteadyError as exc:
-        raise _UserError(f"{scene}: {exc}") from None
-    for note in p.warnings:
-        click.echo(f"note: {note}", err=True)
+    p = _analysis(linearize_scene_file, scene, output, dt=dt, progress=not no_progress)
     kind = "continuous" if p.dt is None else f"discrete, dt = {p.dt:g} s (zero-order hold)"
     click.echo(f"wrote {output}: {len(p.states)} states ({len(p.states) - sum(s.startswith('radiation:') for s in p.states)}"
                f" mechanical), {len(p.inputs)} inputs, {len(p.outputs)} outputs, {kind}")

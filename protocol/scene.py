@@ -368,6 +368,43 @@ class Steady(_Section):
     # domain's truncated, sampled convolution realises (K(t) at dt over irf_duration)
     radiation: Literal["hdb", "convolution"] = "hdb"
 
+class OptimizeLimit(_Section):
+    """One ``[[optimize.limits]]`` entry: bounds on a PTO (``pto``: its force, stroke = extension from
+    equilibrium, velocity) or on a body DOF (``body`` + ``dof``: its displacement, velocity)."""
+    pto: str | None = None
+    body: str | None = None
+    dof: Literal["surge", "sway", "heave", "roll", "pitch", "yaw"] | None = None
+    force: PositiveCoefficient | None = None          # N (N m for a rotary PTO axis)
+    stroke: PositiveCoefficient | None = None         # m (rad)
+    displacement: PositiveCoefficient | None = None   # m (rad), a body DOF from equilibrium
+    velocity: PositiveCoefficient | None = None       # m/s (rad/s)
+
+    @model_validator(mode="after")
+    def _target(self) -> "OptimizeLimit":
+        if (self.pto is None) == (self.body is None):
+            raise ValueError("give pto (a PTO's limits) or body + dof (a body DOF's limits), one of them")
+        if self.body is not None and self.dof is None:
+            raise ValueError("dof: required with body")
+        if self.pto is not None and (self.dof is not None or self.displacement is not None):
+            raise ValueError("dof, displacement: for a body's limit (body = ...), not a PTO's (use stroke)")
+        if self.body is not None and (self.force is not None or self.stroke is not None):
+            raise ValueError("force, stroke: for a PTO's limit (pto = ...), not a body's")
+        if all(getattr(self, k) is None for k in ("force", "stroke", "displacement", "velocity")):
+            raise ValueError("no limit given: force, stroke, displacement or velocity")
+        return self
+
+
+class Optimize(_Section):
+    """``hydrolink optimize``: the PTO force trajectory maximising the mean absorbed power over one
+    wave period (regular) or repeat period (irregular), under ``limits``; clients/analysis/optimal/,
+    docs/optimal-control.md. A PTO's ``force_limit``/``torque_limit`` is its force limit unless a
+    limit entry gives one."""
+    order: HarmonicCount | None = None              # default: [steady] order (regular waves)
+    oversampling: Annotated[int, Field(ge=2, le=64)] = 8    # fine-grid points per collocation interval
+    reactive: bool = True                           # false: no reactive power (P_pto(t) >= 0)
+    limits: list[OptimizeLimit] = []
+
+
 Vector3 = Annotated[list[Coordinate], Field(min_length=3, max_length=3)]
 Vector6 = Annotated[list[Displacement], Field(min_length=6, max_length=6)]
 Velocity6 = Annotated[list[Speed], Field(min_length=6, max_length=6)]
@@ -673,7 +710,9 @@ class LinearPTO(_Section):
     body2: Name
     point2: Vector3 | None = None
     direction: UnitVector | None = None         # to ground: along a global axis, e.g. [0, 0, -1]
-    stiffness: NonNegativeCoefficient = 0.0
+    # may be negative: a reactive controller's tuning below resonance commands a negative spring
+    # (the plant stays stable while the hydrostatic stiffness exceeds it; hydrolink steady/optimize)
+    stiffness: Coefficient = 0.0
     damping: NonNegativeCoefficient = 0.0
     rest_length: NonNegativeLength | None = None      # default: the initial distance (no preload)
     force_limit: PositiveCoefficient | None = None
@@ -713,7 +752,7 @@ class RotaryPTO(_Section):
     point: Vector3
     axes: Annotated[list[RotaryAxis], Field(min_length=1, max_length=3)]
     frame: Annotated[list[UnitVector], Field(min_length=3, max_length=3)] | None = None
-    stiffness: Union[NonNegativeCoefficient, Annotated[list[NonNegativeCoefficient], Field(min_length=1, max_length=3)]] = 0.0
+    stiffness: Union[Coefficient, Annotated[list[Coefficient], Field(min_length=1, max_length=3)]] = 0.0   # < 0: reactive
     damping: Union[NonNegativeCoefficient, Annotated[list[NonNegativeCoefficient], Field(min_length=1, max_length=3)]] = 0.0
     torque_limit: PositiveCoefficient | None = None
 
@@ -976,6 +1015,7 @@ class Scene(_Section):
     current: Current | None = None
     hydro: Hydro = Hydro()
     steady: Steady = Steady()
+    optimize: Optimize = Optimize()
     coupling: Coupling = Coupling()
     bodies: Annotated[list[Body], Field(min_length=1)]
     point_masses: list[PointMass] = []

@@ -86,6 +86,14 @@ def check_scene(scene: Scene) -> None:
     if not isinstance(scene.waves, RegularWave):
         raise SteadyError("waves.type", f"hydrolink steady needs regular waves (got {scene.waves.type!r}); "
                                         "run irregular seas with hydrolink run")
+    if scene.controllers:
+        raise SteadyError("controllers", "a controller's commands are not part of the periodic model")
+    check_mechanism(scene)
+
+
+def check_mechanism(scene: Scene) -> None:
+    """Refuse what the linearised periodic model cannot represent, whatever the waves and controllers
+    (``hydrolink optimize`` takes irregular seas and replaces the controllers by its own forces)."""
     if scene.client.type != "exudyn":
         raise SteadyError("client.type", "hydrolink steady builds the mechanism with the Exudyn client, "
                                          "an FMU's equations are not accessible")
@@ -100,8 +108,6 @@ def check_scene(scene: Scene) -> None:
     for i, j in enumerate(scene.joints):
         if j.friction is not None:
             raise SteadyError(f"joints[{i}].friction", "joint friction is not supported by hydrolink steady")
-    if scene.controllers:
-        raise SteadyError("controllers", "a controller's commands are not part of the periodic model")
     refuse_unsupported(scene, "steady", SteadyError)
     for i, c in enumerate(scene.constraints):
         if c.value != 0.0:

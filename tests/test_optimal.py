@@ -1,0 +1,169 @@
+"""``hydrolink optimize`` (clients/analysis/optimal/) on RM3 (regular wave H = 2.5 m, T = 8 s) against
+closed forms written here from the HDB's frequency domain (tests/test_rm3.py's two-body heave model).
+
+One PTO between the float and the spar: with v = Y (F_ex - g f) (Y the 2x2 velocity admittance,
+g = (1, -1) the PTO's line), the PTO's rate is v_p = v_oc - y f with v_oc = g^T Y F_ex, y = g^T Y g
+(a one-port). The mean power of f = Re(F e^{-iwt}) is 1/2 Re(conj(F) v_p); over F's phase at |F| = r
+it is 1/2 r |v_oc| - 1/2 r^2 Re y, hence
+
+- unconstrained (complex-conjugate): P* = |v_oc|^2 / (8 Re y), at r* = |v_oc| / (2 Re y);
+- force limit F_max < r* with a sinusoidal force (order 1): P = 1/2 F_max |v_oc| - 1/2 F_max^2 Re y;
+- stroke limit S (|v_p| <= w S): in v_p, P = 1/2 V |v_oc| / |y| - 1/2 V^2 Re y / |y|^2 at V = w S.
+With more harmonics the force-limited optimum gains (a squarer force has a larger fundamental), up to P*.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hydrolink.protocol.scene import parse_scene
+from test_rm3 import HEAVE, H, MASS, W, _at_w, hdb_radiation, scene_text
+
+pytestmark = pytest.mark.xdist_group("steady")
+
+
+@pytest.fixture(scope="module")
+def rm3(reference_data):
+    from hydrolink.server.hdb.io import load_hdb
+    return load_hdb(reference_data / "rm3_wamit" / "rm3.1")
+
+
+@pytest.fixture(scope="module")
+def one_port(rm3) -> tuple[complex, complex]:
+    """(v_oc, y) of the PTO's line from the HDB's heave blocks at w (velocity, exp(-iwt))."""
+    a, b = hdb_radiation(rm3)
+    c_hs = rm3["hydrostatic_stiffness"].values[np.ix_(HEAVE, HEAVE)]
+    z = -W ** 2 * (np.diag(MASS) + a) - 1j * W * b + c_hs          # z x = F
+    Y = -1j * W * np.linalg.inv(z)                                 # v = Y F
+    f_ex = _at_w(rm3, rm3["excitation_force"].values[:, 0, HEAVE]) * H / 2
+    g = np.array([1.0, -1.0])
+    return complex(g @ Y @ f_ex), complex(g @ Y @ g)
+
+
+def _optimum(rm3, extra: str):
+    from hydrolink.clients.analysis.optimal.run import optimize_scene
+    scene = parse_scene(scene_text("full", Path("rm3.1")) + extra)
+    prob, sol, _ = optimize_scene(scene, {b.hdb: rm3 for b in scene.bodies})
+    return prob, sol
+
+
+def _fine(prob, values: np.ndarray, n: int = 4000, derivative: int = 0) -> np.ndarray:
+    """Nodal values (P,) interpolated on ``n`` instants of the period (independent of the solver's grid)."""
+    k = np.arange(-prob.order, prob.order + 1)
+    c = np.fft.fftshift(np.fft.fft(values)) / values.size * (1j * k * prob.omega0) ** derivative
+    t = np.arange(n) * 2 * np.pi / prob.omega0 / n
+    return np.real(np.exp(1j * np.outer(t, k * prob.omega0)) @ c)
+
+
+def test_unconstrained_is_the_complex_conjugate_bound(rm3, one_port):
+    v_oc, y = one_port
+    p_cc = abs(v_oc) ** 2 / (8 * y.real)
+    prob, sol = _optimum(rm3, "\n[optimize]\norder = 4\n")
+    print(f"optimum {sol.power:.6g} W, unconstrained {sol.unconstrained_power:.6g} W, closed form {p_cc:.6g} W")
+    assert sol.unconstrained_power == pytest.approx(p_cc, rel=1e-6)
+    assert sol.power == pytest.approx(p_cc, rel=1e-6) and not sol.active
+    # its force amplitude is r* and only the first harmonic moves
+    f = _fine(prob, sol.u)
+    assert np.abs(f).max() == pytest.approx(abs(v_oc) / (2 * y.real), rel=1e-6)
+
+
+def test_force_limit_sinusoid_closed_form_and_harmonics_gain(rm3, one_port):
+    v_oc, y = one_port
+    r_star = abs(v_oc) / (2 * y.real)
+    f_max = 0.5 * r_star
+    closed = 0.5 * f_max * abs(v_oc) - 0.5 * f_max ** 2 * y.real
+    limit = f"\n[[optimize.limits]]\npto = \"pto\"\nforce = {f_max!r}\n"
+    prob1, sol1 = _optimum(rm3, "\n[optimize]\norder = 1\n" + limit)
+    prob10, sol10 = _optimum(rm3, "\n[optimize]\norder = 10\n" + limit)
+    print(f"F_max {f_max:.4g} N: order 1 {sol1.power:.6g} W vs closed form {closed:.6g} W; order 10 {sol10.power:.6g} W; "
+          f"bound {sol10.unconstrained_power:.6g} W")
+    assert sol1.power == pytest.approx(closed, rel=1e-3)
+    assert sol1.active == ["pto.force"] and sol10.active == ["pto.force"]
+    assert closed * 1.01 < sol10.power < sol10.unconstrained_power
+    for prob, sol in ((prob1, sol1), (prob10, sol10)):     # held between the nodes too
+        assert np.abs(_fine(prob, sol.u)).max() <= f_max * 1.005
+
+
+def test_stroke_limit_closed_form(rm3, one_port):
+    v_oc, y = one_port
+    v_star = abs(v_oc) / 2                  # |v_p| at the conjugate optimum (v_p = v_oc / 2)
+    stroke = 0.6 * v_star / W
+    V = W * stroke
+    closed = 0.5 * V * abs(v_oc) / abs(y) - 0.5 * V ** 2 * y.real / abs(y) ** 2
+    prob, sol = _optimum(rm3, f"\n[optimize]\norder = 1\n[[optimize.limits]]\npto = \"pto\"\nstroke = {stroke!r}\n")
+    print(f"stroke {stroke:.4g} m: {sol.power:.6g} W vs closed form {closed:.6g} W")
+    assert sol.power == pytest.approx(closed, rel=1e-3) and sol.active == ["pto.stroke"]
+    ext = (prob.s0 + prob.Ts @ sol.u)
+    assert np.abs(_fine(prob, ext)).max() <= stroke * 1.005
+
+
+def test_reactive_spring_damper_reaches_the_bound_in_steady(rm3, one_port):
+    """A negative PTO stiffness is a scene a controller may command: steady with the conjugate
+    tuning (f = c v_p + k x_p = conj(1/y) v_p) absorbs the complex-conjugate power."""
+    from hydrolink.clients.analysis.steady import hydro_model, linearize, sample, solve
+    v_oc, y = one_port
+    z_p = np.conj(1 / y)                    # f = z_p v_p; x_p = v_p / (-iw): f = (c + i k / w) v_p
+    c, k = float(z_p.real), float(z_p.imag * W)
+    assert k < 0
+    text = scene_text("full", Path("rm3.1")).replace("damping = 1.2e6", f"damping = {c!r}\nstiffness = {k!r}")
+    scene = parse_scene(text)
+    model = hydro_model(scene, {b.hdb: rm3 for b in scene.bodies})
+    sol = solve(linearize(scene, model, model.setup_info()), 1, "ode")
+    p = sample(sol, np.linspace(0, 2 * np.pi / W, 200, endpoint=False))["pto_power"].mean()
+    assert p == pytest.approx(abs(v_oc) ** 2 / (8 * y.real), rel=1e-6)
+
+
+def test_bad_limits_are_refused(rm3):
+    from hydrolink.clients.analysis.optimal.problem import OptimizeError
+    with pytest.raises(OptimizeError, match=r"optimize.limits\[0\].pto: no PTO named 'ptoo'"):
+        _optimum(rm3, "\n[[optimize.limits]]\npto = \"ptoo\"\nforce = 1e5\n")
+    with pytest.raises(OptimizeError, match=r"optimize.limits\[1\].body: no body named 'flot'"):
+        _optimum(rm3, "\n[[optimize.limits]]\npto = \"pto\"\nforce = 1e5\n"
+                      "[[optimize.limits]]\nbody = \"flot\"\ndof = \"heave\"\ndisplacement = 1.0\n")
+    # the float's heave held within 1 mm by a PTO force of at most 1 kN against a 2.5 m wave
+    with pytest.raises(OptimizeError, match="admit no periodic motion"):
+        _optimum(rm3, "\n[optimize]\norder = 2\n[[optimize.limits]]\npto = \"pto\"\nforce = 1e3\n"
+                      "[[optimize.limits]]\nbody = \"float\"\ndof = \"heave\"\ndisplacement = 1e-3\n")
+    with pytest.raises(ValueError, match="no limit given"):
+        parse_scene(scene_text("full", Path("rm3.1")) + "\n[[optimize.limits]]\npto = \"pto\"\n")
+
+
+def test_no_reactive_power_order_one_is_the_best_damper(rm3, one_port):
+    """``reactive = false``: u(t) v(t) >= 0 with sinusoids forces u in phase with v: a damper u = c v_p; the best c by a
+    scalar search over the one-port's P(c) = 1/2 c |v_oc / (1 + y c)|^2."""
+    from scipy.optimize import minimize_scalar
+    v_oc, y = one_port
+    best = minimize_scalar(lambda lc: -0.5 * np.exp(lc) * abs(v_oc / (1 + y * np.exp(lc))) ** 2,
+                           bounds=(np.log(1e4), np.log(1e8)), method="bounded")
+    prob, sol = _optimum(rm3, "\n[optimize]\norder = 1\nreactive = false\n")
+    print(f"no reactive power: {sol.power:.6g} W vs best damper {-best.fun:.6g} W (c = {np.exp(best.x):.4g} N s/m)")
+    # the rule is sampled (1024 instants a period): the force may lead v by ~pi/1024, +0.4 % here
+    assert 0 <= sol.power / -best.fun - 1 < 0.01 and sol.solver == "slsqp"
+
+
+def test_irregular_sea_repeat_period():
+    """A sea whose components sit at odd multiples of dw/2 (omega_range from a multiple of dw) repeats
+    after 4 pi / dw; any other band is refused naming waves.omega_range; too low an order is refused."""
+    from hydrolink.clients.analysis.optimal.problem import OptimizeError, harmonic_grid
+    from hydrolink.server.sea.waves import wave_components
+    dw = 2 * np.pi / 40.0
+
+    def sea(lo: float, extra: str = ""):
+        text = scene_text("full", Path("rm3.1")).replace(
+            'type = "regular"\nheight = 2.5             # m\nperiod = 8.0             # s',
+            f'type = "irregular"\nspectrum = "jonswap"\nhs = 2.5\ntp = 8.0\ncomponents = 30\n'
+            f'omega_range = [{lo!r}, {lo + 30 * dw!r}]')
+        scene = parse_scene(text + extra)
+        return scene, wave_components(scene.waves, 0.02, 20.0).omega
+
+    scene, omega = sea(5 * dw)
+    w0, harmonics, order = harmonic_grid(scene, omega)
+    assert 2 * np.pi / w0 == pytest.approx(80.0) and order == 2 * 34 + 1
+    np.testing.assert_array_equal(harmonics, 2 * np.arange(5, 35) + 1)
+    with pytest.raises(OptimizeError, match="waves.omega_range: the sea's components are not harmonics"):
+        harmonic_grid(*sea(5.3 * dw))
+    with pytest.raises(OptimizeError, match="optimize.order: 20 harmonics of the repeat period 80 s"):
+        harmonic_grid(*sea(5 * dw, "\n[optimize]\norder = 20\n"))
