@@ -219,16 +219,23 @@ def _version() -> str:
 
 def load_controller(path: str | Path, class_name: str | None = None) -> Controller:
     """Instantiate the Controller subclass defined in the Python file ``path`` (the only one, or
-    ``class_name``)."""
+    ``class_name``); a file with none that defines WAPPAC's ``my_controller(x, v, t, eta10)`` runs
+    it through :class:`hydrolink.clients.wappac.WappacController`."""
     path = Path(path)
     spec = importlib.util.spec_from_file_location(f"hydrolink_controller_{path.stem}", path)
     if spec is None or spec.loader is None:
         raise ControllerError(f"{path}: not a Python file")
     module = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = module
+    packages = path.resolve().parent / "external_packages"     # WAPPAC's folder for an entry's packages
+    if packages.is_dir() and str(packages) not in sys.path:
+        sys.path.insert(0, str(packages))
     spec.loader.exec_module(module)
     found = [obj for _, obj in inspect.getmembers(module, inspect.isclass)
              if issubclass(obj, Controller) and obj is not Controller and obj.__module__ == module.__name__]
+    if not found and class_name is None and callable(getattr(module, "my_controller", None)):
+        from hydrolink.clients.wappac import WappacController
+        return WappacController(module.my_controller, str(path))
     if class_name is not None:
         found = [c for c in found if c.__name__ == class_name]
     if len(found) != 1:
