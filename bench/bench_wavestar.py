@@ -17,19 +17,18 @@ before and after: on a loaded 2-core host the figures are the host's as much as 
 from __future__ import annotations
 
 import argparse
+import json
 import os
-import secrets
-import subprocess
+import platform
 import sys
 import tempfile
 from pathlib import Path
 
-from bench_realtime import UNPACED, breakdown, free_port, step_cost   # bench/ is on the path
+from bench_realtime import UNPACED, breakdown, run_controlled, step_cost   # bench/ is on the path
 
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLE = REPO / "examples" / "wavestar"
 HDB = REPO / "examples" / "data" / "wavestar" / "wavestar.out"
-TOKEN = secrets.token_urlsafe(32)
 
 
 def scene(name: str, seconds: float) -> str:
@@ -49,54 +48,45 @@ def run(tmp: Path, controlled: bool, seconds: float, realtime: float):
     name = "wavestar.toml" if controlled else "wavestar_passive.toml"
     path = tmp / f"{'wappac' if controlled else 'none'}_{'paced' if realtime == 1.0 else 'free'}.toml"
     path.write_text(scene(name, seconds))
-    if not controlled:
-        return run_scene_file(path, path.with_suffix(".nc"), progress=False, realtime=realtime)
-    address = f"tcp://127.0.0.1:{free_port()}"
-    ctl = subprocess.Popen([sys.executable, "-m", "hydrolink.clients.cli", "control", str(EXAMPLE / "wappac_damping.py"),
-                            "--server", address, "--token", TOKEN, "--join-wait", "60"],
-                           stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    try:
-        return run_scene_file(path, path.with_suffix(".nc"), progress=False, listen=address, control_token=TOKEN,
-                              realtime=realtime)
-    finally:
-        try:
-            ctl.communicate(timeout=30)
-        except subprocess.TimeoutExpired:
-            ctl.kill()
-            ctl.communicate()
+    if controlled:
+        return run_controlled(path, EXAMPLE / "wappac_damping.py", realtime)
+    return run_scene_file(path, path.with_suffix(".nc"), progress=False, realtime=realtime)
+
+
+def case(tmp: Path, controlled: bool, seconds: float, unpaced_seconds: float) -> dict:
+    """The unpaced and the paced run of one case: what a step costs, what the pacing kept."""
+    unpaced = run(tmp, controlled, unpaced_seconds, UNPACED)
+    paced = run(tmp, controlled, seconds, 1.0)
+    rt = paced.realtime
+    c50, c99 = step_cost(unpaced)
+    return {"controller": "WAPPAC wappac_damping.py" if controlled else None,
+            "unpaced_step_ms": {"p50": 1e3 * c50, "p99": 1e3 * c99},
+            "server_model_us_per_step": unpaced.server_compute_us_per_step,
+            "paced": {"steps": rt.steps, "overruns": rt.overruns, "overrun_percent": 100 * rt.overruns / max(rt.steps, 1),
+                      "worst_lateness_ms": 1e3 * rt.worst_lateness, "latency_ms": {
+                          "p50": 1e3 * rt.latency_p50, "p99": 1e3 * rt.latency_p99, "max": 1e3 * rt.latency_max}},
+            "where": breakdown(1000.0, paced)}
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=60.0, help="simulated (= wall) seconds of each paced run")
     ap.add_argument("--unpaced-seconds", type=float, default=5.0, help="simulated seconds of each unpaced run")
+    ap.add_argument("--json", help="also write the figures to this file")
     args = ap.parse_args()
-    rows, notes = [], []
     load0 = os.getloadavg()
     with tempfile.TemporaryDirectory() as d:
-        tmp = Path(d)
-        for controlled in (True, False):
-            label = "WAPPAC controller" if controlled else "no controller"
-            unpaced = run(tmp, controlled, args.unpaced_seconds, UNPACED)
-            paced = run(tmp, controlled, args.seconds, 1.0)
-            rt = paced.realtime
-            c50, c99 = step_cost(unpaced)
-            notes.append(breakdown(1000.0, paced).replace("- 1000 Hz", f"- {label}") +
-                         f"; unpaced: the server's model {unpaced.server_compute_us_per_step:.1f} µs per step")
-            rows.append((label, 1e3 * c50, 1e3 * c99, rt.steps, rt.overruns, 1e3 * rt.worst_lateness,
-                         1e3 * rt.latency_p50, 1e3 * rt.latency_p99, 1e3 * rt.latency_max))
-            print(f"{label}: unpaced {unpaced.realtime}; paced {rt}", file=sys.stderr, flush=True)
-    load1 = os.getloadavg()
-    print(f"WaveStar at 1 kHz; load average {load0[0]:.2f} before, {load1[0]:.2f} after ({os.cpu_count()} CPUs)\n")
-    print("| case | unpaced step p50 (ms) | unpaced p99 (ms) | paced steps | overruns | worst lateness (ms) | "
-          "paced latency p50 (ms) | p99 (ms) | max (ms) |")
-    print("|---|---|---|---|---|---|---|---|---|")
-    for r in rows:
-        print(f"| {r[0]} | {r[1]:.3f} | {r[2]:.3f} | {r[3]} | {r[4]} ({100 * r[4] / max(r[3], 1):.2g} %) | {r[5]:.2f} | "
-              f"{r[6]:.3f} | {r[7]:.3f} | {r[8]:.2f} |")
-    print()
-    for line in notes:
-        print(line)
+        cases = {label: case(Path(d), controlled, args.seconds, args.unpaced_seconds)
+                 for label, controlled in (("wappac", True), ("no_controller", False))}
+    out = {"case": "WECCCOMP WaveStar, dt 1 ms, paced at 1 kHz", "machine": platform.node(),
+           "processor": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
+           "load_average_before": load0[0], "load_average_after": os.getloadavg()[0],
+           "goal": "<= 0.1 % overruns and p99 <= 0.5 ms at load <= 1.5", "cases": cases}
+    text = json.dumps(out, indent=2)
+    print(text)
+    if args.json:
+        Path(args.json).write_text(text)
+    print(f"load {out['load_average_before']:.2f} -> {out['load_average_after']:.2f}", file=sys.stderr)
 
 
 if __name__ == "__main__":

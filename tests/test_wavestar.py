@@ -18,9 +18,9 @@ float's linear pitch damping.
 - With the scene's state-space radiation the float is heavily damped (B(w_n) ~ 2.8 N m s/rad,
   zeta ~ 0.2) and its added mass falls from 0.80 to 0.47 kg m^2 between 4 and 10 rad/s, so no
   single-frequency formula gives the period to 2 % (A(w_n) gives 0.76 s, A_inf 0.74 s; the decay
-  runs at 0.81 s). The reference integrates the same equation with the radiation memory written
+  runs at 0.82 s). The reference integrates the same equation with the radiation memory written
   here, (I_A + A_inf) th'' + b th' + int_0^2s K(t) th'(t - s) ds + K_A th = 0,
-  K(t) = (2/pi) int B(w) cos(wt) dw (the scene's 2 s of memory): its period, within 2 %.
+  K(t) = (2/pi) int B(w) cos(wt) dw (the scene's 2 s of memory and its taper): its period, within 2 %.
 
 The WAPPAC adapter (clients/wappac.py): examples/wavestar/wappac_damping.py, which only defines
 ``my_controller(x, v, t, eta10)``, run by ``hydrolink control`` in its own process against the
@@ -30,8 +30,6 @@ scene: the PTO force of each step is the damper's c v of the velocity measured t
 from __future__ import annotations
 
 import functools
-import subprocess
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -42,6 +40,8 @@ import xarray as xr
 from hydrolink.clients.control import ControllerError, load_controller
 from hydrolink.clients.run import run_scene_file
 from hydrolink.server.hdb.io import load_hdb
+
+from conftest import controller_process
 
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLE = REPO / "examples" / "wavestar"
@@ -67,13 +67,18 @@ class Hinge:
         w = np.sqrt(self.stiffness / mass)
         return 2 * np.pi / (w * np.sqrt(1 - (PITCH_DAMPING / (2 * w * mass)) ** 2))
 
-    def decay_with_memory(self, theta: float, dt: float, duration: float, memory: float = 2.0) -> tuple:
+    def decay_with_memory(self, theta: float, dt: float, duration: float, memory: float = 2.0,
+                          taper: float = 0.3) -> tuple:
         """(time, pitch rate) of the decay with radiation memory: Newmark average acceleration, the
-        memory K(t) = (2/pi) int B(w) cos(wt) dw (trapezoids over the HDB's w, B(0) = 0) summed by
-        trapezoids over the last ``memory`` s, its current-velocity term implicit."""
+        memory K(t) = (2/pi) int B(w) cos(wt) dw (trapezoids over the HDB's w, B(0) = 0) times the
+        scene's cosine taper (1, then 1/2 (1 + cos) over the last ``taper`` of ``memory``), summed
+        by trapezoids over the last ``memory`` s, its current-velocity term implicit."""
         lags = np.arange(int(round(memory / dt)) + 1) * dt
         om, b = np.r_[0.0, self.omega], np.r_[0.0, self.damping]
-        kernel = 2 / np.pi * np.trapezoid(b * np.cos(np.outer(lags, om)), om, axis=1) * dt
+        start = (1 - taper) * memory           # the scene's cosine taper over the memory's last part
+        window = np.ones_like(lags) if taper == 0 else np.where(
+            lags < start, 1.0, 0.5 * (1 + np.cos(np.pi * (np.maximum(lags, start) - start) / (memory - start))))
+        kernel = 2 / np.pi * np.trapezoid(b * np.cos(np.outer(lags, om)), om, axis=1) * window * dt
         kernel[-1] *= 0.5
         mass, k = self.inertia + self.added_mass_inf, self.stiffness
         c = PITCH_DAMPING + 0.5 * kernel[0]
@@ -186,18 +191,9 @@ def test_wappac_controller_process_drives_the_pto(tmp_path, server):
         text = text.replace(a, b)
     scene = tmp_path / "wavestar.toml"
     scene.write_text(text)
-    proc = subprocess.Popen([sys.executable, "-m", "hydrolink.clients.cli", "control", str(EXAMPLE / "wappac_damping.py"),
-                             "--server", server, "--token", token, "--join-wait", "60"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
+    with controller_process(EXAMPLE / "wappac_damping.py", server, token) as ended:
         run_scene_file(scene, tmp_path / "out.nc", server=server, progress=False, timeout=60.0, control_token=token)
-    finally:
-        try:
-            _, err = proc.communicate(timeout=30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            _, err = proc.communicate()
-    assert proc.returncode == 0, err
+    assert ended.returncode == 0, ended.stderr
     ds = xr.load_dataset(tmp_path / "out.nc")
     force = ds.pto_force.sel(pto="pto").values
     velocity = ds.pto_velocity.sel(pto="pto").values
