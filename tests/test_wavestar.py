@@ -22,7 +22,7 @@ float's linear pitch damping.
   here, (I_A + A_inf) th'' + b th' + int_0^2s K(t) th'(t - s) ds + K_A th = 0,
   K(t) = (2/pi) int B(w) cos(wt) dw (the scene's 2 s of memory and its taper): its period, within 2 %.
 
-The WAPPAC adapter (clients/wappac.py): examples/wavestar/wappac_damping.py, which only defines
+The WAPPAC adapter (clients/control.py, WappacController): examples/wavestar/wappac_damping.py, which only defines
 ``my_controller(x, v, t, eta10)``, run by ``hydrolink control`` in its own process against the
 scene: the PTO force of each step is the damper's c v of the velocity measured the step before.
 """

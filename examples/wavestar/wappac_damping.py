@@ -7,7 +7,7 @@ F_pto * v >= 0. This one is a passive linear damper, F_pto = c v. hydrolink runs
     hydrolink control examples/wavestar/wappac_damping.py --server tcp://127.0.0.1:PORT --token TOKEN
 
 (x, v: the PTO's extension from rest and its rate; eta10: the elevation at the scene controller's
-first wave probe; clients/wappac.py.) The damping is near the passive optimum of the WaveStar
+first wave probe; clients/control.py, WappacController.) The damping is near the passive optimum of the WaveStar
 PTO at the sea state's peak period (examples/wavestar/README.md).
 """
 
