@@ -58,12 +58,22 @@ def _table(rows: list[list[float]], lines: list[int], width: int) -> Table:
     return Table(np.asarray(padded, float).reshape(-1, width), np.asarray(lines, int))
 
 
+_NUMBER_START = frozenset("0123456789+-.")
+
+
 def _numbers(line: str) -> list[float] | None:
-    """The line's numbers when it is nothing but numbers (None otherwise)."""
+    """The line's numbers when it is nothing but numbers (None otherwise). Most of a report's
+    lines are table rows: converted at once, the few others fail on their first word."""
     tokens = line.split()
-    if not tokens or not all(re.fullmatch(_FLOAT, t) for t in tokens):
+    if not tokens or tokens[0][0] not in _NUMBER_START:
         return None
-    return [float(t.replace("D", "E").replace("d", "e")) for t in tokens]
+    try:
+        values = [float(t) for t in tokens]
+    except ValueError:
+        if not all(re.fullmatch(_FLOAT, t) for t in tokens):      # Fortran's D exponents
+            return None
+        values = [float(t.replace("D", "E").replace("d", "e")) for t in tokens]
+    return values if all(map(math.isfinite, values)) and "_" not in line else None
 
 
 class _Scan:
@@ -85,6 +95,8 @@ class _Scan:
     def header(self, line: str, number: int) -> None:
         """A line that is not a table row: it may start a period, a table or a heading."""
         stripped = line.strip()
+        if not stripped or stripped[0] in "*-":
+            return
         if m := re.match(r"Wave period\s*=\s*(infinite|zero)\b", stripped):
             self.period, self.section = (-1.0 if m.group(1) == "infinite" else 0.0), ""
         elif m := re.match(rf"Wave period \(sec\)\s*=\s*({_FLOAT})", stripped):
@@ -99,8 +111,7 @@ class _Scan:
             self.body += 1
         elif key := next((k for k in _HYDROSTATIC_LINES if stripped.startswith(k)), None):
             self._hydrostatic(stripped[len(key):], _HYDROSTATIC_LINES[key], number)
-        elif stripped and stripped == stripped.upper() and re.search(r"[A-Z]{4}", stripped) \
-                and not stripped.startswith(("I ", "*", "-")):
+        elif stripped == stripped.upper() and re.search(r"[A-Z]{4}", stripped) and not stripped.startswith("I "):
             self.section = ""   # another table (Haskind, RAOs, pressures...): not read
 
     def _hydrostatic(self, text: str, entries: tuple, number: int) -> None:
