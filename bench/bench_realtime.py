@@ -53,15 +53,20 @@ def free_port() -> int:
 
 def run(tmp: Path, rate: float, seconds: float, realtime: float | None, radiation: str):
     """One run with the controller process; returns the RunSummary (its results file: ``output``)."""
-    from hydrolink.clients.run import run_scene_file
-
     path = tmp / f"rm3_{int(rate)}_{'paced' if realtime else 'free'}.toml"
     path.write_text(scene(1.0 / rate, seconds, radiation))
-    port = free_port()
-    address = f"tcp://127.0.0.1:{port}"
-    ctl = subprocess.Popen([sys.executable, "-m", "hydrolink.clients.cli", "control",
-                            str(REPO / "examples" / "controllers" / "reactive.py"), "--server", address, "--token", TOKEN,
-                            "--join-wait", "60"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    return run_controlled(path, REPO / "examples" / "controllers" / "reactive.py", realtime)
+
+
+def run_controlled(path: Path, controller: Path, realtime: float | None):
+    """Run the scene file ``path`` (results beside it) on its own loopback server with the Python
+    controller file ``controller`` in its own process (``hydrolink control``); the RunSummary."""
+    from hydrolink.clients.run import run_scene_file
+
+    address = f"tcp://127.0.0.1:{free_port()}"
+    ctl = subprocess.Popen([sys.executable, "-m", "hydrolink.clients.cli", "control", str(controller), "--server",
+                            address, "--token", TOKEN, "--join-wait", "60"],
+                           stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
         summary = run_scene_file(path, path.with_suffix(".nc"), progress=False, listen=address, control_token=TOKEN,
                                  realtime=realtime)

@@ -21,18 +21,22 @@ Measurements: ``step``, ``seq``, ``time`` and numpy arrays per name of ``info["m
 (``pto_*`` in ``info["ptos"]`` order, ``body_*`` (n, 6) in ``info["bodies"]`` order,
 ``wave_elevation`` per probe, ``wave_preview`` (probe, time) at t + ``info["preview_times"]``).
 
+A file that defines WAPPAC's ``my_controller(x, v, t, eta10)`` and no Controller subclass runs
+unchanged through :class:`WappacController` (below).
+
 This module imports only numpy, pyzmq and the codec, so a controller process starts fast.
 """
 
 from __future__ import annotations
 
 import importlib.util
+import math
 import inspect
 import logging
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 import zmq
@@ -209,6 +213,57 @@ def run_controller(controller: Controller, server: str, *, token: str, session: 
     return stats
 
 
+# ---------------------------------------------------------------- WAPPAC's signature
+# WAPPAC's controller signature as a hydrolink controller: a file that defines
+# ``my_controller(x, v, t, eta10)`` (the WavePiston control competition's entry,
+# https://emg-mu.github.io/WAPPAC_docs/) runs unchanged with ``hydrolink control FILE``.
+#
+# Each control period the function is called with the PTO's displacement ``x`` (m) and velocity
+# ``v`` (m/s) of the measurements, the measurements' time ``t`` (s) and ``eta10``: the wave elevation
+# (m) at the controller's first ``wave_points`` probe, which stands for WAPPAC's gauge 10 m up-wave
+# (put it where the scene's device needs it). Its return value is the PTO force (N), WAPPAC's
+# F_pto with absorbed power F_pto v: the same sign as hydrolink's force command (a damper returns
+# c v). Like WAPPAC's ZOH, the force is held over the period (the scene's ``period``, ``latency``).
+#
+# The scene's controller must drive one PTO with ``command = "force"`` and measure
+# ``pto_displacement``, ``pto_velocity`` and ``wave_elevation``; anything else is refused naming the
+# key. A folder ``external_packages`` beside the file is importable, as in WAPPAC's distribution.
+
+WAPPAC_MEASUREMENTS = ("pto_displacement", "pto_velocity", "wave_elevation")
+
+
+class WappacController(Controller):
+    """Calls ``function(x, v, t, eta10)`` every control period; its value is the force command."""
+
+    def __init__(self, function: Callable[[float, float, float, float], float], source: str):
+        self.function, self.source = function, source
+
+    def on_start(self, info: dict) -> None:
+        where = f"controllers[{info['name']!r}]"
+        if len(info["ptos"]) != 1:
+            raise ControllerError(f"{self.source}: my_controller drives one PTO; the scene's {where}.ptos "
+                                  f"lists {info['ptos']}", field="ptos")
+        if info["command"] != "force":
+            raise ControllerError(f"{self.source}: my_controller returns a force; the scene's {where}.command is "
+                                  f"{info['command']!r} (use \"force\")", field="command")
+        missing = [m for m in WAPPAC_MEASUREMENTS if m not in info["measurements"]]
+        if missing:
+            raise ControllerError(f"{self.source}: my_controller needs {list(WAPPAC_MEASUREMENTS)}; add {missing} to the "
+                                  f"scene's {where}.measurements", field="measurements")
+
+    def on_step(self, t: float, m: dict) -> dict:
+        force = self.function(float(m["pto_displacement"][0]), float(m["pto_velocity"][0]), t,
+                              float(m["wave_elevation"][0]))
+        try:
+            value = float(force)
+        except (TypeError, ValueError):
+            raise ControllerError(f"{self.source}: my_controller returned {force!r} at t = {t:g} s, not a "
+                                  "number (the PTO force in N)") from None
+        if not math.isfinite(value):
+            raise ControllerError(f"{self.source}: my_controller returned {value} at t = {t:g} s")
+        return {self.ptos[0]: value}
+
+
 def _version() -> str:
     from importlib import metadata
     try:
@@ -219,16 +274,22 @@ def _version() -> str:
 
 def load_controller(path: str | Path, class_name: str | None = None) -> Controller:
     """Instantiate the Controller subclass defined in the Python file ``path`` (the only one, or
-    ``class_name``)."""
+    ``class_name``); a file with none that defines WAPPAC's ``my_controller(x, v, t, eta10)`` runs
+    it through :class:`WappacController`."""
     path = Path(path)
     spec = importlib.util.spec_from_file_location(f"hydrolink_controller_{path.stem}", path)
     if spec is None or spec.loader is None:
         raise ControllerError(f"{path}: not a Python file")
     module = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = module
+    packages = path.resolve().parent / "external_packages"     # WAPPAC's folder for an entry's packages
+    if packages.is_dir() and str(packages) not in sys.path:
+        sys.path.insert(0, str(packages))
     spec.loader.exec_module(module)
     found = [obj for _, obj in inspect.getmembers(module, inspect.isclass)
              if issubclass(obj, Controller) and obj is not Controller and obj.__module__ == module.__name__]
+    if not found and class_name is None and callable(getattr(module, "my_controller", None)):
+        return WappacController(module.my_controller, str(path))
     if class_name is not None:
         found = [c for c in found if c.__name__ == class_name]
     if len(found) != 1:

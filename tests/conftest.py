@@ -13,6 +13,7 @@ import shutil
 import subprocess
 import sys
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -112,6 +113,33 @@ def dealer(address: str):
     sock.setsockopt(zmq.LINGER, 0)
     sock.connect(address)
     return sock
+
+
+@dataclass
+class ControllerExit:
+    """How a controller process of :func:`controller_process` ended (set when its block exits)."""
+    returncode: int | None = None
+    stderr: str = ""
+
+
+@contextlib.contextmanager
+def controller_process(file: Path, server: str, token: str, *extra: str):
+    """A `hydrolink control FILE` process joining ``server`` with the session's join ``token``;
+    yields a :class:`ControllerExit`, filled when the block ends (the process waited for 30 s,
+    then killed: always reaped)."""
+    proc = subprocess.Popen([sys.executable, "-m", "hydrolink.clients.cli", "control", str(file), "--server", server,
+                             "--token", token, "--join-wait", "60", *extra],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    ended = ControllerExit()
+    try:
+        yield ended
+    finally:
+        try:
+            _, ended.stderr = proc.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            _, ended.stderr = proc.communicate()
+        ended.returncode = proc.returncode
 
 
 @contextlib.contextmanager

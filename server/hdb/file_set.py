@@ -98,12 +98,17 @@ def check_file_set(entry: dict, where: str, store: ContentStore) -> tuple[FileSe
     if missing:
         raise MissingContent(f"{where}.files", missing)
     suffixes = MAIN_SUFFIXES[fmt]
+    alone = fmt == "wamit" and not any(n.lower().endswith(".1") for n, _ in named)
+    if alone:
+        suffixes = (".out",)      # a run known by its report alone (server/hdb/wamit/out_tables.py)
     mains = [n for n, _ in named if n.lower().endswith(suffixes)]
     if len(mains) != 1:
-        raise ProtocolError(Code.BAD_VALUE, f"{where}.files", f"a {fmt} file set holds exactly one "
-                            f"{'/'.join(suffixes)} file, got {mains or 'none'}")
+        what = "one .1 file (or, for a run known by its report alone, one .out)" if alone else \
+            f"one {'/'.join(suffixes)} file"
+        raise ProtocolError(Code.BAD_VALUE, f"{where}.files", f"a {fmt} file set holds exactly {what}, got "
+                            f"{mains or 'none'}")
     if fmt == "wamit":
-        stem = mains[0][:-2]
+        stem = mains[0][:-len(suffixes[0])]
         strays = [n for n, _ in named if not any(n == stem + s for s in WAMIT_SUFFIXES)]
         if strays:
             raise ProtocolError(Code.BAD_VALUE, f"{where}.files", f"the WAMIT files of run {stem!r} are "

@@ -54,9 +54,9 @@ def _load_netcdf(path: Path, convention: str | None = None) -> xr.Dataset:
 
 
 def _is_wamit(path: Path) -> bool:
-    """A WAMIT file name (``rm3.1``, ``rm3.hst``...) or a stem with a ``.1`` beside it."""
+    """A WAMIT file name (``rm3.1``, ``rm3.hst``...) or a stem with a ``.1`` (or ``.out``) beside it."""
     stem = wamit_stem(path)
-    return stem != path or (not path.is_file() and stem.with_name(stem.name + ".1").is_file())
+    return stem != path or (not path.is_file() and any(stem.with_name(stem.name + s).is_file() for s in (".1", ".out")))
 
 
 def nondimensional(path: str | Path) -> bool:
@@ -141,7 +141,8 @@ def file_set(path: str | Path, *, rho: float | None = None) -> "HDBFiles":
         paths = tuple(p for s in WAMIT_READ if (p := stem.with_name(stem.name + s)).is_file()
                       and not (s == ".2" and stem.with_name(stem.name + ".3").is_file())
                       and not _unread_qtf_level(stem, s))
-        if not any(p.suffix == ".1" for p in paths):
-            raise HDBError(path, "file", f"WAMIT radiation file {stem.name}.1 not found")
+        if not any(p.suffix in (".1", ".out") for p in paths):
+            raise HDBError(path, "file", f"WAMIT radiation file {stem.name}.1 (or the run's report {stem.name}.out) "
+                                         "not found")
         return HDBFiles("wamit", paths, rho)
     raise HDBError(path, "format", "no HDB file set for this file (WAMIT .1 or stem, BEMIO .h5, .nc)")

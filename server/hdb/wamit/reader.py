@@ -17,6 +17,9 @@ alternative form 1 of the ``.frc``) when a body's VCG is not 0; they are taken o
 schema's stiffness is buoyancy and waterplane only; the scene's mass and centre of gravity add
 gravity once, server/hydrostatics.py).
 
+Without a ``.1`` the tables are read from the run's ``.out`` report where there is one
+(:mod:`.out_tables`: the radiation, diffraction and hydrostatic tables it prints).
+
 Without a ``.3`` (or ``.2``) the set is read only for a scene that needs no excitation
 (``excitation_needed`` False: still water), with a zero excitation force at heading 0 and the
 attribute ``excitation_force`` saying so.
@@ -33,6 +36,7 @@ import xarray as xr
 
 from hydrolink.protocol.hdb.layout import HDBError
 from hydrolink.protocol.hdb.schema import make_hdb
+from hydrolink.server.hdb.wamit.out_tables import Table, read_out_tables
 from hydrolink.server.hdb.wamit.second_order import SECOND_ORDER_SUFFIXES, read_drift, read_qtf
 from hydrolink.server.hdb.wamit.run import RunFacts, run_facts
 from hydrolink.server.hdb.wamit.table import Units, frequencies, mode_indices, read_table, scale_exponent, special_rows
@@ -58,30 +62,38 @@ def read_wamit(path: str | Path, rho: float = 1000.0, stated: Mapping | None = N
     excitation_needed = bool(stated.pop("excitation_needed", True))
     stem = wamit_stem(path)
     file1 = stem.with_name(stem.name + ".1")
-    if not file1.is_file():
-        raise HDBError(path, "file", f"WAMIT radiation file {file1.name} not found")
+    report = stem.with_name(stem.name + ".out")
+    tables = read_out_tables(report) if not file1.is_file() and report.is_file() else None
+    if tables is not None:
+        file1 = report        # the run's report stands for its numeric files (errors name it)
+    elif not file1.is_file():
+        raise HDBError(path, "file", f"WAMIT radiation file {file1.name} (or the run's report {report.name}) not found")
     excitation_file = next((stem.with_name(stem.name + s) for s in (".3", ".2")
                             if stem.with_name(stem.name + s).is_file()), None)
+    if tables is not None:
+        excitation_file = None if tables.excitation is None else report
     if excitation_file is None and excitation_needed:
         raise HDBError(file1, "excitation_force", f"no {stem.name}.3 (or .2) excitation file beside it, and the "
                                                   "scene's waves need the excitation force (a still-water scene "
                                                   "reads the set without it)")
-    hst_file = stem.with_name(stem.name + ".hst")
+    hst_file = report if tables is not None else stem.with_name(stem.name + ".hst")
     if not hst_file.is_file():
         raise HDBError(file1, "hydrostatic_stiffness", f"no {hst_file.name} beside it")
     if not (np.isfinite(rho) and rho > 0):
         raise HDBError(file1, "rho", f"must be finite and > 0, got {rho}")
 
-    t1, l1 = read_table(file1, (4, 5), "PER I J Abar [Bbar]")
+    t1, l1 = ((tables.radiation.rows, tables.radiation.lines) if tables is not None
+              else read_table(file1, (4, 5), "PER I J Abar [Bbar]"))
     ij = mode_indices(file1, t1, l1, [1, 2])
     facts = run_facts(stem, file1, t1[:, 0], int(ij.max()), stated)
     units = Units(rho, facts.g, facts.ulen, facts.iperout)
     rad = _read_radiation(file1, t1, l1, ij, units, facts.n_bodies)
     if excitation_file is not None:
-        betas, excitation = _read_excitation(excitation_file, file1, rad, units)
+        betas, excitation = _read_excitation(excitation_file, file1, rad, units, tables and tables.excitation)
     else:
         betas, excitation = np.zeros(1), np.zeros((rad.omega.size, 1, rad.n_dof), complex)
-    stiffness = _without_gravity(_read_hydrostatics(hst_file, file1, rad.n_dof, units), facts, units)
+    stiffness = _without_gravity(_read_hydrostatics(hst_file, file1, rad.n_dof, units, tables and tables.hydrostatics),
+                                 facts, units)
     ds = make_hdb(
         bodies=facts.names, omega=rad.omega, wave_direction=np.deg2rad(betas),
         added_mass=rad.added_mass, radiation_damping=rad.damping, excitation_force=excitation,
@@ -152,10 +164,12 @@ def _read_radiation(file1: Path, t1: np.ndarray, l1: np.ndarray, ij: np.ndarray,
     return _Radiation(periods, rank, omega, added_mass, damping, added_mass_inf, n_dof)
 
 
-def _read_excitation(path: Path, file1: Path, rad: _Radiation, u: Units) -> tuple[np.ndarray, np.ndarray]:
+def _read_excitation(path: Path, file1: Path, rad: _Radiation, u: Units,
+                     table: Table | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Headings (deg) and excitation per unit wave amplitude (n_w, n_beta, 6N) of a ``.3``/``.2``
-    file, X = rho g L^m (Re + i Im), conjugated to exp(-i omega t)."""
-    t3, l3 = read_table(path, (7,), "PER BETA I Mod Pha Re Im")
+    file (or ``table``: the report's rows, :mod:`.out_tables`), X = rho g L^m (Re + i Im),
+    conjugated to exp(-i omega t)."""
+    t3, l3 = (table.rows, table.lines) if table is not None else read_table(path, (7,), "PER BETA I Mod Pha Re Im")
     modes3 = mode_indices(path, t3, l3, [2])[:, 0] - 1
     inf3, skip3 = special_rows(t3[:, 0], u.iperout)
     keep = ~inf3 & ~skip3
@@ -180,9 +194,10 @@ def _read_excitation(path: Path, file1: Path, rad: _Radiation, u: Units) -> tupl
     return betas, excitation
 
 
-def _read_hydrostatics(path: Path, file1: Path, n_dof: int, u: Units) -> np.ndarray:
-    """The hydrostatic stiffness (6N, 6N) of a ``.hst`` file, C = rho g L^k Cbar."""
-    th, lh = read_table(path, (3,), "I J Cbar")
+def _read_hydrostatics(path: Path, file1: Path, n_dof: int, u: Units, table: Table | None = None) -> np.ndarray:
+    """The hydrostatic stiffness (6N, 6N) of a ``.hst`` file (or ``table``: the report's rows),
+    C = rho g L^k Cbar."""
+    th, lh = (table.rows, table.lines) if table is not None else read_table(path, (3,), "I J Cbar")
     ijh = mode_indices(path, th, lh, [0, 1]) - 1
     if np.any(ijh >= n_dof):
         raise HDBError(path.name, f"line {lh[np.argmax((ijh >= n_dof).any(axis=1))]}",
