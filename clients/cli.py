@@ -351,6 +351,11 @@ def run(scene: Path, output: Path | None, server: str | None, no_progress: bool,
     headline = run_headline(summary.output)
     if headline:
         click.echo(headline)
+    if summary.metrics is not None:   # a scene with limits: the WECCCOMP metrics after the ramp
+        m = summary.metrics
+        click.echo(f"WECCCOMP metrics: mean power {m.mean_power:.6g} W, peak-to-average {m.peak_to_average:.3g}; "
+                   + ", ".join(f"{u.label} {100 * u.utilisation:.1f} % of {u.bound:g}"
+                               + (f" ({u.violations} over)" if u.violations else "") for u in m.limits))
     if summary.realtime is not None:
         rt = summary.realtime
         click.echo(f"paced at {rt.factor:g}x wall clock ({1e3 * rt.period:.3g} ms per exchange): step latency "

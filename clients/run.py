@@ -31,6 +31,23 @@ def _write_summary_attributes(writer, summary: RunSummary) -> None:
         writer.set_attribute("realtime", json.dumps(asdict(summary.realtime)))
 
 
+def _limit_metrics(scene, output: Path):
+    """The WECCCOMP metrics of a run whose scene has limits (PTO force limits, ``[optimize]``
+    limits), after the ramp, written into the results file's attributes; None without limits."""
+    from hydrolink.clients.analysis.optimal.metrics import run_metrics, scene_limits
+
+    limits = scene_limits(scene)
+    if not limits:
+        return None
+    import xarray as xr
+    with xr.open_dataset(output) as ds:
+        metrics = run_metrics(ds.load(), limits, start=getattr(scene.waves, "ramp", None))
+    import netCDF4
+    with netCDF4.Dataset(output, "a") as nc:
+        nc.setncatts(metrics.attributes())
+    return metrics
+
+
 def _announce_controllers(scene, server: str, token: str | None) -> None:
     """Say on stderr how the scene's controllers join (the session's join token, SPEC §5.7.2)."""
     print(f"hydrolink run: session on {server} waits for controllers {[c.name for c in scene.controllers]}: "
@@ -128,7 +145,8 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
     # the server's side: its compute per step, the radiation option and its pruning ([hydro]
     # radiation, coupling_tolerance), the state-space pairs fitted in this setup (the rest came
     # from the on-disk fit cache)
-    return replace(summary, output=str(output), server=server, hdb_uploads=len(conn.uploads),
+    metrics = _limit_metrics(scene, output)
+    return replace(summary, output=str(output), server=server, hdb_uploads=len(conn.uploads), metrics=metrics,
                    server_compute_us_per_step=(1e6 * goodbye["compute_s"] / goodbye["steps"]
                                                if goodbye.get("steps") else None),
                    radiation=setup.radiation, radiation_pairs=setup.radiation_pairs,

@@ -80,6 +80,16 @@ def test_the_installed_layout_is_the_one_the_contracts_see(tmp_path):
     assert expected <= copied
 
 
+def test_every_subpackage_is_in_the_build_backends_list():
+    """pyproject's explicit packages list names every folder with an __init__.py (a folder left out
+    is missing from a non-editable install, though the editable one finds it)."""
+    import tomllib
+    listed = set(tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    found = {"hydrolink." + ".".join(p.parent.relative_to(REPO).parts) for folder in PACKAGES
+             for p in (REPO / folder).rglob("__init__.py") if "api" not in p.relative_to(REPO / folder).parts}
+    assert found - listed == set(), "add these to pyproject's [tool.setuptools] packages"
+
+
 def test_python_floor_is_stated_once_and_holds_for_the_code():
     """pyproject's requires-python and the README state the same floor, and the code runs there:
     no module imports a standard-library module newer than the floor (tomllib is Python 3.11's),

@@ -167,3 +167,40 @@ def test_irregular_sea_repeat_period():
         harmonic_grid(*sea(5.3 * dw))
     with pytest.raises(OptimizeError, match="optimize.order: 20 harmonics of the repeat period 80 s"):
         harmonic_grid(*sea(5 * dw, "\n[optimize]\norder = 20\n"))
+
+
+def test_a_run_with_a_force_limit_carries_its_metrics(reference_data, tmp_path):
+    """`hydrolink run` of a scene with a PTO force limit writes the WECCCOMP metrics into the
+    results and its summary: mean power against the frequency-domain ½ c ω² |X|² of the sphere's
+    heave damper, utilisation against c ω |X| / limit (the limit above the force: never reached)."""
+    import math
+
+    from conftest import SPHERE_WATER, linear_pto, regular_waves, scene_toml, sphere_body, write_scene
+    from hydrolink.clients.run import run_scene_file
+    from hydrolink.server.hdb.io import load_hdb
+
+    path = reference_data / "sphere_task10" / "sphere.h5"
+    hdb = load_hdb(path)
+    mass, heave, c_pto, height = 261.724e3, 2, 2.0e5, 1.0
+    i = int(np.argmin(np.abs(hdb["omega"].values - 1.15)))
+    w = float(hdb["omega"].values[i])
+    a, b = hdb["added_mass"].values[i, heave, heave], hdb["radiation_damping"].values[i, heave, heave]
+    f, c = hdb["excitation_force"].values[i, 0, heave], hdb["hydrostatic_stiffness"].values[heave, heave]
+    x = abs(f * height / 2 / (-w ** 2 * (mass + a) - 1j * w * (b + c_pto) + c))
+    limit = 2.0 * c_pto * w * x
+    period = 2 * math.pi / w
+    scene = write_scene(tmp_path, scene_toml(
+        dt=period / 100, duration=24 * period, progress=False, water={**SPHERE_WATER, "gravity": 9.81},
+        waves=regular_waves(height, period, ramp=6 * period),
+        bodies=[sphere_body(str(path), mass=mass, dofs=["heave"])],
+        ptos=[linear_pto("damper", "sphere", [0, 0, 0], "ground", [0, 0, -50], damping=c_pto,
+                         force_limit=limit)]), "sphere.toml")
+    summary = run_scene_file(scene, tmp_path / "sphere.nc", progress=False)
+    import xarray as xr
+    attrs = xr.open_dataset(tmp_path / "sphere.nc").attrs
+    assert summary.metrics is not None
+    assert attrs["wecccomp_mean_power"] == pytest.approx(summary.metrics.mean_power)
+    assert summary.metrics.mean_power == pytest.approx(0.5 * c_pto * w ** 2 * x ** 2, rel=0.05)
+    (use,) = summary.metrics.limits
+    assert use.label == "damper.force" and use.violations == 0
+    assert use.utilisation == pytest.approx(0.5, rel=0.06)
