@@ -1,16 +1,43 @@
 """Wave probes: the undisturbed incident elevation at points, now and at preview offsets (the
-``wave_elevation`` measurements of controllers, SPEC §5.7)."""
+``wave_elevation`` measurements of controllers, SPEC §5.7).
+
+A controller's preview is a window of elevations at the steps k, k + h, ..., k + n_h h (h the
+preview step in simulation steps) that slides forward by the control period each control step:
+:class:`WaveProbes` keeps the window's columns by step index and computes only the ones it has not
+(each once along a run: the column of step n is ``Re(c @ exp(-i w n dt))``, the phasors of a run of
+columns by one complex rotation each). A control step of a 100,000-component sea with a 30 s
+preview costs a column or two, not the whole window, and holds n_probes x (n_h + 1) floats.
+"""
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
 from hydrolink.server.sea.dispersion import wave_number
 from hydrolink.server.sea.waves import WaveComponents, ramp_factor
 
-__all__ = ["WaveProbes"]
+__all__ = ["PreviewGrid", "WaveProbes"]
+
+CHUNK_BYTES = 32 * 2**20   # the phasors (components x times) one evaluation of __call__ holds at once
+
+
+@dataclass(frozen=True)
+class PreviewGrid:
+    """Where and when a controller's probes look: ``points`` (n_p, 2) m, the simulation step ``dt``
+    (s), and the preview at ``samples`` offsets of ``every`` steps each (offsets 0, every, ...)."""
+
+    points: tuple[tuple[float, float], ...]
+    dt: float
+    every: int
+    samples: int
+
+    @property
+    def offsets(self) -> np.ndarray:
+        """The times after a measurement the columns are at (s): column 0 is now."""
+        return np.arange(self.samples + 1) * self.every * self.dt
 
 
 class WaveProbes:
@@ -25,16 +52,70 @@ class WaveProbes:
         self.comps = comps
         self.points = np.asarray(points, float).reshape(-1, 2)
         self.offsets = np.r_[0.0, np.asarray(preview_times, float)]   # column 0: now
+        self._columns: dict[int, np.ndarray] = {}   # step index -> elevation at the points (at_step)
+        self.computed = 0   # columns computed by at_step (each at most once while the window slides)
+        self.grid: PreviewGrid | None = None   # set by on_grid: what at_step evaluates
         if comps.size:
             k = wave_number(comps.omega, g, depth)
             b = comps.direction
             kx = np.outer(self.points[:, 0] * math.cos(b) + self.points[:, 1] * math.sin(b), k)
             self._c = comps.amplitude * np.exp(1j * (comps.phase + kx))   # (n_p, n_c)
 
+    @classmethod
+    def on_grid(cls, comps: WaveComponents, grid: PreviewGrid, g: float, depth: float) -> "WaveProbes":
+        """The probes of a controller's :class:`PreviewGrid` (evaluate them with :meth:`at_step`)."""
+        probes = cls(comps, np.array(grid.points, float), grid.offsets[1:], g, depth)
+        probes.grid = grid
+        return probes
+
     def __call__(self, t: float) -> np.ndarray:
-        """(n_p, 1 + n_h): elevation at t + offsets, the ramp included."""
-        if not self.comps.size:
-            return np.zeros((self.points.shape[0], self.offsets.size))
+        """(n_p, 1 + n_h): elevation at t + offsets, the ramp included (evaluated afresh, the
+        components' phasors a bounded chunk of times at a time)."""
         times = t + self.offsets
-        e = np.exp(-1j * np.outer(self.comps.omega, times))               # (n_c, n_t)
-        return np.real(self._c @ e) * ramp_factor(times, self.comps.ramp)
+        if not self.comps.size:
+            return np.zeros((self.points.shape[0], times.size))
+        per = max(1, CHUNK_BYTES // (16 * self.comps.size))
+        out = np.empty((self.points.shape[0], times.size))
+        for i in range(0, times.size, per):
+            e = np.exp(-1j * np.outer(self.comps.omega, times[i:i + per]))   # (n_c, chunk)
+            out[:, i:i + per] = np.real(self._c @ e)
+        return out * ramp_factor(times, self.comps.ramp)
+
+    def at_step(self, step: int) -> np.ndarray:
+        """(n_p, 1 + n_h): the elevations of :meth:`__call__` at t = step dt on this probe's
+        :class:`PreviewGrid`, from the columns already computed plus the new ones. The window only
+        slides forward: an earlier step starts it afresh."""
+        grid = self.grid
+        if grid is None:
+            raise ValueError("at_step needs probes made by WaveProbes.on_grid")
+        wanted = [step + j * grid.every for j in range(grid.samples + 1)]
+        if self._columns and step < min(self._columns):
+            self._columns.clear()
+        for n in [n for n in self._columns if n < step]:
+            del self._columns[n]
+        missing = [n for n in wanted if n not in self._columns]
+        if missing:
+            self._compute(missing)
+        return np.stack([self._columns[n] for n in wanted], axis=1)
+
+    def _compute(self, steps: list[int]) -> None:
+        """The columns of ``steps`` (increasing): a run spaced by the grid's step rotates the phasors
+        of the one before; a run's first column is evaluated afresh."""
+        grid = self.grid
+        n_p = self.points.shape[0]
+        if not self.comps.size:
+            for n in steps:
+                self._columns[n] = np.zeros(n_p)
+            return
+        omega = self.comps.omega
+        turn = np.exp(-1j * omega * (grid.every * grid.dt))
+        phasor, last = None, None
+        for n in steps:
+            if last is not None and n - last == grid.every:
+                phasor *= turn
+            else:
+                phasor = np.exp(-1j * omega * (n * grid.dt))
+            last = n
+            t = n * grid.dt
+            self._columns[n] = np.real(self._c @ phasor) * ramp_factor(t, self.comps.ramp)
+            self.computed += 1
