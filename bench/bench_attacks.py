@@ -270,10 +270,11 @@ def preview_cost(scale: float) -> list[str]:
     out = []
     rss0 = status_kb(os.getpid(), "VmRSS") / 1024
     reset_peak(os.getpid())
+    c = probes._cr + 1j * probes._ci
     t = time.perf_counter()
     times = 40 * 0.05 + grid.offsets   # the old code: one exp of components x samples, then a matvec
     e = np.exp(-1j * np.outer(model.waves.omega, times))
-    np.real(probes._c @ e)
+    np.real(c @ e)
     old = time.perf_counter() - t
     del e
     peak = status_kb(os.getpid(), "VmHWM") / 1024 - rss0
