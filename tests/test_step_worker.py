@@ -47,22 +47,6 @@ def hdbs():
     return {"float.nc": make_body_hdb(omega=np.linspace(0.2, 4.0, 12), name="float")}
 
 
-@pytest.fixture
-def served():
-    started = []
-
-    def start(**kw):
-        srv, thread = serve_in_thread(session_timeout=600.0, **kw)
-        started.append((srv, thread))
-        return srv
-
-    yield start
-    for srv, thread in started:
-        srv.stop()
-        thread.join(timeout=30)
-        assert not thread.is_alive()
-
-
 def _states(n_bodies: int, steps: int, seed: int) -> list[tuple[np.ndarray, np.ndarray]]:
     rng = np.random.default_rng(seed)
     return [(rng.normal(0, 0.1, (n_bodies, 6)), rng.normal(0, 0.1, (n_bodies, 6))) for _ in range(steps)]
@@ -86,8 +70,9 @@ def _worker_of(srv: ForceServer, session: str):
 
 
 def test_a_heavy_and_a_light_session_side_by_side_give_their_single_runs_results(served, hdbs):
-    """The heavy session's step (a millisecond or more of CPU) passes the bound (0.2 ms): it steps in a worker; the light
-    one on the loop (or, on a machine too loaded to tell, in a worker too: the results are the same)."""
+    """The heavy session's step (a millisecond or more of CPU) passes the bound (0.2 ms): it steps
+    in a worker; the light one on the loop (it may step in a worker too: the results are the same).
+    Both equal, bit for bit, the same steps on the embedded server (no worker, no trial step)."""
     srv = served(isolate_step_s=0.2e-3)
     heavy_states, light_states = _states(6, 12, seed=1), _states(1, 12, seed=2)
     with ServerConnection(srv.address, timeout=WAIT) as heavy, ServerConnection(srv.address, timeout=WAIT) as light:

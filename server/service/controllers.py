@@ -90,8 +90,9 @@ class ControlHub:
 
     def __init__(self, scene: Scene, scene_text: str, n_waves: int, session_id: str, send: Callable[..., None],
                  token: str):
-        """``n_waves``: the model's wave components. ``token``: the secret a controller's hello must carry to join (SPEC §5.7.2): the owner's
-        (its hello's ``control_token``) or one drawn by the server; the owner's welcome returns it."""
+        """``n_waves``: the model's wave components. ``token``: the secret a controller's hello must
+        carry to join (SPEC §5.7.2): the owner's (its hello's ``control_token``) or one drawn by the
+        server; the owner's welcome returns it."""
         self.scene, self.scene_text, self.session_id, self.send = scene, scene_text, session_id, send
         self.token = token
         self.dt = float(scene.simulation.dt)
@@ -107,7 +108,8 @@ class ControlHub:
             n_h = int(math.floor(c.preview / (hstep * self.dt) + 1e-9)) if c.preview > 0 else 0
             require_size(f"controllers[{i}].preview_step", "the wave probes' phasors and preview window "
                          "(components + samples, x probes)", (max(n_waves, 1) + n_h + 1, len(c.wave_points)),
-                         16, hint=f"fewer preview samples: a longer preview_step or a shorter preview ({c.preview:g} s)")
+                         16, hint="fewer preview samples: a longer preview_step or a shorter preview "
+                         f"({c.preview:g} s)")
             grid = PreviewGrid(tuple((float(x), float(y)) for x, y in c.wave_points), self.dt, hstep, n_h)
             fb = None
             if c.fallback == "passive":

@@ -34,7 +34,6 @@ from hydrolink.server.errors import ModelError
 from hydrolink.server.hdb.file_set import FileSetReader
 from hydrolink.server.hdb.store import HASH, ContentStore, ContentTooLarge, default_folder
 from hydrolink.server.service.log_limit import LimitedLog, limit_lines
-from hydrolink.server.model import HydroModel
 from hydrolink.server.service.session import PlantBuilder, Session, build_model
 from hydrolink.server.service.setup_workers import SetupWorkers
 from hydrolink.server.service.step_worker import (ISOLATE_STEP_S, MAX_WORKERS, STEP_TIMEOUT, Flight, Placed,
