@@ -66,8 +66,8 @@ ATTACKS = ("frames", "lists", "nested", "deep", "hellos", "pipelined", "heavy", 
            "corrupt", "stranger", "keyfile", "logflood")
 SCENE = scene(0.05, 1e5)   # the heave-only Task-10 sphere of bench_setup_isolation.py, for as long as an attack lasts
 SERVER_ARGS = {"memory": ("--max-memory-mib", "1024", "--max-sessions", "64"), "deferred": ("--max-sessions", "8"),
-               "stranger": ("--max-sessions", "8"), "logflood": ("--max-sessions", "8"), "heavy": ("--max-sessions", "8"),
-               "corrupt": ("--max-sessions", "8")}
+               "stranger": ("--max-sessions", "8"), "logflood": ("--max-sessions", "8"),
+               "heavy": ("-v", "--max-sessions", "8"), "corrupt": ("--max-sessions", "8")}
 HEAVY_SECONDS = 20.0   # the heavy session steps this long beside the victim
 
 
@@ -112,8 +112,11 @@ def start_server(tree: Path | None, *args: str) -> tuple[subprocess.Popen, str]:
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
     if tree is not None:
         env["PYTHONPATH"] = str(tree)
-    proc = subprocess.Popen([sys.executable, "-m", "hydrolink.clients.cli", "serve", "--bind", "tcp://127.0.0.1:*",
-                             *(args or ("--max-sessions", "1"))], stderr=subprocess.PIPE, text=True, env=env, cwd="/")
+    verbose = ["-v"] if "-v" in args else []   # info lines: where each session steps
+    args = tuple(a for a in args if a != "-v")
+    proc = subprocess.Popen([sys.executable, "-m", "hydrolink.clients.cli", *verbose, "serve", "--bind",
+                             "tcp://127.0.0.1:*", *(args or ("--max-sessions", "1"))], stderr=subprocess.PIPE,
+                            text=True, env=env, cwd="/")
     line = proc.stderr.readline()
     match = re.search(r"listening on (tcp://\S+)", line)
     if not match:
