@@ -15,7 +15,7 @@ lockstep in a process of its own and every round trip is timed; while it steps, 
    (the victim's p50 / p99 alone and beside it: the goal p50 <= 2x alone, p99 <= 10 ms), and
    ``preview``: a controller's 30 s wave preview of that sea per control step (in this process:
    the old evaluation of the whole window against the window computed along the run);
-5. ``memory``: 7 big legal sessions (20 bodies, 50,000 components) against ``--max-memory-mib 1024``;
+5. ``memory``: 7 big legal sessions (20 bodies, 50,000 components) against ``--max-memory-mib 600``;
 6. ``deferred``: a step deferred for its controller's join, then 110 steps padded to 20 MiB
    pipelined behind it;
 7. ``corrupt``: 10 corrupt HDB file sets sent by hash, each timed, each followed by a valid hello;
@@ -41,6 +41,7 @@ session's steps only).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import multiprocessing
 import os
 import re
@@ -65,8 +66,8 @@ MiB = 2**20
 ATTACKS = ("frames", "lists", "nested", "deep", "hellos", "pipelined", "heavy", "preview", "memory", "deferred",
            "corrupt", "stranger", "keyfile", "logflood")
 SCENE = scene(0.05, 1e5)   # the heave-only Task-10 sphere of bench_setup_isolation.py, for as long as an attack lasts
-SERVER_ARGS = {"memory": ("--max-memory-mib", "1024", "--max-sessions", "64"), "deferred": ("--max-sessions", "8"),
-               "stranger": ("--max-sessions", "8"), "logflood": ("--max-sessions", "8"),
+SERVER_ARGS = {"memory": ("--max-memory-mib", "600", "--max-workers", "8", "--max-sessions", "64"),
+               "deferred": ("--max-sessions", "8"), "stranger": ("--max-sessions", "8"), "logflood": ("--max-sessions", "8"),
                "heavy": ("-v", "--max-sessions", "8"), "corrupt": ("--max-sessions", "8")}
 HEAVY_SECONDS = 20.0   # the heavy session steps this long beside the victim
 
@@ -316,27 +317,21 @@ def attack_memory(address: str) -> list[str]:
 
 
 def attack_deferred(ctx: zmq.Context, address: str, scale: float) -> list[str]:
-    hdbs = load_scene_hdbs(parse_scene(CONTROLLED), REPO)
-    with ServerConnection(address, timeout=300.0) as owner:
-        owner.hello(CONTROLLED, hdbs)
-        sock = dealer(ctx, address)
-        try:
-            sock.send(codec.pack(codec.message("step", "s-0", owner.session, seq=0, time=0.0,
-                                               position=np.zeros((1, 6)), velocity=np.zeros((1, 6)))))
-            pad = bytes(int(20 * MiB * scale))
-            for i in range(110):
-                sock.send(codec.pack(codec.message("step", f"p-{i}", owner.session, seq=1, time=0.05,
-                                                   position=np.zeros((1, 6)), velocity=np.zeros((1, 6)), pad=pad)),
-                          copy=False)
-            refused = [r for r in collect([sock], 110, 30) if r != "no reply"]
-            ctl = dealer(ctx, address)   # the controller joins: the deferred step and those held behind it are answered
-            ctl.send(codec.pack(codec.message("hello", "c-0", owner.session, role="controller", controller="ctl",
-                                              token=owner.control_token)))
-            collect_raw(ctl)
-            ctl.close(0)
-            return refused + collect([sock], 111 - len(refused), 300)
-        finally:
-            sock.close(0)
+    with owner_and_dealer(ctx, address) as (owner, sock):
+        sock.send(codec.pack(codec.message("step", "s-0", owner.session, seq=0, time=0.0,
+                                           position=np.zeros((1, 6)), velocity=np.zeros((1, 6)))))
+        pad = bytes(int(20 * MiB * scale))
+        for i in range(110):
+            sock.send(codec.pack(codec.message("step", f"p-{i}", owner.session, seq=1, time=0.05,
+                                               position=np.zeros((1, 6)), velocity=np.zeros((1, 6)), pad=pad)),
+                      copy=False)
+        refused = [r for r in collect([sock], 110, 30) if r != "no reply"]
+        ctl = dealer(ctx, address)   # the controller joins: the deferred step and those held behind it are answered
+        ctl.send(codec.pack(codec.message("hello", "c-0", owner.session, role="controller", controller="ctl",
+                                          token=owner.control_token)))
+        collect_raw(ctl)
+        ctl.close(0)
+        return refused + collect([sock], 111 - len(refused), 300)
 
 
 def corrupt_sets(folder: Path) -> list[tuple[str, str, object]]:
@@ -416,21 +411,28 @@ def attack_corrupt(address: str) -> tuple[list[str], list[str]]:
     return replies, notes
 
 
-def attack_stranger(ctx: zmq.Context, address: str) -> list[str]:
+@contextlib.contextmanager
+def owner_and_dealer(ctx: zmq.Context, address: str):
+    """A session of the controlled scene (its owner's connection) and a raw DEALER beside it."""
     hdbs = load_scene_hdbs(parse_scene(CONTROLLED), REPO)
     with ServerConnection(address, timeout=300.0) as owner:
         owner.hello(CONTROLLED, hdbs)
         sock = dealer(ctx, address)
         try:
-            for i, fields in enumerate(({"controller": "ctl"}, {"controller": "ctl", "token": "x" * 43},
-                                        {"controller": "ctl", "token": owner.control_token[::-1]})):
-                sock.send(codec.pack(codec.message("hello", f"h-{i}", None, role="controller", **fields)))
-            sock.send(codec.pack(codec.message("bye", "b-0", "0" * 32)))   # a stranger cannot know the owner's id
-            got = collect([sock], 4, 60)
-            got.append("owner still open" if owner.request("ping")["type"] == "pong" else "owner gone")
-            return got
+            yield owner, sock
         finally:
             sock.close(0)
+
+
+def attack_stranger(ctx: zmq.Context, address: str) -> list[str]:
+    with owner_and_dealer(ctx, address) as (owner, sock):
+        for i, fields in enumerate(({"controller": "ctl"}, {"controller": "ctl", "token": "x" * 43},
+                                    {"controller": "ctl", "token": owner.control_token[::-1]})):
+            sock.send(codec.pack(codec.message("hello", f"h-{i}", None, role="controller", **fields)))
+        sock.send(codec.pack(codec.message("bye", "b-0", "0" * 32)))   # a stranger cannot know the owner's id
+        got = collect([sock], 4, 60)
+        got.append("owner still open" if owner.request("ping")["type"] == "pong" else "owner gone")
+        return got
 
 
 def attack_keyfile() -> list[str]:
@@ -446,34 +448,28 @@ def attack_keyfile() -> list[str]:
 
 
 def attack_logflood(ctx: zmq.Context, address: str) -> list[str]:
-    hdbs = load_scene_hdbs(parse_scene(CONTROLLED), REPO)
-    with ServerConnection(address, timeout=300.0) as owner:
-        owner.hello(CONTROLLED, hdbs)
-        sock = dealer(ctx, address)
-        try:
-            sock.send(codec.pack(codec.message("hello", "c-0", owner.session, role="controller", controller="ctl",
-                                               token=owner.control_token)))
-            welcome = collect_raw(sock)
-            epoch, own = welcome["epoch"], welcome["session"]
-            sock.send(codec.pack(codec.message("measure", "c-1", own, controller="ctl", epoch=epoch, wait=60.0)))
-            x = np.zeros((1, 6))
-            owner.step(0, 0.0, x, x)
-            meas = {"step": 0, "pto_displacement": np.zeros(1), "pto_velocity": np.zeros(1), "pto_force": np.zeros(1),
-                    "body_position": x, "body_velocity": x}
-            owner.step(1, 0.05, x, x, measurements=meas)   # after the 0.05 s timeout: the command is late
-            collect_raw(sock)
-            before = len(LOG)
-            chars = sum(map(len, LOG))
-            t = time.perf_counter()
-            for i in range(3000):
-                sock.send(codec.pack(codec.message("command", f"late-{i}", own, controller="ctl", epoch=epoch, step=0,
-                                                   commands={"pto": {"force": 1.0}})))
-            got = collect([sock], 3000, 300)
-            took = time.perf_counter() - t
-            time.sleep(0.5)
-            return [*got, f"{len(LOG) - before} log lines, {sum(map(len, LOG)) - chars} bytes in {took:.1f} s"]
-        finally:
-            sock.close(0)
+    with owner_and_dealer(ctx, address) as (owner, sock):
+        sock.send(codec.pack(codec.message("hello", "c-0", owner.session, role="controller", controller="ctl",
+                                           token=owner.control_token)))
+        welcome = collect_raw(sock)
+        epoch, own = welcome["epoch"], welcome["session"]
+        sock.send(codec.pack(codec.message("measure", "c-1", own, controller="ctl", epoch=epoch, wait=60.0)))
+        x = np.zeros((1, 6))
+        owner.step(0, 0.0, x, x)
+        meas = {"step": 0, "pto_displacement": np.zeros(1), "pto_velocity": np.zeros(1), "pto_force": np.zeros(1),
+                "body_position": x, "body_velocity": x}
+        owner.step(1, 0.05, x, x, measurements=meas)   # after the 0.05 s timeout: the command is late
+        collect_raw(sock)
+        before = len(LOG)
+        chars = sum(map(len, LOG))
+        t = time.perf_counter()
+        for i in range(3000):
+            sock.send(codec.pack(codec.message("command", f"late-{i}", own, controller="ctl", epoch=epoch, step=0,
+                                               commands={"pto": {"force": 1.0}})))
+        got = collect([sock], 3000, 300)
+        took = time.perf_counter() - t
+        time.sleep(0.5)
+        return [*got, f"{len(LOG) - before} log lines, {sum(map(len, LOG)) - chars} bytes in {took:.1f} s"]
 
 
 def collect_raw(sock: zmq.Socket) -> dict:
