@@ -67,7 +67,8 @@ ATTACKS = ("frames", "lists", "nested", "deep", "hellos", "pipelined", "heavy", 
            "corrupt", "stranger", "keyfile", "logflood")
 SCENE = scene(0.05, 1e5)   # the heave-only Task-10 sphere of bench_setup_isolation.py, for as long as an attack lasts
 SERVER_ARGS = {"memory": ("--max-memory-mib", "600", "--max-workers", "8", "--max-sessions", "64"),
-               "deferred": ("--max-sessions", "8"), "stranger": ("--max-sessions", "8"), "logflood": ("--max-sessions", "8"),
+               "deferred": ("--max-sessions", "8"), "stranger": ("--max-sessions", "8"),
+               "logflood": ("--max-sessions", "8"),
                "heavy": ("-v", "--max-sessions", "8"), "corrupt": ("--max-sessions", "8")}
 HEAVY_SECONDS = 20.0   # the heavy session steps this long beside the victim
 
@@ -360,17 +361,20 @@ def corrupt_sets(folder: Path) -> list[tuple[str, str, object]]:
         sets.append((tag, "rm3.1", rm3("rm3.1"),
                      HDBFiles("wamit", (d / "rm3.1", d / "rm3.3", wamit / "rm3.hst", wamit / "rm3.out"))))
 
-    wamit_with("wamit-index-99999", "".join([lines[0], lines[1].replace("     1     1", " 99999     1", 1), *lines[2:]]))
-    wamit_with("wamit-index-1000", "".join([lines[0], lines[1].replace("     1     1", "  1000     1", 1), *lines[2:]]))
+    for index in (" 99999", "  1000"):   # one mode index far beyond the file: terabytes, and gigabytes
+        wamit_with(f"wamit-index-{index.strip()}",
+                   "".join([lines[0], lines[1].replace("     1     1", f"{index}     1", 1), *lines[2:]]))
     wamit_with("wamit-not-numbers", "".join(lines[:20]) + "not numbers at all\n")
     wamit_with("wamit-3-garbage", (wamit / "rm3.1").read_text(), "\x00\x01garbage\n" * 100)
-    for tag, data in (("nc-noise", b"CDF\x01" + bytes(range(256)) * 40), ("nc-truncated", nc_bytes[:len(nc_bytes) // 2]),
+    for tag, data in (("nc-noise", b"CDF\x01" + bytes(range(256)) * 40),
+                      ("nc-truncated", nc_bytes[:len(nc_bytes) // 2]),
                       ("nc-hdf5-noise", b"\x89HDF\r\n\x1a\n" + bytes(range(256)) * 400)):
         d = folder / tag
         d.mkdir()
         (d / "rm3.nc").write_bytes(data)
         sets.append((tag, "rm3.nc", rm3("rm3.nc"), HDBFiles("netcdf", (d / "rm3.nc",))))
-    for tag, data in (("h5-noise", b"\x89HDF\r\n\x1a\n" + bytes(range(256)) * 40), ("h5-truncated", h5_bytes[:len(h5_bytes) // 3]),
+    for tag, data in (("h5-noise", b"\x89HDF\r\n\x1a\n" + bytes(range(256)) * 40),
+                      ("h5-truncated", h5_bytes[:len(h5_bytes) // 3]),
                       ("h5-empty", b"")):
         d = folder / tag
         d.mkdir()
@@ -407,7 +411,8 @@ def attack_corrupt(address: str) -> tuple[list[str], list[str]]:
                 conn.hello(scene(0.05, 5.0).replace(SPHERE_PATH, "sphere.h5"), valid)
                 conn.bye()
             replies.append(got)
-            notes.append(f"{tag:18s} {got:9s} in {took:5.2f} s; a valid hello right after: {time.perf_counter() - t:5.2f} s")
+            after = time.perf_counter() - t
+            notes.append(f"{tag:18s} {got:9s} in {took:5.2f} s; a valid hello right after: {after:5.2f} s")
     return replies, notes
 
 
