@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 
 from hydrolink.protocol.pacing import FACTOR_RANGE
-from hydrolink.server.service.capacity import MAX_SESSIONS, MAX_SETUPS, default_memory_mib
+from hydrolink.server.service.capacity import ISOLATE_STEP_S, MAX_SESSIONS, MAX_SETUPS, MAX_WORKERS, default_memory_mib
 
 
 class _UserError(click.ClickException):
@@ -191,9 +191,15 @@ def _build_plant(scene, hdbs):
 @click.option("--max-memory-mib", type=click.IntRange(min=1), default=None,
               help="What the open sessions' models may hold together (MiB; default half the machine's memory): a "
                    "hello whose model would pass it is refused busy (memory), naming the figures.")
+@click.option("--isolate-step-ms", default=ISOLATE_STEP_S * 1e3, show_default=True, type=click.FloatRange(min=0),
+              help="A session whose model's step takes longer (timed at set-up) steps in a worker process of its "
+                   "own, off the loop that answers the others (0: every session).")
+@click.option("--max-workers", default=MAX_WORKERS, show_default=True, type=click.IntRange(min=1),
+              help="Worker processes (heavy sessions) at once; one more heavy hello is refused busy (workers).")
 def serve(bind: str, session_timeout: float, cpu: int | None, curve_secret: Path | None,
           curve_clients: Path | None, key_file: Path | None, store: Path | None, store_mib: int,
-          max_message_mib: int | None, max_setups: int, max_sessions: int, max_memory_mib: int | None) -> None:
+          max_message_mib: int | None, max_setups: int, max_sessions: int, max_memory_mib: int | None,
+          isolate_step_ms: float, max_workers: int) -> None:
     """Run the force server until interrupted (SIGINT or SIGTERM)."""
     import signal
 
@@ -216,6 +222,7 @@ def serve(bind: str, session_timeout: float, cpu: int | None, curve_secret: Path
                              max_message_bytes=codec.MAX_MESSAGE_BYTES if max_message_mib is None
                              else max_message_mib * 2**20, max_setups=max_setups, max_sessions=max_sessions,
                              max_memory_bytes=(max_memory_mib or default_memory_mib()) * 2**20,
+                             isolate_step_s=isolate_step_ms / 1e3, max_workers=max_workers,
                              plant_builder=_build_plant)
     except CurveKeyError as exc:
         raise _UserError(str(exc)) from None

@@ -64,6 +64,7 @@ class Code(IntEnum):
     MISSING_CONTENT = 13
     BUSY = 14
     UNAUTHORIZED = 15
+    SESSION_FAILED = 16
     INTERNAL = 99
 
 

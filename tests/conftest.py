@@ -91,6 +91,25 @@ def server() -> str:
     thread.join(5.0)
 
 
+@pytest.fixture
+def served():
+    """Start force servers in threads of this process (``served(**kw)``: serve_in_thread's keywords,
+    session timeout 600 s unless given); each is stopped and its thread joined at the test's end."""
+    from hydrolink.server.service.force_server import serve_in_thread
+    started = []
+
+    def start(**kw):
+        srv, thread = serve_in_thread(**{"session_timeout": 600.0, **kw})
+        started.append((srv, thread))
+        return srv
+
+    yield start
+    for srv, thread in started:
+        srv.stop()
+        thread.join(timeout=30)
+        assert not thread.is_alive()
+
+
 def build_zmq_msgpack_program(source: Path, exe: Path, *flags: str) -> Path:
     """Compile a C program against libzmq and msgpack-c into ``exe`` (gcc ``flags``); the test is
     skipped, naming the Debian packages, when gcc or the headers are not on this machine."""

@@ -20,7 +20,7 @@ from analytic_hdb import make_body_hdb
 from conftest import body, dealer, linear_pto, regular_waves, scene_toml
 from hydrolink.clients.lockstep.connection import RemoteError, ServerConnection
 from hydrolink.protocol import codec
-from hydrolink.server.service.force_server import MAX_QUEUED, serve_in_thread
+from hydrolink.server.service.force_server import MAX_QUEUED
 
 LIMIT = 2**20          # the servers' message limit here (--max-message-mib 1)
 WAIT_MS = 20_000       # a reply's bounded wait (a loaded machine)
@@ -44,20 +44,9 @@ def hdbs():
 
 
 @pytest.fixture
-def served():
-    """Start servers in threads (``served(**kw)``); each is stopped and its thread joined."""
-    started = []
-
-    def start(**kw):
-        srv, thread = serve_in_thread(session_timeout=600.0, **{"max_message_bytes": LIMIT, **kw})
-        started.append((srv, thread))
-        return srv
-
-    yield start
-    for srv, thread in started:
-        srv.stop()
-        thread.join(timeout=10)
-        assert not thread.is_alive()
+def served(served):
+    """conftest's ``served``, with this module's message limit unless given."""
+    return lambda **kw: served(**{"max_message_bytes": LIMIT, **kw})
 
 
 class Victim:

@@ -16,6 +16,8 @@ from hydrolink.protocol.codec import Code, ProtocolError
 
 MAX_SETUPS = 8      # hellos being set up (waiting for a worker or running) at once
 MAX_SESSIONS = 64   # sessions open or being set up
+ISOLATE_STEP_S = 0.5e-3   # s: a session whose model's step takes longer (timed at set-up) steps in a worker
+MAX_WORKERS = 4     # worker processes (heavy sessions) at once: a 2-core machine gains nothing from more
 
 
 def default_memory_mib() -> int:

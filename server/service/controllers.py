@@ -28,7 +28,7 @@ from hydrolink.protocol import codec
 from hydrolink.protocol.codec import Code, ProtocolError
 from hydrolink.protocol.scene import Controller, LinearPTO, Scene
 from hydrolink.server.allocation import require_size
-from hydrolink.server.sea.probes import WaveProbes
+from hydrolink.server.sea.probes import PreviewGrid
 
 log = logging.getLogger("hydrolink.server.service.controllers")
 
@@ -47,7 +47,7 @@ class Slot:
     body_rows: np.ndarray          # rows of its bodies among the scene bodies
     period: int                    # P
     latency: int                   # L
-    probes: WaveProbes
+    grid: PreviewGrid              # where and when its wave probes look (computed where the model steps)
     fallback_damping: list[float] | None
     state: str = "waiting"         # waiting | active | absent
     epoch: int = 0
@@ -55,6 +55,7 @@ class Slot:
     newest: int = -1               # newest step relayed to this slot
     delivered: int = -1            # newest step delivered to the controller
     sample: dict | None = None     # the newest measurements (reply fields)
+    sample_whole: bool = True      # False: the newest has no wave fields (relayed before the first join)
     relay_time: dict[int, float] = field(default_factory=dict)
     received: dict[int, tuple] = field(default_factory=dict)   # step -> ("ok", commands, latency) | ("invalid", msg)
     decided: set[int] = field(default_factory=set)
@@ -87,10 +88,11 @@ def token_matches(hub: "ControlHub", token: str) -> bool:
 class ControlHub:
     """The controllers of one session (see module docstring)."""
 
-    def __init__(self, scene: Scene, scene_text: str, model, session_id: str, send: Callable[..., None],
+    def __init__(self, scene: Scene, scene_text: str, n_waves: int, session_id: str, send: Callable[..., None],
                  token: str):
-        """``token``: the secret a controller's hello must carry to join (SPEC §5.7.2): the owner's
-        (its hello's ``control_token``) or one drawn by the server; the owner's welcome returns it."""
+        """``n_waves``: the model's wave components. ``token``: the secret a controller's hello must
+        carry to join (SPEC §5.7.2): the owner's (its hello's ``control_token``) or one drawn by the
+        server; the owner's welcome returns it."""
         self.scene, self.scene_text, self.session_id, self.send = scene, scene_text, session_id, send
         self.token = token
         self.dt = float(scene.simulation.dt)
@@ -100,24 +102,22 @@ class ControlHub:
         self.pto_damping = {p.name: float(p.damping) for p in linear}
         self.body_names = [b.name for b in scene.bodies]
         self.slots: dict[str, Slot] = {}
-        water = scene.water
         for i, c in enumerate(scene.controllers):
             P = c.steps_per_period(self.dt)
             hstep = int(round((c.preview_step or P * self.dt) / self.dt))
             n_h = int(math.floor(c.preview / (hstep * self.dt) + 1e-9)) if c.preview > 0 else 0
-            require_size(f"controllers[{i}].preview_step", "the wave preview's phasors (components x samples)",
-                         (max(model.waves.size, 1), n_h + 1), 16,
-                         hint=f"fewer preview samples: a longer preview_step or a shorter preview ({c.preview:g} s)")
-            preview_times = np.arange(1, n_h + 1) * hstep * self.dt
-            probes = WaveProbes(model.waves, np.array(c.wave_points, float), preview_times, water.gravity,
-                                water.depth_m)
+            require_size(f"controllers[{i}].preview_step", "the wave probes' phasors and preview window "
+                         "(components + samples, x probes)", (max(n_waves, 1) + n_h + 1, len(c.wave_points)),
+                         16, hint="fewer preview samples: a longer preview_step or a shorter preview "
+                         f"({c.preview:g} s)")
+            grid = PreviewGrid(tuple((float(x), float(y)) for x, y in c.wave_points), self.dt, hstep, n_h)
             fb = None
             if c.fallback == "passive":
                 fb = [float(c.fallback_damping) if c.fallback_damping is not None else self.pto_damping[p]
                       for p in c.ptos]
             self.slots[c.name] = Slot(c, np.array([self.pto_names.index(p) for p in c.ptos], int),
                                       np.array([self.body_names.index(b) for b in (c.bodies or self.body_names)], int),
-                                      P, int(c.latency), probes, fb)
+                                      P, int(c.latency), grid, fb)
         self.pending: dict | None = None   # the multibody step reply waiting for commands
         self.held: deque[tuple[dict, list[bytes]]] = deque()   # (request, route) behind the pending step
         self.pending_deadline = math.inf
@@ -134,7 +134,7 @@ class ControlHub:
             "steps_per_period": slot.period, "latency": slot.latency,
             "duration": self.n_steps * self.dt, "steps": self.n_steps,
             "measurements": list(c.measurements), "wave_points": np.array(c.wave_points, float).reshape(-1, 2),
-            "preview_times": slot.probes.offsets[1:].copy(), "timeout": c.timeout, "fallback": c.fallback,
+            "preview_times": slot.grid.offsets[1:], "timeout": c.timeout, "fallback": c.fallback,
             "fallback_damping": slot.fallback_damping,
             "limits": {"max_force": c.max_force, "damping": list(c.damping_range),
                        "stiffness": list(c.stiffness_range)},
@@ -160,7 +160,7 @@ class ControlHub:
             slot.parked = None
             self.send(route, "idle", msg_id, {}, own)
         self._activate(slot)
-        if slot.newest >= 0 and slot.newest not in slot.decided:
+        if slot.newest >= 0 and slot.newest not in slot.decided and slot.sample_whole:
             slot.delivered = min(slot.delivered, slot.newest - 1)   # the newest goes to the new connection
         log.info("session %s: controller %r %s (epoch %d)", self.session_id, name,
                  "rejoined" if rejoined else "joined", slot.epoch)
@@ -324,9 +324,22 @@ class ControlHub:
             out[name] = codec.require_array(raw, name, shape, path=f"measurements.{name}")
         return out
 
+    def previews_due(self, meas: dict | None) -> dict[str, PreviewGrid]:
+        """The wave probes the measurements ``meas`` (of :meth:`step_request`) are relayed with: of
+        the controllers whose control step it is, that joined (a controller that never joined costs
+        no wave evaluation) and measure waves. Computed where the session's model steps
+        (Session.previews), handed back to :meth:`after_step`."""
+        if meas is None:
+            return {}
+        k = meas["step"]
+        return {s.name: s.grid for s in self.slots.values()
+                if k % s.period == 0 and s.counts["joins"] > 0
+                and ("wave_elevation" in s.cfg.measurements or s.grid.samples > 0)}
+
     def after_step(self, seq: int, iteration: int, new: bool, meas: dict | None, fields: dict,
-                   route, msg_id) -> dict | None:
-        """Relay measurements, take the decisions due at ``seq``; the reply fields, or None (deferred)."""
+                   route, msg_id, waves: dict[str, np.ndarray] | None = None) -> dict | None:
+        """Relay measurements (with ``waves``, the elevations of :meth:`previews_due`), take the
+        decisions due at ``seq``; the reply fields, or None (deferred)."""
         now = _time.monotonic()
         if not new or iteration > 0:
             if self.last_control and self.last_control[0] == seq:
@@ -336,7 +349,7 @@ class ControlHub:
                 return None
             return fields
         if meas is not None:
-            self._relay(meas, now)
+            self._relay(meas, now, waves or {})
         due = [s for s in self.slots.values()
                if seq - s.latency >= 0 and (seq - s.latency) % s.period == 0]
         self.pending = {"seq": seq, "fields": fields, "route": route, "msg_id": msg_id,
@@ -349,7 +362,7 @@ class ControlHub:
                 self._decide(s, k, "absent")
         return self._maybe_finish_pending(send=False)
 
-    def _relay(self, meas: dict, now: float) -> None:
+    def _relay(self, meas: dict, now: float, waves: dict[str, np.ndarray]) -> None:
         k = meas["step"]
         t = k * self.dt
         for s in self.slots.values():
@@ -361,13 +374,14 @@ class ControlHub:
                     continue
                 v = meas[name]
                 sample[name] = np.ascontiguousarray(v[s.pto_rows] if name.startswith("pto") else v[s.body_rows])
-            if "wave_elevation" in s.cfg.measurements or s.probes.offsets.size > 1:
-                eta = s.probes(t)
+            eta = waves.get(s.name)
+            if eta is not None:
                 if "wave_elevation" in s.cfg.measurements:
                     sample["wave_elevation"] = np.ascontiguousarray(eta[:, 0])
                 if eta.shape[1] > 1:
                     sample["wave_preview"] = np.ascontiguousarray(eta[:, 1:])
             s.sample, s.newest = sample, k
+            s.sample_whole = eta is not None or not ("wave_elevation" in s.cfg.measurements or s.grid.samples > 0)
             s.relay_time[k] = now
             if s.parked is not None and s.state == "active":
                 route, msg_id, _, own = s.parked

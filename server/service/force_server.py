@@ -28,16 +28,16 @@ import zmq
 from hydrolink.protocol import codec, transport
 from hydrolink.protocol.codec import Code, ProtocolError
 from hydrolink.protocol.pacing import check_factor
-from hydrolink.server.allocation import footprint
 from hydrolink.server.service.capacity import MAX_SESSIONS, MAX_SETUPS, HelloLimits, MemoryBudget
 from hydrolink.server.service.controllers import ControlHub, join_token, token_matches
 from hydrolink.server.errors import ModelError
 from hydrolink.server.hdb.file_set import FileSetReader
 from hydrolink.server.hdb.store import HASH, ContentStore, ContentTooLarge, default_folder
 from hydrolink.server.service.log_limit import LimitedLog, limit_lines
-from hydrolink.server.model import HydroModel
 from hydrolink.server.service.session import PlantBuilder, Session, build_model
 from hydrolink.server.service.setup_workers import SetupWorkers
+from hydrolink.server.service.step_worker import (ISOLATE_STEP_S, MAX_WORKERS, STEP_TIMEOUT, Flight, Placed,
+                                                  WorkerFailed, WorkerSession, WorkerSlots, place)
 
 log = logging.getLogger("hydrolink.server")
 
@@ -63,7 +63,7 @@ class PendingHello:
     client: dict
     realtime: float | None
     started: float
-    model: Future
+    model: Future   # of a step_worker.Placed
 
 
 def server_version() -> str:
@@ -80,7 +80,9 @@ class ForceServer:
                  key: bytes | None = None, curve_secret: str | None = None, curve_clients: str | None = None,
                  max_message_bytes: int = codec.MAX_MESSAGE_BYTES, store: ContentStore | None = None,
                  max_setups: int = MAX_SETUPS, max_sessions: int = MAX_SESSIONS,
-                 plant_builder: PlantBuilder | None = None, max_memory_bytes: int | None = None):
+                 plant_builder: PlantBuilder | None = None, max_memory_bytes: int | None = None,
+                 isolate_step_s: float = ISOLATE_STEP_S, max_workers: int = MAX_WORKERS,
+                 step_timeout: float = STEP_TIMEOUT):
         """``bind=None`` makes an in-process server without a socket: clients in the same process
         call :meth:`respond` with the same frames a socket would carry (see ServerConnection).
 
@@ -99,7 +101,14 @@ class ForceServer:
 
         ``max_memory_bytes``: what the open sessions' models may hold together (their arrays,
         server/allocation.py ``footprint``); a hello whose model would pass it is refused with error
-        14 ``busy``, limit ``memory`` (SPEC §4.2); None: no bound."""
+        14 ``busy``, limit ``memory`` (SPEC §4.2); None: no bound.
+
+        ``isolate_step_s``: a session of a socket server whose model's step (timed at set-up) takes
+        longer steps in a worker process of its own (server/service/step_worker.py; 0: every
+        session, ``math.inf``: none), at most ``max_workers`` at once (beyond: error 14
+        ``workers``); a worker that takes longer than ``step_timeout`` s for a request, or dies,
+        ends its session with error 16. The in-process server (``bind=None``) steps every session
+        in the caller's thread."""
         self.plant_builder = plant_builder
         # the bytes the open sessions' models may hold together (None: unbounded, as in-process)
         self.memory = MemoryBudget(int(max_memory_bytes)) if max_memory_bytes is not None else None
@@ -162,6 +171,10 @@ class ForceServer:
         self._setups: list[PendingHello] = []    # hellos being set up, oldest first (at most max_setups)
         self._paced: list[tuple[float, int, list[bytes]]] = []   # held replies: (release, order, frames)
         self._order = itertools.count()
+        self.isolate_step_s = float(isolate_step_s)
+        self.step_timeout = float(step_timeout)
+        self._worker_slots = WorkerSlots(max_workers)
+        self._flying: dict[int, WorkerSession] = {}   # a worker's pipe -> its session, while it computes
         self._hold: float | None = None   # release time of the reply being handled (paced session)
 
     @property
@@ -209,7 +222,10 @@ class ForceServer:
         # when a controller deadline (SPEC §5.7) or a paced reply comes sooner, or a set-up runs
         if self._hubs or self._paced or self._setups or self._rcv_ms != POLL_MS:
             self._set_rcv_timeout()
-        self._receive()
+        if self._flying:
+            self._poll_workers()
+        else:
+            self._receive()
         if self._setups:
             self._finish_setups()
         if self._paced:
@@ -220,6 +236,8 @@ class ForceServer:
                 if hub.next_deadline() <= now:
                     hub.poll(now)
             self._resume_held()
+        if self._flying:
+            self._check_flights(now)
         if now >= next_sweep:
             self._expire(now)
             next_sweep = now + min(1.0, self.session_timeout / 4)
@@ -384,6 +402,10 @@ class ForceServer:
             if session in self._controllers and mtype not in CONTROLLER_REQUESTS:
                 raise ProtocolError(Code.UNKNOWN_TYPE, "type", f"{mtype!r} is not a controller's request: a "
                                     f"controller's session id allows only {', '.join(CONTROLLER_REQUESTS)}")
+            isolated = self.sessions.get(session) if session is not None else None
+            if type(isolated) is WorkerSession and isolated.flight is not None and route is not None:
+                self._wait_behind(isolated, msg, route, len(frame) if type(frame) is not dict else 0)
+                return None   # answered in order once the worker answers the one before (SPEC §1)
             hub = self._hubs.get(session) if session is not None else None
             if hub is not None and route is not None and self._running and hub.holds(mtype, msg, route):
                 self._queue(hub, len(frame) if type(frame) is not dict else 0)
@@ -481,9 +503,9 @@ class ForceServer:
                 model = build_model(msg, self.files)
             except MemoryError:
                 raise self._out_of_memory() from None
-            return self._open(msg, client, realtime, t0, model)
+            return self._open(msg, client, realtime, t0, Placed.of(os.urandom(16).hex(), model, 0.0))
         work = self._workers.submit(contextvars.copy_context().run,   # its log lines too: limit_lines
-                                    build_model, msg, self.files)
+                                    place, msg, self.files, self.isolate_step_s, self._worker_slots)
         self._setups.append(PendingHello(msg, msg_id, self._route, client, realtime, t0, work))
         return None   # answered by _finish_setups
 
@@ -496,10 +518,10 @@ class ForceServer:
                 continue
             try:
                 try:
-                    model = hello.model.result()
+                    placed = hello.model.result()
                 except MemoryError:
                     raise self._out_of_memory() from None
-                rtype, fields, sid = self._open(hello.msg, hello.client, hello.realtime, hello.started, model)
+                rtype, fields, sid = self._open(hello.msg, hello.client, hello.realtime, hello.started, placed)
                 reply = codec.message(rtype, next(self._ids), sid, hello.msg_id, **fields)
             except Exception as exc:  # noqa: BLE001 - a failed set-up is that hello's error reply
                 reply = self._error(exc, hello.msg, None, hello.route)
@@ -507,34 +529,49 @@ class ForceServer:
         self._setups = running
 
     def _open(self, msg: dict, client: dict, realtime: float | None, t0: float,
-              model: HydroModel) -> tuple[str, dict, str]:
-        """A new session over a built model: its ``welcome``; error 14 (memory) when its model would
-        pass the server's memory budget beside the open sessions'."""
-        needed = footprint(model)
+              placed: Placed) -> tuple[str, dict, str]:
+        """A new session over a built model (stepping here, or in its worker): its ``welcome``;
+        error 14 (memory) when its model would pass the server's memory budget beside the open
+        sessions'. A refused session's worker is stopped."""
+        try:
+            return self._welcome(msg, client, realtime, t0, placed)
+        except BaseException:
+            if placed.worker is not None and placed.session_id not in self.sessions:
+                placed.worker.stop()
+                self._worker_slots.give_back()
+            raise
+
+    def _welcome(self, msg: dict, client: dict, realtime: float | None, t0: float,
+                 placed: Placed) -> tuple[str, dict, str]:
         if self.memory is not None:
-            self.memory.admit(self.held_bytes(), needed)
-        sid = os.urandom(16).hex()
-        if model.scene.controllers:
+            self.memory.admit(self.held_bytes(), placed.footprint)
+        sid = placed.session_id
+        if placed.scene.controllers:
             if self._sock is None:
                 raise ProtocolError(Code.BAD_SCENE, "scene.controllers", "controllers connect over the network: "
                                     "this in-process server has no socket (run the session on a server with one, "
                                     "e.g. hydrolink serve, or hydrolink run without an embedded server)")
             try:
-                self._hubs[sid] = ControlHub(model.scene, msg["scene"], model, sid,
+                self._hubs[sid] = ControlHub(placed.scene, msg["scene"], placed.n_waves, sid,
                                              lambda route, mtype, parent, fields, own=None, _sid=sid:
                                              self._send_later(_sid, route, mtype, parent, fields, own),
                                              join_token(msg))
             except ModelError as exc:
                 raise ProtocolError(Code.BAD_SCENE, f"scene.{exc.key}", str(exc)) from None
-        self.sessions[sid] = Session(sid, model, client, realtime, self.plant_builder)
-        self.sessions[sid].footprint = needed
-        log.info("session %s opened by %s %s: %d bodies, dt %g, setup %.3f s", sid, client.get("name", "?"),
-                 client.get("version", "?"), len(model.bodies), model.dt, time.perf_counter() - t0)
+        if placed.model is not None:
+            self.sessions[sid] = Session(sid, placed.model, client, realtime, self.plant_builder)
+        else:
+            self.sessions[sid] = WorkerSession(placed, client, realtime, self.plant_builder)
+        self.sessions[sid].footprint = placed.footprint
+        log.info("session %s opened by %s %s: %d bodies, dt %g, setup %.3f s, step %.3f ms%s", sid,
+                 client.get("name", "?"), client.get("version", "?"), placed.n_bodies, placed.dt,
+                 time.perf_counter() - t0, placed.cost * 1e3,
+                 f", in worker process {placed.worker.process.pid}" if placed.worker else "")
         welcome = {
             "protocol": codec.PROTOCOL_VERSION,
             "server": {"name": "hydrolink", "version": self._version},
             "session_timeout": self.session_timeout,
-            "setup": model.setup_info().to_wire(),
+            "setup": placed.setup,
         }
         if sid in self._hubs:
             welcome["control_token"] = self._hubs[sid].token   # the owner hands it to its controllers
@@ -583,6 +620,8 @@ class ForceServer:
         s = self._session(session)
         arrived = time.perf_counter()
         hub = self._hubs.get(s.id)
+        if type(s) is WorkerSession:
+            return self._step_in_worker(s, hub, msg, msg_id, arrived)
         if hub is None:
             fields = s.step(msg)
             self._hold = s.release_time(fields["seq"], arrived)
@@ -592,8 +631,124 @@ class ForceServer:
         meas = hub.step_request(msg, seq, iteration, new) if new else None
         fields = s.step(msg)
         self._hold = s.release_time(fields["seq"], arrived)
-        fields = hub.after_step(seq, iteration, new, meas, fields, self._route, msg_id)
+        waves = s.previews(hub.previews_due(meas), meas["step"]) if meas is not None else None
+        fields = hub.after_step(seq, iteration, new, meas, fields, self._route, msg_id, waves)
         return None if fields is None else ("forces", fields, session)
+
+    # ------------------------------------------------------------ sessions in worker processes
+
+    def _step_in_worker(self, s: WorkerSession, hub: ControlHub | None, msg: dict, msg_id: Any,
+                        arrived: float) -> None:
+        """Hand a step to the session's worker (answered by :meth:`_worker_answer`): a controlled
+        step's measurements are checked here first, and the wave probes due go with it."""
+        control, grids, k = None, {}, 0
+        if hub is not None:
+            seq, iteration = msg.get("seq"), codec.require_int(msg, "iteration", default=0, minimum=0)
+            new = type(seq) is int and seq == s.last_seq + 1
+            meas = hub.step_request(msg, seq, iteration, new) if new else None
+            control = (seq, iteration, new, meas)
+            if meas is not None:
+                grids, k = hub.previews_due(meas), meas["step"]
+        self._submit(s, Flight("step", msg, msg_id, self._route, time.monotonic(), arrived, control), (msg, grids, k))
+
+    def _submit(self, s: WorkerSession, flight: Flight, args: tuple) -> None:
+        if flight.route is None:   # pragma: no cover - workers exist only under the socket loop
+            raise ProtocolError(Code.WRONG_STATE, "type", "an in-process server steps no session in a worker")
+        try:
+            s.submit(flight, args)
+        except WorkerFailed as exc:
+            self._worker_failed(s, None, exc.why)
+            raise self._failed(s, exc.why) from None
+        self._flying[s.worker.fileno()] = s
+
+    def _poll_workers(self) -> None:
+        """Wait for the next request or a worker's answer (whichever comes first) and handle it."""
+        poller = zmq.Poller()
+        poller.register(self._sock, zmq.POLLIN)
+        for fd in self._flying:
+            poller.register(fd, zmq.POLLIN)
+        ready = dict(poller.poll(self._rcv_ms))
+        for fd in [fd for fd in self._flying if fd in ready]:
+            self._worker_answer(self._flying.pop(fd))
+        if self._sock in ready:
+            self._receive()
+
+    def _worker_answer(self, s: WorkerSession) -> None:
+        """Reply to the request the worker of ``s`` answered, then hand it the next one waiting."""
+        flight = s.flight
+        try:
+            _, (status, value) = s.done()
+        except WorkerFailed as exc:
+            self._worker_failed(s, flight, exc.why)
+            return
+        self._hold = None
+        try:
+            reply = self._flight_reply(s, flight, status, value)
+        except Exception as exc:  # noqa: BLE001 - the loop must never die
+            reply = self._error(exc, flight.msg, s.id, flight.route)
+        if reply is not None:
+            self._send(flight.route, reply, self._hold)
+        while s.waiting and s.flight is None:
+            msg, route, _ = s.waiting.popleft()
+            reply = self.handle(msg, route)
+            if reply is not None:
+                self._send(route, reply, self._hold)
+
+    def _flight_reply(self, s: WorkerSession, flight: Flight, status: str, value: Any) -> dict | None:
+        """The reply to a request a worker answered (None: deferred by the session's controllers)."""
+        if status == "error":
+            code, field, message, extra = value
+            return self._error(ProtocolError(code, field, message, extra=extra), flight.msg, s.id, flight.route)
+        if status != "ok":
+            return self._error(RuntimeError(f"in the session's worker: {value}"), flight.msg, s.id, flight.route)
+        fields, waves = value[0], value[1]
+        if flight.op != "step":
+            return codec.message({"save": "saved", "restore": "restored", "release": "released"}[flight.op],
+                                 next(self._ids), s.id, flight.msg_id, **fields)
+        self._hold = s.release_time(fields["seq"], flight.arrived)
+        hub = self._hubs.get(s.id)
+        if flight.control is not None and hub is not None:
+            seq, iteration, new, meas = flight.control
+            fields = hub.after_step(seq, iteration, new, meas, fields, flight.route, flight.msg_id, waves)
+            if fields is None:
+                return None
+        return codec.message("forces", next(self._ids), s.id, flight.msg_id, **fields)
+
+    def _wait_behind(self, s: WorkerSession, msg: dict, route: list[bytes], size: int) -> None:
+        """Keep a request of ``s`` until its worker answers the one before (SPEC §1: in order);
+        beyond MAX_QUEUED requests or the message limit in bytes, error 14 ``busy`` (``queued``)."""
+        held = sum(n for _, _, n in s.waiting)
+        if len(s.waiting) >= MAX_QUEUED or held + size > self.max_message_bytes:
+            raise ProtocolError(Code.BUSY, None, f"session {s.id} already holds {len(s.waiting)} requests "
+                                f"({held} bytes) behind the one its worker computes; at most {MAX_QUEUED} requests "
+                                f"and {self.max_message_bytes} bytes (SPEC §1): wait for its reply",
+                                extra={"limit": "queued", "maximum": MAX_QUEUED, "current": len(s.waiting)})
+        s.waiting.append((msg, route, size))
+
+    def _failed(self, s: WorkerSession, why: str) -> ProtocolError:
+        return ProtocolError(Code.SESSION_FAILED, None, f"session {s.id} ended: {why}; its state is gone "
+                             "(open a new session with hello)")
+
+    def _worker_failed(self, s: WorkerSession, flight: Flight | None, why: str) -> None:
+        """End a session whose worker died or passed its time budget: error 16 to the request in
+        flight, error 7 (naming why) to those waiting; the worker reaped."""
+        self._close(s, f"ended: {why}")
+        if flight is not None:
+            self._send(flight.route, self._error(self._failed(s, why), flight.msg, s.id, flight.route))
+        while s.waiting:
+            msg, route, _ = s.waiting.popleft()
+            reply = self.handle(msg, route)
+            if reply is not None:
+                self._send(route, reply)
+
+    def _check_flights(self, now: float) -> None:
+        """End the sessions whose worker took longer than ``step_timeout`` for a request."""
+        for fd, s in list(self._flying.items()):
+            if s.flight is not None and now - s.flight.started > self.step_timeout:
+                del self._flying[fd]
+                flight, s.flight = s.flight, None
+                self._worker_failed(s, flight, f"its worker took longer than {self.step_timeout:g} s for a "
+                                               f"{flight.op} (stopped)")
 
     # ------------------------------------------------------------ controllers (SPEC §5.7)
 
@@ -695,13 +850,17 @@ class ForceServer:
         log.info("HDB store: %s %s (%d bytes)", "stored" if new else "already held", digest[:12], len(data))
         return "uploaded", {"sha256": digest, "size": len(data), "new": new}, session
 
-    def _rollback(self, msg: dict, msg_id: Any, session: str | None) -> tuple[str, dict, str | None]:
+    def _rollback(self, msg: dict, msg_id: Any, session: str | None) -> tuple[str, dict, str | None] | None:
         """save / restore / release a session's state (SPEC §5.9)."""
         s = self._session(session)
         kind = msg["type"]
         if s.id in self._hubs:
             raise ProtocolError(Code.NOT_IMPLEMENTED, "type", f"{kind!r}: a session with controllers cannot be "
                                 "rolled back (its controllers' decisions are not part of a saved state)")
+        if type(s) is WorkerSession:
+            self._submit(s, Flight(kind, msg, msg_id, self._route, time.monotonic(), time.perf_counter()),
+                         () if kind == "save" else (msg,))
+            return None
         if kind == "save":
             return "saved", s.save(), session
         if kind == "restore":
@@ -727,8 +886,11 @@ class ForceServer:
 
     # ------------------------------------------------------------ lifecycle
 
-    def _close(self, s: Session, why: str) -> None:
-        self.sessions.pop(s.id, None)
+    def _close(self, s: Session | WorkerSession, why: str) -> None:
+        if self.sessions.pop(s.id, None) is not None and type(s) is WorkerSession:
+            self._flying.pop(s.worker.fileno(), None)
+            s.worker.stop()   # killed and reaped
+            self._worker_slots.give_back()
         hub = self._hubs.pop(s.id, None)
         self._queued.pop(s.id, None)
         self._closed[s.id] = f"{why} at {time.strftime('%H:%M:%S')}"
@@ -749,6 +911,8 @@ class ForceServer:
 
     def _shutdown(self) -> None:
         self._workers.close()
+        for hello in self._setups:   # a set-up still running: its worker (if it starts one) is stopped
+            hello.model.add_done_callback(_stop_placed)
         self._setups = []
         for s in list(self.sessions.values()):
             self._close(s, "closed by server shutdown")
@@ -760,6 +924,12 @@ class ForceServer:
         if self._own_context:
             self._ctx.term()
         log.info("hydrolink server on %s stopped", self._address)
+
+
+def _stop_placed(future: Future) -> None:
+    """A set-up finished after its server stopped: its worker process (if any) stopped and reaped."""
+    if not future.cancelled() and future.exception() is None and future.result().worker is not None:
+        future.result().worker.stop()
 
 
 def serve_in_thread(bind: str = "tcp://127.0.0.1:*", **kw: Any) -> tuple[ForceServer, threading.Thread]:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import time as _time
 from collections import OrderedDict
+from dataclasses import dataclass
 from typing import Any, Callable, Protocol
 
 import numpy as np
@@ -22,6 +23,7 @@ from hydrolink.protocol.hdb.layout import HDBError
 from hydrolink.protocol.pacing import Pacer
 from hydrolink.server.hdb.file_set import FileSetReader, is_file_set
 from hydrolink.server.model import HydroModel, ModelError
+from hydrolink.server.sea.probes import PreviewGrid, WaveProbes
 from hydrolink.server.terms.hulls import MeshError, closed_hull
 
 
@@ -29,10 +31,36 @@ def _scene_field(key: str) -> str:
     return f"scene.{key}" if key else "scene"
 
 
+@dataclass(frozen=True)
+class ModelInputs:
+    """What a ``hello`` builds its model from, read and checked: the scene, the wet bodies' HDBs by
+    body name, the wave elevation series (time, eta) and the nonlinear bodies' hulls. Plain data
+    (it pickles): a worker process builds the same model from it (server/service/step_worker.py)."""
+    scene: Scene
+    hdbs: dict[str, xr.Dataset]
+    series: tuple[np.ndarray, np.ndarray] | None
+    hulls: dict
+
+
 def build_model(msg: dict, files: FileSetReader | None = None) -> HydroModel:
     """Validate a ``hello``'s scene and HDBs and build the model over the scene's wet bodies (dry
     bodies need no HDB); ProtocolError 8/9 naming the field (13 for file contents ``files``, the
     server's store reader, lacks; 5 for a file set when there is no store)."""
+    return model_from(read_hello(msg, files))
+
+
+def model_from(inputs: ModelInputs) -> HydroModel:
+    """The model of a hello's :class:`ModelInputs`; ProtocolError 8/9 naming the field."""
+    try:
+        return HydroModel(inputs.scene, inputs.hdbs, inputs.series, hulls=inputs.hulls)
+    except ModelError as exc:
+        raise ProtocolError(Code.BAD_SCENE, _scene_field(exc.key), str(exc)) from None
+    except HDBError as exc:
+        raise ProtocolError(Code.BAD_HDB, f"{codec.key_path('hdbs', exc.source)}.{exc.field}", str(exc)) from None
+
+
+def read_hello(msg: dict, files: FileSetReader | None = None) -> ModelInputs:
+    """A ``hello``'s scene, HDBs, elevation series and hulls, read and checked (see build_model)."""
     text = codec.require_str(msg, "scene")
     hdb_maps = codec.require_map(msg, "hdbs")
     try:
@@ -80,12 +108,7 @@ def build_model(msg: dict, files: FileSetReader | None = None) -> HydroModel:
                 hulls[str(name)] = closed_hull(vertices, faces)
             except MeshError as exc:
                 raise ProtocolError(Code.BAD_VALUE, where, f"body {name!r}'s hull: {exc.why}") from None
-    try:
-        return HydroModel(scene, {b.name: datasets[b.hdb] for b in scene.wet_bodies}, series, hulls=hulls)
-    except ModelError as exc:
-        raise ProtocolError(Code.BAD_SCENE, _scene_field(exc.key), str(exc)) from None
-    except HDBError as exc:
-        raise ProtocolError(Code.BAD_HDB, f"{codec.key_path('hdbs', exc.source)}.{exc.field}", str(exc)) from None
+    return ModelInputs(scene, {b.name: datasets[b.hdb] for b in scene.wet_bodies}, series, hulls)
 
 
 MAX_SAVED_BYTES = 256 * 2**20   # per session: saved states kept (SPEC §5.9)
@@ -118,34 +141,32 @@ class LinearPlant(Protocol):
 PlantBuilder = Callable[[Scene, dict[str, xr.Dataset]], LinearPlant]
 
 
-class Session:
-    """A multibody session: the model plus the sequencing state of SPEC §5.3."""
+class SessionInfo:
+    """What the service's loop keeps of a multibody session wherever its model steps (here:
+    :class:`Session`; in a worker process: server/service/step_worker.py): its id and client, the
+    pacing of its replies, its linear plant for controllers, the sequence counters it answers by."""
 
-    def __init__(self, session_id: str, model: HydroModel, client: dict | None = None, realtime: float | None = None,
+    def __init__(self, session_id: str, scene: Scene, hdbs: dict[str, xr.Dataset], dt: float,
+                 client: dict | None = None, realtime: float | None = None,
                  plant_builder: PlantBuilder | None = None):
         """``realtime``: the hello's pace factor (SPEC §5.1): each ``forces`` reply of step seq is
         held until t0 + seq·dt/realtime, t0 the arrival of seq 0 (:attr:`pacer`). ``plant_builder``:
-        what builds the linear plant a controller may ask for (None: such a hello is refused)."""
+        what builds the linear plant a controller may ask for (None: such a hello is refused).
+        ``hdbs``: the wet bodies' HDBs by body name (what the plant is built from)."""
         self.id = session_id
+        self.scene, self._hdbs = scene, hdbs
         self._plant_builder = plant_builder
         self.footprint = 0   # bytes its model's arrays hold (server/allocation.py footprint), set when it opens
-        self.pacer = None if realtime is None else Pacer(model.dt, realtime)
+        self.pacer = None if realtime is None else Pacer(dt, realtime)
         self._paced_seq = -1
         self._plants: dict = {}   # dt (None: continuous) -> Plant, for controllers that ask (SPEC §5.7.2)
-        self.model = model
         self.client = client or {}
-        self.n_bodies = len(model.bodies)
-        self.dt = model.dt
+        self.dt = dt
         self.opened = self.last_seen = _time.monotonic()
         self.last_seq = -1
         self.last_iteration = -1
-        self._last_state: tuple[np.ndarray, np.ndarray] | None = None
-        self._cached: dict[str, Any] | None = None
         self.steps = 0
         self.compute_s = 0.0
-        self._saved: OrderedDict[int, tuple] = OrderedDict()   # SPEC §5.9, oldest first
-        self._saved_bytes = 0
-        self._next_state = 1
 
     @property
     def state(self) -> str:
@@ -153,6 +174,66 @@ class Session:
 
     def touch(self) -> None:
         self.last_seen = _time.monotonic()
+
+    def plant(self, dt: float | None):
+        """The session's device as a linear plant (by the server's plant builder), continuous or at
+        ``dt``; built once per dt. ProtocolError 8 naming the scene key it cannot represent."""
+        if self._plant_builder is None:
+            raise ProtocolError(Code.BAD_VALUE, "plant", "this server builds no linear plants (it was started "
+                                "without a plant builder: use hydrolink serve or hydrolink run)")
+        if dt not in self._plants:
+            scene = self.scene
+            try:
+                plant = self._plant_builder(scene, {b.hdb: self._hdbs[b.name] for b in scene.bodies if b.wet})
+                self._plants[dt] = plant if dt is None else plant.discretize(dt)
+            except (KeyedError, ModelError) as exc:
+                raise ProtocolError(Code.BAD_SCENE, _scene_field(exc.key), f"no linear plant: {exc}") from None
+            except (ValueError, ArithmeticError, np.linalg.LinAlgError, RuntimeError) as exc:   # e.g. a singular
+                raise ProtocolError(Code.BAD_SCENE, "scene", f"no linear plant: {type(exc).__name__}: {exc}") from None
+        return self._plants[dt]
+
+    def release_time(self, seq: int, arrived: float) -> float | None:
+        """When the reply to step ``seq`` may leave (``time.perf_counter`` clock; None: unpaced).
+        The first request of a new step is counted: an overrun when its reply is ready after its
+        release (the client or the link took longer than the step's wall-clock budget)."""
+        if self.pacer is None:
+            return None
+        due = self.pacer.release_time(seq)
+        if seq > self._paced_seq:      # a new step (not a retry or an iteration of the last)
+            self._paced_seq = seq
+            if seq:
+                self.pacer.done(seq - 1, started=arrived)
+        return due
+
+
+class Session(SessionInfo):
+    """A multibody session whose model steps here: the model plus the sequencing state of SPEC §5.3."""
+
+    def __init__(self, session_id: str, model: HydroModel, client: dict | None = None, realtime: float | None = None,
+                 plant_builder: PlantBuilder | None = None):
+        super().__init__(session_id, model.scene, model.hdbs, model.dt, client, realtime, plant_builder)
+        self.model = model
+        self.n_bodies = len(model.bodies)
+        self._last_state: tuple[np.ndarray, np.ndarray] | None = None
+        self._cached: dict[str, Any] | None = None
+        self._saved: OrderedDict[int, tuple] = OrderedDict()   # SPEC §5.9, oldest first
+        self._saved_bytes = 0
+        self._next_state = 1
+        self._probes: dict[str, WaveProbes] = {}   # a joined controller's probes, made on first use
+
+    def previews(self, grids: dict[str, PreviewGrid], step: int) -> dict[str, np.ndarray]:
+        """The wave probes' elevations (now and the preview) of the controllers ``grids`` names, at
+        ``step``: each controller's probes made the first time it is asked for (never when no
+        controller joined), their window computed along the run (server/sea/probes.py)."""
+        out = {}
+        water = self.scene.water
+        for name, grid in grids.items():
+            probes = self._probes.get(name)
+            if probes is None or probes.grid != grid:
+                probes = self._probes[name] = WaveProbes.on_grid(self.model.waves, grid, water.gravity,
+                                                                 water.depth_m)
+            out[name] = probes.at_step(step)
+        return out
 
     # ------------------------------------------------------------ rollback (SPEC §5.9)
 
@@ -190,36 +271,6 @@ class Session:
         if entry is not None:
             self._saved_bytes -= entry[1]
         return {"state": sid, "kept": len(self._saved)}
-
-    def plant(self, dt: float | None):
-        """The session's device as a linear plant (by the server's plant builder), continuous or at
-        ``dt``; built once per dt. ProtocolError 8 naming the scene key it cannot represent."""
-        if self._plant_builder is None:
-            raise ProtocolError(Code.BAD_VALUE, "plant", "this server builds no linear plants (it was started "
-                                "without a plant builder: use hydrolink serve or hydrolink run)")
-        if dt not in self._plants:
-            scene = self.model.scene
-            try:
-                plant = self._plant_builder(scene, {b.hdb: self.model.hdbs[b.name] for b in scene.bodies if b.wet})
-                self._plants[dt] = plant if dt is None else plant.discretize(dt)
-            except (KeyedError, ModelError) as exc:
-                raise ProtocolError(Code.BAD_SCENE, _scene_field(exc.key), f"no linear plant: {exc}") from None
-            except (ValueError, ArithmeticError, np.linalg.LinAlgError, RuntimeError) as exc:   # e.g. a singular
-                raise ProtocolError(Code.BAD_SCENE, "scene", f"no linear plant: {type(exc).__name__}: {exc}") from None
-        return self._plants[dt]
-
-    def release_time(self, seq: int, arrived: float) -> float | None:
-        """When the reply to step ``seq`` may leave (``time.perf_counter`` clock; None: unpaced).
-        The first request of a new step is counted: an overrun when its reply is ready after its
-        release (the client or the link took longer than the step's wall-clock budget)."""
-        if self.pacer is None:
-            return None
-        due = self.pacer.release_time(seq)
-        if seq > self._paced_seq:      # a new step (not a retry or an iteration of the last)
-            self._paced_seq = seq
-            if seq:
-                self.pacer.done(seq - 1, started=arrived)
-        return due
 
     def step(self, msg: dict) -> dict:
         """Reply fields for a ``step`` request (SPEC §5.2–5.3); ProtocolError leaves state unchanged."""
