@@ -352,6 +352,14 @@ def write_gdf(path: Path, vertices: np.ndarray, faces: np.ndarray) -> Path:
     return path
 
 
+def rm3_example_text(name: str = "rm3.toml") -> str:
+    """An RM3 example scene's text (examples/rm3/NAME) with its mesh files' paths made absolute, so
+    the text runs from any folder a test writes it to (its HDB path the tests replace themselves)."""
+    folder = Path(__file__).resolve().parents[1] / "examples"
+    text = (folder / "rm3" / name).read_text()
+    return text.replace('mesh = "../data/', f'mesh = "{(folder / "data").as_posix()}/')
+
+
 def write_scene(folder: Path, text: str, name: str = "scene.toml") -> Path:
     """Write scene text into ``folder`` (beside its HDBs, so relative paths resolve) and return the path."""
     path = folder / name

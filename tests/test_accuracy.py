@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from conftest import rm3_example_text
 from conftest import toml_document
 from hydrolink.clients.studies.accuracy import Grid, compare, dump_toml, grid_from_flags, make_cases, pareto_front, reference_settings, set_key
 from hydrolink.clients.cli import cli
@@ -48,7 +49,7 @@ def test_dump_toml_round_trip(scene):
 
 
 def test_cases_and_reference():
-    doc = tomllib.loads((REPO / "examples" / "rm3" / "rm3.toml").read_text())
+    doc = tomllib.loads(rm3_example_text("rm3.toml"))
     g = Grid(grid={"simulation.dt": [0.02, 0.04, 0.08], "hydro.irf_duration": [10.0, 20.0],
                    "hydro.radiation": ["convolution", "state-space"]})
     ref = reference_settings(g, doc)
@@ -139,7 +140,7 @@ def test_compare_against_a_known_error():
 def test_bench_accuracy_tiny_rm3(tmp_path, reference_data):
     """RM3 (heave float + spar, PTO), 40 s: reference dt 0.02; options dt 0.04/0.08/0.16 and the
     state-space and constant radiation, through the CLI."""
-    text = (REPO / "examples" / "rm3" / "rm3.toml").read_text()
+    text = rm3_example_text("rm3.toml")
     text = text.replace("../data/rm3_wamit/rm3.1", str(reference_data / "rm3_wamit" / "rm3.1"))
     text = text.replace("ramp = 40.0", "ramp = 10.0")
     scene = tmp_path / "rm3.toml"

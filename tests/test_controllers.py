@@ -30,6 +30,7 @@ import numpy as np
 import pytest
 import xarray as xr
 import zmq
+from conftest import rm3_example_text
 from conftest import build_zmq_msgpack_program
 
 from hydrolink.clients.run import run_scene_file
@@ -58,7 +59,7 @@ def thevenin(reference_data):
 # ---------------------------------------------------------------- helpers
 
 def scene_text(reference_data: Path, duration: float, controller: str) -> str:
-    text = (REPO / "examples" / "rm3" / "rm3.toml").read_text()
+    text = rm3_example_text("rm3.toml")
     hdb = (reference_data / "rm3_wamit" / "rm3.1").as_posix()
     for a, b in (('"../data/rm3_wamit/rm3.1"', f'"{hdb}"'), ("duration = 400.0", f"duration = {duration}"),
                  ("period = 8.0", f"period = {PERIOD}"), ("dt = 0.08", f"dt = {DT}"), ("ramp = 40.0", "ramp = 20.0"),

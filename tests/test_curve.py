@@ -17,6 +17,8 @@ from hydrolink.clients.lockstep.connection import ServerConnection
 from hydrolink.clients.run import run_scene_file
 from hydrolink.protocol.security import ClientKeys
 
+from conftest import rm3_example_text
+
 # One pytest-xdist worker runs this whole module (pyproject: --dist loadgroup): its module fixture (a CURVE
 # server process) costs ~4 s, paid once per worker otherwise.
 pytestmark = pytest.mark.xdist_group("curve")
@@ -79,7 +81,7 @@ def test_keys_new_refuses_to_overwrite(tmp_path):
 
 def test_authenticated_run(curve_server, reference_data, tmp_path):
     """An allowed key runs an RM3 scene end to end over the encrypted connection (CLI `hydrolink run`)."""
-    text = (REPO / "examples" / "rm3" / "rm3.toml").read_text()
+    text = rm3_example_text("rm3.toml")
     text = text.replace('"../data/rm3_wamit/rm3.1"', f'"{(reference_data / "rm3_wamit" / "rm3.1").as_posix()}"')
     text = text.replace("duration = 400.0", "duration = 0.8")
     scene = tmp_path / "rm3.toml"

@@ -17,6 +17,8 @@ from pathlib import Path
 import pytest
 import xarray as xr
 
+from conftest import rm3_example_text
+
 yaml = pytest.importorskip("yaml")
 
 REPO = Path(__file__).resolve().parents[1]
@@ -60,7 +62,7 @@ def test_compose_stack_runs_on_loopback(reference_data, tmp_path):
                              capture_output=True, text=True, timeout=60)
         assert out.returncode == 0, out.stderr
     scene_dir.mkdir()
-    text = (REPO / "examples" / "rm3" / "rm3.toml").read_text()
+    text = rm3_example_text("rm3.toml")
     for a, b in (('"../data/rm3_wamit/rm3.1"', f'"{(reference_data / "rm3_wamit" / "rm3.1").as_posix()}"'),
                  ("duration = 400.0", "duration = 1.6")):
         text = text.replace(a, b)

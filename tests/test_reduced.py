@@ -20,6 +20,7 @@ import xarray as xr
 
 import exudyn as exu
 
+from conftest import rm3_example_text
 from conftest import (SPHERE_WATER, body, joint, linear_pto, regular_waves, scene_toml, sphere_body,
                       toml_document)
 
@@ -246,7 +247,7 @@ def test_build_model_maps_the_hydrodynamics_onto_active_coordinates(server, sphe
 def test_rm3_examples_reduced_match_full_form(server, reference_data, tmp_path, example):
     """RM3 (float + spar heave, the linear PTO on their relative heave): 20 s of the example, both forms."""
     from hydrolink.server.hdb.io import load_hdb
-    text = (REPO / "examples" / "rm3" / example).read_text()
+    text = rm3_example_text(example)
     hdb = reference_data / "rm3_wamit" / "rm3.1"
     text = text.replace('"../data/rm3_wamit/rm3.1"', f'"{hdb.as_posix()}"')
     text = text.replace("duration = 400.0", "duration = 20.0")
@@ -264,7 +265,7 @@ def test_bench_accuracy_measures_reduced_against_full(tmp_path, reference_data):
     from click.testing import CliRunner
 
     from hydrolink.clients.cli import cli
-    text = (REPO / "examples" / "rm3" / "rm3.toml").read_text()
+    text = rm3_example_text("rm3.toml")
     text = text.replace("../data/rm3_wamit/rm3.1", str(reference_data / "rm3_wamit" / "rm3.1"))
     scene = tmp_path / "rm3.toml"
     scene.write_text(text.replace("ramp = 40.0", "ramp = 5.0"))

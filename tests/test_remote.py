@@ -21,6 +21,8 @@ import xarray as xr
 
 import netlab  # tests/netlab.py
 
+from conftest import rm3_example_text
+
 # One pytest-xdist worker runs this whole module (pyproject: --dist loadgroup): its module fixture (the
 # loopback reference run of three processes) costs ~8 s, paid once per worker otherwise.
 pytestmark = pytest.mark.xdist_group("remote")
@@ -37,7 +39,7 @@ needs_netns = pytest.mark.skipif(_reason is not None, reason=f"netns lab unavail
 
 def rm3_scene(reference_data: Path, duration: float) -> str:
     """RM3 (two bodies, one PTO) at T = 4 s, dt = 0.04 s, a reactive force controller over the server."""
-    text = (REPO / "examples" / "rm3" / "rm3.toml").read_text()
+    text = rm3_example_text("rm3.toml")
     hdb = (reference_data / "rm3_wamit" / "rm3.1").as_posix()
     for a, b in (('"../data/rm3_wamit/rm3.1"', f'"{hdb}"'), ("duration = 400.0", f"duration = {duration}"),
                  ("period = 8.0", "period = 4.0"), ("dt = 0.08", "dt = 0.04"), ("ramp = 40.0", "ramp = 1.0"),

@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import rm3_example_text
 from hydrolink.protocol.scene import load_scene, parse_scene
 from hydrolink.server.model import HydroModel
 
@@ -115,7 +116,7 @@ def compare(label: str, amps: np.ndarray, power: float, rm3, interaction: str, i
 def scene_text(interaction: str, hdb: Path, duration: float = DURATION) -> str:
     """The example scene with the HDB at ``hdb`` and a shorter duration."""
     name = "rm3.toml" if interaction == "full" else "rm3_none.toml"
-    text = (EXAMPLE / name).read_text()
+    text = rm3_example_text(name)
     text = text.replace('"../data/rm3_wamit/rm3.1"', f'"{hdb.as_posix()}"')
     return text.replace("duration = 400.0", f"duration = {duration}")
 
