@@ -206,6 +206,7 @@ def serve(bind: str, session_timeout: float, cpu: int | None, curve_secret: Path
     from hydrolink.protocol import codec
     from hydrolink.protocol.security import CurveKeyError
     from hydrolink.server.hdb.store import ContentStore, default_folder
+    from hydrolink.server.processes import start_children
     from hydrolink.server.service.force_server import ForceServer
 
     _pin_to_cpu(cpu)
@@ -226,6 +227,7 @@ def serve(bind: str, session_timeout: float, cpu: int | None, curve_secret: Path
                              plant_builder=_build_plant)
     except CurveKeyError as exc:
         raise _UserError(str(exc)) from None
+    start_children()   # the forkserver of HDB parses and session workers, importing beside the loop
     signal.signal(signal.SIGTERM, lambda signum, frame: server.stop())  # docker stop
     secure = (" (CURVE: authenticated and encrypted)" if curve_secret else "") + \
         (" (every message signed: HMAC key file)" if key else "")

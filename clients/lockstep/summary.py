@@ -10,14 +10,18 @@ mechanism's notes, the FMU's version and costs) and ``hydrolink run`` adds the s
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import Protocol, Sequence
 
 import numpy as np
 
 from hydrolink.protocol.pacing import RealtimeReport
 
-if TYPE_CHECKING:
-    from hydrolink.clients.analysis.optimal.metrics import RunMetrics
+
+class LimitMetrics(Protocol):
+    """What a summary shows of a run's limits (clients/analysis/optimal/metrics.py RunMetrics)."""
+    mean_power: float
+    peak_to_average: float
+    limits: Sequence
 
 
 @dataclass(frozen=True)
@@ -55,7 +59,7 @@ class RunSummary:
     recorded: dict[str, np.ndarray] = field(default_factory=dict)   # FMU outputs asked for by name
     output: str | None = None             # the results file
     server: str | None = None             # the force server's address (None: no server was needed)
-    metrics: RunMetrics | None = None                   # WECCCOMP metrics of a scene with limits (clients/analysis/optimal/metrics.py)
+    metrics: LimitMetrics | None = None                   # WECCCOMP metrics of a scene with limits (clients/analysis/optimal/metrics.py)
     hdb_uploads: int = 0                  # HDB contents the server lacked (--hdb-files)
     server_compute_us_per_step: float | None = None
     radiation: str | None = None          # setup's radiation option and its pruning

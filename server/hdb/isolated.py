@@ -14,9 +14,7 @@ why, or the reader's own :class:`~hydrolink.protocol.hdb.layout.HDBError`.
 
 from __future__ import annotations
 
-import multiprocessing
 import resource
-import threading
 from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
@@ -24,6 +22,7 @@ from typing import Any
 import xarray as xr
 
 from hydrolink.protocol.hdb.layout import HDBError
+from hydrolink.server.processes import children
 
 __all__ = ["PARSE_TIMEOUT", "ParseFailure", "load_isolated", "memory_limit"]
 
@@ -32,8 +31,6 @@ BASE_MEMORY = 2 * 2**30        # bytes of address space the child may use beyond
 PER_FILE_BYTE = 64             # ... plus this many per byte of the files (decoded arrays, copies)
 MAX_MEMORY = 16 * 2**30
 
-_context_lock = threading.Lock()
-_context: Any = None
 
 
 class ParseFailure(Exception):
@@ -47,17 +44,6 @@ class ParseFailure(Exception):
 def memory_limit(files_bytes: int) -> int:
     """The address space a parse of files totalling ``files_bytes`` may use (bytes)."""
     return min(MAX_MEMORY, BASE_MEMORY + PER_FILE_BYTE * int(files_bytes))
-
-
-def _forkserver():
-    """The multiprocessing context of the parses: a forkserver that imported the readers once."""
-    global _context
-    with _context_lock:
-        if _context is None:
-            ctx = multiprocessing.get_context("forkserver")
-            ctx.set_forkserver_preload(["hydrolink.server.hdb.io"])
-            _context = ctx
-        return _context
 
 
 def _parse(conn: Connection, path: str, kwargs: dict, memory: int) -> None:
@@ -94,7 +80,7 @@ def load_isolated(path: str | Path, *, timeout: float = PARSE_TIMEOUT, **kwargs:
     path = Path(path)
     files_bytes = sum(p.stat().st_size for p in path.parent.iterdir() if p.is_file())
     memory = memory_limit(files_bytes)
-    ctx = _forkserver()
+    ctx = children()
     receive, send = ctx.Pipe(duplex=False)
     proc = ctx.Process(target=_parse, args=(send, str(path), kwargs, memory), daemon=True,
                        name="hydrolink-hdb-parse")

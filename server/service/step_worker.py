@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import multiprocessing
 import os
 import resource
 import threading
@@ -37,6 +36,7 @@ from hydrolink.protocol.scene import Scene
 from hydrolink.server.allocation import footprint
 from hydrolink.server.hdb.file_set import FileSetReader
 from hydrolink.server.model import HydroModel
+from hydrolink.server.processes import children
 from hydrolink.server.service.capacity import ISOLATE_STEP_S, MAX_WORKERS, ServerBusy
 from hydrolink.server.service.session import (ModelInputs, PlantBuilder, Session, SessionInfo, model_from,
                                               read_hello)
@@ -48,16 +48,6 @@ STEP_TIMEOUT = 60.0       # s a worker may take for one request before its sessi
 START_TIMEOUT = 120.0     # s a worker may take to start and load its model
 WORKER_BASE_MEMORY = 3 * 2**30   # bytes of address space a worker may use beyond ...
 WORKER_PER_MODEL_BYTE = 4        # ... this many times its model's arrays (footprint)
-
-_context_lock = threading.Lock()
-
-
-def _forkserver():
-    """The processes' context: a forkserver that imported the model once (shared with the HDB parses)."""
-    with _context_lock:
-        ctx = multiprocessing.get_context("forkserver")
-        ctx.set_forkserver_preload(["hydrolink.server.hdb.io", "hydrolink.server.service.step_worker"])
-        return ctx
 
 
 def step_cost(model: HydroModel, tries: int = 3) -> float:
@@ -179,7 +169,7 @@ class StepWorker:
         """Start the child and have it build its model from ``inputs`` (a model does not pickle
         faithfully: its arrays share memory through views; built from the same inputs it is the
         same model). In the set-up thread: this waits until the child is ready."""
-        ctx = _forkserver()
+        ctx = children()
         self.conn, there = ctx.Pipe(duplex=True)
         self.process = ctx.Process(target=_serve, args=(there, session_id, _memory_limit(footprint)), daemon=True,
                                    name=f"hydrolink-session-{session_id[:8]}")
