@@ -25,15 +25,27 @@ MAX_PROBLEMS = 100   # listed in one error (a scene with more is garbage past th
 _KEY = re.compile(r"\.?[A-Za-z_][\w\[\]\.]*")
 
 
-def _loc(loc: tuple, union_tags: tuple[str, ...]) -> str:
+def _loc(loc: tuple, union_tags: tuple[str, ...], model: type[BaseModel] | None = None) -> str:
+    """The dotted key of a pydantic error location: union branch tags and pydantic's own parts left
+    out. A part that is a field of the tables reached so far is a key even where it is also a
+    branch tag elsewhere (``components``: irregular waves' count, and the component list's tag)."""
     out = ""
+    here = [model] if model is not None else []
     for part in loc:
         if isinstance(part, int):
             out += f"[{part}]"
-        elif part in union_tags or str(part).startswith(_SKIP_PREFIXES) or part in ("float", "str", "int", "bool"):
-            continue  # union branch tags, not keys
-        else:
-            out += ("." if out else "") + str(part)
+            continue
+        tagged = [c for c in here if "type" in c.model_fields and part in get_args(c.model_fields["type"].annotation)]
+        if tagged and len(here) > 1:   # the branch of a union of tables
+            here = tagged
+            continue
+        fields = [m for c in here if part in c.model_fields for m in models_in(c.model_fields[part].annotation)]
+        is_field = any(part in c.model_fields for c in here)
+        if not is_field and (part in union_tags or str(part).startswith(_SKIP_PREFIXES)
+                             or part in ("float", "str", "int", "bool")):
+            continue  # union branch tags and pydantic's own parts, not keys
+        out += ("." if out else "") + str(part)
+        here = fields if is_field else here   # not a field: a key of a dict of tables (the same tables hold)
     return out
 
 
@@ -58,7 +70,7 @@ def _keys_at(model: type[BaseModel], loc: tuple) -> list[str]:
 
 def _problem(err: dict, model: type[BaseModel], union_tags: tuple[str, ...]) -> tuple[str, str]:
     """(key, why) of one pydantic error."""
-    key, msg = _loc(err["loc"], union_tags), err["msg"]
+    key, msg = _loc(err["loc"], union_tags, model), err["msg"]
     ctx = err.get("ctx") or {}
     if err["type"] == "extra_forbidden":
         msg = "unknown key"

@@ -216,7 +216,7 @@ def _hdb_store(tmp_path_factory):
 # dicts inside a section become inline tables (``friction = { force = 4.0 }``).
 
 Section = Mapping[str, Any]
-SCENE_SECTIONS: tuple[str, ...] = ("simulation", "water", "waves", "current", "hydro", "steady", "coupling", "bodies",
+SCENE_SECTIONS: tuple[str, ...] = ("simulation", "water", "waves", "current", "hydro", "steady", "optimize", "coupling", "bodies",
                                    "point_masses", "joints", "constraints", "ptos", "moorings", "morison", "client",
                                    "controllers")
 _BARE_KEY = re.compile(r"^[A-Za-z0-9_-]+$")

@@ -19,7 +19,7 @@ import pytest
 from pydantic import BaseModel
 
 from analytic_hdb import make_body_hdb
-from conftest import REPO, body, joint, linear_pto, regular_waves, rm3_float, rm3_spar, scene_toml, toml_document
+from conftest import REPO, SCENE_SECTIONS, body, joint, linear_pto, regular_waves, rm3_float, rm3_spar, scene_toml, toml_document
 from hydrolink.protocol import codec
 from hydrolink.protocol.hdb.wire import HDBFiles, to_wire
 from hydrolink.protocol.scene import Scene, parse_scene
@@ -292,6 +292,9 @@ def _templates() -> dict[str, dict]:
     water = {"density": 1025.0, "gravity": 9.81, "depth": 50.0}
     return {
         "regular": {"simulation": sim, "water": water, "hydro": hydro, **mechanism,
+                    "optimize": {"order": 5, "oversampling": 8,
+                                 "limits": [{"pto": "pto", "force": 1e6, "stroke": 2.0, "velocity": 3.0},
+                                            {"body": "float", "dof": "heave", "displacement": 2.0}]},
                     "waves": regular_waves(1.0, 6.0, direction=0.0, phase=10.0, ramp=2.0,
                                            excitation_irf_duration=5.0),
                     "current": {"speed": 0.5, "direction": 10.0, "profile": "power", "depth": 20.0}},
@@ -303,6 +306,24 @@ def _templates() -> dict[str, dict]:
                       "bodies": [_rich_body()],
                       "ptos": [linear_pto("heave", "float", [0.0, 0.0, -1.0], "ground", None, direction=[0.0, 0.0, -1.0],
                                           damping=1e5)]},
+        # several systems: a spread JONSWAP (cos-2s), a Mitsuyasu swell, a directional table S(w, theta)
+        "sea": {"simulation": sim, "water": water, "hydro": {"irf_duration": 2.0},
+                "waves": {"type": "sea", "components": 40, "seed": 1, "omega_range": [0.3, 3.5], "ramp": 1.0,
+                          "excitation_irf_duration": 5.0,
+                          "systems": [{"spectrum": "jonswap", "hs": 1.0, "tp": 6.0, "gamma": 3.3, "direction": 30.0,
+                                       "spreading": "cos2s", "s": 10.0, "directions": 3},
+                                      {"spectrum": "pierson-moskowitz", "hs": 0.5, "tp": 10.0, "direction": -60.0,
+                                       "spreading": "mitsuyasu", "s_max": 25.0, "directions": 3},
+                                      {"spectrum": "table", "direction": 0.0, "omega": [0.3, 1.0, 2.0, 3.5],
+                                       "theta": [-10.0, 0.0, 10.0],
+                                       "density": [[0.0, 0.0, 0.0], [0.01, 0.02, 0.01], [0.005, 0.01, 0.005],
+                                                   [0.0, 0.0, 0.0]]}]},
+                "bodies": [_rich_body()]},
+        "components": {"simulation": sim, "water": water, "hydro": {"irf_duration": 2.0},
+                       "waves": {"type": "components", "omega": [0.5, 1.0], "direction": [0.0, 30.0],
+                                 "amplitude": [0.5, 0.2], "phase": [0.0, 90.0], "ramp": 1.0,
+                                 "excitation_irf_duration": 5.0},
+                       "bodies": [_rich_body()]},
         "elevation": {"simulation": sim, "water": water, "hydro": {"irf_duration": 2.0},
                       "waves": {"type": "elevation", "file": "eta.csv", "direction": 0.0, "start": 10.0, "ramp": 1.0,
                                 "excitation_irf_duration": 5.0},
@@ -375,10 +396,7 @@ def _setup_numbers(value, path):
 
 def _hello(server, hdbs, sections: dict, **fields) -> dict:
     hdbs = fields.pop("own_hdbs", hdbs)   # a template's own HDBs (extreme_server's extra)
-    text = toml_document({k: sections[k] for k in
-                          ("simulation", "water", "waves", "current", "hydro", "steady", "coupling", "bodies", "point_masses",
-                           "joints", "constraints", "ptos", "moorings", "morison", "client", "controllers")
-                          if k in sections})
+    text = toml_document({k: sections[k] for k in SCENE_SECTIONS if k in sections})
     reply = send(server, codec.pack(codec.message("hello", "x", None, role="multibody", scene=text, hdbs=hdbs,
                                                   **fields)))
     if reply["type"] == "welcome":   # every number it sends is finite; then closed: hundreds of sessions are built here
@@ -401,7 +419,7 @@ def test_the_templates_set_every_numeric_scene_key(extreme_server):
     assert len(every) > 100 and every - covered == set(), sorted(every - covered)
 
 
-@pytest.mark.parametrize("template", ["regular", "irregular", "elevation", "fmu"])
+@pytest.mark.parametrize("template", ["regular", "irregular", "sea", "elevation", "fmu"])
 def test_extreme_values_in_every_numeric_scene_key(extreme_server, template):
     server, hdbs, extra = extreme_server
     sections = _templates()[template]

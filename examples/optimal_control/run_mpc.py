@@ -65,7 +65,7 @@ def scene_text(sea: str, dt: float, duration: float, ramp: float | None = None, 
 def excitation_per_metre(scene, hdbs, omega: np.ndarray) -> np.ndarray:
     """(n_w, n_excitation_inputs): the plant's excitation inputs (every active DOF of the wet body)
     per metre of wave amplitude at the origin, exp(-iwt), the server model's own interpolation."""
-    from hydrolink.server.sea.waves import interpolate_excitation
+    from hydrolink.server.sea.headings import interpolate_excitation
 
     b = scene.bodies[0]
     ds = hdbs[b.hdb]
