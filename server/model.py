@@ -165,6 +165,8 @@ class HydroModel:
             self.hydrostatic_stiffness, self._net_buoyancy, hulls or {}, hdbs, self._phases), term_types)
         self._stateful = [term for term in self.terms if not term.stateless]
         self._add_term_contributions()
+        self._reply_shape, self._rows_shape = (3, len(self.bodies), 6), (3, self.n)
+        self._summed = isinstance(self._forcing, WaveForcing)    # the components' sum (else by convolution)
         self._fused = self._fused_step(compiled)
 
     def _fused_step(self, compiled: bool | None) -> FusedLinearStep | None:
@@ -176,7 +178,7 @@ class HydroModel:
         if not compiled or len(self._memories) > 1 or any(not isinstance(pos, slice) for pos, _ in self._memories):
             return None
         radiation = self._memories[0][1].fused() if self._memories else FusedRadiation("none")
-        if isinstance(self._forcing, WaveForcing):
+        if self._summed:
             exc, omega, ramp = self._forcing.matrix, self.waves.omega, float(self.waves.ramp)
         else:   # by convolution: a lookup of blocks computed by FFT, added to the compiled call's sums
             exc, omega, ramp = np.zeros((self._idx.size + 1, 0)), np.zeros(0), 0.0
@@ -551,13 +553,13 @@ class HydroModel:
                                       f"got {np.shape(position)} and {np.shape(velocity)}")
         # the reply's arrays: fresh each step (a reply may be kept, e.g. cached for a retry, and
         # goes out in-process as is), written in place, then made read-only like a frame's arrays
-        out = np.zeros((3, len(self.bodies), 6))
+        out = np.zeros(self._reply_shape)
         if self._fused is not None:
-            if isinstance(self._forcing, WaveForcing):
-                eta = self._fused(time, x, v, replace_last, out.reshape(3, self.n))
+            if self._summed:
+                eta = self._fused(time, x, v, replace_last, out.reshape(self._rows_shape))
             else:
                 f_ex, eta_ex = self._forcing(time)
-                eta = self._fused(time, x, v, replace_last, out.reshape(3, self.n), f_ex, eta_ex)
+                eta = self._fused(time, x, v, replace_last, out.reshape(self._rows_shape), f_ex, eta_ex)
         else:
             eta = self._linear_numpy(time, x, v, replace_last, out)
         self._step = k
