@@ -29,6 +29,10 @@ compiled linear step) and setting the force vector: what a step costs with nothi
 the hydrodynamics (no joints, PTOs or MoorDyn; their cost is the case's own). SEA-Stack's RTFs
 were measured on a Ryzen 9 9950X (~1.4x this VM's per-core speed); the goal is 1.5 x its RTF / 1.4.
 
+Beside the wall-clock figures, the loop's CPU time on its thread (``rtf_cpu``,
+``cpu_us_per_step``; the floor's likewise): on a loaded machine a thread waiting for a core spends
+none, so these are the figures load distorts least (cache and core sharing still inflate them).
+
 The JSON names the machine (CPU model, cores, load averages before and after, versions). On a
 shared machine only ratios taken in the same run compare: state the load with every figure.
 """
@@ -192,8 +196,7 @@ def cases(scale: float) -> list[Case]:
 def bare_exudyn(scene_path: Path, hdbs: dict) -> dict:
     """µs per step of the case's wet bodies' active DOFs in bare Exudyn with the case's own
     HydroModel in a PreStep (module docstring); with the PreStep's share."""
-    import exudyn as exu
-    from exudyn.itemInterface import NodeGenericODE2, ObjectGenericODE2
+    from bench_lockstep import generic_ode2_us
 
     from hydrolink.protocol.scene import load_scene
     from hydrolink.server.model import HydroModel
@@ -209,54 +212,26 @@ def bare_exudyn(scene_path: Path, hdbs: dict) -> dict:
     for k, name in enumerate(setup.bodies):
         b = by_name[name]
         ref = setup.equilibrium_position[k, :3]
-        com = np.asarray(b.com_or(ref), float) - ref
-        rigid[6 * k:6 * k + 6, 6 * k:6 * k + 6] = rigid_body_mass_matrix(b.mass, b.inertia_matrix, com)
-    mass = (rigid + setup.added_mass)[np.ix_(idx, idx)]
-    stiff = setup.hydrostatic_stiffness[np.ix_(idx, idx)]
-    n, dt = idx.size, float(model.dt)
+        rigid[6 * k:6 * k + 6, 6 * k:6 * k + 6] = rigid_body_mass_matrix(
+            b.mass, b.inertia_matrix, np.asarray(b.com_or(ref), float) - ref)
+    dt = float(model.dt)
     eq = setup.equilibrium_position.reshape(-1).copy()
-    x6, v6 = eq.copy(), np.zeros(n6)
-    k_step, hydro = [0], [0.0]
+    x6, v6, hydro = eq.copy(), np.zeros(n6), [0.0]
 
-    sc = exu.SystemContainer()
-    mbs = sc.AddSystem()
-    node = mbs.AddNode(NodeGenericODE2(referenceCoordinates=[0.0] * n, initialCoordinates=[0.0] * n,
-                                       initialCoordinates_t=[0.0] * n, numberOfODE2Coordinates=n))
-    obj = mbs.AddObject(ObjectGenericODE2(nodeNumbers=[node], massMatrix=mass, stiffnessMatrix=stiff,
-                                          forceVector=[0.0] * n))
-    sd = mbs.systemData
-
-    def pre_step(mbs, t):
+    def force(k, q, v):
         t0 = time.perf_counter()
-        x6[idx] = eq[idx] + sd.GetODE2Coordinates()
-        v6[idx] = sd.GetODE2Coordinates_t()
-        k = k_step[0]
+        x6[idx] = eq[idx] + q
+        v6[idx] = v
         r = model.step(k * dt, x6.reshape(-1, 6), v6.reshape(-1, 6))
-        k_step[0] = k + 1
-        mbs.SetObjectParameter(obj, "forceVector", (r["excitation"] + r["radiation"]).reshape(-1)[idx])
+        f = (r["excitation"] + r["radiation"]).reshape(-1)[idx]
         hydro[0] += time.perf_counter() - t0
-        return True
+        return f
 
-    mbs.SetPreStepUserFunction(pre_step)
-    mbs.Assemble()
-    ss = exu.SimulationSettings()
-    ss.solution.file.write = False
-    ss.solution.sensors.active = False
-    ti = ss.timeIntegration
-    ti.verboseMode, ti.adaptiveStep, ti.numberOfSteps, ti.endTime = 0, False, 1, dt
-    ti.generalizedAlpha.spectralRadius = 1.0
-    solver = exu.MainSolverImplicitSecondOrder()
-    solver.InitializeSolver(mbs, ss)
-    it = solver.it
     steps = scene.n_exchanges
-    t0, c0 = time.perf_counter(), time.thread_time()
-    for k in range(steps):
-        it.startTime, it.endTime = k * dt, (k + 1) * dt
-        solver.SolveSteps(mbs, ss)
-    wall, cpu = time.perf_counter() - t0, time.thread_time() - c0
-    solver.FinalizeSolver(mbs, ss)
-    return {"us_per_step": wall / steps * 1e6, "hydro_us": hydro[0] / steps * 1e6,
-            "exudyn_us": (wall - hydro[0]) / steps * 1e6, "cpu_us_per_step": cpu / steps * 1e6}
+    wall, cpu = generic_ode2_us((rigid + setup.added_mass)[np.ix_(idx, idx)],
+                                setup.hydrostatic_stiffness[np.ix_(idx, idx)], None, force, steps, dt)
+    model_us = hydro[0] / steps * 1e6
+    return {"us_per_step": wall, "hydro_us": model_us, "exudyn_us": wall - model_us, "cpu_us_per_step": cpu}
 
 
 # ------------------------------------------------------------------------------ the runs
