@@ -333,7 +333,13 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         for case in chosen:
             load = os.getloadavg()[0]
-            result = run_case(case, Path(tmp), clock)
+            try:
+                result = run_case(case, Path(tmp), clock)
+            except Exception as exc:   # noqa: BLE001 - one case's failure is its row, not the suite's end
+                report["cases"].append({"case": case.name, "note": case.note, "load": load,
+                                        "error": f"{type(exc).__name__}: {exc}"})
+                print(f"{case.name}: failed: {type(exc).__name__}: {exc}", file=sys.stderr, flush=True)
+                continue
             result["load"] = load
             report["cases"].append(result)
             f = result["floor"]
