@@ -5,9 +5,10 @@ the model's numpy path, server/model.py ``HydroModel.step`` with ``compiled=Fals
 One call does what the numpy path does in a dozen array calls: the wave components' trig row and
 the excitation sum (with its ramp), the radiation force (a convolution ring buffer, dense or
 sparse, or the state-space recursion), and the hydrostatic restoring force, each written straight
-into the reply's rows of the active DOFs. The products are loops here but for the dense
-convolution's, BLAS's matrix-vector product (as numpy's: bound by reading the kernel; a loop was 3x
-slower): that one runs on the BLAS pool the caller allows (the lockstep loop holds it to one thread).
+into the reply's rows of the active DOFs. Every product is a loop here, never BLAS: a step takes
+no thread pool, whatever the process's BLAS threading (BLAS's own matrix-vector product called from
+here ran on two threads outside the lockstep loop, 8 ms a step for F3OF's 18 x 27,018 kernel on a
+loaded machine; the loop is 1.3-1.7x BLAS's single-threaded time for RM3's 2 x 8,002 kernel).
 """
 
 from __future__ import annotations
@@ -60,17 +61,21 @@ def convolution(k, data, indices, indptr, buf, counters, vs, replace, idx, out):
     for i in range(na):
         buf[p, i] = vs[i]
         buf[p + length, i] = vs[i]
-    window = buf.reshape(-1)[p * na:(p + length) * na]
+    flat = buf.reshape(-1)   # the window newest first is flat[p na : (p + L) na]
+    start = p * na
     if indptr.size:
         for i in range(na):
             acc = 0.0
             for e in range(indptr[i], indptr[i + 1]):
-                acc += data[e] * window[indices[e]]
+                acc += data[e] * flat[start + indices[e]]
             out[idx[i]] = acc
-    else:   # BLAS's matrix-vector product, as numpy's: bound by reading the kernel, a loop here was 3x slower
-        f = np.dot(k, window)
+    else:   # row by row, offsets rather than slices: the sums vectorise (kernel_numba.py)
         for i in range(na):
-            out[idx[i]] = f[i]
+            row = k[i]
+            acc = 0.0
+            for m in range(length * na):
+                acc += row[m] * flat[start + m]
+            out[idx[i]] = acc
 
 
 def state_space(phi, g0, g1, c2, rows, cols, d, z, z_prev, v_prev, v_last, counters, vs, replace, f, idx, out):
