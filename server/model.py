@@ -31,7 +31,9 @@ import xarray as xr
 
 from hydrolink.protocol.scene import Scene
 from hydrolink.protocol.setup import IRFProcessing, Setup, StateSpaceReport
+from hydrolink.server import compiler
 from hydrolink.server.allocation import require_size
+from hydrolink.server.fused.step import FusedLinearStep, FusedRadiation
 from hydrolink.server.radiation.irf import irf_samples
 from hydrolink.server.rigid_body import rigid_body_mass_matrix
 from hydrolink.server.errors import ModelError
@@ -97,12 +99,15 @@ class HydroModel:
 
     def __init__(self, scene: Scene, hdbs: dict[str, xr.Dataset],
                  wave_elevation: tuple[np.ndarray, np.ndarray] | None = None, *,
-                 hulls: dict[str, Hull] | None = None, term_types: tuple[type[ForceTerm], ...] = TERMS):
+                 hulls: dict[str, Hull] | None = None, term_types: tuple[type[ForceTerm], ...] = TERMS,
+                 compiled: bool | None = None):
         """``hdbs`` maps each wet body's name to its HDB dataset (bodies sharing a file share the
         same object); ``wave_elevation`` the (time, eta) series of ``[waves] type = "elevation"``
         (read from the scene's file by the client; hello.wave_elevation); ``hulls`` the closed
         hulls of the bodies with nonlinear hydrostatics by name (hello.meshes); ``term_types`` the
-        force terms beyond the linear core to build where the scene has them (server/terms/registry.py)."""
+        force terms beyond the linear core to build where the scene has them (server/terms/registry.py);
+        ``compiled``: the linear core's step by one compiled call (server/fused/step.py; None: where
+        numba is installed and imports, server/compiler.py), else by the numpy path (the reference)."""
         self.scene = scene
         try:
             hdbs = complete_headings(scene, hdbs)    # half ranges of symmetric bodies completed
@@ -170,6 +175,26 @@ class HydroModel:
             self.hydrostatic_stiffness, self._net_buoyancy, hulls or {}, hdbs, self._phases), term_types)
         self._stateful = [term for term in self.terms if not term.stateless]
         self._add_term_contributions()
+        self._reply_shape, self._rows_shape = (3, len(self.bodies), 6), (3, self.n)
+        self._summed = isinstance(self._forcing, WaveForcing)    # the components' sum (else by convolution)
+        self._fused = self._fused_step(compiled)
+
+    def _fused_step(self, compiled: bool | None) -> FusedLinearStep | None:
+        """The linear core as one compiled call (server/fused/step.py), or None for the numpy path:
+        ``compiled`` False, numba missing or not importing, or radiation in several groups (or in
+        one that leaves out an active DOF)."""
+        if compiled is None:
+            compiled = compiler.AVAILABLE and compiler.imports()
+        if not compiled or len(self._memories) > 1 or any(not isinstance(pos, slice) for pos, _ in self._memories):
+            return None
+        radiation = self._memories[0][1].fused() if self._memories else FusedRadiation("none")
+        if self._summed:
+            exc, omega, ramp = self._forcing.matrix, self.waves.omega, float(self.waves.ramp)
+        else:   # by convolution: a lookup of blocks computed by FFT, added to the compiled call's sums
+            exc, omega, ramp = np.zeros((self._idx.size + 1, 0)), np.zeros(0), 0.0
+        fused = FusedLinearStep(self._idx, exc, omega, ramp, self._k_hs, self._x_eq, radiation)
+        fused.warm_up(self.n)
+        return fused
 
     def _add_term_contributions(self) -> None:
         """The terms' setup contributions (server/terms/base.py) and warnings, in registry order."""
@@ -501,16 +526,33 @@ class HydroModel:
     def state(self) -> tuple:
         """Everything :meth:`step` changes, copied: the newest step's index, the radiation memories
         and the stateful force terms' states (excitation and hydrostatics keep none)."""
-        return (self._step, tuple(memory.state() for _, memory in self._memories),
-                tuple(term.state() for term in self._stateful))
+        memories = self._fused.state() if self._fused is not None else \
+            tuple(memory.state() for _, memory in self._memories)
+        return self._step, memories, tuple(term.state() for term in self._stateful)
 
     def set_state(self, state: tuple) -> None:
         """Back to a :meth:`state` of this model (a session rolled back, SPEC §5.9)."""
         self._step, memories, terms = state
-        for (_, memory), saved in zip(self._memories, memories):
+        if self._fused is not None:
+            self._fused.set_state(memories)
+        for (_, memory), saved in zip(self._memories if self._fused is None else (), memories):
             memory.set_state(saved)
         for term, saved in zip(self._stateful, terms):
             term.set_state(saved)
+
+    def _linear_numpy(self, time: float, x: np.ndarray, v: np.ndarray, replace_last: bool, out: np.ndarray) -> float:
+        """The linear core's step by numpy (the reference of the compiled one): the excitation,
+        radiation and hydrostatic rows of ``out`` (3, N, 6); returns the wave elevation."""
+        sel = self._sel
+        vs = v[sel]
+        red = out.reshape(3, self.n) if self._all_active else self._red
+        for pos, memory in self._memories:
+            red[1, pos] = memory.push(vs[pos], replace_last)
+        red[0], eta = self._forcing(time)
+        np.dot(self._k_hs, self._x_eq - x[sel], out=red[2])
+        if not self._all_active:
+            out.reshape(3, self.n)[:, sel] = red
+        return eta
 
     def step(self, time: float, position: np.ndarray, velocity: np.ndarray, *,
              replace_last: bool = False) -> dict:
@@ -527,19 +569,18 @@ class HydroModel:
         if x.size != self.n or v.size != self.n:
             raise ModelError("state", f"position and velocity must be ({len(self.bodies)}, 6), "
                                       f"got {np.shape(position)} and {np.shape(velocity)}")
-        sel = self._sel
-        vs = v[sel]
         # the reply's arrays: fresh each step (a reply may be kept, e.g. cached for a retry, and
         # goes out in-process as is), written in place, then made read-only like a frame's arrays
-        out = np.zeros((3, len(self.bodies), 6))
-        red = out.reshape(3, self.n) if self._all_active else self._red
-        for pos, memory in self._memories:
-            red[1, pos] = memory.push(vs[pos], replace_last)
-        red[0], eta = self._forcing(time)
-        np.dot(self._k_hs, self._x_eq - x[sel], out=red[2])
+        out = np.zeros(self._reply_shape)
+        if self._fused is not None:
+            if self._summed:
+                eta = self._fused(time, x, v, replace_last, out.reshape(self._rows_shape))
+            else:
+                f_ex, eta_ex = self._forcing(time)
+                eta = self._fused(time, x, v, replace_last, out.reshape(self._rows_shape), f_ex, eta_ex)
+        else:
+            eta = self._linear_numpy(time, x, v, replace_last, out)
         self._step = k
-        if not self._all_active:
-            out.reshape(3, self.n)[:, sel] = red
         out.flags.writeable = False
         reply = {"excitation": out[0], "radiation": out[1], "hydrostatic": out[2], "wave_elevation": eta}
         if self.terms:

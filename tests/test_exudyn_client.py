@@ -281,13 +281,26 @@ def test_killed_run_keeps_what_was_computed(server, sphere, sphere_path, tmp_pat
 def test_ctrl_c_flushes_and_reraises(server, sphere, sphere_path, tmp_path):
     dt = 0.04
     text = sphere_scene(sphere_path, dt=dt, duration=4000.0, waves=regular_waves(1.0, 4.3, ramp=4.0))
-    timer = threading.Timer(0.7, os.kill, (os.getpid(), signal.SIGINT))
-    timer.start()
-    try:
-        with pytest.raises(KeyboardInterrupt, match=r"interrupted at step \d+ \(t = [\d.]+ s\)"):
-            simulate(server, text, sphere, tmp_path / "ctrl_c.nc")
-    finally:
-        timer.cancel()
+    scene = parse_scene(text)
+    done = threading.Event()
+    with ServerConnection(server, timeout=30.0) as conn:
+        setup = conn.hello(text, {scene.bodies[0].hdb: sphere})
+        with ResultWriter(tmp_path / "ctrl_c.nc", scene=scene, scene_text=text, setup=setup) as writer:
+            def interrupt_mid_run() -> None:   # once the run has stepped (not on a clock: holds under load)
+                deadline = time.monotonic() + 120.0
+                while not done.is_set() and writer.rows < 20 and time.monotonic() < deadline:
+                    time.sleep(0.01)
+                if not done.is_set():
+                    os.kill(os.getpid(), signal.SIGINT)
+
+            watcher = threading.Thread(target=interrupt_mid_run, daemon=True)
+            watcher.start()
+            try:
+                with pytest.raises(KeyboardInterrupt, match=r"interrupted at step \d+ \(t = [\d.]+ s\)"):
+                    run(scene, text, conn, setup, writer, progress=False)
+            finally:
+                done.set()
+                watcher.join(5.0)
     with xr.open_dataset(tmp_path / "ctrl_c.nc") as ds:
         assert ds.attrs["status"].startswith("interrupted: KeyboardInterrupt at step")
         n = ds.sizes["time"]

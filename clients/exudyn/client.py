@@ -69,6 +69,8 @@ log = logging.getLogger(__name__)
 
 #: systems with more ODE2 coordinates than this use Exudyn's sparse linear solver (EigenSparse)
 SPARSE_ABOVE = 60
+_ZERO_SLOT = np.zeros(1)   # the locked DOFs' slot that ends a reduced model's state vectors (read, never written)
+
 
 @dataclass
 class ExudynModel:
@@ -121,7 +123,8 @@ class ExudynModel:
         sd = self.mbs.systemData
         q, v, a = sd.GetODE2Coordinates(), sd.GetODE2Coordinates_t(), sd.GetODE2Coordinates_tt()
         if self.padded:
-            return np.append(q, 0.0), np.append(v, 0.0), np.append(a, 0.0)
+            zero = _ZERO_SLOT
+            return np.concatenate((q, zero)), np.concatenate((v, zero)), np.concatenate((a, zero))
         return np.asarray(q), np.asarray(v), np.asarray(a)
 
     def advance(self, t0: float, t1: float) -> None:

@@ -49,6 +49,7 @@ from hydrolink.protocol.scene import LinearPTO, RotaryPTO, SceneError
 AXES = ("roll", "pitch", "yaw")
 _esym = exu.symbolic
 _OV = exu.OutputVariableType
+_DISPLACEMENT, _VELOCITY = _OV.Displacement, _OV.Velocity   # read once: the per-step sampler's
 
 
 def frame_matrix(frame) -> np.ndarray:
@@ -139,13 +140,13 @@ class PTOSet:
         n = len(self.names)
         force, vel, ext = np.zeros(n), np.zeros(n), np.zeros(len(self.linear))
         out = mbs.GetObjectOutput
+        current = self.current
         for i, p in enumerate(self.linear):
-            d = out(p.object, _OV.Displacement)        # point2 - point1
-            v = out(p.object, _OV.Velocity)
-            (dx, dy, dz), (vx, vy, vz) = d.tolist(), v.tolist()
+            (dx, dy, dz) = out(p.object, _DISPLACEMENT).tolist()        # point2 - point1
+            (vx, vy, vz) = out(p.object, _VELOCITY).tolist()
             length = math.sqrt(dx * dx + dy * dy + dz * dz)
             rate = (vx * dx + vy * dy + vz * dz) / length if length > 0 else 0.0
-            k, c, f0 = self.current.get(p.object) or (p.stiffness, p.damping, 0.0)
+            k, c, f0 = current.get(p.object) or (p.stiffness, p.damping, 0.0)
             f = k * (length - p.rest_length) + c * rate + f0
             force[p.entry], vel[p.entry] = min(max(f, -p.limit), p.limit), rate
             ext[i] = length - p.rest_length

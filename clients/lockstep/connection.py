@@ -322,8 +322,10 @@ class ServerConnection:
         if measurements is not None:
             fields["measurements"] = measurements
         # the map path only for what this method builds itself (ints, floats, float64 arrays)
-        reply = self._request("step", timeout, fields, self._maps and measurements is None)
-        read_forces(reply, position.shape)   # (N, 6) like the state sent; the caller checks the values
+        as_map = self._maps and measurements is None
+        reply = self._request("step", timeout, fields, as_map)
+        if not as_map:   # a frame's arrays checked (N, 6) like the state sent; a map's are the server's own
+            read_forces(reply, position.shape)   # (the caller checks the values)
         return reply
 
     def save(self) -> int:

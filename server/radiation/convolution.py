@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from hydrolink.server.fused.step import FusedRadiation
+
 
 class RadiationMemory:
     """Convolution state for n coupled DOFs."""
@@ -83,6 +85,15 @@ class RadiationMemory:
             return np.zeros((self.n, self.n))
         first = self._k[:, :self.n]
         return first.toarray() if self.sparse else first.copy()
+
+    def fused(self) -> FusedRadiation:
+        """This force as the fused step takes it (server/fused/step.py): the pre-weighted kernel."""
+        if not self.enabled:
+            return FusedRadiation("none")
+        if self.sparse:
+            k = self._k
+            return FusedRadiation("sparse", self.samples, data=k.data, indices=k.indices, indptr=k.indptr)
+        return FusedRadiation("dense", self.samples, k=self._k)
 
     def window(self) -> np.ndarray:
         """The velocity window, newest first (L, n) (a copy; for tests and diagnostics)."""

@@ -24,6 +24,7 @@ import numpy as np
 from hydrolink.protocol.scene import Hydro, Waves
 from hydrolink.server.allocation import require_size
 from hydrolink.server.errors import ModelError
+from hydrolink.server.fused.step import FusedRadiation
 from hydrolink.server.radiation.irf import (COS_TABLE_ROWS, aliasing_time, asymptotic_tail, irf_report, irf_samples,
                                           irf_transfer, ogilvie_added_mass_inf, ogilvie_report, radiation_irf,
                                           resample_damping, taper_window)
@@ -71,6 +72,10 @@ class ConstantDamping:
 
     def feedthrough(self) -> np.ndarray:
         return -self.b.copy()
+
+    def fused(self) -> FusedRadiation:
+        """This force as the fused step takes it (server/fused/step.py): a one-sample convolution."""
+        return FusedRadiation("dense", 1, k=-self.b)
 
     def realization(self) -> Realization:
         """F = -B(w0) v: no state, all feedthrough."""

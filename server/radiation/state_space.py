@@ -41,6 +41,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from hydrolink.server.fused.step import FusedRadiation
+
 
 ITER = 6  # pole relocation iterations
 FIT_RECIPE_VERSION = 1  # bump when fit_pairs' results change: invalidates cached fits (state_space_cache)
@@ -364,6 +366,11 @@ class StateSpaceRadiation:
         out = self.d.copy()
         np.add.at(out, (self._rows, self._cols), (self._c2 * self._g1).real)
         return -out
+
+    def fused(self) -> FusedRadiation:
+        """This force as the fused step takes it (server/fused/step.py): the recursion's coefficients."""
+        return FusedRadiation("state-space", phi=self._phi, g0=self._g0, g1=self._g1, c2=self._c2, rows=self._rows,
+                              cols=self._cols, d=self.d if self._has_d else np.zeros((0, 0)))
 
     def push(self, v: np.ndarray, replace_last: bool = False) -> np.ndarray:
         v = np.asarray(v, float)

@@ -298,6 +298,14 @@ class WaveForcing:
         self._still = comps.size == 0
         self._w0 = float(comps.omega[0]) if comps.size else 0.0
 
+    @property
+    def matrix(self) -> np.ndarray:
+        """(n + 1, 2 n_c) read-only: the force rows then the elevation row over [cos wt; sin wt]
+        (before the ramp): what a step sums (the fused step's, server/fused/step.py)."""
+        view = self._m.view()
+        view.flags.writeable = False
+        return view
+
     def __call__(self, t: float) -> tuple[np.ndarray, float]:
         """(F_ex (n,), eta) at time t."""
         if self._still:
