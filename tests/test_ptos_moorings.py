@@ -394,8 +394,9 @@ def test_pto_to_ground_by_direction(reference_data, tmp_path, reduce):
     v = ds["velocity"].sel(body="sphere", dof="heave").values
     np.testing.assert_allclose(ds["pto_velocity"].values[:, 0], v, rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(ds["pto_force"].values[:, 0], k_pto * z + c_pto * v, rtol=1e-9, atol=1e-6)
-    for name in ("position", "pto_force", "pto_velocity", "pto_power"):
-        np.testing.assert_allclose(ds[name].values, out["anchor"][name].values, rtol=1e-9, atol=1e-9)
+    for name in ("position", "pto_force", "pto_velocity", "pto_power"):   # to round-off of the series' scale
+        ref = out["anchor"][name].values   # (the 50 m line's length differences: 7e-9 N of a 1e5 N force seen)
+        np.testing.assert_allclose(ds[name].values, ref, rtol=1e-9, atol=1e-12 * max(1.0, np.abs(ref).max()))
 
 
 def test_pto_direction_errors_name_the_key():
