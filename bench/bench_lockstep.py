@@ -76,10 +76,10 @@ dofs = {dofs}
 
 
 def rm3_scene(duration: float) -> str:
-    """examples/rm3/rm3.toml at dt 0.01 s for ``duration`` s, its HDB path made absolute."""
+    """examples/rm3/rm3.toml at dt 0.01 s for ``duration`` s, its HDB and mesh paths made absolute."""
     text = RM3_SCENE.read_text()
-    hdb = re.search(r'hdb = "([^"]+)"', text).group(1)
-    text = text.replace(hdb, str((RM3_SCENE.parent / hdb).resolve()))
+    for path in set(re.findall(r'(?:hdb|mesh) = "([^"]+)"', text)):   # the HDB's and the meshes' files
+        text = text.replace(f'"{path}"', f'"{(RM3_SCENE.parent / path).resolve().as_posix()}"')
     text = re.sub(r"(?m)^dt = .*$", f"dt = {DT}\nprogress = false", text)
     return re.sub(r"(?m)^duration = .*$", f"duration = {duration}", text)
 

@@ -36,7 +36,7 @@ CONTROLLER = ('\n[[controllers]]\nname = "ctl"\nptos = ["pto"]\ncommand = "force
 def rm3(duration: float, *, period: float = 8.0, dt: float = 0.08, ramp: float = 40.0, controller: bool = False,
         coupling: str = "") -> str:
     text = (REPO / "examples" / "rm3" / "rm3.toml").read_text()
-    for a, b in (('"../data/rm3_wamit/rm3.1"', f'"{(DATA / "rm3_wamit" / "rm3.1").as_posix()}"'),
+    for a, b in (('"../data/', f'"{DATA.as_posix()}/'),   # the HDB and the meshes
                  ("duration = 400.0", f"duration = {duration}"), ("period = 8.0", f"period = {period}"),
                  ("dt = 0.08", f"dt = {dt}"), ("ramp = 40.0", f"ramp = {ramp}")):
         text = text.replace(a, b)
