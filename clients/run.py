@@ -12,12 +12,16 @@ import sys
 from contextlib import ExitStack
 from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import xarray as xr
 
 from hydrolink.clients.lockstep.summary import RunSummary
 from hydrolink.clients.scene_inputs import load_scene_hdbs, load_scene_hulls, load_wave_elevation
 from hydrolink.protocol.scene import load_scene
+
+if TYPE_CHECKING:
+    from hydrolink.clients.analysis.optimal.metrics import RunMetrics
 
 log = logging.getLogger(__name__)
 
@@ -31,18 +35,18 @@ def _write_summary_attributes(writer, summary: RunSummary) -> None:
         writer.set_attribute("realtime", json.dumps(asdict(summary.realtime)))
 
 
-def _limit_metrics(scene, output: Path):
+def _limit_metrics(scene, output: Path) -> RunMetrics | None:
     """The WECCCOMP metrics of a run whose scene has limits (PTO force limits, ``[optimize]``
     limits), after the ramp, written into the results file's attributes; None without limits."""
+    import netCDF4
+
     from hydrolink.clients.analysis.optimal.metrics import run_metrics, scene_limits
 
     limits = scene_limits(scene)
     if not limits:
         return None
-    import xarray as xr
-    with xr.open_dataset(output) as ds:
-        metrics = run_metrics(ds.load(), limits, start=getattr(scene.waves, "ramp", None))
-    import netCDF4
+    with xr.open_dataset(output) as ds:   # lazily: only the series the limits use are read
+        metrics = run_metrics(ds, limits, start=getattr(scene.waves, "ramp", None))
     with netCDF4.Dataset(output, "a") as nc:
         nc.setncatts(metrics.attributes())
     return metrics
