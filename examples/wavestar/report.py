@@ -5,7 +5,8 @@
 Mean absorbed power (the PTO's power, positive when absorbed), the 95th percentiles of the PTO's
 |force| and |power| (the competition's "peak" values), their ratio to the mean (the mean-to-peak
 power ratio, a utilisation figure), the largest arm rotation and, with a controller, its events.
-hydrolink's metrics module will take these over; this script only reads the results file.
+The mean power is hydrolink's WECCCOMP metric (clients/analysis/optimal/metrics.py); the percentiles
+are the competition's own; this script only reads the results file.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import json
 import numpy as np
 import xarray as xr
 
+from hydrolink.clients.analysis.optimal.metrics import run_metrics
 from hydrolink.protocol.scene import parse_scene
 
 
@@ -27,7 +29,7 @@ def competition_figures(ds: xr.Dataset, pto: str = "pto") -> dict:
     force = ds["pto_force"].sel(pto=pto).values[after]
     power = ds["pto_power"].sel(pto=pto).values[after]
     pitch = (ds["position"] - ds["equilibrium_position"]).sel(body="arm", dof="pitch").values[after]
-    mean = float(np.mean(power))
+    mean = run_metrics(ds, [], start=float(t[after][0])).mean_power   # the one PTO's mean absorbed power
     out = {"window_s": [float(t[after][0]), float(t[-1])], "mean_power_W": mean,
            "force_p95_N": float(np.percentile(np.abs(force), 95)),
            "power_p95_W": float(np.percentile(np.abs(power), 95)),
