@@ -313,11 +313,11 @@ def test_dimensional_file_refuses_other_rho(sphere, reference_data):
 def test_capytaine_unknown_dof(reference_data, tmp_path):
     raw = xr.open_dataset(reference_data / "rm3_capytaine" / "rm3_hydrodynamics.nc").load()
     labels = [str(v) for v in raw["radiating_dof"].values]
-    labels[0] = "rm3_float__Bending"
+    labels[0] = "rm3_float__Bend.1"      # a mode name that cannot be a label "<body>.<mode>"
     raw = raw.assign_coords(radiating_dof=labels, influenced_dof=labels)
     with pytest.raises(HDBError) as info:
         from_capytaine_dataset(raw, "rm3.nc")
-    assert info.value.field in ("influenced_dof", "radiating_dof") and "Bending" in info.value.why
+    assert info.value.field == "radiating_dof" and "Bend.1" in info.value.why
 
 
 def test_read_capytaine_missing_variable(reference_data, tmp_path):
@@ -828,26 +828,66 @@ def test_wamit_frc_of_another_form(reference_data, tmp_path, rm3_wamit):
     assert err.source == "rm3.cfg" and err.field == "IALTFRC" and "only IALTFRC = 1" in err.why
 
 
-def test_generalized_modes_in_bemio_and_capytaine_files_are_refused_by_name(reference_data, tmp_path):
-    """Issue 38: a body with more than six DOFs is refused naming the file, the field and the count
-    of modes beyond the rigid six, never read as something else. BEMIO: the sphere's file with its
-    properties/dof set to 10 (WEC-Sim's 6 + 4 generalized modes); Capytaine: RM3's file with two
-    flexible radiating DOFs added to the float (zero coefficients: the count is what is judged)."""
-    import h5py
-
+def test_generalized_modes_of_bemio_and_capytaine_files_are_read_after_the_rigid_six(reference_data, tmp_path):
+    """Issue 38: a body with more than six DOFs reads as its rigid six then its generalized modes.
+    BEMIO: the sphere's file as 6 + 4 DOFs (properties/dof = 10; the modes' added mass, damping,
+    stiffness and excitation set to known values, the rigid block the file's), named mode1..mode4;
+    Capytaine: RM3's file with two flexible radiating DOFs added to the float (copies of its heave
+    row and column), read by the file's names after the float's six, the spar's block where it was."""
     bemio = tmp_path / "sphere10.h5"
     shutil.copy(reference_data / "sphere_task10" / "sphere.h5", bemio)
+    rigid = load_hdb(reference_data / "sphere_task10" / "sphere.h5")
+    known = np.arange(7.0, 11.0)
     with h5py.File(bemio, "r+") as f:
         f["body1/properties/dof"][...] = 10.0
-    with pytest.raises(HDBError, match=r"sphere10\.h5: body1/properties/dof: 10 DOFs for this body: 4 generalized "
-                                       r"mode\(s\) beyond the rigid 6"):
+        n_w = f["simulation_parameters/w"].size
+        for name, unit in (("added_mass/all", 1.0), ("radiation_damping/all", 0.1)):
+            new = np.zeros((10, 10, n_w))
+            new[:6, :6] = f[f"body1/hydro_coeffs/{name}"][()]
+            new[range(6, 10), range(6, 10)] = unit * known[:, None]
+            del f[f"body1/hydro_coeffs/{name}"]
+            f[f"body1/hydro_coeffs/{name}"] = new
+        for part, value in (("re", 1.0), ("im", 0.5)):
+            old = f[f"body1/hydro_coeffs/excitation/{part}"][()]
+            del f[f"body1/hydro_coeffs/excitation/{part}"]
+            f[f"body1/hydro_coeffs/excitation/{part}"] = np.concatenate([old, np.full((4, *old.shape[1:]), value)])
+        k = f["body1/hydro_coeffs/linear_restoring_stiffness"][()]
+        del f["body1/hydro_coeffs/linear_restoring_stiffness"]
+        f["body1/hydro_coeffs/linear_restoring_stiffness"] = np.pad(k, (0, 4)) + np.diag(np.r_[np.zeros(6), 10 * known])
+        if "body1/hydro_coeffs/added_mass/inf_freq" in f:
+            del f["body1/hydro_coeffs/added_mass/inf_freq"]
+    ds = load_hdb(bemio)
+    rho, g = ds.attrs["rho"], ds.attrs["g"]
+    body = str(ds["body"].values[0])
+    assert [str(v) for v in ds["influenced_dof"].values][6:] == [f"{body}.mode{k}" for k in range(1, 5)]
+    np.testing.assert_array_equal(ds["added_mass"].values[:, :6, :6], rigid["added_mass"].values)
+    np.testing.assert_allclose(ds["added_mass"].values[:, range(6, 10), range(6, 10)], rho * np.tile(known, (n_w, 1)))
+    np.testing.assert_allclose(ds["radiation_damping"].values[:, range(6, 10), range(6, 10)],
+                               rho * ds["omega"].values[:, None] * 0.1 * known)
+    np.testing.assert_allclose(np.diag(ds["hydrostatic_stiffness"].values)[6:], rho * g * 10 * known)
+    np.testing.assert_allclose(ds["excitation_force"].values[..., 6:], rho * g * (1.0 - 0.5j))   # exp(-iwt)
+    with h5py.File(bemio, "r+") as f:
+        f["body1/properties/dof"][...] = 9.5
+    with pytest.raises(HDBError, match=r"sphere10\.h5: body1/properties/dof: 9\.5 DOFs for this body: must be a whole"):
         load_hdb(bemio)
+
     with xr.open_dataset(reference_data / "rm3_capytaine" / "rm3_hydrodynamics.nc") as raw:
         ds = raw.load()
     flex = ["rm3_float__Flex1", "rm3_float__Flex2"]
-    extra = ds.isel(radiating_dof=[0, 0]).assign_coords(radiating_dof=flex)
-    ds = xr.concat([ds, extra * 0.0], dim="radiating_dof", data_vars="minimal", coords="minimal", compat="override")
-    ds.to_netcdf(tmp_path / "rm3_flex.nc")
-    with pytest.raises(HDBError, match=r"rm3_flex\.nc: radiating_dof: 2 DOF\(s\) beyond the rigid-body ones .*"
-                                       r"\['rm3_float__Flex1', 'rm3_float__Flex2'\] — generalized modes\?"):
-        load_hdb(tmp_path / "rm3_flex.nc")
+    cols = xr.concat([ds, ds.isel(radiating_dof=[2, 2]).assign_coords(radiating_dof=flex)], dim="radiating_dof",
+                     data_vars="minimal", coords="minimal", compat="override")
+    both = xr.concat([cols, cols.isel(influenced_dof=[2, 2]).assign_coords(influenced_dof=flex)],
+                     dim="influenced_dof", data_vars="minimal", coords="minimal", compat="override")
+    names = [str(v) for v in ds["radiating_dof"].values]
+    order = [*names[:6], *flex, *names[6:]]
+    both.sel(radiating_dof=order, influenced_dof=order).to_netcdf(tmp_path / "rm3_flex.nc")
+    out = load_hdb(tmp_path / "rm3_flex.nc")
+    plain = load_hdb(reference_data / "rm3_capytaine" / "rm3_hydrodynamics.nc")
+    labels = [str(v) for v in out["influenced_dof"].values]
+    assert labels[6:8] == ["float.Flex1", "float.Flex2"]
+    assert labels[8:] == [str(v) for v in plain["influenced_dof"].values[6:]]
+    keep = [*range(6), *range(8, 14)]
+    np.testing.assert_array_equal(out["added_mass"].values[:, keep][:, :, keep], plain["added_mass"].values)
+    np.testing.assert_array_equal(out["added_mass"].values[:, 6, 7], plain["added_mass"].values[:, 2, 2])
+    np.testing.assert_array_equal(out["excitation_force"].values[..., 7], plain["excitation_force"].values[..., 2])
+    np.testing.assert_array_equal(out["hydrostatic_stiffness"].values[keep][:, keep], plain["hydrostatic_stiffness"].values)

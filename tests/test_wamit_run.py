@@ -1,7 +1,7 @@
 """server/hdb/wamit/run.py: a WAMIT run's number of bodies is what its files (or the scene) say,
-never the .1's mode count divided by 6 — a run with generalized modes (NEWMDS) is refused by name,
-not read as extra rigid bodies (issue 38: a barge of 6 rigid + 4 flexible modes was read as two
-bodies, modes 7-10 as the second body's surge..roll).
+never the .1's mode count divided by 6 — a run with generalized modes (NEWMDS) reads them as the
+body's modes beyond its six, never as extra rigid bodies (issue 38: a barge of 6 rigid + 4
+flexible modes was read as two bodies, modes 7-10 as the second body's surge..roll).
 
 The data are written here by hand: one body ("barge"), 2 periods, modes 1-10 with known values
 (Abar_ii = i, Bbar_ii = 0.1 i, Cbar_ii = 10 i, excitation 1 + 0.5 i per mode), and the same run
@@ -9,12 +9,13 @@ with its six rigid modes only, which reads with those values in SI."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from hydrolink.protocol.hdb.layout import HDBError
+from hydrolink.protocol.hdb.layout import HDBError, hdb_warnings
 from hydrolink.server.hdb.io import load_hdb
 
 RHO, PERIODS = 1000.0, (5.0, 10.0)
@@ -47,29 +48,60 @@ def test_rigid_modes_read_with_their_known_values(tmp_path):
 
 
 @pytest.mark.parametrize("newmds", ["NEWMDS=4", "NEWMDS(1)=4"])
-def test_newmds_in_the_cfg_is_refused_naming_it_and_the_count(tmp_path, newmds):
+def test_newmds_modes_read_as_the_body_s_generalized_modes_with_their_known_values(tmp_path, newmds):
+    """Issue 38: the .cfg's NEWMDS sizes the body as 6 + 4 DOFs: modes 7-10 are its mode1..mode4
+    (never a second body), every column in SI by its known value."""
     path = write_run(tmp_path, 10, cfg=f"IPEROUT=1\nGRAV=9.80665\nULEN=1.0\n{newmds}\n")
-    with pytest.raises(HDBError, match=r"barge\.cfg: NEWMDS: NEWMDS(\(1\))? = 4: the run has 4 generalized mode\(s\) "
-                                       r"beyond the rigid 6 per body \(barge\.1 holds modes 1-10\); hydrolink reads "
-                                       r"rigid bodies of 6 DOFs each"):
+    ds = load_hdb(path, rho=RHO, wamit=FACTS)
+    assert [str(b) for b in ds["body"].values] == ["barge"]
+    assert [str(v) for v in ds["influenced_dof"].values][6:] == [f"barge.mode{k}" for k in range(1, 5)]
+    k = int(np.argmin(np.abs(ds["omega"].values - 2 * np.pi / 10.0)))
+    i = np.arange(1, 11)
+    np.testing.assert_allclose(np.diag(ds["added_mass"].values[k]), RHO * i, rtol=1e-6)
+    np.testing.assert_allclose(np.diag(ds["radiation_damping"].values[k]), RHO * 2 * np.pi / 10.0 * 0.1 * i,
+                               rtol=1e-6)
+    np.testing.assert_allclose(np.diag(ds["hydrostatic_stiffness"].values), RHO * 9.80665 * 10.0 * i, rtol=1e-6)
+    np.testing.assert_allclose(ds["excitation_force"].values[k, 0], RHO * 9.80665 * (1.0 - 0.5j), rtol=1e-6)
+
+
+def test_generalized_modes_scale_like_translations_and_another_ulen_is_warned(tmp_path):
+    """ULEN = 2: roll (mode 4) scales A by L^5, a generalized mode (7) like a translation, L^3;
+    the warning names ULEN (the modes' own scaling is the run's)."""
+    path = write_run(tmp_path, 10, cfg="IPEROUT=1\nGRAV=9.80665\nULEN=2.0\nNEWMDS=4\n")
+    ds = load_hdb(path, rho=RHO, wamit=FACTS)
+    assert any(re.match(r"barge\.cfg: ULEN = 2\.0 with generalized modes", w) for w in hdb_warnings(ds))
+    a = np.diag(ds["added_mass"].values[0])
+    assert a[3] == pytest.approx(RHO * 2.0 ** 5 * 4, rel=1e-6) and a[6] == pytest.approx(RHO * 2.0 ** 3 * 7, rel=1e-6)
+
+
+def test_mode_counts_that_do_not_agree_are_an_error_naming_the_file(tmp_path):
+    """NEWMDS = 3 in the .cfg but modes 1-10 in the .1: refused naming the .1 and both counts."""
+    path = write_run(tmp_path, 10, cfg="IPEROUT=1\nGRAV=9.80665\nULEN=1.0\nNEWMDS=3\n")
+    with pytest.raises(HDBError, match=r"barge\.1: modes: modes 1-10 for the run's 1 bodies \(barge\.pot\) and "
+                                       r"the \.cfg's NEWMDS \[3\]: 9 expected .* do not agree"):
         load_hdb(path, rho=RHO, wamit=FACTS)
 
 
-def test_modes_beyond_the_listed_bodies_are_refused_not_read_as_another_body(tmp_path):
-    """No NEWMDS in the .cfg: the .pot lists one body, the .1 holds 10 modes: 4 generalized modes,
-    refused naming the .1 (before: read as bodies 'body1', 'body2' with modes 7-10 as the second's)."""
-    path = write_run(tmp_path, 10)
-    with pytest.raises(HDBError, match=r"barge\.1: modes: modes 1-10 for the run's 1 bodies \(barge\.pot\): 4 "
-                                       r"generalized mode\(s\) \(NEWMDS\)"):
-        load_hdb(path, rho=RHO, wamit=FACTS)
+def test_a_lone_listed_body_owns_the_modes_beyond_its_six(tmp_path):
+    """No NEWMDS in the .cfg: the .pot lists one body, the .1 holds 10 modes: its 4 generalized
+    modes (before issue 38: read as bodies 'body1', 'body2' with modes 7-10 as the second's)."""
+    ds = load_hdb(write_run(tmp_path, 10), rho=RHO, wamit=FACTS)
+    assert ds.sizes["body"] == 1 and ds.sizes["influenced_dof"] == 10
 
 
 def test_without_a_file_listing_the_bodies_the_scene_or_the_count_decides(tmp_path):
-    """No .pot (nor .out, .mmx): the scene's wamit.xbody gives the body count (one: the 4 extra modes
-    are refused), and without it 10 modes are not 6 per body: refused, not rounded up to 2 bodies."""
+    """No .pot (nor .out, .mmx): the scene's wamit.xbody gives the body count (one: it owns the 4
+    extra modes), and without it 10 modes are not 6 per body: refused, not rounded up to 2 bodies."""
     path = write_run(tmp_path, 10, pot=False)
-    with pytest.raises(HDBError, match=r"modes 1-10 for the run's 1 bodies \(the scene's wamit\.xbody\): 4"):
-        load_hdb(path, rho=RHO, wamit={**FACTS, "xbody": [[0.0, 0.0, 0.0]], "depth": "inf"})
-    with pytest.raises(HDBError, match=r"barge\.1: modes: 10 modes, not 6 per body, and no file \(\.out, \.pot, "
-                                       r"\.mmx\) lists the run's bodies"):
+    ds = load_hdb(path, rho=RHO, wamit={**FACTS, "xbody": [[0.0, 0.0, 0.0]], "depth": "inf"})
+    assert ds.sizes["influenced_dof"] == 10
+    with pytest.raises(HDBError, match=r"barge\.1: modes: 10 modes, not 6 per body plus the \.cfg's NEWMDS \(0\), "
+                                       r"and no file \(\.out, \.pot, \.mmx\) lists the run's bodies"):
         load_hdb(path, rho=RHO, wamit={"depth": "inf"})
+
+
+def test_one_newmds_for_several_bodies_is_refused_naming_it(tmp_path):
+    path = write_run(tmp_path, 16, pot=False, cfg="IPEROUT=1\nGRAV=9.80665\nULEN=1.0\nNEWMDS=2\n")
+    with pytest.raises(HDBError, match=r"barge\.cfg: NEWMDS: one count for the run's 2 bodies"):
+        load_hdb(path, rho=RHO, wamit={**FACTS, "vcg": [0.0, 0.0], "xbody": [[0.0, 0.0, 0.0], [5.0, 0.0, 0.0]],
+                                      "depth": "inf"})

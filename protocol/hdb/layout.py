@@ -3,10 +3,12 @@
 Every reader converts its format into this layout once; everything downstream (IRF, forces,
 ``hdb info``, the wire) reads only this. Layout::
 
-    dims    omega (n_w, strictly increasing, > 0), influenced_dof (6N), radiating_dof (6N),
-            wave_direction (n_b, radians), body (N), xyz (3)
+    dims    omega (n_w, strictly increasing, > 0), influenced_dof (n), radiating_dof (n),
+            wave_direction (n_b, radians), body (N), xyz (3); n = sum over the bodies of 6 + N_b
     coords  omega [rad/s]; wave_direction [rad]; body (names);
-            influenced_dof / radiating_dof: labels "<body>.<dof>", body-major, dof in DOF_NAMES order
+            influenced_dof / radiating_dof: labels "<body>.<dof>", body-major: each body's six
+            rigid DOFs in DOF_NAMES order, then its N_b >= 0 generalized modes (flexible modes,
+            issue 38) by name ("<body>.bend1", "<body>.mode7"): :func:`body_dofs` reads them
     vars    added_mass            (omega, influenced_dof, radiating_dof)   kg, kg m, kg m^2
             radiation_damping     (omega, influenced_dof, radiating_dof)   N s/m, ...
             excitation_force      (omega, wave_direction, influenced_dof)  complex, per metre of wave
@@ -37,6 +39,11 @@ Row index = force component (influenced), column = motion (radiating): F = -A a 
 from __future__ import annotations
 
 import json
+import re
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
 
 from hydrolink.protocol.errors import KeyedError
 from hydrolink.protocol.scene_bounds import DENSITY_RANGE, DEPTH_RANGE, GRAVITY_RANGE
@@ -79,9 +86,83 @@ class HDBError(KeyedError):
         return self.key
 
 
-def dof_labels(bodies: list[str]) -> list[str]:
-    """Mode labels "<body>.<dof>" in the schema's order (body-major)."""
-    return [f"{b}.{d}" for b in bodies for d in DOF_NAMES]
+MODE_NAME = re.compile(r"^[A-Za-z0-9_\-]+$")
+
+
+def dof_labels(bodies: list[str], modes: Mapping[str, Sequence[str]] | None = None) -> list[str]:
+    """DOF labels "<body>.<dof>" in the schema's order (body-major): each body's six rigid DOFs,
+    then its generalized modes (``modes[body]``, none when absent)."""
+    modes = modes or {}
+    return [f"{b}.{d}" for b in bodies for d in (*DOF_NAMES, *modes.get(b, ()))]
+
+
+@dataclass(frozen=True)
+class BodyDofs:
+    """The DOFs of an HDB's bodies: names, each body's generalized modes (after its six rigid
+    DOFs) and its first DOF's position in the body-major DOF vector; computed once from the
+    labels (:func:`body_dofs`)."""
+    bodies: tuple[str, ...]
+    modes: tuple[tuple[str, ...], ...]
+
+    @property
+    def counts(self) -> tuple[int, ...]:
+        """Each body's DOF count, 6 + its modes."""
+        return tuple(len(DOF_NAMES) + len(m) for m in self.modes)
+
+    @property
+    def offsets(self) -> tuple[int, ...]:
+        """Each body's first DOF in the DOF vector."""
+        return tuple(int(o) for o in np.concatenate([[0], np.cumsum(self.counts)[:-1]])) if self.bodies else ()
+
+    @property
+    def size(self) -> int:
+        """All DOFs of all bodies."""
+        return int(sum(self.counts))
+
+    @property
+    def has_modes(self) -> bool:
+        return any(self.modes)
+
+    def of(self, body: str) -> tuple[str, ...]:
+        """The modes of ``body`` (KeyError when it is not one of the bodies)."""
+        return self.modes[self.bodies.index(body)]
+
+    def mode_map(self) -> dict[str, tuple[str, ...]]:
+        return {b: m for b, m in zip(self.bodies, self.modes) if m}
+
+    def labels(self) -> list[str]:
+        return dof_labels(list(self.bodies), self.mode_map())
+
+    def index(self, body: str, dof: int) -> int:
+        """The position of DOF ``dof`` (0-5 rigid, 6 + k the body's mode k) of ``body``."""
+        return self.offsets[self.bodies.index(body)] + dof
+
+
+def body_dofs(bodies: Sequence[str], labels: Sequence[str], source, field: str = "influenced_dof") -> BodyDofs:
+    """The bodies' DOFs from an HDB's labels (body-major; each body's six rigid DOFs in order,
+    then its modes); HDBError naming ``field`` when the labels are not in that layout."""
+    bodies, labels = [str(b) for b in bodies], [str(v) for v in labels]
+    modes: list[tuple[str, ...]] = []
+    at = 0
+    for body in bodies:
+        rigid = [f"{body}.{d}" for d in DOF_NAMES]
+        if labels[at:at + 6] != rigid:
+            raise HDBError(source, field, f"body {body!r}: labels {labels[at:at + 6]} at positions {at}..{at + 5} "
+                                          f"must be its six rigid DOFs {rigid} (body-major, modes after them)")
+        at += 6
+        own = []
+        while at < len(labels) and labels[at].startswith(f"{body}.") and labels[at][len(body) + 1:] not in DOF_NAMES:
+            name = labels[at][len(body) + 1:]
+            if not MODE_NAME.match(name) or name in own:
+                raise HDBError(source, field, f"body {body!r}: mode label {labels[at]!r} "
+                                              f"{'is repeated' if name in own else 'must be <body>.<letters, digits, _ or ->'}")
+            own.append(name)
+            at += 1
+        modes.append(tuple(own))
+    if at != len(labels):
+        raise HDBError(source, field, f"label {labels[at]!r} (position {at}) belongs to none of the bodies "
+                                      f"{bodies} in order")
+    return BodyDofs(tuple(bodies), tuple(modes))
 
 
 WARNINGS_ATTR = "warnings"

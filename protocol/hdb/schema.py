@@ -4,12 +4,13 @@ hydrodynamic database: a labelled xarray dataset, SI units, exp(-iwt)); its seco
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
 import xarray as xr
 
-from hydrolink.protocol.hdb.layout import ATTR_RANGES, COMPLEX_VARS, OPTIONAL_VARS, REQUIRED_ATTRS, REQUIRED_VARS, SCHEMA_VERSION, TIME_CONVENTION, HDBError, dof_labels, hdb_warnings
+from hydrolink.protocol.hdb.layout import ATTR_RANGES, COMPLEX_VARS, OPTIONAL_VARS, REQUIRED_ATTRS, REQUIRED_VARS, SCHEMA_VERSION, TIME_CONVENTION, BodyDofs, HDBError, body_dofs, dof_labels, hdb_warnings
 from hydrolink.protocol.hdb.second_order import QTF, MeanDrift, check_second_order, second_order_vars
 
 
@@ -34,10 +35,12 @@ def make_hdb(
     center_of_mass: np.ndarray | None = None,
     mean_drift: MeanDrift | None = None,
     qtf: QTF | None = None,
+    modes: Mapping[str, Sequence[str]] | None = None,
 ) -> xr.Dataset:
     """Assemble an HDB dataset in the schema's layout from plain arrays (already converted to
-    SI units and the exp(-iwt) convention) and the optional second-order parts, then validate it."""
-    labels = dof_labels(list(bodies))
+    SI units and the exp(-iwt) convention) and the optional second-order parts, then validate it.
+    ``modes``: each body's generalized modes by name (after its six rigid DOFs; none when absent)."""
+    labels = dof_labels(list(bodies), modes)
     data_vars = {
         "added_mass": (REQUIRED_VARS["added_mass"], np.asarray(added_mass, float)),
         "radiation_damping": (REQUIRED_VARS["radiation_damping"], np.asarray(radiation_damping, float)),
@@ -102,7 +105,7 @@ def validate_hdb(ds: xr.Dataset, source: str | Path) -> xr.Dataset:
         raise HDBError(source, "omega", f"must be strictly increasing; omega[{i + 1}]={omega[i + 1]} "
                                         f"follows omega[{i}]={omega[i]}")
     bodies = [str(b) for b in ds["body"].values]
-    expected = dof_labels(bodies)
+    expected = body_dofs(bodies, ds["influenced_dof"].values, source).labels()
     for coord in ("influenced_dof", "radiating_dof"):
         got = [str(v) for v in ds[coord].values]
         if got != expected:
@@ -161,13 +164,20 @@ def from_netcdf_dataset(raw: xr.Dataset, source: str | Path) -> xr.Dataset:
     return validate_hdb(ds, source)
 
 
+def hdb_dofs(ds: xr.Dataset) -> BodyDofs:
+    """The DOFs of a (validated) HDB's bodies: each body's generalized modes after its six rigid
+    DOFs, offsets and counts (layout.BodyDofs)."""
+    return body_dofs(ds["body"].values, ds["influenced_dof"].values, ds.attrs.get("source", "<hdb>"))
+
+
 def select_bodies(ds: xr.Dataset, bodies: list[str]) -> xr.Dataset:
     """Sub-HDB holding only ``bodies`` (their own blocks and the blocks between them)."""
     missing = [b for b in bodies if b not in list(ds["body"].values)]
     if missing:
         raise HDBError(ds.attrs.get("source", "?"), "body",
                        f"no body named {missing} (the file holds {list(map(str, ds['body'].values))})")
-    labels = dof_labels(bodies)
+    dofs = hdb_dofs(ds)
+    labels = dof_labels(bodies, {b: dofs.of(b) for b in bodies})
     return ds.sel(body=bodies, influenced_dof=labels, radiating_dof=labels)
 
 

@@ -4,6 +4,9 @@ BEMIO stores coefficients normalised like WAMIT (A/rho, B/(rho w), X/(rho g), K_
 exp(+i w t) convention; this reader multiplies back with the file's own rho and g and conjugates
 the excitation into the internal exp(-i w t). Only the ``all``/``re``/``im`` datasets are read.
 
+Generalized modes (issue 38): a body's ``properties/dof`` (WEC-Sim: 6 + N) sizes its rows; the N
+beyond the rigid six are named ``mode1``..``modeN`` (the file names none).
+
 Mean drift: ``bodyN/hydro_coeffs/mean_drift/{momentum_conservation|control_surface|
 pressure_integration}/val``, laid out like the excitation (h5py: (6, n_beta, n_w)) and normalised
 like it, by rho g: the coefficient is rho g val per unit amplitude squared (real). A method is read
@@ -26,7 +29,7 @@ import h5py
 import numpy as np
 import xarray as xr
 
-from hydrolink.protocol.hdb.layout import HDBError
+from hydrolink.protocol.hdb.layout import BodyDofs, HDBError
 from hydrolink.protocol.hdb.schema import make_hdb
 from hydrolink.protocol.hdb.second_order import MeanDrift
 from hydrolink.server.hdb.bemio_qtf import read_bemio_qtf
@@ -119,7 +122,12 @@ def _read(h5: _H5) -> xr.Dataset:
     depth = _water_depth(h5)
     groups = _body_groups(h5)
     n_b, n_w, n_beta = len(groups), omega.size, betas.size
-    n_dof = 6 * n_b
+    names = [h5.text(f"{grp}/properties/name").replace(".", "_") if h5.has(f"{grp}/properties/name") else grp
+             for grp in groups]
+    if len(set(names)) != len(names):
+        names = [f"{name}{n + 1}" for n, name in enumerate(names)]
+    dofs = BodyDofs(tuple(names), tuple(_modes(h5, grp) for grp in groups))
+    n_dof = dofs.size
     order = np.argsort(omega, kind="stable")
 
     added_mass = np.zeros((n_w, n_dof, n_dof))
@@ -130,26 +138,19 @@ def _read(h5: _H5) -> xr.Dataset:
     reference, cb = np.zeros((n_b, 3)), np.zeros((n_b, 3))
     volume = np.zeros(n_b)
     have_inf = have_cb = have_vol = True
-    names = []
-    for n, grp in enumerate(groups):
+    for n, (grp, at, count) in enumerate(zip(groups, dofs.offsets, dofs.counts)):
         props, coeffs = f"{grp}/properties", f"{grp}/hydro_coeffs"
-        if h5.has(f"{props}/dof") and h5.number(f"{props}/dof") != 6:
-            dof = h5.number(f"{props}/dof")
-            raise HDBError(h5.source, f"{props}/dof",
-                           f"{dof:g} DOFs for this body: {dof - 6:g} generalized mode(s) beyond the rigid 6 (or fewer "
-                           "than 6); hydrolink reads rigid bodies of 6 DOFs each (generalized modes: issue 38)")
-        names.append(h5.text(f"{props}/name").replace(".", "_") if h5.has(f"{props}/name") else grp)
-        rows = slice(6 * n, 6 * n + 6)
-        a = h5.get(f"{coeffs}/added_mass/all", (6, n_dof, n_w))
-        b = h5.get(f"{coeffs}/radiation_damping/all", (6, n_dof, n_w))
+        rows = slice(at, at + count)
+        a = h5.get(f"{coeffs}/added_mass/all", (count, n_dof, n_w))
+        b = h5.get(f"{coeffs}/radiation_damping/all", (count, n_dof, n_w))
         added_mass[:, rows, :] = rho * np.moveaxis(a, 2, 0)
         damping[:, rows, :] = rho * omega[:, None, None] * np.moveaxis(b, 2, 0)
-        re = h5.get(f"{coeffs}/excitation/re", (6, n_beta, n_w))
-        im = h5.get(f"{coeffs}/excitation/im", (6, n_beta, n_w))
+        re = h5.get(f"{coeffs}/excitation/re", (count, n_beta, n_w))
+        im = h5.get(f"{coeffs}/excitation/im", (count, n_beta, n_w))
         excitation[:, :, rows] = rho * g * np.transpose(re - 1j * im, (2, 1, 0))
-        stiffness[rows, rows] = rho * g * h5.get(f"{coeffs}/linear_restoring_stiffness", (6, 6))
+        stiffness[rows, rows] = rho * g * h5.get(f"{coeffs}/linear_restoring_stiffness", (count, count))
         if h5.has(f"{coeffs}/added_mass/inf_freq"):
-            a_inf[rows, :] = rho * h5.get(f"{coeffs}/added_mass/inf_freq", (6, n_dof))
+            a_inf[rows, :] = rho * h5.get(f"{coeffs}/added_mass/inf_freq", (count, n_dof))
         else:
             have_inf = False
         reference[n] = h5.vector3(f"{props}/cg")
@@ -161,9 +162,7 @@ def _read(h5: _H5) -> xr.Dataset:
             volume[n] = h5.number(f"{props}/disp_vol")
         else:
             have_vol = False
-    if len(set(names)) != len(names):
-        names = [f"{name}{n + 1}" for n, name in enumerate(names)]
-    drift = _mean_drift(h5, groups, rho * g, omega, betas, order)
+    drift = _mean_drift(h5, groups, dofs, rho * g, omega, betas, order)
     return make_hdb(
         bodies=names, omega=omega[order], wave_direction=betas,
         added_mass=added_mass[order], radiation_damping=damping[order],
@@ -172,14 +171,27 @@ def _read(h5: _H5) -> xr.Dataset:
         added_mass_inf=a_inf if have_inf else None,
         displaced_volume=volume if have_vol else None,
         center_of_buoyancy=cb if have_cb else None, mean_drift=drift,
-        qtf=read_bemio_qtf(h5.fh, groups, h5.source),
+        qtf=read_bemio_qtf(h5.fh, groups, h5.source, dofs), modes=dofs.mode_map(),
     )
 
 
-def _mean_drift(h5: _H5, groups: list[str], rho_g: float, omega: np.ndarray, betas: np.ndarray,
+def _modes(h5: _H5, grp: str) -> tuple[str, ...]:
+    """A body's generalized modes (issue 38): ``properties/dof`` beyond the rigid 6 (WEC-Sim's
+    count; none when absent), named ``mode1``..``modeN`` (BEMIO stores no names)."""
+    name = f"{grp}/properties/dof"
+    if not h5.has(name):
+        return ()
+    count = h5.number(name)
+    if count != int(count) or count < 6:
+        raise HDBError(h5.source, name, f"{count:g} DOFs for this body: must be a whole number >= 6 (the rigid 6, "
+                                        "then the generalized modes)")
+    return tuple(f"mode{k}" for k in range(1, int(count) - 5))
+
+
+def _mean_drift(h5: _H5, groups: list[str], dofs: BodyDofs, rho_g: float, omega: np.ndarray, betas: np.ndarray,
                 order: np.ndarray) -> MeanDrift | None:
     """The mean drift methods every body has, in SI (rho g val), on the file's sorted grid."""
-    n_w, n_beta, n_dof = omega.size, betas.size, 6 * len(groups)
+    n_w, n_beta, n_dof = omega.size, betas.size, dofs.size
     methods, values = [], []
     for group, method in DRIFT_GROUPS.items():
         names = [f"{grp}/hydro_coeffs/mean_drift/{group}/val" for grp in groups]
@@ -189,11 +201,11 @@ def _mean_drift(h5: _H5, groups: list[str], rho_g: float, omega: np.ndarray, bet
         if not all(have):
             raise HDBError(h5.source, names[have.index(False)], f"missing while other bodies have {group} drift")
         val = np.zeros((n_w, n_beta, n_dof))
-        for n, name in enumerate(names):
-            raw = np.asarray(h5.get(name, (6, n_beta, n_w)))
+        for name, at, count in zip(names, dofs.offsets, dofs.counts):
+            raw = np.asarray(h5.get(name, (count, n_beta, n_w)))
             if np.iscomplexobj(raw):
                 raise HDBError(h5.source, name, "must be real (the mean drift per unit amplitude squared)")
-            val[:, :, 6 * n:6 * n + 6] = rho_g * np.transpose(raw, (2, 1, 0))
+            val[:, :, at:at + count] = rho_g * np.transpose(raw, (2, 1, 0))
         methods.append(method)
         values.append(val[order][:, np.argsort(betas)])
     if not methods:

@@ -31,7 +31,7 @@ import h5py
 import numpy as np
 
 from hydrolink.server.hdb.reader_warnings import HDBWarning
-from hydrolink.protocol.hdb.layout import HDBError
+from hydrolink.protocol.hdb.layout import BodyDofs, HDBError
 from hydrolink.protocol.hdb.second_order import QTF, fill_qtf_square
 
 
@@ -44,9 +44,10 @@ def qtf_group(fh: h5py.File, body: str, source: Path) -> str | None:
     return f"{where}/{found[0]}" if found else None
 
 
-def read_bemio_qtf(fh: h5py.File, bodies: list[str], source: Path) -> QTF | None:
+def read_bemio_qtf(fh: h5py.File, bodies: list[str], source: Path, dofs: BodyDofs) -> QTF | None:
     """The difference QTF of every body's ``QTF<k>/Diff<dof>`` groups (see the module docstring),
-    in SI and exp(-iwt), on one grid; None when no body has QTF groups."""
+    in SI and exp(-iwt), on one grid (``dofs``: the bodies' DOF layout; rigid DOFs only, none
+    for generalized modes); None when no body has QTF groups."""
     groups = {n: g for n, body in enumerate(bodies) if (g := qtf_group(fh, body, source)) is not None}
     if not groups:
         return None
@@ -58,7 +59,7 @@ def read_bemio_qtf(fh: h5py.File, bodies: list[str], source: Path) -> QTF | None
                 sums.append(f"{group}/Sum{dof + 1}")
             name = f"{group}/Diff{dof + 1}"
             if name in fh:
-                rows.append(_square_rows(fh, name, 6 * n + dof, source))
+                rows.append(_square_rows(fh, name, dofs.offsets[n] + dof, source))
     if sums:
         warnings.warn(f"{source}: {sums[0]} (and the other Sum groups) left out: WEC-Sim v6.1 stores the sum QTF "
                       "conjugated, v7.0 on not, and the file does not say which wrote it; give the sum QTF as WAMIT "
@@ -66,7 +67,7 @@ def read_bemio_qtf(fh: h5py.File, bodies: list[str], source: Path) -> QTF | None
     if not rows:
         raise HDBError(source, next(iter(groups.values())), "a QTF group without Diff<dof> groups")
     w_i, w_j, b_i, b_j, dof, value = (np.concatenate(c) for c in zip(*rows))
-    omega, d_i, d_j, square = fill_qtf_square(w_i, w_j, b_i, b_j, dof, value, 6 * len(bodies), "difference",
+    omega, d_i, d_j, square = fill_qtf_square(w_i, w_j, b_i, b_j, dof, value, dofs.size, "difference",
                                               source)
     return QTF(omega, d_i, d_j, square, None, f"{Path(source).name}: {', '.join(groups.values())} Diff (WEC-Sim BEMIO)")
 

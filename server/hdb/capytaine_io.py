@@ -5,7 +5,8 @@ Capytaine uses exp(-i w t) and SI units: nothing is rescaled. Conversions:
 * Frequencies: the ``omega`` coordinate (made the dimension if Capytaine used period/freq/...);
   omega = inf rows become ``added_mass_inf``, omega = 0 rows are dropped.
 * DOFs: labels ``<body>__<Dof>`` (multibody) or ``<Dof>`` (single body, named by ``body_name``);
-  rigid-body DOF names only (Surge..Yaw, any case). DOFs that were not solved are zero.
+  radiating DOFs beyond the rigid ones are the body's generalized modes, by the file's names, after its six;
+  rigid-body DOF names Surge..Yaw in any case. DOFs that were not solved are zero.
 * Body names (one rule): the prefix shared by all bodies' names up to and including its last
   ``_`` is removed when there are several bodies and the rest stays unique and non-empty:
   ``rm3_float``, ``rm3_spar`` -> ``float``, ``spar``. Dots become ``_`` (labels are body.dof).
@@ -45,7 +46,7 @@ import numpy as np
 import xarray as xr
 
 from hydrolink.server.hdb.reader_warnings import HDBWarning
-from hydrolink.protocol.hdb.layout import DOF_NAMES, HDBError
+from hydrolink.protocol.hdb.layout import DOF_NAMES, MODE_NAME, BodyDofs, HDBError
 from hydrolink.protocol.hdb.schema import make_hdb
 
 from hydrolink.server.hdb.time_convention import ConventionEvidence, evidence
@@ -128,22 +129,38 @@ def _headings_in_radians(ds: xr.Dataset, source: str) -> xr.Dataset:
     return ds
 
 
-def _parse_dofs(labels: Sequence[str], single_body: str, source: str, field: str) -> list[tuple[str, int]]:
-    """(body name as in file, dof index) per label."""
-    out, other = [], []
+def _parse_dofs(labels: Sequence[str], single_body: str, source: str, field: str,
+                modes: Mapping[str, Sequence[str]] | None = None) -> list[tuple[str, int]]:
+    """(body name as in file, dof index) per label: 0-5 the rigid DOFs (Surge..Yaw, any case),
+    6 + k the body's k-th generalized mode in ``modes`` (from :func:`_file_modes`)."""
+    out = []
     for label in map(str, labels):
         body, _, dof = label.rpartition("__")
         body = body or single_body
-        name = dof.lower()
-        if name not in DOF_NAMES:
-            other.append(label)
+        if dof.lower() in DOF_NAMES:
+            out.append((body, DOF_NAMES.index(dof.lower())))
             continue
-        out.append((body, DOF_NAMES.index(name)))
-    if other:   # never read as anything else (issue 38)
-        raise HDBError(source, field, f"{len(other)} DOF(s) beyond the rigid-body ones ({', '.join(DOF_NAMES)}): "
-                                      f"{other[:6]}{' ...' if len(other) > 6 else ''} — generalized modes? hydrolink "
-                                      "reads rigid bodies of 6 DOFs each (generalized modes: issue 38)")
+        own = (modes or {}).get(body, ())
+        if dof not in own:
+            raise HDBError(source, field, f"DOF {label!r} is neither a rigid-body DOF ({', '.join(DOF_NAMES)}) nor a "
+                                          f"generalized mode of the radiating DOFs ({list(own)})")
+        out.append((body, len(DOF_NAMES) + own.index(dof)))
     return out
+
+
+def _file_modes(labels: Sequence[str], single_body: str, source: str) -> dict[str, tuple[str, ...]]:
+    """Each body's generalized modes (issue 38): its radiating DOFs beyond the six rigid ones, by
+    the file's names in the file's order; a name hydrolink cannot label is an error."""
+    modes: dict[str, list[str]] = {}
+    for label in map(str, labels):
+        body, _, dof = label.rpartition("__")
+        if dof.lower() in DOF_NAMES:
+            continue
+        if not MODE_NAME.match(dof) or dof in modes.get(body or single_body, []):
+            raise HDBError(source, "radiating_dof", f"mode {label!r}: a generalized mode's name must be unique and "
+                                                    "of letters, digits, _ or - (it becomes the label <body>.<mode>)")
+        modes.setdefault(body or single_body, []).append(dof)
+    return {b: tuple(m) for b, m in modes.items()}
 
 
 def short_body_names(names: Sequence[str]) -> list[str]:
@@ -193,15 +210,16 @@ def _reference_points(ds, file_bodies, names, given, source) -> tuple[np.ndarray
     return np.zeros((len(names), 3)), "origin (assumed, not recorded)"
 
 
-def _remove_gravity(k: np.ndarray, ds: xr.Dataset, file_bodies, ref: np.ndarray, g: float, source) -> np.ndarray:
-    """Subtract Capytaine's gravity terms from its hydrostatic stiffness (see module docstring)."""
+def _remove_gravity(k: np.ndarray, ds: xr.Dataset, dofs: BodyDofs, ref: np.ndarray, g: float, source) -> np.ndarray:
+    """Subtract Capytaine's gravity terms from its hydrostatic stiffness (see module docstring;
+    the rigid DOFs' only: Capytaine has none for generalized modes)."""
+    file_bodies = list(dofs.bodies)
     cog = _per_body(ds, "center_of_mass", file_bodies, source)
     if cog is None or "inertia_matrix" not in ds:
         return k
     k = k.copy()
-    mass = _mass_per_body(ds, file_bodies, source)
-    for n, (m, c, r) in enumerate(zip(mass, cog, ref)):
-        o = 6 * n
+    mass = _mass_per_body(ds, dofs, source)
+    for o, m, c, r in zip(dofs.offsets, mass, cog, ref):
         k[o + 3, o + 3] += m * g * (c[2] - r[2])
         k[o + 4, o + 4] += m * g * (c[2] - r[2])
         k[o + 3, o + 5] -= m * g * (c[0] - r[0])
@@ -209,10 +227,11 @@ def _remove_gravity(k: np.ndarray, ds: xr.Dataset, file_bodies, ref: np.ndarray,
     return k
 
 
-def _mass_per_body(ds: xr.Dataset, file_bodies: list[str], source: str) -> np.ndarray:
+def _mass_per_body(ds: xr.Dataset, layout: BodyDofs, source: str) -> np.ndarray:
+    file_bodies = list(layout.bodies)
     inertia = ds["inertia_matrix"]
     labels = [str(v) for v in inertia["influenced_dof"].values]
-    dofs = _parse_dofs(labels, file_bodies[0], source, "inertia_matrix")
+    dofs = _parse_dofs(labels, file_bodies[0], source, "inertia_matrix", layout.mode_map())
     diag = np.diag(np.asarray(inertia.transpose("influenced_dof", "radiating_dof").values, float))
     mass = np.zeros(len(file_bodies))
     for (body, dof), value in zip(dofs, diag):
@@ -320,25 +339,25 @@ def _radiation_matrix(ds: xr.Dataset, name: str) -> np.ndarray:
     return np.asarray(da.transpose("omega", "influenced_dof", "radiating_dof").values)
 
 
-def _hydrostatic_stiffness(ds: xr.Dataset, file_bodies: list[str], single: str, source: str) -> np.ndarray:
-    """The file's hydrostatic stiffness on the 6N DOFs of its bodies (gravity terms still in)."""
+def _hydrostatic_stiffness(ds: xr.Dataset, dofs: BodyDofs, single: str, source: str) -> np.ndarray:
+    """The file's hydrostatic stiffness on all DOFs of its bodies (gravity terms still in)."""
     k = ds["hydrostatic_stiffness"]
-    idx = [np.array([6 * file_bodies.index(b) + d for b, d in _parse_dofs(
-        [str(v) for v in k[dim].values], single, source, "hydrostatic_stiffness")])
+    idx = [np.array([dofs.index(b, d) for b, d in _parse_dofs(
+        [str(v) for v in k[dim].values], single, source, "hydrostatic_stiffness", dofs.mode_map())])
         for dim in ("influenced_dof", "radiating_dof")]
-    stiffness = np.zeros((6 * len(file_bodies), 6 * len(file_bodies)))
+    stiffness = np.zeros((dofs.size, dofs.size))
     _scatter(stiffness, np.asarray(k.transpose("influenced_dof", "radiating_dof").values, float), *idx)
     return stiffness
 
 
-def _recorded_mass(ds: xr.Dataset, file_bodies: list[str], source: str) -> tuple[np.ndarray | None, np.ndarray | None]:
+def _recorded_mass(ds: xr.Dataset, dofs: BodyDofs, source: str) -> tuple[np.ndarray | None, np.ndarray | None]:
     """The body mass and centre of gravity the file records (Capytaine's inertia_matrix and
     center_of_mass), None where it records none: kept so that a scene that disagrees can be told
     (server/model.py)."""
-    mass = _mass_per_body(ds, file_bodies, source) if "inertia_matrix" in ds else None
+    mass = _mass_per_body(ds, dofs, source) if "inertia_matrix" in ds else None
     if mass is not None and not np.all(mass > 0):
         mass = None                     # no translational DOF in the inertia matrix: not recorded
-    cog = _per_body(ds, "center_of_mass", file_bodies, source)
+    cog = _per_body(ds, "center_of_mass", list(dofs.bodies), source)
     if cog is not None and not np.all(np.isfinite(cog)):
         cog = None
     return mass, cog
@@ -365,13 +384,15 @@ def from_capytaine_dataset(ds: xr.Dataset, source: str | Path, *,
                   "body1")
     inf_labels = [str(v) for v in ds["influenced_dof"].values]
     rad_labels = [str(v) for v in ds["radiating_dof"].values]
-    inf_dofs = _parse_dofs(inf_labels, single, source, "influenced_dof")
-    rad_dofs = _parse_dofs(rad_labels, single, source, "radiating_dof")
+    modes = _file_modes(rad_labels, single, source)
+    inf_dofs = _parse_dofs(inf_labels, single, source, "influenced_dof", modes)
+    rad_dofs = _parse_dofs(rad_labels, single, source, "radiating_dof", modes)
     file_bodies = list(dict.fromkeys(b for b, _ in inf_dofs + rad_dofs))
     names = short_body_names(file_bodies)
-    n_dof = 6 * len(names)
-    inf_idx = np.array([6 * file_bodies.index(b) + d for b, d in inf_dofs])
-    rad_idx = np.array([6 * file_bodies.index(b) + d for b, d in rad_dofs])
+    dofs = BodyDofs(tuple(file_bodies), tuple(modes.get(b, ()) for b in file_bodies))
+    n_dof = dofs.size
+    inf_idx = np.array([dofs.index(b, d) for b, d in inf_dofs])
+    rad_idx = np.array([dofs.index(b, d) for b, d in rad_dofs])
 
     omega_all = np.asarray(ds["omega"].values, float)
     regular = np.isfinite(omega_all) & (omega_all > 0)
@@ -389,7 +410,7 @@ def from_capytaine_dataset(ds: xr.Dataset, source: str | Path, *,
         _scatter(a_inf, a_raw[np.argmax(at_inf)], inf_idx, rad_idx)
 
     def forces(name: str) -> np.ndarray:
-        """A wave force as stored, (omega, wave_direction, 6N) on the sorted regular frequencies."""
+        """A wave force as stored, (omega, wave_direction, n_dof) on the sorted regular frequencies."""
         da = ds[name]
         if "wave_direction" not in da.dims:
             da = da.expand_dims(wave_direction=np.atleast_1d(ds["wave_direction"].values)
@@ -397,8 +418,8 @@ def from_capytaine_dataset(ds: xr.Dataset, source: str | Path, *,
         da = da.sortby("wave_direction")
         out = np.zeros((omega.size, da.sizes["wave_direction"], n_dof), complex)
         _scatter(out, np.asarray(da.transpose("omega", "wave_direction", "influenced_dof").values)[regular][order],
-                 None, np.array([6 * file_bodies.index(b) + d for b, d in _parse_dofs(
-                     [str(v) for v in da["influenced_dof"].values], single, source, name)]))
+                 None, np.array([dofs.index(b, d) for b, d in _parse_dofs(
+                     [str(v) for v in da["influenced_dof"].values], single, source, name, modes)]))
         return out
 
     excitation = forces("excitation_force")
@@ -406,8 +427,7 @@ def from_capytaine_dataset(ds: xr.Dataset, source: str | Path, *,
         if "wave_direction" in ds.variables else np.zeros(1)
 
     ref, ref_from = _reference_points(ds, file_bodies, names, reference_points, source)
-    stiffness = _remove_gravity(_hydrostatic_stiffness(ds, file_bodies, single, source), ds, file_bodies, ref, g,
-                                source)
+    stiffness = _remove_gravity(_hydrostatic_stiffness(ds, dofs, single, source), ds, dofs, ref, g, source)
 
     cb = _per_body(ds, "center_of_buoyancy", file_bodies, source)
     volume = np.asarray(ds["disp_mass"].values, float).ravel() / rho if "disp_mass" in ds.variables else None
@@ -418,7 +438,7 @@ def from_capytaine_dataset(ds: xr.Dataset, source: str | Path, *,
     if "Froude_Krylov_force" in ds:     # the forces' phases against the long-wave limits
         froude_krylov = forces("Froude_Krylov_force")
         diffraction = forces("diffraction_force") if "diffraction_force" in ds else None
-        physics = evidence(omega=omega, wave_direction=directions, bodies=names, rho=rho, g=g, depth=depth,
+        physics = evidence(omega=omega, wave_direction=directions, bodies=names, offsets=list(dofs.offsets), rho=rho, g=g, depth=depth,
                            added_mass=added_mass, radiation_damping=damping, stiffness=stiffness, volume=volume,
                            froude_krylov=froude_krylov, diffraction=diffraction)
         if diffraction is not None and physics.verdict is not None:
@@ -427,13 +447,13 @@ def from_capytaine_dataset(ds: xr.Dataset, source: str | Path, *,
     if time_convention == "exp(+iwt)":      # converted once, here (schema: exp(-iwt))
         excitation = np.conj(excitation)
 
-    mass, cog = _recorded_mass(ds, file_bodies, source)
+    mass, cog = _recorded_mass(ds, dofs, source)
     out = make_hdb(
         bodies=names, omega=omega, wave_direction=directions,
         added_mass=added_mass, radiation_damping=damping, excitation_force=excitation,
         hydrostatic_stiffness=stiffness, reference_point=ref, rho=rho, g=g, water_depth=depth,
         source=source, added_mass_inf=a_inf, displaced_volume=volume, center_of_buoyancy=cb,
-        mass=mass, center_of_mass=cog,
+        mass=mass, center_of_mass=cog, modes={n: m for n, m in zip(names, dofs.modes) if m},
     )
     out.attrs["body_names_in_file"] = ",".join(file_bodies)
     out.attrs["time_convention_in_file"] = time_convention

@@ -57,19 +57,19 @@ def _votes(d: np.ndarray) -> tuple[int, int]:
     return int(np.sum(d < 1 / CONCLUSIVE)), int(np.sum(d > CONCLUSIVE))
 
 
-def evidence(*, omega: np.ndarray, wave_direction: np.ndarray, bodies: list[str], rho: float, g: float,
+def evidence(*, omega: np.ndarray, wave_direction: np.ndarray, bodies: list[str], offsets: list[int], rho: float, g: float,
              depth: float, added_mass: np.ndarray, radiation_damping: np.ndarray, stiffness: np.ndarray,
              volume: np.ndarray | None, froude_krylov: np.ndarray, diffraction: np.ndarray | None
              ) -> ConventionEvidence:
     """Judge the convention of ``froude_krylov`` (and ``diffraction``), as stored: (n_omega, n_beta,
-    6N); the other arrays in exp(-iwt)-free schema layout ((n_omega,) 6N x 6N, stiffness buoyancy +
-    waterplane only, volume (N,) or None)."""
+    n_dof); the other arrays in exp(-iwt)-free schema layout ((n_omega,) n_dof x n_dof, stiffness buoyancy +
+    waterplane only, volume (N,) or None); ``offsets``: each body's first DOF (its rigid six follow)."""
     k_all = wave_number(omega, g, depth)
     beta = np.asarray(wave_direction, float)
     minus = plus = 0
     used: list[str] = []
-    for n, body in enumerate(bodies):
-        o = slice(6 * n, 6 * n + 6)
+    for n, (body, at) in enumerate(zip(bodies, offsets)):
+        o = slice(at, at + 6)
         c = stiffness[o, o]
         vol = float(volume[n]) if volume is not None else 0.0
         size = max(vol ** (1 / 3), np.sqrt(max(c[2, 2], 0.0) / (rho * g)))
@@ -86,9 +86,9 @@ def evidence(*, omega: np.ndarray, wave_direction: np.ndarray, bodies: list[str]
             pred = [(-rho * g * vol * slope[j] / f3, fk[:, j] / fk[:, 2], f"Froude-Krylov {_DOF_NAMES[j]}/heave")
                     for j in (0, 1)]
             if diffraction is not None:
-                p = np.full(beta.size, (-w**2 * added_mass[i, 6 * n + 2, 6 * n + 2]
-                                        - 1j * w * radiation_damping[i, 6 * n + 2, 6 * n + 2]) / f3)
-                pred.append((p, diffraction[i, :, 6 * n + 2] / fk[:, 2], "diffraction/Froude-Krylov heave"))
+                p = np.full(beta.size, (-w**2 * added_mass[i, at + 2, at + 2]
+                                        - 1j * w * radiation_damping[i, at + 2, at + 2]) / f3)
+                pred.append((p, diffraction[i, :, at + 2] / fk[:, 2], "diffraction/Froude-Krylov heave"))
             for p, r, what in pred:
                 ok = (np.abs(p.imag) >= MIN_PHASE * np.abs(p)) & (np.abs(p) > 0) & (np.abs(r) > 0)
                 if not np.any(ok):

@@ -2,7 +2,8 @@
 
 The spec format is documented in ``docs/hdb-spec.md`` (model: :mod:`.build_spec`, meshes:
 :mod:`.build_mesh`). :func:`build_hdb` meshes the bodies (immersed part only, with lids against
-irregular frequencies), solves radiation for all 6N rigid-body DOFs of the bodies together (so the
+irregular frequencies), solves radiation for all DOFs of the bodies together (six rigid each and
+the generalized modes a body is given, modes.py; solved together so the
 body-to-body blocks are in the HDB) and diffraction over the frequency grid, plus radiation at
 infinite frequency (A∞), computes each body's buoyancy/waterplane hydrostatics and returns the HDB
 in the schema's layout (:mod:`hydrolink.protocol.hdb.schema`). Results are cached on disk, keyed by
@@ -26,7 +27,8 @@ import xarray as xr
 from hydrolink.server.hdb.reader_warnings import HDBWarning, recorded
 from hydrolink.server.disk_cache import env_dir, user_cache_dir, write_atomic
 from hydrolink.server.hdb.build.mesh import body_meshes, check_apart, default_panel_size, xoz_symmetric
-from hydrolink.server.hdb.build.spec import BuildSpec, SpecError, load_spec, mesh_path, parse_spec
+from hydrolink.server.hdb.build.modes import ModeField, mode_fields, table_path
+from hydrolink.server.hdb.build.spec import BodySpec, BuildSpec, SpecError, load_spec, mesh_path, parse_spec
 from hydrolink.server.hdb.capytaine_io import from_capytaine_dataset, short_body_names
 from hydrolink.protocol.hdb.layout import SCHEMA_VERSION, dof_labels, with_hdb_warnings
 from hydrolink.protocol.hdb.schema import from_netcdf_dataset, to_netcdf
@@ -63,13 +65,23 @@ def cache_key(spec: BuildSpec, spec_path: str | Path) -> str:
     for body, key, table in zip(spec.all_bodies, spec.body_keys,
                                 [normalised["body"]] if spec.body is not None else normalised["bodies"]):
         table.pop("mesh", None)
-        path = mesh_path(body, spec_path)
+        if table.get("modes") is None:
+            table.pop("modes", None)     # rigid bodies keep their cached builds
+        files = [(f"{key}.mesh", mesh_path(body, spec_path))]
+        files += [(f"{key}.modes[{j}].file", table_path(m, spec_path)) for j, m in enumerate(body.modes or [])
+                  if m.kind == "table"]
+        for j, m in enumerate(table.get("modes") or []):
+            m.pop("file", None)
         digest = None
-        if path is not None:
+        for file_key, path in files:
+            if path is None:
+                continue
             try:
-                digest = hashlib.sha256(path.read_bytes()).hexdigest()
+                data = path.read_bytes()
             except OSError as exc:
-                raise SpecError(spec_path, f"{key}.mesh", f"cannot read mesh file {path}: {exc.strerror}") from None
+                raise SpecError(spec_path, file_key, f"cannot read {path}: {exc.strerror}") from None
+            digest = hashlib.sha256(data).hexdigest() if digest is None else \
+                hashlib.sha256((digest + hashlib.sha256(data).hexdigest()).encode()).hexdigest()
         digests.append(digest)
     blob = json.dumps({"spec": normalised, "mesh_sha256": digests,
                        "capytaine": cpt.__version__, "hdb_schema_version": SCHEMA_VERSION,
@@ -186,6 +198,49 @@ def _hydrostatics(hull, ref: np.ndarray, rho: float, g: float, *, mass: float = 
     return np.asarray(K.values, float), float(body.disp_volume), np.asarray(body.center_of_buoyancy, float)
 
 
+def _with_mode_stiffness(rigid: np.ndarray, hull, body: BodySpec, fields: list[ModeField], rho: float,
+                         g: float) -> np.ndarray:
+    """The body's buoyancy/waterplane stiffness over its six rigid DOFs and its generalized modes:
+    ``rigid`` (6x6) and, for every pair involving a mode, Capytaine's Newman (1994) integral
+    C_ij = rho g integral over the hull of (n . V_j)(w_i + z div V_i) dS with each mode's divergence (modes.py)."""
+    if not fields:
+        return rigid
+    import capytaine as cpt
+
+    ref = np.asarray(body.ref_point, float)
+    rigid_dofs = {name: dof.evaluate_motion(hull) for name, dof in cpt.rigid_body_dofs(rotation_center=ref).items()}
+    # every DOF as a panel field: Capytaine's Newman branch takes arrays only (the rigid block is ``rigid``)
+    flexible = cpt.FloatingBody(mesh=hull.with_quadrature("Gauss-Legendre 2"), center_of_mass=ref, name="modes",
+                                dofs={**rigid_dofs, **{f.name: f.motion for f in fields}})
+    names = [*CPT_DOFS, *(f.name for f in fields)]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")      # Capytaine notes the NaN inertia of the modes
+        divergence = {**{n: np.zeros(hull.nb_faces) for n in rigid_dofs}, **{f.name: f.divergence for f in fields}}
+        k = flexible.compute_hydrostatic_stiffness(divergence=divergence, rho=rho, g=g)
+    out = np.asarray(k.sel(influenced_dof=names, radiating_dof=names).values, float)
+    out[:6, :6] = rigid
+    fields_all = [*rigid_dofs.values(), *(f.motion for f in fields)]
+    for i, f in enumerate(fields, start=6):
+        if f.gradient is not None:
+            out[i] += rho * g * _material_term(hull, f.gradient, fields_all)
+        else:
+            warnings.warn(f"{body.name}: mode {f.name!r} is a displacement table (no gradient): its row of the "
+                          "hydrostatic stiffness is Newman's formula alone, without the material term (a surging "
+                          "body may load it); check it or give the mode as a beam mode (modes[].kind)",
+                          HDBWarning, stacklevel=4)
+    return out
+
+
+def _material_term(hull, gradient: np.ndarray, motions: list[np.ndarray]) -> np.ndarray:
+    """The term a generalized mode's row of the hydrostatic stiffness adds to Newman's: its force
+    is the virtual work on material points, whose field moves with the body, so
+    C_ij += rho g integral over the hull of z n . ((V_j . grad) V_i) dS (per rho g, for each j of
+    ``motions``). Without it a surging box would load its antisymmetric bending modes."""
+    normals = np.asarray(hull.faces_normals, float)
+    z_area = np.asarray(hull.faces_centers, float)[:, 2] * np.asarray(hull.faces_areas, float)
+    return np.array([np.sum(z_area * np.einsum("fi,fik,fk->f", normals, gradient, v)) for v in motions])
+
+
 def _free_motion(spec: BuildSpec, hull, volume: float) -> tuple[np.ndarray, np.ndarray]:
     """The one body's mass matrix and full hydrostatic stiffness (6x6 about its reference point)
     floating freely: mass rho V, the spec's ``[second_order]`` centre of mass and inertia."""
@@ -216,7 +271,8 @@ def _with_hydrostatics(cds: xr.Dataset, labels: list[str], names: list[str], sti
 
 
 def _floating_bodies(spec: BuildSpec, spec_path: str | Path):
-    """Capytaine bodies (hull + lid, six rigid DOFs about each reference point), hulls, lids;
+    """Capytaine bodies (hull + lid, six rigid DOFs about each reference point, then the body's
+    generalized modes on its hull's panels: modes.py), hulls, lids, each body's modes;
     one xOz mirror-symmetric problem when every mesh allows it (multi-body/compound only)."""
     import capytaine as cpt
 
@@ -230,10 +286,13 @@ def _floating_bodies(spec: BuildSpec, spec_path: str | Path):
         if refs_on_plane and all(h is not None and (ld is not None or m[1] is None)
                                  for (h, ld), m in zip(sym, meshes)):
             meshes = sym
+    modes = [mode_fields(b, key, hull, spec_path, spec.water.depth_m)
+             for b, key, (hull, _) in zip(spec.all_bodies, spec.body_keys, meshes)]
     bodies = [cpt.FloatingBody(mesh=hull, lid_mesh=lid, name=b.name, center_of_mass=b.ref_point,
-                               dofs=cpt.rigid_body_dofs(rotation_center=np.asarray(b.ref_point, float)))
-              for b, (hull, lid) in zip(spec.all_bodies, meshes)]
-    return bodies, [h for h, _ in meshes], [ld for _, ld in meshes]
+                               dofs={**cpt.rigid_body_dofs(rotation_center=np.asarray(b.ref_point, float)),
+                                     **{f.name: f.motion for f in fields}})
+              for b, (hull, lid), fields in zip(spec.all_bodies, meshes, modes)]
+    return bodies, [h for h, _ in meshes], [ld for _, ld in meshes], modes
 
 
 def build_hdb_uncached(spec: BuildSpec, spec_path: str | Path, *, progress: bool = True) -> xr.Dataset:
@@ -252,8 +311,9 @@ def _build(spec: BuildSpec, spec_path: str | Path, progress: bool) -> xr.Dataset
     import capytaine as cpt
 
     t0 = time.perf_counter()
-    bodies, hulls, lids = _floating_bodies(spec, spec_path)
+    bodies, hulls, lids, modes = _floating_bodies(spec, spec_path)
     names = [b.name for b in spec.all_bodies]
+    mode_names = {n: tuple(f.name for f in fields) for n, fields in zip(names, modes) if fields}
     body = bodies[0] if not spec.multibody else cpt.Multibody(bodies, name="+".join(names))
     lam_min = 2 * np.pi * spec.water.gravity / float(spec.frequencies.omega.max()) ** 2
     mesh = body.mesh_including_lid
@@ -272,10 +332,14 @@ def _build(spec: BuildSpec, spec_path: str | Path, progress: bool) -> xr.Dataset
     cds, drift = _solve(body, spec, progress, desc=f"hdb build {'+'.join(names)}",
                         motion=_free_motion(spec, hulls[0], hydro[0][1]) if spec.second_order.motions == "free" else None)
     t_solve = time.perf_counter()
-    stiffness = np.zeros((6 * len(names), 6 * len(names)))
-    for i, (k, _, _) in enumerate(hydro):
-        stiffness[6 * i:6 * i + 6, 6 * i:6 * i + 6] = k
-    cpt_labels = list(CPT_DOFS) if not spec.multibody else [f"{n}__{d}" for n in names for d in CPT_DOFS]
+    blocks = [_with_mode_stiffness(k, h, b, fields, w.density, w.gravity)
+              for (k, _, _), h, b, fields in zip(hydro, hulls, spec.all_bodies, modes)]
+    sizes = [len(k) for k in blocks]
+    stiffness = np.zeros((sum(sizes), sum(sizes)))
+    for at, k in zip(np.cumsum([0] + sizes[:-1]), blocks):
+        stiffness[at:at + len(k), at:at + len(k)] = k
+    own = [(*CPT_DOFS, *mode_names.get(n, ())) for n in names]
+    cpt_labels = list(own[0]) if not spec.multibody else [f"{n}__{d}" for n, dofs in zip(names, own) for d in dofs]
     cds = _with_hydrostatics(cds, cpt_labels, names, stiffness, [v for _, v, _ in hydro],
                              [c for _, _, c in hydro], w.density, spec.multibody)
     if not spec.multibody:
@@ -285,7 +349,8 @@ def _build(spec: BuildSpec, spec_path: str | Path, progress: bool) -> xr.Dataset
                                 reference_points={s: b.ref_point for s, b in zip(short, spec.all_bodies)},
                                 convention="exp(-iwt)")   # solved here by Capytaine: its convention, known
     if short != names:  # keep the spec's names (the reader shortens shared prefixes)
-        ds = ds.assign_coords(body=names, influenced_dof=dof_labels(names), radiating_dof=dof_labels(names))
+        labels = dof_labels(names, mode_names)
+        ds = ds.assign_coords(body=names, influenced_dof=labels, radiating_dof=labels)
     if drift is not None:
         ds = with_second_order(ds, mean_drift=drift)
     n_panels = [int(h.nb_faces) for h in hulls]
@@ -345,7 +410,7 @@ def _with_free_surface(ds: xr.Dataset, spec: BuildSpec, spec_path: Path, folder:
         return ds
     path = free_surface_file(spec, folder, key)
     if force or not path.is_file():
-        bodies, _, _ = _floating_bodies(spec, spec_path)
+        bodies, _, _, _ = _floating_bodies(spec, spec_path)
         import capytaine as cpt
         body = bodies[0] if not spec.multibody else cpt.Multibody(bodies, name="+".join(b.name for b in bodies))
         store_free_surface(solve_free_surface(body, spec, bem_solver(progress), progress), path)
@@ -355,19 +420,21 @@ def _with_free_surface(ds: xr.Dataset, spec: BuildSpec, spec_path: Path, folder:
 
 def body_hydrostatics(spec: BuildSpec, spec_path: str | Path) -> dict[str, dict]:
     """Per body, without solving any BEM problem: displaced ``volume`` (m^3), ``mass`` = rho V,
-    ``center_of_buoyancy`` and the buoyancy/waterplane ``stiffness`` (6x6 about the reference
-    point), from the meshes the build would solve."""
-    _, hulls, _ = _floating_bodies(spec, spec_path)
+    ``center_of_buoyancy``, the buoyancy/waterplane ``stiffness`` (about the reference point, over
+    the six rigid DOFs and the body's ``modes``), from the meshes the build would solve."""
+    _, hulls, _, modes = _floating_bodies(spec, spec_path)
     w, out = spec.water, {}
-    for hull, b in zip(hulls, spec.all_bodies):
+    for hull, b, fields in zip(hulls, spec.all_bodies, modes):
         k, vol, cob = _hydrostatics(hull, np.asarray(b.ref_point, float), w.density, w.gravity)
-        out[b.name] = {"volume": vol, "mass": w.density * vol, "center_of_buoyancy": cob, "stiffness": k}
+        out[b.name] = {"volume": vol, "mass": w.density * vol, "center_of_buoyancy": cob,
+                       "stiffness": _with_mode_stiffness(k, hull, b, fields, w.density, w.gravity),
+                       "modes": tuple(f.name for f in fields)}
     return out
 
 
 def make_meshes(spec: BuildSpec, spec_path: str | Path):
     """Hull and lid meshes of a one-body spec (as solved; see :mod:`.build_mesh`)."""
-    _, hulls, lids = _floating_bodies(spec, spec_path)
+    _, hulls, lids, _ = _floating_bodies(spec, spec_path)
     return (hulls[0], lids[0]) if len(hulls) == 1 else (hulls, lids)
 
 

@@ -180,7 +180,7 @@ def _join(meshes: list, name: str):
     return meshes[0].join_meshes(*meshes[1:], name=name) if len(meshes) > 1 else meshes[0]
 
 
-def _read_mesh_file(body: BodySpec, key: str, spec_path: str | Path):
+def read_mesh_file(body: BodySpec, key: str, spec_path: str | Path):
     """A mesh body's whole mesh from its file, moved to the body's ``center``."""
     import capytaine as cpt
 
@@ -195,7 +195,7 @@ def _read_mesh_file(body: BodySpec, key: str, spec_path: str | Path):
 
 
 def _file_mesh(body: BodySpec, key: str, spec_path: str | Path, depth: float):
-    full = _read_mesh_file(body, key, spec_path)
+    full = read_mesh_file(body, key, spec_path)
     hull = full.immersed_part(water_depth=depth)
     if hull.nb_faces == 0 or not body.lid or hull.z_span[1] < -1e-9:
         return hull, None
@@ -242,7 +242,7 @@ def closed_hull(spec: BuildSpec, index: int, spec_path: str | Path):
     (server/terms/nonlinear/term.py). Primitives use the body's panel size; a mesh body is its file."""
     body, key = spec.all_bodies[index], spec.body_keys[index]
     if body.shape == "mesh":
-        meshes = [_read_mesh_file(body, key, spec_path)]
+        meshes = [read_mesh_file(body, key, spec_path)]
     else:
         h_body = body.panel_size or default_panel_size(spec, body)
         meshes = [_closed_primitive(p, p.panel_size or h_body, body.name, symmetric=False, even_theta=False,
@@ -296,4 +296,4 @@ def check_apart(hulls: list, spec: BuildSpec, spec_path: str | Path) -> None:
                                 f"{found.detail}; move the bodies apart")
 
 
-__all__ = ["body_meshes", "check_apart", "default_panel_size", "xoz_symmetric"]
+__all__ = ["read_mesh_file", "body_meshes", "check_apart", "default_panel_size", "xoz_symmetric"]

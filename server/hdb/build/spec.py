@@ -125,6 +125,46 @@ class PartSpec(_Geometry):
         return self.model_copy(update={"center": [self.center[0] + dx, self.center[1] + dy, self.center[2]]})
 
 
+class BeamModes(_Section):
+    """``[[body.modes]]`` of a slender body (modes.py): the first ``count`` free-free beam modes
+    along ``axis`` (through the reference point), bending with deflection along ``deflection`` or
+    torsion about the axis; the beam spans ``ends`` along the axis (m; default the hull's extent).
+    Named ``<name><k>`` (default ``bend_<deflection>`` / ``twist``)."""
+    kind: Literal["bending", "torsion"]
+    count: Annotated[int, Field(ge=1, le=12)]
+    axis: Literal["x", "y", "z"] = "x"
+    deflection: Optional[Literal["x", "y", "z"]] = None
+    ends: Optional[Annotated[list[FiniteFloat], Field(min_length=2, max_length=2)]] = None
+    name: Optional[Annotated[str, Field(min_length=1, pattern=r"^[A-Za-z][A-Za-z0-9_\-]*$")]] = None
+
+    @model_validator(mode="after")
+    def _deflection(self) -> "BeamModes":
+        if self.kind == "bending" and self.deflection is None:
+            raise ValueError(".deflection: required for kind = \"bending\" (the direction the beam deflects)")
+        if self.kind == "torsion" and self.deflection is not None:
+            raise ValueError(".deflection: only for kind = \"bending\" (torsion twists about the axis)")
+        if self.deflection == self.axis:
+            raise ValueError(f".deflection: must be across the axis {self.axis!r}, got {self.deflection!r}")
+        if self.ends is not None and self.ends[1] <= self.ends[0]:
+            raise ValueError(f".ends: must be increasing, got {self.ends}")
+        return self
+
+    @property
+    def prefix(self) -> str:
+        return self.name or ("twist" if self.kind == "torsion" else f"bend_{self.deflection}")
+
+
+class TableMode(_Section):
+    """``[[body.modes]]`` given as a displacement table: ``file`` (CSV, one row dx, dy, dz per
+    vertex of the body's mesh file, in its order) for the mode ``name``."""
+    kind: Literal["table"]
+    name: Annotated[str, Field(min_length=1, pattern=r"^[A-Za-z][A-Za-z0-9_\-]*$")]
+    file: Annotated[str, Field(min_length=1)]
+
+
+ModeSpec = Annotated[Union[BeamModes, TableMode], Field(discriminator="kind")]
+
+
 class BodySpec(_Geometry):
     name: Annotated[str, Field(min_length=1, pattern=r"^[A-Za-z0-9_\-]+$")]
     shape: Literal["sphere", "vertical_cylinder", "box", "mesh", "compound"]
@@ -133,6 +173,7 @@ class BodySpec(_Geometry):
     mesh_format: Optional[str] = None
     parts: Optional[Annotated[list[PartSpec], Field(min_length=1)]] = None
     lid: bool = True
+    modes: Optional[Annotated[list[ModeSpec], Field(min_length=1)]] = None
 
     @model_validator(mode="after")
     def _shape_keys(self) -> "BodySpec":

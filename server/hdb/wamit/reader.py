@@ -12,6 +12,11 @@ the global frame; the first column's meaning, IPEROUT) are read from the ``.out`
 ``bodies[i].wamit`` table; none is assumed (:mod:`.wamit_run`). The siblings are looked for beside
 the path as given (a symlinked ``.1`` finds the files beside the link).
 
+Generalized modes (NEWMDS, issue 38): each body's modes are its rigid six then its NEWMDS(k)
+generalized modes, numbered on in the files (body k's block of 6 + NEWMDS(k) after body k-1's),
+labelled ``mode1``..``modeN``; their columns scale like translations' (ULEN = 1 reads them as
+written; another ULEN is warned about, the modes' own scaling being the user's).
+
 Hydrostatics: WAMIT's ``.hst`` includes the gravity terms -m g VCG in C44 and C55 (m = rho V,
 alternative form 1 of the ``.frc``) when a body's VCG is not 0; they are taken out here (the
 schema's stiffness is buoyancy and waterplane only; the scene's mass and centre of gravity add
@@ -34,7 +39,7 @@ from typing import Mapping
 import numpy as np
 import xarray as xr
 
-from hydrolink.protocol.hdb.layout import HDBError
+from hydrolink.protocol.hdb.layout import BodyDofs, HDBError
 from hydrolink.protocol.hdb.schema import make_hdb
 from hydrolink.server.hdb.wamit.out_tables import Table, read_out_tables
 from hydrolink.server.hdb.wamit.second_order import SECOND_ORDER_SUFFIXES, read_drift, read_qtf
@@ -86,14 +91,18 @@ def read_wamit(path: str | Path, rho: float = 1000.0, stated: Mapping | None = N
               else read_table(file1, (4, 5), "PER I J Abar [Bbar]"))
     ij = mode_indices(file1, t1, l1, [1, 2])
     facts = run_facts(stem, file1, t1[:, 0], int(ij.max()), stated)
-    units = Units(rho, facts.g, facts.ulen, facts.iperout)
-    rad = _read_radiation(file1, t1, l1, ij, units, facts.n_bodies)
+    dofs = BodyDofs(tuple(facts.names), tuple(tuple(f"mode{k}" for k in range(1, n + 1)) for n in facts.modes))
+    rotational = np.zeros(dofs.size, bool)
+    for at in dofs.offsets:
+        rotational[at + 3:at + 6] = True
+    units = Units(rho, facts.g, facts.ulen, facts.iperout, rotational)
+    rad = _read_radiation(file1, t1, l1, ij, units, dofs.size)
     if excitation_file is not None:
         betas, excitation = _read_excitation(excitation_file, file1, rad, units, tables and tables.excitation)
     else:
         betas, excitation = np.zeros(1), np.zeros((rad.omega.size, 1, rad.n_dof), complex)
     stiffness = _without_gravity(_read_hydrostatics(hst_file, file1, rad.n_dof, units, tables and tables.hydrostatics),
-                                 facts, units)
+                                 facts, units, dofs)
     ds = make_hdb(
         bodies=facts.names, omega=rad.omega, wave_direction=np.deg2rad(betas),
         added_mass=rad.added_mass, radiation_damping=rad.damping, excitation_force=excitation,
@@ -101,6 +110,7 @@ def read_wamit(path: str | Path, rho: float = 1000.0, stated: Mapping | None = N
         rho=rho, g=facts.g, water_depth=facts.depth, source=str(file1),
         added_mass_inf=rad.added_mass_inf, displaced_volume=facts.volume, center_of_buoyancy=facts.cb,
         mean_drift=read_drift(stem, units, rad.n_dof), qtf=read_qtf(stem, units, rad.n_dof),
+        modes=dofs.mode_map(),
     )
     ds.attrs["wamit_facts_from"] = "; ".join(f"{k}: {v}" for k, v in facts.origin.items())
     if excitation_file is None:
@@ -108,13 +118,13 @@ def read_wamit(path: str | Path, rho: float = 1000.0, stated: Mapping | None = N
     return ds
 
 
-def _without_gravity(stiffness: np.ndarray, facts: RunFacts, u: Units) -> np.ndarray:
+def _without_gravity(stiffness: np.ndarray, facts: RunFacts, u: Units, dofs: BodyDofs) -> np.ndarray:
     """The ``.hst`` stiffness without WAMIT's gravity terms -m g VCG (m = rho V) in C44 and C55."""
     if not np.any(facts.vcg != 0.0):
         return stiffness
     stiffness = stiffness.copy()
-    for n, (vcg, volume) in enumerate(zip(facts.vcg, facts.volume)):
-        for k in (6 * n + 3, 6 * n + 4):
+    for at, vcg, volume in zip(dofs.offsets, facts.vcg, facts.volume):
+        for k in (at + 3, at + 4):
             stiffness[k, k] += u.rho * u.g * volume * vcg
     return stiffness
 
@@ -125,21 +135,20 @@ class _Radiation:
     periods: np.ndarray          # (n_w,) the distinct period-column values, sorted as numbers
     rank: np.ndarray             # (n_w,) position of each of ``periods`` in ``omega``
     omega: np.ndarray            # (n_w,) rad/s, ascending
-    added_mass: np.ndarray       # (n_w, 6N, 6N)
-    damping: np.ndarray          # (n_w, 6N, 6N)
-    added_mass_inf: np.ndarray | None   # (6N, 6N) from the PER = 0 rows
+    added_mass: np.ndarray       # (n_w, n_dof, n_dof)
+    damping: np.ndarray          # (n_w, n_dof, n_dof)
+    added_mass_inf: np.ndarray | None   # (n_dof, n_dof) from the PER = 0 rows
     n_dof: int
 
 
 def _read_radiation(file1: Path, t1: np.ndarray, l1: np.ndarray, ij: np.ndarray, u: Units,
-                    n_bodies: int) -> _Radiation:
+                    n_dof: int) -> _Radiation:
     """Added mass and damping (A = rho L^k Abar, B = rho omega L^k Bbar) and A_inf of a ``.1`` table."""
     inf_rows, skip_rows = special_rows(t1[:, 0], u.iperout)
     freq_rows = ~inf_rows & ~skip_rows
     missing_b = freq_rows & np.isnan(t1[:, 4])
     if np.any(missing_b):
         raise HDBError(file1.name, f"line {l1[np.argmax(missing_b)]}", "expected 'PER I J Abar Bbar' (no Bbar)")
-    n_dof = 6 * n_bodies
     periods = np.unique(t1[freq_rows, 0])
     if periods.size < 2:
         raise HDBError(file1.name, "omega", f"needs at least 2 frequencies, got {periods.size}")
@@ -151,7 +160,7 @@ def _read_radiation(file1: Path, t1: np.ndarray, l1: np.ndarray, ij: np.ndarray,
 
     i, j = ij[freq_rows, 0] - 1, ij[freq_rows, 1] - 1
     w_idx = rank[np.searchsorted(periods, t1[freq_rows, 0])]
-    k = scale_exponent(i + 1, j + 1, 3)
+    k = scale_exponent(i + 1, j + 1, 3, u.rotational)
     added_mass = np.zeros((omega.size, n_dof, n_dof))
     damping = np.zeros_like(added_mass)
     added_mass[w_idx, i, j] = u.rho * u.ulen ** k * t1[freq_rows, 3]
@@ -160,7 +169,7 @@ def _read_radiation(file1: Path, t1: np.ndarray, l1: np.ndarray, ij: np.ndarray,
     if np.any(inf_rows):
         ii, jj = ij[inf_rows, 0] - 1, ij[inf_rows, 1] - 1
         added_mass_inf = np.zeros((n_dof, n_dof))
-        added_mass_inf[ii, jj] = u.rho * u.ulen ** scale_exponent(ii + 1, jj + 1, 3) * t1[inf_rows, 3]
+        added_mass_inf[ii, jj] = u.rho * u.ulen ** scale_exponent(ii + 1, jj + 1, 3, u.rotational) * t1[inf_rows, 3]
     return _Radiation(periods, rank, omega, added_mass, damping, added_mass_inf, n_dof)
 
 
@@ -187,7 +196,7 @@ def _read_excitation(path: Path, file1: Path, rad: _Radiation, u: Units,
                        f"mode {modes3.max() + 1} exceeds the {rad.n_dof} modes of {file1.name}")
     betas = np.unique(t3[:, 1])
     beta_idx = np.searchsorted(betas, t3[:, 1])
-    m = scale_exponent(modes3 + 1, None, 2)
+    m = scale_exponent(modes3 + 1, None, 2, u.rotational)
     excitation = np.zeros((rad.omega.size, betas.size, rad.n_dof), complex)
     excitation[rad.rank[np.searchsorted(rad.periods, t3[:, 0])], beta_idx, modes3] = (
         u.rho * u.g * u.ulen ** m * (t3[:, 5] - 1j * t3[:, 6]))
@@ -203,6 +212,6 @@ def _read_hydrostatics(path: Path, file1: Path, n_dof: int, u: Units, table: Tab
         raise HDBError(path.name, f"line {lh[np.argmax((ijh >= n_dof).any(axis=1))]}",
                        f"mode index exceeds the {n_dof} modes of {file1.name}")
     stiffness = np.zeros((n_dof, n_dof))
-    stiffness[ijh[:, 0], ijh[:, 1]] = (u.rho * u.g * u.ulen ** scale_exponent(ijh[:, 0] + 1, ijh[:, 1] + 1, 2)
+    stiffness[ijh[:, 0], ijh[:, 1]] = (u.rho * u.g * u.ulen ** scale_exponent(ijh[:, 0] + 1, ijh[:, 1] + 1, 2, u.rotational)
                                        * th[:, 2])
     return stiffness

@@ -9,7 +9,8 @@ Sources, first found:
 * ``.mmx``: g, ULEN, volumes, centres of buoyancy and gravity, IALTFRC;
 * ``.pot``: HBOT (<= 0: infinite depth), the GDF names and XBODY of each body;
 * ``.frc`` (alternative form 1, IALTFRC = 1): each body's VCG;
-* ``.cfg``: IPEROUT, IALTFRC (and GRAV, ULEN when written there);
+* ``.cfg``: IPEROUT, IALTFRC (and GRAV, ULEN when written there), each body's generalized modes
+  (NEWMDS, NEWMDS(k); a lone body's: every mode beyond its six);
 * else the scene's ``bodies[i].wamit`` table (``stated``: ulen, gravity, depth, xbody, vcg, volume,
   iperout), for what no file states. A stated value a file contradicts is an error; what neither
   states is one error naming every missing value and the key that states it.
@@ -25,6 +26,7 @@ from __future__ import annotations
 
 import math
 import re
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping
@@ -32,6 +34,7 @@ from typing import Mapping
 import numpy as np
 
 from hydrolink.protocol.hdb.layout import HDBError
+from hydrolink.server.hdb.reader_warnings import HDBWarning
 
 _FLOAT = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eEdD][-+]?\d+)?"
 # each fact: the scene key that states it (in bodies[i].wamit) and what it is
@@ -179,6 +182,7 @@ class RunFacts:
     cb: np.ndarray | None       # (N, 3) global frame
     names: list[str]
     origin: dict[str, str]
+    modes: tuple[int, ...]      # (N,) each body's generalized modes (NEWMDS), after its rigid six
 
     @property
     def n_bodies(self) -> int:
@@ -189,40 +193,59 @@ def _per_body(values: list, n: int) -> list | None:
     return values if values and len(values) == n else None
 
 
-RIGID_ONLY = ("hydrolink reads rigid bodies of 6 DOFs each (generalized modes: issue 38): give it the run "
-              "without them (NEWMDS = 0)")
+def _newmds(cfg: dict[str, str], cfg_name: str) -> dict[int, int]:
+    """The ``.cfg``'s generalized-mode counts: body index (1-based; 0 for an unindexed NEWMDS) ->
+    count."""
+    out = {}
+    for key, value in cfg.items():
+        if m := re.fullmatch(r"NEWMDS(?:\(\s*(\d+)\s*\))?", key):
+            try:
+                count = int(value.rstrip(",;"))
+            except ValueError:
+                raise HDBError(cfg_name, key, f"not a mode count: {value!r}") from None
+            if count < 0:
+                raise HDBError(cfg_name, key, f"must be >= 0, got {count}")
+            out[int(m.group(1) or 0)] = count
+    return out
 
 
 def _body_count(stem: Path, file1: Path, max_mode: int, listed: list[tuple[int, str]], cfg: dict[str, str],
-                stated: Mapping) -> int:
-    """The run's number of bodies: as the files that list them say (``listed``: (count, file)), else
-    the scene's ``wamit.xbody``, never guessed from the ``.1``'s mode count. A run with generalized
-    modes (the ``.cfg``'s NEWMDS, or modes beyond 6 per body) is refused naming the file and the count:
-    read as rigid bodies, modes 7-10 of a flexible barge would become a second body's surge..roll."""
+                stated: Mapping) -> tuple[int, tuple[int, ...]]:
+    """The run's number of bodies and each one's generalized modes (NEWMDS): the bodies as the
+    files that list them say (``listed``: (count, file)), else the scene's ``wamit.xbody``, never
+    guessed from the ``.1``'s mode count; the modes from the ``.cfg``'s NEWMDS / NEWMDS(k) (a lone
+    body's from the mode count). Modes that do not add up to 6 per body plus the NEWMDS, or extra
+    modes several bodies could own, are an error naming the file and the count (read as rigid
+    bodies, modes 7-10 of a flexible barge would become a second body's surge..roll)."""
     cfg_name = _sibling(stem, ".cfg").name
-    newmds = {k: v.rstrip(",;") for k, v in cfg.items() if re.fullmatch(r"NEWMDS(\(\s*\d+\s*\))?", k)}
-    try:
-        extra = sum(int(v) for v in newmds.values())
-    except ValueError:
-        raise HDBError(cfg_name, next(iter(newmds)), f"not a mode count: {newmds}") from None
-    if extra > 0:
-        said = ", ".join(f"{k} = {v}" for k, v in newmds.items())
-        raise HDBError(cfg_name, "NEWMDS", f"{said}: the run has {extra} generalized mode(s) beyond the rigid 6 per "
-                                           f"body ({file1.name} holds modes 1-{max_mode}); {RIGID_ONLY}")
+    newmds = _newmds(cfg, cfg_name)
     counts = [(n, where) for n, where in listed if n > 0]
     if stated.get("xbody") is not None:
         counts.append((len(stated["xbody"]), "the scene's wamit.xbody"))
-    if not counts:
-        if max_mode % 6:
-            raise HDBError(file1.name, "modes", f"{max_mode} modes, not 6 per body, and no file (.out, .pot, .mmx) "
-                                                f"lists the run's bodies: generalized modes (NEWMDS)? {RIGID_ONLY}")
-        return max_mode // 6
-    n, where = max(counts)
-    if max_mode > 6 * n:
-        raise HDBError(file1.name, "modes", f"modes 1-{max_mode} for the run's {n} bodies ({where}): "
-                                            f"{max_mode - 6 * n} generalized mode(s) (NEWMDS) beyond the rigid 6 per "
-                                            f"body; {RIGID_ONLY}")
-    return n
+    extra = sum(newmds.values())
+    if counts:
+        n, where = max(counts)
+    elif (max_mode - extra) % 6 == 0 and max_mode > extra:
+        n, where = (max_mode - extra) // 6, f"{max_mode} modes less NEWMDS"
+    else:
+        raise HDBError(file1.name, "modes", f"{max_mode} modes, not 6 per body plus the .cfg's NEWMDS ({extra}), "
+                                            "and no file (.out, .pot, .mmx) lists the run's bodies: state the "
+                                            "bodies (wamit.xbody) or the generalized modes (NEWMDS in the .cfg)")
+    if 0 in newmds and n > 1:
+        raise HDBError(cfg_name, "NEWMDS", f"one count for the run's {n} bodies ({where}): give each body's as "
+                                           "NEWMDS(k)")
+    wrong = [k for k in newmds if k > n]
+    if wrong:
+        raise HDBError(cfg_name, f"NEWMDS({wrong[0]})", f"body {wrong[0]} of the run's {n} ({where})")
+    modes = tuple(newmds.get(k + 1, newmds.get(0, 0)) for k in range(n))
+    if not newmds and n == 1 and max_mode > 6:
+        modes = (max_mode - 6,)            # a lone body owns every mode beyond its six
+    if max_mode != 6 * n + sum(modes):
+        said = f"the .cfg's NEWMDS {list(modes)}" if newmds else "no NEWMDS in the .cfg"
+        raise HDBError(file1.name, "modes", f"modes 1-{max_mode} for the run's {n} bodies ({where}) and {said}: "
+                                            f"{6 * n + sum(modes)} expected (6 per body plus its generalized "
+                                            "modes); the mode counts of the files do not agree")
+    return n, modes
 
 
 def _file_facts(stem: Path, file1: Path, max_mode: int, cfg: dict[str, str],
@@ -230,9 +253,10 @@ def _file_facts(stem: Path, file1: Path, max_mode: int, cfg: dict[str, str],
     """fact -> (value, file that states it), first found in the module docstring's order; and the
     number of bodies (:func:`_body_count`)."""
     out, mmx, pot = read_out(stem), read_mmx(stem), read_pot(stem)
-    n_bodies = _body_count(stem, file1, max_mode, [(len(r.get(k, [])), r.get("file", "")) for r, k in
-                                                   ((out, "xbody"), (pot, "xbody"), (mmx, "volume"))], cfg, stated)
-    found: dict[str, tuple[object, str]] = {}
+    n_bodies, modes = _body_count(stem, file1, max_mode, [(len(r.get(k, [])), r.get("file", "")) for r, k in
+                                                          ((out, "xbody"), (pot, "xbody"), (mmx, "volume"))], cfg,
+                                  stated)
+    found: dict[str, tuple[object, str]] = {"modes": (modes, _sibling(stem, ".cfg").name if any(modes) else file1.name)}
 
     def take(fact: str, value, source: str) -> None:
         if value is not None and fact not in found:
@@ -417,8 +441,13 @@ def _assemble(values: dict, origin: dict, found: dict, n_bodies: int) -> RunFact
     names = _body_names(names_found[0] if names_found else [], n_bodies)
     if names_found:
         origin["names"] = names_found[1]
+    modes = found["modes"][0]
+    if any(modes) and float(values["ulen"]) != 1.0:
+        warnings.warn(f"{origin['ulen']}: ULEN = {values['ulen']} with generalized modes: their columns are read "
+                      "scaled like translations' (the modes' own scaling is the run's): check them or rerun with "
+                      "ULEN = 1", HDBWarning, stacklevel=5)
     return RunFacts(float(values["g"]), float(values["ulen"]), float(values["depth"]), int(values["iperout"]),
-                    xbody[:, :3], vcg, volume, cb, names, origin)
+                    xbody[:, :3], vcg, volume, cb, names, origin, modes)
 
 
 def _body_names(gdf: list[str], n_bodies: int) -> list[str]:

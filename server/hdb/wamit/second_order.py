@@ -81,7 +81,7 @@ def _read_drift_file(path: Path, method: str, u: Units, n_dof: int) -> MeanDrift
     modes = np.unique(mode)
     values = np.full((1, periods.size, betas.size, n_dof), np.nan)
     values[..., np.setdiff1d(np.arange(n_dof), modes)] = 0.0   # modes the method does not give
-    values[0, w_idx, b_idx, mode] = u.rho * u.g * u.ulen ** scale_exponent(mode + 1, None, 1) * table[:, 6]
+    values[0, w_idx, b_idx, mode] = u.rho * u.g * u.ulen ** scale_exponent(mode + 1, None, 1, u.rotational) * table[:, 6]
     if np.any(np.isnan(values)):
         _, w, b, d = np.argwhere(np.isnan(values))[0]
         raise HDBError(path.name, "mean_drift", f"no row for period column {periods[order][w]:g}, heading "
@@ -123,6 +123,6 @@ def _read_qtf_file(path: Path, kind: str, u: Units, n_dof: int):
     table, mode = table[keep], mode[keep]
     w_i = frequencies(table[:, 0], u.iperout, u.g, str(path), u.ulen)
     w_j = frequencies(table[:, 1], u.iperout, u.g, str(path), u.ulen)
-    value = u.rho * u.g * u.ulen ** scale_exponent(mode + 1, None, 1) * (table[:, 7] - 1j * table[:, 8])
+    value = u.rho * u.g * u.ulen ** scale_exponent(mode + 1, None, 1, u.rotational) * (table[:, 7] - 1j * table[:, 8])
     return fill_qtf_square(w_i, w_j, np.deg2rad(table[:, 2]), np.deg2rad(table[:, 3]), mode, value,
                            n_dof, kind, path.name)

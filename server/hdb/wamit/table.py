@@ -61,11 +61,14 @@ def mode_indices(path: Path, table: np.ndarray, lines: np.ndarray, cols: list[in
     return idx.astype(int)
 
 
-def scale_exponent(i: np.ndarray, j: np.ndarray | None, base: int) -> np.ndarray:
-    """WAMIT length-scale exponent: ``base`` plus one per rotational mode index."""
-    k = base + ((i - 1) % 6 >= 3)
+def scale_exponent(i: np.ndarray, j: np.ndarray | None, base: int, rotational: np.ndarray | None = None) -> np.ndarray:
+    """WAMIT length-scale exponent: ``base`` plus one per rotational mode index (1-based);
+    ``rotational``: which modes (0-based) are rotations when a run has generalized modes (those
+    count as translations), else modes 4-6 of every six."""
+    rot = (lambda m: (m - 1) % 6 >= 3) if rotational is None else (lambda m: rotational[m - 1])   # noqa: E731
+    k = base + rot(np.asarray(i))
     if j is not None:
-        k = k + ((j - 1) % 6 >= 3)
+        k = k + rot(np.asarray(j))
     return k
 
 
@@ -95,3 +98,4 @@ class Units:
     g: float
     ulen: float
     iperout: int
+    rotational: np.ndarray | None = None   # (n_dof,) bool: which modes are rotations (generalized modes: not)
