@@ -39,7 +39,7 @@ from hydrolink.server.rigid_body import rigid_body_mass_matrix
 from hydrolink.server.errors import ModelError
 from hydrolink.server.terms.hulls import Hull
 from hydrolink.protocol.hdb.layout import DOF_NAMES, HDBError, hdb_warnings
-from hydrolink.protocol.hdb.schema import select_bodies
+from hydrolink.protocol.hdb.schema import hdb_dofs, select_bodies
 from hydrolink.server.hydrostatics import total_stiffness
 from hydrolink.server.terms.base import ForceTerm, TermContext
 from hydrolink.server.terms.registry import TERMS, build_terms
@@ -237,6 +237,7 @@ class HydroModel:
             sub = select_bodies(ds, [b.hdb_body_name for b in bodies])
         except HDBError as exc:
             raise ModelError(f"bodies[{self._scene_index[members[0]]}].hdb_body", str(exc)) from None
+        refuse_modes(sub, [self._scene_index[k] for k in members], src)
         self.warnings.extend(n for n in hdb_warnings(ds) if n not in self.warnings)   # its reader's
         rho, g = float(ds.attrs["rho"]), float(ds.attrs["g"])
         s_rho = water.density / rho
@@ -590,6 +591,21 @@ class HydroModel:
                     f.flags.writeable = False
                     reply[name] = f
         return reply
+
+
+def refuse_modes(sub: xr.Dataset, scene_index: list[int], src: str) -> None:
+    """A body whose HDB gives it generalized modes is refused naming its ``hdb`` key: the model
+    and the clients integrate six rigid DOFs per body; taking the rigid block alone would drop the
+    modes' coupling to them silently (issue 38: reading and building them is done, simulating them
+    is not)."""
+    dofs = hdb_dofs(sub)
+    for i, body in zip(scene_index, dofs.bodies):
+        modes = dofs.of(body)
+        if modes:
+            raise ModelError(f"bodies[{i}].hdb", f"body {body!r} of {src!r} has {len(modes)} generalized mode(s) "
+                             f"({', '.join(modes)}) beyond its six rigid DOFs: hydrolink reads and builds them "
+                             "(hdb info, hdb build) but does not simulate them yet; give the body an HDB of its "
+                             "rigid DOFs (hdb build without [[body.modes]])")
 
 
 def _water_note(density: float, gravity: float, rho: float, g: float, src: str, s_rho: float, s_rg: float) -> str:

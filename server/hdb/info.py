@@ -10,6 +10,7 @@ import xarray as xr
 from scipy.optimize import brentq
 
 from hydrolink.protocol.hdb.layout import DOF_NAMES
+from hydrolink.protocol.hdb.schema import hdb_dofs
 from hydrolink.protocol.hdb.second_order import drift_methods, qtf_kinds
 from hydrolink.server.radiation.irf import aliasing_time, irf_report, ogilvie_added_mass_inf, ogilvie_report, radiation_irf
 
@@ -119,6 +120,7 @@ def hdb_summary(ds: xr.Dataset) -> str:
     lines += second_order_lines(ds)
     active = set(active_dofs(ds))
     has_inf = "added_mass_inf" in ds
+    dofs = hdb_dofs(ds)
     for body in map(str, ds["body"].values):
         labels = [f"{body}.{d}" for d in DOF_NAMES]
         ref = ds["reference_point"].sel(body=body).values
@@ -141,6 +143,7 @@ def hdb_summary(ds: xr.Dataset) -> str:
             lines.append("  A_inf: missing -> computed from A(w), B(w) with Ogilvie's relation when loaded")
         lines.append("  hydrostatic stiffness (buoyancy + waterplane, no gravity terms): "
                      + "; ".join(_stiffness_lines(ds, body)))
+        lines += _mode_lines(ds, body, dofs.of(body), has_inf)
         t, note = heave_natural_period(ds, body)
         lines.append(f"  heave natural period: {t:.4g} s ({note})" if t is not None
                      else f"  heave natural period: n/a ({note})")
@@ -148,6 +151,30 @@ def hdb_summary(ds: xr.Dataset) -> str:
                      "(not in an HDB; they come from the scene)")
     lines += ["", *irf_consistency(ds)]
     return "\n".join(lines)
+
+
+def _mode_lines(ds: xr.Dataset, body: str, modes: tuple[str, ...], has_inf: bool) -> list[str]:
+    """A body's generalized modes (issue 38): names, the diagonals of A_inf and of the hydrostatic
+    stiffness, and the largest rigid-mode coupling of the stiffness."""
+    if not modes:
+        return []
+    labels = [f"{body}.{m}" for m in modes]
+    out = [f"  generalized modes ({len(modes)}, after the six rigid DOFs): {', '.join(modes)}"]
+    if has_inf:
+        ainf = _diag(ds["added_mass_inf"].sel(influenced_dof=labels, radiating_dof=labels))
+        out.append("    A_inf diagonal: " + ", ".join(f"{m} {v:.4g}" for m, v in zip(modes, ainf)))
+    k = ds["hydrostatic_stiffness"]
+    out.append("    hydrostatic stiffness diagonal: " + ", ".join(
+        f"{m} {v:.5g}" for m, v in zip(modes, _diag(k.sel(influenced_dof=labels, radiating_dof=labels)))))
+    rigid = [f"{body}.{d}" for d in DOF_NAMES]
+    block = np.concatenate([k.sel(influenced_dof=labels, radiating_dof=rigid).values,
+                            k.sel(influenced_dof=rigid, radiating_dof=labels).values.T])
+    if np.any(block):
+        i, j = np.unravel_index(np.argmax(np.abs(block)), block.shape)
+        which = (f"C({modes[i]}, {DOF_NAMES[j]})" if i < len(modes) else
+                 f"C({DOF_NAMES[j]}, {modes[i - len(modes)]})")
+        out.append(f"    largest rigid-mode stiffness coupling: {which} = {block[i, j]:.5g}")
+    return out
 
 
 def _degrees(values: np.ndarray) -> str:
@@ -194,10 +221,11 @@ def _select_dofs(ds: xr.Dataset, dofs: list[str] | None) -> list[str]:
     for d in dofs:
         if d in labels:
             out.append(d)
-        elif d in DOF_NAMES:
+        elif any(lab.endswith("." + d) for lab in labels):     # a rigid DOF or a mode of every body having it
             out += [lab for lab in labels if lab.endswith("." + d)]
         else:
-            raise ValueError(f"dofs: unknown DOF {d!r} (use one of {list(DOF_NAMES)} or labels like {labels[0]!r})")
+            raise ValueError(f"dofs: unknown DOF {d!r} (use one of {list(DOF_NAMES)}, a mode's name or labels "
+                             f"like {labels[0]!r})")
     return list(dict.fromkeys(out))
 
 

@@ -1,0 +1,174 @@
+"""Generalized modes (issue 38): the build's beam and table modes (server/hdb/build/modes.py), their
+hydrostatic stiffness against the potential energy's Hessian written here, the stored flexible
+barge HDB (examples/data/flexible_barge) and the bad-input errors. No BEM solve here: the stored
+HDB was built by ``hydrolink hdb build examples/flexible_barge/barge_hdb.toml``."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.optimize import brentq
+
+from conftest import body, scene_toml, write_gdf
+from hydrolink.protocol.hdb.layout import HDBError, hdb_warnings
+from hydrolink.protocol.hdb.schema import hdb_dofs
+from hydrolink.protocol.scene import parse_scene
+from hydrolink.server.hdb.build.builder import body_hydrostatics, load_spec, parse_spec
+from hydrolink.server.hdb.build.modes import beam_roots, bending_shape
+from hydrolink.server.hdb.build.spec import SpecError
+from hydrolink.server.hdb.io import load_hdb
+from hydrolink.server.model import HydroModel, ModelError
+
+ROOT = Path(__file__).resolve().parents[1]
+BARGE = ROOT / "examples" / "data" / "flexible_barge" / "flexible_barge.nc"
+RHO, G = 1025.0, 9.81
+SPEC = """
+[body]
+name = "barge"
+shape = "box"
+length = 40.0
+width = 8.0
+draft = 2.0
+freeboard = 1.0
+panel_size = 1.0
+{modes}
+[frequencies]
+omega_min = 0.3
+omega_max = 1.0
+n = 2
+[water]
+density = 1025.0
+"""
+BENDING = '[[body.modes]]\nkind = "bending"\ndeflection = "z"\ncount = 2\n'
+
+
+def free_free(xi: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The test's own k-th free-free mode (textbook form, scaled to 1 at the end) and its two
+    derivatives in xi, its beta L a root of cos x cosh x = 1 found here."""
+    bl = brentq(lambda x: math.cos(x) * math.cosh(x) - 1.0, (k + 0.5) * math.pi - 0.5, (k + 0.5) * math.pi + 0.5,
+                xtol=1e-14)
+    s = (math.cosh(bl) - math.cos(bl)) / (math.sinh(bl) - math.sin(bl))
+    x = bl * xi
+    return ((np.cosh(x) + np.cos(x) - s * (np.sinh(x) + np.sin(x))) / 2,
+            bl * (np.sinh(x) - np.sin(x) - s * (np.cosh(x) + np.cos(x))) / 2,
+            bl ** 2 * (np.cosh(x) - np.cos(x) - s * (np.sinh(x) - np.sin(x))) / 2)
+
+
+def trapezoid(n: int = 20001) -> tuple[np.ndarray, np.ndarray]:
+    xi = np.linspace(0.0, 1.0, n)
+    w = np.full(n, 1.0 / (n - 1))
+    w[[0, -1]] /= 2
+    return xi, w
+
+
+def test_free_free_beam_modes_give_the_analytic_natural_frequencies_in_vacuum():
+    """A uniform beam (EI, m per metre, L) in the build's mode shapes: Rayleigh's quotient
+    EI int phi''^2 / (m int phi^2) equals (beta_n L)^4 EI / (m L^4) (the textbook roots 4.7300,
+    7.8532, 10.9956, 14.1372); the modes are orthogonal to heave and pitch (int phi = int x phi = 0)."""
+    assert beam_roots(4) == pytest.approx((4.730040745, 7.853204624, 10.995607838, 14.137165491), abs=1e-8)
+    ei, m, length = 2.0e9, 8.0e3, 40.0
+    xi, w = trapezoid()
+    for k, bl in enumerate(beam_roots(4), start=1):
+        phi, d1, d2 = bending_shape(xi, k)
+        ref_phi, ref_d1, ref_d2 = free_free(xi, k)
+        np.testing.assert_allclose(np.c_[phi, d1, d2], np.c_[ref_phi, ref_d1, ref_d2], atol=1e-9 * bl ** 2)
+        stiffness = ei / length ** 3 * np.sum(w * d2 ** 2)
+        mass = m * length * np.sum(w * phi ** 2)
+        assert math.sqrt(stiffness / mass) == pytest.approx(bl ** 2 * math.sqrt(ei / (m * length ** 4)), rel=1e-6)
+        assert abs(np.sum(w * phi)) < 1e-8 and abs(np.sum(w * (xi - 0.5) * phi)) < 1e-8
+        assert phi[0] == pytest.approx(1.0) and abs(phi[-1]) == pytest.approx(1.0)
+
+
+@pytest.mark.slow   # 3-6 s: the box's hydrostatics at 1 m panels (Capytaine's quadrature, most of it the rigid part)
+def test_mode_hydrostatics_equal_the_hessian_of_the_buoyancy_potential(tmp_path):
+    """The box's heave and vertical bending rows of the built stiffness against the Hessian of
+    E(q) = -rho g int over the immersed volume of z dV, the box moved by x = X + sum q V(X)
+    (Euler-Bernoulli: V = (-Z phi'/L, 0, phi)), integrated in Z analytically per section here:
+    C_ij = rho g B int [phi_i phi_j - d^2 (phi_i phi_j'' + phi_j phi_i'') / (2 L^2) + d^2 phi_i' phi_j' / L^2] dX.
+    Within 0.5 % of the diagonal (panels of 1 m; 0.06 % at 0.5 m); a surging box loads no mode."""
+    path = tmp_path / "box.toml"
+    path.write_text(SPEC.format(modes=BENDING))
+    hydro = body_hydrostatics(load_spec(path), path)["barge"]
+    assert hydro["modes"] == ("bend_z1", "bend_z2")
+    built = hydro["stiffness"][np.ix_([2, 6, 7], [2, 6, 7])]
+    length, width, draft = 40.0, 8.0, 2.0
+    xi, w = trapezoid()
+    shapes = [(np.ones_like(xi), 0 * xi, 0 * xi), free_free(xi, 1), free_free(xi, 2)]
+    ref = np.array([[RHO * G * width * length * np.sum(w * (p * q - draft ** 2 * (p * q2 + q * p2) / (2 * length ** 2)
+                                                             + draft ** 2 * p1 * q1 / length ** 2))
+                     for q, q1, q2 in shapes] for p, p1, p2 in shapes])
+    scale = np.sqrt(np.outer(np.diag(ref), np.diag(ref)))
+    assert np.max(np.abs(built - ref) / scale) < 5e-3, (built, ref)
+    assert ref[0, 1] < -0.01 * scale[0, 1]          # the end sections' tilt: a real heave-bending coupling
+    k = hydro["stiffness"]
+    assert np.max(np.abs(k[6:, 0])) < 1e-6 * k[6, 6] and np.max(np.abs(k[6:, 1])) < 1e-6 * k[6, 6]   # clipping round-off
+
+
+def test_the_stored_flexible_barge_hdb_is_read_with_its_modes():
+    """The example HDB: 6 rigid + 2 bending + 1 torsion DOFs; A symmetric over all 9 DOFs
+    (reciprocity, within 2.5 % of each pair's scale on these 2 m panels: the rigid pairs' spread
+    is 2.1 %), B's diagonal >= 0; a head sea (0 deg) excites the symmetric bending mode 1 and not
+    the torsion (antisymmetric in y), the 30 deg sea does."""
+    ds = load_hdb(BARGE)
+    dofs = hdb_dofs(ds)
+    assert dofs.bodies == ("barge",) and dofs.of("barge") == ("bend_z1", "bend_z2", "twist1")
+    assert dofs.counts == (9,) and ds.sizes["influenced_dof"] == 9
+    a = ds["added_mass"].values
+    scale = np.sqrt(np.abs(np.einsum("wii,wjj->wij", a, a))) + 1e-9 * np.abs(a).max()
+    assert np.max(np.abs(a - a.transpose(0, 2, 1)) / scale) < 0.025
+    assert np.all(np.diagonal(ds["radiation_damping"].values, axis1=1, axis2=2) >= -1e-6 * ds["radiation_damping"].values.max())
+    f = np.abs(ds["excitation_force"].values)            # (omega, heading, dof)
+    assert np.all(f[:, 0, 8] < 1e-6 * f[:, 0, 6].max()) and f[:, 1, 8].max() > 0.01 * f[:, 1, 6].max()
+    assert f[:, 0, 6].max() > 0.01 * f[:, 0, 2].max()
+
+
+def test_a_scene_with_the_modal_hdb_is_refused_naming_its_hdb_key():
+    """Simulating generalized modes is not built: a run is refused by name, never run on the
+    rigid block alone (which would drop the modes' coupling silently)."""
+    scene = parse_scene(scene_toml(dt=0.05, duration=1.0, bodies=[
+        body("barge", hdb=str(BARGE), mass=RHO * 640.0, center_of_mass=[0, 0, -0.5], inertia=[4e6, 9e7, 9e7])],
+        water={"density": RHO}))
+    with pytest.raises(ModelError, match=r"bodies\[0\]\.hdb: body 'barge' of .* has 3 generalized mode\(s\) "
+                                         r"\(bend_z1, bend_z2, twist1\)"):
+        HydroModel(scene, {"barge": load_hdb(BARGE)})
+
+
+def test_bad_mode_input_is_an_error_naming_the_key(tmp_path):
+    with pytest.raises(SpecError, match=r"body\.modes\.0\.bending\.deflection|body\.modes\[0\].*deflection"):
+        parse_spec(SPEC.format(modes='[[body.modes]]\nkind = "bending"\ncount = 2\n'), "box.toml")
+    with pytest.raises(SpecError, match=r"deflection"):
+        parse_spec(SPEC.format(modes='[[body.modes]]\nkind = "torsion"\ncount = 1\ndeflection = "z"\n'), "box.toml")
+    path = tmp_path / "box.toml"
+    path.write_text(SPEC.format(modes=BENDING + BENDING))
+    with pytest.raises(SpecError, match=r"box\.toml: body\.modes: two modes are named 'bend_z1'"):
+        body_hydrostatics(load_spec(path), path)
+    path.write_text(SPEC.format(modes='[[body.modes]]\nkind = "table"\nname = "sag"\nfile = "sag.csv"\n'))
+    with pytest.raises(SpecError, match=r"body\.modes\[0\]\.kind: a displacement table needs a mesh-file body"):
+        body_hydrostatics(load_spec(path), path)
+
+
+def test_a_displacement_table_mode_reads_per_vertex_and_a_wrong_length_is_an_error(tmp_path):
+    """A mesh-file box with a table mode moving every vertex up by 1 m (heave's field): its
+    stiffness equals the rigid heave's C33 (rho g A_wp), with the warning that a table's row is
+    Newman's formula alone; a table with one row too few is an error naming the file and key."""
+    import capytaine as cpt
+
+    box = cpt.mesh_parallelepiped(size=(10.0, 4.0, 3.0), center=(0.0, 0.0, -0.5), resolution=(10, 4, 3))
+    write_gdf(tmp_path / "box.gdf", box.vertices, box.faces)
+    n_vertices = cpt.load_mesh(str(tmp_path / "box.gdf")).nb_vertices
+    np.savetxt(tmp_path / "up.csv", np.tile([0.0, 0.0, 1.0], (n_vertices, 1)), delimiter=",")
+    spec = tmp_path / "mesh.toml"
+    spec.write_text('[body]\nname = "box"\nshape = "mesh"\nmesh = "box.gdf"\n'
+                    '[[body.modes]]\nkind = "table"\nname = "up"\nfile = "up.csv"\n'
+                    '[frequencies]\nomega_min = 0.5\nomega_max = 1.0\nn = 2\n[water]\ndensity = 1025.0\n')
+    with pytest.warns(UserWarning, match=r"box: mode 'up' is a displacement table"):
+        k = body_hydrostatics(load_spec(spec), spec)["box"]["stiffness"]
+    assert k.shape == (7, 7)
+    assert k[6, 6] == pytest.approx(RHO * G * 40.0, rel=1e-9) and k[6, 6] == pytest.approx(k[2, 2], rel=1e-9)
+    np.savetxt(tmp_path / "up.csv", np.tile([0.0, 0.0, 1.0], (n_vertices - 1, 1)), delimiter=",")
+    with pytest.raises(SpecError, match=rf"mesh\.toml: body\.modes\[0\]\.file: up\.csv: {n_vertices - 1} rows of 3 "
+                                        rf"columns; the mesh box\.gdf has {n_vertices} vertices"):
+        body_hydrostatics(load_spec(spec), spec)
