@@ -172,3 +172,19 @@ def test_a_displacement_table_mode_reads_per_vertex_and_a_wrong_length_is_an_err
     with pytest.raises(SpecError, match=rf"mesh\.toml: body\.modes\[0\]\.file: up\.csv: {n_vertices - 1} rows of 3 "
                                         rf"columns; the mesh box\.gdf has {n_vertices} vertices"):
         body_hydrostatics(load_spec(spec), spec)
+
+
+def test_an_hdb_with_modes_crosses_the_wire_with_its_mode_names():
+    """SPEC 1.13: the HDB map carries ``modes``; the map read back equals the HDB, labels and all;
+    a ``modes`` field naming an unknown body is an error naming it."""
+    from hydrolink.protocol.hdb.wire import from_wire, to_wire
+
+    ds = load_hdb(BARGE)
+    data = to_wire(ds)
+    assert data["modes"] == {"barge": ["bend_z1", "bend_z2", "twist1"]}
+    back = from_wire(data, "hello.hdbs[0]")
+    assert list(back["influenced_dof"].values) == list(ds["influenced_dof"].values)
+    for name in ("added_mass", "radiation_damping", "excitation_force", "hydrostatic_stiffness", "added_mass_inf"):
+        np.testing.assert_array_equal(back[name].values, ds[name].values)
+    with pytest.raises(HDBError, match=r"hello\.hdbs\[0\]: modes: bodies \['hull'\] are not among"):
+        from_wire({**data, "modes": {"hull": ["bend_z1"]}}, "hello.hdbs[0]")

@@ -19,7 +19,7 @@ import xarray as xr
 
 from hydrolink.protocol.hdb.layout import (OPTIONAL_VARS, REQUIRED_ATTRS, REQUIRED_VARS, SECOND_ORDER_VARS, WARNINGS_ATTR,
                                            HDBError, hdb_warnings, with_hdb_warnings)
-from hydrolink.protocol.hdb.schema import make_hdb, validate_hdb
+from hydrolink.protocol.hdb.schema import hdb_dofs, make_hdb, validate_hdb
 from hydrolink.protocol.hdb.second_order import BODY_FIXED, QTF, MeanDrift, drift_body_fixed, qtf_kinds
 
 FIRST_ORDER_OPTIONAL = tuple(k for k in OPTIONAL_VARS if k not in SECOND_ORDER_VARS)
@@ -57,7 +57,25 @@ def to_wire(ds: xr.Dataset) -> dict:
         out["attrs"][BODY_FIXED] = int(drift_body_fixed(ds))
     if hdb_warnings(ds):
         out["attrs"][WARNINGS_ATTR] = list(hdb_warnings(ds))
+    modes = hdb_dofs(ds).mode_map()
+    if modes:                                  # generalized modes (SPEC 1.13): only when a body has some
+        out["modes"] = {body: list(names) for body, names in modes.items()}
     return out
+
+
+def _modes(data: dict, source: str) -> dict[str, list[str]] | None:
+    """The map's ``modes`` field (each body's generalized modes after its six rigid DOFs), None
+    when absent; HDBError naming it when it is not a map of body name to a list of mode names."""
+    modes = data.get("modes")
+    if modes is None:
+        return None
+    if not isinstance(modes, dict) or not all(isinstance(b, str) and isinstance(m, list)
+                                              and all(isinstance(n, str) for n in m) for b, m in modes.items()):
+        raise HDBError(source, "modes", "must be a map of body name to a list of mode names")
+    unknown = [b for b in modes if b not in data["bodies"]]
+    if unknown:
+        raise HDBError(source, "modes", f"bodies {unknown} are not among the map's bodies {data['bodies']}")
+    return modes
 
 
 def _second_order(data: dict, source: str) -> tuple[MeanDrift | None, QTF | None]:
@@ -109,7 +127,7 @@ def from_wire(data: dict, source: str) -> xr.Dataset:
             **{k: data.get(k) for k in FIRST_ORDER_OPTIONAL}, mean_drift=drift, qtf=qtf,
             rho=attrs.get("rho", float("nan")), g=attrs.get("g", float("nan")),
             water_depth=attrs.get("water_depth", float("nan")),
-            source=f"{source} (from {attrs.get('source', '?')})")
+            source=f"{source} (from {attrs.get('source', '?')})", modes=_modes(data, source))
     except HDBError:
         raise
     except (ValueError, TypeError) as exc:
