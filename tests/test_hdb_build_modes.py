@@ -188,3 +188,12 @@ def test_an_hdb_with_modes_crosses_the_wire_with_its_mode_names():
         np.testing.assert_array_equal(back[name].values, ds[name].values)
     with pytest.raises(HDBError, match=r"hello\.hdbs\[0\]: modes: bodies \['hull'\] are not among"):
         from_wire({**data, "modes": {"hull": ["bend_z1"]}}, "hello.hdbs[0]")
+
+
+def test_modes_with_second_order_or_a_free_surface_are_refused_naming_the_key():
+    """The far-field drift and the free-surface solution are built for rigid DOFs only."""
+    with pytest.raises(SpecError, match=r"second_order\.mean_drift: not with generalized modes \(body\.modes\)"):
+        parse_spec(SPEC.format(modes=BENDING) + '[second_order]\nmean_drift = "far-field"\n', "box.toml")
+    with pytest.raises(SpecError, match=r"free_surface: not with generalized modes \(body\.modes\)"):
+        parse_spec(SPEC.format(modes=BENDING) + '[free_surface]\nomega = [1.0]\nextent = [-50, 50, -50, 50]\n'
+                   'cells = [10, 10]\n', "box.toml")

@@ -338,6 +338,13 @@ class BuildSpec(_Section):
         if self.second_order.mean_drift != "none" and (self.multibody or self.all_bodies[0].shape == "compound"):
             raise ValueError("second_order.mean_drift: the far-field drift is the total on everything in the "
                              "water; only for a one-body spec ([body], not a compound)")
+        with_modes = [k for k, b in zip(keys, self.all_bodies) if b.modes]
+        if with_modes and self.second_order.mean_drift != "none":
+            raise ValueError(f"second_order.mean_drift: not with generalized modes ({with_modes[0]}.modes): the "
+                             "far-field drift is built for rigid bodies")
+        if with_modes and self.free_surface is not None:
+            raise ValueError(f"free_surface: not with generalized modes ({with_modes[0]}.modes): the free-surface "
+                             "solution is built for the rigid DOFs")
         depth = self.water.depth_m
         if math.isfinite(depth):
             for key, b in zip(keys, self.all_bodies):
