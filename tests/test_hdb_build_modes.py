@@ -197,3 +197,20 @@ def test_modes_with_second_order_or_a_free_surface_are_refused_naming_the_key():
     with pytest.raises(SpecError, match=r"free_surface: not with generalized modes \(body\.modes\)"):
         parse_spec(SPEC.format(modes=BENDING) + '[free_surface]\nomega = [1.0]\nextent = [-50, 50, -50, 50]\n'
                    'cells = [10, 10]\n', "box.toml")
+
+
+def test_hdb_info_shows_the_modes(tmp_path):
+    """``hdb info``: the body's modes with A_inf and the hydrostatic diagonal read from the HDB, the
+    largest rigid-mode coupling (C(pitch, bend_z2): the antisymmetric mode and pitch), and --dofs
+    taking a mode's name."""
+    from hydrolink.server.hdb.info import hdb_summary, plot_hdb
+
+    ds = load_hdb(BARGE)
+    text = hdb_summary(ds)
+    a_inf = ds["added_mass_inf"].sel(influenced_dof="barge.twist1", radiating_dof="barge.twist1").item()
+    c = ds["hydrostatic_stiffness"].sel(influenced_dof="barge.bend_z1", radiating_dof="barge.bend_z1").item()
+    assert "generalized modes (3, after the six rigid DOFs): bend_z1, bend_z2, twist1" in text
+    assert f"twist1 {a_inf:.4g}" in text and f"bend_z1 {c:.5g}" in text
+    assert "largest rigid-mode stiffness coupling: C(pitch, bend_z2)" in text
+    assert "barge.twist1: B(w) re-transformed" in text           # the IRF check runs over the modes too
+    assert plot_hdb(ds, tmp_path / "modes.png", ["heave", "bend_z1", "twist1"]).stat().st_size > 10_000

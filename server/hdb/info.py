@@ -15,6 +15,11 @@ from hydrolink.protocol.hdb.second_order import drift_methods, qtf_kinds
 from hydrolink.server.radiation.irf import aliasing_time, irf_report, ogilvie_added_mass_inf, ogilvie_report, radiation_irf
 
 _TRANSLATIONS = DOF_NAMES[:3]
+_ROTATIONS = DOF_NAMES[3:]
+# the plot's columns: (what, units of A, B, |F|, K) by kind of DOF
+_KINDS = {"translations": ("kg", "N s/m", "N/m", "N/(m s)"),
+          "rotations": ("kg m²", "N m s/rad", "N m/m", "N m/(rad s)"),
+          "generalized modes": ("kg (modal)", "N s/m (modal)", "N/m (modal)", "N/(m s) (modal)")}
 
 
 def _diag(da: xr.DataArray) -> np.ndarray:
@@ -39,7 +44,7 @@ def active_dofs(ds: xr.Dataset, rel_tol: float = 1e-4) -> list[str]:
     for j, label in enumerate(map(str, ds["influenced_dof"].values)):
         body, dof = label.split(".", 1)
         L = _length_scale(ds, body)
-        p = 3 if dof in _TRANSLATIONS else 5
+        p = 5 if dof in _ROTATIONS else 3          # generalized modes: scaled like translations
         scale = np.array([np.abs(a[:, j]).max() / (rho * L ** p),
                           np.abs(b[:, j] / omega).max() / (rho * L ** p),
                           f[j] / (rho * g * L ** (p - 1))])
@@ -239,15 +244,15 @@ def _irf_time(omega: np.ndarray, k: np.ndarray, t: np.ndarray) -> float:
 
 def plot_hdb(ds: xr.Dataset, path: str | Path, dofs: list[str] | None = None) -> Path:
     """PNG of A(w) (A_inf dashed), B(w), |F_ex(w)| (every heading) and K(t) for the chosen DOFs'
-    diagonal terms (default: the active ones); translations and rotations in separate columns; a
-    last row with the surge mean drift coefficient per method when the HDB has one."""
+    diagonal terms (default: the active ones); translations, rotations and generalized modes in
+    separate columns; a last row with the surge mean drift coefficient per method when the HDB has one."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
     chosen = _select_dofs(ds, dofs)
-    groups = [[d for d in chosen if d.split(".", 1)[1] in _TRANSLATIONS],
-              [d for d in chosen if d.split(".", 1)[1] not in _TRANSLATIONS]]
-    groups = [g for g in groups if g]
+    kind_of = {d: "translations" if d.split(".", 1)[1] in _TRANSLATIONS else
+               "rotations" if d.split(".", 1)[1] in _ROTATIONS else "generalized modes" for d in chosen}
+    groups = [g for g in ([d for d in chosen if kind_of[d] == kind] for kind in _KINDS) if g]
     omega = ds["omega"].values
     t = np.linspace(0.0, aliasing_time(omega), 800)
     rows = 4 + bool(drift_methods(ds))
@@ -260,9 +265,8 @@ def plot_hdb(ds: xr.Dataset, path: str | Path, dofs: list[str] | None = None) ->
             ax.set_visible(False)
     headings = ds["wave_direction"].values
     for col, group in enumerate(groups):
-        rot = group[0].split(".", 1)[1] not in _TRANSLATIONS
-        ua, ub, uf, uk = (("kg m²", "N m s/rad", "N m/m", "N m/(rad s)") if rot
-                          else ("kg", "N s/m", "N/m", "N/(m s)"))
+        kind = kind_of[group[0]]
+        ua, ub, uf, uk = _KINDS[kind]
         pairs = dict(influenced_dof=group, radiating_dof=group)
         a = _diag(ds["added_mass"].sel(**pairs))
         b = _diag(ds["radiation_damping"].sel(**pairs))
@@ -282,7 +286,6 @@ def plot_hdb(ds: xr.Dataset, path: str | Path, dofs: list[str] | None = None) ->
                           label=f"{label}, {math.degrees(beta):g}°" if len(headings) > 1 else label, **style)
             keep = t <= t_end
             ax_k.plot(t[keep], k[keep, j], color=line.get_color(), label=label, **style)
-        kind = "rotations" if rot else "translations"
         ax_a.set(title=f"Added mass ({kind})" + (", A∞ dotted" if "added_mass_inf" in ds else ""),
                  xlabel="ω [rad/s]", ylabel=f"A [{ua}]")
         ax_b.set(title=f"Radiation damping ({kind})", xlabel="ω [rad/s]", ylabel=f"B [{ub}]")
