@@ -99,7 +99,8 @@ def main() -> None:
     top = float(ds["omega"].values[-1])
     print("mode        in vacuum [rad/s]   in water [rad/s]")
     for name, dry, wet in natural_frequencies(ds, m, k, names):
-        print(f"{name:10s}  {dry:17.3f}   " + (f"{wet:16.3f}" if np.isfinite(wet) else f"above {top:g} (the HDB's last)"))
+        wet_text = f"{wet:16.3f}" if np.isfinite(wet) else f"above {top:g} (the HDB's last)"
+        print(f"{name:10s}  {dry:17.3f}   {wet_text}")
     x = responses(ds, m, k)
 
     import matplotlib

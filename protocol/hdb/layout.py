@@ -154,8 +154,8 @@ def body_dofs(bodies: Sequence[str], labels: Sequence[str], source, field: str =
         while at < len(labels) and labels[at].startswith(f"{body}.") and labels[at][len(body) + 1:] not in DOF_NAMES:
             name = labels[at][len(body) + 1:]
             if not MODE_NAME.match(name) or name in own:
-                raise HDBError(source, field, f"body {body!r}: mode label {labels[at]!r} "
-                                              f"{'is repeated' if name in own else 'must be <body>.<letters, digits, _ or ->'}")
+                why = "is repeated" if name in own else "must be <body>.<letters, digits, _ or ->"
+                raise HDBError(source, field, f"body {body!r}: mode label {labels[at]!r} {why}")
             own.append(name)
             at += 1
         modes.append(tuple(own))

@@ -438,9 +438,9 @@ def from_capytaine_dataset(ds: xr.Dataset, source: str | Path, *,
     if "Froude_Krylov_force" in ds:     # the forces' phases against the long-wave limits
         froude_krylov = forces("Froude_Krylov_force")
         diffraction = forces("diffraction_force") if "diffraction_force" in ds else None
-        physics = evidence(omega=omega, wave_direction=directions, bodies=names, offsets=list(dofs.offsets), rho=rho, g=g, depth=depth,
-                           added_mass=added_mass, radiation_damping=damping, stiffness=stiffness, volume=volume,
-                           froude_krylov=froude_krylov, diffraction=diffraction)
+        physics = evidence(omega=omega, wave_direction=directions, bodies=names, offsets=list(dofs.offsets), rho=rho,
+                           g=g, depth=depth, added_mass=added_mass, radiation_damping=damping, stiffness=stiffness,
+                           volume=volume, froude_krylov=froude_krylov, diffraction=diffraction)
         if diffraction is not None and physics.verdict is not None:
             physics = _excitation_evidence(physics, froude_krylov + diffraction, excitation, source)
     time_convention, convention_from = _convention(ds, source, convention, file_bodies, physics)
