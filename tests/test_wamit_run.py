@@ -105,3 +105,49 @@ def test_one_newmds_for_several_bodies_is_refused_naming_it(tmp_path):
     with pytest.raises(HDBError, match=r"barge\.cfg: NEWMDS: one count for the run's 2 bodies"):
         load_hdb(path, rho=RHO, wamit={**FACTS, "vcg": [0.0, 0.0], "xbody": [[0.0, 0.0, 0.0], [5.0, 0.0, 0.0]],
                                       "depth": "inf"})
+
+
+GBM = Path(__file__).resolve().parents[1] / "examples" / "data" / "wamit_gbm_barge"
+
+
+def _rows(path: Path, ncols: int) -> np.ndarray:
+    """The numeric rows of a WAMIT file (its header line left out), read here."""
+    return np.array([[float(v) for v in line.split()] for line in path.read_text().splitlines()
+                     if len(line.split()) == ncols and not line.lstrip()[0].isalpha()])
+
+
+def test_wec_sim_s_flexible_barge_reads_its_four_generalized_modes_with_the_file_s_figures(tmp_path):
+    """WEC-Sim's WAMIT GBM barge (NEWMDS = 4, examples/data/wamit_gbm_barge): one body of 6 + 4
+    DOFs; every mode-7..10 entry of the .1, .hst and .3 equals the file's line in SI (rho Abar,
+    rho w Bbar, rho g Cbar, rho g (Re - i Im)); the .mmx's ten modes agree with the .1's."""
+    ds = load_hdb(GBM / "barge.1", rho=RHO, wamit={"iperout": 1})
+    assert [str(v) for v in ds["influenced_dof"].values][6:] == [f"barge.mode{k}" for k in range(1, 5)]
+    g = 9.81
+    omega = ds["omega"].values
+    rad = _rows(GBM / "barge.1", 5)
+    for per, i, j, a, b in rad[(rad[:, 1] > 6) | (rad[:, 2] > 6)]:
+        w = int(np.argmin(np.abs(omega - 2 * np.pi / per)))
+        assert ds["added_mass"].values[w, int(i) - 1, int(j) - 1] == pytest.approx(RHO * a, rel=1e-6, abs=1e-6)
+        assert ds["radiation_damping"].values[w, int(i) - 1, int(j) - 1] == pytest.approx(
+            RHO * omega[w] * b, rel=1e-6, abs=1e-6)
+    hst = _rows(GBM / "barge.hst", 3)
+    for i, j, c in hst[(hst[:, 0] > 6) | (hst[:, 1] > 6)]:
+        assert ds["hydrostatic_stiffness"].values[int(i) - 1, int(j) - 1] == pytest.approx(RHO * g * c, rel=1e-6)
+    exc = _rows(GBM / "barge.3", 7)
+    for per, _, i, _, _, re_, im_ in exc[(exc[:, 2] > 6) & (exc[:, 0] > 0)]:
+        w = int(np.argmin(np.abs(omega - 2 * np.pi / per)))
+        assert ds["excitation_force"].values[w, 0, int(i) - 1] == pytest.approx(RHO * g * (re_ - 1j * im_), rel=1e-6)
+
+
+def test_mode_counts_of_the_mmx_and_the_1_must_agree(tmp_path):
+    """The GBM barge's .1 cut to modes 1-9 (no .cfg NEWMDS: the lone body would own 3 modes) while
+    its .mmx lists ten: refused naming the .mmx."""
+    for name in ("barge.3", "barge.hst", "barge.pot", "barge.mmx", "barge.frc"):
+        (tmp_path / name).write_text((GBM / name).read_text())
+    (tmp_path / "barge.cfg").write_text("IPEROUT=1\nIALTFRC=2\n")
+    kept = [line for line in (GBM / "barge.1").read_text().splitlines()
+            if line.lstrip()[:1].isalpha() or (int(line.split()[1]) < 10 and int(line.split()[2]) < 10)]
+    (tmp_path / "barge.1").write_text("\n".join(kept) + "\n")
+    with pytest.raises(HDBError, match=r"barge\.mmx: External force matrices: modes 1-10, but barge\.1 holds modes "
+                                       r"1-9: the mode counts of the files do not agree"):
+        load_hdb(tmp_path / "barge.1", rho=RHO)

@@ -70,8 +70,13 @@ def read_out(stem: Path) -> dict:
 
 
 def read_mmx(stem: Path) -> dict:
-    """Run facts of the ``.mmx`` (g, ULEN, IALTFRC and each body's volume, centres of buoyancy and gravity)."""
-    return _read_report(_sibling(stem, ".mmx"), stop=())
+    """Run facts of the ``.mmx`` (g, ULEN, IALTFRC and each body's volume, centres of buoyancy and
+    gravity) and ``modes``: the highest mode index of its external force matrices (0 without them)."""
+    facts = _read_report(_sibling(stem, ".mmx"), stop=())
+    if facts:
+        rows = re.findall(r"^\s*(\d+)\s+(\d+)\s+" + _FLOAT, _sibling(stem, ".mmx").read_text(errors="replace"), re.M)
+        facts["modes"] = max((max(int(i), int(j)) for i, j in rows), default=0)
+    return facts
 
 
 def _read_report(path: Path, stop: tuple[str, ...]) -> dict:
@@ -210,7 +215,7 @@ def _newmds(cfg: dict[str, str], cfg_name: str) -> dict[int, int]:
 
 
 def _body_count(stem: Path, file1: Path, max_mode: int, listed: list[tuple[int, str]], cfg: dict[str, str],
-                stated: Mapping) -> tuple[int, tuple[int, ...]]:
+                stated: Mapping, mmx_modes: int = 0) -> tuple[int, tuple[int, ...]]:
     """The run's number of bodies and each one's generalized modes (NEWMDS): the bodies as the
     files that list them say (``listed``: (count, file)), else the scene's ``wamit.xbody``, never
     guessed from the ``.1``'s mode count; the modes from the ``.cfg``'s NEWMDS / NEWMDS(k) (a lone
@@ -240,6 +245,10 @@ def _body_count(stem: Path, file1: Path, max_mode: int, listed: list[tuple[int, 
     modes = tuple(newmds.get(k + 1, newmds.get(0, 0)) for k in range(n))
     if not newmds and n == 1 and max_mode > 6:
         modes = (max_mode - 6,)            # a lone body owns every mode beyond its six
+    if mmx_modes and n == 1 and mmx_modes != max_mode:
+        raise HDBError(_sibling(stem, ".mmx").name, "External force matrices",
+                       f"modes 1-{mmx_modes}, but {file1.name} holds modes 1-{max_mode}: the mode counts of the "
+                       "files do not agree")
     if max_mode != 6 * n + sum(modes):
         said = f"the .cfg's NEWMDS {list(modes)}" if newmds else "no NEWMDS in the .cfg"
         raise HDBError(file1.name, "modes", f"modes 1-{max_mode} for the run's {n} bodies ({where}) and {said}: "
@@ -255,7 +264,7 @@ def _file_facts(stem: Path, file1: Path, max_mode: int, cfg: dict[str, str],
     out, mmx, pot = read_out(stem), read_mmx(stem), read_pot(stem)
     n_bodies, modes = _body_count(stem, file1, max_mode, [(len(r.get(k, [])), r.get("file", "")) for r, k in
                                                           ((out, "xbody"), (pot, "xbody"), (mmx, "volume"))], cfg,
-                                  stated)
+                                  stated, mmx.get("modes", 0))
     found: dict[str, tuple[object, str]] = {"modes": (modes, _sibling(stem, ".cfg").name if any(modes) else file1.name)}
 
     def take(fact: str, value, source: str) -> None:
