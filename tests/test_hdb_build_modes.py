@@ -199,11 +199,11 @@ def test_modes_with_second_order_or_a_free_surface_are_refused_naming_the_key():
                    'cells = [10, 10]\n', "box.toml")
 
 
-def test_hdb_info_shows_the_modes(tmp_path):
+def test_hdb_info_shows_the_modes():
     """``hdb info``: the body's modes with A_inf and the hydrostatic diagonal read from the HDB, the
     largest rigid-mode coupling (C(pitch, bend_z2): the antisymmetric mode and pitch), and --dofs
     taking a mode's name."""
-    from hydrolink.server.hdb.info import hdb_summary, plot_hdb
+    from hydrolink.server.hdb.info import _select_dofs, hdb_summary
 
     ds = load_hdb(BARGE)
     text = hdb_summary(ds)
@@ -213,4 +213,35 @@ def test_hdb_info_shows_the_modes(tmp_path):
     assert f"twist1 {a_inf:.4g}" in text and f"bend_z1 {c:.5g}" in text
     assert "largest rigid-mode stiffness coupling: C(pitch, bend_z2)" in text
     assert "barge.twist1: B(w) re-transformed" in text           # the IRF check runs over the modes too
-    assert plot_hdb(ds, tmp_path / "modes.png", ["twist1"]).stat().st_size > 10_000
+    assert _select_dofs(ds, ["heave", "twist1"]) == ["barge.heave", "barge.twist1"]    # --dofs takes a mode
+
+
+def test_the_example_s_structure_gives_the_analytic_dry_frequencies_and_wet_ones_from_the_hdb():
+    """examples/flexible_barge/responses.py: its uniform beam's modes in vacuum at the analytic
+    free-free frequencies (beta_n L)^2 sqrt(EI / (m L^4)) and pi sqrt(GJ / (I_p L^2)) for the
+    torsion, and bend_z1 in water where w^2 (M + A(w)) = K_s + C with the HDB's A and C; its RAOs
+    solve the frequency-domain equations (residual at round-off)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("responses", ROOT / "examples" / "flexible_barge" / "responses.py")
+    ex = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(ex)
+    ds = load_hdb(BARGE)
+    m, k, names = ex.structure(ds)
+    per_metre = RHO * float(ds["displaced_volume"].values[0]) / ex.LENGTH
+    polar = per_metre * (ex.WIDTH ** 2 + ex.HEIGHT ** 2) / 12
+    freqs = {name: (dry, wet) for name, dry, wet in ex.natural_frequencies(ds, m, k, names)}
+    for n, bl in enumerate(beam_roots(2), start=1):
+        assert freqs[f"bend_z{n}"][0] == pytest.approx(bl ** 2 * math.sqrt(ex.EI / (per_metre * ex.LENGTH ** 4)),
+                                                       rel=1e-4)
+    assert freqs["twist1"][0] == pytest.approx(math.pi * math.sqrt(ex.GJ / (polar * ex.LENGTH ** 2)), rel=1e-4)
+    wet = freqs["bend_z1"][1]
+    a = np.interp(wet, ds["omega"].values, ds["added_mass"].values[:, 6, 6])
+    assert wet ** 2 * (m[6, 6] + a) == pytest.approx(k[6, 6] + ds["hydrostatic_stiffness"].values[6, 6], rel=1e-9)
+    x = ex.responses(ds, m, k)
+    i = 5
+    w = ds["omega"].values[i]
+    z = -w ** 2 * (m + ds["added_mass"].values[i]) - 1j * w * ds["radiation_damping"].values[i] \
+        + ds["hydrostatic_stiffness"].values + k
+    f = ds["excitation_force"].values[i, 1]
+    assert np.max(np.abs(z @ x[i, 1] - f)) < 1e-9 * np.max(np.abs(f))

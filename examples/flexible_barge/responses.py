@@ -22,6 +22,7 @@ import argparse
 from pathlib import Path
 
 import numpy as np
+from scipy.integrate import trapezoid
 from scipy.optimize import brentq
 
 import hydrolink
@@ -43,7 +44,6 @@ def structure(ds) -> tuple[np.ndarray, np.ndarray, list[str]]:
     per_metre = mass / LENGTH
     polar = per_metre * (WIDTH ** 2 + HEIGHT ** 2) / 12              # mass moment of inertia per metre
     xi = np.linspace(0.0, 1.0, 4001)
-    w = np.gradient(xi)                                              # trapezoid-like weights on the uniform grid
     names = [str(v).split(".", 1)[1] for v in ds["influenced_dof"].values]
     n = len(names)
     m, k = np.zeros((n, n)), np.zeros((n, n))
@@ -53,12 +53,12 @@ def structure(ds) -> tuple[np.ndarray, np.ndarray, list[str]]:
     for i, name in enumerate(names[6:], start=6):
         if name.startswith("bend_z"):
             phi, _, d2 = bending_shape(xi, int(name[len("bend_z"):]))
-            m[i, i] = per_metre * LENGTH * np.sum(w * phi ** 2)
-            k[i, i] = EI / LENGTH ** 3 * np.sum(w * d2 ** 2)
+            m[i, i] = per_metre * LENGTH * trapezoid(phi ** 2, xi)
+            k[i, i] = EI / LENGTH ** 3 * trapezoid(d2 ** 2, xi)
         elif name.startswith("twist"):
             order = int(name[len("twist"):])
-            m[i, i] = polar * LENGTH * np.sum(w * np.cos(order * np.pi * xi) ** 2)
-            k[i, i] = GJ / LENGTH * (order * np.pi) ** 2 * np.sum(w * np.sin(order * np.pi * xi) ** 2)
+            m[i, i] = polar * LENGTH * trapezoid(np.cos(order * np.pi * xi) ** 2, xi)
+            k[i, i] = GJ / LENGTH * (order * np.pi) ** 2 * trapezoid(np.sin(order * np.pi * xi) ** 2, xi)
     return m, k, names
 
 
