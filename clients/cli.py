@@ -119,13 +119,15 @@ def hdb() -> None:
 def hdb_build(spec: Path, output: Path, no_progress: bool) -> None:
     """Compute an HDB with Capytaine from a build SPEC (TOML); cached by its inputs."""
     from hydrolink.server.hdb.build.builder import build_hdb
-    from hydrolink.protocol.hdb.schema import to_netcdf
+    from hydrolink.protocol.hdb.schema import hdb_dofs, to_netcdf
 
     ds = _guard(build_hdb, spec, progress=not no_progress, free_surface=True)
     _show_hdb_warnings(ds)
     output.parent.mkdir(parents=True, exist_ok=True)
     to_netcdf(ds, output)
     click.echo(f"wrote {output} ({ds.sizes['omega']} frequencies, bodies {list(map(str, ds['body'].values))})")
+    for body, names in hdb_dofs(ds).mode_map().items():
+        click.echo(f"  {body}: generalized modes {', '.join(names)} (docs/generalized-modes.md)")
     if "free_surface_file" in ds.attrs:
         click.echo(f"free-surface solution for hydrolink view: {ds.attrs['free_surface_file']}")
 
