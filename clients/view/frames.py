@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hydrolink.clients.view.convolved import ConvolvedField
 from hydrolink.clients.view.disturbed import DisturbedField, disturbed_field
 from hydrolink.clients.view.markers import Marker, MooringLines, marker_points, mooring_lines, scene_markers
 from hydrolink.clients.view.placement import BodyMesh, body_meshes, rigid_points, rigid_velocity
@@ -49,7 +50,7 @@ class Stage:
     forces: tuple[str, ...]
     grid: Grid | None = None
     incident: IncidentField | None = None
-    disturbed: DisturbedField | None = None
+    disturbed: DisturbedField | ConvolvedField | None = None
     markers: list[Marker] = field(default_factory=list)
     gauges: IncidentField | None = None
     lines: MooringLines | None = None
