@@ -4,6 +4,12 @@ frames without writing them) and, where the ``vtk`` package is installed, the al
 
     python bench/bench_view.py                      # runs examples/rm3/rm3.toml first (about a minute)
     python bench/bench_view.py --results rm3.nc     # a results file of it
+    python bench/bench_view.py --long 9n9la.nc      # a long run (9N9LA, 3,600 s at dt 0.05): every row's
+                                                    # bodies and markers, then the surface at a stride,
+                                                    # with the resident memory sampled as the frames go
+
+A long results file: ``python bench/bench_9n9la_long.py --duration 3600 -o 9n9la.nc`` (its scene
+with ``dt = 0.05``; 72,000 rows).
 
 Prints a Markdown table with the machine's load (``os.getloadavg``): the figures are wall times.
 """
@@ -80,11 +86,59 @@ def vtu_per_frame(stage, rows, folder: Path) -> tuple[float, int]:
     return time.perf_counter() - t0, _size(written)
 
 
+def _rss_mib() -> float:
+    """The process's resident memory now (MiB)."""
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+
+
+def long_run(results: Path, scene_dir: Path | None, surface_stride: int, cells: int) -> None:
+    """Every row's bodies and markers, then the surface every ``surface_stride``-th row on a
+    ``cells`` x ``cells`` grid: time per frame, bytes, and the resident memory sampled every 0.5 s
+    (its first, middle and last quarter: flat when the memory is bounded)."""
+    import threading
+
+    from hydrolink.clients.view.series import view_results
+
+    run = open_run(results, scene_dir)
+    print(f"{results.name}: {run.time.size} rows, {len(run.bodies)} bodies, {run.time[-1]:g} s; load "
+          f"{os.getloadavg()[0]:.2f} (1 min), {os.cpu_count()} CPUs\n")
+    print("| parts | frames | s | ms/frame | MB written | RSS MiB at 10 / 50 / 100 % of the frames |")
+    print("|---|---|---|---|---|---|")
+    for parts, stride, grid in ((("bodies", "markers"), 1, None), (("surface",), surface_stride, (cells, cells))):
+        samples, done = [], threading.Event()
+
+        def sample() -> None:
+            while not done.wait(0.5):
+                samples.append(_rss_mib())
+        with tempfile.TemporaryDirectory() as tmp:
+            sampler = threading.Thread(target=sample, daemon=True)
+            sampler.start()
+            options = ViewOptions(stride=stride, parts=parts, **({"cells": grid} if grid else {}))
+            summary, _, _ = view_results(results, Path(tmp), options, scene_dir=scene_dir, progress=False)
+            done.set()
+            sampler.join()
+            size = _size(summary.files)
+        at = [samples[min(len(samples) - 1, int(q * len(samples)))] for q in (0.1, 0.5, 0.999)] if samples else []
+        print(f"| {'+'.join(parts)}{f' {grid[0]} x {grid[1]}' if grid else ''} (stride {stride}) | {summary.frames} | "
+              f"{summary.seconds:.0f} | {1e3 * summary.seconds / summary.frames:.2f} | {size / 1e6:.0f} | "
+              + " / ".join(f"{r:.0f}" for r in at) + " |")
+    print(f"\npeak RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MiB; load "
+          f"{os.getloadavg()[0]:.2f} at the end")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--results", type=Path, help="an RM3 results file (default: run examples/rm3/rm3.toml)")
     ap.add_argument("--frames", type=int, default=200, help="frames written (every stride-th row)")
+    ap.add_argument("--long", type=Path, help="a long results file: every row (bodies, markers), the surface at a stride")
+    ap.add_argument("--scene-dir", type=Path, help="the long run's scene folder (default: the file's)")
+    ap.add_argument("--surface-stride", type=int, default=20, help="the long run's surface: every N-th row")
+    ap.add_argument("--cells", type=int, default=50, help="the long run's surface grid: N x N cells")
     args = ap.parse_args()
+    if args.long:
+        long_run(args.long, args.scene_dir, args.surface_stride, args.cells)
+        return
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         results = args.results

@@ -10,7 +10,7 @@ the radiation force's memory). With H(x, w) = i eta_R,dof(x, w) / w the elevatio
 
 K the exact transform of H continued piecewise-linearly as the excitation IRF continues X
 (server/sea/waves.py: to Re H(w_1) at w = 0 and to 0 at 1.1 w_n), sampled at the file's row step
-over |tau| <= ``hydro.irf_duration`` (both sides: the tail before tau = 0 is what the truncated
+every q-th row (q the largest with 40 samples a period of 1.1 w_n) over |tau| <= ``hydro.irf_duration`` (both sides: the tail before tau = 0 is what the truncated
 frequency band leaves; the results file holds the future rows), the sum the trapezoid rule.
 Velocities before the first row and after the last are zero: the first and last
 ``hydro.irf_duration`` seconds of a run carry that start-up.
@@ -35,14 +35,17 @@ from hydrolink.server.radiation.irf import irf_samples
 from hydrolink.server.sea.waves import WaveComponents, convolution_kernel
 
 KERNEL_BLOCK_BYTES = 32 << 20   # the kernel's transform is computed this many bytes of columns at a time
+SAMPLES_PER_PERIOD = 40         # the kernel's step: at most this fraction of the period of its top frequency
 
 
 @dataclass
 class ConvolvedField:
-    """``kernel`` (2M+1, B 6, P): dt-weighted samples of K at tau_j = j dt, j = -M..M, for the DOFs
-    of the results' bodies ``rows``; ``diffraction`` the diffracted field over the components."""
+    """``kernel`` (2M+1, B 6, P): h-weighted samples of K at tau_j = j h, j = -M..M, h = ``step``
+    rows of the file, for the DOFs of the results' bodies ``rows``; ``diffraction`` the diffracted
+    field over the components."""
     rows: np.ndarray
     kernel: np.ndarray
+    step: int
     diffraction: PhasorField
     _v: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))   # the block's velocities, rows +- M
     _first: int = 0                                                    # the row of _v[0]
@@ -54,7 +57,7 @@ class ConvolvedField:
 
     def prepare(self, run: RunFile, chunk: np.ndarray) -> None:
         """Read the velocities the frames at ``chunk`` convolve (zero outside the file)."""
-        m = self.half
+        m = self.half * self.step
         lo, hi = int(chunk[0]) - m, int(chunk[-1]) + m + 1
         a, b = max(lo, 0), min(hi, run.time.size)
         vel = read_rows(run.path, ["velocity"], np.arange(a, b))["velocity"][:, self.rows].reshape(b - a, -1)
@@ -64,16 +67,22 @@ class ConvolvedField:
 
     def at(self, k: int, t: float) -> dict[str, np.ndarray]:
         """The radiated and diffracted elevation (P,) of the block's ``k``-th frame at time ``t``."""
-        m, row = self.half, int(self._chunk[k])
-        s = row - m - self._first
-        window = self._v[s:s + 2 * m + 1][::-1]            # window[i] = v(row + m - i): tau = (i - m) dt
+        m, q, row = self.half, self.step, int(self._chunk[k])
+        s = row - m * q - self._first
+        window = self._v[s:s + 2 * m * q + 1:q][::-1]      # window[i] = v(row + (m - i) q): tau = (i - m) h
         radiated = np.tensordot(window, self.kernel, axes=([0, 1], [0, 1]))
         return {"radiated": radiated, "diffracted": self.diffraction(t)}
 
 
+def kernel_step(omega: np.ndarray, dt: float) -> int:
+    """Rows between the kernel's samples: the most with SAMPLES_PER_PERIOD samples a period of the
+    transform's top frequency 1.1 w_n (at least 1)."""
+    return max(1, int(2 * np.pi / (SAMPLES_PER_PERIOD * 1.1 * float(omega[-1])) / dt))
+
+
 def radiation_kernel(omega: np.ndarray, radiated: np.ndarray, dt: float, duration: float) -> np.ndarray:
-    """The dt-weighted samples (2M+1, B 6, P) of K from the elevation per unit motion ``radiated``
-    (n_w, B, 6, P) at the frequencies ``omega`` (n_w >= 2); size checked first."""
+    """The dt-weighted samples (2M+1, B 6, P) of K at the step ``dt`` from the elevation per unit
+    motion ``radiated`` (n_w, B, 6, P) at the frequencies ``omega`` (n_w >= 2); size checked first."""
     n_w, n_b, _, n_p = radiated.shape
     m = irf_samples(duration, dt, at_least=1)
     require_size("[free_surface] cells", "the radiated-wave impulse response (samples x DOFs x grid points)",

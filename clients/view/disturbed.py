@@ -21,7 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from hydrolink.clients.view.convolved import ConvolvedField, diffraction_phasor, radiation_kernel, same_direction
+from hydrolink.clients.view.convolved import (ConvolvedField, diffraction_phasor, kernel_step, radiation_kernel,
+                                              same_direction)
 from hydrolink.clients.view.results import RunFile, read_rows
 from hydrolink.clients.view.surface import Grid, PhasorField
 from hydrolink.server.sea.waves import WaveComponents, ramp_factor
@@ -116,13 +117,13 @@ def disturbed_field(run: RunFile, comps: WaveComponents) -> tuple[DisturbedField
             ib = int(np.flatnonzero(same_direction(directions, comps.direction))[0])
             return DisturbedField(float(comps.omega[0]), complex(comps.amplitude[0] * np.exp(1j * comps.phase[0])),
                                   comps.ramp, rows, radiated[iw[0]], diffracted[iw[0], ib]), grid, ""
-    dt = float(run.time[1] - run.time[0])
-    kernel = radiation_kernel(omega, radiated, dt, run.scene.hydro.irf_duration)
+    q = kernel_step(omega, float(run.time[1] - run.time[0]))
+    kernel = radiation_kernel(omega, radiated, q * float(run.time[1] - run.time[0]), run.scene.hydro.irf_duration)
     phasor, outside = diffraction_phasor(comps, omega, directions, diffracted)
     note = (f"radiated/diffracted waves: {100 * outside:.3g} % of the sea's variance lies outside the build's "
             f"[free_surface] omega {omega[0]:.4g}-{omega[-1]:.4g} rad/s: its diffracted wave is left out; "
             f"widen [free_surface] omega") if outside > 0 else ""
-    return ConvolvedField(rows, kernel, PhasorField(comps, phasor)), grid, note
+    return ConvolvedField(rows, kernel, q, PhasorField(comps, phasor)), grid, note
 
 
 def _not_drawn(run: RunFile, comps: WaveComponents, omega: np.ndarray, directions: np.ndarray) -> str:
@@ -141,7 +142,9 @@ def _not_drawn(run: RunFile, comps: WaveComponents, omega: np.ndarray, direction
     if missing:
         shown = ", ".join(f"{d:g}" for d in missing[:8]) + (" ..." if len(missing) > 8 else "")
         return f"the build spec's [waves] directions lack the run's heading(s) {shown} deg: add them to the build spec"
-    if not regular_stored and run.time.size > 1:
+    if not regular_stored and run.time.size < 2:
+        return "the results hold one row: no velocity history to convolve"
+    if not regular_stored:
         steps = np.diff(run.time)
         if np.abs(steps - steps[0]).max() > 1e-9 * max(1.0, abs(float(run.time[-1]))):
             return "the results' rows are not evenly spaced in time: the radiated wave's convolution needs them so"
