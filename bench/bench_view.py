@@ -8,8 +8,13 @@ frames without writing them) and, where the ``vtk`` package is installed, the al
                                                     # bodies and markers, then the surface at a stride,
                                                     # with the resident memory sampled as the frames go
 
-A long results file: ``python bench/bench_9n9la_long.py --duration 3600 -o 9n9la.nc`` (its scene
-with ``dt = 0.05``; 72,000 rows).
+    python bench/bench_view.py --long 9n9la.nc --synthesize   # first write that file: 9N9LA's scene,
+                                                    # 3,600 s at dt 0.05 (72,000 rows), its nine bodies
+                                                    # moving by a sum of sinusoids, its sea's elevation
+
+A real long run instead: ``python bench/bench_9n9la_long.py --duration 3600 -o 9n9la.nc`` with
+``dt = 0.05`` in its scene (about 20 minutes on a quiet machine; the view's cost depends on the sizes,
+not on the motion's values).
 
 Prints a Markdown table with the machine's load (``os.getloadavg``): the figures are wall times.
 """
@@ -92,6 +97,41 @@ def _rss_mib() -> float:
         return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
 
 
+NINE = REPO / "examples" / "node_9n9la" / "node_9n9la.toml"
+
+
+def synthesize_9n9la(path: Path, duration: float = 3600.0, dt: float = 0.05) -> None:
+    """A results file of 9N9LA's scene: its wet bodies about their centres of mass moving by a sum of
+    three sinusoids per DOF (0.05 m, 0.05 rad), the sea's own elevation at the origin."""
+    import re
+
+    from hydrolink.clients.lockstep.results import ResultWriter
+    from hydrolink.protocol.scene import parse_scene
+    from hydrolink.server.sea.seastate import sea_components
+    from hydrolink.server.sea.waves import elevation
+
+    text = re.sub(r"(?m)^dt = .*$", f"dt = {dt!r}", re.sub(r"(?m)^duration = .*$", f"duration = {duration!r}",
+                                                            NINE.read_text(), count=1), count=1)
+    scene = parse_scene(text, NINE)
+    wet = [b for b in scene.bodies if b.wet]
+    eq = np.array([[*b.center_of_mass, 0.0, 0.0, 0.0] for b in wet])
+    t = np.arange(0.0, duration + dt / 2, dt)
+    comps = sea_components(scene.waves, *scene.waves.omega_range)
+    w = np.array([0.9, 1.7, 4.5])
+    rng = np.random.default_rng(0)
+    c = 0.05 / 3 * np.exp(2j * np.pi * rng.random((3, len(wet), 6)))
+    with ResultWriter(path, scene_text=text, bodies=[b.name for b in wet], equilibrium_position=eq, dt=dt) as out:
+        zero = np.zeros((len(wet), 6))
+        for a in range(0, t.size, 4096):
+            tt = t[a:a + 4096]
+            e = np.exp(-1j * np.outer(tt, w))                          # (n, 3)
+            pos = eq[None] + np.real(np.einsum("nk,kbd->nbd", e, c))
+            vel = np.real(np.einsum("nk,kbd->nbd", e * (-1j * w), c))
+            eta = elevation(comps, tt)
+            for k in range(tt.size):
+                out.append(float(tt[k]), pos[k], vel[k], zero, zero, zero, float(eta[k]))
+
+
 def long_run(results: Path, scene_dir: Path | None, surface_stride: int, cells: int) -> None:
     """Every row's bodies and markers, then the surface every ``surface_stride``-th row on a
     ``cells`` x ``cells`` grid: time per frame, bytes, and the resident memory sampled every 0.5 s
@@ -135,9 +175,15 @@ def main() -> None:
     ap.add_argument("--scene-dir", type=Path, help="the long run's scene folder (default: the file's)")
     ap.add_argument("--surface-stride", type=int, default=20, help="the long run's surface: every N-th row")
     ap.add_argument("--cells", type=int, default=50, help="the long run's surface grid: N x N cells")
+    ap.add_argument("--synthesize", action="store_true", help="write --long's file first (9N9LA's scene, 3,600 s)")
     args = ap.parse_args()
+    if args.long and args.synthesize:
+        t0 = time.perf_counter()
+        synthesize_9n9la(args.long)
+        print(f"wrote {args.long} in {time.perf_counter() - t0:.0f} s ({args.long.stat().st_size / 1e6:.0f} MB)")
     if args.long:
-        long_run(args.long, args.scene_dir, args.surface_stride, args.cells)
+        scene_dir = args.scene_dir or (NINE.parent if args.synthesize else None)
+        long_run(args.long, scene_dir, args.surface_stride, args.cells)
         return
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)

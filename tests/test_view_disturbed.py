@@ -172,3 +172,14 @@ def test_irregular_disturbed_field_is_the_frequency_domain_superposition(tmp_pat
     # between frequencies 0.1 rad/s apart (the radiated wave's kernel, the 1.25 rad/s component's diffraction)
     assert np.abs(err_r).max() < 2e-2
     assert np.abs(err_d).max() < 5e-3
+
+
+def test_a_radiated_wave_kernel_over_the_memory_limit_names_the_grid():
+    """A 3,600 s impulse response sampled every millisecond over a 41 x 41 grid: refused before it
+    is allocated, naming [free_surface] cells and the limit."""
+    from hydrolink.clients.view.convolved import radiation_kernel
+    from hydrolink.server.errors import ModelError
+
+    radiated = np.ones((2, 1, 6, 41 * 41), complex)
+    with pytest.raises(ModelError, match=r"\[free_surface\] cells: the radiated-wave impulse response .* over the 1 GiB"):
+        radiation_kernel(np.array([1.0, 2.0]), radiated, 1e-3, 3600.0)
