@@ -132,8 +132,8 @@ def synthesize_9n9la(path: Path, duration: float = 3600.0, dt: float = 0.05) -> 
                 out.append(float(tt[k]), pos[k], vel[k], zero, zero, zero, float(eta[k]))
 
 
-def long_run(results: Path, scene_dir: Path | None, surface_stride: int, cells: int) -> None:
-    """Every row's bodies and markers, then the surface every ``surface_stride``-th row on a
+def long_run(results: Path, scene_dir: Path | None, stride: int, surface_stride: int, cells: int) -> None:
+    """Every ``stride``-th row's bodies and markers, then the surface every ``surface_stride``-th row on a
     ``cells`` x ``cells`` grid: time per frame, bytes, and the resident memory sampled every 0.5 s
     (its first, middle and last quarter: flat when the memory is bounded)."""
     import threading
@@ -145,7 +145,7 @@ def long_run(results: Path, scene_dir: Path | None, surface_stride: int, cells: 
           f"{os.getloadavg()[0]:.2f} (1 min), {os.cpu_count()} CPUs\n")
     print("| parts | frames | s | ms/frame | MB written | RSS MiB at 10 / 50 / 100 % of the frames |")
     print("|---|---|---|---|---|---|")
-    for parts, stride, grid in ((("bodies", "markers"), 1, None), (("surface",), surface_stride, (cells, cells))):
+    for parts, stride, grid in ((("bodies", "markers"), stride, None), (("surface",), surface_stride, (cells, cells))):
         samples, done = [], threading.Event()
 
         def sample() -> None:
@@ -173,6 +173,7 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=200, help="frames written (every stride-th row)")
     ap.add_argument("--long", type=Path, help="a long results file: every row (bodies, markers), the surface at a stride")
     ap.add_argument("--scene-dir", type=Path, help="the long run's scene folder (default: the file's)")
+    ap.add_argument("--stride", type=int, default=1, help="the long run's bodies and markers: every N-th row")
     ap.add_argument("--surface-stride", type=int, default=20, help="the long run's surface: every N-th row")
     ap.add_argument("--cells", type=int, default=50, help="the long run's surface grid: N x N cells")
     ap.add_argument("--synthesize", action="store_true", help="write --long's file first (9N9LA's scene, 3,600 s)")
@@ -183,7 +184,7 @@ def main() -> None:
         print(f"wrote {args.long} in {time.perf_counter() - t0:.0f} s ({args.long.stat().st_size / 1e6:.0f} MB)")
     if args.long:
         scene_dir = args.scene_dir or (NINE.parent if args.synthesize else None)
-        long_run(args.long, scene_dir, args.surface_stride, args.cells)
+        long_run(args.long, scene_dir, args.stride, args.surface_stride, args.cells)
         return
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
