@@ -100,6 +100,8 @@ def diffraction_phasor(comps: WaveComponents, omega: np.ndarray, directions: np.
     """(P, C) complex amplitudes a_c e^{i phi_c} eta_D(x_p; w_c, b_c) from ``diffracted`` (n_w, n_dir, P)
     interpolated in w, and the share of the components' variance outside ``omega`` (left out).
     Every component's heading must be one of ``directions`` (the caller checks)."""
+    require_size("[free_surface] cells", "the diffracted wave's phasors (grid points x wave components)",
+                 (diffracted.shape[-1], comps.size), itemsize=16, hint="fewer cells or wave components")
     w = comps.hdb_omega
     heads = comps.heading_of()
     out = np.zeros((diffracted.shape[-1], comps.size), complex)

@@ -90,10 +90,12 @@ def _stored(run: RunFile) -> Path | None:
     return Path(build_hdb(spec_path, progress=False, free_surface=True).attrs["free_surface_file"])
 
 
-def disturbed_field(run: RunFile, comps: WaveComponents) -> tuple[DisturbedField | ConvolvedField | None, Grid | None, str]:
+def disturbed_field(run: RunFile, comps: WaveComponents,
+                    wanted: bool = True) -> tuple[DisturbedField | ConvolvedField | None, Grid | None, str]:
     """The run's radiated and diffracted field and the build's grid, or None and a note saying why
-    not (none stored: no note). A regular wave at a stored frequency: the fitted amplitudes (exact
-    in the steady state); any other run: the convolution (clients/view/convolved.py)."""
+    not (none stored: no note; not ``wanted``: the grid alone). A regular wave at a stored frequency:
+    the fitted amplitudes (exact in the steady state); any other run: the convolution
+    (clients/view/convolved.py)."""
     from hydrolink.server.hdb.build.free_surface import read_free_surface
 
     path = _stored(run)
@@ -108,6 +110,8 @@ def disturbed_field(run: RunFile, comps: WaveComponents) -> tuple[DisturbedField
     radiated = radiated.reshape(*radiated.shape[:3], -1)
     diffracted = dif.values.reshape(*dif.shape[:2], -1)                 # (n_w, n_dir, P)
     grid = Grid(rad["x"].values, rad["y"].values)
+    if not wanted:
+        return None, grid, ""
     why = _not_drawn(run, comps, omega, directions)
     if why:
         return None, None, "radiated/diffracted waves: " + why
