@@ -15,6 +15,18 @@ vtk = pytest.importorskip("vtk")
 from hydrolink.clients.lockstep.results import ResultWriter  # noqa: E402
 from hydrolink.clients.view.frames import ViewOptions  # noqa: E402
 from hydrolink.clients.view.series import view_results  # noqa: E402
+from vtk.util.numpy_support import vtk_to_numpy  # noqa: E402
+
+
+def vtk_steps(path):
+    """(time, the grid at that time) of every step of a VTKHDF file, read by VTK's reader (the grid
+    is the reader's output: read it before the next step)."""
+    reader = vtk.vtkHDFReader()
+    reader.SetFileName(str(path))
+    reader.UpdateInformation()
+    for tk in reader.GetOutputInformation(0).Get(vtk.vtkStreamingDemandDrivenPipeline.TIME_STEPS()):
+        reader.UpdateTimeStep(tk)
+        yield tk, reader.GetOutput()
 
 
 def nodes(t: float) -> np.ndarray:
@@ -40,20 +52,15 @@ def test_lines_are_the_recorded_nodes(tmp_path):
             w.append(float(tk), zero, zero, zero, zero, zero, 0.0)
     summary, stage, rows = view_results(tmp_path / "run.nc", tmp_path / "view", ViewOptions(parts=("moorings",)),
                                         progress=False)
-    from vtk.util.numpy_support import vtk_to_numpy
-    reader = vtk.vtkHDFReader()
-    reader.SetFileName(str(tmp_path / "view" / "moorings.vtkhdf"))
-    reader.UpdateInformation()
-    times = reader.GetOutputInformation(0).Get(vtk.vtkStreamingDemandDrivenPipeline.TIME_STEPS())
-    assert len(times) == t.size
-    for tk in times:
-        reader.UpdateTimeStep(tk)
-        out = reader.GetOutput()
+    seen = 0
+    for tk, out in vtk_steps(tmp_path / "view" / "moorings.vtkhdf"):
+        seen += 1
         assert out.GetNumberOfCells() == 2 and out.GetCellType(0) == vtk.VTK_POLY_LINE
         want = nodes(tk)
         pts = vtk_to_numpy(out.GetPoints().GetData())
         np.testing.assert_allclose(pts, np.concatenate([want[0], want[1, :3]]), atol=1e-12)
         assert [out.GetCell(c).GetNumberOfPoints() for c in range(2)] == [5, 3]
+    assert seen == t.size
 
 
 def test_wave_gauges_ride_the_incident_wave(tmp_path):
@@ -76,17 +83,12 @@ def test_wave_gauges_ride_the_incident_wave(tmp_path):
             w.append(float(tk), zero, zero, zero, zero, zero, float(a * np.cos(-w_ * tk + phi)))
     summary, stage, rows = view_results(tmp_path / "run.nc", tmp_path / "view", ViewOptions(parts=("markers",)),
                                         progress=False)
-    from vtk.util.numpy_support import vtk_to_numpy
-    reader = vtk.vtkHDFReader()
-    reader.SetFileName(str(tmp_path / "view" / "markers.vtkhdf"))
-    reader.UpdateInformation()
-    times = reader.GetOutputInformation(0).Get(vtk.vtkStreamingDemandDrivenPipeline.TIME_STEPS())
-    assert len(times) == t.size
-    for tk in times:
-        reader.UpdateTimeStep(tk)
-        out = reader.GetOutput()
+    seen = 0
+    for tk, out in vtk_steps(tmp_path / "view" / "markers.vtkhdf"):
+        seen += 1
         kind = vtk_to_numpy(out.GetPointData().GetArray("kind"))
         pts = vtk_to_numpy(out.GetPoints().GetData())[kind == 2]
         want = [a * np.cos(k * (x * np.cos(b) + y * np.sin(b)) - w_ * tk + phi) for x, y in gauges]
         np.testing.assert_allclose(pts[:, :2], gauges, atol=1e-12)
         np.testing.assert_allclose(pts[:, 2], want, atol=1e-9)
+    assert seen == t.size
