@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hydrolink.clients.view.convolved import ConvolvedField
 from hydrolink.clients.view.disturbed import DisturbedField, disturbed_field
 from hydrolink.clients.view.markers import Marker, MooringLines, marker_points, mooring_lines, scene_markers
 from hydrolink.clients.view.placement import BodyMesh, body_meshes, rigid_points, rigid_velocity
@@ -49,7 +50,7 @@ class Stage:
     forces: tuple[str, ...]
     grid: Grid | None = None
     incident: IncidentField | None = None
-    disturbed: DisturbedField | None = None
+    disturbed: DisturbedField | ConvolvedField | None = None
     markers: list[Marker] = field(default_factory=list)
     gauges: IncidentField | None = None
     lines: MooringLines | None = None
@@ -93,15 +94,15 @@ def make_stage(run: RunFile, options: ViewOptions) -> Stage:
         stage.notes.append("surface: the waves are an elevation series at the origin (waves.type = \"elevation\"): "
                            "no field to draw")
     elif "surface" in parts:
-        stage.disturbed, stored, note = disturbed_field(run, comps)
+        default_grid = (options.extent, options.cells) == (None, DEFAULT_CELLS)
+        stage.disturbed, stored, note = disturbed_field(run, comps, wanted=default_grid)
         stage.notes += [note] if note else []
-        if stored is not None and (options.extent, options.cells) == (None, DEFAULT_CELLS):
+        if stored is not None and default_grid:
             stage.grid = stored                      # the build's grid, where its waves are known
         else:
             if stored is not None:
                 stage.notes.append("radiated/diffracted waves: known on the HDB build's [free_surface] grid only; "
                                    "leave --grid-extent and --grid-cells unset to draw them")
-                stage.disturbed = None
             extent = options.extent or _default_extent(meshes, markers, comps, water.gravity, water.depth_m)
             stage.grid = make_grid(extent, options.cells, comps.size)
         stage.incident = IncidentField(comps, stage.grid.points, water.gravity, water.depth_m)

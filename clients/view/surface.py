@@ -13,10 +13,11 @@ import numpy as np
 
 from hydrolink.clients.view.placement import VTK_QUAD
 from hydrolink.clients.view.results import RunFile, ViewError, read_rows
-from hydrolink.protocol.scene import ElevationWave, IrregularWave
+from hydrolink.protocol.scene import ElevationWave, RegularWave, StillWater
 from hydrolink.server.allocation import require_size
-from hydrolink.server.sea.dispersion import wave_number
-from hydrolink.server.sea.waves import WaveComponents, elevation, ramp_factor, wave_components
+from hydrolink.server.sea.doppler import doppler_shift
+from hydrolink.server.sea.seastate import sea_components
+from hydrolink.server.sea.waves import WaveComponents, WaveError, elevation, ramp_factor
 
 
 @dataclass(frozen=True)
@@ -60,18 +61,24 @@ def make_grid(extent: tuple[float, float, float, float], cells: tuple[int, int],
 
 def run_waves(run: RunFile) -> WaveComponents | None:
     """The run's wave components (None for ``[waves] type = "elevation"``: a series at the origin
-    has no field to draw; a steady file's without the ramp). An irregular sea without ``omega_range`` spans the HDBs' common
-    frequency range, as the force server's: those HDBs are loaded (built ones from the cache)."""
+    has no field to draw; a steady file's without the ramp), built as the force server built them
+    (server/model.py: ``sea_components`` over the wet bodies' common frequency range, then the
+    current's Doppler shift). The HDBs are loaded for their range (built ones from the cache)
+    unless an irregular sea gives its ``omega_range``."""
     waves, scene = run.scene.waves, run.scene
     if isinstance(waves, ElevationWave):
         return None
     lo, hi = 1e-9, np.inf
-    if isinstance(waves, IrregularWave) and waves.omega_range is None:
+    if not isinstance(waves, (StillWater, RegularWave)) and getattr(waves, "omega_range", None) is None:
         from hydrolink.clients.scene_inputs import load_scene_hdbs
         hdbs = load_scene_hdbs(scene, run.scene_path, progress=False)
         omegas = [hdbs[b.hdb]["omega"].values for b in scene.bodies if b.wet]
         lo, hi = max(float(w[0]) for w in omegas), min(float(w[-1]) for w in omegas)
-    comps = wave_components(waves, lo, hi)
+    try:
+        comps = doppler_shift(sea_components(waves, lo, hi), scene.current, scene.water.gravity, scene.water.depth_m,
+                              getattr(waves, "excitation", "superposition"))
+    except WaveError as exc:
+        raise ViewError(run.path, exc.key, f"the run's waves cannot be rebuilt: {exc.why}") from None
     if run.steady:                       # the steady state is the wave after its ramp
         comps = replace(comps, ramp=0.0)
     _check_against_run(run, comps)
@@ -94,16 +101,13 @@ def _check_against_run(run: RunFile, comps: WaveComponents) -> None:
                         f"give the scene's folder with --scene-dir")
 
 
-class IncidentField:
-    """The incident elevation at fixed points (P, 2 or 3; z ignored): phasors per point and
-    component set once, then a frame is one complex matrix-vector product."""
+class PhasorField:
+    """A linear wave field at fixed points from complex amplitudes per point and component
+    (P, C): eta(t) = r(t) Re(phasor @ e^{-i w t}), one complex matrix-vector product a frame."""
 
-    def __init__(self, comps: WaveComponents, points: np.ndarray, gravity: float, depth: float):
+    def __init__(self, comps: WaveComponents, phasor: np.ndarray):
         self.comps = comps
-        k = wave_number(comps.omega, gravity, depth) if comps.size else np.zeros(0)
-        head = comps.heading_of()
-        along = points[:, :1] * np.cos(head)[None] + points[:, 1:2] * np.sin(head)[None]
-        self._phasor = (comps.amplitude * np.exp(1j * comps.phase))[None] * np.exp(1j * k[None] * along)
+        self._phasor = phasor
 
     def __call__(self, t: float) -> np.ndarray:
         """eta (P,) at time t, ramp included."""
@@ -111,3 +115,14 @@ class IncidentField:
             return np.zeros(self._phasor.shape[0])
         r = float(ramp_factor(np.array([t]), self.comps.ramp)[0])
         return r * np.real(self._phasor @ np.exp(-1j * self.comps.omega * t))
+
+
+class IncidentField(PhasorField):
+    """The incident elevation at fixed points (P, 2 or 3; z ignored): phasors per point and
+    component a_c e^{i phi_c} e^{i k_c (x cos b_c + y sin b_c)}."""
+
+    def __init__(self, comps: WaveComponents, points: np.ndarray, gravity: float, depth: float):
+        k = comps.wave_numbers(gravity, depth) if comps.size else np.zeros(0)   # intrinsic in a current
+        head = comps.heading_of()
+        along = points[:, :1] * np.cos(head)[None] + points[:, 1:2] * np.sin(head)[None]
+        super().__init__(comps, (comps.amplitude * np.exp(1j * comps.phase))[None] * np.exp(1j * k[None] * along))

@@ -15,6 +15,8 @@ VERSION = (2, 2)
 
 
 CHUNK_BYTES = 1 << 16     # 64 KiB a chunk: few chunks (HDF5's index of them stays small) on long runs
+CHUNK_CACHE = 4 * CHUNK_BYTES   # a dataset's chunk cache: the chunk being filled and a flush's worth (h5py: 1 MiB)
+METADATA_CACHE = 1 << 20        # a file's metadata cache at most (HDF5: grows to 32 MiB, the chunk index of a long run)
 
 
 def _growing(group: h5py.Group, name: str, width: int | None, dtype) -> h5py.Dataset:
@@ -46,7 +48,11 @@ class TransientGrid:
         self.frames = 0                    # frames in the file
         self.buffer = max(1, int(buffer))
         self._pending: dict[str, list] = {"Values": []}
-        self._file = h5py.File(self.path, "w")
+        self._file = h5py.File(self.path, "w", rdcc_nbytes=CHUNK_CACHE)
+        config = self._file.id.get_mdc_config()
+        config.max_size, config.min_size, config.initial_size, config.set_initial_size = (
+            METADATA_CACHE, METADATA_CACHE // 4, METADATA_CACHE // 2, True)
+        self._file.id.set_mdc_config(config)
         root = self._file.create_group("VTKHDF", track_order=True)
         root.attrs["Version"] = np.asarray(VERSION, np.int64)
         root.attrs.create("Type", np.bytes_("UnstructuredGrid"))

@@ -60,17 +60,19 @@ def solve_free_surface(body, spec: BuildSpec, solver, progress: bool = True) -> 
     with tqdm(total=rad[:, :, :, 0].size + dif[:, :, 0].size, desc="hdb build: free surface", unit="pb",
               disable=None if progress else True, leave=False) as bar:
         for i, om in enumerate(fs.omega):
+            results = []
             for b in range(len(names)):
                 for d in range(6):
-                    res = solver.solve(cpt.RadiationProblem(radiating_dof=label(b, d), omega=om, **common),
-                                       _check_wavelength=False)
-                    rad[i, b, d] = solver.compute_free_surface_elevation(points, res)
+                    results.append(solver.solve(cpt.RadiationProblem(radiating_dof=label(b, d), omega=om, **common),
+                                                keep_details=True, _check_wavelength=False))
                     bar.update()
-            for j, beta in enumerate(headings):
-                res = solver.solve(cpt.DiffractionProblem(wave_direction=float(beta), omega=om, **common),
-                                   _check_wavelength=False)
-                dif[i, j] = solver.compute_free_surface_elevation(points, res)
+            for beta in headings:
+                results.append(solver.solve(cpt.DiffractionProblem(wave_direction=float(beta), omega=om, **common),
+                                            keep_details=True, _check_wavelength=False))
                 bar.update()
+            eta = elevations(solver, points, results)
+            rad[i] = eta[:6 * len(names)].reshape(len(names), 6, -1)
+            dif[i] = eta[6 * len(names):]
     shape = (len(fs.y), len(fs.x))
     coords = {"omega": np.asarray(fs.omega, float), "wave_direction": headings, "body": names,
               "dof": list(DOFS), "y": fs.y, "x": fs.x}
@@ -82,6 +84,17 @@ def solve_free_surface(body, spec: BuildSpec, solver, progress: bool = True) -> 
                       attrs={"convention": "exp(-iwt)", "capytaine_version": cpt.__version__,
                              "reference_points": json.dumps({b.name: list(b.ref_point) for b in spec.all_bodies}),
                              "gravity": w.gravity, "depth": w.depth_m})
+
+
+def elevations(solver, points: np.ndarray, results: list) -> np.ndarray:
+    """The free-surface elevation (len(results), P) of solved problems of one body at one frequency:
+    what Capytaine's ``compute_free_surface_elevation`` gives each, (i w / g) S @ sources, with
+    its influence matrix S between the points and the panels built once for them all."""
+    r = results[0]
+    pts = np.column_stack([points, np.zeros(points.shape[0])])
+    gf = dict(free_surface=r.free_surface, water_depth=r.water_depth, wavenumber=r.encounter_wavenumber)
+    S = solver.engine.build_S_matrix(pts, r.body.mesh_including_lid, **gf)
+    return np.stack([(1j * res.omega / res.g) * (S @ res.sources) for res in results])
 
 
 def store_free_surface(ds: xr.Dataset, path: Path) -> Path:

@@ -289,14 +289,17 @@ class SecondOrder(_Section):
 class FreeSurface(_Section):
     """``[free_surface]``: Capytaine's free-surface elevation of every radiation and diffraction
     problem on a grid of ``cells`` (nx, ny) quads over ``extent`` (x0, x1, y0, y1, m), at the
-    frequencies ``omega`` (rad/s; any, solved for it), for ``hydrolink view``'s radiated and
+    frequencies ``omega`` (rad/s, increasing; a regular wave's own, or a grid over a sea's band for
+    the impulse response of the radiated wave, clients/view/convolved.py), for ``hydrolink view``'s radiated and
     diffracted waves (stored beside the cached HDB: server/hdb/build/free_surface.py)."""
-    omega: Annotated[list[PositiveFloat], Field(min_length=1, max_length=64)]
+    omega: Annotated[list[PositiveFloat], Field(min_length=1, max_length=512)]
     extent: Annotated[list[FiniteFloat], Field(min_length=4, max_length=4)]
     cells: Annotated[list[Annotated[int, Field(ge=1, le=2000)]], Field(min_length=2, max_length=2)]
 
     @model_validator(mode="after")
     def _box(self) -> "FreeSurface":
+        if any(b <= a for a, b in zip(self.omega, self.omega[1:])):
+            raise ValueError(".omega: must be strictly increasing (a grid the radiated wave's impulse response spans)")
         x0, x1, y0, y1 = self.extent
         if not (x1 > x0 and y1 > y0):
             raise ValueError(f".extent: must be [x0, x1, y0, y1] with x0 < x1 and y0 < y1, got {self.extent}")
