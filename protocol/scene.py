@@ -490,6 +490,9 @@ class Body(_Section):
     # wet bodies: the HDB's headings completed by mirror images (server/sea/headings.py) for a body
     # symmetric about the plane y = 0 ("xz"), x = 0 ("yz") or both: a half range serves every heading
     heading_symmetry: Literal["none", "xz", "yz", "both"] = "none"
+    # wet bodies: the excitation evaluated each step at every wave's direction relative to the body's
+    # instantaneous yaw, rotated into the global frame (server/sea/passive_yaw.py; WEC-Sim's option)
+    passive_yaw: bool = False
     # dry bodies only: the node's position (default: the centre of mass) and a constant buoyancy
     reference_point: Vector3 | None = None
     buoyancy_volume: Volume = 0.0
@@ -499,6 +502,11 @@ class Body(_Section):
     def _symmetry_of_an_hdb(self) -> "Body":
         if self.heading_symmetry != "none" and self.hdb is None:
             raise ValueError("heading_symmetry: only for a wet body (it completes the headings of its hdb)")
+        if self.passive_yaw and self.hdb is None:
+            raise ValueError("passive_yaw: only for a wet body (it turns the excitation of its hdb)")
+        if self.passive_yaw and "yaw" not in self.dofs:
+            raise ValueError(f"passive_yaw: needs the body's yaw DOF free (dofs {self.dofs} lock yaw): a body "
+                             "that cannot turn keeps its heading; add \"yaw\" to dofs or drop passive_yaw")
         return self
 
     @model_validator(mode="after")
@@ -1274,6 +1282,10 @@ class Scene(_Section):
         for i, b in enumerate(self.bodies):
             if self.second_order_of(b) != "none":
                 found["second_order"] = self.second_order_key(i)
+                break
+        for i, b in enumerate(self.bodies):
+            if b.passive_yaw:
+                found["passive_yaw"] = f"bodies[{i}].passive_yaw"
                 break
         return {f: found[f] for f in FEATURES if f in found}
 

@@ -47,6 +47,7 @@ from hydrolink.server.radiation.options import RadiationGroup, radiation_option
 from hydrolink.server.radiation.state_space import Realization
 from hydrolink.server.sea.headings import complete_headings, interpolate_excitation
 from hydrolink.server.sea.doppler import doppler_shift
+from hydrolink.server.sea.passive_yaw import PassiveYaw, YawingBody, yaw_grid, yawed_excitation
 from hydrolink.server.sea.seastate import direction_bands, sea_components
 from hydrolink.server.sea.waves import ConvolutionForcing, WaveError, WaveForcing, WavePhases, convolution_kernel, elevation_on_grid, kernel_transfer
 
@@ -165,6 +166,7 @@ class HydroModel:
         # the last step index a client may send: seq * dt runs to simulation.duration
         self.last_seq = scene.n_exchanges
         self._excitation(data, lo, hi, wave_elevation)
+        self._yaw = self._passive_yaw(data)
         self._step = -1           # index of the newest step pushed
         na = self._idx.size
         self._all_active = na == self.n
@@ -192,7 +194,8 @@ class HydroModel:
             exc, omega, ramp = self._forcing.matrix, self.waves.omega, float(self.waves.ramp)
         else:   # by convolution: a lookup of blocks computed by FFT, added to the compiled call's sums
             exc, omega, ramp = np.zeros((self._idx.size + 1, 0)), np.zeros(0), 0.0
-        fused = FusedLinearStep(self._idx, exc, omega, ramp, self._k_hs, self._x_eq, radiation)
+        fused = FusedLinearStep(self._idx, exc, omega, ramp, self._k_hs, self._x_eq, radiation,
+                                None if self._yaw is None else self._yaw.fused_inputs())
         fused.warm_up(self.n)
         return fused
 
@@ -375,6 +378,42 @@ class HydroModel:
             self._forcing = WaveForcing(self.waves, x_comp[:, self._idx], self._phases)
         self._x_comp = x_comp
 
+    def _passive_yaw(self, data: list[_GroupData]) -> PassiveYaw | None:
+        """The passive-yaw bodies' excitation tables (server/sea/passive_yaw.py), None without any;
+        refused by ``bodies[i].passive_yaw`` where they cannot be built (excitation by convolution, a
+        body whose HDB couples it to others; its drift: server/terms/second_order.py)."""
+        scene, bodies = self.scene, []
+        for k, i in enumerate(self._scene_index):
+            body = scene.bodies[i]
+            if not body.passive_yaw:
+                continue
+            key = f"bodies[{i}].passive_yaw"
+            if self.excitation != "superposition":
+                raise ModelError(key, f"needs the excitation summed over wave components; the scene's waves have it "
+                                      f"by convolution ({getattr(scene.waves, 'type', '?')} waves, excitation = "
+                                      f"{self.excitation!r}): use excitation = \"superposition\"")
+            d = next(g for g in data if k in g.members)
+            if len(d.members) > 1:
+                raise ModelError(key, f"body {body.name!r} interacts hydrodynamically with "
+                                      f"{[self.bodies[m] for m in d.members if m != k]} through its HDB {d.source!r}: "
+                                      "their coefficients hold one layout, which a turning body changes; set "
+                                      "hydro.interaction = \"none\" or give the body an HDB of its own")
+            sub = d.data.isel(body=[d.members.index(k)])
+            x_hdb = d.rg_scale * sub["excitation_force"].values
+            try:
+                x_psi = yawed_excitation(d.omega, sub["wave_direction"].values.astype(float), x_hdb, self.waves,
+                                         self.waves.wave_numbers(scene.water.gravity, scene.water.depth_m),
+                                         sub["reference_point"].values[0], yaw_grid(), key)
+            except WaveError as exc:
+                raise ModelError(key, exc.why + f" (HDB {d.source!r})") from None
+            dofs = np.flatnonzero(self.active[k])
+            bodies.append(YawingBody(6 * k + 5, np.searchsorted(self._idx, 6 * k + dofs), dofs, x_psi))
+            self.warnings.extend(_turning_note(key, body.name, self.hydrostatic_stiffness[6 * k:6 * k + 6, 6 * k:6 * k + 6],
+                                               self.added_mass_inf[6 * k:6 * k + 6, 6 * k:6 * k + 6]))
+        if not bodies or self.waves.size == 0:    # still water: no excitation to turn
+            return None
+        return PassiveYaw(self._forcing, bodies, f"bodies[{self._scene_index[bodies[0].yaw // 6]}].passive_yaw")
+
     def _eta_source(self, scene: Scene, wave_elevation, omega_max: float):
         """eta(k0, k1) -> (S, k1 - k0) at t = k dt, one row per heading, for ConvolutionForcing:
         synthesized from the components (regular/irregular: no ramp; the forcing applies it) or the
@@ -549,6 +588,8 @@ class HydroModel:
         for pos, memory in self._memories:
             red[1, pos] = memory.push(vs[pos], replace_last)
         red[0], eta = self._forcing(time)
+        if self._yaw is not None:
+            self._yaw.apply(time, x, red[0])
         np.dot(self._k_hs, self._x_eq - x[sel], out=red[2])
         if not self._all_active:
             out.reshape(3, self.n)[:, sel] = red
@@ -590,6 +631,20 @@ class HydroModel:
                     f.flags.writeable = False
                     reply[name] = f
         return reply
+
+
+def _turning_note(key: str, name: str, stiffness: np.ndarray, added_mass: np.ndarray) -> list[str]:
+    """The setup warning of a passive-yaw body whose hydrostatic stiffness or A-infinity is not
+    symmetric about its yaw axis (roll/pitch, surge/sway differ by over 1 %): those stay at the
+    initial heading's while the excitation turns (server/sea/passive_yaw.py)."""
+    def differ(m: np.ndarray, a: int, b: int) -> bool:
+        return abs(m[a, a] - m[b, b]) > 0.01 * max(abs(m[a, a]), abs(m[b, b]), 1e-300)
+    if not (differ(stiffness, 3, 4) or differ(added_mass, 0, 1) or differ(added_mass, 3, 4)):
+        return []
+    return [f"{key}: body {name!r} is not symmetric about its yaw axis (roll/pitch stiffness {stiffness[3, 3]:.4g}/"
+            f"{stiffness[4, 4]:.4g}, A-inf surge/sway {added_mass[0, 0]:.4g}/{added_mass[1, 1]:.4g}): its excitation "
+            "turns with its yaw but its added mass, radiation damping and hydrostatic stiffness stay those of the "
+            "initial heading (as in WEC-Sim); a yaw of more than a few degrees makes its roll and pitch approximate"]
 
 
 def _water_note(density: float, gravity: float, rho: float, g: float, src: str, s_rho: float, s_rg: float) -> str:

@@ -46,6 +46,7 @@ from hydrolink.server.allocation import require_size
 from hydrolink.server.errors import ModelError
 from hydrolink.server.terms.base import ForceTerm, TermContext
 from hydrolink.server.sea.headings import heading_weights
+from hydrolink.server.sea.passive_yaw import YAW_POINTS, grid_position, rotate_yaw, yaw_grid
 from hydrolink.server.sea.waves import WaveComponents, WaveError, ramp_factor
 
 _TOL = 1e-6   # relative tolerance on frequencies, absolute (rad) on headings
@@ -92,9 +93,20 @@ class BodySecondOrder:
     lift: np.ndarray | None = None
     difference: np.ndarray | None = None
     sum: np.ndarray | None = None
+    # a passive-yaw body (server/sea/passive_yaw.py): ``mean`` (n_psi, 6) and ``newman`` (n_psi, n_c,
+    # 6) at the tabulated yaws, the first the fixed heading's; blended at the body's yaw each step
+    yawing: bool = False
 
-    def force(self, z: np.ndarray) -> np.ndarray:
-        """(6,) the force for the component phasors ``z`` (no ramp)."""
+    def force(self, z: np.ndarray, yaw: float = 0.0) -> np.ndarray:
+        """(6,) the force for the component phasors ``z`` (no ramp); ``yaw`` (rad) the body's, read
+        by a passive-yaw body only."""
+        if self.yawing:
+            j0, j1, s = grid_position(yaw, YAW_POINTS)
+            f = np.zeros(6) if self.mean is None else (1.0 - s) * self.mean[j0] + s * self.mean[j1]
+            if self.newman is not None:
+                conj = np.conj(z.sum())
+                f += (1.0 - s) * ((z @ self.newman[j0]) * conj).real + s * ((z @ self.newman[j1]) * conj).real
+            return f
         f = np.zeros(6) if self.mean is None else self.mean.copy()
         if self.newman is not None:
             f += ((z @ self.newman) * np.conj(z.sum())).real
@@ -116,6 +128,26 @@ def _mean_drift_diagonal(sub: xr.Dataset, method: str, waves: WaveComponents, sc
     lw = interpolation_weights(w_grid, waves.hdb_omega, _wave_key(waves, "omega"), "wave frequency (rad/s)")
     lb = _heading_weights(b_grid, waves.heading_of(), waves, "the mean drift's headings")
     return np.einsum("ca,cb,abd->cd", lw, lb, md)
+
+
+def _yawed_drift_diagonal(sub: xr.Dataset, method: str, waves: WaveComponents, scale: float, psi: np.ndarray,
+                          key: str) -> np.ndarray:
+    """(n_psi, n_c, 6) T_ii of a passive-yaw body yawed by each ``psi``: at each component's heading
+    relative to the body, turned into the global frame (server/sea/passive_yaw.py); the same
+    interpolation as :func:`_mean_drift_diagonal`, a heading the data leave out a ModelError(key)."""
+    md = sub["mean_drift"].transpose(*MEAN_DRIFT_DIMS).sel(drift_method=method).values * scale
+    w_grid, b_grid = sub["drift_omega"].values, sub["drift_direction"].values
+    lw = interpolation_weights(w_grid, waves.hdb_omega, _wave_key(waves, "omega"), "wave frequency (rad/s)")
+    heads = waves.heading_of()
+    out = np.empty((psi.size, heads.size, 6))
+    for beta in np.unique(heads):
+        on = heads == beta
+        try:
+            lb = heading_weights(b_grid, beta - psi, key, "the mean drift's headings (the body yawing)")
+        except WaveError as exc:
+            raise ModelError(exc.key, exc.why) from None
+        out[:, on] = np.einsum("ca,jb,abd->jcd", lw[on], lb, md)
+    return rotate_yaw(out, psi)
 
 
 def _heading_weights(grid: np.ndarray, heads: np.ndarray, waves: WaveComponents, what: str) -> np.ndarray:
@@ -249,6 +281,10 @@ def body_second_order(scene: Scene, i: int, row: int, ds: xr.Dataset, waves: Wav
     kinds = ("difference",) if mode == "qtf" else ()
     if hydro.sum_frequency:
         kinds += ("sum",)
+    if body.passive_yaw and (kinds or mode not in ("mean-drift", "newman")):
+        raise ModelError(f"bodies[{i}].passive_yaw", f"with the QTF forces of {key} = {mode!r}"
+                         f"{' and hydro.sum_frequency' if hydro.sum_frequency else ''}: not built (their heading pairs "
+                         "do not turn with the body yet); use second_order = \"mean-drift\" or \"newman\"")
     held = qtf_kinds(sub)
     for kind in kinds:
         if kind not in held:
@@ -257,10 +293,18 @@ def body_second_order(scene: Scene, i: int, row: int, ds: xr.Dataset, waves: Wav
                                 f"(it holds {list(held) or 'none'})")
     if mode in ("mean-drift", "newman"):
         method = _drift_method(sub, mode, key, hydro.drift_method, body.name, src)
+        if body.passive_yaw and method is None:
+            raise ModelError(f"bodies[{i}].passive_yaw", f"with {key} = {mode!r}: needs the HDB's mean drift "
+                             f"coefficients ({src!r} holds only a QTF, whose diagonal does not turn with the body yet)")
         diag = (_mean_drift_diagonal(sub, method, waves, scale) if method is not None
                 else _qtf_diagonal(sub, waves, scale, src)[0])
+        if body.passive_yaw:    # at the tabulated yaws; the first, yaw 0, the fixed heading's own
+            diag = np.concatenate([diag[None], _yawed_drift_diagonal(sub, method, waves, scale, yaw_grid()[1:],
+                                                                     f"bodies[{i}].passive_yaw")])
+            parts["yawing"] = True
         if mode == "mean-drift":
-            parts["mean"] = (waves.amplitude ** 2) @ diag
+            a2 = waves.amplitude ** 2
+            parts["mean"] = a2 @ diag if not body.passive_yaw else np.stack([a2 @ d for d in diag])
         else:
             parts["newman"] = diag.astype(complex)   # complex already: a real operand would be cast each step
         moving = [d for d in body.dofs]
@@ -294,7 +338,7 @@ class SecondOrderTerm(ForceTerm):
     name = "second_order"
     scene_keys = ("hydro.second_order", "bodies[i].second_order", "hydro.drift_method", "hydro.sum_frequency")
     features = ("second_order",)
-    needs = frozenset({"time"})
+    needs = frozenset({"time", "position"})   # position: the yaw of passive-yaw bodies
     steady = "pointwise"     # hydrolink steady: a load at its nodes (regular waves: mean, and 2w with sum)
     stateless = False
     RESYNC = 1024
@@ -346,7 +390,7 @@ class SecondOrderTerm(ForceTerm):
             return (out,)
         z = self._phasors_at(float(t)) if self._phasors else self._c
         for part in self.parts:
-            out[part.row] = part.force(z)
+            out[part.row] = part.force(z, float(position[part.row, 5]))
         r = 1.0 if t >= self._ramp else float(ramp_factor(t, self._ramp))
         out *= self._mask * (r * r)
         return (out,)

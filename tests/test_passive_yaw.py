@@ -1,0 +1,146 @@
+"""Passive yaw (server/sea/passive_yaw.py, ``bodies[i].passive_yaw``): a body that turns meets each
+wave at its direction relative to its yaw.
+
+References: with the yaw held at 0 the forces equal the fixed-heading model's bit for bit (numpy and
+compiled paths, excitation and mean drift); with the yaw turning, the excitation and the mean drift
+of each step equal the HDB's values at the relative heading, rotated into the global frame,
+computed here from the HDB's own tables (its 0-90 deg headings mirrored around the circle by the
+barge's two planes of symmetry, linear in heading) to 1 %; the refusals name their key.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import body, irregular_waves, regular_waves, scene_toml
+
+from hydrolink.protocol.hdb.second_order import MeanDrift
+from hydrolink.protocol.hdb.schema import with_second_order
+from hydrolink.protocol.scene import SceneError, parse_scene
+from hydrolink.server.errors import ModelError
+from hydrolink.server.hdb.io import load_hdb
+from hydrolink.server.model import HydroModel
+
+HDB = Path(__file__).resolve().parents[1] / "examples" / "data" / "barge_headings" / "barge_headings.nc"
+WATER = {"density": 1025.0, "gravity": 9.81, "depth": "inf"}
+XZ, YZ = np.array([1, -1, 1, -1, 1, -1.0]), np.array([-1, 1, 1, 1, -1, -1.0])   # DOF signs of the mirrors
+
+
+@pytest.fixture(scope="module")
+def barge():
+    """The crossing-sea barge's HDB (headings 0..90 deg) with an analytic mean drift that has its
+    symmetries: surge 1e3 w^2 cos b, sway 1e3 w^2 sin b, yaw 4e3 w^2 sin 2b (N/m^2, N m/m^2)."""
+    ds = load_hdb(HDB)
+    w, b = ds["omega"].values, ds["wave_direction"].values
+    values = np.zeros((1, w.size, b.size, 6))
+    values[0, :, :, 0] = 1e3 * np.outer(w ** 2, np.cos(b))
+    values[0, :, :, 1] = 1e3 * np.outer(w ** 2, np.sin(b))
+    values[0, :, :, 5] = 4e3 * np.outer(w ** 2, np.sin(2 * b))
+    return with_second_order(ds, mean_drift=MeanDrift(("momentum",), w, b, values))
+
+
+def _scene(waves: dict, *, passive: bool = True, **keys):
+    bodies = [body("barge", hdb=str(HDB), mass=328e3, center_of_mass=[0, 0, 0], inertia=[2e6, 1.12e7, 1.27e7],
+                   **{"heading_symmetry": "both", "passive_yaw": passive, **keys})]
+    return parse_scene(scene_toml(dt=0.1, duration=10.0, water=WATER, waves=waves, bodies=bodies,
+                                  hydro={"radiation": "off"}))
+
+
+def _circle(values: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray]:
+    """The HDB's 0..90 deg headings (along ``axis``) completed around the circle by the barge's
+    mirrors: (24 headings in [0, 2 pi), values) with the DOF axis last."""
+    v = np.moveaxis(values, axis, -2)                                       # (..., 7, 6)
+    heads = np.deg2rad(np.arange(0, 360, 15.0))
+    out = np.empty(v.shape[:-2] + (24, 6), v.dtype)
+    for n, h in enumerate(np.arange(0, 360, 15)):
+        q, sign = h, np.ones(6)
+        if h > 180:                                                         # from -h: the xz mirror
+            q, sign = 360 - h, XZ
+        if q > 90:                                                          # from 180 - q: the yz mirror
+            q, sign = 180 - q, sign * YZ
+        out[..., n, :] = v[..., q // 15, :] * sign
+    return heads, out
+
+
+def _at(heads: np.ndarray, table: np.ndarray, theta: float) -> np.ndarray:
+    """(6,) table (24, 6) linear in heading around the circle at theta."""
+    return np.array([np.interp(theta % (2 * np.pi), heads, table[:, d].real, period=2 * np.pi)
+                     + 1j * np.interp(theta % (2 * np.pi), heads, table[:, d].imag, period=2 * np.pi)
+                     for d in range(6)])
+
+
+def _rotate(f: np.ndarray, psi: float) -> np.ndarray:
+    c, s = np.cos(psi), np.sin(psi)
+    out = f.copy()
+    for a, b in ((0, 1), (3, 4)):
+        out[a], out[b] = c * f[a] - s * f[b], s * f[a] + c * f[b]
+    return out
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_yaw_held_at_zero_is_the_fixed_heading_bit_for_bit(barge, compiled):
+    waves = irregular_waves(1.5, 7.0, direction=30.0, components=40, spreading="cos2s", s=10.0,
+                            directions=5, ramp=2.0)
+    fixed = HydroModel(_scene(waves, passive=False, second_order="mean-drift"), {"barge": barge}, compiled=compiled)
+    turning = HydroModel(_scene(waves, second_order="mean-drift"), {"barge": barge}, compiled=compiled)
+    x0 = fixed.setup_info().equilibrium_position
+    for k in range(30):
+        x = x0 + [[0.1 * np.sin(k), -0.2, 0.05 * k, 0.01, -0.02, 0.0]]
+        v = np.array([[0.3, 0.1, -0.2, 0.01, 0.02, 0.0]])
+        a, b = fixed.step(k * 0.1, x, v), turning.step(k * 0.1, x, v)
+        for field in ("excitation", "drift", "wave_elevation"):
+            np.testing.assert_array_equal(a[field], b[field], err_msg=f"{field} at step {k}")
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_turning_excitation_is_the_hdb_at_the_relative_heading(barge, compiled):
+    w = barge["omega"].values
+    picks = [9, 12, 16]                                      # components at HDB frequencies: no interpolation in w
+    comps = {"type": "components", "omega": w[picks].tolist(), "direction": [20.0, -75.0, 160.0],
+             "amplitude": [0.6, 0.4, 0.3], "phase": [10.0, 200.0, 300.0]}
+    model = HydroModel(_scene(comps), {"barge": barge}, compiled=compiled)
+    heads, table = _circle(barge["excitation_force"].values[picks], axis=1)    # (3, 24, 6)
+    x0 = model.setup_info().equilibrium_position
+    worst = 0.0
+    for k in range(60):
+        t = k * 0.1
+        psi = 3.5 * np.sin(0.11 * k) + 0.004 * k * k      # through every quadrant, past a full turn
+        got = model.step(t, x0 + [[0, 0, 0, 0, 0, psi]], np.zeros((1, 6)))["excitation"][0]
+        want, scale = np.zeros(6), np.zeros(6)
+        for c in range(3):
+            x = _rotate(_at(heads, table[c], np.deg2rad(comps["direction"][c]) - psi), psi)
+            z = comps["amplitude"][c] * np.exp(1j * (np.deg2rad(comps["phase"][c]) - w[picks[c]] * t))
+            want += (x * z).real
+            scale += np.abs(x) * comps["amplitude"][c]
+        worst = max(worst, float(np.max(np.abs(got - want) / scale)))
+    assert worst < 0.01, worst
+
+
+def test_turning_mean_drift_is_the_hdb_at_the_relative_heading(barge):
+    w = barge["omega"].values
+    model = HydroModel(_scene(regular_waves(1.2, 2 * np.pi / w[14], direction=-40.0), second_order="mean-drift"),
+                       {"barge": barge})
+    heads, table = _circle(barge["mean_drift"].values[0][14], axis=0)          # (24, 6)
+    x0 = model.setup_info().equilibrium_position
+    for k, psi in enumerate(np.deg2rad([0.0, 7.3, 44.5, 95.0, -130.2, 181.0, 400.0])):
+        got = model.step(k * 0.1, x0 + [[0, 0, 0, 0, 0, psi]], np.zeros((1, 6)))["drift"][0]
+        want = 0.6 ** 2 * _rotate(_at(heads, table, np.deg2rad(-40.0) - psi).real, psi)
+        np.testing.assert_allclose(got, want, rtol=0, atol=0.01 * np.abs(want).max())
+
+
+def test_refusals_name_their_key(barge):
+    with pytest.raises(SceneError) as err:
+        _scene(regular_waves(1.0, 7.0), dofs=["surge", "sway", "heave", "roll", "pitch"])
+    assert "bodies[0].passive_yaw" in str(err.value) and "yaw DOF free" in str(err.value)
+    cases = [
+        ({"waves": regular_waves(1.0, 7.0, excitation="convolution")}, "convolution"),
+        ({"waves": regular_waves(1.0, 7.0), "second_order": "qtf"}, "not built"),
+        ({"waves": regular_waves(1.0, 7.0), "heading_symmetry": "none"}, "not covered"),
+    ]
+    for keys, why in cases:
+        with pytest.raises(ModelError) as err:
+            HydroModel(_scene(keys.pop("waves"), **keys), {"barge": barge})
+        assert err.value.key == "bodies[0].passive_yaw" and why in str(err.value), str(err.value)
