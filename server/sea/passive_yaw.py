@@ -71,7 +71,7 @@ def yawed_excitation(omega_hdb: np.ndarray, directions: np.ndarray, x_hdb: np.nd
     for beta in np.unique(heads):
         on = heads == beta
         weights = heading_weights(directions, beta - psi, key, "the HDB's headings (the body yawing)")
-        out[:, on] = np.einsum("jh,chd->jcd", weights, xw[on])
+        out[:, on] = np.tensordot(weights, xw[on], axes=(1, 1))
     beta = heads[None, :]
     shift = reference[0] * (np.cos(beta) - np.cos(beta - psi[:, None])) + \
         reference[1] * (np.sin(beta) - np.sin(beta - psi[:, None]))

@@ -138,6 +138,7 @@ def _yawed_drift_diagonal(sub: xr.Dataset, method: str, waves: WaveComponents, s
     md = sub["mean_drift"].transpose(*MEAN_DRIFT_DIMS).sel(drift_method=method).values * scale
     w_grid, b_grid = sub["drift_omega"].values, sub["drift_direction"].values
     lw = interpolation_weights(w_grid, waves.hdb_omega, _wave_key(waves, "omega"), "wave frequency (rad/s)")
+    mw = np.tensordot(lw, md, axes=(1, 0))          # (n_c, n_b, 6): at the components' frequencies
     heads = waves.heading_of()
     out = np.empty((psi.size, heads.size, 6))
     for beta in np.unique(heads):
@@ -146,7 +147,7 @@ def _yawed_drift_diagonal(sub: xr.Dataset, method: str, waves: WaveComponents, s
             lb = heading_weights(b_grid, beta - psi, key, "the mean drift's headings (the body yawing)")
         except WaveError as exc:
             raise ModelError(exc.key, exc.why) from None
-        out[:, on] = np.einsum("ca,jb,abd->jcd", lw[on], lb, md)
+        out[:, on] = np.tensordot(lb, mw[on], axes=(1, 1))
     return rotate_yaw(out, psi)
 
 
