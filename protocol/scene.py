@@ -493,6 +493,9 @@ class Body(_Section):
     # wet bodies: the excitation evaluated each step at every wave's direction relative to the body's
     # instantaneous yaw, rotated into the global frame (server/sea/passive_yaw.py; WEC-Sim's option)
     passive_yaw: bool = False
+    # s: the waves are read at the yaw low-passed with this time constant (the body's slow heading, the
+    # wave-frequency yaw left out; 0: the instantaneous yaw, WEC-Sim's)
+    passive_yaw_filter: RampTime = 0.0
     # dry bodies only: the node's position (default: the centre of mass) and a constant buoyancy
     reference_point: Vector3 | None = None
     buoyancy_volume: Volume = 0.0
@@ -504,6 +507,8 @@ class Body(_Section):
             raise ValueError("heading_symmetry: only for a wet body (it completes the headings of its hdb)")
         if self.passive_yaw and self.hdb is None:
             raise ValueError("passive_yaw: only for a wet body (it turns the excitation of its hdb)")
+        if self.passive_yaw_filter and not self.passive_yaw:
+            raise ValueError("passive_yaw_filter: only with passive_yaw = true")
         if self.passive_yaw and "yaw" not in self.dofs:
             raise ValueError(f"passive_yaw: needs the body's yaw DOF free (dofs {self.dofs} lock yaw): a body "
                              "that cannot turn keeps its heading; add \"yaw\" to dofs or drop passive_yaw")

@@ -174,7 +174,8 @@ class HydroModel:
         self._red = np.zeros((3, na))  # scratch: excitation, radiation, hydrostatic (active DOFs)
         self.terms = build_terms(TermContext(
             scene, wet, self.active, self._idx, self.waves, self.equilibrium_position,
-            self.hydrostatic_stiffness, self._net_buoyancy, hulls or {}, hdbs, self._phases), term_types)
+            self.hydrostatic_stiffness, self._net_buoyancy, hulls or {}, hdbs, self._phases,
+            None if self._yaw is None else self._yaw.heading), term_types)
         self._stateful = [term for term in self.terms if not term.stateless]
         self._add_term_contributions()
         self._reply_shape, self._rows_shape = (3, len(self.bodies), 6), (3, self.n)
@@ -407,12 +408,13 @@ class HydroModel:
             except WaveError as exc:
                 raise ModelError(key, exc.why + f" (HDB {d.source!r})") from None
             dofs = np.flatnonzero(self.active[k])
-            bodies.append(YawingBody(6 * k + 5, np.searchsorted(self._idx, 6 * k + dofs), dofs, x_psi))
+            bodies.append(YawingBody(6 * k + 5, np.searchsorted(self._idx, 6 * k + dofs), dofs, x_psi,
+                                     float(body.passive_yaw_filter)))
             self.warnings.extend(_turning_note(key, body.name, self.hydrostatic_stiffness[6 * k:6 * k + 6, 6 * k:6 * k + 6],
                                                self.added_mass_inf[6 * k:6 * k + 6, 6 * k:6 * k + 6]))
         if not bodies or self.waves.size == 0:    # still water: no excitation to turn
             return None
-        return PassiveYaw(self._forcing, bodies, f"bodies[{self._scene_index[bodies[0].yaw // 6]}].passive_yaw")
+        return PassiveYaw(self._forcing, bodies, self.dt, f"bodies[{self._scene_index[bodies[0].yaw // 6]}].passive_yaw")
 
     def _eta_source(self, scene: Scene, wave_elevation, omega_max: float):
         """eta(k0, k1) -> (S, k1 - k0) at t = k dt, one row per heading, for ConvolutionForcing:
@@ -563,15 +565,19 @@ class HydroModel:
         return self.waves.omega.copy(), self._x_comp * c[:, None], c
 
     def state(self) -> tuple:
-        """Everything :meth:`step` changes, copied: the newest step's index, the radiation memories
-        and the stateful force terms' states (excitation and hydrostatics keep none)."""
+        """Everything :meth:`step` changes, copied: the newest step's index, the radiation memories,
+        the stateful force terms' states and the passive-yaw headings (the rest of the excitation
+        and hydrostatics keep none)."""
         memories = self._fused.state() if self._fused is not None else \
             tuple(memory.state() for _, memory in self._memories)
-        return self._step, memories, tuple(term.state() for term in self._stateful)
+        yaw = self._yaw.state() if self._yaw is not None else None
+        return self._step, memories, tuple(term.state() for term in self._stateful), yaw
 
     def set_state(self, state: tuple) -> None:
         """Back to a :meth:`state` of this model (a session rolled back, SPEC §5.9)."""
-        self._step, memories, terms = state
+        self._step, memories, terms, yaw = state
+        if self._yaw is not None:
+            self._yaw.set_state(yaw)
         if self._fused is not None:
             self._fused.set_state(memories)
         for (_, memory), saved in zip(self._memories if self._fused is None else (), memories):
@@ -589,7 +595,7 @@ class HydroModel:
             red[1, pos] = memory.push(vs[pos], replace_last)
         red[0], eta = self._forcing(time)
         if self._yaw is not None:
-            self._yaw.apply(time, x, red[0])
+            self._yaw.apply(time, red[0])
         np.dot(self._k_hs, self._x_eq - x[sel], out=red[2])
         if not self._all_active:
             out.reshape(3, self.n)[:, sel] = red
@@ -613,6 +619,8 @@ class HydroModel:
         # the reply's arrays: fresh each step (a reply may be kept, e.g. cached for a retry, and
         # goes out in-process as is), written in place, then made read-only like a frame's arrays
         out = np.zeros(self._reply_shape)
+        if self._yaw is not None:
+            self._yaw.follow(x, replace_last)     # the headings the waves are read at (the compiled step's too)
         if self._fused is not None:
             if self._summed:
                 eta = self._fused(time, x, v, replace_last, out.reshape(self._rows_shape))

@@ -144,3 +144,32 @@ def test_refusals_name_their_key(barge):
         with pytest.raises(ModelError) as err:
             HydroModel(_scene(keys.pop("waves"), **keys), {"barge": barge})
         assert err.value.key == "bodies[0].passive_yaw" and why in str(err.value), str(err.value)
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_filtered_yaw_reads_the_waves_at_the_low_passed_heading(barge, compiled):
+    """passive_yaw_filter = tau: the waves are read at psi_f, psi_f,k = psi_f,k-1 + dt/(tau + dt) (psi_k -
+    psi_f,k-1) from psi_f,0 = psi_0 (the recursion written here); the excitation equals the
+    unfiltered model's at that heading, and a step recomputed (replace_last) or rolled back repeats it."""
+    waves = regular_waves(1.0, 2 * np.pi / barge["omega"].values[14], direction=-40.0)
+    filtered = HydroModel(_scene(waves, passive_yaw_filter=2.0, second_order="mean-drift"), {"barge": barge},
+                          compiled=compiled)
+    plain = HydroModel(_scene(waves, second_order="mean-drift"), {"barge": barge}, compiled=compiled)
+    x0 = filtered.setup_info().equilibrium_position
+    psi_f, alpha = 0.0, 0.1 / 2.1
+    for k in range(25):
+        psi = 0.8 * np.sin(1.3 * k) + 0.05 * k
+        psi_f = psi if k == 0 else psi_f + alpha * (psi - psi_f)
+        if k == 10:                       # a step first sent with another yaw, then recomputed
+            filtered.step(k * 0.1, x0 + [[0, 0, 0, 0, 0, psi + 1.0]], np.zeros((1, 6)))
+            saved = filtered.state()
+            got = tenth = filtered.step(k * 0.1, x0 + [[0, 0, 0, 0, 0, psi]], np.zeros((1, 6)), replace_last=True)
+        else:
+            got = filtered.step(k * 0.1, x0 + [[0, 0, 0, 0, 0, psi]], np.zeros((1, 6)))
+        want = plain.step(k * 0.1, x0 + [[0, 0, 0, 0, 0, psi_f]], np.zeros((1, 6)))
+        for field in ("excitation", "drift"):
+            np.testing.assert_allclose(got[field], want[field], rtol=1e-12, atol=1e-9 * np.abs(want[field]).max())
+    filtered.set_state(saved)             # rolled back to step 10 as first sent: recomputed, the same bits
+    again = filtered.step(1.0, x0 + [[0, 0, 0, 0, 0, 0.8 * np.sin(13.0) + 0.5]], np.zeros((1, 6)), replace_last=True)
+    for field in ("excitation", "drift"):
+        np.testing.assert_array_equal(again[field], tenth[field])

@@ -49,11 +49,11 @@ def excitation(idx, exc, omega, ramp_t, trig, t, f_ext, out):
     return eta
 
 
-def yaw_excitation(tables, yaws, rows, owner, idx, ramp_t, trig, t, x, f_ext, out):
+def yaw_excitation(tables, headings, rows, owner, idx, ramp_t, trig, t, f_ext, out):
     """The passive-yaw bodies' excitation rows (server/sea/passive_yaw.py), after :func:`excitation`
     filled ``trig``: for passive row r of body b = owner[r], forcing row i = rows[r], the sums of
     tables[b, j0, i] and tables[b, j1, i] over [cos wt; sin wt] at the tabulated yaws j0, j1 around
-    x[yaws[b]], blended linearly, times the ramp: out[idx[i]] = that + f_ext[i] (the same loop as
+    headings[b], blended linearly, times the ramp: out[idx[i]] = that + f_ext[i] (the same loop as
     :func:`excitation`'s, so the table at yaw 0, the fixed-heading matrix, gives its bits)."""
     if rows.size == 0:
         return
@@ -64,7 +64,7 @@ def yaw_excitation(tables, yaws, rows, owner, idx, ramp_t, trig, t, x, f_ext, ou
         ramp = 0.5 * (1.0 - math.cos(math.pi * max(t, 0.0) / ramp_t))
     for r in range(rows.size):
         b, i = owner[r], rows[r]
-        u = (x[yaws[b]] * (points / (2.0 * math.pi))) % points
+        u = (headings[b] * (points / (2.0 * math.pi))) % points
         j0 = int(u)
         s = u - j0
         if j0 >= points:     # a tiny negative angle rounds to a whole turn

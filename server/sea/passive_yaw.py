@@ -81,13 +81,15 @@ def yawed_excitation(omega_hdb: np.ndarray, directions: np.ndarray, x_hdb: np.nd
 @dataclass(frozen=True)
 class YawingBody:
     """One passive-yaw body of the step: ``yaw`` its yaw's position in the 6N state, ``rows`` its
-    active DOFs' positions among the forcing rows, ``dofs`` which DOFs (0..5) those are, and
-    ``excitation`` (n_psi, n_c, 6) its excitation at the tabulated yaws (:func:`yawed_excitation`)."""
+    active DOFs' positions among the forcing rows, ``dofs`` which DOFs (0..5) those are,
+    ``excitation`` (n_psi, n_c, 6) its excitation at the tabulated yaws (:func:`yawed_excitation`)
+    and ``filter`` (s) the time constant of the low-pass its yaw is read through (0: none)."""
 
     yaw: int
     rows: np.ndarray
     dofs: np.ndarray
     excitation: np.ndarray
+    filter: float = 0.0
 
 
 def yaw_tables(forcing: WaveForcing, bodies: list[YawingBody], key: str) -> np.ndarray:
@@ -117,28 +119,66 @@ def grid_position(psi: float, points: int) -> tuple[int, int, float]:
 
 
 class PassiveYaw:
-    """The excitation rows of the passive-yaw bodies, from their tables at the step's yaws (module
-    docstring); the numpy path's (the compiled step has its own loop, server/fused/loops.py)."""
+    """The excitation rows of the passive-yaw bodies, from their tables at the headings the waves are
+    read at (module docstring): each body's yaw, or with ``filter`` > 0 its yaw low-passed, one
+    backward-Euler step of dpsi_f/dt = (psi - psi_f) / filter per server step (psi_f starts at the
+    yaw of step 0), so that the wave-frequency yaw does not turn the excitation (its effect on the
+    mean force is second order, the drift's). The headings are this object's state (the session
+    rollback: :meth:`state`). :meth:`apply` is the numpy path's; the compiled step reads
+    :attr:`headings` (server/fused/loops.py ``yaw_excitation``)."""
 
-    def __init__(self, forcing: WaveForcing, bodies: list[YawingBody], key: str):
+    def __init__(self, forcing: WaveForcing, bodies: list[YawingBody], dt: float, key: str):
         self.forcing, self.bodies = forcing, bodies
         self.tables = yaw_tables(forcing, bodies, key)     # (n_b, n_psi, n + 1, 2 n_c)
         self.points = self.tables.shape[1]
+        self._alpha = np.array([dt / (b.filter + dt) for b in bodies])
+        self._filtered = np.array([b.filter > 0 for b in bodies])
+        self._yaw = np.array([b.yaw for b in bodies], np.int64)
+        self.headings = np.zeros(len(bodies))    # (n_b,) the yaws the waves are read at, this step
+        self._previous = np.zeros(len(bodies))   # ... and at the step before (for a step recomputed)
+        self._steps = 0
 
-    def apply(self, t: float, x: np.ndarray, f_ex: np.ndarray) -> None:
+    def follow(self, x: np.ndarray, replace_last: bool) -> np.ndarray:
+        """The headings of the step whose state is ``x`` (6N,) (``replace_last``: the newest step
+        again, with a new state), written into :attr:`headings` (the array the compiled step holds)."""
+        yaw = x[self._yaw]
+        if not self._filtered.any():
+            self.headings[:] = yaw
+            return self.headings
+        if not replace_last:
+            self._previous[:] = self.headings
+            self._steps += 1
+        first = self._steps <= 1
+        low = yaw if first else self._previous + self._alpha * (yaw - self._previous)
+        self.headings[:] = np.where(self._filtered, low, yaw)
+        return self.headings
+
+    def heading(self, row: int) -> float:
+        """The heading the waves are read at for the body at ``row`` among the served bodies."""
+        return float(self.headings[int(np.flatnonzero(self._yaw == 6 * row + 5)[0])])
+
+    def state(self) -> tuple:
+        return self.headings.copy(), self._previous.copy(), self._steps
+
+    def set_state(self, state: tuple) -> None:
+        headings, previous, self._steps = state
+        np.copyto(self.headings, headings)
+        np.copyto(self._previous, previous)
+
+    def apply(self, t: float, f_ex: np.ndarray) -> None:
         """Overwrite the passive-yaw bodies' rows of ``f_ex`` (the forcing rows at ``t``, ramped) for
-        the state ``x`` (6N,)."""
+        the step's :attr:`headings`."""
         ramp = ramp_at(t, self.forcing.comps.ramp)
-        for body, tables in zip(self.bodies, self.tables):
-            j0, j1, s = grid_position(float(x[body.yaw]), self.points)
+        for body, tables, psi in zip(self.bodies, self.tables, self.headings):
+            j0, j1, s = grid_position(float(psi), self.points)
             out = (1.0 - s) * self.forcing.sum(t, tables[j0]) + s * self.forcing.sum(t, tables[j1])
             out *= ramp
             f_ex[body.rows] = out[body.rows]
 
     def fused_inputs(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """What the compiled step takes (server/fused/step.py): the tables (n_b, n_psi, n + 1, 2 n_c),
-        each body's yaw position (n_b,), and each passive row's forcing row and body (n_rows,)."""
-        yaws = np.array([b.yaw for b in self.bodies], np.int64)
+        the headings (n_b,) (this object's array: :meth:`follow` fills it before each call), and
+        each passive row's forcing row and body (n_rows,)."""
         rows = np.concatenate([b.rows for b in self.bodies]).astype(np.int64)
         owner = np.concatenate([np.full(b.rows.size, k) for k, b in enumerate(self.bodies)]).astype(np.int64)
-        return self.tables, yaws, rows, owner
+        return self.tables, self.headings, rows, owner

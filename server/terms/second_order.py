@@ -33,6 +33,7 @@ a pair they do not hold, is a ModelError naming the wave key.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -345,7 +346,7 @@ class SecondOrderTerm(ForceTerm):
     RESYNC = 1024
 
     def __init__(self, parts: list[BodySecondOrder], waves: WaveComponents, active: np.ndarray, dt: float,
-                 warnings: list[str]):
+                 warnings: list[str], heading: Callable[[int], float] | None = None):
         super().__init__(("drift",))
         self.parts, self._mask = parts, active.astype(float)
         self._c = waves.amplitude * np.exp(1j * waves.phase)
@@ -356,6 +357,7 @@ class SecondOrderTerm(ForceTerm):
         self._phasors = any(p.newman is not None or p.lift is not None for p in parts)  # else constant
         self._t, self._z, self._since = np.nan, self._c, 0    # the newest phasors, at time _t
         self.warnings = tuple(warnings)
+        self._heading = heading   # a passive-yaw body's heading at a row, this step (TermContext.yaw_heading)
 
     @classmethod
     def build(cls, ctx: TermContext) -> "SecondOrderTerm | None":
@@ -372,7 +374,7 @@ class SecondOrderTerm(ForceTerm):
             part, warn = body_second_order(scene, i, row, ctx.hdbs[scene.bodies[i].name], ctx.waves)
             parts.append(part)
             warnings += warn
-        return cls(parts, ctx.waves, ctx.active, scene.exchange_dt, warnings)
+        return cls(parts, ctx.waves, ctx.active, scene.exchange_dt, warnings, ctx.yaw_heading)
 
     def _phasors_at(self, t: float) -> np.ndarray:
         """z(t), rotated from the newest phasors when t is one step later."""
@@ -391,7 +393,9 @@ class SecondOrderTerm(ForceTerm):
             return (out,)
         z = self._phasors_at(float(t)) if self._phasors else self._c
         for part in self.parts:
-            out[part.row] = part.force(z, float(position[part.row, 5]))
+            yaw = 0.0 if not part.yawing else (self._heading(part.row) if self._heading is not None
+                                               else float(position[part.row, 5]))
+            out[part.row] = part.force(z, yaw)
         r = 1.0 if t >= self._ramp else float(ramp_factor(t, self._ramp))
         out *= self._mask * (r * r)
         return (out,)
