@@ -496,6 +496,10 @@ class Body(_Section):
     # s: the waves are read at the yaw low-passed with this time constant (the body's slow heading, the
     # wave-frequency yaw left out; 0: the instantaneous yaw, WEC-Sim's)
     passive_yaw_filter: RampTime = 0.0
+    # "initial-heading": added mass, damping and hydrostatic stiffness stay the initial heading's while
+    # the excitation turns (the only choice; stating it acknowledges it for a body not symmetric about
+    # its yaw axis, which gets a setup warning otherwise)
+    passive_yaw_coefficients: Literal["initial-heading"] | None = None
     # dry bodies only: the node's position (default: the centre of mass) and a constant buoyancy
     reference_point: Vector3 | None = None
     buoyancy_volume: Volume = 0.0
@@ -507,8 +511,9 @@ class Body(_Section):
             raise ValueError("heading_symmetry: only for a wet body (it completes the headings of its hdb)")
         if self.passive_yaw and self.hdb is None:
             raise ValueError("passive_yaw: only for a wet body (it turns the excitation of its hdb)")
-        if self.passive_yaw_filter and not self.passive_yaw:
-            raise ValueError("passive_yaw_filter: only with passive_yaw = true")
+        for key in ("passive_yaw_filter", "passive_yaw_coefficients"):
+            if getattr(self, key) and not self.passive_yaw:
+                raise ValueError(f"{key}: only with passive_yaw = true")
         if self.passive_yaw and "yaw" not in self.dofs:
             raise ValueError(f"passive_yaw: needs the body's yaw DOF free (dofs {self.dofs} lock yaw): a body "
                              "that cannot turn keeps its heading; add \"yaw\" to dofs or drop passive_yaw")

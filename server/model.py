@@ -410,8 +410,10 @@ class HydroModel:
             dofs = np.flatnonzero(self.active[k])
             bodies.append(YawingBody(6 * k + 5, np.searchsorted(self._idx, 6 * k + dofs), dofs, x_psi,
                                      float(body.passive_yaw_filter)))
-            self.warnings.extend(_turning_note(key, body.name, self.hydrostatic_stiffness[6 * k:6 * k + 6, 6 * k:6 * k + 6],
-                                               self.added_mass_inf[6 * k:6 * k + 6, 6 * k:6 * k + 6]))
+            if body.passive_yaw_coefficients is None:
+                block = slice(6 * k, 6 * k + 6)
+                self.warnings.extend(_turning_note(key, body.name, self.hydrostatic_stiffness[block, block],
+                                                   self.added_mass_inf[block, block]))
         if not bodies or self.waves.size == 0:    # still water: no excitation to turn
             return None
         return PassiveYaw(self._forcing, bodies, self.dt, f"bodies[{self._scene_index[bodies[0].yaw // 6]}].passive_yaw")
@@ -652,7 +654,9 @@ def _turning_note(key: str, name: str, stiffness: np.ndarray, added_mass: np.nda
     return [f"{key}: body {name!r} is not symmetric about its yaw axis (roll/pitch stiffness {stiffness[3, 3]:.4g}/"
             f"{stiffness[4, 4]:.4g}, A-inf surge/sway {added_mass[0, 0]:.4g}/{added_mass[1, 1]:.4g}): its excitation "
             "turns with its yaw but its added mass, radiation damping and hydrostatic stiffness stay those of the "
-            "initial heading (as in WEC-Sim); a yaw of more than a few degrees makes its roll and pitch approximate"]
+            "initial heading (as in WEC-Sim): a yaw of more than a few degrees makes its roll, pitch, surge and sway "
+            f"dynamics approximate; state {key.replace('passive_yaw', 'passive_yaw_coefficients')} = "
+            "\"initial-heading\" to accept it"]
 
 
 def _water_note(density: float, gravity: float, rho: float, g: float, src: str, s_rho: float, s_rg: float) -> str:
