@@ -45,6 +45,9 @@ FEATURES: dict[str, Feature] = {
     "passive_yaw": Feature("passive yaw (the excitation at the body's instantaneous heading)", ()),
 }
 
+#: features of the linear core itself (server/model.py, server/sea/), not of a force term (server/terms/)
+CORE_FEATURES = frozenset({"passive_yaw"})
+
 _POINTWISE = frozenset({"linear_damping", "quadratic_damping", "drag", "morison"})
 _YAW = ("{what} needs the body's yaw sent to the force server each step and its excitation to follow it, "
         "which {tool} does not do; run the scene with hydrolink run")
