@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 import math
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Collection, Literal, Union
 
@@ -284,6 +285,49 @@ class ComponentWaves(_Section):
 
 Waves = Annotated[Union[StillWater, RegularWave, IrregularWave, ElevationWave, SeaState, ComponentWaves],
                   Field(discriminator="type")]
+
+
+@dataclass(frozen=True)
+class WavePeak:
+    """A period a sea holds and its height, with the keys that set them: what the time step must
+    resolve (clients/lockstep/preflight.py) and what must not break (server/model.py)."""
+    period: float           # s: a regular wave's, a spectrum's peak period, a component's
+    height: float           # m: its height, significant height (4 sqrt(m0)) or 2 a
+    period_key: str
+    height_key: str
+    per_key: float = 1.0    # height / the value of height_key (2: a component's amplitude)
+
+
+def _table_peak(system: WaveSystem, i: int) -> WavePeak:
+    """A table spectrum's peak period (of S integrated over theta) and significant height."""
+    import numpy as np
+    w, d = np.asarray(system.omega, float), np.asarray(system.density, float)
+    hz = system.units == "hz-deg"        # frequencies in Hz, density per Hz (and per degree)
+    if d.ndim == 2:
+        theta = np.asarray(system.theta, float)
+        d = np.trapezoid(d, theta if hz else np.deg2rad(theta), axis=1)
+    peak = float(w[int(np.argmax(d))])
+    return WavePeak(period=1.0 / peak if hz else 2 * math.pi / peak, height=4.0 * math.sqrt(float(np.trapezoid(d, w))),
+                    period_key=f"waves.systems[{i}].omega", height_key=f"waves.systems[{i}].density")
+
+
+def wave_peaks(waves: Waves) -> list[WavePeak]:
+    """The periods the scene's sea holds with their heights (none for still water and an elevation
+    series): a regular wave's; an irregular sea's peak; each system's of a ``sea`` (a table's from its
+    own values); each component of a ``components`` list."""
+    if isinstance(waves, RegularWave):
+        return [WavePeak(period=waves.period, height=waves.height, period_key="waves.period", height_key="waves.height")]
+    if isinstance(waves, IrregularWave):
+        return [WavePeak(period=waves.tp, height=waves.hs, period_key="waves.tp", height_key="waves.hs")]
+    if isinstance(waves, SeaState):
+        return [_table_peak(s, i) if s.spectrum == "table" else
+                WavePeak(period=s.tp, height=s.hs, period_key=f"waves.systems[{i}].tp", height_key=f"waves.systems[{i}].hs")
+                for i, s in enumerate(waves.systems)]
+    if isinstance(waves, ComponentWaves):
+        return [WavePeak(period=2 * math.pi / w, height=2.0 * a, period_key=f"waves.omega[{i}]",
+                         height_key=f"waves.amplitude[{i}]", per_key=2.0)
+                for i, (w, a) in enumerate(zip(waves.omega, waves.amplitude))]
+    return []
 
 
 Nonlinear = Literal["none", "hydrostatic", "froude-krylov"]

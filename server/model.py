@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 import xarray as xr
 
-from hydrolink.protocol.scene import Scene
+from hydrolink.protocol.scene import Scene, wave_peaks
 from hydrolink.protocol.setup import IRFProcessing, Setup, StateSpaceReport
 from hydrolink.server import compiler
 from hydrolink.server.allocation import require_size
@@ -446,24 +446,29 @@ class HydroModel:
         return eta
 
     def _check_waves(self) -> None:
-        """Regular and irregular waves no steeper than the breaking limit H/lambda = 1/7 (lambda of
-        the period / peak period by linear dispersion at the scene's depth); a warning above half
-        of it, where linear theory loses accuracy."""
-        w = self.scene.waves
-        kind = getattr(w, "type", "still")
-        if kind not in ("regular", "irregular"):
-            return
+        """Waves no steeper than the breaking limit H/lambda = 1/7 (protocol/scene.py ``wave_peaks``:
+        a regular wave's height at its period, a sea's significant height at its peak period, each
+        system's of a ``sea``, each component's 2a of a component list; lambda by linear dispersion at
+        the scene's depth); a warning above half of it, where linear theory loses accuracy."""
         from hydrolink.server.sea.dispersion import wave_number
-        period, height, key = (w.period, w.height, "waves.height") if kind == "regular" else (w.tp, w.hs, "waves.hs")
+        peaks = wave_peaks(self.scene.waves)
+        if not peaks:
+            return
         water = self.scene.water
-        lam = 2 * np.pi / float(wave_number(np.array([2 * np.pi / period]), water.gravity, water.depth_m)[0])
-        steep = height / lam
-        if steep > BREAKING_STEEPNESS:
-            raise ModelError(key, f"{height:g} m at {period:g} s is steeper than the breaking limit: H/lambda = "
-                                  f"{steep:.3g} > 1/7 (lambda = {lam:.4g} m): no such wave exists; use "
-                                  f"{key} <= {BREAKING_STEEPNESS * lam:.4g} m (or a longer period)")
-        if steep > 0.5 * BREAKING_STEEPNESS:
-            self.warnings.append(f"{key}: H/lambda = {steep:.3g} is over half the breaking limit 1/7: linear "
+        periods = np.array([p.period for p in peaks])
+        lam = 2 * np.pi / wave_number(2 * np.pi / periods, water.gravity, water.depth_m)
+        steep = np.array([p.height for p in peaks]) / lam
+        k = int(np.argmax(steep))
+        peak, key = peaks[k], peaks[k].height_key
+        if steep[k] > BREAKING_STEEPNESS:
+            raise ModelError(key, f"{peak.height:g} m at {peak.period:g} s is steeper than the breaking limit: H/lambda = "
+                                  f"{steep[k]:.3g} > 1/7 (lambda = {lam[k]:.4g} m): no such wave exists; " + (
+                                      f"scale {key} by {(BREAKING_STEEPNESS / steep[k]) ** 2:.3g} or less"
+                                      if key.endswith(".density") else
+                                      f"use {key} <= {BREAKING_STEEPNESS * lam[k] / peak.per_key:.4g} m")
+                             + " (or a longer period)")
+        if steep[k] > 0.5 * BREAKING_STEEPNESS:
+            self.warnings.append(f"{key}: H/lambda = {steep[k]:.3g} is over half the breaking limit 1/7: linear "
                                  "wave theory and linear forces lose accuracy (steep-wave effects are not modelled)")
 
     def _buoyancy(self, data: list[_GroupData], rho: float, g: float, masses: np.ndarray) -> list[float | None]:
