@@ -80,19 +80,19 @@ def _rotate(f: np.ndarray, psi: float) -> np.ndarray:
     return out
 
 
-@pytest.mark.parametrize("compiled", [False, True])
-def test_yaw_held_at_zero_is_the_fixed_heading_bit_for_bit(barge, compiled):
-    waves = irregular_waves(1.5, 7.0, direction=30.0, components=40, spreading="cos2s", s=10.0,
-                            directions=5, ramp=2.0)
-    fixed = HydroModel(_scene(waves, passive=False, second_order="mean-drift"), {"barge": barge}, compiled=compiled)
-    turning = HydroModel(_scene(waves, second_order="mean-drift"), {"barge": barge}, compiled=compiled)
+@pytest.mark.parametrize("compiled,mode", [(False, "newman"), (True, "mean-drift")])   # (the drift's path is one)
+def test_yaw_held_at_zero_is_the_fixed_heading_bit_for_bit(barge, compiled, mode):
+    waves = irregular_waves(1.5, 7.0, direction=30.0, components=16, spreading="cos2s", s=10.0,
+                            directions=3, ramp=2.0)
+    fixed = HydroModel(_scene(waves, passive=False, second_order=mode), {"barge": barge}, compiled=compiled)
+    turning = HydroModel(_scene(waves, second_order=mode), {"barge": barge}, compiled=compiled)
     x0 = fixed.setup_info().equilibrium_position
     for k in range(30):
         x = x0 + [[0.1 * np.sin(k), -0.2, 0.05 * k, 0.01, -0.02, 0.0]]
         v = np.array([[0.3, 0.1, -0.2, 0.01, 0.02, 0.0]])
         a, b = fixed.step(k * 0.1, x, v), turning.step(k * 0.1, x, v)
         for field in ("excitation", "drift", "wave_elevation"):
-            np.testing.assert_array_equal(a[field], b[field], err_msg=f"{field} at step {k}")
+            np.testing.assert_array_equal(a[field], b[field], err_msg=f"{mode}: {field} at step {k}")
 
 
 @pytest.mark.parametrize("compiled", [False, True])
@@ -119,7 +119,7 @@ def test_turning_excitation_is_the_hdb_at_the_relative_heading(barge, compiled):
     assert worst < 0.01, worst
 
 
-def test_turning_mean_drift_is_the_hdb_at_the_relative_heading(barge):
+def test_turning_mean_and_slow_drift_are_the_hdb_at_the_relative_heading(barge):
     w = barge["omega"].values
     model = HydroModel(_scene(regular_waves(1.2, 2 * np.pi / w[14], direction=-40.0), second_order="mean-drift"),
                        {"barge": barge})
@@ -128,6 +128,18 @@ def test_turning_mean_drift_is_the_hdb_at_the_relative_heading(barge):
     for k, psi in enumerate(np.deg2rad([0.0, 7.3, 44.5, 95.0, -130.2, 181.0, 400.0])):
         got = model.step(k * 0.1, x0 + [[0, 0, 0, 0, 0, psi]], np.zeros((1, 6)))["drift"][0]
         want = 0.6 ** 2 * _rotate(_at(heads, table, np.deg2rad(-40.0) - psi).real, psi)
+        np.testing.assert_allclose(got, want, rtol=0, atol=0.01 * np.abs(want).max())
+    # Newman's slow drift of two components: Re[(sum_i z_i T_ii) conj(sum_j z_j)], T_ii turned likewise
+    picks, heads_deg = [12, 16], [20.0, -75.0]
+    comps = {"type": "components", "omega": w[picks].tolist(), "direction": heads_deg, "amplitude": [0.6, 0.4],
+             "phase": [10.0, 200.0]}
+    model = HydroModel(_scene(comps, second_order="newman"), {"barge": barge})
+    tables = [_circle(barge["mean_drift"].values[0][p], axis=0)[1] for p in picks]
+    for k, psi in enumerate(np.deg2rad([0.0, 33.3, -101.7, 222.2])):
+        got = model.step(k * 0.1, x0 + [[0, 0, 0, 0, 0, psi]], np.zeros((1, 6)))["drift"][0]
+        z = np.array(comps["amplitude"]) * np.exp(1j * (np.deg2rad(comps["phase"]) - w[picks] * k * 0.1))
+        t_ii = [_rotate(_at(heads, tables[c], np.deg2rad(heads_deg[c]) - psi).real, psi) for c in range(2)]
+        want = ((z[0] * t_ii[0] + z[1] * t_ii[1]) * np.conj(z.sum())).real
         np.testing.assert_allclose(got, want, rtol=0, atol=0.01 * np.abs(want).max())
 
 
