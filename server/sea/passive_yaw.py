@@ -21,8 +21,13 @@ fixed-heading excitation bit for bit. The error of the blend: the rotation's, be
 = 4e-5 of the force at 1 deg, and where an HDB heading falls between two grid angles, the kink of
 the HDB's linear heading interpolation rounded over 1 deg.
 
-Not turned (setup warning where the body is not symmetric about its yaw axis): added mass, radiation
-damping and hydrostatic stiffness stay those of the body at its initial heading.
+The yaw read: the instantaneous one, or with ``bodies[i].passive_yaw_filter`` its low-passed value
+(:class:`PassiveYaw`). The mean and Newman drift turn the same way (server/terms/second_order.py,
+which reads the same heading).
+
+Not turned (setup warning where the body is not symmetric about its yaw axis, unless the scene
+states ``passive_yaw_coefficients = "initial-heading"``): added mass, radiation damping and
+hydrostatic stiffness stay those of the body at its initial heading.
 """
 
 from __future__ import annotations
