@@ -2,8 +2,8 @@
 body at a fixed heading, in the same run: the crossing-sea barge (6 DOFs, HDB 0-90 deg completed by
 heading_symmetry = "both") in a regular wave and in irregular seas of 100 and 300 components
 (unidirectional) and of 60 x 5 directions (cos-2s), HydroModel.step on the compiled and on the numpy
-path, with and without the mean drift (a random one added to the HDB: the cost does not depend on
-the values). The yaw turns each step (0.3 rad/s), so every step blends two tabulated yaws.
+path, without second-order forces, with the mean drift and with a difference QTF (random ones added
+to the HDB on 20 frequencies: the cost does not depend on the values). The yaw turns each step (0.3 rad/s), so every step blends two tabulated yaws.
 WEC-Sim's irregular passive-yaw run is 70x slower than its regular one (issue 37); here the ratio
 that matters is the passive step's cost over the fixed one's, per sea.
 
@@ -38,16 +38,20 @@ SEAS = {
 def barge():
     """The barge's HDB with a random mean drift (surge/sway/yaw) on its own headings."""
     from hydrolink.protocol.hdb.schema import with_second_order
-    from hydrolink.protocol.hdb.second_order import MeanDrift
+    from hydrolink.protocol.hdb.second_order import QTF, MeanDrift
     from hydrolink.server.hdb.io import load_hdb
     ds = load_hdb(HDB)
     w, b = ds["omega"].values, ds["wave_direction"].values
+    rng = np.random.default_rng(1)
     drift = np.zeros((1, w.size, b.size, 6))
-    drift[0][..., [0, 1, 5]] = 1e3 * np.random.default_rng(1).uniform(-1.0, 1.0, (w.size, b.size, 3))
-    return with_second_order(ds, mean_drift=MeanDrift(("momentum",), w, b, drift))
+    drift[0][..., [0, 1, 5]] = 1e3 * rng.uniform(-1.0, 1.0, (w.size, b.size, 3))
+    grid = np.linspace(0.3, 2.8, 20)      # a difference QTF on 20 frequencies, the diagonal heading pairs
+    r = rng.standard_normal((20, 20, b.size, 6)) + 1j * rng.standard_normal((20, 20, b.size, 6))
+    qtf = QTF(grid, b, b, 1e3 * 0.5 * (r + np.conj(np.swapaxes(r, 0, 1))), None, "bench")
+    return with_second_order(ds, mean_drift=MeanDrift(("momentum",), w, b, drift), qtf=qtf)
 
 
-def scene(waves: str, passive: bool, drift: bool) -> str:
+def scene(waves: str, passive: bool, drift: str) -> str:
     return f"""[simulation]
 dt = 0.1
 duration = 1000.0
@@ -67,7 +71,7 @@ center_of_mass = [0.0, 0.0, 0.0]
 inertia = [2.0e6, 1.12e7, 1.27e7]
 heading_symmetry = "both"
 passive_yaw = {str(passive).lower()}
-second_order = "{'mean-drift' if drift else 'none'}"
+second_order = "{drift}"
 """
 
 
@@ -96,10 +100,10 @@ def main() -> None:
     from hydrolink.server.model import HydroModel
     ds = barge()
     print(f"load {os.getloadavg()[0]:.1f} (1-min average; 2 vCPUs); set-up s: the passive model's")
-    print(f"{'sea':<16}{'path':<10}{'drift':<7}{'fixed µs':>10}{'passive µs':>12}{'ratio':>8}{'set-up s':>10}")
+    print(f"{'sea':<16}{'path':<10}{'drift':<11}{'fixed µs':>10}{'passive µs':>12}{'ratio':>8}{'set-up s':>10}")
     for name, waves in SEAS.items():
         for compiled in (True, False):
-            for drift in (False, True):
+            for drift in ("none", "mean-drift") + (("qtf",) if "spread" not in name else ()):   # (diagonal pairs)
                 models = []
                 for passive in (False, True):
                     t0 = time.perf_counter()
@@ -107,7 +111,7 @@ def main() -> None:
                                              compiled=compiled))
                     setup = time.perf_counter() - t0
                 costs = per_step(models, args.steps)
-                print(f"{name:<16}{'compiled' if compiled else 'numpy':<10}{'yes' if drift else 'no':<7}"
+                print(f"{name:<16}{'compiled' if compiled else 'numpy':<10}{drift:<11}"
                       f"{costs[0]:>10.1f}{costs[1]:>12.1f}{costs[1] / costs[0]:>8.2f}{setup:>10.2f}")
 
 

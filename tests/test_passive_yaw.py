@@ -42,11 +42,11 @@ def barge():
     return with_second_order(ds, mean_drift=MeanDrift(("momentum",), w, b, values))
 
 
-def _scene(waves: dict, *, passive: bool = True, **keys):
+def _scene(waves: dict, *, passive: bool = True, hydro: dict | None = None, **keys):
     bodies = [body("barge", hdb=str(HDB), mass=328e3, center_of_mass=[0, 0, 0], inertia=[2e6, 1.12e7, 1.27e7],
                    **{"heading_symmetry": "both", "passive_yaw": passive, **keys})]
     return parse_scene(scene_toml(dt=0.1, duration=10.0, water=WATER, waves=waves, bodies=bodies,
-                                  hydro={"radiation": "off"}))
+                                  hydro={"radiation": "off", **(hydro or {})}))
 
 
 def _circle(values: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray]:
@@ -149,7 +149,7 @@ def test_refusals_name_their_key(barge):
     assert "bodies[0].passive_yaw" in str(err.value) and "yaw DOF free" in str(err.value)
     cases = [
         ({"waves": regular_waves(1.0, 7.0, excitation="convolution")}, "convolution"),
-        ({"waves": regular_waves(1.0, 7.0), "second_order": "qtf"}, "not built"),
+        ({"waves": regular_waves(1.0, 7.0), "second_order": "newman", "hydro": {"sum_frequency": True}}, "not built"),
         ({"waves": regular_waves(1.0, 7.0), "heading_symmetry": "none"}, "not covered"),
     ]
     for keys, why in cases:
@@ -185,3 +185,42 @@ def test_filtered_yaw_reads_the_waves_at_the_low_passed_heading(barge, compiled)
     again = filtered.step(1.0, x0 + [[0, 0, 0, 0, 0, 0.8 * np.sin(13.0) + 0.5]], np.zeros((1, 6)), replace_last=True)
     for field in ("excitation", "drift"):
         np.testing.assert_array_equal(again[field], tenth[field])
+
+
+def test_turning_qtf_force_is_the_hdb_at_the_relative_heading(barge):
+    """The full difference QTF of a turning body: Re sum_ij z_i conj(z_j) R(psi) T(w_i, w_j, beta - psi),
+    T on the QTF's diagonal heading pairs (h, h) (0..90 deg mirrored around the circle) linear in
+    heading, written here; the components sit on the QTF's frequencies (no frequency interpolation).
+    At yaw 0 the force is the fixed-heading model's bit for bit."""
+    from hydrolink.protocol.hdb.second_order import QTF
+    grid = barge["omega"].values[10:31:5]                                      # 5 frequencies
+    b = barge["wave_direction"].values
+    rng = np.random.default_rng(3)
+    r = rng.standard_normal((5, 5, b.size, 6)) + 1j * rng.standard_normal((5, 5, b.size, 6))
+    diff = 1e3 * 0.5 * (r + np.conj(np.swapaxes(r, 0, 1)))                    # Hermitian in (i, j)
+    diff[..., 2:5] = 0.0                                                      # heave, roll, pitch: none
+    diff[:, :, [0, 6], 1] = diff[:, :, [0, 6], 5] = 0.0   # sway and yaw vanish at 0 (xz) and 90 deg (yz)
+    diff[:, :, 6, 0] = 0.0                                # surge vanishes at 90 deg (yz)
+    ds = barge.drop_vars([v for v in barge.data_vars if "drift" in v]).drop_dims(["drift_omega", "drift_direction",
+                                                                                  "drift_method"], errors="ignore")
+    from hydrolink.protocol.hdb.schema import with_second_order
+    ds = with_second_order(ds, qtf=QTF(grid, b, b, diff, None, "test"))
+    comps = {"type": "components", "omega": grid[[0, 2, 4]].tolist(), "direction": [-40.0] * 3,
+             "amplitude": [0.5, 0.4, 0.3], "phase": [0.0, 70.0, 250.0]}
+    fixed = HydroModel(_scene(comps, passive=False, second_order="qtf"), {"barge": ds})
+    model = HydroModel(_scene(comps, second_order="qtf"), {"barge": ds})
+    heads, table = _circle(diff[np.ix_([0, 2, 4], [0, 2, 4])], axis=2)       # (3, 3, 24, 6)
+    x0 = model.setup_info().equilibrium_position
+    for k, psi in enumerate(np.deg2rad([0.0, 12.5, -101.7, 222.2, 0.0])):
+        t = k * 0.1
+        got = model.step(t, x0 + [[0, 0, 0, 0, 0, psi]], np.zeros((1, 6)))["drift"][0]
+        if psi == 0.0:
+            np.testing.assert_array_equal(got, fixed.step(t, x0, np.zeros((1, 6)))["drift"][0])
+            continue
+        fixed.step(t, x0, np.zeros((1, 6)))
+        theta = (np.deg2rad(-40.0) - psi) % (2 * np.pi)
+        hat = np.array([np.interp(theta, heads, np.eye(24)[n], period=2 * np.pi) for n in range(24)])
+        t_rel = np.einsum("ijhd,h->ijd", table, hat)
+        z = np.array(comps["amplitude"]) * np.exp(1j * (np.deg2rad(comps["phase"]) - grid[[0, 2, 4]] * t))
+        want = _rotate(np.einsum("i,j,ijd->d", z, np.conj(z), t_rel).real, psi)
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-7 * np.abs(want).max())   # headings kept to 1e-9 rad

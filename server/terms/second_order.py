@@ -34,7 +34,7 @@ a pair they do not hold, is a ModelError naming the wave key.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import xarray as xr
@@ -97,6 +97,8 @@ class BodySecondOrder:
     # a passive-yaw body (server/sea/passive_yaw.py): ``mean`` (n_psi, 6) and ``newman`` (n_psi, n_c,
     # 6) at the tabulated yaws, the first the fixed heading's; blended at the body's yaw each step
     yawing: bool = False
+    # a passive-yaw body's QTF: its parts at a yaw other than 0 (:class:`TurningQTF`)
+    turning: "TurningQTF | None" = None
 
     def force(self, z: np.ndarray, yaw: float = 0.0) -> np.ndarray:
         """(6,) the force for the component phasors ``z`` (no ramp); ``yaw`` (rad) the body's, read
@@ -108,6 +110,8 @@ class BodySecondOrder:
                 conj = np.conj(z.sum())
                 f += (1.0 - s) * ((z @ self.newman[j0]) * conj).real + s * ((z @ self.newman[j1]) * conj).real
             return f
+        if self.turning is not None and yaw != 0.0:
+            return self.turning(yaw).force(z)
         f = np.zeros(6) if self.mean is None else self.mean.copy()
         if self.newman is not None:
             f += ((z @ self.newman) * np.conj(z.sum())).real
@@ -267,6 +271,58 @@ def _drift_method(sub: xr.Dataset, mode: str, key: str, method: str | None, name
     return method
 
 
+def _qtf_body_parts(sub: xr.Dataset, kinds: tuple[str, ...], waves: WaveComponents, scale: float, src: str,
+                    row: int) -> BodySecondOrder:
+    """A body's QTF parts (the lift, each kind's G, and the difference QTF's diagonal constant)."""
+    parts: dict[str, np.ndarray] = {}
+    lift, g = _qtf_parts(sub, kinds, waves, scale, src)
+    if "difference" in kinds:
+        # the diagonal i = j of the double sum is A_i^2 T_ii, constant: with this constant it is the
+        # T_ii interpolated along the diagonal (as "mean-drift" and "newman" take it), not the
+        # bilinear value on the square, which mixes the neighbouring off-diagonal cells in
+        linear, bilinear = _qtf_diagonal(sub, waves, scale, src)
+        parts["mean"] = (waves.amplitude ** 2) @ (linear - bilinear)
+    parts["lift"] = lift.astype(complex)   # complex once, not cast each step
+    for kind in kinds:
+        parts[kind] = g[kind]
+    return BodySecondOrder(row, **parts)
+
+
+class TurningQTF:
+    """A passive-yaw body's QTF parts at its yaw psi (server/sea/passive_yaw.py): the QTF read at the
+    components' headings relative to the body (beta - psi), its forces and moments turned into the
+    global frame by R(psi); computed when the yaw changes (the last kept: a step recomputed at the
+    same yaw reuses it). Its heading pairs are checked at set-up on the 1-deg yaw grid, so a step
+    never meets a pair the data lack."""
+
+    def __init__(self, sub: xr.Dataset, kinds: tuple[str, ...], waves: WaveComponents, scale: float, src: str,
+                 row: int, key: str):
+        self._args = (sub, kinds, scale, src, row)
+        self._waves, self._last = waves, (None, None)
+        heads = np.unique(np.round(waves.heading_of(), 9))
+        for psi in yaw_grid()[1:]:
+            try:
+                _qtf_pair_weights(sub, np.unique(np.round(heads - psi, 9)), waves, src)
+            except ModelError as exc:
+                raise ModelError(key, f"at a yaw of {np.degrees(psi):g} deg: {exc.why}") from None
+
+    def __call__(self, psi: float) -> BodySecondOrder:
+        if self._last[0] != psi:
+            sub, kinds, scale, src, row = self._args
+            waves = replace(self._waves, headings=self._waves.heading_of() - psi)
+            parts = _qtf_body_parts(sub, kinds, waves, scale, src, row)
+            turn = np.array([psi])
+            mean = None if parts.mean is None else rotate_yaw(parts.mean[None, None, :], turn)[0, 0]
+            turned = {}
+            for kind in kinds:
+                g = getattr(parts, kind)
+                m = g.shape[1]
+                rows = np.moveaxis(g.reshape(6, m * m), 0, -1)[None]            # (1, M M, 6)
+                turned[kind] = np.ascontiguousarray(np.moveaxis(rotate_yaw(rows, turn)[0], -1, 0).reshape(6 * m, m))
+            self._last = (psi, BodySecondOrder(row, mean=mean, lift=parts.lift, **turned))
+        return self._last[1]
+
+
 def body_second_order(scene: Scene, i: int, row: int, ds: xr.Dataset, waves: WaveComponents
                       ) -> tuple[BodySecondOrder, list[str]]:
     """Body ``i``'s (scene index) second-order part from its HDB ``ds``, and its setup warnings."""
@@ -283,10 +339,10 @@ def body_second_order(scene: Scene, i: int, row: int, ds: xr.Dataset, waves: Wav
     kinds = ("difference",) if mode == "qtf" else ()
     if hydro.sum_frequency:
         kinds += ("sum",)
-    if body.passive_yaw and (kinds or mode not in ("mean-drift", "newman")):
-        raise ModelError(f"bodies[{i}].passive_yaw", f"with the QTF forces of {key} = {mode!r}"
-                         f"{' and hydro.sum_frequency' if hydro.sum_frequency else ''}: not built (their heading pairs "
-                         "do not turn with the body yet); use second_order = \"mean-drift\" or \"newman\"")
+    if body.passive_yaw and kinds and mode != "qtf":
+        raise ModelError(f"bodies[{i}].passive_yaw", f"with {key} = {mode!r} and hydro.sum_frequency: not built (the "
+                                                     "tabulated drift and the turning QTF in one body); use "
+                                                     "second_order = \"qtf\" with it")
     held = qtf_kinds(sub)
     for kind in kinds:
         if kind not in held:
@@ -316,16 +372,10 @@ def body_second_order(scene: Scene, i: int, row: int, ds: xr.Dataset, waves: Wav
                             f"but body {body.name!r} moves in {moving}: its drift includes no motion effect; "
                             f"lock bodies[{i}].dofs or use coefficients computed with the body's motions")
     if kinds:
-        lift, g = _qtf_parts(sub, kinds, waves, scale, src)
-        if "difference" in kinds:
-            # the diagonal i = j of the double sum is A_i^2 T_ii, constant: with this constant it is the
-            # T_ii interpolated along the diagonal (as "mean-drift" and "newman" take it), not the
-            # bilinear value on the square, which mixes the neighbouring off-diagonal cells in
-            linear, bilinear = _qtf_diagonal(sub, waves, scale, src)
-            parts["mean"] = (waves.amplitude ** 2) @ (linear - bilinear)
-        parts["lift"] = lift.astype(complex)   # complex once, not cast each step
-        for kind in kinds:
-            parts[kind] = g[kind]
+        qtf = _qtf_body_parts(sub, kinds, waves, scale, src, row)
+        parts.update({k: getattr(qtf, k) for k in ("mean", "lift", *kinds) if getattr(qtf, k) is not None})
+        if body.passive_yaw:
+            parts["turning"] = TurningQTF(sub, kinds, waves, scale, src, row, f"bodies[{i}].passive_yaw")
     return BodySecondOrder(row, **parts), warnings
 
 
@@ -393,8 +443,9 @@ class SecondOrderTerm(ForceTerm):
             return (out,)
         z = self._phasors_at(float(t)) if self._phasors else self._c
         for part in self.parts:
-            yaw = 0.0 if not part.yawing else (self._heading(part.row) if self._heading is not None
-                                               else float(position[part.row, 5]))
+            turns = part.yawing or part.turning is not None
+            yaw = 0.0 if not turns else (self._heading(part.row) if self._heading is not None
+                                         else float(position[part.row, 5]))
             out[part.row] = part.force(z, yaw)
         r = 1.0 if t >= self._ramp else float(ramp_factor(t, self._ramp))
         out *= self._mask * (r * r)
