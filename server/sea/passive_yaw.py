@@ -22,7 +22,7 @@ fixed-heading excitation bit for bit. The error of the blend: the rotation's, be
 the HDB's linear heading interpolation rounded over 1 deg.
 
 The yaw read: the instantaneous one, or with ``bodies[i].passive_yaw_filter`` its low-passed value
-(:class:`PassiveYaw`). The mean and Newman drift turn the same way (server/terms/second_order.py,
+(:class:`PassiveYaw`). The mean and Newman drift and the QTF turn the same way (server/terms/second_order.py,
 which reads the same heading).
 
 Not turned (setup warning where the body is not symmetric about its yaw axis, unless the scene
