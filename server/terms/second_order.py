@@ -190,15 +190,21 @@ def _qtf_pair_weights(sub: xr.Dataset, groups: np.ndarray, waves: WaveComponents
     return out
 
 
-def _qtf_diagonal(sub: xr.Dataset, waves: WaveComponents, scale: float, src: str) -> tuple[np.ndarray, np.ndarray]:
+def _qtf_tables(sub: xr.Dataset, kinds: tuple[str, ...], scale: float) -> dict[str, np.ndarray]:
+    """Each kind's QTF (n_q, n_q, n_h, 6) in the scene's water, read once."""
+    return {kind: sub[f"{kind}_qtf"].transpose(*QTF_DIMS).values * scale for kind in kinds}
+
+
+def _qtf_diagonal(sub: xr.Dataset, waves: WaveComponents, scale: float, src: str,
+                  tables: dict[str, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(n_c, 6) twice: the difference QTF's T_ii at each component, interpolated linearly along the
     diagonal T(w, w) (the one interpolation of T_ii, as the mean drift's along drift_omega), and the
     value the bilinear interpolation on the square gives there (what the factorised double sum
-    holds on its diagonal, corrected to the first by a constant)."""
+    holds on its diagonal, corrected to the first by a constant). ``tables``: :func:`_qtf_tables`."""
     grid = sub["qtf_omega_i"].values
     lw = interpolation_weights(grid, waves.hdb_omega, _wave_key(waves, "omega"), "wave frequency (rad/s)")
     heads = np.round(waves.heading_of(), 9)
-    t = sub["difference_qtf"].transpose(*QTF_DIMS).values * scale        # (n_q, n_q, n_h, 6)
+    t = (tables or _qtf_tables(sub, ("difference",), scale))["difference"]   # (n_q, n_q, n_h, 6)
     linear, bilinear = np.zeros((waves.size, 6)), np.zeros((waves.size, 6))
     # each component's weights are on two neighbouring grid points k, k + 1 (one on a 1-point grid)
     k = np.minimum(np.argmax(lw != 0.0, axis=1), max(grid.size - 2, 0))
@@ -207,7 +213,8 @@ def _qtf_diagonal(sub: xr.Dataset, waves: WaveComponents, scale: float, src: str
     weights = _qtf_pair_weights(sub, groups, waves, src)
     for g, b in enumerate(groups):
         on = heads == b
-        square = np.tensordot(t, weights[g, g], axes=([2], [0]))          # (n_q, n_q, 6), real diagonal
+        nz = np.flatnonzero(weights[g, g])                                # the few pairs the heading is between
+        square = np.tensordot(t[:, :, nz], weights[g, g, nz], axes=([2], [0]))   # (n_q, n_q, 6), real diagonal
         linear[on] = lw[on] @ np.einsum("aad->ad", square).real
         if grid.size == 1:
             bilinear[on] = linear[on]
@@ -218,9 +225,10 @@ def _qtf_diagonal(sub: xr.Dataset, waves: WaveComponents, scale: float, src: str
     return linear, bilinear
 
 
-def _qtf_parts(sub: xr.Dataset, kinds: tuple[str, ...], waves: WaveComponents, scale: float, src: str
-               ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """The interpolation L (n_c, n_g n_q) over the heading groups and each kind's stacked G."""
+def _qtf_parts(sub: xr.Dataset, kinds: tuple[str, ...], waves: WaveComponents, scale: float, src: str,
+               tables: dict[str, np.ndarray] | None = None) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """The interpolation L (n_c, n_g n_q) over the heading groups and each kind's stacked G
+    (``tables``: :func:`_qtf_tables`)."""
     grid = sub["qtf_omega_i"].values
     lw = interpolation_weights(grid, waves.hdb_omega, _wave_key(waves, "omega"), "wave frequency (rad/s)")
     heads = waves.heading_of()
@@ -236,10 +244,11 @@ def _qtf_parts(sub: xr.Dataset, kinds: tuple[str, ...], waves: WaveComponents, s
         on = np.isclose(np.round(heads, 9), b)
         lift[on, g * n_q:(g + 1) * n_q] = lw[on]
     weights = _qtf_pair_weights(sub, groups, waves, src)               # (n_g, n_g, n_h)
+    nz = np.flatnonzero(weights.any(axis=(0, 1)))                      # the pairs the headings are between
+    tables = tables or _qtf_tables(sub, kinds, scale)
     out = {}
     for kind in kinds:
-        t = sub[f"{kind}_qtf"].transpose(*QTF_DIMS).values * scale     # (n_q, n_q, n_h, 6)
-        g_full = np.einsum("ijhd,abh->ijabd", t, weights)               # (n_q, n_q, n_g, n_g, 6)
+        g_full = np.einsum("ijhd,abh->ijabd", tables[kind][:, :, nz], weights[:, :, nz])   # (n_q, n_q, n_g, n_g, 6)
         g_full = g_full.transpose(4, 2, 0, 3, 1).reshape(6 * n_g * n_q, n_g * n_q)
         out[kind] = np.ascontiguousarray(g_full)
     return lift, out
@@ -272,15 +281,16 @@ def _drift_method(sub: xr.Dataset, mode: str, key: str, method: str | None, name
 
 
 def _qtf_body_parts(sub: xr.Dataset, kinds: tuple[str, ...], waves: WaveComponents, scale: float, src: str,
-                    row: int) -> BodySecondOrder:
+                    row: int, tables: dict[str, np.ndarray] | None = None) -> BodySecondOrder:
     """A body's QTF parts (the lift, each kind's G, and the difference QTF's diagonal constant)."""
     parts: dict[str, np.ndarray] = {}
-    lift, g = _qtf_parts(sub, kinds, waves, scale, src)
+    tables = tables or _qtf_tables(sub, kinds, scale)
+    lift, g = _qtf_parts(sub, kinds, waves, scale, src, tables)
     if "difference" in kinds:
         # the diagonal i = j of the double sum is A_i^2 T_ii, constant: with this constant it is the
         # T_ii interpolated along the diagonal (as "mean-drift" and "newman" take it), not the
         # bilinear value on the square, which mixes the neighbouring off-diagonal cells in
-        linear, bilinear = _qtf_diagonal(sub, waves, scale, src)
+        linear, bilinear = _qtf_diagonal(sub, waves, scale, src, tables)
         parts["mean"] = (waves.amplitude ** 2) @ (linear - bilinear)
     parts["lift"] = lift.astype(complex)   # complex once, not cast each step
     for kind in kinds:
@@ -298,6 +308,7 @@ class TurningQTF:
     def __init__(self, sub: xr.Dataset, kinds: tuple[str, ...], waves: WaveComponents, scale: float, src: str,
                  row: int, key: str):
         self._args = (sub, kinds, scale, src, row)
+        self._tables = _qtf_tables(sub, kinds, scale)
         self._waves, self._last = waves, (None, None)
         heads = np.unique(np.round(waves.heading_of(), 9))
         for psi in yaw_grid()[1:]:
@@ -310,7 +321,7 @@ class TurningQTF:
         if self._last[0] != psi:
             sub, kinds, scale, src, row = self._args
             waves = replace(self._waves, headings=self._waves.heading_of() - psi)
-            parts = _qtf_body_parts(sub, kinds, waves, scale, src, row)
+            parts = _qtf_body_parts(sub, kinds, waves, scale, src, row, self._tables)
             turn = np.array([psi])
             mean = None if parts.mean is None else rotate_yaw(parts.mean[None, None, :], turn)[0, 0]
             turned = {}
