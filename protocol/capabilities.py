@@ -10,7 +10,7 @@ tool drops a term silently.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Callable, Protocol
 
 from hydrolink.protocol.reply import OPTIONAL_FORCES
@@ -41,9 +41,16 @@ FEATURES: dict[str, Feature] = {
     "nonlinear_froude_krylov": Feature("nonlinear Froude-Krylov forces",
                                        ("nonlinear_hydrostatic", "nonlinear_froude_krylov")),
     "second_order": Feature("second-order wave forces (mean and slow drift)", ("drift",)),
+    # no reply field of its own: it changes what ``excitation`` holds (SPEC §5.2, revision 1.12)
+    "passive_yaw": Feature("passive yaw (the excitation at the body's instantaneous heading)", ()),
 }
 
+#: features of the linear core itself (server/model.py, server/sea/), not of a force term (server/terms/)
+CORE_FEATURES = frozenset({"passive_yaw"})
+
 _POINTWISE = frozenset({"linear_damping", "quadratic_damping", "drag", "morison"})
+_YAW = ("{what} needs the body's yaw sent to the force server each step and its excitation to follow it, "
+        "which {tool} does not do; run the scene with hydrolink run")
 _HULLS = ("nonlinear hydrostatics need the bodies' hulls in the hello, which {tool} does not carry yet; use the "
           "Exudyn client (hydrolink run)")
 
@@ -56,26 +63,32 @@ class Tool:
     name: str
     supports: frozenset[str]
     refusal: str
+    reasons: dict[str, str] = field(default_factory=dict)   # feature -> its own refusal (else ``refusal``)
 
 
 TOOLS: dict[str, Tool] = {
     "exudyn": Tool("the Exudyn client (hydrolink run)", frozenset(FEATURES), ""),
     "fmu_master": Tool("the FMU master", frozenset(),
                        "{tool} does not apply {what} yet (its force ports carry excitation, radiation and "
-                       "hydrostatics); use the Exudyn client"),
+                       "hydrostatics); use the Exudyn client", {"passive_yaw": _YAW}),
     # steady: the second-order force of its regular wave (mean A^2 T(w, w), with sum_frequency the 2w
     # force) pointwise at the nodes like any time-dependent load
     "steady": Tool("hydrolink steady", _POINTWISE | {"second_order"},
                    "{what} are not part of {tool}'s model yet (its Newton needs their Jacobian in position); "
-                   "run the scene with hydrolink run"),
+                   "run the scene with hydrolink run",
+                   {"passive_yaw": "{what} makes the excitation depend on the motion (the heading), which {tool}'s "
+                                   "periodic solution does not model; run the scene with hydrolink run"}),
     # linearize: the device as a linear plant about rest (clients/analysis/plant.py)
     "linearize": Tool("hydrolink linearize", frozenset({"linear_damping"}),
                       "{what} have no linear model about rest in {tool} (quadratic drag's slope is zero there; "
                       "nonlinear hydrostatics and Froude–Krylov have no single linearisation; second-order forces "
                       "are quadratic in the wave): use their linear counterparts (an equivalent linear_damping, "
-                      "hydro.nonlinear = \"none\", second_order = \"none\") for the plant"),
-    "native_fmu": Tool("the native FMU", _POINTWISE, _HULLS),
-    "python_fmu": Tool("the exported Python FMU", _POINTWISE, _HULLS),
+                      "hydro.nonlinear = \"none\", second_order = \"none\") for the plant",
+                      {"passive_yaw": "{what} has no linear model about rest in {tool} (the excitation's heading "
+                                      "follows the yaw: a wave-dependent stiffness); the plant is that of the fixed "
+                                      "heading: drop bodies[i].passive_yaw for it"}),
+    "native_fmu": Tool("the native FMU", _POINTWISE, _HULLS, {"passive_yaw": _YAW}),
+    "python_fmu": Tool("the exported Python FMU", _POINTWISE, _HULLS, {"passive_yaw": _YAW}),
     # the server's session rollback (SPEC §5.9): every force term's state can be saved (stateless
     # or ForceTerm.state/set_state; tests/test_capabilities.py checks the server's terms)
     "save_restore": Tool("the session rollback (save/restore)", frozenset(FEATURES), ""),
@@ -103,7 +116,7 @@ def refuse_unsupported(scene: UsesFeatures, tool: str, error: Callable[[str, str
         return
     t = TOOLS[tool]
     (feature, key), *more = missing.items()
-    why = t.refusal.format(tool=t.name, what=FEATURES[feature].description)
+    why = t.reasons.get(feature, t.refusal).format(tool=t.name, what=FEATURES[feature].description)
     if more:
         why += "; it cannot take " + ", ".join(f"{FEATURES[f].description} ({k})" for f, k in more) + " either"
     raise error(key, why)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 import math
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Collection, Literal, Union
 
@@ -286,6 +287,49 @@ Waves = Annotated[Union[StillWater, RegularWave, IrregularWave, ElevationWave, S
                   Field(discriminator="type")]
 
 
+@dataclass(frozen=True)
+class WavePeak:
+    """A period a sea holds and its height, with the keys that set them: what the time step must
+    resolve (clients/lockstep/preflight.py) and what must not break (server/model.py)."""
+    period: float           # s: a regular wave's, a spectrum's peak period, a component's
+    height: float           # m: its height, significant height (4 sqrt(m0)) or 2 a
+    period_key: str
+    height_key: str
+    per_key: float = 1.0    # height / the value of height_key (2: a component's amplitude)
+
+
+def _table_peak(system: WaveSystem, i: int) -> WavePeak:
+    """A table spectrum's peak period (of S integrated over theta) and significant height."""
+    import numpy as np
+    w, d = np.asarray(system.omega, float), np.asarray(system.density, float)
+    hz = system.units == "hz-deg"        # frequencies in Hz, density per Hz (and per degree)
+    if d.ndim == 2:
+        theta = np.asarray(system.theta, float)
+        d = np.trapezoid(d, theta if hz else np.deg2rad(theta), axis=1)
+    peak = float(w[int(np.argmax(d))])
+    return WavePeak(period=1.0 / peak if hz else 2 * math.pi / peak, height=4.0 * math.sqrt(float(np.trapezoid(d, w))),
+                    period_key=f"waves.systems[{i}].omega", height_key=f"waves.systems[{i}].density")
+
+
+def wave_peaks(waves: Waves) -> list[WavePeak]:
+    """The periods the scene's sea holds with their heights (none for still water and an elevation
+    series): a regular wave's; an irregular sea's peak; each system's of a ``sea`` (a table's from its
+    own values); each component of a ``components`` list."""
+    if isinstance(waves, RegularWave):
+        return [WavePeak(period=waves.period, height=waves.height, period_key="waves.period", height_key="waves.height")]
+    if isinstance(waves, IrregularWave):
+        return [WavePeak(period=waves.tp, height=waves.hs, period_key="waves.tp", height_key="waves.hs")]
+    if isinstance(waves, SeaState):
+        return [_table_peak(s, i) if s.spectrum == "table" else
+                WavePeak(period=s.tp, height=s.hs, period_key=f"waves.systems[{i}].tp", height_key=f"waves.systems[{i}].hs")
+                for i, s in enumerate(waves.systems)]
+    if isinstance(waves, ComponentWaves):
+        return [WavePeak(period=2 * math.pi / w, height=2.0 * a, period_key=f"waves.omega[{i}]",
+                         height_key=f"waves.amplitude[{i}]", per_key=2.0)
+                for i, (w, a) in enumerate(zip(waves.omega, waves.amplitude))]
+    return []
+
+
 Nonlinear = Literal["none", "hydrostatic", "froude-krylov"]
 # second-order wave forces (server/terms/second_order.py): none, the mean drift, Newman's slow drift
 # (T_ij = (T_ii + T_jj)/2) or the full difference QTF
@@ -490,6 +534,16 @@ class Body(_Section):
     # wet bodies: the HDB's headings completed by mirror images (server/sea/headings.py) for a body
     # symmetric about the plane y = 0 ("xz"), x = 0 ("yz") or both: a half range serves every heading
     heading_symmetry: Literal["none", "xz", "yz", "both"] = "none"
+    # wet bodies: the excitation evaluated each step at every wave's direction relative to the body's
+    # instantaneous yaw, rotated into the global frame (server/sea/passive_yaw.py; WEC-Sim's option)
+    passive_yaw: bool = False
+    # s: the waves are read at the yaw low-passed with this time constant (the body's slow heading, the
+    # wave-frequency yaw left out; 0: the instantaneous yaw, WEC-Sim's)
+    passive_yaw_filter: RampTime = 0.0
+    # "initial-heading": added mass, damping and hydrostatic stiffness stay the initial heading's while
+    # the excitation turns (the only choice; stating it acknowledges it for a body not symmetric about
+    # its yaw axis, which gets a setup warning otherwise)
+    passive_yaw_coefficients: Literal["initial-heading"] | None = None
     # dry bodies only: the node's position (default: the centre of mass) and a constant buoyancy
     reference_point: Vector3 | None = None
     buoyancy_volume: Volume = 0.0
@@ -499,6 +553,14 @@ class Body(_Section):
     def _symmetry_of_an_hdb(self) -> "Body":
         if self.heading_symmetry != "none" and self.hdb is None:
             raise ValueError("heading_symmetry: only for a wet body (it completes the headings of its hdb)")
+        if self.passive_yaw and self.hdb is None:
+            raise ValueError("passive_yaw: only for a wet body (it turns the excitation of its hdb)")
+        for key in ("passive_yaw_filter", "passive_yaw_coefficients"):
+            if getattr(self, key) and not self.passive_yaw:
+                raise ValueError(f"{key}: only with passive_yaw = true")
+        if self.passive_yaw and "yaw" not in self.dofs:
+            raise ValueError(f"passive_yaw: needs the body's yaw DOF free (dofs {self.dofs} lock yaw): a body "
+                             "that cannot turn keeps its heading; add \"yaw\" to dofs or drop passive_yaw")
         return self
 
     @model_validator(mode="after")
@@ -1274,6 +1336,10 @@ class Scene(_Section):
         for i, b in enumerate(self.bodies):
             if self.second_order_of(b) != "none":
                 found["second_order"] = self.second_order_key(i)
+                break
+        for i, b in enumerate(self.bodies):
+            if b.passive_yaw:
+                found["passive_yaw"] = f"bodies[{i}].passive_yaw"
                 break
         return {f: found[f] for f in FEATURES if f in found}
 

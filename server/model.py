@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 import xarray as xr
 
-from hydrolink.protocol.scene import Scene
+from hydrolink.protocol.scene import Scene, wave_peaks
 from hydrolink.protocol.setup import IRFProcessing, Setup, StateSpaceReport
 from hydrolink.server import compiler
 from hydrolink.server.allocation import require_size
@@ -47,6 +47,7 @@ from hydrolink.server.radiation.options import RadiationGroup, radiation_option
 from hydrolink.server.radiation.state_space import Realization
 from hydrolink.server.sea.headings import complete_headings, interpolate_excitation
 from hydrolink.server.sea.doppler import doppler_shift
+from hydrolink.server.sea.passive_yaw import PassiveYaw, YawingBody, yaw_grid, yawed_excitation
 from hydrolink.server.sea.seastate import direction_bands, sea_components
 from hydrolink.server.sea.waves import ConvolutionForcing, WaveError, WaveForcing, WavePhases, convolution_kernel, elevation_on_grid, kernel_transfer
 
@@ -165,6 +166,7 @@ class HydroModel:
         # the last step index a client may send: seq * dt runs to simulation.duration
         self.last_seq = scene.n_exchanges
         self._excitation(data, lo, hi, wave_elevation)
+        self._yaw = self._passive_yaw(data)
         self._step = -1           # index of the newest step pushed
         na = self._idx.size
         self._all_active = na == self.n
@@ -172,7 +174,8 @@ class HydroModel:
         self._red = np.zeros((3, na))  # scratch: excitation, radiation, hydrostatic (active DOFs)
         self.terms = build_terms(TermContext(
             scene, wet, self.active, self._idx, self.waves, self.equilibrium_position,
-            self.hydrostatic_stiffness, self._net_buoyancy, hulls or {}, hdbs, self._phases), term_types)
+            self.hydrostatic_stiffness, self._net_buoyancy, hulls or {}, hdbs, self._phases,
+            None if self._yaw is None else self._yaw.heading), term_types)
         self._stateful = [term for term in self.terms if not term.stateless]
         self._add_term_contributions()
         self._reply_shape, self._rows_shape = (3, len(self.bodies), 6), (3, self.n)
@@ -192,7 +195,8 @@ class HydroModel:
             exc, omega, ramp = self._forcing.matrix, self.waves.omega, float(self.waves.ramp)
         else:   # by convolution: a lookup of blocks computed by FFT, added to the compiled call's sums
             exc, omega, ramp = np.zeros((self._idx.size + 1, 0)), np.zeros(0), 0.0
-        fused = FusedLinearStep(self._idx, exc, omega, ramp, self._k_hs, self._x_eq, radiation)
+        fused = FusedLinearStep(self._idx, exc, omega, ramp, self._k_hs, self._x_eq, radiation,
+                                None if self._yaw is None else self._yaw.fused_inputs())
         fused.warm_up(self.n)
         return fused
 
@@ -376,6 +380,45 @@ class HydroModel:
             self._forcing = WaveForcing(self.waves, x_comp[:, self._idx], self._phases)
         self._x_comp = x_comp
 
+    def _passive_yaw(self, data: list[_GroupData]) -> PassiveYaw | None:
+        """The passive-yaw bodies' excitation tables (server/sea/passive_yaw.py), None without any;
+        refused by ``bodies[i].passive_yaw`` where they cannot be built (excitation by convolution, a
+        body whose HDB couples it to others; its drift: server/terms/second_order.py)."""
+        scene, bodies = self.scene, []
+        for k, i in enumerate(self._scene_index):
+            body = scene.bodies[i]
+            if not body.passive_yaw:
+                continue
+            key = f"bodies[{i}].passive_yaw"
+            if self.excitation != "superposition":
+                raise ModelError(key, f"needs the excitation summed over wave components; the scene's waves have it "
+                                      f"by convolution ({getattr(scene.waves, 'type', '?')} waves, excitation = "
+                                      f"{self.excitation!r}): use excitation = \"superposition\"")
+            d = next(g for g in data if k in g.members)
+            if len(d.members) > 1:
+                raise ModelError(key, f"body {body.name!r} interacts hydrodynamically with "
+                                      f"{[self.bodies[m] for m in d.members if m != k]} through its HDB {d.source!r}: "
+                                      "their coefficients hold one layout, which a turning body changes; set "
+                                      "hydro.interaction = \"none\" or give the body an HDB of its own")
+            sub = d.data.isel(body=[d.members.index(k)])
+            x_hdb = d.rg_scale * sub["excitation_force"].values
+            try:
+                x_psi = yawed_excitation(d.omega, sub["wave_direction"].values.astype(float), x_hdb, self.waves,
+                                         self.waves.wave_numbers(scene.water.gravity, scene.water.depth_m),
+                                         sub["reference_point"].values[0], yaw_grid(), key)
+            except WaveError as exc:
+                raise ModelError(key, exc.why + f" (HDB {d.source!r})") from None
+            dofs = np.flatnonzero(self.active[k])
+            bodies.append(YawingBody(6 * k + 5, np.searchsorted(self._idx, 6 * k + dofs), dofs, x_psi,
+                                     float(body.passive_yaw_filter)))
+            if body.passive_yaw_coefficients is None:
+                block = slice(6 * k, 6 * k + 6)
+                self.warnings.extend(_turning_note(key, body.name, self.hydrostatic_stiffness[block, block],
+                                                   self.added_mass_inf[block, block]))
+        if not bodies or self.waves.size == 0:    # still water: no excitation to turn
+            return None
+        return PassiveYaw(self._forcing, bodies, self.dt, f"bodies[{self._scene_index[bodies[0].yaw // 6]}].passive_yaw")
+
     def _eta_source(self, scene: Scene, wave_elevation, omega_max: float):
         """eta(k0, k1) -> (S, k1 - k0) at t = k dt, one row per heading, for ConvolutionForcing:
         synthesized from the components (regular/irregular: no ramp; the forcing applies it) or the
@@ -404,24 +447,29 @@ class HydroModel:
         return eta
 
     def _check_waves(self) -> None:
-        """Regular and irregular waves no steeper than the breaking limit H/lambda = 1/7 (lambda of
-        the period / peak period by linear dispersion at the scene's depth); a warning above half
-        of it, where linear theory loses accuracy."""
-        w = self.scene.waves
-        kind = getattr(w, "type", "still")
-        if kind not in ("regular", "irregular"):
-            return
+        """Waves no steeper than the breaking limit H/lambda = 1/7 (protocol/scene.py ``wave_peaks``:
+        a regular wave's height at its period, a sea's significant height at its peak period, each
+        system's of a ``sea``, each component's 2a of a component list; lambda by linear dispersion at
+        the scene's depth); a warning above half of it, where linear theory loses accuracy."""
         from hydrolink.server.sea.dispersion import wave_number
-        period, height, key = (w.period, w.height, "waves.height") if kind == "regular" else (w.tp, w.hs, "waves.hs")
+        peaks = wave_peaks(self.scene.waves)
+        if not peaks:
+            return
         water = self.scene.water
-        lam = 2 * np.pi / float(wave_number(np.array([2 * np.pi / period]), water.gravity, water.depth_m)[0])
-        steep = height / lam
-        if steep > BREAKING_STEEPNESS:
-            raise ModelError(key, f"{height:g} m at {period:g} s is steeper than the breaking limit: H/lambda = "
-                                  f"{steep:.3g} > 1/7 (lambda = {lam:.4g} m): no such wave exists; use "
-                                  f"{key} <= {BREAKING_STEEPNESS * lam:.4g} m (or a longer period)")
-        if steep > 0.5 * BREAKING_STEEPNESS:
-            self.warnings.append(f"{key}: H/lambda = {steep:.3g} is over half the breaking limit 1/7: linear "
+        periods = np.array([p.period for p in peaks])
+        lam = 2 * np.pi / wave_number(2 * np.pi / periods, water.gravity, water.depth_m)
+        steep = np.array([p.height for p in peaks]) / lam
+        k = int(np.argmax(steep))
+        peak, key = peaks[k], peaks[k].height_key
+        if steep[k] > BREAKING_STEEPNESS:
+            raise ModelError(key, f"{peak.height:g} m at {peak.period:g} s is steeper than the breaking limit: H/lambda = "
+                                  f"{steep[k]:.3g} > 1/7 (lambda = {lam[k]:.4g} m): no such wave exists; " + (
+                                      f"scale {key} by {(BREAKING_STEEPNESS / steep[k]) ** 2:.3g} or less"
+                                      if key.endswith(".density") else
+                                      f"use {key} <= {BREAKING_STEEPNESS * lam[k] / peak.per_key:.4g} m")
+                             + " (or a longer period)")
+        if steep[k] > 0.5 * BREAKING_STEEPNESS:
+            self.warnings.append(f"{key}: H/lambda = {steep[k]:.3g} is over half the breaking limit 1/7: linear "
                                  "wave theory and linear forces lose accuracy (steep-wave effects are not modelled)")
 
     def _buoyancy(self, data: list[_GroupData], rho: float, g: float, masses: np.ndarray) -> list[float | None]:
@@ -525,15 +573,19 @@ class HydroModel:
         return self.waves.omega.copy(), self._x_comp * c[:, None], c
 
     def state(self) -> tuple:
-        """Everything :meth:`step` changes, copied: the newest step's index, the radiation memories
-        and the stateful force terms' states (excitation and hydrostatics keep none)."""
+        """Everything :meth:`step` changes, copied: the newest step's index, the radiation memories,
+        the stateful force terms' states and the passive-yaw headings (the rest of the excitation
+        and hydrostatics keep none)."""
         memories = self._fused.state() if self._fused is not None else \
             tuple(memory.state() for _, memory in self._memories)
-        return self._step, memories, tuple(term.state() for term in self._stateful)
+        yaw = self._yaw.state() if self._yaw is not None else None
+        return self._step, memories, tuple(term.state() for term in self._stateful), yaw
 
     def set_state(self, state: tuple) -> None:
         """Back to a :meth:`state` of this model (a session rolled back, SPEC §5.9)."""
-        self._step, memories, terms = state
+        self._step, memories, terms, yaw = state
+        if self._yaw is not None:
+            self._yaw.set_state(yaw)
         if self._fused is not None:
             self._fused.set_state(memories)
         for (_, memory), saved in zip(self._memories if self._fused is None else (), memories):
@@ -550,6 +602,8 @@ class HydroModel:
         for pos, memory in self._memories:
             red[1, pos] = memory.push(vs[pos], replace_last)
         red[0], eta = self._forcing(time)
+        if self._yaw is not None:
+            self._yaw.apply(time, red[0])
         np.dot(self._k_hs, self._x_eq - x[sel], out=red[2])
         if not self._all_active:
             out.reshape(3, self.n)[:, sel] = red
@@ -573,6 +627,8 @@ class HydroModel:
         # the reply's arrays: fresh each step (a reply may be kept, e.g. cached for a retry, and
         # goes out in-process as is), written in place, then made read-only like a frame's arrays
         out = np.zeros(self._reply_shape)
+        if self._yaw is not None:
+            self._yaw.follow(x, replace_last)     # the headings the waves are read at (the compiled step's too)
         if self._fused is not None:
             if self._summed:
                 eta = self._fused(time, x, v, replace_last, out.reshape(self._rows_shape))
@@ -606,6 +662,22 @@ def refuse_modes(sub: xr.Dataset, scene_index: list[int], src: str) -> None:
                              f"({', '.join(modes)}) beyond its six rigid DOFs: hydrolink reads and builds them "
                              "(hdb info, hdb build) but does not simulate them yet; give the body an HDB of its "
                              "rigid DOFs (hdb build without [[body.modes]])")
+
+
+def _turning_note(key: str, name: str, stiffness: np.ndarray, added_mass: np.ndarray) -> list[str]:
+    """The setup warning of a passive-yaw body whose hydrostatic stiffness or A-infinity is not
+    symmetric about its yaw axis (roll/pitch, surge/sway differ by over 1 %): those stay at the
+    initial heading's while the excitation turns (server/sea/passive_yaw.py)."""
+    def differ(m: np.ndarray, a: int, b: int) -> bool:
+        return abs(m[a, a] - m[b, b]) > 0.01 * max(abs(m[a, a]), abs(m[b, b]), 1e-300)
+    if not (differ(stiffness, 3, 4) or differ(added_mass, 0, 1) or differ(added_mass, 3, 4)):
+        return []
+    return [f"{key}: body {name!r} is not symmetric about its yaw axis (roll/pitch stiffness {stiffness[3, 3]:.4g}/"
+            f"{stiffness[4, 4]:.4g}, A-inf surge/sway {added_mass[0, 0]:.4g}/{added_mass[1, 1]:.4g}): its excitation "
+            "turns with its yaw but its added mass, radiation damping and hydrostatic stiffness stay those of the "
+            "initial heading (as in WEC-Sim): a yaw of more than a few degrees makes its roll, pitch, surge and sway "
+            f"dynamics approximate; state {key.replace('passive_yaw', 'passive_yaw_coefficients')} = "
+            "\"initial-heading\" to accept it"]
 
 
 def _water_note(density: float, gravity: float, rho: float, g: float, src: str, s_rho: float, s_rg: float) -> str:

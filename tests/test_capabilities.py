@@ -35,6 +35,7 @@ USES: dict[str, tuple[dict, dict, str]] = {
     "nonlinear_hydrostatics": ({"nonlinear": "hydrostatic", "mesh": "sphere.gdf"}, {}, "bodies[0].nonlinear"),
     "nonlinear_froude_krylov": ({"nonlinear": "froude-krylov", "mesh": "sphere.gdf"}, {}, "bodies[0].nonlinear"),
     "second_order": ({}, {"hydro": {"second_order": "mean-drift"}}, "hydro.second_order"),   # on sphere_drift
+    "passive_yaw": ({"passive_yaw": True}, {}, "bodies[0].passive_yaw"),                       # on sphere_headings
 }
 FMU_CLIENT = {"type": "fmu", "fmu": "heave.fmu", "bodies": {"sphere": {
     "position": {"heave": "z"}, "velocity": {"heave": "v"}, "force": {"heave": "F"}}}}
@@ -42,10 +43,15 @@ FMU_CLIENT = {"type": "fmu", "fmu": "heave.fmu", "bodies": {"sphere": {
 
 def scene_text(sphere_path: Path, feature: str, *, fmu: bool = False) -> str:
     body_keys, sections, _ = USES[feature]
+    client, dofs = FMU_CLIENT, ["heave"]
+    if feature == "passive_yaw":   # the FMU's body turns too (a passive-yaw body needs its yaw DOF)
+        dofs = ["heave", "yaw"]
+        client = {**FMU_CLIENT, "bodies": {"sphere": {key: {**ports, "yaw": f"{ports['heave']}_yaw"} for key, ports
+                                                      in FMU_CLIENT["bodies"]["sphere"].items()}}}
     return scene_toml(dt=0.1, duration=0.5, water=SPHERE_WATER, waves=regular_waves(0.5, 7.0),
-                      bodies=[sphere_body(str(sphere_path), mass=MASS, **({"dofs": ["heave"]} if fmu else {}),
+                      bodies=[sphere_body(str(sphere_path), mass=MASS, **({"dofs": dofs} if fmu else {}),
                                           **body_keys)],
-                      client=FMU_CLIENT if fmu else None, **sections)
+                      client=client if fmu else None, **sections)
 
 
 @pytest.fixture(scope="module")
@@ -85,6 +91,25 @@ def sphere_drift(sphere, tmp_path_factory) -> tuple[xr.Dataset, Path]:
     values[0, :, 0, 0] = 1e3 * w ** 2
     ds = with_second_order(sphere, mean_drift=MeanDrift(("momentum",), w, np.zeros(1), values))
     path = tmp_path_factory.mktemp("drift") / "sphere_drift.nc"
+    to_netcdf(ds, path)
+    return ds, path
+
+
+@pytest.fixture(scope="module")
+def sphere_headings(sphere, tmp_path_factory) -> tuple[xr.Dataset, Path]:
+    """The sphere's HDB at 12 headings around the circle (the passive_yaw feature needs them): the
+    sphere is symmetric about its vertical axis through its reference point, the origin, so the wave
+    from beta gives the force of 0 turned by beta."""
+    from hydrolink.protocol.hdb.schema import to_netcdf
+    b = np.deg2rad(np.arange(0.0, 360.0, 30.0))
+    x0 = sphere["excitation_force"].isel(wave_direction=0).values          # (n_w, 6)
+    x = np.repeat(x0[:, None, :], b.size, axis=1)
+    for a, c in ((0, 1), (3, 4)):
+        x[:, :, a] = np.cos(b) * x0[:, None, a] - np.sin(b) * x0[:, None, c]
+        x[:, :, c] = np.sin(b) * x0[:, None, a] + np.cos(b) * x0[:, None, c]
+    ds = sphere.drop_dims("wave_direction").assign_coords(wave_direction=b)
+    ds = ds.assign(excitation_force=(("omega", "wave_direction", "influenced_dof"), x))
+    path = tmp_path_factory.mktemp("headings") / "sphere_headings.nc"
     to_netcdf(ds, path)
     return ds, path
 
@@ -132,7 +157,8 @@ def _runs(tool: str, feature: str, sphere, sphere_path: Path, hull, tmp_path: Pa
         for f in fields:
             for v in reply_field(f).variables:
                 assert ds[v.name].dims[1:] == v.dims and np.isfinite(ds[v.name].values).all(), v.name
-        assert np.abs(ds[reply_field(fields[-1]).variables[0].name].values[1:]).max() > 0
+        if fields:
+            assert np.abs(ds[reply_field(fields[-1]).variables[0].name].values[1:]).max() > 0
     elif tool == "steady":                   # the server's terms of the scene are evaluated pointwise
         from hydrolink.clients.analysis.steady import check_scene
         check_scene(parse_scene(scene_text(sphere_path, feature)))
@@ -170,9 +196,11 @@ def _runs(tool: str, feature: str, sphere, sphere_path: Path, hull, tmp_path: Pa
 
 @pytest.mark.parametrize("feature,tool", list(itertools.product(FEATURES, TOOLS)))
 def test_every_feature_tool_pair_runs_or_is_refused_with_its_key(feature, tool, sphere, sphere_path, sphere_drift,
-                                                                 hull, tmp_path):
+                                                                 sphere_headings, hull, tmp_path):
     if feature == "second_order":    # its data: the sphere's HDB with mean drift coefficients
         sphere, sphere_path = sphere_drift
+    if feature == "passive_yaw":     # its data: the sphere's HDB at headings around the circle
+        sphere, sphere_path = sphere_headings
     t = TOOLS[tool]
     if feature in t.supports:
         _runs(tool, feature, sphere, sphere_path, hull, tmp_path)

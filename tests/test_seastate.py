@@ -161,3 +161,44 @@ def test_bad_sea_input_names_the_key():
     with pytest.raises(ModelError) as err:
         HydroModel(parse_scene(text), {"float": ds})
     assert err.value.key == "waves.systems"
+
+
+def test_breaking_and_time_step_checks_take_every_sea():
+    """The breaking check (server/model.py) and the time-step check (clients/lockstep/preflight.py)
+    read each system of a ``sea``, a table's peak and significant height from its own values, and
+    each component of a list: the steepest (shortest) is refused by its own key. Deep water:
+    lambda = g T^2 / (2 pi)."""
+    from hydrolink.clients.lockstep.preflight import wave_resolution
+    from hydrolink.protocol.scene import wave_peaks
+    lam = lambda t: 9.81 * t ** 2 / (2 * np.pi)     # noqa: E731
+    steep_wind = dict(WIND, hs=lam(7.0) / 6)        # H/lambda = 1/6 > 1/7
+    with pytest.raises(ModelError) as err:
+        _model(_sea(SWELL, steep_wind, components=20))
+    assert err.value.key == "waves.systems[1].hs" and f"<= {lam(7.0) / 7:.4g} m" in err.value.why
+    steep = dict(type="components", omega=[0.5, 2 * np.pi / 4.0], direction=[0.0, 30.0],
+                 amplitude=[0.5, lam(4.0) / 12], phase=[0.0, 90.0])    # 2a/lambda = 1/6
+    with pytest.raises(ModelError) as err:
+        _model(steep)
+    assert err.value.key == "waves.amplitude[1]" and f"<= {lam(4.0) / 14:.4g} m" in err.value.why
+    # a table: peak at 1.0 rad/s, m0 = trapezoid of S = 0.25 * 1.0 -> Hs = 4 sqrt(0.25) = 2 m
+    table = dict(spectrum="table", omega=[0.5, 1.0, 1.5], density=[0.0, 0.5, 0.0])
+    (peak,) = wave_peaks(parse_scene(scene_toml(dt=0.1, duration=1.0, waves=_sea(table),
+                                                bodies=[body("b", mass=1.0, center_of_mass=[0, 0, 0],
+                                                             inertia=[1.0] * 3)])).waves)
+    assert peak.period == pytest.approx(2 * np.pi) and peak.height == pytest.approx(2.0)
+    # the time step: refused by the wind sea's peak period (4.5 s at dt = 1 s: 17 %), not the swell's
+    scene = parse_scene(scene_toml(dt=1.0, duration=10.0, waves=_sea(SWELL, dict(WIND, tp=4.5)),
+                                   bodies=[body("b", mass=1.0, center_of_mass=[0, 0, 0], inertia=[1.0] * 3)]))
+    verdict, why = wave_resolution(scene, 1.0)
+    assert verdict == "refuse" and "waves.systems[1].tp = 4.5 s" in why
+    # a component list: only components with >= 1 % of the variance count (the 2 s ripple has 0.04 %)
+    comps = dict(type="components", omega=[2 * np.pi / 12, 2 * np.pi / 2.0], direction=[0.0, 0.0],
+                 amplitude=[1.0, 0.02], phase=[0.0, 0.0])
+    scene = parse_scene(scene_toml(dt=0.5, duration=10.0, waves=comps,
+                                   bodies=[body("b", mass=1.0, center_of_mass=[0, 0, 0], inertia=[1.0] * 3)]))
+    assert wave_resolution(scene, 0.5) is None
+    comps["amplitude"] = [1.0, 0.5]
+    scene = parse_scene(scene_toml(dt=0.5, duration=10.0, waves=comps,
+                                   bodies=[body("b", mass=1.0, center_of_mass=[0, 0, 0], inertia=[1.0] * 3)]))
+    verdict, why = wave_resolution(scene, 0.5)
+    assert verdict == "refuse" and "the period of waves.omega[1] = 2 s" in why

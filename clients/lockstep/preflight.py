@@ -13,7 +13,7 @@ import math
 from dataclasses import dataclass
 
 from hydrolink.protocol.capabilities import refuse_unsupported
-from hydrolink.protocol.scene import Scene, SceneError
+from hydrolink.protocol.scene import Scene, SceneError, wave_peaks
 from hydrolink.protocol.setup import Setup
 
 log = logging.getLogger(__name__)
@@ -39,13 +39,19 @@ class Preflight:
 
 def wave_resolution(scene: Scene, step: float) -> tuple[str, str] | None:
     """("refuse" | "warn", why) when ``step`` (the exchange step, exchange_every × dt) resolves the
-    wave period (regular) or peak period (irregular) too coarsely: the trapezoidal rule stretches
-    a period T by ωh / (2 atan(ωh/2)) − 1 (12 % at T/5, 3.2 % at T/10, 0.8 % at T/20)."""
-    w = scene.waves
-    kind = getattr(w, "type", "still")
-    if kind not in ("regular", "irregular"):
+    wave period (regular), peak period (irregular; each system's of a ``sea``) or the period of a
+    component carrying at least 1 % of a component list's variance too coarsely: the trapezoidal
+    rule stretches a period T by ωh / (2 atan(ωh/2)) − 1 (12 % at T/5, 3.2 % at T/10, 0.8 % at T/20)."""
+    peaks = wave_peaks(scene.waves)
+    if getattr(scene.waves, "type", "") == "components":
+        total = sum(p.height ** 2 for p in peaks)
+        peaks = [p for p in peaks if p.height ** 2 >= 0.01 * total]
+    if not peaks:
         return None
-    period, what = (w.period, "waves.period") if kind == "regular" else (w.tp, "waves.tp")
+    shortest = min(peaks, key=lambda p: p.period)
+    period, what = shortest.period, shortest.period_key
+    if what.startswith("waves.omega"):      # a component's frequency: say its period
+        what = f"the period of {what}"
     wh = 2 * math.pi * step / period
     stretch = wh / (2 * math.atan(wh / 2)) - 1
     if stretch <= DT_WARN:

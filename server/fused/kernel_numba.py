@@ -24,9 +24,11 @@ convolution = numba.njit(cache=True, nogil=True, error_model="numpy", fastmath={
 state_space = _jit(loops.state_space)
 hydrostatic = _jit(loops.hydrostatic)
 gather = _jit(loops.gather)
+yaw_excitation = _jit(loops.yaw_excitation)
 
 FIELDS = ["idx", "exc", "omega", "ramp_t", "trig", "k_hs", "x_eq", "kind", "k", "data", "indices", "indptr", "buf",
-          "counters", "phi", "g0", "g1", "c2", "rows", "cols", "d", "z", "z_prev", "v_prev", "v_last", "vs", "f"]
+          "counters", "phi", "g0", "g1", "c2", "rows", "cols", "d", "z", "z_prev", "v_prev", "v_last", "vs", "f",
+          "yaw_tables", "yaw_headings", "yaw_rows", "yaw_owner"]
 
 
 @structref.register
@@ -46,10 +48,12 @@ structref.define_proxy(LinearState, _LinearStateType, FIELDS)
 
 @_jit
 def linear_state(idx, exc, omega, ramp_t, trig, k_hs, x_eq, kind, k, data, indices, indptr, buf, counters,
-                 phi, g0, g1, c2, rows, cols, d, z, z_prev, v_prev, v_last, vs, f):
+                 phi, g0, g1, c2, rows, cols, d, z, z_prev, v_prev, v_last, vs, f, yaw_tables, yaw_headings,
+                 yaw_rows, yaw_owner):
     """The :class:`LinearState` of these arrays (held, not copied)."""
     return LinearState(idx, exc, omega, ramp_t, trig, k_hs, x_eq, kind, k, data, indices, indptr, buf, counters,
-                       phi, g0, g1, c2, rows, cols, d, z, z_prev, v_prev, v_last, vs, f)
+                       phi, g0, g1, c2, rows, cols, d, z, z_prev, v_prev, v_last, vs, f, yaw_tables, yaw_headings,
+                       yaw_rows, yaw_owner)
 
 
 @_jit
@@ -61,6 +65,8 @@ def step(st, t, x, v, replace, f_ext, eta_ext, out):
     components' sum."""
     gather(v, st.idx, st.vs)
     eta = excitation(st.idx, st.exc, st.omega, st.ramp_t, st.trig, t, f_ext, out[0]) + eta_ext
+    yaw_excitation(st.yaw_tables, st.yaw_headings, st.yaw_rows, st.yaw_owner, st.idx, st.ramp_t, st.trig, t, f_ext,
+                   out[0])
     if st.kind == 1 or st.kind == 2:
         convolution(st.k, st.data, st.indices, st.indptr, st.buf, st.counters, st.vs, replace, st.idx, out[1])
     elif st.kind == 3:

@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 
-__all__ = ["RADIATION_KINDS", "convolution", "excitation", "gather", "hydrostatic", "state_space"]
+__all__ = ["RADIATION_KINDS", "convolution", "excitation", "gather", "hydrostatic", "state_space", "yaw_excitation"]
 
 #: radiation force kinds of the fused step: none, convolution (dense kernel), convolution (CSR kernel), state space
 RADIATION_KINDS = {"none": 0, "dense": 1, "sparse": 2, "state-space": 3}
@@ -47,6 +47,36 @@ def excitation(idx, exc, omega, ramp_t, trig, t, f_ext, out):
         else:
             eta = acc * ramp
     return eta
+
+
+def yaw_excitation(tables, headings, rows, owner, idx, ramp_t, trig, t, f_ext, out):
+    """The passive-yaw bodies' excitation rows (server/sea/passive_yaw.py), after :func:`excitation`
+    filled ``trig``: for passive row r of body b = owner[r], forcing row i = rows[r], the sums of
+    tables[b, j0, i] and tables[b, j1, i] over [cos wt; sin wt] at the tabulated yaws j0, j1 around
+    headings[b], blended linearly, times the ramp: out[idx[i]] = that + f_ext[i] (the same loop as
+    :func:`excitation`'s, so the table at yaw 0, the fixed-heading matrix, gives its bits)."""
+    if rows.size == 0:
+        return
+    points = tables.shape[1]
+    width = tables.shape[3]
+    ramp = 1.0
+    if ramp_t > 0.0 and t < ramp_t:
+        ramp = 0.5 * (1.0 - math.cos(math.pi * max(t, 0.0) / ramp_t))
+    for r in range(rows.size):
+        b, i = owner[r], rows[r]
+        u = (headings[b] * (points / (2.0 * math.pi))) % points
+        j0 = int(u)
+        s = u - j0
+        if j0 >= points:     # a tiny negative angle rounds to a whole turn
+            j0, s = 0, 0.0
+        j1 = j0 + 1 if j0 + 1 < points else 0
+        acc0 = 0.0
+        for j in range(width):
+            acc0 += tables[b, j0, i, j] * trig[j]
+        acc1 = 0.0
+        for j in range(width):
+            acc1 += tables[b, j1, i, j] * trig[j]
+        out[idx[i]] = ((1.0 - s) * acc0 + s * acc1) * ramp + f_ext[i]
 
 
 def convolution(k, data, indices, indptr, buf, counters, vs, replace, idx, out):

@@ -63,12 +63,18 @@ class FusedLinearStep:
     6N vector: ``exc`` (na + 1, 2 n_c) the excitation then elevation rows over [cos wt; sin wt] of
     the components ``omega`` (ramped over ``ramp`` s; n_c = 0: none), ``k_hs`` (na, na) and
     ``x_eq`` (na,) the restoring force's stiffness and equilibrium, ``radiation`` the one radiation
-    force over all na DOFs."""
+    force over all na DOFs, ``yaw`` the passive-yaw bodies' tables, headings (held, not copied: the
+    caller fills it before each call), rows and their bodies (server/sea/passive_yaw.py
+    ``PassiveYaw.fused_inputs``; None: no such body)."""
 
     def __init__(self, idx: np.ndarray, exc: np.ndarray, omega: np.ndarray, ramp: float, k_hs: np.ndarray,
-                 x_eq: np.ndarray, radiation: FusedRadiation):
+                 x_eq: np.ndarray, radiation: FusedRadiation,
+                 yaw: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None):
         c = np.ascontiguousarray
         na, r = idx.size, radiation
+        # passive-yaw bodies (server/sea/passive_yaw.py PassiveYaw.fused_inputs): none by default
+        tables, headings, yaw_rows, owner = yaw if yaw is not None else (_empty(0, 1, 1, 0), _empty(0),
+                                                                          _empty(0, dtype=_I), _empty(0, dtype=_I))
         s = r.phi.size
         self._buf = np.zeros((2 * r.length, na))
         self._counters = np.array([0, 0, r.length], _I)        # ring position, pushes, ring length
@@ -80,7 +86,7 @@ class FusedLinearStep:
             RADIATION_KINDS[r.kind], c(r.k, _F), c(r.data, _F), c(r.indices, _I), c(r.indptr, _I), self._buf,
             self._counters, c(r.phi, complex), c(r.g0, complex), c(r.g1, complex), c(r.c2, complex),
             c(r.rows, _I), c(r.cols, _I), c(r.d, _F), self._z, self._z_prev, self._v_prev, self._v_last,
-            np.zeros(na), np.zeros(na))
+            np.zeros(na), np.zeros(na), c(tables, _F), headings, c(yaw_rows, _I), c(owner, _I))
         self._step = _compiled().step
 
     def __call__(self, t: float, x: np.ndarray, v: np.ndarray, replace_last: bool, out: np.ndarray,

@@ -306,15 +306,22 @@ class WaveForcing:
         view.flags.writeable = False
         return view
 
+    def sum(self, t: float, matrix: np.ndarray | None = None) -> np.ndarray:
+        """(n + 1,) ``matrix`` (default :attr:`matrix`; another of its shape: a passive-yaw body's,
+        server/sea/passive_yaw.py) over [cos wt; sin wt] at time t, before the ramp: the same
+        arithmetic for every matrix, so equal matrices give equal bits."""
+        if self.comps.size == 1:  # regular wave: scalar trig is cheaper than array calls
+            wt = self._w0 * t
+            if matrix is None:
+                return self._m0 * math.cos(wt) + self._m1 * math.sin(wt)
+            return matrix[:, 0] * math.cos(wt) + matrix[:, 1] * math.sin(wt)
+        return (self._m if matrix is None else matrix) @ self._phases.at(t)
+
     def __call__(self, t: float) -> tuple[np.ndarray, float]:
         """(F_ex (n,), eta) at time t."""
         if self._still:
             return np.zeros(self._n), 0.0
-        if self.comps.size == 1:  # regular wave: scalar trig is cheaper than array calls
-            wt = self._w0 * t
-            out = self._m0 * math.cos(wt) + self._m1 * math.sin(wt)
-        else:
-            out = self._m @ self._phases.at(t)
+        out = self.sum(t)
         out *= ramp_at(t, self.comps.ramp)
         return out[:-1], float(out[-1])
 

@@ -52,11 +52,14 @@ WORKER_PER_MODEL_BYTE = 4        # ... this many times its model's arrays (footp
 
 def step_cost(model: HydroModel, tries: int = 3) -> float:
     """The seconds one step of ``model`` takes (the least of ``tries``: a first step may compile
-    kernels), at rest in its equilibrium; the model is put back as it was (its :meth:`state`). CPU
-    time of this thread: a loaded machine (or the set-up thread's lower priority) does not make a
-    light model look heavy. A model that cannot take that step costs ``inf`` (it is isolated)."""
+    kernels), at rest in its equilibrium turned by 0.01 rad of yaw (a passive-yaw body's step costs
+    more off its initial heading: server/sea/passive_yaw.py); the model is put back as it was (its
+    :meth:`state`). CPU time of this thread: a loaded machine (or the set-up thread's lower priority)
+    does not make a light model look heavy. A model that cannot take that step costs ``inf`` (it is
+    isolated)."""
     saved = model.state()
     x = np.array(model.setup_info().equilibrium_position, float)
+    x[:, 5] += 0.01
     v = np.zeros_like(x)
     best = math.inf
     try:

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, Literal, Mapping
+from typing import Any, Callable, ClassVar, Literal, Mapping
 
 import numpy as np
 import xarray as xr
@@ -55,6 +55,9 @@ class TermContext:
     hulls: Mapping[str, Hull]          # the closed hulls the hello brought, by body name
     hdbs: Mapping[str, xr.Dataset] = field(default_factory=dict)  # each wet body's HDB, by body name
     phases: WavePhases | None = None   # the step's [cos wt; sin wt] of ``waves``, shared (None: a term's own)
+    # the heading (rad) the waves are read at this step for the passive-yaw body at a row (server/sea/
+    # passive_yaw.py PassiveYaw.heading; None: no such body)
+    yaw_heading: Callable[[int], float] | None = None
 
     @property
     def n_bodies(self) -> int:

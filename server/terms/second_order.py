@@ -33,7 +33,8 @@ a pair they do not hold, is a ModelError naming the wave key.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, replace
 
 import numpy as np
 import xarray as xr
@@ -46,6 +47,7 @@ from hydrolink.server.allocation import require_size
 from hydrolink.server.errors import ModelError
 from hydrolink.server.terms.base import ForceTerm, TermContext
 from hydrolink.server.sea.headings import heading_weights
+from hydrolink.server.sea.passive_yaw import YAW_POINTS, grid_position, rotate_yaw, yaw_grid
 from hydrolink.server.sea.waves import WaveComponents, WaveError, ramp_factor
 
 _TOL = 1e-6   # relative tolerance on frequencies, absolute (rad) on headings
@@ -92,9 +94,24 @@ class BodySecondOrder:
     lift: np.ndarray | None = None
     difference: np.ndarray | None = None
     sum: np.ndarray | None = None
+    # a passive-yaw body (server/sea/passive_yaw.py): ``mean`` (n_psi, 6) and ``newman`` (n_psi, n_c,
+    # 6) at the tabulated yaws, the first the fixed heading's; blended at the body's yaw each step
+    yawing: bool = False
+    # a passive-yaw body's QTF: its parts at a yaw other than 0 (:class:`TurningQTF`)
+    turning: "TurningQTF | None" = None
 
-    def force(self, z: np.ndarray) -> np.ndarray:
-        """(6,) the force for the component phasors ``z`` (no ramp)."""
+    def force(self, z: np.ndarray, yaw: float = 0.0) -> np.ndarray:
+        """(6,) the force for the component phasors ``z`` (no ramp); ``yaw`` (rad) the body's, read
+        by a passive-yaw body only."""
+        if self.yawing:
+            j0, j1, s = grid_position(yaw, YAW_POINTS)
+            f = np.zeros(6) if self.mean is None else (1.0 - s) * self.mean[j0] + s * self.mean[j1]
+            if self.newman is not None:
+                conj = np.conj(z.sum())
+                f += (1.0 - s) * ((z @ self.newman[j0]) * conj).real + s * ((z @ self.newman[j1]) * conj).real
+            return f
+        if self.turning is not None and yaw != 0.0:
+            return self.turning(yaw).force(z)
         f = np.zeros(6) if self.mean is None else self.mean.copy()
         if self.newman is not None:
             f += ((z @ self.newman) * np.conj(z.sum())).real
@@ -116,6 +133,27 @@ def _mean_drift_diagonal(sub: xr.Dataset, method: str, waves: WaveComponents, sc
     lw = interpolation_weights(w_grid, waves.hdb_omega, _wave_key(waves, "omega"), "wave frequency (rad/s)")
     lb = _heading_weights(b_grid, waves.heading_of(), waves, "the mean drift's headings")
     return np.einsum("ca,cb,abd->cd", lw, lb, md)
+
+
+def _yawed_drift_diagonal(sub: xr.Dataset, method: str, waves: WaveComponents, scale: float, psi: np.ndarray,
+                          key: str) -> np.ndarray:
+    """(n_psi, n_c, 6) T_ii of a passive-yaw body yawed by each ``psi``: at each component's heading
+    relative to the body, turned into the global frame (server/sea/passive_yaw.py); the same
+    interpolation as :func:`_mean_drift_diagonal`, a heading the data leave out a ModelError(key)."""
+    md = sub["mean_drift"].transpose(*MEAN_DRIFT_DIMS).sel(drift_method=method).values * scale
+    w_grid, b_grid = sub["drift_omega"].values, sub["drift_direction"].values
+    lw = interpolation_weights(w_grid, waves.hdb_omega, _wave_key(waves, "omega"), "wave frequency (rad/s)")
+    mw = np.tensordot(lw, md, axes=(1, 0))          # (n_c, n_b, 6): at the components' frequencies
+    heads = waves.heading_of()
+    out = np.empty((psi.size, heads.size, 6))
+    for beta in np.unique(heads):
+        on = heads == beta
+        try:
+            lb = heading_weights(b_grid, beta - psi, key, "the mean drift's headings (the body yawing)")
+        except WaveError as exc:
+            raise ModelError(exc.key, exc.why) from None
+        out[:, on] = np.tensordot(lb, mw[on], axes=(1, 1))
+    return rotate_yaw(out, psi)
 
 
 def _heading_weights(grid: np.ndarray, heads: np.ndarray, waves: WaveComponents, what: str) -> np.ndarray:
@@ -152,15 +190,21 @@ def _qtf_pair_weights(sub: xr.Dataset, groups: np.ndarray, waves: WaveComponents
     return out
 
 
-def _qtf_diagonal(sub: xr.Dataset, waves: WaveComponents, scale: float, src: str) -> tuple[np.ndarray, np.ndarray]:
+def _qtf_tables(sub: xr.Dataset, kinds: tuple[str, ...], scale: float) -> dict[str, np.ndarray]:
+    """Each kind's QTF (n_q, n_q, n_h, 6) in the scene's water, read once."""
+    return {kind: sub[f"{kind}_qtf"].transpose(*QTF_DIMS).values * scale for kind in kinds}
+
+
+def _qtf_diagonal(sub: xr.Dataset, waves: WaveComponents, scale: float, src: str,
+                  tables: dict[str, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(n_c, 6) twice: the difference QTF's T_ii at each component, interpolated linearly along the
     diagonal T(w, w) (the one interpolation of T_ii, as the mean drift's along drift_omega), and the
     value the bilinear interpolation on the square gives there (what the factorised double sum
-    holds on its diagonal, corrected to the first by a constant)."""
+    holds on its diagonal, corrected to the first by a constant). ``tables``: :func:`_qtf_tables`."""
     grid = sub["qtf_omega_i"].values
     lw = interpolation_weights(grid, waves.hdb_omega, _wave_key(waves, "omega"), "wave frequency (rad/s)")
     heads = np.round(waves.heading_of(), 9)
-    t = sub["difference_qtf"].transpose(*QTF_DIMS).values * scale        # (n_q, n_q, n_h, 6)
+    t = (tables or _qtf_tables(sub, ("difference",), scale))["difference"]   # (n_q, n_q, n_h, 6)
     linear, bilinear = np.zeros((waves.size, 6)), np.zeros((waves.size, 6))
     # each component's weights are on two neighbouring grid points k, k + 1 (one on a 1-point grid)
     k = np.minimum(np.argmax(lw != 0.0, axis=1), max(grid.size - 2, 0))
@@ -169,7 +213,8 @@ def _qtf_diagonal(sub: xr.Dataset, waves: WaveComponents, scale: float, src: str
     weights = _qtf_pair_weights(sub, groups, waves, src)
     for g, b in enumerate(groups):
         on = heads == b
-        square = np.tensordot(t, weights[g, g], axes=([2], [0]))          # (n_q, n_q, 6), real diagonal
+        nz = np.flatnonzero(weights[g, g])                                # the few pairs the heading is between
+        square = np.tensordot(t[:, :, nz], weights[g, g, nz], axes=([2], [0]))   # (n_q, n_q, 6), real diagonal
         linear[on] = lw[on] @ np.einsum("aad->ad", square).real
         if grid.size == 1:
             bilinear[on] = linear[on]
@@ -180,9 +225,10 @@ def _qtf_diagonal(sub: xr.Dataset, waves: WaveComponents, scale: float, src: str
     return linear, bilinear
 
 
-def _qtf_parts(sub: xr.Dataset, kinds: tuple[str, ...], waves: WaveComponents, scale: float, src: str
-               ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """The interpolation L (n_c, n_g n_q) over the heading groups and each kind's stacked G."""
+def _qtf_parts(sub: xr.Dataset, kinds: tuple[str, ...], waves: WaveComponents, scale: float, src: str,
+               tables: dict[str, np.ndarray] | None = None) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """The interpolation L (n_c, n_g n_q) over the heading groups and each kind's stacked G
+    (``tables``: :func:`_qtf_tables`)."""
     grid = sub["qtf_omega_i"].values
     lw = interpolation_weights(grid, waves.hdb_omega, _wave_key(waves, "omega"), "wave frequency (rad/s)")
     heads = waves.heading_of()
@@ -198,10 +244,11 @@ def _qtf_parts(sub: xr.Dataset, kinds: tuple[str, ...], waves: WaveComponents, s
         on = np.isclose(np.round(heads, 9), b)
         lift[on, g * n_q:(g + 1) * n_q] = lw[on]
     weights = _qtf_pair_weights(sub, groups, waves, src)               # (n_g, n_g, n_h)
+    nz = np.flatnonzero(weights.any(axis=(0, 1)))                      # the pairs the headings are between
+    tables = tables or _qtf_tables(sub, kinds, scale)
     out = {}
     for kind in kinds:
-        t = sub[f"{kind}_qtf"].transpose(*QTF_DIMS).values * scale     # (n_q, n_q, n_h, 6)
-        g_full = np.einsum("ijhd,abh->ijabd", t, weights)               # (n_q, n_q, n_g, n_g, 6)
+        g_full = np.einsum("ijhd,abh->ijabd", tables[kind][:, :, nz], weights[:, :, nz])   # (n_q, n_q, n_g, n_g, 6)
         g_full = g_full.transpose(4, 2, 0, 3, 1).reshape(6 * n_g * n_q, n_g * n_q)
         out[kind] = np.ascontiguousarray(g_full)
     return lift, out
@@ -233,6 +280,60 @@ def _drift_method(sub: xr.Dataset, mode: str, key: str, method: str | None, name
     return method
 
 
+def _qtf_body_parts(sub: xr.Dataset, kinds: tuple[str, ...], waves: WaveComponents, scale: float, src: str,
+                    row: int, tables: dict[str, np.ndarray] | None = None) -> BodySecondOrder:
+    """A body's QTF parts (the lift, each kind's G, and the difference QTF's diagonal constant)."""
+    parts: dict[str, np.ndarray] = {}
+    tables = tables or _qtf_tables(sub, kinds, scale)
+    lift, g = _qtf_parts(sub, kinds, waves, scale, src, tables)
+    if "difference" in kinds:
+        # the diagonal i = j of the double sum is A_i^2 T_ii, constant: with this constant it is the
+        # T_ii interpolated along the diagonal (as "mean-drift" and "newman" take it), not the
+        # bilinear value on the square, which mixes the neighbouring off-diagonal cells in
+        linear, bilinear = _qtf_diagonal(sub, waves, scale, src, tables)
+        parts["mean"] = (waves.amplitude ** 2) @ (linear - bilinear)
+    parts["lift"] = lift.astype(complex)   # complex once, not cast each step
+    for kind in kinds:
+        parts[kind] = g[kind]
+    return BodySecondOrder(row, **parts)
+
+
+class TurningQTF:
+    """A passive-yaw body's QTF parts at its yaw psi (server/sea/passive_yaw.py): the QTF read at the
+    components' headings relative to the body (beta - psi), its forces and moments turned into the
+    global frame by R(psi); computed when the yaw changes (the last kept: a step recomputed at the
+    same yaw reuses it). Its heading pairs are checked at set-up on the 1-deg yaw grid, so a step
+    never meets a pair the data lack."""
+
+    def __init__(self, sub: xr.Dataset, kinds: tuple[str, ...], waves: WaveComponents, scale: float, src: str,
+                 row: int, key: str):
+        self._args = (sub, kinds, scale, src, row)
+        self._tables = _qtf_tables(sub, kinds, scale)
+        self._waves, self._last = waves, (None, None)
+        heads = np.unique(np.round(waves.heading_of(), 9))
+        for psi in yaw_grid()[1:]:
+            try:
+                _qtf_pair_weights(sub, np.unique(np.round(heads - psi, 9)), waves, src)
+            except ModelError as exc:
+                raise ModelError(key, f"at a yaw of {np.degrees(psi):g} deg: {exc.why}") from None
+
+    def __call__(self, psi: float) -> BodySecondOrder:
+        if self._last[0] != psi:
+            sub, kinds, scale, src, row = self._args
+            waves = replace(self._waves, headings=self._waves.heading_of() - psi)
+            parts = _qtf_body_parts(sub, kinds, waves, scale, src, row, self._tables)
+            turn = np.array([psi])
+            mean = None if parts.mean is None else rotate_yaw(parts.mean[None, None, :], turn)[0, 0]
+            turned = {}
+            for kind in kinds:
+                g = getattr(parts, kind)
+                m = g.shape[1]
+                rows = np.moveaxis(g.reshape(6, m * m), 0, -1)[None]            # (1, M M, 6)
+                turned[kind] = np.ascontiguousarray(np.moveaxis(rotate_yaw(rows, turn)[0], -1, 0).reshape(6 * m, m))
+            self._last = (psi, BodySecondOrder(row, mean=mean, lift=parts.lift, **turned))
+        return self._last[1]
+
+
 def body_second_order(scene: Scene, i: int, row: int, ds: xr.Dataset, waves: WaveComponents
                       ) -> tuple[BodySecondOrder, list[str]]:
     """Body ``i``'s (scene index) second-order part from its HDB ``ds``, and its setup warnings."""
@@ -249,6 +350,10 @@ def body_second_order(scene: Scene, i: int, row: int, ds: xr.Dataset, waves: Wav
     kinds = ("difference",) if mode == "qtf" else ()
     if hydro.sum_frequency:
         kinds += ("sum",)
+    if body.passive_yaw and kinds and mode != "qtf":
+        raise ModelError(f"bodies[{i}].passive_yaw", f"with {key} = {mode!r} and hydro.sum_frequency: not built (the "
+                                                     "tabulated drift and the turning QTF in one body); use "
+                                                     "second_order = \"qtf\" with it")
     held = qtf_kinds(sub)
     for kind in kinds:
         if kind not in held:
@@ -257,10 +362,18 @@ def body_second_order(scene: Scene, i: int, row: int, ds: xr.Dataset, waves: Wav
                                 f"(it holds {list(held) or 'none'})")
     if mode in ("mean-drift", "newman"):
         method = _drift_method(sub, mode, key, hydro.drift_method, body.name, src)
+        if body.passive_yaw and method is None:
+            raise ModelError(f"bodies[{i}].passive_yaw", f"with {key} = {mode!r}: needs the HDB's mean drift "
+                             f"coefficients ({src!r} holds only a QTF, whose diagonal does not turn with the body yet)")
         diag = (_mean_drift_diagonal(sub, method, waves, scale) if method is not None
                 else _qtf_diagonal(sub, waves, scale, src)[0])
+        if body.passive_yaw:    # at the tabulated yaws; the first, yaw 0, the fixed heading's own
+            diag = np.concatenate([diag[None], _yawed_drift_diagonal(sub, method, waves, scale, yaw_grid()[1:],
+                                                                     f"bodies[{i}].passive_yaw")])
+            parts["yawing"] = True
         if mode == "mean-drift":
-            parts["mean"] = (waves.amplitude ** 2) @ diag
+            a2 = waves.amplitude ** 2
+            parts["mean"] = a2 @ diag if not body.passive_yaw else np.stack([a2 @ d for d in diag])
         else:
             parts["newman"] = diag.astype(complex)   # complex already: a real operand would be cast each step
         moving = [d for d in body.dofs]
@@ -270,16 +383,10 @@ def body_second_order(scene: Scene, i: int, row: int, ds: xr.Dataset, waves: Wav
                             f"but body {body.name!r} moves in {moving}: its drift includes no motion effect; "
                             f"lock bodies[{i}].dofs or use coefficients computed with the body's motions")
     if kinds:
-        lift, g = _qtf_parts(sub, kinds, waves, scale, src)
-        if "difference" in kinds:
-            # the diagonal i = j of the double sum is A_i^2 T_ii, constant: with this constant it is the
-            # T_ii interpolated along the diagonal (as "mean-drift" and "newman" take it), not the
-            # bilinear value on the square, which mixes the neighbouring off-diagonal cells in
-            linear, bilinear = _qtf_diagonal(sub, waves, scale, src)
-            parts["mean"] = (waves.amplitude ** 2) @ (linear - bilinear)
-        parts["lift"] = lift.astype(complex)   # complex once, not cast each step
-        for kind in kinds:
-            parts[kind] = g[kind]
+        qtf = _qtf_body_parts(sub, kinds, waves, scale, src, row)
+        parts.update({k: getattr(qtf, k) for k in ("mean", "lift", *kinds) if getattr(qtf, k) is not None})
+        if body.passive_yaw:
+            parts["turning"] = TurningQTF(sub, kinds, waves, scale, src, row, f"bodies[{i}].passive_yaw")
     return BodySecondOrder(row, **parts), warnings
 
 
@@ -294,13 +401,13 @@ class SecondOrderTerm(ForceTerm):
     name = "second_order"
     scene_keys = ("hydro.second_order", "bodies[i].second_order", "hydro.drift_method", "hydro.sum_frequency")
     features = ("second_order",)
-    needs = frozenset({"time"})
+    needs = frozenset({"time", "position"})   # position: the yaw of passive-yaw bodies
     steady = "pointwise"     # hydrolink steady: a load at its nodes (regular waves: mean, and 2w with sum)
     stateless = False
     RESYNC = 1024
 
     def __init__(self, parts: list[BodySecondOrder], waves: WaveComponents, active: np.ndarray, dt: float,
-                 warnings: list[str]):
+                 warnings: list[str], heading: Callable[[int], float] | None = None):
         super().__init__(("drift",))
         self.parts, self._mask = parts, active.astype(float)
         self._c = waves.amplitude * np.exp(1j * waves.phase)
@@ -311,6 +418,7 @@ class SecondOrderTerm(ForceTerm):
         self._phasors = any(p.newman is not None or p.lift is not None for p in parts)  # else constant
         self._t, self._z, self._since = np.nan, self._c, 0    # the newest phasors, at time _t
         self.warnings = tuple(warnings)
+        self._heading = heading   # a passive-yaw body's heading at a row, this step (TermContext.yaw_heading)
 
     @classmethod
     def build(cls, ctx: TermContext) -> "SecondOrderTerm | None":
@@ -327,7 +435,7 @@ class SecondOrderTerm(ForceTerm):
             part, warn = body_second_order(scene, i, row, ctx.hdbs[scene.bodies[i].name], ctx.waves)
             parts.append(part)
             warnings += warn
-        return cls(parts, ctx.waves, ctx.active, scene.exchange_dt, warnings)
+        return cls(parts, ctx.waves, ctx.active, scene.exchange_dt, warnings, ctx.yaw_heading)
 
     def _phasors_at(self, t: float) -> np.ndarray:
         """z(t), rotated from the newest phasors when t is one step later."""
@@ -346,7 +454,10 @@ class SecondOrderTerm(ForceTerm):
             return (out,)
         z = self._phasors_at(float(t)) if self._phasors else self._c
         for part in self.parts:
-            out[part.row] = part.force(z)
+            turns = part.yawing or part.turning is not None
+            yaw = 0.0 if not turns else (self._heading(part.row) if self._heading is not None
+                                         else float(position[part.row, 5]))
+            out[part.row] = part.force(z, yaw)
         r = 1.0 if t >= self._ramp else float(ramp_factor(t, self._ramp))
         out *= self._mask * (r * r)
         return (out,)
