@@ -16,7 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, field_validator,
 from hydrolink.protocol.capabilities import FEATURES
 from hydrolink.protocol.current import Current
 from hydrolink.protocol.errors import KeyedError
-from hydrolink.protocol.scene_bounds import MAX_STEPS, AddedMassRatio, AngleDeg, Area, CableElements, Coefficient, ComponentCount, Coordinate, Density, Depth, Diameter, DirectionCount, Displacement, Duration, ExchangeSteps, ExcitationIRFDuration, EnergyFraction, ExplicitSpectralRadius, FileTime, FlowCoefficient, Fraction, Frequency, FrequencyStep, Gravity, HarmonicCount, IRFDuration, Interval, IterationCount, LatencySteps, Length, LineDensity, Mass, NonNegativeCoefficient, NonNegativeDiameter, NonNegativeLength, ParameterFloat, ParameterInt, PeakEnhancement, PositiveCoefficient, PreviewTime, RampTime, RegularisationSpeed, Seed, SegmentCount, SignificantHeight, SpectralRadius, Speed, SpreadingExponent, StateSpaceOrder, TimeStep, Tolerance, Volume, WallTimeout, WaveHeight, WavePeriod
+from hydrolink.protocol.scene_bounds import MAX_STEPS, AddedMassRatio, AngleDeg, Area, CableElements, Coefficient, Efficiency, ComponentCount, Coordinate, Density, Depth, Diameter, DirectionCount, Displacement, Duration, ExchangeSteps, ExcitationIRFDuration, EnergyFraction, ExplicitSpectralRadius, FileTime, FlowCoefficient, Fraction, Frequency, FrequencyStep, Gravity, HarmonicCount, IRFDuration, Interval, IterationCount, LatencySteps, Length, LineDensity, Mass, NonNegativeCoefficient, NonNegativeDiameter, NonNegativeLength, ParameterFloat, ParameterInt, PeakEnhancement, PositiveCoefficient, PreviewTime, RampTime, RegularisationSpeed, Seed, SegmentCount, SignificantHeight, SpectralRadius, Speed, SpreadingExponent, StateSpaceOrder, TimeStep, Tolerance, Volume, WallTimeout, WaveHeight, WavePeriod
 from hydrolink.protocol.toml_model import read_toml_file, validate_toml
 
 DOF_NAMES: tuple[str, ...] = ("surge", "sway", "heave", "roll", "pitch", "yaw")
@@ -402,6 +402,7 @@ class Optimize(_Section):
     order: HarmonicCount | None = None              # default: [steady] order (regular waves)
     oversampling: Annotated[int, Field(ge=2, le=64)] = 8    # fine-grid points per collocation interval
     reactive: bool = True                           # false: no reactive power (P_pto(t) >= 0)
+    efficiency: Efficiency = 1.0                    # PTO efficiency: electrical power eta P absorbing, P / eta fed back
     limits: list[OptimizeLimit] = []
 
 

@@ -144,6 +144,36 @@ def test_no_reactive_power_order_one_is_the_best_damper(rm3, one_port):
     assert 0 <= sol.power / -best.fun - 1 < 0.01 and sol.solver == "slsqp"
 
 
+def test_efficiency_order_one_closed_form(rm3, one_port):
+    """``efficiency = eta``: the electrical power is eta p while the PTO absorbs, p / eta while it feeds
+    power back. With sinusoids (order 1) f = Re(F e^{-iwt}), v_p = Re(V e^{-iwt}), V = v_oc - y F, the
+    power p(t) = 1/2 |F||V| (c + cos theta(t)) with c = cos(angle(F, V)), so mean p = 1/2 |F||V| c and
+    mean |p| = 1/2 |F||V| (2/pi) (sqrt(1 - c^2) + c asin c); the electrical mean is a mean p - b mean |p|,
+    a = (eta + 1/eta) / 2, b = (1/eta - eta) / 2, maximised here over the complex F (Nelder-Mead)."""
+    from scipy.optimize import minimize
+    v_oc, y = one_port
+    eta = 0.7
+    a, b = 0.5 * (eta + 1 / eta), 0.5 * (1 / eta - eta)
+    f_star = v_oc / (2 * y.real)
+
+    def electrical(z):
+        f = complex(z[0], z[1]) * abs(f_star)
+        v = v_oc - y * f
+        half = 0.5 * abs(f) * abs(v)
+        c = float(np.clip(np.real(np.conj(f) * v) / max(abs(f) * abs(v), 1e-300), -1, 1))
+        return a * half * c - b * half * 2 / np.pi * (np.sqrt(1 - c * c) + c * np.arcsin(c))
+
+    starts = [f_star / abs(f_star) * s for s in (1.0, 0.5, 0.5j, -0.3 + 0.3j)]
+    best = max((minimize(lambda z: -electrical(z), [s.real, s.imag], method="Nelder-Mead",
+                         options={"xatol": 1e-10, "fatol": 1e-6, "maxiter": 4000}) for s in starts), key=lambda r: -r.fun)
+    closed = -best.fun
+    prob, sol = _optimum(rm3, f"\n[optimize]\norder = 1\nefficiency = {eta!r}\n")
+    print(f"efficiency {eta}: electrical {sol.electrical_power:.6g} W vs closed form {closed:.6g} W "
+          f"(mechanical {sol.power:.6g} W; lossless bound x eta {eta * sol.unconstrained_power:.6g} W)")
+    assert sol.electrical_power == pytest.approx(closed, rel=2e-3)
+    assert sol.electrical_power < eta * sol.unconstrained_power and sol.solver == "slsqp"
+
+
 def test_irregular_sea_repeat_period():
     """A sea whose components sit at odd multiples of dw/2 (omega_range from a multiple of dw) repeats
     after 4 pi / dw; any other band is refused naming waves.omega_range; too low an order is refused."""

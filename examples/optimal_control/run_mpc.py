@@ -152,7 +152,8 @@ def mpc_run(folder: Path, *, rate: float = 10.0, predictor: str = "preview", sea
         raise errors[0]
     ds = xr.load_dataset(out)
     start = duration - window(scene, duration)
-    metrics = run_metrics(ds, scene_limits(scene), tolerance=0.01, start=start)
+    metrics = run_metrics(ds, scene_limits(scene), tolerance=0.01, start=start,
+                          efficiency=scene.optimize.efficiency)
     st = np.asarray(ctl.solve_times[10:])
     return {"optimum": opt.power, "unconstrained": opt.unconstrained_power, "mpc": metrics.mean_power,
             "ratio": metrics.mean_power / opt.power, "metrics": metrics, "fallbacks": ctl.fallbacks,

@@ -63,6 +63,7 @@ class OptimalProblem:
     q: np.ndarray                 # (m P,)
     limits: list[LimitRow] = field(default_factory=list)
     reactive: bool = True
+    efficiency: float = 1.0
     excitation: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None   # (omega_c, X_c (n_c, n_full), eta_c)
     warnings: list[str] = field(default_factory=list)
 
@@ -155,7 +156,8 @@ def build_problem(scene: Scene, sys_: LinearizedSystem, excitation: tuple[np.nda
     t_fine = np.arange(fine) * (2 * math.pi / w0) / fine
     interp = np.real(np.exp(1j * np.outer(w0 * t_fine, k)) @ E)
     prob = OptimalProblem(sys_, w0, order, harmonics, t, t_fine, N, z0, S, s0, Ts, D1, interp, H, q,
-                          reactive=scene.optimize.reactive, excitation=excitation, warnings=warnings)
+                          reactive=scene.optimize.reactive, efficiency=scene.optimize.efficiency,
+                          excitation=excitation, warnings=warnings)
     prob.limits = _limit_rows(scene, prob)
     return prob
 
