@@ -91,7 +91,7 @@ def test_mpc_refuses_a_horizon_shorter_than_its_period():
 
 
 def test_mpc_infeasible_qp_falls_back_and_logs(caplog):
-    """A stroke the force cannot hold (a mass-spring-damper far out with a 1 N force limit): OSQP
+    """A stroke the force cannot hold (a mass-spring-damper far out with a 1 N force limit): DAQP
     reports the QP infeasible, the controller logs it and commands the previous plan's next value (0
     without a plan) instead of failing the step."""
     from mpc import MPC
@@ -117,4 +117,4 @@ def test_mpc_infeasible_qp_falls_back_and_logs(caplog):
     with caplog.at_level("WARNING", logger="hydrolink.mpc"):
         out = ctl.on_step(0.0, m_)
     assert out == {"pto": 0.0} and ctl.fallbacks == 1
-    assert "QP not solved at t = 0.000 s (primal infeasible" in caplog.text
+    assert "QP not solved at t = 0.000 s (infeasible" in caplog.text

@@ -19,7 +19,6 @@ import math
 import secrets
 import socket
 import sys
-import tempfile
 import threading
 from pathlib import Path
 
@@ -44,17 +43,19 @@ ramp = 10.0
 '''
 
 
-def scene_text(sea: str, dt: float, duration: float, ramp: float | None = None, base: Path = SCENE) -> str:
+def scene_text(sea: str, dt: float, duration: float, ramp: float | None = None, base: Path = SCENE, *,
+               repeat: float = REPEAT, first: int = 7, components: int = 60) -> str:
     """The WaveBot scene (HDB path made absolute) in its regular wave or a JONSWAP sea that repeats
-    after 2 pi / dw' (components at odd multiples of dw/2: omega_range starts at a multiple of dw)."""
+    after ``repeat`` s: ``components`` at odd multiples of dw/2 (dw = 4 pi / repeat) from ``first`` dw
+    (omega_range starts at a multiple of dw; the default: 60 components over 1.10 ... 10.5 rad/s)."""
     text = base.read_text().replace('"../data/', f'"{(base.parent.parent / "data").as_posix()}/')
     text = text.replace("dt = 0.03333333333333333   # s = T/100", f"dt = {dt!r}")
     text = text.replace("duration = 200.0", f"duration = {duration!r}")
     if ramp is not None:
         text = text.replace("ramp = 20.0", f"ramp = {ramp!r}")
     if sea == "irregular":
-        dw = 2 * math.pi / REPEAT * 2      # components at odd multiples of dw / 2: the sea repeats after REPEAT s
-        lo, n = 7 * dw, 60                 # 1.10 ... 10.5 rad/s around the peak at 1.88 rad/s
+        dw = 2 * math.pi / repeat * 2      # components at odd multiples of dw / 2: the sea repeats after `repeat` s
+        lo, n = first * dw, components     # around the peak at 1.88 rad/s
         start = text.index("[waves]")
         end = text.index("[hydro]")
         text = text[:start] + IRREGULAR.format(components=n, lo=lo, hi=lo + n * dw) + "\n" + text[end:]
@@ -158,7 +159,7 @@ def mpc_run(folder: Path, *, rate: float = 10.0, predictor: str = "preview", sea
     return {"optimum": opt.power, "unconstrained": opt.unconstrained_power, "mpc": metrics.mean_power,
             "ratio": metrics.mean_power / opt.power, "metrics": metrics, "fallbacks": ctl.fallbacks,
             "solve_p50": float(np.percentile(st, 50)), "solve_p99": float(np.percentile(st, 99)),
-            "solve_max": float(st.max()), "period": 1.0 / rate, "wall": summary.wall_time, "output": str(out)}
+            "solve_max": float(st.max()), "period": 1.0 / rate, "wall": summary.wall_time, "output": str(out), "scene": str(path)}
 
 
 def window(scene, duration: float) -> float:
@@ -177,14 +178,19 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=60.0)
     ap.add_argument("--horizon", type=float, default=4.0)
     ap.add_argument("--realtime", action="store_true")
+    ap.add_argument("-o", "--output-dir", type=Path, default=Path("mpc_runs"),
+                    help="folder for the run's scene and results (default mpc_runs/)")
     args = ap.parse_args()
-    with tempfile.TemporaryDirectory() as d:
-        r = mpc_run(Path(d), rate=args.rate, predictor=args.predictor, sea=args.sea, duration=args.duration,
-                    horizon=args.horizon, realtime=args.realtime)
+    args.output_dir.mkdir(parents=True, exist_ok=True)
+    r = mpc_run(args.output_dir, rate=args.rate, predictor=args.predictor, sea=args.sea, duration=args.duration,
+                horizon=args.horizon, realtime=args.realtime)
+    print(f"wrote {r['scene']} (the scene with the MPC joined) and {r['output']} (the run's results)")
     print(f"optimum {r['optimum']:.2f} W (unconstrained {r['unconstrained']:.2f} W); MPC {r['mpc']:.2f} W = "
           f"{100 * r['ratio']:.1f} % of the optimum; {r['fallbacks']} fallbacks")
     for u in r["metrics"].limits:
         print(f"  {u.label}: {100 * u.utilisation:.2f} % of {u.bound:g}, {u.violations} samples over 1 %")
+    if r["metrics"].efficiency < 1:
+        print(f"  electrical power {r['metrics'].electrical_power:.2f} W at efficiency {r['metrics'].efficiency:g}")
     print(f"  peak-to-average {r['metrics'].peak_to_average:.2f}; QP solve p50 {1e3 * r['solve_p50']:.2f} ms, "
           f"p99 {1e3 * r['solve_p99']:.2f} ms, max {1e3 * r['solve_max']:.2f} ms (control period {1e3 * r['period']:.0f} ms)")
 

@@ -4,8 +4,9 @@ optimize`` (tests/test_optimal_wecopttool.py), written to ``wecopttool_reference
     python examples/optimal_control/wecopttool_reference.py [--cases regular irregular] [-o FILE]
 
 Needs WecOptTool 3.3 (``pip install --no-deps wecopttool==3.3.0 jax jaxlib ml_dtypes opt_einsum``, as
-.ci/run does). For each sea — the regular wave of wavebot.toml (7 harmonics of 0.3 Hz) and the JONSWAP
-sea of run_mpc.py that repeats after 80 s (harmonics 1 ... 135 of 1/80 Hz) — WecOptTool's SLSQP
+.ci/run does). For each sea — the regular wave of wavebot.toml (7 harmonics of 0.3 Hz) and run_mpc.py's
+JONSWAP sea (Hs 0.15 m, Tp 3.33 s) shortened to repeat after 40 s: 16 components at the odd harmonics
+9 ... 39 of 1/40 Hz, 1.41 ... 6.13 rad/s, order 39 — WecOptTool's SLSQP
 maximises the mean mechanical power of its PTO with and without the 2000 N force limit (enforced on
 its sub-step grid, 8 points per collocation interval), at the same harmonics as hydrolink.
 
@@ -13,8 +14,8 @@ Both tools get the same hydrodynamics, taken from hydrolink's linearised model o
 comparison is of the optimisation, not of the interpolation of the HDB): the intrinsic impedance
 Z(w) = B(w) + i w (m + A(w)) + K / (i w) at every harmonic, and each wave component's excitation per
 metre and elevation (WecOptTool's exp(+iwt): the conjugates of hydrolink's exp(-iwt) phasors). The
-irregular cases take minutes (jax tracing, SLSQP on 540 unknowns): the test reads this file and
-recomputes only hydrolink's side, after checking the sea recorded here is the scene's.
+irregular cases take minutes (jax tracing, SLSQP on 156 unknowns under 624 constraint rows): the test
+reads this file and recomputes only hydrolink's side, after checking the sea recorded here is the scene's.
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ OUTPUT = HERE / "wecopttool_reference.json"
 F_MAX = 2000.0       # N, wavebot.toml's [[optimize.limits]] force
 NSUB = 8             # WecOptTool's constraint grid: sub-steps per collocation interval
 FINE = 40            # sub-steps per interval of the grid its force's peak is measured on
+IRREGULAR = {"repeat": 40.0, "first": 4, "components": 16}    # run_mpc.scene_text's sea, shortened
 
 
 def scene(sea: str):
@@ -44,7 +46,7 @@ def scene(sea: str):
     from hydrolink.clients.scene_inputs import load_scene_hdbs
     from hydrolink.protocol.scene import parse_scene
 
-    sc = parse_scene(scene_text(sea, 0.01, 200.0))
+    sc = parse_scene(scene_text(sea, 0.01, 200.0, **(IRREGULAR if sea == "irregular" else {})))
     return sc, load_scene_hdbs(sc, HERE / "wavebot.toml", progress=False)
 
 

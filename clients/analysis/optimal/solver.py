@@ -74,14 +74,15 @@ def solve_optimal(prob: OptimalProblem, *, tolerance: float = 1e-6) -> OptimalSo
         name = "daqp"
     else:
         x, its, name, status = x_cc, 0, "lstsq", "solved"
-    dense = _DensePower(prob, scale)
-    if not prob.reactive or prob.efficiency < 1:
+    dense = _DensePower(prob, scale) if (not prob.reactive or prob.efficiency < 1) else None
+    if dense is not None:
         x, its, status = _nonconvex(prob, dense, Hs, qs, A, lo, hi, x, p_cc)
         name = "daqp+slsqp" if binding else "slsqp"
     u = x * scale
     util = {lim.label: float(np.abs(lim.rows @ u + lim.offset).max() / lim.bound) for lim in prob.limits}
     return OptimalSolution(u, prob.power(u), u_cc, p_cc, name, status, its, _time.perf_counter() - t0, util,
-                           [k for k, v in util.items() if v >= 0.999], dense.electrical(x, prob.efficiency))
+                           [k for k, v in util.items() if v >= 0.999],
+                           prob.power(u) if dense is None else dense.electrical(x, prob.efficiency))
 
 
 # DAQP's exit flags (https://darnstrom.github.io/daqp/parameters)
