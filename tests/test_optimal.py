@@ -174,6 +174,44 @@ def test_efficiency_order_one_closed_form(rm3, one_port):
     assert sol.electrical_power < eta * sol.unconstrained_power and sol.solver == "slsqp"
 
 
+def test_wavebot_single_dof_force_limit_closed_form():
+    """One DOF, the WaveBot's heave in its regular wave (a = 0.0625 m, w = 2 pi 0.3 Hz, on the HDB's
+    grid): from the HDB, (B - i w (m + A) + i K / w) v = F_ex - f, so v_p = v_oc - y f with
+    v_oc = F_ex / Z, y = 1 / Z. Unconstrained: |F_ex|^2 / (8 B); a force limit F_max below the conjugate
+    force with a sinusoidal force (order 1): 1/2 F_max |v_oc| - 1/2 F_max^2 Re y. With 7 harmonics the
+    force may be squarer: more power, still below the bound, and within the limit between the nodes."""
+    import math
+
+    from hydrolink.clients.analysis.optimal.run import optimize_scene
+    from hydrolink.server.hdb.io import load_hdb
+
+    scene_file = Path(__file__).resolve().parents[1] / "examples" / "optimal_control" / "wavebot.toml"
+    hdb = load_hdb(scene_file.parent.parent / "data" / "wavebot" / "wavebot.nc")
+    w, a, m, f_max = 2 * math.pi * 0.3, 0.0625, 876.104, 2000.0
+    i = int(np.argmin(np.abs(hdb["omega"].values - w)))
+    assert hdb["omega"].values[i] == pytest.approx(w, rel=1e-9)
+    A, B = hdb["added_mass"].values[i, 2, 2], hdb["radiation_damping"].values[i, 2, 2]
+    K = hdb["hydrostatic_stiffness"].values[2, 2]
+    f_ex = hdb["excitation_force"].values[i, 0, 2] * a
+    Z = B - 1j * w * (m + A) + 1j * K / w
+    v_oc, y = f_ex / Z, 1 / Z
+    bound = abs(f_ex) ** 2 / (8 * B)
+    closed = 0.5 * f_max * abs(v_oc) - 0.5 * f_max ** 2 * y.real
+    assert f_max < abs(v_oc) / (2 * y.real)                          # the limit binds
+    text = scene_file.read_text().replace('"../data/', f'"{(scene_file.parent.parent / "data").as_posix()}/')
+    powers = {}
+    for order in (1, 7):
+        scene = parse_scene(text.replace("\norder = 7 ", f"\norder = {order} "))
+        prob, sol, _ = optimize_scene(scene, {b.hdb: hdb for b in scene.bodies})
+        powers[order] = sol.power
+        assert sol.unconstrained_power == pytest.approx(bound, rel=1e-6) and sol.active == ["pto.force"]
+        assert np.abs(_fine(prob, sol.u, n=40 * sol.u.size)).max() <= f_max * 1.005
+    print(f"WaveBot F <= {f_max:g} N: order 1 {powers[1]:.4f} W vs closed form {closed:.4f} W; order 7 {powers[7]:.4f} W; "
+          f"bound {bound:.4f} W")
+    assert powers[1] == pytest.approx(closed, rel=1e-4)
+    assert closed < powers[7] < bound
+
+
 def test_irregular_sea_repeat_period():
     """A sea whose components sit at odd multiples of dw/2 (omega_range from a multiple of dw) repeats
     after 4 pi / dw; any other band is refused naming waves.omega_range; too low an order is refused."""
