@@ -1101,6 +1101,7 @@ class Scene(_Section):
             self.client.check(self)
         self._check_current()
         self._check_controllers(names)
+        self._check_optimize_limits(names)
         self._check_coupling()
         return self
 
@@ -1161,6 +1162,18 @@ class Scene(_Section):
     def notes(self) -> list[str]:
         """What the scene says that works but should be written otherwise (deprecated keys)."""
         return list(self._notes)
+
+    def _check_optimize_limits(self, names: list[str]) -> None:
+        """``[[optimize.limits]]`` name PTOs (a rotary PTO's axis as name.axis) and bodies of the scene
+        (``hydrolink run`` reads their series after the run: a wrong name must fail before it)."""
+        labels = {p.name for p in self.ptos if isinstance(p, LinearPTO)}
+        labels |= {f"{p.name}.{a}" for p in self.ptos if not isinstance(p, LinearPTO) for a in p.axes}
+        for i, lim in enumerate(self.optimize.limits):
+            if lim.pto is not None and lim.pto not in labels:
+                raise ValueError(f"optimize.limits[{i}].pto: no PTO named {lim.pto!r} (known: {sorted(labels)}; "
+                                 "a rotary PTO's axes are named pto.axis)")
+            if lim.body is not None and lim.body not in names:
+                raise ValueError(f"optimize.limits[{i}].body: no body named {lim.body!r} (known: {sorted(names)})")
 
     def _check_controllers(self, names: list[str]) -> None:
         linear = {p.name: p for p in self.ptos if isinstance(p, LinearPTO)}

@@ -118,9 +118,10 @@ def test_reactive_spring_damper_reaches_the_bound_in_steady(rm3, one_port):
 
 def test_bad_limits_are_refused(rm3):
     from hydrolink.clients.analysis.optimal.problem import OptimizeError
-    with pytest.raises(OptimizeError, match=r"optimize.limits\[0\].pto: no PTO named 'ptoo'"):
+    # names the scene does not have: refused when the scene is read (also by `hydrolink run`, before it runs)
+    with pytest.raises(ValueError, match=r"optimize.limits\[0\].pto: no PTO named 'ptoo'"):
         _optimum(rm3, "\n[[optimize.limits]]\npto = \"ptoo\"\nforce = 1e5\n")
-    with pytest.raises(OptimizeError, match=r"optimize.limits\[1\].body: no body named 'flot'"):
+    with pytest.raises(ValueError, match=r"optimize.limits\[1\].body: no body named 'flot'"):
         _optimum(rm3, "\n[[optimize.limits]]\npto = \"pto\"\nforce = 1e5\n"
                       "[[optimize.limits]]\nbody = \"flot\"\ndof = \"heave\"\ndisplacement = 1.0\n")
     # the float's heave held within 1 mm by a PTO force of at most 1 kN against a 2.5 m wave
