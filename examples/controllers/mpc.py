@@ -19,8 +19,10 @@ linear term and bounds by DAQP's dual active-set method (exact at its active set
 WaveBot's 40 force blocks: p50 0.11 ms against OSQP's 0.58 ms, load 15). A QP DAQP cannot solve
 (infeasible limits, cycling, iteration cap) is logged and replaced by the previous plan's next command
 (then 0). The MPC maximises the mechanical power: an efficiency rule (``[optimize] efficiency``, power
-fed back costs 1/eta) makes the objective non-convex; the run's WECCCOMP metrics report the
-electrical power it reaches under that rule.
+fed back costs 1/eta) would make the QP non-convex, so it takes a convex stand-in for the losses, a
+force penalty rho sum_i u_i^2 Ts (parameter ``force_penalty``, W/N^2), which
+clients/analysis/optimal/solver.py ``loss_penalty`` tunes on the collocation model (the rho whose
+optimum has the highest electrical power); the run's WECCCOMP metrics report the electrical power.
 
 Excitation prediction: the elevation is fitted with a Fourier basis at ``omega`` (rad/s) by least
 squares (ridge-regularised) — over the past ``history`` s and the preview ([[controllers]] ``preview``)
@@ -31,7 +33,8 @@ excitation forces at the horizon's mid-steps are Re sum_m X_m A_m e^{-i w_m tau}
 (parameters ``excitation_re``/``excitation_im``: omega-major, then the plant's excitation inputs).
 
 Parameters ([[controllers]] parameters): omega, excitation_re, excitation_im, horizon (s), blocks,
-history (s), predictor, gauge_distance (m), stroke_limit (m), velocity_limit (m/s), gravity.
+history (s), predictor, gauge_distance (m), stroke_limit (m), velocity_limit (m/s), gravity,
+force_penalty (W/N^2, default 0).
 Force limit: the controller's ``max_force``. Solve times are kept in ``self.solve_times`` (s).
 """
 
@@ -137,7 +140,8 @@ class MPC(Controller):
         step_of_block = np.minimum(np.arange(self.n) * blocks // self.n, blocks - 1)
         Mb = np.kron(np.eye(blocks)[step_of_block], np.eye(self.m))        # (n m, blocks m)
         self.Mb = Mb
-        H = -(self.vu + self.vu.T) * self.ts
+        # - sum_i u_i v_i Ts, plus the force penalty rho sum_i u_i^2 Ts (a convex stand-in for the PTO's losses)
+        H = -(self.vu + self.vu.T) * self.ts + 2 * float(p.get("force_penalty", 0.0)) * self.ts * np.eye(self.vu.shape[0])
         Hb = Mb.T @ H @ Mb
         ev = np.linalg.eigvalsh(0.5 * (Hb + Hb.T))
         reg = max(0.0, -ev.min()) + 1e-6 * abs(ev).max()

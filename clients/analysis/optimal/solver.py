@@ -173,3 +173,29 @@ def _nonconvex(prob: OptimalProblem, dense: _DensePower, Hs, qs, A, lo, hi, x0, 
     if not prob.reactive and dense.power(x)[0].min() / ps < -1e-6:
         raise OptimizeError("optimize.reactive", f"SLSQP found no force without reactive power ({status})")
     return x, iterations, status
+
+
+def loss_penalty(prob: OptimalProblem, efficiency: float) -> tuple[float, float]:
+    """(rho W/N^2, its electrical power W): the force penalty rho whose convex QP optimum (maximise the
+    mechanical power minus rho mean(u^2), under the limits) has the highest electrical power at
+    ``efficiency`` — the convex stand-in for the efficiency rule an MPC can solve each step
+    (examples/controllers/mpc.py ``force_penalty``). A bounded scalar search over log rho around
+    the bound's power / mean(u*^2)."""
+    from scipy.optimize import minimize_scalar
+
+    u_cc = unconstrained(prob)
+    p_cc = prob.power(u_cc)
+    scale = max(float(np.abs(u_cc).max()), 1e-12)
+    rho0 = p_cc / max(float(np.mean(u_cc ** 2)), 1e-300)
+    A, lo, hi = _stacked(prob, scale)
+    dense = _DensePower(prob, scale)
+    n = prob.q.size
+
+    def electrical(log_rho: float) -> float:
+        H = (prob.H + 2 * rho0 * 10 ** log_rho / prob.points * np.eye(n)) * scale ** 2 / p_cc
+        qs = prob.q * scale / p_cc
+        x = _active_set(prob, H, qs, A, lo, hi, 1e-6)[0] if A.shape[0] else np.linalg.solve(H, -qs)
+        return dense.electrical(x, efficiency)
+
+    best = minimize_scalar(lambda s: -electrical(s), bounds=(-3.0, 1.0), method="bounded", options={"xatol": 0.01})
+    return rho0 * 10 ** float(best.x), -float(best.fun)
