@@ -1,12 +1,12 @@
 """The MPC example (examples/controllers/mpc.py) against the constrained optimum on the WaveBot, and
 its QP solve time (docs/optimal-control.md "MPC").
 
-    python bench/bench_mpc.py [--quick]
+    python bench/bench_mpc.py [--quick] [--cases 0 4 ...]
 
 Each case: ``hydrolink optimize`` of the scene, then ``hydrolink run`` with the MPC joined as an
 external controller over the loopback (examples/optimal_control/run_mpc.py ``mpc_run``); mean power
 over the last wave periods (regular) or the sea's last repeat period (irregular) against the optimum,
-limit utilisation (WECCCOMP metrics of the run) and the solve time of OSQP's update + solve per
+limit utilisation (WECCCOMP metrics of the run) and the solve time of DAQP's solve per
 control step (p50/p99/max, wall clock, the first 10 steps left out). Prints a markdown table and the
 machine's load (the solve-time tail is the scheduler's on a loaded machine).
 """
@@ -40,8 +40,11 @@ def main() -> None:
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="the regular-wave cases only")
+    ap.add_argument("--cases", type=int, nargs="+", help="only these rows of CASES (0-based)")
     args = ap.parse_args()
     cases = [c for c in CASES if c[0] == "regular"] if args.quick else CASES
+    if args.cases:
+        cases = [CASES[i] for i in args.cases]
     print(f"load before: {os.getloadavg()}")
     print("| sea | excitation | rate | efficiency | optimum (W) | MPC (W) | MPC / optimum | max force / limit | "
           "fallbacks | solve p50 (ms) | p99 (ms) | max (ms) | period (ms) | load |")
