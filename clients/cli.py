@@ -366,7 +366,8 @@ def run(scene: Path, output: Path | None, server: str | None, no_progress: bool,
         m = summary.metrics
         click.echo(f"WECCCOMP metrics: mean power {m.mean_power:.6g} W, peak-to-average {m.peak_to_average:.3g}; "
                    + ", ".join(f"{u.label} {100 * u.utilisation:.1f} % of {u.bound:g}"
-                               + (f" ({u.violations} over)" if u.violations else "") for u in m.limits))
+                               + (f" ({u.violations} over)" if u.violations else "") for u in m.limits)
+                   + (f"; electrical {m.electrical_power:.6g} W at efficiency {m.efficiency:g}" if m.efficiency < 1 else ""))
     if summary.realtime is not None:
         rt = summary.realtime
         click.echo(f"paced at {rt.factor:g}x wall clock ({1e3 * rt.period:.3g} ms per exchange): step latency "
@@ -469,6 +470,9 @@ def optimize(scene: Path, output: Path | None, dt: float | None, no_progress: bo
         click.echo(f"  {use.label}: {100 * use.utilisation:.1f} % of {use.bound:g}"
                    + (" (active)" if use.label in s.active else ""))
     click.echo(f"  peak-to-average power {s.metrics.peak_to_average:.3g}")
+    if s.metrics.efficiency < 1:
+        click.echo(f"  electrical power {s.metrics.electrical_power:.6g} W at efficiency {s.metrics.efficiency:g} "
+                   "(the quantity maximised)")
 
 
 @cli.command()

@@ -46,7 +46,8 @@ def _limit_metrics(scene, output: Path) -> RunMetrics | None:
     if not limits:
         return None
     with xr.open_dataset(output) as ds:   # lazily: only the series the limits use are read
-        metrics = run_metrics(ds, limits, start=getattr(scene.waves, "ramp", None))
+        metrics = run_metrics(ds, limits, start=getattr(scene.waves, "ramp", None),
+                              efficiency=scene.optimize.efficiency)
     with netCDF4.Dataset(output, "a") as nc:
         nc.setncatts(metrics.attributes())
     return metrics

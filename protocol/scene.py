@@ -17,7 +17,7 @@ from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, field_validator,
 from hydrolink.protocol.capabilities import FEATURES
 from hydrolink.protocol.current import Current
 from hydrolink.protocol.errors import KeyedError
-from hydrolink.protocol.scene_bounds import MAX_STEPS, AddedMassRatio, AngleDeg, Area, CableElements, Coefficient, ComponentCount, Coordinate, Density, Depth, Diameter, DirectionCount, Displacement, Duration, ExchangeSteps, ExcitationIRFDuration, EnergyFraction, ExplicitSpectralRadius, FileTime, FlowCoefficient, Fraction, Frequency, FrequencyStep, Gravity, HarmonicCount, IRFDuration, Interval, IterationCount, LatencySteps, Length, LineDensity, Mass, NonNegativeCoefficient, NonNegativeDiameter, NonNegativeLength, ParameterFloat, ParameterInt, PeakEnhancement, PositiveCoefficient, PreviewTime, RampTime, RegularisationSpeed, Seed, SegmentCount, SignificantHeight, SpectralRadius, Speed, SpreadingExponent, StateSpaceOrder, TimeStep, Tolerance, Volume, WallTimeout, WaveHeight, WavePeriod
+from hydrolink.protocol.scene_bounds import MAX_STEPS, AddedMassRatio, AngleDeg, Area, CableElements, Coefficient, Efficiency, ComponentCount, Coordinate, Density, Depth, Diameter, DirectionCount, Displacement, Duration, ExchangeSteps, ExcitationIRFDuration, EnergyFraction, ExplicitSpectralRadius, FileTime, FlowCoefficient, Fraction, Frequency, FrequencyStep, Gravity, HarmonicCount, IRFDuration, Interval, IterationCount, LatencySteps, Length, LineDensity, Mass, NonNegativeCoefficient, NonNegativeDiameter, NonNegativeLength, ParameterFloat, ParameterInt, PeakEnhancement, PositiveCoefficient, PreviewTime, RampTime, RegularisationSpeed, Seed, SegmentCount, SignificantHeight, SpectralRadius, Speed, SpreadingExponent, StateSpaceOrder, TimeStep, Tolerance, Volume, WallTimeout, WaveHeight, WavePeriod
 from hydrolink.protocol.toml_model import read_toml_file, validate_toml
 
 DOF_NAMES: tuple[str, ...] = ("surge", "sway", "heave", "roll", "pitch", "yaw")
@@ -446,6 +446,7 @@ class Optimize(_Section):
     order: HarmonicCount | None = None              # default: [steady] order (regular waves)
     oversampling: Annotated[int, Field(ge=2, le=64)] = 8    # fine-grid points per collocation interval
     reactive: bool = True                           # false: no reactive power (P_pto(t) >= 0)
+    efficiency: Efficiency = 1.0                    # PTO efficiency: electrical power eta P absorbing, P / eta fed back
     limits: list[OptimizeLimit] = []
 
 
@@ -1162,6 +1163,7 @@ class Scene(_Section):
             self.client.check(self)
         self._check_current()
         self._check_controllers(names)
+        self._check_optimize_limits(names)
         self._check_coupling()
         return self
 
@@ -1222,6 +1224,18 @@ class Scene(_Section):
     def notes(self) -> list[str]:
         """What the scene says that works but should be written otherwise (deprecated keys)."""
         return list(self._notes)
+
+    def _check_optimize_limits(self, names: list[str]) -> None:
+        """``[[optimize.limits]]`` name PTOs (a rotary PTO's axis as name.axis) and bodies of the scene
+        (``hydrolink run`` reads their series after the run: a wrong name must fail before it)."""
+        labels = {p.name for p in self.ptos if isinstance(p, LinearPTO)}
+        labels |= {f"{p.name}.{a}" for p in self.ptos if not isinstance(p, LinearPTO) for a in p.axes}
+        for i, lim in enumerate(self.optimize.limits):
+            if lim.pto is not None and lim.pto not in labels:
+                raise ValueError(f"optimize.limits[{i}].pto: no PTO named {lim.pto!r} (known: {sorted(labels)}; "
+                                 "a rotary PTO's axes are named pto.axis)")
+            if lim.body is not None and lim.body not in names:
+                raise ValueError(f"optimize.limits[{i}].body: no body named {lim.body!r} (known: {sorted(names)})")
 
     def _check_controllers(self, names: list[str]) -> None:
         linear = {p.name: p for p in self.ptos if isinstance(p, LinearPTO)}

@@ -103,6 +103,7 @@ RegularisationSpeed = bounded(ge=1e-9, le=1e3, why="m/s or rad/s, from 1e-9 to 1
 Fraction = bounded(ge=0.0, lt=1.0, why="a fraction in [0, 1)")
 EnergyFraction = bounded(gt=0.0, le=1.0, why="a fraction of the wave variance in (0, 1]")
 SpectralRadius = bounded(ge=0.0, le=1.0, why="the generalized-alpha spectral radius (1: no numerical damping)")
+Efficiency = bounded(gt=0.0, le=1.0, why="a PTO efficiency in (0, 1]")
 AddedMassRatio = bounded(gt=0.0, le=1.0, why="the largest added-mass ratio A_inf/m explicit coupling runs")
 ExplicitSpectralRadius = bounded(gt=0.0, le=0.9, why="the largest spectral radius of M^-1 A_inf explicit coupling runs")
 Tolerance = bounded(gt=0.0, lt=1.0, why="a relative tolerance in (0, 1)")

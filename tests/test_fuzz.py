@@ -292,7 +292,7 @@ def _templates() -> dict[str, dict]:
     water = {"density": 1025.0, "gravity": 9.81, "depth": 50.0}
     return {
         "regular": {"simulation": sim, "water": water, "hydro": hydro, **mechanism,
-                    "optimize": {"order": 5, "oversampling": 8,
+                    "optimize": {"order": 5, "oversampling": 8, "efficiency": 0.8,
                                  "limits": [{"pto": "pto", "force": 1e6, "stroke": 2.0, "velocity": 3.0},
                                             {"body": "float", "dof": "heave", "displacement": 2.0}]},
                     "waves": regular_waves(1.0, 6.0, direction=0.0, phase=10.0, ramp=2.0,

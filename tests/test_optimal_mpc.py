@@ -26,8 +26,11 @@ sys.path.insert(0, str(REPO / "examples" / "controllers"))
 SCENE = REPO / "examples" / "optimal_control" / "wavebot.toml"
 
 
-@pytest.mark.slow      # ~10 s on the loaded VM (the optimum, the plant, 600 QP steps)
-def test_mpc_on_the_plant_reaches_the_constrained_optimum():
+@pytest.mark.slow      # ~10 s each on the loaded VM (the optimum, the plant, 600 QP steps)
+@pytest.mark.parametrize("predictor", ["preview", "gauge"])
+def test_mpc_on_the_plant_reaches_the_constrained_optimum(predictor):
+    """Perfect preview (>= 90 % of the optimum) and an up-wave gauge 30 m away (>= 70 %; the regular
+    wave at the gauge is a cos(w t + k L), deep water k = w^2 / g); no force beyond the limit by 1 %."""
     from mpc import MPC
     from run_mpc import excitation_per_metre
 
@@ -47,8 +50,11 @@ def test_mpc_on_the_plant_reaches_the_constrained_optimum():
     preview = np.arange(1, int(round((horizon + 1.0) / ts)) + 1) * ts
     ctl = MPC()
     ctl.ptos = ["pto"]
+    gauge = 30.0
+    kl = w ** 2 / 9.81 * gauge
     ctl.on_start({"parameters": {"omega": [w], "excitation_re": list(x.real.ravel()), "excitation_im": list(x.imag.ravel()),
-                                 "horizon": horizon, "blocks": 30, "history": 10.0},
+                                 "horizon": horizon, "blocks": 30, "history": 10.0, "predictor": predictor,
+                                 "gauge_distance": gauge},
                   "dt": ts, "period": ts, "latency": 1, "plant": plant, "limits": {"max_force": 2000.0},
                   "preview_times": preview, "bodies": ["wavebot"]})
     iu, ie = plant.inputs.index("pto:pto"), plant.inputs.index("excitation:wavebot.heave")
@@ -61,7 +67,8 @@ def test_mpc_on_the_plant_reaches_the_constrained_optimum():
         y = plant.C @ state
         pos, vel = np.zeros((1, 6)), np.zeros((1, 6))
         pos[0, 2], vel[0, 2] = y[ipos], y[ivel]
-        m = {"body_position": pos, "body_velocity": vel, "wave_elevation": np.array([a * math.cos(w * t)]),
+        at_probe = a * math.cos(w * t) if predictor == "preview" else a * math.cos(w * t + kl)
+        m = {"body_position": pos, "body_velocity": vel, "wave_elevation": np.array([at_probe]),
              "wave_preview": np.array([a * np.cos(w * (t + preview))])}
         u_next = ctl.on_step(t, m)["pto"]                            # in force from t + ts (latency one period)
         e = float(np.real(x[0, 0] * a * np.exp(-1j * w * (t + ts / 2))))   # mid-step excitation
@@ -73,9 +80,9 @@ def test_mpc_on_the_plant_reaches_the_constrained_optimum():
         u_now = u_next
     power = energy / (t_end - t_avg)
     p99 = float(np.percentile(ctl.solve_times[10:], 99))
-    print(f"MPC on the plant {power:.2f} W = {100 * power / opt.power:.1f} % of the optimum {opt.power:.2f} W "
+    print(f"MPC ({predictor}) on the plant {power:.2f} W = {100 * power / opt.power:.1f} % of the optimum {opt.power:.2f} W "
           f"(unconstrained {opt.unconstrained_power:.2f} W); peak force {peak:.1f} N; solve p99 {1e3 * p99:.2f} ms")
-    assert power >= 0.9 * opt.power and power <= opt.unconstrained_power
+    assert power >= (0.9 if predictor == "preview" else 0.7) * opt.power and power <= opt.unconstrained_power
     assert peak <= 2000.0 * 1.01 and ctl.fallbacks == 0
 
 
@@ -91,7 +98,7 @@ def test_mpc_refuses_a_horizon_shorter_than_its_period():
 
 
 def test_mpc_infeasible_qp_falls_back_and_logs(caplog):
-    """A stroke the force cannot hold (a mass-spring-damper far out with a 1 N force limit): OSQP
+    """A stroke the force cannot hold (a mass-spring-damper far out with a 1 N force limit): DAQP
     reports the QP infeasible, the controller logs it and commands the previous plan's next value (0
     without a plan) instead of failing the step."""
     from mpc import MPC
@@ -117,4 +124,4 @@ def test_mpc_infeasible_qp_falls_back_and_logs(caplog):
     with caplog.at_level("WARNING", logger="hydrolink.mpc"):
         out = ctl.on_step(0.0, m_)
     assert out == {"pto": 0.0} and ctl.fallbacks == 1
-    assert "QP not solved at t = 0.000 s (primal infeasible" in caplog.text
+    assert "QP not solved at t = 0.000 s (infeasible" in caplog.text

@@ -664,12 +664,12 @@ class _Names:
 def hydro_model(scene: Scene, hdbs: dict):
     """The server's force model for the steady solve: the scene's, without the radiation memory's
     impulse response (the collocation uses A(kw), B(kw) directly, so its cost does not depend on dt
-    or irf_duration)."""
+    or irf_duration), and without the compiled step (it never steps: no numba kernels to load)."""
     from hydrolink.server.model import HydroModel
 
     light = scene.model_copy(update={"hydro": scene.hydro.model_copy(update={"irf_duration": 0.0,
                                                                             "radiation": "convolution"})})
-    return HydroModel(light, {b.name: hdbs[b.hdb] for b in scene.bodies if b.wet})
+    return HydroModel(light, {b.name: hdbs[b.hdb] for b in scene.bodies if b.wet}, compiled=False)
 
 
 def steady_scene_file(scene_path: str | Path, output: str | Path | None = None, *, order: int | None = None,

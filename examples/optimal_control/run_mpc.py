@@ -19,7 +19,6 @@ import math
 import secrets
 import socket
 import sys
-import tempfile
 import threading
 from pathlib import Path
 
@@ -44,17 +43,19 @@ ramp = 10.0
 '''
 
 
-def scene_text(sea: str, dt: float, duration: float, ramp: float | None = None, base: Path = SCENE) -> str:
+def scene_text(sea: str, dt: float, duration: float, ramp: float | None = None, base: Path = SCENE, *,
+               repeat: float = REPEAT, first: int = 7, components: int = 60) -> str:
     """The WaveBot scene (HDB path made absolute) in its regular wave or a JONSWAP sea that repeats
-    after 2 pi / dw' (components at odd multiples of dw/2: omega_range starts at a multiple of dw)."""
+    after ``repeat`` s: ``components`` at odd multiples of dw/2 (dw = 4 pi / repeat) from ``first`` dw
+    (omega_range starts at a multiple of dw; the default: 60 components over 1.10 ... 10.5 rad/s)."""
     text = base.read_text().replace('"../data/', f'"{(base.parent.parent / "data").as_posix()}/')
     text = text.replace("dt = 0.03333333333333333   # s = T/100", f"dt = {dt!r}")
     text = text.replace("duration = 200.0", f"duration = {duration!r}")
     if ramp is not None:
         text = text.replace("ramp = 20.0", f"ramp = {ramp!r}")
     if sea == "irregular":
-        dw = 2 * math.pi / REPEAT * 2      # components at odd multiples of dw / 2: the sea repeats after REPEAT s
-        lo, n = 7 * dw, 60                 # 1.10 ... 10.5 rad/s around the peak at 1.88 rad/s
+        dw = 2 * math.pi / repeat * 2      # components at odd multiples of dw / 2: the sea repeats after `repeat` s
+        lo, n = first * dw, components     # around the peak at 1.88 rad/s
         start = text.index("[waves]")
         end = text.index("[hydro]")
         text = text[:start] + IRREGULAR.format(components=n, lo=lo, hi=lo + n * dw) + "\n" + text[end:]
@@ -77,7 +78,7 @@ def excitation_per_metre(scene, hdbs, omega: np.ndarray) -> np.ndarray:
 
 
 def controller_block(rate: float, dt: float, predictor: str, omega, x, horizon: float, gauge: float,
-                     history: float) -> str:
+                     history: float, force_penalty: float = 0.0) -> str:
     period = 1.0 / rate
     latency = int(round(period / dt))
     preview = horizon + 1.0 if predictor == "preview" else 0.0
@@ -89,7 +90,7 @@ def controller_block(rate: float, dt: float, predictor: str, omega, x, horizon: 
             f'wave_points = {probe}\npreview = {preview!r}\n'
             f'parameters = {{ omega = {lst(omega)}, excitation_re = {lst(x.real)}, excitation_im = {lst(x.imag)}, '
             f'horizon = {horizon!r}, blocks = 40, predictor = "{predictor}", gauge_distance = {gauge!r}, '
-            f'history = {history!r} }}\n')
+            f'history = {history!r}, force_penalty = {force_penalty!r} }}\n')
 
 
 def _free_port() -> int:
@@ -100,8 +101,10 @@ def _free_port() -> int:
 
 def mpc_run(folder: Path, *, rate: float = 10.0, predictor: str = "preview", sea: str = "regular",
             duration: float = 60.0, dt: float = 0.01, horizon: float = 4.0, gauge: float = 30.0,
-            realtime: bool = False, ramp: float | None = None) -> dict:
-    """Optimum + MPC run; returns powers, metrics and solve times (module docstring)."""
+            realtime: bool = False, ramp: float | None = None, efficiency: float = 1.0) -> dict:
+    """Optimum + MPC run; returns powers, metrics and solve times (module docstring). ``efficiency`` < 1:
+    the optimum maximises the electrical power ([optimize] efficiency); the MPC the mechanical power minus
+    the force penalty rho sum u^2 Ts that solver.loss_penalty tunes on the collocation model."""
     import xarray as xr
 
     sys.path.insert(0, str(REPO / "examples" / "controllers"))
@@ -109,17 +112,21 @@ def mpc_run(folder: Path, *, rate: float = 10.0, predictor: str = "preview", sea
 
     from hydrolink.clients.analysis.optimal.metrics import run_metrics, scene_limits
     from hydrolink.clients.analysis.optimal.run import optimize_scene
+    from hydrolink.clients.analysis.optimal.solver import loss_penalty
     from hydrolink.clients.control import run_controller
     from hydrolink.clients.run import run_scene_file
     from hydrolink.clients.scene_inputs import load_scene_hdbs
     from hydrolink.protocol.scene import parse_scene
 
     base = scene_text(sea, dt, duration, ramp)
+    if efficiency < 1:
+        base = base.replace("\n[optimize]\n", f"\n[optimize]\nefficiency = {efficiency!r}\n")
     scene = parse_scene(base)
     path = folder / f"wavebot_{sea}_{predictor}_{int(rate)}hz.toml"
     path.write_text(base)
     hdbs = load_scene_hdbs(scene, path, progress=False)
-    _, opt, _ = optimize_scene(scene, hdbs)
+    prob, opt, _ = optimize_scene(scene, hdbs)
+    penalty = loss_penalty(prob, efficiency)[0] if efficiency < 1 else 0.0    # the MPC's convex stand-in
     if sea == "regular":
         omega = np.array([2 * math.pi / scene.waves.period])
     else:
@@ -129,7 +136,7 @@ def mpc_run(folder: Path, *, rate: float = 10.0, predictor: str = "preview", sea
             omega = 2 * math.pi / GAUGE_HISTORY * np.arange(4, 42)
     x = excitation_per_metre(scene, hdbs, omega)
     history = GAUGE_HISTORY if (sea, predictor) == ("irregular", "gauge") else max(2 * math.pi / float(np.min(omega)), 10.0)
-    text = base + controller_block(rate, dt, predictor, omega, x, horizon, gauge, history)
+    text = base + controller_block(rate, dt, predictor, omega, x, horizon, gauge, history, penalty)
     path.write_text(text)
     token = secrets.token_urlsafe(32)
     listen = f"tcp://127.0.0.1:{_free_port()}"
@@ -152,12 +159,14 @@ def mpc_run(folder: Path, *, rate: float = 10.0, predictor: str = "preview", sea
         raise errors[0]
     ds = xr.load_dataset(out)
     start = duration - window(scene, duration)
-    metrics = run_metrics(ds, scene_limits(scene), tolerance=0.01, start=start)
+    metrics = run_metrics(ds, scene_limits(scene), tolerance=0.01, start=start,
+                          efficiency=scene.optimize.efficiency)
     st = np.asarray(ctl.solve_times[10:])
     return {"optimum": opt.power, "unconstrained": opt.unconstrained_power, "mpc": metrics.mean_power,
-            "ratio": metrics.mean_power / opt.power, "metrics": metrics, "fallbacks": ctl.fallbacks,
+            "ratio": metrics.mean_power / opt.power, "metrics": metrics, "optimum_electrical": opt.electrical_power,
+            "electrical_ratio": metrics.electrical_power / opt.electrical_power, "force_penalty": penalty, "fallbacks": ctl.fallbacks,
             "solve_p50": float(np.percentile(st, 50)), "solve_p99": float(np.percentile(st, 99)),
-            "solve_max": float(st.max()), "period": 1.0 / rate, "wall": summary.wall_time, "output": str(out)}
+            "solve_max": float(st.max()), "solve_cpu_p99": float(np.percentile(ctl.solve_cpu_times[10:], 99)), "period": 1.0 / rate, "wall": summary.wall_time, "output": str(out), "scene": str(path)}
 
 
 def window(scene, duration: float) -> float:
@@ -176,16 +185,26 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=60.0)
     ap.add_argument("--horizon", type=float, default=4.0)
     ap.add_argument("--realtime", action="store_true")
+    ap.add_argument("--efficiency", type=float, default=1.0,
+                    help="PTO efficiency: the optimum of the electrical power; the MPC with a tuned force penalty")
+    ap.add_argument("-o", "--output-dir", type=Path, default=Path("mpc_runs"),
+                    help="folder for the run's scene and results (default mpc_runs/)")
     args = ap.parse_args()
-    with tempfile.TemporaryDirectory() as d:
-        r = mpc_run(Path(d), rate=args.rate, predictor=args.predictor, sea=args.sea, duration=args.duration,
-                    horizon=args.horizon, realtime=args.realtime)
+    args.output_dir.mkdir(parents=True, exist_ok=True)
+    r = mpc_run(args.output_dir, rate=args.rate, predictor=args.predictor, sea=args.sea, duration=args.duration,
+                horizon=args.horizon, realtime=args.realtime, efficiency=args.efficiency)
+    print(f"wrote {r['scene']} (the scene with the MPC joined) and {r['output']} (the run's results)")
     print(f"optimum {r['optimum']:.2f} W (unconstrained {r['unconstrained']:.2f} W); MPC {r['mpc']:.2f} W = "
           f"{100 * r['ratio']:.1f} % of the optimum; {r['fallbacks']} fallbacks")
     for u in r["metrics"].limits:
         print(f"  {u.label}: {100 * u.utilisation:.2f} % of {u.bound:g}, {u.violations} samples over 1 %")
+    if r["metrics"].efficiency < 1:
+        print(f"  electrical power at efficiency {r['metrics'].efficiency:g}: MPC {r['metrics'].electrical_power:.2f} W = "
+              f"{100 * r['electrical_ratio']:.1f} % of the optimum's {r['optimum_electrical']:.2f} W (MPC force "
+              f"penalty {r['force_penalty']:.3g} W/N^2)")
     print(f"  peak-to-average {r['metrics'].peak_to_average:.2f}; QP solve p50 {1e3 * r['solve_p50']:.2f} ms, "
-          f"p99 {1e3 * r['solve_p99']:.2f} ms, max {1e3 * r['solve_max']:.2f} ms (control period {1e3 * r['period']:.0f} ms)")
+          f"p99 {1e3 * r['solve_p99']:.2f} ms, max {1e3 * r['solve_max']:.2f} ms (control period {1e3 * r['period']:.0f} ms); "
+          f"CPU time p99 {1e3 * r['solve_cpu_p99']:.2f} ms")
 
 
 if __name__ == "__main__":

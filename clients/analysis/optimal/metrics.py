@@ -1,7 +1,8 @@
 """WECCCOMP-style metrics of a run with limits, computed once from its results dataset.
 
 Metrics (the WEC Control Competition's quantities, Ringwood et al. 2019): mean absorbed power,
-peak-to-average power (max |total PTO power| / mean), and for every limit the utilisation
+peak-to-average power (max |total PTO power| / mean), the mean electrical power under ``[optimize]
+efficiency`` eta (each PTO's eta p while it absorbs, p / eta while it feeds power back), and for every limit the utilisation
 max |value| / limit and its violations (samples above the limit by more than ``tolerance``, and the
 largest excess). Values come from the results variables: ``pto_force``, ``pto_velocity``,
 ``pto_stroke`` (written by ``hydrolink optimize``; for a ``hydrolink run`` the stroke is the time
@@ -44,10 +45,13 @@ class RunMetrics:
     mean_power: float
     peak_to_average: float
     limits: list[LimitUse]
+    electrical_power: float     # W, under the efficiency rule (= mean_power at efficiency 1)
+    efficiency: float = 1.0
 
     def attributes(self, prefix: str = "wecccomp_") -> dict[str, float | str]:
         """NetCDF attributes (scalars and one JSON table of the limits)."""
         return {f"{prefix}mean_power": self.mean_power, f"{prefix}peak_to_average": self.peak_to_average,
+                f"{prefix}electrical_power": self.electrical_power, f"{prefix}efficiency": self.efficiency,
                 f"{prefix}limits": json.dumps([asdict(u) for u in self.limits])}
 
 
@@ -96,8 +100,10 @@ def _series(ds, limit: Limit) -> np.ndarray:
     return cumulative_trapezoid(v, np.asarray(ds["time"].values, float), initial=0.0)
 
 
-def run_metrics(ds, limits: list[Limit], *, tolerance: float = 1e-3, start: float | None = None) -> RunMetrics:
-    """The metrics of the results ``ds`` (from time ``start``, default the first row)."""
+def run_metrics(ds, limits: list[Limit], *, tolerance: float = 1e-3, start: float | None = None,
+                efficiency: float = 1.0) -> RunMetrics:
+    """The metrics of the results ``ds`` (from time ``start``, default the first row) with the PTOs'
+    ``efficiency`` (``[optimize] efficiency``)."""
     if start is not None:
         ds = ds.sel(time=slice(start, None))
     p = np.asarray(ds["total_pto_power"].values, float)
@@ -107,4 +113,9 @@ def run_metrics(ds, limits: list[Limit], *, tolerance: float = 1e-3, start: floa
         x = np.abs(_series(ds, lim)) / lim.bound
         uses.append(LimitUse(lim.label, lim.bound, float(x.max(initial=0.0)), int((x > 1 + tolerance).sum()),
                              float(max(x.max(initial=0.0) - 1.0, 0.0))))
-    return RunMetrics(mean, float(np.abs(p).max(initial=0.0) / mean) if mean > 0 else math.inf, uses)
+    electrical = mean
+    if efficiency < 1:
+        pp = np.asarray(ds["pto_power"].values, float)
+        electrical = float(np.where(pp >= 0, efficiency * pp, pp / efficiency).sum(axis=1).mean()) if pp.size else math.nan
+    return RunMetrics(mean, float(np.abs(p).max(initial=0.0) / mean) if mean > 0 else math.inf, uses, electrical,
+                      efficiency)

@@ -108,6 +108,7 @@ def results_dataset(prob: OptimalProblem, sol: OptimalSolution, scene_text: str,
     ds.attrs.update({"title": "hydrolink optimize: PTO forces maximising the absorbed power under limits, one period",
                      "scene": scene_text, "status": "complete", "dt": float(dt),
                      "optimize_power": sol.power, "optimize_unconstrained_power": sol.unconstrained_power,
+                     "optimize_electrical_power": sol.electrical_power, "optimize_efficiency": prob.efficiency,
                      "optimize_period": period, "optimize_order": prob.order, "optimize_solver": sol.solver,
                      "optimize_status": sol.status, "optimize_solve_seconds": sol.solve_seconds,
                      "optimize_active_limits": json.dumps(sol.active),
@@ -116,7 +117,7 @@ def results_dataset(prob: OptimalProblem, sol: OptimalSolution, scene_text: str,
     from importlib.metadata import version
 
     ds.attrs.update({f"{k}_version": v for k, v in package_versions().items()})
-    ds.attrs["osqp_version"] = version("osqp")
+    ds.attrs["daqp_version"] = version("daqp")
     return ds
 
 
@@ -133,7 +134,7 @@ def optimize_scene_file(scene_path: str | Path, output: str | Path | None = None
     wall0 = _time.perf_counter()
     prob, sol, _ = optimize_scene(scene, hdbs)
     ds = results_dataset(prob, sol, text, dt or scene.simulation.dt)
-    metrics = run_metrics(ds, scene_limits(scene))
+    metrics = run_metrics(ds, scene_limits(scene), efficiency=scene.optimize.efficiency)
     ds.attrs.update(metrics.attributes())
     output = Path(output) if output else scene_path.with_suffix(".optimal.nc")
     ds.to_netcdf(output)
