@@ -418,6 +418,66 @@ def test_in_process_server_refuses_controllers(reference_data, tmp_path):
         conn.hello(text, hdbs)
 
 
+def test_run_polls_its_own_server_and_equals_a_separate_one(reference_data, server, tmp_path):
+    """``hydrolink run`` of a scene with a controller and no --server polls its own server from the
+    run's thread (ForceServer polled: no server thread, the run's steps in-process, the controller
+    over loopback TCP): the results equal, bit for bit, the same run against a server in a thread
+    with the run over TCP too; no thread is left running; a second multibody hello to the run's
+    socket is refused (one session: the run's)."""
+    import socket
+
+    from hydrolink.protocol import codec
+    from hydrolink.server.service import force_server
+
+    text = scene_text(reference_data, 2.0, controller_block("force", 3.9e5, 1.36e6,
+                                                         measurements=["pto_displacement", "pto_velocity"]))
+    ds_remote, _, (rc, err) = run_with(tmp_path, "remote", text, server.address,
+                                       python_ctl(EXAMPLES / "reactive.py", server.address))
+    assert rc == 0, err
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        address = f"tcp://127.0.0.1:{sock.getsockname()[1]}"
+    (tmp_path / "own.toml").write_text(text)
+    proc = subprocess.Popen(python_ctl(EXAMPLES / "reactive.py", address), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    threads = threading.active_count()
+    ctx = zmq.Context()
+    stranger = ctx.socket(zmq.DEALER)
+    stranger.setsockopt(zmq.LINGER, 0)
+    seen = {}
+    serve_once = force_server.ForceServer.serve_once
+
+    def watched(srv):   # once the run's session is open: a stranger's multibody hello, answered by a later turn
+        if "threads" not in seen and srv.sessions:
+            seen["threads"] = threading.active_count()
+            stranger.connect(address)
+            stranger.send(codec.pack(codec.message("hello", "x1", None, role="multibody", scene=text, hdbs={})))
+        serve_once(srv)
+    try:
+        force_server.ForceServer.serve_once = watched
+        summary = run_scene_file(tmp_path / "own.toml", tmp_path / "own.nc", progress=False, listen=address,
+                                 timeout=30.0, control_token=TOKEN)
+        assert stranger.poll(5000)
+        refused = codec.unpack(stranger.recv())
+    finally:
+        force_server.ForceServer.serve_once = serve_once
+        stranger.close(0)
+        ctx.term()
+        try:
+            _, err = proc.communicate(timeout=20)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            _, err = proc.communicate()
+    assert proc.returncode == 0, err
+    assert summary.server == address and (refused["code"], refused.get("limit")) == (14, "sessions")
+    assert seen["threads"] <= threads + 1   # at most the results writer's thread: no server thread
+    ds_own = xr.load_dataset(tmp_path / "own.nc")
+    assert json.loads(ds_own.attrs["controller_events"])["ctl"]["ok"] == 50
+    for v in ("position", "velocity", "pto_force", "pto_command_force", "excitation_force", "radiation_force"):
+        assert np.array_equal(ds_own[v].values, ds_remote[v].values), v
+    assert np.abs(ds_own["pto_command_force"].values).max() > 1e4
+
+
 def test_wave_probes_match_the_model_and_travel(reference_data):
     """The server's elevation probes: at the origin exactly the model's wave_elevation; a probe
     downstream sees the same wave later by x / c (phase speed w / k, deep water k = w^2 / g)."""

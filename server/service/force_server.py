@@ -52,6 +52,7 @@ RCVHWM = 4         # whole messages ZeroMQ queues per client before it stops rea
 IO_THREADS = 2     # ZeroMQ I/O threads of a server's own context: a client streaming a huge message into
                    # one does not hold up the others' small ones as much (bench_attacks: p99 28-48 -> 5-6 ms)
 MAX_QUEUED = 64    # requests held behind a session's deferred step (SPEC §1); their bytes: the message limit
+LOCAL_ROUTE = [b""]   # a polled server's own caller: a ROUTER never gives a peer an empty identity
 
 
 @dataclass(frozen=True)
@@ -82,7 +83,7 @@ class ForceServer:
                  max_setups: int = MAX_SETUPS, max_sessions: int = MAX_SESSIONS,
                  plant_builder: PlantBuilder | None = None, max_memory_bytes: int | None = None,
                  isolate_step_s: float = ISOLATE_STEP_S, max_workers: int = MAX_WORKERS,
-                 step_timeout: float = STEP_TIMEOUT):
+                 step_timeout: float = STEP_TIMEOUT, polled: bool = False):
         """``bind=None`` makes an in-process server without a socket: clients in the same process
         call :meth:`respond` with the same frames a socket would carry (see ServerConnection).
 
@@ -108,7 +109,17 @@ class ForceServer:
         session, ``math.inf``: none), at most ``max_workers`` at once (beyond: error 14
         ``workers``); a worker that takes longer than ``step_timeout`` s for a request, or dies,
         ends its session with error 16. The in-process server (``bind=None``) steps every session
-        in the caller's thread."""
+        in the caller's thread.
+
+        ``polled``: no :meth:`serve_forever` thread: the caller's thread runs the loop. A request of
+        its own (:meth:`respond`, :meth:`respond_map`) is handled at once and, when its reply is
+        deferred (a step waiting for the controllers' commands, SPEC §5.7), the socket is served
+        from that call (:meth:`serve_once`) until the reply is ready: ``hydrolink run``'s own server
+        for a scene with controllers (no second thread fighting the run for the GIL, no loopback
+        hop between the run and its server)."""
+        self.polled = bool(polled)
+        self._local_reply: tuple[dict, float | None] | None = None   # polled: the caller's deferred reply
+        self._next_sweep = 0.0   # polled: when serve_once next expires idle sessions
         self.plant_builder = plant_builder
         # the bytes the open sessions' models may hold together (None: unbounded, as in-process)
         self.memory = MemoryBudget(int(max_memory_bytes)) if max_memory_bytes is not None else None
@@ -198,8 +209,9 @@ class ForceServer:
                  "and %d sessions%s%s)", self._version, self._address, codec.PROTOCOL_VERSION, self.session_timeout,
                  self.limits.max_setups, self.limits.max_sessions,
                  ", signed" if self.key else "", ", CURVE" if self._security else "")
-        if self._sock is None:
-            raise RuntimeError("an in-process server (bind=None) has no socket to serve; call respond()")
+        if self._sock is None or self.polled:
+            raise RuntimeError("an in-process or polled server has no loop thread: call respond() (and, polled, "
+                               "serve_once())")
         next_sweep = time.monotonic()
         self._running = True
         lines = limit_lines(self._log_limit)   # every log line of this loop (and its set-ups) bounded a minute
@@ -214,6 +226,12 @@ class ForceServer:
             self._running = False
             lines.close()
             self._shutdown()
+
+    def serve_once(self) -> None:
+        """One turn of a polled server's loop in the caller's thread: at most one request received
+        (waiting at most POLL_MS, less when a controller's deadline comes sooner) and answered, then
+        what is due (deadlines, idle replies, expiry)."""
+        self._next_sweep = self._turn(self._next_sweep)
 
     def _turn(self, next_sweep: float) -> float:
         """One turn of the loop: at most one request received and answered, then what is due."""
@@ -301,6 +319,9 @@ class ForceServer:
     def _send(self, route: list[bytes], reply: dict, release: float | None = None) -> None:
         """Send a reply map to the routing frames it answers (kept in front, verbatim); a paced
         session's reply waits for its ``release`` time (perf_counter s)."""
+        if route is LOCAL_ROUTE:   # the polled server's own caller (_answer_local) takes it as it is
+            self._local_reply = (reply, release)
+            return
         frames = [*route, self._frame(reply)]
         if release is not None and release > time.perf_counter():
             heapq.heappush(self._paced, (release, next(self._order), frames))
@@ -359,11 +380,30 @@ class ForceServer:
                                                 Code.INTERNAL, exc.field, f"internal server error: the reply's {exc}"),
                               self.key)
 
-    def respond(self, frame: bytes) -> bytes:
-        """One request frame -> its reply frame (never raises): what the socket loop sends back
-        (a paced session's reply when its release has come: this in-process caller waits)."""
-        reply = self._frame(self.handle(frame))
+    def respond(self, frame: bytes, timeout: float = math.inf) -> bytes:
+        """One request frame -> its reply frame: what the socket loop sends back (a paced session's
+        reply when its release has come: this in-process caller waits). Never raises, but a polled
+        server raises TimeoutError when a deferred reply is not ready within ``timeout`` s."""
+        reply = self._frame(self._answer_local(frame, timeout))
         self._wait_hold()
+        return reply
+
+    def _answer_local(self, request: bytes | dict, timeout: float) -> dict:
+        """The reply to a request of this process's own client: at once, or on a polled server,
+        when deferred, after turns of the loop in this thread until it is sent (to LOCAL_ROUTE)."""
+        if not self.polled:
+            return self.handle(request)
+        reply = self.handle(request, LOCAL_ROUTE)
+        if reply is not None:
+            return reply
+        hold, deadline = self._hold, time.monotonic() + timeout
+        while self._local_reply is None:
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"no reply to a request of this run within {timeout:g} s from its own force "
+                                   f"server (its controllers on {self._address})")
+            self.serve_once()
+        (reply, release), self._local_reply = self._local_reply, None
+        self._hold = release if release is not None else hold
         return reply
 
     def _wait_hold(self) -> None:
@@ -371,15 +411,16 @@ class ForceServer:
         if self._hold is not None:
             time.sleep(max(0.0, self._hold - time.perf_counter()))
 
-    def respond_map(self, msg: dict) -> dict:
+    def respond_map(self, msg: dict, timeout: float = math.inf) -> dict:
         """One request map -> its reply map (never raises), for a client in this process: the
         frame path without msgpack. The map gets every check a frame's content gets (envelope,
         fields, arrays: :mod:`hydrolink.protocol.codec`) and the reply carries the same values a
-        frame would (arrays as read-only ndarrays). A signing server takes frames only."""
+        frame would (arrays as read-only ndarrays). A signing server takes frames only. ``timeout``:
+        as for :meth:`respond`."""
         if self.key is not None:
             return codec.error_reply(next(self._ids), codec.readable_id(msg), None, Code.BAD_SIGNATURE, "sig",
                                      "a signing server takes frames only (respond), not maps")
-        reply = self.handle(msg)
+        reply = self._answer_local(msg, timeout)
         self._wait_hold()
         return reply
 
