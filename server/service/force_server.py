@@ -53,6 +53,7 @@ IO_THREADS = 2     # ZeroMQ I/O threads of a server's own context: a client stre
                    # one does not hold up the others' small ones as much (bench_attacks: p99 28-48 -> 5-6 ms)
 MAX_QUEUED = 64    # requests held behind a session's deferred step (SPEC §1); their bytes: the message limit
 LOCAL_ROUTE = [b""]   # a polled server's own caller: a ROUTER never gives a peer an empty identity
+POLLED_LINGER_MS = 500   # a polled server's last replies (its controllers' stop) get this long to leave at close
 
 
 @dataclass(frozen=True)
@@ -130,7 +131,8 @@ class ForceServer:
         self._sock: zmq.Socket | None = None
         self._address = IN_PROCESS
         if bind is not None:
-            self._ctx = context or zmq.Context(io_threads=IO_THREADS)
+            # a polled server is a run's own, for its controllers: one I/O thread (fewer to schedule)
+            self._ctx = context or zmq.Context(io_threads=1 if polled else IO_THREADS)
             self._sock = self._ctx.socket(zmq.ROUTER)
             self._sock.setsockopt(zmq.LINGER, 0)
             # per frame: a frame up to twice the limit is received and refused by size (_over_limits),
@@ -961,7 +963,7 @@ class ForceServer:
             return
         if self._security is not None:
             self._security.close()
-        self._sock.close(0)
+        self._sock.close(POLLED_LINGER_MS if self.polled else 0)
         if self._own_context:
             self._ctx.term()
         log.info("hydrolink server on %s stopped", self._address)
