@@ -475,7 +475,55 @@ def test_run_polls_its_own_server_and_equals_a_separate_one(reference_data, serv
     assert json.loads(ds_own.attrs["controller_events"])["ctl"]["ok"] == 50
     for v in ("position", "velocity", "pto_force", "pto_command_force", "excitation_force", "radiation_force"):
         assert np.array_equal(ds_own[v].values, ds_remote[v].values), v
-    assert np.abs(ds_own["pto_command_force"].values).max() > 1e4
+    assert np.abs(ds_own["pto_command_force"].values).max() > 1e3   # the ramp's first 2 s: commands of kN
+
+
+NAP = '''
+import time
+from hydrolink.clients.control import Controller
+
+class Nap(Controller):
+    def on_start(self, info):
+        self.c = float(info["parameters"]["damping"])
+
+    def on_step(self, t, m):
+        if round(t / 0.04) == 10:
+            time.sleep(1.0)            # misses the 0.3 s deadline: step 10 on the fallback
+        return {p: self.c * v for p, v in zip(self.ptos, m["pto_velocity"].tolist())}
+'''
+
+
+@pytest.mark.timing
+def test_polled_run_hears_a_controller_back_after_a_missed_deadline(reference_data, tmp_path):
+    """The run's own polled server serves its socket at every step, not only while a step waits:
+    a controller that missed a deadline (then absent: no step waits for it) is heard again with
+    its next request and decides the rest of the run (paced: 3 s, the nap 1 s from 0.4 s)."""
+    import socket
+
+    (tmp_path / "nap.py").write_text(NAP)
+    text = scene_text(reference_data, 3.0, controller_block("force", 1.0e6, 0.0).replace("timeout = 10.0",
+                                                                                       "timeout = 0.3"))
+    (tmp_path / "nap.toml").write_text(text)
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        address = f"tcp://127.0.0.1:{sock.getsockname()[1]}"
+    proc = subprocess.Popen(python_ctl(tmp_path / "nap.py", address), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        run_scene_file(tmp_path / "nap.toml", tmp_path / "nap.nc", progress=False, listen=address,
+                       timeout=30.0, control_token=TOKEN, realtime=1.0)   # paced: the nap ends mid-run
+    finally:
+        try:
+            _, err = proc.communicate(timeout=20)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            _, err = proc.communicate()
+    assert proc.returncode == 0, err
+    ds = xr.load_dataset(tmp_path / "nap.nc")
+    ev = json.loads(ds.attrs["controller_events"])["ctl"]
+    status = ds["controller_status"].sel(controller="ctl").values
+    assert ev["timeout"] == 1 and status[11] == 1 and ev["ok"] >= 40    # step 10's decision: row 11; ~25 absent
+    assert np.all(status[-20:] == 0)                                   # back: the run's end decided by it
 
 
 def test_wave_probes_match_the_model_and_travel(reference_data):

@@ -235,6 +235,19 @@ class ForceServer:
         what is due (deadlines, idle replies, expiry)."""
         self._next_sweep = self._turn(self._next_sweep)
 
+    def _serve_ready(self) -> None:
+        """Polled, before a request of the caller's: the messages already on the socket answered
+        and the controllers' deadlines that passed kept (idle replies), without waiting: a
+        controller is heard even while no step waits for it (one that missed a deadline and is
+        absent, SPEC §5.7, comes back with its next request)."""
+        while self._sock.getsockopt(zmq.EVENTS) & zmq.POLLIN:
+            self._receive()
+        if self._hubs:
+            now = time.monotonic()
+            for hub in list(self._hubs.values()):
+                if hub.next_deadline() <= now:
+                    hub.poll(now)
+
     def _turn(self, next_sweep: float) -> float:
         """One turn of the loop: at most one request received and answered, then what is due."""
         # a blocking receive with a POLL_MS timeout (RCVTIMEO): no poller and no exception
@@ -395,6 +408,7 @@ class ForceServer:
         when deferred, after turns of the loop in this thread until it is sent (to LOCAL_ROUTE)."""
         if not self.polled:
             return self.handle(request)
+        self._serve_ready()
         reply = self.handle(request, LOCAL_ROUTE)
         if reply is not None:
             return reply
