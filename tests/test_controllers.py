@@ -109,6 +109,31 @@ def run_with(tmp_path: Path, name: str, text: str, server: str, proc_args: list 
     return xr.load_dataset(tmp_path / f"{name}.nc"), summary, ((proc.returncode, err) if proc else (None, ""))
 
 
+def free_address() -> str:
+    """A loopback TCP endpoint on a port free now (for a run's own server)."""
+    import socket
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return f"tcp://127.0.0.1:{sock.getsockname()[1]}"
+
+
+def run_own(tmp_path: Path, name: str, text: str, controller: Path, address: str, **kw) -> tuple[dict, tuple]:
+    """Run the scene on the run's own server (``hydrolink run``: no --server, listening on
+    ``address``) with one controller process; (summary, (rc, stderr))."""
+    (tmp_path / f"{name}.toml").write_text(text)
+    proc = subprocess.Popen(python_ctl(controller, address), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        summary = run_scene_file(tmp_path / f"{name}.toml", tmp_path / f"{name}.nc", progress=False, listen=address,
+                                 timeout=30.0, control_token=TOKEN, **kw)
+    finally:
+        try:
+            _, err = proc.communicate(timeout=20)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            _, err = proc.communicate()
+    return summary, (proc.returncode, err)
+
+
 def python_ctl(file: Path, server: str, *extra: str) -> list:
     return [sys.executable, "-m", "hydrolink.clients.cli", "control", str(file), "--server", server,
             "--token", TOKEN, "--join-wait", "20", *extra]
@@ -424,8 +449,6 @@ def test_run_polls_its_own_server_and_equals_a_separate_one(reference_data, serv
     over loopback TCP): the results equal, bit for bit, the same run against a server in a thread
     with the run over TCP too; no thread is left running; a second multibody hello to the run's
     socket is refused (one session: the run's)."""
-    import socket
-
     from hydrolink.protocol import codec
     from hydrolink.server.service import force_server
 
@@ -434,12 +457,7 @@ def test_run_polls_its_own_server_and_equals_a_separate_one(reference_data, serv
     ds_remote, _, (rc, err) = run_with(tmp_path, "remote", text, server.address,
                                        python_ctl(EXAMPLES / "reactive.py", server.address))
     assert rc == 0, err
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        address = f"tcp://127.0.0.1:{sock.getsockname()[1]}"
-    (tmp_path / "own.toml").write_text(text)
-    proc = subprocess.Popen(python_ctl(EXAMPLES / "reactive.py", address), stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+    address = free_address()
     threads = threading.active_count()
     ctx = zmq.Context()
     stranger = ctx.socket(zmq.DEALER)
@@ -455,20 +473,14 @@ def test_run_polls_its_own_server_and_equals_a_separate_one(reference_data, serv
         serve_once(srv)
     try:
         force_server.ForceServer.serve_once = watched
-        summary = run_scene_file(tmp_path / "own.toml", tmp_path / "own.nc", progress=False, listen=address,
-                                 timeout=30.0, control_token=TOKEN)
+        summary, (rc, err) = run_own(tmp_path, "own", text, EXAMPLES / "reactive.py", address)
         assert stranger.poll(5000)
         refused = codec.unpack(stranger.recv())
     finally:
         force_server.ForceServer.serve_once = serve_once
         stranger.close(0)
         ctx.term()
-        try:
-            _, err = proc.communicate(timeout=20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            _, err = proc.communicate()
-    assert proc.returncode == 0, err
+    assert rc == 0, err
     assert summary.server == address and (refused["code"], refused.get("limit")) == (14, "sessions")
     assert seen["threads"] <= threads + 1   # at most the results writer's thread: no server thread
     ds_own = xr.load_dataset(tmp_path / "own.nc")
@@ -498,27 +510,12 @@ def test_polled_run_hears_a_controller_back_after_a_missed_deadline(reference_da
     """The run's own polled server serves its socket at every step, not only while a step waits:
     a controller that missed a deadline (then absent: no step waits for it) is heard again with
     its next request and decides the rest of the run (paced: 3 s, the nap 1 s from 0.4 s)."""
-    import socket
-
     (tmp_path / "nap.py").write_text(NAP)
     text = scene_text(reference_data, 3.0, controller_block("force", 1.0e6, 0.0).replace("timeout = 10.0",
                                                                                        "timeout = 0.3"))
-    (tmp_path / "nap.toml").write_text(text)
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        address = f"tcp://127.0.0.1:{sock.getsockname()[1]}"
-    proc = subprocess.Popen(python_ctl(tmp_path / "nap.py", address), stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
-    try:
-        run_scene_file(tmp_path / "nap.toml", tmp_path / "nap.nc", progress=False, listen=address,
-                       timeout=30.0, control_token=TOKEN, realtime=1.0)   # paced: the nap ends mid-run
-    finally:
-        try:
-            _, err = proc.communicate(timeout=20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            _, err = proc.communicate()
-    assert proc.returncode == 0, err
+    _, (rc, err) = run_own(tmp_path, "nap", text, tmp_path / "nap.py", free_address(),
+                           realtime=1.0)   # paced: the nap ends mid-run
+    assert rc == 0, err
     ds = xr.load_dataset(tmp_path / "nap.nc")
     ev = json.loads(ds.attrs["controller_events"])["ctl"]
     status = ds["controller_status"].sel(controller="ctl").values
