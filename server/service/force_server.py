@@ -239,8 +239,11 @@ class ForceServer:
         """Polled, before a request of the caller's: the messages already on the socket answered
         and the controllers' deadlines that passed kept (idle replies), without waiting: a
         controller is heard even while no step waits for it (one that missed a deadline and is
-        absent, SPEC §5.7, comes back with its next request)."""
-        while self._sock.getsockopt(zmq.EVENTS) & zmq.POLLIN:
+        absent, SPEC §5.7, comes back with its next request). At most MAX_QUEUED messages a call:
+        a flood on the socket delays the run's step by that many, never holds it."""
+        for _ in range(MAX_QUEUED):
+            if not self._sock.getsockopt(zmq.EVENTS) & zmq.POLLIN:
+                break
             self._receive()
         if self._hubs:
             now = time.monotonic()
