@@ -124,7 +124,7 @@ def run_own(tmp_path: Path, name: str, text: str, controller: Path, address: str
     proc = subprocess.Popen(python_ctl(controller, address), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         summary = run_scene_file(tmp_path / f"{name}.toml", tmp_path / f"{name}.nc", progress=False, listen=address,
-                                 timeout=30.0, control_token=TOKEN, **kw)
+                                 control_token=TOKEN, **{"timeout": 30.0, **kw})
     finally:
         try:
             _, err = proc.communicate(timeout=20)
