@@ -76,7 +76,16 @@ def server_version() -> str:
 
 
 class ForceServer:
-    """Serve hydrodynamic forces on ``bind`` (e.g. ``tcp://127.0.0.1:*``) until :meth:`stop`."""
+    """Serve hydrodynamic forces on ``bind`` (e.g. ``tcp://127.0.0.1:*``) until :meth:`stop`.
+
+    ``polled=True``: no :meth:`serve_forever` thread: the caller's thread runs the loop. A request of
+    its own (:meth:`respond`, :meth:`respond_map`) is handled at once and, when its reply is deferred
+    (a step waiting for the controllers' commands, SPEC §5.7), the socket is served from that call
+    (:meth:`serve_once`) until the reply is ready: ``hydrolink run``'s own server for a scene with
+    controllers (no second thread fighting the run for the GIL, no loopback hop to its server)."""
+
+    _local_reply: tuple[dict, float | None] | None = None   # polled: the caller's deferred reply, until taken
+    _next_sweep = 0.0   # polled: when serve_once next expires idle sessions
 
     def __init__(self, bind: str | None, *, context: zmq.Context | None = None, session_timeout: float = 300.0,
                  key: bytes | None = None, curve_secret: str | None = None, curve_clients: str | None = None,
@@ -110,18 +119,8 @@ class ForceServer:
         session, ``math.inf``: none), at most ``max_workers`` at once (beyond: error 14
         ``workers``); a worker that takes longer than ``step_timeout`` s for a request, or dies,
         ends its session with error 16. The in-process server (``bind=None``) steps every session
-        in the caller's thread.
-
-        ``polled``: no :meth:`serve_forever` thread: the caller's thread runs the loop. A request of
-        its own (:meth:`respond`, :meth:`respond_map`) is handled at once and, when its reply is
-        deferred (a step waiting for the controllers' commands, SPEC §5.7), the socket is served
-        from that call (:meth:`serve_once`) until the reply is ready: ``hydrolink run``'s own server
-        for a scene with controllers (no second thread fighting the run for the GIL, no loopback
-        hop between the run and its server)."""
-        self.polled = bool(polled)
-        self._local_reply: tuple[dict, float | None] | None = None   # polled: the caller's deferred reply
-        self._next_sweep = 0.0   # polled: when serve_once next expires idle sessions
-        self.plant_builder = plant_builder
+        in the caller's thread. ``polled``: see the class docstring."""
+        self.polled, self.plant_builder = bool(polled), plant_builder
         # the bytes the open sessions' models may hold together (None: unbounded, as in-process)
         self.memory = MemoryBudget(int(max_memory_bytes)) if max_memory_bytes is not None else None
         self.limits = HelloLimits(max_setups, max_sessions)   # checked before a socket is bound
@@ -131,8 +130,7 @@ class ForceServer:
         self._sock: zmq.Socket | None = None
         self._address = IN_PROCESS
         if bind is not None:
-            # a polled server is a run's own, for its controllers: one I/O thread (fewer to schedule)
-            self._ctx = context or zmq.Context(io_threads=1 if polled else IO_THREADS)
+            self._ctx = context or zmq.Context(io_threads=1 if polled else IO_THREADS)   # polled: a run's own
             self._sock = self._ctx.socket(zmq.ROUTER)
             self._sock.setsockopt(zmq.LINGER, 0)
             # per frame: a frame up to twice the limit is received and refused by size (_over_limits),
