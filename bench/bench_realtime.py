@@ -3,6 +3,7 @@ clock (``hydrolink run --realtime``) at 100 Hz, 200 Hz and 1 kHz: overruns and s
 percentiles, beside the unpaced cost of a step of the same run.
 
     python bench/bench_realtime.py [--rates 100 200 1000] [--seconds 60] [--unpaced-seconds 10] [--radiation state-space]
+                                   [--relays polled thread]
 
 Each rate: the scene's dt = 1/rate, the run's own force server listening on a loopback port, the
 example controller examples/controllers/reactive.py in its own process (force command every step,
@@ -51,26 +52,37 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def run(tmp: Path, rate: float, seconds: float, realtime: float | None, radiation: str):
+def run(tmp: Path, rate: float, seconds: float, realtime: float | None, radiation: str, relay: str = "polled"):
     """One run with the controller process; returns the RunSummary (its results file: ``output``)."""
-    path = tmp / f"rm3_{int(rate)}_{'paced' if realtime else 'free'}.toml"
+    path = tmp / f"rm3_{int(rate)}_{'paced' if realtime else 'free'}_{relay}.toml"
     path.write_text(scene(1.0 / rate, seconds, radiation))
-    return run_controlled(path, REPO / "examples" / "controllers" / "reactive.py", realtime)
+    return run_controlled(path, REPO / "examples" / "controllers" / "reactive.py", realtime, relay)
 
 
-def run_controlled(path: Path, controller: Path, realtime: float | None):
-    """Run the scene file ``path`` (results beside it) on its own loopback server with the Python
-    controller file ``controller`` in its own process (``hydrolink control``); the RunSummary."""
+def run_controlled(path: Path, controller: Path, realtime: float | None, relay: str = "polled"):
+    """Run the scene file ``path`` (results beside it) with the Python controller file
+    ``controller`` in its own process (``hydrolink control``) over loopback TCP; the RunSummary.
+    ``relay``: "polled", the run's own server polled from its thread (what ``hydrolink run`` does);
+    "thread", what it did before: a force server in a thread of this process, the run its client
+    over loopback TCP (two Python hops a step, two threads sharing the GIL)."""
     from hydrolink.clients.run import run_scene_file
+    from hydrolink.server.service.force_server import serve_in_thread
 
     address = f"tcp://127.0.0.1:{free_port()}"
     ctl = subprocess.Popen([sys.executable, "-m", "hydrolink.clients.cli", "control", str(controller), "--server",
                             address, "--token", TOKEN, "--join-wait", "60"],
                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    srv = thread = None
     try:
+        if relay == "thread":
+            from hydrolink.clients.analysis.plant import build_plant
+            srv, thread = serve_in_thread(address, plant_builder=build_plant)
         summary = run_scene_file(path, path.with_suffix(".nc"), progress=False, listen=address, control_token=TOKEN,
-                                 realtime=realtime)
+                                 realtime=realtime, server=address if srv is not None else None)
     finally:
+        if srv is not None:
+            srv.stop()
+            thread.join(5.0)
         try:
             ctl.communicate(timeout=30)
         except subprocess.TimeoutExpired:
@@ -87,34 +99,39 @@ def main() -> None:
     ap.add_argument("--radiation", default="convolution", choices=["convolution", "state-space"],
                     help="[hydro] radiation: the convolution's cost grows with irf_duration/dt (40 000 samples "
                          "at 1 kHz), the state-space fit's does not")
+    ap.add_argument("--relays", nargs="+", default=["polled"], choices=["polled", "thread"],
+                    help="polled: hydrolink run's own server polled from the run's thread; thread: the relay "
+                         "before (a server thread, the run over loopback TCP), for a comparison in one run")
     args = ap.parse_args()
     rows, notes = [], []
     load0 = os.getloadavg()
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         for rate in args.rates:
-            # unpaced: released at once (a factor no step can keep up with); the step costs are its
-            # steps' times from their actual start (latency less "behind"; the controller's join left out)
-            unpaced = run(tmp, rate, args.unpaced_seconds, UNPACED, args.radiation)
-            free = unpaced.realtime
-            paced = run(tmp, rate, args.seconds, 1.0, args.radiation)
-            rt = paced.realtime
-            notes.append(breakdown(rate, paced) + f"; unpaced: the server's model {unpaced.server_compute_us_per_step:.1f} "
-                         "µs per step, ms per step: " + ", ".join(f"{k} {1e3 * v:.3f}" for k, v in free.parts_mean.items()
-                                                                  if k != "behind"))
-            c50, c99 = step_cost(unpaced)
-            rows.append((rate, 1e3 / rate, 1e3 * c50, 1e3 * c99, rt.steps, rt.overruns,
-                         1e3 * rt.worst_lateness, 1e3 * rt.latency_p50, 1e3 * rt.latency_p99, 1e3 * rt.latency_max,
-                         paced.wall_time))
-            print(f"{rate:g} Hz: unpaced {free}; paced {rt}", file=sys.stderr, flush=True)
+            for relay in args.relays:
+                # unpaced: released at once (a factor no step can keep up with); the step costs are its
+                # steps' times from their actual start (latency less "behind"; the controller's join left out)
+                unpaced = run(tmp, rate, args.unpaced_seconds, UNPACED, args.radiation, relay)
+                free = unpaced.realtime
+                paced = run(tmp, rate, args.seconds, 1.0, args.radiation, relay)
+                rt = paced.realtime
+                notes.append(breakdown(rate, paced) + f" ({relay}); unpaced: the server's model "
+                             f"{unpaced.server_compute_us_per_step:.1f} µs per step, ms per step: "
+                             + ", ".join(f"{k} {1e3 * v:.3f}" for k, v in free.parts_mean.items() if k != "behind"))
+                c50, c99 = step_cost(unpaced)
+                rows.append((rate, relay, 1e3 / rate, 1e3 * c50, 1e3 * c99, rt.steps, rt.overruns,
+                             1e3 * rt.worst_lateness, 1e3 * rt.latency_p50, 1e3 * rt.latency_p99,
+                             1e3 * rt.latency_max, paced.wall_time, os.getloadavg()[0]))
+                print(f"{rate:g} Hz {relay}: unpaced {free}; paced {rt}", file=sys.stderr, flush=True)
     load1 = os.getloadavg()
     print(f"load average {load0[0]:.2f} before, {load1[0]:.2f} after ({os.cpu_count()} CPUs)\n")
-    print("| rate | budget (ms) | unpaced step p50 (ms) | unpaced p99 (ms) | paced steps | overruns | "
-          "worst lateness (ms) | paced latency p50 (ms) | p99 (ms) | max (ms) | loop wall (s) |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print("| rate | relay | budget (ms) | unpaced step p50 (ms) | unpaced p99 (ms) | paced steps | overruns | "
+          "worst lateness (ms) | paced latency p50 (ms) | p99 (ms) | max (ms) | loop wall (s) | load after |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
-        print(f"| {r[0]:g} Hz | {r[1]:.3g} | {r[2]:.3f} | {r[3]:.3f} | {r[4]} | {r[5]} ({100 * r[5] / max(r[4], 1):.2g} %) | "
-              f"{r[6]:.2f} | {r[7]:.3f} | {r[8]:.3f} | {r[9]:.2f} | {r[10]:.1f} |")
+        print(f"| {r[0]:g} Hz | {r[1]} | {r[2]:.3g} | {r[3]:.3f} | {r[4]:.3f} | {r[5]} | {r[6]} "
+              f"({100 * r[6] / max(r[5], 1):.2g} %) | {r[7]:.2f} | {r[8]:.3f} | {r[9]:.3f} | {r[10]:.2f} | "
+              f"{r[11]:.1f} | {r[12]:.2f} |")
     print()
     for line in notes:
         print(line)

@@ -29,6 +29,7 @@ This module imports only numpy, pyzmq and the codec, so a controller process sta
 
 from __future__ import annotations
 
+import gc
 import importlib.util
 import math
 import inspect
@@ -179,6 +180,10 @@ def run_controller(controller: Controller, server: str, *, token: str, session: 
         controller.ptos = list(info["ptos"])
         log.info("controller %r joined session %s (epoch %d)", name, link.session, epoch)
         controller.on_start(info)
+        # what the process holds by now (imports, the controller's set-up) frozen: a collection in
+        # the loop scans only what the steps make (the young generation), not the whole heap
+        gc.collect()
+        gc.freeze()
         ident = {"controller": name, "epoch": epoch, "wait": wait}
         reply = link.request("measure", wait, **ident)
         while True:
@@ -208,6 +213,7 @@ def run_controller(controller: Controller, server: str, *, token: str, session: 
             else:
                 raise ControllerError(f"unexpected reply type {kind!r}")
     finally:
+        gc.unfreeze()
         link.close()
     controller.on_stop()
     return stats

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import sys
 from contextlib import ExitStack
 from dataclasses import replace
@@ -67,9 +68,10 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
                    control_token: str | None = None) -> RunSummary:
     """Run a scene end to end; returns the run summary (steps, wall time, output path, the server's side).
 
-    A scene with ``[[controllers]]`` and no ``server`` starts a force server with a socket on
-    ``listen`` in a thread of this process (controllers connect to it; SPEC §5.7) instead of the
-    in-process one, and says on stderr where the controllers should connect. ``curve``: a
+    A scene with ``[[controllers]]`` and no ``server`` makes its own force server with a socket on
+    ``listen`` (controllers connect to it; SPEC §5.7), polled from this thread (``ForceServer(...,
+    polled=True)``: the run's requests handed to it in-process, its socket served while a step
+    waits for the controllers), and says on stderr where the controllers should connect. ``curve``: a
     :class:`hydrolink.protocol.security.ClientKeys` for a ``server`` that requires CURVE; ``key``:
     the shared HMAC key (SPEC §3.3) of ``server``, or of the run's own listening server, whose
     controllers must then sign too; ``link_timeout``: how long the link to a remote ``server`` may
@@ -106,16 +108,16 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
         return replace(summary, output=str(output), server=None)
     with ExitStack() as stack:
         if server is None and scene.controllers:
+            # the run's own server with a socket on ``listen`` for the controllers, polled from this
+            # thread (no server thread, no loopback hop to it): a step waiting for the controllers'
+            # commands serves the socket until they are in; one session (this run's)
             from hydrolink.clients.analysis.plant import build_plant
-            from hydrolink.server.service.force_server import serve_in_thread
-            srv, thread = serve_in_thread(listen, key=key, plant_builder=build_plant)
-
-            def _stop_server() -> None:
-                srv.stop()
-                thread.join(5.0)
-            stack.callback(_stop_server)
+            from hydrolink.server.service.force_server import ForceServer
+            srv = ForceServer(listen, key=key, plant_builder=build_plant, polled=True, max_sessions=1,
+                              isolate_step_s=math.inf)
+            stack.callback(srv.close)
             server = srv.address
-            conn = stack.enter_context(ServerConnection(server, timeout=timeout, key=key))
+            conn = stack.enter_context(ServerConnection(srv, timeout=timeout, key=key))
         elif server is None:
             # embedded: the force server's request handler in this process, fed the same wire
             # frames as over a socket (same codec, same results) but with no thread or transport

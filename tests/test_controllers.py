@@ -109,6 +109,31 @@ def run_with(tmp_path: Path, name: str, text: str, server: str, proc_args: list 
     return xr.load_dataset(tmp_path / f"{name}.nc"), summary, ((proc.returncode, err) if proc else (None, ""))
 
 
+def free_address() -> str:
+    """A loopback TCP endpoint on a port free now (for a run's own server)."""
+    import socket
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return f"tcp://127.0.0.1:{sock.getsockname()[1]}"
+
+
+def run_own(tmp_path: Path, name: str, text: str, controller: Path, address: str, **kw) -> tuple[dict, tuple]:
+    """Run the scene on the run's own server (``hydrolink run``: no --server, listening on
+    ``address``) with one controller process; (summary, (rc, stderr))."""
+    (tmp_path / f"{name}.toml").write_text(text)
+    proc = subprocess.Popen(python_ctl(controller, address), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        summary = run_scene_file(tmp_path / f"{name}.toml", tmp_path / f"{name}.nc", progress=False, listen=address,
+                                 control_token=TOKEN, **{"timeout": 30.0, **kw})
+    finally:
+        try:
+            _, err = proc.communicate(timeout=20)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            _, err = proc.communicate()
+    return summary, (proc.returncode, err)
+
+
 def python_ctl(file: Path, server: str, *extra: str) -> list:
     return [sys.executable, "-m", "hydrolink.clients.cli", "control", str(file), "--server", server,
             "--token", TOKEN, "--join-wait", "20", *extra]
@@ -416,6 +441,86 @@ def test_in_process_server_refuses_controllers(reference_data, tmp_path):
     hdbs = load_scene_hdbs(parse_scene(text), tmp_path / "s.toml")
     with ServerConnection(ForceServer(None)) as conn, pytest.raises(RemoteError, match="scene.controllers"):
         conn.hello(text, hdbs)
+
+
+def test_run_polls_its_own_server_and_equals_a_separate_one(reference_data, server, tmp_path):
+    """``hydrolink run`` of a scene with a controller and no --server polls its own server from the
+    run's thread (ForceServer polled: no server thread, the run's steps in-process, the controller
+    over loopback TCP): the results equal, bit for bit, the same run against a server in a thread
+    with the run over TCP too; no thread is left running; a second multibody hello to the run's
+    socket is refused (one session: the run's)."""
+    from hydrolink.protocol import codec
+    from hydrolink.server.service import force_server
+
+    text = scene_text(reference_data, 2.0, controller_block("force", 3.9e5, 1.36e6,
+                                                         measurements=["pto_displacement", "pto_velocity"]))
+    ds_remote, _, (rc, err) = run_with(tmp_path, "remote", text, server.address,
+                                       python_ctl(EXAMPLES / "reactive.py", server.address))
+    assert rc == 0, err
+    address = free_address()
+    threads = threading.active_count()
+    ctx = zmq.Context()
+    stranger = ctx.socket(zmq.DEALER)
+    stranger.setsockopt(zmq.LINGER, 0)
+    seen = {}
+    serve_once = force_server.ForceServer.serve_once
+
+    def watched(srv):   # once the run's session is open: a stranger's multibody hello, answered by a later turn
+        if "threads" not in seen and srv.sessions:
+            seen["threads"] = threading.active_count()
+            stranger.connect(address)
+            stranger.send(codec.pack(codec.message("hello", "x1", None, role="multibody", scene=text, hdbs={})))
+        serve_once(srv)
+    try:
+        force_server.ForceServer.serve_once = watched
+        summary, (rc, err) = run_own(tmp_path, "own", text, EXAMPLES / "reactive.py", address)
+        assert stranger.poll(5000)
+        refused = codec.unpack(stranger.recv())
+    finally:
+        force_server.ForceServer.serve_once = serve_once
+        stranger.close(0)
+        ctx.term()
+    assert rc == 0, err
+    assert summary.server == address and (refused["code"], refused.get("limit")) == (14, "sessions")
+    assert seen["threads"] <= threads + 1   # at most the results writer's thread: no server thread
+    ds_own = xr.load_dataset(tmp_path / "own.nc")
+    assert json.loads(ds_own.attrs["controller_events"])["ctl"]["ok"] == 50
+    for v in ("position", "velocity", "pto_force", "pto_command_force", "excitation_force", "radiation_force"):
+        assert np.array_equal(ds_own[v].values, ds_remote[v].values), v
+    assert np.abs(ds_own["pto_command_force"].values).max() > 1e3   # the ramp's first 2 s: commands of kN
+
+
+NAP = '''
+import time
+from hydrolink.clients.control import Controller
+
+class Nap(Controller):
+    def on_start(self, info):
+        self.c = float(info["parameters"]["damping"])
+
+    def on_step(self, t, m):
+        if round(t / 0.04) == 10:
+            time.sleep(1.0)            # misses the 0.3 s deadline: step 10 on the fallback
+        return {p: self.c * v for p, v in zip(self.ptos, m["pto_velocity"].tolist())}
+'''
+
+
+@pytest.mark.timing
+def test_polled_run_hears_a_controller_back_after_a_missed_deadline(reference_data, tmp_path):
+    """The run's own polled server serves its socket at every step, not only while a step waits:
+    a controller that missed a deadline (then absent: no step waits for it) is heard again with
+    its next request and decides the rest of the run (paced: 3 s, the nap 1 s from 0.4 s)."""
+    (tmp_path / "nap.py").write_text(NAP)
+    text = scene_text(reference_data, 3.0, controller_block("force", 1.0e6, 0.0).replace("timeout = 10.0",
+                                                                                       "timeout = 0.3"))
+    _, (rc, err) = run_own(tmp_path, "nap", text, tmp_path / "nap.py", free_address(),
+                           realtime=1.0)   # paced: the nap ends mid-run
+    assert rc == 0, err
+    ds = xr.load_dataset(tmp_path / "nap.nc")
+    ev = json.loads(ds.attrs["controller_events"])["ctl"]
+    status = ds["controller_status"].sel(controller="ctl").values
+    assert ev["timeout"] == 1 and status[11] == 1 and ev["ok"] >= 40    # step 10's decision: row 11; ~25 absent
+    assert np.all(status[-20:] == 0)                                   # back: the run's end decided by it
 
 
 def test_wave_probes_match_the_model_and_travel(reference_data):

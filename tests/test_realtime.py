@@ -71,17 +71,11 @@ def test_injected_delays_are_found_at_their_step_with_their_cause(reference_data
     a free block when the next block fills (row 34). Each shows in the results file at its row, as
     an overrun whose largest part is its cause; the file's counts are the summary's, and every
     row's parts add up to its latency. Margins are wide: only the injected rows are asserted on."""
-    import secrets
-    import socket
-    import subprocess
-    import sys
-
     import xarray as xr
 
-    from test_controllers import controller_block, scene_text as controller_scene
+    from test_controllers import controller_block, free_address, run_own, scene_text as controller_scene
 
     from hydrolink.clients.lockstep import results
-    from hydrolink.clients.run import run_scene_file
     from hydrolink.protocol.pacing import PARTS
 
     class SmallBlocks(results.ResultWriter):   # the real writer: small blocks, one slow write
@@ -97,26 +91,10 @@ def test_injected_delays_are_found_at_their_step_with_their_cause(reference_data
     dt = 0.04
     text = controller_scene(reference_data, 2.4, controller_block("force", 1.0e6, 0.0))
     text = text.replace("[simulation]\n", "[simulation]\nflush_seconds = 3600.0\n")   # blocks seal by rows only
-    (tmp_path / "paced.toml").write_text(text)
     ctl = tmp_path / "sleepy.py"
     ctl.write_text(SLEEPY.format(dt=dt, step=CTL_STEP, delay=CTL_DELAY))
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        address = f"tcp://127.0.0.1:{sock.getsockname()[1]}"
-    token = secrets.token_urlsafe(32)   # the run's join token, handed to its controller (SPEC §5.7.2)
-    proc = subprocess.Popen([sys.executable, "-m", "hydrolink.clients.cli", "control", str(ctl), "--server", address,
-                             "--token", token, "--join-wait", "60"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
-    try:
-        summary = run_scene_file(tmp_path / "paced.toml", tmp_path / "paced.nc", progress=False, listen=address,
-                                 realtime=1.0, timeout=60.0, control_token=token)
-    finally:
-        try:
-            _, err = proc.communicate(timeout=30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            _, err = proc.communicate()
-    assert proc.returncode == 0, err
+    summary, (rc, err) = run_own(tmp_path, "paced", text, ctl, free_address(), realtime=1.0, timeout=60.0)
+    assert rc == 0, err
     rt = summary.realtime
     ds = xr.load_dataset(tmp_path / "paced.nc")
     lat, over, parts = ds["step_latency"].values, ds["overrun"].values, ds["step_time"].values

@@ -81,8 +81,9 @@ class RemoteError(RuntimeError):
 class ServerConnection:
     """A connection to a hydrolink server; every receive times out after ``timeout`` seconds.
 
-    ``address`` is a ZeroMQ endpoint, or an in-process server (``ForceServer(None)``: an object
-    with ``respond_map(map) -> map``, or ``respond(frame) -> frame``): then each request is handed
+    ``address`` is a ZeroMQ endpoint, or an in-process server (``ForceServer(None)``, or a polled
+    ``ForceServer(bind, polled=True)`` whose controllers connect to its socket: an object with
+    ``respond_map(map, timeout) -> map``, or ``respond(frame, timeout) -> frame``): then each request is handed
     to it directly, without the transport's wake-ups and — as a map, when there is no signing
     ``key`` — without msgpack. The server checks a map as it checks a frame's content and the
     reply carries the same values (float64 arrays, bit for bit; tests/test_force_server.py).
@@ -134,7 +135,7 @@ class ServerConnection:
         by ``deadline``: a DEALER with no connected peer (nothing listening yet, a refused CURVE
         handshake) or a full queue blocks a plain send for ever."""
         if self._local is not None:
-            self._pending = self._local.respond(frame)
+            self._pending = self._local.respond(frame, limit)
             return
         try:
             self._sock.send(frame, zmq.NOBLOCK)
@@ -225,7 +226,7 @@ class ServerConnection:
         msg_id = next(self._ids)
         msg = codec.message(mtype, msg_id, self.session, **fields)
         if as_map:
-            return self._checked(self._local.respond_map(msg), msg_id)
+            return self._checked(self._local.respond_map(msg, self.timeout if timeout is None else timeout), msg_id)
         frame = codec.pack(msg, self.key)
         self._in_flight = (mtype, frame)
         limit = self.timeout if timeout is None else timeout
@@ -321,8 +322,9 @@ class ServerConnection:
                   "velocity": np.ascontiguousarray(velocity, dtype=np.float64)}
         if measurements is not None:
             fields["measurements"] = measurements
-        # the map path only for what this method builds itself (ints, floats, float64 arrays)
-        as_map = self._maps and measurements is None
+        # the map path only for what this method and the adapters' measurements hold (ints, floats,
+        # float64 arrays: a server checks a map's arrays as a frame's)
+        as_map = self._maps
         reply = self._request("step", timeout, fields, as_map)
         if not as_map:   # a frame's arrays checked (N, 6) like the state sent; a map's are the server's own
             read_forces(reply, position.shape)   # (the caller checks the values)

@@ -52,6 +52,8 @@ RCVHWM = 4         # whole messages ZeroMQ queues per client before it stops rea
 IO_THREADS = 2     # ZeroMQ I/O threads of a server's own context: a client streaming a huge message into
                    # one does not hold up the others' small ones as much (bench_attacks: p99 28-48 -> 5-6 ms)
 MAX_QUEUED = 64    # requests held behind a session's deferred step (SPEC §1); their bytes: the message limit
+LOCAL_ROUTE = [b""]   # a polled server's own caller: a ROUTER never gives a peer an empty identity
+POLLED_LINGER_MS = 500   # a polled server's last replies (its controllers' stop) get this long to leave at close
 
 
 @dataclass(frozen=True)
@@ -74,7 +76,16 @@ def server_version() -> str:
 
 
 class ForceServer:
-    """Serve hydrodynamic forces on ``bind`` (e.g. ``tcp://127.0.0.1:*``) until :meth:`stop`."""
+    """Serve hydrodynamic forces on ``bind`` (e.g. ``tcp://127.0.0.1:*``) until :meth:`stop`.
+
+    ``polled=True``: no :meth:`serve_forever` thread: the caller's thread runs the loop. A request of
+    its own (:meth:`respond`, :meth:`respond_map`) is handled at once and, when its reply is deferred
+    (a step waiting for the controllers' commands, SPEC §5.7), the socket is served from that call
+    (:meth:`serve_once`) until the reply is ready: ``hydrolink run``'s own server for a scene with
+    controllers (no second thread fighting the run for the GIL, no loopback hop to its server)."""
+
+    _local_reply: tuple[dict, float | None] | None = None   # polled: the caller's deferred reply, until taken
+    _next_sweep = 0.0   # polled: when serve_once next expires idle sessions
 
     def __init__(self, bind: str | None, *, context: zmq.Context | None = None, session_timeout: float = 300.0,
                  key: bytes | None = None, curve_secret: str | None = None, curve_clients: str | None = None,
@@ -82,7 +93,7 @@ class ForceServer:
                  max_setups: int = MAX_SETUPS, max_sessions: int = MAX_SESSIONS,
                  plant_builder: PlantBuilder | None = None, max_memory_bytes: int | None = None,
                  isolate_step_s: float = ISOLATE_STEP_S, max_workers: int = MAX_WORKERS,
-                 step_timeout: float = STEP_TIMEOUT):
+                 step_timeout: float = STEP_TIMEOUT, polled: bool = False):
         """``bind=None`` makes an in-process server without a socket: clients in the same process
         call :meth:`respond` with the same frames a socket would carry (see ServerConnection).
 
@@ -108,8 +119,8 @@ class ForceServer:
         session, ``math.inf``: none), at most ``max_workers`` at once (beyond: error 14
         ``workers``); a worker that takes longer than ``step_timeout`` s for a request, or dies,
         ends its session with error 16. The in-process server (``bind=None``) steps every session
-        in the caller's thread."""
-        self.plant_builder = plant_builder
+        in the caller's thread. ``polled``: see the class docstring."""
+        self.polled, self.plant_builder = bool(polled), plant_builder
         # the bytes the open sessions' models may hold together (None: unbounded, as in-process)
         self.memory = MemoryBudget(int(max_memory_bytes)) if max_memory_bytes is not None else None
         self.limits = HelloLimits(max_setups, max_sessions)   # checked before a socket is bound
@@ -119,7 +130,7 @@ class ForceServer:
         self._sock: zmq.Socket | None = None
         self._address = IN_PROCESS
         if bind is not None:
-            self._ctx = context or zmq.Context(io_threads=IO_THREADS)
+            self._ctx = context or zmq.Context(io_threads=1 if polled else IO_THREADS)   # polled: a run's own
             self._sock = self._ctx.socket(zmq.ROUTER)
             self._sock.setsockopt(zmq.LINGER, 0)
             # per frame: a frame up to twice the limit is received and refused by size (_over_limits),
@@ -198,8 +209,9 @@ class ForceServer:
                  "and %d sessions%s%s)", self._version, self._address, codec.PROTOCOL_VERSION, self.session_timeout,
                  self.limits.max_setups, self.limits.max_sessions,
                  ", signed" if self.key else "", ", CURVE" if self._security else "")
-        if self._sock is None:
-            raise RuntimeError("an in-process server (bind=None) has no socket to serve; call respond()")
+        if self._sock is None or self.polled:
+            raise RuntimeError("an in-process or polled server has no loop thread: call respond() (and, polled, "
+                               "serve_once())")
         next_sweep = time.monotonic()
         self._running = True
         lines = limit_lines(self._log_limit)   # every log line of this loop (and its set-ups) bounded a minute
@@ -214,6 +226,28 @@ class ForceServer:
             self._running = False
             lines.close()
             self._shutdown()
+
+    def serve_once(self) -> None:
+        """One turn of a polled server's loop in the caller's thread: at most one request received
+        (waiting at most POLL_MS, less when a controller's deadline comes sooner) and answered, then
+        what is due (deadlines, idle replies, expiry)."""
+        self._next_sweep = self._turn(self._next_sweep)
+
+    def _serve_ready(self) -> None:
+        """Polled, before a request of the caller's: the messages already on the socket answered
+        and the controllers' deadlines that passed kept (idle replies), without waiting: a
+        controller is heard even while no step waits for it (one that missed a deadline and is
+        absent, SPEC §5.7, comes back with its next request). At most MAX_QUEUED messages a call:
+        a flood on the socket delays the run's step by that many, never holds it."""
+        for _ in range(MAX_QUEUED):
+            if not self._sock.getsockopt(zmq.EVENTS) & zmq.POLLIN:
+                break
+            self._receive()
+        if self._hubs:
+            now = time.monotonic()
+            for hub in list(self._hubs.values()):
+                if hub.next_deadline() <= now:
+                    hub.poll(now)
 
     def _turn(self, next_sweep: float) -> float:
         """One turn of the loop: at most one request received and answered, then what is due."""
@@ -301,6 +335,9 @@ class ForceServer:
     def _send(self, route: list[bytes], reply: dict, release: float | None = None) -> None:
         """Send a reply map to the routing frames it answers (kept in front, verbatim); a paced
         session's reply waits for its ``release`` time (perf_counter s)."""
+        if route is LOCAL_ROUTE:   # the polled server's own caller (_answer_local) takes it as it is
+            self._local_reply = (reply, release)
+            return
         frames = [*route, self._frame(reply)]
         if release is not None and release > time.perf_counter():
             heapq.heappush(self._paced, (release, next(self._order), frames))
@@ -359,11 +396,31 @@ class ForceServer:
                                                 Code.INTERNAL, exc.field, f"internal server error: the reply's {exc}"),
                               self.key)
 
-    def respond(self, frame: bytes) -> bytes:
-        """One request frame -> its reply frame (never raises): what the socket loop sends back
-        (a paced session's reply when its release has come: this in-process caller waits)."""
-        reply = self._frame(self.handle(frame))
+    def respond(self, frame: bytes, timeout: float = math.inf) -> bytes:
+        """One request frame -> its reply frame: what the socket loop sends back (a paced session's
+        reply when its release has come: this in-process caller waits). Never raises, but a polled
+        server raises TimeoutError when a deferred reply is not ready within ``timeout`` s."""
+        reply = self._frame(self._answer_local(frame, timeout))
         self._wait_hold()
+        return reply
+
+    def _answer_local(self, request: bytes | dict, timeout: float) -> dict:
+        """The reply to a request of this process's own client: at once, or on a polled server,
+        when deferred, after turns of the loop in this thread until it is sent (to LOCAL_ROUTE)."""
+        if not self.polled:
+            return self.handle(request)
+        self._serve_ready()
+        reply = self.handle(request, LOCAL_ROUTE)
+        if reply is not None:
+            return reply
+        hold, deadline = self._hold, time.monotonic() + timeout
+        while self._local_reply is None:
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"no reply to a request of this run within {timeout:g} s from its own force "
+                                   f"server (its controllers on {self._address})")
+            self.serve_once()
+        (reply, release), self._local_reply = self._local_reply, None
+        self._hold = release if release is not None else hold
         return reply
 
     def _wait_hold(self) -> None:
@@ -371,15 +428,16 @@ class ForceServer:
         if self._hold is not None:
             time.sleep(max(0.0, self._hold - time.perf_counter()))
 
-    def respond_map(self, msg: dict) -> dict:
+    def respond_map(self, msg: dict, timeout: float = math.inf) -> dict:
         """One request map -> its reply map (never raises), for a client in this process: the
         frame path without msgpack. The map gets every check a frame's content gets (envelope,
         fields, arrays: :mod:`hydrolink.protocol.codec`) and the reply carries the same values a
-        frame would (arrays as read-only ndarrays). A signing server takes frames only."""
+        frame would (arrays as read-only ndarrays). A signing server takes frames only. ``timeout``:
+        as for :meth:`respond`."""
         if self.key is not None:
             return codec.error_reply(next(self._ids), codec.readable_id(msg), None, Code.BAD_SIGNATURE, "sig",
                                      "a signing server takes frames only (respond), not maps")
-        reply = self.handle(msg)
+        reply = self._answer_local(msg, timeout)
         self._wait_hold()
         return reply
 
@@ -920,7 +978,7 @@ class ForceServer:
             return
         if self._security is not None:
             self._security.close()
-        self._sock.close(0)
+        self._sock.close(POLLED_LINGER_MS if self.polled else 0)
         if self._own_context:
             self._ctx.term()
         log.info("hydrolink server on %s stopped", self._address)
