@@ -49,12 +49,13 @@ def curve_server(tmp_path_factory):
                                 stdout=subprocess.DEVNULL, stderr=err)
     try:
         address = None
-        for _ in range(200):
+        deadline = time.monotonic() + 120.0   # the server's start (imports, forkserver) under load: 10 s ran out
+        while address is None and time.monotonic() < deadline and proc.poll() is None:
             text = log.read_text()
             if "listening on" in text:
                 address = text.split("listening on ", 1)[1].split()[0]
-                break
-            time.sleep(0.05)
+            else:
+                time.sleep(0.05)
         assert address and "(CURVE" in log.read_text(), log.read_text()
         yield {"address": address, "log": log, "dir": tmp}
     finally:

@@ -471,10 +471,10 @@ def test_save_restore_release_over_the_wire(server, hdb, conn):
 # ------------------------------------------------------------------ set-up off the step path
 
 def test_steps_of_another_session_are_answered_while_a_hello_is_set_up(server, hdb):
-    """A hello whose set-up takes long (dt = 2e-5 s: an IRF of 2e5 samples over 400 frequencies)
-    is answered when its set-up is done; meanwhile the loop answers another session's steps (before
+    """A hello whose set-up takes long (dt = 2e-4 s: an IRF of 2e4 samples over 400 frequencies, ~2 s
+    of CPU; a step takes well under a millisecond) is answered when its set-up is done; meanwhile the loop answers another session's steps (before
     the set-up moved to a worker thread, they waited for it: 0 or 1 step got through)."""
-    slow = float_scene(dt=2e-5, duration=0.01)
+    slow = float_scene(dt=2e-4, duration=0.01)
     conn = ServerConnection(server.address, timeout=10.0)
     sock = zmq.Context.instance().socket(zmq.DEALER)
     sock.setsockopt(zmq.LINGER, 0)
@@ -492,7 +492,7 @@ def test_steps_of_another_session_are_answered_while_a_hello_is_set_up(server, h
             seq, answered = seq + 1, answered + 1
         welcome = codec.unpack(sock.recv())
         assert welcome["type"] == "welcome" and welcome["parent"] == "slow-1", welcome
-        assert welcome["setup"]["dt"] == 2e-5 and welcome["setup"]["irf_samples"] == 200_000
+        assert welcome["setup"]["dt"] == 2e-4 and welcome["setup"]["irf_samples"] == 20_000
         assert answered >= 10, f"only {answered} steps of the other session were answered during the set-up"
         conn.step(seq, seq * DT, *sts[0])
     finally:
