@@ -32,6 +32,7 @@ import numpy as np
 
 from hydrolink.protocol.capabilities import refuse_unsupported
 from hydrolink.protocol.scene import SceneError, load_scene
+from hydrolink.server.disk_cache import env_dir, user_cache_dir, write_atomic
 
 SOURCES = Path(__file__).with_name("native_c")
 MODEL_IDENTIFIER = "hydrolink_forces"
@@ -69,18 +70,37 @@ def _headers() -> Path:
     return folder
 
 
+def binary_cache() -> Path:
+    """Where compiled FMU binaries are kept: ``$HYDROLINK_FMU_BINARIES``, else
+    ``$HYDROLINK_CACHE/fmu_binaries``, else the user cache's ``fmu_binaries``."""
+    shared = env_dir("HYDROLINK_CACHE")
+    return env_dir("HYDROLINK_FMU_BINARIES") or (shared / "fmu_binaries" if shared else user_cache_dir("fmu_binaries"))
+
+
 def compile_binary(fmi: int, out: Path) -> None:
-    """Compile the core and the FMI ``fmi`` wrapper into the shared library ``out``."""
+    """Compile the core and the FMI ``fmi`` wrapper into the shared library ``out``; a binary compiled
+    before from the same sources, headers, command and compiler is copied from :func:`binary_cache`
+    instead (the binary does not depend on the scene: the scene and HDBs are the FMU's resources)."""
     cc = shutil.which("cc") or shutil.which("gcc")
     if cc is None:
         raise NativeFMUError("building the native FMU needs a C compiler (Debian package gcc); "
                              "or export the pythonfmu FMU with --python")
-    cmd = [cc, "-std=c99", "-O2", "-shared", "-fPIC", "-fvisibility=hidden", "-Wall", "-Wextra",
-           "-Wno-unused-parameter", f"-I{_headers()}", "-o", str(out),
-           str(SOURCES / "hydro_core.c"), str(SOURCES / f"fmi{fmi}.c"), "-lm", "-static-libgcc"]
-    done = subprocess.run(cmd, capture_output=True, text=True)
-    if done.returncode:
-        raise NativeFMUError(f"compiling the native FMU failed:\n{' '.join(cmd)}\n{done.stderr}")
+    sources = [SOURCES / "hydro_core.c", SOURCES / f"fmi{fmi}.c"]
+    flags = ["-std=c99", "-O2", "-shared", "-fPIC", "-fvisibility=hidden", "-Wall", "-Wextra", "-Wno-unused-parameter",
+             f"-I{_headers()}"]
+    version = subprocess.run([cc, "--version"], capture_output=True, text=True).stdout
+    digest = hashlib.sha256("\0".join([cc, version, *flags, "-lm", "-static-libgcc"]).encode())
+    for path in sorted([*SOURCES.glob("*.[ch]"), *_headers().glob(f"fmi{fmi}*.h")]):
+        digest.update(path.name.encode() + b"\0" + path.read_bytes())
+    cached = binary_cache() / f"fmi{fmi}-{digest.hexdigest()[:32]}.so"
+    if not cached.is_file():
+        def build(tmp: str) -> None:
+            cmd = [cc, *flags, "-o", tmp, *map(str, sources), "-lm", "-static-libgcc"]
+            done = subprocess.run(cmd, capture_output=True, text=True)
+            if done.returncode:
+                raise NativeFMUError(f"compiling the native FMU failed:\n{' '.join(cmd)}\n{done.stderr}")
+        write_atomic(cached, build)
+    shutil.copyfile(cached, out)
 
 
 def _hdb_sources(scene, scene_path: Path, progress: bool) -> tuple[dict, dict]:
