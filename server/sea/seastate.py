@@ -56,6 +56,7 @@ class _Spectrum:
     def __init__(self, system: WaveSystem, key: str):
         self.system, self.key = system, key
         self.mean = float(np.deg2rad(system.direction))
+        self._cos2s: tuple[np.ndarray, np.ndarray] | None = None   # cos-2s sectors (directions), computed once
         if system.spectrum != "table":
             make, _ = SPECTRA[system.spectrum]
             self.s1 = make(system.hs, system.tp, system.gamma)
@@ -88,8 +89,10 @@ class _Spectrum:
             if not np.any(rows > 0):
                 return np.full(n, self.mean), np.full(n, 1.0 / n)
             return equal_energy_sectors(self.theta, rows, n)
-        if sy.spreading == "cos2s":
-            return cos2s_directions(10.0 if sy.s is None else float(sy.s), n, self.mean)
+        if sy.spreading == "cos2s":       # one s: the same sectors at every frequency, computed once
+            if self._cos2s is None or self._cos2s[0].size != n:
+                self._cos2s = cos2s_directions(10.0 if sy.s is None else float(sy.s), n, self.mean)
+            return self._cos2s
         s_max = 10.0 if sy.s_max is None else float(sy.s_max)
         x = w / self.peak
         s = s_max * (x ** 5 if x <= 1.0 else x ** -2.5)
