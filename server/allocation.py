@@ -45,11 +45,19 @@ _OPAQUE = (str, bytes, bytearray, int, float, complex, bool, type(None), type, t
            types.BuiltinFunctionType, types.MethodType)
 
 
+def _holds_data(cls: type) -> bool:
+    """Whether the attributes of an object of ``cls`` are walked by :func:`footprint`: hydrolink's
+    own classes, scipy's (interpolators, filters) and any dataclass; not a compiler's or a
+    library's internals (numba's dispatchers reach ~10,000 objects of its type system)."""
+    module = cls.__module__ or ""
+    return module.startswith(("hydrolink.", "scipy.")) or hasattr(cls, "__dataclass_fields__")
+
+
 def footprint(obj: Any, max_objects: int = 200_000) -> int:
     """The bytes of the numpy arrays and xarray datasets reachable from ``obj`` (its attributes,
     containers, their attributes...), each counted once, views by their base: what a session's
     model holds in memory, to within the Python objects around them. At most ``max_objects``
-    objects are visited."""
+    objects are visited; the attributes only of the objects :func:`_holds_data` names."""
     seen: set[int] = set()
     counted: set[int] = set()   # the array bases already added
     total = 0
@@ -74,7 +82,7 @@ def footprint(obj: Any, max_objects: int = 200_000) -> int:
             stack.extend(o.values())
         elif isinstance(o, (list, tuple, set, frozenset)):
             stack.extend(o)
-        else:   # an object: its attributes (some wrappers' __dict__ is no dict: skipped)
+        elif _holds_data(type(o)):   # an object: its attributes (some wrappers' __dict__ is no dict: skipped)
             attrs = getattr(o, "__dict__", None)
             if isinstance(attrs, dict):
                 stack.extend(attrs.values())

@@ -58,15 +58,28 @@ def test_require_size_counts_astronomical_shapes_without_overflow():
 
 def test_footprint_counts_each_array_once_views_by_their_base():
     """footprint: the bytes of the arrays and datasets reachable from an object graph, written out
-    here: shared arrays and views of one base count once, datasets by their nbytes, cycles end."""
+    here: shared arrays and views of one base count once, datasets by their nbytes, cycles end; the
+    attributes of dataclasses (and hydrolink's and scipy's classes) are walked, a library's
+    internals are not."""
+    from dataclasses import dataclass, field
+    from typing import Any
+
     import numpy as np
     import xarray as xr
 
     from hydrolink.server.allocation import footprint
 
+    @dataclass(eq=False)
     class Node:
-        def __init__(self, **kw):
-            self.__dict__.update(kw)
+        views: Any = None
+        table: Any = None
+        ds: Any = None
+        nested: Any = None
+        deeper: Any = None
+        text: str = ""
+        parent: Any = None
+        wrapper: Any = None
+        other: Any = field(default=None)
 
     big = np.zeros((100, 50))                     # 40,000 bytes
     small = np.ones(10, np.float32)               # 40 bytes
@@ -75,6 +88,7 @@ def test_footprint_counts_each_array_once_views_by_their_base():
                 nested=Node(deeper=(big[::2],), text="no array"))
     root.nested.parent = root                      # a cycle
 
+    @dataclass(eq=False)
     class Wrapper:                                 # a compiled-library wrapper whose __dict__ is no dict
         __dict__ = property(lambda self: object())
         __slots__ = "value"
@@ -82,5 +96,13 @@ def test_footprint_counts_each_array_once_views_by_their_base():
     wrapped = Wrapper()
     wrapped.value = np.zeros(3)                    # 24 bytes, through its slot
     root.wrapper = wrapped
+
+    class Internals:                               # a library's object (numba's dispatchers): not walked
+        __module__ = "numba.core.types"
+
+        def __init__(self):
+            self.cache = np.zeros(1000)
+
+    root.other = Internals()
     assert footprint(root) == big.nbytes + small.nbytes + ds.nbytes + wrapped.value.nbytes
     assert footprint(Node()) == 0
