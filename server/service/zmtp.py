@@ -8,8 +8,11 @@ limit (bytes over all frames, or frames) it keeps nothing more of it and drops t
 arrives, and the message is handed on as its size and count alone (answered with error 1). The
 bytes kept of messages still arriving, over all connections, are bounded by one :class:`Budget`:
 a message whose next bytes would pass it is dropped the same way and handed on as refused for
-memory (error 14). A large frame is received into a buffer whose pages are touched only as its
-bytes arrive, so a header claiming 64 MiB costs nothing until 64 MiB come.
+memory (error 14). Messages of at most FREE_BYTES (64 KiB: steps, pings) are kept outside the
+budget (each connection has at most one arriving), so an attacker holding the budget with slow
+large messages cannot get another session's steps refused. A large frame is received into a
+buffer whose pages are touched only as its bytes arrive: a header claiming 64 MiB costs nothing
+until 64 MiB come.
 
 The server's own side: :data:`GREETING` (ZMTP 3.1, mechanism NULL) followed by :func:`ready`
 (Socket-Type ROUTER); libzmq peers (DEALER, REQ) see a ROUTER. Commands after the handshake:
@@ -32,6 +35,8 @@ MORE, LONG, COMMAND = 0x01, 0x02, 0x04
 RESERVED = 0xF8               # flag bits that must be zero
 MAX_COMMAND_BYTES = 4096      # a READY of a 255-byte identity and its socket type is < 300 bytes
 COPY_BELOW = 64 * 2**10       # frames smaller than this are handed on as bytes, larger as a memoryview
+FREE_BYTES = 64 * 2**10       # a message of at most this many bytes is kept outside the budget: a step or a
+                              # ping is never refused for memory (each connection holds one message arriving)
 PEER_TYPES = (b"DEALER", b"REQ")   # the sockets the protocol's clients use (SPEC §1)
 
 
@@ -119,7 +124,8 @@ class Message:
     size: int = 0
     count: int = 0
     refused: str | None = None
-    held: int = 0   # of the budget
+    kept: int = 0   # bytes kept so far
+    held: int = 0   # of them, counted in the budget (all once past FREE_BYTES, else none)
 
 
 class Reader:
@@ -264,11 +270,14 @@ class Reader:
 
     def _keep(self, chunk: memoryview) -> None:
         n = len(chunk)
+        msg = self._msg
         if not self._flags & COMMAND:
-            if not self.budget.take(n):
-                self._refuse("memory")
-                return
-            self._msg.held += n
+            msg.kept += n
+            if msg.kept > FREE_BYTES:   # from here on all of the message counts
+                if not self.budget.take(msg.kept - msg.held):
+                    self._refuse("memory")
+                    return
+                msg.held = msg.kept
         self._body[self._filled:self._filled + n] = chunk
         self._filled += n
 
@@ -276,7 +285,7 @@ class Reader:
         """Keep nothing more of the message arriving (``why``: Message.refused)."""
         msg = self._msg
         self.budget.give(msg.held)
-        msg.held, msg.refused, msg.frames = 0, why, []
+        msg.held, msg.kept, msg.refused, msg.frames = 0, 0, why, []
         self._body = None
 
     def _frame_done(self, done: list[Message]) -> None:
