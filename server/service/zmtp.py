@@ -11,8 +11,8 @@ a message whose next bytes would pass it is dropped the same way and handed on a
 memory (error 14). Messages of at most FREE_BYTES (64 KiB: steps, pings) are kept outside the
 budget (each connection has at most one arriving), so an attacker holding the budget with slow
 large messages cannot get another session's steps refused. A large frame is received into a
-buffer whose pages are touched only as its bytes arrive: a header claiming 64 MiB costs nothing
-until 64 MiB come.
+mapping of its own whose pages are touched only as its bytes arrive (a header claiming 64 MiB costs
+nothing until 64 MiB come) and which goes back to the system when the message is freed.
 
 The server's own side: :data:`GREETING` (ZMTP 3.1, mechanism NULL) followed by :func:`ready`
 (Socket-Type ROUTER); libzmq peers (DEALER, REQ) see a ROUTER. Commands after the handshake:
@@ -24,7 +24,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import numpy as np
+import mmap
 
 GREETING = (b"\xff" + bytes(8) + b"\x7f"   # signature (padding, then 0x7F)
             + b"\x03\x01"                  # version 3.1
@@ -265,8 +265,8 @@ class Reader:
             self._body = None
         elif size < COPY_BELOW:
             self._body = bytearray(size)
-        else:   # pages touched only as bytes arrive
-            self._body = memoryview(np.empty(size, np.uint8)).cast("B")
+        else:   # an anonymous mapping of its own: pages touched only as bytes arrive, 4 KiB at a time
+            self._body = memoryview(mmap.mmap(-1, size))   # (numpy's large arrays ask for 2 MiB huge pages)
 
     def _keep(self, chunk: memoryview) -> None:
         n = len(chunk)
