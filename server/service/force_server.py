@@ -264,8 +264,9 @@ class ForceServer:
         except zmq.Again:
             return
         except transport.ReceiveMemoryError as exc:   # the rest of that message was dropped
-            route, count = [exc.identity], 2
+            route, count, why = [exc.identity], 2, str(exc)
         else:
+            why = "the server ran out of memory handling this message"
             route = frames[:1]
             try:
                 self._serve_one(frames, size, count)
@@ -273,11 +274,10 @@ class ForceServer:
             except MemoryError:
                 pass   # answered below, once the exception (and what its traceback holds) is gone
             del frames
-        self._error_log.log("memory", logging.ERROR, "out of memory receiving or handling a message: refused busy")
+        self._error_log.log("memory", logging.ERROR, "refused a message busy: %s", why)
         if count >= 2 and 0 < len(route[0]) <= codec.MAX_ROUTING_FRAME_BYTES:
             self._send(route, codec.error_reply(next(self._ids), None, None, Code.BUSY, None,
-                                                "the server ran out of memory handling this message; send it "
-                                                "again later", limit="memory"))
+                                                f"{why}; send it again later", limit="memory"))
 
     def _serve_one(self, frames: list[bytes | memoryview], size: int | None = None, count: int | None = None) -> None:
         """Answer one received message: ``frames`` as kept by transport.recv_bounded (all of them

@@ -42,6 +42,15 @@ def heap_returns_large_blocks() -> bool:
     return bool(mallopt is not None and mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD))
 
 
+class OverBudget(transport.ReceiveMemoryError):
+    """A message dropped because the bytes of the messages arriving at once passed the budget."""
+
+    def __init__(self, identity: bytes, budget: int):
+        super().__init__(identity)
+        self.args = (f"the messages arriving at the server at once would hold over its {budget / 2**20:g} MiB "
+                     "for messages being received (SPEC §1)",)
+
+
 class _Peer:
     """One connection: its ZMTP reader and when it was last heard from."""
     __slots__ = ("reader", "heard")
@@ -50,7 +59,27 @@ class _Peer:
         self.reader, self.heard = reader, now
 
 
-class StreamFront:
+class _Front:
+    """What both front ends do with their socket as it is."""
+
+    socket: zmq.Socket
+
+    @property
+    def address(self) -> str:
+        return self.socket.getsockopt_string(zmq.LAST_ENDPOINT)
+
+    @property
+    def closed(self) -> bool:
+        return self.socket.closed
+
+    def bind(self, endpoint: str) -> None:
+        self.socket.bind(endpoint)
+
+    def close(self, linger: int = 0) -> None:
+        self.socket.close(linger)
+
+
+class StreamFront(_Front):
     """The ZMTP front end on a ``ZMQ_STREAM`` socket (module docstring). ``max_bytes`` /
     ``max_frames``: a message's limits, its identity frame included (as transport.recv_bounded
     counts them); ``budget``: the bytes kept of messages still arriving, over all connections."""
@@ -71,26 +100,15 @@ class StreamFront:
     # ------------------------------------------------------------ the socket's interface
 
     @property
-    def address(self) -> str:
-        return self.socket.getsockopt_string(zmq.LAST_ENDPOINT)
-
-    @property
-    def closed(self) -> bool:
-        return self.socket.closed
-
-    @property
     def pending(self) -> bool:
         """Messages already read (a read can complete several): take them before waiting."""
         return bool(self._ready)
-
-    def bind(self, endpoint: str) -> None:
-        self.socket.bind(endpoint)
 
     def close(self, linger: int = 0) -> None:
         for peer in self._peers.values():
             peer.reader.close()
         self._peers.clear()
-        self.socket.close(linger)
+        super().close(linger)
 
     def set_timeout(self, ms: int) -> None:
         """How long :meth:`recv` waits for a message (ms)."""
@@ -100,8 +118,8 @@ class StreamFront:
     def recv(self) -> tuple[list[bytes | memoryview], int, int]:
         """One message: (its frames, identity first — the identity alone when it was over the
         limits —, its size in bytes, its number of frames), as transport.recv_bounded. zmq.Again
-        when none completed within the timeout; transport.ReceiveMemoryError(identity) for one
-        dropped because the bytes arriving passed the budget (error 14 ``memory``)."""
+        when none completed within the timeout; OverBudget (a transport.ReceiveMemoryError naming the
+        identity) for one dropped because the bytes arriving passed the budget (error 14 ``memory``)."""
         started = None
         flags = 0
         while not self._ready:
@@ -121,7 +139,7 @@ class StreamFront:
             flags = zmq.NOBLOCK
         frames, size, count, refused = self._ready.popleft()
         if refused == "memory":
-            raise transport.ReceiveMemoryError(frames[0])
+            raise OverBudget(frames[0], self.budget.limit)
         return frames, size, count
 
     def send_multipart(self, frames: list[bytes | memoryview], flags: int = zmq.NOBLOCK) -> None:
@@ -193,7 +211,7 @@ class StreamFront:
                 self._write(ident, zmtp.ping(ttl))
 
 
-class RouterFront:
+class RouterFront(_Front):
     """libzmq's ROUTER, for CURVE (module docstring), behind the same interface as StreamFront."""
 
     pending = False
@@ -208,20 +226,6 @@ class RouterFront:
         self.socket.setsockopt(zmq.RCVHWM, rcvhwm)
         self.socket.setsockopt(zmq.ROUTER_MANDATORY, 0)
         transport.apply_heartbeats(self.socket)   # a dead client's connection is dropped (SPEC §1)
-
-    @property
-    def address(self) -> str:
-        return self.socket.getsockopt_string(zmq.LAST_ENDPOINT)
-
-    @property
-    def closed(self) -> bool:
-        return self.socket.closed
-
-    def bind(self, endpoint: str) -> None:
-        self.socket.bind(endpoint)
-
-    def close(self, linger: int = 0) -> None:
-        self.socket.close(linger)
 
     def set_timeout(self, ms: int) -> None:
         self.socket.setsockopt(zmq.RCVTIMEO, ms)
