@@ -208,10 +208,8 @@ def serve(bind: str, session_timeout: float, cpu: int | None, curve_secret: Path
     from hydrolink.server.hdb.store import ContentStore, default_folder
     from hydrolink.server.processes import start_children
     from hydrolink.server.service.force_server import ForceServer
-    from hydrolink.server.service.frontend import heap_returns_large_blocks
 
     _pin_to_cpu(cpu)
-    heap_returns_large_blocks()   # freed messages go back to the system (docs/architecture.md)
     try:
         key = _hmac_key(key_file)
     except _UserError as exc:   # a bad --key-file: one line naming the file and why, status 2 (a bad option)

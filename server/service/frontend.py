@@ -15,8 +15,6 @@ identity to answer to first, ``send_multipart(frames)`` to an identity, ``set_ti
 
 from __future__ import annotations
 
-import ctypes
-import ctypes.util
 import time
 from collections import deque
 
@@ -28,18 +26,6 @@ from hydrolink.server.service import zmtp
 STREAM_RCVHWM = 16        # chunks (of at most 8 KiB) libzmq holds per connection before it stops reading it
 PING_AFTER_S = 1.0        # a connection silent this long is sent a PING
 SWEEP_S = 0.25            # how often silent connections are looked for
-M_MMAP_THRESHOLD = -3     # glibc mallopt parameter (malloc.h)
-MMAP_THRESHOLD = 256 * 2**10
-
-
-def heap_returns_large_blocks() -> bool:
-    """Make glibc serve every block from 256 KiB on with its own mapping, returned to the system
-    when freed (``mallopt(M_MMAP_THRESHOLD)``; glibc's default raises this threshold to the size of
-    each large block freed, up to 32 MiB, after which freed 30 MiB messages stay in the heap).
-    For ``hydrolink serve``'s process; False where the C library has no ``mallopt``."""
-    libc = ctypes.CDLL(ctypes.util.find_library("c") or None)
-    mallopt = getattr(libc, "mallopt", None)
-    return bool(mallopt is not None and mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD))
 
 
 class OverBudget(transport.ReceiveMemoryError):
