@@ -175,7 +175,8 @@ class StreamFront(_Front):
         if peer is not None:
             peer.reader.close()
         if why is not None:
-            self._write(ident, zmtp.command(b"ERROR", bytes([min(len(why), 255)]) + why.encode()[:255]))
+            reason = why.encode()[:255]
+            self._write(ident, zmtp.command(b"ERROR", bytes([len(reason)]) + reason))
             self._write(ident, b"")   # a ZMQ_STREAM socket closes a connection sent an empty frame
 
     def _write(self, ident: bytes, data: bytes) -> bool:
@@ -186,12 +187,13 @@ class StreamFront(_Front):
             return False
 
     def _sweep(self, now: float) -> None:
-        """Drop the connections silent for the link timeout; PING those silent for a second."""
+        """Drop the connections silent for the link timeout; PING those silent for a second. A
+        ZMTP 3.0 peer (libzmq 4.1) has no PING to answer: its silence is not held against it."""
         self._next_sweep = now + SWEEP_S
         ttl = int(self.link_timeout * 10)
         for ident, peer in list(self._peers.items()):
             silent = now - peer.heard
-            if silent > self.link_timeout:
+            if silent > self.link_timeout and peer.reader.version != 0:
                 self._drop(ident, "silent for the link timeout")
             elif silent > PING_AFTER_S and peer.reader.version and peer.reader.ready:
                 self._write(ident, zmtp.ping(ttl))
