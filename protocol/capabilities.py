@@ -41,7 +41,7 @@ FEATURES: dict[str, Feature] = {
     "nonlinear_froude_krylov": Feature("nonlinear Froude-Krylov forces",
                                        ("nonlinear_hydrostatic", "nonlinear_froude_krylov")),
     "second_order": Feature("second-order wave forces (mean and slow drift)", ("drift",)),
-    # no reply field of its own: it changes what ``excitation`` holds (SPEC §5.2, revision 1.12)
+    # no reply field of its own: it changes what ``excitation`` holds (SPEC §5.2, revision 1.10)
     "passive_yaw": Feature("passive yaw (the excitation at the body's instantaneous heading)", ()),
 }
 

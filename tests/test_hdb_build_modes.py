@@ -175,7 +175,7 @@ def test_a_displacement_table_mode_reads_per_vertex_and_a_wrong_length_is_an_err
 
 
 def test_an_hdb_with_modes_crosses_the_wire_with_its_mode_names():
-    """SPEC 1.13: the HDB map carries ``modes``; the map read back equals the HDB, labels and all;
+    """SPEC 1.11: the HDB map carries ``modes``; the map read back equals the HDB, labels and all;
     a ``modes`` field naming an unknown body is an error naming it."""
     from hydrolink.protocol.hdb.wire import from_wire, to_wire
 

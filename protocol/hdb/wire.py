@@ -58,7 +58,7 @@ def to_wire(ds: xr.Dataset) -> dict:
     if hdb_warnings(ds):
         out["attrs"][WARNINGS_ATTR] = list(hdb_warnings(ds))
     modes = hdb_dofs(ds).mode_map()
-    if modes:                                  # generalized modes (SPEC 1.13): only when a body has some
+    if modes:                                  # generalized modes (SPEC 1.11): only when a body has some
         out["modes"] = {body: list(names) for body, names in modes.items()}
     return out
 

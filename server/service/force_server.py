@@ -33,6 +33,7 @@ from hydrolink.server.service.controllers import ControlHub, join_token, token_m
 from hydrolink.server.errors import ModelError
 from hydrolink.server.hdb.file_set import FileSetReader
 from hydrolink.server.hdb.store import HASH, ContentStore, ContentTooLarge, default_folder
+from hydrolink.server.service import frontend
 from hydrolink.server.service.log_limit import LimitedLog, limit_lines
 from hydrolink.server.service.session import PlantBuilder, Session, build_model
 from hydrolink.server.service.setup_workers import SetupWorkers
@@ -51,6 +52,8 @@ TOMBSTONES = 1000  # remembered closed sessions, for a helpful error 7
 RCVHWM = 4         # whole messages ZeroMQ queues per client before it stops reading that connection (SPEC §1)
 IO_THREADS = 2     # ZeroMQ I/O threads of a server's own context: a client streaming a huge message into
                    # one does not hold up the others' small ones as much (bench_attacks: p99 28-48 -> 5-6 ms)
+RECEIVE_BUDGET = 128 * 2**20   # the bytes kept of messages arriving at once, over all connections, and at least
+                               # two message limits (SPEC §1)
 MAX_QUEUED = 64    # requests held behind a session's deferred step (SPEC §1); their bytes: the message limit
 LOCAL_ROUTE = [b""]   # a polled server's own caller: a ROUTER never gives a peer an empty identity
 POLLED_LINGER_MS = 500   # a polled server's last replies (its controllers' stop) get this long to leave at close
@@ -127,33 +130,31 @@ class ForceServer:
         self._own_context = context is None and bind is not None
         self._security = None  # CURVE (protocol/security.py)
         self._ctx = context
-        self._sock: zmq.Socket | None = None
+        self._sock: frontend.StreamFront | frontend.RouterFront | None = None
         self._address = IN_PROCESS
         if bind is not None:
             self._ctx = context or zmq.Context(io_threads=1 if polled else IO_THREADS)   # polled: a run's own
-            self._sock = self._ctx.socket(zmq.ROUTER)
-            self._sock.setsockopt(zmq.LINGER, 0)
-            # per frame: a frame up to twice the limit is received and refused by size (_over_limits),
-            # one beyond it drops its connection; each client's queue holds at most RCVHWM messages
-            self._sock.setsockopt(zmq.MAXMSGSIZE, codec.frame_cap(max_message_bytes))
-            self._sock.setsockopt(zmq.RCVHWM, RCVHWM)
-            self._sock.setsockopt(zmq.ROUTER_MANDATORY, 0)
-            transport.apply_heartbeats(self._sock)   # a dead client's connection is dropped (SPEC §1)
-            self._sock.setsockopt(zmq.RCVTIMEO, POLL_MS)
-            if curve_secret is not None or curve_clients is not None:
+            secure = curve_secret is not None or curve_clients is not None
+            # CURVE: libzmq's ROUTER (only authorised keys send); else the ZMTP front end that bounds a
+            # message while it arrives (server/service/frontend.py, SPEC §1)
+            self._sock = (frontend.RouterFront(self._ctx, max_message_bytes, codec.MAX_ROUTING_FRAMES + 1, RCVHWM)
+                          if secure else frontend.StreamFront(self._ctx, max_message_bytes, codec.MAX_ROUTING_FRAMES + 1,
+                                                              max(RECEIVE_BUDGET, 2 * max_message_bytes)))
+            self._sock.set_timeout(POLL_MS)
+            if secure:
                 from hydrolink.protocol.security import CurveKeyError, ServerSecurity
                 if curve_secret is None or curve_clients is None:
                     self._sock.close(0)
                     raise CurveKeyError("CURVE needs both the server's secret key file and the directory of "
                                         "allowed client keys")
                 try:
-                    self._security = ServerSecurity(self._ctx, self._sock, curve_secret, curve_clients,
+                    self._security = ServerSecurity(self._ctx, self._sock.socket, curve_secret, curve_clients,
                                                     LimitedLog(logging.getLogger("hydrolink.server.auth")))
                 except Exception:
                     self._sock.close(0)
                     raise
             self._sock.bind(bind)
-            self._address = self._sock.getsockopt_string(zmq.LAST_ENDPOINT)
+            self._address = self._sock.address
         self.session_timeout = float(session_timeout)
         self.max_message_bytes = int(max_message_bytes)
         self._store = store
@@ -240,7 +241,7 @@ class ForceServer:
         absent, SPEC §5.7, comes back with its next request). At most MAX_QUEUED messages a call:
         a flood on the socket delays the run's step by that many, never holds it."""
         for _ in range(MAX_QUEUED):
-            if not self._sock.getsockopt(zmq.EVENTS) & zmq.POLLIN:
+            if not self._sock.ready():
                 break
             self._receive()
         if self._hubs:
@@ -286,20 +287,20 @@ class ForceServer:
         cap = SETUP_POLL_MS if self._setups else POLL_MS
         ms = cap if left >= cap / 1000 else max(1, int(left * 1000))
         if ms != self._rcv_ms:
-            self._sock.setsockopt(zmq.RCVTIMEO, ms)
+            self._sock.set_timeout(ms)
             self._rcv_ms = ms
 
     def _receive(self) -> None:
-        """Receive one message, bounded (SPEC §1: transport.recv_bounded), and answer it. A
+        """Receive one message, bounded (SPEC §1: the front end's recv), and answer it. A
         MemoryError on the way is that message's error 14 (``limit`` "memory"), never the loop's end."""
         try:
-            frames, size, count = transport.recv_bounded(self._sock, self.max_message_bytes,
-                                                         codec.MAX_ROUTING_FRAMES + 1)
+            frames, size, count = self._sock.recv()
         except zmq.Again:
             return
         except transport.ReceiveMemoryError as exc:   # the rest of that message was dropped
-            route, count = [exc.identity], 2
+            route, count, why = [exc.identity], 2, str(exc)
         else:
+            why = "the server ran out of memory handling this message"
             route = frames[:1]
             try:
                 self._serve_one(frames, size, count)
@@ -307,11 +308,10 @@ class ForceServer:
             except MemoryError:
                 pass   # answered below, once the exception (and what its traceback holds) is gone
             del frames
-        self._error_log.log("memory", logging.ERROR, "out of memory receiving or handling a message: refused busy")
+        self._error_log.log("memory", logging.ERROR, "refused a message busy: %s", why)
         if count >= 2 and 0 < len(route[0]) <= codec.MAX_ROUTING_FRAME_BYTES:
             self._send(route, codec.error_reply(next(self._ids), None, None, Code.BUSY, None,
-                                                "the server ran out of memory handling this message; send it "
-                                                "again later", limit="memory"))
+                                                f"{why}; send it again later", limit="memory"))
 
     def _serve_one(self, frames: list[bytes | memoryview], size: int | None = None, count: int | None = None) -> None:
         """Answer one received message: ``frames`` as kept by transport.recv_bounded (all of them
@@ -722,13 +722,13 @@ class ForceServer:
     def _poll_workers(self) -> None:
         """Wait for the next request or a worker's answer (whichever comes first) and handle it."""
         poller = zmq.Poller()
-        poller.register(self._sock, zmq.POLLIN)
+        poller.register(self._sock.socket, zmq.POLLIN)
         for fd in self._flying:
             poller.register(fd, zmq.POLLIN)
-        ready = dict(poller.poll(self._rcv_ms))
+        ready = dict(poller.poll(0 if self._sock.pending else self._rcv_ms))
         for fd in [fd for fd in self._flying if fd in ready]:
             self._worker_answer(self._flying.pop(fd))
-        if self._sock in ready:
+        if self._sock.socket in ready or self._sock.pending:
             self._receive()
 
     def _worker_answer(self, s: WorkerSession) -> None:

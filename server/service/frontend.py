@@ -1,0 +1,237 @@
+"""Where the force server's messages come in and its replies go out (SPEC §1): one object with the
+interface the server's loop uses — ``recv()`` of one message as (frames kept, size, count) with the
+identity to answer to first, ``send_multipart(frames)`` to an identity, ``set_timeout(ms)``, and
+``socket`` / ``pending`` to wait on it beside other file descriptors.
+
+- :class:`StreamFront` (no CURVE): a ``ZMQ_STREAM`` socket whose bytes this process reads as ZMTP
+  itself (server/service/zmtp.py), so every message is bounded while it arrives, frame by frame
+  (libzmq's ROUTER hands a multipart message over only once all of it is in memory). Peers are
+  unmodified libzmq DEALER or REQ sockets. ZMTP heartbeats: a PING answered with PONG; a peer
+  silent for a second is sent a PING (ZMTP 3.1 peers), one silent for the link timeout is dropped.
+- :class:`RouterFront` (CURVE, ``serve --curve-secret``): libzmq's ROUTER, whose CURVE handshake
+  and ZAP authentication run before any message frame is taken, so only an authorised key can send
+  at all; its messages are bounded as libzmq allows (transport.recv_bounded, SPEC §9).
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+
+import zmq
+
+from hydrolink.protocol import codec, transport
+from hydrolink.server.service import zmtp
+
+STREAM_RCVHWM = 16        # chunks (of at most 8 KiB) libzmq holds per connection before it stops reading it
+PING_AFTER_S = 1.0        # a connection silent this long is sent a PING
+SWEEP_S = 0.25            # how often silent connections are looked for
+
+
+class OverBudget(transport.ReceiveMemoryError):
+    """A message dropped because the bytes of the messages arriving at once passed the budget."""
+
+    def __init__(self, identity: bytes, budget: int):
+        super().__init__(identity)
+        self.args = (f"the messages arriving at the server at once would hold over its {budget / 2**20:g} MiB "
+                     "for messages being received (SPEC §1)",)
+
+
+class _Peer:
+    """One connection: its ZMTP reader and when it was last heard from."""
+    __slots__ = ("reader", "heard")
+
+    def __init__(self, reader: zmtp.Reader, now: float):
+        self.reader, self.heard = reader, now
+
+
+class _Front:
+    """What both front ends do with their socket as it is."""
+
+    socket: zmq.Socket
+
+    @property
+    def address(self) -> str:
+        return self.socket.getsockopt_string(zmq.LAST_ENDPOINT)
+
+    @property
+    def closed(self) -> bool:
+        return self.socket.closed
+
+    def bind(self, endpoint: str) -> None:
+        self.socket.bind(endpoint)
+
+    def close(self, linger: int = 0) -> None:
+        self.socket.close(linger)
+
+
+class StreamFront(_Front):
+    """The ZMTP front end on a ``ZMQ_STREAM`` socket (module docstring). ``max_bytes`` /
+    ``max_frames``: a message's limits, its identity frame included (as transport.recv_bounded
+    counts them); ``budget``: the bytes kept of messages still arriving, over all connections."""
+
+    def __init__(self, ctx: zmq.Context, max_bytes: int, max_frames: int, budget: int,
+                 link_timeout: float = transport.LINK_TIMEOUT_S):
+        self.max_bytes, self.max_frames = max_bytes, max_frames
+        self.budget = zmtp.Budget(budget)
+        self.link_timeout = float(link_timeout)
+        self.socket = ctx.socket(zmq.STREAM)
+        self.socket.setsockopt(zmq.LINGER, 0)
+        self.socket.setsockopt(zmq.RCVHWM, STREAM_RCVHWM)
+        self._peers: dict[bytes, _Peer] = {}
+        self._ready: deque[tuple[list, int, int, str | None]] = deque()
+        self._timeout_s = 0.05
+        self._next_sweep = time.monotonic()
+
+    # ------------------------------------------------------------ the socket's interface
+
+    @property
+    def pending(self) -> bool:
+        """Messages already read (a read can complete several): take them before waiting."""
+        return bool(self._ready)
+
+    def ready(self) -> bool:
+        """Whether a message can be taken now without waiting: what has arrived is read (never
+        waiting) and parsed first."""
+        while not self._ready and self.socket.getsockopt(zmq.EVENTS) & zmq.POLLIN:
+            ident, data = self.socket.recv_multipart(zmq.NOBLOCK)
+            self._take(ident, data, time.monotonic())
+        return bool(self._ready)
+
+    def close(self, linger: int = 0) -> None:
+        for peer in self._peers.values():
+            peer.reader.close()
+        self._peers.clear()
+        super().close(linger)
+
+    def set_timeout(self, ms: int) -> None:
+        """How long :meth:`recv` waits for a message (ms)."""
+        self.socket.setsockopt(zmq.RCVTIMEO, ms)
+        self._timeout_s = ms / 1000
+
+    def recv(self) -> tuple[list[bytes | memoryview], int, int]:
+        """One message: (its frames, identity first — the identity alone when it was over the
+        limits —, its size in bytes, its number of frames), as transport.recv_bounded. zmq.Again
+        when none completed within the timeout; OverBudget (a transport.ReceiveMemoryError naming the
+        identity) for one dropped because the bytes arriving passed the budget (error 14 ``memory``)."""
+        started = None
+        flags = 0
+        while not self._ready:
+            try:
+                ident, data = self.socket.recv_multipart(flags)
+            except zmq.Again:   # nothing (more) now
+                if time.monotonic() >= self._next_sweep:
+                    self._sweep(time.monotonic())
+                raise
+            now = time.monotonic()
+            self._take(ident, data, now)
+            if now >= self._next_sweep:
+                self._sweep(now)
+            started = started or now
+            if now - started > self._timeout_s:
+                raise zmq.Again()
+            flags = zmq.NOBLOCK
+        frames, size, count, refused = self._ready.popleft()
+        if refused == "memory":
+            raise OverBudget(frames[0], self.budget.limit)
+        return frames, size, count
+
+    def send_multipart(self, frames: list[bytes | memoryview], flags: int = zmq.NOBLOCK) -> None:
+        """Send ``frames[1:]`` as one message to the connection ``frames[0]``; a reply to a
+        connection that is gone is dropped (as a ROUTER does). zmq.Again when the connection's
+        queue is full."""
+        if frames[0] not in self._peers:
+            return
+        self.socket.send_multipart([frames[0], zmtp.encode(frames[1:])], flags)
+
+    # ------------------------------------------------------------ connections
+
+    def _take(self, ident: bytes, data: bytes, now: float) -> None:
+        """A read from connection ``ident`` (empty: it connected or went away)."""
+        peer = self._peers.get(ident)
+        if not data:
+            if peer is None:
+                self._connect(ident, now)
+            else:
+                self._drop(ident, None)
+            return
+        if peer is None:   # pragma: no cover - libzmq announces every connection (ZMQ_STREAM_NOTIFY)
+            return
+        peer.heard = now
+        try:
+            messages = peer.reader.feed(data)
+        except zmtp.ZmtpError as exc:
+            self._drop(ident, str(exc))
+            return
+        for msg in messages:
+            self._ready.append(([ident, *msg.frames], msg.size + len(ident), msg.count + 1, msg.refused))
+        if peer.reader.replies:
+            for reply in peer.reader.replies:
+                self._write(ident, reply)
+            peer.reader.replies.clear()
+
+    def _connect(self, ident: bytes, now: float) -> None:
+        """A new connection: the server's greeting and READY at once (RFC 23 allows it)."""
+        reader = zmtp.Reader(self.max_bytes - len(ident), self.max_frames - 1, self.budget)
+        if self._write(ident, zmtp.GREETING + zmtp.ready()):
+            self._peers[ident] = _Peer(reader, now)
+
+    def _drop(self, ident: bytes, why: str | None) -> None:
+        """Forget connection ``ident`` and give back what it held; ``why`` (it broke ZMTP): an
+        ERROR command to it, then it is closed."""
+        peer = self._peers.pop(ident, None)
+        if peer is not None:
+            peer.reader.close()
+        if why is not None:
+            reason = why.encode()[:255]
+            self._write(ident, zmtp.command(b"ERROR", bytes([len(reason)]) + reason))
+            self._write(ident, b"")   # a ZMQ_STREAM socket closes a connection sent an empty frame
+
+    def _write(self, ident: bytes, data: bytes) -> bool:
+        try:
+            self.socket.send_multipart([ident, data], zmq.NOBLOCK)
+            return True
+        except zmq.ZMQError:   # gone, or its queue full: a PONG or an ERROR is not owed
+            return False
+
+    def _sweep(self, now: float) -> None:
+        """Drop the connections silent for the link timeout; PING those silent for a second. A
+        ZMTP 3.0 peer (libzmq 4.1) has no PING to answer: its silence is not held against it."""
+        self._next_sweep = now + SWEEP_S
+        ttl = int(self.link_timeout * 10)
+        for ident, peer in list(self._peers.items()):
+            silent = now - peer.heard
+            if silent > self.link_timeout and peer.reader.version != 0:
+                self._drop(ident, "silent for the link timeout")
+            elif silent > PING_AFTER_S and peer.reader.version and peer.reader.ready:
+                self._write(ident, zmtp.ping(ttl))
+
+
+class RouterFront(_Front):
+    """libzmq's ROUTER, for CURVE (module docstring), behind the same interface as StreamFront."""
+
+    pending = False
+
+    def __init__(self, ctx: zmq.Context, max_bytes: int, max_frames: int, rcvhwm: int):
+        self.max_bytes, self.max_frames = max_bytes, max_frames
+        self.socket = ctx.socket(zmq.ROUTER)
+        self.socket.setsockopt(zmq.LINGER, 0)
+        # per frame: a frame up to twice the limit is received and refused by size, one beyond it
+        # drops its connection; each client's queue holds at most ``rcvhwm`` messages
+        self.socket.setsockopt(zmq.MAXMSGSIZE, codec.frame_cap(max_bytes))
+        self.socket.setsockopt(zmq.RCVHWM, rcvhwm)
+        self.socket.setsockopt(zmq.ROUTER_MANDATORY, 0)
+        transport.apply_heartbeats(self.socket)   # a dead client's connection is dropped (SPEC §1)
+
+    def set_timeout(self, ms: int) -> None:
+        self.socket.setsockopt(zmq.RCVTIMEO, ms)
+
+    def recv(self) -> tuple[list[bytes | memoryview], int, int]:
+        return transport.recv_bounded(self.socket, self.max_bytes, self.max_frames)
+
+    def ready(self) -> bool:
+        """Whether a message can be taken now without waiting."""
+        return bool(self.socket.getsockopt(zmq.EVENTS) & zmq.POLLIN)
+
+    def send_multipart(self, frames: list[bytes | memoryview], flags: int = zmq.NOBLOCK) -> None:
+        self.socket.send_multipart(frames, flags)
