@@ -10,6 +10,7 @@ import numbers
 import os
 import re
 import shutil
+import signal
 import subprocess
 import sys
 from collections.abc import Mapping, Sequence
@@ -365,3 +366,10 @@ def write_scene(folder: Path, text: str, name: str = "scene.toml") -> Path:
     path = folder / name
     path.write_text(text)
     return path
+
+
+def needs_python_sigint() -> None:
+    """Skip where SIGINT is not Python's KeyboardInterrupt: a process started in the background by a
+    non-interactive shell inherits SIGINT ignored, and Python then leaves it ignored."""
+    if signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+        pytest.skip("SIGINT is ignored in this process (started in the background by a non-interactive shell)")

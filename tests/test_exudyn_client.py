@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from conftest import SPHERE_WATER, regular_waves, scene_toml, sphere_body, write_scene
+from conftest import SPHERE_WATER, needs_python_sigint, regular_waves, scene_toml, sphere_body, write_scene
 
 from hydrolink.clients.lockstep.connection import ServerConnection
 from hydrolink.clients.exudyn.client import RunInterrupted, SimulationDiverged, build_model, run
@@ -279,6 +279,7 @@ def test_killed_run_keeps_what_was_computed(server, sphere, sphere_path, tmp_pat
 
 
 def test_ctrl_c_flushes_and_reraises(server, sphere, sphere_path, tmp_path):
+    needs_python_sigint()
     dt = 0.04
     text = sphere_scene(sphere_path, dt=dt, duration=4000.0, waves=regular_waves(1.0, 4.3, ramp=4.0))
     scene = parse_scene(text)

@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import gc
 import math
+import signal
+import threading
 import time as _time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -387,6 +389,37 @@ class PacedSteps:
         return self.record.report(self.gc.collections, self.gc.seconds)
 
 
+class SigintLatch:
+    """Ctrl-C during a run, never lost: while the loop runs (on the main thread, with Python's own
+    SIGINT handler in place) the handler both raises KeyboardInterrupt, as Python's does, and
+    latches it; :meth:`check`, once an exchange, raises it again if the first was swallowed — a
+    signal that lands in a finalizer (the loop's GC collections run them) is only printed as
+    "Exception ignored" by Python, and the run would go on to its end."""
+
+    def __init__(self) -> None:
+        self.pending = False
+        self._previous: Any = None
+
+    def _handle(self, signum: int, frame: Any) -> None:
+        self.pending = True
+        raise KeyboardInterrupt
+
+    def __enter__(self) -> "SigintLatch":
+        if threading.current_thread() is threading.main_thread() and \
+                signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+            self._previous = signal.signal(signal.SIGINT, self._handle)
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        if self._previous is not None:
+            signal.signal(signal.SIGINT, self._previous)
+            self._previous = None
+
+    def check(self) -> None:
+        if self.pending:
+            raise KeyboardInterrupt
+
+
 def run(loop: Lockstep, scheme: Any, n_exchanges: int, coupling: CouplingReport, *,
         first_timeout: float | None = None,
         hint: Callable[[SimulationDiverged], str] = lambda exc: "", pacer: Pacer | None = None) -> RunSummary:
@@ -404,7 +437,7 @@ def run(loop: Lockstep, scheme: Any, n_exchanges: int, coupling: CouplingReport,
     wall0 = _time.perf_counter()
     init_iterations = 0
     try:
-        with threadpool_limits(limits=1):
+        with threadpool_limits(limits=1), SigintLatch() as sigint:
             x, v, _ = mb.state()
             loop.watch.check(mb, 0, 0.0, 0, "the initial state")
             s = link.sample(0, x, v, timeout=first_timeout)
@@ -413,12 +446,14 @@ def run(loop: Lockstep, scheme: Any, n_exchanges: int, coupling: CouplingReport,
             if paced is None:
                 for e in range(n_exchanges):
                     s = scheme.exchange(loop, e, s)
+                    sigint.check()
             else:
                 paced.begin()
                 for e in range(n_exchanges):
                     paced.release(e)
                     s = scheme.exchange(loop, e, s)
                     paced.done(e)
+                    sigint.check()
     except KeyboardInterrupt:
         t = loop.step * mb.h
         _end(paced)
