@@ -450,3 +450,25 @@ def test_setup_warnings_reach_the_importers_logger(fmi, server, reference_data, 
         assert 3 not in slave.statuses, slave.log                  # no error
     finally:
         slave.close()
+
+
+def test_the_binary_is_compiled_once_and_a_changed_source_compiles_anew(tmp_path, monkeypatch):
+    """compile_binary keeps the compiled library in the binary cache: a second export copies the same
+    bytes without compiling (the cached file is not rewritten), and a changed source (here: a
+    copy of the sources with one comment added) gets a binary of its own."""
+    _needs_compiler()
+    from hydrolink.clients.fmu import native
+
+    monkeypatch.setenv("HYDROLINK_FMU_BINARIES", str(tmp_path / "cache"))
+    native.compile_binary(2, tmp_path / "a.so")
+    (cached,) = (tmp_path / "cache").iterdir()
+    stamp = cached.stat().st_mtime_ns
+    native.compile_binary(2, tmp_path / "b.so")
+    assert (tmp_path / "a.so").read_bytes() == (tmp_path / "b.so").read_bytes() == cached.read_bytes()
+    assert cached.stat().st_mtime_ns == stamp and len(list((tmp_path / "cache").iterdir())) == 1
+    sources = tmp_path / "src"
+    shutil.copytree(native.SOURCES, sources)
+    (sources / "hydro_core.c").write_text((sources / "hydro_core.c").read_text() + "\n/* changed */\n")
+    monkeypatch.setattr(native, "SOURCES", sources)
+    native.compile_binary(2, tmp_path / "c.so")
+    assert len(list((tmp_path / "cache").iterdir())) == 2
