@@ -43,6 +43,23 @@ def _cli(*args: str, cwd: Path, timeout: float = 120) -> subprocess.CompletedPro
     return subprocess.run([*HYDROLINK, *args], cwd=cwd, capture_output=True, text=True, timeout=timeout, env=env)
 
 
+def _cli_here(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    """The command run in this process (click's runner, in ``cwd``), for the paths that end before a
+    run's own work: a subprocess would spend ~2.5 s of CPU importing what this process has loaded.
+    What ``main`` adds (BLAS threads) plays no part there; unexpected exceptions propagate."""
+    from click.testing import CliRunner
+
+    from hydrolink.clients.cli import cli
+
+    here = os.getcwd()
+    os.chdir(cwd)
+    try:
+        r = CliRunner().invoke(cli, list(args), prog_name="hydrolink", catch_exceptions=False)
+    finally:
+        os.chdir(here)
+    return subprocess.CompletedProcess(["hydrolink", *args], r.exit_code, r.stdout, r.stderr)
+
+
 def test_remote_server_run_equals_embedded_run(scene_dir: Path):
     """Deterministic lockstep: the same scene against `hydrolink serve` over TCP equals the embedded run."""
     embedded = run_scene_file(scene_dir / "scene.toml", scene_dir / "embedded.nc", progress=False)
@@ -54,7 +71,7 @@ def test_remote_server_run_equals_embedded_run(scene_dir: Path):
         line = server.stderr.readline()
         match = re.search(r"listening on (tcp://\S+)", line)
         assert match, f"serve printed {line!r}"
-        result = _cli("run", "scene.toml", "-o", "remote.nc", "--server", match.group(1), "--no-progress",
+        result = _cli_here("run", "scene.toml", "-o", "remote.nc", "--server", match.group(1), "--no-progress",
                       cwd=scene_dir)
         assert result.returncode == 0, result.stderr
     finally:
@@ -82,7 +99,7 @@ def test_run_with_hdb_files_uploads_once_and_equals_the_map_run(scene_dir: Path,
             runs = (("files again", ["--hdb-files"]),) if restart else (("map", []), ("files", ["--hdb-files"]))
             for name, flag in runs:
                 out = f"{name.replace(' ', '_')}{int(restart)}.nc"
-                result = _cli("run", "scene.toml", "-o", out, "--server", address, "--no-progress", *flag, cwd=scene_dir)
+                result = _cli_here("run", "scene.toml", "-o", out, "--server", address, "--no-progress", *flag, cwd=scene_dir)
                 assert result.returncode == 0, result.stderr
                 outputs[name, restart] = xr.load_dataset(scene_dir / out)
                 if flag:
@@ -94,7 +111,7 @@ def test_run_with_hdb_files_uploads_once_and_equals_the_map_run(scene_dir: Path,
     for key, ds in outputs.items():
         for name in ("position", "velocity", "excitation_force", "radiation_force", "hydrostatic_force"):
             assert np.array_equal(ref[name].values, ds[name].values), (key, name)
-    assert _cli("run", "scene.toml", "--hdb-files", cwd=scene_dir).stderr.strip().endswith(
+    assert _cli_here("run", "scene.toml", "--hdb-files", cwd=scene_dir).stderr.strip().endswith(
         "--hdb-files is for a remote server (the embedded one reads the files itself): give --server")
 
 
@@ -119,7 +136,7 @@ def test_out_of_bounds_scene_value_is_one_named_line(scene_dir: Path, old, new, 
     """Issue 22: duration = 1e300 printed a 60-line traceback; every bound is the key's named error."""
     assert old in sphere_scene()
     write_scene(scene_dir, sphere_scene().replace(old, new), "huge.toml")
-    result = _cli("run", "huge.toml", cwd=scene_dir)
+    result = _cli_here("run", "huge.toml", cwd=scene_dir)
     assert result.returncode != 0 and "Traceback" not in result.stderr
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"Error: {line}"), lines
@@ -128,7 +145,7 @@ def test_out_of_bounds_scene_value_is_one_named_line(scene_dir: Path, old, new, 
 def test_misspelt_keys_are_each_listed_with_the_closest_valid_key(scene_dir: Path):
     text = sphere_scene().replace("duration = 12.0", "duraton = 12.0").replace("mass = 261800.0", "mas = 261800.0")
     write_scene(scene_dir, text, "typo.toml")
-    result = _cli("run", "typo.toml", cwd=scene_dir)
+    result = _cli_here("run", "typo.toml", cwd=scene_dir)
     assert result.returncode != 0 and "Traceback" not in result.stderr
     lines = result.stderr.strip().splitlines()
     assert lines == ["Error: typo.toml: simulation.duration: required key is missing",
@@ -156,7 +173,7 @@ def test_run_says_what_it_wrote_and_its_headline_figures(scene_dir: Path):
     """`hydrolink run` ends with the file it wrote and the run's headline: over the second half of the
     run, the sphere's most varying translation and rotation (std and max of position - equilibrium),
     figures recomputed here from the file's own series."""
-    result = _cli("run", "scene.toml", "-o", "said.nc", "--no-progress", cwd=scene_dir)
+    result = _cli_here("run", "scene.toml", "-o", "said.nc", "--no-progress", cwd=scene_dir)
     assert result.returncode == 0, result.stderr
     lines = result.stdout.strip().splitlines()
     assert lines[0].startswith("wrote said.nc: 240 steps in "), lines
@@ -179,7 +196,7 @@ def test_run_says_what_it_wrote_and_its_headline_figures(scene_dir: Path):
 def test_missing_files_come_with_the_schema_errors(scene_dir: Path):
     """A bad key and a missing HDB: both in the one error (before: the HDB only once the key was fixed)."""
     write_scene(scene_dir, sphere_scene(hdb="missing.h5", mass=-1.0), "both.toml")
-    result = _cli("run", "both.toml", cwd=scene_dir)
+    result = _cli_here("run", "both.toml", cwd=scene_dir)
     assert result.returncode != 0 and "Traceback" not in result.stderr
     lines = result.stderr.strip().splitlines()
     assert lines[0].startswith("Error: both.toml: bodies[0].mass: Input should be greater than 0"), lines
@@ -188,7 +205,7 @@ def test_missing_files_come_with_the_schema_errors(scene_dir: Path):
 
 def test_missing_hdb_names_the_key(scene_dir: Path):
     write_scene(scene_dir, sphere_scene(hdb="missing.h5"), "nohdb.toml")
-    result = _cli("run", "nohdb.toml", cwd=scene_dir)
+    result = _cli_here("run", "nohdb.toml", cwd=scene_dir)
     assert result.returncode != 0
     assert "nohdb.toml: bodies[0].hdb: file not found" in result.stderr
     assert "Traceback" not in result.stderr
@@ -196,7 +213,7 @@ def test_missing_hdb_names_the_key(scene_dir: Path):
 
 def test_wrong_hdb_body_names_the_key(scene_dir: Path):
     write_scene(scene_dir, sphere_scene(hdb_body="float"), "wrong.toml")
-    result = _cli("run", "wrong.toml", cwd=scene_dir)
+    result = _cli_here("run", "wrong.toml", cwd=scene_dir)
     assert result.returncode != 0
     assert "wrong.toml: bodies[0].hdb_body: the HDB sphere.h5 holds no body 'float'" in result.stderr
 
@@ -204,7 +221,7 @@ def test_wrong_hdb_body_names_the_key(scene_dir: Path):
 def test_hdb_info_on_wamit_files_with_plot(tmp_path: Path, reference_data: Path):
     for f in (reference_data / "rm3_wamit").iterdir():
         shutil.copy(f, tmp_path / f.name)
-    result = _cli("hdb", "info", "rm3.1", "--plot", "rm3.png", "--dofs", "heave", cwd=tmp_path)
+    result = _cli_here("hdb", "info", "rm3.1", "--plot", "rm3.png", "--dofs", "heave", cwd=tmp_path)
     assert result.returncode == 0, result.stderr
     out = result.stdout
     assert "float" in out and "spar" in out
@@ -218,7 +235,7 @@ def test_hdb_info_on_wamit_files_with_plot(tmp_path: Path, reference_data: Path)
 
 def test_hdb_info_bad_file_is_one_clear_line(tmp_path: Path):
     (tmp_path / "junk.nc").write_text("not a netcdf file")
-    result = _cli("hdb", "info", "junk.nc", cwd=tmp_path)
+    result = _cli_here("hdb", "info", "junk.nc", cwd=tmp_path)
     assert result.returncode != 0
     assert "junk.nc" in result.stderr and "Traceback" not in result.stderr
 
@@ -271,7 +288,7 @@ def test_first_build_on_a_fresh_machine_says_what_happens_in_one_plain_line(tmp_
 
 def test_hdb_build_bad_spec_names_the_key(tmp_path: Path):
     (tmp_path / "bad.toml").write_text('[body]\nname = "b"\nshape = "sphere"\n[frequencies]\nvalues = [1.0, 2.0]\n')
-    result = _cli("hdb", "build", "bad.toml", "-o", "b.nc", cwd=tmp_path)
+    result = _cli_here("hdb", "build", "bad.toml", "-o", "b.nc", cwd=tmp_path)
     assert result.returncode != 0
     assert "bad.toml: body.radius" in result.stderr and "Traceback" not in result.stderr
 
@@ -304,7 +321,7 @@ def test_paced_run_prints_where_the_time_went_as_the_file_records_it(scene_dir: 
     """`hydrolink run --realtime` says where a step's time went (mean and max per part) and its
     overruns by cause: the figures the results file's `step_time` and `overrun` rows give, recomputed
     here (issue 36: the summary and the file agree)."""
-    result = _cli("run", "scene.toml", "-o", "paced.nc", "--no-progress", "--realtime", "20", cwd=scene_dir)
+    result = _cli_here("run", "scene.toml", "-o", "paced.nc", "--no-progress", "--realtime", "20", cwd=scene_dir)
     assert result.returncode == 0, result.stderr
     line = next(x for x in result.stdout.splitlines() if x.startswith("where a step's time went"))
     printed = dict(re.findall(r"(\w+) ([\d.]+) / [\d.]+", line.split(":", 1)[1].split(";")[0]))

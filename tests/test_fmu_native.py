@@ -61,7 +61,9 @@ def fmus(tmp_path_factory, sphere_path, sphere, omega) -> dict[int, Path]:
 class Slave:
     """One FMU instance through fmpy, the same few calls for FMI 2 and 3; log lines collected."""
 
-    def __init__(self, path: Path, fmi: int, tmp: Path, server: str, timeout: float = 30.0):
+    def __init__(self, path: Path, fmi: int, tmp: Path, server: str, timeout: float = 120.0):
+        """``timeout``: the FMU's wait for each server reply; the set-up's reply at load 8-10 (a
+        loaded 2-core machine) took over the 30 s this used to be."""
         from fmpy import extract, read_model_description
         self.md = read_model_description(path)
         self.vr = {v.name: v.valueReference for v in self.md.modelVariables}
@@ -97,7 +99,13 @@ class Slave:
         self.statuses.append(int(status))
 
     def start(self) -> None:
-        self.fmu.exitInitializationMode()
+        """Leave initialization (the FMU's hello to the server); a failure carries the FMU's log."""
+        from fmpy.fmi1 import FMICallException
+        try:
+            self.fmu.exitInitializationMode()
+        except FMICallException as exc:
+            exc.add_note(f"the FMU logged: {self.log}")
+            raise
 
     def set(self, names, values) -> None:
         (self.fmu.setReal if self.fmi == 2 else self.fmu.setFloat64)([self.vr[n] for n in names], list(values))

@@ -79,14 +79,16 @@ def local_client():
 
 
 @pytest.fixture(scope="module")
-def regular_sweep(sphere_dir, periods, tmp_path_factory):
-    """The CLI on a 2 x 2 regular sweep plus a case outside the HDB's range, LocalCluster of 2."""
+def regular_sweep(sphere_dir, periods, local_client, tmp_path_factory):
+    """The CLI on a 2 x 2 regular sweep plus a case outside the HDB's range, on the module's LocalCluster
+    of 2 by its address (``--scheduler``: a second cluster would cost the suite its start-up again)."""
     sweep = sphere_dir / "regular.toml"
     sweep.write_text(sweep_toml("sphere.toml", window=[60.0, 130.0], characteristic_width=10.0,
                                  grid={"waves.period": periods, "ptos.damper.damping": list(DAMPING)},
                                  cases=[{"label": "too long", "waves.period": 200.0}]))
     out = tmp_path_factory.mktemp("regular_out")
-    r = CliRunner().invoke(cli, ["sweep", str(sweep), "-o", str(out), "--workers", "2", "--no-progress"],
+    r = CliRunner().invoke(cli, ["sweep", str(sweep), "-o", str(out), "--scheduler", local_client.scheduler.address,
+                                 "--no-progress"],
                            catch_exceptions=False)
     return sweep, out, r
 
