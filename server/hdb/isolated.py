@@ -8,13 +8,16 @@ from deep inside h5py. In the server's own process the first would hold a set-up
 the second a gigabytes-long allocation, the third an internal error. Here the reader runs in a
 child (a fork of a forkserver that has already imported the readers, so a parse costs a fork, not
 an interpreter start): the child sends back the dataset or the error; the parent waits at most
-``timeout`` seconds, then kills it. Every outcome is a :class:`ParseFailure` naming the file and
+``timeout`` seconds from the moment the child starts reading (the forkserver's own start — its
+imports, tens of seconds on a loaded machine — and the fork are the server's, not the file's: they
+get :data:`START_TIMEOUT`), then kills it. Every outcome is a :class:`ParseFailure` naming the file and
 why, or the reader's own :class:`~hydrolink.protocol.hdb.layout.HDBError`.
 """
 
 from __future__ import annotations
 
 import resource
+import time
 from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
@@ -27,6 +30,7 @@ from hydrolink.server.processes import children
 __all__ = ["PARSE_TIMEOUT", "ParseFailure", "load_isolated", "memory_limit"]
 
 PARSE_TIMEOUT = 20.0           # s a parse may take (a real HDB takes well under a second or two)
+START_TIMEOUT = 300.0          # s the child may take to start (the forkserver's first start imports the readers)
 BASE_MEMORY = 2 * 2**30        # bytes of address space the child may use beyond the files' size ...
 PER_FILE_BYTE = 64             # ... plus this many per byte of the files (decoded arrays, copies)
 MAX_MEMORY = 16 * 2**30
@@ -57,6 +61,7 @@ def _parse(conn: Connection, path: str, kwargs: dict, memory: int) -> None:
     try:
         from hydrolink.server.hdb.io import load_hdb
 
+        conn.send(("started", None))
         ds = load_hdb(path, **kwargs).load()
         conn.send(("ok", ds))
     except HDBError as exc:
@@ -73,6 +78,18 @@ def _parse(conn: Connection, path: str, kwargs: dict, memory: int) -> None:
         conn.close()
 
 
+def _receive(receive: Connection, proc, timeout: float, late: str) -> tuple[str, Any]:
+    """The child's next message within ``timeout`` s, else ParseFailure(``late``); a child that died
+    first is ParseFailure too."""
+    if not receive.poll(timeout):
+        raise ParseFailure(late)
+    try:
+        return receive.recv()
+    except (EOFError, OSError):
+        proc.join(5.0)
+        raise ParseFailure(f"the reader died (exit code {proc.exitcode})") from None
+
+
 def load_isolated(path: str | Path, *, timeout: float = PARSE_TIMEOUT, **kwargs: Any) -> xr.Dataset:
     """:func:`hydrolink.server.hdb.io.load_hdb` (``kwargs``) of ``path`` in a child process: the
     dataset, or HDBError as the reader raised it, or ParseFailure (the time or memory limit, a crash,
@@ -87,13 +104,14 @@ def load_isolated(path: str | Path, *, timeout: float = PARSE_TIMEOUT, **kwargs:
     proc.start()
     send.close()
     try:
-        if not receive.poll(timeout):
-            raise ParseFailure(f"reading it took longer than {timeout:g} s (stopped)")
-        try:
-            status, payload = receive.recv()
-        except (EOFError, OSError):
-            proc.join(5.0)
-            raise ParseFailure(f"the reader died (exit code {proc.exitcode})") from None
+        status, payload = _receive(receive, proc, START_TIMEOUT,
+                                   f"the reading process did not start within {START_TIMEOUT:g} s (stopped)")
+        if status == "started":
+            late = f"reading it took longer than {timeout:g} s (stopped)"
+            started = time.monotonic()
+            status, payload = _receive(receive, proc, timeout, late)
+            if time.monotonic() - started > timeout:     # the answer came, but late: the limit is the limit
+                raise ParseFailure(late)
     finally:
         receive.close()
         if proc.is_alive():
