@@ -118,15 +118,7 @@ def test_every_rigid_and_modal_rao_matches_frequency_domain(server, barge, tmp_p
         assert abs(amp) < 0.01, names[j]
         assert abs(phase) < 1.0, names[j]
     assert live[6:].all()                         # every mode takes part
-    TAKE_PART.update(names[j] for j in np.flatnonzero(live))
-
-
-TAKE_PART: set[str] = set()
-
-
-def test_every_dof_was_compared():
-    """Over the frequencies above, every rigid DOF and every mode was compared (none left out)."""
-    assert TAKE_PART == {"surge", "sway", "heave", "roll", "pitch", "yaw", *MODES}
+    assert live.all() or w != 0.5                 # at 0.5 rad/s all nine DOFs are compared
 
 
 def test_modal_free_decay_has_the_wet_natural_frequencies(server, barge, tmp_path):

@@ -60,7 +60,7 @@ from hydrolink.clients.lockstep.preflight import preflight
 from hydrolink.clients.lockstep.results import add_force_term_variables, add_modal_variables
 from hydrolink.clients.lockstep.summary import CouplingReport, RunSummary
 from hydrolink.clients.exudyn.mechanism import Mechanism, build_mechanism
-from hydrolink.clients.exudyn.modes import add_modal_node, modal_structure
+from hydrolink.clients.exudyn.modes import ModalStructure, add_modal_node, modal_structure
 from hydrolink.clients.exudyn.moorings import MooringSet, build_moorings
 from hydrolink.clients.exudyn.ptos import PTOSet, build_ptos
 from hydrolink.protocol.scene import Coupling, Scene
@@ -248,32 +248,10 @@ def build_model(scene: Scene, setup: Setup | None, *, spectral_radius: float = 1
     moorings = build_moorings(mbs, scene.moorings, mech.handles, scene.water, moordyn_files, all_names,
                               reference, scene.current) if scene.moorings else None
     padded = any(h.dofs is not None for h in mech.handles.values())
-    # the hydro object's coordinates: each wet body's node coordinates (a reduced body's active DOFs),
-    # then the generalized modes' node (clients/exudyn/modes.py)
-    sel = np.concatenate([6 * i + np.asarray(mech.handles[nm].dofs or range(6), int) for i, nm in enumerate(names)]
-                         ) if n else np.zeros(0, int)
     modal = modal_structure(scene, setup)
     modal_node = add_modal_node(mbs, modal) if modal.size else None
-    hydro = -1
-    if n:
-        nodes = mech.rigid_nodes(names)
-        if modal_node is not None:
-            sel, nodes = np.concatenate((sel, 6 * n + np.arange(modal.size))), nodes + [modal_node]
-        ix = np.ix_(sel, sel)
-        mass = a_inf[ix] if added_mass_in_matrix else np.zeros((sel.size, sel.size))
-        k_object = stiffness[ix]
-        extra = {}
-        if modal_node is not None:    # the modes' structure in the same matrices
-            mass, k_object, damping = mass.copy(), k_object.copy(), np.zeros_like(k_object)
-            tail = slice(sel.size - modal.size, sel.size)
-            mass[tail, tail] += modal.mass
-            k_object[tail, tail] += modal.stiffness
-            damping[tail, tail] = modal.damping
-            extra["dampingMatrix"] = damping
-        hydro = mbs.AddObject(ObjectGenericODE2(
-            name="hydrodynamics", nodeNumbers=nodes, massMatrix=mass,
-            stiffnessMatrix=k_object, forceVector=np.zeros(sel.size),
-            visualization=VObjectGenericODE2(show=False), **extra))
+    hydro, sel = _hydro_object(mbs, mech, names, a_inf if added_mass_in_matrix else None, stiffness,
+                               modal, modal_node)
     mbs.Assemble()
     ltg = mbs.systemData.GetNodeLTGODE2
     pad = len(mbs.systemData.GetODE2Coordinates())
@@ -309,6 +287,37 @@ def build_model(scene: Scene, setup: Setup | None, *, spectral_radius: float = 1
                        added_mass=a_inf, added_mass_in_matrix=added_mass_in_matrix,
                        force_index=sel if sel.size < a_inf.shape[0] else None, padded=padded,
                        mode_labels=modal.labels)
+
+
+def _hydro_object(mbs, mech: Mechanism, names: list[str], mass: np.ndarray | None, stiffness: np.ndarray,
+                  modal: ModalStructure, modal_node: int | None) -> tuple[int, np.ndarray]:
+    """The ``ObjectGenericODE2`` over the wet bodies' nodes (-1 without any) and the entries of the
+    setup's vector it takes: each body's node coordinates (a reduced body's active DOFs), then the
+    generalized modes' node, whose structure (clients/exudyn/modes.py) joins its matrices. ``mass``
+    what goes into its mass matrix (None: nothing, A∞ fed back as a force)."""
+    n = len(names)
+    sel = np.concatenate([6 * i + np.asarray(mech.handles[nm].dofs or range(6), int) for i, nm in enumerate(names)]
+                         ) if n else np.zeros(0, int)
+    if not n:
+        return -1, sel
+    nodes = mech.rigid_nodes(names)
+    if modal_node is not None:
+        sel, nodes = np.concatenate((sel, 6 * n + np.arange(modal.size))), nodes + [modal_node]
+    ix = np.ix_(sel, sel)
+    m = mass[ix] if mass is not None else np.zeros((sel.size, sel.size))
+    k = stiffness[ix]
+    extra = {}
+    if modal_node is not None:    # the modes' structure in the same matrices
+        m, k, damping = m.copy(), k.copy(), np.zeros_like(k)
+        tail = slice(sel.size - modal.size, sel.size)
+        m[tail, tail] += modal.mass
+        k[tail, tail] += modal.stiffness
+        damping[tail, tail] = modal.damping
+        extra["dampingMatrix"] = damping
+    hydro = mbs.AddObject(ObjectGenericODE2(
+        name="hydrodynamics", nodeNumbers=nodes, massMatrix=m, stiffnessMatrix=k, forceVector=np.zeros(sel.size),
+        visualization=VObjectGenericODE2(show=False), **extra))
+    return hydro, sel
 
 
 JOINT_COMPONENTS = ("fx", "fy", "fz", "mx", "my", "mz")
