@@ -514,12 +514,21 @@ class BodyModes(_Section):
     stiffness: list[ModalValues] | ModalValues | None = None   # N/m; None: zero
     damping: list[ModalValues] | ModalValues | None = None     # N s/m; None: zero
     initial_displacement: list[Displacement] | None = None     # each mode's coordinate at t = 0 (None: 0)
+    # a PTO on each mode (a distributed PTO along a flexible body): a spring-damper on the modal
+    # coordinate, one value per mode (0: none); its force and absorbed power are results variables
+    pto_stiffness: ModalValues | None = None
+    pto_damping: Annotated[list[NonNegativeCoefficient], Field(min_length=1)] | None = None
 
     @model_validator(mode="after")
     def _square_and_positive(self) -> "BodyModes":
         import numpy as np
         if len(set(self.names)) != len(self.names):
             raise ValueError(f"names: repeated mode in {self.names}")
+        for key in ("pto_stiffness", "pto_damping"):
+            value = getattr(self, key)
+            if value is not None and len(value) != len(self.names):
+                raise ValueError(f"{key}: {len(value)} values for {len(self.names)} modes {self.names}: give one "
+                                 "per mode (0 for a mode without a PTO)")
         for key in ("mass", "stiffness", "damping"):
             m = self.matrix(key)
             if not np.allclose(m, m.T, rtol=1e-9, atol=0):

@@ -36,6 +36,7 @@ MODAL_DAMPING = [2000.0, 5000.0, 1.0e5]
 # viscous damping of the rigid DOFs (a force term beside the modes): the lightly damped roll and the
 # free surge, sway and yaw forget their start within the runs
 RIGID_DAMPING = [5.0e4, 5.0e4, 0.0, 1.7e6, 0.0, 1.0e7]
+PTO_DAMPING = [2.0e4, 0.0, 0.0]     # a PTO on the first bending mode (bodies[i].modes.pto_damping)
 
 
 @pytest.fixture(scope="module")
@@ -79,7 +80,8 @@ def structure_matrices() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def test_every_rigid_and_modal_rao_matches_frequency_domain(server, barge, tmp_path, omega):
     """Regular waves from 30° (every DOF excited): each of the nine DOFs' steady amplitude and phase
     against (-w^2 (M + A(w)) - i w (B(w) + B_s + B_v) + C + K_s) X = F(w, 30°), solved here (B_v
-    the rigid DOFs' linear_damping). Radiation
+    the rigid DOFs' linear_damping, B_s the modes' structural damping and their PTO's); the PTO's
+    mean absorbed power 1/2 c w^2 |q|^2. Radiation
     "constant" (A and B at the wave's frequency, an HDB frequency) makes that the exact reference."""
     i = int(np.argmin(np.abs(barge["omega"].values - omega)))
     w = float(barge["omega"].values[i])
@@ -88,6 +90,7 @@ def test_every_rigid_and_modal_rao_matches_frequency_domain(server, barge, tmp_p
     heading = int(np.argmin(np.abs(barge["wave_direction"].values - np.radians(30.0))))
     f = barge["excitation_force"].values[i, heading]
     c[:6, :6] += np.diag(RIGID_DAMPING)
+    c[6:, 6:] += np.diag(PTO_DAMPING)
     z = -w ** 2 * (m + a) - 1j * w * (b + c) + barge["hydrostatic_stiffness"].values + k
     rao = np.linalg.solve(z, f)                   # per metre of amplitude, exp(-iwt)
 
@@ -96,7 +99,7 @@ def test_every_rigid_and_modal_rao_matches_frequency_domain(server, barge, tmp_p
     period = 2 * np.pi / w
     text = barge_scene(dt=period / 100, duration=30 * period, hydro={"radiation": "constant"},
                        waves=regular_waves(0.02, period, ramp=3 * period, direction=30.0),
-                       linear_damping=RIGID_DAMPING)
+                       linear_damping=RIGID_DAMPING, modes={**STRUCTURE, "pto_damping": PTO_DAMPING})
     ds = simulate(server, text, barge, tmp_path / "rao.nc")
     t = ds["time"].values
     motion = np.hstack([ds["position"].values[:, 0, :] - ds["equilibrium_position"].values[0],
@@ -118,6 +121,10 @@ def test_every_rigid_and_modal_rao_matches_frequency_domain(server, barge, tmp_p
         assert abs(amp) < 0.01, names[j]
         assert abs(phase) < 1.0, names[j]
     assert live[6:].all()                         # every mode takes part
+    power = ds["modal_pto_power"].values[fit, 0].mean()
+    expected = 0.5 * PTO_DAMPING[0] * w ** 2 * abs(rao[6] * 0.01) ** 2
+    print(f"w {w:.2f} PTO on bend_z1: mean power {power:.4e} W, frequency domain {expected:.4e} W")
+    assert power == pytest.approx(expected, rel=0.02)
     assert live.all() or w != 0.5                 # at 0.5 rad/s all nine DOFs are compared
 
 

@@ -100,7 +100,12 @@ class ExudynModel:
     failure_hint: str = ""          # appended to a solver failure's message (what to change)
     force_index: np.ndarray | None = None   # reduced bodies: the 6N entries the hydro object takes
     padded: bool = False            # reduced bodies: state vectors end in a zero slot (locked DOFs)
-    mode_labels: tuple[str, ...] = ()   # the generalized modes after the 6N wet DOFs ("body.mode")
+    modal: ModalStructure | None = None   # the generalized modes after the 6N wet DOFs (clients/exudyn/modes.py)
+
+    @property
+    def mode_labels(self) -> tuple[str, ...]:
+        """The generalized modes' ``body.mode`` labels (empty without modes)."""
+        return self.modal.labels if self.modal is not None else ()
 
     @property
     def n_bodies(self) -> int:
@@ -286,7 +291,7 @@ def build_model(scene: Scene, setup: Setup | None, *, spectral_radius: float = 1
                        np.array([all_names.index(nm) for nm in names], int), ptos, moorings,
                        added_mass=a_inf, added_mass_in_matrix=added_mass_in_matrix,
                        force_index=sel if sel.size < a_inf.shape[0] else None, padded=padded,
-                       mode_labels=modal.labels)
+                       modal=modal)
 
 
 def _hydro_object(mbs, mech: Mechanism, names: list[str], mass: np.ndarray | None, stiffness: np.ndarray,
@@ -311,8 +316,8 @@ def _hydro_object(mbs, mech: Mechanism, names: list[str], mass: np.ndarray | Non
         m, k, damping = m.copy(), k.copy(), np.zeros_like(k)
         tail = slice(sel.size - modal.size, sel.size)
         m[tail, tail] += modal.mass
-        k[tail, tail] += modal.stiffness
-        damping[tail, tail] = modal.damping
+        k[tail, tail] += modal.stiffness + np.diag(modal.pto_stiffness)     # the modal PTOs: exact, implicit
+        damping[tail, tail] = modal.damping + np.diag(modal.pto_damping)
         extra["dampingMatrix"] = damping
     hydro = mbs.AddObject(ObjectGenericODE2(
         name="hydrodynamics", nodeNumbers=nodes, massMatrix=m, stiffnessMatrix=k, forceVector=np.zeros(sel.size),
@@ -621,6 +626,9 @@ class ExudynMultibody:
             self.writer.stage_extra({"modal_position": q[w], "modal_velocity": v[w],
                                      "modal_excitation": s.excitation[r:], "modal_radiation": s.radiation[r:],
                                      "modal_hydrostatic": -self._hs[r:]})
+            if m.modal.has_pto:
+                f = m.modal.pto_force(q[w], v[w])
+                self.writer.stage_extra({"modal_pto_force": f, "modal_pto_power": -f * v[w]})
         if s.optional:
             self.writer.stage_forces(s.optional, self._wet_flat, row[1])
         self.writer.commit(t, s.eta)
@@ -757,7 +765,7 @@ def _add_variables(scene: Scene, model: ExudynModel, writer, warnings: list[str]
     _add_pto_mooring_variables(writer, model.ptos, model.moorings)
     add_force_term_variables(writer, scene)
     if model.mode_labels:
-        add_modal_variables(writer, model.mode_labels)
+        add_modal_variables(writer, model.mode_labels, pto=model.modal.has_pto)
     moordyn = _moordyn_report(model.moorings) if model.moorings is not None and model.moorings.moordyn else None
     if moordyn is not None:
         _add_moordyn_variables(writer, model.moorings)

@@ -30,10 +30,20 @@ class ModalStructure:
     mass: np.ndarray
     stiffness: np.ndarray
     damping: np.ndarray
+    pto_stiffness: np.ndarray   # (M,) the modal PTOs (0: none)
+    pto_damping: np.ndarray
 
     @property
     def size(self) -> int:
         return len(self.labels)
+
+    @property
+    def has_pto(self) -> bool:
+        return bool(self.pto_stiffness.any() or self.pto_damping.any())
+
+    def pto_force(self, q: np.ndarray, rate: np.ndarray) -> np.ndarray:
+        """The modal PTOs' generalized force on their modes, −(k q + c q̇)."""
+        return -(self.pto_stiffness * q + self.pto_damping * rate)
 
 
 def modal_structure(scene: Scene, setup: Setup | None) -> ModalStructure:
@@ -42,6 +52,7 @@ def modal_structure(scene: Scene, setup: Setup | None) -> ModalStructure:
     modes = (setup.modes or {}) if setup is not None else {}
     blocks: dict[str, list[np.ndarray]] = {"mass": [], "stiffness": [], "damping": []}
     initial: list[float] = []
+    pto: dict[str, list[float]] = {"pto_stiffness": [], "pto_damping": []}
     for name in (setup.bodies if setup is not None else ()):
         names = modes.get(name, [])
         if not names:
@@ -55,9 +66,13 @@ def modal_structure(scene: Scene, setup: Setup | None) -> ModalStructure:
             blocks[key].append(spec.in_order(key, names))
         start = spec.initial_displacement or [0.0] * len(names)
         initial += [float(start[spec.names.index(m)]) for m in names]
+        for key, values in pto.items():
+            given = getattr(spec, key) or [0.0] * len(names)
+            values += [float(given[spec.names.index(m)]) for m in names]
     empty = np.zeros((0, 0))
     return ModalStructure(setup.mode_labels if setup is not None else (), np.asarray(initial, float),
-                          *(scipy.linalg.block_diag(*b) if b else empty for b in blocks.values()))
+                          *(scipy.linalg.block_diag(*b) if b else empty for b in blocks.values()),
+                          *(np.asarray(v, float) for v in pto.values()))
 
 
 def add_modal_node(mbs, structure: ModalStructure) -> int:
