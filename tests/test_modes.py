@@ -97,7 +97,7 @@ def test_every_rigid_and_modal_rao_matches_frequency_domain(server, barge, tmp_p
     # a small wave (1 cm): the free yaw drifts from the start by the amplitude squared, and the
     # roll recorded about the global axes mixes with the pitch by that angle (5 % at 5 cm, 0.24 % at 1 cm)
     period = 2 * np.pi / w
-    text = barge_scene(dt=period / 100, duration=30 * period, hydro={"radiation": "constant"},
+    text = barge_scene(dt=period / 150, duration=30 * period, hydro={"radiation": "constant"},
                        waves=regular_waves(0.02, period, ramp=3 * period, direction=30.0),
                        linear_damping=RIGID_DAMPING, modes={**STRUCTURE, "pto_damping": PTO_DAMPING})
     ds = simulate(server, text, barge, tmp_path / "rao.nc")
