@@ -437,14 +437,19 @@ def wet_rigid_mass(scene: Scene, setup: Setup) -> np.ndarray:
 
 def coupling_ratio(scene: Scene, setup: Setup | None) -> float:
     """The added-mass ratio of the explicit schemes: spectral radius of M⁻¹A∞ over the wet bodies'
-    active DOFs (M the rigid-body mass matrix). An explicitly fed-back −A∞·a multiplies an
-    acceleration error by −M⁻¹A∞ every step: unstable above 1."""
+    active DOFs and their generalized modes (M the rigid-body and modal mass matrix). An explicitly
+    fed-back −A∞·a multiplies an acceleration error by −M⁻¹A∞ every step: unstable above 1."""
     from hydrolink.clients.lockstep.relaxation import added_mass_ratio
     if not setup or not setup.bodies:
         return 0.0
     act = np.flatnonzero(setup.active.reshape(-1))
-    a = setup.added_mass
-    return added_mass_ratio(wet_rigid_mass(scene, setup)[np.ix_(act, act)], a[np.ix_(act, act)])
+    a, m = setup.added_mass, wet_rigid_mass(scene, setup)
+    modal = modal_structure(scene, setup)
+    if modal.size:    # the generalized modes: their structural mass beside the rigid bodies'
+        import scipy.linalg
+        m = scipy.linalg.block_diag(m, modal.mass)
+        act = np.concatenate((act, 6 * setup.n + np.arange(modal.size)))
+    return added_mass_ratio(m[np.ix_(act, act)], a[np.ix_(act, act)])
 
 
 #: PTO/mooring stiffness (N/m) above which a solver failure names the stiffness (docs/stability.md)
