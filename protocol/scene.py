@@ -524,18 +524,15 @@ class BodyModes(_Section):
         import numpy as np
         if len(set(self.names)) != len(self.names):
             raise ValueError(f"names: repeated mode in {self.names}")
-        for key in ("pto_stiffness", "pto_damping"):
+        for key in ("initial_displacement", "pto_stiffness", "pto_damping"):   # one value per mode
             value = getattr(self, key)
             if value is not None and len(value) != len(self.names):
                 raise ValueError(f"{key}: {len(value)} values for {len(self.names)} modes {self.names}: give one "
-                                 "per mode (0 for a mode without a PTO)")
+                                 "per mode (0 for a mode at rest or without a PTO)")
         for key in ("mass", "stiffness", "damping"):
             m = self.matrix(key)
             if not np.allclose(m, m.T, rtol=1e-9, atol=0):
                 raise ValueError(f"{key}: the modal {key} table must be symmetric")
-        if self.initial_displacement is not None and len(self.initial_displacement) != len(self.names):
-            raise ValueError(f"initial_displacement: {len(self.initial_displacement)} values for "
-                             f"{len(self.names)} modes {self.names}: give one per mode")
         eig = np.linalg.eigvalsh(self.matrix("mass"))
         if eig.min() <= 1e-12 * max(abs(eig.max()), 1e-300):
             raise ValueError(f"mass: the modal mass must be positive definite (eigenvalues {np.round(eig, 6).tolist()}): "
