@@ -221,6 +221,9 @@ def test_bad_mode_input_names_the_key(barge):
                         "bodies[0].modes.mass"),
                        ({"names": MODES, "mass": [1.0, 1.0]}, "bodies[0].modes.mass"),
                        ({"names": MODES, "mass": MODAL_MASS, "stiffness": [1.0]}, "bodies[0].modes.stiffness"),
+                       ({"names": MODES, "mass": MODAL_MASS, "pto_damping": [1.0, 0.0]}, "bodies[0].modes.pto_damping"),
+                       ({"names": MODES, "mass": MODAL_MASS, "initial_displacement": [0.1]},
+                        "bodies[0].modes.initial_displacement"),
                        ({"names": ["a", "a"], "mass": [1.0, 1.0]}, "bodies[0].modes.names")):
         with pytest.raises(SceneError) as e:
             parse_scene(barge_scene(dt=0.1, duration=1.0, waves=waves, modes=modes))
