@@ -15,6 +15,11 @@ Bodies that interact form a group; each group has its own radiation memory over 
 only, so no work is spent on blocks that are zero by construction. Every matrix is reduced to the
 active DOFs once at setup, so a step is a few small matvecs and no Python loop over DOFs.
 
+Generalized modes (server/modes.py): a body whose HDB has modes beyond its six brings them after
+the 6N rigid DOFs (the model's vector is 6N + M; the scene's ``bodies[i].modes`` must name them);
+excitation, radiation, A-infinity and the hydrostatic stiffness run over all of it with the HDB's
+rigid-mode blocks, the force terms over the rigid DOFs.
+
 The radiation part ([hydro] radiation and the IRF options) is built by the option's builder in
 server/radiation/options.py, which also reports its setup fields. The forces beyond this linear
 core (viscous, Morison, nonlinear hydrostatics and Froude–Krylov) are force terms
@@ -133,7 +138,7 @@ class HydroModel:
         self.active = np.array([scene.bodies[i].active_mask for i in wet], bool)  # (N, 6)
         self._active_dofs = np.concatenate((self.active.reshape(-1), np.ones(self.modes.size, bool)))  # (n,)
         self._idx = np.flatnonzero(self._active_dofs)
-        self.active_index = self._idx          # the active DOFs' positions in the 6N vector
+        self.active_index = self._idx          # the active DOFs' positions in the vector (6N, then the modes)
         option = radiation_option(scene.hydro, scene.waves, self.dt)  # refuses what it cannot run
         self.radiation, self.irf_samples = option.name, option.samples
         self.radiation_frequency = option.radiation_frequency
