@@ -244,3 +244,55 @@ def test_a_step_without_the_modal_state_is_refused(served, barge):
         reply = conn.step(0, 0.0, setup.equilibrium_position, np.zeros((1, 6)), modal=(np.zeros(3), np.zeros(3)))
         assert reply["modal_excitation"].shape == (3,)
         conn.bye()
+
+
+# ------------------------------------------------------------------------------------ a WAMIT set
+
+GBM = HDB.parents[1] / "wamit_gbm_barge"
+# WEC-Sim's GBM barge (80 x 10 m, NEWMDS = 4): its .frc's external mass and stiffness (IALTFRC = 2),
+# rigid and modal, as a scene gives them
+GBM_MASS, GBM_INERTIA = 4.0e6, [6.666667e7, 2.166667e9, 2.166667e9]
+GBM_MODES = {"names": ["mode1", "mode2", "mode3", "mode4"], "mass": [1.079216e6, 1.209976e6, 2.391821e6, 1.830601e6],
+             "stiffness": [6.077064e6, 4.382532e7, 2.741026e8, 4.664370e8]}
+
+
+def test_a_wamit_run_s_modes_simulate_to_the_frequency_domain_rao(server, tmp_path):
+    """WEC-Sim's WAMIT barge (examples/data/wamit_gbm_barge: modes read as mode1..mode4 after the
+    six) with its .frc structure, head seas at 0.59 rad/s (a period of the run), surge, heave, pitch
+    and the four modes free, radiation "constant": each DOF's RAO against the frequency-domain
+    solution of the same HDB within 1 % and 1°."""
+    hdb = load_hdb(GBM / "barge.1", rho=1000.0, wamit={"iperout": 1})
+    i = int(np.argmin(np.abs(hdb["omega"].values - 0.59)))
+    w = float(hdb["omega"].values[i])
+    free = [0, 2, 4, 6, 7, 8, 9]
+    m = np.diag([GBM_MASS] * 3 + GBM_INERTIA + GBM_MODES["mass"])
+    k = np.diag([0.0] * 6 + GBM_MODES["stiffness"])
+    c = np.diag([2.0e5] + [0.0] * 9)                 # the free surge's viscous damping
+    z = (-w ** 2 * (m + hdb["added_mass"].values[i]) - 1j * w * (hdb["radiation_damping"].values[i] + c)
+         + hdb["hydrostatic_stiffness"].values + k)[np.ix_(free, free)]
+    rao = np.linalg.solve(z, hdb["excitation_force"].values[i, 0, free])
+    period = 2 * np.pi / w
+    text = scene_toml(dt=period / 150, duration=30 * period, water={"density": 1000.0, "depth": "inf"},
+                      waves=regular_waves(0.02, period, ramp=3 * period), hydro={"radiation": "constant"},
+                      bodies=[body("barge", hdb=str(GBM / "barge.1"), mass=GBM_MASS, center_of_mass=[0.0, 0.0, 0.0],
+                                   inertia=GBM_INERTIA, dofs=["surge", "heave", "pitch"], modes=GBM_MODES,
+                                   linear_damping=[2.0e5, 0, 0, 0, 0, 0])])
+    scene = parse_scene(text)
+    with ServerConnection(server, timeout=60.0) as conn:
+        setup = conn.hello(text, {str(GBM / "barge.1"): hdb})
+        with ResultWriter(tmp_path / "gbm.nc", scene=scene, scene_text=text, setup=setup) as writer:
+            run(scene, text, conn, setup, writer, progress=False)
+        conn.bye()
+    ds = xr.load_dataset(tmp_path / "gbm.nc")
+    t = ds["time"].values
+    rigid = ds["position"].values[:, 0, :] - ds["equilibrium_position"].values[0]
+    motion = np.hstack([rigid[:, [0, 2, 4]], ds["modal_position"].values])
+    fit = t >= t[-1] - 4 * period - 1e-9
+    basis = np.c_[np.cos(w * t[fit]), np.sin(w * t[fit]), np.ones(fit.sum()), t[fit]]
+    coef = np.linalg.lstsq(basis, np.c_[motion[fit], ds["wave_elevation"].values[fit]], rcond=None)[0]
+    phasor = coef[0] + 1j * coef[1]
+    measured = phasor[:-1] / phasor[-1]
+    for j, name in enumerate(["surge", "heave", "pitch", *GBM_MODES["names"]]):
+        amp, phase = abs(measured[j]) / abs(rao[j]) - 1, np.degrees(np.angle(measured[j] / rao[j]))
+        print(f"GBM w {w:.3f} {name:6s} |RAO| {abs(rao[j]):.3e}  amplitude {amp:+.2e}  phase {phase:+.3f} deg")
+        assert abs(amp) < 0.01 and abs(phase) < 1.0, name
