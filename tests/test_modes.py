@@ -231,7 +231,8 @@ def test_bad_mode_input_names_the_key(barge):
 
 
 def test_a_step_without_the_modal_state_is_refused(served, barge):
-    """The wire (SPEC §5.2, revision 1.15): a session with modes needs modal_position/velocity."""
+    """The wire (SPEC §5.2, revision 1.15): a session with modes needs modal_position/velocity; a
+    step sent again with another modal state is refused as a retry and taken as an iteration."""
     address = served()
     text = barge_scene(dt=0.1, duration=1.0, waves=regular_waves(1.0, 8.0))
     with ServerConnection(address, timeout=60.0) as conn:
@@ -243,6 +244,14 @@ def test_a_step_without_the_modal_state_is_refused(served, barge):
         assert e.value.field == "modal_position"
         reply = conn.step(0, 0.0, setup.equilibrium_position, np.zeros((1, 6)), modal=(np.zeros(3), np.zeros(3)))
         assert reply["modal_excitation"].shape == (3,)
+        # a retry of the same step with another modal state is not a retry (SPEC §5.3)
+        with pytest.raises(RemoteError) as e:
+            conn.step(0, 0.0, setup.equilibrium_position, np.zeros((1, 6)), modal=(np.full(3, 0.1), np.zeros(3)))
+        assert e.value.field == "iteration"
+        again = conn.step(0, 0.0, setup.equilibrium_position, np.zeros((1, 6)), iteration=1,
+                          modal=(np.full(3, 0.1), np.zeros(3)))
+        c = barge["hydrostatic_stiffness"].values[6:, 6:]
+        np.testing.assert_allclose(again["modal_hydrostatic"], -c @ np.full(3, 0.1), rtol=1e-12)
         conn.bye()
 
 
