@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from hydrolink.protocol.hdb.layout import BodyDofs, HDBError
+from hydrolink.server.hdb.wamit.run import _FLOAT, _floats
 
-_FLOAT = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eEdD][-+]?\d+)?"
 _ROW = re.compile(rf"^\s*(\d+)\s+(\d+)\s+({_FLOAT})\s+({_FLOAT})\s+({_FLOAT})\s*$", re.M)
 
 
@@ -32,7 +32,7 @@ def external_force_matrices(mmx: Path, size: int) -> tuple[np.ndarray, np.ndarra
         if not (0 <= i < size and 0 <= j < size):
             raise HDBError(mmx.name, "External force matrices", f"mode ({i + 1}, {j + 1}) past the run's {size} "
                                                                 "modes")
-        out[:, i, j] = [float(v.replace("D", "E").replace("d", "e")) for v in values]
+        out[:, i, j] = _floats(" ".join(values))
     return out[0], out[1], out[2]
 
 
