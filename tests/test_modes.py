@@ -305,3 +305,26 @@ def test_a_wamit_run_s_modes_simulate_to_the_frequency_domain_rao(server, tmp_pa
         amp, phase = abs(measured[j]) / abs(rao[j]) - 1, np.degrees(np.angle(measured[j] / rao[j]))
         print(f"GBM w {w:.3f} {name:6s} |RAO| {abs(rao[j]):.3e}  amplitude {amp:+.2e}  phase {phase:+.3f} deg")
         assert abs(amp) < 0.01 and abs(phase) < 1.0, name
+
+
+def test_two_flexible_bodies_keep_their_modes_apart(barge):
+    """Two bodies of the same modal HDB (interaction "none"): the vector is both bodies' six, then
+    b1's three modes, then b2's; each body's modal hydrostatic force follows its own modal state and
+    its own rigid motion only (-C of its own block), and the setup names both bodies' modes."""
+    bodies = [body(name, hdb=str(HDB), hdb_body="barge", mass=MASS, center_of_mass=[0.0, 0.0, 0.0], inertia=INERTIA,
+                   modes=STRUCTURE) for name in ("b1", "b2")]
+    scene = parse_scene(scene_toml(dt=0.1, duration=1.0, water={"density": 1025.0}, waves=regular_waves(1.0, 8.0),
+                                   hydro={"radiation": "off", "interaction": "none"}, bodies=bodies))
+    model = HydroModel(scene, {"b1": barge, "b2": barge}, compiled=False)
+    setup = model.setup_info()
+    assert setup.modes == {"b1": MODES, "b2": MODES} and setup.n_dofs == 18
+    assert setup.mode_labels == tuple(f"{b}.{m}" for b in ("b1", "b2") for m in MODES)
+    dx = np.array([[0.0, 0.0, 0.1, 0.0, 0.02, 0.0], [0.0, 0.0, -0.2, 0.0, 0.01, 0.0]])
+    q = np.array([0.05, -0.04, 0.02, -0.03, 0.01, 0.06])
+    reply = model.step(0.0, setup.equilibrium_position + dx, np.zeros((2, 6)), modal_position=q,
+                       modal_velocity=np.zeros(6))
+    c = barge["hydrostatic_stiffness"].values
+    for k in range(2):
+        own = -c @ np.r_[dx[k], q[3 * k:3 * k + 3]]
+        np.testing.assert_allclose(reply["hydrostatic"][k], own[:6], atol=1e-9 * np.abs(own).max())
+        np.testing.assert_allclose(reply["modal_hydrostatic"][3 * k:3 * k + 3], own[6:], rtol=1e-12)
