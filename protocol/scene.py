@@ -556,6 +556,12 @@ class BodyModes(_Section):
             raise ValueError(f"{key}: {len(value)} values for {n} modes {self.names}: give one per mode")
         return np.diag(np.asarray(value, float))
 
+    def per_mode(self, key: str, names: "Collection[str]") -> list[float]:
+        """A one-value-per-mode key (``initial_displacement``, ``pto_stiffness``, ``pto_damping``) in
+        the order of ``names`` (the HDB's modes); 0 for each when not given."""
+        value = getattr(self, key)
+        return [0.0 if value is None else float(value[self.names.index(m)]) for m in names]
+
     def in_order(self, key: str, names: "Collection[str]") -> "np.ndarray":
         """:meth:`matrix` with its rows and columns in the order of ``names`` (the HDB's modes)."""
         import numpy as np

@@ -64,11 +64,9 @@ def modal_structure(scene: Scene, setup: Setup | None) -> ModalStructure:
                              f"{names}; the scene's bodies[{i}].modes names {None if spec is None else spec.names}")
         for key in blocks:
             blocks[key].append(spec.in_order(key, names))
-        start = spec.initial_displacement or [0.0] * len(names)
-        initial += [float(start[spec.names.index(m)]) for m in names]
+        initial += spec.per_mode("initial_displacement", names)
         for key, values in pto.items():
-            given = getattr(spec, key) or [0.0] * len(names)
-            values += [float(given[spec.names.index(m)]) for m in names]
+            values += spec.per_mode(key, names)
     empty = np.zeros((0, 0))
     return ModalStructure(setup.mode_labels if setup is not None else (), np.asarray(initial, float),
                           *(scipy.linalg.block_diag(*b) if b else empty for b in blocks.values()),
