@@ -5,8 +5,10 @@ radiation. Measured in interleaved blocks (each variant's block after the others
 CPU time of this process:
 
 - the server's model step (HydroModel.step) on the compiled and on the numpy path;
-- a whole run (hydrolink's Exudyn client and an in-process server: the client's integration with the
-  modal node in the hydro object, the wire, the results file), per step.
+- the Exudyn client's integration step alone (ExudynModel.advance with the modal node in the hydro
+  object, the force vector set each step);
+- a whole run (hydrolink's Exudyn client and an in-process server: the integration, the wire, the
+  results file), per step.
 
     python bench/bench_modes.py [--steps 2000] [--blocks 5]
 """
@@ -94,6 +96,32 @@ def model_cost(models: dict, steps: int, blocks: int) -> dict[str, list[float]]:
     return out
 
 
+def client_cost(setups: dict, steps: int, blocks: int) -> dict[int, list[float]]:
+    """CPU µs per Exudyn integration step (set_force + advance), per mode count, interleaved."""
+    from hydrolink.clients.exudyn.client import build_model
+    models = {}
+    for k, (scene, setup) in setups.items():
+        model = build_model(scene, setup)
+        model.set_force(np.zeros(setup.n_dofs))
+        model.initialize()
+        models[k] = model
+    rng = np.random.default_rng(1)
+    out: dict[int, list[float]] = {k: [] for k in models}
+    t = {k: 0.0 for k in models}
+    for _ in range(blocks):
+        for k, model in models.items():
+            forces = 1e3 * rng.standard_normal((steps, model.wet_index.size))
+            t0 = time.process_time()
+            for f in forces:
+                model.set_force(f)
+                model.advance(t[k], t[k] + model.dt)
+                t[k] += model.dt
+            out[k].append(1e6 * (time.process_time() - t0) / steps)
+    for model in models.values():
+        model.close()
+    return out
+
+
 def run_cost(folder: Path, steps: int, blocks: int) -> dict[int, list[float]]:
     """CPU µs per step of a whole run (client + in-process server + results), per mode count: the
     CPU of a run of 2 ``steps`` less that of a run of ``steps`` (the set-up, the same in both, cancels)."""
@@ -138,6 +166,15 @@ def main() -> None:
         print(f"\nserver model step, CPU us/step over {args.steps} steps x {args.blocks} interleaved blocks (median, min-max):")
         for name, v in cost.items():
             print(f"  {name:22s} {np.median(v):8.1f}  ({min(v):.1f}-{max(v):.1f})")
+        setups = {}
+        for k in range(4):
+            scene_k = parse_scene(scene("x.nc", k, 1e4))
+            setups[k] = (scene_k, models[f"{k} modes, numpy"].setup_info())
+        client = client_cost(setups, args.steps, args.blocks)
+        print(f"\nExudyn integration step (set_force + advance), CPU us/step over {args.steps} steps x {args.blocks} "
+              "interleaved blocks:")
+        for k, v in client.items():
+            print(f"  {k} modes                {np.median(v):8.1f}  ({min(v):.1f}-{max(v):.1f})")
         runs = run_cost(folder, args.steps, max(1, args.blocks // 2))
         print(f"\nwhole run (Exudyn client + in-process server + results), CPU us/step (2x{args.steps} less "
               f"{args.steps} steps):")
