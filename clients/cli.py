@@ -152,6 +152,32 @@ def hdb_info(file: Path, plot: Path | None, dofs: str | None, convention: str | 
         click.echo(f"plot written to {plot}")
 
 
+@hdb.command("modes")
+@click.argument("scene_file", type=click.Path(dir_okay=False, path_type=Path))
+def hdb_modes(scene_file: Path) -> None:
+    """Print the [bodies.modes] table (modal mass, stiffness, damping) of each body of SCENE_FILE whose
+    HDB is a WAMIT run with generalized modes, from the run's .mmx external force matrices."""
+    from hydrolink.clients.scene_inputs import load_scene_hdbs
+    from hydrolink.protocol.hdb.schema import hdb_dofs
+    from hydrolink.protocol.scene import load_scene, resolve_path
+    from hydrolink.server.hdb.wamit.modal_structure import modes_table
+
+    scene, _ = _guard(load_scene, scene_file)
+    hdbs = _guard(load_scene_hdbs, scene, scene_file, progress=False)
+    found = False
+    for i, body in enumerate(scene.bodies):
+        path = resolve_path(scene_file, body.hdb) if body.hdb else None
+        if path is None or path.suffix != ".1" or not hdb_dofs(hdbs[body.hdb]).has_modes:
+            continue
+        dofs = hdb_dofs(hdbs[body.hdb])
+        if dofs.of(body.hdb_body_name):
+            click.echo(f"# bodies[{i}] ({body.name})\n" + _guard(modes_table, path.with_suffix(".mmx"), dofs,
+                                                                  body.hdb_body_name))
+            found = True
+    if not found:
+        raise click.ClickException(f"{scene_file}: no body has a WAMIT HDB (.1) with generalized modes")
+
+
 def _build_plant(scene, hdbs):
     """clients/analysis/plant.py's build_plant, imported when a controller first asks for a plant
     (its imports would add ~0.7 s to every hydrolink serve start)."""

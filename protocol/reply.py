@@ -18,6 +18,7 @@ import numpy as np
 from hydrolink.protocol import codec
 
 FORCE_UNITS = "N (surge, sway, heave); N m (roll, pitch, yaw)"
+MODAL_UNITS = "generalized force: the work per unit modal coordinate (N for a mode shape in metres)"
 
 
 @dataclass(frozen=True)
@@ -81,6 +82,11 @@ REPLY_FIELDS: tuple[ReplyField, ...] = (
     ReplyField("drift", "array (N, 6)", FORCE_UNITS, False, load=True, variables=(
         _force("drift_force", "second-order wave force applied (server): mean drift, Newman slow drift or the "
                "difference-frequency QTF force, plus the sum-frequency force where asked, at the reference point"),)),
+    # generalized modes (revision 1.15): the modal forces, (M,) in setup.modes order; their sum
+    # excitation + radiation is the modes' load as excitation + radiation is the rigid DOFs'
+    ReplyField("modal_excitation", "array (M,)", MODAL_UNITS, False),
+    ReplyField("modal_radiation", "array (M,)", MODAL_UNITS, False),
+    ReplyField("modal_hydrostatic", "array (M,)", MODAL_UNITS, False),
     ReplyField("wave_elevation", "float", "m", True),
     ReplyField("compute_us", "float", "µs", True),
     ReplyField("control", "map", "", False),
@@ -91,6 +97,8 @@ _BY_NAME = {f.name: f for f in REPLY_FIELDS}
 REQUIRED_FORCES: tuple[str, ...] = tuple(f.name for f in REPLY_FIELDS if f.array and f.required)
 #: the (N, 6) forces of the terms beyond linear potential flow, each part of the load when present
 OPTIONAL_FORCES: tuple[str, ...] = tuple(f.name for f in REPLY_FIELDS if f.array and not f.required)
+#: the generalized modes' forces (M,) of a session with modes (SPEC §5.2, revision 1.15)
+MODAL_FORCES: tuple[str, ...] = tuple(f.name for f in REPLY_FIELDS if f.wire == "array (M,)")
 
 
 def reply_field(name: str) -> ReplyField:
@@ -107,6 +115,9 @@ def read_forces(reply: dict[str, Any], shape: tuple[int, int]) -> None:
     for k in OPTIONAL_FORCES:
         if reply.get(k) is not None:
             reply[k] = codec.require_array(reply, k, shape, finite=False)
+    for k in MODAL_FORCES:
+        if reply.get(k) is not None:
+            reply[k] = codec.require_array(reply, k, (None,), finite=False)
     eta = reply.get("wave_elevation")
     if isinstance(eta, dict):
         reply["wave_elevation"] = codec.decode_array(eta, "wave_elevation")

@@ -499,6 +499,76 @@ class WamitRun(_Section):
     iperout: Literal[1, 2, 3] | None = None     # first column: 1 period (s), 2 omega (rad/s), 3 omega^2 L/g
 
 
+ModeName = Annotated[str, Field(min_length=1, pattern=r"^[A-Za-z0-9_\-]+$")]
+ModalValues = Annotated[list[Coefficient], Field(min_length=1)]
+
+
+class BodyModes(_Section):
+    """``bodies[i].modes``: the structure of the generalized (flexible) modes the body's HDB gives it
+    beyond its six rigid DOFs (docs/generalized-modes.md): the modes by the HDB's names, and their
+    modal mass, stiffness and damping, each a list (the diagonal, one value per name) or a table
+    (one row per name). The structure's coupling to the rigid DOFs is zero (free-free modes are
+    orthogonal to the rigid motions); the hydrodynamic coupling comes from the HDB."""
+    names: Annotated[list[ModeName], Field(min_length=1)]
+    mass: list[ModalValues]  | ModalValues       # kg (or kg m^2, per the mode's normalisation)
+    stiffness: list[ModalValues] | ModalValues | None = None   # N/m; None: zero
+    damping: list[ModalValues] | ModalValues | None = None     # N s/m; None: zero
+    initial_displacement: list[Displacement] | None = None     # each mode's coordinate at t = 0 (None: 0)
+    # a PTO on each mode (a distributed PTO along a flexible body): a spring-damper on the modal
+    # coordinate, one value per mode (0: none); its force and absorbed power are results variables
+    pto_stiffness: ModalValues | None = None
+    pto_damping: Annotated[list[NonNegativeCoefficient], Field(min_length=1)] | None = None
+
+    @model_validator(mode="after")
+    def _square_and_positive(self) -> "BodyModes":
+        import numpy as np
+        if len(set(self.names)) != len(self.names):
+            raise ValueError(f"names: repeated mode in {self.names}")
+        for key in ("initial_displacement", "pto_stiffness", "pto_damping"):   # one value per mode
+            value = getattr(self, key)
+            if value is not None and len(value) != len(self.names):
+                raise ValueError(f"{key}: {len(value)} values for {len(self.names)} modes {self.names}: give one "
+                                 "per mode (0 for a mode at rest or without a PTO)")
+        for key in ("mass", "stiffness", "damping"):
+            m = self.matrix(key)
+            if not np.allclose(m, m.T, rtol=1e-9, atol=0):
+                raise ValueError(f"{key}: the modal {key} table must be symmetric")
+        eig = np.linalg.eigvalsh(self.matrix("mass"))
+        if eig.min() <= 1e-12 * max(abs(eig.max()), 1e-300):
+            raise ValueError(f"mass: the modal mass must be positive definite (eigenvalues {np.round(eig, 6).tolist()}): "
+                             "a mode without mass has no dynamics; give each mode its generalized mass")
+        return self
+
+    def matrix(self, key: str) -> "np.ndarray":
+        """``mass``, ``stiffness`` or ``damping`` as an (n, n) array over ``names``; ValueError naming
+        the key when its shape does not fit the names."""
+        import numpy as np
+        n, value = len(self.names), getattr(self, key)
+        if value is None:
+            return np.zeros((n, n))
+        if isinstance(value[0], list):
+            m = np.asarray(value, float) if all(len(r) == n for r in value) else None
+            if m is None or m.shape != (n, n):
+                raise ValueError(f"{key}: a table of {len(value)} rows of {[len(r) for r in value]} values for "
+                                 f"{n} modes {self.names}: give {n} rows of {n}, or a list of {n} values")
+            return m
+        if len(value) != n:
+            raise ValueError(f"{key}: {len(value)} values for {n} modes {self.names}: give one per mode")
+        return np.diag(np.asarray(value, float))
+
+    def per_mode(self, key: str, names: "Collection[str]") -> list[float]:
+        """A one-value-per-mode key (``initial_displacement``, ``pto_stiffness``, ``pto_damping``) in
+        the order of ``names`` (the HDB's modes); 0 for each when not given."""
+        value = getattr(self, key)
+        return [0.0 if value is None else float(value[self.names.index(m)]) for m in names]
+
+    def in_order(self, key: str, names: "Collection[str]") -> "np.ndarray":
+        """:meth:`matrix` with its rows and columns in the order of ``names`` (the HDB's modes)."""
+        import numpy as np
+        order = [self.names.index(m) for m in names]
+        return self.matrix(key)[np.ix_(order, order)]
+
+
 class Body(_Section):
     name: Annotated[str, Field(min_length=1, pattern=r"^[A-Za-z0-9_\-]+$")]
     hdb: Annotated[str, Field(min_length=1)] | None = None   # None: a dry body (no hydrodynamics)
@@ -545,6 +615,8 @@ class Body(_Section):
     # the excitation turns (the only choice; stating it acknowledges it for a body not symmetric about
     # its yaw axis, which gets a setup warning otherwise)
     passive_yaw_coefficients: Literal["initial-heading"] | None = None
+    # wet bodies whose HDB has generalized modes: their modal mass, stiffness and damping (issue 38)
+    modes: BodyModes | None = None
     # dry bodies only: the node's position (default: the centre of mass) and a constant buoyancy
     reference_point: Vector3 | None = None
     buoyancy_volume: Volume = 0.0
@@ -614,7 +686,7 @@ class Body(_Section):
             raise ValueError("hdb_convention: needs hdb")
         elif self.wamit is not None:
             raise ValueError("wamit: needs hdb (the WAMIT run's files)")
-        for key in ("drag", "nonlinear", "mesh"):
+        for key in ("drag", "nonlinear", "mesh", "modes"):
             if getattr(self, key) is not None and self.hdb is None:
                 raise ValueError(f"{key}: only for a wet body (with hdb): the force server applies it")
         for key in ("linear_damping", "quadratic_damping"):
@@ -1354,6 +1426,10 @@ class Scene(_Section):
         for i, b in enumerate(self.bodies):
             if b.passive_yaw:
                 found["passive_yaw"] = f"bodies[{i}].passive_yaw"
+                break
+        for i, b in enumerate(self.bodies):
+            if b.modes is not None:
+                found["generalized_modes"] = f"bodies[{i}].modes"
                 break
         return {f: found[f] for f in FEATURES if f in found}
 

@@ -4,7 +4,9 @@ The force server's model builds a :class:`Setup`; the wire carries :meth:`Setup.
 client reads it back with :meth:`Setup.from_wire`, which checks each field's presence, type and
 shape and names the field (``setup.<name>``) when one is wrong. Fields a newer server adds are
 ignored (SPEC §3.1: additions within protocol version 1 are optional fields). Matrices are
-(6N, 6N) body-major over the wet bodies, per-body arrays (N, 6) in ``bodies`` order.
+(6N, 6N) body-major over the wet bodies, per-body arrays (N, 6) in ``bodies`` order; with
+generalized modes (``modes``, revision 1.15) the matrices are over the 6N rigid DOFs then every
+body's modes in ``bodies`` order (6N + M).
 """
 
 from __future__ import annotations
@@ -95,11 +97,25 @@ class Setup:
     nonlinear: dict[str, str] | None = None
     # the sea's variance share per 30-degree direction band, by band centre ("+30"); None from older servers
     wave_energy_by_direction: dict[str, float] | None = None
+    # {body: [mode names]} of the bodies with generalized modes, after the 6N rigid DOFs in every
+    # matrix (revision 1.15); None: none (and from older servers)
+    modes: dict[str, list[str]] | None = None
 
     @property
     def n(self) -> int:
         """Number of wet bodies."""
         return len(self.bodies)
+
+    @property
+    def mode_labels(self) -> tuple[str, ...]:
+        """The modes' ``body.mode`` labels in the matrices' order after the 6N rigid DOFs (M)."""
+        modes = self.modes or {}
+        return tuple(f"{b}.{m}" for b in self.bodies for m in modes.get(b, ()))
+
+    @property
+    def n_dofs(self) -> int:
+        """The matrices' size: 6N + M."""
+        return 6 * self.n + len(self.mode_labels)
 
     def to_wire(self) -> dict[str, Any]:
         """The ``welcome.setup`` map (arrays as numpy; the codec packs them)."""
@@ -117,16 +133,18 @@ class Setup:
         r = _Reader(codec.decode_tree(data))
         bodies = r.strs("bodies")
         n = len(bodies)
+        modes = _modes(r.data.get("modes"), bodies)
+        nd = 6 * n + sum(len(m) for m in (modes or {}).values())   # the matrices: 6N + M
         ss = r.get("state_space", optional=True)
         proc = r.map("irf_processing")
         sub = _Reader(proc, "setup.irf_processing.")
         return cls(
             bodies=bodies, dofs=r.strs("dofs"),
             active=r.array("active", (n, 6), "b"),
-            added_mass=r.array("added_mass", (6 * n, 6 * n)),
-            added_mass_inf=r.array("added_mass_inf", (6 * n, 6 * n)),
+            added_mass=r.array("added_mass", (nd, nd)),
+            added_mass_inf=r.array("added_mass_inf", (nd, nd)),
             added_mass_inf_source={str(k): str(v) for k, v in r.map("added_mass_inf_source").items()},
-            hydrostatic_stiffness=r.array("hydrostatic_stiffness", (6 * n, 6 * n)),
+            hydrostatic_stiffness=r.array("hydrostatic_stiffness", (nd, nd)),
             equilibrium_position=r.array("equilibrium_position", (n, 6)),
             net_buoyancy=r.array("net_buoyancy", (n,)),
             dt=r.number("dt"),
@@ -159,12 +177,26 @@ class Setup:
             elevation_start=r.number("elevation_start"),
             warnings=r.strs("warnings"),
             last_seq=r.int("last_seq") if r.data.get("last_seq") is not None else None,
-            radiation_feedthrough=(r.array("radiation_feedthrough", (6 * n, 6 * n))
+            radiation_feedthrough=(r.array("radiation_feedthrough", (nd, nd))
                                    if r.data.get("radiation_feedthrough") is not None else None),
             nonlinear=({str(k): str(v) for k, v in r.map("nonlinear").items()}
                        if r.data.get("nonlinear") is not None else None),
             wave_energy_by_direction=(r.numbers("wave_energy_by_direction")
-                                      if r.data.get("wave_energy_by_direction") is not None else None))
+                                      if r.data.get("wave_energy_by_direction") is not None else None),
+            modes=modes)
+
+
+def _modes(data: Any, bodies: tuple[str, ...]) -> dict[str, list[str]] | None:
+    """``setup.modes``: {body: [mode names]} over ``bodies`` (nil or absent: None)."""
+    if data is None:
+        return None
+    if not isinstance(data, dict) or not all(isinstance(k, str) and isinstance(v, (list, tuple))
+                                             and all(isinstance(m, str) for m in v) for k, v in data.items()):
+        raise ProtocolError(Code.BAD_VALUE, "setup.modes", "must be a map of body names to lists of mode names")
+    unknown = [k for k in data if k not in bodies]
+    if unknown:
+        raise ProtocolError(Code.BAD_VALUE, "setup.modes", f"names bodies {unknown} not in setup.bodies {list(bodies)}")
+    return {b: list(data[b]) for b in bodies if b in data}
 
 
 def _state_space(data: Any) -> StateSpaceReport:

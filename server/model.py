@@ -15,6 +15,11 @@ Bodies that interact form a group; each group has its own radiation memory over 
 only, so no work is spent on blocks that are zero by construction. Every matrix is reduced to the
 active DOFs once at setup, so a step is a few small matvecs and no Python loop over DOFs.
 
+Generalized modes (server/modes.py): a body whose HDB has modes beyond its six brings them after
+the 6N rigid DOFs (the model's vector is 6N + M; the scene's ``bodies[i].modes`` must name them);
+excitation, radiation, A-infinity and the hydrostatic stiffness run over all of it with the HDB's
+rigid-mode blocks, the force terms over the rigid DOFs.
+
 The radiation part ([hydro] radiation and the IRF options) is built by the option's builder in
 server/radiation/options.py, which also reports its setup fields. The forces beyond this linear
 core (viscous, Morison, nonlinear hydrostatics and Froude–Krylov) are force terms
@@ -39,8 +44,9 @@ from hydrolink.server.rigid_body import rigid_body_mass_matrix
 from hydrolink.server.errors import ModelError
 from hydrolink.server.terms.hulls import Hull
 from hydrolink.protocol.hdb.layout import DOF_NAMES, HDBError, hdb_warnings
-from hydrolink.protocol.hdb.schema import hdb_dofs, select_bodies
+from hydrolink.protocol.hdb.schema import select_bodies
 from hydrolink.server.hydrostatics import total_stiffness
+from hydrolink.server.modes import ModeLayout, mode_layout
 from hydrolink.server.terms.base import ForceTerm, TermContext
 from hydrolink.server.terms.registry import TERMS, build_terms
 from hydrolink.server.radiation.options import RadiationGroup, radiation_option
@@ -65,7 +71,7 @@ class _GroupData:
     omega: np.ndarray       # (n_w,)
     rho_scale: float        # scene rho / HDB rho (added mass, damping)
     rg_scale: float         # scene rho g / HDB rho g (hydrostatics, excitation)
-    rows: np.ndarray        # (6 n_members,) rows in the 6N vectors
+    rows: np.ndarray        # (sum of 6 + modes over the members,) rows in the model's vector, HDB order
 
 
 def _groups(scene: Scene, wet: list[int], hdbs: dict[str, xr.Dataset]) -> list[tuple[xr.Dataset, list[int]]]:
@@ -122,13 +128,17 @@ class HydroModel:
                                        "has nothing to compute for this scene; simulate it without a server")
         self._scene_index = wet
         self.bodies = [scene.bodies[i].name for i in wet]
-        self.n = 6 * len(self.bodies)
+        # the model's vector: the 6N rigid DOFs, then the bodies' generalized modes (server/modes.py)
+        self.modes: ModeLayout = mode_layout(scene, wet, hdbs)
+        self.n_rigid = 6 * len(self.bodies)
+        self.n = self.modes.n
         # one server step per exchange: [coupling] exchange_every client steps of simulation.dt
         self.dt = scene.exchange_dt
         self.interaction = scene.hydro.interaction
         self.active = np.array([scene.bodies[i].active_mask for i in wet], bool)  # (N, 6)
-        self._idx = np.flatnonzero(self.active.reshape(-1))
-        self.active_index = self._idx          # the active DOFs' positions in the 6N vector
+        self._active_dofs = np.concatenate((self.active.reshape(-1), np.ones(self.modes.size, bool)))  # (n,)
+        self._idx = np.flatnonzero(self._active_dofs)
+        self.active_index = self._idx          # the active DOFs' positions in the vector (6N, then the modes)
         option = radiation_option(scene.hydro, scene.waves, self.dt)  # refuses what it cannot run
         self.radiation, self.irf_samples = option.name, option.samples
         self.radiation_frequency = option.radiation_frequency
@@ -172,9 +182,10 @@ class HydroModel:
         self._all_active = na == self.n
         self._sel = slice(None) if self._all_active else self._idx  # a view when every DOF is active
         self._red = np.zeros((3, na))  # scratch: excitation, radiation, hydrostatic (active DOFs)
+        rigid = slice(0, self.n_rigid)   # the terms act on the rigid DOFs (6N) only
         self.terms = build_terms(TermContext(
-            scene, wet, self.active, self._idx, self.waves, self.equilibrium_position,
-            self.hydrostatic_stiffness, self._net_buoyancy, hulls or {}, hdbs, self._phases,
+            scene, wet, self.active, self._idx[self._idx < self.n_rigid], self.waves, self.equilibrium_position,
+            self.hydrostatic_stiffness[rigid, rigid], self._net_buoyancy, hulls or {}, hdbs, self._phases,
             None if self._yaw is None else self._yaw.heading), term_types)
         self._stateful = [term for term in self.terms if not term.stateless]
         self._add_term_contributions()
@@ -203,14 +214,15 @@ class HydroModel:
     def _add_term_contributions(self) -> None:
         """The terms' setup contributions (server/terms/base.py) and warnings, in registry order."""
         stiff = False
+        pad = (0, self.modes.size)      # a term's (6N, 6N) over the model's vector: zero for the modes
         for term in self.terms:
             if term.added_mass is not None:
-                self.added_mass_client = self.added_mass_client + term.added_mass
+                self.added_mass_client = self.added_mass_client + np.pad(term.added_mass, pad)
             if term.stiffness is not None:
-                self.hydrostatic_stiffness = self.hydrostatic_stiffness + term.stiffness
+                self.hydrostatic_stiffness = self.hydrostatic_stiffness + np.pad(term.stiffness, pad)
                 stiff = True
             if term.feedthrough is not None:
-                self.radiation_feedthrough = self.radiation_feedthrough + term.feedthrough
+                self.radiation_feedthrough = self.radiation_feedthrough + np.pad(term.feedthrough, pad)
             self.warnings.extend(term.warnings)
         if stiff:
             self._k_hs = np.ascontiguousarray(self.hydrostatic_stiffness[np.ix_(self._idx, self._idx)])
@@ -241,7 +253,6 @@ class HydroModel:
             sub = select_bodies(ds, [b.hdb_body_name for b in bodies])
         except HDBError as exc:
             raise ModelError(f"bodies[{self._scene_index[members[0]]}].hdb_body", str(exc)) from None
-        refuse_modes(sub, [self._scene_index[k] for k in members], src)
         self.warnings.extend(n for n in hdb_warnings(ds) if n not in self.warnings)   # its reader's
         rho, g = float(ds.attrs["rho"]), float(ds.attrs["g"])
         s_rho = water.density / rho
@@ -251,7 +262,7 @@ class HydroModel:
             if note not in self.warnings:
                 self.warnings.append(note)
         self.warnings.extend(self._recorded_body_checks(sub, members, src))
-        rows = (6 * np.asarray(members)[:, None] + np.arange(6)).reshape(-1)
+        rows = np.concatenate([self.modes.rows(k) for k in members])
         return _GroupData(members, src, sub, sub["omega"].values.astype(float), s_rho, s_rg, rows)
 
     def _recorded_body_checks(self, sub: xr.Dataset, members: list[int], src: str) -> list[str]:
@@ -278,7 +289,7 @@ class HydroModel:
 
     def _radiation_group(self, d: _GroupData) -> RadiationGroup:
         """The group's radiation coefficients over its active DOFs, in the scene's density."""
-        loc = np.flatnonzero(self.active.reshape(-1)[d.rows])  # active, local to this group
+        loc = np.flatnonzero(self._active_dofs[d.rows])  # active, local to this group
         act = d.rows[loc]
         sub = d.data
         inertia = np.zeros(self.n)   # the memory's cut is judged at each DOF's natural frequency too
@@ -286,10 +297,12 @@ class HydroModel:
             body, ref = self.scene.bodies[self._scene_index[k]], self.equilibrium_position[k, :3]
             offset = body.com_or(ref) - ref
             inertia[6 * k:6 * k + 6] = np.diag(rigid_body_mass_matrix(body.mass, body.inertia_matrix, offset))
+        inertia[self.modes.n_rigid:] = self.modes.modal_mass
+        labels = self.modes.labels()
         return RadiationGroup(
             source=d.source, bodies=tuple(self.bodies[k] for k in d.members), act=act,
             pos=np.searchsorted(self._idx, act),
-            labels=tuple(f"{self.bodies[int(g) // 6]}.{DOF_NAMES[int(g) % 6]}" for g in act),
+            labels=tuple(labels[int(g)] for g in act),
             omega=d.omega, added_mass=d.rho_scale * sub["added_mass"].values[:, loc][:, :, loc],
             damping=d.rho_scale * sub["radiation_damping"].values[:, loc][:, :, loc],
             added_mass_inf=(d.rho_scale * sub["added_mass_inf"].values[np.ix_(loc, loc)]
@@ -311,12 +324,12 @@ class HydroModel:
         # applied by the client, exactly)
         masses = np.array([b.mass if b.wet else 0.0 for b in wet_bodies])
         cogs = np.array([b.com_or(r) for b, r in zip(wet_bodies, refs)], float)
-        mask = self.active.reshape(-1)
+        mask = self._active_dofs
         g = self.scene.water.gravity
         self.hydrostatic_stiffness = np.where(np.outer(mask, mask), total_stiffness(c_hs, masses, cogs, refs, g), 0.0)
         self.equilibrium_position = np.hstack([refs, np.zeros((n_b, 3))])
         self._k_hs = np.ascontiguousarray(self.hydrostatic_stiffness[np.ix_(self._idx, self._idx)])
-        self._x_eq = self.equilibrium_position.reshape(-1)[self._idx].copy()
+        self._x_eq = np.concatenate((self.equilibrium_position.reshape(-1), np.zeros(self.modes.size)))[self._idx]
         self._net_buoyancy = self._buoyancy(data, self.scene.water.density, g, masses)
 
     def _excitation(self, data: list[_GroupData], lo: float, hi: float,
@@ -390,6 +403,9 @@ class HydroModel:
             if not body.passive_yaw:
                 continue
             key = f"bodies[{i}].passive_yaw"
+            if self.modes.names[k]:
+                raise ModelError(key, f"body {body.name!r} has generalized modes {list(self.modes.names[k])}: their "
+                                      "excitation is not tabulated by heading; drop passive_yaw for it")
             if self.excitation != "superposition":
                 raise ModelError(key, f"needs the excitation summed over wave components; the scene's waves have it "
                                       f"by convolution ({getattr(scene.waves, 'type', '?')} waves, excitation = "
@@ -518,6 +534,7 @@ class HydroModel:
             elevation_start=float(self.elevation_series.start) if self.elevation_series else 0.0,
             warnings=tuple(self.warnings), last_seq=self.last_seq,
             radiation_feedthrough=self.radiation_feedthrough.copy(),
+            modes=self.modes.by_body() or None,
             **self._term_entries())
 
     def _term_entries(self) -> dict:
@@ -610,10 +627,13 @@ class HydroModel:
         return eta
 
     def step(self, time: float, position: np.ndarray, velocity: np.ndarray, *,
-             replace_last: bool = False) -> dict:
+             replace_last: bool = False, modal_position: np.ndarray | None = None,
+             modal_velocity: np.ndarray | None = None) -> dict:
         """Forces at ``time`` (= k dt) for the state at that time; see the module docstring.
 
-        ``replace_last`` recomputes the newest step with a new state (iterative coupling)."""
+        ``replace_last`` recomputes the newest step with a new state (iterative coupling).
+        ``modal_position``/``modal_velocity`` (M,): the modes' coordinates (server/modes.py), for a
+        session with modes; their forces come back as ``modal_excitation``/``_radiation``/``_hydrostatic``."""
         if replace_last and self._step < 0:
             raise ModelError("step", "replace_last before any step was computed")
         k = self._step if replace_last else self._step + 1
@@ -621,12 +641,21 @@ class HydroModel:
             raise ModelError("time", f"expected t = {k * self.dt:.9g} (step {k} of dt {self.dt}), got {time!r}")
         x = np.asarray(position, float).reshape(-1)
         v = np.asarray(velocity, float).reshape(-1)
-        if x.size != self.n or v.size != self.n:
+        m = self.modes.size
+        if x.size != self.n_rigid or v.size != self.n_rigid:
             raise ModelError("state", f"position and velocity must be ({len(self.bodies)}, 6), "
                                       f"got {np.shape(position)} and {np.shape(velocity)}")
+        if m:
+            if modal_position is None or modal_velocity is None or np.size(modal_position) != m \
+                    or np.size(modal_velocity) != m:
+                raise ModelError("modal_position", f"the session's bodies have {m} generalized modes "
+                                 f"{list(self.modes.labels()[self.n_rigid:])}: modal_position and modal_velocity "
+                                 f"must be ({m},), got {np.shape(modal_position)} and {np.shape(modal_velocity)}")
+            x = np.concatenate((x, np.asarray(modal_position, float).reshape(-1)))
+            v = np.concatenate((v, np.asarray(modal_velocity, float).reshape(-1)))
         # the reply's arrays: fresh each step (a reply may be kept, e.g. cached for a retry, and
         # goes out in-process as is), written in place, then made read-only like a frame's arrays
-        out = np.zeros(self._reply_shape)
+        out = np.zeros(self._reply_shape) if not m else np.zeros(self._rows_shape)
         if self._yaw is not None:
             self._yaw.follow(x, replace_last)     # the headings the waves are read at (the compiled step's too)
         if self._fused is not None:
@@ -639,29 +668,20 @@ class HydroModel:
             eta = self._linear_numpy(time, x, v, replace_last, out)
         self._step = k
         out.flags.writeable = False
-        reply = {"excitation": out[0], "radiation": out[1], "hydrostatic": out[2], "wave_elevation": eta}
+        if m:
+            rigid, shape, r = out[:, :self.n_rigid], (len(self.bodies), 6), self.n_rigid
+            reply = {"excitation": rigid[0].reshape(shape), "radiation": rigid[1].reshape(shape),
+                     "hydrostatic": rigid[2].reshape(shape), "wave_elevation": eta,
+                     "modal_excitation": out[0, r:], "modal_radiation": out[1, r:], "modal_hydrostatic": out[2, r:]}
+        else:
+            reply = {"excitation": out[0], "radiation": out[1], "hydrostatic": out[2], "wave_elevation": eta}
         if self.terms:
-            pose, rate = x.reshape(-1, 6), v.reshape(-1, 6)
+            pose, rate = x[:self.n_rigid].reshape(-1, 6), v[:self.n_rigid].reshape(-1, 6)
             for term in self.terms:
                 for name, f in zip(term.fields, term.force(time, pose, rate)):
                     f.flags.writeable = False
                     reply[name] = f
         return reply
-
-
-def refuse_modes(sub: xr.Dataset, scene_index: list[int], src: str) -> None:
-    """A body whose HDB gives it generalized modes is refused naming its ``hdb`` key: the model
-    and the clients integrate six rigid DOFs per body; taking the rigid block alone would drop the
-    modes' coupling to them silently (issue 38: reading and building them is done, simulating them
-    is not)."""
-    dofs = hdb_dofs(sub)
-    for i, body in zip(scene_index, dofs.bodies):
-        modes = dofs.of(body)
-        if modes:
-            raise ModelError(f"bodies[{i}].hdb", f"body {body!r} of {src!r} has {len(modes)} generalized mode(s) "
-                             f"({', '.join(modes)}) beyond its six rigid DOFs: hydrolink reads and builds them "
-                             "(hdb info, hdb build) but does not simulate them yet; give the body an HDB of its "
-                             "rigid DOFs (hdb build without [[body.modes]])")
 
 
 def _turning_note(key: str, name: str, stiffness: np.ndarray, added_mass: np.ndarray) -> list[str]:

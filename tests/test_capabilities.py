@@ -36,6 +36,8 @@ USES: dict[str, tuple[dict, dict, str]] = {
     "nonlinear_froude_krylov": ({"nonlinear": "froude-krylov", "mesh": "sphere.gdf"}, {}, "bodies[0].nonlinear"),
     "second_order": ({}, {"hydro": {"second_order": "mean-drift"}}, "hydro.second_order"),   # on sphere_drift
     "passive_yaw": ({"passive_yaw": True}, {}, "bodies[0].passive_yaw"),                       # on sphere_headings
+    "generalized_modes": ({"modes": {"names": ["breathe"], "mass": [2e4], "stiffness": [5e5]}}, {},
+                          "bodies[0].modes"),                                                     # on sphere_modes
 }
 FMU_CLIENT = {"type": "fmu", "fmu": "heave.fmu", "bodies": {"sphere": {
     "position": {"heave": "z"}, "velocity": {"heave": "v"}, "force": {"heave": "F"}}}}
@@ -91,6 +93,30 @@ def sphere_drift(sphere, tmp_path_factory) -> tuple[xr.Dataset, Path]:
     values[0, :, 0, 0] = 1e3 * w ** 2
     ds = with_second_order(sphere, mean_drift=MeanDrift(("momentum",), w, np.zeros(1), values))
     path = tmp_path_factory.mktemp("drift") / "sphere_drift.nc"
+    to_netcdf(ds, path)
+    return ds, path
+
+
+@pytest.fixture(scope="module")
+def sphere_modes(sphere, tmp_path_factory) -> tuple[xr.Dataset, Path]:
+    """The sphere's HDB with one generalized mode "breathe" after its six DOFs (the generalized_modes
+    feature needs one): its own added mass, damping, stiffness and excitation, uncoupled."""
+    from hydrolink.protocol.hdb.schema import make_hdb, to_netcdf
+
+    def grow(a: np.ndarray, diagonal: float) -> np.ndarray:
+        out = np.zeros(a.shape[:-2] + (7, 7))
+        out[..., :6, :6], out[..., 6, 6] = a, diagonal
+        return out
+    x = sphere["excitation_force"].values
+    ds = make_hdb(bodies=["sphere"], omega=sphere["omega"].values, wave_direction=sphere["wave_direction"].values,
+                  added_mass=grow(sphere["added_mass"].values, 1e4),
+                  radiation_damping=grow(sphere["radiation_damping"].values, 2e3),
+                  excitation_force=np.concatenate((x, 0.1 * x[..., 2:3]), axis=-1),
+                  hydrostatic_stiffness=grow(sphere["hydrostatic_stiffness"].values, 1e5),
+                  reference_point=sphere["reference_point"].values, rho=float(sphere.attrs["rho"]),
+                  g=float(sphere.attrs["g"]), water_depth=float(sphere.attrs["water_depth"]),
+                  source="the Task-10 sphere with a breathing mode", modes={"sphere": ["breathe"]})
+    path = tmp_path_factory.mktemp("modes") / "sphere_modes.nc"
     to_netcdf(ds, path)
     return ds, path
 
@@ -182,13 +208,15 @@ def _runs(tool: str, feature: str, sphere, sphere_path: Path, hull, tmp_path: Pa
         model = _model(sphere, sphere_path, feature, hull)
         eq = model.setup_info().equilibrium_position
         x, v = eq + [[0, 0, 0.3, 0, 0, 0]], np.array([[0, 0, 0.2, 0, 0, 0]])
-        model.step(0.0, x, v)
+        m = model.modes.size    # generalized modes: their state too
+        modal = lambda k: {"modal_position": np.full(m, 0.1), "modal_velocity": np.full(m, 0.1 * k)} if m else {}  # noqa: E731
+        model.step(0.0, x, v, **modal(0))
         saved = model.state()
-        first = [model.step(k * model.dt, x, v * k) for k in (1, 2)]
+        first = [model.step(k * model.dt, x, v * k, **modal(k)) for k in (1, 2)]
         model.set_state(saved)
-        again = [model.step(k * model.dt, x, v * k) for k in (1, 2)]
+        again = [model.step(k * model.dt, x, v * k, **modal(k)) for k in (1, 2)]
         for a, b in zip(first, again):
-            for f in fields:
+            for f in fields + (("modal_radiation",) if m else ()):
                 np.testing.assert_array_equal(a[f], b[f])
     else:
         raise AssertionError(f"no check for {tool} in this test")
@@ -196,11 +224,13 @@ def _runs(tool: str, feature: str, sphere, sphere_path: Path, hull, tmp_path: Pa
 
 @pytest.mark.parametrize("feature,tool", list(itertools.product(FEATURES, TOOLS)))
 def test_every_feature_tool_pair_runs_or_is_refused_with_its_key(feature, tool, sphere, sphere_path, sphere_drift,
-                                                                 sphere_headings, hull, tmp_path):
+                                                                 sphere_headings, sphere_modes, hull, tmp_path):
     if feature == "second_order":    # its data: the sphere's HDB with mean drift coefficients
         sphere, sphere_path = sphere_drift
     if feature == "passive_yaw":     # its data: the sphere's HDB at headings around the circle
         sphere, sphere_path = sphere_headings
+    if feature == "generalized_modes":   # its data: the sphere's HDB with a mode
+        sphere, sphere_path = sphere_modes
     t = TOOLS[tool]
     if feature in t.supports:
         _runs(tool, feature, sphere, sphere_path, hull, tmp_path)

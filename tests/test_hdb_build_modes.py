@@ -125,14 +125,15 @@ def test_the_stored_flexible_barge_hdb_is_read_with_its_modes():
     assert f[:, 0, 6].max() > 0.01 * f[:, 0, 2].max()
 
 
-def test_a_scene_with_the_modal_hdb_is_refused_naming_its_hdb_key():
-    """Simulating generalized modes is not built: a run is refused by name, never run on the
-    rigid block alone (which would drop the modes' coupling silently)."""
+def test_a_scene_with_the_modal_hdb_and_no_structure_is_refused_naming_its_modes_key():
+    """A scene that gives the modal HDB to a body without its modes' structure is refused by name,
+    never run on the rigid block alone (which would drop the modes' coupling silently); simulating
+    them: tests/test_modes.py."""
     scene = parse_scene(scene_toml(dt=0.05, duration=1.0, bodies=[
         body("barge", hdb=str(BARGE), mass=RHO * 640.0, center_of_mass=[0, 0, -0.5], inertia=[4e6, 9e7, 9e7])],
         water={"density": RHO}))
-    with pytest.raises(ModelError, match=r"bodies\[0\]\.hdb: body 'barge' of .* has 3 generalized mode\(s\) "
-                                         r"\(bend_z1, bend_z2, twist1\)"):
+    with pytest.raises(ModelError, match=r"bodies\[0\]\.modes: body 'barge'.* has 3 generalized mode\(s\) "
+                                         r"\['bend_z1', 'bend_z2', 'twist1'\].*no modal mass"):
         HydroModel(scene, {"barge": load_hdb(BARGE)})
 
 

@@ -57,9 +57,10 @@ from hydrolink.clients.lockstep.coupling_schemes import make_scheme
 from hydrolink.clients.lockstep.driver import BLOW_UP_LIMIT, CouplingError, DivergenceWatch, ForceLink, Lockstep, RunInterrupted, SimulationDiverged, progress_bar
 from hydrolink.protocol.pacing import Pacer
 from hydrolink.clients.lockstep.preflight import preflight
-from hydrolink.clients.lockstep.results import add_force_term_variables
+from hydrolink.clients.lockstep.results import add_force_term_variables, add_modal_variables
 from hydrolink.clients.lockstep.summary import CouplingReport, RunSummary
 from hydrolink.clients.exudyn.mechanism import Mechanism, build_mechanism
+from hydrolink.clients.exudyn.modes import ModalStructure, add_modal_node, modal_structure
 from hydrolink.clients.exudyn.moorings import MooringSet, build_moorings
 from hydrolink.clients.exudyn.ptos import PTOSet, build_ptos
 from hydrolink.protocol.scene import Coupling, Scene
@@ -99,6 +100,12 @@ class ExudynModel:
     failure_hint: str = ""          # appended to a solver failure's message (what to change)
     force_index: np.ndarray | None = None   # reduced bodies: the 6N entries the hydro object takes
     padded: bool = False            # reduced bodies: state vectors end in a zero slot (locked DOFs)
+    modal: ModalStructure | None = None   # the generalized modes after the 6N wet DOFs (clients/exudyn/modes.py)
+
+    @property
+    def mode_labels(self) -> tuple[str, ...]:
+        """The generalized modes' ``body.mode`` labels (empty without modes)."""
+        return self.modal.labels if self.modal is not None else ()
 
     @property
     def n_bodies(self) -> int:
@@ -246,22 +253,17 @@ def build_model(scene: Scene, setup: Setup | None, *, spectral_radius: float = 1
     moorings = build_moorings(mbs, scene.moorings, mech.handles, scene.water, moordyn_files, all_names,
                               reference, scene.current) if scene.moorings else None
     padded = any(h.dofs is not None for h in mech.handles.values())
-    # the hydro object's coordinates: each wet body's node coordinates (a reduced body's active DOFs)
-    sel = np.concatenate([6 * i + np.asarray(mech.handles[nm].dofs or range(6), int) for i, nm in enumerate(names)]
-                         ) if n else np.zeros(0, int)
-    hydro = -1
-    if n:
-        ix = np.ix_(sel, sel)
-        hydro = mbs.AddObject(ObjectGenericODE2(
-            name="hydrodynamics", nodeNumbers=mech.rigid_nodes(names),
-            massMatrix=a_inf[ix] if added_mass_in_matrix else np.zeros((sel.size, sel.size)),
-            stiffnessMatrix=stiffness[ix], forceVector=np.zeros(sel.size),
-            visualization=VObjectGenericODE2(show=False)))
+    modal = modal_structure(scene, setup)
+    modal_node = add_modal_node(mbs, modal) if modal.size else None
+    hydro, sel = _hydro_object(mbs, mech, names, a_inf if added_mass_in_matrix else None, stiffness,
+                               modal, modal_node)
     mbs.Assemble()
     ltg = mbs.systemData.GetNodeLTGODE2
     pad = len(mbs.systemData.GetODE2Coordinates())
     body_index = _body_indices(mech, all_names, ltg, pad)
     wet_index = _body_indices(mech, names, ltg, pad)
+    if modal_node is not None:
+        wet_index = np.concatenate((wet_index, np.asarray(ltg(modal_node), int)))
 
     ss = exu.SimulationSettings()
     ss.solution.file.write = False
@@ -288,7 +290,39 @@ def build_model(scene: Scene, setup: Setup | None, *, spectral_radius: float = 1
                        active, stiffness, dt, mech, wet_index, all_names, reference, body_index,
                        np.array([all_names.index(nm) for nm in names], int), ptos, moorings,
                        added_mass=a_inf, added_mass_in_matrix=added_mass_in_matrix,
-                       force_index=sel if sel.size < 6 * n else None, padded=padded)
+                       force_index=sel if sel.size < a_inf.shape[0] else None, padded=padded,
+                       modal=modal)
+
+
+def _hydro_object(mbs, mech: Mechanism, names: list[str], mass: np.ndarray | None, stiffness: np.ndarray,
+                  modal: ModalStructure, modal_node: int | None) -> tuple[int, np.ndarray]:
+    """The ``ObjectGenericODE2`` over the wet bodies' nodes (-1 without any) and the entries of the
+    setup's vector it takes: each body's node coordinates (a reduced body's active DOFs), then the
+    generalized modes' node, whose structure (clients/exudyn/modes.py) joins its matrices. ``mass``
+    what goes into its mass matrix (None: nothing, A∞ fed back as a force)."""
+    n = len(names)
+    sel = np.concatenate([6 * i + np.asarray(mech.handles[nm].dofs or range(6), int) for i, nm in enumerate(names)]
+                         ) if n else np.zeros(0, int)
+    if not n:
+        return -1, sel
+    nodes = mech.rigid_nodes(names)
+    if modal_node is not None:
+        sel, nodes = np.concatenate((sel, 6 * n + np.arange(modal.size))), nodes + [modal_node]
+    ix = np.ix_(sel, sel)
+    m = mass[ix] if mass is not None else np.zeros((sel.size, sel.size))
+    k = stiffness[ix]
+    extra = {}
+    if modal_node is not None:    # the modes' structure in the same matrices
+        m, k, damping = m.copy(), k.copy(), np.zeros_like(k)
+        tail = slice(sel.size - modal.size, sel.size)
+        m[tail, tail] += modal.mass
+        k[tail, tail] += modal.stiffness + np.diag(modal.pto_stiffness)     # the modal PTOs: exact, implicit
+        damping[tail, tail] = modal.damping + np.diag(modal.pto_damping)
+        extra["dampingMatrix"] = damping
+    hydro = mbs.AddObject(ObjectGenericODE2(
+        name="hydrodynamics", nodeNumbers=nodes, massMatrix=m, stiffnessMatrix=k, forceVector=np.zeros(sel.size),
+        visualization=VObjectGenericODE2(show=False), **extra))
+    return hydro, sel
 
 
 JOINT_COMPONENTS = ("fx", "fy", "fz", "mx", "my", "mz")
@@ -403,14 +437,19 @@ def wet_rigid_mass(scene: Scene, setup: Setup) -> np.ndarray:
 
 def coupling_ratio(scene: Scene, setup: Setup | None) -> float:
     """The added-mass ratio of the explicit schemes: spectral radius of M⁻¹A∞ over the wet bodies'
-    active DOFs (M the rigid-body mass matrix). An explicitly fed-back −A∞·a multiplies an
-    acceleration error by −M⁻¹A∞ every step: unstable above 1."""
+    active DOFs and their generalized modes (M the rigid-body and modal mass matrix). An explicitly
+    fed-back −A∞·a multiplies an acceleration error by −M⁻¹A∞ every step: unstable above 1."""
     from hydrolink.clients.lockstep.relaxation import added_mass_ratio
     if not setup or not setup.bodies:
         return 0.0
     act = np.flatnonzero(setup.active.reshape(-1))
-    a = setup.added_mass
-    return added_mass_ratio(wet_rigid_mass(scene, setup)[np.ix_(act, act)], a[np.ix_(act, act)])
+    a, m = setup.added_mass, wet_rigid_mass(scene, setup)
+    modal = modal_structure(scene, setup)
+    if modal.size:    # the generalized modes: their structural mass beside the rigid bodies'
+        import scipy.linalg
+        m = scipy.linalg.block_diag(m, modal.mass)
+        act = np.concatenate((act, 6 * setup.n + np.arange(modal.size)))
+    return added_mass_ratio(m[np.ix_(act, act)], a[np.ix_(act, act)])
 
 
 #: PTO/mooring stiffness (N/m) above which a solver failure names the stiffness (docs/stability.md)
@@ -457,7 +496,8 @@ class ExudynMultibody:
         self._forces = np.zeros((3, self.nb, 6))
         # every scene body wet, in setup order: the forces go straight into the results row
         self._all_wet = self.n == self.nb and np.array_equal(model.wet_rows, np.arange(self.nb))
-        self._hs = np.zeros(6 * self.n)   # scratch: C q
+        self._hs = np.zeros(model.wet_index.size)   # scratch: C q (6N, then the modes')
+        self._r = 6 * self.n                          # the rigid DOFs' entries; the modes' after them
         # the wet bodies' 6N entries in the (B, 6) rows (the optional forces' results variables)
         self._wet_flat = (6 * np.asarray(model.wet_rows, int)[:, None] + np.arange(6)).reshape(-1)
         self._pto_sample = None
@@ -572,18 +612,28 @@ class ExudynMultibody:
         idx = m.body_index
         np.add(m.body_reference, q[idx].reshape(nb, 6), out=row[0])
         row[1] = v[idx].reshape(nb, 6)
+        r = self._r
         if self._all_wet:
-            row[2] = s.excitation.reshape(nb, 6)
-            row[3] = s.radiation.reshape(nb, 6)
+            row[2] = s.excitation[:r].reshape(nb, 6)
+            row[3] = s.radiation[:r].reshape(nb, 6)
             np.dot(m.stiffness, q[m.wet_index], out=self._hs)
-            np.negative(self._hs, out=row[4].reshape(-1))
+            np.negative(self._hs[:r], out=row[4].reshape(-1))
         else:
             f = self._forces   # dry bodies' rows stay zero
             if self.n:
                 rows, shape = m.wet_rows, (self.n, 6)
-                f[0, rows], f[1, rows] = s.excitation.reshape(shape), s.radiation.reshape(shape)
-                f[2, rows] = -(m.stiffness @ q[m.wet_index]).reshape(shape)
+                f[0, rows], f[1, rows] = s.excitation[:r].reshape(shape), s.radiation[:r].reshape(shape)
+                np.dot(m.stiffness, q[m.wet_index], out=self._hs)
+                f[2, rows] = -self._hs[:r].reshape(shape)
             row[2:] = f
+        if m.mode_labels:   # the modes' coordinates and forces (clients/lockstep/results.py)
+            w = m.wet_index[r:]
+            self.writer.stage_extra({"modal_position": q[w], "modal_velocity": v[w],
+                                     "modal_excitation": s.excitation[r:], "modal_radiation": s.radiation[r:],
+                                     "modal_hydrostatic": -self._hs[r:]})
+            if m.modal.has_pto:
+                f = m.modal.pto_force(q[w], v[w])
+                self.writer.stage_extra({"modal_pto_force": f, "modal_pto_power": -f * v[w]})
         if s.optional:
             self.writer.stage_forces(s.optional, self._wet_flat, row[1])
         self.writer.commit(t, s.eta)
@@ -719,6 +769,8 @@ def _add_variables(scene: Scene, model: ExudynModel, writer, warnings: list[str]
         _add_joint_variables(writer, mech.joint_labels)
     _add_pto_mooring_variables(writer, model.ptos, model.moorings)
     add_force_term_variables(writer, scene)
+    if model.mode_labels:
+        add_modal_variables(writer, model.mode_labels, pto=model.modal.has_pto)
     moordyn = _moordyn_report(model.moorings) if model.moorings is not None and model.moorings.moordyn else None
     if moordyn is not None:
         _add_moordyn_variables(writer, model.moorings)

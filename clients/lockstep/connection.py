@@ -313,15 +313,21 @@ class ServerConnection:
         return self.setup
 
     def step(self, seq: int, time: float, position: np.ndarray, velocity: np.ndarray,
-             iteration: int = 0, *, measurements: dict | None = None, timeout: float | None = None) -> dict:
+             iteration: int = 0, *, measurements: dict | None = None, timeout: float | None = None,
+             modal: tuple[np.ndarray, np.ndarray] | None = None) -> dict:
         """The ``forces`` reply for the state at step ``seq``: excitation/radiation/hydrostatic (N, 6)
         arrays (read-only) and the optional forces of the scene's terms (protocol/reply.py), wave_elevation, seq, iteration, time, compute_us (and the envelope); with controllers (SPEC §5.7) the
-        ``measurements`` of step seq - 1 go along and the reply's ``control`` decisions come back."""
+        ``measurements`` of step seq - 1 go along and the reply's ``control`` decisions come back;
+        ``modal``: the generalized modes' (position, velocity) (M,), whose forces come back as
+        ``modal_excitation``/``modal_radiation``/``modal_hydrostatic``."""
         position = np.ascontiguousarray(position, dtype=np.float64)
         fields = {"seq": int(seq), "time": float(time), "iteration": int(iteration), "position": position,
                   "velocity": np.ascontiguousarray(velocity, dtype=np.float64)}
         if measurements is not None:
             fields["measurements"] = measurements
+        if modal is not None:   # generalized modes: (M,) coordinates and rates (SPEC §5.2, revision 1.15)
+            fields["modal_position"] = np.ascontiguousarray(modal[0], dtype=np.float64)
+            fields["modal_velocity"] = np.ascontiguousarray(modal[1], dtype=np.float64)
         # the map path only for what this method and the adapters' measurements hold (ints, floats,
         # float64 arrays: a server checks a map's arrays as a frame's)
         as_map = self._maps

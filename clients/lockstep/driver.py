@@ -79,8 +79,9 @@ class Sample(NamedTuple):
            optional: Mapping[str, np.ndarray] = MappingProxyType({})) -> "Sample":
         """A sample; ``optional`` the optional forces by reply field (none for a linear scene)."""
         load = excitation + radiation
-        for part in optional.values():
-            load = load + part
+        for part in optional.values():   # over the 6N rigid DOFs (the first entries with modes)
+            load = load + part if part.size == load.size else np.concatenate((load[:part.size] + part,
+                                                                              load[part.size:]))
         return cls(excitation, radiation, hydrostatic, eta, load, optional)
 
     def toward(self, other: "Sample", w: float) -> "Sample":
@@ -111,20 +112,27 @@ class ForceLink:
         self._zero = Sample.of(np.zeros(0), np.zeros(0), np.zeros(0), 0.0)
         self._shape = (self.n, 6)
         self._pos = np.zeros(self._shape)   # the absolute position sent (reused: the server copies it)
+        # generalized modes (setup.modes): the state's last M entries, sent as modal_position/velocity
+        self.m = len(setup.mode_labels) if self.n else 0
+        self._r = 6 * self.n
 
     def sample(self, seq: int, x: np.ndarray, v: np.ndarray, *, iteration: int = 0,
                measurements: dict | None = None, timeout: float | None = None) -> Sample:
-        """The server's forces at step ``seq`` for displacement ``x`` and velocity ``v`` (6N)."""
+        """The server's forces at step ``seq`` for displacement ``x`` and velocity ``v`` (6N, then
+        the M modal coordinates of a session with generalized modes)."""
         if not self.n:
             return self._zero
         t = seq * self.dt
         t0 = _time.perf_counter()
-        shape, pos = self._shape, self._pos
+        shape, pos, r = self._shape, self._pos, self._r
+        extra = {"modal": (x[r:], v[r:])} if self.m else {}
+        if self.m:
+            x, v = x[:r], v[:r]
         np.add(self.eq, x, out=pos.reshape(-1))
         try:
-            if measurements is not None or timeout is not None:
+            if measurements is not None or timeout is not None or extra:
                 reply = self.conn.step(seq, t, pos, v.reshape(shape), iteration, measurements=measurements,
-                                       timeout=timeout)
+                                       timeout=timeout, **extra)
             else:
                 reply = self.conn.step(seq, t, pos, v.reshape(shape), iteration)
         except (KeyboardInterrupt, RunInterrupted):
@@ -142,8 +150,12 @@ class ForceLink:
         eta = reply["wave_elevation"]
         eta = eta if type(eta) is float else float(np.asarray(eta, float).reshape(-1)[0])
         optional = {k: reply[k].reshape(-1) for k in OPTIONAL_FORCES if reply.get(k) is not None}
-        s = Sample.of(reply["excitation"].reshape(-1), reply["radiation"].reshape(-1),
-                      reply["hydrostatic"].reshape(-1), eta, optional)
+        if self.m:   # the modes' forces after the rigid DOFs' (the optional forces are the rigid DOFs')
+            s = Sample.of(*(np.concatenate((reply[f].reshape(-1), reply["modal_" + f]))
+                            for f in ("excitation", "radiation", "hydrostatic")), eta, optional)
+        else:
+            s = Sample.of(reply["excitation"].reshape(-1), reply["radiation"].reshape(-1),
+                          reply["hydrostatic"].reshape(-1), eta, optional)
         # NaN or inf anywhere makes a sum non-finite (excitation and radiation through their sum)
         if not math.isfinite(float(_sum(s.load)) + float(_sum(s.hydrostatic)) + eta):
             rows = self.writer.rows

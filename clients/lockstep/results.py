@@ -460,3 +460,30 @@ def add_force_term_variables(writer: ResultWriter, scene: Scene) -> None:
     for name in reply_fields(scene):
         for v in reply_field(name).variables:
             writer.add_variable(v.name, v.dims, None, v.units, v.description)
+
+
+#: the generalized modes' results variables (dim ``mode``, labels "body.mode"): name, units, description
+MODAL_VARIABLES: tuple[tuple[str, str, str], ...] = (
+    ("modal_position", "modal coordinate (m for a mode shape in metres)",
+     "generalized mode coordinate q_k: the body's deformation is sum_k q_k times the mode's shape"),
+    ("modal_velocity", "modal coordinate per second", "rate of the generalized mode coordinate"),
+    ("modal_excitation", "generalized force", "wave excitation on the mode (server)"),
+    ("modal_radiation", "generalized force", "radiation memory force on the mode, without the A_inf term (server)"),
+    ("modal_hydrostatic", "generalized force", "-C q of the mode's row of the hydrostatic stiffness (in the "
+                                               "client's stiffness matrix)"),
+)
+
+
+#: with PTOs on modes (``bodies[i].modes.pto_stiffness`` / ``pto_damping``)
+MODAL_PTO_VARIABLES: tuple[tuple[str, str, str], ...] = (
+    ("modal_pto_force", "generalized force", "the modal PTO's force on its mode, -(k q + c dq/dt)"),
+    ("modal_pto_power", "W", "power absorbed by the modal PTO, (k q + c dq/dt) dq/dt (> 0: into the PTO)"),
+)
+
+
+def add_modal_variables(writer: ResultWriter, labels: tuple[str, ...], *, pto: bool = False) -> None:
+    """The generalized modes' results variables (dim ``mode``: the setup's ``body.mode`` labels,
+    beyond each body's six rigid DOFs), with ``pto`` the modal PTOs' too; the client stages them
+    every row."""
+    for name, units, description in MODAL_VARIABLES + (MODAL_PTO_VARIABLES if pto else ()):
+        writer.add_variable(name, ("mode",), {"mode": list(labels)}, units, description)

@@ -1,8 +1,8 @@
 """The flexible barge's rigid and modal responses in regular waves, in the frequency domain, from
 its HDB (6 rigid DOFs + 2 vertical bending modes + 1 torsion mode, examples/data/flexible_barge).
 
-hydrolink reads and builds generalized modes but does not simulate them in time yet (issue 38):
-this script solves the linear equations of motion at each HDB frequency instead,
+The same equations `hydrolink run` integrates in time (barge.toml; tests/test_modes.py holds the
+two against each other), solved here at each HDB frequency,
 
     (-w^2 (M + A(w)) - i w B(w) + K) X(w) = F(w)          (exp(-iwt), per metre of wave amplitude)
 

@@ -272,6 +272,15 @@ class Session(SessionInfo):
             self._saved_bytes -= entry[1]
         return {"state": sid, "kept": len(self._saved)}
 
+    def _modal_state(self, msg: dict) -> tuple:
+        """A session with generalized modes: the step's ``modal_position`` and ``modal_velocity``
+        (M,) (SPEC §5.2, revision 1.15); without modes: ()."""
+        m = self.model.modes.size
+        if not m:
+            return ()
+        return (codec.require_array(msg, "modal_position", (m,), bound=MAX_COORDINATE),
+                codec.require_array(msg, "modal_velocity", (m,), bound=MAX_SPEED))
+
     def step(self, msg: dict) -> dict:
         """Reply fields for a ``step`` request (SPEC §5.2–5.3); ProtocolError leaves state unchanged."""
         seq = codec.require_int(msg, "seq", minimum=0)
@@ -287,13 +296,15 @@ class Session(SessionInfo):
         shape = (self.n_bodies, 6)
         pos = codec.require_array(msg, "position", shape, bound=MAX_COORDINATE)
         vel = codec.require_array(msg, "velocity", shape, bound=MAX_SPEED)
+        modal = self._modal_state(msg)
         if seq == self.last_seq + 1:
             replace = False
         elif seq == self.last_seq and iteration > self.last_iteration:
             replace = True
         elif seq == self.last_seq and iteration == self.last_iteration:
-            old_pos, old_vel = self._last_state
-            if not (np.array_equal(old_pos, pos) and np.array_equal(old_vel, vel)):
+            old_pos, old_vel, *old_modal = self._last_state
+            if not (np.array_equal(old_pos, pos) and np.array_equal(old_vel, vel)
+                    and all(np.array_equal(a, b) for a, b in zip(old_modal, modal))):
                 raise ProtocolError(Code.OUT_OF_ORDER, "iteration",
                                     f"seq {seq} iteration {iteration} was already computed with another state; "
                                     f"send iteration {iteration + 1} to replace it")
@@ -307,14 +318,15 @@ class Session(SessionInfo):
             raise ProtocolError(Code.OUT_OF_ORDER, field, f"{expect}; got seq {seq} iteration {iteration}")
         t0 = _time.perf_counter()
         try:
-            out = self.model.step(t, pos, vel, replace_last=replace)
+            out = self.model.step(t, pos, vel, replace_last=replace, **(
+                {"modal_position": modal[0], "modal_velocity": modal[1]} if modal else {}))
         except ModelError as exc:
             raise ProtocolError(Code.BAD_VALUE, exc.key, str(exc)) from None
         elapsed = _time.perf_counter() - t0
         self.steps += 1
         self.compute_s += elapsed
         self.last_seq, self.last_iteration = seq, iteration
-        self._last_state = (pos.copy(), vel.copy())
+        self._last_state = (pos.copy(), vel.copy(), *(a.copy() for a in modal))
         # one map: the reply now and, cached (its arrays are read-only), the reply to a retry
         self._cached = reply = {"seq": seq, "iteration": iteration, "time": t, **out, "compute_us": elapsed * 1e6}
         return reply
