@@ -446,9 +446,9 @@ def test_in_process_server_refuses_controllers(reference_data, tmp_path):
 def test_run_polls_its_own_server_and_equals_a_separate_one(reference_data, server, tmp_path):
     """``hydrolink run`` of a scene with a controller and no --server polls its own server from the
     run's thread (ForceServer polled: no server thread, the run's steps in-process, the controller
-    over loopback TCP): the results equal, bit for bit, the same run against a server in a thread
-    with the run over TCP too; no thread is left running; a second multibody hello to the run's
-    socket is refused (one session: the run's)."""
+    over its direct channel, SPEC §5.7.5): the results equal, bit for bit, the same run against a
+    server in a thread with the run and the controller over ZeroMQ; no thread is left running; a
+    second multibody hello to the run's socket is refused (one session: the run's)."""
     from hydrolink.protocol import codec
     from hydrolink.server.service import force_server
 
@@ -456,7 +456,7 @@ def test_run_polls_its_own_server_and_equals_a_separate_one(reference_data, serv
                                                          measurements=["pto_displacement", "pto_velocity"]))
     ds_remote, _, (rc, err) = run_with(tmp_path, "remote", text, server.address,
                                        python_ctl(EXAMPLES / "reactive.py", server.address))
-    assert rc == 0, err
+    assert rc == 0 and "over ZeroMQ" in err, err   # a server thread offers no direct channel
     address = free_address()
     threads = threading.active_count()
     ctx = zmq.Context()
@@ -480,7 +480,7 @@ def test_run_polls_its_own_server_and_equals_a_separate_one(reference_data, serv
         force_server.ForceServer.serve_once = serve_once
         stranger.close(0)
         ctx.term()
-    assert rc == 0, err
+    assert rc == 0 and "over the direct channel" in err, err
     assert summary.server == address and (refused["code"], refused.get("limit")) == (14, "sessions")
     assert seen["threads"] <= threads + 1   # at most the results writer's thread: no server thread
     ds_own = xr.load_dataset(tmp_path / "own.nc")
