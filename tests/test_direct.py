@@ -40,14 +40,14 @@ def accepted(listener: DirectListener):
     raise AssertionError("no connection accepted")
 
 
-@pytest.mark.parametrize("endpoint", ["tcp://127.0.0.1:5555", "ipc:///tmp/whatever.sock"])
+@pytest.mark.parametrize("endpoint", ["tcp://0.0.0.0:5555", "tcp://127.0.0.1:5555", "ipc:///tmp/whatever.sock"])
 def test_ticket_binds_a_connection_and_frames_are_reassembled(endpoint):
     """A connection showing an offered ticket is bound to the controller it was offered to (once:
     a ticket is one use); frames split over reads, or several in one, come out whole and in order."""
     listener = DirectListener(endpoint, max_bytes=1000)
     try:
         offer = listener.offer("own-id")
-        assert set(offer) == {"ticket", "port" if endpoint.startswith("tcp") else "path"}
+        assert set(offer) == {"ticket", "port" if "0.0.0.0" in endpoint else "path"}   # loopback: a Unix socket
         if "path" in offer:   # a private folder: this user only
             assert stat.S_IMODE(os.stat(os.path.dirname(offer["path"])).st_mode) == 0o700
         client = connect(listener)
@@ -78,7 +78,7 @@ def test_ticket_binds_a_connection_and_frames_are_reassembled(endpoint):
 def test_oversize_frame_and_foreign_ticket_are_refused():
     """A frame whose length passes the message limit breaks the connection before its body is
     read; a ticket never offered is not admitted; an inproc endpoint has no direct channel."""
-    listener = DirectListener("tcp://127.0.0.1:1", max_bytes=64)
+    listener = DirectListener("ipc:///tmp/x", max_bytes=64)
     try:
         client = connect(listener)
         link = accepted(listener)

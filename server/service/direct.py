@@ -19,6 +19,7 @@ from __future__ import annotations
 import logging
 import os
 import secrets
+import select
 import socket
 import struct
 import tempfile
@@ -30,6 +31,10 @@ log = logging.getLogger("hydrolink.server.service.direct")
 HEADER = struct.Struct("<I")   # a frame's length (SPEC §5.7.5)
 TICKETS_KEPT = 8               # open offers (one per controller welcome); older ones are forgotten
 READ_BYTES = 1 << 16           # what one read takes from a connection
+
+
+def _loopback(host: str) -> bool:
+    return host == "localhost" or host == "::1" or host.startswith("127.")
 
 
 class DirectError(RuntimeError):
@@ -48,13 +53,14 @@ class DirectLink:
 
     def __init__(self, sock: socket.socket, number: int, max_bytes: int):
         self.sock, self.max_bytes = sock, max_bytes
+        self.number = sock.fileno()   # kept: a closed socket's fileno is -1
         self.buffer = bytearray()
         self.own: str | None = None
         self.route = DirectRoute([b"direct-%d" % number])
         self.route.link = self
 
     def fileno(self) -> int:
-        return self.sock.fileno()
+        return self.number
 
     @property
     def closed(self) -> bool:
@@ -106,18 +112,19 @@ class DirectListener:
 
     def __init__(self, endpoint: str, max_bytes: int):
         """``endpoint``: the server's bound ZeroMQ endpoint; the listener takes the same interface
-        (``tcp://HOST:PORT`` → HOST on a port of its own; ``ipc://PATH`` → a Unix socket in a
-        private folder). DirectError for any other transport."""
+        (``tcp://HOST:PORT`` → HOST on a port of its own; ``ipc://PATH`` or a loopback HOST → a
+        Unix socket in a private folder: the peers share the host, and a Unix socket costs both
+        sides less kernel time a message than loopback TCP). DirectError for any other transport."""
         self.max_bytes = int(max_bytes)
         self._folder: Path | None = None
-        if endpoint.startswith("tcp://"):
-            host = endpoint[6:].rsplit(":", 1)[0].strip("[]")
+        host = endpoint[6:].rsplit(":", 1)[0].strip("[]") if endpoint.startswith("tcp://") else None
+        if host is not None and not _loopback(host):
             family = socket.AF_INET6 if ":" in host else socket.AF_INET
             self.sock = socket.socket(family, socket.SOCK_STREAM)
             self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
             self.sock.bind(("" if host in ("*", "0.0.0.0") else host, 0))
             self.offer_address: dict = {"port": self.sock.getsockname()[1]}
-        elif endpoint.startswith("ipc://"):
+        elif host is not None or endpoint.startswith("ipc://"):
             self._folder = Path(tempfile.mkdtemp(prefix="hydrolink-direct-"))   # mode 0700: this user only
             path = str(self._folder / "s")
             self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
@@ -130,6 +137,8 @@ class DirectListener:
         self.links: list[DirectLink] = []
         self._tickets: dict[str, str] = {}   # ticket -> the controller's own session id
         self._count = 0
+        self._fds = select.poll()            # the listener and its links, for ready_now
+        self._fds.register(self.sock, select.POLLIN)
 
     def fileno(self) -> int:
         return self.sock.fileno()
@@ -145,6 +154,7 @@ class DirectListener:
 
     def accept(self) -> DirectLink | None:
         """A new connection (its ticket still to come), or None."""
+        self.prune()   # a link closed since gives back its descriptor's number before a new one may take it
         try:
             conn, _ = self.sock.accept()
         except BlockingIOError:
@@ -155,6 +165,7 @@ class DirectListener:
         self._count += 1
         link = DirectLink(conn, self._count, self.max_bytes)
         self.links.append(link)
+        self._fds.register(link.sock, select.POLLIN)
         return link
 
     def admit(self, link: DirectLink, ticket: bytes) -> bool:
@@ -166,10 +177,23 @@ class DirectListener:
         link.own = own
         return True
 
+    def prune(self) -> bool:
+        """Forget the links closed since (a reply they did not take); whether there were any."""
+        gone = [link for link in self.links if link.closed]
+        for link in gone:
+            self.links.remove(link)
+            self._fds.unregister(link.number)
+        return bool(gone)
+
+    def ready_now(self) -> set[int]:
+        """The descriptors (the listener's, the links') with something to read now, never waiting."""
+        self.prune()
+        return {fd for fd, _ in self._fds.poll(0)}
+
     def drop(self, link: DirectLink, why: str) -> None:
         log.info("direct connection %s closed: %s", link.route[0].decode(), why)
         link.close()
-        self.links.remove(link)
+        self.prune()
 
     def close(self) -> None:
         for link in self.links:

@@ -250,7 +250,7 @@ class ForceServer:
         a flood on the socket delays the run's step by that many, never holds it. The direct
         connections are read too (what has arrived on them, never waiting)."""
         if self._direct is not None:
-            self._serve_direct(self._direct_ready(0))
+            self._serve_direct(self._direct.ready_now())
         for _ in range(MAX_QUEUED):
             if not self._sock.ready():
                 break
@@ -318,8 +318,7 @@ class ForceServer:
     def _direct_ready(self, ms: int) -> dict:
         """What is readable within ``ms``: the ZeroMQ socket, the direct listener, its connections
         (one poll, rebuilt only when a connection came or went)."""
-        if any(link.closed for link in self._direct.links):
-            self._direct.links = [link for link in self._direct.links if not link.closed]
+        if self._direct.prune():
             self._poller = None
         if self._poller is None:
             self._poller = zmq.Poller()
@@ -327,7 +326,7 @@ class ForceServer:
                 self._poller.register(item, zmq.POLLIN)
         return dict(self._poller.poll(ms))
 
-    def _serve_direct(self, ready: dict) -> None:
+    def _serve_direct(self, ready: dict | set) -> None:
         """Answer what the ready direct connections sent (a new one's ticket first, then requests,
         each handled as one from the socket: SPEC §5.7.5) and accept the new connections."""
         for link in list(self._direct.links) if len(ready) > (self._sock.socket in ready) else ():
