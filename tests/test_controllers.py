@@ -490,6 +490,37 @@ def test_run_polls_its_own_server_and_equals_a_separate_one(reference_data, serv
     assert np.abs(ds_own["pto_command_force"].values).max() > 1e3   # the ramp's first 2 s: commands of kN
 
 
+def test_controller_whose_direct_channel_breaks_goes_on_over_zeromq(reference_data, tmp_path):
+    """The run's own server closes a controller's direct channel mid-run (SPEC §5.7.5): the
+    controller sends its request again over ZeroMQ and decides the rest of the run there; the
+    request whose reply went down with the channel costs at most one control step on the fallback
+    (0.5 s timeout), and the commands before and after are the controller's."""
+    from hydrolink.server.service import force_server
+
+    text = scene_text(reference_data, 2.0, controller_block("force", 3.9e5, 1.36e6,
+                                                         measurements=["pto_displacement", "pto_velocity"])
+                      .replace("timeout = 10.0", "timeout = 0.5"))
+    serve_once, cut = force_server.ForceServer.serve_once, {}
+
+    def breaking(srv):   # at the 20th turn with a direct link open: its socket closed under it
+        links = srv._direct.links if srv._direct is not None else []
+        cut["turns"] = cut.get("turns", 0) + bool(links)
+        if links and cut["turns"] == 20:
+            links[0].close()
+            cut["done"] = True
+        serve_once(srv)
+    try:
+        force_server.ForceServer.serve_once = breaking
+        _, (rc, err) = run_own(tmp_path, "cut", text, EXAMPLES / "reactive.py", free_address())
+    finally:
+        force_server.ForceServer.serve_once = serve_once
+    assert rc == 0 and cut.get("done") and "over ZeroMQ" in err, err
+    ds = xr.load_dataset(tmp_path / "cut.nc")
+    ev = json.loads(ds.attrs["controller_events"])["ctl"]
+    assert ev["ok"] >= 48 and ev["timeout"] + ev["absent"] <= 1, ev
+    assert np.all(ds["controller_status"].sel(controller="ctl").values[-10:] == 0)
+
+
 NAP = '''
 import time
 from hydrolink.clients.control import Controller
