@@ -502,6 +502,23 @@ class ForceServer:
         self._wait_hold()
         return reply
 
+    def step_map(self, session: str, msg_id: str, fields: dict, timeout: float = math.inf) -> dict:
+        """The ``step`` of this process's own client (ServerConnection, no signing key): the reply
+        :meth:`respond_map` gives, bit for bit, without what that client's map does not need — its
+        envelope is the connection's own (not checked again), it holds no nil, and the dispatch is
+        known; its fields get every check (Session.step). A session with controllers, paced, in a
+        worker, or a polled server's, takes :meth:`respond_map`."""
+        s = self.sessions.get(session)
+        if s is None or self.polled or type(s) is not Session or s.pacer is not None or s.id in self._hubs:
+            return self.respond_map(codec.message("step", msg_id, session, **fields), timeout)
+        s.touch()
+        try:
+            reply = s.step(fields)
+        except Exception as exc:  # noqa: BLE001 - as handle: an error reply, never a raise
+            return self._error(exc, {"type": "step", "msg_id": msg_id}, session, None)
+        return {"v": codec.PROTOCOL_VERSION, "type": "forces", "msg_id": next(self._ids), "session": session,
+                "parent": msg_id, **reply}
+
     def handle(self, frame: bytes | dict, route: list[bytes] | None = None) -> dict | None:
         """One request frame (or, in-process, its unpacked map) -> its reply message (never
         raises); None when the reply is deferred (only with ``route``, the routing frames, from
