@@ -174,6 +174,8 @@ class _DirectChannel:
     def __init__(self, sock: socket.socket):
         self.sock = sock
         self.buffer = bytearray()
+        self._within = -1.0    # the kernel's receive timeout set (SO_RCVTIMEO), s
+        sock.settimeout(None)  # blocking: a request is one send and one receive, no poll before each
 
     @classmethod
     def open(cls, address: str, offer: dict) -> "_DirectChannel":
@@ -203,7 +205,11 @@ class _DirectChannel:
     def request(self, frame: bytes, msg_id: Any, within: float, key: bytes | None) -> dict:
         """Send ``frame`` and wait at most ``within`` s for the reply whose parent is ``msg_id``;
         OSError (a timeout included) when the channel fails."""
-        self.sock.settimeout(within)
+        if within != self._within:   # the kernel times the receive (and the send) out
+            tv = struct.pack("ll", int(within), int(within % 1 * 1e6))
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO, tv)
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDTIMEO, tv)
+            self._within = within
         self.sock.sendall(DIRECT_HEADER.pack(len(frame)) + frame)
         deadline = time.monotonic() + within
         while True:
@@ -214,11 +220,12 @@ class _DirectChannel:
     def _frame(self, deadline: float) -> bytes:
         buf, size = self.buffer, DIRECT_HEADER.size
         while len(buf) < size or len(buf) < size + DIRECT_HEADER.unpack_from(buf)[0]:
-            left = deadline - time.monotonic()
-            if left <= 0:
+            if time.monotonic() > deadline:   # a frame still arriving in pieces
                 raise TimeoutError("no reply on the direct channel")
-            self.sock.settimeout(left)
-            data = self.sock.recv(1 << 16)
+            try:
+                data = self.sock.recv(1 << 16)
+            except BlockingIOError:   # SO_RCVTIMEO passed
+                raise TimeoutError("no reply on the direct channel") from None
             if not data:
                 raise ConnectionResetError("the server closed the direct channel")
             buf += data

@@ -123,3 +123,30 @@ def test_polled_server_answers_over_its_direct_channel_and_drops_a_wrong_ticket(
         assert threaded._direct is None
     finally:
         threaded.close()
+
+
+def test_controller_end_times_out_and_sees_a_closed_channel():
+    """The controller's end of the channel (clients/control.py): shows its ticket first; a reply
+    that does not come within the request's time is a TimeoutError after about that time (the
+    kernel's receive timeout), a channel the server closed a ConnectionError: both OSErrors,
+    on which the controller goes back to ZeroMQ."""
+    import time
+
+    from hydrolink.clients.control import _DirectChannel
+
+    listener = DirectListener("ipc:///tmp/x", max_bytes=1000)
+    try:
+        offer = listener.offer("own")
+        channel = _DirectChannel.open("ipc:///tmp/x", offer)
+        link = accepted(listener)
+        assert list(link.read()) == [offer["ticket"].encode()]
+        t0 = time.monotonic()
+        with pytest.raises(TimeoutError):
+            channel.request(codec.pack(codec.message("ping", "k1", "own")), "k1", 0.3, None)
+        assert 0.25 < time.monotonic() - t0 < 3.0
+        link.close()
+        with pytest.raises(ConnectionError):   # the send's broken pipe, or the receive's end of stream
+            channel.request(codec.pack(codec.message("ping", "k2", "own")), "k2", 5.0, None)
+        channel.close()
+    finally:
+        listener.close()
