@@ -491,34 +491,40 @@ def test_run_polls_its_own_server_and_equals_a_separate_one(reference_data, serv
 
 
 def test_controller_whose_direct_channel_breaks_goes_on_over_zeromq(reference_data, tmp_path):
-    """The run's own server closes a controller's direct channel mid-run (SPEC §5.7.5): the
-    controller sends its request again over ZeroMQ and decides the rest of the run there; the
-    request whose reply went down with the channel costs at most one control step on the fallback
-    (0.5 s timeout), and the commands before and after are the controller's."""
+    """The run's own server loses a controller's direct channel mid-run (SPEC §5.7.5), once while
+    the controller computes a command and once while its request waits for the next measurements:
+    the controller sends its request again over ZeroMQ and decides the rest of the run there; the
+    measurements whose delivery went down with the channel are delivered again to its next
+    request, so every decision is the controller's (0.5 s timeout)."""
     from hydrolink.server.service import force_server
 
     text = scene_text(reference_data, 2.0, controller_block("force", 3.9e5, 1.36e6,
                                                          measurements=["pto_displacement", "pto_velocity"])
                       .replace("timeout = 10.0", "timeout = 0.5"))
-    serve_once, cut = force_server.ForceServer.serve_once, {}
+    serve_once, serve_ready, cut = force_server.ForceServer.serve_once, force_server.ForceServer._serve_ready, {}
 
-    def breaking(srv):   # at the 20th turn with a direct link open: its socket closed under it
-        links = srv._direct.links if srv._direct is not None else []
-        cut["turns"] = cut.get("turns", 0) + bool(links)
-        if links and cut["turns"] == 20:
-            links[0].close()
-            cut["done"] = True
-        serve_once(srv)
-    try:
-        force_server.ForceServer.serve_once = breaking
-        _, (rc, err) = run_own(tmp_path, "cut", text, EXAMPLES / "reactive.py", free_address())
-    finally:
+    def breaking(where, plain):   # the 10th call with a direct link open: its socket closed under it
+        def call(srv):
+            links = srv._direct.links if srv._direct is not None else []
+            cut[where] = cut.get(where, 0) + bool(links)
+            if links and cut[where] == 10:
+                links[0].close()
+            plain(srv)
+        return call
+    try:   # serve_once: the run waits for the command; _serve_ready: before the run's next step request
+        force_server.ForceServer.serve_once = breaking("waiting", serve_once)
+        _, (rc, err1) = run_own(tmp_path, "cut1", text, EXAMPLES / "reactive.py", free_address())
         force_server.ForceServer.serve_once = serve_once
-    assert rc == 0 and cut.get("done") and "over ZeroMQ" in err, err
-    ds = xr.load_dataset(tmp_path / "cut.nc")
-    ev = json.loads(ds.attrs["controller_events"])["ctl"]
-    assert ev["ok"] >= 48 and ev["timeout"] + ev["absent"] <= 1, ev
-    assert np.all(ds["controller_status"].sel(controller="ctl").values[-10:] == 0)
+        force_server.ForceServer._serve_ready = breaking("parked", serve_ready)
+        _, (rc2, err2) = run_own(tmp_path, "cut2", text, EXAMPLES / "reactive.py", free_address())
+    finally:
+        force_server.ForceServer.serve_once, force_server.ForceServer._serve_ready = serve_once, serve_ready
+    for name, code, err in (("cut1", rc, err1), ("cut2", rc2, err2)):
+        assert code == 0 and "over ZeroMQ" in err, err
+        ds = xr.load_dataset(tmp_path / f"{name}.nc")
+        ev = json.loads(ds.attrs["controller_events"])["ctl"]
+        assert ev["ok"] == 50 and ev["timeout"] + ev["absent"] + ev["invalid"] == 0, (name, ev)
+    assert cut["waiting"] >= 10 and cut["parked"] >= 10
 
 
 NAP = '''

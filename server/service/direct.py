@@ -86,22 +86,24 @@ class DirectLink:
             del self.buffer[:HEADER.size + n]
             yield frame
 
-    def write(self, frame: bytes) -> None:
-        """Send one frame now; a connection whose buffer is full or that is gone is closed (its
-        controller's request is then unanswered here and it goes on over ZeroMQ)."""
+    def write(self, frame: bytes) -> bool:
+        """Send one frame now; whether it left. A connection whose buffer is full or that is gone
+        is closed (its controller's request is then unanswered here and it goes on over ZeroMQ)."""
         if self.closed:
-            return
+            return False
         data = HEADER.pack(len(frame)) + frame
         try:
             sent = self.sock.send(data)
         except OSError as exc:
             log.info("direct connection %s dropped: %s", self.route[0].decode(), exc)
             self.close()
-            return
+            return False
         if sent < len(data):
             log.warning("direct connection %s dropped: its controller does not read (%d of %d bytes sent)",
                         self.route[0].decode(), sent, len(data))
             self.close()
+            return False
+        return True
 
     def close(self) -> None:
         self.sock.close()

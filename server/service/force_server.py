@@ -397,7 +397,11 @@ class ForceServer:
             self._local_reply = (reply, release)
             return
         if type(route) is DirectRoute:   # a controller's direct connection (never paced: no forces)
-            route.link.write(self._frame(reply))
+            if not route.link.write(self._frame(reply)) and reply.get("type") == "measurements":
+                joined = self._controllers.get(reply.get("session"))   # (session, controller name)
+                hub = self._hubs.get(joined[0]) if joined is not None else None
+                if hub is not None:   # lost with the channel: sent again at the controller's next request
+                    hub.undelivered(joined[1], reply["step"])
             return
         frames = [*route, self._frame(reply)]
         if release is not None and release > time.perf_counter():
