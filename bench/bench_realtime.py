@@ -3,14 +3,17 @@ clock (``hydrolink run --realtime``) at 100 Hz, 200 Hz and 1 kHz: overruns and s
 percentiles, beside the unpaced cost of a step of the same run.
 
     python bench/bench_realtime.py [--rates 100 200 1000] [--seconds 60] [--unpaced-seconds 10] [--radiation state-space]
-                                   [--relays polled thread]
+                                   [--relays polled thread] [--channels direct zeromq]
 
 Each rate: the scene's dt = 1/rate, the run's own force server listening on a loopback port, the
 example controller examples/controllers/reactive.py in its own process (force command every step,
 latency 1 step). The unpaced run is the same setup without --realtime: its wall time per step is
 what a step costs here; a paced run can keep its rate only if that cost stays below 1/rate.
+``--channels``: the controller on the polled server's direct channel (SPEC §5.7.5, what ``hydrolink
+control`` takes when offered) and/or on ZeroMQ (``--no-direct``), alternated in one run.
 Prints a markdown table (the load average before and after: the figures are the host's as much as
-the code's), then per paced run where the step time went (protocol/pacing.py PARTS: mean per step,
+the code's; the CPU time per step of each side, the run's process and the controller's, from the
+unpaced run's loop: valid under load), then per paced run where the step time went (protocol/pacing.py PARTS: mean per step,
 and the overruns by cause) and the overruns counted in the results file beside the summary's.
 """
 
@@ -18,11 +21,13 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import secrets
 import socket
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 TOKEN = secrets.token_urlsafe(32)   # the runs' join token, handed to their controllers (SPEC §5.7.2)
@@ -52,27 +57,58 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def run(tmp: Path, rate: float, seconds: float, realtime: float | None, radiation: str, relay: str = "polled"):
-    """One run with the controller process; returns the RunSummary (its results file: ``output``)."""
-    path = tmp / f"rm3_{int(rate)}_{'paced' if realtime else 'free'}_{relay}.toml"
+def run(tmp: Path, rate: float, seconds: float, realtime: float | None, radiation: str, relay: str = "polled",
+        channel: str = "direct"):
+    """One run with the controller process; returns the RunSummary (its results file: ``output``)
+    and the CPU µs per step of the run's process and of the controller's (LoopCost)."""
+    path = tmp / f"rm3_{int(rate)}_{'paced' if realtime else 'free'}_{relay}_{channel}.toml"
     path.write_text(scene(1.0 / rate, seconds, radiation))
-    return run_controlled(path, REPO / "examples" / "controllers" / "reactive.py", realtime, relay)
+    cost = LoopCost()
+    summary = run_controlled(path, REPO / "examples" / "controllers" / "reactive.py", realtime, relay, channel, cost)
+    return summary, cost
 
 
-def run_controlled(path: Path, controller: Path, realtime: float | None, relay: str = "polled"):
+class LoopCost:
+    """CPU µs per step of a controlled run: the run's process over its lockstep loop
+    (``time.process_time`` around clients/lockstep/driver.run: every thread, ZeroMQ's I/O thread
+    and the results writer's included; the set-up left out) and the controller process's from its
+    own report (``hydrolink control``: its loop, every thread)."""
+
+    def __init__(self) -> None:
+        self.run_cpu_s = 0.0
+        self.controller_us: float = float("nan")
+
+    def timed(self, run):
+        def wrapped(*args, **kwargs):
+            c0 = time.process_time()
+            try:
+                return run(*args, **kwargs)
+            finally:
+                self.run_cpu_s += time.process_time() - c0
+        return wrapped
+
+
+def run_controlled(path: Path, controller: Path, realtime: float | None, relay: str = "polled",
+                   channel: str = "direct", cost: LoopCost | None = None):
     """Run the scene file ``path`` (results beside it) with the Python controller file
     ``controller`` in its own process (``hydrolink control``) over loopback TCP; the RunSummary.
     ``relay``: "polled", the run's own server polled from its thread (what ``hydrolink run`` does);
     "thread", what it did before: a force server in a thread of this process, the run its client
-    over loopback TCP (two Python hops a step, two threads sharing the GIL)."""
+    over loopback TCP (two Python hops a step, two threads sharing the GIL). ``channel``:
+    "direct", the controller on the polled server's direct channel (SPEC §5.7.5); "zeromq", on
+    ZeroMQ only (``--no-direct``: what it did before). ``cost``: filled with the CPU per step."""
+    from hydrolink.clients.lockstep import driver
     from hydrolink.clients.run import run_scene_file
     from hydrolink.server.service.force_server import serve_in_thread
 
     address = f"tcp://127.0.0.1:{free_port()}"
     ctl = subprocess.Popen([sys.executable, "-m", "hydrolink.clients.cli", "control", str(controller), "--server",
-                            address, "--token", TOKEN, "--join-wait", "60"],
+                            address, "--token", TOKEN, "--join-wait", "60", *(["--no-direct"] if channel == "zeromq" else [])],
                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     srv = thread = None
+    plain_run, err = driver.run, ""
+    if cost is not None:
+        driver.run = cost.timed(plain_run)
     try:
         if relay == "thread":
             from hydrolink.clients.analysis.plant import build_plant
@@ -80,14 +116,21 @@ def run_controlled(path: Path, controller: Path, realtime: float | None, relay: 
         summary = run_scene_file(path, path.with_suffix(".nc"), progress=False, listen=address, control_token=TOKEN,
                                  realtime=realtime, server=address if srv is not None else None)
     finally:
+        driver.run = plain_run
         if srv is not None:
             srv.stop()
             thread.join(5.0)
         try:
-            ctl.communicate(timeout=30)
+            _, err = ctl.communicate(timeout=30)
         except subprocess.TimeoutExpired:
             ctl.kill()
             ctl.communicate()
+    said = re.search(r"(\d+) µs CPU a step", err or "")
+    if cost is not None:
+        cost.run_cpu_s /= max(summary.steps, 1)
+        cost.controller_us = float(said.group(1)) if said else float("nan")
+    if channel == "direct" and relay == "polled" and "direct channel" not in (err or ""):
+        print(f"warning: the controller did not take the direct channel: {err.strip()[-300:]}", file=sys.stderr)
     return summary
 
 
@@ -102,36 +145,42 @@ def main() -> None:
     ap.add_argument("--relays", nargs="+", default=["polled"], choices=["polled", "thread"],
                     help="polled: hydrolink run's own server polled from the run's thread; thread: the relay "
                          "before (a server thread, the run over loopback TCP), for a comparison in one run")
+    ap.add_argument("--channels", nargs="+", default=["direct"], choices=["direct", "zeromq"],
+                    help="direct: the controller on the polled server's direct channel (SPEC §5.7.5); zeromq: "
+                         "on ZeroMQ (hydrolink control --no-direct, before revision 1.12), for a comparison")
     args = ap.parse_args()
     rows, notes = [], []
     load0 = os.getloadavg()
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         for rate in args.rates:
-            for relay in args.relays:
+            for relay, channel in [(r, c) for r in args.relays for c in args.channels
+                                   if r == "polled" or c == args.channels[0]]:   # a thread relay has no direct channel
+                label = relay if relay == "thread" else f"{relay}, {channel}"
                 # unpaced: released at once (a factor no step can keep up with); the step costs are its
                 # steps' times from their actual start (latency less "behind"; the controller's join left out)
-                unpaced = run(tmp, rate, args.unpaced_seconds, UNPACED, args.radiation, relay)
+                unpaced, cost = run(tmp, rate, args.unpaced_seconds, UNPACED, args.radiation, relay, channel)
                 free = unpaced.realtime
-                paced = run(tmp, rate, args.seconds, 1.0, args.radiation, relay)
+                paced, _ = run(tmp, rate, args.seconds, 1.0, args.radiation, relay, channel)
                 rt = paced.realtime
-                notes.append(breakdown(rate, paced) + f" ({relay}); unpaced: the server's model "
+                notes.append(breakdown(rate, paced) + f" ({label}); unpaced: the server's model "
                              f"{unpaced.server_compute_us_per_step:.1f} µs per step, ms per step: "
                              + ", ".join(f"{k} {1e3 * v:.3f}" for k, v in free.parts_mean.items() if k != "behind"))
                 c50, c99 = step_cost(unpaced)
-                rows.append((rate, relay, 1e3 / rate, 1e3 * c50, 1e3 * c99, rt.steps, rt.overruns,
-                             1e3 * rt.worst_lateness, 1e3 * rt.latency_p50, 1e3 * rt.latency_p99,
-                             1e3 * rt.latency_max, paced.wall_time, os.getloadavg()[0]))
-                print(f"{rate:g} Hz {relay}: unpaced {free}; paced {rt}", file=sys.stderr, flush=True)
+                rows.append((rate, label, 1e3 / rate, 1e3 * c50, 1e3 * c99, 1e6 * cost.run_cpu_s, cost.controller_us,
+                             rt.steps, rt.overruns, 1e3 * rt.worst_lateness, 1e3 * rt.latency_p50,
+                             1e3 * rt.latency_p99, 1e3 * rt.latency_max, paced.wall_time, os.getloadavg()[0]))
+                print(f"{rate:g} Hz {label}: unpaced {free}; paced {rt}", file=sys.stderr, flush=True)
     load1 = os.getloadavg()
     print(f"load average {load0[0]:.2f} before, {load1[0]:.2f} after ({os.cpu_count()} CPUs)\n")
-    print("| rate | relay | budget (ms) | unpaced step p50 (ms) | unpaced p99 (ms) | paced steps | overruns | "
-          "worst lateness (ms) | paced latency p50 (ms) | p99 (ms) | max (ms) | loop wall (s) | load after |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("| rate | relay | budget (ms) | unpaced step p50 (ms) | unpaced p99 (ms) | CPU µs/step: run | controller | "
+          "paced steps | overruns | worst lateness (ms) | paced latency p50 (ms) | p99 (ms) | max (ms) | loop wall (s) "
+          "| load after |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
-        print(f"| {r[0]:g} Hz | {r[1]} | {r[2]:.3g} | {r[3]:.3f} | {r[4]:.3f} | {r[5]} | {r[6]} "
-              f"({100 * r[6] / max(r[5], 1):.2g} %) | {r[7]:.2f} | {r[8]:.3f} | {r[9]:.3f} | {r[10]:.2f} | "
-              f"{r[11]:.1f} | {r[12]:.2f} |")
+        print(f"| {r[0]:g} Hz | {r[1]} | {r[2]:.3g} | {r[3]:.3f} | {r[4]:.3f} | {r[5]:.0f} | {r[6]:.0f} | {r[7]} | "
+              f"{r[8]} ({100 * r[8] / max(r[7], 1):.2g} %) | {r[9]:.2f} | {r[10]:.3f} | {r[11]:.3f} | {r[12]:.2f} | "
+              f"{r[13]:.1f} | {r[14]:.2f} |")
     print()
     for line in notes:
         print(line)

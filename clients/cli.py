@@ -426,22 +426,27 @@ def run(scene: Path, output: Path | None, server: str | None, no_progress: bool,
 @click.option("--name", help="The scene's controllers[i].name (default: the class's name attribute).")
 @click.option("--class", "class_name", help="Controller class in FILE, when it defines several.")
 @click.option("--join-wait", default=30.0, show_default=True, help="Seconds to keep trying to join.")
+@click.option("--no-direct", is_flag=True, help="Stay on ZeroMQ even when the server offers its direct channel "
+                                                 "(SPEC §5.7.5: a plain socket, a faster round trip at 1 kHz).")
 @_curve_options
 @_key_file_option
 def control(file: Path, server: str, token: str, session: str | None, name: str | None, class_name: str | None,
-            join_wait: float, curve_server_key: Path | None, curve_secret: Path | None, key_file: Path | None) -> None:
+            join_wait: float, no_direct: bool, curve_server_key: Path | None, curve_secret: Path | None,
+            key_file: Path | None) -> None:
     """Run the Python controller in FILE (a hydrolink.clients.control.Controller subclass)."""
     from hydrolink.clients.control import ControllerError, load_controller, run_controller
 
     curve = _client_keys(curve_server_key, curve_secret)
     try:
         stats = run_controller(load_controller(file, class_name), server, token=token, session=session, name=name,
-                               join_wait=join_wait, curve=curve, key=_hmac_key(key_file))
+                               join_wait=join_wait, curve=curve, key=_hmac_key(key_file), direct=not no_direct)
     except ControllerError as exc:
         raise _UserError(str(exc)) from None
     except KeyboardInterrupt:
         raise SystemExit(130) from None
-    click.echo(f"controller done: {stats['steps']} steps, {stats['errors']} errors", err=True)
+    cpu = f"; {1e6 * stats['cpu_s'] / stats['steps']:.0f} µs CPU a step" if stats["steps"] else ""
+    click.echo(f"controller done: {stats['steps']} steps, {stats['errors']} errors"
+               + (" (over the direct channel" if stats["direct"] else " (over ZeroMQ") + cpu + ")", err=True)
 
 
 def _analysis(fn, scene: Path, *args, **kwargs):

@@ -34,6 +34,8 @@ import importlib.util
 import math
 import inspect
 import logging
+import socket
+import struct
 import sys
 import time
 from pathlib import Path
@@ -45,6 +47,9 @@ import zmq
 from hydrolink.protocol import codec
 
 log = logging.getLogger("hydrolink.control")
+
+DIRECT_HEADER = struct.Struct("<I")   # a direct frame's length (SPEC §5.7.5)
+DIRECT_CONNECT_S = 1.0                # how long opening the direct channel may take before ZeroMQ is kept
 
 
 class Controller:
@@ -107,7 +112,9 @@ def decode_measurements(reply: dict) -> dict:
 
 
 class _Link:
-    """One DEALER socket to the server; requests matched by ``parent``; every receive times out."""
+    """One DEALER socket to the server; requests matched by ``parent``; every receive times out.
+    After the welcome, :meth:`go_direct` moves the requests to the server's direct channel when it
+    offers one (SPEC §5.7.5): a plain stream socket, no ZeroMQ I/O thread on either side."""
 
     def __init__(self, address: str, key: bytes | None, timeout: float, curve=None):
         self.address, self.key, self.timeout = address, key, timeout
@@ -119,11 +126,20 @@ class _Link:
         self.sock.connect(address)
         self.ids = codec.id_source("k")
         self.session: str | None = None
+        self.direct: _DirectChannel | None = None
 
     def request(self, mtype: str, hold: float = 0.0, **fields: Any) -> dict:
         """``hold``: how long the server may hold the request (SPEC §5.7.4 ``wait``)."""
         msg_id = next(self.ids)
-        self.sock.send(codec.pack(codec.message(mtype, msg_id, self.session, **fields), self.key))
+        frame = codec.pack(codec.message(mtype, msg_id, self.session, **fields), self.key)
+        if self.direct is not None:
+            try:
+                return self.direct.request(frame, msg_id, hold + self.timeout, self.key)
+            except OSError as exc:   # the channel broke: the request again over ZeroMQ
+                log.warning("direct channel to %s lost (%s): continuing over ZeroMQ", self.address, exc)
+                self.direct.close()
+                self.direct = None
+        self.sock.send(frame)
         deadline = time.monotonic() + hold + self.timeout
         while True:
             left = deadline - time.monotonic()
@@ -134,15 +150,100 @@ class _Link:
             if reply.get("parent") == msg_id:
                 return reply
 
+    def go_direct(self, offer: Any) -> None:
+        """Open the direct channel the welcome offers (``welcome.direct``); without one, or when it
+        cannot be opened within DIRECT_CONNECT_S, the requests stay on ZeroMQ."""
+        if not isinstance(offer, dict) or not isinstance(offer.get("ticket"), str):
+            return
+        try:
+            self.direct = _DirectChannel.open(self.address, offer)
+        except (OSError, ValueError) as exc:
+            log.info("direct channel to %s not opened (%s): requests stay on ZeroMQ", self.address, exc)
+
     def close(self) -> None:
+        if self.direct is not None:
+            self.direct.close()
         self.sock.close(0)
         self.ctx.term()
 
 
+class _DirectChannel:
+    """The direct channel's client end: one blocking stream socket, frames of a 4-byte length and a
+    message (SPEC §5.7.5)."""
+
+    def __init__(self, sock: socket.socket):
+        self.sock = sock
+        self.buffer = bytearray()
+        self._within = -1.0    # the kernel's receive timeout set (SO_RCVTIMEO), s
+        sock.settimeout(None)  # blocking: a request is one send and one receive, no poll before each
+
+    @classmethod
+    def open(cls, address: str, offer: dict) -> "_DirectChannel":
+        """Connect where ``offer`` says (``port`` on the host of the ZeroMQ ``address``, or ``path``)
+        and show its ticket."""
+        if "path" in offer:
+            sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            target: Any = str(offer["path"])
+        elif address.startswith("tcp://") and type(offer.get("port")) is int:
+            host = address[6:].rsplit(":", 1)[0].strip("[]")
+            sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_STREAM)
+            target = (host, offer["port"])
+        else:
+            raise ValueError(f"an offer this controller cannot reach from {address!r}: {sorted(offer)}")
+        sock.settimeout(DIRECT_CONNECT_S)
+        try:
+            sock.connect(target)
+            if sock.family != socket.AF_UNIX:
+                sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            ticket = offer["ticket"].encode()
+            sock.sendall(DIRECT_HEADER.pack(len(ticket)) + ticket)
+        except OSError:
+            sock.close()
+            raise
+        return cls(sock)
+
+    def request(self, frame: bytes, msg_id: Any, within: float, key: bytes | None) -> dict:
+        """Send ``frame`` and wait at most ``within`` s for the reply whose parent is ``msg_id``;
+        OSError (a timeout included) when the channel fails."""
+        if within != self._within:   # the kernel times the receive (and the send) out
+            tv = struct.pack("ll", int(within), int(within % 1 * 1e6))
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO, tv)
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDTIMEO, tv)
+            self._within = within
+        self.sock.sendall(DIRECT_HEADER.pack(len(frame)) + frame)
+        deadline = time.monotonic() + within
+        while True:
+            reply = codec.unpack(self._frame(deadline), key)
+            if reply.get("parent") == msg_id:
+                return reply
+
+    def _frame(self, deadline: float) -> bytes:
+        buf, size = self.buffer, DIRECT_HEADER.size
+        while len(buf) < size or len(buf) < size + DIRECT_HEADER.unpack_from(buf)[0]:
+            if time.monotonic() > deadline:   # a frame still arriving in pieces
+                raise TimeoutError("no reply on the direct channel")
+            try:
+                data = self.sock.recv(1 << 16)
+            except BlockingIOError:   # SO_RCVTIMEO passed
+                raise TimeoutError("no reply on the direct channel") from None
+            if not data:
+                raise ConnectionResetError("the server closed the direct channel")
+            buf += data
+        n = size + DIRECT_HEADER.unpack_from(buf)[0]
+        frame = bytes(buf[size:n])
+        del buf[:n]
+        return frame
+
+    def close(self) -> None:
+        self.sock.close()
+
+
 def run_controller(controller: Controller, server: str, *, token: str, session: str | None = None,
                    name: str | None = None, key: bytes | None = None, join_wait: float = 30.0, wait: float = 1.0,
-                   timeout: float = 30.0, curve=None) -> dict:
-    """Join a session and serve it until the run ends; returns counts (steps, errors, idles).
+                   timeout: float = 30.0, curve=None, direct: bool = True) -> dict:
+    """Join a session and serve it until the run ends; returns counts (steps, errors, idles),
+    ``direct``: whether the requests ended on the server's direct channel, and ``cpu_s``: this
+    process's CPU time (every thread's, ZeroMQ's I/O thread included) from ``on_start`` to ``stop``.
 
     ``token``: the session's join token (SPEC §5.7.2), which its owner has (``hydrolink run`` prints
     it, or takes it from ``--control-token``): without it the server refuses the join.
@@ -150,11 +251,12 @@ def run_controller(controller: Controller, server: str, *, token: str, session: 
     Retries ``hello`` for ``join_wait`` s while no session declares the controller (the multibody
     run may start later). ``wait``: how long the server holds a ``measure`` before ``idle``;
     ``timeout``: extra time for any reply before the server is declared gone; ``curve``: a
-    :class:`hydrolink.protocol.security.ClientKeys` for a server that requires CURVE."""
+    :class:`hydrolink.protocol.security.ClientKeys` for a server that requires CURVE; ``direct``:
+    take the server's direct channel when its welcome offers one (SPEC §5.7.5; False: ZeroMQ only)."""
     name = name if name is not None else getattr(controller, "name", None)
     link = _Link(server, key, timeout, curve)
     link.session = session
-    stats = {"steps": 0, "errors": 0, "idle": 0, "late": 0, "invalid": 0}
+    stats = {"steps": 0, "errors": 0, "idle": 0, "late": 0, "invalid": 0, "cpu_s": math.nan}
     try:
         t_end = time.monotonic() + join_wait
         while True:
@@ -172,6 +274,8 @@ def run_controller(controller: Controller, server: str, *, token: str, session: 
                                   f"[{reply.get('field')}]: {reply.get('message')}", reply.get("code"), reply.get("field"))
         link.session = reply["session"]
         epoch = reply["epoch"]
+        if direct:
+            link.go_direct(reply.get("direct"))
         info = codec.decode_tree(reply["control"])
         if "plant" in info:
             from hydrolink.clients.analysis.plant import Plant
@@ -184,6 +288,7 @@ def run_controller(controller: Controller, server: str, *, token: str, session: 
         # the loop scans only what the steps make (the young generation), not the whole heap
         gc.collect()
         gc.freeze()
+        cpu0 = time.process_time()
         ident = {"controller": name, "epoch": epoch, "wait": wait}
         reply = link.request("measure", wait, **ident)
         while True:
@@ -198,6 +303,7 @@ def run_controller(controller: Controller, server: str, *, token: str, session: 
                 reply = link.request("measure", wait, **ident)
             elif kind == "stop":
                 log.info("controller %r: stop (%s)", name, reply.get("reason"))
+                stats["cpu_s"] = time.process_time() - cpu0
                 break
             elif kind == "error":
                 code = reply.get("code")
@@ -214,6 +320,7 @@ def run_controller(controller: Controller, server: str, *, token: str, session: 
                 raise ControllerError(f"unexpected reply type {kind!r}")
     finally:
         gc.unfreeze()
+        stats["direct"] = link.direct is not None
         link.close()
     controller.on_stop()
     return stats

@@ -446,9 +446,9 @@ def test_in_process_server_refuses_controllers(reference_data, tmp_path):
 def test_run_polls_its_own_server_and_equals_a_separate_one(reference_data, server, tmp_path):
     """``hydrolink run`` of a scene with a controller and no --server polls its own server from the
     run's thread (ForceServer polled: no server thread, the run's steps in-process, the controller
-    over loopback TCP): the results equal, bit for bit, the same run against a server in a thread
-    with the run over TCP too; no thread is left running; a second multibody hello to the run's
-    socket is refused (one session: the run's)."""
+    over its direct channel, SPEC §5.7.5): the results equal, bit for bit, the same run against a
+    server in a thread with the run and the controller over ZeroMQ; no thread is left running; a
+    second multibody hello to the run's socket is refused (one session: the run's)."""
     from hydrolink.protocol import codec
     from hydrolink.server.service import force_server
 
@@ -456,7 +456,7 @@ def test_run_polls_its_own_server_and_equals_a_separate_one(reference_data, serv
                                                          measurements=["pto_displacement", "pto_velocity"]))
     ds_remote, _, (rc, err) = run_with(tmp_path, "remote", text, server.address,
                                        python_ctl(EXAMPLES / "reactive.py", server.address))
-    assert rc == 0, err
+    assert rc == 0 and "over ZeroMQ" in err, err   # a server thread offers no direct channel
     address = free_address()
     threads = threading.active_count()
     ctx = zmq.Context()
@@ -480,7 +480,7 @@ def test_run_polls_its_own_server_and_equals_a_separate_one(reference_data, serv
         force_server.ForceServer.serve_once = serve_once
         stranger.close(0)
         ctx.term()
-    assert rc == 0, err
+    assert rc == 0 and "over the direct channel" in err, err
     assert summary.server == address and (refused["code"], refused.get("limit")) == (14, "sessions")
     assert seen["threads"] <= threads + 1   # at most the results writer's thread: no server thread
     ds_own = xr.load_dataset(tmp_path / "own.nc")
@@ -488,6 +488,43 @@ def test_run_polls_its_own_server_and_equals_a_separate_one(reference_data, serv
     for v in ("position", "velocity", "pto_force", "pto_command_force", "excitation_force", "radiation_force"):
         assert np.array_equal(ds_own[v].values, ds_remote[v].values), v
     assert np.abs(ds_own["pto_command_force"].values).max() > 1e3   # the ramp's first 2 s: commands of kN
+
+
+def test_controller_whose_direct_channel_breaks_goes_on_over_zeromq(reference_data, tmp_path):
+    """The run's own server loses a controller's direct channel mid-run (SPEC §5.7.5), once while
+    the controller computes a command and once while its request waits for the next measurements:
+    the controller sends its request again over ZeroMQ and decides the rest of the run there; the
+    measurements whose delivery went down with the channel are delivered again to its next
+    request, so every decision is the controller's (0.5 s timeout)."""
+    from hydrolink.server.service import force_server
+
+    text = scene_text(reference_data, 2.0, controller_block("force", 3.9e5, 1.36e6,
+                                                         measurements=["pto_displacement", "pto_velocity"])
+                      .replace("timeout = 10.0", "timeout = 0.5"))
+    serve_once, serve_ready, cut = force_server.ForceServer.serve_once, force_server.ForceServer._serve_ready, {}
+
+    def breaking(where, plain):   # the 10th call with a direct link open: its socket closed under it
+        def call(srv):
+            links = srv._direct.links if srv._direct is not None else []
+            cut[where] = cut.get(where, 0) + bool(links)
+            if links and cut[where] == 10:
+                links[0].close()
+            plain(srv)
+        return call
+    try:   # serve_once: the run waits for the command; _serve_ready: before the run's next step request
+        force_server.ForceServer.serve_once = breaking("waiting", serve_once)
+        _, (rc, err1) = run_own(tmp_path, "cut1", text, EXAMPLES / "reactive.py", free_address())
+        force_server.ForceServer.serve_once = serve_once
+        force_server.ForceServer._serve_ready = breaking("parked", serve_ready)
+        _, (rc2, err2) = run_own(tmp_path, "cut2", text, EXAMPLES / "reactive.py", free_address())
+    finally:
+        force_server.ForceServer.serve_once, force_server.ForceServer._serve_ready = serve_once, serve_ready
+    for name, code, err in (("cut1", rc, err1), ("cut2", rc2, err2)):
+        assert code == 0 and "over ZeroMQ" in err, err
+        ds = xr.load_dataset(tmp_path / f"{name}.nc")
+        ev = json.loads(ds.attrs["controller_events"])["ctl"]
+        assert ev["ok"] == 50 and ev["timeout"] + ev["absent"] + ev["invalid"] == 0, (name, ev)
+    assert cut["waiting"] >= 10 and cut["parked"] >= 10
 
 
 NAP = '''

@@ -435,6 +435,35 @@ def test_in_process_map_gets_the_checks_a_frame_gets(hdb, fields):
         assert f_map["wave_elevation"] == f_frame["wave_elevation"]
 
 
+@pytest.mark.parametrize("fields", [
+    {"position": np.full((1, 6), np.nan)}, {"velocity": np.zeros((2, 6))}, {"position": [["a"] * 6]},
+    {"position": None}, {"seq": 1.0}, {"seq": -1}, {"time": 0.5}, {"time": "0"}, {"iteration": True}])
+def test_in_process_step_path_answers_as_the_map_path(hdb, fields):
+    """ForceServer.step_map (ServerConnection.step's path to an in-process server: the envelope is
+    the connection's own) refuses a bad step exactly as respond_map does (code, name, field,
+    message, parent, session) and answers a good one with the same map: the same keys, envelope
+    included, the same values bit for bit; the session stays usable."""
+    from hydrolink.server.service.force_server import ForceServer
+
+    srv = ForceServer(None)
+    with ServerConnection(srv) as c:
+        c.hello(SCENE, {"float.nc": hdb})
+        msg = _step_map(c.session, **fields)
+        body = {k: msg[k] for k in ("seq", "time", "iteration", "position", "velocity") if k in msg}
+        fast, by_map = srv.step_map(c.session, "t-1", body), srv.respond_map(msg)
+        assert fast["type"] == by_map["type"] == "error"
+        keys = ("code", "name", "field", "message", "parent", "session")
+        assert {k: fast[k] for k in keys} == {k: by_map[k] for k in keys}
+        p, v = states(1)[0]
+        good = _step_map(c.session, position=p, velocity=v)
+        fast = srv.step_map(c.session, "t-1", {k: good[k] for k in ("seq", "time", "iteration", "position", "velocity")})
+        again = srv.respond_map(good)   # the retry: the cached reply of the same step
+        assert list(fast) == list(again) and fast["parent"] == again["parent"] == "t-1"
+        for k in ("excitation", "radiation", "hydrostatic"):
+            assert fast[k].tobytes() == again[k].tobytes()
+        assert (fast["wave_elevation"], fast["seq"], fast["time"]) == (again["wave_elevation"], 0, 0.0)
+
+
 def test_save_restore_release_over_the_wire(server, hdb, conn):
     """SPEC §5.9 through the socket: a restored session answers the steps after its save as
     before; release forgets; a session with controllers refuses to be rolled back (error 12)."""

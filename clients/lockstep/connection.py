@@ -107,6 +107,7 @@ class ServerConnection:
         self._ids = codec.id_source("c")
         self._local = None if isinstance(address, str) else address
         self._maps = self._local is not None and key is None and hasattr(address, "respond_map")
+        self._steps = self._maps and hasattr(address, "step_map")
         self._sock: zmq.Socket | None = None
         self._pending: bytes | None = None  # the in-process server's reply, until received
         self._own_context = False
@@ -331,6 +332,10 @@ class ServerConnection:
         # the map path only for what this method and the adapters' measurements hold (ints, floats,
         # float64 arrays: a server checks a map's arrays as a frame's)
         as_map = self._maps
+        if as_map and self._steps:   # an in-process server's step path (ForceServer.step_map)
+            msg_id = next(self._ids)
+            return self._checked(self._local.step_map(self.session, msg_id, fields, self.timeout if timeout is None
+                                                      else timeout), msg_id)
         reply = self._request("step", timeout, fields, as_map)
         if not as_map:   # a frame's arrays checked (N, 6) like the state sent; a map's are the server's own
             read_forces(reply, position.shape)   # (the caller checks the values)

@@ -283,6 +283,13 @@ class ControlHub:
         slot.delivered = slot.newest
         return "measurements", slot.sample
 
+    def undelivered(self, name: str, step: int) -> None:
+        """The measurements of ``step`` sent to controller ``name`` did not leave (its direct
+        channel was gone, SPEC §5.7.5): its next request gets them again while their decision is open."""
+        slot = self.slots.get(name)
+        if slot is not None and slot.delivered == step and step not in slot.decided:
+            slot.delivered = step - 1
+
     # ------------------------------------------------------------ multibody side
 
     def holds(self, mtype: str, msg: dict, route: list[bytes]) -> bool:

@@ -34,6 +34,7 @@ from hydrolink.server.errors import ModelError
 from hydrolink.server.hdb.file_set import FileSetReader
 from hydrolink.server.hdb.store import HASH, ContentStore, ContentTooLarge, default_folder
 from hydrolink.server.service import frontend
+from hydrolink.server.service.direct import DirectError, DirectListener, DirectRoute
 from hydrolink.server.service.log_limit import LimitedLog, limit_lines
 from hydrolink.server.service.session import PlantBuilder, Session, build_model
 from hydrolink.server.service.setup_workers import SetupWorkers
@@ -88,6 +89,8 @@ class ForceServer:
     controllers (no second thread fighting the run for the GIL, no loopback hop to its server)."""
 
     _local_reply: tuple[dict, float | None] | None = None   # polled: the caller's deferred reply, until taken
+    _direct: DirectListener | None = None   # polled: the controllers' direct channel (SPEC §5.7.5)
+    _poller: zmq.Poller | None = None       # polled with a direct channel: the socket, the listener, its links
     _next_sweep = 0.0   # polled: when serve_once next expires idle sessions
 
     def __init__(self, bind: str | None, *, context: zmq.Context | None = None, session_timeout: float = 300.0,
@@ -155,6 +158,11 @@ class ForceServer:
                     raise
             self._sock.bind(bind)
             self._address = self._sock.address
+            if polled and not secure:   # its controllers' direct channel (SPEC §5.7.5): not beside CURVE
+                try:
+                    self._direct = DirectListener(self._address, max_message_bytes)
+                except (DirectError, OSError) as exc:
+                    log.info("no direct channel for controllers: %s", exc)
         self.session_timeout = float(session_timeout)
         self.max_message_bytes = int(max_message_bytes)
         self._store = store
@@ -239,7 +247,10 @@ class ForceServer:
         and the controllers' deadlines that passed kept (idle replies), without waiting: a
         controller is heard even while no step waits for it (one that missed a deadline and is
         absent, SPEC §5.7, comes back with its next request). At most MAX_QUEUED messages a call:
-        a flood on the socket delays the run's step by that many, never holds it."""
+        a flood on the socket delays the run's step by that many, never holds it. The direct
+        connections are read too (what has arrived on them, never waiting)."""
+        if self._direct is not None:
+            self._serve_direct(self._direct.ready_now())
         for _ in range(MAX_QUEUED):
             if not self._sock.ready():
                 break
@@ -259,6 +270,8 @@ class ForceServer:
             self._set_rcv_timeout()
         if self._flying:
             self._poll_workers()
+        elif self._direct is not None:
+            self._receive_direct()
         else:
             self._receive()
         if self._setups:
@@ -289,6 +302,51 @@ class ForceServer:
         if ms != self._rcv_ms:
             self._sock.set_timeout(ms)
             self._rcv_ms = ms
+
+    def _receive_direct(self) -> None:
+        """Polled with a direct channel: wait at most the receive timeout for the ZeroMQ socket, the
+        direct listener or a direct connection, then serve what came (at most one ZeroMQ message,
+        every complete direct frame, every new connection)."""
+        if self._sock.pending:
+            self._receive()
+            return
+        ready = self._direct_ready(self._rcv_ms)
+        self._serve_direct(ready)
+        if self._sock.socket in ready:
+            self._receive()
+
+    def _direct_ready(self, ms: int) -> dict:
+        """What is readable within ``ms``: the ZeroMQ socket, the direct listener, its connections
+        (one poll, rebuilt only when a connection came or went)."""
+        if self._direct.prune():
+            self._poller = None
+        if self._poller is None:
+            self._poller = zmq.Poller()
+            for item in (self._sock.socket, self._direct.fileno(), *(link.fileno() for link in self._direct.links)):
+                self._poller.register(item, zmq.POLLIN)
+        return dict(self._poller.poll(ms))
+
+    def _serve_direct(self, ready: dict | set) -> None:
+        """Answer what the ready direct connections sent (a new one's ticket first, then requests,
+        each handled as one from the socket: SPEC §5.7.5) and accept the new connections."""
+        for link in list(self._direct.links) if len(ready) > (self._sock.socket in ready) else ():
+            if link.fileno() not in ready:
+                continue
+            try:
+                for frame in link.read():
+                    if link.own is None:
+                        if not self._direct.admit(link, frame):
+                            raise ConnectionError("not a ticket this server offered")
+                        continue
+                    reply = self.handle(frame, link.route)
+                    if reply is not None:
+                        self._send(link.route, reply, self._hold)
+            except OSError as exc:   # ConnectionError included: closed, or broke the framing
+                self._direct.drop(link, str(exc))
+                self._poller = None
+        if self._direct.fileno() in ready:
+            while self._direct.accept() is not None:
+                self._poller = None
 
     def _receive(self) -> None:
         """Receive one message, bounded (SPEC §1: the front end's recv), and answer it. A
@@ -337,6 +395,13 @@ class ForceServer:
         session's reply waits for its ``release`` time (perf_counter s)."""
         if route is LOCAL_ROUTE:   # the polled server's own caller (_answer_local) takes it as it is
             self._local_reply = (reply, release)
+            return
+        if type(route) is DirectRoute:   # a controller's direct connection (never paced: no forces)
+            if not route.link.write(self._frame(reply)) and reply.get("type") == "measurements":
+                joined = self._controllers.get(reply.get("session"))   # (session, controller name)
+                hub = self._hubs.get(joined[0]) if joined is not None else None
+                if hub is not None:   # lost with the channel: sent again at the controller's next request
+                    hub.undelivered(joined[1], reply["step"])
             return
         frames = [*route, self._frame(reply)]
         if release is not None and release > time.perf_counter():
@@ -440,6 +505,23 @@ class ForceServer:
         reply = self._answer_local(msg, timeout)
         self._wait_hold()
         return reply
+
+    def step_map(self, session: str, msg_id: str, fields: dict, timeout: float = math.inf) -> dict:
+        """The ``step`` of this process's own client (ServerConnection, no signing key): the reply
+        :meth:`respond_map` gives, bit for bit, without what that client's map does not need — its
+        envelope is the connection's own (not checked again), it holds no nil, and the dispatch is
+        known; its fields get every check (Session.step). A session with controllers, paced, in a
+        worker, or a polled server's, takes :meth:`respond_map`."""
+        s = self.sessions.get(session)
+        if s is None or self.polled or type(s) is not Session or s.pacer is not None or s.id in self._hubs:
+            return self.respond_map(codec.message("step", msg_id, session, **fields), timeout)
+        s.touch()
+        try:
+            reply = s.step(fields)
+        except Exception as exc:  # noqa: BLE001 - as handle: an error reply, never a raise
+            return self._error(exc, {"type": "step", "msg_id": msg_id}, session, None)
+        return {"v": codec.PROTOCOL_VERSION, "type": "forces", "msg_id": next(self._ids), "session": session,
+                "parent": msg_id, **reply}
 
     def handle(self, frame: bytes | dict, route: list[bytes] | None = None) -> dict | None:
         """One request frame (or, in-process, its unpacked map) -> its reply message (never
@@ -858,6 +940,7 @@ class ForceServer:
             "server": {"name": "hydrolink", "version": self._version},
             "session_timeout": self.session_timeout,
             "epoch": slot.epoch, "rejoined": rejoined, "control": control,
+            **({"direct": self._direct.offer(own)} if self._direct is not None else {}),
         }, own
 
     def _controller_request(self, kind: str, msg: dict, msg_id: Any,
@@ -979,6 +1062,8 @@ class ForceServer:
         if self._security is not None:
             self._security.close()
         self._sock.close(POLLED_LINGER_MS if self.polled else 0)
+        if self._direct is not None:   # the controllers' stop already written (sessions closed above)
+            self._direct.close()
         if self._own_context:
             self._ctx.term()
         log.info("hydrolink server on %s stopped", self._address)
