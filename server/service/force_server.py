@@ -136,33 +136,7 @@ class ForceServer:
         self._sock: frontend.StreamFront | frontend.RouterFront | None = None
         self._address = IN_PROCESS
         if bind is not None:
-            self._ctx = context or zmq.Context(io_threads=1 if polled else IO_THREADS)   # polled: a run's own
-            secure = curve_secret is not None or curve_clients is not None
-            # CURVE: libzmq's ROUTER (only authorised keys send); else the ZMTP front end that bounds a
-            # message while it arrives (server/service/frontend.py, SPEC §1)
-            self._sock = (frontend.RouterFront(self._ctx, max_message_bytes, codec.MAX_ROUTING_FRAMES + 1, RCVHWM)
-                          if secure else frontend.StreamFront(self._ctx, max_message_bytes, codec.MAX_ROUTING_FRAMES + 1,
-                                                              max(RECEIVE_BUDGET, 2 * max_message_bytes)))
-            self._sock.set_timeout(POLL_MS)
-            if secure:
-                from hydrolink.protocol.security import CurveKeyError, ServerSecurity
-                if curve_secret is None or curve_clients is None:
-                    self._sock.close(0)
-                    raise CurveKeyError("CURVE needs both the server's secret key file and the directory of "
-                                        "allowed client keys")
-                try:
-                    self._security = ServerSecurity(self._ctx, self._sock.socket, curve_secret, curve_clients,
-                                                    LimitedLog(logging.getLogger("hydrolink.server.auth")))
-                except Exception:
-                    self._sock.close(0)
-                    raise
-            self._sock.bind(bind)
-            self._address = self._sock.address
-            if polled and not secure:   # its controllers' direct channel (SPEC §5.7.5): not beside CURVE
-                try:
-                    self._direct = DirectListener(self._address, max_message_bytes)
-                except (DirectError, OSError) as exc:
-                    log.info("no direct channel for controllers: %s", exc)
+            self._bind(bind, context, polled, curve_secret, curve_clients, max_message_bytes)
         self.session_timeout = float(session_timeout)
         self.max_message_bytes = int(max_message_bytes)
         self._store = store
@@ -196,6 +170,38 @@ class ForceServer:
         self._worker_slots = WorkerSlots(max_workers)
         self._flying: dict[int, WorkerSession] = {}   # a worker's pipe -> its session, while it computes
         self._hold: float | None = None   # release time of the reply being handled (paced session)
+
+    def _bind(self, bind: str, context: zmq.Context | None, polled: bool, curve_secret: str | None,
+              curve_clients: str | None, max_message_bytes: int) -> None:
+        """The server's socket bound at ``bind``: the ZMTP front end, or libzmq's ROUTER with CURVE;
+        a polled server's direct channel for its controllers."""
+        self._ctx = context or zmq.Context(io_threads=1 if polled else IO_THREADS)   # polled: a run's own
+        secure = curve_secret is not None or curve_clients is not None
+        # CURVE: libzmq's ROUTER (only authorised keys send); else the ZMTP front end that bounds a
+        # message while it arrives (server/service/frontend.py, SPEC §1)
+        self._sock = (frontend.RouterFront(self._ctx, max_message_bytes, codec.MAX_ROUTING_FRAMES + 1, RCVHWM)
+                      if secure else frontend.StreamFront(self._ctx, max_message_bytes, codec.MAX_ROUTING_FRAMES + 1,
+                                                          max(RECEIVE_BUDGET, 2 * max_message_bytes)))
+        self._sock.set_timeout(POLL_MS)
+        if secure:
+            from hydrolink.protocol.security import CurveKeyError, ServerSecurity
+            if curve_secret is None or curve_clients is None:
+                self._sock.close(0)
+                raise CurveKeyError("CURVE needs both the server's secret key file and the directory of "
+                                    "allowed client keys")
+            try:
+                self._security = ServerSecurity(self._ctx, self._sock.socket, curve_secret, curve_clients,
+                                                LimitedLog(logging.getLogger("hydrolink.server.auth")))
+            except Exception:
+                self._sock.close(0)
+                raise
+        self._sock.bind(bind)
+        self._address = self._sock.address
+        if polled and not secure:   # its controllers' direct channel (SPEC §5.7.5): not beside CURVE
+            try:
+                self._direct = DirectListener(self._address, max_message_bytes)
+            except (DirectError, OSError) as exc:
+                log.info("no direct channel for controllers: %s", exc)
 
     @property
     def address(self) -> str:
