@@ -296,3 +296,33 @@ def test_messages_arriving_over_the_budget_are_refused_for_memory(ctx):
         for p in peers:
             p.close()
         front.close()
+
+
+def test_whole_messages_in_one_read_are_read_as_when_they_come_byte_by_byte():
+    """The reader's one-pass path (whole messages of small frames in one read) against its
+    frame-by-frame path: the same reads fed at once and one byte at a time give the messages that
+    were written, frames, sizes and counts — also where a read mixes them with a PING, a long
+    (8-byte size) frame, a message of over 64 KiB or one over the frame limit."""
+    from hydrolink.server.service import zmtp
+
+    messages = [[b"hop", b"", b"s" * 383], [b""], [b"x" * 300], [b"y" * 70_000], [b"f"] * 5, [b"r", b"z" * 1000]]
+    wire = b"".join(frame(f, more=i < len(m) - 1) for m in messages[:3] for i, f in enumerate(m))
+    mixed = (cmd(b"PING", b"\x00\x0actx") + wire
+             + b"".join(frame(f, more=i < len(m) - 1) for m in messages[3:] for i, f in enumerate(m)))
+    handshake = (b"\xff" + b"\0" * 8 + b"\x7f\x03\x01" + b"NULL" + b"\0" * 48
+                 + cmd(b"READY", b"\x0bSocket-Type" + struct.pack(">I", 6) + b"DEALER"))
+
+    def read(chunks):
+        reader = zmtp.Reader(2**20, 4, zmtp.Budget(2**20))
+        got = reader.feed(handshake)
+        for chunk in chunks:
+            got += reader.feed(chunk)
+        return [(m.frames, m.size, m.count, m.refused) for m in got], reader.replies
+
+    expected = [(m, sum(map(len, m)), len(m), None) for m in messages]
+    expected[4] = ([], 5, 5, "limit")   # five frames: over the reader's four
+    for data in (wire, mixed):
+        whole, pongs = read([data])
+        assert whole == expected[:len(whole)] and len(whole) == (3 if data is wire else 6)
+        assert read([data[i:i + 1] for i in range(len(data))]) == (whole, pongs)
+        assert pongs == ([] if data is wire else [cmd(b"PONG", b"ctx")])

@@ -26,6 +26,7 @@ from hydrolink.server.service import zmtp
 STREAM_RCVHWM = 16        # chunks (of at most 8 KiB) libzmq holds per connection before it stops reading it
 PING_AFTER_S = 1.0        # a connection silent this long is sent a PING
 SWEEP_S = 0.25            # how often silent connections are looked for
+NOBLOCK, SNDMORE = int(zmq.NOBLOCK), int(zmq.SNDMORE)   # plain ints: no enum arithmetic per message
 
 
 class OverBudget(transport.ReceiveMemoryError):
@@ -94,8 +95,7 @@ class StreamFront(_Front):
         """Whether a message can be taken now without waiting: what has arrived is read (never
         waiting) and parsed first."""
         while not self._ready and self.socket.getsockopt(zmq.EVENTS) & zmq.POLLIN:
-            ident, data = self.socket.recv_multipart(zmq.NOBLOCK)
-            self._take(ident, data, time.monotonic())
+            self._read(NOBLOCK)
         return bool(self._ready)
 
     def close(self, linger: int = 0) -> None:
@@ -118,19 +118,17 @@ class StreamFront(_Front):
         flags = 0
         while not self._ready:
             try:
-                ident, data = self.socket.recv_multipart(flags)
+                now = self._read(flags)
             except zmq.Again:   # nothing (more) now
                 if time.monotonic() >= self._next_sweep:
                     self._sweep(time.monotonic())
                 raise
-            now = time.monotonic()
-            self._take(ident, data, now)
             if now >= self._next_sweep:
                 self._sweep(now)
             started = started or now
             if now - started > self._timeout_s:
                 raise zmq.Again()
-            flags = zmq.NOBLOCK
+            flags = NOBLOCK
         frames, size, count, refused = self._ready.popleft()
         if refused == "memory":
             raise OverBudget(frames[0], self.budget.limit)
@@ -142,9 +140,21 @@ class StreamFront(_Front):
         queue is full."""
         if frames[0] not in self._peers:
             return
-        self.socket.send_multipart([frames[0], zmtp.encode(frames[1:])], flags)
+        self.socket.send(frames[0], flags | SNDMORE)
+        self.socket.send(zmtp.encode(frames[1:]), flags)   # a STREAM socket takes both or neither
 
     # ------------------------------------------------------------ connections
+
+    def _read(self, flags: int) -> float:
+        """Take one read of a connection (zmq.Again: none within the timeout, or none now with
+        NOBLOCK); returns when it came (time.monotonic). A STREAM socket's message is always
+        two frames, the connection's identity and the bytes read, so they are taken as such
+        (no RCVMORE look-up between them)."""
+        ident = self.socket.recv(flags)
+        data = self.socket.recv(NOBLOCK)
+        now = time.monotonic()
+        self._take(ident, data, now)
+        return now
 
     def _take(self, ident: bytes, data: bytes, now: float) -> None:
         """A read from connection ``ident`` (empty: it connected or went away)."""
