@@ -16,7 +16,8 @@ nothing until 64 MiB come) and which goes back to the system when the message is
 
 The server's own side: :data:`GREETING` (ZMTP 3.1, mechanism NULL) followed by :func:`ready`
 (Socket-Type ROUTER); libzmq peers (DEALER, REQ) see a ROUTER. Commands after the handshake:
-PING is answered with PONG (:attr:`Reader.replies`), PONG and unknown commands are ignored;
+PING is answered with PONG (:attr:`Reader.replies`) and its TTL kept (:attr:`Reader.ttl`: the
+peer asks to be dropped after that long without traffic), PONG and unknown commands are ignored;
 anything that breaks the framing is a :class:`ZmtpError` (the front end closes the connection).
 """
 
@@ -137,6 +138,7 @@ class Reader:
         self.max_bytes, self.max_frames, self.budget = max_bytes, max_frames, budget
         self.version: int | None = None
         self.socket_type = b""
+        self.ttl = 0.0                  # s: the peer's heartbeat TTL from its last PING (0: none given)
         self.replies: list[bytes] = []
         self._greeting = bytearray()
         self._head = bytearray()        # a frame header cut between two reads
@@ -251,6 +253,7 @@ class Reader:
         elif name == b"PING":
             if len(data) < 2 or len(data) > 18:
                 raise ZmtpError("a PING of the wrong length")
+            self.ttl = int.from_bytes(data[:2], "big") / 10   # RFC 37: tenths of a second, 0 = none
             self.replies.append(command(b"PONG", bytes(data[2:])))
         # PONG, and commands of later minor versions: nothing to do (RFC 37: ignored)
 
