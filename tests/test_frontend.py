@@ -72,13 +72,14 @@ def cmd(name: bytes, data: bytes = b"") -> bytes:
 class RawPeer:
     """A TCP connection speaking ZMTP 3.1, NULL mechanism, as a DEALER, written by hand."""
 
-    def __init__(self, address: str, handshake: bool = True):
+    def __init__(self, address: str, handshake: bool = True, minor: int = 1):
+        """``minor``: the ZMTP 3 minor version it announces (0: libzmq 4.1, no heartbeats)."""
         host, port = address.removeprefix("tcp://").rsplit(":", 1)
         self.sock = socket.create_connection((host, int(port)), timeout=WAIT_MS / 1000)
         self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         self.buf = b""
         if handshake:
-            self.send(b"\xff" + b"\0" * 8 + b"\x7f\x03\x01" + b"NULL" + b"\0" * 16 + b"\0" * 32)
+            self.send(b"\xff" + b"\0" * 8 + b"\x7f\x03" + bytes([minor]) + b"NULL" + b"\0" * 16 + b"\0" * 32)
             self.send(cmd(b"READY", b"\x0bSocket-Type" + struct.pack(">I", 6) + b"DEALER"))
             greeting = self.read(64)
             assert greeting[0] == 0xFF and greeting[9] == 0x7F and greeting[10] == 3
@@ -213,6 +214,51 @@ def test_ping_is_answered_with_pong_and_a_silent_peer_is_pinged(server):
         peer.close()
 
 
+def test_a_peer_silent_past_the_ttl_of_its_ping_is_dropped(server):
+    """RFC 37: a PING's TTL (here 0.5 s) asks the receiver to close the connection after that long
+    without traffic. The peer goes silent after its PING: the server closes it with an ERROR naming
+    the TTL, before its own PING to a peer silent for a second (the peer's TTL is shorter than the
+    server's link timeout, so it decides)."""
+    peer = RawPeer(server.address)
+    try:
+        peer.send(cmd(b"PING", struct.pack(">H", 5) + b"ttl"))
+        assert peer.command() == (b"PONG", b"ttl")
+        name, data = peer.command()
+        assert name == b"ERROR" and b"TTL" in data[1:1 + data[0]]
+        assert peer.closed_by_server()
+    finally:
+        peer.close()
+
+
+def test_a_zmtp_3_0_peer_gets_no_ping_and_keepalive_watches_its_connection(server):
+    """A ZMTP 3.0 peer (libzmq 4.1: no PING or PONG) silent for over a second is sent no PING, which
+    it could not parse (the server's next frame to it is its reply), and is not dropped for a
+    silence it cannot break; the kernel's keepalive timer is armed on the server's side of its
+    connection instead (read from the kernel with ``ss``), so a gone host is still found."""
+    import shutil
+    import subprocess
+
+    peer = RawPeer(server.address, minor=0)
+    try:
+        time.sleep(1.5)   # past the second of silence after which a 3.1 peer is sent a PING
+        peer.send(frame(ping("quiet")))
+        flags, body = peer.next_frame()
+        assert not flags & 4 and codec.unpack(body)["parent"] == "quiet"
+        if shutil.which("ss") is None:
+            pytest.skip("no `ss` (iproute2) to read the connection's timers")
+        port = peer.sock.getsockname()[1]
+        timers = []   # once the reply is acknowledged, the retransmission timer gives way to keepalive's
+
+        def keepalive() -> bool:
+            timers.append(subprocess.run(["ss", "-tnoH", "state", "established", f"( dport = :{port} )"],
+                                         capture_output=True, text=True, timeout=10).stdout)
+            return "timer:(keepalive" in timers[-1]
+
+        assert settle(keepalive), timers[-1]
+    finally:
+        peer.close()
+
+
 @pytest.mark.parametrize("greeting", [
     b"GET / HTTP/1.1\r\nHost: x\r\n\r\n",                                   # not ZMTP
     b"\xff" + b"\0" * 8 + b"\x7f\x02\x00" + b"\0" * 52,                      # ZMTP 2.0
@@ -296,3 +342,33 @@ def test_messages_arriving_over_the_budget_are_refused_for_memory(ctx):
         for p in peers:
             p.close()
         front.close()
+
+
+def test_whole_messages_in_one_read_are_read_as_when_they_come_byte_by_byte():
+    """The reader's one-pass path (whole messages of small frames in one read) against its
+    frame-by-frame path: the same reads fed at once and one byte at a time give the messages that
+    were written, frames, sizes and counts — also where a read mixes them with a PING, a long
+    (8-byte size) frame, a message of over 64 KiB or one over the frame limit."""
+    from hydrolink.server.service import zmtp
+
+    messages = [[b"hop", b"", b"s" * 383], [b""], [b"x" * 300], [b"y" * 70_000], [b"f"] * 5, [b"r", b"z" * 1000]]
+    wire = b"".join(frame(f, more=i < len(m) - 1) for m in messages[:3] for i, f in enumerate(m))
+    mixed = (cmd(b"PING", b"\x00\x0actx") + wire
+             + b"".join(frame(f, more=i < len(m) - 1) for m in messages[3:] for i, f in enumerate(m)))
+    handshake = (b"\xff" + b"\0" * 8 + b"\x7f\x03\x01" + b"NULL" + b"\0" * 48
+                 + cmd(b"READY", b"\x0bSocket-Type" + struct.pack(">I", 6) + b"DEALER"))
+
+    def read(chunks):
+        reader = zmtp.Reader(2**20, 4, zmtp.Budget(2**20))
+        got = reader.feed(handshake)
+        for chunk in chunks:
+            got += reader.feed(chunk)
+        return [(m.frames, m.size, m.count, m.refused) for m in got], reader.replies
+
+    expected = [(m, sum(map(len, m)), len(m), None) for m in messages]
+    expected[4] = ([], 5, 5, "limit")   # five frames: over the reader's four
+    for data in (wire, mixed):
+        whole, pongs = read([data])
+        assert whole == expected[:len(whole)] and len(whole) == (3 if data is wire else 6)
+        assert read([data[i:i + 1] for i in range(len(data))]) == (whole, pongs)
+        assert pongs == ([] if data is wire else [cmd(b"PONG", b"ctx")])

@@ -7,7 +7,9 @@ identity to answer to first, ``send_multipart(frames)`` to an identity, ``set_ti
   itself (server/service/zmtp.py), so every message is bounded while it arrives, frame by frame
   (libzmq's ROUTER hands a multipart message over only once all of it is in memory). Peers are
   unmodified libzmq DEALER or REQ sockets. ZMTP heartbeats: a PING answered with PONG; a peer
-  silent for a second is sent a PING (ZMTP 3.1 peers), one silent for the link timeout is dropped.
+  silent for a second is sent a PING (ZMTP 3.1 peers), one silent for the link timeout, or for
+  the shorter TTL its own PINGs gave (RFC 37), is dropped; ZMTP 3.0 peers (no PING) are watched by
+  TCP keepalive.
 - :class:`RouterFront` (CURVE, ``serve --curve-secret``): libzmq's ROUTER, whose CURVE handshake
   and ZAP authentication run before any message frame is taken, so only an authorised key can send
   at all; its messages are bounded as libzmq allows (transport.recv_bounded, SPEC §9).
@@ -15,6 +17,7 @@ identity to answer to first, ``send_multipart(frames)`` to an identity, ``set_ti
 
 from __future__ import annotations
 
+import math
 import time
 from collections import deque
 
@@ -26,6 +29,7 @@ from hydrolink.server.service import zmtp
 STREAM_RCVHWM = 16        # chunks (of at most 8 KiB) libzmq holds per connection before it stops reading it
 PING_AFTER_S = 1.0        # a connection silent this long is sent a PING
 SWEEP_S = 0.25            # how often silent connections are looked for
+NOBLOCK, SNDMORE = int(zmq.NOBLOCK), int(zmq.SNDMORE)   # plain ints: no enum arithmetic per message
 
 
 class OverBudget(transport.ReceiveMemoryError):
@@ -78,10 +82,23 @@ class StreamFront(_Front):
         self.socket = ctx.socket(zmq.STREAM)
         self.socket.setsockopt(zmq.LINGER, 0)
         self.socket.setsockopt(zmq.RCVHWM, STREAM_RCVHWM)
+        self._keepalive()
         self._peers: dict[bytes, _Peer] = {}
         self._ready: deque[tuple[list, int, int, str | None]] = deque()
         self._timeout_s = 0.05
         self._next_sweep = time.monotonic()
+
+    def _keepalive(self) -> None:
+        """TCP keepalive on every connection: after half the link timeout without traffic the
+        kernel probes the peer's host once a second and ends the connection when the probes have
+        gone unanswered for the rest of it. The kernels answer the probes, so a live peer that is
+        only quiet keeps its connection; a ZMTP 3.0 peer, which cannot answer the front end's
+        PINGs, is dropped this way when its host or link is gone (SPEC §1)."""
+        idle = max(1, round(self.link_timeout / 2))
+        self.socket.setsockopt(zmq.TCP_KEEPALIVE, 1)
+        self.socket.setsockopt(zmq.TCP_KEEPALIVE_IDLE, idle)
+        self.socket.setsockopt(zmq.TCP_KEEPALIVE_INTVL, 1)
+        self.socket.setsockopt(zmq.TCP_KEEPALIVE_CNT, max(1, math.ceil(self.link_timeout - idle)))
 
     # ------------------------------------------------------------ the socket's interface
 
@@ -94,8 +111,7 @@ class StreamFront(_Front):
         """Whether a message can be taken now without waiting: what has arrived is read (never
         waiting) and parsed first."""
         while not self._ready and self.socket.getsockopt(zmq.EVENTS) & zmq.POLLIN:
-            ident, data = self.socket.recv_multipart(zmq.NOBLOCK)
-            self._take(ident, data, time.monotonic())
+            self._read(NOBLOCK)
         return bool(self._ready)
 
     def close(self, linger: int = 0) -> None:
@@ -118,19 +134,17 @@ class StreamFront(_Front):
         flags = 0
         while not self._ready:
             try:
-                ident, data = self.socket.recv_multipart(flags)
+                now = self._read(flags)
             except zmq.Again:   # nothing (more) now
                 if time.monotonic() >= self._next_sweep:
                     self._sweep(time.monotonic())
                 raise
-            now = time.monotonic()
-            self._take(ident, data, now)
             if now >= self._next_sweep:
                 self._sweep(now)
             started = started or now
             if now - started > self._timeout_s:
                 raise zmq.Again()
-            flags = zmq.NOBLOCK
+            flags = NOBLOCK
         frames, size, count, refused = self._ready.popleft()
         if refused == "memory":
             raise OverBudget(frames[0], self.budget.limit)
@@ -142,9 +156,21 @@ class StreamFront(_Front):
         queue is full."""
         if frames[0] not in self._peers:
             return
-        self.socket.send_multipart([frames[0], zmtp.encode(frames[1:])], flags)
+        self.socket.send(frames[0], flags | SNDMORE)
+        self.socket.send(zmtp.encode(frames[1:]), flags)   # a STREAM socket takes both or neither
 
     # ------------------------------------------------------------ connections
+
+    def _read(self, flags: int) -> float:
+        """Take one read of a connection (zmq.Again: none within the timeout, or none now with
+        NOBLOCK); returns when it came (time.monotonic). A STREAM socket's message is always
+        two frames, the connection's identity and the bytes read, so they are taken as such
+        (no RCVMORE look-up between them)."""
+        ident = self.socket.recv(flags)
+        data = self.socket.recv(NOBLOCK)
+        now = time.monotonic()
+        self._take(ident, data, now)
+        return now
 
     def _take(self, ident: bytes, data: bytes, now: float) -> None:
         """A read from connection ``ident`` (empty: it connected or went away)."""
@@ -195,16 +221,24 @@ class StreamFront(_Front):
             return False
 
     def _sweep(self, now: float) -> None:
-        """Drop the connections silent for the link timeout; PING those silent for a second. A
-        ZMTP 3.0 peer (libzmq 4.1) has no PING to answer: its silence is not held against it."""
+        """Drop the connections silent for longer than they may be; PING the ZMTP 3.1 peers silent
+        for a second. A peer may be silent for the link timeout, or for the TTL of its last PING
+        when it gave a shorter one (RFC 37: it asked to be dropped then). A ZMTP 3.0 peer (libzmq
+        4.1) has no PING to answer, so its silence alone is not held against it: TCP keepalive
+        ends its connection when its host is gone (:meth:`_keepalive`)."""
         self._next_sweep = now + SWEEP_S
-        ttl = int(self.link_timeout * 10)
+        ping = zmtp.ping(int(self.link_timeout * 10))
         for ident, peer in list(self._peers.items()):
+            reader = peer.reader
             silent = now - peer.heard
-            if silent > self.link_timeout and peer.reader.version != 0:
-                self._drop(ident, "silent for the link timeout")
-            elif silent > PING_AFTER_S and peer.reader.version and peer.reader.ready:
-                self._write(ident, zmtp.ping(ttl))
+            allowed = math.inf if reader.version == 0 else self.link_timeout
+            if reader.ttl:
+                allowed = min(allowed, reader.ttl)
+            if silent > allowed:
+                self._drop(ident, "silent for its heartbeat TTL" if allowed == reader.ttl else
+                           "silent for the link timeout")
+            elif silent > PING_AFTER_S and reader.version and reader.ready:
+                self._write(ident, ping)
 
 
 class RouterFront(_Front):

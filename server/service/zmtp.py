@@ -16,7 +16,8 @@ nothing until 64 MiB come) and which goes back to the system when the message is
 
 The server's own side: :data:`GREETING` (ZMTP 3.1, mechanism NULL) followed by :func:`ready`
 (Socket-Type ROUTER); libzmq peers (DEALER, REQ) see a ROUTER. Commands after the handshake:
-PING is answered with PONG (:attr:`Reader.replies`), PONG and unknown commands are ignored;
+PING is answered with PONG (:attr:`Reader.replies`) and its TTL kept (:attr:`Reader.ttl`: the
+peer asks to be dropped after that long without traffic), PONG and unknown commands are ignored;
 anything that breaks the framing is a :class:`ZmtpError` (the front end closes the connection).
 """
 
@@ -137,6 +138,7 @@ class Reader:
         self.max_bytes, self.max_frames, self.budget = max_bytes, max_frames, budget
         self.version: int | None = None
         self.socket_type = b""
+        self.ttl = 0.0                  # s: the peer's heartbeat TTL from its last PING (0: none given)
         self.replies: list[bytes] = []
         self._greeting = bytearray()
         self._head = bytearray()        # a frame header cut between two reads
@@ -159,6 +161,10 @@ class Reader:
 
     def feed(self, data: bytes) -> list[Message]:
         """The messages ``data`` completed (ZmtpError when it breaks ZMTP)."""
+        if self._msg.count == 0 and not self._left and not self._head and self.socket_type:
+            whole = self._whole_messages(data)
+            if whole is not None:
+                return whole
         view = memoryview(data)
         pos, end = 0, len(data)
         if self.version is None:
@@ -178,6 +184,37 @@ class Reader:
             if not self._left and not self._head:
                 self._frame_done(done)   # an empty frame
         return done
+
+    def _whole_messages(self, data: bytes) -> list[Message] | None:
+        """The common case in one pass: ``data`` is whole messages of small frames (a step, a
+        ping), within the limits and under FREE_BYTES each — their
+        frames sliced out of ``data`` with no per-frame state. None (nothing read) when it is
+        anything else (a command, a frame cut between reads, a large or refused message): the
+        frame-by-frame path reads it."""
+        done: list[Message] = []
+        frames: list[bytes] = []
+        pos, end, size = 0, len(data), 0
+        while pos < end:
+            flags = data[pos]
+            if flags & ~(MORE | LONG):   # a command, or reserved bits: the general path
+                return None
+            if flags & LONG:
+                if end - pos < 9:
+                    return None
+                n, pos = int.from_bytes(data[pos + 1:pos + 9], "big"), pos + 9
+            elif end - pos < 2:
+                return None
+            else:
+                n, pos = data[pos + 1], pos + 2
+            size += n
+            if pos + n > end or size >= FREE_BYTES or size > self.max_bytes or len(frames) >= self.max_frames:
+                return None
+            frames.append(data[pos:pos + n])
+            pos += n
+            if not flags & MORE:
+                done.append(Message(frames, size, len(frames)))
+                frames, size = [], 0
+        return None if frames else done
 
     # ------------------------------------------------------------ handshake
 
@@ -216,6 +253,7 @@ class Reader:
         elif name == b"PING":
             if len(data) < 2 or len(data) > 18:
                 raise ZmtpError("a PING of the wrong length")
+            self.ttl = int.from_bytes(data[:2], "big") / 10   # RFC 37: tenths of a second, 0 = none
             self.replies.append(command(b"PONG", bytes(data[2:])))
         # PONG, and commands of later minor versions: nothing to do (RFC 37: ignored)
 
