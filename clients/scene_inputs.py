@@ -22,34 +22,34 @@ def load_scene_hdbs(scene: Scene, scene_path: str | Path, *, progress: bool = Tr
     from hydrolink.server.hdb.io import file_set, load_hdb, nondimensional   # raise HDBError naming the file and field
 
     hdbs: dict[str, xr.Dataset | HDBFiles] = {}
-    for i, body in enumerate(scene.bodies):
-        if body.hdb is None or body.hdb in hdbs:
+    for i, body, hdb, scene_key in scene.hdb_keys():   # each body's hdb and its hydro_states' HDBs
+        if hdb in hdbs:
             continue
-        path = resolve_path(scene_path, body.hdb)
+        path = resolve_path(scene_path, hdb)
         if not path.exists() and not path.with_suffix(".1").exists():
-            raise SceneError(scene_path, f"bodies[{i}].hdb", f"file not found: {path}")
-        qtf = next((j for j, b in enumerate(scene.bodies) if b.hdb == body.hdb and b.qtf is not None), None)
+            raise SceneError(scene_path, scene_key, f"file not found: {path}")
+        qtf = next((j for j, b in enumerate(scene.bodies) if b.hdb == hdb and b.qtf is not None), None)
         if path.suffix == ".toml":
             from hydrolink.server.hdb.build.builder import build_hdb
-            hdbs[body.hdb] = build_hdb(path, progress=progress)
+            hdbs[hdb] = build_hdb(path, progress=progress)
         elif as_files and qtf is None:   # with NEMOH QTF files: read here and sent as a map
             # a nondimensional (WAMIT) run takes the scene's density; the server reads it with the
             # scene's bodies[i].wamit facts
-            hdbs[body.hdb] = file_set(path, rho=scene.water.density if nondimensional(path) else None)
+            hdbs[hdb] = file_set(path, rho=scene.water.density if nondimensional(path) else None)
         else:
-            stated = next((b.hdb_convention for b in scene.bodies if b.hdb == body.hdb and b.hdb_convention), None)
-            hdbs[body.hdb] = load_hdb(path, convention=stated, wamit=scene.wamit_statement(body.hdb),
-                                      rho=scene.water.density if nondimensional(path) else None)
+            stated = next((b.hdb_convention for b in scene.bodies if b.hdb == hdb and b.hdb_convention), None)
+            hdbs[hdb] = load_hdb(path, convention=stated, wamit=scene.wamit_statement(hdb),
+                                 rho=scene.water.density if nondimensional(path) else None)
         if qtf is not None:
-            hdbs[body.hdb] = with_nemoh_qtf(hdbs[body.hdb], scene, qtf, scene_path)
-    for i, body in enumerate(scene.bodies):
-        if body.hdb is None or isinstance(hdbs[body.hdb], HDBFiles):
+            hdbs[hdb] = with_nemoh_qtf(hdbs[hdb], scene, qtf, scene_path)
+    for i, body, hdb, scene_key in scene.hdb_keys():
+        if isinstance(hdbs[hdb], HDBFiles):
             continue
-        names = [str(b) for b in hdbs[body.hdb]["body"].values]
+        names = [str(b) for b in hdbs[hdb]["body"].values]
         if body.hdb_body_name not in names:
-            key = "hdb_body" if body.hdb_body else "name"
-            raise SceneError(scene_path, f"bodies[{i}].{key}",
-                             f"the HDB {body.hdb} holds no body {body.hdb_body_name!r} (it holds {names}); "
+            key = scene_key if body.hdb != hdb else f"bodies[{i}].{'hdb_body' if body.hdb_body else 'name'}"
+            raise SceneError(scene_path, key,
+                             f"the HDB {hdb} holds no body {body.hdb_body_name!r} (it holds {names}); "
                              "set hdb_body to one of those")
     return hdbs
 

@@ -84,6 +84,7 @@ REPLY_FIELDS: tuple[ReplyField, ...] = (
     ReplyField("wave_elevation", "float", "m", True),
     ReplyField("compute_us", "float", "µs", True),
     ReplyField("control", "map", "", False),
+    ReplyField("hydro_state", "map", "", False),
 )
 
 _BY_NAME = {f.name: f for f in REPLY_FIELDS}

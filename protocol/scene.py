@@ -499,6 +499,38 @@ class WamitRun(_Section):
     iperout: Literal[1, 2, 3] | None = None     # first column: 1 period (s), 2 omega (rad/s), 3 omega^2 L/g
 
 
+class HydroState(_Section):
+    """One more hydrodynamic state of a body (``[[bodies.hydro_states]]``): its name and its HDB (a
+    draft, a ballast case, an operating mode; server/hydro_states.py). The body's own ``hdb`` is the
+    state named ``hydro_state``, the one it starts in."""
+    name: Annotated[str, Field(min_length=1, pattern=r"^[A-Za-z0-9_\-]+$")]
+    hdb: Annotated[str, Field(min_length=1)]
+
+
+class HydroSwitch(_Section):
+    """A scene rule that switches a body's hydrodynamic state (``[[hydro_switches]]``): at ``time``
+    (once, at the first step with t >= time), or at every step where the body's ``dof`` displacement
+    from equilibrium (m, rad; the position the client sends) is ``below`` or ``above`` a value.
+    Rules are read in scene order each step from the first step after t = 0; the last that fires wins."""
+    body: Annotated[str, Field(min_length=1)]
+    state: Annotated[str, Field(min_length=1)]
+    time: Duration | None = None
+    dof: Literal["surge", "sway", "heave", "roll", "pitch", "yaw"] | None = None
+    below: Displacement | None = None
+    above: Displacement | None = None
+
+    @model_validator(mode="after")
+    def _one_trigger(self) -> "HydroSwitch":
+        level = self.below is not None or self.above is not None
+        if self.time is not None and (level or self.dof is not None):
+            raise ValueError("time: a rule switches at a time or on a threshold (dof with below/above), not both")
+        if self.time is None and not (self.dof is not None and level):
+            raise ValueError("time: give the time of the switch, or dof with below or above (a threshold)")
+        if self.below is not None and self.above is not None:
+            raise ValueError("below: give below or above, not both (two rules make a band with hysteresis)")
+        return self
+
+
 class Body(_Section):
     name: Annotated[str, Field(min_length=1, pattern=r"^[A-Za-z0-9_\-]+$")]
     hdb: Annotated[str, Field(min_length=1)] | None = None   # None: a dry body (no hydrodynamics)
@@ -545,6 +577,13 @@ class Body(_Section):
     # the excitation turns (the only choice; stating it acknowledges it for a body not symmetric about
     # its yaw axis, which gets a setup warning otherwise)
     passive_yaw_coefficients: Literal["initial-heading"] | None = None
+    # wet bodies: variable hydrodynamics (server/hydro_states.py): the state ``hdb`` is (its name) and the
+    # body's other states, each its own HDB, switched by [[hydro_switches]]; the radiation memory across a
+    # switch: "current-kernel" (default; the state's IRF over the whole velocity history, WEC-Sim's default)
+    # or "kernel-at-emission" (each velocity sample with the IRF of the state it was sent in, WEC-Sim #1411)
+    hydro_state: Annotated[str, Field(min_length=1, pattern=r"^[A-Za-z0-9_\-]+$")] | None = None
+    hydro_states: list[HydroState] = []
+    hydro_memory: Literal["current-kernel", "kernel-at-emission"] | None = None
     # dry bodies only: the node's position (default: the centre of mass) and a constant buoyancy
     reference_point: Vector3 | None = None
     buoyancy_volume: Volume = 0.0
@@ -563,6 +602,26 @@ class Body(_Section):
             raise ValueError(f"passive_yaw: needs the body's yaw DOF free (dofs {self.dofs} lock yaw): a body "
                              "that cannot turn keeps its heading; add \"yaw\" to dofs or drop passive_yaw")
         return self
+
+    @model_validator(mode="after")
+    def _hydro_states_of_a_wet_body(self) -> "Body":
+        if self.hydro_states and self.hdb is None:
+            raise ValueError("hydro_states: only for a wet body (each state is an HDB beside its hdb)")
+        if self.hydro_states and self.hydro_state is None:
+            raise ValueError("hydro_state: required with hydro_states: the name of the state the body's hdb is "
+                             "(the state it starts in)")
+        for key in ("hydro_state", "hydro_memory"):
+            if getattr(self, key) is not None and not self.hydro_states:
+                raise ValueError(f"{key}: only with hydro_states (a body with one HDB has one state)")
+        names = [self.hydro_state] + [s.name for s in self.hydro_states]
+        for j, n in enumerate(names[1:]):
+            if n in names[:j + 1]:
+                raise ValueError(f"hydro_states[{j}].name: duplicate state name {n!r}")
+        return self
+
+    def state_names(self) -> list[str]:
+        """The body's hydrodynamic states, the one its ``hdb`` is first (empty: one HDB, no states)."""
+        return [self.hydro_state] + [s.name for s in self.hydro_states] if self.hydro_states else []
 
     @model_validator(mode="after")
     def _inertia_if_it_rotates(self) -> "Body":
@@ -1089,6 +1148,7 @@ class Scene(_Section):
     morison: list[MorisonElement] = []
     client: Client = ExudynClient(type="exudyn")
     controllers: list[Controller] = []
+    hydro_switches: list[HydroSwitch] = []
 
     @model_validator(mode="after")
     def _cross_checks(self) -> "Scene":
@@ -1162,10 +1222,39 @@ class Scene(_Section):
         if isinstance(self.client, FMUClient):
             self.client.check(self)
         self._check_current()
+        self._check_hydro_switches(names)
         self._check_controllers(names)
         self._check_optimize_limits(names)
         self._check_coupling()
         return self
+
+    def _check_hydro_switches(self, names: list[str]) -> None:
+        """Each rule names a body with hydro_states, one of its states and a DOF it moves in; one body per
+        scene switches (each state is a whole model: server/hydro_states.py)."""
+        switching = [i for i, b in enumerate(self.bodies) if b.hydro_states]
+        if len(switching) > 1:
+            raise ValueError(f"bodies[{switching[1]}].hydro_states: one body per scene may switch hydrodynamic "
+                             f"state (bodies[{switching[0]}] does already): the server builds a model per state, "
+                             "not per combination of several bodies' states")
+        if switching and self.coupling.scheme not in ("auto", "mass-matrix"):
+            raise ValueError(f"coupling.scheme: {self.coupling.scheme!r} with bodies[{switching[0]}].hydro_states: a "
+                             "switch changes A-infinity in the client's mass matrix, which only \"mass-matrix\" "
+                             "(the default) takes at a step (the explicit and implicit schemes feed it back)")
+        for i, rule in enumerate(self.hydro_switches):
+            if rule.body not in names:
+                raise ValueError(f"hydro_switches[{i}].body: no body named {rule.body!r} (known: {names})")
+            b = self.bodies[names.index(rule.body)]
+            if not b.hydro_states:
+                raise ValueError(f"hydro_switches[{i}].body: body {rule.body!r} has no hydro_states to switch between")
+            if rule.state not in b.state_names():
+                raise ValueError(f"hydro_switches[{i}].state: body {rule.body!r} has no state {rule.state!r} "
+                                 f"(its states: {b.state_names()})")
+            if rule.dof is not None and rule.dof not in b.dofs:
+                raise ValueError(f"hydro_switches[{i}].dof: {rule.dof!r} is locked on body {rule.body!r} (dofs "
+                                 f"{b.dofs}): its displacement stays 0")
+            if rule.time is not None and rule.time >= self.simulation.duration:
+                self._notes.append(f"hydro_switches[{i}].time: {rule.time:g} s is not before the run's end "
+                                   f"(simulation.duration = {self.simulation.duration:g} s): it never switches")
 
     def _check_current(self) -> None:
         c = self.current
@@ -1276,6 +1365,16 @@ class Scene(_Section):
         """Exchanges with the server to simulation.duration (the last step index is this, setup.last_seq)."""
         return self.simulation.n_steps // int(self.coupling.exchange_every)
 
+    def hdb_keys(self) -> list[tuple[int, Body, str, str]]:
+        """Every HDB the scene names, in scene order: (body index, body, the ``hdb`` string, its scene
+        key) for each wet body's ``hdb`` and each of its ``hydro_states``' (repeats included)."""
+        out = []
+        for i, b in enumerate(self.bodies):
+            if b.hdb is not None:
+                out.append((i, b, b.hdb, f"bodies[{i}].hdb"))
+            out.extend((i, b, s.hdb, f"bodies[{i}].hydro_states[{j}].hdb") for j, s in enumerate(b.hydro_states))
+        return out
+
     @property
     def wet_bodies(self) -> list[Body]:
         return [b for b in self.bodies if b.wet]
@@ -1355,6 +1454,10 @@ class Scene(_Section):
             if b.passive_yaw:
                 found["passive_yaw"] = f"bodies[{i}].passive_yaw"
                 break
+        for i, b in enumerate(self.bodies):
+            if b.hydro_states:
+                found["hydro_states"] = f"bodies[{i}].hydro_states"
+                break
         return {f: found[f] for f in FEATURES if f in found}
 
 
@@ -1406,6 +1509,13 @@ def missing_files(raw: dict, scene_path: str | Path, have_hdbs: Collection[str] 
         if isinstance(hdb, str) and hdb not in seen:
             seen.add(hdb)
             check(f"bodies[{i}].hdb", hdb, exists=lambda p: p.exists() or p.with_suffix(".1").exists())
+        states = body.get("hydro_states")
+        for j, state in enumerate(states if isinstance(states, list) else ()):
+            hdb = state.get("hdb") if isinstance(state, dict) else None
+            if isinstance(hdb, str) and hdb not in seen:
+                seen.add(hdb)
+                check(f"bodies[{i}].hydro_states[{j}].hdb", hdb,
+                      exists=lambda p: p.exists() or p.with_suffix(".1").exists())
         check(f"bodies[{i}].mesh", body.get("mesh"))
         qtf = body.get("qtf")
         for name in ("difference", "sum"):

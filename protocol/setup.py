@@ -95,6 +95,9 @@ class Setup:
     nonlinear: dict[str, str] | None = None
     # the sea's variance share per 30-degree direction band, by band centre ("+30"); None from older servers
     wave_energy_by_direction: dict[str, float] | None = None
+    # variable hydrodynamics (revision 1.14): {body: the state it starts in}; None without hydro_states.
+    # A reply's hydro_state (protocol/hydro_state.py) changes the matrices at a switch
+    hydro_state: dict[str, str] | None = None
 
     @property
     def n(self) -> int:
@@ -164,7 +167,9 @@ class Setup:
             nonlinear=({str(k): str(v) for k, v in r.map("nonlinear").items()}
                        if r.data.get("nonlinear") is not None else None),
             wave_energy_by_direction=(r.numbers("wave_energy_by_direction")
-                                      if r.data.get("wave_energy_by_direction") is not None else None))
+                                      if r.data.get("wave_energy_by_direction") is not None else None),
+            hydro_state=({str(k): str(v) for k, v in r.map("hydro_state").items()}
+                         if r.data.get("hydro_state") is not None else None))
 
 
 def _state_space(data: Any) -> StateSpaceReport:

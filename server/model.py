@@ -610,10 +610,12 @@ class HydroModel:
         return eta
 
     def step(self, time: float, position: np.ndarray, velocity: np.ndarray, *,
-             replace_last: bool = False) -> dict:
+             replace_last: bool = False, radiating: bool = True) -> dict:
         """Forces at ``time`` (= k dt) for the state at that time; see the module docstring.
 
-        ``replace_last`` recomputes the newest step with a new state (iterative coupling)."""
+        ``replace_last`` recomputes the newest step with a new state (iterative coupling);
+        ``radiating`` False pushes a zero velocity into the radiation memory (the force terms still
+        get ``velocity``): a hydrodynamic state that is not the body's at this step (server/hydro_states.py)."""
         if replace_last and self._step < 0:
             raise ModelError("step", "replace_last before any step was computed")
         k = self._step if replace_last else self._step + 1
@@ -627,16 +629,17 @@ class HydroModel:
         # the reply's arrays: fresh each step (a reply may be kept, e.g. cached for a retry, and
         # goes out in-process as is), written in place, then made read-only like a frame's arrays
         out = np.zeros(self._reply_shape)
+        vr = v if radiating else np.zeros_like(v)
         if self._yaw is not None:
             self._yaw.follow(x, replace_last)     # the headings the waves are read at (the compiled step's too)
         if self._fused is not None:
             if self._summed:
-                eta = self._fused(time, x, v, replace_last, out.reshape(self._rows_shape))
+                eta = self._fused(time, x, vr, replace_last, out.reshape(self._rows_shape))
             else:
                 f_ex, eta_ex = self._forcing(time)
-                eta = self._fused(time, x, v, replace_last, out.reshape(self._rows_shape), f_ex, eta_ex)
+                eta = self._fused(time, x, vr, replace_last, out.reshape(self._rows_shape), f_ex, eta_ex)
         else:
-            eta = self._linear_numpy(time, x, v, replace_last, out)
+            eta = self._linear_numpy(time, x, vr, replace_last, out)
         self._step = k
         out.flags.writeable = False
         reply = {"excitation": out[0], "radiation": out[1], "hydrostatic": out[2], "wave_elevation": eta}

@@ -98,6 +98,8 @@ class ExudynModel:
     added_mass_in_matrix: bool = True
     failure_hint: str = ""          # appended to a solver failure's message (what to change)
     force_index: np.ndarray | None = None   # reduced bodies: the 6N entries the hydro object takes
+    hydro_coordinates: np.ndarray = field(default_factory=lambda: np.zeros(0, int))  # the 6N entries it holds
+    net_buoyancy: np.ndarray = field(default_factory=lambda: np.zeros(0))   # (N,) setup's, on heave (load)
     padded: bool = False            # reduced bodies: state vectors end in a zero slot (locked DOFs)
 
     @property
@@ -274,6 +276,8 @@ def build_model(scene: Scene, setup: Setup | None, *, spectral_radius: float = 1
     if newmark:   # trapezoidal rule as Newmark (beta 1/4, gamma 1/2): a rollback + redo is bit-exact
         ga = ss.timeIntegration.generalizedAlpha
         ga.useNewmark, ga.newmarkBeta, ga.newmarkGamma, ga.useIndex2Constraints = True, 0.25, 0.5, True
+    if setup is not None and setup.hydro_state:   # a switch changes the hydro object's mass matrix mid-run
+        ss.timeIntegration.reuseConstantMassMatrix = False
     if len(mbs.systemData.GetODE2Coordinates()) > SPARSE_ABOVE:
         # large mechanisms (arrays of bodies + arms): Exudyn's default dense LU dominates the step;
         # measured on 9N9LA (108 body coordinates + 54 constraints): 9.8 -> 2.3 ms per step
@@ -288,7 +292,8 @@ def build_model(scene: Scene, setup: Setup | None, *, spectral_radius: float = 1
                        active, stiffness, dt, mech, wet_index, all_names, reference, body_index,
                        np.array([all_names.index(nm) for nm in names], int), ptos, moorings,
                        added_mass=a_inf, added_mass_in_matrix=added_mass_in_matrix,
-                       force_index=sel if sel.size < 6 * n else None, padded=padded)
+                       force_index=sel if sel.size < 6 * n else None, padded=padded, hydro_coordinates=sel,
+                       net_buoyancy=setup.net_buoyancy if setup else np.zeros(0))
 
 
 JOINT_COMPONENTS = ("fx", "fy", "fz", "mx", "my", "mz")
@@ -461,6 +466,8 @@ class ExudynMultibody:
         # the wet bodies' 6N entries in the (B, 6) rows (the optional forces' results variables)
         self._wet_flat = (6 * np.asarray(model.wet_rows, int)[:, None] + np.arange(6)).reshape(-1)
         self._pto_sample = None
+        self._buoyancy_change: np.ndarray | None = None   # net buoyancy of the hydro state minus the setup's
+        self.hydro_state: str | None = None                # the state entered at the newest switch
         # MoorDyn: each step is driven towards the pose it ends in (clients/exudyn/moordyn_mooring.py):
         # predicted, or on a redo the end poses of the previous pass (one per step since the save)
         moorings = model.moorings
@@ -517,7 +524,24 @@ class ExudynMultibody:
         return max(float(np.abs(q).max(initial=0.0)), float(np.abs(v).max(initial=0.0)))
 
     def inputs(self, s0, s1, acc, x0, x1) -> np.ndarray:
-        return s1.load if acc is None else s1.load - self.a_fb @ acc
+        load = s1.load if self._buoyancy_change is None else s1.load + self._buoyancy_change
+        return load if acc is None else load - self.a_fb @ acc
+
+    def apply_hydro_state(self, change) -> None:
+        """A switch of hydrodynamic state (protocol/hydro_state.py): its A∞ into the hydro object's mass
+        matrix, its stiffness into the stiffness matrix, the change of net buoyancy from the setup's as
+        a constant heave force on the reference points (beside the setup's load)."""
+        m = self.model
+        ix = np.ix_(m.hydro_coordinates, m.hydro_coordinates)
+        m.mbs.SetObjectParameter(m.hydro_object, "stiffnessMatrix", change.hydrostatic_stiffness[ix])
+        m.stiffness = change.hydrostatic_stiffness
+        if m.added_mass_in_matrix:
+            m.mbs.SetObjectParameter(m.hydro_object, "massMatrix", change.added_mass[ix])
+        m.added_mass = change.added_mass
+        extra = np.zeros(6 * self.n)
+        extra[2::6] = change.net_buoyancy - m.net_buoyancy
+        self._buoyancy_change = extra if extra.any() else None
+        self.hydro_state = change.state
 
     def advance(self, t0: float, t1: float, u: np.ndarray) -> None:
         if self._md is not None:

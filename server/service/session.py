@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import time as _time
 from collections import OrderedDict
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Callable, Protocol
 
 import numpy as np
@@ -22,6 +22,7 @@ from hydrolink.protocol.hdb.wire import from_wire
 from hydrolink.protocol.hdb.layout import HDBError
 from hydrolink.protocol.pacing import Pacer
 from hydrolink.server.hdb.file_set import FileSetReader, is_file_set
+from hydrolink.server.hydro_states import hydro_model
 from hydrolink.server.model import HydroModel, ModelError
 from hydrolink.server.sea.probes import PreviewGrid, WaveProbes
 from hydrolink.server.terms.hulls import MeshError, closed_hull
@@ -40,6 +41,8 @@ class ModelInputs:
     hdbs: dict[str, xr.Dataset]
     series: tuple[np.ndarray, np.ndarray] | None
     hulls: dict
+    # the switching body's other hydrodynamic states' HDBs: body name -> state name -> dataset
+    state_hdbs: dict[str, dict[str, xr.Dataset]] = field(default_factory=dict)
 
 
 def build_model(msg: dict, files: FileSetReader | None = None) -> HydroModel:
@@ -52,7 +55,7 @@ def build_model(msg: dict, files: FileSetReader | None = None) -> HydroModel:
 def model_from(inputs: ModelInputs) -> HydroModel:
     """The model of a hello's :class:`ModelInputs`; ProtocolError 8/9 naming the field."""
     try:
-        return HydroModel(inputs.scene, inputs.hdbs, inputs.series, hulls=inputs.hulls)
+        return hydro_model(inputs.scene, inputs.hdbs, inputs.state_hdbs, inputs.series, hulls=inputs.hulls)
     except ModelError as exc:
         raise ProtocolError(Code.BAD_SCENE, _scene_field(exc.key), str(exc)) from None
     except HDBError as exc:
@@ -68,14 +71,13 @@ def read_hello(msg: dict, files: FileSetReader | None = None) -> ModelInputs:
     except SceneError as exc:
         raise ProtocolError(Code.BAD_SCENE, _scene_field(exc.key), str(exc)) from None
     datasets: dict[str, xr.Dataset] = {}
-    for i, body in enumerate(scene.bodies):
-        key = body.hdb
-        if key is None or key in datasets:
+    for i, body, key, scene_key in scene.hdb_keys():
+        if key in datasets:
             continue
         where = codec.key_path("hdbs", key)
         if key not in hdb_maps:
             raise ProtocolError(Code.BAD_HDB, where,
-                                f"scene body {body.name!r} (bodies[{i}].hdb) uses HDB {key!r} but hello.hdbs "
+                                f"scene body {body.name!r} ({scene_key}) uses HDB {key!r} but hello.hdbs "
                                 f"holds {sorted(hdb_maps)}")
         if is_file_set(hdb_maps[key]):
             if files is None:
@@ -108,7 +110,8 @@ def read_hello(msg: dict, files: FileSetReader | None = None) -> ModelInputs:
                 hulls[str(name)] = closed_hull(vertices, faces)
             except MeshError as exc:
                 raise ProtocolError(Code.BAD_VALUE, where, f"body {name!r}'s hull: {exc.why}") from None
-    return ModelInputs(scene, {b.name: datasets[b.hdb] for b in scene.wet_bodies}, series, hulls)
+    states = {b.name: {s.name: datasets[s.hdb] for s in b.hydro_states} for b in scene.bodies if b.hydro_states}
+    return ModelInputs(scene, {b.name: datasets[b.hdb] for b in scene.wet_bodies}, series, hulls, states)
 
 
 MAX_SAVED_BYTES = 256 * 2**20   # per session: saved states kept (SPEC §5.9)

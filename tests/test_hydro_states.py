@@ -1,0 +1,290 @@
+"""Variable hydrodynamics (server/hydro_states.py, ``bodies[i].hydro_states``, ``[[hydro_switches]]``).
+
+References, all independent of the code: a heaving body with two analytic HDB states (tests/
+analytic_hdb.py: B(w) and its closed-form IRF K(t) and A(w)). A scene whose states never switch runs
+bit for bit as the same scene without states (model and Exudyn run). A run switching at t_s equals,
+after the switch, the monolithic integration of (m + A∞_s) q'' = F_ex,s(t) − ∫K(t − τ) v dτ − C_s q
++ ρ g V_s − m g written here with the analytic kernel (trapezoidal rule at a quarter of the step).
+The radiation memory across a switch equals the convolution integral written out here — the new
+state's kernel over the whole history ("current-kernel") or each sample's own state's kernel
+("kernel-at-emission"). Bad input gets errors naming the key.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import xarray as xr
+
+from analytic_hdb import irf, make_body_hdb
+from conftest import body, regular_waves, scene_toml, write_scene
+
+from hydrolink.protocol.hdb.schema import to_netcdf
+from hydrolink.protocol.scene import SceneError, parse_scene
+from hydrolink.server.errors import ModelError
+from hydrolink.server.hdb.io import load_hdb
+from hydrolink.server.hydro_states import SwitchingModel
+from hydrolink.server.model import HydroModel
+
+RHO, G = 1000.0, 9.81
+MASS = 2.5e5
+#: heave (A_inf, b0, w0), stiffness C, displaced volume V and excitation (amplitude, decay, phase, slope)
+STATES = {
+    "shallow": ((3.0e5, 8.0e4, 1.0), 7.7e5, MASS / RHO, (3.0e5, 0.3, 0.4, 0.8)),
+    "deep": ((4.6e5, 1.5e5, 0.8), 9.1e5, MASS / RHO + 20.0, (4.2e5, 0.2, 0.1, 0.5)),
+}
+
+
+def _exc(amp, decay, phase, slope):
+    def exc(w, beta):
+        x = np.zeros((w.size, 6), complex)
+        x[:, 2] = amp * np.exp(-decay * w ** 2) * np.exp(1j * (phase + slope * w))
+        return x
+    return exc
+
+
+def state_hdb(name: str, *, body_name: str = "float", ref=(0.0, 0.0, 0.0)) -> xr.Dataset:
+    (ainf, b0, w0), c, volume, exc = STATES[name]
+    ds = make_body_hdb(params={2: (ainf, b0, w0)}, hydrostatics=np.diag([0, 0, c, 0, 0, 0.0]), exc=_exc(*exc),
+                       name=body_name, ref=ref, rho=RHO, g=G)
+    return ds.assign(displaced_volume=("body", [volume]))
+
+
+@pytest.fixture(scope="module")
+def hdb_files(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("states")
+    for name in STATES:
+        to_netcdf(state_hdb(name), folder / f"{name}.nc")
+    return folder
+
+
+def scene_text(folder: Path, *, switches=(), states: bool = True, memory: str | None = None,
+               waves=None, duration: float = 30.0, dt: float = 0.025, coupling=None, **keys) -> str:
+    extra = {"hydro_state": "shallow", "hydro_states": [{"name": "deep", "hdb": str(folder / "deep.nc")}]} \
+        if states else {}
+    if memory is not None:
+        extra["hydro_memory"] = memory
+    extra = {k: v for k, v in {**extra, **keys}.items() if v is not None}
+    bodies = [body("float", hdb=str(folder / "shallow.nc"), mass=MASS, center_of_mass=None, inertia=None,
+                   dofs=["heave"], **extra)]
+    return scene_toml(dt=dt, duration=duration, water={"density": RHO, "gravity": G, "depth": "inf"},
+                      waves=regular_waves(1.0, 8.0) if waves is None else waves, bodies=bodies,
+                      hydro={"irf_duration": 20.0}, hydro_switches=list(switches), coupling=coupling,
+                      progress=False)
+
+
+def _models(folder: Path, **kw) -> tuple[SwitchingModel, dict[str, xr.Dataset]]:
+    scene = parse_scene(scene_text(folder, **kw))
+    hdbs = {"float": load_hdb(folder / "shallow.nc")}
+    return SwitchingModel(scene, hdbs, {"float": {"deep": load_hdb(folder / "deep.nc")}}), hdbs
+
+
+# ---------------------------------------------------------------------------------- one state
+
+@pytest.mark.parametrize("compiled", [False, None])
+def test_states_that_never_switch_are_the_single_hdb_model_bit_for_bit(hdb_files, compiled):
+    rule = {"body": "float", "state": "deep", "dof": "heave", "below": -50.0}   # never reached
+    scene = parse_scene(scene_text(hdb_files, switches=[rule]))
+    hdbs = {"float": load_hdb(hdb_files / "shallow.nc")}
+    switching = SwitchingModel(scene, hdbs, {"float": {"deep": load_hdb(hdb_files / "deep.nc")}},
+                               compiled=compiled)
+    plain = HydroModel(parse_scene(scene_text(hdb_files, states=False)), hdbs, compiled=compiled)
+    assert switching.setup_info().hydro_state == {"float": "shallow"}
+    rng = np.random.default_rng(3)
+    for k in range(200):
+        x, v = np.zeros((1, 6)), np.zeros((1, 6))
+        x[0, 2], v[0, 2] = rng.normal(0, 0.5), rng.normal(0, 0.5)
+        a, b = switching.step(k * plain.dt, x, v), plain.step(k * plain.dt, x, v)
+        assert "hydro_state" not in a
+        for f in ("excitation", "radiation", "hydrostatic"):
+            np.testing.assert_array_equal(a[f], b[f])
+        assert a["wave_elevation"] == b["wave_elevation"]
+
+
+def test_a_run_that_never_switches_is_the_run_without_states_bit_for_bit(hdb_files, tmp_path):
+    from hydrolink.clients.run import run_scene_file
+    rule = {"body": "float", "state": "deep", "dof": "heave", "below": -50.0}
+    out = {}
+    for name, text in (("states", scene_text(hdb_files, switches=[rule], duration=10.0)),
+                       ("plain", scene_text(hdb_files, states=False, duration=10.0))):
+        run_scene_file(write_scene(tmp_path, text, f"{name}.toml"), tmp_path / f"{name}.nc", progress=False)
+        out[name] = xr.load_dataset(tmp_path / f"{name}.nc")
+    for var in ("position", "velocity", "excitation_force", "radiation_force"):
+        np.testing.assert_array_equal(out["states"][var].values, out["plain"][var].values)
+
+
+# ---------------------------------------------------------------------------------- the memory
+
+def _integral(kernels: list[tuple[float, float]], states: np.ndarray, v: np.ndarray, dt: float, n: int,
+              emission: bool) -> float:
+    """-dt sum_j w_j K(t_n - t_j) v_j (trapezoid weights) with the analytic kernel of the state at
+    t_n ("current-kernel") or of the state sample j was sent in ("kernel-at-emission")."""
+    lag = (n - np.arange(n + 1)) * dt
+    k = np.array([irf(lag, *kernels[s]) for s in (0, 1)])                  # (2, n + 1)
+    pick = states[:n + 1] if emission else np.full(n + 1, states[n])
+    w = np.ones(n + 1)
+    w[0] = w[-1] = 0.5
+    return -dt * float(np.sum(w * k[pick, np.arange(n + 1)] * v[:n + 1]))
+
+
+@pytest.mark.parametrize("memory", ["current-kernel", "kernel-at-emission"])
+def test_radiation_memory_across_a_switch_is_the_integral_written_out(hdb_files, memory):
+    """A prescribed heave velocity through a switch at 6 s and back at 12 s: the radiation force of
+    each step against the convolution written here (the analytic kernels)."""
+    rules = [{"body": "float", "state": "deep", "time": 6.0}, {"body": "float", "state": "shallow", "time": 12.0}]
+    model, _ = _models(hdb_files, switches=rules, memory=memory, waves={"type": "still"}, dt=0.02, duration=20.0)
+    dt, n = model.dt, 900
+    t = np.arange(n) * dt
+    v = 0.4 * np.sin(0.9 * t) + 0.2 * np.sin(2.3 * t + 1.0)
+    states = ((t >= 6.0 - 1e-9) & (t < 12.0 - 1e-9)).astype(int)
+    kernels = [STATES[s][0][1:] for s in ("shallow", "deep")]
+    got, other, switched = np.zeros(n), np.zeros(n), []
+    for k in range(n):
+        vel = np.zeros((1, 6))
+        vel[0, 2] = v[k]
+        reply = model.step(k * dt, np.zeros((1, 6)), vel)
+        if "hydro_state" in reply:
+            switched.append((k, reply["hydro_state"]["state"]))
+        got[k] = reply["radiation"][0, 2]
+        other[k] = _integral(kernels, states, v, dt, k, memory != "kernel-at-emission")
+        want = _integral(kernels, states, v, dt, k, memory == "kernel-at-emission")
+        assert abs(got[k] - want) <= 5e-3 * 1.5e5 * 0.4, (k, got[k], want)
+    assert switched == [(300, "deep"), (600, "shallow")]
+    # the two methods differ after each switch by far more than the tolerance: the test tells them apart
+    assert np.abs(got - other)[300:400].max() > 10 * 5e-3 * 1.5e5 * 0.4
+
+
+# ---------------------------------------------------------------------------------- a run
+
+def _monolithic(dt: float, n: int, t_s: float, emission: bool, sub: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """The heaving body switching from "shallow" to "deep" at t_s, integrated here by the trapezoidal
+    rule at dt / sub with the analytic kernels: (m + A∞_s) a = F_ex,s(t) - R(t) - C_s q + rho g V_s - m g,
+    velocity continuous across the switch; q at t = k dt."""
+    h, steps = dt / sub, n * sub
+    t = np.arange(steps + 1) * h
+    st = (t >= t_s - 1e-9).astype(int)
+    par = [STATES[s] for s in ("shallow", "deep")]
+    w_wave, amp = 2 * np.pi / 8.0, 0.5
+    fex = np.zeros((2, steps + 1))
+    for s, (_, _, _, (xa, dec, ph, sl)) in enumerate(par):
+        x = xa * np.exp(-dec * w_wave ** 2) * np.exp(1j * (ph + sl * w_wave))
+        fex[s] = np.real(amp * x * np.exp(-1j * w_wave * t))
+    kern = np.array([irf(t, *p[0][1:]) for p in par])                     # (2, steps + 1) K_s(lag)
+    q, v, a = np.zeros(steps + 1), np.zeros(steps + 1), np.zeros(steps + 1)
+
+    def accel(j: int, vj: float, qj: float, hist: float) -> float:
+        s = st[j]
+        (ainf, *_), c, vol, _ = par[s]
+        r = hist + 0.5 * h * kern[s, 0] * vj
+        return (fex[s, j] - r - c * qj + RHO * G * vol - MASS * G) / (MASS + ainf)
+
+    for j in range(steps + 1):
+        s = st[j]
+        lags = j - np.arange(j)                                          # samples 0..j-1
+        which = st[:j] if emission else np.full(j, s)
+        wts = np.ones(j)
+        if j:
+            wts[0] = 0.5
+        hist = h * float(np.sum(wts * kern[which, lags] * v[:j]))
+        if j == 0:
+            a[0] = accel(0, 0.0, 0.0, 0.0)
+            continue
+        (ainf, *_), c, vol, _ = par[s]
+        m = MASS + ainf
+        # trapezoid: v_j = v + h/2 (a + a_j), q_j = q + h/2 (v + v_j); a_j linear in v_j
+        rhs = v[j - 1] + 0.5 * h * a[j - 1] + 0.5 * h / m * (
+            fex[s, j] - hist - c * (q[j - 1] + 0.5 * h * v[j - 1]) + RHO * G * vol - MASS * G)
+        v[j] = rhs / (1 + 0.5 * h / m * (0.5 * h * kern[s, 0] + 0.5 * h * c))
+        q[j] = q[j - 1] + 0.5 * h * (v[j - 1] + v[j])
+        a[j] = accel(j, v[j], q[j], hist)
+    return q[::sub], t[::sub]
+
+
+@pytest.mark.parametrize("memory", ["current-kernel", "kernel-at-emission"])
+def test_a_run_switching_at_ts_is_the_monolithic_integration_after_it(hdb_files, tmp_path, memory):
+    from hydrolink.clients.run import run_scene_file
+    t_s, dt, duration = 12.0, 0.025, 30.0
+    text = scene_text(hdb_files, switches=[{"body": "float", "state": "deep", "time": t_s}], memory=memory,
+                      dt=dt, duration=duration)
+    run_scene_file(write_scene(tmp_path, text), tmp_path / "run.nc", progress=False)
+    ds = xr.load_dataset(tmp_path / "run.nc")
+    z = ds["position"].values[:, 0, 2]
+    n = int(round(duration / dt))
+    q, t = _monolithic(dt, n, t_s, memory == "kernel-at-emission")
+    np.testing.assert_allclose(ds["time"].values, t, rtol=0, atol=1e-9)
+    after = t > t_s
+    scale = np.abs(q[after]).max()
+    err = np.abs(z - q)[after].max()      # measured: 0.15 % of the motion (the other method differs by 1.8 %)
+    assert err <= 0.005 * scale, (err, scale)
+    q_other, _ = _monolithic(dt, n, t_s, memory != "kernel-at-emission")
+    assert np.abs(q_other - q)[after].max() > 2 * 0.005 * scale      # the reference tells the methods apart
+    # the switch moved the body: the deep state's extra buoyancy (20 m^3) lifts it by rho g 20 / C_deep
+    assert abs(q[after].mean() - RHO * G * 20.0 / STATES["deep"][1]) < 0.3 * RHO * G * 20.0 / STATES["deep"][1]
+
+
+# ---------------------------------------------------------------------------------- bad input
+
+def _parse_error(text: str) -> SceneError:
+    with pytest.raises(SceneError) as err:
+        parse_scene(text)
+    return err.value
+
+
+def test_rules_naming_unknown_states_or_bodies_are_refused_with_their_key(hdb_files):
+    err = _parse_error(scene_text(hdb_files, switches=[{"body": "float", "state": "flooded", "time": 3.0}]))
+    assert err.key == "hydro_switches[0].state" and "flooded" in str(err) and "deep" in str(err)
+    err = _parse_error(scene_text(hdb_files, switches=[{"body": "buoy", "state": "deep", "time": 3.0}]))
+    assert err.key == "hydro_switches[0].body"
+    err = _parse_error(scene_text(hdb_files, switches=[{"body": "float", "state": "deep", "dof": "surge",
+                                                        "below": 1.0}]))
+    assert err.key == "hydro_switches[0].dof"
+    err = _parse_error(scene_text(hdb_files, switches=[{"body": "float", "state": "deep", "time": 3.0,
+                                                        "dof": "heave", "below": 1.0}]))
+    assert err.key.startswith("hydro_switches[0]")
+    err = _parse_error(scene_text(hdb_files, hydro_state=None))
+    assert err.key == "bodies[0].hydro_state"
+    err = _parse_error(scene_text(hdb_files, states=False, hydro_memory="kernel-at-emission"))
+    assert err.key == "bodies[0].hydro_memory"
+    err = _parse_error(scene_text(hdb_files, coupling={"scheme": "implicit"}))
+    assert err.key == "coupling.scheme"
+
+
+@pytest.mark.parametrize("case", ["body", "reference", "modes"])
+def test_a_state_hdb_that_does_not_hold_the_body_alike_is_refused_naming_it(hdb_files, case):
+    scene = parse_scene(scene_text(hdb_files))
+    hdbs = {"float": load_hdb(hdb_files / "shallow.nc")}
+    if case == "body":
+        deep = state_hdb("deep", body_name="other")
+    elif case == "reference":
+        deep = state_hdb("deep", ref=(0.0, 0.0, -1.0))
+    else:   # the state's HDB gives the body a generalized mode (7 DOFs where the other state has 6)
+        from hydrolink.protocol.hdb.schema import make_hdb
+        base = state_hdb("deep")
+        n = base["omega"].size
+
+        def grow(a, axes):
+            out = np.zeros([s + 1 if i in axes else s for i, s in enumerate(a.shape)], a.dtype)
+            out[tuple(slice(0, s) for s in a.shape)] = a
+            return out
+        deep = make_hdb(bodies=["float"], omega=base["omega"].values, wave_direction=base["wave_direction"].values,
+                        added_mass=grow(base["added_mass"].values, (1, 2)) + np.eye(7)[None] * 1e3,
+                        radiation_damping=grow(base["radiation_damping"].values, (1, 2)),
+                        excitation_force=grow(base["excitation_force"].values, (2,)),
+                        hydrostatic_stiffness=grow(base["hydrostatic_stiffness"].values[0], (0, 1)) + np.eye(7) * 1e3,
+                        reference_point=base["reference_point"].values, rho=RHO, g=G, water_depth=np.inf,
+                        source="analytic", modes={"float": ["bend"]})
+        assert deep["added_mass"].shape[0] == n
+    with pytest.raises(ModelError) as err:
+        SwitchingModel(scene, hdbs, {"float": {"deep": deep}})
+    assert err.value.key == "bodies[0].hydro_states[0].hdb", err.value
+    assert "deep" in str(err.value)
+
+
+def test_two_switching_bodies_are_refused_naming_the_second(hdb_files):
+    states = {"hydro_state": "a", "hydro_states": [{"name": "b", "hdb": str(hdb_files / "deep.nc")}]}
+    bodies = [body(n, hdb=str(hdb_files / "shallow.nc"), mass=MASS, center_of_mass=None, inertia=None,
+                   dofs=["heave"], hdb_body="float", **states) for n in ("one", "two")]
+    err = _parse_error(scene_toml(dt=0.1, duration=1.0, bodies=bodies, hydro={"interaction": "none"}))
+    assert err.key == "bodies[1].hydro_states"
