@@ -288,3 +288,38 @@ def test_two_switching_bodies_are_refused_naming_the_second(hdb_files):
                    dofs=["heave"], hdb_body="float", **states) for n in ("one", "two")]
     err = _parse_error(scene_toml(dt=0.1, duration=1.0, bodies=bodies, hydro={"interaction": "none"}))
     assert err.key == "bodies[1].hydro_states"
+
+
+def test_threshold_rules_switch_on_the_position_sent_with_hysteresis_and_roll_back(hdb_files):
+    """Two rules make a band: below -0.3 m -> deep, above -0.1 m -> shallow. A sub-iteration keeps the
+    state of its step; a rollback (SPEC §5.9) repeats the switches bit for bit."""
+    rules = [{"body": "float", "state": "deep", "dof": "heave", "below": -0.3},
+             {"body": "float", "state": "shallow", "dof": "heave", "above": -0.1}]
+    model, _ = _models(hdb_files, switches=rules, waves={"type": "still"}, dt=0.1, duration=10.0)
+    z = np.array([0.0, -0.2, -0.35, -0.2, -0.05, -0.5, -0.2])
+    want = [None, None, "deep", None, "shallow", "deep", None]
+    x, v = np.zeros((1, 6)), np.zeros((1, 6))
+    states, replies = [], []
+    for k, zk in enumerate(z):
+        x[0, 2] = zk
+        if k == 3:
+            saved = model.state()
+        replies.append(model.step(k * model.dt, x, v))
+        states.append(replies[-1].get("hydro_state", {}).get("state"))
+        if k == 2:     # an iteration of the switching step, back above the threshold: still deep, still the switch
+            x[0, 2] = 0.0
+            again = model.step(k * model.dt, x, v, replace_last=True)
+            assert again["hydro_state"]["state"] == "deep" and model.hydro_state == "deep"
+    assert states == want
+    model.set_state(saved)
+    for k in range(3, z.size):
+        x[0, 2] = z[k]
+        redo = model.step(k * model.dt, x, v)
+        assert redo.get("hydro_state", {}).get("state") == states[k]
+        np.testing.assert_array_equal(redo["radiation"], replies[k]["radiation"])
+        np.testing.assert_array_equal(redo["hydrostatic"], replies[k]["hydrostatic"])
+    # the switch's matrices are the deep state's HDB values
+    change = replies[2]["hydro_state"]
+    assert change["added_mass"][2, 2] == STATES["deep"][0][0]
+    assert change["hydrostatic_stiffness"][2, 2] == pytest.approx(STATES["deep"][1], rel=1e-12)
+    assert change["net_buoyancy"][0] == pytest.approx(RHO * G * 20.0, rel=1e-9)
