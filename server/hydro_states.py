@@ -62,6 +62,20 @@ class _Rule:
         return bool(x[self.row] > self.above)
 
 
+def _moved(scene: Scene, i: int, first: xr.Dataset, ds: xr.Dataset) -> Scene:
+    """The scene for a state whose HDB puts body ``i``'s reference point elsewhere than the first
+    state's (the body rests there in that state, e.g. sunk deeper): its centre of mass moved with it."""
+    body = scene.bodies[i]
+    name = body.hdb_body_name
+    if body.center_of_mass is None or name not in [str(b) for b in ds["body"].values]:
+        return scene      # (a missing body is the model's error, naming the key)
+    shift = ds["reference_point"].sel(body=name).values - first["reference_point"].sel(body=name).values
+    if not shift.any():
+        return scene
+    moved = body.model_copy(update={"center_of_mass": (np.asarray(body.center_of_mass) + shift).tolist()})
+    return scene.model_copy(update={"bodies": [moved if b is body else b for b in scene.bodies]})
+
+
 def hydro_model(scene: Scene, hdbs: dict[str, xr.Dataset], state_hdbs: dict[str, dict[str, xr.Dataset]],
                 wave_elevation: tuple[np.ndarray, np.ndarray] | None = None, *, hulls: dict | None = None,
                 compiled: bool | None = None) -> "HydroModel | SwitchingModel":
@@ -92,7 +106,8 @@ class SwitchingModel:
             if j and state not in given:
                 raise ModelError(key, f"no HDB loaded for state {state!r} of body {body.name!r}")
             try:
-                model = HydroModel(scene, {**hdbs, body.name: given[state]} if j else hdbs, wave_elevation,
+                model = HydroModel(_moved(scene, i, hdbs[body.name], given[state]) if j else scene,
+                                   {**hdbs, body.name: given[state]} if j else hdbs, wave_elevation,
                                    hulls=hulls, compiled=compiled)
             except ModelError as exc:
                 if not j or not exc.key.startswith(f"bodies[{i}]"):
@@ -110,7 +125,7 @@ class SwitchingModel:
         self._rules = tuple(self._rule(r, 6 * k) for r in scene.hydro_switches)
         self._eq = first.equilibrium_position.reshape(-1)
         self._changes = [HydroStateChange(body.name, state, s.added_mass, s.hydrostatic_stiffness, s.net_buoyancy,
-                                          s.radiation_feedthrough).to_wire()
+                                          s.equilibrium_position, s.radiation_feedthrough).to_wire()
                          for state, s in zip(self.states, (m.setup_info() for m in self.models))]
         self._current, self._fired, self._switch = 0, frozenset(), None   # switch: (seq, state) of the newest
         self._step = -1
@@ -120,19 +135,19 @@ class SwitchingModel:
                      row0 + DOF_NAMES.index(rule.dof) if rule.dof is not None else -1, rule.below, rule.above)
 
     def _check_like(self, first: HydroModel, model: HydroModel, key: str, state: str) -> None:
-        """A state's model takes the body as the first state's does: the same wet bodies, interaction
-        groups and reference points (the client's nodes); else ModelError naming the state's HDB key."""
+        """A state's model takes the bodies as the first state's does: the same interaction groups, and
+        only the switching body's reference point may move; else ModelError naming the state's HDB key."""
         if model.groups != first.groups:
             raise ModelError(key, f"state {state!r} makes the bodies interact as {model.groups}, state "
                                   f"{self.states[0]!r} as {first.groups}: every state's HDB must hold the body "
                                   "with the same bodies it interacts with")
-        diff = np.abs(model.equilibrium_position - first.equilibrium_position).max()
-        if diff > 1e-9:
-            k = first.bodies.index(self.body)
-            raise ModelError(key, f"state {state!r} puts body {self.body!r}'s reference point at "
-                                  f"{model.equilibrium_position[k, :3].tolist()} m, state {self.states[0]!r} at "
-                                  f"{first.equilibrium_position[k, :3].tolist()} m: the states' HDBs must refer the "
-                                  "body's motion to one point (the client's node)")
+        k = first.bodies.index(self.body)
+        moved = np.abs(model.equilibrium_position - first.equilibrium_position).max(axis=1) > 0
+        moved[k] = False
+        if moved.any():
+            other = first.bodies[int(np.argmax(moved))]
+            raise ModelError(key, f"state {state!r}'s HDB moves body {other!r}'s reference point, which does not "
+                                  f"switch (only {self.body!r} does)")
 
     @property
     def hydro_state(self) -> str:

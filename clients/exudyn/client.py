@@ -466,7 +466,7 @@ class ExudynMultibody:
         # the wet bodies' 6N entries in the (B, 6) rows (the optional forces' results variables)
         self._wet_flat = (6 * np.asarray(model.wet_rows, int)[:, None] + np.arange(6)).reshape(-1)
         self._pto_sample = None
-        self._buoyancy_change: np.ndarray | None = None   # net buoyancy of the hydro state minus the setup's
+        self._state_load: np.ndarray | None = None   # the hydro state's constant load beside the setup's
         self.hydro_state: str | None = None                # the state entered at the newest switch
         # MoorDyn: each step is driven towards the pose it ends in (clients/exudyn/moordyn_mooring.py):
         # predicted, or on a redo the end poses of the previous pass (one per step since the save)
@@ -524,13 +524,14 @@ class ExudynMultibody:
         return max(float(np.abs(q).max(initial=0.0)), float(np.abs(v).max(initial=0.0)))
 
     def inputs(self, s0, s1, acc, x0, x1) -> np.ndarray:
-        load = s1.load if self._buoyancy_change is None else s1.load + self._buoyancy_change
+        load = s1.load if self._state_load is None else s1.load + self._state_load
         return load if acc is None else load - self.a_fb @ acc
 
     def apply_hydro_state(self, change) -> None:
         """A switch of hydrodynamic state (protocol/hydro_state.py): its A∞ into the hydro object's mass
-        matrix, its stiffness into the stiffness matrix, the change of net buoyancy from the setup's as
-        a constant heave force on the reference points (beside the setup's load)."""
+        matrix, its stiffness C_s into the stiffness matrix (which holds −C q about the setup's
+        equilibrium), and as a constant load beside the setup's: the change of net buoyancy and
+        C_s (x_eq,s − x_eq,0) where the state's rest pose differs from the setup's."""
         m = self.model
         ix = np.ix_(m.hydro_coordinates, m.hydro_coordinates)
         m.mbs.SetObjectParameter(m.hydro_object, "stiffnessMatrix", change.hydrostatic_stiffness[ix])
@@ -538,9 +539,9 @@ class ExudynMultibody:
         if m.added_mass_in_matrix:
             m.mbs.SetObjectParameter(m.hydro_object, "massMatrix", change.added_mass[ix])
         m.added_mass = change.added_mass
-        extra = np.zeros(6 * self.n)
-        extra[2::6] = change.net_buoyancy - m.net_buoyancy
-        self._buoyancy_change = extra if extra.any() else None
+        extra = change.hydrostatic_stiffness @ (change.equilibrium_position - m.equilibrium).reshape(-1)
+        extra[2::6] += change.net_buoyancy - m.net_buoyancy
+        self._state_load = extra if extra.any() else None
         self.hydro_state = change.state
 
     def advance(self, t0: float, t1: float, u: np.ndarray) -> None:
