@@ -42,7 +42,7 @@ from hydrolink.protocol.setup import Setup
 from hydrolink.server.errors import ModelError
 from hydrolink.server.model import HydroModel
 
-__all__ = ["SwitchingModel", "hydro_model"]
+__all__ = ["SwitchingModel", "hydro_model", "state_datasets"]
 
 
 @dataclass(frozen=True)
@@ -74,6 +74,12 @@ def _moved(scene: Scene, i: int, first: xr.Dataset, ds: xr.Dataset) -> Scene:
         return scene
     moved = body.model_copy(update={"center_of_mass": (np.asarray(body.center_of_mass) + shift).tolist()})
     return scene.model_copy(update={"bodies": [moved if b is body else b for b in scene.bodies]})
+
+
+def state_datasets(scene: Scene, by_hdb: dict[str, xr.Dataset]) -> dict[str, dict[str, xr.Dataset]]:
+    """The switching body's states' HDBs (body name -> state -> dataset) from the scene's HDBs keyed
+    by their ``hdb`` strings (what ``hydro_model`` takes as ``state_hdbs``)."""
+    return {b.name: {s.name: by_hdb[s.hdb] for s in b.hydro_states} for b in scene.bodies if b.hydro_states}
 
 
 def hydro_model(scene: Scene, hdbs: dict[str, xr.Dataset], state_hdbs: dict[str, dict[str, xr.Dataset]],

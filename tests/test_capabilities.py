@@ -17,7 +17,7 @@ from conftest import SPHERE_WATER, regular_waves, scene_toml, sphere_body, write
 from hydrolink.protocol.capabilities import FEATURES, TOOLS, reply_fields
 from hydrolink.protocol.reply import OPTIONAL_FORCES, reply_field
 from hydrolink.protocol.scene import SceneError, parse_scene
-from hydrolink.server.hydro_states import hydro_model
+from hydrolink.server.hydro_states import hydro_model, state_datasets
 from hydrolink.server.model import HydroModel
 from hydrolink.server.terms.hulls import closed_hull
 
@@ -123,8 +123,8 @@ def sphere_headings(sphere, tmp_path_factory) -> tuple[xr.Dataset, Path]:
 def _model(sphere, sphere_path: Path, feature: str, hull) -> HydroModel:
     _, vertices, faces = hull
     scene = parse_scene(scene_text(sphere_path, feature))
-    states = {b.name: {s.name: sphere for s in b.hydro_states} for b in scene.bodies if b.hydro_states}
-    return hydro_model(scene, {"sphere": sphere}, states, hulls={"sphere": closed_hull(vertices, faces)})
+    return hydro_model(scene, {"sphere": sphere}, state_datasets(scene, {str(sphere_path): sphere}),
+                       hulls={"sphere": closed_hull(vertices, faces)})
 
 
 def _refusal(tool: str, scene_path: Path, text: str, tmp_path: Path) -> Exception:

@@ -468,6 +468,7 @@ class ExudynMultibody:
         self._pto_sample = None
         self._state_load: np.ndarray | None = None   # the hydro state's constant load beside the setup's
         self.hydro_state: str | None = None                # the state entered at the newest switch
+        self.state_names: list[str] = []                   # the switching body's states (results: hydro_state)
         # MoorDyn: each step is driven towards the pose it ends in (clients/exudyn/moordyn_mooring.py):
         # predicted, or on a redo the end poses of the previous pass (one per step since the save)
         moorings = model.moorings
@@ -635,6 +636,8 @@ class ExudynMultibody:
             s = self._pto_sample = m.ptos.sample(m.mbs)
             out["pto_force"], out["pto_velocity"], out["pto_power"] = s.force, s.velocity, s.power
             out["total_pto_power"] = s.total_power
+        if self.state_names:
+            out["hydro_state"] = np.float64(self.state_names.index(self.hydro_state or self.state_names[0]))
         if m.moorings is not None:
             out["mooring_force"] = m.moorings.sample(m.mbs)
         if self._md is not None:
@@ -707,6 +710,7 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup | None, writer, 
         control = PTOControl(scene, model.ptos, model.mbs, writer)
     kx = pre.exchange_every
     mb = ExudynMultibody(model, writer, kx, feedback, cpl, ratio, control)
+    mb.state_names = next((b.state_names() for b in scene.bodies if b.hydro_states), [])
     loop = Lockstep(mb, ForceLink(connection, setup if model.n_bodies else None, writer), writer,
                     DivergenceWatch(blow_up_limit), cpl.between_exchanges,
                     bar=progress_bar(pre.n_steps, progress and scene.simulation.progress))
@@ -744,6 +748,10 @@ def _add_variables(scene: Scene, model: ExudynModel, writer, warnings: list[str]
         _add_joint_variables(writer, mech.joint_labels)
     _add_pto_mooring_variables(writer, model.ptos, model.moorings)
     add_force_term_variables(writer, scene)
+    switching = next((b for b in scene.bodies if b.hydro_states), None)
+    if switching is not None:
+        writer.add_variable("hydro_state", (), None, "1",
+                            f"hydrodynamic state of body {switching.name!r}: index in {switching.state_names()}")
     moordyn = _moordyn_report(model.moorings) if model.moorings is not None and model.moorings.moordyn else None
     if moordyn is not None:
         _add_moordyn_variables(writer, model.moorings)

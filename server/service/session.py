@@ -22,7 +22,7 @@ from hydrolink.protocol.hdb.wire import from_wire
 from hydrolink.protocol.hdb.layout import HDBError
 from hydrolink.protocol.pacing import Pacer
 from hydrolink.server.hdb.file_set import FileSetReader, is_file_set
-from hydrolink.server.hydro_states import hydro_model
+from hydrolink.server.hydro_states import hydro_model, state_datasets
 from hydrolink.server.model import HydroModel, ModelError
 from hydrolink.server.sea.probes import PreviewGrid, WaveProbes
 from hydrolink.server.terms.hulls import MeshError, closed_hull
@@ -110,8 +110,8 @@ def read_hello(msg: dict, files: FileSetReader | None = None) -> ModelInputs:
                 hulls[str(name)] = closed_hull(vertices, faces)
             except MeshError as exc:
                 raise ProtocolError(Code.BAD_VALUE, where, f"body {name!r}'s hull: {exc.why}") from None
-    states = {b.name: {s.name: datasets[s.hdb] for s in b.hydro_states} for b in scene.bodies if b.hydro_states}
-    return ModelInputs(scene, {b.name: datasets[b.hdb] for b in scene.wet_bodies}, series, hulls, states)
+    return ModelInputs(scene, {b.name: datasets[b.hdb] for b in scene.wet_bodies}, series, hulls,
+                       state_datasets(scene, datasets))
 
 
 MAX_SAVED_BYTES = 256 * 2**20   # per session: saved states kept (SPEC §5.9)
