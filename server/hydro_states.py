@@ -54,12 +54,13 @@ class _Rule:
     below: float | None
     above: float | None
 
-    def fires(self, t: float, x: np.ndarray, fired: bool, tol: float) -> bool:
+    def fires(self, t: float, x: np.ndarray, eq: np.ndarray, fired: bool, tol: float) -> bool:
+        """At time ``t`` with the absolute state ``x`` (equilibrium ``eq``); ``fired``: a time rule fired before."""
         if self.time is not None:
             return not fired and t >= self.time - tol
         if self.below is not None:
-            return bool(x[self.row] < self.below)
-        return bool(x[self.row] > self.above)
+            return x[self.row] - eq[self.row] < self.below
+        return x[self.row] - eq[self.row] > self.above
 
 
 def _moved(scene: Scene, i: int, first: xr.Dataset, ds: xr.Dataset) -> Scene:
@@ -176,13 +177,13 @@ class SwitchingModel:
         """Apply the rules at step ``k`` (state ``x`` absolute, 6N)."""
         if k == 0:
             return
-        t, disp, fired, state = k * self.dt, x - self._eq, set(self._fired), self._current
+        t, fired, state = k * self.dt, self._fired, self._current
         for n, rule in enumerate(self._rules):
-            if rule.fires(t, disp, n in fired, 1e-9 * self.dt):
+            if rule.fires(t, x, self._eq, n in fired, 1e-9 * self.dt):
                 state = rule.state
                 if rule.time is not None:
-                    fired.add(n)
-        self._fired = frozenset(fired)
+                    fired = fired | {n}
+        self._fired = fired
         if state != self._current:
             self._current, self._switch = state, (k, state)
 
@@ -204,7 +205,9 @@ class SwitchingModel:
         self._step = k
         reply = dict(replies[cur])
         if self.emission:
-            total = np.sum([r["radiation"] for r in replies], axis=0)
+            total = replies[0]["radiation"].copy()
+            for r in replies[1:]:
+                total += r["radiation"]
             total.flags.writeable = False
             reply["radiation"] = total
         if self._switch is not None and self._switch[0] == k:

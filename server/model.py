@@ -168,6 +168,7 @@ class HydroModel:
         self._excitation(data, lo, hi, wave_elevation)
         self._yaw = self._passive_yaw(data)
         self._step = -1           # index of the newest step pushed
+        self._still = np.zeros(self.n)   # the velocity a state the body is not in radiates with (step(radiating=False))
         na = self._idx.size
         self._all_active = na == self.n
         self._sel = slice(None) if self._all_active else self._idx  # a view when every DOF is active
@@ -629,7 +630,7 @@ class HydroModel:
         # the reply's arrays: fresh each step (a reply may be kept, e.g. cached for a retry, and
         # goes out in-process as is), written in place, then made read-only like a frame's arrays
         out = np.zeros(self._reply_shape)
-        vr = v if radiating else np.zeros_like(v)
+        vr = v if radiating else self._still
         if self._yaw is not None:
             self._yaw.follow(x, replace_last)     # the headings the waves are read at (the compiled step's too)
         if self._fused is not None:
