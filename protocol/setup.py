@@ -96,7 +96,7 @@ class Setup:
     # the sea's variance share per 30-degree direction band, by band centre ("+30"); None from older servers
     wave_energy_by_direction: dict[str, float] | None = None
     # variable hydrodynamics (revision 1.14): {body: the state it starts in}; None without hydro_states.
-    # A reply's hydro_state (protocol/hydro_state.py) changes the matrices at a switch
+    # A reply's hydro_state (protocol/reply.py HydroStateChange) changes the matrices at a switch
     hydro_state: dict[str, str] | None = None
 
     @property

@@ -20,7 +20,7 @@ Both hold for the convolution and the state-space radiation alike: a state-space
 driven the same way, so nothing is mapped or restarted at a switch. The excitation, the hydrostatic
 force (−C_s (x − x_eq) with the state's stiffness and the body's one reference point) and A∞ switch
 together: the reply of the step where a switch acts carries the state's A∞, stiffness, net buoyancy
-and feedthrough (``hydro_state``, protocol/hydro_state.py) for the client's matrices. The body's mass
+and feedthrough (``hydro_state``, protocol/reply.py HydroStateChange) for the client's matrices. The body's mass
 and centre of mass are the scene's in every state (a ballast case that changes the mass is not
 modelled: as in WEC-Sim).
 
@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 import xarray as xr
 
-from hydrolink.protocol.hydro_state import HydroStateChange
+from hydrolink.protocol.reply import HydroStateChange
 from hydrolink.protocol.scene import DOF_NAMES, Scene
 from hydrolink.protocol.setup import Setup
 from hydrolink.server.errors import ModelError

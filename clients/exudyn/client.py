@@ -529,7 +529,7 @@ class ExudynMultibody:
         return load if acc is None else load - self.a_fb @ acc
 
     def apply_hydro_state(self, change) -> None:
-        """A switch of hydrodynamic state (protocol/hydro_state.py): its A∞ into the hydro object's mass
+        """A switch of hydrodynamic state (protocol/reply.py HydroStateChange): its A∞ into the hydro object's mass
         matrix, its stiffness C_s into the stiffness matrix (which holds −C q about the setup's
         equilibrium), and as a constant load beside the setup's: the change of net buoyancy and
         C_s (x_eq,s − x_eq,0) where the state's rest pose differs from the setup's."""

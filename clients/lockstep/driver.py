@@ -25,10 +25,9 @@ from typing import Any, Mapping, NamedTuple, Protocol
 
 import numpy as np
 
-from hydrolink.protocol.hydro_state import HydroStateChange
 from hydrolink.protocol.pacing import PARTS, Pacer, StepRecord
 from hydrolink.clients.lockstep.summary import CouplingReport, RunSummary
-from hydrolink.protocol.reply import OPTIONAL_FORCES
+from hydrolink.protocol.reply import OPTIONAL_FORCES, HydroStateChange
 
 _sum = np.add.reduce   # ndarray.sum without its Python wrapper
 
