@@ -65,7 +65,8 @@ def hdb_files(tmp_path_factory) -> Path:
 
 
 def scene_text(folder: Path, *, switches=(), states: bool = True, memory: str | None = None,
-               waves=None, duration: float = 30.0, dt: float = 0.025, coupling=None, **keys) -> str:
+               waves=None, duration: float = 30.0, dt: float = 0.025, coupling=None, radiation: str | None = None,
+               **keys) -> str:
     extra = {"hydro_state": "shallow", "hydro_states": [{"name": "deep", "hdb": str(folder / "deep.nc")}]} \
         if states else {}
     if memory is not None:
@@ -75,7 +76,8 @@ def scene_text(folder: Path, *, switches=(), states: bool = True, memory: str | 
                    dofs=["heave"], **extra)]
     return scene_toml(dt=dt, duration=duration, water={"density": RHO, "gravity": G, "depth": "inf"},
                       waves=regular_waves(1.0, 8.0) if waves is None else waves, bodies=bodies,
-                      hydro={"irf_duration": 20.0}, hydro_switches=list(switches), coupling=coupling,
+                      hydro={"irf_duration": 20.0, **({"radiation": radiation} if radiation else {})},
+                      hydro_switches=list(switches), coupling=coupling,
                       progress=False)
 
 
@@ -133,12 +135,17 @@ def _integral(kernels: list[tuple[float, float]], states: np.ndarray, v: np.ndar
     return -dt * float(np.sum(w * k[pick, np.arange(n + 1)] * v[:n + 1]))
 
 
+@pytest.mark.parametrize("radiation,tol", [("convolution", 300.0), ("state-space", 300.0)])
 @pytest.mark.parametrize("memory", ["current-kernel", "kernel-at-emission"])
-def test_radiation_memory_across_a_switch_is_the_integral_written_out(hdb_files, memory):
+def test_radiation_memory_across_a_switch_is_the_integral_written_out(hdb_files, memory, radiation, tol):
     """A prescribed heave velocity through a switch at 6 s and back at 12 s: the radiation force of
-    each step against the convolution written here (the analytic kernels)."""
+    each step against the convolution written here (the analytic kernels), by convolution and by the
+    state-space fits (whose states are driven the same way: nothing mapped at a switch); ``tol`` in N
+    beside forces up to 7e4 N (measured: 38 N by convolution, 123-196 N by the state-space fits; the
+    other method's integral is 4.3e4 N away after the switch)."""
     rules = [{"body": "float", "state": "deep", "time": 6.0}, {"body": "float", "state": "shallow", "time": 12.0}]
-    model, _ = _models(hdb_files, switches=rules, memory=memory, waves={"type": "still"}, dt=0.02, duration=20.0)
+    model, _ = _models(hdb_files, switches=rules, memory=memory, waves={"type": "still"}, dt=0.02, duration=20.0,
+                       radiation=radiation)
     dt, n = model.dt, 900
     t = np.arange(n) * dt
     v = 0.4 * np.sin(0.9 * t) + 0.2 * np.sin(2.3 * t + 1.0)
@@ -154,10 +161,10 @@ def test_radiation_memory_across_a_switch_is_the_integral_written_out(hdb_files,
         got[k] = reply["radiation"][0, 2]
         other[k] = _integral(kernels, states, v, dt, k, memory != "kernel-at-emission")
         want = _integral(kernels, states, v, dt, k, memory == "kernel-at-emission")
-        assert abs(got[k] - want) <= 5e-3 * 1.5e5 * 0.4, (k, got[k], want)
+        assert abs(got[k] - want) <= tol, (k, got[k], want)
     assert switched == [(300, "deep"), (600, "shallow")]
     # the two methods differ after each switch by far more than the tolerance: the test tells them apart
-    assert np.abs(got - other)[300:400].max() > 10 * 5e-3 * 1.5e5 * 0.4
+    assert np.abs(got - other)[300:400].max() > 10 * tol
 
 
 # ---------------------------------------------------------------------------------- a run
