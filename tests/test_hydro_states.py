@@ -356,3 +356,17 @@ def test_threshold_rules_switch_on_the_position_sent_with_hysteresis_and_roll_ba
     assert change["hydrostatic_stiffness"][2, 2] == pytest.approx(STATES["deep"][1], rel=1e-12)
     assert change["net_buoyancy"][0] == pytest.approx(RHO * G * 20.0, rel=1e-9)
     assert change["equilibrium_position"][0, 2] == STATES["deep"][4]
+
+
+def test_a_switching_run_through_a_served_server_is_the_in_process_run_bit_for_bit(hdb_files, tmp_path, server):
+    """The states' HDBs go as file sets (SPEC §5.1), the switch's matrices come back as binary arrays
+    (SPEC §2.1), and the run is the same."""
+    from hydrolink.clients.run import run_scene_file
+    text = scene_text(hdb_files, switches=[{"body": "float", "state": "deep", "time": 2.0}], duration=5.0)
+    path = write_scene(tmp_path, text)
+    run_scene_file(path, tmp_path / "local.nc", progress=False)
+    run_scene_file(path, tmp_path / "served.nc", server=server, progress=False, hdb_files=True)   # sent by hash
+    local, served = xr.load_dataset(tmp_path / "local.nc"), xr.load_dataset(tmp_path / "served.nc")
+    for var in ("position", "velocity", "excitation_force", "radiation_force", "hydro_state"):
+        np.testing.assert_array_equal(local[var].values, served[var].values)
+    assert served["hydro_state"].values[-1] == 1

@@ -21,7 +21,7 @@ from hydrolink.protocol.scene_bounds import MAX_COORDINATE, MAX_SPEED
 from hydrolink.protocol.hdb.wire import from_wire
 from hydrolink.protocol.hdb.layout import HDBError
 from hydrolink.protocol.pacing import Pacer
-from hydrolink.server.hdb.file_set import FileSetReader, is_file_set
+from hydrolink.server.hdb.file_set import FileSetReader, MissingContent, is_file_set
 from hydrolink.server.hydro_states import hydro_model, state_datasets
 from hydrolink.server.model import HydroModel, ModelError
 from hydrolink.server.sea.probes import PreviewGrid, WaveProbes
@@ -71,6 +71,7 @@ def read_hello(msg: dict, files: FileSetReader | None = None) -> ModelInputs:
     except SceneError as exc:
         raise ProtocolError(Code.BAD_SCENE, _scene_field(exc.key), str(exc)) from None
     datasets: dict[str, xr.Dataset] = {}
+    missing: tuple[str, list[str]] | None = None   # the first file set's field and every missing digest
     for i, body, key, scene_key in scene.hdb_keys():
         if key in datasets:
             continue
@@ -83,7 +84,11 @@ def read_hello(msg: dict, files: FileSetReader | None = None) -> ModelInputs:
             if files is None:
                 raise ProtocolError(Code.BAD_VALUE, where, "this server keeps no HDB store: send the HDB as a map")
             stated = next((b.hdb_convention for b in scene.bodies if b.hdb == key and b.hdb_convention), None)
-            datasets[key] = files.read(hdb_maps[key], where, stated, scene.wamit_statement(key))
+            try:
+                datasets[key] = files.read(hdb_maps[key], where, stated, scene.wamit_statement(key))
+            except MissingContent as exc:    # every file set's missing contents in one error: one upload round
+                missing = (missing[0], missing[1] + [d for d in exc.extra["missing"] if d not in missing[1]]) \
+                    if missing else (exc.field, list(exc.extra["missing"]))
             continue
         try:
             data = codec.decode_tree(hdb_maps[key], where)
@@ -93,6 +98,8 @@ def read_hello(msg: dict, files: FileSetReader | None = None) -> ModelInputs:
             datasets[key] = from_wire(data, key)
         except HDBError as exc:
             raise ProtocolError(Code.BAD_HDB, f"{where}.{exc.field}" if exc.field else where, str(exc)) from None
+    if missing:
+        raise MissingContent(*missing)
     series = None
     if msg.get("wave_elevation") is not None:  # [waves] type = "elevation": the client read the file
         we = codec.require_map(msg, "wave_elevation")
