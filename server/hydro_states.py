@@ -31,13 +31,13 @@ keeps the step's state), on the position sent; rules in scene order, the last th
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import xarray as xr
 
 from hydrolink.protocol.reply import HydroStateChange
-from hydrolink.protocol.scene import DOF_NAMES, Scene
+from hydrolink.protocol.scene import DOF_NAMES, HydroSwitch, Scene
 from hydrolink.protocol.setup import Setup
 from hydrolink.server.errors import ModelError
 from hydrolink.server.model import HydroModel
@@ -137,7 +137,8 @@ class SwitchingModel:
         self._current, self._fired, self._switch = 0, frozenset(), None   # switch: (seq, state) of the newest
         self._step = -1
 
-    def _rule(self, rule, row0: int) -> _Rule:
+    def _rule(self, rule: HydroSwitch, row0: int) -> _Rule:
+        """A scene rule over the 6N state (``row0``: the body's first row)."""
         return _Rule(self.states.index(rule.state), rule.time,
                      row0 + DOF_NAMES.index(rule.dof) if rule.dof is not None else -1, rule.below, rule.above)
 
@@ -165,7 +166,6 @@ class SwitchingModel:
     def setup_info(self) -> Setup:
         """The first state's setup (the state the body starts in), all states' warnings, and
         ``hydro_state`` = {body: state}."""
-        from dataclasses import replace
         return replace(self.models[0].setup_info(), warnings=tuple(self.warnings),
                        hydro_state={self.body: self.states[0]})
 
