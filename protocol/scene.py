@@ -1106,6 +1106,10 @@ class Controller(_Section):
     join_timeout: WallTimeout = 30.0                   # s the run waits at t = 0 for the controller
     fallback: Literal["hold", "passive"] = "hold"
     fallback_damping: NonNegativeCoefficient | None = None
+    # bodies (with hydro_states) whose hydrodynamic state this controller may command (SPEC §5.7.4
+    # ``hydro_state``; server/hydro_states.py); a state commanded from step k's measurements acts from
+    # step k + latency + 1
+    hydro_states: list[Name] = []
     max_force: PositiveCoefficient | None = None               # |force command| <= max_force
     damping_range: Annotated[list[Coefficient], Field(min_length=2, max_length=2)] = [0.0, 1.0e12]
     stiffness_range: Annotated[list[Coefficient], Field(min_length=2, max_length=2)] = [-1.0e12, 1.0e12]
@@ -1331,6 +1335,10 @@ class Scene(_Section):
         driven: dict[str, str] = {}
         dt = self.simulation.dt
         for i, c in enumerate(self.controllers):
+            for b in c.hydro_states:
+                if b not in names or not self.bodies[names.index(b)].hydro_states:
+                    raise ValueError(f"controllers[{i}].hydro_states: {b!r} is not a body with hydro_states "
+                                     f"(those: {[x.name for x in self.bodies if x.hydro_states]})")
             if c.name in [d.name for d in self.controllers[:i]]:
                 raise ValueError(f"controllers[{i}].name: duplicate controller name {c.name!r}")
             for p in c.ptos:

@@ -173,8 +173,8 @@ class SwitchingModel:
         """The active state's wave components and excitation phasors (see HydroModel)."""
         return self.models[self._current].excitation_phasors()
 
-    def _decide(self, k: int, x: np.ndarray) -> None:
-        """Apply the rules at step ``k`` (state ``x`` absolute, 6N)."""
+    def _decide(self, k: int, x: np.ndarray, commanded: dict[str, str] | None) -> None:
+        """Apply the rules at step ``k`` (state ``x`` absolute, 6N), then a controller's command."""
         if k == 0:
             return
         t, fired, state = k * self.dt, self._fired, self._current
@@ -184,17 +184,21 @@ class SwitchingModel:
                 if rule.time is not None:
                     fired = fired | {n}
         self._fired = fired
+        if commanded and self.body in commanded:
+            state = self.states.index(commanded[self.body])
         if state != self._current:
             self._current, self._switch = state, (k, state)
 
-    def step(self, time: float, position: np.ndarray, velocity: np.ndarray, *, replace_last: bool = False) -> dict:
+    def step(self, time: float, position: np.ndarray, velocity: np.ndarray, *, replace_last: bool = False,
+             commanded: dict[str, str] | None = None) -> dict:
         """The active state's forces at ``time`` (radiation per ``hydro_memory``), with
-        ``hydro_state`` at the step where a switch acts (and its sub-iterations)."""
+        ``hydro_state`` at the step where a switch acts (and its sub-iterations); ``commanded``: a
+        controller's {body: state} for this step (after the rules: it wins)."""
         k = self._step if replace_last else self._step + 1
         x = np.asarray(position, float).reshape(-1)
         before = self._current, self._fired, self._switch
         if not replace_last and x.size == self.n:    # (a bad step is refused by the models below)
-            self._decide(k, x)
+            self._decide(k, x, commanded)
         cur = self._current
         try:     # every model checks the step alike: the first refuses it before any other steps
             replies = [model.step(time, position, velocity, replace_last=replace_last,

@@ -31,6 +31,7 @@ from hydrolink.server.model import HydroModel
 
 RHO, G = 1000.0, 9.81
 MASS = 2.5e5
+TOKEN = "hydro-states-test-token-0123456789abcdef"   # a session's join token (32+ characters)
 #: heave (A_inf, b0, w0), stiffness C, displaced volume V, excitation (amplitude, decay, phase, slope) and
 #: the reference point's height: in "deep" the body rests 0.2 m lower (its HDB refers to the same point
 #: of the body, there)
@@ -66,7 +67,7 @@ def hdb_files(tmp_path_factory) -> Path:
 
 def scene_text(folder: Path, *, switches=(), states: bool = True, memory: str | None = None,
                waves=None, duration: float = 30.0, dt: float = 0.025, coupling=None, radiation: str | None = None,
-               **keys) -> str:
+               ptos=None, controllers=None, **keys) -> str:
     extra = {"hydro_state": "shallow", "hydro_states": [{"name": "deep", "hdb": str(folder / "deep.nc")}]} \
         if states else {}
     if memory is not None:
@@ -77,7 +78,7 @@ def scene_text(folder: Path, *, switches=(), states: bool = True, memory: str | 
     return scene_toml(dt=dt, duration=duration, water={"density": RHO, "gravity": G, "depth": "inf"},
                       waves=regular_waves(1.0, 8.0) if waves is None else waves, bodies=bodies,
                       hydro={"irf_duration": 20.0, **({"radiation": radiation} if radiation else {})},
-                      hydro_switches=list(switches), coupling=coupling,
+                      hydro_switches=list(switches), coupling=coupling, ptos=ptos, controllers=controllers,
                       progress=False)
 
 
@@ -370,3 +371,46 @@ def test_a_switching_run_through_a_served_server_is_the_in_process_run_bit_for_b
     for var in ("position", "velocity", "excitation_force", "radiation_force", "hydro_state"):
         np.testing.assert_array_equal(local[var].values, served[var].values)
     assert served["hydro_state"].values[-1] == 1
+
+
+
+BALLAST = '''
+from hydrolink.clients.control import Controller
+
+class Ballast(Controller):
+    def on_step(self, t, m):
+        if abs(t - 2.0) < 1e-9:          # the measurements of t = 2 s: sink
+            self.switch_hydro_state("float", "deep")
+        if abs(t - 3.0) < 1e-9:          # a state the body does not have: refused, the step falls back
+            self.switch_hydro_state("float", "flooded")
+        return {p: 0.0 for p in self.ptos}
+'''
+
+
+def test_a_controller_command_switches_the_state_a_step_after_its_decision(hdb_files, tmp_path):
+    """A controller commands "deep" from the measurements of t = 2 s (latency 1: due at 2.025 s): the
+    model enters it at 2.05 s, and the run equals the run whose time rule switches at 2.05 s, bit for
+    bit; a command of a state the body lacks is refused (decision "invalid", the run goes on)."""
+    import json
+    import socket
+    from conftest import controller_process, linear_pto
+    from hydrolink.clients.run import run_scene_file
+    pto = [linear_pto("pto", "float", [0.0, 0.0, 0.0], "ground", [0.0, 0.0, -10.0], damping=0.0, stiffness=0.0)]
+    ctl = [{"name": "ctl", "ptos": ["pto"], "hydro_states": ["float"], "timeout": 20.0}]
+    commanded = scene_text(hdb_files, duration=4.0, ptos=pto, controllers=ctl)
+    ruled = scene_text(hdb_files, duration=4.0, ptos=pto, switches=[{"body": "float", "state": "deep", "time": 2.05}])
+    (tmp_path / "ballast.py").write_text(BALLAST)
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        address = f"tcp://127.0.0.1:{sock.getsockname()[1]}"
+    with controller_process(tmp_path / "ballast.py", address, TOKEN) as ended:
+        run_scene_file(write_scene(tmp_path, commanded, "commanded.toml"), tmp_path / "commanded.nc", progress=False,
+                       listen=address, control_token=TOKEN, timeout=30.0)
+    assert ended.returncode == 0, ended.stderr
+    run_scene_file(write_scene(tmp_path, ruled, "ruled.toml"), tmp_path / "ruled.nc", progress=False)
+    a, b = xr.load_dataset(tmp_path / "commanded.nc"), xr.load_dataset(tmp_path / "ruled.nc")
+    state = a["hydro_state"].values
+    assert state[81] == 0 and state[82] == 1 and state[-1] == 1          # t = 2.025 s, 2.05 s
+    for var in ("position", "velocity", "excitation_force", "radiation_force", "hydro_state"):
+        np.testing.assert_array_equal(a[var].values, b[var].values)
+    assert json.loads(a.attrs["controller_events"])["ctl"]["invalid"] == 1

@@ -282,8 +282,10 @@ class Session(SessionInfo):
             self._saved_bytes -= entry[1]
         return {"state": sid, "kept": len(self._saved)}
 
-    def step(self, msg: dict) -> dict:
-        """Reply fields for a ``step`` request (SPEC §5.2–5.3); ProtocolError leaves state unchanged."""
+    def step(self, msg: dict, hydro_command: dict[str, str] | None = None) -> dict:
+        """Reply fields for a ``step`` request (SPEC §5.2–5.3); ProtocolError leaves state unchanged.
+        ``hydro_command``: the hydro states the session's controllers commanded for this new step
+        ({body: state}, SPEC §5.7.4; only for a model with hydro_states, server/hydro_states.py)."""
         seq = codec.require_int(msg, "seq", minimum=0)
         if seq > self.model.last_seq:
             raise ProtocolError(Code.BAD_VALUE, "seq", f"seq {seq} is past the run's end: the last step is "
@@ -317,7 +319,8 @@ class Session(SessionInfo):
             raise ProtocolError(Code.OUT_OF_ORDER, field, f"{expect}; got seq {seq} iteration {iteration}")
         t0 = _time.perf_counter()
         try:
-            out = self.model.step(t, pos, vel, replace_last=replace)
+            out = self.model.step(t, pos, vel, replace_last=replace) if hydro_command is None else \
+                self.model.step(t, pos, vel, replace_last=replace, commanded=hydro_command)
         except ModelError as exc:
             raise ProtocolError(Code.BAD_VALUE, exc.key, str(exc)) from None
         elapsed = _time.perf_counter() - t0
