@@ -132,3 +132,55 @@ def load_wave_elevation(scene: Scene, scene_path: str | Path):
         return read_elevation(resolve_path(scene_path, scene.waves.file))
     except WaveError as exc:
         raise SceneError(scene_path, exc.key, exc.why) from None
+
+
+def load_spectrum_files(scene: Scene, scene_path: str | Path) -> dict[str, tuple[list[float], list[float] | None, list]]:
+    """The tables of the scene's spectrum files (``waves.systems[i].file``, relative to the scene) by
+    their key: (omega, theta or None, density), in the system's ``units``. A CSV file: a header row
+    then one row per frequency — "omega,density" (S(w)) or "omega/theta" and the directions in
+    degrees, then on each row the frequency and S(w, theta) per direction. A NetCDF file: a variable
+    ``density`` over the dimension ``omega`` (and ``theta``, degrees), with those coordinates.
+    SceneError naming the key and the file when one cannot be read as such a table."""
+    out = {}
+    for key, name in scene.spectrum_files():
+        path = resolve_path(scene_path, name)
+        try:
+            out[key] = _spectrum_csv(path) if path.suffix.lower() == ".csv" else _spectrum_netcdf(path)
+        except (OSError, ValueError, KeyError) as exc:
+            raise SceneError(scene_path, key, f"{path}: {exc}") from None
+    try:       # each table checked as an inline one would be (negative, unordered, all zero...)
+        scene.with_spectra(out)
+    except ValueError as exc:
+        key, _, why = str(exc).partition(": ")
+        raise SceneError(scene_path, key, why) from None
+    return out
+
+
+def _spectrum_csv(path: Path) -> tuple[list[float], list[float] | None, list]:
+    """A CSV table (load_spectrum_files)."""
+    lines = [ln for ln in path.read_text().splitlines() if ln.strip()]
+    if len(lines) < 3:
+        raise ValueError("needs a header row and at least two frequencies")
+    head = [c.strip() for c in lines[0].split(",")]
+    rows = [[float(c) for c in ln.split(",")] for ln in lines[1:]]
+    if head == ["omega", "density"]:
+        if any(len(r) != 2 for r in rows):
+            raise ValueError("every row of an 'omega,density' table needs two values")
+        return [r[0] for r in rows], None, [r[1] for r in rows]
+    if head[0] != "omega/theta" or len(head) < 3:
+        raise ValueError(f"header {lines[0]!r}: expected 'omega,density' or 'omega/theta' and the directions in degrees")
+    theta = [float(c) for c in head[1:]]
+    if any(len(r) != len(theta) + 1 for r in rows):
+        raise ValueError(f"every row needs a frequency and {len(theta)} densities (one per direction)")
+    return [r[0] for r in rows], theta, [r[1:] for r in rows]
+
+
+def _spectrum_netcdf(path: Path) -> tuple[list[float], list[float] | None, list]:
+    """A NetCDF table (load_spectrum_files)."""
+    with xr.open_dataset(path) as ds:
+        density = ds["density"]
+        if density.dims not in (("omega",), ("omega", "theta")):
+            raise ValueError(f"variable 'density' has dimensions {density.dims}: expected ('omega',) or "
+                             "('omega', 'theta') (theta in degrees)")
+        theta = ds["theta"].values.astype(float).tolist() if "theta" in density.dims else None
+        return ds["omega"].values.astype(float).tolist(), theta, density.values.astype(float).tolist()

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Collection, Literal, Union
 
-from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, field_validator, model_validator
 
 from hydrolink.protocol.capabilities import FEATURES
 from hydrolink.protocol.current import Current
@@ -170,10 +170,21 @@ class WaveSystem(_Section):
     theta: Annotated[list[AngleDeg], Field(min_length=2)] | None = None
     density: list[Annotated[float, Field(allow_inf_nan=False)]] | list[list[Annotated[float, Field(allow_inf_nan=False)]]] | None = None
     units: Literal["rad", "hz-deg"] = "rad"
+    # a table from a file instead of omega/theta/density (CSV or NetCDF; clients/scene_inputs.py
+    # load_spectrum_files; it reaches the server in hello.spectra, SPEC §5.1)
+    file: Annotated[str, Field(min_length=1)] | None = None
 
     @model_validator(mode="after")
     def _keys_of_the_spectrum(self) -> "WaveSystem":
         table = self.spectrum == "table"
+        if self.file is not None:
+            if not table:
+                raise ValueError("file: only with spectrum = \"table\" (the file holds the table)")
+            if (self.omega, self.theta, self.density) != (None, None, None):
+                raise ValueError("file: the table comes from the file or from omega/theta/density, not both")
+            if self.spreading != "none":
+                raise ValueError("spreading: a directional table spreads itself (leave spreading = \"none\")")
+            return self
         for key in ("hs", "tp"):
             if table and getattr(self, key) is not None:
                 raise ValueError(f"{key}: not with spectrum = \"table\" (the table is the spectrum)")
@@ -191,6 +202,12 @@ class WaveSystem(_Section):
         if self.directions is not None and self.spreading == "none" and self.theta is None:
             raise ValueError("directions: only with a spreading or a directional table")
         return self
+
+    def with_table(self, omega: list[float], theta: list[float] | None, density: list) -> "WaveSystem":
+        """This system with the table of its ``file`` (validated as an inline one; ``file`` kept)."""
+        inline = WaveSystem.model_validate({**self.model_dump(exclude={"file"}, exclude_none=True),
+                                            "omega": omega, "theta": theta, "density": density})
+        return inline.model_copy(update={"file": self.file})
 
     @property
     def sectors(self) -> int:
@@ -1373,6 +1390,32 @@ class Scene(_Section):
         """Exchanges with the server to simulation.duration (the last step index is this, setup.last_seq)."""
         return self.simulation.n_steps // int(self.coupling.exchange_every)
 
+    def spectrum_files(self) -> list[tuple[str, str]]:
+        """(key, file) of each sea system whose table is in a file (``waves.systems[i].file``)."""
+        systems = self.waves.systems if isinstance(self.waves, SeaState) else []
+        return [(f"waves.systems[{i}].file", s.file) for i, s in enumerate(systems) if s.file is not None]
+
+    def with_spectra(self, tables: dict[str, tuple[list[float], list[float] | None, list]]) -> "Scene":
+        """The scene with each spectrum file's table (by its key, :meth:`spectrum_files`) in its
+        system; ValueError "key: why" where a table is not a spectrum (negative, unordered...) or missing."""
+        if not self.spectrum_files():
+            return self
+        systems = list(self.waves.systems)
+        for i, system in enumerate(systems):
+            key = f"waves.systems[{i}].file"
+            if system.file is None:
+                continue
+            if key not in tables:
+                raise ValueError(f"{key}: the table of {system.file!r} was not given (a client reads the file "
+                                 "and sends it in hello.spectra)")
+            try:
+                systems[i] = system.with_table(*tables[key])
+            except ValidationError as exc:
+                why = "; ".join(f"{'.'.join(str(x) for x in e['loc'])}: {e['msg'].removeprefix('Value error, ')}"
+                                for e in exc.errors())
+                raise ValueError(f"{key}: {system.file}: {why}") from None
+        return self.model_copy(update={"waves": self.waves.model_copy(update={"systems": systems})})
+
     def hdb_keys(self) -> list[tuple[int, Body, str, str]]:
         """Every HDB the scene names, in scene order: (body index, body, the ``hdb`` string, its scene
         key) for each wet body's ``hdb`` and each of its ``hydro_states``' (repeats included)."""
@@ -1528,6 +1571,11 @@ def missing_files(raw: dict, scene_path: str | Path, have_hdbs: Collection[str] 
         qtf = body.get("qtf")
         for name in ("difference", "sum"):
             check(f"bodies[{i}].qtf.{name}", qtf.get(name) if isinstance(qtf, dict) else None)
+    waves = raw.get("waves")
+    systems = waves.get("systems") if isinstance(waves, dict) else None
+    for i, system in enumerate(systems if isinstance(systems, list) else ()):
+        if isinstance(system, dict):
+            check(f"waves.systems[{i}].file", system.get("file"), "spectrum file")
     for section, kind, key, what in (("waves", "elevation", "file", "elevation file"), ("client", "fmu", "fmu", "FMU")):
         table = raw.get(section)
         if isinstance(table, dict) and table.get("type") == kind:

@@ -64,6 +64,9 @@ class _Spectrum:
             self.peak = 2 * np.pi / system.tp
             self.omega = self.theta = self.table = None
             return
+        if system.omega is None:     # a file's table not read in (Scene.with_spectra)
+            raise WaveError(f"{key}.file", f"the table of {system.file!r} did not reach the model: a client reads "
+                                           "the file and sends its table (hello.spectra, SPEC §5.1)")
         hz = system.units == "hz-deg"
         self.omega = np.asarray(system.omega, float) * (2 * np.pi if hz else 1.0)
         table = np.asarray(system.density, float) / (2 * np.pi if hz else 1.0)

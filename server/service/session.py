@@ -100,6 +100,7 @@ def read_hello(msg: dict, files: FileSetReader | None = None) -> ModelInputs:
             raise ProtocolError(Code.BAD_HDB, f"{where}.{exc.field}" if exc.field else where, str(exc)) from None
     if missing:
         raise MissingContent(*missing)
+    scene = _with_spectra(scene, msg.get("spectra"))
     series = None
     if msg.get("wave_elevation") is not None:  # [waves] type = "elevation": the client read the file
         we = codec.require_map(msg, "wave_elevation")
@@ -119,6 +120,34 @@ def read_hello(msg: dict, files: FileSetReader | None = None) -> ModelInputs:
                 raise ProtocolError(Code.BAD_VALUE, where, f"body {name!r}'s hull: {exc.why}") from None
     return ModelInputs(scene, {b.name: datasets[b.hdb] for b in scene.wet_bodies}, series, hulls,
                        state_datasets(scene, datasets))
+
+
+def _with_spectra(scene: Scene, spectra: Any) -> Scene:
+    """The scene with its spectrum files' tables from ``hello.spectra`` (SPEC §5.1); error 5 naming
+    ``spectra`` when malformed, 8 naming ``scene.waves.systems[i].file`` when a table is missing or
+    is not a spectrum."""
+    if not scene.spectrum_files():
+        return scene
+    if spectra is None:
+        spectra = {}
+    if not isinstance(spectra, dict):
+        raise ProtocolError(Code.BAD_VALUE, "spectra", "must be a map {scene key: {omega, theta, density}}")
+    tables = {}
+    for key, table in spectra.items():
+        where = codec.key_path("spectra", str(key))
+        if not isinstance(table, dict):
+            raise ProtocolError(Code.BAD_VALUE, where, "must be a map {omega, theta, density}")
+        omega = codec.require_array(table, "omega", (None,), path=f"{where}.omega")
+        theta = None if table.get("theta") is None else codec.require_array(table, "theta", (None,),
+                                                                               path=f"{where}.theta")
+        shape = (omega.size,) if theta is None else (omega.size, theta.size)
+        density = codec.require_array(table, "density", shape, path=f"{where}.density")
+        tables[str(key)] = (omega.tolist(), None if theta is None else theta.tolist(), density.tolist())
+    try:
+        return scene.with_spectra(tables)
+    except ValueError as exc:
+        key, _, why = str(exc).partition(": ")
+        raise ProtocolError(Code.BAD_SCENE, _scene_field(key), why) from None
 
 
 MAX_SAVED_BYTES = 256 * 2**20   # per session: saved states kept (SPEC §5.9)
