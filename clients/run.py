@@ -133,8 +133,7 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
             conn = stack.enter_context(ServerConnection(server, timeout=timeout, curve=curve, key=key,
                                                         link_timeout=link_timeout))
         setup = conn.hello(text, hdbs, wave_elevation=series, meshes=load_scene_hulls(scene, scene_path),
-                           spectra=load_spectrum_files(scene, scene_path),
-                           control_token=control_token)
+                           spectra=load_spectrum_files(scene, scene_path), control_token=control_token)
         if scene.controllers:
             _announce_controllers(scene, server, conn.control_token)
         names, reference = result_bodies(scene, setup)
