@@ -231,6 +231,9 @@ def test_a_run_switching_at_ts_is_the_monolithic_integration_after_it(hdb_files,
     scale = np.abs(q[after]).max()
     err = np.abs(z - q)[after].max()      # measured: 0.19-0.27 % of the motion (the other method's reference: 9 %)
     assert err <= 0.005 * scale, (err, scale)
+    # the results' hydrostatic force is the deep state's -C (z - z_deep) about its own rest height
+    hs = ds["hydrostatic_force"].values[:, 0, 2]
+    np.testing.assert_allclose(hs[after], -STATES["deep"][1] * (z[after] - STATES["deep"][4]), rtol=1e-12, atol=1e-6)
     q_other, _ = _monolithic(dt, n, t_s, memory != "kernel-at-emission")
     assert np.abs(q_other - q)[after].max() > 2 * 0.005 * scale      # the reference tells the methods apart
 

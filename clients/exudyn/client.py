@@ -466,6 +466,7 @@ class ExudynMultibody:
         # the wet bodies' 6N entries in the (B, 6) rows (the optional forces' results variables)
         self._wet_flat = (6 * np.asarray(model.wet_rows, int)[:, None] + np.arange(6)).reshape(-1)
         self._pto_sample = None
+        self._rest_shift: np.ndarray | None = None   # C_s (x_eq,s - x_eq,0) of a hydro state resting elsewhere
         self._state_load: np.ndarray | None = None   # the hydro state's constant load beside the setup's
         self.hydro_state: str | None = None                # the state entered at the newest switch
         self.state_names: list[str] = []                   # the switching body's states (results: hydro_state)
@@ -540,7 +541,9 @@ class ExudynMultibody:
         if m.added_mass_in_matrix:
             m.mbs.SetObjectParameter(m.hydro_object, "massMatrix", change.added_mass[ix])
         m.added_mass = change.added_mass
-        extra = change.hydrostatic_stiffness @ (change.equilibrium_position - m.equilibrium).reshape(-1)
+        shift = change.hydrostatic_stiffness @ (change.equilibrium_position - m.equilibrium).reshape(-1)
+        self._rest_shift = shift if shift.any() else None     # C_s (x_eq,s - x_eq,0), also in the results
+        extra = shift.copy()
         extra[2::6] += change.net_buoyancy - m.net_buoyancy
         self._state_load = extra if extra.any() else None
         self.hydro_state = change.state
@@ -602,13 +605,16 @@ class ExudynMultibody:
             row[2] = s.excitation.reshape(nb, 6)
             row[3] = s.radiation.reshape(nb, 6)
             np.dot(m.stiffness, q[m.wet_index], out=self._hs)
+            if self._rest_shift is not None:     # a hydro state resting elsewhere: -C_s (x - x_eq,s)
+                self._hs -= self._rest_shift
             np.negative(self._hs, out=row[4].reshape(-1))
         else:
             f = self._forces   # dry bodies' rows stay zero
             if self.n:
                 rows, shape = m.wet_rows, (self.n, 6)
                 f[0, rows], f[1, rows] = s.excitation.reshape(shape), s.radiation.reshape(shape)
-                f[2, rows] = -(m.stiffness @ q[m.wet_index]).reshape(shape)
+                hs = m.stiffness @ q[m.wet_index]
+                f[2, rows] = -(hs if self._rest_shift is None else hs - self._rest_shift).reshape(shape)
             row[2:] = f
         if s.optional:
             self.writer.stage_forces(s.optional, self._wet_flat, row[1])
