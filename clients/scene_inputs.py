@@ -1,5 +1,5 @@
 """A scene's input files, loaded as every tool needs them: its HDBs (read, built or sent as files, with
-NEMOH QTFs added), its bodies' hulls for nonlinear terms, its wave elevation series."""
+NEMOH QTFs added), its bodies' hulls for nonlinear terms, its wave elevation series and gauge records."""
 
 from __future__ import annotations
 
@@ -184,3 +184,24 @@ def _spectrum_netcdf(path: Path) -> tuple[list[float], list[float] | None, list]
                              "('omega', 'theta') (theta in degrees)")
         theta = ds["theta"].values.astype(float).tolist() if "theta" in density.dims else None
         return ds["omega"].values.astype(float).tolist(), theta, density.values.astype(float).tolist()
+
+
+def load_gauge_files(scene: Scene, scene_path: str | Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """The (time, eta) records of ``[waves] type = "gauges"`` by key (``waves.gauges[i].file``,
+    relative to the scene; read as ``type = "elevation"`` reads its file), checked as the server
+    fits them (one uniform grid shared by all gauges, the run inside them: server/sea/gauges.py);
+    SceneError naming the key and the file otherwise."""
+    from hydrolink.server.sea.gauges import gauge_records
+    from hydrolink.server.sea.waves import WaveError, read_elevation
+    out = {}
+    try:
+        for key, name in scene.gauge_files():
+            out[key] = read_elevation(resolve_path(scene_path, name), key)
+        if out:
+            gauge_records(scene.with_gauges(out).waves)
+    except WaveError as exc:
+        raise SceneError(scene_path, exc.key, exc.why) from None
+    except ValueError as exc:
+        key, _, why = str(exc).partition(": ")
+        raise SceneError(scene_path, key, why) from None
+    return out

@@ -300,7 +300,60 @@ class ComponentWaves(_Section):
         return self
 
 
-Waves = Annotated[Union[StillWater, RegularWave, IrregularWave, ElevationWave, SeaState, ComponentWaves],
+class Gauge(_Section):
+    """One wave gauge of ``[waves] type = "gauges"``: its position on the still-water plane and its
+    elevation record (a file as ``type = "elevation"`` reads it: CSV time, eta or NetCDF ``eta``
+    over ``time``). ``time``/``eta`` are not scene keys: Scene.with_gauges puts the file's record
+    there (the client reads it and sends it in hello.gauges, SPEC §5.1)."""
+    x: Coordinate
+    y: Coordinate
+    file: Annotated[str, Field(min_length=1)]       # relative to the scene file
+    time: list[float] | None = Field(default=None, exclude=True)
+    eta: list[float] | None = Field(default=None, exclude=True)
+
+
+class GaugeWaves(_Section):
+    """``type = "gauges"``: a directional linear sea reconstructed from elevation records at several
+    gauges: one component per Fourier frequency of the records in ``omega_range`` and per direction
+    of ``directions`` (deg, where the waves travel to), amplitudes and phases by a least-squares fit
+    to all gauges at once (server/sea/gauges.py, docs/waves.md). ``start``: the records' time at
+    simulation t = 0 (default: their first time); ``max_condition``: the largest condition number of
+    a frequency's gauge-by-direction matrix accepted (the factor noise in the records is amplified by)."""
+    type: Literal["gauges"]
+    gauges: Annotated[list[Gauge], Field(min_length=1, max_length=64)]
+    directions: Annotated[list[AngleDeg], Field(min_length=1, max_length=64)]
+    omega_range: tuple[Frequency, Frequency] | None = None
+    start: FileTime | None = None
+    max_condition: Annotated[float, Field(ge=1.0, le=1e6, allow_inf_nan=False)] = 100.0
+    ramp: RampTime = 0.0
+    excitation: Excitation = "superposition"
+    excitation_irf_duration: ExcitationIRFDuration = 20.0
+
+    @model_validator(mode="after")
+    def _distinct(self) -> "GaugeWaves":
+        import numpy as np
+        pos = np.array([[g.x, g.y] for g in self.gauges])
+        for j in range(1, len(pos)):
+            near = np.flatnonzero(np.hypot(*(pos[:j] - pos[j]).T) < 1e-3)
+            if near.size:
+                raise ValueError(f"gauges[{j}]: at ({pos[j][0]:g}, {pos[j][1]:g}) m, within 1 mm of gauges[{near[0]}]: "
+                                 "two gauges at one position add no information on direction (remove one)")
+        heads = np.exp(1j * np.deg2rad(self.directions))
+        for j in range(1, heads.size):
+            same = np.flatnonzero(np.abs(heads[:j] - heads[j]) < 1e-9)
+            if same.size:
+                raise ValueError(f"directions[{j}]: {self.directions[j]:g} deg is directions[{same[0]}] again")
+        if self.omega_range is not None and not self.omega_range[0] < self.omega_range[1]:
+            raise ValueError(f"omega_range: [low, high] in rad/s with low < high (got {list(self.omega_range)})")
+        return self
+
+    @property
+    def direction(self) -> float:
+        """The first direction (deg): the sea's reference heading."""
+        return self.directions[0]
+
+
+Waves = Annotated[Union[StillWater, RegularWave, IrregularWave, ElevationWave, SeaState, ComponentWaves, GaugeWaves],
                   Field(discriminator="type")]
 
 
@@ -1416,6 +1469,36 @@ class Scene(_Section):
                 raise ValueError(f"{key}: {system.file}: {why}") from None
         return self.model_copy(update={"waves": self.waves.model_copy(update={"systems": systems})})
 
+    def gauge_files(self) -> list[tuple[str, str]]:
+        """(key, file) of each gauge of ``[waves] type = "gauges"`` (``waves.gauges[i].file``)."""
+        gauges = self.waves.gauges if isinstance(self.waves, GaugeWaves) else []
+        return [(f"waves.gauges[{i}].file", g.file) for i, g in enumerate(gauges)]
+
+    def with_gauges(self, records: dict[str, tuple[list[float], list[float]]]) -> "Scene":
+        """The scene with each gauge's record (time, eta) by its key (:meth:`gauge_files`); ValueError
+        "key: why" where one is missing or the run would reach past its end (the sea the records give
+        repeats with their length: not a measured sea any more)."""
+        if not self.gauge_files():
+            return self
+        gauges = list(self.waves.gauges)
+        for i, gauge in enumerate(gauges):
+            key = f"waves.gauges[{i}].file"
+            if key not in records:
+                raise ValueError(f"{key}: the record of {gauge.file!r} was not given (a client reads the file "
+                                 "and sends it in hello.gauges)")
+            time, eta = records[key]
+            gauges[i] = gauge.model_copy(update={"time": [float(t) for t in time], "eta": [float(e) for e in eta]})
+            if len(time) >= 2:
+                start = time[0] if self.waves.start is None else self.waves.start
+                end = time[0] + len(time) * (time[-1] - time[0]) / (len(time) - 1)   # the window's end
+                if not time[0] <= start or start + self.simulation.duration > end * (1 + 1e-12) + 1e-9:
+                    raise ValueError(f"{'waves.start' if self.waves.start is not None else 'simulation.duration'}: "
+                                     f"the run covers [{start:.6g}, {start + self.simulation.duration:.6g}] s of "
+                                     f"the records and {gauge.file} covers [{time[0]:.6g}, {end:.6g}) s: the "
+                                     "reconstructed sea repeats past the records' end (a shorter run or a later "
+                                     "waves.start inside them)")
+        return self.model_copy(update={"waves": self.waves.model_copy(update={"gauges": gauges})})
+
     def hdb_keys(self) -> list[tuple[int, Body, str, str]]:
         """Every HDB the scene names, in scene order: (body index, body, the ``hdb`` string, its scene
         key) for each wet body's ``hdb`` and each of its ``hydro_states``' (repeats included)."""
@@ -1512,7 +1595,7 @@ class Scene(_Section):
         return {f: found[f] for f in FEATURES if f in found}
 
 
-_UNION_TAGS = ("regular", "irregular", "still", "elevation", "sea", "components", "linear", "rotary", "rope", "moordyn", "exudyn", "fmu")
+_UNION_TAGS = ("regular", "irregular", "still", "elevation", "sea", "components", "gauges", "linear", "rotary", "rope", "moordyn", "exudyn", "fmu")
 
 
 def parse_scene(text: str, source: str | Path = "<scene>", *, check_files: bool = False,

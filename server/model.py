@@ -141,7 +141,7 @@ class HydroModel:
         if lo >= hi:
             raise ModelError("bodies", f"the bodies' HDB frequency ranges do not overlap ({lo}..{hi} rad/s)")
         try:
-            self.waves = doppler_shift(sea_components(scene.waves, lo, hi), scene.current, scene.water.gravity,
+            self.waves = doppler_shift(sea_components(scene.waves, lo, hi, scene.water), scene.current, scene.water.gravity,
                                        scene.water.depth_m, getattr(scene.waves, "excitation", "superposition"))
         except WaveError as exc:
             raise ModelError(exc.key, exc.why) from None
