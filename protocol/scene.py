@@ -1622,7 +1622,7 @@ def load_scene(path: str | Path, *, check_files: bool = True, have_hdbs: Collect
 def missing_files(raw: dict, scene_path: str | Path, have_hdbs: Collection[str] = ()) -> list[tuple[str, str]]:
     """(key, why) for each input file a parsed scene document names (relative to ``scene_path``)
     that does not exist: the bodies' HDBs (a WAMIT run by its stem or ``.1``), hull meshes and NEMOH
-    QTF files, the elevation series of ``[waves] type = "elevation"``, MoorDyn input files and the
+    QTF files, the elevation series of ``[waves] type = "elevation"`` and ``"gauges"``, MoorDyn input files and the
     FMU of ``[client] type = "fmu"``. Read off the document as written, so that it runs whether or
     not the schema holds (a value of the wrong type is the schema's problem, not looked for here)."""
     problems: list[tuple[str, str]] = []
@@ -1659,6 +1659,10 @@ def missing_files(raw: dict, scene_path: str | Path, have_hdbs: Collection[str] 
     for i, system in enumerate(systems if isinstance(systems, list) else ()):
         if isinstance(system, dict):
             check(f"waves.systems[{i}].file", system.get("file"), "spectrum file")
+    gauges = waves.get("gauges") if isinstance(waves, dict) and waves.get("type") == "gauges" else None
+    for i, gauge in enumerate(gauges if isinstance(gauges, list) else ()):
+        if isinstance(gauge, dict):
+            check(f"waves.gauges[{i}].file", gauge.get("file"), "gauge record")
     for section, kind, key, what in (("waves", "elevation", "file", "elevation file"), ("client", "fmu", "fmu", "FMU")):
         table = raw.get(section)
         if isinstance(table, dict) and table.get("type") == kind:

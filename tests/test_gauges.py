@@ -168,3 +168,22 @@ def test_bad_gauge_input_names_the_key_and_file(tmp_path):
     # a model whose scene lacks the records (a server not sent them)
     with pytest.raises(ModelError, match=r"waves\.gauges\[0\]\.file: the record of 'gauge0\.csv' did not reach"):
         HydroModel(parse_scene((tmp_path / "scene.toml").read_text()), {"float": make_body_hdb(omega=OMEGA)})
+
+
+def test_records_through_a_server(tmp_path):
+    """The client sends the records in hello.gauges (SPEC §5.1): the server's sea is the in-process
+    model's (same components); without them, or with one record cut short, it refuses naming the
+    gauge's scene key."""
+    from hydrolink.clients.lockstep.connection import RemoteError, ServerConnection
+    from hydrolink.server.service.force_server import ForceServer
+    path = gauge_scene(tmp_path, write_records(tmp_path, known_sea()))
+    scene = parse_scene(path.read_text(), path, have_hdbs=["h"])
+    records = load_gauge_files(scene, path)
+    hdb = make_body_hdb(omega=OMEGA, directions=np.deg2rad(np.arange(-180.0, 180.0, 5.0)), depth=DEPTH)
+    with ServerConnection(ForceServer(None)) as conn:
+        assert conn.hello(path.read_text(), {"h": hdb}, gauges=records).wave_components == gauge_model(path).waves.size
+    short = dict(records, **{"waves.gauges[1].file": tuple(x[:-8] for x in records["waves.gauges[1].file"])})
+    for sent, why in ((None, "was not given"), (short, "1016 samples")):
+        with ServerConnection(ForceServer(None)) as conn, pytest.raises(RemoteError) as err:
+            conn.hello(path.read_text(), {"h": hdb}, gauges=sent)
+        assert err.value.field.endswith(f"waves.gauges[{0 if sent is None else 1}].file") and why in str(err.value)

@@ -100,7 +100,7 @@ def read_hello(msg: dict, files: FileSetReader | None = None) -> ModelInputs:
             raise ProtocolError(Code.BAD_HDB, f"{where}.{exc.field}" if exc.field else where, str(exc)) from None
     if missing:
         raise MissingContent(*missing)
-    scene = _with_spectra(scene, msg.get("spectra"))
+    scene = _with_gauges(_with_spectra(scene, msg.get("spectra")), msg.get("gauges"))
     series = None
     if msg.get("wave_elevation") is not None:  # [waves] type = "elevation": the client read the file
         we = codec.require_map(msg, "wave_elevation")
@@ -120,6 +120,30 @@ def read_hello(msg: dict, files: FileSetReader | None = None) -> ModelInputs:
                 raise ProtocolError(Code.BAD_VALUE, where, f"body {name!r}'s hull: {exc.why}") from None
     return ModelInputs(scene, {b.name: datasets[b.hdb] for b in scene.wet_bodies}, series, hulls,
                        state_datasets(scene, datasets))
+
+
+def _with_gauges(scene: Scene, gauges: Any) -> Scene:
+    """The scene with its gauges' records from ``hello.gauges`` (SPEC §5.1); error 5 naming
+    ``gauges.<key>`` when malformed, 8 naming ``scene.waves.gauges[i].file`` when one is missing or
+    the run reaches past it."""
+    if not scene.gauge_files():
+        return scene
+    if gauges is None:
+        gauges = {}
+    if not isinstance(gauges, dict):
+        raise ProtocolError(Code.BAD_VALUE, "gauges", "must be a map {scene key: {time, eta}}")
+    records = {}
+    for key, record in gauges.items():
+        where = codec.key_path("gauges", str(key))
+        if not isinstance(record, dict):
+            raise ProtocolError(Code.BAD_VALUE, where, "must be a map {time, eta}")
+        time = codec.require_array(record, "time", (None,), path=f"{where}.time")
+        records[str(key)] = (time.tolist(), codec.require_array(record, "eta", time.shape, path=f"{where}.eta").tolist())
+    try:
+        return scene.with_gauges(records)
+    except ValueError as exc:
+        key, _, why = str(exc).partition(": ")
+        raise ProtocolError(Code.BAD_SCENE, _scene_field(key), why) from None
 
 
 def _with_spectra(scene: Scene, spectra: Any) -> Scene:
