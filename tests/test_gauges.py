@@ -68,11 +68,12 @@ def write_records(folder, sea, gauges=GAUGES, n=N, dt=DT, t0=T0):
     return names
 
 
-def gauge_scene(folder, names, gauges=GAUGES, duration=100.0, **keys):
+def gauge_scene(folder, names, gauges=GAUGES, duration=100.0, current=None, **keys):
     waves = dict(type="gauges", directions=keys.pop("directions", DIRECTIONS),
                  omega_range=keys.pop("omega_range", [0.5, 2.0]),
                  gauges=[dict(x=x, y=y, file=f) for (x, y), f in zip(gauges, names)], **keys)
     text = scene_toml(dt=0.1, duration=duration, water={"density": 1000.0, "depth": DEPTH, "gravity": G}, waves=waves,
+                      current=current,
                       bodies=[body("float", hdb="h", mass=3.0e5, center_of_mass=[0, 0, 0], inertia=[1e6] * 3)])
     (folder / "scene.toml").write_text(text)
     return folder / "scene.toml"
@@ -160,6 +161,9 @@ def test_bad_gauge_input_names_the_key_and_file(tmp_path):
     write_records(tmp_path, sea)
     with pytest.raises(SceneError, match=r"waves\.gauges\[3\]\.file: late\.csv: starts at 101"):
         gauge_model(gauge_scene(tmp_path, [*names[:3], "late.csv", names[4]]))
+    # a current's Doppler shift (the records are at the encounter frequencies already)
+    with pytest.raises(ModelError, match=r"current\.doppler: not with a sea from gauges"):
+        gauge_model(gauge_scene(tmp_path, names, current={"speed": 1.0, "direction": 0.0, "doppler": True}))
     # a run past the records' end, a missing file
     with pytest.raises(SceneError, match=r"simulation\.duration: .*repeats past the records' end"):
         gauge_model(gauge_scene(tmp_path, names, duration=600.0))

@@ -121,7 +121,7 @@ def gauge_components(waves: GaugeWaves, water: Water, omega_min: float, omega_ma
     amp = np.abs(c).reshape(-1)
     keep = amp > 0.0
     return WaveComponents(np.repeat(w, heads.size)[keep], amp[keep], np.angle(c).reshape(-1)[keep],
-                          float(heads[0]), waves.ramp, outside, "irregular",
+                          float(heads[0]), waves.ramp, outside, "gauges",
                           np.tile(heads, w.size)[keep], "waves.directions")
 
 

@@ -55,7 +55,7 @@ class WaveComponents:
     direction: float        # rad
     ramp: float             # s
     energy_outside: float   # fraction of the spectrum's m0 outside the HDB's omega range
-    kind: str               # "still" | "regular" | "irregular" | "elevation"
+    kind: str               # "still" | "regular" | "irregular" | "elevation" | "gauges"
     headings: np.ndarray | None = None  # rad (n_c,): each component's heading (directional spreading)
     heading_key: str | None = None      # the scene key a heading is refused under (None: waves.direction/spreading)
     intrinsic: np.ndarray | None = None  # rad/s (n_c,): in a current with the Doppler shift, the frequencies
