@@ -126,49 +126,54 @@ def _with_gauges(scene: Scene, gauges: Any) -> Scene:
     """The scene with its gauges' records from ``hello.gauges`` (SPEC §5.1); error 5 naming
     ``gauges.<key>`` when malformed, 8 naming ``scene.waves.gauges[i].file`` when one is missing or
     the run reaches past it."""
+    def record(entry: dict, where: str) -> tuple:
+        time = codec.require_array(entry, "time", (None,), path=f"{where}.time")
+        return time.tolist(), codec.require_array(entry, "eta", time.shape, path=f"{where}.eta").tolist()
+
     if not scene.gauge_files():
         return scene
-    if gauges is None:
-        gauges = {}
-    if not isinstance(gauges, dict):
-        raise ProtocolError(Code.BAD_VALUE, "gauges", "must be a map {scene key: {time, eta}}")
-    records = {}
-    for key, record in gauges.items():
-        where = codec.key_path("gauges", str(key))
-        if not isinstance(record, dict):
-            raise ProtocolError(Code.BAD_VALUE, where, "must be a map {time, eta}")
-        time = codec.require_array(record, "time", (None,), path=f"{where}.time")
-        records[str(key)] = (time.tolist(), codec.require_array(record, "eta", time.shape, path=f"{where}.eta").tolist())
-    try:
-        return scene.with_gauges(records)
-    except ValueError as exc:
-        key, _, why = str(exc).partition(": ")
-        raise ProtocolError(Code.BAD_SCENE, _scene_field(key), why) from None
+    return _scene_with(scene.with_gauges, _file_tables(gauges, "gauges", "{time, eta}", record))
 
 
 def _with_spectra(scene: Scene, spectra: Any) -> Scene:
     """The scene with its spectrum files' tables from ``hello.spectra`` (SPEC §5.1); error 5 naming
     ``spectra`` when malformed, 8 naming ``scene.waves.systems[i].file`` when a table is missing or
     is not a spectrum."""
-    if not scene.spectrum_files():
-        return scene
-    if spectra is None:
-        spectra = {}
-    if not isinstance(spectra, dict):
-        raise ProtocolError(Code.BAD_VALUE, "spectra", "must be a map {scene key: {omega, theta, density}}")
-    tables = {}
-    for key, table in spectra.items():
-        where = codec.key_path("spectra", str(key))
-        if not isinstance(table, dict):
-            raise ProtocolError(Code.BAD_VALUE, where, "must be a map {omega, theta, density}")
-        omega = codec.require_array(table, "omega", (None,), path=f"{where}.omega")
-        theta = None if table.get("theta") is None else codec.require_array(table, "theta", (None,),
+    def table(entry: dict, where: str) -> tuple:
+        omega = codec.require_array(entry, "omega", (None,), path=f"{where}.omega")
+        theta = None if entry.get("theta") is None else codec.require_array(entry, "theta", (None,),
                                                                                path=f"{where}.theta")
         shape = (omega.size,) if theta is None else (omega.size, theta.size)
-        density = codec.require_array(table, "density", shape, path=f"{where}.density")
-        tables[str(key)] = (omega.tolist(), None if theta is None else theta.tolist(), density.tolist())
+        density = codec.require_array(entry, "density", shape, path=f"{where}.density")
+        return omega.tolist(), None if theta is None else theta.tolist(), density.tolist()
+
+    if not scene.spectrum_files():
+        return scene
+    return _scene_with(scene.with_spectra, _file_tables(spectra, "spectra", "{omega, theta, density}", table))
+
+
+def _file_tables(value: Any, field: str, what: str, decode: Callable[[dict, str], tuple]) -> dict[str, tuple]:
+    """A ``hello`` map {scene key: ``what``} of the scene's input files as the client read them,
+    each entry decoded by ``decode(entry, path)``; error 5 naming ``field`` or ``field.<key>`` when
+    malformed (absent: an empty map, which the scene then refuses naming the file's key)."""
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise ProtocolError(Code.BAD_VALUE, field, f"must be a map {{scene key: {what}}}")
+    out = {}
+    for key, entry in value.items():
+        where = codec.key_path(field, str(key))
+        if not isinstance(entry, dict):
+            raise ProtocolError(Code.BAD_VALUE, where, f"must be a map {what}")
+        out[str(key)] = decode(entry, where)
+    return out
+
+
+def _scene_with(put: Callable[[dict], Scene], tables: dict[str, tuple]) -> Scene:
+    """``put(tables)`` (Scene.with_spectra, Scene.with_gauges), its ValueError "key: why" as error 8
+    naming ``scene.<key>``."""
     try:
-        return scene.with_spectra(tables)
+        return put(tables)
     except ValueError as exc:
         key, _, why = str(exc).partition(": ")
         raise ProtocolError(Code.BAD_SCENE, _scene_field(key), why) from None
