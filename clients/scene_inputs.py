@@ -195,8 +195,8 @@ def load_gauge_files(scene: Scene, scene_path: str | Path) -> dict[str, tuple[np
     from hydrolink.server.sea.waves import WaveError, read_elevation
     out = {}
     try:
-        for key, name in scene.gauge_files():
-            out[key] = read_elevation(resolve_path(scene_path, name), key)
+        for key, gauge in scene.gauge_files():
+            out[key] = read_elevation(resolve_path(scene_path, gauge.file), key, gauge.variable)
         if out:
             gauge_records(scene.with_gauges(out).waves)
     except WaveError as exc:

@@ -308,8 +308,16 @@ class Gauge(_Section):
     x: Coordinate
     y: Coordinate
     file: Annotated[str, Field(min_length=1)]       # relative to the scene file
+    # what the record holds: the elevation (m), or the surface slope d eta/dx or d eta/dy (m/m) of a
+    # pitch-roll buoy (NetCDF variable eta, slope_x, slope_y)
+    quantity: Literal["elevation", "slope-x", "slope-y"] = "elevation"
     time: list[float] | None = Field(default=None, exclude=True)
     eta: list[float] | None = Field(default=None, exclude=True)
+
+    @property
+    def variable(self) -> str:
+        """The record's variable in a NetCDF file: ``eta``, ``slope_x`` or ``slope_y``."""
+        return "eta" if self.quantity == "elevation" else self.quantity.replace("-", "_")
 
 
 class GaugeWaves(_Section):
@@ -334,10 +342,12 @@ class GaugeWaves(_Section):
         import numpy as np
         pos = np.array([[g.x, g.y] for g in self.gauges])
         for j in range(1, len(pos)):
-            near = np.flatnonzero(np.hypot(*(pos[:j] - pos[j]).T) < 1e-3)
+            near = np.flatnonzero((np.hypot(*(pos[:j] - pos[j]).T) < 1e-3)
+                                  & np.array([g.quantity == self.gauges[j].quantity for g in self.gauges[:j]]))
             if near.size:
-                raise ValueError(f"gauges[{j}]: at ({pos[j][0]:g}, {pos[j][1]:g}) m, within 1 mm of gauges[{near[0]}]: "
-                                 "two gauges at one position add no information on direction (remove one)")
+                raise ValueError(f"gauges[{j}]: at ({pos[j][0]:g}, {pos[j][1]:g}) m, within 1 mm of gauges[{near[0]}] "
+                                 f"and recording the same {self.gauges[j].quantity}: two such gauges add no "
+                                 "information on direction (remove one)")
         heads = np.exp(1j * np.deg2rad(self.directions))
         for j in range(1, heads.size):
             same = np.flatnonzero(np.abs(heads[:j] - heads[j]) < 1e-9)
@@ -1469,10 +1479,10 @@ class Scene(_Section):
                 raise ValueError(f"{key}: {system.file}: {why}") from None
         return self.model_copy(update={"waves": self.waves.model_copy(update={"systems": systems})})
 
-    def gauge_files(self) -> list[tuple[str, str]]:
-        """(key, file) of each gauge of ``[waves] type = "gauges"`` (``waves.gauges[i].file``)."""
+    def gauge_files(self) -> list[tuple[str, "Gauge"]]:
+        """(key, gauge) of each gauge of ``[waves] type = "gauges"`` (key ``waves.gauges[i].file``)."""
         gauges = self.waves.gauges if isinstance(self.waves, GaugeWaves) else []
-        return [(f"waves.gauges[{i}].file", g.file) for i, g in enumerate(gauges)]
+        return [(f"waves.gauges[{i}].file", g) for i, g in enumerate(gauges)]
 
     def with_gauges(self, records: dict[str, tuple[list[float], list[float]]]) -> "Scene":
         """The scene with each gauge's record (time, eta) by its key (:meth:`gauge_files`); ValueError

@@ -217,3 +217,36 @@ def test_one_gauge_by_convolution_is_the_elevation_series(tmp_path):
         want.append(series.step(k * DT, x0, np.zeros_like(x0))["excitation"])
     got, want = np.array(got), np.array(want)
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-9 * np.abs(want).max())
+
+
+def test_a_pitch_roll_buoy_gives_three_directions(tmp_path):
+    """A directional record at one point: elevation and the surface slopes d eta/dx, d eta/dy of a
+    pitch-roll buoy 10 m off the origin (the slopes synthesized here as sum -a k (cos, sin) beta
+    sin(...)). Three directions from it at every frequency (its rows do not depend on k): the known
+    sea's elevation at two other points within 1e-9 of the RMS (exact fit, round-off times cond);
+    the same quantity twice at one point is refused naming the gauge."""
+    sea = known_sea()
+    w, beta, a, ph = sea
+    k = np.array([wave_number(x) for x in w])
+    times = T0 + DT * np.arange(N)
+    phase = k * (10.0 * np.cos(beta) - 3.0 * np.sin(beta)) - np.outer(times, w) + ph
+    names = write_records(tmp_path, sea, gauges=[(10.0, -3.0)])
+    for name, direction in (("sx.csv", np.cos(beta)), ("sy.csv", np.sin(beta))):
+        np.savetxt(tmp_path / name, np.column_stack([times, -np.sin(phase) @ (a * k * direction)]), delimiter=",")
+    buoy = [dict(x=10.0, y=-3.0, file=f, quantity=q) for f, q in zip((names[0], "sx.csv", "sy.csv"),
+                                                                      ("elevation", "slope-x", "slope-y"))]
+    waves = dict(type="gauges", directions=DIRECTIONS, omega_range=[0.5, 2.0], start=150.0, gauges=buoy)
+    text = scene_toml(dt=0.1, duration=100.0, water={"density": 1000.0, "depth": DEPTH, "gravity": G}, waves=waves,
+                      bodies=[body("float", hdb="h", mass=3.0e5, center_of_mass=[0, 0, 0], inertia=[1e6] * 3)])
+    path = tmp_path / "scene.toml"
+    path.write_text(text)
+    m = gauge_model(path)
+    points = np.array([[0.0, 0.0], [-25.0, 30.0]])
+    probes = WaveProbes(m.waves, points, np.zeros(0), G, DEPTH)
+    want = elevation(sea, points, 150.0 + np.array([0.0, 41.3]))
+    rms = np.sqrt(0.5 * np.sum(a ** 2))
+    for i, t in enumerate((0.0, 41.3)):
+        np.testing.assert_allclose(probes(t)[:, 0], want[:, i], rtol=0, atol=1e-9 * rms)
+    path.write_text(text.replace('"slope-y"', '"slope-x"'))
+    with pytest.raises(SceneError, match=r"gauges\[2\]: .*within 1 mm of gauges\[1\] and recording the same slope-x"):
+        gauge_model(path)

@@ -10,7 +10,10 @@ is modelled as one component per frequency bin and scene direction theta_j:
 eta(x, t) = sum_nj Re{c_nj e^{i(k_n (x cos theta_j + y sin theta_j) - w_n t)}}, so at each w_n
 C_n = E_n c_n with E_n[g, j] = exp(i k_n e_j . x_g) (G x J), solved in the least-squares sense
 (c_n = E_n^+ C_n). A component's amplitude is |c_nj|, its phase arg c_nj (moved to simulation
-t = 0 at file time ``start``), its heading theta_j.
+t = 0 at file time ``start``), its heading theta_j. A record of the surface slope (a pitch-roll
+buoy's d eta/dx, d eta/dy) enters divided by k_n, its row i cos theta_j (i sin theta_j) times the
+exponential: one such buoy (elevation and both slopes at one point) resolves three directions at
+every frequency alike (its rows do not depend on k), weighting slopes as elevation k_n^-1.
 
 Identifiability: E_n must have full column rank with a bounded condition number at every
 frequency of the band: J <= G, and the array must be large against the wavelength (k D >~ 1, D
@@ -38,11 +41,24 @@ from hydrolink.server.sea.waves import WaveComponents, WaveError
 @dataclass(frozen=True)
 class GaugeRecords:
     """The gauges' records on their common grid: positions (G, 2) m, first time t0 and step dt (s),
-    elevations (G, N) m."""
+    records (G, N) (elevation m or slope m/m) and what each holds (``quantity``: 0 elevation,
+    1 slope d eta/dx, 2 slope d eta/dy)."""
     positions: np.ndarray
     t0: float
     dt: float
     eta: np.ndarray
+    quantity: np.ndarray
+
+    @property
+    def slope(self) -> np.ndarray:
+        """(G,) bool: the records of a slope."""
+        return self.quantity > 0
+
+    def factors(self, heads: np.ndarray) -> np.ndarray:
+        """(G, J): what a unit component of heading theta_j puts in each record, over its wave
+        number for a slope: 1 (elevation), i cos theta_j (d eta/dx / k), i sin theta_j (d eta/dy / k)."""
+        return np.choose(self.quantity[:, None], [np.ones(heads.size, complex), 1j * np.cos(heads),
+                                                  1j * np.sin(heads)])
 
     @property
     def duration(self) -> float:
@@ -83,7 +99,8 @@ def gauge_records(waves: GaugeWaves) -> GaugeRecords:
                                  f"starts at {first[1]:.9g} s: the records must share their times")
         rows.append(e)
     positions = np.array([[g.x, g.y] for g in waves.gauges], float)
-    return GaugeRecords(positions, float(first[1]), float(first[2]), np.array(rows))
+    quantity = np.array([("elevation", "slope-x", "slope-y").index(g.quantity) for g in waves.gauges])
+    return GaugeRecords(positions, float(first[1]), float(first[2]), np.array(rows), quantity)
 
 
 def gauge_components(waves: GaugeWaves, water: Water, omega_min: float, omega_max: float) -> WaveComponents:
@@ -105,14 +122,15 @@ def gauge_components(waves: GaugeWaves, water: Water, omega_min: float, omega_ma
                                              f"{omega[1]:.4g} rad/s over {rec.duration:.6g} s) lies in "
                                              f"[{lo:.4g}, {hi:.4g}] rad/s")
     spectrum = np.fft.rfft(rec.eta, axis=1)                        # (G, N/2 + 1)
-    power = np.abs(spectrum[:, 1:(n + 1) // 2]) ** 2
+    power = np.abs(spectrum[~rec.slope, 1:(n + 1) // 2]) ** 2             # the elevation records' variance
     outside = float(1.0 - power[:, inside[1:(n + 1) // 2]].sum() / power.sum()) if power.sum() > 0 else 0.0
     w = omega[inside]
     measured = (2.0 / n) * np.conj(spectrum[:, inside]).T * np.exp(1j * w * rec.t0)[:, None]      # (F, G)
     heads = np.deg2rad(np.asarray(waves.directions, float))
     k = wave_number(w, water.gravity, water.depth_m)
     along = rec.positions @ np.array([np.cos(heads), np.sin(heads)])                          # (G, J)
-    e = np.exp(1j * k[:, None, None] * along[None, :, :])                                       # (F, G, J)
+    e = np.exp(1j * k[:, None, None] * along[None, :, :]) * rec.factors(heads)[None]          # (F, G, J)
+    measured = measured / np.where(rec.slope, k[:, None], 1.0)            # slopes over k: elevation's units
     _resolvable(e, w, waves)
     c = np.linalg.lstsq(e[0], measured[0], rcond=None)[0][None] if w.size == 1 else \
         np.einsum("fjg,fg->fj", np.linalg.pinv(e), measured)
