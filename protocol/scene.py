@@ -303,16 +303,31 @@ class ComponentWaves(_Section):
 class Gauge(_Section):
     """One wave gauge of ``[waves] type = "gauges"``: its position on the still-water plane and its
     elevation record (a file as ``type = "elevation"`` reads it: CSV time, eta or NetCDF ``eta``
-    over ``time``). ``time``/``eta`` are not scene keys: Scene.with_gauges puts the file's record
-    there (the client reads it and sends it in hello.gauges, SPEC §5.1)."""
+    over ``time``). Its record is no scene key: Scene.with_gauges puts the file's (the client reads
+    it and sends it in hello.gauges, SPEC §5.1), read back as ``time``/``eta``."""
     x: Coordinate
     y: Coordinate
     file: Annotated[str, Field(min_length=1)]       # relative to the scene file
     # what the record holds: the elevation (m), or the surface slope d eta/dx or d eta/dy (m/m) of a
     # pitch-roll buoy (NetCDF variable eta, slope_x, slope_y)
     quantity: Literal["elevation", "slope-x", "slope-y"] = "elevation"
-    time: list[float] | None = Field(default=None, exclude=True)
-    eta: list[float] | None = Field(default=None, exclude=True)
+    _record: tuple | None = PrivateAttr(default=None)
+
+    def with_record(self, time, eta) -> "Gauge":
+        """This gauge with its record (two float sequences of one length)."""
+        out = self.model_copy()
+        out._record = (tuple(float(t) for t in time), tuple(float(e) for e in eta))
+        return out
+
+    @property
+    def time(self) -> tuple[float, ...] | None:
+        """s: the record's times (None until Scene.with_gauges)."""
+        return None if self._record is None else self._record[0]
+
+    @property
+    def eta(self) -> tuple[float, ...] | None:
+        """The record's values (m, or m/m for a slope; None until Scene.with_gauges)."""
+        return None if self._record is None else self._record[1]
 
     @property
     def variable(self) -> str:
@@ -1497,7 +1512,7 @@ class Scene(_Section):
                 raise ValueError(f"{key}: the record of {gauge.file!r} was not given (a client reads the file "
                                  "and sends it in hello.gauges)")
             time, eta = records[key]
-            gauges[i] = gauge.model_copy(update={"time": [float(t) for t in time], "eta": [float(e) for e in eta]})
+            gauges[i] = gauge.with_record(time, eta)
             if len(time) >= 2:
                 start = time[0] if self.waves.start is None else self.waves.start
                 end = time[0] + len(time) * (time[-1] - time[0]) / (len(time) - 1)   # the window's end
