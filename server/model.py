@@ -54,6 +54,7 @@ from hydrolink.server.sea.waves import ConvolutionForcing, WaveError, WaveForcin
 __all__ = ["HydroModel", "ModelError"]
 
 BREAKING_STEEPNESS = 1.0 / 7.0   # H/lambda above which waves are refused (docs/stability.md)
+RESIDUAL_WARNING = 0.05          # share of gauge records a fitted sea may leave unexplained without a warning
 
 
 @dataclass(frozen=True)
@@ -369,6 +370,10 @@ class HydroModel:
                                 f"{np.round(np.rad2deg(self._headings), 2).tolist()} deg; reduce the spreading or "
                                 "give an HDB with headings covering them)")
                     raise ModelError(key, f"{why} (HDB {src!r})") from None
+        if self.waves.fit_residual > RESIDUAL_WARNING:      # a sea from gauges the bins do not explain
+            self.warnings.append(f"waves.directions: the fitted sea leaves {100 * self.waves.fit_residual:.2g} % of the "
+                                 "gauges' records (their variance in the band) unexplained: waves come from directions "
+                                 "between or outside the bins; add directions (or gauges to resolve them)")
         if self.waves.energy_outside > 0.01 and scene.waves.omega_range is None:   # irregular only
             self.warnings.append(f"waves: {100 * self.waves.energy_outside:.2g} % of the spectrum's energy lies "
                                  f"outside the HDB range {lo:.3g}-{hi:.3g} rad/s and is left out")

@@ -22,7 +22,8 @@ wavelength along the directions' differences (else two directions alias at high 
 frequency where cond(E_n) exceeds ``max_condition`` (noise in the records is amplified that much)
 is refused naming ``waves.directions`` with the frequencies it fails at; narrowing
 ``waves.omega_range`` to where the array resolves the directions, or fewer directions, is the fix.
-With J < G the fit is over-determined (least squares). Energy at directions between the bins is spread over
+With J < G the fit is over-determined (least squares): the share of the records' band variance
+it leaves unexplained is ``fit_residual`` (a setup warning naming ``waves.directions`` above 5 %). Energy at directions between the bins is spread over
 the neighbouring bins (the sea between the gauges is then only approximated), and the sea is
 periodic with the window: the run must stay inside the records (checked on the scene).
 """
@@ -134,13 +135,16 @@ def gauge_components(waves: GaugeWaves, water: Water, omega_min: float, omega_ma
     _resolvable(e, w, waves)
     c = np.linalg.lstsq(e[0], measured[0], rcond=None)[0][None] if w.size == 1 else \
         np.einsum("fjg,fg->fj", np.linalg.pinv(e), measured)
+    residual = measured - np.einsum("fgj,fj->fg", e, c)
+    total = float(np.sum(np.abs(measured) ** 2))
+    unexplained = float(np.sum(np.abs(residual) ** 2)) / total if total > 0 else 0.0
     start = rec.t0 if waves.start is None else float(waves.start)
     c = c * np.exp(-1j * w * start)[:, None]                       # phases at simulation t = 0
     amp = np.abs(c).reshape(-1)
     keep = amp > 0.0
     return WaveComponents(np.repeat(w, heads.size)[keep], amp[keep], np.angle(c).reshape(-1)[keep],
                           float(heads[0]), waves.ramp, outside, "gauges",
-                          np.tile(heads, w.size)[keep], "waves.directions")
+                          np.tile(heads, w.size)[keep], "waves.directions", fit_residual=unexplained)
 
 
 def _resolvable(e: np.ndarray, w: np.ndarray, waves: GaugeWaves) -> None:

@@ -60,6 +60,8 @@ class WaveComponents:
     heading_key: str | None = None      # the scene key a heading is refused under (None: waves.direction/spreading)
     intrinsic: np.ndarray | None = None  # rad/s (n_c,): in a current with the Doppler shift, the frequencies
     #                                      relative to the water (``omega`` is then the encounter frequency)
+    fit_residual: float = 0.0           # a sea from gauges: the share of the records' variance in the band
+    #                                      that the fitted components leave unexplained (server/sea/gauges.py)
 
     @property
     def hdb_omega(self) -> np.ndarray:
