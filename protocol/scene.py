@@ -314,18 +314,21 @@ class Gauge(_Section):
     _record: tuple | None = PrivateAttr(default=None)
 
     def with_record(self, time, eta) -> "Gauge":
-        """This gauge with its record (two float sequences of one length)."""
+        """This gauge with its record (two float sequences; kept as read-only float64 arrays)."""
+        import numpy as np
         out = self.model_copy()
-        out._record = (tuple(float(t) for t in time), tuple(float(e) for e in eta))
+        out._record = tuple(np.array(x, np.float64) for x in (time, eta))
+        for array in out._record:
+            array.flags.writeable = False
         return out
 
     @property
-    def time(self) -> tuple[float, ...] | None:
-        """s: the record's times (None until Scene.with_gauges)."""
+    def time(self):
+        """s: the record's times, an array (None until Scene.with_gauges)."""
         return None if self._record is None else self._record[0]
 
     @property
-    def eta(self) -> tuple[float, ...] | None:
+    def eta(self):
         """The record's values (m, or m/m for a slope; None until Scene.with_gauges)."""
         return None if self._record is None else self._record[1]
 
@@ -1499,7 +1502,7 @@ class Scene(_Section):
         gauges = self.waves.gauges if isinstance(self.waves, GaugeWaves) else []
         return [(f"waves.gauges[{i}].file", g) for i, g in enumerate(gauges)]
 
-    def with_gauges(self, records: dict[str, tuple[list[float], list[float]]]) -> "Scene":
+    def with_gauges(self, records: dict[str, tuple]) -> "Scene":
         """The scene with each gauge's record (time, eta) by its key (:meth:`gauge_files`); ValueError
         "key: why" where one is missing or the run would reach past its end (the sea the records give
         repeats with their length: not a measured sea any more)."""

@@ -132,9 +132,8 @@ def gauge_components(waves: GaugeWaves, water: Water, omega_min: float, omega_ma
     along = rec.positions @ np.array([np.cos(heads), np.sin(heads)])                          # (G, J)
     e = np.exp(1j * k[:, None, None] * along[None, :, :]) * rec.factors(heads)[None]          # (F, G, J)
     measured = measured / np.where(rec.slope, k[:, None], 1.0)            # slopes over k: elevation's units
-    _resolvable(e, w, waves)
-    c = np.linalg.lstsq(e[0], measured[0], rcond=None)[0][None] if w.size == 1 else \
-        np.einsum("fjg,fg->fj", np.linalg.pinv(e), measured)
+    u, sv, vh = _resolvable(e, w, waves)
+    c = np.einsum("fkj,fk->fj", vh.conj(), np.einsum("fgk,fg->fk", u.conj(), measured) / sv)   # E^+ C
     residual = measured - np.einsum("fgj,fj->fg", e, c)
     total = float(np.sum(np.abs(measured) ** 2))
     unexplained = float(np.sum(np.abs(residual) ** 2)) / total if total > 0 else 0.0
@@ -147,14 +146,15 @@ def gauge_components(waves: GaugeWaves, water: Water, omega_min: float, omega_ma
                           np.tile(heads, w.size)[keep], "waves.directions", fit_residual=unexplained)
 
 
-def _resolvable(e: np.ndarray, w: np.ndarray, waves: GaugeWaves) -> None:
-    """Refuse (naming ``waves.directions``) directions the array cannot tell apart at some frequency
-    of the band: more directions than gauges, or cond(E_n) above ``waves.max_condition``."""
+def _resolvable(e: np.ndarray, w: np.ndarray, waves: GaugeWaves) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The thin SVD (U, s, V^H) of each frequency's E_n, refused (naming ``waves.directions``) where
+    the array cannot tell the directions apart at some frequency of the band: more directions than
+    gauges, or cond(E_n) = s_max / s_min above ``waves.max_condition``."""
     g, j = e.shape[1:]
     if j > g:
         raise WaveError("waves.directions", f"{j} directions from {g} gauges: an array of G gauges resolves at "
                                             f"most G directions per frequency (give at most {g}, or more gauges)")
-    s = np.linalg.svd(e, compute_uv=False)
+    u, s, vh = np.linalg.svd(e, full_matrices=False)
     cond = s[:, 0] / np.maximum(s[:, -1], np.finfo(float).tiny)
     bad = cond > waves.max_condition
     if bad.any():
@@ -166,3 +166,4 @@ def _resolvable(e: np.ndarray, w: np.ndarray, waves: GaugeWaves) -> None:
                                             f"{w[bad].max():.4g} rad/s; condition number up to {cond.max():.3g} > "
                                             f"waves.max_condition = {waves.max_condition:g}): {fix}, or use fewer "
                                             "directions or a wider array")
+    return u, s, vh

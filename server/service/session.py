@@ -128,7 +128,7 @@ def _with_gauges(scene: Scene, gauges: Any) -> Scene:
     the run reaches past it."""
     def record(entry: dict, where: str) -> tuple:
         time = codec.require_array(entry, "time", (None,), path=f"{where}.time")
-        return time.tolist(), codec.require_array(entry, "eta", time.shape, path=f"{where}.eta").tolist()
+        return time, codec.require_array(entry, "eta", time.shape, path=f"{where}.eta")
 
     if not scene.gauge_files():
         return scene
