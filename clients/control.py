@@ -73,6 +73,16 @@ class Controller:
     def on_stop(self) -> None:
         """Called when the run ends (or the session closes)."""
 
+    def switch_hydro_state(self, body: str, state: str) -> None:
+        """From :meth:`on_step`: command ``body`` into its hydrodynamic ``state`` with this step's
+        commands (the scene's ``controllers[i].hydro_states`` lists the body; SPEC §5.7.4)."""
+        self._hydro_state = {**(getattr(self, "_hydro_state", None) or {}), body: state}
+
+    def take_hydro_state(self) -> dict[str, str] | None:
+        """The hydro states commanded since the last call (the runner sends them), then forgotten."""
+        out, self._hydro_state = getattr(self, "_hydro_state", None), None
+        return out
+
     def on_error(self, error: dict) -> None:
         """A command was refused (``code``, ``name``, ``field``, ``message``; SPEC §5.7.4): that step
         ran on the fallback. Default: nothing (the runner logs it)."""
@@ -297,7 +307,9 @@ def run_controller(controller: Controller, server: str, *, token: str, session: 
                 m = decode_measurements(reply)
                 commands = controller.on_step(float(reply["time"]), m)
                 stats["steps"] += 1
-                reply = link.request("command", wait, step=reply["step"], commands=_command_map(commands), **ident)
+                hydro = controller.take_hydro_state()
+                reply = link.request("command", wait, step=reply["step"], commands=_command_map(commands), **ident,
+                                     **({"hydro_state": hydro} if hydro else {}))
             elif kind == "idle":
                 stats["idle"] += 1
                 reply = link.request("measure", wait, **ident)

@@ -18,7 +18,8 @@ from typing import TYPE_CHECKING
 import xarray as xr
 
 from hydrolink.clients.lockstep.summary import RunSummary
-from hydrolink.clients.scene_inputs import load_scene_hdbs, load_scene_hulls, load_wave_elevation
+from hydrolink.clients.scene_inputs import (load_gauge_files, load_scene_hdbs, load_scene_hulls, load_spectrum_files,
+                                            load_wave_elevation)
 from hydrolink.protocol.scene import load_scene
 
 if TYPE_CHECKING:
@@ -132,8 +133,8 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
         else:
             conn = stack.enter_context(ServerConnection(server, timeout=timeout, curve=curve, key=key,
                                                         link_timeout=link_timeout))
-        setup = conn.hello(text, hdbs, wave_elevation=series, meshes=load_scene_hulls(scene, scene_path),
-                           control_token=control_token)
+        setup = conn.hello(text, hdbs, wave_elevation=series, meshes=load_scene_hulls(scene, scene_path), control_token=control_token,
+                           spectra=load_spectrum_files(scene, scene_path), gauges=load_gauge_files(scene, scene_path))
         if scene.controllers:
             _announce_controllers(scene, server, conn.control_token)
         names, reference = result_bodies(scene, setup)

@@ -1,5 +1,5 @@
 """A scene's input files, loaded as every tool needs them: its HDBs (read, built or sent as files, with
-NEMOH QTFs added), its bodies' hulls for nonlinear terms, its wave elevation series."""
+NEMOH QTFs added), its bodies' hulls for nonlinear terms, its wave elevation series and gauge records."""
 
 from __future__ import annotations
 
@@ -22,34 +22,34 @@ def load_scene_hdbs(scene: Scene, scene_path: str | Path, *, progress: bool = Tr
     from hydrolink.server.hdb.io import file_set, load_hdb, nondimensional   # raise HDBError naming the file and field
 
     hdbs: dict[str, xr.Dataset | HDBFiles] = {}
-    for i, body in enumerate(scene.bodies):
-        if body.hdb is None or body.hdb in hdbs:
+    for i, body, hdb, scene_key in scene.hdb_keys():   # each body's hdb and its hydro_states' HDBs
+        if hdb in hdbs:
             continue
-        path = resolve_path(scene_path, body.hdb)
+        path = resolve_path(scene_path, hdb)
         if not path.exists() and not path.with_suffix(".1").exists():
-            raise SceneError(scene_path, f"bodies[{i}].hdb", f"file not found: {path}")
-        qtf = next((j for j, b in enumerate(scene.bodies) if b.hdb == body.hdb and b.qtf is not None), None)
+            raise SceneError(scene_path, scene_key, f"file not found: {path}")
+        qtf = next((j for j, b in enumerate(scene.bodies) if b.hdb == hdb and b.qtf is not None), None)
         if path.suffix == ".toml":
             from hydrolink.server.hdb.build.builder import build_hdb
-            hdbs[body.hdb] = build_hdb(path, progress=progress)
+            hdbs[hdb] = build_hdb(path, progress=progress)
         elif as_files and qtf is None:   # with NEMOH QTF files: read here and sent as a map
             # a nondimensional (WAMIT) run takes the scene's density; the server reads it with the
             # scene's bodies[i].wamit facts
-            hdbs[body.hdb] = file_set(path, rho=scene.water.density if nondimensional(path) else None)
+            hdbs[hdb] = file_set(path, rho=scene.water.density if nondimensional(path) else None)
         else:
-            stated = next((b.hdb_convention for b in scene.bodies if b.hdb == body.hdb and b.hdb_convention), None)
-            hdbs[body.hdb] = load_hdb(path, convention=stated, wamit=scene.wamit_statement(body.hdb),
-                                      rho=scene.water.density if nondimensional(path) else None)
+            stated = next((b.hdb_convention for b in scene.bodies if b.hdb == hdb and b.hdb_convention), None)
+            hdbs[hdb] = load_hdb(path, convention=stated, wamit=scene.wamit_statement(hdb),
+                                 rho=scene.water.density if nondimensional(path) else None)
         if qtf is not None:
-            hdbs[body.hdb] = with_nemoh_qtf(hdbs[body.hdb], scene, qtf, scene_path)
-    for i, body in enumerate(scene.bodies):
-        if body.hdb is None or isinstance(hdbs[body.hdb], HDBFiles):
+            hdbs[hdb] = with_nemoh_qtf(hdbs[hdb], scene, qtf, scene_path)
+    for i, body, hdb, scene_key in scene.hdb_keys():
+        if isinstance(hdbs[hdb], HDBFiles):
             continue
-        names = [str(b) for b in hdbs[body.hdb]["body"].values]
+        names = [str(b) for b in hdbs[hdb]["body"].values]
         if body.hdb_body_name not in names:
-            key = "hdb_body" if body.hdb_body else "name"
-            raise SceneError(scene_path, f"bodies[{i}].{key}",
-                             f"the HDB {body.hdb} holds no body {body.hdb_body_name!r} (it holds {names}); "
+            key = scene_key if body.hdb != hdb else f"bodies[{i}].{'hdb_body' if body.hdb_body else 'name'}"
+            raise SceneError(scene_path, key,
+                             f"the HDB {hdb} holds no body {body.hdb_body_name!r} (it holds {names}); "
                              "set hdb_body to one of those")
     return hdbs
 
@@ -132,3 +132,76 @@ def load_wave_elevation(scene: Scene, scene_path: str | Path):
         return read_elevation(resolve_path(scene_path, scene.waves.file))
     except WaveError as exc:
         raise SceneError(scene_path, exc.key, exc.why) from None
+
+
+def load_spectrum_files(scene: Scene, scene_path: str | Path) -> dict[str, tuple[list[float], list[float] | None, list]]:
+    """The tables of the scene's spectrum files (``waves.systems[i].file``, relative to the scene) by
+    their key: (omega, theta or None, density), in the system's ``units``. A CSV file: a header row
+    then one row per frequency — "omega,density" (S(w)) or "omega/theta" and the directions in
+    degrees, then on each row the frequency and S(w, theta) per direction. A NetCDF file: a variable
+    ``density`` over the dimension ``omega`` (and ``theta``, degrees), with those coordinates.
+    SceneError naming the key and the file when one cannot be read as such a table."""
+    out = {}
+    for key, name in scene.spectrum_files():
+        path = resolve_path(scene_path, name)
+        try:
+            out[key] = _spectrum_csv(path) if path.suffix.lower() == ".csv" else _spectrum_netcdf(path)
+        except (OSError, ValueError, KeyError) as exc:
+            raise SceneError(scene_path, key, f"{path}: {exc}") from None
+    try:       # each table checked as an inline one would be (negative, unordered, all zero...)
+        scene.with_spectra(out)
+    except ValueError as exc:
+        key, _, why = str(exc).partition(": ")
+        raise SceneError(scene_path, key, why) from None
+    return out
+
+
+def _spectrum_csv(path: Path) -> tuple[list[float], list[float] | None, list]:
+    """A CSV table (load_spectrum_files)."""
+    lines = [ln for ln in path.read_text().splitlines() if ln.strip()]
+    if len(lines) < 3:
+        raise ValueError("needs a header row and at least two frequencies")
+    head = [c.strip() for c in lines[0].split(",")]
+    rows = [[float(c) for c in ln.split(",")] for ln in lines[1:]]
+    if head == ["omega", "density"]:
+        if any(len(r) != 2 for r in rows):
+            raise ValueError("every row of an 'omega,density' table needs two values")
+        return [r[0] for r in rows], None, [r[1] for r in rows]
+    if head[0] != "omega/theta" or len(head) < 3:
+        raise ValueError(f"header {lines[0]!r}: expected 'omega,density' or 'omega/theta' and the directions in degrees")
+    theta = [float(c) for c in head[1:]]
+    if any(len(r) != len(theta) + 1 for r in rows):
+        raise ValueError(f"every row needs a frequency and {len(theta)} densities (one per direction)")
+    return [r[0] for r in rows], theta, [r[1:] for r in rows]
+
+
+def _spectrum_netcdf(path: Path) -> tuple[list[float], list[float] | None, list]:
+    """A NetCDF table (load_spectrum_files)."""
+    with xr.open_dataset(path) as ds:
+        density = ds["density"]
+        if density.dims not in (("omega",), ("omega", "theta")):
+            raise ValueError(f"variable 'density' has dimensions {density.dims}: expected ('omega',) or "
+                             "('omega', 'theta') (theta in degrees)")
+        theta = ds["theta"].values.astype(float).tolist() if "theta" in density.dims else None
+        return ds["omega"].values.astype(float).tolist(), theta, density.values.astype(float).tolist()
+
+
+def load_gauge_files(scene: Scene, scene_path: str | Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """The (time, eta) records of ``[waves] type = "gauges"`` by key (``waves.gauges[i].file``,
+    relative to the scene; read as ``type = "elevation"`` reads its file), checked as the server
+    fits them (one uniform grid shared by all gauges, the run inside them: server/sea/gauges.py);
+    SceneError naming the key and the file otherwise."""
+    from hydrolink.server.sea.gauges import gauge_records
+    from hydrolink.server.sea.waves import WaveError, read_elevation
+    out = {}
+    try:
+        for key, gauge in scene.gauge_files():
+            out[key] = read_elevation(resolve_path(scene_path, gauge.file), key, gauge.variable)
+        if out:
+            gauge_records(scene.with_gauges(out).waves)
+    except WaveError as exc:
+        raise SceneError(scene_path, exc.key, exc.why) from None
+    except ValueError as exc:
+        key, _, why = str(exc).partition(": ")
+        raise SceneError(scene_path, key, why) from None
+    return out

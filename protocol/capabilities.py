@@ -45,16 +45,20 @@ FEATURES: dict[str, Feature] = {
     "passive_yaw": Feature("passive yaw (the excitation at the body's instantaneous heading)", ()),
     # no optional reply field: the modal forces travel in modal_excitation/radiation/hydrostatic (SPEC 1.15)
     "generalized_modes": Feature("generalized (flexible) modes", ()),
+    # no force field of its own: a reply carries ``hydro_state`` at a switch (SPEC §5.2, revision 1.14)
+    "hydro_states": Feature("variable hydrodynamics (a body switching between HDBs)", ()),
 }
 
 #: features of the linear core itself (server/model.py, server/sea/), not of a force term (server/terms/)
-CORE_FEATURES = frozenset({"passive_yaw", "generalized_modes"})
+CORE_FEATURES = frozenset({"passive_yaw", "generalized_modes", "hydro_states"})
 
 _POINTWISE = frozenset({"linear_damping", "quadratic_damping", "drag", "morison"})
 _YAW = ("{what} needs the body's yaw sent to the force server each step and its excitation to follow it, "
         "which {tool} does not do; run the scene with hydrolink run")
 _MODES = ("{what} need their modal coordinates sent to the force server each step and integrated with the rigid "
           "ones, which {tool} does not do (its bodies have six DOFs); run the scene with hydrolink run")
+_SWITCH = ("{what} changes the client's mass and stiffness matrices during the run (a new A-infinity and "
+           "hydrostatic stiffness at each switch), which {tool} does not do; run the scene with hydrolink run")
 _HULLS = ("nonlinear hydrostatics need the bodies' hulls in the hello, which {tool} does not carry yet; use the "
           "Exudyn client (hydrolink run)")
 
@@ -74,7 +78,8 @@ TOOLS: dict[str, Tool] = {
     "exudyn": Tool("the Exudyn client (hydrolink run)", frozenset(FEATURES), ""),
     "fmu_master": Tool("the FMU master", frozenset(),
                        "{tool} does not apply {what} yet (its force ports carry excitation, radiation and "
-                       "hydrostatics); use the Exudyn client", {"passive_yaw": _YAW, "generalized_modes": _MODES}),
+                       "hydrostatics); use the Exudyn client", {"passive_yaw": _YAW, "generalized_modes": _MODES,
+                                                                 "hydro_states": _SWITCH}),
     # steady: the second-order force of its regular wave (mean A^2 T(w, w), with sum_frequency the 2w
     # force) pointwise at the nodes like any time-dependent load
     "steady": Tool("hydrolink steady", _POINTWISE | {"second_order"},
@@ -83,7 +88,10 @@ TOOLS: dict[str, Tool] = {
                    {"passive_yaw": "{what} makes the excitation depend on the motion (the heading), which {tool}'s "
                                    "periodic solution does not model; run the scene with hydrolink run",
                     "generalized_modes": "{what} are not in {tool}'s periodic model (its unknowns are six DOFs a body); "
-                                         "run the scene with hydrolink run"}),
+                                         "run the scene with hydrolink run",
+                    "hydro_states": "{what} switches the coefficients during the run, which {tool}'s periodic "
+                                    "solution does not model; run the scene with hydrolink run (or one state's "
+                                    "HDB as the body's hdb)"}),
     # linearize: the device as a linear plant about rest (clients/analysis/plant.py)
     "linearize": Tool("hydrolink linearize", frozenset({"linear_damping"}),
                       "{what} have no linear model about rest in {tool} (quadratic drag's slope is zero there; "
@@ -95,10 +103,14 @@ TOOLS: dict[str, Tool] = {
                                       "heading: drop bodies[i].passive_yaw for it",
                        "generalized_modes": "{what} are not in {tool}'s plant (its states are six DOFs a body); "
                                             "the modes' linear model is the frequency-domain one of "
-                                            "docs/generalized-modes.md"}),
-    "native_fmu": Tool("the native FMU", _POINTWISE, _HULLS, {"passive_yaw": _YAW, "generalized_modes": _MODES}),
+                                            "docs/generalized-modes.md",
+                       "hydro_states": "{what} has no single linear plant in {tool} (each state is its own); give "
+                                       "the state's HDB as the body's hdb and drop bodies[i].hydro_states"}),
+    "native_fmu": Tool("the native FMU", _POINTWISE, _HULLS, {"passive_yaw": _YAW, "generalized_modes": _MODES,
+                                                              "hydro_states": _SWITCH}),
     "python_fmu": Tool("the exported Python FMU", _POINTWISE, _HULLS, {"passive_yaw": _YAW,
-                                                                       "generalized_modes": _MODES}),
+                                                                       "generalized_modes": _MODES,
+                                                                       "hydro_states": _SWITCH}),
     # the server's session rollback (SPEC §5.9): every force term's state can be saved (stateless
     # or ForceTerm.state/set_state; tests/test_capabilities.py checks the server's terms)
     "save_restore": Tool("the session rollback (save/restore)", frozenset(FEATURES), ""),

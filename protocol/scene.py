@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Collection, Literal, Union
 
-from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, field_validator, model_validator
 
 from hydrolink.protocol.capabilities import FEATURES
 from hydrolink.protocol.current import Current
@@ -170,10 +170,21 @@ class WaveSystem(_Section):
     theta: Annotated[list[AngleDeg], Field(min_length=2)] | None = None
     density: list[Annotated[float, Field(allow_inf_nan=False)]] | list[list[Annotated[float, Field(allow_inf_nan=False)]]] | None = None
     units: Literal["rad", "hz-deg"] = "rad"
+    # a table from a file instead of omega/theta/density (CSV or NetCDF; clients/scene_inputs.py
+    # load_spectrum_files; it reaches the server in hello.spectra, SPEC §5.1)
+    file: Annotated[str, Field(min_length=1)] | None = None
 
     @model_validator(mode="after")
     def _keys_of_the_spectrum(self) -> "WaveSystem":
         table = self.spectrum == "table"
+        if self.file is not None:
+            if not table:
+                raise ValueError("file: only with spectrum = \"table\" (the file holds the table)")
+            if (self.omega, self.theta, self.density) != (None, None, None):
+                raise ValueError("file: the table comes from the file or from omega/theta/density, not both")
+            if self.spreading != "none":
+                raise ValueError("spreading: a directional table spreads itself (leave spreading = \"none\")")
+            return self
         for key in ("hs", "tp"):
             if table and getattr(self, key) is not None:
                 raise ValueError(f"{key}: not with spectrum = \"table\" (the table is the spectrum)")
@@ -191,6 +202,12 @@ class WaveSystem(_Section):
         if self.directions is not None and self.spreading == "none" and self.theta is None:
             raise ValueError("directions: only with a spreading or a directional table")
         return self
+
+    def with_table(self, omega: list[float], theta: list[float] | None, density: list) -> "WaveSystem":
+        """This system with the table of its ``file`` (validated as an inline one; ``file`` kept)."""
+        inline = WaveSystem.model_validate({**self.model_dump(exclude={"file"}, exclude_none=True),
+                                            "omega": omega, "theta": theta, "density": density})
+        return inline.model_copy(update={"file": self.file})
 
     @property
     def sectors(self) -> int:
@@ -283,7 +300,88 @@ class ComponentWaves(_Section):
         return self
 
 
-Waves = Annotated[Union[StillWater, RegularWave, IrregularWave, ElevationWave, SeaState, ComponentWaves],
+class Gauge(_Section):
+    """One wave gauge of ``[waves] type = "gauges"``: its position on the still-water plane and its
+    elevation record (a file as ``type = "elevation"`` reads it: CSV time, eta or NetCDF ``eta``
+    over ``time``). Its record is no scene key: Scene.with_gauges puts the file's (the client reads
+    it and sends it in hello.gauges, SPEC §5.1), read back as ``time``/``eta``."""
+    x: Coordinate
+    y: Coordinate
+    file: Annotated[str, Field(min_length=1)]       # relative to the scene file
+    # what the record holds: the elevation (m), or the surface slope d eta/dx or d eta/dy (m/m) of a
+    # pitch-roll buoy (NetCDF variable eta, slope_x, slope_y)
+    quantity: Literal["elevation", "slope-x", "slope-y"] = "elevation"
+    _record: tuple | None = PrivateAttr(default=None)
+
+    def with_record(self, time, eta) -> "Gauge":
+        """This gauge with its record (two float sequences; kept as read-only float64 arrays)."""
+        import numpy as np
+        out = self.model_copy()
+        out._record = tuple(np.array(x, np.float64) for x in (time, eta))
+        for array in out._record:
+            array.flags.writeable = False
+        return out
+
+    @property
+    def time(self):
+        """s: the record's times, an array (None until Scene.with_gauges)."""
+        return None if self._record is None else self._record[0]
+
+    @property
+    def eta(self):
+        """The record's values (m, or m/m for a slope; None until Scene.with_gauges)."""
+        return None if self._record is None else self._record[1]
+
+    @property
+    def variable(self) -> str:
+        """The record's variable in a NetCDF file: ``eta``, ``slope_x`` or ``slope_y``."""
+        return "eta" if self.quantity == "elevation" else self.quantity.replace("-", "_")
+
+
+class GaugeWaves(_Section):
+    """``type = "gauges"``: a directional linear sea reconstructed from elevation records at several
+    gauges: one component per Fourier frequency of the records in ``omega_range`` and per direction
+    of ``directions`` (deg, where the waves travel to), amplitudes and phases by a least-squares fit
+    to all gauges at once (server/sea/gauges.py, docs/waves.md). ``start``: the records' time at
+    simulation t = 0 (default: their first time); ``max_condition``: the largest condition number of
+    a frequency's gauge-by-direction matrix accepted (the factor noise in the records is amplified by)."""
+    type: Literal["gauges"]
+    gauges: Annotated[list[Gauge], Field(min_length=1, max_length=64)]
+    directions: Annotated[list[AngleDeg], Field(min_length=1, max_length=64)]
+    omega_range: tuple[Frequency, Frequency] | None = None
+    start: FileTime | None = None
+    max_condition: Annotated[float, Field(ge=1.0, le=1e6, allow_inf_nan=False)] = 100.0
+    ramp: RampTime = 0.0
+    excitation: Excitation = "superposition"
+    excitation_irf_duration: ExcitationIRFDuration = 20.0
+
+    @model_validator(mode="after")
+    def _distinct(self) -> "GaugeWaves":
+        import numpy as np
+        pos = np.array([[g.x, g.y] for g in self.gauges])
+        for j in range(1, len(pos)):
+            near = np.flatnonzero((np.hypot(*(pos[:j] - pos[j]).T) < 1e-3)
+                                  & np.array([g.quantity == self.gauges[j].quantity for g in self.gauges[:j]]))
+            if near.size:
+                raise ValueError(f"gauges[{j}]: at ({pos[j][0]:g}, {pos[j][1]:g}) m, within 1 mm of gauges[{near[0]}] "
+                                 f"and recording the same {self.gauges[j].quantity}: two such gauges add no "
+                                 "information on direction (remove one)")
+        heads = np.exp(1j * np.deg2rad(self.directions))
+        for j in range(1, heads.size):
+            same = np.flatnonzero(np.abs(heads[:j] - heads[j]) < 1e-9)
+            if same.size:
+                raise ValueError(f"directions[{j}]: {self.directions[j]:g} deg is directions[{same[0]}] again")
+        if self.omega_range is not None and not self.omega_range[0] < self.omega_range[1]:
+            raise ValueError(f"omega_range: [low, high] in rad/s with low < high (got {list(self.omega_range)})")
+        return self
+
+    @property
+    def direction(self) -> float:
+        """The first direction (deg): the sea's reference heading."""
+        return self.directions[0]
+
+
+Waves = Annotated[Union[StillWater, RegularWave, IrregularWave, ElevationWave, SeaState, ComponentWaves, GaugeWaves],
                   Field(discriminator="type")]
 
 
@@ -569,6 +667,38 @@ class BodyModes(_Section):
         return self.matrix(key)[np.ix_(order, order)]
 
 
+class HydroState(_Section):
+    """One more hydrodynamic state of a body (``[[bodies.hydro_states]]``): its name and its HDB (a
+    draft, a ballast case, an operating mode; server/hydro_states.py). The body's own ``hdb`` is the
+    state named ``hydro_state``, the one it starts in."""
+    name: Annotated[str, Field(min_length=1, pattern=r"^[A-Za-z0-9_\-]+$")]
+    hdb: Annotated[str, Field(min_length=1)]
+
+
+class HydroSwitch(_Section):
+    """A scene rule that switches a body's hydrodynamic state (``[[hydro_switches]]``): at ``time``
+    (once, at the first step with t >= time), or at every step where the body's ``dof`` displacement
+    from equilibrium (m, rad; the position the client sends) is ``below`` or ``above`` a value.
+    Rules are read in scene order each step from the first step after t = 0; the last that fires wins."""
+    body: Annotated[str, Field(min_length=1)]
+    state: Annotated[str, Field(min_length=1)]
+    time: Duration | None = None
+    dof: Literal["surge", "sway", "heave", "roll", "pitch", "yaw"] | None = None
+    below: Displacement | None = None
+    above: Displacement | None = None
+
+    @model_validator(mode="after")
+    def _one_trigger(self) -> "HydroSwitch":
+        level = self.below is not None or self.above is not None
+        if self.time is not None and (level or self.dof is not None):
+            raise ValueError("time: a rule switches at a time or on a threshold (dof with below/above), not both")
+        if self.time is None and not (self.dof is not None and level):
+            raise ValueError("time: give the time of the switch, or dof with below or above (a threshold)")
+        if self.below is not None and self.above is not None:
+            raise ValueError("below: give below or above, not both (two rules make a band with hysteresis)")
+        return self
+
+
 class Body(_Section):
     name: Annotated[str, Field(min_length=1, pattern=r"^[A-Za-z0-9_\-]+$")]
     hdb: Annotated[str, Field(min_length=1)] | None = None   # None: a dry body (no hydrodynamics)
@@ -617,6 +747,13 @@ class Body(_Section):
     passive_yaw_coefficients: Literal["initial-heading"] | None = None
     # wet bodies whose HDB has generalized modes: their modal mass, stiffness and damping (issue 38)
     modes: BodyModes | None = None
+    # wet bodies: variable hydrodynamics (server/hydro_states.py): the state ``hdb`` is (its name) and the
+    # body's other states, each its own HDB, switched by [[hydro_switches]]; the radiation memory across a
+    # switch: "current-kernel" (default; the state's IRF over the whole velocity history, WEC-Sim's default)
+    # or "kernel-at-emission" (each velocity sample with the IRF of the state it was sent in, WEC-Sim #1411)
+    hydro_state: Annotated[str, Field(min_length=1, pattern=r"^[A-Za-z0-9_\-]+$")] | None = None
+    hydro_states: list[HydroState] = []
+    hydro_memory: Literal["current-kernel", "kernel-at-emission"] | None = None
     # dry bodies only: the node's position (default: the centre of mass) and a constant buoyancy
     reference_point: Vector3 | None = None
     buoyancy_volume: Volume = 0.0
@@ -635,6 +772,30 @@ class Body(_Section):
             raise ValueError(f"passive_yaw: needs the body's yaw DOF free (dofs {self.dofs} lock yaw): a body "
                              "that cannot turn keeps its heading; add \"yaw\" to dofs or drop passive_yaw")
         return self
+
+    @model_validator(mode="after")
+    def _hydro_states_of_a_wet_body(self) -> "Body":
+        if self.hydro_states and self.hdb is None:
+            raise ValueError("hydro_states: only for a wet body (each state is an HDB beside its hdb)")
+        if self.hydro_states and self.hydro_state is None:
+            raise ValueError("hydro_state: required with hydro_states: the name of the state the body's hdb is "
+                             "(the state it starts in)")
+        for key in ("hydro_state", "hydro_memory"):
+            if getattr(self, key) is not None and not self.hydro_states:
+                raise ValueError(f"{key}: only with hydro_states (a body with one HDB has one state)")
+        if self.hydro_states and self.modes is not None:
+            raise ValueError("hydro_states: not with modes: a switch replaces the rigid DOFs' A-infinity and "
+                             "stiffness only, and how a state's modes would carry over is not modelled (give the "
+                             "flexible body one HDB)")
+        names = [self.hydro_state] + [s.name for s in self.hydro_states]
+        for j, n in enumerate(names[1:]):
+            if n in names[:j + 1]:
+                raise ValueError(f"hydro_states[{j}].name: duplicate state name {n!r}")
+        return self
+
+    def state_names(self) -> list[str]:
+        """The body's hydrodynamic states, the one its ``hdb`` is first (empty: one HDB, no states)."""
+        return [self.hydro_state] + [s.name for s in self.hydro_states] if self.hydro_states else []
 
     @model_validator(mode="after")
     def _inertia_if_it_rotates(self) -> "Body":
@@ -1119,6 +1280,10 @@ class Controller(_Section):
     join_timeout: WallTimeout = 30.0                   # s the run waits at t = 0 for the controller
     fallback: Literal["hold", "passive"] = "hold"
     fallback_damping: NonNegativeCoefficient | None = None
+    # bodies (with hydro_states) whose hydrodynamic state this controller may command (SPEC §5.7.4
+    # ``hydro_state``; server/hydro_states.py); a state commanded from step k's measurements acts from
+    # step k + latency + 1
+    hydro_states: list[Name] = []
     max_force: PositiveCoefficient | None = None               # |force command| <= max_force
     damping_range: Annotated[list[Coefficient], Field(min_length=2, max_length=2)] = [0.0, 1.0e12]
     stiffness_range: Annotated[list[Coefficient], Field(min_length=2, max_length=2)] = [-1.0e12, 1.0e12]
@@ -1161,6 +1326,7 @@ class Scene(_Section):
     morison: list[MorisonElement] = []
     client: Client = ExudynClient(type="exudyn")
     controllers: list[Controller] = []
+    hydro_switches: list[HydroSwitch] = []
 
     @model_validator(mode="after")
     def _cross_checks(self) -> "Scene":
@@ -1234,10 +1400,39 @@ class Scene(_Section):
         if isinstance(self.client, FMUClient):
             self.client.check(self)
         self._check_current()
+        self._check_hydro_switches(names)
         self._check_controllers(names)
         self._check_optimize_limits(names)
         self._check_coupling()
         return self
+
+    def _check_hydro_switches(self, names: list[str]) -> None:
+        """Each rule names a body with hydro_states, one of its states and a DOF it moves in; one body per
+        scene switches (each state is a whole model: server/hydro_states.py)."""
+        switching = [i for i, b in enumerate(self.bodies) if b.hydro_states]
+        if len(switching) > 1:
+            raise ValueError(f"bodies[{switching[1]}].hydro_states: one body per scene may switch hydrodynamic "
+                             f"state (bodies[{switching[0]}] does already): the server builds a model per state, "
+                             "not per combination of several bodies' states")
+        if switching and self.coupling.scheme not in ("auto", "mass-matrix"):
+            raise ValueError(f"coupling.scheme: {self.coupling.scheme!r} with bodies[{switching[0]}].hydro_states: a "
+                             "switch changes A-infinity in the client's mass matrix, which only \"mass-matrix\" "
+                             "(the default) takes at a step (the explicit and implicit schemes feed it back)")
+        for i, rule in enumerate(self.hydro_switches):
+            if rule.body not in names:
+                raise ValueError(f"hydro_switches[{i}].body: no body named {rule.body!r} (known: {names})")
+            b = self.bodies[names.index(rule.body)]
+            if not b.hydro_states:
+                raise ValueError(f"hydro_switches[{i}].body: body {rule.body!r} has no hydro_states to switch between")
+            if rule.state not in b.state_names():
+                raise ValueError(f"hydro_switches[{i}].state: body {rule.body!r} has no state {rule.state!r} "
+                                 f"(its states: {b.state_names()})")
+            if rule.dof is not None and rule.dof not in b.dofs:
+                raise ValueError(f"hydro_switches[{i}].dof: {rule.dof!r} is locked on body {rule.body!r} (dofs "
+                                 f"{b.dofs}): its displacement stays 0")
+            if rule.time is not None and rule.time >= self.simulation.duration:
+                self._notes.append(f"hydro_switches[{i}].time: {rule.time:g} s is not before the run's end "
+                                   f"(simulation.duration = {self.simulation.duration:g} s): it never switches")
 
     def _check_current(self) -> None:
         c = self.current
@@ -1314,6 +1509,10 @@ class Scene(_Section):
         driven: dict[str, str] = {}
         dt = self.simulation.dt
         for i, c in enumerate(self.controllers):
+            for b in c.hydro_states:
+                if b not in names or not self.bodies[names.index(b)].hydro_states:
+                    raise ValueError(f"controllers[{i}].hydro_states: {b!r} is not a body with hydro_states "
+                                     f"(those: {[x.name for x in self.bodies if x.hydro_states]})")
             if c.name in [d.name for d in self.controllers[:i]]:
                 raise ValueError(f"controllers[{i}].name: duplicate controller name {c.name!r}")
             for p in c.ptos:
@@ -1347,6 +1546,72 @@ class Scene(_Section):
     def n_exchanges(self) -> int:
         """Exchanges with the server to simulation.duration (the last step index is this, setup.last_seq)."""
         return self.simulation.n_steps // int(self.coupling.exchange_every)
+
+    def spectrum_files(self) -> list[tuple[str, str]]:
+        """(key, file) of each sea system whose table is in a file (``waves.systems[i].file``)."""
+        systems = self.waves.systems if isinstance(self.waves, SeaState) else []
+        return [(f"waves.systems[{i}].file", s.file) for i, s in enumerate(systems) if s.file is not None]
+
+    def with_spectra(self, tables: dict[str, tuple[list[float], list[float] | None, list]]) -> "Scene":
+        """The scene with each spectrum file's table (by its key, :meth:`spectrum_files`) in its
+        system; ValueError "key: why" where a table is not a spectrum (negative, unordered...) or missing."""
+        if not self.spectrum_files():
+            return self
+        systems = list(self.waves.systems)
+        for i, system in enumerate(systems):
+            key = f"waves.systems[{i}].file"
+            if system.file is None:
+                continue
+            if key not in tables:
+                raise ValueError(f"{key}: the table of {system.file!r} was not given (a client reads the file "
+                                 "and sends it in hello.spectra)")
+            try:
+                systems[i] = system.with_table(*tables[key])
+            except ValidationError as exc:
+                why = "; ".join(f"{'.'.join(str(x) for x in e['loc'])}: {e['msg'].removeprefix('Value error, ')}"
+                                for e in exc.errors())
+                raise ValueError(f"{key}: {system.file}: {why}") from None
+        return self.model_copy(update={"waves": self.waves.model_copy(update={"systems": systems})})
+
+    def gauge_files(self) -> list[tuple[str, "Gauge"]]:
+        """(key, gauge) of each gauge of ``[waves] type = "gauges"`` (key ``waves.gauges[i].file``)."""
+        gauges = self.waves.gauges if isinstance(self.waves, GaugeWaves) else []
+        return [(f"waves.gauges[{i}].file", g) for i, g in enumerate(gauges)]
+
+    def with_gauges(self, records: dict[str, tuple]) -> "Scene":
+        """The scene with each gauge's record (time, eta) by its key (:meth:`gauge_files`); ValueError
+        "key: why" where one is missing or the run would reach past its end (the sea the records give
+        repeats with their length: not a measured sea any more)."""
+        if not self.gauge_files():
+            return self
+        gauges = list(self.waves.gauges)
+        for i, gauge in enumerate(gauges):
+            key = f"waves.gauges[{i}].file"
+            if key not in records:
+                raise ValueError(f"{key}: the record of {gauge.file!r} was not given (a client reads the file "
+                                 "and sends it in hello.gauges)")
+            time, eta = records[key]
+            gauges[i] = gauge.with_record(time, eta)
+            if len(time) >= 2:
+                start = time[0] if self.waves.start is None else self.waves.start
+                end = time[0] + len(time) * (time[-1] - time[0]) / (len(time) - 1)   # the window's end
+                if not time[0] <= start or start + self.simulation.duration > end * (1 + 1e-12) + 1e-9:
+                    raise ValueError(f"{'waves.start' if self.waves.start is not None else 'simulation.duration'}: "
+                                     f"the run covers [{start:.6g}, {start + self.simulation.duration:.6g}] s of "
+                                     f"the records and {gauge.file} covers [{time[0]:.6g}, {end:.6g}) s: the "
+                                     "reconstructed sea repeats past the records' end (a shorter run or a later "
+                                     "waves.start inside them)")
+        return self.model_copy(update={"waves": self.waves.model_copy(update={"gauges": gauges})})
+
+    def hdb_keys(self) -> list[tuple[int, Body, str, str]]:
+        """Every HDB the scene names, in scene order: (body index, body, the ``hdb`` string, its scene
+        key) for each wet body's ``hdb`` and each of its ``hydro_states``' (repeats included)."""
+        out = []
+        for i, b in enumerate(self.bodies):
+            if b.hdb is not None:
+                out.append((i, b, b.hdb, f"bodies[{i}].hdb"))
+            out.extend((i, b, s.hdb, f"bodies[{i}].hydro_states[{j}].hdb") for j, s in enumerate(b.hydro_states))
+        return out
 
     @property
     def wet_bodies(self) -> list[Body]:
@@ -1430,11 +1695,13 @@ class Scene(_Section):
         for i, b in enumerate(self.bodies):
             if b.modes is not None:
                 found["generalized_modes"] = f"bodies[{i}].modes"
+            if b.hydro_states:
+                found["hydro_states"] = f"bodies[{i}].hydro_states"
                 break
         return {f: found[f] for f in FEATURES if f in found}
 
 
-_UNION_TAGS = ("regular", "irregular", "still", "elevation", "sea", "components", "linear", "rotary", "rope", "moordyn", "exudyn", "fmu")
+_UNION_TAGS = ("regular", "irregular", "still", "elevation", "sea", "components", "gauges", "linear", "rotary", "rope", "moordyn", "exudyn", "fmu")
 
 
 def parse_scene(text: str, source: str | Path = "<scene>", *, check_files: bool = False,
@@ -1461,7 +1728,7 @@ def load_scene(path: str | Path, *, check_files: bool = True, have_hdbs: Collect
 def missing_files(raw: dict, scene_path: str | Path, have_hdbs: Collection[str] = ()) -> list[tuple[str, str]]:
     """(key, why) for each input file a parsed scene document names (relative to ``scene_path``)
     that does not exist: the bodies' HDBs (a WAMIT run by its stem or ``.1``), hull meshes and NEMOH
-    QTF files, the elevation series of ``[waves] type = "elevation"``, MoorDyn input files and the
+    QTF files, the elevation series of ``[waves] type = "elevation"`` and ``"gauges"``, MoorDyn input files and the
     FMU of ``[client] type = "fmu"``. Read off the document as written, so that it runs whether or
     not the schema holds (a value of the wrong type is the schema's problem, not looked for here)."""
     problems: list[tuple[str, str]] = []
@@ -1482,10 +1749,26 @@ def missing_files(raw: dict, scene_path: str | Path, have_hdbs: Collection[str] 
         if isinstance(hdb, str) and hdb not in seen:
             seen.add(hdb)
             check(f"bodies[{i}].hdb", hdb, exists=lambda p: p.exists() or p.with_suffix(".1").exists())
+        states = body.get("hydro_states")
+        for j, state in enumerate(states if isinstance(states, list) else ()):
+            hdb = state.get("hdb") if isinstance(state, dict) else None
+            if isinstance(hdb, str) and hdb not in seen:
+                seen.add(hdb)
+                check(f"bodies[{i}].hydro_states[{j}].hdb", hdb,
+                      exists=lambda p: p.exists() or p.with_suffix(".1").exists())
         check(f"bodies[{i}].mesh", body.get("mesh"))
         qtf = body.get("qtf")
         for name in ("difference", "sum"):
             check(f"bodies[{i}].qtf.{name}", qtf.get(name) if isinstance(qtf, dict) else None)
+    waves = raw.get("waves")
+    systems = waves.get("systems") if isinstance(waves, dict) else None
+    for i, system in enumerate(systems if isinstance(systems, list) else ()):
+        if isinstance(system, dict):
+            check(f"waves.systems[{i}].file", system.get("file"), "spectrum file")
+    gauges = waves.get("gauges") if isinstance(waves, dict) and waves.get("type") == "gauges" else None
+    for i, gauge in enumerate(gauges if isinstance(gauges, list) else ()):
+        if isinstance(gauge, dict):
+            check(f"waves.gauges[{i}].file", gauge.get("file"), "gauge record")
     for section, kind, key, what in (("waves", "elevation", "file", "elevation file"), ("client", "fmu", "fmu", "FMU")):
         table = raw.get(section)
         if isinstance(table, dict) and table.get("type") == kind:

@@ -100,6 +100,9 @@ class Setup:
     # {body: [mode names]} of the bodies with generalized modes, after the 6N rigid DOFs in every
     # matrix (revision 1.15); None: none (and from older servers)
     modes: dict[str, list[str]] | None = None
+    # variable hydrodynamics (revision 1.14): {body: the state it starts in}; None without hydro_states.
+    # A reply's hydro_state (protocol/reply.py HydroStateChange) changes the matrices at a switch
+    hydro_state: dict[str, str] | None = None
 
     @property
     def n(self) -> int:
@@ -183,7 +186,9 @@ class Setup:
                        if r.data.get("nonlinear") is not None else None),
             wave_energy_by_direction=(r.numbers("wave_energy_by_direction")
                                       if r.data.get("wave_energy_by_direction") is not None else None),
-            modes=modes)
+            modes=modes,
+            hydro_state=({str(k): str(v) for k, v in r.map("hydro_state").items()}
+                         if r.data.get("hydro_state") is not None else None))
 
 
 def _modes(data: Any, bodies: tuple[str, ...]) -> dict[str, list[str]] | None:

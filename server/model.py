@@ -60,6 +60,7 @@ from hydrolink.server.sea.waves import ConvolutionForcing, WaveError, WaveForcin
 __all__ = ["HydroModel", "ModelError"]
 
 BREAKING_STEEPNESS = 1.0 / 7.0   # H/lambda above which waves are refused (docs/stability.md)
+RESIDUAL_WARNING = 0.05          # share of gauge records a fitted sea may leave unexplained without a warning
 
 
 @dataclass(frozen=True)
@@ -151,7 +152,7 @@ class HydroModel:
         if lo >= hi:
             raise ModelError("bodies", f"the bodies' HDB frequency ranges do not overlap ({lo}..{hi} rad/s)")
         try:
-            self.waves = doppler_shift(sea_components(scene.waves, lo, hi), scene.current, scene.water.gravity,
+            self.waves = doppler_shift(sea_components(scene.waves, lo, hi, scene.water), scene.current, scene.water.gravity,
                                        scene.water.depth_m, getattr(scene.waves, "excitation", "superposition"))
         except WaveError as exc:
             raise ModelError(exc.key, exc.why) from None
@@ -178,6 +179,7 @@ class HydroModel:
         self._excitation(data, lo, hi, wave_elevation)
         self._yaw = self._passive_yaw(data)
         self._step = -1           # index of the newest step pushed
+        self._still = np.zeros(self.n)   # the velocity a state the body is not in radiates with (step(radiating=False))
         na = self._idx.size
         self._all_active = na == self.n
         self._sel = slice(None) if self._all_active else self._idx  # a view when every DOF is active
@@ -381,6 +383,10 @@ class HydroModel:
                                 f"{np.round(np.rad2deg(self._headings), 2).tolist()} deg; reduce the spreading or "
                                 "give an HDB with headings covering them)")
                     raise ModelError(key, f"{why} (HDB {src!r})") from None
+        if self.waves.fit_residual > RESIDUAL_WARNING:      # a sea from gauges the bins do not explain
+            self.warnings.append(f"waves.directions: the fitted sea leaves {100 * self.waves.fit_residual:.2g} % of the "
+                                 "gauges' records (their variance in the band) unexplained: waves come from directions "
+                                 "between or outside the bins; add directions (or gauges to resolve them)")
         if self.waves.energy_outside > 0.01 and scene.waves.omega_range is None:   # irregular only
             self.warnings.append(f"waves: {100 * self.waves.energy_outside:.2g} % of the spectrum's energy lies "
                                  f"outside the HDB range {lo:.3g}-{hi:.3g} rad/s and is left out")
@@ -627,11 +633,13 @@ class HydroModel:
         return eta
 
     def step(self, time: float, position: np.ndarray, velocity: np.ndarray, *,
-             replace_last: bool = False, modal_position: np.ndarray | None = None,
+             replace_last: bool = False, radiating: bool = True, modal_position: np.ndarray | None = None,
              modal_velocity: np.ndarray | None = None) -> dict:
         """Forces at ``time`` (= k dt) for the state at that time; see the module docstring.
 
-        ``replace_last`` recomputes the newest step with a new state (iterative coupling).
+        ``replace_last`` recomputes the newest step with a new state (iterative coupling);
+        ``radiating`` False pushes a zero velocity into the radiation memory (the force terms still
+        get ``velocity``): a hydrodynamic state that is not the body's at this step (server/hydro_states.py).
         ``modal_position``/``modal_velocity`` (M,): the modes' coordinates (server/modes.py), for a
         session with modes; their forces come back as ``modal_excitation``/``_radiation``/``_hydrostatic``."""
         if replace_last and self._step < 0:
@@ -656,16 +664,17 @@ class HydroModel:
         # the reply's arrays: fresh each step (a reply may be kept, e.g. cached for a retry, and
         # goes out in-process as is), written in place, then made read-only like a frame's arrays
         out = np.zeros(self._reply_shape) if not m else np.zeros(self._rows_shape)
+        vr = v if radiating else self._still
         if self._yaw is not None:
             self._yaw.follow(x, replace_last)     # the headings the waves are read at (the compiled step's too)
         if self._fused is not None:
             if self._summed:
-                eta = self._fused(time, x, v, replace_last, out.reshape(self._rows_shape))
+                eta = self._fused(time, x, vr, replace_last, out.reshape(self._rows_shape))
             else:
                 f_ex, eta_ex = self._forcing(time)
-                eta = self._fused(time, x, v, replace_last, out.reshape(self._rows_shape), f_ex, eta_ex)
+                eta = self._fused(time, x, vr, replace_last, out.reshape(self._rows_shape), f_ex, eta_ex)
         else:
-            eta = self._linear_numpy(time, x, v, replace_last, out)
+            eta = self._linear_numpy(time, x, vr, replace_last, out)
         self._step = k
         out.flags.writeable = False
         if m:

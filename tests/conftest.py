@@ -219,7 +219,7 @@ def _hdb_store(tmp_path_factory):
 Section = Mapping[str, Any]
 SCENE_SECTIONS: tuple[str, ...] = ("simulation", "water", "waves", "current", "hydro", "steady", "optimize", "coupling", "bodies",
                                    "point_masses", "joints", "constraints", "ptos", "moorings", "morison", "client",
-                                   "controllers")
+                                   "controllers", "hydro_switches")
 _BARE_KEY = re.compile(r"^[A-Za-z0-9_-]+$")
 
 

@@ -17,6 +17,7 @@ from conftest import SPHERE_WATER, regular_waves, scene_toml, sphere_body, write
 from hydrolink.protocol.capabilities import FEATURES, TOOLS, reply_fields
 from hydrolink.protocol.reply import OPTIONAL_FORCES, reply_field
 from hydrolink.protocol.scene import SceneError, parse_scene
+from hydrolink.server.hydro_states import hydro_model, state_datasets
 from hydrolink.server.model import HydroModel
 from hydrolink.server.terms.hulls import closed_hull
 
@@ -38,6 +39,9 @@ USES: dict[str, tuple[dict, dict, str]] = {
     "passive_yaw": ({"passive_yaw": True}, {}, "bodies[0].passive_yaw"),                       # on sphere_headings
     "generalized_modes": ({"modes": {"names": ["breathe"], "mass": [2e4], "stiffness": [5e5]}}, {},
                           "bodies[0].modes"),                                                     # on sphere_modes
+    # a second state with the sphere's own HDB (its path filled in by scene_text), entered at 0.2 s
+    "hydro_states": ({"hydro_state": "first", "hydro_states": [{"name": "second"}]},
+                     {"hydro_switches": [{"body": "sphere", "state": "second", "time": 0.2}]}, "bodies[0].hydro_states"),
 }
 FMU_CLIENT = {"type": "fmu", "fmu": "heave.fmu", "bodies": {"sphere": {
     "position": {"heave": "z"}, "velocity": {"heave": "v"}, "force": {"heave": "F"}}}}
@@ -45,6 +49,8 @@ FMU_CLIENT = {"type": "fmu", "fmu": "heave.fmu", "bodies": {"sphere": {
 
 def scene_text(sphere_path: Path, feature: str, *, fmu: bool = False) -> str:
     body_keys, sections, _ = USES[feature]
+    if feature == "hydro_states":
+        body_keys = {**body_keys, "hydro_states": [{**s, "hdb": str(sphere_path)} for s in body_keys["hydro_states"]]}
     client, dofs = FMU_CLIENT, ["heave"]
     if feature == "passive_yaw":   # the FMU's body turns too (a passive-yaw body needs its yaw DOF)
         dofs = ["heave", "yaw"]
@@ -142,8 +148,9 @@ def sphere_headings(sphere, tmp_path_factory) -> tuple[xr.Dataset, Path]:
 
 def _model(sphere, sphere_path: Path, feature: str, hull) -> HydroModel:
     _, vertices, faces = hull
-    return HydroModel(parse_scene(scene_text(sphere_path, feature)), {"sphere": sphere},
-                      hulls={"sphere": closed_hull(vertices, faces)})
+    scene = parse_scene(scene_text(sphere_path, feature))
+    return hydro_model(scene, {"sphere": sphere}, state_datasets(scene, {str(sphere_path): sphere}),
+                       hulls={"sphere": closed_hull(vertices, faces)})
 
 
 def _refusal(tool: str, scene_path: Path, text: str, tmp_path: Path) -> Exception:

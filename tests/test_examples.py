@@ -31,7 +31,7 @@ def test_example_sets_up_without_warnings(path: Path, reference_data):
     from hydrolink.clients.scene_inputs import load_scene_hdbs, load_wave_elevation
     from hydrolink.clients.studies.sweep_file import load_sweep
     from hydrolink.protocol.scene import load_scene
-    from hydrolink.server.model import HydroModel
+    from hydrolink.server.hydro_states import hydro_model, state_datasets
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         if _kind(path) == "sweep":
@@ -40,8 +40,8 @@ def test_example_sets_up_without_warnings(path: Path, reference_data):
         else:
             scene, _ = load_scene(path)
             hdbs = load_scene_hdbs(scene, path, progress=False)
-            model = HydroModel(scene, {b.name: hdbs[b.hdb] for b in scene.bodies if b.wet},
-                               load_wave_elevation(scene, path))
+            model = hydro_model(scene, {b.name: hdbs[b.hdb] for b in scene.bodies if b.wet},
+                                state_datasets(scene, hdbs), load_wave_elevation(scene, path))
             setup_warnings = list(model.setup_info().warnings)
     assert setup_warnings == [], f"{path.name}: setup warnings {setup_warnings}"
     assert not caught, f"{path.name}: " + "; ".join(f"{w.category.__name__}: {w.message}" for w in caught)

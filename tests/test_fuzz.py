@@ -329,6 +329,20 @@ def _templates() -> dict[str, dict]:
                       "waves": {"type": "elevation", "file": "eta.csv", "direction": 0.0, "start": 10.0, "ramp": 1.0,
                                 "excitation_irf_duration": 5.0},
                       "bodies": [_rich_body()]},
+        # a sea fitted to three gauges' records (hello.gauges: extreme_server's extra)
+        "gauges": {"simulation": sim, "water": water, "hydro": {"irf_duration": 2.0},
+                   "waves": {"type": "gauges", "directions": [0.0, 60.0], "omega_range": [0.5, 3.5], "start": 10.0,
+                             "max_condition": 1e4, "ramp": 1.0, "excitation_irf_duration": 5.0,
+                             "gauges": [{"x": 0.0, "y": 0.0, "file": "g0.csv"}, {"x": 30.0, "y": 0.0, "file": "g1.csv"},
+                                        {"x": 0.0, "y": 30.0, "file": "g2.csv", "quantity": "elevation"}]},
+                   "bodies": [_rich_body()]},
+        # a body switching between two states (the same HDB) by a time rule and a band
+        "switching": {"simulation": sim, "water": water, "hydro": {"irf_duration": 2.0}, "waves": regular_waves(1.0, 6.0),
+                      "bodies": [body("float", hdb="wide.nc", mass=3.0e5, center_of_mass=None, inertia=None,
+                                      dofs=["heave"], hydro_state="a", hydro_states=[{"name": "b", "hdb": "wide.nc"}])],
+                      "hydro_switches": [{"body": "float", "state": "b", "time": 5.0},
+                                         {"body": "float", "state": "a", "dof": "heave", "below": -1.0},
+                                         {"body": "float", "state": "b", "dof": "heave", "above": 1.0}]},
         # a WAMIT run sent as its .1, .3 and .hst alone: the facts its files do not state, from the scene
         "wamit": {"simulation": sim, "water": {"density": 1000.0, "gravity": 9.81, "depth": 200.0},
                   "hydro": {"irf_duration": 2.0}, "waves": regular_waves(1.0, 8.0),
@@ -377,7 +391,9 @@ def extreme_server():
     rm3 = REPO / "examples" / "data" / "rm3_wamit"
     wamit = HDBFiles("wamit", (rm3 / "rm3.1", rm3 / "rm3.3", rm3 / "rm3.hst")).entry(inline=True)
     extra = {"elevation": {"wave_elevation": {"time": t, "eta": 0.5 * np.sin(1.1 * t)}},
-             "wamit": {"own_hdbs": {"rm3.1": wamit}}}
+             "wamit": {"own_hdbs": {"rm3.1": wamit}},
+             "gauges": {"gauges": {f"waves.gauges[{i}].file": {"time": t, "eta": 0.5 * np.sin(1.1 * t - i)}
+                                   for i in range(3)}}}
     yield server, {"wide.nc": to_wire(hdb)}, extra
     server.close()
 

@@ -69,3 +69,23 @@ def test_read_forces_checks_each_present_force_and_names_it():
     with pytest.raises(ProtocolError) as err:
         read_forces({k: v for k, v in ok.items() if k != "radiation"}, (n, 6))
     assert err.value.field == "radiation"
+
+
+def test_a_hydro_state_change_crosses_the_wire_and_bad_ones_are_named():
+    """A reply's hydro_state (revision 1.14) packed and unpacked by the codec reads back equal; a wrong
+    shape or a missing name is a ProtocolError naming hydro_state.<field>."""
+    from hydrolink.protocol.reply import HydroStateChange
+    n, rng = 2, np.random.default_rng(5)
+    change = HydroStateChange("float", "sunk", rng.normal(size=(12, 12)), rng.normal(size=(12, 12)),
+                              rng.normal(size=n), rng.normal(size=(n, 6)), rng.normal(size=(12, 12)))
+    wire = codec.unpack(codec.pack(codec.message("forces", 1, None, hydro_state=change.to_wire())))["hydro_state"]
+    back = HydroStateChange.from_wire(wire, n)
+    assert (back.body, back.state) == ("float", "sunk")
+    for key in ("added_mass", "hydrostatic_stiffness", "net_buoyancy", "equilibrium_position", "radiation_feedthrough"):
+        np.testing.assert_array_equal(getattr(back, key), getattr(change, key))
+    with pytest.raises(ProtocolError) as err:
+        HydroStateChange.from_wire({**change.to_wire(), "added_mass": np.ones((6, 6))}, n)
+    assert err.value.field == "hydro_state.added_mass"
+    with pytest.raises(ProtocolError) as err:
+        HydroStateChange.from_wire({k: v for k, v in change.to_wire().items() if k != "state"}, n)
+    assert err.value.field == "hydro_state.state"

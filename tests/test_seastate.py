@@ -202,3 +202,55 @@ def test_breaking_and_time_step_checks_take_every_sea():
                                    bodies=[body("b", mass=1.0, center_of_mass=[0, 0, 0], inertia=[1.0] * 3)]))
     verdict, why = wave_resolution(scene, 0.5)
     assert verdict == "refuse" and "the period of waves.omega[1] = 2 s" in why
+
+
+@pytest.mark.parametrize("fmt", ["csv", "netcdf"])
+def test_directional_table_from_a_file(tmp_path, fmt):
+    """The wind sea's table S(w, theta) in a CSV or NetCDF file (waves.systems[i].file): the same
+    components as the inline table, bit for bit, and the force variance of the frequency domain (3 %);
+    through a server in hello.spectra, the same setup; negative values are refused naming the key
+    and the file; a server without the table refuses naming the key."""
+    import xarray as xr
+    from hydrolink.clients.lockstep.connection import RemoteError, ServerConnection
+    from hydrolink.clients.scene_inputs import load_spectrum_files
+    from hydrolink.server.service.force_server import ForceServer
+    w = np.linspace(0.2, 2.6, 121)
+    th = np.arange(-175.0, 180.0, 5.0)
+    table = wind_density(w, np.deg2rad(th))
+
+    def write(name: str, values: np.ndarray) -> str:
+        path = tmp_path / f"{name}.{'csv' if fmt == 'csv' else 'nc'}"
+        if fmt == "csv":
+            rows = ["omega/theta," + ",".join(repr(float(t)) for t in th)]
+            rows += [repr(float(x)) + "," + ",".join(repr(float(v)) for v in row) for x, row in zip(w, values)]
+            path.write_text("\n".join(rows) + "\n")
+        else:
+            xr.Dataset({"density": (("omega", "theta"), values)}, coords={"omega": w, "theta": th}).to_netcdf(path)
+        return str(path)
+
+    inline = dict(spectrum="table", omega=w.tolist(), theta=th.tolist(), density=table.tolist(), directions=11)
+    filed = dict(spectrum="table", file=write("wind", table), directions=11)
+    hdb = make_body_hdb(omega=OMEGA, directions=np.deg2rad(np.arange(-180.0, 180.0, 5.0)))
+    bodies = [body("float", hdb="h", mass=3.0e5, center_of_mass=[0, 0, 0], inertia=[1e6] * 3)]
+    text = scene_toml(dt=0.1, duration=10.0, water={"density": 1000.0}, bodies=bodies,
+                      waves=_sea(filed, components=80, frequencies="equal-energy"))
+    scene_path = tmp_path / "scene.toml"
+    scene = parse_scene(text, scene_path)
+    tables = load_spectrum_files(scene, scene_path)
+    m = HydroModel(scene.with_spectra(tables), {"float": hdb})
+    ref = _model(_sea(inline, components=80, frequencies="equal-energy"))
+    for key in ("omega", "amplitude", "phase", "headings"):
+        np.testing.assert_array_equal(getattr(m.waves, key), getattr(ref.waves, key))
+    np.testing.assert_allclose(model_variance(m), reference_variance(wind_density), rtol=0.03)
+    with ServerConnection(ForceServer(None)) as conn:
+        setup = conn.hello(text, {"h": hdb}, spectra=tables)
+        assert setup.wave_components == ref.waves.size
+    with ServerConnection(ForceServer(None)) as conn, pytest.raises(RemoteError) as err:
+        conn.hello(text, {"h": hdb})
+    assert err.value.field == "scene.waves.systems[0].file"
+    bad = table.copy()
+    bad[40, 10] = -1e-3
+    neg = text.replace(filed["file"], write("negative", bad))
+    with pytest.raises(SceneError) as err:
+        load_spectrum_files(parse_scene(neg, scene_path), scene_path)
+    assert err.value.key == "waves.systems[0].file" and "negative" in str(err.value) and "negative." in str(err.value)

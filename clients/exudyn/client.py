@@ -99,6 +99,8 @@ class ExudynModel:
     added_mass_in_matrix: bool = True
     failure_hint: str = ""          # appended to a solver failure's message (what to change)
     force_index: np.ndarray | None = None   # reduced bodies: the 6N entries the hydro object takes
+    hydro_coordinates: np.ndarray = field(default_factory=lambda: np.zeros(0, int))  # the 6N entries it holds
+    net_buoyancy: np.ndarray = field(default_factory=lambda: np.zeros(0))   # (N,) setup's, on heave (load)
     padded: bool = False            # reduced bodies: state vectors end in a zero slot (locked DOFs)
     modal: ModalStructure | None = None   # the generalized modes after the 6N wet DOFs (clients/exudyn/modes.py)
 
@@ -276,6 +278,8 @@ def build_model(scene: Scene, setup: Setup | None, *, spectral_radius: float = 1
     if newmark:   # trapezoidal rule as Newmark (beta 1/4, gamma 1/2): a rollback + redo is bit-exact
         ga = ss.timeIntegration.generalizedAlpha
         ga.useNewmark, ga.newmarkBeta, ga.newmarkGamma, ga.useIndex2Constraints = True, 0.25, 0.5, True
+    if setup is not None and setup.hydro_state:   # a switch changes the hydro object's mass matrix mid-run
+        ss.timeIntegration.reuseConstantMassMatrix = False
     if len(mbs.systemData.GetODE2Coordinates()) > SPARSE_ABOVE:
         # large mechanisms (arrays of bodies + arms): Exudyn's default dense LU dominates the step;
         # measured on 9N9LA (108 body coordinates + 54 constraints): 9.8 -> 2.3 ms per step
@@ -291,7 +295,8 @@ def build_model(scene: Scene, setup: Setup | None, *, spectral_radius: float = 1
                        np.array([all_names.index(nm) for nm in names], int), ptos, moorings,
                        added_mass=a_inf, added_mass_in_matrix=added_mass_in_matrix,
                        force_index=sel if sel.size < a_inf.shape[0] else None, padded=padded,
-                       modal=modal)
+                       modal=modal, hydro_coordinates=sel,
+                       net_buoyancy=setup.net_buoyancy if setup else np.zeros(0))
 
 
 def _hydro_object(mbs, mech: Mechanism, names: list[str], mass: np.ndarray | None, stiffness: np.ndarray,
@@ -501,6 +506,10 @@ class ExudynMultibody:
         # the wet bodies' 6N entries in the (B, 6) rows (the optional forces' results variables)
         self._wet_flat = (6 * np.asarray(model.wet_rows, int)[:, None] + np.arange(6)).reshape(-1)
         self._pto_sample = None
+        self._rest_shift: np.ndarray | None = None   # C_s (x_eq,s - x_eq,0) of a hydro state resting elsewhere
+        self._state_load: np.ndarray | None = None   # the hydro state's constant load beside the setup's
+        self.hydro_state: str | None = None                # the state entered at the newest switch
+        self.state_names: list[str] = []                   # the switching body's states (results: hydro_state)
         # MoorDyn: each step is driven towards the pose it ends in (clients/exudyn/moordyn_mooring.py):
         # predicted, or on a redo the end poses of the previous pass (one per step since the save)
         moorings = model.moorings
@@ -557,7 +566,27 @@ class ExudynMultibody:
         return max(float(np.abs(q).max(initial=0.0)), float(np.abs(v).max(initial=0.0)))
 
     def inputs(self, s0, s1, acc, x0, x1) -> np.ndarray:
-        return s1.load if acc is None else s1.load - self.a_fb @ acc
+        load = s1.load if self._state_load is None else s1.load + self._state_load
+        return load if acc is None else load - self.a_fb @ acc
+
+    def apply_hydro_state(self, change) -> None:
+        """A switch of hydrodynamic state (protocol/reply.py HydroStateChange): its A∞ into the hydro object's mass
+        matrix, its stiffness C_s into the stiffness matrix (which holds −C q about the setup's
+        equilibrium), and as a constant load beside the setup's: the change of net buoyancy and
+        C_s (x_eq,s − x_eq,0) where the state's rest pose differs from the setup's."""
+        m = self.model
+        ix = np.ix_(m.hydro_coordinates, m.hydro_coordinates)
+        m.mbs.SetObjectParameter(m.hydro_object, "stiffnessMatrix", change.hydrostatic_stiffness[ix])
+        m.stiffness = change.hydrostatic_stiffness
+        if m.added_mass_in_matrix:
+            m.mbs.SetObjectParameter(m.hydro_object, "massMatrix", change.added_mass[ix])
+        m.added_mass = change.added_mass
+        shift = change.hydrostatic_stiffness @ (change.equilibrium_position - m.equilibrium).reshape(-1)
+        self._rest_shift = shift if shift.any() else None     # C_s (x_eq,s - x_eq,0), also in the results
+        extra = shift.copy()
+        extra[2::6] += change.net_buoyancy - m.net_buoyancy
+        self._state_load = extra if extra.any() else None
+        self.hydro_state = change.state
 
     def advance(self, t0: float, t1: float, u: np.ndarray) -> None:
         if self._md is not None:
@@ -617,6 +646,8 @@ class ExudynMultibody:
             row[2] = s.excitation[:r].reshape(nb, 6)
             row[3] = s.radiation[:r].reshape(nb, 6)
             np.dot(m.stiffness, q[m.wet_index], out=self._hs)
+            if self._rest_shift is not None:     # a hydro state resting elsewhere: -C_s (x - x_eq,s)
+                self._hs -= self._rest_shift
             np.negative(self._hs[:r], out=row[4].reshape(-1))
         else:
             f = self._forces   # dry bodies' rows stay zero
@@ -624,6 +655,8 @@ class ExudynMultibody:
                 rows, shape = m.wet_rows, (self.n, 6)
                 f[0, rows], f[1, rows] = s.excitation[:r].reshape(shape), s.radiation[:r].reshape(shape)
                 np.dot(m.stiffness, q[m.wet_index], out=self._hs)
+                if self._rest_shift is not None:     # a hydro state resting elsewhere: -C_s (x - x_eq,s)
+                    self._hs -= self._rest_shift
                 f[2, rows] = -self._hs[:r].reshape(shape)
             row[2:] = f
         if m.mode_labels:   # the modes' coordinates and forces (clients/lockstep/results.py)
@@ -660,6 +693,8 @@ class ExudynMultibody:
             s = self._pto_sample = m.ptos.sample(m.mbs)
             out["pto_force"], out["pto_velocity"], out["pto_power"] = s.force, s.velocity, s.power
             out["total_pto_power"] = s.total_power
+        if self.state_names:
+            out["hydro_state"] = np.float64(self.state_names.index(self.hydro_state or self.state_names[0]))
         if m.moorings is not None:
             out["mooring_force"] = m.moorings.sample(m.mbs)
         if self._md is not None:
@@ -732,6 +767,7 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup | None, writer, 
         control = PTOControl(scene, model.ptos, model.mbs, writer)
     kx = pre.exchange_every
     mb = ExudynMultibody(model, writer, kx, feedback, cpl, ratio, control)
+    mb.state_names = next((b.state_names() for b in scene.bodies if b.hydro_states), [])
     loop = Lockstep(mb, ForceLink(connection, setup if model.n_bodies else None, writer), writer,
                     DivergenceWatch(blow_up_limit), cpl.between_exchanges,
                     bar=progress_bar(pre.n_steps, progress and scene.simulation.progress))
@@ -771,6 +807,10 @@ def _add_variables(scene: Scene, model: ExudynModel, writer, warnings: list[str]
     add_force_term_variables(writer, scene)
     if model.mode_labels:
         add_modal_variables(writer, model.mode_labels, pto=model.modal.has_pto)
+    switching = next((b for b in scene.bodies if b.hydro_states), None)
+    if switching is not None:
+        writer.add_variable("hydro_state", (), None, "1",
+                            f"hydrodynamic state of body {switching.name!r}: index in {switching.state_names()}")
     moordyn = _moordyn_report(model.moorings) if model.moorings is not None and model.moorings.moordyn else None
     if moordyn is not None:
         _add_moordyn_variables(writer, model.moorings)

@@ -256,7 +256,8 @@ class ServerConnection:
     def hello(self, scene_text: str, hdbs: dict[str, xr.Dataset | HDBFiles], role: str = "multibody",
               client: dict | None = None, wave_elevation: tuple | None = None,
               meshes: dict[str, tuple[np.ndarray, np.ndarray]] | None = None,
-              realtime: float | None = None, control_token: str | None = None) -> Setup:
+              realtime: float | None = None, control_token: str | None = None,
+              spectra: dict[str, tuple] | None = None, gauges: dict[str, tuple] | None = None) -> Setup:
         """Open a session and return its :class:`Setup`; the session id, the server's name/version,
         the protocol version and the session timeout stay on the connection (``session``,
         ``server_info``, ``protocol``, ``session_timeout``). ``wave_elevation``: the (time, eta)
@@ -265,7 +266,9 @@ class ServerConnection:
         (clients/run.py load_scene_hulls); ``realtime``: ask the server to pace the session, each
         ``forces`` reply held until its wall-clock time at that factor (SPEC §5.1); ``control_token``:
         the secret the scene's controllers must show to join (SPEC §5.7.2; None: the server draws one),
-        kept as :attr:`control_token` from the welcome.
+        kept as :attr:`control_token` from the welcome; ``spectra``: the tables of the scene's
+        spectrum files by key (clients/scene_inputs.py load_spectrum_files); ``gauges``: the (time, eta)
+        records of a ``type = "gauges"`` sea by key (load_gauge_files).
 
         An HDB given as :class:`HDBFiles` goes by its files' SHA-256 (SPEC §5.8): the contents the
         server lacks (error 13) are uploaded, once each, and the ``hello`` is sent again;
@@ -278,6 +281,13 @@ class ServerConnection:
         extra = {} if wave_elevation is None else {"wave_elevation": {
             "time": np.ascontiguousarray(wave_elevation[0], np.float64),
             "eta": np.ascontiguousarray(wave_elevation[1], np.float64)}}
+        if spectra:   # the scene's spectrum files' tables (SPEC §5.1 hello.spectra)
+            extra["spectra"] = {key: {"omega": np.asarray(w, np.float64), "density": np.asarray(d, np.float64),
+                                      "theta": None if th is None else np.asarray(th, np.float64)}
+                                for key, (w, th, d) in spectra.items()}
+        if gauges:    # the gauges' records (SPEC §5.1 hello.gauges)
+            extra["gauges"] = {key: {"time": np.ascontiguousarray(t, np.float64), "eta": np.ascontiguousarray(e, np.float64)}
+                               for key, (t, e) in gauges.items()}
         if meshes:
             extra["meshes"] = {name: {"vertices": np.ascontiguousarray(v, np.float64),
                                       "faces": np.ascontiguousarray(f, np.int64)} for name, (v, f) in meshes.items()}

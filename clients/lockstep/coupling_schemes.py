@@ -44,6 +44,8 @@ class Predictor:
         xp = x + big_h * v + 0.5 * big_h * big_h * a
         s_new = loop.link.sample(e + 1, xp, v + big_h * a, measurements=meas)
         mb.apply_control(loop.link.decisions)
+        if loop.link.hydro_state is not None:   # A∞ and stiffness of the state the forces at (e+1) H are
+            mb.apply_hydro_state(loop.link.hydro_state)
         s0 = s_prev
         for j in range(1, mb.substeps + 1):
             t0, t1 = _times(loop, e, j)

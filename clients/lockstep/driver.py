@@ -27,7 +27,7 @@ import numpy as np
 
 from hydrolink.protocol.pacing import PARTS, Pacer, StepRecord
 from hydrolink.clients.lockstep.summary import CouplingReport, RunSummary
-from hydrolink.protocol.reply import OPTIONAL_FORCES
+from hydrolink.protocol.reply import OPTIONAL_FORCES, HydroStateChange
 
 _sum = np.add.reduce   # ndarray.sum without its Python wrapper
 
@@ -108,6 +108,7 @@ class ForceLink:
         self.seconds = 0.0              # wall time in round trips to the server
         self.controller_seconds = 0.0   # of which the server waited for controllers (estimated)
         self.decisions: dict | None = None
+        self.hydro_state: HydroStateChange | None = None   # the newest reply's switch (SPEC §5.2 hydro_state)
         self._sent = np.zeros(SENT_RING)   # when each recent seq was sent (perf_counter), by seq % SENT_RING
         self._zero = Sample.of(np.zeros(0), np.zeros(0), np.zeros(0), 0.0)
         self._shape = (self.n, 6)
@@ -145,6 +146,8 @@ class ForceLink:
         self.seconds += rt
         self._sent[seq % SENT_RING] = t0
         self.decisions = decisions = reply.get("control")
+        change = reply.get("hydro_state")
+        self.hydro_state = None if change is None else HydroStateChange.from_wire(change, self.n)
         if decisions:
             self.controller_seconds += self._controller_wait(seq, t0, rt, reply, decisions)
         eta = reply["wave_elevation"]
@@ -220,6 +223,11 @@ class Multibody(Protocol):
         """Controller measurements due at client step ``step`` (None: none due)."""
 
     def apply_control(self, decisions: dict | None) -> None: ...
+
+    def apply_hydro_state(self, change: HydroStateChange) -> None:
+        """A body's switch to another hydrodynamic state: its A∞, stiffness and net buoyancy into the
+        matrices and constant forces of the step about to be integrated (only the Exudyn client has it:
+        other clients refuse scenes with hydro_states, protocol/capabilities.py)."""
 
 
 # ------------------------------------------------------------------------------ divergence

@@ -75,7 +75,10 @@ def run_waves(run: RunFile) -> WaveComponents | None:
         omegas = [hdbs[b.hdb]["omega"].values for b in scene.bodies if b.wet]
         lo, hi = max(float(w[0]) for w in omegas), min(float(w[-1]) for w in omegas)
     try:
-        comps = doppler_shift(sea_components(waves, lo, hi), scene.current, scene.water.gravity, scene.water.depth_m,
+        if scene.gauge_files():          # a sea from gauges: their records, read as the run read them
+            from hydrolink.clients.scene_inputs import load_gauge_files
+            waves = scene.with_gauges(load_gauge_files(scene, run.scene_path)).waves
+        comps = doppler_shift(sea_components(waves, lo, hi, scene.water), scene.current, scene.water.gravity, scene.water.depth_m,
                               getattr(waves, "excitation", "superposition"))
     except WaveError as exc:
         raise ViewError(run.path, exc.key, f"the run's waves cannot be rebuilt: {exc.why}") from None

@@ -43,6 +43,9 @@ def doppler_shift(comps: WaveComponents, current: Current | None, gravity: float
     if comps.kind == "elevation" or excitation == "convolution":
         raise WaveError("current.doppler", "not with an elevation series or excitation = \"convolution\" (they take "
                                            "the elevation at the origin, already at the encounter frequencies)")
+    if comps.kind == "gauges":
+        raise WaveError("current.doppler", "not with a sea from gauges: their records are at the encounter "
+                                           "frequencies already, and the fit's wave numbers are still water's")
     if comps.size == 0:
         return comps
     k = comps.wave_numbers(gravity, depth)

@@ -32,8 +32,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from hydrolink.protocol.scene import ComponentWaves, SeaState, WaveSystem
+from hydrolink.protocol.scene import ComponentWaves, GaugeWaves, SeaState, Water, WaveSystem
 from hydrolink.server.allocation import require_size
+from hydrolink.server.sea.gauges import gauge_components
 from hydrolink.server.sea.waves import SPECTRA, WaveComponents, WaveError, cos2s_directions, equal_energy_sectors, wave_components
 
 FINE = 20001      # points of the fine frequency grid the equal-energy edges are found on
@@ -41,8 +42,13 @@ SPREAD_FINE = 8001   # points of the fine heading grid of a frequency-dependent 
 BAND = 30.0       # degrees: the width of the direction bands the setup note reports
 
 
-def sea_components(waves, omega_min: float, omega_max: float) -> WaveComponents:
-    """The components of any ``[waves]`` over the frequency range the HDBs share."""
+def sea_components(waves, omega_min: float, omega_max: float, water: Water | None = None) -> WaveComponents:
+    """The components of any ``[waves]`` over the frequency range the HDBs share (``water``: the
+    scene's, which the gauges' fit needs for the wave numbers: server/sea/gauges.py)."""
+    if isinstance(waves, GaugeWaves):
+        if water is None:
+            raise WaveError("waves.type", "a sea from gauges needs the water's depth and gravity (sea_components' water)")
+        return gauge_components(waves, water, omega_min, omega_max)
     if isinstance(waves, SeaState):
         return _sea(waves, omega_min, omega_max)
     if isinstance(waves, ComponentWaves):
@@ -64,6 +70,9 @@ class _Spectrum:
             self.peak = 2 * np.pi / system.tp
             self.omega = self.theta = self.table = None
             return
+        if system.omega is None:     # a file's table not read in (Scene.with_spectra)
+            raise WaveError(f"{key}.file", f"the table of {system.file!r} did not reach the model: a client reads "
+                                           "the file and sends its table (hello.spectra, SPEC §5.1)")
         hz = system.units == "hz-deg"
         self.omega = np.asarray(system.omega, float) * (2 * np.pi if hz else 1.0)
         table = np.asarray(system.density, float) / (2 * np.pi if hz else 1.0)

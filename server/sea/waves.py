@@ -55,11 +55,13 @@ class WaveComponents:
     direction: float        # rad
     ramp: float             # s
     energy_outside: float   # fraction of the spectrum's m0 outside the HDB's omega range
-    kind: str               # "still" | "regular" | "irregular" | "elevation"
+    kind: str               # "still" | "regular" | "irregular" | "elevation" | "gauges"
     headings: np.ndarray | None = None  # rad (n_c,): each component's heading (directional spreading)
     heading_key: str | None = None      # the scene key a heading is refused under (None: waves.direction/spreading)
     intrinsic: np.ndarray | None = None  # rad/s (n_c,): in a current with the Doppler shift, the frequencies
     #                                      relative to the water (``omega`` is then the encounter frequency)
+    fit_residual: float = 0.0           # a sea from gauges: the share of the records' variance in the band
+    #                                      that the fitted components leave unexplained (server/sea/gauges.py)
 
     @property
     def hdb_omega(self) -> np.ndarray:
@@ -439,11 +441,11 @@ class ConvolutionForcing:
 _SEPARATORS = str.maketrans({",": " ", ";": " ", ":": " "})   # column separators of elevation text files
 
 
-def read_elevation(path, key: str = "waves.file") -> tuple[np.ndarray, np.ndarray]:
+def read_elevation(path, key: str = "waves.file", variable: str = "eta") -> tuple[np.ndarray, np.ndarray]:
     """(time, eta) from a text file (two columns time, eta; header lines allowed before the first
     row; separated by whitespace, a comma, a semicolon or a colon: CSV, and HydroChrono's ``t : eta``
-    eta files) or a NetCDF file (variable ``eta`` over ``time``). WaveError(key) naming the file
-    when it is missing or malformed."""
+    eta files) or a NetCDF file (variable ``variable``, default ``eta``, over ``time``).
+    WaveError(key) naming the file when it is missing or malformed."""
     from pathlib import Path
     path = Path(path)
     if not path.is_file():
@@ -452,11 +454,11 @@ def read_elevation(path, key: str = "waves.file") -> tuple[np.ndarray, np.ndarra
         import xarray as xr
         try:
             with xr.open_dataset(path) as ds:
-                if "eta" not in ds:
-                    raise WaveError(key, f"{path}: no variable 'eta' (it holds {sorted(map(str, ds.data_vars))})")
-                da = ds["eta"]
+                if variable not in ds:
+                    raise WaveError(key, f"{path}: no variable {variable!r} (it holds {sorted(map(str, ds.data_vars))})")
+                da = ds[variable]
                 if da.dims != ("time",) or "time" not in da.coords:
-                    raise WaveError(key, f"{path}: 'eta' must be 1-D over a 'time' coordinate (dims {da.dims})")
+                    raise WaveError(key, f"{path}: {variable!r} must be 1-D over a 'time' coordinate (dims {da.dims})")
                 t = np.asarray(da["time"].values)
                 if np.issubdtype(t.dtype, np.timedelta64):
                     t = t / np.timedelta64(1, "s")

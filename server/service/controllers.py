@@ -217,14 +217,42 @@ class ControlHub:
                                 "continue with measure")
         try:
             commands = self._validate(slot, msg.get("commands"))
+            hydro = self._hydro_state(slot, msg.get("hydro_state"))
         except ProtocolError:
             slot.received[step] = ("invalid",)
             self._maybe_finish_pending()
             raise
         latency = _time.monotonic() - slot.relay_time.get(step, _time.monotonic())
-        slot.received[step] = ("ok", commands, latency)
+        slot.received[step] = ("ok", commands, latency, hydro)
         self._maybe_finish_pending()
         return self._next_for(slot, route, msg_id, wait, own)
+
+    def _hydro_state(self, slot: Slot, value: Any) -> dict[str, str] | None:
+        """A command's optional ``hydro_state`` {body: state} (SPEC §5.7.4), checked against the
+        controller's ``hydro_states`` bodies and their states; ProtocolError 5 naming ``hydro_state.<body>``."""
+        if value is None:
+            return None
+        if not isinstance(value, dict):
+            raise ProtocolError(Code.BAD_VALUE, "hydro_state", f"must be a map {{body: state}}, got "
+                                f"{codec.describe(value)}")
+        allowed = {b.name: b.state_names() for b in self.scene.bodies if b.name in slot.cfg.hydro_states}
+        for body, state in value.items():
+            if body not in allowed:
+                raise ProtocolError(Code.BAD_VALUE, f"hydro_state.{body}", f"controller {slot.cfg.name!r} may "
+                                    f"command the hydro state of {sorted(allowed)} only (controllers[i].hydro_states)")
+            if state not in allowed[body]:
+                raise ProtocolError(Code.BAD_VALUE, f"hydro_state.{body}", f"body {body!r} has no state "
+                                    f"{codec.describe(state)} (its states: {allowed[body]})")
+        return {str(b): str(v) for b, v in value.items()} or None
+
+    def hydro_command(self, seq: int) -> dict[str, str] | None:
+        """The hydro states commanded by the decisions taken at step seq − 1 (they act from step seq)."""
+        if self.last_control is None or self.last_control[0] != seq - 1:
+            return None
+        out: dict[str, str] = {}
+        for d in self.last_control[1].values():
+            out.update(d.get("hydro_state") or {})
+        return out or None
 
     def _validate(self, slot: Slot, commands: Any) -> dict:
         c = slot.cfg
@@ -405,7 +433,9 @@ class ControlHub:
         d = {"step": k, "status": status, "commands": None, "latency": None,
              "fallback": None if status == "ok" else s.cfg.fallback}
         if status == "ok":
-            _, d["commands"], d["latency"] = s.received[k]
+            _, d["commands"], d["latency"], hydro = s.received[k]
+            if hydro:
+                d["hydro_state"] = hydro
         elif status != "absent":
             log.warning("session %s: controller %r %s at step %d: fallback %r", self.session_id, s.name,
                         status, k, s.cfg.fallback)

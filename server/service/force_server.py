@@ -775,7 +775,7 @@ class ForceServer:
         seq, iteration = msg.get("seq"), codec.require_int(msg, "iteration", default=0, minimum=0)
         new = type(seq) is int and seq == s.last_seq + 1
         meas = hub.step_request(msg, seq, iteration, new) if new else None
-        fields = s.step(msg)
+        fields = s.step(msg, hub.hydro_command(seq) if new else None)
         self._hold = s.release_time(fields["seq"], arrived)
         waves = s.previews(hub.previews_due(meas), meas["step"]) if meas is not None else None
         fields = hub.after_step(seq, iteration, new, meas, fields, self._route, msg_id, waves)
@@ -787,15 +787,17 @@ class ForceServer:
                         arrived: float) -> None:
         """Hand a step to the session's worker (answered by :meth:`_worker_answer`): a controlled
         step's measurements are checked here first, and the wave probes due go with it."""
-        control, grids, k = None, {}, 0
+        control, grids, k, hydro = None, {}, 0, None
         if hub is not None:
             seq, iteration = msg.get("seq"), codec.require_int(msg, "iteration", default=0, minimum=0)
             new = type(seq) is int and seq == s.last_seq + 1
             meas = hub.step_request(msg, seq, iteration, new) if new else None
             control = (seq, iteration, new, meas)
+            hydro = hub.hydro_command(seq) if new else None
             if meas is not None:
                 grids, k = hub.previews_due(meas), meas["step"]
-        self._submit(s, Flight("step", msg, msg_id, self._route, time.monotonic(), arrived, control), (msg, grids, k))
+        self._submit(s, Flight("step", msg, msg_id, self._route, time.monotonic(), arrived, control),
+                     (msg, grids, k, hydro))
 
     def _submit(self, s: WorkerSession, flight: Flight, args: tuple) -> None:
         if flight.route is None:   # pragma: no cover - workers exist only under the socket loop

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import time as _time
 from collections import OrderedDict
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Callable, Protocol
 
 import numpy as np
@@ -21,7 +21,8 @@ from hydrolink.protocol.scene_bounds import MAX_COORDINATE, MAX_SPEED
 from hydrolink.protocol.hdb.wire import from_wire
 from hydrolink.protocol.hdb.layout import HDBError
 from hydrolink.protocol.pacing import Pacer
-from hydrolink.server.hdb.file_set import FileSetReader, is_file_set
+from hydrolink.server.hdb.file_set import FileSetReader, MissingContent, is_file_set
+from hydrolink.server.hydro_states import hydro_model, state_datasets
 from hydrolink.server.model import HydroModel, ModelError
 from hydrolink.server.sea.probes import PreviewGrid, WaveProbes
 from hydrolink.server.terms.hulls import MeshError, closed_hull
@@ -40,6 +41,8 @@ class ModelInputs:
     hdbs: dict[str, xr.Dataset]
     series: tuple[np.ndarray, np.ndarray] | None
     hulls: dict
+    # the switching body's other hydrodynamic states' HDBs: body name -> state name -> dataset
+    state_hdbs: dict[str, dict[str, xr.Dataset]] = field(default_factory=dict)
 
 
 def build_model(msg: dict, files: FileSetReader | None = None) -> HydroModel:
@@ -52,7 +55,7 @@ def build_model(msg: dict, files: FileSetReader | None = None) -> HydroModel:
 def model_from(inputs: ModelInputs) -> HydroModel:
     """The model of a hello's :class:`ModelInputs`; ProtocolError 8/9 naming the field."""
     try:
-        return HydroModel(inputs.scene, inputs.hdbs, inputs.series, hulls=inputs.hulls)
+        return hydro_model(inputs.scene, inputs.hdbs, inputs.state_hdbs, inputs.series, hulls=inputs.hulls)
     except ModelError as exc:
         raise ProtocolError(Code.BAD_SCENE, _scene_field(exc.key), str(exc)) from None
     except HDBError as exc:
@@ -68,20 +71,24 @@ def read_hello(msg: dict, files: FileSetReader | None = None) -> ModelInputs:
     except SceneError as exc:
         raise ProtocolError(Code.BAD_SCENE, _scene_field(exc.key), str(exc)) from None
     datasets: dict[str, xr.Dataset] = {}
-    for i, body in enumerate(scene.bodies):
-        key = body.hdb
-        if key is None or key in datasets:
+    missing: tuple[str, list[str]] | None = None   # the first file set's field and every missing digest
+    for i, body, key, scene_key in scene.hdb_keys():
+        if key in datasets:
             continue
         where = codec.key_path("hdbs", key)
         if key not in hdb_maps:
             raise ProtocolError(Code.BAD_HDB, where,
-                                f"scene body {body.name!r} (bodies[{i}].hdb) uses HDB {key!r} but hello.hdbs "
+                                f"scene body {body.name!r} ({scene_key}) uses HDB {key!r} but hello.hdbs "
                                 f"holds {sorted(hdb_maps)}")
         if is_file_set(hdb_maps[key]):
             if files is None:
                 raise ProtocolError(Code.BAD_VALUE, where, "this server keeps no HDB store: send the HDB as a map")
             stated = next((b.hdb_convention for b in scene.bodies if b.hdb == key and b.hdb_convention), None)
-            datasets[key] = files.read(hdb_maps[key], where, stated, scene.wamit_statement(key))
+            try:
+                datasets[key] = files.read(hdb_maps[key], where, stated, scene.wamit_statement(key))
+            except MissingContent as exc:    # every file set's missing contents in one error: one upload round
+                missing = (missing[0], missing[1] + [d for d in exc.extra["missing"] if d not in missing[1]]) \
+                    if missing else (exc.field, list(exc.extra["missing"]))
             continue
         try:
             data = codec.decode_tree(hdb_maps[key], where)
@@ -91,6 +98,9 @@ def read_hello(msg: dict, files: FileSetReader | None = None) -> ModelInputs:
             datasets[key] = from_wire(data, key)
         except HDBError as exc:
             raise ProtocolError(Code.BAD_HDB, f"{where}.{exc.field}" if exc.field else where, str(exc)) from None
+    if missing:
+        raise MissingContent(*missing)
+    scene = _with_gauges(_with_spectra(scene, msg.get("spectra")), msg.get("gauges"))
     series = None
     if msg.get("wave_elevation") is not None:  # [waves] type = "elevation": the client read the file
         we = codec.require_map(msg, "wave_elevation")
@@ -108,7 +118,65 @@ def read_hello(msg: dict, files: FileSetReader | None = None) -> ModelInputs:
                 hulls[str(name)] = closed_hull(vertices, faces)
             except MeshError as exc:
                 raise ProtocolError(Code.BAD_VALUE, where, f"body {name!r}'s hull: {exc.why}") from None
-    return ModelInputs(scene, {b.name: datasets[b.hdb] for b in scene.wet_bodies}, series, hulls)
+    return ModelInputs(scene, {b.name: datasets[b.hdb] for b in scene.wet_bodies}, series, hulls,
+                       state_datasets(scene, datasets))
+
+
+def _with_gauges(scene: Scene, gauges: Any) -> Scene:
+    """The scene with its gauges' records from ``hello.gauges`` (SPEC §5.1); error 5 naming
+    ``gauges.<key>`` when malformed, 8 naming ``scene.waves.gauges[i].file`` when one is missing or
+    the run reaches past it."""
+    def record(entry: dict, where: str) -> tuple:
+        time = codec.require_array(entry, "time", (None,), path=f"{where}.time")
+        return time, codec.require_array(entry, "eta", time.shape, path=f"{where}.eta")
+
+    if not scene.gauge_files():
+        return scene
+    return _scene_with(scene.with_gauges, _file_tables(gauges, "gauges", "{time, eta}", record))
+
+
+def _with_spectra(scene: Scene, spectra: Any) -> Scene:
+    """The scene with its spectrum files' tables from ``hello.spectra`` (SPEC §5.1); error 5 naming
+    ``spectra`` when malformed, 8 naming ``scene.waves.systems[i].file`` when a table is missing or
+    is not a spectrum."""
+    def table(entry: dict, where: str) -> tuple:
+        omega = codec.require_array(entry, "omega", (None,), path=f"{where}.omega")
+        theta = None if entry.get("theta") is None else codec.require_array(entry, "theta", (None,),
+                                                                               path=f"{where}.theta")
+        shape = (omega.size,) if theta is None else (omega.size, theta.size)
+        density = codec.require_array(entry, "density", shape, path=f"{where}.density")
+        return omega.tolist(), None if theta is None else theta.tolist(), density.tolist()
+
+    if not scene.spectrum_files():
+        return scene
+    return _scene_with(scene.with_spectra, _file_tables(spectra, "spectra", "{omega, theta, density}", table))
+
+
+def _file_tables(value: Any, field: str, what: str, decode: Callable[[dict, str], tuple]) -> dict[str, tuple]:
+    """A ``hello`` map {scene key: ``what``} of the scene's input files as the client read them,
+    each entry decoded by ``decode(entry, path)``; error 5 naming ``field`` or ``field.<key>`` when
+    malformed (absent: an empty map, which the scene then refuses naming the file's key)."""
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise ProtocolError(Code.BAD_VALUE, field, f"must be a map {{scene key: {what}}}")
+    out = {}
+    for key, entry in value.items():
+        where = codec.key_path(field, str(key))
+        if not isinstance(entry, dict):
+            raise ProtocolError(Code.BAD_VALUE, where, f"must be a map {what}")
+        out[str(key)] = decode(entry, where)
+    return out
+
+
+def _scene_with(put: Callable[[dict], Scene], tables: dict[str, tuple]) -> Scene:
+    """``put(tables)`` (Scene.with_spectra, Scene.with_gauges), its ValueError "key: why" as error 8
+    naming ``scene.<key>``."""
+    try:
+        return put(tables)
+    except ValueError as exc:
+        key, _, why = str(exc).partition(": ")
+        raise ProtocolError(Code.BAD_SCENE, _scene_field(key), why) from None
 
 
 MAX_SAVED_BYTES = 256 * 2**20   # per session: saved states kept (SPEC §5.9)
@@ -281,8 +349,10 @@ class Session(SessionInfo):
         return (codec.require_array(msg, "modal_position", (m,), bound=MAX_COORDINATE),
                 codec.require_array(msg, "modal_velocity", (m,), bound=MAX_SPEED))
 
-    def step(self, msg: dict) -> dict:
-        """Reply fields for a ``step`` request (SPEC §5.2–5.3); ProtocolError leaves state unchanged."""
+    def step(self, msg: dict, hydro_command: dict[str, str] | None = None) -> dict:
+        """Reply fields for a ``step`` request (SPEC §5.2–5.3); ProtocolError leaves state unchanged.
+        ``hydro_command``: the hydro states the session's controllers commanded for this new step
+        ({body: state}, SPEC §5.7.4; only for a model with hydro_states, server/hydro_states.py)."""
         seq = codec.require_int(msg, "seq", minimum=0)
         if seq > self.model.last_seq:
             raise ProtocolError(Code.BAD_VALUE, "seq", f"seq {seq} is past the run's end: the last step is "
@@ -318,8 +388,9 @@ class Session(SessionInfo):
             raise ProtocolError(Code.OUT_OF_ORDER, field, f"{expect}; got seq {seq} iteration {iteration}")
         t0 = _time.perf_counter()
         try:
-            out = self.model.step(t, pos, vel, replace_last=replace, **(
-                {"modal_position": modal[0], "modal_velocity": modal[1]} if modal else {}))
+            modal_kw = {"modal_position": modal[0], "modal_velocity": modal[1]} if modal else {}
+            out = self.model.step(t, pos, vel, replace_last=replace, **modal_kw) if hydro_command is None else \
+                self.model.step(t, pos, vel, replace_last=replace, commanded=hydro_command)
         except ModelError as exc:
             raise ProtocolError(Code.BAD_VALUE, exc.key, str(exc)) from None
         elapsed = _time.perf_counter() - t0

@@ -140,8 +140,8 @@ def _answer(session: Session, op: str, args: tuple) -> tuple[str, Any]:
     """One request in the child: ("ok", result) or the error as plain values (the loop rebuilds it)."""
     try:
         if op == "step":
-            msg, grids, step = args
-            fields = session.step(msg)
+            msg, grids, step, hydro = args
+            fields = session.step(msg, hydro)
             waves = session.previews(grids, step) if grids else {}
             return "ok", (fields, waves, session.steps, session.compute_s, session.last_iteration)
         result = getattr(session, op)(*args)   # save / restore / release
