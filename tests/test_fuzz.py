@@ -25,6 +25,7 @@ from hydrolink.protocol.hdb.wire import HDBFiles, to_wire
 from hydrolink.protocol.scene import Scene, parse_scene
 from hydrolink.protocol.toml_model import models_in
 from hydrolink.protocol.hdb.schema import to_netcdf
+from hydrolink.server.hdb.io import load_hdb
 from hydrolink.server.service.force_server import ForceServer
 
 MESSAGES = 20_000
@@ -343,6 +344,17 @@ def _templates() -> dict[str, dict]:
                       "hydro_switches": [{"body": "float", "state": "b", "time": 5.0},
                                          {"body": "float", "state": "a", "dof": "heave", "below": -1.0},
                                          {"body": "float", "state": "b", "dof": "heave", "above": 1.0}]},
+        # a flexible body: the barge's three generalized modes, their structure and a PTO on one of them
+        "modes": {"simulation": sim, "water": {"density": 1025.0}, "hydro": {"irf_duration": 2.0},
+                  "waves": regular_waves(1.0, 8.0),
+                  "bodies": [body("barge", hdb="barge.nc", mass=656000.0, center_of_mass=[0.0, 0.0, 0.0],
+                                  inertia=[3990666.7, 87466666.7, 87466666.7],
+                                  modes={"names": ["bend_z1", "bend_z2", "twist1"],
+                                         "mass": [164000.0, 164000.0, 1995333.0],
+                                         "stiffness": [39106.55, 297151.3, 6168503.0],
+                                         "damping": [3203.4, 8830.2, 140332.3],
+                                         "initial_displacement": [0.01, 0.0, 0.0],
+                                         "pto_stiffness": [1.0e3, 0.0, 0.0], "pto_damping": [1.0e4, 0.0, 0.0]})]},
         # a WAMIT run sent as its .1, .3 and .hst alone: the facts its files do not state, from the scene
         "wamit": {"simulation": sim, "water": {"density": 1000.0, "gravity": 9.81, "depth": 200.0},
                   "hydro": {"irf_duration": 2.0}, "waves": regular_waves(1.0, 8.0),
@@ -392,6 +404,8 @@ def extreme_server():
     wamit = HDBFiles("wamit", (rm3 / "rm3.1", rm3 / "rm3.3", rm3 / "rm3.hst")).entry(inline=True)
     extra = {"elevation": {"wave_elevation": {"time": t, "eta": 0.5 * np.sin(1.1 * t)}},
              "wamit": {"own_hdbs": {"rm3.1": wamit}},
+             "modes": {"own_hdbs": {"barge.nc": to_wire(load_hdb(REPO / "examples" / "data" / "flexible_barge" /
+                                                                 "flexible_barge.nc"))}},
              "gauges": {"gauges": {f"waves.gauges[{i}].file": {"time": t, "eta": 0.5 * np.sin(1.1 * t - i)}
                                    for i in range(3)}}}
     yield server, {"wide.nc": to_wire(hdb)}, extra
