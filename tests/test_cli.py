@@ -45,8 +45,11 @@ def _cli(*args: str, cwd: Path, timeout: float = 120) -> subprocess.CompletedPro
 
 def _cli_here(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     """The command run in this process (click's runner, in ``cwd``), for the paths that end before a
-    run's own work: a subprocess would spend ~2.5 s of CPU importing what this process has loaded.
-    What ``main`` adds (BLAS threads) plays no part there; unexpected exceptions propagate."""
+    run's own work (errors, ``hdb info``): a subprocess would spend ~2.5 s of CPU importing what this
+    process has loaded. Runs stay in subprocesses: once under load a suite worker hung in a ZeroMQ
+    ``Context.term`` run by the garbage collector on a context some earlier test of that worker left
+    (not identified; these in-process runs were the change that worker had).
+    Unexpected exceptions propagate."""
     from click.testing import CliRunner
 
     from hydrolink.clients.cli import cli
@@ -71,7 +74,7 @@ def test_remote_server_run_equals_embedded_run(scene_dir: Path):
         line = server.stderr.readline()
         match = re.search(r"listening on (tcp://\S+)", line)
         assert match, f"serve printed {line!r}"
-        result = _cli_here("run", "scene.toml", "-o", "remote.nc", "--server", match.group(1), "--no-progress",
+        result = _cli("run", "scene.toml", "-o", "remote.nc", "--server", match.group(1), "--no-progress",
                       cwd=scene_dir)
         assert result.returncode == 0, result.stderr
     finally:
@@ -99,7 +102,7 @@ def test_run_with_hdb_files_uploads_once_and_equals_the_map_run(scene_dir: Path,
             runs = (("files again", ["--hdb-files"]),) if restart else (("map", []), ("files", ["--hdb-files"]))
             for name, flag in runs:
                 out = f"{name.replace(' ', '_')}{int(restart)}.nc"
-                result = _cli_here("run", "scene.toml", "-o", out, "--server", address, "--no-progress", *flag, cwd=scene_dir)
+                result = _cli("run", "scene.toml", "-o", out, "--server", address, "--no-progress", *flag, cwd=scene_dir)
                 assert result.returncode == 0, result.stderr
                 outputs[name, restart] = xr.load_dataset(scene_dir / out)
                 if flag:
@@ -173,7 +176,7 @@ def test_run_says_what_it_wrote_and_its_headline_figures(scene_dir: Path):
     """`hydrolink run` ends with the file it wrote and the run's headline: over the second half of the
     run, the sphere's most varying translation and rotation (std and max of position - equilibrium),
     figures recomputed here from the file's own series."""
-    result = _cli_here("run", "scene.toml", "-o", "said.nc", "--no-progress", cwd=scene_dir)
+    result = _cli("run", "scene.toml", "-o", "said.nc", "--no-progress", cwd=scene_dir)
     assert result.returncode == 0, result.stderr
     lines = result.stdout.strip().splitlines()
     assert lines[0].startswith("wrote said.nc: 240 steps in "), lines
@@ -321,7 +324,7 @@ def test_paced_run_prints_where_the_time_went_as_the_file_records_it(scene_dir: 
     """`hydrolink run --realtime` says where a step's time went (mean and max per part) and its
     overruns by cause: the figures the results file's `step_time` and `overrun` rows give, recomputed
     here (issue 36: the summary and the file agree)."""
-    result = _cli_here("run", "scene.toml", "-o", "paced.nc", "--no-progress", "--realtime", "20", cwd=scene_dir)
+    result = _cli("run", "scene.toml", "-o", "paced.nc", "--no-progress", "--realtime", "20", cwd=scene_dir)
     assert result.returncode == 0, result.stderr
     line = next(x for x in result.stdout.splitlines() if x.startswith("where a step's time went"))
     printed = dict(re.findall(r"(\w+) ([\d.]+) / [\d.]+", line.split(":", 1)[1].split(";")[0]))

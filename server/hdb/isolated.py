@@ -8,15 +8,19 @@ from deep inside h5py. In the server's own process the first would hold a set-up
 the second a gigabytes-long allocation, the third an internal error. Here the reader runs in a
 child (a fork of a forkserver that has already imported the readers, so a parse costs a fork, not
 an interpreter start): the child sends back the dataset or the error; the parent waits at most
-``timeout`` seconds from the moment the child starts reading (the forkserver's own start — its
-imports, tens of seconds on a loaded machine — and the fork are the server's, not the file's: they
-get :data:`START_TIMEOUT`), then kills it. Every outcome is a :class:`ParseFailure` naming the file and
+``timeout`` seconds of the child's CPU from the moment it starts reading (the kernel's CPU limit
+stops a reader that spins; a reader that blocks without using CPU is stopped after
+:data:`WALL_FACTOR` times as many seconds of wall clock), so a loaded machine, where a parse waits for
+a core, does not refuse a good file. The forkserver's own start — its imports, tens of seconds on a
+loaded machine — and the fork are the server's, not the file's: they get :data:`START_TIMEOUT`. Every outcome is a :class:`ParseFailure` naming the file and
 why, or the reader's own :class:`~hydrolink.protocol.hdb.layout.HDBError`.
 """
 
 from __future__ import annotations
 
+import math
 import resource
+import signal
 import time
 from multiprocessing.connection import Connection
 from pathlib import Path
@@ -31,6 +35,7 @@ __all__ = ["PARSE_TIMEOUT", "ParseFailure", "load_isolated", "memory_limit"]
 
 PARSE_TIMEOUT = 20.0           # s a parse may take (a real HDB takes well under a second or two)
 START_TIMEOUT = 300.0          # s the child may take to start (the forkserver's first start imports the readers)
+WALL_FACTOR = 10.0             # a parse's wall-clock bound, in multiples of its CPU bound (a reader that blocks)
 BASE_MEMORY = 2 * 2**30        # bytes of address space the child may use beyond the files' size ...
 PER_FILE_BYTE = 64             # ... plus this many per byte of the files (decoded arrays, copies)
 MAX_MEMORY = 16 * 2**30
@@ -50,20 +55,30 @@ def memory_limit(files_bytes: int) -> int:
     return min(MAX_MEMORY, BASE_MEMORY + PER_FILE_BYTE * int(files_bytes))
 
 
-def _parse(conn: Connection, path: str, kwargs: dict, memory: int) -> None:
-    """In the child: read ``path`` under the address-space limit; send ("ok", dataset) or the error."""
+def _limit(which: int, value: int) -> None:
+    """Lower the resource limit ``which`` to ``value`` (never above its hard limit); a platform
+    without it: the other limits still hold."""
     try:
-        soft, hard = resource.getrlimit(resource.RLIMIT_AS)
-        limit = memory if hard == resource.RLIM_INFINITY else min(memory, hard)
-        resource.setrlimit(resource.RLIMIT_AS, (limit, hard))
-    except (ValueError, OSError):   # a platform without it: the time limit still holds
+        soft, hard = resource.getrlimit(which)
+        limit = value if hard == resource.RLIM_INFINITY else min(value, hard)
+        resource.setrlimit(which, (limit, hard))
+    except (ValueError, OSError):
         pass
+
+
+def _parse(conn: Connection, path: str, kwargs: dict, memory: int, cpu_seconds: float) -> None:
+    """In the child: read ``path`` under the address-space and CPU limits; send ("ok", (dataset, CPU
+    seconds the read took)) or the error."""
+    _limit(resource.RLIMIT_AS, memory)
     try:
         from hydrolink.server.hdb.io import load_hdb
 
+        # the kernel stops the child (SIGXCPU) a second past the parse's CPU bound
+        _limit(resource.RLIMIT_CPU, math.ceil(time.process_time() + cpu_seconds) + 1)
         conn.send(("started", None))
+        t0 = time.process_time()
         ds = load_hdb(path, **kwargs).load()
-        conn.send(("ok", ds))
+        conn.send(("ok", (ds, time.process_time() - t0)))
     except HDBError as exc:
         conn.send(("hdb", (str(exc.source), exc.key, exc.why)))
     except MemoryError:
@@ -78,15 +93,17 @@ def _parse(conn: Connection, path: str, kwargs: dict, memory: int) -> None:
         conn.close()
 
 
-def _receive(receive: Connection, proc, timeout: float, late: str) -> tuple[str, Any]:
+def _receive(receive: Connection, proc, timeout: float, late: str, over_cpu: str | None = None) -> tuple[str, Any]:
     """The child's next message within ``timeout`` s, else ParseFailure(``late``); a child that died
-    first is ParseFailure too."""
+    first is ParseFailure too (``over_cpu`` if the kernel stopped it at its CPU limit)."""
     if not receive.poll(timeout):
         raise ParseFailure(late)
     try:
         return receive.recv()
     except (EOFError, OSError):
         proc.join(5.0)
+        if proc.exitcode == -signal.SIGXCPU and over_cpu is not None:
+            raise ParseFailure(over_cpu) from None
         raise ParseFailure(f"the reader died (exit code {proc.exitcode})") from None
 
 
@@ -99,7 +116,7 @@ def load_isolated(path: str | Path, *, timeout: float = PARSE_TIMEOUT, **kwargs:
     memory = memory_limit(files_bytes)
     ctx = children()
     receive, send = ctx.Pipe(duplex=False)
-    proc = ctx.Process(target=_parse, args=(send, str(path), kwargs, memory), daemon=True,
+    proc = ctx.Process(target=_parse, args=(send, str(path), kwargs, memory, timeout), daemon=True,
                        name="hydrolink-hdb-parse")
     proc.start()
     send.close()
@@ -107,11 +124,13 @@ def load_isolated(path: str | Path, *, timeout: float = PARSE_TIMEOUT, **kwargs:
         status, payload = _receive(receive, proc, START_TIMEOUT,
                                    f"the reading process did not start within {START_TIMEOUT:g} s (stopped)")
         if status == "started":
-            late = f"reading it took longer than {timeout:g} s (stopped)"
-            started = time.monotonic()
-            status, payload = _receive(receive, proc, timeout, late)
-            if time.monotonic() - started > timeout:     # the answer came, but late: the limit is the limit
-                raise ParseFailure(late)
+            late = f"reading it took longer than {timeout:g} s of CPU (stopped)"
+            status, payload = _receive(receive, proc, WALL_FACTOR * timeout,
+                                       f"reading it took longer than {WALL_FACTOR * timeout:g} s (stopped)", late)
+            if status == "ok":
+                payload, cpu = payload
+                if cpu > timeout:     # the answer came, but over the bound: the limit is the limit
+                    raise ParseFailure(late)
     finally:
         receive.close()
         if proc.is_alive():
