@@ -764,8 +764,9 @@ def test_a_bound_that_admits_nothing_is_refused_naming_the_argument(kw):
 
 def test_hydrolink_serve_takes_the_bounds_from_its_options(hdb, tmp_path):
     """`hydrolink serve --max-sessions 1`: the second hello is error 14 naming the option and 1."""
+    # replies waited for up to 120 s: 30 s was too short for a set-up with three suite copies on 2 cores
     with serve_process("--max-setups", "1", "--max-sessions", "1", "--store", str(tmp_path)) as address, \
-            ServerConnection(address, timeout=30.0) as a, ServerConnection(address, timeout=30.0) as b:
+            ServerConnection(address, timeout=120.0) as a, ServerConnection(address, timeout=120.0) as b:
         a.hello(SCENE, {"float.nc": hdb})
         err = expect_error(lambda: b.hello(SCENE, {"float.nc": hdb}), 14, None)
         assert err.extra == {"limit": "sessions", "maximum": 1, "current": 1} and "--max-sessions" in err.message
