@@ -12,8 +12,9 @@ an interpreter start): the child sends back the dataset or the error; the parent
 stops a reader that spins; a reader that blocks without using CPU is stopped after
 :data:`WALL_FACTOR` times as many seconds of wall clock), so a loaded machine, where a parse waits for
 a core, does not refuse a good file. The forkserver's own start — its imports, tens of seconds on a
-loaded machine — and the fork are the server's, not the file's: they get :data:`START_TIMEOUT`. Every outcome is a :class:`ParseFailure` naming the file and
-why, or the reader's own :class:`~hydrolink.protocol.hdb.layout.HDBError`.
+loaded machine — and the fork are the server's, not the file's: they get :data:`START_TIMEOUT`.
+Every outcome is a :class:`ParseFailure` naming the file and why, or the reader's own
+:class:`~hydrolink.protocol.hdb.layout.HDBError`.
 """
 
 from __future__ import annotations

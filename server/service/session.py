@@ -388,9 +388,10 @@ class Session(SessionInfo):
             raise ProtocolError(Code.OUT_OF_ORDER, field, f"{expect}; got seq {seq} iteration {iteration}")
         t0 = _time.perf_counter()
         try:
-            modal_kw = {"modal_position": modal[0], "modal_velocity": modal[1]} if modal else {}
-            out = self.model.step(t, pos, vel, replace_last=replace, **modal_kw) if hydro_command is None else \
-                self.model.step(t, pos, vel, replace_last=replace, commanded=hydro_command)
+            extra = {"modal_position": modal[0], "modal_velocity": modal[1]} if modal else {}
+            if hydro_command is not None:   # only a switching model takes it (never beside modes: protocol/scene.py)
+                extra["commanded"] = hydro_command
+            out = self.model.step(t, pos, vel, replace_last=replace, **extra)
         except ModelError as exc:
             raise ProtocolError(Code.BAD_VALUE, exc.key, str(exc)) from None
         elapsed = _time.perf_counter() - t0
