@@ -23,6 +23,10 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 REFERENCE_DATA = REPO / "examples" / "data"
+# How long a test waits for a reply or an exit it expects (s). Generous on purpose: on a loaded 2-core
+# CI a hello's set-up (an isolated HDB parse, IRFs) has taken over 30 s, and a passing test never waits
+# it out. A test whose subject is a timeout states its own short one.
+REPLY_S = 120.0
 
 
 def pytest_sessionstart(session: pytest.Session) -> None:

@@ -16,6 +16,7 @@ import pytest
 import zmq
 
 from analytic_hdb import make_body_hdb
+from conftest import REPLY_S
 from conftest import body, regular_waves, scene_toml
 from hydrolink.clients.lockstep.connection import ServerConnection
 from hydrolink.protocol import codec
@@ -37,7 +38,7 @@ def start_server() -> tuple[subprocess.Popen, str]:
 def test_a_killed_server_is_noticed_within_two_seconds():
     proc, address = start_server()
     try:
-        with ServerConnection(address, timeout=60.0) as conn:
+        with ServerConnection(address, timeout=REPLY_S) as conn:
             conn.hello(SCENE, {"float.nc": make_body_hdb()})
             z = np.zeros((1, 6))
             conn.step(0, 0.0, z, z)
@@ -71,7 +72,7 @@ def test_a_slow_live_server_is_waited_for():
     thread = threading.Thread(target=slow_server, daemon=True)
     thread.start()
     try:
-        with ServerConnection(f"tcp://127.0.0.1:{port}", timeout=10.0) as conn:
+        with ServerConnection(f"tcp://127.0.0.1:{port}", timeout=REPLY_S) as conn:
             t0 = time.monotonic()
             assert conn.ping()["type"] == "pong"
             assert time.monotonic() - t0 >= 2.9

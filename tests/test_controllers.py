@@ -30,6 +30,7 @@ import numpy as np
 import pytest
 import xarray as xr
 import zmq
+from conftest import REPLY_S
 from conftest import rm3_example_text
 from conftest import build_zmq_msgpack_program
 
@@ -97,12 +98,12 @@ def run_with(tmp_path: Path, name: str, text: str, server: str, proc_args: list 
     scene.write_text(text)
     proc = subprocess.Popen(proc_args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) if proc_args else None
     try:
-        summary = run_scene_file(scene, tmp_path / f"{name}.nc", server=server, progress=False, timeout=30.0,
+        summary = run_scene_file(scene, tmp_path / f"{name}.nc", server=server, progress=False, timeout=REPLY_S,
                                  control_token=TOKEN)
     finally:
         if proc is not None:
             try:
-                _, err = proc.communicate(timeout=20)
+                _, err = proc.communicate(timeout=REPLY_S)
             except subprocess.TimeoutExpired:
                 proc.kill()
                 _, err = proc.communicate()
@@ -127,7 +128,7 @@ def run_own(tmp_path: Path, name: str, text: str, controller: Path, address: str
                                  control_token=TOKEN, **{"timeout": 30.0, **kw})
     finally:
         try:
-            _, err = proc.communicate(timeout=20)
+            _, err = proc.communicate(timeout=REPLY_S)
         except subprocess.TimeoutExpired:
             proc.kill()
             _, err = proc.communicate()
@@ -374,7 +375,7 @@ def test_wrong_session_version_and_name(reference_data, server, tmp_path):
         return msgpack.unpackb(sock.recv())
 
     try:
-        with ServerConnection(server.address, timeout=10) as conn:
+        with ServerConnection(server.address, timeout=REPLY_S) as conn:
             conn.hello(text, hdbs)
             token = conn.control_token     # drawn by the server, handed to the owner only
             assert isinstance(token, str) and len(token) >= 32
@@ -690,7 +691,7 @@ def test_step_pipelined_behind_a_deferred_step_is_answered_in_order(reference_da
         return codec.unpack(sock.recv())
 
     try:
-        with ServerConnection(server.address, timeout=30) as conn:
+        with ServerConnection(server.address, timeout=REPLY_S) as conn:
             conn.hello(text, hdbs)
             sid = conn.session
             x = np.array(conn.setup.equilibrium_position, float)

@@ -17,6 +17,7 @@ from hydrolink.clients.lockstep.connection import ServerConnection
 from hydrolink.clients.run import run_scene_file
 from hydrolink.protocol.security import ClientKeys
 
+from conftest import REPLY_S
 from conftest import rm3_example_text
 
 # One pytest-xdist worker runs this whole module (pyproject: --dist loadgroup): its module fixture (a CURVE
@@ -139,7 +140,7 @@ def test_wrong_server_key_gets_no_answer(curve_server):
 def test_allowed_client_ping_and_plaintext_server_refused_by_curve_client(curve_server, tmp_path):
     d = curve_server["dir"]
     keys = ClientKeys.from_files(d / "server" / "server.key", d / "client" / "alice.key_secret")
-    with ServerConnection(curve_server["address"], timeout=10, curve=keys) as conn:
+    with ServerConnection(curve_server["address"], timeout=REPLY_S, curve=keys) as conn:
         assert conn.ping()["type"] == "pong"
     # a CURVE client does not talk to a plaintext server either
     ctx = zmq.Context.instance()

@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 import xarray as xr
 
+from conftest import REPLY_S
 from conftest import SPHERE_WATER, needs_python_sigint, regular_waves, scene_toml, sphere_body, write_scene
 
 from hydrolink.clients.lockstep.connection import ServerConnection
@@ -166,7 +167,7 @@ def test_mass_matrix_holds_rigid_body_plus_added_mass(server, sphere, sphere_pat
     text = sphere_scene(sphere_path, dt=0.05, duration=1.0, dofs=("surge", "sway", "heave", "roll",
                         "pitch", "yaw"), cog=tuple(map(float, cog)), irf=0.0, inertia=inertia.tolist())
     scene = parse_scene(text)
-    with ServerConnection(server, timeout=30) as conn:
+    with ServerConnection(server, timeout=REPLY_S) as conn:
         setup = conn.hello(text, {scene.bodies[0].hdb: sphere})
     model = build_model(scene, setup)
     try:
@@ -241,7 +242,7 @@ from hydrolink.server.service.force_server import serve_in_thread
 text, out = open(sys.argv[1]).read(), sys.argv[2]
 scene = parse_scene(text)
 srv, _ = serve_in_thread("tcp://127.0.0.1:*")
-with ServerConnection(srv.address, timeout=30) as conn:
+with ServerConnection(srv.address, timeout=REPLY_S) as conn:
     setup = conn.hello(text, {scene.bodies[0].hdb: load_hdb(scene.bodies[0].hdb)})
     with ResultWriter(out, scene=scene, scene_text=text, setup=setup, flush_seconds=0.2) as writer:
         print("running", flush=True)
@@ -284,7 +285,7 @@ def test_ctrl_c_flushes_and_reraises(server, sphere, sphere_path, tmp_path):
     text = sphere_scene(sphere_path, dt=dt, duration=4000.0, waves=regular_waves(1.0, 4.3, ramp=4.0))
     scene = parse_scene(text)
     done = threading.Event()
-    with ServerConnection(server, timeout=30.0) as conn:
+    with ServerConnection(server, timeout=REPLY_S) as conn:
         setup = conn.hello(text, {scene.bodies[0].hdb: sphere})
         with ResultWriter(tmp_path / "ctrl_c.nc", scene=scene, scene_text=text, setup=setup) as writer:
             def interrupt_mid_run() -> None:   # once the run has stepped (not on a clock: holds under load)
@@ -356,7 +357,7 @@ def test_unstable_body_stops_with_a_clear_message(server, sphere, sphere_path, t
 def test_initial_displacement_in_a_locked_dof_is_a_scene_error(server, sphere, sphere_path):
     text = sphere_scene(sphere_path, dt=0.05, duration=1.0, displacement=(0.5, 0, 0.1, 0, 0, 0))
     scene = parse_scene(text)
-    with ServerConnection(server, timeout=30) as conn:
+    with ServerConnection(server, timeout=REPLY_S) as conn:
         setup = conn.hello(text, {scene.bodies[0].hdb: sphere})
     with pytest.raises(SceneError, match=r"bodies\[0\]\.initial_displacement: .*\['surge'\]"):
         build_model(scene, setup)

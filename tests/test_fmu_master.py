@@ -17,6 +17,7 @@ import pytest
 import xarray as xr
 from fmpy.validation import validate_fmu
 
+from conftest import REPLY_S
 from conftest import SPHERE_WATER, linear_pto, regular_waves, scene_toml, sphere_body, write_scene
 from fmu_build import build_c_fmu, build_python3_fmu, build_python_fmu
 from hydrolink.clients.fmu import master as fmu_client
@@ -68,7 +69,7 @@ def fmu_section(fmu: Path, mass: float, *, a_inf: bool, c_pto: float = C_PTO,
 
 def run_fmu(address: str, text: str, hdb, out: Path, **kw) -> tuple[dict, xr.Dataset]:
     scene = parse_scene(text)
-    with ServerConnection(address, timeout=30.0) as conn:
+    with ServerConnection(address, timeout=REPLY_S) as conn:
         setup = conn.hello(text, {scene.bodies[0].hdb: hdb})
         with ResultWriter(out, scene=scene, scene_text=text, setup=setup) as writer:
             summary = fmu_client.run(scene, text, conn, setup, writer, progress=False, **kw)

@@ -11,6 +11,7 @@ import pytest
 import zmq
 from analytic_hdb import make_body_hdb
 
+from conftest import REPLY_S
 from conftest import rm3_example_text
 from conftest import SPHERE_WATER, body, dealer, linear_pto, regular_waves, scene_toml, serve_process
 
@@ -52,7 +53,7 @@ def server():
 
 @pytest.fixture
 def conn(server, hdb):
-    with ServerConnection(server.address, timeout=10.0) as c:
+    with ServerConnection(server.address, timeout=REPLY_S) as c:
         c.hello(SCENE, {"float.nc": hdb})
         yield c
 
@@ -148,7 +149,7 @@ def test_size_limit_covers_every_frame_and_nothing_is_echoed():
 # ------------------------------------------------------------------ hello errors
 
 def test_bad_scene_names_the_key(server, hdb):
-    with ServerConnection(server.address, timeout=10.0) as c:
+    with ServerConnection(server.address, timeout=REPLY_S) as c:
         err = expect_error(lambda: c.hello(float_scene(mass=-1.0), {"float.nc": hdb}),
                            8, "scene.bodies[0].mass")
         assert err.name == "bad_scene"
@@ -168,7 +169,7 @@ def test_bad_scene_names_the_key(server, hdb):
 def test_extreme_scene_values_are_named_and_the_served_server_serves_on(server, hdb, old, new, field):
     """Over the socket, as `hydrolink serve` answers: each was error 99 or ended the server."""
     assert old in SCENE
-    with ServerConnection(server.address, timeout=10.0) as c:
+    with ServerConnection(server.address, timeout=REPLY_S) as c:
         expect_error(lambda: c.hello(SCENE.replace(old, new), {"float.nc": hdb}), 8, field)
         c.hello(SCENE, {"float.nc": hdb})
         pos, vel = states(1)[0]
@@ -176,7 +177,7 @@ def test_extreme_scene_values_are_named_and_the_served_server_serves_on(server, 
 
 
 def test_bad_hdb_names_the_field(server, hdb):
-    with ServerConnection(server.address, timeout=10.0) as c:
+    with ServerConnection(server.address, timeout=REPLY_S) as c:
         wire = to_wire(hdb)
         wire["omega"] = wire["omega"].copy()
         wire["omega"][3] = np.nan
@@ -192,7 +193,7 @@ def test_bad_hdb_names_the_field(server, hdb):
 # ------------------------------------------------------------------ steps
 
 def test_welcome_carries_setup(server, hdb):
-    with ServerConnection(server.address, timeout=10.0) as c:
+    with ServerConnection(server.address, timeout=REPLY_S) as c:
         setup = c.hello(SCENE, {"float.nc": hdb})
         session = c.session
         assert c.protocol == 1 and len(session) == 32 and setup.bodies == ("float",)
@@ -251,7 +252,7 @@ def test_iteration_replaces_the_newest_sample(server, hdb, conn):
     seq_states = states(8, seed=1)
     new_state = (seq_states[5][0] + 0.2, seq_states[5][1] - 0.3)
     replaced = run(conn, seq_states, replace_at=5, replacement=new_state)
-    with ServerConnection(server.address, timeout=10.0) as ref_conn:
+    with ServerConnection(server.address, timeout=REPLY_S) as ref_conn:
         ref_conn.hello(SCENE, {"float.nc": hdb})
         reference = run(ref_conn, seq_states[:5] + [new_state] + seq_states[6:])
     assert replaced[5]["iteration"] == 1
@@ -266,7 +267,7 @@ def test_iteration_replaces_the_newest_sample(server, hdb, conn):
 
 def test_concurrent_sessions_do_not_interfere(server, hdb):
     a_states, b_states = states(30, seed=2), states(30, seed=3)
-    with ServerConnection(server.address, timeout=10.0) as a, ServerConnection(server.address, timeout=10.0) as b:
+    with ServerConnection(server.address, timeout=REPLY_S) as a, ServerConnection(server.address, timeout=REPLY_S) as b:
         a.hello(SCENE, {"float.nc": hdb})
         b.hello(SCENE, {"float.nc": hdb})
         interleaved_a, interleaved_b = [], []
@@ -274,7 +275,7 @@ def test_concurrent_sessions_do_not_interfere(server, hdb):
             interleaved_a.append(a.step(k, k * DT, *a_states[k]))
             interleaved_b.append(b.step(k, k * DT, *b_states[k]))
     for seq_states, interleaved in ((a_states, interleaved_a), (b_states, interleaved_b)):
-        with ServerConnection(server.address, timeout=10.0) as alone:
+        with ServerConnection(server.address, timeout=REPLY_S) as alone:
             alone.hello(SCENE, {"float.nc": hdb})
             separate = run(alone, seq_states)
         for x, y in zip(interleaved, separate):
@@ -286,12 +287,12 @@ def test_concurrent_sessions_do_not_interfere(server, hdb):
 def test_vanished_client_expires_while_others_keep_running(hdb):
     srv, thread = serve_in_thread(session_timeout=0.4)
     try:
-        ghost = ServerConnection(srv.address, timeout=10.0)
+        ghost = ServerConnection(srv.address, timeout=REPLY_S)
         ghost.hello(SCENE, {"float.nc": hdb})
         ghost.step(0, 0.0, *states(1)[0])
         ghost_id = ghost.session
         ghost.close()  # vanishes without bye
-        with ServerConnection(srv.address, timeout=10.0) as live:
+        with ServerConnection(srv.address, timeout=REPLY_S) as live:
             live.hello(SCENE, {"float.nc": hdb})
             t0, k = time.monotonic(), 0
             while time.monotonic() - t0 < 1.2:  # keeps stepping while the ghost expires
@@ -310,12 +311,12 @@ def test_signed_server_rejects_unsigned_and_wrong_key(hdb):
     key = b"0123456789abcdef0123456789abcdef"
     srv, thread = serve_in_thread(key=key)
     try:
-        with ServerConnection(srv.address, timeout=5.0) as plain:
+        with ServerConnection(srv.address, timeout=REPLY_S) as plain:
             expect_error(plain.ping, 11, "sig")  # the error reply is signed; a keyless client still reads it
-        with ServerConnection(srv.address, timeout=5.0, key=b"wrong") as wrong:
+        with ServerConnection(srv.address, timeout=REPLY_S, key=b"wrong") as wrong:
             with pytest.raises(ConnectionError, match="signature"):
                 wrong.ping()  # the server's reply fails *our* check too
-        with ServerConnection(srv.address, timeout=10.0, key=key) as good:
+        with ServerConnection(srv.address, timeout=REPLY_S, key=key) as good:
             good.hello(SCENE, {"float.nc": hdb})
             assert good.step(0, 0.0, *states(1)[0])["seq"] == 0
     finally:
@@ -350,7 +351,7 @@ def test_real_hdb_file_over_the_wire(server, reference_data):
     from hydrolink.server.hdb.io import load_hdb
     ds = load_hdb(reference_data / "sphere_task10" / "sphere.h5")
     scene = float_scene(name="sphere", hdb="sphere.h5", water=SPHERE_WATER)
-    with ServerConnection(server.address, timeout=20.0) as c:
+    with ServerConnection(server.address, timeout=REPLY_S) as c:
         setup = c.hello(scene, {"sphere.h5": ds})
         assert setup.bodies == ("sphere",) and setup.added_mass_inf[2, 2] > 0
         eq = setup.equilibrium_position
@@ -504,7 +505,7 @@ def test_steps_of_another_session_are_answered_while_a_hello_is_set_up(server, h
     of CPU; a step takes well under a millisecond) is answered when its set-up is done; meanwhile the loop answers another session's steps (before
     the set-up moved to a worker thread, they waited for it: 0 or 1 step got through)."""
     slow = float_scene(dt=2e-4, duration=0.01)
-    conn = ServerConnection(server.address, timeout=10.0)
+    conn = ServerConnection(server.address, timeout=REPLY_S)
     sock = zmq.Context.instance().socket(zmq.DEALER)
     sock.setsockopt(zmq.LINGER, 0)
     try:
@@ -535,7 +536,7 @@ def test_irf_work_over_the_setup_bound_is_refused_naming_the_key(server, hdb):
     before any transform; the server serves on. Heave only: K(t) itself (6e6 x 1 pair, 48 MB) is
     within the set-up allocation bound, only the work is not."""
     text = float_scene(dt=1e-5, duration=0.01, irf_duration=60.0, dofs=["heave"])
-    with ServerConnection(server.address, timeout=60.0) as c:
+    with ServerConnection(server.address, timeout=REPLY_S) as c:
         t0 = time.perf_counter()
         err = expect_error(lambda: c.hello(text, {"float.nc": hdb}), 8, "scene.hydro.irf_duration")
         assert "6000001 samples" in err.message and "2.41e+09" in err.message and "hydro.irf_domega" in err.message
@@ -624,8 +625,8 @@ def test_a_hello_beyond_the_setup_bound_is_refused_at_once_and_the_others_are_se
     slow = float_scene(dt=5e-4, duration=0.1)
     socks = [dealer(srv.address) for _ in range(2)]
     try:
-        with ServerConnection(srv.address, timeout=10.0) as live, \
-                ServerConnection(srv.address, timeout=10.0) as late:
+        with ServerConnection(srv.address, timeout=REPLY_S) as live, \
+                ServerConnection(srv.address, timeout=REPLY_S) as late:
             live.hello(float_scene(duration=1.0e5), {"float.nc": hdb})
             t_sent = time.perf_counter()
             for i, sock in enumerate(socks):   # the ping's pong: the hello before it was handled
@@ -672,8 +673,8 @@ def test_a_hello_beyond_the_session_bound_is_refused_until_a_bye_frees_one(hdb):
     sessions step on unchanged; after one says bye a hello is welcomed."""
     srv, thread = serve_in_thread(session_timeout=60.0, max_sessions=2)
     try:
-        with ServerConnection(srv.address, timeout=10.0) as a, ServerConnection(srv.address, timeout=10.0) as b, \
-                ServerConnection(srv.address, timeout=10.0) as c:
+        with ServerConnection(srv.address, timeout=REPLY_S) as a, ServerConnection(srv.address, timeout=REPLY_S) as b, \
+                ServerConnection(srv.address, timeout=REPLY_S) as c:
             a.hello(SCENE, {"float.nc": hdb})
             b.hello(SCENE, {"float.nc": hdb})
             sts = states(4, seed=5)
@@ -705,7 +706,7 @@ def test_a_hello_beyond_the_memory_budget_is_refused_until_a_bye_frees_it(hdb):
     on; after its bye the hello is welcomed."""
     srv, thread = serve_in_thread(session_timeout=60.0)
     try:
-        with ServerConnection(srv.address, timeout=10.0) as a:
+        with ServerConnection(srv.address, timeout=REPLY_S) as a:
             a.hello(SCENE, {"float.nc": hdb})
             one = srv.held_bytes()
             irf = a.setup.irf_samples * 36 * 8
@@ -715,7 +716,7 @@ def test_a_hello_beyond_the_memory_budget_is_refused_until_a_bye_frees_it(hdb):
         thread.join(timeout=5)
     srv, thread = serve_in_thread(session_timeout=60.0, max_memory_bytes=int(1.5 * one))
     try:
-        with ServerConnection(srv.address, timeout=10.0) as a, ServerConnection(srv.address, timeout=10.0) as b:
+        with ServerConnection(srv.address, timeout=REPLY_S) as a, ServerConnection(srv.address, timeout=REPLY_S) as b:
             a.hello(SCENE, {"float.nc": hdb})
             err = expect_error(lambda: b.hello(SCENE, {"float.nc": hdb}), 14, None)
             assert err.name == "busy" and err.extra["limit"] == "memory", err

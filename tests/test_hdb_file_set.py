@@ -9,6 +9,7 @@ import hashlib
 
 import numpy as np
 import pytest
+from conftest import REPLY_S
 from conftest import SPHERE_WATER, regular_waves, rm3_float, rm3_spar, scene_toml, sphere_body
 
 from hydrolink.clients.lockstep.connection import RemoteError, ServerConnection
@@ -51,7 +52,7 @@ CASES = {   # format: (file in examples/data, scene)
 def forces(address: str, scene: str, hdbs: dict, steps: int = 40) -> tuple[list[dict], list[str]]:
     """The replies to ``steps`` pseudo-random states, and the contents the hello uploaded."""
     rng = np.random.default_rng(7)
-    with ServerConnection(address, timeout=30.0) as conn:
+    with ServerConnection(address, timeout=REPLY_S) as conn:
         setup = conn.hello(scene, hdbs)
         n = len(setup.bodies)
         out = []
@@ -213,7 +214,7 @@ def test_strangers_files_are_named_errors_and_free_the_server(reference_data, se
              ("garbage.nc", rm3_scene("garbage.nc"), HDBFiles("netcdf", (nc,))),
              ("garbage.h5", sphere_scene("garbage.h5"), HDBFiles("bemio", (h5,)))]
     for name, scene, files in cases:
-        with ServerConnection(server.address, timeout=60.0) as conn:
+        with ServerConnection(server.address, timeout=REPLY_S) as conn:
             with pytest.raises(RemoteError) as err:
                 conn.hello(scene, {name: files})
         assert err.value.code == 9, (name, err.value.code, err.value.message)

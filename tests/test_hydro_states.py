@@ -20,6 +20,7 @@ import pytest
 import xarray as xr
 
 from analytic_hdb import added_mass, damping, irf, make_body_hdb
+from conftest import REPLY_S
 from conftest import body, regular_waves, scene_toml, write_scene
 
 from hydrolink.protocol.hdb.schema import to_netcdf
@@ -408,7 +409,7 @@ def test_a_controller_command_switches_the_state_a_step_after_its_decision(hdb_f
         address = f"tcp://127.0.0.1:{sock.getsockname()[1]}"
     with controller_process(tmp_path / "ballast.py", address, TOKEN) as ended:
         run_scene_file(write_scene(tmp_path, commanded, "commanded.toml"), tmp_path / "commanded.nc", progress=False,
-                       listen=address, control_token=TOKEN, timeout=30.0)
+                       listen=address, control_token=TOKEN, timeout=REPLY_S)
     assert ended.returncode == 0, ended.stderr
     run_scene_file(write_scene(tmp_path, ruled, "ruled.toml"), tmp_path / "ruled.nc", progress=False)
     a, b = xr.load_dataset(tmp_path / "commanded.nc"), xr.load_dataset(tmp_path / "ruled.nc")

@@ -15,6 +15,7 @@ import pytest
 import scipy.linalg
 import xarray as xr
 
+from conftest import REPLY_S
 from conftest import body, regular_waves, scene_toml
 
 from hydrolink.clients.exudyn.client import run
@@ -58,7 +59,7 @@ def barge_scene(*, dt: float, duration: float, waves=None, hydro=None, modes: di
 
 def simulate(address: str, text: str, hdb: xr.Dataset, out: Path) -> xr.Dataset:
     scene = parse_scene(text)
-    with ServerConnection(address, timeout=60.0) as conn:
+    with ServerConnection(address, timeout=REPLY_S) as conn:
         setup = conn.hello(text, {str(HDB): hdb})
         with ResultWriter(out, scene=scene, scene_text=text, setup=setup) as writer:
             run(scene, text, conn, setup, writer, progress=False)
@@ -235,7 +236,7 @@ def test_a_step_without_the_modal_state_is_refused(served, barge):
     step sent again with another modal state is refused as a retry and taken as an iteration."""
     address = served()
     text = barge_scene(dt=0.1, duration=1.0, waves=regular_waves(1.0, 8.0))
-    with ServerConnection(address, timeout=60.0) as conn:
+    with ServerConnection(address, timeout=REPLY_S) as conn:
         setup = conn.hello(text, {str(HDB): barge})
         assert setup.modes == {"barge": MODES} and setup.n_dofs == 9
         assert setup.added_mass.shape == (9, 9)
@@ -287,7 +288,7 @@ def test_a_wamit_run_s_modes_simulate_to_the_frequency_domain_rao(server, tmp_pa
                                    inertia=GBM_INERTIA, dofs=["surge", "heave", "pitch"], modes=GBM_MODES,
                                    linear_damping=[2.0e5, 0, 0, 0, 0, 0])])
     scene = parse_scene(text)
-    with ServerConnection(server, timeout=60.0) as conn:
+    with ServerConnection(server, timeout=REPLY_S) as conn:
         setup = conn.hello(text, {str(GBM / "barge.1"): hdb})
         with ResultWriter(tmp_path / "gbm.nc", scene=scene, scene_text=text, setup=setup) as writer:
             run(scene, text, conn, setup, writer, progress=False)

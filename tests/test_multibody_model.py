@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from conftest import REPLY_S
 from conftest import body, regular_waves, rm3_float, rm3_spar, scene_toml
 
 from hydrolink.clients.lockstep.connection import RemoteError, ServerConnection
@@ -162,7 +163,7 @@ def test_rm3_over_the_wire_with_a_dry_body(server, rm3):
     """The real server: a dry body needs no HDB, arrays are (N_wet, 6), forces equal the model's."""
     text = scene_text("full", dry_between=True)
     local = model(rm3, "full")
-    with ServerConnection(server, timeout=30) as conn:
+    with ServerConnection(server, timeout=REPLY_S) as conn:
         setup = conn.hello(text, {"rm3.1": rm3})
         assert setup.bodies == ("float", "spar") and setup.coupled_blocks == 2
         np.testing.assert_array_equal(setup.added_mass_inf, local.setup_info().added_mass_inf)
@@ -179,7 +180,7 @@ def test_rm3_over_the_wire_with_a_dry_body(server, rm3):
         assert err.value.code == 5 and err.value.field == "position"
         conn.bye()
     dry_only = scene_text(bodies=[dry("a")])
-    with ServerConnection(server, timeout=30) as conn:
+    with ServerConnection(server, timeout=REPLY_S) as conn:
         with pytest.raises(RemoteError) as err:
             conn.hello(dry_only, {})
         assert err.value.code == 8 and err.value.field == "scene.bodies"

@@ -17,6 +17,8 @@ import pytest
 from hydrolink.protocol.scene import parse_scene
 from test_rm3 import C_PTO, HEAVE, MASS, scene_text
 
+from conftest import REPLY_S
+
 
 @pytest.fixture(scope="module")
 def rm3(reference_data):
@@ -225,7 +227,7 @@ def test_controller_gets_the_plant_at_join(reference_data, tmp_path):
         return codec.unpack(sock.recv())
 
     try:
-        with ServerConnection(srv.address, timeout=10) as conn:
+        with ServerConnection(srv.address, timeout=REPLY_S) as conn:
             conn.hello(text, hdbs)
             r = ask(role="controller", controller="ctl", session=conn.session, token=conn.control_token, plant={"dt": None})
             got = Plant.from_wire(codec.decode_tree(r["control"])["plant"])

@@ -14,6 +14,8 @@ import pytest
 
 from test_rm3 import scene_text
 
+from conftest import REPLY_S
+
 SLOW_SEQ, DELAY = 10, 0.3     # the server sample of step 10 takes 0.3 s more; an exchange is 80 ms
 
 
@@ -93,7 +95,7 @@ def test_injected_delays_are_found_at_their_step_with_their_cause(reference_data
     text = text.replace("[simulation]\n", "[simulation]\nflush_seconds = 3600.0\n")   # blocks seal by rows only
     ctl = tmp_path / "sleepy.py"
     ctl.write_text(SLEEPY.format(dt=dt, step=CTL_STEP, delay=CTL_DELAY))
-    summary, (rc, err) = run_own(tmp_path, "paced", text, ctl, free_address(), realtime=1.0, timeout=60.0)
+    summary, (rc, err) = run_own(tmp_path, "paced", text, ctl, free_address(), realtime=1.0, timeout=REPLY_S)
     assert rc == 0, err
     rt = summary.realtime
     ds = xr.load_dataset(tmp_path / "paced.nc")
@@ -155,7 +157,7 @@ def test_server_paces_a_session_that_asks(where):
         srv = ForceServer(None)
         address = srv
     try:
-        with ServerConnection(address, timeout=10.0) as c:
+        with ServerConnection(address, timeout=REPLY_S) as c:
             c.hello(SCENE, {"float.nc": make_body_hdb()}, realtime=2.0)
             period = DT / 2.0
             x, v = np.zeros((1, 6)), np.zeros((1, 6))
@@ -188,7 +190,7 @@ def test_server_refuses_a_bad_pace(value):
     from hydrolink.protocol.hdb.wire import to_wire
     from hydrolink.server.service.force_server import ForceServer
     srv = ForceServer(None)
-    with ServerConnection(srv, timeout=10.0) as c, pytest.raises(RemoteError) as err:
+    with ServerConnection(srv, timeout=REPLY_S) as c, pytest.raises(RemoteError) as err:
         c.request("hello", role="multibody", scene=SCENE, hdbs={"float.nc": to_wire(make_body_hdb())}, realtime=value)
     assert err.value.code == 5 and err.value.field == "realtime"
     srv.close()

@@ -20,6 +20,7 @@ import xarray as xr
 
 import exudyn as exu
 
+from conftest import REPLY_S
 from conftest import rm3_example_text
 from conftest import (SPHERE_WATER, body, joint, linear_pto, regular_waves, scene_toml, sphere_body,
                       toml_document)
@@ -44,7 +45,7 @@ def run_scene(text: str, out: Path, address: str | None = None, hdbs: dict | Non
                           equilibrium_position=ref) as writer:
             summary = run(scene, text, None, None, writer, progress=False)
         return summary, xr.load_dataset(out)
-    with ServerConnection(address, timeout=60) as conn:
+    with ServerConnection(address, timeout=REPLY_S) as conn:
         setup = conn.hello(text, hdbs)
         with ResultWriter(out, scene=scene, scene_text=text, setup=setup) as writer:
             summary = run(scene, text, conn, setup, writer, progress=False)
@@ -223,7 +224,7 @@ def test_build_model_maps_the_hydrodynamics_onto_active_coordinates(server, sphe
     hydrostatic stiffness; the mass matrix rows of locked DOFs read zero, the active block m I + A∞."""
     text = scene_toml(**sphere_scene(sphere_path, ("surge", "heave"), (0.3, -0.2, -2.5)))
     scene = parse_scene(text)
-    with ServerConnection(server, timeout=30) as conn:
+    with ServerConnection(server, timeout=REPLY_S) as conn:
         setup = conn.hello(text, {str(sphere_path): sphere})
         conn.bye()
     model = build_model(scene, setup)

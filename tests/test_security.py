@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 
+from conftest import REPLY_S
 from conftest import SPHERE_WATER, regular_waves, scene_toml, sphere_body, write_scene
 from hydrolink.clients.lockstep.connection import RemoteError, ServerConnection
 from hydrolink.protocol.security import CurveKeyError, read_hmac_key
@@ -65,10 +66,10 @@ def test_key_file_is_new_private_and_never_overwritten(tmp_path: Path):
 def test_signed_server_refuses_unsigned_and_wrong_key_and_logs(signed_server, tmp_path: Path):
     address, key_file, log = signed_server
     key = read_hmac_key(key_file)
-    with ServerConnection(address, timeout=5.0, key=key) as conn:
+    with ServerConnection(address, timeout=REPLY_S, key=key) as conn:
         assert conn.ping()["type"] == "pong"
     for wrong in (None, b"\x01" * 32):
-        with ServerConnection(address, timeout=5.0, key=wrong) as conn:
+        with ServerConnection(address, timeout=REPLY_S, key=wrong) as conn:
             with pytest.raises((RemoteError, ConnectionError)) as err:
                 conn.ping()
             if isinstance(err.value, RemoteError):        # unsigned: the reply is signed, the client cannot check it

@@ -41,6 +41,7 @@ from hydrolink.clients.control import ControllerError, load_controller
 from hydrolink.clients.run import run_scene_file
 from hydrolink.server.hdb.io import load_hdb
 
+from conftest import REPLY_S
 from conftest import controller_process
 
 REPO = Path(__file__).resolve().parents[1]
@@ -192,7 +193,7 @@ def test_wappac_controller_process_drives_the_pto(tmp_path, server):
     scene = tmp_path / "wavestar.toml"
     scene.write_text(text)
     with controller_process(EXAMPLE / "wappac_damping.py", server, token) as ended:
-        run_scene_file(scene, tmp_path / "out.nc", server=server, progress=False, timeout=60.0, control_token=token)
+        run_scene_file(scene, tmp_path / "out.nc", server=server, progress=False, timeout=REPLY_S, control_token=token)
     assert ended.returncode == 0, ended.stderr
     ds = xr.load_dataset(tmp_path / "out.nc")
     force = ds.pto_force.sel(pto="pto").values
