@@ -27,6 +27,9 @@ REFERENCE_DATA = REPO / "examples" / "data"
 # CI a hello's set-up (an isolated HDB parse, IRFs) has taken over 30 s, and a passing test never waits
 # it out. A test whose subject is a timeout states its own short one.
 REPLY_S = 120.0
+# How long a test waits for a process it expects to end by itself (a run, a plot script, a controller
+# after its run, a server after SIGTERM): a hang guard, never a timing check.
+EXIT_S = 600.0
 
 
 def pytest_sessionstart(session: pytest.Session) -> None:
@@ -152,14 +155,14 @@ def controller_process(file: Path, server: str, token: str, *extra: str):
     yields a :class:`ControllerExit`, filled when the block ends (the process waited for 30 s,
     then killed: always reaped)."""
     proc = subprocess.Popen([sys.executable, "-m", "hydrolink.clients.cli", "control", str(file), "--server", server,
-                             "--token", token, "--join-wait", "60", *extra],
+                             "--token", token, "--join-wait", str(REPLY_S), *extra],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     ended = ControllerExit()
     try:
         yield ended
     finally:
         try:
-            _, ended.stderr = proc.communicate(timeout=30)
+            _, ended.stderr = proc.communicate(timeout=EXIT_S)
         except subprocess.TimeoutExpired:
             proc.kill()
             _, ended.stderr = proc.communicate()
@@ -179,7 +182,7 @@ def serve_process(*args: str, cwd: Path | None = None):
         yield match.group(1)
     finally:
         proc.terminate()
-        proc.wait(10)
+        proc.wait(EXIT_S)
 
 
 @pytest.fixture(scope="session")

@@ -17,6 +17,7 @@ import pytest
 import zmq
 from analytic_hdb import make_body_hdb
 
+from conftest import EXIT_S
 from conftest import body, dealer, linear_pto, regular_waves, scene_toml
 from hydrolink.clients.lockstep.connection import RemoteError, ServerConnection
 from hydrolink.protocol import codec
@@ -369,4 +370,4 @@ def test_a_memory_error_on_the_receive_path_is_an_error_reply_and_serve_goes_on(
         if sock is not None:
             sock.close(0)
         proc.terminate()
-        proc.wait(10)
+        proc.wait(EXIT_S)

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import EXIT_S
 from conftest import (SPHERE_WATER, build_zmq_msgpack_program, regular_waves, scene_toml, serve_process,
                       sphere_body, write_scene)
 
@@ -51,7 +52,7 @@ def test_c_client_heave_rao_and_forces(heave_exe, server, sphere_path, sphere, t
         scene = write_scene(tmp_path, text, f"scene{n}.toml")
         csv = tmp_path / f"out{n}.csv"
         run = subprocess.run([str(heave_exe), server, str(scene), repr(mass), str(csv), "sphere.h5", "bemio",
-                              str(tmp_path / "sphere.h5")], capture_output=True, text=True, timeout=120)
+                              str(tmp_path / "sphere.h5")], capture_output=True, text=True, timeout=EXIT_S)
         assert run.returncode == 0, run.stderr
         assert ("uploaded 1 HDB file(s)" in run.stderr) == (n == 0), run.stderr   # by hash after the first
         rows = np.loadtxt(csv, delimiter=",")

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 import xarray as xr
 
+from conftest import EXIT_S
 from conftest import SPHERE_WATER, irregular_waves, scene_toml, serve_process, sphere_body, write_scene
 
 from hydrolink.clients.run import run_scene_file
@@ -79,7 +80,7 @@ def test_remote_server_run_equals_embedded_run(scene_dir: Path):
         assert result.returncode == 0, result.stderr
     finally:
         server.terminate()
-        server.wait(10)
+        server.wait(EXIT_S)
     a, b = xr.load_dataset(scene_dir / "embedded.nc"), xr.load_dataset(scene_dir / "remote.nc")
     assert a.sizes["time"] == b.sizes["time"] == 241
     for name in ("position", "velocity", "excitation_force", "radiation_force", "hydrostatic_force",

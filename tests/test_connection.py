@@ -16,7 +16,7 @@ import pytest
 import zmq
 
 from analytic_hdb import make_body_hdb
-from conftest import REPLY_S
+from conftest import EXIT_S, REPLY_S
 from conftest import body, regular_waves, scene_toml
 from hydrolink.clients.lockstep.connection import ServerConnection
 from hydrolink.protocol import codec
@@ -43,14 +43,14 @@ def test_a_killed_server_is_noticed_within_two_seconds():
             z = np.zeros((1, 6))
             conn.step(0, 0.0, z, z)
             proc.send_signal(signal.SIGKILL)
-            proc.wait(10)
+            proc.wait(EXIT_S)
             t0 = time.monotonic()
             with pytest.raises(ConnectionError, match=f"the hydrolink server at {address} went away .* the server stopped"):
                 conn.step(1, 0.05, z, z)
             assert time.monotonic() - t0 < 2.5          # the receive timeout is 60 s
     finally:
         proc.kill()
-        proc.wait(10)
+        proc.wait(EXIT_S)
 
 
 def test_a_slow_live_server_is_waited_for():

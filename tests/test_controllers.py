@@ -30,7 +30,7 @@ import numpy as np
 import pytest
 import xarray as xr
 import zmq
-from conftest import REPLY_S
+from conftest import EXIT_S, REPLY_S
 from conftest import rm3_example_text
 from conftest import build_zmq_msgpack_program
 
@@ -76,7 +76,7 @@ TOKEN = secrets.token_urlsafe(32)
 
 def controller_process(file: Path, server: str, *extra: str) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, "-m", "hydrolink.clients.cli", "control", str(file), "--server", server,
-                             "--token", TOKEN, "--join-wait", "20", *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                             "--token", TOKEN, "--join-wait", str(REPLY_S), *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
 def c_controller(tmp_path_factory) -> Path:
@@ -137,7 +137,7 @@ def run_own(tmp_path: Path, name: str, text: str, controller: Path, address: str
 
 def python_ctl(file: Path, server: str, *extra: str) -> list:
     return [sys.executable, "-m", "hydrolink.clients.cli", "control", str(file), "--server", server,
-            "--token", TOKEN, "--join-wait", "20", *extra]
+            "--token", TOKEN, "--join-wait", str(REPLY_S), *extra]
 
 
 def mean_power(ds: xr.Dataset) -> float:
@@ -227,7 +227,7 @@ def test_c_controller_equals_python_bit_for_bit(reference_data, tmp_path, tmp_pa
         assert rc == 0, err
     finally:
         serve.terminate()
-        serve.wait(10)
+        serve.wait(EXIT_S)
     assert json.loads(ds_c.attrs["controller_events"])["ctl"]["ok"] == 300
     for v in ("position", "velocity", "pto_force", "pto_power", "pto_command_force", "excitation_force", "radiation_force"):
         assert np.array_equal(ds_py[v].values, ds_c[v].values), v
@@ -292,7 +292,7 @@ def test_slow_and_crashed_controller_fall_back_and_reconnect(reference_data, ser
         wall = time.monotonic() - t0
     finally:
         del os.environ["CRASH"]
-    out, serr = successor.communicate(timeout=20)
+    out, serr = successor.communicate(timeout=EXIT_S)
     assert rc == 3, err            # the first controller crashed ...
     assert "out_of_order" in err and "late" in err   # ... after its late command for step 20 was refused
     assert successor.returncode == 0, serr

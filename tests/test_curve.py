@@ -17,7 +17,7 @@ from hydrolink.clients.lockstep.connection import ServerConnection
 from hydrolink.clients.run import run_scene_file
 from hydrolink.protocol.security import ClientKeys
 
-from conftest import REPLY_S
+from conftest import EXIT_S, REPLY_S
 from conftest import rm3_example_text
 
 # One pytest-xdist worker runs this whole module (pyproject: --dist loadgroup): its module fixture (a CURVE
@@ -61,7 +61,7 @@ def curve_server(tmp_path_factory):
         yield {"address": address, "log": log, "dir": tmp}
     finally:
         proc.terminate()
-        proc.wait(10)
+        proc.wait(EXIT_S)
 
 
 def wait_for_log(log: Path, text: str, timeout: float = 5.0) -> str:
@@ -92,12 +92,12 @@ def test_authenticated_run(curve_server, reference_data, tmp_path):
     out = subprocess.run([*HYDROLINK, "run", str(scene), "-o", str(tmp_path / "out.nc"), "--server", curve_server["address"],
                           "--no-progress", "--curve-server-key", str(d / "server" / "server.key"),
                           "--curve-secret", str(d / "client" / "alice.key_secret")],
-                         capture_output=True, text=True, timeout=120)
+                         capture_output=True, text=True, timeout=EXIT_S)
     assert out.returncode == 0, out.stderr
     assert xr.load_dataset(tmp_path / "out.nc").sizes["time"] == 11
     # the same in-process, with the library API
     keys = ClientKeys.from_files(d / "server" / "server.key", d / "client" / "alice.key_secret")
-    summary = run_scene_file(scene, tmp_path / "out2.nc", server=curve_server["address"], progress=False, curve=keys)
+    summary = run_scene_file(scene, tmp_path / "out2.nc", server=curve_server["address"], progress=False, curve=keys, timeout=REPLY_S)
     assert summary.steps == 10
 
 
@@ -157,8 +157,8 @@ def test_allowed_client_ping_and_plaintext_server_refused_by_curve_client(curve_
 
 def test_serve_needs_both_curve_options(tmp_path):
     out = subprocess.run([*HYDROLINK, "serve", "--bind", "tcp://127.0.0.1:*", "--curve-secret", str(tmp_path / "x")],
-                         capture_output=True, text=True, timeout=30)
+                         capture_output=True, text=True, timeout=EXIT_S)
     assert out.returncode != 0 and "CURVE needs both" in out.stderr, out.stderr
     out = subprocess.run([*HYDROLINK, "serve", "--bind", "tcp://127.0.0.1:*", "--curve-secret", str(tmp_path / "x"),
-                          "--curve-clients", str(tmp_path)], capture_output=True, text=True, timeout=30)
+                          "--curve-clients", str(tmp_path)], capture_output=True, text=True, timeout=EXIT_S)
     assert out.returncode != 0 and "no such key file" in out.stderr, out.stderr

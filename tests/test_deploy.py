@@ -17,6 +17,7 @@ from pathlib import Path
 import pytest
 import xarray as xr
 
+from conftest import EXIT_S
 from conftest import rm3_example_text
 
 yaml = pytest.importorskip("yaml")
@@ -59,7 +60,7 @@ def test_compose_stack_runs_on_loopback(reference_data, tmp_path):
     keys, scene_dir = tmp_path / "keys", tmp_path / "scene"
     for folder, name in ((keys, "server"), (keys / "clients", "client")):
         out = subprocess.run(executable(["hydrolink", "keys", "new", str(folder), "--name", name]),
-                             capture_output=True, text=True, timeout=60)
+                             capture_output=True, text=True, timeout=EXIT_S)
         assert out.returncode == 0, out.stderr
     scene_dir.mkdir()
     text = rm3_example_text("rm3.toml")
@@ -99,9 +100,9 @@ def test_compose_stack_runs_on_loopback(reference_data, tmp_path):
                                env=environment("controller"), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         procs.append(ctl)
         out = subprocess.run(executable([local(a) for a in compose["client"]["entrypoint"]]), env=environment("client"),
-                             capture_output=True, text=True, timeout=120)
+                             capture_output=True, text=True, timeout=EXIT_S)
         assert out.returncode == 0, out.stderr
-        _, err = ctl.communicate(timeout=30)
+        _, err = ctl.communicate(timeout=EXIT_S)
         assert ctl.returncode == 0, err
         # a plaintext client is refused by the deployed server
         from hydrolink.clients.lockstep.connection import ServerConnection
@@ -112,7 +113,7 @@ def test_compose_stack_runs_on_loopback(reference_data, tmp_path):
         for p in procs:
             if p.poll() is None:
                 p.terminate()
-                p.wait(10)
+                p.wait(EXIT_S)
     ds = xr.load_dataset(scene_dir / "rm3.out.nc")
     assert ds.sizes["time"] == 21
     assert json.loads(ds.attrs["controller_events"])["ctl"]["ok"] == 20

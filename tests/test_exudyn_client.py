@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from conftest import REPLY_S
+from conftest import EXIT_S, REPLY_S
 from conftest import SPHERE_WATER, needs_python_sigint, regular_waves, scene_toml, sphere_body, write_scene
 
 from hydrolink.clients.lockstep.connection import ServerConnection
@@ -263,7 +263,7 @@ def test_killed_run_keeps_what_was_computed(server, sphere, sphere_path, tmp_pat
         time.sleep(1.5)
     finally:
         proc.send_signal(signal.SIGKILL)
-        proc.wait(10)
+        proc.wait(EXIT_S)
     with xr.open_dataset(out) as ds:
         ds = ds.load()
     n = ds.sizes["time"]

@@ -17,6 +17,7 @@ from click.testing import CliRunner  # noqa: E402
 from fmpy import extract, read_model_description  # noqa: E402
 from fmpy.fmi2 import FMU2Slave  # noqa: E402
 
+from conftest import EXIT_S
 from conftest import SPHERE_WATER, scene_toml, sphere_body, write_scene  # noqa: E402
 from hydrolink.clients.cli import cli  # noqa: E402
 
@@ -120,7 +121,7 @@ def test_iterating_master_replaces_the_step_sample(exported):
 def _master(code: str) -> subprocess.CompletedProcess:
     """Run a master's Python ``code`` in its own process, as a user runs it (a Python exception in
     a pythonfmu FMU is answered Fatal and corrupts the host's heap: the host must not be pytest)."""
-    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=EXIT_S)
 
 
 def test_communication_step_must_be_the_scene_dt(exported):

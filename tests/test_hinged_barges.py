@@ -60,6 +60,8 @@ import xarray as xr
 
 from hydrolink.protocol.scene import load_scene
 
+from conftest import EXIT_S
+
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLE = REPO / "examples" / "hinged_barges"
 SPEC = EXAMPLE / "hinged_barges_hdb.toml"
@@ -265,7 +267,7 @@ def test_plot_script(barges_hdb, tmp_path):
     _, hdb_path = barges_hdb
     out = tmp_path / "rao.png"
     subprocess.run([sys.executable, str(EXAMPLE / "plot.py"), "--omegas", "2.61,7.85", "--hdb", str(hdb_path),
-                    "-o", str(out), "--csv", str(tmp_path / "rao.csv")], check=True, capture_output=True, timeout=120)
+                    "-o", str(out), "--csv", str(tmp_path / "rao.csv")], check=True, capture_output=True, timeout=EXIT_S)
     assert out.stat().st_size > 10_000
     rows = np.loadtxt(tmp_path / "rao.csv", delimiter=",", skiprows=1)
     assert rows.shape == (2, 4)

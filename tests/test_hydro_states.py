@@ -370,7 +370,7 @@ def test_a_switching_run_through_a_served_server_is_the_in_process_run_bit_for_b
     text = scene_text(hdb_files, switches=[{"body": "float", "state": "deep", "time": 2.0}], duration=5.0)
     path = write_scene(tmp_path, text)
     run_scene_file(path, tmp_path / "local.nc", progress=False)
-    run_scene_file(path, tmp_path / "served.nc", server=server, progress=False, hdb_files=True)   # sent by hash
+    run_scene_file(path, tmp_path / "served.nc", server=server, progress=False, hdb_files=True, timeout=REPLY_S)   # sent by hash
     local, served = xr.load_dataset(tmp_path / "local.nc"), xr.load_dataset(tmp_path / "served.nc")
     for var in ("position", "velocity", "excitation_force", "radiation_force", "hydro_state"):
         np.testing.assert_array_equal(local[var].values, served[var].values)

@@ -12,6 +12,8 @@ from pathlib import Path
 
 import pytest
 
+from conftest import EXIT_S
+
 REPO = Path(__file__).resolve().parents[1]
 PACKAGES = ("server", "clients", "protocol")
 API = REPO / "clients" / "api"      # the package `hydrolink` itself (pyproject's package-dir)
@@ -63,7 +65,7 @@ def test_import_contracts_hold(tmp_path):
     env = {"PYTHONPATH": str(root), "PATH": "/usr/bin:/bin", "HOME": str(tmp_path)}
     done = subprocess.run([sys.executable, "-c", "import sys; from importlinter.cli import lint_imports_command; "
                            "sys.exit(lint_imports_command())", "--config", str(REPO / "pyproject.toml"), "--no-cache"],
-                          capture_output=True, text=True, cwd=tmp_path, env=env, timeout=240)
+                          capture_output=True, text=True, cwd=tmp_path, env=env, timeout=EXIT_S)
     out = done.stdout + done.stderr
     assert done.returncode == 0, out
     assert "4 kept, 0 broken" in out, out

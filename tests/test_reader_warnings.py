@@ -18,6 +18,7 @@ from pathlib import Path
 import netCDF4
 import pytest
 
+from conftest import REPLY_S
 from conftest import rm3_float, rm3_spar, scene_toml, write_scene
 from hydrolink.protocol.hdb.layout import HDBError, hdb_warnings
 from hydrolink.protocol.hdb.wire import from_wire, to_wire
@@ -81,7 +82,7 @@ def test_remote_run_with_files_by_hash_gets_them_from_the_servers_child(scene, t
     out = tmp_path / "remote.nc"
     server, thread = serve_in_thread()
     try:
-        summary = run_scene_file(scene, out, server=server.address, hdb_files=True, progress=False)
+        summary = run_scene_file(scene, out, server=server.address, hdb_files=True, progress=False, timeout=REPLY_S)
     finally:
         server.stop()
         thread.join(5.0)

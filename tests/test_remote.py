@@ -21,6 +21,7 @@ import xarray as xr
 
 import netlab  # tests/netlab.py
 
+from conftest import EXIT_S, REPLY_S
 from conftest import rm3_example_text
 
 # One pytest-xdist worker runs this whole module (pyproject: --dist loadgroup): its module fixture (the
@@ -64,21 +65,21 @@ def three_processes(popen, scene: Path, out: Path, bind: str, connect: str | Non
     address = connect or serve_address(server)
     token = secrets.token_urlsafe(32)   # the run's join token, handed to its controller (SPEC §5.7.2)
     ctl = popen("ctl", [*HYDROLINK, "control", str(REACTIVE), "--server", address, "--token", token,
-                        "--join-wait", "30"])
+                        "--join-wait", str(REPLY_S)])
     t0 = time.perf_counter()
     client = popen("client", [*HYDROLINK, "run", str(scene), "-o", str(out), "--server", address, "--no-progress",
                               "--control-token", token])
     try:
-        _, err = client.communicate(timeout=120)
+        _, err = client.communicate(timeout=EXIT_S)
         assert client.returncode == 0, err
         wall = time.perf_counter() - t0
-        _, err = ctl.communicate(timeout=30)
+        _, err = ctl.communicate(timeout=EXIT_S)
         assert ctl.returncode == 0, err
     finally:
         for p in (client, ctl, server):
             if p.poll() is None:
                 p.terminate()
-                p.wait(10)
+                p.wait(EXIT_S)
             for s in (p.stdout, p.stderr):
                 if s is not None:
                     s.close()
@@ -175,7 +176,7 @@ def test_netns_link_down_past_the_timeout_ends_the_run_with_its_rows(reference_d
         t0 = time.monotonic()
         down = threading.Thread(target=lab.outage, args=(5.0,), daemon=True)   # well past the 2 s timeout
         down.start()
-        _, err = client.communicate(timeout=60)
+        _, err = client.communicate(timeout=EXIT_S)
         ended = time.monotonic() - t0
         down.join(15)
     assert client.returncode != 0

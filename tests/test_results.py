@@ -17,6 +17,7 @@ import netCDF4
 import numpy as np
 import pytest
 
+from conftest import EXIT_S
 from conftest import SPHERE_WATER, regular_waves, scene_toml, sphere_body, write_scene
 
 from hydrolink.clients.lockstep.results import ResultWriter
@@ -46,7 +47,7 @@ def test_sigkill_loses_at_most_the_flush_interval(tmp_path: Path, reference_data
             time.sleep(0.01)
         proc.send_signal(signal.SIGKILL)
         killed = time.monotonic()
-        proc.wait(10)
+        proc.wait(EXIT_S)
     finally:
         proc.kill()
     lost = killed - last_change

@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import EXIT_S
 from conftest import rm3_example_text
 from hydrolink.protocol.scene import load_scene, parse_scene
 from hydrolink.server.model import HydroModel
@@ -207,5 +208,5 @@ def test_hydrolink_run_matches_frequency_domain(rm3, reference_data, tmp_path, i
         import subprocess
         import sys
         subprocess.run([sys.executable, str(EXAMPLE / "plot.py"), str(tmp_path / "rm3.nc"), "-o",
-                        str(tmp_path / "rm3.png")], check=True, capture_output=True, timeout=120)
+                        str(tmp_path / "rm3.png")], check=True, capture_output=True, timeout=EXIT_S)
         assert (tmp_path / "rm3.png").stat().st_size > 10_000

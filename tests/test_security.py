@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import REPLY_S
+from conftest import EXIT_S, REPLY_S
 from conftest import SPHERE_WATER, regular_waves, scene_toml, sphere_body, write_scene
 from hydrolink.clients.lockstep.connection import RemoteError, ServerConnection
 from hydrolink.protocol.security import CurveKeyError, read_hmac_key
@@ -45,7 +45,7 @@ def signed_server(tmp_path: Path):
         yield first.split("listening on ")[1].split()[0], tmp_path / "shared.key", log
     finally:
         proc.terminate()
-        proc.wait(10)
+        proc.wait(EXIT_S)
 
 
 def test_key_file_is_new_private_and_never_overwritten(tmp_path: Path):

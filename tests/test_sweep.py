@@ -23,6 +23,7 @@ import pytest
 import xarray as xr
 from click.testing import CliRunner
 
+from conftest import EXIT_S
 from conftest import SPHERE_WATER, irregular_waves, linear_pto, regular_waves, scene_toml, sphere_body, sweep_toml, write_scene
 from hydrolink.clients.cli import cli
 from hydrolink.clients.studies.sweep import open_cluster, run_sweep
@@ -214,7 +215,7 @@ def test_remote_scheduler_and_workers_same_results(regular_sweep, sphere_dir, tm
             os.killpg(p.pid, signal.SIGTERM)
         for p in procs:
             try:
-                p.wait(15)
+                p.wait(EXIT_S)
             except subprocess.TimeoutExpired:
                 os.killpg(p.pid, signal.SIGKILL)
 
