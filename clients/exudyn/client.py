@@ -520,8 +520,8 @@ class ExudynMultibody:
         self._targets: list[np.ndarray] = []
         # the wet DOFs' q, v, a and every body's q, v as flat indices into model.state()'s (3, n)
         cols = len(model.mbs.systemData.GetODE2Coordinates()) + model.padded
-        self._wet_flat = (cols * np.arange(3)[:, None] + model.wet_index).reshape(-1)
-        self._body_flat = (cols * np.arange(2)[:, None] + model.body_index).reshape(-1)
+        self._wet_take = (cols * np.arange(3)[:, None] + model.wet_index).reshape(-1)
+        self._body_take = (cols * np.arange(2)[:, None] + model.body_index).reshape(-1)
         self._refresh()
 
     def _refresh(self) -> None:
@@ -529,7 +529,7 @@ class ExudynMultibody:
         and of the wet DOFs."""
         s = self._s = self.model.state()
         self._q, self._v, self._a = s
-        w = self._w = s.reshape(-1).take(self._wet_flat).reshape(3, -1)
+        w = self._w = s.reshape(-1).take(self._wet_take).reshape(3, -1)
         self._wet = (w[0], w[1], w[2])
 
     # -- the driver's interface -------------------------------------------------------------
@@ -646,7 +646,7 @@ class ExudynMultibody:
         if out:
             self.writer.stage_extra(out)
         row = self.writer.row()    # filled in place: position, velocity, excitation, radiation, hydrostatic
-        row[:2] = state.reshape(-1).take(self._body_flat).reshape(2, nb, 6)   # q, v of every body
+        row[:2] = state.reshape(-1).take(self._body_take).reshape(2, nb, 6)   # q, v of every body
         np.add(m.body_reference, row[0], out=row[0])
         r = self._r
         if self._all_wet:

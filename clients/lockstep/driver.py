@@ -123,6 +123,8 @@ class ForceLink:
         self._local = connection.local_step() if self.n else None
         if self._local is not None:
             self._pos = self._local.position
+        self._pos_flat = self._pos.reshape(-1)
+        self._vel_flat = self._local.velocity.reshape(-1) if self._local is not None else None
 
     def sample(self, seq: int, x: np.ndarray, v: np.ndarray, *, iteration: int = 0,
                measurements: dict | None = None, timeout: float | None = None) -> Sample:
@@ -136,13 +138,12 @@ class ForceLink:
         extra = {"modal": (x[r:], v[r:])} if self.m else {}
         if self.m:
             x, v = x[:r], v[:r]
-        np.add(self.eq, x, out=pos.reshape(-1))
+        np.add(self.eq, x, out=self._pos_flat)
         try:
             if local is not None:   # (no controller joins an embedded server: no measurements)
-                np.copyto(local.velocity.reshape(-1), v)
+                self._vel_flat[:] = v
                 if extra:
-                    np.copyto(local.modal_position, extra["modal"][0])
-                    np.copyto(local.modal_velocity, extra["modal"][1])
+                    local.modal_position[:], local.modal_velocity[:] = extra["modal"]
                 reply = local(seq, iteration)
             elif measurements is not None or timeout is not None or extra:
                 reply = self.conn.step(seq, t, pos, v.reshape(shape), iteration, measurements=measurements,
