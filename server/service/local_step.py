@@ -38,9 +38,10 @@ class LocalStep:
         self._shape = shape
 
     def __call__(self, seq: int, iteration: int = 0) -> dict:
-        """The ``forces`` reply fields of step ``seq`` (``iteration``) for the state in the arrays
-        (:meth:`Session.step <hydrolink.server.service.session.Session.step>`'s, bit for bit);
-        ProtocolError, the session unchanged, where a ``step`` message would get an error."""
+        """The ``forces`` reply fields of step ``seq`` (``iteration``; both the caller's own counters,
+        >= 0) for the state in the arrays (:meth:`Session.step
+        <hydrolink.server.service.session.Session.step>`'s, bit for bit); ProtocolError, the session
+        unchanged, where a ``step`` message would get an error."""
         s = self._session
         s.touch()
         s.within_run(seq)
