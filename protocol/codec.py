@@ -571,6 +571,14 @@ def require_map(msg: dict, field: str, *, default: dict | None = None, path: str
     return _require_typed(msg, field, dict, "map", default, path)
 
 
+def within(arr: np.ndarray, bound: float) -> bool:
+    """Every element of float64 ``arr`` within [-bound, bound] (NaN and inf fail it)."""
+    if arr.size <= 64:   # max |x| <= bound; NaN and inf (which max can pass over) fail the sum
+        values = arr.ravel().tolist()
+        return not values or (max(map(abs, values)) <= bound and math.isfinite(sum(values)))
+    return bool(np.all(np.abs(arr) <= bound))
+
+
 def require_array(msg: dict, field: str, shape: tuple[int | None, ...], *, finite: bool = True,
                   bound: float | None = None, path: str | None = None) -> np.ndarray:
     """A required float64 array of ``shape`` (None = any length), all finite by default; with
@@ -588,12 +596,8 @@ def require_array(msg: dict, field: str, shape: tuple[int | None, ...], *, finit
                                or any(w is not None and w != n for w, n in zip(shape, arr.shape))):
         want = "(" + ", ".join("*" if w is None else str(w) for w in shape) + ")"
         raise ProtocolError(Code.BAD_VALUE, name, f"shape must be {want}, got {tuple(arr.shape)}")
-    if bound is not None:   # max |x| <= bound; NaN and inf (which max can pass over) fail the sum
-        if arr.size <= 64:
-            values = arr.ravel().tolist()
-            inside = not values or (max(map(abs, values)) <= bound and math.isfinite(sum(values)))
-        else:
-            inside = bool(np.all(np.abs(arr) <= bound))
+    if bound is not None:
+        inside = within(arr, bound)
     else:
         inside = not finite or (all(map(math.isfinite, arr.ravel().tolist())) if arr.size <= 64
                                 else bool(np.isfinite(arr).all()))

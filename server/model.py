@@ -649,7 +649,7 @@ class HydroModel:
             raise ModelError("time", f"expected t = {k * self.dt:.9g} (step {k} of dt {self.dt}), got {time!r}")
         x = np.asarray(position, float).reshape(-1)
         v = np.asarray(velocity, float).reshape(-1)
-        m = self.modes.size
+        m = self.n - self.n_rigid   # the generalized modes (ModeLayout.size, without its sum)
         if x.size != self.n_rigid or v.size != self.n_rigid:
             raise ModelError("state", f"position and velocity must be ({len(self.bodies)}, 6), "
                                       f"got {np.shape(position)} and {np.shape(velocity)}")

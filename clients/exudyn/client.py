@@ -125,16 +125,16 @@ class ExudynModel:
         self.solver.InitializeSolver(self.mbs, self.settings)
         self.initialized = True
 
-    def state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Displacements, velocities and accelerations of all system ODE2 coordinates (wet bodies'
-        6N: ``wet_index``; every scene body: ``body_index``), with reduced bodies followed by one
-        zero slot (their locked DOFs)."""
+    def state(self) -> np.ndarray:
+        """Displacements, velocities and accelerations of all system ODE2 coordinates as the rows
+        of one new (3, n) array (wet bodies' 6N: ``wet_index``; every scene body: ``body_index``),
+        with reduced bodies followed by one zero column (their locked DOFs)."""
         sd = self.mbs.systemData
         q, v, a = sd.GetODE2Coordinates(), sd.GetODE2Coordinates_t(), sd.GetODE2Coordinates_tt()
         if self.padded:
             zero = _ZERO_SLOT
-            return np.concatenate((q, zero)), np.concatenate((v, zero)), np.concatenate((a, zero))
-        return np.asarray(q), np.asarray(v), np.asarray(a)
+            return np.concatenate((q, zero, v, zero, a, zero)).reshape(3, -1)
+        return np.concatenate((q, v, a)).reshape(3, -1)
 
     def advance(self, t0: float, t1: float) -> None:
         """Integrate one step t0 → t1 with the force vector currently set."""
@@ -518,12 +518,19 @@ class ExudynMultibody:
             if self._md else 0
         self._ends: list[np.ndarray] = []
         self._targets: list[np.ndarray] = []
+        # the wet DOFs' q, v, a and every body's q, v as flat indices into model.state()'s (3, n)
+        cols = len(model.mbs.systemData.GetODE2Coordinates()) + model.padded
+        self._wet_take = (cols * np.arange(3)[:, None] + model.wet_index).reshape(-1)
+        self._body_take = (cols * np.arange(2)[:, None] + model.body_index).reshape(-1)
         self._refresh()
 
     def _refresh(self) -> None:
-        self._q, self._v, self._a = self.model.state()
-        wet = self.model.wet_index
-        self._wet = (self._q[wet], self._v[wet], self._a[wet])
+        """The state after a change: q, v, a of every coordinate (new arrays: a snapshot keeps them)
+        and of the wet DOFs."""
+        s = self._s = self.model.state()
+        self._q, self._v, self._a = s
+        w = self._w = s.reshape(-1).take(self._wet_take).reshape(3, -1)
+        self._wet = (w[0], w[1], w[2])
 
     # -- the driver's interface -------------------------------------------------------------
     def begin(self, s0, feedback: bool) -> int:
@@ -545,7 +552,7 @@ class ExudynMultibody:
         for it in range(cpl.max_iterations):
             m.set_force(u)
             m.initialize()
-            g = f0 - self.a_fb @ m.state()[2][m.wet_index]
+            g = f0 - self.a_fb @ m.state()[2, m.wet_index]
             scale = max(float(np.abs(g).max(initial=0.0)), float(np.abs(f0).max(initial=0.0)), 1e-300)
             if not np.isfinite(g).all() or float(np.abs(g - u).max(initial=0.0)) <= cpl.tolerance * scale:
                 return it + 1
@@ -559,11 +566,11 @@ class ExudynMultibody:
         return self._wet
 
     def extent(self, limit: float) -> float:
-        q, v = self._q, self._v
-        ss = float(q @ q) + float(v @ v)
+        qv = self._s[:2].reshape(-1)   # q then v
+        ss = float(qv @ qv)
         if ss < limit * limit:   # cheap bound (each |x| <= the 2-norm); NaN fails `<`
             return math.sqrt(ss)
-        return max(float(np.abs(q).max(initial=0.0)), float(np.abs(v).max(initial=0.0)))
+        return float(np.abs(qv).max(initial=0.0))
 
     def inputs(self, s0, s1, acc, x0, x1) -> np.ndarray:
         load = s1.load if self._state_load is None else s1.load + self._state_load
@@ -628,24 +635,24 @@ class ExudynMultibody:
         self._refresh()
 
     def snapshot(self):
-        return self._q, self._v, self.outputs()
+        return self._s, self._w, self.outputs()
 
     def write(self, t: float, s, snap) -> None:
-        q, v, out = snap
+        state, wet, out = snap
+        q, v = state[0], state[1]
         m, nb = self.model, self.nb
         if self.control is not None:
             self.control.stage()
         if out:
             self.writer.stage_extra(out)
         row = self.writer.row()    # filled in place: position, velocity, excitation, radiation, hydrostatic
-        idx = m.body_index
-        np.add(m.body_reference, q[idx].reshape(nb, 6), out=row[0])
-        row[1] = v[idx].reshape(nb, 6)
+        row[:2] = state.reshape(-1).take(self._body_take).reshape(2, nb, 6)   # q, v of every body
+        np.add(m.body_reference, row[0], out=row[0])
         r = self._r
         if self._all_wet:
             row[2] = s.excitation[:r].reshape(nb, 6)
             row[3] = s.radiation[:r].reshape(nb, 6)
-            np.dot(m.stiffness, q[m.wet_index], out=self._hs)
+            np.dot(m.stiffness, wet[0], out=self._hs)
             if self._rest_shift is not None:     # a hydro state resting elsewhere: -C_s (x - x_eq,s)
                 self._hs -= self._rest_shift
             np.negative(self._hs[:r], out=row[4].reshape(-1))
@@ -654,7 +661,7 @@ class ExudynMultibody:
             if self.n:
                 rows, shape = m.wet_rows, (self.n, 6)
                 f[0, rows], f[1, rows] = s.excitation[:r].reshape(shape), s.radiation[:r].reshape(shape)
-                np.dot(m.stiffness, q[m.wet_index], out=self._hs)
+                np.dot(m.stiffness, wet[0], out=self._hs)
                 if self._rest_shift is not None:     # a hydro state resting elsewhere: -C_s (x - x_eq,s)
                     self._hs -= self._rest_shift
                 f[2, rows] = -self._hs[:r].reshape(shape)

@@ -11,7 +11,7 @@ Used by the Exudyn client, the FMU master and controllers::
 from __future__ import annotations
 
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import xarray as xr
@@ -23,6 +23,9 @@ from hydrolink.protocol.reply import read_forces
 from hydrolink.protocol.setup import Setup
 from hydrolink.protocol.hdb.wire import HDBFiles, to_wire
 from hydrolink.protocol.transport import apply_heartbeats
+
+if TYPE_CHECKING:
+    from hydrolink.server.service.local_step import LocalStep
 
 ENVELOPE_AND_ERROR = ("v", "type", "msg_id", "session", "parent", "code", "name", "field", "message", "sig")
 WATCH_S = 0.2                 # a pending reply's link is checked this often
@@ -350,6 +353,14 @@ class ServerConnection:
         if not as_map:   # a frame's arrays checked (N, 6) like the state sent; a map's are the server's own
             read_forces(reply, position.shape)   # (the caller checks the values)
         return reply
+
+    def local_step(self) -> LocalStep | None:
+        """The in-process server's step path for this session (server/service/local_step.py), for
+        a loop that steps it many times: None unless the server is this process's own, without a
+        socket and without a signing key, and the session steps there unpaced (then :meth:`step`)."""
+        if not self._steps or self.session is None:
+            return None
+        return self._local.local_step(self.session)
 
     def save(self) -> int:
         """Keep the session's state at this point (SPEC §5.9); the id to :meth:`restore` it."""

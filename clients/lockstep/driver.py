@@ -27,6 +27,8 @@ import numpy as np
 
 from hydrolink.protocol.pacing import PARTS, Pacer, StepRecord
 from hydrolink.clients.lockstep.summary import CouplingReport, RunSummary
+from hydrolink.clients.lockstep.connection import RemoteError
+from hydrolink.protocol.codec import ProtocolError
 from hydrolink.protocol.reply import OPTIONAL_FORCES, HydroStateChange
 
 _sum = np.add.reduce   # ndarray.sum without its Python wrapper
@@ -116,6 +118,13 @@ class ForceLink:
         # generalized modes (setup.modes): the state's last M entries, sent as modal_position/velocity
         self.m = len(setup.mode_labels) if self.n else 0
         self._r = 6 * self.n
+        # this process's own server (hydrolink run's embedded one): the state goes into the arrays
+        # of its step path (server/service/local_step.py), no message
+        self._local = connection.local_step() if self.n else None
+        if self._local is not None:
+            self._pos = self._local.position
+        self._pos_flat = self._pos.reshape(-1)
+        self._vel_flat = self._local.velocity.reshape(-1) if self._local is not None else None
 
     def sample(self, seq: int, x: np.ndarray, v: np.ndarray, *, iteration: int = 0,
                measurements: dict | None = None, timeout: float | None = None) -> Sample:
@@ -125,13 +134,18 @@ class ForceLink:
             return self._zero
         t = seq * self.dt
         t0 = _time.perf_counter()
-        shape, pos, r = self._shape, self._pos, self._r
+        shape, pos, r, local = self._shape, self._pos, self._r, self._local
         extra = {"modal": (x[r:], v[r:])} if self.m else {}
         if self.m:
             x, v = x[:r], v[:r]
-        np.add(self.eq, x, out=pos.reshape(-1))
+        np.add(self.eq, x, out=self._pos_flat)
         try:
-            if measurements is not None or timeout is not None or extra:
+            if local is not None:   # (no controller joins an embedded server: no measurements)
+                self._vel_flat[:] = v
+                if extra:
+                    local.modal_position[:], local.modal_velocity[:] = extra["modal"]
+                reply = local(seq, iteration)
+            elif measurements is not None or timeout is not None or extra:
                 reply = self.conn.step(seq, t, pos, v.reshape(shape), iteration, measurements=measurements,
                                        timeout=timeout, **extra)
             else:
@@ -139,6 +153,8 @@ class ForceLink:
         except (KeyboardInterrupt, RunInterrupted):
             raise
         except Exception as exc:
+            if isinstance(exc, ProtocolError):   # the local step's refusal, as the server's error reply says it
+                exc = RemoteError(exc.code, exc.name, exc.field, exc.message, self.conn.address, exc.extra)
             rows, where = self.writer.rows, getattr(self.writer, "path", "the results file")
             raise RunInterrupted(f"force server error at step {seq} (t = {t:.6g} s): {exc}; the {rows} rows "
                                  f"before it are saved in {where}", step=seq, time=t, rows=rows) from exc

@@ -35,6 +35,7 @@ from hydrolink.server.hdb.file_set import FileSetReader
 from hydrolink.server.hdb.store import HASH, ContentStore, ContentTooLarge, default_folder
 from hydrolink.server.service import frontend
 from hydrolink.server.service.direct import DirectError, DirectListener, DirectRoute
+from hydrolink.server.service.local_step import LocalStep
 from hydrolink.server.service.log_limit import LimitedLog, limit_lines
 from hydrolink.server.service.session import PlantBuilder, Session, build_model
 from hydrolink.server.service.setup_workers import SetupWorkers
@@ -528,6 +529,16 @@ class ForceServer:
             return self._error(exc, {"type": "step", "msg_id": msg_id}, session, None)
         return {"v": codec.PROTOCOL_VERSION, "type": "forces", "msg_id": next(self._ids), "session": session,
                 "parent": msg_id, **reply}
+
+    def local_step(self, session: str) -> LocalStep | None:
+        """The step path of this server's own in-process client for ``session``
+        (server/service/local_step.py): a server without a socket (no controller can join), a
+        session that steps here, unpaced; None otherwise (the client takes :meth:`step_map`)."""
+        s = self.sessions.get(session)
+        if s is None or self._sock is not None or type(s) is not Session or s.pacer is not None \
+                or s.id in self._hubs:
+            return None
+        return LocalStep(s)
 
     def handle(self, frame: bytes | dict, route: list[bytes] | None = None) -> dict | None:
         """One request frame (or, in-process, its unpacked map) -> its reply message (never

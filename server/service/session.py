@@ -340,7 +340,7 @@ class Session(SessionInfo):
             self._saved_bytes -= entry[1]
         return {"state": sid, "kept": len(self._saved)}
 
-    def _modal_state(self, msg: dict) -> tuple:
+    def modal_state(self, msg: dict) -> tuple:
         """A session with generalized modes: the step's ``modal_position`` and ``modal_velocity``
         (M,) (SPEC §5.2, revision 1.15); without modes: ()."""
         m = self.model.modes.size
@@ -353,10 +353,7 @@ class Session(SessionInfo):
         """Reply fields for a ``step`` request (SPEC §5.2–5.3); ProtocolError leaves state unchanged.
         ``hydro_command``: the hydro states the session's controllers commanded for this new step
         ({body: state}, SPEC §5.7.4; only for a model with hydro_states, server/hydro_states.py)."""
-        seq = codec.require_int(msg, "seq", minimum=0)
-        if seq > self.model.last_seq:
-            raise ProtocolError(Code.BAD_VALUE, "seq", f"seq {seq} is past the run's end: the last step is "
-                                f"{self.model.last_seq} (setup.last_seq; simulation.duration / dt)")
+        seq = self.within_run(codec.require_int(msg, "seq", minimum=0))
         iteration = codec.require_int(msg, "iteration", default=0, minimum=0)
         t_req = codec.require_float(msg, "time")
         t = seq * self.dt
@@ -366,7 +363,21 @@ class Session(SessionInfo):
         shape = (self.n_bodies, 6)
         pos = codec.require_array(msg, "position", shape, bound=MAX_COORDINATE)
         vel = codec.require_array(msg, "velocity", shape, bound=MAX_SPEED)
-        modal = self._modal_state(msg)
+        return self.advance(seq, iteration, pos, vel, self.modal_state(msg), hydro_command)
+
+    def within_run(self, seq: int) -> int:
+        """``seq`` if the run has a step seq (setup.last_seq); else error 5 naming ``seq``."""
+        if seq > self.model.last_seq:
+            raise ProtocolError(Code.BAD_VALUE, "seq", f"seq {seq} is past the run's end: the last step is "
+                                f"{self.model.last_seq} (setup.last_seq; simulation.duration / dt)")
+        return seq
+
+    def advance(self, seq: int, iteration: int, pos: np.ndarray, vel: np.ndarray, modal: tuple = (),
+                hydro_command: dict[str, str] | None = None) -> dict:
+        """The reply fields of step ``seq`` ``iteration`` (>= 0, within the run) for a checked state
+        (``pos``, ``vel`` (N, 6), ``modal`` :meth:`modal_state`'s): the sequencing rules of SPEC
+        §5.3 (a new step, a replacing iteration, a retry answered from the cache), then the
+        model's step; ProtocolError leaves the state unchanged."""
         if seq == self.last_seq + 1:
             replace = False
         elif seq == self.last_seq and iteration > self.last_iteration:
@@ -386,6 +397,7 @@ class Session(SessionInfo):
                            f"or = {self.last_iteration} (retry)")
             field = "seq" if seq != self.last_seq else "iteration"
             raise ProtocolError(Code.OUT_OF_ORDER, field, f"{expect}; got seq {seq} iteration {iteration}")
+        t = seq * self.dt
         t0 = _time.perf_counter()
         try:
             extra = {"modal_position": modal[0], "modal_velocity": modal[1]} if modal else {}
