@@ -1,0 +1,164 @@
+"""The loads along the bodies that ask for them (``bodies[i].sections``), added to a run's results
+file after its last row (server/loads/sections.py; docs/generalized-modes.md "Loads along a body").
+
+Variables (dims ``section``: every station of every such body in scene order, ``axis3``: x, y, z of
+the body's axes)::
+
+    section_force, section_moment             (time, section, axis3)  N, N m: the rest of the body's load
+                                                                     on the part beyond the station
+    section_still_force, section_still_moment (section, axis3)        their still-water part (included above)
+    section_station (section) m, section_body (section)
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Mapping
+
+import netCDF4
+import numpy as np
+import xarray as xr
+
+from hydrolink.protocol.scene import Body, Scene, resolve_path
+from hydrolink.server.errors import ModelError
+from hydrolink.server.hdb.build.panels import PanelFileError, PanelPressures, read_panel_pressures
+from hydrolink.server.loads.sections import SectionCuts, recorded_motion, section_cuts, section_loads
+from hydrolink.server.sea.doppler import doppler_shift
+from hydrolink.server.sea.seastate import sea_components
+from hydrolink.server.sea.waves import WaveComponents, WaveError
+
+ATTACHED = ("joints", "ptos", "moorings", "morison")
+BODY_FORCES = ("linear_damping", "quadratic_damping", "drag", "nonlinear")
+
+
+def panel_set(scene: Scene, i: int, scene_path: str | Path, hdb: xr.Dataset | None) -> PanelPressures:
+    """Body ``i``'s panel set: its ``sections.panel_pressures`` file, else the one its HDB build
+    names; ModelError naming ``bodies[i].sections`` when there is none or it is another body's."""
+    body, key = scene.bodies[i], f"bodies[{i}].sections"
+    given = body.sections.panel_pressures
+    named = hdb.attrs.get("panel_pressure_file") if hdb is not None else None
+    if given is None and named is None:
+        raise ModelError(key, f"the HDB {body.hdb} carries no per-panel pressures (the force distribution along "
+                              "the body is not known from a WAMIT, BEMIO, NEMOH or Capytaine file): build it with "
+                              "`hydrolink hdb build` and `panel_pressures = true`, or give sections.panel_pressures")
+    path = resolve_path(scene_path, given) if given is not None else Path(named)
+    try:
+        ps = read_panel_pressures(path)
+    except PanelFileError as exc:
+        raise ModelError(f"{key}.panel_pressures" if given else key, str(exc)) from None
+    if ps.body != body.hdb_body_name or len(ps.dofs) != 6:
+        raise ModelError(f"{key}.panel_pressures" if given else key,
+                         f"{path}: the panel set of body {ps.body!r} over {len(ps.dofs)} DOFs, not of "
+                         f"{body.hdb_body_name!r} over its six rigid DOFs")
+    return ps
+
+
+def run_waves(scene: Scene, hdbs: Mapping[str, xr.Dataset]) -> WaveComponents:
+    """The wave components the model used: the scene's sea over the HDBs' common frequency range,
+    Doppler-shifted as the model does (server/model.py); ModelError naming ``waves.type`` or
+    ``waves.excitation`` for a sea the loads are not built for."""
+    waves = scene.waves
+    kind = getattr(waves, "type", "")
+    if kind in ("elevation", "gauges"):
+        raise ModelError("waves.type", f"the loads along a body are built for wave components, not a {kind!r} sea "
+                                       "(its excitation is not a sum of components)")
+    if getattr(waves, "excitation", "superposition") == "convolution":
+        raise ModelError("waves.excitation", "the loads along a body sum the components (\"superposition\"), "
+                                             "not an excitation by convolution")
+    lo = max(float(hdbs[b.hdb]["omega"].values[0]) for b in scene.bodies if b.hdb is not None)
+    hi = min(float(hdbs[b.hdb]["omega"].values[-1]) for b in scene.bodies if b.hdb is not None)
+    try:
+        return doppler_shift(sea_components(waves, lo, hi, scene.water), scene.current, scene.water.gravity,
+                             scene.water.depth_m, getattr(waves, "excitation", "superposition"))
+    except WaveError as exc:
+        raise ModelError(exc.key, exc.why) from None
+
+
+def unmodelled(scene: Scene, i: int, body: Body) -> str | None:
+    """A warning naming ``bodies[i].sections`` when loads other than the water's, the weight and the
+    inertia act on the body (not distributed along it), else None."""
+    found = [f"{kind}[{j}]" for kind in ATTACHED for j, item in enumerate(getattr(scene, kind))
+             if body.name in {getattr(item, k, None) for k in ("body", "body1", "body2")}]
+    found += [f"bodies[{i}].{k}" for k in BODY_FORCES if getattr(body, k) not in (None, False, "none")]
+    if len(body.dofs) < 6:
+        found.append(f"bodies[{i}].dofs (locked: its constraint loads)")
+    if not found:
+        return None
+    return (f"bodies[{i}].sections: {', '.join(found)} act on {body.name!r} and are not distributed along it: the "
+            "loads along the body hold the water's, the weight's and the inertia's; the near end carries theirs")
+
+
+@dataclass(frozen=True)
+class SectionPlan:
+    """What the loads along the bodies need, made and checked before the run (a bad key is refused
+    before any step): each asking body's index, panel set and cut rows; the run's waves; the warnings."""
+    bodies: tuple[tuple[int, PanelPressures, SectionCuts], ...]
+    waves: WaveComponents
+    warnings: tuple[str, ...]
+
+
+def plan_sections(scene: Scene, scene_path: str | Path, hdbs: Mapping[str, xr.Dataset]) -> SectionPlan | None:
+    """The plan of the bodies with ``sections`` (None: no body asks); ModelError naming the key of
+    what cannot be computed."""
+    asked = [i for i, b in enumerate(scene.bodies) if b.sections is not None]
+    if not asked:
+        return None
+    waves = run_waves(scene, hdbs)
+    warnings, bodies = [], []
+    for i in asked:
+        body = scene.bodies[i]
+        ps = panel_set(scene, i, scene_path, hdbs.get(body.hdb))
+        cuts, notes = section_cuts(ps, body.sections, body, f"bodies[{i}].sections", scene.water.density,
+                                   scene.water.gravity)
+        warnings += notes + [w for w in (unmodelled(scene, i, body),) if w]
+        bodies.append((i, ps, cuts))
+    return SectionPlan(tuple(bodies), waves, tuple(warnings))
+
+
+def add_section_loads(output: str | Path, plan: SectionPlan, scene: Scene) -> None:
+    """The loads of the plan's bodies from the results file ``output``, added to it (module
+    docstring) with the plan's warnings."""
+    with xr.open_dataset(output, engine="netcdf4") as raw:
+        names = [str(b) for b in raw["body"].values]
+        rows = {v: np.asarray(raw[v].values, float) for v in ("time", "position", "velocity", "equilibrium_position")}
+    parts = []
+    for i, ps, cuts in plan.bodies:
+        k = names.index(scene.bodies[i].name)
+        motion = recorded_motion(rows["time"], rows["position"][:, k], rows["velocity"][:, k],
+                                 rows["equilibrium_position"][k])
+        parts.append((cuts, section_loads(cuts, ps, motion, scene, plan.waves)))
+    _write(output, parts, list(plan.warnings))
+
+
+def _write(output: str | Path, parts: list, warnings: list[str]) -> None:
+    """The loads' variables into the results file (module docstring), the warnings to its list."""
+    with netCDF4.Dataset(output, "a") as ds:
+        count = sum(c.stations.size for c, _ in parts)
+        ds.createDimension("section", count)
+        ds.createDimension("axis3", 3)
+        ax = ds.createVariable("axis3", str, ("axis3",))
+        for j, a in enumerate("xyz"):
+            ax[j] = a
+        body = ds.createVariable("section_body", str, ("section",))
+        station = ds.createVariable("section_station", "f8", ("section",))
+        station.units, station.long_name = "m", "the station along the body's axis (global frame at rest)"
+        station.axis_of_body = json.dumps({c.body: "xyz"[c.axis] for c, _ in parts})
+        loads = np.concatenate([values for _, values in parts], axis=1)          # (T, section, 6)
+        still = np.concatenate([c.still for c, _ in parts], axis=0)
+        at = 0
+        for c, _ in parts:
+            for s in c.stations:
+                body[at], station[at] = c.body, float(s)
+                at += 1
+        what = "the load the rest of the body exerts on the part beyond the station, body axes"
+        for name, units, cols in (("force", "N", slice(0, 3)), ("moment", "N m", slice(3, 6))):
+            v = ds.createVariable(f"section_{name}", "f8", ("time", "section", "axis3"))
+            v.units, v.long_name = units, f"{name} at the station: {what}" + (", about the station" if name == "moment" else "")
+            v[:] = loads[:, :, cols]
+            s = ds.createVariable(f"section_still_{name}", "f8", ("section", "axis3"))
+            s.units, s.long_name = units, f"the still-water part of section_{name}"
+            s[:] = still[:, cols]
+        if warnings:
+            ds.setncattr("warnings", json.dumps(json.loads(ds.getncattr("warnings")) + warnings))
