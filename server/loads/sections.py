@@ -93,6 +93,19 @@ def mass_line(sections: BodySections, body: Body, key: str) -> tuple[MassLine, l
     return ml, warnings
 
 
+def _linear_load(ps: PanelPressures, beyond: np.ndarray, points: np.ndarray, alpha: float, beta: np.ndarray,
+                 ) -> np.ndarray:
+    """(S, 6) the load -[integral of p n dS; integral of p (r - S) x n dS] over each station's part of a
+    pressure p = alpha + beta . r, exact on flat panels (their area, first and second moments)."""
+    first = ps.area[:, None] * ps.center                                          # (P, 3) integral of r dS
+    amount = alpha * ps.area + first @ beta                                        # (P,) integral of p dS
+    # integral of p (r - S) dS = alpha (first - S A) + R2 beta - S (beta . first)
+    q = (alpha * first + ps.second_moment @ beta)[None] - points[:, None, :] * amount[None, :, None]   # (S, P, 3)
+    force = -np.einsum("sp,p,pk->sk", beyond, amount, ps.normal)
+    moment = -np.einsum("sp,spk->sk", beyond, np.cross(q, ps.normal[None]))
+    return np.concatenate((force, moment), axis=1)
+
+
 @dataclass(frozen=True)
 class SectionCuts:
     """The linear cut rows of one body's stations (module docstring): each (S, 6, ...) maps to the
@@ -129,17 +142,21 @@ def section_cuts(ps: PanelPressures, sections: BodySections, body: Body, key: st
     # a panel is beyond a station when its centre is; one whose centre lies on the cut belongs to the part
     # beyond when it faces back (a near end face): so the hull's first end cuts off all, its last none
     tie = np.isclose(along[None, :], st[:, None], rtol=0.0, atol=1e-9 * (1.0 + np.abs(along).max()))
-    beyond = (along[None, :] > st[:, None]) & ~tie | tie & (ps.normal[None, :, a] < 0)   # (S, P)
+    beyond = ((along[None, :] > st[:, None]) & ~tie | tie & (ps.normal[None, :, a] < 0)).astype(float)  # (S, P)
     n_ds = ps.normal * ps.area[:, None]                                            # (P, 3)
     arm = ps.center[None, :, :] - points[:, None, :]                               # (S, P, 3)
     weights = -np.concatenate((np.broadcast_to(n_ds.T[None], (st.size, 3, ps.panels)),
                                np.cross(arm, n_ds[None]).transpose(0, 2, 1)), axis=1) * beyond[:, None, :]
     ref = ps.reference_point
-    rise = np.zeros((ps.panels, 6))          # the panel's rise dz over [xi; theta] (linear)
-    rise[:, 2], rise[:, 3], rise[:, 4] = 1.0, ps.center[:, 1] - ref[1], -(ps.center[:, 0] - ref[0])
     g_vec = np.array([0.0, 0.0, -g])
-    still = np.einsum("skp,p->sk", weights, -rho * g * ps.center[:, 2])             # the water's, at rest
-    inertia, restoring = np.zeros((st.size, 6, 6)), np.einsum("skp,pj->skj", weights, -rho * g * rise)
+    # the hydrostatic pressure, linear in r: at rest -rho g z, its change -rho g dz with the panel's rise
+    # dz = xi_3 + theta_1 (y - y_r) - theta_2 (x - x_r): each (alpha, beta) of p = alpha + beta . r
+    still = _linear_load(ps, beyond, points, 0.0, np.array([0.0, 0.0, -rho * g]))
+    restoring = np.zeros((st.size, 6, 6))
+    for j, (alpha, beta) in {2: (-rho * g, np.zeros(3)), 3: (rho * g * ref[1], np.array([0.0, -rho * g, 0.0])),
+                             4: (-rho * g * ref[0], np.array([rho * g, 0.0, 0.0]))}.items():
+        restoring[:, :, j] = _linear_load(ps, beyond, points, alpha, beta)
+    inertia = np.zeros((st.size, 6, 6))
     for i, s in enumerate(st):
         m, c, i_c = ml.beyond(float(s))
         lever = c - points[i]

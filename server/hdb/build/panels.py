@@ -8,7 +8,8 @@ in the global frame at rest (the HDB's), SI, Capytaine's exp(-i w t) convention 
 
     coords  omega (rad/s), wave_direction (rad), dof (the HDB's labels of the body), panel, xyz
     vars    center, normal (panel, xyz): the normal points out of the body, into the water
-            area (panel)
+            area (panel); second_moment (panel, xyz, xyz): the integral of r r^T over the panel (flat panels:
+                a linearly varying pressure, the hydrostatic one, is integrated exactly with it)
             added_mass_pressure, damping_pressure (omega, dof, panel); added_mass_pressure_inf (dof, panel):
                 the radiation pressure p = -a(w) x'' - b(w) x' of DOF j's motion (per unit acceleration and
                 velocity), so the force the water exerts on DOF i is -sum_panels p (V_i . n) dS: its sum
@@ -42,6 +43,7 @@ class PanelPressures:
     center: np.ndarray               # (P, 3)
     normal: np.ndarray               # (P, 3) out of the body
     area: np.ndarray                 # (P,)
+    second_moment: np.ndarray        # (P, 3, 3) integral of r r^T dS
     omega: np.ndarray                # (W,)
     wave_direction: np.ndarray       # (D,) rad, increasing
     added_mass: np.ndarray           # (W, n, P)
@@ -75,6 +77,28 @@ def rigid_motions(points: np.ndarray, reference_point: np.ndarray) -> np.ndarray
         e = np.zeros(3)
         e[k] = 1.0
         out[3 + k] = np.cross(e, r)
+    return out
+
+
+def face_vertices(mesh) -> np.ndarray:
+    """(P, 4, 3) each panel's corners in the order of the mesh's faces_centers. A Capytaine
+    reflection-symmetric mesh is walked half by half: its ``faces`` index each half's own vertices
+    (Capytaine 3.0 concatenates them without offsetting the second half's)."""
+    if hasattr(mesh, "half") and hasattr(mesh, "other_half"):
+        return np.concatenate((face_vertices(mesh.half), face_vertices(mesh.other_half)))
+    return np.asarray(mesh.vertices, float)[np.asarray(mesh.faces, int)]
+
+
+def second_moments(corners: np.ndarray) -> np.ndarray:
+    """(P, 3, 3) the integral of r r^T over each flat panel of ``corners`` (P, 4, 3) (quadrilaterals as two
+    triangles, a triangle given with a repeated corner): per triangle A/12 (sum v v^T + s s^T), s the
+    sum of its corners."""
+    out = np.zeros((corners.shape[0], 3, 3))
+    for tri in ((0, 1, 2), (0, 2, 3)):
+        v = corners[:, tri]                                            # (P, 3, 3): vertex, xyz
+        area = 0.5 * np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1)
+        s = v.sum(axis=1)
+        out += area[:, None, None] / 12.0 * (np.einsum("pvi,pvj->pij", v, v) + np.einsum("pi,pj->pij", s, s))
     return out
 
 
@@ -118,7 +142,9 @@ def panel_pressures_of(results: list, body, labels: list[str], name: str, refere
             exc[i, d] = pressure + airy_waves_pressure(mesh.faces_centers, r.problem)
     return PanelPressures(body=name, dofs=tuple(labels), reference_point=np.asarray(reference_point, float),
                           center=np.asarray(mesh.faces_centers, float), normal=np.asarray(mesh.faces_normals, float),
-                          area=np.asarray(mesh.faces_areas, float), omega=np.asarray(finite),
+                          area=np.asarray(mesh.faces_areas, float),
+                          second_moment=second_moments(face_vertices(mesh)),
+                          omega=np.asarray(finite),
                           wave_direction=np.asarray(heads), added_mass=a, damping=b, added_mass_inf=a_inf,
                           excitation=exc, rho=float(rho), g=float(g), source="(this build)")
 
@@ -127,7 +153,7 @@ def store_panel_pressures(ps: PanelPressures, path: Path) -> None:
     """Write the panel set (module docstring) atomically."""
     ds = xr.Dataset(
         {"center": (("panel", "xyz"), ps.center), "normal": (("panel", "xyz"), ps.normal),
-         "area": (("panel",), ps.area),
+         "area": (("panel",), ps.area), "second_moment": (("panel", "xyz", "xyz2"), ps.second_moment),
          "added_mass_pressure": (("omega", "dof", "panel"), ps.added_mass),
          "damping_pressure": (("omega", "dof", "panel"), ps.damping),
          "added_mass_pressure_inf": (("dof", "panel"), ps.added_mass_inf),
@@ -158,7 +184,8 @@ def read_panel_pressures(path: Path) -> PanelPressures:
         body=str(ds.attrs["body"]), dofs=tuple(str(d) for d in ds["dof"].values),
         reference_point=np.asarray(ds.attrs["reference_point"], float).reshape(3),
         center=np.asarray(ds["center"].values, float), normal=np.asarray(ds["normal"].values, float),
-        area=np.asarray(ds["area"].values, float), omega=np.asarray(ds["omega"].values, float),
+        area=np.asarray(ds["area"].values, float), second_moment=np.asarray(ds["second_moment"].values, float),
+        omega=np.asarray(ds["omega"].values, float),
         wave_direction=np.asarray(ds["wave_direction"].values, float),
         added_mass=np.asarray(ds["added_mass_pressure"].values, float),
         damping=np.asarray(ds["damping_pressure"].values, float), added_mass_inf=a_inf,
