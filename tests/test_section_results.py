@@ -195,6 +195,10 @@ def test_sectional_loads_in_regular_waves_match_the_frequency_domain(box_spec: P
     # the ends: nothing beyond the far end (exactly), the whole free body at the near end
     assert np.abs(measured[-1]).max() == 0.0
     assert (np.abs(measured[0]) < 3e-3 * terms).all()
+    # the run checks itself there: 12 % of the largest yaw moment (rms, the ramp included) is said, naming simulation.dt
+    import json
+    said = [w for w in json.loads(ds.attrs["warnings"]) if "sections" in w]
+    assert len(said) == 1 and said[0].startswith("simulation.dt: bodies[0].sections") and "z moment" in said[0]
 
 
 def test_an_hdb_without_panel_pressures_is_refused_by_name(box_spec: Path, tmp_path: Path):

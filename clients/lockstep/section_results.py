@@ -30,6 +30,7 @@ from hydrolink.server.sea.seastate import sea_components
 from hydrolink.server.sea.waves import WaveComponents, WaveError
 
 ATTACHED = ("joints", "ptos", "moorings", "morison")
+RESIDUAL_WARNING = 0.05   # the whole free body's load (rms) against the largest along it: warned about beyond
 BODY_FORCES = ("linear_damping", "quadratic_damping", "drag", "nonlinear")
 
 
@@ -94,7 +95,7 @@ def unmodelled(scene: Scene, i: int, body: Body) -> str | None:
 class SectionPlan:
     """What the loads along the bodies need, made and checked before the run (a bad key is refused
     before any step): each asking body's index, panel set and cut rows; the run's waves; the warnings."""
-    bodies: tuple[tuple[int, PanelPressures, SectionCuts], ...]
+    bodies: tuple[tuple[int, PanelPressures, SectionCuts, SectionCuts | None], ...]   # and the whole body's check
     waves: WaveComponents
     warnings: tuple[str, ...]
 
@@ -112,8 +113,13 @@ def plan_sections(scene: Scene, scene_path: str | Path, hdbs: Mapping[str, xr.Da
         ps = panel_set(scene, i, scene_path, hdbs.get(body.hdb))
         cuts, notes = section_cuts(ps, body.sections, body, f"bodies[{i}].sections", scene.water.density,
                                    scene.water.gravity)
-        warnings += notes + [w for w in (unmodelled(scene, i, body),) if w]
-        bodies.append((i, ps, cuts))
+        others = unmodelled(scene, i, body)
+        warnings += notes + [w for w in (others,) if w]
+        # a free body's whole load must vanish: the run checks itself at the hull's start (not written)
+        start = float(ps.center[:, cuts.axis].min())
+        whole = None if others else section_cuts(ps, body.sections.model_copy(update={"stations": [start]}), body,
+                                                  f"bodies[{i}].sections", scene.water.density, scene.water.gravity)[0]
+        bodies.append((i, ps, cuts, whole))
     return SectionPlan(tuple(bodies), waves, tuple(warnings))
 
 
@@ -123,13 +129,30 @@ def add_section_loads(output: str | Path, plan: SectionPlan, scene: Scene) -> No
     with xr.open_dataset(output, engine="netcdf4") as raw:
         names = [str(b) for b in raw["body"].values]
         rows = {v: np.asarray(raw[v].values, float) for v in ("time", "position", "velocity", "equilibrium_position")}
-    parts = []
-    for i, ps, cuts in plan.bodies:
+    parts, warnings = [], list(plan.warnings)
+    for i, ps, cuts, whole in plan.bodies:
         k = names.index(scene.bodies[i].name)
         motion = recorded_motion(rows["time"], rows["position"][:, k], rows["velocity"][:, k],
                                  rows["equilibrium_position"][k])
-        parts.append((cuts, section_loads(cuts, ps, motion, scene, plan.waves)))
-    _write(output, parts, list(plan.warnings))
+        loads = section_loads(cuts, ps, motion, scene, plan.waves)
+        parts.append((cuts, loads))
+        if whole is not None:
+            warnings += self_check(i, loads - cuts.still, section_loads(whole, ps, motion, scene, plan.waves)[:, 0])
+    _write(output, parts, warnings)
+
+
+def self_check(i: int, along: np.ndarray, whole: np.ndarray) -> list[str]:
+    """A warning naming ``simulation.dt`` when the whole free body's load (T, 6), which must vanish, is
+    over RESIDUAL_WARNING of the largest (rms) along it ``along`` (T, S, 6): the loads are differences of
+    terms many times larger, and their error is the run's (second order in dt)."""
+    rms_along = np.sqrt((along ** 2).mean(axis=0)).max(axis=0)
+    ratio = np.sqrt((whole ** 2).mean(axis=0)) / np.maximum(rms_along, 1e-300)
+    if not ratio.max() > RESIDUAL_WARNING:
+        return []
+    names = ("x force", "y force", "z force", "x moment", "y moment", "z moment")
+    return [f"simulation.dt: bodies[{i}].sections: the whole free body's load, which must vanish, is "
+            f"{100 * ratio.max():.3g} % of the largest {names[int(ratio.argmax())]} along it (rms): the loads are "
+            "small differences of the inertia's and the water's; a smaller dt (their error goes as dt^2)"]
 
 
 def _write(output: str | Path, parts: list, warnings: list[str]) -> None:
