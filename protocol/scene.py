@@ -680,7 +680,6 @@ class BodySections(_Section):
     # kg m^2/m: each segment's own rotary inertia per length about its centroid, about x, y, z (None: 0)
     section_inertia: list[Annotated[list[NonNegativeCoefficient], Field(min_length=3, max_length=3)]] | None = None
     point_masses: list[Annotated[list[float], Field(min_length=2, max_length=2)]] = []   # [position, kg]
-    panel_pressures: Annotated[str, Field(min_length=1)] | None = None   # the panel set's file (default: the HDB's)
 
     @model_validator(mode="after")
     def _segments(self) -> "BodySections":
@@ -780,8 +779,12 @@ class Body(_Section):
     passive_yaw_coefficients: Literal["initial-heading"] | None = None
     # wet bodies whose HDB has generalized modes: their modal mass, stiffness and damping (issue 38)
     modes: BodyModes | None = None
-    # wet bodies: the internal loads along the body's axis after the run (structural design)
+    # wet bodies: the internal loads along the body's axis after the run (structural design) and the
+    # linear pressure on every hull panel over the run (its own file beside the results), both from the
+    # HDB build's panel pressures: the file the build named (hdb build ``panel_pressures = true``), or this one
     sections: BodySections | None = None
+    pressure_output: bool = False
+    panel_pressures: Annotated[str, Field(min_length=1)] | None = None
     # wet bodies: variable hydrodynamics (server/hydro_states.py): the state ``hdb`` is (its name) and the
     # body's other states, each its own HDB, switched by [[hydro_switches]]; the radiation memory across a
     # switch: "current-kernel" (default; the state's IRF over the whole velocity history, WEC-Sim's default)
@@ -818,11 +821,12 @@ class Body(_Section):
         for key in ("hydro_state", "hydro_memory"):
             if getattr(self, key) is not None and not self.hydro_states:
                 raise ValueError(f"{key}: only with hydro_states (a body with one HDB has one state)")
-        if self.sections is not None and self.hdb is None:
-            raise ValueError("sections: only for a wet body (its loads come from its HDB build's panel pressures)")
-        if self.sections is not None and self.modes is not None:
-            raise ValueError("sections: not with modes: the loads along a flexible body need its structural model "
-                             "(the modes' inertia and elastic forces along the axis), which hydrolink does not have")
+        for key in ("sections", "pressure_output", "panel_pressures"):
+            if getattr(self, key) not in (None, False) and self.hdb is None:
+                raise ValueError(f"{key}: only for a wet body (from its HDB build's panel pressures)")
+            if getattr(self, key) not in (None, False) and self.modes is not None:
+                raise ValueError(f"{key}: not with modes: the loads and pressures of a flexible body need its "
+                                 "deformation along the hull and its structural model, not built")
         if self.hydro_states and self.modes is not None:
             raise ValueError("hydro_states: not with modes: a switch replaces the rigid DOFs' A-infinity and "
                              "stiffness only, and how a state's modes would carry over is not modelled (give the "

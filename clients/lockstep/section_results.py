@@ -24,7 +24,8 @@ import xarray as xr
 from hydrolink.protocol.scene import Body, Scene, resolve_path
 from hydrolink.server.errors import ModelError
 from hydrolink.server.hdb.build.panels import PanelFileError, PanelPressures, read_panel_pressures
-from hydrolink.server.loads.sections import SectionCuts, recorded_motion, section_cuts, section_loads
+from hydrolink.server.loads.sections import SectionCuts, section_cuts, section_loads
+from hydrolink.server.loads.water import recorded_motion
 from hydrolink.server.sea.doppler import doppler_shift
 from hydrolink.server.sea.seastate import sea_components
 from hydrolink.server.sea.waves import WaveComponents, WaveError
@@ -35,22 +36,24 @@ BODY_FORCES = ("linear_damping", "quadratic_damping", "drag", "nonlinear")
 
 
 def panel_set(scene: Scene, i: int, scene_path: str | Path, hdb: xr.Dataset | None) -> PanelPressures:
-    """Body ``i``'s panel set: its ``sections.panel_pressures`` file, else the one its HDB build
-    names; ModelError naming ``bodies[i].sections`` when there is none or it is another body's."""
-    body, key = scene.bodies[i], f"bodies[{i}].sections"
-    given = body.sections.panel_pressures
+    """Body ``i``'s panel set: its ``panel_pressures`` file, else the one its HDB build names;
+    ModelError naming ``bodies[i].sections`` (or ``.pressure_output``) when there is none or it is
+    another body's."""
+    body = scene.bodies[i]
+    key = f"bodies[{i}]." + ("sections" if body.sections is not None else "pressure_output")
+    given = body.panel_pressures
     named = hdb.attrs.get("panel_pressure_file") if hdb is not None else None
     if given is None and named is None:
         raise ModelError(key, f"the HDB {body.hdb} carries no per-panel pressures (the force distribution along "
                               "the body is not known from a WAMIT, BEMIO, NEMOH or Capytaine file): build it with "
-                              "`hydrolink hdb build` and `panel_pressures = true`, or give sections.panel_pressures")
+                              f"`hydrolink hdb build` and `panel_pressures = true`, or give bodies[{i}].panel_pressures")
     path = resolve_path(scene_path, given) if given is not None else Path(named)
     try:
         ps = read_panel_pressures(path)
     except PanelFileError as exc:
-        raise ModelError(f"{key}.panel_pressures" if given else key, str(exc)) from None
+        raise ModelError(f"bodies[{i}].panel_pressures" if given else key, str(exc)) from None
     if ps.body != body.hdb_body_name or len(ps.dofs) != 6:
-        raise ModelError(f"{key}.panel_pressures" if given else key,
+        raise ModelError(f"bodies[{i}].panel_pressures" if given else key,
                          f"{path}: the panel set of body {ps.body!r} over {len(ps.dofs)} DOFs, not of "
                          f"{body.hdb_body_name!r} over its six rigid DOFs")
     return ps

@@ -19,9 +19,8 @@ from hydrolink.protocol.scene import Body, BodySections, Scene
 from hydrolink.server.allocation import require_size
 from hydrolink.server.errors import ModelError
 from hydrolink.server.hdb.build.panels import PanelPressures
-from hydrolink.server.radiation.options import RadiationGroup, interp_matrix, radiation_option
-from hydrolink.server.sea.headings import interpolate_excitation
-from hydrolink.server.sea.waves import WaveComponents, WaveError, ramp_factor
+from hydrolink.server.loads.water import RecordedMotion, linear_rows, water_series
+from hydrolink.server.sea.waves import WaveComponents
 
 AXES = {"x": 0, "y": 1, "z": 2}
 MASS_TOLERANCE = 1e-3      # the mass line's total and centre against the body's (relative; centre: of its length)
@@ -175,86 +174,14 @@ def section_cuts(ps: PanelPressures, sections: BodySections, body: Body, key: st
     return cuts, warnings
 
 
-@dataclass(frozen=True)
-class RecordedMotion:
-    """One body's recorded rows: times (T,), displacement from equilibrium, velocity, acceleration (T, 6)."""
-    time: np.ndarray
-    displacement: np.ndarray
-    velocity: np.ndarray
-    acceleration: np.ndarray
-
-
-def recorded_motion(time: np.ndarray, position: np.ndarray, velocity: np.ndarray, equilibrium: np.ndarray,
-                    ) -> RecordedMotion:
-    """The rows of one body with its acceleration by central differences (second order, one-sided at the ends)."""
-    return RecordedMotion(time, position - equilibrium, velocity, np.gradient(velocity, time, axis=0, edge_order=2))
-
-
-def _excitation(cuts: SectionCuts, ps: PanelPressures, waves: WaveComponents, t: np.ndarray, scale: float,
-                ) -> np.ndarray:
-    """(T, S, 6) the excitation part of the water's load on each part (the model's components and ramp)."""
-    out = np.zeros((t.size, *cuts.still.shape))
-    if waves.size == 0:
-        return out
-    x_cut = cuts.rows(ps.excitation).reshape(ps.omega.size, ps.wave_direction.size, -1)   # (W, D, S*6)
-    heads = waves.heading_of()
-    c = waves.amplitude * np.exp(1j * waves.phase)
-    for head in np.unique(heads):
-        on = heads == head
-        x = interpolate_excitation(ps.omega, ps.wave_direction, x_cut, waves.hdb_omega[on], float(head))
-        phasor = np.exp(-1j * np.outer(t, waves.omega[on])) * c[on]                       # (T, n_c)
-        out += np.real(phasor @ x).reshape(out.shape)
-    return scale * ramp_factor(t, waves.ramp)[:, None, None] * out
-
-
-def _convolve(kernel: np.ndarray, v: np.ndarray, dt: float) -> np.ndarray:
-    """dt sum_j w_j K_j v_{n-j} (trapezoid weights as RadiationMemory's): (M+1, R, n) x (T, n) -> (T, R)."""
-    m = kernel.shape[0]
-    w = np.ones(m)
-    w[0] = w[-1] = 0.5
-    size = v.shape[0] + m - 1
-    k_f = np.fft.rfft(kernel * (dt * w)[:, None, None], size, axis=0)
-    v_f = np.fft.rfft(v, size, axis=0)
-    return np.fft.irfft(np.einsum("frn,fn->fr", k_f, v_f), size, axis=0)[:v.shape[0]]
-
-
 def section_loads(cuts: SectionCuts, ps: PanelPressures, motion: RecordedMotion, scene: Scene, waves: WaveComponents,
                   ) -> np.ndarray:
     """(T, S, 6) the loads at the stations over the recorded rows (module docstring), the still-water
     part included; ``waves`` the model's components (server/sea), ``scene`` its [hydro] radiation."""
-    rho_scale = scene.water.density / ps.rho
-    rg_scale = rho_scale * scene.water.gravity / ps.g
-    t, dt = motion.time, float(np.median(np.diff(motion.time))) if motion.time.size > 1 else scene.exchange_dt
+    t = motion.time
     shape = (t.size, *cuts.still.shape)
     require_size("bodies.sections", "the loads along the body over the run", shape)
     loads = cuts.still + np.einsum("skj,tj->tsk", cuts.inertia, motion.acceleration) \
         - np.einsum("skj,tj->tsk", cuts.restoring, motion.displacement)
-    try:
-        loads -= _excitation(cuts, ps, waves, t, rg_scale)
-    except WaveError as exc:
-        raise ModelError(exc.key, f"{exc.why} (the panel pressures of {ps.source})") from None
-    option = radiation_option(scene.hydro, scene.waves, dt)
-    return loads + _radiation(cuts, ps, motion, option, rho_scale, dt).reshape(shape)
-
-
-def _radiation(cuts: SectionCuts, ps: PanelPressures, motion: RecordedMotion, option, scale: float, dt: float,
-               ) -> np.ndarray:
-    """(T, S*6) minus the radiation part of the water's load on each part: a ẍ + the memory (or b(w0) ẋ)."""
-    n = ps.added_mass.shape[1]
-    acc, vel = motion.acceleration[:, :n], motion.velocity[:, :n]
-
-    def per_row(values: np.ndarray) -> np.ndarray:   # (W, n, P) -> (W, S*6, n)
-        return scale * np.einsum("skp,wnp->wskn", cuts.weights, values).reshape(values.shape[0], -1, n)
-    a_inf = scale * np.einsum("skp,np->skn", cuts.weights, ps.added_mass_inf).reshape(-1, n)
-    if option.name == "constant":
-        w0 = option.radiation_frequency
-        return acc @ interp_matrix(ps.omega, per_row(ps.added_mass), w0).T + \
-            vel @ interp_matrix(ps.omega, per_row(ps.damping), w0).T
-    out = acc @ a_inf.T
-    if option.name == "off" or option.samples == 0:
-        return out
-    b = per_row(ps.damping)
-    group = RadiationGroup(source=ps.source, bodies=(cuts.body,), act=np.arange(n), pos=np.arange(n),
-                           labels=cuts.dofs, omega=ps.omega, added_mass=per_row(ps.added_mass), damping=b,
-                           added_mass_inf=a_inf)
-    return out + _convolve(option.irf(group).kernel, vel, dt)
+    rows = linear_rows(ps, cuts.weights.reshape(-1, ps.panels))
+    return loads - water_series(rows, ps, motion, scene, waves, cuts.body).reshape(shape)
