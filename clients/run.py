@@ -65,7 +65,7 @@ def _announce_controllers(scene, server: str, token: str | None) -> None:
 def _datasets(scene, scene_path: Path, hdbs: dict, progress: bool) -> dict[str, xr.Dataset]:
     """The scene's HDBs as datasets (those sent as files read here), for what the client computes
     from them itself; only when some body asks for its loads along its axis."""
-    if not any(b.sections is not None for b in scene.bodies):
+    if not any(b.sections is not None or b.pressure_output for b in scene.bodies):
         return {}
     if all(isinstance(h, xr.Dataset) for h in hdbs.values()):
         return hdbs

@@ -1,5 +1,8 @@
 """The loads along the bodies that ask for them (``bodies[i].sections``), added to a run's results
-file after its last row (server/loads/sections.py; docs/generalized-modes.md "Loads along a body").
+file after its last row (server/loads/sections.py; docs/generalized-modes.md "Loads along a body"),
+and the panel pressures of those with ``pressure_output`` in a file of their own beside it
+(``<results>.pressures.nc``: server/loads/pressures.py; dims time, panel, xyz; center, normal, area,
+panel_body, still_pressure (panel), pressure (time, panel): the dynamic part, Pa).
 
 Variables (dims ``section``: every station of every such body in scene order, ``axis3``: x, y, z of
 the body's axes)::
@@ -25,6 +28,7 @@ from hydrolink.protocol.scene import Body, Scene, resolve_path
 from hydrolink.server.errors import ModelError
 from hydrolink.server.hdb.build.panels import PanelFileError, PanelPressures, read_panel_pressures
 from hydrolink.server.loads.sections import SectionCuts, section_cuts, section_loads
+from hydrolink.server.loads.pressures import panel_series, still_pressure
 from hydrolink.server.loads.water import recorded_motion
 from hydrolink.server.sea.doppler import doppler_shift
 from hydrolink.server.sea.seastate import sea_components
@@ -98,7 +102,8 @@ def unmodelled(scene: Scene, i: int, body: Body) -> str | None:
 class SectionPlan:
     """What the loads along the bodies need, made and checked before the run (a bad key is refused
     before any step): each asking body's index, panel set and cut rows; the run's waves; the warnings."""
-    bodies: tuple[tuple[int, PanelPressures, SectionCuts, SectionCuts | None], ...]   # and the whole body's check
+    # each body: its index, panel set, cut rows (None: no sections), the whole body's check (None: not free)
+    bodies: tuple[tuple[int, PanelPressures, SectionCuts | None, SectionCuts | None], ...]
     waves: WaveComponents
     warnings: tuple[str, ...]
 
@@ -106,7 +111,7 @@ class SectionPlan:
 def plan_sections(scene: Scene, scene_path: str | Path, hdbs: Mapping[str, xr.Dataset]) -> SectionPlan | None:
     """The plan of the bodies with ``sections`` (None: no body asks); ModelError naming the key of
     what cannot be computed."""
-    asked = [i for i, b in enumerate(scene.bodies) if b.sections is not None]
+    asked = [i for i, b in enumerate(scene.bodies) if b.sections is not None or b.pressure_output]
     if not asked:
         return None
     waves = run_waves(scene, hdbs)
@@ -114,10 +119,13 @@ def plan_sections(scene: Scene, scene_path: str | Path, hdbs: Mapping[str, xr.Da
     for i in asked:
         body = scene.bodies[i]
         ps = panel_set(scene, i, scene_path, hdbs.get(body.hdb))
+        if body.sections is None:
+            bodies.append((i, ps, None, None))
+            continue
         cuts, notes = section_cuts(ps, body.sections, body, f"bodies[{i}].sections", scene.water.density,
                                    scene.water.gravity)
         others = unmodelled(scene, i, body)
-        warnings += notes + [w for w in (others,) if w]
+        warnings += notes + [w for w in (others,) if w]   # (the panel pressures have no such limit)
         # a free body's whole load must vanish: the run checks itself at the hull's start (not written)
         start = float(ps.center[:, cuts.axis].min())
         whole = None if others else section_cuts(ps, body.sections.model_copy(update={"stations": [start]}), body,
@@ -132,16 +140,47 @@ def add_section_loads(output: str | Path, plan: SectionPlan, scene: Scene) -> No
     with xr.open_dataset(output, engine="netcdf4") as raw:
         names = [str(b) for b in raw["body"].values]
         rows = {v: np.asarray(raw[v].values, float) for v in ("time", "position", "velocity", "equilibrium_position")}
-    parts, warnings = [], list(plan.warnings)
+    parts, warnings, panels = [], list(plan.warnings), []
     for i, ps, cuts, whole in plan.bodies:
         k = names.index(scene.bodies[i].name)
         motion = recorded_motion(rows["time"], rows["position"][:, k], rows["velocity"][:, k],
                                  rows["equilibrium_position"][k])
+        if scene.bodies[i].pressure_output:
+            panels.append((scene.bodies[i].name, ps, panel_series(ps, motion, scene, plan.waves, scene.bodies[i].name,
+                                                                  f"bodies[{i}].pressure_output")))
+        if cuts is None:
+            continue
         loads = section_loads(cuts, ps, motion, scene, plan.waves)
         parts.append((cuts, loads))
         if whole is not None:
             warnings += self_check(i, loads - cuts.still, section_loads(whole, ps, motion, scene, plan.waves)[:, 0])
-    _write(output, parts, warnings)
+    if parts:
+        _write(output, parts, warnings)
+    if panels:
+        write_pressures(pressure_file(output), rows["time"], panels, scene)
+
+
+def pressure_file(output: str | Path) -> Path:
+    """The panel pressures' file beside the results ``output``."""
+    return Path(output).with_suffix(".pressures.nc")
+
+
+def write_pressures(path: Path, time: np.ndarray, panels: list, scene: Scene) -> None:
+    """The panel pressures (module docstring) of each (body, panel set, (T, P) series)."""
+    ds = xr.Dataset(
+        {"center": (("panel", "xyz"), np.concatenate([ps.center for _, ps, _ in panels])),
+         "normal": (("panel", "xyz"), np.concatenate([ps.normal for _, ps, _ in panels])),
+         "area": (("panel",), np.concatenate([ps.area for _, ps, _ in panels])),
+         "panel_body": (("panel",), np.concatenate([[name] * ps.panels for name, ps, _ in panels])),
+         "still_pressure": (("panel",), np.concatenate([still_pressure(ps, scene.water.density, scene.water.gravity)
+                                                        for _, ps, _ in panels])),
+         "pressure": (("time", "panel"), np.concatenate([p for _, _, p in panels], axis=1))},
+        coords={"time": time, "xyz": ["x", "y", "z"]},
+        attrs={"title": "hydrolink panel pressures", "frame": "the body's axes (the global frame at rest); normals "
+               "out of the body", "pressure": "the linear dynamic pressure at each panel's centre (Pa): hydrostatic "
+               "change, incident + diffracted, radiated; the still part in still_pressure"})
+    ds["pressure"].attrs["units"] = ds["still_pressure"].attrs["units"] = "Pa"
+    ds.to_netcdf(path, engine="netcdf4")
 
 
 def self_check(i: int, along: np.ndarray, whole: np.ndarray) -> list[str]:
