@@ -1742,6 +1742,11 @@ class Scene(_Section):
             if b.hydro_states:
                 found["hydro_states"] = f"bodies[{i}].hydro_states"
                 break
+        for i, b in enumerate(self.bodies):
+            if b.sections is not None:
+                found.setdefault("sectional_loads", f"bodies[{i}].sections")
+            if b.pressure_output:
+                found.setdefault("panel_pressures", f"bodies[{i}].pressure_output")
         return {f: found[f] for f in FEATURES if f in found}
 
 
