@@ -119,6 +119,11 @@ def plan_sections(scene: Scene, scene_path: str | Path, hdbs: Mapping[str, xr.Da
     for i in asked:
         body = scene.bodies[i]
         ps = panel_set(scene, i, scene_path, hdbs.get(body.hdb))
+        w = waves.hdb_omega
+        if w.size and (w.min() < ps.omega[0] * (1 - 1e-9) or w.max() > ps.omega[-1] * (1 + 1e-9)):
+            raise ModelError(f"bodies[{i}].panel_pressures" if body.panel_pressures else f"bodies[{i}].hdb",
+                             f"{ps.source}: the panel pressures span {ps.omega[0]:.4g}..{ps.omega[-1]:.4g} rad/s, the "
+                             f"waves {w.min():.4g}..{w.max():.4g} rad/s: a panel set of the HDB's frequencies is needed")
         if body.sections is None:
             bodies.append((i, ps, None, None))
             continue
