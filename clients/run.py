@@ -62,6 +62,14 @@ def _announce_controllers(scene, server: str, token: str | None) -> None:
           f"hydrolink control FILE.py --server {server} --token {token}", file=sys.stderr, flush=True)
 
 
+def _after_the_run(scene, output: Path, sections) -> RunMetrics | None:
+    """What the run's rows give after its last step: the loads along the bodies and their panel
+    pressures (``sections``, a SectionPlan: no per-step cost), then the limits' metrics."""
+    if sections is not None:
+        add_section_loads(output, sections, scene)
+    return _limit_metrics(scene, output)
+
+
 def _datasets(scene, scene_path: Path, hdbs: dict, progress: bool) -> dict[str, xr.Dataset]:
     """The scene's HDBs as datasets (those sent as files read here), for what the client computes
     from them itself; only when some body asks for its loads along its axis."""
@@ -162,12 +170,9 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
                           realtime=realtime)
         _write_summary_attributes(writer, summary)
         goodbye = conn.bye()
-    # the server's side: its compute per step, the radiation option and its pruning ([hydro]
-    # radiation, coupling_tolerance), the state-space pairs fitted in this setup (the rest came
-    # from the on-disk fit cache)
-    if sections is not None:    # the loads along the bodies, from the rows (after the run: no per-step cost)
-        add_section_loads(output, sections, scene)
-    metrics = _limit_metrics(scene, output)
+    metrics = _after_the_run(scene, output, sections)
+    # the server's side: its compute per step, the radiation option and its pruning ([hydro] radiation,
+    # coupling_tolerance), the state-space pairs fitted in this setup (the rest from the on-disk fit cache)
     return replace(summary, output=str(output), server=server, hdb_uploads=len(conn.uploads), metrics=metrics,
                    server_compute_us_per_step=(1e6 * goodbye["compute_s"] / goodbye["steps"]
                                                if goodbye.get("steps") else None),
