@@ -10,6 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import unit_rigid_motions
+
 from hydrolink.server.hdb.build.builder import build_hdb
 from hydrolink.server.hdb.build.panels import read_panel_pressures
 from hydrolink.server.hdb.build.spec import SpecError, parse_spec
@@ -34,12 +36,6 @@ density = 1025.0
 """
 
 
-def _rigid(points: np.ndarray) -> np.ndarray:
-    """(6, P, 3) unit rigid motions about the origin, written out here."""
-    x, y, z = points.T
-    zero, one = np.zeros_like(x), np.ones_like(x)
-    return np.stack([np.c_[one, zero, zero], np.c_[zero, one, zero], np.c_[zero, zero, one],
-                     np.c_[zero, -z, y], np.c_[z, zero, -x], np.c_[-y, x, zero]])
 
 
 def test_panel_pressures_integrate_to_the_hdb_of_the_same_solve(tmp_path: Path):
@@ -49,7 +45,7 @@ def test_panel_pressures_integrate_to_the_hdb_of_the_same_solve(tmp_path: Path):
     ps = read_panel_pressures(Path(ds.attrs["panel_pressure_file"]))
     assert ps.panels > 50 and ps.dofs == tuple(str(d) for d in ds["radiating_dof"].values)
     assert np.all(ps.normal[ps.center[:, 2] < -1.99, 2] < -0.99)   # the bottom's normals point down, into the water
-    a, b, a_inf, x = ps.hdb_rows(_rigid(ps.center))
+    a, b, a_inf, x = ps.hdb_rows(unit_rigid_motions(ps.center))
     for mine, name in ((a, "added_mass"), (b, "radiation_damping"), (a_inf, "added_mass_inf"), (x, "excitation_force")):
         ref = ds[name].values
         assert np.abs(mine - ref).max() <= 1e-9 * np.abs(ref).max(), name

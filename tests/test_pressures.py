@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from conftest import body, irregular_waves, scene_toml
+from conftest import body, box_build_spec, irregular_waves, scene_toml, unit_rigid_motions
 from hydrolink.clients.run import run_scene_file
 from hydrolink.server.hdb.build.builder import build_hdb
 
@@ -21,32 +21,10 @@ RHO, G = 1025.0, 9.81
 L, B, T, H = 20.0, 6.0, 2.0, 1.0          # H the panels' size
 MASS = RHO * L * B * T
 INERTIA = [MASS * (B ** 2 + T ** 2) / 12, MASS * (L ** 2 + T ** 2) / 12, MASS * (L ** 2 + B ** 2) / 12]
-SPEC = f"""
-panel_pressures = true
-[body]
-name = "barge"
-shape = "box"
-length = {L}
-width = {B}
-draft = {T}
-freeboard = 1.0
-panel_size = {H}
-[frequencies]
-omega_min = 0.3
-omega_max = 1.8
-n = 11
-[waves]
-directions = [0.0, 30.0]
-[water]
-density = {RHO}
-"""
+SPEC = box_build_spec(name="barge", length=L, width=B, draft=T, panel_size=H, density=RHO,
+                      frequencies="omega_min = 0.3\nomega_max = 1.8\nn = 11")
 
 
-def _rigid(points: np.ndarray) -> np.ndarray:
-    x, y, z = points.T
-    zero, one = np.zeros_like(x), np.ones_like(x)
-    return np.stack([np.c_[one, zero, zero], np.c_[zero, one, zero], np.c_[zero, zero, one],
-                     np.c_[zero, -z, y], np.c_[z, zero, -x], np.c_[-y, x, zero]])
 
 
 def test_panel_pressures_integrate_to_the_force_the_run_applied(tmp_path: Path, monkeypatch):
@@ -65,7 +43,7 @@ def test_panel_pressures_integrate_to_the_force_the_run_applied(tmp_path: Path, 
     assert "section_force" not in run and set(ds["panel_body"].values) == {"barge"}
     hdb = build_hdb(spec, progress=False)                                  # from the cache
     c, n, area = ds["center"].values, ds["normal"].values, ds["area"].values
-    vn = np.einsum("mpk,pk->mp", _rigid(c), n) * area                     # (6, P)
+    vn = np.einsum("mpk,pk->mp", unit_rigid_motions(c), n) * area                     # (6, P)
     force = -ds["pressure"].values @ vn.T                                   # (T, 6) the pressures' generalized force
     t = run["time"].values
     x = run["position"].values[:, 0] - run["equilibrium_position"].values[0]

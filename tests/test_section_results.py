@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from conftest import body, regular_waves, scene_toml
+from conftest import body, box_build_spec, regular_waves, scene_toml, unit_rigid_motions
 from hydrolink.clients.run import run_scene_file
 from hydrolink.server.errors import ModelError
 from hydrolink.server.hdb.build.builder import build_hdb, load_spec, make_meshes
@@ -30,31 +30,10 @@ INERTIA = [OWN[0] * L, MASS * L ** 2 / 12 + OWN[1] * L, MASS * L ** 2 / 12 + OWN
 Z_G = -0.5
 W0 = 0.8
 STATIONS = [-10.0, -6.0, -2.0, 0.0, 4.0, 8.0, 10.0]
-SPEC = f"""
-panel_pressures = true
-[body]
-name = "barge"
-shape = "box"
-length = {L}
-width = {B}
-draft = {T}
-freeboard = 1.0
-panel_size = 1.0
-[frequencies]
-values = [0.6, {W0}, 1.0]
-[waves]
-directions = [0.0, 30.0]
-[water]
-density = {RHO}
-"""
+SPEC = box_build_spec(name="barge", length=L, width=B, draft=T, panel_size=1.0, density=RHO,
+                      frequencies=f"values = [0.6, {W0}, 1.0]")
 
 
-def _rigid(points: np.ndarray) -> np.ndarray:
-    """(6, P, 3) unit rigid motions about the origin."""
-    x, y, z = points.T
-    zero, one = np.zeros_like(x), np.ones_like(x)
-    return np.stack([np.c_[one, zero, zero], np.c_[zero, one, zero], np.c_[zero, zero, one],
-                     np.c_[zero, -z, y], np.c_[z, zero, -x], np.c_[-y, x, zero]])
 
 
 def gauss_points(mesh) -> tuple[np.ndarray, np.ndarray]:
@@ -93,7 +72,7 @@ def reference(spec: Path, heading: float) -> tuple[np.ndarray, np.ndarray, np.nd
     mask = fb.hull_mask
     c, n, ds = hull.faces_centers, hull.faces_normals, hull.faces_areas
     # generalized forces -sum p (V . n) dS of the unit motions, as complex amplitudes
-    modes = _rigid(c)
+    modes = unit_rigid_motions(c)
     vn = np.einsum("mpk,pk->mp", modes, n) * ds
     p_rad = np.array([np.asarray(r.pressure)[mask] for r in rad])           # (6, P) per unit displacement
     p_exc = np.asarray(dif.pressure)[mask] + airy_waves_pressure(c, dif.problem)
