@@ -93,6 +93,11 @@ def test_a_mass_line_that_does_not_fit_the_body_is_refused_by_key():
     b = barge([12.0])
     with pytest.raises(ModelError, match="stations"):
         section_cuts(box_panels(1.0), b.sections, b, "bodies[0].sections", RHO, G)
+    with pytest.raises(ValueError, match="sections: not with modes"):      # a flexible body: not built
+        Body.model_validate({**barge([0.0]).model_dump(exclude_none=True), "modes": {"names": ["bend"], "mass": [1.0]}})
+    with pytest.raises(ValueError, match="pressure_output: only for a wet body"):
+        Body.model_validate(body("dry", mass=1.0, center_of_mass=[0.0, 0.0, 0.0], inertia=None, dofs=["heave"],
+                                 pressure_output=True))
     b = barge([0.0], section_inertia=[[0.0, 0.0, 0.0]])
     _, warnings = section_cuts(box_panels(1.0), b.sections, b, "bodies[0].sections", RHO, G)
     assert any("section_inertia" in w for w in warnings)   # roll: the line has none, the body 1e6
