@@ -27,7 +27,7 @@ import xarray as xr
 from hydrolink.protocol.scene import Body, Scene, resolve_path
 from hydrolink.server.errors import ModelError
 from hydrolink.server.hdb.build.panels import PanelFileError, PanelPressures, read_panel_pressures
-from hydrolink.server.loads.sections import SectionCuts, section_cuts, section_loads
+from hydrolink.server.loads.sections import AXES, SectionCuts, section_cuts, section_loads
 from hydrolink.server.loads.pressures import panel_series, still_pressure
 from hydrolink.server.loads.water import recorded_motion
 from hydrolink.server.sea.doppler import doppler_shift
@@ -102,8 +102,9 @@ def unmodelled(scene: Scene, i: int, body: Body) -> str | None:
 class SectionPlan:
     """What the loads along the bodies need, made and checked before the run (a bad key is refused
     before any step): each asking body's index, panel set and cut rows; the run's waves; the warnings."""
-    # each body: its index, panel set, cut rows (None: no sections), the whole body's check (None: not free)
-    bodies: tuple[tuple[int, PanelPressures, SectionCuts | None, SectionCuts | None], ...]
+    # each body: its index, panel set, cut rows (None: no sections; a free body's first station is the
+    # hull's start, the whole body's check, computed with the others and not written) and whether it has it
+    bodies: tuple[tuple[int, PanelPressures, SectionCuts | None, bool], ...]
     waves: WaveComponents
     warnings: tuple[str, ...]
 
@@ -125,17 +126,15 @@ def plan_sections(scene: Scene, scene_path: str | Path, hdbs: Mapping[str, xr.Da
                              f"{ps.source}: the panel pressures span {ps.omega[0]:.4g}..{ps.omega[-1]:.4g} rad/s, the "
                              f"waves {w.min():.4g}..{w.max():.4g} rad/s: a panel set of the HDB's frequencies is needed")
         if body.sections is None:
-            bodies.append((i, ps, None, None))
+            bodies.append((i, ps, None, False))
             continue
-        cuts, notes = section_cuts(ps, body.sections, body, f"bodies[{i}].sections", scene.water.density,
-                                   scene.water.gravity)
         others = unmodelled(scene, i, body)
-        warnings += notes + [w for w in (others,) if w]   # (the panel pressures have no such limit)
         # a free body's whole load must vanish: the run checks itself at the hull's start (not written)
-        start = float(ps.center[:, cuts.axis].min())
-        whole = None if others else section_cuts(ps, body.sections.model_copy(update={"stations": [start]}), body,
-                                                  f"bodies[{i}].sections", scene.water.density, scene.water.gravity)[0]
-        bodies.append((i, ps, cuts, whole))
+        start = float(ps.center[:, AXES[body.sections.axis]].min())
+        asked = body.sections if others else body.sections.model_copy(update={"stations": [start, *body.sections.stations]})
+        cuts, notes = section_cuts(ps, asked, body, f"bodies[{i}].sections", scene.water.density, scene.water.gravity)
+        warnings += notes + [w for w in (others,) if w]   # (the panel pressures have no such limit)
+        bodies.append((i, ps, cuts, not others))
     return SectionPlan(tuple(bodies), waves, tuple(warnings))
 
 
@@ -146,7 +145,7 @@ def add_section_loads(output: str | Path, plan: SectionPlan, scene: Scene) -> No
         names = [str(b) for b in raw["body"].values]
         rows = {v: np.asarray(raw[v].values, float) for v in ("time", "position", "velocity", "equilibrium_position")}
     parts, warnings, panels = [], list(plan.warnings), []
-    for i, ps, cuts, whole in plan.bodies:
+    for i, ps, cuts, checked in plan.bodies:
         k = names.index(scene.bodies[i].name)
         motion = recorded_motion(rows["time"], rows["position"][:, k], rows["velocity"][:, k],
                                  rows["equilibrium_position"][k])
@@ -156,9 +155,10 @@ def add_section_loads(output: str | Path, plan: SectionPlan, scene: Scene) -> No
         if cuts is None:
             continue
         loads = section_loads(cuts, ps, motion, scene, plan.waves)
+        if checked:
+            warnings += self_check(i, loads[:, 1:] - cuts.still[1:], loads[:, 0] - cuts.still[0])
+            cuts, loads = cuts.after_first(), loads[:, 1:]
         parts.append((cuts, loads))
-        if whole is not None:
-            warnings += self_check(i, loads - cuts.still, section_loads(whole, ps, motion, scene, plan.waves)[:, 0])
     if parts:
         _write(output, parts, warnings)
     if panels:

@@ -119,6 +119,11 @@ class SectionCuts:
     weights: np.ndarray        # (S, 6, P) pressure -> load on P
     dofs: tuple[str, ...]      # the panel set's DOFs (the radiation's columns)
 
+    def after_first(self) -> "SectionCuts":
+        """These cuts without their first station (a check station computed with the others)."""
+        return SectionCuts(self.body, self.axis, self.stations[1:], self.points[1:], self.still[1:], self.inertia[1:],
+                           self.restoring[1:], self.weights[1:], self.dofs)
+
     def rows(self, panel_values: np.ndarray) -> np.ndarray:
         """(..., P) per-panel values -> (..., S, 6): summed over each station's part."""
         return np.einsum("skp,...p->...sk", self.weights, panel_values)
