@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 
 import xarray as xr
 
+from hydrolink.clients.lockstep.section_results import add_section_loads, plan_sections
 from hydrolink.clients.lockstep.summary import RunSummary
 from hydrolink.clients.scene_inputs import (load_gauge_files, load_scene_hdbs, load_scene_hulls, load_spectrum_files,
                                             load_wave_elevation)
@@ -61,6 +62,24 @@ def _announce_controllers(scene, server: str, token: str | None) -> None:
           f"hydrolink control FILE.py --server {server} --token {token}", file=sys.stderr, flush=True)
 
 
+def _after_the_run(scene, output: Path, sections) -> RunMetrics | None:
+    """What the run's rows give after its last step: the loads along the bodies and their panel
+    pressures (``sections``, a SectionPlan: no per-step cost), then the limits' metrics."""
+    if sections is not None:
+        add_section_loads(output, sections, scene)
+    return _limit_metrics(scene, output)
+
+
+def _datasets(scene, scene_path: Path, hdbs: dict, progress: bool) -> dict[str, xr.Dataset]:
+    """The scene's HDBs as datasets (those sent as files read here), for what the client computes
+    from them itself; only when some body asks for its loads along its axis."""
+    if not any(b.sections is not None or b.pressure_output for b in scene.bodies):
+        return {}
+    if all(isinstance(h, xr.Dataset) for h in hdbs.values()):
+        return hdbs
+    return load_scene_hdbs(scene, scene_path, progress=progress)
+
+
 def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
                    server: str | None = None, progress: bool = True, timeout: float = 60.0,
                    listen: str = "tcp://127.0.0.1:*", hdbs: dict[str, xr.Dataset] | None = None,
@@ -92,6 +111,7 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
     if hdbs is None:  # (a caller running one scene many times may pass them, e.g. hydrolink bench)
         hdbs = load_scene_hdbs(scene, scene_path, progress=progress, as_files=hdb_files)
     series = load_wave_elevation(scene, scene_path)
+    sections = plan_sections(scene, scene_path, _datasets(scene, scene_path, hdbs, progress))   # before any step
     moordyn_files = None
     if any(getattr(m, "type", "") == "moordyn" for m in scene.moorings):
         from hydrolink.clients.exudyn.moordyn_mooring import load_moordyn_files
@@ -150,10 +170,9 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
                           realtime=realtime)
         _write_summary_attributes(writer, summary)
         goodbye = conn.bye()
-    # the server's side: its compute per step, the radiation option and its pruning ([hydro]
-    # radiation, coupling_tolerance), the state-space pairs fitted in this setup (the rest came
-    # from the on-disk fit cache)
-    metrics = _limit_metrics(scene, output)
+    metrics = _after_the_run(scene, output, sections)
+    # the server's side: its compute per step, the radiation option and its pruning ([hydro] radiation,
+    # coupling_tolerance), the state-space pairs fitted in this setup (the rest from the on-disk fit cache)
     return replace(summary, output=str(output), server=server, hdb_uploads=len(conn.uploads), metrics=metrics,
                    server_compute_us_per_step=(1e6 * goodbye["compute_s"] / goodbye["steps"]
                                                if goodbye.get("steps") else None),

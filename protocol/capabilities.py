@@ -47,10 +47,15 @@ FEATURES: dict[str, Feature] = {
     "generalized_modes": Feature("generalized (flexible) modes", ()),
     # no force field of its own: a reply carries ``hydro_state`` at a switch (SPEC §5.2, revision 1.14)
     "hydro_states": Feature("variable hydrodynamics (a body switching between HDBs)", ()),
+    # outputs computed by the run from its rows after the last step (server/loads/): no reply field
+    "sectional_loads": Feature("the loads along a body (sections)", ()),
+    "panel_pressures": Feature("the panel pressures over the run (pressure_output)", ()),
 }
 
 #: features of the linear core itself (server/model.py, server/sea/), not of a force term (server/terms/)
 CORE_FEATURES = frozenset({"passive_yaw", "generalized_modes", "hydro_states"})
+#: outputs of ``hydrolink run`` made from a run's rows (server/loads/, clients/lockstep/section_results.py)
+OUTPUT_FEATURES = frozenset({"sectional_loads", "panel_pressures"})
 
 _POINTWISE = frozenset({"linear_damping", "quadratic_damping", "drag", "morison"})
 _YAW = ("{what} needs the body's yaw sent to the force server each step and its excitation to follow it, "
@@ -59,6 +64,8 @@ _MODES = ("{what} need their modal coordinates sent to the force server each ste
           "ones, which {tool} does not do (its bodies have six DOFs); run the scene with hydrolink run")
 _SWITCH = ("{what} changes the client's mass and stiffness matrices during the run (a new A-infinity and "
            "hydrostatic stiffness at each switch), which {tool} does not do; run the scene with hydrolink run")
+_OUTPUT = ("{what} are computed by hydrolink run from the run's rows after its last step, which {tool} does not "
+           "do; run the scene with hydrolink run")
 _HULLS = ("nonlinear hydrostatics need the bodies' hulls in the hello, which {tool} does not carry yet; use the "
           "Exudyn client (hydrolink run)")
 
@@ -79,7 +86,7 @@ TOOLS: dict[str, Tool] = {
     "fmu_master": Tool("the FMU master", frozenset(),
                        "{tool} does not apply {what} yet (its force ports carry excitation, radiation and "
                        "hydrostatics); use the Exudyn client", {"passive_yaw": _YAW, "generalized_modes": _MODES,
-                                                                 "hydro_states": _SWITCH}),
+                                                                 "hydro_states": _SWITCH, "sectional_loads": _OUTPUT, "panel_pressures": _OUTPUT}),
     # steady: the second-order force of its regular wave (mean A^2 T(w, w), with sum_frequency the 2w
     # force) pointwise at the nodes like any time-dependent load
     "steady": Tool("hydrolink steady", _POINTWISE | {"second_order"},
@@ -91,7 +98,11 @@ TOOLS: dict[str, Tool] = {
                                          "run the scene with hydrolink run",
                     "hydro_states": "{what} switches the coefficients during the run, which {tool}'s periodic "
                                     "solution does not model; run the scene with hydrolink run (or one state's "
-                                    "HDB as the body's hdb)"}),
+                                    "HDB as the body's hdb)",
+                    "sectional_loads": "{what} are computed from a run's rows, which {tool}'s periodic solution does "
+                                       "not write yet; run the scene with hydrolink run",
+                    "panel_pressures": "{what} are computed from a run's rows, which {tool}'s periodic solution does "
+                                       "not write yet; run the scene with hydrolink run"}),
     # linearize: the device as a linear plant about rest (clients/analysis/plant.py)
     "linearize": Tool("hydrolink linearize", frozenset({"linear_damping"}),
                       "{what} have no linear model about rest in {tool} (quadratic drag's slope is zero there; "
@@ -105,12 +116,16 @@ TOOLS: dict[str, Tool] = {
                                             "the modes' linear model is the frequency-domain one of "
                                             "docs/generalized-modes.md",
                        "hydro_states": "{what} has no single linear plant in {tool} (each state is its own); give "
-                                       "the state's HDB as the body's hdb and drop bodies[i].hydro_states"}),
+                                       "the state's HDB as the body's hdb and drop bodies[i].hydro_states",
+                       "sectional_loads": _OUTPUT, "panel_pressures": _OUTPUT}),
     "native_fmu": Tool("the native FMU", _POINTWISE, _HULLS, {"passive_yaw": _YAW, "generalized_modes": _MODES,
-                                                              "hydro_states": _SWITCH}),
+                                                              "hydro_states": _SWITCH, "sectional_loads": _OUTPUT,
+                                                              "panel_pressures": _OUTPUT}),
     "python_fmu": Tool("the exported Python FMU", _POINTWISE, _HULLS, {"passive_yaw": _YAW,
                                                                        "generalized_modes": _MODES,
-                                                                       "hydro_states": _SWITCH}),
+                                                                       "hydro_states": _SWITCH,
+                                                                       "sectional_loads": _OUTPUT,
+                                                                       "panel_pressures": _OUTPUT}),
     # the server's session rollback (SPEC §5.9): every force term's state can be saved (stateless
     # or ForceTerm.state/set_state; tests/test_capabilities.py checks the server's terms)
     "save_restore": Tool("the session rollback (save/restore)", frozenset(FEATURES), ""),

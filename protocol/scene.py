@@ -667,6 +667,38 @@ class BodyModes(_Section):
         return self.matrix(key)[np.ix_(order, order)]
 
 
+class BodySections(_Section):
+    """``bodies[i].sections``: the internal loads along the body's axis at ``stations`` (shear,
+    bending, torsion: server/loads/sections.py, docs/generalized-modes.md "Loads along a body"),
+    computed after the run from the HDB build's panel pressures and the mass distribution given
+    here: segments of uniform mass per length between ``mass_stations`` (and point masses) on the
+    line along ``axis`` through the body's centre of mass."""
+    axis: Literal["x", "y", "z"] = "x"
+    stations: Annotated[list[Coordinate], Field(min_length=1)]          # m along the axis (global frame at rest)
+    mass_stations: Annotated[list[Coordinate], Field(min_length=2)]     # m: the segments' edges, increasing
+    mass_per_length: Annotated[list[LineDensity], Field(min_length=1)]  # kg/m, one per segment
+    # kg m^2/m: each segment's own rotary inertia per length about its centroid, about x, y, z (None: 0)
+    section_inertia: list[Annotated[list[NonNegativeCoefficient], Field(min_length=3, max_length=3)]] | None = None
+    point_masses: list[Annotated[list[float], Field(min_length=2, max_length=2)]] = []   # [position, kg]
+
+    @model_validator(mode="after")
+    def _segments(self) -> "BodySections":
+        edges = self.mass_stations
+        if any(b <= a for a, b in zip(edges, edges[1:])):
+            raise ValueError("mass_stations: must be strictly increasing (the edges of the mass segments)")
+        if len(self.mass_per_length) != len(edges) - 1:
+            raise ValueError(f"mass_per_length: {len(self.mass_per_length)} values for {len(edges) - 1} segments "
+                             "between mass_stations: give one per segment")
+        if self.section_inertia is not None and len(self.section_inertia) != len(edges) - 1:
+            raise ValueError(f"section_inertia: {len(self.section_inertia)} rows for {len(edges) - 1} segments")
+        if any(b <= a for a, b in zip(self.stations, self.stations[1:])):
+            raise ValueError("stations: must be strictly increasing")
+        for j, (at, m) in enumerate(self.point_masses):
+            if not (math.isfinite(m) and m > 0 and math.isfinite(at)):
+                raise ValueError(f"point_masses[{j}]: [position, mass] with a finite position and a mass > 0")
+        return self
+
+
 class HydroState(_Section):
     """One more hydrodynamic state of a body (``[[bodies.hydro_states]]``): its name and its HDB (a
     draft, a ballast case, an operating mode; server/hydro_states.py). The body's own ``hdb`` is the
@@ -747,6 +779,12 @@ class Body(_Section):
     passive_yaw_coefficients: Literal["initial-heading"] | None = None
     # wet bodies whose HDB has generalized modes: their modal mass, stiffness and damping (issue 38)
     modes: BodyModes | None = None
+    # wet bodies: the internal loads along the body's axis after the run (structural design) and the
+    # linear pressure on every hull panel over the run (its own file beside the results), both from the
+    # HDB build's panel pressures: the file the build named (hdb build ``panel_pressures = true``), or this one
+    sections: BodySections | None = None
+    pressure_output: bool = False
+    panel_pressures: Annotated[str, Field(min_length=1)] | None = None
     # wet bodies: variable hydrodynamics (server/hydro_states.py): the state ``hdb`` is (its name) and the
     # body's other states, each its own HDB, switched by [[hydro_switches]]; the radiation memory across a
     # switch: "current-kernel" (default; the state's IRF over the whole velocity history, WEC-Sim's default)
@@ -783,6 +821,12 @@ class Body(_Section):
         for key in ("hydro_state", "hydro_memory"):
             if getattr(self, key) is not None and not self.hydro_states:
                 raise ValueError(f"{key}: only with hydro_states (a body with one HDB has one state)")
+        for key in ("sections", "pressure_output", "panel_pressures"):
+            if getattr(self, key) not in (None, False) and self.hdb is None:
+                raise ValueError(f"{key}: only for a wet body (from its HDB build's panel pressures)")
+            if getattr(self, key) not in (None, False) and self.modes is not None:
+                raise ValueError(f"{key}: not with modes: the loads and pressures of a flexible body need its "
+                                 "deformation along the hull and its structural model, not built")
         if self.hydro_states and self.modes is not None:
             raise ValueError("hydro_states: not with modes: a switch replaces the rigid DOFs' A-infinity and "
                              "stiffness only, and how a state's modes would carry over is not modelled (give the "
@@ -1698,6 +1742,11 @@ class Scene(_Section):
             if b.hydro_states:
                 found["hydro_states"] = f"bodies[{i}].hydro_states"
                 break
+        for i, b in enumerate(self.bodies):
+            if b.sections is not None:
+                found.setdefault("sectional_loads", f"bodies[{i}].sections")
+            if b.pressure_output:
+                found.setdefault("panel_pressures", f"bodies[{i}].pressure_output")
         return {f: found[f] for f in FEATURES if f in found}
 
 

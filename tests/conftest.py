@@ -380,3 +380,20 @@ def needs_python_sigint() -> None:
     non-interactive shell inherits SIGINT ignored, and Python then leaves it ignored."""
     if signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
         pytest.skip("SIGINT is ignored in this process (started in the background by a non-interactive shell)")
+
+
+def box_build_spec(*, name: str, length: float, width: float, draft: float, panel_size: float, frequencies: str,
+                   density: float, directions: str = "[0.0, 30.0]") -> str:
+    """An ``hdb build`` spec of a box (freeboard 1 m) that keeps its panel pressures (panel_pressures =
+    true); ``frequencies`` the [frequencies] table's lines."""
+    return (f"panel_pressures = true\n[body]\nname = \"{name}\"\nshape = \"box\"\nlength = {length}\nwidth = {width}\n"
+            f"draft = {draft}\nfreeboard = 1.0\npanel_size = {panel_size}\n[frequencies]\n{frequencies}\n"
+            f"[waves]\ndirections = {directions}\n[water]\ndensity = {density}\n")
+
+
+def unit_rigid_motions(points: np.ndarray) -> np.ndarray:
+    """(6, P, 3) the displacement at ``points`` of a unit surge, sway, heave, roll, pitch, yaw about the origin."""
+    x, y, z = np.asarray(points, float).T
+    zero, one = np.zeros_like(x), np.ones_like(x)
+    return np.stack([np.c_[one, zero, zero], np.c_[zero, one, zero], np.c_[zero, zero, one],
+                     np.c_[zero, -z, y], np.c_[z, zero, -x], np.c_[-y, x, zero]])

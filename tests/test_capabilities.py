@@ -42,13 +42,32 @@ USES: dict[str, tuple[dict, dict, str]] = {
     # a second state with the sphere's own HDB (its path filled in by scene_text), entered at 0.2 s
     "hydro_states": ({"hydro_state": "first", "hydro_states": [{"name": "second"}]},
                      {"hydro_switches": [{"body": "sphere", "state": "second", "time": 0.2}]}, "bodies[0].hydro_states"),
+    # the panel set of a coarse sphere build (its path filled in by scene_text)
+    "sectional_loads": ({"sections": {"stations": [0.0], "mass_stations": [-5.0, 5.0], "mass_per_length": [MASS / 10]}},
+                        {}, "bodies[0].sections"),
+    "panel_pressures": ({"pressure_output": True}, {}, "bodies[0].pressure_output"),
 }
+PANELS = """
+panel_pressures = true
+[body]
+name = "sphere"
+shape = "sphere"
+radius = 5.0
+panel_size = 2.0
+[frequencies]
+values = [0.6, 1.2]
+[water]
+density = 1000.0
+depth = 200.0
+"""
 FMU_CLIENT = {"type": "fmu", "fmu": "heave.fmu", "bodies": {"sphere": {
     "position": {"heave": "z"}, "velocity": {"heave": "v"}, "force": {"heave": "F"}}}}
 
 
-def scene_text(sphere_path: Path, feature: str, *, fmu: bool = False) -> str:
+def scene_text(sphere_path: Path, feature: str, *, fmu: bool = False, panels: Path | None = None) -> str:
     body_keys, sections, _ = USES[feature]
+    if panels is not None and feature in ("sectional_loads", "panel_pressures"):
+        body_keys = {**body_keys, "panel_pressures": str(panels)}
     if feature == "hydro_states":
         body_keys = {**body_keys, "hydro_states": [{**s, "hdb": str(sphere_path)} for s in body_keys["hydro_states"]]}
     client, dofs = FMU_CLIENT, ["heave"]
@@ -128,6 +147,16 @@ def sphere_modes(sphere, tmp_path_factory) -> tuple[xr.Dataset, Path]:
 
 
 @pytest.fixture(scope="module")
+def sphere_panels(tmp_path_factory) -> Path:
+    """A coarse Capytaine build of the sphere with its panel pressures (the loads' features need one)."""
+    from hydrolink.server.hdb.build.builder import build_hdb
+    folder = tmp_path_factory.mktemp("panels")
+    (folder / "sphere_panels.toml").write_text(PANELS)
+    return Path(build_hdb(folder / "sphere_panels.toml", cache_dir=folder / "cache", progress=False).attrs[
+        "panel_pressure_file"])
+
+
+@pytest.fixture(scope="module")
 def sphere_headings(sphere, tmp_path_factory) -> tuple[xr.Dataset, Path]:
     """The sphere's HDB at 12 headings around the circle (the passive_yaw feature needs them): the
     sphere is symmetric about its vertical axis through its reference point, the origin, so the wave
@@ -179,14 +208,18 @@ def _refusal(tool: str, scene_path: Path, text: str, tmp_path: Path) -> Exceptio
     return err.value
 
 
-def _runs(tool: str, feature: str, sphere, sphere_path: Path, hull, tmp_path: Path) -> None:
+def _runs(tool: str, feature: str, sphere, sphere_path: Path, hull, tmp_path: Path, panels: Path | None = None) -> None:
     """The tool takes the feature's forces (what each tool does with them, checked on the tool)."""
     fields = FEATURES[feature].reply_fields
     if tool == "exudyn":                     # a short run: the forces' results variables are written
         from hydrolink.clients.run import run_scene_file
-        path = write_scene(hull[0].parent, scene_text(sphere_path, feature), f"{feature}.toml")
+        path = write_scene(hull[0].parent, scene_text(sphere_path, feature, panels=panels), f"{feature}.toml")
         run_scene_file(path, tmp_path / "out.nc", progress=False)
         ds = xr.load_dataset(tmp_path / "out.nc")
+        if feature == "sectional_loads":
+            assert np.isfinite(ds["section_moment"].values).all() and ds["section_moment"].shape[1:] == (1, 3)
+        if feature == "panel_pressures":
+            assert np.isfinite(xr.load_dataset(tmp_path / "out.pressures.nc")["pressure"].values).all()
         for f in fields:
             for v in reply_field(f).variables:
                 assert ds[v.name].dims[1:] == v.dims and np.isfinite(ds[v.name].values).all(), v.name
@@ -231,7 +264,7 @@ def _runs(tool: str, feature: str, sphere, sphere_path: Path, hull, tmp_path: Pa
 
 @pytest.mark.parametrize("feature,tool", list(itertools.product(FEATURES, TOOLS)))
 def test_every_feature_tool_pair_runs_or_is_refused_with_its_key(feature, tool, sphere, sphere_path, sphere_drift,
-                                                                 sphere_headings, sphere_modes, hull, tmp_path):
+                                                                 sphere_headings, sphere_modes, hull, tmp_path, request):
     if feature == "second_order":    # its data: the sphere's HDB with mean drift coefficients
         sphere, sphere_path = sphere_drift
     if feature == "passive_yaw":     # its data: the sphere's HDB at headings around the circle
@@ -240,7 +273,9 @@ def test_every_feature_tool_pair_runs_or_is_refused_with_its_key(feature, tool, 
         sphere, sphere_path = sphere_modes
     t = TOOLS[tool]
     if feature in t.supports:
-        _runs(tool, feature, sphere, sphere_path, hull, tmp_path)
+        panels = request.getfixturevalue("sphere_panels") if feature in ("sectional_loads", "panel_pressures") \
+            and tool == "exudyn" else None
+        _runs(tool, feature, sphere, sphere_path, hull, tmp_path, panels)
         return
     text = scene_text(sphere_path, feature, fmu=tool == "fmu_master")
     scene_path = write_scene(hull[0].parent, text, f"{tool}-{feature}.toml")

@@ -355,6 +355,13 @@ def _templates() -> dict[str, dict]:
                                          "damping": [3203.4, 8830.2, 140332.3],
                                          "initial_displacement": [0.01, 0.0, 0.0],
                                          "pto_stiffness": [1.0e3, 0.0, 0.0], "pto_damping": [1.0e4, 0.0, 0.0]})]},
+        # the loads along a body and its panel pressures (outputs of the run; the server takes the keys as they are)
+        "sections": {"simulation": sim, "water": water, "hydro": {"irf_duration": 2.0}, "waves": regular_waves(1.0, 6.0),
+                     "bodies": [body("float", hdb="wide.nc", mass=3.0e5, center_of_mass=[0.0, 0.0, 0.0],
+                                     inertia=[1.0e6] * 3, pressure_output=True,
+                                     sections={"axis": "x", "stations": [0.0], "mass_stations": [-5.0, 5.0],
+                                               "mass_per_length": [3.0e4], "section_inertia": [[1.0, 1.0, 1.0]],
+                                               "point_masses": [[0.0, 1.0]]})]},
         # a WAMIT run sent as its .1, .3 and .hst alone: the facts its files do not state, from the scene
         "wamit": {"simulation": sim, "water": {"density": 1000.0, "gravity": 9.81, "depth": 200.0},
                   "hydro": {"irf_duration": 2.0}, "waves": regular_waves(1.0, 8.0),

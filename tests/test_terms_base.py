@@ -9,7 +9,7 @@ import pytest
 
 from conftest import SPHERE_WATER, regular_waves, scene_toml, sphere_body
 
-from hydrolink.protocol.capabilities import CORE_FEATURES, FEATURES, TOOLS
+from hydrolink.protocol.capabilities import CORE_FEATURES, FEATURES, OUTPUT_FEATURES, TOOLS
 from hydrolink.protocol.reply import OPTIONAL_FORCES
 from hydrolink.protocol.scene import parse_scene
 from hydrolink.server.terms.base import ForceTerm, TermContext
@@ -21,14 +21,14 @@ SCENE = scene_toml(dt=0.05, duration=2.0, water=SPHERE_WATER, waves=regular_wave
 
 
 def test_the_registry_covers_the_contract_and_the_features():
-    """Every optional reply field and every scene feature but the linear core's belongs to a
+    """Every optional reply field and every scene feature but the linear core's and the run's outputs belongs to a
     registered term, in the contract's order; steady's and the rollback's capabilities are what the terms declare."""
     classes = {cls: cls.__name__ for cls in TERMS}
     assert [cls.name for cls in classes] == ["viscous", "morison", "nonlinear_hydrostatics", "second_order"]   # = reply order
     assert [f for f in OPTIONAL_FORCES] == ["viscous", "morison", "nonlinear_hydrostatic", "nonlinear_froude_krylov",
                                      "drift"]
     features = [f for cls in TERMS for f in cls.features]
-    assert sorted(features) == sorted(set(FEATURES) - CORE_FEATURES) and len(features) == len(set(features))
+    assert sorted(features) == sorted(set(FEATURES) - CORE_FEATURES - OUTPUT_FEATURES) and len(features) == len(set(features))
     assert TOOLS["steady"].supports == {f for cls in TERMS if cls.steady is not None for f in cls.features}
     assert TOOLS["save_restore"].supports == set(FEATURES)     # stateless, or state()/set_state()
     assert all(cls.stateless or cls.state is not ForceTerm.state for cls in TERMS)

@@ -299,6 +299,12 @@ class RadiationOption:
         return (f"at dt = {self.dt:g} s the IRF has one sample per step: a shorter hydro.irf_duration "
                 f"({self.duration:g} s) or a longer dt")
 
+    def irf(self, g: RadiationGroup) -> GroupIrf:
+        """The IRF stage of :meth:`build` for one group: what other forces made from the same HDB's
+        coefficients (the loads along a body, server/loads/sections.py) take so that their memory is
+        processed as the model's is; ``g``'s damping may have more rows than columns."""
+        return self._irf(g)
+
     def _irf(self, g: RadiationGroup) -> GroupIrf:
         """B(w) resampled and tailed as the scene asks, K(t) on the step grid (tapered), A_inf."""
         hyd = self.hydro

@@ -35,6 +35,8 @@ from hydrolink.protocol.hdb.schema import from_netcdf_dataset, to_netcdf
 from hydrolink.protocol.hdb.second_order import MeanDrift
 from hydrolink.protocol.hdb.schema import with_second_order
 from hydrolink.server.hdb.build.drift import far_field_drift
+from hydrolink.server.hdb.build.panels import (PanelPressures, panel_pressure_file, panel_pressures_of,
+                                               store_panel_pressures)
 from hydrolink.server.hdb.build.free_surface import free_surface_file, solve_free_surface, store_free_surface
 
 LOG = logging.getLogger(__name__)
@@ -60,6 +62,7 @@ def cache_key(spec: BuildSpec, spec_path: str | Path) -> str:
     normalised = spec.model_dump(mode="json")
     if spec.second_order == spec.second_order.__class__():
         normalised.pop("second_order")   # specs without second-order data keep their cached builds
+    normalised.pop("panel_pressures")    # a file of its own beside the HDB (panels.py), not in the HDB
     normalised.pop("free_surface")       # stored in a file of its own (free_surface.py), not in the HDB
     digests = []
     for body, key, table in zip(spec.all_bodies, spec.body_keys,
@@ -142,11 +145,12 @@ def bem_solver(progress: bool):
 
 
 def _solve(body, spec: BuildSpec, progress: bool, desc: str, motion: tuple[np.ndarray, np.ndarray] | None = None,
-           ) -> tuple[xr.Dataset, MeanDrift | None]:
+           ) -> tuple[xr.Dataset, MeanDrift | None, list]:
     """Radiation (every DOF of ``body``, a FloatingBody or Multibody) and diffraction over the
     grid, radiation at omega = inf; Capytaine's own dataset (exp(-iwt)) and, when the spec asks
     for it, the far-field mean drift (:mod:`.build_drift`; ``motion`` its free body's mass and
-    stiffness matrices, None for the body held fixed)."""
+    stiffness matrices, None for the body held fixed); with ``panel_pressures`` also the results
+    themselves (their panel pressures; else an empty list)."""
     import capytaine as cpt
     from tqdm import tqdm
 
@@ -159,7 +163,7 @@ def _solve(body, spec: BuildSpec, progress: bool, desc: str, motion: tuple[np.nd
     common = dict(body=body, rho=w.density, g=w.gravity, water_depth=w.depth_m)
     solver = bem_solver(progress)
     drift_spec = spec.second_order
-    keep = drift_spec.mean_drift == "far-field"   # the Kochin functions need the sources
+    keep = drift_spec.mean_drift == "far-field" or spec.panel_pressures   # the sources / the pressures
     n_total = sum(len(dofs) + (len(headings) if math.isfinite(om) else 0) for om in omegas)
     results = []
     # disable=None: tqdm leaves the bar out where stderr is not a terminal (no redraws in a log)
@@ -173,8 +177,9 @@ def _solve(body, spec: BuildSpec, progress: bool, desc: str, motion: tuple[np.nd
                 results.append(solver.solve(pb, keep_details=keep, _check_wavelength=False))
                 bar.update()
     cds = cpt.assemble_dataset(results, hydrostatics=False)
-    drift = far_field_drift(results, cds, drift_spec.kochin_directions, motion) if keep else None
-    return cds, drift
+    drift = far_field_drift(results, cds, drift_spec.kochin_directions, motion) \
+        if drift_spec.mean_drift == "far-field" else None
+    return cds, drift, results if spec.panel_pressures else []
 
 
 def _hydrostatics(hull, ref: np.ndarray, rho: float, g: float, *, mass: float = 0.0,
@@ -295,19 +300,26 @@ def _floating_bodies(spec: BuildSpec, spec_path: str | Path):
     return bodies, [h for h, _ in meshes], [ld for _, ld in meshes], modes
 
 
-def build_hdb_uncached(spec: BuildSpec, spec_path: str | Path, *, progress: bool = True) -> xr.Dataset:
+def build_hdb_uncached(spec: BuildSpec, spec_path: str | Path, *, progress: bool = True,
+                       panels_to: Path | None = None) -> xr.Dataset:
     """Mesh, solve and convert, without looking at the cache; what the build found doubtful (a
     coarse panel, a missing lid) is kept in the HDB's ``warnings`` attribute, cached with it
-    (server/hdb/reader_warnings.py)."""
+    (server/hdb/reader_warnings.py). With the spec's ``panel_pressures``, the panel set is written
+    to ``panels_to`` (panels.py; default beside the spec) and named by the HDB's attribute
+    ``panel_pressure_file``."""
     notes: list[str] = []
     with recorded(notes):
-        ds = _build(spec, spec_path, progress)
+        ds, panels = _build(spec, spec_path, progress)
     with_hdb_warnings(ds, notes)
+    if panels is not None:
+        path = panels_to or panel_pressure_file(Path(spec_path).with_suffix(".nc"))
+        store_panel_pressures(panels, path)
+        ds.attrs["panel_pressure_file"] = str(path)
     return ds
 
 
-def _build(spec: BuildSpec, spec_path: str | Path, progress: bool) -> xr.Dataset:
-    """:func:`build_hdb_uncached`'s mesh, solve and conversion."""
+def _build(spec: BuildSpec, spec_path: str | Path, progress: bool) -> tuple[xr.Dataset, PanelPressures | None]:
+    """:func:`build_hdb_uncached`'s mesh, solve and conversion (and the panel set, when asked)."""
     import capytaine as cpt
 
     t0 = time.perf_counter()
@@ -329,7 +341,7 @@ def _build(spec: BuildSpec, spec_path: str | Path, progress: bool) -> xr.Dataset
     w = spec.water
     hydro = [_hydrostatics(h, np.asarray(b.ref_point, float), w.density, w.gravity)
              for h, b in zip(hulls, spec.all_bodies)]
-    cds, drift = _solve(body, spec, progress, desc=f"hdb build {'+'.join(names)}",
+    cds, drift, solved = _solve(body, spec, progress, desc=f"hdb build {'+'.join(names)}",
                         motion=_free_motion(spec, hulls[0], hydro[0][1]) if spec.second_order.motions == "free" else None)
     t_solve = time.perf_counter()
     blocks = [_with_mode_stiffness(k, h, b, fields, w.density, w.gravity)
@@ -353,6 +365,9 @@ def _build(spec: BuildSpec, spec_path: str | Path, progress: bool) -> xr.Dataset
         ds = ds.assign_coords(body=names, influenced_dof=labels, radiating_dof=labels)
     if drift is not None:
         ds = with_second_order(ds, mean_drift=drift)
+    panels = panel_pressures_of(solved, bodies[0], [str(v) for v in ds["radiating_dof"].values], names[0],
+                                np.asarray(spec.all_bodies[0].ref_point, float), w.density, w.gravity) \
+        if solved else None
     n_panels = [int(h.nb_faces) for h in hulls]
     n_lid = [int(ld.nb_faces) if ld is not None else 0 for ld in lids]
     ds.attrs.update({
@@ -363,7 +378,7 @@ def _build(spec: BuildSpec, spec_path: str | Path, progress: bool) -> xr.Dataset
         "build_seconds": round(time.perf_counter() - t0, 3),
         "mesh_seconds": round(t_mesh - t0, 3), "solve_seconds": round(t_solve - t_mesh, 3),
     })
-    return ds
+    return ds, panels
 
 
 def cache_file_name(spec: BuildSpec, key: str) -> str:
@@ -385,13 +400,16 @@ def build_hdb(spec_path: str | Path, *, cache_dir: str | Path | None = None, pro
     key = cache_key(spec, spec_path)
     folder = Path(cache_dir).expanduser() if cache_dir is not None else default_cache_dir()
     path = folder / cache_file_name(spec, key)
-    if path.is_file() and not force:
+    panels = panel_pressure_file(path)
+    if path.is_file() and not force and (not spec.panel_pressures or panels.is_file()):
         ds = _read_cached(path)
         if ds is not None:
+            if spec.panel_pressures:
+                ds.attrs["panel_pressure_file"] = str(panels)
             ds.attrs["cache_file"] = str(path)
             ds.attrs["cache_hit"] = 1
             return _with_free_surface(ds, spec, spec_path, folder, key, progress, force) if free_surface else ds
-    ds = build_hdb_uncached(spec, spec_path, progress=progress)
+    ds = build_hdb_uncached(spec, spec_path, progress=progress, panels_to=panels)
     ds.attrs["build_spec_sha256"] = key
     try:
         write_atomic(path, lambda tmp: to_netcdf(ds, tmp))

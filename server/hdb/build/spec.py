@@ -322,6 +322,9 @@ class BuildSpec(_Section):
     waves: Waves = Waves()
     second_order: SecondOrder = SecondOrder()
     free_surface: Optional[FreeSurface] = None
+    # the linear pressure on every hull panel of each problem solved, stored beside the HDB
+    # (server/hdb/build/panels.py): what a run's sectional loads and panel pressures need
+    panel_pressures: bool = False
 
     @model_validator(mode="after")
     def _bodies(self) -> "BuildSpec":
@@ -341,6 +344,11 @@ class BuildSpec(_Section):
         if self.second_order.mean_drift != "none" and (self.multibody or self.all_bodies[0].shape == "compound"):
             raise ValueError("second_order.mean_drift: the far-field drift is the total on everything in the "
                              "water; only for a one-body spec ([body], not a compound)")
+        if self.panel_pressures and self.multibody:
+            raise ValueError("panel_pressures: for a one-body spec ([body]): the panel set is one body's hull")
+        if self.panel_pressures and not self.frequencies.infinite:
+            raise ValueError("panel_pressures: needs frequencies.infinite = true (the A-infinity pressure of each "
+                             "DOF: the sectional loads put the sections' A-infinity in the inertia, as the run does)")
         with_modes = [k for k, b in zip(keys, self.all_bodies) if b.modes]
         if with_modes and self.second_order.mean_drift != "none":
             raise ValueError(f"second_order.mean_drift: not with generalized modes ({with_modes[0]}.modes): the "
