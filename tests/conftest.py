@@ -76,7 +76,7 @@ def pytest_sessionfinish(session: pytest.Session) -> None:
     import numba_warmup
     reporter = session.config.pluginmanager.get_plugin("terminalreporter")
     for line in numba_warmup.finish(warmups):
-        reporter.write_line(f"warning: {line}", yellow=True)
+        reporter.write_line(f"\nwarning: {line}", yellow=True)     # (after xdist's progress line)
     shutil.rmtree(os.environ.pop(WARMUP_FOLDER), ignore_errors=True)
 
 

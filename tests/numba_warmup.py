@@ -63,9 +63,14 @@ def finish(warmups: list[Warmup]) -> list[str]:
     """Each process ended (terminated if still running) and reaped; a line for each that failed."""
     failed = []
     for w in warmups:
-        if w.process.poll() is None:
+        if w.process.poll() is None:        # a run shorter than the compile
             w.process.terminate()
-        if w.process.wait(60) not in (0, -15):
+        try:
+            w.process.wait(60)
+        except subprocess.TimeoutExpired:
+            w.process.kill()
+            w.process.wait()
+        if w.process.returncode not in (0, -15):
             failed.append(f"numba warm-up {w.group!r} exited {w.process.returncode} (the tests compiled "
                           f"its kernels themselves): {w.log.read_text().strip()[-2000:]}")
     return failed
