@@ -229,6 +229,14 @@ def serve(bind: str, session_timeout: float, cpu: int | None, curve_secret: Path
           max_message_mib: int | None, max_setups: int, max_sessions: int, max_memory_mib: int | None,
           isolate_step_ms: float, max_workers: int) -> None:
     """Run the force server until interrupted (SIGINT or SIGTERM)."""
+    _pin_to_cpu(cpu)
+    try:
+        key = _hmac_key(key_file)
+    except _UserError as exc:   # a bad --key-file: one line naming the file and why, status 2 (a bad option)
+        exc.exit_code = 2
+        raise
+    # the server's modules after the options' own checks: a bad --cpu or --key-file is said without
+    # importing them (about 2 s of CPU)
     import signal
 
     from hydrolink.protocol import codec
@@ -237,12 +245,6 @@ def serve(bind: str, session_timeout: float, cpu: int | None, curve_secret: Path
     from hydrolink.server.processes import start_children
     from hydrolink.server.service.force_server import ForceServer
 
-    _pin_to_cpu(cpu)
-    try:
-        key = _hmac_key(key_file)
-    except _UserError as exc:   # a bad --key-file: one line naming the file and why, status 2 (a bad option)
-        exc.exit_code = 2
-        raise
     try:
         server = ForceServer(bind, session_timeout=session_timeout, key=key,
                              curve_secret=str(curve_secret) if curve_secret else None,
@@ -359,14 +361,16 @@ def run(scene: Path, output: Path | None, server: str | None, no_progress: bool,
         listen: str, link_timeout: float, hdb_files: bool, realtime: float | None, control_token: str | None,
         curve_server_key: Path | None, curve_secret: Path | None, key_file: Path | None) -> None:
     """Co-simulate a SCENE (TOML) in lockstep with the force server."""
-    from hydrolink.clients.run import run_scene_file
-
     _pin_to_cpu(cpu)
     curve = _client_keys(curve_server_key, curve_secret)
     if curve is not None and server is None:
         raise _UserError("--curve-server-key/--curve-secret are for a remote server: give --server")
     if hdb_files and server is None:
         raise _UserError("--hdb-files is for a remote server (the embedded one reads the files itself): give --server")
+    key = _hmac_key(key_file)
+    # the run's modules after the options' own checks: a bad option is said without importing them
+    # (about 2 s of CPU)
+    from hydrolink.clients.run import run_scene_file
 
     import signal
 
@@ -376,7 +380,7 @@ def run(scene: Path, output: Path | None, server: str | None, no_progress: bool,
     signal.signal(signal.SIGTERM, _terminate)
     try:
         summary = _guard(run_scene_file, scene, output, server=server, progress=not no_progress, listen=listen,
-                         key=_hmac_key(key_file), link_timeout=link_timeout, hdb_files=hdb_files,
+                         key=key, link_timeout=link_timeout, hdb_files=hdb_files,
                          realtime=realtime, control_token=control_token,
                          **({"curve": curve} if curve is not None else {}))
     except KeyboardInterrupt as exc:

@@ -32,9 +32,16 @@ REPLY_S = 120.0
 EXIT_S = 600.0
 
 
+WARMUPS = pytest.StashKey[list]()            # the controller's numba warm-up processes (tests/numba_warmup.py)
+WARMUP_FOLDER = "HYDROLINK_TEST_NUMBA_WARMUP"   # environment: their locks' folder, for the workers
+
+
 def pytest_sessionstart(session: pytest.Session) -> None:
     """Under pytest-xdist, before any worker starts, the controller
 
+    - starts the compiles of hydrolink's numba kernels, one process a group, into numba's cache
+      (tests/numba_warmup.py): on a fresh clone each worker would otherwise compile them again;
+      a worker's first import of a group's compiled module waits for its compile (pytest_configure);
     - makes (or loads) Capytaine's one-off Green-function tabulation: Capytaine writes it into its
       cache folder in place, not atomically, so on a fresh machine two workers making it at once
       could read each other's half-written file;
@@ -46,10 +53,38 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     Serial runs (``-n 0``) and the workers themselves skip this."""
     config = session.config
     if getattr(config, "workerinput", None) is None and getattr(config.option, "numprocesses", None):
+        import tempfile
+
+        import numba_warmup
+        folder = tempfile.mkdtemp(prefix="hydrolink-numba-warmup-")
+        config.stash[WARMUPS] = numba_warmup.start(Path(folder))
+        os.environ[WARMUP_FOLDER] = folder
         import capytaine
         capytaine.BEMSolver()
         for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
             os.environ.setdefault(var, "1")
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """A pytest-xdist worker imports each group of compiled kernels once the controller's compile of
+    it is done (tests/numba_warmup.py)."""
+    folder = os.environ.get(WARMUP_FOLDER)
+    if folder and hasattr(config, "workerinput"):
+        import numba_warmup
+        numba_warmup.gate_imports(Path(folder))
+
+
+def pytest_sessionfinish(session: pytest.Session) -> None:
+    """The controller's numba warm-up processes reaped (and their folder removed); one that failed
+    is said (the tests then compiled the kernels themselves)."""
+    warmups = session.config.stash.get(WARMUPS, None)
+    if warmups is None:
+        return
+    import numba_warmup
+    reporter = session.config.pluginmanager.get_plugin("terminalreporter")
+    for line in numba_warmup.finish(warmups):
+        reporter.write_line(f"\nwarning: {line}", yellow=True)     # (after xdist's progress line)
+    shutil.rmtree(os.environ.pop(WARMUP_FOLDER), ignore_errors=True)
 
 
 @pytest.hookimpl(hookwrapper=True)

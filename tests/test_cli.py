@@ -121,7 +121,7 @@ def test_run_with_hdb_files_uploads_once_and_equals_the_map_run(scene_dir: Path,
 
 def test_bad_scene_is_one_clear_line(scene_dir: Path):
     write_scene(scene_dir, sphere_scene(mass=-1.0), "bad.toml")
-    result = _cli("run", "bad.toml", cwd=scene_dir)
+    result = _cli_here("run", "bad.toml", cwd=scene_dir)
     assert result.returncode != 0
     assert "bad.toml: bodies[0].mass: Input should be greater than 0" in result.stderr
     assert "Traceback" not in result.stderr
@@ -258,7 +258,7 @@ def test_hdb_build_writes_a_loadable_hdb_and_caches(tmp_path: Path):
                            env={**os.environ, **env_cache})
     assert first.returncode == 0, first.stderr
     assert list((tmp_path / "cache").glob("*.nc")), "the build was not cached"
-    info = _cli("hdb", "info", "ball.nc", cwd=tmp_path)
+    info = _cli_here("hdb", "info", "ball.nc", cwd=tmp_path)
     assert info.returncode == 0, info.stderr
     assert "ball" in info.stdout and "3 frequencies" in info.stdout
     from hydrolink.server.hdb.io import load_hdb
