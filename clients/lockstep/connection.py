@@ -162,6 +162,7 @@ class ServerConnection:
                     return
                 except zmq.Again:
                     continue
+            self._check_link(mtype)   # a link lost mid-run (e.g. found by a broken direct channel) ends it
         raise self._no_reply(mtype, limit)
 
     def _recv(self, deadline: float, mtype: str, limit: float) -> bytes:
@@ -263,11 +264,11 @@ class ServerConnection:
         closed then, and the caller sends the request over ZeroMQ); TimeoutError as over ZeroMQ."""
         try:
             return self._direct.request(frame, msg_id, limit, self.key)
-        except TimeoutError:
-            raise self._no_reply(mtype, limit) from None
         except ProtocolError as exc:
             raise ConnectionError(f"unreadable reply from {self.address}: {exc}") from None
         except OSError as exc:   # closed by the server (its budget, a restart) or broken: ZeroMQ from now on
+            if isinstance(exc, TimeoutError) and exc.errno is None:   # no reply within ``limit`` (not the
+                raise self._no_reply(mtype, limit) from None          # kernel's ETIMEDOUT: a link lost)
             log.warning("direct channel to %s lost (%s): continuing over ZeroMQ", self.address, exc)
             self._direct.close()
             self._direct = None
