@@ -3,11 +3,14 @@
 process, the Exudyn client in this one; wall time per step of the whole run loop, best of
 ``--repeat``.
 
-``--fronts`` adds the comparison of the server's two front ends (server/service/frontend.py) with
-no security: a bench-only server (:class:`RouterServer`, started by this script with
-``--serve-router``) answering through libzmq's ROUTER, which ``hydrolink serve`` uses only with
-CURVE (its receive is bounded per frame by libzmq, not while a message arrives: SPEC §1, so it is
-no user-facing choice). The modes are interleaved ``--repeat`` times, best of each kept.
+"plain" and "HMAC" step over the server's direct channel (SPEC §5.7.5, revision 1.17: a plain
+stream socket, no ZeroMQ I/O thread); CURVE over ZeroMQ (no direct channel beside it). ``--fronts``
+adds the plain run kept on ZeroMQ (``direct=False``: the stream front end, as before 1.17) and
+the comparison of the server's two front ends (server/service/frontend.py) with no security: a
+bench-only server (:class:`RouterServer`, started by this script with ``--serve-router``)
+answering through libzmq's ROUTER, which ``hydrolink serve`` uses only with CURVE (its receive is
+bounded per frame by libzmq, not while a message arrives: SPEC §1, so it is no user-facing
+choice). The modes are interleaved ``--repeat`` times, best of each kept.
 
     python bench/bench_security.py [--duration 100] [--repeat 3] [--fronts]
 """
@@ -89,9 +92,10 @@ def main() -> None:
     new_key_pair(work / "server", "server")
     new_key_pair(work / "clients", "client")
     modes = {
-        "plain": ([], {}, {}),
-        **({ROUTER: ([], {}, {})} if args.fronts else {}),
-        "HMAC (--key-file)": ([], {"HYDROLINK_KEY_FILE": str(key_file)}, {"key": read_hmac_key(key_file)}),
+        "plain (direct channel)": ([], {}, {}),
+        **({"plain, over ZeroMQ (stream front end)": ([], {}, {"direct": False}), ROUTER: ([], {}, {})}
+           if args.fronts else {}),
+        "HMAC (--key-file, direct channel)": ([], {"HYDROLINK_KEY_FILE": str(key_file)}, {"key": read_hmac_key(key_file)}),
         "CURVE": (["--curve-secret", str(work / "server" / "server.key_secret"), "--curve-clients",
                    str(work / "clients")], {},
                   {"curve": client_keys(work / "server" / "server.key", work / "clients" / "client.key_secret")}),
@@ -112,7 +116,7 @@ def main() -> None:
                 finally:
                     proc.terminate()
                     proc.wait(10)
-        base = best["plain"]
+        base = best["plain (direct channel)"]
         for name, us in best.items():
             print(f"| {name} | {us:.0f} | {us - base:+.0f} µs ({100 * (us / base - 1):+.1f} %) |")
     finally:
