@@ -81,9 +81,8 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
     the contents the server lacked); ``realtime``: release each exchange at its wall-clock time,
     FACTOR x wall clock (protocol/pacing.py; the summary's ``realtime``, a PacedRunReport, and the
     results' ``step_latency``, ``overrun`` and ``step_time``, docs/realtime.md); ``control_token``: the
-    secret the scene's controllers show to join (SPEC §5.7.2: ``hydrolink control --token``; None: the
-    server draws one, printed on stderr with the command that joins); ``direct``: take a remote
-    ``server``'s direct channel when its welcome offers one (SPEC §5.7.5; False: ZeroMQ only)."""
+    secret the scene's controllers show to join (SPEC §5.7.2: ``hydrolink control --token``; None: the server
+    draws one, printed on stderr); ``direct``: take a ``server``'s direct channel offered (SPEC §5.7.5)."""
     from hydrolink.clients.lockstep.connection import ServerConnection
     from hydrolink.clients.exudyn.client import result_bodies, run
     from hydrolink.clients.lockstep.results import ResultWriter
