@@ -21,12 +21,14 @@ closes the connection (the client goes on over ZeroMQ); so does a connection bey
 from __future__ import annotations
 
 import logging
+import math
 import os
 import secrets
 import select
 import socket
 import struct
 import tempfile
+import time
 from pathlib import Path
 from typing import Iterator
 
@@ -40,6 +42,7 @@ READ_BYTES = 1 << 16           # what one read takes from a connection
 TICKET_BYTES = 256             # the longest first frame (a ticket) a connection may send
 FREE_BYTES = 1 << 16           # a frame up to this long is read without the receive budget (as zmtp.Reader's)
 MAX_LINKS = 256                # connections at once; one more is closed at once
+OFFER_WATCH_S = 2.0            # after an offer, the loop waits on the listener too (its client connects now)
 
 
 def _loopback(host: str) -> bool:
@@ -165,6 +168,7 @@ class DirectListener:
         self.links: list[DirectLink] = []
         self._tickets: dict[str, str] = {}   # ticket -> the controller's own session id
         self._count = 0
+        self._offered = -math.inf            # when the newest offer was made (time.monotonic)
         self._fds = select.poll()            # the listener and its links, for ready_now
         self._fds.register(self.sock, select.POLLIN)
 
@@ -176,9 +180,17 @@ class DirectListener:
         and the one-use ticket that binds the connection to it."""
         ticket = secrets.token_urlsafe(32)
         self._tickets[ticket] = own
+        self._offered = time.monotonic()
         while len(self._tickets) > TICKETS_KEPT:
             del self._tickets[next(iter(self._tickets))]
         return {**self.offer_address, "ticket": ticket}
+
+    @property
+    def watched(self) -> bool:
+        """Whether a loop should wait on the listener and the connections now: one is open, or an
+        offer was made within OFFER_WATCH_S (its client is connecting: its first request is not
+        left until the loop's receive on the other socket times out)."""
+        return bool(self.links) or time.monotonic() - self._offered < OFFER_WATCH_S
 
     def accept(self) -> DirectLink | None:
         """A new connection (its ticket still to come), or None."""

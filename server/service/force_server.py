@@ -276,11 +276,11 @@ class ForceServer:
             self._set_rcv_timeout()
         if self._flying:
             self._poll_workers()
-        elif self._direct is not None and (self._direct.links or self.polled):
+        elif self._direct is not None and (self.polled or self._direct.watched):
             self._receive_direct()
         else:
             self._receive()
-            if self._direct is not None:   # no direct connection yet: a new one is taken after the receive
+            if self._direct is not None:   # no direct connection expected: one is taken after the receive
                 self._serve_direct(self._direct.ready_now())   # (no poller per message for ZeroMQ's clients)
         if self._setups:
             self._finish_setups()
