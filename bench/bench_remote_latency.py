@@ -31,6 +31,7 @@ HYDROLINK = [sys.executable, "-m", "hydrolink.clients.cli"]
 COMPARED = ("position", "velocity", "excitation_force", "radiation_force", "pto_force", "pto_power")
 CONTROLLER = ('\n[[controllers]]\nname = "ctl"\nptos = ["pto"]\ncommand = "force"\ntimeout = 30.0\n'
               'measurements = ["pto_displacement", "pto_velocity"]\nparameters = { damping = 3.9e5, stiffness = 1.36e6 }\n')
+TOKEN = "bench-remote-latency-join-token-0123456789"   # the run's join token (SPEC §5.7.2), given to both
 
 
 def rm3(duration: float, *, period: float = 8.0, dt: float = 0.08, ramp: float = 40.0, controller: bool = False,
@@ -46,19 +47,28 @@ def rm3(duration: float, *, period: float = 8.0, dt: float = 0.08, ramp: float =
 
 
 def run_three(popen, scene: Path, out: Path, bind: str, connect: str | None, controller: bool) -> float:
-    """Server (+ controller) + `hydrolink run`; the run's own steps/s (stepping loop only)."""
+    """Server (+ controller) + `hydrolink run`; the run's own steps/s (stepping loop only). The
+    controller joins with the run's join token (SPEC §5.7.2) and must have served every control step
+    (its own count, "controller done: N steps, 0 errors"): a controller that never joined would make
+    the run wait its join timeout and step on the fallback (RuntimeError then, not a figure)."""
     server = popen("server", [*HYDROLINK, "serve", "--bind", bind])
     procs = [server]
     try:
         address = connect or server.stderr.readline().strip().rsplit(" ", 1)[-1]
         if controller:
             procs.append(popen("ctl", [*HYDROLINK, "control", str(REPO / "examples" / "controllers" / "reactive.py"),
-                                       "--server", address, "--join-wait", "60"]))
-        client = popen("client", [*HYDROLINK, "run", str(scene), "-o", str(out), "--server", address, "--no-progress"])
+                                       "--server", address, "--join-wait", "60", "--token", TOKEN]))
+        client = popen("client", [*HYDROLINK, "run", str(scene), "-o", str(out), "--server", address, "--no-progress",
+                                  *(["--control-token", TOKEN] if controller else [])])
         procs.append(client)
         stdout, stderr = client.communicate(timeout=900)
         if client.returncode:
             raise RuntimeError(stderr)
+        if controller:
+            served = controller_steps(procs[1])
+            steps = int(re.search(r"wrote \S+: (\d+) steps", stdout).group(1))
+            if served != steps:
+                raise RuntimeError(f"the controller served {served} of {steps} steps")
         return float(re.search(r"\(([\d.]+) steps/s", stdout).group(1))
     finally:
         for p in reversed(procs):
@@ -68,6 +78,20 @@ def run_three(popen, scene: Path, out: Path, bind: str, connect: str | None, con
                 p.communicate(timeout=30)
             except subprocess.TimeoutExpired:
                 p.kill()
+
+
+def controller_steps(ctl: subprocess.Popen) -> int:
+    """The steps a `hydrolink control` process served, from its last line (it ends at the run's stop);
+    RuntimeError with its output when it failed or reported errors."""
+    try:
+        _, err = ctl.communicate(timeout=60)
+    except subprocess.TimeoutExpired:
+        ctl.kill()
+        _, err = ctl.communicate()
+    done = re.search(r"controller done: (\d+) steps, (\d+) errors", err)
+    if ctl.returncode or done is None or int(done.group(2)):
+        raise RuntimeError(f"the controller failed (status {ctl.returncode}): {err.strip()[-500:]}")
+    return int(done.group(1))
 
 
 def local(who, argv):

@@ -34,8 +34,6 @@ import importlib.util
 import math
 import inspect
 import logging
-import socket
-import struct
 import sys
 import time
 from pathlib import Path
@@ -44,12 +42,11 @@ from typing import Any, Callable
 import numpy as np
 import zmq
 
+from hydrolink.clients.lockstep.direct_channel import DirectChannel
 from hydrolink.protocol import codec
 
 log = logging.getLogger("hydrolink.control")
 
-DIRECT_HEADER = struct.Struct("<I")   # a direct frame's length (SPEC §5.7.5)
-DIRECT_CONNECT_S = 1.0                # how long opening the direct channel may take before ZeroMQ is kept
 
 
 class Controller:
@@ -136,7 +133,7 @@ class _Link:
         self.sock.connect(address)
         self.ids = codec.id_source("k")
         self.session: str | None = None
-        self.direct: _DirectChannel | None = None
+        self.direct: DirectChannel | None = None
 
     def request(self, mtype: str, hold: float = 0.0, **fields: Any) -> dict:
         """``hold``: how long the server may hold the request (SPEC §5.7.4 ``wait``)."""
@@ -162,11 +159,11 @@ class _Link:
 
     def go_direct(self, offer: Any) -> None:
         """Open the direct channel the welcome offers (``welcome.direct``); without one, or when it
-        cannot be opened within DIRECT_CONNECT_S, the requests stay on ZeroMQ."""
+        cannot be opened within CONNECT_S (clients/lockstep/direct_channel.py), the requests stay on ZeroMQ."""
         if not isinstance(offer, dict) or not isinstance(offer.get("ticket"), str):
             return
         try:
-            self.direct = _DirectChannel.open(self.address, offer)
+            self.direct = DirectChannel.open(self.address, offer)
         except (OSError, ValueError) as exc:
             log.info("direct channel to %s not opened (%s): requests stay on ZeroMQ", self.address, exc)
 
@@ -175,77 +172,6 @@ class _Link:
             self.direct.close()
         self.sock.close(0)
         self.ctx.term()
-
-
-class _DirectChannel:
-    """The direct channel's client end: one blocking stream socket, frames of a 4-byte length and a
-    message (SPEC §5.7.5)."""
-
-    def __init__(self, sock: socket.socket):
-        self.sock = sock
-        self.buffer = bytearray()
-        self._within = -1.0    # the kernel's receive timeout set (SO_RCVTIMEO), s
-        sock.settimeout(None)  # blocking: a request is one send and one receive, no poll before each
-
-    @classmethod
-    def open(cls, address: str, offer: dict) -> "_DirectChannel":
-        """Connect where ``offer`` says (``port`` on the host of the ZeroMQ ``address``, or ``path``)
-        and show its ticket."""
-        if "path" in offer:
-            sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-            target: Any = str(offer["path"])
-        elif address.startswith("tcp://") and type(offer.get("port")) is int:
-            host = address[6:].rsplit(":", 1)[0].strip("[]")
-            sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_STREAM)
-            target = (host, offer["port"])
-        else:
-            raise ValueError(f"an offer this controller cannot reach from {address!r}: {sorted(offer)}")
-        sock.settimeout(DIRECT_CONNECT_S)
-        try:
-            sock.connect(target)
-            if sock.family != socket.AF_UNIX:
-                sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            ticket = offer["ticket"].encode()
-            sock.sendall(DIRECT_HEADER.pack(len(ticket)) + ticket)
-        except OSError:
-            sock.close()
-            raise
-        return cls(sock)
-
-    def request(self, frame: bytes, msg_id: Any, within: float, key: bytes | None) -> dict:
-        """Send ``frame`` and wait at most ``within`` s for the reply whose parent is ``msg_id``;
-        OSError (a timeout included) when the channel fails."""
-        if within != self._within:   # the kernel times the receive (and the send) out
-            tv = struct.pack("ll", int(within), int(within % 1 * 1e6))
-            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO, tv)
-            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDTIMEO, tv)
-            self._within = within
-        self.sock.sendall(DIRECT_HEADER.pack(len(frame)) + frame)
-        deadline = time.monotonic() + within
-        while True:
-            reply = codec.unpack(self._frame(deadline), key)
-            if reply.get("parent") == msg_id:
-                return reply
-
-    def _frame(self, deadline: float) -> bytes:
-        buf, size = self.buffer, DIRECT_HEADER.size
-        while len(buf) < size or len(buf) < size + DIRECT_HEADER.unpack_from(buf)[0]:
-            if time.monotonic() > deadline:   # a frame still arriving in pieces
-                raise TimeoutError("no reply on the direct channel")
-            try:
-                data = self.sock.recv(1 << 16)
-            except BlockingIOError:   # SO_RCVTIMEO passed
-                raise TimeoutError("no reply on the direct channel") from None
-            if not data:
-                raise ConnectionResetError("the server closed the direct channel")
-            buf += data
-        n = size + DIRECT_HEADER.unpack_from(buf)[0]
-        frame = bytes(buf[size:n])
-        del buf[:n]
-        return frame
-
-    def close(self) -> None:
-        self.sock.close()
 
 
 def run_controller(controller: Controller, server: str, *, token: str, session: str | None = None,

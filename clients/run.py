@@ -85,7 +85,7 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
                    listen: str = "tcp://127.0.0.1:*", hdbs: dict[str, xr.Dataset] | None = None,
                    curve=None, key: bytes | None = None, link_timeout: float = 10.0,
                    hdb_files: bool = False, realtime: float | None = None,
-                   control_token: str | None = None) -> RunSummary:
+                   control_token: str | None = None, direct: bool = True) -> RunSummary:
     """Run a scene end to end; returns the run summary (steps, wall time, output path, the server's side).
 
     A scene with ``[[controllers]]`` and no ``server`` makes its own force server with a socket on
@@ -100,8 +100,8 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
     the contents the server lacked); ``realtime``: release each exchange at its wall-clock time,
     FACTOR x wall clock (protocol/pacing.py; the summary's ``realtime``, a PacedRunReport, and the
     results' ``step_latency``, ``overrun`` and ``step_time``, docs/realtime.md); ``control_token``: the
-    secret the scene's controllers show to join (SPEC §5.7.2: ``hydrolink control --token``; None: the
-    server draws one, printed on stderr with the command that joins)."""
+    secret the scene's controllers show to join (SPEC §5.7.2: ``hydrolink control --token``; None: the server
+    draws one, printed on stderr); ``direct``: take a ``server``'s direct channel offered (SPEC §5.7.5)."""
     from hydrolink.clients.lockstep.connection import ServerConnection
     from hydrolink.clients.exudyn.client import result_bodies, run
     from hydrolink.clients.lockstep.results import ResultWriter
@@ -152,7 +152,7 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
             log.info("embedded force server (in-process)")
         else:
             conn = stack.enter_context(ServerConnection(server, timeout=timeout, curve=curve, key=key,
-                                                        link_timeout=link_timeout))
+                                                        link_timeout=link_timeout, direct=direct))
         setup = conn.hello(text, hdbs, wave_elevation=series, meshes=load_scene_hulls(scene, scene_path), control_token=control_token,
                            spectra=load_spectrum_files(scene, scene_path), gauges=load_gauge_files(scene, scene_path))
         if scene.controllers:

@@ -448,7 +448,7 @@ def test_run_polls_its_own_server_and_equals_a_separate_one(reference_data, serv
     """``hydrolink run`` of a scene with a controller and no --server polls its own server from the
     run's thread (ForceServer polled: no server thread, the run's steps in-process, the controller
     over its direct channel, SPEC §5.7.5): the results equal, bit for bit, the same run against a
-    server in a thread with the run and the controller over ZeroMQ; no thread is left running; a
+    server in a thread with the controller over ZeroMQ (--no-direct); no thread is left running; a
     second multibody hello to the run's socket is refused (one session: the run's)."""
     from hydrolink.protocol import codec
     from hydrolink.server.service import force_server
@@ -456,8 +456,8 @@ def test_run_polls_its_own_server_and_equals_a_separate_one(reference_data, serv
     text = scene_text(reference_data, 2.0, controller_block("force", 3.9e5, 1.36e6,
                                                          measurements=["pto_displacement", "pto_velocity"]))
     ds_remote, _, (rc, err) = run_with(tmp_path, "remote", text, server.address,
-                                       python_ctl(EXAMPLES / "reactive.py", server.address))
-    assert rc == 0 and "over ZeroMQ" in err, err   # a server thread offers no direct channel
+                                       python_ctl(EXAMPLES / "reactive.py", server.address, "--no-direct"))
+    assert rc == 0 and "over ZeroMQ" in err, err   # kept on ZeroMQ (a server thread offers the channel too)
     address = free_address()
     threads = threading.active_count()
     ctx = zmq.Context()

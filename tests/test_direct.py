@@ -1,6 +1,8 @@
-"""The polled server's direct channel to its controllers (server/service/direct.py, SPEC §5.7.5):
-tickets, framing and limits of the listener; a controller's requests over it handled as on ZeroMQ.
-A whole run over it (bit-identical to ZeroMQ) is in tests/test_controllers.py."""
+"""The server's direct channel (server/service/direct.py, SPEC §5.7.5): tickets, framing and limits
+of the listener (a ticket's length, the receive budget); a controller's requests over it handled as
+on ZeroMQ; a multibody client of a server with its own loop stepping over it (revision 1.17),
+bit-identical to ZeroMQ, and back on ZeroMQ when it breaks. A controller's whole run over it
+(bit-identical to ZeroMQ) is in tests/test_controllers.py."""
 
 from __future__ import annotations
 
@@ -9,11 +11,16 @@ import socket
 import stat
 import struct
 
+import numpy as np
 import pytest
 
+from analytic_hdb import make_body_hdb
+from conftest import body, regular_waves, scene_toml
+from hydrolink.clients.lockstep.connection import ServerConnection
 from hydrolink.protocol import codec
-from hydrolink.server.service.direct import DirectError, DirectListener
-from hydrolink.server.service.force_server import ForceServer
+from hydrolink.server.service.direct import FREE_BYTES, TICKET_BYTES, DirectError, DirectListener
+from hydrolink.server.service.force_server import ForceServer, serve_in_thread
+from hydrolink.server.service.zmtp import Budget
 
 HEADER = struct.Struct("<I")
 
@@ -95,8 +102,9 @@ def test_oversize_frame_and_foreign_ticket_are_refused():
 def test_polled_server_answers_over_its_direct_channel_and_drops_a_wrong_ticket():
     """A polled server offers the channel in a controller's welcome (here: its listener, as
     _controller_hello does); a connection with a foreign ticket is closed and the server goes on; a
-    request on an admitted one is answered there, as the socket would answer it; a non-polled
-    server offers none."""
+    request on an admitted one is answered there, as the socket would answer it; a server with a
+    loop of its own (hydrolink serve) has one too (revision 1.17), its frames in the front end's
+    receive budget."""
     srv = ForceServer("tcp://127.0.0.1:*", polled=True)
     try:
         direct = srv._direct
@@ -120,7 +128,7 @@ def test_polled_server_answers_over_its_direct_channel_and_drops_a_wrong_ticket(
     assert not direct.links and direct.sock.fileno() < 0   # closed with the server
     threaded = ForceServer("tcp://127.0.0.1:*")
     try:
-        assert threaded._direct is None
+        assert threaded._direct is not None and threaded._direct.budget is threaded._sock.budget
     finally:
         threaded.close()
 
@@ -132,12 +140,12 @@ def test_controller_end_times_out_and_sees_a_closed_channel():
     on which the controller goes back to ZeroMQ."""
     import time
 
-    from hydrolink.clients.control import _DirectChannel
+    from hydrolink.clients.lockstep.direct_channel import DirectChannel
 
     listener = DirectListener("ipc:///tmp/x", max_bytes=1000)
     try:
         offer = listener.offer("own")
-        channel = _DirectChannel.open("ipc:///tmp/x", offer)
+        channel = DirectChannel.open("ipc:///tmp/x", offer)
         link = accepted(listener)
         assert list(link.read()) == [offer["ticket"].encode()]
         t0 = time.monotonic()
@@ -150,3 +158,90 @@ def test_controller_end_times_out_and_sees_a_closed_channel():
         channel.close()
     finally:
         listener.close()
+
+
+def test_first_frame_longer_than_a_ticket_and_frames_past_the_budget_close_the_connection():
+    """Before its ticket a connection may send TICKET_BYTES; a frame longer than FREE_BYTES holds
+    the receive budget while it arrives (given back once whole, or when its connection closes) and
+    one that would pass it closes its connection before its body is read."""
+    budget = Budget(3 * FREE_BYTES)
+    listener = DirectListener("ipc:///tmp/x", max_bytes=10 * FREE_BYTES, budget=budget)
+    try:
+        stranger = connect(listener)
+        link = accepted(listener)
+        stranger.sendall(HEADER.pack(TICKET_BYTES + 1))
+        with pytest.raises(ConnectionError, match=f"first frame of {TICKET_BYTES + 1} bytes"):
+            list(link.read())
+        links = []
+        for _ in range(2):
+            client = connect(listener)
+            link = accepted(listener)
+            client.sendall(frame(listener.offer("own")["ticket"].encode()))
+            assert listener.admit(link, next(link.read()))
+            links.append((client, link))
+        (c1, l1), (c2, l2) = links
+        c1.sendall(HEADER.pack(2 * FREE_BYTES) + b"x" * 10)
+        assert list(l1.read()) == [] and budget.held == 2 * FREE_BYTES   # arriving: held
+        c2.sendall(HEADER.pack(2 * FREE_BYTES))
+        with pytest.raises(ConnectionError, match="would pass the server's 0.1875 MiB"):
+            list(l2.read())
+        c1.sendall(b"x" * (2 * FREE_BYTES - 10))
+        got = []
+        while not got:
+            got = list(l1.read())
+        assert got == [b"x" * (2 * FREE_BYTES)] and budget.held == 0   # whole: given back
+        c1.sendall(HEADER.pack(2 * FREE_BYTES))
+        assert list(l1.read()) == [] and budget.held == 2 * FREE_BYTES
+        l1.close()
+        assert budget.held == 0                                          # closed: given back
+    finally:
+        listener.close()
+
+
+SCENE = scene_toml(dt=0.05, duration=100.0, waves=regular_waves(1.0, 6.0), hydro={"irf_duration": 4.0},
+                   bodies=[body("float", hdb="float.nc", mass=3.0e5, center_of_mass=[0, 0, -1],
+                                inertia=[1e7, 1e7, 2e7])])
+
+
+def test_a_served_multibody_client_steps_over_the_direct_channel_and_falls_back_to_zeromq():
+    """A server with a loop of its own (as ``hydrolink serve``) offers a multibody session the direct
+    channel in its welcome (a Unix socket on loopback); the client steps over it, its DEALER idle,
+    and gets the same forces bit for bit as a client on ZeroMQ; when the channel breaks, the step
+    goes again over ZeroMQ and the run goes on. A paced session is offered none (its replies wait
+    for their release on the loop)."""
+    srv, thread = serve_in_thread("tcp://127.0.0.1:*")
+    hdb = make_body_hdb()
+    t = 0.05 * np.arange(40)
+    states = [(np.outer(np.sin(0.7 * ti) * 0.1, np.ones(6)).reshape(1, 6), np.full((1, 6), 0.07 * np.cos(0.7 * ti)))
+              for ti in t]
+    try:
+        with ServerConnection(srv.address) as direct, ServerConnection(srv.address, direct=False) as zmq_only:
+            direct.hello(SCENE, {"float.nc": hdb})
+            zmq_only.hello(SCENE, {"float.nc": hdb})
+            assert direct._direct is not None and zmq_only._direct is None
+            assert [link.own for link in srv._direct.links] == [direct.session]
+            taken = []   # the messages the ZeroMQ front end hands the loop from now on
+            recv = srv._sock.recv
+
+            def counted():
+                message = recv()   # zmq.Again (none within the timeout) is not counted
+                taken.append(message[0])
+                return message
+            srv._sock.recv = counted
+            for seq, (x, v) in enumerate(states):
+                if seq == 20:   # the channel breaks: the step goes over ZeroMQ, and the rest
+                    direct._direct.sock.shutdown(2)
+                a = direct.step(seq, t[seq], x, v)
+                b = zmq_only.step(seq, t[seq], x, v)
+                for key in ("excitation", "radiation", "hydrostatic"):
+                    assert np.array_equal(a[key], b[key]), (seq, key)
+                assert (direct._direct is not None) == (seq < 20)
+                if seq == 19:   # the direct client's 20 steps went over the channel: the front end took
+                    assert len(taken) == 20   # the ZeroMQ client's only
+            assert len(taken) == 20 + 2 * 20   # from the break on, both clients' steps
+        with ServerConnection(srv.address) as paced:
+            paced.hello(SCENE, {"float.nc": hdb}, realtime=1.0)
+            assert paced._direct is None
+    finally:
+        srv.stop()
+        thread.join(10)

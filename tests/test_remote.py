@@ -8,6 +8,7 @@ netns support). The delay is netem where the kernel has it, else the lab's user-
 from __future__ import annotations
 
 import json
+import re
 import secrets
 import subprocess
 import sys
@@ -60,21 +61,25 @@ def serve_address(proc: subprocess.Popen) -> str:
 
 
 def three_processes(popen, scene: Path, out: Path, bind: str, connect: str | None = None) -> float:
-    """Server, controller and multibody client via ``popen(who, argv)``; returns the run's wall time."""
+    """Server, controller and multibody client via ``popen(who, argv)``; returns the run's wall time.
+    The controller must have served every step of the run, over the server's direct channel (SPEC
+    §5.7.5, revision 1.17: ``hydrolink serve`` offers it): its own count against the run's."""
     server = popen("server", [*HYDROLINK, "serve", "--bind", bind])
     address = connect or serve_address(server)
     token = secrets.token_urlsafe(32)   # the run's join token, handed to its controller (SPEC §5.7.2)
     ctl = popen("ctl", [*HYDROLINK, "control", str(REACTIVE), "--server", address, "--token", token,
-                        "--join-wait", str(REPLY_S)])
+                        "--join-wait", str(REPLY_S)])   # the run's start-up and set-up took 20-30 s at load 6-12
     t0 = time.perf_counter()
     client = popen("client", [*HYDROLINK, "run", str(scene), "-o", str(out), "--server", address, "--no-progress",
                               "--control-token", token])
     try:
-        _, err = client.communicate(timeout=EXIT_S)
+        out, err = client.communicate(timeout=EXIT_S)
         assert client.returncode == 0, err
         wall = time.perf_counter() - t0
+        steps = int(re.search(r"wrote \S+: (\d+) steps", out).group(1))
         _, err = ctl.communicate(timeout=EXIT_S)
         assert ctl.returncode == 0, err
+        assert f"controller done: {steps} steps, 0 errors (over the direct channel" in err, (steps, err)
     finally:
         for p in (client, ctl, server):
             if p.poll() is None:

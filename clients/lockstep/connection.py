@@ -10,6 +10,7 @@ Used by the Exudyn client, the FMU master and controllers::
 
 from __future__ import annotations
 
+import logging
 import time
 from typing import TYPE_CHECKING, Any
 
@@ -17,6 +18,7 @@ import numpy as np
 import xarray as xr
 import zmq
 
+from hydrolink.clients.lockstep.direct_channel import DirectChannel
 from hydrolink.protocol import codec
 from hydrolink.protocol.codec import ProtocolError
 from hydrolink.protocol.reply import read_forces
@@ -26,6 +28,8 @@ from hydrolink.protocol.transport import apply_heartbeats
 
 if TYPE_CHECKING:
     from hydrolink.server.service.local_step import LocalStep
+
+log = logging.getLogger("hydrolink.clients.connection")
 
 ENVELOPE_AND_ERROR = ("v", "type", "msg_id", "session", "parent", "code", "name", "field", "message", "sig")
 WATCH_S = 0.2                 # a pending reply's link is checked this often
@@ -91,11 +95,17 @@ class ServerConnection:
     ``key`` — without msgpack. The server checks a map as it checks a frame's content and the
     reply carries the same values (float64 arrays, bit for bit; tests/test_force_server.py).
 
-    ``curve``: a :class:`hydrolink.protocol.security.ClientKeys` for a server that requires CURVE."""
+    ``curve``: a :class:`hydrolink.protocol.security.ClientKeys` for a server that requires CURVE.
+
+    ``direct``: after the welcome, take the server's direct channel when it offers one (SPEC
+    §5.7.5, revision 1.17: ``hydrolink serve`` without CURVE): the requests then go over a plain
+    stream socket, one send and one receive in this thread, no ZeroMQ I/O thread on either side; a
+    channel that fails is closed and the request sent again over ZeroMQ (a step is answered from the
+    server's cache, SPEC §5.3). False: ZeroMQ only."""
 
     def __init__(self, address: Any, *, timeout: float = 30.0, context: zmq.Context | None = None,
                  key: bytes | None = None, client_name: str = "hydrolink-python", curve=None,
-                 lost_after: float = 1.0, link_timeout: float = 10.0):
+                 lost_after: float = 1.0, link_timeout: float = 10.0, direct: bool = True):
         self.timeout = float(timeout)
         self.lost_after = float(lost_after)       # s of refused reconnects before the server counts as stopped
         self.link_timeout = float(link_timeout)   # s a silent link may stay down while a reply is pending
@@ -114,6 +124,8 @@ class ServerConnection:
         self._sock: zmq.Socket | None = None
         self._pending: bytes | None = None  # the in-process server's reply, until received
         self._own_context = False
+        self.direct = direct                   # whether to take a direct channel offered
+        self._direct: DirectChannel | None = None
         if self._local is not None:
             self.address = getattr(address, "address", "in-process")
             return
@@ -153,6 +165,7 @@ class ServerConnection:
                     return
                 except zmq.Again:
                     continue
+            self._check_link(mtype)   # a link lost mid-run (e.g. found by a broken direct channel) ends it
         raise self._no_reply(mtype, limit)
 
     def _recv(self, deadline: float, mtype: str, limit: float) -> bytes:
@@ -234,6 +247,10 @@ class ServerConnection:
         frame = codec.pack(msg, self.key)
         self._in_flight = (mtype, frame)
         limit = self.timeout if timeout is None else timeout
+        if self._direct is not None:
+            reply = self._request_direct(frame, msg_id, mtype, limit)
+            if reply is not None:
+                return self._checked(reply, msg_id)
         deadline = time.monotonic() + limit
         self._send(frame, deadline, mtype, limit)
         while True:
@@ -244,6 +261,32 @@ class ServerConnection:
                 raise ConnectionError(f"unreadable reply from {self.address}: {exc}") from None
             if reply.get("parent") == msg_id or _unread(reply):
                 return self._checked(reply, msg_id)
+
+    def _request_direct(self, frame: bytes, msg_id: str, mtype: str, limit: float) -> dict | None:
+        """The reply to ``frame`` over the direct channel; None when the channel failed (it is
+        closed then, and the caller sends the request over ZeroMQ); TimeoutError as over ZeroMQ."""
+        try:
+            return self._direct.request(frame, msg_id, limit, self.key)
+        except ProtocolError as exc:
+            raise ConnectionError(f"unreadable reply from {self.address}: {exc}") from None
+        except OSError as exc:   # closed by the server (its budget, a restart) or broken: ZeroMQ from now on
+            if isinstance(exc, TimeoutError) and exc.errno is None:   # no reply within ``limit`` (not the
+                raise self._no_reply(mtype, limit) from None          # kernel's ETIMEDOUT: a link lost)
+            log.warning("direct channel to %s lost (%s): continuing over ZeroMQ", self.address, exc)
+            self._direct.close()
+            self._direct = None
+            return None
+
+    def _go_direct(self, offer: Any) -> None:
+        """Open the direct channel a welcome offers (``welcome.direct``, SPEC §5.7.5); without one,
+        or when it cannot be opened within direct_channel.CONNECT_S, the requests stay on ZeroMQ."""
+        if not self.direct or self._sock is None or not isinstance(offer, dict) \
+                or not isinstance(offer.get("ticket"), str):
+            return
+        try:
+            self._direct = DirectChannel.open(self.address, offer, self.link_timeout)
+        except (OSError, ValueError) as exc:
+            log.info("direct channel to %s not opened (%s): requests stay on ZeroMQ", self.address, exc)
 
     def _checked(self, reply: dict, msg_id: str) -> dict:
         """The reply to ``msg_id``; RemoteError on ``error`` (also on an error to a request the
@@ -319,6 +362,7 @@ class ServerConnection:
         self.control_token: str | None = reply.get("control_token")
         self.server_info, self.protocol = reply.get("server"), reply.get("protocol")
         self.session_timeout = reply.get("session_timeout")
+        self._go_direct(reply.get("direct"))
         try:
             self.setup = Setup.from_wire(reply.get("setup"))
         except ProtocolError as exc:
@@ -389,6 +433,9 @@ class ServerConnection:
     def close(self) -> None:
         """Close the socket (linger 0); does not send ``bye``."""
         self._local = None
+        if self._direct is not None:
+            self._direct.close()
+            self._direct = None
         if self._sock is not None:
             self._watch.close()
             self._sock.close(0)

@@ -1,5 +1,8 @@
-"""A polled server's direct channel to its controllers (SPEC §5.7.5, revision 1.12): plain stream
-sockets read and written by the thread that steps the run, no ZeroMQ I/O thread on the way.
+"""A server's direct channel to its clients (SPEC §5.7.5): plain stream sockets read and written by
+the thread that answers them, no ZeroMQ I/O thread on the way. A run's own (polled) server offers
+it to its controllers (revision 1.12); ``hydrolink serve`` offers it to the multibody clients and
+the controllers of its sessions (revision 1.17), its frames then counted in the front end's
+receive budget (SPEC §1).
 
 Why: on a 2-vCPU host a ZeroMQ round trip between two processes costs ~120–145 µs at the median
 and 4–5 ms at the 99th percentile (each message wakes an I/O thread on both sides, three thread
@@ -10,27 +13,36 @@ the controller's share of the step budget.
 A frame is a 4-byte little-endian length and that many bytes: the first frame a connection sends
 is its ticket (from the controller's ``welcome.direct``), every later one a message as on the
 ZeroMQ socket (msgpack, signed when the server signs). Replies go back as frames on the same
-connection. A wrong ticket, a length over the server's message limit or a reply that cannot be
-written at once closes the connection (the controller goes on over ZeroMQ).
+connection. A wrong ticket, a first frame longer than a ticket can be, a length over the server's
+message limit or over what its receive budget has left, or a reply that cannot be written at once
+closes the connection (the client goes on over ZeroMQ); so does a connection beyond MAX_LINKS.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import os
 import secrets
 import select
 import socket
 import struct
 import tempfile
+import time
 from pathlib import Path
 from typing import Iterator
+
+from hydrolink.server.service.zmtp import Budget
 
 log = logging.getLogger("hydrolink.server.service.direct")
 
 HEADER = struct.Struct("<I")   # a frame's length (SPEC §5.7.5)
-TICKETS_KEPT = 8               # open offers (one per controller welcome); older ones are forgotten
+TICKETS_KEPT = 64              # open offers (one per welcome); older ones are forgotten
 READ_BYTES = 1 << 16           # what one read takes from a connection
+TICKET_BYTES = 256             # the longest first frame (a ticket) a connection may send
+FREE_BYTES = 1 << 16           # a frame up to this long is read without the receive budget (as zmtp.Reader's)
+MAX_LINKS = 256                # connections at once; one more is closed at once
+OFFER_WATCH_S = 2.0            # after an offer, the loop waits on the listener too (its client connects now)
 
 
 def _loopback(host: str) -> bool:
@@ -51,10 +63,11 @@ class DirectRoute(list):
 class DirectLink:
     """One accepted connection: its ticket not yet shown (``own`` None) or the controller's id."""
 
-    def __init__(self, sock: socket.socket, number: int, max_bytes: int):
-        self.sock, self.max_bytes = sock, max_bytes
+    def __init__(self, sock: socket.socket, number: int, max_bytes: int, budget: Budget | None = None):
+        self.sock, self.max_bytes, self.budget = sock, max_bytes, budget
         self.number = sock.fileno()   # kept: a closed socket's fileno is -1
         self.buffer = bytearray()
+        self.held = 0                 # bytes of the frame arriving counted in ``budget``
         self.own: str | None = None
         self.route = DirectRoute([b"direct-%d" % number])
         self.route.link = self
@@ -78,13 +91,27 @@ class DirectLink:
         self.buffer += data
         while len(self.buffer) >= HEADER.size:
             (n,) = HEADER.unpack_from(self.buffer)
+            if self.own is None and n > TICKET_BYTES:
+                raise ConnectionError(f"a first frame of {n} bytes; a ticket is at most {TICKET_BYTES}")
             if n > self.max_bytes:
                 raise ConnectionError(f"a frame of {n} bytes; at most {self.max_bytes} (SPEC §1)")
             if len(self.buffer) < HEADER.size + n:
+                if n > FREE_BYTES and self.budget is not None and not self.held:
+                    if not self.budget.take(n):
+                        raise ConnectionError(f"a frame of {n} bytes would pass the server's "
+                                              f"{self.budget.limit / 2**20:g} MiB for messages being received (SPEC §1)")
+                    self.held = n
                 return
             frame = bytes(self.buffer[HEADER.size:HEADER.size + n])
             del self.buffer[:HEADER.size + n]
+            self._give()
             yield frame
+
+    def _give(self) -> None:
+        """The budget held for the frame that was arriving, given back."""
+        if self.held:
+            self.budget.give(self.held)
+            self.held = 0
 
     def write(self, frame: bytes) -> bool:
         """Send one frame now; whether it left. A connection whose buffer is full or that is gone
@@ -106,18 +133,20 @@ class DirectLink:
         return True
 
     def close(self) -> None:
+        self._give()
         self.sock.close()
 
 
 class DirectListener:
     """Where a polled server's controllers open their direct connections (module docstring)."""
 
-    def __init__(self, endpoint: str, max_bytes: int):
-        """``endpoint``: the server's bound ZeroMQ endpoint; the listener takes the same interface
+    def __init__(self, endpoint: str, max_bytes: int, budget: Budget | None = None):
+        """``budget``: the front end's receive budget, which a frame longer than FREE_BYTES holds
+        while it arrives (None: none, a run's own server). ``endpoint``: the server's bound ZeroMQ endpoint; the listener takes the same interface
         (``tcp://HOST:PORT`` → HOST on a port of its own; ``ipc://PATH`` or a loopback HOST → a
         Unix socket in a private folder: the peers share the host, and a Unix socket costs both
         sides less kernel time a message than loopback TCP). DirectError for any other transport."""
-        self.max_bytes = int(max_bytes)
+        self.max_bytes, self.budget = int(max_bytes), budget
         self._folder: Path | None = None
         host = endpoint[6:].rsplit(":", 1)[0].strip("[]") if endpoint.startswith("tcp://") else None
         if host is not None and not _loopback(host):
@@ -139,6 +168,7 @@ class DirectListener:
         self.links: list[DirectLink] = []
         self._tickets: dict[str, str] = {}   # ticket -> the controller's own session id
         self._count = 0
+        self._offered = -math.inf            # when the newest offer was made (time.monotonic)
         self._fds = select.poll()            # the listener and its links, for ready_now
         self._fds.register(self.sock, select.POLLIN)
 
@@ -150,22 +180,35 @@ class DirectListener:
         and the one-use ticket that binds the connection to it."""
         ticket = secrets.token_urlsafe(32)
         self._tickets[ticket] = own
+        self._offered = time.monotonic()
         while len(self._tickets) > TICKETS_KEPT:
             del self._tickets[next(iter(self._tickets))]
         return {**self.offer_address, "ticket": ticket}
 
+    @property
+    def watched(self) -> bool:
+        """Whether a loop should wait on the listener and the connections now: one is open, or an
+        offer was made within OFFER_WATCH_S (its client is connecting: its first request is not
+        left until the loop's receive on the other socket times out)."""
+        return bool(self.links) or time.monotonic() - self._offered < OFFER_WATCH_S
+
     def accept(self) -> DirectLink | None:
         """A new connection (its ticket still to come), or None."""
         self.prune()   # a link closed since gives back its descriptor's number before a new one may take it
-        try:
-            conn, _ = self.sock.accept()
-        except BlockingIOError:
-            return None
+        while True:
+            try:
+                conn, _ = self.sock.accept()
+            except BlockingIOError:
+                return None
+            if len(self.links) < MAX_LINKS:
+                break
+            conn.close()   # the next one waiting, if any, is refused the same way
+            log.warning("direct connection refused: %d open already", MAX_LINKS)
         conn.setblocking(False)
         if conn.family in (socket.AF_INET, socket.AF_INET6):
             conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         self._count += 1
-        link = DirectLink(conn, self._count, self.max_bytes)
+        link = DirectLink(conn, self._count, self.max_bytes, self.budget)
         self.links.append(link)
         self._fds.register(link.sock, select.POLLIN)
         return link

@@ -175,7 +175,7 @@ class ForceServer:
     def _bind(self, bind: str, context: zmq.Context | None, polled: bool, curve_secret: str | None,
               curve_clients: str | None, max_message_bytes: int) -> None:
         """The server's socket bound at ``bind``: the ZMTP front end, or libzmq's ROUTER with CURVE;
-        a polled server's direct channel for its controllers."""
+        the direct channel (SPEC §5.7.5) for a polled server's controllers, or a loop's clients."""
         self._ctx = context or zmq.Context(io_threads=1 if polled else IO_THREADS)   # polled: a run's own
         secure = curve_secret is not None or curve_clients is not None
         # CURVE: libzmq's ROUTER (only authorised keys send); else the ZMTP front end that bounds a
@@ -198,11 +198,11 @@ class ForceServer:
                 raise
         self._sock.bind(bind)
         self._address = self._sock.address
-        if polled and not secure:   # its controllers' direct channel (SPEC §5.7.5): not beside CURVE
+        if not secure:   # the direct channel (SPEC §5.7.5): not beside CURVE; a shared server's in its budget
             try:
-                self._direct = DirectListener(self._address, max_message_bytes)
+                self._direct = DirectListener(self._address, max_message_bytes, None if polled else self._sock.budget)
             except (DirectError, OSError) as exc:
-                log.info("no direct channel for controllers: %s", exc)
+                log.info("no direct channel: %s", exc)
 
     @property
     def address(self) -> str:
@@ -277,10 +277,12 @@ class ForceServer:
             self._set_rcv_timeout()
         if self._flying:
             self._poll_workers()
-        elif self._direct is not None:
+        elif self._direct is not None and (self.polled or self._direct.watched):
             self._receive_direct()
         else:
             self._receive()
+            if self._direct is not None:   # no direct connection expected: one is taken after the receive
+                self._serve_direct(self._direct.ready_now())   # (no poller per message for ZeroMQ's clients)
         if self._setups:
             self._finish_setups()
         if self._paced:
@@ -321,6 +323,8 @@ class ForceServer:
         self._serve_direct(ready)
         if self._sock.socket in ready:
             self._receive()
+        else:
+            self._sock.tend()   # its silent connections swept (recv does it only while it waits)
 
     def _direct_ready(self, ms: int) -> dict:
         """What is readable within ``ms``: the ZeroMQ socket, the direct listener, its connections
@@ -732,6 +736,8 @@ class ForceServer:
         }
         if sid in self._hubs:
             welcome["control_token"] = self._hubs[sid].token   # the owner hands it to its controllers
+        if self._direct is not None and not self.polled and realtime is None:   # paced replies wait: ZeroMQ only
+            welcome["direct"] = self._direct.offer(sid)   # the multibody client's direct channel (SPEC §5.7.5, 1.17)
         return "welcome", welcome, sid
 
     def held_bytes(self) -> int:
@@ -824,13 +830,18 @@ class ForceServer:
         """Wait for the next request or a worker's answer (whichever comes first) and handle it."""
         poller = zmq.Poller()
         poller.register(self._sock.socket, zmq.POLLIN)
-        for fd in self._flying:
+        direct = () if self._direct is None else (self._direct.fileno(), *(link.fileno() for link in self._direct.links))
+        for fd in (*self._flying, *direct):
             poller.register(fd, zmq.POLLIN)
         ready = dict(poller.poll(0 if self._sock.pending else self._rcv_ms))
         for fd in [fd for fd in self._flying if fd in ready]:
             self._worker_answer(self._flying.pop(fd))
+        if direct:
+            self._serve_direct(ready)
         if self._sock.socket in ready or self._sock.pending:
             self._receive()
+        else:
+            self._sock.tend()
 
     def _worker_answer(self, s: WorkerSession) -> None:
         """Reply to the request the worker of ``s`` answered, then hand it the next one waiting."""

@@ -68,6 +68,9 @@ class _Front:
     def close(self, linger: int = 0) -> None:
         self.socket.close(linger)
 
+    def tend(self) -> None:
+        """What is due between messages when the socket is waited on by a poller, not by :meth:`recv`."""
+
 
 class StreamFront(_Front):
     """The ZMTP front end on a ``ZMQ_STREAM`` socket (module docstring). ``max_bytes`` /
@@ -119,6 +122,13 @@ class StreamFront(_Front):
             peer.reader.close()
         self._peers.clear()
         super().close(linger)
+
+    def tend(self) -> None:
+        """The sweep of silent connections (:meth:`_sweep`) when due: :meth:`recv` does it while it
+        waits, a loop that waits on a poller instead (the direct channel beside) calls this."""
+        now = time.monotonic()
+        if now >= self._next_sweep:
+            self._sweep(now)
 
     def set_timeout(self, ms: int) -> None:
         """How long :meth:`recv` waits for a message (ms)."""
