@@ -242,7 +242,7 @@ from hydrolink.server.service.force_server import serve_in_thread
 text, out = open(sys.argv[1]).read(), sys.argv[2]
 scene = parse_scene(text)
 srv, _ = serve_in_thread("tcp://127.0.0.1:*")
-with ServerConnection(srv.address, timeout=REPLY_S) as conn:
+with ServerConnection(srv.address, timeout=120.0) as conn:
     setup = conn.hello(text, {scene.bodies[0].hdb: load_hdb(scene.bodies[0].hdb)})
     with ResultWriter(out, scene=scene, scene_text=text, setup=setup, flush_seconds=0.2) as writer:
         print("running", flush=True)
