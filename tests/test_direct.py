@@ -1,6 +1,6 @@
 """The server's direct channel (server/service/direct.py, SPEC §5.7.5): tickets, framing and limits
 of the listener (a ticket's length, the receive budget); a controller's requests over it handled as
-on ZeroMQ; a multibody client of a server with its own loop stepping over it (revision 1.17),
+on ZeroMQ; a multibody client of a server with its own loop stepping over it (revision 1.16),
 bit-identical to ZeroMQ, and back on ZeroMQ when it breaks. A controller's whole run over it
 (bit-identical to ZeroMQ) is in tests/test_controllers.py."""
 
@@ -103,7 +103,7 @@ def test_polled_server_answers_over_its_direct_channel_and_drops_a_wrong_ticket(
     """A polled server offers the channel in a controller's welcome (here: its listener, as
     _controller_hello does); a connection with a foreign ticket is closed and the server goes on; a
     request on an admitted one is answered there, as the socket would answer it; a server with a
-    loop of its own (hydrolink serve) has one too (revision 1.17), its frames in the front end's
+    loop of its own (hydrolink serve) has one too (revision 1.16), its frames in the front end's
     receive budget."""
     srv = ForceServer("tcp://127.0.0.1:*", polled=True)
     try:

@@ -63,7 +63,7 @@ def serve_address(proc: subprocess.Popen) -> str:
 def three_processes(popen, scene: Path, out: Path, bind: str, connect: str | None = None) -> float:
     """Server, controller and multibody client via ``popen(who, argv)``; returns the run's wall time.
     The controller must have served every step of the run, over the server's direct channel (SPEC
-    §5.7.5, revision 1.17: ``hydrolink serve`` offers it): its own count against the run's."""
+    §5.7.5, revision 1.16: ``hydrolink serve`` offers it): its own count against the run's."""
     server = popen("server", [*HYDROLINK, "serve", "--bind", bind])
     address = connect or serve_address(server)
     token = secrets.token_urlsafe(32)   # the run's join token, handed to its controller (SPEC §5.7.2)

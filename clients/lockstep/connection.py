@@ -98,7 +98,7 @@ class ServerConnection:
     ``curve``: a :class:`hydrolink.protocol.security.ClientKeys` for a server that requires CURVE.
 
     ``direct``: after the welcome, take the server's direct channel when it offers one (SPEC
-    §5.7.5, revision 1.17: ``hydrolink serve`` without CURVE): the requests then go over a plain
+    §5.7.5, revision 1.16: ``hydrolink serve`` without CURVE): the requests then go over a plain
     stream socket, one send and one receive in this thread, no ZeroMQ I/O thread on either side; a
     channel that fails is closed and the request sent again over ZeroMQ (a step is answered from the
     server's cache, SPEC §5.3). False: ZeroMQ only."""

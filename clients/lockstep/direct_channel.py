@@ -1,7 +1,7 @@
 """The client end of a server's direct channel (SPEC §5.7.5): one blocking stream socket read and
 written by the thread that makes the requests, frames of a 4-byte little-endian length and a
 message, no ZeroMQ I/O thread on the way. Used by controllers (clients/control.py) and, since
-revision 1.17, by the multibody client's connection (clients/lockstep/connection.py).
+revision 1.16, by the multibody client's connection (clients/lockstep/connection.py).
 
 Imports only the codec and the standard library, so a controller process starts fast.
 """

@@ -1,7 +1,7 @@
 """A server's direct channel to its clients (SPEC §5.7.5): plain stream sockets read and written by
 the thread that answers them, no ZeroMQ I/O thread on the way. A run's own (polled) server offers
 it to its controllers (revision 1.12); ``hydrolink serve`` offers it to the multibody clients and
-the controllers of its sessions (revision 1.17), its frames then counted in the front end's
+the controllers of its sessions (revision 1.16), its frames then counted in the front end's
 receive budget (SPEC §1).
 
 Why: on a 2-vCPU host a ZeroMQ round trip between two processes costs ~120–145 µs at the median

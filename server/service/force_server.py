@@ -737,7 +737,7 @@ class ForceServer:
         if sid in self._hubs:
             welcome["control_token"] = self._hubs[sid].token   # the owner hands it to its controllers
         if self._direct is not None and not self.polled and realtime is None:   # paced replies wait: ZeroMQ only
-            welcome["direct"] = self._direct.offer(sid)   # the multibody client's direct channel (SPEC §5.7.5, 1.17)
+            welcome["direct"] = self._direct.offer(sid)   # the multibody client's direct channel (SPEC §5.7.5, 1.16)
         return "welcome", welcome, sid
 
     def held_bytes(self) -> int:
