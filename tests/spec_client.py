@@ -61,7 +61,7 @@ class ServerError(Exception):
 class Connection:
     """One DEALER socket, the envelope of §3, one request in flight."""
 
-    def __init__(self, address: str, timeout_s: float = 30.0):
+    def __init__(self, address: str, timeout_s: float = 120.0):   # a loaded 2-core CI: hellos over 30 s
         self.ctx = zmq.Context()
         self.sock = self.ctx.socket(zmq.DEALER)
         self.sock.setsockopt(zmq.RCVTIMEO, int(timeout_s * 1000))

