@@ -16,6 +16,7 @@ import math
 import os
 import sys
 import re
+import struct
 from enum import IntEnum
 from typing import Any, Iterator
 
@@ -33,6 +34,7 @@ FEW_OBJECTS = 2**14                   # a larger frame of at most this many obje
 MANY_OBJECTS_BYTES = 2 * 2**20        # a frame of more objects is at most this large (its lists' slots: 8 B a byte)
 MAX_ROUTING_FRAMES = 8
 MAX_ROUTING_FRAME_BYTES = 255         # a ZeroMQ routing identity's limit
+DIRECT_HEADER = struct.Struct("<I")   # a direct channel frame's length, little-endian (SPEC §5.7.5)
 SIG_TRAILER = b"\xa3sig\xc4\x20"  # fixstr "sig" + bin8 header of length 32
 SIG_LEN = 32
 ROLES = ("multibody", "controller", "monitor")
@@ -569,6 +571,12 @@ def require_str(msg: dict, field: str, *, default: str | None = None, path: str 
 def require_map(msg: dict, field: str, *, default: dict | None = None, path: str | None = None) -> dict:
     """A required (or defaulted) map field."""
     return _require_typed(msg, field, dict, "map", default, path)
+
+
+def unread_error(reply: dict) -> bool:
+    """An error to a request the server could not read (``parent`` nil: SPEC §5.6), such as one over
+    its message limit (SPEC §1): with one request in flight, it is that request's answer."""
+    return reply.get("type") == "error" and reply.get("parent") is None
 
 
 def within(arr: np.ndarray, bound: float) -> bool:

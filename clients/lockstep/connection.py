@@ -67,12 +67,6 @@ class LinkWatch:
         self._monitor.close(0)
 
 
-def _unread(reply: dict) -> bool:
-    """An error to a request the server could not read (``parent`` nil: SPEC §5.6), such as one over
-    its message limit (SPEC §1): with one request in flight, it is that request's answer."""
-    return reply.get("type") == "error" and reply.get("parent") is None
-
-
 class RemoteError(RuntimeError):
     """The server answered with an ``error`` (SPEC §5.6)."""
 
@@ -259,7 +253,7 @@ class ServerConnection:
                 reply = codec.unpack(frame, self.key)
             except ProtocolError as exc:
                 raise ConnectionError(f"unreadable reply from {self.address}: {exc}") from None
-            if reply.get("parent") == msg_id or _unread(reply):
+            if reply.get("parent") == msg_id or codec.unread_error(reply):
                 return self._checked(reply, msg_id)
 
     def _request_direct(self, frame: bytes, msg_id: str, mtype: str, limit: float) -> dict | None:
@@ -291,7 +285,7 @@ class ServerConnection:
     def _checked(self, reply: dict, msg_id: str) -> dict:
         """The reply to ``msg_id``; RemoteError on ``error`` (also on an error to a request the
         server could not read: a message over its limit, SPEC §1, whose ``parent`` is nil)."""
-        if reply.get("parent") != msg_id and not _unread(reply):
+        if reply.get("parent") != msg_id and not codec.unread_error(reply):
             raise ConnectionError(f"the in-process server answered {reply.get('parent')!r}, not {msg_id!r}")
         if reply.get("type") == "error":
             raise RemoteError(reply.get("code", 99), reply.get("name", "internal"), reply.get("field"),

@@ -16,7 +16,7 @@ from typing import Any
 
 from hydrolink.protocol import codec
 
-HEADER = struct.Struct("<I")   # a direct frame's length (SPEC §5.7.5)
+HEADER = codec.DIRECT_HEADER
 CONNECT_S = 1.0                # how long opening the direct channel may take before ZeroMQ is kept
 
 
@@ -71,8 +71,7 @@ class DirectChannel:
         deadline = time.monotonic() + within
         while True:
             reply = codec.unpack(self._frame(deadline), key)
-            # its reply, or an error to a request the server could not read (parent nil, SPEC §5.6)
-            if reply.get("parent") == msg_id or (reply.get("type") == "error" and reply.get("parent") is None):
+            if reply.get("parent") == msg_id or codec.unread_error(reply):
                 return reply
 
     def _frame(self, deadline: float) -> bytes:

@@ -26,17 +26,17 @@ import os
 import secrets
 import select
 import socket
-import struct
 import tempfile
 import time
 from pathlib import Path
 from typing import Iterator
 
+from hydrolink.protocol import codec
 from hydrolink.server.service.zmtp import Budget
 
 log = logging.getLogger("hydrolink.server.service.direct")
 
-HEADER = struct.Struct("<I")   # a frame's length (SPEC §5.7.5)
+HEADER = codec.DIRECT_HEADER   # a frame's length (SPEC §5.7.5)
 TICKETS_KEPT = 64              # open offers (one per welcome); older ones are forgotten
 READ_BYTES = 1 << 16           # what one read takes from a connection
 TICKET_BYTES = 256             # the longest first frame (a ticket) a connection may send
