@@ -52,9 +52,8 @@ from hydrolink.server.terms.registry import TERMS, build_terms
 from hydrolink.server.radiation.options import RadiationGroup, radiation_option
 from hydrolink.server.radiation.state_space import Realization
 from hydrolink.server.sea.headings import complete_headings, interpolate_excitation
-from hydrolink.server.sea.doppler import doppler_shift
 from hydrolink.server.sea.passive_yaw import PassiveYaw, YawingBody, yaw_grid, yawed_excitation
-from hydrolink.server.sea.seastate import direction_bands, sea_components
+from hydrolink.server.sea.seastate import direction_bands, run_components
 from hydrolink.server.sea.waves import ConvolutionForcing, WaveError, WaveForcing, WavePhases, convolution_kernel, elevation_on_grid, kernel_transfer
 
 __all__ = ["HydroModel", "ModelError"]
@@ -152,8 +151,7 @@ class HydroModel:
         if lo >= hi:
             raise ModelError("bodies", f"the bodies' HDB frequency ranges do not overlap ({lo}..{hi} rad/s)")
         try:
-            self.waves = doppler_shift(sea_components(scene.waves, lo, hi, scene.water), scene.current, scene.water.gravity,
-                                       scene.water.depth_m, getattr(scene.waves, "excitation", "superposition"))
+            self.waves = run_components(scene.waves, scene, lo, hi)
         except WaveError as exc:
             raise ModelError(exc.key, exc.why) from None
         self._phases = WavePhases(self.waves.omega)   # the step's [cos wt; sin wt], shared with the terms

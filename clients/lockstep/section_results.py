@@ -30,8 +30,7 @@ from hydrolink.server.hdb.build.panels import PanelFileError, PanelPressures, re
 from hydrolink.server.loads.sections import AXES, SectionCuts, section_cuts, section_loads
 from hydrolink.server.loads.pressures import panel_series, still_pressure
 from hydrolink.server.loads.water import recorded_motion
-from hydrolink.server.sea.doppler import doppler_shift
-from hydrolink.server.sea.seastate import sea_components
+from hydrolink.server.sea.seastate import run_components
 from hydrolink.server.sea.waves import WaveComponents, WaveError
 
 ATTACHED = ("joints", "ptos", "moorings", "morison")
@@ -78,8 +77,7 @@ def run_waves(scene: Scene, hdbs: Mapping[str, xr.Dataset]) -> WaveComponents:
     lo = max(float(hdbs[b.hdb]["omega"].values[0]) for b in scene.bodies if b.hdb is not None)
     hi = min(float(hdbs[b.hdb]["omega"].values[-1]) for b in scene.bodies if b.hdb is not None)
     try:
-        return doppler_shift(sea_components(waves, lo, hi, scene.water), scene.current, scene.water.gravity,
-                             scene.water.depth_m, getattr(waves, "excitation", "superposition"))
+        return run_components(waves, scene, lo, hi)
     except WaveError as exc:
         raise ModelError(exc.key, exc.why) from None
 

@@ -15,8 +15,7 @@ from hydrolink.clients.view.placement import VTK_QUAD
 from hydrolink.clients.view.results import RunFile, ViewError, read_rows
 from hydrolink.protocol.scene import ElevationWave, RegularWave, StillWater
 from hydrolink.server.allocation import require_size
-from hydrolink.server.sea.doppler import doppler_shift
-from hydrolink.server.sea.seastate import sea_components
+from hydrolink.server.sea.seastate import run_components
 from hydrolink.server.sea.waves import WaveComponents, WaveError, elevation, ramp_factor
 
 
@@ -62,8 +61,7 @@ def make_grid(extent: tuple[float, float, float, float], cells: tuple[int, int],
 def run_waves(run: RunFile) -> WaveComponents | None:
     """The run's wave components (None for ``[waves] type = "elevation"``: a series at the origin
     has no field to draw; a steady file's without the ramp), built as the force server built them
-    (server/model.py: ``sea_components`` over the wet bodies' common frequency range, then the
-    current's Doppler shift). The HDBs are loaded for their range (built ones from the cache)
+    (server/sea/seastate.py ``run_components``, over the wet bodies' common frequency range). The HDBs are loaded for their range (built ones from the cache)
     unless an irregular sea gives its ``omega_range``."""
     waves, scene = run.scene.waves, run.scene
     if isinstance(waves, ElevationWave):
@@ -78,8 +76,7 @@ def run_waves(run: RunFile) -> WaveComponents | None:
         if scene.gauge_files():          # a sea from gauges: their records, read as the run read them
             from hydrolink.clients.scene_inputs import load_gauge_files
             waves = scene.with_gauges(load_gauge_files(scene, run.scene_path)).waves
-        comps = doppler_shift(sea_components(waves, lo, hi, scene.water), scene.current, scene.water.gravity, scene.water.depth_m,
-                              getattr(waves, "excitation", "superposition"))
+        comps = run_components(waves, scene, lo, hi)
     except WaveError as exc:
         raise ViewError(run.path, exc.key, f"the run's waves cannot be rebuilt: {exc.why}") from None
     if run.steady:                       # the steady state is the wave after its ramp

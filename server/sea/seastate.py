@@ -32,14 +32,24 @@ from __future__ import annotations
 
 import numpy as np
 
-from hydrolink.protocol.scene import ComponentWaves, GaugeWaves, SeaState, Water, WaveSystem
+from hydrolink.protocol.scene import ComponentWaves, GaugeWaves, Scene, SeaState, Water, WaveSystem
 from hydrolink.server.allocation import require_size
+from hydrolink.server.sea.doppler import doppler_shift
 from hydrolink.server.sea.gauges import gauge_components
 from hydrolink.server.sea.waves import SPECTRA, WaveComponents, WaveError, cos2s_directions, equal_energy_sectors, wave_components
 
 FINE = 20001      # points of the fine frequency grid the equal-energy edges are found on
 SPREAD_FINE = 8001   # points of the fine heading grid of a frequency-dependent spreading (one per frequency)
 BAND = 30.0       # degrees: the width of the direction bands the setup note reports
+
+
+def run_components(waves, scene: Scene, omega_min: float, omega_max: float) -> WaveComponents:
+    """The wave components a run's model steps with: ``waves`` (the scene's ``[waves]``, or a client's
+    rebuilding of them) over the HDBs' common range, seen from the ground in the scene's current
+    (server/sea/doppler.py). One recipe for the model (server/model.py) and for what clients
+    compute from a run afterwards (its view, its loads along a body)."""
+    return doppler_shift(sea_components(waves, omega_min, omega_max, scene.water), scene.current, scene.water.gravity,
+                         scene.water.depth_m, getattr(waves, "excitation", "superposition"))
 
 
 def sea_components(waves, omega_min: float, omega_max: float, water: Water | None = None) -> WaveComponents:
