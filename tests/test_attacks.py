@@ -17,8 +17,7 @@ import pytest
 import zmq
 from analytic_hdb import make_body_hdb
 
-from conftest import EXIT_S
-from conftest import body, dealer, linear_pto, regular_waves, scene_toml
+from conftest import EXIT_S, body, dealer, linear_pto, regular_waves, scene_toml
 from hydrolink.clients.lockstep.connection import RemoteError, ServerConnection
 from hydrolink.protocol import codec
 from hydrolink.server.service.force_server import MAX_QUEUED

@@ -16,8 +16,7 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from conftest import EXIT_S
-from conftest import SPHERE_WATER, irregular_waves, scene_toml, serve_process, sphere_body, write_scene
+from conftest import EXIT_S, SPHERE_WATER, irregular_waves, scene_toml, serve_process, sphere_body, write_scene
 
 from hydrolink.clients.run import run_scene_file
 

@@ -16,8 +16,7 @@ import pytest
 import zmq
 
 from analytic_hdb import make_body_hdb
-from conftest import EXIT_S, REPLY_S
-from conftest import body, regular_waves, scene_toml
+from conftest import EXIT_S, REPLY_S, body, regular_waves, scene_toml
 from hydrolink.clients.lockstep.connection import ServerConnection
 from hydrolink.protocol import codec
 

@@ -30,8 +30,7 @@ import numpy as np
 import pytest
 import xarray as xr
 import zmq
-from conftest import EXIT_S, REPLY_S
-from conftest import rm3_example_text
+from conftest import EXIT_S, REPLY_S, rm3_example_text
 from conftest import build_zmq_msgpack_program
 
 from hydrolink.clients.run import run_scene_file

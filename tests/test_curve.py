@@ -17,8 +17,7 @@ from hydrolink.clients.lockstep.connection import ServerConnection
 from hydrolink.clients.run import run_scene_file
 from hydrolink.protocol.security import ClientKeys
 
-from conftest import EXIT_S, REPLY_S
-from conftest import rm3_example_text
+from conftest import EXIT_S, REPLY_S, rm3_example_text
 
 # One pytest-xdist worker runs this whole module (pyproject: --dist loadgroup): its module fixture (a CURVE
 # server process) costs ~4 s, paid once per worker otherwise.

@@ -17,8 +17,7 @@ from pathlib import Path
 import pytest
 import xarray as xr
 
-from conftest import EXIT_S
-from conftest import rm3_example_text
+from conftest import EXIT_S, rm3_example_text
 
 yaml = pytest.importorskip("yaml")
 

@@ -17,8 +17,7 @@ import pytest
 import xarray as xr
 from fmpy.validation import validate_fmu
 
-from conftest import REPLY_S
-from conftest import SPHERE_WATER, linear_pto, regular_waves, scene_toml, sphere_body, write_scene
+from conftest import REPLY_S, SPHERE_WATER, linear_pto, regular_waves, scene_toml, sphere_body, write_scene
 from fmu_build import build_c_fmu, build_python3_fmu, build_python_fmu
 from hydrolink.clients.fmu import master as fmu_client
 from hydrolink.clients.lockstep.connection import ServerConnection

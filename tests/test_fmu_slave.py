@@ -17,8 +17,7 @@ from click.testing import CliRunner  # noqa: E402
 from fmpy import extract, read_model_description  # noqa: E402
 from fmpy.fmi2 import FMU2Slave  # noqa: E402
 
-from conftest import EXIT_S
-from conftest import SPHERE_WATER, scene_toml, sphere_body, write_scene  # noqa: E402
+from conftest import EXIT_S, SPHERE_WATER, scene_toml, sphere_body, write_scene  # noqa: E402
 from hydrolink.clients.cli import cli  # noqa: E402
 
 DT, HEAVE, MASS_RATIO = 0.05, 2, 0.9

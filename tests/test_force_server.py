@@ -11,8 +11,7 @@ import pytest
 import zmq
 from analytic_hdb import make_body_hdb
 
-from conftest import EXIT_S, REPLY_S
-from conftest import rm3_example_text
+from conftest import EXIT_S, REPLY_S, rm3_example_text
 from conftest import SPHERE_WATER, body, dealer, linear_pto, regular_waves, scene_toml, serve_process
 
 from hydrolink.clients.lockstep.connection import RemoteError, ServerConnection

@@ -9,8 +9,7 @@ import hashlib
 
 import numpy as np
 import pytest
-from conftest import REPLY_S
-from conftest import SPHERE_WATER, regular_waves, rm3_float, rm3_spar, scene_toml, sphere_body
+from conftest import REPLY_S, SPHERE_WATER, regular_waves, rm3_float, rm3_spar, scene_toml, sphere_body
 
 from hydrolink.clients.lockstep.connection import RemoteError, ServerConnection
 from hydrolink.protocol.hdb.wire import HDBFiles

@@ -20,8 +20,7 @@ import pytest
 import xarray as xr
 
 from analytic_hdb import added_mass, damping, irf, make_body_hdb
-from conftest import REPLY_S
-from conftest import body, regular_waves, scene_toml, write_scene
+from conftest import REPLY_S, body, regular_waves, scene_toml, write_scene
 
 from hydrolink.protocol.hdb.schema import to_netcdf
 from hydrolink.protocol.scene import SceneError, parse_scene

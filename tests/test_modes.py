@@ -15,8 +15,7 @@ import pytest
 import scipy.linalg
 import xarray as xr
 
-from conftest import REPLY_S
-from conftest import body, regular_waves, scene_toml
+from conftest import REPLY_S, body, regular_waves, scene_toml
 
 from hydrolink.clients.exudyn.client import run
 from hydrolink.clients.lockstep.connection import RemoteError, ServerConnection

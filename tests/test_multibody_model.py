@@ -6,8 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conftest import REPLY_S
-from conftest import body, regular_waves, rm3_float, rm3_spar, scene_toml
+from conftest import REPLY_S, body, regular_waves, rm3_float, rm3_spar, scene_toml
 
 from hydrolink.clients.lockstep.connection import RemoteError, ServerConnection
 from hydrolink.protocol.scene import parse_scene

@@ -18,8 +18,7 @@ from pathlib import Path
 import netCDF4
 import pytest
 
-from conftest import REPLY_S
-from conftest import rm3_float, rm3_spar, scene_toml, write_scene
+from conftest import REPLY_S, rm3_float, rm3_spar, scene_toml, write_scene
 from hydrolink.protocol.hdb.layout import HDBError, hdb_warnings
 from hydrolink.protocol.hdb.wire import from_wire, to_wire
 from hydrolink.server.hdb.io import load_hdb

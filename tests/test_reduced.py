@@ -20,8 +20,7 @@ import xarray as xr
 
 import exudyn as exu
 
-from conftest import REPLY_S
-from conftest import rm3_example_text
+from conftest import REPLY_S, rm3_example_text
 from conftest import (SPHERE_WATER, body, joint, linear_pto, regular_waves, scene_toml, sphere_body,
                       toml_document)
 

@@ -22,8 +22,7 @@ import xarray as xr
 
 import netlab  # tests/netlab.py
 
-from conftest import EXIT_S, REPLY_S
-from conftest import rm3_example_text
+from conftest import EXIT_S, REPLY_S, rm3_example_text
 
 # One pytest-xdist worker runs this whole module (pyproject: --dist loadgroup): its module fixture (the
 # loopback reference run of three processes) costs ~8 s, paid once per worker otherwise.

@@ -17,8 +17,7 @@ import netCDF4
 import numpy as np
 import pytest
 
-from conftest import EXIT_S
-from conftest import SPHERE_WATER, regular_waves, scene_toml, sphere_body, write_scene
+from conftest import EXIT_S, SPHERE_WATER, regular_waves, scene_toml, sphere_body, write_scene
 
 from hydrolink.clients.lockstep.results import ResultWriter
 

@@ -32,8 +32,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import EXIT_S
-from conftest import rm3_example_text
+from conftest import EXIT_S, rm3_example_text
 from hydrolink.protocol.scene import load_scene, parse_scene
 from hydrolink.server.model import HydroModel
 

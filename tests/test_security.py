@@ -15,8 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import EXIT_S, REPLY_S
-from conftest import SPHERE_WATER, regular_waves, scene_toml, sphere_body, write_scene
+from conftest import EXIT_S, REPLY_S, SPHERE_WATER, regular_waves, scene_toml, sphere_body, write_scene
 from hydrolink.clients.lockstep.connection import RemoteError, ServerConnection
 from hydrolink.protocol.security import CurveKeyError, read_hmac_key
 

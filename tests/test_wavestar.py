@@ -41,8 +41,7 @@ from hydrolink.clients.control import ControllerError, load_controller
 from hydrolink.clients.run import run_scene_file
 from hydrolink.server.hdb.io import load_hdb
 
-from conftest import REPLY_S
-from conftest import controller_process
+from conftest import REPLY_S, controller_process
 
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLE = REPO / "examples" / "wavestar"
