@@ -66,6 +66,8 @@ _SWITCH = ("{what} changes the client's mass and stiffness matrices during the r
            "hydrostatic stiffness at each switch), which {tool} does not do; run the scene with hydrolink run")
 _OUTPUT = ("{what} are computed by hydrolink run from the run's rows after its last step, which {tool} does not "
            "do; run the scene with hydrolink run")
+_PERIODIC_OUTPUT = ("{what} are computed from a run's rows, which {tool}'s periodic solution does not write yet; "
+                    "run the scene with hydrolink run")
 _HULLS = ("nonlinear hydrostatics need the bodies' hulls in the hello, which {tool} does not carry yet; use the "
           "Exudyn client (hydrolink run)")
 
@@ -99,10 +101,7 @@ TOOLS: dict[str, Tool] = {
                     "hydro_states": "{what} switches the coefficients during the run, which {tool}'s periodic "
                                     "solution does not model; run the scene with hydrolink run (or one state's "
                                     "HDB as the body's hdb)",
-                    "sectional_loads": "{what} are computed from a run's rows, which {tool}'s periodic solution does "
-                                       "not write yet; run the scene with hydrolink run",
-                    "panel_pressures": "{what} are computed from a run's rows, which {tool}'s periodic solution does "
-                                       "not write yet; run the scene with hydrolink run"}),
+                    "sectional_loads": _PERIODIC_OUTPUT, "panel_pressures": _PERIODIC_OUTPUT}),
     # linearize: the device as a linear plant about rest (clients/analysis/plant.py)
     "linearize": Tool("hydrolink linearize", frozenset({"linear_damping"}),
                       "{what} have no linear model about rest in {tool} (quadratic drag's slope is zero there; "
