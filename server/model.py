@@ -211,6 +211,23 @@ class HydroModel:
         fused.warm_up(self.n)
         return fused
 
+    def fused_only(self) -> FusedLinearStep | None:
+        """The compiled linear core when it is this model's whole step (the excitation a sum of
+        components, no passive-yaw body, no force term, no generalized mode): a caller may then
+        take its step on arrays of its own (server/service/local_step.py ``LocalStep.compiled``),
+        telling the model with :meth:`count_step`; None otherwise."""
+        if self._fused is None or not self._summed or self._yaw is not None or self.terms \
+                or self.n != self.n_rigid:
+            return None
+        return self._fused
+
+    def count_step(self, k: int) -> None:
+        """Step ``k`` (the next, ``k`` = the newest + 1) was taken by :meth:`fused_only`'s kernel
+        outside :meth:`step`."""
+        if k != self._step + 1:
+            raise ModelError("step", f"step {k} taken outside the model after step {self._step}")
+        self._step = k
+
     def _add_term_contributions(self) -> None:
         """The terms' setup contributions (server/terms/base.py) and warnings, in registry order."""
         stiff = False

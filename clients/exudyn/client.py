@@ -53,7 +53,7 @@ import exudyn as exu
 from exudyn.itemInterface import ObjectGenericODE2, VObjectGenericODE2
 
 from hydrolink.clients.lockstep import driver as lockstep
-from hydrolink.clients.lockstep.coupling_schemes import make_scheme
+from hydrolink.clients.lockstep.coupling_schemes import Predictor, make_scheme
 from hydrolink.clients.lockstep.driver import BLOW_UP_LIMIT, CouplingError, DivergenceWatch, ForceLink, Lockstep, RunInterrupted, SimulationDiverged, progress_bar
 from hydrolink.protocol.pacing import Pacer
 from hydrolink.clients.lockstep.preflight import preflight
@@ -532,6 +532,26 @@ class ExudynMultibody:
         w = self._w = s.reshape(-1).take(self._wet_take).reshape(3, -1)
         self._wet = (w[0], w[1], w[2])
 
+    def compiled_exchange(self, link: ForceLink, scheme, n_exchanges: int):
+        """The run's exchange in two compiled calls (clients/exudyn/compiled_exchange.py) in place of
+        ``scheme``, or None where the reference path runs: A∞ not in the mass matrix or the scheme
+        not ``Predictor``'s, several client steps an exchange, a controller, MoorDyn, hydro states,
+        generalized modes, a dry body, or a server that is not this process's own socketless one
+        whose model steps as its compiled linear core alone (``LocalStep.compiled``)."""
+        m = self.model
+        if not (type(scheme) is Predictor and not scheme.feedback and self.a_fb is None and self.substeps == 1
+                and self.control is None and self._md is None and not self.state_names and self._all_wet
+                and not m.mode_labels and self.n and int(m.hydro_object) >= 0 and link.local is not None):
+            return None
+        step = link.local.compiled()
+        if step is None:
+            return None
+        from hydrolink.clients.exudyn.compiled_exchange import CompiledExchange
+        has_outputs = self.joints is not None or m.ptos is not None or m.moorings is not None
+        return CompiledExchange(m, link, step, wet_take=self._wet_take, body_take=self._body_take,
+                                state=lambda: self._s, outputs=self.outputs if has_outputs else None,
+                                refresh=self._refresh, n_exchanges=n_exchanges)
+
     # -- the driver's interface -------------------------------------------------------------
     def begin(self, s0, feedback: bool) -> int:
         """Initial accelerations from F(0); with A∞ fed back, consistent with −A∞·a0 (a fixed point)."""
@@ -781,10 +801,12 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup | None, writer, 
     first_timeout = control.join_timeout + getattr(connection, "timeout", 30.0) if control else None
     coupling = CouplingReport(scheme=scheme, exchange_every=kx, between_exchanges=cpl.between_exchanges,
                               added_mass_ratio=mass_ratio)
+    steps = make_scheme(scheme, tolerance=cpl.tolerance, max_iterations=cpl.max_iterations, ratio=ratio,
+                        n_exchanges=pre.n_exchanges)
+    if realtime is None:    # an embedded run's exchange compiled where it qualifies (clients/exudyn/compiled_exchange.py)
+        steps = mb.compiled_exchange(loop.link, steps, pre.n_exchanges) or steps
     try:
-        out = lockstep.run(loop, make_scheme(scheme, tolerance=cpl.tolerance, max_iterations=cpl.max_iterations,
-                                             ratio=ratio, n_exchanges=pre.n_exchanges),
-                           pre.n_exchanges, coupling, first_timeout=first_timeout,
+        out = lockstep.run(loop, steps, pre.n_exchanges, coupling, first_timeout=first_timeout,
                            hint=lambda exc: _divergence_hint(scheme, ratio, kx, pre.exchange_dt),
                            pacer=None if realtime is None else Pacer(pre.exchange_dt, realtime))
     finally:

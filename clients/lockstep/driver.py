@@ -177,10 +177,20 @@ class ForceLink:
                           reply["hydrostatic"].reshape(-1), eta, optional)
         # NaN or inf anywhere makes a sum non-finite (excitation and radiation through their sum)
         if not math.isfinite(float(_sum(s.load)) + float(_sum(s.hydrostatic)) + eta):
-            rows = self.writer.rows
-            raise SimulationDiverged(f"the force server returned non-finite forces at step {seq} (t = {t:.6g} s); "
-                                     f"the {rows} rows before it are saved", step=seq, time=t, rows=rows)
+            raise self.non_finite(seq)
         return s
+
+    @property
+    def local(self) -> Any:
+        """The embedded server's step path this link takes (server/service/local_step.py
+        ``LocalStep``; None: messages)."""
+        return self._local
+
+    def non_finite(self, seq: int) -> SimulationDiverged:
+        """The error of a reply to step ``seq`` with non-finite forces."""
+        t, rows = seq * self.dt, self.writer.rows
+        return SimulationDiverged(f"the force server returned non-finite forces at step {seq} (t = {t:.6g} s); "
+                                  f"the {rows} rows before it are saved", step=seq, time=t, rows=rows)
 
     def _controller_wait(self, seq: int, sent: float, rt: float, reply: dict, decisions: dict) -> float:
         """How long of this round trip the server waited for the controllers' commands: a

@@ -97,6 +97,13 @@ class FusedLinearStep:
         wave elevation."""
         return self._step(self._state, t, x, v, replace_last, self._f_ext if f_ext is None else f_ext, eta_ext, out)
 
+    @property
+    def kernel_state(self):
+        """The compiled kernel's :class:`~hydrolink.server.fused.kernel_numba.LinearState`: what a
+        caller's own compiled code passes to ``kernel_numba.step`` (with ``t``, ``x``, ``v``,
+        ``replace``, ``f_ext``, ``eta_ext`` and ``out`` as :meth:`__call__` does)."""
+        return self._state
+
     def state(self) -> tuple:
         """What a call changes, copied (for a session rolled back, SPEC §5.9)."""
         return tuple(a.copy() for a in (self._buf, self._counters, self._z, self._z_prev, self._v_prev, self._v_last))

@@ -16,13 +16,33 @@ sequencing rules, the model's step and the reply fields of a ``step`` message, b
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Any
+
 import numpy as np
 
 from hydrolink.protocol import codec
 from hydrolink.protocol.scene_bounds import MAX_COORDINATE, MAX_SPEED
+from hydrolink.server.model import HydroModel
 from hydrolink.server.service.session import Session
 
-__all__ = ["LocalStep"]
+__all__ = ["CompiledStep", "LocalStep"]
+
+
+@dataclass(frozen=True)
+class CompiledStep:
+    """A session's step as its model's compiled kernel, for a caller's own compiled code (an
+    embedded client's whole exchange in one call, clients/exudyn/compiled_exchange.py): ``kernel``
+    the :class:`~hydrolink.server.fused.kernel_numba.LinearState` to pass to ``kernel_numba.step``
+    at time ``seq * dt`` for the absolute position and velocity (6N,), with no excitation from
+    outside (zeros) and ``replace`` False; the caller checks the state against ``bounds`` (the
+    wire's position and velocity bounds, SPEC §5.2) before the call, keeps ``seq <= last_seq``,
+    and reports each step taken with :meth:`LocalStep.advanced`."""
+
+    kernel: Any
+    dt: float
+    last_seq: int
+    bounds: tuple[float, float] = (MAX_COORDINATE, MAX_SPEED)
 
 
 class LocalStep:
@@ -50,6 +70,20 @@ class LocalStep:
                 and (not modal or (codec.within(modal[0], MAX_COORDINATE) and codec.within(modal[1], MAX_SPEED)))):
             self._refuse()
         return s.advance(seq, iteration, self.position, self.velocity, modal)
+
+    def compiled(self) -> CompiledStep | None:
+        """The step as the model's compiled kernel (:class:`CompiledStep`) when that kernel is the
+        model's whole step (server/model.py ``HydroModel.fused_only``) and the session has no
+        modes; None otherwise (the caller takes :meth:`__call__`)."""
+        model = self._session.model
+        fused = model.fused_only() if isinstance(model, HydroModel) else None   # (not a SwitchingModel)
+        if fused is None or self._modal:
+            return None
+        return CompiledStep(fused.kernel_state, self._session.dt, model.last_seq)
+
+    def advanced(self, seq: int, seconds: float) -> None:
+        """Step ``seq`` (the next new one) was taken by :meth:`compiled`'s kernel in ``seconds``."""
+        self._session.advanced(seq, seconds)
 
     def _refuse(self) -> None:
         """Raise the error a ``step`` message with these arrays gets (the first field out of bounds)."""

@@ -372,6 +372,16 @@ class Session(SessionInfo):
                                 f"{self.model.last_seq} (setup.last_seq; simulation.duration / dt)")
         return seq
 
+    def advanced(self, seq: int, seconds: float) -> None:
+        """Step ``seq`` (the next, iteration 0) was taken in process by the model's compiled kernel
+        (server/service/local_step.py ``LocalStep.compiled``) in ``seconds``: the sequencing state
+        and counters as :meth:`advance` leaves them, no reply cached (a retry is refused)."""
+        self.model.count_step(seq)
+        self.last_seq, self.last_iteration = seq, 0
+        self.steps += 1
+        self.compute_s += seconds
+        self._last_state = self._cached = None
+
     def advance(self, seq: int, iteration: int, pos: np.ndarray, vel: np.ndarray, modal: tuple = (),
                 hydro_command: dict[str, str] | None = None) -> dict:
         """The reply fields of step ``seq`` ``iteration`` (>= 0, within the run) for a checked state
@@ -383,6 +393,10 @@ class Session(SessionInfo):
         elif seq == self.last_seq and iteration > self.last_iteration:
             replace = True
         elif seq == self.last_seq and iteration == self.last_iteration:
+            if self._last_state is None:   # the step was taken by LocalStep.compiled's caller: nothing kept
+                raise ProtocolError(Code.OUT_OF_ORDER, "iteration",
+                                    f"seq {seq} iteration {iteration} was computed in process, without a "
+                                    f"state kept for a retry; send iteration {iteration + 1} to replace it")
             old_pos, old_vel, *old_modal = self._last_state
             if not (np.array_equal(old_pos, pos) and np.array_equal(old_vel, vel)
                     and all(np.array_equal(a, b) for a, b in zip(old_modal, modal))):

@@ -1,0 +1,132 @@
+"""The embedded exchange's glue compiled (numba; imported only from clients/exudyn/compiled_exchange.py,
+on first use).
+
+Two calls a step on one :class:`ExchangeState` made once per run (numba's dispatch types each
+array argument on every call: the arrays live in the structure, a call passes it and the step's
+own values):
+
+- :func:`predict`: from Exudyn's state (the rows q, v, a of every ODE2 coordinate, held in
+  ``qva``), the wet DOFs' predicted state (x + H v + H²/2 a, v + H a, the arithmetic of
+  clients/lockstep/coupling_schemes.py ``Predictor`` in its order), the absolute position and
+  velocity checked against the wire's bounds, the server's compiled linear step
+  (server/fused/kernel_numba.py ``step``) into ``out``, and the load excitation + radiation at
+  the hydro object's coordinates (``force``);
+- :func:`settle`: Exudyn's state after the step into ``qva``, the results row (every body's
+  position and velocity, the forces, the hydrostatic force −C q) and the sum of squares of q and v
+  (the divergence watch's bound).
+
+No ``fastmath`` here: each sum and product in numpy's order, so the results are numpy's bits
+(tests/test_compiled_exchange.py).
+"""
+
+from __future__ import annotations
+
+import math
+
+from hydrolink.server import compiler
+from hydrolink.server.fused import kernel_numba
+
+numba = compiler.load()
+from numba.core import types  # (after numba's set-up above)
+from numba.experimental import structref
+
+_jit = numba.njit(cache=True, nogil=True, error_model="numpy")
+_step = kernel_numba.step
+
+FIELDS = ["lin", "qva", "wet_take", "eq", "pos", "vel", "out", "load", "f_ext", "force_index", "force", "body_take", "ref",
+          "k_hs", "hs", "h", "bounds", "status"]
+
+#: predict's outcomes (``status[0]``): the step taken; the state refused by the wire's bounds (no step taken);
+#: the server's forces not finite (the step taken)
+TAKEN, REFUSED, NON_FINITE = 0, 1, 2
+
+
+@structref.register
+class _ExchangeStateType(types.StructRef):
+    """numba's type of an :class:`ExchangeState`: its fields' types as given (not literal)."""
+
+    def preprocess_fields(self, fields):
+        return tuple((name, types.unliteral(t)) for name, t in fields)
+
+
+class ExchangeState(structref.StructRefProxy):
+    """The embedded exchange's arrays (clients/exudyn/compiled_exchange.py ``CompiledExchange``)."""
+
+
+structref.define_proxy(ExchangeState, _ExchangeStateType, FIELDS)
+
+
+@_jit
+def exchange_state(lin, qva, wet_take, eq, pos, vel, out, load, f_ext, force_index, force, body_take, ref, k_hs, hs,
+                   h, bounds, status):
+    """The :class:`ExchangeState` of these arrays (held, not copied)."""
+    return ExchangeState(lin, qva, wet_take, eq, pos, vel, out, load, f_ext, force_index, force, body_take, ref, k_hs,
+                         hs, h, bounds, status)
+
+
+@_jit
+def predict(g, t):
+    """The server's forces at time ``t`` for the state predicted from ``g.qva`` (module docstring);
+    returns the wave elevation, ``g.status[0]`` the outcome (TAKEN, REFUSED, NON_FINITE)."""
+    flat = g.qva.reshape(-1)
+    take, eq, pos, vel = g.wet_take, g.eq, g.pos, g.vel
+    n = eq.size
+    h = g.h
+    c = 0.5 * h * h
+    max_x, max_v = g.bounds[0], g.bounds[1]
+    ok = True
+    for i in range(n):
+        x, v, a = flat[take[i]], flat[take[n + i]], flat[take[2 * n + i]]
+        p = eq[i] + (x + h * v + c * a)
+        u = v + h * a
+        pos[i], vel[i] = p, u
+        ok = ok and abs(p) <= max_x and abs(u) <= max_v
+    if not ok:
+        g.status[0] = REFUSED
+        return math.nan
+    out = g.out
+    eta = _step(g.lin, t, pos, vel, False, g.f_ext, 0.0, out)
+    load = g.load
+    total = eta
+    for i in range(n):
+        load[i] = out[0, i] + out[1, i]
+        total += load[i] + out[2, i]
+    for j in range(g.force_index.size):
+        g.force[j] = load[g.force_index[j]]
+    g.status[0] = TAKEN if math.isfinite(total) else NON_FINITE
+    return eta
+
+
+@_jit
+def settle(g, q, v, a, row):
+    """Exudyn's state after a step (``q``, ``v``, ``a`` of its ODE2 coordinates) into ``g.qva``, the
+    results row (5, B, 6) filled from it and ``g.out``; returns the sum of squares of q and v."""
+    st = g.qva
+    nq = q.size
+    ss = 0.0
+    for i in range(nq):
+        st[0, i], st[1, i], st[2, i] = q[i], v[i], a[i]
+        ss += q[i] * q[i] + v[i] * v[i]
+    flat = st.reshape(-1)
+    take, ref = g.body_take, g.ref
+    nb = ref.size // 6
+    m = nb * 6
+    for b in range(nb):
+        for d in range(6):
+            j = 6 * b + d
+            row[0, b, d] = ref[j] + flat[take[j]]
+            row[1, b, d] = flat[take[m + j]]
+    out, k_hs, hs, wet = g.out, g.k_hs, g.hs, g.wet_take
+    n = hs.size
+    for i in range(n):
+        acc = 0.0
+        for j in range(n):
+            acc += k_hs[i, j] * flat[wet[j]]
+        hs[i] = acc
+    for b in range(nb):
+        for d in range(6):
+            j = 6 * b + d
+            row[2, b, d] = out[0, j]
+            row[3, b, d] = out[1, j]
+            row[4, b, d] = -hs[j]
+    return ss

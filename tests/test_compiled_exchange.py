@@ -1,0 +1,114 @@
+"""clients/exudyn/compiled_exchange.py: an embedded run's exchange in two compiled calls gives the
+reference path's results bit for bit — the reference being the same scene run against a server in
+a thread over loopback TCP (messages: ForceLink, Session.step, HydroModel.step, the Exudyn client's
+Python rows) — and stops where the reference path stops, with its error."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import netCDF4
+import numpy as np
+import pytest
+
+from conftest import REPLY_S, SPHERE_WATER, regular_waves, rm3_example_text, scene_toml, sphere_body
+
+from hydrolink.clients.exudyn import compiled_exchange
+from hydrolink.clients.lockstep.driver import SimulationDiverged
+from hydrolink.clients.run import run_scene_file
+from hydrolink.server.service.force_server import serve_in_thread
+
+MASS = 261.8e3   # the Task-10 sphere floating (rho V)
+
+
+def rm3_scene(reference_data: Path, tmp_path: Path, extra: str = "") -> Path:
+    """RM3 (two reduced bodies, convolution, the PTO's outputs) at dt 0.08 for 16 s."""
+    text = rm3_example_text("rm3.toml")
+    for a, b in (('"../data/rm3_wamit/rm3.1"', f'"{(reference_data / "rm3_wamit" / "rm3.1").as_posix()}"'),
+                 ("duration = 400.0", "duration = 16.0"), ("ramp = 40.0", "ramp = 4.0")):
+        assert a in text
+        text = text.replace(a, b)
+    path = tmp_path / "rm3.toml"
+    path.write_text(text + extra)
+    return path
+
+
+def sphere_scene(sphere_path: Path, tmp_path: Path) -> Path:
+    """The sphere in all six DOFs (no reduced body), state-space radiation, a heave offset."""
+    path = tmp_path / "sphere.toml"
+    path.write_text(scene_toml(dt=0.05, duration=10.0, progress=False, water=SPHERE_WATER,
+                               waves=regular_waves(1.0, 6.0, ramp=3.0),
+                               hydro={"irf_duration": 20.0, "radiation": "state-space"},
+                               bodies=[sphere_body(str(sphere_path), mass=MASS,
+                                                   initial_displacement=[0.1, 0.05, 0.5, 0.01, 0.02, 0.0])]))
+    return path
+
+
+def counted(monkeypatch) -> list[int]:
+    """Calls of CompiledExchange.exchange (a spy: each call goes on to the real one)."""
+    calls: list[int] = []
+    real = compiled_exchange.CompiledExchange.exchange
+
+    def spy(self, loop, e, s_prev):
+        calls.append(e)
+        return real(self, loop, e, s_prev)
+    monkeypatch.setattr(compiled_exchange.CompiledExchange, "exchange", spy)
+    return calls
+
+
+def socket_run(scene: Path, out: Path):
+    srv, thread = serve_in_thread()
+    try:
+        return run_scene_file(scene, out, server=srv.address, progress=False, timeout=REPLY_S)
+    finally:
+        srv.stop()
+        thread.join(5)
+
+
+@pytest.mark.parametrize("case", ["rm3", "sphere"])
+def test_compiled_exchange_equals_reference_bit_for_bit(case, reference_data, sphere_path, tmp_path, monkeypatch):
+    """Every variable of the results file (position, velocity, the forces, the elevation, the
+    PTO's outputs) is the reference path's to the bit, over every row."""
+    scene = rm3_scene(reference_data, tmp_path) if case == "rm3" else sphere_scene(sphere_path, tmp_path)
+    calls = counted(monkeypatch)
+    embedded = run_scene_file(scene, tmp_path / "embedded.nc", progress=False)
+    remote = socket_run(scene, tmp_path / "socket.nc")
+    assert embedded.status == remote.status == "complete"
+    assert calls == list(range(embedded.steps))      # every exchange compiled in the embedded run, none in the other
+    assert embedded.round_trip_us_per_step > 0.0      # the kernel's time counted as the server's
+    with netCDF4.Dataset(tmp_path / "embedded.nc") as a, netCDF4.Dataset(tmp_path / "socket.nc") as b:
+        names = [n for n, v in a.variables.items() if v.dtype is not str and v.dtype.kind == "f"
+                 and "time" in v.dimensions]
+        assert {"position", "velocity", "excitation_force", "radiation_force", "hydrostatic_force",
+                "wave_elevation"} <= set(names)
+        if case == "rm3":
+            assert {"pto_force", "pto_power"} <= set(names)
+        for name in names:
+            x, y = a[name][:].filled(np.nan), b[name][:].filled(np.nan)
+            assert x.shape == y.shape and x.tobytes() == y.tobytes(), name
+        moved = np.abs(a["position"][:] - a["position"][0]).max()
+        assert moved > 0.05                            # the body moved: the comparison is not of rest states
+
+
+def test_compiled_exchange_stops_where_the_reference_path_does(reference_data, tmp_path, monkeypatch):
+    """A state past the divergence bound (a run's blow-up limit set below RM3's heave) stops the
+    compiled run at the step, with the message, and with the rows the reference path keeps."""
+    from hydrolink.clients.exudyn import client
+
+    real = client.run
+
+    def low_limit(*args, **kw):
+        return real(*args, **{**kw, "blow_up_limit": 0.05})
+    monkeypatch.setattr(client, "run", low_limit)
+    scene = rm3_scene(reference_data, tmp_path)
+    calls = counted(monkeypatch)
+    with pytest.raises(SimulationDiverged) as embedded:
+        run_scene_file(scene, tmp_path / "embedded.nc", progress=False)
+    assert calls
+    with pytest.raises(SimulationDiverged) as remote:
+        socket_run(scene, tmp_path / "socket.nc")
+    assert embedded.value.step == remote.value.step > 1
+    assert str(embedded.value) == str(remote.value)
+    with netCDF4.Dataset(tmp_path / "embedded.nc") as a, netCDF4.Dataset(tmp_path / "socket.nc") as b:
+        assert a.dimensions["time"].size == b.dimensions["time"].size == embedded.value.rows
+        assert a["position"][:].tobytes() == b["position"][:].tobytes()
