@@ -1,23 +1,26 @@
 """Instructions per lockstep step by callgrind (valid on a loaded host), beside the bare-Exudyn floor.
 
-    python bench/callgrind_step.py [--short 200] [--long 800] [--cases floor,rm3,rm3-reference,cylinder,cylinder-reference]
+    python bench/callgrind_step.py [--warm 50] [--steps 500] [--cases floor,rm3,rm3-reference,cylinder,cylinder-reference]
 
-Each case runs twice under ``valgrind --tool=callgrind`` (whole program, every thread): ``--short``
-and ``--long`` steps at dt 0.01 (results flushed once, at the end: ``flush_seconds`` a day); the
-difference of the two totals over the difference of the steps is the cost of one step with
-everything a run does per step (start-up, the HDB, the model's set-up and the file's creation
-cancel). Cases:
+Each case runs once under ``valgrind --tool=callgrind --instr-atstart=no``, its instrumentation
+switched on at step ``--warm`` and off ``--steps`` steps later (callgrind's client requests, from a
+small C library compiled here with gcc and called through ctypes), so only those steps are counted,
+every thread included (the results flushed once, at the end: ``flush_seconds`` a day; warm +
+steps < 2000 rows, so no block goes to the writer inside the window). Cases, dt 0.01 s:
 
 - ``floor``: bench/bench_lockstep.py's bare-Exudyn floor (RM3's linear system in one
-  ObjectGenericODE2, a Python PreStep with the radiation convolution and the wave force);
+  ObjectGenericODE2, a Python PreStep with the radiation convolution and the wave force), counted
+  from its PreStep's call ``--warm``;
 - ``rm3``, ``cylinder``: bench/bench_lockstep.py's scenes run embedded (``hydrolink run``'s
-  in-process server), the exchange compiled (clients/exudyn/compiled_exchange.py);
+  in-process server), the exchange compiled (clients/exudyn/compiled_exchange.py), counted from
+  exchange ``--warm``;
 - ``rm3-reference``, ``cylinder-reference``: the same with the reference path (ForceLink,
   LocalStep, the Exudyn client's Python rows: 58bba31's path).
 
-Numba's cached kernels are keyed on the CPU, and valgrind reports another: the first run under
-valgrind compiles them (minutes), and there they are unvectorised, so the kernels' share is above
-their native one. Figures from the same run of this script compare; the load does not matter.
+The switch is one Python call a step wrapped around the floor's force and each case's exchange
+alike. Numba's cached kernels are keyed on the CPU, and valgrind reports another: the first run
+under valgrind compiles them, and there they are unvectorised, so the kernels' share is above
+their native one. The load does not change the counts.
 """
 
 from __future__ import annotations
@@ -35,59 +38,107 @@ HERE = Path(__file__).resolve().parent
 DT = 0.01
 
 
-def inner(case: str, steps: int) -> None:
-    """One run of ``case`` for ``steps`` steps (in this process: what valgrind counts)."""
+SWITCH = r"""
+#include <valgrind/callgrind.h>
+void on(void) { CALLGRIND_ZERO_STATS; CALLGRIND_START_INSTRUMENTATION; }
+void off(void) { CALLGRIND_STOP_INSTRUMENTATION; CALLGRIND_DUMP_STATS_AT("window"); }
+"""
+
+
+def switch_library(folder: Path) -> Path:
+    """The client requests' C library (gcc), compiled into ``folder``."""
+    src, lib = folder / "switch.c", folder / "switch.so"
+    src.write_text(SWITCH)
+    subprocess.run(["gcc", "-O1", "-shared", "-fPIC", "-o", str(lib), str(src)], check=True)
+    return lib
+
+
+def inner(case: str, warm: int, steps: int, library: str) -> None:
+    """One run of ``case`` (in this process: what valgrind counts), instrumented over steps
+    ``warm`` to ``warm + steps``."""
+    import ctypes
+
     sys.path.insert(0, str(HERE))
-    from bench_lockstep import bare_exudyn_us, cylinder_scene, rm3_scene
+    import bench_lockstep
+
+    lib = ctypes.CDLL(library)
+    last = warm + steps
+
+    def toggle(k: int) -> None:
+        if k == warm:
+            lib.on()
+        elif k == last:
+            lib.off()
 
     logging.disable(logging.WARNING)
-    duration = steps * DT
+    duration = (last + 10) * DT
     with tempfile.TemporaryDirectory() as tmp:
         scene = Path(tmp) / "scene.toml"
         if case == "floor":
-            scene.write_text(rm3_scene(duration))
-            bare_exudyn_us(scene, steps)
+            ode2 = bench_lockstep.generic_ode2_us
+
+            def counted_ode2(mass, stiffness, damping, force, n_steps, dt):
+                def counted(k, q, v):
+                    toggle(k)
+                    return force(k, q, v)
+                return ode2(mass, stiffness, damping, counted, n_steps, dt)
+            bench_lockstep.generic_ode2_us = counted_ode2
+            scene.write_text(bench_lockstep.rm3_scene(duration))
+            bench_lockstep.bare_exudyn_us(scene, last + 10)
             return
         from hydrolink.clients.exudyn import client
+        from hydrolink.clients.lockstep import driver
         from hydrolink.clients.run import run_scene_file
 
-        text = rm3_scene(duration) if case.startswith("rm3") else cylinder_scene(duration)
+        text = bench_lockstep.rm3_scene(duration) if case.startswith("rm3") else bench_lockstep.cylinder_scene(duration)
         scene.write_text(text.replace("[simulation]\n", "[simulation]\nflush_seconds = 86400.0\n", 1))
         if case.endswith("-reference"):
             client.ExudynMultibody.compiled_exchange = lambda *args: None   # the reference path
+        loop_run = driver.run
+
+        class Counted:
+            def __init__(self, scheme):
+                self.scheme, self.feedback = scheme, scheme.feedback
+
+            def exchange(self, loop, e, s):
+                toggle(e)
+                return self.scheme.exchange(loop, e, s)
+
+        driver.run = lambda loop, scheme, *args, **kw: loop_run(loop, Counted(scheme), *args, **kw)
         summary = run_scene_file(scene, Path(tmp) / "out.nc", progress=False)
-        assert summary.status == "complete" and summary.steps == steps, summary
+        assert summary.status == "complete", summary
 
 
-def instructions(case: str, steps: int, folder: Path) -> int:
-    """Callgrind's total instruction count of one run."""
-    out = folder / f"{case}.{steps}.out"
-    subprocess.run(["valgrind", "--tool=callgrind", f"--callgrind-out-file={out}", sys.executable, __file__,
-                    "--inner", case, str(steps)], check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    return int(re.search(r"(?m)^(?:summary|totals): (\d+)", out.read_text()).group(1))
+def instructions(case: str, warm: int, steps: int, folder: Path, library: Path) -> int:
+    """Callgrind's instruction count over the window of one run of ``case``."""
+    out = folder / f"{case}.out"
+    subprocess.run(["valgrind", "--tool=callgrind", "--instr-atstart=no", f"--callgrind-out-file={out}",
+                    sys.executable, __file__, "--inner", case, str(warm), str(steps), str(library)],
+                   check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    dumps = [p for p in folder.glob(f"{case}.out*") if "window" in p.read_text(errors="replace")[:2000]]
+    text = dumps[0].read_text()
+    return int(re.search(r"(?m)^(?:summary|totals): (\d+)", text).group(1))
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--short", type=int, default=200)
-    parser.add_argument("--long", type=int, default=800)
+    parser.add_argument("--warm", type=int, default=50, help="steps before the window")
+    parser.add_argument("--steps", type=int, default=500, help="steps counted")
     parser.add_argument("--cases", default="floor,rm3,rm3-reference,cylinder,cylinder-reference")
-    parser.add_argument("--inner", nargs=2, metavar=("CASE", "STEPS"), help=argparse.SUPPRESS)
+    parser.add_argument("--inner", nargs=4, metavar=("CASE", "WARM", "STEPS", "LIBRARY"), help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.inner:
-        inner(args.inner[0], int(args.inner[1]))
+        inner(args.inner[0], int(args.inner[1]), int(args.inner[2]), args.inner[3])
         return
-    cases = args.cases.split(",")
     per_step = {}
     with tempfile.TemporaryDirectory() as tmp:
-        for case in cases:
-            a, b = (instructions(case, n, Path(tmp)) for n in (args.short, args.long))
-            per_step[case] = (b - a) / (args.long - args.short)
-            print(f"{case}: {per_step[case]:,.0f} instructions a step ({a:,} at {args.short} steps, "
-                  f"{b:,} at {args.long})", flush=True)
+        library = switch_library(Path(tmp))
+        for case in args.cases.split(","):
+            per_step[case] = instructions(case, args.warm, args.steps, Path(tmp), library) / args.steps
+            print(f"{case}: {per_step[case]:,.0f} instructions a step", flush=True)
     floor = per_step.get("floor")
-    print(f"\nsteps {args.short} and {args.long} at dt {DT} s; load average {os.getloadavg()[0]:.1f} (no effect on "
-          "the counts)\n\n| case | instructions a step | × the floor |\n|---|---|---|")
+    print(f"\nsteps {args.warm} to {args.warm + args.steps} at dt {DT} s; load average {os.getloadavg()[0]:.1f} "
+          "(no effect on the counts)\n\n| case | instructions a step | × the floor |\n|---|---|---|")
     for case, ir in per_step.items():
         print(f"| {case} | {ir:,.0f} | {ir / floor:.2f} |" if floor else f"| {case} | {ir:,.0f} | |")
 
