@@ -112,6 +112,29 @@ def test_blocks_write_every_row_as_given(tmp_path: Path):
         assert np.array_equal(ds["flag"][:], np.isin(np.arange(23), list(amended)).astype(np.int8))
 
 
+def test_slots_fill_the_next_rows_extras_in_place(tmp_path: Path):
+    """Values written into ``slots`` (a vector and a scalar variable) are the row's, across block
+    boundaries; a row whose slots were not taken repeats the previous one, as with stage_extra."""
+    w = ResultWriter(tmp_path / "r.nc", scene_text="", bodies=["a"], dt=0.1, flush_rows=4, blocks=2,
+                     flush_seconds=3600.0)
+    w.add_variable("g", ("pto",), {"pto": ["p", "q"]}, "N", "filled in place")
+    w.add_variable("s", (), units="W")
+    rows, taken = _rows(11, 1), {0, 1, 3, 4, 5, 8}
+    for k, r in enumerate(rows):
+        if k in taken:
+            g, total = w.slots(("g", "s"))
+            assert g.shape == (1, 2) and total.shape == (1,)
+            g[0] = (k, -k)
+            total[0] = 10.0 * k
+        w.append(0.1 * k, *r, 0.0)
+    w.finish("complete")
+    w.close()
+    last = [max(j for j in taken if j <= k) for k in range(11)]
+    with netCDF4.Dataset(tmp_path / "r.nc") as ds:
+        assert np.array_equal(ds["g"][:], [[j, -j] for j in last])
+        assert np.array_equal(ds["s"][:], [10.0 * j for j in last])
+
+
 def test_a_slow_write_stalls_the_stepping_thread_only_when_every_block_is_taken(tmp_path: Path):
     """The writer thread takes 0.6 s over the first block: with two blocks the stepping thread waits
     for it (counted in io_seconds, once) when the second fills; with three it does not."""

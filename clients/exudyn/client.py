@@ -547,10 +547,12 @@ class ExudynMultibody:
         if step is None:
             return None
         from hydrolink.clients.exudyn.compiled_exchange import CompiledExchange
-        has_outputs = self.joints is not None or m.ptos is not None or m.moorings is not None
+        others = self.joints is not None or m.moorings is not None
+        linear = m.ptos.linear_table() if m.ptos is not None and not others else None
+        has_outputs = others or m.ptos is not None
         return CompiledExchange(m, link, step, wet_take=self._wet_take, body_take=self._body_take,
                                 state=lambda: self._s, outputs=self.outputs if has_outputs else None,
-                                refresh=self._refresh, n_exchanges=n_exchanges)
+                                refresh=self._refresh, n_exchanges=n_exchanges, linear_ptos=linear)
 
     # -- the driver's interface -------------------------------------------------------------
     def begin(self, s0, feedback: bool) -> int:

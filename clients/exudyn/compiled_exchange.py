@@ -11,8 +11,10 @@ exchange of :class:`~hydrolink.clients.lockstep.coupling_schemes.Predictor` is, 
 2. one write of that load into Exudyn (``SetObjectParameter``) and its ``SolveSteps``;
 3. one read of Exudyn's state (its three ODE2 getters), and one compiled call (``settle``) that
    keeps it for the next step, fills the results row and bounds the state for the divergence watch;
-4. the mechanism's outputs (joints, PTOs, moorings), as the reference path stages them, and the
-   row's commit.
+4. the mechanism's outputs: where they are linear PTOs only (up to seven), each connector's
+   displacement and velocity (two ``GetObjectOutput``) and one compiled call (``linear_ptos``)
+   into the row's slots (``ResultWriter.slots``); otherwise (joints, moorings, other PTOs) as the
+   reference path stages them; and the row's commit.
 
 The session's sequencing state and counters follow each step (``LocalStep.advanced``). Results
 are the reference path's bit for bit (tests/test_compiled_exchange.py runs both). Anything off the
@@ -26,6 +28,7 @@ from __future__ import annotations
 import time as _time
 from typing import Any, Callable
 
+import exudyn as exu
 import numpy as np
 
 from hydrolink.clients.lockstep.coupling_schemes import Predictor
@@ -33,6 +36,10 @@ from hydrolink.clients.lockstep.driver import ForceLink, Lockstep, Sample
 from hydrolink.server.service.local_step import CompiledStep
 
 __all__ = ["CompiledExchange"]
+
+#: the linear PTOs' results variables (clients/exudyn/client.py ``ExudynMultibody.outputs``), in linear_ptos' order
+PTO_VARIABLES = ("pto_force", "pto_velocity", "pto_power", "total_pto_power")
+_DISPLACEMENT, _VELOCITY = exu.OutputVariableType.Displacement, exu.OutputVariableType.Velocity
 
 
 def _kernel():
@@ -52,7 +59,10 @@ class CompiledExchange:
 
     def __init__(self, model: Any, link: ForceLink, step: CompiledStep, *, wet_take: np.ndarray,
                  body_take: np.ndarray, state: Callable[[], np.ndarray], outputs: Callable[[], dict] | None,
-                 refresh: Callable[[], None], n_exchanges: int):
+                 refresh: Callable[[], None], n_exchanges: int,
+                 linear_ptos: tuple[list[int], np.ndarray] | None = None):
+        """``outputs``: the mechanism's outputs by results variable (None: none); ``linear_ptos``
+        (``PTOSet.linear_table``) in its place where they are linear PTOs only."""
         k = _kernel()
         n = model.wet_index.size
         self._model, self._link, self._local = model, link, link.local
@@ -71,7 +81,9 @@ class CompiledExchange:
             self._force, np.asarray(body_take, np.int64), model.body_reference.reshape(-1).copy(),
             np.ascontiguousarray(model.stiffness, float), np.zeros(n), float(model.dt), np.array(step.bounds, float),
             self._status)
-        self._predict, self._settle = k.predict, k.settle
+        self._predict, self._settle, self._linear_ptos = k.predict, k.settle, k.linear_ptos
+        self._pto_objects, self._pto_table = linear_ptos if linear_ptos is not None else ([], None)
+        self._dw = np.zeros((len(self._pto_objects), 2, 3))   # each PTO's displacement and velocity
         self._out = out
         self._primed = False
 
@@ -109,7 +121,13 @@ class CompiledExchange:
         if not ss < limit * limit or e == self._last:   # the watch's own check (raises) / the client's state, synced
             self._refresh()
             loop.watch.check(loop.mb, loop.step, t1, writer.rows, loop.mb.label)
-        if self._outputs is not None:
+        if self._pto_table is not None:
+            get, dw = model.mbs.GetObjectOutput, self._dw
+            for r, obj in enumerate(self._pto_objects):
+                dw[r, 0] = get(obj, _DISPLACEMENT)
+                dw[r, 1] = get(obj, _VELOCITY)
+            self._linear_ptos(self._pto_table, dw, *writer.slots(PTO_VARIABLES))
+        elif self._outputs is not None:
             out = self._outputs()
             if out:
                 writer.stage_extra(out)

@@ -130,3 +130,27 @@ def settle(g, q, v, a, row):
             row[3, b, d] = out[1, j]
             row[4, b, d] = -hs[j]
     return ss
+
+
+@_jit
+def linear_ptos(table, dw, force, velocity, power, total):
+    """The linear PTOs' outputs as clients/exudyn/ptos.py ``PTOSet.sample`` computes them, into the
+    results row's slots (1, n) and (1,): ``table`` (n, 6) entry, stiffness, damping, added force,
+    rest length, limit; ``dw`` (n, 2, 3) each connector's displacement (point2 − point1) and
+    velocity."""
+    for r in range(table.shape[0]):
+        e = int(table[r, 0])
+        dx, dy, dz = dw[r, 0, 0], dw[r, 0, 1], dw[r, 0, 2]
+        vx, vy, vz = dw[r, 1, 0], dw[r, 1, 1], dw[r, 1, 2]
+        length = math.sqrt(dx * dx + dy * dy + dz * dz)
+        rate = (vx * dx + vy * dy + vz * dz) / length if length > 0 else 0.0
+        f = table[r, 1] * (length - table[r, 4]) + table[r, 2] * rate + table[r, 3]
+        limit = table[r, 5]
+        f = min(max(f, -limit), limit)
+        force[0, e], velocity[0, e] = f, rate
+    acc = 0.0
+    for e in range(force.shape[1]):
+        p = force[0, e] * velocity[0, e]
+        power[0, e] = p
+        acc += p
+    total[0] = acc

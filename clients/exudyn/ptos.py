@@ -135,6 +135,19 @@ class PTOSet:
                 mbs.SetObjectParameter(p.object, key, float(value))
                 cur[i] = float(value)
 
+    def linear_table(self) -> tuple[list[int], np.ndarray] | None:
+        """The linear PTOs' connectors and, one row each, their entry, stiffness, damping, added
+        force, rest length and limit (what :meth:`sample` computes their outputs from, for
+        clients/exudyn/exchange_kernel.py ``linear_ptos``); None when the set has PTOs of
+        another kind or more than 7 (``total_power``'s sum is then numpy's pairwise one)."""
+        if self.axial or self.rotary or not self.linear or len(self.linear) > 7:
+            return None
+        rows = []
+        for p in self.linear:
+            k, c, f0 = self.current.get(p.object) or (p.stiffness, p.damping, 0.0)
+            rows.append((p.entry, k, c, f0, p.rest_length, p.limit))
+        return [p.object for p in self.linear], np.array(rows, float)
+
     def sample(self, mbs) -> PTOSample:
         """Forces, velocities and absorbed powers of all entries in the current state."""
         n = len(self.names)

@@ -261,6 +261,16 @@ class ResultWriter:
         blk.extra[name][blk.n] = value
         self._staged[name] = True
 
+    def slots(self, names: tuple[str, ...]) -> tuple[np.ndarray, ...]:
+        """The next row's values of the extra variables ``names`` as views into the block, each
+        (1, *dims), staged: filled in place before :meth:`commit` (as :meth:`row` is for the row
+        variables; :meth:`stage_extra` without the copies)."""
+        blk = self._cur if self._cur is not None else self._start()
+        i, staged, extra = blk.n, self._staged, blk.extra
+        for name in names:
+            staged[name] = True
+        return tuple(extra[name][i:i + 1] for name in names)
+
     # -- rows --------------------------------------------------------------------------------
     def append(self, time: float, position, velocity, excitation, radiation, hydrostatic,
                wave_elevation) -> None:
