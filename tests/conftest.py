@@ -403,6 +403,17 @@ def rm3_example_text(name: str = "rm3.toml") -> str:
     return text.replace('mesh = "../data/', f'mesh = "{(folder / "data").as_posix()}/')
 
 
+def rm3_short_text(reference_data: Path, *, duration: float = 16.0, ramp: float = 4.0) -> str:
+    """examples/rm3/rm3.toml's text for a short run: the repository's HDB by its absolute path,
+    ``duration`` and the waves' ``ramp`` as given (dt 0.08 s as the example's)."""
+    text = rm3_example_text("rm3.toml")
+    for a, b in (('"../data/rm3_wamit/rm3.1"', f'"{(reference_data / "rm3_wamit" / "rm3.1").as_posix()}"'),
+                 ("duration = 400.0", f"duration = {duration!r}"), ("ramp = 40.0", f"ramp = {ramp!r}")):
+        assert a in text, a
+        text = text.replace(a, b)
+    return text
+
+
 def write_scene(folder: Path, text: str, name: str = "scene.toml") -> Path:
     """Write scene text into ``folder`` (beside its HDBs, so relative paths resolve) and return the path."""
     path = folder / name

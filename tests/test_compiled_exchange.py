@@ -11,7 +11,7 @@ import netCDF4
 import numpy as np
 import pytest
 
-from conftest import REPLY_S, SPHERE_WATER, regular_waves, rm3_example_text, scene_toml, sphere_body
+from conftest import REPLY_S, SPHERE_WATER, regular_waves, rm3_short_text, scene_toml, sphere_body
 
 from hydrolink.clients.exudyn import compiled_exchange
 from hydrolink.clients.lockstep.driver import SimulationDiverged
@@ -23,13 +23,8 @@ MASS = 261.8e3   # the Task-10 sphere floating (rho V)
 
 def rm3_scene(reference_data: Path, tmp_path: Path, extra: str = "") -> Path:
     """RM3 (two reduced bodies, convolution, the PTO's outputs) at dt 0.08 for 16 s."""
-    text = rm3_example_text("rm3.toml")
-    for a, b in (('"../data/rm3_wamit/rm3.1"', f'"{(reference_data / "rm3_wamit" / "rm3.1").as_posix()}"'),
-                 ("duration = 400.0", "duration = 16.0"), ("ramp = 40.0", "ramp = 4.0")):
-        assert a in text
-        text = text.replace(a, b)
     path = tmp_path / "rm3.toml"
-    path.write_text(text + extra)
+    path.write_text(rm3_short_text(reference_data) + extra)
     return path
 
 
