@@ -88,3 +88,40 @@ def test_local_step_only_for_the_socketless_servers_unpaced_session(hdb):
     with ServerConnection(srv) as c:
         c.hello(SCENE, {"float.nc": hdb}, realtime=1.0)
         assert c.local_step() is None
+
+
+def test_compiled_kernel_steps_as_a_step_message(hdb):
+    """LocalStep.compiled's kernel, called as the compiled exchange calls it (absolute state, no
+    outside excitation, then ``advanced``), gives a message's forces bit for bit; the session counts
+    the steps; a retry of such a step is refused (nothing kept to compare it with), a replacing
+    iteration by message is answered as the other session answers it."""
+    from hydrolink.clients.lockstep.connection import RemoteError
+    from hydrolink.protocol.codec import Code
+    from hydrolink.server.fused import kernel_numba
+
+    srv = ForceServer(None)
+    with ServerConnection(srv) as by_msg, ServerConnection(srv) as by_kernel:
+        by_msg.hello(SCENE, {"float.nc": hdb})
+        by_kernel.hello(SCENE, {"float.nc": hdb})
+        port = by_kernel.local_step()
+        compiled = port.compiled()
+        assert compiled is not None and compiled.dt == DT and compiled.last_seq == 40
+        out, f_ext = np.zeros((3, 6)), np.zeros(6)
+        states = _states(9)
+        for seq, (p, v) in enumerate(states[:8]):
+            want = by_msg.step(seq, seq * DT, p, v, 0)
+            eta = kernel_numba.step(compiled.kernel, seq * DT, p.reshape(-1), v.reshape(-1), False, f_ext, 0.0, out)
+            port.advanced(seq, 1e-6)
+            assert eta == want["wave_elevation"]
+            for row, k in enumerate(FORCES):
+                assert out[row].tobytes() == want[k].reshape(-1).tobytes(), (seq, k)
+        session = srv.sessions[by_kernel.session]
+        assert (session.steps, session.last_seq, session.last_iteration) == (8, 7, 0)
+        p, v = states[7]
+        with pytest.raises(RemoteError) as err:
+            by_kernel.step(7, 7 * DT, p, v, 0)
+        assert (err.value.code, err.value.field) == (Code.OUT_OF_ORDER, "iteration")
+        p, v = states[8]
+        want, got = by_msg.step(7, 7 * DT, p, v, 1), by_kernel.step(7, 7 * DT, p, v, 1)
+        for k in FORCES:
+            assert got[k].tobytes() == want[k].tobytes(), k
