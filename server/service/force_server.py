@@ -257,6 +257,8 @@ class ForceServer:
         a flood on the socket delays the run's step by that many, never holds it. The direct
         connections are read too (what has arrived on them, never waiting)."""
         if self._direct is not None:
+            if self._direct.expire(time.monotonic()):
+                self._poller = None
             self._serve_direct(self._direct.ready_now())
         for _ in range(MAX_QUEUED):
             if not self._sock.ready():
@@ -288,6 +290,8 @@ class ForceServer:
         if self._paced:
             self._send_due()
         now = time.monotonic()
+        if self._direct is not None and self._direct.expire(now):   # connections without a ticket in time
+            self._poller = None
         if self._hubs:
             for hub in list(self._hubs.values()):
                 if hub.next_deadline() <= now:
