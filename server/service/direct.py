@@ -146,20 +146,29 @@ class DirectLink:
 class DirectListener:
     """Where a polled server's controllers open their direct connections (module docstring)."""
 
-    def __init__(self, endpoint: str, max_bytes: int, budget: Budget | None = None):
+    def __init__(self, endpoint: str, max_bytes: int, budget: Budget | None = None, port: int | None = None):
         """``budget``: the front end's receive budget, which a frame longer than FREE_BYTES holds
         while it arrives (None: none, a run's own server). ``endpoint``: the server's bound ZeroMQ endpoint; the listener takes the same interface
         (``tcp://HOST:PORT`` → HOST on a port of its own; ``ipc://PATH`` or a loopback HOST → a
         Unix socket in a private folder: the peers share the host, and a Unix socket costs both
-        sides less kernel time a message than loopback TCP). DirectError for any other transport."""
+        sides less kernel time a message than loopback TCP). DirectError for any other transport.
+        ``port``: that TCP port on HOST (``hydrolink serve --direct-port``: one a container can
+        publish), on a loopback HOST too; DirectError when it cannot be bound or the endpoint is not
+        ``tcp://``. None: a free port, or the Unix socket."""
         self.max_bytes, self.budget = int(max_bytes), budget
         self._folder: Path | None = None
         host = endpoint[6:].rsplit(":", 1)[0].strip("[]") if endpoint.startswith("tcp://") else None
-        if host is not None and not _loopback(host):
+        if port is not None and host is None:
+            raise DirectError(f"a direct channel on port {port} needs a tcp:// endpoint, not {endpoint!r}")
+        if host is not None and (port is not None or not _loopback(host)):
             family = socket.AF_INET6 if ":" in host else socket.AF_INET
             self.sock = socket.socket(family, socket.SOCK_STREAM)
             self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-            self.sock.bind(("" if host in ("*", "0.0.0.0") else host, 0))
+            try:
+                self.sock.bind(("" if host in ("*", "0.0.0.0") else host, port or 0))
+            except OSError as exc:
+                self.sock.close()
+                raise DirectError(f"no direct channel on port {port or 0} of {host}: {exc.strerror or exc}") from None
             self.offer_address: dict = {"port": self.sock.getsockname()[1]}
         elif host is not None or endpoint.startswith("ipc://"):
             self._folder = Path(tempfile.mkdtemp(prefix="hydrolink-direct-"))   # mode 0700: this user only
