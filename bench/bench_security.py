@@ -3,9 +3,9 @@
 process, the Exudyn client in this one; wall time per step of the whole run loop, best of
 ``--repeat``.
 
-"plain" and "HMAC" step over the server's direct channel (SPEC §5.7.5, revision 1.17: a plain
+"plain" and "HMAC" step over the server's direct channel (SPEC §5.7.5, revision 1.16: a plain
 stream socket, no ZeroMQ I/O thread); CURVE over ZeroMQ (no direct channel beside it). ``--fronts``
-adds the plain run kept on ZeroMQ (``direct=False``: the stream front end, as before 1.17) and
+adds the plain run kept on ZeroMQ (``direct=False``: the stream front end, as before 1.16) and
 the comparison of the server's two front ends (server/service/frontend.py) with no security: a
 bench-only server (:class:`RouterServer`, started by this script with ``--serve-router``)
 answering through libzmq's ROUTER, which ``hydrolink serve`` uses only with CURVE (its receive is
