@@ -224,10 +224,17 @@ def _build_plant(scene, hdbs):
                    "own, off the loop that answers the others (0: every session).")
 @click.option("--max-workers", default=MAX_WORKERS, show_default=True, type=click.IntRange(min=1),
               help="Worker processes (heavy sessions) at once; one more heavy hello is refused busy (workers).")
+@click.option("--direct-port", type=click.IntRange(1, 65535), envvar="HYDROLINK_DIRECT_PORT",
+              help="TCP port of the direct channel offered to the multibody clients and controllers (SPEC §5.7.5: "
+                   "no ZeroMQ I/O thread on the step), on the --bind host; publish it beside the ZeroMQ port, with "
+                   "the same number, from a container. Default: a free port (a Unix socket when --bind is on "
+                   "loopback). A client stays on ZeroMQ when it cannot reach the port (not published, a firewall), "
+                   "for a paced session (realtime), with CURVE (no direct channel: the port is unused) and with "
+                   "hydrolink control --no-direct; env HYDROLINK_DIRECT_PORT.")
 def serve(bind: str, session_timeout: float, cpu: int | None, curve_secret: Path | None,
           curve_clients: Path | None, key_file: Path | None, store: Path | None, store_mib: int,
           max_message_mib: int | None, max_setups: int, max_sessions: int, max_memory_mib: int | None,
-          isolate_step_ms: float, max_workers: int) -> None:
+          isolate_step_ms: float, max_workers: int, direct_port: int | None) -> None:
     """Run the force server until interrupted (SIGINT or SIGTERM)."""
     _pin_to_cpu(cpu)
     try:
@@ -243,6 +250,7 @@ def serve(bind: str, session_timeout: float, cpu: int | None, curve_secret: Path
     from hydrolink.protocol.security import CurveKeyError
     from hydrolink.server.hdb.store import ContentStore, default_folder
     from hydrolink.server.processes import start_children
+    from hydrolink.server.service.direct import DirectError
     from hydrolink.server.service.force_server import ForceServer
 
     try:
@@ -254,13 +262,23 @@ def serve(bind: str, session_timeout: float, cpu: int | None, curve_secret: Path
                              else max_message_mib * 2**20, max_setups=max_setups, max_sessions=max_sessions,
                              max_memory_bytes=(max_memory_mib or default_memory_mib()) * 2**20,
                              isolate_step_s=isolate_step_ms / 1e3, max_workers=max_workers,
-                             plant_builder=_build_plant)
+                             plant_builder=_build_plant, direct_port=direct_port)
     except CurveKeyError as exc:
         raise _UserError(str(exc)) from None
+    except DirectError as exc:   # --direct-port in use, or not on tcp://: one line, status 2 (a bad option)
+        error = _UserError(f"--direct-port: {exc}")
+        error.exit_code = 2
+        raise error from None
     start_children()   # the forkserver of HDB parses and session workers, importing beside the loop
+    import gc
+    gc.collect()
+    gc.freeze()   # the start-up's ~100,000 objects (modules) out of later collections: a full one during a
+    # set-up holds the GIL, and the loop, 24-48 instead of ~100 ms CPU (the served step itself collects nothing)
     signal.signal(signal.SIGTERM, lambda signum, frame: server.stop())  # docker stop
     secure = (" (CURVE: authenticated and encrypted)" if curve_secret else "") + \
-        (" (every message signed: HMAC key file)" if key else "")
+        (" (every message signed: HMAC key file)" if key else "") + \
+        ("" if direct_port is None else f" (--direct-port {direct_port} unused: no direct channel beside CURVE)"
+         if curve_secret else f" (direct channel on TCP port {direct_port})")
     click.echo(f"hydrolink force server listening on {server.address}{secure}", err=True)
     try:
         server.serve_forever()

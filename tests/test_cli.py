@@ -118,6 +118,34 @@ def test_run_with_hdb_files_uploads_once_and_equals_the_map_run(scene_dir: Path,
         "--hdb-files is for a remote server (the embedded one reads the files itself): give --server")
 
 
+def test_serve_direct_port_is_offered_and_one_in_use_is_one_clear_line(tmp_path: Path):
+    """`serve --direct-port P` offers P in the multibody welcome (a client steps over a TCP
+    connection to it, on loopback too); a second serve given the same port says so in one line
+    and exits 2, as a bad option."""
+    import socket
+
+    from analytic_hdb import make_body_hdb
+    from conftest import body, regular_waves
+
+    from hydrolink.clients.lockstep.connection import ServerConnection
+
+    with socket.socket() as probe:   # a port free a moment ago
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    scene = scene_toml(dt=0.05, duration=10.0, waves=regular_waves(1.0, 6.0), hydro={"irf_duration": 4.0},
+                       bodies=[body("float", hdb="float.nc", mass=3.0e5, center_of_mass=[0, 0, -1],
+                                    inertia=[1e7, 1e7, 2e7])])
+    with serve_process("--direct-port", str(port), cwd=tmp_path) as address:
+        with ServerConnection(address, timeout=EXIT_S) as conn:   # a fresh serve's first set-up: seconds under load
+            conn.hello(scene, {"float.nc": make_body_hdb()})
+            assert conn._direct is not None and conn._direct.sock.getpeername()[1] == port
+            conn.step(0, 0.0, np.zeros((1, 6)), np.zeros((1, 6)))
+            assert conn._direct is not None   # the step went over it
+        taken = _cli_here("serve", "--bind", "tcp://127.0.0.1:*", "--direct-port", str(port), cwd=tmp_path)
+    assert taken.returncode == 2
+    assert taken.stderr == f"Error: --direct-port: no direct channel on port {port} of 127.0.0.1: Address already in use\n"
+
+
 def test_bad_scene_is_one_clear_line(scene_dir: Path):
     write_scene(scene_dir, sphere_scene(mass=-1.0), "bad.toml")
     result = _cli_here("run", "bad.toml", cwd=scene_dir)

@@ -6,10 +6,12 @@ bit-identical to ZeroMQ, and back on ZeroMQ when it breaks. A controller's whole
 
 from __future__ import annotations
 
+import logging
 import os
 import socket
 import stat
 import struct
+import time
 
 import numpy as np
 import pytest
@@ -18,7 +20,8 @@ from analytic_hdb import make_body_hdb
 from conftest import body, regular_waves, scene_toml
 from hydrolink.clients.lockstep.connection import ServerConnection
 from hydrolink.protocol import codec
-from hydrolink.server.service.direct import FREE_BYTES, TICKET_BYTES, DirectError, DirectListener
+from hydrolink.server.service import direct as direct_module
+from hydrolink.server.service.direct import MAX_LINKS, FREE_BYTES, TICKET_BYTES, TICKET_S, DirectError, DirectListener
 from hydrolink.server.service.force_server import ForceServer, serve_in_thread
 from hydrolink.server.service.zmtp import Budget
 
@@ -196,6 +199,92 @@ def test_first_frame_longer_than_a_ticket_and_frames_past_the_budget_close_the_c
         assert budget.held == 0                                          # closed: given back
     finally:
         listener.close()
+
+
+def test_a_ticket_must_arrive_whole_in_time_and_a_full_listener_closes_the_oldest_without_one(monkeypatch, caplog):
+    """A slow-loris sending its ticket a byte at a time is closed TICKET_S after its accept, its
+    bytes still coming (the deadline covers the whole ticket); a connection that comes when
+    MAX_LINKS are open closes the oldest one without a ticket, or itself when each open one has
+    shown its ticket. Each closure is counted in the log (through its limiter)."""
+    monkeypatch.setattr(direct_module, "MAX_LINKS", 3)
+    listener = DirectListener("ipc:///tmp/x", max_bytes=1000)
+    try:
+        with caplog.at_level(logging.WARNING, logger="hydrolink.server.service.direct"):
+            t0 = time.monotonic()
+            loris = connect(listener)
+            slow = accepted(listener)
+            t1 = time.monotonic()
+            ticket = listener.offer("own")["ticket"].encode()
+            loris.sendall(HEADER.pack(len(ticket)))
+            for i, byte in enumerate(ticket[:-1]):   # all but the last byte, each read on its own
+                loris.sendall(bytes([byte]))
+                assert list(slow.read()) == []
+                assert not listener.expire(t0 + TICKET_S * i / len(ticket))   # before its deadline: kept
+            assert listener.expire(t1 + TICKET_S) and slow.closed and listener.links == []
+            assert loris.recv(10) == b""
+            assert listener.closed_unticketed == 1
+            idle = [connect(listener) for _ in range(2)]
+            first, second = accepted(listener), accepted(listener)
+            client = connect(listener)
+            link = accepted(listener)   # the third: full now
+            client.sendall(frame(ticket))
+            assert listener.admit(link, next(link.read()))
+            late = connect(listener)
+            assert accepted(listener) is not None and first.closed and not second.closed   # the oldest made room
+            assert idle[0].recv(10) == b""
+            assert listener.closed_unticketed == 2
+            for peer in (idle[1], late):   # the two without a ticket show theirs: every one open has one
+                peer.sendall(frame(listener.offer("own")["ticket"].encode()))
+            for waiting in listener.links[:]:
+                if waiting.own is None:
+                    assert listener.admit(waiting, next(waiting.read()))
+            refused = connect(listener)
+            assert listener.accept() is None and refused.recv(10) == b""   # full, each with its ticket
+            assert len(listener.links) == 3 and not listener.expire(t1 + 10 * TICKET_S)   # ticketed: no deadline
+        lines = [r.getMessage() for r in caplog.records]
+        assert f"direct channel: 1 connection(s) closed (no ticket within {TICKET_S:g} s); 1 so far" in lines
+        assert any("(3 open, the oldest without a ticket closed for a new one); 2 so far" in line for line in lines)
+        assert "direct connection refused: 3 open already, each with its ticket" in lines
+    finally:
+        listener.close()
+
+
+def test_idle_connections_holding_every_slot_are_closed_and_a_client_then_gets_the_channel(caplog):
+    """A stranger opens MAX_LINKS connections to a served direct channel and sends nothing: the
+    server closes each TICKET_S after its accept (the log counts them), and a client's hello after
+    that takes the channel: its steps reach the loop without the ZeroMQ front end."""
+    srv, thread = serve_in_thread("tcp://127.0.0.1:*")
+    idle = []
+    try:
+        for _ in range(MAX_LINKS):
+            sock = socket.socket(socket.AF_UNIX)
+            sock.connect(srv._direct.offer_address["path"])   # blocking: waits while the listener's backlog is full
+            sock.settimeout(30.0)
+            idle.append(sock)
+        caplog.set_level(logging.WARNING, logger="hydrolink.server.service.direct")
+        assert all(sock.recv(10) == b"" for sock in idle)   # each closed by the server (30 s at most)
+        taken = []
+        recv = srv._sock.recv
+
+        def counted():
+            message = recv()
+            taken.append(message[0])
+            return message
+        with ServerConnection(srv.address) as conn:
+            conn.hello(SCENE, {"float.nc": make_body_hdb()})
+            assert conn._direct is not None
+            srv._sock.recv = counted
+            for seq in range(10):
+                conn.step(seq, 0.05 * seq, np.zeros((1, 6)), np.zeros((1, 6)))
+            assert conn._direct is not None and taken == []   # ten steps, none through the front end
+    finally:
+        for sock in idle:
+            sock.close()
+        srv.stop()
+        thread.join(10)
+    assert srv._direct.closed_unticketed == MAX_LINKS   # the loop's counts read once it has ended
+    closed = [r.getMessage() for r in caplog.records if "closed (no ticket within" in r.getMessage()]
+    assert 0 < len(closed) <= 20 and closed[-1].endswith(f"; {MAX_LINKS} so far")   # the limiter's burst a minute
 
 
 SCENE = scene_toml(dt=0.05, duration=100.0, waves=regular_waves(1.0, 6.0), hydro={"irf_duration": 4.0},

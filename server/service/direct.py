@@ -15,7 +15,11 @@ is its ticket (from the controller's ``welcome.direct``), every later one a mess
 ZeroMQ socket (msgpack, signed when the server signs). Replies go back as frames on the same
 connection. A wrong ticket, a first frame longer than a ticket can be, a length over the server's
 message limit or over what its receive budget has left, or a reply that cannot be written at once
-closes the connection (the client goes on over ZeroMQ); so does a connection beyond MAX_LINKS.
+closes the connection (the client goes on over ZeroMQ). A connection must have shown its whole
+ticket within TICKET_S of being accepted (however its bytes trickle in), else it is closed; one
+that comes when MAX_LINKS are open closes the oldest still without a ticket, or is itself closed
+when every open one has shown its ticket: a stranger's idle connections cannot keep the channel
+from the clients it was offered to (revision 1.18).
 """
 
 from __future__ import annotations
@@ -32,6 +36,7 @@ from pathlib import Path
 from typing import Iterator
 
 from hydrolink.protocol import codec
+from hydrolink.server.service.log_limit import LimitedLog
 from hydrolink.server.service.zmtp import Budget
 
 log = logging.getLogger("hydrolink.server.service.direct")
@@ -41,7 +46,8 @@ TICKETS_KEPT = 64              # open offers (one per welcome); older ones are f
 READ_BYTES = 1 << 16           # what one read takes from a connection
 TICKET_BYTES = 256             # the longest first frame (a ticket) a connection may send
 FREE_BYTES = 1 << 16           # a frame up to this long is read without the receive budget (as zmtp.Reader's)
-MAX_LINKS = 256                # connections at once; one more is closed at once
+MAX_LINKS = 256                # connections at once; one more closes the oldest without a ticket, or itself
+TICKET_S = 2.0                 # from its accept, a connection's whole ticket must have arrived within this
 OFFER_WATCH_S = 2.0            # after an offer, the loop waits on the listener too (its client connects now)
 
 
@@ -140,20 +146,29 @@ class DirectLink:
 class DirectListener:
     """Where a polled server's controllers open their direct connections (module docstring)."""
 
-    def __init__(self, endpoint: str, max_bytes: int, budget: Budget | None = None):
+    def __init__(self, endpoint: str, max_bytes: int, budget: Budget | None = None, port: int | None = None):
         """``budget``: the front end's receive budget, which a frame longer than FREE_BYTES holds
         while it arrives (None: none, a run's own server). ``endpoint``: the server's bound ZeroMQ endpoint; the listener takes the same interface
         (``tcp://HOST:PORT`` → HOST on a port of its own; ``ipc://PATH`` or a loopback HOST → a
         Unix socket in a private folder: the peers share the host, and a Unix socket costs both
-        sides less kernel time a message than loopback TCP). DirectError for any other transport."""
+        sides less kernel time a message than loopback TCP). DirectError for any other transport.
+        ``port``: that TCP port on HOST (``hydrolink serve --direct-port``: one a container can
+        publish), on a loopback HOST too; DirectError when it cannot be bound or the endpoint is not
+        ``tcp://``. None: a free port, or the Unix socket."""
         self.max_bytes, self.budget = int(max_bytes), budget
         self._folder: Path | None = None
         host = endpoint[6:].rsplit(":", 1)[0].strip("[]") if endpoint.startswith("tcp://") else None
-        if host is not None and not _loopback(host):
+        if port is not None and host is None:
+            raise DirectError(f"a direct channel on port {port} needs a tcp:// endpoint, not {endpoint!r}")
+        if host is not None and (port is not None or not _loopback(host)):
             family = socket.AF_INET6 if ":" in host else socket.AF_INET
             self.sock = socket.socket(family, socket.SOCK_STREAM)
             self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-            self.sock.bind(("" if host in ("*", "0.0.0.0") else host, 0))
+            try:
+                self.sock.bind(("" if host in ("*", "0.0.0.0") else host, port or 0))
+            except OSError as exc:
+                self.sock.close()
+                raise DirectError(f"no direct channel on port {port or 0} of {host}: {exc.strerror or exc}") from None
             self.offer_address: dict = {"port": self.sock.getsockname()[1]}
         elif host is not None or endpoint.startswith("ipc://"):
             self._folder = Path(tempfile.mkdtemp(prefix="hydrolink-direct-"))   # mode 0700: this user only
@@ -166,6 +181,9 @@ class DirectListener:
         self.sock.listen(8)
         self.sock.setblocking(False)
         self.links: list[DirectLink] = []
+        self._waiting: dict[DirectLink, float] = {}   # the links still without a ticket -> their deadline, oldest first
+        self.closed_unticketed = 0           # connections closed for want of a ticket (the log counts them)
+        self._log = LimitedLog(log)          # those closures' lines, bounded a minute (server/service/log_limit.py)
         self._tickets: dict[str, str] = {}   # ticket -> the controller's own session id
         self._count = 0
         self._offered = -math.inf            # when the newest offer was made (time.monotonic)
@@ -202,14 +220,21 @@ class DirectListener:
                 return None
             if len(self.links) < MAX_LINKS:
                 break
-            conn.close()   # the next one waiting, if any, is refused the same way
-            log.warning("direct connection refused: %d open already", MAX_LINKS)
+            if self._waiting:   # full: the oldest still without a ticket makes room
+                self._close_unticketed([next(iter(self._waiting))], f"{MAX_LINKS} open, the oldest without a ticket "
+                                                                      "closed for a new one")
+                self.prune()
+                break
+            conn.close()   # every open one has shown its ticket: the next one waiting, if any, is refused the same way
+            self._log.log("full", logging.WARNING, "direct connection refused: %d open already, each with its ticket",
+                          MAX_LINKS)
         conn.setblocking(False)
         if conn.family in (socket.AF_INET, socket.AF_INET6):
             conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         self._count += 1
         link = DirectLink(conn, self._count, self.max_bytes, self.budget)
         self.links.append(link)
+        self._waiting[link] = time.monotonic() + TICKET_S
         self._fds.register(link.sock, select.POLLIN)
         return link
 
@@ -220,13 +245,32 @@ class DirectListener:
             log.warning("direct connection %s closed: not a ticket this server offered", link.route[0].decode())
             return False
         link.own = own
+        del self._waiting[link]
         return True
+
+    def expire(self, now: float) -> bool:
+        """Close the connections that have not shown their whole ticket within TICKET_S of their
+        accept (``now``: time.monotonic()); whether any were (then forgotten: :meth:`prune`)."""
+        if not self._waiting or next(iter(self._waiting.values())) > now:
+            return False
+        late = [link for link, deadline in self._waiting.items() if deadline <= now]   # oldest first
+        self._close_unticketed(late, f"no ticket within {TICKET_S:g} s")
+        return self.prune()
+
+    def _close_unticketed(self, links: list[DirectLink], why: str) -> None:
+        """Close ``links`` (none has shown a ticket yet) and count them in one log line through the limiter."""
+        for link in links:
+            link.close()
+        self.closed_unticketed += len(links)
+        self._log.log("unticketed", logging.WARNING, "direct channel: %d connection(s) closed (%s); %d so far",
+                      len(links), why, self.closed_unticketed)
 
     def prune(self) -> bool:
         """Forget the links closed since (a reply they did not take); whether there were any."""
         gone = [link for link in self.links if link.closed]
         for link in gone:
             self.links.remove(link)
+            self._waiting.pop(link, None)
             self._fds.unregister(link.number)
         return bool(gone)
 
@@ -244,6 +288,7 @@ class DirectListener:
         for link in self.links:
             link.close()
         self.links.clear()
+        self._waiting.clear()
         self.sock.close()
         if self._folder is not None:
             for p in self._folder.iterdir():

@@ -100,7 +100,7 @@ class ForceServer:
                  max_setups: int = MAX_SETUPS, max_sessions: int = MAX_SESSIONS,
                  plant_builder: PlantBuilder | None = None, max_memory_bytes: int | None = None,
                  isolate_step_s: float = ISOLATE_STEP_S, max_workers: int = MAX_WORKERS,
-                 step_timeout: float = STEP_TIMEOUT, polled: bool = False):
+                 step_timeout: float = STEP_TIMEOUT, polled: bool = False, direct_port: int | None = None):
         """``bind=None`` makes an in-process server without a socket: clients in the same process
         call :meth:`respond` with the same frames a socket would carry (see ServerConnection).
 
@@ -126,7 +126,13 @@ class ForceServer:
         session, ``math.inf``: none), at most ``max_workers`` at once (beyond: error 14
         ``workers``); a worker that takes longer than ``step_timeout`` s for a request, or dies,
         ends its session with error 16. The in-process server (``bind=None``) steps every session
-        in the caller's thread. ``polled``: see the class docstring."""
+        in the caller's thread. ``polled``: see the class docstring.
+
+        ``direct_port``: the TCP port of the direct channel (SPEC §5.7.5; ``hydrolink serve
+        --direct-port``) on the host of a ``tcp://`` ``bind``, loopback included; DirectError (the
+        socket released) when it cannot be bound; unused with CURVE (no direct channel: a log
+        line). None: a free port, or a Unix socket on loopback, and no channel (a log line) when it
+        cannot be had."""
         self.polled, self.plant_builder = bool(polled), plant_builder
         # the bytes the open sessions' models may hold together (None: unbounded, as in-process)
         self.memory = MemoryBudget(int(max_memory_bytes)) if max_memory_bytes is not None else None
@@ -137,7 +143,7 @@ class ForceServer:
         self._sock: frontend.StreamFront | frontend.RouterFront | None = None
         self._address = IN_PROCESS
         if bind is not None:
-            self._bind(bind, context, polled, curve_secret, curve_clients, max_message_bytes)
+            self._bind(bind, context, polled, curve_secret, curve_clients, max_message_bytes, direct_port)
         self.session_timeout = float(session_timeout)
         self.max_message_bytes = int(max_message_bytes)
         self._store = store
@@ -173,11 +179,11 @@ class ForceServer:
         self._hold: float | None = None   # release time of the reply being handled (paced session)
 
     def _bind(self, bind: str, context: zmq.Context | None, polled: bool, curve_secret: str | None,
-              curve_clients: str | None, max_message_bytes: int) -> None:
+              curve_clients: str | None, max_message_bytes: int, direct_port: int | None) -> None:
         """The server's socket bound at ``bind``: the ZMTP front end, or libzmq's ROUTER with CURVE;
         the direct channel (SPEC §5.7.5) for a polled server's controllers, or a loop's clients."""
-        self._ctx = context or zmq.Context(io_threads=1 if polled else IO_THREADS)   # polled: a run's own
         secure = curve_secret is not None or curve_clients is not None
+        self._ctx = context or zmq.Context(io_threads=1 if polled else IO_THREADS)   # polled: a run's own
         # CURVE: libzmq's ROUTER (only authorised keys send); else the ZMTP front end that bounds a
         # message while it arrives (server/service/frontend.py, SPEC §1)
         self._sock = (frontend.RouterFront(self._ctx, max_message_bytes, codec.MAX_ROUTING_FRAMES + 1, RCVHWM)
@@ -198,10 +204,19 @@ class ForceServer:
                 raise
         self._sock.bind(bind)
         self._address = self._sock.address
+        if secure and direct_port is not None:
+            log.warning("direct port %d unused: a CURVE server offers no direct channel (it would bypass the "
+                        "encryption)", direct_port)
         if not secure:   # the direct channel (SPEC §5.7.5): not beside CURVE; a shared server's in its budget
             try:
-                self._direct = DirectListener(self._address, max_message_bytes, None if polled else self._sock.budget)
+                self._direct = DirectListener(self._address, max_message_bytes, None if polled else self._sock.budget,
+                                              direct_port)
             except (DirectError, OSError) as exc:
+                if direct_port is not None:   # asked for: its failure is the server's
+                    self._sock.close(0)
+                    if self._own_context:
+                        self._ctx.term()
+                    raise DirectError(str(exc)) from None
                 log.info("no direct channel: %s", exc)
 
     @property
@@ -257,6 +272,8 @@ class ForceServer:
         a flood on the socket delays the run's step by that many, never holds it. The direct
         connections are read too (what has arrived on them, never waiting)."""
         if self._direct is not None:
+            if self._direct.expire(time.monotonic()):
+                self._poller = None
             self._serve_direct(self._direct.ready_now())
         for _ in range(MAX_QUEUED):
             if not self._sock.ready():
@@ -288,6 +305,8 @@ class ForceServer:
         if self._paced:
             self._send_due()
         now = time.monotonic()
+        if self._direct is not None and self._direct.expire(now):   # connections without a ticket in time
+            self._poller = None
         if self._hubs:
             for hub in list(self._hubs.values()):
                 if hub.next_deadline() <= now:
