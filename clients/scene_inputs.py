@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
+from hydrolink.protocol.external_matrices import ExternalMatrices
 from hydrolink.protocol.hdb.wire import HDBFiles
 from hydrolink.protocol.scene import Scene, SceneError, resolve_path
 
@@ -205,3 +206,27 @@ def load_gauge_files(scene: Scene, scene_path: str | Path) -> dict[str, tuple[np
         key, _, why = str(exc).partition(": ")
         raise SceneError(scene_path, key, why) from None
     return out
+
+
+def load_modal_structures(scene: Scene, scene_path: str | Path,
+                          hdbs: dict[str, xr.Dataset]) -> tuple[Scene, dict[str, ExternalMatrices]]:
+    """The scene with its bodies' modes' structure files read (``bodies[i].modes.mmx``, relative to the
+    scene: a WAMIT ``.mmx`` numbered as the body's HDB ``hdbs[body.hdb]``), and each body's block by
+    key for ``hello.modal_structure`` (SPEC §5.1). SceneError naming the key, with the file (and the
+    HDB where their modes differ), when one cannot be read as the body's structure."""
+    from hydrolink.protocol.hdb.layout import HDBError
+    from hydrolink.protocol.hdb.schema import hdb_dofs
+    from hydrolink.server.hdb.wamit.modal_structure import body_external_matrices
+
+    out = {}
+    for key, i, body in scene.modal_files():
+        path = resolve_path(scene_path, body.modes.mmx)
+        try:
+            out[key] = body_external_matrices(path, hdb_dofs(hdbs[body.hdb]), body.hdb_body_name)
+        except HDBError as exc:
+            raise SceneError(scene_path, key, f"{path} against the HDB {body.hdb}: {exc}") from None
+    try:
+        return scene.with_modal_structure(out), out
+    except ValueError as exc:
+        key, _, why = str(exc).partition(": ")
+        raise SceneError(scene_path, key, why) from None
