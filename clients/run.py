@@ -81,6 +81,16 @@ def _datasets(scene, scene_path: Path, hdbs: dict, progress: bool) -> dict[str, 
     return load_scene_hdbs(scene, scene_path, progress=progress)
 
 
+def _client_inputs(scene, scene_path: Path, hdbs: dict, progress: bool) -> tuple:
+    """What the client reads and plans itself before any step: the scene with its modes' structure
+    files read, the wave elevation series, the loads along the bodies planned, and the structure
+    files' body blocks for ``hello.modal_structure``."""
+    datasets = _datasets(scene, scene_path, hdbs, progress)
+    scene, modal_structure = load_modal_structures(scene, scene_path, datasets)
+    return (scene, load_wave_elevation(scene, scene_path), plan_sections(scene, scene_path, datasets),
+            modal_structure)
+
+
 def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
                    server: str | None = None, progress: bool = True, timeout: float = 60.0,
                    listen: str = "tcp://127.0.0.1:*", hdbs: dict[str, xr.Dataset] | None = None,
@@ -111,10 +121,7 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
     scene, text = load_scene(scene_path, have_hdbs=hdbs or ())   # every schema and file problem at once
     if hdbs is None:  # (a caller running one scene many times may pass them, e.g. hydrolink bench)
         hdbs = load_scene_hdbs(scene, scene_path, progress=progress, as_files=hdb_files)
-    series = load_wave_elevation(scene, scene_path)
-    datasets = _datasets(scene, scene_path, hdbs, progress)
-    sections = plan_sections(scene, scene_path, datasets)   # before any step
-    scene, modal_structure = load_modal_structures(scene, scene_path, datasets)
+    scene, series, sections, modal_structure = _client_inputs(scene, scene_path, hdbs, progress)   # before any step
     moordyn_files = None
     if any(getattr(m, "type", "") == "moordyn" for m in scene.moorings):
         from hydrolink.clients.exudyn.moordyn_mooring import load_moordyn_files

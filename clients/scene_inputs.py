@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from hydrolink.protocol.external_matrices import ExternalMatrices
+from hydrolink.protocol.hdb.external_matrices import ExternalMatrices
 from hydrolink.protocol.hdb.wire import HDBFiles
 from hydrolink.protocol.scene import Scene, SceneError, resolve_path
 

@@ -21,7 +21,7 @@ from hydrolink.protocol.scene_bounds import MAX_STEPS, AddedMassRatio, AngleDeg,
 from hydrolink.protocol.toml_model import read_toml_file, validate_toml
 
 if TYPE_CHECKING:
-    from hydrolink.protocol.external_matrices import ExternalMatrices
+    from hydrolink.protocol.hdb.external_matrices import ExternalMatrices
 
 DOF_NAMES: tuple[str, ...] = ("surge", "sway", "heave", "roll", "pitch", "yaw")
 

@@ -21,7 +21,7 @@ import zmq
 from hydrolink.clients.lockstep.direct_channel import DirectChannel
 from hydrolink.protocol import codec
 from hydrolink.protocol.codec import ProtocolError
-from hydrolink.protocol.external_matrices import MATRICES, ExternalMatrices
+from hydrolink.protocol.hdb.external_matrices import MATRICES, ExternalMatrices
 from hydrolink.protocol.reply import read_forces
 from hydrolink.protocol.setup import Setup
 from hydrolink.protocol.hdb.wire import HDBFiles, to_wire

@@ -16,7 +16,7 @@ import xarray as xr
 from hydrolink.protocol import codec
 from hydrolink.protocol.codec import Code, ProtocolError
 from hydrolink.protocol.errors import KeyedError
-from hydrolink.protocol.external_matrices import MATRICES, ExternalMatrices
+from hydrolink.protocol.hdb.external_matrices import MATRICES, ExternalMatrices
 from hydrolink.protocol.scene import Scene, SceneError, parse_scene
 from hydrolink.protocol.scene_bounds import MAX_COORDINATE, MAX_SPEED
 from hydrolink.protocol.hdb.wire import from_wire

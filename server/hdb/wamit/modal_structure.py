@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hydrolink.protocol.external_matrices import ExternalMatrices
+from hydrolink.protocol.hdb.external_matrices import ExternalMatrices
 from hydrolink.protocol.hdb.layout import BodyDofs, HDBError
 from hydrolink.server.hdb.wamit.run import _FLOAT, _floats
 
