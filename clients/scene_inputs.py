@@ -110,8 +110,8 @@ def load_body_hull(scene: Scene, scene_path: str | Path, i: int, needs: str) -> 
         except Exception as exc:  # noqa: BLE001 - any reader failure is a bad scene input
             raise SceneError(scene_path, key, f"cannot read the mesh {path}: {exc}") from None
         return np.asarray(mesh.vertices, float), np.asarray(mesh.faces)
-    spec_path = resolve_path(scene_path, body.hdb) if body.hdb is not None else None
-    if spec_path is None or spec_path.suffix != ".toml":
+    spec_path = build_spec_of(scene, scene_path, i)
+    if spec_path is None:
         raise SceneError(scene_path, key, f"required: body {body.name!r} needs its closed hull ({needs}) and its "
                                           f"HDB {body.hdb} is not a build spec to take the hull from; name its "
                                           "closed hull's mesh file")
@@ -121,6 +121,16 @@ def load_body_hull(scene: Scene, scene_path: str | Path, i: int, needs: str) -> 
     names = [b.name for b in spec.all_bodies]
     index = names.index(body.hdb_body_name) if body.hdb_body_name in names else 0
     return closed_hull(spec, index, spec_path)
+
+
+def build_spec_of(scene: Scene, scene_path: str | Path, i: int) -> Path | None:
+    """The HDB build spec of ``scene.bodies[i]``: its ``hdb`` when that is one, else its modes'
+    ``shapes`` (the spec its HDB was built from); None when it has neither."""
+    body = scene.bodies[i]
+    if body.hdb is not None and body.hdb.endswith(".toml"):
+        return resolve_path(scene_path, body.hdb)
+    shapes = body.modes.shapes if body.modes is not None else None
+    return resolve_path(scene_path, shapes) if shapes is not None else None
 
 
 def load_wave_elevation(scene: Scene, scene_path: str | Path):

@@ -618,6 +618,9 @@ class BodyModes(_Section):
     # the structure from a file instead (relative to the scene): a WAMIT .mmx's external force matrices
     # (IALTFRC = 2 or 3), numbered as the HDB's DOFs (each body's six, then its modes)
     mmx: Annotated[str, Field(min_length=1)] | None = None
+    # the HDB build spec whose [[body.modes]] the HDB's modes are (relative to the scene; default the
+    # body's hdb when it is one): their shapes on the hull, for the deformed mesh hydrolink view draws
+    shapes: Annotated[str, Field(min_length=1)] | None = None
     initial_displacement: list[Displacement] | None = None     # each mode's coordinate at t = 0 (None: 0)
     # a PTO on each mode (a distributed PTO along a flexible body): a spring-damper on the modal
     # coordinate, one value per mode (0: none); its force and absorbed power are results variables
@@ -1851,7 +1854,8 @@ def load_scene(path: str | Path, *, check_files: bool = True, have_hdbs: Collect
 def missing_files(raw: dict, scene_path: str | Path, have_hdbs: Collection[str] = ()) -> list[tuple[str, str]]:
     """(key, why) for each input file a parsed scene document names (relative to ``scene_path``)
     that does not exist: the bodies' HDBs (a WAMIT run by its stem or ``.1``), hull meshes and NEMOH
-    QTF files, the elevation series of ``[waves] type = "elevation"`` and ``"gauges"``, MoorDyn input files and the
+    QTF files, the modes' structure files and build specs, the elevation series of ``[waves] type = "elevation"`` and
+    ``"gauges"``, MoorDyn input files and the
     FMU of ``[client] type = "fmu"``. Read off the document as written, so that it runs whether or
     not the schema holds (a value of the wrong type is the schema's problem, not looked for here)."""
     problems: list[tuple[str, str]] = []
@@ -1881,7 +1885,8 @@ def missing_files(raw: dict, scene_path: str | Path, have_hdbs: Collection[str] 
                       exists=lambda p: p.exists() or p.with_suffix(".1").exists())
         check(f"bodies[{i}].mesh", body.get("mesh"))
         modes = body.get("modes")
-        check(f"bodies[{i}].modes.mmx", modes.get("mmx") if isinstance(modes, dict) else None, "structure file")
+        for key, what in (("mmx", "structure file"), ("shapes", "HDB build spec")):
+            check(f"bodies[{i}].modes.{key}", modes.get(key) if isinstance(modes, dict) else None, what)
         qtf = body.get("qtf")
         for name in ("difference", "sum"):
             check(f"bodies[{i}].qtf.{name}", qtf.get(name) if isinstance(qtf, dict) else None)
