@@ -105,10 +105,11 @@ def write_mmx(path: Path, mass: np.ndarray, damping: np.ndarray, stiffness: np.n
 
 
 def example_scene(duration: float) -> dict:
-    """The flexible-barge example's scene (its HDB's path made absolute), ``duration`` s long."""
-    doc = tomllib.loads(BARGE.read_text())
+    """The flexible-barge example's scene (its HDB's and build spec's paths made absolute),
+    ``duration`` s long."""
+    from hydrolink.clients.studies.grid import absolute_paths
+    doc = absolute_paths(tomllib.loads(BARGE.read_text()), BARGE)
     doc["simulation"]["duration"] = duration
-    doc["bodies"][0]["hdb"] = str((BARGE.parent / doc["bodies"][0]["hdb"]).resolve())
     return doc
 
 
