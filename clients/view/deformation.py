@@ -38,7 +38,7 @@ def modal_shapes(run: "RunFile", i: int, vertices: np.ndarray) -> tuple[ModalSha
     naming ``bodies[i].modes.shapes`` when the spec's modes are not the body's; the shapes' size
     checked first (``require_size`` naming ``bodies[i].modes``)."""
     from hydrolink.server.hdb.build.modes import vertex_shapes
-    from hydrolink.server.hdb.build.spec import load_spec
+    from hydrolink.server.hdb.build.spec import SpecError, load_spec
 
     body = run.scene.bodies[i]
     if body.modes is None:
@@ -56,7 +56,10 @@ def modal_shapes(run: "RunFile", i: int, vertices: np.ndarray) -> tuple[ModalSha
                  (len(names), len(vertices), 3), hint="draw fewer bodies (--parts) or a coarser mesh")
     spec = load_spec(spec_path)
     index = next((k for k, b in enumerate(spec.all_bodies) if b.name == body.hdb_body_name), 0)
-    fields = vertex_shapes(spec.all_bodies[index], spec.body_keys[index], vertices, spec_path)
+    try:     # a displacement table fits its mesh file's vertices only (not another bodies[i].mesh)
+        fields = vertex_shapes(spec.all_bodies[index], spec.body_keys[index], vertices, spec_path)
+    except SpecError as exc:
+        raise ViewError(run.path, f"bodies[{i}].modes.shapes", f"the drawn hull's {len(vertices)} vertices: {exc}") from None
     unknown = [m for m in names if m not in fields or f"{body.name}.{m}" not in labels]
     if unknown:
         raise ViewError(run.path, f"bodies[{i}].modes.shapes", f"the modes {unknown} of body {body.name!r} are not "
