@@ -19,8 +19,8 @@ import xarray as xr
 
 from hydrolink.clients.lockstep.section_results import add_section_loads, plan_sections
 from hydrolink.clients.lockstep.summary import RunSummary
-from hydrolink.clients.scene_inputs import (load_gauge_files, load_scene_hdbs, load_scene_hulls, load_spectrum_files,
-                                            load_wave_elevation)
+from hydrolink.clients.scene_inputs import (load_gauge_files, load_modal_structures, load_scene_hdbs, load_scene_hulls,
+                                            load_spectrum_files, load_wave_elevation)
 from hydrolink.protocol.scene import load_scene
 
 if TYPE_CHECKING:
@@ -72,12 +72,23 @@ def _after_the_run(scene, output: Path, sections) -> RunMetrics | None:
 
 def _datasets(scene, scene_path: Path, hdbs: dict, progress: bool) -> dict[str, xr.Dataset]:
     """The scene's HDBs as datasets (those sent as files read here), for what the client computes
-    from them itself; only when some body asks for its loads along its axis."""
-    if not any(b.sections is not None or b.pressure_output for b in scene.bodies):
+    from them itself; only when some body asks for its loads along its axis or numbers its modes'
+    structure file by its HDB (``bodies[i].modes.mmx``)."""
+    if not any(b.sections is not None or b.pressure_output for b in scene.bodies) and not scene.modal_files():
         return {}
     if all(isinstance(h, xr.Dataset) for h in hdbs.values()):
         return hdbs
     return load_scene_hdbs(scene, scene_path, progress=progress)
+
+
+def _client_inputs(scene, scene_path: Path, hdbs: dict, progress: bool) -> tuple:
+    """What the client reads and plans itself before any step: the scene with its modes' structure
+    files read, the wave elevation series, the loads along the bodies planned, and the structure
+    files' body blocks for ``hello.modal_structure``."""
+    datasets = _datasets(scene, scene_path, hdbs, progress)
+    scene, modal_structure = load_modal_structures(scene, scene_path, datasets)
+    return (scene, load_wave_elevation(scene, scene_path), plan_sections(scene, scene_path, datasets),
+            modal_structure)
 
 
 def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
@@ -110,8 +121,7 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
     scene, text = load_scene(scene_path, have_hdbs=hdbs or ())   # every schema and file problem at once
     if hdbs is None:  # (a caller running one scene many times may pass them, e.g. hydrolink bench)
         hdbs = load_scene_hdbs(scene, scene_path, progress=progress, as_files=hdb_files)
-    series = load_wave_elevation(scene, scene_path)
-    sections = plan_sections(scene, scene_path, _datasets(scene, scene_path, hdbs, progress))   # before any step
+    scene, series, sections, modal_structure = _client_inputs(scene, scene_path, hdbs, progress)   # before any step
     moordyn_files = None
     if any(getattr(m, "type", "") == "moordyn" for m in scene.moorings):
         from hydrolink.clients.exudyn.moordyn_mooring import load_moordyn_files
@@ -154,7 +164,8 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
             conn = stack.enter_context(ServerConnection(server, timeout=timeout, curve=curve, key=key,
                                                         link_timeout=link_timeout, direct=direct))
         setup = conn.hello(text, hdbs, wave_elevation=series, meshes=load_scene_hulls(scene, scene_path), control_token=control_token,
-                           spectra=load_spectrum_files(scene, scene_path), gauges=load_gauge_files(scene, scene_path))
+                           spectra=load_spectrum_files(scene, scene_path), gauges=load_gauge_files(scene, scene_path),
+                           modal_structure=modal_structure)
         if scene.controllers:
             _announce_controllers(scene, server, conn.control_token)
         names, reference = result_bodies(scene, setup)

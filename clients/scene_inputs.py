@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
+from hydrolink.protocol.hdb.external_matrices import ExternalMatrices
 from hydrolink.protocol.hdb.wire import HDBFiles
 from hydrolink.protocol.scene import Scene, SceneError, resolve_path
 
@@ -109,8 +110,8 @@ def load_body_hull(scene: Scene, scene_path: str | Path, i: int, needs: str) -> 
         except Exception as exc:  # noqa: BLE001 - any reader failure is a bad scene input
             raise SceneError(scene_path, key, f"cannot read the mesh {path}: {exc}") from None
         return np.asarray(mesh.vertices, float), np.asarray(mesh.faces)
-    spec_path = resolve_path(scene_path, body.hdb) if body.hdb is not None else None
-    if spec_path is None or spec_path.suffix != ".toml":
+    spec_path = build_spec_of(scene, scene_path, i)
+    if spec_path is None:
         raise SceneError(scene_path, key, f"required: body {body.name!r} needs its closed hull ({needs}) and its "
                                           f"HDB {body.hdb} is not a build spec to take the hull from; name its "
                                           "closed hull's mesh file")
@@ -120,6 +121,16 @@ def load_body_hull(scene: Scene, scene_path: str | Path, i: int, needs: str) -> 
     names = [b.name for b in spec.all_bodies]
     index = names.index(body.hdb_body_name) if body.hdb_body_name in names else 0
     return closed_hull(spec, index, spec_path)
+
+
+def build_spec_of(scene: Scene, scene_path: str | Path, i: int) -> Path | None:
+    """The HDB build spec of ``scene.bodies[i]``: its ``hdb`` when that is one, else its modes'
+    ``shapes`` (the spec its HDB was built from); None when it has neither."""
+    body = scene.bodies[i]
+    if body.hdb is not None and body.hdb.endswith(".toml"):
+        return resolve_path(scene_path, body.hdb)
+    shapes = body.modes.shapes if body.modes is not None else None
+    return resolve_path(scene_path, shapes) if shapes is not None else None
 
 
 def load_wave_elevation(scene: Scene, scene_path: str | Path):
@@ -205,3 +216,27 @@ def load_gauge_files(scene: Scene, scene_path: str | Path) -> dict[str, tuple[np
         key, _, why = str(exc).partition(": ")
         raise SceneError(scene_path, key, why) from None
     return out
+
+
+def load_modal_structures(scene: Scene, scene_path: str | Path,
+                          hdbs: dict[str, xr.Dataset]) -> tuple[Scene, dict[str, ExternalMatrices]]:
+    """The scene with its bodies' modes' structure files read (``bodies[i].modes.mmx``, relative to the
+    scene: a WAMIT ``.mmx`` numbered as the body's HDB ``hdbs[body.hdb]``), and each body's block by
+    key for ``hello.modal_structure`` (SPEC §5.1). SceneError naming the key, with the file (and the
+    HDB where their modes differ), when one cannot be read as the body's structure."""
+    from hydrolink.protocol.hdb.layout import HDBError
+    from hydrolink.protocol.hdb.schema import hdb_dofs
+    from hydrolink.server.hdb.wamit.modal_structure import body_external_matrices
+
+    out = {}
+    for key, i, body in scene.modal_files():
+        path = resolve_path(scene_path, body.modes.mmx)
+        try:
+            out[key] = body_external_matrices(path, hdb_dofs(hdbs[body.hdb]), body.hdb_body_name)
+        except HDBError as exc:
+            raise SceneError(scene_path, key, f"{path} against the HDB {body.hdb}: {exc}") from None
+    try:
+        return scene.with_modal_structure(out), out
+    except ValueError as exc:
+        key, _, why = str(exc).partition(": ")
+        raise SceneError(scene_path, key, why) from None

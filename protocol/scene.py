@@ -10,7 +10,7 @@ import logging
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Collection, Literal, Union
+from typing import TYPE_CHECKING, Annotated, Collection, Literal, Union
 
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, field_validator, model_validator
 
@@ -19,6 +19,9 @@ from hydrolink.protocol.current import Current
 from hydrolink.protocol.errors import KeyedError
 from hydrolink.protocol.scene_bounds import MAX_STEPS, AddedMassRatio, AngleDeg, Area, CableElements, Coefficient, Efficiency, ComponentCount, Coordinate, Density, Depth, Diameter, DirectionCount, Displacement, Duration, ExchangeSteps, ExcitationIRFDuration, EnergyFraction, ExplicitSpectralRadius, FileTime, FlowCoefficient, Fraction, Frequency, FrequencyStep, Gravity, HarmonicCount, IRFDuration, Interval, IterationCount, LatencySteps, Length, LineDensity, Mass, NonNegativeCoefficient, NonNegativeDiameter, NonNegativeLength, ParameterFloat, ParameterInt, PeakEnhancement, PositiveCoefficient, PreviewTime, RampTime, RegularisationSpeed, Seed, SegmentCount, SignificantHeight, SpectralRadius, Speed, SpreadingExponent, StateSpaceOrder, TimeStep, Tolerance, Volume, WallTimeout, WaveHeight, WavePeriod
 from hydrolink.protocol.toml_model import read_toml_file, validate_toml
+
+if TYPE_CHECKING:
+    from hydrolink.protocol.hdb.external_matrices import ExternalMatrices
 
 DOF_NAMES: tuple[str, ...] = ("surge", "sway", "heave", "roll", "pitch", "yaw")
 
@@ -605,21 +608,28 @@ class BodyModes(_Section):
     """``bodies[i].modes``: the structure of the generalized (flexible) modes the body's HDB gives it
     beyond its six rigid DOFs (docs/generalized-modes.md): the modes by the HDB's names, and their
     modal mass, stiffness and damping, each a list (the diagonal, one value per name) or a table
-    (one row per name). The structure's coupling to the rigid DOFs is zero (free-free modes are
-    orthogonal to the rigid motions); the hydrodynamic coupling comes from the HDB."""
+    (one row per name) — or ``mmx``, a WAMIT ``.mmx`` whose external force matrices give them (the
+    client reads it: :meth:`with_file`). The structure's coupling to the rigid DOFs is zero (free-free
+    modes are orthogonal to the rigid motions); the hydrodynamic coupling comes from the HDB."""
     names: Annotated[list[ModeName], Field(min_length=1)]
-    mass: list[ModalValues]  | ModalValues       # kg (or kg m^2, per the mode's normalisation)
+    mass: list[ModalValues] | ModalValues | None = None      # kg (or kg m^2, per the mode's normalisation)
     stiffness: list[ModalValues] | ModalValues | None = None   # N/m; None: zero
     damping: list[ModalValues] | ModalValues | None = None     # N s/m; None: zero
+    # the structure from a file instead (relative to the scene): a WAMIT .mmx's external force matrices
+    # (IALTFRC = 2 or 3), numbered as the HDB's DOFs (each body's six, then its modes)
+    mmx: Annotated[str, Field(min_length=1)] | None = None
+    # the HDB build spec whose [[body.modes]] the HDB's modes are (relative to the scene; default the
+    # body's hdb when it is one): their shapes on the hull, for the deformed mesh hydrolink view draws
+    shapes: Annotated[str, Field(min_length=1)] | None = None
     initial_displacement: list[Displacement] | None = None     # each mode's coordinate at t = 0 (None: 0)
     # a PTO on each mode (a distributed PTO along a flexible body): a spring-damper on the modal
     # coordinate, one value per mode (0: none); its force and absorbed power are results variables
     pto_stiffness: ModalValues | None = None
     pto_damping: Annotated[list[NonNegativeCoefficient], Field(min_length=1)] | None = None
+    _file: "ExternalMatrices | None" = PrivateAttr(default=None)
 
     @model_validator(mode="after")
     def _square_and_positive(self) -> "BodyModes":
-        import numpy as np
         if len(set(self.names)) != len(self.names):
             raise ValueError(f"names: repeated mode in {self.names}")
         for key in ("initial_displacement", "pto_stiffness", "pto_damping"):   # one value per mode
@@ -627,21 +637,65 @@ class BodyModes(_Section):
             if value is not None and len(value) != len(self.names):
                 raise ValueError(f"{key}: {len(value)} values for {len(self.names)} modes {self.names}: give one "
                                  "per mode (0 for a mode at rest or without a PTO)")
-        for key in ("mass", "stiffness", "damping"):
-            m = self.matrix(key)
+        if self.mmx is not None:
+            given = [k for k in ("mass", "stiffness", "damping") if getattr(self, k) is not None]
+            if given:
+                raise ValueError(f"mmx: the structure comes from {self.mmx!r}, and {given} give(s) it too: "
+                                 "give it either in the file or in mass, stiffness and damping")
+            return self          # checked when the file's matrices come (with_file)
+        if self.mass is None:
+            raise ValueError("mass: required: each mode's modal mass (a list or a table), or mmx naming the "
+                             "WAMIT .mmx whose external force matrices hold it")
+        self._check_structure("{key}", "")
+        return self
+
+    def _check_structure(self, key: str, source: str) -> None:
+        """Each matrix symmetric and the modal mass positive definite; ValueError naming ``key``
+        (formatted with the matrix's name) and ``source`` (the file, or nothing)."""
+        import numpy as np
+        for name in ("mass", "stiffness", "damping"):
+            m = self.matrix(name)
             if not np.allclose(m, m.T, rtol=1e-9, atol=0):
-                raise ValueError(f"{key}: the modal {key} table must be symmetric")
+                raise ValueError(f"{key.format(key=name)}: {source}the modal {name} table must be symmetric")
         eig = np.linalg.eigvalsh(self.matrix("mass"))
         if eig.min() <= 1e-12 * max(abs(eig.max()), 1e-300):
-            raise ValueError(f"mass: the modal mass must be positive definite (eigenvalues {np.round(eig, 6).tolist()}): "
-                             "a mode without mass has no dynamics; give each mode its generalized mass")
-        return self
+            raise ValueError(f"{key.format(key='mass')}: {source}the modal mass must be positive definite (eigenvalues "
+                             f"{np.round(eig, 6).tolist()}): a mode without mass has no dynamics; give each mode its "
+                             "generalized mass")
+
+    def with_file(self, block: "ExternalMatrices") -> "BodyModes":
+        """These modes with ``mmx``'s matrices (the body's block, as the client read it); ValueError
+        "mmx: why" when the block holds other modes than ``names``, couples the rigid DOFs and the
+        modes, or is not a structure (unsymmetric, a modal mass not positive definite)."""
+        if set(block.modes) != set(self.names):
+            raise ValueError(f"mmx: {self.mmx}'s block of the body holds the modes {list(block.modes)}; names "
+                             f"lists {self.names}")
+        coupled = block.coupled()
+        if coupled:
+            raise ValueError(f"mmx: {self.mmx} couples the rigid DOFs and the modes in its external {', '.join(coupled)}: "
+                             "the scene's modes hold no structural rigid-mode coupling (free-free modes have none); "
+                             "give the modes' block in mass, stiffness and damping (the coupling then left out) "
+                             "or remove it from the run")
+        out = self.model_copy()
+        out._file = block
+        out._check_structure("mmx", f"{self.mmx}: ")
+        return out
+
+    @property
+    def file_matrices(self) -> "ExternalMatrices | None":
+        """The ``mmx`` file's block (None without ``mmx`` or until :meth:`with_file`)."""
+        return self._file
 
     def matrix(self, key: str) -> "np.ndarray":
         """``mass``, ``stiffness`` or ``damping`` as an (n, n) array over ``names``; ValueError naming
         the key when its shape does not fit the names."""
         import numpy as np
         n, value = len(self.names), getattr(self, key)
+        if self.mmx is not None:
+            if self._file is None:
+                raise ValueError(f"mmx: the matrices of {self.mmx!r} were not given (a client reads the file and "
+                                 "sends it in hello.modal_structure)")
+            return self._file.modal(key, self.names)
         if value is None:
             return np.zeros((n, n))
         if isinstance(value[0], list):
@@ -1647,6 +1701,29 @@ class Scene(_Section):
                                      "waves.start inside them)")
         return self.model_copy(update={"waves": self.waves.model_copy(update={"gauges": gauges})})
 
+    def modal_files(self) -> list[tuple[str, int, "Body"]]:
+        """(key, index, body) of each body whose modes' structure is a file (``bodies[i].modes.mmx``)."""
+        return [(f"bodies[{i}].modes.mmx", i, b) for i, b in enumerate(self.bodies)
+                if b.modes is not None and b.modes.mmx is not None]
+
+    def with_modal_structure(self, blocks: dict[str, "ExternalMatrices"]) -> "Scene":
+        """The scene with each structure file's body block (by its key, :meth:`modal_files`) in the
+        body's modes; ValueError "key: why" where one is missing or is not the modes' structure
+        (BodyModes.with_file)."""
+        if not self.modal_files():
+            return self
+        bodies = list(self.bodies)
+        for key, i, body in self.modal_files():
+            if key not in blocks:
+                raise ValueError(f"{key}: the matrices of {body.modes.mmx!r} were not given (a client reads the file "
+                                 "and sends it in hello.modal_structure)")
+            try:
+                modes = body.modes.with_file(blocks[key])
+            except ValueError as exc:
+                raise ValueError(f"bodies[{i}].modes.{exc}") from None
+            bodies[i] = body.model_copy(update={"modes": modes})
+        return self.model_copy(update={"bodies": bodies})
+
     def hdb_keys(self) -> list[tuple[int, Body, str, str]]:
         """Every HDB the scene names, in scene order: (body index, body, the ``hdb`` string, its scene
         key) for each wet body's ``hdb`` and each of its ``hydro_states``' (repeats included)."""
@@ -1777,7 +1854,8 @@ def load_scene(path: str | Path, *, check_files: bool = True, have_hdbs: Collect
 def missing_files(raw: dict, scene_path: str | Path, have_hdbs: Collection[str] = ()) -> list[tuple[str, str]]:
     """(key, why) for each input file a parsed scene document names (relative to ``scene_path``)
     that does not exist: the bodies' HDBs (a WAMIT run by its stem or ``.1``), hull meshes and NEMOH
-    QTF files, the elevation series of ``[waves] type = "elevation"`` and ``"gauges"``, MoorDyn input files and the
+    QTF files, the modes' structure files and build specs, the elevation series of ``[waves] type = "elevation"`` and
+    ``"gauges"``, MoorDyn input files and the
     FMU of ``[client] type = "fmu"``. Read off the document as written, so that it runs whether or
     not the schema holds (a value of the wrong type is the schema's problem, not looked for here)."""
     problems: list[tuple[str, str]] = []
@@ -1806,6 +1884,9 @@ def missing_files(raw: dict, scene_path: str | Path, have_hdbs: Collection[str] 
                 check(f"bodies[{i}].hydro_states[{j}].hdb", hdb,
                       exists=lambda p: p.exists() or p.with_suffix(".1").exists())
         check(f"bodies[{i}].mesh", body.get("mesh"))
+        modes = body.get("modes")
+        for key, what in (("mmx", "structure file"), ("shapes", "HDB build spec")):
+            check(f"bodies[{i}].modes.{key}", modes.get(key) if isinstance(modes, dict) else None, what)
         qtf = body.get("qtf")
         for name in ("difference", "sum"):
             check(f"bodies[{i}].qtf.{name}", qtf.get(name) if isinstance(qtf, dict) else None)

@@ -46,7 +46,7 @@ from hydrolink.server.terms.hulls import Hull
 from hydrolink.protocol.hdb.layout import DOF_NAMES, HDBError, hdb_warnings
 from hydrolink.protocol.hdb.schema import select_bodies
 from hydrolink.server.hydrostatics import total_stiffness
-from hydrolink.server.modes import ModeLayout, mode_layout
+from hydrolink.server.modes import ModeLayout, mode_layout, structure_file_notes
 from hydrolink.server.terms.base import ForceTerm, TermContext
 from hydrolink.server.terms.registry import TERMS, build_terms
 from hydrolink.server.radiation.options import RadiationGroup, radiation_option
@@ -345,6 +345,7 @@ class HydroModel:
         g = self.scene.water.gravity
         self.hydrostatic_stiffness = np.where(np.outer(mask, mask), total_stiffness(c_hs, masses, cogs, refs, g), 0.0)
         self.equilibrium_position = np.hstack([refs, np.zeros((n_b, 3))])
+        self.warnings.extend(structure_file_notes(self.scene, self._scene_index, refs))
         self._k_hs = np.ascontiguousarray(self.hydrostatic_stiffness[np.ix_(self._idx, self._idx)])
         self._x_eq = np.concatenate((self.equilibrium_position.reshape(-1), np.zeros(self.modes.size)))[self._idx]
         self._net_buoyancy = self._buoyancy(data, self.scene.water.density, g, masses)

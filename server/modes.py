@@ -19,6 +19,7 @@ from hydrolink.protocol.hdb.layout import DOF_NAMES
 from hydrolink.protocol.hdb.schema import hdb_dofs
 from hydrolink.protocol.scene import Scene
 from hydrolink.server.errors import ModelError
+from hydrolink.server.rigid_body import rigid_body_mass_matrix
 
 
 @dataclass(frozen=True)
@@ -89,6 +90,52 @@ def mode_layout(scene: Scene, served: list[int], hdbs: dict[str, xr.Dataset]) ->
                                                      f"{missing} missing" if missing else "") if p))
         names.append(hdb_modes)
         if hdb_modes:
-            mass.append(np.diag(spec.in_order("mass", hdb_modes)))
+            try:
+                mass.append(np.diag(spec.in_order("mass", hdb_modes)))
+            except ValueError as exc:       # a structure file whose matrices did not come
+                raise ModelError(f"bodies[{i}].modes.{str(exc).partition(': ')[0]}", str(exc).partition(": ")[2]) from None
     return ModeLayout(tuple(scene.bodies[i].name for i in served), tuple(names),
                       np.concatenate(mass) if mass else np.zeros(0))
+
+
+def structure_file_notes(scene: Scene, served: list[int], reference: np.ndarray) -> list[str]:
+    """Setup warnings for each served body whose modes' structure file (``bodies[i].modes.mmx``)
+    states the rigid body otherwise than the scene: a rigid 6 × 6 mass block other than the body's
+    (``mass``, ``center_of_mass``, ``inertia`` about its HDB reference point ``reference[k]``) by
+    more than 0.1 % of its largest entry — the run takes the scene's (the HDB's coefficients do not
+    depend on it: a ballast study may keep the run's files), the WAMIT run's own motions were for
+    the file's; a zero block (the file gives the modes alone) states nothing — and a rigid external
+    damping or stiffness, which the run does not apply (the scene's ``linear_damping`` and moorings
+    give those)."""
+    notes = []
+    for k, i in enumerate(served):
+        body = scene.bodies[i]
+        block = body.modes.file_matrices if body.modes is not None else None
+        if block is None:
+            continue
+        key, name = f"bodies[{i}]", body.modes.mmx
+        given = block.rigid("mass")
+        if given.any():
+            ref = reference[k]
+            r_own = body.com_or(ref) - ref
+            own = rigid_body_mass_matrix(body.mass, body.inertia_matrix, r_own)
+            # the mass within 0.1 %, the centre of mass (m [r]x over the mass) within 1 mm, the
+            # inertia about the reference point within 0.1 % of its largest entry
+            m = max(given[0, 0], 1e-300)
+            r_given = np.array([given[5, 1], given[3, 2], given[4, 0]]) / m      # m [r]x's x, y, z entries
+            off = [part for part, bad in (
+                ("mass", np.abs(given[:3, :3] - own[:3, :3]).max() > 1e-3 * body.mass),
+                ("center_of_mass", np.abs(r_given - r_own).max() > 1e-3),
+                ("inertia", body.inertia is not None
+                 and np.abs(given[3:, 3:] - own[3:, 3:]).max() > 1e-3 * np.abs(own[3:, 3:]).max())) if bad]
+            if off:
+                notes.append(f"{key}.{off[0]}: the rigid mass matrix of {name} (about the HDB's reference point; "
+                             f"diagonal {np.round(np.diag(given), 6).tolist()}) differs from the scene's body "
+                             f"({np.round(np.diag(own), 6).tolist()}) in its {', '.join(off)} block(s): the run "
+                             "takes the scene's, the WAMIT run's motions were for the file's; set the body's "
+                             f"{', '.join(off)} to the file's if that is not meant")
+        unapplied = [m for m in ("damping", "stiffness") if block.rigid(m).any()]
+        if unapplied:
+            notes.append(f"{key}.modes.mmx: {name} gives the rigid DOFs an external {' and '.join(unapplied)}, which "
+                         "the run does not apply: give them as the body's linear_damping or a linear mooring")
+    return notes

@@ -54,10 +54,14 @@ def test_missing_parts_are_named(key, why):
 
 def test_absolute_paths_include_the_hull_mesh(tmp_path):
     """A scene run from another folder (the bench's and the sweep's temporary copies) still finds
-    the files it names relative to itself: the HDB and the nonlinear body's hull mesh."""
-    doc = {"bodies": [{"name": "float", "hdb": "float.nc", "mesh": "hulls/float.gdf"},
+    the files it names relative to itself: the HDB, the nonlinear body's hull mesh, the modes'
+    structure file and build spec."""
+    doc = {"bodies": [{"name": "float", "hdb": "float.nc", "mesh": "hulls/float.gdf",
+                       "modes": {"names": ["bend1"], "mmx": "run/float.mmx", "shapes": "float_hdb.toml"}},
                       {"name": "dry", "mass": 1.0}]}
     absolute_paths(doc, tmp_path / "cases" / "scene.toml")
     assert doc["bodies"][0]["hdb"] == str((tmp_path / "cases" / "float.nc").resolve())
     assert doc["bodies"][0]["mesh"] == str((tmp_path / "cases" / "hulls" / "float.gdf").resolve())
+    assert doc["bodies"][0]["modes"] == {"names": ["bend1"], "mmx": str((tmp_path / "cases" / "run" / "float.mmx").resolve()),
+                                         "shapes": str((tmp_path / "cases" / "float_hdb.toml").resolve())}
     assert "mesh" not in doc["bodies"][1] and "hdb" not in doc["bodies"][1]

@@ -8,6 +8,7 @@ problem for a free decay.
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +16,7 @@ import pytest
 import scipy.linalg
 import xarray as xr
 
-from conftest import REPLY_S, body, regular_waves, scene_toml
+from conftest import REPLY_S, body, linear_pto, regular_waves, scene_toml
 
 from hydrolink.clients.exudyn.client import run
 from hydrolink.clients.lockstep.connection import RemoteError, ServerConnection
@@ -121,11 +122,43 @@ def test_every_rigid_and_modal_rao_matches_frequency_domain(server, barge, tmp_p
         assert abs(amp) < 0.01, names[j]
         assert abs(phase) < 1.0, names[j]
     assert live[6:].all()                         # every mode takes part
-    power = ds["modal_pto_power"].values[fit, 0].mean()
+    assert list(ds["pto"].values) == ["barge.bend_z1"]       # the modal PTO among the pto_* results
+    power = ds["pto_power"].values[fit, 0].mean()
     expected = 0.5 * PTO_DAMPING[0] * w ** 2 * abs(rao[6] * 0.01) ** 2
     print(f"w {w:.2f} PTO on bend_z1: mean power {power:.4e} W, frequency domain {expected:.4e} W")
     assert power == pytest.approx(expected, rel=0.02)
     assert live.all() or w != 0.5                 # at 0.5 rad/s all nine DOFs are compared
+
+
+def test_a_modal_pto_is_among_the_ptos_with_its_power_summed(server, barge, tmp_path):
+    """A PTO on bend_z1 (spring and damper) and a line PTO on the heave: the results' dim ``pto``
+    holds the line PTO then ``barge.bend_z1`` (attribute ``pto_modes`` naming the body and mode);
+    the modal PTO's force, velocity and power equal k q + c q', q' and (k q + c q') q' computed here
+    from the recorded modal coordinate and rate, every row; ``total_pto_power`` is the line PTO's
+    power plus the mode's. Irregular waves, radiation off (the PTO law is what is checked)."""
+    k_pto, c_pto = [5.0e3, 0.0, 0.0], [3.0e4, 0.0, 0.0]
+    waves = {"type": "irregular", "spectrum": "jonswap", "hs": 1.0, "tp": 7.0, "direction": 30.0,
+             "omega_range": [0.3, 1.8], "components": 40, "seed": 3, "ramp": 5.0}
+    text = scene_toml(dt=0.05, duration=20.0, water={"density": 1025.0}, waves=waves, hydro={"radiation": "off"},
+                      bodies=[body("barge", hdb=str(HDB), mass=MASS, center_of_mass=[0.0, 0.0, 0.0], inertia=INERTIA,
+                                   dofs=["heave", "pitch"],
+                                   modes={**STRUCTURE, "pto_stiffness": k_pto, "pto_damping": c_pto})],
+                      ptos=[linear_pto("heave_pto", "barge", [0.0, 0.0, 0.0], "ground", [0.0, 0.0, -30.0],
+                                       damping=2.0e5)])
+    ds = simulate(server, text, barge, tmp_path / "pto.nc")
+    assert list(ds["pto"].values) == ["heave_pto", "barge.bend_z1"]
+    assert json.loads(ds.attrs["pto_modes"]) == {"barge.bend_z1": {"body": "barge", "mode": "bend_z1"}}
+    q, rate = ds["modal_position"].values[:, 0], ds["modal_velocity"].values[:, 0]
+    assert np.abs(rate).max() > 1e-3
+    force = k_pto[0] * q + c_pto[0] * rate
+    np.testing.assert_allclose(ds["pto_force"].values[:, 1], force, rtol=1e-12, atol=1e-12 * np.abs(force).max())
+    np.testing.assert_array_equal(ds["pto_velocity"].values[:, 1], rate)
+    np.testing.assert_allclose(ds["pto_power"].values[:, 1], force * rate, rtol=1e-12,
+                               atol=1e-12 * np.abs(force * rate).max())
+    line = ds["pto_power"].values[:, 0]
+    assert np.abs(line).max() > 0
+    np.testing.assert_allclose(ds["total_pto_power"].values, line + force * rate, rtol=1e-12,
+                               atol=1e-12 * np.abs(line + force * rate).max())
 
 
 def test_modal_free_decay_has_the_wet_natural_frequencies(server, barge, tmp_path):

@@ -27,9 +27,10 @@ M, K, C, P, RHO = 50.0, 2.0e3, 30.0, 400.0, 1025.0
 DT = 0.01
 
 
-def build(tmp_path, **controller) -> tuple:
+def build(tmp_path, modal_ptos: int = 0, **controller) -> tuple:
     """(control, mbs, ptos, node, writer, system container) for the body and one controller "ctl"
-    driving "pto" (the container keeps the Exudyn system alive)."""
+    driving "pto" (the container keeps the Exudyn system alive); ``modal_ptos``: that many PTOs on
+    generalized modes after "pto" in the results' dim ``pto``, declared first as the client does."""
     scene = parse_scene(scene_toml(
         dt=DT, duration=1.0,
         bodies=[body("b", mass=M, center_of_mass=[0, 0, 0], inertia=[1, 1, 1], dofs=["surge"],
@@ -44,7 +45,10 @@ def build(tmp_path, **controller) -> tuple:
     build_moorings(mbs, scene.moorings, mech.handles, scene.water)
     mbs.Assemble()
     writer = ResultWriter(tmp_path / "run.nc", scene=scene, bodies=["b"], dt=DT)
-    return PTOControl(scene, ptos, mbs, writer), mbs, ptos, mech.handles["b"].node, writer, sc
+    if modal_ptos:
+        writer.add_variable("pto_force", ("pto",), {"pto": ["pto"] + [f"b.mode{k + 1}" for k in range(modal_ptos)]})
+    return (PTOControl(scene, ptos, mbs, writer, modal_ptos=modal_ptos), mbs, ptos, mech.handles["b"].node, writer,
+            sc)
 
 
 def static_surge(mbs, node) -> float:
@@ -113,3 +117,20 @@ def test_hold_fallback_keeps_the_last_command_and_results_record_it(tmp_path):
     np.testing.assert_array_equal(ds["controller_status"].values[:, 0], [0, 2, 0, 3])
     np.testing.assert_array_equal(ds["controller_fallbacks"].values[:, 0], [0, 1, 1, 2])
     assert json.loads(ds.attrs["controller_events"])["ctl"]["absent"] == 1
+
+
+def test_ptos_on_modes_after_the_scene_s_are_left_uncommanded(tmp_path):
+    """A PTO on a generalized mode comes after the scene's PTOs in the results' dim ``pto``: the
+    controlled PTO's command is recorded in its own column, the mode's PTO's is NaN (no control)."""
+    control, mbs, ptos, node, writer, _ = build(tmp_path, modal_ptos=1)
+    eq = np.zeros((1, 6))
+    control.apply(ok({"pto": {"force": 100.0}}))
+    assert static_surge(mbs, node) == pytest.approx((P - 100.0) / K, rel=1e-8)
+    control.stage()
+    writer.append(0.0, eq, eq, eq, eq, eq, 0.0)
+    control.finish()
+    writer.finish("complete")
+    writer.close()
+    ds = xr.load_dataset(tmp_path / "run.nc")
+    assert list(ds["pto"].values) == ["pto", "b.mode1"]
+    assert ds["pto_command_force"].values[0, 0] == 100.0 and np.isnan(ds["pto_command_force"].values[0, 1])

@@ -344,15 +344,23 @@ def _add_joint_variables(writer, labels: list[str]) -> None:
                         "norm of the constrained relative rotation angles")
 
 
-def _add_pto_mooring_variables(writer, ptos: PTOSet | None, moorings: MooringSet | None) -> None:
-    """Declare the PTO outputs (dim ``pto``) and mooring forces (dims ``mooring``, ``mooring_component``)."""
-    if ptos is not None:
-        coords = {"pto": list(ptos.names)}
-        writer.add_variable("pto_force", ("pto",), coords, "N (linear); N m (rotary axis)",
+def _add_pto_mooring_variables(writer, ptos: PTOSet | None, moorings: MooringSet | None,
+                               modal: ModalStructure | None) -> None:
+    """Declare the PTO outputs (dim ``pto``: the mechanism's PTOs, then the PTOs on modes named by
+    their modes' labels, attribute ``pto_modes``) and mooring forces (dims ``mooring``,
+    ``mooring_component``)."""
+    on_modes = modal.pto_names if modal is not None else []
+    if ptos is not None or on_modes:
+        coords = {"pto": list(ptos.names if ptos is not None else ()) + on_modes}
+        if on_modes:
+            writer.set_attribute("pto_modes", json.dumps({n: {"body": n.split(".", 1)[0], "mode": n.split(".", 1)[1]}
+                                                          for n in on_modes}))
+        writer.add_variable("pto_force", ("pto",), coords, "N (linear); N m (rotary axis); generalized (mode)",
                             "force on body1 along the line point1 -> point2 (tension > 0) / torque on "
-                            "body1 about the PTO axis")
-        writer.add_variable("pto_velocity", ("pto",), coords, "m/s (linear); rad/s (rotary axis)",
-                            "extension rate of the line / angular velocity of body2 relative to body1")
+                            "body1 about the PTO axis / a mode's PTO: k q + c dq/dt, resisting the mode")
+        writer.add_variable("pto_velocity", ("pto",), coords, "m/s (linear); rad/s (rotary axis); 1/s (mode)",
+                            "extension rate of the line / angular velocity of body2 relative to body1 / "
+                            "the modal coordinate's rate")
         writer.add_variable("pto_power", ("pto",), coords, "W",
                             "absorbed power pto_force * pto_velocity (> 0: into the PTO)")
         writer.add_variable("total_pto_power", (), None, "W", "sum of pto_power over all PTOs")
@@ -665,12 +673,15 @@ class ExudynMultibody:
         m, nb = self.model, self.nb
         if self.control is not None:
             self.control.stage()
+        r = self._r
+        if m.mode_labels and m.modal.has_pto:   # the modes' PTOs after the mechanism's (dim pto)
+            w = m.wet_index[r:]
+            out = m.modal.pto_outputs(q[w], v[w], out)
         if out:
             self.writer.stage_extra(out)
         row = self.writer.row()    # filled in place: position, velocity, excitation, radiation, hydrostatic
         row[:2] = state.reshape(-1).take(self._body_take).reshape(2, nb, 6)   # q, v of every body
         np.add(m.body_reference, row[0], out=row[0])
-        r = self._r
         if self._all_wet:
             row[2] = s.excitation[:r].reshape(nb, 6)
             row[3] = s.radiation[:r].reshape(nb, 6)
@@ -693,9 +704,6 @@ class ExudynMultibody:
             self.writer.stage_extra({"modal_position": q[w], "modal_velocity": v[w],
                                      "modal_excitation": s.excitation[r:], "modal_radiation": s.radiation[r:],
                                      "modal_hydrostatic": -self._hs[r:]})
-            if m.modal.has_pto:
-                f = m.modal.pto_force(q[w], v[w])
-                self.writer.stage_extra({"modal_pto_force": f, "modal_pto_power": -f * v[w]})
         if s.optional:
             self.writer.stage_forces(s.optional, self._wet_flat, row[1])
         self.writer.commit(t, s.eta)
@@ -793,7 +801,8 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup | None, writer, 
             raise ValueError("controllers: a scene with controllers needs a wet body (the controllers "
                              "talk to the multibody client through the force server's session)")
         from hydrolink.clients.exudyn.pto_control import PTOControl
-        control = PTOControl(scene, model.ptos, model.mbs, writer)
+        control = PTOControl(scene, model.ptos, model.mbs, writer,
+                             modal_ptos=len(model.modal.pto_names) if model.modal is not None else 0)
     kx = pre.exchange_every
     mb = ExudynMultibody(model, writer, kx, feedback, cpl, ratio, control)
     mb.state_names = next((b.state_names() for b in scene.bodies if b.hydro_states), [])
@@ -834,10 +843,10 @@ def _add_variables(scene: Scene, model: ExudynModel, writer, warnings: list[str]
     mech = model.mechanism
     if mech and mech.joints:
         _add_joint_variables(writer, mech.joint_labels)
-    _add_pto_mooring_variables(writer, model.ptos, model.moorings)
+    _add_pto_mooring_variables(writer, model.ptos, model.moorings, model.modal)
     add_force_term_variables(writer, scene)
     if model.mode_labels:
-        add_modal_variables(writer, model.mode_labels, pto=model.modal.has_pto)
+        add_modal_variables(writer, model.mode_labels)
     switching = next((b for b in scene.bodies if b.hydro_states), None)
     if switching is not None:
         writer.add_variable("hydro_state", (), None, "1",

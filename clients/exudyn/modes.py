@@ -41,9 +41,28 @@ class ModalStructure:
     def has_pto(self) -> bool:
         return bool(self.pto_stiffness.any() or self.pto_damping.any())
 
-    def pto_force(self, q: np.ndarray, rate: np.ndarray) -> np.ndarray:
-        """The modal PTOs' generalized force on their modes, −(k q + c q̇)."""
-        return -(self.pto_stiffness * q + self.pto_damping * rate)
+    @property
+    def pto_index(self) -> np.ndarray:
+        """The modes that carry a PTO (a stiffness or damping), in ``labels`` order."""
+        return np.flatnonzero((self.pto_stiffness != 0) | (self.pto_damping != 0))
+
+    @property
+    def pto_names(self) -> list[str]:
+        """The modal PTOs' names in the results' ``pto`` dim: their modes' labels ("body.mode")."""
+        return [self.labels[i] for i in self.pto_index]
+
+    def pto_outputs(self, q: np.ndarray, rate: np.ndarray, mechanism: dict) -> dict:
+        """The mechanism's outputs with the modal PTOs after its PTOs in ``pto_force`` (the generalized
+        force k q + c q̇ the PTO resists its mode with), ``pto_velocity`` (q̇), ``pto_power`` (their
+        product: > 0 into the PTO, as a line PTO's) and ``total_pto_power`` over both."""
+        i = self.pto_index
+        force = self.pto_stiffness[i] * q[i] + self.pto_damping[i] * rate[i]
+        power = force * rate[i]
+        none = np.zeros(0)
+        return {**mechanism, "pto_force": np.concatenate((mechanism.get("pto_force", none), force)),
+                "pto_velocity": np.concatenate((mechanism.get("pto_velocity", none), rate[i])),
+                "pto_power": np.concatenate((mechanism.get("pto_power", none), power)),
+                "total_pto_power": mechanism.get("total_pto_power", 0.0) + power.sum()}
 
 
 def modal_structure(scene: Scene, setup: Setup | None) -> ModalStructure:

@@ -37,7 +37,8 @@ STATUS_CODES = {"ok": 0, "timeout": 1, "absent": 2, "invalid": 3}
 class PTOControl:
     """Measurements, decisions and their results for one run."""
 
-    def __init__(self, scene: Scene, ptos: PTOSet, mbs, writer):
+    def __init__(self, scene: Scene, ptos: PTOSet, mbs, writer, modal_ptos: int = 0):
+        """``modal_ptos``: the PTOs on modes after ``ptos`` in the results' ``pto`` dim (no control)."""
         self.scene, self.ptos, self.mbs, self.writer = scene, ptos, mbs, writer
         dt = scene.simulation.dt
         self.linear = [p for p in scene.ptos if isinstance(p, LinearPTO)]
@@ -46,7 +47,7 @@ class PTOControl:
         self.periods = [c.steps_per_period(dt) for c in scene.controllers]
         self.join_timeout = max(c.join_timeout for c in scene.controllers)
         self.by_name = {c.name: c for c in scene.controllers}
-        n = len(ptos.names)
+        n = len(ptos.names) + modal_ptos
         self.force = np.full(n, np.nan)
         self.damping = np.full(n, np.nan)
         self.stiffness = np.full(n, np.nan)

@@ -21,6 +21,7 @@ import zmq
 from hydrolink.clients.lockstep.direct_channel import DirectChannel
 from hydrolink.protocol import codec
 from hydrolink.protocol.codec import ProtocolError
+from hydrolink.protocol.hdb.external_matrices import MATRICES, ExternalMatrices
 from hydrolink.protocol.reply import read_forces
 from hydrolink.protocol.setup import Setup
 from hydrolink.protocol.hdb.wire import HDBFiles, to_wire
@@ -297,7 +298,8 @@ class ServerConnection:
               client: dict | None = None, wave_elevation: tuple | None = None,
               meshes: dict[str, tuple[np.ndarray, np.ndarray]] | None = None,
               realtime: float | None = None, control_token: str | None = None,
-              spectra: dict[str, tuple] | None = None, gauges: dict[str, tuple] | None = None) -> Setup:
+              spectra: dict[str, tuple] | None = None, gauges: dict[str, tuple] | None = None,
+              modal_structure: dict[str, ExternalMatrices] | None = None) -> Setup:
         """Open a session and return its :class:`Setup`; the session id, the server's name/version,
         the protocol version and the session timeout stay on the connection (``session``,
         ``server_info``, ``protocol``, ``session_timeout``). ``wave_elevation``: the (time, eta)
@@ -308,7 +310,8 @@ class ServerConnection:
         the secret the scene's controllers must show to join (SPEC §5.7.2; None: the server draws one),
         kept as :attr:`control_token` from the welcome; ``spectra``: the tables of the scene's
         spectrum files by key (clients/scene_inputs.py load_spectrum_files); ``gauges``: the (time, eta)
-        records of a ``type = "gauges"`` sea by key (load_gauge_files).
+        records of a ``type = "gauges"`` sea by key (load_gauge_files); ``modal_structure``: each
+        body's block of its modes' structure file by key (load_modal_structures).
 
         An HDB given as :class:`HDBFiles` goes by its files' SHA-256 (SPEC §5.8): the contents the
         server lacks (error 13) are uploaded, once each, and the ``hello`` is sent again;
@@ -328,6 +331,10 @@ class ServerConnection:
         if gauges:    # the gauges' records (SPEC §5.1 hello.gauges)
             extra["gauges"] = {key: {"time": np.ascontiguousarray(t, np.float64), "eta": np.ascontiguousarray(e, np.float64)}
                                for key, (t, e) in gauges.items()}
+        if modal_structure:   # the modes' structure files' body blocks (SPEC §5.1 hello.modal_structure)
+            extra["modal_structure"] = {key: {"modes": list(b.modes), **{k: np.ascontiguousarray(getattr(b, k), np.float64)
+                                                                          for k in MATRICES}}
+                                        for key, b in modal_structure.items()}
         if meshes:
             extra["meshes"] = {name: {"vertices": np.ascontiguousarray(v, np.float64),
                                       "faces": np.ascontiguousarray(f, np.int64)} for name, (v, f) in meshes.items()}

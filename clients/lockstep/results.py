@@ -484,16 +484,9 @@ MODAL_VARIABLES: tuple[tuple[str, str, str], ...] = (
 )
 
 
-#: with PTOs on modes (``bodies[i].modes.pto_stiffness`` / ``pto_damping``)
-MODAL_PTO_VARIABLES: tuple[tuple[str, str, str], ...] = (
-    ("modal_pto_force", "generalized force", "the modal PTO's force on its mode, -(k q + c dq/dt)"),
-    ("modal_pto_power", "W", "power absorbed by the modal PTO, (k q + c dq/dt) dq/dt (> 0: into the PTO)"),
-)
-
-
-def add_modal_variables(writer: ResultWriter, labels: tuple[str, ...], *, pto: bool = False) -> None:
+def add_modal_variables(writer: ResultWriter, labels: tuple[str, ...]) -> None:
     """The generalized modes' results variables (dim ``mode``: the setup's ``body.mode`` labels,
-    beyond each body's six rigid DOFs), with ``pto`` the modal PTOs' too; the client stages them
-    every row."""
-    for name, units, description in MODAL_VARIABLES + (MODAL_PTO_VARIABLES if pto else ()):
+    beyond each body's six rigid DOFs); the client stages them every row (a PTO on a mode is among
+    the ``pto_*`` variables)."""
+    for name, units, description in MODAL_VARIABLES:
         writer.add_variable(name, ("mode",), {"mode": list(labels)}, units, description)

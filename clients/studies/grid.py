@@ -233,8 +233,8 @@ def dump_toml(doc: dict) -> str:
 
 def absolute_paths(doc: dict, scene_path: Path) -> dict:
     """The scene document with its relative file paths (bodies[i].hdb, bodies[i].mesh,
-    bodies[i].qtf.difference/sum, waves.file, client.fmu, moorings[i].file) made absolute, so that
-    it runs from any folder."""
+    bodies[i].qtf.difference/sum, bodies[i].modes.mmx/shapes, waves.file, client.fmu,
+    moorings[i].file) made absolute, so that it runs from any folder."""
     base = Path(scene_path).resolve().parent
 
     def fix(p: str) -> str:
@@ -244,10 +244,11 @@ def absolute_paths(doc: dict, scene_path: Path) -> dict:
         for key in ("hdb", "mesh"):
             if key in b:
                 b[key] = fix(b[key])
-        if isinstance(b.get("qtf"), dict):
-            for key in ("difference", "sum"):
-                if key in b["qtf"]:
-                    b["qtf"][key] = fix(b["qtf"][key])
+        for table, keys in (("qtf", ("difference", "sum")), ("modes", ("mmx", "shapes"))):
+            if isinstance(b.get(table), dict):
+                for key in keys:
+                    if key in b[table]:
+                        b[table][key] = fix(b[table][key])
     if isinstance(doc.get("waves"), dict) and "file" in doc["waves"]:
         doc["waves"]["file"] = fix(doc["waves"]["file"])
     if isinstance(doc.get("client"), dict) and "fmu" in doc["client"]:

@@ -17,6 +17,7 @@ from hydrolink.clients.view.placement import BodyMesh, body_meshes, rigid_points
 from hydrolink.clients.view.results import RunFile, ViewError, read_rows
 from hydrolink.clients.view.surface import Grid, IncidentField, make_grid, run_waves
 from hydrolink.server.sea.dispersion import wave_number
+from hydrolink.server.terms.nonlinear.hull import rotation_xyz
 
 PARTS = ("bodies", "surface", "moorings", "markers")
 DEFAULT_CELLS = (100, 100)
@@ -118,6 +119,8 @@ def frames(stage: Stage, rows: np.ndarray, block: int = 64) -> Iterator[Frame]:
     """The frames at ``rows`` of the results file, read ``block`` rows at a time."""
     run = stage.run
     names = ["position", "velocity", *stage.forces] + (["line_node_position"] if stage.lines else [])
+    modal = any(m.shapes is not None for m in stage.meshes)
+    names += ["modal_position", "modal_velocity"] if modal else []
     for b0 in range(0, rows.size, max(1, block)):
         chunk = rows[b0:b0 + block]
         data = read_rows(run.path, names, chunk)
@@ -128,9 +131,15 @@ def frames(stage: Stage, rows: np.ndarray, block: int = 64) -> Iterator[Frame]:
             pos, vel = data["position"][k], data["velocity"][k]
             bodies = []
             for m in stage.meshes:
-                moved = rigid_points(m.vertices, m.reference, pos[m.row])
-                bodies.append((moved, rigid_velocity(moved, pos[m.row], vel[m.row]),
-                               {f: data[f][k, m.row] for f in stage.forces}))
+                if m.shapes is None:
+                    moved = rigid_points(m.vertices, m.reference, pos[m.row])
+                    velocity = rigid_velocity(moved, pos[m.row], vel[m.row])
+                else:     # deformed in the body's axes, then moved: x = p + R (v - r + sum q phi)
+                    moved = rigid_points(m.vertices + m.shapes.displacement(data["modal_position"][k]), m.reference,
+                                         pos[m.row])
+                    velocity = (rigid_velocity(moved, pos[m.row], vel[m.row])
+                                + m.shapes.displacement(data["modal_velocity"][k]) @ rotation_xyz(pos[m.row, 3:]).T)
+                bodies.append((moved, velocity, {f: data[f][k, m.row] for f in stage.forces}))
             surface = None
             if stage.grid is not None:
                 incident = stage.incident(t)

@@ -9,7 +9,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hydrolink.clients.scene_inputs import load_body_hull
+from hydrolink.clients.scene_inputs import build_spec_of, load_body_hull
+from hydrolink.clients.view.deformation import ModalShapes, modal_shapes
 from hydrolink.clients.view.results import RunFile, ViewError
 from hydrolink.server.terms.nonlinear.hull import rotation_xyz
 
@@ -28,6 +29,7 @@ class BodyMesh:
     connectivity: np.ndarray
     offsets: np.ndarray
     types: np.ndarray
+    shapes: ModalShapes | None = None    # the body's modes' displacement of the vertices (None: rigid)
 
     @property
     def n_cells(self) -> int:
@@ -57,14 +59,16 @@ def body_meshes(run: RunFile) -> tuple[list[BodyMesh], list[str]]:
         if body.name not in run.bodies:
             raise ViewError(run.path, f"bodies[{i}].mesh", f"the scene's body {body.name!r} is not in the "
                             f"results file (its bodies: {list(run.bodies)})")
-        if body.mesh is None and not body.hdb.endswith(".toml"):
+        if body.mesh is None and build_spec_of(run.scene, run.scene_path, i) is None:
             notes.append(f"bodies[{i}].mesh: body {body.name!r} is not drawn: its HDB {body.hdb} is not a build spec "
                          "to take its hull from; name its closed hull's mesh file (global frame at equilibrium)")
             continue
         vertices, faces = load_body_hull(run.scene, run.scene_path, i, "to be drawn")
+        vertices = np.asarray(vertices, float)
         row = run.bodies.index(body.name)
-        out.append(BodyMesh(body.name, row, np.asarray(vertices, float), run.equilibrium[row, :3].copy(),
-                            *cells_of(faces)))
+        shapes, note = modal_shapes(run, i, vertices)
+        notes += [note] if note else []
+        out.append(BodyMesh(body.name, row, vertices, run.equilibrium[row, :3].copy(), *cells_of(faces), shapes))
     return out, notes
 
 

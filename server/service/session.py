@@ -16,6 +16,7 @@ import xarray as xr
 from hydrolink.protocol import codec
 from hydrolink.protocol.codec import Code, ProtocolError
 from hydrolink.protocol.errors import KeyedError
+from hydrolink.protocol.hdb.external_matrices import MATRICES, ExternalMatrices
 from hydrolink.protocol.scene import Scene, SceneError, parse_scene
 from hydrolink.protocol.scene_bounds import MAX_COORDINATE, MAX_SPEED
 from hydrolink.protocol.hdb.wire import from_wire
@@ -101,6 +102,7 @@ def read_hello(msg: dict, files: FileSetReader | None = None) -> ModelInputs:
     if missing:
         raise MissingContent(*missing)
     scene = _with_gauges(_with_spectra(scene, msg.get("spectra")), msg.get("gauges"))
+    scene = _with_modal_structure(scene, msg.get("modal_structure"))
     series = None
     if msg.get("wave_elevation") is not None:  # [waves] type = "elevation": the client read the file
         we = codec.require_map(msg, "wave_elevation")
@@ -133,6 +135,24 @@ def _with_gauges(scene: Scene, gauges: Any) -> Scene:
     if not scene.gauge_files():
         return scene
     return _scene_with(scene.with_gauges, _file_tables(gauges, "gauges", "{time, eta}", record))
+
+
+def _with_modal_structure(scene: Scene, blocks: Any) -> Scene:
+    """The scene with its bodies' modes' structure files from ``hello.modal_structure`` (SPEC §5.1,
+    revision 1.17); error 5 naming ``modal_structure.<key>`` when malformed, 8 naming
+    ``scene.bodies[i].modes.mmx`` when one is missing or is not the modes' structure."""
+    def block(entry: dict, where: str) -> ExternalMatrices:
+        modes = codec.require(entry, "modes", f"{where}.modes")
+        if not isinstance(modes, list) or not all(isinstance(m, str) for m in modes):
+            raise ProtocolError(Code.BAD_VALUE, f"{where}.modes", "must be a list of the body's mode names")
+        size = (6 + len(modes),) * 2
+        return ExternalMatrices(tuple(modes), *(codec.require_array(entry, k, size, path=f"{where}.{k}")
+                                                for k in MATRICES))
+
+    if not scene.modal_files():
+        return scene
+    return _scene_with(scene.with_modal_structure,
+                       _file_tables(blocks, "modal_structure", "{modes, mass, damping, stiffness}", block))
 
 
 def _with_spectra(scene: Scene, spectra: Any) -> Scene:
@@ -170,7 +190,7 @@ def _file_tables(value: Any, field: str, what: str, decode: Callable[[dict, str]
 
 
 def _scene_with(put: Callable[[dict], Scene], tables: dict[str, tuple]) -> Scene:
-    """``put(tables)`` (Scene.with_spectra, Scene.with_gauges), its ValueError "key: why" as error 8
+    """``put(tables)`` (Scene.with_spectra, Scene.with_gauges, Scene.with_modal_structure), its ValueError "key: why" as error 8
     naming ``scene.<key>``."""
     try:
         return put(tables)

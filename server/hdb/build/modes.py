@@ -108,17 +108,7 @@ def _table_motion(body: BodySpec, key: str, mode, spec_path, depth: float, cente
     from hydrolink.server.hdb.build.mesh import read_mesh_file
 
     full = read_mesh_file(body, key.split(".modes")[0], spec_path)
-    table = table_path(mode, spec_path)
-    try:
-        rows = np.loadtxt(table, delimiter=",", ndmin=2, comments="#")
-    except (OSError, ValueError) as exc:
-        raise SpecError(spec_path, f"{key}.file", f"cannot read the displacement table {table}: {exc}") from None
-    if rows.shape != (full.nb_vertices, 3):
-        raise SpecError(spec_path, f"{key}.file",
-                        f"{table.name}: {rows.shape[0]} rows of {rows.shape[1]} columns; the mesh {body.mesh} has "
-                        f"{full.nb_vertices} vertices: one row (dx, dy, dz) per vertex, in the file's order")
-    if not np.all(np.isfinite(rows)):
-        raise SpecError(spec_path, f"{key}.file", f"{table.name}: NaN or inf in the table")
+    rows = _table_rows(body, key, mode, spec_path, full.nb_vertices)
     per_face = rows[np.asarray(full.faces)].mean(axis=1)
     clipped = full.with_metadata(origin_panel=np.arange(full.nb_faces)).immersed_part(water_depth=depth)
     clipped, ids = clipped.pop_metadata("origin_panel")
@@ -128,6 +118,44 @@ def _table_motion(body: BodySpec, key: str, mode, spec_path, depth: float, cente
         raise SpecError(spec_path, f"{key}.file", "the solved hull's panels do not match the mesh file's "
                                                         "immersed panels (cannot place the table)")
     return per_face[np.asarray(ids)[at]]
+
+
+def _table_rows(body: BodySpec, key: str, mode, spec_path, n_vertices: int) -> np.ndarray:
+    """A displacement table's rows (n_vertices, 3); SpecError naming ``key``.file when it cannot be
+    read, has another length than the mesh's vertices or holds NaN or inf."""
+    table = table_path(mode, spec_path)
+    try:
+        rows = np.loadtxt(table, delimiter=",", ndmin=2, comments="#")
+    except (OSError, ValueError) as exc:
+        raise SpecError(spec_path, f"{key}.file", f"cannot read the displacement table {table}: {exc}") from None
+    if rows.shape != (n_vertices, 3):
+        raise SpecError(spec_path, f"{key}.file",
+                        f"{table.name}: {rows.shape[0]} rows of {rows.shape[1]} columns; the mesh {body.mesh} has "
+                        f"{n_vertices} vertices: one row (dx, dy, dz) per vertex, in the file's order")
+    if not np.all(np.isfinite(rows)):
+        raise SpecError(spec_path, f"{key}.file", f"{table.name}: NaN or inf in the table")
+    return rows
+
+
+def vertex_shapes(body: BodySpec, key: str, vertices: np.ndarray, spec_path) -> dict[str, np.ndarray]:
+    """Each of the body's modes' displacement (V, 3) at its closed hull's ``vertices`` (global frame
+    at rest, :func:`~hydrolink.server.hdb.build.mesh.closed_hull`: what ``hydrolink view`` deforms),
+    in spec order: a beam mode's field there (its ends: the mode's ``ends``, else the extent of the
+    vertices under the still water — the solved hull's for a wall-sided body), a displacement
+    table's rows (a mesh body's vertices are its file's, in its order)."""
+    ref = np.asarray(body.ref_point, float)
+    wet = vertices[vertices[:, 2] <= 1e-9]
+    out: dict[str, np.ndarray] = {}
+    for j, mode in enumerate(body.modes or []):
+        if mode.kind == "table":
+            out[mode.name] = _table_rows(body, f"{key}.modes[{j}]", mode, spec_path, len(vertices))
+            continue
+        a = AXES.index(mode.axis)
+        ends = ((float(mode.ends[0]), float(mode.ends[1])) if mode.ends is not None
+                else (float(wet[:, a].min()), float(wet[:, a].max())))
+        out.update((f.name, f.motion) for f in (_beam_field(mode, k, vertices, ref, ends)
+                                                 for k in range(1, mode.count + 1)))
+    return out
 
 
 def table_path(mode, spec_path) -> Path:
@@ -159,4 +187,4 @@ def mode_fields(body: BodySpec, key: str, hull, spec_path, depth: float) -> list
     return out
 
 
-__all__ = ["ModeField", "beam_ends", "beam_roots", "bending_shape", "mode_fields"]
+__all__ = ["ModeField", "beam_ends", "beam_roots", "bending_shape", "mode_fields", "vertex_shapes"]
