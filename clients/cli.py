@@ -43,7 +43,7 @@ def run_headline(output: str | Path) -> str | None:
     import numpy as np
     import xarray as xr
 
-    with xr.open_dataset(output) as ds:
+    with xr.open_dataset(output, engine="netcdf4") as ds:
         t = ds["time"].values
         if t.size < 2:
             return None
