@@ -17,6 +17,10 @@ machine; the median of ``--repeat`` runs is printed, with the load average befor
   examples/controllers/passive.py in a ``hydrolink control`` process joining the run's own server
   (``hydrolink run --listen``), 10 steps; both processes' CPU.
 - ``import cli``: ``python -c "import hydrolink.clients.cli"``, the module every command loads.
+
+``--tree DIR`` (repeatable) measures the hydrolink of each DIR (a folder holding a ``hydrolink``
+package, e.g. ``git archive 58bba31`` unpacked into DIR/hydrolink; put first on PYTHONPATH),
+interleaved command by command: an A/B comparison under the same load.
 """
 
 from __future__ import annotations
@@ -139,6 +143,8 @@ def control_cpu(folder: Path) -> dict[str, float]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--tree", type=Path, action="append",
+                        help="A folder holding a hydrolink package to measure (repeatable: interleaved A/B).")
     parser.add_argument("--keep", type=Path, help="Folder to run in (kept); default a temporary one.")
     args = parser.parse_args()
     folder = args.keep or Path(tempfile.mkdtemp(prefix="hydrolink-startup-"))
@@ -149,19 +155,23 @@ def main() -> None:
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     load_before = os.getloadavg()
     samples: dict[str, list[float]] = {}
+    trees = args.tree or [None]
     try:
         for _ in range(args.repeat):     # interleaved, so a change of load touches every command alike
             for measure in (help_cpu, import_cpu, run_cpu, served_cpu, control_cpu):
-                for name, cpu in measure(folder).items():
-                    samples.setdefault(name, []).append(cpu)
+                for tree in trees:
+                    if tree is not None:
+                        os.environ["PYTHONPATH"] = str(tree)
+                    for name, cpu in measure(folder).items():
+                        samples.setdefault(name if tree is None else f"{name} [{tree.name}]", []).append(cpu)
     finally:
         if args.keep is None:
             shutil.rmtree(folder, ignore_errors=True)
     print(f"load average before {load_before[0]:.1f} {load_before[1]:.1f}, after {os.getloadavg()[0]:.1f} "
           f"{os.getloadavg()[1]:.1f}; {args.repeat} runs each")
-    print(f"{'process':28s} {'CPU s (median)':>14s}  all")
+    print(f"{'process':40s} {'CPU s (median)':>14s}  all")
     for name, values in samples.items():
-        print(f"{name:28s} {statistics.median(values):14.2f}  " + " ".join(f"{v:.2f}" for v in values))
+        print(f"{name:40s} {statistics.median(values):14.2f}  " + " ".join(f"{v:.2f}" for v in values))
 
 
 if __name__ == "__main__":
