@@ -44,41 +44,18 @@ PASSIVE = REPO / "examples" / "controllers" / "passive.py"
 HYDROLINK = [sys.executable, "-m", "hydrolink.clients.cli"]
 TIMEOUT_S = 600.0
 
-SCENE = """[simulation]
-dt = 0.05
-duration = 0.5
-progress = false
-[water]
-density = 1000.0
-depth = 200.0
-[waves]
-type = "regular"
-height = 1.0
-period = 8.0
-[[bodies]]
-name = "sphere"
-hdb = "sphere.h5"
-mass = 261800.0
-center_of_mass = [0.0, 0.0, -2.0]
-inertia = [2.6e6, 2.6e6, 2.6e6]
-dofs = ["heave"]
-"""
+sys.path.insert(0, str(REPO / "tests"))
+from conftest import SPHERE_WATER, linear_pto, regular_waves, scene_toml, sphere_body  # noqa: E402  (the tests' scene builder)
 
-CONTROLLED = SCENE + """[[ptos]]
-name = "pto"
-type = "linear"
-body1 = "sphere"
-point1 = [0.0, 0.0, 0.0]
-body2 = "ground"
-point2 = [0.0, 0.0, -20.0]
-damping = 0.0
-[[controllers]]
-name = "passive"
-ptos = ["pto"]
-command = "force"
-measurements = ["pto_velocity"]
-parameters = { damping = 1.0e5 }
-"""
+BODY = sphere_body("sphere.h5", mass=261800.0, dofs=["heave"])
+SCENE = scene_toml(dt=0.05, duration=0.5, progress=False, water=SPHERE_WATER, waves=regular_waves(1.0, 8.0),
+                   bodies=[BODY])
+# the sphere on a PTO to ground, its force from examples/controllers/passive.py
+CONTROLLED = scene_toml(dt=0.05, duration=0.5, progress=False, water=SPHERE_WATER, waves=regular_waves(1.0, 8.0),
+                        bodies=[BODY], ptos=[linear_pto("pto", "sphere", [0.0, 0.0, 0.0], "ground", [0.0, 0.0, -20.0],
+                                                        damping=0.0)],
+                        controllers=[{"name": "passive", "ptos": ["pto"], "command": "force",
+                                      "measurements": ["pto_velocity"], "parameters": {"damping": 1.0e5}}])
 
 
 def _reap(proc: subprocess.Popen) -> float:
