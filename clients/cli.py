@@ -43,7 +43,7 @@ def run_headline(output: str | Path) -> str | None:
     import numpy as np
     import xarray as xr
 
-    with xr.open_dataset(output) as ds:
+    with xr.open_dataset(output, engine="netcdf4") as ds:
         t = ds["time"].values
         if t.size < 2:
             return None
@@ -306,9 +306,9 @@ def _key_file_option(func):
 
 
 def _hmac_key(path: Path | None) -> bytes | None:
-    from hydrolink.protocol.security import CurveKeyError, read_hmac_key
     if path is None:
         return None
+    from hydrolink.protocol.security import CurveKeyError, read_hmac_key
     try:
         return read_hmac_key(path)
     except CurveKeyError as exc:
@@ -316,6 +316,8 @@ def _hmac_key(path: Path | None) -> bytes | None:
 
 
 def _client_keys(server_key: Path | None, secret: Path | None):
+    if server_key is None and secret is None:   # no CURVE: zmq.auth's thread (asyncio, ~0.1 s) not imported
+        return None
     from hydrolink.protocol.security import CurveKeyError, client_keys
     try:
         return client_keys(server_key, secret)

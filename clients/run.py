@@ -48,7 +48,7 @@ def _limit_metrics(scene, output: Path) -> RunMetrics | None:
     limits = scene_limits(scene)
     if not limits:
         return None
-    with xr.open_dataset(output) as ds:   # lazily: only the series the limits use are read
+    with xr.open_dataset(output, engine="netcdf4") as ds:   # lazily: only the series the limits use are read
         metrics = run_metrics(ds, limits, start=getattr(scene.waves, "ramp", None),
                               efficiency=scene.optimize.efficiency)
     with netCDF4.Dataset(output, "a") as nc:

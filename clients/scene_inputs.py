@@ -188,7 +188,7 @@ def _spectrum_csv(path: Path) -> tuple[list[float], list[float] | None, list]:
 
 def _spectrum_netcdf(path: Path) -> tuple[list[float], list[float] | None, list]:
     """A NetCDF table (load_spectrum_files)."""
-    with xr.open_dataset(path) as ds:
+    with xr.open_dataset(path, engine="netcdf4") as ds:
         density = ds["density"]
         if density.dims not in (("omega",), ("omega", "theta")):
             raise ValueError(f"variable 'density' has dimensions {density.dims}: expected ('omega',) or "

@@ -369,3 +369,43 @@ def test_paced_run_prints_where_the_time_went_as_the_file_records_it(scene_dir: 
     if overruns:
         causes = dict(re.findall(r"(\w+) (\d+)", line.split("overruns by cause:")[1]))
         assert sum(int(n) for n in causes.values()) == overruns
+
+
+# What a `hydrolink` process imports only where it uses it: each costs every process that loads it
+# its CPU (bench/bench_startup.py). The command module itself loads no science stack (a bad option,
+# `--help` and `keys` need none); a run loads no HDB builder, plotting, study or spectral-wave package,
+# and no xarray backend it does not read with (xarray loads every installed one where a file is
+# opened without its engine named: wavespectra's, with scipy.interpolate and scipy.io).
+NOT_IN_THE_CLI_MODULE = ("xarray", "pandas", "scipy", "dask", "numba", "pydantic", "exudyn", "h5py", "netCDF4",
+                         "capytaine", "matplotlib", "mhkit", "wavespectra")
+NOT_IN_A_RUN = ("capytaine", "matplotlib", "mhkit", "wavespectra", "distributed", "scipy.interpolate", "scipy.io",
+                "hydrolink.clients.studies")
+
+
+def _modules_after(tmp_path: Path, code: str) -> set[str]:
+    """The modules a fresh Python process holds after ``code`` (run in ``tmp_path``)."""
+    listing = tmp_path / "modules.json"
+    program = f"{code}\nimport json, sys\njson.dump(sorted(sys.modules), open({str(listing)!r}, 'w'))"
+    result = subprocess.run([sys.executable, "-c", program], cwd=tmp_path, capture_output=True, text=True,
+                            timeout=EXIT_S)
+    assert result.returncode == 0, result.stderr
+    return set(json.loads(listing.read_text()))
+
+
+def _loaded(modules: set[str], names: tuple[str, ...]) -> list[str]:
+    return [name for name in names if any(m == name or m.startswith(name + ".") for m in modules)]
+
+
+def test_the_command_module_imports_no_science_stack(tmp_path: Path):
+    assert _loaded(_modules_after(tmp_path, "import hydrolink.clients.cli"), NOT_IN_THE_CLI_MODULE) == []
+
+
+def test_a_run_imports_only_what_it_runs_with(scene_dir: Path):
+    """`hydrolink run` of the module's scene (two steps), its results file written and read back for
+    the headline, in one process: none of NOT_IN_A_RUN loaded."""
+    write_scene(scene_dir, sphere_scene().replace("duration = 12.0", "duration = 0.1"), "short.toml")
+    modules = _modules_after(scene_dir, "from hydrolink.clients.cli import cli\n"
+                                        "cli.main(['run', 'short.toml', '-o', 'short.nc', '--no-progress'], "
+                                        "prog_name='hydrolink', standalone_mode=False)")
+    assert (scene_dir / "short.nc").is_file()
+    assert _loaded(modules, NOT_IN_A_RUN) == []

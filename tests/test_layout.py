@@ -1,6 +1,7 @@
 """The code's layout rules (docs/architecture.md), checked on the source itself: the layers and the
 absence of import loops by import-linter (the contracts in pyproject.toml), no function over 100
-lines and no folder of more than 12 modules in server/, clients/ or protocol/."""
+lines and no folder of more than 12 modules in server/, clients/ or protocol/, and no netCDF file opened
+without its xarray engine named."""
 
 from __future__ import annotations
 
@@ -44,6 +45,21 @@ def test_no_folder_holds_more_than_twelve_modules():
                 crowded[str(pkg.relative_to(REPO))] = len(modules)
     assert not crowded, f"folders of more than 12 modules: {crowded}"
 
+
+def test_every_netcdf_open_names_its_engine():
+    """xarray's open_dataset (and load/open_dataarray, open_mfdataset) with no engine loads every
+    installed xarray backend to guess one (wavespectra's 20, with scipy.interpolate and scipy.io:
+    ~1 s of CPU in each process that opens a file, bench/bench_startup.py); named, xarray takes its
+    built-in backend directly."""
+    openers = {"open_dataset", "load_dataset", "open_dataarray", "load_dataarray", "open_mfdataset"}
+    unnamed = []
+    for folder in PACKAGES:
+        for path in _modules(folder):
+            for node in ast.walk(ast.parse(path.read_text())):
+                if (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr in openers
+                        and not any(k.arg == "engine" for k in node.keywords)):
+                    unnamed.append(f"{path.relative_to(REPO)}:{node.lineno}")
+    assert not unnamed, "xarray opens without engine=: " + "; ".join(unnamed)
 
 def _installed_layout(root: Path) -> Path:
     """The three folders copied as the installed package lays them out (root/hydrolink/...): grimp,

@@ -13,7 +13,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
 
 from exudyn.itemInterface import NodeGenericODE2
 
@@ -87,6 +86,8 @@ def modal_structure(scene: Scene, setup: Setup | None) -> ModalStructure:
         for key, values in pto.items():
             values += spec.per_mode(key, names)
     empty = np.zeros((0, 0))
+    if initial:   # a body with modes: scipy.linalg here, not at the top (~0.4 s of every run's start-up)
+        import scipy.linalg
     return ModalStructure(setup.mode_labels if setup is not None else (), np.asarray(initial, float),
                           *(scipy.linalg.block_diag(*b) if b else empty for b in blocks.values()),
                           *(np.asarray(v, float) for v in pto.values()))

@@ -252,7 +252,7 @@ def pareto_front(cost, error) -> np.ndarray:
 
 def _read(path: Path) -> dict:
     import xarray as xr
-    with xr.open_dataset(path) as ds:
+    with xr.open_dataset(path, engine="netcdf4") as ds:
         pos = ds["position"].values - ds["equilibrium_position"].values[None]
         out = {"time": ds["time"].values.astype(float), "position": pos,
                "power": ds["total_pto_power"].values.astype(float) if "total_pto_power" in ds else None}

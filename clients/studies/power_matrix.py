@@ -158,7 +158,7 @@ def read_scatter(path: str | Path) -> Scatter:
     if path.suffix.lower() in (".nc", ".nc4", ".netcdf"):
         import xarray as xr
         try:
-            with xr.open_dataset(path) as ds:
+            with xr.open_dataset(path, engine="netcdf4") as ds:
                 if "occurrence" not in ds:
                     raise PowerMatrixError(f"{path}: no variable 'occurrence' (dims hm0, te)")
                 occ = ds["occurrence"]

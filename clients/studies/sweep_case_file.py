@@ -47,7 +47,7 @@ class CaseSummary:
 def summarise(path: Path, window: tuple[float, float], steady: bool) -> CaseSummary:
     """A case's summary from its full results file over ``window`` (samples start < t <= end; a
     steady file's one period: every row)."""
-    with xr.open_dataset(path) as ds:
+    with xr.open_dataset(path, engine="netcdf4") as ds:
         t = ds["time"].values
         sel = np.ones(t.size, bool) if steady else (t > window[0] + 1e-9) & (t <= window[1] + 1e-9)
         if sel.sum() < 2:
@@ -95,7 +95,7 @@ def _summary_variables(s: CaseSummary) -> dict[str, tuple]:
 def write_case_file(full: Path, path: Path, summary: CaseSummary, tail: float | None) -> None:
     """The case's file at ``path`` (atomically) from its full results file ``full``: the summary and
     the last ``tail`` seconds of every series (``tail`` None: every sample)."""
-    with xr.open_dataset(full) as ds:
+    with xr.open_dataset(full, engine="netcdf4") as ds:
         t = ds["time"].values
         keep = slice(None) if tail is None else slice(int(np.searchsorted(t, t[-1] - tail - 1e-9)), None)
         d = ds.isel(time=keep).load()
@@ -112,7 +112,7 @@ def write_case_file(full: Path, path: Path, summary: CaseSummary, tail: float | 
 
 def read_summary(path: Path) -> CaseSummary:
     """The summary a case file holds (:func:`write_case_file`); ValueError when it holds none."""
-    with xr.open_dataset(path) as ds:
+    with xr.open_dataset(path, engine="netcdf4") as ds:
         v = {k[len(SUMMARY_PREFIX):]: ds[k].load() for k in ds.data_vars if str(k).startswith(SUMMARY_PREFIX)}
         if "motion_std" not in v:
             raise ValueError(f"{path.name}: no summary variables ({SUMMARY_PREFIX}*): not a sweep case file")

@@ -70,7 +70,7 @@ def read_capytaine(path: str | Path, *,
     if not path.is_file():
         raise HDBError(path, "file", "not found")
     try:
-        with xr.open_dataset(path) as raw:
+        with xr.open_dataset(path, engine="netcdf4") as raw:
             ds = raw.load()
     except (OSError, ValueError) as exc:
         raise HDBError(path, "file", f"not a readable NetCDF file ({exc})") from None

@@ -41,7 +41,7 @@ def _check_rho(ds: xr.Dataset, rho: float | None, path: Path) -> xr.Dataset:
 
 def _load_netcdf(path: Path, convention: str | None = None) -> xr.Dataset:
     try:
-        with xr.open_dataset(path) as raw:
+        with xr.open_dataset(path, engine="netcdf4") as raw:
             ds = raw.load()
     except (OSError, ValueError) as exc:
         raise HDBError(path, "file", f"not a readable NetCDF file ({exc})") from None

@@ -453,7 +453,7 @@ def read_elevation(path, key: str = "waves.file", variable: str = "eta") -> tupl
     if path.suffix.lower() in (".nc", ".nc4", ".netcdf", ".cdf", ".h5"):
         import xarray as xr
         try:
-            with xr.open_dataset(path) as ds:
+            with xr.open_dataset(path, engine="netcdf4") as ds:
                 if variable not in ds:
                     raise WaveError(key, f"{path}: no variable {variable!r} (it holds {sorted(map(str, ds.data_vars))})")
                 da = ds[variable]

@@ -105,6 +105,6 @@ def store_free_surface(ds: xr.Dataset, path: Path) -> Path:
 
 def read_free_surface(path: str | Path) -> tuple[xr.DataArray, xr.DataArray]:
     """The radiated (omega, body, dof, y, x) and diffracted (omega, wave_direction, y, x) complex fields."""
-    with xr.open_dataset(path) as ds:
+    with xr.open_dataset(path, engine="netcdf4") as ds:
         ds = ds.load()
     return ds["radiated_re"] + 1j * ds["radiated_im"], ds["diffracted_re"] + 1j * ds["diffracted_im"]
