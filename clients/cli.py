@@ -365,6 +365,10 @@ def keys_new(directory: Path, name: str) -> None:
               help="With [[controllers]] and no --server: where the run's own force server listens.")
 @click.option("--link-timeout", default=10.0, show_default=True, type=click.FloatRange(min=0, min_open=True),
               help="With --server: seconds the link may stay down (an outage) before the run ends, its rows kept.")
+@click.option("--reply-timeout", default=60.0, show_default=True, type=click.FloatRange(min=0, min_open=True),
+              envvar="HYDROLINK_REPLY_TIMEOUT",
+              help="Seconds to wait for each reply of the server, a hello's set-up included (a big scene on a "
+                   "busy shared server may need more; also $HYDROLINK_REPLY_TIMEOUT).")
 @click.option("--hdb-files", is_flag=True,
               help="With --server: send each HDB file as itself, by SHA-256 (SPEC §5.8): the server reads it and "
                    "keeps it, so only what it lacks is uploaded, once. Default: the converted HDB every run.")
@@ -378,7 +382,7 @@ def keys_new(directory: Path, name: str) -> None:
 @_curve_options
 @_key_file_option
 def run(scene: Path, output: Path | None, server: str | None, no_progress: bool, cpu: int | None,
-        listen: str, link_timeout: float, hdb_files: bool, realtime: float | None, control_token: str | None,
+        listen: str, link_timeout: float, reply_timeout: float, hdb_files: bool, realtime: float | None, control_token: str | None,
         curve_server_key: Path | None, curve_secret: Path | None, key_file: Path | None) -> None:
     """Co-simulate a SCENE (TOML) in lockstep with the force server."""
     _pin_to_cpu(cpu)
@@ -400,7 +404,7 @@ def run(scene: Path, output: Path | None, server: str | None, no_progress: bool,
     signal.signal(signal.SIGTERM, _terminate)
     try:
         summary = _guard(run_scene_file, scene, output, server=server, progress=not no_progress, listen=listen,
-                         key=key, link_timeout=link_timeout, hdb_files=hdb_files,
+                         key=key, link_timeout=link_timeout, timeout=reply_timeout, hdb_files=hdb_files,
                          realtime=realtime, control_token=control_token,
                          **({"curve": curve} if curve is not None else {}))
     except KeyboardInterrupt as exc:

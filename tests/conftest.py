@@ -66,8 +66,10 @@ def pytest_sessionstart(session: pytest.Session) -> None:
 
 
 def pytest_configure(config: pytest.Config) -> None:
-    """A pytest-xdist worker imports each group of compiled kernels once the controller's compile of
-    it is done (tests/numba_warmup.py)."""
+    """Every `hydrolink run` a test starts waits REPLY_S for a reply (its ``--reply-timeout``, by
+    $HYDROLINK_REPLY_TIMEOUT; a set value is kept); and a pytest-xdist worker imports each group of
+    compiled kernels once the controller's compile of it is done (tests/numba_warmup.py)."""
+    os.environ.setdefault("HYDROLINK_REPLY_TIMEOUT", str(REPLY_S))
     folder = os.environ.get(WARMUP_FOLDER)
     if folder and hasattr(config, "workerinput"):
         import numba_warmup

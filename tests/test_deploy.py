@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 import xarray as xr
 
-from conftest import EXIT_S, rm3_example_text
+from conftest import EXIT_S, REPLY_S, rm3_example_text
 
 yaml = pytest.importorskip("yaml")
 
@@ -95,7 +95,9 @@ def test_compose_stack_runs_on_loopback(reference_data, tmp_path):
         while "listening on" not in log.read_text() and server.poll() is None and time.monotonic() < deadline:
             time.sleep(0.05)
         assert f"listening on tcp://127.0.0.1:{port} (CURVE" in log.read_text(), log.read_text()
-        ctl = subprocess.Popen(executable([local(a) for a in compose["controller"]["entrypoint"]]),
+        command = [local(a) for a in compose["controller"]["entrypoint"]]
+        command[command.index("--join-wait") + 1] = str(REPLY_S)   # compose's 60 s: the run's hello, loaded, can take more
+        ctl = subprocess.Popen(executable(command),
                                env=environment("controller"), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         procs.append(ctl)
         out = subprocess.run(executable([local(a) for a in compose["client"]["entrypoint"]]), env=environment("client"),

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from analytic_hdb import make_body_hdb
 
-from conftest import body, irregular_waves, linear_pto, regular_waves, scene_toml
+from conftest import REPLY_S, body, irregular_waves, linear_pto, regular_waves, scene_toml
 from hydrolink.clients.lockstep.connection import RemoteError, ServerConnection
 from hydrolink.protocol.scene import parse_scene
 from hydrolink.server.model import HydroModel
@@ -23,7 +23,7 @@ from hydrolink.server.service.force_server import ForceServer, serve_in_thread
 from hydrolink.server.service.step_worker import WorkerSession
 
 DT = 0.05
-WAIT = 60.0   # s a reply may take on a loaded machine (a worker starts in well under that)
+WAIT = REPLY_S   # a reply expected (a worker starts in well under it)
 
 
 def _scene(n_bodies: int, waves: dict, **sections) -> str:
