@@ -7,12 +7,15 @@ ParaView file; a body whose modes' shapes are unknown is drawn rigid with a note
 from __future__ import annotations
 
 import math
+import shutil
 import tomllib
 from dataclasses import replace
 from pathlib import Path
 
 import h5py
+import netCDF4
 import numpy as np
+import pytest
 import xarray as xr
 
 from conftest import toml_document
@@ -21,7 +24,7 @@ from test_hdb_build_modes import free_free
 from hydrolink.clients.run import run_scene_file
 from hydrolink.clients.view.deformation import modal_shapes
 from hydrolink.clients.view.frames import ViewOptions, frames, make_stage
-from hydrolink.clients.view.results import open_run
+from hydrolink.clients.view.results import ViewError, open_run
 from hydrolink.clients.view.series import view_results
 from hydrolink.protocol.scene import parse_scene
 
@@ -93,3 +96,18 @@ def test_the_drawn_barge_deforms_by_its_mode_shapes_times_the_coordinates(tmp_pa
     rigid = replace(run, scene=parse_scene(toml_document(doc)))
     shapes_of, note = modal_shapes(rigid, 0, mesh.vertices)
     assert shapes_of is None and note.startswith("bodies[0].modes.shapes: body 'barge' is drawn rigid")
+
+    # another spec than the HDB's (a longer barge, same mode names): its shapes would be drawn on
+    # these modes' coordinates -- refused by key; an HDB that records no spec: drawn, and said
+    other = tmp_path / "other_hdb.toml"
+    other.write_text((EXAMPLE / "barge_hdb.toml").read_text().replace("length = 40.0", "length = 44.0"))
+    body["modes"]["shapes"] = str(other)
+    with pytest.raises(ViewError, match=r"bodies\[0\]\.modes\.shapes.*other_hdb\.toml is not the spec"):
+        modal_shapes(replace(run, scene=parse_scene(toml_document(doc))), 0, mesh.vertices)
+    unrecorded = tmp_path / "unrecorded.nc"
+    shutil.copy(body["hdb"], unrecorded)
+    with netCDF4.Dataset(unrecorded, "a") as hdb:
+        hdb.delncattr("build_spec_sha256")
+    body["hdb"], body["modes"]["shapes"] = str(unrecorded), str(EXAMPLE / "barge_hdb.toml")
+    shapes_of, note = modal_shapes(replace(run, scene=parse_scene(toml_document(doc))), 0, mesh.vertices)
+    assert shapes_of is not None and "records no build spec" in note
