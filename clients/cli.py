@@ -251,7 +251,7 @@ def serve(bind: str, session_timeout: float, cpu: int | None, curve_secret: Path
     from hydrolink.server.hdb.store import ContentStore, default_folder
     from hydrolink.server.processes import start_children
     from hydrolink.server.service.direct import DirectError
-    from hydrolink.server.service.force_server import ForceServer
+    from hydrolink.server.service.force_server import BindError, ForceServer
 
     try:
         server = ForceServer(bind, session_timeout=session_timeout, key=key,
@@ -265,6 +265,10 @@ def serve(bind: str, session_timeout: float, cpu: int | None, curve_secret: Path
                              plant_builder=_build_plant, direct_port=direct_port)
     except CurveKeyError as exc:
         raise _UserError(str(exc)) from None
+    except BindError as exc:     # --bind in use or not this host's: one line, status 2 (a bad option)
+        error = _UserError(f"--bind: {exc}")
+        error.exit_code = 2
+        raise error from None
     except DirectError as exc:   # --direct-port in use, or not on tcp://: one line, status 2 (a bad option)
         error = _UserError(f"--direct-port: {exc}")
         error.exit_code = 2

@@ -142,8 +142,10 @@ def test_serve_direct_port_is_offered_and_one_in_use_is_one_clear_line(tmp_path:
             conn.step(0, 0.0, np.zeros((1, 6)), np.zeros((1, 6)))
             assert conn._direct is not None   # the step went over it
         taken = _cli_here("serve", "--bind", "tcp://127.0.0.1:*", "--direct-port", str(port), cwd=tmp_path)
+        bound = _cli_here("serve", "--bind", address, cwd=tmp_path)   # the ZeroMQ port in use: the same
     assert taken.returncode == 2
     assert taken.stderr == f"Error: --direct-port: no direct channel on port {port} of 127.0.0.1: Address already in use\n"
+    assert bound.returncode == 2 and bound.stderr == f"Error: --bind: cannot listen on {address}: Address already in use\n"
 
 
 def test_bad_scene_is_one_clear_line(scene_dir: Path):

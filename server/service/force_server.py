@@ -61,6 +61,10 @@ LOCAL_ROUTE = [b""]   # a polled server's own caller: a ROUTER never gives a pee
 POLLED_LINGER_MS = 500   # a polled server's last replies (its controllers' stop) get this long to leave at close
 
 
+class BindError(RuntimeError):
+    """The server's endpoint cannot be bound (the address in use, or not one of this host's)."""
+
+
 @dataclass(frozen=True)
 class PendingHello:
     """A multibody hello whose set-up runs in a worker: answered when ``model`` is done."""
@@ -202,7 +206,15 @@ class ForceServer:
             except Exception:
                 self._sock.close(0)
                 raise
-        self._sock.bind(bind)
+        try:
+            self._sock.bind(bind)
+        except zmq.ZMQError as exc:   # in use, or not an endpoint here: the caller's to say (serve: one line)
+            if self._security is not None:
+                self._security.close()
+            self._sock.close(0)
+            if self._own_context:
+                self._ctx.term()
+            raise BindError(f"cannot listen on {bind}: {zmq.strerror(exc.errno)}") from None
         self._address = self._sock.address
         if secure and direct_port is not None:
             log.warning("direct port %d unused: a CURVE server offers no direct channel (it would bypass the "
