@@ -638,7 +638,7 @@ def write_results(path: str | Path, sol: SteadySolution, scene: Scene, scene_tex
     with ResultWriter(path, scene=scene, scene_text=scene_text, setup=setup, dt=dt,
                       bodies=s.body_names, equilibrium_position=s.reference) as writer:
         _add_pto_mooring_variables(writer, _Names(s.pto_names) if s.ptos else None,
-                                   _Names(s.mooring_names) if s.moorings else None, None)   # no modes (capabilities)
+                                   _Names(s.mooring_names) if s.moorings else None)
         extra = [k for k in ("pto_force", "pto_velocity", "pto_power", "total_pto_power", "mooring_force")
                  if k in data]
         for i, t in enumerate(times):

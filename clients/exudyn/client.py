@@ -345,7 +345,7 @@ def _add_joint_variables(writer, labels: list[str]) -> None:
 
 
 def _add_pto_mooring_variables(writer, ptos: PTOSet | None, moorings: MooringSet | None,
-                               modal: ModalStructure | None) -> None:
+                               modal: ModalStructure | None = None) -> None:
     """Declare the PTO outputs (dim ``pto``: the mechanism's PTOs, then the PTOs on modes named by
     their modes' labels, attribute ``pto_modes``) and mooring forces (dims ``mooring``,
     ``mooring_component``)."""
