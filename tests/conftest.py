@@ -30,6 +30,9 @@ REPLY_S = 120.0
 # How long a test waits for a process it expects to end by itself (a run, a plot script, a controller
 # after its run, a server after SIGTERM): a hang guard, never a timing check.
 EXIT_S = 600.0
+# How long a test's own server keeps an idle session (s): at least the longest wait above, so a session a
+# test has opened is never ended for idleness while the test waits on something else under load.
+IDLE_S = EXIT_S
 
 
 WARMUPS = pytest.StashKey[list]()            # the controller's numba warm-up processes (tests/numba_warmup.py)

@@ -30,7 +30,7 @@ import numpy as np
 import pytest
 import xarray as xr
 import zmq
-from conftest import EXIT_S, REPLY_S, rm3_example_text
+from conftest import EXIT_S, IDLE_S, REPLY_S, rm3_example_text
 from conftest import build_zmq_msgpack_program
 
 from hydrolink.clients.run import run_scene_file
@@ -85,7 +85,7 @@ def c_controller(tmp_path_factory) -> Path:
 
 @pytest.fixture()
 def server():
-    srv, thread = serve_in_thread("tcp://127.0.0.1:*", session_timeout=60.0, plant_builder=build_plant)
+    srv, thread = serve_in_thread("tcp://127.0.0.1:*", session_timeout=IDLE_S, plant_builder=build_plant)
     yield srv
     srv.stop()
     thread.join(5)

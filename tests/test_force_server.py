@@ -11,7 +11,7 @@ import pytest
 import zmq
 from analytic_hdb import make_body_hdb
 
-from conftest import EXIT_S, REPLY_S, rm3_short_text
+from conftest import EXIT_S, IDLE_S, REPLY_S, rm3_short_text
 from conftest import SPHERE_WATER, body, dealer, linear_pto, regular_waves, scene_toml, serve_process
 
 from hydrolink.clients.lockstep.connection import RemoteError, ServerConnection
@@ -43,7 +43,7 @@ def hdb():
 
 @pytest.fixture(scope="module")
 def server():
-    srv, thread = serve_in_thread(session_timeout=60.0)
+    srv, thread = serve_in_thread(session_timeout=IDLE_S)
     yield srv
     srv.stop()
     thread.join(timeout=5)
@@ -120,7 +120,7 @@ def test_size_limit_covers_every_frame_and_nothing_is_echoed():
     """SPEC §1: the size limit counts all frames of a message, routing frames included, and the
     routing frames are at most 8 of at most 255 bytes. A message over a limit is answered with
     error 1 to the sender's identity alone (its own frames are not echoed) and the server goes on."""
-    srv, thread = serve_in_thread(session_timeout=60.0, max_message_bytes=2**20)
+    srv, thread = serve_in_thread(session_timeout=IDLE_S, max_message_bytes=2**20)
     ctx = zmq.Context.instance()
     sock = ctx.socket(zmq.DEALER)
     sock.setsockopt(zmq.LINGER, 0)
@@ -616,7 +616,7 @@ def test_a_hello_beyond_the_setup_bound_is_refused_at_once_and_the_others_are_se
     samples) are being set up; a third is refused with error 14 at once — while both set-ups still
     run — naming the bound, its value and the option; the two are welcomed and step, the existing
     session steps throughout, and once the set-ups are done a new hello is welcomed."""
-    srv, thread = serve_in_thread(session_timeout=60.0, max_setups=2)
+    srv, thread = serve_in_thread(session_timeout=IDLE_S, max_setups=2)
     slow = float_scene(dt=5e-4, duration=0.1)
     socks = [dealer(srv.address) for _ in range(2)]
     try:
@@ -668,7 +668,7 @@ def test_a_hello_beyond_the_setup_bound_is_refused_at_once_and_the_others_are_se
 def test_a_hello_beyond_the_session_bound_is_refused_until_a_bye_frees_one(hdb):
     """max_sessions = 2: the third hello is refused with error 14 naming the bound; the open
     sessions step on unchanged; after one says bye a hello is welcomed."""
-    srv, thread = serve_in_thread(session_timeout=60.0, max_sessions=2)
+    srv, thread = serve_in_thread(session_timeout=IDLE_S, max_sessions=2)
     try:
         with ServerConnection(srv.address, timeout=REPLY_S) as a, ServerConnection(srv.address, timeout=REPLY_S) as b, \
                 ServerConnection(srv.address, timeout=REPLY_S) as c:
@@ -701,7 +701,7 @@ def test_a_hello_beyond_the_memory_budget_is_refused_until_a_bye_frees_it(hdb):
     for one session's model (as measured: its IRF alone is at least samples x (6N)^2 doubles), the
     second hello is refused with error 14 naming the memory bound and the figures; the first steps
     on; after its bye the hello is welcomed."""
-    srv, thread = serve_in_thread(session_timeout=60.0)
+    srv, thread = serve_in_thread(session_timeout=IDLE_S)
     try:
         with ServerConnection(srv.address, timeout=REPLY_S) as a:
             a.hello(SCENE, {"float.nc": hdb})
@@ -711,7 +711,7 @@ def test_a_hello_beyond_the_memory_budget_is_refused_until_a_bye_frees_it(hdb):
     finally:
         srv.stop()
         thread.join(timeout=5)
-    srv, thread = serve_in_thread(session_timeout=60.0, max_memory_bytes=int(1.5 * one))
+    srv, thread = serve_in_thread(session_timeout=IDLE_S, max_memory_bytes=int(1.5 * one))
     try:
         with ServerConnection(srv.address, timeout=REPLY_S) as a, ServerConnection(srv.address, timeout=REPLY_S) as b:
             a.hello(SCENE, {"float.nc": hdb})

@@ -9,7 +9,7 @@ import hashlib
 
 import numpy as np
 import pytest
-from conftest import REPLY_S, SPHERE_WATER, regular_waves, rm3_float, rm3_spar, scene_toml, sphere_body
+from conftest import IDLE_S, REPLY_S, SPHERE_WATER, regular_waves, rm3_float, rm3_spar, scene_toml, sphere_body
 
 from hydrolink.clients.lockstep.connection import RemoteError, ServerConnection
 from hydrolink.protocol.hdb.wire import HDBFiles
@@ -25,7 +25,7 @@ def store(tmp_path) -> ContentStore:
 
 @pytest.fixture
 def server(store):
-    srv, thread = serve_in_thread(session_timeout=60.0, store=store)
+    srv, thread = serve_in_thread(session_timeout=IDLE_S, store=store)
     yield srv
     srv.stop()
     thread.join(5.0)

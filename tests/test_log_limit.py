@@ -7,6 +7,7 @@ from __future__ import annotations
 import logging
 
 import zmq
+from conftest import IDLE_S
 from hydrolink.protocol import codec
 from hydrolink.server.service.log_limit import LimitedLog
 from hydrolink.server.service.force_server import serve_in_thread
@@ -26,7 +27,7 @@ def test_burst_per_kind_then_the_left_out_count(caplog):
 
 
 def test_a_flood_of_bad_requests_is_answered_but_logged_within_the_burst(caplog):
-    server, thread = serve_in_thread(session_timeout=60.0)
+    server, thread = serve_in_thread(session_timeout=IDLE_S)
     sock = zmq.Context.instance().socket(zmq.DEALER)
     sock.setsockopt(zmq.LINGER, 0)
     sock.setsockopt(zmq.RCVTIMEO, 10_000)

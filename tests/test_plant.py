@@ -17,7 +17,7 @@ import pytest
 from hydrolink.protocol.scene import parse_scene
 from test_rm3 import C_PTO, HEAVE, MASS, scene_text
 
-from conftest import REPLY_S
+from conftest import IDLE_S, REPLY_S
 
 
 @pytest.fixture(scope="module")
@@ -215,7 +215,7 @@ def test_controller_gets_the_plant_at_join(reference_data, tmp_path):
     scene = parse_scene(text)
     hdbs = load_scene_hdbs(scene, tmp_path / "s.toml", progress=False)
     expect = build_plant(scene, hdbs)
-    srv, thread = serve_in_thread("tcp://127.0.0.1:*", session_timeout=60.0, plant_builder=build_plant)
+    srv, thread = serve_in_thread("tcp://127.0.0.1:*", session_timeout=IDLE_S, plant_builder=build_plant)
     ctx = zmq.Context()
     sock = ctx.socket(zmq.DEALER)
     sock.setsockopt(zmq.LINGER, 0)

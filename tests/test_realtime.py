@@ -14,7 +14,7 @@ import pytest
 
 from test_rm3 import scene_text
 
-from conftest import REPLY_S
+from conftest import IDLE_S, REPLY_S
 
 SLOW_SEQ, DELAY = 10, 0.3     # the server sample of step 10 takes 0.3 s more; an exchange is 80 ms
 
@@ -151,7 +151,7 @@ def test_server_paces_a_session_that_asks(where):
     from hydrolink.clients.lockstep.connection import ServerConnection
     from hydrolink.server.service.force_server import ForceServer, serve_in_thread
     if where == "socket":
-        srv, thread = serve_in_thread(session_timeout=60.0)
+        srv, thread = serve_in_thread(session_timeout=IDLE_S)
         address = srv.address
     else:
         srv = ForceServer(None)
