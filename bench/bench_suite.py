@@ -25,6 +25,14 @@ Cases (SEA-Stack's v1.0.0-beta suite, /work/shared/notes/field-research.md §2, 
 - ``f3of_decay_conv`` / ``_ss``: examples/f3of/f3of_decay.toml at dt 0.02 s, 200 s;
 - ``five_body_spreading``: five cylinders in a row (bench/suite/five_body.toml: one HDB, full
   interaction, cos-2s spreading over 5 directions, two MoorDyn chains each), dt 0.02 s, 200 s.
+  **Not SEA-Stack's case**: its 5sa_spreading (tests/benchmark/5sa/test_bench_5sa_spreading.cpp,
+  demos/5sa/five_sa_model_setup.h) is the 5SA attenuator: five 36 m segments on universal joints
+  with 16 spring-dampers, linear damping, JONSWAP Hs 3 m Tp 10 s cos-2s s = 12 over 64 x 21
+  components, an HDB (5sa_directional.h5) its repository snapshot does not hold, and MoorDyn's
+  lines_5sa.txt on two of the segments (five lines, 165 segments, a clump, dtM 0.0005 s: 40
+  substeps a step). Its bare MoorDyn step costs 2.5x this case's ten chains (2,745 against 1,113
+  CPU µs at load 5, same machine), so this case's RTF against the goal flatters hydrolink: read
+  it as the array's cost, not as the comparison;
 
 Per case: the loop's wall time (``hydrolink run``'s, set-up excluded: HDBs, IRFs and fits come
 from their caches after a first run), RTF = simulated / wall seconds, µs per step, where the step's
