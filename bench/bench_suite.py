@@ -13,11 +13,26 @@ Cases (SEA-Stack's v1.0.0-beta suite, /work/shared/notes/field-research.md §2, 
 - ``oswec_reg_batch``: an OSWEC-like flap (F3OF's base, held, and its up-wave flap on a hinge:
   examples/f3of/f3of_hdb.toml, built by ``hydrolink hdb build`` and cached) in 16 regular waves
   (T 6-16 s, H 1 m), 62.5 s each (1000 s in all), dt 0.03 s;
-- ``rm3_mooring_irreg_conv`` / ``_ss``: RM3 on MoorDyn (examples/rm3_moordyn) in a JONSWAP sea
-  (Hs 2.5 m, Tp 8 s), dt 0.01 s, 300 s;
+- ``rm3_mooring_irreg_conv`` / ``_ss``: RM3 (examples/rm3_moordyn) on SEA-Stack's own MoorDyn file
+  (bench/suite/rm3_lines.txt: its data/demos/run_seastack/rm3/assets/mooring/lines_rm3.txt, MIT,
+  read by its tests/benchmark/rm3/test_bench_rm3_mooring_irreg.cpp: three chains from anchors 267 m
+  out to clump weights, 40 m up to the fairleads, six lines, 60 segments, dtM 0.0005 s, so 20
+  MoorDyn substeps a step, its line and body outputs written; only the fairleads' z is made
+  relative to the spar's reference point) in a JONSWAP sea (Hs 2.5 m, Tp 8 s), dt 0.01 s, 300 s.
+  SEA-Stack's sea is WEC-Sim's recorded elevation (an eta file, excitation by IRF convolution
+  truncated at 20 s); hydrolink's 300 components cost about as much a step and leave MoorDyn's
+  share, the case's dominant cost, the same;
 - ``f3of_decay_conv`` / ``_ss``: examples/f3of/f3of_decay.toml at dt 0.02 s, 200 s;
 - ``five_body_spreading``: five cylinders in a row (bench/suite/five_body.toml: one HDB, full
   interaction, cos-2s spreading over 5 directions, two MoorDyn chains each), dt 0.02 s, 200 s.
+  **Not SEA-Stack's case**: its 5sa_spreading (tests/benchmark/5sa/test_bench_5sa_spreading.cpp,
+  demos/5sa/five_sa_model_setup.h) is the 5SA attenuator: five 36 m segments on universal joints
+  with 16 spring-dampers, linear damping, JONSWAP Hs 3 m Tp 10 s cos-2s s = 12 over 64 x 21
+  components, an HDB (5sa_directional.h5) its repository snapshot does not hold, and MoorDyn's
+  lines_5sa.txt on two of the segments (five lines, 165 segments, a clump, dtM 0.0005 s: 40
+  substeps a step). Its bare MoorDyn step costs 2.5x this case's ten chains (2,745 against 1,113
+  CPU µs at load 5, same machine), so this case's RTF against the goal flatters hydrolink: read
+  it as the array's cost, not as the comparison;
 
 Per case: the loop's wall time (``hydrolink run``'s, set-up excluded: HDBs, IRFs and fits come
 from their caches after a first run), RTF = simulated / wall seconds, µs per step, where the step's
@@ -45,6 +60,7 @@ import logging
 import os
 import platform
 import re
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -58,6 +74,10 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 SUITE = REPO / "bench" / "suite"
 SPHERE = REPO / "examples" / "data" / "sphere_task10" / "sphere.h5"
+#: SEA-Stack's RM3 MoorDyn file (its fairleads' z made relative to the spar's reference point)
+RM3_LINES = SUITE / "rm3_lines.txt"
+#: the spar's moored equilibrium on RM3_LINES from its reference position (the run's moordyn report)
+RM3_SPAR_OFFSET = "[0.0, 0.0, -0.0464, 0.0, 0.0, 0.0]"
 SEA_STACK_SPEEDUP = 1.4    # SEA-Stack's machine per core over this VM's (issue 36)
 GOAL_FACTOR = 1.5          # goal: this times SEA-Stack's RTF / SEA_STACK_SPEEDUP
 
@@ -180,8 +200,11 @@ def cases(scale: float) -> list[Case]:
         text = _section(text, "waves", 'type = "irregular"\nspectrum = "jonswap"\nhs = 2.5\ntp = 8.0\nseed = 1\n'
                                        'components = 300\nramp = 20.0')
         text = text.replace("[hydro]", f'[hydro]\nradiation = "{rad}"', 1)
+        text = re.sub(r'(?m)^file = ".*"', f'file = "{RM3_LINES}"', text, count=1)
+        text = re.sub(r"(?m)^initial_displacement = .*$", f"initial_displacement = {RM3_SPAR_OFFSET}", text, count=1)
         out.append(Case(f"rm3_mooring_irreg_{tag}", (text,), 15,
-                        "RM3 on three MoorDyn chains, JONSWAP Hs 2.5 m Tp 8 s, dt 0.01 s, 300 s"))
+                        "RM3 on SEA-Stack's MoorDyn spread (three chains with clump weights: six lines, 60 "
+                        "segments, dtM 0.0005 s), JONSWAP Hs 2.5 m Tp 8 s, dt 0.01 s, 300 s"))
         text = _absolute(f3of, dt="0.02", duration=str(d(200)), progress="false")
         out.append(Case(f"f3of_decay_{tag}", (text.replace("[hydro]", f'[hydro]\nradiation = "{rad}"', 1),), 21,
                         "F3OF, flap 1 released from 10 deg, base held, dt 0.02 s, 200 s"))
@@ -255,6 +278,20 @@ class LoopClock:
         driver.run = timed
 
 
+def _input_copies(text: str, folder: Path) -> str:
+    """``text`` with each ``file = "..."`` it names (the MoorDyn files) copied into ``folder`` and
+    named there: MoorDyn writes its outputs and log beside its input file, in the run's temporary
+    folder rather than the repository."""
+    folder.mkdir(parents=True, exist_ok=True)
+
+    def copy(m: re.Match) -> str:
+        source = Path(m.group(1))
+        target = folder / source.name
+        shutil.copyfile(source, target)
+        return f'file = "{target}"'
+    return re.sub(r'(?m)^file = "([^"]+)"', copy, text)
+
+
 def run_case(case: Case, work: Path, clock: LoopClock) -> dict:
     """Every run of ``case`` (a first short run of two exchanges warms the caches, numba and the
     imports) and its floor on the first scene."""
@@ -265,6 +302,7 @@ def run_case(case: Case, work: Path, clock: LoopClock) -> dict:
     wall = sim = steps = hydro = cpu = 0.0
     floor = None
     for i, text in enumerate(case.scenes):
+        text = _input_copies(text, work / case.name)
         path, short = work / f"{case.name}_{i}.toml", work / f"{case.name}_{i}_short.toml"
         path.write_text(text)
         scene, _ = load_scene(path)

@@ -304,6 +304,9 @@ class MoorDynSystem:
         # where each coupled entity's force goes: scene body index in `names`
         self._body_out = np.array([self.names.index(n) for n in spec.bodies], int)
         self._point_out = np.array([self.names.index(n) for n in spec.points], int)
+        # each coupled body a different scene body (the usual file): its force is placed, not summed
+        self._bodies_distinct = len(set(spec.bodies)) == len(spec.bodies)
+        self._nb6 = 6 * len(spec.bodies)
         self.n_lines = layout.lines
         self.loads = np.zeros((len(self.names), 6))
         self.initial_loads = np.zeros((len(self.names), 6))
@@ -327,22 +330,33 @@ class MoorDynSystem:
         p = pose[self._point_rows]
         return p[:, :3] + np.einsum("pij,pj->pi", rotation_xyz(p[:, 3:]), self._point_local)
 
-    def _coupled(self, pose: np.ndarray) -> np.ndarray:
-        return np.concatenate([pose[self._body_rows].reshape(-1), self._points(pose).reshape(-1)])
+    def _coupled(self, pose: np.ndarray, points: np.ndarray | None = None) -> np.ndarray:
+        """MoorDyn's coupled state for body poses (B, 6): the coupled bodies' poses, then the coupled
+        points' positions (``points``, from :meth:`_points`, when already computed)."""
+        bodies = pose[self._body_rows].reshape(-1)
+        if not len(self._point_rows):
+            return bodies
+        return np.concatenate([bodies, (self._points(pose) if points is None else points).reshape(-1)])
 
-    def _to_bodies(self, f: np.ndarray, pose: np.ndarray, point_accel: np.ndarray | None = None) -> np.ndarray:
+    def _to_bodies(self, f: np.ndarray, pose: np.ndarray, point_accel: np.ndarray | None = None,
+                   points: np.ndarray | None = None) -> np.ndarray:
         """MoorDyn's coupled forces -> (len(names), 6) loads about the bodies' reference points; a
-        coupled point's force less its mass matrix times ``point_accel`` (module docstring)."""
+        coupled point's force less its mass matrix times ``point_accel`` (module docstring).
+        ``points``: the coupled points' positions at ``pose`` when already computed."""
         out = np.zeros((len(self.names), 6))
-        nb = len(self._body_rows)
-        if nb:
-            np.add.at(out, self._body_out, f[:6 * nb].reshape(nb, 6))
+        nb6 = self._nb6
+        if nb6:
+            if self._bodies_distinct:
+                out[self._body_out] = f[:nb6].reshape(-1, 6)
+            else:
+                np.add.at(out, self._body_out, f[:nb6].reshape(-1, 6))
         if len(self._point_rows):
-            fp = f[6 * nb:].reshape(-1, 3)
+            fp = f[nb6:].reshape(-1, 3)
             if point_accel is not None:
-                import moordyn
-                fp = fp - np.einsum("pij,pj->pi", np.array([moordyn.GetPointM(p) for p in self._cpoints]), point_accel)
-            r = self._points(pose) - pose[self._point_rows, :3]
+                import cmoordyn
+                m = np.array([cmoordyn.point_get_m(p) for p in self._cpoints])
+                fp = fp - np.einsum("pij,pj->pi", m, point_accel)
+            r = (self._points(pose) if points is None else points) - pose[self._point_rows, :3]
             np.add.at(out, self._point_out, np.hstack([fp, np.cross(r, fp)]))
         return out
 
@@ -471,24 +485,27 @@ class MoorDynSystem:
     def step(self, t0: float, dt: float, pose0: np.ndarray, pose1: np.ndarray) -> np.ndarray:
         """Advance MoorDyn over [t0, t0 + dt] with the bodies moving linearly from ``pose0`` to
         ``pose1`` (B, 6); returns the loads at t0 + dt (and keeps them in ``loads``)."""
-        import moordyn
+        import cmoordyn        # moordyn.Step is this call with its lists copied once more
         x0 = self._coupled(pose0)
-        v = (self._coupled(pose1) - x0) / dt
+        points1 = self._points(pose1) if len(self._point_rows) else None
+        v = (self._coupled(pose1, points1) - x0) / dt
         try:
             with self._quiet():
-                f = moordyn.Step(self.instance, x0.tolist(), v.tolist(), t0, dt)
+                f = cmoordyn.step(self.instance, x0.tolist(), v.tolist(), t0, dt)
         except (RuntimeError, ValueError) as exc:
             raise self._fail(str(exc)) from None
-        f = np.asarray(f, float)
+        f = np.array(f, float)
         if not np.isfinite(f).all():
             raise self._fail("MoorDyn returned non-finite forces")
         self.steps += 1
         if self.steps % 4096 == 0:
             self._quiet.clear()
-        vp = v[6 * len(self._body_rows):].reshape(-1, 3)
-        accel = (vp - self._point_velocity) / dt
-        self._point_velocity = vp
-        self.loads = self._to_bodies(f, pose1, accel)
+        accel = None
+        if points1 is not None:
+            vp = v[self._nb6:].reshape(-1, 3)
+            accel = (vp - self._point_velocity) / dt
+            self._point_velocity = vp
+        self.loads = self._to_bodies(f, pose1, accel, points1)
         return self.loads
 
     def save(self) -> tuple[bytes, np.ndarray, np.ndarray]:
@@ -505,15 +522,15 @@ class MoorDynSystem:
         """MoorDyn's own tension at each line's fairlead end (N): the tension of the line's end
         segment, the number MoorDyn's ``GetLineFairTen`` and its output channels give (FairTen;
         AnchTen for a line written from its fairlead down)."""
-        import moordyn
-        return np.array([math.hypot(*moordyn.GetLineNodeTen(line, k)) for line, k in zip(self._lines, self._fairlead)])
+        from cmoordyn import line_get_node_ten
+        return np.array([math.hypot(*line_get_node_ten(line, k)) for line, k in zip(self._lines, self._fairlead)])
 
     def end_forces(self) -> np.ndarray:
         """Magnitude of the force each line's fairlead end node passes on to what it is attached to
         (N): the end segment's tension plus the node's own weight, buoyancy, drag and seabed
         contact (half a segment's): the line's pull on its fairlead point."""
-        import moordyn
-        return np.array([math.hypot(*moordyn.GetLineNodeForce(line, k)) for line, k in zip(self._lines, self._fairlead)])
+        from cmoordyn import line_get_node_force
+        return np.array([math.hypot(*line_get_node_force(line, k)) for line, k in zip(self._lines, self._fairlead)])
 
     def node_positions(self, n_nodes: int) -> np.ndarray:
         """(lines, n_nodes, 3) node positions from the anchor end, NaN past a line's last node."""

@@ -308,9 +308,9 @@ class MooringSet:
     # -- MoorDyn ---------------------------------------------------------------------------------
     def _set_moordyn_loads(self, mbs, k: int) -> None:
         set_load = mbs.SetLoadParameter
-        for (lf, lt), f in zip(self.moordyn_loads[k], self.moordyn[k].loads.tolist()):
-            set_load(int(lf), "loadVector", f[:3])
-            set_load(int(lt), "loadVector", f[3:])
+        for (lf, lt), f in zip(self.moordyn_loads[k].tolist(), self.moordyn[k].loads.tolist()):
+            set_load(lf, "loadVector", f[:3])
+            set_load(lt, "loadVector", f[3:])
 
     def start_moordyn(self, mbs, pose: np.ndarray) -> None:
         """Initialise every MoorDyn system at the bodies' poses (B, 6) and set its loads at t = 0."""
