@@ -96,6 +96,7 @@ class ForceServer:
     _local_reply: tuple[dict, float | None] | None = None   # polled: the caller's deferred reply, until taken
     _direct: DirectListener | None = None   # polled: the controllers' direct channel (SPEC §5.7.5)
     _poller: zmq.Poller | None = None       # polled with a direct channel: the socket, the listener, its links
+    _poller_links = -1                      # the listener's ``version`` (its links) the poller was built over
     _next_sweep = 0.0   # polled: when serve_once next expires idle sessions
 
     def __init__(self, bind: str | None, *, context: zmq.Context | None = None, session_timeout: float = 300.0,
@@ -284,8 +285,7 @@ class ForceServer:
         a flood on the socket delays the run's step by that many, never holds it. The direct
         connections are read too (what has arrived on them, never waiting)."""
         if self._direct is not None:
-            if self._direct.expire(time.monotonic()):
-                self._poller = None
+            self._direct.expire(time.monotonic())
             self._serve_direct(self._direct.ready_now())
         for _ in range(MAX_QUEUED):
             if not self._sock.ready():
@@ -317,8 +317,8 @@ class ForceServer:
         if self._paced:
             self._send_due()
         now = time.monotonic()
-        if self._direct is not None and self._direct.expire(now):   # connections without a ticket in time
-            self._poller = None
+        if self._direct is not None:   # connections without a ticket in time closed
+            self._direct.expire(now)
         if self._hubs:
             for hub in list(self._hubs.values()):
                 if hub.next_deadline() <= now:
@@ -359,10 +359,10 @@ class ForceServer:
 
     def _direct_ready(self, ms: int) -> dict:
         """What is readable within ``ms``: the ZeroMQ socket, the direct listener, its connections
-        (one poll, rebuilt only when a connection came or went)."""
-        if self._direct.prune():
-            self._poller = None
-        if self._poller is None:
+        (one poll, rebuilt only when a connection came or went: however it was found gone)."""
+        self._direct.prune()   # a link closed since (a failed write) forgotten
+        if self._poller_links != self._direct.version:
+            self._poller_links = self._direct.version
             self._poller = zmq.Poller()
             for item in (self._sock.socket, self._direct.fileno(), *(link.fileno() for link in self._direct.links)):
                 self._poller.register(item, zmq.POLLIN)
@@ -385,10 +385,9 @@ class ForceServer:
                         self._send(link.route, reply, self._hold)
             except OSError as exc:   # ConnectionError included: closed, or broke the framing
                 self._direct.drop(link, str(exc))
-                self._poller = None
         if self._direct.fileno() in ready:
             while self._direct.accept() is not None:
-                self._poller = None
+                pass
 
     def _receive(self) -> None:
         """Receive one message, bounded (SPEC §1: the front end's recv), and answer it. A
@@ -861,6 +860,8 @@ class ForceServer:
         """Wait for the next request or a worker's answer (whichever comes first) and handle it."""
         poller = zmq.Poller()
         poller.register(self._sock.socket, zmq.POLLIN)
+        if self._direct is not None:
+            self._direct.prune()   # a link closed since (a failed write): its descriptor not polled
         direct = () if self._direct is None else (self._direct.fileno(), *(link.fileno() for link in self._direct.links))
         for fd in (*self._flying, *direct):
             poller.register(fd, zmq.POLLIN)
