@@ -249,7 +249,6 @@ def serve(bind: str, session_timeout: float, cpu: int | None, curve_secret: Path
     from hydrolink.protocol import codec
     from hydrolink.protocol.security import CurveKeyError
     from hydrolink.server.hdb.store import ContentStore, default_folder
-    from hydrolink.server.processes import start_children
     from hydrolink.server.service.direct import DirectError
     from hydrolink.server.service.force_server import BindError, ForceServer
 
@@ -273,7 +272,6 @@ def serve(bind: str, session_timeout: float, cpu: int | None, curve_secret: Path
         error = _UserError(f"--direct-port: {exc}")
         error.exit_code = 2
         raise error from None
-    start_children()   # the forkserver of HDB parses and session workers, importing beside the loop
     import gc
     gc.collect()
     gc.freeze()   # the start-up's ~100,000 objects (modules) out of later collections: a full one during a

@@ -2,8 +2,11 @@
 (server/hdb/isolated.py) and the session workers (server/service/step_worker.py): a fork of a
 process that has imported the readers and the model once, so a child costs a fork, not an import.
 
-``hydrolink serve`` starts it with the server (:func:`start_children`): the first corrupt upload or
-heavy session then does not wait for those imports.
+It is started when a child is first needed, ahead of the child when it can be told to come
+(:func:`start_children`, which does not wait for its imports): at an ``upload`` (a file-set hello
+follows) and at a hello holding a file set (its missing files are uploaded, or its parse comes next).
+A ``hydrolink serve`` that never parses a file set nor starts a session worker never starts it: its
+imports (about 2 s of CPU) are not paid by every server, nor compete with its first set-up.
 """
 
 from __future__ import annotations
@@ -26,7 +29,8 @@ def children():
 
 
 def start_children() -> None:
-    """Start the forkserver now (it imports :data:`PRELOAD` in its own process, not in this one)."""
+    """Start the forkserver now if it is not running (it imports :data:`PRELOAD` in its own
+    process, not in this one; this returns at once, and the first child waits for the imports)."""
     children()
     with _lock:
         multiprocessing.forkserver.ensure_running()

@@ -33,6 +33,7 @@ from hydrolink.server.service.controllers import ControlHub, join_token, token_m
 from hydrolink.server.errors import ModelError
 from hydrolink.server.hdb.file_set import FileSetReader
 from hydrolink.server.hdb.store import HASH, ContentStore, ContentTooLarge, default_folder
+from hydrolink.server.processes import start_children
 from hydrolink.server.service import frontend
 from hydrolink.server.service.direct import DirectError, DirectListener, DirectRoute
 from hydrolink.server.service.local_step import LocalStep
@@ -1036,7 +1037,9 @@ class ForceServer:
         return self._controller_request("command", msg, msg_id, session)
 
     def _upload(self, msg: dict, msg_id: Any, session: str | None) -> tuple[str, dict, str | None]:
-        """One content into the HDB store (SPEC §5.8): checked against its SHA-256, bounded."""
+        """One content into the HDB store (SPEC §5.8): checked against its SHA-256, bounded. The
+        file-set hello that follows parses it in a child: their forkserver started now."""
+        start_children()
         data = codec.require(msg, "data")
         if not isinstance(data, (bytes, bytearray, memoryview)):
             raise ProtocolError(Code.BAD_VALUE, "data", f"must be bin (the file's bytes), got {codec.describe(data)}")
