@@ -148,6 +148,36 @@ def test_serve_direct_port_is_offered_and_one_in_use_is_one_clear_line(tmp_path:
     assert bound.returncode == 2 and bound.stderr == f"Error: --bind: cannot listen on {address}: Address already in use\n"
 
 
+def _children(pid: int) -> set[int]:
+    """The live child processes of ``pid``."""
+    return {int(c) for task in Path(f"/proc/{pid}/task").iterdir() for c in (task / "children").read_text().split()}
+
+
+def test_serve_starts_its_parse_forkserver_only_when_a_file_set_comes(scene_dir: Path):
+    """`serve` does not start the forkserver of HDB parses and session workers with the server (its
+    imports, ~2 s of CPU, were paid by every serve and slowed its first set-up): a session whose HDB
+    comes as a map leaves serve without a child; a hello holding a file set starts it (the server
+    asks for the missing file, the client uploads it, its parse in a child of the forkserver), and
+    the session it sets up steps."""
+    from hydrolink.clients.lockstep.connection import ServerConnection
+    from hydrolink.server.hdb.io import file_set, load_hdb
+
+    scene = sphere_scene()
+    store = scene_dir / "store"
+    with serve_process("--store", str(store), cwd=scene_dir) as address:
+        (pid,) = [c for c in _children(os.getpid()) if str(store).encode() in Path(f"/proc/{c}/cmdline").read_bytes()]
+        x = np.zeros((1, 6))
+        with ServerConnection(address, timeout=EXIT_S) as conn:   # a fresh serve's first set-up: seconds under load
+            conn.hello(scene, {"sphere.h5": load_hdb(scene_dir / "sphere.h5")})
+            conn.step(0, 0.0, x, x)
+        assert _children(pid) == set()
+        with ServerConnection(address, timeout=EXIT_S) as conn:
+            conn.hello(scene, {"sphere.h5": file_set(scene_dir / "sphere.h5")})
+            assert len(conn.uploads) == 1   # asked for (error 13), uploaded, parsed in a child
+            conn.step(0, 0.0, x, x)
+        assert _children(pid)   # the forkserver (and multiprocessing's resource tracker)
+
+
 def test_bad_scene_is_one_clear_line(scene_dir: Path):
     write_scene(scene_dir, sphere_scene(mass=-1.0), "bad.toml")
     result = _cli_here("run", "bad.toml", cwd=scene_dir)
