@@ -5,8 +5,11 @@ process that has imported the readers and the model once, so a child costs a for
 It is started when a child is first needed, ahead of the child when it can be told to come
 (:func:`start_children`, which does not wait for its imports): at an ``upload`` (a file-set hello
 follows) and at a hello holding a file set (its missing files are uploaded, or its parse comes next).
-A ``hydrolink serve`` that never parses a file set nor starts a session worker never starts it: its
-imports (about 2 s of CPU) are not paid by every server, nor compete with its first set-up.
+``hydrolink serve`` also starts it WARM_CHILDREN_S after its loop started, once no set-up runs
+(ForceServer ``children_after_s``): its imports (about 2 s of CPU, 2-4 s of wall clock at load 7)
+do not compete with the server's start and first hellos, a serve that lives less never pays
+them, and a long-lived server parses a stranger's first file set without waiting for
+them (its 10 s goal; started at the upload instead, the first corrupt file set took 18 s at load 9).
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ import threading
 
 PRELOAD = ("hydrolink.server.hdb.io", "hydrolink.server.service.step_worker")   # imported once, by name
 
+WARM_CHILDREN_S = 2.0   # s after hydrolink serve's loop starts: the forkserver started if nothing needed it yet
 _lock = threading.Lock()   # set_forkserver_preload and the first start are process-wide
 
 

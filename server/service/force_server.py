@@ -106,7 +106,8 @@ class ForceServer:
                  max_setups: int = MAX_SETUPS, max_sessions: int = MAX_SESSIONS,
                  plant_builder: PlantBuilder | None = None, max_memory_bytes: int | None = None,
                  isolate_step_s: float = ISOLATE_STEP_S, max_workers: int = MAX_WORKERS,
-                 step_timeout: float = STEP_TIMEOUT, polled: bool = False, direct_port: int | None = None):
+                 step_timeout: float = STEP_TIMEOUT, polled: bool = False, direct_port: int | None = None,
+                 children_after_s: float | None = None):
         """``bind=None`` makes an in-process server without a socket: clients in the same process
         call :meth:`respond` with the same frames a socket would carry (see ServerConnection).
 
@@ -138,7 +139,12 @@ class ForceServer:
         --direct-port``) on the host of a ``tcp://`` ``bind``, loopback included; DirectError (the
         socket released) when it cannot be bound; unused with CURVE (no direct channel: a log
         line). None: a free port, or a Unix socket on loopback, and no channel (a log line) when it
-        cannot be had."""
+        cannot be had.
+
+        ``children_after_s``: the forkserver of HDB parses and session workers (server/processes.py)
+        is started when first needed, and, with a loop of its own, also this long after the loop
+        started once no set-up runs (``hydrolink serve``: WARM_CHILDREN_S), so that a stranger's
+        first file set is not parsed behind its imports; None: only when needed."""
         self.polled, self.plant_builder = bool(polled), plant_builder
         # the bytes the open sessions' models may hold together (None: unbounded, as in-process)
         self.memory = MemoryBudget(int(max_memory_bytes)) if max_memory_bytes is not None else None
@@ -183,6 +189,8 @@ class ForceServer:
         self._worker_slots = WorkerSlots(max_workers)
         self._flying: dict[int, WorkerSession] = {}   # a worker's pipe -> its session, while it computes
         self._hold: float | None = None   # release time of the reply being handled (paced session)
+        self.children_after_s = children_after_s
+        self._children_at = math.inf   # when the loop starts the forkserver if nothing has needed it (monotonic)
 
     def _bind(self, bind: str, context: zmq.Context | None, polled: bool, curve_secret: str | None,
               curve_clients: str | None, max_message_bytes: int, direct_port: int | None) -> None:
@@ -258,6 +266,8 @@ class ForceServer:
             raise RuntimeError("an in-process or polled server has no loop thread: call respond() (and, polled, "
                                "serve_once())")
         next_sweep = time.monotonic()
+        if self.children_after_s is not None:
+            self._children_at = next_sweep + self.children_after_s
         self._running = True
         lines = limit_lines(self._log_limit)   # every log line of this loop (and its set-ups) bounded a minute
         try:
@@ -328,6 +338,9 @@ class ForceServer:
         if self._flying:
             self._check_flights(now)
         if now >= next_sweep:
+            if now >= self._children_at and not self._setups:   # after the start-up and its first set-ups
+                self._children_at = math.inf
+                start_children()
             self._expire(now)
             next_sweep = now + min(1.0, self.session_timeout / 4)
         return next_sweep
