@@ -16,7 +16,13 @@ machine; the median of ``--repeat`` runs is printed, with the load average befor
 - ``control`` (+ its ``run``): the sphere on a linear PTO to ground, driven by
   examples/controllers/passive.py in a ``hydrolink control`` process joining the run's own server
   (``hydrolink run --listen``), 10 steps; both processes' CPU.
-- ``import cli``: ``python -c "import hydrolink.clients.cli"``, the module every command loads.
+- ``import cli``: ``python -c "import hydrolink.clients.cli"``, the module every command loads;
+- ``serve's children``: the CPU of the ``serve`` process's children (the forkserver of HDB parses
+  and session workers, with what it reaped; multiprocessing's resource tracker) while it answered
+  that run, read from /proc before it is stopped (they outlive it unreaped, so ``wait4`` misses them);
+- ``serve: first welcome``: wall seconds from starting ``hydrolink serve`` to the ``welcome`` of a
+  hello of the sphere (its HDB as a map) sent as soon as it listens, and the hello's own round trip
+  (wall clock: noisy under load, compare interleaved runs only).
 
 ``--tree DIR`` (repeatable) measures the hydrolink of each DIR (a folder holding a ``hydrolink``
 package, e.g. ``git archive 58bba31`` unpacked into DIR/hydrolink; put first on PYTHONPATH),
@@ -26,6 +32,7 @@ interleaved command by command: an A/B comparison under the same load.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import re
 import secrets
@@ -86,20 +93,68 @@ def run_cpu(folder: Path) -> dict[str, float]:
     return {"run": _reap(proc)}
 
 
-def served_cpu(folder: Path) -> dict[str, float]:
+def _children_cpu(pid: int) -> float:
+    """CPU seconds of the live children of ``pid`` (user + system, with what each has reaped)."""
+    tick = os.sysconf("SC_CLK_TCK")
+    kids = set()
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        kids.update((task / "children").read_text().split())
+    total = 0
+    for kid in kids:
+        try:
+            fields = Path(f"/proc/{kid}/stat").read_text().rsplit(")", 1)[1].split()
+        except FileNotFoundError:
+            continue
+        total += sum(int(f) for f in fields[11:15])   # utime stime cutime cstime
+    return total / tick
+
+
+def _listening(serve: subprocess.Popen) -> str:
+    line = serve.stderr.readline()
+    match = re.search(r"listening on (tcp://\S+)", line)
+    if not match:
+        raise RuntimeError(f"hydrolink serve printed {line!r}")
+    return match.group(1)
+
+
+def first_reply(folder: Path) -> dict[str, float]:
+    """Wall seconds from ``hydrolink serve``'s start to its first welcome (a hello sent as soon as it
+    listens), and that hello's round trip."""
+    import time
+
+    from hydrolink.clients.lockstep.connection import ServerConnection
+    from hydrolink.clients.scene_inputs import load_scene_hdbs
+    from hydrolink.protocol.scene import parse_scene
+
+    hdbs = load_scene_hdbs(parse_scene(SCENE), folder / "scene.toml", progress=False)
+    t0 = time.perf_counter()
     serve = subprocess.Popen([*HYDROLINK, "serve", "--bind", "tcp://127.0.0.1:*"], cwd=folder,
                              stderr=subprocess.PIPE, text=True)
     try:
-        line = serve.stderr.readline()
-        match = re.search(r"listening on (tcp://\S+)", line)
-        if not match:
-            raise RuntimeError(f"hydrolink serve printed {line!r}")
-        client = subprocess.Popen([*HYDROLINK, "run", "scene.toml", "-o", "served.nc", "--server", match.group(1)],
-                                  cwd=folder, stdout=subprocess.DEVNULL)
-        run = _reap(client)
+        address = _listening(serve)
+        t1 = time.perf_counter()
+        with ServerConnection(address, timeout=TIMEOUT_S) as conn:
+            conn.hello(SCENE, hdbs)
+            t2 = time.perf_counter()
+            conn.bye()
     finally:
         serve.terminate()
-    return {"serve (one run)": _reap(serve), "run --server": run}
+        _reap(serve)
+    return {"serve: first welcome (wall s)": t2 - t0, "serve: its hello (wall s)": t2 - t1}
+
+
+def served_cpu(folder: Path) -> dict[str, float]:
+    serve = subprocess.Popen([*HYDROLINK, "serve", "--bind", "tcp://127.0.0.1:*"], cwd=folder,
+                             stderr=subprocess.PIPE, text=True)
+    children = math.nan
+    try:
+        client = subprocess.Popen([*HYDROLINK, "run", "scene.toml", "-o", "served.nc", "--server", _listening(serve)],
+                                  cwd=folder, stdout=subprocess.DEVNULL)
+        run = _reap(client)
+        children = _children_cpu(serve.pid)
+    finally:
+        serve.terminate()
+    return {"serve (one run)": _reap(serve), "serve's children": children, "run --server": run}
 
 
 def control_cpu(folder: Path) -> dict[str, float]:
@@ -123,6 +178,7 @@ def main() -> None:
     parser.add_argument("--tree", type=Path, action="append",
                         help="A folder holding a hydrolink package to measure (repeatable: interleaved A/B).")
     parser.add_argument("--keep", type=Path, help="Folder to run in (kept); default a temporary one.")
+    parser.add_argument("--only", help="Comma-separated measures of help, import, run, served, first, control.")
     args = parser.parse_args()
     folder = args.keep or Path(tempfile.mkdtemp(prefix="hydrolink-startup-"))
     folder.mkdir(parents=True, exist_ok=True)
@@ -133,9 +189,11 @@ def main() -> None:
     load_before = os.getloadavg()
     samples: dict[str, list[float]] = {}
     trees = args.tree or [None]
+    measures = [m for m in (help_cpu, import_cpu, run_cpu, served_cpu, first_reply, control_cpu)
+                if args.only is None or m.__name__.split("_")[0] in args.only.split(",")]
     try:
         for _ in range(args.repeat):     # interleaved, so a change of load touches every command alike
-            for measure in (help_cpu, import_cpu, run_cpu, served_cpu, control_cpu):
+            for measure in measures:
                 for tree in trees:
                     if tree is not None:
                         os.environ["PYTHONPATH"] = str(tree)

@@ -249,7 +249,7 @@ def serve(bind: str, session_timeout: float, cpu: int | None, curve_secret: Path
     from hydrolink.protocol import codec
     from hydrolink.protocol.security import CurveKeyError
     from hydrolink.server.hdb.store import ContentStore, default_folder
-    from hydrolink.server.processes import start_children
+    from hydrolink.server.processes import WARM_CHILDREN_S
     from hydrolink.server.service.direct import DirectError
     from hydrolink.server.service.force_server import BindError, ForceServer
 
@@ -262,7 +262,7 @@ def serve(bind: str, session_timeout: float, cpu: int | None, curve_secret: Path
                              else max_message_mib * 2**20, max_setups=max_setups, max_sessions=max_sessions,
                              max_memory_bytes=(max_memory_mib or default_memory_mib()) * 2**20,
                              isolate_step_s=isolate_step_ms / 1e3, max_workers=max_workers,
-                             plant_builder=_build_plant, direct_port=direct_port)
+                             plant_builder=_build_plant, direct_port=direct_port, children_after_s=WARM_CHILDREN_S)
     except CurveKeyError as exc:
         raise _UserError(str(exc)) from None
     except BindError as exc:     # --bind in use or not this host's: one line, status 2 (a bad option)
@@ -273,7 +273,6 @@ def serve(bind: str, session_timeout: float, cpu: int | None, curve_secret: Path
         error = _UserError(f"--direct-port: {exc}")
         error.exit_code = 2
         raise error from None
-    start_children()   # the forkserver of HDB parses and session workers, importing beside the loop
     import gc
     gc.collect()
     gc.freeze()   # the start-up's ~100,000 objects (modules) out of later collections: a full one during a

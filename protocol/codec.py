@@ -27,11 +27,14 @@ PROTOCOL_VERSION = 1
 SUPPORTED_VERSIONS = (1,)
 MAX_MESSAGE_BYTES = 64 * 2**20        # default: all frames of a message together (SPEC §1; serve --max-message-mib)
 FRAME_CAP_FACTOR = 2                  # a frame over this many times the limit is refused by ZeroMQ (SPEC §1)
-MAX_DECODED_CONTAINERS = 2**16       # maps and lists in one decoded message (SPEC §2)
-MAX_DECODED_ITEMS = 2**18             # their entries (list items, map keys and values) in one decoded message
-SMALL_FRAME = 32 * 2**10              # a frame this small decodes without counting (at most ~64 B an input byte)
+MAX_DECODED_CONTAINERS = 2**14       # maps and lists in one decoded message (SPEC §2; revision 1.19, was 2**16)
+MAX_DECODED_ITEMS = 2**16             # their entries (list items, map keys and values) in one decoded message (was
+                                      # 2**18): what a refused message makes first holds the loop (~0.15 µs each)
+SMALL_FRAME = 16 * 2**10              # a frame this small decodes without counting (as many objects as bytes at most:
+                                      # within MAX_DECODED_CONTAINERS; was 32 KiB)
 FEW_OBJECTS = 2**14                   # a larger frame of at most this many objects decodes without counting
-MANY_OBJECTS_BYTES = 2 * 2**20        # a frame of more objects is at most this large (its lists' slots: 8 B a byte)
+MANY_OBJECTS_BYTES = 2**20            # a frame of more objects is at most this large (was 2 MiB; nil: a list slot, no object)
+METER_BYTES = 16 * 2**10              # a many-object frame's decoding checks what it made every this many bytes
 MAX_ROUTING_FRAMES = 8
 MAX_ROUTING_FRAME_BYTES = 255         # a ZeroMQ routing identity's limit
 DIRECT_HEADER = struct.Struct("<I")   # a direct channel frame's length, little-endian (SPEC §5.7.5)
@@ -298,7 +301,7 @@ def _counted_unpackb(frame, max_bytes: int) -> Any:
     """msgpack's decoding with SPEC §2's bounds, for a frame of many objects (``_few_objects`` said
     no): no str/bin over the frame's own size, at most MAX_DECODED_CONTAINERS maps and lists and
     MAX_DECODED_ITEMS entries (a map's counting two, key and value), counted as each container
-    completes, and the objects made so far metered every 64 KiB read (:class:`_Metered`: lists
+    completes, and the objects made so far metered every METER_BYTES read (:class:`_Metered`: lists
     nested in lists not yet complete), of at most MANY_OBJECTS_BYTES read (what such lists hold
     costs 8 B a byte read, singletons such as nil too); _TooMany past a bound. Python's cyclic garbage collector is
     paused meanwhile: it would walk every container made so far, again and again (2 million empty
@@ -325,7 +328,7 @@ def _counted_unpackb(frame, max_bytes: int) -> Any:
     gc.disable()
     try:
         reader = _Metered(frame, MAX_DECODED_ITEMS + MAX_DECODED_CONTAINERS)
-        unpacker = msgpack.Unpacker(reader, read_size=2**16, max_buffer_size=max(max_bytes, 2**16), raw=False,
+        unpacker = msgpack.Unpacker(reader, read_size=METER_BYTES, max_buffer_size=max(max_bytes, METER_BYTES), raw=False,
                                     strict_map_key=True, list_hook=listed, object_hook=mapped,
                                     max_str_len=max_bytes, max_bin_len=max_bytes, max_ext_len=max_bytes,
                                     max_array_len=MAX_DECODED_ITEMS, max_map_len=MAX_DECODED_ITEMS // 2)

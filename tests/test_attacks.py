@@ -157,15 +157,15 @@ def test_a_hello_over_the_limit_gets_error_1_naming_the_servers_limit(served, vi
 # ------------------------------------------------------------------ 2: decoding bounded
 
 def test_a_ping_of_millions_of_empty_lists_is_refused_by_its_count(served, victim):
-    """Issue 35 item 2 (a 60 MiB ping of 63 million empty lists: +4.3 GB, 22-29 s): a 2 MB ping of
-    2 million empty lists in 8 lists (within the message limit) is refused with error 1 naming the
+    """Issue 35 item 2 (a 60 MiB ping of 63 million empty lists: +4.3 GB, 22-29 s): a 480 kB ping
+    of 480,000 empty lists in 8 lists (within the message limit) is refused with error 1 naming the
     bound on decoded maps and lists, one of 63 million in one list from its header; the other
     session steps."""
     srv = served(max_message_bytes=4 * LIMIT)
     v = victim(srv)
     sock = dealer(srv.address)
     try:
-        n = 250_000   # 8 lists of 250,000 empty lists
+        n = 60_000   # 8 lists of 60,000 empty lists (each list within MAX_DECODED_ITEMS, its header read)
         sock.send(_ping_with(b"\xdc\x00\x08" + (b"\xdd" + n.to_bytes(4, "big") + b"\x90" * n) * 8))
         _is_error(_recv(sock), 1, "decoded_containers", codec.MAX_DECODED_CONTAINERS)
         v.step()
@@ -175,6 +175,41 @@ def test_a_ping_of_millions_of_empty_lists_is_refused_by_its_count(served, victi
         v.step()
     finally:
         sock.close(0)
+
+
+def test_strings_nested_deep_are_refused_after_the_same_work_whatever_their_number(served, victim, monkeypatch):
+    """Issue 35 item 2, ``deep`` (20 million 2-character strings in lists nested 1000 deep: no list
+    complete, so only the metered reader sees them; it held the loop 52 ms of CPU): the decoding
+    stops once the objects made pass the bound (MAX_DECODED_ITEMS + MAX_DECODED_CONTAINERS), seen
+    within METER_BYTES of it, so the bytes read before the refusal are the same for 300,000
+    strings as for 150,000, and at most the bound's strings (3 bytes each) plus one read. Each
+    is error 1 naming ``decoded_items``; the other session steps between them."""
+    read_to: list[int] = []
+    metered_read = codec._Metered.read
+
+    def read(self, n):
+        try:
+            return metered_read(self, n)
+        finally:
+            read_to.append(self.pos)
+
+    monkeypatch.setattr(codec._Metered, "read", read)
+    bound = codec.MAX_DECODED_ITEMS + codec.MAX_DECODED_CONTAINERS
+    srv = served()
+    v = victim(srv)
+    sock = dealer(srv.address)
+    stopped = []
+    try:
+        for depth in (150, 300):   # 1,000 strings a level: 450 kB and 900 kB (the limit: 1 MiB)
+            sock.send(_ping_with(b"".join(b"\xdd" + (1000 + (i < depth - 1)).to_bytes(4, "big") + b"\xa2ab" * 1000
+                                          for i in range(depth))))
+            _is_error(_recv(sock), 1, "decoded_items", codec.MAX_DECODED_ITEMS)
+            stopped.append(read_to[-1])
+            read_to.clear()
+            v.step()
+    finally:
+        sock.close(0)
+    assert stopped[0] == stopped[1] <= 3 * bound + codec.METER_BYTES, stopped
 
 
 # ------------------------------------------------------------------ 3: padded hellos against a full server

@@ -148,6 +148,38 @@ def test_serve_direct_port_is_offered_and_one_in_use_is_one_clear_line(tmp_path:
     assert bound.returncode == 2 and bound.stderr == f"Error: --bind: cannot listen on {address}: Address already in use\n"
 
 
+def _children(pid: int) -> set[int]:
+    """The live child processes of ``pid``."""
+    return {int(c) for task in Path(f"/proc/{pid}/task").iterdir() for c in (task / "children").read_text().split()}
+
+
+def test_serve_starts_its_parse_forkserver_after_its_start_up(scene_dir: Path):
+    """`serve` does not start the forkserver of HDB parses and session workers with the server (its
+    imports, ~2 s of CPU, competed with the server's start and first set-up, and were paid by every
+    serve): none of its children exist once it listens; it starts WARM_CHILDREN_S later by itself
+    (no file set sent), so a file set's parse does not wait for its imports; a hello holding a file
+    set (asked for with error 13, uploaded, parsed in a child) sets up a session that steps."""
+    import time
+
+    from hydrolink.clients.lockstep.connection import ServerConnection
+    from hydrolink.server.hdb.io import file_set
+    from hydrolink.server.processes import WARM_CHILDREN_S
+
+    store = scene_dir / "store"
+    with serve_process("--store", str(store), cwd=scene_dir) as address:
+        (pid,) = [c for c in _children(os.getpid()) if str(store).encode() in Path(f"/proc/{c}/cmdline").read_bytes()]
+        assert _children(pid) == set()
+        deadline = time.monotonic() + WARM_CHILDREN_S + EXIT_S
+        while not _children(pid) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert _children(pid)   # the forkserver (and multiprocessing's resource tracker)
+        x = np.zeros((1, 6))
+        with ServerConnection(address, timeout=EXIT_S) as conn:
+            conn.hello(sphere_scene(), {"sphere.h5": file_set(scene_dir / "sphere.h5")})
+            assert len(conn.uploads) == 1
+            conn.step(0, 0.0, x, x)
+
+
 def test_bad_scene_is_one_clear_line(scene_dir: Path):
     write_scene(scene_dir, sphere_scene(mass=-1.0), "bad.toml")
     result = _cli_here("run", "bad.toml", cwd=scene_dir)

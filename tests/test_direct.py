@@ -136,6 +136,35 @@ def test_polled_server_answers_over_its_direct_channel_and_drops_a_wrong_ticket(
         threaded.close()
 
 
+def test_a_link_closed_by_a_failed_write_and_pruned_between_turns_leaves_the_loops_poller():
+    """A polled server's loop waits on one poller over its socket, the listener and the links,
+    rebuilt when they change. A link closed by a failed write (its controller gone) and forgotten
+    by :meth:`DirectListener.ready_now` (the server's ``_serve_ready`` before a request of the
+    run's own) is a change too: the next wait is on the live descriptors only. Before, the poller
+    kept the closed one, which poll reports at once (POLLNVAL, as POLLERR), so the loop's wait
+    returned at once on every turn (a spin), on a descriptor number the process may give to
+    another file."""
+    srv = ForceServer("tcp://127.0.0.1:*", polled=True)
+    try:
+        direct = srv._direct
+        client = connect(direct)
+        client.sendall(frame(direct.offer("own")["ticket"].encode()))
+        for _ in range(50):
+            srv.serve_once()
+            if direct.links and direct.links[0].own == "own":
+                break
+        (link,) = direct.links
+        srv._direct_ready(0)   # the poller, built over the link
+        client.close()
+        assert not link.write(b"measurements")   # the controller is gone: the link closes
+        srv._serve_ready()                       # and ready_now forgets it
+        assert direct.links == []
+        live = {srv._sock.socket, direct.fileno()}
+        assert set(srv._direct_ready(50)) <= live
+    finally:
+        srv.close()
+
+
 def test_controller_end_times_out_and_sees_a_closed_channel():
     """The controller's end of the channel (clients/control.py): shows its ticket first; a reply
     that does not come within the request's time is a TimeoutError after about that time (the

@@ -252,14 +252,14 @@ def test_objects_in_lists_not_yet_complete_are_bounded_too():
     frame within the bounds decodes as msgpack decodes it."""
     n = codec.MAX_DECODED_ITEMS
     with pytest.raises(ProtocolError) as strings:
-        codec.unpack(_ping_with(_nested(100, n // 80, b"\xa2ab")))
+        codec.unpack(_ping_with(_nested(100, n // 40, b"\xa2ab")))
     assert strings.value.extra == {"limit": "decoded_items", "maximum": n}
     with pytest.raises(ProtocolError) as nils:
         codec.unpack(_ping_with(_nested(100, codec.MANY_OBJECTS_BYTES // 90, b"\xc0")))
     assert nils.value.extra == {"limit": "many_objects_bytes", "maximum": codec.MANY_OBJECTS_BYTES}
     assert f"more than {codec.FEW_OBJECTS} msgpack objects is at most {codec.MANY_OBJECTS_BYTES} bytes" \
         in nils.value.message
-    rows = np.arange(60_000.0).reshape(10_000, 6) / 7
+    rows = np.arange(48_000.0).reshape(8_000, 6) / 7   # 56,000 entries: an array sent as lists within the bounds
     msg = codec.message("ping", "p-2", None, rows=rows.tolist(), pad=bytes(100_000))
     frame = codec.pack(msg)
     assert not codec._few_objects(frame)

@@ -27,6 +27,7 @@ from hydrolink.protocol.hdb.wire import FILE_FORMATS
 from hydrolink.server.hdb.isolated import PARSE_TIMEOUT, ParseFailure, load_isolated
 from hydrolink.protocol.hdb.layout import WARNINGS_ATTR, HDBError, hdb_warnings
 from hydrolink.server.hdb.wamit.reader import WAMIT_SUFFIXES
+from hydrolink.server.processes import start_children
 from hydrolink.server.hdb.store import HASH, ContentStore
 
 MAX_FILES = 16
@@ -131,6 +132,7 @@ class FileSetReader:
     def read(self, entry: dict, where: str, convention: str | None, wamit: dict | None = None) -> xr.Dataset:
         """The HDB of a file-set ``hdbs`` entry; ProtocolError 5/13 for the set, 9 for the files.
         ``wamit``: the scene's statement for a WAMIT run (``Scene.wamit_statement``)."""
+        start_children()   # the parse's forkserver imports while the set is checked (and its missing files come)
         fs, inline = check_file_set(entry, where, self.store)
         stated = repr(sorted((k, v) for k, v in (wamit or {}).items()     # other formats: without excitation_needed
                              if fs.format == "wamit" or k != "excitation_needed"))   # (any other key is refused)

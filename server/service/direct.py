@@ -181,6 +181,7 @@ class DirectListener:
         self.sock.listen(8)
         self.sock.setblocking(False)
         self.links: list[DirectLink] = []
+        self.version = 0                     # changed whenever ``links`` changes: a poller over them is then stale
         self._waiting: dict[DirectLink, float] = {}   # the links still without a ticket -> their deadline, oldest first
         self.closed_unticketed = 0           # connections closed for want of a ticket (the log counts them)
         self._log = LimitedLog(log)          # those closures' lines, bounded a minute (server/service/log_limit.py)
@@ -234,6 +235,7 @@ class DirectListener:
         self._count += 1
         link = DirectLink(conn, self._count, self.max_bytes, self.budget)
         self.links.append(link)
+        self.version += 1
         self._waiting[link] = time.monotonic() + TICKET_S
         self._fds.register(link.sock, select.POLLIN)
         return link
@@ -272,6 +274,8 @@ class DirectListener:
             self.links.remove(link)
             self._waiting.pop(link, None)
             self._fds.unregister(link.number)
+        if gone:
+            self.version += 1
         return bool(gone)
 
     def ready_now(self) -> set[int]:
@@ -288,6 +292,7 @@ class DirectListener:
         for link in self.links:
             link.close()
         self.links.clear()
+        self.version += 1
         self._waiting.clear()
         self.sock.close()
         if self._folder is not None:

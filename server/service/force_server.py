@@ -33,6 +33,7 @@ from hydrolink.server.service.controllers import ControlHub, join_token, token_m
 from hydrolink.server.errors import ModelError
 from hydrolink.server.hdb.file_set import FileSetReader
 from hydrolink.server.hdb.store import HASH, ContentStore, ContentTooLarge, default_folder
+from hydrolink.server.processes import start_children
 from hydrolink.server.service import frontend
 from hydrolink.server.service.direct import DirectError, DirectListener, DirectRoute
 from hydrolink.server.service.local_step import LocalStep
@@ -96,6 +97,7 @@ class ForceServer:
     _local_reply: tuple[dict, float | None] | None = None   # polled: the caller's deferred reply, until taken
     _direct: DirectListener | None = None   # polled: the controllers' direct channel (SPEC §5.7.5)
     _poller: zmq.Poller | None = None       # polled with a direct channel: the socket, the listener, its links
+    _poller_links = -1                      # the listener's ``version`` (its links) the poller was built over
     _next_sweep = 0.0   # polled: when serve_once next expires idle sessions
 
     def __init__(self, bind: str | None, *, context: zmq.Context | None = None, session_timeout: float = 300.0,
@@ -104,7 +106,8 @@ class ForceServer:
                  max_setups: int = MAX_SETUPS, max_sessions: int = MAX_SESSIONS,
                  plant_builder: PlantBuilder | None = None, max_memory_bytes: int | None = None,
                  isolate_step_s: float = ISOLATE_STEP_S, max_workers: int = MAX_WORKERS,
-                 step_timeout: float = STEP_TIMEOUT, polled: bool = False, direct_port: int | None = None):
+                 step_timeout: float = STEP_TIMEOUT, polled: bool = False, direct_port: int | None = None,
+                 children_after_s: float | None = None):
         """``bind=None`` makes an in-process server without a socket: clients in the same process
         call :meth:`respond` with the same frames a socket would carry (see ServerConnection).
 
@@ -136,7 +139,12 @@ class ForceServer:
         --direct-port``) on the host of a ``tcp://`` ``bind``, loopback included; DirectError (the
         socket released) when it cannot be bound; unused with CURVE (no direct channel: a log
         line). None: a free port, or a Unix socket on loopback, and no channel (a log line) when it
-        cannot be had."""
+        cannot be had.
+
+        ``children_after_s``: the forkserver of HDB parses and session workers (server/processes.py)
+        is started when first needed, and, with a loop of its own, also this long after the loop
+        started once no set-up runs (``hydrolink serve``: WARM_CHILDREN_S), so that a stranger's
+        first file set is not parsed behind its imports; None: only when needed."""
         self.polled, self.plant_builder = bool(polled), plant_builder
         # the bytes the open sessions' models may hold together (None: unbounded, as in-process)
         self.memory = MemoryBudget(int(max_memory_bytes)) if max_memory_bytes is not None else None
@@ -181,6 +189,8 @@ class ForceServer:
         self._worker_slots = WorkerSlots(max_workers)
         self._flying: dict[int, WorkerSession] = {}   # a worker's pipe -> its session, while it computes
         self._hold: float | None = None   # release time of the reply being handled (paced session)
+        self.children_after_s = children_after_s
+        self._children_at = math.inf   # when the loop starts the forkserver if nothing has needed it (monotonic)
 
     def _bind(self, bind: str, context: zmq.Context | None, polled: bool, curve_secret: str | None,
               curve_clients: str | None, max_message_bytes: int, direct_port: int | None) -> None:
@@ -256,6 +266,8 @@ class ForceServer:
             raise RuntimeError("an in-process or polled server has no loop thread: call respond() (and, polled, "
                                "serve_once())")
         next_sweep = time.monotonic()
+        if self.children_after_s is not None:
+            self._children_at = next_sweep + self.children_after_s
         self._running = True
         lines = limit_lines(self._log_limit)   # every log line of this loop (and its set-ups) bounded a minute
         try:
@@ -284,8 +296,7 @@ class ForceServer:
         a flood on the socket delays the run's step by that many, never holds it. The direct
         connections are read too (what has arrived on them, never waiting)."""
         if self._direct is not None:
-            if self._direct.expire(time.monotonic()):
-                self._poller = None
+            self._direct.expire(time.monotonic())
             self._serve_direct(self._direct.ready_now())
         for _ in range(MAX_QUEUED):
             if not self._sock.ready():
@@ -317,8 +328,8 @@ class ForceServer:
         if self._paced:
             self._send_due()
         now = time.monotonic()
-        if self._direct is not None and self._direct.expire(now):   # connections without a ticket in time
-            self._poller = None
+        if self._direct is not None:   # connections without a ticket in time closed
+            self._direct.expire(now)
         if self._hubs:
             for hub in list(self._hubs.values()):
                 if hub.next_deadline() <= now:
@@ -327,6 +338,9 @@ class ForceServer:
         if self._flying:
             self._check_flights(now)
         if now >= next_sweep:
+            if now >= self._children_at and not self._setups:   # after the start-up and its first set-ups
+                self._children_at = math.inf
+                start_children()
             self._expire(now)
             next_sweep = now + min(1.0, self.session_timeout / 4)
         return next_sweep
@@ -359,10 +373,10 @@ class ForceServer:
 
     def _direct_ready(self, ms: int) -> dict:
         """What is readable within ``ms``: the ZeroMQ socket, the direct listener, its connections
-        (one poll, rebuilt only when a connection came or went)."""
-        if self._direct.prune():
-            self._poller = None
-        if self._poller is None:
+        (one poll, rebuilt only when a connection came or went: however it was found gone)."""
+        self._direct.prune()   # a link closed since (a failed write) forgotten
+        if self._poller_links != self._direct.version:
+            self._poller_links = self._direct.version
             self._poller = zmq.Poller()
             for item in (self._sock.socket, self._direct.fileno(), *(link.fileno() for link in self._direct.links)):
                 self._poller.register(item, zmq.POLLIN)
@@ -385,10 +399,9 @@ class ForceServer:
                         self._send(link.route, reply, self._hold)
             except OSError as exc:   # ConnectionError included: closed, or broke the framing
                 self._direct.drop(link, str(exc))
-                self._poller = None
         if self._direct.fileno() in ready:
             while self._direct.accept() is not None:
-                self._poller = None
+                pass
 
     def _receive(self) -> None:
         """Receive one message, bounded (SPEC §1: the front end's recv), and answer it. A
@@ -861,6 +874,8 @@ class ForceServer:
         """Wait for the next request or a worker's answer (whichever comes first) and handle it."""
         poller = zmq.Poller()
         poller.register(self._sock.socket, zmq.POLLIN)
+        if self._direct is not None:
+            self._direct.prune()   # a link closed since (a failed write): its descriptor not polled
         direct = () if self._direct is None else (self._direct.fileno(), *(link.fileno() for link in self._direct.links))
         for fd in (*self._flying, *direct):
             poller.register(fd, zmq.POLLIN)
@@ -1035,7 +1050,9 @@ class ForceServer:
         return self._controller_request("command", msg, msg_id, session)
 
     def _upload(self, msg: dict, msg_id: Any, session: str | None) -> tuple[str, dict, str | None]:
-        """One content into the HDB store (SPEC §5.8): checked against its SHA-256, bounded."""
+        """One content into the HDB store (SPEC §5.8): checked against its SHA-256, bounded. The
+        file-set hello that follows parses it in a child: their forkserver started now."""
+        start_children()
         data = codec.require(msg, "data")
         if not isinstance(data, (bytes, bytearray, memoryview)):
             raise ProtocolError(Code.BAD_VALUE, "data", f"must be bin (the file's bytes), got {codec.describe(data)}")
