@@ -27,9 +27,12 @@ def _cli(*args: str, cwd: Path, env: dict | None = None) -> subprocess.Completed
                           env={**os.environ, **(env or {})})
 
 
-@pytest.fixture()
-def signed_server(tmp_path: Path):
-    """`hydrolink serve` with a key file given by HYDROLINK_KEY_FILE; yields (address, key file, log file)."""
+@pytest.fixture(scope="module")
+def signed_server(tmp_path_factory):
+    """`hydrolink serve` with a key file given by HYDROLINK_KEY_FILE; yields (address, key file, log file).
+    One server for the module's tests (each serve process costs ~4.5 s of CPU to start): each test
+    reads only the log lines written after it began."""
+    tmp_path = tmp_path_factory.mktemp("signed")
     assert _cli("keys", "hmac", "shared.key", cwd=tmp_path).returncode == 0
     log = tmp_path / "server.log"
     with open(log, "w") as fh:
@@ -62,8 +65,10 @@ def test_key_file_is_new_private_and_never_overwritten(tmp_path: Path):
         read_hmac_key(tmp_path / "short")
 
 
+@pytest.mark.xdist_group("signed_server")   # one worker: the module's server started once
 def test_signed_server_refuses_unsigned_and_wrong_key_and_logs(signed_server, tmp_path: Path):
     address, key_file, log = signed_server
+    before = len(log.read_text())       # the server is the module's: this test's lines come after
     key = read_hmac_key(key_file)
     with ServerConnection(address, timeout=REPLY_S, key=key) as conn:
         assert conn.ping()["type"] == "pong"
@@ -74,12 +79,13 @@ def test_signed_server_refuses_unsigned_and_wrong_key_and_logs(signed_server, tm
             if isinstance(err.value, RemoteError):        # unsigned: the reply is signed, the client cannot check it
                 assert err.value.code == 11
     end = time.monotonic() + 5
-    while log.read_text().count("refused a request") < 2 and time.monotonic() < end:
+    while log.read_text()[before:].count("refused a request") < 2 and time.monotonic() < end:
         time.sleep(0.05)
-    text = log.read_text()
+    text = log.read_text()[before:]
     assert "refused a request: message is not signed" in text and "refused a request: signature does not match" in text
 
 
+@pytest.mark.xdist_group("signed_server")   # one worker: the module's server started once
 def test_run_signs_with_its_key_file(signed_server, tmp_path: Path, reference_data: Path):
     address, key_file, _ = signed_server
     shutil.copy(reference_data / "sphere_task10" / "sphere.h5", tmp_path / "sphere.h5")
