@@ -17,6 +17,7 @@ from hydrolink.clients.exudyn import compiled_exchange
 from hydrolink.clients.lockstep.driver import SimulationDiverged
 from hydrolink.clients.run import run_scene_file
 from hydrolink.server.service.force_server import serve_in_thread
+from hydrolink.server.service.local_step import LocalStep
 
 MASS = 261.8e3   # the Task-10 sphere floating (rho V)
 
@@ -40,14 +41,15 @@ def sphere_scene(sphere_path: Path, tmp_path: Path) -> Path:
 
 
 def counted(monkeypatch) -> list[int]:
-    """Calls of CompiledExchange.exchange (a spy: each call goes on to the real one)."""
+    """The exchanges the compiled kernel took (a spy on LocalStep.advanced, which only the compiled
+    exchange calls: each call goes on to the real one), as exchange indices."""
     calls: list[int] = []
-    real = compiled_exchange.CompiledExchange.exchange
+    real = LocalStep.advanced
 
-    def spy(self, loop, e, s_prev):
-        calls.append(e)
-        return real(self, loop, e, s_prev)
-    monkeypatch.setattr(compiled_exchange.CompiledExchange, "exchange", spy)
+    def spy(self, seq, seconds):
+        calls.append(seq - 1)
+        return real(self, seq, seconds)
+    monkeypatch.setattr(LocalStep, "advanced", spy)
     return calls
 
 
