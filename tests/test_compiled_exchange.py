@@ -109,3 +109,32 @@ def test_compiled_exchange_stops_where_the_reference_path_does(reference_data, t
     with netCDF4.Dataset(tmp_path / "embedded.nc") as a, netCDF4.Dataset(tmp_path / "socket.nc") as b:
         assert a.dimensions["time"].size == b.dimensions["time"].size == embedded.value.rows
         assert a["position"][:].tobytes() == b["position"][:].tobytes()
+
+
+def test_steps_the_compiled_check_refuses_go_to_the_reference_path(sphere_path, tmp_path, monkeypatch):
+    """A state the compiled bounds refuse (here a velocity bound of 0.3 m/s in place of the wire's,
+    which the reference path's check then passes) ends Exudyn's step loop before that step; the
+    reference path takes the exchange and a new loop goes on: the results are still the socket
+    run's bit for bit, and both paths took steps."""
+    import dataclasses
+
+    from hydrolink.protocol.scene_bounds import MAX_COORDINATE
+
+    real = LocalStep.compiled
+
+    def tight(self):
+        step = real(self)
+        return None if step is None else dataclasses.replace(step, bounds=(MAX_COORDINATE, 0.3))
+    monkeypatch.setattr(LocalStep, "compiled", tight)
+    scene = sphere_scene(sphere_path, tmp_path)
+    calls = counted(monkeypatch)
+    embedded = run_scene_file(scene, tmp_path / "embedded.nc", progress=False)
+    remote = socket_run(scene, tmp_path / "socket.nc")
+    assert embedded.status == remote.status == "complete"
+    compiled = set(calls)
+    assert compiled and len(compiled) < embedded.steps          # some exchanges compiled, some handed off
+    with netCDF4.Dataset(tmp_path / "embedded.nc") as a, netCDF4.Dataset(tmp_path / "socket.nc") as b:
+        v = a["velocity"][:]
+        assert np.abs(v).max() > 0.3                              # the bound was passed
+        for name in ("position", "velocity", "excitation_force", "radiation_force", "hydrostatic_force"):
+            assert a[name][:].tobytes() == b[name][:].tobytes(), name
