@@ -39,6 +39,7 @@ from hydrolink.protocol.setup import IRFProcessing, Setup, StateSpaceReport
 from hydrolink.server import compiler
 from hydrolink.server.allocation import require_size
 from hydrolink.server.fused.step import FusedLinearStep, FusedRadiation
+from hydrolink.server.radiation.convolution import RadiationMemory
 from hydrolink.server.radiation.irf import irf_samples
 from hydrolink.server.rigid_body import rigid_body_mass_matrix
 from hydrolink.server.errors import ModelError
@@ -201,7 +202,11 @@ class HydroModel:
             compiled = compiler.AVAILABLE and compiler.imports()
         if not compiled or len(self._memories) > 1 or any(not isinstance(pos, slice) for pos, _ in self._memories):
             return None
-        radiation = self._memories[0][1].fused() if self._memories else FusedRadiation("none")
+        memory = self._memories[0][1] if self._memories else None
+        if isinstance(memory, RadiationMemory):   # a held body's columns left out of the convolution
+            radiation = memory.fused(self.held_dofs()[self._idx])
+        else:
+            radiation = memory.fused() if memory is not None else FusedRadiation("none")
         if self._summed:
             exc, omega, ramp = self._forcing.matrix, self.waves.omega, float(self.waves.ramp)
         else:   # by convolution: a lookup of blocks computed by FFT, added to the compiled call's sums
@@ -210,6 +215,20 @@ class HydroModel:
                                 None if self._yaw is None else self._yaw.fused_inputs())
         fused.warm_up(self.n)
         return fused
+
+    def held_dofs(self) -> np.ndarray:
+        """(n,) bool over the model's vector: the DOFs of the wet bodies the scene holds to ground
+        (a ``fixed`` joint with ``ground``), whose velocity is zero at every step. The compiled
+        step's radiation convolution leaves their columns out (they add K x 0); their force rows
+        are still computed (the results and the holding joint's reaction read them). A client
+        that reports a held body moving contradicts the scene: its velocity is not read there."""
+        held = {j.body2 if j.body1 == "ground" else j.body1 for j in self.scene.joints
+                if j.type == "fixed" and "ground" in (j.body1, j.body2)}
+        mask = np.zeros(self.n, bool)
+        for k, name in enumerate(self.bodies):
+            if name in held:
+                mask[6 * k:6 * k + 6] = True
+        return mask
 
     def fused_only(self) -> FusedLinearStep | None:
         """The compiled linear core when it is this model's whole step (the excitation a sum of
