@@ -217,17 +217,38 @@ class HydroModel:
         return fused
 
     def held_dofs(self) -> np.ndarray:
-        """(n,) bool over the model's vector: the DOFs of the wet bodies the scene holds to ground
-        (a ``fixed`` joint with ``ground``), whose velocity is zero at every step. The compiled
-        step's radiation convolution leaves their columns out (they add K x 0); their force rows
-        are still computed (the results and the holding joint's reaction read them). A client
-        that reports a held body moving contradicts the scene: its velocity is not read there."""
-        held = {j.body2 if j.body1 == "ground" else j.body1 for j in self.scene.joints
-                if j.type == "fixed" and "ground" in (j.body1, j.body2)}
+        """(n,) bool over the model's vector: the wet bodies' DOFs whose velocity the scene's joints
+        hold at zero at every step — every DOF of a body held to ground (a ``fixed`` joint with
+        ``ground``), and of a body on a ``revolute`` or ``prismatic`` joint to ground or to a held
+        body with its axis along a coordinate axis, the DOFs that joint does not free (a hinge
+        about y frees surge, heave and pitch; a slider along z, heave). The compiled step's
+        radiation convolution leaves their columns out (they add K x 0); their force rows are
+        still computed (the results and the joints' reactions read them). A client that reports
+        such a DOF moving contradicts the scene: that velocity is not read there."""
+        anchored = {"ground"} | {j.body2 if j.body1 == "ground" else j.body1 for j in self.scene.joints
+                                 if j.type == "fixed" and "ground" in (j.body1, j.body2)}
+        free = {name: np.ones(6, bool) for name in self.bodies}
+        for name in anchored & set(free):
+            free[name][:] = False
+        for j in self.scene.joints:
+            if j.type not in ("revolute", "prismatic") or j.axis is None:
+                continue
+            axis = np.abs(np.asarray(j.axis, float))
+            k = int(np.argmax(axis))
+            if not (axis[k] == 1.0 and axis.sum() == 1.0):     # an oblique axis frees a mix: none held
+                continue
+            for this, other in ((j.body1, j.body2), (j.body2, j.body1)):
+                if other in anchored and this in free and this not in anchored:
+                    joint_free = np.zeros(6, bool)
+                    if j.type == "revolute":
+                        joint_free[[d for d in range(3) if d != k]] = True
+                        joint_free[3 + k] = True
+                    else:
+                        joint_free[k] = True
+                    free[this] &= joint_free
         mask = np.zeros(self.n, bool)
-        for k, name in enumerate(self.bodies):
-            if name in held:
-                mask[6 * k:6 * k + 6] = True
+        for i, name in enumerate(self.bodies):
+            mask[6 * i:6 * i + 6] = ~free[name]
         return mask
 
     def fused_only(self) -> FusedLinearStep | None:
