@@ -84,14 +84,7 @@ def inner(case: str, warm: int, steps: int, library: str) -> None:
             _suite_floor(case[len("floor:"):], Path(tmp), toggle, last + 10)
             return
         if case == "floor":
-            ode2 = bench_lockstep.generic_ode2_us
-
-            def counted_ode2(mass, stiffness, damping, force, n_steps, dt):
-                def counted(k, q, v):
-                    toggle(k)
-                    return force(k, q, v)
-                return ode2(mass, stiffness, damping, counted, n_steps, dt)
-            bench_lockstep.generic_ode2_us = counted_ode2
+            _count_floor(toggle)
             scene.write_text(bench_lockstep.rm3_scene(duration))
             bench_lockstep.bare_exudyn_us(scene, last + 10)
             return
@@ -134,22 +127,28 @@ def _suite_scene(name: str, n_steps: int) -> str:
     return re.sub(r"(?m)^duration = .*$", f"duration = {n_steps * dt!r}", text, count=1)
 
 
+def _count_floor(toggle) -> None:
+    """bench_lockstep.py's floor (``generic_ode2_us``) made to call ``toggle(k)`` before its PreStep's force k."""
+    import bench_lockstep
+
+    ode2 = bench_lockstep.generic_ode2_us
+
+    def counted_ode2(mass, stiffness, damping, force, n_steps, dt):
+        def counted(k, q, v):
+            toggle(k)
+            return force(k, q, v)
+        return ode2(mass, stiffness, damping, counted, n_steps, dt)
+    bench_lockstep.generic_ode2_us = counted_ode2
+
+
 def _suite_floor(name: str, folder: Path, toggle, n_steps: int) -> None:
     """bench_suite.py's bare-Exudyn floor of case ``name``, ``toggle(k)`` before its PreStep's force k."""
-    import bench_lockstep
     import bench_suite
 
     from hydrolink.clients.scene_inputs import load_scene_hdbs
     from hydrolink.protocol.scene import load_scene
 
-    ode2 = bench_lockstep.generic_ode2_us
-
-    def counted_ode2(mass, stiffness, damping, force, steps, dt):
-        def counted(k, q, v):
-            toggle(k)
-            return force(k, q, v)
-        return ode2(mass, stiffness, damping, counted, steps, dt)
-    bench_lockstep.generic_ode2_us = counted_ode2
+    _count_floor(toggle)
     path = folder / "floor.toml"
     path.write_text(_suite_scene(name, n_steps))
     scene, _ = load_scene(path)

@@ -1,4 +1,4 @@
-"""An embedded run's exchange in two compiled calls (issue 36).
+"""An embedded run's exchange in two compiled calls, inside Exudyn's own step loop (issue 36).
 
 ``hydrolink run`` with its in-process server (no socket, no controller, not paced), the
 ``mass-matrix`` scheme, one client step per exchange, every scene body wet and a model whose step
@@ -8,13 +8,19 @@ exchange of :class:`~hydrolink.clients.lockstep.coupling_schemes.Predictor` is, 
 1. one compiled call (clients/exudyn/exchange_kernel.py ``predict``): the wet DOFs' predicted state
    from the state read at the end of the last step, the wire's bounds, the server's linear step
    and the load at the hydro object's coordinates, into arrays made once;
-2. one write of that load into Exudyn (``SetObjectParameter``) and its ``SolveSteps``;
-3. one read of Exudyn's state (its three ODE2 getters), and one compiled call (``settle``) that
-   keeps it for the next step, fills the results row and bounds the state for the divergence watch;
+2. one write of that load into Exudyn (``SetObjectParameter``) and its step;
+3. one compiled call (``settle``) that reads Exudyn's state through views of its own current-state
+   vectors (``copy=False``: no getter a step), keeps it for the next step, fills the results row
+   and bounds the state for the divergence watch;
 4. the mechanism's outputs: where they are linear PTOs only (up to seven), each connector's
    displacement and velocity (two ``GetObjectOutput``) and one compiled call (``linear_ptos``)
    into the row's slots (``ResultWriter.slots``); otherwise (joints, moorings, other PTOs) as the
    reference path stages them; and the row's commit.
+
+An unpaced run takes every exchange inside one Exudyn ``SolveSteps`` (:meth:`CompiledExchange.run_exchanges`:
+a PreStep user function does 4 of the last step and 1-2 of the next), not a ``SolveSteps`` call a step;
+a paced one calls :meth:`CompiledExchange.exchange` per exchange. The compiled calls are made through
+their entry points (numba's dispatch, which types each argument every call, skipped).
 
 The session's sequencing state and counters follow each step (``LocalStep.advanced``). Results
 are the reference path's bit for bit (tests/test_compiled_exchange.py runs both). Anything off the
