@@ -92,7 +92,7 @@ class CompiledExchange:
             np.asarray(wet_take, np.int64), model.equilibrium.reshape(-1).copy(), np.zeros(n), np.zeros(n), out,
             self._load, np.zeros(np.count_nonzero(model.active)), force_index, self._force,
             np.asarray(body_take, np.int64), model.body_reference.reshape(-1).copy(),
-            np.ascontiguousarray(model.stiffness, float), np.zeros(n), float(model.dt), np.array(step.bounds, float),
+            np.ascontiguousarray(model.stiffness, float), np.zeros(n), np.zeros(n), float(model.dt), np.array(step.bounds, float),
             self._status)
         self._kernel_state = step.kernel
         self._g = None

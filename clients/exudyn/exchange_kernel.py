@@ -16,13 +16,15 @@ own values):
   into ``qva``, the results row (every body's position and velocity, the forces, the hydrostatic
   force −C q) and the sum of squares of q and v (the divergence watch's bound).
 
-No ``fastmath`` here: each sum and product in numpy's order, so the results are numpy's bits
+No ``fastmath`` here: each sum and product in numpy's order (−C q by BLAS's gemv, as numpy's ``dot``), so the results are numpy's bits
 (tests/test_compiled_exchange.py).
 """
 
 from __future__ import annotations
 
 import math
+
+import numpy as np
 
 from hydrolink.server import compiler
 from hydrolink.server.fused import kernel_numba
@@ -35,7 +37,7 @@ _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
 _step = kernel_numba.step
 
 FIELDS = ["lin", "qva", "q", "v", "a", "wet_take", "eq", "pos", "vel", "out", "load", "f_ext", "force_index", "force", "body_take", "ref",
-          "k_hs", "hs", "h", "bounds", "status"]
+          "k_hs", "hs", "x_wet", "h", "bounds", "status"]
 
 #: predict's outcomes (``status[0]``): the step taken; the state refused by the wire's bounds (no step taken);
 #: the server's forces not finite (the step taken)
@@ -59,10 +61,10 @@ structref.define_proxy(ExchangeState, _ExchangeStateType, FIELDS)
 
 @_jit
 def exchange_state(lin, qva, q, v, a, wet_take, eq, pos, vel, out, load, f_ext, force_index, force, body_take, ref,
-                   k_hs, hs, h, bounds, status):
+                   k_hs, hs, x_wet, h, bounds, status):
     """The :class:`ExchangeState` of these arrays (held, not copied)."""
     return ExchangeState(lin, qva, q, v, a, wet_take, eq, pos, vel, out, load, f_ext, force_index, force, body_take,
-                         ref, k_hs, hs, h, bounds, status)
+                         ref, k_hs, hs, x_wet, h, bounds, status)
 
 
 @_jit
@@ -119,11 +121,10 @@ def settle(g, row):
             row[1, b, d] = flat[take[m + j]]
     out, k_hs, hs, wet = g.out, g.k_hs, g.hs, g.wet_take
     n = hs.size
-    for i in range(n):
-        acc = 0.0
-        for j in range(n):
-            acc += k_hs[i, j] * flat[wet[j]]
-        hs[i] = acc
+    x = g.x_wet
+    for j in range(n):
+        x[j] = flat[wet[j]]
+    hs[:] = np.dot(k_hs, x)   # BLAS's gemv, as the reference path's np.dot (its sums' order from 12 DOFs up)
     for b in range(nb):
         for d in range(6):
             j = 6 * b + d
