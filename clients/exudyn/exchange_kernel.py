@@ -124,7 +124,7 @@ def settle(g, row):
     x = g.x_wet
     for j in range(n):
         x[j] = flat[wet[j]]
-    hs[:] = np.dot(k_hs, x)   # BLAS's gemv, as the reference path's np.dot (its sums' order from 12 DOFs up)
+    np.dot(k_hs, x, hs)   # BLAS's gemv, as the reference path's np.dot (its sums' order from 12 DOFs up)
     for b in range(nb):
         for d in range(6):
             j = 6 * b + d
