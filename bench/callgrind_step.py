@@ -15,7 +15,13 @@ steps < 2000 rows, so no block goes to the writer inside the window). Cases, dt 
   in-process server), the exchange compiled (clients/exudyn/compiled_exchange.py), counted from
   exchange ``--warm``;
 - ``rm3-reference``, ``cylinder-reference``: the same with the reference path (ForceLink,
-  LocalStep, the Exudyn client's Python rows: 58bba31's path).
+  LocalStep, the Exudyn client's Python rows: 58bba31's path);
+- any case of bench/bench_suite.py by its name (``sphere_decay_conv``, ``oswec_reg_batch``, ...; its
+  first scene, at its own dt; ``-reference`` likewise) and ``floor:<name>``, that case's bare-Exudyn
+  floor (bench_suite.py ``bare_exudyn``), counted from its PreStep's call ``--warm``.
+
+``--keep DIR`` keeps callgrind's files (``callgrind_annotate DIR/<case>.out.*`` for where the
+instructions go).
 
 The switch is one Python call a step wrapped around the floor's force and each case's exchange
 alike. Numba's cached kernels are keyed on the CPU, and valgrind reports another: the first run
@@ -74,15 +80,11 @@ def inner(case: str, warm: int, steps: int, library: str) -> None:
     duration = (last + 10) * DT
     with tempfile.TemporaryDirectory() as tmp:
         scene = Path(tmp) / "scene.toml"
+        if case.startswith("floor:"):
+            _suite_floor(case[len("floor:"):], Path(tmp), toggle, last + 10)
+            return
         if case == "floor":
-            ode2 = bench_lockstep.generic_ode2_us
-
-            def counted_ode2(mass, stiffness, damping, force, n_steps, dt):
-                def counted(k, q, v):
-                    toggle(k)
-                    return force(k, q, v)
-                return ode2(mass, stiffness, damping, counted, n_steps, dt)
-            bench_lockstep.generic_ode2_us = counted_ode2
+            _count_floor(toggle)
             scene.write_text(bench_lockstep.rm3_scene(duration))
             bench_lockstep.bare_exudyn_us(scene, last + 10)
             return
@@ -90,7 +92,11 @@ def inner(case: str, warm: int, steps: int, library: str) -> None:
         from hydrolink.clients.lockstep import driver
         from hydrolink.clients.run import run_scene_file
 
-        text = bench_lockstep.rm3_scene(duration) if case.startswith("rm3") else bench_lockstep.cylinder_scene(duration)
+        name = case.removesuffix("-reference")
+        if name in ("rm3", "cylinder"):
+            text = bench_lockstep.rm3_scene(duration) if name == "rm3" else bench_lockstep.cylinder_scene(duration)
+        else:
+            text = _suite_scene(name, last + 10)
         scene.write_text(text.replace("[simulation]\n", "[simulation]\nflush_seconds = 86400.0\n", 1))
         if case.endswith("-reference"):
             client.ExudynMultibody.compiled_exchange = lambda *args: None   # the reference path
@@ -99,6 +105,9 @@ def inner(case: str, warm: int, steps: int, library: str) -> None:
         class Counted:
             def __init__(self, scheme):
                 self.scheme, self.feedback = scheme, scheme.feedback
+                if hasattr(scheme, "run_exchanges"):     # the compiled exchange's own loop: toggled after each exchange
+                    self.run_exchanges = lambda loop, n, check: scheme.run_exchanges(
+                        loop, n, lambda: (toggle(loop.step), check()))
 
             def exchange(self, loop, e, s):
                 toggle(e)
@@ -107,6 +116,46 @@ def inner(case: str, warm: int, steps: int, library: str) -> None:
         driver.run = lambda loop, scheme, *args, **kw: loop_run(loop, Counted(scheme), *args, **kw)
         summary = run_scene_file(scene, Path(tmp) / "out.nc", progress=False)
         assert summary.status == "complete", summary
+
+
+def _suite_scene(name: str, n_steps: int) -> str:
+    """The first scene of bench_suite.py's case ``name``, cut to ``n_steps`` steps of its dt."""
+    import bench_suite
+
+    case = next((c for c in bench_suite.cases(1.0) if c.name == name), None)
+    if case is None:
+        raise SystemExit(f"unknown case {name!r}")
+    text = case.scenes[0]
+    dt = float(re.search(r"(?m)^dt = (.*)$", text).group(1))
+    return re.sub(r"(?m)^duration = .*$", f"duration = {n_steps * dt!r}", text, count=1)
+
+
+def _count_floor(toggle) -> None:
+    """bench_lockstep.py's floor (``generic_ode2_us``) made to call ``toggle(k)`` before its PreStep's force k."""
+    import bench_lockstep
+
+    ode2 = bench_lockstep.generic_ode2_us
+
+    def counted_ode2(mass, stiffness, damping, force, n_steps, dt):
+        def counted(k, q, v):
+            toggle(k)
+            return force(k, q, v)
+        return ode2(mass, stiffness, damping, counted, n_steps, dt)
+    bench_lockstep.generic_ode2_us = counted_ode2
+
+
+def _suite_floor(name: str, folder: Path, toggle, n_steps: int) -> None:
+    """bench_suite.py's bare-Exudyn floor of case ``name``, ``toggle(k)`` before its PreStep's force k."""
+    import bench_suite
+
+    from hydrolink.clients.scene_inputs import load_scene_hdbs
+    from hydrolink.protocol.scene import load_scene
+
+    _count_floor(toggle)
+    path = folder / "floor.toml"
+    path.write_text(_suite_scene(name, n_steps))
+    scene, _ = load_scene(path)
+    bench_suite.bare_exudyn(path, load_scene_hdbs(scene, path, progress=False))
 
 
 def instructions(case: str, warm: int, steps: int, folder: Path, library: Path) -> int:
@@ -125,6 +174,7 @@ def main() -> None:
     parser.add_argument("--warm", type=int, default=50, help="steps before the window")
     parser.add_argument("--steps", type=int, default=500, help="steps counted")
     parser.add_argument("--cases", default="floor,rm3,rm3-reference,cylinder,cylinder-reference")
+    parser.add_argument("--keep", type=Path, help="keep callgrind's files in this folder")
     parser.add_argument("--inner", nargs=4, metavar=("CASE", "WARM", "STEPS", "LIBRARY"), help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.inner:
@@ -133,8 +183,10 @@ def main() -> None:
     per_step = {}
     with tempfile.TemporaryDirectory() as tmp:
         library = switch_library(Path(tmp))
+        folder = args.keep or Path(tmp)
+        folder.mkdir(parents=True, exist_ok=True)
         for case in args.cases.split(","):
-            per_step[case] = instructions(case, args.warm, args.steps, Path(tmp), library) / args.steps
+            per_step[case] = instructions(case, args.warm, args.steps, folder, library) / args.steps
             print(f"{case}: {per_step[case]:,.0f} instructions a step", flush=True)
     floor = per_step.get("floor")
     print(f"\nsteps {args.warm} to {args.warm + args.steps} at dt {DT} s; load average {os.getloadavg()[0]:.1f} "

@@ -39,6 +39,7 @@ from hydrolink.protocol.setup import IRFProcessing, Setup, StateSpaceReport
 from hydrolink.server import compiler
 from hydrolink.server.allocation import require_size
 from hydrolink.server.fused.step import FusedLinearStep, FusedRadiation
+from hydrolink.server.radiation.convolution import RadiationMemory
 from hydrolink.server.radiation.irf import irf_samples
 from hydrolink.server.rigid_body import rigid_body_mass_matrix
 from hydrolink.server.errors import ModelError
@@ -201,7 +202,11 @@ class HydroModel:
             compiled = compiler.AVAILABLE and compiler.imports()
         if not compiled or len(self._memories) > 1 or any(not isinstance(pos, slice) for pos, _ in self._memories):
             return None
-        radiation = self._memories[0][1].fused() if self._memories else FusedRadiation("none")
+        memory = self._memories[0][1] if self._memories else None
+        if isinstance(memory, RadiationMemory):   # a held body's columns left out of the convolution
+            radiation = memory.fused(self.held_dofs()[self._idx])
+        else:
+            radiation = memory.fused() if memory is not None else FusedRadiation("none")
         if self._summed:
             exc, omega, ramp = self._forcing.matrix, self.waves.omega, float(self.waves.ramp)
         else:   # by convolution: a lookup of blocks computed by FFT, added to the compiled call's sums
@@ -210,6 +215,41 @@ class HydroModel:
                                 None if self._yaw is None else self._yaw.fused_inputs())
         fused.warm_up(self.n)
         return fused
+
+    def held_dofs(self) -> np.ndarray:
+        """(n,) bool over the model's vector: the wet bodies' DOFs whose velocity the scene's joints
+        hold at zero at every step — every DOF of a body held to ground (a ``fixed`` joint with
+        ``ground``), and of a body on a ``revolute`` or ``prismatic`` joint to ground or to a held
+        body with its axis along a coordinate axis, the DOFs that joint does not free (a hinge
+        about y frees surge, heave and pitch; a slider along z, heave). The compiled step's
+        radiation convolution leaves their columns out (they add K x 0); their force rows are
+        still computed (the results and the joints' reactions read them). A client that reports
+        such a DOF moving contradicts the scene: that velocity is not read there."""
+        anchored = {"ground"} | {j.body2 if j.body1 == "ground" else j.body1 for j in self.scene.joints
+                                 if j.type == "fixed" and "ground" in (j.body1, j.body2)}
+        free = {name: np.ones(6, bool) for name in self.bodies}
+        for name in anchored & set(free):
+            free[name][:] = False
+        for j in self.scene.joints:
+            if j.type not in ("revolute", "prismatic") or j.axis is None:
+                continue
+            axis = np.abs(np.asarray(j.axis, float))
+            k = int(np.argmax(axis))
+            if not (axis[k] == 1.0 and axis.sum() == 1.0):     # an oblique axis frees a mix: none held
+                continue
+            for this, other in ((j.body1, j.body2), (j.body2, j.body1)):
+                if other in anchored and this in free and this not in anchored:
+                    joint_free = np.zeros(6, bool)
+                    if j.type == "revolute":
+                        joint_free[[d for d in range(3) if d != k]] = True
+                        joint_free[3 + k] = True
+                    else:
+                        joint_free[k] = True
+                    free[this] &= joint_free
+        mask = np.zeros(self.n, bool)
+        for i, name in enumerate(self.bodies):
+            mask[6 * i:6 * i + 6] = ~free[name]
+        return mask
 
     def fused_only(self) -> FusedLinearStep | None:
         """The compiled linear core when it is this model's whole step (the excitation a sum of

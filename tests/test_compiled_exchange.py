@@ -11,12 +11,14 @@ import netCDF4
 import numpy as np
 import pytest
 
-from conftest import REPLY_S, SPHERE_WATER, regular_waves, rm3_short_text, scene_toml, sphere_body
+from conftest import (REPLY_S, SPHERE_WATER, joint, regular_waves, rm3_float, rm3_short_text, rm3_spar, scene_toml,
+                      sphere_body)
 
 from hydrolink.clients.exudyn import compiled_exchange
 from hydrolink.clients.lockstep.driver import SimulationDiverged
 from hydrolink.clients.run import run_scene_file
 from hydrolink.server.service.force_server import serve_in_thread
+from hydrolink.server.service.local_step import LocalStep
 
 MASS = 261.8e3   # the Task-10 sphere floating (rho V)
 
@@ -39,15 +41,29 @@ def sphere_scene(sphere_path: Path, tmp_path: Path) -> Path:
     return path
 
 
-def counted(monkeypatch) -> list[int]:
-    """Calls of CompiledExchange.exchange (a spy: each call goes on to the real one)."""
-    calls: list[int] = []
-    real = compiled_exchange.CompiledExchange.exchange
+def hinged_scene(reference_data: Path, tmp_path: Path) -> Path:
+    """RM3's spar held to ground by a fixed joint and its float on a hinge about y to it (two wet
+    bodies, every DOF, joints, the held DOFs' radiation columns left out), convolution."""
+    path = tmp_path / "hinged.toml"
+    hdb = (reference_data / "rm3_wamit" / "rm3.1").as_posix()
+    path.write_text(scene_toml(dt=0.1, duration=12.0, progress=False, water={"density": 1000.0},
+                               waves=regular_waves(2.0, 7.0, ramp=3.0), hydro={"irf_duration": 10.0},
+                               bodies=[rm3_float(hdb), rm3_spar(hdb)],
+                               joints=[joint("revolute", "spar", "float", [0.0, 0.0, 0.0], axis=[0.0, 1.0, 0.0]),
+                                       joint("fixed", "ground", "spar", [0.0, 0.0, -21.29])]))
+    return path
 
-    def spy(self, loop, e, s_prev):
-        calls.append(e)
-        return real(self, loop, e, s_prev)
-    monkeypatch.setattr(compiled_exchange.CompiledExchange, "exchange", spy)
+
+def counted(monkeypatch) -> list[int]:
+    """The exchanges the compiled kernel took (a spy on LocalStep.advanced, which only the compiled
+    exchange calls: each call goes on to the real one), as exchange indices."""
+    calls: list[int] = []
+    real = LocalStep.advanced
+
+    def spy(self, seq, seconds):
+        calls.append(seq - 1)
+        return real(self, seq, seconds)
+    monkeypatch.setattr(LocalStep, "advanced", spy)
     return calls
 
 
@@ -60,11 +76,12 @@ def socket_run(scene: Path, out: Path):
         thread.join(5)
 
 
-@pytest.mark.parametrize("case", ["rm3", "sphere"])
+@pytest.mark.parametrize("case", ["rm3", "sphere", "hinged"])
 def test_compiled_exchange_equals_reference_bit_for_bit(case, reference_data, sphere_path, tmp_path, monkeypatch):
     """Every variable of the results file (position, velocity, the forces, the elevation, the
-    PTO's outputs) is the reference path's to the bit, over every row."""
-    scene = rm3_scene(reference_data, tmp_path) if case == "rm3" else sphere_scene(sphere_path, tmp_path)
+    PTO's outputs, the joints' reactions) is the reference path's to the bit, over every row."""
+    scene = {"rm3": lambda: rm3_scene(reference_data, tmp_path), "sphere": lambda: sphere_scene(sphere_path, tmp_path),
+             "hinged": lambda: hinged_scene(reference_data, tmp_path)}[case]()
     calls = counted(monkeypatch)
     embedded = run_scene_file(scene, tmp_path / "embedded.nc", progress=False)
     remote = socket_run(scene, tmp_path / "socket.nc")
@@ -78,6 +95,8 @@ def test_compiled_exchange_equals_reference_bit_for_bit(case, reference_data, sp
                 "wave_elevation"} <= set(names)
         if case == "rm3":
             assert {"pto_force", "pto_power"} <= set(names)
+        if case == "hinged":
+            assert {"joint_force", "joint_violation"} <= set(names)
         for name in names:
             x, y = a[name][:].filled(np.nan), b[name][:].filled(np.nan)
             assert x.shape == y.shape and x.tobytes() == y.tobytes(), name
@@ -107,3 +126,32 @@ def test_compiled_exchange_stops_where_the_reference_path_does(reference_data, t
     with netCDF4.Dataset(tmp_path / "embedded.nc") as a, netCDF4.Dataset(tmp_path / "socket.nc") as b:
         assert a.dimensions["time"].size == b.dimensions["time"].size == embedded.value.rows
         assert a["position"][:].tobytes() == b["position"][:].tobytes()
+
+
+def test_steps_the_compiled_check_refuses_go_to_the_reference_path(sphere_path, tmp_path, monkeypatch):
+    """A state the compiled bounds refuse (here a velocity bound of 0.3 m/s in place of the wire's,
+    which the reference path's check then passes) ends Exudyn's step loop before that step; the
+    reference path takes the exchange and a new loop goes on: the results are still the socket
+    run's bit for bit, and both paths took steps."""
+    import dataclasses
+
+    from hydrolink.protocol.scene_bounds import MAX_COORDINATE
+
+    real = LocalStep.compiled
+
+    def tight(self):
+        step = real(self)
+        return None if step is None else dataclasses.replace(step, bounds=(MAX_COORDINATE, 0.3))
+    monkeypatch.setattr(LocalStep, "compiled", tight)
+    scene = sphere_scene(sphere_path, tmp_path)
+    calls = counted(monkeypatch)
+    embedded = run_scene_file(scene, tmp_path / "embedded.nc", progress=False)
+    remote = socket_run(scene, tmp_path / "socket.nc")
+    assert embedded.status == remote.status == "complete"
+    compiled = set(calls)
+    assert compiled and len(compiled) < embedded.steps          # some exchanges compiled, some handed off
+    with netCDF4.Dataset(tmp_path / "embedded.nc") as a, netCDF4.Dataset(tmp_path / "socket.nc") as b:
+        v = a["velocity"][:]
+        assert np.abs(v).max() > 0.3                              # the bound was passed
+        for name in ("position", "velocity", "excitation_force", "radiation_force", "hydrostatic_force"):
+            assert a[name][:].tobytes() == b[name][:].tobytes(), name

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conftest import SPHERE_WATER, irregular_waves, regular_waves, rm3_float, rm3_spar, scene_toml, sphere_body
+from conftest import SPHERE_WATER, irregular_waves, joint, regular_waves, rm3_float, rm3_spar, scene_toml, sphere_body
 from hydrolink.protocol.scene import parse_scene
 from hydrolink.server import compiler
 from hydrolink.server.hdb.io import load_hdb
@@ -94,3 +94,33 @@ def test_several_groups_take_the_numpy_path(rm3):
     text = scene_toml(dt=0.05, duration=10, water={"density": 1000.0}, hydro={"interaction": "none"},
                       bodies=[rm3_float("r.1", dofs=["heave"]), rm3_spar("r.1", dofs=["heave"])])
     assert HydroModel(parse_scene(text), rm3, compiled=True)._fused is None
+
+
+@pytest.mark.parametrize("hydro", [{"irf_duration": 20.0}, {"irf_duration": 20.0, "coupling_tolerance": 0.2}])
+def test_a_held_bodys_radiation_columns_are_left_out(rm3, hydro):
+    """The spar held to ground by a fixed joint, the float on a hinge about y to it: the compiled
+    step convolves the float's surge, heave and pitch columns only (the spar's velocity and the
+    float's sway, roll and yaw are zero), dense and sparse, and gives the full computation's
+    forces (the numpy path, every column) on every row, the spar's included, to round-off; the
+    velocities it holds at zero are not read."""
+    text = scene_toml(dt=0.05, duration=10, water={"density": 1000.0}, waves=regular_waves(2.5, 8.0, ramp=1.0),
+                      hydro=hydro, bodies=[rm3_float("r.1"), rm3_spar("r.1")],
+                      joints=[joint("revolute", "spar", "float", [0.0, 0.0, 0.0], axis=[0.0, 1.0, 0.0]),
+                              joint("fixed", "ground", "spar", [0.0, 0.0, -21.29])])
+    fused, ref = _pair(text, rm3)
+    held = ref.held_dofs()
+    assert list(held) == [False, True, False, True, False, True] + [True] * 6
+    assert fused._fused._buf.shape[1] == 3                   # the float's three columns in the ring, not twelve
+    rng = np.random.default_rng(1)
+    eq, dt = ref.equilibrium_position, ref.dt
+    moved = 0.0
+    for k in range(60):
+        x, v = eq.copy(), np.zeros((2, 6))
+        x[0] += 0.1 * rng.standard_normal(6)
+        v[0, [0, 2, 4]] = rng.standard_normal(3)
+        a, b = fused.step(k * dt, x, v + held.reshape(2, 6)), ref.step(k * dt, x, v)
+        for name in FIELDS:
+            scale = float(np.abs(b[name]).max())
+            np.testing.assert_allclose(a[name], b[name], rtol=0, atol=1e-12 * scale, err_msg=f"{name} step {k}")
+        moved = max(moved, float(np.abs(b["radiation"][1]).max()))
+    assert moved > 1e3                                         # the float's motion radiates onto the spar's rows

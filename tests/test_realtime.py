@@ -202,17 +202,17 @@ def test_blas_pools_hold_one_thread_in_the_loop(reference_data, tmp_path, monkey
     gets this too, not only the ``hydrolink`` command)."""
     from threadpoolctl import threadpool_info, threadpool_limits
 
-    from hydrolink.clients.exudyn.client import ExudynModel
+    from hydrolink.clients.lockstep.results import ResultWriter
     from hydrolink.clients.run import run_scene_file
-    advance, seen, steps = ExudynModel.advance, [], []
+    commit, seen, rows = ResultWriter.commit, [], []
 
-    def looking(self, t0, t1):   # the real step (both exchange paths take it); the pools while the loop runs
-        steps.append(t0)
-        if len(steps) == 5:
+    def looking(self, t, eta):   # each step's row (every exchange path commits one); the pools while the loop runs
+        rows.append(t)
+        if len(rows) == 5:
             seen.extend(p["num_threads"] for p in threadpool_info())
-        return advance(self, t0, t1)
+        return commit(self, t, eta)
 
-    monkeypatch.setattr(ExudynModel, "advance", looking)
+    monkeypatch.setattr(ResultWriter, "commit", looking)
     (tmp_path / "rm3.toml").write_text(scene_text("full", reference_data / "rm3_wamit" / "rm3.1", duration=0.8))
     with threadpool_limits(limits=2):          # as an unset environment leaves them on 2 cores
         before = [p["num_threads"] for p in threadpool_info()]

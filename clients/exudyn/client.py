@@ -275,6 +275,10 @@ def build_model(scene: Scene, setup: Setup | None, *, spectral_radius: float = 1
     ss.timeIntegration.numberOfSteps = 1
     ss.timeIntegration.endTime = dt
     ss.timeIntegration.generalizedAlpha.spectralRadius = float(spectral_radius)
+    # the modified Newton's Jacobian renewed at each step's start, as a SolveSteps call of one step
+    # does: the compiled exchange's one SolveSteps over the run (clients/exudyn/compiled_exchange.py)
+    # then takes the same iterations, to the bit, as a call a step
+    ss.timeIntegration.newton.modifiedNewtonJacUpdatePerStep = True
     if newmark:   # trapezoidal rule as Newmark (beta 1/4, gamma 1/2): a rollback + redo is bit-exact
         ga = ss.timeIntegration.generalizedAlpha
         ga.useNewmark, ga.newmarkBeta, ga.newmarkGamma, ga.useIndex2Constraints = True, 0.25, 0.5, True

@@ -11,17 +11,20 @@ own values):
   velocity checked against the wire's bounds, the server's compiled linear step
   (server/fused/kernel_numba.py ``step``) into ``out``, and the load excitation + radiation at
   the hydro object's coordinates (``force``);
-- :func:`settle`: Exudyn's state after the step into ``qva``, the results row (every body's
-  position and velocity, the forces, the hydrostatic force −C q) and the sum of squares of q and v
-  (the divergence watch's bound).
+- :func:`settle`: Exudyn's state after the step (read through ``q``, ``v``, ``a``: views of Exudyn's
+  own current-state vectors, ``GetODE2Coordinates(copy=False)``, so no getter is called a step)
+  into ``qva``, the results row (every body's position and velocity, the forces, the hydrostatic
+  force −C q) and the sum of squares of q and v (the divergence watch's bound).
 
-No ``fastmath`` here: each sum and product in numpy's order, so the results are numpy's bits
+No ``fastmath`` here: each sum and product in numpy's order (−C q by BLAS's gemv, as numpy's ``dot``), so the results are numpy's bits
 (tests/test_compiled_exchange.py).
 """
 
 from __future__ import annotations
 
 import math
+
+import numpy as np
 
 from hydrolink.server import compiler
 from hydrolink.server.fused import kernel_numba
@@ -33,8 +36,8 @@ from numba.experimental import structref
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
 _step = kernel_numba.step
 
-FIELDS = ["lin", "qva", "wet_take", "eq", "pos", "vel", "out", "load", "f_ext", "force_index", "force", "body_take", "ref",
-          "k_hs", "hs", "h", "bounds", "status"]
+FIELDS = ["lin", "qva", "q", "v", "a", "wet_take", "eq", "pos", "vel", "out", "load", "f_ext", "force_index", "force", "body_take", "ref",
+          "k_hs", "hs", "x_wet", "h", "bounds", "status"]
 
 #: predict's outcomes (``status[0]``): the step taken; the state refused by the wire's bounds (no step taken);
 #: the server's forces not finite (the step taken)
@@ -57,11 +60,11 @@ structref.define_proxy(ExchangeState, _ExchangeStateType, FIELDS)
 
 
 @_jit
-def exchange_state(lin, qva, wet_take, eq, pos, vel, out, load, f_ext, force_index, force, body_take, ref, k_hs, hs,
-                   h, bounds, status):
+def exchange_state(lin, qva, q, v, a, wet_take, eq, pos, vel, out, load, f_ext, force_index, force, body_take, ref,
+                   k_hs, hs, x_wet, h, bounds, status):
     """The :class:`ExchangeState` of these arrays (held, not copied)."""
-    return ExchangeState(lin, qva, wet_take, eq, pos, vel, out, load, f_ext, force_index, force, body_take, ref, k_hs,
-                         hs, h, bounds, status)
+    return ExchangeState(lin, qva, q, v, a, wet_take, eq, pos, vel, out, load, f_ext, force_index, force, body_take,
+                         ref, k_hs, hs, x_wet, h, bounds, status)
 
 
 @_jit
@@ -98,10 +101,10 @@ def predict(g, t):
 
 
 @_jit
-def settle(g, q, v, a, row):
-    """Exudyn's state after a step (``q``, ``v``, ``a`` of its ODE2 coordinates) into ``g.qva``, the
-    results row (5, B, 6) filled from it and ``g.out``; returns the sum of squares of q and v."""
-    st = g.qva
+def settle(g, row):
+    """Exudyn's state after a step (``g.q``, ``g.v``, ``g.a``: its ODE2 coordinates) into ``g.qva``,
+    the results row (5, B, 6) filled from it and ``g.out``; returns the sum of squares of q and v."""
+    st, q, v, a = g.qva, g.q, g.v, g.a
     nq = q.size
     ss = 0.0
     for i in range(nq):
@@ -118,11 +121,10 @@ def settle(g, q, v, a, row):
             row[1, b, d] = flat[take[m + j]]
     out, k_hs, hs, wet = g.out, g.k_hs, g.hs, g.wet_take
     n = hs.size
-    for i in range(n):
-        acc = 0.0
-        for j in range(n):
-            acc += k_hs[i, j] * flat[wet[j]]
-        hs[i] = acc
+    x = g.x_wet
+    for j in range(n):
+        x[j] = flat[wet[j]]
+    np.dot(k_hs, x, hs)   # BLAS's gemv, as the reference path's np.dot (its sums' order from 12 DOFs up)
     for b in range(nb):
         for d in range(6):
             j = 6 * b + d

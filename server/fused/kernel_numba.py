@@ -26,7 +26,7 @@ hydrostatic = _jit(loops.hydrostatic)
 gather = _jit(loops.gather)
 yaw_excitation = _jit(loops.yaw_excitation)
 
-FIELDS = ["idx", "exc", "omega", "ramp_t", "trig", "k_hs", "x_eq", "kind", "k", "data", "indices", "indptr", "buf",
+FIELDS = ["idx", "exc", "omega", "ramp_t", "trig", "k_hs", "x_eq", "kind", "k", "data", "indices", "indptr", "live", "buf",
           "counters", "phi", "g0", "g1", "c2", "rows", "cols", "d", "z", "z_prev", "v_prev", "v_last", "vs", "f",
           "yaw_tables", "yaw_headings", "yaw_rows", "yaw_owner"]
 
@@ -47,11 +47,11 @@ structref.define_proxy(LinearState, _LinearStateType, FIELDS)
 
 
 @_jit
-def linear_state(idx, exc, omega, ramp_t, trig, k_hs, x_eq, kind, k, data, indices, indptr, buf, counters,
+def linear_state(idx, exc, omega, ramp_t, trig, k_hs, x_eq, kind, k, data, indices, indptr, live, buf, counters,
                  phi, g0, g1, c2, rows, cols, d, z, z_prev, v_prev, v_last, vs, f, yaw_tables, yaw_headings,
                  yaw_rows, yaw_owner):
     """The :class:`LinearState` of these arrays (held, not copied)."""
-    return LinearState(idx, exc, omega, ramp_t, trig, k_hs, x_eq, kind, k, data, indices, indptr, buf, counters,
+    return LinearState(idx, exc, omega, ramp_t, trig, k_hs, x_eq, kind, k, data, indices, indptr, live, buf, counters,
                        phi, g0, g1, c2, rows, cols, d, z, z_prev, v_prev, v_last, vs, f, yaw_tables, yaw_headings,
                        yaw_rows, yaw_owner)
 
@@ -68,7 +68,7 @@ def step(st, t, x, v, replace, f_ext, eta_ext, out):
     yaw_excitation(st.yaw_tables, st.yaw_headings, st.yaw_rows, st.yaw_owner, st.idx, st.ramp_t, st.trig, t, f_ext,
                    out[0])
     if st.kind == 1 or st.kind == 2:
-        convolution(st.k, st.data, st.indices, st.indptr, st.buf, st.counters, st.vs, replace, st.idx, out[1])
+        convolution(st.k, st.data, st.indices, st.indptr, st.buf, st.counters, st.vs, replace, st.idx, st.live, out[1])
     elif st.kind == 3:
         state_space(st.phi, st.g0, st.g1, st.c2, st.rows, st.cols, st.d, st.z, st.z_prev, st.v_prev, st.v_last,
                     st.counters, st.vs, replace, st.f, st.idx, out[1])

@@ -79,20 +79,21 @@ def yaw_excitation(tables, headings, rows, owner, idx, ramp_t, trig, t, f_ext, o
         out[idx[i]] = ((1.0 - s) * acc0 + s * acc1) * ramp + f_ext[i]
 
 
-def convolution(k, data, indices, indptr, buf, counters, vs, replace, idx, out):
-    """The newest velocity ``vs`` into the ring ``buf`` (stored twice: rows p and p + L; counters:
-    p, pushes, L), then out[idx] = K (window newest first, raveled): dense ``k`` (na, L na) or CSR
-    (data, indices, indptr)."""
-    na, length = idx.size, counters[2]
+def convolution(k, data, indices, indptr, buf, counters, vs, replace, idx, live, out):
+    """The newest velocity of the convolved columns ``live`` (positions in ``vs``; a held body's
+    DOFs left out: their velocity is zero) into the ring ``buf`` (nc wide, stored twice: rows p and
+    p + L; counters: p, pushes, L), then out[idx] = K (window newest first, raveled): dense ``k``
+    (na, L nc) or CSR (data, indices, indptr)."""
+    na, nc, length = idx.size, live.size, counters[2]
     if not (replace and counters[1]):
         counters[0] = (counters[0] - 1) % length
         counters[1] += 1
     p = counters[0]
-    for i in range(na):
-        buf[p, i] = vs[i]
-        buf[p + length, i] = vs[i]
-    flat = buf.reshape(-1)   # the window newest first is flat[p na : (p + L) na]
-    start = p * na
+    for c in range(nc):
+        buf[p, c] = vs[live[c]]
+        buf[p + length, c] = vs[live[c]]
+    flat = buf.reshape(-1)   # the window newest first is flat[p nc : (p + L) nc]
+    start = p * nc
     if indptr.size:
         for i in range(na):
             acc = 0.0
@@ -103,7 +104,7 @@ def convolution(k, data, indices, indptr, buf, counters, vs, replace, idx, out):
         for i in range(na):
             row = k[i]
             acc = 0.0
-            for m in range(length * na):
+            for m in range(length * nc):
                 acc += row[m] * flat[start + m]
             out[idx[i]] = acc
 

@@ -32,12 +32,14 @@ def _empty(*shape: int, dtype=_F) -> np.ndarray:
 class FusedRadiation:
     """A radiation force over n DOFs as the fused step takes it (server/radiation's ``fused()``):
     ``kind`` one of loops.RADIATION_KINDS; a convolution's pre-weighted kernel over ``length``
-    samples, dense ``k`` (n, length n) or CSR (``data``, ``indices``, ``indptr``); a state
-    space's per-state ``phi``, ``g0``, ``g1``, ``c2`` (complex), output ``rows`` and input
+    samples, dense ``k`` (n, length nc) or CSR (``data``, ``indices``, ``indptr``) over the columns
+    ``live`` convolved (positions among the n DOFs; None: all, nc = n — a held body's columns
+    are left out, its velocity being zero); a state space's per-state ``phi``, ``g0``, ``g1``, ``c2`` (complex), output ``rows`` and input
     ``cols``, and feedthrough ``d`` (n, n; empty when zero)."""
 
     kind: str
     length: int = 1
+    live: np.ndarray | None = None
     k: np.ndarray = field(default_factory=lambda: _empty(0, 0))
     data: np.ndarray = field(default_factory=lambda: _empty(0))
     indices: np.ndarray = field(default_factory=lambda: _empty(0, dtype=_I))
@@ -76,14 +78,15 @@ class FusedLinearStep:
         tables, headings, yaw_rows, owner = yaw if yaw is not None else (_empty(0, 1, 1, 0), _empty(0),
                                                                           _empty(0, dtype=_I), _empty(0, dtype=_I))
         s = r.phi.size
-        self._buf = np.zeros((2 * r.length, na))
+        live = np.arange(na) if r.live is None else r.live
+        self._buf = np.zeros((2 * r.length, live.size))
         self._counters = np.array([0, 0, r.length], _I)        # ring position, pushes, ring length
         self._z, self._z_prev = np.zeros(s, complex), np.zeros(s, complex)
         self._v_prev, self._v_last = np.zeros(na), np.zeros(na)
         self._f_ext = np.zeros(na)                            # no excitation computed outside
         self._state = _compiled().linear_state(
             c(idx, _I), c(exc, _F), c(omega, _F), float(ramp), np.zeros(2 * omega.size), c(k_hs, _F), c(x_eq, _F),
-            RADIATION_KINDS[r.kind], c(r.k, _F), c(r.data, _F), c(r.indices, _I), c(r.indptr, _I), self._buf,
+            RADIATION_KINDS[r.kind], c(r.k, _F), c(r.data, _F), c(r.indices, _I), c(r.indptr, _I), c(live, _I), self._buf,
             self._counters, c(r.phi, complex), c(r.g0, complex), c(r.g1, complex), c(r.c2, complex),
             c(r.rows, _I), c(r.cols, _I), c(r.d, _F), self._z, self._z_prev, self._v_prev, self._v_last,
             np.zeros(na), np.zeros(na), c(tables, _F), headings, c(yaw_rows, _I), c(owner, _I))

@@ -86,14 +86,25 @@ class RadiationMemory:
         first = self._k[:, :self.n]
         return first.toarray() if self.sparse else first.copy()
 
-    def fused(self) -> FusedRadiation:
-        """This force as the fused step takes it (server/fused/step.py): the pre-weighted kernel."""
+    def fused(self, still: np.ndarray | None = None) -> FusedRadiation:
+        """This force as the fused step takes it (server/fused/step.py): the pre-weighted kernel;
+        ``still`` (n,) bool: the DOFs whose velocity is zero at every step (a held body's), whose
+        columns are left out of it (they contribute nothing; None: none)."""
         if not self.enabled:
             return FusedRadiation("none")
+        live = None
+        k = self._k
+        if still is not None and np.any(still):
+            live = np.flatnonzero(~np.asarray(still, bool))
+            dense = k.toarray() if self.sparse else k
+            k = np.ascontiguousarray(dense.reshape(self.n, self.samples, self.n)[:, :, live]
+                                     .reshape(self.n, self.samples * live.size))
+            if self.sparse:
+                from scipy.sparse import csr_matrix
+                k = csr_matrix(k)
         if self.sparse:
-            k = self._k
-            return FusedRadiation("sparse", self.samples, data=k.data, indices=k.indices, indptr=k.indptr)
-        return FusedRadiation("dense", self.samples, k=self._k)
+            return FusedRadiation("sparse", self.samples, live, data=k.data, indices=k.indices, indptr=k.indptr)
+        return FusedRadiation("dense", self.samples, live, k=k)
 
     def window(self) -> np.ndarray:
         """The velocity window, newest first (L, n) (a copy; for tests and diagnostics)."""
