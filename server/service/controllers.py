@@ -371,10 +371,17 @@ class ControlHub:
                 if k % s.period == 0 and s.counts["joins"] > 0
                 and ("wave_elevation" in s.cfg.measurements or s.grid.samples > 0)}
 
+    def relay(self, meas: dict, waves: dict[str, np.ndarray]) -> None:
+        """Relay the measurements ``meas`` (of :meth:`step_request`, with ``waves``, the elevations
+        of :meth:`previews_due`) before the step is computed: a controller waiting for them gets
+        them at once, its deadline counted from now; :meth:`after_step` then gets ``meas=None``."""
+        self._relay(meas, _time.monotonic(), waves)
+
     def after_step(self, seq: int, iteration: int, new: bool, meas: dict | None, fields: dict,
                    route, msg_id, waves: dict[str, np.ndarray] | None = None) -> dict | None:
-        """Relay measurements (with ``waves``, the elevations of :meth:`previews_due`), take the
-        decisions due at ``seq``; the reply fields, or None (deferred)."""
+        """Relay measurements (with ``waves``, the elevations of :meth:`previews_due`; None when
+        :meth:`relay` sent them before the step), take the decisions due at ``seq``; the reply
+        fields, or None (deferred)."""
         now = _time.monotonic()
         if not new or iteration > 0:
             if self.last_control and self.last_control[0] == seq:

@@ -823,10 +823,12 @@ class ForceServer:
         seq, iteration = msg.get("seq"), codec.require_int(msg, "iteration", default=0, minimum=0)
         new = type(seq) is int and seq == s.last_seq + 1
         meas = hub.step_request(msg, seq, iteration, new) if new else None
-        fields = s.step(msg, hub.hydro_command(seq) if new else None)
+        checked = s.step_input(msg)
+        if meas is not None:   # relayed before the model steps: the controllers' round trip overlaps it
+            hub.relay(meas, s.previews(hub.previews_due(meas), meas["step"]))
+        fields = s.advance(*checked, hub.hydro_command(seq) if new else None)
         self._hold = s.release_time(fields["seq"], arrived)
-        waves = s.previews(hub.previews_due(meas), meas["step"]) if meas is not None else None
-        fields = hub.after_step(seq, iteration, new, meas, fields, self._route, msg_id, waves)
+        fields = hub.after_step(seq, iteration, new, None, fields, self._route, msg_id)
         return None if fields is None else ("forces", fields, session)
 
     # ------------------------------------------------------------ sessions in worker processes
