@@ -490,6 +490,35 @@ def test_run_polls_its_own_server_and_equals_a_separate_one(reference_data, serv
     assert np.abs(ds_own["pto_command_force"].values).max() > 1e3   # the ramp's first 2 s: commands of kN
 
 
+def test_measurements_leave_before_the_model_steps(reference_data, tmp_path):
+    """A controlled step relays its measurements before the session's model steps (ControlHub.relay
+    from ForceServer._step), so the controller's round trip overlaps the model's step: the relay of
+    step seq - 1's measurements comes before the model step of seq, for every seq >= 1; the run is
+    decided by the controller throughout (its results equal a separate server's: the test above)."""
+    from hydrolink.server.service import controllers, session as session_module
+
+    text = scene_text(reference_data, 2.0, controller_block("force", 3.9e5, 1.36e6,
+                                                         measurements=["pto_displacement", "pto_velocity"]))
+    advance, relay, order = session_module.Session.advance, controllers.ControlHub._relay, []
+
+    def advancing(s, seq, *args, **kw):
+        order.append(("step", seq))
+        return advance(s, seq, *args, **kw)
+
+    def relaying(hub, meas, *args):
+        order.append(("relay", meas["step"]))
+        return relay(hub, meas, *args)
+    try:
+        session_module.Session.advance, controllers.ControlHub._relay = advancing, relaying
+        _, (rc, err) = run_own(tmp_path, "early", text, EXAMPLES / "reactive.py", free_address())
+    finally:
+        session_module.Session.advance, controllers.ControlHub._relay = advance, relay
+    assert rc == 0 and "over the direct channel" in err, err
+    ds = xr.load_dataset(tmp_path / "early.nc")
+    assert json.loads(ds.attrs["controller_events"])["ctl"]["ok"] == 50
+    assert order == [("step", 0)] + [e for seq in range(1, 51) for e in (("relay", seq - 1), ("step", seq))]
+
+
 def test_controller_whose_direct_channel_breaks_goes_on_over_zeromq(reference_data, tmp_path):
     """The run's own server loses a controller's direct channel mid-run (SPEC §5.7.5), once while
     the controller computes a command and once while its request waits for the next measurements:
