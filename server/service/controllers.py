@@ -338,11 +338,9 @@ class ControlHub:
 
     def step_request(self, msg: dict, seq: int, iteration: int, new: bool) -> dict | None:
         """Parse (and check) a step's ``measurements`` before the step is computed; None if absent."""
-        if not new or iteration > 0:
+        if not new or iteration > 0 or not self.measured_at(seq):
             return None
         k = seq - 1
-        if k < 0 or not any(k % s.period == 0 for s in self.slots.values()):
-            return None
         raw = msg.get("measurements")
         if raw is None:
             raise ProtocolError(Code.MISSING_FIELD, "measurements", f"step {seq} must carry the measurements of "
@@ -358,6 +356,12 @@ class ControlHub:
             shape = (n_p,) if name.startswith("pto") else (n_b, 6)
             out[name] = codec.require_array(raw, name, shape, path=f"measurements.{name}")
         return out
+
+    def measured_at(self, seq: int) -> bool:
+        """Whether a new step ``seq`` carries measurements: step seq − 1 is a control step of a
+        controller of this session."""
+        k = seq - 1
+        return k >= 0 and any(k % s.period == 0 for s in self.slots.values())
 
     def previews_due(self, meas: dict | None) -> dict[str, PreviewGrid]:
         """The wave probes the measurements ``meas`` (of :meth:`step_request`) are relayed with: of

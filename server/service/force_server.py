@@ -35,6 +35,7 @@ from hydrolink.server.hdb.file_set import FileSetReader
 from hydrolink.server.hdb.store import HASH, ContentStore, ContentTooLarge, default_folder
 from hydrolink.server.service import frontend
 from hydrolink.server.service.direct import DirectError, DirectListener, DirectRoute
+from hydrolink.server.service.controlled_step import ControlledStep
 from hydrolink.server.service.local_step import LocalStep
 from hydrolink.server.service.log_limit import LimitedLog, limit_lines
 from hydrolink.server.service.session import PlantBuilder, Session, build_model
@@ -94,6 +95,7 @@ class ForceServer:
     controllers (no second thread fighting the run for the GIL, no loopback hop to its server)."""
 
     _local_reply: tuple[dict, float | None] | None = None   # polled: the caller's deferred reply, until taken
+    local_route = LOCAL_ROUTE   # the routing frames of this process's own run's requests (polled)
     _direct: DirectListener | None = None   # polled: the controllers' direct channel (SPEC §5.7.5)
     _poller: zmq.Poller | None = None       # polled with a direct channel: the socket, the listener, its links
     _next_sweep = 0.0   # polled: when serve_once next expires idle sessions
@@ -518,8 +520,16 @@ class ForceServer:
             return self.handle(request)
         self._serve_ready()
         reply = self.handle(request, LOCAL_ROUTE)
-        if reply is not None:
-            return reply
+        return reply if reply is not None else self.await_local(timeout)
+
+    def serve_ready(self) -> None:
+        """Polled: what is already on the socket and the direct links answered, the deadlines that
+        passed kept — before a request of this process's own run (server/service/controlled_step.py)."""
+        self._serve_ready()
+
+    def await_local(self, timeout: float) -> dict:
+        """Polled: the deferred reply to this process's own run (sent to :attr:`local_route`), after
+        turns of the loop in this thread until it is sent; TimeoutError after ``timeout`` s."""
         hold, deadline = self._hold, time.monotonic() + timeout
         while self._local_reply is None:
             if time.monotonic() > deadline:
@@ -574,6 +584,16 @@ class ForceServer:
                 or s.id in self._hubs:
             return None
         return LocalStep(s)
+
+    def controlled_step(self, session: str) -> ControlledStep | None:
+        """The step path of a polled server's own run for ``session`` with controllers
+        (server/service/controlled_step.py): a session that steps here, unpaced; None otherwise
+        (the run takes :meth:`respond_map`)."""
+        s = self.sessions.get(session)
+        hub = self._hubs.get(session)
+        if s is None or hub is None or not self.polled or type(s) is not Session or s.pacer is not None:
+            return None
+        return ControlledStep(self, s, hub)
 
     def handle(self, frame: bytes | dict, route: list[bytes] | None = None) -> dict | None:
         """One request frame (or, in-process, its unpacked map) -> its reply message (never
