@@ -542,24 +542,24 @@ def test_controller_whose_direct_channel_breaks_goes_on_over_zeromq(reference_da
     text = scene_text(reference_data, 2.0, controller_block("force", 3.9e5, 1.36e6,
                                                          measurements=["pto_displacement", "pto_velocity"])
                       .replace("timeout = 10.0", "timeout = 0.5"))
-    serve_once, serve_ready, cut = force_server.ForceServer.serve_once, force_server.ForceServer._serve_ready, {}
+    wait_direct, serve_ready, cut = force_server.ForceServer._wait_direct, force_server.ForceServer._serve_ready, {}
 
     def breaking(where, plain):   # the 10th call with a direct link open: its socket closed under it
-        def call(srv):
+        def call(srv, *args):
             links = srv._direct.links if srv._direct is not None else []
             cut[where] = cut.get(where, 0) + bool(links)
             if links and cut[where] == 10:
                 links[0].close()
-            plain(srv)
+            return plain(srv, *args)
         return call
-    try:   # serve_once: the run waits for the command; _serve_ready: before the run's next step request
-        force_server.ForceServer.serve_once = breaking("waiting", serve_once)
+    try:   # _wait_direct: the run waits for the command; _serve_ready: before the run's next step request
+        force_server.ForceServer._wait_direct = breaking("waiting", wait_direct)
         _, (rc, err1) = run_own(tmp_path, "cut1", text, EXAMPLES / "reactive.py", free_address())
-        force_server.ForceServer.serve_once = serve_once
+        force_server.ForceServer._wait_direct = wait_direct
         force_server.ForceServer._serve_ready = breaking("parked", serve_ready)
         _, (rc2, err2) = run_own(tmp_path, "cut2", text, EXAMPLES / "reactive.py", free_address())
     finally:
-        force_server.ForceServer.serve_once, force_server.ForceServer._serve_ready = serve_once, serve_ready
+        force_server.ForceServer._wait_direct, force_server.ForceServer._serve_ready = wait_direct, serve_ready
     for name, code, err in (("cut1", rc, err1), ("cut2", rc2, err2)):
         assert code == 0 and "over ZeroMQ" in err, err
         ds = xr.load_dataset(tmp_path / f"{name}.nc")

@@ -359,6 +359,20 @@ class ForceServer:
         else:
             self._sock.tend()   # its silent connections swept (recv does it only while it waits)
 
+    def _wait_direct(self, ms: int) -> bool:
+        """The turn of :meth:`await_local` while nothing else is due: wait at most ``ms`` for the
+        ZeroMQ socket, the direct listener or a direct connection and serve what came (as
+        :meth:`_receive_direct`, without the receive timeout's setsockopt: the poll takes ``ms``);
+        whether anything did."""
+        ready = self._direct_ready(ms)
+        if not ready:
+            self._sock.tend()
+            return False
+        self._serve_direct(ready)
+        if self._sock.socket in ready:
+            self._receive()
+        return True
+
     def _direct_ready(self, ms: int) -> dict:
         """What is readable within ``ms``: the ZeroMQ socket, the direct listener, its connections
         (one poll, rebuilt only when a connection came or went)."""
@@ -530,12 +544,21 @@ class ForceServer:
     def await_local(self, timeout: float) -> dict:
         """Polled: the deferred reply to this process's own run (sent to :attr:`local_route`), after
         turns of the loop in this thread until it is sent; TimeoutError after ``timeout`` s."""
-        hold, deadline = self._hold, time.monotonic() + timeout
+        hold, give_up = self._hold, time.monotonic() + timeout
+        due: float | None = None   # the controllers' next deadline: recomputed only after a message was served
         while self._local_reply is None:
-            if time.monotonic() > deadline:
+            now = time.monotonic()
+            if now > give_up:
                 raise TimeoutError(f"no reply to a request of this run within {timeout:g} s from its own force "
                                    f"server (its controllers on {self._address})")
-            self.serve_once()
+            if due is None:
+                due = min((hub.next_deadline() for hub in self._hubs.values()), default=math.inf)
+            if due <= now or now >= self._next_sweep or self._direct is None or self._sock.pending \
+                    or self._flying or self._setups or self._paced:
+                self.serve_once()   # a whole turn: what is due, the sweep, or no direct channel
+                due = None
+            elif self._wait_direct(POLL_MS if due - now >= POLL_MS / 1000 else max(1, int((due - now) * 1000))):
+                due = None
         (reply, release), self._local_reply = self._local_reply, None
         self._hold = release if release is not None else hold
         return reply
