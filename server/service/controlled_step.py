@@ -19,14 +19,11 @@ ProtocolError, the session unchanged.
 
 from __future__ import annotations
 
-import math
-from typing import TYPE_CHECKING, Any
-
-import numpy as np
+from typing import TYPE_CHECKING
 
 from hydrolink.protocol import codec
 from hydrolink.protocol.codec import ProtocolError
-from hydrolink.server.service.controllers import MB_FIELDS, ControlHub
+from hydrolink.server.service.controllers import ControlHub
 from hydrolink.server.service.local_step import LocalStep
 from hydrolink.server.service.session import Session
 
@@ -35,7 +32,6 @@ if TYPE_CHECKING:
 
 __all__ = ["ControlledStep"]
 
-_F8 = np.dtype(np.float64)
 
 class ControlledStep(LocalStep):
     """One controlled session's step path for the polled server's own run (module docstring);
@@ -44,8 +40,6 @@ class ControlledStep(LocalStep):
     def __init__(self, server: "ForceServer", session: Session, hub: ControlHub):
         super().__init__(session)
         self._server, self._hub = server, hub
-        n_p, n_b = len(hub.pto_names), len(hub.body_names)
-        self._shapes = tuple((name, (n_p,) if name.startswith("pto") else (n_b, 6)) for name in MB_FIELDS)
         self._ids = codec.id_source("l")
 
     def __call__(self, seq: int, iteration: int = 0, measurements: dict | None = None,
@@ -58,7 +52,7 @@ class ControlledStep(LocalStep):
         server, s, hub = self._server, self._session, self._hub
         server.serve_ready()
         new = seq == s.last_seq + 1
-        meas = self._measurements(seq, measurements) if new and iteration == 0 and hub.measured_at(seq) else None
+        meas = hub.own_measurements(seq, measurements) if new and iteration == 0 and hub.measured_at(seq) else None
         self._check(seq)
         if meas is not None:   # relayed before the model steps (as ForceServer._step)
             hub.relay(meas, s.previews(hub.previews_due(meas), meas["step"]))
@@ -76,23 +70,3 @@ class ControlledStep(LocalStep):
     def compiled(self) -> None:
         """No compiled kernel: a controlled step relays and waits (the caller takes :meth:`__call__`)."""
         return None
-
-    def _measurements(self, seq: int, raw: Any) -> dict:
-        """The measurements of control step seq − 1 as :meth:`ControlHub.step_request` returns them:
-        checked for their step, arrays' type, shape and finiteness (any other map gets
-        step_request's own error)."""
-        k = seq - 1
-        if type(raw) is dict and raw.get("step") == k and type(raw["step"]) is int:
-            out: dict[str, Any] = {"step": k}
-            total = 0.0
-            for name, shape in self._shapes:
-                v = raw.get(name)
-                if type(v) is not np.ndarray or v.dtype is not _F8 or v.shape != shape:
-                    break
-                out[name] = v
-                total += sum(v.ravel().tolist())   # (a few values: cheaper than a numpy reduction)
-            else:
-                if math.isfinite(total):   # every value finite (else step_request says which one)
-                    return out
-        return self._hub.step_request({} if raw is None else {"measurements": raw}, seq, 0, True)
-
