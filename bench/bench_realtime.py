@@ -3,7 +3,7 @@ clock (``hydrolink run --realtime``) at 100 Hz, 200 Hz and 1 kHz: overruns and s
 percentiles, beside the unpaced cost of a step of the same run.
 
     python bench/bench_realtime.py [--rates 100 200 1000] [--seconds 60] [--unpaced-seconds 10] [--radiation state-space]
-                                   [--relays polled thread] [--channels direct zeromq]
+                                   [--relays polled thread] [--channels direct zeromq] [--rt-priority N]
 
 Each rate: the scene's dt = 1/rate, the run's own force server listening on a loopback port, the
 example controller examples/controllers/reactive.py in its own process (force command every step,
@@ -11,6 +11,8 @@ latency 1 step). The unpaced run is the same setup without --realtime: its wall 
 what a step costs here; a paced run can keep its rate only if that cost stays below 1/rate.
 ``--channels``: the controller on the polled server's direct channel (SPEC §5.7.5, what ``hydrolink
 control`` takes when offered) and/or on ZeroMQ (``--no-direct``), alternated in one run.
+``--rt-priority N``: the run (this process's thread, for each run) and the controller process under
+SCHED_FIFO at N (``hydrolink run/control --rt-priority``, clients/lockstep/rt_priority.py).
 Prints a markdown table (the load average before and after: the figures are the host's as much as
 the code's; the CPU time per step of each side, the run's process and the controller's, from the
 unpaced run's loop: valid under load), then per paced run where the step time went (protocol/pacing.py PARTS: mean per step,
@@ -58,13 +60,14 @@ def free_port() -> int:
 
 
 def run(tmp: Path, rate: float, seconds: float, realtime: float | None, radiation: str, relay: str = "polled",
-        channel: str = "direct"):
+        channel: str = "direct", rt_priority: int | None = None):
     """One run with the controller process; returns the RunSummary (its results file: ``output``)
     and the CPU µs per step of the run's process and of the controller's (LoopCost)."""
     path = tmp / f"rm3_{int(rate)}_{'paced' if realtime else 'free'}_{relay}_{channel}.toml"
     path.write_text(scene(1.0 / rate, seconds, radiation))
     cost = LoopCost()
-    summary = run_controlled(path, REPO / "examples" / "controllers" / "reactive.py", realtime, relay, channel, cost)
+    summary = run_controlled(path, REPO / "examples" / "controllers" / "reactive.py", realtime, relay, channel, cost,
+                             rt_priority)
     return summary, cost
 
 
@@ -89,21 +92,24 @@ class LoopCost:
 
 
 def run_controlled(path: Path, controller: Path, realtime: float | None, relay: str = "polled",
-                   channel: str = "direct", cost: LoopCost | None = None):
+                   channel: str = "direct", cost: LoopCost | None = None, rt_priority: int | None = None):
     """Run the scene file ``path`` (results beside it) with the Python controller file
     ``controller`` in its own process (``hydrolink control``) over loopback TCP; the RunSummary.
     ``relay``: "polled", the run's own server polled from its thread (what ``hydrolink run`` does);
     "thread", what it did before: a force server in a thread of this process, the run its client
     over loopback TCP (two Python hops a step, two threads sharing the GIL). ``channel``:
     "direct", the controller on the polled server's direct channel (SPEC §5.7.5); "zeromq", on
-    ZeroMQ only (``--no-direct``: what it did before). ``cost``: filled with the CPU per step."""
+    ZeroMQ only (``--no-direct``: what it did before). ``cost``: filled with the CPU per step.
+    ``rt_priority``: the run's thread and the controller process under SCHED_FIFO at that priority."""
     from hydrolink.clients.lockstep import driver
+    from hydrolink.clients.lockstep.rt_priority import rt_priority as held
     from hydrolink.clients.run import run_scene_file
     from hydrolink.server.service.force_server import serve_in_thread
 
     address = f"tcp://127.0.0.1:{free_port()}"
     ctl = subprocess.Popen([sys.executable, "-m", "hydrolink.clients.cli", "control", str(controller), "--server",
-                            address, "--token", TOKEN, "--join-wait", "60", *(["--no-direct"] if channel == "zeromq" else [])],
+                            address, "--token", TOKEN, "--join-wait", "60", *(["--no-direct"] if channel == "zeromq" else []),
+                            *(["--rt-priority", str(rt_priority)] if rt_priority is not None else [])],
                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     srv = thread = None
     plain_run, err = driver.run, ""
@@ -113,8 +119,9 @@ def run_controlled(path: Path, controller: Path, realtime: float | None, relay: 
         if relay == "thread":
             from hydrolink.clients.analysis.plant import build_plant
             srv, thread = serve_in_thread(address, plant_builder=build_plant)
-        summary = run_scene_file(path, path.with_suffix(".nc"), progress=False, listen=address, control_token=TOKEN,
-                                 realtime=realtime, server=address if srv is not None else None)
+        with held(rt_priority):
+            summary = run_scene_file(path, path.with_suffix(".nc"), progress=False, listen=address,
+                                     control_token=TOKEN, realtime=realtime, server=address if srv is not None else None)
     finally:
         driver.run = plain_run
         if srv is not None:
@@ -148,6 +155,8 @@ def main() -> None:
     ap.add_argument("--channels", nargs="+", default=["direct"], choices=["direct", "zeromq"],
                     help="direct: the controller on the polled server's direct channel (SPEC §5.7.5); zeromq: "
                          "on ZeroMQ (hydrolink control --no-direct, before revision 1.12), for a comparison")
+    ap.add_argument("--rt-priority", type=int, default=None, metavar="N",
+                    help="the run and the controller under SCHED_FIFO at N (1-98; needs CAP_SYS_NICE or ulimit -r)")
     args = ap.parse_args()
     rows, notes = [], []
     load0 = os.getloadavg()
@@ -159,9 +168,10 @@ def main() -> None:
                 label = relay if relay == "thread" else f"{relay}, {channel}"
                 # unpaced: released at once (a factor no step can keep up with); the step costs are its
                 # steps' times from their actual start (latency less "behind"; the controller's join left out)
-                unpaced, cost = run(tmp, rate, args.unpaced_seconds, UNPACED, args.radiation, relay, channel)
+                unpaced, cost = run(tmp, rate, args.unpaced_seconds, UNPACED, args.radiation, relay, channel,
+                                    args.rt_priority)
                 free = unpaced.realtime
-                paced, _ = run(tmp, rate, args.seconds, 1.0, args.radiation, relay, channel)
+                paced, _ = run(tmp, rate, args.seconds, 1.0, args.radiation, relay, channel, args.rt_priority)
                 rt = paced.realtime
                 notes.append(breakdown(rate, paced) + f" ({label}); unpaced: the server's model "
                              f"{unpaced.server_compute_us_per_step:.1f} µs per step, ms per step: "
@@ -172,7 +182,8 @@ def main() -> None:
                              1e3 * rt.latency_p99, 1e3 * rt.latency_max, paced.wall_time, os.getloadavg()[0]))
                 print(f"{rate:g} Hz {label}: unpaced {free}; paced {rt}", file=sys.stderr, flush=True)
     load1 = os.getloadavg()
-    print(f"load average {load0[0]:.2f} before, {load1[0]:.2f} after ({os.cpu_count()} CPUs)\n")
+    print(f"load average {load0[0]:.2f} before, {load1[0]:.2f} after ({os.cpu_count()} CPUs)"
+          + (f"; run and controller under SCHED_FIFO {args.rt_priority}" if args.rt_priority is not None else "") + "\n")
     print("| rate | relay | budget (ms) | unpaced step p50 (ms) | unpaced p99 (ms) | CPU µs/step: run | controller | "
           "paced steps | overruns | worst lateness (ms) | paced latency p50 (ms) | p99 (ms) | max (ms) | loop wall (s) "
           "| load after |")

@@ -80,6 +80,23 @@ def _pin_to_cpu(cpu: int | None) -> None:
         raise _UserError(f"--cpu {cpu}: cannot pin to that CPU ({exc})") from None
 
 
+def _hold_rt_priority(priority: int | None) -> None:
+    """Run this process's thread (and the threads it starts later) under SCHED_FIFO at ``priority``
+    (clients/lockstep/rt_priority.py; docs/realtime.md): a paced run and its controller woken at
+    once by each other's messages, ahead of the host's ordinary work."""
+    if priority is None:
+        return
+    from hydrolink.clients.lockstep.rt_priority import PriorityError, hold_rt_priority
+    try:
+        hold_rt_priority(priority)
+    except PriorityError as exc:
+        raise _UserError(str(exc)) from None
+
+
+RT_PRIORITY_HELP = ("Run under SCHED_FIFO at this real-time priority (1-98, Linux; needs CAP_SYS_NICE or "
+                    "`ulimit -r`): woken ahead of the host's other work (docs/realtime.md).")
+
+
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="hydrolink")
 @click.option("-v", "--verbose", count=True, help="More log output (-v info, -vv debug).")
@@ -382,13 +399,15 @@ def keys_new(directory: Path, name: str) -> None:
 @click.option("--control-token", envvar="HYDROLINK_CONTROL_TOKEN", metavar="TOKEN",
               help="With [[controllers]]: the secret they show to join (32-128 characters A-Z a-z 0-9 - _; "
                    "also $HYDROLINK_CONTROL_TOKEN). Default: the server draws one, printed with the join command.")
+@click.option("--rt-priority", type=int, metavar="N", help=RT_PRIORITY_HELP)
 @_curve_options
 @_key_file_option
 def run(scene: Path, output: Path | None, server: str | None, no_progress: bool, cpu: int | None,
         listen: str, link_timeout: float, reply_timeout: float, hdb_files: bool, realtime: float | None, control_token: str | None,
-        curve_server_key: Path | None, curve_secret: Path | None, key_file: Path | None) -> None:
+        rt_priority: int | None, curve_server_key: Path | None, curve_secret: Path | None, key_file: Path | None) -> None:
     """Co-simulate a SCENE (TOML) in lockstep with the force server."""
     _pin_to_cpu(cpu)
+    _hold_rt_priority(rt_priority)
     curve = _client_keys(curve_server_key, curve_secret)
     if curve is not None and server is None:
         raise _UserError("--curve-server-key/--curve-secret are for a remote server: give --server")
@@ -459,12 +478,14 @@ def run(scene: Path, output: Path | None, server: str | None, no_progress: bool,
 @click.option("--join-wait", default=30.0, show_default=True, help="Seconds to keep trying to join.")
 @click.option("--no-direct", is_flag=True, help="Stay on ZeroMQ even when the server offers its direct channel "
                                                  "(SPEC §5.7.5: a plain socket, a faster round trip at 1 kHz).")
+@click.option("--rt-priority", type=int, metavar="N", help=RT_PRIORITY_HELP)
 @_curve_options
 @_key_file_option
 def control(file: Path, server: str, token: str, session: str | None, name: str | None, class_name: str | None,
-            join_wait: float, no_direct: bool, curve_server_key: Path | None, curve_secret: Path | None,
-            key_file: Path | None) -> None:
+            join_wait: float, no_direct: bool, rt_priority: int | None, curve_server_key: Path | None,
+            curve_secret: Path | None, key_file: Path | None) -> None:
     """Run the Python controller in FILE (a hydrolink.clients.control.Controller subclass)."""
+    _hold_rt_priority(rt_priority)
     from hydrolink.clients.control import ControllerError, load_controller, run_controller
 
     curve = _client_keys(curve_server_key, curve_secret)

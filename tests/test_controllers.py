@@ -445,12 +445,14 @@ def test_in_process_server_refuses_controllers(reference_data, tmp_path):
 
 def test_run_polls_its_own_server_and_equals_a_separate_one(reference_data, server, tmp_path):
     """``hydrolink run`` of a scene with a controller and no --server polls its own server from the
-    run's thread (ForceServer polled: no server thread, the run's steps in-process, the controller
-    over its direct channel, SPEC §5.7.5): the results equal, bit for bit, the same run against a
-    server in a thread with the controller over ZeroMQ (--no-direct); no thread is left running; a
-    second multibody hello to the run's socket is refused (one session: the run's)."""
+    run's thread (ForceServer polled: no server thread, the run's steps in-process on its own
+    arrays — server/service/controlled_step.py, every step of the run — the controller over its
+    direct channel, SPEC §5.7.5): the results equal, bit for bit and variable by variable, the same
+    run against a server in a thread with the controller over ZeroMQ (--no-direct), whose steps are
+    messages; no thread is left running; a second multibody hello to the run's socket is refused
+    (one session: the run's)."""
     from hydrolink.protocol import codec
-    from hydrolink.server.service import force_server
+    from hydrolink.server.service import controlled_step, force_server
 
     text = scene_text(reference_data, 2.0, controller_block("force", 3.9e5, 1.36e6,
                                                          measurements=["pto_displacement", "pto_velocity"]))
@@ -463,7 +465,12 @@ def test_run_polls_its_own_server_and_equals_a_separate_one(reference_data, serv
     stranger = ctx.socket(zmq.DEALER)
     stranger.setsockopt(zmq.LINGER, 0)
     seen = {}
-    serve_once = force_server.ForceServer.serve_once
+    serve_once, in_process = force_server.ForceServer.serve_once, controlled_step.ControlledStep.__call__
+    steps = []
+
+    def stepped(port, seq, *args):
+        steps.append(seq)
+        return in_process(port, seq, *args)
 
     def watched(srv):   # once the run's session is open: a stranger's multibody hello, answered by a later turn
         if "threads" not in seen and srv.sessions:
@@ -473,11 +480,13 @@ def test_run_polls_its_own_server_and_equals_a_separate_one(reference_data, serv
         serve_once(srv)
     try:
         force_server.ForceServer.serve_once = watched
+        controlled_step.ControlledStep.__call__ = stepped
         summary, (rc, err) = run_own(tmp_path, "own", text, EXAMPLES / "reactive.py", address)
         assert stranger.poll(5000)
         refused = codec.unpack(stranger.recv())
     finally:
         force_server.ForceServer.serve_once = serve_once
+        controlled_step.ControlledStep.__call__ = in_process
         stranger.close(0)
         ctx.term()
     assert rc == 0 and "over the direct channel" in err, err
@@ -485,9 +494,41 @@ def test_run_polls_its_own_server_and_equals_a_separate_one(reference_data, serv
     assert seen["threads"] <= threads + 1   # at most the results writer's thread: no server thread
     ds_own = xr.load_dataset(tmp_path / "own.nc")
     assert json.loads(ds_own.attrs["controller_events"])["ctl"]["ok"] == 50
-    for v in ("position", "velocity", "pto_force", "pto_command_force", "excitation_force", "radiation_force"):
-        assert np.array_equal(ds_own[v].values, ds_remote[v].values), v
+    assert steps == list(range(ds_own.sizes["time"]))   # every step of the run on the in-process path
+    assert set(ds_own.data_vars) == set(ds_remote.data_vars)
+    for v in ds_own.data_vars:   # controller_latency is wall time: measured, not computed
+        if v != "controller_latency":
+            assert np.array_equal(ds_own[v].values, ds_remote[v].values, equal_nan=True), v
     assert np.abs(ds_own["pto_command_force"].values).max() > 1e3   # the ramp's first 2 s: commands of kN
+
+
+def test_measurements_leave_before_the_model_steps(reference_data, tmp_path):
+    """A controlled step relays its measurements before the session's model steps (ControlHub.relay
+    from ForceServer._step), so the controller's round trip overlaps the model's step: the relay of
+    step seq - 1's measurements comes before the model step of seq, for every seq >= 1; the run is
+    decided by the controller throughout (its results equal a separate server's: the test above)."""
+    from hydrolink.server.service import controllers, session as session_module
+
+    text = scene_text(reference_data, 2.0, controller_block("force", 3.9e5, 1.36e6,
+                                                         measurements=["pto_displacement", "pto_velocity"]))
+    advance, relay, order = session_module.Session.advance, controllers.ControlHub._relay, []
+
+    def advancing(s, seq, *args, **kw):
+        order.append(("step", seq))
+        return advance(s, seq, *args, **kw)
+
+    def relaying(hub, meas, *args):
+        order.append(("relay", meas["step"]))
+        return relay(hub, meas, *args)
+    try:
+        session_module.Session.advance, controllers.ControlHub._relay = advancing, relaying
+        _, (rc, err) = run_own(tmp_path, "early", text, EXAMPLES / "reactive.py", free_address())
+    finally:
+        session_module.Session.advance, controllers.ControlHub._relay = advance, relay
+    assert rc == 0 and "over the direct channel" in err, err
+    ds = xr.load_dataset(tmp_path / "early.nc")
+    assert json.loads(ds.attrs["controller_events"])["ctl"]["ok"] == 50
+    assert order == [("step", 0)] + [e for seq in range(1, 51) for e in (("relay", seq - 1), ("step", seq))]
 
 
 def test_controller_whose_direct_channel_breaks_goes_on_over_zeromq(reference_data, tmp_path):
@@ -501,24 +542,24 @@ def test_controller_whose_direct_channel_breaks_goes_on_over_zeromq(reference_da
     text = scene_text(reference_data, 2.0, controller_block("force", 3.9e5, 1.36e6,
                                                          measurements=["pto_displacement", "pto_velocity"])
                       .replace("timeout = 10.0", "timeout = 0.5"))
-    serve_once, serve_ready, cut = force_server.ForceServer.serve_once, force_server.ForceServer._serve_ready, {}
+    wait_direct, serve_ready, cut = force_server.ForceServer._wait_direct, force_server.ForceServer._serve_ready, {}
 
     def breaking(where, plain):   # the 10th call with a direct link open: its socket closed under it
-        def call(srv):
+        def call(srv, *args):
             links = srv._direct.links if srv._direct is not None else []
             cut[where] = cut.get(where, 0) + bool(links)
             if links and cut[where] == 10:
                 links[0].close()
-            plain(srv)
+            return plain(srv, *args)
         return call
-    try:   # serve_once: the run waits for the command; _serve_ready: before the run's next step request
-        force_server.ForceServer.serve_once = breaking("waiting", serve_once)
+    try:   # _wait_direct: the run waits for the command; _serve_ready: before the run's next step request
+        force_server.ForceServer._wait_direct = breaking("waiting", wait_direct)
         _, (rc, err1) = run_own(tmp_path, "cut1", text, EXAMPLES / "reactive.py", free_address())
-        force_server.ForceServer.serve_once = serve_once
+        force_server.ForceServer._wait_direct = wait_direct
         force_server.ForceServer._serve_ready = breaking("parked", serve_ready)
         _, (rc2, err2) = run_own(tmp_path, "cut2", text, EXAMPLES / "reactive.py", free_address())
     finally:
-        force_server.ForceServer.serve_once, force_server.ForceServer._serve_ready = serve_once, serve_ready
+        force_server.ForceServer._wait_direct, force_server.ForceServer._serve_ready = wait_direct, serve_ready
     for name, code, err in (("cut1", rc, err1), ("cut2", rc2, err2)):
         assert code == 0 and "over ZeroMQ" in err, err
         ds = xr.load_dataset(tmp_path / f"{name}.nc")

@@ -28,6 +28,7 @@ from hydrolink.protocol.hdb.wire import HDBFiles, to_wire
 from hydrolink.protocol.transport import apply_heartbeats
 
 if TYPE_CHECKING:
+    from hydrolink.server.service.controlled_step import ControlledStep
     from hydrolink.server.service.local_step import LocalStep
 
 log = logging.getLogger("hydrolink.clients.connection")
@@ -406,6 +407,14 @@ class ServerConnection:
         if not self._steps or self.session is None:
             return None
         return self._local.local_step(self.session)
+
+    def controlled_step(self) -> ControlledStep | None:
+        """The polled in-process server's step path for this session with controllers
+        (server/service/controlled_step.py): None unless the server is this process's own polled
+        one, without a signing key, and the session steps there unpaced (then :meth:`step`)."""
+        if not self._maps or self.session is None or not hasattr(self._local, "controlled_step"):
+            return None
+        return self._local.controlled_step(self.session)
 
     def save(self) -> int:
         """Keep the session's state at this point (SPEC §5.9); the id to :meth:`restore` it."""

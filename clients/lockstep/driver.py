@@ -118,9 +118,13 @@ class ForceLink:
         # generalized modes (setup.modes): the state's last M entries, sent as modal_position/velocity
         self.m = len(setup.mode_labels) if self.n else 0
         self._r = 6 * self.n
-        # this process's own server (hydrolink run's embedded one): the state goes into the arrays
-        # of its step path (server/service/local_step.py), no message
+        # this process's own server (hydrolink run's embedded one, or its polled one with controllers):
+        # the state goes into the arrays of its step path (server/service/local_step.py,
+        # controlled_step.py), no message
         self._local = connection.local_step() if self.n else None
+        self._controlled = connection.controlled_step() if self.n and self._local is None else None
+        if self._controlled is not None:
+            self._local = self._controlled
         if self._local is not None:
             self._pos = self._local.position
         self._pos_flat = self._pos.reshape(-1)
@@ -140,11 +144,14 @@ class ForceLink:
             x, v = x[:r], v[:r]
         np.add(self.eq, x, out=self._pos_flat)
         try:
-            if local is not None:   # (no controller joins an embedded server: no measurements)
+            if local is not None:
                 self._vel_flat[:] = v
                 if extra:
                     local.modal_position[:], local.modal_velocity[:] = extra["modal"]
-                reply = local(seq, iteration)
+                if self._controlled is None:   # (no controller joins an embedded server: no measurements)
+                    reply = local(seq, iteration)
+                else:
+                    reply = local(seq, iteration, measurements, self.conn.timeout if timeout is None else timeout)
             elif measurements is not None or timeout is not None or extra:
                 reply = self.conn.step(seq, t, pos, v.reshape(shape), iteration, measurements=measurements,
                                        timeout=timeout, **extra)

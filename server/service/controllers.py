@@ -35,6 +35,7 @@ log = logging.getLogger("hydrolink.server.service.controllers")
 MAX_WAIT = 30.0
 STATUSES = ("ok", "timeout", "absent", "invalid")
 MB_FIELDS = ("pto_displacement", "pto_velocity", "pto_force", "body_position", "body_velocity")
+_F8 = np.dtype(np.float64)
 SEQUENCED = ("step", "bye", "save", "restore", "release")   # requests that act on the step sequence
 
 
@@ -101,6 +102,9 @@ class ControlHub:
         self.pto_names = [p.name for p in linear]
         self.pto_damping = {p.name: float(p.damping) for p in linear}
         self.body_names = [b.name for b in scene.bodies]
+        # the measurements' arrays (SPEC §5.7.3): (field, shape) in MB_FIELDS order
+        self.mb_shapes = tuple((name, (len(self.pto_names),) if name.startswith("pto") else (len(self.body_names), 6))
+                               for name in MB_FIELDS)
         self.slots: dict[str, Slot] = {}
         for i, c in enumerate(scene.controllers):
             P = c.steps_per_period(self.dt)
@@ -338,11 +342,9 @@ class ControlHub:
 
     def step_request(self, msg: dict, seq: int, iteration: int, new: bool) -> dict | None:
         """Parse (and check) a step's ``measurements`` before the step is computed; None if absent."""
-        if not new or iteration > 0:
+        if not new or iteration > 0 or not self.measured_at(seq):
             return None
         k = seq - 1
-        if k < 0 or not any(k % s.period == 0 for s in self.slots.values()):
-            return None
         raw = msg.get("measurements")
         if raw is None:
             raise ProtocolError(Code.MISSING_FIELD, "measurements", f"step {seq} must carry the measurements of "
@@ -352,12 +354,37 @@ class ControlHub:
         got = codec.require_int(raw, "step", path="measurements.step")
         if got != k:
             raise ProtocolError(Code.BAD_VALUE, "measurements.step", f"must be {k} (seq - 1), got {got}")
-        n_p, n_b = len(self.pto_names), len(self.body_names)
         out = {"step": k}
-        for name in MB_FIELDS:
-            shape = (n_p,) if name.startswith("pto") else (n_b, 6)
+        for name, shape in self.mb_shapes:
             out[name] = codec.require_array(raw, name, shape, path=f"measurements.{name}")
         return out
+
+    def own_measurements(self, seq: int, raw: Any) -> dict:
+        """The measurements of a new step ``seq`` (iteration 0, :meth:`measured_at`) made by this
+        process's own run (server/service/controlled_step.py): :meth:`step_request`'s result, with
+        only what its maker cannot vouch for checked — the step, each array's type, dtype and
+        shape, every value finite (one sum over their few values); anything else gets
+        step_request's own error."""
+        k = seq - 1
+        if type(raw) is dict and type(raw.get("step")) is int and raw["step"] == k:
+            out: dict[str, Any] = {"step": k}
+            total = 0.0
+            for name, shape in self.mb_shapes:
+                v = raw.get(name)
+                if type(v) is not np.ndarray or v.dtype is not _F8 or v.shape != shape:
+                    break
+                out[name] = v
+                total += sum(v.ravel().tolist())   # (a few values: cheaper than a numpy reduction)
+            else:
+                if math.isfinite(total):   # every value finite (else step_request says which one)
+                    return out
+        return self.step_request({} if raw is None else {"measurements": raw}, seq, 0, True)
+
+    def measured_at(self, seq: int) -> bool:
+        """Whether a new step ``seq`` carries measurements: step seq − 1 is a control step of a
+        controller of this session."""
+        k = seq - 1
+        return k >= 0 and any(k % s.period == 0 for s in self.slots.values())
 
     def previews_due(self, meas: dict | None) -> dict[str, PreviewGrid]:
         """The wave probes the measurements ``meas`` (of :meth:`step_request`) are relayed with: of
@@ -371,10 +398,17 @@ class ControlHub:
                 if k % s.period == 0 and s.counts["joins"] > 0
                 and ("wave_elevation" in s.cfg.measurements or s.grid.samples > 0)}
 
+    def relay(self, meas: dict, waves: dict[str, np.ndarray]) -> None:
+        """Relay the measurements ``meas`` (of :meth:`step_request`, with ``waves``, the elevations
+        of :meth:`previews_due`) before the step is computed: a controller waiting for them gets
+        them at once, its deadline counted from now; :meth:`after_step` then gets ``meas=None``."""
+        self._relay(meas, _time.monotonic(), waves)
+
     def after_step(self, seq: int, iteration: int, new: bool, meas: dict | None, fields: dict,
                    route, msg_id, waves: dict[str, np.ndarray] | None = None) -> dict | None:
-        """Relay measurements (with ``waves``, the elevations of :meth:`previews_due`), take the
-        decisions due at ``seq``; the reply fields, or None (deferred)."""
+        """Relay measurements (with ``waves``, the elevations of :meth:`previews_due`; None when
+        :meth:`relay` sent them before the step), take the decisions due at ``seq``; the reply
+        fields, or None (deferred)."""
         now = _time.monotonic()
         if not new or iteration > 0:
             if self.last_control and self.last_control[0] == seq:

@@ -36,6 +36,7 @@ from hydrolink.server.hdb.store import HASH, ContentStore, ContentTooLarge, defa
 from hydrolink.server.processes import start_children
 from hydrolink.server.service import frontend
 from hydrolink.server.service.direct import DirectError, DirectListener, DirectRoute
+from hydrolink.server.service.controlled_step import ControlledStep
 from hydrolink.server.service.local_step import LocalStep
 from hydrolink.server.service.log_limit import LimitedLog, limit_lines
 from hydrolink.server.service.session import PlantBuilder, Session, build_model
@@ -95,6 +96,7 @@ class ForceServer:
     controllers (no second thread fighting the run for the GIL, no loopback hop to its server)."""
 
     _local_reply: tuple[dict, float | None] | None = None   # polled: the caller's deferred reply, until taken
+    local_route = LOCAL_ROUTE   # the routing frames of this process's own run's requests (polled)
     _direct: DirectListener | None = None   # polled: the controllers' direct channel (SPEC §5.7.5)
     _poller: zmq.Poller | None = None       # polled with a direct channel: the socket, the listener, its links
     _poller_links = -1                      # the listener's ``version`` (its links) the poller was built over
@@ -371,6 +373,20 @@ class ForceServer:
         else:
             self._sock.tend()   # its silent connections swept (recv does it only while it waits)
 
+    def _wait_direct(self, ms: int) -> bool:
+        """The turn of :meth:`await_local` while nothing else is due: wait at most ``ms`` for the
+        ZeroMQ socket, the direct listener or a direct connection and serve what came (as
+        :meth:`_receive_direct`, without the receive timeout's setsockopt: the poll takes ``ms``);
+        whether anything did."""
+        ready = self._direct_ready(ms)
+        if not ready:
+            self._sock.tend()
+            return False
+        self._serve_direct(ready)
+        if self._sock.socket in ready:
+            self._receive()
+        return True
+
     def _direct_ready(self, ms: int) -> dict:
         """What is readable within ``ms``: the ZeroMQ socket, the direct listener, its connections
         (one poll, rebuilt only when a connection came or went: however it was found gone)."""
@@ -531,14 +547,31 @@ class ForceServer:
             return self.handle(request)
         self._serve_ready()
         reply = self.handle(request, LOCAL_ROUTE)
-        if reply is not None:
-            return reply
-        hold, deadline = self._hold, time.monotonic() + timeout
+        return reply if reply is not None else self.await_local(timeout)
+
+    def serve_ready(self) -> None:
+        """Polled: what is already on the socket and the direct links answered, the deadlines that
+        passed kept — before a request of this process's own run (server/service/controlled_step.py)."""
+        self._serve_ready()
+
+    def await_local(self, timeout: float) -> dict:
+        """Polled: the deferred reply to this process's own run (sent to :attr:`local_route`), after
+        turns of the loop in this thread until it is sent; TimeoutError after ``timeout`` s."""
+        hold, give_up = self._hold, time.monotonic() + timeout
+        due: float | None = None   # the controllers' next deadline: recomputed only after a message was served
         while self._local_reply is None:
-            if time.monotonic() > deadline:
+            now = time.monotonic()
+            if now > give_up:
                 raise TimeoutError(f"no reply to a request of this run within {timeout:g} s from its own force "
                                    f"server (its controllers on {self._address})")
-            self.serve_once()
+            if due is None:
+                due = min((hub.next_deadline() for hub in self._hubs.values()), default=math.inf)
+            if due <= now or now >= self._next_sweep or self._direct is None or self._sock.pending \
+                    or self._flying or self._setups or self._paced:
+                self.serve_once()   # a whole turn: what is due, the sweep, or no direct channel
+                due = None
+            elif self._wait_direct(POLL_MS if due - now >= POLL_MS / 1000 else max(1, int((due - now) * 1000))):
+                due = None
         (reply, release), self._local_reply = self._local_reply, None
         self._hold = release if release is not None else hold
         return reply
@@ -587,6 +620,16 @@ class ForceServer:
                 or s.id in self._hubs:
             return None
         return LocalStep(s)
+
+    def controlled_step(self, session: str) -> ControlledStep | None:
+        """The step path of a polled server's own run for ``session`` with controllers
+        (server/service/controlled_step.py): a session that steps here, unpaced; None otherwise
+        (the run takes :meth:`respond_map`)."""
+        s = self.sessions.get(session)
+        hub = self._hubs.get(session)
+        if s is None or hub is None or not self.polled or type(s) is not Session or s.pacer is not None:
+            return None
+        return ControlledStep(self, s, hub)
 
     def handle(self, frame: bytes | dict, route: list[bytes] | None = None) -> dict | None:
         """One request frame (or, in-process, its unpacked map) -> its reply message (never
@@ -836,10 +879,12 @@ class ForceServer:
         seq, iteration = msg.get("seq"), codec.require_int(msg, "iteration", default=0, minimum=0)
         new = type(seq) is int and seq == s.last_seq + 1
         meas = hub.step_request(msg, seq, iteration, new) if new else None
-        fields = s.step(msg, hub.hydro_command(seq) if new else None)
+        checked = s.step_input(msg)
+        if meas is not None:   # relayed before the model steps: the controllers' round trip overlaps it
+            hub.relay(meas, s.previews(hub.previews_due(meas), meas["step"]))
+        fields = s.advance(*checked, hub.hydro_command(seq) if new else None)
         self._hold = s.release_time(fields["seq"], arrived)
-        waves = s.previews(hub.previews_due(meas), meas["step"]) if meas is not None else None
-        fields = hub.after_step(seq, iteration, new, meas, fields, self._route, msg_id, waves)
+        fields = hub.after_step(seq, iteration, new, None, fields, self._route, msg_id)
         return None if fields is None else ("forces", fields, session)
 
     # ------------------------------------------------------------ sessions in worker processes

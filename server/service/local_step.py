@@ -62,6 +62,12 @@ class LocalStep:
         >= 0) for the state in the arrays (:meth:`Session.step
         <hydrolink.server.service.session.Session.step>`'s, bit for bit); ProtocolError, the session
         unchanged, where a ``step`` message would get an error."""
+        self._check(seq)
+        return self._session.advance(seq, iteration, self.position, self.velocity, self._modal)
+
+    def _check(self, seq: int) -> None:
+        """What a step ``seq`` of the arrays needs checked each time: seq against the run's end, the
+        state's values against the wire's bounds (the session touched first, as a message's)."""
         s = self._session
         s.touch()
         s.within_run(seq)
@@ -69,7 +75,6 @@ class LocalStep:
         if not (codec.within(self.position, MAX_COORDINATE) and codec.within(self.velocity, MAX_SPEED)
                 and (not modal or (codec.within(modal[0], MAX_COORDINATE) and codec.within(modal[1], MAX_SPEED)))):
             self._refuse()
-        return s.advance(seq, iteration, self.position, self.velocity, modal)
 
     def compiled(self) -> CompiledStep | None:
         """The step as the model's compiled kernel (:class:`CompiledStep`) when that kernel is the

@@ -373,6 +373,12 @@ class Session(SessionInfo):
         """Reply fields for a ``step`` request (SPEC §5.2–5.3); ProtocolError leaves state unchanged.
         ``hydro_command``: the hydro states the session's controllers commanded for this new step
         ({body: state}, SPEC §5.7.4; only for a model with hydro_states, server/hydro_states.py)."""
+        return self.advance(*self.step_input(msg), hydro_command)
+
+    def step_input(self, msg: dict) -> tuple[int, int, np.ndarray, np.ndarray, tuple]:
+        """A ``step`` request's fields checked (:meth:`advance`'s ``seq, iteration, pos, vel,
+        modal``), nothing stepped: a controlled step's measurements are relayed between the two
+        (server/service/force_server.py ``_step``); ProtocolError naming the field."""
         seq = self.within_run(codec.require_int(msg, "seq", minimum=0))
         iteration = codec.require_int(msg, "iteration", default=0, minimum=0)
         t_req = codec.require_float(msg, "time")
@@ -383,7 +389,7 @@ class Session(SessionInfo):
         shape = (self.n_bodies, 6)
         pos = codec.require_array(msg, "position", shape, bound=MAX_COORDINATE)
         vel = codec.require_array(msg, "velocity", shape, bound=MAX_SPEED)
-        return self.advance(seq, iteration, pos, vel, self.modal_state(msg), hydro_command)
+        return seq, iteration, pos, vel, self.modal_state(msg)
 
     def within_run(self, seq: int) -> int:
         """``seq`` if the run has a step seq (setup.last_seq); else error 5 naming ``seq``."""

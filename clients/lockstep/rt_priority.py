@@ -1,0 +1,70 @@
+"""Real-time scheduling for a paced run and its controllers (Linux ``SCHED_FIFO``; docs/realtime.md).
+
+A controlled 1 kHz step is a ping-pong between two processes (the run and its controller), each
+woken by the other's message. On a host with more runnable work than cores, an ordinary
+(``SCHED_OTHER``) process woken by a message waits its turn behind that work, and the sender can
+lose its core to the process it woke: the round trip then costs scheduler slices, not the work.
+A ``SCHED_FIFO`` thread runs as soon as it is runnable, ahead of every ordinary thread, so the
+step's time is its own work again. The kernel's real-time throttling (``sched_rt_runtime_us``,
+95 % of each second by default) keeps a busy real-time thread from starving the host.
+"""
+
+from __future__ import annotations
+
+import os
+from contextlib import contextmanager
+from typing import Iterator
+
+#: the range ``--rt-priority`` accepts: 1 (lowest) to 98 (99 is left to the kernel's own threads)
+PRIORITIES = (1, 98)
+
+
+class PriorityError(ValueError):
+    """The real-time priority asked for cannot be had (the option, the value and why)."""
+
+
+def hold_rt_priority(priority: int, option: str = "--rt-priority") -> tuple[int, int]:
+    """Run the calling thread (and the threads it starts afterwards: the results writer, ZeroMQ's)
+    under ``SCHED_FIFO`` at ``priority``; returns the thread's previous (policy, priority) for
+    :func:`restore_priority`. PriorityError naming ``option`` when the value is out of range, the
+    platform has no ``SCHED_FIFO`` or the process may not take it (it needs CAP_SYS_NICE or an
+    ``ulimit -r`` of at least ``priority``)."""
+    lo, hi = PRIORITIES
+    if type(priority) is not int or not lo <= priority <= hi:
+        raise PriorityError(f"{option} {priority!r}: a real-time priority is an integer from {lo} to {hi}")
+    if not hasattr(os, "sched_setscheduler"):
+        raise PriorityError(f"{option} {priority}: this platform has no SCHED_FIFO (Linux only)")
+    before = (os.sched_getscheduler(0), os.sched_getparam(0).sched_priority)
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except PermissionError:
+        raise PriorityError(f"{option} {priority}: the process may not take SCHED_FIFO (it needs CAP_SYS_NICE, "
+                            f"or `ulimit -r` >= {priority}; `ulimit -r` is {_rtprio_limit()})") from None
+    except OSError as exc:
+        raise PriorityError(f"{option} {priority}: SCHED_FIFO refused ({exc})") from None
+    return before
+
+
+def restore_priority(before: tuple[int, int]) -> None:
+    """Put the calling thread back under the (policy, priority) :func:`hold_rt_priority` returned."""
+    os.sched_setscheduler(0, before[0], os.sched_param(before[1]))
+
+
+@contextmanager
+def rt_priority(priority: int | None, option: str = "--rt-priority") -> Iterator[None]:
+    """:func:`hold_rt_priority` for the block (nothing when ``priority`` is None), then the previous
+    policy back."""
+    if priority is None:
+        yield
+        return
+    before = hold_rt_priority(priority, option)
+    try:
+        yield
+    finally:
+        restore_priority(before)
+
+
+def _rtprio_limit() -> str:
+    import resource
+    soft, _ = resource.getrlimit(resource.RLIMIT_RTPRIO)
+    return "unlimited" if soft == resource.RLIM_INFINITY else str(soft)
