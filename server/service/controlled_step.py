@@ -19,7 +19,7 @@ ProtocolError, the session unchanged.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 from hydrolink.protocol import codec
 from hydrolink.protocol.codec import ProtocolError
@@ -27,17 +27,27 @@ from hydrolink.server.service.controllers import ControlHub
 from hydrolink.server.service.local_step import LocalStep
 from hydrolink.server.service.session import Session
 
-if TYPE_CHECKING:
-    from hydrolink.server.service.force_server import ForceServer
+__all__ = ["ControlledStep", "PolledServer"]
 
-__all__ = ["ControlledStep"]
+
+class PolledServer(Protocol):
+    """What a controlled step needs of the polled :class:`~hydrolink.server.service.force_server.ForceServer`
+    it belongs to (a Protocol: this module is imported by force_server, never the other way)."""
+
+    local_route: list
+
+    def serve_ready(self) -> None:
+        """Serve what is ready on the server's sockets and links, without waiting."""
+
+    def await_local(self, timeout: float) -> dict:
+        """Turn the server's loop until the reply to this process's own run's request is in."""
 
 
 class ControlledStep(LocalStep):
     """One controlled session's step path for the polled server's own run (module docstring);
     valid until the session's ``bye``."""
 
-    def __init__(self, server: "ForceServer", session: Session, hub: ControlHub):
+    def __init__(self, server: PolledServer, session: Session, hub: ControlHub):
         super().__init__(session)
         self._server, self._hub = server, hub
         self._ids = codec.id_source("l")
