@@ -30,8 +30,7 @@ from hydrolink.server import compiler
 from hydrolink.server.fused import kernel_numba
 
 numba = compiler.load()
-from numba.core import types  # (after numba's set-up above)
-from numba.experimental import structref
+from numba.experimental import structref  # (after numba's set-up above)
 
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
 _step = kernel_numba.step
@@ -45,11 +44,8 @@ TAKEN, REFUSED, NON_FINITE = 0, 1, 2
 
 
 @structref.register
-class _ExchangeStateType(types.StructRef):
-    """numba's type of an :class:`ExchangeState`: its fields' types as given (not literal)."""
-
-    def preprocess_fields(self, fields):
-        return tuple((name, types.unliteral(t)) for name, t in fields)
+class _ExchangeStateType(kernel_numba.UnliteralStructRef):
+    """numba's type of an :class:`ExchangeState`."""
 
 
 class ExchangeState(structref.StructRefProxy):

@@ -31,12 +31,17 @@ FIELDS = ["idx", "exc", "omega", "ramp_t", "trig", "k_hs", "x_eq", "kind", "k", 
           "yaw_tables", "yaw_headings", "yaw_rows", "yaw_owner"]
 
 
-@structref.register
-class _LinearStateType(types.StructRef):
-    """numba's type of a :class:`LinearState`: its fields' types as given (not literal)."""
+class UnliteralStructRef(types.StructRef):
+    """A structref type whose fields' types are taken as given, not literal (the base of this module's
+    :class:`LinearState` type and of clients/exudyn/exchange_kernel.py's ``ExchangeState`` type)."""
 
     def preprocess_fields(self, fields):
         return tuple((name, types.unliteral(t)) for name, t in fields)
+
+
+@structref.register
+class _LinearStateType(UnliteralStructRef):
+    """numba's type of a :class:`LinearState`."""
 
 
 class LinearState(structref.StructRefProxy):
