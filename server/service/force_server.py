@@ -221,11 +221,7 @@ class ForceServer:
         try:
             self._sock.bind(bind)
         except zmq.ZMQError as exc:   # in use, or not an endpoint here: the caller's to say (serve: one line)
-            if self._security is not None:
-                self._security.close()
-            self._sock.close(0)
-            if self._own_context:
-                self._ctx.term()
+            self._unbind()
             raise BindError(f"cannot listen on {bind}: {zmq.strerror(exc.errno)}") from None
         self._address = self._sock.address
         if secure and direct_port is not None:
@@ -237,11 +233,18 @@ class ForceServer:
                                               direct_port)
             except (DirectError, OSError) as exc:
                 if direct_port is not None:   # asked for: its failure is the server's
-                    self._sock.close(0)
-                    if self._own_context:
-                        self._ctx.term()
+                    self._unbind()
                     raise DirectError(str(exc)) from None
                 log.info("no direct channel: %s", exc)
+
+    def _unbind(self) -> None:
+        """What :meth:`_bind` made released when it fails after the socket: the CURVE authenticator,
+        the socket, the context if it is the server's own."""
+        if self._security is not None:
+            self._security.close()
+        self._sock.close(0)
+        if self._own_context:
+            self._ctx.term()
 
     @property
     def address(self) -> str:
