@@ -5,14 +5,18 @@ Python rows) — and stops where the reference path stops, with its error."""
 
 from __future__ import annotations
 
+import json
+import secrets
+import socket
 from pathlib import Path
 
 import netCDF4
 import numpy as np
 import pytest
+import xarray as xr
 
-from conftest import (REPLY_S, SPHERE_WATER, joint, regular_waves, rm3_float, rm3_short_text, rm3_spar, scene_toml,
-                      sphere_body)
+from conftest import (REPLY_S, SPHERE_WATER, controller_process, joint, regular_waves, rm3_float, rm3_short_text,
+                      rm3_spar, scene_toml, sphere_body)
 
 from hydrolink.clients.exudyn import compiled_exchange
 from hydrolink.clients.lockstep.driver import SimulationDiverged
@@ -21,6 +25,22 @@ from hydrolink.server.service.force_server import serve_in_thread
 from hydrolink.server.service.local_step import LocalStep
 
 MASS = 261.8e3   # the Task-10 sphere floating (rho V)
+TOKEN = secrets.token_urlsafe(32)   # the controlled runs' join token (SPEC §5.7.2)
+REACTIVE = Path(__file__).resolve().parents[1] / "examples" / "controllers" / "reactive.py"
+# an impedance controller whose damping follows the PTO velocity's sign: commands that change every few steps
+SWITCHING = """
+from hydrolink.clients.control import Controller
+
+class Switching(Controller):
+    def on_start(self, info):
+        self.c, self.k = float(info["parameters"]["damping"]), float(info["parameters"]["stiffness"])
+
+    def on_step(self, t, m):
+        c = self.c * (1.5 if m["pto_velocity"][0] > 0.0 else 1.0)
+        return {p: {"damping": c, "stiffness": self.k} for p in self.ptos}
+"""
+#: results variables that are wall time, not the run's physics
+WALL_CLOCK = {"controller_latency", "step_latency", "step_time", "overrun"}
 
 
 def rm3_scene(reference_data: Path, tmp_path: Path, extra: str = "") -> Path:
@@ -155,3 +175,96 @@ def test_steps_the_compiled_check_refuses_go_to_the_reference_path(sphere_path, 
         assert np.abs(v).max() > 0.3                              # the bound was passed
         for name in ("position", "velocity", "excitation_force", "radiation_force", "hydrostatic_force"):
             assert a[name][:].tobytes() == b[name][:].tobytes(), name
+
+
+def controlled_scene(reference_data: Path, tmp_path: Path, command: str) -> Path:
+    """RM3 at dt 0.08 for 8 s, no passive damping, one controller driving its PTO every step
+    (``command``: "force" or "impedance"), measuring the PTO and the bodies."""
+    path = rm3_scene(reference_data, tmp_path, (
+        "\n[[controllers]]\nname = \"ctl\"\nptos = [\"pto\"]\n"
+        f"command = \"{command}\"\ntimeout = 10.0\n"
+        "measurements = [\"pto_displacement\", \"pto_velocity\", \"pto_force\", \"body_position\", \"body_velocity\"]\n"
+        "parameters = { damping = 3.9e5, stiffness = 1.36e6 }\n"))
+    text = path.read_text()
+    assert "damping = 1.2e6 " in text
+    path.write_text(text.replace("damping = 1.2e6 ", "damping = 0.0 ", 1))
+    return path
+
+
+def own_run(scene: Path, out: Path, controller: Path, realtime: float | None):
+    """``hydrolink run`` of ``scene`` on its own polled server (listening on a free loopback port)
+    with ``controller`` in its own process; the summary (the controller ended cleanly)."""
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        address = f"tcp://127.0.0.1:{sock.getsockname()[1]}"
+    with controller_process(controller, address, TOKEN) as ended:
+        summary = run_scene_file(scene, out, progress=False, listen=address, control_token=TOKEN, realtime=realtime,
+                                 timeout=REPLY_S)
+    assert ended.returncode == 0, ended.stderr
+    return summary
+
+
+@pytest.mark.parametrize("command, realtime, bound", [("force", None, None), ("impedance", 16.0, None),
+                                                      ("force", None, 0.3)])
+def test_controlled_compiled_exchange_equals_the_reference_path(command, realtime, bound, reference_data, tmp_path,
+                                                               monkeypatch):
+    """A run with a controller process (``hydrolink run``'s own polled server, the direct channel)
+    takes the compiled exchange — unpaced inside one SolveSteps, paced an exchange a call — with
+    the measurements from the kernels' arrays and the commands applied to the PTO between the
+    steps: every variable of the results file but the wall-clock ones is the reference path's
+    (the same run with the compiled exchange switched off) to the bit, with the same decisions.
+    ``bound``: a velocity bound of the compiled check in place of the wire's, so that exchanges
+    go to the reference path mid-run and back (their measurements then the reference path's)."""
+    import dataclasses
+
+    from hydrolink.clients.exudyn.client import ExudynMultibody
+    from hydrolink.protocol.scene_bounds import MAX_COORDINATE
+
+    controller = REACTIVE
+    if command == "impedance":
+        controller = tmp_path / "switching.py"
+        controller.write_text(SWITCHING)
+    if bound is not None:
+        real = LocalStep.compiled
+        monkeypatch.setattr(LocalStep, "compiled", lambda self: dataclasses.replace(real(self), bounds=(MAX_COORDINATE,
+                                                                                                        bound)))
+    scene = controlled_scene(reference_data, tmp_path, command)
+    calls = counted(monkeypatch)
+    compiled = own_run(scene, tmp_path / "compiled.nc", controller, realtime)
+    taken = set(calls)
+    monkeypatch.setattr(ExudynMultibody, "compiled_exchange", lambda *args: None)
+    reference = own_run(scene, tmp_path / "reference.nc", controller, realtime)
+    assert compiled.status == reference.status == "complete" and len(calls) == len(taken)
+    if bound is None:
+        assert taken == set(range(compiled.steps))   # every exchange compiled
+    else:
+        assert taken and len(taken) < compiled.steps   # some compiled, some handed to the reference path
+    a, b = xr.load_dataset(tmp_path / "compiled.nc"), xr.load_dataset(tmp_path / "reference.nc")
+    assert set(a.data_vars) == set(b.data_vars) >= {"pto_command_force", "pto_damping", "controller_status"}
+    for name in set(a.data_vars) - WALL_CLOCK:
+        assert a[name].values.tobytes() == b[name].values.tobytes(), name
+    events = [json.loads(ds.attrs["controller_events"])["ctl"] for ds in (a, b)]
+    assert events[0]["ok"] == events[1]["ok"] == compiled.steps   # decided by the controller at every step
+    assert np.abs(a["position"].values - a["position"].values[0]).max() > 0.05
+    if bound is not None:
+        assert np.abs(a["velocity"].values).max() > bound
+    if command == "force":
+        assert np.abs(a["pto_command_force"].values).max() > 1e3
+    else:
+        assert np.unique(a["pto_damping"].values[1:]).size == 2     # the commands changed the damping
+
+
+def test_paced_compiled_exchange_equals_reference_bit_for_bit(reference_data, tmp_path, monkeypatch):
+    """A paced embedded run (no controller) takes the compiled exchange an exchange a call
+    (``CompiledExchange.exchange``): its results are the socket run's bit for bit but for the
+    wall-clock variables of the pacing."""
+    scene = rm3_scene(reference_data, tmp_path)
+    calls = counted(monkeypatch)
+    paced = run_scene_file(scene, tmp_path / "paced.nc", progress=False, realtime=64.0)
+    remote = socket_run(scene, tmp_path / "socket.nc")
+    assert paced.status == remote.status == "complete" and paced.realtime is not None
+    assert calls == list(range(paced.steps))
+    a, b = xr.load_dataset(tmp_path / "paced.nc"), xr.load_dataset(tmp_path / "socket.nc")
+    assert set(a.data_vars) - set(b.data_vars) == WALL_CLOCK - {"controller_latency"}
+    for name in set(b.data_vars):
+        assert a[name].values.tobytes() == b[name].values.tobytes(), name

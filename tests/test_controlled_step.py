@@ -62,7 +62,7 @@ def test_controlled_step_answers_and_relays_as_a_step_message(hdb):
     (srv_m, by_msg), (srv_p, by_port) = pairs = _open(hdb), _open(hdb)
     try:
         port = by_port.controlled_step()
-        assert port is not None and port.compiled() is None and by_port.local_step() is None
+        assert port is not None and by_port.local_step() is None
         rng = np.random.default_rng(5)
         plan = [(seq, 0) for seq in range(9)] + [(8, 1), (8, 2), (9, 0), (10, 0)]
         relayed, decided = 0, set()
@@ -137,5 +137,51 @@ def test_controlled_step_refuses_as_a_step_message(hdb, bad):
         port.position[...] = p
         good = _measured(2, np.random.default_rng(9))
         assert port(3, 0, good)["seq"] == 3 and s.last_seq == 3
+    finally:
+        _close(*pairs)
+
+
+def test_compiled_kernel_between_relayed_and_decided_steps_as_a_step_message(hdb):
+    """A run that takes the model's compiled kernel itself (clients/exudyn/compiled_exchange.py):
+    ``relayed``, the kernel (server/fused/kernel_numba.py ``step``, as the compiled exchange calls
+    it), then ``decided``, step by step, give a ``step`` message's forces and elevation bit for
+    bit, its decisions, the same relayed samples and the session's counters; measurements a
+    message would have refused raise its error from ``relayed``, before the model steps."""
+    from hydrolink.server.fused import kernel_numba
+
+    (srv_m, by_msg), (srv_p, by_port) = pairs = _open(hdb), _open(hdb)
+    try:
+        port = by_port.controlled_step()
+        compiled = port.compiled()
+        assert compiled is not None and compiled.last_seq == 40
+        session = srv_p.sessions[by_port.session]
+        rng = np.random.default_rng(7)
+        out, f_ext = np.zeros((3, 6)), np.zeros(6)
+        for seq in range(9):
+            p, v = 0.1 * rng.standard_normal((1, 6)), 0.5 * rng.standard_normal((1, 6))
+            meas = _measured(seq - 1, rng) if seq >= 1 and (seq - 1) % 2 == 0 else None
+            want = by_msg.step(seq, seq * DT, p, v, measurements=meas)
+            port.relayed(seq, meas)
+            assert session.last_seq == seq - 1                  # relayed before the model steps
+            eta = kernel_numba.step(compiled.kernel, seq * DT, p.reshape(-1), v.reshape(-1), False, f_ext, 0.0, out)
+            got = port.decided(seq, 1e-6)
+            assert eta == want["wave_elevation"] and got.get("control") == want.get("control"), seq
+            for row, k in enumerate(("excitation", "radiation", "hydrostatic")):
+                assert out[row].tobytes() == want[k].reshape(-1).tobytes(), (seq, k)
+            slot_m, slot_p = (s._hubs[c.session].slots["ctl"] for s, c in pairs)
+            assert slot_p.newest == slot_m.newest == (seq - 1 if meas is not None else slot_m.newest)
+            if meas is not None:
+                assert slot_p.sample.keys() == slot_m.sample.keys()
+                for k, a in slot_m.sample.items():
+                    assert np.array_equal(slot_p.sample[k], a), (seq, k)
+        assert (session.last_seq, session.steps) == (8, srv_m.sessions[by_msg.session].steps)
+        bad = _broken("nan", np.random.default_rng(9))
+        bad["step"] = 8
+        with pytest.raises(RemoteError) as by_message:
+            by_msg.step(9, 9 * DT, np.zeros((1, 6)), np.zeros((1, 6)), measurements=bad)
+        with pytest.raises(ProtocolError) as by_path:
+            port.relayed(9, bad)
+        e, g = by_message.value, by_path.value
+        assert (g.code, g.field, g.message) == (e.code, e.field, e.message) and session.last_seq == 8
     finally:
         _close(*pairs)

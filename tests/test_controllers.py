@@ -465,12 +465,17 @@ def test_run_polls_its_own_server_and_equals_a_separate_one(reference_data, serv
     stranger = ctx.socket(zmq.DEALER)
     stranger.setsockopt(zmq.LINGER, 0)
     seen = {}
-    serve_once, in_process = force_server.ForceServer.serve_once, controlled_step.ControlledStep.__call__
+    port = controlled_step.ControlledStep
+    serve_once, in_process, compiled = force_server.ForceServer.serve_once, port.__call__, port.decided
     steps = []
 
     def stepped(port, seq, *args):
         steps.append(seq)
         return in_process(port, seq, *args)
+
+    def decided(port, seq, *args):   # a step the compiled exchange took (clients/exudyn/compiled_exchange.py)
+        steps.append(seq)
+        return compiled(port, seq, *args)
 
     def watched(srv):   # once the run's session is open: a stranger's multibody hello, answered by a later turn
         if "threads" not in seen and srv.sessions:
@@ -480,13 +485,13 @@ def test_run_polls_its_own_server_and_equals_a_separate_one(reference_data, serv
         serve_once(srv)
     try:
         force_server.ForceServer.serve_once = watched
-        controlled_step.ControlledStep.__call__ = stepped
+        port.__call__, port.decided = stepped, decided
         summary, (rc, err) = run_own(tmp_path, "own", text, EXAMPLES / "reactive.py", address)
         assert stranger.poll(5000)
         refused = codec.unpack(stranger.recv())
     finally:
         force_server.ForceServer.serve_once = serve_once
-        controlled_step.ControlledStep.__call__ = in_process
+        port.__call__, port.decided = in_process, compiled
         stranger.close(0)
         ctx.term()
     assert rc == 0 and "over the direct channel" in err, err
@@ -511,20 +516,27 @@ def test_measurements_leave_before_the_model_steps(reference_data, tmp_path):
 
     text = scene_text(reference_data, 2.0, controller_block("force", 3.9e5, 1.36e6,
                                                          measurements=["pto_displacement", "pto_velocity"]))
-    advance, relay, order = session_module.Session.advance, controllers.ControlHub._relay, []
+    advance, advanced, relay = session_module.Session.advance, session_module.Session.advanced, controllers.ControlHub._relay
+    order = []
 
     def advancing(s, seq, *args, **kw):
         order.append(("step", seq))
         return advance(s, seq, *args, **kw)
+
+    def compiled(s, seq, *args):   # the step taken by the model's compiled kernel (clients/exudyn/compiled_exchange.py)
+        order.append(("step", seq))
+        return advanced(s, seq, *args)
 
     def relaying(hub, meas, *args):
         order.append(("relay", meas["step"]))
         return relay(hub, meas, *args)
     try:
         session_module.Session.advance, controllers.ControlHub._relay = advancing, relaying
+        session_module.Session.advanced = compiled
         _, (rc, err) = run_own(tmp_path, "early", text, EXAMPLES / "reactive.py", free_address())
     finally:
         session_module.Session.advance, controllers.ControlHub._relay = advance, relay
+        session_module.Session.advanced = advanced
     assert rc == 0 and "over the direct channel" in err, err
     ds = xr.load_dataset(tmp_path / "early.nc")
     assert json.loads(ds.attrs["controller_events"])["ctl"]["ok"] == 50

@@ -547,12 +547,13 @@ class ExudynMultibody:
     def compiled_exchange(self, link: ForceLink, scheme, n_exchanges: int):
         """The run's exchange in two compiled calls (clients/exudyn/compiled_exchange.py) in place of
         ``scheme``, or None where the reference path runs: A∞ not in the mass matrix or the scheme
-        not ``Predictor``'s, several client steps an exchange, a controller, MoorDyn, hydro states,
-        generalized modes, a dry body, or a server that is not this process's own socketless one
-        whose model steps as its compiled linear core alone (``LocalStep.compiled``)."""
+        not ``Predictor``'s, several client steps an exchange, MoorDyn, hydro states, generalized
+        modes, a dry body, a server that is not this process's own (socketless, or polled with
+        controllers) whose model steps as its compiled linear core alone (``LocalStep.compiled``),
+        or controllers beside PTOs other than linear ones, joints or moorings."""
         m = self.model
         if not (type(scheme) is Predictor and not scheme.feedback and self.a_fb is None and self.substeps == 1
-                and self.control is None and self._md is None and not self.state_names and self._all_wet
+                and self._md is None and not self.state_names and self._all_wet
                 and not m.mode_labels and self.n and int(m.hydro_object) >= 0 and link.local is not None):
             return None
         step = link.local.compiled()
@@ -561,10 +562,19 @@ class ExudynMultibody:
         from hydrolink.clients.exudyn.compiled_exchange import CompiledExchange
         others = self.joints is not None or m.moorings is not None
         linear = m.ptos.linear_table() if m.ptos is not None and not others else None
+        if self.control is not None and linear is None:   # (its measurements come from linear_ptos)
+            return None
         has_outputs = others or m.ptos is not None
         return CompiledExchange(m, link, step, wet_take=self._wet_take, body_take=self._body_take,
                                 state=lambda: self._s, outputs=self.outputs if has_outputs else None,
-                                refresh=self._refresh, n_exchanges=n_exchanges, linear_ptos=linear)
+                                refresh=self._refresh if self.control is None else self._resync,
+                                n_exchanges=n_exchanges, linear_ptos=linear, control=self.control)
+
+    def _resync(self) -> None:
+        """:meth:`_refresh` and the PTOs' sample the controllers' measurements take (:meth:`outputs`'),
+        for a run with controllers whose steps the compiled exchange took."""
+        self._refresh()
+        self._pto_sample = self.model.ptos.sample(self.model.mbs)
 
     # -- the driver's interface -------------------------------------------------------------
     def begin(self, s0, feedback: bool) -> int:
@@ -818,8 +828,8 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup | None, writer, 
                               added_mass_ratio=mass_ratio)
     steps = make_scheme(scheme, tolerance=cpl.tolerance, max_iterations=cpl.max_iterations, ratio=ratio,
                         n_exchanges=pre.n_exchanges)
-    if realtime is None:    # an embedded run's exchange compiled where it qualifies (clients/exudyn/compiled_exchange.py)
-        steps = mb.compiled_exchange(loop.link, steps, pre.n_exchanges) or steps
+    # the run's exchange compiled where it qualifies (clients/exudyn/compiled_exchange.py)
+    steps = mb.compiled_exchange(loop.link, steps, pre.n_exchanges) or steps
     try:
         out = lockstep.run(loop, steps, pre.n_exchanges, coupling, first_timeout=first_timeout,
                            hint=lambda exc: _divergence_hint(scheme, ratio, kx, pre.exchange_dt),

@@ -31,14 +31,16 @@ met only by round-off, goes on).
 
 from __future__ import annotations
 
+import math
 import time as _time
 from typing import Any, Callable
 
 import exudyn as exu
 import numpy as np
 
+from hydrolink.clients.exudyn.pto_control import PTOControl
 from hydrolink.clients.lockstep.coupling_schemes import Predictor
-from hydrolink.clients.lockstep.driver import ForceLink, Lockstep, Sample
+from hydrolink.clients.lockstep.driver import ForceLink, Lockstep, RunInterrupted, Sample
 from hydrolink.server.service.local_step import CompiledStep
 
 __all__ = ["CompiledExchange"]
@@ -71,10 +73,12 @@ class CompiledExchange:
     def __init__(self, model: Any, link: ForceLink, step: CompiledStep, *, wet_take: np.ndarray,
                  body_take: np.ndarray, state: Callable[[], np.ndarray], outputs: Callable[[], dict] | None,
                  refresh: Callable[[], None], n_exchanges: int,
-                 linear_ptos: tuple[list[int], np.ndarray] | None = None):
+                 linear_ptos: tuple[list[int], np.ndarray] | None = None, control: PTOControl | None = None):
         """``outputs``: the mechanism's outputs by results variable (None: none); ``linear_ptos``
-        (``PTOSet.linear_table``) in its place where they are linear PTOs only."""
-        k = _kernel()
+        (``PTOSet.linear_table``) in its place where they are linear PTOs only. ``control``: the
+        run's controllers (clients/exudyn/pto_control.py; ``link.local`` is then the polled
+        server's ``ControlledStep`` and ``linear_ptos`` given): each step relays the measurements
+        from the kernels' arrays, takes the decisions and applies them (:meth:`_controlled`)."""
         n = model.wet_index.size
         self._model, self._link, self._local = model, link, link.local
         self._outputs, self._refresh, self._last = outputs, refresh, n_exchanges - 1
@@ -98,9 +102,21 @@ class CompiledExchange:
         self._g = None
         self._views: tuple[np.ndarray, ...] = ()
         self._pto_objects, self._pto_table = linear_ptos if linear_ptos is not None else ([], None)
-        self._dw = np.zeros((len(self._pto_objects), 2, 3))   # each PTO's displacement and velocity
+        n_pto = len(self._pto_objects)
+        self._dw = np.zeros((n_pto, 2, 3))     # each PTO's displacement and velocity
+        self._pto_meas = np.zeros((3, n_pto))   # each PTO's extension, velocity and force (linear_ptos)
         self._out = out
         self._primed = False
+        self._control = control
+        self._forces_of = self._predicted if control is None else self._controlled
+        if control is not None:
+            control.table = self._pto_table     # the commands' stiffness, damping and force, as linear_ptos reads them
+            self._bodies = np.zeros((2, model.body_reference.shape[0], 6))   # every body's q and v
+            self._body_take = np.asarray(body_take, np.int64)
+            # the measurements map (PTOControl.measurements'): views of the arrays above, its step set each time
+            self._measurements = {"step": 0, "pto_displacement": self._pto_meas[0], "pto_velocity": self._pto_meas[1],
+                                  "pto_force": self._pto_meas[2], "body_position": self._bodies[0],
+                                  "body_velocity": self._bodies[1]}
 
     def _bind(self) -> None:
         """The kernel's state over views of Exudyn's current q, v, a (``copy=False``: the solver's
@@ -114,15 +130,22 @@ class CompiledExchange:
         row = np.zeros((5, 2, self._model.body_reference.shape[0], 6))[:, 0]   # as ResultWriter.row's (strided)
         self._predict = _entry(k.predict, self._g, 0.0)
         self._settle = _entry(k.settle, self._g, row)
+        if self._control is not None:
+            self._prepare = _entry(k.prepare, self._g)
+            self._forces = _entry(k.forces, self._g, 0.0)
         if self._pto_table is not None:
             force = np.zeros((1, self._pto_table.shape[0]))
-            self._linear_ptos = _entry(k.linear_ptos, self._pto_table, self._dw, force, force, force, np.zeros(1))
+            self._linear_ptos = _entry(k.linear_ptos, self._pto_table, self._dw, force, force, force, np.zeros(1),
+                                       self._pto_meas)
 
     def _prime(self) -> None:
         """The kernel's copy of the client's state (after mb.begin, or a step the reference path took)."""
         if self._g is None:
             self._bind()
         np.copyto(self._st, self._state())
+        if self._control is not None:   # the PTOs' measurements of the state the reference path left
+            entries = np.zeros((1, len(self._model.ptos.names)))
+            self._sample_ptos((entries, entries, entries, np.zeros(1)))
         self._primed = True
 
     def _views_held(self) -> bool:
@@ -137,7 +160,7 @@ class CompiledExchange:
         """Exchange ``e`` (time e H → (e + 1) H) as ``Predictor(feedback=False).exchange`` takes it."""
         if not self._primed:
             self._prime()
-        status, eta = self._predicted(e)
+        status, eta = self._forces_of(e)
         if status == 1:           # out of the wire's bounds: no step taken; the reference path raises
             return self._reference(loop, e, s_prev)
         model = self._model
@@ -160,6 +183,41 @@ class CompiledExchange:
             if status:
                 raise self._link.non_finite(seq)
         return status, eta
+
+    def _controlled(self, e: int) -> tuple[int, float]:
+        """The forces of exchange ``e`` in a run with controllers, in ``ControlledStep``'s order
+        (server/service/controlled_step.py): the predicted state checked (prepare), the
+        measurements of step e relayed when it is a control step, the model's step (forces), the
+        decisions and the wait for the commands, which are then applied (``PTOControl.apply``);
+        (the status, the elevation), as :meth:`_predicted`'s."""
+        g, link, control = self._g, self._link, self._control
+        if self._prepare(g) == 1:   # out of the wire's bounds: the reference path takes the exchange
+            return 1, math.nan
+        seq = e + 1
+        t0 = _time.perf_counter()
+        try:
+            self._local.relayed(seq, self._measured(e) if control.is_sample(e) else None)
+            t1 = _time.perf_counter()
+            eta = self._forces(g, seq * self._dt)
+            status = self._status[0]
+            reply = self._local.decided(seq, _time.perf_counter() - t1, link.conn.timeout)
+        except (KeyboardInterrupt, RunInterrupted):
+            raise
+        except Exception as exc:
+            link.failed(seq, exc)
+        link.answered(seq, t0, reply)
+        if status:
+            raise link.non_finite(seq)
+        control.apply(link.decisions)
+        return status, eta
+
+    def _measured(self, k: int) -> dict:
+        """The measurements of step ``k`` (``PTOControl.measurements``' map): the PTOs' from the last
+        linear_ptos, every body's q and v from the state the last settle kept."""
+        np.take(self._st.reshape(-1), self._body_take, out=self._bodies.reshape(-1))
+        meas = self._measurements
+        meas["step"] = k
+        return meas
 
     def _reference(self, loop: Lockstep, e: int, s_prev: Sample | None) -> Sample:
         """Exchange ``e`` by the reference path (its state out of the wire's bounds: it raises its error,
@@ -185,18 +243,26 @@ class CompiledExchange:
                                    "in place): the run's results cannot be vouched for")
             loop.watch.check(loop.mb, loop.step, t1, writer.rows, loop.mb.label)
         if self._pto_table is not None:
-            get, dw = model.mbs.GetObjectOutput, self._dw
-            for r, obj in enumerate(self._pto_objects):
-                dw[r, 0] = get(obj, _DISPLACEMENT)
-                dw[r, 1] = get(obj, _VELOCITY)
-            self._linear_ptos(self._pto_table, dw, *writer.slots(PTO_VARIABLES))
+            self._sample_ptos(writer.slots(PTO_VARIABLES))
         elif self._outputs is not None:
             out = self._outputs()
             if out:
                 writer.stage_extra(out)
+        if self._control is not None:
+            self._control.stage()
         writer.commit(t1, eta)
         if loop.bar is not None:
             loop.bar.update(1)
+
+    def _sample_ptos(self, slots: tuple[np.ndarray, ...]) -> None:
+        """The linear PTOs' outputs at Exudyn's current state into ``slots`` (the row's, PTO_VARIABLES)
+        and their measurements: each connector's displacement and velocity (two ``GetObjectOutput``)
+        and one compiled call (linear_ptos)."""
+        get, dw = self._model.mbs.GetObjectOutput, self._dw
+        for r, obj in enumerate(self._pto_objects):
+            dw[r, 0] = get(obj, _DISPLACEMENT)
+            dw[r, 1] = get(obj, _VELOCITY)
+        self._linear_ptos(self._pto_table, dw, *slots, self._pto_meas)
 
     def run_exchanges(self, loop: Lockstep, n_exchanges: int, check: Callable[[], None]) -> None:
         """Every exchange of an unpaced run inside Exudyn's own step loop: one ``SolveSteps`` over
@@ -225,7 +291,7 @@ class CompiledExchange:
         model = self._model
         mbs, solver, h = model.mbs, model.solver, model.dt
         set_force, hydro, force = mbs.SetObjectParameter, model.hydro_object, self._force
-        predicted, settled = self._predicted, self._settled
+        predicted, settled = self._forces_of, self._settled
         nxt = [start, 0.0]            # the next exchange, the elevation of the last one taken
         error: list[BaseException] = []
 

@@ -10,7 +10,9 @@ own values):
   clients/lockstep/coupling_schemes.py ``Predictor`` in its order), the absolute position and
   velocity checked against the wire's bounds, the server's compiled linear step
   (server/fused/kernel_numba.py ``step``) into ``out``, and the load excitation + radiation at
-  the hydro object's coordinates (``force``);
+  the hydro object's coordinates (``force``); a run with controllers calls its two halves,
+  :func:`prepare` (the prediction and the bounds) and :func:`forces` (the step and the load),
+  relaying the measurements between them, before the model steps (server/service/controlled_step.py);
 - :func:`settle`: Exudyn's state after the step (read through ``q``, ``v``, ``a``: views of Exudyn's
   own current-state vectors, ``GetODE2Coordinates(copy=False)``, so no getter is called a step)
   into ``qva``, the results row (every body's position and velocity, the forces, the hydrostatic
@@ -64,9 +66,10 @@ def exchange_state(lin, qva, q, v, a, wet_take, eq, pos, vel, out, load, f_ext, 
 
 
 @_jit
-def predict(g, t):
-    """The server's forces at time ``t`` for the state predicted from ``g.qva`` (module docstring);
-    returns the wave elevation, ``g.status[0]`` the outcome (TAKEN, REFUSED, NON_FINITE)."""
+def prepare(g):
+    """The wet DOFs' state predicted from ``g.qva`` into ``g.pos`` and ``g.vel`` (module docstring),
+    checked against the wire's bounds; returns the outcome (TAKEN: within them, or REFUSED), also
+    in ``g.status[0]``."""
     flat = g.qva.reshape(-1)
     take, eq, pos, vel = g.wet_take, g.eq, g.pos, g.vel
     n = eq.size
@@ -80,20 +83,35 @@ def predict(g, t):
         u = v + h * a
         pos[i], vel[i] = p, u
         ok = ok and abs(p) <= max_x and abs(u) <= max_v
-    if not ok:
-        g.status[0] = REFUSED
-        return math.nan
+    g.status[0] = TAKEN if ok else REFUSED
+    return g.status[0]
+
+
+@_jit
+def forces(g, t):
+    """The server's forces at time ``t`` for the state :func:`prepare` left in ``g.pos``, ``g.vel``
+    and the load at the hydro object's coordinates; returns the wave elevation, ``g.status[0]``
+    the outcome (TAKEN, NON_FINITE)."""
     out = g.out
-    eta = _step(g.lin, t, pos, vel, False, g.f_ext, 0.0, out)
+    eta = _step(g.lin, t, g.pos, g.vel, False, g.f_ext, 0.0, out)
     load = g.load
     total = eta
-    for i in range(n):
+    for i in range(load.size):
         load[i] = out[0, i] + out[1, i]
         total += load[i] + out[2, i]
     for j in range(g.force_index.size):
         g.force[j] = load[g.force_index[j]]
     g.status[0] = TAKEN if math.isfinite(total) else NON_FINITE
     return eta
+
+
+@_jit
+def predict(g, t):
+    """:func:`prepare` then, within the bounds, :func:`forces` (one call); returns the wave
+    elevation (NaN when refused), ``g.status[0]`` the outcome (TAKEN, REFUSED, NON_FINITE)."""
+    if prepare(g) == REFUSED:
+        return math.nan
+    return forces(g, t)
 
 
 @_jit
@@ -131,11 +149,12 @@ def settle(g, row):
 
 
 @_jit
-def linear_ptos(table, dw, force, velocity, power, total):
+def linear_ptos(table, dw, force, velocity, power, total, meas):
     """The linear PTOs' outputs as clients/exudyn/ptos.py ``PTOSet.sample`` computes them, into the
-    results row's slots (1, n) and (1,): ``table`` (n, 6) entry, stiffness, damping, added force,
-    rest length, limit; ``dw`` (n, 2, 3) each connector's displacement (point2 − point1) and
-    velocity."""
+    results row's slots (1, n) and (1,), and each PTO's extension, velocity and force into the
+    rows of ``meas`` (3, rows: a controller's measurements, clients/exudyn/pto_control.py):
+    ``table`` (rows, 6) entry, stiffness, damping, added force, rest length, limit; ``dw`` (rows,
+    2, 3) each connector's displacement (point2 − point1) and velocity."""
     for r in range(table.shape[0]):
         e = int(table[r, 0])
         dx, dy, dz = dw[r, 0, 0], dw[r, 0, 1], dw[r, 0, 2]
@@ -146,6 +165,7 @@ def linear_ptos(table, dw, force, velocity, power, total):
         limit = table[r, 5]
         f = min(max(f, -limit), limit)
         force[0, e], velocity[0, e] = f, rate
+        meas[0, r], meas[1, r], meas[2, r] = length - table[r, 4], rate, f
     acc = 0.0
     for e in range(force.shape[1]):
         p = force[0, e] * velocity[0, e]

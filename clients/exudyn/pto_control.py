@@ -74,6 +74,9 @@ class PTOControl:
                             "cumulative number of fallback decisions (timeout, absent, invalid)")
         writer.add_variable("controller_latency", ("controller",), coords, "s",
                             "wall time from relaying the measurements to receiving the command")
+        # the compiled exchange's linear PTO table (clients/exudyn/compiled_exchange.py, PTOSet.linear_table:
+        # a row per linear PTO, its stiffness, damping and added force in columns 1-3), kept as the commands change
+        self.table: np.ndarray | None = None
         # what stage() hands the writer each row: the arrays above, changed in place (made once)
         self._row = {"pto_command_force": self.force, "pto_damping": self.damping, "pto_stiffness": self.stiffness,
                      "controller_status": self.status, "controller_fallbacks": self.fallbacks,
@@ -129,7 +132,10 @@ class PTOControl:
             self._put(pto, force=0.0, damping=cmd.get("damping"), stiffness=cmd.get("stiffness"))
 
     def _put(self, pto: str, *, force=None, damping=None, stiffness=None) -> None:
-        self.ptos.set_linear(self.mbs, self.lin_index[pto], force=force, damping=damping, stiffness=stiffness)
+        i = self.lin_index[pto]
+        self.ptos.set_linear(self.mbs, i, force=force, damping=damping, stiffness=stiffness)
+        if self.table is not None:
+            self.table[i, 1:4] = self.ptos.current[self.ptos.linear[i].object]
         e = self.entry[pto]
         if force is not None:
             self.force[e] = force

@@ -21,7 +21,7 @@ import time as _time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from types import MappingProxyType
-from typing import Any, Mapping, NamedTuple, Protocol
+from typing import Any, Mapping, NamedTuple, NoReturn, Protocol
 
 import numpy as np
 
@@ -160,19 +160,8 @@ class ForceLink:
         except (KeyboardInterrupt, RunInterrupted):
             raise
         except Exception as exc:
-            if isinstance(exc, ProtocolError):   # the local step's refusal, as the server's error reply says it
-                exc = RemoteError(exc.code, exc.name, exc.field, exc.message, self.conn.address, exc.extra)
-            rows, where = self.writer.rows, getattr(self.writer, "path", "the results file")
-            raise RunInterrupted(f"force server error at step {seq} (t = {t:.6g} s): {exc}; the {rows} rows "
-                                 f"before it are saved in {where}", step=seq, time=t, rows=rows) from exc
-        rt = _time.perf_counter() - t0
-        self.seconds += rt
-        self._sent[seq % SENT_RING] = t0
-        self.decisions = decisions = reply.get("control")
-        change = reply.get("hydro_state")
-        self.hydro_state = None if change is None else HydroStateChange.from_wire(change, self.n)
-        if decisions:
-            self.controller_seconds += self._controller_wait(seq, t0, rt, reply, decisions)
+            self.failed(seq, exc)
+        self.answered(seq, t0, reply)
         eta = reply["wave_elevation"]
         eta = eta if type(eta) is float else float(np.asarray(eta, float).reshape(-1)[0])
         optional = {k: reply[k].reshape(-1) for k in OPTIONAL_FORCES if reply.get(k) is not None}
@@ -186,6 +175,28 @@ class ForceLink:
         if not math.isfinite(float(_sum(s.load)) + float(_sum(s.hydrostatic)) + eta):
             raise self.non_finite(seq)
         return s
+
+    def answered(self, seq: int, sent: float, reply: dict) -> None:
+        """The reply to step ``seq``, asked for at ``sent`` (perf_counter), is in: the round trip's
+        time (:attr:`seconds`, of which :attr:`controller_seconds`), the :attr:`decisions` and the
+        :attr:`hydro_state` switch it carries."""
+        rt = _time.perf_counter() - sent
+        self.seconds += rt
+        self._sent[seq % SENT_RING] = sent
+        self.decisions = decisions = reply.get("control")
+        change = reply.get("hydro_state")
+        self.hydro_state = None if change is None else HydroStateChange.from_wire(change, self.n)
+        if decisions:
+            self.controller_seconds += self._controller_wait(seq, sent, rt, reply, decisions)
+
+    def failed(self, seq: int, exc: Exception) -> NoReturn:
+        """Raise the error that ends a run whose server failed step ``seq`` with ``exc``
+        (:class:`RunInterrupted`; a local step's ProtocolError as the server's error reply says it)."""
+        if isinstance(exc, ProtocolError):
+            exc = RemoteError(exc.code, exc.name, exc.field, exc.message, self.conn.address, exc.extra)
+        t, rows, where = seq * self.dt, self.writer.rows, getattr(self.writer, "path", "the results file")
+        raise RunInterrupted(f"force server error at step {seq} (t = {t:.6g} s): {exc}; the {rows} rows "
+                             f"before it are saved in {where}", step=seq, time=t, rows=rows) from exc
 
     @property
     def local(self) -> Any:

@@ -14,7 +14,9 @@ the measurements relayed before the model steps, the model's step, the decisions
 the server's loop turned in this thread until the controllers' commands are in or their
 deadline passes. The reply's fields are those of a ``step`` message, bit for bit
 (tests/test_controlled_step.py); a value that a ``step`` message would have refused raises its
-ProtocolError, the session unchanged.
+ProtocolError, the session unchanged. A run whose model steps as its compiled kernel takes that
+kernel itself between :meth:`ControlledStep.relayed` and :meth:`ControlledStep.decided` (the
+same order; no forces in the reply: the caller's kernel computed them).
 """
 
 from __future__ import annotations
@@ -45,7 +47,10 @@ class PolledServer(Protocol):
 
 class ControlledStep(LocalStep):
     """One controlled session's step path for the polled server's own run (module docstring);
-    valid until the session's ``bye``."""
+    valid until the session's ``bye``. Where the model's step is its compiled linear core
+    (:meth:`LocalStep.compiled`), a caller may take each new step as :meth:`relayed`, the
+    kernel, then :meth:`decided`: :meth:`__call__`'s order, the model's step in the caller's
+    compiled code (clients/exudyn/compiled_exchange.py)."""
 
     def __init__(self, server: PolledServer, session: Session, hub: ControlHub):
         super().__init__(session)
@@ -59,24 +64,48 @@ class ControlledStep(LocalStep):
         ``ServerConnection.step`` sends): :meth:`ForceServer.respond_map`'s reply to that ``step``
         message, bit for bit. ProtocolError where that message gets an error; TimeoutError when
         the reply is not ready within ``timeout`` s."""
-        server, s, hub = self._server, self._session, self._hub
-        server.serve_ready()
+        s, hub = self._session, self._hub
+        self._server.serve_ready()
         new = seq == s.last_seq + 1
         meas = hub.own_measurements(seq, measurements) if new and iteration == 0 and hub.measured_at(seq) else None
         self._check(seq)
         if meas is not None:   # relayed before the model steps (as ForceServer._step)
-            hub.relay(meas, s.previews(hub.previews_due(meas), meas["step"]))
+            self._relay(meas)
         fields = s.advance(seq, iteration, self.position, self.velocity, self._modal,
                            hub.hydro_command(seq) if new else None)
-        msg_id = next(self._ids)
-        fields = hub.after_step(seq, iteration, new, None, fields, server.local_route, msg_id)
+        return self._decided(seq, iteration, new, fields, timeout)
+
+    def relayed(self, seq: int, measurements: dict | None) -> None:
+        """Before the compiled kernel takes the new step ``seq`` (its state already checked against
+        the wire's bounds by the caller): what :meth:`__call__` does before the model's step — the
+        server's ready messages served, the session touched, the ``measurements`` checked and
+        relayed when seq − 1 is a control step. ProtocolError as :meth:`__call__`'s."""
+        s, hub = self._session, self._hub
+        self._server.serve_ready()
+        s.touch()
+        if hub.measured_at(seq):
+            self._relay(hub.own_measurements(seq, measurements))
+
+    def decided(self, seq: int, seconds: float, timeout: float = 30.0) -> dict:
+        """The new step ``seq`` was taken by the compiled kernel in ``seconds``: the session told
+        (:meth:`LocalStep.advanced`), then what :meth:`__call__` does after the model's step — the
+        decisions due, the wait for the commands. The reply's fields that are not the forces
+        (``control``, ``compute_us``: the kernel's time); TimeoutError as :meth:`__call__`'s."""
+        self.advanced(seq, seconds)
+        return self._decided(seq, 0, True, {"compute_us": seconds * 1e6}, timeout)
+
+    def _relay(self, meas: dict) -> None:
+        """The checked measurements ``meas`` and their wave probes relayed to the controllers."""
+        self._hub.relay(meas, self._session.previews(self._hub.previews_due(meas), meas["step"]))
+
+    def _decided(self, seq: int, iteration: int, new: bool, fields: dict, timeout: float) -> dict:
+        """The decisions due at ``seq`` into ``fields``, at once or after the server's loop turned
+        until the commands are in or their deadline passed."""
+        server = self._server
+        fields = self._hub.after_step(seq, iteration, new, None, fields, server.local_route, next(self._ids))
         if fields is not None:
             return fields
         reply = server.await_local(timeout)
         if reply["type"] == "error":   # (what a step message's deferred reply could be: never sent today)
             raise ProtocolError(reply["code"], reply.get("field"), reply["message"])
         return reply
-
-    def compiled(self) -> None:
-        """No compiled kernel: a controlled step relays and waits (the caller takes :meth:`__call__`)."""
-        return None
