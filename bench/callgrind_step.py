@@ -106,8 +106,8 @@ def inner(case: str, warm: int, steps: int, library: str) -> None:
             def __init__(self, scheme):
                 self.scheme, self.feedback = scheme, scheme.feedback
                 if hasattr(scheme, "run_exchanges"):     # the compiled exchange's own loop: toggled after each exchange
-                    self.run_exchanges = lambda loop, n, check: scheme.run_exchanges(
-                        loop, n, lambda: (toggle(loop.step), check()))
+                    self.run_exchanges = lambda loop, n, check, paced=None: scheme.run_exchanges(
+                        loop, n, lambda: (toggle(loop.step), check()), paced)
 
             def exchange(self, loop, e, s):
                 toggle(e)

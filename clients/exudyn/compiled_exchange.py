@@ -1,6 +1,6 @@
-"""An embedded run's exchange in two compiled calls, inside Exudyn's own step loop (issue 36).
+"""A run's exchange in two compiled calls, inside Exudyn's own step loop (issue 36).
 
-``hydrolink run`` with its in-process server (no socket, no controller, not paced), the
+``hydrolink run`` with its in-process server (embedded, or polled with controllers), the
 ``mass-matrix`` scheme, one client step per exchange, every scene body wet and a model whose step
 is its compiled linear core alone (server/service/local_step.py ``LocalStep.compiled``): then an
 exchange of :class:`~hydrolink.clients.lockstep.coupling_schemes.Predictor` is, per step,
@@ -17,10 +17,19 @@ exchange of :class:`~hydrolink.clients.lockstep.coupling_schemes.Predictor` is, 
    into the row's slots (``ResultWriter.slots``); otherwise (joints, moorings, other PTOs) as the
    reference path stages them; and the row's commit.
 
-An unpaced run takes every exchange inside one Exudyn ``SolveSteps`` (:meth:`CompiledExchange.run_exchanges`:
-a PreStep user function does 4 of the last step and 1-2 of the next), not a ``SolveSteps`` call a step;
-a paced one calls :meth:`CompiledExchange.exchange` per exchange. The compiled calls are made through
+A run takes every exchange inside one Exudyn ``SolveSteps`` (:meth:`CompiledExchange.run_exchanges`:
+a PreStep user function does 4 of the last step, a paced run's record of it and release of the
+next, and 1-2 of the next), not a ``SolveSteps`` call a step. The compiled calls are made through
 their entry points (numba's dispatch, which types each argument every call, skipped).
+
+With controllers (the polled server's ``ControlledStep``, server/service/controlled_step.py) step
+1 is split in ``ControlledStep``'s order: the prediction and the bounds (``prepare``), the
+measurements of the last step relayed (the linear PTOs' extension, velocity and force as
+``linear_ptos`` left them, every body's q and v from the kept state), the server's step and the
+load (``forces``), then the decisions and the wait for the commands, applied to the PTOs by
+``PTOControl.apply`` (clients/exudyn/pto_control.py) as the reference path applies them; the
+control's results variables are staged with the row. Runs with controllers qualify where the
+PTOs are linear ones only, without joints or moorings.
 
 The session's sequencing state and counters follow each step (``LocalStep.advanced``). Results
 are the reference path's bit for bit (tests/test_compiled_exchange.py runs both). Anything off the
@@ -40,7 +49,7 @@ import numpy as np
 
 from hydrolink.clients.exudyn.pto_control import PTOControl
 from hydrolink.clients.lockstep.coupling_schemes import Predictor
-from hydrolink.clients.lockstep.driver import ForceLink, Lockstep, RunInterrupted, Sample
+from hydrolink.clients.lockstep.driver import ForceLink, Lockstep, PacedSteps, RunInterrupted, Sample
 from hydrolink.server.service.local_step import CompiledStep
 
 __all__ = ["CompiledExchange"]
@@ -61,12 +70,12 @@ class _HandOff(Exception):
 
 
 class CompiledExchange:
-    """``Predictor(feedback=False)``'s exchange for an embedded run (module docstring); made by
+    """``Predictor(feedback=False)``'s exchange for a run on its own in-process server (module docstring); made by
     :meth:`ExudynMultibody.compiled_exchange <hydrolink.clients.exudyn.client.ExudynMultibody.compiled_exchange>`,
     which checks the run qualifies. It takes the scheme's place in :func:`lockstep.run
-    <hydrolink.clients.lockstep.driver.run>`: an unpaced run calls :meth:`run_exchanges` (every
-    exchange inside one ``SolveSteps``), a paced one :meth:`exchange` per exchange; the
-    :class:`Sample` an exchange returns holds views of arrays the next exchange overwrites."""
+    <hydrolink.clients.lockstep.driver.run>`, which calls :meth:`run_exchanges` (every exchange
+    inside one ``SolveSteps``); :meth:`exchange` takes one exchange as ``Predictor.exchange`` does
+    (the :class:`Sample` it returns holds views of arrays the next exchange overwrites)."""
 
     feedback = False
 
@@ -264,26 +273,31 @@ class CompiledExchange:
             dw[r, 1] = get(obj, _VELOCITY)
         self._linear_ptos(self._pto_table, dw, *slots, self._pto_meas)
 
-    def run_exchanges(self, loop: Lockstep, n_exchanges: int, check: Callable[[], None]) -> None:
-        """Every exchange of an unpaced run inside Exudyn's own step loop: one ``SolveSteps`` over
+    def run_exchanges(self, loop: Lockstep, n_exchanges: int, check: Callable[[], None],
+                      paced: PacedSteps | None = None) -> None:
+        """Every exchange of the run inside Exudyn's own step loop: one ``SolveSteps`` over
         the run, a PreStep user function taking each exchange (the last step's row, the watch, the
-        outputs, the commit, ``check`` — the driver's SIGINT latch — then the next step's forces)
-        instead of a ``SolveSteps`` call and two solver-time writes an exchange (measured: 8.7 µs a
-        step for a 1-DOF system that way, 2.1 µs in one call with an empty PreStep 2.7 µs). Exudyn
-        steps with the fixed step size its solver was initialised with (``dt``) either way, so
-        the states are the same bits. An error raised in the PreStep (the watch's, SIGINT, the
-        server's) ends Exudyn's loop before that step and is raised here as it was; an exchange
-        whose state the compiled check refuses ends it likewise and is taken by the reference path,
-        after which a new loop starts."""
+        outputs, the commit, a paced run's record of it, ``check`` — the driver's SIGINT latch —
+        then a paced run's release of the next, and its forces) instead of a ``SolveSteps`` call
+        and two solver-time writes an exchange (measured: 8.7 µs a step for a 1-DOF system that
+        way, 2.1 µs in one call with an empty PreStep 2.7 µs). Exudyn steps with the fixed step
+        size its solver was initialised with (``dt``) either way, so the states are the same bits.
+        ``paced``: the driver's :class:`PacedSteps` (begun), whose ``release`` and ``done`` frame
+        each exchange as the driver's paced loop does. An error raised in the PreStep (the
+        watch's, SIGINT, the server's) ends Exudyn's loop before that step and is raised here as it
+        was; an exchange whose state the compiled check refuses ends it likewise and is taken by
+        the reference path, after which a new loop starts."""
         e = 0
         while e < n_exchanges:
-            e = self._loop(loop, e, n_exchanges, check)
-            if e < n_exchanges:       # handed off: the reference path takes exchange e
+            e = self._loop(loop, e, n_exchanges, check, paced)
+            if e < n_exchanges:       # handed off (released, when paced): the reference path takes exchange e
                 self._reference(loop, e, None)
+                if paced is not None:
+                    paced.done(e)
                 check()
                 e += 1
 
-    def _loop(self, loop: Lockstep, start: int, stop: int, check: Callable[[], None]) -> int:
+    def _loop(self, loop: Lockstep, start: int, stop: int, check: Callable[[], None], paced: PacedSteps | None) -> int:
         """Exchanges ``start`` .. ``stop`` - 1 in one ``SolveSteps``; returns ``stop``, or the exchange
         handed to the reference path."""
         if not self._primed:
@@ -292,6 +306,7 @@ class CompiledExchange:
         mbs, solver, h = model.mbs, model.solver, model.dt
         set_force, hydro, force = mbs.SetObjectParameter, model.hydro_object, self._force
         predicted, settled = self._forces_of, self._settled
+        release, done = (paced.release, paced.done) if paced is not None else (None, None)
         nxt = [start, 0.0]            # the next exchange, the elevation of the last one taken
         error: list[BaseException] = []
 
@@ -300,9 +315,13 @@ class CompiledExchange:
             try:
                 if e > start:
                     settled(loop, e - 1, nxt[1])
+                    if done is not None:
+                        done(e - 1)
                     check()
                 if e >= stop:
                     raise RuntimeError(f"Exudyn began a step past exchange {stop} (its loop was set to end there)")
+                if release is not None:
+                    release(e)
                 status, nxt[1] = predicted(e)
                 if status == 1:
                     raise _HandOff
@@ -335,6 +354,8 @@ class CompiledExchange:
         if nxt[0] != stop:
             raise RuntimeError(f"Exudyn's loop ended after exchange {nxt[0]}, not {stop}")
         settled(loop, stop - 1, nxt[1])
+        if done is not None:
+            done(stop - 1)
         check()
         return stop
 

@@ -95,8 +95,8 @@ class PTOControl:
 
     def apply(self, decisions: dict | None) -> None:
         """Apply the server's decisions due at this step (before the integration step)."""
-        self.status[:] = np.nan
-        self.latency[:] = np.nan
+        self.status.fill(np.nan)
+        self.latency.fill(np.nan)
         if not decisions:
             return
         for j, name in enumerate(self.names):
@@ -134,15 +134,12 @@ class PTOControl:
     def _put(self, pto: str, *, force=None, damping=None, stiffness=None) -> None:
         i = self.lin_index[pto]
         self.ptos.set_linear(self.mbs, i, force=force, damping=damping, stiffness=stiffness)
-        if self.table is not None:
-            self.table[i, 1:4] = self.ptos.current[self.ptos.linear[i].object]
-        e = self.entry[pto]
-        if force is not None:
-            self.force[e] = force
-        if damping is not None:
-            self.damping[e] = damping
-        if stiffness is not None:
-            self.stiffness[e] = stiffness
+        e, table = self.entry[pto], self.table
+        for column, values, value in ((1, self.stiffness, stiffness), (2, self.damping, damping), (3, self.force, force)):
+            if value is not None:
+                values[e] = value
+                if table is not None:   # (as set_linear keeps the PTO's current value)
+                    table[i, column] = value
 
     def stage(self) -> None:
         self.writer.stage_extra(self._row)

@@ -507,8 +507,10 @@ def run(loop: Lockstep, scheme: Any, n_exchanges: int, coupling: CouplingReport,
             s = link.sample(0, x, v, timeout=first_timeout)
             init_iterations = mb.begin(s, scheme.feedback)
             loop.write(0.0, s)
-            if paced is None and hasattr(scheme, "run_exchanges"):   # a scheme that loops itself (compiled_exchange.py)
-                scheme.run_exchanges(loop, n_exchanges, sigint.check)
+            if hasattr(scheme, "run_exchanges"):   # a scheme that loops itself (compiled_exchange.py)
+                if paced is not None:
+                    paced.begin()
+                scheme.run_exchanges(loop, n_exchanges, sigint.check, paced)
             elif paced is None:
                 for e in range(n_exchanges):
                     s = scheme.exchange(loop, e, s)
