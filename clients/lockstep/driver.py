@@ -200,8 +200,8 @@ class ForceLink:
 
     @property
     def local(self) -> Any:
-        """The embedded server's step path this link takes (server/service/local_step.py
-        ``LocalStep``; None: messages)."""
+        """This process's own server's step path this link takes (server/service/local_step.py
+        ``LocalStep``, or a polled server's controlled_step.py ``ControlledStep``; None: messages)."""
         return self._local
 
     def non_finite(self, seq: int) -> SimulationDiverged:
