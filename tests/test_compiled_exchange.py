@@ -39,6 +39,26 @@ class Switching(Controller):
         c = self.c * (1.5 if m["pto_velocity"][0] > 0.0 else 1.0)
         return {p: {"damping": c, "stiffness": self.k} for p in self.ptos}
 """
+# a reactive force controller whose every seventh command is refused (NaN: "invalid"), so that the
+# scene's passive fallback acts on those steps
+FAULTY = """
+import math
+
+from hydrolink.clients.control import Controller
+
+class Faulty(Controller):
+    def on_start(self, info):
+        self.c, self.k = float(info["parameters"]["damping"]), float(info["parameters"]["stiffness"])
+
+    def on_step(self, t, m):
+        if round(t / 0.08) % 7 == 6:
+            return {p: math.nan for p in self.ptos}
+        v, x = m["pto_velocity"].tolist(), m["pto_displacement"].tolist()
+        return {p: self.c * v[i] + self.k * x[i] for i, p in enumerate(self.ptos)}
+
+    def on_error(self, error):
+        pass
+"""
 #: results variables that are wall time, not the run's physics
 WALL_CLOCK = {"controller_latency", "step_latency", "step_time", "overrun"}
 
@@ -179,10 +199,11 @@ def test_steps_the_compiled_check_refuses_go_to_the_reference_path(sphere_path, 
 
 def controlled_scene(reference_data: Path, tmp_path: Path, command: str) -> Path:
     """RM3 at dt 0.08 for 8 s, no passive damping, one controller driving its PTO every step
-    (``command``: "force" or "impedance"), measuring the PTO and the bodies."""
+    (``command``: "force" or "impedance"; its fallback passive, 2e5 N s/m), measuring the PTO and
+    the bodies."""
     path = rm3_scene(reference_data, tmp_path, (
         "\n[[controllers]]\nname = \"ctl\"\nptos = [\"pto\"]\n"
-        f"command = \"{command}\"\ntimeout = 10.0\n"
+        f"command = \"{command}\"\ntimeout = 10.0\nfallback = \"passive\"\nfallback_damping = 2.0e5\n"
         "measurements = [\"pto_displacement\", \"pto_velocity\", \"pto_force\", \"body_position\", \"body_velocity\"]\n"
         "parameters = { damping = 3.9e5, stiffness = 1.36e6 }\n"))
     text = path.read_text()
@@ -204,7 +225,7 @@ def own_run(scene: Path, out: Path, controller: Path, realtime: float | None):
     return summary
 
 
-@pytest.mark.parametrize("command, realtime, bound", [("force", None, None), ("impedance", 16.0, None),
+@pytest.mark.parametrize("command, realtime, bound", [("faulty", None, None), ("impedance", 16.0, None),
                                                       ("force", None, 0.3)])
 def test_controlled_compiled_exchange_equals_the_reference_path(command, realtime, bound, reference_data, tmp_path,
                                                                monkeypatch):
@@ -213,22 +234,24 @@ def test_controlled_compiled_exchange_equals_the_reference_path(command, realtim
     the measurements from the kernels' arrays and the commands applied to the PTO between the
     steps: every variable of the results file but the wall-clock ones is the reference path's
     (the same run with the compiled exchange switched off) to the bit, with the same decisions.
-    ``bound``: a velocity bound of the compiled check in place of the wire's, so that exchanges
-    go to the reference path mid-run and back (their measurements then the reference path's)."""
+    ``command`` "faulty": force commands, every seventh refused, the passive fallback applied on
+    those steps. ``bound``: a velocity bound of the compiled check in place of the wire's, so
+    that exchanges go to the reference path mid-run and back (their measurements then the
+    reference path's)."""
     import dataclasses
 
     from hydrolink.clients.exudyn.client import ExudynMultibody
     from hydrolink.protocol.scene_bounds import MAX_COORDINATE
 
     controller = REACTIVE
-    if command == "impedance":
-        controller = tmp_path / "switching.py"
-        controller.write_text(SWITCHING)
+    if command != "force":
+        controller = tmp_path / f"{command}.py"
+        controller.write_text(SWITCHING if command == "impedance" else FAULTY)
     if bound is not None:
         real = LocalStep.compiled
         monkeypatch.setattr(LocalStep, "compiled", lambda self: dataclasses.replace(real(self), bounds=(MAX_COORDINATE,
                                                                                                         bound)))
-    scene = controlled_scene(reference_data, tmp_path, command)
+    scene = controlled_scene(reference_data, tmp_path, "impedance" if command == "impedance" else "force")
     calls = counted(monkeypatch)
     compiled = own_run(scene, tmp_path / "compiled.nc", controller, realtime)
     taken = set(calls)
@@ -243,15 +266,17 @@ def test_controlled_compiled_exchange_equals_the_reference_path(command, realtim
     assert set(a.data_vars) == set(b.data_vars) >= {"pto_command_force", "pto_damping", "controller_status"}
     for name in set(a.data_vars) - WALL_CLOCK:
         assert a[name].values.tobytes() == b[name].values.tobytes(), name
-    events = [json.loads(ds.attrs["controller_events"])["ctl"] for ds in (a, b)]
-    assert events[0]["ok"] == events[1]["ok"] == compiled.steps   # decided by the controller at every step
+    counts = [{k: v for k, v in json.loads(ds.attrs["controller_events"])["ctl"].items() if "latency" not in k}
+              for ds in (a, b)]
+    refused = compiled.steps // 7 if command == "faulty" else 0
+    assert counts[0] == counts[1] == {"ok": compiled.steps - refused, "invalid": refused, "timeout": 0, "absent": 0}
     assert np.abs(a["position"].values - a["position"].values[0]).max() > 0.05
     if bound is not None:
         assert np.abs(a["velocity"].values).max() > bound
-    if command == "force":
+    if command != "impedance":
         assert np.abs(a["pto_command_force"].values).max() > 1e3
-    else:
-        assert np.unique(a["pto_damping"].values[1:]).size == 2     # the commands changed the damping
+    if command != "force":   # the commands, or the fallback, changed the damping
+        assert np.unique(a["pto_damping"].values[1:]).size == 2
 
 
 def test_paced_compiled_exchange_equals_reference_bit_for_bit(reference_data, tmp_path, monkeypatch):
