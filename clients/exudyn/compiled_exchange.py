@@ -120,12 +120,13 @@ class CompiledExchange:
         self._forces_of = self._predicted if control is None else self._controlled
         if control is not None:
             control.table = self._pto_table     # the commands' stiffness, damping and force, as linear_ptos reads them
-            self._bodies = np.zeros((2, model.body_reference.shape[0], 6))   # every body's q and v
-            self._body_take = np.asarray(body_take, np.int64)
+            bodies = np.zeros((2, model.body_reference.shape[0], 6))   # every body's q and v
+            # np.take's source (the kept state, flat), indices (every body's q, then v) and output
+            self._take_bodies = (self._st.reshape(-1), np.asarray(body_take, np.int64), bodies.reshape(-1))
             # the measurements map (PTOControl.measurements'): views of the arrays above, its step set each time
             self._measurements = {"step": 0, "pto_displacement": self._pto_meas[0], "pto_velocity": self._pto_meas[1],
-                                  "pto_force": self._pto_meas[2], "body_position": self._bodies[0],
-                                  "body_velocity": self._bodies[1]}
+                                  "pto_force": self._pto_meas[2], "body_position": bodies[0],
+                                  "body_velocity": bodies[1]}
 
     def _bind(self) -> None:
         """The kernel's state over views of Exudyn's current q, v, a (``copy=False``: the solver's
@@ -223,7 +224,8 @@ class CompiledExchange:
     def _measured(self, k: int) -> dict:
         """The measurements of step ``k`` (``PTOControl.measurements``' map): the PTOs' from the last
         linear_ptos, every body's q and v from the state the last settle kept."""
-        np.take(self._st.reshape(-1), self._body_take, out=self._bodies.reshape(-1))
+        src, take, out = self._take_bodies
+        np.take(src, take, out=out)
         meas = self._measurements
         meas["step"] = k
         return meas
