@@ -39,8 +39,8 @@ class Switching(Controller):
         c = self.c * (1.5 if m["pto_velocity"][0] > 0.0 else 1.0)
         return {p: {"damping": c, "stiffness": self.k} for p in self.ptos}
 """
-# a reactive force controller whose every seventh command is refused (NaN: "invalid"), so that the
-# scene's passive fallback acts on those steps
+# a reactive force controller (plus a term of the wave elevation at its probe) whose every seventh
+# command is refused (NaN: "invalid"), so that the scene's passive fallback acts on those steps
 FAULTY = """
 import math
 
@@ -53,8 +53,8 @@ class Faulty(Controller):
     def on_step(self, t, m):
         if round(t / 0.08) % 7 == 6:
             return {p: math.nan for p in self.ptos}
-        v, x = m["pto_velocity"].tolist(), m["pto_displacement"].tolist()
-        return {p: self.c * v[i] + self.k * x[i] for i, p in enumerate(self.ptos)}
+        v, x, eta = m["pto_velocity"].tolist(), m["pto_displacement"].tolist(), float(m["wave_elevation"][0])
+        return {p: self.c * v[i] + self.k * x[i] + 1.0e4 * eta for i, p in enumerate(self.ptos)}
 
     def on_error(self, error):
         pass
@@ -199,12 +199,13 @@ def test_steps_the_compiled_check_refuses_go_to_the_reference_path(sphere_path, 
 
 def controlled_scene(reference_data: Path, tmp_path: Path, command: str) -> Path:
     """RM3 at dt 0.08 for 8 s, no passive damping, one controller driving its PTO every step
-    (``command``: "force" or "impedance"; its fallback passive, 2e5 N s/m), measuring the PTO and
-    the bodies."""
+    (``command``: "force" or "impedance"; its fallback passive, 2e5 N s/m), measuring the PTO, the
+    bodies and the wave elevation 5 m up-wave."""
     path = rm3_scene(reference_data, tmp_path, (
         "\n[[controllers]]\nname = \"ctl\"\nptos = [\"pto\"]\n"
         f"command = \"{command}\"\ntimeout = 10.0\nfallback = \"passive\"\nfallback_damping = 2.0e5\n"
-        "measurements = [\"pto_displacement\", \"pto_velocity\", \"pto_force\", \"body_position\", \"body_velocity\"]\n"
+        "measurements = [\"pto_displacement\", \"pto_velocity\", \"pto_force\", \"body_position\", \"body_velocity\",\n"
+        "                \"wave_elevation\"]\nwave_points = [[5.0, 0.0]]\n"
         "parameters = { damping = 3.9e5, stiffness = 1.36e6 }\n"))
     text = path.read_text()
     assert "damping = 1.2e6 " in text
