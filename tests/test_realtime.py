@@ -16,22 +16,22 @@ from test_rm3 import scene_text
 
 from conftest import IDLE_S, REPLY_S
 
-SLOW_SEQ, DELAY = 10, 0.3     # the server sample of step 10 takes 0.3 s more; an exchange is 80 ms
+SLOW_SEQ, DELAY = 10, 0.3     # the row of step 10 takes 0.3 s more to commit; an exchange is 80 ms
 
 
 def test_slow_step_is_an_overrun(reference_data, tmp_path, monkeypatch):
     import xarray as xr
 
-    from hydrolink.clients.lockstep.driver import ForceLink
+    from hydrolink.clients.lockstep.results import ResultWriter
     from hydrolink.clients.run import run_scene_file
-    sample = ForceLink.sample
+    commit = ResultWriter.commit
 
-    def slow(self, seq, *args, **kwargs):
-        if seq == SLOW_SEQ:
+    def slow(self, *args, **kwargs):   # the row of step SLOW_SEQ (the reference path's or the compiled exchange's)
+        if self.rows == SLOW_SEQ:
             time.sleep(DELAY)
-        return sample(self, seq, *args, **kwargs)
+        return commit(self, *args, **kwargs)
 
-    monkeypatch.setattr(ForceLink, "sample", slow)
+    monkeypatch.setattr(ResultWriter, "commit", slow)
     (tmp_path / "rm3.toml").write_text(scene_text("full", reference_data / "rm3_wamit" / "rm3.1", duration=1.6))
     t0 = time.perf_counter()
     summary = run_scene_file(tmp_path / "rm3.toml", tmp_path / "rm3.nc", progress=False, realtime=1.0)
