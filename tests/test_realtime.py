@@ -7,6 +7,9 @@ controller, a slow results write), and a paced run cannot finish before its simu
 from __future__ import annotations
 
 import json
+import os
+import signal
+import threading
 import time
 
 import numpy as np
@@ -68,9 +71,9 @@ ROWS, SLOW_FIRST, IO_DELAY = 5, 25, 1.0   # blocks of 5 rows, two of them; the w
 
 def test_injected_delays_are_found_at_their_step_with_their_cause(reference_data, tmp_path, monkeypatch):
     """A paced run (RM3, 40 ms per exchange) with two delays put in on purpose: the controller (its
-    own process, over loopback) sleeps 0.4 s over step 6's command, and the results writer takes 1 s
-    more over rows 25-29 while only two blocks of five rows exist, so the stepping thread waits for
-    a free block when the next block fills (row 34). Each shows in the results file at its row, as
+    own process, over loopback) sleeps 0.4 s over step 6's command, and the results writer's process
+    is stopped for 1 s when rows 25-29 are handed to it while only two blocks of five rows exist, so
+    the stepping thread waits for a free block when the next block fills (row 34). Each shows in the results file at its row, as
     an overrun whose largest part is its cause; the file's counts are the summary's, and every
     row's parts add up to its latency. Margins are wide: only the injected rows are asserted on."""
     import xarray as xr
@@ -80,14 +83,18 @@ def test_injected_delays_are_found_at_their_step_with_their_cause(reference_data
     from hydrolink.clients.lockstep import results
     from hydrolink.protocol.pacing import PARTS
 
-    class SmallBlocks(results.ResultWriter):   # the real writer: small blocks, one slow write
+    resumes = []
+
+    class SmallBlocks(results.ResultWriter):   # the real writer: small blocks, its process stopped once
         def __init__(self, *args, **kwargs):
             super().__init__(*args, **kwargs, flush_rows=ROWS, blocks=2)
 
-        def _write(self, blk):
+        def _send(self, blk):
             if blk.first == SLOW_FIRST:
-                time.sleep(IO_DELAY)
-            super()._write(blk)
+                os.kill(self._proc.pid, signal.SIGSTOP)
+                resumes.append(threading.Timer(IO_DELAY, os.kill, (self._proc.pid, signal.SIGCONT)))
+                resumes[-1].start()
+            super()._send(blk)
 
     monkeypatch.setattr(results, "ResultWriter", SmallBlocks)
     dt = 0.04
@@ -96,7 +103,10 @@ def test_injected_delays_are_found_at_their_step_with_their_cause(reference_data
     ctl = tmp_path / "sleepy.py"
     ctl.write_text(SLEEPY.format(dt=dt, step=CTL_STEP, delay=CTL_DELAY))
     summary, (rc, err) = run_own(tmp_path, "paced", text, ctl, free_address(), realtime=1.0, timeout=REPLY_S)
+    for timer in resumes:
+        timer.join()
     assert rc == 0, err
+    assert len(resumes) == 1          # the writer was stopped once, over the rows asked for
     rt = summary.realtime
     ds = xr.load_dataset(tmp_path / "paced.nc")
     lat, over, parts = ds["step_latency"].values, ds["overrun"].values, ds["step_time"].values

@@ -402,7 +402,9 @@ class PacedSteps:
                                  "for the results writer); an overrun's cause is its largest part")
 
     def begin(self) -> None:
-        """Before the first release: GC out of the loop, blocks held until their rows are complete."""
+        """Before the first release: the results written by a process of their own (no write takes
+        the loop's GIL or CPU), GC out of the loop, blocks held until their rows are complete."""
+        self.writer.write_in_process()
         gc.collect()
         gc.freeze()
         gc.disable()
