@@ -464,7 +464,8 @@ class ResultWriter:
         put in shared memory (the one being filled copied over, so blocks end where they would have) (a file in /dev/shm, unlinked once both sides have it). netCDF4's Python and
         HDF5's C calls then hold neither this process's GIL nor its CPU; the process drops a real-time
         policy it inherited (the stepping thread's core is not its to take: ``blocks`` - 1 blocks
-        of slack) and its own session keeps it out of a terminal's Ctrl-C, so an interrupted run's
+        of slack) and may run on any core (not only the run's, ``--cpu``); its own session keeps
+        it out of a terminal's Ctrl-C, so an interrupted run's
         last rows still reach the file."""
         if self._conn is not None:
             return
@@ -673,6 +674,11 @@ def _serve_blocks(fd: int) -> None:
     error or None). The end of the connection (its run killed) closes the file."""
     if hasattr(os, "sched_getscheduler") and os.sched_getscheduler(0) != os.SCHED_OTHER:
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    if hasattr(os, "sched_setaffinity"):   # not the core the run was pinned to (--cpu): any
+        try:
+            os.sched_setaffinity(0, range(os.cpu_count() or 1))
+        except OSError:                    # a cpuset narrower than the machine: as inherited
+            pass
     conn = Connection(fd)
     ds: netCDF4.Dataset | None = None
     blocks: list[_Block] = []
