@@ -58,6 +58,7 @@ from typing import Any, Mapping
 import numpy as np
 import netCDF4
 
+from hydrolink.clients.lockstep.rt_priority import ordinary_policy
 from hydrolink.protocol.capabilities import reply_fields
 from hydrolink.protocol.reply import dissipated_power, reply_field
 from hydrolink.protocol.scene import Scene
@@ -461,12 +462,13 @@ class ResultWriter:
     def write_in_process(self) -> None:
         """Write from now on in a process of its own (a paced run: PacedSteps, clients/lockstep/driver.py):
         the blocks sealed so far into the file, the file closed here and reopened there, the blocks
-        put in shared memory (the one being filled copied over, so blocks end where they would have) (a file in /dev/shm, unlinked once both sides have it). netCDF4's Python and
-        HDF5's C calls then hold neither this process's GIL nor its CPU; the process drops a real-time
-        policy it inherited (the stepping thread's core is not its to take: ``blocks`` - 1 blocks
-        of slack) and may run on any core (not only the run's, ``--cpu``); its own session keeps
-        it out of a terminal's Ctrl-C, so an interrupted run's
-        last rows still reach the file."""
+        put in shared memory (a file in /dev/shm, unlinked once both sides have it; the one being
+        filled copied over, so blocks end where they would have). netCDF4's Python and HDF5's C
+        calls then hold neither this process's GIL nor its CPU. The process starts under the
+        ordinary policy, its threads too, when the run's thread is real-time (the stepping thread's
+        core is not its to take: ``blocks`` - 1 blocks of slack), may run on any core (not only the
+        run's, ``--cpu``), and its own session keeps it out of a terminal's Ctrl-C, so an
+        interrupted run's last rows still reach the file."""
         if self._conn is not None:
             return
         old = self._cur if self._cur is not None else self._start()
@@ -486,7 +488,7 @@ class ResultWriter:
             self._shared = mmap.mmap(fd, size * self.n_blocks)
             blocks = [_Block(fields, k, self._shared, k * size) for k in range(self.n_blocks)]
             ours, theirs = socket.socketpair()
-            with theirs:
+            with theirs, ordinary_policy():
                 self._proc = subprocess.Popen([sys.executable, "-m", __name__, str(theirs.fileno())],
                                               pass_fds=(theirs.fileno(),), start_new_session=True)
             self._conn = Connection(ours.detach())
@@ -672,8 +674,6 @@ def _serve_blocks(fd: int) -> None:
     ("block", index, first, n) writes one, ("attr", name, value) sets a global attribute,
     ("close",) closes the file; each is answered (block index or -1, rows in the file or None, the
     error or None). The end of the connection (its run killed) closes the file."""
-    if hasattr(os, "sched_getscheduler") and os.sched_getscheduler(0) != os.SCHED_OTHER:
-        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
     if hasattr(os, "sched_setaffinity"):   # not the core the run was pinned to (--cpu): any
         try:
             os.sched_setaffinity(0, range(os.cpu_count() or 1))
