@@ -229,7 +229,7 @@ def main() -> None:
                                    if r == "polled" or c == args.channels[0]]:   # a thread relay has no direct channel
                 label = relay if relay == "thread" else f"{relay}, {channel}"
                 # unpaced: released at once (a factor no step can keep up with); the step costs are its
-                # steps' times from their actual start (latency less "behind"; the controller's join left out)
+                # steps' times from their actual start (latency less "behind" and "wake"; the controller's join left out)
                 unpaced, cost = run(tmp, rate, args.unpaced_seconds, UNPACED, args.radiation, relay, channel,
                                     args.rt_priority)
                 free = unpaced.realtime
@@ -237,7 +237,7 @@ def main() -> None:
                 rt = paced.realtime
                 notes.append(breakdown(rate, paced) + f" ({label}); unpaced: the server's model "
                              f"{unpaced.server_compute_us_per_step:.1f} µs per step, ms per step: "
-                             + ", ".join(f"{k} {1e3 * v:.3f}" for k, v in free.parts_mean.items() if k != "behind"))
+                             + ", ".join(f"{k} {1e3 * v:.3f}" for k, v in free.parts_mean.items() if k not in ("behind", "wake")))
                 c50, c99 = step_cost(unpaced)
                 rows.append((rate, label, 1e3 / rate, 1e3 * c50, 1e3 * c99, 1e6 * cost.run_cpu_s, cost.controller_us,
                              rt.steps, rt.overruns, 1e3 * rt.worst_lateness, 1e3 * rt.latency_p50,
@@ -261,14 +261,14 @@ def main() -> None:
 
 def step_cost(summary) -> tuple[float, float]:
     """p50 and p99 of a run's step times from each exchange's actual start (its results file's
-    step_time without "behind"): what a step costs when nothing waits for a release."""
+    step_time without "behind" and "wake"): what a step costs when nothing waits for a release."""
     import netCDF4
     import numpy as np
 
     with netCDF4.Dataset(summary.output) as ds:
         parts = np.asarray(ds["step_time"][1:].filled(np.nan))
         labels = list(ds["step_part"][:])
-    cost = parts[:, [i for i, k in enumerate(labels) if k != "behind"]].sum(axis=1)
+    cost = parts[:, [i for i, k in enumerate(labels) if k not in ("behind", "wake")]].sum(axis=1)
     return float(np.percentile(cost, 50)), float(np.percentile(cost, 99))
 
 

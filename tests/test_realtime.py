@@ -230,3 +230,38 @@ def test_blas_pools_hold_one_thread_in_the_loop(reference_data, tmp_path, monkey
         after = [p["num_threads"] for p in threadpool_info()]
     assert seen and set(seen) == {1}
     assert after == before
+
+
+def test_a_late_release_is_a_wake_and_what_it_carries_is_behind():
+    """protocol/pacing.py: an exchange released late because its wait ended late (here an idle hook
+    that sleeps 0.2 s past the release, as a host that does not run the thread would) is an
+    overrun whose cause is ``wake``; the two exchanges after it, which the loop reaches after their
+    releases, are overruns caused by ``behind`` (the lateness carried), with no ``wake`` to speak
+    of; every exchange's parts add up to its latency. 50 ms per exchange, no work in them."""
+    from hydrolink.protocol.pacing import PARTS, Pacer, StepRecord
+
+    late, period, n = 0.2, 0.05, 6
+    pacer = Pacer(period)
+
+    slept = []
+
+    def idle(left: float) -> None:      # called in the wait of an exchange with time left
+        if not slept and pacer.t0 is not None and time.perf_counter() > pacer.t0 + 1.5 * period:
+            slept.append(left)
+            time.sleep(left + late)
+
+    pacer.idle = idle
+    record = StepRecord(pacer, n)
+    for e in range(n):
+        pacer.release(e)
+        record.step(e, time.perf_counter(), 0.0, 0.0, 0.0)
+    parts = dict(zip(PARTS, record.parts.T))
+    hit = int(np.argmax(parts["wake"]))
+    assert hit >= 2 and parts["wake"][hit] >= late and parts["behind"][hit] == 0.0
+    assert record.overrun[hit] and np.argmax(record.parts[hit]) == PARTS.index("wake")
+    for e in (hit + 1, hit + 2):          # released when the loop got there, after their releases
+        assert record.overrun[e] and np.argmax(record.parts[e]) == PARTS.index("behind")
+        assert parts["behind"][e] >= late - (e - hit) * period - 0.01 and parts["wake"][e] < 0.01
+    assert np.allclose(record.parts.sum(axis=1), record.latency, rtol=0, atol=1e-9)
+    report = record.report()
+    assert report.overrun_causes["wake"] >= 1 and report.overrun_causes["behind"] >= 2
