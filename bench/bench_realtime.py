@@ -155,7 +155,7 @@ def probe(seconds: float, work: float, rate: float = 1000.0, rt_priority: int | 
     import numpy as np
 
     from hydrolink.clients.lockstep.rt_priority import rt_priority as held
-    from hydrolink.protocol.pacing import Pacer, StepRecord
+    from hydrolink.protocol.pacing import PARTS, Pacer, StepRecord
 
     def steal() -> tuple[int, int]:
         with open("/proc/stat") as f:
@@ -181,12 +181,12 @@ def probe(seconds: float, work: float, rate: float = 1000.0, rt_priority: int | 
             record.step(e, clock(), 0.0, 0.0, 0.0)
         s1 = steal()
     rt = record.report()
-    late = record.parts[:n, 0]
-    fresh = np.r_[True, ~record.overrun[:n - 1]]   # releases not delayed by the step before
+    late = record.parts[:n, PARTS.index("wake")]     # each release's own lateness (not carried)
     g = np.asarray(gaps) if gaps else np.zeros(1)
     return {"steps": n, "overruns": rt.overruns, "latency_ms": [1e3 * rt.latency_p50, 1e3 * rt.latency_p99,
                                                                   1e3 * rt.latency_max],
-            "late_wakeup_ms": [float(1e3 * x) for x in np.percentile(late[fresh], [50, 99, 100])],
+            "late_wakeup_ms": [float(1e3 * x) for x in np.percentile(late, [50, 99, 100])],
+            "overrun_causes": {k: v for k, v in rt.overrun_causes.items() if v},
             "gaps_over_50us": len(gaps), "gaps_over_500us": int((g > 5e-4).sum()), "gap_max_ms": float(1e3 * g.max()),
             "gap_total_ms": float(1e3 * g.sum()) if gaps else 0.0,
             "steal_percent": 100.0 * (s1[0] - s0[0]) / max(s1[1] - s0[1], 1)}
