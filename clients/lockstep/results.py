@@ -482,9 +482,8 @@ class ResultWriter:
             self._raise_error()
         fields = _block_fields(old.time.size, self.n_bodies, self._extras)
         size = _block_bytes(fields)
-        fd, shared = tempfile.mkstemp(prefix="hydrolink-results-", dir="/dev/shm" if os.path.isdir("/dev/shm") else None)
+        fd, shared = _shared_file(size * self.n_blocks)
         try:
-            os.ftruncate(fd, size * self.n_blocks)
             self._shared = mmap.mmap(fd, size * self.n_blocks)
             blocks = [_Block(fields, k, self._shared, k * size) for k in range(self.n_blocks)]
             ours, theirs = socket.socketpair()
@@ -666,6 +665,32 @@ def add_modal_variables(writer: ResultWriter, labels: tuple[str, ...]) -> None:
     the ``pto_*`` variables)."""
     for name, units, description in MODAL_VARIABLES:
         writer.add_variable(name, ("mode",), {"mode": list(labels)}, units, description)
+
+
+def _shared_file(size: int) -> tuple[int, str]:
+    """A new file of ``size`` bytes for the blocks of a writer's process, its space taken now (no
+    SIGBUS at a row when memory runs short): in /dev/shm (memory), else, when that has no room, in
+    the temporary folder; (descriptor, path)."""
+    if os.path.isdir("/dev/shm"):
+        try:
+            return _allocated_file(size, "/dev/shm")
+        except OSError:
+            pass
+    return _allocated_file(size, None)
+
+
+def _allocated_file(size: int, folder: str | None) -> tuple[int, str]:
+    fd, path = tempfile.mkstemp(prefix="hydrolink-results-", dir=folder)
+    try:
+        if hasattr(os, "posix_fallocate"):
+            os.posix_fallocate(fd, 0, size)
+        else:   # pragma: no cover - macOS
+            os.ftruncate(fd, size)
+    except OSError:
+        os.close(fd)
+        os.unlink(path)
+        raise
+    return fd, path
 
 
 def _serve_blocks(fd: int) -> None:
