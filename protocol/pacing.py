@@ -19,8 +19,9 @@ server's wait for the controllers' commands, from the decisions' latencies), ``c
 the multibody step, PTO sampling, the rows), ``io`` (waiting for the results writer) and ``wake``
 (the wait for the release ending after it: a late wake-up, the host not running the thread, a
 collection in the wait that ran over). An overrun's **cause** is its largest part: ``wake`` and a
-step's own parts start a run of overruns, ``behind`` carries one on. The results file gets them per row (``step_latency``, ``overrun``, ``step_time``
-over ``step_part``) and the run summary a :class:`PacedRunReport`, from the same arrays.
+step's own parts start a run of overruns, ``behind`` carries one on. The results file gets them per
+row (``step_latency``, ``overrun``, ``step_time`` over ``step_part``) and the run summary a
+:class:`PacedRunReport`, from the same arrays.
 
 A server pacing a session (:meth:`Pacer.done`) reports the plain :class:`RealtimeReport` in
 ``goodbye``, its latency from each step's arrival to its reply being ready.
