@@ -118,9 +118,14 @@ def _block_fields(capacity: int, n_bodies: int, extras: dict[str, tuple[tuple[in
             ("eta", (capacity,), "f8"), *((name, (capacity, *shape), dtype) for name, (shape, dtype, _) in extras.items())]
 
 
+def _aligned(nbytes: int) -> int:
+    """``nbytes`` rounded up to the 64-byte boundary each array of a shared block starts on."""
+    return -(-nbytes // 64) * 64
+
+
 def _block_bytes(fields: list[tuple[str, tuple[int, ...], str]]) -> int:
     """Bytes of one block's arrays laid one after the other, each on a 64-byte boundary."""
-    return sum(-(-int(np.prod(shape)) * np.dtype(dtype).itemsize // 64) * 64 for _, shape, dtype in fields)
+    return sum(_aligned(int(np.prod(shape)) * np.dtype(dtype).itemsize) for _, shape, dtype in fields)
 
 
 class _Block:
@@ -139,7 +144,7 @@ class _Block:
                 arrays[name] = np.zeros(shape, dtype)
             else:
                 arrays[name] = np.ndarray(shape, dtype, buffer, offset)
-                offset += -(-arrays[name].nbytes // 64) * 64
+                offset += _aligned(arrays[name].nbytes)
             if touch:
                 arrays[name].fill(0)
         self.time, self.rows, self.eta = arrays.pop("time"), arrays.pop("rows"), arrays.pop("eta")
