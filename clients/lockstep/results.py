@@ -3,8 +3,9 @@
 Rows are buffered in memory in preallocated blocks; a block is written + synced by the writer's own
 thread once ``flush_seconds`` of wall time have passed since the last hand-off or it holds
 ``flush_rows`` rows, so the stepping thread never writes to the file: it hands the block over (a
-put on a bounded queue) and fills the next free one. ``blocks`` (default 3) bound the rows in
-flight; only when every block is still on its way to the file does the stepping thread wait for
+put on a bounded queue) and fills the next free one. A paced run writes from a process of its own
+instead (:meth:`ResultWriter.write_in_process`: the blocks in shared memory, the hand-off a message;
+no write holds the run's GIL). ``blocks`` (default 3) bound the rows in flight; only when every block is still on its way to the file does the stepping thread wait for
 one (the time is counted in ``io_seconds``: a paced run's "io"). A run killed part way (even with
 SIGKILL) leaves a readable file holding every row up to the last completed write. The global
 ``status`` attribute says "running", then "complete" or "interrupted: <why>" (:meth:`finish`
