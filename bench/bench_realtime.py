@@ -4,6 +4,7 @@ percentiles, beside the unpaced cost of a step of the same run.
 
     python bench/bench_realtime.py [--rates 100 200 1000] [--seconds 60] [--unpaced-seconds 10] [--radiation state-space]
                                    [--relays polled thread] [--channels direct zeromq] [--rt-priority N]
+    python bench/bench_realtime.py --probe SECONDS [--probe-work MS] [--rates 1000] [--rt-priority N]
 
 Each rate: the scene's dt = 1/rate, the run's own force server listening on a loopback port, the
 example controller examples/controllers/reactive.py in its own process (force command every step,
@@ -17,6 +18,8 @@ Prints a markdown table (the load average before and after: the figures are the 
 the code's; the CPU time per step of each side, the run's process and the controller's, from the
 unpaced run's loop: valid under load), then per paced run where the step time went (protocol/pacing.py PARTS: mean per step,
 and the overruns by cause) and the overruns counted in the results file beside the summary's.
+``--probe SECONDS``: instead, what the host does by itself to a paced thread (probe(): the pacing around a busy
+loop and nothing else; its overruns are the floor under any run's on this host).
 """
 
 from __future__ import annotations
@@ -141,6 +144,54 @@ def run_controlled(path: Path, controller: Path, realtime: float | None, relay: 
     return summary
 
 
+def probe(seconds: float, work: float, rate: float = 1000.0, rt_priority: int | None = None) -> dict:
+    """The host's own floor for a paced run: the run's pacing (protocol/pacing.py: the same release,
+    sleep and spin) around ``work`` seconds of a busy loop a step and nothing else (no hydrolink, no
+    other thread, no file), ``seconds`` at ``rate``. Every gap over 50 µs between two clock reads
+    of the busy loop is a time the thread did not run (the VM's vCPU descheduled: steal; an
+    interrupt's work on its core); ``late`` is the release's lateness (the sleep's wake-up). Returns
+    the steps, the overruns (counted as a run counts them: StepRecord), the lateness and gap
+    percentiles and the host's steal time over the probe (/proc/stat)."""
+    import numpy as np
+
+    from hydrolink.clients.lockstep.rt_priority import rt_priority as held
+    from hydrolink.protocol.pacing import PARTS, Pacer, StepRecord
+
+    def steal() -> tuple[int, int]:
+        with open("/proc/stat") as f:
+            ticks = [int(x) for x in f.readline().split()[1:]]
+        return ticks[7], sum(ticks)
+
+    n = int(seconds * rate)
+    gaps = []
+    clock = time.perf_counter
+    with held(rt_priority):
+        pacer = Pacer(1.0 / rate)
+        record = StepRecord(pacer, n)
+        s0 = steal()
+        for e in range(n):
+            pacer.release(e)
+            prev = pacer.released
+            end = prev + work
+            while prev < end:
+                now = clock()
+                if now - prev > 5e-5:
+                    gaps.append(now - prev)
+                prev = now
+            record.step(e, clock(), 0.0, 0.0, 0.0)
+        s1 = steal()
+    rt = record.report()
+    late = record.parts[:n, PARTS.index("wake")]     # each release's own lateness (not carried)
+    g = np.asarray(gaps) if gaps else np.zeros(1)
+    return {"steps": n, "overruns": rt.overruns, "latency_ms": [1e3 * rt.latency_p50, 1e3 * rt.latency_p99,
+                                                                  1e3 * rt.latency_max],
+            "late_wakeup_ms": [float(1e3 * x) for x in np.percentile(late, [50, 99, 100])],
+            "overrun_causes": {k: v for k, v in rt.overrun_causes.items() if v},
+            "gaps_over_50us": len(gaps), "gaps_over_500us": int((g > 5e-4).sum()), "gap_max_ms": float(1e3 * g.max()),
+            "gap_total_ms": float(1e3 * g.sum()) if gaps else 0.0,
+            "steal_percent": 100.0 * (s1[0] - s0[0]) / max(s1[1] - s0[1], 1)}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rates", type=float, nargs="+", default=[100.0, 200.0, 1000.0])
@@ -157,7 +208,18 @@ def main() -> None:
                          "on ZeroMQ (hydrolink control --no-direct, before revision 1.12), for a comparison")
     ap.add_argument("--rt-priority", type=int, default=None, metavar="N",
                     help="the run and the controller under SCHED_FIFO at N (1-98; needs CAP_SYS_NICE or ulimit -r)")
+    ap.add_argument("--probe", type=float, default=None, metavar="SECONDS",
+                    help="only the host's floor: the pacing around a busy loop of --probe-work ms a step and "
+                         "nothing else, SECONDS at each rate (probe())")
+    ap.add_argument("--probe-work", type=float, default=0.3, metavar="MS", help="the probe's busy work a step")
     args = ap.parse_args()
+    if args.probe is not None:
+        for rate in args.rates:
+            load0 = os.getloadavg()[0]
+            out = probe(args.probe, 1e-3 * args.probe_work, rate, args.rt_priority)
+            print(f"{rate:g} Hz, {args.probe_work:g} ms of work a step, load {load0:.2f} -> {os.getloadavg()[0]:.2f}"
+                  + (f", SCHED_FIFO {args.rt_priority}" if args.rt_priority is not None else "") + f": {out}")
+        return
     rows, notes = [], []
     load0 = os.getloadavg()
     with tempfile.TemporaryDirectory() as d:
@@ -167,7 +229,7 @@ def main() -> None:
                                    if r == "polled" or c == args.channels[0]]:   # a thread relay has no direct channel
                 label = relay if relay == "thread" else f"{relay}, {channel}"
                 # unpaced: released at once (a factor no step can keep up with); the step costs are its
-                # steps' times from their actual start (latency less "behind"; the controller's join left out)
+                # steps' times from their actual start (latency less "behind" and "wake"; the controller's join left out)
                 unpaced, cost = run(tmp, rate, args.unpaced_seconds, UNPACED, args.radiation, relay, channel,
                                     args.rt_priority)
                 free = unpaced.realtime
@@ -175,7 +237,7 @@ def main() -> None:
                 rt = paced.realtime
                 notes.append(breakdown(rate, paced) + f" ({label}); unpaced: the server's model "
                              f"{unpaced.server_compute_us_per_step:.1f} µs per step, ms per step: "
-                             + ", ".join(f"{k} {1e3 * v:.3f}" for k, v in free.parts_mean.items() if k != "behind"))
+                             + ", ".join(f"{k} {1e3 * v:.3f}" for k, v in free.parts_mean.items() if k not in ("behind", "wake")))
                 c50, c99 = step_cost(unpaced)
                 rows.append((rate, label, 1e3 / rate, 1e3 * c50, 1e3 * c99, 1e6 * cost.run_cpu_s, cost.controller_us,
                              rt.steps, rt.overruns, 1e3 * rt.worst_lateness, 1e3 * rt.latency_p50,
@@ -199,14 +261,14 @@ def main() -> None:
 
 def step_cost(summary) -> tuple[float, float]:
     """p50 and p99 of a run's step times from each exchange's actual start (its results file's
-    step_time without "behind"): what a step costs when nothing waits for a release."""
+    step_time without "behind" and "wake"): what a step costs when nothing waits for a release."""
     import netCDF4
     import numpy as np
 
     with netCDF4.Dataset(summary.output) as ds:
         parts = np.asarray(ds["step_time"][1:].filled(np.nan))
         labels = list(ds["step_part"][:])
-    cost = parts[:, [i for i, k in enumerate(labels) if k != "behind"]].sum(axis=1)
+    cost = parts[:, [i for i, k in enumerate(labels) if k not in ("behind", "wake")]].sum(axis=1)
     return float(np.percentile(cost, 50)), float(np.percentile(cost, 99))
 
 

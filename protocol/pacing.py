@@ -12,13 +12,16 @@ so a run that falls behind shows it in every following step instead of silently 
 The client (:class:`StepRecord`, clients/lockstep/driver.py) records per exchange its **latency**:
 wall time from its *scheduled* release to the end of everything done in it (the server round trip,
 the controllers' relay, the client's integration, its results rows), so latency > period exactly
-when the step overran; and where that time went, :data:`PARTS`: ``behind`` (scheduled release to
-the actual start: the previous steps' overrun carried over, a late wake-up), ``server`` (the round
-trips to the force server less the wait for controllers), ``controller`` (the server's wait for the
-controllers' commands, from the decisions' latencies), ``io`` (waiting for the results writer) and
-``client`` (the rest: the multibody step, PTO sampling, the rows). An overrun's **cause** is its
-largest part. The results file gets them per row (``step_latency``, ``overrun``, ``step_time``
-over ``step_part``) and the run summary a :class:`PacedRunReport`, from the same arrays.
+when the step overran; and where that time went, :data:`PARTS`: ``behind`` (the scheduled release
+to the moment the loop came to it, when that was later: the previous steps' overrun carried over),
+``server`` (the round trips to the force server less the wait for controllers), ``controller`` (the
+server's wait for the controllers' commands, from the decisions' latencies), ``client`` (the rest:
+the multibody step, PTO sampling, the rows), ``io`` (waiting for the results writer) and ``wake``
+(the wait for the release ending after it: a late wake-up, the host not running the thread, a
+collection in the wait that ran over). An overrun's **cause** is its largest part: ``wake`` and a
+step's own parts start a run of overruns, ``behind`` carries one on. The results file gets them per
+row (``step_latency``, ``overrun``, ``step_time`` over ``step_part``) and the run summary a
+:class:`PacedRunReport`, from the same arrays.
 
 A server pacing a session (:meth:`Pacer.done`) reports the plain :class:`RealtimeReport` in
 ``goodbye``, its latency from each step's arrival to its reply being ready.
@@ -46,7 +49,7 @@ SPIN = 3e-4   # s before a release spent spinning instead of sleeping
 RT_SPIN = 1e-4
 FACTOR_RANGE = (1e-3, 1e9)   # pace factors accepted: 1/1000 of wall clock to "as fast as it goes"
 #: where a paced step's time goes (module docstring), the order of ``step_time``'s ``step_part``
-PARTS = ("behind", "server", "controller", "client", "io")
+PARTS = ("behind", "server", "controller", "client", "io", "wake")
 
 
 def release_spin() -> float:
@@ -84,6 +87,7 @@ class Pacer:
     exchange_dt: float          # simulated seconds per exchange (H)
     factor: float = 1.0
     t0: float | None = None
+    called: float = math.nan    # when the loop asked for the current exchange's release
     released: float = math.nan
     latencies: list[float] = field(default_factory=list)
     overruns: int = 0
@@ -107,7 +111,7 @@ class Pacer:
     def release(self, e: int) -> None:
         """Wait until exchange ``e``'s wall-clock time (at once when it has passed)."""
         target = self.release_time(e)
-        now = time.perf_counter()
+        self.called = now = time.perf_counter()
         spin = self.spin
         if target - now > spin:
             if self.idle is not None:
@@ -169,7 +173,9 @@ class StepRecord:
         release = p.release_time(e)
         lat = end - release
         row = self.parts[e]
-        row[0] = p.released - release
+        ready = p.called if p.called > release else release
+        row[0] = ready - release
+        row[5] = p.released - ready
         row[1] = server
         row[2] = controller
         row[4] = io

@@ -7,6 +7,9 @@ controller, a slow results write), and a paced run cannot finish before its simu
 from __future__ import annotations
 
 import json
+import os
+import signal
+import threading
 import time
 
 import numpy as np
@@ -68,9 +71,9 @@ ROWS, SLOW_FIRST, IO_DELAY = 5, 25, 1.0   # blocks of 5 rows, two of them; the w
 
 def test_injected_delays_are_found_at_their_step_with_their_cause(reference_data, tmp_path, monkeypatch):
     """A paced run (RM3, 40 ms per exchange) with two delays put in on purpose: the controller (its
-    own process, over loopback) sleeps 0.4 s over step 6's command, and the results writer takes 1 s
-    more over rows 25-29 while only two blocks of five rows exist, so the stepping thread waits for
-    a free block when the next block fills (row 34). Each shows in the results file at its row, as
+    own process, over loopback) sleeps 0.4 s over step 6's command, and the results writer's process
+    is stopped for 1 s when rows 25-29 are handed to it while only two blocks of five rows exist, so
+    the stepping thread waits for a free block when the next block fills (row 34). Each shows in the results file at its row, as
     an overrun whose largest part is its cause; the file's counts are the summary's, and every
     row's parts add up to its latency. Margins are wide: only the injected rows are asserted on."""
     import xarray as xr
@@ -80,14 +83,18 @@ def test_injected_delays_are_found_at_their_step_with_their_cause(reference_data
     from hydrolink.clients.lockstep import results
     from hydrolink.protocol.pacing import PARTS
 
-    class SmallBlocks(results.ResultWriter):   # the real writer: small blocks, one slow write
+    resumes = []
+
+    class SmallBlocks(results.ResultWriter):   # the real writer: small blocks, its process stopped once
         def __init__(self, *args, **kwargs):
             super().__init__(*args, **kwargs, flush_rows=ROWS, blocks=2)
 
-        def _write(self, blk):
+        def _send(self, blk):
             if blk.first == SLOW_FIRST:
-                time.sleep(IO_DELAY)
-            super()._write(blk)
+                os.kill(self._proc.pid, signal.SIGSTOP)
+                resumes.append(threading.Timer(IO_DELAY, os.kill, (self._proc.pid, signal.SIGCONT)))
+                resumes[-1].start()
+            super()._send(blk)
 
     monkeypatch.setattr(results, "ResultWriter", SmallBlocks)
     dt = 0.04
@@ -96,7 +103,10 @@ def test_injected_delays_are_found_at_their_step_with_their_cause(reference_data
     ctl = tmp_path / "sleepy.py"
     ctl.write_text(SLEEPY.format(dt=dt, step=CTL_STEP, delay=CTL_DELAY))
     summary, (rc, err) = run_own(tmp_path, "paced", text, ctl, free_address(), realtime=1.0, timeout=REPLY_S)
+    for timer in resumes:
+        timer.join()
     assert rc == 0, err
+    assert len(resumes) == 1          # the writer was stopped once, over the rows asked for
     rt = summary.realtime
     ds = xr.load_dataset(tmp_path / "paced.nc")
     lat, over, parts = ds["step_latency"].values, ds["overrun"].values, ds["step_time"].values
@@ -220,3 +230,38 @@ def test_blas_pools_hold_one_thread_in_the_loop(reference_data, tmp_path, monkey
         after = [p["num_threads"] for p in threadpool_info()]
     assert seen and set(seen) == {1}
     assert after == before
+
+
+def test_a_late_release_is_a_wake_and_what_it_carries_is_behind():
+    """protocol/pacing.py: an exchange released late because its wait ended late (here an idle hook
+    that sleeps 0.2 s past the release, as a host that does not run the thread would) is an
+    overrun whose cause is ``wake``; the two exchanges after it, which the loop reaches after their
+    releases, are overruns caused by ``behind`` (the lateness carried), with no ``wake`` to speak
+    of; every exchange's parts add up to its latency. 50 ms per exchange, no work in them."""
+    from hydrolink.protocol.pacing import PARTS, Pacer, StepRecord
+
+    late, period, n = 0.2, 0.05, 6
+    pacer = Pacer(period)
+
+    slept = []
+
+    def idle(left: float) -> None:      # called in the wait of an exchange with time left
+        if not slept and pacer.t0 is not None and time.perf_counter() > pacer.t0 + 1.5 * period:
+            slept.append(left)
+            time.sleep(left + late)
+
+    pacer.idle = idle
+    record = StepRecord(pacer, n)
+    for e in range(n):
+        pacer.release(e)
+        record.step(e, time.perf_counter(), 0.0, 0.0, 0.0)
+    parts = dict(zip(PARTS, record.parts.T))
+    hit = int(np.argmax(parts["wake"]))
+    assert hit >= 2 and parts["wake"][hit] >= late and parts["behind"][hit] == 0.0
+    assert record.overrun[hit] and np.argmax(record.parts[hit]) == PARTS.index("wake")
+    for e in (hit + 1, hit + 2):          # released when the loop got there, after their releases
+        assert record.overrun[e] and np.argmax(record.parts[e]) == PARTS.index("behind")
+        assert parts["behind"][e] >= late - (e - hit) * period - 0.01 and parts["wake"][e] < 0.01
+    assert np.allclose(record.parts.sum(axis=1), record.latency, rtol=0, atol=1e-9)
+    report = record.report()
+    assert report.overrun_causes["wake"] >= 1 and report.overrun_causes["behind"] >= 2

@@ -6,6 +6,7 @@ only when every block is taken."""
 
 from __future__ import annotations
 
+import os
 import shutil
 import signal
 import subprocess
@@ -160,3 +161,95 @@ def test_a_slow_write_stalls_the_stepping_thread_only_when_every_block_is_taken(
     print(waits)
     assert waits[2][0] == 1 and waits[2][1] > 0.3
     assert waits[3] == (0, 0.0)
+
+
+# ---------------------------------------------------------------- the writer's process (a paced run)
+
+def _write_rows(w: ResultWriter, n: int, to_process_at: int | None = None) -> None:
+    """``n`` rows with extras (one staged on some rows, one amended while held), the writer moved to
+    its process after row ``to_process_at``; then an attribute, finish and close."""
+    w.add_variable("g", ("pto",), {"pto": ["p", "q"]}, "N", "staged on some rows")
+    w.add_variable("flag", (), dtype="i1", fill=0)
+    w.hold = True
+    for k, r in enumerate(_rows(n)):
+        if k % 3 == 1:
+            w.stage_extra({"g": np.array([k, -k], float)})
+        w.append(0.1 * k, *r, 0.01 * k)
+        extra, i = w.amend(k)
+        extra["flag"][i] = k % 2
+        w.release_held()
+        if k == to_process_at:
+            w.write_in_process()
+    w.set_attribute("summary", "after the rows")
+    w.finish("complete")
+    w.close()
+
+
+def test_the_writers_process_writes_the_file_its_thread_would(tmp_path: Path):
+    """A writer moved to its process part way (blocks of 5, the one being filled carried over)
+    writes the same file as the writer thread alone: every variable's values, type and chunking,
+    every attribute but the creation time; its process, every thread of it, runs under the
+    ordinary policy while the run's thread stays under SCHED_FIFO, and has ended once the writer
+    is closed."""
+    from hydrolink.clients.lockstep.rt_priority import rt_priority
+
+    def writer(name: str) -> ResultWriter:
+        return ResultWriter(tmp_path / name, scene_text="s", bodies=["a", "b"], dt=0.1, flush_rows=5, blocks=2,
+                            flush_seconds=3600.0)
+
+    _write_rows(writer("thread.nc"), 23)
+    policy = {}
+    fifo = hasattr(os, "sched_setscheduler") and os.geteuid() == 0
+    w2 = writer("moved.nc")
+    write_in_process = w2.write_in_process
+
+    def moved():
+        write_in_process()
+        if fifo:                               # every thread of the writer's process (a BLAS pool's too)
+            policy["child"] = {os.sched_getscheduler(int(t)) for t in os.listdir(f"/proc/{w2._proc.pid}/task")}
+            policy["run"] = os.sched_getscheduler(0)
+
+    w2.write_in_process = moved
+    with rt_priority(5 if fifo else None):
+        _write_rows(w2, 23, to_process_at=7)
+    assert w2._proc.returncode == 0
+    assert not fifo or (policy["child"] == {os.SCHED_OTHER} and policy["run"] == os.SCHED_FIFO)
+    with netCDF4.Dataset(tmp_path / "thread.nc") as a, netCDF4.Dataset(tmp_path / "moved.nc") as b:
+        assert {k: a.getncattr(k) for k in a.ncattrs() if k != "created"} == \
+               {k: b.getncattr(k) for k in b.ncattrs() if k != "created"}
+        assert b.getncattr("status") == "complete" and b.getncattr("rows") == 23
+        assert list(a.variables) == list(b.variables)
+        for name in a.variables:
+            va, vb = a[name], b[name]
+            assert va.dtype == vb.dtype and va.dimensions == vb.dimensions and va.chunking() == vb.chunking(), name
+            assert {k: va.getncattr(k) for k in va.ncattrs()} == {k: vb.getncattr(k) for k in vb.ncattrs()}, name
+            x, y = va[:], vb[:]
+            if va.dtype is not str and va.dtype.kind == "f":
+                assert np.array_equal(np.ma.filled(x, np.nan), np.ma.filled(y, np.nan), equal_nan=True), name
+            else:
+                assert np.array_equal(x, y), name
+
+
+def test_a_writers_process_that_dies_is_an_error_naming_the_file(tmp_path: Path):
+    """The writer's process killed part way: the next hand-off or flush raises an error naming the
+    results file and the process's end (no hang), and so does closing the writer, which still lets
+    go of the connection and reaps the process; the file keeps the rows written before the kill."""
+    w = ResultWriter(tmp_path / "r.nc", scene_text="", bodies=["a"], dt=0.1, flush_rows=5, blocks=2,
+                     flush_seconds=3600.0)
+    rows = _rows(40, 1)
+    for k in range(12):
+        w.append(0.1 * k, *rows[k], 0.0)
+        if k == 0:
+            w.write_in_process()
+    w.flush()
+    w._proc.kill()
+    w._proc.wait()
+    with pytest.raises(RuntimeError, match=r"r\.nc.*writer's process ended \(exit code -9\)"):
+        for k in range(12, 40):
+            w.append(0.1 * k, *rows[k], 0.0)
+        w.flush()
+    with pytest.raises(RuntimeError, match=r"r\.nc.*writer's process ended"):
+        w.close()
+    assert w._conn is None and w._proc.returncode == -9
+    with netCDF4.Dataset(tmp_path / "r.nc") as ds:
+        assert ds.dimensions["time"].size == 12 and np.array_equal(ds["time"][:], 0.1 * np.arange(12))

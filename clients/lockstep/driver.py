@@ -408,12 +408,15 @@ class PacedSteps:
         w.add_variable("overrun", (), units="1", dtype="i1", fill=0,
                        long_name="1: the exchange ending at this row completed after its deadline (the next release)")
         w.add_variable("step_time", ("step_part",), {"step_part": list(PARTS)}, "s", fill=np.nan,
-                       long_name="where step_latency went: behind (scheduled to actual release), server (round "
-                                 "trips less the wait for controllers), controller, client (the rest), io (waiting "
-                                 "for the results writer); an overrun's cause is its largest part")
+                       long_name="where step_latency went: behind (scheduled release to the loop's coming to "
+                                 "it: earlier overruns carried), server (round trips less the wait for controllers), "
+                                 "controller, client (the rest), io (waiting for the results writer), wake (the wait "
+                                 "for the release ending late); an overrun's cause is its largest part")
 
     def begin(self) -> None:
-        """Before the first release: GC out of the loop, blocks held until their rows are complete."""
+        """Before the first release: the results written by a process of their own (no write takes
+        the loop's GIL or CPU), GC out of the loop, blocks held until their rows are complete."""
+        self.writer.write_in_process()
         gc.collect()
         gc.freeze()
         gc.disable()

@@ -3,8 +3,9 @@
 Rows are buffered in memory in preallocated blocks; a block is written + synced by the writer's own
 thread once ``flush_seconds`` of wall time have passed since the last hand-off or it holds
 ``flush_rows`` rows, so the stepping thread never writes to the file: it hands the block over (a
-put on a bounded queue) and fills the next free one. ``blocks`` (default 3) bound the rows in
-flight; only when every block is still on its way to the file does the stepping thread wait for
+put on a bounded queue) and fills the next free one. A paced run writes from a process of its own
+instead (:meth:`ResultWriter.write_in_process`: the blocks in shared memory, the hand-off a message;
+no write holds the run's GIL). ``blocks`` (default 3) bound the rows in flight; only when every block is still on its way to the file does the stepping thread wait for
 one (the time is counted in ``io_seconds``: a paced run's "io"). A run killed part way (even with
 SIGKILL) leaves a readable file holding every row up to the last completed write. The global
 ``status`` attribute says "running", then "complete" or "interrupted: <why>" (:meth:`finish`
@@ -41,16 +42,24 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
+import mmap
+import os
 import queue
+import socket
+import subprocess
+import sys
+import tempfile
 import threading
 import time as _time
 from importlib import metadata
+from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
 import netCDF4
 
+from hydrolink.clients.lockstep.rt_priority import ordinary_policy
 from hydrolink.protocol.capabilities import reply_fields
 from hydrolink.protocol.reply import dissipated_power, reply_field
 from hydrolink.protocol.scene import Scene
@@ -76,10 +85,20 @@ _VERSIONED = ("hydrolink", "exudyn", "numpy", "capytaine", "xarray")
 #: row blocks of a writer: one being filled, the others queued for or being written by its thread
 BLOCKS = 3
 
-try:   # netCDF-C and HDF5 are not thread-safe: the writers' threads share xarray's HDF5 lock
-    from xarray.backends.locks import HDF5_LOCK as _NC_LOCK
-except ImportError:   # pragma: no cover - an xarray without it
-    _NC_LOCK = threading.Lock()
+
+
+def _nc_lock() -> Any:
+    """The lock of every netCDF/HDF5 call in this process: netCDF-C and HDF5 are not thread-safe,
+    the writers' threads share xarray's HDF5 lock (imported here, not at the module's import: the
+    writer's process has no use for xarray)."""
+    try:
+        from xarray.backends.locks import HDF5_LOCK
+    except ImportError:   # pragma: no cover - an xarray without it
+        return _OWN_LOCK
+    return HDF5_LOCK
+
+
+_OWN_LOCK = threading.Lock()
 
 
 def package_versions() -> dict[str, str]:
@@ -93,17 +112,60 @@ def package_versions() -> dict[str, str]:
     return out
 
 
+def _block_fields(capacity: int, n_bodies: int, extras: dict[str, tuple[tuple[int, ...], str, Any]]
+                  ) -> list[tuple[str, tuple[int, ...], str]]:
+    """A block's arrays (name, shape, dtype), in the order they lie in a shared block."""
+    return [("time", (capacity,), "f8"), ("rows", (len(ROW_VARIABLES), capacity, n_bodies, 6), "f8"),
+            ("eta", (capacity,), "f8"), *((name, (capacity, *shape), dtype) for name, (shape, dtype, _) in extras.items())]
+
+
+def _aligned(nbytes: int) -> int:
+    """``nbytes`` rounded up to the 64-byte boundary each array of a shared block starts on."""
+    return -(-nbytes // 64) * 64
+
+
+def _block_bytes(fields: list[tuple[str, tuple[int, ...], str]]) -> int:
+    """Bytes of one block's arrays laid one after the other, each on a 64-byte boundary."""
+    return sum(_aligned(int(np.prod(shape)) * np.dtype(dtype).itemsize) for _, shape, dtype in fields)
+
+
 class _Block:
-    """Rows buffered for one write: ``first`` the file index of its row 0, ``n`` rows filled."""
+    """Rows buffered for one write: ``first`` the file index of its row 0, ``n`` rows filled;
+    ``index`` its place among the writer's blocks. Its arrays are its own, or views into
+    ``buffer`` from ``offset`` (a block shared with the writer's process); either way every page is
+    touched here (``touch``), not at the block's first row in the loop."""
 
-    __slots__ = ("time", "rows", "eta", "extra", "first", "n")
+    __slots__ = ("time", "rows", "eta", "extra", "first", "n", "index")
 
-    def __init__(self, capacity: int, n_bodies: int, extras: dict[str, tuple[tuple[int, ...], str, Any]]):
-        self.time = np.empty(capacity)
-        self.rows = np.empty((len(ROW_VARIABLES), capacity, n_bodies, 6))
-        self.eta = np.empty(capacity)
-        self.extra = {name: np.empty((capacity, *shape), dtype) for name, (shape, dtype, _) in extras.items()}
-        self.first = self.n = 0
+    def __init__(self, fields: list[tuple[str, tuple[int, ...], str]], index: int = 0, buffer: Any = None,
+                 offset: int = 0, touch: bool = True):
+        arrays = {}
+        for name, shape, dtype in fields:
+            if buffer is None:
+                arrays[name] = np.zeros(shape, dtype)
+            else:
+                arrays[name] = np.ndarray(shape, dtype, buffer, offset)
+                offset += _aligned(arrays[name].nbytes)
+            if touch:
+                arrays[name].fill(0)
+        self.time, self.rows, self.eta = arrays.pop("time"), arrays.pop("rows"), arrays.pop("eta")
+        self.extra = arrays
+        self.index, self.first, self.n = index, 0, 0
+
+
+def _write_block(ds: netCDF4.Dataset, blk: _Block) -> int:
+    """Block ``blk``'s rows into the open dataset, then a sync; returns the rows in the file."""
+    m, i0 = blk.n, blk.first
+    i1 = i0 + m
+    if m:
+        for k, name in enumerate(ROW_VARIABLES):
+            ds[name][i0:i1] = blk.rows[k, :m]
+        ds["wave_elevation"][i0:i1] = blk.eta[:m]
+        for name, arr in blk.extra.items():
+            ds[name][i0:i1] = arr[:m]
+        ds["time"][i0:i1] = blk.time[:m]  # last: marks the rows as present
+    ds.sync()
+    return i1
 
 
 class ResultWriter:
@@ -147,8 +209,13 @@ class ResultWriter:
         self._free: queue.Queue[_Block] = queue.Queue()
         self._queue: queue.Queue[_Block | None] = queue.Queue(maxsize=self.n_blocks)
         self._thread: threading.Thread | None = None
+        self._blocks: list[_Block] = []
+        self._proc: subprocess.Popen | None = None    # the writer's process (write_in_process)
+        self._conn: Connection | None = None          # to it: requests; from it: (block index, rows, error)
+        self._shared: mmap.mmap | None = None         # the blocks it reads
+        self._pending = 0                             # requests it has not answered yet
         self._error: BaseException | None = None
-        self._io = _NC_LOCK               # every use of the dataset, either thread
+        self._io = _nc_lock()             # every use of the dataset, either thread
         self._last_flush = _time.monotonic()
         with self._io:
             self._ds = netCDF4.Dataset(self.path, "w", format="NETCDF4")
@@ -231,7 +298,8 @@ class ResultWriter:
 
     def _start(self) -> _Block:
         """The blocks, made at the first row (every variable is declared by then)."""
-        blocks = [_Block(max(self.flush_rows, 1), self.n_bodies, self._extras) for _ in range(self.n_blocks)]
+        fields = _block_fields(max(self.flush_rows, 1), self.n_bodies, self._extras)
+        blocks = self._blocks = [_Block(fields, k) for k in range(self.n_blocks)]
         for name, arr in blocks[0].extra.items():
             arr[0] = np.nan if self._extras[name][2] is None else self._extras[name][2]
         for b in blocks[1:]:
@@ -326,16 +394,31 @@ class ResultWriter:
             self._held.append(blk)
         else:
             self._send(blk)
-        try:
-            nxt = self._free.get_nowait()
-        except queue.Empty:               # every block is on its way to the file: wait (I/O)
-            t0 = _time.perf_counter()
-            nxt = self._free.get()
-            self.io_seconds += _time.perf_counter() - t0
-            self.io_waits += 1
+        nxt = self._next_free()
         nxt.first, nxt.n = blk.first + blk.n, 0
         self._cur = nxt
         self._last_flush = _time.monotonic()
+
+    def _next_free(self) -> _Block:
+        """A free block; when every block is on its way to the file, the wait for one (I/O)."""
+        if self._conn is not None:
+            self._collect(wait=False)
+        try:
+            return self._free.get_nowait()
+        except queue.Empty:
+            pass
+        t0 = _time.perf_counter()
+        if self._conn is None:
+            nxt = self._free.get()
+        else:
+            while self._free.empty() and self._pending:
+                self._collect(wait=True)
+            if self._error is not None:
+                self._raise_error()
+            nxt = self._free.get_nowait()
+        self.io_seconds += _time.perf_counter() - t0
+        self.io_waits += 1
+        return nxt
 
     def release_held(self) -> None:
         """Hand the blocks sealed while :attr:`hold` was set to the writer thread."""
@@ -352,6 +435,9 @@ class ResultWriter:
         raise ValueError(f"row {row} is no longer buffered (already handed to the writer)")
 
     def _send(self, blk: _Block) -> None:
+        if self._conn is not None:
+            self._post(("block", blk.index, blk.first, blk.n))
+            return
         if self._thread is None:
             self._thread = threading.Thread(target=self._work, name=f"results {self.path.name}", daemon=True)
             self._thread.start()
@@ -375,20 +461,95 @@ class ResultWriter:
                 self._queue.task_done()
 
     def _write(self, blk: _Block) -> None:
-        if not self._ds.isopen():
+        if self._ds.isopen():
+            self.rows_written = _write_block(self._ds, blk)
+
+    # -- the writer's process ----------------------------------------------------------------
+    def write_in_process(self) -> None:
+        """Write from now on in a process of its own (a paced run: PacedSteps, clients/lockstep/driver.py):
+        the blocks sealed so far into the file, the file closed here and reopened there, the blocks
+        put in shared memory (a file in /dev/shm, unlinked once both sides have it; the one being
+        filled copied over, so blocks end where they would have). netCDF4's Python and HDF5's C
+        calls then hold neither this process's GIL nor its CPU. The process starts under the
+        ordinary policy, its threads too, when the run's thread is real-time (the stepping thread's
+        core is not its to take: ``blocks`` - 1 blocks of slack), may run on any core (not only the
+        run's, ``--cpu``), and its own session keeps it out of a terminal's Ctrl-C, so an
+        interrupted run's last rows still reach the file."""
+        if self._conn is not None:
             return
-        m, i0 = blk.n, blk.first
-        i1 = i0 + m
-        ds = self._ds
-        if m:
-            for k, name in enumerate(ROW_VARIABLES):
-                ds[name][i0:i1] = blk.rows[k, :m]
-            ds["wave_elevation"][i0:i1] = blk.eta[:m]
-            for name, arr in blk.extra.items():
-                ds[name][i0:i1] = arr[:m]
-            ds["time"][i0:i1] = blk.time[:m]  # last: marks the rows as present
-        ds.sync()
-        self.rows_written = i1
+        old = self._cur if self._cur is not None else self._start()
+        self.release_held()
+        if self._thread is not None:      # every sealed block into the file
+            self._queue.join()
+            self._queue.put(None)
+            self._thread.join()
+            self._thread = None
+        if self._error is not None:
+            self._raise_error()
+        fields = _block_fields(old.time.size, self.n_bodies, self._extras)
+        size = _block_bytes(fields)
+        fd, shared = _shared_file(size * self.n_blocks)
+        try:
+            self._shared = mmap.mmap(fd, size * self.n_blocks)
+            blocks = [_Block(fields, k, self._shared, k * size) for k in range(self.n_blocks)]
+            ours, theirs = socket.socketpair()
+            with theirs, ordinary_policy():
+                self._proc = subprocess.Popen([sys.executable, "-m", __name__, str(theirs.fileno())],
+                                              pass_fds=(theirs.fileno(),), start_new_session=True)
+            self._conn = Connection(ours.detach())
+            with self._io:
+                self._ds.close()
+            self._post(("open", str(self.path), shared, fields))
+            self._drain()
+        finally:
+            os.close(fd)
+            os.unlink(shared)
+        if self._error is not None:
+            self._raise_error()
+        cur = blocks[0]                   # the block being filled goes on in shared memory
+        cur.time[:], cur.rows[:], cur.eta[:], cur.first, cur.n = old.time, old.rows, old.eta, old.first, old.n
+        for name, arr in old.extra.items():
+            cur.extra[name][:] = arr
+        self._cur, self._blocks, self._free = cur, blocks, queue.Queue()
+        for b in blocks[1:]:
+            self._free.put(b)
+
+    def _post(self, request: tuple) -> None:
+        """A request to the writer's process (answered in order; :meth:`_collect`)."""
+        try:
+            self._conn.send(request)
+            self._pending += 1
+        except OSError as exc:
+            self._process_ended(exc)
+
+    def _collect(self, wait: bool) -> None:
+        """The answers of the writer's process so far (``wait``: at least one): written blocks back
+        to the pool, the rows in the file, an error kept for the stepping thread."""
+        conn = self._conn
+        try:
+            while self._pending and conn.poll(None if wait else 0):
+                wait = False
+                index, rows, error = conn.recv()
+                self._pending -= 1
+                if index >= 0:
+                    self._free.put(self._blocks[index])
+                if rows is not None:
+                    self.rows_written = rows
+                if error is not None and self._error is None:
+                    self._error = RuntimeError(f"in the writer's process: {error}")
+        except (EOFError, OSError) as exc:
+            self._process_ended(exc)
+
+    def _drain(self) -> None:
+        """Wait for every answer of the writer's process."""
+        while self._pending:
+            self._collect(wait=True)
+
+    def _process_ended(self, exc: BaseException) -> None:
+        self._pending = 0
+        if self._error is None:
+            code = self._proc.poll() if self._proc is not None else None
+            self._error = RuntimeError(f"the writer's process ended (exit code {code}): {type(exc).__name__}: {exc}")
 
     def _raise_error(self) -> None:
         exc = self._error
@@ -402,7 +563,9 @@ class ResultWriter:
             self._seal()
             self.hold = hold
         self.release_held()
-        if self._thread is not None:
+        if self._conn is not None:
+            self._drain()
+        elif self._thread is not None:
             self._queue.join()
         elif self._ds.isopen():
             with self._io:
@@ -413,6 +576,9 @@ class ResultWriter:
 
     def set_attribute(self, name: str, value: Any) -> None:
         """Set a global attribute of the file (e.g. a run summary)."""
+        if self._conn is not None:
+            self._post(("attr", name, value))
+            return
         with self._io:
             if self._ds.isopen():
                 self._ds.setncattr(name, value)
@@ -426,7 +592,14 @@ class ResultWriter:
     def finish(self, status: str) -> None:
         """Flush everything and record the final status ("complete" or "interrupted: ...")."""
         self.status = status
-        if self._ds.isopen():
+        if self._conn is not None:
+            try:
+                self.flush()
+            finally:
+                self._post(("attr", "status", status))
+                self._post(("attr", "rows", self.rows_written))
+                self._drain()
+        elif self._ds.isopen():
             try:
                 self.flush()
             finally:
@@ -437,18 +610,26 @@ class ResultWriter:
 
     def close(self) -> None:
         """Flush and close; a file still "running" is marked as not finished."""
-        if not self._ds.isopen():
+        if self._conn is None and not self._ds.isopen():
             return
         try:
             if self.status == "running":
                 self.finish("interrupted: closed before the run finished")
         finally:
+            if self._conn is not None:
+                self._post(("close",))
+                self._drain()
+                self._conn.close()
+                self._conn = None
+                self._proc.wait()
+                self._shared.close()
             if self._thread is not None:
                 self._queue.put(None)
                 self._thread.join()
                 self._thread = None
             with self._io:
-                self._ds.close()
+                if self._ds.isopen():
+                    self._ds.close()
 
     def __enter__(self) -> "ResultWriter":
         return self
@@ -490,3 +671,81 @@ def add_modal_variables(writer: ResultWriter, labels: tuple[str, ...]) -> None:
     the ``pto_*`` variables)."""
     for name, units, description in MODAL_VARIABLES:
         writer.add_variable(name, ("mode",), {"mode": list(labels)}, units, description)
+
+
+def _shared_file(size: int) -> tuple[int, str]:
+    """A new file of ``size`` bytes for the blocks of a writer's process, its space taken now (no
+    SIGBUS at a row when memory runs short): in /dev/shm (memory), else, when that has no room, in
+    the temporary folder; (descriptor, path)."""
+    if os.path.isdir("/dev/shm"):
+        try:
+            return _allocated_file(size, "/dev/shm")
+        except OSError:
+            pass
+    return _allocated_file(size, None)
+
+
+def _allocated_file(size: int, folder: str | None) -> tuple[int, str]:
+    fd, path = tempfile.mkstemp(prefix="hydrolink-results-", dir=folder)
+    try:
+        if hasattr(os, "posix_fallocate"):
+            os.posix_fallocate(fd, 0, size)
+        else:   # pragma: no cover - macOS
+            os.ftruncate(fd, size)
+    except OSError:
+        os.close(fd)
+        os.unlink(path)
+        raise
+    return fd, path
+
+
+def _serve_blocks(fd: int) -> None:
+    """The writer's process (:meth:`ResultWriter.write_in_process`), talking over the connection on
+    ``fd``: ("open", path, shared file, block fields) opens the file to append and maps the blocks,
+    ("block", index, first, n) writes one, ("attr", name, value) sets a global attribute,
+    ("close",) closes the file; each is answered (block index or -1, rows in the file or None, the
+    error or None). The end of the connection (its run killed) closes the file."""
+    if hasattr(os, "sched_setaffinity"):   # not the core the run was pinned to (--cpu): any
+        try:
+            os.sched_setaffinity(0, range(os.cpu_count() or 1))
+        except OSError:                    # a cpuset narrower than the machine: as inherited
+            pass
+    conn = Connection(fd)
+    ds: netCDF4.Dataset | None = None
+    blocks: list[_Block] = []
+    while True:
+        try:
+            request = conn.recv()
+        except EOFError:
+            break
+        index, rows, error = -1, None, None
+        try:
+            if request[0] == "block":
+                index, first, n = request[1:]
+                blk = blocks[index]
+                blk.first, blk.n = first, n
+                rows = _write_block(ds, blk)
+            elif request[0] == "attr":
+                ds.setncattr(request[1], request[2])
+                ds.sync()
+            elif request[0] == "open":
+                path, shared, fields = request[1:]
+                ds = netCDF4.Dataset(path, "a")
+                with open(shared, "r+b") as f:
+                    buffer = mmap.mmap(f.fileno(), 0)
+                size = _block_bytes(fields)
+                blocks = [_Block(fields, k, buffer, k * size, touch=False) for k in range(len(buffer) // size)]
+            elif request[0] == "close":
+                ds.close()
+                ds = None
+        except Exception as exc:  # noqa: BLE001 - answered to the stepping process
+            error = f"{type(exc).__name__}: {exc}"
+        conn.send((index, rows, error))
+        if request[0] == "close":
+            break
+    if ds is not None:
+        ds.close()
+
+
+if __name__ == "__main__":   # the writer's process: python -m hydrolink.clients.lockstep.results FD
+    _serve_blocks(int(sys.argv[1]))

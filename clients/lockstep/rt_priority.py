@@ -64,6 +64,24 @@ def rt_priority(priority: int | None, option: str = "--rt-priority") -> Iterator
         restore_priority(before)
 
 
+@contextmanager
+def ordinary_policy() -> Iterator[None]:
+    """The calling thread under the ordinary policy (``SCHED_OTHER``) for the block, so that what it
+    starts meanwhile (a helper process: the results writer's) does not inherit a real-time one
+    (every thread that process makes at its start, a BLAS pool's, would); then its policy back.
+    Nothing to do for a thread already ordinary, or without ``SCHED_FIFO``."""
+    get = getattr(os, "sched_getscheduler", None)
+    before = (get(0), os.sched_getparam(0).sched_priority) if get is not None else (None, 0)
+    if before[0] in (None, os.SCHED_OTHER):
+        yield
+        return
+    os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    try:
+        yield
+    finally:
+        restore_priority(before)
+
+
 def _rtprio_limit() -> str:
     import resource
     soft, _ = resource.getrlimit(resource.RLIMIT_RTPRIO)
