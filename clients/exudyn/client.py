@@ -104,9 +104,9 @@ class ExudynModel:
     padded: bool = False            # reduced bodies: state vectors end in a zero slot (locked DOFs)
     modal: ModalStructure | None = None   # the generalized modes after the 6N wet DOFs (clients/exudyn/modes.py)
     load: np.ndarray | None = None  # the wet DOFs' load last written (6N, then the modes'): held bodies' reactions
-    #: held wet bodies (mechanism.py "Held bodies"): (name, their 6 rows, the hydro object's mass and
-    #: stiffness rows over its coordinates, those coordinates' ODE2 indices)
-    held_rows: tuple[tuple[str, np.ndarray, np.ndarray, np.ndarray, np.ndarray], ...] = ()
+    #: held wet bodies (mechanism.py "Held bodies") by name: their 6 rows, the hydro object's mass and
+    #: stiffness rows over its coordinates, those coordinates' ODE2 indices (JointOutputs' ``hydro``)
+    held_rows: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = field(default_factory=dict)
 
     @property
     def mode_labels(self) -> tuple[str, ...]:
@@ -124,17 +124,6 @@ class ExudynModel:
             self.load = force
             self.mbs.SetObjectParameter(self.hydro_object, "forceVector",
                                         force if self.force_index is None else force[self.force_index])
-
-    def held_loads(self) -> dict[str, np.ndarray] | None:
-        """Each held wet body's hydrodynamic load at the current state (force, moment about its
-        reference point): the load last written on its DOFs minus its rows of the hydro object's
-        mass and stiffness terms over the integrated coordinates (the A∞ and C coupling to the
-        bodies that move); None without held wet bodies (mechanism.py "Held bodies")."""
-        if not self.held_rows:
-            return None
-        sd, now = self.mbs.systemData, exu.ConfigurationType.Current
-        q, a = sd.GetODE2Coordinates(now, False), sd.GetODE2Coordinates_tt(now, False)
-        return {name: self.load[rows] - mass @ a[ltg] - stiff @ q[ltg] for name, rows, mass, stiff, ltg in self.held_rows}
 
     def initialize(self) -> None:
         """Initialise the solver (initial accelerations use the force vector set now)."""
@@ -279,12 +268,12 @@ def build_model(scene: Scene, setup: Setup | None, *, spectral_radius: float = 1
     mbs.Assemble()
     ltg = mbs.systemData.GetNodeLTGODE2
     pad = len(mbs.systemData.GetODE2Coordinates())
-    held_rows = ()
+    held_rows = {}
     if mech.held and int(hydro) >= 0:
         coords = np.asarray(mbs.systemData.GetObjectLTGODE2(hydro), int)
         mass = a_inf if added_mass_in_matrix else np.zeros_like(stiffness)
         rows = {nm: 6 * i + np.arange(6) for i, nm in enumerate(names) if nm in mech.held}
-        held_rows = tuple((nm, r, mass[np.ix_(r, sel)], stiffness[np.ix_(r, sel)], coords) for nm, r in rows.items())
+        held_rows = {nm: (r, mass[np.ix_(r, sel)], stiffness[np.ix_(r, sel)], coords) for nm, r in rows.items()}
     body_index = _body_indices(mech, all_names, ltg, pad)
     wet_index = _body_indices(mech, names, ltg, pad)
     if modal_node is not None:
@@ -533,7 +522,7 @@ class ExudynMultibody:
         self.a_fb = model.added_mass if feedback else None
         self.n, self.nb = model.n_bodies, len(model.body_names)
         mech = model.mechanism
-        self.joints = JointOutputs(model.mbs, mech) if mech and mech.joints else None
+        self.joints = JointOutputs(model.mbs, mech, model.held_rows) if mech and mech.joints else None
         self._forces = np.zeros((3, self.nb, 6))
         # every scene body wet, in setup order: the forces go straight into the results row
         self._all_wet = self.n == self.nb and np.array_equal(model.wet_rows, np.arange(self.nb))
@@ -752,7 +741,7 @@ class ExudynMultibody:
         """The mechanism's outputs at the current state (joints, PTOs, moorings)."""
         m, out = self.model, {}
         if self.joints is not None:
-            wrench, gap, rot = self.joints(m.held_loads())
+            wrench, gap, rot = self.joints(m.load)
             out.update({"joint_force": wrench, "joint_violation": gap, "joint_rotation_violation": rot})
         if m.ptos is not None:
             s = self._pto_sample = m.ptos.sample(m.mbs)

@@ -5,8 +5,9 @@ Interface for other client modules (PTOs, moorings) — kept small and stable:
 ``BodyHandle(name, kind, node, object, reference, dofs)``
     ``kind`` is ``"rigid"`` (a scene body, wet or dry: ``NodeRigidBodyRxyz`` + ``ObjectRigidBody``),
     ``"slider"`` or ``"reduced"`` (a scene body built with its active coordinates only, see
-    "Reduced bodies" below), ``"point"`` (a point mass: ``NodePoint`` + ``ObjectMassPoint``) or
-    ``"ground"`` (an ``ObjectGround`` at the origin; ``node`` is -1). ``reference`` is the body's
+    "Reduced bodies" below), ``"held"`` (a body held to ground, not in the system: "Held bodies"
+    below; ``node`` is -1, ``object`` the ground's, ``dofs`` ()), ``"point"`` (a point mass:
+    ``NodePoint`` + ``ObjectMassPoint``) or ``"ground"`` (an ``ObjectGround`` at the origin; ``node`` is -1). ``reference`` is the body's
     global reference position at t = 0 (for ground: the origin). Bodies start unrotated: their body
     frame is the global frame in the reference configuration, so a body-fixed point is
     ``point_global - reference`` in local coordinates. ``dofs``: for a slider/reduced body the DOFs
@@ -18,7 +19,8 @@ Interface for other client modules (PTOs, moorings) — kept small and stable:
     marker frame's axes in the global frame — gives the marker frame, default the global axes) on
     rigid bodies and on ground, ``MarkerBodyPosition`` (position only) on point masses — a point
     mass has no extent, so ``point_global`` and ``rotation`` are ignored there — and on sliders (no
-    ``rotation``: a slider has no orientation); a ``"reduced"`` body takes no marker.
+    ``rotation``: a slider has no orientation); a ``"reduced"`` body takes no marker; a ``"held"``
+    body's markers are on ground at the same point and frame.
 
 ``Mechanism.handles`` maps every name (bodies, point masses, ``"ground"``) to its handle.
 
@@ -49,6 +51,26 @@ Constant loads (weight, buoyancy, net buoyancy) act on a reduced body's coordina
 locked DOF's share is what the full form's coordinate constraint would carry. The node's
 coordinates are displacements from the reference, like a rigid body node's.
 
+Held bodies (``build_mechanism(..., reduce=True)``, :func:`held_bodies`): a body held to ground by a
+``fixed`` joint never moves, so it is not integrated: it gets no node (its pose is its reference, its
+velocity zero; its entries of the client's state vectors are the zero slot, as a reduced body's
+locked DOFs are), its joints to other bodies are built to ground at the same points and frames, and
+its constant loads (weight and buoyancy, or a wet body's net buoyancy) are not applied. Its wet
+DOFs stay in the force server's model (their forces are computed and written to the results as
+before) and out of the hydro object's coordinates. Its fixed joint has no Exudyn object; that
+joint's reaction follows from the held body's own equation (it does not accelerate): minus the
+loads on it — its constant loads, its hydrodynamic load (what the client applies to its DOFs, minus
+the A∞ and hydrostatic coupling to the coordinates that move) and the other joints' reactions on it
+— about the joint point (:class:`JointOutputs`); its violations are zero. Against the full form
+(the body integrated under the joint's six Lagrange multipliers) the other bodies' motion agrees to
+Newton's tolerance and the reactions' forces to the full form's multiplier noise
+(tests/test_held_bodies.py). It does not apply — the body stays in the system — where the reaction
+could not account for a load or the full form reports an error (:func:`hold_blocker`): a PTO,
+mooring or joint friction acting on it, generalized modes on it, hydrodynamic states in the scene,
+a second joint to ground or to another held body, a ``[[constraints]]`` entry or locked ``dofs`` on
+it, a nonzero initial state, or every wet body held (nothing left to integrate). A fixed joint
+between two bodies holds neither (it is a joint like any other).
+
 Joints are ``ObjectJointGeneric`` with the constrained axes of the joint frame (see
 :data:`JOINT_AXES`). Redundant constraints are found from the constraint Jacobian at t = 0: a planar
 loop (revolute axes parallel to one normal, prismatic axes in the plane) is reduced by freeing the
@@ -56,7 +78,8 @@ dependent (out-of-plane) axes of the joint that closes the loop; anything else i
 joints. Friction on a revolute/prismatic joint is a regularised Coulomb force/torque
 ``F tanh(v / v_reg)`` on the free relative coordinate, an ``ObjectConnectorRigidBodySpringDamper``
 with a Python user function (about 2 calls per Newton step; measured ≈ 120 µs per step and joint
-in a client run on the 2-core VM). ``joint_outputs`` costs ≈ 30 µs per joint and step.
+in a client run on the 2-core VM). :class:`JointOutputs` reads four outputs of a joint a step (five
+where its marker-0 frame moves): ≈ 15 µs for the OSWEC's hinge and held base (2-vCPU VM, load 6).
 """
 
 from __future__ import annotations
@@ -167,12 +190,11 @@ class Mechanism:
         """Node indices of the named scene bodies (rigid, slider or reduced), in that order."""
         return [self.handles[n].node for n in names]
 
-    def joint_outputs(self, mbs, held_loads: dict[str, np.ndarray] | None = None
-                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def joint_outputs(self, mbs) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Reaction force and moment on body2 from body1 (J, 3, global frame, about the joint point)
         and the position-level violation: constrained relative translation (m) and rotation (rad);
-        ``held_loads``: see :class:`JointOutputs` (one call; a run keeps a :class:`JointOutputs`)."""
-        wrench, gap, rot_gap = JointOutputs(mbs, self)(held_loads)
+        a held wet body's hydrodynamic load left out (a run keeps a :class:`JointOutputs`)."""
+        wrench, gap, rot_gap = JointOutputs(mbs, self)()
         return wrench[:, :3], wrench[:, 3:], gap, rot_gap
 
     @property
@@ -189,13 +211,17 @@ class JointOutputs:
 
     A held body's fixed joint (module docstring, "Held bodies") has no Exudyn object: its reaction
     follows from the held body's equation (it does not accelerate): minus the loads on it — its
-    constant load, ``held_loads[name]`` (the hydrodynamic load the client applies to its DOFs:
-    force, moment about its reference point; none: zero) and the other joints' reactions on it —
-    about the joint point; its violations are zero."""
+    constant load, its hydrodynamic load and the other joints' reactions on it — about the joint
+    point; its violations are zero. ``hydro`` gives a held wet body's hydrodynamic load: by name,
+    its rows of the client's load vector (6), the hydro object's mass and stiffness rows over its
+    coordinates (6 × m) and those coordinates' ODE2 indices (m): load − mass · a − stiffness · q
+    (the A∞ and hydrostatic coupling to the coordinates that move). The reaction is then one
+    product of a matrix made here with the stacked load rows, a, q and the other joints' wrenches."""
 
-    def __init__(self, mbs, mech: Mechanism):
+    def __init__(self, mbs, mech: Mechanism,
+                 hydro: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] | None = None):
         ovt = exu.OutputVariableType
-        self._mbs, self._mech, self._n = mbs, mech, len(mech.joints)
+        self._mbs, self._n = mbs, len(mech.joints)
         self._generic: list[tuple[int, int, np.ndarray | int, np.ndarray]] = []
         self._point: list[tuple[int, int]] = []
         for k, j in enumerate(mech.joints):
@@ -208,41 +234,49 @@ class JointOutputs:
             a0 = np.asarray(mbs.GetMarkerOutput(j.markers[0], ovt.RotationMatrix)).reshape(3, 3) \
                 if body0.kind in ("ground", "held") else j.markers[0]
             self._generic.append((k, j.object, a0, np.asarray(j.constrained, bool)))
-        # a held body's fixed joint: its reaction (on body2, about the joint point) = transfer @ the
-        # stacked loads on the held body (its own about its reference point; the other joints' wrenches)
+        # a held body's fixed joint: its reaction (on body2, about the joint point) = offset + transfer @
+        # (its load rows, a, q at the hydro object's coordinates, the other joints' wrenches)
         self._held = []
+        hydro = hydro or {}
         for name, h in mech.held.items():
             own = mech.joints[h.joint]
             point = np.asarray(own.point, float)
             sign = 1.0 if own.bodies[1] == name else -1.0
+            t0 = _transfer(h.reference - point)
+            rows, mass, stiff, coords = hydro.get(name, (np.zeros(0, int), np.zeros((6, 0)), np.zeros((6, 0)),
+                                                         np.zeros(0, int)))
+            blocks = [t0[:, :rows.size], -t0.dot(mass), -t0.dot(stiff)] if rows.size else []
             others = [k for k, j in enumerate(mech.joints) if k != h.joint and name in j.bodies]
-            blocks = [_transfer(h.reference - point)]
             for k in others:     # joint k's reaction on the held body: its output, or minus it (body1)
                 j = mech.joints[k]
                 blocks.append((1.0 if j.bodies[1] == name else -1.0) * _transfer(np.asarray(j.point, float) - point))
-            self._held.append((name, h.joint, h.constant, np.asarray(others, int), -sign * np.hstack(blocks)))
+            self._held.append((h.joint, -sign * t0.dot(h.constant), -sign * np.hstack(blocks), rows, coords,
+                               np.asarray(others, int)))
 
-    def __call__(self, held_loads: dict[str, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def __call__(self, load: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(J, 6) reaction force and moment on body2 from body1 (global, about the joint point), the
-        translation and rotation violations (J,)."""
+        translation and rotation violations (J,); ``load``: the client's load vector last applied
+        (the held wet bodies' reactions read it; None: no held wet body)."""
         mbs, n, ovt = self._mbs, self._n, exu.OutputVariableType
         wrench = np.zeros((n, 6))
-        force, moment = wrench[:, :3], wrench[:, 3:]
         gap, rot_gap = np.zeros(n), np.zeros(n)
         get = mbs.GetObjectOutput
         for k, obj in self._point:   # ObjectJointSpherical: -Force is the force on body2 (dynamic solver), global
-            force[k] = -np.asarray(get(obj, ovt.Force))
+            wrench[k, :3] = -np.asarray(get(obj, ovt.Force))
             gap[k] = float(np.linalg.norm(get(obj, ovt.Displacement)))
         for k, obj, a0, c in self._generic:
             if not isinstance(a0, np.ndarray):
                 a0 = np.asarray(mbs.GetMarkerOutput(a0, ovt.RotationMatrix)).reshape(3, 3)
-            force[k] = -(a0 @ np.asarray(get(obj, ovt.ForceLocal)))
-            moment[k] = -(a0 @ np.asarray(get(obj, ovt.TorqueLocal)))
+            wrench[k, :3] = -a0.dot(get(obj, ovt.ForceLocal))
+            wrench[k, 3:] = -a0.dot(get(obj, ovt.TorqueLocal))
             d, r = np.asarray(get(obj, ovt.DisplacementLocal))[c[:3]], np.asarray(get(obj, ovt.Rotation))[c[3:]]
-            gap[k], rot_gap[k] = math.sqrt(d @ d), math.sqrt(r @ r)      # np.linalg.norm's value
-        for name, k, constant, others, transfer in self._held:
-            own = constant if held_loads is None or name not in held_loads else constant + held_loads[name]
-            wrench[k] = transfer @ np.concatenate((own, wrench[others].reshape(-1)))
+            gap[k], rot_gap[k] = math.sqrt(d.dot(d)), math.sqrt(r.dot(r))      # np.linalg.norm's value
+        if self._held:
+            sd, now = mbs.systemData, exu.ConfigurationType.Current
+            q, a = sd.GetODE2Coordinates(now, False), sd.GetODE2Coordinates_tt(now, False)
+            for k, offset, transfer, rows, coords, others in self._held:
+                parts = (load[rows], a[coords], q[coords]) if rows.size and load is not None else ()
+                wrench[k] = offset + transfer.dot(np.concatenate((*parts, wrench[others].reshape(-1))))
         return wrench, gap, rot_gap
 
 
