@@ -575,11 +575,9 @@ class ExudynMultibody:
         others = self.joints is not None or m.moorings is not None
         linear = m.ptos.linear_table() if m.ptos is not None and not others else None
         has_outputs = others or m.ptos is not None
-        joints = self.joints if m.ptos is None and m.moorings is None else None     # joints only: into the row's slots
         return CompiledExchange(m, link, step, wet_take=self._wet_take, body_take=self._body_take,
                                 state=lambda: self._s, outputs=self.outputs if has_outputs else None,
-                                refresh=self._refresh, n_exchanges=n_exchanges, linear_ptos=linear,
-                                joints=None if joints is None else lambda slots: joints(m.load, slots))
+                                refresh=self._refresh, n_exchanges=n_exchanges, linear_ptos=linear)
 
     # -- the driver's interface -------------------------------------------------------------
     def begin(self, s0, feedback: bool) -> int:

@@ -253,20 +253,13 @@ class JointOutputs:
             self._held.append((h.joint, -sign * t0.dot(h.constant), -sign * np.hstack(blocks), rows, coords,
                                np.asarray(others, int)))
 
-    def __call__(self, load: np.ndarray | None = None, out: tuple[np.ndarray, ...] | None = None
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def __call__(self, load: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(J, 6) reaction force and moment on body2 from body1 (global, about the joint point), the
         translation and rotation violations (J,); ``load``: the client's load vector last applied
-        (the held wet bodies' reactions read it; None: no held wet body); ``out``: the results row's
-        slots of the three variables, (1, J, 6), (1, J), (1, J) (``ResultWriter.slots``), filled in place."""
+        (the held wet bodies' reactions read it; None: no held wet body)."""
         mbs, n, ovt = self._mbs, self._n, exu.OutputVariableType
-        if out is None:
-            wrench, gap, rot_gap = np.zeros((n, 6)), np.zeros(n), np.zeros(n)
-        else:
-            wrench, gap, rot_gap = (a[0] for a in out)
-            wrench.fill(0.0)
-            gap.fill(0.0)
-            rot_gap.fill(0.0)
+        wrench = np.zeros((n, 6))
+        gap, rot_gap = np.zeros(n), np.zeros(n)
         get = mbs.GetObjectOutput
         for k, obj in self._point:   # ObjectJointSpherical: -Force is the force on body2 (dynamic solver), global
             wrench[k, :3] = -np.asarray(get(obj, ovt.Force))
