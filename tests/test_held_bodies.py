@@ -10,7 +10,8 @@ point, 5.5 m below the hinge) are u = t p, t = (-5.5, 0, 1), p the hinge angle, 
     p = t'X a / t'[-w^2 (M + A_eff) - i w B_eff + C] t        (exp(-iwt), a the wave amplitude)
 
 over the flap's own 3 x 3 blocks of the HDB (the base does not move: its coupling blocks multiply
-zero), A_eff, B_eff what the truncated, sampled convolution realises (tests/test_f3of.py ``irf``).
+zero), A_eff, B_eff what the truncated, sampled convolution realises (tests/test_f3of.py
+``body_system``: its 40 s of memory, as the scenes here).
 """
 
 from __future__ import annotations
@@ -31,12 +32,11 @@ from hydrolink.clients.run import run_scene_file
 from hydrolink.protocol.scene import parse_scene
 
 sys.path.insert(0, str(Path(__file__).parent))
-from test_f3of import SPEC, hdb, interp, irf  # noqa: E402,F401 - the F3OF HDB fixture and its helpers
+from test_f3of import AMPLITUDE as F3OF_AMPLITUDE, IRF, SPEC, body_system, hdb  # noqa: E402,F401 - its HDB fixture
 
 G = 9.81
-M_FLAP, I_FLAP = 179250.0, 1.3e6
+M_FLAP, I_FLAP = 179250.0, 1.3e6          # tests/test_f3of.py's flap
 HINGE_DEPTH = 5.5            # CoG below the hinge
-IRF = 30.0              # within the HDB grid's alias-free span (pi / d_omega = 31.4 s)
 AMPLITUDE = 0.5
 FULL = {"type": "exudyn", "reduce": False}
 
@@ -59,30 +59,19 @@ def oswec(tmp_path: Path, name: str, *, period: float, dt: float, duration: floa
 
 
 def flap_response(hdb, w: float, dt: float) -> complex:
-    """The hinge angle's complex amplitude (module docstring), the effective A and B at ``dt``."""
-    names = [str(n) for n in hdb["influenced_dof"].values]
-    i = [names.index(f"flap1.{d}") for d in ("surge", "heave", "pitch")]
-    om = hdb["omega"].values
-    b = hdb["radiation_damping"].values[:, i][:, :, i]
-    a_inf = hdb["added_mass_inf"].values[np.ix_(i, i)]
-    c = hdb["hydrostatic_stiffness"].values[np.ix_(i, i)]
-    x = hdb["excitation_force"].values[:, 0, i]
-    t = np.arange(int(round(IRF / dt)) + 1) * dt
-    k = irf(b, om, t)
-    wt = np.full(t.size, dt)
-    wt[[0, -1]] *= 0.5
-    a_eff = a_inf - np.tensordot(wt * np.sin(w * t), k, axes=(0, 0)) / w
-    b_eff = np.tensordot(wt * np.cos(w * t), k, axes=(0, 0))
-    mass = np.diag([M_FLAP, M_FLAP, I_FLAP])
-    z = -w ** 2 * (mass + a_eff) - 1j * w * b_eff + c
+    """The hinge angle's complex amplitude (module docstring): the flap's block of
+    tests/test_f3of.py's nine-DOF system (its effective A and B at ``dt``, its wave amplitude)."""
+    z, x = body_system(hdb, w, dt)
     tm = np.array([-HINGE_DEPTH, 0.0, 1.0])
-    return complex(tm @ interp(om, x, w) * AMPLITUDE / (tm @ z @ tm))
+    flap = slice(3, 6)
+    return complex(tm @ x[flap] * (AMPLITUDE / F3OF_AMPLITUDE) / (tm @ z[flap, flap] @ tm))
 
 
 @pytest.mark.parametrize("period", [7.0, 10.0])
 def test_flap_pitch_matches_the_frequency_domain(hdb, tmp_path, period):
-    """The held-base run's steady hinge angle: amplitude within 0.5 %, phase within 0.5 deg of the
-    one-DOF frequency-domain response (measured: 0.06 %, 0.06 deg at T 7 and 10 s); the base does not
+    """The held-base run's steady hinge angle: amplitude within 1 %, phase within 1 deg of the
+    one-DOF frequency-domain response (measured: 0.39 % / -0.16 deg at T = 7 s, 0.34 % / 0.06 deg at
+    10 s; 0.06 % with 30 s of memory, inside the HDB grid's alias-free 31 s); the base does not
     move at all."""
     dt = period / 100
     scene = oswec(tmp_path, "flap", period=period, dt=dt, duration=250.0)
@@ -99,8 +88,8 @@ def test_flap_pitch_matches_the_frequency_domain(hdb, tmp_path, period):
     td, fd = c[0] + 1j * c[1], flap_response(hdb, w, dt)
     print(f"T = {period:g} s: hinge angle {np.degrees(abs(td)):.4f} deg, frequency domain {np.degrees(abs(fd)):.4f}; "
           f"phase {np.degrees(np.angle(td / fd)):.3f} deg")
-    assert abs(abs(td) / abs(fd) - 1) < 0.005
-    assert abs(np.degrees(np.angle(td / fd))) < 0.5
+    assert abs(abs(td) / abs(fd) - 1) < 0.01
+    assert abs(np.degrees(np.angle(td / fd))) < 1.0
     assert np.abs(d.sel(body="base").values).max() == 0.0
     # the hinge keeps the CoG on its circle (surge -5.5 sin p, heave 5.5 (1 - cos p)) to Newton's tolerance
     pa = d.sel(body="flap1", dof="pitch").values
