@@ -123,7 +123,7 @@ class CompiledExchange:
         if self._g is None:
             self._bind()
         np.copyto(self._st, self._state())
-        self._model.load = self._load    # the load each step writes (held bodies' reactions: client.py held_loads)
+        self._model.load = self._load    # the load each step writes (held bodies' reactions: mechanism.py JointOutputs)
         self._primed = True
 
     def _views_held(self) -> bool:

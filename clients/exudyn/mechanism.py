@@ -7,11 +7,12 @@ Interface for other client modules (PTOs, moorings) — kept small and stable:
     ``"slider"`` or ``"reduced"`` (a scene body built with its active coordinates only, see
     "Reduced bodies" below), ``"held"`` (a body held to ground, not in the system: "Held bodies"
     below; ``node`` is -1, ``object`` the ground's, ``dofs`` ()), ``"point"`` (a point mass:
-    ``NodePoint`` + ``ObjectMassPoint``) or ``"ground"`` (an ``ObjectGround`` at the origin; ``node`` is -1). ``reference`` is the body's
+    ``NodePoint`` + ``ObjectMassPoint``) or ``"ground"`` (an ``ObjectGround`` at the origin; ``node``
+    is -1). ``reference`` is the body's
     global reference position at t = 0 (for ground: the origin). Bodies start unrotated: their body
     frame is the global frame in the reference configuration, so a body-fixed point is
     ``point_global - reference`` in local coordinates. ``dofs``: for a slider/reduced body the DOFs
-    (0..5, surge..yaw) its node's coordinates are, in order; None for the others.
+    (0..5, surge..yaw) its node's coordinates are, in order; () for a held body; None for the others.
 
 ``marker_at(mbs, handle, point_global, rotation=None) -> int``
     A marker at a point given in the global frame of the reference configuration:
@@ -245,7 +246,7 @@ class JointOutputs:
             t0 = _transfer(h.reference - point)
             rows, mass, stiff, coords = hydro.get(name, (np.zeros(0, int), np.zeros((6, 0)), np.zeros((6, 0)),
                                                          np.zeros(0, int)))
-            blocks = [t0[:, :rows.size], -t0.dot(mass), -t0.dot(stiff)] if rows.size else []
+            blocks = [t0, -t0.dot(mass), -t0.dot(stiff)] if rows.size else []
             others = [k for k, j in enumerate(mech.joints) if k != h.joint and name in j.bodies]
             for k in others:     # joint k's reaction on the held body: its output, or minus it (body1)
                 j = mech.joints[k]
@@ -275,7 +276,8 @@ class JointOutputs:
             sd, now = mbs.systemData, exu.ConfigurationType.Current
             q, a = sd.GetODE2Coordinates(now, False), sd.GetODE2Coordinates_tt(now, False)
             for k, offset, transfer, rows, coords, others in self._held:
-                parts = (load[rows], a[coords], q[coords]) if rows.size and load is not None else ()
+                own = (load[rows] if load is not None else np.zeros(rows.size)) if rows.size else rows
+                parts = (own, a[coords], q[coords]) if rows.size else ()
                 wrench[k] = offset + transfer.dot(np.concatenate((*parts, wrench[others].reshape(-1))))
         return wrench, gap, rot_gap
 
