@@ -575,9 +575,11 @@ class ExudynMultibody:
         others = self.joints is not None or m.moorings is not None
         linear = m.ptos.linear_table() if m.ptos is not None and not others else None
         has_outputs = others or m.ptos is not None
+        rows = self.joints.compiled() if self.joints is not None and m.ptos is None and m.moorings is None else None
         return CompiledExchange(m, link, step, wet_take=self._wet_take, body_take=self._body_take,
                                 state=lambda: self._s, outputs=self.outputs if has_outputs else None,
-                                refresh=self._refresh, n_exchanges=n_exchanges, linear_ptos=linear)
+                                refresh=self._refresh, n_exchanges=n_exchanges, linear_ptos=linear,
+                                joints=None if rows is None else lambda slots: rows(m.load, slots))
 
     # -- the driver's interface -------------------------------------------------------------
     def begin(self, s0, feedback: bool) -> int:

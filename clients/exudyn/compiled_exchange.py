@@ -14,8 +14,10 @@ exchange of :class:`~hydrolink.clients.lockstep.coupling_schemes.Predictor` is, 
    and bounds the state for the divergence watch;
 4. the mechanism's outputs: where they are linear PTOs only (up to seven), each connector's
    displacement and velocity (two ``GetObjectOutput``) and one compiled call (``linear_ptos``)
-   into the row's slots (``ResultWriter.slots``); otherwise (joints, moorings, other PTOs) as the
-   reference path stages them; and the row's commit.
+   into the row's slots (``ResultWriter.slots``); where they are joints only (no point-mass
+   joint), their four outputs each and one compiled call (``JointOutputs.compiled``) into the row's
+   slots; otherwise (moorings, other PTOs, a mix) as the reference path stages them; and the
+   row's commit.
 
 An unpaced run takes every exchange inside one Exudyn ``SolveSteps`` (:meth:`CompiledExchange.run_exchanges`:
 a PreStep user function does 4 of the last step and 1-2 of the next), not a ``SolveSteps`` call a step;
@@ -45,6 +47,8 @@ __all__ = ["CompiledExchange"]
 
 #: the linear PTOs' results variables (clients/exudyn/client.py ``ExudynMultibody.outputs``), in linear_ptos' order
 PTO_VARIABLES = ("pto_force", "pto_velocity", "pto_power", "total_pto_power")
+#: the joints' results variables, in ``JointOutputs.compiled``'s order (clients/exudyn/mechanism.py)
+JOINT_VARIABLES = ("joint_force", "joint_violation", "joint_rotation_violation")
 _DISPLACEMENT, _VELOCITY = exu.OutputVariableType.Displacement, exu.OutputVariableType.Velocity
 
 
@@ -71,13 +75,16 @@ class CompiledExchange:
     def __init__(self, model: Any, link: ForceLink, step: CompiledStep, *, wet_take: np.ndarray,
                  body_take: np.ndarray, state: Callable[[], np.ndarray], outputs: Callable[[], dict] | None,
                  refresh: Callable[[], None], n_exchanges: int,
-                 linear_ptos: tuple[list[int], np.ndarray] | None = None):
+                 linear_ptos: tuple[list[int], np.ndarray] | None = None,
+                 joints: Callable[[tuple[np.ndarray, ...]], None] | None = None):
         """``outputs``: the mechanism's outputs by results variable (None: none); ``linear_ptos``
-        (``PTOSet.linear_table``) in its place where they are linear PTOs only."""
+        (``PTOSet.linear_table``) in its place where they are linear PTOs only, ``joints`` (filling
+        the row's JOINT_VARIABLES slots: ``JointOutputs.compiled``) where they are joints only."""
         k = _kernel()
         n = model.wet_index.size
         self._model, self._link, self._local = model, link, link.local
         self._outputs, self._refresh, self._last = outputs, refresh, n_exchanges - 1
+        self._joints = joints
         self._dt = step.dt
         self._state = state                        # the client's (3, n) q, v, a (its own copy, kept current)
         self._st = np.zeros(state().shape)
@@ -191,6 +198,8 @@ class CompiledExchange:
                 dw[r, 0] = get(obj, _DISPLACEMENT)
                 dw[r, 1] = get(obj, _VELOCITY)
             self._linear_ptos(self._pto_table, dw, *writer.slots(PTO_VARIABLES))
+        elif self._joints is not None:
+            self._joints(writer.slots(JOINT_VARIABLES))
         elif self._outputs is not None:
             out = self._outputs()
             if out:

@@ -281,6 +281,55 @@ class JointOutputs:
                 wrench[k] = offset + transfer.dot(np.concatenate((*parts, wrench[others].reshape(-1))))
         return wrench, gap, rot_gap
 
+    def compiled(self):
+        """This call's arithmetic as one compiled call (clients/exudyn/joint_kernel.py): a function
+        ``(load, slots)`` filling the results row's slots of joint_force, joint_violation and
+        joint_rotation_violation (``ResultWriter.slots``: (1, J, 6), (1, J), (1, J)) with this call's
+        values, bit for bit; None where a point-mass joint is among them."""
+        if self._point:
+            return None
+        from numba import typeof
+
+        from hydrolink.clients.exudyn import joint_kernel as jk
+        mbs, ovt, n = self._mbs, exu.OutputVariableType, self._n
+        generic = self._generic
+        raw, frames = np.zeros((len(generic), 4, 3)), np.zeros((len(generic), 3, 3))
+        moving = [(g, a0) for g, (_, _, a0, _) in enumerate(generic) if not isinstance(a0, np.ndarray)]
+        for g, (_, _, a0, _) in enumerate(generic):
+            if isinstance(a0, np.ndarray):
+                frames[g] = a0
+        rows = np.array([k for k, *_ in generic], np.int64)
+        locked = np.array([c for *_, c in generic], bool).reshape(len(generic), 6)
+        width = np.array([t.shape[1] for _, _, t, *_ in self._held], np.int64)
+        start = np.concatenate(([0], np.cumsum(6 * width)[:-1])).astype(np.int64)
+        kind = np.full((len(self._held), int(width.max(initial=0))), -1, np.int64)
+        index = np.zeros_like(kind)
+        for h, (_, _, transfer, hrows, coords, others) in enumerate(self._held):
+            sources = ([(jk.LOAD, i) for i in hrows] + [(jk.ACC, i) for i in coords] + [(jk.POS, i) for i in coords]
+                       if hrows.size else []) + [(jk.WRENCH, 6 * k + i) for k in others for i in range(6)]
+            kind[h, :len(sources)], index[h, :len(sources)] = zip(*sources) if sources else ((), ())
+        held = (np.array([h[0] for h in self._held], np.int64), np.array([h[1] for h in self._held]).reshape(-1, 6),
+                np.concatenate([h[2].reshape(-1) for h in self._held]) if self._held else np.zeros(0), start, width,
+                kind, index)
+        sd, now = mbs.systemData, exu.ConfigurationType.Current
+        slot = (np.zeros((n, 6)), np.zeros(n), np.zeros(n))
+        views = (sd.GetODE2Coordinates(now, False), sd.GetODE2Coordinates_tt(now, False))
+        args = (raw, frames, rows, locked, *held, np.zeros(1), *views, *slot)
+        entry = jk.joint_rows.compile(tuple(typeof(x) for x in args))    # numba's per-call typing skipped
+        get, marker = mbs.GetObjectOutput, mbs.GetMarkerOutput
+        outputs = (ovt.ForceLocal, ovt.TorqueLocal, ovt.DisplacementLocal, ovt.Rotation)
+        rotation = ovt.RotationMatrix
+
+        def fill(load: np.ndarray, slots: tuple[np.ndarray, ...]) -> None:
+            for g, m0 in moving:
+                frames[g] = np.asarray(marker(m0, rotation)).reshape(3, 3)
+            for g, (_, obj, _, _) in enumerate(generic):
+                for i, what in enumerate(outputs):
+                    raw[g, i] = get(obj, what)
+            entry(raw, frames, rows, locked, *held, load, sd.GetODE2Coordinates(now, False),
+                  sd.GetODE2Coordinates_tt(now, False), slots[0][0], slots[1][0], slots[2][0])
+        return fill
+
 
 def _transfer(r: np.ndarray) -> np.ndarray:
     """(6, 6): a wrench (force, moment) about a point to the same wrench about the point ``r``
