@@ -171,3 +171,19 @@ def test_which_bodies_are_held(joints, ptos, held, kinds):
         model = build_model(scene, None)
         assert tuple(model.mechanism.handles[n].kind for n in ("base", "bob")) == kinds
         model.close()
+
+
+def test_a_held_body_with_nothing_else_on_it(tmp_path):
+    """A held base that no other joint touches: its reaction is its own weight and that weight's
+    moment about the joint point (the bob beside it falls freely)."""
+    text = scene_toml(dt=0.002, duration=0.01, progress=False, joints=[HOLD],
+                      bodies=[body("base", mass=5.0, center_of_mass=[0.3, 0.0, -0.5], inertia=[1.0, 1.0, 1.0]),
+                              body("bob", mass=2.0, center_of_mass=[1.0, 0.0, -1.0], inertia=[0.02, 0.02, 0.02])])
+    scene = parse_scene(text)
+    names, ref = result_bodies(scene, None)
+    with ResultWriter(tmp_path / "lone.nc", scene=scene, scene_text=text, dt=0.002, bodies=names,
+                      equilibrium_position=ref) as writer:
+        run(scene, text, None, None, writer, progress=False)
+    f = xr.load_dataset(tmp_path / "lone.nc")["joint_force"].values[:, 0]
+    w = 5.0 * G
+    np.testing.assert_allclose(f, np.tile([0.0, 0.0, w, 0.0, -0.3 * w, 0.0], (len(f), 1)), atol=1e-12)

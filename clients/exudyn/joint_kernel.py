@@ -64,7 +64,11 @@ def joint_rows(raw, frames, rows, locked, held, offset, transfer, start, width, 
         for e in range(w):
             c, j = kind[h, e], index[h, e]
             x[e] = load[j] if c == LOAD else a[j] if c == ACC else q[j] if c == POS else flat[j]
-        y = np.dot(transfer[start[h]:start[h] + 6 * w].reshape(6, w), x)
         k = held[h]
+        if w == 0:       # nothing on it but its constant load (+ 0.0: the numpy path's empty product)
+            for i in range(6):
+                wrench[k, i] = offset[h, i] + 0.0
+            continue
+        y = np.dot(transfer[start[h]:start[h] + 6 * w].reshape(6, w), x)
         for i in range(6):
             wrench[k, i] = offset[h, i] + y[i]

@@ -252,8 +252,8 @@ class JointOutputs:
             for k in others:     # joint k's reaction on the held body: its output, or minus it (body1)
                 j = mech.joints[k]
                 blocks.append((1.0 if j.bodies[1] == name else -1.0) * _transfer(np.asarray(j.point, float) - point))
-            self._held.append((h.joint, -sign * t0.dot(h.constant), -sign * np.hstack(blocks), rows, coords,
-                               np.asarray(others, int)))
+            transfer = -sign * np.hstack(blocks) if blocks else np.zeros((6, 0))   # nothing but its constant load
+            self._held.append((h.joint, -sign * t0.dot(h.constant), transfer, rows, coords, np.asarray(others, int)))
 
     def __call__(self, load: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(J, 6) reaction force and moment on body2 from body1 (global, about the joint point), the
