@@ -81,16 +81,19 @@ def sphere_scene(sphere_path: Path, tmp_path: Path) -> Path:
     return path
 
 
-def hinged_scene(reference_data: Path, tmp_path: Path) -> Path:
+def hinged_scene(reference_data: Path, tmp_path: Path, full: bool = False) -> Path:
     """RM3's spar held to ground by a fixed joint and its float on a hinge about y to it (two wet
-    bodies, every DOF, joints, the held DOFs' radiation columns left out), convolution."""
+    bodies, every DOF, joints, the held DOFs' radiation columns left out), convolution; ``full``:
+    the spar integrated under its joint (``[client] reduce = false``: the hinge's marker-0 frame
+    moves with it)."""
     path = tmp_path / "hinged.toml"
     hdb = (reference_data / "rm3_wamit" / "rm3.1").as_posix()
     path.write_text(scene_toml(dt=0.1, duration=12.0, progress=False, water={"density": 1000.0},
                                waves=regular_waves(2.0, 7.0, ramp=3.0), hydro={"irf_duration": 10.0},
                                bodies=[rm3_float(hdb), rm3_spar(hdb)],
                                joints=[joint("revolute", "spar", "float", [0.0, 0.0, 0.0], axis=[0.0, 1.0, 0.0]),
-                                       joint("fixed", "ground", "spar", [0.0, 0.0, -21.29])]))
+                                       joint("fixed", "ground", "spar", [0.0, 0.0, -21.29])],
+                               client={"type": "exudyn", "reduce": False} if full else None))
     return path
 
 
@@ -116,12 +119,13 @@ def socket_run(scene: Path, out: Path):
         thread.join(5)
 
 
-@pytest.mark.parametrize("case", ["rm3", "sphere", "hinged"])
+@pytest.mark.parametrize("case", ["rm3", "sphere", "hinged", "hinged-full"])
 def test_compiled_exchange_equals_reference_bit_for_bit(case, reference_data, sphere_path, tmp_path, monkeypatch):
     """Every variable of the results file (position, velocity, the forces, the elevation, the
     PTO's outputs, the joints' reactions) is the reference path's to the bit, over every row."""
     scene = {"rm3": lambda: rm3_scene(reference_data, tmp_path), "sphere": lambda: sphere_scene(sphere_path, tmp_path),
-             "hinged": lambda: hinged_scene(reference_data, tmp_path)}[case]()
+             "hinged": lambda: hinged_scene(reference_data, tmp_path),
+             "hinged-full": lambda: hinged_scene(reference_data, tmp_path, full=True)}[case]()
     calls = counted(monkeypatch)
     embedded = run_scene_file(scene, tmp_path / "embedded.nc", progress=False)
     remote = socket_run(scene, tmp_path / "socket.nc")
@@ -135,7 +139,7 @@ def test_compiled_exchange_equals_reference_bit_for_bit(case, reference_data, sp
                 "wave_elevation"} <= set(names)
         if case == "rm3":
             assert {"pto_force", "pto_power"} <= set(names)
-        if case == "hinged":
+        if case.startswith("hinged"):
             assert {"joint_force", "joint_violation"} <= set(names)
         for name in names:
             x, y = a[name][:].filled(np.nan), b[name][:].filled(np.nan)
