@@ -20,6 +20,7 @@ from __future__ import annotations
 import math
 import struct
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -59,11 +60,20 @@ class ControlLayout:
     measurements: tuple[tuple[str, tuple[int, ...]], ...]
     commands: tuple[tuple[str, str], ...]
 
-    @property
+    @cached_property
     def setpoints(self) -> int:
         """Setpoints per PTO (1 for force, 2 for impedance)."""
         ptos = {p for p, _ in self.commands}
         return len(self.commands) // max(len(ptos), 1)
+
+    @cached_property
+    def _arrays(self) -> tuple[tuple[str, tuple[int, ...], int, int], ...]:
+        """Each measurement's (name, shape, values, byte offset in the measurements frame)."""
+        out, at = [], MEASUREMENTS_HEAD.size
+        for name, shape in self.measurements:
+            out.append((name, shape, math.prod(shape), at))
+            at += 8 * math.prod(shape)
+        return tuple(out)
 
     def to_wire(self) -> dict:
         """``welcome.direct.frames``: {"measurements": [[name, shape], ...], "commands": [[pto, setpoint], ...]}."""
@@ -135,15 +145,13 @@ class ControlLayout:
     def read_measurements(self, frame: bytes) -> tuple[int, dict]:
         """(request, the measurements: ``step``, ``seq``, ``time`` and the arrays, read-only views of
         ``frame`` as a msgpack reply's are); ValueError for a frame not of this layout."""
-        size = MEASUREMENTS_HEAD.size + 8 * sum(math.prod(s) for _, s in self.measurements)
+        last = self._arrays[-1] if self._arrays else ("", (), 0, MEASUREMENTS_HEAD.size)
+        size = last[3] + 8 * last[2]
         if len(frame) != size or frame[1] != MEASUREMENTS:
             raise ValueError(f"a control frame of {len(frame)} bytes, kind {frame[1]:#x}; the measurements frame "
                              f"is kind {MEASUREMENTS:#x} of {size} bytes")
         _, _, _, request, step, seq, time = MEASUREMENTS_HEAD.unpack_from(frame)
         out: dict[str, Any] = {"step": step, "seq": seq, "time": time}
-        at = MEASUREMENTS_HEAD.size
-        for name, shape in self.measurements:
-            n = math.prod(shape)
+        for name, shape, n, at in self._arrays:
             out[name] = np.frombuffer(frame, _F8, n, at).reshape(shape)
-            at += 8 * n
         return request, out
