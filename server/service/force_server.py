@@ -303,11 +303,16 @@ class ForceServer:
         controller is heard even while no step waits for it (one that missed a deadline and is
         absent, SPEC §5.7, comes back with its next request). At most MAX_QUEUED messages a call:
         a flood on the socket delays the run's step by that many, never holds it. The direct
-        connections are read too (what has arrived on them, never waiting)."""
+        connections are read too (what has arrived on them, never waiting): with them, one poll of the
+        loop's poller (the socket, the listener, the links) says what is ready, and a turn with
+        nothing (the run's usual case) ends there."""
+        socket_ready = True
         if self._direct is not None:
             self._direct.expire(time.monotonic())
-            self._serve_direct(self._direct.ready_now())
-        for _ in range(MAX_QUEUED):
+            ready = self._direct_ready(0)
+            self._serve_direct(ready)
+            socket_ready = self._sock.pending or self._sock.socket in ready
+        for _ in range(MAX_QUEUED) if socket_ready else ():
             if not self._sock.ready():
                 break
             self._receive()
