@@ -20,6 +20,10 @@ prints it, or takes it from ``--control-token`` / ``$HYDROLINK_CONTROL_TOKEN``.
 Measurements: ``step``, ``seq``, ``time`` and numpy arrays per name of ``info["measurements"]``
 (``pto_*`` in ``info["ptos"]`` order, ``body_*`` (n, 6) in ``info["bodies"]`` order,
 ``wave_elevation`` per probe, ``wave_preview`` (probe, time) at t + ``info["preview_times"]``).
+The arrays are read-only (views of the received message): copy one to change it. On the server's
+direct channel the commands and the measurements answering them travel as binary frames (SPEC
+§5.7.6) when the server offers them; a command the frames cannot carry (a ``hydro_state``, an
+impedance setpoint left out) goes as a map, with the same result.
 
 A file that defines WAPPAC's ``my_controller(x, v, t, eta10)`` and no Controller subclass runs
 unchanged through :class:`WappacController` (below).
