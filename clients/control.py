@@ -49,7 +49,7 @@ import zmq
 
 from hydrolink.clients.lockstep.direct_channel import DirectChannel
 from hydrolink.protocol import codec
-from hydrolink.protocol.control_frames import REQUESTS, ControlLayout
+from hydrolink.protocol.codec import FRAME_REQUESTS, ControlLayout
 
 log = logging.getLogger("hydrolink.control")
 
@@ -167,7 +167,7 @@ class _Link:
         """Send the commands of ``step`` (what ``on_step`` returned): as a command frame when the
         welcome offered frames and they fit its layout (SPEC §5.7.6), else as a ``command`` map."""
         if self.frames is not None and self.direct is not None and not hydro:
-            number = next(self.numbers) % REQUESTS
+            number = next(self.numbers) % FRAME_REQUESTS
             frame = self.frames.command_frame(number, ident["epoch"], step, wait, commands)
             if frame is not None:
                 try:

@@ -1,4 +1,4 @@
-"""A joined controller's binary frames (protocol/control_frames.py, SPEC §5.7.6): the layout's
+"""A joined controller's binary frames (protocol/codec.py, SPEC §5.7.6): the layout's
 frames carry the values bit for bit; a command frame gets the same checks, errors, decisions and
 counts as the same command as a msgpack map (two ControlHubs of one scene fed the same sequence,
 one by maps, one by frames); over a server, a controller that asks gets them when the server does
@@ -17,7 +17,7 @@ from conftest import rm3_example_text
 from hydrolink.clients.control import _Link, _command_map
 from hydrolink.protocol import codec
 from hydrolink.protocol.codec import Code, ProtocolError
-from hydrolink.protocol.control_frames import COMMAND_HEAD, MAGIC, ControlLayout, is_frame
+from hydrolink.protocol.codec import COMMAND_FRAME_HEAD, FRAME_MAGIC, ControlLayout, is_control_frame
 from hydrolink.protocol.scene import parse_scene
 from hydrolink.server.service.controllers import ControlHub
 
@@ -42,7 +42,7 @@ def test_layout_frames_carry_values_bit_for_bit_and_refuse_what_they_cannot_carr
     frame = layout.command_frame(5, 3, 17, 0.5, {"a": {"damping": values[0], "stiffness": values[1]},
                                                  "b": {"stiffness": np.int64(7), "damping": np.float32(1e-30)}})
     cmd = layout.read_command(frame)
-    assert is_frame(frame) and (cmd.request, cmd.epoch, cmd.step, cmd.wait) == (5, 3, 17, 0.5)
+    assert is_control_frame(frame) and (cmd.request, cmd.epoch, cmd.step, cmd.wait) == (5, 3, 17, 0.5)
     assert struct.pack("<4d", *cmd.values) == struct.pack("<4d", values[0], values[1], float(np.float32(1e-30)), 7.0)
     assert math.copysign(1.0, cmd.values[1]) == -1.0   # -0.0 kept
     nan = layout.command_frame(1, 1, 0, 1.0, {"a": {"damping": math.nan, "stiffness": 0}, "b": {"damping": 1,
@@ -184,7 +184,7 @@ def test_frames_offered_only_when_asked_and_unsigned_and_refused_from_who_did_no
             link.session = reply["session"]
             link.go_direct(reply["direct"])
             assert link.direct is not None and (link.frames is not None) == offered
-            frame = COMMAND_HEAD.pack(MAGIC, ord("C"), 0, 3, 1, 0, 0, 1.0) + struct.pack("<d", 1.0)
+            frame = COMMAND_FRAME_HEAD.pack(FRAME_MAGIC, ord("C"), 0, 3, 1, 0, 0, 1.0) + struct.pack("<d", 1.0)
             got = link.direct.request(frame, 3, 10.0, key, link.frames)
             if offered:
                 assert (got["type"], got["code"], got["field"]) == ("error", Code.OUT_OF_ORDER, "step")

@@ -15,7 +15,7 @@ import time
 from typing import Any
 
 from hydrolink.protocol import codec
-from hydrolink.protocol.control_frames import ControlLayout, is_frame
+from hydrolink.protocol.codec import ControlLayout, is_control_frame
 
 HEADER = codec.DIRECT_HEADER
 CONNECT_S = 1.0                # how long opening the direct channel may take before ZeroMQ is kept
@@ -75,7 +75,7 @@ class DirectChannel:
         deadline = time.monotonic() + within
         while True:
             data = self._frame(deadline)
-            if layout is not None and is_frame(data):
+            if layout is not None and is_control_frame(data):
                 try:
                     request, meas = layout.read_measurements(data)
                 except ValueError as exc:   # not the layout of the welcome: the channel is not to be trusted

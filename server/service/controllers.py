@@ -25,8 +25,7 @@ from typing import Any, Callable
 import numpy as np
 
 from hydrolink.protocol import codec
-from hydrolink.protocol.codec import Code, ProtocolError
-from hydrolink.protocol.control_frames import Command, ControlLayout
+from hydrolink.protocol.codec import Code, CommandFrame, ControlLayout, ProtocolError
 from hydrolink.protocol.scene import Controller, LinearPTO, Scene
 from hydrolink.server.allocation import require_size
 from hydrolink.server.sea.probes import PreviewGrid
@@ -226,7 +225,7 @@ class ControlHub:
         return self._command(msg, route, msg_id, own, lambda slot: (self._validate(slot, msg.get("commands")),
                                                                      self._hydro_state(slot, msg.get("hydro_state"))))
 
-    def command_frame(self, name: str, cmd: Command, route, own: str) -> tuple[str, dict] | None:
+    def command_frame(self, name: str, cmd: CommandFrame, route, own: str) -> tuple[str, dict] | None:
         """Reply to a command frame (SPEC §5.7.6) of controller ``name``: the same checks, errors,
         decisions and counts as :meth:`command`'s, its values checked in the layout's slot order."""
         slot = self.slots[name]

@@ -26,8 +26,7 @@ from typing import Any, Callable
 import zmq
 
 from hydrolink.protocol import codec, transport
-from hydrolink.protocol.codec import Code, ProtocolError
-from hydrolink.protocol.control_frames import ControlLayout, is_frame
+from hydrolink.protocol.codec import Code, ControlLayout, ProtocolError, is_control_frame
 from hydrolink.protocol.pacing import check_factor
 from hydrolink.server.service.capacity import MAX_SESSIONS, MAX_SETUPS, HelloLimits, MemoryBudget
 from hydrolink.server.service.controllers import ControlHub, join_token, token_matches
@@ -422,7 +421,7 @@ class ForceServer:
                         if not self._direct.admit(link, frame):
                             raise ConnectionError("not a ticket this server offered")
                         continue
-                    reply = self._command_frame(link, frame) if is_frame(frame) else self.handle(frame, link.route)
+                    reply = self._command_frame(link, frame) if is_control_frame(frame) else self.handle(frame, link.route)
                     if reply is not None:
                         self._send(link.route, reply, self._hold)
             except OSError as exc:   # ConnectionError included: closed, or broke the framing
