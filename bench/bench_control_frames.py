@@ -3,6 +3,7 @@ in one process: the CPU each side spends on one control step's messages, without
 the wake-ups (those are bench_realtime.py's).
 
     python bench/bench_control_frames.py [--steps 20000] [--measurements pto_displacement pto_velocity ...]
+                                         [--paths maps frames]
 
 RM3's scene (examples/rm3/rm3.toml) with one force controller (latency 1, every step) on its PTO, a
 ControlHub as the run's own server keeps it (server/service/controllers.py). Each step, timed apart
@@ -17,7 +18,9 @@ printed beside):
   ``ControlHub.command``; or ``read_command``, ``ControlHub.command_frame``) and the decision taken.
 
 The server's dispatch around the hub (the same for both) and the direct channel's reads and writes
-are left out. Both paths' decisions are checked equal, bit for bit.
+are left out. Both paths' decisions are checked equal, bit for bit. ``--paths frames`` (or maps)
+runs one path once: under ``valgrind --tool=callgrind``, two step counts' instruction totals give
+its instructions a step, repeatable on a loaded host.
 """
 
 from __future__ import annotations
@@ -112,8 +115,13 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--steps", type=int, default=20000)
     ap.add_argument("--measurements", nargs="+", default=["pto_displacement", "pto_velocity"])
+    ap.add_argument("--paths", nargs="+", default=["maps", "frames"], choices=["maps", "frames"])
     args = ap.parse_args()
     text = scene_text(args.measurements)
+    if len(args.paths) == 1:
+        parts, _ = run(args.paths[0], text, args.steps)
+        print(f"{args.paths[0]}, {args.steps} steps: " + ", ".join(f"{p} {us:.1f} µs" for p, us in parts.items()))
+        return
     load0 = os.getloadavg()[0]
     results = {}
     for path in ("maps", "frames", "maps", "frames"):   # interleaved: the better of two runs each
