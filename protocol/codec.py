@@ -712,6 +712,11 @@ def is_control_frame(frame: bytes | memoryview) -> bool:
     return len(frame) > 0 and frame[0] == FRAME_MAGIC
 
 
+def _frame_kind(frame: bytes | memoryview) -> str:
+    """A control frame's kind byte, for an error (a frame may end before it)."""
+    return f"kind {frame[1]:#x}" if len(frame) > 1 else "no kind byte"
+
+
 @dataclass(frozen=True)
 class CommandFrame:
     """A command frame's content: the values in the layout's slot order."""
@@ -791,7 +796,7 @@ class ControlLayout:
         """A command frame's content; ProtocolError 1 (malformed) for a frame not of this layout."""
         n = len(self.commands)
         if len(frame) != COMMAND_FRAME_HEAD.size + 8 * n or frame[1] != FRAME_COMMAND:
-            raise ProtocolError(Code.MALFORMED, None, f"a control frame of {len(frame)} bytes, kind {frame[1]:#x}; "
+            raise ProtocolError(Code.MALFORMED, None, f"a control frame of {len(frame)} bytes, {_frame_kind(frame)}; "
                                 f"this controller's command frame is kind {FRAME_COMMAND:#x} of {COMMAND_FRAME_HEAD.size + 8 * n} "
                                 f"bytes ({n} setpoints, SPEC §5.7.6)")
         _, _, _, request, epoch, _, step, wait = COMMAND_FRAME_HEAD.unpack_from(frame)
@@ -819,7 +824,7 @@ class ControlLayout:
         last = self._arrays[-1] if self._arrays else ("", (), 0, MEASUREMENTS_FRAME_HEAD.size)
         size = last[3] + 8 * last[2]
         if len(frame) != size or frame[1] != FRAME_MEASUREMENTS:
-            raise ValueError(f"a control frame of {len(frame)} bytes, kind {frame[1]:#x}; the measurements frame "
+            raise ValueError(f"a control frame of {len(frame)} bytes, {_frame_kind(frame)}; the measurements frame "
                              f"is kind {FRAME_MEASUREMENTS:#x} of {size} bytes")
         _, _, _, request, step, seq, time = MEASUREMENTS_FRAME_HEAD.unpack_from(frame)
         out: dict[str, Any] = {"step": step, "seq": seq, "time": time}

@@ -64,9 +64,12 @@ def test_layout_frames_carry_values_bit_for_bit_and_refuse_what_they_cannot_carr
         assert got[name].dtype == np.float64 and got[name].tobytes() == sample[name].tobytes()
     assert layout.measurements_frame(9, {k: v for k, v in sample.items() if k != "wave_preview"}) is None
     assert layout.measurements_frame("k-1", sample) is None and layout.measurements_frame(1 << 32, sample) is None
-    with pytest.raises(ProtocolError) as err:
-        layout.read_command(frame[:-8])
-    assert err.value.code == Code.MALFORMED
+    for bad in (frame[:-8], frame[:1], b"\xc1M" + frame[2:]):   # too short, no kind byte, another kind
+        with pytest.raises(ProtocolError) as err:
+            layout.read_command(bad)
+        assert err.value.code == Code.MALFORMED
+    with pytest.raises(ValueError):
+        layout.read_measurements(b"\xc1")
 
 
 def hub_pair(command: str, **keys) -> tuple[list, list]:
@@ -190,6 +193,8 @@ def test_frames_offered_only_when_asked_and_unsigned_and_refused_from_who_did_no
                 assert (got["type"], got["code"], got["field"]) == ("error", Code.OUT_OF_ORDER, "step")
             else:
                 assert (got["type"], got["code"]) == ("error", Code.MALFORMED) and "0xC1" in got["message"]
+            got = link.direct.request(b"\xc1", 4, 10.0, key, link.frames)   # one byte: unread, error 1 (never 99)
+            assert (got["type"], got["code"], got["parent"]) == ("error", Code.MALFORMED, None)
             assert link.request("ping")["type"] == "pong"   # on the same connection: kept
             assert link.direct is not None
     finally:

@@ -1126,7 +1126,7 @@ class ForceServer:
         own, request = link.own, None
         self._hold = None
         try:
-            layout = self._framed.get(own) if own in self._controllers else None
+            layout = self._framed.get(own)
             if layout is None:
                 raise ProtocolError(Code.MALFORMED, None, "a control frame (first byte 0xC1) from a controller whose "
                                     "welcome offered none (SPEC §5.7.6): send msgpack messages")
