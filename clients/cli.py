@@ -498,7 +498,8 @@ def control(file: Path, server: str, token: str, session: str | None, name: str 
         raise SystemExit(130) from None
     cpu = f"; {1e6 * stats['cpu_s'] / stats['steps']:.0f} µs CPU a step" if stats["steps"] else ""
     click.echo(f"controller done: {stats['steps']} steps, {stats['errors']} errors"
-               + (" (over the direct channel" if stats["direct"] else " (over ZeroMQ") + cpu + ")", err=True)
+               + (" (over the direct channel" + (", binary frames" if stats["frames"] else "") if stats["direct"]
+                  else " (over ZeroMQ") + cpu + ")", err=True)
 
 
 def _analysis(fn, scene: Path, *args, **kwargs):

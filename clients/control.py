@@ -20,6 +20,10 @@ prints it, or takes it from ``--control-token`` / ``$HYDROLINK_CONTROL_TOKEN``.
 Measurements: ``step``, ``seq``, ``time`` and numpy arrays per name of ``info["measurements"]``
 (``pto_*`` in ``info["ptos"]`` order, ``body_*`` (n, 6) in ``info["bodies"]`` order,
 ``wave_elevation`` per probe, ``wave_preview`` (probe, time) at t + ``info["preview_times"]``).
+The arrays are read-only (views of the received message): copy one to change it. On the server's
+direct channel the commands and the measurements answering them travel as binary frames (SPEC
+§5.7.6) when the server offers them; a command the frames cannot carry (a ``hydro_state``, an
+impedance setpoint left out) goes as a map, with the same result.
 
 A file that defines WAPPAC's ``my_controller(x, v, t, eta10)`` and no Controller subclass runs
 unchanged through :class:`WappacController` (below).
@@ -31,6 +35,7 @@ from __future__ import annotations
 
 import gc
 import importlib.util
+import itertools
 import math
 import inspect
 import logging
@@ -44,6 +49,7 @@ import zmq
 
 from hydrolink.clients.lockstep.direct_channel import DirectChannel
 from hydrolink.protocol import codec
+from hydrolink.protocol.codec import FRAME_REQUESTS, ControlLayout
 
 log = logging.getLogger("hydrolink.control")
 
@@ -132,8 +138,10 @@ class _Link:
             curve.apply(self.sock)
         self.sock.connect(address)
         self.ids = codec.id_source("k")
+        self.numbers = itertools.count(1)   # the command frames' request numbers
         self.session: str | None = None
         self.direct: DirectChannel | None = None
+        self.frames: ControlLayout | None = None   # the binary frames the welcome offered (SPEC §5.7.6)
 
     def request(self, mtype: str, hold: float = 0.0, **fields: Any) -> dict:
         """``hold``: how long the server may hold the request (SPEC §5.7.4 ``wait``)."""
@@ -143,9 +151,7 @@ class _Link:
             try:
                 return self.direct.request(frame, msg_id, hold + self.timeout, self.key)
             except OSError as exc:   # the channel broke: the request again over ZeroMQ
-                log.warning("direct channel to %s lost (%s): continuing over ZeroMQ", self.address, exc)
-                self.direct.close()
-                self.direct = None
+                self._lost(exc)
         self.sock.send(frame)
         deadline = time.monotonic() + hold + self.timeout
         while True:
@@ -157,15 +163,41 @@ class _Link:
             if reply.get("parent") == msg_id:
                 return reply
 
+    def command(self, step: int, commands: Any, wait: float, ident: dict, hydro: dict | None) -> dict:
+        """Send the commands of ``step`` (what ``on_step`` returned): as a command frame when the
+        welcome offered frames and they fit its layout (SPEC §5.7.6), else as a ``command`` map."""
+        if self.frames is not None and self.direct is not None and not hydro:
+            number = next(self.numbers) % FRAME_REQUESTS
+            frame = self.frames.command_frame(number, ident["epoch"], step, wait, commands)
+            if frame is not None:
+                try:
+                    return self.direct.request(frame, number, wait + self.timeout, self.key, self.frames)
+                except OSError as exc:   # the channel broke: the command again, as a map over ZeroMQ
+                    self._lost(exc)
+        return self.request("command", wait, step=step, commands=_command_map(commands), **ident,
+                            **({"hydro_state": hydro} if hydro else {}))
+
+    def _lost(self, exc: OSError) -> None:
+        log.warning("direct channel to %s lost (%s): continuing over ZeroMQ", self.address, exc)
+        self.direct.close()
+        self.direct = None
+
     def go_direct(self, offer: Any) -> None:
-        """Open the direct channel the welcome offers (``welcome.direct``); without one, or when it
-        cannot be opened within CONNECT_S (clients/lockstep/direct_channel.py), the requests stay on ZeroMQ."""
+        """Open the direct channel the welcome offers (``welcome.direct``), with its binary frames
+        when it offers them (``direct.frames``); without one, or when it cannot be opened within
+        CONNECT_S (clients/lockstep/direct_channel.py), the requests stay on ZeroMQ."""
         if not isinstance(offer, dict) or not isinstance(offer.get("ticket"), str):
             return
         try:
             self.direct = DirectChannel.open(self.address, offer)
         except (OSError, ValueError) as exc:
             log.info("direct channel to %s not opened (%s): requests stay on ZeroMQ", self.address, exc)
+            return
+        if "frames" in offer:
+            try:
+                self.frames = ControlLayout.from_wire(offer["frames"])
+            except ValueError as exc:
+                log.warning("direct channel to %s: its frames not taken (%s): commands go as maps", self.address, exc)
 
     def close(self) -> None:
         if self.direct is not None:
@@ -200,7 +232,7 @@ def run_controller(controller: Controller, server: str, *, token: str, session: 
                 "plant": {"dt": None if controller.plant == "continuous" else float(controller.plant)}}
             reply = link.request("hello", role="controller", controller=name, token=token,
                                  client={"name": f"hydrolink-python-controller {type(controller).__name__}",
-                                         "version": _version()}, **ask)
+                                         "version": _version()}, **ask, **({"frames": True} if direct else {}))
             if reply["type"] == "welcome":
                 break
             if reply.get("code") == codec.Code.UNKNOWN_SESSION and session is None and time.monotonic() < t_end:
@@ -230,12 +262,10 @@ def run_controller(controller: Controller, server: str, *, token: str, session: 
         while True:
             kind = reply["type"]
             if kind == "measurements":
-                m = decode_measurements(reply)
+                m = reply["frame"] if "frame" in reply else decode_measurements(reply)
                 commands = controller.on_step(float(reply["time"]), m)
                 stats["steps"] += 1
-                hydro = controller.take_hydro_state()
-                reply = link.request("command", wait, step=reply["step"], commands=_command_map(commands), **ident,
-                                     **({"hydro_state": hydro} if hydro else {}))
+                reply = link.command(reply["step"], commands, wait, ident, controller.take_hydro_state())
             elif kind == "idle":
                 stats["idle"] += 1
                 reply = link.request("measure", wait, **ident)
@@ -259,6 +289,7 @@ def run_controller(controller: Controller, server: str, *, token: str, session: 
     finally:
         gc.unfreeze()
         stats["direct"] = link.direct is not None
+        stats["frames"] = link.direct is not None and link.frames is not None
         link.close()
     controller.on_stop()
     return stats

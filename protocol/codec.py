@@ -17,7 +17,9 @@ import os
 import sys
 import re
 import struct
+from dataclasses import dataclass
 from enum import IntEnum
+from functools import cached_property
 from typing import Any, Iterator
 
 import msgpack
@@ -680,6 +682,155 @@ def id_source(prefix: str) -> Iterator[str]:
     """Endless unique message ids "<prefix>-<random>-<n>" (cheap: one format per id)."""
     tag = os.urandom(4).hex()
     return (f"{prefix}-{tag}-{n}" for n in itertools.count(1))
+
+# ---------------------------------------------------------------- control frames
+# A joined controller's measurements and commands as fixed-layout binary frames on the direct
+# channel (SPEC §5.7.6, revision 1.20): no msgpack map on the controller's hot round trip.
+#
+# The layout is fixed once, at the controller's ``welcome`` (``direct.frames``): the measurements'
+# names and shapes in order (float64, C order) and the command's slots (per PTO, the setpoints of
+# its command kind). Both frames start with the byte 0xC1, which msgpack never uses, so a receiver
+# tells a frame from a msgpack message by its first byte:
+#
+# - a **command frame** (controller → server): a 32-byte header ``<BBHIIIqd`` (0xC1, ``C``, 0,
+#   ``request``, ``epoch``, 0, ``step``, ``wait``), then one float64 per command slot;
+# - a **measurements frame** (server → controller, the reply to a command frame): a 32-byte header
+#   ``<BBHIqqd`` (0xC1, ``M``, 0, ``request`` of the command it answers, ``step``, ``seq``,
+#   ``time``), then the measurements' float64 values, array after array in the layout's order.
+
+_F8_LE = np.dtype("<f8")
+FRAME_MAGIC = 0xC1                  # "never used" in msgpack: no msgpack message starts with it
+FRAME_COMMAND, FRAME_MEASUREMENTS = ord("C"), ord("M")
+COMMAND_FRAME_HEAD = struct.Struct("<BBHIIIqd")        # magic, kind, 0, request, epoch, 0, step, wait
+MEASUREMENTS_FRAME_HEAD = struct.Struct("<BBHIqqd")    # magic, kind, 0, request, step, seq, time
+FRAME_REQUESTS = 1 << 32            # a frame's request number is a uint32
+_FRAME_NUMBERS = (int, float, np.integer, np.floating)
+
+
+def is_control_frame(frame: bytes | memoryview) -> bool:
+    """Whether ``frame`` is a control frame (not a msgpack message)."""
+    return len(frame) > 0 and frame[0] == FRAME_MAGIC
+
+
+def _frame_kind(frame: bytes | memoryview) -> str:
+    """A control frame's kind byte, for an error (a frame may end before it)."""
+    return f"kind {frame[1]:#x}" if len(frame) > 1 else "no kind byte"
+
+
+@dataclass(frozen=True)
+class CommandFrame:
+    """A command frame's content: the values in the layout's slot order."""
+
+    request: int
+    epoch: int
+    step: int
+    wait: float
+    values: tuple[float, ...]
+
+
+@dataclass(frozen=True)
+class ControlLayout:
+    """The frames of one joined controller: ``measurements`` ((name, shape) in order) and
+    ``commands`` ((pto, setpoint) slots in order, each PTO's setpoints together)."""
+
+    measurements: tuple[tuple[str, tuple[int, ...]], ...]
+    commands: tuple[tuple[str, str], ...]
+
+    @cached_property
+    def setpoints(self) -> int:
+        """Setpoints per PTO (1 for force, 2 for impedance)."""
+        ptos = {p for p, _ in self.commands}
+        return len(self.commands) // max(len(ptos), 1)
+
+    @cached_property
+    def _arrays(self) -> tuple[tuple[str, tuple[int, ...], int, int], ...]:
+        """Each measurement's (name, shape, values, byte offset in the measurements frame)."""
+        out, at = [], MEASUREMENTS_FRAME_HEAD.size
+        for name, shape in self.measurements:
+            out.append((name, shape, math.prod(shape), at))
+            at += 8 * math.prod(shape)
+        return tuple(out)
+
+    def to_wire(self) -> dict:
+        """``welcome.direct.frames``: {"measurements": [[name, shape], ...], "commands": [[pto, setpoint], ...]}."""
+        return {"measurements": [[n, list(s)] for n, s in self.measurements],
+                "commands": [[p, k] for p, k in self.commands]}
+
+    @classmethod
+    def from_wire(cls, value: Any) -> "ControlLayout":
+        """The layout of ``welcome.direct.frames``; ValueError when it is not one."""
+        try:
+            meas = tuple((str(n), tuple(int(d) for d in s)) for n, s in value["measurements"])
+            cmds = tuple((str(p), str(k)) for p, k in value["commands"])
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ValueError(f"not a control frame layout: {exc}") from None
+        if any(d < 0 for _, s in meas for d in s):
+            raise ValueError("a measurement's shape has a negative length")
+        return cls(meas, cmds)
+
+    # ------------------------------------------------------------ commands
+
+    def command_frame(self, request: int, epoch: int, step: int, wait: float, commands: Any) -> bytes | None:
+        """The command frame of ``commands`` (what ``Controller.on_step`` returns: {pto: number or
+        {setpoint: number}}), or None when the layout cannot carry them (another PTO set, a missing
+        or extra setpoint, a value not a number): those go as a msgpack ``command``, whose errors the
+        server gives as before."""
+        if type(commands) is not dict or len(commands) * self.setpoints != len(self.commands):
+            return None
+        values = []
+        for pto, key in self.commands:
+            v = commands.get(pto)
+            if type(v) is dict:
+                if len(v) != self.setpoints:
+                    return None
+                v = v.get(key)
+            elif key != "force":
+                return None
+            if not isinstance(v, _FRAME_NUMBERS) or isinstance(v, (bool, np.bool_)):
+                return None
+            values.append(float(v))
+        return COMMAND_FRAME_HEAD.pack(FRAME_MAGIC, FRAME_COMMAND, 0, request % FRAME_REQUESTS, epoch % FRAME_REQUESTS, 0, step, wait) \
+            + struct.pack(f"<{len(values)}d", *values)
+
+    def read_command(self, frame: bytes | memoryview) -> CommandFrame:
+        """A command frame's content; ProtocolError 1 (malformed) for a frame not of this layout."""
+        n = len(self.commands)
+        if len(frame) != COMMAND_FRAME_HEAD.size + 8 * n or frame[1] != FRAME_COMMAND:
+            raise ProtocolError(Code.MALFORMED, None, f"a control frame of {len(frame)} bytes, {_frame_kind(frame)}; "
+                                f"this controller's command frame is kind {FRAME_COMMAND:#x} of {COMMAND_FRAME_HEAD.size + 8 * n} "
+                                f"bytes ({n} setpoints, SPEC §5.7.6)")
+        _, _, _, request, epoch, _, step, wait = COMMAND_FRAME_HEAD.unpack_from(frame)
+        return CommandFrame(request, epoch, step, wait, struct.unpack_from(f"<{n}d", frame, COMMAND_FRAME_HEAD.size))
+
+    # ------------------------------------------------------------ measurements
+
+    def measurements_frame(self, request: int, sample: dict) -> bytes | None:
+        """The measurements frame of a controller's ``measurements`` reply fields ``sample`` answering
+        request ``request``, or None when the request's number is not a uint32 or ``sample`` does not
+        hold the layout's arrays (measurements relayed without their wave probes): those go as msgpack."""
+        if type(request) is not int or not 0 <= request < FRAME_REQUESTS:
+            return None
+        parts = [MEASUREMENTS_FRAME_HEAD.pack(FRAME_MAGIC, FRAME_MEASUREMENTS, 0, request, sample["step"], sample["seq"], sample["time"])]
+        for name, shape in self.measurements:
+            v = sample.get(name)
+            if type(v) is not np.ndarray or v.shape != shape or v.dtype != _F8_LE:
+                return None
+            parts.append(v.tobytes())
+        return b"".join(parts)
+
+    def read_measurements(self, frame: bytes) -> tuple[int, dict]:
+        """(request, the measurements: ``step``, ``seq``, ``time`` and the arrays, read-only views of
+        ``frame`` as a msgpack reply's are); ValueError for a frame not of this layout."""
+        last = self._arrays[-1] if self._arrays else ("", (), 0, MEASUREMENTS_FRAME_HEAD.size)
+        size = last[3] + 8 * last[2]
+        if len(frame) != size or frame[1] != FRAME_MEASUREMENTS:
+            raise ValueError(f"a control frame of {len(frame)} bytes, {_frame_kind(frame)}; the measurements frame "
+                             f"is kind {FRAME_MEASUREMENTS:#x} of {size} bytes")
+        _, _, _, request, step, seq, time = MEASUREMENTS_FRAME_HEAD.unpack_from(frame)
+        out: dict[str, Any] = {"step": step, "seq": seq, "time": time}
+        for name, shape, n, at in self._arrays:
+            out[name] = np.frombuffer(frame, _F8_LE, n, at).reshape(shape)
+        return request, out
 
 
 # ---------------------------------------------------------------- benchmark

@@ -447,7 +447,7 @@ def test_run_polls_its_own_server_and_equals_a_separate_one(reference_data, serv
     """``hydrolink run`` of a scene with a controller and no --server polls its own server from the
     run's thread (ForceServer polled: no server thread, the run's steps in-process on its own
     arrays — server/service/controlled_step.py, every step of the run — the controller over its
-    direct channel, SPEC §5.7.5): the results equal, bit for bit and variable by variable, the same
+    direct channel, SPEC §5.7.5, in binary frames, §5.7.6): the results equal, bit for bit and variable by variable, the same
     run against a server in a thread with the controller over ZeroMQ (--no-direct), whose steps are
     messages; no thread is left running; a second multibody hello to the run's socket is refused
     (one session: the run's)."""
@@ -494,7 +494,7 @@ def test_run_polls_its_own_server_and_equals_a_separate_one(reference_data, serv
         port.__call__, port.decided = in_process, compiled
         stranger.close(0)
         ctx.term()
-    assert rc == 0 and "over the direct channel" in err, err
+    assert rc == 0 and "over the direct channel, binary frames" in err, err   # SPEC §5.7.6
     assert summary.server == address and (refused["code"], refused.get("limit")) == (14, "sessions")
     assert seen["threads"] <= threads + 1   # at most the results writer's thread: no server thread
     ds_own = xr.load_dataset(tmp_path / "own.nc")

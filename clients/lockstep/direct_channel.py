@@ -15,6 +15,7 @@ import time
 from typing import Any
 
 from hydrolink.protocol import codec
+from hydrolink.protocol.codec import ControlLayout, is_control_frame
 
 HEADER = codec.DIRECT_HEADER
 CONNECT_S = 1.0                # how long opening the direct channel may take before ZeroMQ is kept
@@ -59,9 +60,12 @@ class DirectChannel:
             raise
         return cls(sock)
 
-    def request(self, frame: bytes, msg_id: Any, within: float, key: bytes | None) -> dict:
+    def request(self, frame: bytes, msg_id: Any, within: float, key: bytes | None,
+                layout: ControlLayout | None = None) -> dict:
         """Send ``frame`` and wait at most ``within`` s for the reply whose parent is ``msg_id``;
-        OSError (a timeout included) when the channel fails."""
+        OSError (a timeout included) when the channel fails. ``layout``: a controller's binary
+        frames (SPEC §5.7.6): a measurements frame answering ``msg_id`` is returned as its reply,
+        ``{"type": "measurements", "step", "time", "frame": the measurements}``."""
         if within != self._within:   # the kernel times the receive (and the send) out
             tv = struct.pack("ll", int(within), int(within % 1 * 1e6))
             self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO, tv)
@@ -70,7 +74,16 @@ class DirectChannel:
         self.sock.sendall(HEADER.pack(len(frame)) + frame)
         deadline = time.monotonic() + within
         while True:
-            reply = codec.unpack(self._frame(deadline), key)
+            data = self._frame(deadline)
+            if layout is not None and is_control_frame(data):
+                try:
+                    request, meas = layout.read_measurements(data)
+                except ValueError as exc:   # not the layout of the welcome: the channel is not to be trusted
+                    raise ConnectionError(f"a control frame not of the welcome's layout: {exc}") from None
+                if request == msg_id:
+                    return {"type": "measurements", "step": meas["step"], "time": meas["time"], "frame": meas}
+                continue
+            reply = codec.unpack(data, key)
             if reply.get("parent") == msg_id or codec.unread_error(reply):
                 return reply
 

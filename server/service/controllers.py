@@ -25,7 +25,7 @@ from typing import Any, Callable
 import numpy as np
 
 from hydrolink.protocol import codec
-from hydrolink.protocol.codec import Code, ProtocolError
+from hydrolink.protocol.codec import Code, CommandFrame, ControlLayout, ProtocolError
 from hydrolink.protocol.scene import Controller, LinearPTO, Scene
 from hydrolink.server.allocation import require_size
 from hydrolink.server.sea.probes import PreviewGrid
@@ -65,6 +65,11 @@ class Slot:
     @property
     def name(self) -> str:
         return self.cfg.name
+
+
+def setpoints(c: Controller) -> tuple[str, ...]:
+    """The setpoints of each PTO's command of controller ``c`` (SPEC §5.7.4)."""
+    return ("force",) if c.command == "force" else ("damping", "stiffness")
 
 
 TOKEN = re.compile(r"[A-Za-z0-9_-]{32,128}")   # a join token: at least 32 characters (SPEC §5.7.2)
@@ -203,7 +208,38 @@ class ControlHub:
         self._activate(slot)
         return self._next_for(slot, route, msg_id, wait, own)
 
+    def layout(self, slot: Slot) -> ControlLayout:
+        """The binary frames of ``slot``'s controller (SPEC §5.7.6): its measurements in the order of
+        its ``measurements`` replies, its command's setpoints per PTO."""
+        c = slot.cfg
+        meas = [(n, (len(slot.pto_rows),) if n.startswith("pto") else (len(slot.body_rows), 6))
+                for n in c.measurements if n != "wave_elevation"]
+        if "wave_elevation" in c.measurements:
+            meas.append(("wave_elevation", (len(c.wave_points),)))
+        if slot.grid.samples > 0:
+            meas.append(("wave_preview", (len(c.wave_points), slot.grid.samples)))
+        return ControlLayout(tuple(meas), tuple((p, k) for p in c.ptos for k in setpoints(c)))
+
     def command(self, msg: dict, route, msg_id, own: str) -> tuple[str, dict] | None:
+        """Reply to ``command`` (a msgpack map): its ``commands`` and ``hydro_state`` checked."""
+        return self._command(msg, route, msg_id, own, lambda slot: (self._validate(slot, msg.get("commands")),
+                                                                     self._hydro_state(slot, msg.get("hydro_state"))))
+
+    def command_frame(self, name: str, cmd: CommandFrame, route, own: str) -> tuple[str, dict] | None:
+        """Reply to a command frame (SPEC §5.7.6) of controller ``name``: the same checks, errors,
+        decisions and counts as :meth:`command`'s, its values checked in the layout's slot order."""
+        slot = self.slots[name]
+        msg = {"controller": name, "epoch": cmd.epoch, "wait": cmd.wait, "step": cmd.step}
+        keys = setpoints(slot.cfg)
+
+        def values(slot: Slot) -> tuple[dict, None]:
+            it = iter(cmd.values)
+            return {p: {k: self._setpoint(slot.cfg, p, k, next(it)) for k in keys} for p in slot.cfg.ptos}, None
+        return self._command(msg, route, cmd.request, own, values)
+
+    def _command(self, msg: dict, route, msg_id, own: str, checked: Callable[[Slot], tuple]) -> tuple[str, dict] | None:
+        """A command of either form: the step's order checked, then ``checked(slot)`` ((commands,
+        hydro_state), ProtocolError for an invalid one), the decision taken when it can be."""
         slot = self.slot_for(msg)
         wait = self._wait(msg)
         self._activate(slot)
@@ -220,8 +256,7 @@ class ControlHub:
                                 "(late: its deadline passed and the fallback was used, or a second command); "
                                 "continue with measure")
         try:
-            commands = self._validate(slot, msg.get("commands"))
-            hydro = self._hydro_state(slot, msg.get("hydro_state"))
+            commands, hydro = checked(slot)
         except ProtocolError:
             slot.received[step] = ("invalid",)
             self._maybe_finish_pending()
@@ -267,7 +302,7 @@ class ControlHub:
             if name not in c.ptos:
                 raise ProtocolError(Code.BAD_VALUE, f"commands.{name}", f"controller {c.name!r} drives no PTO "
                                     f"{name!r} (it drives {list(c.ptos)})")
-        keys = ("force",) if c.command == "force" else ("damping", "stiffness")
+        keys = setpoints(c)
         out = {}
         for name in c.ptos:
             if name not in commands:
@@ -284,22 +319,29 @@ class ControlHub:
                 raise ProtocolError(Code.MISSING_FIELD, f"commands.{name}", f"needs {' and/or '.join(keys)}")
             vals = {}
             for key, value in entry.items():
-                where = f"commands.{name}.{key}"
                 if type(value) not in (int, float):
-                    raise ProtocolError(Code.BAD_VALUE, where, f"must be a number, got {type(value).__name__}")
-                value = float(value)
-                if not math.isfinite(value):
-                    raise ProtocolError(Code.BAD_VALUE, where, f"must be finite, got {value}")
-                if key == "force":
-                    if c.max_force is not None and abs(value) > c.max_force:
-                        raise ProtocolError(Code.BAD_VALUE, where, f"|{value:g}| exceeds max_force {c.max_force:g}")
-                else:
-                    lo, hi = c.damping_range if key == "damping" else c.stiffness_range
-                    if not lo <= value <= hi:
-                        raise ProtocolError(Code.BAD_VALUE, where, f"{value:g} outside the {key}_range [{lo:g}, {hi:g}]")
-                vals[key] = value
+                    raise ProtocolError(Code.BAD_VALUE, f"commands.{name}.{key}",
+                                        f"must be a number, got {type(value).__name__}")
+                vals[key] = self._setpoint(c, name, key, float(value))
             out[name] = vals
         return out
+
+    @staticmethod
+    def _setpoint(c: Controller, name: str, key: str, value: float) -> float:
+        """``value``, a setpoint ``key`` of PTO ``name``, checked: finite and within ``c``'s limits
+        (ProtocolError 5 naming ``commands.<name>.<key>``)."""
+        if not math.isfinite(value):
+            raise ProtocolError(Code.BAD_VALUE, f"commands.{name}.{key}", f"must be finite, got {value}")
+        if key == "force":
+            if c.max_force is not None and abs(value) > c.max_force:
+                raise ProtocolError(Code.BAD_VALUE, f"commands.{name}.{key}",
+                                    f"|{value:g}| exceeds max_force {c.max_force:g}")
+        else:
+            lo, hi = c.damping_range if key == "damping" else c.stiffness_range
+            if not lo <= value <= hi:
+                raise ProtocolError(Code.BAD_VALUE, f"commands.{name}.{key}",
+                                    f"{value:g} outside the {key}_range [{lo:g}, {hi:g}]")
+        return value
 
     def _next_for(self, slot: Slot, route, msg_id, wait: float, own: str) -> tuple[str, dict] | None:
         if slot.newest > slot.delivered:

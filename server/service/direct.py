@@ -12,7 +12,8 @@ the controller's share of the step budget.
 
 A frame is a 4-byte little-endian length and that many bytes: the first frame a connection sends
 is its ticket (from the controller's ``welcome.direct``), every later one a message as on the
-ZeroMQ socket (msgpack, signed when the server signs). Replies go back as frames on the same
+ZeroMQ socket (msgpack, signed when the server signs) or, from a controller whose welcome offered
+them, a binary control frame (SPEC §5.7.6, revision 1.20). Replies go back as frames on the same
 connection. A wrong ticket, a first frame longer than a ticket can be, a length over the server's
 message limit or over what its receive budget has left, or a reply that cannot be written at once
 closes the connection (the client goes on over ZeroMQ). A connection must have shown its whole

@@ -26,7 +26,7 @@ from typing import Any, Callable
 import zmq
 
 from hydrolink.protocol import codec, transport
-from hydrolink.protocol.codec import Code, ProtocolError
+from hydrolink.protocol.codec import Code, ControlLayout, ProtocolError, is_control_frame
 from hydrolink.protocol.pacing import check_factor
 from hydrolink.server.service.capacity import MAX_SESSIONS, MAX_SETUPS, HelloLimits, MemoryBudget
 from hydrolink.server.service.controllers import ControlHub, join_token, token_matches
@@ -35,7 +35,7 @@ from hydrolink.server.hdb.file_set import FileSetReader
 from hydrolink.server.hdb.store import HASH, ContentStore, ContentTooLarge, default_folder
 from hydrolink.server.processes import start_children
 from hydrolink.server.service import frontend
-from hydrolink.server.service.direct import DirectError, DirectListener, DirectRoute
+from hydrolink.server.service.direct import DirectError, DirectLink, DirectListener, DirectRoute
 from hydrolink.server.service.controlled_step import ControlledStep
 from hydrolink.server.service.local_step import LocalStep
 from hydrolink.server.service.log_limit import LimitedLog, limit_lines
@@ -181,6 +181,9 @@ class ForceServer:
         # a joined controller's own session id -> (the session's id, the controller's name): a controller
         # never learns the owner's id, so it cannot step, roll back or end the session (SPEC §5.7.2)
         self._controllers: dict[str, tuple[str, str]] = {}
+        # a joined controller's own id -> the layout of its binary frames, when its hello asked for them
+        # and its welcome offered them on the direct channel (SPEC §5.7.6)
+        self._framed: dict[str, ControlLayout] = {}
         self._rcv_ms = POLL_MS
         self._workers = SetupWorkers()
         self._setups: list[PendingHello] = []    # hellos being set up, oldest first (at most max_setups)
@@ -299,11 +302,16 @@ class ForceServer:
         controller is heard even while no step waits for it (one that missed a deadline and is
         absent, SPEC §5.7, comes back with its next request). At most MAX_QUEUED messages a call:
         a flood on the socket delays the run's step by that many, never holds it. The direct
-        connections are read too (what has arrived on them, never waiting)."""
+        connections are read too (what has arrived on them, never waiting): with them, one poll of the
+        loop's poller (the socket, the listener, the links) says what is ready, and a turn with
+        nothing (the run's usual case) ends there."""
+        socket_ready = True
         if self._direct is not None:
             self._direct.expire(time.monotonic())
-            self._serve_direct(self._direct.ready_now())
-        for _ in range(MAX_QUEUED):
+            ready = self._direct_ready(0)
+            self._serve_direct(ready)
+            socket_ready = self._sock.pending or self._sock.socket in ready
+        for _ in range(MAX_QUEUED) if socket_ready else ():
             if not self._sock.ready():
                 break
             self._receive()
@@ -413,7 +421,7 @@ class ForceServer:
                         if not self._direct.admit(link, frame):
                             raise ConnectionError("not a ticket this server offered")
                         continue
-                    reply = self.handle(frame, link.route)
+                    reply = self._command_frame(link, frame) if is_control_frame(frame) else self.handle(frame, link.route)
                     if reply is not None:
                         self._send(link.route, reply, self._hold)
             except OSError as exc:   # ConnectionError included: closed, or broke the framing
@@ -471,7 +479,10 @@ class ForceServer:
             self._local_reply = (reply, release)
             return
         if type(route) is DirectRoute:   # a controller's direct connection (never paced: no forces)
-            if not route.link.write(self._frame(reply)) and reply.get("type") == "measurements":
+            frame = None
+            if reply["type"] == "measurements" and type(reply["parent"]) is int and reply["session"] in self._framed:
+                frame = self._framed[reply["session"]].measurements_frame(reply["parent"], reply)   # SPEC §5.7.6
+            if not route.link.write(frame or self._frame(reply)) and reply.get("type") == "measurements":
                 joined = self._controllers.get(reply.get("session"))   # (session, controller name)
                 hub = self._hubs.get(joined[0]) if joined is not None else None
                 if hub is not None:   # lost with the channel: sent again at the controller's next request
@@ -1059,37 +1070,77 @@ class ForceServer:
         for c in earlier[:max(0, len(earlier) - 7)]:   # a controller's last 8 connections keep their ids
             del self._controllers[c]
         self._controllers[own] = (s.id, slot.name)
+        direct = self._direct.offer(own) if self._direct is not None else None
+        self._framed = {c: layout for c, layout in self._framed.items() if c in self._controllers}
+        if direct is not None and self.key is None and msg.get("frames") is True:   # not signed: SPEC §5.7.6
+            layout = hub.layout(slot)
+            self._framed[own] = layout
+            direct["frames"] = layout.to_wire()
         return "welcome", {
             "protocol": codec.PROTOCOL_VERSION,
             "server": {"name": "hydrolink", "version": self._version},
             "session_timeout": self.session_timeout,
             "epoch": slot.epoch, "rejoined": rejoined, "control": control,
-            **({"direct": self._direct.offer(own)} if self._direct is not None else {}),
+            **({"direct": direct} if direct is not None else {}),
         }, own
 
     def _controller_request(self, kind: str, msg: dict, msg_id: Any,
                             session: str | None) -> tuple[str, dict, str | None] | None:
         own = session
-        if session not in self._controllers:
-            raise ProtocolError(Code.UNKNOWN_SESSION, "session", f"{kind!r} needs the session id of the controller's "
-                                "welcome (a controller joins with the session's join token, SPEC §5.7.2)")
-        session, name = self._controllers[session]
+        session, name = self._joined(kind, own)
         if msg.get("controller") != name:
             raise ProtocolError(Code.UNAUTHORIZED, "controller", f"this session id is controller {name!r}'s "
                                 f"(got {codec.describe(msg.get('controller'))})")
-        if session not in self.sessions and session in self._closed:
-            return "stop", {"reason": f"session {self._closed[session]}"}, own
-        s = self._session(session)
-        hub = self._hubs.get(s.id)
-        if hub is None:
-            raise ProtocolError(Code.UNKNOWN_TYPE, "type", f"{kind!r} is a controller request; session "
-                                f"{session!r} declares no controllers")
+        hub = self._controller_hub(kind, session)
+        if type(hub) is str:
+            return "stop", {"reason": hub}, own
         out = (hub.measure if kind == "measure" else hub.command)(msg, self._route, msg_id, own)
         if out is None:
             if self._route is None:
                 raise ProtocolError(Code.WRONG_STATE, "type", "an in-process server cannot defer a reply")
             return None
         return out[0], out[1], own
+
+    def _joined(self, kind: str, own: str | None) -> tuple[str, str]:
+        """(session id, controller name) of the joined controller whose own session id is ``own``;
+        ProtocolError 7 when it is none's."""
+        if own not in self._controllers:
+            raise ProtocolError(Code.UNKNOWN_SESSION, "session", f"{kind!r} needs the session id of the controller's "
+                                "welcome (a controller joins with the session's join token, SPEC §5.7.2)")
+        return self._controllers[own]
+
+    def _controller_hub(self, kind: str, session: str) -> ControlHub | str:
+        """The controllers of ``session``, or why its controllers' requests get ``stop`` (it closed)."""
+        if session not in self.sessions and session in self._closed:
+            return f"session {self._closed[session]}"
+        s = self._session(session)
+        hub = self._hubs.get(s.id)
+        if hub is None:
+            raise ProtocolError(Code.UNKNOWN_TYPE, "type", f"{kind!r} is a controller request; session "
+                                f"{session!r} declares no controllers")
+        return hub
+
+    def _command_frame(self, link: DirectLink, frame: bytes) -> dict | None:
+        """The reply to a command frame from ``link`` (SPEC §5.7.6), or None when deferred: handled as
+        its ``command`` map would be (the same checks, errors and decisions), never raising."""
+        own, request = link.own, None
+        self._hold = None
+        try:
+            layout = self._framed.get(own)
+            if layout is None:
+                raise ProtocolError(Code.MALFORMED, None, "a control frame (first byte 0xC1) from a controller whose "
+                                    "welcome offered none (SPEC §5.7.6): send msgpack messages")
+            cmd = layout.read_command(frame)
+            request = cmd.request
+            self._route = link.route
+            session, name = self._joined("command", own)
+            hub = self._controller_hub("command", session)
+            if type(hub) is str:
+                return codec.message("stop", next(self._ids), own, request, reason=hub)
+            out = hub.command_frame(name, cmd, link.route, own)
+            return None if out is None else codec.message(out[0], next(self._ids), own, request, **out[1])
+        except Exception as exc:  # noqa: BLE001 - the loop must never die
+            return self._error(exc, {"msg_id": request} if request is not None else None, own, link.route)
 
     def _measure(self, msg: dict, msg_id: Any, session: str | None):
         return self._controller_request("measure", msg, msg_id, session)
