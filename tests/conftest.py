@@ -238,6 +238,26 @@ def serve_process(*args: str, cwd: Path | None = None):
         proc.wait(EXIT_S)
 
 
+def cli_here(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    """`hydrolink ARGS` run in this process (click's runner, in ``cwd``), for the commands that end
+    before a run's own work (errors, ``hdb info``, ``keys``): a subprocess would spend 0.3-2.5 s of
+    CPU importing what this process has loaded. Runs stay in subprocesses: once under load a suite
+    worker hung in a ZeroMQ ``Context.term`` run by the garbage collector on a context some earlier
+    test of that worker left (not identified; in-process runs were the change that worker had).
+    Unexpected exceptions propagate."""
+    from click.testing import CliRunner
+
+    from hydrolink.clients.cli import cli
+
+    here = os.getcwd()
+    os.chdir(cwd)
+    try:
+        r = CliRunner().invoke(cli, list(args), prog_name="hydrolink", catch_exceptions=False)
+    finally:
+        os.chdir(here)
+    return subprocess.CompletedProcess(["hydrolink", *args], r.exit_code, r.stdout, r.stderr)
+
+
 @pytest.fixture(scope="session")
 def sphere(sphere_path: Path):
     """The sphere's HDB, loaded once."""
