@@ -70,9 +70,9 @@ def pytest_sessionstart(session: pytest.Session) -> None:
 
 # Dask's self-monitoring, off or slowed for the tests' clusters (by the environment, so the sweeps' LocalCluster
 # workers and the `dask scheduler`/`dask worker` processes a test starts have it too): a worker's statistical
-# profiler samples every thread's stack every 10 ms and each process's event loop wakes every 20 ms to time
-# itself. No test looks at either; an idle LocalCluster of 2 workers spent 2.1-2.3 s of CPU in 20 s with them,
-# 0.6-0.7 s without (load 9). Values already set are kept.
+# profiler samples every thread's stack every 10 ms, each process's event loop wakes every 20 ms to time itself
+# and its system monitor every 0.5 s. No test looks at any of them; an idle LocalCluster of 2 workers spent
+# 2.15-2.30 s of CPU in 20 s with them, 0.56-0.75 s without (4 pairs, load 3-11). Values already set are kept.
 DASK_QUIET = {"DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED": "False",
               "DASK_DISTRIBUTED__ADMIN__TICK__INTERVAL": "1s",
               "DASK_DISTRIBUTED__ADMIN__SYSTEM_MONITOR__INTERVAL": "2s"}
