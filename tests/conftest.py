@@ -68,11 +68,24 @@ def pytest_sessionstart(session: pytest.Session) -> None:
             os.environ.setdefault(var, "1")
 
 
+# Dask's self-monitoring, off or slowed for the tests' clusters (by the environment, so the sweeps' LocalCluster
+# workers and the `dask scheduler`/`dask worker` processes a test starts have it too): a worker's statistical
+# profiler samples every thread's stack every 10 ms, each process's event loop wakes every 20 ms to time itself
+# and its system monitor every 0.5 s. No test looks at any of them; an idle LocalCluster of 2 workers spent
+# 2.15-2.30 s of CPU in 20 s with them, 0.56-0.75 s without (4 pairs, load 3-11). Values already set are kept.
+DASK_QUIET = {"DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED": "False",
+              "DASK_DISTRIBUTED__ADMIN__TICK__INTERVAL": "1s",
+              "DASK_DISTRIBUTED__ADMIN__SYSTEM_MONITOR__INTERVAL": "2s"}
+
+
 def pytest_configure(config: pytest.Config) -> None:
     """Every `hydrolink run` a test starts waits REPLY_S for a reply (its ``--reply-timeout``, by
-    $HYDROLINK_REPLY_TIMEOUT; a set value is kept); and a pytest-xdist worker imports each group of
+    $HYDROLINK_REPLY_TIMEOUT; a set value is kept); Dask's self-monitoring is quiet (DASK_QUIET,
+    before any test module imports dask); and a pytest-xdist worker imports each group of
     compiled kernels once the controller's compile of it is done (tests/numba_warmup.py)."""
     os.environ.setdefault("HYDROLINK_REPLY_TIMEOUT", str(REPLY_S))
+    for var, value in DASK_QUIET.items():
+        os.environ.setdefault(var, value)
     folder = os.environ.get(WARMUP_FOLDER)
     if folder and hasattr(config, "workerinput"):
         import numba_warmup
@@ -223,6 +236,26 @@ def serve_process(*args: str, cwd: Path | None = None):
     finally:
         proc.terminate()
         proc.wait(EXIT_S)
+
+
+def cli_here(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    """`hydrolink ARGS` run in this process (click's runner, in ``cwd``), for the commands that end
+    before a run's own work (errors, ``hdb info``, ``keys``): a subprocess would spend 0.3-2.5 s of
+    CPU importing what this process has loaded. Runs stay in subprocesses: once under load a suite
+    worker hung in a ZeroMQ ``Context.term`` run by the garbage collector on a context some earlier
+    test of that worker left (not identified; in-process runs were the change that worker had).
+    Unexpected exceptions propagate."""
+    from click.testing import CliRunner
+
+    from hydrolink.clients.cli import cli
+
+    here = os.getcwd()
+    os.chdir(cwd)
+    try:
+        r = CliRunner().invoke(cli, list(args), prog_name="hydrolink", catch_exceptions=False)
+    finally:
+        os.chdir(here)
+    return subprocess.CompletedProcess(["hydrolink", *args], r.exit_code, r.stdout, r.stderr)
 
 
 @pytest.fixture(scope="session")

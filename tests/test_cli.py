@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from conftest import EXIT_S, SPHERE_WATER, irregular_waves, scene_toml, serve_process, sphere_body, write_scene
+from conftest import EXIT_S, SPHERE_WATER, cli_here, irregular_waves, scene_toml, serve_process, sphere_body, write_scene
 
 from hydrolink.clients.run import run_scene_file
 
@@ -41,26 +41,6 @@ def scene_dir(tmp_path: Path, reference_data: Path) -> Path:
 def _cli(*args: str, cwd: Path, timeout: float = 120) -> subprocess.CompletedProcess:
     env = dict(os.environ, MPLBACKEND="Agg")
     return subprocess.run([*HYDROLINK, *args], cwd=cwd, capture_output=True, text=True, timeout=timeout, env=env)
-
-
-def _cli_here(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    """The command run in this process (click's runner, in ``cwd``), for the paths that end before a
-    run's own work (errors, ``hdb info``): a subprocess would spend ~2.5 s of CPU importing what this
-    process has loaded. Runs stay in subprocesses: once under load a suite worker hung in a ZeroMQ
-    ``Context.term`` run by the garbage collector on a context some earlier test of that worker left
-    (not identified; these in-process runs were the change that worker had).
-    Unexpected exceptions propagate."""
-    from click.testing import CliRunner
-
-    from hydrolink.clients.cli import cli
-
-    here = os.getcwd()
-    os.chdir(cwd)
-    try:
-        r = CliRunner().invoke(cli, list(args), prog_name="hydrolink", catch_exceptions=False)
-    finally:
-        os.chdir(here)
-    return subprocess.CompletedProcess(["hydrolink", *args], r.exit_code, r.stdout, r.stderr)
 
 
 def test_remote_server_run_equals_embedded_run(scene_dir: Path):
@@ -114,7 +94,7 @@ def test_run_with_hdb_files_uploads_once_and_equals_the_map_run(scene_dir: Path,
     for key, ds in outputs.items():
         for name in ("position", "velocity", "excitation_force", "radiation_force", "hydrostatic_force"):
             assert np.array_equal(ref[name].values, ds[name].values), (key, name)
-    assert _cli_here("run", "scene.toml", "--hdb-files", cwd=scene_dir).stderr.strip().endswith(
+    assert cli_here("run", "scene.toml", "--hdb-files", cwd=scene_dir).stderr.strip().endswith(
         "--hdb-files is for a remote server (the embedded one reads the files itself): give --server")
 
 
@@ -141,8 +121,8 @@ def test_serve_direct_port_is_offered_and_one_in_use_is_one_clear_line(tmp_path:
             assert conn._direct is not None and conn._direct.sock.getpeername()[1] == port
             conn.step(0, 0.0, np.zeros((1, 6)), np.zeros((1, 6)))
             assert conn._direct is not None   # the step went over it
-        taken = _cli_here("serve", "--bind", "tcp://127.0.0.1:*", "--direct-port", str(port), cwd=tmp_path)
-        bound = _cli_here("serve", "--bind", address, cwd=tmp_path)   # the ZeroMQ port in use: the same
+        taken = cli_here("serve", "--bind", "tcp://127.0.0.1:*", "--direct-port", str(port), cwd=tmp_path)
+        bound = cli_here("serve", "--bind", address, cwd=tmp_path)   # the ZeroMQ port in use: the same
     assert taken.returncode == 2
     assert taken.stderr == f"Error: --direct-port: no direct channel on port {port} of 127.0.0.1: Address already in use\n"
     assert bound.returncode == 2 and bound.stderr == f"Error: --bind: cannot listen on {address}: Address already in use\n"
@@ -182,7 +162,7 @@ def test_serve_starts_its_parse_forkserver_after_its_start_up(scene_dir: Path):
 
 def test_bad_scene_is_one_clear_line(scene_dir: Path):
     write_scene(scene_dir, sphere_scene(mass=-1.0), "bad.toml")
-    result = _cli_here("run", "bad.toml", cwd=scene_dir)
+    result = cli_here("run", "bad.toml", cwd=scene_dir)
     assert result.returncode != 0
     assert "bad.toml: bodies[0].mass: Input should be greater than 0" in result.stderr
     assert "Traceback" not in result.stderr
@@ -201,7 +181,7 @@ def test_out_of_bounds_scene_value_is_one_named_line(scene_dir: Path, old, new, 
     """Issue 22: duration = 1e300 printed a 60-line traceback; every bound is the key's named error."""
     assert old in sphere_scene()
     write_scene(scene_dir, sphere_scene().replace(old, new), "huge.toml")
-    result = _cli_here("run", "huge.toml", cwd=scene_dir)
+    result = cli_here("run", "huge.toml", cwd=scene_dir)
     assert result.returncode != 0 and "Traceback" not in result.stderr
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"Error: {line}"), lines
@@ -210,7 +190,7 @@ def test_out_of_bounds_scene_value_is_one_named_line(scene_dir: Path, old, new, 
 def test_misspelt_keys_are_each_listed_with_the_closest_valid_key(scene_dir: Path):
     text = sphere_scene().replace("duration = 12.0", "duraton = 12.0").replace("mass = 261800.0", "mas = 261800.0")
     write_scene(scene_dir, text, "typo.toml")
-    result = _cli_here("run", "typo.toml", cwd=scene_dir)
+    result = cli_here("run", "typo.toml", cwd=scene_dir)
     assert result.returncode != 0 and "Traceback" not in result.stderr
     lines = result.stderr.strip().splitlines()
     assert lines == ["Error: typo.toml: simulation.duration: required key is missing",
@@ -261,7 +241,7 @@ def test_run_says_what_it_wrote_and_its_headline_figures(scene_dir: Path):
 def test_missing_files_come_with_the_schema_errors(scene_dir: Path):
     """A bad key and a missing HDB: both in the one error (before: the HDB only once the key was fixed)."""
     write_scene(scene_dir, sphere_scene(hdb="missing.h5", mass=-1.0), "both.toml")
-    result = _cli_here("run", "both.toml", cwd=scene_dir)
+    result = cli_here("run", "both.toml", cwd=scene_dir)
     assert result.returncode != 0 and "Traceback" not in result.stderr
     lines = result.stderr.strip().splitlines()
     assert lines[0].startswith("Error: both.toml: bodies[0].mass: Input should be greater than 0"), lines
@@ -270,7 +250,7 @@ def test_missing_files_come_with_the_schema_errors(scene_dir: Path):
 
 def test_missing_hdb_names_the_key(scene_dir: Path):
     write_scene(scene_dir, sphere_scene(hdb="missing.h5"), "nohdb.toml")
-    result = _cli_here("run", "nohdb.toml", cwd=scene_dir)
+    result = cli_here("run", "nohdb.toml", cwd=scene_dir)
     assert result.returncode != 0
     assert "nohdb.toml: bodies[0].hdb: file not found" in result.stderr
     assert "Traceback" not in result.stderr
@@ -278,7 +258,7 @@ def test_missing_hdb_names_the_key(scene_dir: Path):
 
 def test_wrong_hdb_body_names_the_key(scene_dir: Path):
     write_scene(scene_dir, sphere_scene(hdb_body="float"), "wrong.toml")
-    result = _cli_here("run", "wrong.toml", cwd=scene_dir)
+    result = cli_here("run", "wrong.toml", cwd=scene_dir)
     assert result.returncode != 0
     assert "wrong.toml: bodies[0].hdb_body: the HDB sphere.h5 holds no body 'float'" in result.stderr
 
@@ -286,7 +266,7 @@ def test_wrong_hdb_body_names_the_key(scene_dir: Path):
 def test_hdb_info_on_wamit_files_with_plot(tmp_path: Path, reference_data: Path):
     for f in (reference_data / "rm3_wamit").iterdir():
         shutil.copy(f, tmp_path / f.name)
-    result = _cli_here("hdb", "info", "rm3.1", "--plot", "rm3.png", "--dofs", "heave", cwd=tmp_path)
+    result = cli_here("hdb", "info", "rm3.1", "--plot", "rm3.png", "--dofs", "heave", cwd=tmp_path)
     assert result.returncode == 0, result.stderr
     out = result.stdout
     assert "float" in out and "spar" in out
@@ -300,7 +280,7 @@ def test_hdb_info_on_wamit_files_with_plot(tmp_path: Path, reference_data: Path)
 
 def test_hdb_info_bad_file_is_one_clear_line(tmp_path: Path):
     (tmp_path / "junk.nc").write_text("not a netcdf file")
-    result = _cli_here("hdb", "info", "junk.nc", cwd=tmp_path)
+    result = cli_here("hdb", "info", "junk.nc", cwd=tmp_path)
     assert result.returncode != 0
     assert "junk.nc" in result.stderr and "Traceback" not in result.stderr
 
@@ -315,10 +295,10 @@ def test_hdb_build_writes_a_loadable_hdb_and_caches(tmp_path: Path, monkeypatch)
     """`hdb build` in this process (its command's path is the same; a child spent ~3 s of CPU on imports)."""
     write_ball_spec(tmp_path, 0.35, [0.5, 1.5, 3.0], "[water]\ndensity = 1000.0\n")
     monkeypatch.setenv("HYDROLINK_CACHE", str(tmp_path / "cache"))
-    first = _cli_here("hdb", "build", "sphere.toml", "-o", "ball.nc", "--no-progress", cwd=tmp_path)
+    first = cli_here("hdb", "build", "sphere.toml", "-o", "ball.nc", "--no-progress", cwd=tmp_path)
     assert first.returncode == 0, first.stderr
     assert list((tmp_path / "cache").glob("*.nc")), "the build was not cached"
-    info = _cli_here("hdb", "info", "ball.nc", cwd=tmp_path)
+    info = cli_here("hdb", "info", "ball.nc", cwd=tmp_path)
     assert info.returncode == 0, info.stderr
     assert "ball" in info.stdout and "3 frequencies" in info.stdout
     from hydrolink.server.hdb.io import load_hdb
@@ -352,7 +332,7 @@ def test_first_build_on_a_fresh_machine_says_what_happens_in_one_plain_line(tmp_
 
 def test_hdb_build_bad_spec_names_the_key(tmp_path: Path):
     (tmp_path / "bad.toml").write_text('[body]\nname = "b"\nshape = "sphere"\n[frequencies]\nvalues = [1.0, 2.0]\n')
-    result = _cli_here("hdb", "build", "bad.toml", "-o", "b.nc", cwd=tmp_path)
+    result = cli_here("hdb", "build", "bad.toml", "-o", "b.nc", cwd=tmp_path)
     assert result.returncode != 0
     assert "bad.toml: body.radius" in result.stderr and "Traceback" not in result.stderr
 

@@ -17,7 +17,7 @@ from hydrolink.clients.lockstep.connection import ServerConnection
 from hydrolink.clients.run import run_scene_file
 from hydrolink.protocol.security import ClientKeys
 
-from conftest import EXIT_S, REPLY_S, rm3_example_text
+from conftest import EXIT_S, REPLY_S, cli_here, rm3_example_text
 
 # One pytest-xdist worker runs this whole module (pyproject: --dist loadgroup): its module fixture (a CURVE
 # server process) costs ~4 s, paid once per worker otherwise.
@@ -28,7 +28,7 @@ HYDROLINK = [sys.executable, "-m", "hydrolink.clients.cli"]
 
 
 def keys_new(directory: Path, name: str) -> None:
-    out = subprocess.run([*HYDROLINK, "keys", "new", str(directory), "--name", name], capture_output=True, text=True)
+    out = cli_here("keys", "new", str(directory), "--name", name, cwd=directory.parent)
     assert out.returncode == 0, out.stderr
     assert (directory / f"{name}.key").is_file() and (directory / f"{name}.key_secret").is_file()
 
@@ -75,7 +75,7 @@ def wait_for_log(log: Path, text: str, timeout: float = 5.0) -> str:
 
 def test_keys_new_refuses_to_overwrite(tmp_path):
     keys_new(tmp_path, "a")
-    out = subprocess.run([*HYDROLINK, "keys", "new", str(tmp_path), "--name", "a"], capture_output=True, text=True)
+    out = cli_here("keys", "new", str(tmp_path), "--name", "a", cwd=tmp_path)
     assert out.returncode != 0 and "exists" in out.stderr
     assert oct((tmp_path / "a.key_secret").stat().st_mode & 0o777) == "0o600"
 

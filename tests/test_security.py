@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import EXIT_S, REPLY_S, SPHERE_WATER, regular_waves, scene_toml, sphere_body, write_scene
+from conftest import EXIT_S, REPLY_S, SPHERE_WATER, cli_here, regular_waves, scene_toml, sphere_body, write_scene
 from hydrolink.clients.lockstep.connection import RemoteError, ServerConnection
 from hydrolink.protocol.security import CurveKeyError, read_hmac_key
 
@@ -33,7 +33,7 @@ def signed_server(tmp_path_factory):
     One server for the module's tests (each serve process costs ~4.5 s of CPU to start): each test
     reads only the log lines written after it began."""
     tmp_path = tmp_path_factory.mktemp("signed")
-    assert _cli("keys", "hmac", "shared.key", cwd=tmp_path).returncode == 0
+    assert cli_here("keys", "hmac", "shared.key", cwd=tmp_path).returncode == 0
     log = tmp_path / "server.log"
     with open(log, "w") as fh:
         proc = subprocess.Popen([*HYDROLINK, "serve", "--bind", "tcp://127.0.0.1:*"], cwd=tmp_path, stderr=fh,
@@ -51,11 +51,11 @@ def signed_server(tmp_path_factory):
 
 
 def test_key_file_is_new_private_and_never_overwritten(tmp_path: Path):
-    r = _cli("keys", "hmac", "k", cwd=tmp_path)
+    r = cli_here("keys", "hmac", "k", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     assert stat.S_IMODE((tmp_path / "k").stat().st_mode) == 0o600
     assert len(read_hmac_key(tmp_path / "k")) == 32
-    again = _cli("keys", "hmac", "k", cwd=tmp_path)
+    again = cli_here("keys", "hmac", "k", cwd=tmp_path)
     assert again.returncode != 0 and "exists" in again.stderr
     (tmp_path / "bad").write_text("not hex\n")
     with pytest.raises(CurveKeyError, match=r"bad: not a key file"):
