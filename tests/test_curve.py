@@ -161,3 +161,34 @@ def test_serve_needs_both_curve_options(tmp_path):
     out = subprocess.run([*HYDROLINK, "serve", "--bind", "tcp://127.0.0.1:*", "--curve-secret", str(tmp_path / "x"),
                           "--curve-clients", str(tmp_path)], capture_output=True, text=True, timeout=EXIT_S)
     assert out.returncode != 0 and "no such key file" in out.stderr, out.stderr
+
+
+def test_refused_curve_options_release_the_servers_context(tmp_path):
+    """A ForceServer whose CURVE options are refused (one missing, a key file absent) releases what
+    it made, its socket and its own ZeroMQ context (an I/O thread and its descriptors), itself: not
+    when the half-made server is collected, which a caller that keeps the error (its traceback holds
+    the server) puts off."""
+    import os
+
+    from hydrolink.protocol.security import CurveKeyError
+    from hydrolink.server.service.force_server import ForceServer
+
+    def fds() -> int:
+        return len(os.listdir("/proc/self/fd"))
+
+    kept: list[BaseException] = []
+
+    def refused() -> None:
+        for kwargs in ({"curve_secret": str(tmp_path / "x")},
+                       {"curve_secret": str(tmp_path / "x"), "curve_clients": str(tmp_path)}):
+            with pytest.raises((CurveKeyError, OSError, ValueError)) as info:
+                ForceServer("tcp://127.0.0.1:*", **kwargs)
+            kept.append(info.value)
+
+    refused()                      # first use: whatever the imports open once
+    before = fds()
+    for _ in range(10):
+        refused()
+    left = fds() - before
+    kept.clear()
+    assert left <= 0, f"{left} descriptors left open by 20 refused servers"

@@ -212,14 +212,14 @@ class ForceServer:
         if secure:
             from hydrolink.protocol.security import CurveKeyError, ServerSecurity
             if curve_secret is None or curve_clients is None:
-                self._sock.close(0)
+                self._unbind()
                 raise CurveKeyError("CURVE needs both the server's secret key file and the directory of "
                                     "allowed client keys")
             try:
                 self._security = ServerSecurity(self._ctx, self._sock.socket, curve_secret, curve_clients,
                                                 LimitedLog(logging.getLogger("hydrolink.server.auth")))
             except Exception:
-                self._sock.close(0)
+                self._unbind()
                 raise
         try:
             self._sock.bind(bind)
@@ -241,8 +241,8 @@ class ForceServer:
                 log.info("no direct channel: %s", exc)
 
     def _unbind(self) -> None:
-        """What :meth:`_bind` made released when it fails after the socket: the CURVE authenticator,
-        the socket, the context if it is the server's own."""
+        """What :meth:`_bind` made released when it fails after the socket (the CURVE keys refused
+        included): the CURVE authenticator, the socket, the context if it is the server's own."""
         if self._security is not None:
             self._security.close()
         self._sock.close(0)
