@@ -54,7 +54,7 @@ def serve_router(bind: str) -> None:
     class RouterServer(fs.ForceServer):
         """A ForceServer whose socket is the ROUTER front end with no CURVE (bench only)."""
 
-        def _bind(self, bind: str, context, polled: bool, curve_secret, curve_clients, max_message_bytes: int,
+        def _bind(self, bind: str, context, polled: bool, curve, max_message_bytes: int,
                   direct_port: int | None) -> None:
             self._ctx = context or fs.zmq.Context(io_threads=fs.IO_THREADS)
             self._sock = frontend.RouterFront(self._ctx, max_message_bytes, codec.MAX_ROUTING_FRAMES + 1, fs.RCVHWM)

@@ -259,29 +259,29 @@ def serve(bind: str, session_timeout: float, cpu: int | None, curve_secret: Path
     except _UserError as exc:   # a bad --key-file: one line naming the file and why, status 2 (a bad option)
         exc.exit_code = 2
         raise
-    # the server's modules after the options' own checks: a bad --cpu or --key-file is said without
-    # importing them (about 2 s of CPU)
+    from hydrolink.protocol.security import CurveKeyError, server_keys
+    try:
+        curve = server_keys(curve_secret, curve_clients)
+    except CurveKeyError as exc:
+        raise _UserError(str(exc)) from None
+    # the server's modules after the options' own checks: a bad --cpu, --key-file or CURVE option is
+    # said without importing them (about 2 s of CPU)
     import signal
 
     from hydrolink.protocol import codec
-    from hydrolink.protocol.security import CurveKeyError
     from hydrolink.server.hdb.store import ContentStore, default_folder
     from hydrolink.server.processes import WARM_CHILDREN_S
     from hydrolink.server.service.direct import DirectError
     from hydrolink.server.service.force_server import BindError, ForceServer
 
     try:
-        server = ForceServer(bind, session_timeout=session_timeout, key=key,
-                             curve_secret=str(curve_secret) if curve_secret else None,
-                             curve_clients=str(curve_clients) if curve_clients else None,
+        server = ForceServer(bind, session_timeout=session_timeout, key=key, curve=curve,
                              store=ContentStore(store or default_folder(), disk_bytes=store_mib * 2**20),
                              max_message_bytes=codec.MAX_MESSAGE_BYTES if max_message_mib is None
                              else max_message_mib * 2**20, max_setups=max_setups, max_sessions=max_sessions,
                              max_memory_bytes=(max_memory_mib or default_memory_mib()) * 2**20,
                              isolate_step_s=isolate_step_ms / 1e3, max_workers=max_workers,
                              plant_builder=_build_plant, direct_port=direct_port, children_after_s=WARM_CHILDREN_S)
-    except CurveKeyError as exc:
-        raise _UserError(str(exc)) from None
     except BindError as exc:     # --bind in use or not this host's: one line, status 2 (a bad option)
         error = _UserError(f"--bind: {exc}")
         error.exit_code = 2

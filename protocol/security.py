@@ -89,6 +89,33 @@ def client_keys(server_key: str | Path | None, secret_file: str | Path | None) -
     return ClientKeys.from_files(server_key, secret_file)
 
 
+@dataclass(frozen=True)
+class ServerKeys:
+    """What a CURVE server needs (SPEC §1.1), read and checked before anything is bound: its key
+    pair and the folder of the allowed clients' public keys (``allowed``: their ``*.key`` files'
+    names, as read at start)."""
+
+    public: bytes
+    secret: bytes
+    clients_dir: Path
+    allowed: tuple[str, ...]
+
+
+def server_keys(secret_file: str | Path | None, clients_dir: str | Path | None) -> ServerKeys | None:
+    """ServerKeys from ``hydrolink serve``'s two options, None if neither is given; both or none.
+    Cheap (no server import): the command checks them before it loads the server."""
+    if secret_file is None and clients_dir is None:
+        return None
+    if secret_file is None or clients_dir is None:
+        raise CurveKeyError("CURVE needs both the server's secret key file and the directory of "
+                            "allowed client keys")
+    public, secret = load_keys(secret_file, secret=True)
+    clients_dir = Path(clients_dir)
+    if not clients_dir.is_dir():
+        raise CurveKeyError(f"{clients_dir}: no such directory of allowed client keys")
+    return ServerKeys(public, secret, clients_dir, tuple(sorted(p.name for p in clients_dir.glob("*.key"))))
+
+
 class EveryLine:
     """Log lines as they come: ``log(kind, level, msg, *args)`` on ``logger``. A server passes a
     bounded one instead (server/log_limit.LimitedLog: at most 20 a minute of each kind)."""
@@ -134,15 +161,12 @@ class ServerSecurity:
     """CURVE on a server socket: the authenticator (a thread on the socket's context) and a monitor
     thread logging failed handshakes. :meth:`close` stops both."""
 
-    def __init__(self, ctx: zmq.Context, sock: zmq.Socket, secret_file: str | Path, clients_dir: str | Path,
-                 lines=None):
-        """``lines``: where refusals are logged (``log(kind, level, msg, *args)``), by default every
-        line on ``hydrolink.server.auth``; a shared server bounds them (a client retrying in a loop)."""
-        public, secret = load_keys(secret_file, secret=True)
-        clients_dir = Path(clients_dir)
-        if not clients_dir.is_dir():
-            raise CurveKeyError(f"{clients_dir}: no such directory of allowed client keys")
-        self.allowed = sorted(p.name for p in clients_dir.glob("*.key"))
+    def __init__(self, ctx: zmq.Context, sock: zmq.Socket, keys: ServerKeys, lines=None):
+        """``keys``: :func:`server_keys`' (checked); ``lines``: where refusals are logged (``log(kind,
+        level, msg, *args)``), by default every line on ``hydrolink.server.auth``; a shared server
+        bounds them (a client retrying in a loop)."""
+        public, secret, clients_dir = keys.public, keys.secret, keys.clients_dir
+        self.allowed = list(keys.allowed)
         if not self.allowed:
             log.warning("no client keys (*.key) in %s: every client will be refused", clients_dir)
         self.public = public
@@ -150,10 +174,14 @@ class ServerSecurity:
         self.auth = Authenticator(ctx, log=logging.getLogger("hydrolink.server.zap"))
         self.auth.lines = self._lines
         self.auth.start()
-        self.auth.configure_curve(domain="*", location=str(clients_dir))
-        sock.curve_server = True
-        sock.curve_publickey = public
-        sock.curve_secretkey = secret
+        try:   # (libzmq refuses a malformed key here: the authenticator's socket would hold the context open)
+            self.auth.configure_curve(domain="*", location=str(clients_dir))
+            sock.curve_server = True
+            sock.curve_publickey = public
+            sock.curve_secretkey = secret
+        except BaseException:
+            self.auth.stop()
+            raise
         self._endpoint = f"inproc://hydrolink-monitor-{id(sock):x}"
         sock.monitor(self._endpoint, sum(e for e in _FAILURES if e))
         self._sock = sock

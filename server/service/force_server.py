@@ -21,7 +21,7 @@ from collections import deque
 from concurrent.futures import Future
 from dataclasses import asdict, dataclass
 from importlib import metadata
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 import zmq
 
@@ -43,6 +43,9 @@ from hydrolink.server.service.session import PlantBuilder, Session, build_model
 from hydrolink.server.service.setup_workers import SetupWorkers
 from hydrolink.server.service.step_worker import (ISOLATE_STEP_S, MAX_WORKERS, STEP_TIMEOUT, Flight, Placed,
                                                   WorkerFailed, WorkerSession, WorkerSlots, place)
+
+if TYPE_CHECKING:   # (imported where CURVE is on: zmq.auth's authenticator thread)
+    from hydrolink.protocol.security import ServerKeys
 
 log = logging.getLogger("hydrolink.server")
 
@@ -103,7 +106,7 @@ class ForceServer:
     _next_sweep = 0.0   # polled: when serve_once next expires idle sessions
 
     def __init__(self, bind: str | None, *, context: zmq.Context | None = None, session_timeout: float = 300.0,
-                 key: bytes | None = None, curve_secret: str | None = None, curve_clients: str | None = None,
+                 key: bytes | None = None, curve: ServerKeys | None = None,
                  max_message_bytes: int = codec.MAX_MESSAGE_BYTES, store: ContentStore | None = None,
                  max_setups: int = MAX_SETUPS, max_sessions: int = MAX_SESSIONS,
                  plant_builder: PlantBuilder | None = None, max_memory_bytes: int | None = None,
@@ -113,8 +116,9 @@ class ForceServer:
         """``bind=None`` makes an in-process server without a socket: clients in the same process
         call :meth:`respond` with the same frames a socket would carry (see ServerConnection).
 
-        ``curve_secret`` (the server's ``.key_secret`` file) and ``curve_clients`` (a directory of
-        allowed client ``.key`` files) require CURVE authentication and encryption (SPEC §1.1).
+        ``curve`` (protocol/security.py ``server_keys``: the server's key pair and the allowed
+        clients' keys, read and checked by the caller) requires CURVE authentication and encryption
+        (SPEC §1.1).
 
         ``store``: the content store of HDB files sent by hash (SPEC §5.8); default a store in
         :func:`hydrolink.server.hdb.store.default_folder`, opened on first use.
@@ -157,7 +161,7 @@ class ForceServer:
         self._sock: frontend.StreamFront | frontend.RouterFront | None = None
         self._address = IN_PROCESS
         if bind is not None:
-            self._bind(bind, context, polled, curve_secret, curve_clients, max_message_bytes, direct_port)
+            self._bind(bind, context, polled, curve, max_message_bytes, direct_port)
         self.session_timeout = float(session_timeout)
         self.max_message_bytes = int(max_message_bytes)
         self._store = store
@@ -197,11 +201,11 @@ class ForceServer:
         self.children_after_s = children_after_s
         self._children_at = math.inf   # when the loop starts the forkserver if nothing has needed it (monotonic)
 
-    def _bind(self, bind: str, context: zmq.Context | None, polled: bool, curve_secret: str | None,
-              curve_clients: str | None, max_message_bytes: int, direct_port: int | None) -> None:
+    def _bind(self, bind: str, context: zmq.Context | None, polled: bool, curve: ServerKeys | None,
+              max_message_bytes: int, direct_port: int | None) -> None:
         """The server's socket bound at ``bind``: the ZMTP front end, or libzmq's ROUTER with CURVE;
         the direct channel (SPEC §5.7.5) for a polled server's controllers, or a loop's clients."""
-        secure = curve_secret is not None or curve_clients is not None
+        secure = curve is not None
         self._ctx = context or zmq.Context(io_threads=1 if polled else IO_THREADS)   # polled: a run's own
         # CURVE: libzmq's ROUTER (only authorised keys send); else the ZMTP front end that bounds a
         # message while it arrives (server/service/frontend.py, SPEC §1)
@@ -210,13 +214,9 @@ class ForceServer:
                                                           max(RECEIVE_BUDGET, 2 * max_message_bytes)))
         self._sock.set_timeout(POLL_MS)
         if secure:
-            from hydrolink.protocol.security import CurveKeyError, ServerSecurity
-            if curve_secret is None or curve_clients is None:
-                self._unbind()
-                raise CurveKeyError("CURVE needs both the server's secret key file and the directory of "
-                                    "allowed client keys")
+            from hydrolink.protocol.security import ServerSecurity
             try:
-                self._security = ServerSecurity(self._ctx, self._sock.socket, curve_secret, curve_clients,
+                self._security = ServerSecurity(self._ctx, self._sock.socket, curve,
                                                 LimitedLog(logging.getLogger("hydrolink.server.auth")))
             except Exception:
                 self._unbind()
