@@ -50,6 +50,7 @@ last lines go into the error message when MoorDyn fails.
 from __future__ import annotations
 
 import json
+import logging
 import math
 import os
 import shutil
@@ -65,6 +66,8 @@ import numpy as np
 from hydrolink.clients.exudyn.moordyn_split import Graph, SplitRefused, merge_outputs, split, split_state
 from hydrolink.protocol.current import MAX_DEPTH, Current
 from hydrolink.protocol.scene import MoorDynMooring, Scene, SceneError, resolve_path
+
+log = logging.getLogger(__name__)
 
 #: seconds the child process may take to read a MoorDyn file
 PROBE_TIMEOUT = 60.0
@@ -347,7 +350,7 @@ class MoorDynSystem:
         self._at_start: tuple[np.ndarray, np.ndarray, np.ndarray | None] | None = None   # t = 0 outputs
         self._t_last = 0.0                               # end of the last step taken (the outputs' last row)
         self._group_files: list[Path] = []
-        self._saved = False                              # a save was asked for: no steps ahead (each undone)
+        self._saved = False                              # a save was asked for: no steps ahead (a redo may come)
 
     # -- kinematics --------------------------------------------------------------------------------
     def _points(self, pose: np.ndarray) -> np.ndarray:
@@ -568,10 +571,10 @@ class MoorDynSystem:
         return x0, (self._coupled(pose1, points1) - x0) / dt, points1
 
     def step_ahead(self, t0: float, dt: float, pose0: np.ndarray, pose1: np.ndarray, ahead: bool = True) -> None:
-        """Start the step :meth:`step` will be asked for (same arguments) in the workers, so that
-        they integrate while the caller does other work (no-op without workers). ``ahead``: before
-        the step is known to be taken (undone if another is asked for; not after a :meth:`save`,
-        whose scheme may redo the step); else the step about to be taken."""
+        """Start the step :meth:`step` will be asked for next (same arguments) in the workers, so
+        that they integrate while the caller does other work (no-op without workers; ``ahead``
+        steps none after a :meth:`save`: a scheme that saves may redo the step). The caller vouches
+        that the next call is that step (moordyn_workers: another is an error naming the mooring)."""
         if self._groups is not None and self._groups.pending is None and not (ahead and self._saved):
             x0, v, _ = self._motion(dt, pose0, pose1)
             self._groups.launch(t0, dt, x0, v, ahead=ahead)
@@ -605,11 +608,11 @@ class MoorDynSystem:
         return self.loads
 
     def _step_groups(self, t0: float, dt: float, x0: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """The step in the workers: the one started ahead when it is this one (else undone; the
-        time is not compared: MoorDyn's Step keeps its own clock and only prints the t passed)."""
+        """The step in the workers: the one started ahead (checked to be this one; the time is not
+        compared: MoorDyn's Step keeps its own clock and only prints the t passed)."""
         g = self._groups
         if g.pending is not None and not g.matches(dt, x0, v):
-            g.settle()
+            g.refuse_ahead("another step")
         if g.pending is None:
             g.launch(t0, dt, x0, v)
         return g.collect().copy()
@@ -670,6 +673,9 @@ class MoorDynSystem:
             self.instance = None
         try:
             if self._groups is not None:
+                c = self._groups.counts
+                log.info("%s: %d steps in %d worker process(es), %d of them started ahead",
+                         self.label, c["steps"], len(self._split.groups), c["ahead"])
                 self._groups.close()      # the workers' MoorDyn closes its files
                 self._groups = None
                 merge_outputs(Path(self._run_dir.name) / "whole" / self.layout.path.name, self._split,

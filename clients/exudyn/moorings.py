@@ -330,7 +330,7 @@ class MooringSet:
 
     def step_moordyn_ahead(self, t0: float, dt: float, pose0: np.ndarray, pose1: np.ndarray) -> None:
         """Start the next :meth:`step_moordyn` (same arguments) in the systems' worker processes,
-        to be taken, or undone when another step is asked for (clients/exudyn/moordyn_mooring.py)."""
+        the caller vouching that it is the next step asked for (clients/exudyn/moordyn_mooring.py)."""
         for system in self.moordyn:
             system.step_ahead(t0, dt, pose0, pose1)
 
