@@ -64,6 +64,7 @@ from pathlib import Path
 import numpy as np
 
 from hydrolink.clients.exudyn.moordyn_split import Graph, SplitRefused, merge_outputs, split, split_state
+from hydrolink.clients.exudyn.moordyn_workers import complaint
 from hydrolink.protocol.current import MAX_DEPTH, Current
 from hydrolink.protocol.scene import MoorDynMooring, Scene, SceneError, resolve_path
 
@@ -109,7 +110,7 @@ class _Quiet:
     def said(self) -> str:
         """What MoorDyn complained about since the last :meth:`clear` (its error lines)."""
         self.file.seek(0)
-        return _complaint(self.file.read())
+        return complaint(self.file.read())
 
     def clear(self) -> None:
         self.file.seek(0)
@@ -161,20 +162,6 @@ def _probe_main(path: str, out: str) -> None:
     Path(out).write_text(json.dumps(layout))
 
 
-def _complaint(output: bytes) -> str:
-    """MoorDyn's error lines (from its first "ERR" line on, the file path shortened), else its last
-    warning, else its last lines."""
-    lines = [ln.strip() for ln in output.decode("utf-8", "replace").replace("\r", "\n").splitlines()
-             if ln.strip() and not ln.startswith((" ", "\t", "t = ", "Traceback", "  File", "RuntimeError"))]
-    for marker in ("ERR ", "WRN "):
-        first = [k for k, ln in enumerate(lines) if ln.startswith(marker)]
-        if first:
-            said = lines[first[0]:first[0] + 3] if marker == "ERR " else lines[first[-1]:first[-1] + 1]
-            said[0] = said[0].split("): ", 1)[-1]      # drop MoorDyn's source location
-            return " | ".join(said)
-    return " | ".join(lines[-3:]) or "no message"
-
-
 def read_layout(path: Path) -> MoorDynLayout:
     """The coupled layout of a MoorDyn file (MoorDynFailure naming the file and MoorDyn's complaint)."""
     with tempfile.TemporaryDirectory() as tmp:
@@ -188,7 +175,7 @@ def read_layout(path: Path) -> MoorDynLayout:
             raise MoorDynFailure(f"MoorDyn took more than {PROBE_TIMEOUT:g} s to read {path}") from None
         if proc.returncode != 0 or not out.exists():
             raise MoorDynFailure(("MoorDyn crashed reading it (signal {-proc.returncode})" if proc.returncode < 0
-                                  else "MoorDyn could not read it") + ": " + _complaint(proc.stdout + proc.stderr))
+                                  else "MoorDyn could not read it") + ": " + complaint(proc.stdout + proc.stderr))
         d = json.loads(out.read_text())
     points = np.asarray(d["points"], float).reshape(-1, 3)
     graph = Graph(tuple(d["point_types"]), tuple(map(tuple, d["line_ends"])), tuple(d["segments"]),

@@ -54,6 +54,20 @@ class MoorDynWorkerDied(MoorDynWorkerError):
     """A worker process ended unasked."""
 
 
+def complaint(output: bytes) -> str:
+    """MoorDyn's error lines (from its first "ERR" line on, the file path shortened), else its last
+    warning, else its last lines."""
+    lines = [ln.strip() for ln in output.decode("utf-8", "replace").replace("\r", "\n").splitlines()
+             if ln.strip() and not ln.startswith((" ", "\t", "t = ", "Traceback", "  File", "RuntimeError"))]
+    for marker in ("ERR ", "WRN "):
+        first = [k for k, ln in enumerate(lines) if ln.startswith(marker)]
+        if first:
+            said = lines[first[0]:first[0] + 3] if marker == "ERR " else lines[first[-1]:first[-1] + 1]
+            said[0] = said[0].split("): ", 1)[-1]      # drop MoorDyn's source location
+            return " | ".join(said)
+    return " | ".join(lines[-3:]) or "no message"
+
+
 @dataclass(frozen=True)
 class WorkerSpec:
     """What one worker runs: its MoorDyn file (in its own folder), the state to start from, the
@@ -209,9 +223,8 @@ class _Worker:
         return out
 
     def said(self) -> str:
-        from hydrolink.clients.exudyn.moordyn_mooring import _complaint
         try:
-            return _complaint(self.console.read_bytes())
+            return complaint(self.console.read_bytes())
         except OSError:
             return "no message"
 
