@@ -72,7 +72,7 @@ def measure(path: Path, points: list, dt: float, steps: int) -> dict:
     silent_path = without_outputs(path)
     systems = []
     for p in (path, path, silent_path):
-        spec = MoorDynMooring(type="moordyn", name="m", file=str(p), bodies=names)
+        spec = MoorDynMooring(type="moordyn", name="m", file=str(p), bodies=names, workers=0)   # in this process
         systems.append(MoorDynSystem(spec, read_layout(p), "moorings[0]", rows, pose))
         systems[-1].start(pose)
     bare, coupled, silent = systems

@@ -22,7 +22,9 @@ step's inertia is taken), so a step started ahead and then not asked for is an e
 (the implicit scheme's redo).
 
 Every worker is reaped: ``close`` asks it to end (MoorDyn closes its files), waits, kills after
-:data:`EXIT_TIMEOUT`; a finalizer does the same if the owner is dropped without ``close``.
+:data:`EXIT_TIMEOUT`; a finalizer does the same if the owner is dropped without ``close``. A worker
+runs in a session of its own (a terminal's Ctrl-C stops the run, which then ends its workers) and
+ends by itself when its socket closes (the run process gone).
 """
 
 from __future__ import annotations
@@ -190,7 +192,8 @@ class _Worker:
         with open(self.console, "wb") as out:
             self.proc = subprocess.Popen([sys.executable, "-c", code, str(folder / "spec.json"), str(theirs.fileno())],
                                          pass_fds=(theirs.fileno(),), stdin=subprocess.DEVNULL,
-                                         stdout=out, stderr=subprocess.STDOUT, cwd=str(folder))
+                                         stdout=out, stderr=subprocess.STDOUT, cwd=str(folder),
+                                         start_new_session=True)   # a terminal's Ctrl-C is the run's to handle
         theirs.close()
 
     def send(self, cmd: bytes) -> None:
@@ -276,7 +279,7 @@ class WorkerGroups:
         for k, spec in enumerate(specs):
             sub = folder / f"worker{k + 1}"
             sub.mkdir(exist_ok=True)
-            self._workers.append(_Worker(spec, f"{label}, group {k + 1} of {n}", sub))
+            self._workers.append(_Worker(spec, label if n == 1 else f"{label}, group {k + 1} of {n}", sub))
         self._point_index = [np.asarray(c, int) for c in coupled]
         self.forces = np.zeros(body_values + 3 * n_points)
         self.point_mass = np.zeros((n_points, 3, 3))
