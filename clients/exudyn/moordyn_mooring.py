@@ -45,6 +45,14 @@ that solve: it leaves the current out). A file that sets its own ``Currents``, `
 MoorDyn writes to the process's stdout/stderr (banner, per-line report, "t = ..." every step unless
 the file says ``1 disableOutTime``): every call is made with both redirected to a scratch file, whose
 last lines go into the error message when MoorDyn fails.
+
+Worker processes (``workers`` >= 1, the default 1): :meth:`MoorDynSystem.start` runs the whole file's
+initial-condition solve here, in a folder of its own, then hands its state to the workers
+(moordyn_workers.py: the whole file in one, or its independent groups, moordyn_split.py) and closes
+its instance; the t = 0 outputs are kept from it. :meth:`MoorDynSystem.step_ahead` starts the next
+step in the workers before it is asked for (the adapter: while the hydrodynamic forces are
+computed); :meth:`MoorDynSystem.close` ends the workers and makes MoorDyn's output files beside the
+scene's file from the instances' (moordyn_split.merge_outputs).
 """
 
 from __future__ import annotations
