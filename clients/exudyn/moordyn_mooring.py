@@ -558,7 +558,8 @@ class MoorDynSystem:
             out[j, d] = x
         return out, float(np.abs(r).max())
 
-    def _motion(self, dt: float, pose0: np.ndarray, pose1: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    def _motion(self, dt: float, pose0: np.ndarray, pose1: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """MoorDyn's coupled state at ``pose0``, its velocity towards ``pose1`` over ``dt``, and the
         coupled points' positions at ``pose1`` (None without coupled points)."""
         x0 = self._coupled(pose0)

@@ -159,7 +159,8 @@ def split(text: str, graph: Graph, n: int) -> Split:
     for row in by_kind["bodies"].rows if "bodies" in by_kind else ():
         w = row.split()
         if len(w) < 13 or not all(_zero(w[k]) for k in (8, 11, 12)):
-            raise SplitRefused(f"body {w[0]} has its own mass, volume or drag area (each group would count it): {row.strip()!r}")
+            raise SplitRefused(f"body {w[0]} has its own mass, volume or drag area (each group would count it): "
+                               f"{row.strip()!r}")
     # points: where each is attached, by the text, checked against MoorDyn's types
     kinds = []
     for k, row in enumerate(by_kind["points"].rows if "points" in by_kind else (), start=1):
@@ -352,9 +353,9 @@ def merge_outputs(whole: Path, whole_split: Split, groups: list[Path], target: P
                     cols[c] = row[10 + j * width:10 + (j + 1) * width]
             rows.append(time + "".join(cols[c] for c in range(len(whole_split.channels))))
         (folder / f"{stem}.out").write_text("\n".join(head + rows) + "\n")
-    for g_index, g in enumerate(whole_split.groups):
+    for g, file in zip(whole_split.groups, groups):
         for j, k in enumerate(g.lines, start=1):
-            _splice(whole.parent / f"{whole.stem}_Line{k}.out", groups[g_index].parent / f"{groups[g_index].stem}_Line{j}.out",
+            _splice(whole.parent / f"{whole.stem}_Line{k}.out", file.parent / f"{file.stem}_Line{j}.out",
                     folder / f"{stem}_Line{k}.out", t_last)
     for body in sorted(whole.parent.glob(f"{whole.stem}_Body*.out")):
         _splice(body, groups[0].parent / body.name.replace(whole.stem, groups[0].stem, 1),

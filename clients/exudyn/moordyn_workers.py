@@ -1,15 +1,15 @@
 """MoorDyn groups stepped in worker processes (scene ``[[moorings]] workers = N``).
 
 Each group (clients/exudyn/moordyn_split.py; with one worker, the whole file) is one MoorDyn
-instance in a process of its own (``python -m hydrolink.clients.exudyn.moordyn_workers``: numpy and
-MoorDyn only, its stdout and stderr — MoorDyn's console output — into a scratch file, so no
-per-call redirection). It starts from the whole file's initial-condition state (``Init_NoIC`` +
-``LoadState``) and is stepped through shared memory (a file in its folder, mapped by both): the caller writes t, dt, the coupled state
-and velocity into the worker's block and sends one byte on a socket pair; the worker steps and
-writes the coupled forces, its coupled points' mass matrices, its lines' fairlead tensions, end
-forces and (``record_nodes``) node positions, then answers one byte (or ``E`` and MoorDyn's
-message). The socket is the wait (a blocking ``recv``: no core spun while MoorDyn runs, which on
-a machine with fewer cores than processes costs the worker its core) and the death notice (a
+instance in a process of its own (:func:`main` under ``python -c``: numpy and MoorDyn only, its
+stdout and stderr — MoorDyn's console output — into a file, so no per-call redirection). It
+starts from the whole file's initial-condition state (``Init_NoIC`` + ``LoadState``) and is
+stepped through shared memory (a file in its folder, mapped by both): the caller writes t, dt, the
+coupled state and velocity into the worker's block and sends one byte on a socket pair; the worker
+steps and writes the coupled forces, its coupled points' mass matrices, its lines' fairlead
+tensions, end forces and (``record_nodes``) node positions, then answers one byte (or ``E`` and
+MoorDyn's message). The socket is the wait (a blocking ``recv``: no core spun while MoorDyn runs,
+which on a machine with fewer cores than processes costs the worker its core) and the death notice (a
 worker that dies closes it: :class:`MoorDynWorkerDied`, naming the mooring and the group).
 
 ``launch`` and ``collect`` are separate so that the caller can start MoorDyn's next step before it
@@ -403,6 +403,3 @@ def start_groups(label: str, specs: list[WorkerSpec], coupled: list[tuple[int, .
         raise
     return groups
 
-
-if __name__ == "__main__":
-    main(sys.argv[1:])
