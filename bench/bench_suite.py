@@ -47,6 +47,9 @@ were measured on a Ryzen 9 9950X (~1.4x this VM's per-core speed); the goal is 1
 Beside the wall-clock figures, the loop's CPU time on its thread (``rtf_cpu``,
 ``cpu_us_per_step``; the floor's likewise): on a loaded machine a thread waiting for a core spends
 none, so these are the figures load distorts least (cache and core sharing still inflate them).
+MoorDyn steps in a worker process by default (``[[moorings]] workers``, README): its CPU is not the
+loop's; ``children_cpu_us_per_step`` is the run's child processes' (the MoorDyn workers, and
+MoorDyn's layout probe at set-up).
 
 The JSON names the machine (CPU model, cores, load averages before and after, versions). On a
 shared machine only ratios taken in the same run compare: state the load with every figure.
@@ -60,6 +63,7 @@ import logging
 import os
 import platform
 import re
+import resource
 import shutil
 import subprocess
 import sys
@@ -299,7 +303,7 @@ def run_case(case: Case, work: Path, clock: LoopClock) -> dict:
     from hydrolink.clients.scene_inputs import load_scene_hdbs
     from hydrolink.protocol.scene import load_scene
 
-    wall = sim = steps = hydro = cpu = 0.0
+    wall = sim = steps = hydro = cpu = children = 0.0
     floor = None
     for i, text in enumerate(case.scenes):
         text = _input_copies(text, work / case.name)
@@ -311,11 +315,13 @@ def run_case(case: Case, work: Path, clock: LoopClock) -> dict:
             short.write_text(re.sub(r"(?m)^duration = .*$", f"duration = {2 * scene.exchange_dt!r}", text, count=1))
             run_scene_file(short, work / "warm.nc", progress=False, hdbs=hdbs)
             floor = bare_exudyn(path, hdbs)
-        c0 = clock.seconds
+        c0, ch0 = clock.seconds, resource.getrusage(resource.RUSAGE_CHILDREN)
         s = run_scene_file(path, work / "out.nc", progress=False, hdbs=hdbs)
         if s.status != "complete":
             raise RuntimeError(f"{case.name}: {s.status}")
         cpu += clock.seconds - c0
+        ch1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        children += ch1.ru_utime + ch1.ru_stime - ch0.ru_utime - ch0.ru_stime
         wall += s.wall_time
         sim += s.time
         steps += s.steps
@@ -325,6 +331,7 @@ def run_case(case: Case, work: Path, clock: LoopClock) -> dict:
     return {"case": case.name, "note": case.note, "runs": len(case.scenes), "steps": int(steps), "simulated_s": sim,
             "wall_s": wall, "rtf": sim / wall, "us_per_step": us, "hydro_us": hydro / steps,
             "client_us": us - hydro / steps, "cpu_s": cpu, "rtf_cpu": sim / cpu, "cpu_us_per_step": cpu / steps * 1e6,
+            "children_cpu_us_per_step": children / steps * 1e6,
             "floor": floor, "ratio_to_floor": us / floor["us_per_step"],
             "cpu_ratio_to_floor": cpu / steps * 1e6 / floor["cpu_us_per_step"],
             "sea_stack_rtf": case.sea_stack_rtf, "goal_rtf": goal, "meets_goal": sim / wall >= goal,

@@ -1207,7 +1207,11 @@ class MoorDynMooring(_Section):
     fixed to, in the file's order (where the file puts the point at t = 0 is where it sits on that
     body). record_nodes: line node positions in the results (time, line, node, xyz). static_offset:
     estimate the bodies' equilibrium offset under the mooring at t = 0 (their restoring force
-    against the mooring's load; reported, the run still starts where the scene says)."""
+    against the mooring's load; reported, the run still starts where the scene says). workers: 0
+    steps MoorDyn in the run's process; N >= 1 in N worker processes (default 1: the whole file in
+    one, the same results to the bit), the file's independent groups of lines spread over them,
+    stepped while the run computes the hydrodynamic forces (clients/exudyn/moordyn_split.py,
+    moordyn_workers.py; a file that cannot be split is refused with the reason)."""
     name: Name
     type: Literal["moordyn"]
     file: Annotated[str, Field(min_length=1)]
@@ -1218,6 +1222,9 @@ class MoorDynMooring(_Section):
     # in the run summary and the results' moordyn attribute; costs 1 + DOFs + iterations MoorDyn
     # initial-condition solves)
     static_offset: bool = True
+    # MoorDyn in this many worker processes (0: in the run's process); 1 by measurement (RM3 on
+    # SEA-Stack's file, five bodies: RTF 6.5 -> 9.1 and 6.8 -> 10.6 at load 4-8, bench_moordyn_workers.py)
+    workers: Annotated[int, Field(ge=0, le=64)] = 1
 
     @model_validator(mode="after")
     def _coupled(self) -> "MoorDynMooring":

@@ -153,7 +153,8 @@ def test_static_tension_and_restoring_force_against_the_elastic_catenary(tmp_pat
     from hydrolink.clients.exudyn.moordyn_mooring import read_layout
     layouts = {0: read_layout(moordyn_file(tmp_path / "lines.dat", headings))}
     for dx in (6.0, -9.0) if len(headings) > 1 else (0.0, 6.0, -9.0):
-        model = _model(tmp_path, scene_toml(dt=0.01, duration=0.01, progress=False, moorings=[mooring(static_offset=False)],
+        model = _model(tmp_path, scene_toml(dt=0.01, duration=0.01, progress=False,
+                                            moorings=[mooring(static_offset=False, workers=0)],   # its own instance
                                             bodies=[dry_float(dofs=["surge"], initial_displacement=[dx, 0, 0, 0, 0, 0])]),
                        layouts)
         try:

@@ -661,18 +661,22 @@ class ExudynMultibody:
         self.model.advance(t0, t1)
         self._refresh()
         if self._md is not None:
-            self._ends.append(self.model.poses(self._q))
+            pose = self.model.poses(self._q)
+            self._ends.append(pose)
+            if not self._targets:      # MoorDyn workers step on while the hydro forces are computed
+                self._md.step_moordyn_ahead(t1, self.h, pose, self._predicted(pose))
+
+    def _predicted(self, pose0: np.ndarray) -> np.ndarray:
+        """The poses a step from ``pose0`` (the current state's) ends in: x + h v + h²/2 a."""
+        idx, h = self.model.body_index, self.h
+        return pose0 + (h * self._v[idx] + 0.5 * h * h * self._a[idx]).reshape(pose0.shape)
 
     def _step_moordyn(self, t0: float, t1: float) -> None:
         """Step the MoorDyn systems over t0 -> t1 towards the predicted (or, on a redo, the last
         pass's) end poses; a MoorDyn failure stops the run naming the file and the step."""
         m, h = self.model, self.h          # the nominal step: t1 - t0 carries round-off into MoorDyn's substeps
         pose0 = m.poses(self._q)
-        if self._targets:
-            pose1 = self._targets.pop(0)
-        else:
-            idx = m.body_index
-            pose1 = pose0 + (h * self._v[idx] + 0.5 * h * h * self._a[idx]).reshape(pose0.shape)
+        pose1 = self._targets.pop(0) if self._targets else self._predicted(pose0)
         try:
             self._md.step_moordyn(m.mbs, t0, h, pose0, pose1)
         except RuntimeError as exc:

@@ -45,11 +45,20 @@ that solve: it leaves the current out). A file that sets its own ``Currents``, `
 MoorDyn writes to the process's stdout/stderr (banner, per-line report, "t = ..." every step unless
 the file says ``1 disableOutTime``): every call is made with both redirected to a scratch file, whose
 last lines go into the error message when MoorDyn fails.
+
+Worker processes (``workers`` >= 1, the default 1): :meth:`MoorDynSystem.start` runs the whole file's
+initial-condition solve here, in a folder of its own, then hands its state to the workers
+(moordyn_workers.py: the whole file in one, or its independent groups, moordyn_split.py) and closes
+its instance; the t = 0 outputs are kept from it. :meth:`MoorDynSystem.step_ahead` starts the next
+step in the workers before it is asked for (the adapter: while the hydrodynamic forces are
+computed); :meth:`MoorDynSystem.close` ends the workers and makes MoorDyn's output files beside the
+scene's file from the instances' (moordyn_split.merge_outputs).
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import math
 import os
 import shutil
@@ -62,8 +71,12 @@ from pathlib import Path
 
 import numpy as np
 
+from hydrolink.clients.exudyn.moordyn_split import Graph, SplitRefused, merge_outputs, split, split_state
+from hydrolink.clients.exudyn.moordyn_workers import complaint
 from hydrolink.protocol.current import MAX_DEPTH, Current
 from hydrolink.protocol.scene import MoorDynMooring, Scene, SceneError, resolve_path
+
+log = logging.getLogger(__name__)
 
 #: seconds the child process may take to read a MoorDyn file
 PROBE_TIMEOUT = 60.0
@@ -105,7 +118,7 @@ class _Quiet:
     def said(self) -> str:
         """What MoorDyn complained about since the last :meth:`clear` (its error lines)."""
         self.file.seek(0)
-        return _complaint(self.file.read())
+        return complaint(self.file.read())
 
     def clear(self) -> None:
         self.file.seek(0)
@@ -125,6 +138,7 @@ class MoorDynLayout:
     coupled_rods: int
     coupled_points: np.ndarray      # (n, 3) positions the file gives the coupled points
     lines: int
+    graph: Graph                    # its points and lines as MoorDyn read them (for workers: moordyn_split)
 
     @property
     def coupled_dofs(self) -> int:
@@ -133,32 +147,27 @@ class MoorDynLayout:
 
 def _probe_main(path: str, out: str) -> None:
     """Child process: open ``path`` with MoorDyn and write its coupled layout to ``out`` (JSON)."""
+    import cmoordyn
     import moordyn
     m = moordyn.Create(path)
     bodies = sum(moordyn.GetBodyType(moordyn.GetBody(m, i)) == moordyn.BODY_TYPE_COUPLED
                  for i in range(1, moordyn.GetNumberBodies(m) + 1))
     rods = sum(moordyn.GetRodType(moordyn.GetRod(m, i)) in (moordyn.ROD_TYPE_COUPLED, moordyn.ROD_TYPE_CPLDPIN)
                for i in range(1, moordyn.GetNumberRods(m) + 1))
-    points = [list(moordyn.GetPointPos(p)) for p in (moordyn.GetPoint(m, i) for i in range(1, moordyn.GetNumberPoints(m) + 1))
-              if moordyn.GetPointType(p) == moordyn.POINT_TYPE_COUPLED]
-    layout = {"bodies": int(bodies), "rods": int(rods), "points": points, "lines": moordyn.GetNumberLines(m),
-              "dofs": moordyn.NCoupledDOF(m)}
+    all_points = [moordyn.GetPoint(m, i) for i in range(1, moordyn.GetNumberPoints(m) + 1)]
+    points = [list(moordyn.GetPointPos(p)) for p in all_points if moordyn.GetPointType(p) == moordyn.POINT_TYPE_COUPLED]
+    lines = [moordyn.GetLine(m, i) for i in range(1, moordyn.GetNumberLines(m) + 1)]
+    ends = [[0, 0] for _ in lines]
+    for k, p in enumerate(all_points, start=1):
+        for j in range(cmoordyn.point_get_nattached(p)):
+            line, end = cmoordyn.point_get_attached(p, j)
+            ends[cmoordyn.line_get_id(line) - 1][end] = k
+    layout = {"bodies": int(bodies), "rods": int(rods), "points": points, "lines": len(lines),
+              "dofs": moordyn.NCoupledDOF(m), "all_bodies": moordyn.GetNumberBodies(m),
+              "all_rods": moordyn.GetNumberRods(m), "point_types": [moordyn.GetPointType(p) for p in all_points],
+              "line_ends": ends, "segments": [moordyn.GetLineN(line) for line in lines]}
     moordyn.Close(m)
     Path(out).write_text(json.dumps(layout))
-
-
-def _complaint(output: bytes) -> str:
-    """MoorDyn's error lines (from its first "ERR" line on, the file path shortened), else its last
-    warning, else its last lines."""
-    lines = [ln.strip() for ln in output.decode("utf-8", "replace").replace("\r", "\n").splitlines()
-             if ln.strip() and not ln.startswith((" ", "\t", "t = ", "Traceback", "  File", "RuntimeError"))]
-    for marker in ("ERR ", "WRN "):
-        first = [k for k, ln in enumerate(lines) if ln.startswith(marker)]
-        if first:
-            said = lines[first[0]:first[0] + 3] if marker == "ERR " else lines[first[-1]:first[-1] + 1]
-            said[0] = said[0].split("): ", 1)[-1]      # drop MoorDyn's source location
-            return " | ".join(said)
-    return " | ".join(lines[-3:]) or "no message"
 
 
 def read_layout(path: Path) -> MoorDynLayout:
@@ -174,10 +183,12 @@ def read_layout(path: Path) -> MoorDynLayout:
             raise MoorDynFailure(f"MoorDyn took more than {PROBE_TIMEOUT:g} s to read {path}") from None
         if proc.returncode != 0 or not out.exists():
             raise MoorDynFailure(("MoorDyn crashed reading it (signal {-proc.returncode})" if proc.returncode < 0
-                                  else "MoorDyn could not read it") + ": " + _complaint(proc.stdout + proc.stderr))
+                                  else "MoorDyn could not read it") + ": " + complaint(proc.stdout + proc.stderr))
         d = json.loads(out.read_text())
     points = np.asarray(d["points"], float).reshape(-1, 3)
-    layout = MoorDynLayout(path, d["bodies"], d["rods"], points, d["lines"])
+    graph = Graph(tuple(d["point_types"]), tuple(map(tuple, d["line_ends"])), tuple(d["segments"]),
+                  d["all_bodies"], d["bodies"], d["all_rods"])
+    layout = MoorDynLayout(path, d["bodies"], d["rods"], points, d["lines"], graph)
     if layout.coupled_dofs != d["dofs"]:
         raise MoorDynFailure(f"MoorDyn couples {d['dofs']} DOFs, the bodies, rods and points it lists make "
                              f"{layout.coupled_dofs}")
@@ -263,6 +274,12 @@ def load_moordyn_files(scene: Scene, scene_path: str | Path) -> dict[int, MoorDy
                 raise SceneError(scene_path, f"{key}.{what}",
                                  f"{path.name} has {n} coupled {what[:-1] if n == 1 else what}, {key}.{what} "
                                  f"lists {len(given)} scene bod{'y' if len(given) == 1 else 'ies'} {given}")
+        if m.workers > 1:
+            try:
+                split(path.read_text(errors="replace"), layout.graph, m.workers)
+            except SplitRefused as exc:
+                raise SceneError(scene_path, f"{key}.workers", f"{path.name} cannot be stepped in {m.workers} worker "
+                                                               f"processes: {exc} (workers = 1 steps it whole in one)") from None
         out[i] = layout
     return out
 
@@ -321,6 +338,14 @@ class MoorDynSystem:
         self._point_velocity = np.zeros((len(spec.points), 3))   # passed at the last step
         self.steps = 0
         self.dtm = 0.0                                   # MoorDyn's own step (from its file)
+        # spec.workers >= 1: the groups in worker processes (moordyn_workers), started by start()
+        self._groups = None
+        self._run_dir: tempfile.TemporaryDirectory | None = None
+        self._split = None
+        self._at_start: tuple[np.ndarray, np.ndarray, np.ndarray | None] | None = None   # t = 0 outputs
+        self._t_last = 0.0                               # end of the last step taken (the outputs' last row)
+        self._group_files: list[Path] = []
+        self._saved = False                              # a save was asked for: no steps ahead (a redo may come)
 
     # -- kinematics --------------------------------------------------------------------------------
     def _points(self, pose: np.ndarray) -> np.ndarray:
@@ -353,12 +378,17 @@ class MoorDynSystem:
         if len(self._point_rows):
             fp = f[nb6:].reshape(-1, 3)
             if point_accel is not None:
-                import cmoordyn
-                m = np.array([cmoordyn.point_get_m(p) for p in self._cpoints])
-                fp = fp - np.einsum("pij,pj->pi", m, point_accel)
+                fp = fp - np.einsum("pij,pj->pi", self._point_mass(), point_accel)
             r = (self._points(pose) if points is None else points) - pose[self._point_rows, :3]
             np.add.at(out, self._point_out, np.hstack([fp, np.cross(r, fp)]))
         return out
+
+    def _point_mass(self) -> np.ndarray:
+        """(P, 3, 3) the coupled points' mass matrices after the last step (``GetPointM``)."""
+        if self._groups is not None:
+            return self._groups.point_mass
+        import cmoordyn
+        return np.array([cmoordyn.point_get_m(p) for p in self._cpoints])
 
     # -- life cycle ----------------------------------------------------------------------------------
     def _fail(self, why: str) -> MoorDynFailure:
@@ -372,12 +402,16 @@ class MoorDynSystem:
         import moordyn
         x = self._coupled(pose)
         v = np.zeros_like(x)
+        model = self.model_path
+        if self.spec.workers:     # the whole instance in a folder of its own (moordyn_split: outputs)
+            self._run_dir = tempfile.TemporaryDirectory(prefix="hydrolink-moordyn-workers-")
+            model = self._copy_model(Path(self._run_dir.name) / "whole", self.model_path.read_text(errors="replace"))
         cwd = os.getcwd()
         try:
             with self._quiet():
-                os.chdir(self.layout.path.parent)    # MoorDyn writes its own outputs beside its file
+                os.chdir(model.parent)    # MoorDyn writes its own outputs beside its file
                 try:
-                    self.instance = moordyn.Create(str(self.model_path))
+                    self.instance = moordyn.Create(str(model))
                     err = moordyn.Init(self.instance, x.tolist(), v.tolist())
                     f0 = np.asarray(moordyn.Step(self.instance, x.tolist(), v.tolist(), 0.0, 0.0), float)
                 finally:
@@ -400,7 +434,49 @@ class MoorDynSystem:
         self.dtm = float(cmoordyn.get_dt(self.instance))
         self._quiet.clear()
         self.loads = self.initial_loads = self._to_bodies(f0, pose)
+        if self.spec.workers:
+            self._start_workers(model, x)
         return self.loads
+
+    def _copy_model(self, folder: Path, text: str) -> Path:
+        """``text`` as the model file in ``folder`` (with the current's grid beside it)."""
+        folder.mkdir(parents=True)
+        out = folder / self.layout.path.name
+        out.write_text(text)
+        if self._folder is not None:
+            shutil.copyfile(Path(self._folder.name) / CURRENT_FILE, folder / CURRENT_FILE)
+        return out
+
+    def _start_workers(self, model: Path, x: np.ndarray) -> None:
+        """Hand the started whole instance over to ``spec.workers`` worker processes: its state
+        after the initial-condition solve cut into the groups' (moordyn_split), the t = 0
+        outputs kept, the whole instance closed (its files hold the outputs' heads)."""
+        import moordyn
+
+        from hydrolink.clients.exudyn.moordyn_workers import WorkerSpec, start_groups
+        run = Path(self._run_dir.name)
+        state = run / "whole.state"
+        nodes = self.max_nodes if self.spec.record_nodes else 0
+        self._at_start = (self.tensions(), self.end_forces(), self.node_positions(nodes) if nodes else None)
+        with self._quiet():
+            moordyn.SaveState(self.instance, str(state))
+            moordyn.Close(self.instance)
+        self.instance = None
+        self._split = split(model.read_text(errors="replace"), self.layout.graph, self.spec.workers)
+        states = split_state(state.read_bytes(), self._split)
+        nb6 = self._nb6
+        specs, files = [], []
+        for k, (g, data) in enumerate(zip(self._split.groups, states), start=1):
+            file = self._copy_model(run / f"group{k}", g.text)
+            (file.parent / "start.state").write_bytes(data)
+            xg = np.concatenate([x[:nb6], x[nb6:].reshape(-1, 3)[list(g.coupled_points)].reshape(-1)])
+            specs.append(WorkerSpec(str(file), str(file.parent / "start.state"), tuple(xg.tolist()),
+                                    len(g.coupled_points), tuple(self._fairlead[k - 1] for k in g.lines), nodes))
+            files.append(file)
+        self._group_files = files
+        self._groups = start_groups(self.label, specs, [g.coupled_points for g in self._split.groups],
+                                    [tuple(k - 1 for k in g.lines) for g in self._split.groups], nb6,
+                                    len(self._point_rows), self.n_lines, run)
 
     def step_note(self, dt: float) -> str | None:
         """Why ``dt`` (the multibody step) does not suit MoorDyn's dtM (None when it does)."""
@@ -482,22 +558,41 @@ class MoorDynSystem:
             out[j, d] = x
         return out, float(np.abs(r).max())
 
+    def _motion(self, dt: float, pose0: np.ndarray, pose1: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """MoorDyn's coupled state at ``pose0``, its velocity towards ``pose1`` over ``dt``, and the
+        coupled points' positions at ``pose1`` (None without coupled points)."""
+        x0 = self._coupled(pose0)
+        points1 = self._points(pose1) if len(self._point_rows) else None
+        return x0, (self._coupled(pose1, points1) - x0) / dt, points1
+
+    def step_ahead(self, t0: float, dt: float, pose0: np.ndarray, pose1: np.ndarray, ahead: bool = True) -> None:
+        """Start the step :meth:`step` will be asked for next (same arguments) in the workers, so
+        that they integrate while the caller does other work (no-op without workers; ``ahead``
+        steps none after a :meth:`save`: a scheme that saves may redo the step). The caller vouches
+        that the next call is that step (moordyn_workers: another is an error naming the mooring)."""
+        if self._groups is not None and self._groups.pending is None and not (ahead and self._saved):
+            x0, v, _ = self._motion(dt, pose0, pose1)
+            self._groups.launch(t0, dt, x0, v, ahead=ahead)
+
     def step(self, t0: float, dt: float, pose0: np.ndarray, pose1: np.ndarray) -> np.ndarray:
         """Advance MoorDyn over [t0, t0 + dt] with the bodies moving linearly from ``pose0`` to
         ``pose1`` (B, 6); returns the loads at t0 + dt (and keeps them in ``loads``)."""
-        import cmoordyn        # moordyn.Step is this call with its lists copied once more
-        x0 = self._coupled(pose0)
-        points1 = self._points(pose1) if len(self._point_rows) else None
-        v = (self._coupled(pose1, points1) - x0) / dt
-        try:
-            with self._quiet():
-                f = cmoordyn.step(self.instance, x0.tolist(), v.tolist(), t0, dt)
-        except (RuntimeError, ValueError) as exc:
-            raise self._fail(str(exc)) from None
-        f = np.array(f, float)
+        x0, v, points1 = self._motion(dt, pose0, pose1)
+        if self._groups is not None:
+            f = self._step_groups(t0, dt, x0, v)
+        else:
+            import cmoordyn        # moordyn.Step is this call with its lists copied once more
+            try:
+                with self._quiet():
+                    f = cmoordyn.step(self.instance, x0.tolist(), v.tolist(), t0, dt)
+            except (RuntimeError, ValueError) as exc:
+                raise self._fail(str(exc)) from None
+            f = np.array(f, float)
         if not np.isfinite(f).all():
             raise self._fail("MoorDyn returned non-finite forces")
         self.steps += 1
+        self._t_last = t0 + dt
         if self.steps % 4096 == 0:
             self._quiet.clear()
         accel = None
@@ -508,20 +603,38 @@ class MoorDynSystem:
         self.loads = self._to_bodies(f, pose1, accel, points1)
         return self.loads
 
-    def save(self) -> tuple[bytes, np.ndarray, np.ndarray]:
-        import moordyn
-        return moordyn.Serialize(self.instance), self.loads, self._point_velocity
+    def _step_groups(self, t0: float, dt: float, x0: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """The step in the workers: the one started ahead (checked to be this one; the time is not
+        compared: MoorDyn's Step keeps its own clock and only prints the t passed)."""
+        g = self._groups
+        if g.pending is not None and not g.matches(dt, x0, v):
+            g.refuse_ahead("another step")
+        if g.pending is None:
+            g.launch(t0, dt, x0, v)
+        return g.collect().copy()
 
-    def restore(self, saved: tuple[bytes, np.ndarray, np.ndarray]) -> None:
+    def save(self) -> tuple[bytes | int, np.ndarray, np.ndarray, float]:
+        if self._groups is not None:
+            self._saved = True
+            return self._groups.save(), self.loads, self._point_velocity, self._t_last
         import moordyn
-        moordyn.Deserialize(self.instance, saved[0])
-        self.loads, self._point_velocity = saved[1], saved[2]
+        return moordyn.Serialize(self.instance), self.loads, self._point_velocity, self._t_last
+
+    def restore(self, saved: tuple[bytes | int, np.ndarray, np.ndarray, float]) -> None:
+        if self._groups is not None:
+            self._groups.restore(saved[0])
+        else:
+            import moordyn
+            moordyn.Deserialize(self.instance, saved[0])
+        self.loads, self._point_velocity, self._t_last = saved[1], saved[2], saved[3]
 
     # -- outputs -------------------------------------------------------------------------------------
     def tensions(self) -> np.ndarray:
         """MoorDyn's own tension at each line's fairlead end (N): the tension of the line's end
         segment, the number MoorDyn's ``GetLineFairTen`` and its output channels give (FairTen;
         AnchTen for a line written from its fairlead down)."""
+        if self._groups is not None:
+            return (self._groups.tensions if self.steps else self._at_start[0]).copy()
         from cmoordyn import line_get_node_ten
         return np.array([math.hypot(*line_get_node_ten(line, k)) for line, k in zip(self._lines, self._fairlead)])
 
@@ -529,11 +642,15 @@ class MoorDynSystem:
         """Magnitude of the force each line's fairlead end node passes on to what it is attached to
         (N): the end segment's tension plus the node's own weight, buoyancy, drag and seabed
         contact (half a segment's): the line's pull on its fairlead point."""
+        if self._groups is not None:
+            return (self._groups.end_forces if self.steps else self._at_start[1]).copy()
         from cmoordyn import line_get_node_force
         return np.array([math.hypot(*line_get_node_force(line, k)) for line, k in zip(self._lines, self._fairlead)])
 
     def node_positions(self, n_nodes: int) -> np.ndarray:
         """(lines, n_nodes, 3) node positions from the anchor end, NaN past a line's last node."""
+        if self._groups is not None:
+            return (self._groups.nodes if self.steps else self._at_start[2])[:, :n_nodes].copy()
         import moordyn
         out = np.full((self.n_lines, n_nodes, 3), np.nan)
         for i, (line, n) in enumerate(zip(self._lines, self._nodes)):
@@ -550,7 +667,20 @@ class MoorDynSystem:
             with self._quiet():
                 moordyn.Close(self.instance)
             self.instance = None
-        self._quiet.close()
+        try:
+            if self._groups is not None:
+                c = self._groups.counts
+                log.info("%s: %d steps in %d worker process(es), %d of them started ahead",
+                         self.label, c["steps"], len(self._split.groups), c["ahead"])
+                self._groups.close()      # the workers' MoorDyn closes its files
+                self._groups = None
+                merge_outputs(Path(self._run_dir.name) / "whole" / self.layout.path.name, self._split,
+                              self._group_files, self.layout.path, self._t_last)
+        finally:
+            if self._run_dir is not None:
+                self._run_dir.cleanup()
+                self._run_dir = None
+            self._quiet.close()
         if self._folder is not None:      # MoorDyn's own outputs of the copy go beside the scene's file
             for f in Path(self._folder.name).iterdir():
                 if f.name not in (self.model_path.name, CURRENT_FILE):

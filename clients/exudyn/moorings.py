@@ -320,10 +320,19 @@ class MooringSet:
 
     def step_moordyn(self, mbs, t0: float, dt: float, pose0: np.ndarray, pose1: np.ndarray) -> None:
         """Step every MoorDyn system over [t0, t0 + dt] (bodies moving from pose0 to pose1, (B, 6))
-        and set the loads the multibody step applies at its end."""
+        and set the loads the multibody step applies at its end (systems in worker processes all
+        started before the first is waited for)."""
+        for system in self.moordyn:
+            system.step_ahead(t0, dt, pose0, pose1, ahead=False)
         for k, system in enumerate(self.moordyn):
             system.step(t0, dt, pose0, pose1)
             self._set_moordyn_loads(mbs, k)
+
+    def step_moordyn_ahead(self, t0: float, dt: float, pose0: np.ndarray, pose1: np.ndarray) -> None:
+        """Start the next :meth:`step_moordyn` (same arguments) in the systems' worker processes,
+        the caller vouching that it is the next step asked for (clients/exudyn/moordyn_mooring.py)."""
+        for system in self.moordyn:
+            system.step_ahead(t0, dt, pose0, pose1)
 
     def save_moordyn(self) -> list:
         return [system.save() for system in self.moordyn]
