@@ -1301,7 +1301,8 @@ class FMUCoupling(_Section):
 
 class ExudynClient(_Section):
     """The Exudyn multibody client. ``reduce``: bodies whose locked DOFs need no rigid-body node are
-    built with their active coordinates only (clients/exudyn/mechanism.py, "Reduced bodies"); false keeps
+    built with their active coordinates only, and bodies held to ground by a fixed joint are left out
+    of the integrated system (clients/exudyn/mechanism.py, "Reduced bodies", "Held bodies"); false keeps
     every body a 6-DOF rigid body with its locked DOFs as coordinate constraints."""
     type: Literal["exudyn"]
     reduce: bool = True

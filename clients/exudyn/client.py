@@ -59,7 +59,7 @@ from hydrolink.protocol.pacing import Pacer
 from hydrolink.clients.lockstep.preflight import preflight
 from hydrolink.clients.lockstep.results import add_force_term_variables, add_modal_variables
 from hydrolink.clients.lockstep.summary import CouplingReport, RunSummary
-from hydrolink.clients.exudyn.mechanism import Mechanism, build_mechanism
+from hydrolink.clients.exudyn.mechanism import JointOutputs, Mechanism, build_mechanism
 from hydrolink.clients.exudyn.modes import ModalStructure, add_modal_node, modal_structure
 from hydrolink.clients.exudyn.moorings import MooringSet, build_moorings
 from hydrolink.clients.exudyn.ptos import PTOSet, build_ptos
@@ -103,6 +103,10 @@ class ExudynModel:
     net_buoyancy: np.ndarray = field(default_factory=lambda: np.zeros(0))   # (N,) setup's, on heave (load)
     padded: bool = False            # reduced bodies: state vectors end in a zero slot (locked DOFs)
     modal: ModalStructure | None = None   # the generalized modes after the 6N wet DOFs (clients/exudyn/modes.py)
+    load: np.ndarray | None = None  # the wet DOFs' load last written (6N, then the modes'): held bodies' reactions
+    #: held wet bodies (mechanism.py "Held bodies") by name: their 6 rows, the hydro object's mass and
+    #: stiffness rows over its coordinates, those coordinates' ODE2 indices (JointOutputs' ``hydro``)
+    held_rows: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = field(default_factory=dict)
 
     @property
     def mode_labels(self) -> tuple[str, ...]:
@@ -117,6 +121,7 @@ class ExudynModel:
     def set_force(self, force: np.ndarray) -> None:
         """Write all wet bodies' hydrodynamic forces (6N) into the GenericODE2 in one call."""
         if int(self.hydro_object) >= 0:
+            self.load = force
             self.mbs.SetObjectParameter(self.hydro_object, "forceVector",
                                         force if self.force_index is None else force[self.force_index])
 
@@ -204,11 +209,12 @@ def result_bodies(scene: Scene, setup: Setup | None) -> tuple[list[str], np.ndar
 
 def _body_indices(mech: Mechanism, names: list[str], ltg, pad: int) -> np.ndarray:
     """(6 len(names),) ODE2 indices of the named bodies' six DOFs; a reduced body's locked DOFs
-    point at ``pad`` (the zero slot after the ODE2 coordinates)."""
+    and a held body's six point at ``pad`` (the zero slot after the ODE2 coordinates)."""
     out = np.full(6 * len(names), pad, int)
     for i, nm in enumerate(names):
         h = mech.handles[nm]
-        out[6 * i + np.asarray(h.dofs if h.dofs is not None else range(6), int)] = ltg(h.node)
+        if h.dofs != ():
+            out[6 * i + np.asarray(h.dofs if h.dofs is not None else range(6), int)] = ltg(h.node)
     return out
 
 
@@ -262,6 +268,12 @@ def build_model(scene: Scene, setup: Setup | None, *, spectral_radius: float = 1
     mbs.Assemble()
     ltg = mbs.systemData.GetNodeLTGODE2
     pad = len(mbs.systemData.GetODE2Coordinates())
+    held_rows = {}
+    if mech.held and int(hydro) >= 0:
+        coords = np.asarray(mbs.systemData.GetObjectLTGODE2(hydro), int)
+        mass = a_inf if added_mass_in_matrix else np.zeros_like(stiffness)
+        rows = {nm: 6 * i + np.arange(6) for i, nm in enumerate(names) if nm in mech.held}
+        held_rows = {nm: (r, mass[np.ix_(r, sel)], stiffness[np.ix_(r, sel)], coords) for nm, r in rows.items()}
     body_index = _body_indices(mech, all_names, ltg, pad)
     wet_index = _body_indices(mech, names, ltg, pad)
     if modal_node is not None:
@@ -299,7 +311,7 @@ def build_model(scene: Scene, setup: Setup | None, *, spectral_radius: float = 1
                        np.array([all_names.index(nm) for nm in names], int), ptos, moorings,
                        added_mass=a_inf, added_mass_in_matrix=added_mass_in_matrix,
                        force_index=sel if sel.size < a_inf.shape[0] else None, padded=padded,
-                       modal=modal, hydro_coordinates=sel,
+                       modal=modal, hydro_coordinates=sel, held_rows=held_rows,
                        net_buoyancy=setup.net_buoyancy if setup else np.zeros(0))
 
 
@@ -310,11 +322,12 @@ def _hydro_object(mbs, mech: Mechanism, names: list[str], mass: np.ndarray | Non
     generalized modes' node, whose structure (clients/exudyn/modes.py) joins its matrices. ``mass``
     what goes into its mass matrix (None: nothing, A∞ fed back as a force)."""
     n = len(names)
-    sel = np.concatenate([6 * i + np.asarray(mech.handles[nm].dofs or range(6), int) for i, nm in enumerate(names)]
+    dofs = [mech.handles[nm].dofs for nm in names]     # () for a held body: none of its DOFs
+    sel = np.concatenate([6 * i + np.asarray(d if d is not None else range(6), int) for i, d in enumerate(dofs)]
                          ) if n else np.zeros(0, int)
     if not n:
         return -1, sel
-    nodes = mech.rigid_nodes(names)
+    nodes = [node for node, d in zip(mech.rigid_nodes(names), dofs) if d != ()]
     if modal_node is not None:
         sel, nodes = np.concatenate((sel, 6 * n + np.arange(modal.size))), nodes + [modal_node]
     ix = np.ix_(sel, sel)
@@ -509,7 +522,7 @@ class ExudynMultibody:
         self.a_fb = model.added_mass if feedback else None
         self.n, self.nb = model.n_bodies, len(model.body_names)
         mech = model.mechanism
-        self.joints = mech if mech and mech.joints else None
+        self.joints = JointOutputs(model.mbs, mech, model.held_rows) if mech and mech.joints else None
         self._forces = np.zeros((3, self.nb, 6))
         # every scene body wet, in setup order: the forces go straight into the results row
         self._all_wet = self.n == self.nb and np.array_equal(model.wet_rows, np.arange(self.nb))
@@ -565,10 +578,12 @@ class ExudynMultibody:
         if self.control is not None and linear is None:   # (its measurements come from linear_ptos)
             return None
         has_outputs = others or m.ptos is not None
+        rows = self.joints.compiled() if self.joints is not None and m.ptos is None and m.moorings is None else None
         return CompiledExchange(m, link, step, wet_take=self._wet_take, body_take=self._body_take,
                                 state=lambda: self._s, outputs=self.outputs if has_outputs else None,
                                 refresh=self._refresh if self.control is None else self._resync,
-                                n_exchanges=n_exchanges, linear_ptos=linear, control=self.control)
+                                n_exchanges=n_exchanges, linear_ptos=linear, control=self.control,
+                                joints=None if rows is None else lambda slots: rows(m.load, slots))
 
     def _resync(self) -> None:
         """:meth:`_refresh` and the PTOs' sample the controllers' measurements take (:meth:`outputs`'),
@@ -738,8 +753,8 @@ class ExudynMultibody:
         """The mechanism's outputs at the current state (joints, PTOs, moorings)."""
         m, out = self.model, {}
         if self.joints is not None:
-            f, mom, gap, rot = self.joints.joint_outputs(m.mbs)
-            out.update({"joint_force": np.hstack([f, mom]), "joint_violation": gap, "joint_rotation_violation": rot})
+            wrench, gap, rot = self.joints(m.load)
+            out.update({"joint_force": wrench, "joint_violation": gap, "joint_rotation_violation": rot})
         if m.ptos is not None:
             s = self._pto_sample = m.ptos.sample(m.mbs)
             out["pto_force"], out["pto_velocity"], out["pto_power"] = s.force, s.velocity, s.power

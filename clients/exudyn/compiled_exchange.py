@@ -14,8 +14,10 @@ exchange of :class:`~hydrolink.clients.lockstep.coupling_schemes.Predictor` is, 
    and bounds the state for the divergence watch;
 4. the mechanism's outputs: where they are linear PTOs only (up to seven), each connector's
    displacement and velocity (two ``GetObjectOutput``) and one compiled call (``linear_ptos``)
-   into the row's slots (``ResultWriter.slots``); otherwise (joints, moorings, other PTOs) as the
-   reference path stages them; and the row's commit.
+   into the row's slots (``ResultWriter.slots``); where they are joints only (no point-mass
+   joint), their four outputs each and one compiled call (``JointOutputs.compiled``) into the row's
+   slots; otherwise (moorings, other PTOs, a mix) as the reference path stages them; and the
+   row's commit.
 
 A run takes every exchange inside one Exudyn ``SolveSteps`` (:meth:`CompiledExchange.run_exchanges`:
 a PreStep user function does 4 of the last step, a paced run's record of it and release of the
@@ -56,6 +58,8 @@ __all__ = ["CompiledExchange"]
 
 #: the linear PTOs' results variables (clients/exudyn/client.py ``ExudynMultibody.outputs``), in linear_ptos' order
 PTO_VARIABLES = ("pto_force", "pto_velocity", "pto_power", "total_pto_power")
+#: the joints' results variables, in ``JointOutputs.compiled``'s order (clients/exudyn/mechanism.py)
+JOINT_VARIABLES = ("joint_force", "joint_violation", "joint_rotation_violation")
 _DISPLACEMENT, _VELOCITY = exu.OutputVariableType.Displacement, exu.OutputVariableType.Velocity
 
 
@@ -82,15 +86,18 @@ class CompiledExchange:
     def __init__(self, model: Any, link: ForceLink, step: CompiledStep, *, wet_take: np.ndarray,
                  body_take: np.ndarray, state: Callable[[], np.ndarray], outputs: Callable[[], dict] | None,
                  refresh: Callable[[], None], n_exchanges: int,
-                 linear_ptos: tuple[list[int], np.ndarray] | None = None, control: PTOControl | None = None):
+                 linear_ptos: tuple[list[int], np.ndarray] | None = None, control: PTOControl | None = None,
+                 joints: Callable[[tuple[np.ndarray, ...]], None] | None = None):
         """``outputs``: the mechanism's outputs by results variable (None: none); ``linear_ptos``
-        (``PTOSet.linear_table``) in its place where they are linear PTOs only. ``control``: the
-        run's controllers (clients/exudyn/pto_control.py; ``link.local`` is then the polled
-        server's ``ControlledStep`` and ``linear_ptos`` given): each step relays the measurements
-        from the kernels' arrays, takes the decisions and applies them (:meth:`_controlled`)."""
+        (``PTOSet.linear_table``) in its place where they are linear PTOs only, ``joints`` (filling
+        the row's JOINT_VARIABLES slots: ``JointOutputs.compiled``) where they are joints only.
+        ``control``: the run's controllers (clients/exudyn/pto_control.py; ``link.local`` is then the
+        polled server's ``ControlledStep`` and ``linear_ptos`` given): each step relays the
+        measurements from the kernels' arrays, takes the decisions and applies them (:meth:`_controlled`)."""
         n = model.wet_index.size
         self._model, self._link, self._local = model, link, link.local
         self._outputs, self._refresh, self._last = outputs, refresh, n_exchanges - 1
+        self._joints = joints
         self._dt = step.dt
         self._state = state                        # the client's (3, n) q, v, a (its own copy, kept current)
         self._st = np.zeros(state().shape)
@@ -156,6 +163,7 @@ class CompiledExchange:
         if self._control is not None:   # the PTOs' measurements of the state the reference path left
             entries = np.zeros((1, len(self._model.ptos.names)))
             self._sample_ptos((entries, entries, entries, np.zeros(1)))
+        self._model.load = self._load    # the load each step writes (held bodies' reactions: mechanism.py JointOutputs)
         self._primed = True
 
     def _views_held(self) -> bool:
@@ -255,6 +263,8 @@ class CompiledExchange:
             loop.watch.check(loop.mb, loop.step, t1, writer.rows, loop.mb.label)
         if self._pto_table is not None:
             self._sample_ptos(writer.slots(PTO_VARIABLES))
+        elif self._joints is not None:
+            self._joints(writer.slots(JOINT_VARIABLES))
         elif self._outputs is not None:
             out = self._outputs()
             if out:

@@ -5,12 +5,14 @@ Interface for other client modules (PTOs, moorings) — kept small and stable:
 ``BodyHandle(name, kind, node, object, reference, dofs)``
     ``kind`` is ``"rigid"`` (a scene body, wet or dry: ``NodeRigidBodyRxyz`` + ``ObjectRigidBody``),
     ``"slider"`` or ``"reduced"`` (a scene body built with its active coordinates only, see
-    "Reduced bodies" below), ``"point"`` (a point mass: ``NodePoint`` + ``ObjectMassPoint``) or
-    ``"ground"`` (an ``ObjectGround`` at the origin; ``node`` is -1). ``reference`` is the body's
+    "Reduced bodies" below), ``"held"`` (a body held to ground, not in the system: "Held bodies"
+    below; ``node`` is -1, ``object`` the ground's, ``dofs`` ()), ``"point"`` (a point mass:
+    ``NodePoint`` + ``ObjectMassPoint``) or ``"ground"`` (an ``ObjectGround`` at the origin; ``node``
+    is -1). ``reference`` is the body's
     global reference position at t = 0 (for ground: the origin). Bodies start unrotated: their body
     frame is the global frame in the reference configuration, so a body-fixed point is
     ``point_global - reference`` in local coordinates. ``dofs``: for a slider/reduced body the DOFs
-    (0..5, surge..yaw) its node's coordinates are, in order; None for the others.
+    (0..5, surge..yaw) its node's coordinates are, in order; () for a held body; None for the others.
 
 ``marker_at(mbs, handle, point_global, rotation=None) -> int``
     A marker at a point given in the global frame of the reference configuration:
@@ -18,7 +20,8 @@ Interface for other client modules (PTOs, moorings) — kept small and stable:
     marker frame's axes in the global frame — gives the marker frame, default the global axes) on
     rigid bodies and on ground, ``MarkerBodyPosition`` (position only) on point masses — a point
     mass has no extent, so ``point_global`` and ``rotation`` are ignored there — and on sliders (no
-    ``rotation``: a slider has no orientation); a ``"reduced"`` body takes no marker.
+    ``rotation``: a slider has no orientation); a ``"reduced"`` body takes no marker; a ``"held"``
+    body's markers are on ground at the same point and frame.
 
 ``Mechanism.handles`` maps every name (bodies, point masses, ``"ground"``) to its handle.
 
@@ -49,6 +52,26 @@ Constant loads (weight, buoyancy, net buoyancy) act on a reduced body's coordina
 locked DOF's share is what the full form's coordinate constraint would carry. The node's
 coordinates are displacements from the reference, like a rigid body node's.
 
+Held bodies (``build_mechanism(..., reduce=True)``, :func:`held_bodies`): a body held to ground by a
+``fixed`` joint never moves, so it is not integrated: it gets no node (its pose is its reference, its
+velocity zero; its entries of the client's state vectors are the zero slot, as a reduced body's
+locked DOFs are), its joints to other bodies are built to ground at the same points and frames, and
+its constant loads (weight and buoyancy, or a wet body's net buoyancy) are not applied. Its wet
+DOFs stay in the force server's model (their forces are computed and written to the results as
+before) and out of the hydro object's coordinates. Its fixed joint has no Exudyn object; that
+joint's reaction follows from the held body's own equation (it does not accelerate): minus the
+loads on it — its constant loads, its hydrodynamic load (what the client applies to its DOFs, minus
+the A∞ and hydrostatic coupling to the coordinates that move) and the other joints' reactions on it
+— about the joint point (:class:`JointOutputs`); its violations are zero. Against the full form
+(the body integrated under the joint's six Lagrange multipliers) the other bodies' motion agrees to
+Newton's tolerance and the reactions' forces to the full form's multiplier noise
+(tests/test_held_bodies.py). It does not apply — the body stays in the system — where the reaction
+could not account for a load or the full form reports an error (:func:`hold_blocker`): a PTO,
+mooring or joint friction acting on it, generalized modes on it, hydrodynamic states in the scene,
+a second joint to ground or to another held body, a ``[[constraints]]`` entry or locked ``dofs`` on
+it, a nonzero initial state, or every wet body held (nothing left to integrate). A fixed joint
+between two bodies holds neither (it is a joint like any other).
+
 Joints are ``ObjectJointGeneric`` with the constrained axes of the joint frame (see
 :data:`JOINT_AXES`). Redundant constraints are found from the constraint Jacobian at t = 0: a planar
 loop (revolute axes parallel to one normal, prismatic axes in the plane) is reduced by freeing the
@@ -56,13 +79,14 @@ dependent (out-of-plane) axes of the joint that closes the loop; anything else i
 joints. Friction on a revolute/prismatic joint is a regularised Coulomb force/torque
 ``F tanh(v / v_reg)`` on the free relative coordinate, an ``ObjectConnectorRigidBodySpringDamper``
 with a Python user function (about 2 calls per Newton step; measured ≈ 120 µs per step and joint
-in a client run on the 2-core VM). ``joint_outputs`` costs ≈ 30 µs per joint and step.
+in a client run on the 2-core VM). :class:`JointOutputs` reads four outputs of a joint a step (five
+where its marker-0 frame moves): ≈ 15 µs for the OSWEC's hinge and held base (2-vCPU VM, load 6).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -113,14 +137,15 @@ def marker_at(mbs, handle: BodyHandle, point_global, rotation=None) -> int:
     """A marker on ``handle`` at ``point_global`` (global frame at t = 0); see the module docstring."""
     if handle.kind == "point":
         return mbs.AddMarker(MarkerBodyPosition(bodyNumber=handle.object, localPosition=[0.0, 0.0, 0.0]))
-    local = (np.asarray(point_global, float).reshape(3) - np.asarray(handle.reference, float)).tolist()
+    origin = (0.0, 0.0, 0.0) if handle.kind == "held" else handle.reference   # a held body's markers: on ground
+    local = (np.asarray(point_global, float).reshape(3) - np.asarray(origin, float)).tolist()
     if handle.kind == "slider" and rotation is None:
         local = (slider_rotation(handle.dofs[0]).T @ np.asarray(local)).tolist()
         return mbs.AddMarker(MarkerBodyPosition(bodyNumber=handle.object, localPosition=local))
     if handle.kind in ("slider", "reduced"):
         raise ValueError(f"body {handle.name!r} is built with its active coordinates only ({handle.kind}): "
                          "it takes no marker frame" + ("" if handle.kind == "slider" else " or point"))
-    if handle.kind not in ("rigid", "ground"):
+    if handle.kind not in ("rigid", "ground", "held"):
         raise ValueError(f"unknown body kind {handle.kind!r}")
     if rotation is None:
         return mbs.AddMarker(MarkerBodyRigid(bodyNumber=handle.object, localPosition=local))
@@ -141,6 +166,8 @@ class JointInfo:
     frame: np.ndarray         # 3x3, columns = joint axes (global, reference configuration)
     friction_object: int = -1
     point_mass: bool = False  # a spherical joint with a point mass: ObjectJointSpherical, global outputs
+    bodies: tuple[str, str] = ("", "")                   # body1, body2
+    point: tuple[float, float, float] = (0.0, 0.0, 0.0)  # the joint point (global, reference configuration)
 
 
 @dataclass
@@ -154,6 +181,7 @@ class Mechanism:
     reductions: list[str] = field(default_factory=list)   # reduced bodies; planar-loop joints whose axes were freed
     full_bodies: dict[str, str] = field(default_factory=dict)   # bodies with locked DOFs kept rigid: why
     coordinate_constraints: list[tuple[str, int]] = field(default_factory=list)  # (key, object)
+    held: dict[str, "HeldBody"] = field(default_factory=dict)   # bodies held to ground, out of the system
 
     @property
     def ground(self) -> BodyHandle:
@@ -165,29 +193,150 @@ class Mechanism:
 
     def joint_outputs(self, mbs) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Reaction force and moment on body2 from body1 (J, 3, global frame, about the joint point)
-        and the position-level violation: constrained relative translation (m) and rotation (rad)."""
-        n = len(self.joints)
-        force, moment = np.zeros((n, 3)), np.zeros((n, 3))
-        gap, rot_gap = np.zeros(n), np.zeros(n)
-        ovt = exu.OutputVariableType
-        for k, j in enumerate(self.joints):
-            if j.point_mass:      # ObjectJointSpherical: -Force is the force on body2 (dynamic solver), global
-                force[k] = -np.asarray(mbs.GetObjectOutput(j.object, ovt.Force))
-                gap[k] = float(np.linalg.norm(mbs.GetObjectOutput(j.object, ovt.Displacement)))
-                continue
-            a0 = np.asarray(mbs.GetMarkerOutput(j.markers[0], ovt.RotationMatrix)).reshape(3, 3)
-            force[k] = -(a0 @ np.asarray(mbs.GetObjectOutput(j.object, ovt.ForceLocal)))
-            moment[k] = -(a0 @ np.asarray(mbs.GetObjectOutput(j.object, ovt.TorqueLocal)))
-            c = np.asarray(j.constrained, bool)
-            d = np.asarray(mbs.GetObjectOutput(j.object, ovt.DisplacementLocal))
-            r = np.asarray(mbs.GetObjectOutput(j.object, ovt.Rotation))
-            gap[k] = float(np.linalg.norm(d[c[:3]]))
-            rot_gap[k] = float(np.linalg.norm(r[c[3:]]))
-        return force, moment, gap, rot_gap
+        and the position-level violation: constrained relative translation (m) and rotation (rad);
+        a held wet body's hydrodynamic load left out (a run keeps a :class:`JointOutputs`)."""
+        wrench, gap, rot_gap = JointOutputs(mbs, self)()
+        return wrench[:, :3], wrench[:, 3:], gap, rot_gap
 
     @property
     def joint_labels(self) -> list[str]:
         return [j.label for j in self.joints]
+
+
+class JointOutputs:
+    """The joints' results variables at the current state (:meth:`Mechanism.joint_outputs`): an
+    ``ObjectJointGeneric``'s ``ForceLocal``, ``TorqueLocal`` (its marker-0 frame; that frame read
+    once where the marker is on ground or on a held body, else each call), ``DisplacementLocal`` and
+    ``Rotation``. (Its Lagrange multipliers are not ``ForceLocal``: they are in the marker body's
+    frame, not the joint's.)
+
+    A held body's fixed joint (module docstring, "Held bodies") has no Exudyn object: its reaction
+    follows from the held body's equation (it does not accelerate): minus the loads on it — its
+    constant load, its hydrodynamic load and the other joints' reactions on it — about the joint
+    point; its violations are zero. ``hydro`` gives a held wet body's hydrodynamic load: by name,
+    its rows of the client's load vector (6), the hydro object's mass and stiffness rows over its
+    coordinates (6 × m) and those coordinates' ODE2 indices (m): load − mass · a − stiffness · q
+    (the A∞ and hydrostatic coupling to the coordinates that move). The reaction is then one
+    product of a matrix made here with the stacked load rows, a, q and the other joints' wrenches."""
+
+    def __init__(self, mbs, mech: Mechanism,
+                 hydro: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] | None = None):
+        ovt = exu.OutputVariableType
+        self._mbs, self._n = mbs, len(mech.joints)
+        self._generic: list[tuple[int, int, np.ndarray | int, np.ndarray]] = []
+        self._point: list[tuple[int, int]] = []
+        for k, j in enumerate(mech.joints):
+            if int(j.object) < 0:
+                continue
+            if j.point_mass:
+                self._point.append((k, j.object))
+                continue
+            body0 = mech.handles[j.bodies[0]]
+            a0 = np.asarray(mbs.GetMarkerOutput(j.markers[0], ovt.RotationMatrix)).reshape(3, 3) \
+                if body0.kind in ("ground", "held") else j.markers[0]
+            self._generic.append((k, j.object, a0, np.asarray(j.constrained, bool)))
+        # a held body's fixed joint: its reaction (on body2, about the joint point) = offset + transfer @
+        # (its load rows, a, q at the hydro object's coordinates, the other joints' wrenches)
+        self._held = []
+        hydro = hydro or {}
+        for name, h in mech.held.items():
+            own = mech.joints[h.joint]
+            point = np.asarray(own.point, float)
+            sign = 1.0 if own.bodies[1] == name else -1.0
+            t0 = _transfer(h.reference - point)
+            rows, mass, stiff, coords = hydro.get(name, (np.zeros(0, int), np.zeros((6, 0)), np.zeros((6, 0)),
+                                                         np.zeros(0, int)))
+            blocks = [t0, -t0.dot(mass), -t0.dot(stiff)] if rows.size else []
+            others = [k for k, j in enumerate(mech.joints) if k != h.joint and name in j.bodies]
+            for k in others:     # joint k's reaction on the held body: its output, or minus it (body1)
+                j = mech.joints[k]
+                blocks.append((1.0 if j.bodies[1] == name else -1.0) * _transfer(np.asarray(j.point, float) - point))
+            self._held.append((h.joint, -sign * t0.dot(h.constant), -sign * np.hstack(blocks), rows, coords,
+                               np.asarray(others, int)))
+
+    def __call__(self, load: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(J, 6) reaction force and moment on body2 from body1 (global, about the joint point), the
+        translation and rotation violations (J,); ``load``: the client's load vector last applied
+        (the held wet bodies' reactions read it; None: no held wet body)."""
+        mbs, n, ovt = self._mbs, self._n, exu.OutputVariableType
+        wrench = np.zeros((n, 6))
+        gap, rot_gap = np.zeros(n), np.zeros(n)
+        get = mbs.GetObjectOutput
+        for k, obj in self._point:   # ObjectJointSpherical: -Force is the force on body2 (dynamic solver), global
+            wrench[k, :3] = -np.asarray(get(obj, ovt.Force))
+            gap[k] = float(np.linalg.norm(get(obj, ovt.Displacement)))
+        for k, obj, a0, c in self._generic:
+            if not isinstance(a0, np.ndarray):
+                a0 = np.asarray(mbs.GetMarkerOutput(a0, ovt.RotationMatrix)).reshape(3, 3)
+            wrench[k, :3] = -a0.dot(get(obj, ovt.ForceLocal))
+            wrench[k, 3:] = -a0.dot(get(obj, ovt.TorqueLocal))
+            d, r = np.asarray(get(obj, ovt.DisplacementLocal))[c[:3]], np.asarray(get(obj, ovt.Rotation))[c[3:]]
+            gap[k], rot_gap[k] = math.sqrt(d.dot(d)), math.sqrt(r.dot(r))      # np.linalg.norm's value
+        if self._held:
+            sd, now = mbs.systemData, exu.ConfigurationType.Current
+            q, a = sd.GetODE2Coordinates(now, False), sd.GetODE2Coordinates_tt(now, False)
+            for k, offset, transfer, rows, coords, others in self._held:
+                own = (load[rows] if load is not None else np.zeros(rows.size)) if rows.size else rows
+                parts = (own, a[coords], q[coords]) if rows.size else ()
+                wrench[k] = offset + transfer.dot(np.concatenate((*parts, wrench[others].reshape(-1))))
+        return wrench, gap, rot_gap
+
+    def compiled(self):
+        """This call's arithmetic as one compiled call (clients/exudyn/joint_kernel.py): a function
+        ``(load, slots)`` filling the results row's slots of joint_force, joint_violation and
+        joint_rotation_violation (``ResultWriter.slots``: (1, J, 6), (1, J), (1, J)) with this call's
+        values, bit for bit; None where a point-mass joint is among them."""
+        if self._point:
+            return None
+        from numba import typeof
+
+        from hydrolink.clients.exudyn import joint_kernel as jk
+        mbs, ovt, n = self._mbs, exu.OutputVariableType, self._n
+        generic = self._generic
+        raw, frames = np.zeros((len(generic), 4, 3)), np.zeros((len(generic), 3, 3))
+        moving = [(g, a0) for g, (_, _, a0, _) in enumerate(generic) if not isinstance(a0, np.ndarray)]
+        for g, (_, _, a0, _) in enumerate(generic):
+            if isinstance(a0, np.ndarray):
+                frames[g] = a0
+        rows = np.array([k for k, *_ in generic], np.int64)
+        locked = np.array([c for *_, c in generic], bool).reshape(len(generic), 6)
+        width = np.array([t.shape[1] for _, _, t, *_ in self._held], np.int64)
+        start = np.concatenate(([0], np.cumsum(6 * width)[:-1])).astype(np.int64)
+        kind = np.full((len(self._held), int(width.max(initial=0))), -1, np.int64)
+        index = np.zeros_like(kind)
+        for h, (_, _, transfer, hrows, coords, others) in enumerate(self._held):
+            sources = ([(jk.LOAD, i) for i in hrows] + [(jk.ACC, i) for i in coords] + [(jk.POS, i) for i in coords]
+                       if hrows.size else []) + [(jk.WRENCH, 6 * k + i) for k in others for i in range(6)]
+            kind[h, :len(sources)], index[h, :len(sources)] = zip(*sources) if sources else ((), ())
+        held = (np.array([h[0] for h in self._held], np.int64), np.array([h[1] for h in self._held]).reshape(-1, 6),
+                np.concatenate([h[2].reshape(-1) for h in self._held]) if self._held else np.zeros(0), start, width,
+                kind, index)
+        sd, now = mbs.systemData, exu.ConfigurationType.Current
+        slot = (np.zeros((n, 6)), np.zeros(n), np.zeros(n))
+        views = (sd.GetODE2Coordinates(now, False), sd.GetODE2Coordinates_tt(now, False))
+        args = (raw, frames, rows, locked, *held, np.zeros(1), *views, *slot)
+        entry = jk.joint_rows.compile(tuple(typeof(x) for x in args))    # numba's per-call typing skipped
+        get, marker = mbs.GetObjectOutput, mbs.GetMarkerOutput
+        outputs = (ovt.ForceLocal, ovt.TorqueLocal, ovt.DisplacementLocal, ovt.Rotation)
+        rotation = ovt.RotationMatrix
+
+        def fill(load: np.ndarray, slots: tuple[np.ndarray, ...]) -> None:
+            for g, m0 in moving:
+                frames[g] = np.asarray(marker(m0, rotation)).reshape(3, 3)
+            for g, (_, obj, _, _) in enumerate(generic):
+                for i, what in enumerate(outputs):
+                    raw[g, i] = get(obj, what)
+            entry(raw, frames, rows, locked, *held, load, sd.GetODE2Coordinates(now, False),
+                  sd.GetODE2Coordinates_tt(now, False), slots[0][0], slots[1][0], slots[2][0])
+        return fill
+
+
+def _transfer(r: np.ndarray) -> np.ndarray:
+    """(6, 6): a wrench (force, moment) about a point to the same wrench about the point ``r``
+    behind it (moment + r x force)."""
+    t = np.eye(6)
+    t[3:, :3] = [[0.0, -r[2], r[1]], [r[2], 0.0, -r[0]], [-r[1], r[0], 0.0]]
+    return t
 
 
 # -- bodies ------------------------------------------------------------------------------------
@@ -286,6 +435,72 @@ def reduction_blocker(scene: Scene, body: Body, reference) -> str | None:
     return None
 
 
+@dataclass(frozen=True)
+class HeldBody:
+    """A body held to ground by a ``fixed`` joint and left out of Exudyn's system (module docstring,
+    "Held bodies"): the holding joint's index, the body's reference point and its constant load
+    (weight and buoyancy, or a wet body's net buoyancy: force, moment about the reference point)."""
+
+    name: str
+    joint: int                # scene joint index (= Mechanism.joints index)
+    reference: np.ndarray     # (3,)
+    constant: np.ndarray      # (6,), filled while the mechanism is built
+
+
+def held_bodies(scene: Scene) -> dict[str, int]:
+    """The bodies held to ground by a ``fixed`` joint that can be left out of the integrated system,
+    each with its joint's index (module docstring, "Held bodies"); see :func:`hold_blocker`."""
+    fixed: dict[str, list[int]] = {}
+    for i, j in enumerate(scene.joints):
+        if j.type == "fixed" and GROUND in (j.body1, j.body2) and j.body1 != j.body2:
+            fixed.setdefault(j.body2 if j.body1 == GROUND else j.body1, []).append(i)
+    bodies = {b.name: b for b in scene.bodies}
+    if any(b.hydro_states for b in scene.bodies):    # a switch changes the hydro matrices the reactions read
+        return {}
+    out = {name: ks[0] for name, ks in fixed.items()
+           if name in bodies and hold_blocker(scene, bodies[name], ks, set(fixed)) is None}
+    wet = [b.name for b in scene.bodies if b.wet]
+    if wet and all(name in out for name in wet):     # nothing wet would be integrated
+        return {}
+    return out
+
+
+def hold_blocker(scene: Scene, body: Body, holding: list[int], candidates: set[str]) -> str | None:
+    """Why ``body``, held to ground by the fixed joints ``holding``, stays in the integrated system
+    (None: it can be left out): what its reaction could not account for or what the full form
+    reports as an error (a redundant or violated fixed joint)."""
+    i = scene.bodies.index(body)
+    if len(holding) > 1:
+        return f"joints{holding} hold it twice (redundant)"
+    if not all(body.active_mask):
+        return f"bodies[{i}].dofs locks DOFs as well (redundant)"
+    if any(np.any(np.asarray(getattr(body, w), float) != 0) for w in ("initial_displacement", "initial_velocity")):
+        return "its initial state is not its reference pose"
+    if getattr(body, "modes", None):
+        return "it has generalized modes"
+    if any(c.body == body.name for c in scene.constraints):
+        return "a [[constraints]] entry acts on it"
+    for k, j in enumerate(scene.joints):
+        if body.name in (j.body1, j.body2) and k not in holding:
+            other = j.body2 if j.body1 == body.name else j.body1
+            if other in candidates or other == GROUND:
+                return f"joints[{k}] joins it to another held body or to ground"
+            if j.friction is not None:
+                return f"joints[{k}] has friction"
+    for k, m in enumerate(scene.moorings):
+        if body.name in (getattr(m, "body", None), getattr(m, "attach_to", None), *getattr(m, "coupled_bodies", ())):
+            return f"moorings[{k}] acts on it"
+    for k, p in enumerate(scene.ptos):
+        if body.name in (p.body1, p.body2):
+            return f"ptos[{k}] acts on it"
+    return None
+
+
+def _wrench(r: np.ndarray, force: np.ndarray) -> np.ndarray:
+    """A force at offset ``r`` as (force, moment about the offset's origin)."""
+    return np.r_[force, np.cross(r, force)]
+
+
 def slider_rotation(dof: int) -> np.ndarray:
     """Rotation whose first column is the global axis of translation DOF ``dof`` (right-handed)."""
     return np.roll(np.eye(3), -dof, axis=1)
@@ -353,19 +568,25 @@ def add_vertical_force(mbs, handle: BodyHandle, point, fz: float) -> int | None:
     return mbs.AddLoad(LoadForceVector(markerNumber=m, loadVector=[0.0, 0.0, float(fz)], bodyFixed=False))
 
 
-def add_dry_loads(mbs, scene: Scene, handles: dict[str, BodyHandle]) -> None:
-    """Weight (and constant buoyancy) of the dry bodies and point masses."""
+def vertical_loads(scene: Scene, handles: dict[str, BodyHandle],
+                   net_buoyancy: dict[str, float]) -> list[tuple[str, np.ndarray, float]]:
+    """The constant vertical loads (body, global point, fz): the dry bodies' and point masses' weight
+    (and constant buoyancy), then the wet bodies' net buoyancy at their reference point."""
     g, rho = scene.water.gravity, scene.water.density
+    out = []
     for body in scene.bodies:
         if body.wet:
             continue
-        h = handles[body.name]
-        add_vertical_force(mbs, h, body.center_of_mass, -body.mass * g)
+        out.append((body.name, np.asarray(body.center_of_mass, float), -body.mass * g))
         if body.buoyancy_volume > 0:
             cob = body.center_of_buoyancy if body.center_of_buoyancy is not None else body.center_of_mass
-            add_vertical_force(mbs, h, cob, rho * g * body.buoyancy_volume)
+            out.append((body.name, np.asarray(cob, float), rho * g * body.buoyancy_volume))
     for pm in scene.point_masses:
-        add_vertical_force(mbs, handles[pm.name], pm.position, (rho * pm.buoyancy_volume - pm.mass) * g)
+        out.append((pm.name, np.asarray(pm.position, float), (rho * pm.buoyancy_volume - pm.mass) * g))
+    for name, fz in net_buoyancy.items():
+        if fz:
+            out.append((name, np.asarray(handles[name].reference, float), float(fz)))
+    return out
 
 
 # -- joints ------------------------------------------------------------------------------------
@@ -419,12 +640,16 @@ def add_joint(mbs, scene: Scene, i: int, handles: dict[str, BodyHandle]) -> Join
     frame = joint_frame(joint)
     h1, h2 = handles[joint.body1], handles[joint.body2]
     label = joint_label(scene, i)
+    where = ((joint.body1, joint.body2), tuple(float(x) for x in joint.point))
+    if "held" in (h1.kind, h2.kind) and GROUND in (joint.body1, joint.body2):   # the joint holding it: no object
+        return JointInfo(label, f"joints[{i}]", joint.type, -1, (-1, -1), JOINT_AXES[joint.type], frame,
+                         bodies=where[0], point=where[1])
     if "point" in (h1.kind, h2.kind):   # the scene admits only spherical joints with point masses
         m0, m1 = marker_at(mbs, h1, joint.point), marker_at(mbs, h2, joint.point)
         obj = mbs.AddObject(ObjectJointSpherical(name=label if joint.name else f"joint{i}", markerNumbers=[m0, m1],
                                                  visualization=VObjectJointSpherical(show=False)))
         return JointInfo(label, f"joints[{i}]", joint.type, obj, (m0, m1), JOINT_AXES["spherical"], frame,
-                         point_mass=True)
+                         point_mass=True, bodies=where[0], point=where[1])
     m0 = marker_at(mbs, h1, joint.point, frame)
     m1 = marker_at(mbs, h2, joint.point, frame)
     axes = JOINT_AXES[joint.type]
@@ -436,7 +661,8 @@ def add_joint(mbs, scene: Scene, i: int, handles: dict[str, BodyHandle]) -> Join
         fobj = mbs.AddObject(ObjectConnectorRigidBodySpringDamper(
             name=f"{label}_friction", markerNumbers=[m0, m1],
             springForceTorqueUserFunction=_friction_function(free, joint.friction.force, joint.friction.velocity)))
-    return JointInfo(label, f"joints[{i}]", joint.type, obj, (m0, m1), axes, frame, fobj)
+    return JointInfo(label, f"joints[{i}]", joint.type, obj, (m0, m1), axes, frame, fobj, bodies=where[0],
+                     point=where[1])
 
 
 def _check_joint_distance(scene: Scene, i: int, handles: dict[str, BodyHandle]) -> str | None:
@@ -562,6 +788,8 @@ def _first_redundancy(mbs, mech: Mechanism, tol: float) -> tuple[int, list[str],
             columns.append(col)
             owners.append(key)
     for k, info in enumerate(mech.joints):
+        if int(info.object) < 0:       # holds a body out of the system: no constraint
+            continue
         idx = ltg(info.object)
         involved: set[str] = set()
         n_dep = 0
@@ -620,8 +848,7 @@ def resolve_redundancy(mbs, scene: Scene, mech: Mechanism, tol: float = 1e-9) ->
         if len(free) >= n_dep:
             axes = tuple(0 if a in free else c for a, c in enumerate(info.constrained))
             mbs.SetObjectParameter(info.object, "constrainedAxes", list(axes))
-            mech.joints[k] = JointInfo(info.label, info.key, info.type, info.object, info.markers, axes,
-                                       info.frame, info.friction_object)
+            mech.joints[k] = replace(info, constrained=axes)
             mech.reductions.append(f"{info.key}: closes a planar loop with {', '.join(joint_keys)}; freed its "
                                    f"{', '.join(_AXIS_WORDS[a] for a in free)} (joint frame, out of plane)")
             reduced.add(k)
@@ -660,6 +887,8 @@ def build_mechanism(mbs, scene: Scene, wet_references: dict[str, np.ndarray],
     ground, ground_marker = add_ground(mbs)
     handles: dict[str, BodyHandle] = {GROUND: ground}
     full: dict[str, str] = {}
+    holding = held_bodies(scene) if reduce else {}
+    held: dict[str, HeldBody] = {}
     for i, body in enumerate(scene.bodies):
         if body.wet:
             if body.name not in wet_references:
@@ -667,6 +896,10 @@ def build_mechanism(mbs, scene: Scene, wet_references: dict[str, np.ndarray],
             ref = wet_references[body.name]
         else:
             ref = body.dry_node()
+        if body.name in holding:
+            handles[body.name] = BodyHandle(body.name, "held", -1, ground.object, tuple(float(x) for x in ref), ())
+            held[body.name] = HeldBody(body.name, holding[body.name], np.asarray(ref, float).reshape(3), np.zeros(6))
+            continue
         q0, v0 = constrained_initial_state(scene, body)
         why = reduction_blocker(scene, body, ref) if reduce else "reduction off"
         if why is None:
@@ -677,13 +910,19 @@ def build_mechanism(mbs, scene: Scene, wet_references: dict[str, np.ndarray],
                 full[body.name] = why
     for pm in scene.point_masses:
         handles[pm.name] = add_point_mass(mbs, pm)
-    add_dry_loads(mbs, scene, handles)
-    for name, fz in (net_buoyancy or {}).items():
-        if fz:
-            add_vertical_force(mbs, handles[name], handles[name].reference, float(fz))
+    for name, point, fz in vertical_loads(scene, handles, net_buoyancy or {}):
+        if name in held:     # on a held body: a share of its fixed joint's reaction
+            held[name].constant[:] += _wrench(point - held[name].reference, np.array([0.0, 0.0, fz]))
+        else:
+            add_vertical_force(mbs, handles[name], point, fz)
     coords = add_coordinate_constraints(mbs, scene, handles, ground_marker, {})
     joints = [add_joint(mbs, scene, i, handles) for i in range(len(scene.joints))]
-    mech = Mechanism(handles, joints, ground_marker, coordinate_constraints=coords, full_bodies=full)
+    mech = Mechanism(handles, joints, ground_marker, coordinate_constraints=coords, full_bodies=full, held=held)
+    if held:
+        mech.reductions.append(
+            "bodies held to ground by a fixed joint, left out of the integrated system (their pose is their "
+            "reference; the joint's reaction from their own equation): " + ", ".join(
+                f"{n!r} ({mech.joints[h.joint].key})" for n, h in held.items()))
     reduced = [h for h in handles.values() if h.dofs is not None]
     if reduced:
         n_act = sum(len(h.dofs) for h in reduced)
@@ -698,6 +937,8 @@ def build_mechanism(mbs, scene: Scene, wet_references: dict[str, np.ndarray],
         _, _, gap, rot = mech.joint_outputs(mbs)
         ovt = exu.OutputVariableType
         for k, info in enumerate(mech.joints):
+            if int(info.object) < 0:
+                continue
             if gap[k] > 1e-6 or rot[k] > 1e-6:
                 raise SceneError("scene", info.key,
                                  f"the bodies' initial displacements violate this joint by {gap[k]:.3g} m / "
