@@ -1,7 +1,8 @@
 """A run's exchange in two compiled calls, inside Exudyn's own step loop (issue 36).
 
 ``hydrolink run`` with its in-process server (embedded, or polled with controllers), the
-``mass-matrix`` scheme, one client step per exchange, every scene body wet and a model whose step
+``mass-matrix`` scheme, one client step per exchange, a wet body (dry ones beside it: their rows'
+forces zero, as the reference path writes them) and a model whose step
 is its compiled linear core alone (server/service/local_step.py ``LocalStep.compiled``): then an
 exchange of :class:`~hydrolink.clients.lockstep.coupling_schemes.Predictor` is, per step,
 
@@ -12,12 +13,12 @@ exchange of :class:`~hydrolink.clients.lockstep.coupling_schemes.Predictor` is, 
 3. one compiled call (``settle``) that reads Exudyn's state through views of its own current-state
    vectors (``copy=False``: no getter a step), keeps it for the next step, fills the results row
    and bounds the state for the divergence watch;
-4. the mechanism's outputs: where they are linear PTOs only (up to seven), each connector's
-   displacement and velocity (two ``GetObjectOutput``) and one compiled call (``linear_ptos``)
-   into the row's slots (``ResultWriter.slots``); where they are joints only (no point-mass
-   joint), their four outputs each and one compiled call (``JointOutputs.compiled``) into the row's
-   slots; otherwise (moorings, other PTOs, a mix) as the reference path stages them; and the
-   row's commit.
+4. the mechanism's outputs: the linear PTOs' (up to seven), each connector's displacement and
+   velocity (two ``GetObjectOutput``) and one compiled call (``linear_ptos``) into the row's
+   slots (``ResultWriter.slots``); the joints' (no point-mass joint), their four outputs each and
+   one compiled call (``JointOutputs.compiled``) into the row's slots — either or both, where
+   they are all the mechanism's outputs; otherwise (moorings, other PTOs) as the reference path
+   stages them; and the row's commit.
 
 A run takes every exchange inside one Exudyn ``SolveSteps`` (:meth:`CompiledExchange.run_exchanges`:
 a PreStep user function does 4 of the last step, a paced run's record of it and release of the
@@ -31,7 +32,7 @@ measurements of the last step relayed (the linear PTOs' extension, velocity and 
 load (``forces``), then the decisions and the wait for the commands, applied to the PTOs by
 ``PTOControl.apply`` (clients/exudyn/pto_control.py) as the reference path applies them; the
 control's results variables are staged with the row. Runs with controllers qualify where the
-PTOs are linear ones only, without joints or moorings.
+PTOs are linear ones only, without moorings (joints beside them: WaveStar's arm and float).
 
 The session's sequencing state and counters follow each step (``LocalStep.advanced``). Results
 are the reference path's bit for bit (tests/test_compiled_exchange.py runs both). Anything off the
@@ -88,9 +89,10 @@ class CompiledExchange:
                  refresh: Callable[[], None], n_exchanges: int,
                  linear_ptos: tuple[list[int], np.ndarray] | None = None, control: PTOControl | None = None,
                  joints: Callable[[tuple[np.ndarray, ...]], None] | None = None):
-        """``outputs``: the mechanism's outputs by results variable (None: none); ``linear_ptos``
-        (``PTOSet.linear_table``) in its place where they are linear PTOs only, ``joints`` (filling
-        the row's JOINT_VARIABLES slots: ``JointOutputs.compiled``) where they are joints only.
+        """``outputs``: the mechanism's outputs by results variable, where the compiled calls do not
+        make them (None: none, or all by the compiled calls); ``linear_ptos`` (``PTOSet.linear_table``,
+        filling the row's PTO_VARIABLES slots) and ``joints`` (filling its JOINT_VARIABLES slots:
+        ``JointOutputs.compiled``), each alone or both, where they are the whole mechanism's outputs.
         ``control``: the run's controllers (clients/exudyn/pto_control.py; ``link.local`` is then the
         polled server's ``ControlledStep`` and ``linear_ptos`` given): each step relays the
         measurements from the kernels' arrays, takes the decisions and applies them (:meth:`_controlled`)."""
@@ -111,7 +113,7 @@ class CompiledExchange:
         self._arrays = (
             np.asarray(wet_take, np.int64), model.equilibrium.reshape(-1).copy(), np.zeros(n), np.zeros(n), out,
             self._load, np.zeros(np.count_nonzero(model.active)), force_index, self._force,
-            np.asarray(body_take, np.int64), model.body_reference.reshape(-1).copy(),
+            np.asarray(body_take, np.int64), model.body_reference.reshape(-1).copy(), _wet_of(model),
             np.ascontiguousarray(model.stiffness, float), np.zeros(n), np.zeros(n), float(model.dt), np.array(step.bounds, float),
             self._status)
         self._kernel_state = step.kernel
@@ -261,14 +263,14 @@ class CompiledExchange:
                 raise RuntimeError("Exudyn's state vectors moved during the run (the compiled exchange reads them "
                                    "in place): the run's results cannot be vouched for")
             loop.watch.check(loop.mb, loop.step, t1, writer.rows, loop.mb.label)
-        if self._pto_table is not None:
-            self._sample_ptos(writer.slots(PTO_VARIABLES))
-        elif self._joints is not None:
-            self._joints(writer.slots(JOINT_VARIABLES))
-        elif self._outputs is not None:
+        if self._outputs is not None:
             out = self._outputs()
             if out:
                 writer.stage_extra(out)
+        if self._pto_table is not None:
+            self._sample_ptos(writer.slots(PTO_VARIABLES))
+        if self._joints is not None:
+            self._joints(writer.slots(JOINT_VARIABLES))
         if self._control is not None:
             self._control.stage()
         writer.commit(t1, eta)
@@ -370,6 +372,13 @@ class CompiledExchange:
             done(stop - 1)
         check()
         return stop
+
+
+def _wet_of(model: Any) -> np.ndarray:
+    """Each body row's wet body (its block of the wet DOFs, ``model.wet_rows``' order), -1 for a dry body."""
+    wet_of = np.full(model.body_reference.shape[0], -1, np.int64)
+    wet_of[np.asarray(model.wet_rows, np.int64)] = np.arange(len(model.wet_rows))
+    return wet_of
 
 
 def _entry(dispatcher, *args):

@@ -38,7 +38,7 @@ _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
 _step = kernel_numba.step
 
 FIELDS = ["lin", "qva", "q", "v", "a", "wet_take", "eq", "pos", "vel", "out", "load", "f_ext", "force_index", "force", "body_take", "ref",
-          "k_hs", "hs", "x_wet", "h", "bounds", "status"]
+          "wet_of", "k_hs", "hs", "x_wet", "h", "bounds", "status"]
 
 #: predict's outcomes (``status[0]``): the step taken; the state refused by the wire's bounds (no step taken);
 #: the server's forces not finite (the step taken)
@@ -59,10 +59,11 @@ structref.define_proxy(ExchangeState, _ExchangeStateType, FIELDS)
 
 @_jit
 def exchange_state(lin, qva, q, v, a, wet_take, eq, pos, vel, out, load, f_ext, force_index, force, body_take, ref,
-                   k_hs, hs, x_wet, h, bounds, status):
-    """The :class:`ExchangeState` of these arrays (held, not copied)."""
+                   wet_of, k_hs, hs, x_wet, h, bounds, status):
+    """The :class:`ExchangeState` of these arrays (held, not copied); ``wet_of``: each body row's
+    wet body (its block of the wet DOFs), -1 for a dry body."""
     return ExchangeState(lin, qva, q, v, a, wet_take, eq, pos, vel, out, load, f_ext, force_index, force, body_take,
-                         ref, k_hs, hs, x_wet, h, bounds, status)
+                         ref, wet_of, k_hs, hs, x_wet, h, bounds, status)
 
 
 @_jit
@@ -117,7 +118,8 @@ def predict(g, t):
 @_jit
 def settle(g, row):
     """Exudyn's state after a step (``g.q``, ``g.v``, ``g.a``: its ODE2 coordinates) into ``g.qva``,
-    the results row (5, B, 6) filled from it and ``g.out``; returns the sum of squares of q and v."""
+    the results row (5, B, 6) filled from it and ``g.out`` (a dry body's forces zero, as the
+    reference path's rows); returns the sum of squares of q and v."""
     st, q, v, a = g.qva, g.q, g.v, g.a
     nq = q.size
     ss = 0.0
@@ -139,12 +141,17 @@ def settle(g, row):
     for j in range(n):
         x[j] = flat[wet[j]]
     np.dot(k_hs, x, hs)   # BLAS's gemv, as the reference path's np.dot (its sums' order from 12 DOFs up)
+    wet_of = g.wet_of
     for b in range(nb):
+        w = wet_of[b]
         for d in range(6):
-            j = 6 * b + d
-            row[2, b, d] = out[0, j]
-            row[3, b, d] = out[1, j]
-            row[4, b, d] = -hs[j]
+            if w < 0:
+                row[2, b, d] = row[3, b, d] = row[4, b, d] = 0.0
+            else:
+                j = 6 * w + d
+                row[2, b, d] = out[0, j]
+                row[3, b, d] = out[1, j]
+                row[4, b, d] = -hs[j]
     return ss
 
 
