@@ -119,12 +119,14 @@ def socket_run(scene: Path, out: Path):
         thread.join(5)
 
 
-@pytest.mark.parametrize("case", ["rm3", "sphere", "hinged"])
+@pytest.mark.parametrize("case", ["rm3", "sphere", "hinged", "float_on_arm"])
 def test_compiled_exchange_equals_reference_bit_for_bit(case, reference_data, sphere_path, tmp_path, monkeypatch):
     """Every variable of the results file (position, velocity, the forces, the elevation, the
-    PTO's outputs, the joints' reactions) is the reference path's to the bit, over every row."""
+    PTO's outputs, the joints' reactions; float_on_arm: a dry body, joints and a PTO together, the
+    viscous force and power) is the reference path's to the bit, over every row."""
     scene = {"rm3": lambda: rm3_scene(reference_data, tmp_path), "sphere": lambda: sphere_scene(sphere_path, tmp_path),
-             "hinged": lambda: hinged_scene(reference_data, tmp_path)}[case]()
+             "hinged": lambda: hinged_scene(reference_data, tmp_path),
+             "float_on_arm": lambda: float_on_dry_arm_scene(tmp_path, 0.01, controlled=False)}[case]()
     calls = counted(monkeypatch)
     embedded = run_scene_file(scene, tmp_path / "embedded.nc", progress=False)
     remote = socket_run(scene, tmp_path / "socket.nc")
@@ -138,13 +140,26 @@ def test_compiled_exchange_equals_reference_bit_for_bit(case, reference_data, sp
                 "wave_elevation"} <= set(names)
         if case == "rm3":
             assert {"pto_force", "pto_power"} <= set(names)
-        if case == "hinged":
+        if case in ("hinged", "float_on_arm"):
             assert {"joint_force", "joint_violation"} <= set(names)
+        if case == "float_on_arm":
+            assert {"pto_force", "viscous_force", "viscous_power"} <= set(names)
         for name in names:
             x, y = a[name][:].filled(np.nan), b[name][:].filled(np.nan)
             assert x.shape == y.shape and x.tobytes() == y.tobytes(), name
         moved = np.abs(a["position"][:] - a["position"][0]).max()
-        assert moved > 0.05                            # the body moved: the comparison is not of rest states
+        assert moved > (0.01 if case == "float_on_arm" else 0.05)   # the body moved: not a comparison of rest states
+
+
+def test_a_viscous_term_beyond_linear_damping_keeps_the_reference_path(tmp_path, monkeypatch):
+    """Quadratic damping (a viscous term the compiled exchange does not compute) leaves the run to
+    the reference path: no exchange compiled, the run complete with its viscous force."""
+    calls = counted(monkeypatch)
+    scene = float_on_dry_arm_scene(tmp_path, 0.01, damping="quadratic_damping", controlled=False)
+    summary = run_scene_file(scene, tmp_path / "embedded.nc", progress=False)
+    assert summary.status == "complete" and summary.steps == 400 and calls == []
+    with netCDF4.Dataset(tmp_path / "embedded.nc") as a:
+        assert np.abs(a["viscous_force"][:]).max() > 0.0
 
 
 def test_compiled_exchange_stops_where_the_reference_path_does(reference_data, tmp_path, monkeypatch):
@@ -299,42 +314,48 @@ def test_controlled_compiled_exchange_equals_the_reference_path(command, realtim
 WAVESTAR_HDB = Path(__file__).resolve().parents[1] / "examples" / "data" / "wavestar" / "wavestar.out"
 
 
-def float_on_dry_arm_scene(tmp_path: Path, dt: float) -> Path:
+def float_on_dry_arm_scene(tmp_path: Path, dt: float, damping: str = "linear_damping", controlled: bool = True) -> Path:
     """WECCCOMP's WaveStar (examples/wavestar/wavestar.toml) at ``dt`` for 4 s in regular waves: the
-    wet float fixed to a dry arm, the arm on a revolute joint to ground, a linear PTO from the
-    arm to ground driven by one force controller (fallback passive, 400 N s/m) measuring the PTO,
-    the bodies and the elevation at three up-wave points; convolution radiation."""
+    wet float (its pitch's ``damping``, linear or quadratic: the server's viscous term) fixed to a
+    dry arm, the arm on a revolute joint to ground, a linear PTO from the arm to ground driven
+    (``controlled``) by one force controller (fallback passive, 400 N s/m) measuring the PTO, the
+    bodies and the elevation at three up-wave points, else a 400 N s/m damper; convolution radiation."""
+    control = [{"name": "ctl", "ptos": ["pto"], "command": "force", "timeout": 10.0, "fallback": "passive",
+                "fallback_damping": 400.0,
+                "measurements": ["pto_displacement", "pto_velocity", "pto_force", "body_position", "body_velocity",
+                                 "wave_elevation"],
+                "wave_points": [[-1.70, 0.0], [-1.50, 0.0], [-1.25, 0.0]],
+                "parameters": {"damping": 400.0, "stiffness": 20.0, "eta_gain": 100.0, "dt": dt}}]
     path = tmp_path / "float_on_arm.toml"
     path.write_text(scene_toml(
         dt=dt, duration=4.0, progress=False, water={"density": 1000.0, "gravity": 9.80665, "depth": 0.65},
         waves=regular_waves(0.04, 1.4, ramp=1.0), hydro={"irf_duration": 2.0},
         bodies=[body("float", hdb=WAVESTAR_HDB.as_posix(), hdb_body="body1", mass=3.075,
-                     center_of_mass=[0.001292, 0.0, 0.0533], inertia=[0.00145] * 3),
+                     center_of_mass=[0.001292, 0.0, 0.0533], inertia=[0.00145] * 3,
+                     **{damping: [0.0, 0.0, 0.0, 0.0, 1.8, 0.0]}),
                 body("arm", mass=1.157, center_of_mass=[-0.3301, 0.0, 0.2551], inertia=[0.0606] * 3)],
         joints=[joint("fixed", "arm", "float", [0.0, 0.0, 0.09]),
                 joint("revolute", "ground", "arm", [-0.438, 0.0, 0.302], axis=[0.0, 1.0, 0.0])],
-        ptos=[linear_pto("pto", "arm", [-0.6214398, 0.0, 0.3816858], "ground", [-0.438, 0.0, 0.714], damping=0.0)],
-        controllers=[{"name": "ctl", "ptos": ["pto"], "command": "force", "timeout": 10.0, "fallback": "passive",
-                      "fallback_damping": 400.0,
-                      "measurements": ["pto_displacement", "pto_velocity", "pto_force", "body_position",
-                                       "body_velocity", "wave_elevation"],
-                      "wave_points": [[-1.70, 0.0], [-1.50, 0.0], [-1.25, 0.0]],
-                      "parameters": {"damping": 400.0, "stiffness": 20.0, "eta_gain": 100.0, "dt": dt}}]))
+        ptos=[linear_pto("pto", "arm", [-0.6214398, 0.0, 0.3816858], "ground", [-0.438, 0.0, 0.714],
+                         damping=0.0 if controlled else 400.0)],
+        controllers=control if controlled else None))
     return path
 
 
 @pytest.mark.parametrize("realtime", [None, 8.0])
 def test_dry_body_joints_and_pto_under_a_controller_compiled(realtime, tmp_path, monkeypatch):
     """WaveStar's layout (a dry arm carrying the wet float, a fixed and a revolute joint, a linear
-    PTO) under a force controller process whose every seventh command is refused, unpaced and
-    paced: every exchange compiled, every results variable (the dry arm's rows, the joints'
-    reactions, the PTO's outputs, the control's) the reference path's to the bit."""
+    PTO, the float's linear damping) under a force controller process whose every seventh command
+    is refused, unpaced and paced: every exchange compiled, every results variable (the dry arm's
+    rows, the joints' reactions, the PTO's outputs, the viscous force and power, the control's)
+    the reference path's to the bit."""
     controller = tmp_path / "faulty.py"
     controller.write_text(FAULTY)
     scene = float_on_dry_arm_scene(tmp_path, 0.01)
     compiled, taken, a = compiled_and_reference(scene, controller, realtime, tmp_path, monkeypatch, refused=True)
     assert taken == set(range(compiled.steps))
-    assert {"joint_force", "pto_force", "pto_command_force"} <= set(a.data_vars)
+    assert {"joint_force", "pto_force", "pto_command_force", "viscous_force", "viscous_power"} <= set(a.data_vars)
+    assert np.abs(a["viscous_force"].values).max() > 0.0
     arm = list(a["body"].values).index("arm")
     assert not a["excitation_force"].values[:, arm].any() and not a["hydrostatic_force"].values[:, arm].any()
     pitch = a["position"].values[:, arm, 4]

@@ -588,7 +588,8 @@ class ExudynMultibody:
                                 state=lambda: self._s, outputs=self.outputs if has_outputs and not compiled else None,
                                 refresh=self._refresh if self.control is None else self._resync,
                                 n_exchanges=n_exchanges, linear_ptos=linear, control=self.control,
-                                joints=None if rows is None else lambda slots: rows(m.load, slots))
+                                joints=None if rows is None else lambda slots: rows(m.load, slots),
+                                wet_flat=self._wet_flat)
 
     def _resync(self) -> None:
         """:meth:`_refresh` and the PTOs' sample the controllers' measurements take (:meth:`outputs`'),

@@ -88,14 +88,16 @@ class CompiledExchange:
                  body_take: np.ndarray, state: Callable[[], np.ndarray], outputs: Callable[[], dict] | None,
                  refresh: Callable[[], None], n_exchanges: int,
                  linear_ptos: tuple[list[int], np.ndarray] | None = None, control: PTOControl | None = None,
-                 joints: Callable[[tuple[np.ndarray, ...]], None] | None = None):
+                 joints: Callable[[tuple[np.ndarray, ...]], None] | None = None, wet_flat: np.ndarray | None = None):
         """``outputs``: the mechanism's outputs by results variable, where the compiled calls do not
         make them (None: none, or all by the compiled calls); ``linear_ptos`` (``PTOSet.linear_table``,
         filling the row's PTO_VARIABLES slots) and ``joints`` (filling its JOINT_VARIABLES slots:
         ``JointOutputs.compiled``), each alone or both, where they are the whole mechanism's outputs.
         ``control``: the run's controllers (clients/exudyn/pto_control.py; ``link.local`` is then the
         polled server's ``ControlledStep`` and ``linear_ptos`` given): each step relays the
-        measurements from the kernels' arrays, takes the decisions and applies them (:meth:`_controlled`)."""
+        measurements from the kernels' arrays, takes the decisions and applies them (:meth:`_controlled`).
+        ``wet_flat``: the wet DOFs' positions in the rows' (B, 6) (where the server's linear viscous
+        damping is compiled, ``step.damping``: its force staged as the reply's ``viscous`` is)."""
         n = model.wet_index.size
         self._model, self._link, self._local = model, link, link.local
         self._outputs, self._refresh, self._last = outputs, refresh, n_exchanges - 1
@@ -108,6 +110,13 @@ class CompiledExchange:
         self._load = np.zeros(n)
         force_index = np.arange(n) if model.force_index is None else np.asarray(model.force_index, np.int64)
         self._force = np.zeros(force_index.size)   # the hydro object's coordinates' load
+        # the server's linear viscous damping (CompiledStep.damping): its force is the reply's "viscous"
+        damp, active = step.damping if step.damping is not None else (np.zeros((0, 0)), np.zeros(0, np.int64))
+        visc = np.zeros(n)
+        self._optional = {"viscous": visc} if step.damping is not None else {}
+        self._wet_flat = wet_flat
+        damping = (np.ascontiguousarray(damp, float), np.asarray(active, np.int64), np.zeros(len(active)),
+                   np.zeros(len(active)), visc)
         # the ExchangeState's arrays after Exudyn's three views (made at the first exchange: the
         # views are of the state vectors the solver's initialisation leaves, _bind)
         self._arrays = (
@@ -115,7 +124,7 @@ class CompiledExchange:
             self._load, np.zeros(np.count_nonzero(model.active)), force_index, self._force,
             np.asarray(body_take, np.int64), model.body_reference.reshape(-1).copy(), _wet_of(model),
             np.ascontiguousarray(model.stiffness, float), np.zeros(n), np.zeros(n), float(model.dt), np.array(step.bounds, float),
-            self._status)
+            self._status, *damping)
         self._kernel_state = step.kernel
         self._g = None
         self._views: tuple[np.ndarray, ...] = ()
@@ -188,7 +197,7 @@ class CompiledExchange:
         model.advance(e * model.dt, e * model.dt + model.dt)
         self._settled(loop, e, eta)
         o = self._out
-        return Sample(o[0], o[1], o[2], eta, self._load)
+        return Sample(o[0], o[1], o[2], eta, self._load, self._optional)
 
     def _predicted(self, e: int) -> tuple[int, float]:
         """The forces of exchange ``e`` (predict); (its status, the elevation)."""
@@ -246,7 +255,8 @@ class CompiledExchange:
         self._refresh()
         self._primed = False
         o = self._out
-        return Predictor().exchange(loop, e, s_prev if s_prev is not None else Sample(o[0], o[1], o[2], 0.0, self._load))
+        return Predictor().exchange(loop, e, s_prev if s_prev is not None else Sample(o[0], o[1], o[2], 0.0, self._load,
+                                                                                      self._optional))
 
     def _settled(self, loop: Lockstep, e: int, eta: float) -> None:
         """Exchange ``e``'s step done: the row (settle), the divergence watch, the mechanism's outputs,
@@ -255,7 +265,8 @@ class CompiledExchange:
         t1 = e * model.dt + model.dt
         loop.step += 1
         writer = loop.writer
-        ss = self._settle(self._g, writer.row())
+        row = writer.row()
+        ss = self._settle(self._g, row)
         limit = loop.watch.limit
         if not ss < limit * limit or e == self._last:   # the watch's own check (raises) / the client's state, synced
             self._refresh()
@@ -271,6 +282,8 @@ class CompiledExchange:
             self._sample_ptos(writer.slots(PTO_VARIABLES))
         if self._joints is not None:
             self._joints(writer.slots(JOINT_VARIABLES))
+        if self._optional:   # the viscous force and power, as the reference path stages a reply's
+            writer.stage_forces(self._optional, self._wet_flat, row[1])
         if self._control is not None:
             self._control.stage()
         writer.commit(t1, eta)

@@ -38,7 +38,7 @@ _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
 _step = kernel_numba.step
 
 FIELDS = ["lin", "qva", "q", "v", "a", "wet_take", "eq", "pos", "vel", "out", "load", "f_ext", "force_index", "force", "body_take", "ref",
-          "wet_of", "k_hs", "hs", "x_wet", "h", "bounds", "status"]
+          "wet_of", "k_hs", "hs", "x_wet", "h", "bounds", "status", "damp", "active", "v_act", "dv", "visc"]
 
 #: predict's outcomes (``status[0]``): the step taken; the state refused by the wire's bounds (no step taken);
 #: the server's forces not finite (the step taken)
@@ -59,11 +59,13 @@ structref.define_proxy(ExchangeState, _ExchangeStateType, FIELDS)
 
 @_jit
 def exchange_state(lin, qva, q, v, a, wet_take, eq, pos, vel, out, load, f_ext, force_index, force, body_take, ref,
-                   wet_of, k_hs, hs, x_wet, h, bounds, status):
+                   wet_of, k_hs, hs, x_wet, h, bounds, status, damp, active, v_act, dv, visc):
     """The :class:`ExchangeState` of these arrays (held, not copied); ``wet_of``: each body row's
-    wet body (its block of the wet DOFs), -1 for a dry body."""
+    wet body (its block of the wet DOFs), -1 for a dry body; ``damp`` (na, na) the server's linear
+    viscous damping over its active DOFs ``active`` (their positions in the wet DOFs; (0, 0): none),
+    ``visc`` the wet DOFs' viscous force it gives (zero on the others), ``v_act`` and ``dv`` scratch."""
     return ExchangeState(lin, qva, q, v, a, wet_take, eq, pos, vel, out, load, f_ext, force_index, force, body_take,
-                         ref, wet_of, k_hs, hs, x_wet, h, bounds, status)
+                         ref, wet_of, k_hs, hs, x_wet, h, bounds, status, damp, active, v_act, dv, visc)
 
 
 @_jit
@@ -91,14 +93,26 @@ def prepare(g):
 @_jit
 def forces(g, t):
     """The server's forces at time ``t`` for the state :func:`prepare` left in ``g.pos``, ``g.vel``
-    and the load at the hydro object's coordinates; returns the wave elevation, ``g.status[0]``
-    the outcome (TAKEN, NON_FINITE)."""
+    (with linear viscous damping its force ``g.visc`` = 0 - B_lin v, as server/terms/viscous.py's
+    ``f -= B_lin @ v`` on zeros) and the load (excitation + radiation, + the viscous force: the
+    order of clients/lockstep/driver.py ``Sample.of``) at the hydro object's coordinates; returns
+    the wave elevation, ``g.status[0]`` the outcome (TAKEN, NON_FINITE)."""
     out = g.out
     eta = _step(g.lin, t, g.pos, g.vel, False, g.f_ext, 0.0, out)
+    damped = g.damp.shape[0] > 0
+    if damped:
+        active, v_act, dv, visc, vel = g.active, g.v_act, g.dv, g.visc, g.vel
+        for k in range(active.size):
+            v_act[k] = vel[active[k]]
+        np.dot(g.damp, v_act, dv)   # BLAS's gemv, as numpy's matmul
+        for k in range(active.size):
+            visc[active[k]] = 0.0 - dv[k]
     load = g.load
     total = eta
     for i in range(load.size):
         load[i] = out[0, i] + out[1, i]
+        if damped:
+            load[i] = load[i] + g.visc[i]
         total += load[i] + out[2, i]
     for j in range(g.force_index.size):
         g.force[j] = load[g.force_index[j]]
