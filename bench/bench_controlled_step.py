@@ -97,7 +97,8 @@ def one(tmp: Path, path: str, seconds: float, radiation: str, rt_priority: int |
     from hydrolink.server.service.force_server import ForceServer
 
     scene_path = tmp / f"{case}_{path}.toml"
-    scene_path.write_text(scene(1e-3, seconds, radiation) if case == "rm3" else wavestar_scene("wavestar.toml", seconds))
+    text = scene(1e-3, seconds, radiation) if case == "rm3" else wavestar_scene("wavestar.toml", seconds)
+    scene_path.write_text(text)
     controller = REPO / "examples" / "controllers" / "reactive.py" if case == "rm3" else EXAMPLE / "wappac_damping.py"
     last = int(round(seconds / 1e-3)) - 1
     w = Window(warm)

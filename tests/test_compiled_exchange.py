@@ -244,6 +244,18 @@ def own_run(scene: Path, out: Path, controller: Path, realtime: float | None):
     return summary
 
 
+def velocity_bound(monkeypatch, bound: float) -> None:
+    """The compiled check's velocity bound ``bound`` in place of the wire's (LocalStep.compiled's
+    bounds), which the reference path's check then passes: exchanges go to it mid-run and back."""
+    import dataclasses
+
+    from hydrolink.protocol.scene_bounds import MAX_COORDINATE
+
+    real = LocalStep.compiled
+    monkeypatch.setattr(LocalStep, "compiled",
+                        lambda self: dataclasses.replace(real(self), bounds=(MAX_COORDINATE, bound)))
+
+
 def compiled_and_reference(scene: Path, controller: Path, realtime: float | None, tmp_path: Path, monkeypatch,
                            refused: bool):
     """``scene`` run twice on its own polled server with ``controller`` (:func:`own_run`): with the
@@ -283,18 +295,12 @@ def test_controlled_compiled_exchange_equals_the_reference_path(command, realtim
     those steps. ``bound``: a velocity bound of the compiled check in place of the wire's, so
     that exchanges go to the reference path mid-run and back (their measurements then the
     reference path's)."""
-    import dataclasses
-
-    from hydrolink.protocol.scene_bounds import MAX_COORDINATE
-
     controller = REACTIVE
     if command != "force":
         controller = tmp_path / f"{command}.py"
         controller.write_text(SWITCHING if command == "impedance" else FAULTY)
     if bound is not None:
-        real = LocalStep.compiled
-        monkeypatch.setattr(LocalStep, "compiled", lambda self: dataclasses.replace(real(self), bounds=(MAX_COORDINATE,
-                                                                                                        bound)))
+        velocity_bound(monkeypatch, bound)
     scene = controlled_scene(reference_data, tmp_path, "impedance" if command == "impedance" else "force")
     compiled, taken, a = compiled_and_reference(scene, controller, realtime, tmp_path, monkeypatch,
                                                 refused=command == "faulty")
@@ -342,18 +348,24 @@ def float_on_dry_arm_scene(tmp_path: Path, dt: float, damping: str = "linear_dam
     return path
 
 
-@pytest.mark.parametrize("realtime", [None, 8.0])
-def test_dry_body_joints_and_pto_under_a_controller_compiled(realtime, tmp_path, monkeypatch):
+@pytest.mark.parametrize("realtime, bound", [(None, None), (8.0, None), (None, 0.01)])
+def test_dry_body_joints_and_pto_under_a_controller_compiled(realtime, bound, tmp_path, monkeypatch):
     """WaveStar's layout (a dry arm carrying the wet float, a fixed and a revolute joint, a linear
     PTO, the float's linear damping) under a force controller process whose every seventh command
     is refused, unpaced and paced: every exchange compiled, every results variable (the dry arm's
     rows, the joints' reactions, the PTO's outputs, the viscous force and power, the control's)
-    the reference path's to the bit."""
+    the reference path's to the bit. ``bound``: a velocity bound of the compiled check in place of
+    the wire's (exchanges handed to the reference path mid-run and back)."""
+    if bound is not None:
+        velocity_bound(monkeypatch, bound)
     controller = tmp_path / "faulty.py"
     controller.write_text(FAULTY)
     scene = float_on_dry_arm_scene(tmp_path, 0.01)
     compiled, taken, a = compiled_and_reference(scene, controller, realtime, tmp_path, monkeypatch, refused=True)
-    assert taken == set(range(compiled.steps))
+    if bound is None:
+        assert taken == set(range(compiled.steps))
+    else:
+        assert taken and len(taken) < compiled.steps   # some compiled, some handed to the reference path
     assert {"joint_force", "pto_force", "pto_command_force", "viscous_force", "viscous_power"} <= set(a.data_vars)
     assert np.abs(a["viscous_force"].values).max() > 0.0
     arm = list(a["body"].values).index("arm")
