@@ -1,9 +1,11 @@
 """The run's own CPU a controlled step (issue 36, docs/realtime.md): RM3 at 1 kHz with the reactive
-example controller in its own process on the run's own polled server's direct channel, unpaced;
+example controller (``--case wavestar``: WECCCOMP's WaveStar, examples/wavestar/wavestar.toml, with
+its WAPPAC controller wappac_damping.py) in its own process on the run's own polled server's direct channel, unpaced;
 the compiled exchange (clients/exudyn/compiled_exchange.py) against the reference path (the same
 run with ``ExudynMultibody.compiled_exchange`` switched off), interleaved in one process.
 
-    python bench/bench_controlled_step.py [--seconds 3] [--repeat 3] [--radiation state-space] [--rt-priority N]
+    python bench/bench_controlled_step.py [--case rm3|wavestar] [--seconds 3] [--repeat 3] [--radiation state-space]
+                                          [--rt-priority N]
 
 Per run, CPU µs a step from exchange ``--warm`` to the last one's end (the start — the first
 step's wait for the controller's join, the kernels' loading, the heap's collection before the
@@ -29,6 +31,7 @@ import time
 from pathlib import Path
 
 from bench_realtime import LoopCost, run_controlled, scene
+from bench_wavestar import EXAMPLE, scene as wavestar_scene
 
 REPO = Path(__file__).resolve().parents[1]
 PARTS = ("serve_ready", "await_local", "relay")   # the controllers' side of the polled server
@@ -83,16 +86,20 @@ class Window:
             undo()
 
 
-def one(tmp: Path, path: str, seconds: float, radiation: str, rt_priority: int | None, warm: int) -> dict:
+def one(tmp: Path, path: str, seconds: float, radiation: str, rt_priority: int | None, warm: int,
+        case: str = "rm3") -> dict:
     """One unpaced controlled run (released at once: ``--realtime 1e9``, bench_realtime.py's
-    unpaced run) along ``path`` ("compiled" or "reference"): CPU µs a step by part."""
+    unpaced run) of ``case`` ("rm3": ``radiation``; "wavestar": the example's, state-space) along
+    ``path`` ("compiled" or "reference"): CPU µs a step by part."""
     from hydrolink.clients.exudyn.client import ExudynMultibody
     from hydrolink.clients.lockstep import driver
     from hydrolink.server.service.controllers import ControlHub
     from hydrolink.server.service.force_server import ForceServer
 
-    scene_path = tmp / f"rm3_{path}.toml"
-    scene_path.write_text(scene(1e-3, seconds, radiation))
+    scene_path = tmp / f"{case}_{path}.toml"
+    text = scene(1e-3, seconds, radiation) if case == "rm3" else wavestar_scene("wavestar.toml", seconds)
+    scene_path.write_text(text)
+    controller = REPO / "examples" / "controllers" / "reactive.py" if case == "rm3" else EXAMPLE / "wappac_damping.py"
     last = int(round(seconds / 1e-3)) - 1
     w = Window(warm)
     for owner, name in ((ForceServer, "serve_ready"), (ForceServer, "await_local"), (ControlHub, "relay")):
@@ -105,8 +112,7 @@ def one(tmp: Path, path: str, seconds: float, radiation: str, rt_priority: int |
     cost = LoopCost()
     load = os.getloadavg()[0]
     try:
-        run_controlled(scene_path, REPO / "examples" / "controllers" / "reactive.py", 1e9, cost=cost,
-                       rt_priority=rt_priority)
+        run_controlled(scene_path, controller, 1e9, cost=cost, rt_priority=rt_priority)
     finally:
         ExudynMultibody.compiled_exchange = plain_compiled
         w.restore()
@@ -118,6 +124,7 @@ def one(tmp: Path, path: str, seconds: float, radiation: str, rt_priority: int |
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--case", default="rm3", choices=["rm3", "wavestar"])
     ap.add_argument("--seconds", type=float, default=3.0, help="simulated seconds of each run (3000 steps of 1 ms)")
     ap.add_argument("--repeat", type=int, default=3, help="runs of each path, interleaved")
     ap.add_argument("--warm", type=int, default=200, help="exchanges before the counted window")
@@ -129,10 +136,11 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as d:
         for _ in range(args.repeat):
             for path in ("reference", "compiled"):
-                rows.append(one(Path(d), path, args.seconds, args.radiation, args.rt_priority, args.warm))
+                rows.append(one(Path(d), path, args.seconds, args.radiation, args.rt_priority, args.warm, args.case))
                 print(rows[-1], file=sys.stderr, flush=True)
     cols = ("process", "thread", *PARTS, "own", "controller")
-    print(f"RM3 {args.radiation}, dt 1 ms, {args.seconds:g} s unpaced a run, CPU µs a step ({os.cpu_count()} CPUs)\n")
+    what = f"RM3 {args.radiation}" if args.case == "rm3" else "WaveStar (wavestar.toml, WAPPAC), state-space"
+    print(f"{what}, dt 1 ms, {args.seconds:g} s unpaced a run, CPU µs a step ({os.cpu_count()} CPUs)\n")
     print("| path | load | run's process | run's thread | serve_ready | await_local | relay | **run's own** | controller |")
     print("|---|---|---|---|---|---|---|---|---|")
     for r in rows:

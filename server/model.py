@@ -50,6 +50,7 @@ from hydrolink.server.hydrostatics import total_stiffness
 from hydrolink.server.modes import ModeLayout, mode_layout, structure_file_notes
 from hydrolink.server.terms.base import ForceTerm, TermContext
 from hydrolink.server.terms.registry import TERMS, build_terms
+from hydrolink.server.terms.viscous import ViscousTerm
 from hydrolink.server.radiation.options import RadiationGroup, radiation_option
 from hydrolink.server.radiation.state_space import Realization
 from hydrolink.server.sea.headings import complete_headings, interpolate_excitation
@@ -253,13 +254,22 @@ class HydroModel:
 
     def fused_only(self) -> FusedLinearStep | None:
         """The compiled linear core when it is this model's whole step (the excitation a sum of
-        components, no passive-yaw body, no force term, no generalized mode): a caller may then
-        take its step on arrays of its own (server/service/local_step.py ``LocalStep.compiled``),
-        telling the model with :meth:`count_step`; None otherwise."""
-        if self._fused is None or not self._summed or self._yaw is not None or self.terms \
-                or self.n != self.n_rigid:
+        components, no passive-yaw body, no force term but a linear damping one — :meth:`linear_damping`,
+        which the caller then computes —, no generalized mode): a caller may then take its step on
+        arrays of its own (server/service/local_step.py ``LocalStep.compiled``), telling the model
+        with :meth:`count_step`; None otherwise."""
+        if self._fused is None or not self._summed or self._yaw is not None \
+                or (self.terms and self.linear_damping() is None) or self.n != self.n_rigid:
             return None
         return self._fused
+
+    def linear_damping(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """Where the model's one force term is linear viscous damping alone (server/terms/viscous.py
+        ``ViscousTerm.linear_only``: reply field ``viscous`` = -B_lin v), (B_lin, the active DOFs'
+        positions in the 6N vector); None otherwise."""
+        if len(self.terms) != 1 or not isinstance(self.terms[0], ViscousTerm):
+            return None
+        return self.terms[0].linear_only()
 
     def count_step(self, k: int) -> None:
         """Step ``k`` (the next, ``k`` = the newest + 1) was taken by :meth:`fused_only`'s kernel

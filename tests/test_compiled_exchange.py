@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from conftest import (REPLY_S, SPHERE_WATER, controller_process, joint, regular_waves, rm3_float, rm3_short_text,
-                      rm3_spar, scene_toml, sphere_body)
+from conftest import (REPLY_S, SPHERE_WATER, body, controller_process, joint, linear_pto, regular_waves, rm3_float,
+                      rm3_short_text, rm3_spar, scene_toml, sphere_body)
 
 from hydrolink.clients.exudyn import compiled_exchange
 from hydrolink.clients.lockstep.driver import SimulationDiverged
@@ -41,6 +41,7 @@ class Switching(Controller):
 """
 # a reactive force controller (plus a term of the wave elevation at its probe) whose every seventh
 # command is refused (NaN: "invalid"), so that the scene's passive fallback acts on those steps
+# (its parameters: damping, stiffness, the elevation's gain and the scene's step)
 FAULTY = """
 import math
 
@@ -48,13 +49,15 @@ from hydrolink.clients.control import Controller
 
 class Faulty(Controller):
     def on_start(self, info):
-        self.c, self.k = float(info["parameters"]["damping"]), float(info["parameters"]["stiffness"])
+        p = info["parameters"]
+        self.c, self.k = float(p["damping"]), float(p["stiffness"])
+        self.gain, self.dt = float(p.get("eta_gain", 1.0e4)), float(p.get("dt", 0.08))
 
     def on_step(self, t, m):
-        if round(t / 0.08) % 7 == 6:
+        if round(t / self.dt) % 7 == 6:
             return {p: math.nan for p in self.ptos}
         v, x, eta = m["pto_velocity"].tolist(), m["pto_displacement"].tolist(), float(m["wave_elevation"][0])
-        return {p: self.c * v[i] + self.k * x[i] + 1.0e4 * eta for i, p in enumerate(self.ptos)}
+        return {p: self.c * v[i] + self.k * x[i] + self.gain * eta for i, p in enumerate(self.ptos)}
 
     def on_error(self, error):
         pass
@@ -119,13 +122,15 @@ def socket_run(scene: Path, out: Path):
         thread.join(5)
 
 
-@pytest.mark.parametrize("case", ["rm3", "sphere", "hinged", "hinged-full"])
+@pytest.mark.parametrize("case", ["rm3", "sphere", "hinged", "hinged-full", "float_on_arm"])
 def test_compiled_exchange_equals_reference_bit_for_bit(case, reference_data, sphere_path, tmp_path, monkeypatch):
     """Every variable of the results file (position, velocity, the forces, the elevation, the
-    PTO's outputs, the joints' reactions) is the reference path's to the bit, over every row."""
+    PTO's outputs, the joints' reactions; float_on_arm: a dry body, joints and a PTO together, the
+    viscous force and power) is the reference path's to the bit, over every row."""
     scene = {"rm3": lambda: rm3_scene(reference_data, tmp_path), "sphere": lambda: sphere_scene(sphere_path, tmp_path),
              "hinged": lambda: hinged_scene(reference_data, tmp_path),
-             "hinged-full": lambda: hinged_scene(reference_data, tmp_path, full=True)}[case]()
+             "hinged-full": lambda: hinged_scene(reference_data, tmp_path, full=True),
+             "float_on_arm": lambda: float_on_dry_arm_scene(tmp_path, 0.01, controlled=False)}[case]()
     calls = counted(monkeypatch)
     embedded = run_scene_file(scene, tmp_path / "embedded.nc", progress=False)
     remote = socket_run(scene, tmp_path / "socket.nc")
@@ -139,13 +144,26 @@ def test_compiled_exchange_equals_reference_bit_for_bit(case, reference_data, sp
                 "wave_elevation"} <= set(names)
         if case == "rm3":
             assert {"pto_force", "pto_power"} <= set(names)
-        if case.startswith("hinged"):
+        if case.startswith("hinged") or case == "float_on_arm":
             assert {"joint_force", "joint_violation"} <= set(names)
+        if case == "float_on_arm":
+            assert {"pto_force", "viscous_force", "viscous_power"} <= set(names)
         for name in names:
             x, y = a[name][:].filled(np.nan), b[name][:].filled(np.nan)
             assert x.shape == y.shape and x.tobytes() == y.tobytes(), name
         moved = np.abs(a["position"][:] - a["position"][0]).max()
-        assert moved > 0.05                            # the body moved: the comparison is not of rest states
+        assert moved > (0.01 if case == "float_on_arm" else 0.05)   # the body moved: not a comparison of rest states
+
+
+def test_a_viscous_term_beyond_linear_damping_keeps_the_reference_path(tmp_path, monkeypatch):
+    """Quadratic damping (a viscous term the compiled exchange does not compute) leaves the run to
+    the reference path: no exchange compiled, the run complete with its viscous force."""
+    calls = counted(monkeypatch)
+    scene = float_on_dry_arm_scene(tmp_path, 0.01, damping="quadratic_damping", controlled=False)
+    summary = run_scene_file(scene, tmp_path / "embedded.nc", progress=False)
+    assert summary.status == "complete" and summary.steps == 400 and calls == []
+    with netCDF4.Dataset(tmp_path / "embedded.nc") as a:
+        assert np.abs(a["viscous_force"][:]).max() > 0.0
 
 
 def test_compiled_exchange_stops_where_the_reference_path_does(reference_data, tmp_path, monkeypatch):
@@ -230,6 +248,44 @@ def own_run(scene: Path, out: Path, controller: Path, realtime: float | None):
     return summary
 
 
+def velocity_bound(monkeypatch, bound: float) -> None:
+    """The compiled check's velocity bound ``bound`` in place of the wire's (LocalStep.compiled's
+    bounds), which the reference path's check then passes: exchanges go to it mid-run and back."""
+    import dataclasses
+
+    from hydrolink.protocol.scene_bounds import MAX_COORDINATE
+
+    real = LocalStep.compiled
+    monkeypatch.setattr(LocalStep, "compiled",
+                        lambda self: dataclasses.replace(real(self), bounds=(MAX_COORDINATE, bound)))
+
+
+def compiled_and_reference(scene: Path, controller: Path, realtime: float | None, tmp_path: Path, monkeypatch,
+                           refused: bool):
+    """``scene`` run twice on its own polled server with ``controller`` (:func:`own_run`): with the
+    compiled exchange, then with it switched off (the reference path); every results variable but
+    the wall-clock ones equal bytes, the same decisions (every seventh refused where ``refused``).
+    (The compiled run's summary, the exchanges its kernel took, its results.)"""
+    from hydrolink.clients.exudyn.client import ExudynMultibody
+
+    calls = counted(monkeypatch)
+    compiled = own_run(scene, tmp_path / "compiled.nc", controller, realtime)
+    taken = set(calls)
+    monkeypatch.setattr(ExudynMultibody, "compiled_exchange", lambda *args: None)
+    reference = own_run(scene, tmp_path / "reference.nc", controller, realtime)
+    assert compiled.status == reference.status == "complete" and len(calls) == len(taken)
+    a, b = xr.load_dataset(tmp_path / "compiled.nc"), xr.load_dataset(tmp_path / "reference.nc")
+    assert set(a.data_vars) == set(b.data_vars) >= {"pto_command_force", "pto_damping", "controller_status"}
+    for name in set(a.data_vars) - WALL_CLOCK:
+        assert a[name].values.tobytes() == b[name].values.tobytes(), name
+    counts = [{k: v for k, v in json.loads(ds.attrs["controller_events"])["ctl"].items() if "latency" not in k}
+              for ds in (a, b)]
+    n_refused = compiled.steps // 7 if refused else 0
+    assert counts[0] == counts[1] == {"ok": compiled.steps - n_refused, "invalid": n_refused, "timeout": 0,
+                                      "absent": 0}
+    return compiled, taken, a
+
+
 @pytest.mark.parametrize("command, realtime, bound", [("faulty", None, None), ("impedance", 16.0, None),
                                                       ("force", None, 0.3)])
 def test_controlled_compiled_exchange_equals_the_reference_path(command, realtime, bound, reference_data, tmp_path,
@@ -243,38 +299,19 @@ def test_controlled_compiled_exchange_equals_the_reference_path(command, realtim
     those steps. ``bound``: a velocity bound of the compiled check in place of the wire's, so
     that exchanges go to the reference path mid-run and back (their measurements then the
     reference path's)."""
-    import dataclasses
-
-    from hydrolink.clients.exudyn.client import ExudynMultibody
-    from hydrolink.protocol.scene_bounds import MAX_COORDINATE
-
     controller = REACTIVE
     if command != "force":
         controller = tmp_path / f"{command}.py"
         controller.write_text(SWITCHING if command == "impedance" else FAULTY)
     if bound is not None:
-        real = LocalStep.compiled
-        monkeypatch.setattr(LocalStep, "compiled", lambda self: dataclasses.replace(real(self), bounds=(MAX_COORDINATE,
-                                                                                                        bound)))
+        velocity_bound(monkeypatch, bound)
     scene = controlled_scene(reference_data, tmp_path, "impedance" if command == "impedance" else "force")
-    calls = counted(monkeypatch)
-    compiled = own_run(scene, tmp_path / "compiled.nc", controller, realtime)
-    taken = set(calls)
-    monkeypatch.setattr(ExudynMultibody, "compiled_exchange", lambda *args: None)
-    reference = own_run(scene, tmp_path / "reference.nc", controller, realtime)
-    assert compiled.status == reference.status == "complete" and len(calls) == len(taken)
+    compiled, taken, a = compiled_and_reference(scene, controller, realtime, tmp_path, monkeypatch,
+                                                refused=command == "faulty")
     if bound is None:
         assert taken == set(range(compiled.steps))   # every exchange compiled
     else:
         assert taken and len(taken) < compiled.steps   # some compiled, some handed to the reference path
-    a, b = xr.load_dataset(tmp_path / "compiled.nc"), xr.load_dataset(tmp_path / "reference.nc")
-    assert set(a.data_vars) == set(b.data_vars) >= {"pto_command_force", "pto_damping", "controller_status"}
-    for name in set(a.data_vars) - WALL_CLOCK:
-        assert a[name].values.tobytes() == b[name].values.tobytes(), name
-    counts = [{k: v for k, v in json.loads(ds.attrs["controller_events"])["ctl"].items() if "latency" not in k}
-              for ds in (a, b)]
-    refused = compiled.steps // 7 if command == "faulty" else 0
-    assert counts[0] == counts[1] == {"ok": compiled.steps - refused, "invalid": refused, "timeout": 0, "absent": 0}
     assert np.abs(a["position"].values - a["position"].values[0]).max() > 0.05
     if bound is not None:
         assert np.abs(a["velocity"].values).max() > bound
@@ -282,6 +319,64 @@ def test_controlled_compiled_exchange_equals_the_reference_path(command, realtim
         assert np.abs(a["pto_command_force"].values).max() > 1e3
     if command != "force":   # the commands, or the fallback, changed the damping
         assert np.unique(a["pto_damping"].values[1:]).size == 2
+
+
+WAVESTAR_HDB = Path(__file__).resolve().parents[1] / "examples" / "data" / "wavestar" / "wavestar.out"
+
+
+def float_on_dry_arm_scene(tmp_path: Path, dt: float, damping: str = "linear_damping", controlled: bool = True) -> Path:
+    """WECCCOMP's WaveStar (examples/wavestar/wavestar.toml) at ``dt`` for 4 s in regular waves: the
+    wet float (its pitch's ``damping``, linear or quadratic: the server's viscous term) fixed to a
+    dry arm, the arm on a revolute joint to ground, a linear PTO from the arm to ground driven
+    (``controlled``) by one force controller (fallback passive, 400 N s/m) measuring the PTO, the
+    bodies and the elevation at three up-wave points, else a 400 N s/m damper; convolution radiation."""
+    control = [{"name": "ctl", "ptos": ["pto"], "command": "force", "timeout": 10.0, "fallback": "passive",
+                "fallback_damping": 400.0,
+                "measurements": ["pto_displacement", "pto_velocity", "pto_force", "body_position", "body_velocity",
+                                 "wave_elevation"],
+                "wave_points": [[-1.70, 0.0], [-1.50, 0.0], [-1.25, 0.0]],
+                "parameters": {"damping": 400.0, "stiffness": 20.0, "eta_gain": 100.0, "dt": dt}}]
+    path = tmp_path / "float_on_arm.toml"
+    path.write_text(scene_toml(
+        dt=dt, duration=4.0, progress=False, water={"density": 1000.0, "gravity": 9.80665, "depth": 0.65},
+        waves=regular_waves(0.04, 1.4, ramp=1.0), hydro={"irf_duration": 2.0},
+        bodies=[body("float", hdb=WAVESTAR_HDB.as_posix(), hdb_body="body1", mass=3.075,
+                     center_of_mass=[0.001292, 0.0, 0.0533], inertia=[0.00145] * 3,
+                     **{damping: [0.0, 0.0, 0.0, 0.0, 1.8, 0.0]}),
+                body("arm", mass=1.157, center_of_mass=[-0.3301, 0.0, 0.2551], inertia=[0.0606] * 3)],
+        joints=[joint("fixed", "arm", "float", [0.0, 0.0, 0.09]),
+                joint("revolute", "ground", "arm", [-0.438, 0.0, 0.302], axis=[0.0, 1.0, 0.0])],
+        ptos=[linear_pto("pto", "arm", [-0.6214398, 0.0, 0.3816858], "ground", [-0.438, 0.0, 0.714],
+                         damping=0.0 if controlled else 400.0)],
+        controllers=control if controlled else None))
+    return path
+
+
+@pytest.mark.parametrize("realtime, bound", [(None, None), (8.0, None), (None, 0.01)])
+def test_dry_body_joints_and_pto_under_a_controller_compiled(realtime, bound, tmp_path, monkeypatch):
+    """WaveStar's layout (a dry arm carrying the wet float, a fixed and a revolute joint, a linear
+    PTO, the float's linear damping) under a force controller process whose every seventh command
+    is refused, unpaced and paced: every exchange compiled, every results variable (the dry arm's
+    rows, the joints' reactions, the PTO's outputs, the viscous force and power, the control's)
+    the reference path's to the bit. ``bound``: a velocity bound of the compiled check in place of
+    the wire's (exchanges handed to the reference path mid-run and back)."""
+    if bound is not None:
+        velocity_bound(monkeypatch, bound)
+    controller = tmp_path / "faulty.py"
+    controller.write_text(FAULTY)
+    scene = float_on_dry_arm_scene(tmp_path, 0.01)
+    compiled, taken, a = compiled_and_reference(scene, controller, realtime, tmp_path, monkeypatch, refused=True)
+    if bound is None:
+        assert taken == set(range(compiled.steps))
+    else:
+        assert taken and len(taken) < compiled.steps   # some compiled, some handed to the reference path
+    assert {"joint_force", "pto_force", "pto_command_force", "viscous_force", "viscous_power"} <= set(a.data_vars)
+    assert np.abs(a["viscous_force"].values).max() > 0.0
+    arm = list(a["body"].values).index("arm")
+    assert not a["excitation_force"].values[:, arm].any() and not a["hydrostatic_force"].values[:, arm].any()
+    pitch = a["position"].values[:, arm, 4]
+    assert np.abs(pitch - pitch[0]).max() > 0.01                  # the arm turned: not a rest state
+    assert np.abs(a["pto_command_force"].values).max() > 0.1
 
 
 def test_paced_compiled_exchange_equals_reference_bit_for_bit(reference_data, tmp_path, monkeypatch):

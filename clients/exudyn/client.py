@@ -561,29 +561,35 @@ class ExudynMultibody:
         """The run's exchange in two compiled calls (clients/exudyn/compiled_exchange.py) in place of
         ``scheme``, or None where the reference path runs: A∞ not in the mass matrix or the scheme
         not ``Predictor``'s, several client steps an exchange, MoorDyn, hydro states, generalized
-        modes, a dry body, a server that is not this process's own (socketless, or polled with
+        modes, no wet body, a server that is not this process's own (socketless, or polled with
         controllers) whose model steps as its compiled linear core alone (``LocalStep.compiled``),
-        or controllers beside PTOs other than linear ones, joints or moorings."""
+        or controllers beside PTOs other than linear ones, moorings or point-mass joints."""
         m = self.model
         if not (type(scheme) is Predictor and not scheme.feedback and self.a_fb is None and self.substeps == 1
-                and self._md is None and not self.state_names and self._all_wet
+                and self._md is None and not self.state_names
                 and not m.mode_labels and self.n and int(m.hydro_object) >= 0 and link.local is not None):
             return None
         step = link.local.compiled()
         if step is None:
             return None
         from hydrolink.clients.exudyn.compiled_exchange import CompiledExchange
-        others = self.joints is not None or m.moorings is not None
-        linear = m.ptos.linear_table() if m.ptos is not None and not others else None
+        # the mechanism's outputs by the compiled calls where they make all of them: linear PTOs
+        # (linear_ptos), joints but point-mass ones (JointOutputs.compiled), no moorings
+        linear = m.ptos.linear_table() if m.ptos is not None and m.moorings is None else None
+        rows = self.joints.compiled() if self.joints is not None and m.moorings is None else None
+        compiled = (m.moorings is None and (m.ptos is None or linear is not None)
+                    and (self.joints is None or rows is not None))
+        if not compiled:
+            linear = rows = None
         if self.control is not None and linear is None:   # (its measurements come from linear_ptos)
             return None
-        has_outputs = others or m.ptos is not None
-        rows = self.joints.compiled() if self.joints is not None and m.ptos is None and m.moorings is None else None
+        has_outputs = self.joints is not None or m.moorings is not None or m.ptos is not None
         return CompiledExchange(m, link, step, wet_take=self._wet_take, body_take=self._body_take,
-                                state=lambda: self._s, outputs=self.outputs if has_outputs else None,
+                                state=lambda: self._s, outputs=self.outputs if has_outputs and not compiled else None,
                                 refresh=self._refresh if self.control is None else self._resync,
                                 n_exchanges=n_exchanges, linear_ptos=linear, control=self.control,
-                                joints=None if rows is None else lambda slots: rows(m.load, slots))
+                                joints=None if rows is None else lambda slots: rows(m.load, slots),
+                                wet_flat=self._wet_flat)
 
     def _resync(self) -> None:
         """:meth:`_refresh` and the PTOs' sample the controllers' measurements take (:meth:`outputs`'),

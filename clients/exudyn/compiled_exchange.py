@@ -1,7 +1,8 @@
 """A run's exchange in two compiled calls, inside Exudyn's own step loop (issue 36).
 
 ``hydrolink run`` with its in-process server (embedded, or polled with controllers), the
-``mass-matrix`` scheme, one client step per exchange, every scene body wet and a model whose step
+``mass-matrix`` scheme, one client step per exchange, a wet body (dry ones beside it: their rows'
+forces zero, as the reference path writes them) and a model whose step
 is its compiled linear core alone (server/service/local_step.py ``LocalStep.compiled``): then an
 exchange of :class:`~hydrolink.clients.lockstep.coupling_schemes.Predictor` is, per step,
 
@@ -12,12 +13,12 @@ exchange of :class:`~hydrolink.clients.lockstep.coupling_schemes.Predictor` is, 
 3. one compiled call (``settle``) that reads Exudyn's state through views of its own current-state
    vectors (``copy=False``: no getter a step), keeps it for the next step, fills the results row
    and bounds the state for the divergence watch;
-4. the mechanism's outputs: where they are linear PTOs only (up to seven), each connector's
-   displacement and velocity (two ``GetObjectOutput``) and one compiled call (``linear_ptos``)
-   into the row's slots (``ResultWriter.slots``); where they are joints only (no point-mass
-   joint), their four outputs each and one compiled call (``JointOutputs.compiled``) into the row's
-   slots; otherwise (moorings, other PTOs, a mix) as the reference path stages them; and the
-   row's commit.
+4. the mechanism's outputs: the linear PTOs' (up to seven), each connector's displacement and
+   velocity (two ``GetObjectOutput``) and one compiled call (``linear_ptos``) into the row's
+   slots (``ResultWriter.slots``); the joints' (no point-mass joint), their four outputs each and
+   one compiled call (``JointOutputs.compiled``) into the row's slots — either or both, where
+   they are all the mechanism's outputs; otherwise (moorings, other PTOs) as the reference path
+   stages them; and the row's commit.
 
 A run takes every exchange inside one Exudyn ``SolveSteps`` (:meth:`CompiledExchange.run_exchanges`:
 a PreStep user function does 4 of the last step, a paced run's record of it and release of the
@@ -31,7 +32,7 @@ measurements of the last step relayed (the linear PTOs' extension, velocity and 
 load (``forces``), then the decisions and the wait for the commands, applied to the PTOs by
 ``PTOControl.apply`` (clients/exudyn/pto_control.py) as the reference path applies them; the
 control's results variables are staged with the row. Runs with controllers qualify where the
-PTOs are linear ones only, without joints or moorings.
+PTOs are linear ones only, without moorings (joints beside them: WaveStar's arm and float).
 
 The session's sequencing state and counters follow each step (``LocalStep.advanced``). Results
 are the reference path's bit for bit (tests/test_compiled_exchange.py runs both). Anything off the
@@ -87,13 +88,16 @@ class CompiledExchange:
                  body_take: np.ndarray, state: Callable[[], np.ndarray], outputs: Callable[[], dict] | None,
                  refresh: Callable[[], None], n_exchanges: int,
                  linear_ptos: tuple[list[int], np.ndarray] | None = None, control: PTOControl | None = None,
-                 joints: Callable[[tuple[np.ndarray, ...]], None] | None = None):
-        """``outputs``: the mechanism's outputs by results variable (None: none); ``linear_ptos``
-        (``PTOSet.linear_table``) in its place where they are linear PTOs only, ``joints`` (filling
-        the row's JOINT_VARIABLES slots: ``JointOutputs.compiled``) where they are joints only.
+                 joints: Callable[[tuple[np.ndarray, ...]], None] | None = None, wet_flat: np.ndarray | None = None):
+        """``outputs``: the mechanism's outputs by results variable, where the compiled calls do not
+        make them (None: none, or all by the compiled calls); ``linear_ptos`` (``PTOSet.linear_table``,
+        filling the row's PTO_VARIABLES slots) and ``joints`` (filling its JOINT_VARIABLES slots:
+        ``JointOutputs.compiled``), each alone or both, where they are the whole mechanism's outputs.
         ``control``: the run's controllers (clients/exudyn/pto_control.py; ``link.local`` is then the
         polled server's ``ControlledStep`` and ``linear_ptos`` given): each step relays the
-        measurements from the kernels' arrays, takes the decisions and applies them (:meth:`_controlled`)."""
+        measurements from the kernels' arrays, takes the decisions and applies them (:meth:`_controlled`).
+        ``wet_flat``: the wet DOFs' positions in the rows' (B, 6) (where the server's linear viscous
+        damping is compiled, ``step.damping``: its force staged as the reply's ``viscous`` is)."""
         n = model.wet_index.size
         self._model, self._link, self._local = model, link, link.local
         self._outputs, self._refresh, self._last = outputs, refresh, n_exchanges - 1
@@ -106,14 +110,21 @@ class CompiledExchange:
         self._load = np.zeros(n)
         force_index = np.arange(n) if model.force_index is None else np.asarray(model.force_index, np.int64)
         self._force = np.zeros(force_index.size)   # the hydro object's coordinates' load
+        # the server's linear viscous damping (CompiledStep.damping): its force is the reply's "viscous"
+        damp, active = step.damping if step.damping is not None else (np.zeros((0, 0)), np.zeros(0, np.int64))
+        visc = np.zeros(n)
+        self._optional = {"viscous": visc} if step.damping is not None else {}
+        self._wet_flat = wet_flat
+        damping = (np.ascontiguousarray(damp, float), np.asarray(active, np.int64), np.zeros(len(active)),
+                   np.zeros(len(active)), visc)
         # the ExchangeState's arrays after Exudyn's three views (made at the first exchange: the
         # views are of the state vectors the solver's initialisation leaves, _bind)
         self._arrays = (
             np.asarray(wet_take, np.int64), model.equilibrium.reshape(-1).copy(), np.zeros(n), np.zeros(n), out,
             self._load, np.zeros(np.count_nonzero(model.active)), force_index, self._force,
-            np.asarray(body_take, np.int64), model.body_reference.reshape(-1).copy(),
+            np.asarray(body_take, np.int64), model.body_reference.reshape(-1).copy(), _wet_of(model),
             np.ascontiguousarray(model.stiffness, float), np.zeros(n), np.zeros(n), float(model.dt), np.array(step.bounds, float),
-            self._status)
+            self._status, *damping)
         self._kernel_state = step.kernel
         self._g = None
         self._views: tuple[np.ndarray, ...] = ()
@@ -186,7 +197,7 @@ class CompiledExchange:
         model.advance(e * model.dt, e * model.dt + model.dt)
         self._settled(loop, e, eta)
         o = self._out
-        return Sample(o[0], o[1], o[2], eta, self._load)
+        return Sample(o[0], o[1], o[2], eta, self._load, self._optional)
 
     def _predicted(self, e: int) -> tuple[int, float]:
         """The forces of exchange ``e`` (predict); (its status, the elevation)."""
@@ -244,7 +255,8 @@ class CompiledExchange:
         self._refresh()
         self._primed = False
         o = self._out
-        return Predictor().exchange(loop, e, s_prev if s_prev is not None else Sample(o[0], o[1], o[2], 0.0, self._load))
+        return Predictor().exchange(loop, e, s_prev if s_prev is not None else Sample(o[0], o[1], o[2], 0.0, self._load,
+                                                                                      self._optional))
 
     def _settled(self, loop: Lockstep, e: int, eta: float) -> None:
         """Exchange ``e``'s step done: the row (settle), the divergence watch, the mechanism's outputs,
@@ -253,7 +265,8 @@ class CompiledExchange:
         t1 = e * model.dt + model.dt
         loop.step += 1
         writer = loop.writer
-        ss = self._settle(self._g, writer.row())
+        row = writer.row()
+        ss = self._settle(self._g, row)
         limit = loop.watch.limit
         if not ss < limit * limit or e == self._last:   # the watch's own check (raises) / the client's state, synced
             self._refresh()
@@ -261,14 +274,16 @@ class CompiledExchange:
                 raise RuntimeError("Exudyn's state vectors moved during the run (the compiled exchange reads them "
                                    "in place): the run's results cannot be vouched for")
             loop.watch.check(loop.mb, loop.step, t1, writer.rows, loop.mb.label)
-        if self._pto_table is not None:
-            self._sample_ptos(writer.slots(PTO_VARIABLES))
-        elif self._joints is not None:
-            self._joints(writer.slots(JOINT_VARIABLES))
-        elif self._outputs is not None:
+        if self._outputs is not None:
             out = self._outputs()
             if out:
                 writer.stage_extra(out)
+        if self._pto_table is not None:
+            self._sample_ptos(writer.slots(PTO_VARIABLES))
+        if self._joints is not None:
+            self._joints(writer.slots(JOINT_VARIABLES))
+        if self._optional:   # the viscous force and power, as the reference path stages a reply's
+            writer.stage_forces(self._optional, self._wet_flat, row[1])
         if self._control is not None:
             self._control.stage()
         writer.commit(t1, eta)
@@ -370,6 +385,13 @@ class CompiledExchange:
             done(stop - 1)
         check()
         return stop
+
+
+def _wet_of(model: Any) -> np.ndarray:
+    """Each body row's wet body (its block of the wet DOFs, ``model.wet_rows``' order), -1 for a dry body."""
+    wet_of = np.full(model.body_reference.shape[0], -1, np.int64)
+    wet_of[np.asarray(model.wet_rows, np.int64)] = np.arange(len(model.wet_rows))
+    return wet_of
 
 
 def _entry(dispatcher, *args):

@@ -38,7 +38,7 @@ _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
 _step = kernel_numba.step
 
 FIELDS = ["lin", "qva", "q", "v", "a", "wet_take", "eq", "pos", "vel", "out", "load", "f_ext", "force_index", "force", "body_take", "ref",
-          "k_hs", "hs", "x_wet", "h", "bounds", "status"]
+          "wet_of", "k_hs", "hs", "x_wet", "h", "bounds", "status", "damp", "active", "v_act", "dv", "visc"]
 
 #: predict's outcomes (``status[0]``): the step taken; the state refused by the wire's bounds (no step taken);
 #: the server's forces not finite (the step taken)
@@ -59,10 +59,13 @@ structref.define_proxy(ExchangeState, _ExchangeStateType, FIELDS)
 
 @_jit
 def exchange_state(lin, qva, q, v, a, wet_take, eq, pos, vel, out, load, f_ext, force_index, force, body_take, ref,
-                   k_hs, hs, x_wet, h, bounds, status):
-    """The :class:`ExchangeState` of these arrays (held, not copied)."""
+                   wet_of, k_hs, hs, x_wet, h, bounds, status, damp, active, v_act, dv, visc):
+    """The :class:`ExchangeState` of these arrays (held, not copied); ``wet_of``: each body row's
+    wet body (its block of the wet DOFs), -1 for a dry body; ``damp`` (na, na) the server's linear
+    viscous damping over its active DOFs ``active`` (their positions in the wet DOFs; (0, 0): none),
+    ``visc`` the wet DOFs' viscous force it gives (zero on the others), ``v_act`` and ``dv`` scratch."""
     return ExchangeState(lin, qva, q, v, a, wet_take, eq, pos, vel, out, load, f_ext, force_index, force, body_take,
-                         ref, k_hs, hs, x_wet, h, bounds, status)
+                         ref, wet_of, k_hs, hs, x_wet, h, bounds, status, damp, active, v_act, dv, visc)
 
 
 @_jit
@@ -90,14 +93,26 @@ def prepare(g):
 @_jit
 def forces(g, t):
     """The server's forces at time ``t`` for the state :func:`prepare` left in ``g.pos``, ``g.vel``
-    and the load at the hydro object's coordinates; returns the wave elevation, ``g.status[0]``
-    the outcome (TAKEN, NON_FINITE)."""
+    (with linear viscous damping its force ``g.visc`` = 0 - B_lin v, as server/terms/viscous.py's
+    ``f -= B_lin @ v`` on zeros) and the load (excitation + radiation, + the viscous force: the
+    order of clients/lockstep/driver.py ``Sample.of``) at the hydro object's coordinates; returns
+    the wave elevation, ``g.status[0]`` the outcome (TAKEN, NON_FINITE)."""
     out = g.out
     eta = _step(g.lin, t, g.pos, g.vel, False, g.f_ext, 0.0, out)
+    damped = g.damp.shape[0] > 0
+    if damped:
+        active, v_act, dv, visc, vel = g.active, g.v_act, g.dv, g.visc, g.vel
+        for k in range(active.size):
+            v_act[k] = vel[active[k]]
+        np.dot(g.damp, v_act, dv)   # BLAS's gemv, as numpy's matmul
+        for k in range(active.size):
+            visc[active[k]] = 0.0 - dv[k]
     load = g.load
     total = eta
     for i in range(load.size):
         load[i] = out[0, i] + out[1, i]
+        if damped:
+            load[i] = load[i] + g.visc[i]
         total += load[i] + out[2, i]
     for j in range(g.force_index.size):
         g.force[j] = load[g.force_index[j]]
@@ -117,7 +132,8 @@ def predict(g, t):
 @_jit
 def settle(g, row):
     """Exudyn's state after a step (``g.q``, ``g.v``, ``g.a``: its ODE2 coordinates) into ``g.qva``,
-    the results row (5, B, 6) filled from it and ``g.out``; returns the sum of squares of q and v."""
+    the results row (5, B, 6) filled from it and ``g.out`` (a dry body's forces zero, as the
+    reference path's rows); returns the sum of squares of q and v."""
     st, q, v, a = g.qva, g.q, g.v, g.a
     nq = q.size
     ss = 0.0
@@ -139,12 +155,17 @@ def settle(g, row):
     for j in range(n):
         x[j] = flat[wet[j]]
     np.dot(k_hs, x, hs)   # BLAS's gemv, as the reference path's np.dot (its sums' order from 12 DOFs up)
+    wet_of = g.wet_of
     for b in range(nb):
+        w = wet_of[b]
         for d in range(6):
-            j = 6 * b + d
-            row[2, b, d] = out[0, j]
-            row[3, b, d] = out[1, j]
-            row[4, b, d] = -hs[j]
+            if w < 0:
+                row[2, b, d] = row[3, b, d] = row[4, b, d] = 0.0
+            else:
+                j = 6 * w + d
+                row[2, b, d] = out[0, j]
+                row[3, b, d] = out[1, j]
+                row[4, b, d] = -hs[j]
     return ss
 
 

@@ -37,12 +37,15 @@ class CompiledStep:
     at time ``seq * dt`` for the absolute position and velocity (6N,), with no excitation from
     outside (zeros) and ``replace`` False; the caller checks the state against ``bounds`` (the
     wire's position and velocity bounds, SPEC §5.2) before the call, keeps ``seq <= last_seq``,
-    and reports each step taken with :meth:`LocalStep.advanced`."""
+    and reports each step taken with :meth:`LocalStep.advanced`. ``damping``: the model's linear
+    viscous damping (B_lin over the active DOFs, their positions in the 6N vector: server/model.py
+    ``HydroModel.linear_damping``), whose reply field ``viscous`` (-B_lin v) the caller computes; None: none."""
 
     kernel: Any
     dt: float
     last_seq: int
     bounds: tuple[float, float] = (MAX_COORDINATE, MAX_SPEED)
+    damping: tuple[np.ndarray, np.ndarray] | None = None
 
 
 class LocalStep:
@@ -84,7 +87,7 @@ class LocalStep:
         fused = model.fused_only() if isinstance(model, HydroModel) else None   # (not a SwitchingModel)
         if fused is None or self._modal:
             return None
-        return CompiledStep(fused.kernel_state, self._session.dt, model.last_seq)
+        return CompiledStep(fused.kernel_state, self._session.dt, model.last_seq, damping=model.linear_damping())
 
     def advanced(self, seq: int, seconds: float) -> None:
         """Step ``seq`` (the next new one) was taken by :meth:`compiled`'s kernel in ``seconds``."""

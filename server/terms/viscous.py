@@ -142,6 +142,15 @@ class ViscousTerm(ForceTerm):
         out[self._idx] = f
         return (out.reshape(-1, 6),)
 
+    def linear_only(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(B_lin over the active DOFs, their positions in the 6N vector) where the term is linear
+        damping alone (no quadratic damping, no drag): its force -B_lin v is then one product a
+        compiled caller takes (server/service/local_step.py ``CompiledStep.damping``); None otherwise."""
+        d = self.damping
+        if d.linear is None or d.quadratic is not None or d.drag is not None:
+            return None
+        return d.linear, self._idx
+
     def velocity_jacobian(self, t: float, position: np.ndarray, velocity: np.ndarray) -> np.ndarray:
         jac = np.zeros((self._n, self._n))
         jac[np.ix_(self._idx, self._idx)] = self.damping.jacobian(t, velocity.reshape(-1)[self._idx])
