@@ -48,7 +48,8 @@ def rotation_pairs(constrained) -> np.ndarray:
 
 def local_moment(torque, angles, pairs, out) -> None:
     """``out`` (3,) = Σ λᵢ (R e_b × e_a) over the locked rotations (``pairs``): ``torque`` the joint's
-    ``TorqueLocal`` (λ₃…λ₅), ``angles`` its ``Rotation`` (R = Rx Ry Rz); marker 0's frame."""
+    ``TorqueLocal`` (λ₃…λ₅), ``angles`` its ``Rotation`` (R = Rx Ry Rz); marker 0's frame. Sequences
+    or arrays alike (Python lists and tuples are the quick ones from Python)."""
     c0, s0 = math.cos(angles[0]), math.sin(angles[0])
     c1, s1 = math.cos(angles[1]), math.sin(angles[1])
     c2, s2 = math.cos(angles[2]), math.sin(angles[2])
@@ -56,7 +57,7 @@ def local_moment(torque, angles, pairs, out) -> None:
     out[1] = 0.0
     out[2] = 0.0
     for i in range(3):
-        a, b = pairs[i, 0], pairs[i, 1]
+        a, b = pairs[i][0], pairs[i][1]
         if a < 0:
             continue
         if b == 0:      # column b of R

@@ -227,7 +227,7 @@ class JointOutputs:
                  hydro: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] | None = None):
         ovt = exu.OutputVariableType
         self._mbs, self._n = mbs, len(mech.joints)
-        self._generic: list[tuple[int, int, np.ndarray | int, np.ndarray, np.ndarray]] = []
+        self._generic: list[tuple[int, int, np.ndarray | int, np.ndarray, tuple]] = []
         self._point: list[tuple[int, int]] = []
         for k, j in enumerate(mech.joints):
             if int(j.object) < 0:
@@ -238,7 +238,8 @@ class JointOutputs:
             body0 = mech.handles[j.bodies[0]]
             a0 = np.asarray(mbs.GetMarkerOutput(j.markers[0], ovt.RotationMatrix)).reshape(3, 3) \
                 if body0.kind in ("ground", "held") else j.markers[0]
-            self._generic.append((k, j.object, a0, np.asarray(j.constrained, bool), rotation_pairs(j.constrained)))
+            self._generic.append((k, j.object, a0, np.asarray(j.constrained, bool),
+                                  tuple(map(tuple, rotation_pairs(j.constrained).tolist()))))
         self._moment = np.zeros(3)
         # a held body's fixed joint: its reaction (on body2, about the joint point) = offset + transfer @
         # (its load rows, a, q at the hydro object's coordinates, the other joints' wrenches)
@@ -275,7 +276,7 @@ class JointOutputs:
             if not isinstance(a0, np.ndarray):
                 a0 = np.asarray(mbs.GetMarkerOutput(a0, ovt.RotationMatrix)).reshape(3, 3)
             angles = np.asarray(get(obj, ovt.Rotation))
-            local_moment(np.asarray(get(obj, ovt.TorqueLocal)), angles, pairs, m)
+            local_moment(np.asarray(get(obj, ovt.TorqueLocal)).tolist(), angles.tolist(), pairs, m)
             wrench[k, :3] = -a0.dot(get(obj, ovt.ForceLocal))
             wrench[k, 3:] = -a0.dot(m)
             d, r = np.asarray(get(obj, ovt.DisplacementLocal))[c[:3]], angles[c[3:]]
