@@ -18,7 +18,10 @@ couple (the force acts at marker 1's point, the joint point). The axes swap sign
 raw multipliers do not.
 
 Plain scalar arithmetic: ``JointOutputs`` calls it from Python, clients/exudyn/joint_kernel.py
-compiles it with numba — the same operations in the same order, so the same bits.
+compiles it with numba — the same operations in the same order, so the same bits. numba's cache of
+``joint_kernel.joint_rows`` holds this code compiled in but tracks only joint_kernel.py's own
+stamp: with any change here, touch joint_kernel.py too (else a cached kernel keeps the old
+arithmetic, which tests/test_compiled_exchange.py's bit-for-bit cases then report).
 """
 
 from __future__ import annotations
