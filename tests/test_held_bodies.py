@@ -99,8 +99,8 @@ def test_flap_pitch_matches_the_frequency_domain(hdb, tmp_path, period):
 
 def test_held_base_equals_the_full_form(hdb, tmp_path):
     """Against the full form (the base integrated under its fixed joint, Exudyn's Lagrange
-    multipliers for both joints): the motion and forces to round-off, the reactions' forces to
-    1e-3 of their largest value (the full form's multipliers carry a step-to-step alternation of the
+    multipliers for both joints): the motion and forces to round-off, the reactions' forces and the
+    hold's moments to 1e-3 of their largest value (the full form's multipliers carry a step-to-step alternation of the
     undamped trapezoidal rule on its 11 constraints, growing to ~1e-4 in 20 s)."""
     runs = {}
     for full in (False, True):
@@ -116,15 +116,17 @@ def test_held_base_equals_the_full_form(hdb, tmp_path):
     forces = np.abs(fb[:, :, :3]).max()
     assert np.abs(fa[:, :, :3] - fb[:, :, :3]).max() <= 1e-3 * forces
     assert np.abs(fa[:, 0, 3:] - fb[:, 0, 3:]).max() <= 1e-3 * forces     # the hinge's moments (about x, z: ~0)
+    moments = np.abs(fb[:, 1, 3:]).max()                                     # the hold's (about y: ~1e6 N m)
+    assert np.abs(fa[:, 1, 3:] - fb[:, 1, 3:]).max() <= 1e-3 * moments
     assert float(a["joint_violation"].sel(joint="hold").max()) == 0.0
 
 
-def dry_scene(tmp_path: Path, client: dict | None) -> xr.Dataset:
-    """A dry base (5 kg, CoG (0.3, 0, -0.5)) held at the origin and a 2 kg bob hanging from a hinge
-    about y at (1, 0, 0), its CoG below it: at rest."""
+def dry_scene(tmp_path: Path, client: dict | None, bob: list[float]) -> xr.Dataset:
+    """A dry base (5 kg, CoG (0.3, 0, -0.5)) held at the origin and a 2 kg bob (CoG ``bob``) hanging
+    from a hinge about y at (1, 0, 0): at rest."""
     text = scene_toml(dt=0.002, duration=0.02, progress=False, client=client,
                       bodies=[body("base", mass=5.0, center_of_mass=[0.3, 0.0, -0.5], inertia=[1.0, 1.0, 1.0]),
-                              body("bob", mass=2.0, center_of_mass=[1.0, 0.0, -1.0], inertia=[0.02, 0.02, 0.02])],
+                              body("bob", mass=2.0, center_of_mass=bob, inertia=[0.02, 0.02, 0.02])],
                       joints=[joint("fixed", "ground", "base", [0.0, 0.0, 0.0], name="hold"),
                               joint("revolute", "base", "bob", [1.0, 0.0, 0.0], name="hinge", axis=[0.0, 1.0, 0.0])])
     scene = parse_scene(text)
@@ -135,17 +137,21 @@ def dry_scene(tmp_path: Path, client: dict | None) -> xr.Dataset:
     return xr.load_dataset(out)
 
 
-def test_held_dry_base_reaction_is_statics(tmp_path):
+@pytest.mark.parametrize("bob", [[1.0, 0.0, -1.0], [1.0, 0.5, -1.0]], ids=["below", "off-axis"])
+def test_held_dry_base_reaction_is_statics(tmp_path, bob):
     """The held base's reaction carries both weights, and their moment about the joint point, the
-    hinge the bob's weight; the forces equal the full form's."""
-    held, full = dry_scene(tmp_path, None), dry_scene(tmp_path, FULL)
+    hinge the bob's weight and its moment (about x where the bob's CoG is off along the axis: the
+    held reaction adds the hinge's reported moment); forces and moments equal the full form's
+    (Exudyn's multipliers)."""
+    held, full = dry_scene(tmp_path, None, bob), dry_scene(tmp_path, FULL, bob)
     f = held["joint_force"].sel(joint="hold").values[-1]
     w_base, w_bob = 5.0 * G, 2.0 * G
     np.testing.assert_allclose(f[:3], [0.0, 0.0, w_base + w_bob], atol=1e-9)
-    moment = np.cross([0.3, 0.0, -0.5], [0.0, 0.0, -w_base]) + np.cross([1.0, 0.0, -1.0], [0.0, 0.0, -w_bob])
+    moment = np.cross([0.3, 0.0, -0.5], [0.0, 0.0, -w_base]) + np.cross(bob, [0.0, 0.0, -w_bob])
     np.testing.assert_allclose(f[3:], -moment, atol=1e-9)          # on the base from ground: balances the weights'
-    np.testing.assert_allclose(held["joint_force"].sel(joint="hinge").values[-1], [0, 0, w_bob, 0, 0, 0], atol=1e-9)
-    np.testing.assert_allclose(full["joint_force"].values[:, :, :3], held["joint_force"].values[:, :, :3], atol=1e-9)
+    hinge = -np.cross(np.subtract(bob, [1.0, 0.0, 0.0]), [0.0, 0.0, -w_bob])
+    np.testing.assert_allclose(held["joint_force"].sel(joint="hinge").values[-1], [0, 0, w_bob, *hinge], atol=1e-9)
+    np.testing.assert_allclose(full["joint_force"].values, held["joint_force"].values, atol=1e-9)
 
 
 HOLD = joint("fixed", "ground", "base", [0.0, 0.0, 0.0])

@@ -100,6 +100,7 @@ from exudyn.itemInterface import (CoordinateConstraint, LoadCoordinate, LoadForc
                                   VObjectJointSpherical, VObjectMass1D, VObjectRigidBody)
 from exudyn.rigidBodyUtilities import RigidBodyInertia
 
+from hydrolink.clients.exudyn.joint_moments import local_moment, rotation_pairs
 from hydrolink.server.rigid_body import rigid_body_mass_matrix
 from hydrolink.protocol.scene import DOF_NAMES, Body, Joint, LinearPTO, PointMass, Scene, SceneError
 
@@ -206,10 +207,12 @@ class Mechanism:
 
 class JointOutputs:
     """The joints' results variables at the current state (:meth:`Mechanism.joint_outputs`): an
-    ``ObjectJointGeneric``'s ``ForceLocal``, ``TorqueLocal`` (its marker-0 frame; that frame read
-    once where the marker is on ground or on a held body, else each call), ``DisplacementLocal`` and
-    ``Rotation``. (Its Lagrange multipliers are not ``ForceLocal``: they are in the marker body's
-    frame, not the joint's.)
+    ``ObjectJointGeneric``'s ``ForceLocal``, ``TorqueLocal``, ``DisplacementLocal`` and ``Rotation``,
+    with its marker-0 frame A₀ (read once where the marker is on ground or on a held body, else each
+    call). The reaction on body2 from body1, global, about the joint point (marker 1's point): force
+    −A₀ ``ForceLocal``; moment −A₀ m, m the rotation multipliers (``TorqueLocal``) mapped to the
+    moment they exert (clients/exudyn/joint_moments.py: they are multipliers of dot-product
+    constraints, not moment components).
 
     A held body's fixed joint (module docstring, "Held bodies") has no Exudyn object: its reaction
     follows from the held body's equation (it does not accelerate): minus the loads on it — its
@@ -224,7 +227,7 @@ class JointOutputs:
                  hydro: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] | None = None):
         ovt = exu.OutputVariableType
         self._mbs, self._n = mbs, len(mech.joints)
-        self._generic: list[tuple[int, int, np.ndarray | int, np.ndarray]] = []
+        self._generic: list[tuple[int, int, np.ndarray | int, np.ndarray, tuple]] = []
         self._point: list[tuple[int, int]] = []
         for k, j in enumerate(mech.joints):
             if int(j.object) < 0:
@@ -235,7 +238,9 @@ class JointOutputs:
             body0 = mech.handles[j.bodies[0]]
             a0 = np.asarray(mbs.GetMarkerOutput(j.markers[0], ovt.RotationMatrix)).reshape(3, 3) \
                 if body0.kind in ("ground", "held") else j.markers[0]
-            self._generic.append((k, j.object, a0, np.asarray(j.constrained, bool)))
+            self._generic.append((k, j.object, a0, np.asarray(j.constrained, bool),
+                                  tuple(map(tuple, rotation_pairs(j.constrained).tolist()))))
+        self._moment = np.zeros(3)
         # a held body's fixed joint: its reaction (on body2, about the joint point) = offset + transfer @
         # (its load rows, a, q at the hydro object's coordinates, the other joints' wrenches)
         self._held = []
@@ -266,12 +271,15 @@ class JointOutputs:
         for k, obj in self._point:   # ObjectJointSpherical: -Force is the force on body2 (dynamic solver), global
             wrench[k, :3] = -np.asarray(get(obj, ovt.Force))
             gap[k] = float(np.linalg.norm(get(obj, ovt.Displacement)))
-        for k, obj, a0, c in self._generic:
+        m = self._moment
+        for k, obj, a0, c, pairs in self._generic:
             if not isinstance(a0, np.ndarray):
                 a0 = np.asarray(mbs.GetMarkerOutput(a0, ovt.RotationMatrix)).reshape(3, 3)
+            angles = np.asarray(get(obj, ovt.Rotation))
+            local_moment(np.asarray(get(obj, ovt.TorqueLocal)).tolist(), angles.tolist(), pairs, m)
             wrench[k, :3] = -a0.dot(get(obj, ovt.ForceLocal))
-            wrench[k, 3:] = -a0.dot(get(obj, ovt.TorqueLocal))
-            d, r = np.asarray(get(obj, ovt.DisplacementLocal))[c[:3]], np.asarray(get(obj, ovt.Rotation))[c[3:]]
+            wrench[k, 3:] = -a0.dot(m)
+            d, r = np.asarray(get(obj, ovt.DisplacementLocal))[c[:3]], angles[c[3:]]
             gap[k], rot_gap[k] = math.sqrt(d.dot(d)), math.sqrt(r.dot(r))      # np.linalg.norm's value
         if self._held:
             sd, now = mbs.systemData, exu.ConfigurationType.Current
@@ -295,12 +303,13 @@ class JointOutputs:
         mbs, ovt, n = self._mbs, exu.OutputVariableType, self._n
         generic = self._generic
         raw, frames = np.zeros((len(generic), 4, 3)), np.zeros((len(generic), 3, 3))
-        moving = [(g, a0) for g, (_, _, a0, _) in enumerate(generic) if not isinstance(a0, np.ndarray)]
-        for g, (_, _, a0, _) in enumerate(generic):
+        moving = [(g, a0) for g, (_, _, a0, *_) in enumerate(generic) if not isinstance(a0, np.ndarray)]
+        for g, (_, _, a0, *_) in enumerate(generic):
             if isinstance(a0, np.ndarray):
                 frames[g] = a0
         rows = np.array([k for k, *_ in generic], np.int64)
-        locked = np.array([c for *_, c in generic], bool).reshape(len(generic), 6)
+        locked = np.array([c for *_, c, _ in generic], bool).reshape(len(generic), 6)
+        pairs = np.array([p for *_, p in generic], np.int64).reshape(len(generic), 3, 2)
         width = np.array([t.shape[1] for _, _, t, *_ in self._held], np.int64)
         start = np.concatenate(([0], np.cumsum(6 * width)[:-1])).astype(np.int64)
         kind = np.full((len(self._held), int(width.max(initial=0))), -1, np.int64)
@@ -315,7 +324,7 @@ class JointOutputs:
         sd, now = mbs.systemData, exu.ConfigurationType.Current
         slot = (np.zeros((n, 6)), np.zeros(n), np.zeros(n))
         views = (sd.GetODE2Coordinates(now, False), sd.GetODE2Coordinates_tt(now, False))
-        args = (raw, frames, rows, locked, *held, np.zeros(1), *views, *slot)
+        args = (raw, frames, rows, locked, pairs, *held, np.zeros(1), *views, *slot)
         entry = jk.joint_rows.compile(tuple(typeof(x) for x in args))    # numba's per-call typing skipped
         get, marker = mbs.GetObjectOutput, mbs.GetMarkerOutput
         outputs = (ovt.ForceLocal, ovt.TorqueLocal, ovt.DisplacementLocal, ovt.Rotation)
@@ -324,10 +333,10 @@ class JointOutputs:
         def fill(load: np.ndarray, slots: tuple[np.ndarray, ...]) -> None:
             for g, m0 in moving:
                 frames[g] = np.asarray(marker(m0, rotation)).reshape(3, 3)
-            for g, (_, obj, _, _) in enumerate(generic):
+            for g, (_, obj, *_) in enumerate(generic):
                 for i, what in enumerate(outputs):
                     raw[g, i] = get(obj, what)
-            entry(raw, frames, rows, locked, *held, load, sd.GetODE2Coordinates(now, False),
+            entry(raw, frames, rows, locked, pairs, *held, load, sd.GetODE2Coordinates(now, False),
                   sd.GetODE2Coordinates_tt(now, False), slots[0][0], slots[1][0], slots[2][0])
         return fill
 
