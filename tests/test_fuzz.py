@@ -306,7 +306,10 @@ def _templates() -> dict[str, dict]:
                                 "excitation_irf_duration": 5.0},
                       "bodies": [_rich_body()],
                       "ptos": [linear_pto("heave", "float", [0.0, 0.0, -1.0], "ground", None, direction=[0.0, 0.0, -1.0],
-                                          damping=1e5)]},
+                                          damping=1e5)],
+                      # (the file is the client's to read: the server's scene names it only)
+                      "moorings": [{"name": "lines", "type": "moordyn", "file": "lines.dat", "bodies": ["float"],
+                                    "workers": 2}]},
         # several systems: a spread JONSWAP (cos-2s), a Mitsuyasu swell, a directional table S(w, theta)
         "sea": {"simulation": sim, "water": water, "hydro": {"irf_duration": 2.0},
                 "waves": {"type": "sea", "components": 40, "seed": 1, "omega_range": [0.3, 3.5], "ramp": 1.0,
