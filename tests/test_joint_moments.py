@@ -1,6 +1,6 @@
 """The joints' reaction moments (``joint_force[..., 3:]``: on body2 from body1, global, about the joint
 point) against statics and Newton-Euler written here, for each joint type the mechanism builds
-(clients/exudyn/mechanism.py, clients/exudyn/joint_moments.py): a dry body hanging at rest from a joint
+(clients/exudyn/mechanism.py, clients/exudyn/kernels/joint_moments.py): a dry body hanging at rest from a joint
 to ground, the joint's frame turned off the global axes, the joint in either order (body1 the bob:
 marker 0's frame on the moving body); a pendulum far from its reference orientation (the revolute's
 moment follows the joint angle) against Newton-Euler at its angle and rate; a bob swinging in 3D on a

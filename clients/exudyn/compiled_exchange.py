@@ -6,7 +6,7 @@ forces zero, as the reference path writes them) and a model whose step
 is its compiled linear core alone (server/service/local_step.py ``LocalStep.compiled``): then an
 exchange of :class:`~hydrolink.clients.lockstep.coupling_schemes.Predictor` is, per step,
 
-1. one compiled call (clients/exudyn/exchange_kernel.py ``predict``): the wet DOFs' predicted state
+1. one compiled call (clients/exudyn/kernels/exchange.py ``predict``): the wet DOFs' predicted state
    from the state read at the end of the last step, the wire's bounds, the server's linear step
    and the load at the hydro object's coordinates, into arrays made once;
 2. one write of that load into Exudyn (``SetObjectParameter``) and its step;
@@ -65,9 +65,9 @@ _DISPLACEMENT, _VELOCITY = exu.OutputVariableType.Displacement, exu.OutputVariab
 
 
 def _kernel():
-    """clients/exudyn/exchange_kernel.py, imported (numba with it) on first use."""
-    from hydrolink.clients.exudyn import exchange_kernel
-    return exchange_kernel
+    """clients/exudyn/kernels/exchange.py, imported (numba with it) on first use."""
+    from hydrolink.clients.exudyn.kernels import exchange
+    return exchange
 
 
 class _HandOff(Exception):

@@ -100,7 +100,7 @@ from exudyn.itemInterface import (CoordinateConstraint, LoadCoordinate, LoadForc
                                   VObjectJointSpherical, VObjectMass1D, VObjectRigidBody)
 from exudyn.rigidBodyUtilities import RigidBodyInertia
 
-from hydrolink.clients.exudyn.joint_moments import local_moment, rotation_pairs
+from hydrolink.clients.exudyn.kernels.joint_moments import local_moment, rotation_pairs
 from hydrolink.server.rigid_body import rigid_body_mass_matrix
 from hydrolink.protocol.scene import DOF_NAMES, Body, Joint, LinearPTO, PointMass, Scene, SceneError
 
@@ -211,7 +211,7 @@ class JointOutputs:
     with its marker-0 frame A₀ (read once where the marker is on ground or on a held body, else each
     call). The reaction on body2 from body1, global, about the joint point (marker 1's point): force
     −A₀ ``ForceLocal``; moment −A₀ m, m the rotation multipliers (``TorqueLocal``) mapped to the
-    moment they exert (clients/exudyn/joint_moments.py: they are multipliers of dot-product
+    moment they exert (clients/exudyn/kernels/joint_moments.py: they are multipliers of dot-product
     constraints, not moment components).
 
     A held body's fixed joint (module docstring, "Held bodies") has no Exudyn object: its reaction
@@ -291,7 +291,7 @@ class JointOutputs:
         return wrench, gap, rot_gap
 
     def compiled(self):
-        """This call's arithmetic as one compiled call (clients/exudyn/joint_kernel.py): a function
+        """This call's arithmetic as one compiled call (clients/exudyn/kernels/joints.py): a function
         ``(load, slots)`` filling the results row's slots of joint_force, joint_violation and
         joint_rotation_violation (``ResultWriter.slots``: (1, J, 6), (1, J), (1, J)) with this call's
         values, bit for bit; None where a point-mass joint is among them."""
@@ -299,7 +299,7 @@ class JointOutputs:
             return None
         from numba import typeof
 
-        from hydrolink.clients.exudyn import joint_kernel as jk
+        from hydrolink.clients.exudyn.kernels import joints as jk
         mbs, ovt, n = self._mbs, exu.OutputVariableType, self._n
         generic = self._generic
         raw, frames = np.zeros((len(generic), 4, 3)), np.zeros((len(generic), 3, 3))

@@ -138,7 +138,7 @@ class PTOSet:
     def linear_table(self) -> tuple[list[int], np.ndarray] | None:
         """The linear PTOs' connectors and, one row each, their entry, stiffness, damping, added
         force, rest length and limit (what :meth:`sample` computes their outputs from, for
-        clients/exudyn/exchange_kernel.py ``linear_ptos``); None when the set has PTOs of
+        clients/exudyn/kernels/exchange.py ``linear_ptos``); None when the set has PTOs of
         another kind or more than 7 (``total_power``'s sum is then numpy's pairwise one)."""
         if self.axial or self.rotary or not self.linear or len(self.linear) > 7:
             return None

@@ -33,7 +33,7 @@ FIELDS = ["idx", "exc", "omega", "ramp_t", "trig", "k_hs", "x_eq", "kind", "k", 
 
 class UnliteralStructRef(types.StructRef):
     """A structref type whose fields' types are taken as given, not literal (the base of this module's
-    :class:`LinearState` type and of clients/exudyn/exchange_kernel.py's ``ExchangeState`` type)."""
+    :class:`LinearState` type and of clients/exudyn/kernels/exchange.py's ``ExchangeState`` type)."""
 
     def preprocess_fields(self, fields):
         return tuple((name, types.unliteral(t)) for name, t in fields)

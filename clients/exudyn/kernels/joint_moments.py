@@ -17,10 +17,10 @@ couple (the force acts at marker 1's point, the joint point). The axes swap sign
 +y) and follow the joint angle (a revolute's locked-axis moment rotates with its marker 1), which the
 raw multipliers do not.
 
-Plain scalar arithmetic: ``JointOutputs`` calls it from Python, clients/exudyn/joint_kernel.py
+Plain scalar arithmetic: ``JointOutputs`` calls it from Python, clients/exudyn/kernels/joints.py
 compiles it with numba — the same operations in the same order, so the same bits. numba's cache of
-``joint_kernel.joint_rows`` holds this code compiled in but tracks only joint_kernel.py's own
-stamp: with any change here, touch joint_kernel.py too (else a cached kernel keeps the old
+``kernels.joints.joint_rows`` holds this code compiled in but tracks only kernels/joints.py's own
+stamp: with any change here, touch kernels/joints.py too (else a cached kernel keeps the old
 arithmetic, which tests/test_compiled_exchange.py's bit-for-bit cases then report).
 """
 

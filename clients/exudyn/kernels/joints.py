@@ -5,7 +5,7 @@ takes, on first use).
 Python still reads each ``ObjectJointGeneric``'s four outputs (``ForceLocal``, ``TorqueLocal``,
 ``DisplacementLocal``, ``Rotation``) and, where marker 0 moves, its frame, into arrays made once;
 :func:`joint_rows` then does what ``JointOutputs.__call__`` does with numpy — the reactions in the
-global frame (the moment from the rotation multipliers by clients/exudyn/joint_moments.py,
+global frame (the moment from the rotation multipliers by clients/exudyn/kernels/joint_moments.py,
 compiled here), the violations on the locked axes, a held body's fixed-joint reaction (one product
 over its stacked loads) — straight into the results row's slots. Each product and sum is an
 ``np.dot`` (BLAS, as the numpy path's ``ndarray.dot``) over the same operands in the same order, so
@@ -18,7 +18,7 @@ import math
 
 import numpy as np
 
-from hydrolink.clients.exudyn.joint_moments import local_moment
+from hydrolink.clients.exudyn.kernels.joint_moments import local_moment
 from hydrolink.server import compiler
 
 numba = compiler.load()
