@@ -79,8 +79,7 @@ class CompiledExchange:
     :meth:`ExudynMultibody.compiled_exchange <hydrolink.clients.exudyn.client.ExudynMultibody.compiled_exchange>`,
     which checks the run qualifies. It takes the scheme's place in :func:`lockstep.run
     <hydrolink.clients.lockstep.driver.run>`, which calls :meth:`run_exchanges` (every exchange
-    inside one ``SolveSteps``); :meth:`exchange` takes one exchange as ``Predictor.exchange`` does
-    (the :class:`Sample` it returns holds views of arrays the next exchange overwrites)."""
+    inside one ``SolveSteps``: a :class:`~hydrolink.clients.lockstep.driver.LoopsItself`)."""
 
     feedback = False
 
@@ -184,20 +183,6 @@ class CompiledExchange:
         fresh = (sd.GetODE2Coordinates(now, False), sd.GetODE2Coordinates_t(now, False),
                  sd.GetODE2Coordinates_tt(now, False))
         return all(a.__array_interface__["data"] == b.__array_interface__["data"] for a, b in zip(self._views, fresh))
-
-    def exchange(self, loop: Lockstep, e: int, s_prev: Sample) -> Sample:
-        """Exchange ``e`` (time e H → (e + 1) H) as ``Predictor(feedback=False).exchange`` takes it."""
-        if not self._primed:
-            self._prime()
-        status, eta = self._forces_of(e)
-        if status == 1:           # out of the wire's bounds: no step taken; the reference path raises
-            return self._reference(loop, e, s_prev)
-        model = self._model
-        model.mbs.SetObjectParameter(model.hydro_object, "forceVector", self._force)
-        model.advance(e * model.dt, e * model.dt + model.dt)
-        self._settled(loop, e, eta)
-        o = self._out
-        return Sample(o[0], o[1], o[2], eta, self._load, self._optional)
 
     def _predicted(self, e: int) -> tuple[int, float]:
         """The forces of exchange ``e`` (predict); (its status, the elevation)."""

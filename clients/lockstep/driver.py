@@ -21,7 +21,7 @@ import time as _time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from types import MappingProxyType
-from typing import Any, Mapping, NamedTuple, NoReturn, Protocol
+from typing import Any, Mapping, NamedTuple, NoReturn, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -487,6 +487,20 @@ class SigintLatch:
             raise KeyboardInterrupt
 
 
+@runtime_checkable
+class LoopsItself(Protocol):
+    """A scheme that takes every exchange of a run in a loop of its own (clients/exudyn/compiled_exchange.py
+    ``CompiledExchange``: inside Exudyn's own step loop) instead of :func:`run` calling its ``exchange``
+    once an exchange (the schemes of clients/lockstep/coupling_schemes.py)."""
+
+    feedback: bool
+
+    def run_exchanges(self, loop: Lockstep, n_exchanges: int, check: Callable[[], None],
+                      paced: "PacedSteps | None") -> None:
+        """Exchanges 0 .. ``n_exchanges`` - 1 after the initial sample; ``check`` (the SIGINT latch)
+        after each, and ``paced``'s release and record around each when paced."""
+
+
 def run(loop: Lockstep, scheme: Any, n_exchanges: int, coupling: CouplingReport, *,
         first_timeout: float | None = None,
         hint: Callable[[SimulationDiverged], str] = lambda exc: "", pacer: Pacer | None = None) -> RunSummary:
@@ -510,7 +524,7 @@ def run(loop: Lockstep, scheme: Any, n_exchanges: int, coupling: CouplingReport,
             s = link.sample(0, x, v, timeout=first_timeout)
             init_iterations = mb.begin(s, scheme.feedback)
             loop.write(0.0, s)
-            if hasattr(scheme, "run_exchanges"):   # a scheme that loops itself (compiled_exchange.py)
+            if isinstance(scheme, LoopsItself):
                 if paced is not None:
                     paced.begin()
                 scheme.run_exchanges(loop, n_exchanges, sigint.check, paced)
