@@ -4,7 +4,7 @@ percentiles, beside the unpaced cost of a step of the same run.
 
     python bench/bench_realtime.py [--rates 100 200 1000] [--seconds 60] [--unpaced-seconds 10] [--radiation state-space]
                                    [--relays polled thread] [--channels direct zeromq] [--rt-priority N]
-    python bench/bench_realtime.py --probe SECONDS [--probe-work MS] [--rates 1000] [--rt-priority N]
+    python bench/bench_realtime.py --probe SECONDS [--probe-work MS] [--probe-peer MS] [--rates 1000] [--rt-priority N]
 
 Each rate: the scene's dt = 1/rate, the run's own force server listening on a loopback port, the
 example controller examples/controllers/reactive.py in its own process (force command every step,
@@ -144,42 +144,55 @@ def run_controlled(path: Path, controller: Path, realtime: float | None, relay: 
     return summary
 
 
-def probe(seconds: float, work: float, rate: float = 1000.0, rt_priority: int | None = None) -> dict:
+def _peer(sock, work: float, rt_priority: int | None) -> None:
+    """The probe's peer process (``--probe-peer``): each request answered after ``work`` s of a busy
+    loop (bench_controller_wait.serve), as a controller answers a measurement; ends when the socket
+    closes."""
+    from bench_controller_wait import serve
+
+    from hydrolink.clients.lockstep.rt_priority import rt_priority as held
+    with held(rt_priority):
+        serve(sock, work)
+
+
+def probe(seconds: float, work: float, rate: float = 1000.0, rt_priority: int | None = None,
+          peer: float | None = None) -> dict:
     """The host's own floor for a paced run: the run's pacing (protocol/pacing.py: the same release,
     sleep and spin) around ``work`` seconds of a busy loop a step and nothing else (no hydrolink, no
     other thread, no file), ``seconds`` at ``rate``. Every gap over 50 µs between two clock reads
     of the busy loop is a time the thread did not run (the VM's vCPU descheduled: steal; an
     interrupt's work on its core); ``late`` is the release's lateness (the sleep's wake-up). Returns
     the steps, the overruns (counted as a run counts them: StepRecord), the lateness and gap
-    percentiles and the host's steal time over the probe (/proc/stat)."""
+    percentiles and the host's steal time over the probe (/proc/stat).
+
+    ``peer``: half the work, then one round trip over a Unix socket pair to a second process (the
+    same policy) that busy-works ``peer`` s before it answers, then the other half — the floor of a
+    paced run whose controller is another process on this host, with no hydrolink in either."""
     import numpy as np
 
-    from hydrolink.clients.lockstep.rt_priority import rt_priority as held
-    from hydrolink.protocol.pacing import PARTS, Pacer, StepRecord
-
-    def steal() -> tuple[int, int]:
-        with open("/proc/stat") as f:
-            ticks = [int(x) for x in f.readline().split()[1:]]
-        return ticks[7], sum(ticks)
+    from hydrolink.protocol.pacing import PARTS
 
     n = int(seconds * rate)
     gaps = []
     clock = time.perf_counter
-    with held(rt_priority):
-        pacer = Pacer(1.0 / rate)
-        record = StepRecord(pacer, n)
-        s0 = steal()
-        for e in range(n):
-            pacer.release(e)
-            prev = pacer.released
-            end = prev + work
-            while prev < end:
-                now = clock()
-                if now - prev > 5e-5:
-                    gaps.append(now - prev)
-                prev = now
-            record.step(e, clock(), 0.0, 0.0, 0.0)
-        s1 = steal()
+    link, child = None, 0
+    if peer is not None:
+        link, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_STREAM)
+        child = os.fork()
+        if child == 0:   # the peer: answer until the probe closes its end, then leave at once
+            link.close()
+            try:
+                _peer(theirs, peer, rt_priority)
+            finally:
+                os._exit(0)
+        theirs.close()
+    half = work / 2 if peer is not None else work
+    try:
+        record, s0, s1 = _probe_steps(n, rate, rt_priority, half, link, gaps, clock)
+    finally:
+        if link is not None:
+            link.close()
+            os.waitpid(child, 0)
     rt = record.report()
     late = record.parts[:n, PARTS.index("wake")]     # each release's own lateness (not carried)
     g = np.asarray(gaps) if gaps else np.zeros(1)
@@ -190,6 +203,42 @@ def probe(seconds: float, work: float, rate: float = 1000.0, rt_priority: int | 
             "gaps_over_50us": len(gaps), "gaps_over_500us": int((g > 5e-4).sum()), "gap_max_ms": float(1e3 * g.max()),
             "gap_total_ms": float(1e3 * g.sum()) if gaps else 0.0,
             "steal_percent": 100.0 * (s1[0] - s0[0]) / max(s1[1] - s0[1], 1)}
+
+
+def _probe_steps(n: int, rate: float, rt_priority: int | None, work: float, link, gaps: list, clock):
+    """The probe's paced loop (:func:`probe`): returns its StepRecord and the /proc/stat steal
+    ticks before and after."""
+    from hydrolink.clients.lockstep.rt_priority import rt_priority as held
+    from hydrolink.protocol.pacing import Pacer, StepRecord
+
+    def steal() -> tuple[int, int]:
+        with open("/proc/stat") as f:
+            ticks = [int(x) for x in f.readline().split()[1:]]
+        return ticks[7], sum(ticks)
+
+    def busy(start: float) -> None:
+        prev, end = start, start + work
+        while prev < end:
+            now = clock()
+            if now - prev > 5e-5:
+                gaps.append(now - prev)
+            prev = now
+
+    with held(rt_priority):
+        pacer = Pacer(1.0 / rate)
+        record = StepRecord(pacer, n)
+        s0 = steal()
+        for e in range(n):
+            pacer.release(e)
+            busy(pacer.released)
+            if link is not None:
+                link.sendall(b"measured")
+                if len(link.recv(8)) != 8:
+                    raise RuntimeError("the probe's peer process ended")
+                busy(clock())
+            record.step(e, clock(), 0.0, 0.0, 0.0)
+        s1 = steal()
+    return record, s0, s1
 
 
 def main() -> None:
@@ -212,12 +261,18 @@ def main() -> None:
                     help="only the host's floor: the pacing around a busy loop of --probe-work ms a step and "
                          "nothing else, SECONDS at each rate (probe())")
     ap.add_argument("--probe-work", type=float, default=0.3, metavar="MS", help="the probe's busy work a step")
+    ap.add_argument("--probe-peer", type=float, default=None, metavar="MS",
+                    help="the probe also makes a round trip a step to a second process that works MS before it "
+                         "answers (a controller's floor: no hydrolink in either)")
     args = ap.parse_args()
     if args.probe is not None:
         for rate in args.rates:
             load0 = os.getloadavg()[0]
-            out = probe(args.probe, 1e-3 * args.probe_work, rate, args.rt_priority)
-            print(f"{rate:g} Hz, {args.probe_work:g} ms of work a step, load {load0:.2f} -> {os.getloadavg()[0]:.2f}"
+            peer = None if args.probe_peer is None else 1e-3 * args.probe_peer
+            out = probe(args.probe, 1e-3 * args.probe_work, rate, args.rt_priority, peer)
+            print(f"{rate:g} Hz, {args.probe_work:g} ms of work a step"
+                  + ("" if peer is None else f" and a round trip to a peer process working {args.probe_peer:g} ms")
+                  + f", load {load0:.2f} -> {os.getloadavg()[0]:.2f}"
                   + (f", SCHED_FIFO {args.rt_priority}" if args.rt_priority is not None else "") + f": {out}")
         return
     rows, notes = [], []
