@@ -70,7 +70,7 @@ class ControlledStep(LocalStep):
         meas = hub.own_measurements(seq, measurements) if new and iteration == 0 and hub.measured_at(seq) else None
         self._check(seq)
         if meas is not None:   # relayed before the model steps (as ForceServer._step)
-            self._relay(meas)
+            hub.relay_with(meas, s.previews)
         fields = s.advance(seq, iteration, self.position, self.velocity, self._modal,
                            hub.hydro_command(seq) if new else None)
         return self._decided(seq, iteration, new, fields, timeout)
@@ -84,7 +84,7 @@ class ControlledStep(LocalStep):
         self._server.serve_ready()
         s.touch()
         if hub.measured_at(seq):
-            self._relay(hub.own_measurements(seq, measurements))
+            hub.relay_with(hub.own_measurements(seq, measurements), s.previews)
 
     def decided(self, seq: int, seconds: float, timeout: float = 30.0) -> dict:
         """The new step ``seq`` was taken by the compiled kernel in ``seconds``: the session told
@@ -93,10 +93,6 @@ class ControlledStep(LocalStep):
         (``control``, ``compute_us``: the kernel's time); TimeoutError as :meth:`__call__`'s."""
         self.advanced(seq, seconds)
         return self._decided(seq, 0, True, {"compute_us": seconds * 1e6}, timeout)
-
-    def _relay(self, meas: dict) -> None:
-        """The checked measurements ``meas`` and their wave probes relayed to the controllers."""
-        self._hub.relay(meas, self._session.previews(self._hub.previews_due(meas), meas["step"]))
 
     def _decided(self, seq: int, iteration: int, new: bool, fields: dict, timeout: float) -> dict:
         """The decisions due at ``seq`` into ``fields``, at once or after the server's loop turned

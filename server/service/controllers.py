@@ -446,6 +446,12 @@ class ControlHub:
         them at once, its deadline counted from now; :meth:`after_step` then gets ``meas=None``."""
         self._relay(meas, _time.monotonic(), waves)
 
+    def relay_with(self, meas: dict, previews: Callable[[dict[str, PreviewGrid], int], dict[str, np.ndarray]]) -> None:
+        """:meth:`relay` the measurements ``meas`` with the wave probes due with them
+        (:meth:`previews_due`), evaluated by ``previews`` (the session's ``Session.previews``:
+        grids, step → elevations), where the model steps."""
+        self.relay(meas, previews(self.previews_due(meas), meas["step"]))
+
     def after_step(self, seq: int, iteration: int, new: bool, meas: dict | None, fields: dict,
                    route, msg_id, waves: dict[str, np.ndarray] | None = None) -> dict | None:
         """Relay measurements (with ``waves``, the elevations of :meth:`previews_due`; None when

@@ -895,7 +895,7 @@ class ForceServer:
         meas = hub.step_request(msg, seq, iteration, new) if new else None
         checked = s.step_input(msg)
         if meas is not None:   # relayed before the model steps: the controllers' round trip overlaps it
-            hub.relay(meas, s.previews(hub.previews_due(meas), meas["step"]))
+            hub.relay_with(meas, s.previews)
         fields = s.advance(*checked, hub.hydro_command(seq) if new else None)
         self._hold = s.release_time(fields["seq"], arrived)
         fields = hub.after_step(seq, iteration, new, None, fields, self._route, msg_id)
