@@ -1084,6 +1084,19 @@ class Joint(_Section):
             raise ValueError(f"body2: a joint needs two different bodies (both are {self.body1!r})")
         return self
 
+    def freed_dofs(self) -> tuple[int, ...] | None:
+        """The global DOFs (0-5) whose velocity this joint leaves free to the body it joins to one
+        that does not move: a revolute about coordinate axis k, the two translations across k and the
+        rotation about k (its point need not be the body's reference point); a prismatic along k,
+        translation k. None where it frees a mix of them (an oblique axis) or is of another type."""
+        if self.type not in ("revolute", "prismatic") or self.axis is None:
+            return None
+        axis = [abs(float(x)) for x in self.axis]
+        k = axis.index(max(axis))
+        if axis[k] != 1.0 or sum(axis) != 1.0:
+            return None
+        return tuple(d for d in range(3) if d != k) + (3 + k,) if self.type == "revolute" else (k,)
+
 
 class Constraint(_Section):
     """Fix one DOF of a body (to ground): its position (displacement from equilibrium) or velocity."""
@@ -1740,6 +1753,14 @@ class Scene(_Section):
             if b.hdb is not None:
                 out.append((i, b, b.hdb, f"bodies[{i}].hdb"))
             out.extend((i, b, s.hdb, f"bodies[{i}].hydro_states[{j}].hdb") for j, s in enumerate(b.hydro_states))
+        return out
+
+    def fixed_to_ground(self) -> dict[str, list[int]]:
+        """{body: the indices of the ``fixed`` joints that join it to ground}, in joint order."""
+        out: dict[str, list[int]] = {}
+        for i, j in enumerate(self.joints):
+            if j.type == "fixed" and "ground" in (j.body1, j.body2):
+                out.setdefault(j.body2 if j.body1 == "ground" else j.body1, []).append(i)
         return out
 
     @property

@@ -226,26 +226,18 @@ class HydroModel:
         radiation convolution leaves their columns out (they add K x 0); their force rows are
         still computed (the results and the joints' reactions read them). A client that reports
         such a DOF moving contradicts the scene: that velocity is not read there."""
-        anchored = {"ground"} | {j.body2 if j.body1 == "ground" else j.body1 for j in self.scene.joints
-                                 if j.type == "fixed" and "ground" in (j.body1, j.body2)}
+        anchored = {"ground", *self.scene.fixed_to_ground()}
         free = {name: np.ones(6, bool) for name in self.bodies}
         for name in anchored & set(free):
             free[name][:] = False
         for j in self.scene.joints:
-            if j.type not in ("revolute", "prismatic") or j.axis is None:
+            freed = j.freed_dofs()
+            if freed is None:     # another type, or an oblique axis (it frees a mix): none held
                 continue
-            axis = np.abs(np.asarray(j.axis, float))
-            k = int(np.argmax(axis))
-            if not (axis[k] == 1.0 and axis.sum() == 1.0):     # an oblique axis frees a mix: none held
-                continue
+            joint_free = np.zeros(6, bool)
+            joint_free[list(freed)] = True
             for this, other in ((j.body1, j.body2), (j.body2, j.body1)):
                 if other in anchored and this in free and this not in anchored:
-                    joint_free = np.zeros(6, bool)
-                    if j.type == "revolute":
-                        joint_free[[d for d in range(3) if d != k]] = True
-                        joint_free[3 + k] = True
-                    else:
-                        joint_free[k] = True
                     free[this] &= joint_free
         mask = np.zeros(self.n, bool)
         for i, name in enumerate(self.bodies):

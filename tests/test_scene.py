@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 
-from conftest import body, regular_waves, scene_toml, write_scene
+from conftest import body, joint, regular_waves, scene_toml, write_scene
 
 from hydrolink.protocol.scene import SceneError, load_scene, parse_scene, resolve_path
 
@@ -202,3 +203,26 @@ def test_hdb_convention_is_for_wet_bodies_and_one_per_hdb():
                                hdb_convention="exp(+iwt)"),
                           body("b", hdb="w.nc", mass=1.0, center_of_mass=[0, 0, 0], inertia=[1, 1, 1],
                                hdb_convention="exp(-iwt)")))
+
+
+@pytest.mark.parametrize("kind,axis", [("revolute", [1, 0, 0]), ("revolute", [0, -1, 0]), ("revolute", [0, 0, 1]),
+                                       ("prismatic", [0, 1, 0]), ("prismatic", [0, 0, -1]),
+                                       ("revolute", [0.6, 0.8, 0]), ("prismatic", [0, 0.6, 0.8]), ("spherical", None)])
+def test_the_dofs_a_joint_frees_are_the_nonzero_rigid_velocities(kind, axis):
+    """Joint.freed_dofs against kinematics: a body turning about the hinge (axis e through p) moves
+    its reference point r at w e x (r - p) and turns at w e; sliding, at v e. The freed DOFs are those
+    a generic offset r - p makes nonzero; None where the joint frees a mix (oblique axis) or is not
+    a one-axis joint. Scene.fixed_to_ground: the fixed joints to ground, either body order."""
+    bodies = [body(n, mass=1.0, center_of_mass=[0, 0, 0], inertia=[1, 1, 1]) for n in ("a", "b", "c")]
+    one = joint(kind, "ground", "a", [0.0, 0.0, 0.0], **({} if axis is None else {"axis": axis}))
+    scene = parse_scene(scene_toml(dt=0.1, duration=1.0, waves={"type": "still"}, bodies=bodies, joints=[
+        one, joint("fixed", "b", "ground", [0.0, 0.0, 0.0]), joint("fixed", "b", "c", [0.0, 0.0, 0.0]),
+        joint("fixed", "ground", "c", [1.0, 0.0, 0.0])]))
+    assert scene.fixed_to_ground() == {"b": [1], "c": [3]}
+    freed = scene.joints[0].freed_dofs()
+    if axis is None or np.count_nonzero(axis) > 1:
+        assert freed is None
+        return
+    e, offset = np.asarray(axis, float), np.array([0.3, -0.7, 1.1])
+    velocity = np.r_[np.cross(e, offset), e] if kind == "revolute" else np.r_[e, 0, 0, 0]
+    assert freed == tuple(int(d) for d in np.flatnonzero(np.abs(velocity) > 1e-12))

@@ -460,10 +460,7 @@ class HeldBody:
 def held_bodies(scene: Scene) -> dict[str, int]:
     """The bodies held to ground by a ``fixed`` joint that can be left out of the integrated system,
     each with its joint's index (module docstring, "Held bodies"); see :func:`hold_blocker`."""
-    fixed: dict[str, list[int]] = {}
-    for i, j in enumerate(scene.joints):
-        if j.type == "fixed" and GROUND in (j.body1, j.body2) and j.body1 != j.body2:
-            fixed.setdefault(j.body2 if j.body1 == GROUND else j.body1, []).append(i)
+    fixed = scene.fixed_to_ground()
     bodies = {b.name: b for b in scene.bodies}
     if any(b.hydro_states for b in scene.bodies):    # a switch changes the hydro matrices the reactions read
         return {}
