@@ -20,8 +20,9 @@ steps < 2000 rows, so no block goes to the writer inside the window). Cases, dt 
   first scene, at its own dt; ``-reference`` likewise) and ``floor:<name>``, that case's bare-Exudyn
   floor (bench_suite.py ``bare_exudyn``), counted from its PreStep's call ``--warm``;
   ``<name>+friction``: that case with regularised Coulomb friction (:data:`FRICTION`) on its
-  first revolute joint (``oswec_reg_batch+friction``: the flap's hinge, which keeps the base in
-  the system where its hold cannot take the friction load).
+  first revolute joint (``oswec_reg_batch+friction``: the flap's hinge); ``+full``: with ``[client]
+  reduce = false`` (no body held or reduced: ``oswec_reg_batch+friction+full`` keeps the base in the
+  system, as friction on the hinge did before 68d8335).
 
 ``--keep DIR`` keeps callgrind's files (``callgrind_annotate DIR/<case>.out.*`` for where the
 instructions go).
@@ -127,13 +128,15 @@ def _suite_scene(name: str, n_steps: int) -> str:
     """The first scene of bench_suite.py's case ``name``, cut to ``n_steps`` steps of its dt."""
     import bench_suite
 
-    base, _, extra = name.partition("+")
+    base, *extra = name.split("+")
     case = next((c for c in bench_suite.cases(1.0) if c.name == base), None)
-    if case is None or extra not in ("", "friction"):
+    if case is None or not set(extra) <= {"friction", "full"}:
         raise SystemExit(f"unknown case {name!r}")
     text = case.scenes[0]
-    if extra:
+    if "friction" in extra:
         text = re.sub(r'(?m)^type = "revolute"$', lambda m: f"{m.group(0)}\n{FRICTION}", text, count=1)
+    if "full" in extra:
+        text += '\n[client]\ntype = "exudyn"\nreduce = false\n'
     dt = float(re.search(r"(?m)^dt = (.*)$", text).group(1))
     return re.sub(r"(?m)^duration = .*$", f"duration = {n_steps * dt!r}", text, count=1)
 
