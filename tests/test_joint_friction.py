@@ -21,9 +21,12 @@ import numpy as np
 import pytest
 import xarray as xr
 
+import exudyn as exu
+
 from conftest import body, joint, scene_toml
 
 from hydrolink.clients.exudyn.client import result_bodies, run
+from hydrolink.clients.exudyn.mechanism import build_mechanism
 from hydrolink.clients.lockstep.results import ResultWriter
 from hydrolink.protocol.scene import parse_scene
 
@@ -121,3 +124,23 @@ def test_prismatic_slide_down(tmp_path, direction, reversed_):
     np.testing.assert_allclose(f[:, :3], load, rtol=0, atol=1e-6 * mass * G)
     moment = np.cross(d, load) if reversed_ else np.zeros_like(d)     # about marker 1's point (module docstring)
     np.testing.assert_allclose(f[:, 3:], moment, rtol=0, atol=1e-6 * mass * G)
+
+
+def test_the_law_is_evaluated_by_exudyn():
+    """The friction connector's user function is an Exudyn symbolic one (evaluated in C++: no Python
+    call in the step), the law with the scene's F and v_reg on the free axis (its torque, in the
+    joint frame, at a few spin rates of a disc on a revolute joint about z)."""
+    for w in (0.02, -0.3, 4.0):
+        text = scene_toml(dt=DT, duration=0.01,
+                          bodies=[body("disc", mass=3.0, center_of_mass=COM, inertia=[0.3, 0.5, 0.4],
+                                       initial_velocity=[0.0, 0.0, 0.0, 0.0, 0.0, w])],
+                          joints=[joint("revolute", "ground", "disc", COM, axis=[0.0, 0.0, 1.0],
+                                        friction={"force": 1.5, "velocity": 0.05})])
+        sc = exu.SystemContainer()
+        mbs = sc.AddSystem()
+        mech = build_mechanism(mbs, parse_scene(text), {})
+        fobj = mech.joints[0].friction_object
+        assert mbs.GetObject(fobj)["springForceTorqueUserFunction"]["type"] == "Symbolic"
+        torque = mbs.GetObjectOutput(fobj, exu.OutputVariableType.TorqueLocal)
+        frame = mech.joints[0].frame                  # joint z = the axis
+        np.testing.assert_allclose(frame @ torque, [0.0, 0.0, 1.5 * math.tanh(w / 0.05)], rtol=1e-15, atol=1e-15)
