@@ -246,7 +246,7 @@ class JointOutputs:
             body0 = mech.handles[j.bodies[0]]
             a0 = np.asarray(mbs.GetMarkerOutput(j.markers[0], ovt.RotationMatrix)).reshape(3, 3) \
                 if body0.kind in ("ground", "held") else j.markers[0]
-            which = NO_FRICTION if int(j.friction_object) < 0 else FRICTION_FORCE if j.type == "prismatic" \
+            which = NO_FRICTION if int(j.friction_object) < 0 else FRICTION_FORCE if friction_axis(j.type) < 3 \
                 else FRICTION_TORQUE
             self._generic.append((k, j.object, a0, np.asarray(j.constrained, bool),
                                   tuple(map(tuple, rotation_pairs(j.constrained).tolist())), j.friction_object, which))
@@ -653,6 +653,12 @@ def joint_label(scene: Scene, i: int) -> str:
     return scene.joints[i].name or f"joints[{i}]"
 
 
+def friction_axis(joint_type: str) -> int:
+    """The axis (joint frame: 0..2 translations, 3..5 rotations) a joint's friction acts along: the
+    one its type leaves free (a prismatic joint's x translation, a revolute's z rotation)."""
+    return JOINT_AXES[joint_type].index(0)
+
+
 def _friction_function(mbs, free_axis: int, level: float, v_reg: float):
     """The friction connector's user function: the regularised Coulomb force/torque on the joint's
     free axis (joint frame), recorded as an Exudyn symbolic function (evaluated in C++)."""
@@ -690,8 +696,7 @@ def add_joint(mbs, scene: Scene, i: int, handles: dict[str, BodyHandle]) -> Join
                                            constrainedAxes=list(axes)))
     fobj, law = -1, None
     if joint.friction is not None:
-        free = 0 if joint.type == "prismatic" else 5
-        law = _friction_function(mbs, free, joint.friction.force, joint.friction.velocity)
+        law = _friction_function(mbs, friction_axis(joint.type), joint.friction.force, joint.friction.velocity)
         fobj = mbs.AddObject(ObjectConnectorRigidBodySpringDamper(name=f"{label}_friction", markerNumbers=[m0, m1],
                                                                   springForceTorqueUserFunction=law))
     return JointInfo(label, f"joints[{i}]", joint.type, obj, (m0, m1), axes, frame, fobj, law, bodies=where[0],
