@@ -90,15 +90,17 @@ def hinged_scene(reference_data: Path, tmp_path: Path, full: bool = False, frict
     """RM3's spar held to ground by a fixed joint and its float on a hinge about y to it (two wet
     bodies, every DOF, joints, the held DOFs' radiation columns left out), convolution; ``full``:
     the spar integrated under its joint (``[client] reduce = false``: the hinge's marker-0 frame
-    moves with it); ``friction`` on the hinge (its torque in the hinge's load and the hold's)."""
+    moves with it); ``friction`` on the hinge (its torque in the hinge's load and the hold's), the hold
+    then listed first (the hinge's results row is not its place among the Exudyn joints)."""
     path = tmp_path / "hinged.toml"
     hdb = (reference_data / "rm3_wamit" / "rm3.1").as_posix()
+    joints = [joint("revolute", "spar", "float", [0.0, 0.0, 0.0], axis=[0.0, 1.0, 0.0],
+                    **({"friction": friction} if friction else {})),
+              joint("fixed", "ground", "spar", [0.0, 0.0, -21.29])]
     path.write_text(scene_toml(dt=0.1, duration=12.0, progress=False, water={"density": 1000.0},
                                waves=regular_waves(2.0, 7.0, ramp=3.0), hydro={"irf_duration": 10.0},
                                bodies=[rm3_float(hdb), rm3_spar(hdb)],
-                               joints=[joint("revolute", "spar", "float", [0.0, 0.0, 0.0], axis=[0.0, 1.0, 0.0],
-                                             **({"friction": friction} if friction else {})),
-                                       joint("fixed", "ground", "spar", [0.0, 0.0, -21.29])],
+                               joints=joints[::-1] if friction else joints,
                                client={"type": "exudyn", "reduce": False} if full else None))
     return path
 

@@ -54,7 +54,7 @@ def check_free_coordinate(t, u, u0, inertia, force, v_reg):
     """The free coordinate's rate ``u``: deceleration F / I while |u'| > 10 v_reg, the whole decay
     (the tanh zone and the stop too) the closed form's to the integrator's error."""
     fast = np.flatnonzero(np.abs(u) > 10 * v_reg)[-1]
-    assert (u[0] - u[fast]) / t[fast] == pytest.approx(force / inertia, rel=1e-7)
+    assert (u[0] - u[fast]) / t[fast] == pytest.approx(math.copysign(force / inertia, u0), rel=1e-7)
     assert np.abs(u - closed_form(t, u0, inertia, force, v_reg)).max() < 2e-3 * v_reg
     assert abs(u[-1]) < 1e-6 * v_reg                                         # stopped
 
@@ -92,6 +92,29 @@ def test_revolute_spin_down(tmp_path, axis, reversed_):
     np.testing.assert_allclose(f[:, :3], np.tile(-sign * weight, (len(t), 1)), atol=1e-8 * mass * G)
     others = [3 + i for i in range(3) if i != k]
     assert np.abs(f[:, others]).max() < 1e-8 * force
+
+
+def test_two_discs_on_a_common_axle(tmp_path):
+    """Two discs falling freely, joined by a revolute joint with friction on their common axis and
+    spinning opposite ways: their relative rate decays as the closed form with the reduced inertia
+    1 / (1/I₁ + 1/I₂), the total angular momentum stays, and ``joint_force`` (marker 0's frame turning
+    with disc 1) is the friction torque on disc 2 alone — no force between bodies in free fall."""
+    i1, i2, force, v_reg, w1, w2 = 0.4, 0.6, 1.0, 0.05, 1.0, -1.5
+    ds = simulate(tmp_path, 1.0,
+                  bodies=[body("d1", mass=3.0, center_of_mass=COM, inertia=[0.3, 0.5, i1],
+                               initial_velocity=[0.0, 0.0, 0.0, 0.0, 0.0, w1]),
+                          body("d2", mass=2.0, center_of_mass=COM, inertia=[0.35, 0.4, i2],
+                               initial_velocity=[0.0, 0.0, 0.0, 0.0, 0.0, w2])],
+                  joints=[joint("revolute", "d1", "d2", COM, axis=[0.0, 0.0, 1.0],
+                                friction={"force": force, "velocity": v_reg})])
+    t = ds.time.values
+    yaw = ds.velocity.sel(dof="yaw")
+    r1, r2 = yaw.sel(body="d1").values, yaw.sel(body="d2").values
+    check_free_coordinate(t, r2 - r1, w2 - w1, 1.0 / (1.0 / i1 + 1.0 / i2), force, v_reg)
+    np.testing.assert_allclose(i1 * r1 + i2 * r2, i1 * w1 + i2 * w2, rtol=0, atol=1e-12)
+    f = ds.joint_force.values[:, 0]
+    np.testing.assert_allclose(f[:, 5], -force * np.tanh((r2 - r1) / v_reg), rtol=0, atol=1e-9 * force)
+    assert np.abs(f[:, :5]).max() < 1e-9 * force
 
 
 @pytest.mark.parametrize("reversed_", [False, True], ids=["ground-slider", "slider-ground"])
