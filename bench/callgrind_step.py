@@ -18,7 +18,11 @@ steps < 2000 rows, so no block goes to the writer inside the window). Cases, dt 
   LocalStep, the Exudyn client's Python rows: 58bba31's path);
 - any case of bench/bench_suite.py by its name (``sphere_decay_conv``, ``oswec_reg_batch``, ...; its
   first scene, at its own dt; ``-reference`` likewise) and ``floor:<name>``, that case's bare-Exudyn
-  floor (bench_suite.py ``bare_exudyn``), counted from its PreStep's call ``--warm``.
+  floor (bench_suite.py ``bare_exudyn``), counted from its PreStep's call ``--warm``;
+  ``<name>+friction``: that case with regularised Coulomb friction (:data:`FRICTION`) on its
+  first revolute joint (``oswec_reg_batch+friction``: the flap's hinge); ``+full``: with ``[client]
+  reduce = false`` (no body held or reduced: ``oswec_reg_batch+friction+full`` keeps the base in the
+  system, as friction on the hinge did before 68d8335).
 
 ``--keep DIR`` keeps callgrind's files (``callgrind_annotate DIR/<case>.out.*`` for where the
 instructions go).
@@ -42,6 +46,8 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 DT = 0.01
+#: the joint friction of a ``<case>+friction`` (its first revolute joint's)
+FRICTION = "friction = {force = 2.0e5, velocity = 1.0e-2}"
 
 
 SWITCH = r"""
@@ -122,10 +128,15 @@ def _suite_scene(name: str, n_steps: int) -> str:
     """The first scene of bench_suite.py's case ``name``, cut to ``n_steps`` steps of its dt."""
     import bench_suite
 
-    case = next((c for c in bench_suite.cases(1.0) if c.name == name), None)
-    if case is None:
+    base, *extra = name.split("+")
+    case = next((c for c in bench_suite.cases(1.0) if c.name == base), None)
+    if case is None or not set(extra) <= {"friction", "full"}:
         raise SystemExit(f"unknown case {name!r}")
     text = case.scenes[0]
+    if "friction" in extra:
+        text = re.sub(r'(?m)^type = "revolute"$', lambda m: f"{m.group(0)}\n{FRICTION}", text, count=1)
+    if "full" in extra:
+        text += '\n[client]\ntype = "exudyn"\nreduce = false\n'
     dt = float(re.search(r"(?m)^dt = (.*)$", text).group(1))
     return re.sub(r"(?m)^duration = .*$", f"duration = {n_steps * dt!r}", text, count=1)
 

@@ -41,8 +41,10 @@ AMPLITUDE = 0.5
 FULL = {"type": "exudyn", "reduce": False}
 
 
-def oswec(tmp_path: Path, name: str, *, period: float, dt: float, duration: float, full: bool = False) -> Path:
-    """bench/bench_suite.py's OSWEC (F3OF's base held, flap 1 on a hinge about y) at these times."""
+def oswec(tmp_path: Path, name: str, *, period: float, dt: float, duration: float, full: bool = False,
+          friction: dict | None = None) -> Path:
+    """bench/bench_suite.py's OSWEC (F3OF's base held, flap 1 on a hinge about y) at these times;
+    ``friction`` on the hinge."""
     hdb_path = SPEC.as_posix()
     text = scene_toml(dt=dt, duration=duration, progress=False, water={"density": 1025.0, "depth": "inf"},
                       waves=regular_waves(2 * AMPLITUDE, period, ramp=40.0), hydro={"irf_duration": IRF},
@@ -50,7 +52,8 @@ def oswec(tmp_path: Path, name: str, *, period: float, dt: float, duration: floa
                                    inertia=[7.63e7, 7.63e7, 2.0e7], hdb=hdb_path),
                               body("flap1", mass=M_FLAP, center_of_mass=[-12.5, 0.0, -5.5],
                                    inertia=[5.85e6, I_FLAP, 4.58e6], hdb=hdb_path)],
-                      joints=[joint("revolute", "base", "flap1", [-12.5, 0.0, 0.0], name="hinge", axis=[0.0, 1.0, 0.0]),
+                      joints=[joint("revolute", "base", "flap1", [-12.5, 0.0, 0.0], name="hinge", axis=[0.0, 1.0, 0.0],
+                                    **({"friction": friction} if friction else {})),
                               joint("fixed", "ground", "base", [0.0, 0.0, -9.0], name="hold")],
                       client=FULL if full else None)
     path = tmp_path / f"{name}.toml"
@@ -97,16 +100,20 @@ def test_flap_pitch_matches_the_frequency_domain(hdb, tmp_path, period):
     np.testing.assert_allclose(d.sel(body="flap1", dof="heave").values, HINGE_DEPTH * (1 - np.cos(pa)), atol=1e-7)
 
 
-def test_held_base_equals_the_full_form(hdb, tmp_path):
+@pytest.mark.parametrize("friction", [None, {"force": 2.0e5, "velocity": 1.0e-2}], ids=["free", "friction"])
+def test_held_base_equals_the_full_form(hdb, tmp_path, friction):
     """Against the full form (the base integrated under its fixed joint, Exudyn's Lagrange
     multipliers for both joints): the motion and forces to round-off, the reactions' forces and the
     hold's moments to 1e-3 of their largest value (the full form's multipliers carry a step-to-step alternation of the
-    undamped trapezoidal rule on its 11 constraints, growing to ~1e-4 in 20 s)."""
+    undamped trapezoidal rule on its 11 constraints, growing to ~1e-4 in 20 s). With friction on the
+    hinge the held base's reaction takes the friction torque with the hinge's load (``joint_force``:
+    the constraint's reaction plus the friction), as the full form's multipliers do."""
     runs = {}
     for full in (False, True):
         name = "full" if full else "held"
-        scene = oswec(tmp_path, name, period=8.0, dt=0.03, duration=20.0, full=full)
-        run_scene_file(scene, tmp_path / f"{name}.nc", progress=False)
+        scene = oswec(tmp_path, name, period=8.0, dt=0.03, duration=20.0, full=full, friction=friction)
+        summary = run_scene_file(scene, tmp_path / f"{name}.nc", progress=False)
+        assert any("held to ground" in note for note in summary.mechanism_notes) != full
         runs[name] = xr.load_dataset(tmp_path / f"{name}.nc")
     a, b = runs["held"], runs["full"]
     for v in ("position", "velocity", "radiation_force", "hydrostatic_force", "excitation_force"):
@@ -160,14 +167,15 @@ HINGE = joint("revolute", "base", "bob", [1.0, 0.0, 0.0], axis=[0.0, 1.0, 0.0])
 
 @pytest.mark.parametrize("joints, ptos, held, kinds", [
     ([HOLD, HINGE], [], {"base": 0}, ("held", "rigid")),
+    ([HOLD, {**HINGE, "friction": {"force": 1.0}}], [], {"base": 0}, ("held", "rigid")),   # friction: in the hinge's load
     ([HOLD, joint("fixed", "base", "bob", [1.0, 0.0, 0.0])], [], {"base": 0}, ("held", "rigid")),  # bob: not to ground
     ([HOLD, HINGE], [linear_pto("p", "base", [0.0, 0.0, 0.0], "bob", [1.0, 0.0, -1.0], damping=1.0)], {},
      ("rigid", "rigid")),                                              # a PTO's load on the base: kept
     ([HOLD, HINGE, joint("spherical", "ground", "base", [0.0, 0.0, 0.0])], [], {}, None),   # redundant: kept
 ])
 def test_which_bodies_are_held(joints, ptos, held, kinds):
-    """A body held by one fixed joint to ground is left out; one a PTO acts on, or held redundantly
-    (the full form reports it), is kept; a fixed joint between two bodies holds neither."""
+    """A body held by one fixed joint to ground is left out (with friction on a joint to it too); one
+    a PTO acts on, or held redundantly (the full form reports it), is kept; a fixed joint between two bodies holds neither."""
     text = scene_toml(dt=0.01, duration=0.1, progress=False, joints=joints, ptos=ptos or None,
                       bodies=[body("base", mass=5.0, center_of_mass=[0.3, 0.0, -0.5], inertia=[1.0, 1.0, 1.0]),
                               body("bob", mass=2.0, center_of_mass=[1.0, 0.0, -1.0], inertia=[0.02, 0.02, 0.02])])

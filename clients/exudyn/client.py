@@ -354,8 +354,8 @@ def _add_joint_variables(writer, labels: list[str]) -> None:
     """Declare the joint outputs in the results file (dims ``joint``, ``joint_component``)."""
     coords = {"joint": labels, "joint_component": list(JOINT_COMPONENTS)}
     writer.add_variable("joint_force", ("joint", "joint_component"), coords, "N (fx, fy, fz); N m (mx, my, mz)",
-                        "joint reaction on body2 from body1, global frame: force at the joint point, "
-                        "moment about it")
+                        "load on body2 from body1 through the joint (constraint reaction plus joint friction), "
+                        "global frame: force at the joint point, moment about it")
     writer.add_variable("joint_violation", ("joint",), coords, "m",
                         "position-level joint violation: norm of the constrained relative translation")
     writer.add_variable("joint_rotation_violation", ("joint",), coords, "rad",

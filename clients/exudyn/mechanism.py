@@ -66,8 +66,8 @@ the A∞ and hydrostatic coupling to the coordinates that move) and the other jo
 (the body integrated under the joint's six Lagrange multipliers) the other bodies' motion agrees to
 Newton's tolerance and the reactions' forces to the full form's multiplier noise
 (tests/test_held_bodies.py). It does not apply — the body stays in the system — where the reaction
-could not account for a load or the full form reports an error (:func:`hold_blocker`): a PTO,
-mooring or joint friction acting on it, generalized modes on it, hydrodynamic states in the scene,
+could not account for a load or the full form reports an error (:func:`hold_blocker`): a PTO or
+mooring acting on it, generalized modes on it, hydrodynamic states in the scene,
 a second joint to ground or to another held body, a ``[[constraints]]`` entry or locked ``dofs`` on
 it, a nonzero initial state, or every wet body held (nothing left to integrate). A fixed joint
 between two bodies holds neither (it is a joint like any other).
@@ -77,11 +77,15 @@ Joints are ``ObjectJointGeneric`` with the constrained axes of the joint frame (
 loop (revolute axes parallel to one normal, prismatic axes in the plane) is reduced by freeing the
 dependent (out-of-plane) axes of the joint that closes the loop; anything else is refused naming the
 joints. Friction on a revolute/prismatic joint is a regularised Coulomb force/torque
-``F tanh(v / v_reg)`` on the free relative coordinate, an ``ObjectConnectorRigidBodySpringDamper``
-with a Python user function (about 2 calls per Newton step; measured ≈ 120 µs per step and joint
-in a client run on the 2-core VM). :class:`JointOutputs` reads four outputs of a joint a step (five
-where its marker-0 frame moves): ≈ 15 µs for the OSWEC's hinge and held base (2-vCPU VM, load 6)
-with numpy; the compiled exchange takes its arithmetic as one numba call (``JointOutputs.compiled``).
+``F tanh(v / v_reg)`` on the free relative coordinate: an ``ObjectConnectorRigidBodySpringDamper``
+on the joint's markers whose user function is an Exudyn symbolic one (``exudyn.symbolic``: the law
+recorded once as an expression tree Exudyn evaluates in C++, no Python call in the step; it was a
+Python function, ≈ 120 µs per step and joint). Its force or torque is part of the load the joint
+passes: ``joint_force`` is the constraint's reaction plus the friction (:class:`JointOutputs`), and
+a held body's reaction takes it with the other joints' loads. :class:`JointOutputs` reads four
+outputs of a joint a step (five where its marker-0 frame moves, one more with friction): ≈ 15 µs for
+the OSWEC's hinge and held base (2-vCPU VM, load 6) with numpy; the compiled exchange takes its
+arithmetic as one numba call (``JointOutputs.compiled``).
 """
 
 from __future__ import annotations
@@ -92,6 +96,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 import exudyn as exu
+from exudyn.advancedUtilities import CreateSymbolicUserFunction
 from exudyn.itemInterface import (CoordinateConstraint, LoadCoordinate, LoadForceVector, MarkerBodyPosition,
                                   MarkerBodyRigid, MarkerNodeCoordinate, Node1D, NodeGenericODE2, NodePoint,
                                   NodePointGround, NodeRigidBodyRxyz, ObjectConnectorRigidBodySpringDamper,
@@ -100,7 +105,8 @@ from exudyn.itemInterface import (CoordinateConstraint, LoadCoordinate, LoadForc
                                   VObjectJointSpherical, VObjectMass1D, VObjectRigidBody)
 from exudyn.rigidBodyUtilities import RigidBodyInertia
 
-from hydrolink.clients.exudyn.kernels.joint_moments import local_moment, rotation_pairs
+from hydrolink.clients.exudyn.kernels.joint_moments import (FRICTION_FORCE, FRICTION_TORQUE, NO_FRICTION, add_friction,
+                                                            local_moment, rotation_pairs)
 from hydrolink.server.rigid_body import rigid_body_mass_matrix
 from hydrolink.protocol.scene import DOF_NAMES, Body, Joint, LinearPTO, PointMass, Scene, SceneError
 
@@ -166,7 +172,8 @@ class JointInfo:
     markers: tuple[int, int]
     constrained: tuple[int, ...]
     frame: np.ndarray         # 3x3, columns = joint axes (global, reference configuration)
-    friction_object: int = -1
+    friction_object: int = -1          # the friction connector (-1: none)
+    friction_function: object = None   # its symbolic user function, kept alive with the joint (Exudyn's advice)
     point_mass: bool = False  # a spherical joint with a point mass: ObjectJointSpherical, global outputs
     bodies: tuple[str, str] = ("", "")                   # body1, body2
     point: tuple[float, float, float] = (0.0, 0.0, 0.0)  # the joint point (global, reference configuration)
@@ -209,10 +216,11 @@ class JointOutputs:
     """The joints' results variables at the current state (:meth:`Mechanism.joint_outputs`): an
     ``ObjectJointGeneric``'s ``ForceLocal``, ``TorqueLocal``, ``DisplacementLocal`` and ``Rotation``,
     with its marker-0 frame A₀ (read once where the marker is on ground or on a held body, else each
-    call). The reaction on body2 from body1, global, about the joint point (marker 1's point): force
-    −A₀ ``ForceLocal``; moment −A₀ m, m the rotation multipliers (``TorqueLocal``) mapped to the
-    moment they exert (clients/exudyn/kernels/joint_moments.py: they are multipliers of dot-product
-    constraints, not moment components).
+    call), and its friction connector's ``ForceLocal`` (prismatic) or ``TorqueLocal`` (revolute). The
+    load on body2 from body1, global, about the joint point (marker 1's point): force −A₀
+    (``ForceLocal`` + the friction force); moment −A₀ (m + the friction torque), m the rotation
+    multipliers (``TorqueLocal``) mapped to the moment they exert (clients/exudyn/kernels/joint_moments.py:
+    they are multipliers of dot-product constraints, not moment components).
 
     A held body's fixed joint (module docstring, "Held bodies") has no Exudyn object: its reaction
     follows from the held body's equation (it does not accelerate): minus the loads on it — its
@@ -227,7 +235,7 @@ class JointOutputs:
                  hydro: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] | None = None):
         ovt = exu.OutputVariableType
         self._mbs, self._n = mbs, len(mech.joints)
-        self._generic: list[tuple[int, int, np.ndarray | int, np.ndarray, tuple]] = []
+        self._generic: list[tuple[int, int, np.ndarray | int, np.ndarray, tuple, int, int]] = []
         self._point: list[tuple[int, int]] = []
         for k, j in enumerate(mech.joints):
             if int(j.object) < 0:
@@ -238,8 +246,10 @@ class JointOutputs:
             body0 = mech.handles[j.bodies[0]]
             a0 = np.asarray(mbs.GetMarkerOutput(j.markers[0], ovt.RotationMatrix)).reshape(3, 3) \
                 if body0.kind in ("ground", "held") else j.markers[0]
+            which = NO_FRICTION if int(j.friction_object) < 0 else FRICTION_FORCE if friction_axis(j.type) < 3 \
+                else FRICTION_TORQUE
             self._generic.append((k, j.object, a0, np.asarray(j.constrained, bool),
-                                  tuple(map(tuple, rotation_pairs(j.constrained).tolist()))))
+                                  tuple(map(tuple, rotation_pairs(j.constrained).tolist())), j.friction_object, which))
         self._moment = np.zeros(3)
         # a held body's fixed joint: its reaction (on body2, about the joint point) = offset + transfer @
         # (its load rows, a, q at the hydro object's coordinates, the other joints' wrenches)
@@ -272,12 +282,15 @@ class JointOutputs:
             wrench[k, :3] = -np.asarray(get(obj, ovt.Force))
             gap[k] = float(np.linalg.norm(get(obj, ovt.Displacement)))
         m = self._moment
-        for k, obj, a0, c, pairs in self._generic:
+        for k, obj, a0, c, pairs, fobj, which in self._generic:
             if not isinstance(a0, np.ndarray):
                 a0 = np.asarray(mbs.GetMarkerOutput(a0, ovt.RotationMatrix)).reshape(3, 3)
             angles = np.asarray(get(obj, ovt.Rotation))
             local_moment(np.asarray(get(obj, ovt.TorqueLocal)).tolist(), angles.tolist(), pairs, m)
-            wrench[k, :3] = -a0.dot(get(obj, ovt.ForceLocal))
+            force = np.asarray(get(obj, ovt.ForceLocal))
+            if which != NO_FRICTION:
+                add_friction(which, get(fobj, _FRICTION_OUTPUT[which]).tolist(), force, m)
+            wrench[k, :3] = -a0.dot(force)
             wrench[k, 3:] = -a0.dot(m)
             d, r = np.asarray(get(obj, ovt.DisplacementLocal))[c[:3]], angles[c[3:]]
             gap[k], rot_gap[k] = math.sqrt(d.dot(d)), math.sqrt(r.dot(r))      # np.linalg.norm's value
@@ -302,14 +315,17 @@ class JointOutputs:
         from hydrolink.clients.exudyn.kernels import joints as jk
         mbs, ovt, n = self._mbs, exu.OutputVariableType, self._n
         generic = self._generic
-        raw, frames = np.zeros((len(generic), 4, 3)), np.zeros((len(generic), 3, 3))
+        raw, frames = np.zeros((len(generic), 5, 3)), np.zeros((len(generic), 3, 3))
         moving = [(g, a0) for g, (_, _, a0, *_) in enumerate(generic) if not isinstance(a0, np.ndarray)]
         for g, (_, _, a0, *_) in enumerate(generic):
             if isinstance(a0, np.ndarray):
                 frames[g] = a0
         rows = np.array([k for k, *_ in generic], np.int64)
-        locked = np.array([c for *_, c, _ in generic], bool).reshape(len(generic), 6)
-        pairs = np.array([p for *_, p in generic], np.int64).reshape(len(generic), 3, 2)
+        locked = np.array([g[3] for g in generic], bool).reshape(len(generic), 6)
+        pairs = np.array([g[4] for g in generic], np.int64).reshape(len(generic), 3, 2)
+        friction = np.array([g[6] for g in generic], np.int64)
+        rubbing = [(g, fobj, _FRICTION_OUTPUT[which]) for g, (*_, fobj, which) in enumerate(generic)
+                   if which != NO_FRICTION]
         width = np.array([t.shape[1] for _, _, t, *_ in self._held], np.int64)
         start = np.concatenate(([0], np.cumsum(6 * width)[:-1])).astype(np.int64)
         kind = np.full((len(self._held), int(width.max(initial=0))), -1, np.int64)
@@ -324,7 +340,7 @@ class JointOutputs:
         sd, now = mbs.systemData, exu.ConfigurationType.Current
         slot = (np.zeros((n, 6)), np.zeros(n), np.zeros(n))
         views = (sd.GetODE2Coordinates(now, False), sd.GetODE2Coordinates_tt(now, False))
-        args = (raw, frames, rows, locked, pairs, *held, np.zeros(1), *views, *slot)
+        args = (raw, frames, rows, locked, pairs, friction, *held, np.zeros(1), *views, *slot)
         entry = jk.joint_rows.compile(tuple(typeof(x) for x in args))    # numba's per-call typing skipped
         get, marker = mbs.GetObjectOutput, mbs.GetMarkerOutput
         outputs = (ovt.ForceLocal, ovt.TorqueLocal, ovt.DisplacementLocal, ovt.Rotation)
@@ -336,9 +352,15 @@ class JointOutputs:
             for g, (_, obj, *_) in enumerate(generic):
                 for i, what in enumerate(outputs):
                     raw[g, i] = get(obj, what)
-            entry(raw, frames, rows, locked, pairs, *held, load, sd.GetODE2Coordinates(now, False),
+            for g, fobj, what in rubbing:
+                raw[g, 4] = get(fobj, what)
+            entry(raw, frames, rows, locked, pairs, friction, *held, load, sd.GetODE2Coordinates(now, False),
                   sd.GetODE2Coordinates_tt(now, False), slots[0][0], slots[1][0], slots[2][0])
         return fill
+
+
+#: the friction connector's output a joint's load takes (joint_moments.add_friction's ``which``)
+_FRICTION_OUTPUT = {FRICTION_FORCE: exu.OutputVariableType.ForceLocal, FRICTION_TORQUE: exu.OutputVariableType.TorqueLocal}
 
 
 def _transfer(r: np.ndarray) -> np.ndarray:
@@ -492,8 +514,6 @@ def hold_blocker(scene: Scene, body: Body, holding: list[int], candidates: set[s
             other = j.body2 if j.body1 == body.name else j.body1
             if other in candidates or other == GROUND:
                 return f"joints[{k}] joins it to another held body or to ground"
-            if j.friction is not None:
-                return f"joints[{k}] has friction"
     for k, m in enumerate(scene.moorings):
         if body.name in (getattr(m, "body", None), getattr(m, "attach_to", None), *getattr(m, "coupled_bodies", ())):
             return f"moorings[{k}] acts on it"
@@ -630,14 +650,23 @@ def joint_label(scene: Scene, i: int) -> str:
     return scene.joints[i].name or f"joints[{i}]"
 
 
-def _friction_function(free_axis: int, level: float, v_reg: float):
-    """User function: regularised Coulomb force/torque on the joint's free axis (joint frame)."""
-    def friction(mbs, t, item, displacement, rotation, velocity, angular_velocity, *args):
+def friction_axis(joint_type: str) -> int:
+    """The axis (joint frame: 0..2 translations, 3..5 rotations) a joint's friction acts along: the
+    one its type leaves free (a prismatic joint's x translation, a revolute's z rotation)."""
+    return JOINT_AXES[joint_type].index(0)
+
+
+def _friction_function(mbs, free_axis: int, level: float, v_reg: float):
+    """The friction connector's user function: the regularised Coulomb force/torque on the joint's
+    free axis (joint frame), recorded as an Exudyn symbolic function (evaluated in C++)."""
+    def friction(mbs, t, itemNumber, displacement, rotation, velocity, angularVelocity, stiffness, damping, rotJ0,
+                 rotJ1, offset):   # the names and number Exudyn's recording checks
         out = [0.0] * 6
-        v = velocity[free_axis] if free_axis < 3 else angular_velocity[free_axis - 3]
-        out[free_axis] = level * math.tanh(v / v_reg)   # the connector applies minus this to body2
+        v = velocity[free_axis] if free_axis < 3 else angularVelocity[free_axis - 3]
+        out[free_axis] = level * exu.symbolic.tanh(v / v_reg)   # the connector applies minus this to body2
         return out
-    return friction
+    return CreateSymbolicUserFunction(mbs, friction, "springForceTorqueUserFunction",
+                                      itemTypeName="ObjectConnectorRigidBodySpringDamper")
 
 
 def add_joint(mbs, scene: Scene, i: int, handles: dict[str, BodyHandle]) -> JointInfo:
@@ -662,13 +691,12 @@ def add_joint(mbs, scene: Scene, i: int, handles: dict[str, BodyHandle]) -> Join
     axes = JOINT_AXES[joint.type]
     obj = mbs.AddObject(ObjectJointGeneric(name=label if joint.name else f"joint{i}", markerNumbers=[m0, m1],
                                            constrainedAxes=list(axes)))
-    fobj = -1
+    fobj, law = -1, None
     if joint.friction is not None:
-        free = 0 if joint.type == "prismatic" else 5
-        fobj = mbs.AddObject(ObjectConnectorRigidBodySpringDamper(
-            name=f"{label}_friction", markerNumbers=[m0, m1],
-            springForceTorqueUserFunction=_friction_function(free, joint.friction.force, joint.friction.velocity)))
-    return JointInfo(label, f"joints[{i}]", joint.type, obj, (m0, m1), axes, frame, fobj, bodies=where[0],
+        law = _friction_function(mbs, friction_axis(joint.type), joint.friction.force, joint.friction.velocity)
+        fobj = mbs.AddObject(ObjectConnectorRigidBodySpringDamper(name=f"{label}_friction", markerNumbers=[m0, m1],
+                                                                  springForceTorqueUserFunction=law))
+    return JointInfo(label, f"joints[{i}]", joint.type, obj, (m0, m1), axes, frame, fobj, law, bodies=where[0],
                      point=where[1])
 
 

@@ -1,4 +1,5 @@
-"""The reaction moment of an ``ObjectJointGeneric`` from its rotation multipliers.
+"""The reaction moment of an ``ObjectJointGeneric`` from its rotation multipliers, and a joint
+friction's share of the load through the joint.
 
 Exudyn's ``TorqueLocal`` output is not a moment: it is the joint's three rotation Lagrange
 multipliers λ₃…λ₅, one per rotation constraint, and each constraint is a dot product of a column of
@@ -17,7 +18,12 @@ couple (the force acts at marker 1's point, the joint point). The axes swap sign
 +y) and follow the joint angle (a revolute's locked-axis moment rotates with its marker 1), which the
 raw multipliers do not.
 
-Plain scalar arithmetic: ``JointOutputs`` calls it from Python, clients/exudyn/kernels/joints.py
+A joint with friction (clients/exudyn/mechanism.py ``add_joint``) has a connector on the same
+markers applying minus the law's force or torque (marker 0's frame: its ``ForceLocal`` on a prismatic
+joint, ``TorqueLocal`` on a revolute) to body 2: :func:`add_friction` adds it to the joint's local force
+or moment, so that −A₀ of the sum is the whole load on body 2 from body 1.
+
+Plain scalar arithmetic: ``JointOutputs`` calls both from Python, clients/exudyn/kernels/joints.py
 compiles it with numba — the same operations in the same order, so the same bits. numba's cache of
 ``kernels.joints.joint_rows`` holds this code compiled in but tracks only kernels/joints.py's own
 stamp: with any change here, touch kernels/joints.py too (else a cached kernel keeps the old
@@ -79,3 +85,19 @@ def local_moment(torque, angles, pairs, out) -> None:
         else:
             out[0] += lam * v1
             out[1] -= lam * v0
+
+
+#: a friction connector's output a joint reads (``JointOutputs``): none, ``ForceLocal``, ``TorqueLocal``
+NO_FRICTION, FRICTION_FORCE, FRICTION_TORQUE = -1, 0, 1
+
+
+def add_friction(which, friction, force, moment) -> None:
+    """The friction connector's local force (``which`` FRICTION_FORCE: a prismatic joint's) added to
+    the joint's ``force`` (its ``ForceLocal``), or its local torque (FRICTION_TORQUE: a revolute's)
+    to ``moment`` (:func:`local_moment`'s), in place; nothing for NO_FRICTION."""
+    if which == FRICTION_FORCE:
+        for i in range(3):
+            force[i] += friction[i]
+    elif which == FRICTION_TORQUE:
+        for i in range(3):
+            moment[i] += friction[i]
