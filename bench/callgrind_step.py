@@ -200,7 +200,8 @@ def main() -> None:
             per_step[case] = instructions(case, args.warm, args.steps, folder, library) / args.steps
             print(f"{case}: {per_step[case]:,.0f} instructions a step", flush=True)
     floor = per_step.get("floor")
-    print(f"\nsteps {args.warm} to {args.warm + args.steps} at dt {DT} s; load average {os.getloadavg()[0]:.1f} "
+    print(f"\nsteps {args.warm} to {args.warm + args.steps} (floor, rm3, cylinder at dt {DT} s; bench_suite's cases at "
+          f"their own); load average {os.getloadavg()[0]:.1f} "
           "(no effect on the counts)\n\n| case | instructions a step | × the floor |\n|---|---|---|")
     for case, ir in per_step.items():
         print(f"| {case} | {ir:,.0f} | {ir / floor:.2f} |" if floor else f"| {case} | {ir:,.0f} | |")
