@@ -96,7 +96,8 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
                    listen: str = "tcp://127.0.0.1:*", hdbs: dict[str, xr.Dataset] | None = None,
                    curve=None, key: bytes | None = None, link_timeout: float = 10.0,
                    hdb_files: bool = False, realtime: float | None = None,
-                   control_token: str | None = None, direct: bool = True) -> RunSummary:
+                   control_token: str | None = None, direct: bool = True,
+                   rt_priority: int | None = None) -> RunSummary:
     """Run a scene end to end; returns the run summary (steps, wall time, output path, the server's side).
 
     A scene with ``[[controllers]]`` and no ``server`` makes its own force server with a socket on
@@ -112,7 +113,9 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
     FACTOR x wall clock (protocol/pacing.py; the summary's ``realtime``, a PacedRunReport, and the
     results' ``step_latency``, ``overrun`` and ``step_time``, docs/realtime.md); ``control_token``: the
     secret the scene's controllers show to join (SPEC §5.7.2: ``hydrolink control --token``; None: the server
-    draws one, printed on stderr); ``direct``: take a ``server``'s direct channel offered (SPEC §5.7.5)."""
+    draws one, printed on stderr); ``direct``: take a ``server``'s direct channel offered (SPEC §5.7.5);
+    ``rt_priority``: the run's loop (not its set-up) under ``SCHED_FIFO`` at that priority
+    (clients/lockstep/rt_priority.py, ``--rt-priority``: the caller checks it may be had first)."""
     from hydrolink.clients.lockstep.connection import ServerConnection
     from hydrolink.clients.exudyn.client import result_bodies, run
     from hydrolink.clients.lockstep.results import ResultWriter
@@ -134,7 +137,7 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
         with ResultWriter(output, scene=scene, scene_text=text, dt=scene.simulation.dt, bodies=names,
                           equilibrium_position=reference, flush_seconds=scene.simulation.flush_seconds) as writer:
             summary = run(scene, text, None, None, writer, progress=progress, moordyn_files=moordyn_files,
-                          realtime=realtime)
+                          realtime=realtime, rt_priority=rt_priority)
             _write_summary_attributes(writer, summary)
         return replace(summary, output=str(output), server=None)
     with ExitStack() as stack:
@@ -175,10 +178,10 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
         if scene.client.type == "fmu":
             from hydrolink.clients.fmu.master import run as run_fmu
             summary = run_fmu(scene, text, conn, setup, writer, scene_path=scene_path, progress=progress,
-                              realtime=realtime)
+                              realtime=realtime, rt_priority=rt_priority)
         else:
             summary = run(scene, text, conn, setup, writer, progress=progress, moordyn_files=moordyn_files,
-                          realtime=realtime)
+                          realtime=realtime, rt_priority=rt_priority)
         _write_summary_attributes(writer, summary)
         goodbye = conn.bye()
     metrics = _after_the_run(scene, output, sections)

@@ -7,6 +7,13 @@ lose its core to the process it woke: the round trip then costs scheduler slices
 A ``SCHED_FIFO`` thread runs as soon as it is runnable, ahead of every ordinary thread, so the
 step's time is its own work again. The kernel's real-time throttling (``sched_rt_runtime_us``,
 95 % of each second by default) keeps a busy real-time thread from starving the host.
+
+The priority is the loop's, not the process's: a command checks it may be had before any set-up
+work (:func:`check_rt_priority`), and the loop holds it (:func:`rt_priority`) from its first
+step to its last — the run's from its first exchange (after the HDBs, the model, the compiled
+kernels, the results file and its writer, the controllers' join) to its last, a controller's from
+its first measurement to ``stop``. Seconds of set-up under ``SCHED_FIFO`` would starve every
+ordinary process on the core, and the threads started during it would inherit the policy.
 """
 
 from __future__ import annotations
@@ -24,8 +31,8 @@ class PriorityError(ValueError):
 
 
 def hold_rt_priority(priority: int, option: str = "--rt-priority") -> tuple[int, int]:
-    """Run the calling thread (and the threads it starts afterwards: the results writer, ZeroMQ's)
-    under ``SCHED_FIFO`` at ``priority``; returns the thread's previous (policy, priority) for
+    """Run the calling thread (and the threads it starts afterwards) under ``SCHED_FIFO`` at
+    ``priority``; returns the thread's previous (policy, priority) for
     :func:`restore_priority`. PriorityError naming ``option`` when the value is out of range, the
     platform has no ``SCHED_FIFO`` or the process may not take it (it needs CAP_SYS_NICE or an
     ``ulimit -r`` of at least ``priority``)."""
@@ -43,6 +50,13 @@ def hold_rt_priority(priority: int, option: str = "--rt-priority") -> tuple[int,
     except OSError as exc:
         raise PriorityError(f"{option} {priority}: SCHED_FIFO refused ({exc})") from None
     return before
+
+
+def check_rt_priority(priority: int, option: str = "--rt-priority") -> None:
+    """The :class:`PriorityError` :func:`hold_rt_priority` would raise, now: ``SCHED_FIFO`` at
+    ``priority`` taken and given back at once, so that a command refuses the option before its
+    set-up and takes the priority for its loop only."""
+    restore_priority(hold_rt_priority(priority, option))
 
 
 def restore_priority(before: tuple[int, int]) -> None:
