@@ -33,6 +33,7 @@ This module imports only numpy, pyzmq and the codec, so a controller process sta
 
 from __future__ import annotations
 
+import contextlib
 import gc
 import importlib.util
 import itertools
@@ -48,7 +49,7 @@ import numpy as np
 import zmq
 
 from hydrolink.clients.lockstep.direct_channel import DirectChannel
-from hydrolink.clients.lockstep.rt_priority import hold_rt_priority, restore_priority
+from hydrolink.clients.lockstep.rt_priority import rt_priority as held_priority
 from hydrolink.protocol import codec
 from hydrolink.protocol.codec import FRAME_REQUESTS, ControlLayout
 
@@ -229,7 +230,7 @@ def run_controller(controller: Controller, server: str, *, token: str, session: 
     link = _Link(server, key, timeout, curve)
     link.session = session
     stats = {"steps": 0, "errors": 0, "idle": 0, "late": 0, "invalid": 0, "cpu_s": math.nan}
-    before = None   # the policy to give back when the loop held the real-time priority
+    loop_priority = contextlib.ExitStack()   # the loop's real-time priority, given back in ``finally``
     try:
         t_end = time.monotonic() + join_wait
         while True:
@@ -263,7 +264,7 @@ def run_controller(controller: Controller, server: str, *, token: str, session: 
         gc.freeze()
         cpu0 = time.process_time()
         ident = {"controller": name, "epoch": epoch, "wait": wait}
-        before = hold_rt_priority(rt_priority) if rt_priority is not None else None
+        loop_priority.enter_context(held_priority(rt_priority))
         reply = link.request("measure", wait, **ident)
         while True:
             kind = reply["type"]
@@ -293,8 +294,7 @@ def run_controller(controller: Controller, server: str, *, token: str, session: 
             else:
                 raise ControllerError(f"unexpected reply type {kind!r}")
     finally:
-        if before is not None:
-            restore_priority(before)
+        loop_priority.close()
         gc.unfreeze()
         stats["direct"] = link.direct is not None
         stats["frames"] = link.direct is not None and link.frames is not None

@@ -130,10 +130,11 @@ class Observer(Controller):
                 children = [int(p) for p in f.read().split()]
             self.seen["run_threads"] = threads(RUN)
             self.seen["children_threads"] = [threads(p) for p in children]
+            self.seen["own_threads"] = threads(os.getpid())
         return {{p: self.c * v for p, v in zip(self.ptos, m["pto_velocity"].tolist())}}
 
     def on_stop(self):
-        self.seen["stop"] = os.sched_getscheduler(0)
+        self.seen["stop"] = threads(os.getpid())
         with open(OUT, "w") as f:
             json.dump(self.seen, f)
 '''
@@ -145,9 +146,9 @@ def test_run_and_controller_hold_fifo_for_their_loops_only(reference_data, tmp_p
     """``hydrolink run --realtime --rt-priority 5`` with a ``hydrolink control --rt-priority 5``
     controller, observed by the controller from outside the run (/proc, ``sched_getscheduler`` of
     the run's stepping thread): at the join (the run's set-up done but for its first sample) both
-    are ordinary; at every step after the run's first exchange both are SCHED_FIFO, and then only
-    the run's stepping thread is: the threads its set-up started (ZeroMQ's) and its results
-    writer's process are ordinary; at ``stop`` the controller is ordinary again."""
+    are ordinary; at every step after the run's first exchange both are SCHED_FIFO, and so are
+    their ZeroMQ I/O threads, but no other thread: the rest of those the run's set-up started and
+    its results writer's process are ordinary; at ``stop`` the controller is ordinary again."""
     from conftest import EXIT_S, REPLY_S, controller_process
     from test_controllers import TOKEN, controller_block, free_address, scene_text
 
@@ -175,11 +176,19 @@ def test_run_and_controller_hold_fifo_for_their_loops_only(reference_data, tmp_p
     steps = seen["steps"]
     assert len(steps) == 60 and all(own == fifo for own, _ in steps)
     assert all(theirs == fifo for _, theirs in steps[2:])    # steps 0-1 may be answered before the loop's first exchange
-    main, *others = seen["run_threads"]
-    assert main[1] == fifo and others and all(policy == other for _, policy in others), seen["run_threads"]
-    assert [len(t) for t in seen["children_threads"]] and \
-        all(policy == other for t in seen["children_threads"] for _, policy in t), seen["children_threads"]
-    assert seen["stop"] == other
+
+    def fifo_threads(threads: list) -> list:
+        return [i for i, (name, policy) in enumerate(threads) if policy == fifo]
+
+    def io_thread(threads: list) -> list:
+        return [i for i, (name, _) in enumerate(threads) if name.startswith("ZMQbg/IO/")]
+
+    run_threads, own = seen["run_threads"], seen["own_threads"]
+    assert len(run_threads) > 2 and fifo_threads(run_threads) == [0, *io_thread(run_threads)], run_threads
+    assert len(own) > 2 and fifo_threads(own) == [0, *io_thread(own)], own
+    assert io_thread(run_threads) and io_thread(own)
+    assert seen["children_threads"] and not any(fifo_threads(t) for t in seen["children_threads"])
+    assert seen["stop"] and not fifo_threads(seen["stop"]), seen["stop"]
 
 
 def test_cli_run_refuses_the_priority_before_its_set_up(tmp_path):

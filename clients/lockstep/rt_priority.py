@@ -13,7 +13,9 @@ work (:func:`check_rt_priority`), and the loop holds it (:func:`rt_priority`) fr
 step to its last — the run's from its first exchange (after the HDBs, the model, the compiled
 kernels, the results file and its writer, the controllers' join) to its last, a controller's from
 its first measurement to ``stop``. Seconds of set-up under ``SCHED_FIFO`` would starve every
-ordinary process on the core, and the threads started during it would inherit the policy.
+ordinary process on the core, and the threads started during it would inherit the policy. The
+loop's priority covers the process's ZeroMQ I/O threads too (started with their contexts, in the
+set-up): a step's messages over ZeroMQ pass through them.
 """
 
 from __future__ import annotations
@@ -66,16 +68,54 @@ def restore_priority(before: tuple[int, int]) -> None:
 
 @contextmanager
 def rt_priority(priority: int | None, option: str = "--rt-priority") -> Iterator[None]:
-    """:func:`hold_rt_priority` for the block (nothing when ``priority`` is None), then the previous
-    policy back."""
+    """A loop's priority: :func:`hold_rt_priority` for the block, and the same for this process's
+    ZeroMQ I/O threads (:func:`io_threads`: a message over ZeroMQ passes through one on each side,
+    and they were started with their context, in the set-up, under the ordinary policy); then
+    every one's previous policy back. Nothing when ``priority`` is None."""
     if priority is None:
         yield
         return
     before = hold_rt_priority(priority, option)
+    raised = []
     try:
+        for tid in io_threads():
+            try:
+                was = (os.sched_getscheduler(tid), os.sched_getparam(tid).sched_priority)
+                os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))
+            except OSError:   # ended meanwhile
+                continue
+            raised.append((tid, was))
         yield
     finally:
+        for tid, (policy, level) in raised:
+            try:
+                os.sched_setscheduler(tid, policy, os.sched_param(level))
+            except OSError:
+                pass
         restore_priority(before)
+
+
+#: the name libzmq (4.3) gives its I/O threads, ``ZMQbg/IO/<n>`` (its reaper, ``ZMQbg/Reaper``, only
+#: closes sockets)
+IO_THREAD_NAME = "ZMQbg/IO/"
+
+
+def io_threads() -> list[int]:
+    """The thread ids of this process's ZeroMQ I/O threads (by their names in /proc; none where
+    there is no /proc)."""
+    try:
+        tasks = os.listdir("/proc/self/task")
+    except OSError:
+        return []
+    found = []
+    for tid in tasks:
+        try:
+            with open(f"/proc/self/task/{tid}/comm") as f:
+                if f.read().startswith(IO_THREAD_NAME):
+                    found.append(int(tid))
+        except OSError:   # ended meanwhile
+            pass
+    return found
 
 
 @contextmanager
