@@ -121,8 +121,9 @@ def run_controlled(path: Path, controller: Path, realtime: float | None, relay: 
         if relay == "thread":
             from hydrolink.clients.analysis.plant import build_plant
             srv, thread = serve_in_thread(address, plant_builder=build_plant)
-        summary = run_scene_file(path, path.with_suffix(".nc"), progress=False, listen=address, control_token=TOKEN,
-                                 realtime=realtime, server=address if srv is not None else None, rt_priority=rt_priority)
+        summary = run_scene_file(path, path.with_suffix(".nc"), progress=False, listen=address,
+                                 control_token=TOKEN, realtime=realtime, server=address if srv is not None else None,
+                                 rt_priority=rt_priority)
     finally:
         driver.run = plain_run
         if srv is not None:
