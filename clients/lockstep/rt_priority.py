@@ -15,12 +15,14 @@ kernels, the results file and its writer, the controllers' join) to its last, a 
 its first measurement to ``stop``. Seconds of set-up under ``SCHED_FIFO`` would starve every
 ordinary process on the core, and the threads started during it would inherit the policy. The
 loop's priority covers the process's ZeroMQ I/O threads too (started with their contexts, in the
-set-up): a step's messages over ZeroMQ pass through them.
+set-up): a step's messages over ZeroMQ pass through them, and its other Python threads: they take
+the GIL the loop needs (:func:`companion_threads`).
 """
 
 from __future__ import annotations
 
 import os
+import threading
 from contextlib import contextmanager
 from typing import Iterator
 
@@ -68,17 +70,16 @@ def restore_priority(before: tuple[int, int]) -> None:
 
 @contextmanager
 def rt_priority(priority: int | None, option: str = "--rt-priority") -> Iterator[None]:
-    """A loop's priority: :func:`hold_rt_priority` for the block, and the same for this process's
-    ZeroMQ I/O threads (:func:`io_threads`: a message over ZeroMQ passes through one on each side,
-    and they were started with their context, in the set-up, under the ordinary policy); then
-    every one's previous policy back. Nothing when ``priority`` is None."""
+    """A loop's priority: :func:`hold_rt_priority` for the block, and the same for the threads the
+    loop works through (:func:`companion_threads`, started in the set-up under the ordinary
+    policy); then every one's previous policy back. Nothing when ``priority`` is None."""
     if priority is None:
         yield
         return
     before = hold_rt_priority(priority, option)
     raised = []
     try:
-        for tid in io_threads():
+        for tid in companion_threads():
             try:
                 was = (os.sched_getscheduler(tid), os.sched_getparam(tid).sched_priority)
                 os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))
@@ -100,22 +101,25 @@ def rt_priority(priority: int | None, option: str = "--rt-priority") -> Iterator
 IO_THREAD_NAME = "ZMQbg/IO/"
 
 
-def io_threads() -> list[int]:
-    """The thread ids of this process's ZeroMQ I/O threads (by their names in /proc; none where
-    there is no /proc)."""
+def companion_threads() -> list[int]:
+    """The thread ids of the threads of this process a loop works through: its other Python threads
+    (a tqdm monitor's: they take the GIL the loop needs, and one preempted by ordinary work while
+    holding it would stop the loop) and its ZeroMQ I/O threads (a message over ZeroMQ passes
+    through one on each side; found by their names in /proc, none where there is none)."""
+    me = threading.get_native_id()
+    found = {t.native_id for t in threading.enumerate() if t.native_id is not None and t.native_id != me}
     try:
         tasks = os.listdir("/proc/self/task")
     except OSError:
-        return []
-    found = []
+        tasks = []
     for tid in tasks:
         try:
             with open(f"/proc/self/task/{tid}/comm") as f:
                 if f.read().startswith(IO_THREAD_NAME):
-                    found.append(int(tid))
+                    found.add(int(tid))
         except OSError:   # ended meanwhile
             pass
-    return found
+    return sorted(found)
 
 
 @contextmanager
