@@ -121,7 +121,8 @@ class Observer(Controller):
 
     def on_start(self, info):
         self.c = float(info["parameters"]["damping"])
-        self.seen = {{"start": [os.sched_getscheduler(0), os.sched_getscheduler(RUN)], "steps": []}}
+        self.seen = {{"start": [os.sched_getscheduler(0), os.sched_getscheduler(RUN)], "steps": [],
+                     "run_threads_at_start": threads(RUN), "own_threads_at_start": threads(os.getpid())}}
 
     def on_step(self, t, m):
         self.seen["steps"].append([os.sched_getscheduler(0), os.sched_getscheduler(RUN)])
@@ -145,10 +146,11 @@ class Observer(Controller):
 def test_run_and_controller_hold_fifo_for_their_loops_only(reference_data, tmp_path):
     """``hydrolink run --realtime --rt-priority 5`` with a ``hydrolink control --rt-priority 5``
     controller, observed by the controller from outside the run (/proc, ``sched_getscheduler`` of
-    the run's stepping thread): at the join (the run's set-up done but for its first sample) both
-    are ordinary; at every step after the run's first exchange both are SCHED_FIFO, and so are
-    their ZeroMQ I/O threads, but not the other threads the set-up started outside Python (ZeroMQ's
-    reaper) nor the run's results writer's process; at ``stop`` the controller is ordinary again."""
+    the run's stepping thread): at the join (the run's set-up done but for its first sample) both,
+    and every thread their set-ups started, are ordinary; at every step after the run's first
+    exchange both are SCHED_FIFO, and so are those threads (ZeroMQ's I/O thread carries the
+    controller's messages), but not the run's results writer's process; at ``stop`` the controller
+    is ordinary again."""
     from conftest import EXIT_S, REPLY_S, controller_process
     from test_controllers import TOKEN, controller_block, free_address, scene_text
 
@@ -177,21 +179,17 @@ def test_run_and_controller_hold_fifo_for_their_loops_only(reference_data, tmp_p
     assert len(steps) == 60 and all(own == fifo for own, _ in steps)
     assert all(theirs == fifo for _, theirs in steps[2:])    # steps 0-1 may be answered before the loop's first exchange
 
-    def fifo_threads(threads: list) -> list:
-        return [i for i, (name, policy) in enumerate(threads) if policy == fifo]
+    def policies(threads: list) -> set:
+        return {policy for _, policy in threads}
 
-    def io_thread(threads: list) -> list:
-        return [i for i, (name, _) in enumerate(threads) if name.startswith("ZMQbg/IO/")]
-
-    def reaper(threads: list) -> list:
-        return [policy for name, policy in threads if name == "ZMQbg/Reaper"]
-
-    run_threads, own = seen["run_threads"], seen["own_threads"]
-    for threads in (run_threads, own):   # the stepping thread, the I/O thread; ZeroMQ's reaper not
-        assert io_thread(threads) and {0, *io_thread(threads)} <= set(fifo_threads(threads)), threads
-        assert reaper(threads) == [other], threads
-    assert seen["children_threads"] and not any(fifo_threads(t) for t in seen["children_threads"])
-    assert seen["stop"] and not fifo_threads(seen["stop"]), seen["stop"]
+    # the set-up's threads (ZeroMQ's, numpy's, tqdm's...) ordinary in the set-up, under FIFO in the loop
+    assert len(seen["run_threads_at_start"]) > 2 and policies(seen["run_threads_at_start"]) == {other}
+    assert len(seen["own_threads_at_start"]) > 2 and policies(seen["own_threads_at_start"]) == {other}
+    for at_start, in_loop in ((seen["run_threads_at_start"], seen["run_threads"]),
+                              (seen["own_threads_at_start"], seen["own_threads"])):
+        assert policies(in_loop) == {fifo} and {n for n, _ in at_start} <= {n for n, _ in in_loop}, in_loop
+    assert seen["children_threads"] and all(policies(t) == {other} for t in seen["children_threads"])
+    assert seen["stop"] and policies(seen["stop"]) == {other}
 
 
 def test_cli_run_refuses_the_priority_before_its_set_up(tmp_path):

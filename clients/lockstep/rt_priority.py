@@ -14,9 +14,8 @@ step to its last — the run's from its first exchange (after the HDBs, the mode
 kernels, the results file and its writer, the controllers' join) to its last, a controller's from
 its first measurement to ``stop``. Seconds of set-up under ``SCHED_FIFO`` would starve every
 ordinary process on the core, and the threads started during it would inherit the policy. The
-loop's priority covers the process's ZeroMQ I/O threads too (started with their contexts, in the
-set-up): a step's messages over ZeroMQ pass through them, and its other Python threads: they take
-the GIL the loop needs (:func:`companion_threads`).
+loop's priority covers the process's other threads too, for the loop only (:func:`companion_threads`:
+ZeroMQ's I/O threads carry its messages, Python threads take its GIL).
 """
 
 from __future__ import annotations
@@ -70,9 +69,9 @@ def restore_priority(before: tuple[int, int]) -> None:
 
 @contextmanager
 def rt_priority(priority: int | None, option: str = "--rt-priority") -> Iterator[None]:
-    """A loop's priority: :func:`hold_rt_priority` for the block, and the same for the threads the
-    loop works through (:func:`companion_threads`, started in the set-up under the ordinary
-    policy); then every one's previous policy back. Nothing when ``priority`` is None."""
+    """A loop's priority: :func:`hold_rt_priority` for the block, and the same for the process's
+    other threads (:func:`companion_threads`: started in the set-up, under the ordinary policy);
+    then every one's previous policy back. Nothing when ``priority`` is None."""
     if priority is None:
         yield
         return
@@ -96,30 +95,18 @@ def rt_priority(priority: int | None, option: str = "--rt-priority") -> Iterator
         restore_priority(before)
 
 
-#: the name libzmq (4.3) gives its I/O threads, ``ZMQbg/IO/<n>`` (its reaper, ``ZMQbg/Reaper``, only
-#: closes sockets)
-IO_THREAD_NAME = "ZMQbg/IO/"
-
-
 def companion_threads() -> list[int]:
-    """The thread ids of the threads of this process a loop works through: its other Python threads
-    (a tqdm monitor's: they take the GIL the loop needs, and one preempted by ordinary work while
-    holding it would stop the loop) and its ZeroMQ I/O threads (a message over ZeroMQ passes
-    through one on each side; found by their names in /proc, none where there is none)."""
+    """The ids of this process's other threads (none where there is no /proc). A loop works
+    through threads its set-up started under the ordinary policy: ZeroMQ's I/O threads (a message
+    over ZeroMQ passes through one on each side), Python threads (one preempted by ordinary work
+    while it holds the GIL would hold the loop), libraries' own; measured with only the I/O and
+    Python threads raised, a controlled run on ZeroMQ still had stalls of 16-46 ms that it had not
+    with every thread raised (docs/realtime.md)."""
     me = threading.get_native_id()
-    found = {t.native_id for t in threading.enumerate() if t.native_id is not None and t.native_id != me}
     try:
-        tasks = os.listdir("/proc/self/task")
+        return sorted(tid for tid in map(int, os.listdir("/proc/self/task")) if tid != me)
     except OSError:
-        tasks = []
-    for tid in tasks:
-        try:
-            with open(f"/proc/self/task/{tid}/comm") as f:
-                if f.read().startswith(IO_THREAD_NAME):
-                    found.add(int(tid))
-        except OSError:   # ended meanwhile
-            pass
-    return sorted(found)
+        return []
 
 
 @contextmanager
