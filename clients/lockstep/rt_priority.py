@@ -99,9 +99,9 @@ def companion_threads() -> list[int]:
     """The ids of this process's other threads (none where there is no /proc). A loop works
     through threads its set-up started under the ordinary policy: ZeroMQ's I/O threads (a message
     over ZeroMQ passes through one on each side), Python threads (one preempted by ordinary work
-    while it holds the GIL would hold the loop), libraries' own; measured with only the I/O and
-    Python threads raised, a controlled run on ZeroMQ still had stalls of 16-46 ms that it had not
-    with every thread raised (docs/realtime.md)."""
+    while it holds the GIL would hold the loop), libraries' own: with only the I/O and Python
+    threads raised, every controlled run on ZeroMQ measured had a stall of 16-46 ms
+    (docs/realtime.md, "The priority for the loop only")."""
     me = threading.get_native_id()
     try:
         return sorted(tid for tid in map(int, os.listdir("/proc/self/task")) if tid != me)
