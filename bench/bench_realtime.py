@@ -12,7 +12,7 @@ latency 1 step). The unpaced run is the same setup without --realtime: its wall 
 what a step costs here; a paced run can keep its rate only if that cost stays below 1/rate.
 ``--channels``: the controller on the polled server's direct channel (SPEC §5.7.5, what ``hydrolink
 control`` takes when offered) and/or on ZeroMQ (``--no-direct``), alternated in one run.
-``--rt-priority N``: the run (this process's thread, for each run) and the controller process under
+``--rt-priority N``: the run's loop (this process's thread, for each run) and the controller's under
 SCHED_FIFO at N (``hydrolink run/control --rt-priority``, clients/lockstep/rt_priority.py).
 Prints a markdown table (the load average before and after: the figures are the host's as much as
 the code's; the CPU time per step of each side, the run's process and the controller's, from the
@@ -103,9 +103,8 @@ def run_controlled(path: Path, controller: Path, realtime: float | None, relay: 
     over loopback TCP (two Python hops a step, two threads sharing the GIL). ``channel``:
     "direct", the controller on the polled server's direct channel (SPEC §5.7.5); "zeromq", on
     ZeroMQ only (``--no-direct``: what it did before). ``cost``: filled with the CPU per step.
-    ``rt_priority``: the run's thread and the controller process under SCHED_FIFO at that priority."""
+    ``rt_priority``: the run's loop and the controller's under SCHED_FIFO at that priority."""
     from hydrolink.clients.lockstep import driver
-    from hydrolink.clients.lockstep.rt_priority import rt_priority as held
     from hydrolink.clients.run import run_scene_file
     from hydrolink.server.service.force_server import serve_in_thread
 
@@ -122,9 +121,9 @@ def run_controlled(path: Path, controller: Path, realtime: float | None, relay: 
         if relay == "thread":
             from hydrolink.clients.analysis.plant import build_plant
             srv, thread = serve_in_thread(address, plant_builder=build_plant)
-        with held(rt_priority):
-            summary = run_scene_file(path, path.with_suffix(".nc"), progress=False, listen=address,
-                                     control_token=TOKEN, realtime=realtime, server=address if srv is not None else None)
+        summary = run_scene_file(path, path.with_suffix(".nc"), progress=False, listen=address,
+                                 control_token=TOKEN, realtime=realtime, server=address if srv is not None else None,
+                                 rt_priority=rt_priority)
     finally:
         driver.run = plain_run
         if srv is not None:

@@ -44,8 +44,7 @@ def scene(name: str, seconds: float) -> str:
 
 def run(tmp: Path, controlled: bool, seconds: float, realtime: float, rt_priority: int | None = None):
     """One run (with the WAPPAC controller process when ``controlled``); returns its RunSummary.
-    ``rt_priority``: the run's thread and the controller under SCHED_FIFO at that priority."""
-    from hydrolink.clients.lockstep.rt_priority import rt_priority as held
+    ``rt_priority``: the run's loop and the controller's under SCHED_FIFO at that priority."""
     from hydrolink.clients.run import run_scene_file
 
     name = "wavestar.toml" if controlled else "wavestar_passive.toml"
@@ -53,8 +52,7 @@ def run(tmp: Path, controlled: bool, seconds: float, realtime: float, rt_priorit
     path.write_text(scene(name, seconds))
     if controlled:
         return run_controlled(path, EXAMPLE / "wappac_damping.py", realtime, rt_priority=rt_priority)
-    with held(rt_priority):
-        return run_scene_file(path, path.with_suffix(".nc"), progress=False, realtime=realtime)
+    return run_scene_file(path, path.with_suffix(".nc"), progress=False, realtime=realtime, rt_priority=rt_priority)
 
 
 def case(tmp: Path, controlled: bool, seconds: float, unpaced_seconds: float, rt_priority: int | None = None) -> dict:

@@ -112,6 +112,7 @@ def inner(case: str, warm: int, steps: int, library: str) -> None:
             def __init__(self, scheme):
                 self.scheme, self.feedback = scheme, scheme.feedback
                 if isinstance(scheme, driver.LoopsItself):   # the compiled exchange's own loop: toggled after each exchange
+                    self.prepare = scheme.prepare
                     self.run_exchanges = lambda loop, n, check, paced=None: scheme.run_exchanges(
                         loop, n, lambda: (toggle(loop.step), check()), paced)
 

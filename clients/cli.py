@@ -80,21 +80,20 @@ def _pin_to_cpu(cpu: int | None) -> None:
         raise _UserError(f"--cpu {cpu}: cannot pin to that CPU ({exc})") from None
 
 
-def _hold_rt_priority(priority: int | None) -> None:
-    """Run this process's thread (and the threads it starts later) under SCHED_FIFO at ``priority``
-    (clients/lockstep/rt_priority.py; docs/realtime.md): a paced run and its controller woken at
-    once by each other's messages, ahead of the host's ordinary work."""
+def _check_rt_priority(priority: int | None) -> None:
+    """One line now, before any set-up, when ``--rt-priority`` cannot be had (SCHED_FIFO taken and
+    given back: clients/lockstep/rt_priority.py); the loop takes it later (docs/realtime.md)."""
     if priority is None:
         return
-    from hydrolink.clients.lockstep.rt_priority import PriorityError, hold_rt_priority
+    from hydrolink.clients.lockstep.rt_priority import PriorityError, check_rt_priority
     try:
-        hold_rt_priority(priority)
+        check_rt_priority(priority)
     except PriorityError as exc:
         raise _UserError(str(exc)) from None
 
 
-RT_PRIORITY_HELP = ("Run under SCHED_FIFO at this real-time priority (1-98, Linux; needs CAP_SYS_NICE or "
-                    "`ulimit -r`): woken ahead of the host's other work (docs/realtime.md).")
+RT_PRIORITY_HELP = ("Run the loop (not the set-up) under SCHED_FIFO at this real-time priority (1-98, Linux; "
+                    "needs CAP_SYS_NICE or `ulimit -r`): woken ahead of the host's other work (docs/realtime.md).")
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -407,7 +406,7 @@ def run(scene: Path, output: Path | None, server: str | None, no_progress: bool,
         rt_priority: int | None, curve_server_key: Path | None, curve_secret: Path | None, key_file: Path | None) -> None:
     """Co-simulate a SCENE (TOML) in lockstep with the force server."""
     _pin_to_cpu(cpu)
-    _hold_rt_priority(rt_priority)
+    _check_rt_priority(rt_priority)
     curve = _client_keys(curve_server_key, curve_secret)
     if curve is not None and server is None:
         raise _UserError("--curve-server-key/--curve-secret are for a remote server: give --server")
@@ -427,7 +426,7 @@ def run(scene: Path, output: Path | None, server: str | None, no_progress: bool,
     try:
         summary = _guard(run_scene_file, scene, output, server=server, progress=not no_progress, listen=listen,
                          key=key, link_timeout=link_timeout, timeout=reply_timeout, hdb_files=hdb_files,
-                         realtime=realtime, control_token=control_token,
+                         realtime=realtime, control_token=control_token, rt_priority=rt_priority,
                          **({"curve": curve} if curve is not None else {}))
     except KeyboardInterrupt as exc:
         click.echo(f"hydrolink run: {exc or 'interrupted'}", err=True)
@@ -485,13 +484,14 @@ def control(file: Path, server: str, token: str, session: str | None, name: str 
             join_wait: float, no_direct: bool, rt_priority: int | None, curve_server_key: Path | None,
             curve_secret: Path | None, key_file: Path | None) -> None:
     """Run the Python controller in FILE (a hydrolink.clients.control.Controller subclass)."""
-    _hold_rt_priority(rt_priority)
+    _check_rt_priority(rt_priority)
     from hydrolink.clients.control import ControllerError, load_controller, run_controller
 
     curve = _client_keys(curve_server_key, curve_secret)
     try:
         stats = run_controller(load_controller(file, class_name), server, token=token, session=session, name=name,
-                               join_wait=join_wait, curve=curve, key=_hmac_key(key_file), direct=not no_direct)
+                               join_wait=join_wait, curve=curve, key=_hmac_key(key_file), direct=not no_direct,
+                               rt_priority=rt_priority)
     except ControllerError as exc:
         raise _UserError(str(exc)) from None
     except KeyboardInterrupt:

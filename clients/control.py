@@ -33,6 +33,7 @@ This module imports only numpy, pyzmq and the codec, so a controller process sta
 
 from __future__ import annotations
 
+import contextlib
 import gc
 import importlib.util
 import itertools
@@ -48,6 +49,7 @@ import numpy as np
 import zmq
 
 from hydrolink.clients.lockstep.direct_channel import DirectChannel
+from hydrolink.clients.lockstep.rt_priority import rt_priority as held_priority
 from hydrolink.protocol import codec
 from hydrolink.protocol.codec import FRAME_REQUESTS, ControlLayout
 
@@ -208,7 +210,7 @@ class _Link:
 
 def run_controller(controller: Controller, server: str, *, token: str, session: str | None = None,
                    name: str | None = None, key: bytes | None = None, join_wait: float = 30.0, wait: float = 1.0,
-                   timeout: float = 30.0, curve=None, direct: bool = True) -> dict:
+                   timeout: float = 30.0, curve=None, direct: bool = True, rt_priority: int | None = None) -> dict:
     """Join a session and serve it until the run ends; returns counts (steps, errors, idles),
     ``direct``: whether the requests ended on the server's direct channel, and ``cpu_s``: this
     process's CPU time (every thread's, ZeroMQ's I/O thread included) from ``on_start`` to ``stop``.
@@ -220,11 +222,15 @@ def run_controller(controller: Controller, server: str, *, token: str, session: 
     run may start later). ``wait``: how long the server holds a ``measure`` before ``idle``;
     ``timeout``: extra time for any reply before the server is declared gone; ``curve``: a
     :class:`hydrolink.protocol.security.ClientKeys` for a server that requires CURVE; ``direct``:
-    take the server's direct channel when its welcome offers one (SPEC §5.7.5; False: ZeroMQ only)."""
+    take the server's direct channel when its welcome offers one (SPEC §5.7.5; False: ZeroMQ only);
+    ``rt_priority``: the loop, from the first ``measure`` (after the join and ``on_start``) to
+    ``stop``, under ``SCHED_FIFO`` at that priority (clients/lockstep/rt_priority.py; the caller
+    checks it may be had before the join)."""
     name = name if name is not None else getattr(controller, "name", None)
     link = _Link(server, key, timeout, curve)
     link.session = session
     stats = {"steps": 0, "errors": 0, "idle": 0, "late": 0, "invalid": 0, "cpu_s": math.nan}
+    loop_priority = contextlib.ExitStack()   # the loop's real-time priority, given back in ``finally``
     try:
         t_end = time.monotonic() + join_wait
         while True:
@@ -258,6 +264,7 @@ def run_controller(controller: Controller, server: str, *, token: str, session: 
         gc.freeze()
         cpu0 = time.process_time()
         ident = {"controller": name, "epoch": epoch, "wait": wait}
+        loop_priority.enter_context(held_priority(rt_priority))
         reply = link.request("measure", wait, **ident)
         while True:
             kind = reply["type"]
@@ -287,6 +294,7 @@ def run_controller(controller: Controller, server: str, *, token: str, session: 
             else:
                 raise ControllerError(f"unexpected reply type {kind!r}")
     finally:
+        loop_priority.close()
         gc.unfreeze()
         stats["direct"] = link.direct is not None
         stats["frames"] = link.direct is not None and link.frames is not None

@@ -94,25 +94,25 @@ def _client_inputs(scene, scene_path: Path, hdbs: dict, progress: bool) -> tuple
 def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
                    server: str | None = None, progress: bool = True, timeout: float = 60.0,
                    listen: str = "tcp://127.0.0.1:*", hdbs: dict[str, xr.Dataset] | None = None,
-                   curve=None, key: bytes | None = None, link_timeout: float = 10.0,
-                   hdb_files: bool = False, realtime: float | None = None,
-                   control_token: str | None = None, direct: bool = True) -> RunSummary:
+                   curve=None, key: bytes | None = None, link_timeout: float = 10.0, hdb_files: bool = False,
+                   realtime: float | None = None, control_token: str | None = None, direct: bool = True,
+                   rt_priority: int | None = None) -> RunSummary:
     """Run a scene end to end; returns the run summary (steps, wall time, output path, the server's side).
 
-    A scene with ``[[controllers]]`` and no ``server`` makes its own force server with a socket on
-    ``listen`` (controllers connect to it; SPEC §5.7), polled from this thread (``ForceServer(...,
-    polled=True)``: the run's requests handed to it in-process, its socket served while a step
-    waits for the controllers), and says on stderr where the controllers should connect. ``curve``: a
-    :class:`hydrolink.protocol.security.ClientKeys` for a ``server`` that requires CURVE; ``key``:
-    the shared HMAC key (SPEC §3.3) of ``server``, or of the run's own listening server, whose
-    controllers must then sign too; ``link_timeout``: how long the link to a remote ``server`` may
-    stay down (SPEC §1) before the run ends (its rows kept); ``hdb_files``: send the HDBs as their
-    files by SHA-256 (:func:`load_scene_hdbs` ``as_files``; the summary's ``hdb_uploads`` counts
-    the contents the server lacked); ``realtime``: release each exchange at its wall-clock time,
-    FACTOR x wall clock (protocol/pacing.py; the summary's ``realtime``, a PacedRunReport, and the
-    results' ``step_latency``, ``overrun`` and ``step_time``, docs/realtime.md); ``control_token``: the
-    secret the scene's controllers show to join (SPEC §5.7.2: ``hydrolink control --token``; None: the server
-    draws one, printed on stderr); ``direct``: take a ``server``'s direct channel offered (SPEC §5.7.5)."""
+    A scene with ``[[controllers]]`` and no ``server`` makes its own force server with a socket on ``listen``
+    (controllers connect to it; SPEC §5.7), polled from this thread (``ForceServer(..., polled=True)``: the run's
+    requests handed to it in-process, its socket served while a step waits for the controllers), and says on stderr
+    where the controllers should connect. ``curve``: a :class:`hydrolink.protocol.security.ClientKeys` for a
+    ``server`` that requires CURVE; ``key``: the shared HMAC key (SPEC §3.3) of ``server``, or of the run's own
+    listening server, whose controllers must then sign too; ``link_timeout``: how long the link to a remote
+    ``server`` may stay down (SPEC §1) before the run ends (its rows kept); ``hdb_files``: send the HDBs as their
+    files by SHA-256 (:func:`load_scene_hdbs` ``as_files``; the summary's ``hdb_uploads`` counts the contents the
+    server lacked); ``realtime``: release each exchange at its wall-clock time, FACTOR x wall clock
+    (protocol/pacing.py; the summary's ``realtime``, a PacedRunReport, and the results' ``step_latency``,
+    ``overrun`` and ``step_time``, docs/realtime.md); ``control_token``: the secret the scene's controllers show to
+    join (SPEC §5.7.2: ``hydrolink control --token``; None: the server draws one, printed on stderr); ``direct``:
+    take a ``server``'s direct channel offered (SPEC §5.7.5); ``rt_priority``: the loop (not the set-up) under
+    SCHED_FIFO at that priority (clients/lockstep/rt_priority.py)."""
     from hydrolink.clients.lockstep.connection import ServerConnection
     from hydrolink.clients.exudyn.client import result_bodies, run
     from hydrolink.clients.lockstep.results import ResultWriter
@@ -134,7 +134,7 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
         with ResultWriter(output, scene=scene, scene_text=text, dt=scene.simulation.dt, bodies=names,
                           equilibrium_position=reference, flush_seconds=scene.simulation.flush_seconds) as writer:
             summary = run(scene, text, None, None, writer, progress=progress, moordyn_files=moordyn_files,
-                          realtime=realtime)
+                          realtime=realtime, rt_priority=rt_priority)
             _write_summary_attributes(writer, summary)
         return replace(summary, output=str(output), server=None)
     with ExitStack() as stack:
@@ -175,10 +175,10 @@ def run_scene_file(scene_path: str | Path, output: str | Path | None = None, *,
         if scene.client.type == "fmu":
             from hydrolink.clients.fmu.master import run as run_fmu
             summary = run_fmu(scene, text, conn, setup, writer, scene_path=scene_path, progress=progress,
-                              realtime=realtime)
+                              realtime=realtime, rt_priority=rt_priority)
         else:
             summary = run(scene, text, conn, setup, writer, progress=progress, moordyn_files=moordyn_files,
-                          realtime=realtime)
+                          realtime=realtime, rt_priority=rt_priority)
         _write_summary_attributes(writer, summary)
         goodbye = conn.bye()
     metrics = _after_the_run(scene, output, sections)

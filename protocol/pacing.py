@@ -93,7 +93,9 @@ class Pacer:
     overruns: int = 0
     worst_lateness: float = 0.0
     idle: Callable[[float], None] | None = None   # called with the seconds left before a wait
-    spin: float = field(default_factory=release_spin)   # s spun before a release (the thread making it)
+    #: s spun before a release; None: the releasing thread's (:func:`release_spin`), taken at the first
+    #: release (a loop's priority, ``--rt-priority``, is taken after the Pacer is made)
+    spin: float | None = None
 
     def __post_init__(self) -> None:
         self.factor = check_factor(self.factor, "--realtime")
@@ -106,6 +108,8 @@ class Pacer:
         """Exchange ``e``'s release (``time.perf_counter`` clock); the first call anchors t0 now."""
         if self.t0 is None:
             self.t0 = time.perf_counter()
+            if self.spin is None:
+                self.spin = release_spin()
         return self.t0 + e * self.period
 
     def release(self, e: int) -> None:

@@ -787,7 +787,8 @@ class ExudynMultibody:
 
 def run(scene: Scene, scene_text: str, connection, setup: Setup | None, writer, *, progress: bool = True,
         spectral_radius: float | None = None, blow_up_limit: float = BLOW_UP_LIMIT,
-        allow_unstable: bool = False, moordyn_files: dict | None = None, realtime: float | None = None) -> RunSummary:
+        allow_unstable: bool = False, moordyn_files: dict | None = None, realtime: float | None = None,
+        rt_priority: int | None = None) -> RunSummary:
     """Run the lockstep co-simulation to ``scene.simulation.duration`` (:mod:`hydrolink.clients.lockstep.driver`).
 
     ``connection`` has already said hello (``setup`` is its reply); it is not closed here. With no
@@ -804,7 +805,8 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup | None, writer, 
     ``coupling.explicit_limit`` is refused (SceneError naming coupling.scheme) unless
     ``allow_unstable`` (only to demonstrate the added-mass instability). ``moordyn_files``: the
     layouts of the scene's MoorDyn files (:func:`~hydrolink.clients.exudyn.moordyn_mooring.load_moordyn_files`).
-    ``realtime``: pace the exchanges at FACTOR x wall clock (:mod:`hydrolink.protocol.pacing`).
+    ``realtime``: pace the exchanges at FACTOR x wall clock (:mod:`hydrolink.protocol.pacing`);
+    ``rt_priority``: the exchanges under ``SCHED_FIFO`` at that priority (the driver's ``rt_priority``).
 
     Returns the :class:`~hydrolink.clients.lockstep.summary.RunSummary` (the checks before the run:
     :func:`~hydrolink.clients.lockstep.preflight.preflight`)."""
@@ -859,7 +861,8 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup | None, writer, 
     try:
         out = lockstep.run(loop, steps, pre.n_exchanges, coupling, first_timeout=first_timeout,
                            hint=lambda exc: _divergence_hint(scheme, ratio, kx, pre.exchange_dt),
-                           pacer=None if realtime is None else Pacer(pre.exchange_dt, realtime))
+                           pacer=None if realtime is None else Pacer(pre.exchange_dt, realtime),
+                           rt_priority=rt_priority)
     finally:
         model.close()
     return replace(out, warnings=warnings, controllers=control.finish() if control is not None else None,

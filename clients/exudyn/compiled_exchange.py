@@ -165,6 +165,12 @@ class CompiledExchange:
             self._linear_ptos = _entry(k.linear_ptos, self._pto_table, self._dw, force, force, force, np.zeros(1),
                                        self._pto_meas)
 
+    def prepare(self) -> None:
+        """The compiled calls' entry points (compiled, or loaded from numba's cache) before the first
+        exchange: set-up, not the loop's work (the driver takes the loop's priority after it)."""
+        if self._g is None:
+            self._bind()
+
     def _prime(self) -> None:
         """The kernel's copy of the client's state (after mb.begin, or a step the reference path took)."""
         if self._g is None:

@@ -246,7 +246,7 @@ def plan(wiring: Wiring, coupling: Coupling, can_roll_back: bool, *, allow_unsta
 def run(scene: Scene, scene_text: str, connection, setup: Setup, writer, *,
         scene_path: str | Path = "scene.toml", progress: bool = True,
         blow_up_limit: float = BLOW_UP_LIMIT, record: Sequence[str] = (),
-        allow_unstable: bool = False, realtime: float | None = None) -> RunSummary:
+        allow_unstable: bool = False, realtime: float | None = None, rt_priority: int | None = None) -> RunSummary:
     """Run the scene's FMU in lockstep with the server to ``scene.simulation.duration``.
 
     Like :func:`hydrolink.clients.exudyn.client.run` (same results rows, same errors, the same
@@ -254,7 +254,8 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup, writer, *,
     at every step are returned in ``summary.recorded``; ``allow_unstable`` lets the explicit mode
     run beyond its limit (only to demonstrate the instability). The summary adds mode, iterations per
     step (mean, max) and per-step costs in µs (FMU calls, server round trips, the rest). ``realtime``:
-    pace the exchanges at FACTOR x wall clock (:mod:`hydrolink.protocol.pacing`)."""
+    pace the exchanges at FACTOR x wall clock (:mod:`hydrolink.protocol.pacing`); ``rt_priority``: the
+    exchanges under ``SCHED_FIFO`` at that priority (the driver's ``rt_priority``)."""
     client: FMUClient = scene.client
     if not isinstance(client, FMUClient):
         raise SceneError("scene", "client.type", "the FMU master needs [client] type = \"fmu\"")
@@ -278,7 +279,8 @@ def run(scene: Scene, scene_text: str, connection, setup: Setup, writer, *,
             coupling = CouplingReport(scheme=mb.plan.scheme, reason=mb.plan.reason, added_mass_ratio=mb.plan.ratio)
             out = lockstep.run(loop, scheme, pre.n_exchanges, coupling,
                                hint=lambda exc: f"coupling.scheme = \"{mb.plan.scheme}\"",
-                               pacer=None if realtime is None else Pacer(pre.exchange_dt, realtime))
+                               pacer=None if realtime is None else Pacer(pre.exchange_dt, realtime),
+                               rt_priority=rt_priority)
         finally:
             mb.close()
     return replace(out, client="fmu", fmi_version=fmu.fmi_version, warnings=pre.warnings,

@@ -28,6 +28,7 @@ import numpy as np
 from hydrolink.protocol.pacing import PARTS, Pacer, StepRecord
 from hydrolink.clients.lockstep.summary import CouplingReport, RunSummary
 from hydrolink.clients.lockstep.connection import RemoteError
+from hydrolink.clients.lockstep.rt_priority import rt_priority as held_priority
 from hydrolink.protocol.codec import ProtocolError
 from hydrolink.protocol.reply import OPTIONAL_FORCES, HydroStateChange
 
@@ -495,6 +496,10 @@ class LoopsItself(Protocol):
 
     feedback: bool
 
+    def prepare(self) -> None:
+        """What it does once before its first exchange (after the initial sample): made before the
+        loop takes its real-time priority (:func:`run`'s ``rt_priority``)."""
+
     def run_exchanges(self, loop: Lockstep, n_exchanges: int, check: Callable[[], None],
                       paced: "PacedSteps | None") -> None:
         """Exchanges 0 .. ``n_exchanges`` - 1 after the initial sample; ``check`` (the SIGINT latch)
@@ -502,14 +507,18 @@ class LoopsItself(Protocol):
 
 
 def run(loop: Lockstep, scheme: Any, n_exchanges: int, coupling: CouplingReport, *,
-        first_timeout: float | None = None,
-        hint: Callable[[SimulationDiverged], str] = lambda exc: "", pacer: Pacer | None = None) -> RunSummary:
+        first_timeout: float | None = None, hint: Callable[[SimulationDiverged], str] = lambda exc: "",
+        pacer: Pacer | None = None, rt_priority: int | None = None) -> RunSummary:
     """Run ``n_exchanges`` exchanges of ``scheme`` (module docstring); the writer gets its final
     status before this returns or raises. Returns the loop's counts and costs, with ``coupling``
     (the adapter's description of the scheme) completed by the iterations it took. ``pacer``: release
     each exchange at its wall-clock time (protocol/pacing.py, :class:`PacedSteps`); the summary's
-    ``realtime``. BLAS/OpenMP pools are held to one thread for the loop (the per-step products are
-    small: a second thread only fights the other participants for a core)."""
+    ``realtime``. ``rt_priority``: the exchanges under ``SCHED_FIFO`` at that priority
+    (clients/lockstep/rt_priority.py; checked by the caller before its set-up), taken after the
+    initial sample (a controlled run's join), the scheme's :meth:`~LoopsItself.prepare` and the
+    paced run's writer process, given back before the results file is finished. BLAS/OpenMP pools
+    are held to one thread for the loop (the per-step products are small: a second thread only
+    fights the other participants for a core)."""
     from threadpoolctl import threadpool_limits
 
     mb, link, writer = loop.mb, loop.link, loop.writer
@@ -525,20 +534,22 @@ def run(loop: Lockstep, scheme: Any, n_exchanges: int, coupling: CouplingReport,
             init_iterations = mb.begin(s, scheme.feedback)
             loop.write(0.0, s)
             if isinstance(scheme, LoopsItself):
-                if paced is not None:
-                    paced.begin()
-                scheme.run_exchanges(loop, n_exchanges, sigint.check, paced)
-            elif paced is None:
-                for e in range(n_exchanges):
-                    s = scheme.exchange(loop, e, s)
-                    sigint.check()
-            else:
+                scheme.prepare()
+            if paced is not None:
                 paced.begin()
-                for e in range(n_exchanges):
-                    paced.release(e)
-                    s = scheme.exchange(loop, e, s)
-                    paced.done(e)
-                    sigint.check()
+            with held_priority(rt_priority):
+                if isinstance(scheme, LoopsItself):
+                    scheme.run_exchanges(loop, n_exchanges, sigint.check, paced)
+                elif paced is None:
+                    for e in range(n_exchanges):
+                        s = scheme.exchange(loop, e, s)
+                        sigint.check()
+                else:
+                    for e in range(n_exchanges):
+                        paced.release(e)
+                        s = scheme.exchange(loop, e, s)
+                        paced.done(e)
+                        sigint.check()
     except KeyboardInterrupt:
         t = loop.step * mb.h
         _end(paced)

@@ -7,11 +7,21 @@ lose its core to the process it woke: the round trip then costs scheduler slices
 A ``SCHED_FIFO`` thread runs as soon as it is runnable, ahead of every ordinary thread, so the
 step's time is its own work again. The kernel's real-time throttling (``sched_rt_runtime_us``,
 95 % of each second by default) keeps a busy real-time thread from starving the host.
+
+The priority is the loop's, not the process's: a command checks it may be had before any set-up
+work (:func:`check_rt_priority`), and the loop holds it (:func:`rt_priority`) from its first
+step to its last — the run's from its first exchange (after the HDBs, the model, the compiled
+kernels, the results file and its writer, the controllers' join) to its last, a controller's from
+its first measurement to ``stop``. Seconds of set-up under ``SCHED_FIFO`` would starve every
+ordinary process on the core, and the threads started during it would inherit the policy. The
+loop's priority covers the process's other threads too, for the loop only (:func:`companion_threads`:
+ZeroMQ's I/O threads carry its messages, Python threads take its GIL).
 """
 
 from __future__ import annotations
 
 import os
+import threading
 from contextlib import contextmanager
 from typing import Iterator
 
@@ -24,8 +34,8 @@ class PriorityError(ValueError):
 
 
 def hold_rt_priority(priority: int, option: str = "--rt-priority") -> tuple[int, int]:
-    """Run the calling thread (and the threads it starts afterwards: the results writer, ZeroMQ's)
-    under ``SCHED_FIFO`` at ``priority``; returns the thread's previous (policy, priority) for
+    """Run the calling thread (and the threads it starts afterwards) under ``SCHED_FIFO`` at
+    ``priority``; returns the thread's previous (policy, priority) for
     :func:`restore_priority`. PriorityError naming ``option`` when the value is out of range, the
     platform has no ``SCHED_FIFO`` or the process may not take it (it needs CAP_SYS_NICE or an
     ``ulimit -r`` of at least ``priority``)."""
@@ -45,6 +55,13 @@ def hold_rt_priority(priority: int, option: str = "--rt-priority") -> tuple[int,
     return before
 
 
+def check_rt_priority(priority: int, option: str = "--rt-priority") -> None:
+    """The :class:`PriorityError` :func:`hold_rt_priority` would raise, now: ``SCHED_FIFO`` at
+    ``priority`` taken and given back at once, so that a command refuses the option before its
+    set-up and takes the priority for its loop only."""
+    restore_priority(hold_rt_priority(priority, option))
+
+
 def restore_priority(before: tuple[int, int]) -> None:
     """Put the calling thread back under the (policy, priority) :func:`hold_rt_priority` returned."""
     os.sched_setscheduler(0, before[0], os.sched_param(before[1]))
@@ -52,16 +69,44 @@ def restore_priority(before: tuple[int, int]) -> None:
 
 @contextmanager
 def rt_priority(priority: int | None, option: str = "--rt-priority") -> Iterator[None]:
-    """:func:`hold_rt_priority` for the block (nothing when ``priority`` is None), then the previous
-    policy back."""
+    """A loop's priority: :func:`hold_rt_priority` for the block, and the same for the process's
+    other threads (:func:`companion_threads`: started in the set-up, under the ordinary policy);
+    then every one's previous policy back. Nothing when ``priority`` is None."""
     if priority is None:
         yield
         return
     before = hold_rt_priority(priority, option)
+    raised = []
     try:
+        for tid in companion_threads():
+            try:
+                was = (os.sched_getscheduler(tid), os.sched_getparam(tid).sched_priority)
+                os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))
+            except OSError:   # ended meanwhile
+                continue
+            raised.append((tid, was))
         yield
     finally:
+        for tid, (policy, level) in raised:
+            try:
+                os.sched_setscheduler(tid, policy, os.sched_param(level))
+            except OSError:
+                pass
         restore_priority(before)
+
+
+def companion_threads() -> list[int]:
+    """The ids of this process's other threads (none where there is no /proc). A loop works
+    through threads its set-up started under the ordinary policy: ZeroMQ's I/O threads (a message
+    over ZeroMQ passes through one on each side), Python threads (one preempted by ordinary work
+    while it holds the GIL would hold the loop), libraries' own: with only the I/O and Python
+    threads raised, every controlled run on ZeroMQ measured had a stall of 16-46 ms
+    (docs/realtime.md, "The priority for the loop only")."""
+    me = threading.get_native_id()
+    try:
+        return sorted(tid for tid in map(int, os.listdir("/proc/self/task")) if tid != me)
+    except OSError:
+        return []
 
 
 @contextmanager
