@@ -101,9 +101,10 @@ class CpuSampler:
     def _category(self, frame) -> str:
         numba = False
         while frame is not None:
-            if frame.f_code.co_filename.startswith("<frozen importlib") or frame.f_code.co_name == "<module>":
-                return "imports"   # a module's body: also hydrolink's own (pydantic's models, numba's decorators)
             module = frame.f_globals.get("__name__", "")
+            if frame.f_code.co_filename.startswith("<frozen importlib") or \
+                    (frame.f_code.co_name == "<module>" and module != "__main__"):
+                return "imports"   # a module's body: also hydrolink's own (pydantic's models, numba's decorators)
             if module.startswith("hydrolink"):
                 return "numba compile/cache load" if numba else \
                     next(c for c, prefixes in CATEGORIES if module.startswith(prefixes))
@@ -269,9 +270,12 @@ def main(argv=None) -> None:
     args = p.parse_args(argv)
     if args.what == "_sampled":
         sampled(args.scene, args.warm_runs)
+        return
+    sys.path.insert(0, str(BENCH))
+    if args.what == "examples":
+        examples(args)
     else:
-        sys.path.insert(0, str(BENCH))
-        examples(args) if args.what == "examples" else state_space(args)
+        state_space(args)
 
 
 if __name__ == "__main__":
