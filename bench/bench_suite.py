@@ -121,7 +121,7 @@ def _absolute(path: Path, **replace: str) -> str:
     """A scene file's text with its relative file paths made absolute and ``key = value`` lines
     replaced (a key not in the file is added to [simulation])."""
     text = path.read_text()
-    for key in ("hdb", "file"):
+    for key in ("hdb", "file", "mesh"):
         text = re.sub(rf'(?m)^{key} = "([^"/][^"]*)"', lambda m: f'{key} = "{(path.parent / m.group(1)).resolve()}"',
                       text)
     for key, value in replace.items():

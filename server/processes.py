@@ -18,7 +18,8 @@ import multiprocessing
 import multiprocessing.forkserver
 import threading
 
-PRELOAD = ("hydrolink.server.hdb.io", "hydrolink.server.service.step_worker")   # imported once, by name
+PRELOAD = ("hydrolink.server.hdb.io", "hydrolink.server.hdb.bemio",   # imported once, by name (bemio:
+           "hydrolink.server.service.step_worker")              # h5py, which io imports only for a BEMIO file)
 
 WARM_CHILDREN_S = 2.0   # s after hydrolink serve's loop starts: the forkserver started if nothing needed it yet
 _lock = threading.Lock()   # set_forkserver_preload and the first start are process-wide

@@ -22,12 +22,16 @@ sign, factor, convention or DOF mapping.
 
 from __future__ import annotations
 
+import json
 import math
+import subprocess
+import sys
 
 import numpy as np
 import pytest
 import xarray as xr
 
+from conftest import EXIT_S
 from hydrolink.server.hdb.build.builder import SpecError, build_hdb, default_cache_dir, load_spec
 from hydrolink.server.hdb.info import heave_natural_period, hdb_summary, plot_hdb
 from hydrolink.protocol.hdb.schema import validate_hdb
@@ -185,6 +189,15 @@ values = [0.5, 1.0, 1.5, 2.0]
     for name in ("added_mass", "radiation_damping", "excitation_force", "hydrostatic_stiffness",
                  "added_mass_inf", "displaced_volume"):
         np.testing.assert_array_equal(second[name].values, first[name].values)
+    # a fresh process finds the same entry without importing Capytaine or the meshing (scipy.spatial):
+    # the key names Capytaine's installed version, and a cache hit needs nothing else of it
+    probe = ("import json, sys\nfrom hydrolink.server.hdb.build.builder import build_hdb\n"
+             f"ds = build_hdb({str(spec)!r}, progress=False)\n"
+             "print(json.dumps([int(ds.attrs['cache_hit']), float(ds['added_mass'].sum()),\n"
+             "                  [m for m in sys.modules if m.split('.')[0] == 'capytaine' or m.startswith('scipy.spatial')]]))")
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=EXIT_S)
+    assert out.returncode == 0, out.stderr
+    assert json.loads(out.stdout.splitlines()[-1]) == [1, float(first["added_mass"].sum()), []]
     # the argument overrides the environment; another spec is another entry
     spec.write_text(spec.read_text().replace("2.0]", "2.5]"))
     third = build_hdb(spec, cache_dir=tmp_path / "arg-cache", progress=False)

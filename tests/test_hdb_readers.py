@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import shutil
+import subprocess
+import sys
 import warnings
 import re
 from pathlib import Path
@@ -12,6 +14,7 @@ import numpy as np
 import pytest
 import xarray as xr
 
+from conftest import EXIT_S
 from hydrolink.server.hdb.capytaine_io import from_capytaine_dataset, read_capytaine, short_body_names
 from hydrolink.server.hdb.io import load_hdb
 from hydrolink.protocol.hdb.layout import HDBError, hdb_warnings
@@ -61,6 +64,18 @@ def test_wamit_rm3_float_heave_matches_reference(rm3_wamit):
     assert b33 == pytest.approx(5.873e5, rel=5e-3)
     assert f3 == pytest.approx(1.512e6, rel=5e-3)
     assert rm3_wamit["added_mass_inf"].sel(**HEAVE).item() == pytest.approx(1.2328e6, rel=5e-3)
+
+
+def test_a_wamit_read_imports_no_h5py(reference_data):
+    """h5py is the BEMIO reader's alone (server/hdb/io.py imports it for an .h5 file only): a fresh
+    process reading RM3's WAMIT run gets the same coefficients without it."""
+    probe = ("import sys\nfrom hydrolink.server.hdb.io import load_hdb\n"
+             f"ds = load_hdb({str(reference_data / 'rm3_wamit' / 'rm3.1')!r}, rho=1000.0)\n"
+             "print(float(ds['added_mass'].sum()), 'h5py' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=EXIT_S)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == [repr(float(load_hdb(reference_data / "rm3_wamit" / "rm3.1", rho=1000.0)
+                                             ["added_mass"].sum())), "False"]
 
 
 def test_wamit_rm3_run_facts(rm3_wamit):

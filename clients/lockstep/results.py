@@ -41,6 +41,7 @@ the row's slot, :meth:`ResultWriter.release_held` hands them on.
 from __future__ import annotations
 
 import datetime as _dt
+import functools
 import json
 import mmap
 import os
@@ -103,13 +104,20 @@ _OWN_LOCK = threading.Lock()
 
 def package_versions() -> dict[str, str]:
     """Installed versions of the packages a result depends on ("not installed" if absent)."""
-    out = {}
+    return dict(_installed_versions())
+
+
+@functools.cache
+def _installed_versions() -> tuple[tuple[str, str], ...]:
+    """:func:`package_versions`, looked up once a process (the code a process runs keeps the version
+    it was imported at): 3 ms of every results file's set-up in a sweep's worker (bench/bench_setup.py)."""
+    out = []
     for name in _VERSIONED:
         try:
-            out[name] = metadata.version(name)
+            out.append((name, metadata.version(name)))
         except metadata.PackageNotFoundError:
-            out[name] = "not installed"
-    return out
+            out.append((name, "not installed"))
+    return tuple(out)
 
 
 def _block_fields(capacity: int, n_bodies: int, extras: dict[str, tuple[tuple[int, ...], str, Any]]

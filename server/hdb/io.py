@@ -18,7 +18,6 @@ from typing import Mapping
 
 import xarray as xr
 
-from hydrolink.server.hdb.bemio import read_bemio
 from hydrolink.server.hdb.capytaine_io import from_capytaine_dataset
 from hydrolink.protocol.hdb.layout import HDBError, with_hdb_warnings
 from hydrolink.server.hdb.reader_warnings import recorded
@@ -98,6 +97,7 @@ def _read(path: Path, rho: float | None, convention: str | None, wamit: Mapping 
     if wamit and any(k != "excitation_needed" for k in wamit) and not _is_wamit(path):
         raise HDBError(path, "wamit", "only for a WAMIT run's files: this format states its own run facts")
     if suffix in (".h5", ".hdf5"):
+        from hydrolink.server.hdb.bemio import read_bemio   # h5py: only a BEMIO file's reading needs it
         return _noted(_check_rho(read_bemio(path), rho, path), "exp(+iwt)", "BEMIO's (WEC-Sim), conjugated at reading")
     if suffix == ".nc":
         if not path.is_file():

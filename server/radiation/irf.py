@@ -110,16 +110,23 @@ def _sine_transform(omega: np.ndarray, t: np.ndarray, k: np.ndarray, sine: bool 
     return out.reshape((omega.size, *k.shape[1:]))
 
 
+def added_mass_transform(omega: np.ndarray, t: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """int_0^T K(t) sin(w t) dt at the frequencies omega, (n_w, n, n): what Ogilvie's A_inf and
+    :func:`ogilvie_report` both take from K (given to them as ``transform``, it is computed once)."""
+    return _sine_transform(np.asarray(omega, float), np.asarray(t, float), np.asarray(k, float))
+
+
 def ogilvie_estimates(omega: np.ndarray, added_mass: np.ndarray, t: np.ndarray,
-                      k: np.ndarray) -> np.ndarray:
-    """A_inf estimated at every HDB frequency: (n_w, n, n)."""
+                      k: np.ndarray, transform: np.ndarray | None = None) -> np.ndarray:
+    """A_inf estimated at every HDB frequency: (n_w, n, n); ``transform``: :func:`added_mass_transform`
+    of these arguments where the caller has it."""
     omega = np.asarray(omega, float)
-    s = _sine_transform(omega, np.asarray(t, float), np.asarray(k, float))
+    s = added_mass_transform(omega, t, k) if transform is None else transform
     return np.asarray(added_mass, float) + s / omega[:, None, None]
 
 
 def ogilvie_added_mass_inf(omega: np.ndarray, added_mass: np.ndarray, t: np.ndarray,
-                           k: np.ndarray, window: float = 0.2) -> np.ndarray:
+                           k: np.ndarray, window: float = 0.2, transform: np.ndarray | None = None) -> np.ndarray:
     """Ogilvie's A_inf (n, n) from A(w) (n_w, n, n) and the IRF K sampled at t.
 
     The per-frequency estimates are wrong at both ends of the grid: at low w by the IRF's
@@ -128,10 +135,11 @@ def ogilvie_added_mass_inf(omega: np.ndarray, added_mass: np.ndarray, t: np.ndar
     run of ``window`` (20 %) of the grid's frequencies: flatness is the largest relative range
     (max - min)/|median| of the diagonal estimates in the run. The median ignores an odd irregular
     frequency. (Fed with the same truncated K as the simulation, this also makes the effective
-    A_inf - (1/w) int K sin match the HDB's A(w) best over that run.)
+    A_inf - (1/w) int K sin match the HDB's A(w) best over that run.) ``transform``: as for
+    :func:`ogilvie_estimates`.
     """
     omega = np.asarray(omega, float)
-    est = ogilvie_estimates(omega, added_mass, t, k)
+    est = ogilvie_estimates(omega, added_mass, t, k, transform)
     nw = omega.size
     m = min(nw, max(3, int(round(window * nw))))
     diag = np.diagonal(est, axis1=1, axis2=2)  # (n_w, n)
@@ -266,15 +274,16 @@ def irf_transfer(omega: np.ndarray, damping: np.ndarray, duration: float, taper:
 
 
 def ogilvie_report(omega: np.ndarray, added_mass: np.ndarray, a_inf: np.ndarray, t: np.ndarray,
-                   k: np.ndarray) -> dict:
+                   k: np.ndarray, transform: np.ndarray | None = None) -> dict:
     """How well the (truncated, sampled) IRF reproduces A(w) (Ogilvie / Kramers-Kronig):
     A_K(w) = A_inf - (1/w) int_0^T K(t) sin(w t) dt against the HDB's A(w).
 
     ``rel_error`` (n, n): max_w |A_K - A| over max_w |A - A_inf| (diagonal scale; off-diagonal pairs
-    use sqrt of the two diagonal scales; NaN where a scale is zero), ``worst`` the largest finite one."""
+    use sqrt of the two diagonal scales; NaN where a scale is zero), ``worst`` the largest finite one.
+    ``transform``: as for :func:`ogilvie_estimates`."""
     omega = np.asarray(omega, float)
     added_mass = np.asarray(added_mass, float)
-    s = _sine_transform(omega, np.asarray(t, float), np.asarray(k, float))
+    s = added_mass_transform(omega, t, k) if transform is None else transform
     a_k = np.asarray(a_inf, float)[None] - s / omega[:, None, None]
     var = np.max(np.abs(added_mass - np.asarray(a_inf, float)[None]), axis=0)
     d = np.diagonal(var).copy()

@@ -25,9 +25,9 @@ from hydrolink.protocol.scene import Hydro, Waves
 from hydrolink.server.allocation import require_size
 from hydrolink.server.errors import ModelError
 from hydrolink.server.fused.step import FusedRadiation
-from hydrolink.server.radiation.irf import (COS_TABLE_ROWS, aliasing_time, asymptotic_tail, irf_report, irf_samples,
-                                          irf_transfer, ogilvie_added_mass_inf, ogilvie_report, radiation_irf,
-                                          resample_damping, taper_window)
+from hydrolink.server.radiation.irf import (COS_TABLE_ROWS, added_mass_transform, aliasing_time, asymptotic_tail,
+                                          irf_report, irf_samples, irf_transfer, ogilvie_added_mass_inf, ogilvie_report,
+                                          radiation_irf, resample_damping, taper_window)
 from hydrolink.server.radiation.memory_cut import (CUT_EFFECT_WARN, cut_effect, judged_frequencies, longer_memory,
                                                  natural_frequencies)
 from hydrolink.server.radiation.convolution import RadiationMemory
@@ -113,6 +113,8 @@ class GroupIrf:
     kernel: np.ndarray          # (M + 1, n, n) K(j dt), tapered
     added_mass_inf: np.ndarray  # (n, n)
     tail_exponent: float | None  # median fitted n of B ~ w^-n (hydro.irf_tail = "asymptotic")
+    # int K sin(w t) dt over the HDB's own grid where Ogilvie's A_inf took it (its report reuses it), else None
+    added_mass_transform: np.ndarray | None = None
 
 
 @dataclass
@@ -273,8 +275,8 @@ class RadiationOption:
             if self.samples > 0:
                 fit_b[g.source] = max(irf_report(g.omega, g.damping, self.t, irf.kernel)["worst"],
                                       fit_b.get(g.source, 0.0))
-                fit_a[g.source] = max(ogilvie_report(g.omega, g.added_mass, irf.added_mass_inf, self.t,
-                                                     irf.kernel)["worst"], fit_a.get(g.source, 0.0))
+                fit_a[g.source] = max(ogilvie_report(g.omega, g.added_mass, irf.added_mass_inf, self.t, irf.kernel,
+                                                     irf.added_mass_transform)["worst"], fit_a.get(g.source, 0.0))
                 self._check_aliasing(irf, g.source, log.warnings)
                 self._check_cut(irf, g, np.zeros(0) if waves is None else np.asarray(waves, float), log.warnings)
         hyd = self.hydro
@@ -330,9 +332,11 @@ class RadiationOption:
         k = radiation_irf(omega, damping, self.t)
         if self._window is not None:
             k = k * self._window
-        a_inf = g.added_mass_inf if g.added_mass_inf is not None else \
-            ogilvie_added_mass_inf(g.omega, g.added_mass, self.t, k)
-        return GroupIrf(omega, damping, k, a_inf, tail)
+        if g.added_mass_inf is not None:
+            return GroupIrf(omega, damping, k, g.added_mass_inf, tail)
+        transform = added_mass_transform(g.omega, self.t, k)
+        a_inf = ogilvie_added_mass_inf(g.omega, g.added_mass, self.t, k, transform=transform)
+        return GroupIrf(omega, damping, k, a_inf, tail, transform)
 
     def _check_work(self, n_omega: int) -> None:
         """Refuse an IRF whose transforms cost more than MAX_IRF_PRODUCTS (before computing it)."""
