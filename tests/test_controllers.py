@@ -17,6 +17,7 @@ resonance is near 5 s) k > 0 and the optimum is 1.72 x the best passive damper.
 from __future__ import annotations
 
 import json
+import math
 import os
 import secrets
 import subprocess
@@ -310,6 +311,51 @@ def test_slow_and_crashed_controller_fall_back_and_reconnect(reference_data, ser
     damping = ds["pto_damping"].sel(pto="pto").values
     assert damping[21] == 7.0e5 and damping[-1] == 0.0   # passive fallback, then the scene's damping again
     assert ds.attrs["status"] == "complete"
+
+
+def test_a_command_for_a_step_decided_without_it_is_late_however_many_steps_since(reference_data):
+    """SPEC §5.7.4: a command whose step's decision was already taken (its deadline passed: the
+    fallback was used) is error 6 and counted late — also when later steps were decided since (the
+    run races on while the controller is absent). Before, only the newest decided step was
+    remembered: a command for an older one was taken as received, neither refused nor counted.
+    Its return then makes it active: the newest measurements go to it (their decision taken
+    absent: that command is late too) and the next step waits for its command, which decides it."""
+    from hydrolink.protocol.codec import Code, ProtocolError
+    from hydrolink.protocol.scene import parse_scene
+    from hydrolink.server.service.controllers import ControlHub
+
+    text = scene_text(reference_data, 4.0, controller_block("force", 1.0e6, 0.0))
+    sent = []
+    hub = ControlHub(parse_scene(text), text, 1, "s", lambda route, mtype, parent, fields, own=None:
+                     sent.append((mtype, parent, fields)), TOKEN)
+    ident = {"controller": "ctl", "epoch": 1, "wait": 1.0}
+    rng = np.random.default_rng(0)
+
+    def step(seq: int) -> dict | None:   # the multibody's step seq: the measurements of seq - 1 relayed, decided
+        meas = {"step": seq - 1, **{n: rng.standard_normal(shape) for n, shape in hub.mb_shapes}}
+        return hub.after_step(seq, 0, True, meas, {"seq": seq}, ["mb"], f"m{seq}")
+
+    hub.join("ctl")
+    assert hub.after_step(0, 0, True, None, {"seq": 0}, ["mb"], "m0") == {"seq": 0}   # joined: no wait at t = 0
+    assert hub.measure(ident, ["ctl"], "q0", "own") is None   # parked: no measurements yet
+    assert step(1) is None and sent[-1][:2] == ("measurements", "q0") and sent[-1][2]["step"] == 0
+    hub.poll(math.inf)   # the controller sleeps: step 0's deadline passes
+    assert sent[-1][0] == "forces" and sent[-1][2]["control"]["ctl"]["status"] == "timeout"
+    for seq in (2, 3, 4):   # absent: decided at once, no waiting
+        assert step(seq)["control"]["ctl"]["status"] == "absent"
+    for k in (0, 3):        # its command for step 0, then for the newest (3, delivered at its return)
+        with pytest.raises(ProtocolError) as late:
+            hub.command({**ident, "step": k, "commands": {"pto": {"force": 1.0}}}, ["ctl"], f"c{k}", "own")
+        assert (late.value.code, late.value.field) == (Code.OUT_OF_ORDER, "step")
+        assert f"the decision for step {k} was already taken" in late.value.message
+        if k == 0:
+            assert hub.measure(ident, ["ctl"], "q1", "own")[1]["step"] == 3
+    assert hub.summary()["ctl"] == {"ok": 0, "timeout": 1, "absent": 3, "invalid": 0, "late": 2, "joins": 1}
+    assert hub.measure(ident, ["ctl"], "q2", "own") is None   # active again: parked for the next measurements
+    assert step(5) is None and sent[-1][:2] == ("measurements", "q2") and sent[-1][2]["step"] == 4
+    assert hub.command({**ident, "step": 4, "commands": {"pto": {"force": 2.0}}}, ["ctl"], "c4", "own") is None
+    assert sent[-1][0] == "forces" and sent[-1][2]["control"]["ctl"]["commands"] == {"pto": {"force": 2.0}}
+    assert hub.summary()["ctl"]["ok"] == 1 and hub.summary()["ctl"]["late"] == 2
 
 
 # ---------------------------------------------------------------- malformed commands, wrong session/version
