@@ -217,7 +217,10 @@ def run_controller(controller: Controller, server: str, *, token: str, session: 
     it, or takes it from ``--control-token``): without it the server refuses the join.
 
     Retries ``hello`` for ``join_wait`` s while no session declares the controller (the multibody
-    run may start later). ``wait``: how long the server holds a ``measure`` before ``idle``;
+    run may start later), and waits as long for the reply to a ``hello`` (plus ``timeout``): a
+    server not yet bound, or the run's own server, which answers its socket only once the run's
+    set-up is done (SPEC §5.7.1: minutes of model building and compilation on a loaded host), is a
+    session not open yet, not a server gone. ``wait``: how long the server holds a ``measure`` before ``idle``;
     ``timeout``: extra time for any reply before the server is declared gone; ``curve``: a
     :class:`hydrolink.protocol.security.ClientKeys` for a server that requires CURVE; ``direct``:
     take the server's direct channel when its welcome offers one (SPEC §5.7.5; False: ZeroMQ only)."""
@@ -230,9 +233,14 @@ def run_controller(controller: Controller, server: str, *, token: str, session: 
         while True:
             ask = {} if controller.plant is None else {
                 "plant": {"dt": None if controller.plant == "continuous" else float(controller.plant)}}
-            reply = link.request("hello", role="controller", controller=name, token=token,
-                                 client={"name": f"hydrolink-python-controller {type(controller).__name__}",
-                                         "version": _version()}, **ask, **({"frames": True} if direct else {}))
+            try:
+                reply = link.request("hello", max(0.0, t_end - time.monotonic()), role="controller", controller=name,
+                                     token=token, client={"name": f"hydrolink-python-controller "
+                                                          f"{type(controller).__name__}", "version": _version()},
+                                     **ask, **({"frames": True} if direct else {}))
+            except ControllerError as exc:
+                raise ControllerError(f"{exc}: no session to join within the join wait ({join_wait:g} s; a run's "
+                                      "set-up on a loaded host may need more: --join-wait)") from None
             if reply["type"] == "welcome":
                 break
             if reply.get("code") == codec.Code.UNKNOWN_SESSION and session is None and time.monotonic() < t_end:

@@ -234,6 +234,69 @@ def test_c_controller_equals_python_bit_for_bit(reference_data, tmp_path, tmp_pa
     assert np.abs(ds_c["pto_command_force"].values).max() > 1e4
 
 
+# ---------------------------------------------------------------- joining
+
+JOIN_LATE = """
+import sys
+from hydrolink.clients.control import load_controller, run_controller
+print(run_controller(load_controller(sys.argv[1]), sys.argv[2], token=sys.argv[3], join_wait=float(sys.argv[4]),
+                     timeout=float(sys.argv[5])), flush=True)
+"""
+
+
+def test_controller_waits_its_join_wait_for_a_server_that_answers_late(reference_data, tmp_path):
+    """A controller whose hello is not answered within its reply timeout keeps waiting for its join
+    wait: `hydrolink run`'s own server answers its socket only between the run's requests, so a
+    hello waits through the run's set-up (its model, numba's compilation: 385 s at load 9 with a
+    cold cache), and the controller gave up after its reply timeout (30 s) whatever its
+    --join-wait; the run then went on without it (rt5: 5000 fallback decisions). Here the reply
+    timeout is 0.5 s and nothing answers the hello for longer (a listener takes its connection and
+    closes it: the hello stays queued), then the run's own server binds the port: the controller
+    joins and decides every step."""
+    import socket
+
+    (tmp_path / "late.toml").write_text(scene_text(reference_data, 2.0, controller_block("force", 3.9e5, 1.36e6)))
+    (tmp_path / "join_late.py").write_text(JOIN_LATE)
+    listener = socket.create_server(("127.0.0.1", 0))
+    listener.settimeout(REPLY_S)
+    address = f"tcp://127.0.0.1:{listener.getsockname()[1]}"
+    proc = subprocess.Popen([sys.executable, str(tmp_path / "join_late.py"), str(EXAMPLES / "reactive.py"), address,
+                             TOKEN, str(REPLY_S), "0.5"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        with listener:
+            listener.accept()[0].close()   # its hello is on its way: nothing answers it
+        time.sleep(1.5)                    # three reply timeouts pass unanswered (time itself: no event to wait for)
+        run_scene_file(tmp_path / "late.toml", tmp_path / "late.nc", progress=False, listen=address,
+                       control_token=TOKEN, timeout=REPLY_S)
+    finally:
+        try:
+            out, err = proc.communicate(timeout=REPLY_S)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            out, err = proc.communicate()
+    assert proc.returncode == 0, err
+    assert "'steps': 50" in out
+    ev = json.loads(xr.load_dataset(tmp_path / "late.nc").attrs["controller_events"])["ctl"]
+    assert ev["ok"] == 50 and ev["timeout"] + ev["absent"] + ev["invalid"] == 0, ev
+
+
+def test_a_controller_that_never_joins_is_reported_naming_the_keys(reference_data, tmp_path, caplog):
+    """A run whose controller never joins goes on after its join_timeout on the fallback, and says
+    so: the server's warning names the scene key (controllers[0].join_timeout), the run's that the
+    controller decided no step and what to check (its join, --join-wait)."""
+    text = scene_text(reference_data, 2.0, controller_block("force", 3.9e5, 1.36e6, join_timeout=0.2))
+    (tmp_path / "alone.toml").write_text(text)
+    with caplog.at_level("WARNING"):
+        run_scene_file(tmp_path / "alone.toml", tmp_path / "alone.nc", progress=False, listen=free_address(),
+                       control_token=TOKEN, timeout=REPLY_S)
+    ev = json.loads(xr.load_dataset(tmp_path / "alone.nc").attrs["controller_events"])["ctl"]
+    assert ev["absent"] == 50 and ev["ok"] == ev["timeout"] == ev["invalid"] == 0
+    said = caplog.text
+    assert "'ctl' did not join within its join_timeout (0.2 s, the scene's controllers[0].join_timeout" in said
+    assert "50 fallback decision(s) (timeout 0, absent 50, invalid 0): it decided no step" in said
+    assert "--join-wait" in said
+
+
 # ---------------------------------------------------------------- timeouts, crashes, reconnects
 
 SLOW = '''
