@@ -303,18 +303,21 @@ SLOW = '''
 import os, time
 from hydrolink.clients.control import Controller
 
+def wait_for(path):   # at most WAIT_S: a test gone wrong fails, it never hangs
+    end = time.monotonic() + float(os.environ["WAIT_S"])
+    while not os.path.exists(path) and time.monotonic() < end:
+        time.sleep(0.002)
+
 class Slow(Controller):
     def on_start(self, info):
         self.c = float(info["parameters"]["damping"])
-        self.calls = 0
 
     def on_step(self, t, m):
-        self.calls += 1
-        if round(t / 0.04) == 20:
-            time.sleep(0.8)            # misses the 0.5 s deadline
-        if self.calls == 200 and os.environ.get("CRASH"):
+        if m["step"] == 20:
+            wait_for(os.environ["RESUME"])   # misses the deadline: back once steps 20-25 were decided without it
+        if m["step"] >= 750 and os.environ.get("CRASH"):   # the first measurements at 30 s or later
             open(os.environ["CRASH"], "w").close()
-            os._exit(3)                # dies without a word
+            os._exit(3)                       # dies without a word
         return {p: self.c * v for p, v in zip(self.ptos, m["pto_velocity"].tolist())}
 
     def on_error(self, error):
@@ -325,8 +328,10 @@ SUCCESSOR = '''
 import os, sys, time
 from hydrolink.clients.control import run_controller, load_controller
 controller = load_controller(sys.argv[2])      # imports done before the crash: rejoins at once
-marker = sys.argv[1]
+marker, end = sys.argv[1], time.monotonic() + float(sys.argv[5])
 while not os.path.exists(marker):
+    if time.monotonic() > end:
+        sys.exit("no crash to take over from")
     time.sleep(0.002)
 print(run_controller(controller, sys.argv[3], token=sys.argv[4], join_wait=5.0), flush=True)
 '''
@@ -334,30 +339,58 @@ print(run_controller(controller, sys.argv[3], token=sys.argv[4], join_wait=5.0),
 
 @pytest.mark.timing
 def test_slow_and_crashed_controller_fall_back_and_reconnect(reference_data, server, tmp_path):
-    """A controller that misses one deadline (sleeps 0.8 s > timeout 0.5 s) and later crashes: the
-    run never hangs; the passive fallback takes over (logged, counted, recorded) and, once a
-    controller is known to be gone, costs no waiting ("absent"); the slow one's late command is
-    refused with error 6 and it carries on; a new process rejoins after the crash and is accepted."""
+    """A controller that misses one deadline and later crashes: the run never hangs; the passive
+    fallback takes over (logged, counted, recorded) and, once a controller is known to be gone,
+    costs no waiting ("absent"); the slow one's late command (step 20) is refused with error 6
+    and it carries on; a new process rejoins after the crash and is accepted.
+
+    Synchronised on the run's decisions, not on wall time: the slow controller sleeps through
+    step 20 until the server has decided it (timeout) and steps 21-25 (absent) without it (the
+    server's decisions watched as they are taken); it crashes at its first measurements at 30 s or
+    later (simulated time: it keeps up from its return, the run waiting for it), whose decision the
+    successor, started beforehand and waiting for the crash, takes over within the 3 s timeout.
+    Before, it slept 0.8 s (timeout 0.5 s) and crashed at its 200th call, which the run, racing on
+    absent decisions while it slept, sometimes ended before: the successor then waited forever."""
+    from hydrolink.server.service import controllers
+
     file = tmp_path / "slow.py"
     file.write_text(SLOW)
-    marker = tmp_path / "crashed"
+    resume, marker = tmp_path / "resume", tmp_path / "crashed"
     succ = tmp_path / "successor.py"
     succ.write_text(SUCCESSOR)
     text = scene_text(reference_data, 60.0, controller_block("force", 1.0e6, 0.0, fallback="passive",
                                                            fallback_damping=7.0e5))
-    text = text.replace("timeout = 10.0", "timeout = 0.5")
-    successor = subprocess.Popen([sys.executable, str(succ), str(marker), str(file), server.address, TOKEN],
-                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    os.environ["CRASH"] = str(marker)
+    text = text.replace("timeout = 10.0", "timeout = 3.0")
+    decide, taken = controllers.ControlHub._decide, {}
+
+    def deciding(hub, slot, k, status):   # the decisions as the server takes them
+        decide(hub, slot, k, status)
+        if slot.decided == k:
+            taken.setdefault(k, status)
+        if k == 25 and [taken.get(j) for j in range(20, 26)] == ["timeout"] + ["absent"] * 5:
+            resume.touch()
+
+    successor = subprocess.Popen([sys.executable, str(succ), str(marker), str(file), server.address, TOKEN,
+                                  str(REPLY_S)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
+        controllers.ControlHub._decide = deciding
+        os.environ.update(CRASH=str(marker), RESUME=str(resume), WAIT_S=str(REPLY_S))
         t0 = time.monotonic()
         ds, summary, (rc, err) = run_with(tmp_path, "slow", text, server.address, python_ctl(file, server.address))
         wall = time.monotonic() - t0
     finally:
-        del os.environ["CRASH"]
-    out, serr = successor.communicate(timeout=EXIT_S)
+        controllers.ControlHub._decide = decide
+        for key in ("CRASH", "RESUME", "WAIT_S"):
+            os.environ.pop(key, None)
+        if not marker.exists():   # it never crashed: nothing starts the successor
+            successor.kill()
+        try:
+            out, serr = successor.communicate(timeout=EXIT_S)
+        except subprocess.TimeoutExpired:
+            successor.kill()
+            out, serr = successor.communicate()
     assert rc == 3, err            # the first controller crashed ...
-    assert "out_of_order" in err and "late" in err   # ... after its late command for step 20 was refused
+    assert "the decision for step 20 was already taken" in err   # ... after its late command was refused (error 6)
     assert successor.returncode == 0, serr
     status = ds["controller_status"].sel(controller="ctl").values
     ev = json.loads(ds.attrs["controller_events"])["ctl"]
@@ -366,7 +399,7 @@ def test_slow_and_crashed_controller_fall_back_and_reconnect(reference_data, ser
     # the slow step (a loaded machine may add a missed deadline: counted all the same)
     assert timeouts[0] == 21 and len(timeouts) == ev["timeout"] >= 1
     assert np.all(status[22:27] == 2)                  # absent (no waiting) until the slow one is back
-    assert np.any(status[27:] == 0)                    # ... and it is accepted again
+    assert np.any(status[27:751] == 0)                 # ... and it is accepted again before it crashes
     # the successor joined as the first process crashed: it got the newest measurements at once
     assert "'steps': 0" not in out and status[-1] == 0
     assert ev["invalid"] == 0 and ev["ok"] + ev["timeout"] + ev["absent"] == 1500
