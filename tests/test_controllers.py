@@ -31,7 +31,7 @@ import numpy as np
 import pytest
 import xarray as xr
 import zmq
-from conftest import EXIT_S, IDLE_S, REPLY_S, rm3_example_text
+from conftest import IDLE_S, REPLY_S, finished, rm3_example_text, stopped
 from conftest import build_zmq_msgpack_program
 
 from hydrolink.clients.run import run_scene_file
@@ -74,11 +74,6 @@ def scene_text(reference_data: Path, duration: float, controller: str) -> str:
 TOKEN = secrets.token_urlsafe(32)
 
 
-def controller_process(file: Path, server: str, *extra: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "hydrolink.clients.cli", "control", str(file), "--server", server,
-                             "--token", TOKEN, "--join-wait", str(REPLY_S), *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-
-
 def c_controller(tmp_path_factory) -> Path:
     return build_zmq_msgpack_program(EXAMPLES / "c" / "reactive.c", tmp_path_factory.mktemp("cctl") / "reactive",
                                      "-O2", "-Wall", "-Werror", "-ffp-contract=off")
@@ -102,11 +97,7 @@ def run_with(tmp_path: Path, name: str, text: str, server: str, proc_args: list 
                                  control_token=TOKEN)
     finally:
         if proc is not None:
-            try:
-                _, err = proc.communicate(timeout=REPLY_S)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                _, err = proc.communicate()
+            _, err = finished(proc, REPLY_S)
     return xr.load_dataset(tmp_path / f"{name}.nc"), summary, ((proc.returncode, err) if proc else (None, ""))
 
 
@@ -127,11 +118,7 @@ def run_own(tmp_path: Path, name: str, text: str, controller: Path, address: str
         summary = run_scene_file(tmp_path / f"{name}.toml", tmp_path / f"{name}.nc", progress=False, listen=address,
                                  control_token=TOKEN, **{"timeout": 30.0, **kw})
     finally:
-        try:
-            _, err = proc.communicate(timeout=REPLY_S)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            _, err = proc.communicate()
+        _, err = finished(proc, REPLY_S)
     return summary, (proc.returncode, err)
 
 
@@ -226,8 +213,7 @@ def test_c_controller_equals_python_bit_for_bit(reference_data, tmp_path, tmp_pa
         ds_c, _, (rc, err) = run_with(tmp_path, "c", text, address, [str(exe), address, TOKEN])
         assert rc == 0, err
     finally:
-        serve.terminate()
-        serve.wait(EXIT_S)
+        stopped(serve)
     assert json.loads(ds_c.attrs["controller_events"])["ctl"]["ok"] == 300
     for v in ("position", "velocity", "pto_force", "pto_power", "pto_command_force", "excitation_force", "radiation_force"):
         assert np.array_equal(ds_py[v].values, ds_c[v].values), v
@@ -269,11 +255,7 @@ def test_controller_waits_its_join_wait_for_a_server_that_answers_late(reference
         run_scene_file(tmp_path / "late.toml", tmp_path / "late.nc", progress=False, listen=address,
                        control_token=TOKEN, timeout=REPLY_S)
     finally:
-        try:
-            out, err = proc.communicate(timeout=REPLY_S)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            out, err = proc.communicate()
+        out, err = finished(proc, REPLY_S)
     assert proc.returncode == 0, err
     assert "'steps': 50" in out
     ev = json.loads(xr.load_dataset(tmp_path / "late.nc").attrs["controller_events"])["ctl"]
@@ -384,11 +366,7 @@ def test_slow_and_crashed_controller_fall_back_and_reconnect(reference_data, ser
             os.environ.pop(key, None)
         if not marker.exists():   # it never crashed: nothing starts the successor
             successor.kill()
-        try:
-            out, serr = successor.communicate(timeout=EXIT_S)
-        except subprocess.TimeoutExpired:
-            successor.kill()
-            out, serr = successor.communicate()
+        out, serr = finished(successor)
     assert rc == 3, err            # the first controller crashed ...
     assert "the decision for step 20 was already taken" in err   # ... after its late command was refused (error 6)
     assert successor.returncode == 0, serr
