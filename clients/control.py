@@ -220,7 +220,8 @@ def run_controller(controller: Controller, server: str, *, token: str, session: 
     run may start later), and waits as long for the reply to a ``hello`` (plus ``timeout``): a
     server not yet bound, or the run's own server, which answers its socket only once the run's
     set-up is done (SPEC §5.7.1: minutes of model building and compilation on a loaded host), is a
-    session not open yet, not a server gone. ``wait``: how long the server holds a ``measure`` before ``idle``;
+    session not open yet, not a server gone; after the welcome, as long for the first measurements
+    (that server does not turn either while the run's first step compiles). ``wait``: how long the server holds a ``measure`` before ``idle``;
     ``timeout``: extra time for any reply before the server is declared gone; ``curve``: a
     :class:`hydrolink.protocol.security.ClientKeys` for a server that requires CURVE; ``direct``:
     take the server's direct channel when its welcome offers one (SPEC §5.7.5; False: ZeroMQ only)."""
@@ -266,17 +267,21 @@ def run_controller(controller: Controller, server: str, *, token: str, session: 
         gc.freeze()
         cpu0 = time.process_time()
         ident = {"controller": name, "epoch": epoch, "wait": wait}
-        reply = link.request("measure", wait, **ident)
+        # until the first measurements, a measure is waited for the join wait (plus the reply
+        # timeout): the run's own server does not turn while the run's first step compiles
+        first = time.monotonic() + join_wait
+        reply = link.request("measure", max(wait, first - time.monotonic()), **ident)
         while True:
             kind = reply["type"]
             if kind == "measurements":
+                first = -math.inf
                 m = reply["frame"] if "frame" in reply else decode_measurements(reply)
                 commands = controller.on_step(float(reply["time"]), m)
                 stats["steps"] += 1
                 reply = link.command(reply["step"], commands, wait, ident, controller.take_hydro_state())
             elif kind == "idle":
                 stats["idle"] += 1
-                reply = link.request("measure", wait, **ident)
+                reply = link.request("measure", max(wait, first - time.monotonic()), **ident)
             elif kind == "stop":
                 log.info("controller %r: stop (%s)", name, reply.get("reason"))
                 stats["cpu_s"] = time.process_time() - cpu0

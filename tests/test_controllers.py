@@ -262,6 +262,41 @@ def test_controller_waits_its_join_wait_for_a_server_that_answers_late(reference
     assert ev["ok"] == 50 and ev["timeout"] + ev["absent"] + ev["invalid"] == 0, ev
 
 
+def test_controller_waits_its_join_wait_for_the_first_measurements(reference_data, tmp_path):
+    """The run's own server does not turn while the run's first step compiles (numba's cache
+    cold: 14.5 s between steps 0 and 1 at load 2.7, measured, more when loaded), so a joined
+    controller's first measure can go unanswered for longer than its reply timeout: it lost its
+    direct channel, then gave up (rc 1) and the run went on absent. Until its first measurements
+    it now waits for its join wait. Here the run stalls 4 s before its step 1 (its server not
+    turning) and the controller's reply timeout is 0.5 s: it decides every step, on its direct
+    channel."""
+    from hydrolink.server.service import force_server
+
+    (tmp_path / "stall.toml").write_text(scene_text(reference_data, 2.0, controller_block("force", 3.9e5, 1.36e6)))
+    (tmp_path / "join_late.py").write_text(JOIN_LATE)
+    address = free_address()
+    serve_ready, calls = force_server.ForceServer.serve_ready, []
+
+    def stalling(srv):   # before the run's step 1 (its 2nd request with the controller joined): a long compile
+        calls.append(srv)
+        if len(calls) == 2:
+            time.sleep(4.0)
+        return serve_ready(srv)
+    proc = subprocess.Popen([sys.executable, str(tmp_path / "join_late.py"), str(EXAMPLES / "reactive.py"), address,
+                             TOKEN, str(REPLY_S), "0.5"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        force_server.ForceServer.serve_ready = stalling
+        run_scene_file(tmp_path / "stall.toml", tmp_path / "stall.nc", progress=False, listen=address,
+                       control_token=TOKEN, timeout=REPLY_S)
+    finally:
+        force_server.ForceServer.serve_ready = serve_ready
+        out, err = finished(proc, REPLY_S)
+    assert proc.returncode == 0 and "lost" not in err, err
+    assert "'steps': 50" in out and "'direct': True" in out, out
+    ev = json.loads(xr.load_dataset(tmp_path / "stall.nc").attrs["controller_events"])["ctl"]
+    assert ev["ok"] == 50 and ev["timeout"] + ev["absent"] + ev["invalid"] == 0, ev
+
+
 def test_a_controller_that_never_joins_is_reported_naming_the_keys(reference_data, tmp_path, caplog):
     """A run whose controller never joins goes on after its join_timeout on the fallback, and says
     so: the server's warning names the scene key (controllers[0].join_timeout), the run's that the
