@@ -219,8 +219,12 @@ def run_controller(controller: Controller, server: str, *, token: str, session: 
     it, or takes it from ``--control-token``): without it the server refuses the join.
 
     Retries ``hello`` for ``join_wait`` s while no session declares the controller (the multibody
-    run may start later). ``wait``: how long the server holds a ``measure`` before ``idle``;
-    ``timeout``: extra time for any reply before the server is declared gone; ``curve``: a
+    run may start later), and waits as long for the reply to a ``hello`` (plus ``timeout``): a
+    server not yet bound, or the run's own server, which answers its socket only once the run's
+    set-up is done (SPEC §5.7.1: minutes of model building and compilation on a loaded host), is a
+    session not open yet, not a server gone; after the welcome, as long for the first measurements
+    (that server does not turn either while the run's first step compiles). ``wait``: how long the
+    server holds a ``measure`` before ``idle``; ``timeout``: extra time for any reply before the server is declared gone; ``curve``: a
     :class:`hydrolink.protocol.security.ClientKeys` for a server that requires CURVE; ``direct``:
     take the server's direct channel when its welcome offers one (SPEC §5.7.5; False: ZeroMQ only);
     ``rt_priority``: the loop, from the first ``measure`` (after the join and ``on_start``) to
@@ -236,9 +240,14 @@ def run_controller(controller: Controller, server: str, *, token: str, session: 
         while True:
             ask = {} if controller.plant is None else {
                 "plant": {"dt": None if controller.plant == "continuous" else float(controller.plant)}}
-            reply = link.request("hello", role="controller", controller=name, token=token,
-                                 client={"name": f"hydrolink-python-controller {type(controller).__name__}",
-                                         "version": _version()}, **ask, **({"frames": True} if direct else {}))
+            try:
+                reply = link.request("hello", max(0.0, t_end - time.monotonic()), role="controller", controller=name,
+                                     token=token, client={"name": f"hydrolink-python-controller "
+                                                          f"{type(controller).__name__}", "version": _version()},
+                                     **ask, **({"frames": True} if direct else {}))
+            except ControllerError as exc:
+                raise ControllerError(f"{exc}: no session to join within the join wait ({join_wait:g} s; a run's "
+                                      "set-up on a loaded host may need more: --join-wait)") from None
             if reply["type"] == "welcome":
                 break
             if reply.get("code") == codec.Code.UNKNOWN_SESSION and session is None and time.monotonic() < t_end:
@@ -265,17 +274,21 @@ def run_controller(controller: Controller, server: str, *, token: str, session: 
         cpu0 = time.process_time()
         ident = {"controller": name, "epoch": epoch, "wait": wait}
         loop_priority.enter_context(held_priority(rt_priority))
-        reply = link.request("measure", wait, **ident)
+        # until the first measurements, a measure is waited for the join wait (plus the reply
+        # timeout): the run's own server does not turn while the run's first step compiles
+        first = time.monotonic() + join_wait
+        reply = link.request("measure", max(wait, first - time.monotonic()), **ident)
         while True:
             kind = reply["type"]
             if kind == "measurements":
+                first = -math.inf
                 m = reply["frame"] if "frame" in reply else decode_measurements(reply)
                 commands = controller.on_step(float(reply["time"]), m)
                 stats["steps"] += 1
                 reply = link.command(reply["step"], commands, wait, ident, controller.take_hydro_state())
             elif kind == "idle":
                 stats["idle"] += 1
-                reply = link.request("measure", wait, **ident)
+                reply = link.request("measure", max(wait, first - time.monotonic()), **ident)
             elif kind == "stop":
                 log.info("controller %r: stop (%s)", name, reply.get("reason"))
                 stats["cpu_s"] = time.process_time() - cpu0

@@ -195,6 +195,28 @@ def dealer(address: str):
     return sock
 
 
+def finished(proc: subprocess.Popen, timeout: float = EXIT_S) -> tuple:
+    """(stdout, stderr) of a child a test started that ends by itself: waited for ``timeout`` s,
+    then killed; always reaped."""
+    try:
+        return proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        return proc.communicate()
+
+
+def stopped(proc: subprocess.Popen) -> None:
+    """End a child a test started (a server) whatever state the test is in: SIGTERM, EXIT_S s to
+    exit, then SIGKILL; always reaped."""
+    if proc.poll() is None:
+        proc.terminate()
+    try:
+        proc.wait(EXIT_S)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+
+
 @dataclass
 class ControllerExit:
     """How a controller process of :func:`controller_process` ended (set when its block exits)."""
@@ -214,11 +236,7 @@ def controller_process(file: Path, server: str, token: str, *extra: str):
     try:
         yield ended
     finally:
-        try:
-            _, ended.stderr = proc.communicate(timeout=EXIT_S)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            _, ended.stderr = proc.communicate()
+        _, ended.stderr = finished(proc)
         ended.returncode = proc.returncode
 
 
@@ -234,8 +252,7 @@ def serve_process(*args: str, cwd: Path | None = None):
         assert match, f"hydrolink serve printed {line!r}"
         yield match.group(1)
     finally:
-        proc.terminate()
-        proc.wait(EXIT_S)
+        stopped(proc)
 
 
 def cli_here(*args: str, cwd: Path) -> subprocess.CompletedProcess:

@@ -17,7 +17,7 @@ import pytest
 import zmq
 from analytic_hdb import make_body_hdb
 
-from conftest import EXIT_S, body, dealer, linear_pto, regular_waves, scene_toml
+from conftest import body, dealer, linear_pto, regular_waves, scene_toml, stopped
 from hydrolink.clients.lockstep.connection import RemoteError, ServerConnection
 from hydrolink.protocol import codec
 from hydrolink.server.service.force_server import MAX_QUEUED
@@ -403,5 +403,4 @@ def test_a_memory_error_on_the_receive_path_is_an_error_reply_and_serve_goes_on(
     finally:
         if sock is not None:
             sock.close(0)
-        proc.terminate()
-        proc.wait(EXIT_S)
+        stopped(proc)

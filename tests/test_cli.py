@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from conftest import EXIT_S, SPHERE_WATER, cli_here, irregular_waves, scene_toml, serve_process, sphere_body, write_scene
+from conftest import EXIT_S, SPHERE_WATER, cli_here, irregular_waves, scene_toml, serve_process, sphere_body, stopped, write_scene
 
 from hydrolink.clients.run import run_scene_file
 
@@ -58,8 +58,7 @@ def test_remote_server_run_equals_embedded_run(scene_dir: Path):
                       cwd=scene_dir)
         assert result.returncode == 0, result.stderr
     finally:
-        server.terminate()
-        server.wait(EXIT_S)
+        stopped(server)
     a, b = xr.load_dataset(scene_dir / "embedded.nc"), xr.load_dataset(scene_dir / "remote.nc")
     assert a.sizes["time"] == b.sizes["time"] == 241
     for name in ("position", "velocity", "excitation_force", "radiation_force", "hydrostatic_force",

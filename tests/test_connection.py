@@ -16,7 +16,7 @@ import pytest
 import zmq
 
 from analytic_hdb import make_body_hdb
-from conftest import EXIT_S, REPLY_S, body, regular_waves, scene_toml
+from conftest import EXIT_S, REPLY_S, body, regular_waves, scene_toml, stopped
 from hydrolink.clients.lockstep.connection import ServerConnection
 from hydrolink.protocol import codec
 
@@ -29,7 +29,9 @@ SCENE = scene_toml(dt=0.05, duration=100.0, waves=regular_waves(1.0, 6.0), hydro
 def start_server() -> tuple[subprocess.Popen, str]:
     proc = subprocess.Popen([*HYDROLINK, "serve", "--bind", "tcp://127.0.0.1:*"], stderr=subprocess.PIPE, text=True)
     line = proc.stderr.readline()
-    assert "listening on" in line, line
+    if "listening on" not in line:   # not started as expected: ended, not left running
+        stopped(proc)
+        raise AssertionError(f"hydrolink serve printed {line!r}")
     return proc, line.split("listening on ")[1].split()[0]
 
 

@@ -17,6 +17,7 @@ resonance is near 5 s) k > 0 and the optimum is 1.72 x the best passive damper.
 from __future__ import annotations
 
 import json
+import math
 import os
 import secrets
 import subprocess
@@ -30,7 +31,7 @@ import numpy as np
 import pytest
 import xarray as xr
 import zmq
-from conftest import EXIT_S, IDLE_S, REPLY_S, rm3_example_text
+from conftest import IDLE_S, REPLY_S, finished, rm3_example_text, stopped
 from conftest import build_zmq_msgpack_program
 
 from hydrolink.clients.run import run_scene_file
@@ -73,11 +74,6 @@ def scene_text(reference_data: Path, duration: float, controller: str) -> str:
 TOKEN = secrets.token_urlsafe(32)
 
 
-def controller_process(file: Path, server: str, *extra: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "hydrolink.clients.cli", "control", str(file), "--server", server,
-                             "--token", TOKEN, "--join-wait", str(REPLY_S), *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-
-
 def c_controller(tmp_path_factory) -> Path:
     return build_zmq_msgpack_program(EXAMPLES / "c" / "reactive.c", tmp_path_factory.mktemp("cctl") / "reactive",
                                      "-O2", "-Wall", "-Werror", "-ffp-contract=off")
@@ -101,11 +97,7 @@ def run_with(tmp_path: Path, name: str, text: str, server: str, proc_args: list 
                                  control_token=TOKEN)
     finally:
         if proc is not None:
-            try:
-                _, err = proc.communicate(timeout=REPLY_S)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                _, err = proc.communicate()
+            _, err = finished(proc, REPLY_S)
     return xr.load_dataset(tmp_path / f"{name}.nc"), summary, ((proc.returncode, err) if proc else (None, ""))
 
 
@@ -126,11 +118,7 @@ def run_own(tmp_path: Path, name: str, text: str, controller: Path, address: str
         summary = run_scene_file(tmp_path / f"{name}.toml", tmp_path / f"{name}.nc", progress=False, listen=address,
                                  control_token=TOKEN, **{"timeout": 30.0, **kw})
     finally:
-        try:
-            _, err = proc.communicate(timeout=REPLY_S)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            _, err = proc.communicate()
+        _, err = finished(proc, REPLY_S)
     return summary, (proc.returncode, err)
 
 
@@ -225,12 +213,105 @@ def test_c_controller_equals_python_bit_for_bit(reference_data, tmp_path, tmp_pa
         ds_c, _, (rc, err) = run_with(tmp_path, "c", text, address, [str(exe), address, TOKEN])
         assert rc == 0, err
     finally:
-        serve.terminate()
-        serve.wait(EXIT_S)
+        stopped(serve)
     assert json.loads(ds_c.attrs["controller_events"])["ctl"]["ok"] == 300
     for v in ("position", "velocity", "pto_force", "pto_power", "pto_command_force", "excitation_force", "radiation_force"):
         assert np.array_equal(ds_py[v].values, ds_c[v].values), v
     assert np.abs(ds_c["pto_command_force"].values).max() > 1e4
+
+
+# ---------------------------------------------------------------- joining
+
+JOIN_LATE = """
+import sys
+from hydrolink.clients.control import load_controller, run_controller
+print(run_controller(load_controller(sys.argv[1]), sys.argv[2], token=sys.argv[3], join_wait=float(sys.argv[4]),
+                     timeout=float(sys.argv[5])), flush=True)
+"""
+
+
+def test_controller_waits_its_join_wait_for_a_server_that_answers_late(reference_data, tmp_path):
+    """A controller whose hello is not answered within its reply timeout keeps waiting for its join
+    wait: `hydrolink run`'s own server answers its socket only between the run's requests, so a
+    hello waits through the run's set-up (its model, numba's compilation: 385 s at load 9 with a
+    cold cache), and the controller gave up after its reply timeout (30 s) whatever its
+    --join-wait; the run then went on without it (rt5: 5000 fallback decisions). Here the reply
+    timeout is 0.5 s and nothing answers the hello for longer (a listener takes its connection and
+    closes it: the hello stays queued), then the run's own server binds the port: the controller
+    joins and decides every step."""
+    import socket
+
+    (tmp_path / "late.toml").write_text(scene_text(reference_data, 2.0, controller_block("force", 3.9e5, 1.36e6)))
+    (tmp_path / "join_late.py").write_text(JOIN_LATE)
+    listener = socket.create_server(("127.0.0.1", 0))
+    listener.settimeout(REPLY_S)
+    address = f"tcp://127.0.0.1:{listener.getsockname()[1]}"
+    proc = subprocess.Popen([sys.executable, str(tmp_path / "join_late.py"), str(EXAMPLES / "reactive.py"), address,
+                             TOKEN, str(REPLY_S), "0.5"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        with listener:
+            listener.accept()[0].close()   # its hello is on its way: nothing answers it
+        time.sleep(1.5)                    # three reply timeouts pass unanswered (time itself: no event to wait for)
+        run_scene_file(tmp_path / "late.toml", tmp_path / "late.nc", progress=False, listen=address,
+                       control_token=TOKEN, timeout=REPLY_S)
+    finally:
+        out, err = finished(proc, REPLY_S)
+    assert proc.returncode == 0, err
+    assert "'steps': 50" in out
+    ev = json.loads(xr.load_dataset(tmp_path / "late.nc").attrs["controller_events"])["ctl"]
+    assert ev["ok"] == 50 and ev["timeout"] + ev["absent"] + ev["invalid"] == 0, ev
+
+
+def test_controller_waits_its_join_wait_for_the_first_measurements(reference_data, tmp_path):
+    """The run's own server does not turn while the run's first step compiles (numba's cache
+    cold: 14.5 s between steps 0 and 1 at load 2.7, measured, more when loaded), so a joined
+    controller's first measure can go unanswered for longer than its reply timeout: it lost its
+    direct channel, then gave up (rc 1) and the run went on absent. Until its first measurements
+    it now waits for its join wait. Here the run stalls 4 s before its step 1 (its server not
+    turning) and the controller's reply timeout is 0.5 s: it decides every step, on its direct
+    channel."""
+    from hydrolink.server.service import force_server
+
+    (tmp_path / "stall.toml").write_text(scene_text(reference_data, 2.0, controller_block("force", 3.9e5, 1.36e6)))
+    (tmp_path / "join_late.py").write_text(JOIN_LATE)
+    address = free_address()
+    serve_ready, calls = force_server.ForceServer.serve_ready, []
+
+    def stalling(srv):   # before the run's step 1 (its 2nd request with the controller joined): a long compile
+        calls.append(srv)
+        if len(calls) == 2:
+            time.sleep(4.0)
+        return serve_ready(srv)
+    proc = subprocess.Popen([sys.executable, str(tmp_path / "join_late.py"), str(EXAMPLES / "reactive.py"), address,
+                             TOKEN, str(REPLY_S), "0.5"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        force_server.ForceServer.serve_ready = stalling
+        run_scene_file(tmp_path / "stall.toml", tmp_path / "stall.nc", progress=False, listen=address,
+                       control_token=TOKEN, timeout=REPLY_S)
+    finally:
+        force_server.ForceServer.serve_ready = serve_ready
+        out, err = finished(proc, REPLY_S)
+    assert proc.returncode == 0 and "lost" not in err, err
+    assert "'steps': 50" in out and "'direct': True" in out, out
+    ev = json.loads(xr.load_dataset(tmp_path / "stall.nc").attrs["controller_events"])["ctl"]
+    assert ev["ok"] == 50 and ev["timeout"] + ev["absent"] + ev["invalid"] == 0, ev
+
+
+def test_a_controller_that_never_joins_is_reported_naming_the_keys(reference_data, tmp_path, caplog):
+    """A run whose controller never joins goes on after its join_timeout on the fallback, and says
+    so: the server's warning names the scene key (controllers[0].join_timeout), the run's that the
+    controller decided no step and what to check (its join, --join-wait)."""
+    text = scene_text(reference_data, 2.0, controller_block("force", 3.9e5, 1.36e6, join_timeout=0.2))
+    (tmp_path / "alone.toml").write_text(text)
+    with caplog.at_level("WARNING"):
+        run_scene_file(tmp_path / "alone.toml", tmp_path / "alone.nc", progress=False, listen=free_address(),
+                       control_token=TOKEN, timeout=REPLY_S)
+    ev = json.loads(xr.load_dataset(tmp_path / "alone.nc").attrs["controller_events"])["ctl"]
+    assert ev["absent"] == 50 and ev["ok"] == ev["timeout"] == ev["invalid"] == 0
+    said = caplog.text
+    assert "'ctl' did not join within its join_timeout (0.2 s, the scene's controllers[0].join_timeout" in said
+    assert "50 fallback decision(s) (timeout 0, absent 50, invalid 0): it decided no step" in said
+    assert "--join-wait" in said
 
 
 # ---------------------------------------------------------------- timeouts, crashes, reconnects
@@ -239,18 +320,21 @@ SLOW = '''
 import os, time
 from hydrolink.clients.control import Controller
 
+def wait_for(path):   # at most WAIT_S: a test gone wrong fails, it never hangs
+    end = time.monotonic() + float(os.environ["WAIT_S"])
+    while not os.path.exists(path) and time.monotonic() < end:
+        time.sleep(0.002)
+
 class Slow(Controller):
     def on_start(self, info):
         self.c = float(info["parameters"]["damping"])
-        self.calls = 0
 
     def on_step(self, t, m):
-        self.calls += 1
-        if round(t / 0.04) == 20:
-            time.sleep(0.8)            # misses the 0.5 s deadline
-        if self.calls == 200 and os.environ.get("CRASH"):
+        if m["step"] == 20:
+            wait_for(os.environ["RESUME"])   # misses the deadline: back once steps 20-25 were decided without it
+        if m["step"] >= 750 and os.environ.get("CRASH"):   # the first measurements at 30 s or later
             open(os.environ["CRASH"], "w").close()
-            os._exit(3)                # dies without a word
+            os._exit(3)                       # dies without a word
         return {p: self.c * v for p, v in zip(self.ptos, m["pto_velocity"].tolist())}
 
     def on_error(self, error):
@@ -261,8 +345,10 @@ SUCCESSOR = '''
 import os, sys, time
 from hydrolink.clients.control import run_controller, load_controller
 controller = load_controller(sys.argv[2])      # imports done before the crash: rejoins at once
-marker = sys.argv[1]
+marker, end = sys.argv[1], time.monotonic() + float(sys.argv[5])
 while not os.path.exists(marker):
+    if time.monotonic() > end:
+        sys.exit("no crash to take over from")
     time.sleep(0.002)
 print(run_controller(controller, sys.argv[3], token=sys.argv[4], join_wait=5.0), flush=True)
 '''
@@ -270,30 +356,54 @@ print(run_controller(controller, sys.argv[3], token=sys.argv[4], join_wait=5.0),
 
 @pytest.mark.timing
 def test_slow_and_crashed_controller_fall_back_and_reconnect(reference_data, server, tmp_path):
-    """A controller that misses one deadline (sleeps 0.8 s > timeout 0.5 s) and later crashes: the
-    run never hangs; the passive fallback takes over (logged, counted, recorded) and, once a
-    controller is known to be gone, costs no waiting ("absent"); the slow one's late command is
-    refused with error 6 and it carries on; a new process rejoins after the crash and is accepted."""
+    """A controller that misses one deadline and later crashes: the run never hangs; the passive
+    fallback takes over (logged, counted, recorded) and, once a controller is known to be gone,
+    costs no waiting ("absent"); the slow one's late command (step 20) is refused with error 6
+    and it carries on; a new process rejoins after the crash and is accepted.
+
+    Synchronised on the run's decisions, not on wall time: the slow controller sleeps through
+    step 20 until the server has decided it (timeout) and steps 21-25 (absent) without it (the
+    server's decisions watched as they are taken); it crashes at its first measurements at 30 s or
+    later (simulated time: it keeps up from its return, the run waiting for it), whose decision the
+    successor, started beforehand and waiting for the crash, takes over within the 3 s timeout.
+    Before, it slept 0.8 s (timeout 0.5 s) and crashed at its 200th call, which the run, racing on
+    absent decisions while it slept, sometimes ended before: the successor then waited forever."""
+    from hydrolink.server.service import controllers
+
     file = tmp_path / "slow.py"
     file.write_text(SLOW)
-    marker = tmp_path / "crashed"
+    resume, marker = tmp_path / "resume", tmp_path / "crashed"
     succ = tmp_path / "successor.py"
     succ.write_text(SUCCESSOR)
     text = scene_text(reference_data, 60.0, controller_block("force", 1.0e6, 0.0, fallback="passive",
                                                            fallback_damping=7.0e5))
-    text = text.replace("timeout = 10.0", "timeout = 0.5")
-    successor = subprocess.Popen([sys.executable, str(succ), str(marker), str(file), server.address, TOKEN],
-                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    os.environ["CRASH"] = str(marker)
+    text = text.replace("timeout = 10.0", "timeout = 3.0")
+    decide, taken = controllers.ControlHub._decide, {}
+
+    def deciding(hub, slot, k, status):   # the decisions as the server takes them
+        decide(hub, slot, k, status)
+        if slot.decided == k:
+            taken.setdefault(k, status)
+        if k == 25 and [taken.get(j) for j in range(20, 26)] == ["timeout"] + ["absent"] * 5:
+            resume.touch()
+
+    successor = subprocess.Popen([sys.executable, str(succ), str(marker), str(file), server.address, TOKEN,
+                                  str(REPLY_S)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
+        controllers.ControlHub._decide = deciding
+        os.environ.update(CRASH=str(marker), RESUME=str(resume), WAIT_S=str(REPLY_S))
         t0 = time.monotonic()
         ds, summary, (rc, err) = run_with(tmp_path, "slow", text, server.address, python_ctl(file, server.address))
         wall = time.monotonic() - t0
     finally:
-        del os.environ["CRASH"]
-    out, serr = successor.communicate(timeout=EXIT_S)
+        controllers.ControlHub._decide = decide
+        for key in ("CRASH", "RESUME", "WAIT_S"):
+            os.environ.pop(key, None)
+        if not marker.exists():   # it never crashed: nothing starts the successor
+            successor.kill()
+        out, serr = finished(successor)
     assert rc == 3, err            # the first controller crashed ...
-    assert "out_of_order" in err and "late" in err   # ... after its late command for step 20 was refused
+    assert "the decision for step 20 was already taken" in err   # ... after its late command was refused (error 6)
     assert successor.returncode == 0, serr
     status = ds["controller_status"].sel(controller="ctl").values
     ev = json.loads(ds.attrs["controller_events"])["ctl"]
@@ -302,7 +412,7 @@ def test_slow_and_crashed_controller_fall_back_and_reconnect(reference_data, ser
     # the slow step (a loaded machine may add a missed deadline: counted all the same)
     assert timeouts[0] == 21 and len(timeouts) == ev["timeout"] >= 1
     assert np.all(status[22:27] == 2)                  # absent (no waiting) until the slow one is back
-    assert np.any(status[27:] == 0)                    # ... and it is accepted again
+    assert np.any(status[27:751] == 0)                 # ... and it is accepted again before it crashes
     # the successor joined as the first process crashed: it got the newest measurements at once
     assert "'steps': 0" not in out and status[-1] == 0
     assert ev["invalid"] == 0 and ev["ok"] + ev["timeout"] + ev["absent"] == 1500
@@ -310,6 +420,51 @@ def test_slow_and_crashed_controller_fall_back_and_reconnect(reference_data, ser
     damping = ds["pto_damping"].sel(pto="pto").values
     assert damping[21] == 7.0e5 and damping[-1] == 0.0   # passive fallback, then the scene's damping again
     assert ds.attrs["status"] == "complete"
+
+
+def test_a_command_for_a_step_decided_without_it_is_late_however_many_steps_since(reference_data):
+    """SPEC §5.7.4: a command whose step's decision was already taken (its deadline passed: the
+    fallback was used) is error 6 and counted late — also when later steps were decided since (the
+    run races on while the controller is absent). Before, only the newest decided step was
+    remembered: a command for an older one was taken as received, neither refused nor counted.
+    Its return then makes it active: the newest measurements go to it (their decision taken
+    absent: that command is late too) and the next step waits for its command, which decides it."""
+    from hydrolink.protocol.codec import Code, ProtocolError
+    from hydrolink.protocol.scene import parse_scene
+    from hydrolink.server.service.controllers import ControlHub
+
+    text = scene_text(reference_data, 4.0, controller_block("force", 1.0e6, 0.0))
+    sent = []
+    hub = ControlHub(parse_scene(text), text, 1, "s", lambda route, mtype, parent, fields, own=None:
+                     sent.append((mtype, parent, fields)), TOKEN)
+    ident = {"controller": "ctl", "epoch": 1, "wait": 1.0}
+    rng = np.random.default_rng(0)
+
+    def step(seq: int) -> dict | None:   # the multibody's step seq: the measurements of seq - 1 relayed, decided
+        meas = {"step": seq - 1, **{n: rng.standard_normal(shape) for n, shape in hub.mb_shapes}}
+        return hub.after_step(seq, 0, True, meas, {"seq": seq}, ["mb"], f"m{seq}")
+
+    hub.join("ctl")
+    assert hub.after_step(0, 0, True, None, {"seq": 0}, ["mb"], "m0") == {"seq": 0}   # joined: no wait at t = 0
+    assert hub.measure(ident, ["ctl"], "q0", "own") is None   # parked: no measurements yet
+    assert step(1) is None and sent[-1][:2] == ("measurements", "q0") and sent[-1][2]["step"] == 0
+    hub.poll(math.inf)   # the controller sleeps: step 0's deadline passes
+    assert sent[-1][0] == "forces" and sent[-1][2]["control"]["ctl"]["status"] == "timeout"
+    for seq in (2, 3, 4):   # absent: decided at once, no waiting
+        assert step(seq)["control"]["ctl"]["status"] == "absent"
+    for k in (0, 3):        # its command for step 0, then for the newest (3, delivered at its return)
+        with pytest.raises(ProtocolError) as late:
+            hub.command({**ident, "step": k, "commands": {"pto": {"force": 1.0}}}, ["ctl"], f"c{k}", "own")
+        assert (late.value.code, late.value.field) == (Code.OUT_OF_ORDER, "step")
+        assert f"the decision for step {k} was already taken" in late.value.message
+        if k == 0:
+            assert hub.measure(ident, ["ctl"], "q1", "own")[1]["step"] == 3
+    assert hub.summary()["ctl"] == {"ok": 0, "timeout": 1, "absent": 3, "invalid": 0, "late": 2, "joins": 1}
+    assert hub.measure(ident, ["ctl"], "q2", "own") is None   # active again: parked for the next measurements
+    assert step(5) is None and sent[-1][:2] == ("measurements", "q2") and sent[-1][2]["step"] == 4
+    assert hub.command({**ident, "step": 4, "commands": {"pto": {"force": 2.0}}}, ["ctl"], "c4", "own") is None
+    assert sent[-1][0] == "forces" and sent[-1][2]["control"]["ctl"]["commands"] == {"pto": {"force": 2.0}}
+    assert hub.summary()["ctl"]["ok"] == 1 and hub.summary()["ctl"]["late"] == 2
 
 
 # ---------------------------------------------------------------- malformed commands, wrong session/version

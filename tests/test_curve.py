@@ -17,7 +17,7 @@ from hydrolink.clients.lockstep.connection import ServerConnection
 from hydrolink.clients.run import run_scene_file
 from hydrolink.protocol.security import ClientKeys
 
-from conftest import EXIT_S, REPLY_S, cli_here, rm3_example_text
+from conftest import EXIT_S, REPLY_S, cli_here, rm3_example_text, stopped
 
 # One pytest-xdist worker runs this whole module (pyproject: --dist loadgroup): its module fixture (a CURVE
 # server process) costs ~4 s, paid once per worker otherwise.
@@ -59,8 +59,7 @@ def curve_server(tmp_path_factory):
         assert address and "(CURVE" in log.read_text(), log.read_text()
         yield {"address": address, "log": log, "dir": tmp}
     finally:
-        proc.terminate()
-        proc.wait(EXIT_S)
+        stopped(proc)
 
 
 def wait_for_log(log: Path, text: str, timeout: float = 5.0) -> str:

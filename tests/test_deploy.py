@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 import xarray as xr
 
-from conftest import EXIT_S, REPLY_S, rm3_example_text
+from conftest import EXIT_S, REPLY_S, rm3_example_text, stopped
 
 yaml = pytest.importorskip("yaml")
 
@@ -112,9 +112,7 @@ def test_compose_stack_runs_on_loopback(reference_data, tmp_path):
                 conn.ping()
     finally:
         for p in procs:
-            if p.poll() is None:
-                p.terminate()
-                p.wait(EXIT_S)
+            stopped(p)
     ds = xr.load_dataset(scene_dir / "rm3.out.nc")
     assert ds.sizes["time"] == 21
     assert json.loads(ds.attrs["controller_events"])["ctl"]["ok"] == 20

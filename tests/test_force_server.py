@@ -12,7 +12,7 @@ import zmq
 from analytic_hdb import make_body_hdb
 
 from conftest import EXIT_S, IDLE_S, REPLY_S, rm3_short_text
-from conftest import SPHERE_WATER, body, dealer, linear_pto, regular_waves, scene_toml, serve_process
+from conftest import SPHERE_WATER, body, dealer, linear_pto, regular_waves, scene_toml, serve_process, stopped
 
 from hydrolink.clients.lockstep.connection import RemoteError, ServerConnection
 from hydrolink.protocol import codec
@@ -584,8 +584,7 @@ def test_a_frame_over_the_limit_is_refused_before_it_is_buffered(tmp_path):
     finally:
         for sock in socks:
             sock.close(0)
-        proc.terminate()
-        proc.wait(EXIT_S)
+        stopped(proc)
 
 
 def test_a_reply_the_wire_cannot_carry_is_an_error_and_the_server_serves_on():

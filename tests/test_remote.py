@@ -22,7 +22,7 @@ import xarray as xr
 
 import netlab  # tests/netlab.py
 
-from conftest import EXIT_S, REPLY_S, rm3_example_text
+from conftest import EXIT_S, REPLY_S, rm3_example_text, stopped
 
 # One pytest-xdist worker runs this whole module (pyproject: --dist loadgroup): its module fixture (the
 # loopback reference run of three processes) costs ~8 s, paid once per worker otherwise.
@@ -65,15 +65,17 @@ def three_processes(popen, scene: Path, out: Path, bind: str, connect: str | Non
     The controller must have served every step of the run (its own count against the run's), and
     with ``direct`` over the server's direct channel (SPEC §5.7.5, revision 1.16: ``hydrolink serve``
     offers it; on a lossy link its opening may time out, and the controller then stays on ZeroMQ)."""
-    server = popen("server", [*HYDROLINK, "serve", "--bind", bind])
-    address = connect or serve_address(server)
-    token = secrets.token_urlsafe(32)   # the run's join token, handed to its controller (SPEC §5.7.2)
-    ctl = popen("ctl", [*HYDROLINK, "control", str(REACTIVE), "--server", address, "--token", token,
-                        "--join-wait", str(REPLY_S)])   # the run's start-up and set-up took 20-30 s at load 6-12
-    t0 = time.perf_counter()
-    client = popen("client", [*HYDROLINK, "run", str(scene), "-o", str(out), "--server", address, "--no-progress",
-                              "--control-token", token])
+    procs = [popen("server", [*HYDROLINK, "serve", "--bind", bind])]
     try:
+        address = connect or serve_address(procs[0])
+        token = secrets.token_urlsafe(32)   # the run's join token, handed to its controller (SPEC §5.7.2)
+        ctl = popen("ctl", [*HYDROLINK, "control", str(REACTIVE), "--server", address, "--token", token,
+                            "--join-wait", str(REPLY_S)])   # the run's start-up and set-up took 20-30 s at load 6-12
+        procs.append(ctl)
+        t0 = time.perf_counter()
+        client = popen("client", [*HYDROLINK, "run", str(scene), "-o", str(out), "--server", address, "--no-progress",
+                                  "--control-token", token])
+        procs.append(client)
         out, err = client.communicate(timeout=EXIT_S)
         assert client.returncode == 0, err
         wall = time.perf_counter() - t0
@@ -83,10 +85,8 @@ def three_processes(popen, scene: Path, out: Path, bind: str, connect: str | Non
         assert f"controller done: {steps} steps, 0 errors (over {'the direct channel' if direct else ''}" in err, \
             (steps, err)
     finally:
-        for p in (client, ctl, server):
-            if p.poll() is None:
-                p.terminate()
-                p.wait(EXIT_S)
+        for p in reversed(procs):
+            stopped(p)
             for s in (p.stdout, p.stderr):
                 if s is not None:
                     s.close()

@@ -47,9 +47,9 @@ def test_sigkill_loses_at_most_the_flush_interval(tmp_path: Path, reference_data
             time.sleep(0.01)
         proc.send_signal(signal.SIGKILL)
         killed = time.monotonic()
-        proc.wait(EXIT_S)
     finally:
         proc.kill()
+        proc.wait(EXIT_S)
     lost = killed - last_change
     assert lost <= flush_seconds + 0.3, f"{lost:.2f} s of work since the last flush"
     with netCDF4.Dataset(out) as ds:

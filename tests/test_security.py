@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import EXIT_S, REPLY_S, SPHERE_WATER, cli_here, regular_waves, scene_toml, sphere_body, write_scene
+from conftest import REPLY_S, SPHERE_WATER, cli_here, regular_waves, scene_toml, sphere_body, stopped, write_scene
 from hydrolink.clients.lockstep.connection import RemoteError, ServerConnection
 from hydrolink.protocol.security import CurveKeyError, read_hmac_key
 
@@ -46,8 +46,7 @@ def signed_server(tmp_path_factory):
         assert "every message signed" in first, first
         yield first.split("listening on ")[1].split()[0], tmp_path / "shared.key", log
     finally:
-        proc.terminate()
-        proc.wait(EXIT_S)
+        stopped(proc)
 
 
 def test_key_file_is_new_private_and_never_overwritten(tmp_path: Path):

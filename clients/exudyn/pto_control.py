@@ -156,9 +156,12 @@ class PTOControl:
     def finish(self) -> dict:
         s = self.summary()
         self.writer.set_attribute("controller_events", json.dumps(s))
-        for name, ev in s.items():
+        for i, (name, ev) in enumerate(s.items()):
             bad = ev["timeout"] + ev["absent"] + ev["invalid"]
             if bad:
-                log.warning("controller %r: %d fallback decision(s) (timeout %d, absent %d, invalid %d)",
-                            name, bad, ev["timeout"], ev["absent"], ev["invalid"])
+                log.warning("controller %r: %d fallback decision(s) (timeout %d, absent %d, invalid %d)%s",
+                            name, bad, ev["timeout"], ev["absent"], ev["invalid"], "" if ev["ok"] else
+                            f": it decided no step. Did it join? The run waits for it at t = 0 for the scene's "
+                            f"controllers[{i}].join_timeout; `hydrolink control --join-wait` must outlast the run's "
+                            "set-up")
         return s

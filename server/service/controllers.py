@@ -59,7 +59,7 @@ class Slot:
     sample_whole: bool = True      # False: the newest has no wave fields (relayed before the first join)
     relay_time: dict[int, float] = field(default_factory=dict)
     received: dict[int, tuple] = field(default_factory=dict)   # step -> ("ok", commands, latency) | ("invalid", msg)
-    decided: set[int] = field(default_factory=set)
+    decided: int = -1              # newest step decided: every step up to it is (in step order: no rollback)
     counts: dict[str, int] = field(default_factory=lambda: {s: 0 for s in (*STATUSES, "late", "joins")})
 
     @property
@@ -169,7 +169,7 @@ class ControlHub:
             slot.parked = None
             self.send(route, "idle", msg_id, {}, own)
         self._activate(slot)
-        if slot.newest >= 0 and slot.newest not in slot.decided and slot.sample_whole:
+        if slot.newest > slot.decided and slot.sample_whole:
             slot.delivered = min(slot.delivered, slot.newest - 1)   # the newest goes to the new connection
         log.info("session %s: controller %r %s (epoch %d)", self.session_id, name,
                  "rejoined" if rejoined else "joined", slot.epoch)
@@ -247,8 +247,8 @@ class ControlHub:
         if step != slot.delivered:
             raise ProtocolError(Code.OUT_OF_ORDER, "step", f"command for step {step}, but the newest measurements "
                                 f"delivered to {slot.name!r} are of step {slot.delivered}; continue with measure")
-        if step in slot.decided or step in slot.received:
-            if step in slot.decided and step not in slot.received:
+        if step <= slot.decided or step in slot.received:
+            if step <= slot.decided and step not in slot.received:
                 slot.counts["late"] += 1
                 log.warning("session %s: controller %r late for step %d (fallback used)", self.session_id,
                             slot.name, step)
@@ -361,7 +361,7 @@ class ControlHub:
         """The measurements of ``step`` sent to controller ``name`` did not leave (its direct
         channel was gone, SPEC §5.7.5): its next request gets them again while their decision is open."""
         slot = self.slots.get(name)
-        if slot is not None and slot.delivered == step and step not in slot.decided:
+        if slot is not None and slot.delivered == step and step > slot.decided:
             slot.delivered = step - 1
 
     # ------------------------------------------------------------ multibody side
@@ -508,9 +508,9 @@ class ControlHub:
 
     def _decide(self, s: Slot, k: int, status: str) -> None:
         p = self.pending
-        if p is None or k in s.decided:
+        if p is None or k <= s.decided:
             return
-        s.decided = {k}
+        s.decided = k
         s.counts[status] += 1
         d = {"step": k, "status": status, "commands": None, "latency": None,
              "fallback": None if status == "ok" else s.cfg.fallback}
@@ -532,11 +532,13 @@ class ControlHub:
         if "join" in p:
             if any(s.state == "waiting" for s in self.slots.values()) and now < p["join"]:
                 return None
-            for s in self.slots.values():
+            for i, s in enumerate(self.slots.values()):
                 if s.state == "waiting":
                     s.state = "absent"
-                    log.warning("session %s: controller %r did not join within %g s: it starts absent",
-                                self.session_id, s.name, s.cfg.join_timeout)
+                    log.warning("session %s: controller %r did not join within its join_timeout (%g s, the scene's "
+                                "controllers[%d].join_timeout; a longer one waits longer at t = 0): it starts absent, "
+                                "its fallback %r deciding until it joins", self.session_id, s.name,
+                                s.cfg.join_timeout, i, s.cfg.fallback)
             del p["join"]
         seq = p["seq"]
         waiting = False
