@@ -208,6 +208,31 @@ class _Link:
         self.ctx.term()
 
 
+def _join(link: _Link, controller: Controller, name: str | None, token: str, join_wait: float, direct: bool,
+          any_session: bool) -> dict:
+    """The ``welcome`` to the controller's ``hello``, retried for ``join_wait`` s while no session
+    declares it (``any_session``: no session was named); ControllerError otherwise."""
+    t_end = time.monotonic() + join_wait
+    while True:
+        ask = {} if controller.plant is None else {
+            "plant": {"dt": None if controller.plant == "continuous" else float(controller.plant)}}
+        try:
+            reply = link.request("hello", max(0.0, t_end - time.monotonic()), role="controller", controller=name,
+                                 token=token, client={"name": f"hydrolink-python-controller "
+                                                      f"{type(controller).__name__}", "version": _version()},
+                                 **ask, **({"frames": True} if direct else {}))
+        except ControllerError as exc:
+            raise ControllerError(f"{exc}: no session to join within the join wait ({join_wait:g} s; a run's "
+                                  "set-up on a loaded host may need more: --join-wait)") from None
+        if reply["type"] == "welcome":
+            return reply
+        if reply.get("code") == codec.Code.UNKNOWN_SESSION and any_session and time.monotonic() < t_end:
+            time.sleep(0.1)
+            continue
+        raise ControllerError(f"server refused the controller: error {reply.get('code')} {reply.get('name')} "
+                              f"[{reply.get('field')}]: {reply.get('message')}", reply.get("code"), reply.get("field"))
+
+
 def run_controller(controller: Controller, server: str, *, token: str, session: str | None = None,
                    name: str | None = None, key: bytes | None = None, join_wait: float = 30.0, wait: float = 1.0,
                    timeout: float = 30.0, curve=None, direct: bool = True, rt_priority: int | None = None) -> dict:
@@ -224,9 +249,9 @@ def run_controller(controller: Controller, server: str, *, token: str, session: 
     set-up is done (SPEC §5.7.1: minutes of model building and compilation on a loaded host), is a
     session not open yet, not a server gone; after the welcome, as long for the first measurements
     (that server does not turn either while the run's first step compiles). ``wait``: how long the
-    server holds a ``measure`` before ``idle``; ``timeout``: extra time for any reply before the server is declared gone; ``curve``: a
-    :class:`hydrolink.protocol.security.ClientKeys` for a server that requires CURVE; ``direct``:
-    take the server's direct channel when its welcome offers one (SPEC §5.7.5; False: ZeroMQ only);
+    server holds a ``measure`` before ``idle``; ``timeout``: extra time for any reply before the
+    server is declared gone; ``curve``: a :class:`hydrolink.protocol.security.ClientKeys` for a
+    server that requires CURVE; ``direct``: take the server's direct channel when its welcome offers one (SPEC §5.7.5; False: ZeroMQ only);
     ``rt_priority``: the loop, from the first ``measure`` (after the join and ``on_start``) to
     ``stop``, under ``SCHED_FIFO`` at that priority (clients/lockstep/rt_priority.py; the caller
     checks it may be had before the join)."""
@@ -236,25 +261,7 @@ def run_controller(controller: Controller, server: str, *, token: str, session: 
     stats = {"steps": 0, "errors": 0, "idle": 0, "late": 0, "invalid": 0, "cpu_s": math.nan}
     loop_priority = contextlib.ExitStack()   # the loop's real-time priority, given back in ``finally``
     try:
-        t_end = time.monotonic() + join_wait
-        while True:
-            ask = {} if controller.plant is None else {
-                "plant": {"dt": None if controller.plant == "continuous" else float(controller.plant)}}
-            try:
-                reply = link.request("hello", max(0.0, t_end - time.monotonic()), role="controller", controller=name,
-                                     token=token, client={"name": f"hydrolink-python-controller "
-                                                          f"{type(controller).__name__}", "version": _version()},
-                                     **ask, **({"frames": True} if direct else {}))
-            except ControllerError as exc:
-                raise ControllerError(f"{exc}: no session to join within the join wait ({join_wait:g} s; a run's "
-                                      "set-up on a loaded host may need more: --join-wait)") from None
-            if reply["type"] == "welcome":
-                break
-            if reply.get("code") == codec.Code.UNKNOWN_SESSION and session is None and time.monotonic() < t_end:
-                time.sleep(0.1)
-                continue
-            raise ControllerError(f"server refused the controller: error {reply.get('code')} {reply.get('name')} "
-                                  f"[{reply.get('field')}]: {reply.get('message')}", reply.get("code"), reply.get("field"))
+        reply = _join(link, controller, name, token, join_wait, direct, session is None)
         link.session = reply["session"]
         epoch = reply["epoch"]
         if direct:
