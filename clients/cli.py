@@ -92,6 +92,28 @@ def _check_rt_priority(priority: int | None) -> None:
         raise _UserError(str(exc)) from None
 
 
+class Seconds(click.FloatRange):
+    """A duration option: a finite number in (0 or ``minimum``, ``maximum``] of the option's unit
+    (``unit`` seconds: 1e-3 for milliseconds), at most :data:`MAX_SECONDS` in all. NaN, inf and
+    a larger value are refused naming the option, before they reach a socket's timeout (ZeroMQ's
+    are milliseconds in a C int: 24.8 days) or a clock's arithmetic."""
+
+    name = "seconds"
+
+    def __init__(self, *, minimum: float = 0.0, open_minimum: bool = True, unit: float = 1.0):
+        super().__init__(min=minimum, max=MAX_SECONDS / unit, min_open=open_minimum)
+
+    def convert(self, value, param, ctx):
+        number = super().convert(value, param, ctx)
+        if number != number:   # NaN passes FloatRange's comparisons
+            self.fail(f"{value!r} is not a number of seconds", param, ctx)
+        return number
+
+
+#: the longest duration an option may give, s (11.6 days)
+MAX_SECONDS = 1.0e6
+
+
 RT_PRIORITY_HELP = ("Run the loop (not the set-up) under SCHED_FIFO at this real-time priority (1-98, Linux; "
                     "needs CAP_SYS_NICE or `ulimit -r`): woken ahead of the host's other work (docs/realtime.md).")
 
@@ -204,7 +226,8 @@ def _build_plant(scene, hdbs):
 @cli.command()
 @click.option("--bind", default="tcp://127.0.0.1:5555", show_default=True, envvar="HYDROLINK_BIND",
               help="ZeroMQ endpoint to bind (tcp://HOST:PORT or ipc://PATH); env HYDROLINK_BIND.")
-@click.option("--session-timeout", default=300.0, show_default=True, help="Seconds before an idle session is dropped.")
+@click.option("--session-timeout", default=300.0, show_default=True, type=Seconds(),
+              help="Seconds before an idle session is dropped.")
 @click.option("--cpu", type=int, help="Pin the process to this CPU (Linux); see README 'Performance'.")
 @click.option("--curve-secret", type=click.Path(dir_okay=False, path_type=Path), envvar="HYDROLINK_CURVE_SECRET",
               help="Require CURVE (authentication + encryption) with this server .key_secret file; "
@@ -235,7 +258,8 @@ def _build_plant(scene, hdbs):
 @click.option("--max-memory-mib", type=click.IntRange(min=1), default=None,
               help="What the open sessions' models may hold together (MiB; default half the machine's memory): a "
                    "hello whose model would pass it is refused busy (memory), naming the figures.")
-@click.option("--isolate-step-ms", default=ISOLATE_STEP_S * 1e3, show_default=True, type=click.FloatRange(min=0),
+@click.option("--isolate-step-ms", default=ISOLATE_STEP_S * 1e3, show_default=True,
+              type=Seconds(open_minimum=False, unit=1e-3),
               help="A session whose model's step takes longer (timed at set-up) steps in a worker process of its "
                    "own, off the loop that answers the others (0: every session).")
 @click.option("--max-workers", default=MAX_WORKERS, show_default=True, type=click.IntRange(min=1),
@@ -382,9 +406,9 @@ def keys_new(directory: Path, name: str) -> None:
 @click.option("--cpu", type=int, help="Pin the process to this CPU (Linux); see README 'Performance'.")
 @click.option("--listen", default="tcp://127.0.0.1:*", show_default=True,
               help="With [[controllers]] and no --server: where the run's own force server listens.")
-@click.option("--link-timeout", default=10.0, show_default=True, type=click.FloatRange(min=0, min_open=True),
+@click.option("--link-timeout", default=10.0, show_default=True, type=Seconds(),
               help="With --server: seconds the link may stay down (an outage) before the run ends, its rows kept.")
-@click.option("--reply-timeout", default=60.0, show_default=True, type=click.FloatRange(min=0, min_open=True),
+@click.option("--reply-timeout", default=60.0, show_default=True, type=Seconds(),
               envvar="HYDROLINK_REPLY_TIMEOUT",
               help="Seconds to wait for each reply of the server, a hello's set-up included (a big scene on a "
                    "busy shared server may need more; also $HYDROLINK_REPLY_TIMEOUT).")
@@ -474,7 +498,8 @@ def run(scene: Path, output: Path | None, server: str | None, no_progress: bool,
                                 "controller).")
 @click.option("--name", help="The scene's controllers[i].name (default: the class's name attribute).")
 @click.option("--class", "class_name", help="Controller class in FILE, when it defines several.")
-@click.option("--join-wait", default=30.0, show_default=True, help="Seconds to keep trying to join.")
+@click.option("--join-wait", default=30.0, show_default=True, type=Seconds(open_minimum=False),
+              help="Seconds to keep trying to join.")
 @click.option("--no-direct", is_flag=True, help="Stay on ZeroMQ even when the server offers its direct channel "
                                                  "(SPEC §5.7.5: a plain socket, a faster round trip at 1 kHz).")
 @click.option("--rt-priority", type=int, metavar="N", help=RT_PRIORITY_HELP)

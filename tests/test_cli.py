@@ -421,3 +421,21 @@ def test_a_run_imports_only_what_it_runs_with(scene_dir: Path):
                                         "prog_name='hydrolink', standalone_mode=False)")
     assert (scene_dir / "short.nc").is_file()
     assert _loaded(modules, NOT_IN_A_RUN) == []
+
+
+@pytest.mark.parametrize("command,option", [
+    (["serve"], "--session-timeout"), (["serve"], "--isolate-step-ms"),
+    (["run", "scene.toml", "--server", "tcp://127.0.0.1:9"], "--link-timeout"),
+    (["run", "scene.toml", "--server", "tcp://127.0.0.1:9"], "--reply-timeout"),
+    (["control", "c.py", "--server", "tcp://127.0.0.1:9", "--token", "t" * 32], "--join-wait")])
+@pytest.mark.parametrize("value", ["nan", "inf", "-inf", "1e300", "-1", "2e9"])
+def test_a_duration_option_out_of_range_is_refused_naming_it(command, option, value):
+    """NaN, infinities, negatives and durations past 1e6 s (a ZeroMQ timeout is an int of ms: 1e300 s
+    and inf ended `run --link-timeout` and `control --join-wait` in a traceback) are refused by the
+    option parser, naming the option, before anything starts."""
+    from click.testing import CliRunner
+    from hydrolink.clients.cli import cli
+
+    r = CliRunner().invoke(cli, [*command, f"{option}={value}"])
+    assert r.exit_code == 2 and f"Invalid value for '{option}'" in r.output, r.output
+    assert r.exception is None or isinstance(r.exception, SystemExit)
