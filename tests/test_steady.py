@@ -198,6 +198,21 @@ def test_cli_one_period_in_the_run_layout(rm3, reference_data, tmp_path):
                                rtol=1e-9, atol=1e-6 * np.abs(zz @ c_hs.T).max())
 
 
+@pytest.mark.parametrize("dt,why", [("nan", "in (0, the wave period"), ("inf", "in (0, the wave period"),
+                                     ("1e300", "in (0, the wave period"), ("1e-300", "a longer --dt")])
+def test_cli_sampling_out_of_range_is_refused_before_the_solve(reference_data, tmp_path, dt, why):
+    """``--dt`` not in (0, the period] (nan and 1e-300 ended in a traceback; inf and 1e300 wrote a file of
+    no row) or too fine to hold in memory: one line naming --dt, nothing written."""
+    from click.testing import CliRunner
+
+    from hydrolink.clients.cli import cli
+    scene = tmp_path / "rm3.toml"
+    scene.write_text(scene_text("full", reference_data / "rm3_wamit" / "rm3.1"))
+    res = CliRunner().invoke(cli, ["steady", str(scene), "-o", str(tmp_path / "s.nc"), "--dt", dt, "--no-progress"])
+    assert res.exit_code == 1 and "--dt" in res.output and why in res.output, res.output
+    assert isinstance(res.exception, SystemExit) and not (tmp_path / "s.nc").exists()
+
+
 def test_refuses_irregular_waves(reference_data, tmp_path):
     from hydrolink.clients.analysis.steady import SteadyError, steady_scene_file
     scene = tmp_path / "rm3.toml"

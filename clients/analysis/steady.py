@@ -672,6 +672,22 @@ def hydro_model(scene: Scene, hdbs: dict):
     return HydroModel(light, {b.name: hdbs[b.hdb] for b in scene.bodies if b.wet}, compiled=False)
 
 
+def _results_dt(scene: Scene, dt: float | None) -> float:
+    """The results' sampling: ``dt`` (``--dt``), else the scene's ``simulation.dt``; SteadyError
+    naming ``--dt`` where it is not a number of seconds in (0, the wave period], ModelError where the
+    period's rows would not fit in memory — before anything is loaded or solved."""
+    from hydrolink.server.allocation import require_size
+
+    if dt is None:
+        return scene.simulation.dt
+    period = scene.waves.period
+    if not (math.isfinite(dt) and 0 < dt <= period):
+        raise SteadyError("--dt", f"{dt!r}: the sampling must be a number of seconds in (0, the wave period "
+                                  f"{period:g} s]")
+    require_size("--dt", "the period's rows", (period / dt, 6 * len(scene.bodies)), hint="a longer --dt")
+    return float(dt)
+
+
 def steady_scene_file(scene_path: str | Path, output: str | Path | None = None, *, order: int | None = None,
                       formulation: str | None = None, dt: float | None = None, progress: bool = True,
                       hdbs: dict | None = None) -> dict:
@@ -683,6 +699,7 @@ def steady_scene_file(scene_path: str | Path, output: str | Path | None = None, 
     scene_path = Path(scene_path)
     scene, text = load_scene(scene_path)
     check_scene(scene)
+    dt = _results_dt(scene, dt)
     if hdbs is None:
         hdbs = load_scene_hdbs(scene, scene_path, progress=progress)
     wall0 = _time.perf_counter()
@@ -694,7 +711,7 @@ def steady_scene_file(scene_path: str | Path, output: str | Path | None = None, 
     sol = solve(lin, order, formulation, tolerance=scene.steady.tolerance,
                 max_iterations=scene.steady.max_iterations)
     output = Path(output) if output else scene_path.with_suffix(".steady.nc")
-    rows = write_results(output, sol, scene, text, setup, dt or scene.simulation.dt)
+    rows = write_results(output, sol, scene, text, setup, dt)
     return {"output": str(output), "order": order, "formulation": formulation, "rows": rows,
             "iterations": sol.iterations, "residual": sol.residual, "unknowns": sol.unknowns,
             "setup_seconds": lin.setup_seconds, "solve_seconds": sol.solve_seconds,
