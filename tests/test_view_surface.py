@@ -95,3 +95,13 @@ def test_a_steady_file_has_the_wave_after_its_ramp(tmp_path):
     k = (2 * np.pi / 5.0) ** 2 / 9.81
     for tk, pts in read_series(tmp_path / "view" / "free_surface.vtkhdf"):
         np.testing.assert_allclose(pts[:, 2], 0.5 * np.cos(k * pts[:, 0] - 2 * np.pi / 5.0 * tk), atol=1e-9)
+
+
+@pytest.mark.parametrize("extent", [(0, float("inf"), 0, 1), (0, 1e300, -1e300, 1), (0, float("nan"), 0, 1),
+                                    (5, 5, 0, 1), (0, 1, 2, -2)])
+def test_a_grid_extent_not_a_box_of_finite_metres_is_refused_naming_it(extent):
+    """--grid-extent with an infinite, NaN, astronomical or empty side (inf and 1e300 were taken: the
+    cylinder's view wrote its 6001 frames on such a grid) is an error naming the option, before any
+    file is read."""
+    with pytest.raises(ViewError, match=r"--grid-extent: .*x0 < x1 and y0 < y1"):
+        ViewOptions(extent=extent)

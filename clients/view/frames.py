@@ -23,6 +23,10 @@ PARTS = ("bodies", "surface", "moorings", "markers")
 DEFAULT_CELLS = (100, 100)
 
 
+#: how far from the origin a free-surface grid may reach, m
+MAX_EXTENT = 1.0e6
+
+
 @dataclass(frozen=True)
 class ViewOptions:
     """What to draw: rows with ``start`` <= t <= ``end``, every ``stride``-th; the free-surface
@@ -41,6 +45,11 @@ class ViewOptions:
         if bad or not self.parts:
             raise ViewError("", "--parts", f"unknown part(s) {bad}: choose from {list(PARTS)}" if bad
                             else f"at least one of {list(PARTS)}")
+        if self.extent is not None:
+            x0, x1, y0, y1 = self.extent
+            if not (all(abs(v) <= MAX_EXTENT for v in self.extent) and x0 < x1 and y0 < y1):   # also NaN
+                raise ViewError("", "--grid-extent", f"{list(self.extent)}: x0 < x1 and y0 < y1, metres within "
+                                f"±{MAX_EXTENT:g} of the origin")
 
 
 @dataclass
