@@ -134,6 +134,21 @@ def test_time_simulation_against_hydrolink_run(rm3, reference_data, tmp_path):
     assert np.all(err < 5e-3) and err_v < 5e-3
 
 
+@pytest.mark.parametrize("dt,why", [("nan", "finite"), ("1e-300", "greater than or equal to 1e-06"),
+                                     ("1e300", "less than or equal to 3600")])
+def test_a_sampling_time_outside_a_time_steps_bounds_is_refused_before_the_build(reference_data, tmp_path, dt, why):
+    """--dt as a scene's time step (1 µs to 1 h): 1e-300 made a zero-order hold whose A is the identity
+    to the last bit and was written as a plant; NaN and 1e300 are refused too, naming --dt, nothing written."""
+    from click.testing import CliRunner
+
+    from hydrolink.clients.cli import cli
+    (tmp_path / "rm3.toml").write_text(scene_text("full", reference_data / "rm3_wamit" / "rm3.1"))
+    res = CliRunner().invoke(cli, ["linearize", str(tmp_path / "rm3.toml"), "-o", str(tmp_path / "p.npz"),
+                                   "--no-progress", "--dt", dt])
+    assert res.exit_code == 1 and "--dt" in res.output and why in res.output, res.output
+    assert not (tmp_path / "p.npz").exists()
+
+
 def test_files_and_discretisation(rm3, reference_data, tmp_path):
     """.npz/.mat/.nc hold the same matrices and names; --dt gives the zero-order hold: the discrete
     plant's step response equals the continuous one at the samples (scipy.signal.lsim of a step)."""

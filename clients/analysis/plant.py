@@ -34,7 +34,6 @@ warning naming the key.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -94,9 +93,8 @@ class Plant:
 
         if self.dt is not None:
             raise ValueError("the plant is already discrete")
-        if not (math.isfinite(dt) and dt > 0):
-            raise PlantError("--dt", f"{dt!r}: the sampling time must be a positive number of seconds")
-        a, b, c, d, _ = cont2discrete((self.A, self.B, self.C, self.D), float(dt), method="zoh")
+        dt = sampling_time(dt)
+        a, b, c, d, _ = cont2discrete((self.A, self.B, self.C, self.D), dt, method="zoh")
         return replace(self, A=a, B=b, C=c, D=d, dt=float(dt))
 
     def frequency_response(self, omega: np.ndarray) -> np.ndarray:
@@ -303,6 +301,19 @@ def build_plant(scene: Scene, hdbs: dict) -> Plant:
                  equilibrium=z0, warnings=tuple(warnings), radiation_fit_error=fit_error)
 
 
+def sampling_time(dt: float) -> float:
+    """``dt`` as a discrete plant's sampling time: PlantError naming ``--dt`` outside a scene's time
+    step's bounds (1 µs to 1 h: far below them the zero-order hold's A is I to the last bit)."""
+    from pydantic import TypeAdapter, ValidationError
+
+    from hydrolink.protocol.scene_bounds import TimeStep
+    try:
+        return float(TypeAdapter(TimeStep).validate_python(dt))
+    except ValidationError as exc:
+        raise PlantError("--dt", f"{dt!r}: the sampling time must be a time step from 1 µs to 1 h "
+                                 f"({exc.errors()[0]['msg']})") from None
+
+
 def linearize_scene(scene_path: str | Path, *, dt: float | None = None, progress: bool = True,
                     hdbs: dict | None = None) -> Plant:
     """Load the scene and its HDBs and build its plant, discretised at ``dt`` when given."""
@@ -312,6 +323,8 @@ def linearize_scene(scene_path: str | Path, *, dt: float | None = None, progress
     scene_path = Path(scene_path)
     scene, _ = load_scene(scene_path)
     check_plant_scene(scene)
+    if dt is not None:
+        sampling_time(dt)     # before the HDBs are loaded and the plant built
     if hdbs is None:
         hdbs = load_scene_hdbs(scene, scene_path, progress=progress)
     plant = build_plant(scene, hdbs)
