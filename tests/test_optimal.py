@@ -279,3 +279,27 @@ def test_a_run_with_a_force_limit_carries_its_metrics(reference_data, tmp_path):
     (use,) = summary.metrics.limits
     assert use.label == "damper.force" and use.violations == 0
     assert use.utilisation == pytest.approx(0.5, rel=0.06)
+
+
+@pytest.mark.parametrize("dt,rows,why", [("0.1", 80, ""), ("100", 0, "longer than the period"),
+                                         ("1e-300", 0, "greater than or equal to 1e-06"), ("nan", 0, "finite")])
+def test_cli_writes_one_period_every_dt_or_refuses_it(reference_data, tmp_path, dt, rows, why):
+    """``hydrolink optimize --dt``: one period of the wave (T = 8 s) every dt, the sampled power's mean
+    the optimum's (the rectangle rule on 80 points is exact for the power's harmonics, up to 8);
+    a --dt that is not a time step (nan and 1e-300 ended in a traceback) or exceeds the period: one
+    line naming --dt, nothing written."""
+    import xarray as xr
+    from click.testing import CliRunner
+
+    from hydrolink.clients.cli import cli
+    scene = tmp_path / "rm3.toml"
+    scene.write_text(scene_text("full", reference_data / "rm3_wamit" / "rm3.1") + "\n[optimize]\norder = 4\n")
+    res = CliRunner().invoke(cli, ["optimize", str(scene), "-o", str(tmp_path / "o.nc"), "--dt", dt, "--no-progress"])
+    if not rows:
+        assert res.exit_code == 1 and "--dt" in res.output and why in res.output, res.output
+        assert not (tmp_path / "o.nc").exists()
+        return
+    assert res.exit_code == 0, res.output
+    ds = xr.load_dataset(tmp_path / "o.nc")
+    assert ds.sizes["time"] == rows and np.allclose(np.diff(ds["time"].values), 0.1)
+    assert float(ds["total_pto_power"].mean()) == pytest.approx(float(ds.attrs["optimize_power"]), rel=1e-6)

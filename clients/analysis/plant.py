@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hydrolink.clients.analysis.steady import SteadyError
+from hydrolink.clients.analysis.steady import SteadyError, sampling_time
 from hydrolink.protocol.capabilities import refuse_unsupported
 from hydrolink.protocol.scene import DOF_NAMES, MoorDynMooring, RopeMooring, Scene
 
@@ -299,19 +299,6 @@ def build_plant(scene: Scene, hdbs: dict) -> Plant:
     fit_error = float(report.max_fit_error) if report is not None else 0.0
     return Plant(A, B, C, np.zeros((C.shape[0], B.shape[1])), states, inputs, tuple(outputs),
                  equilibrium=z0, warnings=tuple(warnings), radiation_fit_error=fit_error)
-
-
-def sampling_time(dt: float) -> float:
-    """``dt`` as a discrete plant's sampling time: PlantError naming ``--dt`` outside a scene's time
-    step's bounds (1 µs to 1 h: far below them the zero-order hold's A is I to the last bit)."""
-    from pydantic import TypeAdapter, ValidationError
-
-    from hydrolink.protocol.scene_bounds import TimeStep
-    try:
-        return float(TypeAdapter(TimeStep).validate_python(dt))
-    except ValidationError as exc:
-        raise PlantError("--dt", f"{dt!r}: the sampling time must be a time step from 1 µs to 1 h "
-                                 f"({exc.errors()[0]['msg']})") from None
 
 
 def linearize_scene(scene_path: str | Path, *, dt: float | None = None, progress: bool = True,

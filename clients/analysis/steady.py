@@ -633,7 +633,7 @@ def write_results(path: str | Path, sol: SteadySolution, scene: Scene, scene_tex
 
     s = sol.system
     period = 2 * np.pi / s.omega
-    times = np.arange(int(math.ceil(period / dt - 1e-9))) * dt
+    times = period_times(period, dt, 6 * len(s.body_names))
     data = sample(sol, times)
     with ResultWriter(path, scene=scene, scene_text=scene_text, setup=setup, dt=dt,
                       bodies=s.body_names, equilibrium_position=s.reference) as writer:
@@ -672,20 +672,30 @@ def hydro_model(scene: Scene, hdbs: dict):
     return HydroModel(light, {b.name: hdbs[b.hdb] for b in scene.bodies if b.wet}, compiled=False)
 
 
-def _results_dt(scene: Scene, dt: float | None) -> float:
-    """The results' sampling: ``dt`` (``--dt``), else the scene's ``simulation.dt``; SteadyError
-    naming ``--dt`` where it is not a number of seconds in (0, the wave period], ModelError where the
-    period's rows would not fit in memory — before anything is loaded or solved."""
+def sampling_time(dt: float) -> float:
+    """``dt`` (``--dt``) as the sampling of a results file or a discrete plant: a scene's time step
+    (1 µs to 1 h; far below it a zero-order hold's A is I to the last bit); SteadyError naming
+    ``--dt`` outside it."""
+    from pydantic import TypeAdapter, ValidationError
+
+    from hydrolink.protocol.scene_bounds import TimeStep
+    try:
+        return float(TypeAdapter(TimeStep).validate_python(dt))
+    except ValidationError as exc:
+        raise SteadyError("--dt", f"{dt!r}: the sampling time must be a time step from 1 µs to 1 h "
+                                  f"({exc.errors()[0]['msg']})") from None
+
+
+def period_times(period: float, dt: float, columns: int) -> np.ndarray:
+    """The times of one period [0, ``period``) every ``dt`` (a results file of ``columns`` values a
+    row): SteadyError naming ``--dt`` when it is longer than the period, ModelError when the rows
+    would not fit in memory (allocation.require_size)."""
     from hydrolink.server.allocation import require_size
 
-    if dt is None:
-        return scene.simulation.dt
-    period = scene.waves.period
-    if not (math.isfinite(dt) and 0 < dt <= period):
-        raise SteadyError("--dt", f"{dt!r}: the sampling must be a number of seconds in (0, the wave period "
-                                  f"{period:g} s]")
-    require_size("--dt", "the period's rows", (period / dt, 6 * len(scene.bodies)), hint="a longer --dt")
-    return float(dt)
+    if not dt <= period:
+        raise SteadyError("--dt", f"{dt!r} s: longer than the period ({period:.6g} s) it samples")
+    require_size("--dt", "the period's rows", (period / dt, columns), hint="a longer --dt")
+    return np.arange(int(math.ceil(period / dt - 1e-9))) * dt
 
 
 def steady_scene_file(scene_path: str | Path, output: str | Path | None = None, *, order: int | None = None,
@@ -699,7 +709,7 @@ def steady_scene_file(scene_path: str | Path, output: str | Path | None = None, 
     scene_path = Path(scene_path)
     scene, text = load_scene(scene_path)
     check_scene(scene)
-    dt = _results_dt(scene, dt)
+    dt = scene.simulation.dt if dt is None else sampling_time(dt)
     if hdbs is None:
         hdbs = load_scene_hdbs(scene, scene_path, progress=progress)
     wall0 = _time.perf_counter()

@@ -16,6 +16,7 @@ import numpy as np
 from hydrolink.clients.analysis.optimal.metrics import RunMetrics, run_metrics, scene_limits
 from hydrolink.clients.analysis.optimal.problem import OptimalProblem, build_problem
 from hydrolink.clients.analysis.optimal.solver import OptimalSolution, solve_optimal
+from hydrolink.clients.analysis.steady import period_times, sampling_time
 from hydrolink.protocol.scene import DOF_NAMES, Scene
 
 
@@ -90,7 +91,7 @@ def results_dataset(prob: OptimalProblem, sol: OptimalSolution, scene_text: str,
     from hydrolink.clients.lockstep.results import package_versions
 
     period = 2 * math.pi / prob.omega0
-    times = np.arange(int(math.ceil(period / dt - 1e-9))) * dt
+    times = period_times(period, dt, 6 * len(prob.system.body_names))
     opt, free = trajectories(prob, sol.u, times), trajectories(prob, sol.unconstrained_u, times)
     s = prob.system
     units = {"position": "m, rad", "velocity": "m/s, rad/s", "pto_force": "N (linear); N m (rotary axis)",
@@ -129,11 +130,12 @@ def optimize_scene_file(scene_path: str | Path, output: str | Path | None = None
 
     scene_path = Path(scene_path)
     scene, text = load_scene(scene_path)
+    dt = scene.simulation.dt if dt is None else sampling_time(dt)
     if hdbs is None:
         hdbs = load_scene_hdbs(scene, scene_path, progress=progress)
     wall0 = _time.perf_counter()
     prob, sol, _ = optimize_scene(scene, hdbs)
-    ds = results_dataset(prob, sol, text, dt or scene.simulation.dt)
+    ds = results_dataset(prob, sol, text, dt)
     metrics = run_metrics(ds, scene_limits(scene), efficiency=scene.optimize.efficiency)
     ds.attrs.update(metrics.attributes())
     output = Path(output) if output else scene_path.with_suffix(".optimal.nc")
