@@ -92,9 +92,13 @@ def _check_rt_priority(priority: int | None) -> None:
         raise _UserError(str(exc)) from None
 
 
+#: the longest duration an option may give, s (11.6 days)
+MAX_SECONDS = 1.0e6
+
+
 class Seconds(click.FloatRange):
-    """A duration option: a finite number in (0 or ``minimum``, ``maximum``] of the option's unit
-    (``unit`` seconds: 1e-3 for milliseconds), at most :data:`MAX_SECONDS` in all. NaN, inf and
+    """A duration option: a finite number of the option's unit (``unit`` seconds: 1e-3 for
+    milliseconds) from ``minimum`` (excluded when ``open_minimum``) to :data:`MAX_SECONDS`. NaN, inf and
     a larger value are refused naming the option, before they reach a socket's timeout (ZeroMQ's
     are milliseconds in a C int: 24.8 days) or a clock's arithmetic."""
 
@@ -108,10 +112,6 @@ class Seconds(click.FloatRange):
         if number != number:   # NaN passes FloatRange's comparisons
             self.fail(f"{value!r} is not a number of seconds", param, ctx)
         return number
-
-
-#: the longest duration an option may give, s (11.6 days)
-MAX_SECONDS = 1.0e6
 
 
 RT_PRIORITY_HELP = ("Run the loop (not the set-up) under SCHED_FIFO at this real-time priority (1-98, Linux; "

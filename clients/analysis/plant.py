@@ -95,7 +95,7 @@ class Plant:
             raise ValueError("the plant is already discrete")
         dt = sampling_time(dt)
         a, b, c, d, _ = cont2discrete((self.A, self.B, self.C, self.D), dt, method="zoh")
-        return replace(self, A=a, B=b, C=c, D=d, dt=float(dt))
+        return replace(self, A=a, B=b, C=c, D=d, dt=dt)
 
     def frequency_response(self, omega: np.ndarray) -> np.ndarray:
         """H(i omega) (n_omega, n_outputs, n_inputs) of the continuous plant, e^{+i omega t} convention

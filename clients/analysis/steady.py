@@ -693,7 +693,8 @@ def period_times(period: float, dt: float, columns: int) -> np.ndarray:
     from hydrolink.server.allocation import require_size
 
     if not dt <= period:
-        raise SteadyError("--dt", f"{dt!r} s: longer than the period ({period:.6g} s) it samples")
+        raise SteadyError("--dt", f"{dt!r} s (--dt, else the scene's simulation.dt): longer than the period "
+                                  f"({period:.6g} s) it samples")
     require_size("--dt", "the period's rows", (period / dt, columns), hint="a longer --dt")
     return np.arange(int(math.ceil(period / dt - 1e-9))) * dt
 
